@@ -1,0 +1,26 @@
+# Every dependency is a Debian package found with find_package; nothing is vendored or downloaded.
+# The same list (minus test-only packages) is replayed by KelvinConfig.cmake for out-of-tree plugins.
+find_package(Threads REQUIRED)
+find_package(glm CONFIG REQUIRED)             # libglm-dev: vectors, matrices, transforms
+find_package(fmt CONFIG REQUIRED)             # libfmt-dev: formatting of messages and reports
+find_package(pugixml CONFIG REQUIRED)         # libpugixml-dev: XML scenes
+find_package(TBB CONFIG REQUIRED)             # libtbb-dev: parallel loops
+find_package(embree 3 CONFIG REQUIRED)        # libembree-dev: ray and closest-point queries
+find_package(OpenEXR 3 CONFIG REQUIRED)       # libopenexr-dev: EXR with named channels
+find_package(OpenImageIO CONFIG REQUIRED)     # libopenimageio-dev: PNG/JPEG/HDR, textures
+find_package(TinyGLTF CONFIG REQUIRED)        # libtinygltf-dev: glTF 2.0 meshes
+find_package(Eigen3 3.3 CONFIG REQUIRED)      # libeigen3-dev: linear algebra (H2MC, solvers)
+find_package(CLI11 CONFIG REQUIRED)           # libcli11-dev: command line
+# Debian ships OpenVDB's Find modules in its cmake directory rather than a config package.
+list(APPEND CMAKE_MODULE_PATH "/usr/lib/${CMAKE_LIBRARY_ARCHITECTURE}/cmake/OpenVDB"
+                              "/usr/lib/cmake/OpenVDB")
+find_package(OpenVDB REQUIRED)                # libopenvdb-dev: volume fields, level-set obstacles
+# pcg-cpp (libpcg-cpp-dev) is header-only and ships no CMake package.
+find_path(PCG_INCLUDE_DIR pcg_random.hpp REQUIRED)
+
+# Debian 12's OpenImageIO package config lists /usr/include/opencv4 as an include directory although
+# OpenImageIO's headers never include OpenCV (Kelvin does not use OpenCV either). Drop the dangling path
+# instead of pulling in libopencv-dev.
+get_target_property(_kelvin_oiio_inc OpenImageIO::OpenImageIO INTERFACE_INCLUDE_DIRECTORIES)
+list(FILTER _kelvin_oiio_inc EXCLUDE REGEX "opencv")
+set_target_properties(OpenImageIO::OpenImageIO PROPERTIES INTERFACE_INCLUDE_DIRECTORIES "${_kelvin_oiio_inc}")

@@ -1,0 +1,62 @@
+#pragma once
+// Images: a float bitmap with named channels ("R", "G", "B", and any extra AOV such as "stage.first"),
+// written and read by extension:
+//   .exr            OpenEXR, 32-bit float, every channel by name (extra channels kept)
+//   .png .jpg .jpeg OpenImageIO, 8-bit sRGB of R,G,B after exposure (2^exposure) and clamping
+//   .hdr .pfm .tif  OpenImageIO, float R,G,B (linear)
+#include <kelvin/core/math.h>
+
+#include <filesystem>
+#include <string>
+#include <vector>
+
+namespace kelvin {
+
+class Bitmap {
+public:
+    Bitmap() = default;
+    Bitmap(int width, int height, std::vector<std::string> channels);
+    /// An RGB image.
+    Bitmap(int width, int height) : Bitmap(width, height, {"R", "G", "B"}) {}
+
+    int width() const { return m_width; }
+    int height() const { return m_height; }
+    int channel_count() const { return int(m_channels.size()); }
+    const std::vector<std::string>& channels() const { return m_channels; }
+    /// Index of a channel by name, or -1.
+    int channel_index(const std::string& name) const;
+    /// Append a channel (zero-filled) and return its index.
+    int add_channel(const std::string& name);
+
+    float& at(int x, int y, int c) { return m_data[(size_t(y) * m_width + x) * m_channels.size() + c]; }
+    float at(int x, int y, int c) const { return m_data[(size_t(y) * m_width + x) * m_channels.size() + c]; }
+    /// R,G,B of a pixel (requires channels 0..2 to be colour).
+    Color3 rgb(int x, int y) const { return {at(x, y, 0), at(x, y, 1), at(x, y, 2)}; }
+    void set_rgb(int x, int y, const Color3& c);
+    float* data() { return m_data.data(); }
+    const float* data() const { return m_data.data(); }
+    std::size_t size() const { return m_data.size(); }
+    bool empty() const { return m_data.empty(); }
+
+private:
+    int m_width = 0, m_height = 0;
+    std::vector<std::string> m_channels;
+    std::vector<float> m_data;  // interleaved, row-major, top row first
+};
+
+struct ImageWriteOptions {
+    double exposure = 0;  ///< LDR formats: multiply by 2^exposure before the sRGB curve
+};
+
+/// True if `path`'s extension is one write_image supports.
+bool is_supported_image_extension(const std::filesystem::path& path);
+/// Write by extension. Throws RuntimeError on I/O failure, InputError on an unsupported extension.
+void write_image(const std::filesystem::path& path, const Bitmap& image, const ImageWriteOptions& opts = {});
+/// Read by extension (EXR keeps every channel; others give R,G,B[,A] linearised from sRGB for 8-bit).
+Bitmap read_image(const std::filesystem::path& path);
+
+/// sRGB transfer function (linear -> display) and its inverse.
+double linear_to_srgb(double v);
+double srgb_to_linear(double v);
+
+}  // namespace kelvin

@@ -1,0 +1,81 @@
+#pragma once
+// Mitsuba-style XML scenes. Parsing is split in two stages so that each can be used (and fuzzed) alone:
+//   1. parse_scene_file/parse_scene_string: XML -> SceneNode tree. Resolves <default>, $name substitution,
+//      -D defines, <include>, <ref> ids, <transform> operations and typed values. No plugin is created.
+//   2. instantiate: SceneNode tree -> objects, bottom-up, through the Registry. Objects declared once with
+//      id= and referenced several times are created once and shared.
+// Every error is an InputError carrying file:line:column.
+#include <kelvin/core/properties.h>
+
+#include <filesystem>
+#include <map>
+#include <memory>
+#include <string>
+#include <vector>
+
+namespace kelvin {
+
+struct SceneNode;
+
+/// A property value given on an element (everything except nested objects).
+struct SceneValue {
+    std::string name;
+    PropType type = PropType::Float;
+    PropValue value;
+    SourceLoc loc;
+};
+
+/// A nested object: either declared inline (`node` owned here) or a <ref> to an object declared earlier.
+struct SceneChild {
+    std::string name;  ///< name= attribute, or empty
+    std::shared_ptr<SceneNode> node;
+    bool is_ref = false;
+    SourceLoc loc;
+};
+
+/// An element that creates an object: <integrator type="path" id="..."> ... </integrator>.
+struct SceneNode {
+    std::string kind;  ///< the tag ("integrator")
+    std::string type;  ///< the plugin name ("path")
+    std::string id;
+    SourceLoc loc;
+    std::vector<SceneValue> values;
+    std::vector<SceneChild> children;
+    bool referenced = false;  ///< some <ref> points at it
+};
+
+struct ParseOptions {
+    /// -D name=value definitions; they override <default> declarations.
+    std::map<std::string, std::string> defines;
+    /// Deepest element nesting accepted (a guard against pathological input).
+    int max_depth = 128;
+};
+
+struct ParsedScene {
+    std::shared_ptr<SceneNode> root;                 ///< the <scene> element
+    struct PluginRequest {
+        std::filesystem::path path;  ///< resolved relative to the file that asked
+        SourceLoc loc;
+    };
+    std::vector<PluginRequest> plugins;              ///< <plugin path="..."/> requests
+    std::vector<std::string> files;                  ///< every file read (main file and includes)
+    std::vector<std::string> unused_defines;         ///< -D names the scene never referenced
+};
+
+ParsedScene parse_scene_file(const std::filesystem::path& path, const ParseOptions& opts = {});
+/// `filename` is used in messages and to resolve relative paths (relative to its directory).
+ParsedScene parse_scene_string(const std::string& xml, const ParseOptions& opts = {},
+                               const std::string& filename = "<string>");
+
+struct InstantiateOptions {
+    bool allow_unused = false;  ///< unread parameters are warnings instead of errors
+};
+
+/// Load the requested plugin modules and build the object tree. Returns the root object.
+ObjectPtr instantiate(const ParsedScene& scene, const InstantiateOptions& opts = {});
+
+/// Convenience: parse a file and instantiate it.
+ObjectPtr load_scene(const std::filesystem::path& path, const ParseOptions& popts = {},
+                     const InstantiateOptions& iopts = {});
+
+}  // namespace kelvin

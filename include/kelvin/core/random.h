@@ -1,0 +1,53 @@
+#pragma once
+// Random numbers: PCG32 (O'Neill 2014) from pcg-cpp (Debian's libpcg-cpp-dev), wrapped so that the
+// rest of Kelvin names one type. Determinism rule: work is split into units whose count does not depend on
+// the number of threads; unit u of a run with seed s draws from Random(s, u), a PCG32 stream of its own.
+#include <kelvin/core/math.h>
+
+#include <pcg_random.hpp>
+
+#include <cstdint>
+
+namespace kelvin {
+
+/// Mix two integers into one well-distributed 64-bit value (SplitMix64 finaliser); used to derive stream
+/// indices such as (pass, tile) -> stream.
+constexpr uint64_t hash_combine(uint64_t a, uint64_t b) {
+    uint64_t z = a ^ (b + 0x9e3779b97f4a7c15ULL + (a << 6) + (a >> 2));
+    z = (z ^ (z >> 30)) * 0xbf58476d1ce4e5b9ULL;
+    z = (z ^ (z >> 27)) * 0x94d049bb133111ebULL;
+    return z ^ (z >> 31);
+}
+
+class Random {
+public:
+    /// Stream `stream` of the generator seeded with `seed`. Distinct streams are statistically independent.
+    explicit Random(uint64_t seed = 0, uint64_t stream = 0) : m_rng(hash_combine(seed, 0x6b656c76696eULL), stream) {}
+    void seed_stream(uint64_t seed, uint64_t stream) { m_rng.seed(hash_combine(seed, 0x6b656c76696eULL), stream); }
+
+    uint32_t next_u32() { return m_rng(); }
+    /// Uniform in [0, bound) without modulo bias.
+    uint32_t next_u32(uint32_t bound) { return m_rng(bound); }
+    /// Uniform in [0, 1) with 24 random bits (never returns 1).
+    float next_float() { return float(m_rng() >> 8) * 0x1p-24f; }
+    /// Uniform in [0, 1) with 53 random bits (never returns 1).
+    double next_double() {
+        uint64_t hi = m_rng(), lo = m_rng();
+        return double(((hi << 32) | lo) >> 11) * 0x1p-53;
+    }
+    Vec2d next_2d() {
+        double a = next_double();
+        return {a, next_double()};
+    }
+    /// Jump ahead by `delta` draws of next_u32 in O(log delta).
+    void advance(uint64_t delta) { m_rng.advance(delta); }
+    /// Go back by `delta` draws.
+    void backstep(uint64_t delta) { m_rng.backstep(delta); }
+
+    bool operator==(const Random& o) const { return m_rng == o.m_rng; }
+
+private:
+    pcg32 m_rng;
+};
+
+}  // namespace kelvin

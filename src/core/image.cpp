@@ -1,0 +1,191 @@
+// Image I/O: OpenEXR for EXR (named float channels), OpenImageIO for everything else.
+#include <kelvin/core/error.h>
+#include <kelvin/core/image.h>
+
+#include <OpenEXR/ImfChannelList.h>
+#include <OpenEXR/ImfFrameBuffer.h>
+#include <OpenEXR/ImfHeader.h>
+#include <OpenEXR/ImfInputFile.h>
+#include <OpenEXR/ImfOutputFile.h>
+#include <OpenImageIO/imageio.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstdint>
+
+namespace kelvin {
+
+namespace fs = std::filesystem;
+
+Bitmap::Bitmap(int width, int height, std::vector<std::string> channels)
+    : m_width(width), m_height(height), m_channels(std::move(channels)) {
+    if (width < 0 || height < 0) throw RuntimeError("negative image size");
+    m_data.assign(std::size_t(width) * std::size_t(height) * m_channels.size(), 0.f);
+}
+
+int Bitmap::channel_index(const std::string& name) const {
+    auto it = std::find(m_channels.begin(), m_channels.end(), name);
+    return it == m_channels.end() ? -1 : int(it - m_channels.begin());
+}
+
+int Bitmap::add_channel(const std::string& name) {
+    if (channel_index(name) >= 0) throw RuntimeError(fmt::format("image channel '{}' exists already", name));
+    const std::size_t old_c = m_channels.size(), n = std::size_t(m_width) * std::size_t(m_height);
+    std::vector<float> data(n * (old_c + 1), 0.f);
+    for (std::size_t i = 0; i < n; ++i)
+        std::copy_n(m_data.begin() + std::ptrdiff_t(i * old_c), old_c, data.begin() + std::ptrdiff_t(i * (old_c + 1)));
+    m_data.swap(data);
+    m_channels.push_back(name);
+    return int(old_c);
+}
+
+void Bitmap::set_rgb(int x, int y, const Color3& c) {
+    at(x, y, 0) = float(c.r);
+    at(x, y, 1) = float(c.g);
+    at(x, y, 2) = float(c.b);
+}
+
+double linear_to_srgb(double v) {
+    if (v <= 0.0031308) return 12.92 * v;
+    return 1.055 * std::pow(v, 1.0 / 2.4) - 0.055;
+}
+double srgb_to_linear(double v) {
+    if (v <= 0.04045) return v / 12.92;
+    return std::pow((v + 0.055) / 1.055, 2.4);
+}
+
+static std::string ext_of(const fs::path& p) {
+    std::string e = p.extension().string();
+    std::transform(e.begin(), e.end(), e.begin(), [](unsigned char c) { return char(std::tolower(c)); });
+    return e;
+}
+
+static bool is_ldr(const std::string& e) { return e == ".png" || e == ".jpg" || e == ".jpeg"; }
+static bool is_hdr_oiio(const std::string& e) { return e == ".hdr" || e == ".pfm" || e == ".tif" || e == ".tiff"; }
+
+bool is_supported_image_extension(const fs::path& path) {
+    std::string e = ext_of(path);
+    return e == ".exr" || is_ldr(e) || is_hdr_oiio(e);
+}
+
+static void write_exr(const fs::path& path, const Bitmap& img) {
+    Imf::Header header(img.width(), img.height());
+    for (const auto& c : img.channels()) header.channels().insert(c, Imf::Channel(Imf::FLOAT));
+    Imf::FrameBuffer fb;
+    const std::size_t nc = std::size_t(img.channel_count());
+    for (std::size_t c = 0; c < nc; ++c) {
+        char* base = reinterpret_cast<char*>(const_cast<float*>(img.data()) + c);
+        fb.insert(img.channels()[c], Imf::Slice(Imf::FLOAT, base, sizeof(float) * nc,
+                                                sizeof(float) * nc * std::size_t(img.width())));
+    }
+    Imf::OutputFile file(path.c_str(), header);
+    file.setFrameBuffer(fb);
+    file.writePixels(img.height());
+}
+
+static Bitmap read_exr(const fs::path& path) {
+    Imf::InputFile file(path.c_str());
+    Imath::Box2i dw = file.header().dataWindow();
+    int w = dw.max.x - dw.min.x + 1, h = dw.max.y - dw.min.y + 1;
+    std::vector<std::string> names;
+    for (auto it = file.header().channels().begin(); it != file.header().channels().end(); ++it)
+        names.push_back(it.name());
+    // EXR stores channels alphabetically; put R, G, B, A first as users expect.
+    std::vector<std::string> ordered;
+    for (const char* n : {"R", "G", "B", "A"})
+        if (std::find(names.begin(), names.end(), n) != names.end()) ordered.push_back(n);
+    for (const auto& n : names)
+        if (std::find(ordered.begin(), ordered.end(), n) == ordered.end()) ordered.push_back(n);
+    Bitmap img(w, h, ordered);
+    const std::size_t nc = ordered.size();
+    Imf::FrameBuffer fb;
+    for (std::size_t c = 0; c < nc; ++c) {
+        char* base = reinterpret_cast<char*>(img.data() + c) -
+                     (std::ptrdiff_t(dw.min.x) + std::ptrdiff_t(dw.min.y) * w) * std::ptrdiff_t(sizeof(float) * nc);
+        fb.insert(ordered[c], Imf::Slice(Imf::FLOAT, base, sizeof(float) * nc, sizeof(float) * nc * std::size_t(w)));
+    }
+    file.setFrameBuffer(fb);
+    file.readPixels(dw.min.y, dw.max.y);
+    return img;
+}
+
+void write_image(const fs::path& path, const Bitmap& img, const ImageWriteOptions& opts) {
+    std::string e = ext_of(path);
+    if (!is_supported_image_extension(path))
+        throw InputError({}, fmt::format("unsupported output format '{}' for '{}' (use .exr, .png, .jpg, .hdr, .pfm "
+                                         "or .tif)", e.empty() ? "(none)" : e, path.string()));
+    if (img.channel_count() < 3 && e != ".exr")
+        throw RuntimeError(fmt::format("cannot write '{}': an RGB image is needed", path.string()));
+    try {
+        if (e == ".exr") {
+            write_exr(path, img);
+            return;
+        }
+        auto out = OIIO::ImageOutput::create(path.string());
+        if (!out) throw RuntimeError(fmt::format("cannot write '{}': {}", path.string(), OIIO::geterror()));
+        const std::size_t n = std::size_t(img.width()) * std::size_t(img.height());
+        if (is_ldr(e)) {
+            const double scale = std::exp2(opts.exposure);
+            std::vector<uint8_t> px(n * 3);
+            for (std::size_t i = 0; i < n; ++i)
+                for (int c = 0; c < 3; ++c) {
+                    double v = double(img.data()[i * std::size_t(img.channel_count()) + std::size_t(c)]) * scale;
+                    if (!std::isfinite(v)) v = 0;  // never propagate NaN into an 8-bit image
+                    v = linear_to_srgb(std::clamp(v, 0.0, 1.0));
+                    px[i * 3 + std::size_t(c)] = uint8_t(std::lround(v * 255.0));
+                }
+            OIIO::ImageSpec spec(img.width(), img.height(), 3, OIIO::TypeDesc::UINT8);
+            spec.attribute("oiio:ColorSpace", "sRGB");
+            if (!out->open(path.string(), spec) || !out->write_image(OIIO::TypeDesc::UINT8, px.data()) ||
+                !out->close())
+                throw RuntimeError(fmt::format("cannot write '{}': {}", path.string(), out->geterror()));
+        } else {
+            std::vector<float> px(n * 3);
+            for (std::size_t i = 0; i < n; ++i)
+                for (std::size_t c = 0; c < 3; ++c) px[i * 3 + c] = img.data()[i * std::size_t(img.channel_count()) + c];
+            OIIO::ImageSpec spec(img.width(), img.height(), 3, OIIO::TypeDesc::FLOAT);
+            if (!out->open(path.string(), spec) || !out->write_image(OIIO::TypeDesc::FLOAT, px.data()) ||
+                !out->close())
+                throw RuntimeError(fmt::format("cannot write '{}': {}", path.string(), out->geterror()));
+        }
+    } catch (const Error&) {
+        throw;
+    } catch (const std::exception& ex) {
+        throw RuntimeError(fmt::format("cannot write '{}': {}", path.string(), ex.what()));
+    }
+}
+
+Bitmap read_image(const fs::path& path) {
+    std::error_code ec;
+    if (!fs::exists(path, ec)) throw InputError({}, fmt::format("image file '{}' does not exist", path.string()));
+    std::string e = ext_of(path);
+    try {
+        if (e == ".exr") return read_exr(path);
+        auto in = OIIO::ImageInput::open(path.string());
+        if (!in) throw InputError({}, fmt::format("cannot read image '{}': {}", path.string(), OIIO::geterror()));
+        const OIIO::ImageSpec& spec = in->spec();
+        int nc = std::min(spec.nchannels, 4);
+        std::vector<std::string> names = {"R", "G", "B", "A"};
+        names.resize(std::size_t(std::max(nc, 3)));
+        Bitmap img(spec.width, spec.height, names);
+        std::vector<float> px(std::size_t(spec.width) * std::size_t(spec.height) * std::size_t(spec.nchannels));
+        if (!in->read_image(0, 0, 0, spec.nchannels, OIIO::TypeDesc::FLOAT, px.data()))
+            throw InputError({}, fmt::format("cannot read image '{}': {}", path.string(), in->geterror()));
+        bool srgb = spec.format.basetype == OIIO::TypeDesc::UINT8 || spec.format.basetype == OIIO::TypeDesc::UINT16;
+        const std::size_t n = std::size_t(spec.width) * std::size_t(spec.height);
+        for (std::size_t i = 0; i < n; ++i)
+            for (int c = 0; c < img.channel_count(); ++c) {
+                int src = std::min(c, spec.nchannels - 1);  // grey images fill R, G and B
+                float v = px[i * std::size_t(spec.nchannels) + std::size_t(src)];
+                if (srgb && c < 3) v = float(srgb_to_linear(v));
+                img.data()[i * std::size_t(img.channel_count()) + std::size_t(c)] = v;
+            }
+        return img;
+    } catch (const Error&) {
+        throw;
+    } catch (const std::exception& ex) {
+        throw InputError({}, fmt::format("cannot read image '{}': {}", path.string(), ex.what()));
+    }
+}
+
+}  // namespace kelvin

@@ -1,0 +1,506 @@
+// Mitsuba-style XML scene parser. See include/kelvin/core/parser.h and docs/scene-format.md.
+#include <kelvin/core/logging.h>
+#include <kelvin/core/parser.h>
+#include <kelvin/core/registry.h>
+#include <kelvin/core/strings.h>
+
+#include <pugixml.hpp>
+
+#include <algorithm>
+#include <deque>
+#include <fstream>
+#include <set>
+#include <sstream>
+#include <unordered_map>
+
+namespace kelvin {
+
+namespace fs = std::filesystem;
+
+namespace {
+
+// The text of one scene file, kept to turn byte offsets into line:column.
+struct FileText {
+    std::string display;  // path as shown in messages
+    fs::path path;        // path used to resolve relative references
+    std::string content;
+    std::vector<std::size_t> line_starts;
+
+    void index() {
+        line_starts.assign(1, 0);
+        for (std::size_t i = 0; i < content.size(); ++i)
+            if (content[i] == '\n') line_starts.push_back(i + 1);
+    }
+    SourceLoc loc(std::ptrdiff_t offset) const {
+        if (offset < 0) return {display, 0, 0};
+        std::size_t off = std::min<std::size_t>(std::size_t(offset), content.size());
+        auto it = std::upper_bound(line_starts.begin(), line_starts.end(), off);
+        std::size_t line = std::size_t(it - line_starts.begin());
+        std::size_t col = off - line_starts[line - 1] + 1;
+        return {display, int(line), int(col)};
+    }
+    SourceLoc loc(const pugi::xml_node& n) const {
+        std::ptrdiff_t off = n.offset_debug();
+        // pugixml points at the element name; point at its '<' instead.
+        if (off > 0 && std::size_t(off) <= content.size() && content[std::size_t(off) - 1] == '<') --off;
+        return loc(off);
+    }
+};
+
+const std::vector<std::string>& value_tags() {
+    static const std::vector<std::string> tags = {"float", "integer", "boolean", "string", "rgb",
+                                                  "spectrum", "point", "vector", "transform"};
+    return tags;
+}
+const std::vector<std::string>& structural_tags() {
+    static const std::vector<std::string> tags = {"ref", "default", "include", "plugin"};
+    return tags;
+}
+
+class Parser {
+public:
+    explicit Parser(const ParseOptions& opts) : m_opts(opts) {
+        for (const auto& [k, v] : opts.defines) m_params[k] = v;
+    }
+
+    ParsedScene parse_root(const fs::path& path, const std::string* text, const std::string& display) {
+        FileText& f = load(path, text, display, {});
+        pugi::xml_document& doc = m_docs.emplace_back();
+        pugi::xml_node root = parse_xml(doc, f);
+        auto node = std::make_shared<SceneNode>();
+        node->kind = "scene";
+        node->loc = f.loc(root);
+        check_attributes(root, f, {"version", "type"});
+        node->type = root.attribute("type") ? subst(root.attribute("type").value(), f.loc(root)) : "scene";
+        if (!root.attribute("version")) log_debug("{}: <scene> has no version attribute", node->loc.str());
+        m_include_stack.push_back(canonical_key(f));
+        parse_body(root, f, *node, 1);
+        m_include_stack.pop_back();
+        m_out.root = node;
+        for (const auto& [k, v] : m_opts.defines)
+            if (!m_used_params.count(k)) m_out.unused_defines.push_back(k);
+        return std::move(m_out);
+    }
+
+private:
+    FileText& load(const fs::path& path, const std::string* text, const std::string& display, const SourceLoc& from) {
+        FileText& f = m_files.emplace_back();
+        f.path = path;
+        f.display = display;
+        if (text) {
+            f.content = *text;
+        } else {
+            std::error_code ec;
+            if (!fs::exists(path, ec))
+                throw_input(from, "scene file '{}' does not exist", display);
+            if (fs::is_directory(path, ec)) throw_input(from, "'{}' is a directory, not a scene file", display);
+            std::ifstream in(path, std::ios::binary);
+            if (!in) throw_input(from, "cannot open scene file '{}'", display);
+            std::ostringstream ss;
+            ss << in.rdbuf();
+            f.content = ss.str();
+        }
+        f.index();
+        m_out.files.push_back(display);
+        return f;
+    }
+
+    static std::string canonical_key(const FileText& f) {
+        std::error_code ec;
+        fs::path c = fs::weakly_canonical(f.path, ec);
+        return ec ? f.path.string() : c.string();
+    }
+
+    pugi::xml_node parse_xml(pugi::xml_document& doc, const FileText& f) {
+        pugi::xml_parse_result r = doc.load_buffer(f.content.data(), f.content.size(), pugi::parse_default,
+                                                   pugi::encoding_utf8);
+        if (!r) throw InputError(f.loc(r.offset), fmt::format("XML syntax error: {}", r.description()));
+        pugi::xml_node root;
+        for (pugi::xml_node n : doc.children()) {
+            if (n.type() == pugi::node_element) {
+                if (root) throw InputError(f.loc(n), "a scene file has exactly one root element <scene>");
+                root = n;
+            } else if (n.type() == pugi::node_pcdata || n.type() == pugi::node_cdata) {
+                throw InputError(f.loc(n), "unexpected text outside the <scene> element");
+            }
+        }
+        if (!root) throw InputError(f.loc(0), "no <scene> element found (empty or not an XML scene)");
+        if (std::string_view(root.name()) != "scene")
+            throw InputError(f.loc(root), fmt::format("the root element must be <scene>, not <{}>", root.name()));
+        return root;
+    }
+
+    // $name substitution in attribute values.
+    std::string subst(std::string_view s, const SourceLoc& loc) {
+        if (s.find('$') == std::string_view::npos) return std::string(s);
+        std::string out;
+        for (std::size_t i = 0; i < s.size(); ++i) {
+            char c = s[i];
+            auto ident_start = [](char ch) { return std::isalpha(static_cast<unsigned char>(ch)) || ch == '_'; };
+            if (c != '$' || i + 1 >= s.size() || !ident_start(s[i + 1])) {
+                out += c;
+                continue;
+            }
+            std::size_t j = i + 1;
+            while (j < s.size() && (std::isalnum(static_cast<unsigned char>(s[j])) || s[j] == '_')) ++j;
+            std::string name(s.substr(i + 1, j - i - 1));
+            auto it = m_params.find(name);
+            if (it == m_params.end()) {
+                std::vector<std::string> known;
+                for (const auto& kv : m_params) known.push_back(kv.first);
+                throw_input(loc, "undefined parameter '${}'{}: declare it with <default name=\"{}\" value=\"...\"/> "
+                                 "or pass -D {}=...", name, did_you_mean(name, known), name, name);
+            }
+            m_used_params.insert(name);
+            out += it->second;
+            i = j - 1;
+        }
+        return out;
+    }
+
+    void check_attributes(const pugi::xml_node& n, const FileText& f, std::initializer_list<const char*> allowed) {
+        for (pugi::xml_attribute a : n.attributes()) {
+            bool ok = false;
+            for (const char* name : allowed) ok = ok || std::string_view(a.name()) == name;
+            if (!ok) {
+                std::vector<std::string> names(allowed.begin(), allowed.end());
+                throw_input(f.loc(n), "unexpected attribute '{}' on <{}>{}", a.name(), n.name(),
+                            did_you_mean(a.name(), names));
+            }
+        }
+    }
+
+    std::string attr(const pugi::xml_node& n, const FileText& f, const char* name, bool required = true) {
+        pugi::xml_attribute a = n.attribute(name);
+        if (!a) {
+            if (required) throw_input(f.loc(n), "<{}> is missing the attribute '{}'", n.name(), name);
+            return {};
+        }
+        return subst(a.value(), f.loc(n));
+    }
+
+    double number(const std::string& s, const SourceLoc& loc, std::string_view what) {
+        auto v = parse_double(s);
+        if (!v) throw_input(loc, "malformed number '{}' in {}", s, what);
+        return *v;
+    }
+
+    Vec3d vec3(const pugi::xml_node& n, const FileText& f, const std::string& value, std::string_view what,
+               bool allow_scalar) {
+        SourceLoc loc = f.loc(n);
+        auto parts = split_list(value);
+        if (parts.size() == 1 && allow_scalar) return Vec3d(number(parts[0], loc, what));
+        if (parts.size() != 3)
+            throw_input(loc, "{} needs 3 numbers{}, got '{}'", what, allow_scalar ? " (or 1)" : "", value);
+        return {number(parts[0], loc, what), number(parts[1], loc, what), number(parts[2], loc, what)};
+    }
+
+    // value="x, y, z" or x= y= z= attributes (missing ones are `fill`).
+    Vec3d xyz(const pugi::xml_node& n, const FileText& f, std::string_view what, double fill, bool allow_scalar) {
+        if (n.attribute("value")) {
+            if (n.attribute("x") || n.attribute("y") || n.attribute("z"))
+                throw_input(f.loc(n), "<{}> takes either value= or x=/y=/z=, not both", n.name());
+            return vec3(n, f, attr(n, f, "value"), what, allow_scalar);
+        }
+        Vec3d v(fill);
+        const char* names[3] = {"x", "y", "z"};
+        bool any = false;
+        for (int i = 0; i < 3; ++i)
+            if (n.attribute(names[i])) {
+                v[i] = number(attr(n, f, names[i]), f.loc(n), what);
+                any = true;
+            }
+        if (!any) throw_input(f.loc(n), "<{}> needs value= or x=/y=/z=", n.name());
+        return v;
+    }
+
+    Transform parse_transform(const pugi::xml_node& tn, const FileText& f, int depth) {
+        Transform t;
+        for (pugi::xml_node op : tn.children()) {
+            if (op.type() == pugi::node_pcdata || op.type() == pugi::node_cdata)
+                throw_input(f.loc(op), "unexpected text inside <transform>");
+            if (op.type() != pugi::node_element) continue;
+            std::string_view tag = op.name();
+            SourceLoc loc = f.loc(op);
+            if (op.first_child()) throw_input(loc, "<{}> takes no children", tag);
+            Transform m;
+            if (tag == "translate") {
+                check_attributes(op, f, {"value", "x", "y", "z"});
+                m = Transform::translate(xyz(op, f, "<translate>", 0.0, false));
+            } else if (tag == "scale") {
+                check_attributes(op, f, {"value", "x", "y", "z"});
+                m = Transform::scale(xyz(op, f, "<scale>", 1.0, true));
+            } else if (tag == "rotate") {
+                check_attributes(op, f, {"value", "x", "y", "z", "angle"});
+                Vec3d axis = xyz(op, f, "<rotate> axis", 0.0, false);
+                if (glm::length(axis) == 0) throw_input(loc, "<rotate> axis must not be zero");
+                double angle = number(attr(op, f, "angle"), loc, "<rotate> angle");
+                m = Transform::rotate(axis, angle);
+            } else if (tag == "lookat") {
+                check_attributes(op, f, {"origin", "target", "up"});
+                Vec3d o = vec3(op, f, attr(op, f, "origin"), "<lookat> origin", false);
+                Vec3d ta = vec3(op, f, attr(op, f, "target"), "<lookat> target", false);
+                Vec3d up = op.attribute("up") ? vec3(op, f, attr(op, f, "up"), "<lookat> up", false) : Vec3d(0, 1, 0);
+                Vec3d dir = ta - o;
+                if (glm::length(dir) == 0) throw_input(loc, "<lookat> origin and target coincide");
+                if (glm::length(glm::cross(glm::normalize(dir), up)) < 1e-9)
+                    throw_input(loc, "<lookat> up vector is parallel to the viewing direction");
+                m = Transform::look_at(o, ta, up);
+            } else if (tag == "matrix") {
+                check_attributes(op, f, {"value"});
+                auto parts = split_list(attr(op, f, "value"));
+                if (parts.size() != 16 && parts.size() != 9)
+                    throw_input(loc, "<matrix> needs 16 (4x4) or 9 (3x3) numbers, got {}", parts.size());
+                Mat4d mat(1.0);
+                int dim = parts.size() == 16 ? 4 : 3;
+                for (int r = 0; r < dim; ++r)
+                    for (int c = 0; c < dim; ++c) mat[c][r] = number(parts[std::size_t(r * dim + c)], loc, "<matrix>");
+                double det = glm::determinant(mat);
+                if (!std::isfinite(det) || std::abs(det) < 1e-300) throw_input(loc, "<matrix> is singular");
+                m = Transform(mat);
+            } else {
+                throw_input(loc, "unknown transform operation <{}>{}", tag,
+                            did_you_mean(tag, {"translate", "rotate", "scale", "lookat", "matrix"}));
+            }
+            t = m * t;  // later operations apply after earlier ones
+        }
+        (void)depth;
+        return t;
+    }
+
+    void parse_value(const pugi::xml_node& n, const FileText& f, SceneNode& target) {
+        std::string_view tag = n.name();
+        SourceLoc loc = f.loc(n);
+        SceneValue v;
+        v.loc = loc;
+        if (tag == "transform") {
+            check_attributes(n, f, {"name"});
+            v.name = attr(n, f, "name");
+            v.type = PropType::Transform;
+            v.value = parse_transform(n, f, 0);
+            target.values.push_back(std::move(v));
+            return;
+        }
+        if (n.first_child()) throw_input(loc, "<{}> takes no children", tag);
+        if (tag == "point" || tag == "vector") {
+            check_attributes(n, f, {"name", "value", "x", "y", "z"});
+            v.name = attr(n, f, "name");
+            v.type = tag == "point" ? PropType::Point : PropType::Vector;
+            v.value = xyz(n, f, fmt::format("<{} name=\"{}\">", tag, v.name), 0.0, false);
+            target.values.push_back(std::move(v));
+            return;
+        }
+        check_attributes(n, f, {"name", "value"});
+        v.name = attr(n, f, "name");
+        std::string value = attr(n, f, "value");
+        std::string what = fmt::format("<{} name=\"{}\">", tag, v.name);
+        if (tag == "float") {
+            v.type = PropType::Float;
+            v.value = number(value, loc, what);
+        } else if (tag == "integer") {
+            auto i = parse_int(value);
+            if (!i) throw_input(loc, "malformed integer '{}' in {}", value, what);
+            v.type = PropType::Int;
+            v.value = *i;
+        } else if (tag == "boolean") {
+            auto b = parse_bool(value);
+            if (!b) throw_input(loc, "malformed boolean '{}' in {} (use true or false)", value, what);
+            v.type = PropType::Bool;
+            v.value = *b;
+        } else if (tag == "string") {
+            v.type = PropType::String;
+            v.value = value;
+        } else if (tag == "rgb") {
+            v.type = PropType::Color;
+            v.value = vec3(n, f, value, what, true);
+        } else if (tag == "spectrum") {
+            if (value.find(':') != std::string::npos)
+                throw_input(loc, "{}: wavelength-sampled spectra are not supported; Kelvin renders in RGB, use <rgb>",
+                            what);
+            auto parts = split_list(value);
+            if (parts.size() != 1) throw_input(loc, "{}: a <spectrum> takes one constant value; use <rgb>", what);
+            v.type = PropType::Color;
+            v.value = Vec3d(number(parts[0], loc, what));
+        }
+        target.values.push_back(std::move(v));
+    }
+
+    std::shared_ptr<SceneNode> parse_object(const pugi::xml_node& n, const FileText& f, int depth) {
+        auto node = std::make_shared<SceneNode>();
+        node->kind = n.name();
+        node->loc = f.loc(n);
+        check_attributes(n, f, {"type", "id", "name"});
+        if (!n.attribute("type")) {
+            std::vector<std::string> names;
+            for (const PluginInfo* p : Registry::instance().plugins(node->kind)) names.push_back(p->name);
+            std::string list;
+            for (const auto& s : names) list += (list.empty() ? "" : ", ") + s;
+            throw_input(node->loc, "<{}> is missing the attribute 'type'{}", node->kind,
+                        list.empty() ? "" : " (one of: " + list + ")");
+        }
+        node->type = attr(n, f, "type");
+        node->id = attr(n, f, "id", false);
+        if (n.attribute("id")) {
+            if (node->id.empty()) throw_input(node->loc, "empty id on <{}>", node->kind);
+            auto it = m_ids.find(node->id);
+            if (it != m_ids.end())
+                throw_input(node->loc, "duplicate id '{}' (first declared at {})", node->id, it->second->loc.str());
+        }
+        parse_body(n, f, *node, depth + 1);
+        // Register the id after the body, so that an object cannot refer to itself.
+        if (!node->id.empty()) m_ids[node->id] = node;
+        return node;
+    }
+
+    void parse_body(const pugi::xml_node& parent, const FileText& f, SceneNode& target, int depth) {
+        if (depth > m_opts.max_depth)
+            throw_input(f.loc(parent), "scene nesting deeper than {} levels", m_opts.max_depth);
+        for (pugi::xml_node n : parent.children()) {
+            if (n.type() == pugi::node_pcdata || n.type() == pugi::node_cdata) {
+                if (!trim(n.value()).empty())
+                    throw_input(f.loc(n), "unexpected text '{}' inside <{}>",
+                                std::string(trim(n.value()).substr(0, 20)), parent.name());
+                continue;
+            }
+            if (n.type() != pugi::node_element) continue;
+            std::string tag = n.name();
+            SourceLoc loc = f.loc(n);
+            const auto& vt = value_tags();
+            if (std::find(vt.begin(), vt.end(), tag) != vt.end()) {
+                parse_value(n, f, target);
+            } else if (tag == "ref") {
+                check_attributes(n, f, {"id", "name"});
+                if (n.first_child()) throw_input(loc, "<ref> takes no children");
+                std::string id = attr(n, f, "id");
+                auto it = m_ids.find(id);
+                if (it == m_ids.end()) {
+                    std::vector<std::string> known;
+                    for (const auto& kv : m_ids) known.push_back(kv.first);
+                    throw_input(loc, "<ref> to unknown id '{}'{} (an id is visible after the element declaring it)",
+                                id, did_you_mean(id, known));
+                }
+                it->second->referenced = true;
+                target.children.push_back({attr(n, f, "name", false), it->second, true, loc});
+            } else if (tag == "default") {
+                check_attributes(n, f, {"name", "value"});
+                std::string name = attr(n, f, "name");
+                std::string value = attr(n, f, "value");
+                if (name.empty() || !(std::isalpha(static_cast<unsigned char>(name[0])) || name[0] == '_'))
+                    throw_input(loc, "<default> name '{}' is not a valid parameter name", name);
+                m_params.emplace(name, value);  // -D and earlier defaults win
+            } else if (tag == "include") {
+                check_attributes(n, f, {"filename"});
+                include(attr(n, f, "filename"), f, loc, target, depth);
+            } else if (tag == "plugin") {
+                check_attributes(n, f, {"path"});
+                fs::path p = attr(n, f, "path");
+                if (p.is_relative()) p = f.path.parent_path() / p;
+                m_out.plugins.push_back({p.lexically_normal(), loc});
+            } else if (tag == "scene") {
+                throw_input(loc, "<scene> cannot be nested (use <include filename=\"...\"/>)");
+            } else if (Registry::instance().has_kind(tag)) {
+                std::string name = n.attribute("name") ? attr(n, f, "name") : std::string();
+                auto child = parse_object(n, f, depth);
+                target.children.push_back({name, child, false, loc});
+            } else {
+                std::vector<std::string> known = Registry::instance().kind_names();
+                known.insert(known.end(), vt.begin(), vt.end());
+                known.insert(known.end(), structural_tags().begin(), structural_tags().end());
+                throw_input(loc, "unknown element <{}>{}", tag, did_you_mean(tag, known));
+            }
+        }
+    }
+
+    void include(const std::string& filename, const FileText& from, const SourceLoc& loc, SceneNode& target,
+                 int depth) {
+        fs::path p = filename;
+        if (p.is_relative()) p = from.path.parent_path() / p;
+        p = p.lexically_normal();
+        std::error_code ec;
+        if (!fs::exists(p, ec)) throw_input(loc, "included file '{}' does not exist", p.string());
+        std::string key = fs::weakly_canonical(p, ec).string();
+        if (std::find(m_include_stack.begin(), m_include_stack.end(), key) != m_include_stack.end()) {
+            std::string chain;
+            for (const auto& s : m_include_stack) chain += fs::path(s).filename().string() + " -> ";
+            throw_input(loc, "include cycle: {}{}", chain, p.filename().string());
+        }
+        if (depth > m_opts.max_depth) throw_input(loc, "includes nested deeper than {} levels", m_opts.max_depth);
+        FileText& f = load(p, nullptr, p.string(), loc);
+        pugi::xml_document& doc = m_docs.emplace_back();
+        pugi::xml_node root = parse_xml(doc, f);
+        check_attributes(root, f, {"version"});
+        m_include_stack.push_back(key);
+        parse_body(root, f, target, depth + 1);
+        m_include_stack.pop_back();
+    }
+
+    const ParseOptions& m_opts;
+    std::map<std::string, std::string> m_params;
+    std::set<std::string> m_used_params;
+    std::unordered_map<std::string, std::shared_ptr<SceneNode>> m_ids;
+    std::vector<std::string> m_include_stack;
+    std::deque<FileText> m_files;
+    std::deque<pugi::xml_document> m_docs;
+    ParsedScene m_out;
+};
+
+}  // namespace
+
+ParsedScene parse_scene_file(const fs::path& path, const ParseOptions& opts) {
+    Parser p(opts);
+    return p.parse_root(path, nullptr, path.string());
+}
+
+ParsedScene parse_scene_string(const std::string& xml, const ParseOptions& opts, const std::string& filename) {
+    Parser p(opts);
+    return p.parse_root(fs::path(filename), &xml, filename);
+}
+
+namespace {
+class Instantiator {
+public:
+    explicit Instantiator(const InstantiateOptions& o) : m_opts(o) {}
+
+    ObjectPtr build(const SceneNode& node) {
+        auto it = m_cache.find(&node);
+        if (it != m_cache.end()) return it->second;
+        Properties props(node.kind, node.type);
+        props.set_location(node.loc);
+        props.set_id(node.id);
+        for (const auto& v : node.values) {
+            switch (v.type) {
+                case PropType::Bool: props.set_bool(v.name, std::get<bool>(v.value), v.loc); break;
+                case PropType::Int: props.set_int(v.name, std::get<long long>(v.value), v.loc); break;
+                case PropType::Float: props.set_float(v.name, std::get<double>(v.value), v.loc); break;
+                case PropType::String: props.set_string(v.name, std::get<std::string>(v.value), v.loc); break;
+                case PropType::Color: props.set_color(v.name, std::get<Vec3d>(v.value), v.loc); break;
+                case PropType::Point: props.set_point(v.name, std::get<Vec3d>(v.value), v.loc); break;
+                case PropType::Vector: props.set_vector(v.name, std::get<Vec3d>(v.value), v.loc); break;
+                case PropType::Transform: props.set_transform(v.name, std::get<Transform>(v.value), v.loc); break;
+                case PropType::Object: break;
+            }
+        }
+        for (const auto& c : node.children) props.set_object(c.name, build(*c.node), c.loc);
+        ObjectPtr obj = Registry::instance().create(props, m_opts.allow_unused);
+        m_cache.emplace(&node, obj);
+        return obj;
+    }
+
+private:
+    const InstantiateOptions& m_opts;
+    std::unordered_map<const SceneNode*, ObjectPtr> m_cache;
+};
+}  // namespace
+
+ObjectPtr instantiate(const ParsedScene& scene, const InstantiateOptions& opts) {
+    if (!scene.root) throw InputError({}, "empty scene");
+    for (const auto& p : scene.plugins) Registry::instance().load_plugin_module(p.path, p.loc);
+    Instantiator inst(opts);
+    return inst.build(*scene.root);
+}
+
+ObjectPtr load_scene(const fs::path& path, const ParseOptions& popts, const InstantiateOptions& iopts) {
+    return instantiate(parse_scene_file(path, popts), iopts);
+}
+
+}  // namespace kelvin
