@@ -65,7 +65,10 @@ std::string_view trim(std::string_view s) {
 std::optional<double> parse_double(std::string_view s) {
     s = trim(s);
     if (s.empty()) return std::nullopt;
-    if (s.front() == '+') s.remove_prefix(1);
+    if (s.front() == '+') {
+        s.remove_prefix(1);
+        if (!s.empty() && s.front() == '-') return std::nullopt;  // "+-1" is not a number
+    }
     double v = 0;
     auto [ptr, ec] = std::from_chars(s.data(), s.data() + s.size(), v);
     if (ec != std::errc() || ptr != s.data() + s.size()) return std::nullopt;
@@ -75,7 +78,10 @@ std::optional<double> parse_double(std::string_view s) {
 std::optional<long long> parse_int(std::string_view s) {
     s = trim(s);
     if (s.empty()) return std::nullopt;
-    if (s.front() == '+') s.remove_prefix(1);
+    if (s.front() == '+') {
+        s.remove_prefix(1);
+        if (!s.empty() && s.front() == '-') return std::nullopt;  // "+-1" is not a number
+    }
     long long v = 0;
     auto [ptr, ec] = std::from_chars(s.data(), s.data() + s.size(), v);
     if (ec != std::errc() || ptr != s.data() + s.size()) return std::nullopt;

@@ -1,0 +1,44 @@
+#pragma once
+// The scene: shapes in one committed Embree scene, the sensor, the integrator; or a simulation. It is the
+// Job that `kelvin scene.xml` runs. Geometry is only built when the scene has shapes.
+#include <kelvin/core/job.h>
+#include <kelvin/render/integrator.h>
+#include <kelvin/render/ray.h>
+#include <kelvin/render/sensor.h>
+#include <kelvin/render/shape.h>
+
+#include <memory>
+#include <optional>
+#include <vector>
+
+namespace kelvin {
+
+class Scene : public Job {
+public:
+    explicit Scene(const Properties& props);
+    ~Scene() override;
+
+    RunResult run(RunContext& ctx) override;
+
+    /// Closest hit along the ray within [tmin, tmax], or nullopt.
+    std::optional<SurfaceHit> intersect(const Ray& ray) const;
+    /// True if anything blocks the ray within [tmin, tmax].
+    bool occluded(const Ray& ray) const;
+
+    const std::vector<std::shared_ptr<Shape>>& shapes() const { return m_shapes; }
+    const Sensor* sensor() const { return m_sensor.get(); }
+    Integrator* integrator() const { return m_integrator.get(); }
+    /// Axis-aligned bounds of all geometry (empty box if none).
+    std::pair<Vec3d, Vec3d> bounds() const { return {m_bbox_min, m_bbox_max}; }
+
+private:
+    struct Accel;
+    std::vector<std::shared_ptr<Shape>> m_shapes;
+    std::shared_ptr<Sensor> m_sensor;
+    std::shared_ptr<Integrator> m_integrator;
+    std::shared_ptr<Job> m_simulation;
+    std::unique_ptr<Accel> m_accel;
+    Vec3d m_bbox_min{Inf}, m_bbox_max{-Inf};
+};
+
+}  // namespace kelvin

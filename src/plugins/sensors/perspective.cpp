@@ -1,0 +1,85 @@
+// perspective: a pinhole camera (Mitsuba's `perspective`). Camera space looks along +z with +y up and +x to
+// the left, so <lookat origin target up> in to_world places it as Mitsuba does.
+//
+// | parameter | type      | default  | meaning                                                       |
+// |-----------|-----------|----------|---------------------------------------------------------------|
+// | fov       | float     | 39.5978  | field of view in degrees (Mitsuba's 50 mm lens on 36 mm film)  |
+// | fov_axis  | string    | "x"      | axis fov refers to: x, y, diagonal, smaller, larger           |
+// | near_clip | float     | 0.01     | rays start at this distance                                   |
+// | far_clip  | float     | 10000    | and end at this one                                           |
+// | to_world  | transform | identity | camera-to-world (usually a <lookat>)                          |
+// | film      | film      | hdrfilm  | nested film                                                   |
+// | sampler   | sampler   | independent | nested sampler                                             |
+//
+//     <sensor type="perspective">
+//         <float name="fov" value="45"/>
+//         <transform name="to_world"><lookat origin="0,1,5" target="0,0,0" up="0,1,0"/></transform>
+//         <film type="hdrfilm"><integer name="width" value="256"/><integer name="height" value="256"/></film>
+//     </sensor>
+#include <kelvin/core/registry.h>
+#include <kelvin/render/sensor.h>
+
+#include <cmath>
+
+namespace kelvin {
+namespace {
+
+template <typename T> std::shared_ptr<T> nested_or_default(const Properties& props, const char* name, const char* kind,
+                                                           const char* plugin) {
+    if (auto o = props.get_object_as<T>(name)) return o;
+    return std::dynamic_pointer_cast<T>(Registry::instance().create(Properties(kind, plugin)));
+}
+
+class Perspective final : public Sensor {
+public:
+    explicit Perspective(const Properties& props) {
+        m_film = nested_or_default<Film>(props, "film", "film", "hdrfilm");
+        m_sampler = nested_or_default<Sampler>(props, "sampler", "sampler", "independent");
+        m_to_world = props.get_transform("to_world");
+        m_near = props.get_float("near_clip", 0.0, Inf);
+        m_far = props.get_float("far_clip", 0.0, Inf);
+        if (!(m_far > m_near)) props.error("far_clip", "must exceed near_clip");
+        double fov = props.get_float("fov", 1e-6, 179.999);
+        std::string axis = props.get_choice("fov_axis", {"x", "y", "diagonal", "smaller", "larger"});
+        const double w = m_film->width(), h = m_film->height(), t = std::tan(glm::radians(fov) / 2);
+        if (axis == "smaller") axis = w <= h ? "x" : "y";
+        if (axis == "larger") axis = w >= h ? "x" : "y";
+        if (axis == "x") m_tan_x = t;
+        else if (axis == "y") m_tan_x = t * w / h;
+        else m_tan_x = t * w / std::sqrt(w * w + h * h);
+        m_tan_y = m_tan_x * h / w;
+    }
+
+    Ray sample_ray(Vec2d film_pos, Vec2d) const override {
+        const double w = m_film->width(), h = m_film->height();
+        Vec3d d_cam(m_tan_x * (1 - 2 * film_pos.x / w), m_tan_y * (1 - 2 * film_pos.y / h), 1.0);
+        d_cam = glm::normalize(d_cam);
+        Ray r;
+        r.o = m_to_world.apply_point(Vec3d(0.0));
+        r.d = glm::normalize(m_to_world.apply_vector(d_cam));
+        r.tmin = m_near / d_cam.z;
+        r.tmax = m_far / d_cam.z;
+        return r;
+    }
+    const Film& film() const override { return *m_film; }
+    const Sampler& sampler() const override { return *m_sampler; }
+    const Transform& to_world() const override { return m_to_world; }
+
+private:
+    std::shared_ptr<Film> m_film;
+    std::shared_ptr<Sampler> m_sampler;
+    Transform m_to_world;
+    double m_near, m_far, m_tan_x = 1, m_tan_y = 1;
+};
+
+}  // namespace
+}  // namespace kelvin
+
+KELVIN_PLUGIN(kelvin::Perspective, "sensor", "perspective", "Pinhole perspective camera.",
+              kelvin::param::real("fov", 39.5978, "field of view in degrees"),
+              kelvin::param::string("fov_axis", "x", "axis the fov refers to: x, y, diagonal, smaller, larger"),
+              kelvin::param::real("near_clip", 0.01, "near clipping distance"),
+              kelvin::param::real("far_clip", 10000.0, "far clipping distance"),
+              kelvin::param::transform("to_world", "camera-to-world transform (usually a <lookat>)"),
+              kelvin::param::object("film", "film", "the film (default: hdrfilm)"),
+              kelvin::param::object("sampler", "sampler", "the sampler (default: independent)"));

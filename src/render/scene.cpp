@@ -1,0 +1,163 @@
+// The scene: a Job that renders (integrator + sensor + Embree geometry) or runs a simulation.
+#include <kelvin/core/logging.h>
+#include <kelvin/core/registry.h>
+#include <kelvin/render/scene.h>
+
+#include <embree3/rtcore.h>
+
+#include <limits>
+
+namespace kelvin {
+
+struct Scene::Accel {
+    RTCDevice device = nullptr;
+    RTCScene scene = nullptr;
+    std::vector<ShapeGeometry> geometry;  // kept: Embree shares these buffers, and normals are computed from them
+
+    ~Accel() {
+        if (scene) rtcReleaseScene(scene);
+        if (device) rtcReleaseDevice(device);
+    }
+};
+
+static void embree_error(void*, RTCError code, const char* str) {
+    log_error("Embree error {}: {}", int(code), str ? str : "");
+}
+
+Scene::Scene(const Properties& props) {
+    for (auto& o : props.get_objects("shape")) m_shapes.push_back(std::dynamic_pointer_cast<Shape>(o));
+    m_sensor = props.get_object_as<Sensor>("sensor");
+    m_integrator = props.get_object_as<Integrator>("integrator");
+    m_simulation = props.get_object_as<Job>("simulation");
+    // Shared declarations at the root (<bsdf id=...>, <texture id=...>) are used through <ref> elsewhere.
+    for (const char* kind : {"bsdf", "texture", "emitter"}) props.get_objects(kind);
+
+    if (m_simulation) {
+        if (m_sensor || m_integrator || !m_shapes.empty())
+            props.error("simulation", "a scene runs either a <simulation> or a render (sensor, integrator, "
+                                      "shapes), not both");
+        return;  // a simulation builds its own geometry queries; nothing to do here
+    }
+    if (!m_sensor) throw InputError(props.location(), "the scene has no <sensor> (and no <simulation>)");
+    if (!m_integrator) {
+        // Mitsuba's default: a path tracer. Until one is registered, fall back to ambient occlusion.
+        const char* name = Registry::instance().find("integrator", "path") ? "path" : "ao";
+        Properties ip("integrator", name);
+        m_integrator = std::dynamic_pointer_cast<Integrator>(Registry::instance().create(ip));
+        log_info("no <integrator> given: using '{}'", name);
+    }
+    if (m_shapes.empty()) return;
+
+    m_accel = std::make_unique<Accel>();
+    m_accel->device = rtcNewDevice(nullptr);
+    if (!m_accel->device) throw RuntimeError(fmt::format("Embree device creation failed (error {})",
+                                                         int(rtcGetDeviceError(nullptr))));
+    rtcSetDeviceErrorFunction(m_accel->device, embree_error, nullptr);
+    m_accel->scene = rtcNewScene(m_accel->device);
+    m_accel->geometry.reserve(m_shapes.size());
+    for (std::size_t i = 0; i < m_shapes.size(); ++i) {
+        ShapeGeometry& g = m_accel->geometry.emplace_back(m_shapes[i]->geometry());
+        RTCGeometry geom;
+        if (g.type == ShapeGeometry::Type::Triangles) {
+            geom = rtcNewGeometry(m_accel->device, RTC_GEOMETRY_TYPE_TRIANGLE);
+            rtcSetSharedGeometryBuffer(geom, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3, g.positions.data(), 0,
+                                       sizeof(Vec3f), g.positions.size());
+            rtcSetSharedGeometryBuffer(geom, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3, g.indices.data(), 0,
+                                       3 * sizeof(uint32_t), g.indices.size() / 3);
+        } else {
+            geom = rtcNewGeometry(m_accel->device, RTC_GEOMETRY_TYPE_SPHERE_POINT);
+            auto* v = static_cast<float*>(rtcSetNewGeometryBuffer(geom, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT4,
+                                                                   4 * sizeof(float), g.positions.size()));
+            for (std::size_t k = 0; k < g.positions.size(); ++k) {
+                v[4 * k + 0] = g.positions[k].x;
+                v[4 * k + 1] = g.positions[k].y;
+                v[4 * k + 2] = g.positions[k].z;
+                v[4 * k + 3] = g.radii[k];
+            }
+        }
+        for (const auto& p : g.positions) {
+            float r = g.type == ShapeGeometry::Type::Spheres ? g.radii[std::size_t(&p - g.positions.data())] : 0.f;
+            m_bbox_min = glm::min(m_bbox_min, Vec3d(p) - double(r));
+            m_bbox_max = glm::max(m_bbox_max, Vec3d(p) + double(r));
+        }
+        rtcCommitGeometry(geom);
+        rtcAttachGeometryByID(m_accel->scene, geom, unsigned(i));
+        rtcReleaseGeometry(geom);
+    }
+    rtcCommitScene(m_accel->scene);
+}
+
+Scene::~Scene() = default;
+
+RunResult Scene::run(RunContext& ctx) {
+    if (m_simulation) return m_simulation->run(ctx);
+    return m_integrator->render(*this, ctx);
+}
+
+static void to_embree(const Ray& ray, RTCRay& r) {
+    r.org_x = float(ray.o.x);
+    r.org_y = float(ray.o.y);
+    r.org_z = float(ray.o.z);
+    r.dir_x = float(ray.d.x);
+    r.dir_y = float(ray.d.y);
+    r.dir_z = float(ray.d.z);
+    r.tnear = float(ray.tmin);
+    r.tfar = ray.tmax == Inf ? std::numeric_limits<float>::infinity() : float(ray.tmax);
+    r.mask = 0xFFFFFFFFu;
+    r.flags = 0;
+    r.time = 0;
+    r.id = 0;
+}
+
+std::optional<SurfaceHit> Scene::intersect(const Ray& ray) const {
+    if (!m_accel) return std::nullopt;
+    RTCIntersectContext context;
+    rtcInitIntersectContext(&context);
+    RTCRayHit rh;
+    to_embree(ray, rh.ray);
+    rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
+    rh.hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
+    rtcIntersect1(m_accel->scene, &context, &rh);
+    if (rh.hit.geomID == RTC_INVALID_GEOMETRY_ID) return std::nullopt;
+    SurfaceHit hit;
+    hit.t = rh.ray.tfar;
+    hit.p = ray.at(hit.t);
+    hit.shape = rh.hit.geomID;
+    hit.prim = rh.hit.primID;
+    hit.uv = {rh.hit.u, rh.hit.v};
+    const ShapeGeometry& g = m_accel->geometry[hit.shape];
+    Vec3d n;
+    if (g.type == ShapeGeometry::Type::Triangles) {
+        const uint32_t* tri = &g.indices[3 * std::size_t(hit.prim)];
+        Vec3d p0 = g.positions[tri[0]], p1 = g.positions[tri[1]], p2 = g.positions[tri[2]];
+        n = glm::cross(p1 - p0, p2 - p0);
+    } else {
+        n = hit.p - Vec3d(g.positions[hit.prim]);
+    }
+    double len = glm::length(n);
+    hit.ng = len > 0 ? n / len : Vec3d(0, 0, 1);
+    if (g.flip_normals) hit.ng = -hit.ng;
+    return hit;
+}
+
+bool Scene::occluded(const Ray& ray) const {
+    if (!m_accel) return false;
+    RTCIntersectContext context;
+    rtcInitIntersectContext(&context);
+    RTCRay r;
+    to_embree(ray, r);
+    rtcOccluded1(m_accel->scene, &context, &r);
+    return r.tfar < 0;  // Embree sets tfar to -inf on a hit
+}
+
+}  // namespace kelvin
+
+KELVIN_PLUGIN(kelvin::Scene, "scene", "scene",
+              "The root of a scene file: shapes, a sensor and an integrator to render, or a simulation to run.",
+              kelvin::param::objects("shape", "geometry, built into one Embree scene"),
+              kelvin::param::object("sensor", "sensor", "the camera (with a nested <film> and <sampler>)"),
+              kelvin::param::object("integrator", "integrator", "rendering algorithm (default: path, or ao)"),
+              kelvin::param::object("simulation", "simulation", "a fluid simulation to run instead of a render"),
+              kelvin::param::objects("bsdf", "shared declarations (referenced with <ref>)"),
+              kelvin::param::objects("texture", "shared declarations (referenced with <ref>)"),
+              kelvin::param::objects("emitter", "light sources"));
