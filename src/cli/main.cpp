@@ -77,12 +77,12 @@ void write_atomically(const fs::path& path, const Bitmap& image, double exposure
     if (ec) throw RuntimeError(fmt::format("cannot write '{}': {}", path.string(), ec.message()));
 }
 
-std::string rate(double work, double seconds) {
+std::string rate(double work, double seconds, const std::string& unit) {
     if (seconds <= 0) return "-";
     double r = work / seconds;
-    if (r >= 1e6) return fmt::format("{:.3g} M/s", r / 1e6);
-    if (r >= 1e3) return fmt::format("{:.3g} k/s", r / 1e3);
-    return fmt::format("{:.3g} /s", r);
+    if (r >= 1e6) return fmt::format("{:.3g} M{}/s", r / 1e6, unit);
+    if (r >= 1e3) return fmt::format("{:.3g} k{}/s", r / 1e3, unit);
+    return fmt::format("{:.3g} {}/s", r, unit);
 }
 
 int run(const Options& o) {
@@ -147,7 +147,7 @@ int run(const Options& o) {
         std::string what = result.image.empty() ? "" : fmt::format(", wrote {}", out.string());
         std::fprintf(stderr, "%s %.4g %s in %.3f s (%s) on %d threads%s\n",
                      result.interrupted ? "Interrupted after" : "Done:", result.work, result.work_unit.c_str(),
-                     result.seconds, rate(result.work, result.seconds).c_str(), thread_count(), what.c_str());
+                     result.seconds, rate(result.work, result.seconds, result.work_unit).c_str(), thread_count(), what.c_str());
         std::string report = ctx.stats.report();
         if (!report.empty()) std::fprintf(stderr, "%s", report.c_str());
     }
