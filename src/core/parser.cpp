@@ -94,6 +94,8 @@ private:
             if (!fs::exists(path, ec))
                 throw_input(from, "scene file '{}' does not exist", display);
             if (fs::is_directory(path, ec)) throw_input(from, "'{}' is a directory, not a scene file", display);
+            // Devices and pipes (/dev/zero, /dev/stdin) would be read forever.
+            if (!fs::is_regular_file(path, ec)) throw_input(from, "'{}' is not a regular file", display);
             std::ifstream in(path, std::ios::binary);
             if (!in) throw_input(from, "cannot open scene file '{}'", display);
             std::ostringstream ss;
@@ -396,6 +398,7 @@ private:
                 fs::path p = attr(n, f, "path");
                 if (p.is_relative()) p = f.path.parent_path() / p;
                 m_out.plugins.push_back({p.lexically_normal(), loc});
+                if (m_opts.load_plugins) Registry::instance().load_plugin_module(p.lexically_normal(), loc);
             } else if (tag == "scene") {
                 throw_input(loc, "<scene> cannot be nested (use <include filename=\"...\"/>)");
             } else if (Registry::instance().has_kind(tag)) {

@@ -49,6 +49,9 @@ struct ParseOptions {
     std::map<std::string, std::string> defines;
     /// Deepest element nesting accepted (a guard against pathological input).
     int max_depth = 128;
+    /// Load <plugin path="..."/> modules as soon as they are met, so that kinds (tags) they add can be used
+    /// further down the same file. Off: only record them (the fuzzer must never dlopen arbitrary paths).
+    bool load_plugins = true;
 };
 
 struct ParsedScene {
