@@ -10,8 +10,10 @@
 #include <OpenImageIO/imageio.h>
 
 #include <algorithm>
+#include <bit>
 #include <cmath>
 #include <cstdint>
+#include <fstream>
 
 namespace kelvin {
 
@@ -109,6 +111,22 @@ static Bitmap read_exr(const fs::path& path) {
     return img;
 }
 
+// OpenImageIO before 2.5 (Debian 12 ships 2.4) reads PFM but has no PFM writer, so write it here.
+static void write_pfm(const fs::path& path, const Bitmap& img) {
+    std::ofstream out(path, std::ios::binary);
+    if (!out) throw RuntimeError(fmt::format("cannot write '{}': cannot open the file", path.string()));
+    // A negative scale marks little-endian floats.
+    out << "PF\n" << img.width() << " " << img.height() << "\n"
+        << (std::endian::native == std::endian::little ? "-1.0" : "1.0") << "\n";
+    std::vector<float> row(std::size_t(img.width()) * 3);
+    for (int y = img.height() - 1; y >= 0; --y) {  // bottom row first
+        for (int x = 0; x < img.width(); ++x)
+            for (int c = 0; c < 3; ++c) row[std::size_t(x) * 3 + std::size_t(c)] = img.at(x, y, c);
+        out.write(reinterpret_cast<const char*>(row.data()), std::streamsize(row.size() * sizeof(float)));
+    }
+    if (!out.flush()) throw RuntimeError(fmt::format("cannot write '{}': write failed", path.string()));
+}
+
 void write_image(const fs::path& path, const Bitmap& img, const ImageWriteOptions& opts) {
     std::string e = ext_of(path);
     if (!is_supported_image_extension(path))
@@ -119,6 +137,10 @@ void write_image(const fs::path& path, const Bitmap& img, const ImageWriteOption
     try {
         if (e == ".exr") {
             write_exr(path, img);
+            return;
+        }
+        if (e == ".pfm") {
+            write_pfm(path, img);
             return;
         }
         auto out = OIIO::ImageOutput::create(path.string());

@@ -1,0 +1,222 @@
+// Image I/O: EXR keeps every named channel bit-exactly; PNG applies exposure and the sRGB curve; errors for
+// unsupported formats.
+#include "test_support.h"
+
+#include <kelvin/core/image.h>
+
+#include <OpenImageIO/imageio.h>
+
+#include <cmath>
+#include <cstring>
+#include <limits>
+
+using namespace kelvin;
+
+namespace {
+
+uint32_t bits(float f) {
+    uint32_t u;
+    std::memcpy(&u, &f, sizeof u);
+    return u;
+}
+
+}  // namespace
+
+TEST(Image, BitmapBasics) {
+    Bitmap b(4, 3);
+    EXPECT_EQ(b.width(), 4);
+    EXPECT_EQ(b.height(), 3);
+    EXPECT_EQ(b.channel_count(), 3);
+    EXPECT_EQ(b.size(), 36u);
+    EXPECT_FALSE(b.empty());
+    EXPECT_EQ(b.channels(), (std::vector<std::string>{"R", "G", "B"}));
+    EXPECT_EQ(b.channel_index("G"), 1);
+    EXPECT_EQ(b.channel_index("A"), -1);
+    b.set_rgb(3, 2, Color3(0.5, 0.25, 2.0));
+    EXPECT_EQ(b.rgb(3, 2), Color3(0.5, 0.25, 2.0));
+    // Interleaved, row-major, top row first.
+    EXPECT_EQ(b.data()[(2 * 4 + 3) * 3 + 2], 2.0f);
+    EXPECT_EQ(b.at(0, 0, 0), 0.0f);
+    EXPECT_TRUE(Bitmap().empty());
+    EXPECT_THROW(Bitmap(-1, 2), RuntimeError);
+}
+
+TEST(Image, AddChannelKeepsExistingData) {
+    Bitmap b(5, 4);
+    for (int y = 0; y < 4; ++y)
+        for (int x = 0; x < 5; ++x) b.set_rgb(x, y, Color3(x, y, x * 10 + y));
+    int idx = b.add_channel("depth");
+    EXPECT_EQ(idx, 3);
+    EXPECT_EQ(b.channel_count(), 4);
+    EXPECT_EQ(b.channel_index("depth"), 3);
+    for (int y = 0; y < 4; ++y)
+        for (int x = 0; x < 5; ++x) {
+            EXPECT_EQ(b.rgb(x, y), Color3(x, y, x * 10 + y)) << x << "," << y;
+            EXPECT_EQ(b.at(x, y, 3), 0.0f);
+            b.at(x, y, 3) = float(100 + x);
+        }
+    int idx2 = b.add_channel("mask");
+    EXPECT_EQ(idx2, 4);
+    EXPECT_EQ(b.at(4, 3, 3), 104.0f);
+    EXPECT_EQ(b.rgb(4, 3), Color3(4, 3, 43));
+    EXPECT_THROW(b.add_channel("R"), RuntimeError);
+}
+
+TEST(Image, SrgbCurve) {
+    EXPECT_EQ(linear_to_srgb(0.0), 0.0);
+    EXPECT_NEAR(linear_to_srgb(1.0), 1.0, 1e-12);
+    EXPECT_NEAR(linear_to_srgb(0.0031308), 0.0031308 * 12.92, 1e-12);
+    EXPECT_NEAR(linear_to_srgb(0.18), 0.46135612950044164, 1e-9);  // middle grey
+    // Continuous at the knee and inverse of each other.
+    EXPECT_NEAR(linear_to_srgb(0.0031308 - 1e-12), linear_to_srgb(0.0031308 + 1e-12), 1e-6);
+    for (double v = 0; v <= 1.0; v += 1.0 / 97) EXPECT_NEAR(srgb_to_linear(linear_to_srgb(v)), v, 1e-12);
+}
+
+TEST(Image, ExrKeepsNamedChannelsBitExact) {
+    ktest::TempDir dir;
+    Bitmap b(5, 4, {"R", "G", "B", "stage.first"});
+    const float special[] = {0.0f, -0.0f, 1e-40f /* denormal */, 3.4e38f, -1.5f,
+                             std::numeric_limits<float>::infinity(), 0.1f, 1.0f / 3.0f};
+    int k = 0;
+    for (int y = 0; y < 4; ++y)
+        for (int x = 0; x < 5; ++x)
+            for (int c = 0; c < 4; ++c, ++k) b.at(x, y, c) = k < 8 ? special[k] : float(k) * 0.37f - 3.0f;
+    auto path = dir.path() / "out.exr";
+    write_image(path, b);
+    Bitmap r = read_image(path);
+    ASSERT_EQ(r.width(), 5);
+    ASSERT_EQ(r.height(), 4);
+    ASSERT_EQ(r.channels(), (std::vector<std::string>{"R", "G", "B", "stage.first"}));
+    for (int y = 0; y < 4; ++y)
+        for (int x = 0; x < 5; ++x)
+            for (int c = 0; c < 4; ++c)
+                ASSERT_EQ(bits(r.at(x, y, c)), bits(b.at(x, y, c))) << x << "," << y << "," << c;
+}
+
+TEST(Image, ExrPutsRgbFirstWhateverTheWriteOrder) {
+    ktest::TempDir dir;
+    Bitmap b(2, 2, {"Z.depth", "B", "alpha2", "G", "R"});
+    for (int y = 0; y < 2; ++y)
+        for (int x = 0; x < 2; ++x)
+            for (int c = 0; c < 5; ++c) b.at(x, y, c) = float(100 * c + 10 * y + x);
+    auto path = dir.path() / "order.exr";
+    write_image(path, b);
+    Bitmap r = read_image(path);
+    ASSERT_EQ(r.channel_count(), 5);
+    EXPECT_EQ(r.channels()[0], "R");
+    EXPECT_EQ(r.channels()[1], "G");
+    EXPECT_EQ(r.channels()[2], "B");
+    for (const auto& name : b.channels()) {
+        int ci = b.channel_index(name), ri = r.channel_index(name);
+        ASSERT_GE(ri, 0) << name;
+        for (int y = 0; y < 2; ++y)
+            for (int x = 0; x < 2; ++x) EXPECT_EQ(r.at(x, y, ri), b.at(x, y, ci)) << name;
+    }
+}
+
+TEST(Image, PngAppliesExposureAndSrgb) {
+    ktest::TempDir dir;
+    const int w = 8, h = 4;
+    Bitmap b(w, h);
+    for (int y = 0; y < h; ++y)
+        for (int x = 0; x < w; ++x)
+            for (int c = 0; c < 3; ++c) b.at(x, y, c) = float((x + w * y) * 3 + c) / float(w * h * 3) * 0.7f;
+    b.set_rgb(0, 0, Color3(0.25, -1.0, 5.0));  // exposure doubles 0.25; negatives clamp to 0, brights to 1
+    const double exposure = 1.0;
+    auto path = dir.path() / "out.png";
+    write_image(path, b, {exposure});
+    Bitmap r = read_image(path);
+    ASSERT_EQ(r.width(), w);
+    ASSERT_EQ(r.height(), h);
+    ASSERT_EQ(r.channel_count(), 3);
+    const double scale = std::exp2(exposure);
+    // 8-bit quantisation with rounding: the sRGB-encoded value is within half a step (plus float noise).
+    const double tol = 0.5 / 255.0 + 1e-5;
+    for (int y = 0; y < h; ++y)
+        for (int x = 0; x < w; ++x)
+            for (int c = 0; c < 3; ++c) {
+                double expected = linear_to_srgb(std::clamp(double(b.at(x, y, c)) * scale, 0.0, 1.0));
+                EXPECT_NEAR(linear_to_srgb(r.at(x, y, c)), expected, tol) << x << "," << y << "," << c;
+            }
+    EXPECT_NEAR(r.at(0, 0, 0), 0.5, 0.01);  // 0.25 * 2^1, linear after read_image's linearisation
+    EXPECT_EQ(r.at(0, 0, 1), 0.0f);
+    EXPECT_EQ(r.at(0, 0, 2), 1.0f);
+}
+
+TEST(Image, NanPixelBecomesZeroInPng) {
+    ktest::TempDir dir;
+    Bitmap b(3, 1);
+    b.set_rgb(0, 0, Color3(0.5, 0.5, 0.5));
+    const double nan = std::numeric_limits<double>::quiet_NaN();
+    b.set_rgb(1, 0, Color3(nan, 0.5, nan));
+    b.set_rgb(2, 0, Color3(-nan, -nan, -nan));
+    auto path = dir.path() / "nan.png";
+    write_image(path, b);
+    Bitmap r = read_image(path);
+    EXPECT_EQ(r.at(1, 0, 0), 0.0f);
+    EXPECT_EQ(r.at(1, 0, 2), 0.0f);
+    EXPECT_NEAR(r.at(1, 0, 1), 0.5, 0.01);  // its finite neighbour channel is untouched
+    for (int c = 0; c < 3; ++c) EXPECT_EQ(r.at(2, 0, c), 0.0f);
+    EXPECT_NEAR(r.at(0, 0, 0), 0.5, 0.01);
+}
+
+TEST(Image, FloatFormatsRoundTrip) {
+    ktest::TempDir dir;
+    Bitmap b(3, 2);
+    for (int y = 0; y < 2; ++y)
+        for (int x = 0; x < 3; ++x) b.set_rgb(x, y, Color3(x + 0.125, y * 7.5, 1e-3 * (x + 1)));
+    for (const char* ext : {".pfm", ".tif"}) {
+        auto path = dir.path() / (std::string("img") + ext);
+        write_image(path, b);
+        Bitmap r = read_image(path);
+        ASSERT_EQ(r.width(), 3) << ext;
+        ASSERT_EQ(r.height(), 2) << ext;
+        for (int y = 0; y < 2; ++y)
+            for (int x = 0; x < 3; ++x) EXPECT_EQ(r.rgb(x, y), b.rgb(x, y)) << ext << " " << x << "," << y;
+    }
+    // RGBE is lossy (8-bit mantissas sharing an exponent): relative error below 1%.
+    auto hdr = dir.path() / "img.hdr";
+    write_image(hdr, b);
+    Bitmap r = read_image(hdr);
+    EXPECT_NEAR(r.at(2, 1, 1), 7.5, 0.075);
+    EXPECT_NEAR(r.at(2, 0, 0), 2.125, 0.02);
+}
+
+TEST(Image, GreyPngFillsRgb) {
+    ktest::TempDir dir;
+    auto path = dir.path() / "grey.png";
+    {
+        auto out = OIIO::ImageOutput::create(path.string());
+        ASSERT_TRUE(out);
+        OIIO::ImageSpec spec(2, 1, 1, OIIO::TypeDesc::UINT8);
+        const uint8_t px[2] = {0, 188};
+        ASSERT_TRUE(out->open(path.string(), spec));
+        ASSERT_TRUE(out->write_image(OIIO::TypeDesc::UINT8, px));
+        out->close();
+    }
+    Bitmap r = read_image(path);
+    ASSERT_EQ(r.channel_count(), 3);
+    for (int c = 0; c < 3; ++c) {
+        EXPECT_EQ(r.at(0, 0, c), 0.0f);
+        EXPECT_NEAR(r.at(1, 0, c), srgb_to_linear(188.0 / 255.0), 1e-6);
+    }
+}
+
+TEST(Image, UnsupportedAndMissingFilesAreInputErrors) {
+    ktest::TempDir dir;
+    Bitmap b(2, 2);
+    std::string msg = ktest::input_error_of([&] { write_image(dir.path() / "out.xyz", b); });
+    EXPECT_CONTAINS(msg, ".xyz");
+    EXPECT_FALSE(std::filesystem::exists(dir.path() / "out.xyz"));
+    EXPECT_THROW(write_image(dir.path() / "noextension", b), InputError);
+    EXPECT_TRUE(is_supported_image_extension("a.EXR"));
+    EXPECT_TRUE(is_supported_image_extension("a.jpeg"));
+    EXPECT_FALSE(is_supported_image_extension("a.bmp"));
+    EXPECT_THROW(read_image(dir.path() / "missing.exr"), InputError);
+    auto junk = dir.write("junk.png", "definitely not a png");
+    EXPECT_THROW(read_image(junk), InputError);
+    // Writing an LDR image needs colour channels; a write into a missing directory is a runtime failure.
+    EXPECT_THROW(write_image(dir.path() / "two.png", Bitmap(2, 2, {"A", "B"})), RuntimeError);
+    EXPECT_THROW(write_image(dir.path() / "no" / "such" / "dir.png", b), RuntimeError);
+    EXPECT_THROW(write_image(dir.path() / "no" / "such" / "dir.exr", b), RuntimeError);
+}
