@@ -34,20 +34,23 @@ const std::string& generated_scene() {
             const double x = (i % 10) * 2.0 - 9, y = ((i / 10) % 10) * 2.0, z = (i / 100) * -2.0;
             switch (i % 3) {
                 case 0:
-                    s += fmt::format("    <shape type=\"sphere\"><point name=\"center\" x=\"{}\" y=\"{}\" z=\"{}\"/>"
-                                     "<float name=\"radius\" value=\"$r\"/></shape>\n",
-                                     x, y, z);
+                    s += fmt::format(
+                        "    <shape type=\"sphere\"><point name=\"center\" x=\"{}\" y=\"{}\" z=\"{}\"/>"
+                        "<float name=\"radius\" value=\"$r\"/></shape>\n",
+                        x, y, z);
                     break;
                 case 1:
-                    s += fmt::format("    <shape type=\"rectangle\"><transform name=\"to_world\"><scale value=\"0.4\"/>"
-                                     "<rotate x=\"1\" angle=\"{}\"/><translate x=\"{}\" y=\"{}\" z=\"{}\"/></transform></shape>\n",
-                                     i % 90, x, y, z);
+                    s += fmt::format(
+                        "    <shape type=\"rectangle\"><transform name=\"to_world\"><scale value=\"0.4\"/>"
+                        "<rotate x=\"1\" angle=\"{}\"/><translate x=\"{}\" y=\"{}\" z=\"{}\"/></transform></shape>\n",
+                        i % 90, x, y, z);
                     break;
                 default:
-                    s += fmt::format("    <shape type=\"cube\"><transform name=\"to_world\"><scale value=\"0.3\"/>"
-                                     "<rotate y=\"1\" angle=\"{}\"/><translate x=\"{}\" y=\"{}\" z=\"{}\"/></transform>"
-                                     "<boolean name=\"flip_normals\" value=\"false\"/></shape>\n",
-                                     i % 45, x, y, z);
+                    s += fmt::format(
+                        "    <shape type=\"cube\"><transform name=\"to_world\"><scale value=\"0.3\"/>"
+                        "<rotate y=\"1\" angle=\"{}\"/><translate x=\"{}\" y=\"{}\" z=\"{}\"/></transform>"
+                        "<boolean name=\"flip_normals\" value=\"false\"/></shape>\n",
+                        i % 45, x, y, z);
             }
         }
         return s + "</scene>\n";

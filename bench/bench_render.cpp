@@ -50,7 +50,9 @@ const std::vector<Ray>& incoherent_rays() {
         auto [lo, hi] = default_scene()->bounds();
         Vec3d c = 0.5 * (lo + hi), e = 0.55 * (hi - lo);
         Random rng(2, 0);
-        auto point = [&] { return c + e * Vec3d(2 * rng.next_double() - 1, 2 * rng.next_double() - 1, 2 * rng.next_double() - 1); };
+        auto point = [&] {
+            return c + e * Vec3d(2 * rng.next_double() - 1, 2 * rng.next_double() - 1, 2 * rng.next_double() - 1);
+        };
         std::vector<Ray> out;
         for (int i = 0; i < kRes * kRes; ++i) {
             Vec3d o = point();

@@ -149,7 +149,7 @@ TEST(AmbientOcclusion, MaxDistanceIgnoresFartherOccluders) {
 }
 
 TEST(AmbientOcclusion, RejectsBadParameters) {
-    EXPECT_THROW(make_ao_scene(1.0, 2.0, 0), InputError);         // shading_samples >= 1
-    EXPECT_THROW(make_ao_scene(1.0, 2.0, 1, 0.0), InputError);    // max_distance > 0 or -1
+    EXPECT_THROW(make_ao_scene(1.0, 2.0, 0), InputError);       // shading_samples >= 1
+    EXPECT_THROW(make_ao_scene(1.0, 2.0, 1, 0.0), InputError);  // max_distance > 0 or -1
     EXPECT_THROW(make_ao_scene(1.0, 2.0, 1, -2.0), InputError);
 }

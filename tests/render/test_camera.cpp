@@ -14,8 +14,7 @@ using namespace kelvin;
 namespace {
 
 std::shared_ptr<Scene> make_camera(const std::string& origin, const std::string& target, const std::string& up,
-                                   double fov, const std::string& axis, int w, int h,
-                                   const std::string& extra = "") {
+                                   double fov, const std::string& axis, int w, int h, const std::string& extra = "") {
     const std::string xml = fmt::format(R"(
         <scene version="3.0.0">
             <integrator type="ao"/>
@@ -102,16 +101,20 @@ TEST(Perspective, ImageOrientationMatchesMitsuba) {
     const Sensor& s = *scene->sensor();
     for (int x = 0; x < w; ++x) {
         Ray r = s.sample_ray({x + 0.5, h / 2.0}, {});
-        if (x < w / 2) EXPECT_LT(r.d.x, 0) << "left half, column " << x;
-        else EXPECT_GT(r.d.x, 0) << "right half, column " << x;
+        if (x < w / 2)
+            EXPECT_LT(r.d.x, 0) << "left half, column " << x;
+        else
+            EXPECT_GT(r.d.x, 0) << "right half, column " << x;
         EXPECT_NEAR(r.d.y, 0, 1e-12);
         EXPECT_LT(r.d.z, 0);
         if (x > 0) EXPECT_GT(r.d.x, s.sample_ray({x - 0.5, h / 2.0}, {}).d.x) << "x grows to the right";
     }
     for (int y = 0; y < h; ++y) {
         Ray r = s.sample_ray({w / 2.0, y + 0.5}, {});
-        if (y < h / 2) EXPECT_GT(r.d.y, 0) << "top half, row " << y;
-        else EXPECT_LT(r.d.y, 0) << "bottom half, row " << y;
+        if (y < h / 2)
+            EXPECT_GT(r.d.y, 0) << "top half, row " << y;
+        else
+            EXPECT_LT(r.d.y, 0) << "bottom half, row " << y;
     }
     // The same through a rotated camera: looking along +x with +z up, image right is world -y.
     auto rot = make_camera("0, 0, 0", "1, 0, 0", "0, 0, 1", 50, "x", w, h);

@@ -20,7 +20,8 @@ namespace {
 
 // Every render scene needs a sensor; the tests only use the geometry.
 std::shared_ptr<Scene> make_scene(const std::string& shapes) {
-    const std::string xml = "<scene version=\"3.0.0\"><integrator type=\"ao\"/><sensor type=\"perspective\"/>" + shapes + "</scene>";
+    const std::string xml =
+        "<scene version=\"3.0.0\"><integrator type=\"ao\"/><sensor type=\"perspective\"/>" + shapes + "</scene>";
     auto scene = std::dynamic_pointer_cast<Scene>(instantiate(parse_scene_string(xml)));
     if (!scene) throw std::runtime_error("root object is not a kelvin::Scene");
     return scene;
@@ -74,9 +75,11 @@ TEST(Intersect, SphereAnalyticDistanceAndNormal) {
     Random rng(7, 1);
     int hits = 0;
     for (int i = 0; i < 2000; ++i) {
-        Vec3d o = kSphereC + Vec3d(rng.next_double() * 20 - 10, rng.next_double() * 20 - 10, rng.next_double() * 20 - 10);
+        Vec3d o =
+            kSphereC + Vec3d(rng.next_double() * 20 - 10, rng.next_double() * 20 - 10, rng.next_double() * 20 - 10);
         if (glm::length(o - kSphereC) < 2 * kSphereR) continue;
-        Vec3d target = kSphereC + 1.2 * kSphereR * Vec3d(rng.next_double() - .5, rng.next_double() - .5, rng.next_double() - .5);
+        Vec3d target =
+            kSphereC + 1.2 * kSphereR * Vec3d(rng.next_double() - .5, rng.next_double() - .5, rng.next_double() - .5);
         Vec3d d = target - o;  // deliberately unnormalised: t is in units of |d|
         double t_ref = sphere_hit(o, d, kSphereC, kSphereR);
         auto h = scene->intersect(Ray{o, d});
@@ -173,7 +176,7 @@ TEST(Intersect, CubeNormalsPointOutwardOnAllFaces) {
 
 TEST(Intersect, MissesReturnNullopt) {
     auto scene = make_scene(kSphere);
-    EXPECT_FALSE(scene->intersect(Ray{{2, 0, -5}, {0, 0, -1}}));  // pointing away
+    EXPECT_FALSE(scene->intersect(Ray{{2, 0, -5}, {0, 0, -1}}));    // pointing away
     EXPECT_FALSE(scene->intersect(Ray{{2, 1.01, -5}, {0, 0, 1}}));  // passes just above
     EXPECT_FALSE(scene->occluded(Ray{{2, 0, -5}, {0, 0, -1}}));
 
@@ -212,7 +215,8 @@ TEST(Intersect, TminTmaxHonoured) {
 }
 
 TEST(Intersect, FlipNormalsFlips) {
-    auto plain = make_scene(R"(<shape type="sphere"/><shape type="rectangle"><transform name="to_world"><translate z="-3"/></transform></shape>)");
+    auto plain = make_scene(
+        R"(<shape type="sphere"/><shape type="rectangle"><transform name="to_world"><translate z="-3"/></transform></shape>)");
     auto flipped = make_scene(R"(
         <shape type="sphere"><boolean name="flip_normals" value="true"/></shape>
         <shape type="rectangle"><boolean name="flip_normals" value="true"/><transform name="to_world"><translate z="-3"/></transform></shape>)");
@@ -269,4 +273,28 @@ TEST(Intersect, OccludedAgreesWithIntersectOnRandomRays) {
     EXPECT_GT(hits, 2000);
     EXPECT_GT(misses, 2000);
     EXPECT_GT(limited, 2000);
+}
+
+TEST(Intersect, MirroredTransformsKeepOrientation) {
+    // A mirror (negative determinant) in to_world reverses the winding of the transformed triangles; the
+    // cube must still face outwards, and the rectangle's normal is the transformed normal +z (as for an
+    // analytic rectangle: normals transform with the inverse transpose, which a mirror in x leaves at +z).
+    auto scene = make_scene(R"(
+        <shape type="cube"><transform name="to_world"><scale x="-1" y="1" z="1"/><translate x="5"/></transform></shape>
+        <shape type="rectangle"><transform name="to_world"><scale x="-2" y="2" z="1"/><translate z="-5"/></transform></shape>)");
+    for (int axis = 0; axis < 3; ++axis)
+        for (int sign : {-1, 1}) {
+            Vec3d n(0.0);
+            n[axis] = sign;
+            Vec3d off(0.13, -0.21, 0.17);
+            off[axis] = 0;
+            auto hit = scene->intersect(Ray{Vec3d(5, 0, 0) + 4.0 * n + off, -n});
+            ASSERT_TRUE(hit);
+            EXPECT_EQ(hit->shape, 0u);
+            expect_vec_near(hit->ng, n, 1e-6, "mirrored cube: outward normal");
+        }
+    auto hit = scene->intersect(Ray{{0.5, 0.5, 0}, {0, 0, -1}});
+    ASSERT_TRUE(hit);
+    EXPECT_EQ(hit->shape, 1u);
+    expect_vec_near(hit->ng, {0, 0, 1}, 1e-6, "mirrored rectangle: normal +z");
 }

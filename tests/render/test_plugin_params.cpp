@@ -13,9 +13,7 @@ using namespace kelvin;
 
 namespace {
 
-std::string scene_with(const std::string& body) {
-    return "<scene version=\"3.0.0\">\n" + body + "\n</scene>";
-}
+std::string scene_with(const std::string& body) { return "<scene version=\"3.0.0\">\n" + body + "\n</scene>"; }
 
 // The InputError raised while loading `xml` (the test fails if none is).
 InputError load_error(const std::string& xml) {
@@ -28,8 +26,8 @@ InputError load_error(const std::string& xml) {
     return InputError({}, "");
 }
 
-#define EXPECT_CONTAINS(haystack, needle)                                                             \
-    EXPECT_NE(std::string(haystack).find(needle), std::string::npos)                                  \
+#define EXPECT_CONTAINS(haystack, needle)                            \
+    EXPECT_NE(std::string(haystack).find(needle), std::string::npos) \
         << "expected to find \"" << (needle) << "\" in:\n  " << (haystack)
 
 const char* kSensor = "<integrator type=\"ao\"/><sensor type=\"perspective\"/>";
@@ -51,9 +49,11 @@ TEST(PluginParams, SphereRejectsNonUniformScale) {
 }
 
 TEST(PluginParams, SphereRejectsNonPositiveRadius) {
-    InputError e = load_error(scene_with(std::string(kSensor) + R"(<shape type="sphere"><float name="radius" value="0"/></shape>)"));
+    InputError e = load_error(
+        scene_with(std::string(kSensor) + R"(<shape type="sphere"><float name="radius" value="0"/></shape>)"));
     EXPECT_CONTAINS(e.what(), "'radius'");
-    e = load_error(scene_with(std::string(kSensor) + R"(<shape type="sphere"><float name="radius" value="-1"/></shape>)"));
+    e = load_error(
+        scene_with(std::string(kSensor) + R"(<shape type="sphere"><float name="radius" value="-1"/></shape>)"));
     EXPECT_CONTAINS(e.what(), "'radius'");
 }
 
@@ -70,7 +70,8 @@ TEST(PluginParams, FilmWidthZero) {
         </sensor>)"));
     EXPECT_CONTAINS(e.what(), "'width'");
     EXPECT_EQ(e.location().line, 4);
-    e = load_error(scene_with(R"(<sensor type="perspective"><film type="hdrfilm"><integer name="height" value="-3"/></film></sensor>)"));
+    e = load_error(scene_with(
+        R"(<sensor type="perspective"><film type="hdrfilm"><integer name="height" value="-3"/></film></sensor>)"));
     EXPECT_CONTAINS(e.what(), "'height'");
 }
 
@@ -85,17 +86,22 @@ TEST(PluginParams, PerspectiveFovAxisSuggestsDiagonal) {
 }
 
 TEST(PluginParams, PerspectiveFovAndClipRanges) {
-    EXPECT_CONTAINS(load_error(scene_with(R"(<sensor type="perspective"><float name="fov" value="180"/></sensor>)")).what(),
-                    "'fov'");
-    EXPECT_CONTAINS(load_error(scene_with(R"(<sensor type="perspective"><float name="fov" value="0"/></sensor>)")).what(),
-                    "'fov'");
-    EXPECT_CONTAINS(load_error(scene_with(R"(<sensor type="perspective"><float name="near_clip" value="5"/><float name="far_clip" value="1"/></sensor>)"))
-                        .what(),
-                    "'far_clip'");
+    EXPECT_CONTAINS(
+        load_error(scene_with(R"(<sensor type="perspective"><float name="fov" value="180"/></sensor>)")).what(),
+        "'fov'");
+    EXPECT_CONTAINS(
+        load_error(scene_with(R"(<sensor type="perspective"><float name="fov" value="0"/></sensor>)")).what(), "'fov'");
+    EXPECT_CONTAINS(
+        load_error(
+            scene_with(
+                R"(<sensor type="perspective"><float name="near_clip" value="5"/><float name="far_clip" value="1"/></sensor>)"))
+            .what(),
+        "'far_clip'");
 }
 
 TEST(PluginParams, UnknownParameterNamesTheClosestDeclared) {
-    InputError e = load_error(scene_with(std::string(kSensor) + R"(<shape type="sphere"><float name="raduis" value="1"/></shape>)"));
+    InputError e = load_error(
+        scene_with(std::string(kSensor) + R"(<shape type="sphere"><float name="raduis" value="1"/></shape>)"));
     EXPECT_CONTAINS(e.what(), "raduis");
     EXPECT_CONTAINS(e.what(), "'radius'");
 }
@@ -103,4 +109,14 @@ TEST(PluginParams, UnknownParameterNamesTheClosestDeclared) {
 TEST(PluginParams, SceneWithoutSensorIsAnError) {
     InputError e = load_error(scene_with(R"(<shape type="sphere"/>)"));
     EXPECT_CONTAINS(e.what(), "sensor");
+}
+
+TEST(PluginParams, SphereRejectsShearBetweenYAndZ) {
+    // Columns (1,0,0), (0,1,0), (0,0.6,0.8): all of length 1, x orthogonal to y and z, but y and z are not
+    // orthogonal: a shear that would turn the sphere into an ellipsoid.
+    InputError e = load_error(scene_with(std::string(kSensor) + R"(
+        <shape type="sphere">
+            <transform name="to_world"><matrix value="1 0 0 0  0 1 0.6 0  0 0 0.8 0  0 0 0 1"/></transform>
+        </shape>)"));
+    EXPECT_CONTAINS(e.what(), "'to_world'");
 }

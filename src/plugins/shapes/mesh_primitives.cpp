@@ -20,10 +20,16 @@ class TriangleShape : public Shape {
 public:
     TriangleShape(const Properties& props, const std::vector<Vec3d>& p, std::vector<uint32_t> idx) {
         Transform t = props.get_transform("to_world");
-        if (std::abs(glm::determinant(Mat3d(t.matrix))) < 1e-300) props.error("to_world", "is singular");
+        const double det = glm::determinant(Mat3d(t.matrix));
+        if (std::abs(det) < 1e-300) props.error("to_world", "is singular");
         m_geom.type = ShapeGeometry::Type::Triangles;
         for (const auto& v : p) m_geom.positions.emplace_back(t.apply_point(v));
         m_geom.indices = std::move(idx);
+        // A mirroring transform reverses the winding; restore it so that the cube still faces outwards and
+        // the rectangle's normal is the transformed (inverse-transpose) +z.
+        if (det < 0)
+            for (std::size_t i = 0; i < m_geom.indices.size(); i += 3)
+                std::swap(m_geom.indices[i + 1], m_geom.indices[i + 2]);
         m_geom.flip_normals = props.get_bool("flip_normals");
         for (std::size_t i = 0; i < m_geom.indices.size(); i += 3) {
             Vec3d a = m_geom.positions[m_geom.indices[i]], b = m_geom.positions[m_geom.indices[i + 1]],

@@ -27,7 +27,7 @@ public:
         Vec3d sx = t.apply_vector({1, 0, 0}), sy = t.apply_vector({0, 1, 0}), sz = t.apply_vector({0, 0, 1});
         double lx = glm::length(sx), ly = glm::length(sy), lz = glm::length(sz);
         if (std::abs(lx - ly) > 1e-6 * lx || std::abs(lx - lz) > 1e-6 * lx || std::abs(glm::dot(sx, sy)) > 1e-6 * lx * ly ||
-            std::abs(glm::dot(sx, sz)) > 1e-6 * lx * lz)
+            std::abs(glm::dot(sx, sz)) > 1e-6 * lx * lz || std::abs(glm::dot(sy, sz)) > 1e-6 * ly * lz)
             props.error("to_world", "a sphere needs a similarity transform (no shear, no non-uniform scale)");
         m_center = t.apply_point(props.get_point("center"));
         m_radius = r * lx;
