@@ -1,0 +1,187 @@
+// Runs `kelvin` with the out-of-tree example plugin (examples/plugins: the `depth` integrator) built by the
+// plugin_example_* CTest fixtures. Environment:
+//   KELVIN_TEST_PLUGIN_DIR  the directory holding the built depth_integrator.so (required)
+//   KELVIN_TEST_CLI         the kelvin executable to run (default: the one of this build)
+//
+// The scene is examples/plugins/depth.xml: a unit sphere 5 units in front of the camera, so the centre pixel
+// of an odd-sized film reads the distance to its surface, 4 (to within 0.003 over the pixel's footprint),
+// and corners, which see nothing, read 0.
+#include "cli/subprocess.h"
+
+#include <kelvin/core/image.h>
+
+#include <gtest/gtest.h>
+
+using namespace kelvin::test;
+
+namespace {
+
+const fs::path DepthScene = fs::path(KELVIN_SOURCE_DIR) / "examples" / "plugins" / "depth.xml";
+constexpr int Res = 33;
+
+class PluginCli : public ::testing::Test {
+protected:
+    void SetUp() override {
+        const char* dir = std::getenv("KELVIN_TEST_PLUGIN_DIR");
+        ASSERT_TRUE(dir && *dir) << "KELVIN_TEST_PLUGIN_DIR is not set (run through ctest -R plugin_cli)";
+        m_plugin_dir = dir;
+        ASSERT_TRUE(fs::exists(m_plugin_dir / "depth_integrator.so")) << m_plugin_dir;
+    }
+
+    std::vector<std::string> render_args(const fs::path& scene, const fs::path& out,
+                                         std::vector<std::string> extra = {}) const {
+        std::vector<std::string> a = {scene.string(), "-q",    "-D", "res=" + std::to_string(Res),
+                                      "-D",           "spp=4", "-o", out.string()};
+        a.insert(a.end(), extra.begin(), extra.end());
+        return a;
+    }
+
+    /// A successful run that wrote a Res x Res depth image; the image.
+    static kelvin::Bitmap expect_depth_image(const ProcessResult& r, const fs::path& out) {
+        EXPECT_EQ(r.exit_code, 0) << describe(r);
+        if (!fs::exists(out)) {
+            ADD_FAILURE() << "no output\n" << describe(r);
+            return {};
+        }
+        kelvin::Bitmap img = kelvin::read_image(out);
+        EXPECT_EQ(img.width(), Res);
+        EXPECT_EQ(img.height(), Res);
+        return img;
+    }
+
+    static void expect_depth_values(const kelvin::Bitmap& img, double scale) {
+        if (img.width() != Res || img.height() != Res) return;
+        const int c = Res / 2;
+        kelvin::Color3 centre = img.rgb(c, c);
+        EXPECT_NEAR(centre.r, 4.0 * scale, 0.005 * scale);
+        EXPECT_EQ(centre.r, centre.g);
+        EXPECT_EQ(centre.r, centre.b);
+        for (auto [x, y] : {std::pair{0, 0}, {Res - 1, 0}, {0, Res - 1}, {Res - 1, Res - 1}})
+            EXPECT_EQ(img.rgb(x, y), kelvin::Color3(0.0)) << "corner " << x << "," << y;
+        // The far sphere (centre 8.18 from the camera) is seen too: depth varies over the image.
+        float hi = 0;
+        for (int y = 0; y < Res; ++y)
+            for (int x = 0; x < Res; ++x) hi = std::max(hi, float(img.rgb(x, y).r));
+        EXPECT_GT(hi, 6.5 * scale);
+        EXPECT_LT(hi, 8.2 * scale);
+    }
+
+    TempDir m_dir;
+    fs::path m_plugin_dir;
+};
+
+TEST_F(PluginCli, UnknownWithoutThePlugin) {
+    fs::path out = m_dir / "depth.exr";
+    auto r = run_kelvin(render_args(DepthScene, out));
+    EXPECT_EQ(r.exit_code, 2) << describe(r);
+    auto lines = r.err_lines();
+    ASSERT_EQ(lines.size(), 1u) << describe(r);
+    EXPECT_EQ(lines[0].rfind("kelvin: error: " + DepthScene.string() + ":", 0), 0u) << lines[0];
+    EXPECT_NE(lines[0].find("unknown integrator plugin 'depth'"), std::string::npos) << lines[0];
+    EXPECT_FALSE(fs::exists(out));
+}
+
+TEST_F(PluginCli, PluginPathOption) {
+    fs::path out = m_dir / "depth.exr";
+    auto r = run_kelvin(render_args(DepthScene, out, {"--plugin-path", m_plugin_dir.string()}));
+    expect_depth_values(expect_depth_image(r, out), 1.0);
+}
+
+TEST_F(PluginCli, PluginPathToTheModuleFile) {
+    fs::path out = m_dir / "depth.exr";
+    auto r =
+        run_kelvin(render_args(DepthScene, out, {"--plugin-path", (m_plugin_dir / "depth_integrator.so").string()}));
+    expect_depth_values(expect_depth_image(r, out), 1.0);
+}
+
+TEST_F(PluginCli, ScaleParameter) {
+    fs::path out = m_dir / "depth.exr";
+    auto r = run_kelvin(render_args(DepthScene, out, {"--plugin-path", m_plugin_dir.string(), "-D", "scale=0.25"}));
+    expect_depth_values(expect_depth_image(r, out), 0.25);
+}
+
+TEST_F(PluginCli, BadScaleNamesTheParameter) {
+    fs::path out = m_dir / "depth.exr";
+    auto r = run_kelvin(render_args(DepthScene, out, {"--plugin-path", m_plugin_dir.string(), "-D", "scale=-1"}));
+    EXPECT_EQ(r.exit_code, 2) << describe(r);
+    auto lines = r.err_lines();
+    ASSERT_EQ(lines.size(), 1u) << describe(r);
+    EXPECT_NE(lines[0].find("scale"), std::string::npos) << lines[0];
+    EXPECT_NE(lines[0].find(DepthScene.string() + ":"), std::string::npos) << lines[0];
+}
+
+TEST_F(PluginCli, EnvironmentVariable) {
+    fs::path out = m_dir / "depth.exr";
+    // A ':'-separated list; empty entries are ignored.
+    auto r = run_kelvin(render_args(DepthScene, out), {{"KELVIN_PLUGIN_PATH", ":" + m_plugin_dir.string() + ":"}});
+    expect_depth_values(expect_depth_image(r, out), 1.0);
+}
+
+TEST_F(PluginCli, SameModuleFromTwoPlacesLoadsOnce) {
+    fs::path out = m_dir / "depth.exr";
+    auto r = run_kelvin(render_args(DepthScene, out, {"--plugin-path", m_plugin_dir.string()}),
+                        {{"KELVIN_PLUGIN_PATH", m_plugin_dir.string()}});
+    expect_depth_values(expect_depth_image(r, out), 1.0);
+}
+
+TEST_F(PluginCli, PluginElementInTheScene) {
+    // A scene in another directory that loads the module by a path relative to itself and includes depth.xml.
+    fs::path rel = fs::relative(m_plugin_dir, m_dir.path());
+    ASSERT_FALSE(rel.empty());
+    ASSERT_TRUE(rel.is_relative());
+    fs::path scene = m_dir / "with-plugin.xml";
+    write_file(scene,
+               "<scene version=\"3.0.0\">\n"
+               "    <plugin path=\"" +
+                   rel.string() +
+                   "\"/>\n"
+                   "    <include filename=\"" +
+                   DepthScene.string() +
+                   "\"/>\n"
+                   "</scene>\n");
+    fs::path out = m_dir / "depth.exr";
+    auto r = run_kelvin(render_args(scene, out));
+    expect_depth_values(expect_depth_image(r, out), 1.0);
+
+    // A <plugin> path that does not exist is an error at its element.
+    write_file(scene,
+               "<scene version=\"3.0.0\">\n"
+               "    <plugin path=\"no-such-plugins\"/>\n"
+               "    <include filename=\"" +
+                   DepthScene.string() +
+                   "\"/>\n"
+                   "</scene>\n");
+    fs::remove(out);
+    r = run_kelvin(render_args(scene, out));
+    EXPECT_EQ(r.exit_code, 2) << describe(r);
+    auto lines = r.err_lines();
+    ASSERT_EQ(lines.size(), 1u) << describe(r);
+    EXPECT_NE(lines[0].find(scene.string() + ":2:5:"), std::string::npos) << lines[0];
+    EXPECT_NE(lines[0].find("no-such-plugins"), std::string::npos) << lines[0];
+    EXPECT_FALSE(fs::exists(out));
+}
+
+TEST_F(PluginCli, ListedWithItsParametersAndSource) {
+    auto r = run_kelvin({"--plugin-path", m_plugin_dir.string(), "--list-plugins", "integrator"});
+    EXPECT_EQ(r.exit_code, 0) << describe(r);
+    auto lines = lines_of(r.out);
+    auto depth =
+        std::find_if(lines.begin(), lines.end(), [](const std::string& l) { return l.rfind("  depth ", 0) == 0; });
+    ASSERT_NE(depth, lines.end()) << r.out;
+    EXPECT_NE(depth->find("depth_integrator.so"), std::string::npos) << *depth;
+    ASSERT_NE(depth + 1, lines.end()) << r.out;
+    std::istringstream param(*(depth + 1));
+    std::string name, type, def;
+    param >> name >> type >> def;
+    EXPECT_EQ(name, "scale");
+    EXPECT_EQ(type, "float");
+    EXPECT_EQ(def, "1");
+    // The built-in integrators are still there.
+    EXPECT_NE(r.out.find("\n  ao "), std::string::npos) << r.out;
+
+    auto without = run_kelvin({"--list-plugins", "integrator"});
+    EXPECT_EQ(without.exit_code, 0) << describe(without);
+    EXPECT_EQ(without.out.find("depth"), std::string::npos) << without.out;
+}
+
+}  // namespace
