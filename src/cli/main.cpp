@@ -49,9 +49,14 @@ struct Options {
 
 void print_plugins(const std::string& kind) {
     auto& reg = Registry::instance();
-    if (!kind.empty() && !reg.has_kind(kind))
-        throw InputError({}, fmt::format("--list-plugins: unknown kind '{}'{}", kind,
-                                         did_you_mean(kind, reg.kind_names())));
+    if (!kind.empty() && !reg.has_kind(kind)) {
+        std::string hint = did_you_mean(kind, reg.kind_names());
+        if (hint.empty()) {
+            for (const auto& k : reg.kind_names()) hint += (hint.empty() ? " (kinds: " : ", ") + k;
+            hint += ")";
+        }
+        throw InputError({}, fmt::format("--list-plugins: unknown kind '{}'{}", kind, hint));
+    }
     std::string last_kind;
     for (const PluginInfo* p : reg.plugins(kind)) {
         if (p->kind != last_kind) {
@@ -71,7 +76,13 @@ void write_atomically(const fs::path& path, const Bitmap& image, double exposure
     // Write to a temporary name and rename, so a reader never sees a half-written file.
     fs::path tmp = path;
     tmp += ".partial" + path.extension().string();
-    write_image(tmp, image, {exposure});
+    try {
+        write_image(tmp, image, {exposure});
+    } catch (const RuntimeError& e) {
+        std::error_code ec;
+        fs::remove(tmp, ec);
+        throw RuntimeError(fmt::format("cannot write '{}': {}", path.string(), e.what()));
+    }
     std::error_code ec;
     fs::rename(tmp, path, ec);
     if (ec) throw RuntimeError(fmt::format("cannot write '{}': {}", path.string(), ec.message()));
@@ -113,6 +124,8 @@ int run(const Options& o) {
     if (!is_supported_image_extension(out))
         throw InputError({}, fmt::format("-o '{}': unsupported image format '{}' (use .exr, .png, .jpg, .hdr, .pfm or "
                                          ".tif)", out.string(), out.extension().string()));
+    if (fs::path dir = out.parent_path(); !dir.empty() && !fs::is_directory(dir))
+        throw InputError({}, fmt::format("-o '{}': directory '{}' does not exist", out.string(), dir.string()));
     if (o.skip_existing && fs::exists(out)) {
         log_info("{} exists; skipping (--skip-existing)", out.string());
         return ExitOk;
