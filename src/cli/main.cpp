@@ -85,7 +85,11 @@ void write_atomically(const fs::path& path, const Bitmap& image, double exposure
     }
     std::error_code ec;
     fs::rename(tmp, path, ec);
-    if (ec) throw RuntimeError(fmt::format("cannot write '{}': {}", path.string(), ec.message()));
+    if (ec) {
+        std::error_code ignored;
+        fs::remove(tmp, ignored);
+        throw RuntimeError(fmt::format("cannot write '{}': {}", path.string(), ec.message()));
+    }
 }
 
 std::string rate(double work, double seconds, const std::string& unit) {

@@ -58,6 +58,7 @@ RunResult SamplingIntegrator::render(const Scene& scene, RunContext& ctx) {
                             v = Color3(0.0);
                         }
                         buffer.add(x, y, &v[0], 1.0);
+                        ++c.samples;
                     }
             }
         });
@@ -84,14 +85,17 @@ RunResult SamplingIntegrator::render(const Scene& scene, RunContext& ctx) {
 
     SampleCounters total;
     for (const auto& c : counters) {
+        total.samples += c.samples;
         total.rays += c.rays;
         total.invalid += c.invalid;
     }
     result.image = buffer.develop(rgb);
     result.seconds = timer.seconds();
     result.work = double(done);
+    // An interrupted pass leaves some pixels with more samples than others: `done` counts complete passes,
+    // camera_samples every sample in the image.
     ctx.stats.set("render.spp", double(done), "spp");
-    ctx.stats.add("render.camera_samples", double(done) * w * h, "samples");
+    ctx.stats.add("render.camera_samples", double(total.samples), "samples");
     ctx.stats.add("render.rays", double(total.rays), "rays");
     ctx.stats.add("render.invalid_samples", double(total.invalid), "samples");
     if (total.invalid > 0)

@@ -161,12 +161,26 @@ TEST_F(CliErrors, MissingPluginPath) {
     EXPECT_NE(line.find("no-such-dir"), std::string::npos) << line;
 }
 
-TEST_F(CliErrors, UnwritableOutputIsARuntimeFailure) {
-    // The directory does not exist: not bad input but a failure to write, so exit code 1.
+TEST_F(CliErrors, OutputInMissingDirectoryIsRefusedBeforeRendering) {
+    // A missing output directory is a mistake in the arguments: refused up front (exit 2), no render.
     fs::path o = m_dir / "no-such-dir" / "out.exr";
     auto r = run_kelvin({TinyScene, "-q", "-o", o.string()});
-    std::string line = expect_one_error_line(r, 1);
+    std::string line = expect_one_error_line(r, 2);
     EXPECT_NE(line.find("no-such-dir"), std::string::npos) << line;
+    EXPECT_NE(line.find("does not exist"), std::string::npos) << line;
+}
+
+TEST_F(CliErrors, UnwritableOutputIsARuntimeFailure) {
+    // The output name is taken by a directory: the render runs, writing fails, exit code 1, and the message
+    // names the output the user asked for (not the temporary file).
+    fs::path o = m_dir / "taken.exr";
+    fs::create_directory(o);
+    auto r = run_kelvin({TinyScene, "-q", "-o", o.string()});
+    std::string line = expect_one_error_line(r, 1);
+    EXPECT_NE(line.find("'" + o.string() + "'"), std::string::npos) << line;
+    EXPECT_TRUE(fs::is_directory(o));
+    for (const auto& e : fs::directory_iterator(m_dir.path()))
+        EXPECT_EQ(e.path().string().find(".partial"), std::string::npos) << "temporary file left: " << e.path();
 }
 
 }  // namespace

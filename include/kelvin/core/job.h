@@ -19,7 +19,8 @@ struct RunContext {
     double write_partial = 0;    ///< seconds between partial outputs; 0 = never
     bool quiet = false;
     std::filesystem::path output;  ///< main output file (renders) or output prefix (simulations)
-    /// Called with the image so far every `write_partial` seconds and on interruption.
+    /// Called with the image so far every `write_partial` seconds. (On interruption the job returns early
+    /// with RunResult::interrupted set and the image so far; the caller writes it.)
     std::function<void(const Bitmap&)> write_partial_image;
     Stats stats;
 };

@@ -18,6 +18,7 @@ public:
 
 /// Per-worker counters a SamplingIntegrator gathers without locking.
 struct SampleCounters {
+    uint64_t samples = 0;  ///< camera samples taken (kept by the pixel loop)
     uint64_t rays = 0;
     uint64_t invalid = 0;  ///< NaN, Inf or negative estimates, recorded as zero
 };
