@@ -18,7 +18,7 @@ void Stats::add_time(const std::string& name, double seconds) {
     std::lock_guard lock(m_mutex);
     Counter& c = m_counters[name];
     c.name = name;
-    c.unit = "s";
+    c.unit.assign(1, 's');  // (not = "s": GCC 12 -Wrestrict false positive, bug 105651)
     c.is_time = true;
     c.value += seconds;
 }
