@@ -66,6 +66,7 @@ void print_plugins(const std::string& kind) {
         fmt::print("  {:<20} {}{}\n", p->name, p->doc, p->source == "builtin" ? "" : "  [" + p->source + "]");
         for (const ParamSpec& s : p->params) {
             std::string type = s.type == PropType::Object ? "<" + s.object_kind + ">" : to_string(s.type);
+            if (s.type != PropType::Object && !s.object_kind.empty()) type += "|<" + s.object_kind + ">";
             fmt::print("      {:<18} {:<12} {:<16} {}\n", s.name, type, s.default_string(), s.doc);
         }
     }

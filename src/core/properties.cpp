@@ -65,6 +65,11 @@ ParamSpec vector(std::string n, Vec3d d, std::string doc) { return make(std::mov
 ParamSpec transform(std::string n, std::string doc) {
     return make(std::move(n), PropType::Transform, Transform(), std::move(doc));
 }
+ParamSpec texture(std::string n, Color3 d, std::string doc) {
+    ParamSpec s = make(std::move(n), PropType::Color, d, std::move(doc));
+    s.object_kind = "texture";
+    return s;
+}
 ParamSpec required(PropType t, std::string n, std::string doc) {
     ParamSpec s = make(std::move(n), t, std::nullopt, std::move(doc));
     s.required = true;
@@ -305,6 +310,22 @@ ObjectPtr Properties::get_object(std::string_view name) const {
     if (!kind.empty() && (!o || o->plugin_kind() != kind))
         throw InputError(chosen->loc, fmt::format("{}: parameter '{}' must be a <{}>, got {}", who(), name, kind,
                                                   describe(o)));
+    return o;
+}
+
+ObjectPtr Properties::get_alternative_object(std::string_view name) const {
+    const ParamSpec* s = m_info ? m_info->find_param(name) : nullptr;
+    if (m_info && !s)
+        throw Error(fmt::format("internal error: {} reads parameter '{}' that its registration does not declare",
+                                who(), name));
+    const Entry* e = find(name);
+    if (!e || e->type != PropType::Object) return nullptr;
+    e->queried = true;
+    const auto& o = std::get<ObjectPtr>(e->value);
+    const std::string kind = s ? s->object_kind : std::string();
+    if (kind.empty() || !o || o->plugin_kind() != kind)
+        throw InputError(e->loc, fmt::format("{}: parameter '{}' cannot be {}{}", who(), name, describe(o),
+                                             kind.empty() ? "" : fmt::format(" (a value or a <{}> is expected)", kind)));
     return o;
 }
 

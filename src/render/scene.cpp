@@ -5,6 +5,8 @@
 
 #include <embree3/rtcore.h>
 
+#include <algorithm>
+#include <cmath>
 #include <limits>
 
 namespace kelvin {
@@ -29,11 +31,12 @@ Scene::Scene(const Properties& props) {
     m_sensor = props.get_object_as<Sensor>("sensor");
     m_integrator = props.get_object_as<Integrator>("integrator");
     m_simulation = props.get_object_as<Job>("simulation");
+    for (auto& o : props.get_objects("emitter")) m_root_emitters.push_back(std::dynamic_pointer_cast<Emitter>(o));
     // Shared declarations at the root (<bsdf id=...>, <texture id=...>) are used through <ref> elsewhere.
-    for (const char* kind : {"bsdf", "texture", "emitter"}) props.get_objects(kind);
+    for (const char* kind : {"bsdf", "texture"}) props.get_objects(kind);
 
     if (m_simulation) {
-        if (m_sensor || m_integrator || !m_shapes.empty())
+        if (m_sensor || m_integrator || !m_shapes.empty() || !m_root_emitters.empty())
             props.error("simulation", "a scene runs either a <simulation> or a render (sensor, integrator, "
                                       "shapes), not both");
         return;  // a simulation builds its own geometry queries; nothing to do here
@@ -46,7 +49,10 @@ Scene::Scene(const Properties& props) {
         m_integrator = std::dynamic_pointer_cast<Integrator>(Registry::instance().create(ip));
         log_info("no <integrator> given: using '{}'", name);
     }
-    if (m_shapes.empty()) return;
+    if (m_shapes.empty()) {
+        setup_emitters();
+        return;
+    }
 
     m_accel = std::make_unique<Accel>();
     m_accel->device = rtcNewDevice(nullptr);
@@ -85,6 +91,72 @@ Scene::Scene(const Properties& props) {
         rtcReleaseGeometry(geom);
     }
     rtcCommitScene(m_accel->scene);
+    setup_emitters();
+}
+
+void Scene::setup_emitters() {
+    for (const auto& shape : m_shapes)
+        if (Emitter* e = shape->emitter()) {
+            e->set_shape(shape.get());
+            m_emitters.push_back(e);
+        }
+    Vec3d center(0.0);
+    double radius = 1.0;
+    if (m_bbox_min.x <= m_bbox_max.x) {
+        center = 0.5 * (m_bbox_min + m_bbox_max);
+        radius = std::max(1e-3, 0.5 * glm::length(m_bbox_max - m_bbox_min));
+    }
+    for (const auto& e : m_root_emitters) {
+        if (e->flags() & EmitterFlags::Surface)
+            throw InputError({}, fmt::format("{} must be nested in a <shape>", e->to_string()));
+        e->set_scene_bounds(center, radius);
+        m_emitters.push_back(e.get());
+        if (e->flags() & EmitterFlags::Infinite) m_env_emitters.push_back(e.get());
+    }
+}
+
+std::pair<const Emitter*, double> Scene::sample_emitter(double u) const {
+    if (m_emitters.empty()) return {nullptr, 0.0};
+    // Uniform selection (Mitsuba 3's default): robust when emitters differ wildly in size and distance.
+    std::size_t n = m_emitters.size(), k = std::min(n - 1, std::size_t(u * double(n)));
+    return {m_emitters[k], 1.0 / double(n)};
+}
+
+double Scene::emitter_pdf(const Emitter*) const { return m_emitters.empty() ? 0.0 : 1.0 / double(m_emitters.size()); }
+
+SurfaceInteraction Scene::interaction(const Ray& ray, const SurfaceHit& hit) const {
+    SurfaceInteraction si;
+    si.p = hit.p;
+    si.t = hit.t;
+    si.ng = hit.ng;
+    si.ns = hit.ng;
+    si.shape_index = hit.shape;
+    si.shape = m_shapes[hit.shape].get();
+    si.prim = hit.prim;
+    si.uv = hit.uv;
+    const ShapeGeometry& g = m_accel->geometry[hit.shape];
+    if (g.type == ShapeGeometry::Type::Triangles) {
+        const uint32_t* tri = &g.indices[3 * std::size_t(hit.prim)];
+        const double b1 = hit.uv.x, b2 = hit.uv.y, b0 = 1 - b1 - b2;  // Embree's barycentrics
+        if (!g.uvs.empty())
+            si.uv = b0 * Vec2d(g.uvs[tri[0]]) + b1 * Vec2d(g.uvs[tri[1]]) + b2 * Vec2d(g.uvs[tri[2]]);
+        if (!g.normals.empty()) {
+            Vec3d n = b0 * Vec3d(g.normals[tri[0]]) + b1 * Vec3d(g.normals[tri[1]]) + b2 * Vec3d(g.normals[tri[2]]);
+            double l = glm::length(n);
+            if (l > 0 && std::isfinite(l)) {
+                n /= l;
+                if (g.flip_normals) n = -n;
+                // Keep the shading normal on the geometric normal's side.
+                si.ns = glm::dot(n, si.ng) < 0 ? -n : n;
+            }
+        }
+    } else {
+        Vec3d d = glm::normalize(hit.p - Vec3d(g.positions[hit.prim]));
+        si.uv = {std::atan2(d.y, d.x) / (2 * Pi) + 0.5, std::acos(std::clamp(d.z, -1.0, 1.0)) / Pi};
+    }
+    si.frame = Frame(si.ns);
+    si.wi = si.to_local(-glm::normalize(ray.d));
+    return si;
 }
 
 Scene::~Scene() = default;

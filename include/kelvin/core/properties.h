@@ -33,7 +33,8 @@ struct ParamSpec {
     std::optional<PropValue> default_value;  ///< nullopt: required (or optional object)
     bool required = false;
     std::string doc;
-    std::string object_kind;  ///< for PropType::Object: the kind of the nested object ("bsdf")
+    std::string object_kind;  ///< PropType::Object: the kind of the nested object ("bsdf"); a value type:
+                              ///< the kind of object also accepted in its place ("texture")
     bool multiple = false;    ///< for PropType::Object: any number of children of `object_kind`, any name
 
     /// Human-readable default for documentation ("45", "[0.5, 0.5, 0.5]", "required", "none").
@@ -51,6 +52,8 @@ ParamSpec point(std::string name, Vec3d def, std::string doc);
 ParamSpec vector(std::string name, Vec3d def, std::string doc);
 /// Defaults to the identity.
 ParamSpec transform(std::string name, std::string doc);
+/// A colour that may also be given as a nested <texture name="..."> (read with kelvin::get_texture).
+ParamSpec texture(std::string name, Color3 def, std::string doc);
 /// A parameter without default that the scene must give.
 ParamSpec required(PropType type, std::string name, std::string doc);
 /// One nested object of `kind`, found by name= or, if unnamed, as the single child of that kind.
@@ -123,6 +126,9 @@ public:
         if (!t) wrong_object_class(name, o);
         return t;
     }
+    /// For a value parameter that also accepts a nested object (param::texture): the object given under
+    /// `name`, or null when the value form (or nothing) was given.
+    ObjectPtr get_alternative_object(std::string_view name) const;
     /// All nested objects declared as param::objects(kind), in declaration order.
     std::vector<ObjectPtr> get_objects(std::string_view kind) const;
 

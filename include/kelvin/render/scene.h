@@ -2,7 +2,9 @@
 // The scene: shapes in one committed Embree scene, the sensor, the integrator; or a simulation. It is the
 // Job that `kelvin scene.xml` runs. Geometry is only built when the scene has shapes.
 #include <kelvin/core/job.h>
+#include <kelvin/render/emitter.h>
 #include <kelvin/render/integrator.h>
+#include <kelvin/render/interaction.h>
 #include <kelvin/render/ray.h>
 #include <kelvin/render/sensor.h>
 #include <kelvin/render/shape.h>
@@ -24,6 +26,18 @@ public:
     std::optional<SurfaceHit> intersect(const Ray& ray) const;
     /// True if anything blocks the ray within [tmin, tmax].
     bool occluded(const Ray& ray) const;
+    /// The full interaction at a hit of `ray`: shading normal (interpolated vertex normals), uv, frame, and
+    /// wi = -ray.d in the shading frame.
+    SurfaceInteraction interaction(const Ray& ray, const SurfaceHit& hit) const;
+
+    /// Every emitter: shape-attached area emitters first (in shape order), then the root's emitters.
+    const std::vector<const Emitter*>& emitters() const { return m_emitters; }
+    /// Emitters seen by rays that leave the scene (constant, envmap).
+    const std::vector<const Emitter*>& environment_emitters() const { return m_env_emitters; }
+    /// Pick an emitter for next-event estimation with `u`; returns it and its selection probability.
+    std::pair<const Emitter*, double> sample_emitter(double u) const;
+    /// Probability that sample_emitter picks `e`.
+    double emitter_pdf(const Emitter* e) const;
 
     const std::vector<std::shared_ptr<Shape>>& shapes() const { return m_shapes; }
     const Sensor* sensor() const { return m_sensor.get(); }
@@ -32,11 +46,14 @@ public:
     std::pair<Vec3d, Vec3d> bounds() const { return {m_bbox_min, m_bbox_max}; }
 
 private:
+    void setup_emitters();
     struct Accel;
     std::vector<std::shared_ptr<Shape>> m_shapes;
     std::shared_ptr<Sensor> m_sensor;
     std::shared_ptr<Integrator> m_integrator;
     std::shared_ptr<Job> m_simulation;
+    std::vector<std::shared_ptr<Emitter>> m_root_emitters;
+    std::vector<const Emitter*> m_emitters, m_env_emitters;
     std::unique_ptr<Accel> m_accel;
     Vec3d m_bbox_min{Inf}, m_bbox_max{-Inf};
 };

@@ -3,8 +3,11 @@
 // a plugin author adding a shape needs no Embree headers.
 #include <kelvin/core/object.h>
 #include <kelvin/core/properties.h>
+#include <kelvin/render/bsdf.h>
+#include <kelvin/render/emitter.h>
 
 #include <cstdint>
+#include <memory>
 #include <vector>
 
 namespace kelvin {
@@ -16,7 +19,17 @@ struct ShapeGeometry {
     std::vector<Vec3f> positions;    ///< triangle vertices, or sphere centres
     std::vector<uint32_t> indices;   ///< 3 per triangle (counter-clockwise = front, normal by right hand)
     std::vector<float> radii;        ///< spheres: one per centre
+    std::vector<Vec3f> normals;      ///< triangles: optional per-vertex shading normals (same count as positions)
+    std::vector<Vec2f> uvs;          ///< triangles: optional per-vertex texture coordinates
     bool flip_normals = false;
+};
+
+/// A point chosen on a shape's surface with density `pdf` per unit area.
+struct PositionSample {
+    Vec3d p{0.0};
+    Vec3d n{0, 0, 1};
+    Vec2d uv{0.0};
+    double pdf = 0;
 };
 
 class Shape : public Object {
@@ -25,6 +38,20 @@ public:
     virtual ShapeGeometry geometry() const = 0;
     /// Surface area in world space (for emitters and diagnostics).
     virtual double surface_area() const = 0;
+    /// A point uniformly distributed over the surface (pdf = 1 / area), with the shape's oriented normal.
+    virtual PositionSample sample_position(const Vec2d& u) const = 0;
+
+    const Bsdf* bsdf() const { return m_bsdf.get(); }
+    const Emitter* emitter() const { return m_emitter.get(); }
+    Emitter* emitter() { return m_emitter.get(); }
+
+protected:
+    /// Reads the common nested objects: <bsdf> (default: diffuse) and <emitter> (optional). Every shape
+    /// plugin declares them with param::object("bsdf", "bsdf", ...) and param::object("emitter", "emitter", ...).
+    void read_common(const Properties& props);
+
+    std::shared_ptr<Bsdf> m_bsdf;
+    std::shared_ptr<Emitter> m_emitter;
 };
 
 }  // namespace kelvin

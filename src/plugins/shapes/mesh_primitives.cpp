@@ -11,49 +11,21 @@
 //         <transform name="to_world"><scale value="10"/><rotate x="1" angle="-90"/></transform>
 //     </shape>
 #include <kelvin/core/registry.h>
-#include <kelvin/render/shape.h>
+#include <kelvin/render/mesh.h>
 
 namespace kelvin {
 namespace {
 
-class TriangleShape : public Shape {
-public:
-    TriangleShape(const Properties& props, const std::vector<Vec3d>& p, std::vector<uint32_t> idx) {
-        Transform t = props.get_transform("to_world");
-        const double det = glm::determinant(Mat3d(t.matrix));
-        if (std::abs(det) < 1e-300) props.error("to_world", "is singular");
-        m_geom.type = ShapeGeometry::Type::Triangles;
-        for (const auto& v : p) m_geom.positions.emplace_back(t.apply_point(v));
-        m_geom.indices = std::move(idx);
-        // A mirroring transform reverses the winding; restore it so that the cube still faces outwards and
-        // the rectangle's normal is the transformed (inverse-transpose) +z.
-        if (det < 0)
-            for (std::size_t i = 0; i < m_geom.indices.size(); i += 3)
-                std::swap(m_geom.indices[i + 1], m_geom.indices[i + 2]);
-        m_geom.flip_normals = props.get_bool("flip_normals");
-        for (std::size_t i = 0; i < m_geom.indices.size(); i += 3) {
-            Vec3d a = m_geom.positions[m_geom.indices[i]], b = m_geom.positions[m_geom.indices[i + 1]],
-                  c = m_geom.positions[m_geom.indices[i + 2]];
-            m_area += 0.5 * glm::length(glm::cross(b - a, c - a));
-        }
-    }
-    ShapeGeometry geometry() const override { return m_geom; }
-    double surface_area() const override { return m_area; }
-
-private:
-    ShapeGeometry m_geom;
-    double m_area = 0;
-};
-
-class Rectangle final : public TriangleShape {
+class Rectangle final : public TriangleMesh {
 public:
     explicit Rectangle(const Properties& props)
-        : TriangleShape(props, {{-1, -1, 0}, {1, -1, 0}, {1, 1, 0}, {-1, 1, 0}}, {0, 1, 2, 0, 2, 3}) {}
+        : TriangleMesh(props, "rectangle", {{-1, -1, 0}, {1, -1, 0}, {1, 1, 0}, {-1, 1, 0}}, {0, 1, 2, 0, 2, 3}, {},
+                       {{0, 0}, {1, 0}, {1, 1}, {0, 1}}) {}
 };
 
-class Cube final : public TriangleShape {
+class Cube final : public TriangleMesh {
 public:
-    explicit Cube(const Properties& props) : TriangleShape(props, corners(), faces()) {}
+    explicit Cube(const Properties& props) : TriangleMesh(props, "cube", corners(), faces()) {}
 
 private:
     static std::vector<Vec3d> corners() {
@@ -75,7 +47,11 @@ private:
 
 KELVIN_PLUGIN(kelvin::Rectangle, "shape", "rectangle", "The square [-1,1]^2 in the z=0 plane (normal +z).",
               kelvin::param::transform("to_world", "object-to-world transform"),
-              kelvin::param::boolean("flip_normals", false, "reverse the orientation"));
+              kelvin::param::boolean("flip_normals", false, "reverse the orientation"),
+              kelvin::param::object("bsdf", "bsdf", "surface scattering (default: diffuse, reflectance 0.5)"),
+              kelvin::param::object("emitter", "emitter", "makes the shape an area light"));
 KELVIN_PLUGIN(kelvin::Cube, "shape", "cube", "The cube [-1,1]^3 with outward normals.",
               kelvin::param::transform("to_world", "object-to-world transform"),
-              kelvin::param::boolean("flip_normals", false, "reverse the orientation"));
+              kelvin::param::boolean("flip_normals", false, "reverse the orientation"),
+              kelvin::param::object("bsdf", "bsdf", "surface scattering (default: diffuse, reflectance 0.5)"),
+              kelvin::param::object("emitter", "emitter", "makes the shape an area light"));

@@ -14,6 +14,9 @@
 #include <kelvin/core/registry.h>
 #include <kelvin/render/shape.h>
 
+#include <algorithm>
+#include <cmath>
+
 namespace kelvin {
 namespace {
 
@@ -32,6 +35,7 @@ public:
         m_center = t.apply_point(props.get_point("center"));
         m_radius = r * lx;
         m_flip = props.get_bool("flip_normals");
+        read_common(props);
     }
     ShapeGeometry geometry() const override {
         ShapeGeometry g;
@@ -42,6 +46,16 @@ public:
         return g;
     }
     double surface_area() const override { return 4 * Pi * m_radius * m_radius; }
+    PositionSample sample_position(const Vec2d& u) const override {
+        double z = 1 - 2 * u.x, r = std::sqrt(std::max(0.0, 1 - z * z)), phi = 2 * Pi * u.y;
+        Vec3d d(r * std::cos(phi), r * std::sin(phi), z);
+        PositionSample ps;
+        ps.p = m_center + m_radius * d;
+        ps.n = m_flip ? -d : d;
+        ps.uv = {phi / (2 * Pi), std::acos(std::clamp(z, -1.0, 1.0)) / Pi};
+        ps.pdf = 1.0 / surface_area();
+        return ps;
+    }
 
 private:
     Vec3d m_center;
@@ -56,4 +70,6 @@ KELVIN_PLUGIN(kelvin::Sphere, "shape", "sphere", "Analytic sphere (Embree sphere
               kelvin::param::point("center", {0, 0, 0}, "centre in object space"),
               kelvin::param::real("radius", 1.0, "radius in object space"),
               kelvin::param::transform("to_world", "object-to-world similarity transform"),
-              kelvin::param::boolean("flip_normals", false, "make normals point inwards"));
+              kelvin::param::boolean("flip_normals", false, "make normals point inwards"),
+              kelvin::param::object("bsdf", "bsdf", "surface scattering (default: diffuse, reflectance 0.5)"),
+              kelvin::param::object("emitter", "emitter", "makes the shape an area light"));

@@ -1,0 +1,56 @@
+#pragma once
+// BSDFs, in Mitsuba's convention: directions are local to the shading frame (z = shading normal);
+// `si.wi` points towards the previous vertex (the camera side when tracing from the camera); `wo` is the
+// sampled or queried direction. eval() returns f(wi, wo) * |cos(theta_o)|; sample() returns the weight
+// f * |cos(theta_o)| / pdf. Delta components are never returned by eval() or pdf().
+#include <kelvin/core/object.h>
+#include <kelvin/render/interaction.h>
+
+#include <cstdint>
+#include <optional>
+
+namespace kelvin {
+
+enum class TransportMode { Radiance, Importance };
+
+namespace BsdfFlags {
+enum : uint32_t {
+    None = 0,
+    DiffuseReflection = 1u << 0,
+    DiffuseTransmission = 1u << 1,
+    GlossyReflection = 1u << 2,
+    GlossyTransmission = 1u << 3,
+    DeltaReflection = 1u << 4,
+    DeltaTransmission = 1u << 5,
+    Diffuse = DiffuseReflection | DiffuseTransmission,
+    Glossy = GlossyReflection | GlossyTransmission,
+    Delta = DeltaReflection | DeltaTransmission,
+    Smooth = Diffuse | Glossy,  ///< components that next-event estimation can use
+    Reflection = DiffuseReflection | GlossyReflection | DeltaReflection,
+    Transmission = DiffuseTransmission | GlossyTransmission | DeltaTransmission,
+};
+}
+
+struct BsdfContext {
+    TransportMode mode = TransportMode::Radiance;
+};
+
+struct BsdfSample {
+    Vec3d wo{0, 0, 1};       ///< sampled direction, local
+    Color3 weight{0.0};      ///< f * |cos(theta_o)| / pdf (for delta lobes: the lobe's throughput)
+    double pdf = 0;          ///< solid-angle density (for delta lobes: the discrete probability of the lobe)
+    uint32_t sampled = 0;    ///< BsdfFlags of the sampled component
+    double eta = 1;          ///< relative index of refraction crossed (1 for reflection)
+};
+
+class Bsdf : public Object {
+public:
+    virtual uint32_t flags() const = 0;
+    /// `u1` picks a component, `u2` samples it.
+    virtual std::optional<BsdfSample> sample(const BsdfContext& ctx, const SurfaceInteraction& si, double u1,
+                                             const Vec2d& u2) const = 0;
+    virtual Color3 eval(const BsdfContext& ctx, const SurfaceInteraction& si, const Vec3d& wo) const = 0;
+    virtual double pdf(const BsdfContext& ctx, const SurfaceInteraction& si, const Vec3d& wo) const = 0;
+};
+
+}  // namespace kelvin

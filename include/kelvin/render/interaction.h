@@ -1,0 +1,31 @@
+#pragma once
+// A surface interaction: a hit with its shading frame and the direction it was reached from.
+#include <kelvin/render/frame.h>
+#include <kelvin/render/ray.h>
+
+namespace kelvin {
+
+class Shape;
+
+struct SurfaceInteraction {
+    Vec3d p{0.0};
+    Vec3d ng{0, 0, 1};  ///< geometric normal (unit, as the shape orients it)
+    Vec3d ns{0, 0, 1};  ///< shading normal (interpolated vertex normal, or ng)
+    Vec2d uv{0.0};
+    double t = Inf;
+    Frame frame;        ///< shading frame around ns
+    Vec3d wi{0, 0, 1};  ///< direction towards the previous vertex, in the shading frame
+    const Shape* shape = nullptr;
+    uint32_t shape_index = 0;
+    uint32_t prim = 0;
+
+    Vec3d to_local(const Vec3d& v) const { return frame.to_local(v); }
+    Vec3d to_world(const Vec3d& v) const { return frame.to_world(v); }
+    /// A ray leaving the surface in world direction `d`, offset along the geometric normal to avoid
+    /// self-intersection.
+    Ray spawn(const Vec3d& d) const;
+    /// A ray from here to `target`, stopping just short of it (shadow rays).
+    Ray spawn_to(const Vec3d& target) const;
+};
+
+}  // namespace kelvin

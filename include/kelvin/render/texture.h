@@ -1,0 +1,25 @@
+#pragma once
+// Textures: spatially varying colours looked up by surface uv. A parameter declared with
+// param::texture(name, default, doc) accepts either an <rgb>/<float> or a nested <texture name=...>.
+#include <kelvin/core/object.h>
+#include <kelvin/core/properties.h>
+
+#include <memory>
+
+namespace kelvin {
+
+class Texture : public Object {
+public:
+    virtual Color3 eval(const Vec2d& uv) const = 0;
+    /// Average over [0,1]^2 (used for albedo estimates and light power).
+    virtual Color3 mean() const = 0;
+    virtual bool is_constant() const { return false; }
+};
+
+/// A constant colour as a texture.
+std::shared_ptr<Texture> constant_texture(const Color3& c);
+/// Read a parameter declared with param::texture: the nested texture if one is given under `name`, else the
+/// colour (or the declared default) as a constant texture.
+std::shared_ptr<Texture> get_texture(const Properties& props, std::string_view name);
+
+}  // namespace kelvin

@@ -1,0 +1,50 @@
+// diffuse: the ideal diffuse (Lambertian) reflector, f = reflectance / pi, sampled with the cosine-weighted
+// hemisphere. One-sided: directions below the shading horizon give zero (wrap in `twosided` for both sides).
+//
+// | parameter   | type          | default | meaning                 |
+// |-------------|---------------|---------|-------------------------|
+// | reflectance | rgb / texture | 0.5     | albedo, in [0, 1]       |
+//
+//     <bsdf type="diffuse"><rgb name="reflectance" value="0.7, 0.2, 0.2"/></bsdf>
+#include <kelvin/core/registry.h>
+#include <kelvin/render/bsdf.h>
+#include <kelvin/render/texture.h>
+#include <kelvin/render/warp.h>
+
+namespace kelvin {
+namespace {
+
+class Diffuse final : public Bsdf {
+public:
+    explicit Diffuse(const Properties& props) : m_reflectance(get_texture(props, "reflectance")) {}
+    uint32_t flags() const override { return BsdfFlags::DiffuseReflection; }
+
+    std::optional<BsdfSample> sample(const BsdfContext&, const SurfaceInteraction& si, double,
+                                     const Vec2d& u2) const override {
+        if (Frame::cos_theta(si.wi) <= 0) return std::nullopt;
+        BsdfSample bs;
+        bs.wo = warp::square_to_cosine_hemisphere(u2);
+        bs.pdf = warp::square_to_cosine_hemisphere_pdf(bs.wo);
+        if (!(bs.pdf > 0)) return std::nullopt;
+        bs.weight = m_reflectance->eval(si.uv);  // f cos / pdf = (R/pi) cos / (cos/pi)
+        bs.sampled = BsdfFlags::DiffuseReflection;
+        return bs;
+    }
+    Color3 eval(const BsdfContext&, const SurfaceInteraction& si, const Vec3d& wo) const override {
+        if (Frame::cos_theta(si.wi) <= 0 || Frame::cos_theta(wo) <= 0) return Color3(0.0);
+        return m_reflectance->eval(si.uv) * (InvPi * Frame::cos_theta(wo));
+    }
+    double pdf(const BsdfContext&, const SurfaceInteraction& si, const Vec3d& wo) const override {
+        if (Frame::cos_theta(si.wi) <= 0 || Frame::cos_theta(wo) <= 0) return 0.0;
+        return warp::square_to_cosine_hemisphere_pdf(wo);
+    }
+
+private:
+    std::shared_ptr<Texture> m_reflectance;
+};
+
+}  // namespace
+}  // namespace kelvin
+
+KELVIN_PLUGIN(kelvin::Diffuse, "bsdf", "diffuse", "Ideal diffuse (Lambertian) reflection.",
+              kelvin::param::texture("reflectance", kelvin::Color3(0.5), "albedo in [0, 1]"));

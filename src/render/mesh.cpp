@@ -1,0 +1,89 @@
+#include <kelvin/core/logging.h>
+#include <kelvin/render/mesh.h>
+
+#include <algorithm>
+#include <cmath>
+
+namespace kelvin {
+
+static bool finite(const Vec3d& v) { return std::isfinite(v.x) && std::isfinite(v.y) && std::isfinite(v.z); }
+
+TriangleMesh::TriangleMesh(const Properties& props, const std::string& name, const std::vector<Vec3d>& positions,
+                           std::vector<uint32_t> indices, const std::vector<Vec3d>& normals,
+                           const std::vector<Vec2d>& uvs) {
+    read_common(props);
+    const Transform t = props.get_transform("to_world");
+    const double det = glm::determinant(Mat3d(t.matrix));
+    if (!std::isfinite(det) || std::abs(det) < 1e-300) props.error("to_world", "is singular");
+    if (indices.size() % 3 != 0) throw InputError(props.location(), fmt::format("mesh '{}': index count is not a multiple of 3", name));
+    const bool has_n = !normals.empty() && normals.size() == positions.size();
+    const bool has_uv = !uvs.empty() && uvs.size() == positions.size();
+    if (!normals.empty() && !has_n) log_warn("mesh '{}': {} normals for {} vertices; normals ignored", name, normals.size(), positions.size());
+    if (!uvs.empty() && !has_uv) log_warn("mesh '{}': {} uvs for {} vertices; uvs ignored", name, uvs.size(), positions.size());
+
+    m_geom.type = ShapeGeometry::Type::Triangles;
+    m_geom.flip_normals = props.get_bool("flip_normals");
+    m_geom.positions.reserve(positions.size());
+    for (const auto& p : positions) m_geom.positions.emplace_back(t.apply_point(p));
+    if (has_n) {
+        for (const auto& n : normals) {
+            Vec3d w = t.apply_normal(n);
+            double l = glm::length(w);
+            m_geom.normals.emplace_back(l > 0 && std::isfinite(l) ? w / l : Vec3d(0.0));
+        }
+    }
+    if (has_uv)
+        for (const auto& uv : uvs) m_geom.uvs.emplace_back(uv);
+
+    // A mirroring transform reverses the winding; restore it so that normals keep their orientation.
+    const bool swap = det < 0;
+    m_geom.indices.reserve(indices.size());
+    m_cdf.reserve(indices.size() / 3);
+    for (std::size_t i = 0; i < indices.size(); i += 3) {
+        uint32_t a = indices[i], b = indices[i + 1], c = indices[i + 2];
+        if (a >= positions.size() || b >= positions.size() || c >= positions.size()) {
+            ++m_dropped;
+            continue;
+        }
+        if (swap) std::swap(b, c);
+        Vec3d pa = m_geom.positions[a], pb = m_geom.positions[b], pc = m_geom.positions[c];
+        double area = 0.5 * glm::length(glm::cross(pb - pa, pc - pa));
+        if (!finite(pa) || !finite(pb) || !finite(pc) || !(area > 0) || !std::isfinite(area)) {
+            ++m_dropped;
+            continue;
+        }
+        m_geom.indices.insert(m_geom.indices.end(), {a, b, c});
+        m_area += area;
+        m_cdf.push_back(m_area);
+    }
+    if (m_dropped > 0)
+        log_warn("mesh '{}': dropped {} degenerate triangle(s) (zero area, non-finite vertices or bad indices)", name,
+                 m_dropped);
+    if (m_geom.indices.empty()) throw InputError(props.location(), fmt::format("mesh '{}' has no valid triangle", name));
+    for (auto& c : m_cdf) c /= m_area;
+    m_cdf.back() = 1.0;
+}
+
+PositionSample TriangleMesh::sample_position(const Vec2d& u_in) const {
+    Vec2d u = u_in;
+    // Pick a triangle in proportion to its area, then reuse the remainder of u.x.
+    std::size_t k = std::size_t(std::lower_bound(m_cdf.begin(), m_cdf.end(), u.x) - m_cdf.begin());
+    k = std::min(k, m_cdf.size() - 1);
+    double lo = k == 0 ? 0.0 : m_cdf[k - 1], width = m_cdf[k] - lo;
+    u.x = width > 0 ? std::clamp((u.x - lo) / width, 0.0, 1.0 - 1e-16) : 0.5;
+    const uint32_t* tri = &m_geom.indices[3 * k];
+    Vec3d a = m_geom.positions[tri[0]], b = m_geom.positions[tri[1]], c = m_geom.positions[tri[2]];
+    double su = std::sqrt(u.x), b0 = 1 - su, b1 = u.y * su, b2 = 1 - b0 - b1;  // uniform barycentrics
+    PositionSample ps;
+    ps.p = b0 * a + b1 * b + b2 * c;
+    ps.n = glm::normalize(glm::cross(b - a, c - a));
+    if (m_geom.flip_normals) ps.n = -ps.n;
+    if (!m_geom.uvs.empty())
+        ps.uv = b0 * Vec2d(m_geom.uvs[tri[0]]) + b1 * Vec2d(m_geom.uvs[tri[1]]) + b2 * Vec2d(m_geom.uvs[tri[2]]);
+    else
+        ps.uv = {b1, b2};
+    ps.pdf = 1.0 / m_area;
+    return ps;
+}
+
+}  // namespace kelvin
