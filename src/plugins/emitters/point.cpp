@@ -1,0 +1,61 @@
+// point: an isotropic point light. Radiant intensity I (W/sr); irradiance at distance r is I cos / r^2.
+//
+// | parameter | type      | default   | meaning                                      |
+// |-----------|-----------|-----------|----------------------------------------------|
+// | intensity | rgb       | 1         | radiant intensity                            |
+// | position  | point     | (0, 0, 0) | position (combined with to_world)            |
+// | to_world  | transform | identity  | places the light (its origin is the position) |
+//
+//     <emitter type="point"><point name="position" x="0" y="4" z="0"/><rgb name="intensity" value="10"/></emitter>
+#include <kelvin/core/registry.h>
+#include <kelvin/render/emitter.h>
+#include <kelvin/render/warp.h>
+
+namespace kelvin {
+namespace {
+
+class PointEmitter final : public Emitter {
+public:
+    explicit PointEmitter(const Properties& props)
+        : m_intensity(props.get_color("intensity")),
+          m_pos(props.get_transform("to_world").apply_point(props.get_point("position"))) {}
+    uint32_t flags() const override { return EmitterFlags::DeltaPosition; }
+
+    std::optional<DirectSample> sample_direct(const Vec3d& ref, const Vec2d&) const override {
+        Vec3d d = m_pos - ref;
+        double dist2 = glm::dot(d, d);
+        if (!(dist2 > 0)) return std::nullopt;
+        DirectSample ds;
+        ds.dist = std::sqrt(dist2);
+        ds.d = d / ds.dist;
+        ds.p = m_pos;
+        ds.pdf = 1;
+        ds.delta = true;
+        ds.weight = m_intensity / dist2;
+        return ds;
+    }
+    double pdf_direct(const Vec3d&, const Vec3d&, const Vec3d&, const Vec3d&) const override { return 0; }
+    Color3 eval(const Vec3d&, const Vec3d&, const Vec3d&) const override { return Color3(0.0); }
+    std::optional<EmissionSample> sample_emission(const Vec2d&, const Vec2d& u_dir) const override {
+        EmissionSample es;
+        es.ray = Ray{m_pos, warp::square_to_uniform_sphere(u_dir), 0.0, Inf};
+        es.pdf_pos = 1;
+        es.pdf_dir = warp::square_to_uniform_sphere_pdf();
+        es.delta_pos = true;
+        es.weight = m_intensity * (4 * Pi);
+        return es;
+    }
+    Color3 power() const override { return m_intensity * (4 * Pi); }
+
+private:
+    Color3 m_intensity;
+    Vec3d m_pos;
+};
+
+}  // namespace
+}  // namespace kelvin
+
+KELVIN_PLUGIN(kelvin::PointEmitter, "emitter", "point", "Isotropic point light.",
+              kelvin::param::color("intensity", kelvin::Color3(1.0), "radiant intensity (W/sr)"),
+              kelvin::param::point("position", {0, 0, 0}, "position"),
+              kelvin::param::transform("to_world", "placement (applied to position)"));
