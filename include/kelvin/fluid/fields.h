@@ -1,0 +1,48 @@
+#pragma once
+// Plugin interfaces of the fluid solver: initial vorticity fields (<vorticity>), velocity estimators
+// (<velocity>) and caches (<cache>). Concrete plugins live in src/plugins/fluid/, one file each.
+#include <kelvin/core/object.h>
+#include <kelvin/fluid/biot_savart.h>
+#include <kelvin/fluid/grid.h>
+
+#include <optional>
+#include <string>
+
+namespace kelvin::fluid {
+
+/// An initial vorticity field omega(0, x) (<vorticity type="...">).
+class VorticityField : public Object {
+public:
+    virtual double vorticity(const Vec2d& x) const = 0;
+    /// The exact solution of the flow this field starts, where one is known: free space for vortices,
+    /// the periodic box for Taylor–Green (see docs/fluid.md). Used by tests and diagnostics.
+    virtual std::optional<double> exact_vorticity(double t, const Vec2d& x, double viscosity) const {
+        return std::nullopt;
+    }
+    virtual std::optional<Vec2d> exact_velocity(double t, const Vec2d& x, double viscosity) const {
+        return std::nullopt;
+    }
+    /// Called once with the simulation's domain: raise an InputError (through the plugin's Properties,
+    /// kept for that purpose) or log a warning when the field does not suit the domain.
+    virtual void check_domain(const Domain2& domain) const {}
+    /// One line for the run summary ("taylor_green(amplitude=1, k=1)").
+    virtual std::string description() const = 0;
+};
+
+/// A velocity estimator (<velocity type="...">). Only Biot–Savart exists so far (open and periodic
+/// domains); Walk-on-Spheres for boundaries will be another implementation.
+class VelocityEstimatorSpec : public Object {
+public:
+    virtual const BiotSavartOptions& biot_savart() const = 0;
+};
+
+/// A field cache (<cache type="grid">).
+class CacheSpec : public Object {
+public:
+    /// Cells along x; cells along y (0: chosen for square cells on the domain).
+    virtual int resolution_x() const = 0;
+    virtual int resolution_y() const = 0;
+    virtual Interpolation interpolation() const = 0;
+};
+
+}  // namespace kelvin::fluid

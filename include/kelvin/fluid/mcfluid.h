@@ -1,0 +1,173 @@
+#pragma once
+// MCFluid in 2D: the practical single-grid cached solver of thesis Section 5.3.3 and the recursive,
+// cache-free estimator of Algorithm C.1 (Appendix C). Both evaluate the same semi-discrete scheme
+//
+//     omega(t_i, x) = 1/n_d sum_j omega(t_{i-1}, x_a + sqrt(2 nu dt) xi_j),   xi_j ~ N(0, I)     (Eq. 5.22)
+//     x_a = backtrace of x over dt through the Biot–Savart Monte Carlo velocity  (Eqs. 5.3, 5.5, 3.139–3.144)
+//
+// (2D: no stretching term). The cached solver stores omega(t_{i-1}) at cell centres and draws the
+// Biot–Savart samples from that cache; the recursive estimator evaluates omega(t_{i-1}, y) at every sample
+// by recursion down to the initial condition (exponential cost: short horizons, validation, pointwise
+// queries).
+//
+// Determinism: a step is split into rows of cells; row r of pass p at step s draws from
+// Random(seed, hash(hash(s, p), r)). Results are bit-identical whatever the thread count.
+#include <kelvin/core/random.h>
+#include <kelvin/fluid/biot_savart.h>
+#include <kelvin/fluid/grid.h>
+
+#include <atomic>
+#include <cstdint>
+#include <functional>
+#include <memory>
+#include <optional>
+
+namespace kelvin::fluid {
+
+enum class Advection { Euler, RK4 };
+const char* to_string(Advection a);
+
+/// omega(0, x).
+using InitialField = std::function<double(const Vec2d&)>;
+
+struct MCFluidSettings {
+    Domain2 domain;
+    int nx = 64, ny = 64;  ///< cache cells
+    Interpolation interpolation = Interpolation::Bilinear;
+    BiotSavartOptions velocity;  ///< delta < 0: half a cell (resolved by the solver)
+    Advection advection = Advection::RK4;
+    double dt = 0.05;
+    double viscosity = 0;        ///< nu; 0 = inviscid: the diffusion step never runs
+    int diffusion_samples = 1;   ///< n_d (used only when viscosity > 0)
+    uint64_t seed = 0;
+};
+
+/// Cumulative work of a solver (each component counts its own).
+struct FluidWork {
+    uint64_t biot_savart_evals = 0;     ///< kernel evaluations (samples)
+    uint64_t velocity_queries = 0;      ///< Biot–Savart estimates
+    uint64_t advection_backtraces = 0;  ///< departure points traced
+    uint64_t diffusion_samples = 0;     ///< Gaussian displacements (Feynman–Kac diffusion)
+    uint64_t invalid_velocity = 0;      ///< non-finite velocity estimates (replaced by zero velocity)
+    uint64_t invalid_vorticity = 0;     ///< non-finite vorticity values (replaced by zero)
+    double seconds_velocity = 0;        ///< cell-centre velocity passes
+    double seconds_advection = 0;       ///< backtrace (incl. RK stages) + diffusion + interpolation passes
+};
+
+/// Integral diagnostics of one state (integrals over the domain box, midpoint rule on the cells).
+struct FluidDiagnostics {
+    long long step = 0;
+    double time = 0;
+    double kinetic_energy = 0;      ///< 1/2 int |u|^2, minus the estimated Monte Carlo noise energy
+    double kinetic_energy_raw = 0;  ///< 1/2 int |u_hat|^2 of the noisy estimate
+    double enstrophy = 0;           ///< 1/2 int omega^2
+    double circulation = 0;         ///< int omega
+    double max_abs_vorticity = 0;
+};
+
+/// The practical cached solver (Section 5.3.3).
+class MCFluidSolver {
+public:
+    /// Initialises the cache with `initial` at the cell centres (non-finite values count as invalid and
+    /// are stored as zero). Throws RuntimeError on settings the caller should have validated.
+    MCFluidSolver(const MCFluidSettings& settings, const InitialField& initial);
+    ~MCFluidSolver();
+
+    const MCFluidSettings& settings() const { return m_settings; }
+    /// The mollifier actually used (settings().velocity.delta, or half a cell when that is negative).
+    double delta() const { return m_delta; }
+    double time() const { return m_time; }
+    long long step_index() const { return m_step; }
+
+    /// One step of length dt (> 0; the last step of a run may be shorter than settings().dt). Returns false
+    /// (and keeps the previous state) when interrupt_requested() stopped it.
+    bool step(double dt);
+    bool step() { return step(m_settings.dt); }
+    /// Steps until time() == t (the last step shortened to land on t). False if interrupted.
+    bool advance_to(double t);
+
+    /// The cache: omega at cell centres of the current state.
+    const Grid2& vorticity_grid() const { return m_omega; }
+    /// Velocity at the cell centres of the current state (estimated on first use with the step's own
+    /// random streams, so asking for it never changes the simulation) and the variance of each estimate.
+    const Grid2& velocity_u();
+    const Grid2& velocity_v();
+    const Grid2& velocity_variance_u();
+    const Grid2& velocity_variance_v();
+    FluidDiagnostics diagnostics();
+
+    // ----- pointwise API (the cached solver keeps the current state only: t >= time()).
+    /// omega(t, x): advances to t, then interpolates the cache.
+    double vorticity(double t, Vec2d x);
+    /// v(t, x): advances to t, then a Biot–Savart estimate from the cache with n_mc samples on a stream
+    /// derived from (seed, step, x), so the same query gives the same answer.
+    Vec2d velocity(double t, Vec2d x);
+    /// A Biot–Savart estimate of the current state's velocity at x with n samples from `rng`.
+    VelocityEstimate velocity_estimate(Vec2d x, int n, Random& rng) const;
+
+    const FluidWork& work() const { return m_work; }
+
+    /// Stream tags of the passes (part of the determinism contract; tests use them).
+    enum StreamTag : uint64_t { TagVelocity = 1, TagAdvection = 2, TagQuery = 3 };
+
+private:
+    void rebuild_estimator();
+    void ensure_velocity();
+    Vec2d checked_velocity(Vec2d x, Random& rng, uint64_t& evals, uint64_t& queries, uint64_t& invalid) const;
+
+    MCFluidSettings m_settings;
+    double m_delta = 0;
+    double m_time = 0;
+    long long m_step = 0;
+    Grid2 m_omega, m_next;
+    Grid2 m_u, m_v, m_var_u, m_var_v;
+    bool m_velocity_valid = false;
+    std::shared_ptr<const PeriodicKernel> m_periodic;
+    std::unique_ptr<BiotSavartEstimator> m_estimator;
+    FluidWork m_work;
+};
+
+/// Settings of the recursive estimator (Algorithm C.1).
+struct RecursiveSettings {
+    Domain2 domain;
+    double dt = 0.05;
+    double viscosity = 0;
+    int diffusion_samples = 1;  ///< n_d, used only when viscosity > 0
+    Advection advection = Advection::Euler;
+    BiotSavartOptions velocity;  ///< samples = n_mc per velocity estimate at every level; delta must be >= 0
+    /// importance = vorticity: samples from |omega(0, .)| tabulated on this many cells per axis (tent basis),
+    /// mixed with `defensive` of uniform sampling so that the density covers vorticity that has moved.
+    int importance_resolution = 64;
+    double defensive = 0.25;
+};
+
+/// The recursive, cache-free estimator (Algorithm C.1): omega(t, x) and v(t, x) at any point, for t a
+/// multiple of dt. Cost grows like (stages * n_mc + n_d)^(t/dt). Thread-safe (const, atomic counters).
+class RecursiveEstimator {
+public:
+    RecursiveEstimator(const RecursiveSettings& settings, InitialField initial);
+    ~RecursiveEstimator();
+
+    double vorticity(double t, Vec2d x, Random& rng) const;
+    Vec2d velocity(double t, Vec2d x, Random& rng) const;
+    /// Evaluations of the initial condition and Biot–Savart samples so far.
+    uint64_t initial_evaluations() const { return m_initial_evals.load(); }
+    uint64_t biot_savart_evals() const { return m_bs_evals.load(); }
+    const RecursiveSettings& settings() const { return m_settings; }
+
+private:
+    long long steps_of(double t) const;
+    double vor(long long n, Vec2d x, Random& rng) const;
+    Vec2d vel(long long n, Vec2d x, Random& rng) const;
+    Vec2d backtrace(long long n, Vec2d x, Random& rng) const;
+    double init(Vec2d x) const;
+
+    RecursiveSettings m_settings;
+    InitialField m_initial;
+    std::shared_ptr<const PeriodicKernel> m_periodic;
+    struct Importance;
+    std::unique_ptr<Importance> m_importance;
+    mutable std::atomic<uint64_t> m_initial_evals{0}, m_bs_evals{0};
+};
+
+}  // namespace kelvin::fluid

@@ -1,0 +1,95 @@
+#include <kelvin/fluid/grid.h>
+
+#include <fmt/format.h>
+
+#include <algorithm>
+#include <cmath>
+
+namespace kelvin::fluid {
+
+const char* to_string(Interpolation i) { return i == Interpolation::Nearest ? "nearest" : "bilinear"; }
+
+static double wrap1(double v, double lo, double len) {
+    double t = v - lo;
+    if (t >= 0 && t < len) return v;
+    t -= len * std::floor(t / len);
+    if (t < 0) t += len;             // rounding for huge |v|
+    if (!(t >= 0 && t < len)) t = 0;  // rounding of a tiny negative t (or of a huge v: precision is gone anyway)
+    return lo + t;
+}
+
+Vec2d Domain2::wrap(Vec2d p) const {
+    if (!periodic) return p;
+    Vec2d s = size();
+    return {wrap1(p.x, min.x, s.x), wrap1(p.y, min.y, s.y)};
+}
+
+Vec2d Domain2::min_image(Vec2d r) const {
+    if (!periodic) return r;
+    Vec2d s = size();
+    return {r.x - s.x * std::nearbyint(r.x / s.x), r.y - s.y * std::nearbyint(r.y / s.y)};
+}
+
+std::string Domain2::to_string() const {
+    return fmt::format("[{:g}, {:g}] x [{:g}, {:g}] {}", min.x, max.x, min.y, max.y, periodic ? "periodic" : "open");
+}
+
+Grid2::Grid2(const Domain2& domain, int nx, int ny)
+    : m_domain(domain), m_nx(nx), m_ny(ny), m_values(std::size_t(nx) * std::size_t(ny), 0.0) {
+    m_h = {domain.size().x / nx, domain.size().y / ny};
+}
+
+void Grid2::fill(double v) { std::fill(m_values.begin(), m_values.end(), v); }
+
+double Grid2::at_bc(int i, int j) const {
+    if (m_domain.periodic) {
+        i %= m_nx;
+        if (i < 0) i += m_nx;
+        j %= m_ny;
+        if (j < 0) j += m_ny;
+        return at(i, j);
+    }
+    if (i < 0 || j < 0 || i >= m_nx || j >= m_ny) return 0.0;
+    return at(i, j);
+}
+
+double Grid2::sample(Vec2d p, Interpolation interp) const {
+    if (!std::isfinite(p.x) || !std::isfinite(p.y)) return 0.0;
+    p = m_domain.wrap(p);
+    // Continuous cell coordinates: cell k spans [k, k + 1), its centre is at k + 1/2.
+    double gx = (p.x - m_domain.min.x) / m_h.x, gy = (p.y - m_domain.min.y) / m_h.y;
+    if (interp == Interpolation::Nearest) {
+        // Far outside an open grid, or past the int range: nothing there.
+        if (!m_domain.periodic && (gx < 0 || gy < 0 || gx >= m_nx || gy >= m_ny)) return 0.0;
+        int i = std::min(int(gx), m_nx - 1), j = std::min(int(gy), m_ny - 1);
+        return at(std::max(i, 0), std::max(j, 0));
+    }
+    gx -= 0.5;
+    gy -= 0.5;
+    if (!m_domain.periodic && (gx < -1 || gy < -1 || gx >= m_nx || gy >= m_ny)) return 0.0;
+    double fx = std::floor(gx), fy = std::floor(gy);
+    int i = int(fx), j = int(fy);
+    double ax = gx - fx, ay = gy - fy;
+    double v00 = at_bc(i, j), v10 = at_bc(i + 1, j), v01 = at_bc(i, j + 1), v11 = at_bc(i + 1, j + 1);
+    return (1 - ay) * ((1 - ax) * v00 + ax * v10) + ay * ((1 - ax) * v01 + ax * v11);
+}
+
+double Grid2::integral() const {
+    double s = 0;
+    for (double v : m_values) s += v;
+    return s * cell_area();
+}
+
+double Grid2::abs_integral() const {
+    double s = 0;
+    for (double v : m_values) s += std::abs(v);
+    return s * cell_area();
+}
+
+double Grid2::max_abs() const {
+    double m = 0;
+    for (double v : m_values) m = std::max(m, std::abs(v));
+    return m;
+}
+
+}  // namespace kelvin::fluid

@@ -1,0 +1,276 @@
+// The cached MCFluid solver (thesis Section 5.3.3): one grid holds omega at the cell centres of the previous
+// step; every cell of the new step is the semi-Lagrangian backtrace (Euler or RK4) through Biot–Savart Monte
+// Carlo velocities drawn from that grid, followed by the Feynman–Kac diffusion average (Eq. 5.22) when the
+// fluid is viscous.
+#include <kelvin/core/error.h>
+#include <kelvin/core/interrupt.h>
+#include <kelvin/core/parallel.h>
+#include <kelvin/core/stats.h>
+#include <kelvin/fluid/mcfluid.h>
+
+#include <algorithm>
+#include <bit>
+#include <cmath>
+#include <cstring>
+
+namespace kelvin::fluid {
+
+const char* to_string(Advection a) { return a == Advection::Euler ? "euler" : "rk4"; }
+
+namespace {
+
+/// Two independent standard normals (Box–Muller).
+inline Vec2d gaussian2(Random& rng) {
+    const double u1 = rng.next_double(), u2 = rng.next_double();
+    const double r = std::sqrt(-2.0 * std::log1p(-u1));
+    const double a = 2 * Pi * u2;
+    return {r * std::cos(a), r * std::sin(a)};
+}
+
+inline bool finite(Vec2d v) { return std::isfinite(v.x) && std::isfinite(v.y); }
+
+inline uint64_t stream_of(long long step, uint64_t tag, uint64_t unit) {
+    return hash_combine(hash_combine(uint64_t(step), tag), unit);
+}
+
+/// Per-row counters, merged in row order after a pass.
+struct RowWork {
+    uint64_t evals = 0, queries = 0, backtraces = 0, diffusion = 0, invalid_velocity = 0, invalid_vorticity = 0;
+};
+
+void check_settings(const MCFluidSettings& s) {
+    const Vec2d size = s.domain.size();
+    if (!(size.x > 0) || !(size.y > 0) || !std::isfinite(size.x) || !std::isfinite(size.y))
+        throw_runtime("MCFluidSolver: empty or non-finite domain {}", s.domain.to_string());
+    if (s.nx < 2 || s.ny < 2 || s.nx > 65535 || s.ny > 65535)
+        throw_runtime("MCFluidSolver: cache resolution {}x{} out of range [2, 65535]", s.nx, s.ny);
+    if (!(s.dt > 0) || !std::isfinite(s.dt)) throw_runtime("MCFluidSolver: dt must be positive and finite");
+    if (!(s.viscosity >= 0) || !std::isfinite(s.viscosity)) throw_runtime("MCFluidSolver: viscosity must be >= 0");
+    if (s.velocity.samples < 1) throw_runtime("MCFluidSolver: velocity samples must be >= 1");
+    if (s.diffusion_samples < 1) throw_runtime("MCFluidSolver: diffusion samples must be >= 1");
+}
+
+}  // namespace
+
+MCFluidSolver::MCFluidSolver(const MCFluidSettings& settings, const InitialField& initial) : m_settings(settings) {
+    check_settings(m_settings);
+    const Domain2& d = m_settings.domain;
+    m_omega = Grid2(d, m_settings.nx, m_settings.ny);
+    m_delta = m_settings.velocity.delta >= 0 ? m_settings.velocity.delta
+                                             : 0.5 * std::min(m_omega.h().x, m_omega.h().y);
+    if (d.periodic) m_periodic = std::make_shared<PeriodicKernel>(d.size());
+    for (int j = 0; j < m_omega.ny(); ++j)
+        for (int i = 0; i < m_omega.nx(); ++i) {
+            double w = initial(m_omega.cell_center(i, j));
+            if (!std::isfinite(w)) {
+                ++m_work.invalid_vorticity;
+                w = 0;
+            }
+            m_omega.at(i, j) = w;
+        }
+    m_next = Grid2(d, m_settings.nx, m_settings.ny);
+    m_u = m_v = m_var_u = m_var_v = Grid2(d, m_settings.nx, m_settings.ny);
+    rebuild_estimator();
+}
+
+MCFluidSolver::~MCFluidSolver() = default;
+
+void MCFluidSolver::rebuild_estimator() {
+    m_estimator = std::make_unique<BiotSavartEstimator>(m_omega, m_settings.interpolation, m_settings.velocity.importance,
+                                                        m_delta, m_periodic);
+    m_velocity_valid = false;
+}
+
+Vec2d MCFluidSolver::checked_velocity(Vec2d x, Random& rng, uint64_t& evals, uint64_t& queries,
+                                      uint64_t& invalid) const {
+    VelocityEstimate e = m_estimator->estimate(x, m_settings.velocity.samples, rng);
+    evals += uint64_t(e.samples);
+    ++queries;
+    if (!finite(e.value)) {
+        ++invalid;
+        return Vec2d(0.0);
+    }
+    return e.value;
+}
+
+void MCFluidSolver::ensure_velocity() {
+    if (m_velocity_valid) return;
+    Timer timer;
+    const int nx = m_omega.nx(), ny = m_omega.ny();
+    const int n = m_settings.velocity.samples;
+    std::vector<RowWork> rows(std::size_t(ny), RowWork{});
+    parallel_for_units(std::size_t(ny), [&](std::size_t row) {
+        const int j = int(row);
+        Random rng(m_settings.seed, stream_of(m_step, TagVelocity, row));
+        RowWork& w = rows[row];
+        for (int i = 0; i < nx; ++i) {
+            VelocityEstimate e = m_estimator->estimate(m_omega.cell_center(i, j), n, rng);
+            w.evals += uint64_t(e.samples);
+            ++w.queries;
+            if (!finite(e.value) || !std::isfinite(e.variance.x) || !std::isfinite(e.variance.y)) {
+                ++w.invalid_velocity;
+                e = {};
+            }
+            m_u.at(i, j) = e.value.x;
+            m_v.at(i, j) = e.value.y;
+            m_var_u.at(i, j) = e.variance.x;
+            m_var_v.at(i, j) = e.variance.y;
+        }
+    });
+    for (const RowWork& w : rows) {
+        m_work.biot_savart_evals += w.evals;
+        m_work.velocity_queries += w.queries;
+        m_work.invalid_velocity += w.invalid_velocity;
+    }
+    m_work.seconds_velocity += timer.seconds();
+    m_velocity_valid = true;
+}
+
+const Grid2& MCFluidSolver::velocity_u() {
+    ensure_velocity();
+    return m_u;
+}
+const Grid2& MCFluidSolver::velocity_v() {
+    ensure_velocity();
+    return m_v;
+}
+const Grid2& MCFluidSolver::velocity_variance_u() {
+    ensure_velocity();
+    return m_var_u;
+}
+const Grid2& MCFluidSolver::velocity_variance_v() {
+    ensure_velocity();
+    return m_var_v;
+}
+
+bool MCFluidSolver::step(double dt) {
+    if (!(dt > 0) || std::isnan(dt)) throw_runtime("MCFluidSolver::step: dt must be positive (got {})", dt);
+    ensure_velocity();  // k1 at the cell centres: the velocity of the current state
+    if (interrupt_requested()) return false;
+    Timer timer;
+    const int nx = m_omega.nx(), ny = m_omega.ny();
+    const MCFluidSettings& s = m_settings;
+    const bool viscous = s.viscosity > 0;
+    const int nd = viscous ? s.diffusion_samples : 1;
+    const double sigma = viscous ? std::sqrt(2 * s.viscosity * dt) : 0.0;
+    const Interpolation interp = s.interpolation;
+    std::vector<RowWork> rows(std::size_t(ny), RowWork{});
+    std::atomic<bool> interrupted{false};
+
+    parallel_for_units(std::size_t(ny), [&](std::size_t row) {
+        if (interrupt_requested()) {
+            interrupted = true;
+            return;
+        }
+        const int j = int(row);
+        Random rng(s.seed, stream_of(m_step, TagAdvection, row));
+        RowWork& w = rows[row];
+        for (int i = 0; i < nx; ++i) {
+            const Vec2d x = m_omega.cell_center(i, j);
+            const Vec2d k1(m_u.at(i, j), m_v.at(i, j));
+            Vec2d xd;
+            if (s.advection == Advection::Euler) {
+                xd = x - dt * k1;  // Eq. (3.139)
+            } else {               // Eqs. (3.140)-(3.144), velocity frozen at the previous step
+                const Vec2d k2 = checked_velocity(x - 0.5 * dt * k1, rng, w.evals, w.queries, w.invalid_velocity);
+                const Vec2d k3 = checked_velocity(x - 0.5 * dt * k2, rng, w.evals, w.queries, w.invalid_velocity);
+                const Vec2d k4 = checked_velocity(x - dt * k3, rng, w.evals, w.queries, w.invalid_velocity);
+                xd = x - (dt / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4);
+            }
+            ++w.backtraces;
+            if (!finite(xd)) {  // only reachable with absurd dt (overflow): treat as no motion
+                ++w.invalid_velocity;
+                xd = x;
+            }
+            xd = s.domain.wrap(xd);
+            double value;
+            if (!viscous) {
+                value = m_omega.sample(xd, interp);
+            } else {  // Feynman–Kac diffusion: Gaussian displacement of variance 2 nu dt per axis (Eq. 5.22)
+                double sum = 0;
+                for (int k = 0; k < nd; ++k) sum += m_omega.sample(xd + sigma * gaussian2(rng), interp);
+                value = sum / nd;
+                w.diffusion += uint64_t(nd);
+            }
+            if (!std::isfinite(value)) {
+                ++w.invalid_vorticity;
+                value = 0;
+            }
+            m_next.at(i, j) = value;
+        }
+    });
+    if (interrupted) return false;
+
+    for (const RowWork& w : rows) {
+        m_work.biot_savart_evals += w.evals;
+        m_work.velocity_queries += w.queries;
+        m_work.advection_backtraces += w.backtraces;
+        m_work.diffusion_samples += w.diffusion;
+        m_work.invalid_velocity += w.invalid_velocity;
+        m_work.invalid_vorticity += w.invalid_vorticity;
+    }
+    std::swap(m_omega, m_next);
+    m_time += dt;
+    ++m_step;
+    rebuild_estimator();
+    m_work.seconds_advection += timer.seconds();
+    return true;
+}
+
+bool MCFluidSolver::advance_to(double t) {
+    const double eps = 1e-9 * m_settings.dt;
+    while (m_time < t - eps) {
+        double dt = std::min(m_settings.dt, t - m_time);
+        if (t - (m_time + dt) < eps) dt = t - m_time;
+        if (!step(dt)) return false;
+    }
+    return true;
+}
+
+FluidDiagnostics MCFluidSolver::diagnostics() {
+    ensure_velocity();
+    FluidDiagnostics d;
+    d.step = m_step;
+    d.time = m_time;
+    const double a = m_omega.cell_area();
+    double e = 0, noise = 0, z = 0, c = 0, mx = 0;
+    for (std::size_t k = 0; k < m_omega.cell_count(); ++k) {
+        const double u = m_u.values()[k], v = m_v.values()[k], w = m_omega.values()[k];
+        e += u * u + v * v;
+        noise += m_var_u.values()[k] + m_var_v.values()[k];
+        z += w * w;
+        c += w;
+        mx = std::max(mx, std::abs(w));
+    }
+    d.kinetic_energy_raw = 0.5 * e * a;
+    d.kinetic_energy = 0.5 * (e - noise) * a;
+    d.enstrophy = 0.5 * z * a;
+    d.circulation = c * a;
+    d.max_abs_vorticity = mx;
+    return d;
+}
+
+double MCFluidSolver::vorticity(double t, Vec2d x) {
+    if (t < m_time - 1e-9 * m_settings.dt)
+        throw_runtime("MCFluidSolver::vorticity: t = {} is before the current time {} (the cached solver keeps the "
+                      "current step only; use RecursiveEstimator for arbitrary times)", t, m_time);
+    advance_to(t);
+    return m_omega.sample(x, m_settings.interpolation);
+}
+
+Vec2d MCFluidSolver::velocity(double t, Vec2d x) {
+    if (t < m_time - 1e-9 * m_settings.dt)
+        throw_runtime("MCFluidSolver::velocity: t = {} is before the current time {}", t, m_time);
+    advance_to(t);
+    const uint64_t key = hash_combine(std::bit_cast<uint64_t>(x.x), std::bit_cast<uint64_t>(x.y));
+    Random rng(m_settings.seed, stream_of(m_step, TagQuery, key));
+    uint64_t evals = 0, queries = 0, invalid = 0;
+    Vec2d v = checked_velocity(x, rng, evals, queries, invalid);
+    return v;
+}
+
+VelocityEstimate MCFluidSolver::velocity_estimate(Vec2d x, int n, Random& rng) const {
+    return m_estimator->estimate(x, n, rng);
+}
+
+}  // namespace kelvin::fluid

@@ -1,0 +1,93 @@
+#include <kelvin/core/error.h>
+#include <kelvin/fluid/output.h>
+
+#include <fmt/format.h>
+
+#include <algorithm>
+#include <cmath>
+
+namespace kelvin::fluid {
+
+Color3 diverging_colormap(double t) {
+    if (!std::isfinite(t)) t = 0;
+    t = std::clamp(t, -1.0, 1.0);
+    // Moreland's "cool to warm" end points, through white: perceptually balanced, readable in print.
+    const Color3 cold(0.230, 0.299, 0.754), white(1.0, 1.0, 1.0), warm(0.706, 0.016, 0.150);
+    if (t < 0) return white + (-t) * (cold - white);
+    return white + t * (warm - white);
+}
+
+Bitmap field_image(const Grid2& omega, const Grid2* u, const Grid2* v, double range) {
+    std::vector<std::string> channels = {"R", "G", "B", "vorticity"};
+    if (u) channels.push_back("u");
+    if (v) channels.push_back("v");
+    Bitmap img(omega.nx(), omega.ny(), channels);
+    if (!(range > 0)) range = omega.max_abs();
+    if (!(range > 0)) range = 1;
+    const int cu = img.channel_index("u"), cv = img.channel_index("v");
+    for (int row = 0; row < omega.ny(); ++row) {
+        const int j = omega.ny() - 1 - row;
+        for (int i = 0; i < omega.nx(); ++i) {
+            const double w = omega.at(i, j);
+            const Color3 c = diverging_colormap(w / range);
+            img.at(i, row, 0) = float(srgb_to_linear(c.r));
+            img.at(i, row, 1) = float(srgb_to_linear(c.g));
+            img.at(i, row, 2) = float(srgb_to_linear(c.b));
+            img.at(i, row, 3) = float(w);
+            if (cu >= 0) img.at(i, row, cu) = float(u->at(i, j));
+            if (cv >= 0) img.at(i, row, cv) = float(v->at(i, j));
+        }
+    }
+    return img;
+}
+
+OutputPaths::OutputPaths(const std::filesystem::path& output, const std::string& name) {
+    if (output.empty()) return;
+    std::error_code ec;
+    if (std::filesystem::is_directory(output, ec)) {
+        prefix = output / name;
+        return;
+    }
+    prefix = output;
+    prefix.replace_extension();
+}
+
+std::filesystem::path OutputPaths::frame(long long step, int digits, const std::string& ext) const {
+    std::filesystem::path p = prefix;
+    p += fmt::format("_{:0{}d}{}", step, digits, ext);
+    return p;
+}
+
+std::filesystem::path OutputPaths::csv() const {
+    std::filesystem::path p = prefix;
+    p += ".csv";
+    return p;
+}
+
+DiagnosticsCsv::DiagnosticsCsv(const std::filesystem::path& path) : m_path(path) {
+    m_file = std::fopen(path.c_str(), "w");
+    if (!m_file) throw_runtime("cannot write '{}'", path.string());
+    std::fprintf(m_file, "%s\n", header());
+    std::fflush(m_file);
+}
+
+DiagnosticsCsv::~DiagnosticsCsv() {
+    if (m_file) std::fclose(m_file);
+}
+
+const char* DiagnosticsCsv::header() {
+    return "step,time,kinetic_energy,kinetic_energy_raw,enstrophy,circulation,max_abs_vorticity,seconds,"
+           "biot_savart_evals,biot_savart_evals_per_second,invalid";
+}
+
+void DiagnosticsCsv::write(const FluidDiagnostics& d, double seconds, double evals, uint64_t invalid) {
+    if (!m_file) return;
+    const double rate = seconds > 0 ? evals / seconds : 0.0;
+    std::string line = fmt::format("{},{:.10g},{:.10g},{:.10g},{:.10g},{:.10g},{:.10g},{:.6g},{:.0f},{:.6g},{}\n", d.step,
+                                   d.time, d.kinetic_energy, d.kinetic_energy_raw, d.enstrophy, d.circulation,
+                                   d.max_abs_vorticity, seconds, evals, rate, invalid);
+    if (std::fputs(line.c_str(), m_file) < 0) throw_runtime("cannot write '{}'", m_path.string());
+    std::fflush(m_file);
+}
+
+}  // namespace kelvin::fluid

@@ -1,0 +1,259 @@
+// mcfluid: the 2D Monte Carlo fluid solver of thesis Chapter 5 (cached, Section 5.3.3), run as a Job by
+// `kelvin scene.xml`. Every step backtraces each cache cell through a Biot–Savart Monte Carlo velocity
+// (Eqs. 5.3, 5.5; Euler Eq. 3.139 or RK4 Eqs. 3.140–3.144) and, when viscous, averages n_d Feynman–Kac
+// Gaussian displacements of variance 2 nu dt (Eq. 5.22). The solver is assembled from what the scene
+// declares: an inviscid scene never runs the diffusion step; 2D never evaluates stretching.
+//
+// Outputs (RunContext::output is a prefix: "out/run.exr" -> "out/run"; an existing directory D -> "D/mcfluid"):
+//   <prefix>.csv          diagnostics per step (energy, enstrophy, circulation, max |omega|, timings)
+//   <prefix>_NNNN.png     colour-mapped vorticity every `output_every` steps (and the last step)
+//   <prefix>_NNNN.exr     channels R, G, B (colour map), vorticity, u, v at the cell centres
+// and the final state is returned as the run's image (the CLI writes it to -o).
+//
+// | parameter         | type    | default   | meaning                                                      |
+// |-------------------|---------|-----------|--------------------------------------------------------------|
+// | dimension         | integer | 2         | 2 (3D is not implemented yet)                                 |
+// | min, max          | point   | -1 / 1    | the domain box (z = 0)                                        |
+// | periodic          | boolean | false     | periodic box, or open (free space, omega = 0 outside the box) |
+// | dt                | float   | 0.05      | time step                                                     |
+// | steps             | integer | 0         | number of steps (give steps or end_time)                      |
+// | end_time          | float   | 0         | simulated time (the last step is shortened to land on it)     |
+// | viscosity         | float   | 0         | nu; 0: inviscid (no diffusion step)                           |
+// | diffusion_samples | integer | 1         | n_d, Gaussian displacements per cell and step (Eq. 5.22)      |
+// | advection         | string  | rk4       | backtrace: "euler" or "rk4"                                   |
+// | output_every      | integer | 0         | write PNG/EXR frames every N steps (0: none)                  |
+// | write_png         | boolean | true      | frames as PNG                                                 |
+// | write_exr         | boolean | true      | frames as EXR                                                 |
+// | write_csv         | boolean | true      | diagnostics CSV                                               |
+// | color_range       | float   | 0         | |omega| mapped to full colour; 0: max |omega| at t = 0         |
+// | (vorticity)       | nested  | required  | initial condition                                             |
+// | (velocity)        | nested  | biot_savart | velocity estimator                                          |
+// | (cache)           | nested  | grid      | vorticity cache                                               |
+//
+//     <simulation type="mcfluid">
+//         <point name="min" x="-3.14159265358979" y="-3.14159265358979"/>
+//         <point name="max" x="3.14159265358979" y="3.14159265358979"/>
+//         <boolean name="periodic" value="true"/>
+//         <float name="dt" value="0.05"/> <float name="end_time" value="1"/>
+//         <vorticity type="taylor_green"/>
+//         <velocity type="biot_savart"><integer name="samples" value="256"/></velocity>
+//         <cache type="grid"><integer name="resolution" value="64"/></cache>
+//     </simulation>
+#include <kelvin/core/interrupt.h>
+#include <kelvin/core/job.h>
+#include <kelvin/core/logging.h>
+#include <kelvin/core/parallel.h>
+#include <kelvin/core/progress.h>
+#include <kelvin/core/registry.h>
+#include <kelvin/fluid/fields.h>
+#include <kelvin/fluid/mcfluid.h>
+#include <kelvin/fluid/output.h>
+
+#include <fmt/format.h>
+
+#include <cmath>
+#include <optional>
+
+namespace kelvin::fluid {
+namespace {
+
+class MCFluid final : public Job {
+public:
+    explicit MCFluid(const Properties& props) {
+        const long long dim = props.get_int("dimension");
+        if (dim == 3)
+            props.error("dimension", "3D MCFluid (vortex stretching, Eqs. 5.14-5.21) is not implemented yet; only "
+                                     "dimension = 2 is supported");
+        if (dim != 2) props.error("dimension", fmt::format("must be 2 (got {})", dim));
+
+        const Vec3d lo = props.get_point("min"), hi = props.get_point("max");
+        if (lo.z != 0) props.error("min", "a 2D domain takes z = 0");
+        if (hi.z != 0) props.error("max", "a 2D domain takes z = 0");
+        for (double v : {lo.x, lo.y, hi.x, hi.y})
+            if (!std::isfinite(v)) props.error(std::isfinite(lo.x) && std::isfinite(lo.y) ? "max" : "min", "must be finite");
+        if (!(hi.x > lo.x) || !(hi.y > lo.y))
+            props.error("max", fmt::format("must exceed min in x and y (min = ({:g}, {:g}), max = ({:g}, {:g}))", lo.x,
+                                           lo.y, hi.x, hi.y));
+        m_settings.domain = {{lo.x, lo.y}, {hi.x, hi.y}, props.get_bool("periodic")};
+
+        m_settings.dt = props.get_float("dt", 0.0, 1e300);
+        if (!(m_settings.dt > 0)) props.error("dt", "must be positive");
+        m_steps = props.get_int("steps", 0, 1LL << 40);
+        m_end_time = props.get_float("end_time", 0.0, 1e300);
+        if (m_steps > 0 && m_end_time > 0) props.error("end_time", "give either steps or end_time, not both");
+        if (m_steps == 0 && m_end_time == 0) props.error("steps", "give the number of steps or an end_time (> 0)");
+        if (m_end_time > 0) {
+            const double n = m_end_time / m_settings.dt;
+            if (n > double(1LL << 40)) props.error("end_time", "needs more than 2^40 steps of dt");
+            m_steps = std::max(1LL, (long long)std::ceil(n - 1e-9));
+        }
+        m_settings.viscosity = props.get_float("viscosity", 0.0, 1e300);
+        m_settings.diffusion_samples = int(props.get_int("diffusion_samples", 1, 1 << 20));
+        m_settings.advection = props.get_choice("advection", {"euler", "rk4"}) == "euler" ? Advection::Euler : Advection::RK4;
+        m_output_every = props.get_int("output_every", 0, 1LL << 40);
+        m_write_png = props.get_bool("write_png");
+        m_write_exr = props.get_bool("write_exr");
+        m_write_csv = props.get_bool("write_csv");
+        m_color_range = props.get_float("color_range", 0.0, 1e300);
+
+        m_field = props.get_object_as<VorticityField>("vorticity");
+        auto velocity = props.get_object_as<VelocityEstimatorSpec>("velocity");
+        if (!velocity)
+            velocity = std::dynamic_pointer_cast<VelocityEstimatorSpec>(
+                Registry::instance().create(Properties("velocity", "biot_savart")));
+        auto cache = props.get_object_as<CacheSpec>("cache");
+        if (!cache) cache = std::dynamic_pointer_cast<CacheSpec>(Registry::instance().create(Properties("cache", "grid")));
+        m_settings.velocity = velocity->biot_savart();
+        m_settings.interpolation = cache->interpolation();
+        m_settings.nx = cache->resolution_x();
+        const Vec2d size = m_settings.domain.size();
+        m_settings.ny = cache->resolution_y() > 0
+                            ? cache->resolution_y()
+                            : int(std::clamp(std::lround(m_settings.nx * size.y / size.x), 2L, 16384L));
+        m_field->check_domain(m_settings.domain);
+    }
+
+    RunResult run(RunContext& ctx) override {
+        Timer total;
+        MCFluidSettings settings = m_settings;
+        settings.seed = ctx.seed;
+        const VorticityField& field = *m_field;
+        MCFluidSolver solver(settings, [&field](const Vec2d& x) { return field.vorticity(x); });
+        const bool viscous = settings.viscosity > 0;
+
+        log_info("mcfluid: 2D, domain {}, {}x{} cache ({}), initial {}", settings.domain.to_string(), settings.nx,
+                 settings.ny, fluid::to_string(settings.interpolation), field.description());
+        log_info("mcfluid: effects: advection ({}, dt {:g}, {} steps) with Biot–Savart velocity (n_mc {}, importance "
+                 "{}, delta {:g}{}); diffusion {}; stretching off (2D); boundaries none; dye none",
+                 fluid::to_string(settings.advection), settings.dt, m_steps, settings.velocity.samples,
+                 fluid::to_string(settings.velocity.importance), solver.delta(),
+                 settings.domain.periodic ? ", periodic kernel" : "",
+                 viscous ? fmt::format("on (nu {:g}, Feynman–Kac, n_d {})", settings.viscosity, settings.diffusion_samples)
+                         : std::string("off (inviscid)"));
+
+        OutputPaths paths(ctx.output);
+        std::optional<DiagnosticsCsv> csv;
+        RunResult result;
+        result.work_unit = "steps";
+        if (paths.enabled() && m_write_csv) {
+            csv.emplace(paths.csv());
+            result.files_written.push_back(paths.csv());
+        }
+        const double range = m_color_range > 0 ? m_color_range : solver.vorticity_grid().max_abs();
+        const int digits = std::max(4, int(std::to_string(m_steps).size()));
+        double output_seconds = 0;
+        auto write_frame = [&]() {
+            if (!paths.enabled() || m_output_every == 0 || (!m_write_png && !m_write_exr)) return;
+            Timer t;
+            Bitmap img = field_image(solver.vorticity_grid(), &solver.velocity_u(), &solver.velocity_v(), range);
+            for (const char* ext : {".png", ".exr"}) {
+                if ((ext[1] == 'p' && !m_write_png) || (ext[1] == 'e' && !m_write_exr)) continue;
+                auto p = paths.frame(solver.step_index(), digits, ext);
+                write_image(p, img);
+                result.files_written.push_back(p);
+            }
+            output_seconds += t.seconds();
+        };
+
+        // State 0: its velocity is the first step's k1, so diagnostics cost nothing extra.
+        FluidDiagnostics d0 = solver.diagnostics();
+        if (csv)
+            csv->write(d0, 0.0, double(solver.work().biot_savart_evals),
+                       solver.work().invalid_velocity + solver.work().invalid_vorticity);
+        write_frame();
+
+        ProgressReporter progress("Simulating", double(m_steps), "steps", ctx.quiet);
+        long long done = 0;
+        bool stopped_by_time = false;
+        for (long long s = 1; s <= m_steps; ++s) {
+            if (interrupt_requested()) break;
+            const FluidWork before = solver.work();
+            Timer step_timer;
+            double dt = settings.dt;
+            if (m_end_time > 0 && s == m_steps) dt = m_end_time - solver.time();
+            if (!(dt > 0)) dt = settings.dt;
+            if (!solver.step(dt)) break;
+            // The new state's velocity: diagnostics now, k1 of the next step later (computed once).
+            FluidDiagnostics d = solver.diagnostics();
+            const double seconds = step_timer.seconds();
+            const FluidWork& after = solver.work();
+            if (csv)
+                csv->write(d, seconds, double(after.biot_savart_evals - before.biot_savart_evals),
+                           (after.invalid_velocity + after.invalid_vorticity) -
+                               (before.invalid_velocity + before.invalid_vorticity));
+            ++done;
+            if (m_output_every > 0 && (s % m_output_every == 0 || s == m_steps)) write_frame();
+            progress.update(1);
+            if (ctx.time_limit > 0 && total.seconds() >= ctx.time_limit && s < m_steps) {
+                stopped_by_time = true;
+                break;
+            }
+        }
+        progress.finish();
+        result.interrupted = interrupt_requested();
+        if (stopped_by_time)
+            log_warn("mcfluid: time limit of {:g} s reached after {} of {} steps (t = {:g})", ctx.time_limit, done,
+                     m_steps, solver.time());
+
+        const FluidWork& w = solver.work();
+        ctx.stats.add("fluid.steps", double(done), "steps");
+        ctx.stats.set("fluid.time_simulated", solver.time(), "");
+        ctx.stats.add("fluid.cells", double(solver.vorticity_grid().cell_count()), "cells");
+        ctx.stats.add("fluid.biot_savart_evals", double(w.biot_savart_evals), "evals");
+        ctx.stats.add("fluid.velocity_queries", double(w.velocity_queries), "queries");
+        ctx.stats.add("fluid.advection_backtraces", double(w.advection_backtraces), "backtraces");
+        ctx.stats.add("fluid.diffusion_samples", double(w.diffusion_samples), "samples");
+        ctx.stats.add("fluid.invalid_velocity", double(w.invalid_velocity), "values");
+        ctx.stats.add("fluid.invalid_vorticity", double(w.invalid_vorticity), "values");
+        ctx.stats.add_time("fluid.time.velocity", w.seconds_velocity);
+        ctx.stats.add_time("fluid.time.advection", w.seconds_advection);
+        ctx.stats.add_time("fluid.time.output", output_seconds);
+        if (w.invalid_velocity + w.invalid_vorticity > 0)
+            log_warn("mcfluid: {} non-finite velocity estimate(s) and {} non-finite vorticity value(s) were replaced "
+                     "by zero", w.invalid_velocity, w.invalid_vorticity);
+
+        const FluidDiagnostics dn = solver.diagnostics();
+        log_info("mcfluid: t = {:g}: energy {:.6g} (initial {:.6g}), enstrophy {:.6g} (initial {:.6g}), circulation "
+                 "{:.6g}, max |omega| {:.6g}; active effects: advection{}", dn.time, dn.kinetic_energy,
+                 d0.kinetic_energy, dn.enstrophy, d0.enstrophy, dn.circulation, dn.max_abs_vorticity,
+                 viscous ? ", diffusion" : "");
+        result.image = field_image(solver.vorticity_grid(), &solver.velocity_u(), &solver.velocity_v(), range);
+        result.work = double(done);
+        result.seconds = total.seconds();
+        return result;
+    }
+
+private:
+    MCFluidSettings m_settings;
+    long long m_steps = 0;
+    double m_end_time = 0;
+    long long m_output_every = 0;
+    bool m_write_png = true, m_write_exr = true, m_write_csv = true;
+    double m_color_range = 0;
+    std::shared_ptr<VorticityField> m_field;
+};
+
+}  // namespace
+}  // namespace kelvin::fluid
+
+KELVIN_PLUGIN(kelvin::fluid::MCFluid, "simulation", "mcfluid",
+              "2D Monte Carlo fluid solver (thesis Ch. 5): cached Biot–Savart MC velocity, semi-Lagrangian vorticity "
+              "advection, Feynman–Kac viscosity.",
+              kelvin::param::integer("dimension", 2, "2 (3D is not implemented yet)"),
+              kelvin::param::point("min", kelvin::Vec3d(-1.0, -1.0, 0.0), "domain box corner (z = 0)"),
+              kelvin::param::point("max", kelvin::Vec3d(1.0, 1.0, 0.0), "domain box corner (z = 0)"),
+              kelvin::param::boolean("periodic", false, "periodic box (true) or open free space (false)"),
+              kelvin::param::real("dt", 0.05, "time step"),
+              kelvin::param::integer("steps", 0, "number of steps (or give end_time)"),
+              kelvin::param::real("end_time", 0.0, "simulated time (or give steps)"),
+              kelvin::param::real("viscosity", 0.0, "kinematic viscosity nu (0: inviscid, no diffusion step)"),
+              kelvin::param::integer("diffusion_samples", 1, "n_d, Feynman–Kac samples per cell and step"),
+              kelvin::param::string("advection", "rk4", "'euler' or 'rk4' semi-Lagrangian backtrace"),
+              kelvin::param::integer("output_every", 0, "write PNG/EXR frames every N steps (0: none)"),
+              kelvin::param::boolean("write_png", true, "write frames as PNG (colour-mapped vorticity)"),
+              kelvin::param::boolean("write_exr", true, "write frames as EXR (vorticity, u, v channels)"),
+              kelvin::param::boolean("write_csv", true, "write <prefix>.csv diagnostics per step"),
+              kelvin::param::real("color_range", 0.0, "|omega| mapped to full colour (0: max at t = 0)"),
+              kelvin::param::object("vorticity", "vorticity", "initial vorticity field", true),
+              kelvin::param::object("velocity", "velocity", "velocity estimator (default biot_savart)"),
+              kelvin::param::object("cache", "cache", "vorticity cache (default grid)"));
