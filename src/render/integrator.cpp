@@ -17,27 +17,66 @@
 
 namespace kelvin {
 
+PassLoopResult run_passes(RunContext& ctx, long long scene_target, const std::string& unit,
+                          const std::function<void(long long, long long)>& pass,
+                          const std::function<Bitmap()>& develop) {
+    const bool timed = ctx.time_limit > 0 && ctx.spp <= 0;
+    long long target = ctx.spp > 0 ? ctx.spp : scene_target;
+    if (timed) target = LLONG_MAX;  // equal-time rendering: as much work as time allows
+    Timer timer, since_partial;
+    ProgressReporter progress("Rendering", timed ? ctx.time_limit : double(target), timed ? "s" : unit, ctx.quiet);
+    PassLoopResult r;
+    long long size = 1;
+    while (r.done < target) {
+        const long long n = std::min(size, target - r.done);
+        pass(r.done, n);
+        if (interrupt_requested()) {
+            r.interrupted = true;
+            break;
+        }
+        r.done += n;
+        const double elapsed = timer.seconds();
+        progress.set(timed ? elapsed : double(r.done));
+        if (ctx.time_limit > 0 && elapsed >= ctx.time_limit) break;
+        if (ctx.write_partial > 0 && ctx.write_partial_image && since_partial.seconds() >= ctx.write_partial) {
+            ctx.write_partial_image(develop());
+            since_partial.reset();
+        }
+        const double per_unit = elapsed / double(r.done);
+        long long budget = std::max<long long>(1, (long long)(1.0 / std::max(per_unit, 1e-9)));
+        if (ctx.time_limit > 0)
+            budget = std::min(budget, std::max<long long>(1, (long long)((ctx.time_limit - elapsed) / per_unit)));
+        size = std::clamp<long long>(size * 2, 1, budget);
+    }
+    progress.finish();
+    r.seconds = timer.seconds();
+    return r;
+}
+
+void report_counters(RunContext& ctx, const std::vector<SampleCounters>& counters) {
+    SampleCounters total;
+    for (const auto& c : counters) {
+        total.samples += c.samples;
+        total.rays += c.rays;
+        total.invalid += c.invalid;
+    }
+    ctx.stats.add("render.camera_samples", double(total.samples), "samples");
+    ctx.stats.add("render.rays", double(total.rays), "rays");
+    ctx.stats.add("render.invalid_samples", double(total.invalid), "samples");
+    if (total.invalid > 0)
+        log_warn("{} sample(s) were NaN, infinite or negative and were recorded as zero", total.invalid);
+}
+
 RunResult SamplingIntegrator::render(const Scene& scene, RunContext& ctx) {
     const Sensor& sensor = *scene.sensor();
     const int w = sensor.film().width(), h = sensor.film().height();
     const int tx = (w + TileSize - 1) / TileSize, ty = (h + TileSize - 1) / TileSize;
     const std::size_t tiles = std::size_t(tx) * std::size_t(ty);
-    const bool timed = ctx.time_limit > 0;
-    long long target = ctx.spp > 0 ? ctx.spp : sensor.sampler().sample_count();
-    if (timed && ctx.spp <= 0) target = LLONG_MAX;  // equal-time rendering: as many samples as time allows
-
     ImageBuffer buffer(w, h, 3);
     const std::vector<std::string> rgb = {"R", "G", "B"};
     std::vector<SampleCounters> counters(tiles);
-    Timer timer, since_partial;
-    ProgressReporter progress("Rendering", timed && ctx.spp <= 0 ? ctx.time_limit : double(target),
-                              timed && ctx.spp <= 0 ? "s" : "spp", ctx.quiet);
 
-    RunResult result;
-    result.work_unit = "spp";
-    long long done = 0, pass = 1;
-    while (done < target) {
-        const long long n = std::min(pass, target - done);
+    auto pass = [&](long long first, long long n) {
         parallel_for_units(tiles, [&](std::size_t unit) {
             const int x0 = int(unit % std::size_t(tx)) * TileSize, y0 = int(unit / std::size_t(tx)) * TileSize;
             const int x1 = std::min(x0 + TileSize, w), y1 = std::min(y0 + TileSize, h);
@@ -46,60 +85,32 @@ RunResult SamplingIntegrator::render(const Scene& scene, RunContext& ctx) {
             for (int y = y0; y < y1; ++y) {
                 if (interrupt_requested()) return;
                 for (int x = x0; x < x1; ++x)
-                    for (long long k = done; k < done + n; ++k) {
+                    for (long long k = first; k < first + n; ++k) {
                         sampler->start({x, y}, uint64_t(k), ctx.seed);
                         // Dimensions 0-1: position in the pixel; 2-3: lens; 4+: the integrator's.
                         Vec2d film = Vec2d(x, y) + sampler->next_2d();
                         Ray ray = sensor.sample_ray(film, sampler->next_2d());
                         Color3 v = sample(scene, *sampler, ray, c);
-                        if (!std::isfinite(v.r) || !std::isfinite(v.g) || !std::isfinite(v.b) || v.r < 0 ||
-                            v.g < 0 || v.b < 0) {
-                            ++c.invalid;
-                            v = Color3(0.0);
-                        }
+                        if (!sanitize(v)) ++c.invalid;
                         buffer.add(x, y, &v[0], 1.0);
                         ++c.samples;
                     }
             }
         });
-        if (interrupt_requested()) {
-            result.interrupted = true;
-            break;
-        }
-        done += n;
-        const double elapsed = timer.seconds();
-        progress.set(timed && ctx.spp <= 0 ? elapsed : double(done));
-        if (timed && elapsed >= ctx.time_limit) break;
-        if (ctx.write_partial > 0 && ctx.write_partial_image && since_partial.seconds() >= ctx.write_partial) {
-            ctx.write_partial_image(buffer.develop(rgb));
-            since_partial.reset();
-        }
-        // Grow passes geometrically (fewer synchronisations) but keep them short enough to honour the time
-        // limit, partial writes and Ctrl-C within about a second.
-        const double per_spp = elapsed / double(done);
-        long long budget = std::max<long long>(1, (long long)(1.0 / std::max(per_spp, 1e-9)));
-        if (timed) budget = std::min(budget, std::max<long long>(1, (long long)((ctx.time_limit - elapsed) / per_spp)));
-        pass = std::clamp<long long>(pass * 2, 1, budget);
-    }
-    progress.finish();
+    };
+    PassLoopResult loop = run_passes(ctx, sensor.sampler().sample_count(), "spp", pass,
+                                     [&] { return buffer.develop(rgb); });
 
-    SampleCounters total;
-    for (const auto& c : counters) {
-        total.samples += c.samples;
-        total.rays += c.rays;
-        total.invalid += c.invalid;
-    }
+    RunResult result;
+    result.work_unit = "spp";
+    result.interrupted = loop.interrupted;
     result.image = buffer.develop(rgb);
-    result.seconds = timer.seconds();
-    result.work = double(done);
+    result.seconds = loop.seconds;
+    result.work = double(loop.done);
     // An interrupted pass leaves some pixels with more samples than others: `done` counts complete passes,
     // camera_samples every sample in the image.
-    ctx.stats.set("render.spp", double(done), "spp");
-    ctx.stats.add("render.camera_samples", double(total.samples), "samples");
-    ctx.stats.add("render.rays", double(total.rays), "rays");
-    ctx.stats.add("render.invalid_samples", double(total.invalid), "samples");
-    if (total.invalid > 0)
-        log_warn("{} sample(s) were NaN, infinite or negative and were recorded as zero", total.invalid);
+    ctx.stats.set("render.spp", double(loop.done), "spp");
+    report_counters(ctx, counters);
     return result;
 }
 

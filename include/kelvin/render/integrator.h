@@ -7,9 +7,39 @@
 #include <kelvin/render/ray.h>
 #include <kelvin/render/sampler.h>
 
+#include <cmath>
+#include <functional>
+#include <string>
+#include <vector>
+
 namespace kelvin {
 
 class Scene;
+
+/// Outcome of run_passes.
+struct PassLoopResult {
+    long long done = 0;        ///< passes' worth of work completed (spp, or spp-equivalents)
+    bool interrupted = false;  ///< stopped by interrupt_requested()
+    double seconds = 0;
+};
+
+/// The progressive loop every integrator shares. Renders `pass(first, count)` for growing counts until
+/// `scene_target` units are done (ctx.spp overrides it; with ctx.time_limit and no ctx.spp the target is
+/// unbounded and time decides), polls interrupt_requested() between passes, writes ctx.write_partial_image
+/// every ctx.write_partial seconds from `develop()`, and shows progress. Pass sizes grow 1, 2, 4, ... but stay
+/// near a second, so limits and Ctrl-C are honoured promptly. A pass must give the same result however the
+/// work is split into passes (its output may depend on `first` and `count` only through the unit indices).
+PassLoopResult run_passes(RunContext& ctx, long long scene_target, const std::string& unit,
+                          const std::function<void(long long first, long long count)>& pass,
+                          const std::function<Bitmap()>& develop);
+
+/// Zero `v` and return false if any channel is NaN, infinite or negative (callers count these).
+inline bool sanitize(Color3& v) {
+    if (std::isfinite(v.r) && std::isfinite(v.g) && std::isfinite(v.b) && v.r >= 0 && v.g >= 0 && v.b >= 0)
+        return true;
+    v = Color3(0.0);
+    return false;
+}
 
 class Integrator : public Object {
 public:
@@ -22,6 +52,10 @@ struct SampleCounters {
     uint64_t rays = 0;
     uint64_t invalid = 0;  ///< NaN, Inf or negative estimates, recorded as zero
 };
+
+/// Add per-unit counters to ctx.stats (render.camera_samples, render.rays, render.invalid_samples) and warn
+/// about invalid samples.
+void report_counters(RunContext& ctx, const std::vector<SampleCounters>& counters);
 
 class SamplingIntegrator : public Integrator {
 public:
