@@ -18,4 +18,25 @@ Bitmap ImageBuffer::develop(const std::vector<std::string>& names) const {
     return out;
 }
 
+SplatBuffer::SplatBuffer(int width, int height, std::size_t units)
+    : m_width(width), m_height(height), m_lists(units), m_acc(std::size_t(width) * std::size_t(height) * 3, 0.0) {}
+
+void SplatBuffer::merge() {
+    for (auto& list : m_lists) {
+        for (const Record& r : list) {
+            double* px = &m_acc[std::size_t(r.pixel) * 3];
+            px[0] += r.r;
+            px[1] += r.g;
+            px[2] += r.b;
+        }
+        list.clear();
+    }
+}
+
+Bitmap SplatBuffer::develop(double scale) const {
+    Bitmap out(m_width, m_height);
+    for (std::size_t i = 0; i < m_acc.size(); ++i) out.data()[i] = float(m_acc[i] * scale);
+    return out;
+}
+
 }  // namespace kelvin

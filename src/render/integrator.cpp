@@ -53,14 +53,14 @@ PassLoopResult run_passes(RunContext& ctx, long long scene_target, const std::st
     return r;
 }
 
-void report_counters(RunContext& ctx, const std::vector<SampleCounters>& counters) {
+void report_counters(RunContext& ctx, const std::vector<SampleCounters>& counters, const std::string& samples_name) {
     SampleCounters total;
     for (const auto& c : counters) {
         total.samples += c.samples;
         total.rays += c.rays;
         total.invalid += c.invalid;
     }
-    ctx.stats.add("render.camera_samples", double(total.samples), "samples");
+    ctx.stats.add(samples_name, double(total.samples), "samples");
     ctx.stats.add("render.rays", double(total.rays), "rays");
     ctx.stats.add("render.invalid_samples", double(total.invalid), "samples");
     if (total.invalid > 0)

@@ -2,7 +2,10 @@
 // The film: image size and output format. Integrators accumulate into an ImageBuffer (double precision
 // sums and weights per pixel) and the film develops it into a Bitmap.
 #include <kelvin/core/image.h>
+#include <kelvin/core/math.h>
 #include <kelvin/core/object.h>
+
+#include <cstdint>
 
 #include <string>
 #include <vector>
@@ -29,6 +32,38 @@ public:
 private:
     int m_width = 0, m_height = 0, m_channels = 0;
     std::vector<double> m_data;
+};
+
+/// Deterministic splatting for estimators whose samples land on arbitrary pixels (light tracing, BDPT's
+/// light-tracing strategies, Metropolis chains). Each work unit appends records to its own list; merge() adds
+/// the lists to one double-precision accumulator in unit order. The sum therefore never depends on which
+/// thread ran which unit, and no atomics are needed. Lists keep their capacity across passes, so steady
+/// state does not allocate.
+class SplatBuffer {
+public:
+    SplatBuffer() = default;
+    SplatBuffer(int width, int height, std::size_t units);
+    int width() const { return m_width; }
+    int height() const { return m_height; }
+    /// Add `v` to the pixel containing film position `film` (box filter). Positions outside are ignored.
+    void splat(std::size_t unit, const Vec2d& film, const Color3& v) {
+        if (!(film.x >= 0 && film.y >= 0 && film.x < m_width && film.y < m_height)) return;
+        uint32_t px = uint32_t(int(film.y) * m_width + int(film.x));
+        m_lists[unit].push_back({px, v.r, v.g, v.b});
+    }
+    /// Fold every unit's list into the accumulator, in unit order, and empty the lists.
+    void merge();
+    /// Accumulated values times `scale`, as an RGB image.
+    Bitmap develop(double scale) const;
+
+private:
+    struct Record {
+        uint32_t pixel;
+        double r, g, b;
+    };
+    int m_width = 0, m_height = 0;
+    std::vector<std::vector<Record>> m_lists;
+    std::vector<double> m_acc;
 };
 
 class Film : public Object {

@@ -48,14 +48,15 @@ public:
 
 /// Per-worker counters a SamplingIntegrator gathers without locking.
 struct SampleCounters {
-    uint64_t samples = 0;  ///< camera samples taken (kept by the pixel loop)
+    uint64_t samples = 0;  ///< samples taken: camera samples, or light paths for light tracing
     uint64_t rays = 0;
     uint64_t invalid = 0;  ///< NaN, Inf or negative estimates, recorded as zero
 };
 
-/// Add per-unit counters to ctx.stats (render.camera_samples, render.rays, render.invalid_samples) and warn
-/// about invalid samples.
-void report_counters(RunContext& ctx, const std::vector<SampleCounters>& counters);
+/// Add per-unit counters to ctx.stats (`samples_name` for SampleCounters::samples, render.rays,
+/// render.invalid_samples) and warn about invalid samples.
+void report_counters(RunContext& ctx, const std::vector<SampleCounters>& counters,
+                     const std::string& samples_name = "render.camera_samples");
 
 class SamplingIntegrator : public Integrator {
 public:

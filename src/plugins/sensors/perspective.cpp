@@ -61,6 +61,27 @@ public:
         r.tmax = m_far / d_cam.z;
         return r;
     }
+    std::optional<SensorDirectSample> sample_direct(const Vec3d& ref, const Vec2d&) const override {
+        const double w = m_film->width(), h = m_film->height();
+        Vec3d local = m_to_world.inverse * glm::dvec4(ref, 1.0);
+        if (!(local.z > 0)) return std::nullopt;
+        const double dist_local = glm::length(local);
+        const double cos_theta = local.z / dist_local;
+        // The clipping planes are depths along the view axis, as for camera rays.
+        if (local.z < m_near || local.z > m_far) return std::nullopt;
+        Vec2d film(0.5 * w * (1 - local.x / (local.z * m_tan_x)), 0.5 * h * (1 - local.y / (local.z * m_tan_y)));
+        if (!(film.x >= 0 && film.y >= 0 && film.x < w && film.y < h)) return std::nullopt;
+        SensorDirectSample s;
+        s.film = film;
+        s.p = m_to_world.apply_point(Vec3d(0.0));
+        Vec3d d = s.p - ref;
+        s.dist = glm::length(d);
+        if (!(s.dist > 0)) return std::nullopt;
+        s.d = d / s.dist;
+        const double area = 4 * m_tan_x * m_tan_y;
+        s.weight = w * h / (area * cos_theta * cos_theta * cos_theta * s.dist * s.dist);
+        return s;
+    }
     const Film& film() const override { return *m_film; }
     const Sampler& sampler() const override { return *m_sampler; }
     const Transform& to_world() const override { return m_to_world; }
