@@ -57,28 +57,49 @@ PeriodicKernel::PeriodicKernel(Vec2d period, int table_size)
     : m_period(period), m_inv_period(1.0 / period.x, 1.0 / period.y), m_n(table_size) {
     if (table_size < 2 || table_size % 2) throw_runtime("PeriodicKernel: table size must be even and >= 2");
     const std::size_t nodes = std::size_t(m_n + 1) * std::size_t(m_n + 1);
-    m_table.assign(2 * nodes, 0.f);
+    m_u.assign(nodes, 0.f);
+    m_v.assign(nodes, 0.f);
     for (int j = 0; j <= m_n; ++j)
         for (int i = 0; i <= m_n; ++i) {
             Vec2d r{(double(i) / m_n - 0.5) * period.x, (double(j) / m_n - 0.5) * period.y};
             Vec2d h(0.0);
             if (2 * i != m_n || 2 * j != m_n) h = exact(r, period) - biot_savart_kernel(r, 0.0);  // H(0) = 0 (odd)
-            std::size_t k = 2 * (std::size_t(j) * std::size_t(m_n + 1) + std::size_t(i));
-            m_table[k] = float(h.x);
-            m_table[k + 1] = float(h.y);
+            const std::size_t k = std::size_t(j) * std::size_t(m_n + 1) + std::size_t(i);
+            m_u[k] = float(2 * Pi * h.x);
+            m_v[k] = float(2 * Pi * h.y);
         }
+}
+
+Vec2d PeriodicKernel::correction(Vec2d r) const {
+    double gx = std::clamp((r.x * m_inv_period.x + 0.5) * m_n, 0.0, double(m_n));
+    double gy = std::clamp((r.y * m_inv_period.y + 0.5) * m_n, 0.0, double(m_n));
+    const int i = std::min(int(gx), m_n - 1), j = std::min(int(gy), m_n - 1);
+    const double ax = gx - i, ay = gy - j;
+    const std::size_t k = std::size_t(j) * std::size_t(m_n + 1) + std::size_t(i), row = std::size_t(m_n + 1);
+    auto lerp2 = [&](const std::vector<float>& t) {
+        return (1 - ay) * ((1 - ax) * t[k] + ax * t[k + 1]) + ay * ((1 - ax) * t[k + row] + ax * t[k + row + 1]);
+    };
+    return Vec2d(lerp2(m_u), lerp2(m_v)) * InvTwoPi;
 }
 
 // ------------------------------------------------------------------------------------------------
 // Estimator.
+
+namespace {
+constexpr uint32_t SignBit = 1u << 30;
+inline uint32_t pack_cell(int i, int j, double w) {
+    return uint32_t(i) | (uint32_t(j) << 15) | (w < 0 ? SignBit : 0u);
+}
+}  // namespace
 
 BiotSavartEstimator::BiotSavartEstimator(const Grid2& vorticity, Interpolation interp, SourceSampling sampling,
                                          double delta, std::shared_ptr<const PeriodicKernel> periodic)
     : m_grid(&vorticity), m_interp(interp), m_sampling(sampling), m_delta(delta), m_periodic(std::move(periodic)) {
     const Domain2& d = vorticity.domain();
     if (d.periodic && !m_periodic) throw_runtime("BiotSavartEstimator: a periodic domain needs its PeriodicKernel");
-    if (vorticity.nx() > 65535 || vorticity.ny() > 65535) throw_runtime("BiotSavartEstimator: grid too large");
-    if (!(delta >= 0)) throw_runtime("BiotSavartEstimator: delta must be >= 0");
+    if (vorticity.nx() > MaxResolution || vorticity.ny() > MaxResolution)
+        throw_runtime("BiotSavartEstimator: grid larger than {} cells per axis", MaxResolution);
+    if (!(delta >= 0) || !std::isfinite(delta)) throw_runtime("BiotSavartEstimator: delta must be finite and >= 0");
 
     // Uniform sampling region: the support of omega_h.
     m_region_min = d.min;
@@ -89,158 +110,135 @@ BiotSavartEstimator::BiotSavartEstimator(const Grid2& vorticity, Interpolation i
     }
 
     // Non-zero cells and their alias table (Vose's method), in a fixed order: deterministic.
+    std::vector<uint32_t> cells;
+    std::vector<double> weight;
     double total = 0;
     for (int j = 0; j < vorticity.ny(); ++j)
         for (int i = 0; i < vorticity.nx(); ++i) {
-            double w = vorticity.at(i, j);
+            const double w = vorticity.at(i, j);
             if (w == 0 || !std::isfinite(w)) continue;
-            m_cells.push_back({uint16_t(i), uint16_t(j), w > 0 ? 1.f : -1.f});
+            cells.push_back(pack_cell(i, j, w));
+            weight.push_back(std::abs(w));
             total += std::abs(w);
         }
     m_abs_integral = total * vorticity.cell_area();
-    if (m_cells.empty()) {
+    if (cells.empty() || !(m_abs_integral > 0) || !std::isfinite(m_abs_integral)) {
         m_abs_integral = 0;
         return;
     }
-    const std::size_t n = m_cells.size();
+    const std::size_t n = cells.size();
     std::vector<double> p(n);
-    for (std::size_t k = 0; k < n; ++k)
-        p[k] = std::abs(vorticity.at(m_cells[k].i, m_cells[k].j)) * double(n) / total;
+    for (std::size_t k = 0; k < n; ++k) p[k] = weight[k] * double(n) / total;
     std::vector<uint32_t> small, large;
     for (std::size_t k = 0; k < n; ++k) (p[k] < 1 ? small : large).push_back(uint32_t(k));
-    m_alias.assign(n, {0xffffffffu, 0});
-    for (std::size_t k = 0; k < n; ++k) m_alias[k].alias = uint32_t(k);
+    m_slots.resize(n);
+    for (std::size_t k = 0; k < n; ++k) m_slots[k] = {0xffffffffu, cells[k], cells[k]};  // leftovers: keep self
     auto threshold = [](double prob) {
-        double t = std::ldexp(prob, 32);
+        const double t = std::ldexp(prob, 32);
         return t >= 4294967295.0 ? 0xffffffffu : uint32_t(std::max(t, 0.0));
     };
     while (!small.empty() && !large.empty()) {
-        uint32_t s = small.back(), l = large.back();
+        const uint32_t s = small.back(), l = large.back();
         small.pop_back();
         large.pop_back();
-        m_alias[s] = {threshold(p[s]), l};
+        m_slots[s].threshold = threshold(p[s]);
+        m_slots[s].alias = cells[l];
         p[l] = (p[l] + p[s]) - 1.0;
         (p[l] < 1 ? small : large).push_back(l);
     }
-    // Leftovers are 1 up to rounding: always accept themselves.
 }
 
 namespace {
 
 constexpr int Lanes = 8;
 
-// The SIMD kernel: sum over the batch of w_i * (K(r_i) * 2 pi + h_i) and of its square, per component.
-// Fixed lanes (no reassociation needed, so GCC vectorises it at -O2/-O3 and the result does not depend on
-// the instruction set); the guard max(r2, FLT_MIN) turns the delta = 0 self-contribution (r = 0) into 0.
-template <bool WithCorrection>
-inline void kernel_batch(const float* __restrict rx, const float* __restrict ry, const float* __restrict w,
-                         const float* __restrict hu, const float* __restrict hv, int count, float d2, double& su,
-                         double& sv, double& su2, double& sv2) {
+/// Inputs of one batch, in cell units relative to the grid origin (SoA, float).
+struct BatchData {
+    alignas(64) float fx[BiotSavartEstimator::Batch];  ///< sample position, cells
+    alignas(64) float fy[BiotSavartEstimator::Batch];
+    alignas(64) float w[BiotSavartEstimator::Batch];   ///< sign (importance) or omega (uniform); 0 for padding
+};
+
+struct KernelParams {
+    float qx, qy;    ///< query position, cells
+    float hx, hy;    ///< cell size
+    float nx, ny;    ///< cells per axis (periodic wrap in cell units)
+    float d2;        ///< delta^2
+    const float* tu = nullptr;  ///< periodic correction tables (2 pi H), or null
+    const float* tv = nullptr;
+    int tn = 0;      ///< table intervals
+};
+
+struct Sums {
+    double u = 0, v = 0, u2 = 0, v2 = 0;
+};
+
+// The SIMD kernel: sum over the batch of w_i * 2 pi K(r_i) (+ 2 pi H(r_i) on periodic domains) and of its
+// square, per component. max(r2, FLT_MIN) turns the delta = 0 self-contribution (r = 0) into 0. Compiled
+// for AVX2 and for the baseline, chosen at load time; both give identical results (same IEEE operations
+// per sample, no FMA contraction, sums in fixed lanes).
+template <bool Periodic>
+__attribute__((always_inline)) inline void kernel_body(const BatchData& b, int count, const KernelParams& k, Sums& out) {
+    alignas(64) float cu[BiotSavartEstimator::Batch], cv[BiotSavartEstimator::Batch];
+    const float half_nx = 0.5f * k.nx, half_ny = 0.5f * k.ny;
+    const float tsx = float(k.tn) / k.nx, tsy = float(k.tn) / k.ny, th = 0.5f * float(k.tn);
+    const float tmax = float(k.tn) - 0.001f;
+    const int row = k.tn + 1;
+    const float* __restrict tu = k.tu;
+    const float* __restrict tv = k.tv;
+    // Per-sample contributions: a plain map over the batch (vectorised, with gathers for the table).
+    for (int s = 0; s < count; ++s) {
+        float dx = k.qx - b.fx[s], dy = k.qy - b.fy[s];
+        if constexpr (Periodic) {  // query in the box, sample at most one cell outside: one shift
+            dx = dx > half_nx ? dx - k.nx : dx;
+            dx = dx < -half_nx ? dx + k.nx : dx;
+            dy = dy > half_ny ? dy - k.ny : dy;
+            dy = dy < -half_ny ? dy + k.ny : dy;
+        }
+        const float x = dx * k.hx, y = dy * k.hy;
+        const float r2 = std::max(x * x + y * y + k.d2, FLT_MIN);
+        const float inv = 1.0f / r2;
+        float u = -y * inv, v = x * inv;
+        if constexpr (Periodic) {
+            const float gx = std::min(std::max(dx * tsx + th, 0.0f), tmax);
+            const float gy = std::min(std::max(dy * tsy + th, 0.0f), tmax);
+            const int i = int(gx), j = int(gy);
+            const float ax = gx - float(i), ay = gy - float(j);
+            const int t = j * row + i;
+            u += (1 - ay) * ((1 - ax) * tu[t] + ax * tu[t + 1]) + ay * ((1 - ax) * tu[t + row] + ax * tu[t + row + 1]);
+            v += (1 - ay) * ((1 - ax) * tv[t] + ax * tv[t + 1]) + ay * ((1 - ax) * tv[t + row] + ax * tv[t + row + 1]);
+        }
+        cu[s] = u * b.w[s];
+        cv[s] = v * b.w[s];
+    }
+    // Sums in fixed lanes (no reassociation needed, so they vectorise and do not depend on the ISA).
     float au[Lanes] = {}, av[Lanes] = {}, au2[Lanes] = {}, av2[Lanes] = {};
-    for (int b = 0; b < count; b += Lanes)
+    for (int base = 0; base < count; base += Lanes)
         for (int l = 0; l < Lanes; ++l) {
-            const int s = b + l;
-            const float x = rx[s], y = ry[s];
-            const float r2 = std::max(x * x + y * y + d2, FLT_MIN);
-            const float inv = 1.0f / r2;
-            float cu = -y * inv, cv = x * inv;
-            if constexpr (WithCorrection) {
-                cu += hu[s];
-                cv += hv[s];
-            }
-            cu *= w[s];
-            cv *= w[s];
-            au[l] += cu;
-            av[l] += cv;
-            au2[l] += cu * cu;
-            av2[l] += cv * cv;
+            const float u = cu[base + l], v = cv[base + l];
+            au[l] += u;
+            av[l] += v;
+            au2[l] += u * u;
+            av2[l] += v * v;
         }
     for (int l = 0; l < Lanes; ++l) {
-        su += au[l];
-        sv += av[l];
-        su2 += au2[l];
-        sv2 += av2[l];
+        out.u += au[l];
+        out.v += av[l];
+        out.u2 += au2[l];
+        out.v2 += av2[l];
     }
 }
 
-inline double unit16(uint32_t v) { return (double(v) + 0.5) * (1.0 / 65536.0); }
+__attribute__((target_clones("avx2", "default"))) void kernel_open(const BatchData& b, int count,
+                                                                     const KernelParams& k, Sums& out) {
+    kernel_body<false>(b, count, k, out);
+}
+__attribute__((target_clones("avx2", "default"))) void kernel_periodic(const BatchData& b, int count,
+                                                                         const KernelParams& k, Sums& out) {
+    kernel_body<true>(b, count, k, out);
+}
 
 }  // namespace
-
-template <bool Periodic>
-VelocityEstimate BiotSavartEstimator::estimate_impl(Vec2d x, int n, Random& rng) const {
-    alignas(64) float rx[Batch], ry[Batch], w[Batch], hu[Batch], hv[Batch];
-    const Grid2& g = *m_grid;
-    const Domain2& dom = g.domain();
-    const Vec2d h = g.h(), L = dom.size(), dmin = dom.min;
-    const bool importance = m_sampling == SourceSampling::Vorticity;
-    const bool tent = m_interp == Interpolation::Bilinear;
-    const std::size_t slots = m_alias.size();
-    const float d2 = float(m_delta * m_delta);
-    const double two_pi = 2 * Pi;
-    double su = 0, sv = 0, su2 = 0, sv2 = 0;
-
-    for (int done = 0; done < n; done += Batch) {
-        const int m = std::min(Batch, n - done);
-        for (int s = 0; s < m; ++s) {
-            Vec2d y;
-            float ws;
-            if (importance) {
-                const uint64_t p = uint64_t(rng.next_u32()) * uint64_t(slots);
-                uint32_t k = uint32_t(p >> 32);
-                if (uint32_t(p) >= m_alias[k].threshold) k = m_alias[k].alias;
-                const CellRec& c = m_cells[k];
-                const uint32_t a = rng.next_u32();
-                double ox, oy;
-                if (tent) {  // sum of two uniforms: the tent on (-1, 1)
-                    const uint32_t b = rng.next_u32();
-                    ox = unit16(a & 0xffffu) + unit16(a >> 16) - 1.0;
-                    oy = unit16(b & 0xffffu) + unit16(b >> 16) - 1.0;
-                } else {
-                    ox = unit16(a & 0xffffu) - 0.5;
-                    oy = unit16(a >> 16) - 0.5;
-                }
-                y = {dmin.x + (c.i + 0.5 + ox) * h.x, dmin.y + (c.j + 0.5 + oy) * h.y};
-                ws = c.sign;
-            } else {
-                const double ux = (double(rng.next_u32()) + 0.5) * 0x1p-32;
-                const double uy = (double(rng.next_u32()) + 0.5) * 0x1p-32;
-                y = m_region_min + m_region_size * Vec2d(ux, uy);
-                ws = float(g.sample(y, m_interp));
-            }
-            double dx = x.x - y.x, dy = x.y - y.y;
-            if constexpr (Periodic) {
-                // x lies in the box and y at most one cell outside it: one shift gives the minimum image.
-                dx = dx > 0.5 * L.x ? dx - L.x : (dx < -0.5 * L.x ? dx + L.x : dx);
-                dy = dy > 0.5 * L.y ? dy - L.y : (dy < -0.5 * L.y ? dy + L.y : dy);
-                const Vec2d c = m_periodic->correction({dx, dy});
-                hu[s] = float(c.x * two_pi);
-                hv[s] = float(c.y * two_pi);
-            }
-            rx[s] = float(dx);
-            ry[s] = float(dy);
-            w[s] = ws;
-        }
-        const int padded = (m + Lanes - 1) / Lanes * Lanes;
-        for (int s = m; s < padded; ++s) {
-            rx[s] = 1.f;
-            ry[s] = 0.f;
-            w[s] = 0.f;
-            hu[s] = hv[s] = 0.f;
-        }
-        kernel_batch<Periodic>(rx, ry, w, hu, hv, padded, d2, su, sv, su2, sv2);
-    }
-
-    const double weight = (importance ? m_abs_integral : m_region_size.x * m_region_size.y) * InvTwoPi;
-    VelocityEstimate e;
-    e.samples = n;
-    e.value = {weight * su / n, weight * sv / n};
-    if (n > 1) {
-        const double vu = std::max(0.0, su2 - su * su / n), vv = std::max(0.0, sv2 - sv * sv / n);
-        e.variance = {weight * weight * vu / (double(n) * (n - 1)), weight * weight * vv / (double(n) * (n - 1))};
-    }
-    return e;
-}
 
 VelocityEstimate BiotSavartEstimator::estimate(Vec2d x, int n, Random& rng) const {
     if (empty() || n <= 0) return {};
@@ -249,9 +247,81 @@ VelocityEstimate BiotSavartEstimator::estimate(Vec2d x, int n, Random& rng) cons
         e.value = Vec2d(std::numeric_limits<double>::quiet_NaN());
         return e;
     }
-    const Domain2& dom = m_grid->domain();
-    if (dom.periodic) return estimate_impl<true>(dom.wrap(x), n, rng);
-    return estimate_impl<false>(x, n, rng);
+    const Grid2& g = *m_grid;
+    const Domain2& dom = g.domain();
+    const bool periodic = dom.periodic;
+    if (periodic) x = dom.wrap(x);
+    const Vec2d h = g.h();
+    const bool importance = m_sampling == SourceSampling::Vorticity;
+    const bool tent = m_interp == Interpolation::Bilinear;
+    const uint64_t slots = m_slots.size();
+
+    KernelParams k;
+    k.qx = float((x.x - dom.min.x) / h.x);
+    k.qy = float((x.y - dom.min.y) / h.y);
+    k.hx = float(h.x);
+    k.hy = float(h.y);
+    k.nx = float(g.nx());
+    k.ny = float(g.ny());
+    k.d2 = float(m_delta * m_delta);
+    if (periodic) {
+        k.tu = m_periodic->table_u();
+        k.tv = m_periodic->table_v();
+        k.tn = m_periodic->table_size();
+    }
+    BatchData b;
+    Sums sums;
+    for (int done = 0; done < n; done += Batch) {
+        const int m = std::min(Batch, n - done);
+        if (importance) {
+            for (int s = 0; s < m; ++s) {
+                const uint64_t p = uint64_t(rng.next_u32()) * slots;
+                const Slot& slot = m_slots[p >> 32];
+                const uint32_t c = uint32_t(p) < slot.threshold ? slot.self : slot.alias;
+                const uint32_t a = rng.next_u32();
+                float ox, oy;
+                if (tent) {  // sum of two uniforms (8-bit midpoints, exact in float): the tent on (-1, 1)
+                    ox = float(int(a & 0xffu) + int((a >> 8) & 0xffu) + 1) * (1.0f / 256.0f) - 1.0f;
+                    oy = float(int((a >> 16) & 0xffu) + int(a >> 24) + 1) * (1.0f / 256.0f) - 1.0f;
+                } else {
+                    ox = (float(a & 0xffffu) + 0.5f) * (1.0f / 65536.0f) - 0.5f;
+                    oy = (float(a >> 16) + 0.5f) * (1.0f / 65536.0f) - 0.5f;
+                }
+                b.fx[s] = float(c & 0x7fffu) + 0.5f + ox;
+                b.fy[s] = float((c >> 15) & 0x7fffu) + 0.5f + oy;
+                b.w[s] = (c & SignBit) ? -1.0f : 1.0f;
+            }
+        } else {
+            for (int s = 0; s < m; ++s) {
+                const double ux = (double(rng.next_u32()) + 0.5) * 0x1p-32;
+                const double uy = (double(rng.next_u32()) + 0.5) * 0x1p-32;
+                const Vec2d y = m_region_min + m_region_size * Vec2d(ux, uy);
+                b.fx[s] = float((y.x - dom.min.x) / h.x);
+                b.fy[s] = float((y.y - dom.min.y) / h.y);
+                b.w[s] = float(g.sample(y, m_interp));
+            }
+        }
+        const int padded = (m + Lanes - 1) / Lanes * Lanes;
+        for (int s = m; s < padded; ++s) {
+            b.fx[s] = k.qx + 1.0f;
+            b.fy[s] = k.qy;
+            b.w[s] = 0.0f;
+        }
+        if (periodic)
+            kernel_periodic(b, padded, k, sums);
+        else
+            kernel_open(b, padded, k, sums);
+    }
+
+    const double weight = (importance ? m_abs_integral : m_region_size.x * m_region_size.y) * InvTwoPi;
+    VelocityEstimate e;
+    e.samples = n;
+    e.value = {weight * sums.u / n, weight * sums.v / n};
+    if (n > 1) {
+        const double vu = std::max(0.0, sums.u2 - sums.u * sums.u / n), vv = std::max(0.0, sums.v2 - sums.v * sums.v / n);
+        e.variance = {weight * weight * vu / (double(n) * (n - 1)), weight * weight * vv / (double(n) * (n - 1))};
+    }
+    return e;
 }
 
 }  // namespace kelvin::fluid

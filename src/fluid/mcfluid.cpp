@@ -42,8 +42,8 @@ void check_settings(const MCFluidSettings& s) {
     const Vec2d size = s.domain.size();
     if (!(size.x > 0) || !(size.y > 0) || !std::isfinite(size.x) || !std::isfinite(size.y))
         throw_runtime("MCFluidSolver: empty or non-finite domain {}", s.domain.to_string());
-    if (s.nx < 2 || s.ny < 2 || s.nx > 65535 || s.ny > 65535)
-        throw_runtime("MCFluidSolver: cache resolution {}x{} out of range [2, 65535]", s.nx, s.ny);
+    if (s.nx < 2 || s.ny < 2 || s.nx > BiotSavartEstimator::MaxResolution || s.ny > BiotSavartEstimator::MaxResolution)
+        throw_runtime("MCFluidSolver: cache resolution {}x{} out of range [2, {}]", s.nx, s.ny, BiotSavartEstimator::MaxResolution);
     if (!(s.dt > 0) || !std::isfinite(s.dt)) throw_runtime("MCFluidSolver: dt must be positive and finite");
     if (!(s.viscosity >= 0) || !std::isfinite(s.viscosity)) throw_runtime("MCFluidSolver: viscosity must be >= 0");
     if (s.velocity.samples < 1) throw_runtime("MCFluidSolver: velocity samples must be >= 1");

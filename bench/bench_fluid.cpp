@@ -1,0 +1,96 @@
+// MCFluid micro-benchmarks: Biot–Savart evaluations per second and time per solver step at the thesis'
+// settings (256^2 and 512^2 caches, n_mc = 256 and 1024), on the steady Taylor–Green field (periodic box,
+// so the periodic kernel is included) and on a Lamb–Oseen vortex in an open box.
+//
+//     build-fluid/bin/bench_fluid --benchmark_counters_tabular=true
+//     build-fluid/bin/bench_fluid --benchmark_filter=Step   # only the solver steps
+//
+// Threads: all the machine's cores unless KELVIN_BENCH_THREADS is set. Figures are in docs/fluid.md.
+#include <kelvin/core/parallel.h>
+#include <kelvin/fluid/mcfluid.h>
+
+#include <benchmark/benchmark.h>
+
+#include <cmath>
+#include <cstdlib>
+#include <memory>
+
+using namespace kelvin;
+using namespace kelvin::fluid;
+
+namespace {
+
+int bench_threads() {
+    const char* env = std::getenv("KELVIN_BENCH_THREADS");
+    return env ? std::atoi(env) : 0;
+}
+
+MCFluidSettings taylor_green_settings(int res, int nmc, Advection adv) {
+    MCFluidSettings s;
+    s.domain = {{-Pi, -Pi}, {Pi, Pi}, true};
+    s.nx = s.ny = res;
+    s.velocity.samples = nmc;
+    s.advection = adv;
+    s.dt = 0.05;
+    return s;
+}
+
+double taylor_green(const Vec2d& x) { return std::sin(x.x) * std::cos(x.y); }
+double lamb_oseen(const Vec2d& x) { return 1.0 / (Pi * 0.04) * std::exp(-(x.x * x.x + x.y * x.y) / 0.04); }
+
+// One velocity pass over every cell centre (what each step does first), reported as evaluations/s.
+void BM_BiotSavartPass(benchmark::State& state, bool periodic, SourceSampling sampling) {
+    ThreadLimit limit(bench_threads());
+    const int res = int(state.range(0)), nmc = int(state.range(1));
+    MCFluidSettings s = taylor_green_settings(res, nmc, Advection::Euler);
+    if (!periodic) s.domain = {{-1, -1}, {1, 1}, false};
+    s.velocity.importance = sampling;
+    MCFluidSolver solver(s, periodic ? InitialField(taylor_green) : InitialField(lamb_oseen));
+    const Grid2& grid = solver.vorticity_grid();
+    std::shared_ptr<const PeriodicKernel> kernel = periodic ? std::make_shared<PeriodicKernel>(s.domain.size()) : nullptr;
+    BiotSavartEstimator est(grid, s.interpolation, sampling, solver.delta(), kernel);
+    std::vector<double> out(std::size_t(res) * res);
+    uint64_t pass = 0;
+    for (auto _ : state) {
+        parallel_for_units(std::size_t(res), [&](std::size_t row) {
+            Random rng(pass, row);
+            for (int i = 0; i < res; ++i)
+                out[row * std::size_t(res) + std::size_t(i)] = est.velocity(grid.cell_center(i, int(row)), nmc, rng).x;
+        });
+        benchmark::DoNotOptimize(out.data());
+        ++pass;
+    }
+    const double evals = double(res) * res * nmc;
+    state.counters["evals/s"] = benchmark::Counter(evals * double(state.iterations()), benchmark::Counter::kIsRate);
+    state.counters["ns/eval"] = benchmark::Counter(evals * double(state.iterations()) * 1e-9,
+                                                   benchmark::Counter::kIsRate | benchmark::Counter::kInvert);
+    state.counters["threads"] = thread_count();
+}
+
+// A full solver step (velocity pass + backtrace + interpolation), Taylor–Green, periodic.
+void BM_Step(benchmark::State& state, Advection adv) {
+    ThreadLimit limit(bench_threads());
+    const int res = int(state.range(0)), nmc = int(state.range(1));
+    MCFluidSolver solver(taylor_green_settings(res, nmc, adv), taylor_green);
+    uint64_t evals0 = solver.work().biot_savart_evals;
+    for (auto _ : state) solver.step();
+    const double evals = double(solver.work().biot_savart_evals - evals0);
+    state.counters["evals/s"] = benchmark::Counter(evals, benchmark::Counter::kIsRate);
+    state.counters["threads"] = thread_count();
+}
+
+void Sizes(benchmark::internal::Benchmark* b) {
+    b->Args({256, 256})->Args({256, 1024})->Args({512, 256})->Args({512, 1024});
+    b->Unit(benchmark::kMillisecond)->UseRealTime()->MinTime(1.0);
+}
+
+}  // namespace
+
+BENCHMARK_CAPTURE(BM_BiotSavartPass, periodic_vorticity, true, SourceSampling::Vorticity)->Apply(Sizes);
+BENCHMARK_CAPTURE(BM_BiotSavartPass, periodic_uniform, true, SourceSampling::Uniform)->Args({256, 256})
+    ->Unit(benchmark::kMillisecond)->UseRealTime();
+BENCHMARK_CAPTURE(BM_BiotSavartPass, open_vorticity, false, SourceSampling::Vorticity)->Apply(Sizes);
+BENCHMARK_CAPTURE(BM_Step, euler, Advection::Euler)->Apply(Sizes);
+BENCHMARK_CAPTURE(BM_Step, rk4, Advection::RK4)->Args({256, 256})->Args({256, 1024})
+    ->Unit(benchmark::kMillisecond)->UseRealTime()->MinTime(1.0);
+BENCHMARK_MAIN();
