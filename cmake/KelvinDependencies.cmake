@@ -24,3 +24,12 @@ find_path(PCG_INCLUDE_DIR pcg_random.hpp REQUIRED)
 get_target_property(_kelvin_oiio_inc OpenImageIO::OpenImageIO INTERFACE_INCLUDE_DIRECTORIES)
 list(FILTER _kelvin_oiio_inc EXCLUDE REGEX "opencv")
 set_target_properties(OpenImageIO::OpenImageIO PROPERTIES INTERFACE_INCLUDE_DIRECTORIES "${_kelvin_oiio_inc}")
+
+# libtinyobjloader-dev: Wavefront OBJ meshes (the `obj` shape). Debian ships the implementation as a shared
+# library with a CMake package; nothing defines TINYOBJLOADER_IMPLEMENTATION in Kelvin. The library target is
+# created in src/, after this file runs, so the link is deferred to the end of the top-level directory.
+find_package(tinyobjloader CONFIG REQUIRED)
+if(TARGET tinyobjloader::tinyobjloader)
+  cmake_language(DEFER DIRECTORY ${PROJECT_SOURCE_DIR}
+                 CALL target_link_libraries kelvin PRIVATE tinyobjloader::tinyobjloader)
+endif()

@@ -16,6 +16,7 @@ packages=(
   libopenimageio-dev openimageio-tools  # PNG/JPEG/HDR I/O (Debian's CMake config also wants the tools)
   libglm-dev                          # math
   libtinygltf-dev nlohmann-json3-dev  # glTF meshes
+  libtinyobjloader-dev                # Wavefront OBJ meshes
   libopenvdb-dev libboost-iostreams-dev libblosc-dev  # volumes and level sets (OpenVDB's CMake needs the other two)
   libtbb-dev                          # parallelism
   libpugixml-dev                      # XML scenes
