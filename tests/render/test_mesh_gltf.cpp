@@ -270,3 +270,51 @@ TEST(MeshGltf, MalformedFilesNameTheFile) {
     EXPECT_NE(missing.find("missing.gltf"), std::string::npos) << missing;
     EXPECT_NE(missing.find("not found"), std::string::npos) << missing;
 }
+
+// Checked-in assets: mesh files named relative to the scene file, and the scene of issue 3 with its glTF.
+TEST(MeshGltf, CheckedInAssets) {
+    auto scene = std::dynamic_pointer_cast<Scene>(instantiate(parse_scene_file(KELVIN_TEST_DATA_DIR "/meshes/scene.xml")));
+    ASSERT_TRUE(scene);
+    ASSERT_EQ(scene->shapes().size(), 3u);
+    auto triangles = [&](std::size_t i) { return dynamic_cast<const TriangleMesh&>(*scene->shapes()[i]).triangle_count(); };
+    EXPECT_EQ(triangles(0), 12u);
+    EXPECT_EQ(scene->shapes()[0]->geometry().positions.size(), 24u);  // one vertex per (v, vn) pair
+    EXPECT_NEAR(scene->shapes()[0]->surface_area(), 24.0, 1e-5);
+    EXPECT_EQ(triangles(1), 4u);
+    EXPECT_EQ(triangles(2), 6144u + 1280u);
+    auto hit = scene->intersect(Ray{{-3, 0.2, 10}, {0, 0, -1}});  // the cube's front face, z = 1
+    ASSERT_TRUE(hit);
+    EXPECT_NEAR(hit->t, 9.0, 1e-5);
+    EXPECT_NEAR(scene->interaction(Ray{{-3, 0.2, 10}, {0, 0, -1}}, *hit).ns.z, 1.0, 1e-6);
+
+    ParseOptions opts;
+    opts.defines = {{"spp", "2"}, {"res", "24"}};
+    auto gltf_scene =
+        std::dynamic_pointer_cast<Scene>(instantiate(parse_scene_file(KELVIN_SOURCE_DIR "/scenes/render/gltf-mesh.xml", opts)));
+    ASSERT_TRUE(gltf_scene);
+    RunContext ctx;
+    ctx.quiet = true;
+    RunResult r = gltf_scene->run(ctx);
+    EXPECT_EQ(r.image.width(), 24);
+    for (std::size_t i = 0; i < r.image.size(); ++i) ASSERT_TRUE(std::isfinite(r.image.data()[i]));
+    EXPECT_EQ(ctx.stats.get("render.invalid_samples"), 0);
+}
+
+// The checked-in asset is what tools/make_gltf_mesh.py generates (so it can be regenerated, never drifts).
+TEST(MeshGltf, GeneratorReproducesTheSceneAsset) {
+    if (std::system("python3 --version > /dev/null 2>&1") != 0) GTEST_SKIP() << "python3 not available";
+    TempDir dir;
+    const fs::path out = dir.write("x", "").parent_path();
+    const std::string cmd = "python3 \"" KELVIN_SOURCE_DIR "/tools/make_gltf_mesh.py\" \"" + out.string() + "\" > /dev/null";
+    ASSERT_EQ(std::system(cmd.c_str()), 0);
+    auto slurp = [](const fs::path& p) {
+        std::ifstream in(p, std::ios::binary);
+        return std::string(std::istreambuf_iterator<char>(in), {});
+    };
+    const fs::path assets = fs::path(KELVIN_SOURCE_DIR) / "scenes" / "render" / "meshes";
+    for (const char* name : {"knot-and-blob.gltf", "knot-and-blob.bin"}) {
+        const std::string generated = slurp(out / name), checked_in = slurp(assets / name);
+        EXPECT_FALSE(generated.empty()) << name;
+        EXPECT_TRUE(generated == checked_in) << name << " differs from the generator's output";
+    }
+}
