@@ -1,5 +1,8 @@
 #include <kelvin/render/film.h>
 
+#include <algorithm>
+#include <cmath>
+
 namespace kelvin {
 
 ImageBuffer::ImageBuffer(int width, int height, int channels)
@@ -18,8 +21,27 @@ Bitmap ImageBuffer::develop(const std::vector<std::string>& names) const {
     return out;
 }
 
-SplatBuffer::SplatBuffer(int width, int height, std::size_t units)
-    : m_width(width), m_height(height), m_lists(units), m_acc(std::size_t(width) * std::size_t(height) * 3, 0.0) {}
+SplatBuffer::SplatBuffer(int width, int height, std::size_t units, const ReconstructionFilter* filter)
+    : m_width(width), m_height(height), m_filter(filter), m_lists(units),
+      m_acc(std::size_t(width) * std::size_t(height) * 3, 0.0) {}
+
+void SplatBuffer::splat(std::size_t unit, const Vec2d& film, const Color3& v) {
+    if (!(film.x >= 0 && film.y >= 0 && film.x < m_width && film.y < m_height)) return;
+    auto& list = m_lists[unit];
+    if (!m_filter) {
+        list.push_back({uint32_t(int(film.y) * m_width + int(film.x)), v.r, v.g, v.b});
+        return;
+    }
+    // Pixel centres (x + 0.5, y + 0.5) within the filter radius of the splat position.
+    const double r = m_filter->radius();
+    const int x0 = std::max(0, int(std::ceil(film.x - 0.5 - r))), x1 = std::min(m_width - 1, int(std::floor(film.x - 0.5 + r)));
+    const int y0 = std::max(0, int(std::ceil(film.y - 0.5 - r))), y1 = std::min(m_height - 1, int(std::floor(film.y - 0.5 + r)));
+    for (int y = y0; y <= y1; ++y)
+        for (int x = x0; x <= x1; ++x) {
+            double w = m_filter->eval(Vec2d(x + 0.5, y + 0.5) - film);
+            if (w != 0) list.push_back({uint32_t(y * m_width + x), w * v.r, w * v.g, w * v.b});
+        }
+}
 
 void SplatBuffer::merge() {
     for (auto& list : m_lists) {

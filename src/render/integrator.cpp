@@ -75,6 +75,7 @@ RunResult SamplingIntegrator::render(const Scene& scene, RunContext& ctx) {
     ImageBuffer buffer(w, h, 3);
     const std::vector<std::string> rgb = {"R", "G", "B"};
     std::vector<SampleCounters> counters(tiles);
+    const ReconstructionFilter& filter = sensor.film().filter();
 
     auto pass = [&](long long first, long long n) {
         parallel_for_units(tiles, [&](std::size_t unit) {
@@ -87,12 +88,13 @@ RunResult SamplingIntegrator::render(const Scene& scene, RunContext& ctx) {
                 for (int x = x0; x < x1; ++x)
                     for (long long k = first; k < first + n; ++k) {
                         sampler->start({x, y}, uint64_t(k), ctx.seed);
-                        // Dimensions 0-1: position in the pixel; 2-3: lens; 4+: the integrator's.
-                        Vec2d film = Vec2d(x, y) + sampler->next_2d();
+                        // Dimensions 0-1: position (filter importance sampling); 2-3: lens; 4+: the integrator's.
+                        auto [offset, weight] = filter.sample(sampler->next_2d());
+                        Vec2d film = Vec2d(x + 0.5, y + 0.5) + offset;
                         Ray ray = sensor.sample_ray(film, sampler->next_2d());
                         Color3 v = sample(scene, *sampler, ray, c);
                         if (!sanitize(v)) ++c.invalid;
-                        buffer.add(x, y, &v[0], 1.0);
+                        buffer.add(x, y, &v[0], weight);
                         ++c.samples;
                     }
             }

@@ -152,13 +152,16 @@ TEST(RenderLoop, ImageEqualsDirectPerPixelAverage) {
     for (int y = 0; y < 36; ++y)
         for (int x = 0; x < 40; ++x) {
             Color3 sum(0.0);
+            double wsum = 0;
             for (long long k = 0; k < spp; ++k) {
                 sampler->start({x, y}, uint64_t(k), seed);
-                Vec2d film = Vec2d(x, y) + sampler->next_2d();
+                auto [offset, weight] = sensor.film().filter().sample(sampler->next_2d());
+                Vec2d film = Vec2d(x + 0.5, y + 0.5) + offset;
                 Ray ray = sensor.sample_ray(film, sampler->next_2d());
-                sum += integrator->sample(*scene, *sampler, ray, counters);
+                sum += weight * integrator->sample(*scene, *sampler, ray, counters);
+                wsum += weight;
             }
-            for (int c = 0; c < 3; ++c) mismatches += r.image.at(x, y, c) != float(sum[c] / double(spp));
+            for (int c = 0; c < 3; ++c) mismatches += r.image.at(x, y, c) != float(sum[c] / wsum);
         }
     EXPECT_EQ(mismatches, 0);
 }
@@ -189,7 +192,8 @@ namespace {
 
 constexpr int kNanW = 40, kNanH = 40;
 
-// Which pixel a ray of the test camera (identity to_world, fov 90 along x, square film) went through.
+// Which pixel a ray of the test camera (identity to_world, fov 90 along x, square film, box filter so that
+// every sample stays inside its pixel's footprint) went through.
 // Camera space: +x left, +y up, +z forward; film x grows to the right, film y downwards.
 Vec2i pixel_of(const Ray& r) {
     const double fx = kNanW / 2.0 * (1 - r.d.x / r.d.z), fy = kNanH / 2.0 * (1 - r.d.y / r.d.z);
@@ -240,7 +244,7 @@ TEST(RenderLoop, InvalidSamplesAreZeroedCountedAndReported) {
             <integrator type="test_nan"/>
             <sensor type="perspective">
                 <float name="fov" value="90"/>
-                <film type="hdrfilm"><integer name="width" value="{}"/><integer name="height" value="{}"/></film>
+                <film type="hdrfilm"><rfilter type="box"/><integer name="width" value="{}"/><integer name="height" value="{}"/></film>
             </sensor>
         </scene>)",
                                   kNanW, kNanH));

@@ -4,6 +4,7 @@
 #include <kelvin/core/image.h>
 #include <kelvin/core/math.h>
 #include <kelvin/core/object.h>
+#include <kelvin/render/rfilter.h>
 
 #include <cstdint>
 
@@ -42,15 +43,13 @@ private:
 class SplatBuffer {
 public:
     SplatBuffer() = default;
-    SplatBuffer(int width, int height, std::size_t units);
+    /// `filter` spreads each splat over its footprint (null: the pixel containing the position only).
+    SplatBuffer(int width, int height, std::size_t units, const ReconstructionFilter* filter = nullptr);
     int width() const { return m_width; }
     int height() const { return m_height; }
-    /// Add `v` to the pixel containing film position `film` (box filter). Positions outside are ignored.
-    void splat(std::size_t unit, const Vec2d& film, const Color3& v) {
-        if (!(film.x >= 0 && film.y >= 0 && film.x < m_width && film.y < m_height)) return;
-        uint32_t px = uint32_t(int(film.y) * m_width + int(film.x));
-        m_lists[unit].push_back({px, v.r, v.g, v.b});
-    }
+    /// Add `v` at film position `film` (pixels), spread over the pixels whose filter footprint covers it with
+    /// weights filter(pixel centre - film). Contributions falling outside the image are dropped.
+    void splat(std::size_t unit, const Vec2d& film, const Color3& v);
     /// Fold every unit's list into the accumulator, in unit order, and empty the lists.
     void merge();
     /// Accumulated values times `scale`, as an RGB image.
@@ -62,6 +61,7 @@ private:
         double r, g, b;
     };
     int m_width = 0, m_height = 0;
+    const ReconstructionFilter* m_filter = nullptr;
     std::vector<std::vector<Record>> m_lists;
     std::vector<double> m_acc;
 };
@@ -70,6 +70,7 @@ class Film : public Object {
 public:
     virtual int width() const = 0;
     virtual int height() const = 0;
+    virtual const ReconstructionFilter& filter() const = 0;
 };
 
 }  // namespace kelvin

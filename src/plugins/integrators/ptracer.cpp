@@ -52,7 +52,7 @@ public:
         const int w = sensor.film().width(), h = sensor.film().height();
         const std::size_t paths = std::size_t(w) * std::size_t(h);
         const std::size_t units = (paths + PathsPerUnit - 1) / PathsPerUnit;
-        SplatBuffer splats(w, h, units);
+        SplatBuffer splats(w, h, units, &sensor.film().filter());
         std::vector<SampleCounters> counters(units);
         const uint64_t seed = hash_combine(ctx.seed, 0x4c49474854ULL);  // light paths: their own streams
         auto traced = [&] {

@@ -1,0 +1,24 @@
+#pragma once
+// Pixel reconstruction filters. Camera samples use filter importance sampling (pbrt-v4, Sec. 8.8): the film
+// position is the pixel centre plus an offset drawn from the filter, weighted by filter/pdf, so each sample
+// stays in its own pixel (tiles stay independent and results deterministic). Splatting estimators (light
+// tracing, MLT) spread each splat over the filter's footprint with eval(), normalised to integrate to 1, so
+// both kinds of estimator reconstruct the same image.
+#include <kelvin/core/math.h>
+#include <kelvin/core/object.h>
+
+#include <utility>
+
+namespace kelvin {
+
+class ReconstructionFilter : public Object {
+public:
+    /// Half-width of the support, in pixels.
+    virtual double radius() const = 0;
+    /// Filter value at `offset` (pixels from the centre), normalised: its integral over the plane is 1.
+    virtual double eval(const Vec2d& offset) const = 0;
+    /// An offset drawn with density proportional to |eval| and its weight eval/pdf (1 for positive filters).
+    virtual std::pair<Vec2d, double> sample(const Vec2d& u) const = 0;
+};
+
+}  // namespace kelvin
