@@ -1,0 +1,239 @@
+// Fluid scenes through the XML front end: parameter validation (errors name the parameter), effects on
+// demand (an inviscid scene does no diffusion work), the files a run writes, the shipped scenes, and the
+// kelvin CLI end to end.
+#include <kelvin/core/error.h>
+#include <kelvin/core/image.h>
+#include <kelvin/core/job.h>
+#include <kelvin/core/parser.h>
+
+#include <gtest/gtest.h>
+
+#include <atomic>
+#include <cstdlib>
+#include <filesystem>
+#include <fstream>
+#include <random>
+#include <sstream>
+#include <string>
+
+using namespace kelvin;
+namespace fs = std::filesystem;
+
+namespace {
+
+#define EXPECT_CONTAINS(haystack, needle)                            \
+    EXPECT_NE(std::string(haystack).find(needle), std::string::npos) \
+        << "expected to find \"" << (needle) << "\" in:\n  " << (haystack)
+
+class TempDir {
+public:
+    TempDir() {
+        static std::atomic<int> counter{0};
+        m_path = fs::temp_directory_path() /
+                 ("kelvin_fluid_" + std::to_string(::getpid()) + "_" + std::to_string(counter++));
+        fs::create_directories(m_path);
+    }
+    ~TempDir() {
+        std::error_code ec;
+        fs::remove_all(m_path, ec);
+    }
+    const fs::path& path() const { return m_path; }
+
+private:
+    fs::path m_path;
+};
+
+// A small simulation scene; `sim` is inserted in <simulation>, `extra` replaces the default components.
+std::string scene(const std::string& sim, const std::string& vorticity = R"(<vorticity type="taylor_green"/>)",
+                  const std::string& components = R"(<velocity type="biot_savart"><integer name="samples" value="16"/></velocity>
+            <cache type="grid"><integer name="resolution" value="16"/></cache>)") {
+    return R"(<scene version="3.0.0">
+        <simulation type="mcfluid">
+            <point name="min" x="-3.141592653589793" y="-3.141592653589793"/>
+            <point name="max" x="3.141592653589793" y="3.141592653589793"/>
+            <boolean name="periodic" value="true"/>
+            )" + sim + "\n            " + vorticity + "\n            " + components + R"(
+        </simulation>
+    </scene>)";
+}
+
+std::shared_ptr<Job> load(const std::string& xml) {
+    auto job = std::dynamic_pointer_cast<Job>(instantiate(parse_scene_string(xml, {}, "fluid.xml")));
+    if (!job) throw std::runtime_error("not a job");
+    return job;
+}
+
+InputError load_error(const std::string& xml) {
+    try {
+        load(xml);
+    } catch (const InputError& e) {
+        return e;
+    }
+    ADD_FAILURE() << "no InputError for:\n" << xml;
+    return InputError({}, "");
+}
+
+}  // namespace
+
+TEST(FluidScene, ParameterErrorsNameTheParameter) {
+    InputError e = load_error(scene(R"(<integer name="steps" value="2"/>)", R"(<vorticity type="taylor_green"/>)",
+                                    R"(<cache type="grid"><string name="interpolation" value="bilnear"/></cache>)"));
+    EXPECT_CONTAINS(e.what(), "'interpolation'");
+    EXPECT_CONTAINS(e.what(), "did you mean 'bilinear'");
+    EXPECT_EQ(e.location().file, "fluid.xml");
+
+    e = load_error(scene(R"(<integer name="steps" value="2"/><integer name="dimension" value="3"/>)"));
+    EXPECT_CONTAINS(e.what(), "'dimension'");
+    EXPECT_CONTAINS(e.what(), "not implemented");
+    e = load_error(scene(R"(<integer name="steps" value="2"/><integer name="dimension" value="1"/>)"));
+    EXPECT_CONTAINS(e.what(), "'dimension'");
+
+    e = load_error(scene(R"(<integer name="steps" value="2"/><float name="dt" value="0"/>)"));
+    EXPECT_CONTAINS(e.what(), "'dt'");
+    e = load_error(scene(R"(<integer name="steps" value="2"/><float name="end_time" value="1"/>)"));
+    EXPECT_CONTAINS(e.what(), "'end_time'");
+    e = load_error(scene(""));
+    EXPECT_CONTAINS(e.what(), "'steps'");
+    e = load_error(scene(R"(<integer name="steps" value="2"/><float name="viscosity" value="-1"/>)"));
+    EXPECT_CONTAINS(e.what(), "'viscosity'");
+    e = load_error(scene(R"(<integer name="steps" value="2"/><string name="advection" value="rk3"/>)"));
+    EXPECT_CONTAINS(e.what(), "'advection'");
+    e = load_error(scene(R"(<integer name="steps" value="2"/><point name="max" x="-4" y="1"/>)"));
+    EXPECT_CONTAINS(e.what(), "'max'");
+    e = load_error(scene(R"(<integer name="steps" value="2"/><point name="min" x="-4" y="-4" z="1"/>)"));
+    EXPECT_CONTAINS(e.what(), "'min'");
+
+    e = load_error(scene(R"(<integer name="steps" value="2"/>)", R"(<vorticity type="taylor_green"/>)",
+                         R"(<velocity type="biot_savart"><string name="importance" value="kernel"/></velocity>)"));
+    EXPECT_CONTAINS(e.what(), "'importance'");
+    EXPECT_CONTAINS(e.what(), "'vorticity'");
+    e = load_error(scene(R"(<integer name="steps" value="2"/>)", R"(<vorticity type="taylor_green"/>)",
+                         R"(<velocity type="biot_savart"><float name="delta" value="-0.5"/></velocity>)"));
+    EXPECT_CONTAINS(e.what(), "'delta'");
+    e = load_error(scene(R"(<integer name="steps" value="2"/>)", R"(<vorticity type="taylor_green"/>)",
+                         R"(<velocity type="biot_savart"><integer name="samples" value="0"/></velocity>)"));
+    EXPECT_CONTAINS(e.what(), "'samples'");
+    e = load_error(scene(R"(<integer name="steps" value="2"/>)", R"(<vorticity type="taylor_green"/>)",
+                         R"(<cache type="grid"><integer name="resolution" value="1"/></cache>)"));
+    EXPECT_CONTAINS(e.what(), "'resolution'");
+
+    e = load_error(scene(R"(<integer name="steps" value="2"/>)",
+                         R"(<vorticity type="gaussian_vortices"><string name="vortices" value="0 0 1; 1 1 1 0.2"/></vorticity>)"));
+    EXPECT_CONTAINS(e.what(), "'vortices'");
+    EXPECT_CONTAINS(e.what(), "vortex 1");
+    e = load_error(scene(R"(<integer name="steps" value="2"/>)",
+                         R"(<vorticity type="gaussian_vortices"><string name="vortices" value="0 0 1 -0.2"/></vorticity>)"));
+    EXPECT_CONTAINS(e.what(), "radius");
+    e = load_error(scene(R"(<integer name="steps" value="2"/>)",
+                         R"(<vorticity type="lamb_oseen"><float name="radius" value="0"/></vorticity>)"));
+    EXPECT_CONTAINS(e.what(), "'radius'");
+    e = load_error(scene(R"(<integer name="steps" value="2"/>)", ""));
+    EXPECT_CONTAINS(e.what(), "vorticity");
+    e = load_error(scene(R"(<integer name="steps" value="2"/><float name="viscosty" value="0.1"/>)"));
+    EXPECT_CONTAINS(e.what(), "did you mean 'viscosity'");
+}
+
+// Effects on demand: an inviscid scene never runs the diffusion step (zero Feynman–Kac samples, counted),
+// a viscous one runs exactly cells * n_d * steps of them. Both count their Biot–Savart and backtrace work.
+TEST(FluidScene, InviscidRunDoesNoDiffusionWork) {
+    for (bool viscous : {false, true}) {
+        std::string sim = R"(<integer name="steps" value="3"/><string name="advection" value="euler"/>)";
+        if (viscous) sim += R"(<float name="viscosity" value="0.01"/><integer name="diffusion_samples" value="2"/>)";
+        auto job = load(scene(sim));
+        RunContext ctx;
+        ctx.quiet = true;
+        RunResult r = job->run(ctx);
+        EXPECT_EQ(r.work, 3);
+        EXPECT_EQ(r.work_unit, "steps");
+        ASSERT_TRUE(ctx.stats.has("fluid.diffusion_samples"));
+        EXPECT_EQ(ctx.stats.get("fluid.diffusion_samples"), viscous ? 16.0 * 16 * 2 * 3 : 0.0);
+        EXPECT_EQ(ctx.stats.get("fluid.advection_backtraces"), 16.0 * 16 * 3);
+        // Velocity passes for states 0..3 (state 3 for the diagnostics), 16 samples each, Euler: no RK stages.
+        EXPECT_EQ(ctx.stats.get("fluid.biot_savart_evals"), 16.0 * 16 * 16 * 4);
+        EXPECT_EQ(ctx.stats.get("fluid.invalid_vorticity"), 0.0);
+        EXPECT_TRUE(r.files_written.empty());  // no output prefix: no files
+        EXPECT_EQ(r.image.width(), 16);
+        EXPECT_GE(r.image.channel_index("vorticity"), 0);
+    }
+}
+
+// The files of a run: <prefix>.csv with a header and one row per state, frames every N steps (and the last),
+// PNG colour map and EXR with named channels; the run's image carries the same channels.
+TEST(FluidScene, WritesCsvAndFrames) {
+    TempDir dir;
+    auto job = load(scene(R"(<integer name="steps" value="5"/><integer name="output_every" value="2"/>)"));
+    RunContext ctx;
+    ctx.quiet = true;
+    ctx.seed = 3;
+    ctx.output = dir.path() / "run.exr";
+    RunResult r = job->run(ctx);
+    std::ifstream csv(dir.path() / "run.csv");
+    ASSERT_TRUE(csv.good());
+    std::string header, line;
+    std::getline(csv, header);
+    EXPECT_CONTAINS(header, "kinetic_energy");
+    EXPECT_CONTAINS(header, "enstrophy");
+    EXPECT_CONTAINS(header, "circulation");
+    EXPECT_CONTAINS(header, "max_abs_vorticity");
+    EXPECT_CONTAINS(header, "biot_savart_evals_per_second");
+    int rows = 0;
+    while (std::getline(csv, line))
+        if (!line.empty()) ++rows;
+    EXPECT_EQ(rows, 6);  // states 0..5
+    for (int step : {0, 2, 4, 5}) {
+        char name[32];
+        std::snprintf(name, sizeof name, "run_%04d", step);
+        EXPECT_TRUE(fs::exists(dir.path() / (std::string(name) + ".png"))) << name;
+        ASSERT_TRUE(fs::exists(dir.path() / (std::string(name) + ".exr"))) << name;
+    }
+    EXPECT_FALSE(fs::exists(dir.path() / "run_0001.png"));
+    EXPECT_FALSE(fs::exists(dir.path() / "run.exr"));  // the CLI writes the final image, not the job
+    Bitmap frame = read_image(dir.path() / "run_0004.exr");
+    EXPECT_GE(frame.channel_index("vorticity"), 0);
+    EXPECT_GE(frame.channel_index("u"), 0);
+    EXPECT_GE(frame.channel_index("v"), 0);
+    EXPECT_EQ(frame.width(), 16);
+    EXPECT_EQ(r.files_written.size(), 1u + 4 * 2);
+    // Output directory form: an existing directory gets <dir>/mcfluid.*
+    RunContext ctx2;
+    ctx2.quiet = true;
+    ctx2.output = dir.path();
+    load(scene(R"(<integer name="steps" value="1"/>)"))->run(ctx2);
+    EXPECT_TRUE(fs::exists(dir.path() / "mcfluid.csv"));
+}
+
+// Every shipped scene loads, and runs one tiny step with -D overrides (keeps scenes/fluid/ valid).
+TEST(FluidScene, ShippedScenesRun) {
+    int count = 0;
+    for (const auto& entry : fs::directory_iterator(fs::path(KELVIN_SOURCE_DIR) / "scenes" / "fluid")) {
+        if (entry.path().extension() != ".xml") continue;
+        ++count;
+        ParseOptions opts;
+        opts.defines = {{"res", "16"}, {"spp", "8"}, {"end", "0.05"}, {"every", "0"}};
+        ParsedScene parsed = parse_scene_file(entry.path(), opts);
+        EXPECT_TRUE(parsed.unused_defines.empty()) << entry.path() << " does not use -D " << parsed.unused_defines[0];
+        auto job = std::dynamic_pointer_cast<Job>(instantiate(parsed));
+        ASSERT_TRUE(job) << entry.path();
+        RunContext ctx;
+        ctx.quiet = true;
+        RunResult r = job->run(ctx);
+        EXPECT_GE(r.work, 1) << entry.path();
+        for (std::size_t k = 0; k < r.image.size(); ++k) ASSERT_TRUE(std::isfinite(r.image.data()[k])) << entry.path();
+    }
+    EXPECT_GE(count, 4);
+}
+
+// The kelvin CLI runs a fluid scene: exit 0, the final image at -o, the CSV beside it.
+TEST(FluidScene, CliEndToEnd) {
+    TempDir dir;
+    const fs::path scene_path = fs::path(KELVIN_SOURCE_DIR) / "scenes" / "fluid" / "taylor_green.xml";
+    const fs::path out = dir.path() / "tg.png";
+    std::string cmd = std::string("\"") + KELVIN_CLI + "\" \"" + scene_path.string() +
+                      "\" -q -t 2 -D res=16 -D spp=8 -D end=0.1 -D every=0 -o \"" + out.string() + "\"";
+    ASSERT_EQ(std::system(cmd.c_str()), 0) << cmd;
+    EXPECT_TRUE(fs::exists(out));
+    EXPECT_TRUE(fs::exists(dir.path() / "tg.csv"));
+    std::string bad = std::string("\"") + KELVIN_CLI + "\" \"" + scene_path.string() +
+                      "\" -q -D res=16 -D interpolation=cubic -o \"" + out.string() + "\" 2>/dev/null";
+    EXPECT_EQ(WEXITSTATUS(std::system(bad.c_str())), 2);
+}
