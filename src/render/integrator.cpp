@@ -76,6 +76,24 @@ RunResult SamplingIntegrator::render(const Scene& scene, RunContext& ctx) {
     const std::vector<std::string> rgb = {"R", "G", "B"};
     std::vector<SampleCounters> counters(tiles);
     const ReconstructionFilter& filter = sensor.film().filter();
+    std::unique_ptr<SplatBuffer> splat_buffer;
+    if (splats()) {
+        splat_buffer = std::make_unique<SplatBuffer>(w, h, tiles, &filter);
+        for (std::size_t u = 0; u < tiles; ++u) {
+            counters[u].splats = splat_buffer.get();
+            counters[u].unit = u;
+        }
+    }
+    auto develop = [&] {
+        Bitmap img = buffer.develop(rgb);
+        if (splat_buffer) {
+            uint64_t n = 0;
+            for (const auto& c : counters) n += c.samples;
+            Bitmap s = splat_buffer->develop(n > 0 ? 1.0 / double(n) : 0.0);
+            for (std::size_t i = 0; i < img.size(); ++i) img.data()[i] += s.data()[i];
+        }
+        return img;
+    };
 
     auto pass = [&](long long first, long long n) {
         parallel_for_units(tiles, [&](std::size_t unit) {
@@ -99,14 +117,14 @@ RunResult SamplingIntegrator::render(const Scene& scene, RunContext& ctx) {
                     }
             }
         });
+        if (splat_buffer) splat_buffer->merge();
     };
-    PassLoopResult loop = run_passes(ctx, sensor.sampler().sample_count(), "spp", pass,
-                                     [&] { return buffer.develop(rgb); });
+    PassLoopResult loop = run_passes(ctx, sensor.sampler().sample_count(), "spp", pass, develop);
 
     RunResult result;
     result.work_unit = "spp";
     result.interrupted = loop.interrupted;
-    result.image = buffer.develop(rgb);
+    result.image = develop();
     result.seconds = loop.seconds;
     result.work = double(loop.done);
     // An interrupted pass leaves some pixels with more samples than others: `done` counts complete passes,

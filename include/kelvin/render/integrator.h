@@ -46,11 +46,16 @@ public:
     virtual RunResult render(const Scene& scene, RunContext& ctx) = 0;
 };
 
-/// Per-worker counters a SamplingIntegrator gathers without locking.
+class SplatBuffer;
+
+/// Per-work-unit state a SamplingIntegrator uses without locking: counters, and (for integrators that
+/// splat, see SamplingIntegrator::splats()) the unit's slot in the splat buffer.
 struct SampleCounters {
     uint64_t samples = 0;  ///< samples taken: camera samples, or light paths for light tracing
     uint64_t rays = 0;
     uint64_t invalid = 0;  ///< NaN, Inf or negative estimates, recorded as zero
+    SplatBuffer* splats = nullptr;  ///< set by the pixel loop when the integrator splats
+    std::size_t unit = 0;           ///< the work unit (the splat buffer's list) this worker fills
 };
 
 /// Add per-unit counters to ctx.stats (`samples_name` for SampleCounters::samples, render.rays,
@@ -63,6 +68,9 @@ public:
     RunResult render(const Scene& scene, RunContext& ctx) override;
     /// Estimate of the value carried by `ray` (RGB). Called concurrently from several threads.
     virtual Color3 sample(const Scene& scene, Sampler& sampler, const Ray& ray, SampleCounters& counters) const = 0;
+    /// True if sample() also splats contributions to other pixels (counters.splats). The pixel loop then adds
+    /// the splat image, scaled by 1 / (camera samples taken), to the pixel estimates.
+    virtual bool splats() const { return false; }
 
     /// Work-unit size in pixels (fixed: the split never depends on the thread count).
     static constexpr int TileSize = 32;

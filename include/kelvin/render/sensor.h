@@ -32,6 +32,9 @@ public:
     /// Primary ray through film position `film_pos` (in pixels, (0,0) = top-left corner of the image),
     /// with `aperture` in [0,1)^2 for lens sampling.
     virtual Ray sample_ray(Vec2d film_pos, Vec2d aperture) const = 0;
+    /// Solid-angle density with which sample_ray produces unit direction `d` (world space), as used by
+    /// bidirectional MIS; 0 outside the field of view or if unsupported (default). Pinhole: 1 / (A cos^3).
+    virtual double pdf_direction(const Vec3d& d) const { return 0.0; }
     virtual const Film& film() const = 0;
     virtual const Sampler& sampler() const = 0;
     virtual const Transform& to_world() const = 0;

@@ -62,6 +62,10 @@ public:
         es.weight = m_radiance * (Pi * m_shape->surface_area());  // Le cos / (pdf_pos pdf_dir)
         return es;
     }
+    std::pair<double, double> pdf_emission(const Vec3d&, const Vec3d& n, const Vec3d& d) const override {
+        double c = glm::dot(n, d);
+        return {1.0 / m_shape->surface_area(), c > 0 ? c * InvPi : 0.0};
+    }
     Color3 power() const override { return m_radiance * (Pi * (m_shape ? m_shape->surface_area() : 0.0)); }
 
 private:

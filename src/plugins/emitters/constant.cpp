@@ -49,6 +49,9 @@ public:
         es.weight = m_radiance / (es.pdf_pos * es.pdf_dir);
         return es;
     }
+    std::pair<double, double> pdf_emission(const Vec3d&, const Vec3d&, const Vec3d&) const override {
+        return {1.0 / (Pi * m_radius * m_radius), warp::square_to_uniform_sphere_pdf()};
+    }
     Color3 power() const override { return m_radiance * (4 * Pi * Pi * m_radius * m_radius); }
 
 private:

@@ -45,6 +45,9 @@ public:
         es.weight = m_intensity * (4 * Pi);
         return es;
     }
+    std::pair<double, double> pdf_emission(const Vec3d&, const Vec3d&, const Vec3d&) const override {
+        return {1.0, warp::square_to_uniform_sphere_pdf()};
+    }
     Color3 power() const override { return m_intensity * (4 * Pi); }
 
 private:

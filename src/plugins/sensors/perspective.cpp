@@ -82,6 +82,14 @@ public:
         s.weight = w * h / (area * cos_theta * cos_theta * cos_theta * s.dist * s.dist);
         return s;
     }
+    double pdf_direction(const Vec3d& d) const override {
+        Vec3d local = glm::normalize(Vec3d(m_to_world.inverse * glm::dvec4(d, 0.0)));
+        if (!(local.z > 0)) return 0.0;
+        // Inside the image? (Same projection as sample_direct.)
+        double x = local.x / (local.z * m_tan_x), y = local.y / (local.z * m_tan_y);
+        if (std::abs(x) > 1 || std::abs(y) > 1) return 0.0;
+        return 1.0 / (4 * m_tan_x * m_tan_y * local.z * local.z * local.z);
+    }
     const Film& film() const override { return *m_film; }
     const Sampler& sampler() const override { return *m_sampler; }
     const Transform& to_world() const override { return m_to_world; }
