@@ -97,14 +97,18 @@ float round_up(double x) {
     return double(f) < x ? std::nextafter(f, std::numeric_limits<float>::infinity()) : f;
 }
 
-void embree_error(void*, RTCError code, const char* str) { log_error("Embree error {}: {}", int(code), str ? str : ""); }
+void embree_error(void*, RTCError code, const char* str) {
+    log_error("Embree error {}: {}", int(code), str ? str : "");
+}
 
 struct Device {
     RTCDevice device = nullptr;
     RTCScene scene = nullptr;
     Device() {
         device = rtcNewDevice(nullptr);
-        if (!device) throw RuntimeError(fmt::format("Embree device creation failed (error {})", int(rtcGetDeviceError(nullptr))));
+        if (!device)
+            throw RuntimeError(
+                fmt::format("Embree device creation failed (error {})", int(rtcGetDeviceError(nullptr))));
         rtcSetDeviceErrorFunction(device, embree_error, nullptr);
         scene = rtcNewScene(device);
     }

@@ -27,14 +27,18 @@ enum class PlyType : uint8_t { I8, U8, I16, U16, I32, U32, F32, F64 };
 
 std::size_t type_size(PlyType t) {
     switch (t) {
-    case PlyType::I8:
-    case PlyType::U8: return 1;
-    case PlyType::I16:
-    case PlyType::U16: return 2;
-    case PlyType::I32:
-    case PlyType::U32:
-    case PlyType::F32: return 4;
-    case PlyType::F64: return 8;
+        case PlyType::I8:
+        case PlyType::U8:
+            return 1;
+        case PlyType::I16:
+        case PlyType::U16:
+            return 2;
+        case PlyType::I32:
+        case PlyType::U32:
+        case PlyType::F32:
+            return 4;
+        case PlyType::F64:
+            return 8;
     }
     return 0;
 }
@@ -61,12 +65,18 @@ const char* type_name(PlyType t) {
 // Range of values an integer type holds (for ascii bodies, where a token may not fit its declared type).
 std::pair<long long, long long> int_range(PlyType t) {
     switch (t) {
-    case PlyType::I8: return {-128, 127};
-    case PlyType::U8: return {0, 255};
-    case PlyType::I16: return {-32768, 32767};
-    case PlyType::U16: return {0, 65535};
-    case PlyType::I32: return {std::numeric_limits<int32_t>::min(), std::numeric_limits<int32_t>::max()};
-    default: return {0, std::numeric_limits<uint32_t>::max()};
+        case PlyType::I8:
+            return {-128, 127};
+        case PlyType::U8:
+            return {0, 255};
+        case PlyType::I16:
+            return {-32768, 32767};
+        case PlyType::U16:
+            return {0, 65535};
+        case PlyType::I32:
+            return {std::numeric_limits<int32_t>::min(), std::numeric_limits<int32_t>::max()};
+        default:
+            return {0, std::numeric_limits<uint32_t>::max()};
     }
 }
 
@@ -123,7 +133,8 @@ private:
     [[noreturn]] void fail_line(int line, fmt::format_string<Args...> f, Args&&... args) const {
         throw InputError(SourceLoc{m_name, line, 0}, fmt::format(f, std::forward<Args>(args)...));
     }
-    template <typename... Args> [[noreturn]] void fail(fmt::format_string<Args...> f, Args&&... args) const {
+    template <typename... Args>
+    [[noreturn]] void fail(fmt::format_string<Args...> f, Args&&... args) const {
         throw InputError(SourceLoc{m_name, 0, 0}, fmt::format(f, std::forward<Args>(args)...));
     }
 
@@ -150,7 +161,8 @@ private:
             if (key == "comment" || key == "obj_info") continue;
             if (key == "format") {
                 if (seen_format) fail_line(line_no, "second 'format' line");
-                if (tok.size() != 3) fail_line(line_no, "expected 'format <ascii|binary_little_endian|binary_big_endian> 1.0'");
+                if (tok.size() != 3)
+                    fail_line(line_no, "expected 'format <ascii|binary_little_endian|binary_big_endian> 1.0'");
                 if (tok[1] == "ascii")
                     m_format = Format::Ascii;
                 else if (tok[1] == "binary_little_endian")
@@ -179,7 +191,8 @@ private:
                     auto ct = parse_type(tok[2]), it = parse_type(tok[3]);
                     if (!ct) fail_line(line_no, "unknown type '{}'", tok[2]);
                     if (!it) fail_line(line_no, "unknown type '{}'", tok[3]);
-                    if (!is_integer(*ct)) fail_line(line_no, "list count type must be an integer type, not '{}'", tok[2]);
+                    if (!is_integer(*ct))
+                        fail_line(line_no, "list count type must be an integer type, not '{}'", tok[2]);
                     prop.list = true;
                     prop.count_type = *ct;
                     prop.type = *it;
@@ -193,7 +206,8 @@ private:
                 }
                 for (const auto& other : m_elements.back().props)
                     if (other.name == prop.name)
-                        fail_line(line_no, "element '{}' declares property '{}' twice", m_elements.back().name, prop.name);
+                        fail_line(line_no, "element '{}' declares property '{}' twice", m_elements.back().name,
+                                  prop.name);
                 m_elements.back().props.push_back(std::move(prop));
             } else if (key == "end_header") {
                 if (tok.size() != 1) fail_line(line_no, "unexpected tokens after 'end_header'");
@@ -228,12 +242,14 @@ private:
             if (p && p->list) fail_line(m_vertex->line, "vertex property '{}' must not be a list", p->name);
             return p;
         };
-        Property *x = scalar(find(*m_vertex, "x")), *y = scalar(find(*m_vertex, "y")), *z = scalar(find(*m_vertex, "z"));
+        Property *x = scalar(find(*m_vertex, "x")), *y = scalar(find(*m_vertex, "y")),
+                 *z = scalar(find(*m_vertex, "z"));
         if (!x || !y || !z) fail_line(m_vertex->line, "the 'vertex' element needs properties x, y and z");
         x->role = Role::X;
         y->role = Role::Y;
         z->role = Role::Z;
-        Property *nx = scalar(find(*m_vertex, "nx")), *ny = scalar(find(*m_vertex, "ny")), *nz = scalar(find(*m_vertex, "nz"));
+        Property *nx = scalar(find(*m_vertex, "nx")), *ny = scalar(find(*m_vertex, "ny")),
+                 *nz = scalar(find(*m_vertex, "nz"));
         if (nx && ny && nz) {
             nx->role = Role::NX;
             ny->role = Role::NY;
@@ -257,7 +273,8 @@ private:
         if (!idx) idx = find(*m_face, "vertex_index");
         if (!idx) fail_line(m_face->line, "the 'face' element needs a list property 'vertex_indices'");
         if (!idx->list) fail_line(m_face->line, "face property '{}' must be a list", idx->name);
-        if (!is_integer(idx->type)) fail_line(m_face->line, "face indices must have an integer type, not '{}'", type_name(idx->type));
+        if (!is_integer(idx->type))
+            fail_line(m_face->line, "face indices must have an integer type, not '{}'", type_name(idx->type));
         idx->role = Role::Indices;
 
         // Never trust the counts for allocation: reserve at most what the file could hold.
@@ -277,15 +294,32 @@ private:
     }
     void store(Role role, double v) {
         switch (role) {
-        case Role::X: m_pos.x = v; break;
-        case Role::Y: m_pos.y = v; break;
-        case Role::Z: m_pos.z = v; break;
-        case Role::NX: m_n.x = v; break;
-        case Role::NY: m_n.y = v; break;
-        case Role::NZ: m_n.z = v; break;
-        case Role::U: m_uv.x = v; break;
-        case Role::V: m_uv.y = v; break;
-        default: break;
+            case Role::X:
+                m_pos.x = v;
+                break;
+            case Role::Y:
+                m_pos.y = v;
+                break;
+            case Role::Z:
+                m_pos.z = v;
+                break;
+            case Role::NX:
+                m_n.x = v;
+                break;
+            case Role::NY:
+                m_n.y = v;
+                break;
+            case Role::NZ:
+                m_n.z = v;
+                break;
+            case Role::U:
+                m_uv.x = v;
+                break;
+            case Role::V:
+                m_uv.y = v;
+                break;
+            default:
+                break;
         }
     }
     void end_vertex() {
@@ -307,8 +341,7 @@ private:
         return {};
     }
     void finish() {
-        if (m_short_faces > 0)
-            log_warn("{}: skipped {} face(s) with fewer than 3 vertices", m_name, m_short_faces);
+        if (m_short_faces > 0) log_warn("{}: skipped {} face(s) with fewer than 3 vertices", m_name, m_short_faces);
     }
 
     // ----- ascii body: one element per line
@@ -335,11 +368,13 @@ private:
             if (e.props.empty()) continue;  // holds no data (and may claim any count)
             for (uint64_t i = 0; i < e.count; ++i) {
                 if (!next_line())
-                    fail_line(line_no + 1, "unexpected end of file: element '{}' #{} of {} is missing", e.name, i, e.count);
+                    fail_line(line_no + 1, "unexpected end of file: element '{}' #{} of {} is missing", e.name, i,
+                              e.count);
                 std::size_t t = 0;
                 auto token = [&](const Property& p) -> std::string_view {
                     if (t >= tok.size())
-                        fail_line(line_no, "element '{}' #{}: too few values (property '{}' is missing)", e.name, i, p.name);
+                        fail_line(line_no, "element '{}' #{}: too few values (property '{}' is missing)", e.name, i,
+                                  p.name);
                     return tok[t++];
                 };
                 if (is_vertex) begin_vertex();
@@ -352,8 +387,8 @@ private:
                     long long n = (long long)parse_number(token(p), p.count_type, p, e, i, line_no);
                     if (n < 0) fail_line(line_no, "element '{}' #{}: negative list length {}", e.name, i, n);
                     if (uint64_t(n) > tok.size() - t)
-                        fail_line(line_no, "element '{}' #{}: list '{}' announces {} values but the line has {}", e.name, i,
-                                  p.name, n, tok.size() - t);
+                        fail_line(line_no, "element '{}' #{}: list '{}' announces {} values but the line has {}",
+                                  e.name, i, p.name, n, tok.size() - t);
                     const bool keep = is_face && p.role == Role::Indices;
                     if (keep) poly.clear();
                     for (long long k = 0; k < n; ++k) {
@@ -366,8 +401,8 @@ private:
                     }
                 }
                 if (t != tok.size())
-                    fail_line(line_no, "element '{}' #{}: {} value(s) more than its {} properties", e.name, i, tok.size() - t,
-                              e.props.size());
+                    fail_line(line_no, "element '{}' #{}: {} value(s) more than its {} properties", e.name, i,
+                              tok.size() - t, e.props.size());
                 if (is_vertex) end_vertex();
             }
         }
@@ -375,7 +410,8 @@ private:
         finish();
     }
 
-    double parse_number(std::string_view s, PlyType type, const Property& p, const Element& e, uint64_t i, int line_no) const {
+    double parse_number(std::string_view s, PlyType type, const Property& p, const Element& e, uint64_t i,
+                        int line_no) const {
         const char* b = s.data();
         const char* end = s.data() + s.size();
         if (is_integer(type)) {
@@ -386,8 +422,8 @@ private:
                 fail_line(line_no, "element '{}' #{}, property '{}': '{}' is not an integer ({})", e.name, i, p.name, s,
                           type_name(type));
             if (v < lo || v > hi)
-                fail_line(line_no, "element '{}' #{}, property '{}': {} does not fit its type '{}'", e.name, i, p.name, v,
-                          type_name(type));
+                fail_line(line_no, "element '{}' #{}, property '{}': {} does not fit its type '{}'", e.name, i, p.name,
+                          v, type_name(type));
             return double(v);
         }
         double v = 0;
@@ -440,8 +476,8 @@ private:
                     double n = read(prop.count_type);
                     if (n < 0) fail("element '{}' #{}: negative list length {}", e.name, i, n);
                     if (n * double(type_size(prop.type)) > double(end - p))
-                        fail("unexpected end of file in element '{}' #{} of {} (list '{}' of {} values)", e.name, i, e.count,
-                             prop.name, n);
+                        fail("unexpected end of file in element '{}' #{} of {} (list '{}' of {} values)", e.name, i,
+                             e.count, prop.name, n);
                     const bool keep = is_face && prop.role == Role::Indices;
                     if (keep) poly.clear();
                     for (long long k = 0; k < (long long)n; ++k) {
@@ -462,14 +498,40 @@ private:
 
     static double decode(const unsigned char* b, PlyType t) {
         switch (t) {
-        case PlyType::I8: return double(int8_t(b[0]));
-        case PlyType::U8: return double(b[0]);
-        case PlyType::I16: { int16_t v; std::memcpy(&v, b, 2); return v; }
-        case PlyType::U16: { uint16_t v; std::memcpy(&v, b, 2); return v; }
-        case PlyType::I32: { int32_t v; std::memcpy(&v, b, 4); return v; }
-        case PlyType::U32: { uint32_t v; std::memcpy(&v, b, 4); return v; }
-        case PlyType::F32: { float v; std::memcpy(&v, b, 4); return v; }
-        case PlyType::F64: { double v; std::memcpy(&v, b, 8); return v; }
+            case PlyType::I8:
+                return double(int8_t(b[0]));
+            case PlyType::U8:
+                return double(b[0]);
+            case PlyType::I16: {
+                int16_t v;
+                std::memcpy(&v, b, 2);
+                return v;
+            }
+            case PlyType::U16: {
+                uint16_t v;
+                std::memcpy(&v, b, 2);
+                return v;
+            }
+            case PlyType::I32: {
+                int32_t v;
+                std::memcpy(&v, b, 4);
+                return v;
+            }
+            case PlyType::U32: {
+                uint32_t v;
+                std::memcpy(&v, b, 4);
+                return v;
+            }
+            case PlyType::F32: {
+                float v;
+                std::memcpy(&v, b, 4);
+                return v;
+            }
+            case PlyType::F64: {
+                double v;
+                std::memcpy(&v, b, 8);
+                return v;
+            }
         }
         return 0;
     }

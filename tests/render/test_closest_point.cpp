@@ -117,7 +117,8 @@ ShapeGeometry uv_sphere(const Vec3d& c, double r, int nu, int nv) {
     for (int j = 0; j <= nv; ++j)
         for (int i = 0; i <= nu; ++i) {
             double th = Pi * j / nv, ph = 2 * Pi * i / nu;
-            g.positions.emplace_back(c + r * Vec3d(std::sin(th) * std::cos(ph), std::sin(th) * std::sin(ph), std::cos(th)));
+            g.positions.emplace_back(c +
+                                     r * Vec3d(std::sin(th) * std::cos(ph), std::sin(th) * std::sin(ph), std::cos(th)));
         }
     for (int j = 0; j < nv; ++j)
         for (int i = 0; i < nu; ++i) {
@@ -415,7 +416,8 @@ TEST(ClosestSegment, AgreesWithBruteForce) {
         double a = 2 * Pi * rng.next_double();
         check_2d(q, Vec2d(0.5) + (5.0 + 1e4 * rng.next_double()) * Vec2d(std::cos(a), std::sin(a)));
     }
-    for (int i = 0; i < 2000; ++i) check_2d(q, {3 * rng.next_double() - 1, 3 * rng.next_double() - 1}, 0.05 * rng.next_double());
+    for (int i = 0; i < 2000; ++i)
+        check_2d(q, {3 * rng.next_double() - 1, 3 * rng.next_double() - 1}, 0.05 * rng.next_double());
 }
 
 TEST(ClosestSegment, PolygonNormalsPointOutwards) {

@@ -60,16 +60,17 @@ struct LogCapture {
 const float kNaN = std::numeric_limits<float>::quiet_NaN();
 
 // Octahedron (0..5), a duplicate of vertex 0 (6), a NaN vertex (7), the midpoint of 0 and 1 (8).
-const std::vector<std::array<float, 3>> kVerts = {{1, 0, 0},  {0, 1, 0},  {-1, 0, 0},       {0, -1, 0},     {0, 0, 1},
-                                                  {0, 0, -1}, {1, 0, 0},  {kNaN, kNaN, kNaN}, {0.5f, 0.5f, 0}};
+const std::vector<std::array<float, 3>> kVerts = {{1, 0, 0},  {0, 1, 0}, {-1, 0, 0},         {0, -1, 0},     {0, 0, 1},
+                                                  {0, 0, -1}, {1, 0, 0}, {kNaN, kNaN, kNaN}, {0.5f, 0.5f, 0}};
 // 8 faces (one uses the duplicate vertex 6: valid), then 4 degenerate ones.
 const std::vector<std::array<uint32_t, 3>> kFaces = {{0, 1, 4}, {1, 2, 4}, {2, 3, 4}, {3, 6, 4}, {1, 0, 5}, {2, 1, 5},
                                                      {3, 2, 5}, {0, 3, 5}, {0, 6, 1}, {0, 8, 1}, {7, 0, 1}, {3, 3, 3}};
 
 std::string ply_ascii() {
-    std::string s = fmt::format("ply\nformat ascii 1.0\nelement vertex {}\nproperty float x\nproperty float y\n"
-                                "property float z\nelement face {}\nproperty list uchar int vertex_indices\nend_header\n",
-                                kVerts.size(), kFaces.size());
+    std::string s = fmt::format(
+        "ply\nformat ascii 1.0\nelement vertex {}\nproperty float x\nproperty float y\n"
+        "property float z\nelement face {}\nproperty list uchar int vertex_indices\nend_header\n",
+        kVerts.size(), kFaces.size());
     for (const auto& v : kVerts)
         s += std::isnan(v[0]) ? std::string("nan nan nan\n") : fmt::format("{} {} {}\n", v[0], v[1], v[2]);
     for (const auto& f : kFaces) s += fmt::format("3 {} {} {}\n", f[0], f[1], f[2]);
@@ -77,10 +78,11 @@ std::string ply_ascii() {
 }
 
 std::string ply_binary() {
-    std::string s = fmt::format("ply\nformat binary_little_endian 1.0\nelement vertex {}\nproperty float x\n"
-                                "property float y\nproperty float z\nelement face {}\n"
-                                "property list uchar int vertex_indices\nend_header\n",
-                                kVerts.size(), kFaces.size());
+    std::string s = fmt::format(
+        "ply\nformat binary_little_endian 1.0\nelement vertex {}\nproperty float x\n"
+        "property float y\nproperty float z\nelement face {}\n"
+        "property list uchar int vertex_indices\nend_header\n",
+        kVerts.size(), kFaces.size());
     for (const auto& v : kVerts) s.append(reinterpret_cast<const char*>(v.data()), 12);
     for (const auto& f : kFaces) {
         s.push_back(3);
@@ -145,7 +147,8 @@ std::string scene_xml(const std::string& type, const fs::path& file) {
         <shape type="rectangle">
             <transform name="to_world"><scale value="4"/><rotate x="1" angle="-90"/><translate y="-1"/></transform>
         </shape>
-        <shape type=")" + type + R"("><string name="filename" value=")" + file.string() + R"("/></shape>
+        <shape type=")" +
+           type + R"("><string name="filename" value=")" + file.string() + R"("/></shape>
     </scene>)";
 }
 
@@ -162,7 +165,8 @@ void check_degenerate(const std::string& type, const fs::path& file) {
     EXPECT_NEAR(mesh->surface_area(), 8 * std::sqrt(3.0) / 2, 1e-5);
     int naming = 0;
     for (const auto& w : log.warnings)
-        naming += w.find("mesh '" + file.filename().string() + "'") != std::string::npos && w.find("dropped 4") != std::string::npos;
+        naming += w.find("mesh '" + file.filename().string() + "'") != std::string::npos &&
+                  w.find("dropped 4") != std::string::npos;
     EXPECT_EQ(naming, 1) << "expected one warning naming the mesh; got " << log.warnings.size() << " warning(s)";
     for (const auto& n : mesh->geometry().normals) EXPECT_TRUE(std::isfinite(n.x + n.y + n.z));
 
@@ -184,7 +188,8 @@ void check_degenerate(const std::string& type, const fs::path& file) {
     for (const Vec3d& p : {Vec3d(0.0), Vec3d(1, 0, 0), Vec3d(0.5, 0.5, 0), Vec3d(0.3, 0.3, 0.3), Vec3d(5, 5, 5)}) {
         ClosestPoint c = q.closest(p);
         ASSERT_TRUE(c);
-        EXPECT_TRUE(std::isfinite(c.distance) && std::isfinite(glm::length(c.point)) && std::isfinite(glm::length(c.normal)));
+        EXPECT_TRUE(std::isfinite(c.distance) && std::isfinite(glm::length(c.point)) &&
+                    std::isfinite(glm::length(c.normal)));
     }
 }
 

@@ -88,13 +88,15 @@ struct GltfBuilder {
     std::string bin;
     std::vector<std::string> views, accessors;
 
-    template <typename T> int add(const std::vector<T>& data, int count, const char* type, int component) {
+    template <typename T>
+    int add(const std::vector<T>& data, int count, const char* type, int component) {
         while (bin.size() % 4) bin.push_back('\0');
         const std::size_t offset = bin.size();
         bin.append(reinterpret_cast<const char*>(data.data()), data.size() * sizeof(T));
-        views.push_back(fmt::format(R"({{"buffer":0,"byteOffset":{},"byteLength":{}}})", offset, data.size() * sizeof(T)));
-        accessors.push_back(fmt::format(R"({{"bufferView":{},"componentType":{},"count":{},"type":"{}"}})", views.size() - 1,
-                                        component, count, type));
+        views.push_back(
+            fmt::format(R"({{"buffer":0,"byteOffset":{},"byteLength":{}}})", offset, data.size() * sizeof(T)));
+        accessors.push_back(fmt::format(R"({{"bufferView":{},"componentType":{},"count":{},"type":"{}"}})",
+                                        views.size() - 1, component, count, type));
         return int(accessors.size() - 1);
     }
     // `rest`: the "meshes", "nodes", "scenes" members (JSON text without the outer braces).
@@ -195,7 +197,8 @@ TEST(MeshGltf, TextGltfWithExternalBuffer) {
     auto scene = make_scene(gltf_shape(file));
     check_model(*scene);
     bool warned = false;
-    for (const auto& w : log.warnings) warned |= w.find("model.gltf") != std::string::npos && w.find("TRIANGLES") != std::string::npos;
+    for (const auto& w : log.warnings)
+        warned |= w.find("model.gltf") != std::string::npos && w.find("TRIANGLES") != std::string::npos;
     EXPECT_TRUE(warned) << "the LINES primitive must be reported";
 }
 
@@ -227,8 +230,10 @@ TEST(MeshGltf, ToWorldMatrixNodesMirroringAndFaceNormals) {
     auto flipped = make_scene(gltf_shape(file, "<boolean name=\"flip_tex_coords\" value=\"true\"/>"));
     EXPECT_EQ(Vec2d(flipped->shapes()[0]->geometry().uvs[3]), Vec2d(0, 0));
     // Without scenes, every root node is used.
-    fs::path noscene = dir.write("noscene.glb", m.b.glb(m.meshes + R"(,"nodes":[{"mesh":0,"children":[1]},{"mesh":0}])"));
-    EXPECT_EQ(dynamic_cast<const TriangleMesh*>(make_scene(gltf_shape(noscene))->shapes()[0].get())->triangle_count(), 4u);
+    fs::path noscene =
+        dir.write("noscene.glb", m.b.glb(m.meshes + R"(,"nodes":[{"mesh":0,"children":[1]},{"mesh":0}])"));
+    EXPECT_EQ(dynamic_cast<const TriangleMesh*>(make_scene(gltf_shape(noscene))->shapes()[0].get())->triangle_count(),
+              4u);
 }
 
 TEST(MeshGltf, MalformedFilesNameTheFile) {
@@ -242,7 +247,8 @@ TEST(MeshGltf, MalformedFilesNameTheFile) {
     int p = bad_index.add(std::vector<float>{0, 0, 0, 1, 0, 0, 0, 1, 0}, 3, "VEC3", kFloat);
     int i = bad_index.add(std::vector<uint16_t>{0, 1, 9}, 3, "SCALAR", kUShort);
     const std::string bad_index_mesh =
-        fmt::format(R"("meshes":[{{"primitives":[{{"attributes":{{"POSITION":{}}},"indices":{}}}]}}],)", p, i) + ok_nodes;
+        fmt::format(R"("meshes":[{{"primitives":[{{"attributes":{{"POSITION":{}}},"indices":{}}}]}}],)", p, i) +
+        ok_nodes;
     GltfBuilder past_end;
     p = past_end.add(std::vector<float>{0, 0, 0, 1, 0, 0, 0, 1, 0}, 30, "VEC3", kFloat);  // claims 30 elements
     const std::string past_end_mesh =
@@ -253,7 +259,8 @@ TEST(MeshGltf, MalformedFilesNameTheFile) {
         {"nobin.gltf", m.b.json(m.meshes + "," + ok_nodes, "nothere.bin"), ""},
         {"index.glb", bad_index.glb(bad_index_mesh), "index 9 out of range"},
         {"past.glb", past_end.glb(past_end_mesh), "reads past the end"},
-        {"cycle.glb", m.b.glb(m.meshes + R"(,"nodes":[{"mesh":0,"children":[1]},{"children":[0]}],"scenes":[{"nodes":[0]}])"),
+        {"cycle.glb",
+         m.b.glb(m.meshes + R"(,"nodes":[{"mesh":0,"children":[1]},{"children":[0]}],"scenes":[{"nodes":[0]}])"),
          "reached twice"},
         {"nomesh.glb", m.b.glb(m.meshes + R"(,"nodes":[{"mesh":7}],"scenes":[{"nodes":[0]}])"), "mesh 7"},
         {"empty.glb", m.b.glb(m.meshes + R"(,"nodes":[{}],"scenes":[{"nodes":[0]}])"), "no triangles"},
@@ -266,17 +273,21 @@ TEST(MeshGltf, MalformedFilesNameTheFile) {
         EXPECT_NE(msg.find(file.string()), std::string::npos) << c.name << ": " << msg;
         EXPECT_NE(msg.find(c.message), std::string::npos) << c.name << ": " << msg;
     }
-    std::string missing = input_error([&] { make_scene(gltf_shape(dir.write("a", "").parent_path() / "missing.gltf")); });
+    std::string missing =
+        input_error([&] { make_scene(gltf_shape(dir.write("a", "").parent_path() / "missing.gltf")); });
     EXPECT_NE(missing.find("missing.gltf"), std::string::npos) << missing;
     EXPECT_NE(missing.find("not found"), std::string::npos) << missing;
 }
 
 // Checked-in assets: mesh files named relative to the scene file, and the scene of issue 3 with its glTF.
 TEST(MeshGltf, CheckedInAssets) {
-    auto scene = std::dynamic_pointer_cast<Scene>(instantiate(parse_scene_file(KELVIN_TEST_DATA_DIR "/meshes/scene.xml")));
+    auto scene =
+        std::dynamic_pointer_cast<Scene>(instantiate(parse_scene_file(KELVIN_TEST_DATA_DIR "/meshes/scene.xml")));
     ASSERT_TRUE(scene);
     ASSERT_EQ(scene->shapes().size(), 3u);
-    auto triangles = [&](std::size_t i) { return dynamic_cast<const TriangleMesh&>(*scene->shapes()[i]).triangle_count(); };
+    auto triangles = [&](std::size_t i) {
+        return dynamic_cast<const TriangleMesh&>(*scene->shapes()[i]).triangle_count();
+    };
     EXPECT_EQ(triangles(0), 12u);
     EXPECT_EQ(scene->shapes()[0]->geometry().positions.size(), 24u);  // one vertex per (v, vn) pair
     EXPECT_NEAR(scene->shapes()[0]->surface_area(), 24.0, 1e-5);
@@ -289,8 +300,8 @@ TEST(MeshGltf, CheckedInAssets) {
 
     ParseOptions opts;
     opts.defines = {{"spp", "2"}, {"res", "24"}};
-    auto gltf_scene =
-        std::dynamic_pointer_cast<Scene>(instantiate(parse_scene_file(KELVIN_SOURCE_DIR "/scenes/render/gltf-mesh.xml", opts)));
+    auto gltf_scene = std::dynamic_pointer_cast<Scene>(
+        instantiate(parse_scene_file(KELVIN_SOURCE_DIR "/scenes/render/gltf-mesh.xml", opts)));
     ASSERT_TRUE(gltf_scene);
     RunContext ctx;
     ctx.quiet = true;
@@ -305,7 +316,8 @@ TEST(MeshGltf, GeneratorReproducesTheSceneAsset) {
     if (std::system("python3 --version > /dev/null 2>&1") != 0) GTEST_SKIP() << "python3 not available";
     TempDir dir;
     const fs::path out = dir.write("x", "").parent_path();
-    const std::string cmd = "python3 \"" KELVIN_SOURCE_DIR "/tools/make_gltf_mesh.py\" \"" + out.string() + "\" > /dev/null";
+    const std::string cmd =
+        "python3 \"" KELVIN_SOURCE_DIR "/tools/make_gltf_mesh.py\" \"" + out.string() + "\" > /dev/null";
     ASSERT_EQ(std::system(cmd.c_str()), 0);
     auto slurp = [](const fs::path& p) {
         std::ifstream in(p, std::ios::binary);

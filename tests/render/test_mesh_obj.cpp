@@ -67,25 +67,27 @@ std::string input_error(const std::function<void()>& fn) {
 
 // A unit square (quad face) in z = 0 with uvs and normals, and a triangle at z = 2 given with negative
 // (relative) indices and no uv/normal, in two groups, with comments and a missing material library.
-const char* kObj = "# square and triangle\n"
-                   "mtllib does-not-exist.mtl\n"
-                   "o square\n"
-                   "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\n"
-                   "vt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\n"
-                   "vn 0 0 1\n"
-                   "usemtl red\n"
-                   "f 1/1/1 2/2/1 3/3/1 4/4/1  # a quad\n"
-                   "g tri\n"
-                   "v 0 0 2\nv 1 0 2\nv 0 1 2\n"
-                   "vn 0 0 1\n"
-                   "f -3//2 -2//2 -1//2\n";
+const char* kObj =
+    "# square and triangle\n"
+    "mtllib does-not-exist.mtl\n"
+    "o square\n"
+    "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\n"
+    "vt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\n"
+    "vn 0 0 1\n"
+    "usemtl red\n"
+    "f 1/1/1 2/2/1 3/3/1 4/4/1  # a quad\n"
+    "g tri\n"
+    "v 0 0 2\nv 1 0 2\nv 0 1 2\n"
+    "vn 0 0 1\n"
+    "f -3//2 -2//2 -1//2\n";
 
 }  // namespace
 
 TEST(MeshObj, LoadsCountsUvsNormalsAndTransform) {
     TempDir dir;
     fs::path file = dir.write("two.obj", kObj);
-    auto scene = make_scene(obj_shape(file, "<transform name=\"to_world\"><scale value=\"2\"/><translate z=\"3\"/></transform>"));
+    auto scene = make_scene(
+        obj_shape(file, "<transform name=\"to_world\"><scale value=\"2\"/><translate z=\"3\"/></transform>"));
     auto* mesh = dynamic_cast<const TriangleMesh*>(scene->shapes()[0].get());
     ASSERT_NE(mesh, nullptr);
     EXPECT_EQ(mesh->triangle_count(), 3u);
@@ -173,7 +175,8 @@ TEST(MeshObj, MalformedFilesNameTheFileAndLine) {
         EXPECT_NE(msg.find(file.string()), std::string::npos) << c.name << ": " << msg;
         EXPECT_NE(msg.find(c.message), std::string::npos) << c.name << ": " << msg;
         if (c.line > 0)
-            EXPECT_NE(msg.find(file.string() + ":" + std::to_string(c.line) + ":"), std::string::npos) << c.name << ": " << msg;
+            EXPECT_NE(msg.find(file.string() + ":" + std::to_string(c.line) + ":"), std::string::npos)
+                << c.name << ": " << msg;
     }
     std::string missing = input_error([&] { make_scene(obj_shape(dir.write("a", "").parent_path() / "missing.obj")); });
     EXPECT_NE(missing.find("missing.obj"), std::string::npos) << missing;

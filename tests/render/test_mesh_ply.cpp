@@ -70,32 +70,36 @@ std::string input_error(const std::function<void()>& fn) {
 }
 
 // A unit square in z = 0 (a quad face) and a triangle above it, with normals and uvs.
-const char* kAsciiHeader = "ply\nformat ascii 1.0\ncomment made by the Kelvin tests\n"
-                           "element vertex 7\nproperty float x\nproperty float y\nproperty float z\n"
-                           "property float nx\nproperty float ny\nproperty float nz\n"
-                           "property float u\nproperty float v\nproperty uchar red\n"
-                           "element face 2\nproperty list uchar int vertex_indices\nproperty int flags\n"
-                           "element edge 1\nproperty int vertex1\nproperty int vertex2\nend_header\n";
-const char* kAsciiBody = "0 0 0 0 0 1 0 0 255\n"
-                         "1 0 0 0 0 1 1 0 255\n"
-                         "1 1 0 0 0 1 1 1 255\n"
-                         "0 1 0 0 0 1 0 1 255\n"
-                         "0 0 2 0 0 1 0.25 0.5 7\n"
-                         "1 0 2 0 0 1 0.5 0.5 7\n"
-                         "0 1 2 0 0 1 0.5 0.75 7\n"
-                         "4 0 1 2 3 9\n"
-                         "3 4 5 6 -1\n"
-                         "0 1\n";
+const char* kAsciiHeader =
+    "ply\nformat ascii 1.0\ncomment made by the Kelvin tests\n"
+    "element vertex 7\nproperty float x\nproperty float y\nproperty float z\n"
+    "property float nx\nproperty float ny\nproperty float nz\n"
+    "property float u\nproperty float v\nproperty uchar red\n"
+    "element face 2\nproperty list uchar int vertex_indices\nproperty int flags\n"
+    "element edge 1\nproperty int vertex1\nproperty int vertex2\nend_header\n";
+const char* kAsciiBody =
+    "0 0 0 0 0 1 0 0 255\n"
+    "1 0 0 0 0 1 1 0 255\n"
+    "1 1 0 0 0 1 1 1 255\n"
+    "0 1 0 0 0 1 0 1 255\n"
+    "0 0 2 0 0 1 0.25 0.5 7\n"
+    "1 0 2 0 0 1 0.5 0.5 7\n"
+    "0 1 2 0 0 1 0.5 0.75 7\n"
+    "4 0 1 2 3 9\n"
+    "3 4 5 6 -1\n"
+    "0 1\n";
 
 struct V {
     float x, y, z, nx, ny, nz, u, v;
     unsigned char red;
 };
-const V kVerts[7] = {{0, 0, 0, 0, 0, 1, 0, 0, 255},    {1, 0, 0, 0, 0, 1, 1, 0, 255},      {1, 1, 0, 0, 0, 1, 1, 1, 255},
-                     {0, 1, 0, 0, 0, 1, 0, 1, 255},    {0, 0, 2, 0, 0, 1, 0.25f, 0.5f, 7}, {1, 0, 2, 0, 0, 1, 0.5f, 0.5f, 7},
+const V kVerts[7] = {{0, 0, 0, 0, 0, 1, 0, 0, 255},      {1, 0, 0, 0, 0, 1, 1, 0, 255},
+                     {1, 1, 0, 0, 0, 1, 1, 1, 255},      {0, 1, 0, 0, 0, 1, 0, 1, 255},
+                     {0, 0, 2, 0, 0, 1, 0.25f, 0.5f, 7}, {1, 0, 2, 0, 0, 1, 0.5f, 0.5f, 7},
                      {0, 1, 2, 0, 0, 1, 0.5f, 0.75f, 7}};
 
-template <typename T> void put(std::string& s, T v, bool big) {
+template <typename T>
+void put(std::string& s, T v, bool big) {
     char b[sizeof(T)];
     std::memcpy(b, &v, sizeof(T));
     if (big != (std::endian::native == std::endian::big)) std::reverse(b, b + sizeof(T));
@@ -149,10 +153,13 @@ TEST(MeshPly, AsciiAndBinaryGiveTheSameMesh) {
 TEST(MeshPly, UvNamesTypesAndNoFaceProperties) {
     for (const char* names : {"s t", "texture_u texture_v", "texture_s texture_t"}) {
         std::string un(names, std::strchr(names, ' ')), vn(std::strchr(names, ' ') + 1);
-        std::string ply = "ply\nformat ascii 1.0\nelement vertex 3\nproperty double x\nproperty double y\n"
-                          "property double z\nproperty float " + un + "\nproperty float " + vn + "\n"
-                          "element face 1\nproperty list uint8 uint32 vertex_index\nend_header\n"
-                          "0 0 0 0.5 0.25\n1 0 0 1 0\n0 1e0 0 0 1\n3 0 1 2\n";
+        std::string ply =
+            "ply\nformat ascii 1.0\nelement vertex 3\nproperty double x\nproperty double y\n"
+            "property double z\nproperty float " +
+            un + "\nproperty float " + vn +
+            "\n"
+            "element face 1\nproperty list uint8 uint32 vertex_index\nend_header\n"
+            "0 0 0 0.5 0.25\n1 0 0 1 0\n0 1e0 0 0 1\n3 0 1 2\n";
         MeshData m = read_ply_data(ply, "uv.ply");
         ASSERT_EQ(m.uvs.size(), 3u) << names;
         EXPECT_EQ(m.uvs[0], Vec2d(0.5, 0.25)) << names;
@@ -164,7 +171,8 @@ TEST(MeshPly, UvNamesTypesAndNoFaceProperties) {
 TEST(MeshPly, ShapeLoadsTransformsAndIntersects) {
     TempDir dir;
     fs::path file = dir.write("two.ply", binary_ply(false));
-    auto scene = make_scene(ply_shape(file, "<transform name=\"to_world\"><scale value=\"2\"/><translate z=\"3\"/></transform>"));
+    auto scene = make_scene(
+        ply_shape(file, "<transform name=\"to_world\"><scale value=\"2\"/><translate z=\"3\"/></transform>"));
     ASSERT_EQ(scene->shapes().size(), 1u);
     auto* mesh = dynamic_cast<const TriangleMesh*>(scene->shapes()[0].get());
     ASSERT_NE(mesh, nullptr);
@@ -203,9 +211,10 @@ TEST(MeshPly, NormalOptions) {
     EXPECT_EQ(Vec2d(flipped->shapes()[0]->geometry().uvs[6]), Vec2d(0.5, 0.25));
 
     // Without normals in the file: angle-weighted vertex normals, here of a tetrahedron (pointing outwards).
-    fs::path tet = dir.write("tet.ply", "ply\nformat ascii 1.0\nelement vertex 4\nproperty float x\nproperty float y\n"
-                                         "property float z\nelement face 4\nproperty list uchar int vertex_indices\n"
-                                         "end_header\n0 0 0\n1 0 0\n0 1 0\n0 0 1\n3 0 2 1\n3 0 1 3\n3 0 3 2\n3 1 2 3\n");
+    fs::path tet = dir.write("tet.ply",
+                             "ply\nformat ascii 1.0\nelement vertex 4\nproperty float x\nproperty float y\n"
+                             "property float z\nelement face 4\nproperty list uchar int vertex_indices\n"
+                             "end_header\n0 0 0\n1 0 0\n0 1 0\n0 0 1\n3 0 2 1\n3 0 1 3\n3 0 3 2\n3 1 2 3\n");
     auto smooth = make_scene(ply_shape(tet));
     ShapeGeometry g = smooth->shapes()[0]->geometry();
     ASSERT_EQ(g.normals.size(), 4u);
@@ -256,24 +265,34 @@ TEST(MeshPly, MalformedFilesNameTheFileAndLine) {
          "does not fit its type 'uchar'", 13},
         {"intidx.ply", "ply\nformat ascii 1.0\n" + vtx3 + face1 + "end_header\n0 0 0\n1 0 0\n0 1 0\n3 0 1.5 2\n",
          "is not an integer", 13},
-        {"bin_short.ply", "ply\nformat binary_little_endian 1.0\n" + vtx3 + face1 + "end_header\n" + std::string(20, '\0'),
+        {"bin_short.ply",
+         "ply\nformat binary_little_endian 1.0\n" + vtx3 + face1 + "end_header\n" + std::string(20, '\0'),
          "unexpected end of file", 0},
-        {"bin_huge.ply", "ply\nformat binary_little_endian 1.0\nelement vertex 4000000000\nproperty float x\n"
-                         "property float y\nproperty float z\n" + face1 + "end_header\n" + std::string(64, '\0'),
+        {"bin_huge.ply",
+         "ply\nformat binary_little_endian 1.0\nelement vertex 4000000000\nproperty float x\n"
+         "property float y\nproperty float z\n" +
+             face1 + "end_header\n" + std::string(64, '\0'),
          "unexpected end of file", 0},
-        {"bin_list.ply", "ply\nformat binary_little_endian 1.0\nelement vertex 0\nproperty float x\nproperty float y\n"
-                         "property float z\nelement face 1\nproperty list uint int vertex_indices\nend_header\n"
-                         "\xff\xff\xff\x7f" + std::string(8, '\0'),
+        {"bin_list.ply",
+         "ply\nformat binary_little_endian 1.0\nelement vertex 0\nproperty float x\nproperty float y\n"
+         "property float z\nelement face 1\nproperty list uint int vertex_indices\nend_header\n"
+         "\xff\xff\xff\x7f" +
+             std::string(8, '\0'),
          "unexpected end of file", 0},
-        {"float_idx.ply", "ply\nformat ascii 1.0\n" + vtx3 + "element face 1\nproperty list uchar float vertex_indices\n"
-                          "end_header\n", "integer type", 7},
+        {"float_idx.ply",
+         "ply\nformat ascii 1.0\n" + vtx3 +
+             "element face 1\nproperty list uchar float vertex_indices\n"
+             "end_header\n",
+         "integer type", 7},
     };
     for (const Case& c : cases) {
         fs::path file = dir.write(c.name, c.text);
         std::string msg = input_error([&] { read_ply(file); });
         EXPECT_NE(msg.find(file.string()), std::string::npos) << c.name << ": " << msg;
         EXPECT_NE(msg.find(c.message), std::string::npos) << c.name << ": " << msg;
-        if (c.line > 0) EXPECT_NE(msg.find(file.string() + ":" + std::to_string(c.line) + ":"), std::string::npos) << c.name << ": " << msg;
+        if (c.line > 0)
+            EXPECT_NE(msg.find(file.string() + ":" + std::to_string(c.line) + ":"), std::string::npos)
+                << c.name << ": " << msg;
         // The same through the shape plugin.
         std::string via_scene = input_error([&] { make_scene(ply_shape(file)); });
         EXPECT_NE(via_scene.find(file.string()), std::string::npos) << c.name << ": " << via_scene;
@@ -293,7 +312,8 @@ TEST(MeshPly, TruncatedBinaryFilesNeverCrash) {
             read_ply_data(std::string_view(full).substr(0, n), "cut.ply");
             ADD_FAILURE() << "a file cut at " << n << " bytes loaded";
         } catch (const InputError& e) {
-            if (n > body) EXPECT_NE(std::string(e.what()).find("unexpected end of file"), std::string::npos) << e.what();
+            if (n > body)
+                EXPECT_NE(std::string(e.what()).find("unexpected end of file"), std::string::npos) << e.what();
         }
     }
     EXPECT_NO_THROW(read_ply_data(full, "full.ply"));

@@ -27,14 +27,14 @@ namespace kelvin {
 
 /// The nearest surface point of a 3D query.
 struct ClosestPoint {
-    bool found = false;       ///< false: nothing within max_radius (or no geometry)
-    double distance = Inf;    ///< unsigned Euclidean distance from the query point to `point`
-    Vec3d point{0.0};         ///< nearest point on the surface
-    Vec3d normal{0, 0, 1};    ///< unit geometric normal of the primitive there, as the shape orients it
-                              ///< (flip_normals applied); for a zero-area triangle: the unit direction
-                              ///< from `point` to the query point (or +z when they coincide)
-    uint32_t shape = 0;       ///< index of the geometry in the list the query was built from
-    uint32_t prim = 0;        ///< triangle (or sphere) index within that geometry
+    bool found = false;     ///< false: nothing within max_radius (or no geometry)
+    double distance = Inf;  ///< unsigned Euclidean distance from the query point to `point`
+    Vec3d point{0.0};       ///< nearest point on the surface
+    Vec3d normal{0, 0, 1};  ///< unit geometric normal of the primitive there, as the shape orients it
+                            ///< (flip_normals applied); for a zero-area triangle: the unit direction
+                            ///< from `point` to the query point (or +z when they coincide)
+    uint32_t shape = 0;     ///< index of the geometry in the list the query was built from
+    uint32_t prim = 0;      ///< triangle (or sphere) index within that geometry
     explicit operator bool() const { return found; }
 };
 
@@ -70,11 +70,11 @@ struct ClosestPoint2D {
     bool found = false;
     double distance = Inf;
     Vec2d point{0.0};
-    Vec2d normal{0, 1};   ///< unit normal of the segment: its direction (b - a) turned clockwise, so that a
-                          ///< counter-clockwise closed polygon has outward normals; a zero-length segment
-                          ///< gives the direction from `point` to the query point (or +y)
-    uint32_t segment = 0; ///< index of the segment
-    double t = 0;         ///< position of `point` on the segment: a + t (b - a), t in [0, 1]
+    Vec2d normal{0, 1};    ///< unit normal of the segment: its direction (b - a) turned clockwise, so that a
+                           ///< counter-clockwise closed polygon has outward normals; a zero-length segment
+                           ///< gives the direction from `point` to the query point (or +y)
+    uint32_t segment = 0;  ///< index of the segment
+    double t = 0;          ///< position of `point` on the segment: a + t (b - a), t in [0, 1]
     explicit operator bool() const { return found; }
 };
 

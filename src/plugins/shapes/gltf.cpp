@@ -108,7 +108,8 @@ public:
     }
 
 private:
-    template <typename... Args> [[noreturn]] void fail(fmt::format_string<Args...> f, Args&&... args) const {
+    template <typename... Args>
+    [[noreturn]] void fail(fmt::format_string<Args...> f, Args&&... args) const {
         throw InputError(SourceLoc{m_file, 0, 0}, fmt::format(f, std::forward<Args>(args)...));
     }
     static std::string trim(std::string s) {
@@ -146,7 +147,8 @@ private:
         const tinygltf::Node& node = m_model.nodes[std::size_t(index)];
         const Mat4d world = parent * local_matrix(node);
         if (node.mesh >= 0) {
-            if (std::size_t(node.mesh) >= m_model.meshes.size()) fail("node {} refers to mesh {} which does not exist", index, node.mesh);
+            if (std::size_t(node.mesh) >= m_model.meshes.size())
+                fail("node {} refers to mesh {} which does not exist", index, node.mesh);
             const tinygltf::Mesh& mesh = m_model.meshes[std::size_t(node.mesh)];
             for (std::size_t p = 0; p < mesh.primitives.size(); ++p) add_primitive(mesh, p, world);
         }
@@ -163,12 +165,27 @@ private:
         double get(std::size_t i, int c) const {
             const unsigned char* p = data + i * stride;
             switch (component) {
-            case TINYGLTF_COMPONENT_TYPE_FLOAT: { float v; std::memcpy(&v, p + 4 * c, 4); return v; }
-            case TINYGLTF_COMPONENT_TYPE_UNSIGNED_BYTE: { double v = p[c]; return normalized ? v / 255.0 : v; }
-            case TINYGLTF_COMPONENT_TYPE_UNSIGNED_SHORT: {
-                uint16_t v; std::memcpy(&v, p + 2 * c, 2); return normalized ? v / 65535.0 : v; }
-            case TINYGLTF_COMPONENT_TYPE_UNSIGNED_INT: { uint32_t v; std::memcpy(&v, p + 4 * c, 4); return v; }
-            default: return 0;
+                case TINYGLTF_COMPONENT_TYPE_FLOAT: {
+                    float v;
+                    std::memcpy(&v, p + 4 * c, 4);
+                    return v;
+                }
+                case TINYGLTF_COMPONENT_TYPE_UNSIGNED_BYTE: {
+                    double v = p[c];
+                    return normalized ? v / 255.0 : v;
+                }
+                case TINYGLTF_COMPONENT_TYPE_UNSIGNED_SHORT: {
+                    uint16_t v;
+                    std::memcpy(&v, p + 2 * c, 2);
+                    return normalized ? v / 65535.0 : v;
+                }
+                case TINYGLTF_COMPONENT_TYPE_UNSIGNED_INT: {
+                    uint32_t v;
+                    std::memcpy(&v, p + 4 * c, 4);
+                    return v;
+                }
+                default:
+                    return 0;
             }
         }
     };
@@ -193,8 +210,8 @@ private:
         if (bv.buffer < 0 || std::size_t(bv.buffer) >= m_model.buffers.size())
             fail("{}: bufferView {} refers to a missing buffer", what, a.bufferView);
         const auto& buf = m_model.buffers[std::size_t(bv.buffer)].data;
-        const std::size_t elem = std::size_t(tinygltf::GetComponentSizeInBytes(uint32_t(a.componentType))) *
-                                 std::size_t(v.components);
+        const std::size_t elem =
+            std::size_t(tinygltf::GetComponentSizeInBytes(uint32_t(a.componentType))) * std::size_t(v.components);
         v.stride = bv.byteStride == 0 ? elem : bv.byteStride;
         if (v.stride < elem) fail("{}: bufferView {} has a byteStride smaller than an element", what, a.bufferView);
         // Everything in bytes, checked without overflow: view inside buffer, elements inside view.
@@ -202,7 +219,8 @@ private:
             fail("{}: bufferView {} lies outside its buffer ({} bytes)", what, a.bufferView, buf.size());
         if (a.byteOffset > bv.byteLength || (a.count - 1) > (bv.byteLength - a.byteOffset) / v.stride ||
             (a.count - 1) * v.stride + elem > bv.byteLength - a.byteOffset)
-            fail("{}: accessor {} ({} elements) reads past the end of bufferView {}", what, accessor, a.count, a.bufferView);
+            fail("{}: accessor {} ({} elements) reads past the end of bufferView {}", what, accessor, a.count,
+                 a.bufferView);
         v.data = buf.data() + bv.byteOffset + a.byteOffset;
         return v;
     }
@@ -343,7 +361,8 @@ private:
 KELVIN_PLUGIN(kelvin::GltfMesh, "shape", "gltf",
               "Triangle mesh from a glTF 2.0 file (.gltf or .glb): every TRIANGLES primitive of the default scene, "
               "node transforms applied (tinygltf).",
-              kelvin::param::required(kelvin::PropType::String, "filename", "the .gltf or .glb file (relative to the scene)"),
+              kelvin::param::required(kelvin::PropType::String, "filename",
+                                      "the .gltf or .glb file (relative to the scene)"),
               kelvin::param::transform("to_world", "object-to-world transform, applied after the node transforms"),
               kelvin::param::boolean("face_normals", false, "ignore vertex normals (flat shading)"),
               kelvin::param::boolean("flip_normals", false, "reverse the orientation"),

@@ -99,9 +99,10 @@ ObjScan scan_obj(std::string_view text, const std::string& file) {
         const std::string_view key = tok[0];
         auto numbers = [&](std::size_t min_count, std::size_t max_count, const char* what) {
             if (tok.size() - 1 < min_count || tok.size() - 1 > max_count)
-                fail(fmt::format("'{}' needs {} numbers, found {}", key, min_count == max_count ? fmt::to_string(min_count)
-                                                                    : fmt::format("{} to {}", min_count, max_count),
-                                 tok.size() - 1));
+                fail(fmt::format(
+                    "'{}' needs {} numbers, found {}", key,
+                    min_count == max_count ? fmt::to_string(min_count) : fmt::format("{} to {}", min_count, max_count),
+                    tok.size() - 1));
             double x[3] = {0, 0, 0};
             for (std::size_t k = 1; k < tok.size(); ++k) {
                 double val;
@@ -131,7 +132,8 @@ ObjScan scan_obj(std::string_view text, const std::string& file) {
                 std::size_t start = 0;
                 while (start <= ref.size()) {
                     std::size_t slash = ref.find('/', start);
-                    std::string_view part = ref.substr(start, slash == std::string_view::npos ? ref.npos : slash - start);
+                    std::string_view part =
+                        ref.substr(start, slash == std::string_view::npos ? ref.npos : slash - start);
                     if (slot > 2) fail(fmt::format("face vertex '{}' has more than 3 indices", ref));
                     if (part.empty()) {
                         if (slot == 0 || (slot == 1 && slash == std::string_view::npos))
@@ -143,8 +145,8 @@ ObjScan scan_obj(std::string_view text, const std::string& file) {
                             fail(fmt::format("face index '{}' is not an integer", part));
                         const long long n = (long long)counts[slot];
                         if (idx == 0 || idx > n || idx < -n)
-                            fail(fmt::format("face refers to {} {} but {} {}(s) are defined so far", names[slot], idx, n,
-                                             names[slot]));
+                            fail(fmt::format("face refers to {} {} but {} {}(s) are defined so far", names[slot], idx,
+                                             n, names[slot]));
                     }
                     if (slash == std::string_view::npos) break;
                     start = slash + 1;
@@ -168,7 +170,8 @@ Loaded load_obj(const Properties& props) {
     const bool flip_tc = props.get_bool("flip_tex_coords");
     const std::string file = path.string();
     std::error_code ec;
-    if (!std::filesystem::is_regular_file(path, ec)) props.error("filename", fmt::format("OBJ file '{}' not found", file));
+    if (!std::filesystem::is_regular_file(path, ec))
+        props.error("filename", fmt::format("OBJ file '{}' not found", file));
     std::ifstream in(path, std::ios::binary);
     std::ostringstream ss;
     ss << in.rdbuf();
@@ -197,7 +200,8 @@ Loaded load_obj(const Properties& props) {
     struct KeyHash {
         std::size_t operator()(const std::array<int, 3>& k) const {
             return std::hash<uint64_t>()((uint64_t(uint32_t(k[0])) * 0x9E3779B97F4A7C15ull) ^
-                                         (uint64_t(uint32_t(k[1])) << 21) ^ uint64_t(uint32_t(k[2])) * 0xC2B2AE3D27D4EB4Full);
+                                         (uint64_t(uint32_t(k[1])) << 21) ^
+                                         uint64_t(uint32_t(k[2])) * 0xC2B2AE3D27D4EB4Full);
         }
     };
     std::unordered_map<std::array<int, 3>, uint32_t, KeyHash> vertex_of;
@@ -226,7 +230,8 @@ Loaded load_obj(const Properties& props) {
                 poly.push_back(it->second);
             }
             offset += n;
-            for (std::size_t k = 1; k + 1 < poly.size(); ++k) indices.insert(indices.end(), {poly[0], poly[k], poly[k + 1]});
+            for (std::size_t k = 1; k + 1 < poly.size(); ++k)
+                indices.insert(indices.end(), {poly[0], poly[k], poly[k + 1]});
         }
     }
 
