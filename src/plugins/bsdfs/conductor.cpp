@@ -1,0 +1,55 @@
+// conductor: a smooth (perfectly specular) conductor, i.e. a mirror whose reflectance follows the Fresnel
+// equations of a complex index of refraction eta + i k (per RGB channel; see fresnel.h):
+//   f(wi, wo) = specular_reflectance * F_conductor(cos theta_i) * delta(wo - reflect(wi)) / |cos theta_o|.
+// One-sided: nothing is reflected from below the shading horizon (wrap in `twosided` for both sides).
+//
+// | parameter            | type          | default | meaning                                                |
+// |----------------------|---------------|---------|--------------------------------------------------------|
+// | material             | string        | none    | named conductor (Au, Ag, Cu, Al, Cr, ...; docs/bsdfs.md); "none" is a perfect mirror |
+// | eta                  | rgb           | 0       | real part of the index (instead of `material`)         |
+// | k                    | rgb           | 1       | imaginary part (absorption coefficient)               |
+// | specular_reflectance | rgb / texture | 1       | multiplies the reflectance (not physical; artistic)   |
+//
+//     <bsdf type="conductor"><string name="material" value="Au"/></bsdf>
+#include <kelvin/core/registry.h>
+#include <kelvin/render/bsdf.h>
+#include <kelvin/render/fresnel.h>
+#include <kelvin/render/texture.h>
+
+namespace kelvin {
+namespace {
+
+class Conductor final : public Bsdf {
+public:
+    explicit Conductor(const Properties& props)
+        : m_ior(conductor_ior_from_properties(props)), m_specular(get_texture(props, "specular_reflectance")) {}
+    uint32_t flags() const override { return BsdfFlags::DeltaReflection; }
+
+    std::optional<BsdfSample> sample(const BsdfContext&, const SurfaceInteraction& si, double,
+                                     const Vec2d&) const override {
+        const double cos_i = Frame::cos_theta(si.wi);
+        if (!(cos_i > 0)) return std::nullopt;
+        BsdfSample bs;
+        bs.wo = reflect(si.wi);
+        bs.pdf = 1;
+        bs.weight = m_specular->eval(si.uv) * fresnel_conductor(cos_i, m_ior.eta, m_ior.k);
+        bs.sampled = BsdfFlags::DeltaReflection;
+        bs.eta = 1;
+        return bs;
+    }
+    Color3 eval(const BsdfContext&, const SurfaceInteraction&, const Vec3d&) const override { return Color3(0.0); }
+    double pdf(const BsdfContext&, const SurfaceInteraction&, const Vec3d&) const override { return 0.0; }
+
+private:
+    ConductorIor m_ior;
+    std::shared_ptr<Texture> m_specular;
+};
+
+}  // namespace
+}  // namespace kelvin
+
+KELVIN_PLUGIN(kelvin::Conductor, "bsdf", "conductor", "Smooth conductor (Fresnel mirror).",
+              kelvin::param::string("material", "none", "named conductor (Au, Ag, Cu, Al, ...) or none (perfect mirror)"),
+              kelvin::param::color("eta", kelvin::Color3(0.0), "real part of the complex index (instead of material)"),
+              kelvin::param::color("k", kelvin::Color3(1.0), "imaginary part of the complex index"),
+              kelvin::param::texture("specular_reflectance", kelvin::Color3(1.0), "multiplies the reflectance"));

@@ -1,0 +1,75 @@
+// dielectric: a smooth boundary between two dielectrics (glass, water), i.e. a Fresnel-weighted pair of delta
+// lobes: mirror reflection with probability F and refraction (Snell's law) with probability 1 - F
+// (fresnel.h). Sampling picks the lobe by F, so the weight is the lobe's tint alone. Two-sided by nature: from
+// below the surface the roles of int_ior and ext_ior swap (eta -> 1/eta), with total internal reflection.
+//
+// Transported quantity (Veach 1997, "Robust Monte Carlo Methods for Light Transport Simulation", 5.2): radiance
+// is scaled by (eta_i / eta_t)^2 when it crosses the boundary, so in TransportMode::Radiance (paths traced from
+// the camera) the refracted weight carries eta_ti^2 = (index on wi's side / index on wo's side)^2; importance
+// (TransportMode::Importance, light tracing) is not scaled. In Importance mode the weights of the two lobes are
+// exactly one: an untinted dielectric conserves energy.
+//
+// | parameter              | type            | default | meaning                                            |
+// |------------------------|-----------------|---------|----------------------------------------------------|
+// | int_ior                | float or string | bk7     | interior index (a number or a name: bk7, water, diamond, ... see docs/bsdfs.md) |
+// | ext_ior                | float or string | air     | exterior index                                     |
+// | specular_reflectance   | rgb / texture   | 1       | tints the reflected lobe (not physical)           |
+// | specular_transmittance | rgb / texture   | 1       | tints the refracted lobe (not physical)           |
+//
+//     <bsdf type="dielectric"><string name="int_ior" value="water"/></bsdf>
+//     <bsdf type="dielectric"><float name="int_ior" value="1.5"/></bsdf>
+#include <kelvin/core/registry.h>
+#include <kelvin/render/bsdf.h>
+#include <kelvin/render/fresnel.h>
+#include <kelvin/render/texture.h>
+
+namespace kelvin {
+namespace {
+
+class Dielectric final : public Bsdf {
+public:
+    explicit Dielectric(const Properties& props)
+        : m_eta(ior_from_properties(props, "int_ior") / ior_from_properties(props, "ext_ior")),
+          m_reflectance(get_texture(props, "specular_reflectance")),
+          m_transmittance(get_texture(props, "specular_transmittance")) {}
+    uint32_t flags() const override { return BsdfFlags::DeltaReflection | BsdfFlags::DeltaTransmission; }
+
+    std::optional<BsdfSample> sample(const BsdfContext& ctx, const SurfaceInteraction& si, double u1,
+                                     const Vec2d&) const override {
+        const double cos_i = Frame::cos_theta(si.wi);
+        if (cos_i == 0 || !std::isfinite(cos_i)) return std::nullopt;
+        const FresnelDielectric fr = fresnel_dielectric(cos_i, m_eta);
+        BsdfSample bs;
+        if (u1 < fr.F) {
+            bs.wo = reflect(si.wi);
+            bs.pdf = fr.F;
+            bs.weight = m_reflectance->eval(si.uv);
+            bs.sampled = BsdfFlags::DeltaReflection;
+            bs.eta = 1;
+        } else {
+            bs.wo = refract(si.wi, fr.cos_theta_t, fr.eta_ti);
+            bs.pdf = 1 - fr.F;
+            const double scale = ctx.mode == TransportMode::Radiance ? fr.eta_ti * fr.eta_ti : 1.0;
+            bs.weight = m_transmittance->eval(si.uv) * scale;
+            bs.sampled = BsdfFlags::DeltaTransmission;
+            bs.eta = fr.eta_it;
+        }
+        if (!(bs.pdf > 0)) return std::nullopt;
+        return bs;
+    }
+    Color3 eval(const BsdfContext&, const SurfaceInteraction&, const Vec3d&) const override { return Color3(0.0); }
+    double pdf(const BsdfContext&, const SurfaceInteraction&, const Vec3d&) const override { return 0.0; }
+
+private:
+    double m_eta;  // int_ior / ext_ior
+    std::shared_ptr<Texture> m_reflectance, m_transmittance;
+};
+
+}  // namespace
+}  // namespace kelvin
+
+KELVIN_PLUGIN(kelvin::Dielectric, "bsdf", "dielectric", "Smooth dielectric boundary (glass, water).",
+              kelvin::param::string("int_ior", "bk7", "interior index of refraction: a number or a name"),
+              kelvin::param::string("ext_ior", "air", "exterior index of refraction: a number or a name"),
+              kelvin::param::texture("specular_reflectance", kelvin::Color3(1.0), "tints the reflection"),
+              kelvin::param::texture("specular_transmittance", kelvin::Color3(1.0), "tints the transmission"));

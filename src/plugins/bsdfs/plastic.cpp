@@ -1,0 +1,113 @@
+// plastic: a smooth dielectric coating over a diffuse base (Mitsuba's `plastic`). Light is either reflected
+// specularly by the coating (Fresnel F_i = F(cos theta_i)) or refracted in, scattered diffusely by the base,
+// possibly reflected back down by the coating's underside several times, and refracted out:
+//   f(wi, wo) = specular_reflectance F_i delta(wo - reflect(wi)) / cos theta_o
+//             + rho_eff (1 - F_i)(1 - F_o) / (pi (1 - Fdr_ext))
+// where Fdr_ext = fresnel_diffuse_reflectance(eta) is the coating's cosine-averaged external reflectance and
+//   rho_eff = diffuse_reflectance                                       (nonlinear = false, default),
+//   rho_eff = diffuse_reflectance (1 - Fdr_int) / (1 - diffuse_reflectance Fdr_int)   (nonlinear = true),
+// with Fdr_int = fresnel_diffuse_reflectance(1 / eta) the average internal reflectance. Since
+// 1 - Fdr_ext = eta^2 (1 - Fdr_int), this is Mitsuba's formula rho / (eta^2 (1 - rho Fdr_int)) for the non-linear
+// model (the sum of the geometric series of internal bounces, as in Mitsuba's docs and Weidlich and Wilkie 2007,
+// "Arbitrarily layered micro-facet surfaces") and rho / (eta^2 (1 - Fdr_int)) for the linear one, where
+// `diffuse_reflectance` is the albedo the base shows through the coating. The directional albedo is
+// F_i + (1 - F_i) rho_eff <= 1: with rho = 1, nonlinear = false, specular_reflectance = 1 no energy is lost.
+//
+// Sampling picks the specular lobe with probability proportional to F_i * s / (F_i * s + (1 - F_i) * d)
+// with s, d the means of specular_reflectance and diffuse_reflectance (as Mitsuba), else the cosine-weighted
+// hemisphere. One-sided (zero for cos theta_i <= 0).
+//
+// | parameter            | type            | default       | meaning                                       |
+// |----------------------|-----------------|---------------|-----------------------------------------------|
+// | diffuse_reflectance  | rgb / texture   | 0.5           | albedo of the base, in [0, 1]                 |
+// | specular_reflectance | rgb / texture   | 1             | tints the specular lobe (not physical)        |
+// | int_ior              | float or string | polypropylene | coating index (1.49)                          |
+// | ext_ior              | float or string | air           | exterior index                                |
+// | nonlinear            | bool            | false         | account for the colour shift of internal bounces |
+//
+//     <bsdf type="plastic"><rgb name="diffuse_reflectance" value="0.1, 0.27, 0.36"/></bsdf>
+#include <kelvin/core/registry.h>
+#include <kelvin/render/bsdf.h>
+#include <kelvin/render/fresnel.h>
+#include <kelvin/render/texture.h>
+#include <kelvin/render/warp.h>
+
+#include <algorithm>
+
+namespace kelvin {
+namespace {
+
+class Plastic final : public Bsdf {
+public:
+    explicit Plastic(const Properties& props)
+        : m_diffuse(get_texture(props, "diffuse_reflectance")), m_specular(get_texture(props, "specular_reflectance")) {
+        const double int_ior = ior_from_properties(props, "int_ior"), ext_ior = ior_from_properties(props, "ext_ior");
+        m_eta = int_ior / ext_ior;
+        m_nonlinear = props.get_bool("nonlinear");
+        m_fdr_int = fresnel_diffuse_reflectance(1.0 / m_eta);
+        m_inv_ext_transmission = 1.0 / std::max(1e-12, 1.0 - fresnel_diffuse_reflectance(m_eta));
+        const double d = luminance(m_diffuse->mean()), s = luminance(m_specular->mean());
+        m_specular_weight = d + s > 0 ? s / (d + s) : 0.5;
+    }
+    uint32_t flags() const override { return BsdfFlags::DeltaReflection | BsdfFlags::DiffuseReflection; }
+
+    std::optional<BsdfSample> sample(const BsdfContext&, const SurfaceInteraction& si, double u1,
+                                     const Vec2d& u2) const override {
+        const double cos_i = si.wi.z;
+        if (!(cos_i > 0)) return std::nullopt;
+        const double Fi = fresnel_dielectric(cos_i, m_eta).F;
+        const double ps = prob_specular(Fi);
+        BsdfSample bs;
+        if (u1 < ps) {
+            bs.wo = reflect(si.wi);
+            bs.pdf = ps;
+            bs.weight = m_specular->eval(si.uv) * (Fi / ps);
+            bs.sampled = BsdfFlags::DeltaReflection;
+        } else {
+            bs.wo = warp::square_to_cosine_hemisphere(u2);
+            bs.pdf = (1 - ps) * warp::square_to_cosine_hemisphere_pdf(bs.wo);
+            if (!(bs.pdf > 0)) return std::nullopt;
+            bs.weight = diffuse(si, Fi, bs.wo) / bs.pdf;
+            bs.sampled = BsdfFlags::DiffuseReflection;
+        }
+        bs.eta = 1;
+        return bs;
+    }
+    Color3 eval(const BsdfContext&, const SurfaceInteraction& si, const Vec3d& wo) const override {
+        if (!(si.wi.z > 0) || !(wo.z > 0)) return Color3(0.0);
+        return diffuse(si, fresnel_dielectric(si.wi.z, m_eta).F, wo);
+    }
+    double pdf(const BsdfContext&, const SurfaceInteraction& si, const Vec3d& wo) const override {
+        if (!(si.wi.z > 0) || !(wo.z > 0)) return 0.0;
+        const double ps = prob_specular(fresnel_dielectric(si.wi.z, m_eta).F);
+        return (1 - ps) * warp::square_to_cosine_hemisphere_pdf(wo);
+    }
+
+private:
+    double prob_specular(double Fi) const {
+        const double a = Fi * m_specular_weight, b = (1 - Fi) * (1 - m_specular_weight);
+        return a + b > 0 ? a / (a + b) : 0.0;
+    }
+    /// Diffuse part, f * cos(theta_o).
+    Color3 diffuse(const SurfaceInteraction& si, double Fi, const Vec3d& wo) const {
+        const double Fo = fresnel_dielectric(wo.z, m_eta).F;
+        Color3 rho = glm::max(m_diffuse->eval(si.uv), Color3(0.0));
+        if (m_nonlinear)
+            rho = rho * (1 - m_fdr_int) / glm::max(Color3(1.0) - glm::min(rho, Color3(1.0)) * m_fdr_int, Color3(1e-6));
+        return rho * ((1 - Fi) * (1 - Fo) * m_inv_ext_transmission * InvPi * wo.z);
+    }
+
+    std::shared_ptr<Texture> m_diffuse, m_specular;
+    double m_eta = 1.49, m_fdr_int = 0, m_inv_ext_transmission = 1, m_specular_weight = 0.5;
+    bool m_nonlinear = false;
+};
+
+}  // namespace
+}  // namespace kelvin
+
+KELVIN_PLUGIN(kelvin::Plastic, "bsdf", "plastic", "Smooth dielectric coating over a diffuse base.",
+              kelvin::param::texture("diffuse_reflectance", kelvin::Color3(0.5), "albedo of the diffuse base"),
+              kelvin::param::texture("specular_reflectance", kelvin::Color3(1.0), "tints the specular lobe"),
+              kelvin::param::string("int_ior", "polypropylene", "coating index of refraction: a number or a name"),
+              kelvin::param::string("ext_ior", "air", "exterior index of refraction: a number or a name"),
+              kelvin::param::boolean("nonlinear", false, "account for colour shifts of internal scattering"));

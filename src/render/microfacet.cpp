@@ -1,0 +1,236 @@
+#include <kelvin/render/microfacet.h>
+
+#include <algorithm>
+#include <cmath>
+
+namespace kelvin {
+
+namespace {
+constexpr double kInvSqrtPi = 0.56418958354775628695;  // 1 / sqrt(pi)
+
+double safe_sqrt(double v) { return std::sqrt(std::max(0.0, v)); }
+
+Vec3d normalize_or_zero(const Vec3d& v) {
+    double l2 = glm::dot(v, v);
+    if (!(l2 > 0) || !std::isfinite(l2)) return Vec3d(0.0);
+    return v / std::sqrt(l2);
+}
+}  // namespace
+
+namespace {
+double erfinv_guess(double y) {
+    // Initial guess: M. Giles, "Approximating the erfinv function", GPU Computing Gems Jade (2011), the
+    // single-precision polynomial in w = -log(1 - y^2).
+    double w = -std::log((1.0 - y) * (1.0 + y)), p;
+    if (w < 5.0) {
+        w -= 2.5;
+        p = 2.81022636e-08;
+        p = 3.43273939e-07 + p * w;
+        p = -3.5233877e-06 + p * w;
+        p = -4.39150654e-06 + p * w;
+        p = 0.00021858087 + p * w;
+        p = -0.00125372503 + p * w;
+        p = -0.00417768164 + p * w;
+        p = 0.246640727 + p * w;
+        p = 1.50140941 + p * w;
+    } else {
+        w = std::sqrt(w) - 3.0;
+        p = -0.000200214257;
+        p = 0.000100950558 + p * w;
+        p = 0.00134934322 + p * w;
+        p = -0.00367342844 + p * w;
+        p = 0.00573950773 + p * w;
+        p = -0.0076224613 + p * w;
+        p = 0.00943887047 + p * w;
+        p = 1.00167406 + p * w;
+        p = 2.83297682 + p * w;
+    }
+    return std::clamp(p * y, -6.0, 6.0);
+}
+}  // namespace
+
+double erfinv(double y) {
+    if (!(y > -1)) return -6.0;
+    if (!(y < 1)) return 6.0;
+    const double ay = std::abs(y);
+    if (ay < 0.5) {
+        // Newton on erf(x) - y (quadratic convergence from a 1e-7 start: two steps reach double precision).
+        double x = erfinv_guess(y);
+        for (int i = 0; i < 2; ++i) x -= (std::erf(x) - y) / (2.0 * kInvSqrtPi * std::exp(-x * x));
+        return x;
+    }
+    // Tails: solve erfc(x) = t = 1 - |y| (exact by Sterbenz), which stays well conditioned. erfc is convex and
+    // decreasing, so Newton converges monotonically once below the root.
+    const double t = 1.0 - ay;
+    double x;
+    if (-std::log(t * (2.0 - t)) < 16.0) {
+        x = erfinv_guess(ay);
+    } else {  // beyond the guess's range: asymptotics of erfc(x) ~ exp(-x^2) / (x sqrt(pi))
+        x = std::sqrt(-std::log(t));
+        x = std::sqrt(std::max(0.0, -std::log(t * x / kInvSqrtPi)));
+    }
+    for (int i = 0; i < 8; ++i) {
+        const double d = 2.0 * kInvSqrtPi * std::exp(-x * x);
+        if (!(d > 0)) break;
+        const double step = (std::erfc(x) - t) / d;
+        x += step;
+        if (std::abs(step) <= 1e-15 * x) break;
+    }
+    x = std::clamp(x, 0.0, 6.0);
+    return y < 0 ? -x : x;
+}
+
+MicrofacetDistribution::MicrofacetDistribution(MicrofacetType type, double alpha_u, double alpha_v,
+                                               bool sample_visible)
+    : m_type(type),
+      m_alpha_u(std::max(alpha_u, min_alpha)),
+      m_alpha_v(std::max(alpha_v, min_alpha)),
+      m_sample_visible(sample_visible) {}
+
+double MicrofacetDistribution::D(const Vec3d& m) const {
+    if (!(m.z > 0)) return 0.0;
+    const double x = m.x / m_alpha_u, y = m.y / m_alpha_v, z2 = m.z * m.z;
+    double r;
+    if (m_type == MicrofacetType::GGX) {
+        const double t = x * x + y * y + z2;
+        r = 1.0 / (Pi * m_alpha_u * m_alpha_v * t * t);
+    } else {
+        const double z4 = z2 * z2;
+        if (!(z4 > 0)) return 0.0;
+        r = std::exp(-(x * x + y * y) / z2) / (Pi * m_alpha_u * m_alpha_v * z4);
+    }
+    return std::isfinite(r) ? r : 0.0;
+}
+
+double MicrofacetDistribution::lambda(const Vec3d& w) const {
+    const double z2 = w.z * w.z;
+    if (!(z2 > 0)) return Inf;
+    // alpha^2 tan^2(theta) along the azimuth of w
+    const double a2t2 = (m_alpha_u * m_alpha_u * w.x * w.x + m_alpha_v * m_alpha_v * w.y * w.y) / z2;
+    if (!(a2t2 > 0)) return 0.0;
+    if (!std::isfinite(a2t2)) return Inf;
+    if (m_type == MicrofacetType::GGX) return a2t2 / (2.0 * (std::sqrt(1.0 + a2t2) + 1.0));
+    const double a = 1.0 / std::sqrt(a2t2);  // 1 / (alpha tan theta)
+    return 0.5 * (std::exp(-a * a) * kInvSqrtPi / a - std::erfc(a));
+}
+
+double MicrofacetDistribution::G1(const Vec3d& w, const Vec3d& m) const {
+    if (!(glm::dot(w, m) * w.z > 0)) return 0.0;
+    const double l = lambda(w);
+    return std::isfinite(l) ? 1.0 / (1.0 + std::max(l, 0.0)) : 0.0;
+}
+
+double MicrofacetDistribution::pdf(const Vec3d& wi, const Vec3d& m) const {
+    if (!(wi.z > 0) || !(m.z > 0)) return 0.0;
+    if (!m_sample_visible) return D(m) * m.z;
+    const double c = glm::dot(wi, m);
+    if (!(c > 0)) return 0.0;
+    const double r = G1(wi, m) * c * D(m) / wi.z;
+    return std::isfinite(r) ? r : 0.0;
+}
+
+Vec3d MicrofacetDistribution::sample(const Vec3d& wi, const Vec2d& u) const {
+    if (!m_sample_visible) return sample_all(u);
+    if (!(wi.z > 0)) return Vec3d(0.0);
+    return m_type == MicrofacetType::GGX ? sample_visible_ggx(wi, u) : sample_visible_beckmann(wi, u);
+}
+
+Vec3d MicrofacetDistribution::sample_all(const Vec2d& u) const {
+    double phi, inv_a2;  // inv_a2 = cos^2/au^2 + sin^2/av^2 along phi
+    if (is_isotropic()) {
+        phi = 2 * Pi * u.y;
+        inv_a2 = 1.0 / (m_alpha_u * m_alpha_u);
+    } else {
+        // tan(phi) = (av/au) tan(2 pi u), same quadrant: the exact azimuthal marginal of both distributions.
+        phi = std::atan2(m_alpha_v * std::sin(2 * Pi * u.y), m_alpha_u * std::cos(2 * Pi * u.y));
+        const double c = std::cos(phi) / m_alpha_u, s = std::sin(phi) / m_alpha_v;
+        inv_a2 = c * c + s * s;
+    }
+    const double v = std::min(u.x, 1.0 - 1e-16);
+    const double tan2 = m_type == MicrofacetType::GGX ? v / ((1.0 - v) * inv_a2) : -std::log1p(-v) / inv_a2;
+    const double cos_t = 1.0 / std::sqrt(1.0 + tan2), sin_t = safe_sqrt(1.0 - cos_t * cos_t);
+    return {sin_t * std::cos(phi), sin_t * std::sin(phi), cos_t};
+}
+
+Vec3d MicrofacetDistribution::sample_visible_ggx(const Vec3d& wi, const Vec2d& u) const {
+    // Heitz 2018: the visible normals of a GGX surface seen from wi are those of a hemisphere (the surface
+    // stretched to unit roughness) seen from the stretched direction; sample its projected disk and unstretch.
+    const Vec3d vh = glm::normalize(Vec3d(m_alpha_u * wi.x, m_alpha_v * wi.y, wi.z));
+    const double len2 = vh.x * vh.x + vh.y * vh.y;
+    const Vec3d t1 = len2 > 0 ? Vec3d(-vh.y, vh.x, 0) / std::sqrt(len2) : Vec3d(1, 0, 0);
+    const Vec3d t2 = glm::cross(vh, t1);
+    const double r = std::sqrt(u.x), phi = 2 * Pi * u.y;
+    const double p1 = r * std::cos(phi);
+    double p2 = r * std::sin(phi);
+    // The part of the disk hidden behind the hemisphere's silhouette is folded onto the visible part.
+    const double s = 0.5 * (1.0 + vh.z);
+    p2 = (1.0 - s) * safe_sqrt(1.0 - p1 * p1) + s * p2;
+    const Vec3d nh = p1 * t1 + p2 * t2 + safe_sqrt(1.0 - p1 * p1 - p2 * p2) * vh;
+    return normalize_or_zero(Vec3d(m_alpha_u * nh.x, m_alpha_v * nh.y, std::max(0.0, nh.z)));
+}
+
+Vec3d MicrofacetDistribution::sample_visible_beckmann(const Vec3d& wi, const Vec2d& u) const {
+    // Heitz and d'Eon 2014: stretch to unit roughness, sample the slopes (x, y) visible from the stretched
+    // direction (which has elevation theta and, after rotating by its azimuth, lies in the xz plane):
+    //   p(x) ~ (cos theta - x sin theta) exp(-x^2) / sqrt(pi)  for x < cot theta,   y ~ exp(-y^2) / sqrt(pi),
+    // then rotate back, unstretch, and turn slopes into the normal (-x, -y, 1). The CDF of x,
+    //   C(x) = cos theta (1 + erf x) / 2 + sin theta exp(-x^2) / (2 sqrt(pi)),
+    // is inverted by Halley's method kept inside a shrinking bisection bracket (exact to rounding).
+    const Vec3d ws = glm::normalize(Vec3d(m_alpha_u * wi.x, m_alpha_v * wi.y, wi.z));
+    const double sin_t = std::sqrt(ws.x * ws.x + ws.y * ws.y), cos_t = ws.z;
+    double cphi = 1, sphi = 0;
+    if (sin_t > 0) {
+        cphi = ws.x / sin_t;
+        sphi = ws.y / sin_t;
+    }
+    double lo = -6.0, hi = 6.0;  // mass beyond +-6 is below 1e-16
+    if (sin_t > 0 && cos_t < 6.0 * sin_t) hi = cos_t / sin_t;
+    const double target = u.x * (0.5 * cos_t * (1.0 + std::erf(hi)) + 0.5 * sin_t * kInvSqrtPi * std::exp(-hi * hi));
+    // Start from the answer at normal incidence (erf^-1(2u - 1)); Halley steps (cubic convergence), falling
+    // back to bisection whenever a step leaves the bracket.
+    double x = std::clamp(erfinv_guess(std::clamp(2.0 * u.x - 1.0, -1.0 + 1e-16, 1.0 - 1e-16)), lo, hi);
+    for (int it = 0; it < 64; ++it) {
+        const double e = std::exp(-x * x) * kInvSqrtPi;
+        const double f = 0.5 * cos_t * (1.0 + std::erf(x)) + 0.5 * sin_t * e - target;
+        if (f == 0) break;
+        if (f > 0)
+            hi = x;
+        else
+            lo = x;
+        const double d1 = (cos_t - x * sin_t) * e;                    // C'(x) >= 0 on the bracket
+        const double d2 = (-sin_t - 2.0 * x * (cos_t - x * sin_t)) * e;  // C''(x)
+        const double den = 2.0 * d1 * d1 - f * d2;
+        double xn = den > 0 ? x - 2.0 * f * d1 / den : 0.5 * (lo + hi);
+        bool bisected = false;
+        if (!(xn > lo && xn < hi)) {
+            xn = 0.5 * (lo + hi);
+            bisected = true;
+        }
+        // After a Halley step of size d the error is O(d^3): 1e-5 leaves ~1e-15.
+        const bool done = (!bisected && std::abs(xn - x) <= 1e-5 * (1.0 + std::abs(x))) || hi - lo <= 1e-13;
+        x = xn;
+        if (done) break;
+    }
+    const double y = erfinv(2.0 * u.y - 1.0);
+    const double sx = (cphi * x - sphi * y) * m_alpha_u, sy = (sphi * x + cphi * y) * m_alpha_v;
+    return normalize_or_zero(Vec3d(-sx, -sy, 1.0));
+}
+
+MicrofacetDistribution microfacet_from_properties(const Properties& props, bool anisotropic) {
+    const std::string dist = props.get_choice("distribution", {"beckmann", "ggx"});
+    double au, av;
+    if (anisotropic && (props.has("alpha_u") || props.has("alpha_v"))) {
+        if (props.has("alpha")) props.error("alpha", "give either 'alpha' or 'alpha_u' and 'alpha_v', not both");
+        if (!props.has("alpha_u") || !props.has("alpha_v"))
+            props.error(props.has("alpha_u") ? "alpha_u" : "alpha_v",
+                        "an anisotropic roughness needs both 'alpha_u' and 'alpha_v'");
+        au = props.get_float("alpha_u", 0.0, 100.0);
+        av = props.get_float("alpha_v", 0.0, 100.0);
+    } else {
+        au = av = props.get_float("alpha", 0.0, 100.0);
+    }
+    const bool visible = props.get_bool("sample_visible");
+    return MicrofacetDistribution(dist == "ggx" ? MicrofacetType::GGX : MicrofacetType::Beckmann, au, av, visible);
+}
+
+}  // namespace kelvin
