@@ -32,9 +32,12 @@ struct RecursiveEstimator::Importance {
     std::vector<uint32_t> alias;
     std::vector<uint32_t> cells;   // non-zero cells
 
-    double pdf(Vec2d y, double eps, double box_area) const {
-        double g = total > 0 ? abs0.sample(y, Interpolation::Bilinear) / total : 0.0;
-        return (1 - eps) * g + eps / box_area;
+    /// The mixture density at y (the uniform part covers the box only; the tents reach half a cell past an
+    /// open box's edge).
+    double pdf(Vec2d y, double eps, const Domain2& box) const {
+        const double g = total > 0 ? abs0.sample(y, Interpolation::Bilinear) / total : 0.0;
+        const bool inside = box.periodic || (y.x >= box.min.x && y.y >= box.min.y && y.x <= box.max.x && y.y <= box.max.y);
+        return (1 - eps) * g + (inside ? eps / box.area() : 0.0);
     }
     Vec2d sample(Random& rng) const {
         const std::size_t n = cells.size();
@@ -141,7 +144,7 @@ Vec2d RecursiveEstimator::vel(long long n, Vec2d x, Random& rng) const {
             else
                 y = m_importance->sample(rng);
             if (d.periodic) y = d.wrap(y);
-            pdf = m_importance->pdf(y, eps, area);
+            pdf = m_importance->pdf(y, eps, d);
         } else {
             y = d.min + d.size() * rng.next_2d();
             pdf = 1.0 / area;

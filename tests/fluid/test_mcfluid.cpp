@@ -68,8 +68,8 @@ double core_radius2(const Grid2& g) {
 // backtracing is ~0.0025), so the RMSE against the exact (steady) field falls as n_mc^-1/2: the fitted
 // slope lies in [-0.65, -0.35] (measured -0.47). With n_mc = 1024, refining the cache 8^2 -> 16^2 -> 32^2
 // lowers the RMSE by ~0.6 per doubling (asserted: < 0.8).
-// Broken variants seen to fail: velocity noise not reduced by n (a fixed 16 samples: slope ~0); a cache
-// read with nearest instead of bilinear lookups in the backtrace (the resolution curve flattens).
+// Broken variants seen to fail: cell velocities always from 16 samples (slope 0); backtrace lookups with
+// nearest instead of bilinear interpolation (the field freezes: RMSE 0 at every n and resolution).
 TEST(MCFluid, TaylorGreenRmseFallsWithSamplesAndResolution) {
     const double t = 0.25, dt = 1.0 / 16;
     std::vector<double> ns, errs;
@@ -185,9 +185,9 @@ TEST(MCFluid, InviscidEnergyDriftIsBounded) {
 
 // The estimated velocity is divergence-free in expectation: on the cache, the central-difference divergence
 // is pure noise. Its mean square equals the variance predicted from the per-cell estimates (ratio 1 within
-// 5 sigma of a chi-square with N = 1024 terms) and its mean is zero. (Central differences of the Taylor–Green
-// velocity have no truncation error in the divergence.) Broken variant seen to fail: a kernel whose v
-// component has the wrong sign (ratio ~ 40).
+// 5 sigma of a chi-square with N = 1024 terms; measured 0.99) and its mean is zero. (Central differences of
+// the Taylor–Green velocity have no truncation error in the divergence.) Broken variant seen to fail: a
+// kernel whose v component has the wrong sign (ratio 8.3).
 TEST(MCFluid, EstimatedVelocityIsDivergenceFree) {
     MCFluidSolver solver(tg_settings(32, 1024, 0.1), tg_omega);
     const Grid2 &u = solver.velocity_u(), &v = solver.velocity_v();
@@ -212,8 +212,8 @@ TEST(MCFluid, EstimatedVelocityIsDivergenceFree) {
 // Algorithm C.1 (recursive, cache-free) and the cached solver evaluate the same scheme: on two co-rotating
 // Gaussian vortices, two Euler steps of dt = 0.1, their vorticity at points one core radius from a centre
 // (where the field has moved by ~25%) agrees within 5 combined standard errors, and so does the velocity
-// after one step. Broken variants seen to fail: the recursive estimator backtracing forwards (x + dt v), the
-// cached solver's velocity with a wrong mollifier (delta x 10 in one of them).
+// after one step. Broken variants seen to fail: the recursive estimator backtracing forwards (x + dt v), or
+// using 10 delta as mollifier.
 TEST(MCFluid, RecursiveAndCachedAgree) {
     auto pair = [](const Vec2d& x) { return lo_omega(x, {-0.35, 0}, 1, 0.3) + lo_omega(x, {0.35, 0}, 1, 0.3); };
     const Domain2 box{{-1.5, -1.5}, {1.5, 1.5}, false};
@@ -288,7 +288,8 @@ TEST(MCFluid, RecursiveTaylorGreenIsSteady) {
 }
 
 // Same seed, same result, bit for bit, with 1 and 2 threads: viscous RK4 steps on a periodic box, and an open
-// box, compared cell by cell (vorticity and velocity).
+// box, compared cell by cell (vorticity and velocity). Broken variant seen to fail: row streams offset by a
+// per-thread counter.
 TEST(MCFluid, BitIdenticalAcrossThreadCounts) {
     auto run = [](int threads, bool periodic) {
         ThreadLimit limit(threads);

@@ -8,7 +8,8 @@
 //   <prefix>.csv          diagnostics per step (energy, enstrophy, circulation, max |omega|, timings)
 //   <prefix>_NNNN.png     colour-mapped vorticity every `output_every` steps (and the last step)
 //   <prefix>_NNNN.exr     channels R, G, B (colour map), vorticity, u, v at the cell centres
-// and the final state is returned as the run's image (the CLI writes it to -o).
+// and the final state is returned as the run's image (the CLI writes it to -o). The run's seed is --seed;
+// --spp overrides n_mc; --time-limit stops after the step that exceeds it.
 //
 // | parameter         | type    | default   | meaning                                                      |
 // |-------------------|---------|-----------|--------------------------------------------------------------|
@@ -117,6 +118,10 @@ public:
         Timer total;
         MCFluidSettings settings = m_settings;
         settings.seed = ctx.seed;
+        if (ctx.spp > 0) {  // --spp: the Monte Carlo sample count of a simulation is n_mc
+            settings.velocity.samples = int(std::min<long long>(ctx.spp, 1 << 24));
+            log_info("mcfluid: --spp {} overrides the Biot–Savart samples (n_mc)", settings.velocity.samples);
+        }
         const VorticityField& field = *m_field;
         MCFluidSolver solver(settings, [&field](const Vec2d& x) { return field.vorticity(x); });
         const bool viscous = settings.viscosity > 0;
