@@ -1,0 +1,50 @@
+#pragma once
+// Proposal kernels over the primary sample space, the unit torus [0,1)^d (Kelemen et al. 2002). Coordinates
+// wrap: every density uses minimum-image differences (torus_delta), so a kernel is symmetric across the seam
+// exactly as it is elsewhere (a pitfall of public implementations: ignoring wrap-around in density ratios).
+#include <kelvin/core/object.h>
+#include <kelvin/core/random.h>
+
+#include <cmath>
+#include <span>
+#include <vector>
+
+namespace kelvin {
+
+/// b - a on the unit circle, in [-1/2, 1/2).
+inline double torus_delta(double a, double b) {
+    double d = b - a;
+    d -= std::floor(d + 0.5);
+    return d;
+}
+/// x mod 1 in [0, 1).
+inline double torus_wrap(double x) {
+    double f = x - std::floor(x);
+    return f < 1.0 ? f : 0.0;
+}
+
+/// Kernels act on the first n coordinates of a state (n fixed for the duration of a chain step); the spans
+/// passed in all have that length. Coordinates a path reads beyond them are fresh prior draws on every side of
+/// a step, and so appear in no density.
+using Coords = std::span<const double>;
+
+class Mutation : public Object {
+public:
+    /// Write into `y` (of x's length) a proposal from `x`, wrapped into [0,1).
+    virtual void sample(Coords x, std::span<double> y, Random& rng) const = 0;
+    /// Density Q(to | from) on the torus (with respect to Lebesgue measure), exact up to a factor that
+    /// depends on the dimension only.
+    virtual double density(Coords from, Coords to) const = 0;
+    /// Second-stage proposals may depend on the rejected first proposal `rejected` (the orbital kernel does).
+    virtual void sample_second(Coords x, Coords rejected, std::span<double> z, Random& rng) const {
+        sample(x, z, rng);
+    }
+    /// Q2(z | rejected, x); by default the first-stage density from x.
+    virtual double density_second(Coords x, Coords rejected, Coords z) const { return density(x, z); }
+    /// Q(to | from) == Q(from | to) for all pairs (true for every built-in kernel).
+    virtual bool symmetric() const { return true; }
+    /// True if only sample_second makes sense (a second-stage-only kernel such as `orbital`).
+    virtual bool second_stage_only() const { return false; }
+};
+
+}  // namespace kelvin

@@ -1,0 +1,51 @@
+// kelemen: Kelemen et al.'s (2002) per-coordinate exponential perturbation, thesis Eq. (4.5):
+//     y_i = x_i + sgn(xi_1 - 1/2) eps_max exp(-log(eps_max / eps_min) xi_2),
+// so |y_i - x_i| lies in [eps_min, eps_max] with density 1 / (|d| log(eps_max/eps_min)), symmetric in sign.
+// Symmetric; note the hole around zero, which is why Tierney–Mira DR after it can suffer vanishing acceptance.
+//
+// | parameter | type  | default   | meaning                    |
+// |-----------|-------|-----------|----------------------------|
+// | eps_min   | float | 1/1024    | smallest step              |
+// | eps_max   | float | 1/64      | largest step (< 1/2)       |
+//
+//     <mutation type="kelemen"><float name="eps_max" value="0.03125"/></mutation>
+#include <kelvin/core/registry.h>
+#include <kelvin/mlt/mutation.h>
+
+namespace kelvin {
+namespace {
+
+class Kelemen final : public Mutation {
+public:
+    explicit Kelemen(const Properties& props)
+        : m_min(props.get_float("eps_min", 1e-9, 0.5)), m_max(props.get_float("eps_max", 1e-9, 0.5)) {
+        if (!(m_max > m_min)) props.error("eps_max", "must exceed eps_min");
+        m_log = std::log(m_max / m_min);
+    }
+    void sample(Coords x, std::span<double> y, Random& rng) const override {
+        for (std::size_t i = 0; i < x.size(); ++i) {
+            double sign = rng.next_double() < 0.5 ? -1.0 : 1.0;
+            double d = m_max * std::exp(-m_log * rng.next_double());
+            y[i] = torus_wrap(x[i] + sign * d);
+        }
+    }
+    double density(Coords from, Coords to) const override {
+        double p = 1;
+        for (std::size_t i = 0; i < from.size(); ++i) {
+            double d = std::abs(torus_delta(from[i], to[i]));
+            if (d < m_min * (1 - 1e-12) || d > m_max * (1 + 1e-12)) return 0.0;
+            p *= 1.0 / (2 * d * m_log);
+        }
+        return p;
+    }
+
+private:
+    double m_min, m_max, m_log;
+};
+
+}  // namespace
+}  // namespace kelvin
+
+KELVIN_PLUGIN(kelvin::Kelemen, "mutation", "kelemen", "Kelemen's per-coordinate exponential perturbation (Eq. 4.5).",
+              kelvin::param::real("eps_min", 1.0 / 1024, "smallest step"),
+              kelvin::param::real("eps_max", 1.0 / 64, "largest step"));

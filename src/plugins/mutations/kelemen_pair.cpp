@@ -1,0 +1,68 @@
+// kelemen_pair: the pairwise Kelemen perturbation of Algorithm B.2, stage 1. Coordinates are grouped in pairs
+// (0,1), (2,3), ...; each pair moves by a distance d with Kelemen's radial law (density 1/(d log(eps_max /
+// eps_min)) on [eps_min, eps_max]) in a uniformly random direction, so the 2D density is
+// 1 / (2 pi d^2 log(eps_max / eps_min)): circularly symmetric, as the orbital second stage requires. An odd
+// last coordinate moves as in `kelemen`.
+//
+// | parameter | type  | default | meaning          |
+// |-----------|-------|---------|------------------|
+// | eps_min   | float | 1/1024  | smallest step    |
+// | eps_max   | float | 1/64    | largest step     |
+//
+//     <mutation type="kelemen_pair"/>
+#include <kelvin/core/registry.h>
+#include <kelvin/mlt/mutation.h>
+
+namespace kelvin {
+namespace {
+
+class KelemenPair final : public Mutation {
+public:
+    explicit KelemenPair(const Properties& props)
+        : m_min(props.get_float("eps_min", 1e-9, 0.5)), m_max(props.get_float("eps_max", 1e-9, 0.5)) {
+        if (!(m_max > m_min)) props.error("eps_max", "must exceed eps_min");
+        m_log = std::log(m_max / m_min);
+    }
+    void sample(Coords x, std::span<double> y, Random& rng) const override {
+        const std::size_t n = x.size();
+        std::size_t i = 0;
+        for (; i + 1 < n; i += 2) {
+            double d = m_max * std::exp(-m_log * rng.next_double());
+            double phi = 2 * Pi * rng.next_double();
+            y[i] = torus_wrap(x[i] + d * std::cos(phi));
+            y[i + 1] = torus_wrap(x[i + 1] + d * std::sin(phi));
+        }
+        if (i < n) {
+            double sign = rng.next_double() < 0.5 ? -1.0 : 1.0;
+            y[i] = torus_wrap(x[i] + sign * m_max * std::exp(-m_log * rng.next_double()));
+        }
+    }
+    double density(Coords from, Coords to) const override {
+        const std::size_t n = from.size();
+        double p = 1;
+        std::size_t i = 0;
+        for (; i + 1 < n; i += 2) {
+            double dx = torus_delta(from[i], to[i]), dy = torus_delta(from[i + 1], to[i + 1]);
+            double d = std::sqrt(dx * dx + dy * dy);
+            if (d < m_min * (1 - 1e-9) || d > m_max * (1 + 1e-9)) return 0.0;
+            p *= 1.0 / (2 * Pi * d * d * m_log);
+        }
+        if (i < n) {
+            double d = std::abs(torus_delta(from[i], to[i]));
+            if (d < m_min * (1 - 1e-12) || d > m_max * (1 + 1e-12)) return 0.0;
+            p *= 1.0 / (2 * d * m_log);
+        }
+        return p;
+    }
+
+private:
+    double m_min, m_max, m_log;
+};
+
+}  // namespace
+}  // namespace kelvin
+
+KELVIN_PLUGIN(kelvin::KelemenPair, "mutation", "kelemen_pair",
+              "Pairwise Kelemen perturbation: Kelemen radius, uniform angle (Algorithm B.2, stage 1).",
+              kelvin::param::real("eps_min", 1.0 / 1024, "smallest step"),
+              kelvin::param::real("eps_max", 1.0 / 64, "largest step"));

@@ -1,0 +1,73 @@
+// mixture: a weighted mixture of kernels, Q = sum_k w_k Q_k (the single-stage baseline DR is compared with,
+// thesis Sec. 4.2.7). Symmetric if every component is.
+//
+// | parameter | type     | default        | meaning                                          |
+// |-----------|----------|----------------|--------------------------------------------------|
+// | weights   | string   | "" (equal)     | comma-separated weights, one per nested mutation |
+// | mutation  | mutation | (two or more)  | the components, in order                         |
+//
+//     <mutation type="mixture">
+//         <string name="weights" value="0.8, 0.2"/>
+//         <mutation type="kelemen"/>
+//         <mutation type="gaussian"><float name="sigma" value="0.001"/></mutation>
+//     </mutation>
+#include <kelvin/core/registry.h>
+#include <kelvin/core/strings.h>
+#include <kelvin/mlt/mutation.h>
+
+namespace kelvin {
+namespace {
+
+class Mixture final : public Mutation {
+public:
+    explicit Mixture(const Properties& props) {
+        for (auto& o : props.get_objects("mutation")) {
+            auto m = std::dynamic_pointer_cast<Mutation>(o);
+            if (m->second_stage_only()) props.error("mutation", m->to_string() + " cannot be a mixture component");
+            m_parts.push_back(std::move(m));
+        }
+        if (m_parts.size() < 2) props.error("mutation", "a mixture needs at least two nested <mutation>s");
+        std::string w = props.get_string("weights");
+        if (w.empty()) {
+            m_weights.assign(m_parts.size(), 1.0);
+        } else {
+            for (const auto& piece : split_list(w)) {
+                auto v = parse_double(piece);
+                if (!v || !(*v >= 0)) props.error("weights", "'" + piece + "' is not a non-negative number");
+                m_weights.push_back(*v);
+            }
+        }
+        if (m_weights.size() != m_parts.size())
+            props.error("weights", fmt::format("{} weights for {} mutations", m_weights.size(), m_parts.size()));
+        double sum = 0;
+        for (double v : m_weights) sum += v;
+        if (!(sum > 0)) props.error("weights", "must not all be zero");
+        for (double& v : m_weights) v /= sum;
+        for (const auto& p : m_parts) m_symmetric = m_symmetric && p->symmetric();
+    }
+    bool symmetric() const override { return m_symmetric; }
+    void sample(Coords x, std::span<double> y, Random& rng) const override {
+        double u = rng.next_double(), acc = 0;
+        for (std::size_t k = 0; k < m_parts.size(); ++k) {
+            acc += m_weights[k];
+            if (u < acc || k + 1 == m_parts.size()) return m_parts[k]->sample(x, y, rng);
+        }
+    }
+    double density(Coords from, Coords to) const override {
+        double p = 0;
+        for (std::size_t k = 0; k < m_parts.size(); ++k) p += m_weights[k] * m_parts[k]->density(from, to);
+        return p;
+    }
+
+private:
+    std::vector<std::shared_ptr<Mutation>> m_parts;
+    std::vector<double> m_weights;
+    bool m_symmetric = true;
+};
+
+}  // namespace
+}  // namespace kelvin
+
+KELVIN_PLUGIN(kelvin::Mixture, "mutation", "mixture", "Weighted mixture of mutations (single-stage baseline).",
+              kelvin::param::string("weights", "", "comma-separated weights (default: equal)"),
+              kelvin::param::objects("mutation", "the components"));
