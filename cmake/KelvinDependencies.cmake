@@ -26,10 +26,5 @@ list(FILTER _kelvin_oiio_inc EXCLUDE REGEX "opencv")
 set_target_properties(OpenImageIO::OpenImageIO PROPERTIES INTERFACE_INCLUDE_DIRECTORIES "${_kelvin_oiio_inc}")
 
 # libtinyobjloader-dev: Wavefront OBJ meshes (the `obj` shape). Debian ships the implementation as a shared
-# library with a CMake package; nothing defines TINYOBJLOADER_IMPLEMENTATION in Kelvin. The library target is
-# created in src/, after this file runs, so the link is deferred to the end of the top-level directory.
+# library with a CMake package; nothing defines TINYOBJLOADER_IMPLEMENTATION in Kelvin.
 find_package(tinyobjloader CONFIG REQUIRED)
-if(TARGET tinyobjloader::tinyobjloader)
-  cmake_language(DEFER DIRECTORY ${PROJECT_SOURCE_DIR}
-                 CALL target_link_libraries kelvin PRIVATE tinyobjloader::tinyobjloader)
-endif()
