@@ -174,42 +174,46 @@ struct Sums {
 };
 
 // The SIMD kernel: sum over the batch of w_i * 2 pi K(r_i) (+ 2 pi H(r_i) on periodic domains) and of its
-// square, per component. max(r2, FLT_MIN) turns the delta = 0 self-contribution (r = 0) into 0. Compiled
+// square, per component. Compiled
 // for AVX2 and for the baseline, chosen at load time; both give identical results (same IEEE operations
 // per sample, no FMA contraction, sums in fixed lanes).
 template <bool Periodic>
 __attribute__((always_inline)) inline void kernel_body(const BatchData& b, int count, const KernelParams& k, Sums& out) {
     alignas(64) float cu[BiotSavartEstimator::Batch], cv[BiotSavartEstimator::Batch];
-    const float half_nx = 0.5f * k.nx, half_ny = 0.5f * k.ny;
+    alignas(64) float gxs[BiotSavartEstimator::Batch], gys[BiotSavartEstimator::Batch];
+    const float inv_nx = 1.0f / k.nx, inv_ny = 1.0f / k.ny;
     const float tsx = float(k.tn) / k.nx, tsy = float(k.tn) / k.ny, th = 0.5f * float(k.tn);
-    const float tmax = float(k.tn) - 0.001f;
-    const int row = k.tn + 1;
-    const float* __restrict tu = k.tu;
-    const float* __restrict tv = k.tv;
-    // Per-sample contributions: a plain map over the batch (vectorised, with gathers for the table).
+    // Per-sample kernel: a plain, branch-free map over the batch (vectorised).
     for (int s = 0; s < count; ++s) {
         float dx = k.qx - b.fx[s], dy = k.qy - b.fy[s];
-        if constexpr (Periodic) {  // query in the box, sample at most one cell outside: one shift
-            dx = dx > half_nx ? dx - k.nx : dx;
-            dx = dx < -half_nx ? dx + k.nx : dx;
-            dy = dy > half_ny ? dy - k.ny : dy;
-            dy = dy < -half_ny ? dy + k.ny : dy;
+        if constexpr (Periodic) {  // minimum image, in cells: |dx| < 1.5 nx, so floor(z + 1/2) = int(z + 3/2) - 1
+            dx -= k.nx * float(int(dx * inv_nx + 1.5f) - 1);
+            dy -= k.ny * float(int(dy * inv_ny + 1.5f) - 1);
+            gxs[s] = dx * tsx + th;  // table coordinates, in [0, tn] up to rounding
+            gys[s] = dy * tsy + th;
         }
         const float x = dx * k.hx, y = dy * k.hy;
-        const float r2 = std::max(x * x + y * y + k.d2, FLT_MIN);
-        const float inv = 1.0f / r2;
-        float u = -y * inv, v = x * inv;
-        if constexpr (Periodic) {
-            const float gx = std::min(std::max(dx * tsx + th, 0.0f), tmax);
-            const float gy = std::min(std::max(dy * tsy + th, 0.0f), tmax);
-            const int i = int(gx), j = int(gy);
+        // + FLT_MIN: exact for any r2 above 1e-31, and turns the delta = 0 self-contribution (r = 0) into 0.
+        const float inv = 1.0f / (x * x + y * y + k.d2 + FLT_MIN);
+        cu[s] = -y * inv;
+        cv[s] = x * inv;
+    }
+    if constexpr (Periodic) {  // + the tabulated periodic correction (bilinear; the table stays in L1)
+        const int row = k.tn + 1, last = k.tn - 1;
+        const float* __restrict tu = k.tu;
+        const float* __restrict tv = k.tv;
+        for (int s = 0; s < count; ++s) {
+            const float gx = gxs[s], gy = gys[s];
+            const int i = std::min(int(gx), last), j = std::min(int(gy), last);
             const float ax = gx - float(i), ay = gy - float(j);
             const int t = j * row + i;
-            u += (1 - ay) * ((1 - ax) * tu[t] + ax * tu[t + 1]) + ay * ((1 - ax) * tu[t + row] + ax * tu[t + row + 1]);
-            v += (1 - ay) * ((1 - ax) * tv[t] + ax * tv[t + 1]) + ay * ((1 - ax) * tv[t + row] + ax * tv[t + row + 1]);
+            cu[s] += (1 - ay) * ((1 - ax) * tu[t] + ax * tu[t + 1]) + ay * ((1 - ax) * tu[t + row] + ax * tu[t + row + 1]);
+            cv[s] += (1 - ay) * ((1 - ax) * tv[t] + ax * tv[t + 1]) + ay * ((1 - ax) * tv[t + row] + ax * tv[t + row + 1]);
         }
-        cu[s] = u * b.w[s];
-        cv[s] = v * b.w[s];
+    }
+    for (int s = 0; s < count; ++s) {
+        cu[s] *= b.w[s];
+        cv[s] *= b.w[s];
     }
     // Sums in fixed lanes (no reassociation needed, so they vectorise and do not depend on the ISA).
     float au[Lanes] = {}, av[Lanes] = {}, au2[Lanes] = {}, av2[Lanes] = {};
@@ -274,21 +278,30 @@ VelocityEstimate BiotSavartEstimator::estimate(Vec2d x, int n, Random& rng) cons
     for (int done = 0; done < n; done += Batch) {
         const int m = std::min(Batch, n - done);
         if (importance) {
+            // Three passes so that the serial random-number chain, the independent alias-table loads and the
+            // arithmetic each run at full speed (the draws are the same, in the same order, as one loop).
+            alignas(64) uint32_t r0[Batch], r1[Batch], cell[Batch];
             for (int s = 0; s < m; ++s) {
-                const uint64_t p = uint64_t(rng.next_u32()) * slots;
+                r0[s] = rng.next_u32();
+                r1[s] = rng.next_u32();
+            }
+            for (int s = 0; s < m; ++s) {
+                const uint64_t p = uint64_t(r0[s]) * slots;
                 const Slot& slot = m_slots[p >> 32];
-                const uint32_t c = uint32_t(p) < slot.threshold ? slot.self : slot.alias;
-                const uint32_t a = rng.next_u32();
+                cell[s] = uint32_t(p) < slot.threshold ? slot.self : slot.alias;
+            }
+            for (int s = 0; s < m; ++s) {
+                const uint32_t a = r1[s], c = cell[s];
                 float ox, oy;
                 if (tent) {  // sum of two uniforms (8-bit midpoints, exact in float): the tent on (-1, 1)
                     ox = float(int(a & 0xffu) + int((a >> 8) & 0xffu) + 1) * (1.0f / 256.0f) - 1.0f;
                     oy = float(int((a >> 16) & 0xffu) + int(a >> 24) + 1) * (1.0f / 256.0f) - 1.0f;
                 } else {
-                    ox = (float(a & 0xffffu) + 0.5f) * (1.0f / 65536.0f) - 0.5f;
-                    oy = (float(a >> 16) + 0.5f) * (1.0f / 65536.0f) - 0.5f;
+                    ox = (float(int(a & 0xffffu)) + 0.5f) * (1.0f / 65536.0f) - 0.5f;
+                    oy = (float(int(a >> 16)) + 0.5f) * (1.0f / 65536.0f) - 0.5f;
                 }
-                b.fx[s] = float(c & 0x7fffu) + 0.5f + ox;
-                b.fy[s] = float((c >> 15) & 0x7fffu) + 0.5f + oy;
+                b.fx[s] = float(int(c & 0x7fffu)) + 0.5f + ox;
+                b.fy[s] = float(int((c >> 15) & 0x7fffu)) + 0.5f + oy;
                 b.w[s] = (c & SignBit) ? -1.0f : 1.0f;
             }
         } else {
