@@ -1,0 +1,168 @@
+// thinlens: a perspective camera with a thin lens of finite aperture, which renders depth of field (Mitsuba's
+// `thinlens`; Kolb, Mitchell and Hanrahan 1995; Pharr, Jakob and Humphreys 2023, Sec. 5.2.3). Camera space is
+// that of `perspective`: the lens is the disk of radius aperture_radius around the origin in the z = 0 plane,
+// the camera looks along +z, +y is up and +x to the left.
+//
+// A camera ray through film position f starts at a lens point l (uniform on the disk, from the lens sample)
+// and passes through the point q(f) of the focal plane z = focus_distance that the pinhole ray through f would
+// reach. Points on the focal plane are therefore sharp; a point at depth z is spread over a disk of radius
+// aperture_radius * |1 - focus_distance / z| measured on the focal plane.
+//
+// Light tracing (sample_direct) connects a scene point r to a lens point l chosen with the lens sample. The
+// film position is where the line from l through r meets the focal plane, mapped like a pinhole direction.
+// The importance weight: the sensor's importance for the thin lens is (Veach 1997, Sec. 10.2 generalised;
+// pbrt-v4's PerspectiveCamera::We with a lens)
+//     We(l, w) = 1 / (A_lens * A * cos^4 theta),
+// with A_lens = pi R^2, A = 4 tan_x tan_y the area of the image on the plane at unit distance and theta the
+// angle between w and the optical axis. Check: a camera ray samples l with density 1 / A_lens and q on the focal
+// plane with density 1 / (A F^2); since dA(q) = F^2 dw / cos^3 theta, that is a density
+// cos^3 theta / (A_lens A) per unit area of lens and solid angle, and We cos theta must equal it. Sampling
+// l uniformly on the lens has solid-angle density at r of pdf = dist^2 / (A_lens cos theta), so
+//     weight = W * H * We / pdf = W * H / (A * cos^3 theta * dist^2),
+// the pinhole's expression with theta and dist measured from the sampled lens point (and exactly the pinhole's
+// for aperture_radius = 0, which is accepted and renders like `perspective`).
+//
+// | parameter       | type      | default     | meaning                                                     |
+// |-----------------|-----------|-------------|-------------------------------------------------------------|
+// | aperture_radius | float     | required    | radius of the lens (scene units); 0: a pinhole               |
+// | focus_distance  | float     | far_clip    | distance from the lens to the plane in focus (along the axis) |
+// | fov             | float     | 39.5978     | field of view in degrees                                    |
+// | fov_axis        | string    | "x"         | axis fov refers to: x, y, diagonal, smaller, larger         |
+// | near_clip       | float     | 0.01        | nothing closer than this depth is seen                      |
+// | far_clip        | float     | 10000       | nothing farther than this depth is seen                     |
+// | to_world        | transform | identity    | camera-to-world (usually a <lookat>; rigid, no scaling)     |
+// | film            | film      | hdrfilm     | nested film                                                 |
+// | sampler         | sampler   | independent | nested sampler                                              |
+//
+//     <sensor type="thinlens">
+//         <float name="aperture_radius" value="0.05"/>
+//         <float name="focus_distance" value="3.9"/>
+//         <float name="fov" value="39.3"/>
+//         <transform name="to_world"><lookat origin="0,1,3.9" target="0,1,0" up="0,1,0"/></transform>
+//     </sensor>
+#include <kelvin/core/registry.h>
+#include <kelvin/render/sensor.h>
+#include <kelvin/render/warp.h>
+
+#include <cmath>
+
+namespace kelvin {
+namespace {
+
+/// A parameter whose default depends on another one: declared without a default, read only when given.
+ParamSpec without_default(ParamSpec s) {
+    s.default_value.reset();
+    return s;
+}
+
+template <typename T> std::shared_ptr<T> nested_or_default(const Properties& props, const char* name, const char* kind,
+                                                           const char* plugin) {
+    if (auto o = props.get_object_as<T>(name)) return o;
+    return std::dynamic_pointer_cast<T>(Registry::instance().create(Properties(kind, plugin)));
+}
+
+class ThinLens final : public Sensor {
+public:
+    explicit ThinLens(const Properties& props) {
+        m_film = nested_or_default<Film>(props, "film", "film", "hdrfilm");
+        m_sampler = nested_or_default<Sampler>(props, "sampler", "sampler", "independent");
+        m_to_world = props.get_transform("to_world");
+        // A rigid transform keeps lens areas and angles: the importance above assumes it.
+        const Mat3d m(m_to_world.matrix);
+        const Mat3d mtm = glm::transpose(m) * m;
+        for (int i = 0; i < 3; ++i)
+            for (int j = 0; j < 3; ++j)
+                if (std::abs(mtm[i][j] - (i == j ? 1.0 : 0.0)) > 1e-6)
+                    props.error("to_world", "must be a rigid transform (rotation and translation, no scaling)");
+        m_near = props.get_float("near_clip", 0.0, Inf);
+        m_far = props.get_float("far_clip", 0.0, Inf);
+        if (!(m_far > m_near)) props.error("far_clip", "must exceed near_clip");
+        m_radius = props.get_float("aperture_radius", 0.0, Inf);
+        m_focus = props.has("focus_distance") ? props.get_float("focus_distance", 0.0, Inf) : m_far;
+        if (!(m_focus > 0)) props.error("focus_distance", "must be positive");
+        double fov = props.get_float("fov", 1e-6, 179.999);
+        std::string axis = props.get_choice("fov_axis", {"x", "y", "diagonal", "smaller", "larger"});
+        const double w = m_film->width(), h = m_film->height(), t = std::tan(glm::radians(fov) / 2);
+        if (axis == "smaller") axis = w <= h ? "x" : "y";
+        if (axis == "larger") axis = w >= h ? "x" : "y";
+        if (axis == "x") m_tan_x = t;
+        else if (axis == "y") m_tan_x = t * w / h;
+        else m_tan_x = t * w / std::sqrt(w * w + h * h);
+        m_tan_y = m_tan_x * h / w;
+    }
+
+    Ray sample_ray(Vec2d film_pos, Vec2d aperture) const override {
+        const double w = m_film->width(), h = m_film->height();
+        // The pinhole direction (z = 1) scaled onto the focal plane, and a point on the lens.
+        const Vec3d q = m_focus * Vec3d(m_tan_x * (1 - 2 * film_pos.x / w), m_tan_y * (1 - 2 * film_pos.y / h), 1.0);
+        const Vec2d disk = warp::square_to_uniform_disk_concentric(aperture) * m_radius;
+        const Vec3d l(disk.x, disk.y, 0.0);
+        const Vec3d d_cam = glm::normalize(q - l);
+        Ray r;
+        r.o = m_to_world.apply_point(l);
+        r.d = glm::normalize(m_to_world.apply_vector(d_cam));
+        // Clipping planes are depths along the axis; the lens lies at depth 0.
+        r.tmin = m_near / d_cam.z;
+        r.tmax = m_far / d_cam.z;
+        return r;
+    }
+
+    std::optional<SensorDirectSample> sample_direct(const Vec3d& ref, const Vec2d& u) const override {
+        const double w = m_film->width(), h = m_film->height();
+        const Vec3d local = m_to_world.inverse * glm::dvec4(ref, 1.0);
+        if (local.z < m_near || local.z > m_far || !(local.z > 0)) return std::nullopt;
+        const Vec2d disk = warp::square_to_uniform_disk_concentric(u) * m_radius;
+        const Vec3d l(disk.x, disk.y, 0.0);
+        const Vec3d v = local - l;  // lens point -> scene point, camera space
+        // Where the line from l through the scene point crosses the focal plane, as a pinhole direction.
+        const Vec3d q = l + v * (m_focus / v.z);
+        const Vec2d film(0.5 * w * (1 - q.x / (m_focus * m_tan_x)), 0.5 * h * (1 - q.y / (m_focus * m_tan_y)));
+        if (!(film.x >= 0 && film.y >= 0 && film.x < w && film.y < h)) return std::nullopt;
+        const double dist = glm::length(v);
+        if (!(dist > 0)) return std::nullopt;
+        const double cos_theta = v.z / dist;
+        SensorDirectSample s;
+        s.film = film;
+        s.p = m_to_world.apply_point(l);
+        s.dist = dist;  // the transform is rigid
+        s.d = glm::normalize(s.p - ref);
+        const double area = 4 * m_tan_x * m_tan_y;
+        s.weight = w * h / (area * cos_theta * cos_theta * cos_theta * dist * dist);
+        return s;
+    }
+
+    /// Solid-angle density of a camera ray's direction: 1 / (A cos^3 theta) from every lens point (the focal
+    /// plane point is uniform on the image rectangle). The interface passes no lens point, so the test that the
+    /// direction lies inside the image is made from the lens centre, which is exact for a pinhole only.
+    double pdf_direction(const Vec3d& d) const override {
+        const Vec3d local = glm::normalize(Vec3d(m_to_world.inverse * glm::dvec4(d, 0.0)));
+        if (!(local.z > 0)) return 0.0;
+        const double x = local.x / (local.z * m_tan_x), y = local.y / (local.z * m_tan_y);
+        if (std::abs(x) > 1 || std::abs(y) > 1) return 0.0;
+        return 1.0 / (4 * m_tan_x * m_tan_y * local.z * local.z * local.z);
+    }
+    const Film& film() const override { return *m_film; }
+    const Sampler& sampler() const override { return *m_sampler; }
+    const Transform& to_world() const override { return m_to_world; }
+
+private:
+    std::shared_ptr<Film> m_film;
+    std::shared_ptr<Sampler> m_sampler;
+    Transform m_to_world;
+    double m_near, m_far, m_radius, m_focus, m_tan_x = 1, m_tan_y = 1;
+};
+
+}  // namespace
+}  // namespace kelvin
+
+KELVIN_PLUGIN(kelvin::ThinLens, "sensor", "thinlens", "Perspective camera with a thin lens (depth of field).",
+              kelvin::param::required(kelvin::PropType::Float, "aperture_radius", "lens radius (0: a pinhole)"),
+              kelvin::without_default(kelvin::param::real("focus_distance", 0.0,
+                                                      "distance to the plane in focus (default: far_clip)")),
+              kelvin::param::real("fov", 39.5978, "field of view in degrees"),
+              kelvin::param::string("fov_axis", "x", "axis the fov refers to: x, y, diagonal, smaller, larger"),
+              kelvin::param::real("near_clip", 0.01, "near clipping depth"),
+              kelvin::param::real("far_clip", 10000.0, "far clipping depth"),
+              kelvin::param::transform("to_world", "camera-to-world transform (usually a <lookat>; rigid)"),
+              kelvin::param::object("film", "film", "the film (default: hdrfilm)"),
+              kelvin::param::object("sampler", "sampler", "the sampler (default: independent)"));
