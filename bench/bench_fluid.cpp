@@ -47,7 +47,8 @@ void BM_BiotSavartPass(benchmark::State& state, bool periodic, SourceSampling sa
     s.velocity.importance = sampling;
     MCFluidSolver solver(s, periodic ? InitialField(taylor_green) : InitialField(lamb_oseen));
     const Grid2& grid = solver.vorticity_grid();
-    std::shared_ptr<const PeriodicKernel> kernel = periodic ? std::make_shared<PeriodicKernel>(s.domain.size()) : nullptr;
+    std::shared_ptr<const PeriodicKernel> kernel =
+        periodic ? std::make_shared<PeriodicKernel>(s.domain.size()) : nullptr;
     BiotSavartEstimator est(grid, s.interpolation, sampling, solver.delta(), kernel);
     std::vector<double> out(std::size_t(res) * res);
     uint64_t pass = 0;
@@ -87,10 +88,16 @@ void Sizes(benchmark::internal::Benchmark* b) {
 }  // namespace
 
 BENCHMARK_CAPTURE(BM_BiotSavartPass, periodic_vorticity, true, SourceSampling::Vorticity)->Apply(Sizes);
-BENCHMARK_CAPTURE(BM_BiotSavartPass, periodic_uniform, true, SourceSampling::Uniform)->Args({256, 256})
-    ->Unit(benchmark::kMillisecond)->UseRealTime();
+BENCHMARK_CAPTURE(BM_BiotSavartPass, periodic_uniform, true, SourceSampling::Uniform)
+    ->Args({256, 256})
+    ->Unit(benchmark::kMillisecond)
+    ->UseRealTime();
 BENCHMARK_CAPTURE(BM_BiotSavartPass, open_vorticity, false, SourceSampling::Vorticity)->Apply(Sizes);
 BENCHMARK_CAPTURE(BM_Step, euler, Advection::Euler)->Apply(Sizes);
-BENCHMARK_CAPTURE(BM_Step, rk4, Advection::RK4)->Args({256, 256})->Args({256, 1024})
-    ->Unit(benchmark::kMillisecond)->UseRealTime()->MinTime(1.0);
+BENCHMARK_CAPTURE(BM_Step, rk4, Advection::RK4)
+    ->Args({256, 256})
+    ->Args({256, 1024})
+    ->Unit(benchmark::kMillisecond)
+    ->UseRealTime()
+    ->MinTime(1.0);
 BENCHMARK_MAIN();

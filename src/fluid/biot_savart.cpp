@@ -87,9 +87,7 @@ Vec2d PeriodicKernel::correction(Vec2d r) const {
 
 namespace {
 constexpr uint32_t SignBit = 1u << 30;
-inline uint32_t pack_cell(int i, int j, double w) {
-    return uint32_t(i) | (uint32_t(j) << 15) | (w < 0 ? SignBit : 0u);
-}
+inline uint32_t pack_cell(int i, int j, double w) { return uint32_t(i) | (uint32_t(j) << 15) | (w < 0 ? SignBit : 0u); }
 }  // namespace
 
 BiotSavartEstimator::BiotSavartEstimator(const Grid2& vorticity, Interpolation interp, SourceSampling sampling,
@@ -156,17 +154,17 @@ constexpr int Lanes = 8;
 struct BatchData {
     alignas(64) float fx[BiotSavartEstimator::Batch];  ///< sample position, cells
     alignas(64) float fy[BiotSavartEstimator::Batch];
-    alignas(64) float w[BiotSavartEstimator::Batch];   ///< sign (importance) or omega (uniform); 0 for padding
+    alignas(64) float w[BiotSavartEstimator::Batch];  ///< sign (importance) or omega (uniform); 0 for padding
 };
 
 struct KernelParams {
-    float qx, qy;    ///< query position, cells
-    float hx, hy;    ///< cell size
-    float nx, ny;    ///< cells per axis (periodic wrap in cell units)
-    float d2;        ///< delta^2
+    float qx, qy;               ///< query position, cells
+    float hx, hy;               ///< cell size
+    float nx, ny;               ///< cells per axis (periodic wrap in cell units)
+    float d2;                   ///< delta^2
     const float* tu = nullptr;  ///< periodic correction tables (2 pi H), or null
     const float* tv = nullptr;
-    int tn = 0;      ///< table intervals
+    int tn = 0;  ///< table intervals
 };
 
 struct Sums {
@@ -178,7 +176,8 @@ struct Sums {
 // for AVX2 and for the baseline, chosen at load time; both give identical results (same IEEE operations
 // per sample, no FMA contraction, sums in fixed lanes).
 template <bool Periodic>
-__attribute__((always_inline)) inline void kernel_body(const BatchData& b, int count, const KernelParams& k, Sums& out) {
+__attribute__((always_inline)) inline void kernel_body(const BatchData& b, int count, const KernelParams& k,
+                                                       Sums& out) {
     alignas(64) float cu[BiotSavartEstimator::Batch], cv[BiotSavartEstimator::Batch];
     alignas(64) float gxs[BiotSavartEstimator::Batch], gys[BiotSavartEstimator::Batch];
     const float inv_nx = 1.0f / k.nx, inv_ny = 1.0f / k.ny;
@@ -207,8 +206,10 @@ __attribute__((always_inline)) inline void kernel_body(const BatchData& b, int c
             const int i = std::min(int(gx), last), j = std::min(int(gy), last);
             const float ax = gx - float(i), ay = gy - float(j);
             const int t = j * row + i;
-            cu[s] += (1 - ay) * ((1 - ax) * tu[t] + ax * tu[t + 1]) + ay * ((1 - ax) * tu[t + row] + ax * tu[t + row + 1]);
-            cv[s] += (1 - ay) * ((1 - ax) * tv[t] + ax * tv[t + 1]) + ay * ((1 - ax) * tv[t + row] + ax * tv[t + row + 1]);
+            cu[s] +=
+                (1 - ay) * ((1 - ax) * tu[t] + ax * tu[t + 1]) + ay * ((1 - ax) * tu[t + row] + ax * tu[t + row + 1]);
+            cv[s] +=
+                (1 - ay) * ((1 - ax) * tv[t] + ax * tv[t + 1]) + ay * ((1 - ax) * tv[t + row] + ax * tv[t + row + 1]);
         }
     }
     for (int s = 0; s < count; ++s) {
@@ -233,12 +234,12 @@ __attribute__((always_inline)) inline void kernel_body(const BatchData& b, int c
     }
 }
 
-__attribute__((target_clones("avx2", "default"))) void kernel_open(const BatchData& b, int count,
-                                                                     const KernelParams& k, Sums& out) {
+__attribute__((target_clones("avx2", "default"))) void kernel_open(const BatchData& b, int count, const KernelParams& k,
+                                                                   Sums& out) {
     kernel_body<false>(b, count, k, out);
 }
 __attribute__((target_clones("avx2", "default"))) void kernel_periodic(const BatchData& b, int count,
-                                                                         const KernelParams& k, Sums& out) {
+                                                                       const KernelParams& k, Sums& out) {
     kernel_body<true>(b, count, k, out);
 }
 
@@ -331,7 +332,8 @@ VelocityEstimate BiotSavartEstimator::estimate(Vec2d x, int n, Random& rng) cons
     e.samples = n;
     e.value = {weight * sums.u / n, weight * sums.v / n};
     if (n > 1) {
-        const double vu = std::max(0.0, sums.u2 - sums.u * sums.u / n), vv = std::max(0.0, sums.v2 - sums.v * sums.v / n);
+        const double vu = std::max(0.0, sums.u2 - sums.u * sums.u / n),
+                     vv = std::max(0.0, sums.v2 - sums.v * sums.v / n);
         e.variance = {weight * weight * vu / (double(n) * (n - 1)), weight * weight * vv / (double(n) * (n - 1))};
     }
     return e;

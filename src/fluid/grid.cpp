@@ -13,7 +13,7 @@ static double wrap1(double v, double lo, double len) {
     double t = v - lo;
     if (t >= 0 && t < len) return v;
     t -= len * std::floor(t / len);
-    if (t < 0) t += len;             // rounding for huge |v|
+    if (t < 0) t += len;              // rounding for huge |v|
     if (!(t >= 0 && t < len)) t = 0;  // rounding of a tiny negative t (or of a huge v: precision is gone anyway)
     return lo + t;
 }

@@ -43,7 +43,8 @@ void check_settings(const MCFluidSettings& s) {
     if (!(size.x > 0) || !(size.y > 0) || !std::isfinite(size.x) || !std::isfinite(size.y))
         throw_runtime("MCFluidSolver: empty or non-finite domain {}", s.domain.to_string());
     if (s.nx < 2 || s.ny < 2 || s.nx > BiotSavartEstimator::MaxResolution || s.ny > BiotSavartEstimator::MaxResolution)
-        throw_runtime("MCFluidSolver: cache resolution {}x{} out of range [2, {}]", s.nx, s.ny, BiotSavartEstimator::MaxResolution);
+        throw_runtime("MCFluidSolver: cache resolution {}x{} out of range [2, {}]", s.nx, s.ny,
+                      BiotSavartEstimator::MaxResolution);
     if (!(s.dt > 0) || !std::isfinite(s.dt)) throw_runtime("MCFluidSolver: dt must be positive and finite");
     if (!(s.viscosity >= 0) || !std::isfinite(s.viscosity)) throw_runtime("MCFluidSolver: viscosity must be >= 0");
     if (s.velocity.samples < 1) throw_runtime("MCFluidSolver: velocity samples must be >= 1");
@@ -56,8 +57,7 @@ MCFluidSolver::MCFluidSolver(const MCFluidSettings& settings, const InitialField
     check_settings(m_settings);
     const Domain2& d = m_settings.domain;
     m_omega = Grid2(d, m_settings.nx, m_settings.ny);
-    m_delta = m_settings.velocity.delta >= 0 ? m_settings.velocity.delta
-                                             : 0.5 * std::min(m_omega.h().x, m_omega.h().y);
+    m_delta = m_settings.velocity.delta >= 0 ? m_settings.velocity.delta : 0.5 * std::min(m_omega.h().x, m_omega.h().y);
     if (d.periodic) m_periodic = std::make_shared<PeriodicKernel>(d.size());
     for (int j = 0; j < m_omega.ny(); ++j)
         for (int i = 0; i < m_omega.nx(); ++i) {
@@ -76,8 +76,8 @@ MCFluidSolver::MCFluidSolver(const MCFluidSettings& settings, const InitialField
 MCFluidSolver::~MCFluidSolver() = default;
 
 void MCFluidSolver::rebuild_estimator() {
-    m_estimator = std::make_unique<BiotSavartEstimator>(m_omega, m_settings.interpolation, m_settings.velocity.importance,
-                                                        m_delta, m_periodic);
+    m_estimator = std::make_unique<BiotSavartEstimator>(m_omega, m_settings.interpolation,
+                                                        m_settings.velocity.importance, m_delta, m_periodic);
     m_velocity_valid = false;
 }
 
@@ -252,8 +252,10 @@ FluidDiagnostics MCFluidSolver::diagnostics() {
 
 double MCFluidSolver::vorticity(double t, Vec2d x) {
     if (t < m_time - 1e-9 * m_settings.dt)
-        throw_runtime("MCFluidSolver::vorticity: t = {} is before the current time {} (the cached solver keeps the "
-                      "current step only; use RecursiveEstimator for arbitrary times)", t, m_time);
+        throw_runtime(
+            "MCFluidSolver::vorticity: t = {} is before the current time {} (the cached solver keeps the "
+            "current step only; use RecursiveEstimator for arbitrary times)",
+            t, m_time);
     advance_to(t);
     return m_omega.sample(x, m_settings.interpolation);
 }

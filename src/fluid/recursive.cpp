@@ -27,16 +27,17 @@ inline Vec2d gaussian2(Random& rng) {
 /// point in its tent, exactly like the cached estimator).
 struct RecursiveEstimator::Importance {
     Grid2 abs0;
-    double total = 0;              // sum |omega_k| * cell area
-    std::vector<double> prob;      // alias probabilities
+    double total = 0;          // sum |omega_k| * cell area
+    std::vector<double> prob;  // alias probabilities
     std::vector<uint32_t> alias;
-    std::vector<uint32_t> cells;   // non-zero cells
+    std::vector<uint32_t> cells;  // non-zero cells
 
     /// The mixture density at y (the uniform part covers the box only; the tents reach half a cell past an
     /// open box's edge).
     double pdf(Vec2d y, double eps, const Domain2& box) const {
         const double g = total > 0 ? abs0.sample(y, Interpolation::Bilinear) / total : 0.0;
-        const bool inside = box.periodic || (y.x >= box.min.x && y.y >= box.min.y && y.x <= box.max.x && y.y <= box.max.y);
+        const bool inside =
+            box.periodic || (y.x >= box.min.x && y.y >= box.min.y && y.x <= box.max.x && y.y <= box.max.y);
         return (1 - eps) * g + (inside ? eps / box.area() : 0.0);
     }
     Vec2d sample(Random& rng) const {
@@ -55,7 +56,8 @@ RecursiveEstimator::RecursiveEstimator(const RecursiveSettings& settings, Initia
     const Domain2& d = m_settings.domain;
     if (!(d.size().x > 0) || !(d.size().y > 0)) throw_runtime("RecursiveEstimator: empty domain");
     if (!(m_settings.dt > 0)) throw_runtime("RecursiveEstimator: dt must be positive");
-    if (!(m_settings.velocity.delta >= 0)) throw_runtime("RecursiveEstimator: delta must be >= 0 (no cache to size it)");
+    if (!(m_settings.velocity.delta >= 0))
+        throw_runtime("RecursiveEstimator: delta must be >= 0 (no cache to size it)");
     if (m_settings.velocity.samples < 1 || m_settings.diffusion_samples < 1)
         throw_runtime("RecursiveEstimator: sample counts must be >= 1");
     if (d.periodic) m_periodic = std::make_shared<PeriodicKernel>(d.size());

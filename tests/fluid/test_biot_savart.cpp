@@ -50,8 +50,10 @@ TEST(PeriodicKernel, ExactKernelProperties) {
             const Vec2d a = PeriodicKernel::exact(r, period), b = PeriodicKernel::exact(-r, period);
             EXPECT_NEAR(a.x, -b.x, 1e-12);
             EXPECT_NEAR(a.y, -b.y, 1e-12);
-            const Vec2d px = PeriodicKernel::exact(r + Vec2d(e, 0), period), mx = PeriodicKernel::exact(r - Vec2d(e, 0), period);
-            const Vec2d py = PeriodicKernel::exact(r + Vec2d(0, e), period), my = PeriodicKernel::exact(r - Vec2d(0, e), period);
+            const Vec2d px = PeriodicKernel::exact(r + Vec2d(e, 0), period),
+                        mx = PeriodicKernel::exact(r - Vec2d(e, 0), period);
+            const Vec2d py = PeriodicKernel::exact(r + Vec2d(0, e), period),
+                        my = PeriodicKernel::exact(r - Vec2d(0, e), period);
             const double div = (px.x - mx.x) / (2 * e) + (py.y - my.y) / (2 * e);
             const double curl = (px.y - mx.y) / (2 * e) - (py.x - my.x) / (2 * e);
             EXPECT_NEAR(div, 0.0, 1e-5);
@@ -162,7 +164,8 @@ TEST(BiotSavart, PeriodicTaylorGreenVelocity) {
         Interpolation interp;
         SourceSampling sampling;
     };
-    for (Case c : {Case{Interpolation::Bilinear, SourceSampling::Vorticity}, Case{Interpolation::Nearest, SourceSampling::Vorticity},
+    for (Case c : {Case{Interpolation::Bilinear, SourceSampling::Vorticity},
+                   Case{Interpolation::Nearest, SourceSampling::Vorticity},
                    Case{Interpolation::Bilinear, SourceSampling::Uniform}}) {
         BiotSavartEstimator est(grid, c.interp, c.sampling, delta, kernel);
         const double f = tg_factor(h, delta, c.interp);

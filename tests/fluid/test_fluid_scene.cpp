@@ -44,15 +44,17 @@ private:
 };
 
 // A small simulation scene; `sim` is inserted in <simulation>, `extra` replaces the default components.
-std::string scene(const std::string& sim, const std::string& vorticity = R"(<vorticity type="taylor_green"/>)",
-                  const std::string& components = R"(<velocity type="biot_savart"><integer name="samples" value="16"/></velocity>
+std::string scene(
+    const std::string& sim, const std::string& vorticity = R"(<vorticity type="taylor_green"/>)",
+    const std::string& components = R"(<velocity type="biot_savart"><integer name="samples" value="16"/></velocity>
             <cache type="grid"><integer name="resolution" value="16"/></cache>)") {
     return R"(<scene version="3.0.0">
         <simulation type="mcfluid">
             <point name="min" x="-3.141592653589793" y="-3.141592653589793"/>
             <point name="max" x="3.141592653589793" y="3.141592653589793"/>
             <boolean name="periodic" value="true"/>
-            )" + sim + "\n            " + vorticity + "\n            " + components + R"(
+            )" +
+           sim + "\n            " + vorticity + "\n            " + components + R"(
         </simulation>
     </scene>)";
 }
@@ -117,12 +119,14 @@ TEST(FluidScene, ParameterErrorsNameTheParameter) {
                          R"(<cache type="grid"><integer name="resolution" value="1"/></cache>)"));
     EXPECT_CONTAINS(e.what(), "'resolution'");
 
-    e = load_error(scene(R"(<integer name="steps" value="2"/>)",
-                         R"(<vorticity type="gaussian_vortices"><string name="vortices" value="0 0 1; 1 1 1 0.2"/></vorticity>)"));
+    e = load_error(
+        scene(R"(<integer name="steps" value="2"/>)",
+              R"(<vorticity type="gaussian_vortices"><string name="vortices" value="0 0 1; 1 1 1 0.2"/></vorticity>)"));
     EXPECT_CONTAINS(e.what(), "'vortices'");
     EXPECT_CONTAINS(e.what(), "vortex 1");
-    e = load_error(scene(R"(<integer name="steps" value="2"/>)",
-                         R"(<vorticity type="gaussian_vortices"><string name="vortices" value="0 0 1 -0.2"/></vorticity>)"));
+    e = load_error(
+        scene(R"(<integer name="steps" value="2"/>)",
+              R"(<vorticity type="gaussian_vortices"><string name="vortices" value="0 0 1 -0.2"/></vorticity>)"));
     EXPECT_CONTAINS(e.what(), "radius");
     e = load_error(scene(R"(<integer name="steps" value="2"/>)",
                          R"(<vorticity type="lamb_oseen"><float name="radius" value="0"/></vorticity>)"));

@@ -156,7 +156,8 @@ TEST(MCFluid, LambOseenCoreGrowsAs4NuT) {
 // energy of the discretised, mollified field (pi^2/4 times the squared bias factor) within 1%, while the raw
 // estimate is ~10% above it (the Monte Carlo noise energy). Over t = 1 the energy and the enstrophy drift
 // down by less than 8% per unit time (measured 4.5% and 4.0% with n_mc = 256, dt = 1/8, 64^2: velocity
-// noise and interpolation act as diffusion) and never grow beyond noise. Broken variant seen to fail: energy without the noise correction (off by 10%).
+// noise and interpolation act as diffusion) and never grow beyond noise. Broken variant seen to fail: energy without
+// the noise correction (off by 10%).
 TEST(MCFluid, InviscidEnergyDriftIsBounded) {
     MCFluidSolver solver(tg_settings(64, 256, 0.125), tg_omega);
     const double h = solver.vorticity_grid().h().x;
@@ -258,7 +259,8 @@ TEST(MCFluid, RecursiveAndCachedAgree) {
         std::cout << "[ measured ] omega(0.2) at point " << p << ": initial " << pair(pts[p]) << ", cached " << a.mean
                   << " +- " << a.se << ", recursive " << b.mean << " +- " << b.se << "\n";
         EXPECT_NEAR(a.mean, b.mean, 5 * std::hypot(a.se, b.se)) << "point " << p;
-        EXPECT_GT(std::abs(a.mean - pair(pts[p])), 5 * a.se) << "the field must have moved for the test to mean anything";
+        EXPECT_GT(std::abs(a.mean - pair(pts[p])), 5 * a.se)
+            << "the field must have moved for the test to mean anything";
         const MeanSe cu = mean_se(cached_u[p]), ru = mean_se(u);
         EXPECT_NEAR(cu.mean, ru.mean, 5 * std::hypot(cu.se, ru.se) + 2e-3) << "velocity at point " << p;
     }
@@ -298,8 +300,8 @@ TEST(MCFluid, BitIdenticalAcrossThreadCounts) {
         s.viscosity = 0.01;
         s.diffusion_samples = 2;
         MCFluidSolver solver(s, periodic ? InitialField(tg_omega) : InitialField([](const Vec2d& x) {
-            return lo_omega(x, {0.2, 0}, 1, 0.4) - lo_omega(x, {-0.5, 0.1}, 0.7, 0.3);
-        }));
+                                 return lo_omega(x, {0.2, 0}, 1, 0.4) - lo_omega(x, {-0.5, 0.1}, 0.7, 0.3);
+                             }));
         for (int k = 0; k < 3; ++k) EXPECT_TRUE(solver.step());
         std::vector<double> out = solver.vorticity_grid().values();
         const auto& u = solver.velocity_u().values();

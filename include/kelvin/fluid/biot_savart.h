@@ -30,9 +30,9 @@ enum class SourceSampling { Uniform, Vorticity };
 const char* to_string(SourceSampling s);
 
 struct BiotSavartOptions {
-    int samples = 256;                                  ///< n_mc per velocity query
+    int samples = 256;  ///< n_mc per velocity query
     SourceSampling importance = SourceSampling::Vorticity;
-    double delta = -1;                                  ///< mollifier; < 0: half the cache cell size
+    double delta = -1;  ///< mollifier; < 0: half the cache cell size
 };
 
 /// Free-space 2D Biot–Savart kernel with the Rosenhead–Moore mollifier (1/(2 pi) included). K(0) = 0.

@@ -51,7 +51,9 @@ public:
     /// Cell size (hx, hy).
     Vec2d h() const { return m_h; }
     double cell_area() const { return m_h.x * m_h.y; }
-    Vec2d cell_center(int i, int j) const { return {m_domain.min.x + (i + 0.5) * m_h.x, m_domain.min.y + (j + 0.5) * m_h.y}; }
+    Vec2d cell_center(int i, int j) const {
+        return {m_domain.min.x + (i + 0.5) * m_h.x, m_domain.min.y + (j + 0.5) * m_h.y};
+    }
 
     double& at(int i, int j) { return m_values[std::size_t(j) * std::size_t(m_nx) + std::size_t(i)]; }
     double at(int i, int j) const { return m_values[std::size_t(j) * std::size_t(m_nx) + std::size_t(i)]; }

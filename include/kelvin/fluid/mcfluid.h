@@ -37,8 +37,8 @@ struct MCFluidSettings {
     BiotSavartOptions velocity;  ///< delta < 0: half a cell (resolved by the solver)
     Advection advection = Advection::RK4;
     double dt = 0.05;
-    double viscosity = 0;        ///< nu; 0 = inviscid: the diffusion step never runs
-    int diffusion_samples = 1;   ///< n_d (used only when viscosity > 0)
+    double viscosity = 0;       ///< nu; 0 = inviscid: the diffusion step never runs
+    int diffusion_samples = 1;  ///< n_d (used only when viscosity > 0)
     uint64_t seed = 0;
 };
 

@@ -40,8 +40,9 @@ public:
         if (m_options.delta < 0 && m_options.delta != -1)
             props.error("delta", "must be >= 0, or -1 for half a cache cell");
         if (m_options.delta == 0)
-            log_warn("biot_savart: delta = 0 uses the singular kernel; the estimate stays finite and unbiased but "
-                     "its variance grows logarithmically near samples (use delta > 0 or -1 for half a cell)");
+            log_warn(
+                "biot_savart: delta = 0 uses the singular kernel; the estimate stays finite and unbiased but "
+                "its variance grows logarithmically near samples (use delta > 0 or -1 for half a cell)");
     }
     const BiotSavartOptions& biot_savart() const override { return m_options; }
 

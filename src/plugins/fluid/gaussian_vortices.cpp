@@ -37,13 +37,14 @@ public:
             auto parts = split_list(piece);
             if (parts.size() != 4)
                 props.error("vortices", fmt::format("vortex {} ('{}'): expected 4 numbers 'x y circulation radius', "
-                                                    "got {}", index, piece, parts.size()));
+                                                    "got {}",
+                                                    index, piece, parts.size()));
             double v[4];
             for (int k = 0; k < 4; ++k) {
                 auto d = parse_double(parts[std::size_t(k)]);
                 if (!d || !std::isfinite(*d))
-                    props.error("vortices", fmt::format("vortex {}: '{}' is not a finite number", index,
-                                                        parts[std::size_t(k)]));
+                    props.error("vortices",
+                                fmt::format("vortex {}: '{}' is not a finite number", index, parts[std::size_t(k)]));
                 v[k] = *d;
             }
             if (!(v[3] > 0)) props.error("vortices", fmt::format("vortex {}: radius must be positive", index));
@@ -83,8 +84,10 @@ public:
         for (const auto& v : m_vortices) {
             const double margin = std::min({v.c.x - d.min.x, d.max.x - v.c.x, v.c.y - d.min.y, d.max.y - v.c.y});
             if (margin < 3 * v.s && !d.periodic)
-                log_warn("gaussian_vortices: the vortex at ({:g}, {:g}) is closer than 3 radii to the box edge; its "
-                         "tail is cut", v.c.x, v.c.y);
+                log_warn(
+                    "gaussian_vortices: the vortex at ({:g}, {:g}) is closer than 3 radii to the box edge; its "
+                    "tail is cut",
+                    v.c.x, v.c.y);
         }
     }
 

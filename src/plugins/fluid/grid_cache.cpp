@@ -22,7 +22,7 @@ public:
         if (m_ny != 0 && (m_ny < 2 || m_ny > 16384))
             props.error("resolution_y", "must lie in [2, 16384], or be 0 for square cells");
         m_interp = props.get_choice("interpolation", {"nearest", "bilinear"}) == "nearest" ? Interpolation::Nearest
-                                                                                          : Interpolation::Bilinear;
+                                                                                           : Interpolation::Bilinear;
     }
     int resolution_x() const override { return m_nx; }
     int resolution_y() const override { return m_ny; }

@@ -51,10 +51,11 @@ public:
 
     void check_domain(const Domain2& d) const override {
         if (d.periodic)
-            log_warn("lamb_oseen on a periodic domain: the exact solution is for free space (the periodic images "
-                     "and the neutralising background change the flow)");
-        const double margin = std::min({m_center.x - d.min.x, d.max.x - m_center.x, m_center.y - d.min.y,
-                                        d.max.y - m_center.y});
+            log_warn(
+                "lamb_oseen on a periodic domain: the exact solution is for free space (the periodic images "
+                "and the neutralising background change the flow)");
+        const double margin =
+            std::min({m_center.x - d.min.x, d.max.x - m_center.x, m_center.y - d.min.y, d.max.y - m_center.y});
         if (margin < 3 * m_sigma)
             log_warn("lamb_oseen: the core (radius {:g}) is closer than 3 radii to the box edge; its tail is cut",
                      m_sigma);

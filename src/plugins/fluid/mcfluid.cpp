@@ -9,7 +9,8 @@
 //   <prefix>_NNNN.png     colour-mapped vorticity every `output_every` steps (and the last step)
 //   <prefix>_NNNN.exr     channels R, G, B (colour map), vorticity, u, v at the cell centres
 // and the final state is returned as the run's image (the CLI writes it to -o). The run's seed is --seed;
-// --spp overrides n_mc; --time-limit stops after the step that exceeds it.
+// --spp overrides n_mc; --time-limit stops after the step that exceeds it; --write-partial writes the
+// current state to -o every N seconds.
 //
 // | parameter         | type    | default   | meaning                                                      |
 // |-------------------|---------|-----------|--------------------------------------------------------------|
@@ -63,15 +64,17 @@ public:
     explicit MCFluid(const Properties& props) {
         const long long dim = props.get_int("dimension");
         if (dim == 3)
-            props.error("dimension", "3D MCFluid (vortex stretching, Eqs. 5.14-5.21) is not implemented yet; only "
-                                     "dimension = 2 is supported");
+            props.error("dimension",
+                        "3D MCFluid (vortex stretching, Eqs. 5.14-5.21) is not implemented yet; only "
+                        "dimension = 2 is supported");
         if (dim != 2) props.error("dimension", fmt::format("must be 2 (got {})", dim));
 
         const Vec3d lo = props.get_point("min"), hi = props.get_point("max");
         if (lo.z != 0) props.error("min", "a 2D domain takes z = 0");
         if (hi.z != 0) props.error("max", "a 2D domain takes z = 0");
         for (double v : {lo.x, lo.y, hi.x, hi.y})
-            if (!std::isfinite(v)) props.error(std::isfinite(lo.x) && std::isfinite(lo.y) ? "max" : "min", "must be finite");
+            if (!std::isfinite(v))
+                props.error(std::isfinite(lo.x) && std::isfinite(lo.y) ? "max" : "min", "must be finite");
         if (!(hi.x > lo.x) || !(hi.y > lo.y))
             props.error("max", fmt::format("must exceed min in x and y (min = ({:g}, {:g}), max = ({:g}, {:g}))", lo.x,
                                            lo.y, hi.x, hi.y));
@@ -90,7 +93,8 @@ public:
         }
         m_settings.viscosity = props.get_float("viscosity", 0.0, 1e300);
         m_settings.diffusion_samples = int(props.get_int("diffusion_samples", 1, 1 << 20));
-        m_settings.advection = props.get_choice("advection", {"euler", "rk4"}) == "euler" ? Advection::Euler : Advection::RK4;
+        m_settings.advection =
+            props.get_choice("advection", {"euler", "rk4"}) == "euler" ? Advection::Euler : Advection::RK4;
         m_output_every = props.get_int("output_every", 0, 1LL << 40);
         m_write_png = props.get_bool("write_png");
         m_write_exr = props.get_bool("write_exr");
@@ -103,7 +107,8 @@ public:
             velocity = std::dynamic_pointer_cast<VelocityEstimatorSpec>(
                 Registry::instance().create(Properties("velocity", "biot_savart")));
         auto cache = props.get_object_as<CacheSpec>("cache");
-        if (!cache) cache = std::dynamic_pointer_cast<CacheSpec>(Registry::instance().create(Properties("cache", "grid")));
+        if (!cache)
+            cache = std::dynamic_pointer_cast<CacheSpec>(Registry::instance().create(Properties("cache", "grid")));
         m_settings.velocity = velocity->biot_savart();
         m_settings.interpolation = cache->interpolation();
         m_settings.nx = cache->resolution_x();
@@ -128,13 +133,14 @@ public:
 
         log_info("mcfluid: 2D, domain {}, {}x{} cache ({}), initial {}", settings.domain.to_string(), settings.nx,
                  settings.ny, fluid::to_string(settings.interpolation), field.description());
-        log_info("mcfluid: effects: advection ({}, dt {:g}, {} steps) with Biot–Savart velocity (n_mc {}, importance "
-                 "{}, delta {:g}{}); diffusion {}; stretching off (2D); boundaries none; dye none",
-                 fluid::to_string(settings.advection), settings.dt, m_steps, settings.velocity.samples,
-                 fluid::to_string(settings.velocity.importance), solver.delta(),
-                 settings.domain.periodic ? ", periodic kernel" : "",
-                 viscous ? fmt::format("on (nu {:g}, Feynman–Kac, n_d {})", settings.viscosity, settings.diffusion_samples)
-                         : std::string("off (inviscid)"));
+        log_info(
+            "mcfluid: effects: advection ({}, dt {:g}, {} steps) with Biot–Savart velocity (n_mc {}, importance "
+            "{}, delta {:g}{}); diffusion {}; stretching off (2D); boundaries none; dye none",
+            fluid::to_string(settings.advection), settings.dt, m_steps, settings.velocity.samples,
+            fluid::to_string(settings.velocity.importance), solver.delta(),
+            settings.domain.periodic ? ", periodic kernel" : "",
+            viscous ? fmt::format("on (nu {:g}, Feynman–Kac, n_d {})", settings.viscosity, settings.diffusion_samples)
+                    : std::string("off (inviscid)"));
 
         OutputPaths paths(ctx.output);
         std::optional<DiagnosticsCsv> csv;
@@ -168,6 +174,7 @@ public:
         write_frame();
 
         ProgressReporter progress("Simulating", double(m_steps), "steps", ctx.quiet);
+        Timer since_partial;
         long long done = 0;
         bool stopped_by_time = false;
         for (long long s = 1; s <= m_steps; ++s) {
@@ -189,6 +196,11 @@ public:
             ++done;
             if (m_output_every > 0 && (s % m_output_every == 0 || s == m_steps)) write_frame();
             progress.update(1);
+            if (ctx.write_partial > 0 && ctx.write_partial_image && since_partial.seconds() >= ctx.write_partial) {
+                ctx.write_partial_image(
+                    field_image(solver.vorticity_grid(), &solver.velocity_u(), &solver.velocity_v(), range));
+                since_partial.reset();
+            }
             if (ctx.time_limit > 0 && total.seconds() >= ctx.time_limit && s < m_steps) {
                 stopped_by_time = true;
                 break;
@@ -214,14 +226,17 @@ public:
         ctx.stats.add_time("fluid.time.advection", w.seconds_advection);
         ctx.stats.add_time("fluid.time.output", output_seconds);
         if (w.invalid_velocity + w.invalid_vorticity > 0)
-            log_warn("mcfluid: {} non-finite velocity estimate(s) and {} non-finite vorticity value(s) were replaced "
-                     "by zero", w.invalid_velocity, w.invalid_vorticity);
+            log_warn(
+                "mcfluid: {} non-finite velocity estimate(s) and {} non-finite vorticity value(s) were replaced "
+                "by zero",
+                w.invalid_velocity, w.invalid_vorticity);
 
         const FluidDiagnostics dn = solver.diagnostics();
-        log_info("mcfluid: t = {:g}: energy {:.6g} (initial {:.6g}), enstrophy {:.6g} (initial {:.6g}), circulation "
-                 "{:.6g}, max |omega| {:.6g}; active effects: advection{}", dn.time, dn.kinetic_energy,
-                 d0.kinetic_energy, dn.enstrophy, d0.enstrophy, dn.circulation, dn.max_abs_vorticity,
-                 viscous ? ", diffusion" : "");
+        log_info(
+            "mcfluid: t = {:g}: energy {:.6g} (initial {:.6g}), enstrophy {:.6g} (initial {:.6g}), circulation "
+            "{:.6g}, max |omega| {:.6g}; active effects: advection{}",
+            dn.time, dn.kinetic_energy, d0.kinetic_energy, dn.enstrophy, d0.enstrophy, dn.circulation,
+            dn.max_abs_vorticity, viscous ? ", diffusion" : "");
         result.image = field_image(solver.vorticity_grid(), &solver.velocity_u(), &solver.velocity_v(), range);
         result.work = double(done);
         result.seconds = total.seconds();

@@ -47,11 +47,14 @@ public:
             return std::abs(r - std::nearbyint(r)) < 1e-6 * std::max(1.0, r) && std::nearbyint(r) >= 1;
         };
         if (!d.periodic)
-            log_warn("taylor_green on an open domain: the field is cut at the box and the flow is no longer the "
-                     "exact Taylor–Green solution (use <boolean name=\"periodic\" value=\"true\"/>)");
+            log_warn(
+                "taylor_green on an open domain: the field is cut at the box and the flow is no longer the "
+                "exact Taylor–Green solution (use <boolean name=\"periodic\" value=\"true\"/>)");
         else if (!fits(d.size().x) || !fits(d.size().y))
-            log_warn("taylor_green: the periodic box {} is not a multiple of the period 2 pi / k = {:g}; the "
-                     "field is discontinuous across the box edges", d.to_string(), period);
+            log_warn(
+                "taylor_green: the periodic box {} is not a multiple of the period 2 pi / k = {:g}; the "
+                "field is discontinuous across the box edges",
+                d.to_string(), period);
     }
 
     std::string description() const override { return fmt::format("taylor_green(amplitude={:g}, k={:g})", m_a, m_k); }
@@ -67,5 +70,6 @@ private:
 KELVIN_PLUGIN(kelvin::fluid::TaylorGreen, "vorticity", "taylor_green",
               "Steady Taylor–Green cells omega = A sin(kx) cos(ky) (decays as exp(-2 k^2 nu t) when viscous).",
               kelvin::param::real("amplitude", 1.0, "A, the peak vorticity"),
-              kelvin::param::integer("wavenumber", 1, "k (>= 1); the exact solution needs a periodic box of "
-                                                      "sides multiple of 2 pi / k"));
+              kelvin::param::integer("wavenumber", 1,
+                                     "k (>= 1); the exact solution needs a periodic box of "
+                                     "sides multiple of 2 pi / k"));
