@@ -1,0 +1,141 @@
+// bitmap: an image texture read with kelvin::read_image (EXR through OpenEXR; PNG, JPEG, HDR, TIFF, ...
+// through OpenImageIO).
+//
+// Coordinates follow Mitsuba 3 and glTF: uv = (0, 0) is the top-left corner of the image as stored in the file
+// (its first row) and v grows downwards; pixel (i, j) covers [i, i+1]/width x [j, j+1]/height, its centre is at
+// ((i + 0.5)/width, (j + 0.5)/height). (Mesh loaders whose files put v = 0 at the bottom, as OBJ does, flip v.)
+// `to_uv` maps the surface uv first (applied to the point (u, v, 0); x and y of the result are used).
+//
+// Colour: 8- and 16-bit files (PNG, JPEG, ...) are sRGB-encoded and read_image linearises them, which is what a
+// colour texture needs. `raw = true` keeps the stored values instead (for data such as roughness or normal
+// maps): the sRGB curve is re-applied to files of the 8/16-bit formats .png .jpg .jpeg .bmp .tga .gif .ppm
+// .pgm. Float formats (.exr .hdr .pfm) are linear and always read as stored; TIFF files are taken as read_image
+// returns them. Grey images give R = G = B; an alpha channel is ignored.
+//
+// | parameter   | type      | default  | meaning                                                     |
+// |-------------|-----------|----------|-------------------------------------------------------------|
+// | filename    | string    | required | the image, relative to the scene file                       |
+// | filter_type | string    | bilinear | bilinear (between the four nearest pixel centres) or nearest |
+// | wrap_mode   | string    | repeat   | outside [0, 1]: repeat, mirror, or clamp                    |
+// | raw         | bool      | false    | keep the stored values of 8/16-bit files (no linearisation) |
+// | to_uv       | transform | identity | transform applied to the uv coordinates                     |
+//
+//     <texture type="bitmap" name="reflectance"><string name="filename" value="wood.png"/></texture>
+#include <kelvin/core/error.h>
+#include <kelvin/core/image.h>
+#include <kelvin/core/registry.h>
+#include <kelvin/render/texture.h>
+
+#include <algorithm>
+#include <cctype>
+#include <cmath>
+#include <string>
+#include <vector>
+
+namespace kelvin {
+namespace {
+
+enum class Wrap { Repeat, Mirror, Clamp };
+
+class BitmapTexture final : public Texture {
+public:
+    explicit BitmapTexture(const Properties& props) {
+        const std::filesystem::path path = props.get_path("filename");
+        m_nearest = props.get_choice("filter_type", {"bilinear", "nearest"}) == "nearest";
+        const std::string wrap = props.get_choice("wrap_mode", {"repeat", "mirror", "clamp"});
+        m_wrap = wrap == "repeat" ? Wrap::Repeat : wrap == "mirror" ? Wrap::Mirror : Wrap::Clamp;
+        const bool raw = props.get_bool("raw");
+        m_to_uv = props.get_transform("to_uv");
+        m_identity = m_to_uv.is_identity();
+
+        Bitmap img;
+        try {
+            img = read_image(path);
+        } catch (const Error& e) {
+            props.error("filename", e.what());  // read_image's message names the file
+        }
+        if (img.width() <= 0 || img.height() <= 0) props.error("filename", fmt::format("'{}' is empty", path.string()));
+        m_width = img.width();
+        m_height = img.height();
+        int ch[3] = {img.channel_index("R"), img.channel_index("G"), img.channel_index("B")};
+        if (ch[0] < 0 || ch[1] < 0 || ch[2] < 0) {
+            // Not an RGB image (e.g. a one-channel EXR): use its first channel as grey.
+            ch[0] = ch[1] = ch[2] = 0;
+        }
+        std::string ext = path.extension().string();
+        std::transform(ext.begin(), ext.end(), ext.begin(), [](unsigned char c) { return char(std::tolower(c)); });
+        const bool encoded = raw && (ext == ".png" || ext == ".jpg" || ext == ".jpeg" || ext == ".bmp" ||
+                                     ext == ".tga" || ext == ".gif" || ext == ".ppm" || ext == ".pgm");
+        m_texels.resize(std::size_t(m_width) * std::size_t(m_height));
+        Color3 sum(0.0);
+        for (int y = 0; y < m_height; ++y)
+            for (int x = 0; x < m_width; ++x) {
+                Color3 c(img.at(x, y, ch[0]), img.at(x, y, ch[1]), img.at(x, y, ch[2]));
+                if (encoded)
+                    for (int k = 0; k < 3; ++k) c[k] = linear_to_srgb(c[k]);
+                for (int k = 0; k < 3; ++k)
+                    if (!std::isfinite(c[k])) c[k] = 0;  // a NaN texel must not poison renders
+                m_texels[std::size_t(y) * m_width + x] = c;
+                sum += c;
+            }
+        m_mean = sum / double(m_texels.size());
+    }
+
+    Color3 eval(const Vec2d& uv_in) const override {
+        Vec2d uv = uv_in;
+        if (!m_identity) {
+            const Vec3d p = m_to_uv.apply_point(Vec3d(uv.x, uv.y, 0));
+            uv = {p.x, p.y};
+        }
+        if (!std::isfinite(uv.x) || !std::isfinite(uv.y)) return Color3(0.0);
+        const double x = uv.x * m_width, y = uv.y * m_height;
+        if (m_nearest) return texel(index(std::floor(x), m_width), index(std::floor(y), m_height));
+        const double fx = x - 0.5, fy = y - 0.5;
+        const double x0 = std::floor(fx), y0 = std::floor(fy), tx = fx - x0, ty = fy - y0;
+        const int ix0 = index(x0, m_width), ix1 = index(x0 + 1, m_width);
+        const int iy0 = index(y0, m_height), iy1 = index(y0 + 1, m_height);
+        return (1 - ty) * ((1 - tx) * texel(ix0, iy0) + tx * texel(ix1, iy0)) +
+               ty * ((1 - tx) * texel(ix0, iy1) + tx * texel(ix1, iy1));
+    }
+    Color3 mean() const override { return m_mean; }
+
+private:
+    Color3 texel(int x, int y) const { return m_texels[std::size_t(y) * m_width + x]; }
+    /// Integer pixel index (given as a double, possibly huge or negative) wrapped into [0, n).
+    int index(double i, int n) const {
+        switch (m_wrap) {
+        case Wrap::Clamp:
+            return int(std::clamp(i, 0.0, double(n - 1)));
+        case Wrap::Repeat: {
+            double r = std::fmod(i, double(n));
+            if (r < 0) r += n;
+            return std::clamp(int(r), 0, n - 1);
+        }
+        case Wrap::Mirror: {
+            // Period 2n: 0 .. n-1 forwards, then n-1 .. 0 backwards.
+            double r = std::fmod(i, 2.0 * n);
+            if (r < 0) r += 2.0 * n;
+            int k = std::clamp(int(r), 0, 2 * n - 1);
+            return k < n ? k : 2 * n - 1 - k;
+        }
+        }
+        return 0;
+    }
+
+    int m_width = 0, m_height = 0;
+    std::vector<Color3> m_texels;  // row-major, first (top) row first
+    Color3 m_mean{0.0};
+    Wrap m_wrap = Wrap::Repeat;
+    bool m_nearest = false, m_identity = true;
+    Transform m_to_uv;
+};
+
+}  // namespace
+}  // namespace kelvin
+
+KELVIN_PLUGIN(kelvin::BitmapTexture, "texture", "bitmap", "Image texture (EXR, PNG, JPEG, HDR, ...).",
+              kelvin::param::required(kelvin::PropType::String, "filename", "image file, relative to the scene"),
+              kelvin::param::string("filter_type", "bilinear", "bilinear or nearest"),
+              kelvin::param::string("wrap_mode", "repeat", "repeat, mirror or clamp"),
+              kelvin::param::boolean("raw", false, "keep stored values of 8/16-bit files (no sRGB linearisation)"),
+              kelvin::param::transform("to_uv", "transform of the uv coordinates"));

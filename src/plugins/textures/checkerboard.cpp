@@ -1,0 +1,63 @@
+// checkerboard: a checker pattern of two colours in uv space, as Mitsuba 3's `checkerboard`: the unit uv square
+// holds 2 x 2 squares; with (fu, fv) the fractional parts of the (transformed) uv,
+//   colour = color0 if (fu < 0.5) == (fv < 0.5), else color1,
+// so [0, 0.5)^2 is color0, the squares beside it color1, and the pattern repeats with period 1. `to_uv`
+// transforms uv first (a <scale value="4"/> gives 4 x 4 periods on the unit square); `scale` multiplies uv too
+// (a shorthand for the same). color0 and color1 may be nested textures, looked up at the original uv.
+// mean() is the average of the two colours' means (exact when the unit square holds whole periods).
+//
+// | parameter | type          | default  | meaning                                 |
+// |-----------|---------------|----------|-----------------------------------------|
+// | color0    | rgb / texture | 0.4      | colour of the squares at the uv origin  |
+// | color1    | rgb / texture | 0.2      | colour of the other squares             |
+// | scale     | float         | 1        | uv multiplier (periods per unit of uv)  |
+// | to_uv     | transform     | identity | transform applied to uv (before scale)  |
+//
+//     <texture type="checkerboard" name="reflectance">
+//         <rgb name="color0" value="0.8"/><rgb name="color1" value="0.1"/>
+//         <transform name="to_uv"><scale value="8"/></transform>
+//     </texture>
+#include <kelvin/core/registry.h>
+#include <kelvin/render/texture.h>
+
+#include <cmath>
+
+namespace kelvin {
+namespace {
+
+class Checkerboard final : public Texture {
+public:
+    explicit Checkerboard(const Properties& props)
+        : m_color0(get_texture(props, "color0")),
+          m_color1(get_texture(props, "color1")),
+          m_scale(props.get_float("scale", 1e-12, 1e12)),
+          m_to_uv(props.get_transform("to_uv")),
+          m_identity(m_to_uv.is_identity()) {}
+
+    Color3 eval(const Vec2d& uv) const override {
+        Vec2d t = uv;
+        if (!m_identity) {
+            const Vec3d p = m_to_uv.apply_point(Vec3d(uv.x, uv.y, 0));
+            t = {p.x, p.y};
+        }
+        t *= m_scale;
+        const double fu = t.x - std::floor(t.x), fv = t.y - std::floor(t.y);
+        return ((fu < 0.5) == (fv < 0.5)) ? m_color0->eval(uv) : m_color1->eval(uv);
+    }
+    Color3 mean() const override { return 0.5 * (m_color0->mean() + m_color1->mean()); }
+
+private:
+    std::shared_ptr<Texture> m_color0, m_color1;
+    double m_scale;
+    Transform m_to_uv;
+    bool m_identity;
+};
+
+}  // namespace
+}  // namespace kelvin
+
+KELVIN_PLUGIN(kelvin::Checkerboard, "texture", "checkerboard", "Two-colour checker pattern in uv space.",
+              kelvin::param::texture("color0", kelvin::Color3(0.4), "colour of the squares at the uv origin"),
+              kelvin::param::texture("color1", kelvin::Color3(0.2), "colour of the other squares"),
+              kelvin::param::real("scale", 1.0, "uv multiplier (periods per unit of uv)"),
+              kelvin::param::transform("to_uv", "transform applied to uv"));
