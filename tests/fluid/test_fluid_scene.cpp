@@ -7,6 +7,8 @@
 #include <kelvin/core/parser.h>
 
 #include <gtest/gtest.h>
+#include <sys/wait.h>
+#include <unistd.h>
 
 #include <atomic>
 #include <cstdlib>

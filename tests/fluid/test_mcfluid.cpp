@@ -334,6 +334,22 @@ TEST(MCFluid, BitIdenticalAcrossThreadCounts) {
     }
 }
 
+// Asking for outputs never changes the simulation: a state's velocity is estimated once, on that state's
+// own streams, whether the next step, the diagnostics or a frame asks first.
+TEST(MCFluid, OutputsDoNotChangeTheSimulation) {
+    MCFluidSolver quiet(tg_settings(16, 32, 0.1, Advection::RK4), tg_omega);
+    MCFluidSolver busy(tg_settings(16, 32, 0.1, Advection::RK4), tg_omega);
+    for (int k = 0; k < 3; ++k) {
+        ASSERT_TRUE(quiet.step());
+        busy.diagnostics();
+        Random rng(9);
+        busy.velocity_estimate({0.1, 0.2}, 100, rng);
+        ASSERT_TRUE(busy.step());
+        busy.velocity_u();
+    }
+    EXPECT_EQ(quiet.vorticity_grid().values(), busy.vorticity_grid().values());
+}
+
 // Semi-Lagrangian advection is unconditionally stable: absurd time steps keep every value finite, never
 // exceed the initial max |omega| (interpolation is a convex combination) and never add energy beyond noise.
 TEST(MCFluid, HugeTimeStepStaysFinite) {
