@@ -1,6 +1,8 @@
 // Parameter handling of the BSDF and texture plugins: Mitsuba-style values are accepted (indices of refraction
 // as numbers or names, conductor presets, anisotropic roughness), and bad values are InputErrors that name the
 // parameter, suggest close names and point at the scene.
+//
+// Seen to fail on a broken variant: alpha read without its range check (RoughnessValidation: no InputError).
 #include "test_bsdf_common.h"
 
 #include <kelvin/core/error.h>
