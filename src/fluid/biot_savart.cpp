@@ -13,7 +13,17 @@ namespace {
 constexpr double InvTwoPi = 0.5 / Pi;
 }
 
-const char* to_string(SourceSampling s) { return s == SourceSampling::Uniform ? "uniform" : "vorticity"; }
+const char* to_string(SourceSampling s) {
+    switch (s) {
+        case SourceSampling::Uniform:
+            return "uniform";
+        case SourceSampling::Vorticity:
+            return "vorticity";
+        case SourceSampling::Kernel:
+            return "kernel";
+    }
+    return "?";
+}
 
 Vec2d biot_savart_kernel(Vec2d r, double delta) {
     double r2 = r.x * r.x + r.y * r.y + delta * delta;
@@ -274,6 +284,17 @@ VelocityEstimate BiotSavartEstimator::estimate(Vec2d x, int n, Random& rng) cons
         k.tv = m_periodic->table_v();
         k.tn = m_periodic->table_size();
     }
+    // Kernel sampling: a disk around x that covers the support (periodic: the minimum-image cell).
+    double radius = 0;
+    if (m_sampling == SourceSampling::Kernel) {
+        if (periodic) {
+            radius = 0.5 * glm::length(dom.size());
+        } else {
+            for (Vec2d corner : {m_region_min, m_region_min + m_region_size, m_region_min + Vec2d(m_region_size.x, 0),
+                                 m_region_min + Vec2d(0, m_region_size.y)})
+                radius = std::max(radius, glm::length(corner - x));
+        }
+    }
     BatchData b;
     Sums sums;
     for (int done = 0; done < n; done += Batch) {
@@ -305,6 +326,19 @@ VelocityEstimate BiotSavartEstimator::estimate(Vec2d x, int n, Random& rng) cons
                 b.fy[s] = float(int((c >> 15) & 0x7fffu)) + 0.5f + oy;
                 b.w[s] = (c & SignBit) ? -1.0f : 1.0f;
             }
+        } else if (m_sampling == SourceSampling::Kernel) {
+            // p(y) = 1 / (2 pi R |x - y|) on the disk of radius R around x: weight omega_h(y) * 2 pi R r.
+            for (int s = 0; s < m; ++s) {
+                const double r = radius * (double(rng.next_u32()) + 0.5) * 0x1p-32;
+                const double a = 2 * Pi * (double(rng.next_u32()) + 0.5) * 0x1p-32;
+                const Vec2d off(r * std::cos(a), r * std::sin(a));  // x - y
+                const Vec2d y = x - off;
+                const bool inside =
+                    !periodic || (std::abs(off.x) <= 0.5 * dom.size().x && std::abs(off.y) <= 0.5 * dom.size().y);
+                b.fx[s] = float(k.qx - off.x / h.x);
+                b.fy[s] = float(k.qy - off.y / h.y);
+                b.w[s] = inside ? float(g.sample(y, m_interp) * 2 * Pi * radius * r) : 0.0f;
+            }
         } else {
             for (int s = 0; s < m; ++s) {
                 const double ux = (double(rng.next_u32()) + 0.5) * 0x1p-32;
@@ -327,7 +361,10 @@ VelocityEstimate BiotSavartEstimator::estimate(Vec2d x, int n, Random& rng) cons
             kernel_open(b, padded, k, sums);
     }
 
-    const double weight = (importance ? m_abs_integral : m_region_size.x * m_region_size.y) * InvTwoPi;
+    const double weight = (importance                             ? m_abs_integral
+                           : m_sampling == SourceSampling::Kernel ? 1.0
+                                                                  : m_region_size.x * m_region_size.y) *
+                          InvTwoPi;
     VelocityEstimate e;
     e.samples = n;
     e.value = {weight * sums.u / n, weight * sums.v / n};

@@ -61,6 +61,8 @@ RecursiveEstimator::RecursiveEstimator(const RecursiveSettings& settings, Initia
     if (m_settings.velocity.samples < 1 || m_settings.diffusion_samples < 1)
         throw_runtime("RecursiveEstimator: sample counts must be >= 1");
     if (d.periodic) m_periodic = std::make_shared<PeriodicKernel>(d.size());
+    if (m_settings.velocity.importance == SourceSampling::Kernel)
+        throw_runtime("RecursiveEstimator: importance = kernel is not supported (use vorticity or uniform)");
     if (m_settings.velocity.importance == SourceSampling::Vorticity) {
         if (!(m_settings.defensive > 0 && m_settings.defensive <= 1))
             throw_runtime("RecursiveEstimator: defensive fraction must be in (0, 1]");

@@ -108,9 +108,9 @@ TEST(FluidScene, ParameterErrorsNameTheParameter) {
     EXPECT_CONTAINS(e.what(), "'min'");
 
     e = load_error(scene(R"(<integer name="steps" value="2"/>)", R"(<vorticity type="taylor_green"/>)",
-                         R"(<velocity type="biot_savart"><string name="importance" value="kernel"/></velocity>)"));
+                         R"(<velocity type="biot_savart"><string name="importance" value="kernal"/></velocity>)"));
     EXPECT_CONTAINS(e.what(), "'importance'");
-    EXPECT_CONTAINS(e.what(), "'vorticity'");
+    EXPECT_CONTAINS(e.what(), "did you mean 'kernel'");
     e = load_error(scene(R"(<integer name="steps" value="2"/>)", R"(<vorticity type="taylor_green"/>)",
                          R"(<velocity type="biot_savart"><float name="delta" value="-0.5"/></velocity>)"));
     EXPECT_CONTAINS(e.what(), "'delta'");

@@ -13,10 +13,12 @@
 // tabulated (PeriodicKernel); each sample costs one free-space kernel on the minimum image plus one table
 // lookup. The velocity has zero mean over the cell.
 //
-// The estimator integrates the cached field omega_h (see grid.h) with n samples drawn either uniformly over
-// the support of omega_h or proportionally to |omega_k| (an alias table over the cells, then a point inside
-// the cell's basis function: a box for nearest, a tent for bilinear). The latter has weights
-// sign(omega_k) * integral |omega_h| / n: every sample is a vortex blob of equal strength.
+// The estimator integrates the cached field omega_h (see grid.h) with n samples drawn uniformly over the
+// support of omega_h, proportionally to |omega_k| (an alias table over the cells, then a point inside the
+// cell's basis function: a box for nearest, a tent for bilinear; weights sign(omega_k) * sum |omega| h^2 / n:
+// every sample is a vortex blob of equal strength), or proportionally to 1/|x - y| on a disk around the
+// query point that covers the support (the minimum-image cell on periodic domains; samples outside it
+// weigh zero).
 #include <kelvin/core/random.h>
 #include <kelvin/fluid/grid.h>
 
@@ -26,7 +28,10 @@
 
 namespace kelvin::fluid {
 
-enum class SourceSampling { Uniform, Vorticity };
+/// Where the Biot–Savart samples come from (thesis Section 5.3.4): uniform over the support of omega_h;
+/// proportional to |omega| (alias table over the cache); or proportional to the kernel's 1/r around the query
+/// point (a disk covering the support, polar coordinates with uniform radius).
+enum class SourceSampling { Uniform, Vorticity, Kernel };
 const char* to_string(SourceSampling s);
 
 struct BiotSavartOptions {

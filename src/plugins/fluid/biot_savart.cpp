@@ -3,8 +3,10 @@
 //
 //     <v(x)> = 1/n_mc sum_i omega(y_i) K_delta(x - y_i) / p(y_i),   K_delta(r) = (-r_y, r_x) / (2 pi (|r|^2 + delta^2))
 //
-// Samples come from the vorticity cache: uniformly over its support, or proportionally to |omega| (an alias
-// table over the cells, then a point in the cell's interpolation basis function; thesis Section 5.3.4). On a
+// Samples come from the vorticity cache: uniformly over its support, proportionally to |omega| (an alias
+// table over the cells, then a point in the cell's interpolation basis function), or proportionally to the
+// kernel's 1/r around the query point (thesis Section 5.3.4: better than uniform, worse than |omega| when the
+// vorticity is concentrated). On a
 // periodic domain the kernel is the exact doubly periodic kernel (see include/kelvin/fluid/biot_savart.h).
 //
 // delta = 0 selects the singular kernel: still unbiased (a sample exactly at the query point contributes its
@@ -14,7 +16,7 @@
 // | parameter  | type    | default   | meaning                                                   |
 // |------------|---------|-----------|-----------------------------------------------------------|
 // | samples    | integer | 256       | n_mc, samples per velocity estimate                        |
-// | importance | string  | vorticity | "vorticity" (|omega|-proportional) or "uniform"            |
+// | importance | string  | vorticity | "vorticity" (|omega|), "kernel" (1/r) or "uniform"          |
 // | delta      | float   | -1        | mollifier radius; -1: half a cache cell; 0: singular       |
 //
 //     <velocity type="biot_savart"><integer name="samples" value="1024"/></velocity>
@@ -31,9 +33,10 @@ class BiotSavart final : public VelocityEstimatorSpec {
 public:
     explicit BiotSavart(const Properties& props) {
         m_options.samples = int(props.get_int("samples", 1, 1 << 24));
-        m_options.importance = props.get_choice("importance", {"vorticity", "uniform"}) == "uniform"
-                                   ? SourceSampling::Uniform
-                                   : SourceSampling::Vorticity;
+        const std::string importance = props.get_choice("importance", {"vorticity", "uniform", "kernel"});
+        m_options.importance = importance == "uniform"  ? SourceSampling::Uniform
+                               : importance == "kernel" ? SourceSampling::Kernel
+                                                        : SourceSampling::Vorticity;
         m_options.delta = props.get_float("delta");
         if (std::isnan(m_options.delta) || std::isinf(m_options.delta))
             props.error("delta", "must be finite (-1: half a cache cell, 0: singular kernel, > 0: radius)");
@@ -56,5 +59,5 @@ private:
 KELVIN_PLUGIN(kelvin::fluid::BiotSavart, "velocity", "biot_savart",
               "Monte Carlo Biot–Savart velocity (Eq. 5.5) with Rosenhead–Moore mollifier; open or periodic domains.",
               kelvin::param::integer("samples", 256, "n_mc, samples per velocity estimate"),
-              kelvin::param::string("importance", "vorticity", "'vorticity' (|omega|-proportional) or 'uniform'"),
+              kelvin::param::string("importance", "vorticity", "'vorticity' (|omega|), 'kernel' (1/r) or 'uniform'"),
               kelvin::param::real("delta", -1.0, "mollifier radius; -1: half a cache cell; 0: singular kernel"));
