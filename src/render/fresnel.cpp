@@ -36,9 +36,11 @@ double fresnel_conductor(double cos_theta_i, double eta, double k) {
     // a = n cos(theta_t) = sqrt(n^2 - sin^2(theta_i)), principal branch (the wave decays into the conductor).
     const double zr = n2r - (1.0 - c * c), zi = n2i;
     const double r = std::hypot(zr, zi);
-    const double ar = std::sqrt(std::max(0.0, 0.5 * (r + zr))), ai = std::copysign(std::sqrt(std::max(0.0, 0.5 * (r - zr))), zi);
+    const double ar = std::sqrt(std::max(0.0, 0.5 * (r + zr))),
+                 ai = std::copysign(std::sqrt(std::max(0.0, 0.5 * (r - zr))), zi);
     // r_s = (c - a) / (c + a),  r_p = (n^2 c - a) / (n^2 c + a)
-    const double ds = (c + ar) * (c + ar) + ai * ai, dp = (n2r * c + ar) * (n2r * c + ar) + (n2i * c + ai) * (n2i * c + ai);
+    const double ds = (c + ar) * (c + ar) + ai * ai,
+                 dp = (n2r * c + ar) * (n2r * c + ar) + (n2i * c + ai) * (n2i * c + ai);
     if (!(ds > 0) || !(dp > 0)) return 1.0;  // grazing incidence on a matched index
     const double rs = ((c - ar) * (c - ar) + ai * ai) / ds;
     const double rp = ((n2r * c - ar) * (n2r * c - ar) + (n2i * c - ai) * (n2i * c - ai)) / dp;
@@ -70,12 +72,14 @@ namespace {
 // Indices of refraction at visible wavelengths, with Mitsuba 3's names (its documented `int_ior` table;
 // values from standard references such as refractiveindex.info).
 const std::pair<const char*, double> kIors[] = {
-    {"vacuum", 1.0},        {"helium", 1.00004},   {"hydrogen", 1.00013},         {"air", 1.00028},
-    {"carbon dioxide", 1.00045}, {"water", 1.3330}, {"acetone", 1.36},             {"ethanol", 1.361},
-    {"carbon tetrachloride", 1.461}, {"glycerol", 1.4729}, {"benzene", 1.501},     {"silicone oil", 1.52045},
-    {"bromine", 1.661},     {"water ice", 1.31},   {"fused quartz", 1.458},       {"pyrex", 1.470},
-    {"acrylic glass", 1.49}, {"polypropylene", 1.49}, {"bk7", 1.5046},            {"sodium chloride", 1.544},
-    {"amber", 1.55},        {"pet", 1.5750},       {"diamond", 2.419},
+    {"vacuum", 1.0},      {"helium", 1.00004},         {"hydrogen", 1.00013},
+    {"air", 1.00028},     {"carbon dioxide", 1.00045}, {"water", 1.3330},
+    {"acetone", 1.36},    {"ethanol", 1.361},          {"carbon tetrachloride", 1.461},
+    {"glycerol", 1.4729}, {"benzene", 1.501},          {"silicone oil", 1.52045},
+    {"bromine", 1.661},   {"water ice", 1.31},         {"fused quartz", 1.458},
+    {"pyrex", 1.470},     {"acrylic glass", 1.49},     {"polypropylene", 1.49},
+    {"bk7", 1.5046},      {"sodium chloride", 1.544},  {"amber", 1.55},
+    {"pet", 1.5750},      {"diamond", 2.419},
 };
 }  // namespace
 
@@ -116,7 +120,8 @@ double ior_from_properties(const Properties& props, std::string_view name) {
                                           s, did_you_mean(s, ior_names())));
         }
     }
-    if (!(v > 0) || !std::isfinite(v)) props.error(name, fmt::format("must be a positive index of refraction, got {}", v));
+    if (!(v > 0) || !std::isfinite(v))
+        props.error(name, fmt::format("must be a positive index of refraction, got {}", v));
     return v;
 }
 
@@ -186,7 +191,8 @@ ConductorIor conductor_ior_from_properties(const Properties& props) {
     }
     auto t = conductor_lookup(material);
     if (!t)
-        props.error("material", fmt::format("unknown conductor '{}'{}", material, did_you_mean(material, conductor_names())));
+        props.error("material",
+                    fmt::format("unknown conductor '{}'{}", material, did_you_mean(material, conductor_names())));
     return *t;
 }
 

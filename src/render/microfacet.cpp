@@ -80,8 +80,7 @@ double erfinv(double y) {
     return y < 0 ? -x : x;
 }
 
-MicrofacetDistribution::MicrofacetDistribution(MicrofacetType type, double alpha_u, double alpha_v,
-                                               bool sample_visible)
+MicrofacetDistribution::MicrofacetDistribution(MicrofacetType type, double alpha_u, double alpha_v, bool sample_visible)
     : m_type(type),
       m_alpha_u(std::max(alpha_u, min_alpha)),
       m_alpha_v(std::max(alpha_v, min_alpha)),
@@ -197,7 +196,7 @@ Vec3d MicrofacetDistribution::sample_visible_beckmann(const Vec3d& wi, const Vec
             hi = x;
         else
             lo = x;
-        const double d1 = (cos_t - x * sin_t) * e;                    // C'(x) >= 0 on the bracket
+        const double d1 = (cos_t - x * sin_t) * e;                       // C'(x) >= 0 on the bracket
         const double d2 = (-sin_t - 2.0 * x * (cos_t - x * sin_t)) * e;  // C''(x)
         const double den = 2.0 * d1 * d1 - f * d2;
         double xn = den > 0 ? x - 2.0 * f * d1 / den : 0.5 * (lo + hi);

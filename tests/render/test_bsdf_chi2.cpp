@@ -1,7 +1,8 @@
 // Chi-square goodness-of-fit of every non-delta BSDF's sample() against its pdf(), over the sphere of
-// directions, for several incident directions (as Mitsuba's test_chi2): 20 x 40 (theta, phi) cells, 2e5 samples per incident direction, expected
-// counts by adaptive Simpson integration of pdf(), cells expecting < 5 pooled, failed/delta samples in a cell
-// of their own, significance 1e-3 overall after a Sidak correction over all the tests of this file.
+// directions, for several incident directions (as Mitsuba's test_chi2): 20 x 40 (theta, phi) cells, 2e5 samples
+// per incident direction, expected counts by adaptive Simpson integration of pdf(), cells expecting < 5 pooled,
+// failed/delta samples in a cell of their own, significance 1e-3 overall after a Sidak correction over all the
+// tests of this file (88).
 //
 // Seen to fail on broken variants (each tried by editing the code, then reverted; p-values of the first failing
 // incident direction):
@@ -60,9 +61,10 @@ std::vector<Config> configs() {
     for (std::string d : {"ggx", "beckmann"}) {
         for (double a : {0.1, 0.4, 1.0})
             c.push_back({"roughconductor_" + d + "_" + std::to_string(a),
-                         [=] { return make_bsdf("roughconductor", with(rough(d, a), [](Properties& p) {
-                                                    p.set_string("material", "Au");
-                                                })); },
+                         [=] {
+                             return make_bsdf("roughconductor",
+                                              with(rough(d, a), [](Properties& p) { p.set_string("material", "Au"); }));
+                         },
                          kFront});
         c.push_back({"roughconductor_" + d + "_aniso", [=] { return make_bsdf("roughconductor", rough(d, 0.1, 0.5)); },
                      kFront});
@@ -72,14 +74,16 @@ std::vector<Config> configs() {
             c.push_back({"roughdielectric_" + d + "_" + std::to_string(a),
                          [=] { return make_bsdf("roughdielectric", rough(d, a)); }, kBoth});
         c.push_back({"roughdielectric_" + d + "_aniso_water",
-                     [=] { return make_bsdf("roughdielectric", with(rough(d, 0.1, 0.4), [](Properties& p) {
-                                                p.set_string("int_ior", "water");
-                                            })); },
+                     [=] {
+                         return make_bsdf("roughdielectric", with(rough(d, 0.1, 0.4), [](Properties& p) {
+                                              p.set_string("int_ior", "water");
+                                          }));
+                     },
                      kBoth});
         c.push_back({"roughdielectric_" + d + "_allnormals",
                      [=] { return make_bsdf("roughdielectric", rough(d, 0.3, -1, false)); }, kBoth});
-        c.push_back({"roughplastic_" + d, [=] { return make_bsdf("roughplastic", rough(d, d == "ggx" ? 0.2 : 0.4)); },
-                     kFront});
+        c.push_back(
+            {"roughplastic_" + d, [=] { return make_bsdf("roughplastic", rough(d, d == "ggx" ? 0.2 : 0.4)); }, kFront});
     }
     c.push_back({"plastic", [] { return make_bsdf("plastic"); }, kFront});
     c.push_back({"twosided_roughconductor",
@@ -158,7 +162,8 @@ private:
 };
 
 TEST(BsdfChi2Control, RejectsPdfOfSlightlyWrongRoughness) {
-    MismatchedPdf broken(make_bsdf("roughconductor", rough("ggx", 0.3)), make_bsdf("roughconductor", rough("ggx", 0.33)));
+    MismatchedPdf broken(make_bsdf("roughconductor", rough("ggx", 0.3)),
+                         make_bsdf("roughconductor", rough("ggx", 0.33)));
     Chi2Test test;
     Chi2Result r = test.run(broken, BsdfContext{}, dir(0.6, 0.4), 1);
     std::printf("[chi2] control alpha 0.3 vs 0.33: p=%.3g stat=%.1f dof=%d\n", r.p_value, r.statistic, r.dof);

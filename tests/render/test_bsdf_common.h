@@ -84,7 +84,7 @@ struct Chi2Result {
     double statistic = 0;
     int dof = 0;
     double other_observed = 0, other_expected = 0;  ///< delta lobes and failed samples
-    double integral = 0;                             ///< integral of pdf() over the sphere
+    double integral = 0;                            ///< integral of pdf() over the sphere
 };
 
 /// Chi-square goodness-of-fit of bsdf.sample() against bsdf.pdf() for incident direction `wi`.
@@ -98,7 +98,7 @@ public:
     int samples = 200000;
     uint64_t seed = 7;
     /// Absolute integration tolerance per quarter cell, in probability (times `samples`: error in counts).
-    double tolerance = 1e-8;
+    double tolerance = 1e-7;
 
     Chi2Result run(const Bsdf& bsdf, const BsdfContext& ctx, const Vec3d& wi, uint64_t stream) const {
         const SurfaceInteraction si = interaction_with(wi);
@@ -167,7 +167,8 @@ public:
             }
             ++cells;
         }
-        if (pool_obs > 0 && pool_exp <= 0) stat = Inf;  // samples where pdf() says there are none
+        if (pool_obs > 0 && pool_exp <= 0)
+            stat = Inf;  // samples where pdf() says there are none
         else if (pool_exp > 0) {
             stat += (pool_obs - pool_exp) * (pool_obs - pool_exp) / std::max(pool_exp, 1e-300);
             ++cells;
@@ -188,7 +189,8 @@ private:
         return std::size_t(t * n_phi + p);
     }
 
-    template <typename F> static double simpson(const F& f, double x0, double x1, double y0, double y1) {
+    template <typename F>
+    static double simpson(const F& f, double x0, double x1, double y0, double y1) {
         const double xm = 0.5 * (x0 + x1), ym = 0.5 * (y0 + y1);
         const double w[3] = {1, 4, 1}, xs[3] = {x0, xm, x1}, ys[3] = {y0, ym, y1};
         double s = 0;

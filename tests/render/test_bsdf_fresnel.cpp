@@ -113,7 +113,8 @@ TEST(Microfacet, ErfInverse) {
         EXPECT_NEAR(erfinv(std::erf(x)), x, tol);
     }
     // In the tails, against erfc directly (where the value is well conditioned).
-    for (double x : {3.0, 4.5, 5.5}) EXPECT_NEAR(erfinv(1 - std::erfc(x)), x, 2.3e-16 / (2 / std::sqrt(Pi) * std::exp(-x * x)));
+    for (double x : {3.0, 4.5, 5.5})
+        EXPECT_NEAR(erfinv(1 - std::erfc(x)), x, 2.3e-16 / (2 / std::sqrt(Pi) * std::exp(-x * x)));
     EXPECT_EQ(erfinv(0.0), 0.0);
     EXPECT_TRUE(std::isfinite(erfinv(1.0)));
     EXPECT_TRUE(std::isfinite(erfinv(-1.0)));
@@ -121,7 +122,8 @@ TEST(Microfacet, ErfInverse) {
 
 // Integrate g(m) over the upper hemisphere: Simpson in theta (substituted theta = pi/2 * s^2 to resolve the
 // pole region where narrow lobes live) and in phi.
-template <typename F> double hemisphere_integral(const F& g, int nt = 1600, int np = 256) {
+template <typename F>
+double hemisphere_integral(const F& g, int nt = 1600, int np = 256) {
     double sum = 0;
     for (int i = 0; i <= nt; ++i) {
         const double s = double(i) / nt, theta = 0.5 * Pi * s * s, jac = Pi * s * std::sin(theta);

@@ -74,7 +74,10 @@ TEST(BsdfParams, RoughnessValidation) {
         EXPECT_CONTAINS(e, "'alpha'");
         EXPECT_CONTAINS(e, "-0.1");
     }
-    std::string e = bsdf_error("roughconductor", [](Properties& p) { p.set_float("alpha_u", -1); p.set_float("alpha_v", 0.1); });
+    std::string e = bsdf_error("roughconductor", [](Properties& p) {
+        p.set_float("alpha_u", -1);
+        p.set_float("alpha_v", 0.1);
+    });
     EXPECT_CONTAINS(e, "'alpha_u'");
     e = bsdf_error("roughconductor", [](Properties& p) {
         p.set_float("alpha", 0.1);

@@ -72,7 +72,8 @@ std::vector<Named> all_bsdfs() {
                      p.set_string("ext_ior", "bk7");
                  })});
     v.push_back({"roughdielectric_ggx", make_bsdf("roughdielectric", rough("ggx", 0.3))});
-    v.push_back({"roughdielectric_beckmann_aniso", make_bsdf("roughdielectric", rough("beckmann", 0.1, 0.5, "int_ior", "water"))});
+    v.push_back({"roughdielectric_beckmann_aniso",
+                 make_bsdf("roughdielectric", rough("beckmann", 0.1, 0.5, "int_ior", "water"))});
     v.push_back({"plastic", make_bsdf("plastic")});
     v.push_back({"plastic_nonlinear", make_bsdf("plastic", [](Properties& p) {
                      p.set_bool("nonlinear", true);
@@ -117,8 +118,8 @@ bool finite_nonneg(const Color3& c) {
 
 const BsdfContext kModes[2] = {BsdfContext{TransportMode::Radiance}, BsdfContext{TransportMode::Importance}};
 
-const std::vector<Vec3d> kIncident = {dir(1.0, 0.0), dir(0.8, 0.5), dir(0.3, 2.0), dir(0.05, 4.0),
-                                      dir(-0.6, 1.0), dir(-0.2, 5.5)};
+const std::vector<Vec3d> kIncident = {dir(1.0, 0.0),  dir(0.8, 0.5),  dir(0.3, 2.0),
+                                      dir(0.05, 4.0), dir(-0.6, 1.0), dir(-0.2, 5.5)};
 
 bool near_rel(double a, double b, double rel, double abs_tol = 1e-12) {
     return std::abs(a - b) <= rel * std::max(std::abs(a), std::abs(b)) + abs_tol;
@@ -172,8 +173,7 @@ TEST(BsdfProps, SampleWeightIsEvalOverPdf) {
                     ++checked;
                 }
                 if (flags & BsdfFlags::Smooth) {
-                    const bool lit = wi.z > 0 || (flags & BsdfFlags::Transmission) ||
-                                     name.rfind("twosided", 0) == 0;
+                    const bool lit = wi.z > 0 || (flags & BsdfFlags::Transmission) || name.rfind("twosided", 0) == 0;
                     if (lit) EXPECT_GT(checked, 100) << name << " wi.z=" << wi.z;
                 }
             }
@@ -259,10 +259,11 @@ TEST(BsdfProps, EnergyOfLosslessBsdfs) {
         {"dielectric", make_bsdf("dielectric")},
         {"dielectric_water", make_bsdf("dielectric", set_str("int_ior", "water"))},
         {"plastic_white", make_bsdf("plastic", [](Properties& p) { p.set_color("diffuse_reflectance", Color3(1.0)); })},
-        {"roughplastic_white", make_bsdf("roughplastic", [](Properties& p) {
-             rough("ggx", 0.4)(p);
-             p.set_color("diffuse_reflectance", Color3(1.0));
-         })},
+        {"roughplastic_white", make_bsdf("roughplastic",
+                                         [](Properties& p) {
+                                             rough("ggx", 0.4)(p);
+                                             p.set_color("diffuse_reflectance", Color3(1.0));
+                                         })},
         {"twosided_diffuse_white",
          two_sided(make_bsdf("diffuse", [](Properties& p) { p.set_color("reflectance", Color3(1.0)); }))},
         // Nearly smooth microfacet models lose almost nothing (single scattering): within 1%, not exactly.
@@ -293,7 +294,8 @@ TEST(BsdfProps, RoughConductorAnalyticAlbedo) {
     auto bsdf = make_bsdf("roughconductor", rough("ggx", 1.0));
     const Albedo a = albedo(*bsdf, kModes[0], Vec3d(0, 0, 1), 200000, 999);
     EXPECT_NEAR(a.mean.g, 1 - std::log(2.0), 5 * a.sigma.g);
-    std::printf("[albedo] ggx alpha 1 normal incidence: %.5f +- %.5f (exact %.5f)\n", a.mean.g, a.sigma.g, 1 - std::log(2.0));
+    std::printf("[albedo] ggx alpha 1 normal incidence: %.5f +- %.5f (exact %.5f)\n", a.mean.g, a.sigma.g,
+                1 - std::log(2.0));
 }
 
 // The smooth dielectric in Radiance mode: reflect with F, transmit with (1 - F) (eta_i / eta_t)^2.
@@ -347,11 +349,10 @@ TEST(BsdfProps, ConductorReflectance) {
 TEST(BsdfProps, NoNanOrInf) {
     std::vector<Vec3d> dirs;
     for (double c : {1.0, 1 - 1e-12, 0.7, 1e-4, 1e-8, 1e-300, 0.0, -0.0, -1e-300, -1e-8, -1e-4, -0.7, -1 + 1e-12, -1.0})
-        for (double phi : {0.0, 0.77, Pi / 2, 3.0})
-            dirs.push_back(dir(c, phi));
+        for (double phi : {0.0, 0.77, Pi / 2, 3.0}) dirs.push_back(dir(c, phi));
     const double u1s[] = {0.0, 1e-12, 0.5, 1 - 1e-16};
-    const Vec2d u2s[] = {Vec2d(0.0), Vec2d(1 - 1e-16), Vec2d(0.5, 0.0), Vec2d(0.0, 0.5), Vec2d(0.3, 0.9),
-                         Vec2d(1e-12, 1 - 1e-12), Vec2d(1 - 1e-16, 0.25)};
+    const Vec2d u2s[] = {Vec2d(0.0),      Vec2d(1 - 1e-16),        Vec2d(0.5, 0.0),       Vec2d(0.0, 0.5),
+                         Vec2d(0.3, 0.9), Vec2d(1e-12, 1 - 1e-12), Vec2d(1 - 1e-16, 0.25)};
     long evaluations = 0;
     for (const auto& [name, bsdf] : extreme_bsdfs()) {
         ASSERT_TRUE(bsdf) << name;
@@ -367,7 +368,8 @@ TEST(BsdfProps, NoNanOrInf) {
                     const Color3 f = bsdf->eval(ctx, si, wo);
                     const double p = bsdf->pdf(ctx, si, wo);
                     ASSERT_TRUE(finite_nonneg(f)) << name << " eval wi=" << wi.z << " wo=" << wo.z << ": " << f.r;
-                    ASSERT_TRUE(std::isfinite(p) && p >= 0) << name << " pdf wi=" << wi.z << " wo=" << wo.z << ": " << p;
+                    ASSERT_TRUE(std::isfinite(p) && p >= 0)
+                        << name << " pdf wi=" << wi.z << " wo=" << wo.z << ": " << p;
                     ++evaluations;
                 }
                 for (double u1 : u1s)
@@ -375,8 +377,8 @@ TEST(BsdfProps, NoNanOrInf) {
                         auto bs = bsdf->sample(ctx, si, u1, u2);
                         if (!bs) continue;
                         ASSERT_TRUE(finite_nonneg(bs->weight))
-                            << name << " sample wi=(" << wi.x << "," << wi.y << "," << wi.z << ") u1=" << u1
-                            << " u2=(" << u2.x << "," << u2.y << "): weight " << bs->weight.r;
+                            << name << " sample wi=(" << wi.x << "," << wi.y << "," << wi.z << ") u1=" << u1 << " u2=("
+                            << u2.x << "," << u2.y << "): weight " << bs->weight.r;
                         ASSERT_TRUE(std::isfinite(bs->pdf) && bs->pdf > 0) << name << ": pdf " << bs->pdf;
                         ASSERT_TRUE(std::isfinite(bs->eta) && bs->eta > 0) << name;
                         ASSERT_NEAR(glm::length(bs->wo), 1.0, 1e-6) << name;

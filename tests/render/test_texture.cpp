@@ -10,8 +10,8 @@
 
 #include <gtest/gtest.h>
 
-#include <filesystem>
 #include <unistd.h>
+#include <filesystem>
 
 using namespace kelvin;
 using namespace kelvin::testing;
@@ -50,7 +50,8 @@ TEST(Texture, CheckerboardPattern) {
     expect_color(s->eval({0.3, 0.1}), Color3(0, 0, 1));  // 0.6 after scaling
     expect_color(s->eval({0.6, 0.1}), Color3(1, 0, 0));  // 1.2
 
-    auto tr = make_texture("checkerboard", [](Properties& p) { p.set_transform("to_uv", Transform::scale(Vec3d(4, 4, 1))); });
+    auto tr =
+        make_texture("checkerboard", [](Properties& p) { p.set_transform("to_uv", Transform::scale(Vec3d(4, 4, 1))); });
     expect_color(tr->eval({0.1, 0.01}), c0);   // (0.4, 0.04) after to_uv
     expect_color(tr->eval({0.15, 0.01}), c1);  // (0.6, 0.04)
 }
@@ -76,7 +77,7 @@ protected:
     }
     static Color3 texel(int x, int y) { return Color3(x, y, 10 + x + 4 * y) / 16.0; }
     std::shared_ptr<Texture> bitmap(const fs::path& p, const std::string& filter, const std::string& wrap,
-                                     bool raw = false) {
+                                    bool raw = false) {
         return make_texture("bitmap", [&](Properties& props) {
             props.set_string("filename", p.string());
             props.set_string("filter_type", filter);
@@ -114,7 +115,8 @@ TEST_F(BitmapTest, NearestAndBilinearTexels) {
 
 TEST_F(BitmapTest, WrapModes) {
     const fs::path p = write_grid("grid.exr");
-    auto rep = bitmap(p, "nearest", "repeat"), mir = bitmap(p, "nearest", "mirror"), cla = bitmap(p, "nearest", "clamp");
+    auto rep = bitmap(p, "nearest", "repeat"), mir = bitmap(p, "nearest", "mirror"),
+         cla = bitmap(p, "nearest", "clamp");
     // One pixel right of the image (u = 1.125): repeat -> first column, mirror -> last, clamp -> last.
     expect_color(rep->eval({1.125, 0.25}), texel(0, 0));
     expect_color(mir->eval({1.125, 0.25}), texel(3, 0));
@@ -125,12 +127,13 @@ TEST_F(BitmapTest, WrapModes) {
     expect_color(cla->eval({-0.375, 0.25}), texel(0, 0));
     // Far away and in v.
     expect_color(rep->eval({7.125, 0.25 + 3}), texel(0, 0));
-    expect_color(mir->eval({0.125, 1.25}), texel(0, 1));   // mirrored rows: v in [1, 2) reads row 1 then 0
+    expect_color(mir->eval({0.125, 1.25}), texel(0, 1));  // mirrored rows: v in [1, 2) reads row 1 then 0
     expect_color(mir->eval({0.125, 1.75}), texel(0, 0));
     expect_color(cla->eval({0.125, -5.0}), texel(0, 0));
     expect_color(cla->eval({1e9, 1e9}), texel(3, 1));
     // Bilinear at the left edge (u = 0): repeat blends with the last column, clamp and mirror do not.
-    auto brep = bitmap(p, "bilinear", "repeat"), bcla = bitmap(p, "bilinear", "clamp"), bmir = bitmap(p, "bilinear", "mirror");
+    auto brep = bitmap(p, "bilinear", "repeat"), bcla = bitmap(p, "bilinear", "clamp"),
+         bmir = bitmap(p, "bilinear", "mirror");
     expect_color(brep->eval({0.0, 0.25}), 0.5 * (texel(3, 0) + texel(0, 0)));
     expect_color(bcla->eval({0.0, 0.25}), texel(0, 0));
     expect_color(bmir->eval({0.0, 0.25}), texel(0, 0));

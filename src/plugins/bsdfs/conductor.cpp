@@ -3,12 +3,13 @@
 //   f(wi, wo) = specular_reflectance * F_conductor(cos theta_i) * delta(wo - reflect(wi)) / |cos theta_o|.
 // One-sided: nothing is reflected from below the shading horizon (wrap in `twosided` for both sides).
 //
-// | parameter            | type          | default | meaning                                                |
-// |----------------------|---------------|---------|--------------------------------------------------------|
-// | material             | string        | none    | named conductor (Au, Ag, Cu, Al, Cr, ...; docs/bsdfs.md); "none" is a perfect mirror |
-// | eta                  | rgb           | 0       | real part of the index (instead of `material`)         |
-// | k                    | rgb           | 1       | imaginary part (absorption coefficient)               |
-// | specular_reflectance | rgb / texture | 1       | multiplies the reflectance (not physical; artistic)   |
+// | parameter            | type          | default | meaning                                                    |
+// |----------------------|---------------|---------|------------------------------------------------------------|
+// | material             | string        | none    | named conductor (Au, Ag, Cu, Al, ...; see docs/bsdfs.md);  |
+// |                      |               |         | "none" is a perfect mirror                                 |
+// | eta                  | rgb           | 0       | real part of the index (instead of `material`)             |
+// | k                    | rgb           | 1       | imaginary part (absorption coefficient)                    |
+// | specular_reflectance | rgb / texture | 1       | multiplies the reflectance (not physical; artistic)        |
 //
 //     <bsdf type="conductor"><string name="material" value="Au"/></bsdf>
 #include <kelvin/core/registry.h>
@@ -49,7 +50,8 @@ private:
 }  // namespace kelvin
 
 KELVIN_PLUGIN(kelvin::Conductor, "bsdf", "conductor", "Smooth conductor (Fresnel mirror).",
-              kelvin::param::string("material", "none", "named conductor (Au, Ag, Cu, Al, ...) or none (perfect mirror)"),
+              kelvin::param::string("material", "none",
+                                    "named conductor (Au, Ag, Cu, Al, ...) or none (perfect mirror)"),
               kelvin::param::color("eta", kelvin::Color3(0.0), "real part of the complex index (instead of material)"),
               kelvin::param::color("k", kelvin::Color3(1.0), "imaginary part of the complex index"),
               kelvin::param::texture("specular_reflectance", kelvin::Color3(1.0), "multiplies the reflectance"));

@@ -11,7 +11,7 @@
 //
 // | parameter              | type            | default | meaning                                            |
 // |------------------------|-----------------|---------|----------------------------------------------------|
-// | int_ior                | float or string | bk7     | interior index (a number or a name: bk7, water, diamond, ... see docs/bsdfs.md) |
+// | int_ior                | float or string | bk7     | interior index: a number or a name (bk7, water, ...) |
 // | ext_ior                | float or string | air     | exterior index                                     |
 // | specular_reflectance   | rgb / texture   | 1       | tints the reflected lobe (not physical)           |
 // | specular_transmittance | rgb / texture   | 1       | tints the refracted lobe (not physical)           |

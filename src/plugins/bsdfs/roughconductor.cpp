@@ -10,8 +10,8 @@
 // | parameter            | type          | default  | meaning                                               |
 // |----------------------|---------------|----------|-------------------------------------------------------|
 // | distribution         | string        | beckmann | beckmann or ggx                                       |
-// | alpha                | float         | 0.1      | roughness (rms slope / sqrt 2 for Beckmann); values below 1e-4 are raised to 1e-4 |
-// | alpha_u, alpha_v     | float         | 0.1      | anisotropic roughness along the tangent and bitangent (instead of alpha) |
+// | alpha                | float         | 0.1      | roughness in [0, 100] (below 1e-4: raised to 1e-4)    |
+// | alpha_u, alpha_v     | float         | 0.1      | anisotropic roughness along tangent and bitangent     |
 // | sample_visible       | bool          | true     | sample visible normals (else D(m) cos theta_m)        |
 // | material             | string        | none     | named conductor, as for `conductor`                   |
 // | eta, k               | rgb           | 0, 1     | explicit complex index (instead of material)          |

@@ -160,7 +160,8 @@ private:
 }  // namespace
 }  // namespace kelvin
 
-KELVIN_PLUGIN(kelvin::RoughDielectric, "bsdf", "roughdielectric", "Rough dielectric boundary (microfacet transmission).",
+KELVIN_PLUGIN(kelvin::RoughDielectric, "bsdf", "roughdielectric",
+              "Rough dielectric boundary (microfacet transmission).",
               kelvin::param::string("distribution", "beckmann", "microfacet distribution: beckmann or ggx"),
               kelvin::param::real("alpha", 0.1, "isotropic roughness"),
               kelvin::param::real("alpha_u", 0.1, "roughness along the tangent (anisotropic; with alpha_v)"),

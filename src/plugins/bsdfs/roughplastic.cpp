@@ -136,7 +136,8 @@ public:
         Color3 result(0.0);
         const Vec3d h = glm::normalize(wi + wo);
         const double s = m_distr.D(h) * m_distr.G(wi, wo, h) / (4.0 * wi.z);
-        if (s > 0 && std::isfinite(s)) result += m_specular->eval(si.uv) * (fresnel_dielectric(glm::dot(wi, h), m_eta).F * s);
+        if (s > 0 && std::isfinite(s))
+            result += m_specular->eval(si.uv) * (fresnel_dielectric(glm::dot(wi, h), m_eta).F * s);
         Color3 rho = glm::max(m_diffuse->eval(si.uv), Color3(0.0));
         if (m_nonlinear)
             rho = rho * (1 - m_fdr_int) / glm::max(Color3(1.0) - glm::min(rho, Color3(1.0)) * m_fdr_int, Color3(1e-6));

@@ -30,7 +30,8 @@ public:
             if (!b) props.error("bsdf", "the nested object is not a BSDF");
             if (b->flags() & BsdfFlags::Transmission)
                 props.error("bsdf", fmt::format("the nested <bsdf type=\"{}\"> transmits light; twosided only wraps "
-                                                "reflection models", b->plugin_name()));
+                                                "reflection models",
+                                                b->plugin_name()));
             m_side[i] = b;
         }
         if (!m_side[1]) m_side[1] = m_side[0];

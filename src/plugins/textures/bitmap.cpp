@@ -104,20 +104,20 @@ private:
     /// Integer pixel index (given as a double, possibly huge or negative) wrapped into [0, n).
     int index(double i, int n) const {
         switch (m_wrap) {
-        case Wrap::Clamp:
-            return int(std::clamp(i, 0.0, double(n - 1)));
-        case Wrap::Repeat: {
-            double r = std::fmod(i, double(n));
-            if (r < 0) r += n;
-            return std::clamp(int(r), 0, n - 1);
-        }
-        case Wrap::Mirror: {
-            // Period 2n: 0 .. n-1 forwards, then n-1 .. 0 backwards.
-            double r = std::fmod(i, 2.0 * n);
-            if (r < 0) r += 2.0 * n;
-            int k = std::clamp(int(r), 0, 2 * n - 1);
-            return k < n ? k : 2 * n - 1 - k;
-        }
+            case Wrap::Clamp:
+                return int(std::clamp(i, 0.0, double(n - 1)));
+            case Wrap::Repeat: {
+                double r = std::fmod(i, double(n));
+                if (r < 0) r += n;
+                return std::clamp(int(r), 0, n - 1);
+            }
+            case Wrap::Mirror: {
+                // Period 2n: 0 .. n-1 forwards, then n-1 .. 0 backwards.
+                double r = std::fmod(i, 2.0 * n);
+                if (r < 0) r += 2.0 * n;
+                int k = std::clamp(int(r), 0, 2 * n - 1);
+                return k < n ? k : 2 * n - 1 - k;
+            }
         }
         return 0;
     }
