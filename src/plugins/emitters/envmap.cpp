@@ -1,0 +1,210 @@
+// envmap: radiance arriving from infinitely far away, read from a latitude-longitude (equirectangular) image
+// (Mitsuba's `envmap`, with its parameters and axes). In the emitter's frame +y is up: image row 0 is the
+// zenith, the last row the nadir. The direction
+//     d(phi, theta) = (sin phi sin theta, cos theta, -cos phi sin theta),  u = phi / (2 pi),  v = theta / pi,
+// is seen at image position (u W, v H): the left edge looks along -z, a quarter across along +x, the centre
+// along +z. Texel
+// (i, j) covers [i/W, (i+1)/W) x [j/H, (j+1)/H) and its radiance is constant over it (nearest lookup, as in
+// pbrt-v4's ImageInfiniteLight). to_world rotates the map.
+//
+// Importance sampling (Pharr, Jakob and Humphreys 2023, Sec. 12.5.2; Mitsuba 3): a texel is chosen with
+// probability proportional to its luminance times its solid angle, Omega_ij = 2 pi / W (cos theta_j -
+// cos theta_{j+1}) (the exact integral of sin theta over the texel), through a 2D piecewise-constant
+// distribution (marginal over rows, conditional per row); the direction is then uniform in the texel's solid
+// angle (phi uniform, cos theta uniform). So the solid-angle density is
+//     pdf(w) = luminance(texel(w)) / sum_k luminance_k Omega_k,
+// exactly proportional to the luminance the map shows in w: next-event estimation of a bare environment has
+// no variance from the map in luminance. (Sampling the cell uniformly in theta instead, with density
+// luminance sin theta_centre, would leave a sin theta / sin theta_centre factor.)
+//
+// Light tracing starts rays on a disk of the scene's bounding radius, perpendicular to the sampled direction
+// and tangent to the bounding sphere (as `constant` does): pdf_pos = 1 / (pi R^2).
+//
+// | parameter | type      | default  | meaning                                                        |
+// |-----------|-----------|----------|----------------------------------------------------------------|
+// | filename  | string    | required | latitude-longitude image (.exr, .hdr, .pfm, ...) of radiance   |
+// | scale     | float     | 1        | multiplies the radiance                                        |
+// | to_world  | transform | identity | orientation of the map (a rotation)                            |
+//
+//     <emitter type="envmap">
+//         <string name="filename" value="textures/sky.hdr"/>
+//         <transform name="to_world"><rotate y="1" angle="90"/></transform>
+//     </emitter>
+#include <kelvin/core/image.h>
+#include <kelvin/core/registry.h>
+#include <kelvin/render/distribution.h>
+#include <kelvin/render/emitter.h>
+#include <kelvin/render/frame.h>
+#include <kelvin/render/warp.h>
+
+#include <algorithm>
+#include <cmath>
+#include <vector>
+
+namespace kelvin {
+namespace {
+
+class EnvironmentMap final : public Emitter {
+public:
+    explicit EnvironmentMap(const Properties& props) {
+        const std::filesystem::path path = props.get_path("filename");
+        Bitmap img;
+        try {
+            img = read_image(path);
+        } catch (const InputError& e) {
+            props.error("filename", e.bare_message());
+        }
+        m_scale = props.get_float("scale", 0.0, Inf);
+        const Transform to_world = props.get_transform("to_world");
+        const Mat3d m(to_world.matrix);
+        const Mat3d mtm = glm::transpose(m) * m;
+        for (int i = 0; i < 3; ++i)
+            for (int j = 0; j < 3; ++j)
+                if (std::abs(mtm[i][j] - (i == j ? 1.0 : 0.0)) > 1e-6)
+                    props.error("to_world", "must be a rotation (no scaling)");
+        m_to_local = Mat3d(to_world.inverse);
+        m_to_world = m;
+
+        m_width = img.width();
+        m_height = img.height();
+        if (m_width < 1 || m_height < 1) props.error("filename", fmt::format("'{}' is an empty image", path.string()));
+        int cr = img.channel_index("R"), cg = img.channel_index("G"), cb = img.channel_index("B");
+        if (cr < 0 || cg < 0 || cb < 0) {  // a grey image: its first channel for all three
+            const int y = img.channel_index("Y");
+            cr = cg = cb = y >= 0 ? y : 0;
+        }
+        m_texels.resize(std::size_t(m_width) * std::size_t(m_height));
+        std::vector<double> weights(m_texels.size());
+        // Solid angle of the texels of row j: 2 pi / W * (cos theta_j - cos theta_{j+1}).
+        m_cos_row.resize(std::size_t(m_height) + 1);
+        for (int j = 0; j <= m_height; ++j) m_cos_row[std::size_t(j)] = std::cos(Pi * j / m_height);
+        m_cos_row[0] = 1;
+        m_cos_row[std::size_t(m_height)] = -1;
+        m_power = Color3(0.0);
+        for (int j = 0; j < m_height; ++j) {
+            const double omega = 2 * Pi / m_width * (m_cos_row[std::size_t(j)] - m_cos_row[std::size_t(j) + 1]);
+            for (int i = 0; i < m_width; ++i) {
+                const Color3 c(img.at(i, j, cr), img.at(i, j, cg), img.at(i, j, cb));
+                if (!std::isfinite(c.r) || !std::isfinite(c.g) || !std::isfinite(c.b) || c.r < 0 || c.g < 0 || c.b < 0)
+                    props.error("filename", fmt::format("'{}': texel ({}, {}) is negative or not finite ({}, {}, {})",
+                                                        path.string(), i, j, c.r, c.g, c.b));
+                const std::size_t k = std::size_t(j) * std::size_t(m_width) + std::size_t(i);
+                m_texels[k] = c * m_scale;
+                weights[k] = luminance(m_texels[k]) * omega;
+                m_power += m_texels[k] * omega;  // integral of L over the sphere
+            }
+        }
+        m_dist = Distribution2D(weights, m_width, m_height);
+    }
+
+    uint32_t flags() const override { return EmitterFlags::Infinite; }
+    void set_scene_bounds(const Vec3d& center, double radius) override {
+        m_center = center;
+        m_radius = radius;
+    }
+
+    std::optional<DirectSample> sample_direct(const Vec3d& ref, const Vec2d& u) const override {
+        double pdf = 0;
+        const Vec3d d = sample_direction(u, pdf);
+        if (!(pdf > 0)) return std::nullopt;
+        DirectSample ds;
+        ds.d = d;
+        ds.dist = Inf;
+        ds.p = ref + d * (4 * m_radius + glm::length(ref - m_center));
+        ds.pdf = pdf;
+        ds.weight = lookup(m_to_local * d) / pdf;
+        return ds;
+    }
+    double pdf_direct(const Vec3d&, const Vec3d&, const Vec3d&, const Vec3d& d) const override {
+        return pdf_local(m_to_local * d);
+    }
+    Color3 eval(const Vec3d&, const Vec3d&, const Vec3d& w) const override { return lookup(m_to_local * -w); }
+
+    std::optional<EmissionSample> sample_emission(const Vec2d& u_pos, const Vec2d& u_dir) const override {
+        double pdf = 0;
+        const Vec3d towards_env = sample_direction(u_dir, pdf);
+        if (!(pdf > 0)) return std::nullopt;
+        const Vec3d d = -towards_env;  // the ray travels away from the part of the sky it carries light from
+        const Vec2d disk = warp::square_to_uniform_disk_concentric(u_pos) * m_radius;
+        const Frame f(d);
+        EmissionSample es;
+        es.ray = Ray{m_center - d * m_radius + f.s * disk.x + f.t * disk.y, d, 0.0, Inf};
+        es.n = d;
+        es.pdf_pos = 1.0 / (Pi * m_radius * m_radius);
+        es.pdf_dir = pdf;
+        es.weight = lookup(m_to_local * towards_env) / (es.pdf_pos * es.pdf_dir);
+        return es;
+    }
+    /// `d` is the direction the emitted ray travels in; the light comes from -d.
+    std::pair<double, double> pdf_emission(const Vec3d&, const Vec3d&, const Vec3d& d) const override {
+        return {1.0 / (Pi * m_radius * m_radius), pdf_local(m_to_local * -d)};
+    }
+    Color3 power() const override { return m_power * (Pi * m_radius * m_radius); }
+
+private:
+    /// Image coordinates in [0, 1)^2 of a unit direction in the map's frame.
+    Vec2d to_uv(const Vec3d& v) const {
+        double u = std::atan2(v.x, -v.z) * (0.5 * InvPi);
+        if (u < 0) u += 1;
+        const double vv = std::acos(std::clamp(v.y, -1.0, 1.0)) * InvPi;
+        return {std::min(u, 0x1.fffffffffffffp-1), std::min(vv, 0x1.fffffffffffffp-1)};
+    }
+    std::pair<int, int> texel_of(const Vec3d& v) const {
+        const Vec2d uv = to_uv(v);
+        int i = std::min(m_width - 1, int(uv.x * m_width));
+        // The row from cos theta against the row boundaries, so that a direction and the texel whose solid
+        // angle it was sampled in always agree (no rounding of acos at the boundaries).
+        int j = std::min(m_height - 1, int(uv.y * m_height));
+        const double z = std::clamp(v.y, -1.0, 1.0);
+        while (j > 0 && z > m_cos_row[std::size_t(j)]) --j;
+        while (j < m_height - 1 && z <= m_cos_row[std::size_t(j) + 1]) ++j;
+        return {i, j};
+    }
+    Color3 lookup(const Vec3d& v) const {
+        auto [i, j] = texel_of(glm::normalize(v));
+        return m_texels[std::size_t(j) * std::size_t(m_width) + std::size_t(i)];
+    }
+    double pdf_local(const Vec3d& v) const {
+        if (m_dist.empty()) return 0.0;
+        auto [i, j] = texel_of(glm::normalize(v));
+        const double omega = 2 * Pi / m_width * (m_cos_row[std::size_t(j)] - m_cos_row[std::size_t(j) + 1]);
+        return m_dist.pmf(i, j) / omega;
+    }
+    /// A world direction towards the environment, and its solid-angle density.
+    Vec3d sample_direction(const Vec2d& u, double& pdf) const {
+        if (m_dist.empty()) {
+            pdf = 0;
+            return Vec3d(0, 0, 1);
+        }
+        const Distribution2D::Sample s = m_dist.sample(u);
+        // Within the texel: phi uniform, cos theta uniform (the remapped fractions of the 2D sample).
+        const double fu = s.p.x, fv = s.p.y * m_height - s.y;
+        const double z0 = m_cos_row[std::size_t(s.y)], z1 = m_cos_row[std::size_t(s.y) + 1];
+        const double cos_theta = std::clamp(z0 + (z1 - z0) * fv, -1.0, 1.0);
+        const double sin_theta = std::sqrt(std::max(0.0, 1 - cos_theta * cos_theta));
+        const double phi = 2 * Pi * fu;
+        const Vec3d local(std::sin(phi) * sin_theta, cos_theta, -std::cos(phi) * sin_theta);
+        const double omega = 2 * Pi / m_width * (z0 - z1);
+        pdf = m_dist.pmf(s.x, s.y) / omega;
+        return glm::normalize(m_to_world * local);
+    }
+
+    int m_width = 0, m_height = 0;
+    double m_scale = 1;
+    std::vector<Color3> m_texels;
+    std::vector<double> m_cos_row;
+    Distribution2D m_dist;
+    Mat3d m_to_local{1.0}, m_to_world{1.0};
+    Color3 m_power{0.0};
+    Vec3d m_center{0.0};
+    double m_radius = 1;
+};
+
+}  // namespace
+}  // namespace kelvin
+
+KELVIN_PLUGIN(kelvin::EnvironmentMap, "emitter", "envmap",
+              "Environment map: radiance from a latitude-longitude image, importance-sampled by luminance.",
+              kelvin::param::required(kelvin::PropType::String, "filename", "latitude-longitude radiance image"),
+              kelvin::param::real("scale", 1.0, "multiplies the radiance"),
+              kelvin::param::transform("to_world", "orientation of the map (a rotation)"));
