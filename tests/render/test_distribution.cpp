@@ -3,10 +3,10 @@
 //
 // Seen to fail on deliberately broken variants of src/render/distribution.cpp:
 //   - lower_bound instead of upper_bound in sample_discrete: u = 0 and every u landing exactly on a CDF value
-//     pick the zero-weight cell before it (ZeroWeightCellsAreNeverSampled fails);
-//   - the 2D pdf without the factor height (density w.r.t. the row only): Pdf2DIntegratesToOne and
-//     Sample2DMatchesPdf fail;
-//   - the remapped u not rescaled by the cell width: the 2D histogram within rows is wrong (chi2 p ~ 0).
+//     pick the zero-weight cell before it (ProbabilitiesAndDensity, ZeroWeightCellsAreNeverSampled fail);
+//   - the 2D pdf without the factor height (density w.r.t. the row only): PmfAndPdfIntegrateToOne and
+//     SamplesMatchPdf fail;
+//   - the remapped u not rescaled by the cell width: ProbabilitiesAndDensity and SamplesMatchPdf fail.
 #include <kelvin/core/random.h>
 #include <kelvin/render/distribution.h>
 
