@@ -32,6 +32,8 @@ struct Config {
     std::function<std::shared_ptr<Bsdf>()> make;
     std::vector<Vec3d> wi;
 };
+// gtest (and so ctest's test names) print parameters with this.
+void PrintTo(const Config& c, std::ostream* os) { *os << c.name; }
 
 const std::vector<Vec3d> kFront = {dir(0.9, 0.3), dir(0.5, 1.9), dir(0.15, 4.0)};
 const std::vector<Vec3d> kBoth = {dir(0.9, 0.3), dir(0.5, 1.9), dir(0.15, 4.0), dir(-0.8, 0.5), dir(-0.3, 2.5)};
