@@ -68,11 +68,17 @@ double chi2_sf(double x, double k) {
     return std::exp(log_prefix) * h;
 }
 
-// A scratch directory for this process's images.
+// A scratch directory for this process's images, removed when the process ends.
+fs::path scratch_dir() { return fs::temp_directory_path() / fmt::format("kelvin-envmap-test-{}", ::getpid()); }
+struct ScratchCleanup {
+    ~ScratchCleanup() {
+        std::error_code ec;
+        fs::remove_all(scratch_dir(), ec);
+    }
+} const scratch_cleanup;
 fs::path scratch(const std::string& name) {
-    fs::path dir = fs::temp_directory_path() / fmt::format("kelvin-envmap-test-{}", ::getpid());
-    fs::create_directories(dir);
-    return dir / name;
+    fs::create_directories(scratch_dir());
+    return scratch_dir() / name;
 }
 
 // Writes a W x H map whose texel (i, j) has colour f(i, j); returns its path.
