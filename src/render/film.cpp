@@ -26,14 +26,16 @@ SplatBuffer::SplatBuffer(int width, int height, std::size_t units, const Reconst
       m_acc(std::size_t(width) * std::size_t(height) * 3, 0.0) {}
 
 void SplatBuffer::splat(std::size_t unit, const Vec2d& film, const Color3& v) {
-    if (!(film.x >= 0 && film.y >= 0 && film.x < m_width && film.y < m_height)) return;
     auto& list = m_lists[unit];
     if (!m_filter) {
+        if (!(film.x >= 0 && film.y >= 0 && film.x < m_width && film.y < m_height)) return;
         list.push_back({uint32_t(int(film.y) * m_width + int(film.x)), v.r, v.g, v.b});
         return;
     }
-    // Pixel centres (x + 0.5, y + 0.5) within the filter radius of the splat position.
+    // Pixel centres (x + 0.5, y + 0.5) within the filter radius of the splat position. A position up to a
+    // radius outside the image still reaches the border pixels (the camera side's filter samples do too).
     const double r = m_filter->radius();
+    if (!(film.x >= -r && film.y >= -r && film.x < m_width + r && film.y < m_height + r)) return;
     const int x0 = std::max(0, int(std::ceil(film.x - 0.5 - r))), x1 = std::min(m_width - 1, int(std::floor(film.x - 0.5 + r)));
     const int y0 = std::max(0, int(std::ceil(film.y - 0.5 - r))), y1 = std::min(m_height - 1, int(std::floor(film.y - 0.5 + r)));
     for (int y = y0; y <= y1; ++y)

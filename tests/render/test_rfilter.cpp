@@ -93,14 +93,21 @@ TEST(ReconstructionFilter, SplatsConserveEnergyInside) {
                 for (int c = 0; c < 3; ++c) sum[c] += img.at(x, y, c);
         for (int c = 0; c < 3; ++c) EXPECT_NEAR(sum[c], c + 1.0, 0.002 * (c + 1)) << name;
     }
-    // Outside the image: dropped.
+    // Farther outside the image than the filter radius: dropped. Within the radius: it reaches the border
+    // pixels, as the camera side's filter samples do (a light tracer would otherwise darken the border).
     auto box = make("box");
     SplatBuffer buf(4, 4, 1, box.get());
     buf.splat(0, {-1.0, 2.0}, Color3(1.0));
-    buf.splat(0, {2.0, 4.0}, Color3(1.0));
+    buf.splat(0, {2.0, 4.6}, Color3(1.0));
     buf.merge();
     Bitmap img = buf.develop(1.0);
     for (std::size_t i = 0; i < img.size(); ++i) EXPECT_EQ(img.data()[i], 0.f);
+    auto gauss = make("gaussian");
+    SplatBuffer edge(4, 4, 1, gauss.get());
+    edge.splat(0, {2.0, 4.3}, Color3(1.0));
+    edge.merge();
+    Bitmap e = edge.develop(1.0);
+    EXPECT_GT(e.at(2, 3, 0), 0.f);
 }
 
 TEST(ReconstructionFilter, BadParameters) {

@@ -48,7 +48,8 @@ public:
     int width() const { return m_width; }
     int height() const { return m_height; }
     /// Add `v` at film position `film` (pixels), spread over the pixels whose filter footprint covers it with
-    /// weights filter(pixel centre - film). Contributions falling outside the image are dropped.
+    /// weights filter(pixel centre - film). Positions farther outside the image than the filter radius (or,
+    /// without a filter, outside the image) are dropped.
     void splat(std::size_t unit, const Vec2d& film, const Color3& v);
     /// Fold every unit's list into the accumulator, in unit order, and empty the lists.
     void merge();

@@ -24,7 +24,8 @@ struct SensorDirectSample {
 class Sensor : public Object {
 public:
     /// Connect the scene point `ref` to the sensor (with `u` for lens sampling). nullopt if the point is
-    /// outside the field of view or behind the sensor, or if the sensor cannot be connected to (default).
+    /// behind the sensor, or its film position lies farther outside the image than the film's filter radius
+    /// (camera samples reach that far, so connections must too), or if the sensor cannot be connected to.
     virtual std::optional<SensorDirectSample> sample_direct(const Vec3d& ref, const Vec2d& u) const {
         return std::nullopt;
     }
@@ -35,6 +36,8 @@ public:
     /// Solid-angle density with which sample_ray produces unit direction `d` (world space), as used by
     /// bidirectional MIS; 0 outside the field of view or if unsupported (default). Pinhole: 1 / (A cos^3).
     virtual double pdf_direction(const Vec3d& d) const { return 0.0; }
+    /// A point camera (all rays start at one point): what bidirectional MIS currently assumes.
+    virtual bool is_pinhole() const { return false; }
     virtual const Film& film() const = 0;
     virtual const Sampler& sampler() const = 0;
     virtual const Transform& to_world() const = 0;

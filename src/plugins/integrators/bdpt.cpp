@@ -73,6 +73,10 @@ public:
 
     Color3 sample(const Scene& scene, Sampler& sampler, const Ray& camera_ray, SampleCounters& c) const override {
         const Sensor& sensor = *scene.sensor();
+        if (!sensor.is_pinhole())
+            throw RuntimeError(fmt::format("bdpt supports pinhole sensors only (perspective), not {}: its camera "
+                                           "vertex densities assume a point camera; use path or ptracer",
+                                           sensor.to_string()));
         const int max_edges = m_max_depth < 0 ? MaxVertices - 1 : m_max_depth;
         // Per-thread vertex storage: no allocation and no 40 kB clear per sample. Every vertex a sample reads
         // is assigned before use (walk() assigns each vertex it adds; cam[0] and light[0] are reset below).
@@ -114,7 +118,7 @@ public:
                         light[1].pdf_fwd = es->pdf_pos;
                         if (light[1].on_surface()) light[1].pdf_fwd *= std::abs(glm::dot(lr.d, light[1].ng));
                     }
-                    y0.pdf_fwd = infinite_density(scene, lr.d);
+                    y0.pdf_fwd = infinite_density(scene, -lr.d);  // direction from the scene to the light
                 }
             }
         }

@@ -70,7 +70,10 @@ public:
         // The clipping planes are depths along the view axis, as for camera rays.
         if (local.z < m_near || local.z > m_far) return std::nullopt;
         Vec2d film(0.5 * w * (1 - local.x / (local.z * m_tan_x)), 0.5 * h * (1 - local.y / (local.z * m_tan_y)));
-        if (!(film.x >= 0 && film.y >= 0 && film.x < w && film.y < h)) return std::nullopt;
+        // Camera samples reach a filter radius beyond the image (filter importance sampling), so connections
+        // that land there still count: their splats cover border pixels.
+        const double margin = m_film->filter().radius();
+        if (!(film.x >= -margin && film.y >= -margin && film.x < w + margin && film.y < h + margin)) return std::nullopt;
         SensorDirectSample s;
         s.film = film;
         s.p = m_to_world.apply_point(Vec3d(0.0));
@@ -87,9 +90,12 @@ public:
         if (!(local.z > 0)) return 0.0;
         // Inside the image? (Same projection as sample_direct.)
         double x = local.x / (local.z * m_tan_x), y = local.y / (local.z * m_tan_y);
-        if (std::abs(x) > 1 || std::abs(y) > 1) return 0.0;
+        const double mx = 1 + 2 * m_film->filter().radius() / m_film->width(),
+                     my = 1 + 2 * m_film->filter().radius() / m_film->height();
+        if (std::abs(x) > mx || std::abs(y) > my) return 0.0;
         return 1.0 / (4 * m_tan_x * m_tan_y * local.z * local.z * local.z);
     }
+    bool is_pinhole() const override { return true; }
     const Film& film() const override { return *m_film; }
     const Sampler& sampler() const override { return *m_sampler; }
     const Transform& to_world() const override { return m_to_world; }

@@ -117,7 +117,10 @@ public:
         // Where the line from l through the scene point crosses the focal plane, as a pinhole direction.
         const Vec3d q = l + v * (m_focus / v.z);
         const Vec2d film(0.5 * w * (1 - q.x / (m_focus * m_tan_x)), 0.5 * h * (1 - q.y / (m_focus * m_tan_y)));
-        if (!(film.x >= 0 && film.y >= 0 && film.x < w && film.y < h)) return std::nullopt;
+        // Camera samples reach a filter radius beyond the image (filter importance sampling), so connections
+        // that land there still count: their splats cover border pixels.
+        const double margin = m_film->filter().radius();
+        if (!(film.x >= -margin && film.y >= -margin && film.x < w + margin && film.y < h + margin)) return std::nullopt;
         const double dist = glm::length(v);
         if (!(dist > 0)) return std::nullopt;
         const double cos_theta = v.z / dist;
@@ -138,7 +141,9 @@ public:
         const Vec3d local = glm::normalize(Vec3d(m_to_world.inverse * glm::dvec4(d, 0.0)));
         if (!(local.z > 0)) return 0.0;
         const double x = local.x / (local.z * m_tan_x), y = local.y / (local.z * m_tan_y);
-        if (std::abs(x) > 1 || std::abs(y) > 1) return 0.0;
+        const double mx = 1 + 2 * m_film->filter().radius() / m_film->width(),
+                     my = 1 + 2 * m_film->filter().radius() / m_film->height();
+        if (std::abs(x) > mx || std::abs(y) > my) return 0.0;
         return 1.0 / (4 * m_tan_x * m_tan_y * local.z * local.z * local.z);
     }
     const Film& film() const override { return *m_film; }
