@@ -82,6 +82,15 @@ private:
     std::vector<std::string> m_load_errors;
 };
 
+/// The nested object declared as param::object(name, kind) if the scene gives one, else a default-constructed
+/// `plugin` of that kind (Mitsuba's defaults: an hdrfilm in a sensor, a diffuse BSDF on a shape, ...).
+template <typename T>
+std::shared_ptr<T> object_or_default(const Properties& props, std::string_view name, const char* kind,
+                                     const char* plugin) {
+    if (auto o = props.get_object_as<T>(name)) return o;
+    return std::dynamic_pointer_cast<T>(Registry::instance().create(Properties(kind, plugin)));
+}
+
 /// Static registrar object created by KELVIN_PLUGIN / KELVIN_KIND.
 struct PluginRegistrar {
     PluginRegistrar(const char* kind, const char* name, const char* doc, std::vector<ParamSpec> params,

@@ -3,7 +3,10 @@
 #include <kelvin/render/ray.h>
 #include <kelvin/render/sampler.h>
 
+#include <kelvin/core/properties.h>
+
 #include <memory>
+#include <utility>
 #include <optional>
 
 namespace kelvin {
@@ -20,6 +23,10 @@ struct SensorDirectSample {
     /// distance (Veach 1997, Sec. 10.2; pbrt-v4's PerspectiveCamera::We).
     double weight = 0;
 };
+
+/// Tangents of the half field of view along x and y for Mitsuba's `fov` / `fov_axis` parameters (read from
+/// `props`) on a `width` x `height` film.
+std::pair<double, double> fov_tangents(const Properties& props, int width, int height);
 
 class Sensor : public Object {
 public:

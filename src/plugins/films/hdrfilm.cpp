@@ -18,10 +18,7 @@ class HdrFilm final : public Film {
 public:
     explicit HdrFilm(const Properties& props)
         : m_width(int(props.get_int("width", 1, 1 << 15))), m_height(int(props.get_int("height", 1, 1 << 15))) {
-        m_filter = props.get_object_as<ReconstructionFilter>("rfilter");
-        if (!m_filter)
-            m_filter = std::dynamic_pointer_cast<ReconstructionFilter>(
-                Registry::instance().create(Properties("rfilter", "gaussian")));
+        m_filter = object_or_default<ReconstructionFilter>(props, "rfilter", "rfilter", "gaussian");
     }
     int width() const override { return m_width; }
     int height() const override { return m_height; }

@@ -45,6 +45,7 @@
 #include <kelvin/render/warp.h>
 
 #include <cmath>
+#include <tuple>
 
 namespace kelvin {
 namespace {
@@ -55,17 +56,11 @@ ParamSpec without_default(ParamSpec s) {
     return s;
 }
 
-template <typename T> std::shared_ptr<T> nested_or_default(const Properties& props, const char* name, const char* kind,
-                                                           const char* plugin) {
-    if (auto o = props.get_object_as<T>(name)) return o;
-    return std::dynamic_pointer_cast<T>(Registry::instance().create(Properties(kind, plugin)));
-}
-
 class ThinLens final : public Sensor {
 public:
     explicit ThinLens(const Properties& props) {
-        m_film = nested_or_default<Film>(props, "film", "film", "hdrfilm");
-        m_sampler = nested_or_default<Sampler>(props, "sampler", "sampler", "independent");
+        m_film = object_or_default<Film>(props, "film", "film", "hdrfilm");
+        m_sampler = object_or_default<Sampler>(props, "sampler", "sampler", "independent");
         m_to_world = props.get_transform("to_world");
         // A rigid transform keeps lens areas and angles: the importance above assumes it.
         const Mat3d m(m_to_world.matrix);
@@ -80,15 +75,7 @@ public:
         m_radius = props.get_float("aperture_radius", 0.0, Inf);
         m_focus = props.has("focus_distance") ? props.get_float("focus_distance", 0.0, Inf) : m_far;
         if (!(m_focus > 0)) props.error("focus_distance", "must be positive");
-        double fov = props.get_float("fov", 1e-6, 179.999);
-        std::string axis = props.get_choice("fov_axis", {"x", "y", "diagonal", "smaller", "larger"});
-        const double w = m_film->width(), h = m_film->height(), t = std::tan(glm::radians(fov) / 2);
-        if (axis == "smaller") axis = w <= h ? "x" : "y";
-        if (axis == "larger") axis = w >= h ? "x" : "y";
-        if (axis == "x") m_tan_x = t;
-        else if (axis == "y") m_tan_x = t * w / h;
-        else m_tan_x = t * w / std::sqrt(w * w + h * h);
-        m_tan_y = m_tan_x * h / w;
+        std::tie(m_tan_x, m_tan_y) = fov_tangents(props, m_film->width(), m_film->height());
     }
 
     Ray sample_ray(Vec2d film_pos, Vec2d aperture) const override {
