@@ -1,4 +1,5 @@
 #pragma once
+#include "common/support.h"
 // Helpers for end-to-end tests of the `kelvin` executable: run it as a child process (posix_spawn, argument
 // vector, no shell), capture stdout and stderr into files, wait with a time bound, send signals; and
 // per-test temporary directories. Shared by tests/cli and tests/plugins.
@@ -50,26 +51,7 @@ inline std::vector<std::string> lines_of(const std::string& text) {
     return lines;
 }
 
-/// A fresh directory under the system temp dir, removed on destruction.
-class TempDir {
-public:
-    TempDir() {
-        std::string tmpl = (fs::temp_directory_path() / "kelvin-test-XXXXXX").string();
-        if (!mkdtemp(tmpl.data())) throw std::runtime_error("mkdtemp failed");
-        m_path = tmpl;
-    }
-    ~TempDir() {
-        std::error_code ec;
-        fs::remove_all(m_path, ec);
-    }
-    TempDir(const TempDir&) = delete;
-    TempDir& operator=(const TempDir&) = delete;
-    const fs::path& path() const { return m_path; }
-    fs::path operator/(const std::string& name) const { return m_path / name; }
-
-private:
-    fs::path m_path;
-};
+using ktest::TempDir;
 
 struct ProcessResult {
     int exit_code = -1;   ///< exit status, or -1 if killed by a signal

@@ -22,25 +22,7 @@ PluginInfo info_of(std::string kind, std::string name) {
     return info;
 }
 
-// Collects log messages for its lifetime.
-class LogCapture {
-public:
-    LogCapture() {
-        set_log_sink([this](LogLevel level, const std::string& msg) {
-            std::lock_guard lock(m_mutex);
-            m_messages.emplace_back(level, msg);
-        });
-    }
-    ~LogCapture() { set_log_sink({}); }
-    std::vector<std::pair<LogLevel, std::string>> messages() const {
-        std::lock_guard lock(m_mutex);
-        return m_messages;
-    }
-
-private:
-    mutable std::mutex m_mutex;
-    std::vector<std::pair<LogLevel, std::string>> m_messages;
-};
+using ktest::LogCapture;
 
 }  // namespace
 

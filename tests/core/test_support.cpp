@@ -105,42 +105,5 @@ ProbeHook::ProbeHook(ProbeFn fn) {
 }
 ProbeHook::~ProbeHook() { g_probe = nullptr; }
 
-TempDir::TempDir() {
-    static std::atomic<int> counter{0};
-    const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
-    std::string test = info ? std::string(info->test_suite_name()) + "." + info->name() : "none";
-    for (char& c : test)
-        if (!std::isalnum(static_cast<unsigned char>(c)) && c != '.') c = '_';
-    m_path = std::filesystem::temp_directory_path() /
-             ("kelvin_test_" + std::to_string(::getpid()) + "_" + std::to_string(counter++) + "_" + test);
-    std::filesystem::remove_all(m_path);
-    std::filesystem::create_directories(m_path);
-}
-
-TempDir::~TempDir() {
-    std::error_code ec;
-    std::filesystem::remove_all(m_path, ec);
-}
-
-std::filesystem::path TempDir::write(const std::string& name, const std::string& text) const {
-    std::filesystem::path p = m_path / name;
-    std::filesystem::create_directories(p.parent_path());
-    std::ofstream out(p, std::ios::binary);
-    out << text;
-    return p;
-}
-
-std::string input_error_of(const std::function<void()>& fn) {
-    try {
-        fn();
-    } catch (const InputError& e) {
-        return e.what();
-    } catch (const std::exception& e) {
-        ADD_FAILURE() << "expected kelvin::InputError, got another exception: " << e.what();
-        return {};
-    }
-    ADD_FAILURE() << "expected kelvin::InputError, nothing was thrown";
-    return {};
-}
 
 }  // namespace ktest

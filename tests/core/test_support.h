@@ -2,6 +2,8 @@
 // Shared helpers of the core tests: a private object kind ("ktest") with a few plugins registered by the
 // tests themselves (so the tests never depend on, or clash with, the real in-tree plugins), scratch
 // directories, and assertions on error messages.
+#include "common/support.h"
+
 #include <kelvin/core/error.h>
 #include <kelvin/core/object.h>
 #include <kelvin/core/properties.h>
@@ -49,21 +51,7 @@ public:
     ~ProbeHook();
 };
 
-/// A fresh, uniquely named directory under the system temp directory, removed on destruction.
-class TempDir {
-public:
-    TempDir();
-    ~TempDir();
-    const std::filesystem::path& path() const { return m_path; }
-    /// Write `text` to path()/name (creating parent directories) and return the full path.
-    std::filesystem::path write(const std::string& name, const std::string& text) const;
-
-private:
-    std::filesystem::path m_path;
-};
-
-/// Runs `fn`, expects a kelvin::InputError and returns its what(). Fails the test otherwise.
-std::string input_error_of(const std::function<void()>& fn);
+// TempDir, input_error_of, LogCapture and chi2_sf come from common/support.h.
 
 }  // namespace ktest
 

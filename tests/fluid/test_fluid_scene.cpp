@@ -1,6 +1,8 @@
 // Fluid scenes through the XML front end: parameter validation (errors name the parameter), effects on
 // demand (an inviscid scene does no diffusion work), the files a run writes, the shipped scenes, and the
 // kelvin CLI end to end.
+#include "common/support.h"
+
 #include <kelvin/core/error.h>
 #include <kelvin/core/image.h>
 #include <kelvin/core/job.h>
@@ -27,23 +29,7 @@ namespace {
     EXPECT_NE(std::string(haystack).find(needle), std::string::npos) \
         << "expected to find \"" << (needle) << "\" in:\n  " << (haystack)
 
-class TempDir {
-public:
-    TempDir() {
-        static std::atomic<int> counter{0};
-        m_path = fs::temp_directory_path() /
-                 ("kelvin_fluid_" + std::to_string(::getpid()) + "_" + std::to_string(counter++));
-        fs::create_directories(m_path);
-    }
-    ~TempDir() {
-        std::error_code ec;
-        fs::remove_all(m_path, ec);
-    }
-    const fs::path& path() const { return m_path; }
-
-private:
-    fs::path m_path;
-};
+using ktest::TempDir;
 
 // A small simulation scene; `sim` is inserted in <simulation>, `extra` replaces the default components.
 std::string scene(

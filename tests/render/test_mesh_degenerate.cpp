@@ -3,6 +3,8 @@
 // in PLY (ascii and binary), OBJ and glTF. Each loads, warns once with a message that names the mesh file,
 // drops exactly the 4 bad triangles, and renders with `ao` without NaN in the image and without invalid
 // samples. Closest-point queries on it stay finite.
+#include "render/render_support.h"
+
 #include <kelvin/core/logging.h>
 #include <kelvin/core/parser.h>
 #include <kelvin/render/closest_point.h>
@@ -24,38 +26,9 @@ namespace fs = std::filesystem;
 
 namespace {
 
-class TempDir {
-public:
-    TempDir() {
-        std::string tmpl = (fs::temp_directory_path() / "kelvin-degenerate-XXXXXX").string();
-        if (!mkdtemp(tmpl.data())) throw std::runtime_error("mkdtemp failed");
-        m_path = tmpl;
-    }
-    ~TempDir() {
-        std::error_code ec;
-        fs::remove_all(m_path, ec);
-    }
-    fs::path write(const std::string& name, const std::string& data) const {
-        fs::path p = m_path / name;
-        std::ofstream(p, std::ios::binary) << data;
-        return p;
-    }
+using ktest::TempDir;
 
-private:
-    fs::path m_path;
-};
-
-struct LogCapture {
-    std::mutex mutex;
-    std::vector<std::string> warnings;
-    LogCapture() {
-        set_log_sink([this](LogLevel l, const std::string& m) {
-            std::lock_guard lock(mutex);
-            if (l == LogLevel::Warn) warnings.push_back(m);
-        });
-    }
-    ~LogCapture() { set_log_sink({}); }
-};
+using ktest::LogCapture;
 
 const float kNaN = std::numeric_limits<float>::quiet_NaN();
 
@@ -164,10 +137,10 @@ void check_degenerate(const std::string& type, const fs::path& file) {
     EXPECT_EQ(mesh->dropped_triangles(), 4u);
     EXPECT_NEAR(mesh->surface_area(), 8 * std::sqrt(3.0) / 2, 1e-5);
     int naming = 0;
-    for (const auto& w : log.warnings)
+    for (const auto& w : log.warnings())
         naming += w.find("mesh '" + file.filename().string() + "'") != std::string::npos &&
                   w.find("dropped 4") != std::string::npos;
-    EXPECT_EQ(naming, 1) << "expected one warning naming the mesh; got " << log.warnings.size() << " warning(s)";
+    EXPECT_EQ(naming, 1) << "expected one warning naming the mesh; got " << log.warnings().size() << " warning(s)";
     for (const auto& n : mesh->geometry().normals) EXPECT_TRUE(std::isfinite(n.x + n.y + n.z));
 
     RunContext ctx;

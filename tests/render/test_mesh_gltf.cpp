@@ -2,6 +2,8 @@
 // (translation, rotation, scale, matrix) applied, every TRIANGLES primitive merged, other modes skipped with a
 // warning, primitives without normals shaded flat, mirrored nodes keep their orientation, uvs, an
 // intersection through kelvin::Scene; malformed files raise InputErrors naming the file.
+#include "render/render_support.h"
+
 #include <kelvin/core/error.h>
 #include <kelvin/core/logging.h>
 #include <kelvin/core/parser.h>
@@ -23,63 +25,20 @@ namespace fs = std::filesystem;
 
 namespace {
 
-class TempDir {
-public:
-    TempDir() {
-        std::string tmpl = (fs::temp_directory_path() / "kelvin-gltf-XXXXXX").string();
-        if (!mkdtemp(tmpl.data())) throw std::runtime_error("mkdtemp failed");
-        m_path = tmpl;
-    }
-    ~TempDir() {
-        std::error_code ec;
-        fs::remove_all(m_path, ec);
-    }
-    fs::path write(const std::string& name, const std::string& data) const {
-        fs::path p = m_path / name;
-        std::ofstream(p, std::ios::binary) << data;
-        return p;
-    }
-
-private:
-    fs::path m_path;
-};
+using ktest::TempDir;
 
 std::shared_ptr<Scene> make_scene(const std::string& shapes) {
-    const std::string xml =
-        "<scene version=\"3.0.0\"><integrator type=\"ao\"/><sensor type=\"perspective\"/>" + shapes + "</scene>";
-    auto scene = std::dynamic_pointer_cast<Scene>(instantiate(parse_scene_string(xml)));
-    if (!scene) throw std::runtime_error("root object is not a kelvin::Scene");
-    return scene;
+    return ktest::load_scene_xml(R"(<scene version="3.0.0"><integrator type="ao"/><sensor type="perspective"/>)" +
+                                 shapes + "</scene>");
 }
 
 std::string gltf_shape(const fs::path& file, const std::string& extra = "") {
     return "<shape type=\"gltf\"><string name=\"filename\" value=\"" + file.string() + "\"/>" + extra + "</shape>";
 }
 
-std::string input_error(const std::function<void()>& fn) {
-    try {
-        fn();
-    } catch (const InputError& e) {
-        return e.what();
-    } catch (const std::exception& e) {
-        ADD_FAILURE() << "expected an InputError, got: " << e.what();
-        return {};
-    }
-    ADD_FAILURE() << "expected an InputError, nothing was thrown";
-    return {};
-}
+std::string input_error(const std::function<void()>& fn) { return ktest::input_error_of(fn); }
 
-struct LogCapture {
-    std::mutex mutex;
-    std::vector<std::string> warnings;
-    LogCapture() {
-        set_log_sink([this](LogLevel l, const std::string& m) {
-            std::lock_guard lock(mutex);
-            if (l == LogLevel::Warn) warnings.push_back(m);
-        });
-    }
-    ~LogCapture() { set_log_sink({}); }
-};
+using ktest::LogCapture;
 
 constexpr int kFloat = 5126, kUShort = 5123, kUInt = 5125;
 
@@ -197,7 +156,7 @@ TEST(MeshGltf, TextGltfWithExternalBuffer) {
     auto scene = make_scene(gltf_shape(file));
     check_model(*scene);
     bool warned = false;
-    for (const auto& w : log.warnings)
+    for (const auto& w : log.warnings())
         warned |= w.find("model.gltf") != std::string::npos && w.find("TRIANGLES") != std::string::npos;
     EXPECT_TRUE(warned) << "the LINES primitive must be reported";
 }

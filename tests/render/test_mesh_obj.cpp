@@ -2,6 +2,8 @@
 // (position, uv, normal) triple, fans, negative indices, comments and CRLF, flip_tex_coords, face_normals,
 // computed normals, to_world, an intersection through kelvin::Scene; malformed files raise InputErrors with
 // the file and the line.
+#include "render/render_support.h"
+
 #include <kelvin/core/error.h>
 #include <kelvin/core/parser.h>
 #include <kelvin/render/mesh.h>
@@ -19,51 +21,18 @@ namespace fs = std::filesystem;
 
 namespace {
 
-class TempDir {
-public:
-    TempDir() {
-        std::string tmpl = (fs::temp_directory_path() / "kelvin-obj-XXXXXX").string();
-        if (!mkdtemp(tmpl.data())) throw std::runtime_error("mkdtemp failed");
-        m_path = tmpl;
-    }
-    ~TempDir() {
-        std::error_code ec;
-        fs::remove_all(m_path, ec);
-    }
-    fs::path write(const std::string& name, const std::string& data) const {
-        fs::path p = m_path / name;
-        std::ofstream(p, std::ios::binary) << data;
-        return p;
-    }
-
-private:
-    fs::path m_path;
-};
+using ktest::TempDir;
 
 std::shared_ptr<Scene> make_scene(const std::string& shapes) {
-    const std::string xml =
-        "<scene version=\"3.0.0\"><integrator type=\"ao\"/><sensor type=\"perspective\"/>" + shapes + "</scene>";
-    auto scene = std::dynamic_pointer_cast<Scene>(instantiate(parse_scene_string(xml)));
-    if (!scene) throw std::runtime_error("root object is not a kelvin::Scene");
-    return scene;
+    return ktest::load_scene_xml(R"(<scene version="3.0.0"><integrator type="ao"/><sensor type="perspective"/>)" +
+                                 shapes + "</scene>");
 }
 
 std::string obj_shape(const fs::path& file, const std::string& extra = "") {
     return "<shape type=\"obj\"><string name=\"filename\" value=\"" + file.string() + "\"/>" + extra + "</shape>";
 }
 
-std::string input_error(const std::function<void()>& fn) {
-    try {
-        fn();
-    } catch (const InputError& e) {
-        return e.what();
-    } catch (const std::exception& e) {
-        ADD_FAILURE() << "expected an InputError, got: " << e.what();
-        return {};
-    }
-    ADD_FAILURE() << "expected an InputError, nothing was thrown";
-    return {};
-}
+std::string input_error(const std::function<void()>& fn) { return ktest::input_error_of(fn); }
 
 // A unit square (quad face) in z = 0 with uvs and normals, and a triangle at z = 2 given with negative
 // (relative) indices and no uv/normal, in two groups, with comments and a missing material library.

@@ -13,6 +13,8 @@
 //     scene with two emitters; with one emitter the selection pdf is 1);
 //   - Russian roulette without dividing by q: ClosedFurnaceSumsAllBounces fails (the open scenes rarely
 //     reach rr_depth, so only the closed furnace sees it).
+#include "render/render_support.h"
+
 #include <kelvin/core/parser.h>
 #include <kelvin/render/scene.h>
 
@@ -25,41 +27,10 @@ using namespace kelvin;
 
 namespace {
 
-struct ImageStats {
-    double mean = 0, stderr_ = 0, min = 0, max = 0;
-};
+using ktest::ImageStats;
 
-Bitmap render(const std::string& xml, long long spp, uint64_t seed = 1) {
-    auto scene = std::dynamic_pointer_cast<Scene>(instantiate(parse_scene_string(xml)));
-    if (!scene) throw std::runtime_error("root is not a Scene");
-    RunContext ctx;
-    ctx.spp = spp;
-    ctx.seed = seed;
-    ctx.quiet = true;
-    RunResult r = scene->run(ctx);
-    EXPECT_EQ(ctx.stats.get("render.invalid_samples"), 0.0);
-    return r.image;
-}
-
-// Mean over pixels of channel c, with the standard error from the spread of independent pixels.
-ImageStats stats(const Bitmap& img, int c = 0) {
-    ImageStats s;
-    const double n = double(img.width()) * img.height();
-    double sum = 0, sum2 = 0;
-    s.min = Inf;
-    s.max = -Inf;
-    for (int y = 0; y < img.height(); ++y)
-        for (int x = 0; x < img.width(); ++x) {
-            double v = img.at(x, y, c);
-            sum += v;
-            sum2 += v * v;
-            s.min = std::min(s.min, v);
-            s.max = std::max(s.max, v);
-        }
-    s.mean = sum / n;
-    s.stderr_ = std::sqrt(std::max(0.0, sum2 / n - s.mean * s.mean) / (n - 1));
-    return s;
-}
+Bitmap render(const std::string& xml, long long spp, uint64_t seed = 1) { return ktest::render_xml(xml, spp, seed); }
+ImageStats stats(const Bitmap& img, int c = 0) { return ktest::image_stats(img, c); }
 
 std::string camera(const std::string& origin, const std::string& target, double fov, int res,
                    const std::string& up = "0, 1, 0") {

@@ -9,6 +9,8 @@
 //     depends on the pass split): ImageEqualsDirectPerPixelAverage fails (3501 of 4320 values differ);
 //   - dropping the `v.b < 0` check: InvalidSamplesAreZeroedCountedAndReported fails (400 counted instead
 //     of 405, a negative value in the image).
+#include "render/render_support.h"
+
 #include <kelvin/core/interrupt.h>
 #include <kelvin/core/logging.h>
 #include <kelvin/core/parallel.h>
@@ -88,17 +90,7 @@ struct InterruptGuard {
 };
 
 /// Captures log messages for its lifetime.
-struct LogCapture {
-    std::mutex mutex;
-    std::vector<std::pair<LogLevel, std::string>> messages;
-    LogCapture() {
-        set_log_sink([this](LogLevel l, const std::string& m) {
-            std::lock_guard lock(mutex);
-            messages.emplace_back(l, m);
-        });
-    }
-    ~LogCapture() { set_log_sink({}); }
-};
+using ktest::LogCapture;
 
 }  // namespace
 
@@ -267,7 +259,7 @@ TEST(RenderLoop, InvalidSamplesAreZeroedCountedAndReported) {
                 ASSERT_EQ(r.image.at(x, y, c), bad_pixel({x, y}) ? 0.f : 0.5f) << x << "," << y << "," << c;
 
     int warnings = 0;
-    for (const auto& [level, msg] : log.messages)
+    for (const auto& [level, msg] : log.messages())
         if (level == LogLevel::Warn && msg.find(std::to_string(spp * kBadPixels)) != std::string::npos &&
             msg.find("NaN") != std::string::npos)
             ++warnings;

@@ -16,6 +16,8 @@
 //     rises to -0.51, failing ConvergesFasterThanIndependentOnSmoothIntegrand;
 //   - coordinate 1 computed like coordinate 0 (van der Corput twice instead of the second Sobol matrix):
 //     NetPropertyOfEveryDimensionPair fails and the slope is 0.0.
+#include "render/render_support.h"
+
 #include <kelvin/core/parser.h>
 #include <kelvin/core/registry.h>
 #include <kelvin/render/sampler.h>
@@ -41,35 +43,7 @@ std::unique_ptr<Sampler> make_sampler(const std::string& type, long long count, 
     return obj->clone();
 }
 
-// Upper tail of the chi-square distribution with k degrees of freedom: Q(k/2, x/2), the regularised upper
-// incomplete gamma function (series below a + 1, Lentz's continued fraction above).
-double chi2_sf(double x, double k) {
-    const double a = k / 2, z = x / 2;
-    if (z <= 0) return 1.0;
-    const double log_prefix = a * std::log(z) - z - std::lgamma(a);
-    if (z < a + 1) {
-        double term = 1.0 / a, sum = term;
-        for (int n = 1; n < 100000 && std::abs(term) > 1e-16 * std::abs(sum); ++n) {
-            term *= z / (a + n);
-            sum += term;
-        }
-        return std::max(0.0, 1.0 - std::exp(log_prefix) * sum);
-    }
-    double b = z + 1 - a, c = 1e300, d = 1.0 / b, h = d;
-    for (int n = 1; n < 100000; ++n) {
-        const double an = -n * (n - a);
-        b += 2;
-        d = an * d + b;
-        if (std::abs(d) < 1e-300) d = 1e-300;
-        c = b + an / c;
-        if (std::abs(c) < 1e-300) c = 1e-300;
-        d = 1 / d;
-        const double del = d * c;
-        h *= del;
-        if (std::abs(del - 1) < 1e-15) break;
-    }
-    return std::exp(log_prefix) * h;
-}
+using ktest::chi2_sf;  // upper tail of the chi-square distribution
 
 double chi2_of_counts(const std::vector<double>& counts, double expected) {
     double chi2 = 0;
@@ -268,24 +242,14 @@ TEST(Sobol, ConvergesFasterThanIndependentOnSmoothIntegrand) {
 
 // The Cornell box scene with its sampler replaced.
 Bitmap render_cornell(const std::string& sampler, int res, long long spp, uint64_t seed) {
-    std::ifstream in(KELVIN_SOURCE_DIR "/scenes/render/cornell-box.xml");
-    std::stringstream ss;
-    ss << in.rdbuf();
-    std::string xml = ss.str();
+    std::string xml = ktest::read_text(KELVIN_SOURCE_DIR "/scenes/render/cornell-box.xml");
     const std::string from = R"(<sampler type="independent">)";
     const auto at = xml.find(from);
     if (at == std::string::npos) throw std::runtime_error("cornell-box.xml has no independent sampler");
     xml.replace(at, from.size(), fmt::format(R"(<sampler type="{}">)", sampler));
     ParseOptions opts;
     opts.defines = {{"res", std::to_string(res)}, {"spp", std::to_string(spp)}};
-    auto scene = std::dynamic_pointer_cast<Scene>(
-        instantiate(parse_scene_string(xml, opts, KELVIN_SOURCE_DIR "/scenes/render/cornell-box.xml")));
-    RunContext ctx;
-    ctx.seed = seed;
-    ctx.quiet = true;
-    RunResult r = scene->run(ctx);
-    EXPECT_EQ(ctx.stats.get("render.invalid_samples"), 0.0);
-    return r.image;
+    return ktest::render_xml(xml, 0, seed, opts, KELVIN_SOURCE_DIR "/scenes/render/cornell-box.xml");
 }
 
 TEST(Sobol, CornellBoxSameMeanAsIndependent) {
@@ -298,43 +262,11 @@ TEST(Sobol, CornellBoxSameMeanAsIndependent) {
         sob.push_back(render_cornell("sobol", res, spp, 300 + s));
         ind.push_back(render_cornell("independent", res, spp, 400 + s));
     }
-    const int nb = (res / B) * (res / B);
     double pixel_var_s = 0, pixel_var_i = 0;
     for (int c = 0; c < 3; ++c) {
-        auto block_stats = [&](const std::vector<Bitmap>& runs, std::vector<double>& mean, std::vector<double>& var) {
-            mean.assign(std::size_t(nb), 0.0);
-            var.assign(std::size_t(nb), 0.0);
-            std::vector<double> sum2(std::size_t(nb), 0.0);
-            for (const auto& img : runs)
-                for (int by = 0; by < res / B; ++by)
-                    for (int bx = 0; bx < res / B; ++bx) {
-                        double v = 0;
-                        for (int y = 0; y < B; ++y)
-                            for (int x = 0; x < B; ++x) v += img.at(bx * B + x, by * B + y, c);
-                        v /= B * B;
-                        const std::size_t k = std::size_t(by * (res / B) + bx);
-                        mean[k] += v / seeds;
-                        sum2[k] += v * v / seeds;
-                    }
-            for (std::size_t k = 0; k < mean.size(); ++k)
-                var[k] = std::max(0.0, sum2[k] - mean[k] * mean[k]) / (seeds - 1);  // variance of the mean
-        };
-        std::vector<double> ms, vs, mi, vi;
-        block_stats(sob, ms, vs);
-        block_stats(ind, mi, vi);
-        int outliers = 0;
-        double mean_s = 0, mean_i = 0, var_s = 0, var_i = 0;
-        for (int k = 0; k < nb; ++k) {
-            const double sigma = std::sqrt(vs[std::size_t(k)] + vi[std::size_t(k)]);
-            const double tol = std::max(5 * sigma, 1e-3 * std::max(ms[std::size_t(k)], mi[std::size_t(k)]));
-            if (std::abs(ms[std::size_t(k)] - mi[std::size_t(k)]) > tol) ++outliers;
-            mean_s += ms[std::size_t(k)] / nb;
-            mean_i += mi[std::size_t(k)] / nb;
-            var_s += vs[std::size_t(k)] / (double(nb) * nb);
-            var_i += vi[std::size_t(k)] / (double(nb) * nb);
-        }
-        EXPECT_LE(outliers, 1) << "channel " << c;
-        EXPECT_NEAR(mean_s, mean_i, 5 * std::sqrt(var_s + var_i)) << "channel " << c;
+        ktest::BlockComparison r = ktest::compare_blocks(sob, ind, B, c, 1e-3);
+        EXPECT_LE(r.outliers, 1) << "channel " << c;
+        EXPECT_NEAR(r.mean_a, r.mean_b, 5 * std::sqrt(r.se_a * r.se_a + r.se_b * r.se_b)) << "channel " << c;
         // Per-pixel variance across seeds.
         for (int y = 0; y < res; ++y)
             for (int x = 0; x < res; ++x) {

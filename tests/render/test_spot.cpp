@@ -11,6 +11,8 @@
 //   - sample_emission's direction not rotated by to_world: PowerAndEmissionAgree fails, and light tracing
 //     lights the wrong part of the room (56-59 outlier blocks).
 // Measured (correct code): path 0.0917 +- 0.0003, ptracer 0.0918 +- 0.0002 (red), 0 outlier blocks.
+#include "render/render_support.h"
+
 #include <kelvin/core/parser.h>
 #include <kelvin/core/random.h>
 #include <kelvin/core/registry.h>
@@ -34,17 +36,7 @@ double smoothstep_falloff(double theta_deg, double beam_deg, double cutoff_deg) 
     return s * s * (3 - 2 * s);
 }
 
-Bitmap render(const std::string& xml, long long spp, uint64_t seed = 1) {
-    auto scene = std::dynamic_pointer_cast<Scene>(instantiate(parse_scene_string(xml)));
-    if (!scene) throw std::runtime_error("root is not a Scene");
-    RunContext ctx;
-    ctx.spp = spp;
-    ctx.seed = seed;
-    ctx.quiet = true;
-    RunResult r = scene->run(ctx);
-    EXPECT_EQ(ctx.stats.get("render.invalid_samples"), 0.0);
-    return r.image;
-}
+Bitmap render(const std::string& xml, long long spp, uint64_t seed = 1) { return ktest::render_xml(xml, spp, seed); }
 
 // A diffuse plane z = 0 under a spot at height h looking straight down, seen by a camera with a tiny field of
 // view aimed at the point (x, 0, 0). Direct illumination only: L = rho / pi * I falloff(theta) cos^3(theta) / h^2.
@@ -203,10 +195,7 @@ TEST(Spot, PowerAndEmissionAgree) {
 
 // A room lit by a spot under the ceiling (the Cornell box with its area light switched off and the spot added).
 Bitmap render_spot_room(const std::string& integrator, int res, long long spp, uint64_t seed) {
-    std::ifstream in(KELVIN_SOURCE_DIR "/scenes/render/cornell-box.xml");
-    std::stringstream ss;
-    ss << in.rdbuf();
-    std::string xml = ss.str();
+    std::string xml = ktest::read_text(KELVIN_SOURCE_DIR "/scenes/render/cornell-box.xml");
     const std::string light = R"(<emitter type="area"><rgb name="radiance" value="17, 12, 4"/></emitter>)";
     auto at = xml.find(light);
     if (at == std::string::npos) throw std::runtime_error("cornell-box.xml: area light not found");
@@ -217,20 +206,9 @@ Bitmap render_spot_room(const std::string& integrator, int res, long long spp, u
             <float name="cutoff_angle" value="40"/><float name="beam_width" value="25"/>
             <transform name="to_world"><lookat origin="0.2, 1.9, 0.3" target="-0.4, 0, -0.5" up="0, 0, 1"/></transform>
         </emitter>)");
-    // The box filter: with a wider one, light tracing loses the splats of film positions just outside the image
-    // (SplatBuffer drops them) and its border pixels come out darker than path tracing's.
-    const std::string film = R"(<film type="hdrfilm">)";
-    xml.replace(xml.find(film), film.size(), R"(<film type="hdrfilm"><rfilter type="box"/>)");
     ParseOptions opts;
     opts.defines = {{"integrator", integrator}, {"res", std::to_string(res)}, {"spp", std::to_string(spp)}};
-    auto scene = std::dynamic_pointer_cast<Scene>(
-        instantiate(parse_scene_string(xml, opts, KELVIN_SOURCE_DIR "/scenes/render/cornell-box.xml")));
-    RunContext ctx;
-    ctx.seed = seed;
-    ctx.quiet = true;
-    RunResult r = scene->run(ctx);
-    EXPECT_EQ(ctx.stats.get("render.invalid_samples"), 0.0);
-    return r.image;
+    return ktest::render_xml(xml, 0, seed, opts, KELVIN_SOURCE_DIR "/scenes/render/cornell-box.xml");
 }
 
 TEST(Spot, PathAndLightTracingAgreeUnderASpot) {
@@ -242,43 +220,12 @@ TEST(Spot, PathAndLightTracingAgreeUnderASpot) {
         path.push_back(render_spot_room("path", res, spp, 700 + s));
         light.push_back(render_spot_room("ptracer", res, spp, 800 + s));
     }
-    const int nb = (res / B) * (res / B);
     for (int c = 0; c < 3; ++c) {
-        auto block_stats = [&](const std::vector<Bitmap>& runs, std::vector<double>& mean, std::vector<double>& var) {
-            mean.assign(std::size_t(nb), 0.0);
-            var.assign(std::size_t(nb), 0.0);
-            std::vector<double> sum2(std::size_t(nb), 0.0);
-            for (const auto& img : runs)
-                for (int by = 0; by < res / B; ++by)
-                    for (int bx = 0; bx < res / B; ++bx) {
-                        double v = 0;
-                        for (int y = 0; y < B; ++y)
-                            for (int x = 0; x < B; ++x) v += img.at(bx * B + x, by * B + y, c);
-                        v /= B * B;
-                        const std::size_t k = std::size_t(by * (res / B) + bx);
-                        mean[k] += v / seeds;
-                        sum2[k] += v * v / seeds;
-                    }
-            for (std::size_t k = 0; k < mean.size(); ++k)
-                var[k] = std::max(0.0, sum2[k] - mean[k] * mean[k]) / (seeds - 1);
-        };
-        std::vector<double> ma, va, mb, vb;
-        block_stats(path, ma, va);
-        block_stats(light, mb, vb);
-        int outliers = 0;
-        double mean_a = 0, mean_b = 0, var_a = 0, var_b = 0;
-        for (std::size_t k = 0; k < std::size_t(nb); ++k) {
-            mean_a += ma[k] / nb;
-            mean_b += mb[k] / nb;
-            var_a += va[k] / (double(nb) * nb);
-            var_b += vb[k] / (double(nb) * nb);
-            const double tol = std::max(5 * std::sqrt(va[k] + vb[k]), 1e-3 * std::max(ma[k], mb[k]));
-            if (std::abs(ma[k] - mb[k]) > tol) ++outliers;
-        }
-        std::printf("[ spot ] channel %d: path %.5f +- %.5f, ptracer %.5f +- %.5f, %d outlier blocks\n", c, mean_a,
-                    std::sqrt(var_a), mean_b, std::sqrt(var_b), outliers);
-        EXPECT_LE(outliers, 1) << "channel " << c;
-        EXPECT_NEAR(mean_a, mean_b, 5 * std::sqrt(var_a + var_b)) << "channel " << c;
+        ktest::BlockComparison r = ktest::compare_blocks(path, light, B, c, 1e-3);
+        std::printf("[ spot ] channel %d: path %.5f +- %.5f, ptracer %.5f +- %.5f, %d outlier blocks\n", c, r.mean_a,
+                    r.se_a, r.mean_b, r.se_b, r.outliers);
+        EXPECT_LE(r.outliers, 1) << "channel " << c;
+        EXPECT_NEAR(r.mean_a, r.mean_b, 5 * std::sqrt(r.se_a * r.se_a + r.se_b * r.se_b)) << "channel " << c;
     }
 }
 

@@ -12,6 +12,8 @@
 //   - sample_ray aiming at the point at distance focus_distance along the pinhole ray instead of on the focal
 //     plane: FocalPlanePointsAreSharp and SampleDirectInvertsSampleRay fail.
 // Measured (correct code): path 0.2115 +- 0.0018, ptracer 0.2115 +- 0.0003 (red), 0 outlier blocks.
+#include "render/render_support.h"
+
 #include <kelvin/core/parser.h>
 #include <kelvin/render/scene.h>
 
@@ -187,30 +189,17 @@ TEST(ThinLens, RejectsBadParameters) {
 
 // The Cornell box seen through a thin lens focused on the tall box, rendered by `integrator`.
 Bitmap render_cornell_lens(const std::string& integrator, int res, long long spp, uint64_t seed) {
-    std::ifstream in(KELVIN_SOURCE_DIR "/scenes/render/cornell-box.xml");
-    std::stringstream ss;
-    ss << in.rdbuf();
-    std::string xml = ss.str();
+    std::string xml = ktest::read_text(KELVIN_SOURCE_DIR "/scenes/render/cornell-box.xml");
     const std::string from = R"(<sensor type="perspective">)";
     const auto at = xml.find(from);
     if (at == std::string::npos) throw std::runtime_error("cornell-box.xml has no perspective sensor");
     xml.replace(at, from.size(), R"(<sensor type="thinlens"><float name="aperture_radius" value="0.4"/>
         <float name="focus_distance" value="2.5"/>)");
-    // The box filter: with a wider one, light tracing loses the splats of film positions just outside the image
-    // (SplatBuffer drops them) and its border pixels come out darker than path tracing's.
-    const std::string film = R"(<film type="hdrfilm">)";
-    xml.replace(xml.find(film), film.size(), R"(<film type="hdrfilm"><rfilter type="box"/>)");
     ParseOptions opts;
     opts.defines = {{"integrator", integrator}, {"res", std::to_string(res)}, {"spp", std::to_string(spp)}};
-    auto scene = std::dynamic_pointer_cast<Scene>(
-        instantiate(parse_scene_string(xml, opts, KELVIN_SOURCE_DIR "/scenes/render/cornell-box.xml")));
-    RunContext ctx;
-    ctx.seed = seed;
-    ctx.quiet = true;
-    RunResult r = scene->run(ctx);
-    EXPECT_EQ(ctx.stats.get("render.invalid_samples"), 0.0);
-    return r.image;
+    return ktest::render_xml(xml, 0, seed, opts, KELVIN_SOURCE_DIR "/scenes/render/cornell-box.xml");
 }
+
 
 TEST(ThinLens, PathAndLightTracingAgreeThroughTheLens) {
     // Both estimators are unbiased for the same thin-lens measurement; light tracing depends on sample_direct's
@@ -223,46 +212,12 @@ TEST(ThinLens, PathAndLightTracingAgreeThroughTheLens) {
         path.push_back(render_cornell_lens("path", res, 2 * spp, 500 + s));
         light.push_back(render_cornell_lens("ptracer", res, spp, 600 + s));
     }
-    const int nb = (res / B) * (res / B);
     for (int c = 0; c < 3; ++c) {
-        auto block_stats = [&](const std::vector<Bitmap>& runs, std::vector<double>& mean, std::vector<double>& var) {
-            mean.assign(std::size_t(nb), 0.0);
-            var.assign(std::size_t(nb), 0.0);
-            std::vector<double> sum2(std::size_t(nb), 0.0);
-            for (const auto& img : runs)
-                for (int by = 0; by < res / B; ++by)
-                    for (int bx = 0; bx < res / B; ++bx) {
-                        double v = 0;
-                        for (int y = 0; y < B; ++y)
-                            for (int x = 0; x < B; ++x) v += img.at(bx * B + x, by * B + y, c);
-                        v /= B * B;
-                        const std::size_t k = std::size_t(by * (res / B) + bx);
-                        mean[k] += v / seeds;
-                        sum2[k] += v * v / seeds;
-                    }
-            for (std::size_t k = 0; k < mean.size(); ++k)
-                var[k] = std::max(0.0, sum2[k] - mean[k] * mean[k]) / (seeds - 1);
-        };
-        std::vector<double> ma, va, mb, vb;
-        block_stats(path, ma, va);
-        block_stats(light, mb, vb);
-        int outliers = 0;
-        double mean_a = 0, mean_b = 0;
-        for (std::size_t k = 0; k < std::size_t(nb); ++k) {
-            mean_a += ma[k] / nb;
-            mean_b += mb[k] / nb;
-            const double tol = std::max(5 * std::sqrt(va[k] + vb[k]), 1e-3 * std::max(ma[k], mb[k]));
-            if (std::abs(ma[k] - mb[k]) > tol) ++outliers;
-        }
-        EXPECT_LE(outliers, 1) << "channel " << c;
-        double var_a = 0, var_b = 0;  // blocks are independent: the image mean's variance is the sum / nb^2
-        for (std::size_t k = 0; k < std::size_t(nb); ++k) {
-            var_a += va[k] / (double(nb) * nb);
-            var_b += vb[k] / (double(nb) * nb);
-        }
-        std::printf("[ thinlens ] channel %d: path %.5f +- %.5f, ptracer %.5f +- %.5f, %d outlier blocks\n", c, mean_a,
-                    std::sqrt(var_a), mean_b, std::sqrt(var_b), outliers);
-        EXPECT_NEAR(mean_a, mean_b, 5 * std::sqrt(var_a + var_b)) << "channel " << c;
+        ktest::BlockComparison r = ktest::compare_blocks(path, light, B, c, 1e-3);
+        std::printf("[ thinlens ] channel %d: path %.5f +- %.5f, ptracer %.5f +- %.5f, %d outlier blocks\n", c,
+                    r.mean_a, r.se_a, r.mean_b, r.se_b, r.outliers);
+        EXPECT_LE(r.outliers, 1) << "channel " << c;
+        EXPECT_NEAR(r.mean_a, r.mean_b, 5 * std::sqrt(r.se_a * r.se_a + r.se_b * r.se_b)) << "channel " << c;
     }
 }
 
