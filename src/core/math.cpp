@@ -2,6 +2,8 @@
 
 #include <glm/gtc/matrix_transform.hpp>
 
+#include <cmath>
+
 namespace kelvin {
 
 Transform::Transform(const Mat4d& m) : matrix(m), inverse(glm::inverse(m)) {}
@@ -13,6 +15,15 @@ Vec3d Transform::apply_point(const Vec3d& p) const {
 Vec3d Transform::apply_vector(const Vec3d& v) const { return Vec3d(matrix * glm::dvec4(v, 0.0)); }
 Vec3d Transform::apply_normal(const Vec3d& n) const {
     return Vec3d(glm::transpose(inverse) * glm::dvec4(n, 0.0));
+}
+
+bool Transform::is_rigid(double tol) const {
+    const Mat3d m(matrix);
+    const Mat3d mtm = glm::transpose(m) * m;
+    for (int i = 0; i < 3; ++i)
+        for (int j = 0; j < 3; ++j)
+            if (std::abs(mtm[i][j] - (i == j ? 1.0 : 0.0)) > tol) return false;
+    return true;
 }
 
 Transform Transform::translate(const Vec3d& t) {

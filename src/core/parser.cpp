@@ -184,6 +184,7 @@ private:
     double number(const std::string& s, const SourceLoc& loc, std::string_view what) {
         auto v = parse_double(s);
         if (!v) throw_input(loc, "malformed number '{}' in {}", s, what);
+        if (!std::isfinite(*v)) throw_input(loc, "number '{}' in {} is not finite", s, what);
         return *v;
     }
 

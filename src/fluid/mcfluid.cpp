@@ -19,13 +19,6 @@ const char* to_string(Advection a) { return a == Advection::Euler ? "euler" : "r
 
 namespace {
 
-/// Two independent standard normals (Box–Muller).
-inline Vec2d gaussian2(Random& rng) {
-    const double u1 = rng.next_double(), u2 = rng.next_double();
-    const double r = std::sqrt(-2.0 * std::log1p(-u1));
-    const double a = 2 * Pi * u2;
-    return {r * std::cos(a), r * std::sin(a)};
-}
 
 inline bool finite(Vec2d v) { return std::isfinite(v.x) && std::isfinite(v.y); }
 
@@ -188,7 +181,7 @@ bool MCFluidSolver::step(double dt) {
                 value = m_omega.sample(xd, interp);
             } else {  // Feynman–Kac diffusion: Gaussian displacement of variance 2 nu dt per axis (Eq. 5.22)
                 double sum = 0;
-                for (int k = 0; k < nd; ++k) sum += m_omega.sample(xd + sigma * gaussian2(rng), interp);
+                for (int k = 0; k < nd; ++k) sum += m_omega.sample(xd + sigma * standard_normal2(rng), interp);
                 value = sum / nd;
                 w.diffusion += uint64_t(nd);
             }

@@ -14,12 +14,6 @@
 namespace kelvin::fluid {
 
 namespace {
-inline Vec2d gaussian2(Random& rng) {
-    const double u1 = rng.next_double(), u2 = rng.next_double();
-    const double r = std::sqrt(-2.0 * std::log1p(-u1));
-    const double a = 2 * Pi * u2;
-    return {r * std::cos(a), r * std::sin(a)};
-}
 }  // namespace
 
 /// Density for importance sampling: (1 - eps) * |omega_0|_h / W + eps / |box|, where |omega_0|_h is the
@@ -180,7 +174,7 @@ double RecursiveEstimator::vor(long long n, Vec2d x, Random& rng) const {
     if (!(m_settings.viscosity > 0)) return vor(n - 1, xa, rng);
     const double sigma = std::sqrt(2 * m_settings.viscosity * m_settings.dt);
     double sum = 0;
-    for (int j = 0; j < m_settings.diffusion_samples; ++j) sum += vor(n - 1, xa + sigma * gaussian2(rng), rng);
+    for (int j = 0; j < m_settings.diffusion_samples; ++j) sum += vor(n - 1, xa + sigma * standard_normal2(rng), rng);
     return sum / m_settings.diffusion_samples;
 }
 

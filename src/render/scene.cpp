@@ -42,12 +42,9 @@ Scene::Scene(const Properties& props) {
         return;  // a simulation builds its own geometry queries; nothing to do here
     }
     if (!m_sensor) throw InputError(props.location(), "the scene has no <sensor> (and no <simulation>)");
-    if (!m_integrator) {
-        // Mitsuba's default: a path tracer. Until one is registered, fall back to ambient occlusion.
-        const char* name = Registry::instance().find("integrator", "path") ? "path" : "ao";
-        Properties ip("integrator", name);
-        m_integrator = std::dynamic_pointer_cast<Integrator>(Registry::instance().create(ip));
-        log_info("no <integrator> given: using '{}'", name);
+    if (!m_integrator) {  // Mitsuba's default
+        m_integrator = std::dynamic_pointer_cast<Integrator>(Registry::instance().create(Properties("integrator", "path")));
+        log_info("no <integrator> given: using 'path'");
     }
     if (m_shapes.empty()) {
         setup_emitters();
@@ -228,7 +225,7 @@ KELVIN_PLUGIN(kelvin::Scene, "scene", "scene",
               "The root of a scene file: shapes, a sensor and an integrator to render, or a simulation to run.",
               kelvin::param::objects("shape", "geometry, built into one Embree scene"),
               kelvin::param::object("sensor", "sensor", "the camera (with a nested <film> and <sampler>)"),
-              kelvin::param::object("integrator", "integrator", "rendering algorithm (default: path, or ao)"),
+              kelvin::param::object("integrator", "integrator", "rendering algorithm (default: path)"),
               kelvin::param::object("simulation", "simulation", "a fluid simulation to run instead of a render"),
               kelvin::param::objects("bsdf", "shared declarations (referenced with <ref>)"),
               kelvin::param::objects("texture", "shared declarations (referenced with <ref>)"),

@@ -6,11 +6,11 @@
 //     A(x) = 1 - (r / h)^2.
 // With shading_samples = 1 every call of AmbientOcclusion::sample is a Bernoulli(A) draw; the mean of N
 // independent calls has standard error sqrt(A (1 - A) / N), and we accept 5 standard errors. (The shadow
-// ray starts 1e-4 above the floor, which moves A by 2 r^2 1e-4 / h^3 <= 1.3e-4 here: small against the
+// ray starts about 1e-5 above the floor (SurfaceInteraction::spawn), which moves A by far less than the
 // 5-sigma tolerance of ~5e-3.)
 //
-// Seen to fail: (1) breaking the cosine-weighted warp in src/plugins/integrators/ao.cpp
-// (`r = std::sqrt(u.x)` -> `r = u.x`) gives a mean of 0.563 instead of 0.75 for r/h = 1/2 (193 sigma off;
+// Seen to fail: (1) breaking the cosine-weighted warp (the ao integrator used its own polar map then;
+// `r = std::sqrt(u.x)` -> `r = u.x`) gives a mean of 0.563 instead of 0.75 for r/h = 1/2 (193 sigma off;
 // 70 sigma for r/h = 0.8; MaxDistanceIgnoresFartherOccluders fails too); (2) comparing to the
 // uniform-hemisphere answer cos(alpha) = sqrt(1 - (r/h)^2) instead puts the correct estimator 155-306
 // sigma off. With the correct code and expectation the three cases give z = -1.93, +0.77, -0.47; over 20

@@ -39,6 +39,9 @@ struct Transform {
     Vec3d apply_normal(const Vec3d& n) const;
     Transform operator*(const Transform& o) const { return {matrix * o.matrix, o.inverse * inverse}; }
     bool is_identity() const { return matrix == Mat4d(1.0); }
+    /// Rotation and translation only (no scale, shear or mirror beyond a rotation's): the linear part is
+    /// orthonormal to `tol`.
+    bool is_rigid(double tol = 1e-6) const;
 
     static Transform translate(const Vec3d& t);
     static Transform scale(const Vec3d& s);

@@ -6,6 +6,7 @@
 
 #include <pcg_random.hpp>
 
+#include <cmath>
 #include <cstdint>
 
 namespace kelvin {
@@ -18,6 +19,11 @@ constexpr uint64_t hash_combine(uint64_t a, uint64_t b) {
     z = (z ^ (z >> 27)) * 0x94d049bb133111ebULL;
     return z ^ (z >> 31);
 }
+
+class Random;
+
+/// Two independent standard normal variates (Box–Muller).
+inline Vec2d standard_normal2(Random& rng);
 
 class Random {
 public:
@@ -49,5 +55,12 @@ public:
 private:
     pcg32 m_rng;
 };
+
+inline Vec2d standard_normal2(Random& rng) {
+    const double u1 = rng.next_double(), u2 = rng.next_double();
+    const double r = std::sqrt(-2.0 * std::log1p(-u1));  // u1 < 1, so the logarithm is finite
+    const double a = 2 * Pi * u2;
+    return {r * std::cos(a), r * std::sin(a)};
+}
 
 }  // namespace kelvin

@@ -3,6 +3,7 @@
 // wrap: every density uses minimum-image differences (torus_delta), so a kernel is symmetric across the seam
 // exactly as it is elsewhere (a pitfall of public implementations: ignoring wrap-around in density ratios).
 #include <kelvin/core/object.h>
+#include <kelvin/core/properties.h>
 #include <kelvin/core/random.h>
 
 #include <cmath>
@@ -22,6 +23,35 @@ inline double torus_wrap(double x) {
     double f = x - std::floor(x);
     return f < 1.0 ? f : 0.0;
 }
+
+/// Kelemen's step-length law (thesis Eq. 4.5): lengths d = eps_max exp(-log(eps_max / eps_min) u) in
+/// [eps_min, eps_max], with density 1 / (d log(eps_max / eps_min)). Shared by the `kelemen` (per coordinate,
+/// random sign) and `kelemen_pair` (per pair, random direction) kernels.
+struct KelemenLaw {
+    double eps_min = 1.0 / 1024, eps_max = 1.0 / 64, log_ratio = std::log(16.0);
+
+    /// Reads and validates the `eps_min` / `eps_max` parameters (declared by the plugin).
+    static KelemenLaw from(const Properties& props) {
+        KelemenLaw k;
+        k.eps_min = props.get_float("eps_min", 1e-9, 0.5);
+        k.eps_max = props.get_float("eps_max", 1e-9, 0.5);
+        if (!(k.eps_max > k.eps_min)) props.error("eps_max", "must exceed eps_min");
+        k.log_ratio = std::log(k.eps_max / k.eps_min);
+        return k;
+    }
+    double sample_length(double u) const { return eps_max * std::exp(-log_ratio * u); }
+    /// A step of random sign (1D Kelemen).
+    double sample_signed(Random& rng) const {
+        const double sign = rng.next_double() < 0.5 ? -1.0 : 1.0;
+        return sign * sample_length(rng.next_double());
+    }
+    bool in_range(double d, double rel = 1e-12) const { return d >= eps_min * (1 - rel) && d <= eps_max * (1 + rel); }
+    /// Density of a signed 1D step `delta` (half the length density, for each sign).
+    double signed_pdf(double delta) const {
+        const double d = std::abs(delta);
+        return in_range(d) ? 1.0 / (2 * d * log_ratio) : 0.0;
+    }
+};
 
 /// Kernels act on the first n coordinates of a state (n fixed for the duration of a chain step); the spans
 /// passed in all have that length. Coordinates a path reads beyond them are fresh prior draws on every side of

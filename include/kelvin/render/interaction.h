@@ -3,6 +3,8 @@
 #include <kelvin/render/frame.h>
 #include <kelvin/render/ray.h>
 
+#include <cmath>
+
 namespace kelvin {
 
 class Shape;
@@ -27,5 +29,15 @@ struct SurfaceInteraction {
     /// A ray from here to `target`, stopping just short of it (shadow rays).
     Ray spawn_to(const Vec3d& target) const;
 };
+
+/// Veach's correction for shading normals in adjoint (importance) transport: the factor that turns the BSDF
+/// evaluated with the shading normal into the adjoint BSDF, |wi.ns| |wo.ng| / (|wi.ng| |wo.ns|) for local
+/// directions wi, wo (Veach 1997, Eq. 5.19). 1 where ns == ng; 0 for directions grazing the geometry.
+inline double shading_correction(const SurfaceInteraction& si, const Vec3d& wi, const Vec3d& wo) {
+    const double ng_wi = std::abs(glm::dot(si.to_world(wi), si.ng)), ng_wo = std::abs(glm::dot(si.to_world(wo), si.ng));
+    const double ns_wi = std::abs(wi.z), ns_wo = std::abs(wo.z);
+    if (ng_wi == 0 || ns_wo == 0) return 0.0;
+    return (ns_wi * ng_wo) / (ng_wi * ns_wo);
+}
 
 }  // namespace kelvin

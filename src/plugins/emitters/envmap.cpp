@@ -56,14 +56,9 @@ public:
         }
         m_scale = props.get_float("scale", 0.0, Inf);
         const Transform to_world = props.get_transform("to_world");
-        const Mat3d m(to_world.matrix);
-        const Mat3d mtm = glm::transpose(m) * m;
-        for (int i = 0; i < 3; ++i)
-            for (int j = 0; j < 3; ++j)
-                if (std::abs(mtm[i][j] - (i == j ? 1.0 : 0.0)) > 1e-6)
-                    props.error("to_world", "must be a rotation (no scaling)");
+        if (!to_world.is_rigid()) props.error("to_world", "must be a rotation (no scaling)");
         m_to_local = Mat3d(to_world.inverse);
-        m_to_world = m;
+        m_to_world = Mat3d(to_world.matrix);
 
         m_width = img.width();
         m_height = img.height();

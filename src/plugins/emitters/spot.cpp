@@ -48,12 +48,7 @@ public:
         const double beam = props.has("beam_width") ? props.get_float("beam_width", 0.0, 180.0) : 0.75 * cutoff;
         if (beam > cutoff) props.error("beam_width", fmt::format("must not exceed cutoff_angle ({})", cutoff));
         const Transform to_world = props.get_transform("to_world");
-        const Mat3d m(to_world.matrix);
-        const Mat3d mtm = glm::transpose(m) * m;
-        for (int i = 0; i < 3; ++i)
-            for (int j = 0; j < 3; ++j)
-                if (std::abs(mtm[i][j] - (i == j ? 1.0 : 0.0)) > 1e-6)
-                    props.error("to_world", "must be a rigid transform (rotation and translation, no scaling)");
+        if (!to_world.is_rigid()) props.error("to_world", "must be a rigid transform (rotation and translation, no scaling)");
         m_to_world = to_world;
         m_pos = to_world.apply_point(Vec3d(0.0));
         m_cutoff = glm::radians(cutoff);

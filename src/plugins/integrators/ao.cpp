@@ -12,6 +12,7 @@
 //     <integrator type="ao"><integer name="shading_samples" value="4"/></integrator>
 #include <kelvin/core/registry.h>
 #include <kelvin/render/scene.h>
+#include <kelvin/render/warp.h>
 
 #include <cmath>
 
@@ -29,17 +30,12 @@ public:
         ++c.rays;
         auto hit = scene.intersect(ray);
         if (!hit) return Color3(0.0);
-        Vec3d n = glm::dot(hit->ng, ray.d) < 0 ? hit->ng : -hit->ng;
-        // Orthonormal frame around n (Duff et al. 2017, "Building an orthonormal basis, revisited").
-        double sign = std::copysign(1.0, n.z), a = -1.0 / (sign + n.z), b = n.x * n.y * a;
-        Vec3d s(1 + sign * n.x * n.x * a, sign * b, -sign * n.x), t(b, sign + n.y * n.y * a, -n.y);
-        const double eps = 1e-4 * (1.0 + glm::length(hit->p));
+        const SurfaceInteraction si = scene.interaction(ray, *hit);
+        const Frame frame(glm::dot(si.ns, ray.d) < 0 ? si.ns : -si.ns);  // the hemisphere facing the viewer
         int visible = 0;
         for (int i = 0; i < m_samples; ++i) {
-            Vec2d u = sampler.next_2d();
-            double r = std::sqrt(u.x), phi = 2 * Pi * u.y;  // cosine-weighted hemisphere (Malley's method)
-            Vec3d d = r * std::cos(phi) * s + r * std::sin(phi) * t + std::sqrt(std::max(0.0, 1 - u.x)) * n;
-            Ray shadow{hit->p + eps * n, d, 0.0, m_max > 0 ? m_max : Inf};
+            Ray shadow = si.spawn(frame.to_world(warp::square_to_cosine_hemisphere(sampler.next_2d())));
+            shadow.tmax = m_max > 0 ? m_max : Inf;
             ++c.rays;
             if (!scene.occluded(shadow)) ++visible;
         }

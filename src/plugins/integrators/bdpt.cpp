@@ -71,12 +71,16 @@ public:
     }
     bool splats() const override { return true; }
 
+    RunResult render(const Scene& scene, RunContext& ctx) override {
+        // Checked once, before any work: the camera-vertex densities below assume a point camera.
+        if (!scene.sensor()->is_pinhole())
+            throw InputError({}, fmt::format("bdpt supports pinhole sensors only (perspective), not {}; use path "
+                                             "or ptracer", scene.sensor()->to_string()));
+        return SamplingIntegrator::render(scene, ctx);
+    }
+
     Color3 sample(const Scene& scene, Sampler& sampler, const Ray& camera_ray, SampleCounters& c) const override {
         const Sensor& sensor = *scene.sensor();
-        if (!sensor.is_pinhole())
-            throw RuntimeError(fmt::format("bdpt supports pinhole sensors only (perspective), not {}: its camera "
-                                           "vertex densities assume a point camera; use path or ptracer",
-                                           sensor.to_string()));
         const int max_edges = m_max_depth < 0 ? MaxVertices - 1 : m_max_depth;
         // Per-thread vertex storage: no allocation and no 40 kB clear per sample. Every vertex a sample reads
         // is assigned before use (walk() assigns each vertex it adds; cam[0] and light[0] are reset below).
@@ -213,13 +217,6 @@ private:
             ray.d = glm::normalize(ray.d);
         }
         return n;
-    }
-
-    static double shading_correction(const SurfaceInteraction& si, const Vec3d& wi, const Vec3d& wo) {
-        double ng_wi = std::abs(glm::dot(si.to_world(wi), si.ng)), ng_wo = std::abs(glm::dot(si.to_world(wo), si.ng));
-        double ns_wi = std::abs(wi.z), ns_wo = std::abs(wo.z);
-        if (ng_wi == 0 || ns_wo == 0) return 0.0;
-        return (ns_wi * ng_wo) / (ng_wi * ns_wo);
     }
 
     // Solid-angle density at `from` towards `to`, converted to area density at `to`.

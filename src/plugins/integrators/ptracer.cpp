@@ -27,15 +27,6 @@
 namespace kelvin {
 namespace {
 
-/// Veach's correction for shading normals in adjoint (importance) transport: the BSDF is used with the
-/// geometric normal's cosine at wi and the shading normal's at wo swapped (Veach 1997, Eq. 5.19).
-inline double shading_correction(const SurfaceInteraction& si, const Vec3d& wi_local, const Vec3d& wo_local) {
-    double ng_wi = std::abs(glm::dot(si.to_world(wi_local), si.ng)), ng_wo = std::abs(glm::dot(si.to_world(wo_local), si.ng));
-    double ns_wi = std::abs(wi_local.z), ns_wo = std::abs(wo_local.z);
-    if (ng_wi == 0 || ns_wo == 0) return 0.0;
-    return (ns_wi * ng_wo) / (ng_wi * ns_wo);
-}
-
 class LightTracer final : public Integrator {
 public:
     static constexpr std::size_t PathsPerUnit = 4096;

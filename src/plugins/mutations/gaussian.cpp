@@ -19,11 +19,10 @@ public:
         m_norm = 1.0 / (m_sigma * std::sqrt(2 * Pi));
     }
     void sample(Coords x, std::span<double> y, Random& rng) const override {
-        for (std::size_t i = 0; i < x.size(); ++i) {
-            // Box–Muller; one normal per coordinate.
-            double u1 = 1.0 - rng.next_double(), u2 = rng.next_double();
-            double g = std::sqrt(-2 * std::log(u1)) * std::cos(2 * Pi * u2);
-            y[i] = torus_wrap(x[i] + m_sigma * g);
+        for (std::size_t i = 0; i < x.size(); i += 2) {
+            const Vec2d g = standard_normal2(rng);
+            y[i] = torus_wrap(x[i] + m_sigma * g.x);
+            if (i + 1 < x.size()) y[i + 1] = torus_wrap(x[i + 1] + m_sigma * g.y);
         }
     }
     double density(Coords from, Coords to) const override {

@@ -17,30 +17,18 @@ namespace {
 
 class Kelemen final : public Mutation {
 public:
-    explicit Kelemen(const Properties& props)
-        : m_min(props.get_float("eps_min", 1e-9, 0.5)), m_max(props.get_float("eps_max", 1e-9, 0.5)) {
-        if (!(m_max > m_min)) props.error("eps_max", "must exceed eps_min");
-        m_log = std::log(m_max / m_min);
-    }
+    explicit Kelemen(const Properties& props) : m_law(KelemenLaw::from(props)) {}
     void sample(Coords x, std::span<double> y, Random& rng) const override {
-        for (std::size_t i = 0; i < x.size(); ++i) {
-            double sign = rng.next_double() < 0.5 ? -1.0 : 1.0;
-            double d = m_max * std::exp(-m_log * rng.next_double());
-            y[i] = torus_wrap(x[i] + sign * d);
-        }
+        for (std::size_t i = 0; i < x.size(); ++i) y[i] = torus_wrap(x[i] + m_law.sample_signed(rng));
     }
     double density(Coords from, Coords to) const override {
         double p = 1;
-        for (std::size_t i = 0; i < from.size(); ++i) {
-            double d = std::abs(torus_delta(from[i], to[i]));
-            if (d < m_min * (1 - 1e-12) || d > m_max * (1 + 1e-12)) return 0.0;
-            p *= 1.0 / (2 * d * m_log);
-        }
+        for (std::size_t i = 0; i < from.size() && p > 0; ++i) p *= m_law.signed_pdf(torus_delta(from[i], to[i]));
         return p;
     }
 
 private:
-    double m_min, m_max, m_log;
+    KelemenLaw m_law;
 };
 
 }  // namespace

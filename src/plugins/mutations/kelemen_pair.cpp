@@ -18,45 +18,33 @@ namespace {
 
 class KelemenPair final : public Mutation {
 public:
-    explicit KelemenPair(const Properties& props)
-        : m_min(props.get_float("eps_min", 1e-9, 0.5)), m_max(props.get_float("eps_max", 1e-9, 0.5)) {
-        if (!(m_max > m_min)) props.error("eps_max", "must exceed eps_min");
-        m_log = std::log(m_max / m_min);
-    }
+    explicit KelemenPair(const Properties& props) : m_law(KelemenLaw::from(props)) {}
     void sample(Coords x, std::span<double> y, Random& rng) const override {
         const std::size_t n = x.size();
         std::size_t i = 0;
         for (; i + 1 < n; i += 2) {
-            double d = m_max * std::exp(-m_log * rng.next_double());
-            double phi = 2 * Pi * rng.next_double();
+            const double d = m_law.sample_length(rng.next_double()), phi = 2 * Pi * rng.next_double();
             y[i] = torus_wrap(x[i] + d * std::cos(phi));
             y[i + 1] = torus_wrap(x[i + 1] + d * std::sin(phi));
         }
-        if (i < n) {
-            double sign = rng.next_double() < 0.5 ? -1.0 : 1.0;
-            y[i] = torus_wrap(x[i] + sign * m_max * std::exp(-m_log * rng.next_double()));
-        }
+        if (i < n) y[i] = torus_wrap(x[i] + m_law.sample_signed(rng));
     }
     double density(Coords from, Coords to) const override {
         const std::size_t n = from.size();
         double p = 1;
         std::size_t i = 0;
         for (; i + 1 < n; i += 2) {
-            double dx = torus_delta(from[i], to[i]), dy = torus_delta(from[i + 1], to[i + 1]);
-            double d = std::sqrt(dx * dx + dy * dy);
-            if (d < m_min * (1 - 1e-9) || d > m_max * (1 + 1e-9)) return 0.0;
-            p *= 1.0 / (2 * Pi * d * d * m_log);
+            const double dx = torus_delta(from[i], to[i]), dy = torus_delta(from[i + 1], to[i + 1]);
+            const double d = std::sqrt(dx * dx + dy * dy);
+            if (!m_law.in_range(d, 1e-9)) return 0.0;
+            p *= 1.0 / (2 * Pi * d * d * m_law.log_ratio);  // radial density / circumference
         }
-        if (i < n) {
-            double d = std::abs(torus_delta(from[i], to[i]));
-            if (d < m_min * (1 - 1e-12) || d > m_max * (1 + 1e-12)) return 0.0;
-            p *= 1.0 / (2 * d * m_log);
-        }
+        if (i < n) p *= m_law.signed_pdf(torus_delta(from[i], to[i]));
         return p;
     }
 
 private:
-    double m_min, m_max, m_log;
+    KelemenLaw m_law;
 };
 
 }  // namespace

@@ -31,6 +31,9 @@ public:
         m_film = object_or_default<Film>(props, "film", "film", "hdrfilm");
         m_sampler = object_or_default<Sampler>(props, "sampler", "sampler", "independent");
         m_to_world = props.get_transform("to_world");
+        // Distances and angles are measured in camera space by the light-tracing weight: keep them world-sized.
+        if (!m_to_world.is_rigid())
+            props.error("to_world", "must be a rigid transform (rotation, translation, mirror; no scaling)");
         m_near = props.get_float("near_clip", 0.0, Inf);
         m_far = props.get_float("far_clip", 0.0, Inf);
         if (!(m_far > m_near)) props.error("far_clip", "must exceed near_clip");

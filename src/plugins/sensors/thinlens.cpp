@@ -63,12 +63,8 @@ public:
         m_sampler = object_or_default<Sampler>(props, "sampler", "sampler", "independent");
         m_to_world = props.get_transform("to_world");
         // A rigid transform keeps lens areas and angles: the importance above assumes it.
-        const Mat3d m(m_to_world.matrix);
-        const Mat3d mtm = glm::transpose(m) * m;
-        for (int i = 0; i < 3; ++i)
-            for (int j = 0; j < 3; ++j)
-                if (std::abs(mtm[i][j] - (i == j ? 1.0 : 0.0)) > 1e-6)
-                    props.error("to_world", "must be a rigid transform (rotation and translation, no scaling)");
+        if (!m_to_world.is_rigid())
+            props.error("to_world", "must be a rigid transform (rotation, translation, mirror; no scaling)");
         m_near = props.get_float("near_clip", 0.0, Inf);
         m_far = props.get_float("far_clip", 0.0, Inf);
         if (!(m_far > m_near)) props.error("far_clip", "must exceed near_clip");
