@@ -166,23 +166,28 @@ TEST(PathTracer, PointAndConstantLightsTogether) {
 }
 
 TEST(PathTracer, MaxDepthAndHideEmitters) {
-    auto xml = [](int max_depth, bool hide) {
+    auto xml = [](int max_depth, bool hide, double fov) {
         return fmt::format(R"(<scene version="3.0.0"><integrator type="path">
                 <integer name="max_depth" value="{}"/><boolean name="hide_emitters" value="{}"/></integrator>)",
                            max_depth, hide) +
-               camera("0, 0, 6", "0, 0, 0", 30, 8) + R"(
+               camera("0, 0, 6", "0, 0, 0", fov, 8) + R"(
             <emitter type="constant"><rgb name="radiance" value="1"/></emitter>
             <shape type="sphere"><float name="radius" value="1"/></shape>
         </scene>)";
     };
-    // max_depth 1: the sky is seen, the sphere (not an emitter) is black.
-    Bitmap one = render(xml(1, false), 8);
-    EXPECT_EQ(one.at(0, 0, 0), 1.0f);   // corner: sky
-    EXPECT_EQ(one.at(4, 4, 0), 0.0f);   // centre: sphere, no bounce allowed
-    // max_depth 2: the sphere reflects the sky (albedo 0.5); hide_emitters blacks out the sky only.
-    Bitmap two = render(xml(2, true), 64);
-    EXPECT_EQ(two.at(0, 0, 0), 0.0f);
-    EXPECT_NEAR(two.at(4, 4, 0), 0.5, 0.1);
+    // max_depth 1: the sky is seen (exactly 1), the sphere (not an emitter) is black (exactly 0).
+    Bitmap one = render(xml(1, false, 30), 8);
+    EXPECT_EQ(one.at(0, 0, 0), 1.0f);  // corner: sky
+    EXPECT_EQ(one.at(4, 4, 0), 0.0f);  // centre: sphere, no bounce allowed
+    // hide_emitters blacks out the directly seen sky only.
+    Bitmap hidden = render(xml(2, true, 30), 8);
+    EXPECT_EQ(hidden.at(0, 0, 0), 0.0f);
+    EXPECT_GT(hidden.at(4, 4, 0), 0.0f);
+    // max_depth 2: one bounce off the default diffuse (albedo 0.5) under radiance 1 gives exactly 0.5. The
+    // sphere fills the frame at fov 10 (half-angle 5 deg < asin(1/6)), so every pixel estimates 0.5.
+    ImageStats s = stats(render(xml(2, true, 10), 256));
+    EXPECT_NEAR(s.mean, 0.5, 5 * s.stderr_);
+    EXPECT_NEAR(s.mean, 0.5, 0.005);
 }
 
 TEST(PathTracer, RejectsBadParameters) {
