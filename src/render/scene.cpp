@@ -94,6 +94,9 @@ Scene::Scene(const Properties& props) {
 void Scene::setup_emitters() {
     for (const auto& shape : m_shapes)
         if (Emitter* e = shape->emitter()) {
+            if (!(e->flags() & EmitterFlags::Surface))
+                throw InputError({}, fmt::format("{} cannot be attached to {}: only area emitters are nested in a "
+                                                 "<shape>", e->to_string(), shape->to_string()));
             e->set_shape(shape.get());
             m_emitters.push_back(e);
         }

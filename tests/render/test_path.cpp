@@ -205,4 +205,18 @@ TEST(PathTracer, RejectsBadParameters) {
     EXPECT_THROW(make(R"(<integer name="rr_depth" value="0"/>)"), InputError);
 }
 
+TEST(PathTracer, EmittersAreAttachedWhereTheyBelong) {
+    // A point light nested in a shape would never be seen or sampled as the user meant: refused, naming both.
+    std::string msg = ktest::input_error_of([] {
+        ktest::load_scene_xml(R"(<scene version="3.0.0">)" + camera("0,0,5", "0,0,0", 30, 4) +
+                              R"(<shape type="sphere"><emitter type="point"/></shape></scene>)");
+    });
+    EXPECT_NE(msg.find("point"), std::string::npos) << msg;
+    EXPECT_NE(msg.find("sphere"), std::string::npos) << msg;
+    // ... and an area emitter at the root, likewise.
+    EXPECT_THROW(ktest::load_scene_xml(R"(<scene version="3.0.0">)" + camera("0,0,5", "0,0,0", 30, 4) +
+                                       R"(<emitter type="area"/></scene>)"),
+                 InputError);
+}
+
 }  // namespace
