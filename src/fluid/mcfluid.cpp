@@ -175,6 +175,10 @@ bool MCFluidSolver::step(double dt) {
                 ++w.invalid_velocity;
                 xd = x;
             }
+            if (m_dye) {
+                m_disp_x.at(i, j) = x.x - xd.x;
+                m_disp_y.at(i, j) = x.y - xd.y;
+            }
             xd = s.domain.wrap(xd);
             double value;
             if (!viscous) {
@@ -202,12 +206,22 @@ bool MCFluidSolver::step(double dt) {
         m_work.invalid_velocity += w.invalid_velocity;
         m_work.invalid_vorticity += w.invalid_vorticity;
     }
+    if (m_dye) m_dye->advect(m_disp_x, m_disp_y, dt, s.seed, stream_of(m_step, TagDye, 0));
     std::swap(m_omega, m_next);
     m_time += dt;
     ++m_step;
     rebuild_estimator();
     m_work.seconds_advection += timer.seconds();
     return true;
+}
+
+void MCFluidSolver::set_dye(std::unique_ptr<PassiveScalars> dye) {
+    m_dye = std::move(dye);
+    if (m_dye && (m_dye->channel(0).domain().min != m_settings.domain.min ||
+                  m_dye->channel(0).domain().max != m_settings.domain.max ||
+                  m_dye->channel(0).domain().periodic != m_settings.domain.periodic))
+        throw_runtime("MCFluidSolver::set_dye: the dye's domain differs from the solver's");
+    if (m_dye) m_disp_x = m_disp_y = Grid2(m_settings.domain, m_settings.nx, m_settings.ny);
 }
 
 bool MCFluidSolver::advance_to(double t) {

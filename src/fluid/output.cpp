@@ -5,6 +5,8 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
+#include <optional>
 
 namespace kelvin::fluid {
 
@@ -58,6 +60,47 @@ std::filesystem::path OutputPaths::frame(long long step, int digits, const std::
     return p;
 }
 
+std::filesystem::path OutputPaths::frame(long long step, int digits, const std::string& ext,
+                                         const std::string& tag) const {
+    std::filesystem::path p = prefix;
+    p += fmt::format("_{}_{:0{}d}{}", tag, step, digits, ext);
+    return p;
+}
+
+double exact_vorticity_rmse(const Grid2& omega, const VorticityField& field, double t, double viscosity) {
+    double s = 0;
+    for (int j = 0; j < omega.ny(); ++j)
+        for (int i = 0; i < omega.nx(); ++i) {
+            const std::optional<double> e = field.exact_vorticity(t, omega.cell_center(i, j), viscosity);
+            if (!e) return std::numeric_limits<double>::quiet_NaN();
+            const double d = omega.at(i, j) - *e;
+            s += d * d;
+        }
+    return std::sqrt(s / double(omega.cell_count()));
+}
+
+void write_dye_frame(const OutputPaths& paths, long long step, int digits, const PassiveScalars* dye, bool png,
+                     bool exr, std::vector<std::filesystem::path>& written) {
+    if (!dye || !paths.enabled() || (!png && !exr)) return;
+    const Bitmap img = dye->image();
+    for (const char* ext : {".png", ".exr"}) {
+        if ((ext[1] == 'p' && !png) || (ext[1] == 'e' && !exr)) continue;
+        const auto p = paths.frame(step, digits, ext, "dye");
+        write_image(p, img);
+        written.push_back(p);
+    }
+}
+
+void report_dye_stats(Stats& stats, const PassiveScalars* dye) {
+    const DyeWork w = dye ? dye->work() : DyeWork{};
+    stats.add("fluid.dye_lookups", double(w.lookups), "lookups");
+    stats.add("fluid.dye_diffusion_samples", double(w.diffusion_samples), "samples");
+    stats.add("fluid.dye_invalid", double(w.invalid), "values");
+    stats.add_time("fluid.time.dye", w.seconds);
+}
+
+std::string dye_effect(const DyeSpec* spec) { return spec ? "dye " + spec->description() : std::string("dye none"); }
+
 std::filesystem::path OutputPaths::csv() const {
     std::filesystem::path p = prefix;
     p += ".csv";
@@ -77,15 +120,18 @@ DiagnosticsCsv::~DiagnosticsCsv() {
 
 const char* DiagnosticsCsv::header() {
     return "step,time,kinetic_energy,kinetic_energy_raw,enstrophy,circulation,max_abs_vorticity,seconds,"
-           "biot_savart_evals,biot_savart_evals_per_second,invalid";
+           "biot_savart_evals,biot_savart_evals_per_second,invalid,vorticity_rmse_exact";
 }
 
 void DiagnosticsCsv::write(const FluidDiagnostics& d, double seconds, double evals, uint64_t invalid) {
     if (!m_file) return;
     const double rate = seconds > 0 ? evals / seconds : 0.0;
-    std::string line = fmt::format("{},{:.10g},{:.10g},{:.10g},{:.10g},{:.10g},{:.10g},{:.6g},{:.0f},{:.6g},{}\n",
+    std::string line = fmt::format("{},{:.10g},{:.10g},{:.10g},{:.10g},{:.10g},{:.10g},{:.6g},{:.0f},{:.6g},{},{}\n",
                                    d.step, d.time, d.kinetic_energy, d.kinetic_energy_raw, d.enstrophy, d.circulation,
-                                   d.max_abs_vorticity, seconds, evals, rate, invalid);
+                                   d.max_abs_vorticity, seconds, evals, rate, invalid,
+                                   std::isfinite(d.vorticity_rmse_exact)
+                                       ? fmt::format("{:.6g}", d.vorticity_rmse_exact)
+                                       : std::string());
     if (std::fputs(line.c_str(), m_file) < 0) throw_runtime("cannot write '{}'", m_path.string());
     std::fflush(m_file);
 }

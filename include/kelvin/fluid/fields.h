@@ -22,6 +22,9 @@ public:
     virtual std::optional<Vec2d> exact_velocity(double t, const Vec2d& x, double viscosity) const {
         return std::nullopt;
     }
+    /// Called once with the simulation's domain before any other call, by every simulation: fields placed
+    /// relative to the box (bitmap, vortex_sheet's wavelength) record it here.
+    virtual void bind_domain(const Domain2& domain) {}
     /// Called once with the simulation's domain: raise an InputError (through the plugin's Properties,
     /// kept for that purpose) or log a warning when the field does not suit the domain.
     virtual void check_domain(const Domain2& domain) const {}

@@ -14,11 +14,13 @@
 // Random(seed, hash(hash(s, p), r)). Results are bit-identical whatever the thread count.
 #include <kelvin/core/random.h>
 #include <kelvin/fluid/biot_savart.h>
+#include <kelvin/fluid/dye.h>
 #include <kelvin/fluid/grid.h>
 
 #include <atomic>
 #include <cstdint>
 #include <functional>
+#include <limits>
 #include <memory>
 #include <optional>
 
@@ -63,6 +65,9 @@ struct FluidDiagnostics {
     double enstrophy = 0;           ///< 1/2 int omega^2
     double circulation = 0;         ///< int omega
     double max_abs_vorticity = 0;
+    /// RMSE of the vorticity at the cell centres against the initial condition's exact solution (NaN: none
+    /// known; see exact_vorticity_rmse in output.h).
+    double vorticity_rmse_exact = std::numeric_limits<double>::quiet_NaN();
 };
 
 /// The practical cached solver (Section 5.3.3).
@@ -107,8 +112,13 @@ public:
 
     const FluidWork& work() const { return m_work; }
 
+    /// Passive scalars (dye) carried along the same backtraces as the vorticity (the dye moves with exactly
+    /// the flow the solver computes). Null (the default): no dye, and no dye work.
+    void set_dye(std::unique_ptr<PassiveScalars> dye);
+    PassiveScalars* dye() const { return m_dye.get(); }
+
     /// Stream tags of the passes (part of the determinism contract; tests use them).
-    enum StreamTag : uint64_t { TagVelocity = 1, TagAdvection = 2, TagQuery = 3 };
+    enum StreamTag : uint64_t { TagVelocity = 1, TagAdvection = 2, TagQuery = 3, TagDye = 4 };
 
 private:
     void rebuild_estimator();
@@ -125,6 +135,8 @@ private:
     std::shared_ptr<const PeriodicKernel> m_periodic;
     std::unique_ptr<BiotSavartEstimator> m_estimator;
     FluidWork m_work;
+    std::unique_ptr<PassiveScalars> m_dye;
+    Grid2 m_disp_x, m_disp_y;  ///< displacement x - x_departure of the last step (only with a dye)
 };
 
 /// Settings of the recursive estimator (Algorithm C.1).

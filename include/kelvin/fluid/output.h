@@ -2,12 +2,16 @@
 // Outputs of fluid simulations: colour-mapped vorticity images, EXR field dumps and per-step CSV diagnostics.
 // Shared by every <simulation> plugin so that solvers can be compared file for file.
 #include <kelvin/core/image.h>
+#include <kelvin/core/stats.h>
+#include <kelvin/fluid/dye.h>
+#include <kelvin/fluid/fields.h>
 #include <kelvin/fluid/grid.h>
 #include <kelvin/fluid/mcfluid.h>
 
 #include <cstdio>
 #include <filesystem>
 #include <string>
+#include <vector>
 
 namespace kelvin::fluid {
 
@@ -27,9 +31,26 @@ struct OutputPaths {
     explicit OutputPaths(const std::filesystem::path& output, const std::string& name = "mcfluid");
     bool enabled() const { return !prefix.empty(); }
     std::filesystem::path frame(long long step, int digits, const std::string& ext) const;  ///< <prefix>_0010.png
+    /// A tagged frame: <prefix>_<tag>_0010.png (dye frames use the tag "dye").
+    std::filesystem::path frame(long long step, int digits, const std::string& ext, const std::string& tag) const;
     std::filesystem::path csv() const;                                                      ///< <prefix>.csv
     std::filesystem::path prefix;
 };
+
+/// RMSE of `omega` at its cell centres against the field's exact solution at time t (NaN when the field knows
+/// none there).
+double exact_vorticity_rmse(const Grid2& omega, const VorticityField& field, double t, double viscosity);
+
+/// Writes the dye frames <prefix>_dye_NNNN.png (display colours) and .exr (display colours and the raw
+/// channels) when `dye` is not null; appends the files to `written`.
+void write_dye_frame(const OutputPaths& paths, long long step, int digits, const PassiveScalars* dye, bool png,
+                     bool exr, std::vector<std::filesystem::path>& written);
+
+/// The dye's counters and timer into `stats` (zeros without dye, so that "no dye work" is visible):
+/// fluid.dye_lookups, fluid.dye_diffusion_samples, fluid.dye_invalid, fluid.time.dye.
+void report_dye_stats(Stats& stats, const PassiveScalars* dye);
+/// The dye's part of the effects line: "dye none" or "dye pattern(...)".
+std::string dye_effect(const DyeSpec* spec);
 
 /// Per-step diagnostics CSV (one header line, one row per recorded state).
 class DiagnosticsCsv {

@@ -31,6 +31,7 @@
 // | (vorticity)       | nested  | required  | initial condition                                             |
 // | (velocity)        | nested  | biot_savart | velocity estimator                                          |
 // | (cache)           | nested  | grid      | vorticity cache                                               |
+// | (scalar)          | nested  | none      | dye advected along the same backtraces (<prefix>_dye_NNNN.*)  |
 //
 //     <simulation type="mcfluid">
 //         <point name="min" x="-3.14159265358979" y="-3.14159265358979"/>
@@ -116,7 +117,9 @@ public:
         m_settings.ny = cache->resolution_y() > 0
                             ? cache->resolution_y()
                             : int(std::clamp(std::lround(m_settings.nx * size.y / size.x), 2L, 16384L));
+        m_field->bind_domain(m_settings.domain);
         m_field->check_domain(m_settings.domain);
+        m_dye = props.get_object_as<DyeSpec>("scalar");
     }
 
     RunResult run(RunContext& ctx) override {
@@ -129,18 +132,20 @@ public:
         }
         const VorticityField& field = *m_field;
         MCFluidSolver solver(settings, [&field](const Vec2d& x) { return field.vorticity(x); });
+        if (m_dye) solver.set_dye(std::make_unique<PassiveScalars>(settings.domain, *m_dye, settings.nx, settings.ny));
         const bool viscous = settings.viscosity > 0;
 
         log_info("mcfluid: 2D, domain {}, {}x{} cache ({}), initial {}", settings.domain.to_string(), settings.nx,
                  settings.ny, fluid::to_string(settings.interpolation), field.description());
         log_info(
             "mcfluid: effects: advection ({}, dt {:g}, {} steps) with Biot–Savart velocity (n_mc {}, importance "
-            "{}, delta {:g}{}); diffusion {}; stretching off (2D); boundaries none; dye none",
+            "{}, delta {:g}{}); diffusion {}; stretching off (2D); boundaries none; {}",
             fluid::to_string(settings.advection), settings.dt, m_steps, settings.velocity.samples,
             fluid::to_string(settings.velocity.importance), solver.delta(),
             settings.domain.periodic ? ", periodic kernel" : "",
             viscous ? fmt::format("on (nu {:g}, Feynman–Kac, n_d {})", settings.viscosity, settings.diffusion_samples)
-                    : std::string("off (inviscid)"));
+                    : std::string("off (inviscid)"),
+            dye_effect(m_dye.get()));
 
         OutputPaths paths(ctx.output);
         std::optional<DiagnosticsCsv> csv;
@@ -163,11 +168,14 @@ public:
                 write_image(p, img);
                 result.files_written.push_back(p);
             }
+            write_dye_frame(paths, solver.step_index(), digits, solver.dye(), m_write_png, m_write_exr,
+                            result.files_written);
             output_seconds += t.seconds();
         };
 
         // State 0: its velocity is the first step's k1, so diagnostics cost nothing extra.
         FluidDiagnostics d0 = solver.diagnostics();
+        d0.vorticity_rmse_exact = exact_vorticity_rmse(solver.vorticity_grid(), field, 0.0, settings.viscosity);
         if (csv)
             csv->write(d0, 0.0, double(solver.work().biot_savart_evals),
                        solver.work().invalid_velocity + solver.work().invalid_vorticity);
@@ -187,6 +195,7 @@ public:
             if (!solver.step(dt)) break;
             // The new state's velocity: diagnostics now, k1 of the next step later (computed once).
             FluidDiagnostics d = solver.diagnostics();
+            d.vorticity_rmse_exact = exact_vorticity_rmse(solver.vorticity_grid(), field, d.time, settings.viscosity);
             const double seconds = step_timer.seconds();
             const FluidWork& after = solver.work();
             if (csv)
@@ -225,6 +234,7 @@ public:
         ctx.stats.add_time("fluid.time.velocity", w.seconds_velocity);
         ctx.stats.add_time("fluid.time.advection", w.seconds_advection);
         ctx.stats.add_time("fluid.time.output", output_seconds);
+        report_dye_stats(ctx.stats, solver.dye());
         if (w.invalid_velocity + w.invalid_vorticity > 0)
             log_warn(
                 "mcfluid: {} non-finite velocity estimate(s) and {} non-finite vorticity value(s) were replaced "
@@ -234,9 +244,9 @@ public:
         const FluidDiagnostics dn = solver.diagnostics();
         log_info(
             "mcfluid: t = {:g}: energy {:.6g} (initial {:.6g}), enstrophy {:.6g} (initial {:.6g}), circulation "
-            "{:.6g}, max |omega| {:.6g}; active effects: advection{}",
+            "{:.6g}, max |omega| {:.6g}; active effects: advection{}{}",
             dn.time, dn.kinetic_energy, d0.kinetic_energy, dn.enstrophy, d0.enstrophy, dn.circulation,
-            dn.max_abs_vorticity, viscous ? ", diffusion" : "");
+            dn.max_abs_vorticity, viscous ? ", diffusion" : "", m_dye ? ", dye" : "");
         result.image = field_image(solver.vorticity_grid(), &solver.velocity_u(), &solver.velocity_v(), range);
         result.work = double(done);
         result.seconds = total.seconds();
@@ -251,6 +261,7 @@ private:
     bool m_write_png = true, m_write_exr = true, m_write_csv = true;
     double m_color_range = 0;
     std::shared_ptr<VorticityField> m_field;
+    std::shared_ptr<DyeSpec> m_dye;
 };
 
 }  // namespace
@@ -276,4 +287,5 @@ KELVIN_PLUGIN(kelvin::fluid::MCFluid, "simulation", "mcfluid",
               kelvin::param::real("color_range", 0.0, "|omega| mapped to full colour (0: max at t = 0)"),
               kelvin::param::object("vorticity", "vorticity", "initial vorticity field", true),
               kelvin::param::object("velocity", "velocity", "velocity estimator (default biot_savart)"),
-              kelvin::param::object("cache", "cache", "vorticity cache (default grid)"));
+              kelvin::param::object("cache", "cache", "vorticity cache (default grid)"),
+              kelvin::param::object("scalar", "scalar", "passive scalar (dye) advected with the flow (optional)"));
