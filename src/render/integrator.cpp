@@ -26,17 +26,27 @@ PassLoopResult run_passes(RunContext& ctx, long long scene_target, const std::st
     Timer timer, since_partial;
     ProgressReporter progress("Rendering", timed ? ctx.time_limit : double(target), timed ? "s" : unit, ctx.quiet);
     PassLoopResult r;
+    CheckpointSchedule checkpoints(ctx);  // passes end exactly on work checkpoints; callback time is not counted
     long long size = 1;
     while (r.done < target) {
-        const long long n = std::min(size, target - r.done);
+        const long long n = std::min({size, target - r.done, checkpoints.work_until_next(r.done)});
         pass(r.done, n);
         if (interrupt_requested()) {
             r.interrupted = true;
             break;
         }
         r.done += n;
-        const double elapsed = timer.seconds();
+        double elapsed = timer.seconds() - checkpoints.overhead();
         progress.set(timed ? elapsed : double(r.done));
+        if (checkpoints.active()) {
+            Checkpoint cp;
+            cp.seconds = elapsed;
+            cp.work = double(r.done);
+            cp.work_unit = unit;
+            cp.image = develop;
+            checkpoints.reached(ctx, cp);
+            elapsed = timer.seconds() - checkpoints.overhead();
+        }
         if (ctx.time_limit > 0 && elapsed >= ctx.time_limit) break;
         if (ctx.write_partial > 0 && ctx.write_partial_image && since_partial.seconds() >= ctx.write_partial) {
             ctx.write_partial_image(develop());
@@ -46,6 +56,8 @@ PassLoopResult run_passes(RunContext& ctx, long long scene_target, const std::st
         long long budget = std::max<long long>(1, (long long)(1.0 / std::max(per_unit, 1e-9)));
         if (ctx.time_limit > 0)
             budget = std::min(budget, std::max<long long>(1, (long long)((ctx.time_limit - elapsed) / per_unit)));
+        if (const double next = checkpoints.seconds_until_next(elapsed); std::isfinite(next))
+            budget = std::min(budget, std::max<long long>(1, (long long)(next / per_unit)));
         size = std::clamp<long long>(size * 2, 1, budget);
     }
     progress.finish();

@@ -1,6 +1,7 @@
 #pragma once
 // A Job is what `kelvin scene.xml` runs: a render (the scene's integrator) or a simulation. The CLI and host
 // applications drive it through RunContext and read back a RunResult.
+#include <kelvin/core/checkpoint.h>
 #include <kelvin/core/image.h>
 #include <kelvin/core/object.h>
 #include <kelvin/core/stats.h>
@@ -23,6 +24,20 @@ struct RunContext {
     /// with RunResult::interrupted set and the image so far; the caller writes it.)
     std::function<void(const Bitmap&)> write_partial_image;
     Stats stats;
+
+    // ----- checkpoints (convergence studies, `kelvin converge`): intermediate results without restarting.
+    // Contract for every job (see core/checkpoint.h; run_passes and mcfluid implement it): when
+    // `on_checkpoint` is set, the job calls it once per scheduled checkpoint, at the first moment its work
+    // reaches it, with the elapsed compute time (excluding time spent in the callback), the work done and an
+    // accessor to the result so far (an image; simulations also the fields on their grid). Work checkpoints
+    // are hit exactly (a render at checkpoint_work = {4} reports the same image as a 4 spp render with the
+    // same seed); time checkpoints fire at the end of the pass or step that crosses them. The time limit
+    // and a work target end the run after the checkpoints due at that moment have fired. Checkpoints are
+    // never reported after an interruption.
+    std::vector<double> checkpoint_seconds;    ///< compute times (seconds), any order
+    std::vector<long long> checkpoint_work;    ///< work counts: spp (renders), steps (simulations)
+    std::vector<double> checkpoint_sim_times;  ///< simulated times (simulations only)
+    CheckpointCallback on_checkpoint;
 };
 
 struct RunResult {

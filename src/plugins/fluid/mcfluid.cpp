@@ -173,6 +173,35 @@ public:
             output_seconds += t.seconds();
         };
 
+        // Checkpoints (core/checkpoint.h): the state after the steps that reach them, fields on the cache grid.
+        CheckpointSchedule checkpoints(ctx);
+        auto checkpoint = [&](long long steps) {
+            Checkpoint cp;
+            cp.seconds = total.seconds() - checkpoints.overhead();
+            cp.work = double(steps);
+            cp.work_unit = "steps";
+            cp.sim_time = solver.time();
+            cp.grid = {settings.domain.min, settings.domain.max, settings.nx, settings.ny};
+            cp.image = [&] {
+                return field_image(solver.vorticity_grid(), &solver.velocity_u(), &solver.velocity_v(), range);
+            };
+            cp.field = [&](const std::string& name, std::vector<double>& values) {
+                const Grid2* g = name == "vorticity" ? &solver.vorticity_grid()
+                                 : name == "u"       ? &solver.velocity_u()
+                                 : name == "v"       ? &solver.velocity_v()
+                                                     : nullptr;
+                if (g) values = g->values();
+                return g != nullptr;
+            };
+            cp.exact = [&](const std::string& name, double t, Vec2d x) -> std::optional<double> {
+                if (name == "vorticity") return field.exact_vorticity(t, x, settings.viscosity);
+                if (name != "u" && name != "v") return std::nullopt;
+                auto v = field.exact_velocity(t, x, settings.viscosity);
+                return v ? std::optional<double>(name == "u" ? v->x : v->y) : std::nullopt;
+            };
+            checkpoints.reached(ctx, cp);
+        };
+
         // State 0: its velocity is the first step's k1, so diagnostics cost nothing extra.
         FluidDiagnostics d0 = solver.diagnostics();
         d0.vorticity_rmse_exact = exact_vorticity_rmse(solver.vorticity_grid(), field, 0.0, settings.viscosity);
@@ -180,6 +209,7 @@ public:
             csv->write(d0, 0.0, double(solver.work().biot_savart_evals),
                        solver.work().invalid_velocity + solver.work().invalid_vorticity);
         write_frame();
+        if (checkpoints.active()) checkpoint(0);
 
         ProgressReporter progress("Simulating", double(m_steps), "steps", ctx.quiet);
         Timer since_partial;
@@ -210,7 +240,8 @@ public:
                     field_image(solver.vorticity_grid(), &solver.velocity_u(), &solver.velocity_v(), range));
                 since_partial.reset();
             }
-            if (ctx.time_limit > 0 && total.seconds() >= ctx.time_limit && s < m_steps) {
+            if (checkpoints.active()) checkpoint(done);
+            if (ctx.time_limit > 0 && total.seconds() - checkpoints.overhead() >= ctx.time_limit && s < m_steps) {
                 stopped_by_time = true;
                 break;
             }
