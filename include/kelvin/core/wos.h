@@ -1,0 +1,388 @@
+#pragma once
+// Walk-on-Spheres (Muller 1956; thesis Section 3.1.5; Sawhney and Crane, "Monte Carlo Geometry Processing",
+// SIGGRAPH 2020) for the Poisson equation with Dirichlet data, in 2D and 3D:
+//
+//     Laplacian(u) = f   in Omega,        u = g   on the boundary of Omega.                 (Eq. 3.70)
+//
+// Sign convention: the thesis' (Eq. 3.70), Laplacian(u) = +f. With the non-negative Green's function of the
+// ball B(x, R), G(x, y) = log(R / r) / (2 pi) in 2D and (1/r - 1/R) / (4 pi) in 3D (r = |y - x|, the solution
+// of -Laplacian G = delta with G = 0 on the sphere; the thesis' H^x is -G), the mean-value identity reads
+//
+//     u(x)      = mean of u over the sphere dB  -  integral_B f(y) G(x, y) dy                   (Eq. 3.74)
+//     grad u(x) = d/R mean of u(y) n(y) over dB  -  integral_B f(y) grad_x G(x, y) dy           (Eq. 3.77)
+//
+// with grad_x G(x, y) = (y - x) / (2 pi) (1/r^2 - 1/R^2) in 2D and (y - x) / (4 pi) (1/r^3 - 1/R^3) in 3D.
+//
+// Estimators (one walk each, Eqs. 3.76 and 3.79):
+//   * the walk jumps from x_k to a uniform point of the largest empty sphere, R_k = distance(x_k), until
+//     R_k < epsilon (the epsilon shell), where it takes g at the closest boundary point;
+//   * the volume term draws one point y_k per step with density G(x_k, .) / |G|_1 (exactly: in 2D r = R
+//     sqrt(u1 u2), in 3D r / R ~ Beta(2, 2), the median of three uniforms) and adds -f(y_k) |G|_1 with
+//     |G|_1 = R^2 / 4 (2D), R^2 / 6 (3D);
+//   * the gradient's first step takes x_1 uniform on the first sphere and, with `antithetic` (thesis
+//     Fig. 5.5), also x_1' = 2 x_0 - x_1, averaging d/R (u(x_1) - u(x_1')) / 2 n; its volume term draws y_0
+//     with density proportional to |grad_x G| (radius density 3/(2R) (1 - rho^2) in 2D, 4/(3R) (1 - rho^3) in
+//     3D), for which the weight is the constant 2R/3 (2D), 3R/4 (3D); antithetic also mirrors y_0.
+//
+// Termination and accounting: a walk that reaches `max_steps` spheres is ended like a converged one (g at the
+// closest boundary point, as the thesis does) but counted in WalkCounters::truncated, which callers report;
+// a walk that meets a non-finite distance, an infinite sphere (no boundary) or a non-finite g or f is counted
+// in `invalid` and contributes zero (the estimate still divides by the number of walks). A gradient query
+// closer than epsilon to the boundary has no sphere to differentiate on: it returns zero and is counted in
+// `boundary_queries`. Query points outside the intended domain (say, inside a solid described by an unsigned
+// distance) get the solution of the same Dirichlet problem in whatever region they lie in.
+//
+// Distance providers: any type with
+//     double distance(const Vec& p) const;           // unsigned distance to the boundary (a lower bound is
+//                                                     // fine: smaller spheres stay unbiased, only slower)
+//     BoundaryHit<D> closest(const Vec& p) const;     // the closest boundary point and its piece, for g
+// The templates below take such a type directly (static dispatch, what benchmarks use); BoundaryGeometry<D>
+// is the runtime-polymorphic form (what plugins implement), and estimate_solution/estimate_gradient over a
+// Problem<D> are the non-template entry points. The walks allocate nothing and consume a fixed number of
+// random draws per step, so a given Random stream gives the same result on any machine and thread count.
+#include <kelvin/core/math.h>
+#include <kelvin/core/random.h>
+
+#include <glm/gtc/constants.hpp>
+
+#include <algorithm>
+#include <cmath>
+#include <cstdint>
+#include <functional>
+#include <limits>
+#include <type_traits>
+
+namespace kelvin::wos {
+
+template <int D>
+using Vec = glm::vec<D, double, glm::defaultp>;
+
+/// The closest point of the boundary to a query, and which piece of the boundary it lies on (a segment, a
+/// face, an obstacle: whatever the provider numbers), for piecewise boundary data.
+template <int D>
+struct BoundaryHit {
+    Vec<D> point{0.0};
+    Vec<D> normal{0.0};  ///< unit normal where the provider knows one, else zero
+    int component = 0;   ///< provider-defined piece index
+};
+
+/// Runtime-polymorphic distance provider.
+template <int D>
+class BoundaryGeometry {
+public:
+    virtual ~BoundaryGeometry() = default;
+    /// Unsigned distance from p to the boundary, >= 0 (a lower bound is allowed). Inf: no boundary.
+    virtual double distance(const Vec<D>& p) const = 0;
+    /// The closest boundary point (default: p itself, piece 0; enough when g is defined everywhere).
+    virtual BoundaryHit<D> closest(const Vec<D>& p) const { return {p, Vec<D>(0.0), 0}; }
+};
+
+struct Settings {
+    double epsilon = 1e-4;  ///< shell width: a walk stops when the distance drops below it
+    int max_steps = 1024;   ///< spheres per walk before it is truncated (and counted)
+    bool antithetic = true; ///< gradient: mirror the first boundary and volume samples (Fig. 5.5)
+};
+
+/// Work and trouble of a batch of walks. Accumulate per work unit, merge in a fixed order.
+struct WalkCounters {
+    uint64_t walks = 0;             ///< walks started (a gradient sample with antithetic starts two)
+    uint64_t steps = 0;             ///< spheres jumped across (distance queries minus one per walk)
+    uint64_t truncated = 0;         ///< walks that hit max_steps
+    uint64_t invalid = 0;           ///< walks with a non-finite distance, g or f, or no boundary (count 0)
+    uint64_t boundary_queries = 0;  ///< gradient queries within epsilon of the boundary (returned zero)
+    WalkCounters& operator+=(const WalkCounters& o) {
+        walks += o.walks;
+        steps += o.steps;
+        truncated += o.truncated;
+        invalid += o.invalid;
+        boundary_queries += o.boundary_queries;
+        return *this;
+    }
+};
+
+/// An estimate with the variance of the estimate itself (sample variance / n).
+struct ScalarEstimate {
+    double value = 0;
+    double variance = 0;
+    int samples = 0;
+};
+template <int D>
+struct GradientEstimate {
+    Vec<D> value{0.0};
+    Vec<D> variance{0.0};  ///< per component
+    int samples = 0;       ///< gradient samples (each of 1 or, antithetic, 2 walks)
+};
+
+/// No source term (Laplace): the volume term is compiled out.
+struct NoSource {
+    template <class V>
+    double operator()(const V&) const {
+        return 0;
+    }
+};
+
+// ----------------------------------------------------------------------------------------------------------
+// Sampling building blocks (exposed for tests).
+
+/// A uniform double in [0, 1) from one 32-bit draw.
+inline double uniform(Random& rng) { return double(rng.next_u32()) * 0x1p-32; }
+
+/// A uniform direction on the unit sphere S^{D-1} (2D: one draw, 3D: two).
+template <int D>
+inline Vec<D> sample_direction(Random& rng) {
+    if constexpr (D == 2) {
+        const double a = 2 * Pi * uniform(rng);
+        return {std::cos(a), std::sin(a)};
+    } else {
+        static_assert(D == 3, "Walk-on-Spheres is implemented in 2D and 3D");
+        const double z = 1 - 2 * uniform(rng);
+        const double s = std::sqrt(std::max(0.0, 1 - z * z));
+        const double a = 2 * Pi * uniform(rng);
+        return {s * std::cos(a), s * std::sin(a), z};
+    }
+}
+
+/// |G|_1 = integral over the ball of radius R of G(x, .): R^2 / 4 (2D), R^2 / 6 (3D).
+template <int D>
+constexpr double green_integral(double R) {
+    return D == 2 ? R * R / 4 : R * R / 6;
+}
+
+/// A radius fraction rho = r / R distributed as the ball's Green's function in polar measure:
+/// 2D 4 rho log(1/rho) (rho = sqrt(u1 u2)), 3D 6 rho (1 - rho) (the median of three uniforms).
+template <int D>
+inline double sample_green_radius(Random& rng) {
+    if constexpr (D == 2) {
+        return std::sqrt(uniform(rng) * uniform(rng));
+    } else {
+        const double a = uniform(rng), b = uniform(rng), c = uniform(rng);
+        return std::max(std::min(a, b), std::min(std::max(a, b), c));
+    }
+}
+
+/// A radius fraction rho distributed as |grad_x G| in polar measure: 2D 3/2 (1 - rho^2) (inverse CDF
+/// rho = 2 sin(asin(u) / 3)), 3D 4/3 (1 - rho^3) (rejection from the uniform, acceptance 3/4; at most 64
+/// tries, then the last proposal, a 1e-39 event).
+template <int D>
+inline double sample_green_gradient_radius(Random& rng) {
+    if constexpr (D == 2) {
+        return 2 * std::sin(std::asin(uniform(rng)) / 3);
+    } else {
+        double rho = 0;
+        for (int i = 0; i < 64; ++i) {
+            rho = uniform(rng);
+            if (uniform(rng) < 1 - rho * rho * rho) break;
+        }
+        return rho;
+    }
+}
+
+/// The constant weight |grad_x G| / p of gradient-volume samples: 2R/3 (2D), 3R/4 (3D).
+template <int D>
+constexpr double green_gradient_weight(double R) {
+    return D == 2 ? 2 * R / 3 : 3 * R / 4;
+}
+
+// ----------------------------------------------------------------------------------------------------------
+// One walk.
+
+namespace detail {
+template <class F, int D>
+inline constexpr bool has_source = !std::is_same_v<std::decay_t<F>, NoSource>;
+inline bool finite(double v) { return std::isfinite(v); }
+}  // namespace detail
+
+/// One WoS walk from x: a single-sample estimate of u(x) (Eq. 3.76). `R0` is distance(x) when the caller
+/// already knows it (negative: query it). Returns NaN for an invalid walk (counted by the caller through the
+/// estimators below, or check std::isfinite).
+template <int D, class Geometry, class Dirichlet, class Source>
+double walk(const Geometry& geometry, const Dirichlet& g, const Source& f, Vec<D> x, Random& rng,
+            const Settings& s, WalkCounters& c, double R0 = -1) {
+    ++c.walks;
+    double volume = 0;
+    double R = R0 >= 0 ? R0 : geometry.distance(x);
+    for (int k = 0;; ++k) {
+        if (!(R >= 0) || R == Inf) return std::numeric_limits<double>::quiet_NaN();  // NaN, negative, no boundary
+        if (R < s.epsilon) break;
+        if (k >= s.max_steps) {
+            ++c.truncated;
+            break;
+        }
+        ++c.steps;
+        if constexpr (detail::has_source<Source, D>) {
+            const Vec<D> y = x + (R * sample_green_radius<D>(rng)) * sample_direction<D>(rng);
+            volume -= f(y) * green_integral<D>(R);
+        }
+        x += R * sample_direction<D>(rng);
+        R = geometry.distance(x);
+    }
+    return volume + g(geometry.closest(x));
+}
+
+/// One gradient sample at x0 with R0 = distance(x0) >= epsilon (Eq. 3.79; antithetic per Settings).
+/// Returns false for an invalid sample (non-finite anywhere); counters are updated either way.
+template <int D, class Geometry, class Dirichlet, class Source>
+bool gradient_sample(const Geometry& geometry, const Dirichlet& g, const Source& f, const Vec<D>& x0, double R0,
+                     Random& rng, const Settings& s, WalkCounters& c, Vec<D>& out) {
+    const Vec<D> n = sample_direction<D>(rng);
+    const double scale = double(D) / R0;
+    Vec<D> grad(0.0);
+    if (s.antithetic) {
+        const double ua = walk<D>(geometry, g, f, x0 + R0 * n, rng, s, c);
+        const double ub = walk<D>(geometry, g, f, x0 - R0 * n, rng, s, c);
+        grad = (scale * 0.5 * (ua - ub)) * n;
+    } else {
+        grad = (scale * walk<D>(geometry, g, f, x0 + R0 * n, rng, s, c)) * n;
+    }
+    if constexpr (detail::has_source<Source, D>) {
+        const double r = R0 * sample_green_gradient_radius<D>(rng);
+        const Vec<D> dir = sample_direction<D>(rng);
+        const double w = green_gradient_weight<D>(R0);
+        if (s.antithetic)
+            grad -= (w * 0.5 * (f(x0 + r * dir) - f(x0 - r * dir))) * dir;
+        else
+            grad -= (w * f(x0 + r * dir)) * dir;
+    }
+    for (int i = 0; i < D; ++i)
+        if (!std::isfinite(grad[i])) return false;
+    out = grad;
+    return true;
+}
+
+// ----------------------------------------------------------------------------------------------------------
+// Estimators over n walks.
+
+/// u(x) from n walks. Within epsilon of the boundary: g at the closest point (0 walks).
+template <int D, class Geometry, class Dirichlet, class Source>
+ScalarEstimate solve(const Geometry& geometry, const Dirichlet& g, const Source& f, const Vec<D>& x, int n,
+                     Random& rng, const Settings& s, WalkCounters& c) {
+    ScalarEstimate e;
+    const double R0 = geometry.distance(x);
+    if (R0 >= 0 && R0 < s.epsilon) {
+        const double v = g(geometry.closest(x));
+        if (std::isfinite(v)) e.value = v;
+        else ++c.invalid;
+        e.samples = 1;
+        return e;
+    }
+    double sum = 0, sum2 = 0;
+    for (int i = 0; i < n; ++i) {
+        double v = walk<D>(geometry, g, f, x, rng, s, c, R0);
+        if (!std::isfinite(v)) {
+            ++c.invalid;
+            v = 0;
+        }
+        sum += v;
+        sum2 += v * v;
+    }
+    e.samples = n;
+    if (n > 0) {
+        e.value = sum / n;
+        e.variance = n > 1 ? std::max(0.0, (sum2 - sum * e.value) / (double(n) * double(n - 1))) : 0.0;
+    }
+    return e;
+}
+
+/// grad u(x) from n gradient samples (2n walks with antithetic). Within epsilon of the boundary: zero,
+/// counted in boundary_queries.
+template <int D, class Geometry, class Dirichlet, class Source>
+GradientEstimate<D> gradient(const Geometry& geometry, const Dirichlet& g, const Source& f, const Vec<D>& x, int n,
+                             Random& rng, const Settings& s, WalkCounters& c) {
+    GradientEstimate<D> e;
+    const double R0 = geometry.distance(x);
+    if (!(R0 >= 0) || R0 == Inf) {
+        c.invalid += uint64_t(std::max(n, 0));
+        return e;
+    }
+    if (R0 < s.epsilon) {
+        ++c.boundary_queries;
+        return e;
+    }
+    Vec<D> sum(0.0), sum2(0.0);
+    for (int i = 0; i < n; ++i) {
+        Vec<D> v(0.0);
+        if (!gradient_sample<D>(geometry, g, f, x, R0, rng, s, c, v)) {
+            ++c.invalid;
+            v = Vec<D>(0.0);
+        }
+        sum += v;
+        sum2 += v * v;
+    }
+    e.samples = n;
+    if (n > 0) {
+        e.value = sum / double(n);
+        if (n > 1)
+            for (int i = 0; i < D; ++i)
+                e.variance[i] = std::max(0.0, (sum2[i] - sum[i] * e.value[i]) / (double(n) * double(n - 1)));
+    }
+    return e;
+}
+
+// ----------------------------------------------------------------------------------------------------------
+// Non-template entry points over a runtime description.
+
+/// Laplacian(u) = source in the region bounded by `geometry`, u = dirichlet on it. An empty source means
+/// Laplace (no volume term is sampled).
+template <int D>
+struct Problem {
+    const BoundaryGeometry<D>* geometry = nullptr;
+    std::function<double(const BoundaryHit<D>&)> dirichlet;
+    std::function<double(const Vec<D>&)> source;
+};
+
+ScalarEstimate estimate_solution(const Problem<2>& p, const Vec<2>& x, int n, Random& rng, const Settings& s,
+                                 WalkCounters& c);
+ScalarEstimate estimate_solution(const Problem<3>& p, const Vec<3>& x, int n, Random& rng, const Settings& s,
+                                 WalkCounters& c);
+GradientEstimate<2> estimate_gradient(const Problem<2>& p, const Vec<2>& x, int n, Random& rng, const Settings& s,
+                                      WalkCounters& c);
+GradientEstimate<3> estimate_gradient(const Problem<3>& p, const Vec<3>& x, int n, Random& rng, const Settings& s,
+                                      WalkCounters& c);
+
+// ----------------------------------------------------------------------------------------------------------
+// Analytic distance providers (exact unsigned distances; used by tests, benchmarks and boundary plugins).
+
+/// The sphere |p - center| = radius (both sides: inside it is a ball problem, outside an exterior one).
+template <int D>
+struct SphereBoundary {
+    Vec<D> center{0.0};
+    double radius = 1;
+    double distance(const Vec<D>& p) const { return std::abs(glm::length(p - center) - radius); }
+    BoundaryHit<D> closest(const Vec<D>& p) const;
+};
+
+/// The surface of the box [lo, hi] (inside: distance to the nearest face; outside: to the box).
+template <int D>
+struct BoxBoundary {
+    Vec<D> lo{-1.0}, hi{1.0};
+    double distance(const Vec<D>& p) const;
+    /// Pieces: face 2 * axis + (0: lo side, 1: hi side).
+    BoundaryHit<D> closest(const Vec<D>& p) const;
+};
+
+/// Two concentric spheres (an annulus in 2D, a spherical shell in 3D); piece 0 inner, 1 outer.
+template <int D>
+struct ShellBoundary {
+    Vec<D> center{0.0};
+    double inner = 0.5, outer = 1;
+    double distance(const Vec<D>& p) const {
+        const double r = glm::length(p - center);
+        return std::min(std::abs(r - inner), std::abs(r - outer));
+    }
+    BoundaryHit<D> closest(const Vec<D>& p) const;
+};
+
+/// Adapts a static provider to the virtual interface.
+template <int D, class Geometry>
+class GeometryAdapter final : public BoundaryGeometry<D> {
+public:
+    explicit GeometryAdapter(Geometry g) : m_g(std::move(g)) {}
+    double distance(const Vec<D>& p) const override { return m_g.distance(p); }
+    BoundaryHit<D> closest(const Vec<D>& p) const override { return m_g.closest(p); }
+    const Geometry& get() const { return m_g; }
+
+private:
+    Geometry m_g;
+};
+
+}  // namespace kelvin::wos
