@@ -2,6 +2,8 @@
 //
 // Exit codes: 0 success, 1 runtime failure, 2 bad input (scene, parameter, option), 130 interrupted
 // (the image computed so far has been written).
+#include "converge.h"
+
 #include <kelvin/core/error.h>
 #include <kelvin/core/interrupt.h>
 #include <kelvin/core/job.h>
@@ -197,6 +199,8 @@ int main(int argc, char** argv) {
     app.add_flag("-v,--verbose", o.verbose, "Debug output");
     auto* list = app.add_option("--list-plugins", o.list_kind, "List plugins (of KIND) with their parameters")
                      ->expected(0, 1);
+    cli::ConvergeArgs converge_args;
+    CLI::App* converge = cli::add_converge_command(app, converge_args);
     try {
         app.parse(argc, argv);
     } catch (const CLI::CallForHelp& e) {
@@ -210,7 +214,7 @@ int main(int argc, char** argv) {
     o.list_plugins = list->count() > 0;
 
     try {
-        return run(o);
+        return converge->parsed() ? cli::run_converge(converge_args) : run(o);
     } catch (const InputError& e) {
         std::fprintf(stderr, "kelvin: error: %s\n", e.what());
         return ExitInput;

@@ -1,0 +1,209 @@
+// `kelvin converge SCENE --config NAME:K=V,... [--reference REF.exr] --checkpoints|--spp|--steps|--times LIST`
+// (docs/convergence.md, docs/cli.md). Parses options into kelvin::ConvergeOptions, runs the study, and with
+// --plot runs tools/plot_convergence.py on the CSV.
+#include "converge.h"
+
+#include <kelvin/core/converge.h>
+#include <kelvin/core/error.h>
+#include <kelvin/core/interrupt.h>
+#include <kelvin/core/logging.h>
+#include <kelvin/core/parallel.h>
+#include <kelvin/core/progress.h>
+#include <kelvin/core/registry.h>
+#include <kelvin/core/stats.h>
+#include <kelvin/core/strings.h>
+
+#include <spawn.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <array>
+#include <cerrno>
+#include <cmath>
+#include <cstdlib>
+#include <cstring>
+#include <filesystem>
+
+extern char** environ;
+
+namespace fs = std::filesystem;
+
+namespace kelvin::cli {
+namespace {
+
+constexpr int ExitOk = 0, ExitRuntime = 1, ExitInterrupted = 130;
+
+std::vector<double> numbers(const std::string& text, const std::string& option, std::size_t count) {
+    std::vector<double> v;
+    for (const auto& piece : split_list(text)) {
+        auto d = parse_double(piece);
+        if (!d || !std::isfinite(*d)) throw InputError({}, fmt::format("{} '{}': '{}' is not a number", option, text, piece));
+        v.push_back(*d);
+    }
+    if (v.size() != count)
+        throw InputError({}, fmt::format("{} '{}': expected {} numbers, got {}", option, text, count, v.size()));
+    return v;
+}
+
+std::vector<long long> counts(const std::string& text, const std::string& option) {
+    std::vector<long long> out;
+    for (double d : parse_number_list(text, option)) {
+        if (d != std::floor(d) || d > double(1LL << 40))
+            throw InputError({}, fmt::format("{} '{}': {:g} is not a whole number", option, text, d));
+        out.push_back((long long)d);
+    }
+    return out;
+}
+
+/// The plot script: $KELVIN_PLOT_SCRIPT, the installed copy next to the executable, or the source tree's.
+fs::path plot_script() {
+    if (const char* env = std::getenv("KELVIN_PLOT_SCRIPT"); env && *env) return env;
+    std::error_code ec;
+    const fs::path exe = fs::read_symlink("/proc/self/exe", ec);
+    if (!ec) {
+        const fs::path installed = exe.parent_path().parent_path() / "share" / "kelvin" / "plot_convergence.py";
+        if (fs::exists(installed)) return installed;
+    }
+    return fs::path(KELVIN_TOOLS_DIR) / "plot_convergence.py";
+}
+
+/// Debian's python3 (which has python3-matplotlib), unless $KELVIN_PYTHON says otherwise.
+std::string python() {
+    if (const char* env = std::getenv("KELVIN_PYTHON"); env && *env) return env;
+    return fs::exists("/usr/bin/python3") ? "/usr/bin/python3" : "python3";
+}
+
+int run_plot(const fs::path& csv, const fs::path& out_dir) {
+    const fs::path script = plot_script();
+    if (!fs::exists(script)) throw RuntimeError(fmt::format("--plot: cannot find the plot script '{}'", script.string()));
+    std::vector<std::string> args = {python(), script.string(), csv.string(), "--out", out_dir.string()};
+    std::vector<char*> argv;
+    for (auto& a : args) argv.push_back(a.data());
+    argv.push_back(nullptr);
+    pid_t pid = 0;
+    if (int e = posix_spawnp(&pid, argv[0], nullptr, nullptr, argv.data(), environ); e != 0)
+        throw RuntimeError(fmt::format("--plot: cannot run '{}': {}", args[0], std::strerror(e)));
+    int status = 0;
+    while (waitpid(pid, &status, 0) < 0 && errno == EINTR) {
+    }
+    if (!WIFEXITED(status) || WEXITSTATUS(status) != 0)
+        throw RuntimeError(fmt::format("--plot: {} {} failed (exit status {}); the CSV is complete, rerun the script "
+                                       "by hand to see why", args[0], script.string(),
+                                       WIFEXITED(status) ? WEXITSTATUS(status) : -1));
+    return ExitOk;
+}
+
+}  // namespace
+
+CLI::App* add_converge_command(CLI::App& app, ConvergeArgs& a) {
+    CLI::App* c = app.add_subcommand(
+        "converge", "Error against time: run a scene under several configurations and seeds, measure the error at "
+                    "checkpoints against a reference, write a CSV (docs/convergence.md)");
+    c->add_option("scene", a.scene, "Scene file (XML)")->required();
+    c->add_option("--reference", a.reference,
+                  "Reference image (EXR): renders compare R,G,B; simulations compare the field channels. Simulations "
+                  "without it use the exact solution");
+    c->add_option("--config", a.configs, "A configuration NAME:K=V,K=V (scene parameters, like -D); repeatable");
+    c->add_option("--config-file", a.config_file, "Configurations, one per line: 'NAME: K=V K=V'");
+    c->add_option("--sweep", a.sweeps, "One configuration per value: NAME=V1,V2,...; repeatable");
+    c->add_option("-D,--define", a.defines, "Scene parameter NAME=VALUE for every configuration")->take_all();
+    c->add_option("--runs", a.runs, "Independent runs per configuration (seeds seed, seed+1, ...)")
+        ->check(CLI::Range(1, 1000000));
+    c->add_option("--seed", a.seed, "Seed of the first run");
+    c->add_option("--checkpoints", a.seconds, "Compute times in seconds, e.g. 1,2,4,8 (renders and simulations)");
+    c->add_option("--spp", a.spp, "Renders: sample counts, e.g. 1,4,16,64 (deterministic)");
+    c->add_option("--steps", a.steps, "Simulations: step counts");
+    c->add_option("--times", a.times, "Simulations: simulated times, e.g. 0.25,0.5,1");
+    c->add_option("--field", a.fields, "Simulations: field compared (vorticity, u, v); repeatable");
+    c->add_option("--window", a.window, "Simulations: compare the cells in the box x0,y0,x1,y1 (domain units)");
+    c->add_option("--disk", a.disk, "Simulations: compare the cells within radius r of cx,cy: cx,cy,r");
+    c->add_option("--pixels", a.pixels, "Renders: compare the pixels [x0,x1) x [y0,y1): x0,y0,x1,y1");
+    c->add_option("--epsilon", a.epsilon, "Epsilon of rMSE and relative L1")->check(CLI::PositiveNumber);
+    c->add_option("-o,--output", a.output, "Output directory (default: <scene>_converge)");
+    c->add_option("--images", a.images, "Checkpoint images to write: none, first (run 0), all")
+        ->check(CLI::IsMember({"none", "first", "all"}));
+    c->add_flag("--plot", a.plot, "Run tools/plot_convergence.py on the CSV (plots in <output>/plots)");
+    c->add_option("-t,--threads", a.threads, "Worker threads (default: all cores)")->check(CLI::Range(0, 4096));
+    c->add_option("--plugin-path", a.plugin_paths, "Load plugin modules (.so) from DIR");
+    c->add_flag("--allow-unused", a.allow_unused, "Warn about unused scene parameters instead of failing");
+    c->add_flag("-q,--quiet", a.quiet, "Only warnings and errors");
+    c->add_flag("-v,--verbose", a.verbose, "Debug output");
+    return c;
+}
+
+int run_converge(const ConvergeArgs& a) {
+    set_log_level(a.quiet ? LogLevel::Warn : a.verbose ? LogLevel::Debug : LogLevel::Info);
+    ProgressReporter::set_enabled(false);
+    auto& reg = Registry::instance();
+    for (const auto& e : reg.take_load_errors()) log_error("built-in plugin registration: {}", e);
+    if (const char* env = std::getenv("KELVIN_PLUGIN_PATH"); env && *env) reg.load_plugin_path(env);
+    for (const auto& p : a.plugin_paths) reg.load_plugin_path(p);
+
+    ConvergeOptions o;
+    o.scene = a.scene;
+    for (const auto& d : a.defines) {
+        const auto eq = d.find('=');
+        if (eq == std::string::npos || eq == 0) throw InputError({}, fmt::format("-D '{}': expected NAME=VALUE", d));
+        o.defines[d.substr(0, eq)] = d.substr(eq + 1);
+    }
+    for (const auto& spec : a.configs) o.configs.push_back(parse_config_spec(spec, fmt::format("--config '{}'", spec)));
+    if (!a.config_file.empty())
+        for (auto& c : read_config_file(a.config_file)) o.configs.push_back(std::move(c));
+    for (const auto& s : a.sweeps)
+        for (auto& c : sweep_configs(s)) o.configs.push_back(std::move(c));
+    o.runs = a.runs;
+    o.seed = a.seed;
+    if (!a.seconds.empty()) o.seconds = parse_number_list(a.seconds, "--checkpoints");
+    if (!a.spp.empty()) o.spp = counts(a.spp, "--spp");
+    if (!a.steps.empty()) o.steps = counts(a.steps, "--steps");
+    if (!a.times.empty()) o.sim_times = parse_number_list(a.times, "--times");
+    o.reference = a.reference;
+    if (!a.fields.empty()) o.fields = a.fields;
+    if (!a.window.empty()) {
+        auto w = numbers(a.window, "--window", 4);
+        o.region = FieldRegion::box({w[0], w[1]}, {w[2], w[3]});
+    }
+    if (!a.disk.empty()) {
+        auto d = numbers(a.disk, "--disk", 3);
+        if (!(d[2] > 0)) throw InputError({}, fmt::format("--disk '{}': the radius must be positive", a.disk));
+        const FieldRegion box = o.region;
+        o.region = FieldRegion::disk({d[0], d[1]}, d[2]);
+        o.region.use_box = box.use_box;
+        o.region.box_min = box.box_min;
+        o.region.box_max = box.box_max;
+    }
+    if (!a.pixels.empty()) {
+        auto p = numbers(a.pixels, "--pixels", 4);
+        std::array<int, 4> w{};
+        for (int i = 0; i < 4; ++i) {
+            if (p[i] != std::floor(p[i]) || p[i] < 0 || p[i] > 1e6)
+                throw InputError({}, fmt::format("--pixels '{}': expected whole pixel coordinates", a.pixels));
+            w[i] = int(p[i]);
+        }
+        o.window = w;
+    }
+    o.epsilon = a.epsilon;
+    o.output_dir = a.output.empty() ? fs::path(fs::path(a.scene).stem().string() + "_converge") : fs::path(a.output);
+    o.images = a.images == "none"    ? ConvergeOptions::Images::None
+               : a.images == "all"   ? ConvergeOptions::Images::All
+                                     : ConvergeOptions::Images::First;
+    o.allow_unused = a.allow_unused;
+    o.quiet = a.quiet;
+
+    ThreadLimit limit(a.threads);
+    install_interrupt_handlers();
+    Timer timer;
+    const ConvergeSummary s = run_convergence(o);
+    if (!a.quiet)
+        std::fprintf(stderr, "%s %d run(s) in %.1f s (%d already done), %zu rows in %s on %d threads\n",
+                     s.interrupted ? "Interrupted after" : "Done:", s.runs_done, timer.seconds(), s.runs_skipped,
+                     s.rows, s.csv.string().c_str(), thread_count());
+    if (s.interrupted) return ExitInterrupted;
+    if (a.plot) {
+        run_plot(s.csv, o.output_dir / "plots");
+        if (!a.quiet) std::fprintf(stderr, "plots in %s\n", (o.output_dir / "plots").string().c_str());
+    }
+    return ExitOk;
+}
+
+}  // namespace kelvin::cli

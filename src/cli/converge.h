@@ -1,0 +1,26 @@
+#pragma once
+// `kelvin converge`: the command-line front end of kelvin::run_convergence (core/converge.h).
+#include <CLI/CLI.hpp>
+
+#include <string>
+#include <vector>
+
+namespace kelvin::cli {
+
+struct ConvergeArgs {
+    std::string scene, reference, output, config_file, images = "first";
+    std::vector<std::string> configs, sweeps, defines, fields, plugin_paths;
+    std::string seconds, spp, steps, times, pixels, window, disk;
+    int runs = 1, threads = 0;
+    unsigned long long seed = 0;
+    double epsilon = 1e-2;
+    bool plot = false, allow_unused = false, quiet = false, verbose = false;
+};
+
+/// Adds the `converge` sub-command to `app`, filling `args`.
+CLI::App* add_converge_command(CLI::App& app, ConvergeArgs& args);
+/// Runs it: exit code 0, 1 (runtime failure, e.g. the plot script failed), 130 (interrupted); throws
+/// InputError on bad input (the caller prints it and exits with 2).
+int run_converge(const ConvergeArgs& args);
+
+}  // namespace kelvin::cli

@@ -1,0 +1,674 @@
+// Convergence studies (include/kelvin/core/converge.h, docs/convergence.md).
+#include <kelvin/core/converge.h>
+#include <kelvin/core/error.h>
+#include <kelvin/core/image.h>
+#include <kelvin/core/interrupt.h>
+#include <kelvin/core/job.h>
+#include <kelvin/core/logging.h>
+#include <kelvin/core/parser.h>
+#include <kelvin/core/strings.h>
+
+#include <fmt/format.h>
+
+#include <algorithm>
+#include <climits>
+#include <cmath>
+#include <fstream>
+#include <set>
+#include <sstream>
+
+namespace fs = std::filesystem;
+
+namespace kelvin {
+
+// ------------------------------------------------------------------------------------------ input parsing
+
+std::string ConvergeConfig::defines_string() const {
+    std::string s;
+    for (const auto& [k, v] : defines) s += fmt::format("{}{}={}", s.empty() ? "" : ";", k, v);
+    return s;
+}
+
+namespace {
+
+bool valid_define_name(const std::string& n) {
+    if (n.empty()) return false;
+    return std::all_of(n.begin(), n.end(), [](char c) { return std::isalnum((unsigned char)c) || c == '_'; });
+}
+
+std::pair<std::string, std::string> parse_define(std::string_view kv, const std::string& what) {
+    const auto eq = kv.find('=');
+    const std::string name(trim(kv.substr(0, eq == std::string_view::npos ? kv.size() : eq)));
+    if (eq == std::string_view::npos || !valid_define_name(name))
+        throw InputError({}, fmt::format("{}: expected NAME=VALUE, got '{}'", what, std::string(kv)));
+    return {name, std::string(trim(kv.substr(eq + 1)))};
+}
+
+void check_config_name(const std::string& name, const std::string& what) {
+    if (name.empty()) throw InputError({}, fmt::format("{}: empty configuration name", what));
+    for (char c : name)
+        if (c == '\n' || c == '\r' || c == '"' || std::iscntrl((unsigned char)c))
+            throw InputError({}, fmt::format("{}: the configuration name may not contain quotes or control "
+                                             "characters", what));
+}
+
+}  // namespace
+
+ConvergeConfig parse_config_spec(const std::string& spec, const std::string& what) {
+    ConvergeConfig c;
+    std::string_view rest = spec;
+    const auto colon = spec.find(':');
+    if (colon != std::string::npos) {
+        c.name = std::string(trim(std::string_view(spec).substr(0, colon)));
+        rest = std::string_view(spec).substr(colon + 1);
+    }
+    for (const auto& piece : split_list(rest)) c.defines.push_back(parse_define(piece, what));
+    if (colon == std::string::npos) {
+        if (c.defines.empty()) throw InputError({}, fmt::format("{}: expected NAME:K=V,... or K=V,...", what));
+        c.name = std::string(trim(spec));
+    }
+    check_config_name(c.name, what);
+    return c;
+}
+
+std::vector<ConvergeConfig> read_config_file(const fs::path& path) {
+    std::ifstream in(path);
+    if (!in) throw InputError({path.string(), 0, 0}, "cannot read the configuration file");
+    std::vector<ConvergeConfig> out;
+    std::string line;
+    for (int n = 1; std::getline(in, line); ++n) {
+        if (auto hash = line.find('#'); hash != std::string::npos) line.erase(hash);
+        if (trim(line).empty()) continue;
+        const std::string where = fmt::format("{}:{}", path.string(), n);
+        if (line.find(':') == std::string::npos)
+            throw InputError({path.string(), n, 1}, "expected 'NAME: K=V K=V ...'");
+        out.push_back(parse_config_spec(line, where));
+    }
+    if (out.empty()) throw InputError({path.string(), 0, 0}, "no configurations in the file");
+    return out;
+}
+
+std::vector<ConvergeConfig> sweep_configs(const std::string& spec) {
+    const std::string what = fmt::format("--sweep '{}'", spec);
+    const auto eq = spec.find('=');
+    const std::string name(trim(std::string_view(spec).substr(0, eq == std::string::npos ? 0 : eq)));
+    if (eq == std::string::npos || !valid_define_name(name))
+        throw InputError({}, fmt::format("{}: expected NAME=V1,V2,...", what));
+    std::vector<ConvergeConfig> out;
+    for (const auto& v : split_list(std::string_view(spec).substr(eq + 1)))
+        out.push_back({name + "=" + v, {{name, v}}});
+    if (out.empty()) throw InputError({}, fmt::format("{}: no values", what));
+    return out;
+}
+
+std::vector<double> parse_number_list(const std::string& text, const std::string& option) {
+    std::vector<double> out;
+    for (const auto& piece : split_list(text)) {
+        auto v = parse_double(piece);
+        if (!v || !std::isfinite(*v) || *v < 0)
+            throw InputError({}, fmt::format("{} '{}': '{}' is not a non-negative number", option, text, piece));
+        out.push_back(*v);
+    }
+    if (out.empty()) throw InputError({}, fmt::format("{} '{}': no values", option, text));
+    std::sort(out.begin(), out.end());
+    out.erase(std::unique(out.begin(), out.end()), out.end());
+    return out;
+}
+
+// ----------------------------------------------------------------------------------------------------- CSV
+
+std::string csv_escape(const std::string& field) {
+    if (field.find_first_of(",\"\n\r") == std::string::npos) return field;
+    std::string s = "\"";
+    for (char c : field) s += c == '"' ? std::string("\"\"") : std::string(1, c);
+    return s + "\"";
+}
+
+std::vector<std::string> csv_split(const std::string& line, const std::string& where) {
+    std::vector<std::string> out(1);
+    bool quoted = false;
+    for (std::size_t i = 0; i < line.size(); ++i) {
+        const char c = line[i];
+        if (quoted) {
+            if (c == '"' && i + 1 < line.size() && line[i + 1] == '"') {
+                out.back() += '"';
+                ++i;
+            } else if (c == '"') {
+                quoted = false;
+            } else {
+                out.back() += c;
+            }
+        } else if (c == '"') {
+            quoted = true;
+        } else if (c == ',') {
+            out.emplace_back();
+        } else if (c != '\r') {
+            out.back() += c;
+        }
+    }
+    if (quoted) throw InputError({}, fmt::format("{}: unterminated quoted field", where));
+    return out;
+}
+
+namespace {
+
+using Row = std::vector<std::string>;
+
+const std::vector<std::string> CommonColumns = {"config", "run",  "seed", "trigger", "target",
+                                                "seconds", "work", "unit", "sim_time"};
+const std::vector<std::string> ImageColumns = {"mse", "rmse", "rel_mse", "l1", "rel_l1", "max_abs", "ssim"};
+const std::vector<std::string> FieldColumns = {"field", "region", "rmse", "rel_l2", "max_abs", "l1", "cells"};
+
+std::string join_row(const Row& r) {
+    std::string s;
+    for (std::size_t i = 0; i < r.size(); ++i) {
+        if (i) s += ',';
+        s += csv_escape(r[i]);
+    }
+    return s;
+}
+
+std::string num(double v) { return fmt::format("{:.9g}", v); }
+
+void write_text_atomically(const fs::path& path, const std::string& text) {
+    fs::path tmp = path;
+    tmp += ".partial";
+    {
+        std::ofstream out(tmp, std::ios::binary | std::ios::trunc);
+        out << text;
+        out.flush();
+        if (!out) throw RuntimeError(fmt::format("cannot write '{}'", tmp.string()));
+    }
+    std::error_code ec;
+    fs::rename(tmp, path, ec);
+    if (ec) throw RuntimeError(fmt::format("cannot write '{}': {}", path.string(), ec.message()));
+}
+
+/// A table: header + rows, read from and written to a CSV file.
+struct Table {
+    std::vector<std::string> header;
+    std::vector<Row> rows;
+
+    /// Load `path` if it exists; its header must equal `expected` when given.
+    static Table load(const fs::path& path) {
+        Table t;
+        std::ifstream in(path, std::ios::binary);
+        if (!in) return t;
+        std::string line;
+        for (int n = 1; std::getline(in, line); ++n) {
+            if (line.empty() || line == "\r") continue;
+            Row r = csv_split(line, fmt::format("{}:{}", path.string(), n));
+            if (t.header.empty()) {
+                t.header = r;
+            } else if (r.size() != t.header.size()) {
+                throw InputError({path.string(), n, 1},
+                                 fmt::format("{} fields where the header has {} (a damaged file? remove it or "
+                                             "choose another --output)", r.size(), t.header.size()));
+            } else {
+                t.rows.push_back(std::move(r));
+            }
+        }
+        return t;
+    }
+    std::string text() const {
+        std::string s = join_row(header) + "\n";
+        for (const auto& r : rows) s += join_row(r) + "\n";
+        return s;
+    }
+};
+
+std::string safe_name(const std::string& s) {
+    std::string out;
+    for (char c : s) out += std::isalnum((unsigned char)c) || c == '.' || c == '-' || c == '=' || c == '_' ? c : '_';
+    return out.empty() ? "_" : out;
+}
+
+/// Study-wide settings lines (everything the rows depend on except the configurations and the run count).
+std::vector<std::string> settings_lines(const ConvergeOptions& o, const std::string& kind_columns) {
+    std::vector<std::string> s;
+    s.push_back("scene: " + fs::absolute(o.scene).lexically_normal().string());
+    std::string defs;
+    for (const auto& [k, v] : o.defines) defs += fmt::format("{}{}={}", defs.empty() ? "" : ";", k, v);
+    s.push_back("defines: " + defs);
+    s.push_back("seed: " + std::to_string(o.seed));
+    auto list = [](const auto& v) {
+        std::string t;
+        for (const auto& x : v) t += fmt::format("{}{}", t.empty() ? "" : ",", x);
+        return t;
+    };
+    if (!o.seconds.empty()) s.push_back("checkpoints: seconds " + list(o.seconds));
+    if (!o.spp.empty()) s.push_back("checkpoints: spp " + list(o.spp));
+    if (!o.steps.empty()) s.push_back("checkpoints: steps " + list(o.steps));
+    if (!o.sim_times.empty()) s.push_back("checkpoints: sim_time " + list(o.sim_times));
+    s.push_back("reference: " + (o.reference.empty() ? std::string("exact solution")
+                                                       : fs::absolute(o.reference).lexically_normal().string()));
+    s.push_back("fields: " + list(o.fields));
+    s.push_back("region: " + o.region.to_string());
+    s.push_back("window: " + (o.window ? list(*o.window) : std::string("all")));
+    s.push_back(fmt::format("epsilon: {:g}", o.epsilon));
+    s.push_back("columns: " + kind_columns);
+    return s;
+}
+
+struct RunKey {
+    std::string config;
+    int run = 0;
+    bool operator<(const RunKey& o) const { return std::tie(config, run) < std::tie(o.config, o.run); }
+};
+
+class Study {
+public:
+    explicit Study(const ConvergeOptions& o) : m_o(o) {}
+
+    ConvergeSummary run() {
+        validate();
+        fs::create_directories(m_o.output_dir);
+        m_csv_path = m_o.output_dir / "convergence.csv";
+        m_stats_path = m_o.output_dir / "convergence_stats.csv";
+        m_settings_path = m_o.output_dir / "convergence.settings";
+        load_existing();
+        write_settings();
+        if (!is_simulation_study() && m_o.images != ConvergeOptions::Images::None) {
+            fs::create_directories(m_o.output_dir / "images");
+            write_image(m_o.output_dir / "images" / "reference.png", m_reference);  // for the plots' image grid
+        }
+
+        ConvergeSummary summary;
+        summary.csv = m_csv_path;
+        summary.stats_csv = m_stats_path;
+        const int total = m_o.runs * int(m_o.configs.size());
+        int index = 0;
+        // Run-major: every configuration's run 0 first, so a cut-off study has something for each.
+        for (int r = 0; r < m_o.runs && !summary.interrupted; ++r)
+            for (const auto& config : m_o.configs) {
+                ++index;
+                if (m_done.count({config.name, r})) {
+                    ++summary.runs_skipped;
+                    continue;
+                }
+                if (interrupt_requested() || !run_one(config, r, index, total)) {
+                    summary.interrupted = true;
+                    break;
+                }
+                ++summary.runs_done;
+            }
+        summary.rows = m_table.rows.size();
+        return summary;
+    }
+
+private:
+    void validate() {
+        const ConvergeOptions& o = m_o;
+        if (o.scene.empty()) throw InputError({}, "converge: no scene given");
+        if (!fs::is_regular_file(o.scene)) throw InputError({o.scene.string(), 0, 0}, "no such scene file");
+        if (o.configs.empty())
+            throw InputError({}, "converge: no configuration (give --config NAME:K=V,..., --config-file or --sweep)");
+        std::set<std::string> names;
+        for (const auto& c : o.configs)
+            if (!names.insert(c.name).second)
+                throw InputError({}, fmt::format("converge: configuration '{}' is given twice", c.name));
+        if (o.runs < 1) throw InputError({}, "converge: --runs must be at least 1");
+        const int kinds = !o.seconds.empty() + !o.spp.empty() + !o.steps.empty() + !o.sim_times.empty();
+        if (kinds == 0)
+            throw InputError({}, "converge: no checkpoints (give --checkpoints SECONDS, --spp N,... for renders, or "
+                                 "--steps / --times for simulations)");
+        if (kinds > 1)
+            throw InputError({}, "converge: give one kind of checkpoints (--checkpoints, --spp, --steps or --times)");
+        for (double s : o.seconds)
+            if (!(s > 0)) throw InputError({}, "converge: --checkpoints: times must be positive");
+        for (long long s : o.spp)
+            if (s < 1) throw InputError({}, "converge: --spp: sample counts must be at least 1");
+        for (long long s : o.steps)
+            if (s < 0) throw InputError({}, "converge: --steps: step counts must be non-negative");
+        if (o.fields.empty()) throw InputError({}, "converge: no --field to compare");
+        for (const auto& f : o.fields)
+            if (f != "vorticity" && f != "u" && f != "v")
+                throw InputError({}, fmt::format("converge: --field '{}': expected vorticity, u or v{}", f,
+                                                 did_you_mean(f, {"vorticity", "u", "v"})));
+        if (!(o.epsilon > 0)) throw InputError({}, "converge: --epsilon must be positive");
+        if (o.window && ((*o.window)[2] <= (*o.window)[0] || (*o.window)[3] <= (*o.window)[1] ||
+                         (*o.window)[0] < 0 || (*o.window)[1] < 0))
+            throw InputError({}, "converge: --window x0,y0,x1,y1 needs 0 <= x0 < x1 and 0 <= y0 < y1");
+        if (o.output_dir.empty()) throw InputError({}, "converge: no output directory");
+        if (fs::exists(o.output_dir) && !fs::is_directory(o.output_dir))
+            throw InputError({}, fmt::format("-o '{}' exists and is not a directory", o.output_dir.string()));
+
+        if (!o.reference.empty()) {
+            if (!fs::is_regular_file(o.reference))
+                throw InputError({o.reference.string(), 0, 0}, "no such reference image");
+            try {
+                m_reference = read_image(o.reference);
+            } catch (const Error& e) {
+                throw InputError({o.reference.string(), 0, 0}, fmt::format("cannot read the reference: {}", e.what()));
+            }
+        }
+        // Every configuration must parse, and use every parameter it sets: a misspelt -D would silently run
+        // the same configuration twice. The first one tells renders from simulations.
+        for (std::size_t i = 0; i < o.configs.size(); ++i) {
+            ParsedScene parsed = parse(o.configs[i]);
+            bool sim = false;
+            for (const auto& child : parsed.root->children) sim = sim || (child.node && child.node->kind == "simulation");
+            if (i == 0) m_simulation = sim;
+            if (sim != m_simulation)
+                throw InputError({o.scene.string(), 0, 0},
+                                 fmt::format("configuration '{}' runs a {} where '{}' runs a {}", o.configs[i].name,
+                                             sim ? "simulation" : "render", o.configs[0].name,
+                                             sim ? "render" : "simulation"));
+        }
+        if (m_simulation && !o.spp.empty())
+            throw InputError({o.scene.string(), 0, 0}, "the scene runs a simulation: use --steps, --times or "
+                                                       "--checkpoints, not --spp");
+        if (!m_simulation && (!o.steps.empty() || !o.sim_times.empty()))
+            throw InputError({o.scene.string(), 0, 0},
+                             "the scene renders: use --spp or --checkpoints, not --steps or --times");
+        if (!m_simulation && o.reference.empty())
+            throw InputError({o.scene.string(), 0, 0}, "the scene renders: give a --reference image (e.g. a long "
+                                                       "render: kelvin scene.xml --spp 4096 -o ref.exr)");
+        if (!m_simulation && m_reference.channel_index("R") < 0)
+            throw InputError({o.reference.string(), 0, 0}, "the reference image has no R, G, B channels");
+    }
+
+    ParsedScene parse(const ConvergeConfig& c) const {
+        ParseOptions popts;
+        popts.defines = m_o.defines;
+        for (const auto& [k, v] : c.defines) popts.defines[k] = v;
+        ParsedScene parsed = parse_scene_file(m_o.scene, popts);
+        for (const auto& d : parsed.unused_defines)
+            throw InputError({m_o.scene.string(), 0, 0},
+                             fmt::format("configuration '{}': the scene does not use the parameter '{}' (it has no "
+                                         "<default name=\"{}\"> or $ reference)", c.name, d, d));
+        return parsed;
+    }
+
+    std::string kind_columns() const {
+        // The metric columns depend on the kind of job (validate() found it in the scene).
+        return is_simulation_study() ? "field" : "image";
+    }
+    bool is_simulation_study() const { return m_simulation; }
+
+    std::vector<std::string> header() const {
+        std::vector<std::string> h = CommonColumns;
+        const auto& m = is_simulation_study() ? FieldColumns : ImageColumns;
+        h.insert(h.end(), m.begin(), m.end());
+        h.push_back("image");
+        return h;
+    }
+
+    void load_existing() {
+        m_table = Table::load(m_csv_path);
+        m_stats = Table::load(m_stats_path);
+        if (m_stats.header.empty()) m_stats = {{"config", "run", "seed", "counter", "value", "unit"}, {}};
+        if (m_table.header.empty()) {
+            m_table = {header(), {}};
+            m_stats.rows.clear();
+            return;
+        }
+        if (m_table.header != header())
+            throw InputError({m_csv_path.string(), 1, 1},
+                             "the existing CSV has other columns than this study writes; choose another --output "
+                             "or remove it");
+        // The settings must match (configurations may be added; an existing one may not change).
+        std::ifstream in(m_settings_path);
+        if (!in)
+            throw InputError({m_settings_path.string(), 0, 0},
+                             "missing: cannot resume the study in this directory (choose another --output or remove "
+                             "convergence.csv)");
+        const auto want = settings_lines(m_o, kind_columns());
+        std::set<std::string> want_set(want.begin(), want.end());
+        std::string line;
+        std::size_t seen = 0;
+        for (int n = 1; std::getline(in, line); ++n) {
+            if (line.empty() || line[0] == '#') continue;
+            if (line.rfind("config ", 0) == 0) {
+                const auto colon = line.find(": ");
+                const std::string name = line.substr(7, colon == std::string::npos ? std::string::npos : colon - 7);
+                const std::string defs = colon == std::string::npos ? "" : line.substr(colon + 2);
+                m_known_configs[name] = defs;
+                for (const auto& c : m_o.configs)
+                    if (c.name == name && c.defines_string() != defs)
+                        throw InputError({m_settings_path.string(), n, 1},
+                                         fmt::format("configuration '{}' was run with '{}', now given '{}'; rename it "
+                                                     "or choose another --output", name, defs, c.defines_string()));
+                continue;
+            }
+            if (!want_set.count(line)) {
+                const std::string key = line.substr(0, line.find(':'));
+                std::string now;
+                for (const auto& w : want)
+                    if (w.rfind(key + ":", 0) == 0) now = w;
+                throw InputError({m_settings_path.string(), n, 1},
+                                 fmt::format("the study in this directory was run with '{}', this one has '{}'; choose "
+                                             "another --output to start a new study", line,
+                                             now.empty() ? "(nothing)" : now));
+            }
+            ++seen;
+        }
+        if (seen != want.size())
+            throw InputError({m_settings_path.string(), 0, 0},
+                             "incomplete settings: cannot resume (choose another --output or remove the directory)");
+        for (const auto& r : m_table.rows) {
+            auto run = parse_int(r[1]);
+            if (!run) throw InputError({m_csv_path.string(), 0, 0}, fmt::format("bad run number '{}'", r[1]));
+            m_done.insert({r[0], int(*run)});
+        }
+        // Counters of runs whose rows never made it into the CSV (cut off in between) are dropped.
+        std::erase_if(m_stats.rows, [&](const Row& r) {
+            return r.size() < 2 || !m_done.count({r[0], int(parse_int(r[1]).value_or(-1))});
+        });
+        if (!m_done.empty())
+            log_info("converge: resuming {}: {} finished run(s) kept", m_csv_path.string(), m_done.size());
+    }
+
+    void write_settings() {
+        std::string s = "# kelvin converge: the rows of convergence.csv depend on these settings; a resumed study "
+                        "must match them\n";
+        for (const auto& l : settings_lines(m_o, kind_columns())) s += l + "\n";
+        std::map<std::string, std::string> configs = m_known_configs;
+        for (const auto& c : m_o.configs) configs[c.name] = c.defines_string();
+        for (const auto& [name, defs] : configs) s += "config " + name + ": " + defs + "\n";
+        write_text_atomically(m_settings_path, s);
+    }
+
+    /// Rows in canonical order: configurations as given (unknown ones after, by name), runs, checkpoints.
+    void sort_rows(Table& t) const {
+        std::map<std::string, std::size_t> order;
+        for (std::size_t i = 0; i < m_o.configs.size(); ++i) order[m_o.configs[i].name] = i;
+        auto key = [&](const Row& r) {
+            auto it = order.find(r[0]);
+            return std::make_tuple(it == order.end() ? order.size() : it->second, it == order.end() ? r[0] : "",
+                                   parse_int(r[1]).value_or(0));
+        };
+        std::stable_sort(t.rows.begin(), t.rows.end(), [&](const Row& a, const Row& b) { return key(a) < key(b); });
+    }
+
+    static std::string trigger_name(Checkpoint::Trigger t) {
+        switch (t) {
+        case Checkpoint::Trigger::Seconds: return "seconds";
+        case Checkpoint::Trigger::Work: return "work";
+        case Checkpoint::Trigger::SimTime: return "sim_time";
+        }
+        return "?";
+    }
+    static std::string label(const Checkpoint& cp) {
+        switch (cp.trigger) {
+        case Checkpoint::Trigger::Seconds: return fmt::format("t{:g}s", cp.target);
+        case Checkpoint::Trigger::Work: return fmt::format("{}{:g}", cp.work_unit, cp.target);
+        case Checkpoint::Trigger::SimTime: return fmt::format("simt{:g}", cp.target);
+        }
+        return "cp";
+    }
+
+    /// Image errors of a render at a checkpoint (the window, if any, cut from both).
+    ImageErrors render_errors(const Bitmap& img) const {
+        if (img.width() != m_reference.width() || img.height() != m_reference.height())
+            throw InputError({m_o.reference.string(), 0, 0},
+                             fmt::format("the reference is {}x{} but the render is {}x{}", m_reference.width(),
+                                         m_reference.height(), img.width(), img.height()));
+        ImageMetricOptions mo;
+        mo.epsilon = m_o.epsilon;
+        auto crop = [&](const Bitmap& b) {
+            if (!m_o.window) return b;
+            const auto& w = *m_o.window;
+            if (w[2] > b.width() || w[3] > b.height())
+                throw InputError({}, fmt::format("--window {},{},{},{} exceeds the {}x{} image", w[0], w[1], w[2], w[3],
+                                                 b.width(), b.height()));
+            Bitmap c(w[2] - w[0], w[3] - w[1], b.channels());
+            for (int y = w[1]; y < w[3]; ++y)
+                for (int x = w[0]; x < w[2]; ++x)
+                    for (int k = 0; k < b.channel_count(); ++k) c.at(x - w[0], y - w[1], k) = b.at(x, y, k);
+            return c;
+        };
+        try {
+            return image_errors(crop(img), crop(m_reference), mo);
+        } catch (const InputError& e) {
+            throw InputError({m_o.reference.string(), 0, 0}, e.bare_message());
+        }
+    }
+
+    /// Reference values of `field` at the checkpoint's cells (row 0 at min.y).
+    std::vector<double> field_reference(const Checkpoint& cp, const std::string& field) const {
+        const CellGrid2& g = cp.grid;
+        if (!m_o.reference.empty()) {
+            const int c = m_reference.channel_index(field);
+            if (c < 0)
+                throw InputError({m_o.reference.string(), 0, 0}, fmt::format("the reference has no '{}' channel", field));
+            if (m_reference.width() != g.nx || m_reference.height() != g.ny)
+                throw InputError({m_o.reference.string(), 0, 0},
+                                 fmt::format("the reference is {}x{} but the simulation grid is {}x{}",
+                                             m_reference.width(), m_reference.height(), g.nx, g.ny));
+            std::vector<double> v(g.cell_count());
+            for (int j = 0; j < g.ny; ++j)
+                for (int i = 0; i < g.nx; ++i) v[std::size_t(j) * g.nx + i] = m_reference.at(i, g.ny - 1 - j, c);
+            return v;
+        }
+        if (!cp.exact)
+            throw InputError({m_o.scene.string(), 0, 0},
+                             "the simulation knows no exact solution; give --reference (a reference run's EXR)");
+        std::vector<double> v(g.cell_count());
+        for (int j = 0; j < g.ny; ++j)
+            for (int i = 0; i < g.nx; ++i) {
+                auto e = cp.exact(field, cp.sim_time, g.cell_center(i, j));
+                if (!e)
+                    throw InputError({m_o.scene.string(), 0, 0},
+                                     fmt::format("the initial condition has no exact solution for '{}' (Taylor–Green "
+                                                 "and Lamb–Oseen do); give --reference", field));
+                v[std::size_t(j) * g.nx + i] = *e;
+            }
+        return v;
+    }
+
+    /// Runs one (configuration, run) pair; false when interrupted (nothing recorded).
+    bool run_one(const ConvergeConfig& config, int r, int index, int total) {
+        const uint64_t seed = m_o.seed + uint64_t(r);
+        ParsedScene parsed = parse(config);
+        ObjectPtr root = instantiate(parsed, {m_o.allow_unused});
+        auto job = std::dynamic_pointer_cast<Job>(root);
+        if (!job) throw InputError(parsed.root->loc, "the root <scene> did not produce a runnable job");
+
+        const bool sim_study = is_simulation_study();
+        RunContext ctx;
+        ctx.seed = seed;
+        ctx.quiet = true;
+        if (!m_o.seconds.empty()) {
+            ctx.checkpoint_seconds = m_o.seconds;
+            ctx.time_limit = m_o.seconds.back();
+        }
+        if (!m_o.spp.empty()) {
+            ctx.checkpoint_work = m_o.spp;
+            ctx.spp = *std::max_element(m_o.spp.begin(), m_o.spp.end());
+        }
+        if (!m_o.steps.empty()) ctx.checkpoint_work = m_o.steps;
+        ctx.checkpoint_sim_times = m_o.sim_times;
+        const std::size_t expected =
+            std::max({m_o.seconds.size(), m_o.spp.size(), m_o.steps.size(), m_o.sim_times.size()});
+
+        const bool write_images =
+            m_o.images == ConvergeOptions::Images::All || (m_o.images == ConvergeOptions::Images::First && r == 0);
+        const fs::path image_dir = m_o.output_dir / "images" / safe_name(config.name);
+        std::vector<Row> rows;
+        ctx.on_checkpoint = [&](const Checkpoint& cp) {
+            const bool sim = cp.sim_time >= 0;
+            if (sim != sim_study)
+                throw InputError({m_o.scene.string(), 0, 0},
+                                 sim ? "the scene runs a simulation: use --steps, --times or --checkpoints (and the "
+                                       "exact solution or a reference field), not --spp"
+                                     : "the scene renders: use --spp or --checkpoints with a --reference image, not "
+                                       "--steps or --times");
+            Row base = {config.name,        std::to_string(r), std::to_string(seed), trigger_name(cp.trigger),
+                        num(cp.target),     fmt::format("{:.6f}", cp.seconds),   num(cp.work), cp.work_unit,
+                        sim ? num(cp.sim_time) : std::string()};
+            std::string image_rel;
+            Bitmap img;
+            if (write_images || !sim) img = cp.image();
+            if (write_images && !img.empty()) {
+                fs::create_directories(image_dir);
+                const std::string stem = fmt::format("run{}_{}", r, label(cp));
+                write_image(image_dir / (stem + ".exr"), img);
+                write_image(image_dir / (stem + ".png"), img);
+                image_rel = (fs::path("images") / safe_name(config.name) / (stem + ".png")).string();
+            }
+            if (!sim) {
+                const ImageErrors e = render_errors(img);
+                Row row = base;
+                for (double v : {e.mse, e.rmse, e.rel_mse, e.l1, e.rel_l1, e.max_abs, e.ssim}) row.push_back(num(v));
+                row.push_back(image_rel);
+                rows.push_back(std::move(row));
+                return;
+            }
+            for (const auto& f : m_o.fields) {
+                std::vector<double> values;
+                if (!cp.field || !cp.field(f, values))
+                    throw InputError({m_o.scene.string(), 0, 0}, fmt::format("the simulation has no field '{}'", f));
+                const std::vector<double> ref = field_reference(cp, f);
+                const FieldErrors e = field_errors(values, ref, cp.grid, m_o.region);
+                Row row = base;
+                row.push_back(f);
+                row.push_back(m_o.region.to_string());
+                for (double v : {e.rmse, e.rel_l2, e.max_abs, e.l1}) row.push_back(num(v));
+                row.push_back(std::to_string(e.cells));
+                row.push_back(image_rel);
+                rows.push_back(std::move(row));
+            }
+        };
+
+        if (!m_o.quiet)
+            log_info("converge: [{}/{}] {} run {} (seed {})", index, total, config.name, r, seed);
+        RunResult result = job->run(ctx);
+        if (result.interrupted || interrupt_requested()) return false;
+        const std::size_t fired = rows.size() / (sim_study ? m_o.fields.size() : 1);
+        if (fired < expected)
+            log_warn("converge: {} run {}: {} of {} checkpoints reached before the run ended (the scene's own "
+                     "length: raise its steps, end time or sample count)", config.name, r, fired, expected);
+
+        for (auto& row : rows) m_table.rows.push_back(std::move(row));
+        for (const auto& c : ctx.stats.counters())
+            m_stats.rows.push_back({config.name, std::to_string(r), std::to_string(seed), c.name, num(c.value), c.unit});
+        m_stats.rows.push_back(
+            {config.name, std::to_string(r), std::to_string(seed), "run.seconds", num(result.seconds), "s"});
+        m_stats.rows.push_back(
+            {config.name, std::to_string(r), std::to_string(seed), "run.work", num(result.work), result.work_unit});
+        sort_rows(m_table);
+        sort_rows(m_stats);
+        write_text_atomically(m_stats_path, m_stats.text());
+        write_text_atomically(m_csv_path, m_table.text());  // last: a run is finished once its rows are here
+        m_done.insert({config.name, r});
+        if (!m_o.quiet)
+            log_info("converge: {} run {}: {} checkpoint(s), {:.3g} {} in {:.3f} s", config.name, r, fired,
+                     result.work, result.work_unit, result.seconds);
+        return true;
+    }
+
+    const ConvergeOptions& m_o;
+    bool m_simulation = false;  ///< the scene runs a <simulation> (else it renders)
+    Bitmap m_reference;
+    fs::path m_csv_path, m_stats_path, m_settings_path;
+    Table m_table, m_stats;
+    std::set<RunKey> m_done;
+    std::map<std::string, std::string> m_known_configs;
+};
+
+}  // namespace
+
+ConvergeSummary run_convergence(const ConvergeOptions& opts) { return Study(opts).run(); }
+
+}  // namespace kelvin

@@ -1,0 +1,282 @@
+// `kelvin converge` end to end (the real executable) and its input parsing: the CSV has the rows it should,
+// errors fall with samples for unbiased integrators and with n_mc for the fluid solver, a resumed study ends
+// with the same rows as an uninterrupted one, bad input is one line and exit code 2, and the plot script
+// writes its PNG/SVG files.
+#include "cli/subprocess.h"
+
+#include <kelvin/core/converge.h>
+
+#include <gtest/gtest.h>
+
+#include <map>
+
+using namespace kelvin::test;
+
+namespace {
+
+const std::string Tiny = std::string(KELVIN_SOURCE_DIR) + "/scenes/tests/converge.xml";
+const std::string TaylorGreen = std::string(KELVIN_SOURCE_DIR) + "/scenes/fluid/taylor_green.xml";
+const std::string PlotScript = std::string(KELVIN_SOURCE_DIR) + "/tools/plot_convergence.py";
+
+using Table = std::vector<std::map<std::string, std::string>>;
+
+Table read_csv(const fs::path& p) {
+    Table t;
+    std::vector<std::string> header;
+    for (const auto& line : lines_of(read_file(p))) {
+        auto fields = kelvin::csv_split(line, p.string());
+        if (header.empty()) {
+            header = fields;
+            continue;
+        }
+        EXPECT_EQ(fields.size(), header.size()) << line;
+        std::map<std::string, std::string> row;
+        for (std::size_t i = 0; i < header.size() && i < fields.size(); ++i) row[header[i]] = fields[i];
+        t.push_back(row);
+    }
+    return t;
+}
+
+/// Rows without the columns that legitimately differ between runs (wall-clock times).
+std::vector<std::string> deterministic_rows(const fs::path& p) {
+    std::vector<std::string> out;
+    for (auto row : read_csv(p)) {
+        row.erase("seconds");
+        if (row.count("counter") && row["counter"].find("seconds") != std::string::npos) continue;
+        std::string s;
+        for (const auto& [k, v] : row) s += k + "=" + v + ";";
+        out.push_back(s);
+    }
+    return out;
+}
+
+double num(const std::map<std::string, std::string>& row, const std::string& key) {
+    return std::stod(row.at(key));
+}
+
+/// Debian's python3 with matplotlib (python3-matplotlib, installed by tools/setup.sh).
+std::string python() { return fs::exists("/usr/bin/python3") ? "/usr/bin/python3" : "python3"; }
+
+class ConvergeCli : public ::testing::Test {
+protected:
+    /// A 256-spp path-traced reference of the tiny scene.
+    fs::path reference() {
+        fs::path ref = m_dir / "ref.exr";
+        auto r = run_kelvin({Tiny, "-q", "--spp", "256", "--seed", "1000", "-o", ref.string()});
+        EXPECT_EQ(r.exit_code, 0) << describe(r);
+        return ref;
+    }
+    ProcessResult converge(const std::vector<std::string>& extra) {
+        std::vector<std::string> args = {"converge", Tiny, "-q"};
+        args.insert(args.end(), extra.begin(), extra.end());
+        return run_kelvin(args, {}, std::chrono::seconds(120));
+    }
+    std::vector<std::string> render_study(const fs::path& ref, const fs::path& out, int runs) {
+        return {"--reference", ref.string(), "--config", "path:integrator=path", "--config", "pt:integrator=ptracer",
+                "--runs", std::to_string(runs), "--spp", "1,4,16,64", "-o", out.string()};
+    }
+    static void expect_input_error(const ProcessResult& r, const std::string& fragment) {
+        EXPECT_EQ(r.exit_code, 2) << describe(r);
+        ASSERT_EQ(r.err_lines().size(), 1u) << describe(r);
+        EXPECT_EQ(r.err.rfind("kelvin: error: ", 0), 0u) << r.err;
+        EXPECT_NE(r.err.find(fragment), std::string::npos) << "expected '" << fragment << "' in: " << r.err;
+    }
+    TempDir m_dir;
+};
+
+}  // namespace
+
+TEST(ConvergeInput, ConfigurationsAndLists) {
+    auto c = kelvin::parse_config_spec("pss:integrator=mlt, max_depth=3", "--config");
+    EXPECT_EQ(c.name, "pss");
+    ASSERT_EQ(c.defines.size(), 2u);
+    EXPECT_EQ(c.defines[1], std::make_pair(std::string("max_depth"), std::string("3")));
+    EXPECT_EQ(c.defines_string(), "integrator=mlt;max_depth=3");
+    EXPECT_EQ(kelvin::parse_config_spec("integrator=path", "--config").name, "integrator=path");
+    EXPECT_TRUE(kelvin::parse_config_spec("baseline:", "--config").defines.empty());
+    EXPECT_NE(ktest::input_error_of([] { kelvin::parse_config_spec("path", "--config 'path'"); }).find("--config 'path'"),
+              std::string::npos);
+    EXPECT_NE(ktest::input_error_of([] { kelvin::parse_config_spec("a:b", "--config"); }).find("NAME=VALUE"),
+              std::string::npos);
+    EXPECT_THROW(kelvin::parse_config_spec(":a=1", "--config"), kelvin::InputError);
+
+    auto sweep = kelvin::sweep_configs("spp=16,64 256");
+    ASSERT_EQ(sweep.size(), 3u);
+    EXPECT_EQ(sweep[2].name, "spp=256");
+    EXPECT_THROW(kelvin::sweep_configs("spp"), kelvin::InputError);
+
+    EXPECT_EQ(kelvin::parse_number_list("4, 1,2,2", "--checkpoints"), (std::vector<double>{1, 2, 4}));
+    EXPECT_NE(ktest::input_error_of([] { kelvin::parse_number_list("1,-2", "--checkpoints"); }).find("'-2'"),
+              std::string::npos);
+    EXPECT_THROW(kelvin::parse_number_list("1,x", "--times"), kelvin::InputError);
+    EXPECT_THROW(kelvin::parse_number_list("", "--times"), kelvin::InputError);
+
+    TempDir dir;
+    auto file = dir.write("configs.txt", "# integrators\npath: integrator=path max_depth=3\n\npt: integrator=ptracer\n");
+    auto configs = kelvin::read_config_file(file);
+    ASSERT_EQ(configs.size(), 2u);
+    EXPECT_EQ(configs[0].defines.size(), 2u);
+    auto bad = dir.write("bad.txt", "path: integrator=path\nno colon here\n");
+    EXPECT_NE(ktest::input_error_of([&] { kelvin::read_config_file(bad); }).find("bad.txt:2:"), std::string::npos);
+
+    for (const std::string s : {"plain", "with,comma", "with \"quotes\"", ""}) {
+        auto back = kelvin::csv_split(kelvin::csv_escape(s) + "," + kelvin::csv_escape("x"), "test");
+        ASSERT_EQ(back.size(), 2u);
+        EXPECT_EQ(back[0], s);
+    }
+    EXPECT_THROW(kelvin::csv_split("\"open", "test"), kelvin::InputError);
+}
+
+TEST_F(ConvergeCli, RenderStudyRowsErrorsImagesAndPlots) {
+    const fs::path ref = reference(), out = m_dir / "study";
+    auto r = converge(render_study(ref, out, 2));
+    ASSERT_EQ(r.exit_code, 0) << describe(r);
+
+    const Table t = read_csv(out / "convergence.csv");
+    ASSERT_EQ(t.size(), 2u * 2u * 4u);  // configurations x runs x checkpoints
+    const std::vector<std::string> configs = {"path", "pt"};
+    std::size_t i = 0;
+    for (const auto& config : configs)
+        for (int run = 0; run < 2; ++run)
+            for (int spp : {1, 4, 16, 64}) {
+                const auto& row = t[i++];
+                EXPECT_EQ(row.at("config"), config);
+                EXPECT_EQ(row.at("run"), std::to_string(run));
+                EXPECT_EQ(row.at("seed"), std::to_string(run));
+                EXPECT_EQ(row.at("trigger"), "work");
+                EXPECT_EQ(num(row, "work"), spp);
+                EXPECT_EQ(row.at("unit"), "spp");
+                EXPECT_GE(num(row, "seconds"), 0);
+                EXPECT_EQ(row.at("image").empty(), run != 0);  // --images first: run 0 only
+                if (run == 0) EXPECT_TRUE(fs::file_size(out / row.at("image")) > 0) << row.at("image");
+            }
+    // Unbiased estimators: 64x the samples divides the expected MSE by ~50 (the reference's own noise adds
+    // 1/256 of the one-sample variance); a factor 4 leaves a wide margin for one seed.
+    for (std::size_t k = 0; k < t.size(); k += 4) {
+        const auto &first = t[k], &last = t[k + 3];
+        EXPECT_LT(num(last, "mse"), num(first, "mse") / 4) << first.at("config") << " run " << first.at("run");
+        EXPECT_LT(num(last, "rel_mse"), num(first, "rel_mse") / 4);
+        EXPECT_LT(num(last, "l1"), num(first, "l1") / 2);
+        EXPECT_GT(num(last, "ssim"), num(first, "ssim"));
+        EXPECT_NEAR(num(last, "rmse"), std::sqrt(num(last, "mse")), 1e-8 * num(last, "rmse"));  // 9 digits
+    }
+    // Cost counters of every run.
+    const Table stats = read_csv(out / "convergence_stats.csv");
+    std::size_t rays = 0;
+    for (const auto& row : stats) rays += row.at("counter") == "render.rays";
+    EXPECT_EQ(rays, 4u);
+
+    // The plot script on this CSV: PNG and SVG files, the time-to-error table and the image grid.
+    const fs::path plots = m_dir / "plots";
+    auto p = run_process(python(), {PlotScript, (out / "convergence.csv").string(), "--out", plots.string()}, {},
+                         std::chrono::seconds(120));
+    ASSERT_EQ(p.exit_code, 0) << describe(p);
+    for (const char* f : {"error_vs_seconds_rel_mse.png", "error_vs_seconds_rel_mse.svg", "error_vs_work_l1.png",
+                          "error_vs_work_ssim.svg", "time_to_error.md", "time_to_error.csv", "grid.png"}) {
+        ASSERT_TRUE(fs::exists(plots / f)) << f << "\n" << describe(p);
+        EXPECT_GT(fs::file_size(plots / f), 20u) << f;
+    }
+    EXPECT_EQ(read_file(plots / "error_vs_seconds_rel_mse.png").substr(1, 3), "PNG");
+    EXPECT_NE(read_file(plots / "error_vs_work_ssim.svg").find("<svg"), std::string::npos);
+    EXPECT_NE(read_file(plots / "time_to_error.md").find("| E | path | pt |"), std::string::npos);
+    // Bad input to the script: one line, exit 2.
+    auto bad = run_process(python(), {PlotScript, (out / "convergence_stats.csv").string()});
+    EXPECT_EQ(bad.exit_code, 2) << describe(bad);
+    EXPECT_NE(bad.err.find("not a kelvin converge CSV"), std::string::npos) << bad.err;
+}
+
+TEST_F(ConvergeCli, ResumedStudyReproducesTheRows) {
+    const fs::path ref = reference(), whole = m_dir / "whole", pieces = m_dir / "pieces";
+    auto a = converge(render_study(ref, whole, 2));
+    ASSERT_EQ(a.exit_code, 0) << describe(a);
+    // The same study in two pieces: one run per configuration, then resumed with two.
+    auto b1 = converge(render_study(ref, pieces, 1));
+    ASSERT_EQ(b1.exit_code, 0) << describe(b1);
+    EXPECT_EQ(read_csv(pieces / "convergence.csv").size(), 8u);
+    auto b2 = run_kelvin([&] {
+        std::vector<std::string> args = {"converge", Tiny};
+        for (const auto& s : render_study(ref, pieces, 2)) args.push_back(s);
+        return args;
+    }());
+    ASSERT_EQ(b2.exit_code, 0) << describe(b2);
+    EXPECT_NE(b2.err.find("2 run(s)"), std::string::npos) << b2.err;  // only the missing runs
+    EXPECT_NE(b2.err.find("(2 already done)"), std::string::npos) << b2.err;
+    EXPECT_EQ(deterministic_rows(pieces / "convergence.csv"), deterministic_rows(whole / "convergence.csv"));
+    EXPECT_EQ(deterministic_rows(pieces / "convergence_stats.csv"), deterministic_rows(whole / "convergence_stats.csv"));
+
+    // Nothing left to do: nothing recomputed, the file unchanged.
+    const std::string before = read_file(pieces / "convergence.csv");
+    auto again = converge(render_study(ref, pieces, 2));
+    ASSERT_EQ(again.exit_code, 0) << describe(again);
+    EXPECT_EQ(read_file(pieces / "convergence.csv"), before);
+
+    // A study with other settings cannot be resumed into this directory.
+    auto other = render_study(ref, pieces, 2);
+    other[other.size() - 3] = "1,4";  // --spp
+    expect_input_error(converge(other), "convergence.settings");
+    auto renamed = render_study(ref, pieces, 2);
+    renamed[3] = "path:integrator=ptracer";  // configuration 'path' with other parameters
+    expect_input_error(converge(renamed), "configuration 'path' was run with 'integrator=path'");
+    EXPECT_EQ(read_file(pieces / "convergence.csv"), before);
+}
+
+TEST_F(ConvergeCli, BadInputIsOneLineAndExitCode2) {
+    const fs::path ref = reference(), out = m_dir / "bad";
+    expect_input_error(converge({"--reference", ref.string(), "--config", "x:nosuch=1", "--spp", "1", "-o", out.string()}),
+                       "does not use the parameter 'nosuch'");
+    expect_input_error(converge({"--reference", (m_dir / "missing.exr").string(), "--config", "p:integrator=path",
+                                 "--spp", "1", "-o", out.string()}),
+                       "missing.exr: no such reference image");
+    expect_input_error(converge({"--reference", ref.string(), "--config", "p:integrator=path", "-o", out.string()}),
+                       "no checkpoints");
+    expect_input_error(converge({"--reference", ref.string(), "--config", "p:integrator", "--spp", "1"}),
+                       "expected NAME=VALUE");
+    expect_input_error(converge({"--reference", ref.string(), "--config", "p:integrator=path", "--spp", "1",
+                                 "--checkpoints", "1", "-o", out.string()}),
+                       "one kind of checkpoints");
+    expect_input_error(converge({"--reference", ref.string(), "--config", "p:res=16", "--spp", "1", "-o",
+                                 out.string()}),
+                       "the reference is 24x24 but the render is 16x16");
+    expect_input_error(converge({"--config", "p:integrator=path", "--spp", "1", "-o", out.string()}),
+                       "--reference");
+    auto fluid = run_kelvin({"converge", TaylorGreen, "-q", "--sweep", "spp=4", "--spp", "1", "-D", "res=8", "-o",
+                             (m_dir / "fluid").string()});
+    expect_input_error(fluid, "the scene runs a simulation");
+    expect_input_error(run_kelvin({"converge", TaylorGreen, "--sweep", "spp=4", "--times", "0.1", "--field", "p",
+                                   "-o", (m_dir / "fluid").string()}),
+                       "--field 'p'");
+}
+
+TEST_F(ConvergeCli, FluidErrorFallsWithBiotSavartSamples) {
+    // Taylor–Green against its exact solution: 64x the Biot–Savart samples lowers the vorticity RMSE (noise
+    // ~ 1/sqrt(n_mc)) until interpolation error dominates; at 32^2 cells and t = 0.25 the drop is about 3x.
+    const fs::path out = m_dir / "tg";
+    auto r = run_kelvin({"converge", TaylorGreen, "-q", "-D", "res=32", "-D", "end=0.25", "--sweep", "spp=4,256",
+                         "--times", "0,0.25", "--runs", "2", "-o", out.string(), "--plot"},
+                        {}, std::chrono::seconds(120));
+    ASSERT_EQ(r.exit_code, 0) << describe(r);
+    const Table t = read_csv(out / "convergence.csv");
+    ASSERT_EQ(t.size(), 2u * 2u * 2u);
+    std::map<std::pair<std::string, std::string>, double> at_end;
+    for (const auto& row : t) {
+        EXPECT_EQ(row.at("field"), "vorticity");
+        EXPECT_EQ(row.at("unit"), "steps");
+        EXPECT_EQ(row.at("cells"), "1024");
+        if (num(row, "sim_time") == 0) {
+            EXPECT_EQ(num(row, "rmse"), 0.0);  // the cache starts as the exact field at the cell centres
+        } else {
+            EXPECT_NEAR(num(row, "sim_time"), 0.25, 1e-9);
+            EXPECT_EQ(num(row, "work"), 5);
+            at_end[{row.at("config"), row.at("run")}] = num(row, "rmse");
+        }
+    }
+    ASSERT_EQ(at_end.size(), 4u);
+    for (const std::string run : {"0", "1"}) {
+        const double many = at_end[std::make_pair(std::string("spp=256"), run)];
+        const double few = at_end[std::make_pair(std::string("spp=4"), run)];
+        EXPECT_LT(many, 0.6 * few) << "run " << run;
+    }
+    // --plot: the sweep's error-versus-parameter plot, among others.
+    EXPECT_GT(fs::file_size(out / "plots" / "error_vs_param_rmse.png"), 100u);
+    EXPECT_GT(fs::file_size(out / "plots" / "error_vs_seconds_rmse.svg"), 100u);
+}
