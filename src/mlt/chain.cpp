@@ -44,13 +44,12 @@ double MarkovChain::evaluate(const Target& target, std::vector<double>& v, Slot 
     return f;
 }
 
-// 1 ^ pi_to Q(from|to) / (pi_from Q(to|from)); pi_from > 0 for the chain's states.
-double MarkovChain::first_acceptance(double pi_from, double pi_to, double q_back, double q_fwd) {
-    if (!(pi_to > 0)) return 0.0;
-    if (!(pi_from > 0)) return 1.0;
-    double num = pi_to * q_back, den = pi_from * q_fwd;
-    if (!(den > 0)) return num > 0 ? 1.0 : 0.0;
-    return std::min(1.0, num / den);
+// 1 ^ pi_to Q(from|to) / (pi_from Q(to|from)), with the kernel's log-density ratio log Q(from|to) - log Q(to|from).
+double MarkovChain::first_acceptance(double pi_from, double pi_to, double log_q_back, double log_q_fwd) {
+    if (!(pi_to > 0) || log_q_back == -Inf) return 0.0;
+    if (!(pi_from > 0) || log_q_fwd == -Inf) return 1.0;
+    const double log_r = std::log(pi_to) - std::log(pi_from) + (log_q_back - log_q_fwd);
+    return log_r >= 0 ? 1.0 : std::exp(log_r);  // NaN (inf - inf) falls through to exp(NaN) -> checked below
 }
 
 StepOutcome MarkovChain::step(const Target& target) {
@@ -63,19 +62,20 @@ StepOutcome MarkovChain::step(const Target& target) {
     // Stage 1.
     m_y.resize(n);
     out.large = m_cfg.large_step_prob > 0 && m_rng.next_double() < m_cfg.large_step_prob;
-    double q1_yx = 1, q1_xy = 1;  // Q1(y|x), Q1(x|y); a large step is uniform (density 1 both ways)
+    double lq1_yx = 0, lq1_xy = 0;  // log Q1(y|x), log Q1(x|y); a large step is uniform (density 1 both ways)
     if (out.large) {
         ++m_stats.large_steps;
         for (double& v : m_y) v = m_rng.next_double();
     } else {
         q1.sample(xs, std::span<double>(m_y.data(), n), m_rng);
         if (!q1.symmetric()) {
-            q1_yx = q1.density(xs, Coords(m_y.data(), n));
-            q1_xy = q1.density(Coords(m_y.data(), n), xs);
+            lq1_yx = q1.log_density(xs, Coords(m_y.data(), n));
+            lq1_xy = q1.log_density(Coords(m_y.data(), n), xs);
         }
     }
     m_fy = evaluate(target, m_y, Slot::Y);
-    out.a1 = first_acceptance(m_fx, m_fy, q1_xy, q1_yx);
+    out.a1 = first_acceptance(m_fx, m_fy, lq1_xy, lq1_yx);
+    if (!(out.a1 >= 0)) out.a1 = 0;  // NaN from an undefined density ratio: reject
     const double u1 = m_rng.next_double(), u2 = m_rng.next_double();
     if (u1 < out.a1) {
         ++m_stats.stage1_accepted;
@@ -102,9 +102,9 @@ StepOutcome MarkovChain::step(const Target& target) {
             double den = m_fx - m_fy;
             out.a2 = den > 0 ? std::min(1.0, std::max(0.0, m_fz - m_fy) / den) : 0.0;
         } else {
-            // Q1 densities of the stage-1 kernel (uniform for a large step).
-            auto q1d = [&](Coords from, Coords to) { return out.large ? 1.0 : q1.density(from, to); };
-            double pi_mid, q1_mid_z, q1_z_mid, q1_y_x = out.large ? 1.0 : q1.density(xs, ys);
+            // log Q1 densities of the stage-1 kernel (uniform for a large step).
+            auto lq1 = [&](Coords from, Coords to) { return out.large ? 0.0 : q1.log_density(from, to); };
+            double pi_mid;
             Coords mid = ys;
             if (m_cfg.type == DrType::Green) {
                 // Fictional state y* = z - (y - x) (minimum-image differences), Eqs. (4.8)-(4.9).
@@ -115,15 +115,24 @@ StepOutcome MarkovChain::step(const Target& target) {
             } else {
                 pi_mid = m_fy;  // Tierney–Mira: the reverse path passes through y itself, Eq. (4.2)
             }
-            q1_mid_z = q1d(zs, mid);  // Q1(mid | z)
-            q1_z_mid = q1d(mid, zs);  // Q1(z | mid)
+            const double lq1_mid_z = lq1(zs, mid);  // log Q1(mid | z)
+            const double lq1_z_mid = lq1(mid, zs);  // log Q1(z | mid)
+            const double lq1_y_x = lq1(xs, ys);     // log Q1(y | x)
             // 1 - a1(z, mid): the probability that, from z, the first stage proposes mid and rejects it.
-            double a1_z_mid = first_acceptance(m_fz, pi_mid, q1_z_mid, q1_mid_z);
-            double q2_x = q2.density_second(zs, mid, xs);  // Q2(x | mid, z)
-            double q2_z = q2.density_second(xs, ys, zs);   // Q2(z | y, x)
-            double num = m_fz * q1_mid_z * q2_x * (1 - a1_z_mid);
-            double den = m_fx * q1_y_x * q2_z * one_minus_a1_xy;
-            out.a2 = den > 0 ? std::min(1.0, num / den) : 0.0;
+            const double a1_z_mid = first_acceptance(m_fz, pi_mid, lq1_z_mid, lq1_mid_z);
+            const double lq2_x = q2.log_density_second(zs, mid, xs);  // log Q2(x | mid, z)
+            const double lq2_z = q2.log_density_second(xs, ys, zs);   // log Q2(z | y, x)
+            // a2 = 1 ^ pi(z) Q1(mid|z) Q2(x|mid,z) (1 - a1(z,mid)) / (pi(x) Q1(y|x) Q2(z|y,x) (1 - a1(x,y))),
+            // as a difference of logarithms: the densities of a long path over- or underflow as products.
+            const double log_num = std::log(m_fz) + lq1_mid_z + lq2_x + std::log1p(-a1_z_mid);
+            const double log_den = std::log(m_fx) + lq1_y_x + lq2_z + std::log(one_minus_a1_xy);
+            if (!(log_den > -Inf)) {
+                out.a2 = 0;  // y or z proposed with zero density: cannot happen for a consistent kernel
+                ++m_stats.invalid;
+            } else {
+                const double log_r = log_num - log_den;  // -inf when the reverse path is impossible: a2 = 0
+                out.a2 = log_r >= 0 ? 1.0 : std::exp(log_r);
+            }
             if (!std::isfinite(out.a2)) out.a2 = 0;
         }
         if (u2 < out.a2) {

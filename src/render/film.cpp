@@ -22,27 +22,19 @@ Bitmap ImageBuffer::develop(const std::vector<std::string>& names) const {
 }
 
 SplatBuffer::SplatBuffer(int width, int height, std::size_t units, const ReconstructionFilter* filter)
-    : m_width(width), m_height(height), m_filter(filter), m_lists(units),
-      m_acc(std::size_t(width) * std::size_t(height) * 3, 0.0) {}
+    : m_width(width), m_height(height), m_filter(filter), m_lists(units), m_sinks(units),
+      m_acc(std::size_t(width) * std::size_t(height) * 3, 0.0) {
+    for (std::size_t u = 0; u < units; ++u) {
+        m_sinks[u].buffer = this;
+        m_sinks[u].unit = u;
+    }
+}
 
 void SplatBuffer::splat(std::size_t unit, const Vec2d& film, const Color3& v) {
     auto& list = m_lists[unit];
-    if (!m_filter) {
-        if (!(film.x >= 0 && film.y >= 0 && film.x < m_width && film.y < m_height)) return;
-        list.push_back({uint32_t(int(film.y) * m_width + int(film.x)), v.r, v.g, v.b});
-        return;
-    }
-    // Pixel centres (x + 0.5, y + 0.5) within the filter radius of the splat position. A position up to a
-    // radius outside the image still reaches the border pixels (the camera side's filter samples do too).
-    const double r = m_filter->radius();
-    if (!(film.x >= -r && film.y >= -r && film.x < m_width + r && film.y < m_height + r)) return;
-    const int x0 = std::max(0, int(std::ceil(film.x - 0.5 - r))), x1 = std::min(m_width - 1, int(std::floor(film.x - 0.5 + r)));
-    const int y0 = std::max(0, int(std::ceil(film.y - 0.5 - r))), y1 = std::min(m_height - 1, int(std::floor(film.y - 0.5 + r)));
-    for (int y = y0; y <= y1; ++y)
-        for (int x = x0; x <= x1; ++x) {
-            double w = m_filter->eval(Vec2d(x + 0.5, y + 0.5) - film);
-            if (w != 0) list.push_back({uint32_t(y * m_width + x), w * v.r, w * v.g, w * v.b});
-        }
+    for_each_footprint_pixel(m_filter, m_width, m_height, film, [&](std::size_t pixel, double w) {
+        list.push_back({uint32_t(pixel), w * v.r, w * v.g, w * v.b});
+    });
 }
 
 void SplatBuffer::merge() {
@@ -60,6 +52,42 @@ void SplatBuffer::merge() {
 Bitmap SplatBuffer::develop(double scale) const {
     Bitmap out(m_width, m_height);
     for (std::size_t i = 0; i < m_acc.size(); ++i) out.data()[i] = float(m_acc[i] * scale);
+    return out;
+}
+
+namespace {
+constexpr double FixedScale = 4294967296.0;  // 2^32
+constexpr double FixedLimit = 1073741824.0;  // 2^30: |v| beyond this is dropped
+}  // namespace
+
+FixedPointSplatImage::FixedPointSplatImage(int width, int height, const ReconstructionFilter* filter)
+    : m_width(width), m_height(height), m_filter(filter), m_acc(std::size_t(width) * std::size_t(height) * 3) {
+    clear();
+}
+
+void FixedPointSplatImage::clear() {
+    for (auto& a : m_acc) a.store(0, std::memory_order_relaxed);
+    m_overflow.store(0, std::memory_order_relaxed);
+}
+
+void FixedPointSplatImage::splat(const Vec2d& film, const Color3& v) {
+    if (!(std::abs(v.r) < FixedLimit && std::abs(v.g) < FixedLimit && std::abs(v.b) < FixedLimit)) {
+        m_overflow.fetch_add(1, std::memory_order_relaxed);  // also NaN
+        return;
+    }
+    for_each_footprint_pixel(m_filter, m_width, m_height, film, [&](std::size_t pixel, double w) {
+        std::atomic<int64_t>* px = &m_acc[pixel * 3];
+        for (int c = 0; c < 3; ++c) {
+            const int64_t q = std::llround(w * v[c] * FixedScale);
+            if (q != 0) px[c].fetch_add(q, std::memory_order_relaxed);
+        }
+    });
+}
+
+Bitmap FixedPointSplatImage::develop(double scale) const {
+    Bitmap out(m_width, m_height);
+    const double s = scale / FixedScale;
+    for (std::size_t i = 0; i < m_acc.size(); ++i) out.data()[i] = float(double(m_acc[i].load(std::memory_order_relaxed)) * s);
     return out;
 }
 

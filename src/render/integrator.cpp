@@ -80,6 +80,7 @@ void report_counters(RunContext& ctx, const std::vector<SampleCounters>& counter
 }
 
 RunResult SamplingIntegrator::render(const Scene& scene, RunContext& ctx) {
+    validate(scene);
     const Sensor& sensor = *scene.sensor();
     const int w = sensor.film().width(), h = sensor.film().height();
     const int tx = (w + TileSize - 1) / TileSize, ty = (h + TileSize - 1) / TileSize;
@@ -91,10 +92,7 @@ RunResult SamplingIntegrator::render(const Scene& scene, RunContext& ctx) {
     std::unique_ptr<SplatBuffer> splat_buffer;
     if (splats()) {
         splat_buffer = std::make_unique<SplatBuffer>(w, h, tiles, &filter);
-        for (std::size_t u = 0; u < tiles; ++u) {
-            counters[u].splats = splat_buffer.get();
-            counters[u].unit = u;
-        }
+        for (std::size_t u = 0; u < tiles; ++u) counters[u].splats = &splat_buffer->sink(u);
     }
     auto develop = [&] {
         Bitmap img = buffer.develop(rgb);

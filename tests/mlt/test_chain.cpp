@@ -209,7 +209,7 @@ public:
     void sample(Coords x, std::span<double> y, Random&) const override {
         for (std::size_t i = 0; i < x.size(); ++i) y[i] = x[i];
     }
-    double density(Coords, Coords) const override { return 1.0; }
+    double log_density(Coords, Coords) const override { return 0.0; }
 };
 
 TEST(MarkovChain, WrongAcceptanceIsDetected) {

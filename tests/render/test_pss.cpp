@@ -1,8 +1,9 @@
-// PrimarySampleSpace: the state Markov chains own (include/kelvin/render/pss.h).
-#include <kelvin/core/error.h>
+// PrimarySampleSpace: the sampler that reads a Markov chain's state (include/kelvin/render/pss.h).
 #include <kelvin/render/pss.h>
 
 #include <gtest/gtest.h>
+
+#include "../common/support.h"
 
 #include <cmath>
 
@@ -10,92 +11,60 @@ using namespace kelvin;
 
 namespace {
 
-std::vector<double> read(PrimarySampleSpace& pss, int n) {
-    pss.restart();
+std::vector<double> read(PrimarySampleSpace& pss, std::vector<double>& state, int n) {
+    pss.bind(state);
     std::vector<double> v;
     for (int i = 0; i < n; ++i) v.push_back(pss.next_1d());
     return v;
 }
 
+TEST(PrimarySampleSpace, ReadsTheBoundStateInOrder) {
+    PrimarySampleSpace pss(1, 0);
+    std::vector<double> state = {0.1, 0.2, 0.3, 0.4, 0.5};
+    pss.bind(state);
+    EXPECT_EQ(pss.next_1d(), 0.1);
+    Vec2d p = pss.next_2d();
+    EXPECT_EQ(p.x, 0.2);
+    EXPECT_EQ(p.y, 0.3);
+    EXPECT_EQ(pss.used(), 3u);
+    EXPECT_EQ(state.size(), 5u);  // nothing materialised beyond what exists
+    pss.start({7, 9}, 123, 456);  // a PSS sampler ignores pixel and index: it rewinds
+    EXPECT_EQ(pss.next_1d(), 0.1);
+    // A mutation of the state is what the next evaluation reads.
+    state[0] = 0.9;
+    pss.bind(state);
+    EXPECT_EQ(pss.next_1d(), 0.9);
+}
+
 TEST(PrimarySampleSpace, LazyExtensionIsUniformAndReproducible) {
     PrimarySampleSpace a(7, 3), b(7, 3), c(7, 4);
-    auto va = read(a, 5), vb = read(b, 5), vc = read(c, 5);
-    EXPECT_EQ(va, vb);
-    EXPECT_NE(va, vc);
-    EXPECT_EQ(a.values().size(), 5u);
-    // Reading again returns the same numbers; reading further extends.
-    EXPECT_EQ(read(a, 5), va);
-    auto longer = read(a, 8);
-    EXPECT_EQ(std::vector<double>(longer.begin(), longer.begin() + 5), va);
-    EXPECT_EQ(a.values().size(), 8u);
-    for (double v : longer) EXPECT_TRUE(v >= 0 && v < 1);
-}
+    std::vector<double> sa, sb, sc;
+    auto va = read(a, sa, 6), vb = read(b, sb, 6), vc = read(c, sc, 6);
+    EXPECT_EQ(va, vb);  // same (seed, stream): same prior draws
+    EXPECT_NE(va, vc);  // another stream: other draws
+    EXPECT_EQ(sa, va);  // the draws became the state
+    // Re-reading does not redraw: the state is fixed once materialised.
+    EXPECT_EQ(read(a, sa, 6), va);
+    // A longer read keeps the prefix and appends.
+    auto longer = read(a, sa, 9);
+    EXPECT_EQ(std::vector<double>(longer.begin(), longer.begin() + 6), va);
+    EXPECT_EQ(sa.size(), 9u);
 
-TEST(PrimarySampleSpace, RejectRestoresExactlyAcceptKeeps) {
-    PrimarySampleSpace pss(1, 0);
-    auto state = read(pss, 6);
-    pss.propose([](std::vector<double>& x, Random&) {
-        for (double& v : x) v += 0.75;  // wraps
-    });
-    auto proposal = read(pss, 9);  // the proposal reads 3 more coordinates than the state has
-    for (int i = 0; i < 6; ++i) EXPECT_DOUBLE_EQ(proposal[i], PrimarySampleSpace::wrap(state[i] + 0.75));
-    pss.reject();
-    EXPECT_FALSE(pss.in_proposal());
-    auto back = read(pss, 6);
-    EXPECT_EQ(back, state);  // bit for bit
-
-    pss.propose([](std::vector<double>& x, Random&) { x[0] = 0.125; });
-    read(pss, 6);
-    pss.accept();
-    EXPECT_EQ(read(pss, 1)[0], 0.125);
-}
-
-TEST(PrimarySampleSpace, LargeStepRedrawsEverything) {
-    PrimarySampleSpace pss(2, 0);
-    auto state = read(pss, 10);
-    pss.propose_large_step();
-    auto fresh = read(pss, 4);  // only 4 read during the proposal
-    for (int i = 0; i < 4; ++i) EXPECT_NE(fresh[i], state[i]);
-    pss.accept();
-    auto after = read(pss, 10);
-    for (int i = 0; i < 4; ++i) EXPECT_EQ(after[i], fresh[i]);
-    for (int i = 4; i < 10; ++i) EXPECT_NE(after[i], state[i]) << "unread coordinate " << i << " kept";
-    // A rejected large step leaves the state untouched.
-    pss.propose_large_step();
-    read(pss, 10);
-    pss.reject();
-    EXPECT_EQ(read(pss, 10), after);
-}
-
-TEST(PrimarySampleSpace, LargeStepsAreUniform) {
-    // Chi-square of coordinate 0 over many accepted large steps: 20 bins, critical value 43.82 at p = 1e-3
-    // for 19 degrees of freedom. (Fails if large steps reuse the old value or draw from a skewed warp.)
-    PrimarySampleSpace pss(3, 0);
-    const int n = 200000, bins = 20;
+    // The prior is uniform on [0, 1): chi-square over 20 bins of 20000 lazily drawn coordinates.
+    PrimarySampleSpace u(11, 0);
+    std::vector<double> s;
+    u.bind(s);
+    const int n = 20000, bins = 20;
     std::vector<int> count(bins, 0);
-    for (int k = 0; k < n; ++k) {
-        pss.propose_large_step();
-        double v = read(pss, 1)[0];
-        pss.accept();
-        ++count[std::min(bins - 1, int(v * bins))];
+    for (int i = 0; i < n; ++i) {
+        double x = u.next_1d();
+        ASSERT_GE(x, 0.0);
+        ASSERT_LT(x, 1.0);
+        ++count[int(x * bins)];
     }
     double chi2 = 0, e = double(n) / bins;
-    for (int c : count) chi2 += (c - e) * (c - e) / e;
-    EXPECT_LT(chi2, 43.82);
-}
-
-TEST(PrimarySampleSpace, WrapIsToroidal) {
-    EXPECT_DOUBLE_EQ(PrimarySampleSpace::wrap(1.25), 0.25);
-    EXPECT_DOUBLE_EQ(PrimarySampleSpace::wrap(-0.25), 0.75);
-    EXPECT_DOUBLE_EQ(PrimarySampleSpace::wrap(-3.0), 0.0);
-    double tiny = PrimarySampleSpace::wrap(-1e-20);
-    EXPECT_TRUE(tiny >= 0 && tiny < 1);
-}
-
-TEST(PrimarySampleSpace, NestedProposalIsAnError) {
-    PrimarySampleSpace pss(4, 0);
-    pss.propose([](std::vector<double>&, Random&) {});
-    EXPECT_THROW(pss.propose_large_step(), RuntimeError);
+    for (int k : count) chi2 += (k - e) * (k - e) / e;
+    EXPECT_GT(ktest::chi2_sf(chi2, bins - 1), 1e-4);
 }
 
 }  // namespace

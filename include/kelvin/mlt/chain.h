@@ -81,7 +81,7 @@ public:
 
 private:
     double evaluate(const Target& target, std::vector<double>& v, Slot slot);
-    static double first_acceptance(double pi_from, double pi_to, double q_back, double q_fwd);
+    static double first_acceptance(double pi_from, double pi_to, double log_q_back, double log_q_fwd);
 
     ChainConfig m_cfg;
     Random m_rng;

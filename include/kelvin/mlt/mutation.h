@@ -46,10 +46,10 @@ struct KelemenLaw {
         return sign * sample_length(rng.next_double());
     }
     bool in_range(double d, double rel = 1e-12) const { return d >= eps_min * (1 - rel) && d <= eps_max * (1 + rel); }
-    /// Density of a signed 1D step `delta` (half the length density, for each sign).
-    double signed_pdf(double delta) const {
+    /// Log density of a signed 1D step `delta` (half the length density, for each sign); -inf outside the range.
+    double signed_log_pdf(double delta) const {
         const double d = std::abs(delta);
-        return in_range(d) ? 1.0 / (2 * d * log_ratio) : 0.0;
+        return in_range(d) ? -std::log(2 * d * log_ratio) : -Inf;
     }
 };
 
@@ -62,17 +62,24 @@ class Mutation : public Object {
 public:
     /// Write into `y` (of x's length) a proposal from `x`, wrapped into [0,1).
     virtual void sample(Coords x, std::span<double> y, Random& rng) const = 0;
-    /// Density Q(to | from) on the torus (with respect to Lebesgue measure), exact up to a factor that
-    /// depends on the dimension only.
-    virtual double density(Coords from, Coords to) const = 0;
+    /// log Q(to | from) on the torus (density with respect to Lebesgue measure; -inf where Q is zero), exact up
+    /// to a constant that depends on the dimension only. Logarithms, because a product of per-coordinate
+    /// densities over the hundreds of coordinates of a long path overflows a double (1/eps_min^d).
+    virtual double log_density(Coords from, Coords to) const = 0;
     /// Second-stage proposals may depend on the rejected first proposal `rejected` (the orbital kernel does).
     virtual void sample_second(Coords x, Coords rejected, std::span<double> z, Random& rng) const {
         sample(x, z, rng);
     }
-    /// Q2(z | rejected, x); by default the first-stage density from x.
-    virtual double density_second(Coords x, Coords rejected, Coords z) const { return density(x, z); }
+    /// log Q2(z | rejected, x); by default the first-stage density from x.
+    virtual double log_density_second(Coords x, Coords rejected, Coords z) const { return log_density(x, z); }
+    /// A typical step length (sigma, or the largest Kelemen step): the default second stage of the `mira`
+    /// and `green` DR integrators is a Gaussian of scale_second times this.
+    virtual double scale() const { return 1.0 / 64; }
     /// Q(to | from) == Q(from | to) for all pairs (true for every built-in kernel).
     virtual bool symmetric() const { return true; }
+    /// Q(y | x) depends on each pair (x_2i, x_2i+1) -> (y_2i, y_2i+1) through the distance only: the
+    /// condition of the orbital second stage's acceptance, Eq. (4.7).
+    virtual bool pairwise_isotropic() const { return false; }
     /// True if only sample_second makes sense (a second-stage-only kernel such as `orbital`).
     virtual bool second_stage_only() const { return false; }
 };

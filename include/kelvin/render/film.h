@@ -6,6 +6,9 @@
 #include <kelvin/core/object.h>
 #include <kelvin/render/rfilter.h>
 
+#include <algorithm>
+#include <atomic>
+#include <cmath>
 #include <cstdint>
 
 #include <string>
@@ -35,22 +38,56 @@ private:
     std::vector<double> m_data;
 };
 
+/// Receives contributions that land on arbitrary film positions (light tracing, BDPT's t = 1 strategies, the
+/// proposals of a Markov chain). `film` is in pixels; `v` is the contribution before filtering.
+class SplatSink {
+public:
+    virtual void splat(const Vec2d& film, const Color3& v) = 0;
+
+protected:
+    ~SplatSink() = default;
+};
+
+/// Calls fn(pixel index, filter weight) for every pixel whose centre lies within the filter's radius of the
+/// film position (weights filter(centre - film)); without a filter, the pixel containing the position (weight
+/// 1). A position up to a radius outside the image still reaches the border pixels (camera-side filter
+/// samples do too); farther out it reaches none.
+template <typename Fn>
+void for_each_footprint_pixel(const ReconstructionFilter* filter, int width, int height, const Vec2d& film, Fn&& fn) {
+    if (!filter) {
+        if (film.x >= 0 && film.y >= 0 && film.x < width && film.y < height)
+            fn(std::size_t(int(film.y)) * std::size_t(width) + std::size_t(int(film.x)), 1.0);
+        return;
+    }
+    const double r = filter->radius();
+    if (!(film.x >= -r && film.y >= -r && film.x < width + r && film.y < height + r)) return;
+    const int x0 = std::max(0, int(std::ceil(film.x - 0.5 - r))), x1 = std::min(width - 1, int(std::floor(film.x - 0.5 + r)));
+    const int y0 = std::max(0, int(std::ceil(film.y - 0.5 - r))), y1 = std::min(height - 1, int(std::floor(film.y - 0.5 + r)));
+    for (int y = y0; y <= y1; ++y)
+        for (int x = x0; x <= x1; ++x) {
+            const double w = filter->eval(Vec2d(x + 0.5, y + 0.5) - film);
+            if (w != 0) fn(std::size_t(y) * std::size_t(width) + std::size_t(x), w);
+        }
+}
+
 /// Deterministic splatting for estimators whose samples land on arbitrary pixels (light tracing, BDPT's
-/// light-tracing strategies, Metropolis chains). Each work unit appends records to its own list; merge() adds
-/// the lists to one double-precision accumulator in unit order. The sum therefore never depends on which
-/// thread ran which unit, and no atomics are needed. Lists keep their capacity across passes, so steady
-/// state does not allocate.
+/// light-tracing strategies). Each work unit appends records to its own list; merge() adds the lists to one
+/// double-precision accumulator in unit order. The sum therefore never depends on which thread ran which
+/// unit, and no atomics are needed. Lists keep their capacity across passes, so steady state does not
+/// allocate. Values are unbounded (light-tracing fireflies are kept exactly).
 class SplatBuffer {
 public:
     SplatBuffer() = default;
     /// `filter` spreads each splat over its footprint (null: the pixel containing the position only).
     SplatBuffer(int width, int height, std::size_t units, const ReconstructionFilter* filter = nullptr);
+    SplatBuffer(const SplatBuffer&) = delete;  // the sinks point at their buffer
+    SplatBuffer& operator=(const SplatBuffer&) = delete;
     int width() const { return m_width; }
     int height() const { return m_height; }
-    /// Add `v` at film position `film` (pixels), spread over the pixels whose filter footprint covers it with
-    /// weights filter(pixel centre - film). Positions farther outside the image than the filter radius (or,
-    /// without a filter, outside the image) are dropped.
+    /// Add `v` at film position `film` (pixels) to `unit`'s list, spread by for_each_footprint_pixel.
     void splat(std::size_t unit, const Vec2d& film, const Color3& v);
+    /// The sink that splats into `unit`'s list (valid as long as the buffer).
+    SplatSink& sink(std::size_t unit) { return m_sinks[unit]; }
     /// Fold every unit's list into the accumulator, in unit order, and empty the lists.
     void merge();
     /// Accumulated values times `scale`, as an RGB image.
@@ -61,10 +98,40 @@ private:
         uint32_t pixel;
         double r, g, b;
     };
+    struct UnitSink final : SplatSink {
+        SplatBuffer* buffer = nullptr;
+        std::size_t unit = 0;
+        void splat(const Vec2d& film, const Color3& v) override { buffer->splat(unit, film, v); }
+    };
     int m_width = 0, m_height = 0;
     const ReconstructionFilter* m_filter = nullptr;
     std::vector<std::vector<Record>> m_lists;
+    std::vector<UnitSink> m_sinks;
     std::vector<double> m_acc;
+};
+
+/// Order-independent splatting of bounded values, shared by every thread: each channel of each pixel is a
+/// 64-bit fixed-point accumulator (resolution 2^-32) updated with an atomic add. Integer addition is
+/// associative, so the sum is bit-identical whatever the thread count or interleaving, with no per-unit
+/// storage. Made for Metropolis chains, whose splats are normalised (contribution / target value) and so
+/// bounded; a value beyond +-2^30 is dropped and counted (overflowed()).
+class FixedPointSplatImage {
+public:
+    FixedPointSplatImage(int width, int height, const ReconstructionFilter* filter = nullptr);
+    int width() const { return m_width; }
+    int height() const { return m_height; }
+    /// Thread-safe.
+    void splat(const Vec2d& film, const Color3& v);
+    /// Accumulated values times `scale`, as an RGB image.
+    Bitmap develop(double scale) const;
+    uint64_t overflowed() const { return m_overflow.load(std::memory_order_relaxed); }
+    void clear();
+
+private:
+    int m_width = 0, m_height = 0;
+    const ReconstructionFilter* m_filter = nullptr;
+    std::vector<std::atomic<int64_t>> m_acc;
+    std::atomic<uint64_t> m_overflow{0};
 };
 
 class Film : public Object {

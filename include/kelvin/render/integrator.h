@@ -46,16 +46,15 @@ public:
     virtual RunResult render(const Scene& scene, RunContext& ctx) = 0;
 };
 
-class SplatBuffer;
+class SplatSink;
 
 /// Per-work-unit state a SamplingIntegrator uses without locking: counters, and (for integrators that
-/// splat, see SamplingIntegrator::splats()) the unit's slot in the splat buffer.
+/// splat, see SamplingIntegrator::splats()) the sink of the unit's contributions to other pixels.
 struct SampleCounters {
     uint64_t samples = 0;  ///< samples taken: camera samples, or light paths for light tracing
     uint64_t rays = 0;
     uint64_t invalid = 0;  ///< NaN, Inf or negative estimates, recorded as zero
-    SplatBuffer* splats = nullptr;  ///< set by the pixel loop when the integrator splats
-    std::size_t unit = 0;           ///< the work unit (the splat buffer's list) this worker fills
+    SplatSink* splats = nullptr;    ///< where contributions to other pixels go (set when the integrator splats)
 };
 
 /// Add per-unit counters to ctx.stats (`samples_name` for SampleCounters::samples, render.rays,
@@ -71,6 +70,9 @@ public:
     /// True if sample() also splats contributions to other pixels (counters.splats). The pixel loop then adds
     /// the splat image, scaled by 1 / (camera samples taken), to the pixel estimates.
     virtual bool splats() const { return false; }
+    /// Throws InputError if the scene is one sample() cannot handle (checked once, before any work, by
+    /// render() and by integrators that drive sample() themselves, such as the Metropolis ones).
+    virtual void validate(const Scene&) const {}
 
     /// Work-unit size in pixels (fixed: the split never depends on the thread count).
     static constexpr int TileSize = 32;

@@ -1,69 +1,53 @@
 #pragma once
 // Primary sample space (Kelemen et al. 2002): a path is a deterministic function of the uniform numbers its
-// sampler hands out, so a Markov chain over paths can be a chain over those numbers. PrimarySampleSpace is a
-// Sampler whose numbers are the coordinates of a state vector that the chain owns:
-//   - the vector is extended lazily: reading a coordinate that does not exist yet draws it uniformly (the
-//     prior), so paths of any length work and unread coordinates cost nothing;
-//   - proposals change the vector in place (a mutation hook gets the whole vector and the chain's random
-//     stream), the path is re-evaluated from dimension 0 with restart(), and the chain then accepts (the
-//     proposal becomes the state) or rejects (the last accepted state is restored exactly);
-//   - large steps (independent proposals) replace every coordinate by a fresh uniform draw, lazily.
-// Coordinates live on the torus [0, 1): mutations wrap (see wrap()).
+// sampler hands out, so a Markov chain over paths can be a chain over those numbers. PrimarySampleSpace is the
+// Sampler that reads them from a state vector a Markov chain owns (MarkovChain keeps the accepted state x and
+// its proposals y, z side by side, which is its backup/restore; proposals are Mutation plugins):
+//   - bind() points the sampler at a state and rewinds it; next_1d()/next_2d() read coordinates in order;
+//   - the vector is extended lazily: reading a coordinate that does not exist yet appends a uniform draw (the
+//     prior) from the sampler's own stream, so paths of any length work and unread coordinates cost nothing.
+// Coordinates live on the torus [0, 1) (see torus_wrap / torus_delta in mlt/mutation.h).
 #include <kelvin/core/random.h>
 #include <kelvin/render/sampler.h>
 
-#include <functional>
 #include <vector>
 
 namespace kelvin {
 
 class PrimarySampleSpace final : public Sampler {
 public:
-    /// A proposal kernel: changes `x` (already holding the current state's materialised coordinates) in place.
-    using Mutation = std::function<void(std::vector<double>& x, Random& rng)>;
+    /// `seed`, `stream` key the stream that extends states lazily.
+    PrimarySampleSpace(uint64_t seed, uint64_t stream) : m_rng(seed, stream) {}
 
-    /// `rng` feeds lazy extension and large steps; the chain keeps its own stream for accept/reject.
-    PrimarySampleSpace(uint64_t seed, uint64_t stream);
+    /// Read `state` from dimension 0 (the vector must outlive the reads).
+    void bind(std::vector<double>& state) {
+        m_x = &state;
+        m_next = 0;
+    }
+    /// Dimensions read since bind().
+    std::size_t used() const { return m_next; }
 
-    // Sampler: numbers come from the state vector, in order, from the last restart().
+    // Sampler.
     long long sample_count() const override { return 1; }
     std::unique_ptr<Sampler> clone() const override { return std::make_unique<PrimarySampleSpace>(*this); }
-    /// Ignores its arguments: a PSS sampler is positioned by the chain, not by pixel and index.
-    void start(Vec2i, uint64_t, uint64_t) override { restart(); }
+    /// Ignores its arguments: a PSS sampler is positioned by bind(), not by pixel and index.
+    void start(Vec2i, uint64_t, uint64_t) override { m_next = 0; }
     double next_1d() override { return coordinate(m_next++); }
     Vec2d next_2d() override {
-        double a = coordinate(m_next++);
+        const double a = coordinate(m_next++);
         return {a, coordinate(m_next++)};
     }
 
-    /// Read from dimension 0 again (before evaluating a path).
-    void restart() { m_next = 0; }
-    /// Dimensions the last evaluation read.
-    std::size_t used() const { return m_next; }
-    /// Materialised coordinates of the proposal (or of the state, outside a proposal).
-    const std::vector<double>& values() const { return m_x; }
-    double coordinate(std::size_t i);
-
-    /// Begin a proposal from the accepted state: `mutate` perturbs the materialised coordinates.
-    void propose(const Mutation& mutate);
-    /// Begin an independent proposal: every coordinate is redrawn uniformly (lazily, on first read).
-    void propose_large_step();
-    /// The proposal becomes the state.
-    void accept();
-    /// Back to the last accepted state, exactly.
-    void reject();
-    bool in_proposal() const { return m_in_proposal; }
-
-    /// x mod 1 in [0, 1), also for negative x (toroidal wrapping of the primary sample space).
-    static double wrap(double x);
-
 private:
+    double coordinate(std::size_t i) {
+        std::vector<double>& x = *m_x;
+        while (x.size() <= i) x.push_back(m_rng.next_double());  // the prior: uniform
+        return x[i];
+    }
+
     Random m_rng;
-    std::vector<double> m_x, m_backup;
-    std::size_t m_backup_size = 0;  // coordinates materialised when the proposal began
+    std::vector<double>* m_x = nullptr;
     std::size_t m_next = 0;
-    bool m_large = false, m_in_proposal = false;
-    std::vector<uint8_t> m_redrawn;  // large step: which coordinates have been redrawn already
 };
 
 }  // namespace kelvin

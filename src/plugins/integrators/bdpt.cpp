@@ -16,6 +16,7 @@
 // | parameter     | type    | default | meaning                                                  |
 // |---------------|---------|---------|----------------------------------------------------------|
 // | max_depth     | integer | -1      | longest path (in edges) that contributes; -1: unbounded  |
+// | min_depth     | integer | 1       | shortest path (in edges) that contributes                 |
 // | rr_depth      | integer | 5       | subpath length from which Russian roulette may stop it    |
 // | hide_emitters | boolean | false   | emitters seen directly render black                       |
 //
@@ -65,18 +66,18 @@ public:
 
     explicit Bdpt(const Properties& props)
         : m_max_depth(int(props.get_int("max_depth", -1, MaxVertices - 2))),
+          m_min_depth(int(props.get_int("min_depth", 1, 1 << 20))),
           m_rr_depth(int(props.get_int("rr_depth", 1, 1 << 20))),
           m_hide_emitters(props.get_bool("hide_emitters")) {
         if (m_max_depth == 0) props.error("max_depth", "must be -1 (unbounded) or at least 1");
     }
     bool splats() const override { return true; }
 
-    RunResult render(const Scene& scene, RunContext& ctx) override {
-        // Checked once, before any work: the camera-vertex densities below assume a point camera.
+    void validate(const Scene& scene) const override {
+        // The camera-vertex densities below assume a point camera.
         if (!scene.sensor()->is_pinhole())
             throw InputError({}, fmt::format("bdpt supports pinhole sensors only (perspective), not {}; use path "
                                              "or ptracer", scene.sensor()->to_string()));
-        return SamplingIntegrator::render(scene, ctx);
     }
 
     Color3 sample(const Scene& scene, Sampler& sampler, const Ray& camera_ray, SampleCounters& c) const override {
@@ -136,7 +137,7 @@ public:
                 // Emitters seen directly come from (s=0, t=2) alone, exactly and noise-free; (1, 1) would count
                 // them twice (pbrt makes the same choice, and mis_weight() returns 1 for s + t == 2).
                 if (t == 1 && s == 1) continue;
-                if (edges < 1 || edges > max_edges) continue;
+                if (edges < std::max(1, m_min_depth) || edges > max_edges) continue;
                 if (m_hide_emitters && t + s == 2) continue;
                 Vec2d film;
                 Color3 v = connect(scene, sensor, light.data(), cam.data(), s, t, sampler, film, c);
@@ -146,7 +147,7 @@ public:
                     continue;
                 }
                 if (t == 1)
-                    c.splats->splat(c.unit, film, v);
+                    c.splats->splat(film, v);
                 else
                     L += v;
             }
@@ -416,7 +417,7 @@ private:
         return 1.0 / (1.0 + sum);
     }
 
-    int m_max_depth, m_rr_depth;
+    int m_max_depth, m_min_depth, m_rr_depth;
     bool m_hide_emitters;
 };
 
@@ -426,5 +427,6 @@ private:
 KELVIN_PLUGIN(kelvin::Bdpt, "integrator", "bdpt",
               "Bidirectional path tracing: all (s, t) connection strategies with MIS; light-tracing strategies splatted.",
               kelvin::param::integer("max_depth", -1, "longest contributing path in edges (-1: unbounded)"),
+              kelvin::param::integer("min_depth", 1, "shortest contributing path in edges"),
               kelvin::param::integer("rr_depth", 5, "subpath length from which Russian roulette starts"),
               kelvin::param::boolean("hide_emitters", false, "emitters seen directly render black"));

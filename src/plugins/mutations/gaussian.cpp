@@ -16,7 +16,7 @@ namespace {
 class Gaussian final : public Mutation {
 public:
     explicit Gaussian(const Properties& props) : m_sigma(props.get_float("sigma", 1e-9, 0.125)) {
-        m_norm = 1.0 / (m_sigma * std::sqrt(2 * Pi));
+        m_log_norm = -std::log(m_sigma * std::sqrt(2 * Pi));
     }
     void sample(Coords x, std::span<double> y, Random& rng) const override {
         for (std::size_t i = 0; i < x.size(); i += 2) {
@@ -25,21 +25,26 @@ public:
             if (i + 1 < x.size()) y[i + 1] = torus_wrap(x[i + 1] + m_sigma * g.y);
         }
     }
-    double density(Coords from, Coords to) const override {
-        double p = 1;
+    double log_density(Coords from, Coords to) const override {
+        // Per coordinate: log(norm * sum_k exp(-(d + k)^2 / (2 sigma^2))), factored around the nearest image
+        // (d itself, |d| <= 1/2) so that no term underflows to a zero density however small sigma is.
+        double lp = 0;
         for (std::size_t i = 0; i < from.size(); ++i) {
-            double d = torus_delta(from[i], to[i]), s = 0;
+            const double d = torus_delta(from[i], to[i]), e0 = d / m_sigma;
+            double s = 0;
             for (int k = -2; k <= 2; ++k) {
-                double e = (d + k) / m_sigma;
-                s += std::exp(-0.5 * e * e);
+                const double e = (d + k) / m_sigma;
+                s += std::exp(-0.5 * (e * e - e0 * e0));  // k = 0 gives 1; the others are <= 1
             }
-            p *= m_norm * s;
+            lp += m_log_norm - 0.5 * e0 * e0 + std::log(s);
         }
-        return p;
+        return lp;
     }
+    double scale() const override { return m_sigma; }
+    bool pairwise_isotropic() const override { return true; }
 
 private:
-    double m_sigma, m_norm;
+    double m_sigma, m_log_norm;
 };
 
 }  // namespace

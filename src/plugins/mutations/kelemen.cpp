@@ -21,11 +21,12 @@ public:
     void sample(Coords x, std::span<double> y, Random& rng) const override {
         for (std::size_t i = 0; i < x.size(); ++i) y[i] = torus_wrap(x[i] + m_law.sample_signed(rng));
     }
-    double density(Coords from, Coords to) const override {
-        double p = 1;
-        for (std::size_t i = 0; i < from.size() && p > 0; ++i) p *= m_law.signed_pdf(torus_delta(from[i], to[i]));
-        return p;
+    double log_density(Coords from, Coords to) const override {
+        double lp = 0;
+        for (std::size_t i = 0; i < from.size() && lp > -Inf; ++i) lp += m_law.signed_log_pdf(torus_delta(from[i], to[i]));
+        return lp;
     }
+    double scale() const override { return m_law.eps_max; }
 
 private:
     KelemenLaw m_law;

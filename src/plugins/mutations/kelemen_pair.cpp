@@ -29,19 +29,21 @@ public:
         }
         if (i < n) y[i] = torus_wrap(x[i] + m_law.sample_signed(rng));
     }
-    double density(Coords from, Coords to) const override {
+    double log_density(Coords from, Coords to) const override {
         const std::size_t n = from.size();
-        double p = 1;
+        double lp = 0;
         std::size_t i = 0;
         for (; i + 1 < n; i += 2) {
             const double dx = torus_delta(from[i], to[i]), dy = torus_delta(from[i + 1], to[i + 1]);
             const double d = std::sqrt(dx * dx + dy * dy);
-            if (!m_law.in_range(d, 1e-9)) return 0.0;
-            p *= 1.0 / (2 * Pi * d * d * m_law.log_ratio);  // radial density / circumference
+            if (!m_law.in_range(d, 1e-9)) return -Inf;
+            lp -= std::log(2 * Pi * d * d * m_law.log_ratio);  // radial density / circumference
         }
-        if (i < n) p *= m_law.signed_pdf(torus_delta(from[i], to[i]));
-        return p;
+        if (i < n) lp += m_law.signed_log_pdf(torus_delta(from[i], to[i]));
+        return lp;
     }
+    double scale() const override { return m_law.eps_max; }
+    bool pairwise_isotropic() const override { return true; }
 
 private:
     KelemenLaw m_law;

@@ -43,9 +43,13 @@ public:
         for (double v : m_weights) sum += v;
         if (!(sum > 0)) props.error("weights", "must not all be zero");
         for (double& v : m_weights) v /= sum;
-        for (const auto& p : m_parts) m_symmetric = m_symmetric && p->symmetric();
+        for (const auto& p : m_parts) {
+            m_symmetric = m_symmetric && p->symmetric();
+            m_isotropic = m_isotropic && p->pairwise_isotropic();
+        }
     }
     bool symmetric() const override { return m_symmetric; }
+    bool pairwise_isotropic() const override { return m_isotropic; }
     void sample(Coords x, std::span<double> y, Random& rng) const override {
         double u = rng.next_double(), acc = 0;
         for (std::size_t k = 0; k < m_parts.size(); ++k) {
@@ -53,16 +57,32 @@ public:
             if (u < acc || k + 1 == m_parts.size()) return m_parts[k]->sample(x, y, rng);
         }
     }
-    double density(Coords from, Coords to) const override {
-        double p = 0;
-        for (std::size_t k = 0; k < m_parts.size(); ++k) p += m_weights[k] * m_parts[k]->density(from, to);
-        return p;
+    double log_density(Coords from, Coords to) const override {
+        // log sum_k w_k Q_k by a one-pass log-sum-exp (running maximum hi, sum s of exp(l - hi)).
+        double hi = -Inf, s = 0;
+        for (std::size_t k = 0; k < m_parts.size(); ++k) {
+            if (!(m_weights[k] > 0)) continue;
+            const double l = std::log(m_weights[k]) + m_parts[k]->log_density(from, to);
+            if (l == -Inf) continue;
+            if (l > hi) {
+                s = s * std::exp(hi - l) + 1;
+                hi = l;
+            } else {
+                s += std::exp(l - hi);
+            }
+        }
+        return hi == -Inf ? -Inf : hi + std::log(s);
+    }
+    double scale() const override {
+        double s = 0;
+        for (std::size_t k = 0; k < m_parts.size(); ++k) s += m_weights[k] * m_parts[k]->scale();
+        return s;
     }
 
 private:
     std::vector<std::shared_ptr<Mutation>> m_parts;
     std::vector<double> m_weights;
-    bool m_symmetric = true;
+    bool m_symmetric = true, m_isotropic = true;
 };
 
 }  // namespace

@@ -29,7 +29,7 @@ public:
     void sample(Coords x, std::span<double> y, Random&) const override {
         for (std::size_t i = 0; i < x.size(); ++i) y[i] = x[i];  // never used as a first stage
     }
-    double density(Coords, Coords) const override { return 0.0; }  // singular (on an orbit)
+    double log_density(Coords, Coords) const override { return -Inf; }  // singular (on an orbit)
 
     void sample_second(Coords x, Coords y, std::span<double> z, Random& rng) const override {
         const std::size_t n = x.size();
@@ -50,7 +50,7 @@ public:
         }
         if (i < n) z[i] = x[i];
     }
-    double density_second(Coords, Coords, Coords) const override { return 0.0; }
+    double log_density_second(Coords, Coords, Coords) const override { return -Inf; }
 
     /// Wrapped-Cauchy angle in (-pi, pi].
     double sample_angle(double u) const { return 2 * std::atan(m_tan_scale * std::tan(Pi * (u - 0.5))); }

@@ -1,0 +1,74 @@
+#pragma once
+// Primary-sample-space Metropolis light transport with optional two-stage delayed rejection: the `pssmlt` and
+// `drmlt` integrators (Kelemen et al. 2002; thesis Ch. 4 and Appendix B; Rioux-Lavoie, Litalien et al., ACM
+// TOG 39(3), 2020). Parameters and the estimator are documented in docs/mlt.md.
+//
+// The chains run over a path sampler (`path` or `bdpt`) driven through PrimarySampleSpace. A state x is the
+// vector of primary samples; its contribution F(x) is a list of (film position, RGB) pairs: the camera
+// subpath's estimate at the film position the state's first two coordinates choose, and (bdpt) the
+// light-tracing strategies at theirs. The target is pi(x) = sum of the luminances. With b = E_uniform[pi]
+// (bootstrap), the image is  I_j = b / N  sum over steps and states s of  w_s  sum_c h_j(p_c) F_c(s) / pi(s),
+// with w_s the waste-recycling weights of the step (or 1 for the state the chain is in, without recycling).
+#include <kelvin/mlt/chain.h>
+#include <kelvin/render/integrator.h>
+
+#include <memory>
+#include <mutex>
+
+namespace kelvin {
+
+/// What a Metropolis render did, available after render() and printed with the run's statistics.
+struct MltStatistics {
+    ChainStats chain;                  ///< summed over chains
+    double normalization = 0;          ///< b, estimated (bootstrap) or given
+    uint64_t bootstrap_samples = 0;
+    uint64_t bootstrap_nonzero = 0;    ///< bootstrap paths with pi > 0
+    uint64_t chains = 0;
+    uint64_t invalid_contributions = 0;  ///< NaN, Inf or negative path values recorded as zero
+    uint64_t splat_overflow = 0;         ///< splats dropped as out of range (should stay 0)
+    double seconds_bootstrap = 0, seconds_direct = 0, seconds_chains = 0;
+    double seconds_stage1 = 0;         ///< time evaluating first-stage proposals (summed over threads)
+    double seconds_stage2 = 0;         ///< time evaluating second-stage proposals, y* included
+    double mutations_per_pixel = 0;
+
+    double stage1_acceptance() const { return rate(chain.stage1_accepted - chain.large_accepted, chain.steps - chain.large_steps); }
+    double large_step_acceptance() const { return rate(chain.large_accepted, chain.large_steps); }
+    double stage2_acceptance() const { return rate(chain.stage2_accepted, chain.stage2_attempted); }
+    double mutations_per_second() const { return seconds_chains > 0 ? double(chain.steps) / seconds_chains : 0.0; }
+    /// Share of path-evaluation time spent in the second stage.
+    double stage2_time_share() const {
+        const double t = seconds_stage1 + seconds_stage2;
+        return t > 0 ? seconds_stage2 / t : 0.0;
+    }
+
+private:
+    static double rate(uint64_t a, uint64_t n) { return n > 0 ? double(a) / double(n) : 0.0; }
+};
+
+class MetropolisIntegrator : public Integrator {
+public:
+    /// `delayed_rejection`: read the parameters of `drmlt` (type, first/second) rather than `pssmlt`'s.
+    MetropolisIntegrator(const Properties& props, bool delayed_rejection);
+    ~MetropolisIntegrator() override;
+
+    RunResult render(const Scene& scene, RunContext& ctx) override;
+    /// The statistics of the last render() (thread-safe to read after it returns).
+    MltStatistics statistics() const;
+
+    DrType type() const { return m_config.type; }
+    const Mutation& first_stage() const { return *m_first; }
+    const Mutation* second_stage() const { return m_second.get(); }
+
+private:
+    std::shared_ptr<Mutation> m_first, m_second;
+    ChainConfig m_config;
+    std::shared_ptr<SamplingIntegrator> m_technique, m_direct;  // the path sampler; the direct-lighting renderer
+    bool m_delayed_rejection;
+    bool m_waste_recycling;
+    long long m_bootstrap_samples, m_chains, m_direct_samples;
+    double m_mutations_per_pixel, m_normalization;
+    mutable std::mutex m_stats_mutex;
+    MltStatistics m_stats;
+};
+
+}  // namespace kelvin

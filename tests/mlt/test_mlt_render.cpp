@@ -1,0 +1,209 @@
+// The pssmlt and drmlt integrators (src/mlt/integrator.cpp): unbiased against path tracing on the project's
+// scenes (block by block over independent seeds), error falling with mutations, deterministic whatever the
+// thread count, statistics and stage-map outputs, bad input.
+#include <kelvin/core/error.h>
+#include <kelvin/core/parallel.h>
+#include <kelvin/mlt/integrator.h>
+
+#include <gtest/gtest.h>
+
+#include "render/render_support.h"
+
+#include <regex>
+
+using namespace kelvin;
+
+namespace {
+
+/// A project scene with its <integrator> replaced by `integrator` (XML) and the resolution set to `res`.
+std::string scene_with(const std::string& file, const std::string& integrator, int res) {
+    std::string xml = ktest::read_text(std::string(KELVIN_SOURCE_DIR) + "/scenes/render/" + file);
+    const auto a = xml.find("<integrator"), b = xml.find("</integrator>");
+    EXPECT_NE(a, std::string::npos);
+    xml.replace(a, b + 13 - a, integrator);
+    xml = std::regex_replace(xml, std::regex(R"(<default name="res" value="\d+"/>)"),
+                             "<default name=\"res\" value=\"" + std::to_string(res) + "\"/>");
+    return xml;
+}
+
+std::string scene_path(const std::string& file) { return std::string(KELVIN_SOURCE_DIR) + "/scenes/render/" + file; }
+
+struct RunOut {
+    Bitmap image;
+    MltStatistics stats;
+    double invalid = 0;
+};
+
+RunOut run(const std::string& xml, const std::string& file, long long spp, uint64_t seed) {
+    auto scene = ktest::load_scene_xml(xml, {}, scene_path(file));
+    RunContext ctx;
+    ctx.spp = spp;
+    ctx.seed = seed;
+    ctx.quiet = true;
+    RunOut r;
+    r.image = scene->run(ctx).image;
+    r.invalid = ctx.stats.get("render.invalid_samples");
+    if (auto* mlt = dynamic_cast<MetropolisIntegrator*>(scene->integrator())) r.stats = mlt->statistics();
+    return r;
+}
+
+std::vector<Bitmap> seeds(const std::string& xml, const std::string& file, long long spp, int n, uint64_t first = 1) {
+    std::vector<Bitmap> out;
+    for (int s = 0; s < n; ++s) {
+        RunOut r = run(xml, file, spp, first + uint64_t(s));
+        EXPECT_EQ(r.invalid, 0.0);
+        out.push_back(std::move(r.image));
+    }
+    return out;
+}
+
+// 200 000 bootstrap paths: b's relative standard error is then about 1 % per run on the Cornell box (the
+// coefficient of variation of pi is about 4.5), so the mean of 8 seeds is known to 0.4 %: the 2 % check is 5 sigma.
+const std::string MltCommon = R"(<integer name="bootstrap_samples" value="200000"/><integer name="chains" value="64"/>)";
+
+std::string pssmlt(const std::string& mutation, const std::string& extra = "") {
+    return "<integrator type=\"pssmlt\">" + MltCommon + extra + mutation + "</integrator>";
+}
+std::string drmlt(const std::string& type, const std::string& extra = "") {
+    return "<integrator type=\"drmlt\"><string name=\"type\" value=\"" + type + "\"/>" + MltCommon + extra + "</integrator>";
+}
+
+/// Every variant must agree with path tracing block by block (8 x 8 blocks of a 32 x 32 Cornell box, 8 seeds
+/// each, tolerance 5 estimated sigmas: see compare_blocks; at most one of the 16 blocks beyond, about 0.2 % of
+/// blocks are by chance), and the image means within 2 %. A wrong acceptance or weight moves every block.
+void expect_matches_path(const std::string& integrator, const std::string& file = "cornell-box.xml", long long mpp = 128,
+                         long long path_spp = 256, int res = 32, bool within_2_percent = true,
+                         const std::string& reference_integrator = "path") {
+    static std::map<std::string, std::vector<Bitmap>> reference;  // reference renders, shared by the variants
+    const std::string key = file + std::to_string(res) + "/" + std::to_string(path_spp) + reference_integrator;
+    if (!reference.count(key))
+        reference[key] = seeds(scene_with(file, "<integrator type=\"" + reference_integrator + "\"/>", res), file, path_spp, 8, 100);
+    const auto mlt = seeds(scene_with(file, integrator, res), file, mpp, 8);
+    for (int c = 0; c < 3; ++c) {
+        const auto cmp = ktest::compare_blocks(mlt, reference[key], 8, c);
+        EXPECT_LE(cmp.outliers, 1) << integrator << " channel " << c;
+        if (within_2_percent) EXPECT_NEAR(cmp.mean_a, cmp.mean_b, 0.02 * cmp.mean_b) << integrator << " channel " << c;
+        EXPECT_NEAR(cmp.mean_a, cmp.mean_b, 5 * std::hypot(cmp.se_a, cmp.se_b)) << integrator << " channel " << c;
+    }
+}
+
+TEST(MltIntegrators, PssmltKelemenMatchesPathTracing) { expect_matches_path(pssmlt("<mutation type=\"kelemen\"/>")); }
+TEST(MltIntegrators, PssmltGaussianMatchesPathTracing) { expect_matches_path(pssmlt("<mutation type=\"gaussian\"/>")); }
+TEST(MltIntegrators, DrmltOrbitalMatchesPathTracing) { expect_matches_path(drmlt("orbital")); }
+TEST(MltIntegrators, DrmltMiraMatchesPathTracing) { expect_matches_path(drmlt("mira")); }
+TEST(MltIntegrators, DrmltGreenMatchesPathTracing) { expect_matches_path(drmlt("green")); }
+TEST(MltIntegrators, WithoutWasteRecyclingAndDirectSamplesMatchesPathTracing) {
+    expect_matches_path(drmlt("mira", R"(<boolean name="waste_recycling" value="false"/><integer name="direct_samples" value="-1"/>)"), "cornell-box.xml", 256);
+}
+// bdpt costs about 5 path evaluations per state here: fewer bootstrap paths and mutations, so b's noise (about
+// 2.5 % per run) leaves the 5-sigma checks only.
+TEST(MltIntegrators, BdptTechniqueMatchesPathTracing) {
+    expect_matches_path("<integrator type=\"drmlt\"><string name=\"type\" value=\"green\"/><string name=\"technique\" "
+                        "value=\"bdpt\"/><integer name=\"bootstrap_samples\" value=\"40000\"/><integer name=\"chains\" "
+                        "value=\"64\"/></integrator>",
+                        "cornell-box.xml", 32, 256, 32, false);
+}
+
+// The caustic (L-S-S-D-E paths through a glass sphere from a small light) against bidirectional path tracing.
+// The chains run on the bdpt technique, whose light-tracing strategies carry the caustic in the bootstrap as
+// well: on the path technique, b's estimate is dominated by rare caustic hits (heavy-tailed), and a mean over
+// a few seeds says little (the `normalization` parameter exists for such comparisons).
+TEST(MltIntegrators, DrmltMatchesBdptOnTheCaustic) {
+    expect_matches_path("<integrator type=\"drmlt\"><string name=\"technique\" value=\"bdpt\"/><integer "
+                        "name=\"bootstrap_samples\" value=\"40000\"/><integer name=\"chains\" value=\"64\"/></integrator>",
+                        "caustic.xml", 32, 64, 32, false, "bdpt");
+}
+
+// The error against a converged reference falls as mutations grow (relative MSE over the image, 8x more work).
+TEST(MltIntegrators, ErrorFallsWithMutations) {
+    const std::string file = "cornell-box.xml";
+    const auto ref = seeds(scene_with(file, "<integrator type=\"path\"/>", 24), file, 4096, 1, 500).front();
+    auto rmse = [&](const Bitmap& img) {  // relative MSE over R, G, B (drmlt images carry stage channels too)
+        double s = 0;
+        for (int y = 0; y < img.height(); ++y)
+            for (int x = 0; x < img.width(); ++x)
+                for (int c = 0; c < 3; ++c) {
+                    const double r = ref.at(x, y, c), d = img.at(x, y, c) - r;
+                    s += d * d / (r * r + 1e-2);
+                }
+        return s / (3.0 * img.width() * img.height());
+    };
+    // The chains render everything (direct_samples -1): with the default 16 spp of direct light, that fixed
+    // part's noise would be the error floor.
+    const std::string xml = scene_with(file, drmlt("orbital", R"(<integer name="direct_samples" value="-1"/>)"), 24);
+    const double coarse = rmse(run(xml, file, 32, 7).image), fine = rmse(run(xml, file, 256, 7).image);
+    // MSE ~ 1/N would give 1/8; the reference's own error and chain correlation leave it above that.
+    EXPECT_LT(fine, 0.4 * coarse) << "coarse " << coarse << " fine " << fine;
+}
+
+TEST(MltIntegrators, DeterministicWhateverTheThreadCount) {
+    const std::string file = "cornell-box.xml", xml = scene_with(file, drmlt("green"), 16);
+    Bitmap one, two;
+    {
+        ThreadLimit limit(1);
+        one = run(xml, file, 16, 3).image;
+    }
+    {
+        ThreadLimit limit(2);
+        two = run(xml, file, 16, 3).image;
+    }
+    ASSERT_EQ(one.size(), two.size());
+    for (std::size_t i = 0; i < one.size(); ++i) ASSERT_EQ(one.data()[i], two.data()[i]) << i;
+    // Another seed gives another image.
+    const Bitmap other = run(xml, file, 16, 4).image;
+    bool differs = false;
+    for (std::size_t i = 0; i < one.size() && !differs; ++i) differs = one.data()[i] != other.data()[i];
+    EXPECT_TRUE(differs);
+}
+
+TEST(MltIntegrators, StatisticsAndStageMap) {
+    const std::string file = "cornell-box.xml";
+    RunOut dr = run(scene_with(file, drmlt("orbital"), 16), file, 32, 5);
+    const auto& s = dr.stats;
+    EXPECT_EQ(s.chain.steps, 16u * 16u * 32u);  // mutations_per_pixel x pixels, exactly
+    EXPECT_GT(s.normalization, 0);
+    EXPECT_GT(s.chain.large_steps, 0.25 * double(s.chain.steps));  // large_step_prob 0.3
+    EXPECT_LT(s.chain.large_steps, 0.35 * double(s.chain.steps));
+    EXPECT_GT(s.stage1_acceptance(), 0.05);
+    EXPECT_LT(s.stage1_acceptance(), 1.0);
+    EXPECT_GT(s.chain.stage2_attempted, 0u);
+    EXPECT_GT(s.stage2_acceptance(), 0.0);
+    EXPECT_GT(s.seconds_stage2, 0.0);
+    EXPECT_GT(s.stage2_time_share(), 0.0);
+    EXPECT_LT(s.stage2_time_share(), 1.0);
+    EXPECT_EQ(s.splat_overflow, 0u);
+    // Stage-map channels count acceptances by stage at the accepted state's pixel (states whose film position
+    // falls in the filter margin outside the image are not counted).
+    const int r = dr.image.channel_index("stages.R"), g = dr.image.channel_index("stages.G");
+    ASSERT_GE(r, 0);
+    ASSERT_GE(g, 0);
+    double sr = 0, sg = 0;
+    for (int y = 0; y < 16; ++y)
+        for (int x = 0; x < 16; ++x) sr += dr.image.at(x, y, r), sg += dr.image.at(x, y, g);
+    EXPECT_GT(sr, 0.5 * double(s.chain.stage1_accepted));
+    EXPECT_LE(sr, double(s.chain.stage1_accepted));
+    EXPECT_GT(sg, 0.5 * double(s.chain.stage2_accepted));
+    EXPECT_LE(sg, double(s.chain.stage2_accepted));
+    // pssmlt has one stage: no stage map, no second-stage work.
+    RunOut ps = run(scene_with(file, pssmlt(""), 16), file, 32, 5);
+    EXPECT_LT(ps.image.channel_index("stages.R"), 0);
+    EXPECT_EQ(ps.stats.chain.stage2_attempted, 0u);
+    EXPECT_EQ(ps.stats.seconds_stage2, 0.0);
+}
+
+TEST(MltIntegrators, BadParametersAreInputErrors) {
+    const std::string file = "cornell-box.xml";
+    auto error_of = [&](const std::string& integrator) {
+        return ktest::input_error_of([&] { ktest::load_scene_xml(scene_with(file, integrator, 8), {}, scene_path(file)); });
+    };
+    EXPECT_NE(error_of(R"(<integrator type="drmlt"><mutation name="second" type="gaussian"/></integrator>)").find("orbital"), std::string::npos);
+    EXPECT_NE(error_of(R"(<integrator type="drmlt"><mutation name="first" type="kelemen"/></integrator>)").find("isotropic"), std::string::npos);
+    EXPECT_NE(error_of(R"(<integrator type="drmlt"><string name="type" value="mira"/><mutation name="second" type="orbital"/></integrator>)").find("density"), std::string::npos);
+    EXPECT_NE(error_of(R"(<integrator type="drmlt"><string name="type" value="tierney"/></integrator>)").find("type"), std::string::npos);
+    EXPECT_NE(error_of(R"(<integrator type="pssmlt"><mutation type="orbital"/></integrator>)").find("second-stage"), std::string::npos);
+    EXPECT_NE(error_of(R"(<integrator type="pssmlt"><integer name="direct_samples" value="0"/></integrator>)").find("direct_samples"), std::string::npos);
+    EXPECT_NE(error_of(R"(<integrator type="pssmlt"><float name="large_step_prob" value="1.5"/></integrator>)").find("large_step_prob"), std::string::npos);
+    EXPECT_NE(error_of(R"(<integrator type="pssmlt"><string name="technique" value="ptracer"/></integrator>)").find("technique"), std::string::npos);
+}
+
+}  // namespace
