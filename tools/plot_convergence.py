@@ -11,7 +11,9 @@ Writes into DIR (default: plots/ next to the CSV), for each metric M:
   error_vs_work_M.png/.svg      the same against work (samples per pixel, steps)
   error_vs_param_M.png/.svg     when every configuration is named NAME=NUMBER (a --sweep): the error against
                                 the parameter, one curve per checkpoint (like the thesis' Figure 5.15)
+  error_vs_cost_M.png/.svg      and, for a sweep, the error against compute time, one point per value
 and
+  summary.md                    per configuration and checkpoint: mean time, work and metrics (+- std)
   time_to_error.md/.csv         how long each configuration takes (mean curve, log-log interpolation between
                                 checkpoints) to reach error levels E (--targets, default: the final mean error
                                 of every configuration)
@@ -216,6 +218,47 @@ def plot_param(curves, metric, param, out, formats, title):
     return save(fig, out, "error_vs_param_%s" % metric, formats)
 
 
+def plot_cost(curves, metric, param, out, formats, title):
+    """Error against compute time across a sweep: one curve per checkpoint, one point per parameter value
+    (mean over runs, with the runs' spread as error bars): what each setting costs and buys."""
+    by_cp = defaultdict(list)
+    for (field, config), c in curves.items():
+        pv = float(config.split("=", 1)[1])
+        for (trigger, target), rows in c.points.items():
+            vals = np.array([value(r, metric) for r in rows])
+            secs = np.array([float(r["seconds"]) for r in rows])
+            ok = np.isfinite(vals)
+            if np.any(ok):
+                by_cp[(field, trigger, target)].append(
+                    (pv, float(np.mean(secs[ok])), float(np.mean(vals[ok])), float(np.std(vals[ok]))))
+    fig, ax = plt.subplots(figsize=(6.0, 4.2))
+    any_data = False
+    for i, ((field, trigger, target), pts) in enumerate(sorted(by_cp.items())):
+        pts.sort()
+        p, t, m, s = (np.array(v) for v in zip(*pts))
+        ok = (t > 0) & (m > 0)
+        if np.count_nonzero(ok) < 2:
+            continue
+        any_data = True
+        name = {"sim_time": "t = %g", "seconds": "%g s", "work": "work %g"}.get(trigger, "%g") % target
+        color = "C%d" % (i % 10)
+        ax.errorbar(t[ok], m[ok], yerr=s[ok], fmt="-o", ms=3, capsize=2, color=color,
+                    label=name + (" (%s)" % field if field else ""))
+        for pv, tx, my in zip(p[ok], t[ok], m[ok]):
+            ax.annotate("%g" % pv, (tx, my), textcoords="offset points", xytext=(3, 3), fontsize=7, color=color)
+    if not any_data:
+        plt.close(fig)
+        return []
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.set_xlabel("compute time (s)")
+    ax.set_ylabel(LABELS.get(metric, metric))
+    ax.grid(True, which="both", alpha=0.3)
+    ax.set_title(title or "%s against cost, points labelled by %s" % (LABELS.get(metric, metric), param), fontsize=10)
+    ax.legend(fontsize=8)
+    return save(fig, out, "error_vs_cost_%s" % metric, formats)
+
+
 def time_to_error(curve, metric, target):
     """Compute time at which the mean curve first reaches `target` (log-log interpolation), or None."""
     s = curve.series(metric, "seconds")
@@ -254,6 +297,28 @@ def write_table(curves, metric, targets, out):
         f.write("\n".join(md) + "\n")
     with open(os.path.join(out, "time_to_error.csv"), "w", newline="") as f:
         csv.writer(f).writerows(rows)
+
+
+def write_summary(curves, metrics, out):
+    """summary.md: per configuration and checkpoint, the mean (and std over runs) of time, work and metrics."""
+    lines = ["| configuration | checkpoint | runs | seconds | work | " + " | ".join(LABELS.get(m, m) for m in metrics) + " |",
+             "|---|---|---|---|---|" + "---|" * len(metrics)]
+    for c in curves.values():
+        for (trigger, target), rows in c.points.items():
+            secs = np.array([float(r["seconds"]) for r in rows])
+            work = np.array([float(r["work"]) for r in rows])
+            cells = []
+            for m in metrics:
+                v = np.array([value(r, m) for r in rows])
+                v = v[np.isfinite(v)]
+                cells.append("-" if len(v) == 0 else ("%.3g" % np.mean(v)) + (" ± %.2g" % np.std(v) if len(v) > 1 else ""))
+            cp = {"sim_time": "t = %g", "seconds": "%g s", "work": "%g " + rows[0]["unit"]}.get(trigger, "%g") % target
+            lines.append("| %s | %s | %d | %.3g | %.4g | %s |" % (c.name, cp, len(rows), np.mean(secs), np.mean(work),
+                                                                " | ".join(cells)))
+    path = os.path.join(out, "summary.md")
+    with open(path, "w") as f:
+        f.write("\n".join(lines) + "\n")
+    return path
 
 
 def image_grid(rows, csv_dir, crop, out):
@@ -353,6 +418,8 @@ def main(argv):
     if param:
         for m in metrics:
             written += plot_param(curves, m, param, out, formats, a.title)
+            written += plot_cost(curves, m, param, out, formats, a.title)
+    written.append(write_summary(curves, metrics, out))
     write_table(curves, metrics[0], targets, out)
     written += [os.path.join(out, "time_to_error.md"), os.path.join(out, "time_to_error.csv")]
     grid = image_grid(rows, os.path.dirname(os.path.abspath(a.csv)), crop, out)

@@ -602,7 +602,7 @@ private:
             if (write_images || !sim) img = cp.image();
             if (write_images && !img.empty()) {
                 fs::create_directories(image_dir);
-                const std::string stem = fmt::format("run{}_{}", r, label(cp));
+                const std::string stem = safe_name(fmt::format("run{}_{}", r, label(cp)));  // "mutations/px8"
                 write_image(image_dir / (stem + ".exr"), img);
                 write_image(image_dir / (stem + ".png"), img);
                 image_rel = (fs::path("images") / safe_name(config.name) / (stem + ".png")).string();
@@ -633,7 +633,17 @@ private:
 
         if (!m_o.quiet)
             log_info("converge: [{}/{}] {} run {} (seed {})", index, total, config.name, r, seed);
-        RunResult result = job->run(ctx);
+        // The job's own information lines (one set per run) would drown the study's; warnings still show.
+        const LogLevel level = log_level();
+        if (level == LogLevel::Info) set_log_level(LogLevel::Warn);
+        RunResult result;
+        try {
+            result = job->run(ctx);
+        } catch (...) {
+            set_log_level(level);
+            throw;
+        }
+        set_log_level(level);
         if (result.interrupted || interrupt_requested()) return false;
         const std::size_t fired = rows.size() / (sim_study ? m_o.fields.size() : 1);
         if (fired < expected)

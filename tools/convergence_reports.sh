@@ -1,0 +1,80 @@
+#!/usr/bin/env bash
+# Regenerates the accuracy/time reports of docs/convergence.md: runs `kelvin converge` with --plot and copies
+# the figures into docs/img/convergence_<report>_*.png (the tables are in <OUT>/<report>/plots/*.md).
+#
+#   tools/convergence_reports.sh fluid-nmc      # Taylor–Green RMSE vs n_mc at t = 0.25, 0.5, 1 (like Fig. 5.15)
+#   tools/convergence_reports.sh fluid-cells    #   ... vs cache cells
+#   tools/convergence_reports.sh fluid-dt       #   ... vs dt
+#   tools/convergence_reports.sh fluid-params   # one degraded parameter at a time (like Fig. 5.9)
+#   tools/convergence_reports.sh mlt            # the MLT family at equal time (needs MLT_SCENE and MLT_REF)
+#   tools/convergence_reports.sh all            # the four fluid reports
+#
+# Environment: KELVIN (default build/bin/kelvin), OUT (default /tmp/kelvin-convergence; studies there are
+# resumed, FRESH=1 deletes them first), RUNS (independent runs, default 3), THREADS (default: all cores).
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+KELVIN=${KELVIN:-build/bin/kelvin}
+OUT=${OUT:-/tmp/kelvin-convergence}
+RUNS=${RUNS:-3}
+THREADS=${THREADS:-0}
+TG=scenes/fluid/taylor_green.xml
+
+converge() {  # converge REPORT ARGS...: run (or resume) the study into $OUT/REPORT, with plots
+    local report=$1
+    shift
+    [[ "${FRESH:-0}" == 1 ]] && rm -rf "${OUT:?}/$report"
+    "$KELVIN" converge "$@" --runs "$RUNS" -t "$THREADS" -o "$OUT/$report" --plot
+}
+
+figures() {  # figures REPORT PLOT...: copy plots into docs/img
+    local report=$1
+    shift
+    for f in "$@"; do cp "$OUT/$report/plots/$f" "docs/img/convergence_${report//-/_}_$f"; done
+    echo "== $report: $OUT/$report/plots/summary.md"
+    cat "$OUT/$report/plots/summary.md"
+}
+
+configs() {  # configs NAME DEFINE V1 V2 ...: --config NAME=V:DEFINE=V for each value
+    local name=$1 define=$2
+    shift 2
+    for v in "$@"; do printf -- '--config\n%s=%s:%s=%s\n' "$name" "$v" "$define" "$v"; done
+}
+
+report() {
+    case "$1" in
+    fluid-nmc)
+        mapfile -t c < <(configs n_mc spp 16 64 256 1024)
+        converge fluid-nmc "$TG" -D res=64 -D dt=0.05 -D end=1 "${c[@]}" --times 0.25,0.5,1
+        figures fluid-nmc error_vs_param_rmse.png error_vs_cost_rmse.png ;;
+    fluid-cells)
+        mapfile -t c < <(configs nx res 16 32 64 128)
+        converge fluid-cells "$TG" -D spp=256 -D dt=0.05 -D end=1 "${c[@]}" --times 0.25,0.5,1
+        figures fluid-cells error_vs_param_rmse.png error_vs_cost_rmse.png ;;
+    fluid-dt)
+        mapfile -t c < <(configs dt dt 0.25 0.125 0.0625 0.03125 0.015625)
+        converge fluid-dt "$TG" -D res=64 -D spp=256 -D end=1 "${c[@]}" --times 0.25,0.5,1
+        figures fluid-dt error_vs_param_rmse.png error_vs_cost_rmse.png ;;
+    fluid-params)
+        converge fluid-params "$TG" -D res=64 -D spp=256 -D dt=0.05 -D end=2 --times 0.5,1,2 \
+            --config "baseline:" --config "nearest:interpolation=nearest" --config "kernel IS:importance=kernel" \
+            --config "uniform:importance=uniform" --config "dt 0.2:dt=0.2" --config "32^2 cells:res=32" \
+            --config "n_mc 64:spp=64" --config "euler:advection=euler"
+        figures fluid-params error_vs_seconds_rmse.png error_vs_seconds_max_abs.png ;;
+    mlt)
+        # The MLT family at equal time on one of the project's hard scenes. MLT_SCENE must expose the integrator
+        # and its mutations as <default> parameters; MLT_CONFIGS is a configuration file ("NAME: K=V ...", see
+        # docs/convergence.md); MLT_REF a long reference render of MLT_SCENE.
+        : "${MLT_SCENE:?set MLT_SCENE}" "${MLT_REF:?set MLT_REF (a reference EXR)}" "${MLT_CONFIGS:?set MLT_CONFIGS}"
+        converge mlt "$MLT_SCENE" --reference "$MLT_REF" --config-file "$MLT_CONFIGS" \
+            --checkpoints "${MLT_CHECKPOINTS:-5,10,20,40,80}"
+        figures mlt error_vs_seconds_rel_mse.png error_vs_seconds_l1.png grid.png ;;
+    all)
+        for r in fluid-nmc fluid-cells fluid-dt fluid-params; do report "$r"; done ;;
+    *)
+        echo "usage: $0 fluid-nmc|fluid-cells|fluid-dt|fluid-params|mlt|all" >&2
+        exit 2 ;;
+    esac
+}
+
+report "${1:-}"
