@@ -6,6 +6,7 @@
 #include <kelvin/core/interrupt.h>
 #include <kelvin/core/parallel.h>
 #include <kelvin/core/stats.h>
+#include <kelvin/fluid/boundary.h>
 #include <kelvin/fluid/mcfluid.h>
 
 #include <algorithm>
@@ -29,6 +30,8 @@ inline uint64_t stream_of(long long step, uint64_t tag, uint64_t unit) {
 /// Per-row counters, merged in row order after a pass.
 struct RowWork {
     uint64_t evals = 0, queries = 0, backtraces = 0, diffusion = 0, invalid_velocity = 0, invalid_vorticity = 0;
+    wos::WalkCounters walks;     // boundaries only
+    uint64_t solid_departures = 0;
 };
 
 void check_settings(const MCFluidSettings& s) {
@@ -69,14 +72,42 @@ MCFluidSolver::MCFluidSolver(const MCFluidSettings& settings, const InitialField
 MCFluidSolver::~MCFluidSolver() = default;
 
 void MCFluidSolver::rebuild_estimator() {
-    m_estimator = std::make_unique<BiotSavartEstimator>(m_omega, m_settings.interpolation,
-                                                        m_settings.velocity.importance, m_delta, m_periodic);
+    if (m_settings.boundaries) {  // Walk-on-Spheres: solids placed at this state's time hold no vorticity
+        m_wos = std::make_unique<WosVelocityField>(*m_settings.boundaries, m_settings.domain, &m_omega,
+                                                   m_settings.interpolation, m_time);
+        uint64_t solid = 0;
+        for (int j = 0; j < m_omega.ny(); ++j)
+            for (int i = 0; i < m_omega.nx(); ++i)
+                if (m_wos->solid_at(m_omega.cell_center(i, j)) >= 0) {
+                    m_omega.at(i, j) = 0;
+                    ++solid;
+                }
+        m_work.solid_cells = solid;
+        m_wos = std::make_unique<WosVelocityField>(*m_settings.boundaries, m_settings.domain, &m_omega,
+                                                   m_settings.interpolation, m_time);
+    } else {
+        m_estimator = std::make_unique<BiotSavartEstimator>(m_omega, m_settings.interpolation,
+                                                            m_settings.velocity.importance, m_delta, m_periodic);
+    }
     m_velocity_valid = false;
 }
 
-Vec2d MCFluidSolver::checked_velocity(Vec2d x, Random& rng, uint64_t& evals, uint64_t& queries,
-                                      uint64_t& invalid) const {
-    VelocityEstimate e = m_estimator->estimate(x, m_settings.velocity.samples, rng);
+VelocityEstimate MCFluidSolver::estimate_at(Vec2d x, int n, Random& rng, wos::WalkCounters& walks) const {
+    if (m_wos) return m_wos->estimate(x, n, rng, walks);
+    return m_estimator->estimate(x, n, rng);
+}
+
+void MCFluidSolver::add_walks(const wos::WalkCounters& c) {
+    m_work.wos_walks += c.walks;
+    m_work.wos_steps += c.steps;
+    m_work.wos_truncated += c.truncated;
+    m_work.wos_invalid += c.invalid;
+    m_work.wos_boundary_queries += c.boundary_queries;
+}
+
+Vec2d MCFluidSolver::checked_velocity(Vec2d x, Random& rng, uint64_t& evals, uint64_t& queries, uint64_t& invalid,
+                                      wos::WalkCounters& walks) const {
+    VelocityEstimate e = estimate_at(x, m_settings.velocity.samples, rng, walks);
     evals += uint64_t(e.samples);
     ++queries;
     if (!finite(e.value)) {
@@ -97,7 +128,7 @@ void MCFluidSolver::ensure_velocity() {
         Random rng(m_settings.seed, stream_of(m_step, TagVelocity, row));
         RowWork& w = rows[row];
         for (int i = 0; i < nx; ++i) {
-            VelocityEstimate e = m_estimator->estimate(m_omega.cell_center(i, j), n, rng);
+            VelocityEstimate e = estimate_at(m_omega.cell_center(i, j), n, rng, w.walks);
             w.evals += uint64_t(e.samples);
             ++w.queries;
             if (!finite(e.value) || !std::isfinite(e.variance.x) || !std::isfinite(e.variance.y)) {
@@ -114,6 +145,7 @@ void MCFluidSolver::ensure_velocity() {
         m_work.biot_savart_evals += w.evals;
         m_work.velocity_queries += w.queries;
         m_work.invalid_velocity += w.invalid_velocity;
+        add_walks(w.walks);
     }
     m_work.seconds_velocity += timer.seconds();
     m_velocity_valid = true;
@@ -165,15 +197,20 @@ bool MCFluidSolver::step(double dt) {
             if (s.advection == Advection::Euler) {
                 xd = x - dt * k1;  // Eq. (3.139)
             } else {               // Eqs. (3.140)-(3.144), velocity frozen at the previous step
-                const Vec2d k2 = checked_velocity(x - 0.5 * dt * k1, rng, w.evals, w.queries, w.invalid_velocity);
-                const Vec2d k3 = checked_velocity(x - 0.5 * dt * k2, rng, w.evals, w.queries, w.invalid_velocity);
-                const Vec2d k4 = checked_velocity(x - dt * k3, rng, w.evals, w.queries, w.invalid_velocity);
+                const Vec2d k2 = checked_velocity(x - 0.5 * dt * k1, rng, w.evals, w.queries, w.invalid_velocity, w.walks);
+                const Vec2d k3 = checked_velocity(x - 0.5 * dt * k2, rng, w.evals, w.queries, w.invalid_velocity, w.walks);
+                const Vec2d k4 = checked_velocity(x - dt * k3, rng, w.evals, w.queries, w.invalid_velocity, w.walks);
                 xd = x - (dt / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4);
             }
             ++w.backtraces;
             if (!finite(xd)) {  // only reachable with absurd dt (overflow): treat as no motion
                 ++w.invalid_velocity;
                 xd = x;
+            }
+            if (m_wos) {  // a departure point inside a solid (or beyond the walls) moves to its surface
+                const Vec2d pushed = m_wos->push_out(xd);
+                if (pushed != xd) ++w.solid_departures;
+                xd = pushed;
             }
             if (m_dye) {
                 m_disp_x.at(i, j) = x.x - xd.x;
@@ -205,6 +242,8 @@ bool MCFluidSolver::step(double dt) {
         m_work.diffusion_samples += w.diffusion;
         m_work.invalid_velocity += w.invalid_velocity;
         m_work.invalid_vorticity += w.invalid_vorticity;
+        add_walks(w.walks);
+        m_work.solid_departures += w.solid_departures;
     }
     if (m_dye) m_dye->advect(m_disp_x, m_disp_y, dt, s.seed, stream_of(m_step, TagDye, 0));
     std::swap(m_omega, m_next);
@@ -274,12 +313,14 @@ Vec2d MCFluidSolver::velocity(double t, Vec2d x) {
     const uint64_t key = hash_combine(std::bit_cast<uint64_t>(x.x), std::bit_cast<uint64_t>(x.y));
     Random rng(m_settings.seed, stream_of(m_step, TagQuery, key));
     uint64_t evals = 0, queries = 0, invalid = 0;
-    Vec2d v = checked_velocity(x, rng, evals, queries, invalid);
+    wos::WalkCounters walks;
+    Vec2d v = checked_velocity(x, rng, evals, queries, invalid, walks);
     return v;
 }
 
 VelocityEstimate MCFluidSolver::velocity_estimate(Vec2d x, int n, Random& rng) const {
-    return m_estimator->estimate(x, n, rng);
+    wos::WalkCounters walks;
+    return estimate_at(x, n, rng, walks);
 }
 
 }  // namespace kelvin::fluid

@@ -440,6 +440,74 @@ TEST(Wos, EpsilonShellBiasIsLinearInEpsilon) {
 }
 
 // ---------------------------------------------------------------------------------------------------------
+// Importance sampling of a concentrated source.
+
+/// A Lamb–Oseen vortex core as the source: f = exp(-r^2 / s^2) / (pi s^2) (unit integral), r = |x - c|, with
+/// u = (ln(r^2 / s^2) + E1(r^2 / s^2)) / (4 pi) and du/dr = (1 - exp(-r^2 / s^2)) / (2 pi r); the sampler is the
+/// Gaussian proportional to f, mixed half-half with the Green's function.
+struct Vortex {
+    Vec<2> c{0.2, 0.1};
+    double s = 0.08;
+    double alpha = 0.5;
+    double u(const Vec<2>& x) const {
+        const double q = glm::dot(x - c, x - c) / (s * s);
+        if (q < 1e-12) return -0.5772156649015329 / (4 * Pi);  // ln q + E1(q) -> -gamma
+        return (std::log(q) - std::expint(-q)) / (4 * Pi);     // E1(q) = -Ei(-q)
+    }
+    Vec<2> grad(const Vec<2>& x) const {
+        const Vec<2> d = x - c;
+        const double r2 = glm::dot(d, d);
+        return r2 == 0 ? Vec<2>(0.0) : d * (-std::expm1(-r2 / (s * s)) / (2 * Pi * r2));
+    }
+    double operator()(const Vec<2>& x) const { return std::exp(-glm::dot(x - c, x - c) / (s * s)) / (Pi * s * s); }
+};
+struct SampledVortex : Vortex {
+    Vec<2> sample(Random& rng, const Vec<2>&) const { return c + (s / std::sqrt(2.0)) * standard_normal2(rng); }
+    double pdf(const Vec<2>& y, const Vec<2>&) const { return (*this)(y); }
+    double green_fraction() const { return alpha; }
+};
+
+// The source's own importance sampling mixed with the Green's function (wos.h) is unbiased (chi-square of
+// solution and gradient z-scores over 24 points) and, on a vortex core, lowers the variance of both (measured
+// 9.6x for the solution, 4.4x for the gradient, summed over the points; asserted 3x and 2.5x). Broken variants
+// seen to fail: the (1 - alpha) factor dropped from the mixture density (value step or gradient step); the
+// source's pdf left out of the mixture density (value step or gradient step).
+TEST(Wos, SourceImportanceSamplingIsUnbiasedAndLowersVariance) {
+    static_assert(detail::SampledSource<SampledVortex, 2>);
+    static_assert(!detail::SampledSource<Vortex, 2>);
+    const SphereBoundary<2> disk{{0.0, 0.0}, 1.0};
+    const Vortex plain;
+    const SampledVortex sampled;
+    auto g = [&](const BoundaryHit<2>& h) { return plain.u(h.point); };
+    const auto pts = spread_points<2>({-1, -1}, {1, 1}, [](const Vec<2>& p) { return glm::length(p) < 0.9; }, 24);
+    Settings st;
+    st.epsilon = 1e-4;
+    double chi_u = 0, chi_g = 0, var_u_plain = 0, var_u_is = 0, var_g_plain = 0, var_g_is = 0;
+    WalkCounters c;
+    const int n = 4000;
+    for (std::size_t i = 0; i < pts.size(); ++i) {
+        Random r1(21, i), r2(22, i), r3(23, i), r4(24, i);
+        const ScalarEstimate a = solve<2>(disk, g, plain, pts[i], n, r1, st, c);
+        const ScalarEstimate b = solve<2>(disk, g, sampled, pts[i], n, r2, st, c);
+        const GradientEstimate<2> ga = gradient<2>(disk, g, plain, pts[i], n, r3, st, c);
+        const GradientEstimate<2> gb = gradient<2>(disk, g, sampled, pts[i], n, r4, st, c);
+        const double eu = b.value - plain.u(pts[i]);
+        chi_u += eu * eu / b.variance;
+        const Vec<2> eg = gb.value - plain.grad(pts[i]);
+        chi_g += eg.x * eg.x / gb.variance.x + eg.y * eg.y / gb.variance.y;
+        var_u_plain += a.variance, var_u_is += b.variance;
+        var_g_plain += ga.variance.x + ga.variance.y, var_g_is += gb.variance.x + gb.variance.y;
+    }
+    EXPECT_GT(ktest::chi2_sf(chi_u, 24), P_FAIL) << chi_u;
+    EXPECT_LT(ktest::chi2_sf(chi_u, 24), 1 - P_FAIL) << chi_u;
+    EXPECT_GT(ktest::chi2_sf(chi_g, 48), P_FAIL) << chi_g;
+    EXPECT_LT(ktest::chi2_sf(chi_g, 48), 1 - P_FAIL) << chi_g;
+    EXPECT_LT(var_u_is, var_u_plain / 3) << "solution variance: mixture " << var_u_is << " vs Green " << var_u_plain;
+    EXPECT_LT(var_g_is, var_g_plain / 2.5) << "gradient variance: mixture " << var_g_is << " vs Green " << var_g_plain;
+    EXPECT_EQ(c.invalid, 0u);
+}
+
+// ---------------------------------------------------------------------------------------------------------
 // Hard cases and accounting.
 
 struct NanGeometry {

@@ -24,6 +24,14 @@
 //     with density proportional to |grad_x G| (radius density 3/(2R) (1 - rho^2) in 2D, 4/(3R) (1 - rho^3) in
 //     3D), for which the weight is the constant 2R/3 (2D), 3R/4 (3D); antithetic also mirrors y_0.
 //
+// Importance sampling of the source (an extension in the spirit of thesis Section 5.3.4): a source that also
+// offers `Vec sample(Random&, const Vec& x)`, `double pdf(const Vec& y, const Vec& x)` (a density over the
+// plane, e.g. proportional to |f|; x is the current walk point) and `double green_fraction()` (alpha) is sampled
+// from the one-sample mixture alpha p_G + (1 - alpha) p_f restricted to the ball: a point from p_f outside the
+// ball contributes zero, a point inside contributes f G / (alpha p_G + (1 - alpha) p_f). Unbiased for any
+// alpha in (0, 1]; with a concentrated f (a vortex core) it removes the rare huge weights f |G|_1 of pure
+// Green's-function sampling. The gradient's first step mixes p_f with the |grad G| density the same way.
+//
 // Termination and accounting: a walk that reaches `max_steps` spheres is ended like a converged one (g at the
 // closest boundary point, as the thesis does) but counted in WalkCounters::truncated, which callers report;
 // a walk that meets a non-finite distance, an infinite sphere (no boundary) or a non-finite g or f is counted
@@ -47,6 +55,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <concepts>
 #include <cstdint>
 #include <functional>
 #include <limits>
@@ -189,7 +198,31 @@ constexpr double green_gradient_weight(double R) {
 namespace detail {
 template <class F, int D>
 inline constexpr bool has_source = !std::is_same_v<std::decay_t<F>, NoSource>;
-inline bool finite(double v) { return std::isfinite(v); }
+template <class F, int D>
+concept SampledSource = requires(const F& f, Random& rng, const Vec<D>& y) {
+    { f.sample(rng, y) } -> std::convertible_to<Vec<D>>;
+    { f.pdf(y, y) } -> std::convertible_to<double>;
+    { f.green_fraction() } -> std::convertible_to<double>;
+};
+/// G(r) of the ball of radius R (non-negative, 1/(2 pi) or 1/(4 pi) included).
+template <int D>
+inline double green(double r, double R) {
+    if constexpr (D == 2) return std::log(R / r) / (2 * Pi);
+    else return (1 / r - 1 / R) / (4 * Pi);
+}
+/// |grad_x G| / r: grad_x G(x, y) = (y - x) * green_gradient_factor(r, R).
+template <int D>
+inline double green_gradient_factor(double r, double R) {
+    if constexpr (D == 2) return (1 / (r * r) - 1 / (R * R)) / (2 * Pi);
+    else return (1 / (r * r * r) - 1 / (R * R * R)) / (4 * Pi);
+}
+/// Density (per unit area/volume) of the point drawn by sample_green_gradient_radius + a uniform direction.
+template <int D>
+inline double green_gradient_pdf(double r, double R) {
+    const double rho = r / R;
+    if constexpr (D == 2) return 1.5 * (1 - rho * rho) / R / (2 * Pi * r);
+    else return 4.0 / 3.0 * (1 - rho * rho * rho) / R / (4 * Pi * r * r);
+}
 }  // namespace detail
 
 /// One WoS walk from x: a single-sample estimate of u(x) (Eq. 3.76). `R0` is distance(x) when the caller
@@ -209,7 +242,17 @@ double walk(const Geometry& geometry, const Dirichlet& g, const Source& f, Vec<D
             break;
         }
         ++c.steps;
-        if constexpr (detail::has_source<Source, D>) {
+        if constexpr (detail::SampledSource<Source, D>) {  // mixture of G and the source's own density
+            const double a = f.green_fraction();
+            const Vec<D> y = uniform(rng) < a ? x + (R * sample_green_radius<D>(rng)) * sample_direction<D>(rng)
+                                              : f.sample(rng, x);
+            const double r = glm::length(y - x);
+            if (r < R && r > 0) {
+                const double G = detail::green<D>(r, R);
+                const double q = a * G / green_integral<D>(R) + (1 - a) * f.pdf(y, x);
+                if (q > 0) volume -= f(y) * G / q;
+            }
+        } else if constexpr (detail::has_source<Source, D>) {
             const Vec<D> y = x + (R * sample_green_radius<D>(rng)) * sample_direction<D>(rng);
             volume -= f(y) * green_integral<D>(R);
         }
@@ -234,7 +277,23 @@ bool gradient_sample(const Geometry& geometry, const Dirichlet& g, const Source&
     } else {
         grad = (scale * walk<D>(geometry, g, f, x0 + R0 * n, rng, s, c)) * n;
     }
-    if constexpr (detail::has_source<Source, D>) {
+    if constexpr (detail::SampledSource<Source, D>) {
+        const double a = f.green_fraction();
+        const Vec<D> y = uniform(rng) < a ? x0 + (R0 * sample_green_gradient_radius<D>(rng)) * sample_direction<D>(rng)
+                                          : f.sample(rng, x0);
+        const Vec<D> d = y - x0;
+        const double r = glm::length(d);
+        if (r < R0 && r > 0) {
+            const double q = a * detail::green_gradient_pdf<D>(r, R0) + (1 - a) * f.pdf(y, x0);
+            if (q > 0) {
+                const Vec<D> gG = d * detail::green_gradient_factor<D>(r, R0);
+                if (s.antithetic)
+                    grad -= (0.5 * (f(y) - f(x0 - d)) / q) * gG;
+                else
+                    grad -= (f(y) / q) * gG;
+            }
+        }
+    } else if constexpr (detail::has_source<Source, D>) {
         const double r = R0 * sample_green_gradient_radius<D>(rng);
         const Vec<D> dir = sample_direction<D>(rng);
         const double w = green_gradient_weight<D>(R0);

@@ -13,6 +13,7 @@
 // Determinism: a step is split into rows of cells; row r of pass p at step s draws from
 // Random(seed, hash(hash(s, p), r)). Results are bit-identical whatever the thread count.
 #include <kelvin/core/random.h>
+#include <kelvin/core/wos.h>
 #include <kelvin/fluid/biot_savart.h>
 #include <kelvin/fluid/dye.h>
 #include <kelvin/fluid/grid.h>
@@ -25,6 +26,9 @@
 #include <optional>
 
 namespace kelvin::fluid {
+
+struct WosVelocityOptions;  // boundary.h
+class WosVelocityField;
 
 enum class Advection { Euler, RK4 };
 const char* to_string(Advection a);
@@ -42,6 +46,9 @@ struct MCFluidSettings {
     double viscosity = 0;       ///< nu; 0 = inviscid: the diffusion step never runs
     int diffusion_samples = 1;  ///< n_d (used only when viscosity > 0)
     uint64_t seed = 0;
+    /// Solid boundaries (walk_on_spheres, boundary.h): the velocity is the free-slip Walk-on-Spheres estimate
+    /// with velocity.samples gradient samples. Null: Biot–Savart, and no distance query or walk ever runs.
+    std::shared_ptr<const WosVelocityOptions> boundaries;
 };
 
 /// Cumulative work of a solver (each component counts its own).
@@ -52,6 +59,13 @@ struct FluidWork {
     uint64_t diffusion_samples = 0;     ///< Gaussian displacements (Feynman–Kac diffusion)
     uint64_t invalid_velocity = 0;      ///< non-finite velocity estimates (replaced by zero velocity)
     uint64_t invalid_vorticity = 0;     ///< non-finite vorticity values (replaced by zero)
+    uint64_t wos_walks = 0;             ///< Walk-on-Spheres walks (boundaries only)
+    uint64_t wos_steps = 0;             ///< spheres crossed by those walks
+    uint64_t wos_truncated = 0;         ///< walks that hit max_steps (ended at the nearest boundary, counted)
+    uint64_t wos_invalid = 0;           ///< walks with a non-finite distance or value (counted as zero)
+    uint64_t wos_boundary_queries = 0;  ///< velocity queries within epsilon of a boundary (zero gradient)
+    uint64_t solid_departures = 0;      ///< departure points inside a solid, moved to its surface
+    uint64_t solid_cells = 0;           ///< cache cells inside solids at the current state
     double seconds_velocity = 0;        ///< cell-centre velocity passes
     double seconds_advection = 0;       ///< backtrace (incl. RK stages) + diffusion + interpolation passes
 };
@@ -107,8 +121,11 @@ public:
     /// v(t, x): advances to t, then a Biot–Savart estimate from the cache with n_mc samples on a stream
     /// derived from (seed, step, x), so the same query gives the same answer.
     Vec2d velocity(double t, Vec2d x);
-    /// A Biot–Savart estimate of the current state's velocity at x with n samples from `rng`.
+    /// A Biot–Savart estimate (Walk-on-Spheres with boundaries) of the current state's velocity at x with n
+    /// samples from `rng`.
     VelocityEstimate velocity_estimate(Vec2d x, int n, Random& rng) const;
+    /// The boundaries placed at the current state (null without boundaries).
+    const WosVelocityField* boundary_field() const { return m_wos.get(); }
 
     const FluidWork& work() const { return m_work; }
 
@@ -123,7 +140,10 @@ public:
 private:
     void rebuild_estimator();
     void ensure_velocity();
-    Vec2d checked_velocity(Vec2d x, Random& rng, uint64_t& evals, uint64_t& queries, uint64_t& invalid) const;
+    Vec2d checked_velocity(Vec2d x, Random& rng, uint64_t& evals, uint64_t& queries, uint64_t& invalid,
+                           wos::WalkCounters& walks) const;
+    VelocityEstimate estimate_at(Vec2d x, int n, Random& rng, wos::WalkCounters& walks) const;
+    void add_walks(const wos::WalkCounters& c);
 
     MCFluidSettings m_settings;
     double m_delta = 0;
@@ -134,6 +154,7 @@ private:
     bool m_velocity_valid = false;
     std::shared_ptr<const PeriodicKernel> m_periodic;
     std::unique_ptr<BiotSavartEstimator> m_estimator;
+    std::unique_ptr<WosVelocityField> m_wos;  ///< with boundaries, instead of m_estimator
     FluidWork m_work;
     std::unique_ptr<PassiveScalars> m_dye;
     Grid2 m_disp_x, m_disp_y;  ///< displacement x - x_departure of the last step (only with a dye)

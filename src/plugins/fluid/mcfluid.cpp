@@ -48,6 +48,7 @@
 #include <kelvin/core/parallel.h>
 #include <kelvin/core/progress.h>
 #include <kelvin/core/registry.h>
+#include <kelvin/fluid/boundary.h>
 #include <kelvin/fluid/fields.h>
 #include <kelvin/fluid/mcfluid.h>
 #include <kelvin/fluid/output.h>
@@ -111,6 +112,11 @@ public:
         if (!cache)
             cache = std::dynamic_pointer_cast<CacheSpec>(Registry::instance().create(Properties("cache", "grid")));
         m_settings.velocity = velocity->biot_savart();
+        if (auto wos = std::dynamic_pointer_cast<const WosVelocitySpec>(velocity)) {  // solid boundaries
+            m_settings.boundaries = std::make_shared<WosVelocityOptions>(wos->walk_on_spheres());
+            if (const std::string why = check_wos_options(*m_settings.boundaries, m_settings.domain); !why.empty())
+                props.error("velocity", "walk_on_spheres: " + why);
+        }
         m_settings.interpolation = cache->interpolation();
         m_settings.nx = cache->resolution_x();
         const Vec2d size = m_settings.domain.size();
@@ -137,12 +143,19 @@ public:
 
         log_info("mcfluid: 2D, domain {}, {}x{} cache ({}), initial {}", settings.domain.to_string(), settings.nx,
                  settings.ny, fluid::to_string(settings.interpolation), field.description());
-        log_info(
-            "mcfluid: effects: advection ({}, dt {:g}, {} steps) with Biot–Savart velocity (n_mc {}, importance "
-            "{}, delta {:g}{}); diffusion {}; stretching off (2D); boundaries none; {}",
-            fluid::to_string(settings.advection), settings.dt, m_steps, settings.velocity.samples,
-            fluid::to_string(settings.velocity.importance), solver.delta(),
-            settings.domain.periodic ? ", periodic kernel" : "",
+        const std::string velocity_effect =
+            settings.boundaries
+                ? fmt::format("Walk-on-Spheres free-slip velocity ({} gradient samples, antithetic {}, epsilon {:g}, "
+                              "max_steps {})",
+                              settings.velocity.samples, settings.boundaries->wos.antithetic ? "on" : "off",
+                              solver.boundary_field()->settings().epsilon, settings.boundaries->wos.max_steps)
+                : fmt::format("Biot–Savart velocity (n_mc {}, importance {}, delta {:g}{})", settings.velocity.samples,
+                              fluid::to_string(settings.velocity.importance), solver.delta(),
+                              settings.domain.periodic ? ", periodic kernel" : "");
+        log_info("mcfluid: effects: advection ({}, dt {:g}, {} steps) with {}; boundaries {}; diffusion {}; "
+                 "stretching off (2D); {}",
+            fluid::to_string(settings.advection), settings.dt, m_steps, velocity_effect,
+            settings.boundaries ? describe(*settings.boundaries, settings.domain) : std::string("none"),
             viscous ? fmt::format("on (nu {:g}, Feynman–Kac, n_d {})", settings.viscosity, settings.diffusion_samples)
                     : std::string("off (inviscid)"),
             dye_effect(m_dye.get()));
@@ -262,6 +275,17 @@ public:
         ctx.stats.add("fluid.diffusion_samples", double(w.diffusion_samples), "samples");
         ctx.stats.add("fluid.invalid_velocity", double(w.invalid_velocity), "values");
         ctx.stats.add("fluid.invalid_vorticity", double(w.invalid_vorticity), "values");
+        ctx.stats.add("fluid.wos_walks", double(w.wos_walks), "walks");
+        ctx.stats.add("fluid.wos_steps", double(w.wos_steps), "steps");
+        ctx.stats.add("fluid.wos_truncated", double(w.wos_truncated), "walks");
+        ctx.stats.add("fluid.wos_invalid", double(w.wos_invalid), "walks");
+        ctx.stats.add("fluid.wos_boundary_queries", double(w.wos_boundary_queries), "queries");
+        ctx.stats.add("fluid.solid_departures", double(w.solid_departures), "points");
+        if (w.wos_truncated + w.wos_invalid > 0)
+            log_warn("mcfluid: {} Walk-on-Spheres walk(s) hit max_steps ({}; ended at the nearest boundary) and {} were "
+                     "invalid (counted as zero) out of {}",
+                     w.wos_truncated, settings.boundaries ? settings.boundaries->wos.max_steps : 0, w.wos_invalid,
+                     w.wos_walks);
         ctx.stats.add_time("fluid.time.velocity", w.seconds_velocity);
         ctx.stats.add_time("fluid.time.advection", w.seconds_advection);
         ctx.stats.add_time("fluid.time.output", output_seconds);

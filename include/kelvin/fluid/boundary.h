@@ -1,0 +1,190 @@
+#pragma once
+// Solid boundaries for Walk-on-Spheres (include/kelvin/core/wos.h) and the free-slip velocity estimator of
+// thesis Section 5.3.1 built on them. See docs/boundaries.md.
+//
+// Geometry: a <boundary type="..."> plugin (src/plugins/boundaries/) is a distance provider in 2D or 3D
+// (analytic shapes, polylines and triangle meshes through Embree closest-point queries, OpenVDB level sets,
+// unsigned distances). Shapes that know their inside (analytic shapes, closed polygons, signed level sets)
+// also answer inside(); unsigned ones (open polylines, triangle soups, unsigned grids) have no inside and the
+// fluid simply flows around (and, through holes, into) them.
+//
+// Stream function (thesis Eqs. 5.8-5.13, sign as in the thesis): v = -curl Psi = (-dPsi/dy, dPsi/dx) and
+// Laplacian(Psi) = omega, the same convention as the Biot–Savart kernel K(r) = (-r_y, r_x) / (2 pi |r|^2)
+// (Psi = log|r| / (2 pi) * omega). Free slip means Psi constant along each connected solid boundary; a rigidly
+// moving solid (translation U, rotation Omega about its pivot p(t)) carries
+//     Psi_b(x) = psi_0 + U_y (x - p_x) - U_x (y - p_y) + Omega |x - p|^2 / 2,
+// the integral of Eq. (5.13) for a rigid motion, so that the normal velocity of the fluid matches the solid's.
+// The domain box is a closed container of walls (Psi = wall_stream_value) unless periodic; optional inflow on
+// its left wall and outflow on its right wall (Fig. 5.6) make Psi vary linearly along them, with the bottom
+// wall at Psi_bottom and the top at Psi_bottom - U (y1 - y0): net flux zero by construction.
+//
+// Several disjoint solids: each needs its own isovalue (Section 6.2.4). Kelvin takes it from the user
+// (`stream_value` per boundary, default 0 = the walls' value, which means no net flow between them); the
+// difference of isovalues between two solids is the flux that passes between them. See docs/boundaries.md.
+#include <kelvin/core/object.h>
+#include <kelvin/core/properties.h>
+#include <kelvin/core/registry.h>
+#include <kelvin/core/wos.h>
+#include <kelvin/fluid/biot_savart.h>
+#include <kelvin/fluid/fields.h>
+#include <kelvin/fluid/grid.h>
+
+#include <memory>
+#include <string>
+#include <vector>
+
+namespace kelvin::fluid {
+
+/// What a fluid solver needs to know about a boundary besides its geometry (common <boundary> parameters).
+struct BoundaryRole {
+    double stream_value = 0;      ///< psi_0: the isovalue of Psi on the boundary (at the pivot if moving)
+    Vec2d velocity{0.0};          ///< rigid translation velocity U
+    double angular_velocity = 0;  ///< rigid rotation rate Omega (radians per unit time, counter-clockwise)
+    Vec2d pivot{0.0};             ///< rotation centre at t = 0 (moves with U)
+    bool fluid_inside = false;    ///< the fluid is inside the shape (a container) instead of outside (an obstacle)
+    bool moving() const { return velocity != Vec2d(0.0) || angular_velocity != 0; }
+};
+
+/// A boundary geometry (<boundary type="...">).
+class BoundaryShape : public Object {
+public:
+    /// 2 or 3.
+    virtual int dimension() const = 0;
+    /// The distance provider (non-null for the shape's dimension).
+    virtual const wos::BoundaryGeometry<2>* geometry2() const { return nullptr; }
+    virtual const wos::BoundaryGeometry<3>* geometry3() const { return nullptr; }
+    /// Whether inside() means something (closed, oriented or signed shapes).
+    virtual bool has_inside() const { return false; }
+    /// p lies in the shape's interior (only when has_inside()).
+    virtual bool inside2(const Vec2d& p) const { return false; }
+    virtual bool inside3(const Vec3d& p) const { return false; }
+    /// Axis-aligned bounds of the boundary (for messages and checks).
+    virtual std::pair<Vec3d, Vec3d> bounds() const = 0;
+    /// One line for the run summary.
+    virtual std::string description() const = 0;
+
+    const BoundaryRole& role() const { return m_role; }
+    /// The solid region of a 2D shape: inside an obstacle, outside a container (false without has_inside()).
+    bool solid2(const Vec2d& p) const { return has_inside() && (inside2(p) != m_role.fluid_inside); }
+
+protected:
+    /// Reads the common parameters (boundary_params()). `has_inside`: whether `fluid="inside"` is allowed.
+    BoundaryShape(const Properties& props, bool has_inside);
+    BoundaryRole m_role;
+};
+
+/// The parameters every <boundary> plugin takes, appended to its own.
+std::vector<ParamSpec> with_boundary_params(std::vector<ParamSpec> own);
+
+/// Parses "x y, x y, ..." (commas or semicolons between points) into 2D points; errors name `param`.
+std::vector<Vec2d> parse_points2(const Properties& props, const std::string& param);
+
+// ----------------------------------------------------------------------------------------------------------
+// The free-slip velocity estimator (<velocity type="walk_on_spheres">).
+
+struct WosVelocityOptions {
+    int samples = 64;          ///< gradient samples per velocity query (2 walks each with antithetic)
+    /// Volume-term sampling: the thesis' Green's-function sampling alone (false), or mixed half-half with
+    /// samples proportional to |omega_h| from the cache (true; wos.h "importance sampling of the source").
+    bool vorticity_importance = true;
+    wos::Settings wos;         ///< epsilon (absolute; <= 0: `epsilon_relative` x the domain's smaller side)
+    double epsilon_relative = 1e-4;
+    bool walls = true;         ///< the domain box is a container (ignored on periodic domains)
+    double wall_stream_value = 0;
+    double inflow_speed = 0;   ///< uniform inflow through the left wall and outflow through the right
+    double inflow_min = 0, inflow_max = 0;  ///< y range of the inflow/outflow segments (equal: the whole wall)
+    std::vector<std::shared_ptr<const BoundaryShape>> shapes;
+};
+
+/// Why these options cannot run on `domain` ("" when they can): a periodic domain without any boundary, an
+/// open domain without walls or container, a 3D shape, bad inflow range.
+std::string check_wos_options(const WosVelocityOptions& options, const Domain2& domain);
+/// One line for the run summary.
+std::string describe(const WosVelocityOptions& options, const Domain2& domain);
+
+/// A <velocity type="walk_on_spheres"> plugin: Biot–Savart's interface (samples = gradient samples per query)
+/// plus the boundary options.
+class WosVelocitySpec : public VelocityEstimatorSpec {
+public:
+    virtual const WosVelocityOptions& walk_on_spheres() const = 0;
+};
+
+/// The velocity of a state with solid boundaries: v = -curl Psi with Laplacian(Psi) = omega_h (the cache,
+/// with zero in solid cells) and Psi given on every boundary, estimated by the gradient WoS estimator with an
+/// antithetic first step. Immutable and thread-safe once built; one per state (a moving solid is placed at
+/// the state's time).
+class WosVelocityField {
+public:
+    /// `omega` must outlive the field. Throws RuntimeError on an unusable configuration (periodic without any
+    /// solid, a 3D shape); plugins validate earlier and report InputErrors.
+    WosVelocityField(const WosVelocityOptions& options, const Domain2& domain, const Grid2* omega,
+                     Interpolation interp, double time);
+
+    /// The velocity at x with n gradient samples. Points inside a solid get the solid's rigid velocity without
+    /// walking; points within epsilon of a boundary get zero gradient (counted in boundary_queries).
+    VelocityEstimate estimate(Vec2d x, int n, Random& rng, wos::WalkCounters& c) const;
+    /// Psi at x with n walks.
+    wos::ScalarEstimate stream_function(Vec2d x, int n, Random& rng, wos::WalkCounters& c) const;
+
+    /// Distance to the nearest boundary (walls, solids; periodic images included), and the closest point with
+    /// its piece: 0-3 the walls (x-, x+, y-, y+), 4 + i shape i.
+    double distance(Vec2d x) const;
+    wos::BoundaryHit<2> closest(Vec2d x) const;
+    /// Psi prescribed at a boundary point.
+    double boundary_stream(const wos::BoundaryHit<2>& h) const;
+    /// Index of the solid containing x (-1: fluid), at this field's time.
+    int solid_at(Vec2d x) const;
+    /// The rigid velocity of shape i at x.
+    Vec2d shape_velocity(int i, Vec2d x) const;
+    /// A departure point that ended inside a solid is moved to the closest point of that solid's boundary.
+    Vec2d push_out(Vec2d x) const;
+
+    double time() const { return m_time; }
+    const wos::Settings& settings() const { return m_wos; }
+    bool walls() const { return m_walls; }
+    const Domain2& domain() const { return m_domain; }
+
+    /// The source term Laplacian(Psi) = omega_h with |omega_h| importance sampling (wos.h SampledSource).
+    class VorticitySource {
+    public:
+        VorticitySource() = default;
+        VorticitySource(const Grid2* omega, Interpolation interp);
+        double operator()(const Vec2d& y) const { return m_omega->sample(y, m_interp); }
+        Vec2d sample(Random& rng, const Vec2d& x) const;
+        double pdf(const Vec2d& y, const Vec2d& x) const;
+        double green_fraction() const { return 0.5; }
+        bool empty() const { return m_total == 0; }
+
+    private:
+        const Grid2* m_omega = nullptr;
+        Interpolation m_interp = Interpolation::Bilinear;
+        Grid2 m_abs;
+        double m_total = 0;  // sum |omega_k| * cell area
+        std::vector<double> m_prob;
+        std::vector<uint32_t> m_self, m_alias;
+    };
+
+private:
+    Vec2d to_local(int i, Vec2d x) const;
+
+    WosVelocityOptions m_options;
+    Domain2 m_domain;
+    const Grid2* m_omega;
+    Interpolation m_interp;
+    double m_time;
+    wos::Settings m_wos;
+    bool m_walls;
+    bool m_has_source = false;               // omega is not identically zero
+    double m_psi_bottom = 0, m_psi_top = 0;  // inflow: wall values below / above the inflow range
+    std::vector<Vec2d> m_pivot;              // pivot of each shape at this time
+    std::vector<double> m_angle;             // rotation of each shape at this time
+    VorticitySource m_source;                // with vorticity_importance
+};
+
+}  // namespace kelvin::fluid
+
+/// Registers a <boundary> plugin: like KELVIN_PLUGIN, with the common boundary parameters appended.
+#define KELVIN_BOUNDARY_PLUGIN(Class, name, doc, ...)                                                          \
+    static const ::kelvin::PluginRegistrar KELVIN_CONCAT(kelvin_registrar_, __LINE__)(                          \
+        "boundary", name, doc, ::kelvin::fluid::with_boundary_params(std::vector<::kelvin::ParamSpec>{__VA_ARGS__}), \
+        [](const ::kelvin::Properties& p) -> ::kelvin::ObjectPtr { return std::make_shared<Class>(p); })

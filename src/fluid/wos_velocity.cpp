@@ -1,0 +1,378 @@
+// Free-slip (and inflow/outflow, moving-solid) velocity by Walk-on-Spheres on the stream function (thesis
+// Section 5.3.1): the common <boundary> parameters, and WosVelocityField. See include/kelvin/fluid/boundary.h.
+#include <kelvin/core/error.h>
+#include <kelvin/core/strings.h>
+#include <kelvin/fluid/boundary.h>
+
+#include <fmt/format.h>
+
+#include <algorithm>
+#include <cmath>
+
+namespace kelvin::fluid {
+
+// ----------------------------------------------------------------------------------------------------------
+// Common boundary parameters.
+
+std::vector<ParamSpec> with_boundary_params(std::vector<ParamSpec> own) {
+    own.push_back(param::real("stream_value", 0.0,
+                              "Psi on this boundary (its isovalue; at the pivot when moving); the difference "
+                              "to other boundaries is the flux between them"));
+    own.push_back(param::vector("velocity", Vec3d(0.0), "rigid translation velocity (z = 0)"));
+    own.push_back(param::real("angular_velocity", 0.0, "rigid rotation rate, radians per unit time (CCW)"));
+    own.push_back(param::point("pivot", Vec3d(0.0), "rotation centre at t = 0 (moves with the velocity)"));
+    own.push_back(param::string("fluid", "outside",
+                                "'outside' (an obstacle) or 'inside' (a container; closed/signed shapes only)"));
+    return own;
+}
+
+BoundaryShape::BoundaryShape(const Properties& props, bool has_inside) {
+    m_role.stream_value = props.get_float("stream_value");
+    if (!std::isfinite(m_role.stream_value)) props.error("stream_value", "must be finite");
+    const Vec3d v = props.get_vector("velocity");
+    if (v.z != 0) props.error("velocity", "a 2D boundary moves in the plane (z = 0)");
+    m_role.velocity = {v.x, v.y};
+    m_role.angular_velocity = props.get_float("angular_velocity");
+    const Vec3d p = props.get_point("pivot");
+    m_role.pivot = {p.x, p.y};
+    for (double c : {v.x, v.y, m_role.angular_velocity, p.x, p.y})
+        if (!std::isfinite(c)) props.error("velocity", "velocity, angular_velocity and pivot must be finite");
+    m_role.fluid_inside = props.get_choice("fluid", {"outside", "inside"}) == "inside";
+    if (m_role.fluid_inside && !has_inside)
+        props.error("fluid",
+                    "'inside' needs a shape that knows its inside (a closed or signed shape); this one only gives "
+                    "unsigned distances");
+    if (m_role.fluid_inside && m_role.moving())
+        props.error("velocity", "a container (fluid = 'inside') cannot move");
+}
+
+std::vector<Vec2d> parse_points2(const Properties& props, const std::string& name) {
+    std::string text = props.get_string(name);
+    for (char& c : text)
+        if (c == ';') c = ',';
+    const std::vector<std::string> parts = split_list(text);
+    if (parts.size() % 2 != 0)
+        props.error(name, fmt::format("needs pairs of numbers 'x y, x y, ...' (got {} numbers)", parts.size()));
+    std::vector<Vec2d> pts;
+    for (std::size_t i = 0; i < parts.size(); i += 2) {
+        auto x = parse_double(parts[i]), y = parse_double(parts[i + 1]);
+        if (!x || !y) props.error(name, fmt::format("'{} {}' is not a pair of numbers", parts[i], parts[i + 1]));
+        if (!std::isfinite(*x) || !std::isfinite(*y)) props.error(name, "coordinates must be finite");
+        pts.push_back({*x, *y});
+    }
+    return pts;
+}
+
+// ----------------------------------------------------------------------------------------------------------
+// WosVelocityField.
+
+namespace {
+Vec2d rotate(Vec2d v, double a) {
+    const double c = std::cos(a), s = std::sin(a);
+    return {c * v.x - s * v.y, s * v.x + c * v.y};
+}
+}  // namespace
+
+std::string check_wos_options(const WosVelocityOptions& options, const Domain2& domain) {
+    bool container = false;
+    for (const auto& s : options.shapes) {
+        if (!s || s->dimension() != 2 || !s->geometry2())
+            return "every boundary of a 2D simulation must be 2D (give dimension = 2)";
+        container |= s->role().fluid_inside;
+    }
+    if (domain.periodic && options.shapes.empty())
+        return "a periodic domain needs at least one <boundary> (without any, use biot_savart)";
+    if (!domain.periodic && !options.walls && !container)
+        return "an open domain needs walls = true or a container boundary (fluid = 'inside'); walks would never end";
+    if (options.inflow_speed != 0) {
+        if (domain.periodic) return "inflow_speed needs walls (a non-periodic domain)";
+        if (!options.walls) return "inflow_speed needs walls = true";
+        if (options.inflow_min != options.inflow_max &&
+            !(options.inflow_min >= domain.min.y && options.inflow_max <= domain.max.y &&
+              options.inflow_min < options.inflow_max))
+            return fmt::format("the inflow range [{:g}, {:g}] must be an interval within the domain's y range [{:g}, {:g}]",
+                               options.inflow_min, options.inflow_max, domain.min.y, domain.max.y);
+    }
+    return "";
+}
+
+std::string describe(const WosVelocityOptions& options, const Domain2& domain) {
+    std::string s = domain.periodic ? "periodic" : (options.walls ? fmt::format("walls (Psi = {:g})", options.wall_stream_value) : "no walls");
+    if (options.inflow_speed != 0) s += fmt::format(", inflow/outflow speed {:g}", options.inflow_speed);
+    for (const auto& b : options.shapes) {
+        s += "; " + b->description();
+        const BoundaryRole& r = b->role();
+        s += r.fluid_inside ? " [container" : " [obstacle";
+        s += fmt::format(", Psi {:g}", r.stream_value);
+        if (r.moving())
+            s += fmt::format(", moving U = ({:g}, {:g}), Omega = {:g}", r.velocity.x, r.velocity.y, r.angular_velocity);
+        s += b->has_inside() ? "]" : ", unsigned]";
+    }
+    return s;
+}
+
+WosVelocityField::WosVelocityField(const WosVelocityOptions& options, const Domain2& domain, const Grid2* omega,
+                                   Interpolation interp, double time)
+    : m_options(options), m_domain(domain), m_omega(omega), m_interp(interp), m_time(time), m_wos(options.wos) {
+    const Vec2d size = domain.size();
+    if (!(m_wos.epsilon > 0)) m_wos.epsilon = options.epsilon_relative * std::min(size.x, size.y);
+    m_walls = options.walls && !domain.periodic;
+    m_has_source = omega && omega->max_abs() > 0;
+    if (m_has_source && options.vorticity_importance) m_source = VorticitySource(omega, interp);
+    if (const std::string why = check_wos_options(options, domain); !why.empty())
+        throw_runtime("walk_on_spheres: {}", why);
+    // Inflow through the left wall, outflow through the right: u = U there, v = -curl Psi gives
+    // Psi(y) = Psi_bottom - U (y - y0) on the inflow range [y0, y1], constant beyond.
+    m_psi_bottom = options.wall_stream_value;
+    m_psi_top = options.wall_stream_value;
+    if (options.inflow_speed != 0) {
+        double y0 = options.inflow_min, y1 = options.inflow_max;
+        if (y0 == y1) y0 = domain.min.y, y1 = domain.max.y;
+        const double half = 0.5 * options.inflow_speed * (y1 - y0);
+        m_psi_bottom = options.wall_stream_value + half;  // symmetric about wall_stream_value
+        m_psi_top = options.wall_stream_value - half;
+        m_options.inflow_min = y0;
+        m_options.inflow_max = y1;
+    }
+    for (const auto& s : options.shapes) {
+        const BoundaryRole& r = s->role();
+        m_pivot.push_back(r.pivot + time * r.velocity);
+        m_angle.push_back(time * r.angular_velocity);
+    }
+}
+
+Vec2d WosVelocityField::to_local(int i, Vec2d x) const {
+    const BoundaryRole& r = m_options.shapes[std::size_t(i)]->role();
+    if (!r.moving()) return x;
+    return rotate(x - m_pivot[std::size_t(i)], -m_angle[std::size_t(i)]) + r.pivot;
+}
+
+double WosVelocityField::distance(Vec2d x) const {
+    double d = Inf;
+    if (m_walls) {
+        const Vec2d lo = m_domain.min, hi = m_domain.max;
+        // Inside: distance to the nearest wall; outside: 0 (the walk stops at once and the caller clamps).
+        d = std::max(0.0, std::min(std::min(x.x - lo.x, hi.x - x.x), std::min(x.y - lo.y, hi.y - x.y)));
+    }
+    const Vec2d xw = m_domain.wrap(x);
+    const Vec2d L = m_domain.size();
+    for (std::size_t i = 0; i < m_options.shapes.size(); ++i) {
+        const wos::BoundaryGeometry<2>& g = *m_options.shapes[i]->geometry2();
+        if (!m_domain.periodic) {
+            d = std::min(d, g.distance(to_local(int(i), x)));
+        } else {
+            for (int a = -1; a <= 1; ++a)
+                for (int b = -1; b <= 1; ++b)
+                    d = std::min(d, g.distance(to_local(int(i), xw + Vec2d(a * L.x, b * L.y))));
+        }
+    }
+    return d;
+}
+
+wos::BoundaryHit<2> WosVelocityField::closest(Vec2d x) const {
+    wos::BoundaryHit<2> best;
+    double bd = Inf;
+    if (m_walls) {
+        const wos::BoxBoundary<2> box{m_domain.min, m_domain.max};
+        best = box.closest(x);
+        bd = box.distance(x);
+    }
+    const Vec2d xw = m_domain.wrap(x);
+    const Vec2d shift = x - xw;  // periodic: back to the query's image
+    const Vec2d L = m_domain.size();
+    for (std::size_t i = 0; i < m_options.shapes.size(); ++i) {
+        const wos::BoundaryGeometry<2>& g = *m_options.shapes[i]->geometry2();
+        const BoundaryRole& r = m_options.shapes[i]->role();
+        const int images = m_domain.periodic ? 1 : 0;
+        for (int a = -images; a <= images; ++a)
+            for (int b = -images; b <= images; ++b) {
+                const Vec2d img = m_domain.periodic ? Vec2d(a * L.x, b * L.y) : Vec2d(0.0);
+                const Vec2d q = m_domain.periodic ? xw + img : x;
+                const Vec2d ql = to_local(int(i), q);
+                const double d = g.distance(ql);
+                if (!(d < bd)) continue;
+                bd = d;
+                wos::BoundaryHit<2> h = g.closest(ql);
+                if (r.moving()) {
+                    h.point = rotate(h.point - r.pivot, m_angle[i]) + m_pivot[i];
+                    h.normal = rotate(h.normal, m_angle[i]);
+                }
+                if (m_domain.periodic) h.point += shift - img;
+                h.component = 4 + int(i);
+                best = h;
+            }
+    }
+    return best;
+}
+
+double WosVelocityField::boundary_stream(const wos::BoundaryHit<2>& h) const {
+    if (h.component < 4) {  // walls
+        if (m_options.inflow_speed == 0) return m_options.wall_stream_value;
+        const double y0 = m_options.inflow_min, y1 = m_options.inflow_max;
+        if (h.component == 2) return m_psi_bottom;  // y-
+        if (h.component == 3) return m_psi_top;     // y+
+        // x- (inflow) and x+ (outflow): linear on [y0, y1], constant beyond.
+        const double y = std::clamp(h.point.y, y0, y1);
+        return m_psi_bottom - m_options.inflow_speed * (y - y0);
+    }
+    const std::size_t i = std::size_t(h.component - 4);
+    const BoundaryRole& r = m_options.shapes[i]->role();
+    double psi = r.stream_value;
+    if (r.moving()) {
+        const Vec2d d = m_domain.min_image(h.point - m_pivot[i]);
+        psi += r.velocity.y * d.x - r.velocity.x * d.y + 0.5 * r.angular_velocity * (d.x * d.x + d.y * d.y);
+    }
+    return psi;
+}
+
+int WosVelocityField::solid_at(Vec2d x) const {
+    const Vec2d xw = m_domain.wrap(x);
+    const Vec2d L = m_domain.size();
+    for (std::size_t i = 0; i < m_options.shapes.size(); ++i) {
+        const BoundaryShape& s = *m_options.shapes[i];
+        if (!s.has_inside()) continue;
+        if (!m_domain.periodic) {
+            if (s.solid2(to_local(int(i), x))) return int(i);
+            continue;
+        }
+        if (s.role().fluid_inside) {  // a container on a periodic domain: the home image decides
+            if (s.solid2(to_local(int(i), xw))) return int(i);
+            continue;
+        }
+        for (int a = -1; a <= 1; ++a)
+            for (int b = -1; b <= 1; ++b)
+                if (s.solid2(to_local(int(i), xw + Vec2d(a * L.x, b * L.y)))) return int(i);
+    }
+    return -1;
+}
+
+Vec2d WosVelocityField::shape_velocity(int i, Vec2d x) const {
+    const BoundaryRole& r = m_options.shapes[std::size_t(i)]->role();
+    const Vec2d d = m_domain.min_image(x - m_pivot[std::size_t(i)]);
+    return r.velocity + r.angular_velocity * Vec2d(-d.y, d.x);
+}
+
+Vec2d WosVelocityField::push_out(Vec2d x) const {
+    if (m_walls) x = glm::clamp(x, m_domain.min, m_domain.max);
+    const int s = solid_at(x);
+    if (s < 0) return x;
+    // The closest point of that solid's boundary (in the image that contains x on periodic domains).
+    const BoundaryShape& shape = *m_options.shapes[std::size_t(s)];
+    const BoundaryRole& r = shape.role();
+    Vec2d q = x, back(0.0);
+    if (m_domain.periodic) {
+        const Vec2d xw = m_domain.wrap(x), L = m_domain.size();
+        for (int a = -1; a <= 1; ++a)
+            for (int b = -1; b <= 1; ++b) {
+                const Vec2d img = xw + Vec2d(a * L.x, b * L.y);
+                if (shape.solid2(to_local(s, img))) {
+                    q = img;
+                    back = x - img;
+                }
+            }
+    }
+    Vec2d p = shape.geometry2()->closest(to_local(s, q)).point;
+    if (r.moving()) p = rotate(p - r.pivot, m_angle[std::size_t(s)]) + m_pivot[std::size_t(s)];
+    return p + back;
+}
+
+// ----- |omega| importance sampling of the source
+
+WosVelocityField::VorticitySource::VorticitySource(const Grid2* omega, Interpolation interp)
+    : m_omega(omega), m_interp(interp), m_abs(omega->domain(), omega->nx(), omega->ny()) {
+    // Vose's alias table over the cells, weights |omega_k|.
+    std::vector<double> w;
+    std::vector<uint32_t> cells;
+    double sum = 0;
+    for (std::size_t k = 0; k < omega->cell_count(); ++k) {
+        const double a = std::abs(omega->values()[k]);
+        m_abs.values()[k] = a;
+        if (a > 0 && std::isfinite(a)) {
+            w.push_back(a);
+            cells.push_back(uint32_t(k));
+            sum += a;
+        }
+    }
+    m_total = sum * omega->cell_area();
+    const std::size_t n = w.size();
+    if (n == 0) return;
+    m_prob.assign(n, 1.0);
+    m_self = cells;
+    m_alias = cells;
+    std::vector<double> scaled(n);
+    std::vector<std::size_t> small, large;
+    for (std::size_t i = 0; i < n; ++i) {
+        scaled[i] = w[i] * double(n) / sum;
+        (scaled[i] < 1 ? small : large).push_back(i);
+    }
+    while (!small.empty() && !large.empty()) {
+        const std::size_t s = small.back(), l = large.back();
+        small.pop_back();
+        m_prob[s] = scaled[s];
+        m_alias[s] = cells[l];
+        scaled[l] = (scaled[l] + scaled[s]) - 1;
+        if (scaled[l] < 1) {
+            large.pop_back();
+            small.push_back(l);
+        }
+    }
+}
+
+Vec2d WosVelocityField::VorticitySource::sample(Random& rng, const Vec2d& x) const {
+    const uint32_t slot = rng.next_u32(uint32_t(m_prob.size()));
+    const uint32_t k = wos::uniform(rng) < m_prob[slot] ? m_self[slot] : m_alias[slot];
+    const int i = int(k % uint32_t(m_omega->nx())), j = int(k / uint32_t(m_omega->nx()));
+    const Vec2d h = m_omega->h();
+    Vec2d off;
+    if (m_interp == Interpolation::Bilinear)  // tent of half-width h: the sum of two uniforms
+        off = {h.x * (wos::uniform(rng) + wos::uniform(rng) - 1), h.y * (wos::uniform(rng) + wos::uniform(rng) - 1)};
+    else
+        off = {h.x * (wos::uniform(rng) - 0.5), h.y * (wos::uniform(rng) - 0.5)};
+    const Vec2d y = m_omega->cell_center(i, j) + off;
+    return x + m_omega->domain().min_image(y - x);  // periodic: the image nearest the walk
+}
+
+double WosVelocityField::VorticitySource::pdf(const Vec2d& y, const Vec2d& x) const {
+    const Domain2& d = m_omega->domain();
+    if (d.periodic && d.min_image(y - x) != y - x) return 0;  // outside the cell sample() draws in
+    return m_abs.sample(y, m_interp) / m_total;
+}
+
+VelocityEstimate WosVelocityField::estimate(Vec2d x, int n, Random& rng, wos::WalkCounters& c) const {
+    VelocityEstimate e;
+    if (const int s = solid_at(x); s >= 0) {
+        e.value = shape_velocity(s, x);
+        return e;
+    }
+    if (m_walls) x = glm::clamp(x, m_domain.min, m_domain.max);
+    const auto g = [this](const wos::BoundaryHit<2>& h) { return boundary_stream(h); };
+    wos::GradientEstimate<2> ge;
+    if (m_has_source && !m_source.empty()) {  // Laplacian(Psi) = omega_h, |omega| importance mixture
+        ge = wos::gradient<2>(*this, g, m_source, x, n, rng, m_wos, c);
+    } else if (m_has_source) {  // the thesis' Green's-function sampling
+        const Grid2& grid = *m_omega;
+        const Interpolation interp = m_interp;
+        const auto f = [&grid, interp](const Vec2d& y) { return grid.sample(y, interp); };
+        ge = wos::gradient<2>(*this, g, f, x, n, rng, m_wos, c);
+    } else {
+        ge = wos::gradient<2>(*this, g, wos::NoSource{}, x, n, rng, m_wos, c);
+    }
+    e.value = {-ge.value.y, ge.value.x};  // v = -curl Psi = (-dPsi/dy, dPsi/dx)
+    e.variance = {ge.variance.y, ge.variance.x};
+    e.samples = 0;  // no Biot–Savart kernel evaluation: the work is in the walk counters
+    return e;
+}
+
+wos::ScalarEstimate WosVelocityField::stream_function(Vec2d x, int n, Random& rng, wos::WalkCounters& c) const {
+    const auto g = [this](const wos::BoundaryHit<2>& h) { return boundary_stream(h); };
+    if (m_has_source && !m_source.empty()) return wos::solve<2>(*this, g, m_source, x, n, rng, m_wos, c);
+    if (m_has_source) {
+        const Grid2& grid = *m_omega;
+        const Interpolation interp = m_interp;
+        const auto f = [&grid, interp](const Vec2d& y) { return grid.sample(y, interp); };
+        return wos::solve<2>(*this, g, f, x, n, rng, m_wos, c);
+    }
+    return wos::solve<2>(*this, g, wos::NoSource{}, x, n, rng, m_wos, c);
+}
+
+}  // namespace kelvin::fluid

@@ -1,0 +1,94 @@
+// walk_on_spheres: the free-slip velocity estimator of thesis Section 5.3.1, a drop-in replacement for
+// biot_savart in <simulation type="mcfluid"> (same cache, same time stepping). The stream function solves
+//
+//     Laplacian(Psi) = omega   in the fluid,        Psi = Psi_b   on every boundary          (Eqs. 5.9-5.11)
+//
+// and the velocity is v = -curl Psi = (-dPsi/dy, dPsi/dx) (Eq. 5.8), from the gradient Walk-on-Spheres estimator
+// (Eqs. 3.78-3.79) with an antithetic first step (Fig. 5.5) and the volume term sampled from the vorticity
+// cache. Boundaries: the domain box as walls (unless periodic), with optional inflow through its left wall and
+// outflow through its right (Fig. 5.6), and the nested <boundary> shapes, each with its isovalue, possibly
+// moving rigidly (Eqs. 5.12-5.13). Cells inside solids hold zero vorticity and the solid's velocity; departure
+// points that land inside a solid are moved to its surface. See docs/boundaries.md.
+//
+// | parameter         | type    | default | meaning                                                        |
+// |-------------------|---------|---------|----------------------------------------------------------------|
+// | samples           | integer | 64      | gradient samples per velocity query (2 walks each, antithetic)  |
+// | epsilon           | float   | 0       | shell width; 0: 1e-4 x the domain's smaller side                |
+// | max_steps         | integer | 4096    | spheres per walk before it is truncated (counted, reported)     |
+// | antithetic        | boolean | true    | mirror the first step (Fig. 5.5)                                |
+// | importance        | string  | vorticity | volume term: "vorticity" (|omega_h| mixed half-half with G) or "green" (G only, as the thesis) |
+// | walls             | boolean | true    | the domain box is a container (ignored when periodic)           |
+// | wall_stream_value | float   | 0       | Psi on the walls (with inflow: the mean of bottom and top)      |
+// | inflow_speed      | float   | 0       | uniform inflow speed through the left wall, outflow through the right |
+// | inflow_min, inflow_max | float | 0  | y range of the inflow and outflow segments (equal: the whole wall) |
+// | (boundary)        | nested  | none    | any number of <boundary> shapes                                  |
+//
+//     <velocity type="walk_on_spheres">
+//         <integer name="samples" value="64"/>
+//         <boundary type="disk"><point name="center" x="0" y="0"/><float name="radius" value="0.2"/></boundary>
+//     </velocity>
+#include <kelvin/core/logging.h>
+#include <kelvin/core/registry.h>
+#include <kelvin/fluid/boundary.h>
+
+#include <fmt/format.h>
+
+#include <cmath>
+
+namespace kelvin::fluid {
+namespace {
+
+class WalkOnSpheres final : public WosVelocitySpec {
+public:
+    explicit WalkOnSpheres(const Properties& props) {
+        m_bs.samples = int(props.get_int("samples", 1, 1 << 24));
+        m_opt.samples = m_bs.samples;
+        m_opt.wos.epsilon = props.get_float("epsilon", 0.0, 1e300);
+        m_opt.wos.max_steps = int(props.get_int("max_steps", 1, 1 << 30));
+        m_opt.wos.antithetic = props.get_bool("antithetic");
+        m_opt.vorticity_importance = props.get_choice("importance", {"vorticity", "green"}) == "vorticity";
+        m_opt.walls = props.get_bool("walls");
+        m_opt.wall_stream_value = props.get_float("wall_stream_value");
+        m_opt.inflow_speed = props.get_float("inflow_speed");
+        m_opt.inflow_min = props.get_float("inflow_min");
+        m_opt.inflow_max = props.get_float("inflow_max");
+        for (const char* n : {"wall_stream_value", "inflow_speed", "inflow_min", "inflow_max"})
+            if (!std::isfinite(props.get_float(n))) props.error(n, "must be finite");
+        if (m_opt.inflow_min > m_opt.inflow_max) props.error("inflow_max", "must be >= inflow_min");
+        for (const ObjectPtr& o : props.get_objects("boundary")) {
+            auto b = std::dynamic_pointer_cast<const BoundaryShape>(o);
+            if (!b) props.error("boundary", "not a boundary shape");
+            if (b->dimension() != 2)
+                props.error("boundary", fmt::format("{}: the fluid solver is 2D; give the boundary dimension = 2",
+                                                    b->description()));
+            m_opt.shapes.push_back(b);
+        }
+        if (!m_opt.wos.antithetic)
+            log_warn("walk_on_spheres: antithetic = false: the gradient variance grows with |Psi| on the boundary");
+    }
+    const BiotSavartOptions& biot_savart() const override { return m_bs; }
+    const WosVelocityOptions& walk_on_spheres() const override { return m_opt; }
+
+private:
+    BiotSavartOptions m_bs;
+    WosVelocityOptions m_opt;
+};
+
+}  // namespace
+}  // namespace kelvin::fluid
+
+KELVIN_PLUGIN(kelvin::fluid::WalkOnSpheres, "velocity", "walk_on_spheres",
+              "Free-slip velocity by Walk-on-Spheres on the stream function (Sec. 5.3.1): walls, inflow/outflow, "
+              "obstacles, moving solids.",
+              kelvin::param::integer("samples", 64, "gradient samples per velocity query (2 walks each, antithetic)"),
+              kelvin::param::real("epsilon", 0.0, "shell width; 0: 1e-4 x the domain's smaller side"),
+              kelvin::param::integer("max_steps", 4096, "spheres per walk before truncation (counted)"),
+              kelvin::param::boolean("antithetic", true, "antithetic first step (Fig. 5.5)"),
+              kelvin::param::string("importance", "vorticity",
+                                    "volume term: 'vorticity' (|omega| mixed with G) or 'green' (G only, the thesis)"),
+              kelvin::param::boolean("walls", true, "the domain box is a container (ignored when periodic)"),
+              kelvin::param::real("wall_stream_value", 0.0, "Psi on the walls (with inflow: the mean of the bottom and top walls)"),
+              kelvin::param::real("inflow_speed", 0.0, "inflow speed through the left wall, outflow through the right"),
+              kelvin::param::real("inflow_min", 0.0, "lower y of the inflow/outflow segments"),
+              kelvin::param::real("inflow_max", 0.0, "upper y (equal to inflow_min: the whole wall)"),
+              kelvin::param::objects("boundary", "solid boundaries (obstacles, containers)"));
