@@ -178,7 +178,9 @@ TEST(Dye, McfluidCarriesDyeWithTheExactDifferentialRotation) {
         if (r < 1e-12) return gamma / (2 * Pi * sigma * sigma);
         return gamma / (2 * Pi * r * r) * -std::expm1(-r * r / (sigma * sigma));
     };
-    auto exact = [&](Vec2d x) { return gaussian(rotate(x, -omega_rot(std::sqrt(x.x * x.x + x.y * x.y)) * t_end), c0, s); };
+    auto exact = [&](Vec2d x) {
+        return gaussian(rotate(x, -omega_rot(std::sqrt(x.x * x.x + x.y * x.y)) * t_end), c0, s);
+    };
     auto init = [&](const Vec2d& x, double* v) { v[0] = gaussian(x, c0, s); };
 
     // Interpolation floor: the exact displacement of each step.
@@ -209,7 +211,8 @@ TEST(Dye, McfluidCarriesDyeWithTheExactDifferentialRotation) {
         EXPECT_EQ(solver.dye()->work().lookups, uint64_t(n) * n * 10);
     }
     double d2 = 0;
-    for (std::size_t k = 0; k < fields[0].size(); ++k) d2 += (fields[0][k] - fields[1][k]) * (fields[0][k] - fields[1][k]);
+    for (std::size_t k = 0; k < fields[0].size(); ++k)
+        d2 += (fields[0][k] - fields[1][k]) * (fields[0][k] - fields[1][k]);
     const double e_noise = std::sqrt(d2 / double(fields[0].size()) / 2);
     const double bound = 1.25 * std::sqrt(e_interp * e_interp + e_noise * e_noise) + 0.002;
     // The error of leaving the dye in place, for scale.

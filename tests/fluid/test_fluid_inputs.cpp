@@ -32,7 +32,8 @@ std::string sim_scene(const std::string& type, const std::string& body, const st
                       const std::string& extra = "") {
     return R"(<scene version="3.0.0"><simulation type=")" + type + R"(">
             <point name="min" x="-1" y="-1"/><point name="max" x="1" y="1"/>
-            )" + body + "\n" + vorticity + "\n" + extra + "\n</simulation></scene>";
+            )" +
+           body + "\n" + vorticity + "\n" + extra + "\n</simulation></scene>";
 }
 
 std::shared_ptr<Job> load(const std::string& xml) {
@@ -117,10 +118,11 @@ TEST(FluidInputs, BitmapVorticityAndDye) {
     write_image(dir.path() / "w.exr", exr);
 
     auto run = [&](const std::string& vorticity, const std::string& dye) {
-        auto job = load(sim_scene("mcfluid", R"(<integer name="steps" value="1"/><integer name="output_every" value="1"/>
+        auto job =
+            load(sim_scene("mcfluid", R"(<integer name="steps" value="1"/><integer name="output_every" value="1"/>
             <velocity type="biot_savart"><integer name="samples" value="4"/></velocity>
             <cache type="grid"><integer name="resolution" value="2"/></cache>)",
-                                  vorticity, dye));
+                           vorticity, dye));
         RunContext ctx;
         ctx.quiet = true;
         ctx.output = dir.path() / "out.exr";
@@ -141,14 +143,17 @@ TEST(FluidInputs, BitmapVorticityAndDye) {
     for (int k = 0; k < 4; ++k) EXPECT_NEAR(f.at(k % 2, k / 2, cw), double(k) - 1.5, 1e-6) << k;
 
     for (const std::string& xml :
-         {sim_scene("mcfluid", kSmallMc, R"(<vorticity type="bitmap"><string name="filename" value="nope.png"/></vorticity>)"),
-          sim_scene("mcfluid", kSmallMc, kLamb, R"(<scalar type="bitmap"><string name="filename" value="nope.png"/></scalar>)")}) {
+         {sim_scene("mcfluid", kSmallMc,
+                    R"(<vorticity type="bitmap"><string name="filename" value="nope.png"/></vorticity>)"),
+          sim_scene("mcfluid", kSmallMc, kLamb,
+                    R"(<scalar type="bitmap"><string name="filename" value="nope.png"/></scalar>)")}) {
         const std::string msg = ktest::input_error_of([&] { load(xml); });
         EXPECT_CONTAINS(msg, "'filename'");
         EXPECT_CONTAINS(msg, "nope.png");
     }
-    const fs::path scene = dir.write("missing.xml", sim_scene("mcfluid", kSmallMc,
-        R"(<vorticity type="bitmap"><string name="filename" value="nope.png"/></vorticity>)"));
+    const fs::path scene = dir.write(
+        "missing.xml", sim_scene("mcfluid", kSmallMc,
+                                 R"(<vorticity type="bitmap"><string name="filename" value="nope.png"/></vorticity>)"));
     const std::string cmd = std::string("\"") + KELVIN_CLI + "\" \"" + scene.string() + "\" -q -o \"" +
                             (dir.path() / "x.exr").string() + "\" 2>/dev/null";
     EXPECT_EQ(WEXITSTATUS(std::system(cmd.c_str())), 2);

@@ -16,7 +16,8 @@
 // | offset    | float  | 0        | added to the value                                   |
 //
 //     <vorticity type="bitmap">
-//         <string name="filename" value="swirl.png"/><float name="offset" value="-0.5"/><float name="scale" value="10"/>
+//         <string name="filename" value="swirl.png"/><float name="offset" value="-0.5"/><float name="scale"
+//         value="10"/>
 //     </vorticity>
 #include <kelvin/core/error.h>
 #include <kelvin/core/image.h>
@@ -76,8 +77,7 @@ public:
                 }
                 m_values[std::size_t(y) * std::size_t(m_w) + std::size_t(x)] = v;
             }
-        if (invalid)
-            props.error("filename", fmt::format("'{}' has {} non-finite value(s)", m_path.string(), invalid));
+        if (invalid) props.error("filename", fmt::format("'{}' has {} non-finite value(s)", m_path.string(), invalid));
     }
 
     void bind_domain(const Domain2& d) override { m_domain = d; }

@@ -64,8 +64,7 @@ public:
         const int i1 = std::min(i + 1, m_w - 1), j1 = std::min(j + 1, m_h - 1);
         const double ax = u - i, ay = v - j;
         auto t = [&](int a, int b) { return m_texels[std::size_t(b) * std::size_t(m_w) + std::size_t(a)]; };
-        const Color3 c =
-            (1 - ay) * ((1 - ax) * t(i, j) + ax * t(i1, j)) + ay * ((1 - ax) * t(i, j1) + ax * t(i1, j1));
+        const Color3 c = (1 - ay) * ((1 - ax) * t(i, j) + ax * t(i1, j)) + ay * ((1 - ax) * t(i, j1) + ax * t(i1, j1));
         if (m_luminance) {
             values[0] = 0.2126 * c.r + 0.7152 * c.g + 0.0722 * c.b;
         } else {

@@ -27,8 +27,8 @@ struct DyeCommon {
     }
 };
 
-#define KELVIN_DYE_COMMON_PARAMS                                                                             \
-    kelvin::param::real("diffusivity", 0.0, "kappa, molecular diffusivity of the dye (0: advection only)"),  \
+#define KELVIN_DYE_COMMON_PARAMS                                                                                \
+    kelvin::param::real("diffusivity", 0.0, "kappa, molecular diffusivity of the dye (0: advection only)"),     \
         kelvin::param::integer("diffusion_samples", 1, "n_d, Feynman–Kac samples per dye cell when kappa > 0"), \
         kelvin::param::integer("resolution", 0, "dye cells along x (0: the solver's grid)")
 

@@ -84,8 +84,7 @@ private:
             case Pattern::Stripes:
                 return (long long)std::floor(r.y / m_size) % 2 == 0 ? 1.0 : 0.0;
             case Pattern::Checkerboard:
-                return ((long long)std::floor(r.x / m_size) + (long long)std::floor(r.y / m_size)) % 2 == 0 ? 1.0
-                                                                                                           : 0.0;
+                return ((long long)std::floor(r.x / m_size) + (long long)std::floor(r.y / m_size)) % 2 == 0 ? 1.0 : 0.0;
             case Pattern::Disk:
                 return glm::dot(r, r) < m_size * m_size ? 1.0 : 0.0;
             case Pattern::Gaussian:

@@ -21,7 +21,8 @@
 // | modes        | integer | 2       | m, wavelengths of the perturbation across the box                  |
 // | double_layer | boolean | false   | add the opposite layer at y0 + L_y / 2 (periodic double shear layer) |
 //
-//     <vorticity type="vortex_sheet"><float name="thickness" value="0.08"/><integer name="modes" value="2"/></vorticity>
+//     <vorticity type="vortex_sheet"><float name="thickness" value="0.08"/><integer name="modes"
+//     value="2"/></vorticity>
 #include <kelvin/core/logging.h>
 #include <kelvin/core/registry.h>
 #include <kelvin/fluid/fields.h>

@@ -1,0 +1,93 @@
+#pragma once
+// What the baseline <simulation> plugins (vortex_particles, stable_fluids) share with mcfluid, so that a scene
+// switches solver with one word: the same parameters (domain, time stepping, viscosity, advection, outputs,
+// <vorticity>, <scalar>, <cache type="grid"> as the resolution), and one driver that writes the same files
+// (<prefix>.csv with the same columns, <prefix>_NNNN.png/.exr, <prefix>_dye_NNNN.png/.exr), reports the same
+// counters and prints which effects were active.
+#include <kelvin/core/job.h>
+#include <kelvin/core/properties.h>
+#include <kelvin/fluid/dye.h>
+#include <kelvin/fluid/fields.h>
+#include <kelvin/fluid/mcfluid.h>
+
+#include <memory>
+#include <string>
+
+namespace kelvin::fluid {
+
+/// The parameters every 2D simulation reads (see docs/fluid.md, "Baselines").
+struct SimulationParams {
+    Domain2 domain;
+    double dt = 0.05;
+    long long steps = 0;  ///< resolved from end_time when that was given
+    double end_time = 0;
+    double viscosity = 0;
+    Advection advection = Advection::RK4;
+    long long output_every = 0;
+    bool write_png = true, write_exr = true, write_csv = true;
+    double color_range = 0;
+    int nx = 64, ny = 64;  ///< <cache type="grid"> resolution (square cells when resolution_y = 0)
+    std::shared_ptr<VorticityField> field;
+    std::shared_ptr<DyeSpec> dye;
+
+    /// Reads and validates them (errors name the parameter). `who` prefixes log messages ("stable_fluids").
+    /// MCFluid-only inputs (<velocity>, diffusion_samples) are accepted and ignored with a note, so that an
+    /// mcfluid scene runs unchanged.
+    static SimulationParams parse(const Properties& props, const std::string& who);
+};
+
+/// A solver the driver runs. Fields are on the output grid (nx x ny cell centres of the domain).
+class FluidSolver {
+public:
+    virtual ~FluidSolver() = default;
+    virtual double time() const = 0;
+    virtual long long step_index() const = 0;
+    /// One step of length dt; false (state unchanged) when interrupt_requested() stopped it.
+    virtual bool step(double dt) = 0;
+    virtual const Grid2& vorticity_grid() = 0;
+    virtual const Grid2& velocity_u() = 0;
+    virtual const Grid2& velocity_v() = 0;
+    /// Energy, enstrophy, circulation and max |omega| of the fields above (energy_raw = energy: no noise).
+    virtual FluidDiagnostics diagnostics();
+    virtual PassiveScalars* dye() = 0;
+    /// Kernel evaluations so far (the CSV's biot_savart_evals column: particle pairs; 0 for grid solvers).
+    virtual double evaluations() const = 0;
+    /// Non-finite values met so far (replaced by zero).
+    virtual uint64_t invalid() const = 0;
+    /// Counters and timers into `stats` (fluid.*).
+    virtual void report(Stats& stats) const = 0;
+};
+
+/// The run loop of a baseline: CSV row per state, frames every output_every steps (and the last), dye frames,
+/// progress, --time-limit, --write-partial, interruption, counters and the end-of-run summary. `effects` is
+/// the solver's part of the effects line (its advection and boundaries; the driver adds diffusion, stretching
+/// and dye).
+RunResult run_fluid_solver(const std::string& who, FluidSolver& solver, const SimulationParams& p, RunContext& ctx,
+                           const std::string& effects);
+
+/// Diagnostics of a state given as fields on one grid (midpoint rule over the domain box).
+FluidDiagnostics grid_diagnostics(const Grid2& omega, const Grid2& u, const Grid2& v);
+
+}  // namespace kelvin::fluid
+
+/// The parameter declarations shared by the baseline simulations (same names and defaults as mcfluid).
+#define KELVIN_FLUID_SIMULATION_PARAMS                                                                       \
+    kelvin::param::integer("dimension", 2, "2 (3D is not implemented)"),                                     \
+        kelvin::param::point("min", kelvin::Vec3d(-1.0, -1.0, 0.0), "domain box corner (z = 0)"),            \
+        kelvin::param::point("max", kelvin::Vec3d(1.0, 1.0, 0.0), "domain box corner (z = 0)"),              \
+        kelvin::param::boolean("periodic", false, "periodic box (true) or open (false)"),                    \
+        kelvin::param::real("dt", 0.05, "time step"),                                                        \
+        kelvin::param::integer("steps", 0, "number of steps (or give end_time)"),                            \
+        kelvin::param::real("end_time", 0.0, "simulated time (or give steps)"),                              \
+        kelvin::param::real("viscosity", 0.0, "kinematic viscosity nu (0: inviscid)"),                       \
+        kelvin::param::integer("diffusion_samples", 1, "mcfluid's n_d; accepted and ignored"),               \
+        kelvin::param::string("advection", "rk4", "'euler' or 'rk4'"),                                       \
+        kelvin::param::integer("output_every", 0, "write PNG/EXR frames every N steps (0: none)"),           \
+        kelvin::param::boolean("write_png", true, "write frames as PNG"),                                    \
+        kelvin::param::boolean("write_exr", true, "write frames as EXR"),                                    \
+        kelvin::param::boolean("write_csv", true, "write <prefix>.csv diagnostics per step"),                \
+        kelvin::param::real("color_range", 0.0, "|omega| mapped to full colour (0: max at t = 0)"),          \
+        kelvin::param::object("vorticity", "vorticity", "initial vorticity field", true),                    \
+        kelvin::param::object("velocity", "velocity", "mcfluid's velocity estimator; accepted and ignored"), \
+        kelvin::param::object("cache", "cache", "grid: its resolution is the solver's (default 64)"),        \
+        kelvin::param::object("scalar", "scalar", "passive scalar (dye) advected with the flow (optional)")

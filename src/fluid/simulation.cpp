@@ -1,0 +1,195 @@
+// The shared parameters and run loop of the baseline fluid solvers (see include/kelvin/fluid/simulation.h).
+#include <kelvin/core/interrupt.h>
+#include <kelvin/core/logging.h>
+#include <kelvin/core/progress.h>
+#include <kelvin/core/registry.h>
+#include <kelvin/core/stats.h>
+#include <kelvin/fluid/output.h>
+#include <kelvin/fluid/simulation.h>
+
+#include <fmt/format.h>
+
+#include <algorithm>
+#include <cmath>
+#include <optional>
+
+namespace kelvin::fluid {
+
+SimulationParams SimulationParams::parse(const Properties& props, const std::string& who) {
+    SimulationParams p;
+    const long long dim = props.get_int("dimension");
+    if (dim != 2) props.error("dimension", fmt::format("must be 2 (got {}); {} is a 2D solver", dim, who));
+    const Vec3d lo = props.get_point("min"), hi = props.get_point("max");
+    if (lo.z != 0) props.error("min", "a 2D domain takes z = 0");
+    if (hi.z != 0) props.error("max", "a 2D domain takes z = 0");
+    for (double v : {lo.x, lo.y, hi.x, hi.y})
+        if (!std::isfinite(v))
+            props.error(std::isfinite(lo.x) && std::isfinite(lo.y) ? "max" : "min", "must be finite");
+    if (!(hi.x > lo.x) || !(hi.y > lo.y))
+        props.error("max", fmt::format("must exceed min in x and y (min = ({:g}, {:g}), max = ({:g}, {:g}))", lo.x,
+                                       lo.y, hi.x, hi.y));
+    p.domain = {{lo.x, lo.y}, {hi.x, hi.y}, props.get_bool("periodic")};
+
+    p.dt = props.get_float("dt", 0.0, 1e300);
+    if (!(p.dt > 0)) props.error("dt", "must be positive");
+    p.steps = props.get_int("steps", 0, 1LL << 40);
+    p.end_time = props.get_float("end_time", 0.0, 1e300);
+    if (p.steps > 0 && p.end_time > 0) props.error("end_time", "give either steps or end_time, not both");
+    if (p.steps == 0 && p.end_time == 0) props.error("steps", "give the number of steps or an end_time (> 0)");
+    if (p.end_time > 0) {
+        const double n = p.end_time / p.dt;
+        if (n > double(1LL << 40)) props.error("end_time", "needs more than 2^40 steps of dt");
+        p.steps = std::max(1LL, (long long)std::ceil(n - 1e-9));
+    }
+    p.viscosity = props.get_float("viscosity", 0.0, 1e300);
+    props.get_int("diffusion_samples", 1, 1 << 20);  // mcfluid's n_d: read (validated), not used
+    p.advection = props.get_choice("advection", {"euler", "rk4"}) == "euler" ? Advection::Euler : Advection::RK4;
+    p.output_every = props.get_int("output_every", 0, 1LL << 40);
+    p.write_png = props.get_bool("write_png");
+    p.write_exr = props.get_bool("write_exr");
+    p.write_csv = props.get_bool("write_csv");
+    p.color_range = props.get_float("color_range", 0.0, 1e300);
+
+    p.field = props.get_object_as<VorticityField>("vorticity");
+    if (props.get_object("velocity"))
+        log_info("{}: <velocity> is mcfluid's Monte Carlo estimator; {} computes its velocity itself (ignored)", who,
+                 who);
+    auto cache = props.get_object_as<CacheSpec>("cache");
+    if (!cache) cache = std::dynamic_pointer_cast<CacheSpec>(Registry::instance().create(Properties("cache", "grid")));
+    p.nx = cache->resolution_x();
+    const Vec2d size = p.domain.size();
+    p.ny = cache->resolution_y() > 0 ? cache->resolution_y()
+                                     : int(std::clamp(std::lround(p.nx * size.y / size.x), 2L, 16384L));
+    p.field->bind_domain(p.domain);
+    p.field->check_domain(p.domain);
+    p.dye = props.get_object_as<DyeSpec>("scalar");
+    return p;
+}
+
+FluidDiagnostics grid_diagnostics(const Grid2& omega, const Grid2& u, const Grid2& v) {
+    FluidDiagnostics d;
+    const double a = omega.cell_area();
+    double e = 0, z = 0, c = 0, mx = 0;
+    for (std::size_t k = 0; k < omega.cell_count(); ++k) {
+        const double uu = u.values()[k], vv = v.values()[k], w = omega.values()[k];
+        e += uu * uu + vv * vv;
+        z += w * w;
+        c += w;
+        mx = std::max(mx, std::abs(w));
+    }
+    d.kinetic_energy = d.kinetic_energy_raw = 0.5 * e * a;
+    d.enstrophy = 0.5 * z * a;
+    d.circulation = c * a;
+    d.max_abs_vorticity = mx;
+    return d;
+}
+
+FluidDiagnostics FluidSolver::diagnostics() {
+    FluidDiagnostics d = grid_diagnostics(vorticity_grid(), velocity_u(), velocity_v());
+    d.step = step_index();
+    d.time = time();
+    return d;
+}
+
+RunResult run_fluid_solver(const std::string& who, FluidSolver& solver, const SimulationParams& p, RunContext& ctx,
+                           const std::string& effects) {
+    Timer total;
+    const VorticityField& field = *p.field;
+    log_info("{}: 2D, domain {}, {}x{} grid, initial {}", who, p.domain.to_string(), p.nx, p.ny, field.description());
+    log_info("{}: effects: {}; diffusion {}; stretching off (2D); {}", who, effects,
+             p.viscosity > 0 ? fmt::format("on (nu {:g})", p.viscosity) : std::string("off (inviscid)"),
+             dye_effect(p.dye.get()));
+
+    OutputPaths paths(ctx.output, who);
+    std::optional<DiagnosticsCsv> csv;
+    RunResult result;
+    result.work_unit = "steps";
+    if (paths.enabled() && p.write_csv) {
+        csv.emplace(paths.csv());
+        result.files_written.push_back(paths.csv());
+    }
+    const double range = p.color_range > 0 ? p.color_range : solver.vorticity_grid().max_abs();
+    const int digits = std::max(4, int(std::to_string(p.steps).size()));
+    double output_seconds = 0;
+    auto image = [&] {
+        return field_image(solver.vorticity_grid(), &solver.velocity_u(), &solver.velocity_v(), range);
+    };
+    auto write_frame = [&] {
+        if (!paths.enabled() || p.output_every == 0 || (!p.write_png && !p.write_exr)) return;
+        Timer t;
+        const Bitmap img = image();
+        for (const char* ext : {".png", ".exr"}) {
+            if ((ext[1] == 'p' && !p.write_png) || (ext[1] == 'e' && !p.write_exr)) continue;
+            const auto f = paths.frame(solver.step_index(), digits, ext);
+            write_image(f, img);
+            result.files_written.push_back(f);
+        }
+        write_dye_frame(paths, solver.step_index(), digits, solver.dye(), p.write_png, p.write_exr,
+                        result.files_written);
+        output_seconds += t.seconds();
+    };
+    auto diagnostics = [&] {
+        FluidDiagnostics d = solver.diagnostics();
+        d.vorticity_rmse_exact = exact_vorticity_rmse(solver.vorticity_grid(), field, d.time, p.viscosity);
+        return d;
+    };
+
+    const FluidDiagnostics d0 = diagnostics();
+    if (csv) csv->write(d0, 0.0, solver.evaluations(), solver.invalid());
+    write_frame();
+
+    ProgressReporter progress("Simulating", double(p.steps), "steps", ctx.quiet);
+    Timer since_partial;
+    long long done = 0;
+    bool stopped_by_time = false;
+    for (long long s = 1; s <= p.steps; ++s) {
+        if (interrupt_requested()) break;
+        const double evals_before = solver.evaluations();
+        const uint64_t invalid_before = solver.invalid();
+        Timer step_timer;
+        double dt = p.dt;
+        if (p.end_time > 0 && s == p.steps) dt = p.end_time - solver.time();
+        if (!(dt > 0)) dt = p.dt;
+        if (!solver.step(dt)) break;
+        const FluidDiagnostics d = diagnostics();
+        const double seconds = step_timer.seconds();
+        if (csv) csv->write(d, seconds, solver.evaluations() - evals_before, solver.invalid() - invalid_before);
+        ++done;
+        if (p.output_every > 0 && (s % p.output_every == 0 || s == p.steps)) write_frame();
+        progress.update(1);
+        if (ctx.write_partial > 0 && ctx.write_partial_image && since_partial.seconds() >= ctx.write_partial) {
+            ctx.write_partial_image(image());
+            since_partial.reset();
+        }
+        if (ctx.time_limit > 0 && total.seconds() >= ctx.time_limit && s < p.steps) {
+            stopped_by_time = true;
+            break;
+        }
+    }
+    progress.finish();
+    result.interrupted = interrupt_requested();
+    if (stopped_by_time)
+        log_warn("{}: time limit of {:g} s reached after {} of {} steps (t = {:g})", who, ctx.time_limit, done, p.steps,
+                 solver.time());
+
+    ctx.stats.add("fluid.steps", double(done), "steps");
+    ctx.stats.set("fluid.time_simulated", solver.time(), "");
+    ctx.stats.add("fluid.cells", double(solver.vorticity_grid().cell_count()), "cells");
+    solver.report(ctx.stats);
+    ctx.stats.add_time("fluid.time.output", output_seconds);
+    report_dye_stats(ctx.stats, solver.dye());
+    if (solver.invalid() > 0) log_warn("{}: {} non-finite value(s) were replaced by zero", who, solver.invalid());
+
+    const FluidDiagnostics dn = diagnostics();
+    log_info(
+        "{}: t = {:g}: energy {:.6g} (initial {:.6g}), enstrophy {:.6g} (initial {:.6g}), circulation {:.6g}, max "
+        "|omega| {:.6g}; active effects: advection{}{}",
+        who, dn.time, dn.kinetic_energy, d0.kinetic_energy, dn.enstrophy, d0.enstrophy, dn.circulation,
+        dn.max_abs_vorticity, p.viscosity > 0 ? ", diffusion" : "", solver.dye() ? ", dye" : "");
+    result.image = image();
+    result.work = double(done);
+    result.seconds = total.seconds();
+    return result;
+}
+
+}  // namespace kelvin::fluid

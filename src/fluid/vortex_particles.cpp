@@ -1,0 +1,339 @@
+// The vortex particle baseline: direct Biot–Savart summation over Rosenhead–Moore blobs, RK4 or Euler transport,
+// Chorin's random walk for viscosity (see include/kelvin/fluid/vortex_particles.h).
+#include <kelvin/core/error.h>
+#include <kelvin/core/interrupt.h>
+#include <kelvin/core/parallel.h>
+#include <kelvin/core/random.h>
+#include <kelvin/core/stats.h>
+#include <kelvin/fluid/vortex_particles.h>
+
+#include <algorithm>
+#include <cmath>
+
+namespace kelvin::fluid {
+
+namespace {
+
+constexpr std::size_t Block = 64;  // targets per parallel unit
+constexpr uint64_t TagWalk = 7, TagDye = 8;
+
+struct SumParams {
+    double d2 = 0;  // delta^2
+    bool periodic = false;
+    double lx = 0, ly = 0, inv_lx = 0, inv_ly = 0;
+    const float* tu = nullptr;  // 2 pi (K_per - K) tables, (tn + 1)^2 nodes over [-L/2, L/2]^2
+    const float* tv = nullptr;
+    int tn = 0;
+};
+
+// Sum over sources of gamma_j * 2 pi K_delta(t - p_j) (and of gamma_j * pi zeta_delta when w != null) for one
+// target. Sequential over the sources: the result does not depend on how targets are split.
+template <bool Periodic>
+__attribute__((always_inline)) inline void sum_one(double tx, double ty, std::size_t n, const double* __restrict px,
+                                                   const double* __restrict py, const double* __restrict g,
+                                                   const SumParams& k, double& u, double& v, double* w) {
+    double su = 0, sv = 0, sw = 0;
+    for (std::size_t j = 0; j < n; ++j) {
+        double dx = tx - px[j], dy = ty - py[j];
+        if constexpr (Periodic) {
+            dx -= k.lx * std::floor(dx * k.inv_lx + 0.5);
+            dy -= k.ly * std::floor(dy * k.inv_ly + 0.5);
+        }
+        const double q = dx * dx + dy * dy + k.d2;
+        const double inv = 1.0 / q;
+        double cu = -dy * inv, cv = dx * inv;
+        if constexpr (Periodic) {
+            const double gx = std::clamp((dx * k.inv_lx + 0.5) * k.tn, 0.0, double(k.tn));
+            const double gy = std::clamp((dy * k.inv_ly + 0.5) * k.tn, 0.0, double(k.tn));
+            const int i = std::min(int(gx), k.tn - 1), jj = std::min(int(gy), k.tn - 1);
+            const double ax = gx - i, ay = gy - jj;
+            const int row = k.tn + 1, t = jj * row + i;
+            cu += (1 - ay) * ((1 - ax) * k.tu[t] + ax * k.tu[t + 1]) +
+                  ay * ((1 - ax) * k.tu[t + row] + ax * k.tu[t + row + 1]);
+            cv += (1 - ay) * ((1 - ax) * k.tv[t] + ax * k.tv[t + 1]) +
+                  ay * ((1 - ax) * k.tv[t + row] + ax * k.tv[t + row + 1]);
+        }
+        su += g[j] * cu;
+        sv += g[j] * cv;
+        if (w) sw += g[j] * inv * inv;
+    }
+    u = su;
+    v = sv;
+    if (w) *w = sw;
+}
+
+__attribute__((target_clones("avx2", "default"))) void sum_block_open(const double* tx, const double* ty,
+                                                                      std::size_t nt, std::size_t n, const double* px,
+                                                                      const double* py, const double* g,
+                                                                      const SumParams& k, double* u, double* v,
+                                                                      double* w) {
+    for (std::size_t t = 0; t < nt; ++t) sum_one<false>(tx[t], ty[t], n, px, py, g, k, u[t], v[t], w ? w + t : nullptr);
+}
+__attribute__((target_clones("avx2", "default"))) void sum_block_periodic(const double* tx, const double* ty,
+                                                                          std::size_t nt, std::size_t n,
+                                                                          const double* px, const double* py,
+                                                                          const double* g, const SumParams& k,
+                                                                          double* u, double* v, double* w) {
+    for (std::size_t t = 0; t < nt; ++t) sum_one<true>(tx[t], ty[t], n, px, py, g, k, u[t], v[t], w ? w + t : nullptr);
+}
+
+inline bool finite2(double a, double b) { return std::isfinite(a) && std::isfinite(b); }
+
+}  // namespace
+
+VortexParticleSolver::VortexParticleSolver(const VortexParticleSettings& settings, const InitialField& initial)
+    : m_settings(settings) {
+    const Domain2& d = m_settings.domain;
+    if (!(d.size().x > 0) || !(d.size().y > 0)) throw_runtime("VortexParticleSolver: empty domain");
+    if (m_settings.nx < 2 || m_settings.ny < 2) throw_runtime("VortexParticleSolver: lattice too small");
+    if (!(m_settings.viscosity >= 0) || !std::isfinite(m_settings.viscosity))
+        throw_runtime("VortexParticleSolver: viscosity must be >= 0");
+    m_omega = Grid2(d, m_settings.nx, m_settings.ny);
+    m_u = m_v = m_disp_x = m_disp_y = m_omega;
+    const Vec2d h = m_omega.h();
+    m_delta = m_settings.delta >= 0 ? m_settings.delta : std::min(h.x, h.y);
+    if (!(m_delta > 0) || !std::isfinite(m_delta)) throw_runtime("VortexParticleSolver: delta must be positive");
+    if (d.periodic) m_periodic = std::make_shared<PeriodicKernel>(d.size());
+
+    std::vector<double> w(m_omega.cell_count());
+    double wmax = 0;
+    for (int j = 0; j < m_omega.ny(); ++j)
+        for (int i = 0; i < m_omega.nx(); ++i) {
+            double v = initial(m_omega.cell_center(i, j));
+            if (!std::isfinite(v)) {
+                ++m_invalid;
+                v = 0;
+            }
+            w[std::size_t(j) * std::size_t(m_omega.nx()) + std::size_t(i)] = v;
+            wmax = std::max(wmax, std::abs(v));
+        }
+    const double cut = m_settings.threshold * wmax;
+    for (int j = 0; j < m_omega.ny(); ++j)
+        for (int i = 0; i < m_omega.nx(); ++i) {
+            const double v = w[std::size_t(j) * std::size_t(m_omega.nx()) + std::size_t(i)];
+            if (v == 0 || std::abs(v) <= cut) continue;
+            const Vec2d c = m_omega.cell_center(i, j);
+            m_x.push_back(c.x);
+            m_y.push_back(c.y);
+            m_gamma.push_back(v * h.x * h.y);
+        }
+    const std::size_t n = m_x.size(), cells = m_omega.cell_count();
+    m_sx.resize(n);
+    m_sy.resize(n);
+    for (int s = 0; s < 4; ++s) {
+        m_ku[s].resize(n);
+        m_kv[s].resize(n);
+        m_cu[s].resize(cells);
+        m_cv[s].resize(cells);
+    }
+    m_cx.resize(cells);
+    m_cy.resize(cells);
+    m_bx.resize(cells);
+    m_by.resize(cells);
+    for (int j = 0; j < m_omega.ny(); ++j)
+        for (int i = 0; i < m_omega.nx(); ++i) {
+            const std::size_t k = std::size_t(j) * std::size_t(m_omega.nx()) + std::size_t(i);
+            m_cx[k] = m_omega.cell_center(i, j).x;
+            m_cy[k] = m_omega.cell_center(i, j).y;
+        }
+}
+
+VortexParticleSolver::~VortexParticleSolver() = default;
+
+void VortexParticleSolver::sum_velocity(const double* tx, const double* ty, std::size_t n, const double* px,
+                                        const double* py, double* u, double* v) {
+    SumParams k;
+    k.d2 = m_delta * m_delta;
+    const Domain2& d = m_settings.domain;
+    if (d.periodic) {
+        k.periodic = true;
+        k.lx = d.size().x;
+        k.ly = d.size().y;
+        k.inv_lx = 1 / k.lx;
+        k.inv_ly = 1 / k.ly;
+        k.tu = m_periodic->table_u();
+        k.tv = m_periodic->table_v();
+        k.tn = m_periodic->table_size();
+    }
+    const std::size_t np = m_gamma.size();
+    const double* g = m_gamma.data();
+    const std::size_t blocks = (n + Block - 1) / Block;
+    parallel_for_units(blocks, [&](std::size_t b) {
+        const std::size_t t0 = b * Block, nt = std::min(Block, n - t0);
+        if (k.periodic)
+            sum_block_periodic(tx + t0, ty + t0, nt, np, px, py, g, k, u + t0, v + t0, nullptr);
+        else
+            sum_block_open(tx + t0, ty + t0, nt, np, px, py, g, k, u + t0, v + t0, nullptr);
+        const double s = 0.5 / Pi;
+        for (std::size_t t = t0; t < t0 + nt; ++t) {
+            u[t] *= s;
+            v[t] *= s;
+        }
+    });
+    m_pairs += uint64_t(n) * uint64_t(np);
+    for (std::size_t t = 0; t < n; ++t)
+        if (!finite2(u[t], v[t])) {
+            ++m_invalid;
+            u[t] = v[t] = 0;
+        }
+}
+
+void VortexParticleSolver::velocity_at(const std::vector<double>& x, const std::vector<double>& y,
+                                       std::vector<double>& u, std::vector<double>& v) {
+    u.resize(x.size());
+    v.resize(x.size());
+    sum_velocity(x.data(), y.data(), x.size(), m_x.data(), m_y.data(), u.data(), v.data());
+}
+
+bool VortexParticleSolver::step(double dt) {
+    if (!(dt > 0) || std::isnan(dt)) throw_runtime("VortexParticleSolver::step: dt must be positive (got {})", dt);
+    if (interrupt_requested()) return false;
+    Timer timer;
+    const std::size_t n = m_x.size();
+    const Domain2& d = m_settings.domain;
+
+    // The dye's backtrace through the velocity of the state at the start of the step (frozen over the step).
+    if (m_dye) {
+        const std::size_t cells = m_cx.size();
+        sum_velocity(m_cx.data(), m_cy.data(), cells, m_x.data(), m_y.data(), m_cu[0].data(), m_cv[0].data());
+        if (m_settings.advection == Advection::RK4) {
+            const double f[3] = {0.5, 0.5, 1.0};
+            for (int s = 1; s < 4; ++s) {
+                for (std::size_t c = 0; c < cells; ++c) {
+                    m_bx[c] = m_cx[c] - f[s - 1] * dt * m_cu[s - 1][c];
+                    m_by[c] = m_cy[c] - f[s - 1] * dt * m_cv[s - 1][c];
+                }
+                sum_velocity(m_bx.data(), m_by.data(), cells, m_x.data(), m_y.data(), m_cu[s].data(), m_cv[s].data());
+            }
+            for (std::size_t c = 0; c < cells; ++c) {
+                m_disp_x.values()[c] = dt / 6 * (m_cu[0][c] + 2 * m_cu[1][c] + 2 * m_cu[2][c] + m_cu[3][c]);
+                m_disp_y.values()[c] = dt / 6 * (m_cv[0][c] + 2 * m_cv[1][c] + 2 * m_cv[2][c] + m_cv[3][c]);
+            }
+        } else {
+            for (std::size_t c = 0; c < cells; ++c) {
+                m_disp_x.values()[c] = dt * m_cu[0][c];
+                m_disp_y.values()[c] = dt * m_cv[0][c];
+            }
+        }
+    }
+
+    // Particles: Euler or classical RK4 on the coupled system (every stage moves the sources too).
+    sum_velocity(m_x.data(), m_y.data(), n, m_x.data(), m_y.data(), m_ku[0].data(), m_kv[0].data());
+    if (m_settings.advection == Advection::RK4) {
+        const double f[3] = {0.5, 0.5, 1.0};
+        for (int s = 1; s < 4; ++s) {
+            for (std::size_t p = 0; p < n; ++p) {
+                m_sx[p] = m_x[p] + f[s - 1] * dt * m_ku[s - 1][p];
+                m_sy[p] = m_y[p] + f[s - 1] * dt * m_kv[s - 1][p];
+            }
+            sum_velocity(m_sx.data(), m_sy.data(), n, m_sx.data(), m_sy.data(), m_ku[s].data(), m_kv[s].data());
+        }
+        for (std::size_t p = 0; p < n; ++p) {
+            m_x[p] += dt / 6 * (m_ku[0][p] + 2 * m_ku[1][p] + 2 * m_ku[2][p] + m_ku[3][p]);
+            m_y[p] += dt / 6 * (m_kv[0][p] + 2 * m_kv[1][p] + 2 * m_kv[2][p] + m_kv[3][p]);
+        }
+    } else {
+        for (std::size_t p = 0; p < n; ++p) {
+            m_x[p] += dt * m_ku[0][p];
+            m_y[p] += dt * m_kv[0][p];
+        }
+    }
+    m_seconds_velocity += timer.seconds();
+    if (interrupt_requested()) return false;  // (the state is mid-step; the caller stops anyway)
+
+    // Viscosity: Chorin's random walk, variance 2 nu dt per axis; blocks of particles own their streams.
+    if (m_settings.viscosity > 0) {
+        const double sigma = std::sqrt(2 * m_settings.viscosity * dt);
+        const std::size_t blocks = (n + 255) / 256;
+        parallel_for_units(blocks, [&](std::size_t b) {
+            Random rng(m_settings.seed, hash_combine(hash_combine(uint64_t(m_step), TagWalk), b));
+            for (std::size_t p = b * 256; p < std::min(n, (b + 1) * 256); ++p) {
+                const Vec2d xi = standard_normal2(rng);
+                m_x[p] += sigma * xi.x;
+                m_y[p] += sigma * xi.y;
+            }
+        });
+        m_walk_steps += n;
+    }
+    if (d.periodic)
+        for (std::size_t p = 0; p < n; ++p) {
+            const Vec2d w = d.wrap({m_x[p], m_y[p]});
+            m_x[p] = w.x;
+            m_y[p] = w.y;
+        }
+    if (m_dye) m_dye->advect(m_disp_x, m_disp_y, dt, m_settings.seed, hash_combine(uint64_t(m_step), TagDye));
+    m_time += dt;
+    ++m_step;
+    m_fields_valid = false;
+    return true;
+}
+
+void VortexParticleSolver::ensure_fields() {
+    if (m_fields_valid) return;
+    Timer timer;
+    SumParams k;
+    k.d2 = m_delta * m_delta;
+    const Domain2& d = m_settings.domain;
+    if (d.periodic) {
+        k.periodic = true;
+        k.lx = d.size().x;
+        k.ly = d.size().y;
+        k.inv_lx = 1 / k.lx;
+        k.inv_ly = 1 / k.ly;
+        k.tu = m_periodic->table_u();
+        k.tv = m_periodic->table_v();
+        k.tn = m_periodic->table_size();
+    }
+    const std::size_t cells = m_cx.size(), np = m_gamma.size();
+    double* u = m_u.values().data();
+    double* v = m_v.values().data();
+    double* w = m_omega.values().data();
+    const std::size_t blocks = (cells + Block - 1) / Block;
+    parallel_for_units(blocks, [&](std::size_t b) {
+        const std::size_t t0 = b * Block, nt = std::min(Block, cells - t0);
+        if (k.periodic)
+            sum_block_periodic(m_cx.data() + t0, m_cy.data() + t0, nt, np, m_x.data(), m_y.data(), m_gamma.data(), k,
+                               u + t0, v + t0, w + t0);
+        else
+            sum_block_open(m_cx.data() + t0, m_cy.data() + t0, nt, np, m_x.data(), m_y.data(), m_gamma.data(), k,
+                           u + t0, v + t0, w + t0);
+        // u, v: 1/(2 pi) K; omega: zeta = delta^2 / (pi q^2).
+        for (std::size_t t = t0; t < t0 + nt; ++t) {
+            u[t] *= 0.5 / Pi;
+            v[t] *= 0.5 / Pi;
+            w[t] *= k.d2 / Pi;
+        }
+    });
+    m_pairs += uint64_t(cells) * uint64_t(np);
+    for (std::size_t t = 0; t < cells; ++t)
+        if (!finite2(u[t], v[t]) || !std::isfinite(w[t])) {
+            ++m_invalid;
+            u[t] = v[t] = w[t] = 0;
+        }
+    m_seconds_fields += timer.seconds();
+    m_fields_valid = true;
+}
+
+const Grid2& VortexParticleSolver::vorticity_grid() {
+    ensure_fields();
+    return m_omega;
+}
+const Grid2& VortexParticleSolver::velocity_u() {
+    ensure_fields();
+    return m_u;
+}
+const Grid2& VortexParticleSolver::velocity_v() {
+    ensure_fields();
+    return m_v;
+}
+
+void VortexParticleSolver::report(Stats& stats) const {
+    stats.add("fluid.particles", double(m_x.size()), "particles");
+    stats.add("fluid.particle_pairs", double(m_pairs), "pairs");
+    stats.add("fluid.random_walk_steps", double(m_walk_steps), "steps");
+    stats.add("fluid.invalid_velocity", double(m_invalid), "values");
+    stats.add_time("fluid.time.velocity", m_seconds_velocity);
+    stats.add_time("fluid.time.fields", m_seconds_fields);
+}
+
+}  // namespace kelvin::fluid
