@@ -1,4 +1,5 @@
 // The shared parameters and run loop of the baseline fluid solvers (see include/kelvin/fluid/simulation.h).
+#include <kelvin/core/checkpoint.h>
 #include <kelvin/core/interrupt.h>
 #include <kelvin/core/logging.h>
 #include <kelvin/core/progress.h>
@@ -134,9 +135,37 @@ RunResult run_fluid_solver(const std::string& who, FluidSolver& solver, const Si
         return d;
     };
 
+    // Checkpoints (core/checkpoint.h), as mcfluid: the state after the steps that reach them, on the output grid.
+    CheckpointSchedule checkpoints(ctx);
+    auto checkpoint = [&](long long steps) {
+        Checkpoint cp;
+        cp.seconds = total.seconds() - checkpoints.overhead();
+        cp.work = double(steps);
+        cp.work_unit = "steps";
+        cp.sim_time = solver.time();
+        cp.grid = {p.domain.min, p.domain.max, p.nx, p.ny};
+        cp.image = image;
+        cp.field = [&](const std::string& name, std::vector<double>& values) {
+            const Grid2* g = name == "vorticity" ? &solver.vorticity_grid()
+                             : name == "u"       ? &solver.velocity_u()
+                             : name == "v"       ? &solver.velocity_v()
+                                                 : nullptr;
+            if (g) values = g->values();
+            return g != nullptr;
+        };
+        cp.exact = [&](const std::string& name, double t, Vec2d x) -> std::optional<double> {
+            if (name == "vorticity") return field.exact_vorticity(t, x, p.viscosity);
+            if (name != "u" && name != "v") return std::nullopt;
+            auto v = field.exact_velocity(t, x, p.viscosity);
+            return v ? std::optional<double>(name == "u" ? v->x : v->y) : std::nullopt;
+        };
+        checkpoints.reached(ctx, cp);
+    };
+
     const FluidDiagnostics d0 = diagnostics();
     if (csv) csv->write(d0, 0.0, solver.evaluations(), solver.invalid());
     write_frame();
+    if (checkpoints.active()) checkpoint(0);
 
     ProgressReporter progress("Simulating", double(p.steps), "steps", ctx.quiet);
     Timer since_partial;
@@ -161,7 +190,8 @@ RunResult run_fluid_solver(const std::string& who, FluidSolver& solver, const Si
             ctx.write_partial_image(image());
             since_partial.reset();
         }
-        if (ctx.time_limit > 0 && total.seconds() >= ctx.time_limit && s < p.steps) {
+        if (checkpoints.active()) checkpoint(done);
+        if (ctx.time_limit > 0 && total.seconds() - checkpoints.overhead() >= ctx.time_limit && s < p.steps) {
             stopped_by_time = true;
             break;
         }

@@ -4,6 +4,7 @@
 #include "common/support.h"
 #include "fluid_test_util.h"
 
+#include <kelvin/core/checkpoint.h>
 #include <kelvin/core/error.h>
 #include <kelvin/core/image.h>
 #include <kelvin/core/job.h>
@@ -201,7 +202,8 @@ TEST(Baselines, BitIdenticalAcrossThreadCounts) {
 
 // One word switches the solver: the same scene (with mcfluid's <velocity> and diffusion_samples, and a dye) runs
 // as mcfluid, vortex_particles and stable_fluids, and each writes the CSV with the same header, the vorticity and
-// dye frames, the counters, and reports its exact-solution error in the CSV.
+// dye frames, the counters, reports its exact-solution error in the CSV, and honours the checkpoint contract
+// (what `kelvin converge` uses to compare solvers).
 TEST(Baselines, OneWordSwitchesTheSolver) {
     for (const char* type : {"mcfluid", "vortex_particles", "stable_fluids"}) {
         ktest::TempDir dir;
@@ -222,7 +224,21 @@ TEST(Baselines, OneWordSwitchesTheSolver) {
         kelvin::RunContext ctx;
         ctx.quiet = true;
         ctx.output = dir.path() / "run.exr";
+        // The checkpoint contract (core/checkpoint.h): the state after step 1, fields and the exact solution.
+        ctx.checkpoint_work = {1};
+        int fired = 0;
+        ctx.on_checkpoint = [&](const kelvin::Checkpoint& cp) {
+            ++fired;
+            EXPECT_EQ(cp.work, 1.0) << type;
+            EXPECT_NEAR(cp.sim_time, 0.1, 1e-12) << type;
+            std::vector<double> w;
+            ASSERT_TRUE(cp.field("vorticity", w)) << type;
+            EXPECT_EQ(w.size(), 256u) << type;
+            ASSERT_TRUE(cp.exact) << type;
+            EXPECT_TRUE(cp.exact("vorticity", cp.sim_time, Vec2d(0.5, 0.5)).has_value()) << type;
+        };
         kelvin::RunResult r = job->run(ctx);
+        EXPECT_EQ(fired, 1) << type;
         EXPECT_EQ(r.work, 2) << type;
         std::ifstream csv(dir.path() / "run.csv");
         std::string header, row;
@@ -251,4 +267,30 @@ TEST(Baselines, OneWordSwitchesTheSolver) {
                   kelvin::instantiate(kelvin::parse_scene_string(small, {}, "b.xml"));
               }).find("'cache'"),
               std::string::npos);
+}
+
+// Every shipped fluid scene that takes -D solver=... runs a tiny step with each baseline.
+TEST(Baselines, ShippedScenesRunWithEverySolver) {
+    int count = 0;
+    for (const auto& entry : fs::directory_iterator(fs::path(KELVIN_SOURCE_DIR) / "scenes" / "fluid")) {
+        if (entry.path().extension() != ".xml") continue;
+        for (const char* solver : {"vortex_particles", "stable_fluids"}) {
+            kelvin::ParseOptions opts;
+            opts.defines = {{"solver", solver}, {"res", "12"}, {"spp", "8"}, {"end", "0.05"}, {"every", "0"}};
+            kelvin::ParsedScene parsed = kelvin::parse_scene_file(entry.path(), opts);
+            if (std::find(parsed.unused_defines.begin(), parsed.unused_defines.end(), "solver") !=
+                parsed.unused_defines.end())
+                continue;  // a scene that fixes its solver (e.g. with boundaries)
+            auto job = std::dynamic_pointer_cast<kelvin::Job>(kelvin::instantiate(parsed));
+            ASSERT_TRUE(job) << entry.path();
+            kelvin::RunContext ctx;
+            ctx.quiet = true;
+            kelvin::RunResult r = job->run(ctx);
+            EXPECT_GE(r.work, 1) << entry.path() << " " << solver;
+            for (std::size_t k = 0; k < r.image.size(); ++k)
+                ASSERT_TRUE(std::isfinite(r.image.data()[k])) << entry.path() << " " << solver;
+            ++count;
+        }
+    }
+    EXPECT_GE(count, 12);
 }
