@@ -9,21 +9,22 @@
 
 #include "render/render_support.h"
 
-#include <regex>
 
 using namespace kelvin;
 
 namespace {
 
-/// A project scene with its <integrator> replaced by `integrator` (XML) and the resolution set to `res`.
-std::string scene_with(const std::string& file, const std::string& integrator, int res) {
+/// A project scene with its <integrator> replaced by `integrator` (XML), rendered at res x res (-D res).
+struct TestScene {
+    std::string xml;
+    int res;
+};
+TestScene scene_with(const std::string& file, const std::string& integrator, int res) {
     std::string xml = ktest::read_text(std::string(KELVIN_SOURCE_DIR) + "/scenes/render/" + file);
     const auto a = xml.find("<integrator"), b = xml.find("</integrator>");
     EXPECT_NE(a, std::string::npos);
     xml.replace(a, b + 13 - a, integrator);
-    xml = std::regex_replace(xml, std::regex(R"(<default name="res" value="\d+"/>)"),
-                             "<default name=\"res\" value=\"" + std::to_string(res) + "\"/>");
-    return xml;
+    return {xml, res};
 }
 
 std::string scene_path(const std::string& file) { return std::string(KELVIN_SOURCE_DIR) + "/scenes/render/" + file; }
@@ -34,8 +35,10 @@ struct RunOut {
     double invalid = 0;
 };
 
-RunOut run(const std::string& xml, const std::string& file, long long spp, uint64_t seed) {
-    auto scene = ktest::load_scene_xml(xml, {}, scene_path(file));
+RunOut run(const TestScene& ts, const std::string& file, long long spp, uint64_t seed) {
+    ParseOptions opts;
+    opts.defines["res"] = std::to_string(ts.res);
+    auto scene = ktest::load_scene_xml(ts.xml, opts, scene_path(file));
     RunContext ctx;
     ctx.spp = spp;
     ctx.seed = seed;
@@ -47,7 +50,7 @@ RunOut run(const std::string& xml, const std::string& file, long long spp, uint6
     return r;
 }
 
-std::vector<Bitmap> seeds(const std::string& xml, const std::string& file, long long spp, int n, uint64_t first = 1) {
+std::vector<Bitmap> seeds(const TestScene& xml, const std::string& file, long long spp, int n, uint64_t first = 1) {
     std::vector<Bitmap> out;
     for (int s = 0; s < n; ++s) {
         RunOut r = run(xml, file, spp, first + uint64_t(s));
@@ -130,14 +133,15 @@ TEST(MltIntegrators, ErrorFallsWithMutations) {
     };
     // The chains render everything (direct_samples -1): with the default 16 spp of direct light, that fixed
     // part's noise would be the error floor.
-    const std::string xml = scene_with(file, drmlt("orbital", R"(<integer name="direct_samples" value="-1"/>)"), 24);
+    const TestScene xml = scene_with(file, drmlt("orbital", R"(<integer name="direct_samples" value="-1"/>)"), 24);
     const double coarse = rmse(run(xml, file, 32, 7).image), fine = rmse(run(xml, file, 256, 7).image);
     // MSE ~ 1/N would give 1/8; the reference's own error and chain correlation leave it above that.
     EXPECT_LT(fine, 0.4 * coarse) << "coarse " << coarse << " fine " << fine;
 }
 
 TEST(MltIntegrators, DeterministicWhateverTheThreadCount) {
-    const std::string file = "cornell-box.xml", xml = scene_with(file, drmlt("green"), 16);
+    const std::string file = "cornell-box.xml";
+    const TestScene xml = scene_with(file, drmlt("green"), 16);
     Bitmap one, two;
     {
         ThreadLimit limit(1);
@@ -191,10 +195,31 @@ TEST(MltIntegrators, StatisticsAndStageMap) {
     EXPECT_EQ(ps.stats.seconds_stage2, 0.0);
 }
 
+// The study scene (docs/mlt.md) loads and renders with each of its variants (the fragments in scenes/render/parts).
+TEST(MltIntegrators, EveryStudyVariantRenders) {
+    for (const char* variant : {"pssmlt-kelemen", "pssmlt-gaussian", "mixture", "drmlt-orbital", "drmlt-mira", "drmlt-green"})
+        for (const char* geometry : {"door", "caustic"}) {
+            SCOPED_TRACE(std::string(variant) + " " + geometry);
+            ParseOptions opts;
+            opts.defines = {{"variant", variant}, {"geometry", geometry}, {"res", "8"}};
+            auto scene = std::dynamic_pointer_cast<Scene>(instantiate(parse_scene_file(scene_path("mlt-study.xml"), opts)));
+            ASSERT_TRUE(scene);
+            auto* mlt = dynamic_cast<MetropolisIntegrator*>(scene->integrator());
+            ASSERT_TRUE(mlt);
+            EXPECT_EQ(mlt->type() != DrType::None, std::string(variant).rfind("drmlt", 0) == 0);
+            RunContext ctx;
+            ctx.spp = 2;
+            ctx.quiet = true;
+            const Bitmap img = scene->run(ctx).image;
+            EXPECT_EQ(ctx.stats.get("render.invalid_samples"), 0.0);
+            EXPECT_GT(ktest::image_stats(img, 1).mean, 0.0);
+        }
+}
+
 TEST(MltIntegrators, BadParametersAreInputErrors) {
     const std::string file = "cornell-box.xml";
     auto error_of = [&](const std::string& integrator) {
-        return ktest::input_error_of([&] { ktest::load_scene_xml(scene_with(file, integrator, 8), {}, scene_path(file)); });
+        return ktest::input_error_of([&] { ktest::load_scene_xml(scene_with(file, integrator, 8).xml, {}, scene_path(file)); });
     };
     EXPECT_NE(error_of(R"(<integrator type="drmlt"><mutation name="second" type="gaussian"/></integrator>)").find("orbital"), std::string::npos);
     EXPECT_NE(error_of(R"(<integrator type="drmlt"><mutation name="first" type="kelemen"/></integrator>)").find("isotropic"), std::string::npos);
