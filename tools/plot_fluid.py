@@ -1,0 +1,145 @@
+#!/usr/bin/python3
+"""Plots of the per-step diagnostics CSV that every Kelvin fluid simulation writes (docs/fluid.md).
+
+    tools/plot_fluid.py RUN.csv [MORE.csv ...] [--labels A,B,...] [--out PREFIX] [--table FILE]
+
+Writes PREFIX.png and PREFIX.svg (default PREFIX: the first CSV's path without .csv, plus "_plot"): one panel per
+diagnostic against simulated time, one curve per CSV (e.g. mcfluid, vortex_particles and stable_fluids runs of
+the same scene):
+  kinetic energy (noise-corrected for mcfluid; dashed: the raw estimate when it differs), enstrophy,
+  circulation, max |omega|, wall time per step (log scale), and the vorticity RMSE against the exact solution
+  when the initial condition has one (column vorticity_rmse_exact; log scale).
+Prints (and with --table writes) a Markdown table per CSV: steps, end time, mean seconds per step, energy and
+enstrophy at the end relative to t = 0, and the final RMSE against the exact solution.
+
+Needs Python 3 with matplotlib (Debian: python3-matplotlib; tools/setup.sh installs it). Exit status 2 on bad
+input (a missing file, a CSV without the expected columns).
+"""
+import argparse
+import csv
+import math
+import os
+import sys
+
+REQUIRED = ["step", "time", "kinetic_energy", "enstrophy", "circulation", "max_abs_vorticity", "seconds"]
+
+
+def fail(msg):
+    print(f"plot_fluid.py: {msg}", file=sys.stderr)
+    sys.exit(2)
+
+
+def number(s):
+    try:
+        return float(s) if s != "" else math.nan
+    except ValueError:
+        return math.nan
+
+
+def read_csv(path):
+    if not os.path.isfile(path):
+        fail(f"'{path}' does not exist")
+    with open(path, newline="") as f:
+        rows = list(csv.DictReader(f))
+    if not rows:
+        fail(f"'{path}' has no data rows")
+    missing = [c for c in REQUIRED if c not in rows[0]]
+    if missing:
+        fail(f"'{path}' lacks the column(s) {', '.join(missing)} (is it a Kelvin fluid diagnostics CSV?)")
+    cols = {k: [number(r[k]) for r in rows] for k in rows[0].keys() if k is not None}
+    return cols
+
+
+def summary(label, c):
+    steps = [s for s in c["seconds"][1:] if not math.isnan(s)]
+    e, z = c["kinetic_energy"], c["enstrophy"]
+    rmse = c.get("vorticity_rmse_exact", [math.nan])
+    last = next((v for v in reversed(rmse) if not math.isnan(v)), math.nan)
+    return {
+        "label": label,
+        "steps": int(c["step"][-1]),
+        "time": c["time"][-1],
+        "sec": sum(steps) / len(steps) if steps else math.nan,
+        "energy": e[-1] / e[0] if e[0] else math.nan,
+        "enstrophy": z[-1] / z[0] if z[0] else math.nan,
+        "rmse": last,
+    }
+
+
+def table(rows):
+    out = ["| run | steps | t | s/step | energy(t)/energy(0) | enstrophy(t)/enstrophy(0) | vorticity RMSE vs exact |",
+           "|---|---|---|---|---|---|---|"]
+    for r in rows:
+        rmse = "—" if math.isnan(r["rmse"]) else f"{r['rmse']:.3g}"
+        out.append(f"| {r['label']} | {r['steps']} | {r['time']:.3g} | {r['sec']:.3g} | {r['energy']:.4f} | "
+                   f"{r['enstrophy']:.4f} | {rmse} |")
+    return "\n".join(out) + "\n"
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("csv", nargs="+", help="diagnostics CSV(s) written by a fluid simulation")
+    ap.add_argument("--labels", help="comma-separated curve labels (default: the file names)")
+    ap.add_argument("--out", help="output prefix (default: <first csv>_plot)")
+    ap.add_argument("--table", help="also write the summary table (Markdown) to this file")
+    ap.add_argument("--title", default="", help="figure title")
+    a = ap.parse_args()
+
+    labels = a.labels.split(",") if a.labels else [os.path.splitext(os.path.basename(p))[0] for p in a.csv]
+    if len(labels) != len(a.csv):
+        fail(f"{len(labels)} label(s) for {len(a.csv)} CSV file(s)")
+    runs = [(lab, read_csv(p)) for lab, p in zip(labels, a.csv)]
+    out = a.out or os.path.splitext(a.csv[0])[0] + "_plot"
+
+    try:
+        import matplotlib
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:
+        fail("matplotlib is missing (Debian: apt-get install python3-matplotlib; run with /usr/bin/python3)")
+
+    has_exact = any(any(not math.isnan(v) for v in c.get("vorticity_rmse_exact", [])) for _, c in runs)
+    panels = [("kinetic_energy", "kinetic energy  ½∫|u|²", False), ("enstrophy", "enstrophy  ½∫ω²", False),
+              ("circulation", "circulation  ∫ω", False), ("max_abs_vorticity", "max |ω|", False),
+              ("seconds", "wall time per step (s)", True)]
+    if has_exact:
+        panels.append(("vorticity_rmse_exact", "vorticity RMSE vs exact", True))
+    cols = 3
+    rows = (len(panels) + cols - 1) // cols
+    fig, axes = plt.subplots(rows, cols, figsize=(4.2 * cols, 3.2 * rows), squeeze=False)
+    for ax, (key, title, logy) in zip(axes.flat, panels):
+        for lab, c in runs:
+            t, y = c["time"], c.get(key, [])
+            pts = [(ti, yi) for ti, yi in zip(t, y) if not math.isnan(yi) and (not logy or yi > 0)]
+            if key == "seconds":
+                pts = pts[1:] if pts and pts[0][0] == 0 else pts  # state 0 has no step
+            if not pts:
+                continue
+            line, = ax.plot([p[0] for p in pts], [p[1] for p in pts], label=lab, lw=1.5)
+            if key == "kinetic_energy" and "kinetic_energy_raw" in c:
+                raw = c["kinetic_energy_raw"]
+                if any(abs(r - e) > 1e-12 * max(1.0, abs(e)) for r, e in zip(raw, y) if not math.isnan(r)):
+                    ax.plot(t, raw, ls="--", lw=1, color=line.get_color())
+        ax.set_title(title, fontsize=10)
+        ax.set_xlabel("t")
+        if logy:
+            ax.set_yscale("log")
+        ax.grid(alpha=0.3)
+    for ax in list(axes.flat)[len(panels):]:
+        ax.axis("off")
+    axes.flat[0].legend(fontsize=8)
+    if a.title:
+        fig.suptitle(a.title)
+    fig.tight_layout()
+    for ext in (".png", ".svg"):
+        fig.savefig(out + ext, dpi=110)
+    md = table([summary(lab, c) for lab, c in runs])
+    print(md, end="")
+    if a.table:
+        with open(a.table, "w") as f:
+            f.write(md)
+    print(f"wrote {out}.png, {out}.svg" + (f", {a.table}" if a.table else ""), file=sys.stderr)
+
+
+if __name__ == "__main__":
+    main()
