@@ -33,29 +33,49 @@ __attribute__((always_inline)) inline void sum_one(double tx, double ty, std::si
                                                    const double* __restrict py, const double* __restrict g,
                                                    const SumParams& k, double& u, double& v, double* w) {
     double su = 0, sv = 0, sw = 0;
-    for (std::size_t j = 0; j < n; ++j) {
-        double dx = tx - px[j], dy = ty - py[j];
-        if constexpr (Periodic) {
-            dx -= k.lx * std::floor(dx * k.inv_lx + 0.5);
-            dy -= k.ly * std::floor(dy * k.inv_ly + 0.5);
+    if constexpr (!Periodic) {
+        for (std::size_t j = 0; j < n; ++j) {
+            const double dx = tx - px[j], dy = ty - py[j];
+            const double inv = 1.0 / (dx * dx + dy * dy + k.d2);
+            su -= g[j] * dy * inv;
+            sv += g[j] * dx * inv;
+            if (w) sw += g[j] * inv * inv;
         }
-        const double q = dx * dx + dy * dy + k.d2;
-        const double inv = 1.0 / q;
-        double cu = -dy * inv, cv = dx * inv;
-        if constexpr (Periodic) {
-            const double gx = std::clamp((dx * k.inv_lx + 0.5) * k.tn, 0.0, double(k.tn));
-            const double gy = std::clamp((dy * k.inv_ly + 0.5) * k.tn, 0.0, double(k.tn));
-            const int i = std::min(int(gx), k.tn - 1), jj = std::min(int(gy), k.tn - 1);
-            const double ax = gx - i, ay = gy - jj;
-            const int row = k.tn + 1, t = jj * row + i;
-            cu += (1 - ay) * ((1 - ax) * k.tu[t] + ax * k.tu[t + 1]) +
-                  ay * ((1 - ax) * k.tu[t + row] + ax * k.tu[t + row + 1]);
-            cv += (1 - ay) * ((1 - ax) * k.tv[t] + ax * k.tv[t + 1]) +
-                  ay * ((1 - ax) * k.tv[t + row] + ax * k.tv[t + row + 1]);
+    } else {
+        // Chunks of sources in three passes: the minimum image, the kernel and the table coordinates (a plain
+        // vectorisable map), then the bilinear table lookups (gathers), then the sums in source order.
+        constexpr std::size_t Chunk = 128;
+        alignas(64) double cu[Chunk], cv[Chunk], cw[Chunk], gxs[Chunk], gys[Chunk];
+        const double tn = double(k.tn);
+        for (std::size_t j0 = 0; j0 < n; j0 += Chunk) {
+            const std::size_t m = std::min(Chunk, n - j0);
+            for (std::size_t s = 0; s < m; ++s) {
+                double dx = tx - px[j0 + s], dy = ty - py[j0 + s];
+                dx -= k.lx * std::floor(dx * k.inv_lx + 0.5);
+                dy -= k.ly * std::floor(dy * k.inv_ly + 0.5);
+                const double inv = 1.0 / (dx * dx + dy * dy + k.d2);
+                cu[s] = -dy * inv;
+                cv[s] = dx * inv;
+                cw[s] = inv * inv;
+                gxs[s] = std::min(std::max((dx * k.inv_lx + 0.5) * tn, 0.0), tn);
+                gys[s] = std::min(std::max((dy * k.inv_ly + 0.5) * tn, 0.0), tn);
+            }
+            const int row = k.tn + 1;
+            for (std::size_t s = 0; s < m; ++s) {
+                const int i = std::min(int(gxs[s]), k.tn - 1), jj = std::min(int(gys[s]), k.tn - 1);
+                const double ax = gxs[s] - i, ay = gys[s] - jj;
+                const int t = jj * row + i;
+                cu[s] += (1 - ay) * ((1 - ax) * k.tu[t] + ax * k.tu[t + 1]) +
+                         ay * ((1 - ax) * k.tu[t + row] + ax * k.tu[t + row + 1]);
+                cv[s] += (1 - ay) * ((1 - ax) * k.tv[t] + ax * k.tv[t + 1]) +
+                         ay * ((1 - ax) * k.tv[t + row] + ax * k.tv[t + row + 1]);
+            }
+            for (std::size_t s = 0; s < m; ++s) {
+                su += g[j0 + s] * cu[s];
+                sv += g[j0 + s] * cv[s];
+                if (w) sw += g[j0 + s] * cw[s];
+            }
         }
-        su += g[j] * cu;
-        sv += g[j] * cv;
-        if (w) sw += g[j] * inv * inv;
     }
     u = su;
     v = sv;
