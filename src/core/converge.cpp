@@ -586,7 +586,18 @@ private:
             m_o.images == ConvergeOptions::Images::All || (m_o.images == ConvergeOptions::Images::First && r == 0);
         const fs::path image_dir = m_o.output_dir / "images" / safe_name(config.name);
         std::vector<Row> rows;
+        // The seconds column is the compute time of the whole Job::run so far (its setup, e.g. an MLT bootstrap
+        // or building the solver, included: equal time means equal time) without the time spent in this
+        // callback. The job's own clock (Checkpoint::seconds) starts at its work loop.
+        Timer run_timer;
+        double in_callbacks = 0;
         ctx.on_checkpoint = [&](const Checkpoint& cp) {
+            const double seconds = run_timer.seconds() - in_callbacks;
+            struct AddTime {
+                double& total;
+                Timer timer;
+                ~AddTime() { total += timer.seconds(); }
+            } add_time{in_callbacks, {}};
             const bool sim = cp.sim_time >= 0;
             if (sim != sim_study)
                 throw InputError({m_o.scene.string(), 0, 0},
@@ -595,7 +606,7 @@ private:
                                      : "the scene renders: use --spp or --checkpoints with a --reference image, not "
                                        "--steps or --times");
             Row base = {config.name,        std::to_string(r), std::to_string(seed), trigger_name(cp.trigger),
-                        num(cp.target),     fmt::format("{:.6f}", cp.seconds),   num(cp.work), cp.work_unit,
+                        num(cp.target),     fmt::format("{:.6f}", seconds),   num(cp.work), cp.work_unit,
                         sim ? num(cp.sim_time) : std::string()};
             std::string image_rel;
             Bitmap img;
@@ -638,6 +649,7 @@ private:
         if (level == LogLevel::Info) set_log_level(LogLevel::Warn);
         RunResult result;
         try {
+            run_timer.reset();
             result = job->run(ctx);
         } catch (...) {
             set_log_level(level);

@@ -28,7 +28,10 @@ struct Checkpoint {
     Trigger trigger = Trigger::Work;
     int index = 0;       ///< position in the trigger's list (RunContext::checkpoint_seconds, _work, _sim_times)
     double target = 0;   ///< the scheduled value: seconds, work units or simulated time
-    double seconds = 0;  ///< compute seconds since the run started, excluding time spent in checkpoint callbacks
+    /// Compute seconds on the job's own clock (the one its time limit and time checkpoints use), excluding
+    /// time spent in checkpoint callbacks. A consumer comparing whole runs times Job::run itself, as
+    /// `kelvin converge` does, so that setup the job's clock may not count is charged too.
+    double seconds = 0;
     double work = 0;     ///< work done so far: spp (renders), steps (simulations)
     std::string work_unit;
     /// The result so far, computed on call: the developed image (renders, normalised exactly like the final
