@@ -2,6 +2,7 @@
 """Plots of the per-step diagnostics CSV that every Kelvin fluid simulation writes (docs/fluid.md).
 
     tools/plot_fluid.py RUN.csv [MORE.csv ...] [--labels A,B,...] [--out PREFIX] [--table FILE]
+    tools/plot_fluid.py --montage PREFIX[,PREFIX...] --steps 0,20,40 [--labels A,B,...] [--dye] --out FILE.png
 
 Writes PREFIX.png and PREFIX.svg (default PREFIX: the first CSV's path without .csv, plus "_plot"): one panel per
 diagnostic against simulated time, one curve per CSV (e.g. mcfluid, vortex_particles and stable_fluids runs of
@@ -11,6 +12,9 @@ the same scene):
   when the initial condition has one (column vorticity_rmse_exact; log scale).
 Prints (and with --table writes) a Markdown table per CSV: steps, end time, mean seconds per step, energy and
 enstrophy at the end relative to t = 0, and the final RMSE against the exact solution.
+
+--montage puts the frames PREFIX_NNNN.png (or PREFIX_dye_NNNN.png with --dye) of several runs side by side: one
+row per run, one column per step, titled with the simulated time from PREFIX.csv (like the thesis' Figure 5.10).
 
 Needs Python 3 with matplotlib (Debian: python3-matplotlib; tools/setup.sh installs it). Exit status 2 on bad
 input (a missing file, a CSV without the expected columns).
@@ -53,8 +57,7 @@ def read_csv(path):
 def summary(label, c):
     steps = [s for s in c["seconds"][1:] if not math.isnan(s)]
     e, z = c["kinetic_energy"], c["enstrophy"]
-    rmse = c.get("vorticity_rmse_exact", [math.nan])
-    last = next((v for v in reversed(rmse) if not math.isnan(v)), math.nan)
+    last = c.get("vorticity_rmse_exact", [math.nan])[-1]  # NaN when the exact solution is unknown at the end
     return {
         "label": label,
         "steps": int(c["step"][-1]),
@@ -76,27 +79,80 @@ def table(rows):
     return "\n".join(out) + "\n"
 
 
+def frame_path(prefix, step, dye):
+    tag = "_dye" if dye else ""
+    for digits in range(4, 13):
+        p = f"{prefix}{tag}_{step:0{digits}d}.png"
+        if os.path.isfile(p):
+            return p
+    fail(f"no frame {prefix}{tag}_{step:04d}.png (was the run made with output_every dividing {step}?)")
+
+
+def montage(a, plt, image):
+    prefixes = a.montage.split(",")
+    labels = a.labels.split(",") if a.labels else [os.path.basename(p) for p in prefixes]
+    if len(labels) != len(prefixes):
+        fail(f"{len(labels)} label(s) for {len(prefixes)} run(s)")
+    if not a.steps:
+        fail("--montage needs --steps")
+    steps = [int(x) for x in a.steps.split(",")]
+    if not a.out:
+        fail("--montage needs --out FILE.png")
+    times = {}
+    for p in prefixes:
+        if os.path.isfile(p + ".csv"):
+            c = read_csv(p + ".csv")
+            times[p] = dict(zip((int(x) for x in c["step"]), c["time"]))
+    size = a.cell
+    fig, axes = plt.subplots(len(prefixes), len(steps), figsize=(size * len(steps), size * len(prefixes) + 0.3),
+                             squeeze=False)
+    for r, (p, lab) in enumerate(zip(prefixes, labels)):
+        for c, st in enumerate(steps):
+            ax = axes[r][c]
+            ax.imshow(image.imread(frame_path(p, st, a.dye)), interpolation="nearest")
+            ax.set_xticks([])
+            ax.set_yticks([])
+            if r == 0:
+                t = times.get(p, {}).get(st)
+                ax.set_title(f"t = {t:g}" if t is not None else f"step {st}", fontsize=9)
+            if c == 0:
+                ax.set_ylabel(lab, fontsize=9)
+    fig.tight_layout(pad=0.3)
+    fig.savefig(a.out, dpi=a.dpi or 100)
+    print(f"wrote {a.out}", file=sys.stderr)
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("csv", nargs="+", help="diagnostics CSV(s) written by a fluid simulation")
+    ap.add_argument("csv", nargs="*", help="diagnostics CSV(s) written by a fluid simulation")
+    ap.add_argument("--montage", help="comma-separated output prefixes whose frames to put side by side")
+    ap.add_argument("--steps", help="--montage: comma-separated steps (columns)")
+    ap.add_argument("--dye", action="store_true", help="--montage: the dye frames")
+    ap.add_argument("--cell", type=float, default=1.3, help="--montage: inches per frame")
+    ap.add_argument("--dpi", type=int, default=0, help="resolution of the PNG (default 110; --montage 100)")
     ap.add_argument("--labels", help="comma-separated curve labels (default: the file names)")
     ap.add_argument("--out", help="output prefix (default: <first csv>_plot)")
     ap.add_argument("--table", help="also write the summary table (Markdown) to this file")
     ap.add_argument("--title", default="", help="figure title")
     a = ap.parse_args()
+    try:
+        import matplotlib
+        matplotlib.use("Agg")
+        import matplotlib.image as image
+        import matplotlib.pyplot as plt
+    except ImportError:
+        fail("matplotlib is missing (Debian: apt-get install python3-matplotlib; run with /usr/bin/python3)")
+    if a.montage:
+        montage(a, plt, image)
+        return
+    if not a.csv:
+        fail("give at least one CSV (or --montage)")
 
     labels = a.labels.split(",") if a.labels else [os.path.splitext(os.path.basename(p))[0] for p in a.csv]
     if len(labels) != len(a.csv):
         fail(f"{len(labels)} label(s) for {len(a.csv)} CSV file(s)")
     runs = [(lab, read_csv(p)) for lab, p in zip(labels, a.csv)]
     out = a.out or os.path.splitext(a.csv[0])[0] + "_plot"
-
-    try:
-        import matplotlib
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-    except ImportError:
-        fail("matplotlib is missing (Debian: apt-get install python3-matplotlib; run with /usr/bin/python3)")
 
     has_exact = any(any(not math.isnan(v) for v in c.get("vorticity_rmse_exact", [])) for _, c in runs)
     panels = [("kinetic_energy", "kinetic energy  ½∫|u|²", False), ("enstrophy", "enstrophy  ½∫ω²", False),
@@ -132,7 +188,7 @@ def main():
         fig.suptitle(a.title)
     fig.tight_layout()
     for ext in (".png", ".svg"):
-        fig.savefig(out + ext, dpi=110)
+        fig.savefig(out + ext, dpi=a.dpi or 110)
     md = table([summary(lab, c) for lab, c in runs])
     print(md, end="")
     if a.table:
