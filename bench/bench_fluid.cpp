@@ -1,6 +1,7 @@
 // MCFluid micro-benchmarks: Biot–Savart evaluations per second and time per solver step at the thesis'
 // settings (256^2 and 512^2 caches, n_mc = 256 and 1024), on the steady Taylor–Green field (periodic box,
-// so the periodic kernel is included) and on a Lamb–Oseen vortex in an open box.
+// so the periodic kernel is included) and on a Lamb–Oseen vortex in an open box. The baselines on the same
+// fields: a stable-fluids step (128^2..512^2) and a vortex-particle step (32^2..128^2 particles, pairs/s).
 //
 //     build-fluid/bin/bench_fluid --benchmark_counters_tabular=true
 //     build-fluid/bin/bench_fluid --benchmark_filter=Step   # only the solver steps
@@ -8,6 +9,8 @@
 // Threads: all the machine's cores unless KELVIN_BENCH_THREADS is set. Figures are in docs/fluid.md.
 #include <kelvin/core/parallel.h>
 #include <kelvin/fluid/mcfluid.h>
+#include <kelvin/fluid/stable_fluids.h>
+#include <kelvin/fluid/vortex_particles.h>
 
 #include <benchmark/benchmark.h>
 
@@ -80,6 +83,36 @@ void BM_Step(benchmark::State& state, Advection adv) {
     state.counters["threads"] = thread_count();
 }
 
+// Stable fluids (MAC grid, RK4 backtraces, projection by incomplete-Cholesky CG), Taylor–Green, periodic.
+void BM_StableFluidsStep(benchmark::State& state) {
+    ThreadLimit limit(bench_threads());
+    StableFluidsSettings s;
+    s.domain = {{-Pi, -Pi}, {Pi, Pi}, true};
+    s.nx = s.ny = int(state.range(0));
+    StableFluidsSolver solver(s, taylor_green);
+    const uint64_t it0 = solver.cg_iterations();
+    for (auto _ : state) solver.step(0.05);
+    state.counters["cg_iterations/step"] =
+        double(solver.cg_iterations() - it0) / std::max<double>(1.0, double(state.iterations()));
+    state.counters["threads"] = thread_count();
+}
+
+// Vortex particles (direct O(N^2) Biot–Savart sum), one particle per cell: Taylor–Green (periodic kernel) or a
+// Lamb–Oseen vortex (open box).
+void BM_VortexParticlesStep(benchmark::State& state, bool periodic, Advection adv) {
+    ThreadLimit limit(bench_threads());
+    VortexParticleSettings s;
+    s.domain = periodic ? Domain2{{-Pi, -Pi}, {Pi, Pi}, true} : Domain2{{-1, -1}, {1, 1}, false};
+    s.nx = s.ny = int(state.range(0));
+    s.advection = adv;
+    VortexParticleSolver solver(s, periodic ? InitialField(taylor_green) : InitialField(lamb_oseen));
+    const double pairs0 = solver.evaluations();
+    for (auto _ : state) solver.step(0.05);
+    state.counters["pairs/s"] = benchmark::Counter(solver.evaluations() - pairs0, benchmark::Counter::kIsRate);
+    state.counters["particles"] = double(solver.particle_count());
+    state.counters["threads"] = thread_count();
+}
+
 void Sizes(benchmark::internal::Benchmark* b) {
     b->Args({256, 256})->Args({256, 1024})->Args({512, 256})->Args({512, 1024});
     b->Unit(benchmark::kMillisecond)->UseRealTime()->MinTime(1.0);
@@ -100,4 +133,20 @@ BENCHMARK_CAPTURE(BM_Step, rk4, Advection::RK4)
     ->Unit(benchmark::kMillisecond)
     ->UseRealTime()
     ->MinTime(1.0);
+BENCHMARK(BM_StableFluidsStep)->Arg(128)->Arg(256)->Arg(512)->Unit(benchmark::kMillisecond)->UseRealTime();
+BENCHMARK_CAPTURE(BM_VortexParticlesStep, periodic_rk4, true, Advection::RK4)
+    ->Arg(32)
+    ->Arg(64)
+    ->Unit(benchmark::kMillisecond)
+    ->UseRealTime();
+BENCHMARK_CAPTURE(BM_VortexParticlesStep, periodic_euler, true, Advection::Euler)
+    ->Arg(64)
+    ->Arg(128)
+    ->Unit(benchmark::kMillisecond)
+    ->UseRealTime();
+BENCHMARK_CAPTURE(BM_VortexParticlesStep, open_euler, false, Advection::Euler)
+    ->Arg(64)
+    ->Arg(128)
+    ->Unit(benchmark::kMillisecond)
+    ->UseRealTime();
 BENCHMARK_MAIN();
