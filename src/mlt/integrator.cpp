@@ -338,18 +338,10 @@ RunResult MetropolisIntegrator::render(const Scene& scene, RunContext& ctx) {
     };
 
     Timer tc;
-    // Equal-time runs: the bootstrap and the direct pass count against the time limit.
-    const double time_limit = ctx.time_limit;
-    if (time_limit > 0) ctx.time_limit = std::max(1e-3, time_limit - total.seconds());
+    // Equal-time runs and checkpoints charge the bootstrap and the direct pass.
     const long long target = (long long)std::ceil(m_mutations_per_pixel);
     PassLoopResult loop;
-    try {
-        if (!chains.empty()) loop = run_passes(ctx, target, "mutations/px", pass, develop);
-    } catch (...) {
-        ctx.time_limit = time_limit;
-        throw;
-    }
-    ctx.time_limit = time_limit;
+    if (!chains.empty()) loop = run_passes(ctx, target, "mutations/px", pass, develop, total.seconds());
     st.seconds_chains = tc.seconds();
 
     for (const Chain& ch : chains) {

@@ -19,7 +19,7 @@ namespace kelvin {
 
 PassLoopResult run_passes(RunContext& ctx, long long scene_target, const std::string& unit,
                           const std::function<void(long long, long long)>& pass,
-                          const std::function<Bitmap()>& develop) {
+                          const std::function<Bitmap()>& develop, double seconds_before) {
     const bool timed = ctx.time_limit > 0 && ctx.spp <= 0;
     long long target = ctx.spp > 0 ? ctx.spp : scene_target;
     if (timed) target = LLONG_MAX;  // equal-time rendering: as much work as time allows
@@ -36,7 +36,7 @@ PassLoopResult run_passes(RunContext& ctx, long long scene_target, const std::st
             break;
         }
         r.done += n;
-        double elapsed = timer.seconds() - checkpoints.overhead();
+        double elapsed = seconds_before + timer.seconds() - checkpoints.overhead();
         progress.set(timed ? elapsed : double(r.done));
         if (checkpoints.active()) {
             Checkpoint cp;
@@ -45,14 +45,14 @@ PassLoopResult run_passes(RunContext& ctx, long long scene_target, const std::st
             cp.work_unit = unit;
             cp.image = develop;
             checkpoints.reached(ctx, cp);
-            elapsed = timer.seconds() - checkpoints.overhead();
+            elapsed = seconds_before + timer.seconds() - checkpoints.overhead();
         }
         if (ctx.time_limit > 0 && elapsed >= ctx.time_limit) break;
         if (ctx.write_partial > 0 && ctx.write_partial_image && since_partial.seconds() >= ctx.write_partial) {
             ctx.write_partial_image(develop());
             since_partial.reset();
         }
-        const double per_unit = elapsed / double(r.done);
+        const double per_unit = (elapsed - seconds_before) / double(r.done);
         long long budget = std::max<long long>(1, (long long)(1.0 / std::max(per_unit, 1e-9)));
         if (ctx.time_limit > 0)
             budget = std::min(budget, std::max<long long>(1, (long long)((ctx.time_limit - elapsed) / per_unit)));

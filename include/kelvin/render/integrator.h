@@ -29,9 +29,11 @@ struct PassLoopResult {
 /// every ctx.write_partial seconds from `develop()`, and shows progress. Pass sizes grow 1, 2, 4, ... but stay
 /// near a second, so limits and Ctrl-C are honoured promptly. A pass must give the same result however the
 /// work is split into passes (its output may depend on `first` and `count` only through the unit indices).
+/// `seconds_before`: time the job spent before the loop (a Metropolis bootstrap), counted against the time
+/// limit and in checkpoint times, so that equal-time comparisons charge it.
 PassLoopResult run_passes(RunContext& ctx, long long scene_target, const std::string& unit,
                           const std::function<void(long long first, long long count)>& pass,
-                          const std::function<Bitmap()>& develop);
+                          const std::function<Bitmap()>& develop, double seconds_before = 0);
 
 /// Zero `v` and return false if any channel is NaN, infinite or negative (callers count these).
 inline bool sanitize(Color3& v) {
