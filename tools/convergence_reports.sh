@@ -6,8 +6,9 @@
 #   tools/convergence_reports.sh fluid-cells    #   ... vs cache cells
 #   tools/convergence_reports.sh fluid-dt       #   ... vs dt
 #   tools/convergence_reports.sh fluid-params   # one degraded parameter at a time (like Fig. 5.9)
-#   tools/convergence_reports.sh mlt            # the MLT family at equal time (needs MLT_SCENE and MLT_REF)
-#   tools/convergence_reports.sh all            # the four fluid reports
+#   tools/convergence_reports.sh fluid-baselines  # MCFluid, vortex particles and stable fluids vs resolution
+#   tools/convergence_reports.sh mlt            # the MLT family at equal time (MLT_REF=reference.exr, MLT_GEOMETRY)
+#   tools/convergence_reports.sh all            # the five fluid reports
 #
 # Environment: KELVIN (default build/bin/kelvin), OUT (default /tmp/kelvin-convergence; studies there are
 # resumed, FRESH=1 deletes them first), RUNS (independent runs, default 3), THREADS (default: all cores).
@@ -61,18 +62,27 @@ report() {
             --config "uniform:importance=uniform" --config "dt 0.2:dt=0.2" --config "32^2 cells:res=32" \
             --config "n_mc 64:spp=64" --config "euler:advection=euler"
         figures fluid-params error_vs_seconds_rmse.png error_vs_seconds_max_abs.png ;;
+    fluid-baselines)
+        c=()
+        for s in mcfluid vortex_particles stable_fluids; do
+            for r in 16 32 64; do c+=(--config "$s res=$r:solver=$s,res=$r"); done
+        done
+        converge fluid-baselines "$TG" -D spp=256 -D dt=0.05 -D end=1 "${c[@]}" --times 0.5,1
+        figures fluid-baselines error_vs_cost_rmse.png error_vs_param_rmse.png ;;
     mlt)
-        # The MLT family at equal time on one of the project's hard scenes. MLT_SCENE must expose the integrator
-        # and its mutations as <default> parameters; MLT_CONFIGS is a configuration file ("NAME: K=V ...", see
-        # docs/convergence.md); MLT_REF a long reference render of MLT_SCENE.
-        : "${MLT_SCENE:?set MLT_SCENE}" "${MLT_REF:?set MLT_REF (a reference EXR)}" "${MLT_CONFIGS:?set MLT_CONFIGS}"
-        converge mlt "$MLT_SCENE" --reference "$MLT_REF" --config-file "$MLT_CONFIGS" \
+        # The MLT family at equal time on one of the project's hard scenes: scenes/render/mlt-study.xml picks the
+        # variant (scenes/render/mlt-study.configs, one configuration each) and the geometry (MLT_GEOMETRY: door or
+        # caustic). MLT_REF is a long reference render of the same geometry and resolution.
+        local geometry=${MLT_GEOMETRY:-door}
+        : "${MLT_REF:?set MLT_REF to a reference EXR of scenes/render/$geometry.xml}"
+        converge "mlt-$geometry" "${MLT_SCENE:-scenes/render/mlt-study.xml}" -D geometry="$geometry" \
+            --reference "$MLT_REF" --config-file "${MLT_CONFIGS:-scenes/render/mlt-study.configs}" \
             --checkpoints "${MLT_CHECKPOINTS:-5,10,20,40,80}"
-        figures mlt error_vs_seconds_rel_mse.png error_vs_seconds_l1.png grid.png ;;
+        figures "mlt-$geometry" error_vs_seconds_rel_mse.png error_vs_seconds_l1.png grid.png ;;
     all)
-        for r in fluid-nmc fluid-cells fluid-dt fluid-params; do report "$r"; done ;;
+        for r in fluid-nmc fluid-cells fluid-dt fluid-params fluid-baselines; do report "$r"; done ;;
     *)
-        echo "usage: $0 fluid-nmc|fluid-cells|fluid-dt|fluid-params|mlt|all" >&2
+        echo "usage: $0 fluid-nmc|fluid-cells|fluid-dt|fluid-params|fluid-baselines|mlt|all" >&2
         exit 2 ;;
     esac
 }

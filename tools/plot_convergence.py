@@ -9,8 +9,9 @@ Writes into DIR (default: plots/ next to the CSV), for each metric M:
                                 (+-1 standard deviation, or min-max with --band minmax), like Figure 4.13 of
                                 the thesis
   error_vs_work_M.png/.svg      the same against work (samples per pixel, steps)
-  error_vs_param_M.png/.svg     when every configuration is named NAME=NUMBER (a --sweep): the error against
-                                the parameter, one curve per checkpoint (like the thesis' Figure 5.15)
+  error_vs_param_M.png/.svg     when every configuration is named K=NUMBER (a --sweep) or GROUP K=NUMBER (several
+                                sweeps of one parameter, e.g. one per solver): the error against the parameter,
+                                one curve per group and checkpoint (like the thesis' Figure 5.15)
   error_vs_cost_M.png/.svg      and, for a sweep, the error against compute time, one point per value
 and
   summary.md                    per configuration and checkpoint: mean time, work and metrics (+- std)
@@ -26,6 +27,7 @@ import argparse
 import csv
 import math
 import os
+import re
 import sys
 from collections import OrderedDict, defaultdict
 
@@ -168,43 +170,69 @@ def unit_of(curves):
     return ""
 
 
+SWEEP_NAME = re.compile(r"^(?:(?P<group>.*\S)\s+)?(?P<key>[A-Za-z_]\w*)=(?P<value>[-+0-9.eE]+)$")
+
+
+def sweep_name(config):
+    """(group, parameter, value) of a configuration named 'K=number' or 'GROUP K=number', else None."""
+    m = SWEEP_NAME.match(config)
+    if not m:
+        return None
+    try:
+        return (m.group("group") or "", m.group("key"), float(m.group("value")))
+    except ValueError:
+        return None
+
+
 def sweep_parameter(curves):
-    """NAME if every configuration is NAME=number, else None."""
-    names, values = set(), {}
+    """K if every configuration is named 'K=number' or 'GROUP K=number' (one K, several values), else None."""
+    keys, values = set(), set()
     for (_, config) in curves:
-        if "=" not in config:
+        parsed = sweep_name(config)
+        if parsed is None:
             return None
-        k, v = config.split("=", 1)
-        try:
-            values[config] = float(v)
-        except ValueError:
-            return None
-        names.add(k)
-    return names.pop() if len(names) == 1 and len(values) > 1 else None
+        keys.add(parsed[1])
+        values.add(parsed[2])
+    return keys.pop() if len(keys) == 1 and len(values) > 1 else None
+
+
+def series_style(keys, key):
+    """Colour and line style of a (group, field, trigger, target) series: with several groups (e.g. solvers),
+    colour by group and line style by checkpoint; otherwise colour by checkpoint."""
+    groups = sorted({k[0] for k in keys})
+    checkpoints = sorted({k[1:] for k in keys})
+    if len(groups) > 1:
+        return "C%d" % (groups.index(key[0]) % 10), ["-", "--", ":", "-."][checkpoints.index(key[1:]) % 4]
+    return "C%d" % (checkpoints.index(key[1:]) % 10), "-"
+
+
+def series_label(group, field, trigger, target):
+    name = {"sim_time": "t = %g", "seconds": "%g s", "work": "work %g"}.get(trigger, "%g") % target
+    return (group + ", " if group else "") + name + (" (%s)" % field if field else "")
 
 
 def plot_param(curves, metric, param, out, formats, title):
     """Error against the swept parameter, one curve per checkpoint (and field)."""
     by_cp = defaultdict(list)
     for (field, config), c in curves.items():
-        pv = float(config.split("=", 1)[1])
+        group, _, pv = sweep_name(config)
         for (trigger, target), rows in c.points.items():
             vals = np.array([value(r, metric) for r in rows])
             vals = vals[np.isfinite(vals)]
             if len(vals):
-                by_cp[(field, trigger, target)].append((pv, float(np.mean(vals)), float(np.std(vals))))
+                by_cp[(group, field, trigger, target)].append((pv, float(np.mean(vals)), float(np.std(vals))))
     fig, ax = plt.subplots(figsize=(6.0, 4.2))
     any_data = False
-    for i, ((field, trigger, target), pts) in enumerate(sorted(by_cp.items())):
+    for key, pts in sorted(by_cp.items()):
         pts.sort()
         p, m, s = (np.array(v) for v in zip(*pts))
         ok = (p > 0) & (m > 0)
         if np.count_nonzero(ok) < 2:
             continue
         any_data = True
-        name = {"sim_time": "t = %g", "seconds": "%g s", "work": "work %g"}.get(trigger, "%g") % target
-        ax.errorbar(p[ok], m[ok], yerr=s[ok], fmt="-o", ms=3, capsize=2, color="C%d" % (i % 10),
-                    label=name + (" (%s)" % field if field else ""))
+        color, style = series_style(by_cp.keys(), key)
+        ax.errorbar(p[ok], m[ok], yerr=s[ok], fmt="o", ls=style, ms=3, capsize=2, color=color,
+                    label=series_label(*key))
     if not any_data:
         plt.close(fig)
         return []
@@ -223,27 +251,26 @@ def plot_cost(curves, metric, param, out, formats, title):
     (mean over runs, with the runs' spread as error bars): what each setting costs and buys."""
     by_cp = defaultdict(list)
     for (field, config), c in curves.items():
-        pv = float(config.split("=", 1)[1])
+        group, _, pv = sweep_name(config)
         for (trigger, target), rows in c.points.items():
             vals = np.array([value(r, metric) for r in rows])
             secs = np.array([float(r["seconds"]) for r in rows])
             ok = np.isfinite(vals)
             if np.any(ok):
-                by_cp[(field, trigger, target)].append(
+                by_cp[(group, field, trigger, target)].append(
                     (pv, float(np.mean(secs[ok])), float(np.mean(vals[ok])), float(np.std(vals[ok]))))
     fig, ax = plt.subplots(figsize=(6.0, 4.2))
     any_data = False
-    for i, ((field, trigger, target), pts) in enumerate(sorted(by_cp.items())):
+    for key, pts in sorted(by_cp.items()):
         pts.sort()
         p, t, m, s = (np.array(v) for v in zip(*pts))
         ok = (t > 0) & (m > 0)
         if np.count_nonzero(ok) < 2:
             continue
         any_data = True
-        name = {"sim_time": "t = %g", "seconds": "%g s", "work": "work %g"}.get(trigger, "%g") % target
-        color = "C%d" % (i % 10)
-        ax.errorbar(t[ok], m[ok], yerr=s[ok], fmt="-o", ms=3, capsize=2, color=color,
-                    label=name + (" (%s)" % field if field else ""))
+        color, style = series_style(by_cp.keys(), key)
+        ax.errorbar(t[ok], m[ok], yerr=s[ok], fmt="o", ls=style, ms=3, capsize=2, color=color,
+                    label=series_label(*key))
         for pv, tx, my in zip(p[ok], t[ok], m[ok]):
             ax.annotate("%g" % pv, (tx, my), textcoords="offset points", xytext=(3, 3), fontsize=7, color=color)
     if not any_data:
