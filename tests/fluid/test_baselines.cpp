@@ -294,3 +294,32 @@ TEST(Baselines, ShippedScenesRunWithEverySolver) {
     }
     EXPECT_GE(count, 12);
 }
+
+// Hard cases: an empty field gives exactly zero velocity and vorticity (no particle is created); absurd time
+// steps stay finite (non-finite values are counted and replaced, never propagated).
+TEST(Baselines, EmptyFieldAndHugeTimeStep) {
+    auto zero = [](const Vec2d&) { return 0.0; };
+    VortexParticleSolver vp(vp_tg(8), zero);
+    EXPECT_EQ(vp.particle_count(), 0u);
+    ASSERT_TRUE(vp.step(0.1));
+    EXPECT_EQ(vp.vorticity_grid().max_abs(), 0.0);
+    EXPECT_EQ(vp.velocity_u().max_abs(), 0.0);
+    StableFluidsSolver sf(sf_tg(8), zero);
+    ASSERT_TRUE(sf.step(0.1));
+    EXPECT_EQ(sf.vorticity_grid().max_abs(), 0.0);
+    EXPECT_EQ(sf.cg_iterations(), 0u);
+
+    for (bool periodic : {true, false}) {
+        VortexParticleSettings s = vp_tg(8);
+        if (!periodic) s.domain = {{-1, -1}, {1, 1}, false};
+        VortexParticleSolver big(s, [](const Vec2d& x) { return lo_omega(x, Vec2d(0.1, 0.0), 1.0, 0.3); });
+        for (int k = 0; k < 2; ++k) ASSERT_TRUE(big.step(1e300));
+        for (double w : big.vorticity_grid().values()) ASSERT_TRUE(std::isfinite(w));
+        for (double u : big.velocity_u().values()) ASSERT_TRUE(std::isfinite(u));
+        StableFluidsSettings t = sf_tg(8);
+        if (!periodic) t.domain = {{-1, -1}, {1, 1}, false};
+        StableFluidsSolver grid(t, [](const Vec2d& x) { return lo_omega(x, Vec2d(0.1, 0.0), 1.0, 0.3); });
+        for (int k = 0; k < 2; ++k) ASSERT_TRUE(grid.step(1e300));
+        for (double w : grid.vorticity_grid().values()) ASSERT_TRUE(std::isfinite(w));
+    }
+}
