@@ -532,13 +532,29 @@ private:
             const int c = m_reference.channel_index(field);
             if (c < 0)
                 throw InputError({m_o.reference.string(), 0, 0}, fmt::format("the reference has no '{}' channel", field));
-            if (m_reference.width() != g.nx || m_reference.height() != g.ny)
-                throw InputError({m_o.reference.string(), 0, 0},
-                                 fmt::format("the reference is {}x{} but the simulation grid is {}x{}",
-                                             m_reference.width(), m_reference.height(), g.nx, g.ny));
+            const int w = m_reference.width(), h = m_reference.height();
             std::vector<double> v(g.cell_count());
+            if (w == g.nx && h == g.ny) {  // the same grid: the values themselves (image rows run top down)
+                for (int j = 0; j < g.ny; ++j)
+                    for (int i = 0; i < g.nx; ++i) v[std::size_t(j) * g.nx + i] = m_reference.at(i, h - 1 - j, c);
+                return v;
+            }
+            // Another resolution over the same box: bilinear between the reference's cell centres (clamped to
+            // the outermost centres), at this grid's cell centres.
+            auto ref = [&](int i, int j) {  // j counts up from min.y
+                return double(m_reference.at(std::clamp(i, 0, w - 1), h - 1 - std::clamp(j, 0, h - 1), c));
+            };
             for (int j = 0; j < g.ny; ++j)
-                for (int i = 0; i < g.nx; ++i) v[std::size_t(j) * g.nx + i] = m_reference.at(i, g.ny - 1 - j, c);
+                for (int i = 0; i < g.nx; ++i) {
+                    const Vec2d p = g.cell_center(i, j);
+                    const double x = (p.x - g.min.x) / (g.max.x - g.min.x) * w - 0.5;
+                    const double y = (p.y - g.min.y) / (g.max.y - g.min.y) * h - 0.5;
+                    const int x0 = int(std::floor(x)), y0 = int(std::floor(y));
+                    const double fx = std::clamp(x - x0, 0.0, 1.0), fy = std::clamp(y - y0, 0.0, 1.0);
+                    v[std::size_t(j) * g.nx + i] =
+                        (1 - fy) * ((1 - fx) * ref(x0, y0) + fx * ref(x0 + 1, y0)) +
+                        fy * ((1 - fx) * ref(x0, y0 + 1) + fx * ref(x0 + 1, y0 + 1));
+                }
             return v;
         }
         if (!cp.exact)

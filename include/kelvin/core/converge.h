@@ -63,8 +63,9 @@ struct ConvergeOptions {
     std::vector<double> sim_times; ///< simulations: simulated times
 
     /// Renders: an image with R, G, B (required). Simulations: an image with a channel per compared field,
-    /// one pixel per cell, top row = largest y (what `kelvin sim.xml -o ref.exr` writes); empty: the
-    /// simulation's exact solution.
+    /// one pixel per cell, top row = largest y (what `kelvin sim.xml -o ref.exr` writes), over the same box;
+    /// at another resolution it is interpolated bilinearly at the cell centres. Empty: the simulation's exact
+    /// solution.
     std::filesystem::path reference;
     std::vector<std::string> fields = {"vorticity"};  ///< simulations: fields compared
     FieldRegion region;                                ///< simulations: cells compared
