@@ -3,11 +3,12 @@
 //
 //  * dimension 3: the triangles themselves (ClosestPointQuery); unsigned, no inside: open meshes, soups with
 //    holes and duplicated faces are fine (the solution is that of the region the walk starts in).
-//  * dimension 2: the triangles must lie in the plane z = 0 (within 1e-6 of the mesh size); the obstacle is the
-//    union of the triangles. Its distance is the distance to every triangle edge (ClosestSegmentQuery): exact
-//    for points outside the union, and edges inside the union are never seen from the fluid. Duplicated faces
-//    are harmless (their edges are kept once); holes (missing triangles) are pockets of fluid. The inside is
-//    "in some triangle", so the mesh can be a container too.
+//  * dimension 2: the triangles must lie in the plane z = 0 (within 1e-6 of the mesh size); the solid is the
+//    union of the triangles and its boundary the edges with triangles on one side only (edges keyed by their
+//    end-point coordinates; an edge with triangles on both sides is interior and dropped). Distances to those
+//    edges (ClosestSegmentQuery) are exact. Duplicated faces are harmless (same side: their edges are kept
+//    once); holes (missing triangles) are pockets of fluid. The inside is "in some triangle", so the mesh can be
+//    a container too (then it must be conforming: T-junctions leave interior edges that act as walls).
 //
 // | parameter | type    | default  | meaning                                      |
 // |-----------|---------|----------|----------------------------------------------|
@@ -36,7 +37,9 @@ ShapeGeometry read_triangles(const Properties& props) {
     return g;
 }
 
-/// The union of planar triangles: edges for distances, a uniform grid of triangle lists for inside tests.
+double cross(Vec2d a, Vec2d b) { return a.x * b.y - a.y * b.x; }
+
+/// The union of planar triangles: boundary edges for distances, a uniform grid of triangle lists for inside tests.
 class Mesh2 final : public Boundary2 {
 public:
     explicit Mesh2(const Properties& props) : Boundary2(props, true) {
@@ -54,19 +57,33 @@ public:
                                              lo.z, hi.z));
         std::vector<Vec2d> pts;
         for (const Vec3f& p : g.positions) pts.push_back({double(p.x), double(p.y)});
-        // Edges, each kept once (by its unordered end-point coordinates): duplicated faces add nothing.
-        std::map<std::pair<std::pair<double, double>, std::pair<double, double>>, int> seen;
-        std::vector<ClosestSegmentQuery::Segment> segs;
+        // The boundary of the union: an edge (keyed by its unordered end-point coordinates) is interior when
+        // triangles lie on both of its sides, else it is kept once. Duplicated faces lie on the same side and
+        // add nothing; edges around holes have triangles on one side only and stay.
+        using Key = std::pair<std::pair<double, double>, std::pair<double, double>>;
+        struct EdgeInfo {
+            uint32_t a, b;
+            bool left = false, right = false;
+        };
+        std::map<Key, EdgeInfo> edges;
         for (std::size_t t = 0; t + 2 < g.indices.size(); t += 3) {
             const uint32_t v[3] = {g.indices[t], g.indices[t + 1], g.indices[t + 2]};
             m_tris.push_back({pts[v[0]], pts[v[1]], pts[v[2]]});
             for (int e = 0; e < 3; ++e) {
                 uint32_t a = v[e], b = v[(e + 1) % 3];
+                const uint32_t c = v[(e + 2) % 3];
                 auto ka = std::make_pair(pts[a].x, pts[a].y), kb = std::make_pair(pts[b].x, pts[b].y);
                 if (kb < ka) std::swap(ka, kb), std::swap(a, b);
-                if (seen.emplace(std::make_pair(ka, kb), 0).second) segs.push_back({a, b});
+                auto it = edges.emplace(Key(ka, kb), EdgeInfo{a, b}).first;
+                const double side = cross(pts[b] - pts[a], pts[c] - pts[a]);
+                if (side > 0) it->second.left = true;
+                if (side < 0) it->second.right = true;
             }
         }
+        std::vector<ClosestSegmentQuery::Segment> segs;
+        for (const auto& [key, e] : edges)
+            if (!(e.left && e.right)) segs.push_back({e.a, e.b});
+        if (segs.empty()) props.error("shape", "the triangles have no boundary edge");
         m_segments = SegmentSet(pts, segs);
         m_lo = {lo.x, lo.y};
         m_hi = {hi.x, hi.y};
@@ -93,17 +110,17 @@ public:
             const double d0 = cross(tri[1] - tri[0], p - tri[0]);
             const double d1 = cross(tri[2] - tri[1], p - tri[1]);
             const double d2 = cross(tri[0] - tri[2], p - tri[2]);
-            if ((d0 > 0 && d1 > 0 && d2 > 0) || (d0 < 0 && d1 < 0 && d2 < 0)) return true;
+            // Closed triangles: points on shared (interior) edges are inside.
+            if ((d0 >= 0 && d1 >= 0 && d2 >= 0) || (d0 <= 0 && d1 <= 0 && d2 <= 0)) return true;
         }
         return false;
     }
     std::pair<Vec3d, Vec3d> bounds() const override { return {{m_lo.x, m_lo.y, 0}, {m_hi.x, m_hi.y, 0}}; }
     std::string description() const override {
-        return fmt::format("planar mesh ({} triangles, {} distinct edges)", m_tris.size(), m_edge_count);
+        return fmt::format("planar mesh ({} triangles, {} boundary edges)", m_tris.size(), m_edge_count);
     }
 
 private:
-    static double cross(Vec2d a, Vec2d b) { return a.x * b.y - a.y * b.x; }
     Vec2i cell_of(Vec2d p) const {
         const Vec2d ext = glm::max(m_hi - m_lo, Vec2d(1e-300));
         const Vec2d f = (p - m_lo) / ext * double(m_n);

@@ -1,12 +1,17 @@
 // vdb: a level set (signed distance) or an unsigned distance field from an OpenVDB file, sampled trilinearly,
 // as a boundary in 3D or, sliced at z = slice_z, in 2D.
 //
-// Distance: |phi(p)| (trilinear, BoxSampler). Outside the narrow band phi is the background value, a lower bound
-// of the true distance, and beyond the active voxels' bounding box the distance to that box is a better one;
-// the larger of the two is used. Lower bounds keep Walk-on-Spheres unbiased (smaller spheres), only slower.
+// Distance: |phi(p)| (trilinear, BoxSampler) inside the narrow band. Outside it phi is the background value (a lower
+// bound of the distance, but a small one: a walk through the interior of a container would crawl), so points
+// whose voxel lies in no leaf node also get the distance to the nearest leaf node's box (Embree closest-point
+// query over the leaves' boxes) minus sqrt(3) voxels (the zero set lies within one voxel diagonal of an active
+// voxel); the larger of the two is used. Lower bounds keep Walk-on-Spheres unbiased (smaller spheres).
 // Interpolation is not an exact distance: near the surface the error is O(h^2 curvature), i.e. a walk may step
 // up to that much across the surface (a bias of that order, documented in docs/boundaries.md).
 // Closest point: p - phi grad(phi) / |grad(phi)| (central differences over half a voxel).
+// 2D signed grids do better: the zero contour of the slice is extracted once by marching squares on a lattice of
+// voxel spacing (its error is O(h^2 curvature), the order of the interpolation's) and distances, closest points
+// and the component are those of that polyline (Embree closest-segment queries: exact, fast); inside is phi < 0.
 // signed = true: phi < 0 is inside (OpenVDB's level-set convention); signed = false: unsigned distance input,
 // no inside (the fluid flows on both sides of a thin sheet).
 // A missing file, a file OpenVDB cannot read, a missing grid or a grid that is not a float grid is an InputError
@@ -26,6 +31,8 @@
 
 #include <openvdb/openvdb.h>
 #include <openvdb/tools/Interpolation.h>
+
+#include <kelvin/render/closest_point.h>
 
 namespace kelvin::fluid::boundaries {
 namespace {
@@ -72,6 +79,22 @@ public:
         m_hi = {std::max(a.x(), b.x()), std::max(a.y(), b.y()), std::max(a.z(), b.z())};
         m_name = path.filename().string() + (m_grid->getName().empty() ? "" : ":" + m_grid->getName());
         m_background = std::abs(double(m_grid->background()));
+        // The leaf nodes' boxes (voxel cells, world space) as 12 triangles each, for the far-field bound.
+        ShapeGeometry boxes;
+        for (auto leaf = m_grid->constTree().cbeginLeaf(); leaf; ++leaf) {
+            const openvdb::CoordBBox nb = leaf->getNodeBoundingBox();
+            const openvdb::Vec3d lo = m_grid->indexToWorld(nb.min().asVec3d() - 0.5);
+            const openvdb::Vec3d hi = m_grid->indexToWorld(nb.max().asVec3d() + 0.5);
+            const uint32_t base = uint32_t(boxes.positions.size());
+            for (int k = 0; k < 8; ++k)
+                boxes.positions.push_back(Vec3f(float(k & 1 ? hi.x() : lo.x()), float(k & 2 ? hi.y() : lo.y()),
+                                                float(k & 4 ? hi.z() : lo.z())));
+            static const uint32_t faces[12][3] = {{0, 1, 3}, {0, 3, 2}, {4, 6, 7}, {4, 7, 5}, {0, 4, 5}, {0, 5, 1},
+                                                  {2, 3, 7}, {2, 7, 6}, {0, 2, 6}, {0, 6, 4}, {1, 5, 7}, {1, 7, 3}};
+            for (const auto& f : faces)
+                for (uint32_t v : f) boxes.indices.push_back(base + v);
+        }
+        m_leaves = std::make_unique<ClosestPointQuery>(std::vector<ShapeGeometry>{std::move(boxes)});
     }
 
     double phi(const Vec3d& p) const {
@@ -79,11 +102,11 @@ public:
         return double(openvdb::tools::BoxSampler::sample(m_grid->constTree(), ijk));
     }
     double distance(const Vec3d& p) const {
-        const double v = std::abs(phi(p));
+        const openvdb::Vec3d ijk = m_grid->worldToIndex(openvdb::Vec3d(p.x, p.y, p.z));
+        const double v = std::abs(double(openvdb::tools::BoxSampler::sample(m_grid->constTree(), ijk)));
         if (!std::isfinite(v)) return v;
-        // Beyond the active box: the distance to it is a lower bound too.
-        const Vec3d e = glm::max(glm::max(m_lo - p, p - m_hi), Vec3d(0.0));
-        return std::max(v, glm::length(e));
+        if (m_grid->constTree().probeConstLeaf(openvdb::Coord::floor(ijk))) return v;
+        return std::max(v, m_leaves->distance(p) - std::sqrt(3.0) * m_voxel);
     }
     Vec3d gradient(const Vec3d& p) const {
         const double h = 0.5 * m_voxel;
@@ -95,6 +118,58 @@ public:
         }
         return g;
     }
+    /// The zero contour of the slice z as segments (marching squares on a lattice of voxel spacing over the
+    /// active box; saddles resolved by the cell's mean).
+    SegmentSet contour(double z) const {
+        const double h = m_voxel;
+        const int nx = int(std::ceil((m_hi.x - m_lo.x) / h)) + 1, ny = int(std::ceil((m_hi.y - m_lo.y) / h)) + 1;
+        std::vector<double> v(std::size_t(nx) * std::size_t(ny));
+        auto at = [&](int i, int j) -> double& { return v[std::size_t(j) * std::size_t(nx) + std::size_t(i)]; };
+        auto pos = [&](int i, int j) { return Vec2d(m_lo.x + i * h, m_lo.y + j * h); };
+        for (int j = 0; j < ny; ++j)
+            for (int i = 0; i < nx; ++i) {
+                const Vec2d q = pos(i, j);
+                at(i, j) = phi({q.x, q.y, z});
+            }
+        std::vector<Vec2d> pts;
+        std::vector<ClosestSegmentQuery::Segment> segs;
+        auto cross = [&](Vec2d a, double fa, Vec2d b, double fb) { return a + (fa / (fa - fb)) * (b - a); };
+        for (int j = 0; j + 1 < ny; ++j)
+            for (int i = 0; i + 1 < nx; ++i) {
+                const double f[4] = {at(i, j), at(i + 1, j), at(i + 1, j + 1), at(i, j + 1)};
+                const Vec2d c[4] = {pos(i, j), pos(i + 1, j), pos(i + 1, j + 1), pos(i, j + 1)};
+                Vec2d e[4];
+                int ne = 0, edge_of[4];
+                for (int k = 0; k < 4; ++k) {
+                    const int l = (k + 1) % 4;
+                    if ((f[k] < 0) != (f[l] < 0)) {
+                        edge_of[ne] = k;
+                        e[ne++] = cross(c[k], f[k], c[l], f[l]);
+                    }
+                }
+                auto add = [&](Vec2d a, Vec2d b) {
+                    const uint32_t base = uint32_t(pts.size());
+                    pts.push_back(a);
+                    pts.push_back(b);
+                    segs.push_back({base, base + 1});
+                };
+                if (ne == 2) {
+                    add(e[0], e[1]);
+                } else if (ne == 4) {  // saddle: pair the crossings so that the centre's sign separates them
+                    const bool centre_in = (f[0] + f[1] + f[2] + f[3]) < 0;
+                    const bool corner0_in = f[0] < 0;
+                    (void)edge_of;
+                    if (centre_in == corner0_in) {  // corner 0 connects to the centre: cut off corners 1 and 3
+                        add(e[0], e[1]);
+                        add(e[2], e[3]);
+                    } else {  // cut off corners 0 and 2
+                        add(e[3], e[0]);
+                        add(e[1], e[2]);
+                    }
+                }
+            }
+        return SegmentSet(std::move(pts), std::move(segs));
+    }
     Vec3d lo() const { return m_lo; }
     Vec3d hi() const { return m_hi; }
     const std::string& name() const { return m_name; }
@@ -102,6 +177,7 @@ public:
 
 private:
     openvdb::FloatGrid::Ptr m_grid;
+    std::unique_ptr<ClosestPointQuery> m_leaves;
     double m_voxel = 1, m_background = 0;
     Vec3d m_lo{0.0}, m_hi{0.0};
     std::string m_name;
@@ -113,9 +189,17 @@ public:
         : Boundary2(props, props.get_bool("signed")), m_f(props), m_signed(props.get_bool("signed")) {
         m_z = props.get_float("slice_z");
         if (!std::isfinite(m_z)) props.error("slice_z", "must be finite");
+        if (m_signed) {
+            m_contour = m_f.contour(m_z);
+            if (m_contour.size() == 0)
+                props.error("slice_z", fmt::format("the level set {} does not cross the plane z = {:g}", m_f.name(), m_z));
+        }
     }
-    double distance(const Vec2d& p) const override { return m_f.distance({p.x, p.y, m_z}); }
+    double distance(const Vec2d& p) const override {
+        return m_signed ? m_contour.distance(p) : m_f.distance({p.x, p.y, m_z});
+    }
     BoundaryHit<2> closest(const Vec2d& p) const override {
+        if (m_signed) return m_contour.closest(p);
         const Vec3d q(p.x, p.y, m_z);
         const double v = m_f.phi(q);
         Vec3d g = m_f.gradient(q);
@@ -135,14 +219,16 @@ public:
     bool inside2(const Vec2d& p) const override { return m_signed && m_f.phi({p.x, p.y, m_z}) < 0; }
     std::pair<Vec3d, Vec3d> bounds() const override { return {m_f.lo(), m_f.hi()}; }
     std::string description() const override {
-        return fmt::format("OpenVDB {} ({}, voxel {:g}, slice z = {:g})", m_f.name(), m_signed ? "level set" : "unsigned",
-                           m_f.voxel(), m_z);
+        return fmt::format("OpenVDB {} ({}, voxel {:g}, slice z = {:g}{})", m_f.name(),
+                           m_signed ? "level set" : "unsigned", m_f.voxel(), m_z,
+                           m_signed ? fmt::format(", contour of {} segments", m_contour.size()) : "");
     }
 
 private:
     VdbField m_f;
     bool m_signed;
     double m_z = 0;
+    SegmentSet m_contour;  // signed: the zero contour of the slice
 };
 
 class Vdb3 final : public Boundary3 {

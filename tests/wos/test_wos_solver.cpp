@@ -1,0 +1,231 @@
+// Walk-on-Spheres inside the MCFluid solver: effects on demand (no boundary: no distance query, no walk),
+// solids (zero vorticity inside, departure points pushed out), determinism across thread counts, hard query
+// points, and bad input through the scene front end.
+#include "wos_fluid_support.h"
+
+#include <kelvin/core/job.h>
+#include <kelvin/core/parallel.h>
+#include <kelvin/core/parser.h>
+
+namespace {
+
+using namespace wos_test;
+
+#define EXPECT_CONTAINS(haystack, needle)                            \
+    EXPECT_NE(std::string(haystack).find(needle), std::string::npos) \
+        << "expected to find \"" << (needle) << "\" in:\n  " << (haystack)
+
+double two_vortices(const Vec2d& x) {
+    const Vec2d a = x - Vec2d(-0.4, 0.3), b = x - Vec2d(0.1, -0.45);
+    return 20 * std::exp(-glm::dot(a, a) / 0.02) - 15 * std::exp(-glm::dot(b, b) / 0.02);
+}
+
+MCFluidSettings small_settings() {
+    MCFluidSettings s;
+    s.domain = {{-1, -1}, {1, 1}, false};
+    s.nx = s.ny = 24;
+    s.velocity.samples = 8;
+    s.dt = 0.05;
+    s.seed = 7;
+    return s;
+}
+
+// Without boundaries the solver never builds a distance query or runs a walk (counters stay zero, no field);
+// with them it runs walks and no Biot–Savart evaluation. Broken variant seen to fail: WoS estimates reporting
+// their gradient samples as Biot–Savart evaluations.
+TEST(WosSolver, EffectsOnDemand) {
+    MCFluidSolver bs(small_settings(), two_vortices);
+    bs.step();
+    EXPECT_EQ(bs.boundary_field(), nullptr);
+    EXPECT_EQ(bs.work().wos_walks, 0u);
+    EXPECT_EQ(bs.work().wos_steps, 0u);
+    EXPECT_EQ(bs.work().solid_departures, 0u);
+    EXPECT_GT(bs.work().biot_savart_evals, 0u);
+
+    MCFluidSettings s = small_settings();
+    auto o = std::make_shared<WosVelocityOptions>();
+    o->shapes = {disk_boundary({0.4, 0.2}, 0.2)};
+    s.boundaries = o;
+    MCFluidSolver wos(s, two_vortices);
+    wos.step();
+    ASSERT_NE(wos.boundary_field(), nullptr);
+    EXPECT_GT(wos.work().wos_walks, 0u);
+    EXPECT_GT(wos.work().wos_steps, wos.work().wos_walks);
+    EXPECT_EQ(wos.work().biot_savart_evals, 0u);
+    EXPECT_EQ(wos.work().wos_truncated + wos.work().wos_invalid, 0u);
+}
+
+// Cells inside a solid hold zero vorticity (the initial condition is non-zero there) and the solid's velocity;
+// a moving square sweeps through a vortex for 6 steps: at every state the cells it covers are zero, departure
+// points that land inside it are counted, and everything stays finite. Broken variant seen to fail: solid cells
+// left with their advected vorticity.
+TEST(WosSolver, SolidsHoldNoVorticityAndPushDeparturesOut) {
+    MCFluidSettings s = small_settings();
+    auto o = std::make_shared<WosVelocityOptions>();
+    o->shapes = {make_boundary("box", [](Properties& p) {
+        p.set_point("min", Vec3d(-0.7, -0.2, 0));
+        p.set_point("max", Vec3d(-0.3, 0.2, 0));
+        p.set_vector("velocity", Vec3d(2, 0, 0));
+        p.set_point("pivot", Vec3d(-0.5, 0, 0));
+    })};
+    s.boundaries = o;
+    MCFluidSolver solver(s, [](const Vec2d&) { return 1.0; });
+    for (int k = 0; k <= 6; ++k) {
+        const WosVelocityField& f = *solver.boundary_field();
+        const Grid2& w = solver.vorticity_grid();
+        int solid = 0;
+        for (int j = 0; j < w.ny(); ++j)
+            for (int i = 0; i < w.nx(); ++i) {
+                const Vec2d x = w.cell_center(i, j);
+                ASSERT_TRUE(std::isfinite(w.at(i, j)));
+                if (f.solid_at(x) >= 0) {
+                    ++solid;
+                    EXPECT_EQ(w.at(i, j), 0.0) << "step " << k;
+                    EXPECT_EQ(solver.velocity_u().at(i, j), 2.0);
+                    EXPECT_EQ(solver.velocity_v().at(i, j), 0.0);
+                }
+            }
+        EXPECT_GT(solid, 0);
+        EXPECT_EQ(uint64_t(solid), solver.work().solid_cells);
+        if (k < 6) solver.step();
+    }
+    EXPECT_GT(solver.work().solid_departures, 0u);
+}
+
+// Same seed, same result whatever the thread count, with a moving solid and RK4.
+TEST(WosSolver, BitIdenticalAcrossThreadCounts) {
+    auto run = [](int threads) {
+        ThreadLimit limit(threads);
+        MCFluidSettings s = small_settings();
+        auto o = std::make_shared<WosVelocityOptions>();
+        o->shapes = {disk_boundary({0.4, 0.2}, 0.2), make_boundary("capsule", [](Properties& p) {
+                         p.set_point("a", Vec3d(-0.6, -0.6, 0));
+                         p.set_point("b", Vec3d(-0.2, -0.7, 0));
+                         p.set_float("radius", 0.05);
+                         p.set_float("angular_velocity", 1.0);
+                         p.set_point("pivot", Vec3d(-0.4, -0.65, 0));
+                     })};
+        s.boundaries = o;
+        MCFluidSolver solver(s, two_vortices);
+        solver.step();
+        solver.step();
+        return std::make_pair(solver.vorticity_grid().values(), solver.velocity_u().values());
+    };
+    const auto a = run(1), b = run(2);
+    EXPECT_TRUE(a.first == b.first);
+    EXPECT_TRUE(a.second == b.second);
+}
+
+// Hard query points: on a boundary, within epsilon of it, at a sharp concave corner of a maze, inside a thin
+// sliver between two walls, outside the domain and inside a solid all give finite velocities; queries within
+// epsilon are counted (zero gradient), none is invalid, no walk is truncated.
+TEST(WosSolver, HardQueryPointsAreFiniteAndCounted) {
+    const Domain2 d{{-1, -1}, {1, 1}, false};
+    Grid2 omega(d, 32, 32);
+    for (int j = 0; j < 32; ++j)
+        for (int i = 0; i < 32; ++i) omega.at(i, j) = two_vortices(omega.cell_center(i, j));
+    WosVelocityOptions o;
+    o.shapes = {make_boundary("maze", [](Properties& p) {
+        // An L-shaped wall (concave corner at (0, 0)) and two walls 0.004 apart (a thin sliver).
+        p.set_string("boxes", "-0.5 -0.1 0 0; -0.1 0 0 0.5; 0.3 -0.5 0.6 0.5; 0.604 -0.5 0.7 0.5");
+    })};
+    o.wos.epsilon = 1e-4;
+    const WosVelocityField f(o, d, &omega, Interpolation::Bilinear, 0);
+    wos::WalkCounters c;
+    const Vec2d pts[] = {
+        {0.3, 0.0},        // on the sliver's wall
+        {0.30005, 0.1},    // within epsilon of it (inside the solid side: solid velocity)
+        {0.29995, 0.1},    // within epsilon, fluid side
+        {0.602, 0.0},      // inside the 0.004 sliver
+        {0.0005, 0.0005},  // at the concave corner of the L
+        {1.5, -3.0},       // outside the domain (clamped onto the wall)
+        {-0.3, -0.05},     // inside a wall
+        {-1.0, 0.2},       // on the domain wall
+    };
+    for (std::size_t i = 0; i < std::size(pts); ++i) {
+        Random rng(71, i);
+        const VelocityEstimate e = f.estimate(pts[i], 64, rng, c);
+        EXPECT_TRUE(std::isfinite(e.value.x) && std::isfinite(e.value.y)) << i;
+        EXPECT_TRUE(std::isfinite(e.variance.x) && std::isfinite(e.variance.y)) << i;
+    }
+    EXPECT_GE(c.boundary_queries, 2u);
+    EXPECT_EQ(c.invalid, 0u);
+    EXPECT_EQ(c.truncated, 0u);
+}
+
+// ---------------------------------------------------------------------------------------------------------
+// The scene front end.
+
+std::string wos_scene(const std::string& velocity_body, bool periodic = false) {
+    return std::string(R"(<scene version="3.0.0">
+        <simulation type="mcfluid">
+            <boolean name="periodic" value=")") +
+           (periodic ? "true" : "false") + R"("/>
+            <integer name="steps" value="1"/>
+            <vorticity type="lamb_oseen"/>
+            <velocity type="walk_on_spheres"><integer name="samples" value="4"/>)" +
+           velocity_body + R"(</velocity>
+            <cache type="grid"><integer name="resolution" value="8"/></cache>
+        </simulation>
+    </scene>)";
+}
+
+std::string load_error(const std::string& xml) {
+    try {
+        instantiate(parse_scene_string(xml, {}, "wos.xml"));
+    } catch (const InputError& e) {
+        return e.what();
+    }
+    ADD_FAILURE() << "no InputError for:\n" << xml;
+    return "";
+}
+
+// Bad input is an InputError naming the parameter or the file (the CLI's exit code 2), never a crash.
+TEST(WosSolver, BadInputNamesTheParameterOrFile) {
+    const ktest::TempDir dir;
+    EXPECT_CONTAINS(load_error(wos_scene(R"(<boundary type="disk"><float name="radius" value="-1"/></boundary>)")),
+                    "'radius'");
+    EXPECT_CONTAINS(load_error(wos_scene(R"(<boundary type="polygon"><string name="points" value="0 0, 1 1"/></boundary>)")),
+                    "at least 3 points");
+    EXPECT_CONTAINS(load_error(wos_scene(R"(<boundary type="polygon"><string name="points" value="0 0, 1 x, 2 2"/></boundary>)")),
+                    "'points'");
+    EXPECT_CONTAINS(load_error(wos_scene(R"(<boundary type="maze"><string name="boxes" value="0 0 1"/></boundary>)")),
+                    "'boxes'");
+    EXPECT_CONTAINS(load_error(wos_scene(R"(<boundary type="maze"/>)")), "no walls");
+    EXPECT_CONTAINS(load_error(wos_scene(R"(<boundary type="polyline"><string name="filename" value="missing.obj"/></boundary>)")),
+                    "missing.obj");
+    const auto bad = dir.write("bad.obj", "v 0 0\nv 1 nan_or_garbage\nl 1 2\n");
+    EXPECT_CONTAINS(load_error(wos_scene(R"(<boundary type="polyline"><string name="filename" value=")" + bad.string() +
+                                         R"("/></boundary>)")),
+                    "bad.obj:2");
+    const auto oob = dir.write("oob.obj", "v 0 0\nv 1 1\nl 1 5\n");
+    EXPECT_CONTAINS(load_error(wos_scene(R"(<boundary type="polyline"><string name="filename" value=")" + oob.string() +
+                                         R"("/></boundary>)")),
+                    "index 5");
+    EXPECT_CONTAINS(load_error(wos_scene(R"(<boundary type="polyline"><string name="points" value="0 0, 1 1"/>
+                                            <string name="fluid" value="inside"/></boundary>)")),
+                    "'fluid'");
+    EXPECT_CONTAINS(load_error(wos_scene(R"(<boundary type="vdb"><string name="filename" value="none.vdb"/></boundary>)")),
+                    "none.vdb");
+    const auto corrupt = dir.write("corrupt.vdb", "this is not an OpenVDB file");
+    EXPECT_CONTAINS(load_error(wos_scene(R"(<boundary type="vdb"><string name="filename" value=")" + corrupt.string() +
+                                         R"("/></boundary>)")),
+                    "corrupt.vdb");
+    const auto vdb = write_sphere_vdb(dir, "ok.vdb", {0, 0}, 0.2, 0.02);
+    EXPECT_CONTAINS(load_error(wos_scene(R"(<boundary type="vdb"><string name="filename" value=")" + vdb.string() +
+                                         R"("/><string name="grid" value="nope"/></boundary>)")),
+                    "'grid'");
+    EXPECT_CONTAINS(load_error(wos_scene(R"(<boundary type="sphere"/>)")), "dimension = 2");
+    EXPECT_CONTAINS(load_error(wos_scene("", true)), "periodic domain needs at least one");
+    EXPECT_CONTAINS(load_error(wos_scene(R"(<boolean name="walls" value="false"/>)")), "walks would never end");
+    EXPECT_CONTAINS(load_error(wos_scene(R"(<float name="inflow_speed" value="1"/><float name="inflow_min" value="0.5"/>
+                                            <float name="inflow_max" value="3"/>)")),
+                    "inflow range");
+    EXPECT_CONTAINS(load_error(wos_scene(R"(<string name="importance" value="greeen"/>)")), "'importance'");
+    EXPECT_CONTAINS(load_error(wos_scene(R"(<boundary type="mesh"><shape type="obj"><string name="filename" value=")" +
+                                         write_fan_obj(dir, "tilted.obj", {0, 0}, 0.2, 8, false).string() +
+                                         R"("/><transform name="to_world"><rotate x="1" angle="30"/></transform></shape></boundary>)")),
+                    "z = 0");
+}
+
+}  // namespace
