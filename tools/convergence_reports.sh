@@ -6,9 +6,10 @@
 #   tools/convergence_reports.sh fluid-cells    #   ... vs cache cells
 #   tools/convergence_reports.sh fluid-dt       #   ... vs dt
 #   tools/convergence_reports.sh fluid-params   # one degraded parameter at a time (like Fig. 5.9)
+#   tools/convergence_reports.sh fluid-visual   #   ... on a moving vortex dipole against a reference run, images
 #   tools/convergence_reports.sh fluid-baselines  # MCFluid, vortex particles and stable fluids vs resolution
 #   tools/convergence_reports.sh mlt            # the MLT family at equal time (MLT_REF=reference.exr, MLT_GEOMETRY)
-#   tools/convergence_reports.sh all            # the five fluid reports
+#   tools/convergence_reports.sh all            # the six fluid reports
 #
 # Environment: KELVIN (default build/bin/kelvin), OUT (default /tmp/kelvin-convergence; studies there are
 # resumed, FRESH=1 deletes them first), RUNS (independent runs, default 3), THREADS (default: all cores).
@@ -62,6 +63,18 @@ report() {
             --config "uniform:importance=uniform" --config "dt 0.2:dt=0.2" --config "32^2 cells:res=32" \
             --config "n_mc 64:spp=64" --config "euler:advection=euler"
         figures fluid-params error_vs_seconds_rmse.png error_vs_seconds_max_abs.png ;;
+    fluid-visual)
+        # One degraded parameter at a time on a moving flow (a vortex dipole), against a fine reference run at
+        # t = 2 (computed once, kept in $OUT): errors, and the fields side by side.
+        local ps=scenes/fluid/parameter_study.xml ref="$OUT/fluid-visual-reference.exr"
+        mkdir -p "$OUT"
+        [[ -f "$ref" ]] || "$KELVIN" "$ps" -D res=128 -D spp=1024 -D dt=0.025 --seed 1000 -t "$THREADS" -q -o "$ref"
+        converge fluid-visual "$ps" --reference "$ref" --times 2 \
+            --config "baseline:" --config "nearest:interpolation=nearest" --config "kernel IS:importance=kernel" \
+            --config "uniform:importance=uniform" --config "dt 0.2:dt=0.2" --config "32^2 cells:res=32" \
+            --config "n_mc 64:spp=64" --config "euler:advection=euler"
+        /usr/bin/python3 tools/plot_convergence.py "$OUT/fluid-visual/convergence.csv" --crop 0.2,0.25,0.6,0.6 >/dev/null
+        figures fluid-visual grid.png error_vs_seconds_rmse.png ;;
     fluid-baselines)
         c=()
         for s in mcfluid vortex_particles stable_fluids; do
@@ -80,9 +93,9 @@ report() {
             --checkpoints "${MLT_CHECKPOINTS:-5,10,20,40,80}"
         figures "mlt-$geometry" error_vs_seconds_rel_mse.png error_vs_seconds_l1.png grid.png ;;
     all)
-        for r in fluid-nmc fluid-cells fluid-dt fluid-params fluid-baselines; do report "$r"; done ;;
+        for r in fluid-nmc fluid-cells fluid-dt fluid-params fluid-visual fluid-baselines; do report "$r"; done ;;
     *)
-        echo "usage: $0 fluid-nmc|fluid-cells|fluid-dt|fluid-params|fluid-baselines|mlt|all" >&2
+        echo "usage: $0 fluid-nmc|fluid-cells|fluid-dt|fluid-params|fluid-visual|fluid-baselines|mlt|all" >&2
         exit 2 ;;
     esac
 }

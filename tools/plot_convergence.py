@@ -19,7 +19,8 @@ and
                                 checkpoints) to reach error levels E (--targets, default: the final mean error
                                 of every configuration)
   grid.png                      the checkpoint images of run 0, one row per configuration, one column per
-                                checkpoint (equal time with --checkpoints), cropped with --crop x,y,w,h
+                                checkpoint (equal time with --checkpoints), cropped with --crop x,y,w,h (pixels,
+                                or fractions of each image when all are <= 1)
 
 Needs Python 3 with matplotlib and numpy (Debian: python3-matplotlib).
 """
@@ -366,6 +367,37 @@ def image_grid(rows, csv_dir, crop, out):
     if not cells:
         return None
     columns.sort()
+    if len(columns) == 1:  # one checkpoint: the configurations side by side, wrapped, the reference last
+        panels = [(config, imgs.get(columns[0])) for config, imgs in cells.items()]
+        if has_ref:
+            panels.append(("reference", reference))
+        ncol = min(4, len(panels))
+        nrow = (len(panels) + ncol - 1) // ncol
+        fig, axes = plt.subplots(nrow, ncol, figsize=(2.2 * ncol, 2.3 * nrow), squeeze=False)
+        for k, ax in enumerate(axes.flat):
+            ax.set_xticks([])
+            ax.set_yticks([])
+            if k >= len(panels):
+                ax.axis("off")
+                continue
+            name, path = panels[k]
+            if path and os.path.exists(path):
+                img = mpimg.imread(path)
+                if crop:
+                    x, y, w, h = crop
+                    if max(crop) <= 1:
+                        H, W = img.shape[:2]
+                        x, y, w, h = round(x * W), round(y * H), max(1, round(w * W)), max(1, round(h * H))
+                    img = img[int(y):int(y + h), int(x):int(x + w)]
+                ax.imshow(img, interpolation="nearest")
+            ax.set_title(name, fontsize=8)
+        trigger, target = columns[0]
+        fig.suptitle({"seconds": "%g s", "work": "%g", "sim_time": "t = %g"}.get(trigger, "%g") % target, fontsize=9)
+        fig.tight_layout()
+        path = os.path.join(out, "grid.png")
+        fig.savefig(path, dpi=110)
+        plt.close(fig)
+        return path
     ncol = len(columns) + (1 if has_ref else 0)
     fig, axes = plt.subplots(len(cells), ncol, figsize=(1.9 * ncol, 1.9 * len(cells)), squeeze=False)
 
@@ -373,7 +405,10 @@ def image_grid(rows, csv_dir, crop, out):
         img = mpimg.imread(path)
         if crop:
             x, y, w, h = crop
-            img = img[y:y + h, x:x + w]
+            if max(crop) <= 1:  # fractions of the image (images of several resolutions)
+                H, W = img.shape[:2]
+                x, y, w, h = int(round(x * W)), int(round(y * H)), max(1, int(round(w * W))), max(1, int(round(h * H)))
+            img = img[int(y):int(y + h), int(x):int(x + w)]
         ax.imshow(img, interpolation="nearest")
 
     for i, (config, imgs) in enumerate(cells.items()):
@@ -412,7 +447,8 @@ def main(argv):
                                       "rmse,rel_l2,max_abs for fields)")
     ap.add_argument("--band", choices=["std", "minmax"], default="std", help="spread across runs (default std)")
     ap.add_argument("--targets", help="error levels of the time-to-error table (comma-separated)")
-    ap.add_argument("--crop", help="crop of the image grid: x,y,w,h (pixels)")
+    ap.add_argument("--crop", help="crop of the image grid: x,y,w,h in pixels, or in fractions of each image "
+                                   "when all four are at most 1 (for images of several resolutions)")
     ap.add_argument("--formats", default="png,svg", help="plot formats (default png,svg)")
     ap.add_argument("--title", help="title of every plot")
     a = ap.parse_args(argv)
@@ -427,7 +463,7 @@ def main(argv):
             fail("--metrics: '%s' is not a column of this study (have %s)" % (m, ", ".join(available)))
     try:
         targets = [float(t) for t in a.targets.split(",")] if a.targets else None
-        crop = [int(v) for v in a.crop.split(",")] if a.crop else None
+        crop = [float(v) for v in a.crop.split(",")] if a.crop else None
     except ValueError:
         fail("--targets and --crop take comma-separated numbers")
     if crop is not None and len(crop) != 4:

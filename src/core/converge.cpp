@@ -268,9 +268,12 @@ public:
         m_settings_path = m_o.output_dir / "convergence.settings";
         load_existing();
         write_settings();
-        if (!is_simulation_study() && m_o.images != ConvergeOptions::Images::None) {
+        // The reference next to the checkpoint images, for the plots' image grid (a simulation's reference run
+        // has the colour-mapped field in R, G, B).
+        if (m_o.images != ConvergeOptions::Images::None && m_reference.channel_index("R") == 0 &&
+            m_reference.channel_count() >= 3) {
             fs::create_directories(m_o.output_dir / "images");
-            write_image(m_o.output_dir / "images" / "reference.png", m_reference);  // for the plots' image grid
+            write_image(m_o.output_dir / "images" / "reference.png", m_reference);
         }
 
         ConvergeSummary summary;
