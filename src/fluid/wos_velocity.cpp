@@ -253,7 +253,10 @@ Vec2d WosVelocityField::shape_velocity(int i, Vec2d x) const {
 }
 
 Vec2d WosVelocityField::push_out(Vec2d x) const {
-    if (m_walls) x = glm::clamp(x, m_domain.min, m_domain.max);
+    if (m_walls) {  // into the box of cell centres: lookups there never blend in the zero ghost cells
+        const Vec2d half = m_omega ? 0.5 * m_omega->h() : Vec2d(0.0);
+        x = glm::clamp(x, m_domain.min + half, m_domain.max - half);
+    }
     const int s = solid_at(x);
     if (s < 0) return x;
     // The closest point of that solid's boundary (in the image that contains x on periodic domains).

@@ -136,7 +136,8 @@ public:
     int solid_at(Vec2d x) const;
     /// The rigid velocity of shape i at x.
     Vec2d shape_velocity(int i, Vec2d x) const;
-    /// A departure point that ended inside a solid is moved to the closest point of that solid's boundary.
+    /// A departure point that ended inside a solid is moved to the closest point of that solid's boundary; one
+    /// beyond the walls is clamped into the box of cell centres (inflow carries the values next to the wall).
     Vec2d push_out(Vec2d x) const;
 
     double time() const { return m_time; }

@@ -1,0 +1,125 @@
+#!/usr/bin/env python3
+"""Writes the boundary assets of the fluid boundary scenes (pure Python, no dependencies):
+
+  scenes/fluid/meshes/bunny_outline.obj   a closed bunny-shaped outline ('v'/'l' polyline, 2D) for
+                                          scenes/fluid/bunny.xml: the zero contour (marching squares on a
+                                          400^2 lattice) of the union of ellipses (body, head, ears, tail, feet)
+  scenes/fluid/meshes/soup.obj            a triangle soup for scenes/fluid/soup_obstacle.xml: a ring of
+                                          triangles with two triangles missing (holes into a pocket), every
+                                          fourth triangle duplicated, and a stray sliver triangle
+
+    python3 tools/make_fluid_boundaries.py
+"""
+import math
+import os
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+OUT = os.path.join(HERE, "..", "scenes", "fluid", "meshes")
+
+# (centre x, centre y, radius x, radius y, rotation) in a [-1, 1]^2 frame
+BUNNY = [
+    (-0.05, -0.30, 0.55, 0.40, 0.15),   # body
+    (0.38, 0.12, 0.27, 0.25, 0.0),      # head
+    (0.27, 0.55, 0.08, 0.30, 0.25),     # back ear
+    (0.48, 0.52, 0.08, 0.28, -0.30),    # front ear
+    (-0.60, -0.20, 0.13, 0.13, 0.0),    # tail
+    (0.28, -0.66, 0.26, 0.08, 0.0),     # front foot
+]
+
+
+def bunny(x, y):
+    """Approximate signed distance (negative inside) of the union of ellipses."""
+    best = 1e9
+    for cx, cy, rx, ry, a in BUNNY:
+        dx, dy = x - cx, y - cy
+        c, s = math.cos(a), math.sin(a)
+        u, v = c * dx + s * dy, -s * dx + c * dy
+        k = math.hypot(u / rx, v / ry)
+        best = min(best, (k - 1) * min(rx, ry))
+    return best
+
+
+def contour(f, lo, hi, n):
+    h = (hi - lo) / n
+    vals = [[f(lo + i * h, lo + j * h) for i in range(n + 1)] for j in range(n + 1)]
+    segs = []
+    for j in range(n):
+        for i in range(n):
+            corners = [(i, j), (i + 1, j), (i + 1, j + 1), (i, j + 1)]
+            fv = [vals[b][a] for a, b in corners]
+            pts = []
+            for k in range(4):
+                l = (k + 1) % 4
+                if (fv[k] < 0) != (fv[l] < 0):
+                    t = fv[k] / (fv[k] - fv[l])
+                    (ax, ay), (bx, by) = corners[k], corners[l]
+                    pts.append((lo + (ax + t * (bx - ax)) * h, lo + (ay + t * (by - ay)) * h))
+            if len(pts) == 2:
+                segs.append((pts[0], pts[1]))
+            elif len(pts) == 4:
+                segs.append((pts[0], pts[1]))
+                segs.append((pts[2], pts[3]))
+    # Chain the segments into loops by their (rounded) end points.
+    key = lambda p: (round(p[0], 9), round(p[1], 9))
+    adj = {}
+    for a, b in segs:
+        adj.setdefault(key(a), []).append(b)
+        adj.setdefault(key(b), []).append(a)
+    seen, loops = set(), []
+    for a, b in segs:
+        if key(a) in seen:
+            continue
+        loop, prev, cur = [a], None, a
+        while True:
+            seen.add(key(cur))
+            nxt = [p for p in adj[key(cur)] if prev is None or key(p) != key(prev)]
+            nxt = [p for p in nxt if key(p) not in seen] or nxt
+            if not nxt or key(nxt[0]) == key(loop[0]) or key(nxt[0]) in seen:
+                break
+            prev, cur = cur, nxt[0]
+            loop.append(cur)
+        loops.append(loop)
+    return max(loops, key=len)
+
+
+def write_bunny():
+    loop = contour(bunny, -1.0, 1.0, 400)
+    with open(os.path.join(OUT, "bunny_outline.obj"), "w") as f:
+        f.write("# Bunny-shaped closed outline (tools/make_fluid_boundaries.py), %d points\n" % len(loop))
+        for x, y in loop:
+            f.write("v %.6f %.6f 0\n" % (x, y))
+        f.write("l " + " ".join(str(i + 1) for i in range(len(loop))) + "\n")
+
+
+def write_soup():
+    n, r0, r1 = 24, 0.12, 0.22
+    verts, faces = [], []
+    for i in range(n):
+        a = 2 * math.pi * i / n
+        verts.append((r0 * math.cos(a), r0 * math.sin(a)))
+        verts.append((r1 * math.cos(a), r1 * math.sin(a)))
+    for i in range(n):
+        a0, b0 = 2 * i, 2 * i + 1
+        a1, b1 = 2 * ((i + 1) % n), 2 * ((i + 1) % n) + 1
+        tris = [(a0, b0, b1), (a0, b1, a1)]
+        if i in (5, 17):  # holes: one triangle of the quad missing opens the ring into the pocket
+            tris = tris[:1]
+        faces += tris
+        if i % 4 == 0:
+            faces += tris  # duplicated faces
+    verts.append((0.30, -0.02))
+    verts.append((0.45, 0.0))
+    verts.append((0.30, 0.02))
+    faces.append((len(verts) - 3, len(verts) - 2, len(verts) - 1))  # a thin sliver
+    with open(os.path.join(OUT, "soup.obj"), "w") as f:
+        f.write("# Triangle soup (tools/make_fluid_boundaries.py): a ring with two holes, duplicated faces, a sliver\n")
+        for x, y in verts:
+            f.write("v %.6f %.6f 0\n" % (x, y))
+        for a, b, c in faces:
+            f.write("f %d %d %d\n" % (a + 1, b + 1, c + 1))
+
+
+if __name__ == "__main__":
+    os.makedirs(OUT, exist_ok=True)
+    write_bunny()
+    write_soup()
