@@ -248,9 +248,12 @@ double walk(const Geometry& geometry, const Dirichlet& g, const Source& f, Vec<D
                                               : f.sample(rng, x);
             const double r = glm::length(y - x);
             if (r < R && r > 0) {
-                const double G = detail::green<D>(r, R);
-                const double q = a * G / green_integral<D>(R) + (1 - a) * f.pdf(y, x);
-                if (q > 0) volume -= f(y) * G / q;
+                const double fy = f(y);
+                if (fy != 0) {  // the densities are only needed where the source is not zero
+                    const double G = detail::green<D>(r, R);
+                    const double q = a * G / green_integral<D>(R) + (1 - a) * f.pdf(y, x);
+                    if (q > 0) volume -= fy * G / q;
+                }
             }
         } else if constexpr (detail::has_source<Source, D>) {
             const Vec<D> y = x + (R * sample_green_radius<D>(rng)) * sample_direction<D>(rng);
@@ -284,13 +287,10 @@ bool gradient_sample(const Geometry& geometry, const Dirichlet& g, const Source&
         const Vec<D> d = y - x0;
         const double r = glm::length(d);
         if (r < R0 && r > 0) {
-            const double q = a * detail::green_gradient_pdf<D>(r, R0) + (1 - a) * f.pdf(y, x0);
-            if (q > 0) {
-                const Vec<D> gG = d * detail::green_gradient_factor<D>(r, R0);
-                if (s.antithetic)
-                    grad -= (0.5 * (f(y) - f(x0 - d)) / q) * gG;
-                else
-                    grad -= (f(y) / q) * gG;
+            const double fd = s.antithetic ? 0.5 * (f(y) - f(x0 - d)) : f(y);
+            if (fd != 0) {
+                const double q = a * detail::green_gradient_pdf<D>(r, R0) + (1 - a) * f.pdf(y, x0);
+                if (q > 0) grad -= (fd / q) * (d * detail::green_gradient_factor<D>(r, R0));
             }
         }
     } else if constexpr (detail::has_source<Source, D>) {
