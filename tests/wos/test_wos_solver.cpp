@@ -229,3 +229,58 @@ TEST(WosSolver, BadInputNamesTheParameterOrFile) {
 }
 
 }  // namespace
+
+namespace {
+
+// The WoS core as a scene plugin (<simulation type="wos_poisson">): Laplace in the annulus between a disk of
+// radius 0.3 (u = 1) and a container of radius 0.9 (u = 0), u = log(r / 0.9) / log(1/3): chi-square of the
+// pixels' z-scores from the image's own variance channel; solid pixels flagged; counters reported. Broken
+// variant seen to fail: the boundary value taken from the walls for every piece (u = 0 everywhere).
+TEST(WosSolver, PoissonScenePluginSolvesTheAnnulus) {
+    const std::string xml = R"(<scene version="3.0.0">
+        <simulation type="wos_poisson">
+            <integer name="resolution" value="24"/>
+            <integer name="walks" value="400"/>
+            <boolean name="walls" value="false"/>
+            <boolean name="gradient" value="true"/>
+            <boundary type="disk"><float name="radius" value="0.3"/><float name="stream_value" value="1"/></boundary>
+            <boundary type="disk"><float name="radius" value="0.9"/><string name="fluid" value="inside"/></boundary>
+        </simulation>
+    </scene>)";
+    auto job = std::dynamic_pointer_cast<Job>(instantiate(parse_scene_string(xml, {}, "poisson.xml")));
+    ASSERT_TRUE(job);
+    RunContext ctx;
+    ctx.quiet = true;
+    const RunResult r = job->run(ctx);
+    const Bitmap& img = r.image;
+    ASSERT_EQ(img.width(), 24);
+    const int cu = img.channel_index("u"), cv = img.channel_index("u_variance"), cs = img.channel_index("solid");
+    const int cx = img.channel_index("du_dx");
+    ASSERT_GE(cu, 0);
+    ASSERT_GE(cx, 0);
+    double chi2 = 0;
+    int k = 0, solid = 0;
+    for (int y = 0; y < img.height(); ++y)
+        for (int x = 0; x < img.width(); ++x) {
+            const Vec2d p(-1 + (x + 0.5) / 12, 1 - (y + 0.5) / 12);
+            const double rr = glm::length(p);
+            if (img.at(x, y, cs) > 0) {
+                ++solid;
+                EXPECT_TRUE(rr < 0.3 || rr > 0.9) << rr;
+                continue;
+            }
+            if (rr < 0.31 || rr > 0.89) continue;
+            const double exact = std::log(rr / 0.9) / std::log(1.0 / 3.0);
+            chi2 += sq(img.at(x, y, cu) - exact) / img.at(x, y, cv);
+            ++k;
+            EXPECT_TRUE(std::isfinite(img.at(x, y, cx)));
+        }
+    EXPECT_GT(k, 200);
+    EXPECT_GT(solid, 100);
+    EXPECT_GT(ktest::chi2_sf(chi2, k), P_FAIL) << chi2 << " for " << k;
+    EXPECT_LT(ktest::chi2_sf(chi2, k), 1 - P_FAIL) << chi2 << " for " << k;
+    EXPECT_GT(ctx.stats.get("wos.walks"), 0);
+    EXPECT_EQ(ctx.stats.get("wos.truncated") + ctx.stats.get("wos.invalid"), 0);
+}
+
+}  // namespace

@@ -1,0 +1,207 @@
+// Walk-on-Spheres benchmarks (docs/performance.md, "Walk-on-Spheres"):
+//
+//  * Laplace, u = x^2 - y^2 (the problem Zombie reports), 256 walks per query on a 32 x 32 lattice of points:
+//    walks per second on ONE thread and the RMSE against the exact solution, on the square [-1, 1]^2 (analytic
+//    distance) and on a regular 1024-gon inscribed in the unit circle (Embree closest-segment queries);
+//    epsilon = 1e-3 (absolute).
+//  * The free-slip velocity pass of MCFluid (one WoS gradient estimate per cell, what each step does first) at
+//    256^2 with 64 and 256 gradient samples (2 walks each), two vortices in the unit box with an obstacle given
+//    as an analytic disk, a 1024-segment polyline, a planar triangle-fan mesh (OBJ) and an OpenVDB level set;
+//    and one Euler step of the solver (velocity pass + backtrace) with the analytic disk.
+//
+//     build-wos/bin/bench_wos --benchmark_counters_tabular=true
+//     KELVIN_BENCH_THREADS=1 build-wos/bin/bench_wos --benchmark_filter=Pass
+//
+// Threads for the passes: all cores unless KELVIN_BENCH_THREADS is set.
+#include <kelvin/core/parallel.h>
+#include <kelvin/core/registry.h>
+#include <kelvin/core/wos.h>
+#include <kelvin/fluid/boundary.h>
+#include <kelvin/fluid/mcfluid.h>
+
+#include <benchmark/benchmark.h>
+#include <fmt/format.h>
+#include <openvdb/openvdb.h>
+#include <openvdb/tools/LevelSetSphere.h>
+
+#include <cmath>
+#include <cstdlib>
+#include <filesystem>
+#include <fstream>
+#include <memory>
+
+using namespace kelvin;
+using namespace kelvin::fluid;
+
+namespace {
+
+int bench_threads() {
+    const char* env = std::getenv("KELVIN_BENCH_THREADS");
+    return env ? std::atoi(env) : 0;
+}
+
+std::shared_ptr<const BoundaryShape> make(const std::string& type, const std::function<void(Properties&)>& set) {
+    Properties p("boundary", type);
+    set(p);
+    return std::dynamic_pointer_cast<const BoundaryShape>(Registry::instance().create(p));
+}
+
+std::string polygon_points(Vec2d c, double r, int n) {
+    std::string s;
+    for (int i = 0; i < n; ++i) {
+        const double a = 2 * Pi * i / n;
+        s += fmt::format("{} {}, ", c.x + r * std::cos(a), c.y + r * std::sin(a));
+    }
+    return s;
+}
+
+// ---------------------------------------------------------------------------------------------------------
+// Laplace on the square and on the 1024-gon: walks/s on one thread, RMSE at 256 walks.
+
+template <class Geometry>
+void laplace(benchmark::State& state, const Geometry& geo, bool polygon) {
+    const int n = int(state.range(0));
+    wos::Settings s;
+    s.epsilon = 1e-3;
+    std::vector<Vec2d> pts;
+    for (int j = 0; j < 32; ++j)
+        for (int i = 0; i < 32; ++i) {
+            const Vec2d p(-1 + (i + 0.5) / 16, -1 + (j + 0.5) / 16);
+            if (!polygon || glm::length(p) < 0.99) pts.push_back(p);
+        }
+    auto u = [](const Vec2d& p) { return p.x * p.x - p.y * p.y; };
+    auto g = [&](const wos::BoundaryHit<2>& h) { return u(h.point); };
+    wos::WalkCounters c;
+    double sse = 0;
+    uint64_t pass = 0;
+    for (auto _ : state) {
+        sse = 0;
+        for (std::size_t k = 0; k < pts.size(); ++k) {
+            Random rng(pass, k);
+            const wos::ScalarEstimate e = wos::solve<2>(geo, g, wos::NoSource{}, pts[k], n, rng, s, c);
+            sse += (e.value - u(pts[k])) * (e.value - u(pts[k]));
+        }
+        ++pass;
+    }
+    state.counters["walks/s"] = benchmark::Counter(double(c.walks), benchmark::Counter::kIsRate);
+    state.counters["steps/walk"] = double(c.steps) / double(c.walks);
+    state.counters["rmse"] = std::sqrt(sse / double(pts.size()));
+    state.counters["points"] = double(pts.size());
+}
+
+void BM_LaplaceSquare(benchmark::State& state) {
+    laplace(state, wos::BoxBoundary<2>{{-1, -1}, {1, 1}}, false);
+}
+
+void BM_LaplacePolygon1024(benchmark::State& state) {
+    auto poly = make("polygon", [](Properties& p) { p.set_string("points", polygon_points({0, 0}, 1, 1024)); });
+    laplace(state, *poly->geometry2(), true);
+}
+
+// ---------------------------------------------------------------------------------------------------------
+// The free-slip velocity pass and a solver step.
+
+double two_vortices(const Vec2d& x) {
+    const Vec2d a = x - Vec2d(-0.5, 0.4), b = x - Vec2d(0.4, -0.5);
+    return 20 * std::exp(-glm::dot(a, a) / 0.02) - 20 * std::exp(-glm::dot(b, b) / 0.02);
+}
+
+std::filesystem::path scratch() {
+    static const std::filesystem::path dir = [] {
+        auto d = std::filesystem::temp_directory_path() / fmt::format("kelvin_bench_wos_{}", ::getpid());
+        std::filesystem::create_directories(d);
+        return d;
+    }();
+    return dir;
+}
+
+std::shared_ptr<const BoundaryShape> obstacle(const std::string& kind) {
+    const Vec2d c(0.1, 0.0);
+    const double r = 0.25;
+    if (kind == "disk")
+        return make("disk", [&](Properties& p) {
+            p.set_point("center", Vec3d(c.x, c.y, 0));
+            p.set_float("radius", r);
+        });
+    if (kind == "polyline")
+        return make("polyline", [&](Properties& p) {
+            p.set_string("points", polygon_points(c, r, 1024));
+            p.set_bool("closed", true);
+        });
+    if (kind == "mesh") {
+        const auto path = scratch() / "fan.obj";
+        std::ofstream f(path);
+        f << fmt::format("v {} {} 0\n", c.x, c.y);
+        for (int i = 0; i < 256; ++i)
+            f << fmt::format("v {} {} 0\n", c.x + r * std::cos(2 * Pi * i / 256), c.y + r * std::sin(2 * Pi * i / 256));
+        for (int i = 0; i < 256; ++i) f << fmt::format("f 1 {} {}\n", 2 + i, 2 + (i + 1) % 256);
+        f.close();
+        Properties sp("shape", "obj");
+        sp.set_string("filename", path.string());
+        ObjectPtr shape = Registry::instance().create(sp);
+        return make("mesh", [&](Properties& p) { p.set_object("shape", shape); });
+    }
+    // vdb: a sphere level set sliced at z = 0, voxel 0.004
+    openvdb::initialize();
+    const auto path = scratch() / "sphere.vdb";
+    auto grid = openvdb::tools::createLevelSetSphere<openvdb::FloatGrid>(float(r), openvdb::Vec3f(float(c.x), float(c.y), 0.f),
+                                                                          0.004f, 3.f);
+    openvdb::io::File file(path.string());
+    file.write({grid});
+    file.close();
+    return make("vdb", [&](Properties& p) { p.set_string("filename", path.string()); });
+}
+
+void BM_WosVelocityPass(benchmark::State& state, const std::string& kind) {
+    ThreadLimit limit(bench_threads());
+    const int res = int(state.range(0)), n = int(state.range(1));
+    const Domain2 d{{-1, -1}, {1, 1}, false};
+    Grid2 omega(d, res, res);
+    for (int j = 0; j < res; ++j)
+        for (int i = 0; i < res; ++i) omega.at(i, j) = two_vortices(omega.cell_center(i, j));
+    WosVelocityOptions o;
+    o.shapes = {obstacle(kind)};
+    const WosVelocityField f(o, d, &omega, Interpolation::Bilinear, 0);
+    std::vector<wos::WalkCounters> rows(static_cast<std::size_t>(res), wos::WalkCounters{});
+    uint64_t pass = 0;
+    for (auto _ : state) {
+        parallel_for_units(std::size_t(res), [&](std::size_t row) {
+            Random rng(pass, row);
+            for (int i = 0; i < res; ++i) benchmark::DoNotOptimize(f.estimate(omega.cell_center(i, int(row)), n, rng, rows[row]));
+        });
+        ++pass;
+    }
+    wos::WalkCounters c;
+    for (const auto& r : rows) c += r;
+    state.counters["walks/s"] = benchmark::Counter(double(c.walks), benchmark::Counter::kIsRate);
+    state.counters["steps/walk"] = double(c.steps) / double(std::max<uint64_t>(c.walks, 1));
+    state.counters["threads"] = thread_count();
+}
+
+void BM_WosStep(benchmark::State& state) {
+    ThreadLimit limit(bench_threads());
+    MCFluidSettings s;
+    s.domain = {{-1, -1}, {1, 1}, false};
+    s.nx = s.ny = int(state.range(0));
+    s.velocity.samples = int(state.range(1));
+    s.advection = Advection::Euler;
+    auto o = std::make_shared<WosVelocityOptions>();
+    o->shapes = {obstacle("disk")};
+    s.boundaries = o;
+    MCFluidSolver solver(s, two_vortices);
+    for (auto _ : state) solver.step();
+    state.counters["walks/s"] = benchmark::Counter(double(solver.work().wos_walks), benchmark::Counter::kIsRate);
+    state.counters["threads"] = thread_count();
+}
+
+}  // namespace
+
+BENCHMARK(BM_LaplaceSquare)->Arg(256)->Unit(benchmark::kMillisecond);
+BENCHMARK(BM_LaplacePolygon1024)->Arg(256)->Unit(benchmark::kMillisecond);
+BENCHMARK_CAPTURE(BM_WosVelocityPass, disk, std::string("disk"))->Args({256, 64})->Args({256, 256})->Unit(benchmark::kSecond)->Iterations(1)->UseRealTime();
+BENCHMARK_CAPTURE(BM_WosVelocityPass, polyline, std::string("polyline"))->Args({256, 64})->Unit(benchmark::kSecond)->Iterations(1)->UseRealTime();
+BENCHMARK_CAPTURE(BM_WosVelocityPass, mesh, std::string("mesh"))->Args({256, 64})->Unit(benchmark::kSecond)->Iterations(1)->UseRealTime();
+BENCHMARK_CAPTURE(BM_WosVelocityPass, vdb, std::string("vdb"))->Args({256, 64})->Unit(benchmark::kSecond)->Iterations(1)->UseRealTime();
+BENCHMARK(BM_WosStep)->Args({256, 64})->Unit(benchmark::kSecond)->Iterations(1)->UseRealTime();
+
+BENCHMARK_MAIN();
