@@ -1,4 +1,5 @@
-// The shipped boundary scenes (scenes/fluid/{maze,bunny,cylinder,moving_square,soup_obstacle,subgrid_obstacle}.xml):
+// The shipped boundary scenes (scenes/fluid/{maze,bunny,cylinder,moving_square,soup_obstacle,subgrid_obstacle,
+// periodic_obstacle}.xml):
 // each runs two tiny steps through the scene front end (walks run, none invalid or truncated, finite output),
 // and its boundaries, rebuilt from the scene's own <velocity> element, satisfy free slip: next to every kind of
 // boundary the stream function equals the boundary's value (no flow through it), and in the channels the flux
@@ -16,7 +17,8 @@ namespace {
 using namespace wos_test;
 namespace fs = std::filesystem;
 
-const char* const Scenes[] = {"maze", "bunny", "cylinder", "moving_square", "soup_obstacle", "subgrid_obstacle"};
+const char* const Scenes[] = {"maze", "bunny", "cylinder", "moving_square", "soup_obstacle", "subgrid_obstacle",
+                              "periodic_obstacle"};
 
 fs::path scene_path(const std::string& name) { return fs::path(KELVIN_SOURCE_DIR) / "scenes" / "fluid" / (name + ".xml"); }
 
