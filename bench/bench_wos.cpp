@@ -89,9 +89,7 @@ void laplace(benchmark::State& state, const Geometry& geo, bool polygon) {
     state.counters["points"] = double(pts.size());
 }
 
-void BM_LaplaceSquare(benchmark::State& state) {
-    laplace(state, wos::BoxBoundary<2>{{-1, -1}, {1, 1}}, false);
-}
+void BM_LaplaceSquare(benchmark::State& state) { laplace(state, wos::BoxBoundary<2>{{-1, -1}, {1, 1}}, false); }
 
 void BM_LaplacePolygon1024(benchmark::State& state) {
     auto poly = make("polygon", [](Properties& p) { p.set_string("points", polygon_points({0, 0}, 1, 1024)); });
@@ -144,8 +142,8 @@ std::shared_ptr<const BoundaryShape> obstacle(const std::string& kind) {
     // vdb: a sphere level set sliced at z = 0, voxel 0.004
     openvdb::initialize();
     const auto path = scratch() / "sphere.vdb";
-    auto grid = openvdb::tools::createLevelSetSphere<openvdb::FloatGrid>(float(r), openvdb::Vec3f(float(c.x), float(c.y), 0.f),
-                                                                          0.004f, 3.f);
+    auto grid = openvdb::tools::createLevelSetSphere<openvdb::FloatGrid>(
+        float(r), openvdb::Vec3f(float(c.x), float(c.y), 0.f), 0.004f, 3.f);
     openvdb::io::File file(path.string());
     file.write({grid});
     file.close();
@@ -167,7 +165,8 @@ void BM_WosVelocityPass(benchmark::State& state, const std::string& kind) {
     for (auto _ : state) {
         parallel_for_units(std::size_t(res), [&](std::size_t row) {
             Random rng(pass, row);
-            for (int i = 0; i < res; ++i) benchmark::DoNotOptimize(f.estimate(omega.cell_center(i, int(row)), n, rng, rows[row]));
+            for (int i = 0; i < res; ++i)
+                benchmark::DoNotOptimize(f.estimate(omega.cell_center(i, int(row)), n, rng, rows[row]));
         });
         ++pass;
     }
@@ -198,10 +197,27 @@ void BM_WosStep(benchmark::State& state) {
 
 BENCHMARK(BM_LaplaceSquare)->Arg(256)->Unit(benchmark::kMillisecond);
 BENCHMARK(BM_LaplacePolygon1024)->Arg(256)->Unit(benchmark::kMillisecond);
-BENCHMARK_CAPTURE(BM_WosVelocityPass, disk, std::string("disk"))->Args({256, 64})->Args({256, 256})->Unit(benchmark::kSecond)->Iterations(1)->UseRealTime();
-BENCHMARK_CAPTURE(BM_WosVelocityPass, polyline, std::string("polyline"))->Args({256, 64})->Unit(benchmark::kSecond)->Iterations(1)->UseRealTime();
-BENCHMARK_CAPTURE(BM_WosVelocityPass, mesh, std::string("mesh"))->Args({256, 64})->Unit(benchmark::kSecond)->Iterations(1)->UseRealTime();
-BENCHMARK_CAPTURE(BM_WosVelocityPass, vdb, std::string("vdb"))->Args({256, 64})->Unit(benchmark::kSecond)->Iterations(1)->UseRealTime();
+BENCHMARK_CAPTURE(BM_WosVelocityPass, disk, std::string("disk"))
+    ->Args({256, 64})
+    ->Args({256, 256})
+    ->Unit(benchmark::kSecond)
+    ->Iterations(1)
+    ->UseRealTime();
+BENCHMARK_CAPTURE(BM_WosVelocityPass, polyline, std::string("polyline"))
+    ->Args({256, 64})
+    ->Unit(benchmark::kSecond)
+    ->Iterations(1)
+    ->UseRealTime();
+BENCHMARK_CAPTURE(BM_WosVelocityPass, mesh, std::string("mesh"))
+    ->Args({256, 64})
+    ->Unit(benchmark::kSecond)
+    ->Iterations(1)
+    ->UseRealTime();
+BENCHMARK_CAPTURE(BM_WosVelocityPass, vdb, std::string("vdb"))
+    ->Args({256, 64})
+    ->Unit(benchmark::kSecond)
+    ->Iterations(1)
+    ->UseRealTime();
 BENCHMARK(BM_WosStep)->Args({256, 64})->Unit(benchmark::kSecond)->Iterations(1)->UseRealTime();
 
 BENCHMARK_MAIN();

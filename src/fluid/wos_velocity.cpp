@@ -42,8 +42,7 @@ BoundaryShape::BoundaryShape(const Properties& props, bool has_inside) {
         props.error("fluid",
                     "'inside' needs a shape that knows its inside (a closed or signed shape); this one only gives "
                     "unsigned distances");
-    if (m_role.fluid_inside && m_role.moving())
-        props.error("velocity", "a container (fluid = 'inside') cannot move");
+    if (m_role.fluid_inside && m_role.moving()) props.error("velocity", "a container (fluid = 'inside') cannot move");
 }
 
 std::vector<Vec2d> parse_points2(const Properties& props, const std::string& name) {
@@ -90,14 +89,17 @@ std::string check_wos_options(const WosVelocityOptions& options, const Domain2& 
         if (options.inflow_min != options.inflow_max &&
             !(options.inflow_min >= domain.min.y && options.inflow_max <= domain.max.y &&
               options.inflow_min < options.inflow_max))
-            return fmt::format("the inflow range [{:g}, {:g}] must be an interval within the domain's y range [{:g}, {:g}]",
-                               options.inflow_min, options.inflow_max, domain.min.y, domain.max.y);
+            return fmt::format(
+                "the inflow range [{:g}, {:g}] must be an interval within the domain's y range [{:g}, {:g}]",
+                options.inflow_min, options.inflow_max, domain.min.y, domain.max.y);
     }
     return "";
 }
 
 std::string describe(const WosVelocityOptions& options, const Domain2& domain) {
-    std::string s = domain.periodic ? "periodic" : (options.walls ? fmt::format("walls (Psi = {:g})", options.wall_stream_value) : "no walls");
+    std::string s = domain.periodic
+                        ? "periodic"
+                        : (options.walls ? fmt::format("walls (Psi = {:g})", options.wall_stream_value) : "no walls");
     if (options.inflow_speed != 0) s += fmt::format(", inflow/outflow speed {:g}", options.inflow_speed);
     for (const auto& b : options.shapes) {
         s += "; " + b->description();

@@ -99,7 +99,8 @@ struct Exact {
 
 template <int D>
 Exact<D> saddle() {  // x^2 - y^2: harmonic in 2D and 3D
-    return {"x^2-y^2", [](const Vec<D>& p) { return p[0] * p[0] - p[1] * p[1]; },
+    return {"x^2-y^2",
+            [](const Vec<D>& p) { return p[0] * p[0] - p[1] * p[1]; },
             [](const Vec<D>& p) {
                 Vec<D> g(0.0);
                 g[0] = 2 * p[0];
@@ -110,7 +111,8 @@ Exact<D> saddle() {  // x^2 - y^2: harmonic in 2D and 3D
 }
 template <int D>
 Exact<D> exp_sin() {  // e^x sin y: harmonic in 2D and 3D
-    return {"exp(x)sin(y)", [](const Vec<D>& p) { return std::exp(p[0]) * std::sin(p[1]); },
+    return {"exp(x)sin(y)",
+            [](const Vec<D>& p) { return std::exp(p[0]) * std::sin(p[1]); },
             [](const Vec<D>& p) {
                 Vec<D> g(0.0);
                 g[0] = std::exp(p[0]) * std::sin(p[1]);
@@ -239,11 +241,14 @@ void check_convergence(const char* domain, const Geometry& geo, const Exact<D>& 
 TEST(Wos, Laplace2DConvergesAsInverseSqrtN) {
     const SphereBoundary<2> disk{{0.0, 0.0}, 1.0};
     check_convergence<2>("disk", disk, saddle<2>(),
-                         spread_points<2>({-1, -1}, {1, 1}, [](const Vec<2>& p) { return glm::length(p) < 0.98; }, 48),
+                         spread_points<2>(
+                             {-1, -1}, {1, 1}, [](const Vec<2>& p) { return glm::length(p) < 0.98; }, 48),
                          100);
     const BoxBoundary<2> square{{-1, -1}, {1, 1}};
     check_convergence<2>("square", square, exp_sin<2>(),
-                         spread_points<2>({-0.98, -0.98}, {0.98, 0.98}, [](const Vec<2>&) { return true; }, 48), 200);
+                         spread_points<2>(
+                             {-0.98, -0.98}, {0.98, 0.98}, [](const Vec<2>&) { return true; }, 48),
+                         200);
     const ShellBoundary<2> annulus{{0.0, 0.0}, 0.4, 1.0};
     const auto in_annulus = [](const Vec<2>& p) { return glm::length(p) > 0.42 && glm::length(p) < 0.98; };
     check_convergence<2>("annulus", annulus, exp_sin<2>(), spread_points<2>({-1, -1}, {1, 1}, in_annulus, 48), 300);
@@ -255,10 +260,13 @@ TEST(Wos, Laplace2DConvergesAsInverseSqrtN) {
 TEST(Wos, Poisson2DConvergesAsInverseSqrtN) {
     const BoxBoundary<2> unit{{0, 0}, {1, 1}};
     check_convergence<2>("unit square", unit, sine_bump<2>(),
-                         spread_points<2>({0.01, 0.01}, {0.99, 0.99}, [](const Vec<2>&) { return true; }, 48), 400);
+                         spread_points<2>(
+                             {0.01, 0.01}, {0.99, 0.99}, [](const Vec<2>&) { return true; }, 48),
+                         400);
     const SphereBoundary<2> disk{{0.0, 0.0}, 1.0};
     check_convergence<2>("disk", disk, paraboloid_plus_saddle<2>(),
-                         spread_points<2>({-1, -1}, {1, 1}, [](const Vec<2>& p) { return glm::length(p) < 0.98; }, 48),
+                         spread_points<2>(
+                             {-1, -1}, {1, 1}, [](const Vec<2>& p) { return glm::length(p) < 0.98; }, 48),
                          500);
 }
 
@@ -271,14 +279,16 @@ TEST(Wos, Laplace3DAndPoisson3DConvergeAsInverseSqrtN) {
     check_convergence<3>("ball", ball, saddle<3>(), ball_pts, 600);
     const BoxBoundary<3> cube{{-1, -1, -1}, {1, 1, 1}};
     check_convergence<3>("cube", cube, exp_sin<3>(),
-                         spread_points<3>({-0.97, -0.97, -0.97}, {0.97, 0.97, 0.97}, [](const Vec<3>&) { return true; }, 48),
+                         spread_points<3>(
+                             {-0.97, -0.97, -0.97}, {0.97, 0.97, 0.97}, [](const Vec<3>&) { return true; }, 48),
                          700);
     const ShellBoundary<3> shell{{0.0, 0.0, 0.0}, 0.4, 1.0};
     const auto in_shell = [](const Vec<3>& p) { return glm::length(p) > 0.42 && glm::length(p) < 0.97; };
     check_convergence<3>("shell", shell, saddle<3>(), spread_points<3>({-1, -1, -1}, {1, 1, 1}, in_shell, 48), 800);
     const BoxBoundary<3> unit{{0, 0, 0}, {1, 1, 1}};
     check_convergence<3>("unit cube", unit, sine_bump<3>(),
-                         spread_points<3>({0.02, 0.02, 0.02}, {0.98, 0.98, 0.98}, [](const Vec<3>&) { return true; }, 48),
+                         spread_points<3>(
+                             {0.02, 0.02, 0.02}, {0.98, 0.98, 0.98}, [](const Vec<3>&) { return true; }, 48),
                          900);
     check_convergence<3>("ball", ball, paraboloid_plus_saddle<3>(), ball_pts, 1000);
 }
@@ -314,13 +324,17 @@ TEST(Wos, GradientMatchesAnalyticGradient) {
     Settings s;
     s.epsilon = 1e-5;
     const SphereBoundary<2> disk{{0.0, 0.0}, 1.0};
-    const auto disk_pts = spread_points<2>({-1, -1}, {1, 1}, [](const Vec<2>& p) { return glm::length(p) < 0.9; }, 24);
+    const auto disk_pts = spread_points<2>(
+        {-1, -1}, {1, 1}, [](const Vec<2>& p) { return glm::length(p) < 0.9; }, 24);
     const BoxBoundary<2> unit2{{0, 0}, {1, 1}};
-    const auto unit2_pts = spread_points<2>({0.05, 0.05}, {0.95, 0.95}, [](const Vec<2>&) { return true; }, 24);
+    const auto unit2_pts = spread_points<2>(
+        {0.05, 0.05}, {0.95, 0.95}, [](const Vec<2>&) { return true; }, 24);
     const SphereBoundary<3> ball{{0.0, 0.0, 0.0}, 1.0};
-    const auto ball_pts = spread_points<3>({-1, -1, -1}, {1, 1, 1}, [](const Vec<3>& p) { return glm::length(p) < 0.9; }, 24);
+    const auto ball_pts = spread_points<3>(
+        {-1, -1, -1}, {1, 1, 1}, [](const Vec<3>& p) { return glm::length(p) < 0.9; }, 24);
     const BoxBoundary<3> unit3{{0, 0, 0}, {1, 1, 1}};
-    const auto unit3_pts = spread_points<3>({0.05, 0.05, 0.05}, {0.95, 0.95, 0.95}, [](const Vec<3>&) { return true; }, 24);
+    const auto unit3_pts = spread_points<3>(
+        {0.05, 0.05, 0.05}, {0.95, 0.95, 0.95}, [](const Vec<3>&) { return true; }, 24);
     for (bool anti : {true, false}) {
         s.antithetic = anti;
         SCOPED_TRACE(anti ? "antithetic" : "plain");
@@ -358,14 +372,16 @@ TEST(Wos, AntitheticLowersGradientVariance) {
     Settings s;
     s.epsilon = 1e-4;
     const SphereBoundary<2> disk{{0.0, 0.0}, 1.0};
-    const auto pts = spread_points<2>({-1, -1}, {1, 1}, [](const Vec<2>& p) { return glm::length(p) < 0.9; }, 24);
+    const auto pts = spread_points<2>(
+        {-1, -1}, {1, 1}, [](const Vec<2>& p) { return glm::length(p) < 0.9; }, 24);
     Exact<2> offset = saddle<2>();
     offset.u = [](const Vec<2>& p) { return p[0] * p[0] - p[1] * p[1] + 10; };
     Exact<2> offset_bump = sine_bump<2>();
     const auto bump = offset_bump.u;
     offset_bump.u = [bump](const Vec<2>& p) { return bump(p) + 10; };
     const BoxBoundary<2> unit{{0, 0}, {1, 1}};
-    const auto unit_pts = spread_points<2>({0.05, 0.05}, {0.95, 0.95}, [](const Vec<2>&) { return true; }, 24);
+    const auto unit_pts = spread_points<2>(
+        {0.05, 0.05}, {0.95, 0.95}, [](const Vec<2>&) { return true; }, 24);
     for (int which = 0; which < 3; ++which) {
         WalkCounters ca, cp;
         double va = 0, vp = 0;
@@ -479,7 +495,8 @@ TEST(Wos, SourceImportanceSamplingIsUnbiasedAndLowersVariance) {
     const Vortex plain;
     const SampledVortex sampled;
     auto g = [&](const BoundaryHit<2>& h) { return plain.u(h.point); };
-    const auto pts = spread_points<2>({-1, -1}, {1, 1}, [](const Vec<2>& p) { return glm::length(p) < 0.9; }, 24);
+    const auto pts = spread_points<2>(
+        {-1, -1}, {1, 1}, [](const Vec<2>& p) { return glm::length(p) < 0.9; }, 24);
     Settings st;
     st.epsilon = 1e-4;
     double chi_u = 0, chi_g = 0, var_u_plain = 0, var_u_is = 0, var_g_plain = 0, var_g_is = 0;
@@ -511,7 +528,9 @@ TEST(Wos, SourceImportanceSamplingIsUnbiasedAndLowersVariance) {
 // Hard cases and accounting.
 
 struct NanGeometry {
-    double distance(const Vec<2>& p) const { return p.x > 0.5 ? std::numeric_limits<double>::quiet_NaN() : 1 - std::abs(p.x); }
+    double distance(const Vec<2>& p) const {
+        return p.x > 0.5 ? std::numeric_limits<double>::quiet_NaN() : 1 - std::abs(p.x);
+    }
     BoundaryHit<2> closest(const Vec<2>& p) const { return {p, Vec<2>(0.0), 0}; }
 };
 struct NoBoundary {

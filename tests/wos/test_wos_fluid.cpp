@@ -249,7 +249,8 @@ TEST(WosFluid, SameObstacleFromEveryRepresentationGivesTheSameFlow) {
             chi2_psi += sq(psi[r][i].value - psi[0][i].value) / (psi[r][i].variance + psi[0][i].variance);
         }
         EXPECT_GT(ktest::chi2_sf(chi2, 2.0 * double(pts.size())), P_FAIL) << reps[r].first << " vs disk: chi2 " << chi2;
-        EXPECT_GT(ktest::chi2_sf(chi2_psi, double(pts.size())), P_FAIL) << reps[r].first << " vs disk: Psi chi2 " << chi2_psi;
+        EXPECT_GT(ktest::chi2_sf(chi2_psi, double(pts.size())), P_FAIL)
+            << reps[r].first << " vs disk: Psi chi2 " << chi2_psi;
     }
 }
 
@@ -318,7 +319,9 @@ TEST(WosFluid, RotatingSquareHasNoRelativeNormalFlow) {
     const WosVelocityField f(o, d, nullptr, Interpolation::Bilinear, t);
     const Vec2d pc = p0 + t * U;
     const double ang = omega_rate * t;
-    auto rot = [&](Vec2d v) { return Vec2d(std::cos(ang) * v.x - std::sin(ang) * v.y, std::sin(ang) * v.x + std::cos(ang) * v.y); };
+    auto rot = [&](Vec2d v) {
+        return Vec2d(std::cos(ang) * v.x - std::sin(ang) * v.y, std::sin(ang) * v.x + std::cos(ang) * v.y);
+    };
     double chi2 = 0;
     wos::WalkCounters c;
     for (int i = 0; i < 24; ++i) {

@@ -17,10 +17,12 @@ namespace {
 using namespace wos_test;
 namespace fs = std::filesystem;
 
-const char* const Scenes[] = {"maze", "bunny", "cylinder", "moving_square", "soup_obstacle", "subgrid_obstacle",
-                              "periodic_obstacle"};
+const char* const Scenes[] = {
+    "maze", "bunny", "cylinder", "moving_square", "soup_obstacle", "subgrid_obstacle", "periodic_obstacle"};
 
-fs::path scene_path(const std::string& name) { return fs::path(KELVIN_SOURCE_DIR) / "scenes" / "fluid" / (name + ".xml"); }
+fs::path scene_path(const std::string& name) {
+    return fs::path(KELVIN_SOURCE_DIR) / "scenes" / "fluid" / (name + ".xml");
+}
 
 std::shared_ptr<SceneNode> find_node(const std::shared_ptr<SceneNode>& n, const std::string& kind) {
     if (n->kind == kind) return n;

@@ -185,15 +185,18 @@ TEST(WosSolver, BadInputNamesTheParameterOrFile) {
     const ktest::TempDir dir;
     EXPECT_CONTAINS(load_error(wos_scene(R"(<boundary type="disk"><float name="radius" value="-1"/></boundary>)")),
                     "'radius'");
-    EXPECT_CONTAINS(load_error(wos_scene(R"(<boundary type="polygon"><string name="points" value="0 0, 1 1"/></boundary>)")),
-                    "at least 3 points");
-    EXPECT_CONTAINS(load_error(wos_scene(R"(<boundary type="polygon"><string name="points" value="0 0, 1 x, 2 2"/></boundary>)")),
-                    "'points'");
+    EXPECT_CONTAINS(
+        load_error(wos_scene(R"(<boundary type="polygon"><string name="points" value="0 0, 1 1"/></boundary>)")),
+        "at least 3 points");
+    EXPECT_CONTAINS(
+        load_error(wos_scene(R"(<boundary type="polygon"><string name="points" value="0 0, 1 x, 2 2"/></boundary>)")),
+        "'points'");
     EXPECT_CONTAINS(load_error(wos_scene(R"(<boundary type="maze"><string name="boxes" value="0 0 1"/></boundary>)")),
                     "'boxes'");
     EXPECT_CONTAINS(load_error(wos_scene(R"(<boundary type="maze"/>)")), "no walls");
-    EXPECT_CONTAINS(load_error(wos_scene(R"(<boundary type="polyline"><string name="filename" value="missing.obj"/></boundary>)")),
-                    "missing.obj");
+    EXPECT_CONTAINS(
+        load_error(wos_scene(R"(<boundary type="polyline"><string name="filename" value="missing.obj"/></boundary>)")),
+        "missing.obj");
     const auto bad = dir.write("bad.obj", "v 0 0\nv 1 nan_or_garbage\nl 1 2\n");
     EXPECT_CONTAINS(load_error(wos_scene(R"(<boundary type="polyline"><string name="filename" value=")" + bad.string() +
                                          R"("/></boundary>)")),
@@ -205,8 +208,9 @@ TEST(WosSolver, BadInputNamesTheParameterOrFile) {
     EXPECT_CONTAINS(load_error(wos_scene(R"(<boundary type="polyline"><string name="points" value="0 0, 1 1"/>
                                             <string name="fluid" value="inside"/></boundary>)")),
                     "'fluid'");
-    EXPECT_CONTAINS(load_error(wos_scene(R"(<boundary type="vdb"><string name="filename" value="none.vdb"/></boundary>)")),
-                    "none.vdb");
+    EXPECT_CONTAINS(
+        load_error(wos_scene(R"(<boundary type="vdb"><string name="filename" value="none.vdb"/></boundary>)")),
+        "none.vdb");
     const auto corrupt = dir.write("corrupt.vdb", "this is not an OpenVDB file");
     EXPECT_CONTAINS(load_error(wos_scene(R"(<boundary type="vdb"><string name="filename" value=")" + corrupt.string() +
                                          R"("/></boundary>)")),
@@ -222,9 +226,10 @@ TEST(WosSolver, BadInputNamesTheParameterOrFile) {
                                             <float name="inflow_max" value="3"/>)")),
                     "inflow range");
     EXPECT_CONTAINS(load_error(wos_scene(R"(<string name="importance" value="greeen"/>)")), "'importance'");
-    EXPECT_CONTAINS(load_error(wos_scene(R"(<boundary type="mesh"><shape type="obj"><string name="filename" value=")" +
-                                         write_fan_obj(dir, "tilted.obj", {0, 0}, 0.2, 8, false).string() +
-                                         R"("/><transform name="to_world"><rotate x="1" angle="30"/></transform></shape></boundary>)")),
+    EXPECT_CONTAINS(load_error(wos_scene(
+                        R"(<boundary type="mesh"><shape type="obj"><string name="filename" value=")" +
+                        write_fan_obj(dir, "tilted.obj", {0, 0}, 0.2, 8, false).string() +
+                        R"("/><transform name="to_world"><rotate x="1" angle="30"/></transform></shape></boundary>)")),
                     "z = 0");
 }
 

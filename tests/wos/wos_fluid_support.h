@@ -82,8 +82,8 @@ inline std::shared_ptr<const BoundaryShape> mesh_boundary(const std::filesystem:
 inline std::filesystem::path write_sphere_vdb(const ktest::TempDir& dir, const std::string& name, Vec2d c, double r,
                                               double h) {
     openvdb::initialize();
-    auto grid = openvdb::tools::createLevelSetSphere<openvdb::FloatGrid>(float(r), openvdb::Vec3f(float(c.x), float(c.y), 0.f),
-                                                                          float(h), 3.f);
+    auto grid = openvdb::tools::createLevelSetSphere<openvdb::FloatGrid>(
+        float(r), openvdb::Vec3f(float(c.x), float(c.y), 0.f), float(h), 3.f);
     grid->setName("obstacle");
     const std::filesystem::path path = dir / name;
     openvdb::io::File file(path.string());

@@ -87,9 +87,9 @@ public:
 };
 
 struct Settings {
-    double epsilon = 1e-4;  ///< shell width: a walk stops when the distance drops below it
-    int max_steps = 1024;   ///< spheres per walk before it is truncated (and counted)
-    bool antithetic = true; ///< gradient: mirror the first boundary and volume samples (Fig. 5.5)
+    double epsilon = 1e-4;   ///< shell width: a walk stops when the distance drops below it
+    int max_steps = 1024;    ///< spheres per walk before it is truncated (and counted)
+    bool antithetic = true;  ///< gradient: mirror the first boundary and volume samples (Fig. 5.5)
 };
 
 /// Work and trouble of a batch of walks. Accumulate per work unit, merge in a fixed order.
@@ -207,21 +207,27 @@ concept SampledSource = requires(const F& f, Random& rng, const Vec<D>& y) {
 /// G(r) of the ball of radius R (non-negative, 1/(2 pi) or 1/(4 pi) included).
 template <int D>
 inline double green(double r, double R) {
-    if constexpr (D == 2) return std::log(R / r) / (2 * Pi);
-    else return (1 / r - 1 / R) / (4 * Pi);
+    if constexpr (D == 2)
+        return std::log(R / r) / (2 * Pi);
+    else
+        return (1 / r - 1 / R) / (4 * Pi);
 }
 /// |grad_x G| / r: grad_x G(x, y) = (y - x) * green_gradient_factor(r, R).
 template <int D>
 inline double green_gradient_factor(double r, double R) {
-    if constexpr (D == 2) return (1 / (r * r) - 1 / (R * R)) / (2 * Pi);
-    else return (1 / (r * r * r) - 1 / (R * R * R)) / (4 * Pi);
+    if constexpr (D == 2)
+        return (1 / (r * r) - 1 / (R * R)) / (2 * Pi);
+    else
+        return (1 / (r * r * r) - 1 / (R * R * R)) / (4 * Pi);
 }
 /// Density (per unit area/volume) of the point drawn by sample_green_gradient_radius + a uniform direction.
 template <int D>
 inline double green_gradient_pdf(double r, double R) {
     const double rho = r / R;
-    if constexpr (D == 2) return 1.5 * (1 - rho * rho) / R / (2 * Pi * r);
-    else return 4.0 / 3.0 * (1 - rho * rho * rho) / R / (4 * Pi * r * r);
+    if constexpr (D == 2)
+        return 1.5 * (1 - rho * rho) / R / (2 * Pi * r);
+    else
+        return 4.0 / 3.0 * (1 - rho * rho * rho) / R / (4 * Pi * r * r);
 }
 }  // namespace detail
 
@@ -229,8 +235,8 @@ inline double green_gradient_pdf(double r, double R) {
 /// already knows it (negative: query it). Returns NaN for an invalid walk (counted by the caller through the
 /// estimators below, or check std::isfinite).
 template <int D, class Geometry, class Dirichlet, class Source>
-double walk(const Geometry& geometry, const Dirichlet& g, const Source& f, Vec<D> x, Random& rng,
-            const Settings& s, WalkCounters& c, double R0 = -1) {
+double walk(const Geometry& geometry, const Dirichlet& g, const Source& f, Vec<D> x, Random& rng, const Settings& s,
+            WalkCounters& c, double R0 = -1) {
     ++c.walks;
     double volume = 0;
     double R = R0 >= 0 ? R0 : geometry.distance(x);
@@ -244,8 +250,8 @@ double walk(const Geometry& geometry, const Dirichlet& g, const Source& f, Vec<D
         ++c.steps;
         if constexpr (detail::SampledSource<Source, D>) {  // mixture of G and the source's own density
             const double a = f.green_fraction();
-            const Vec<D> y = uniform(rng) < a ? x + (R * sample_green_radius<D>(rng)) * sample_direction<D>(rng)
-                                              : f.sample(rng, x);
+            const Vec<D> y =
+                uniform(rng) < a ? x + (R * sample_green_radius<D>(rng)) * sample_direction<D>(rng) : f.sample(rng, x);
             const double r = glm::length(y - x);
             if (r < R && r > 0) {
                 const double fy = f(y);
@@ -313,14 +319,16 @@ bool gradient_sample(const Geometry& geometry, const Dirichlet& g, const Source&
 
 /// u(x) from n walks. Within epsilon of the boundary: g at the closest point (0 walks).
 template <int D, class Geometry, class Dirichlet, class Source>
-ScalarEstimate solve(const Geometry& geometry, const Dirichlet& g, const Source& f, const Vec<D>& x, int n,
-                     Random& rng, const Settings& s, WalkCounters& c) {
+ScalarEstimate solve(const Geometry& geometry, const Dirichlet& g, const Source& f, const Vec<D>& x, int n, Random& rng,
+                     const Settings& s, WalkCounters& c) {
     ScalarEstimate e;
     const double R0 = geometry.distance(x);
     if (R0 >= 0 && R0 < s.epsilon) {
         const double v = g(geometry.closest(x));
-        if (std::isfinite(v)) e.value = v;
-        else ++c.invalid;
+        if (std::isfinite(v))
+            e.value = v;
+        else
+            ++c.invalid;
         e.samples = 1;
         return e;
     }

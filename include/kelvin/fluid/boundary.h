@@ -83,15 +83,15 @@ std::vector<Vec2d> parse_points2(const Properties& props, const std::string& par
 // The free-slip velocity estimator (<velocity type="walk_on_spheres">).
 
 struct WosVelocityOptions {
-    int samples = 64;          ///< gradient samples per velocity query (2 walks each with antithetic)
+    int samples = 64;  ///< gradient samples per velocity query (2 walks each with antithetic)
     /// Volume-term sampling: the thesis' Green's-function sampling alone (false), or mixed half-half with
     /// samples proportional to |omega_h| from the cache (true; wos.h "importance sampling of the source").
     bool vorticity_importance = true;
-    wos::Settings wos;         ///< epsilon (absolute; <= 0: `epsilon_relative` x the domain's smaller side)
+    wos::Settings wos;  ///< epsilon (absolute; <= 0: `epsilon_relative` x the domain's smaller side)
     double epsilon_relative = 1e-4;
-    bool walls = true;         ///< the domain box is a container (ignored on periodic domains)
+    bool walls = true;  ///< the domain box is a container (ignored on periodic domains)
     double wall_stream_value = 0;
-    double inflow_speed = 0;   ///< uniform inflow through the left wall and outflow through the right
+    double inflow_speed = 0;                ///< uniform inflow through the left wall and outflow through the right
     double inflow_min = 0, inflow_max = 0;  ///< y range of the inflow/outflow segments (equal: the whole wall)
     std::vector<std::shared_ptr<const BoundaryShape>> shapes;
 };
@@ -117,8 +117,8 @@ class WosVelocityField {
 public:
     /// `omega` must outlive the field. Throws RuntimeError on an unusable configuration (periodic without any
     /// solid, a 3D shape); plugins validate earlier and report InputErrors.
-    WosVelocityField(const WosVelocityOptions& options, const Domain2& domain, const Grid2* omega,
-                     Interpolation interp, double time);
+    WosVelocityField(const WosVelocityOptions& options, const Domain2& domain, const Grid2* omega, Interpolation interp,
+                     double time);
 
     /// The velocity at x with n gradient samples. Points inside a solid get the solid's rigid velocity without
     /// walking; points within epsilon of a boundary get zero gradient (counted in boundary_queries).
@@ -185,7 +185,7 @@ private:
 }  // namespace kelvin::fluid
 
 /// Registers a <boundary> plugin: like KELVIN_PLUGIN, with the common boundary parameters appended.
-#define KELVIN_BOUNDARY_PLUGIN(Class, name, doc, ...)                                                          \
-    static const ::kelvin::PluginRegistrar KELVIN_CONCAT(kelvin_registrar_, __LINE__)(                          \
+#define KELVIN_BOUNDARY_PLUGIN(Class, name, doc, ...)                                                                \
+    static const ::kelvin::PluginRegistrar KELVIN_CONCAT(kelvin_registrar_, __LINE__)(                               \
         "boundary", name, doc, ::kelvin::fluid::with_boundary_params(std::vector<::kelvin::ParamSpec>{__VA_ARGS__}), \
         [](const ::kelvin::Properties& p) -> ::kelvin::ObjectPtr { return std::make_shared<Class>(p); })

@@ -5,10 +5,10 @@
 // | parameter | type   | default | meaning                                                         |
 // |-----------|--------|---------|-----------------------------------------------------------------|
 // | boxes     | string | ""      | "x0 y0 x1 y1; ..." wall rectangles                               |
-// | layout    | string | ""      | rows of '#' (wall) and other characters (open), separated by '/' or new lines; first row on top |
-// | origin    | point  | 0       | lower-left corner of the layout                                  |
-// | cell      | float  | 0.1     | size of a layout cell                                            |
-// | (common)  |        |         | stream_value, velocity, angular_velocity, pivot, fluid (docs/boundaries.md) |
+// | layout    | string | ""      | rows of '#' (wall) and other characters (open), separated by '/' or new lines; first
+// row on top | | origin    | point  | 0       | lower-left corner of the layout                                  | |
+// cell      | float  | 0.1     | size of a layout cell                                            | | (common)  | | |
+// stream_value, velocity, angular_velocity, pivot, fluid (docs/boundaries.md) |
 //
 //     <boundary type="maze"><string name="layout" value="#####/#...#/#.#.#/#####"/>
 //         <point name="origin" x="-1" y="-1"/><float name="cell" value="0.5"/></boundary>
@@ -27,12 +27,14 @@ public:
             if (c == ';') c = ',';
         const std::vector<std::string> nums = split_list(list);
         if (nums.size() % 4 != 0)
-            props.error("boxes", fmt::format("needs groups of four numbers 'x0 y0 x1 y1' (got {} numbers)", nums.size()));
+            props.error("boxes",
+                        fmt::format("needs groups of four numbers 'x0 y0 x1 y1' (got {} numbers)", nums.size()));
         for (std::size_t i = 0; i < nums.size(); i += 4) {
             double v[4];
             for (int k = 0; k < 4; ++k) {
                 auto d = parse_double(nums[i + std::size_t(k)]);
-                if (!d || !std::isfinite(*d)) props.error("boxes", fmt::format("'{}' is not a finite number", nums[i + std::size_t(k)]));
+                if (!d || !std::isfinite(*d))
+                    props.error("boxes", fmt::format("'{}' is not a finite number", nums[i + std::size_t(k)]));
                 v[k] = *d;
             }
             if (!(v[2] > v[0]) || !(v[3] > v[1]))
@@ -110,6 +112,7 @@ private:
 KELVIN_BOUNDARY_PLUGIN(kelvin::fluid::boundaries::Maze, "maze",
                        "Union of wall boxes (a list and/or ASCII art with '#'); distance = min over boxes.",
                        kelvin::param::string("boxes", "", "\"x0 y0 x1 y1; ...\" wall rectangles"),
-                       kelvin::param::string("layout", "", "rows of '#' (wall) separated by '/' or new lines, top row first"),
+                       kelvin::param::string("layout", "",
+                                             "rows of '#' (wall) separated by '/' or new lines, top row first"),
                        kelvin::param::point("origin", kelvin::Vec3d(0.0), "lower-left corner of the layout"),
                        kelvin::param::real("cell", 0.1, "size of a layout cell"));

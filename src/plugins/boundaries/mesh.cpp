@@ -52,9 +52,10 @@ public:
         const double size = std::max(hi.x - lo.x, hi.y - lo.y);
         const double tol = 1e-6 * std::max(size, 1e-30);
         if (std::max(std::abs(lo.z), std::abs(hi.z)) > tol)
-            props.error("shape", fmt::format("a 2D mesh boundary takes triangles in the plane z = 0 (z spans [{:g}, {:g}]); "
-                                             "use dimension = 3 for a 3D mesh",
-                                             lo.z, hi.z));
+            props.error("shape",
+                        fmt::format("a 2D mesh boundary takes triangles in the plane z = 0 (z spans [{:g}, {:g}]); "
+                                    "use dimension = 3 for a 3D mesh",
+                                    lo.z, hi.z));
         std::vector<Vec2d> pts;
         for (const Vec3f& p : g.positions) pts.push_back({double(p.x), double(p.y)});
         // The boundary of the union: an edge (keyed by its unordered end-point coordinates) is interior when
@@ -95,7 +96,8 @@ public:
             for (const Vec2d& p : m_tris[t]) a = glm::min(a, p), b = glm::max(b, p);
             const Vec2i ca = cell_of(a), cb = cell_of(b);
             for (int j = ca.y; j <= cb.y; ++j)
-                for (int i = ca.x; i <= cb.x; ++i) m_cells[std::size_t(j) * std::size_t(m_n) + std::size_t(i)].push_back(uint32_t(t));
+                for (int i = ca.x; i <= cb.x; ++i)
+                    m_cells[std::size_t(j) * std::size_t(m_n) + std::size_t(i)].push_back(uint32_t(t));
         }
         m_edge_count = segs.size();
     }

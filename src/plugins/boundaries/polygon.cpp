@@ -17,7 +17,8 @@ class Polygon final : public Boundary2 {
 public:
     explicit Polygon(const Properties& props) : Boundary2(props, true) {
         m_loop = parse_points2(props, "points");
-        if (m_loop.size() < 3) props.error("points", fmt::format("a polygon needs at least 3 points (got {})", m_loop.size()));
+        if (m_loop.size() < 3)
+            props.error("points", fmt::format("a polygon needs at least 3 points (got {})", m_loop.size()));
         m_edges = SegmentSet::from_loops({m_loop}, true);
     }
     double distance(const Vec2d& p) const override { return m_edges.distance(p); }

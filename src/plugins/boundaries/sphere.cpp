@@ -28,8 +28,8 @@ public:
     bool inside3(const Vec3d& p) const override { return glm::length(p - m_s.center) < m_s.radius; }
     std::pair<Vec3d, Vec3d> bounds() const override { return {m_s.center - m_s.radius, m_s.center + m_s.radius}; }
     std::string description() const override {
-        return fmt::format("sphere (centre ({:g}, {:g}, {:g}), radius {:g})", m_s.center.x, m_s.center.y,
-                           m_s.center.z, m_s.radius);
+        return fmt::format("sphere (centre ({:g}, {:g}, {:g}), radius {:g})", m_s.center.x, m_s.center.y, m_s.center.z,
+                           m_s.radius);
     }
 
 private:

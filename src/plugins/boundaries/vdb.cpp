@@ -72,7 +72,8 @@ public:
             props.error("filename", fmt::format("'{}': only linear (voxel) transforms are supported", file));
         m_voxel = m_grid->voxelSize()[0];
         const openvdb::CoordBBox bb = m_grid->evalActiveVoxelBoundingBox();
-        if (bb.empty()) props.error("filename", fmt::format("grid '{}' in '{}' has no active voxels", m_grid->getName(), file));
+        if (bb.empty())
+            props.error("filename", fmt::format("grid '{}' in '{}' has no active voxels", m_grid->getName(), file));
         const openvdb::Vec3d a = m_grid->indexToWorld(bb.min().asVec3d() - 1.0);
         const openvdb::Vec3d b = m_grid->indexToWorld(bb.max().asVec3d() + 1.0);
         m_lo = {std::min(a.x(), b.x()), std::min(a.y(), b.y()), std::min(a.z(), b.z())};
@@ -192,7 +193,8 @@ public:
         if (m_signed) {
             m_contour = m_f.contour(m_z);
             if (m_contour.size() == 0)
-                props.error("slice_z", fmt::format("the level set {} does not cross the plane z = {:g}", m_f.name(), m_z));
+                props.error("slice_z",
+                            fmt::format("the level set {} does not cross the plane z = {:g}", m_f.name(), m_z));
         }
     }
     double distance(const Vec2d& p) const override {

@@ -16,11 +16,11 @@
 // | epsilon           | float   | 0       | shell width; 0: 1e-4 x the domain's smaller side                |
 // | max_steps         | integer | 4096    | spheres per walk before it is truncated (counted, reported)     |
 // | antithetic        | boolean | true    | mirror the first step (Fig. 5.5)                                |
-// | importance        | string  | vorticity | volume term: "vorticity" (|omega_h| mixed half-half with G) or "green" (G only, as the thesis) |
-// | walls             | boolean | true    | the domain box is a container (ignored when periodic)           |
-// | wall_stream_value | float   | 0       | Psi on the walls (with inflow: the mean of bottom and top)      |
-// | inflow_speed      | float   | 0       | uniform inflow speed through the left wall, outflow through the right |
-// | inflow_min, inflow_max | float | 0  | y range of the inflow and outflow segments (equal: the whole wall) |
+// | importance        | string  | vorticity | volume term: "vorticity" (|omega_h| mixed half-half with G) or "green" (G
+// only, as the thesis) | | walls             | boolean | true    | the domain box is a container (ignored when
+// periodic)           | | wall_stream_value | float   | 0       | Psi on the walls (with inflow: the mean of bottom and
+// top)      | | inflow_speed      | float   | 0       | uniform inflow speed through the left wall, outflow through the
+// right | | inflow_min, inflow_max | float | 0  | y range of the inflow and outflow segments (equal: the whole wall) |
 // | (boundary)        | nested  | none    | any number of <boundary> shapes                                  |
 //
 //     <velocity type="walk_on_spheres">
@@ -87,7 +87,8 @@ KELVIN_PLUGIN(kelvin::fluid::WalkOnSpheres, "velocity", "walk_on_spheres",
               kelvin::param::string("importance", "vorticity",
                                     "volume term: 'vorticity' (|omega| mixed with G) or 'green' (G only, the thesis)"),
               kelvin::param::boolean("walls", true, "the domain box is a container (ignored when periodic)"),
-              kelvin::param::real("wall_stream_value", 0.0, "Psi on the walls (with inflow: the mean of the bottom and top walls)"),
+              kelvin::param::real("wall_stream_value", 0.0,
+                                  "Psi on the walls (with inflow: the mean of the bottom and top walls)"),
               kelvin::param::real("inflow_speed", 0.0, "inflow speed through the left wall, outflow through the right"),
               kelvin::param::real("inflow_min", 0.0, "lower y of the inflow/outflow segments"),
               kelvin::param::real("inflow_max", 0.0, "upper y (equal to inflow_min: the whole wall)"),

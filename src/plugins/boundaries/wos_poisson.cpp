@@ -60,7 +60,8 @@ public:
         for (const ObjectPtr& o : props.get_objects("boundary")) {
             auto b = std::dynamic_pointer_cast<const BoundaryShape>(o);
             if (!b || b->dimension() != 2) props.error("boundary", "wos_poisson is 2D: give 2D boundaries");
-            if (b->role().moving()) props.error("boundary", "wos_poisson solves a static problem: boundaries cannot move");
+            if (b->role().moving())
+                props.error("boundary", "wos_poisson solves a static problem: boundaries cannot move");
             m_options.shapes.push_back(b);
         }
         if (const std::string why = check_wos_options(m_options, m_domain); !why.empty()) props.error("walls", why);
@@ -116,7 +117,9 @@ public:
             for (int i = 0; i < nx; ++i) range = std::max(range, std::abs(img.at(i, y, 3)));
         for (int y = 0; y < ny; ++y)
             for (int i = 0; i < nx; ++i)
-                img.set_rgb(i, y, img.at(i, y, 5) > 0 ? Color3(0.2) : diverging_colormap(range > 0 ? img.at(i, y, 3) / range : 0));
+                img.set_rgb(
+                    i, y,
+                    img.at(i, y, 5) > 0 ? Color3(0.2) : diverging_colormap(range > 0 ? img.at(i, y, 3) / range : 0));
         wos::WalkCounters c;
         for (const auto& r : rows) c += r;
         ctx.stats.add("wos.walks", double(c.walks), "walks");
