@@ -140,6 +140,8 @@ WosVelocityField::WosVelocityField(const WosVelocityOptions& options, const Doma
         const BoundaryRole& r = s->role();
         m_pivot.push_back(r.pivot + time * r.velocity);
         m_angle.push_back(time * r.angular_velocity);
+        m_geometry.push_back(s->geometry2());
+        m_moving.push_back(r.moving() ? 1 : 0);
     }
 }
 
@@ -156,18 +158,17 @@ double WosVelocityField::distance(Vec2d x) const {
         // Inside: distance to the nearest wall; outside: 0 (the walk stops at once and the caller clamps).
         d = std::max(0.0, std::min(std::min(x.x - lo.x, hi.x - x.x), std::min(x.y - lo.y, hi.y - x.y)));
     }
+    if (!m_domain.periodic) {
+        for (std::size_t i = 0; i < m_geometry.size(); ++i)
+            d = std::min(d, m_geometry[i]->distance(m_moving[i] ? to_local(int(i), x) : x));
+        return d;
+    }
     const Vec2d xw = m_domain.wrap(x);
     const Vec2d L = m_domain.size();
-    for (std::size_t i = 0; i < m_options.shapes.size(); ++i) {
-        const wos::BoundaryGeometry<2>& g = *m_options.shapes[i]->geometry2();
-        if (!m_domain.periodic) {
-            d = std::min(d, g.distance(to_local(int(i), x)));
-        } else {
-            for (int a = -1; a <= 1; ++a)
-                for (int b = -1; b <= 1; ++b)
-                    d = std::min(d, g.distance(to_local(int(i), xw + Vec2d(a * L.x, b * L.y))));
-        }
-    }
+    for (std::size_t i = 0; i < m_geometry.size(); ++i)  // the 3 x 3 nearest images of each shape
+        for (int a = -1; a <= 1; ++a)
+            for (int b = -1; b <= 1; ++b)
+                d = std::min(d, m_geometry[i]->distance(to_local(int(i), xw + Vec2d(a * L.x, b * L.y))));
     return d;
 }
 
@@ -284,14 +285,27 @@ Vec2d WosVelocityField::push_out(Vec2d x) const {
 // ----- |omega| importance sampling of the source
 
 WosVelocityField::VorticitySource::VorticitySource(const Grid2* omega, Interpolation interp)
-    : m_omega(omega), m_interp(interp), m_abs(omega->domain(), omega->nx(), omega->ny()) {
+    : m_omega(omega),
+      m_interp(interp),
+      m_domain(omega->domain()),
+      m_nx(omega->nx()),
+      m_ny(omega->ny()),
+      m_h(omega->h()) {
+    // The padded pairs: ghost cells hold zeros (open) or the wrapped values (periodic), as Grid2::at_bc.
+    m_pad.assign(2 * std::size_t(m_nx + 2) * std::size_t(m_ny + 2), 0.0);
+    for (int j = -1; j <= m_ny; ++j)
+        for (int i = -1; i <= m_nx; ++i) {
+            const double v = omega->at_bc(i, j);
+            const std::size_t k = 2 * (std::size_t(j + 1) * std::size_t(m_nx + 2) + std::size_t(i + 1));
+            m_pad[k] = v;
+            m_pad[k + 1] = std::abs(v);
+        }
     // Vose's alias table over the cells, weights |omega_k|.
     std::vector<double> w;
     std::vector<uint32_t> cells;
     double sum = 0;
     for (std::size_t k = 0; k < omega->cell_count(); ++k) {
         const double a = std::abs(omega->values()[k]);
-        m_abs.values()[k] = a;
         if (a > 0 && std::isfinite(a)) {
             w.push_back(a);
             cells.push_back(uint32_t(k));
@@ -334,13 +348,39 @@ Vec2d WosVelocityField::VorticitySource::sample(Random& rng, const Vec2d& x) con
     else
         off = {h.x * (wos::uniform(rng) - 0.5), h.y * (wos::uniform(rng) - 0.5)};
     const Vec2d y = m_omega->cell_center(i, j) + off;
-    return x + m_omega->domain().min_image(y - x);  // periodic: the image nearest the walk
+    if (!m_domain.periodic) return y;
+    return x + m_domain.min_image(y - x);  // periodic: the image nearest the walk
 }
 
-double WosVelocityField::VorticitySource::pdf(const Vec2d& y, const Vec2d& x) const {
-    const Domain2& d = m_omega->domain();
-    if (d.periodic && d.min_image(y - x) != y - x) return 0;  // outside the cell sample() draws in
-    return m_abs.sample(y, m_interp) / m_total;
+std::pair<double, double> WosVelocityField::VorticitySource::lookup(Vec2d p) const {
+    if (!std::isfinite(p.x) || !std::isfinite(p.y)) return {0.0, 0.0};
+    if (m_domain.periodic) p = m_domain.wrap(p);
+    double gx = (p.x - m_domain.min.x) / m_h.x, gy = (p.y - m_domain.min.y) / m_h.y;
+    const std::size_t stride = std::size_t(m_nx + 2);
+    if (m_interp == Interpolation::Nearest) {
+        if (!m_domain.periodic && (gx < 0 || gy < 0 || gx >= m_nx || gy >= m_ny)) return {0.0, 0.0};
+        const int i = std::max(std::min(int(gx), m_nx - 1), 0), j = std::max(std::min(int(gy), m_ny - 1), 0);
+        const std::size_t k = 2 * (std::size_t(j + 1) * stride + std::size_t(i + 1));
+        return {m_pad[k], m_pad[k + 1]};
+    }
+    gx -= 0.5;
+    gy -= 0.5;
+    if (!m_domain.periodic && (gx < -1 || gy < -1 || gx >= m_nx || gy >= m_ny)) return {0.0, 0.0};
+    const double fx = std::floor(gx), fy = std::floor(gy);
+    // Periodic wrapping puts p in [min, max): gx in [-0.5, n - 0.5), so i in [-1, n - 1] as for open grids.
+    const int i = std::clamp(int(fx), -1, m_nx - 1), j = std::clamp(int(fy), -1, m_ny - 1);
+    const double ax = gx - fx, ay = gy - fy;
+    const double* r0 = &m_pad[2 * (std::size_t(j + 1) * stride + std::size_t(i + 1))];
+    const double* r1 = r0 + 2 * stride;
+    const double w00 = (1 - ax) * (1 - ay), w10 = ax * (1 - ay), w01 = (1 - ax) * ay, w11 = ax * ay;
+    return {w00 * r0[0] + w10 * r0[2] + w01 * r1[0] + w11 * r1[2],
+            w00 * r0[1] + w10 * r0[3] + w01 * r1[1] + w11 * r1[3]};
+}
+
+std::pair<double, double> WosVelocityField::VorticitySource::value_and_pdf(const Vec2d& y, const Vec2d& x) const {
+    const auto [v, a] = lookup(y);
+    if (m_domain.periodic && m_domain.min_image(y - x) != y - x) return {v, 0.0};  // outside sample()'s cell
+    return {v, a / m_total};
 }
 
 VelocityEstimate WosVelocityField::estimate(Vec2d x, int n, Random& rng, wos::WalkCounters& c) const {

@@ -60,6 +60,7 @@
 #include <functional>
 #include <limits>
 #include <type_traits>
+#include <utility>
 
 namespace kelvin::wos {
 
@@ -204,6 +205,20 @@ concept SampledSource = requires(const F& f, Random& rng, const Vec<D>& y) {
     { f.pdf(y, y) } -> std::convertible_to<double>;
     { f.green_fraction() } -> std::convertible_to<double>;
 };
+/// Optionally, a sampled source evaluates f and its pdf together (one lookup instead of two).
+template <class F, int D>
+concept ValueAndPdf = requires(const F& f, const Vec<D>& y) {
+    { f.value_and_pdf(y, y) } -> std::convertible_to<std::pair<double, double>>;
+};
+template <int D, class F>
+inline std::pair<double, double> value_and_pdf(const F& f, const Vec<D>& y, const Vec<D>& x) {
+    if constexpr (ValueAndPdf<F, D>) {
+        return f.value_and_pdf(y, x);
+    } else {
+        const double v = f(y);
+        return {v, v != 0 ? f.pdf(y, x) : 0.0};
+    }
+}
 /// G(r) of the ball of radius R (non-negative, 1/(2 pi) or 1/(4 pi) included).
 template <int D>
 inline double green(double r, double R) {
@@ -254,10 +269,10 @@ double walk(const Geometry& geometry, const Dirichlet& g, const Source& f, Vec<D
                 uniform(rng) < a ? x + (R * sample_green_radius<D>(rng)) * sample_direction<D>(rng) : f.sample(rng, x);
             const double r = glm::length(y - x);
             if (r < R && r > 0) {
-                const double fy = f(y);
+                const auto [fy, py] = detail::value_and_pdf<D>(f, y, x);
                 if (fy != 0) {  // the densities are only needed where the source is not zero
                     const double G = detail::green<D>(r, R);
-                    const double q = a * G / green_integral<D>(R) + (1 - a) * f.pdf(y, x);
+                    const double q = a * G / green_integral<D>(R) + (1 - a) * py;
                     if (q > 0) volume -= fy * G / q;
                 }
             }
@@ -293,9 +308,10 @@ bool gradient_sample(const Geometry& geometry, const Dirichlet& g, const Source&
         const Vec<D> d = y - x0;
         const double r = glm::length(d);
         if (r < R0 && r > 0) {
-            const double fd = s.antithetic ? 0.5 * (f(y) - f(x0 - d)) : f(y);
+            const auto [fy, py] = detail::value_and_pdf<D>(f, y, x0);
+            const double fd = s.antithetic ? 0.5 * (fy - f(x0 - d)) : fy;
             if (fd != 0) {
-                const double q = a * detail::green_gradient_pdf<D>(r, R0) + (1 - a) * f.pdf(y, x0);
+                const double q = a * detail::green_gradient_pdf<D>(r, R0) + (1 - a) * (fy != 0 ? py : f.pdf(y, x0));
                 if (q > 0) grad -= (fd / q) * (d * detail::green_gradient_factor<D>(r, R0));
             }
         }

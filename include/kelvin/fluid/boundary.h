@@ -150,17 +150,25 @@ public:
     public:
         VorticitySource() = default;
         VorticitySource(const Grid2* omega, Interpolation interp);
-        double operator()(const Vec2d& y) const { return m_omega->sample(y, m_interp); }
+        double operator()(const Vec2d& y) const { return lookup(y).first; }
         Vec2d sample(Random& rng, const Vec2d& x) const;
-        double pdf(const Vec2d& y, const Vec2d& x) const;
+        double pdf(const Vec2d& y, const Vec2d& x) const { return value_and_pdf(y, x).second; }
+        /// omega_h(y) and the density of sample() at y, from one lookup.
+        std::pair<double, double> value_and_pdf(const Vec2d& y, const Vec2d& x) const;
         double green_fraction() const { return 0.5; }
         bool empty() const { return m_total == 0; }
 
     private:
+        /// (omega_h(y), |omega|_h(y)) with the grid's interpolation and boundary rule (Grid2::sample).
+        std::pair<double, double> lookup(Vec2d y) const;
+
         const Grid2* m_omega = nullptr;
         Interpolation m_interp = Interpolation::Bilinear;
-        Grid2 m_abs;
-        double m_total = 0;  // sum |omega_k| * cell area
+        Domain2 m_domain;
+        int m_nx = 0, m_ny = 0;
+        Vec2d m_h{1.0};
+        std::vector<double> m_pad;  // (nx + 2) x (ny + 2) pairs (omega, |omega|) with one ring of ghost cells
+        double m_total = 0;         // sum |omega_k| * cell area
         std::vector<double> m_prob;
         std::vector<uint32_t> m_self, m_alias;
     };
@@ -175,11 +183,13 @@ private:
     double m_time;
     wos::Settings m_wos;
     bool m_walls;
-    bool m_has_source = false;               // omega is not identically zero
-    double m_psi_bottom = 0, m_psi_top = 0;  // inflow: wall values below / above the inflow range
-    std::vector<Vec2d> m_pivot;              // pivot of each shape at this time
-    std::vector<double> m_angle;             // rotation of each shape at this time
-    VorticitySource m_source;                // with vorticity_importance
+    bool m_has_source = false;                                // omega is not identically zero
+    double m_psi_bottom = 0, m_psi_top = 0;                   // inflow: wall values below / above the inflow range
+    std::vector<Vec2d> m_pivot;                               // pivot of each shape at this time
+    std::vector<double> m_angle;                              // rotation of each shape at this time
+    std::vector<const wos::BoundaryGeometry<2>*> m_geometry;  // each shape's provider (no virtual lookup per step)
+    std::vector<char> m_moving;
+    VorticitySource m_source;  // with vorticity_importance
 };
 
 }  // namespace kelvin::fluid
