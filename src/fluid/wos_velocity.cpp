@@ -28,6 +28,7 @@ std::vector<ParamSpec> with_boundary_params(std::vector<ParamSpec> own) {
 
 BoundaryShape::BoundaryShape(const Properties& props, bool has_inside) {
     m_role.stream_value = props.get_float("stream_value");
+    m_role.stream_value_given = props.has("stream_value");
     if (!std::isfinite(m_role.stream_value)) props.error("stream_value", "must be finite");
     const Vec3d v = props.get_vector("velocity");
     if (v.z != 0) props.error("velocity", "a 2D boundary moves in the plane (z = 0)");

@@ -42,6 +42,7 @@ struct BoundaryRole {
     double angular_velocity = 0;  ///< rigid rotation rate Omega (radians per unit time, counter-clockwise)
     Vec2d pivot{0.0};             ///< rotation centre at t = 0 (moves with U)
     bool fluid_inside = false;    ///< the fluid is inside the shape (a container) instead of outside (an obstacle)
+    bool stream_value_given = false;  ///< the scene set stream_value (else the default 0 was taken)
     bool moving() const { return velocity != Vec2d(0.0) || angular_velocity != 0; }
 };
 

@@ -63,6 +63,24 @@ public:
                                                     b->description()));
             m_opt.shapes.push_back(b);
         }
+        // Section 6.2.4: with several disjoint boundaries the isovalues set the flux between them. Say so when
+        // the scene left any obstacle's at the default (the thesis' choice: no net flow between boundaries).
+        int obstacles = 0, defaulted = 0;
+        bool outer = m_opt.walls;
+        for (const auto& b : m_opt.shapes) {
+            if (b->role().fluid_inside) {
+                outer = true;
+                continue;
+            }
+            ++obstacles;
+            if (!b->role().stream_value_given) ++defaulted;
+        }
+        if (defaulted > 0 && obstacles + (outer ? 1 : 0) >= 2)
+            log_warn(
+                "walk_on_spheres: {} obstacle(s) take the default stream_value 0 (the walls' value, or their mean with "
+                "inflow): that fixes the flux between them and the walls (thesis Section 6.2.4; right for symmetric "
+                "layouts). Give stream_value per boundary to choose it (docs/boundaries.md).",
+                defaulted);
         if (!m_opt.wos.antithetic)
             log_warn("walk_on_spheres: antithetic = false: the gradient variance grows with |Psi| on the boundary");
     }
