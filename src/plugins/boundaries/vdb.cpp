@@ -13,7 +13,9 @@
 // voxel spacing (its error is O(h^2 curvature), the order of the interpolation's) and distances, closest points
 // and the component are those of that polyline (Embree closest-segment queries: exact, fast); inside is phi < 0.
 // signed = true: phi < 0 is inside (OpenVDB's level-set convention); signed = false: unsigned distance input,
-// no inside (the fluid flows on both sides of a thin sheet).
+// no inside (the fluid flows on both sides of a thin sheet); since the trilinear interpolation of an unsigned
+// distance never reaches zero at the surface, |phi| - sqrt(3) voxels is used (a lower bound that does): walks stop
+// within about two voxels of the surface, a bias of that order.
 // A missing file, a file OpenVDB cannot read, a missing grid or a grid that is not a float grid is an InputError
 // naming the file and parameter.
 //
@@ -102,10 +104,14 @@ public:
         const openvdb::Vec3d ijk = m_grid->worldToIndex(openvdb::Vec3d(p.x, p.y, p.z));
         return double(openvdb::tools::BoxSampler::sample(m_grid->constTree(), ijk));
     }
-    double distance(const Vec3d& p) const {
+    /// `unsigned_input`: the grid holds an unsigned distance, whose trilinear interpolation never reaches zero at
+    /// the kink on the surface; the interpolation is within a voxel diagonal of the true distance (1-Lipschitz
+    /// samples), so |phi| - sqrt(3) h is a lower bound that does reach zero there.
+    double distance(const Vec3d& p, bool unsigned_input = false) const {
         const openvdb::Vec3d ijk = m_grid->worldToIndex(openvdb::Vec3d(p.x, p.y, p.z));
-        const double v = std::abs(double(openvdb::tools::BoxSampler::sample(m_grid->constTree(), ijk)));
+        double v = std::abs(double(openvdb::tools::BoxSampler::sample(m_grid->constTree(), ijk)));
         if (!std::isfinite(v)) return v;
+        if (unsigned_input) v = std::max(0.0, v - std::sqrt(3.0) * m_voxel);
         if (m_grid->constTree().probeConstLeaf(openvdb::Coord::floor(ijk))) return v;
         return std::max(v, m_leaves->distance(p) - std::sqrt(3.0) * m_voxel);
     }
@@ -198,7 +204,7 @@ public:
         }
     }
     double distance(const Vec2d& p) const override {
-        return m_signed ? m_contour.distance(p) : m_f.distance({p.x, p.y, m_z});
+        return m_signed ? m_contour.distance(p) : m_f.distance({p.x, p.y, m_z}, true);
     }
     BoundaryHit<2> closest(const Vec2d& p) const override {
         if (m_signed) return m_contour.closest(p);
@@ -240,7 +246,7 @@ public:
         (void)props.get_float("slice_z");
         if (m_role.moving()) props.error("velocity", "3D boundaries do not move (rigid motion is 2D only)");
     }
-    double distance(const Vec3d& p) const override { return m_f.distance(p); }
+    double distance(const Vec3d& p) const override { return m_f.distance(p, !m_signed); }
     BoundaryHit<3> closest(const Vec3d& p) const override {
         const double v = m_f.phi(p);
         const Vec3d g = m_f.gradient(p);
