@@ -67,6 +67,27 @@ SimulationParams SimulationParams::parse(const Properties& props, const std::str
     return p;
 }
 
+Checkpoint state_checkpoint(long long steps, double sim_time, const CellGrid2& grid, FieldLookup fields,
+                            const VorticityField& field, double viscosity) {
+    Checkpoint cp;
+    cp.work = double(steps);
+    cp.work_unit = "steps";
+    cp.sim_time = sim_time;
+    cp.grid = grid;
+    cp.field = [fields = std::move(fields)](const std::string& name, std::vector<double>& values) {
+        const Grid2* g = fields(name);
+        if (g) values = g->values();
+        return g != nullptr;
+    };
+    cp.exact = [&field, viscosity](const std::string& name, double t, Vec2d x) -> std::optional<double> {
+        if (name == "vorticity") return field.exact_vorticity(t, x, viscosity);
+        if (name != "u" && name != "v") return std::nullopt;
+        auto v = field.exact_velocity(t, x, viscosity);
+        return v ? std::optional<double>(name == "u" ? v->x : v->y) : std::nullopt;
+    };
+    return cp;
+}
+
 FluidDiagnostics grid_diagnostics(const Grid2& omega, const Grid2& u, const Grid2& v) {
     FluidDiagnostics d;
     const double a = omega.cell_area();
@@ -138,27 +159,16 @@ RunResult run_fluid_solver(const std::string& who, FluidSolver& solver, const Si
     // Checkpoints (core/checkpoint.h), as mcfluid: the state after the steps that reach them, on the output grid.
     CheckpointSchedule checkpoints(ctx);
     auto checkpoint = [&](long long steps) {
-        Checkpoint cp;
+        auto fields = [&solver](const std::string& name) -> const Grid2* {
+            return name == "vorticity" ? &solver.vorticity_grid()
+                   : name == "u"       ? &solver.velocity_u()
+                   : name == "v"       ? &solver.velocity_v()
+                                       : nullptr;
+        };
+        Checkpoint cp = state_checkpoint(steps, solver.time(), {p.domain.min, p.domain.max, p.nx, p.ny}, fields,
+                                         field, p.viscosity);
         cp.seconds = total.seconds() - checkpoints.overhead();
-        cp.work = double(steps);
-        cp.work_unit = "steps";
-        cp.sim_time = solver.time();
-        cp.grid = {p.domain.min, p.domain.max, p.nx, p.ny};
         cp.image = image;
-        cp.field = [&](const std::string& name, std::vector<double>& values) {
-            const Grid2* g = name == "vorticity" ? &solver.vorticity_grid()
-                             : name == "u"       ? &solver.velocity_u()
-                             : name == "v"       ? &solver.velocity_v()
-                                                 : nullptr;
-            if (g) values = g->values();
-            return g != nullptr;
-        };
-        cp.exact = [&](const std::string& name, double t, Vec2d x) -> std::optional<double> {
-            if (name == "vorticity") return field.exact_vorticity(t, x, p.viscosity);
-            if (name != "u" && name != "v") return std::nullopt;
-            auto v = field.exact_velocity(t, x, p.viscosity);
-            return v ? std::optional<double>(name == "u" ? v->x : v->y) : std::nullopt;
-        };
         checkpoints.reached(ctx, cp);
     };
 

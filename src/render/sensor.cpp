@@ -1,6 +1,8 @@
+#include <kelvin/core/registry.h>
 #include <kelvin/render/sensor.h>
 
 #include <cmath>
+#include <tuple>
 
 namespace kelvin {
 
@@ -15,6 +17,28 @@ std::pair<double, double> fov_tangents(const Properties& props, int width, int h
     else if (axis == "y") tan_x = t * w / h;
     else tan_x = t * w / std::sqrt(w * w + h * h);
     return {tan_x, tan_x * h / w};
+}
+
+ProjectiveSensor::ProjectiveSensor(const Properties& props) {
+    m_film = object_or_default<Film>(props, "film", "film", "hdrfilm");
+    m_sampler = object_or_default<Sampler>(props, "sampler", "sampler", "independent");
+    m_to_world = props.get_transform("to_world");
+    if (!m_to_world.is_rigid())
+        props.error("to_world", "must be a rigid transform (rotation, translation, mirror; no scaling)");
+    m_near = props.get_float("near_clip", 0.0, Inf);
+    m_far = props.get_float("far_clip", 0.0, Inf);
+    if (!(m_far > m_near)) props.error("far_clip", "must exceed near_clip");
+    std::tie(m_tan_x, m_tan_y) = fov_tangents(props, m_film->width(), m_film->height());
+}
+
+double ProjectiveSensor::pdf_direction(const Vec3d& d) const {
+    const Vec3d local = glm::normalize(Vec3d(m_to_world.inverse * glm::dvec4(d, 0.0)));
+    if (!(local.z > 0)) return 0.0;
+    const double x = local.x / (local.z * m_tan_x), y = local.y / (local.z * m_tan_y);
+    const double mx = 1 + 2 * m_film->filter().radius() / m_film->width(),
+                 my = 1 + 2 * m_film->filter().radius() / m_film->height();
+    if (std::abs(x) > mx || std::abs(y) > my) return 0.0;
+    return 1.0 / (4 * m_tan_x * m_tan_y * local.z * local.z * local.z);
 }
 
 }  // namespace kelvin

@@ -4,12 +4,14 @@
 // <vorticity>, <scalar>, <cache type="grid"> as the resolution), and one driver that writes the same files
 // (<prefix>.csv with the same columns, <prefix>_NNNN.png/.exr, <prefix>_dye_NNNN.png/.exr), reports the same
 // counters and prints which effects were active.
+#include <kelvin/core/checkpoint.h>
 #include <kelvin/core/job.h>
 #include <kelvin/core/properties.h>
 #include <kelvin/fluid/dye.h>
 #include <kelvin/fluid/fields.h>
 #include <kelvin/fluid/mcfluid.h>
 
+#include <functional>
 #include <memory>
 #include <string>
 
@@ -64,6 +66,16 @@ public:
 /// and dye).
 RunResult run_fluid_solver(const std::string& who, FluidSolver& solver, const SimulationParams& p, RunContext& ctx,
                            const std::string& effects);
+
+/// The named fields of a state on its output grid ("vorticity", "u", "v"; null for other names), looked up
+/// only when a checkpoint consumer asks for them.
+using FieldLookup = std::function<const Grid2*(const std::string& name)>;
+
+/// A checkpoint of a 2D simulation state (mcfluid and the baselines): work, simulated time and grid, its fields
+/// through `fields`, and the exact solution of the initial condition (when `field` has one) at `viscosity`.
+/// The caller sets `seconds` and `image`. `fields` and `field` must outlive the checkpoint callback.
+Checkpoint state_checkpoint(long long steps, double sim_time, const CellGrid2& grid, FieldLookup fields,
+                            const VorticityField& field, double viscosity);
 
 /// Diagnostics of a state given as fields on one grid (midpoint rule over the domain box).
 FluidDiagnostics grid_diagnostics(const Grid2& omega, const Grid2& u, const Grid2& v);

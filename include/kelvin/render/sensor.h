@@ -50,4 +50,49 @@ public:
     virtual const Transform& to_world() const = 0;
 };
 
+/// What the projective cameras (`perspective`, `thinlens`) share: the nested film and sampler, a rigid to_world,
+/// near/far clipping depths, the field of view (fov_tangents), the mapping between film positions and pinhole
+/// directions in camera space (+z forward, +x to the left, +y up), and the directional density.
+class ProjectiveSensor : public Sensor {
+public:
+    /// Reads film, sampler, to_world (refused unless rigid: importance weights measure distances and angles in
+    /// camera space), near_clip, far_clip, fov and fov_axis.
+    explicit ProjectiveSensor(const Properties& props);
+
+    /// Solid-angle density of a camera ray's direction: 1 / (A cos^3 theta), A the image plane's area at unit
+    /// depth (the image extended by the filter radius, as camera samples reach); 0 outside. Exact for a pinhole;
+    /// for a lens the inside test is made from the lens centre (the interface passes no lens point).
+    double pdf_direction(const Vec3d& d) const override;
+    const Film& film() const override { return *m_film; }
+    const Sampler& sampler() const override { return *m_sampler; }
+    const Transform& to_world() const override { return m_to_world; }
+
+protected:
+    /// The camera-space direction (z = 1) through film position `film` (pixels).
+    Vec3d film_to_direction(const Vec2d& film) const {
+        return {m_tan_x * (1 - 2 * film.x / m_film->width()), m_tan_y * (1 - 2 * film.y / m_film->height()), 1.0};
+    }
+    /// The film position (pixels) of camera-space direction `d` (d.z > 0).
+    Vec2d direction_to_film(const Vec3d& d) const {
+        return {0.5 * m_film->width() * (1 - d.x / (d.z * m_tan_x)), 0.5 * m_film->height() * (1 - d.y / (d.z * m_tan_y))};
+    }
+    /// Within a filter radius of the image: camera samples reach that far (filter importance sampling), so
+    /// light-tracing connections landing there still count (their splats cover border pixels).
+    bool on_film(const Vec2d& film) const {
+        const double r = m_film->filter().radius();
+        return film.x >= -r && film.y >= -r && film.x < m_film->width() + r && film.y < m_film->height() + r;
+    }
+    /// The importance weight of a connection (SensorDirectSample::weight) at distance `dist` and angle theta
+    /// to the optical axis: W H / (A cos^3 theta dist^2).
+    double importance(double cos_theta, double dist) const {
+        const double area = 4 * m_tan_x * m_tan_y;
+        return double(m_film->width()) * m_film->height() / (area * cos_theta * cos_theta * cos_theta * dist * dist);
+    }
+
+    std::shared_ptr<Film> m_film;
+    std::shared_ptr<Sampler> m_sampler;
+    Transform m_to_world;
+    double m_near = 0, m_far = 0, m_tan_x = 1, m_tan_y = 1;
+};
+
 }  // namespace kelvin

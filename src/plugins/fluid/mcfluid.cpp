@@ -52,6 +52,7 @@
 #include <kelvin/fluid/fields.h>
 #include <kelvin/fluid/mcfluid.h>
 #include <kelvin/fluid/output.h>
+#include <kelvin/fluid/simulation.h>
 
 #include <fmt/format.h>
 
@@ -189,28 +190,18 @@ public:
         // Checkpoints (core/checkpoint.h): the state after the steps that reach them, fields on the cache grid.
         CheckpointSchedule checkpoints(ctx);
         auto checkpoint = [&](long long steps) {
-            Checkpoint cp;
+            auto fields = [&solver](const std::string& name) -> const Grid2* {
+                return name == "vorticity" ? &solver.vorticity_grid()
+                       : name == "u"       ? &solver.velocity_u()
+                       : name == "v"       ? &solver.velocity_v()
+                                           : nullptr;
+            };
+            Checkpoint cp = state_checkpoint(steps, solver.time(),
+                                             {settings.domain.min, settings.domain.max, settings.nx, settings.ny},
+                                             fields, field, settings.viscosity);
             cp.seconds = total.seconds() - checkpoints.overhead();
-            cp.work = double(steps);
-            cp.work_unit = "steps";
-            cp.sim_time = solver.time();
-            cp.grid = {settings.domain.min, settings.domain.max, settings.nx, settings.ny};
             cp.image = [&] {
                 return field_image(solver.vorticity_grid(), &solver.velocity_u(), &solver.velocity_v(), range);
-            };
-            cp.field = [&](const std::string& name, std::vector<double>& values) {
-                const Grid2* g = name == "vorticity" ? &solver.vorticity_grid()
-                                 : name == "u"       ? &solver.velocity_u()
-                                 : name == "v"       ? &solver.velocity_v()
-                                                     : nullptr;
-                if (g) values = g->values();
-                return g != nullptr;
-            };
-            cp.exact = [&](const std::string& name, double t, Vec2d x) -> std::optional<double> {
-                if (name == "vorticity") return field.exact_vorticity(t, x, settings.viscosity);
-                if (name != "u" && name != "v") return std::nullopt;
-                auto v = field.exact_velocity(t, x, settings.viscosity);
-                return v ? std::optional<double>(name == "u" ? v->x : v->y) : std::nullopt;
             };
             checkpoints.reached(ctx, cp);
         };

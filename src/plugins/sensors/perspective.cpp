@@ -25,25 +25,12 @@
 namespace kelvin {
 namespace {
 
-class Perspective final : public Sensor {
+class Perspective final : public ProjectiveSensor {
 public:
-    explicit Perspective(const Properties& props) {
-        m_film = object_or_default<Film>(props, "film", "film", "hdrfilm");
-        m_sampler = object_or_default<Sampler>(props, "sampler", "sampler", "independent");
-        m_to_world = props.get_transform("to_world");
-        // Distances and angles are measured in camera space by the light-tracing weight: keep them world-sized.
-        if (!m_to_world.is_rigid())
-            props.error("to_world", "must be a rigid transform (rotation, translation, mirror; no scaling)");
-        m_near = props.get_float("near_clip", 0.0, Inf);
-        m_far = props.get_float("far_clip", 0.0, Inf);
-        if (!(m_far > m_near)) props.error("far_clip", "must exceed near_clip");
-        std::tie(m_tan_x, m_tan_y) = fov_tangents(props, m_film->width(), m_film->height());
-    }
+    explicit Perspective(const Properties& props) : ProjectiveSensor(props) {}
 
     Ray sample_ray(Vec2d film_pos, Vec2d) const override {
-        const double w = m_film->width(), h = m_film->height();
-        Vec3d d_cam(m_tan_x * (1 - 2 * film_pos.x / w), m_tan_y * (1 - 2 * film_pos.y / h), 1.0);
-        d_cam = glm::normalize(d_cam);
+        const Vec3d d_cam = glm::normalize(film_to_direction(film_pos));
         Ray r;
         r.o = m_to_world.apply_point(Vec3d(0.0));
         r.d = glm::normalize(m_to_world.apply_vector(d_cam));
@@ -52,49 +39,24 @@ public:
         return r;
     }
     std::optional<SensorDirectSample> sample_direct(const Vec3d& ref, const Vec2d&) const override {
-        const double w = m_film->width(), h = m_film->height();
-        Vec3d local = m_to_world.inverse * glm::dvec4(ref, 1.0);
+        const Vec3d local = m_to_world.inverse * glm::dvec4(ref, 1.0);
         if (!(local.z > 0)) return std::nullopt;
-        const double dist_local = glm::length(local);
-        const double cos_theta = local.z / dist_local;
+        const double cos_theta = local.z / glm::length(local);
         // The clipping planes are depths along the view axis, as for camera rays.
         if (local.z < m_near || local.z > m_far) return std::nullopt;
-        Vec2d film(0.5 * w * (1 - local.x / (local.z * m_tan_x)), 0.5 * h * (1 - local.y / (local.z * m_tan_y)));
-        // Camera samples reach a filter radius beyond the image (filter importance sampling), so connections
-        // that land there still count: their splats cover border pixels.
-        const double margin = m_film->filter().radius();
-        if (!(film.x >= -margin && film.y >= -margin && film.x < w + margin && film.y < h + margin)) return std::nullopt;
+        const Vec2d film = direction_to_film(local);
+        if (!on_film(film)) return std::nullopt;
         SensorDirectSample s;
         s.film = film;
         s.p = m_to_world.apply_point(Vec3d(0.0));
-        Vec3d d = s.p - ref;
+        const Vec3d d = s.p - ref;
         s.dist = glm::length(d);
         if (!(s.dist > 0)) return std::nullopt;
         s.d = d / s.dist;
-        const double area = 4 * m_tan_x * m_tan_y;
-        s.weight = w * h / (area * cos_theta * cos_theta * cos_theta * s.dist * s.dist);
+        s.weight = importance(cos_theta, s.dist);
         return s;
     }
-    double pdf_direction(const Vec3d& d) const override {
-        Vec3d local = glm::normalize(Vec3d(m_to_world.inverse * glm::dvec4(d, 0.0)));
-        if (!(local.z > 0)) return 0.0;
-        // Inside the image? (Same projection as sample_direct.)
-        double x = local.x / (local.z * m_tan_x), y = local.y / (local.z * m_tan_y);
-        const double mx = 1 + 2 * m_film->filter().radius() / m_film->width(),
-                     my = 1 + 2 * m_film->filter().radius() / m_film->height();
-        if (std::abs(x) > mx || std::abs(y) > my) return 0.0;
-        return 1.0 / (4 * m_tan_x * m_tan_y * local.z * local.z * local.z);
-    }
     bool is_pinhole() const override { return true; }
-    const Film& film() const override { return *m_film; }
-    const Sampler& sampler() const override { return *m_sampler; }
-    const Transform& to_world() const override { return m_to_world; }
-
-private:
-    std::shared_ptr<Film> m_film;
-    std::shared_ptr<Sampler> m_sampler;
-    Transform m_to_world;
-    double m_near, m_far, m_tan_x = 1, m_tan_y = 1;
 };
 
 }  // namespace

@@ -56,28 +56,17 @@ ParamSpec without_default(ParamSpec s) {
     return s;
 }
 
-class ThinLens final : public Sensor {
+class ThinLens final : public ProjectiveSensor {
 public:
-    explicit ThinLens(const Properties& props) {
-        m_film = object_or_default<Film>(props, "film", "film", "hdrfilm");
-        m_sampler = object_or_default<Sampler>(props, "sampler", "sampler", "independent");
-        m_to_world = props.get_transform("to_world");
-        // A rigid transform keeps lens areas and angles: the importance above assumes it.
-        if (!m_to_world.is_rigid())
-            props.error("to_world", "must be a rigid transform (rotation, translation, mirror; no scaling)");
-        m_near = props.get_float("near_clip", 0.0, Inf);
-        m_far = props.get_float("far_clip", 0.0, Inf);
-        if (!(m_far > m_near)) props.error("far_clip", "must exceed near_clip");
+    explicit ThinLens(const Properties& props) : ProjectiveSensor(props) {
         m_radius = props.get_float("aperture_radius", 0.0, Inf);
         m_focus = props.has("focus_distance") ? props.get_float("focus_distance", 0.0, Inf) : m_far;
         if (!(m_focus > 0)) props.error("focus_distance", "must be positive");
-        std::tie(m_tan_x, m_tan_y) = fov_tangents(props, m_film->width(), m_film->height());
     }
 
     Ray sample_ray(Vec2d film_pos, Vec2d aperture) const override {
-        const double w = m_film->width(), h = m_film->height();
         // The pinhole direction (z = 1) scaled onto the focal plane, and a point on the lens.
-        const Vec3d q = m_focus * Vec3d(m_tan_x * (1 - 2 * film_pos.x / w), m_tan_y * (1 - 2 * film_pos.y / h), 1.0);
+        const Vec3d q = m_focus * film_to_direction(film_pos);
         const Vec2d disk = warp::square_to_uniform_disk_concentric(aperture) * m_radius;
         const Vec3d l(disk.x, disk.y, 0.0);
         const Vec3d d_cam = glm::normalize(q - l);
@@ -91,7 +80,6 @@ public:
     }
 
     std::optional<SensorDirectSample> sample_direct(const Vec3d& ref, const Vec2d& u) const override {
-        const double w = m_film->width(), h = m_film->height();
         const Vec3d local = m_to_world.inverse * glm::dvec4(ref, 1.0);
         if (local.z < m_near || local.z > m_far || !(local.z > 0)) return std::nullopt;
         const Vec2d disk = warp::square_to_uniform_disk_concentric(u) * m_radius;
@@ -99,45 +87,21 @@ public:
         const Vec3d v = local - l;  // lens point -> scene point, camera space
         // Where the line from l through the scene point crosses the focal plane, as a pinhole direction.
         const Vec3d q = l + v * (m_focus / v.z);
-        const Vec2d film(0.5 * w * (1 - q.x / (m_focus * m_tan_x)), 0.5 * h * (1 - q.y / (m_focus * m_tan_y)));
-        // Camera samples reach a filter radius beyond the image (filter importance sampling), so connections
-        // that land there still count: their splats cover border pixels.
-        const double margin = m_film->filter().radius();
-        if (!(film.x >= -margin && film.y >= -margin && film.x < w + margin && film.y < h + margin)) return std::nullopt;
+        const Vec2d film = direction_to_film(q);
+        if (!on_film(film)) return std::nullopt;
         const double dist = glm::length(v);
         if (!(dist > 0)) return std::nullopt;
-        const double cos_theta = v.z / dist;
         SensorDirectSample s;
         s.film = film;
         s.p = m_to_world.apply_point(l);
         s.dist = dist;  // the transform is rigid
         s.d = glm::normalize(s.p - ref);
-        const double area = 4 * m_tan_x * m_tan_y;
-        s.weight = w * h / (area * cos_theta * cos_theta * cos_theta * dist * dist);
+        s.weight = importance(v.z / dist, dist);
         return s;
     }
 
-    /// Solid-angle density of a camera ray's direction: 1 / (A cos^3 theta) from every lens point (the focal
-    /// plane point is uniform on the image rectangle). The interface passes no lens point, so the test that the
-    /// direction lies inside the image is made from the lens centre, which is exact for a pinhole only.
-    double pdf_direction(const Vec3d& d) const override {
-        const Vec3d local = glm::normalize(Vec3d(m_to_world.inverse * glm::dvec4(d, 0.0)));
-        if (!(local.z > 0)) return 0.0;
-        const double x = local.x / (local.z * m_tan_x), y = local.y / (local.z * m_tan_y);
-        const double mx = 1 + 2 * m_film->filter().radius() / m_film->width(),
-                     my = 1 + 2 * m_film->filter().radius() / m_film->height();
-        if (std::abs(x) > mx || std::abs(y) > my) return 0.0;
-        return 1.0 / (4 * m_tan_x * m_tan_y * local.z * local.z * local.z);
-    }
-    const Film& film() const override { return *m_film; }
-    const Sampler& sampler() const override { return *m_sampler; }
-    const Transform& to_world() const override { return m_to_world; }
-
 private:
-    std::shared_ptr<Film> m_film;
-    std::shared_ptr<Sampler> m_sampler;
-    Transform m_to_world;
-    double m_near, m_far, m_radius, m_focus, m_tan_x = 1, m_tan_y = 1;
+    double m_radius, m_focus;
 };
 
 }  // namespace
