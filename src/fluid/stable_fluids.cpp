@@ -154,64 +154,47 @@ StableFluidsSolver::StableFluidsSolver(const StableFluidsSettings& settings, con
 
 StableFluidsSolver::~StableFluidsSolver() = default;
 
-double StableFluidsSolver::sample_u(Vec2d p) const {
-    const Domain2& d = m_settings.domain;
-    const int nx = m_settings.nx, ny = m_settings.ny;
-    if (!std::isfinite(p.x) || !std::isfinite(p.y)) return 0.0;
-    double gx = (p.x - d.min.x) / m_omega.h().x, gy = (p.y - d.min.y) / m_omega.h().y - 0.5;
+namespace {
+// Bilinear interpolation of a row-major array of face values (cols x rows) at grid coordinates g (units of
+// cells, origin at the first face): wrapped on periodic domains, clamped to the faces otherwise.
+double sample_faces(const std::vector<double>& f, int cols, int rows, Vec2d g, bool periodic) {
     int i0, j0, i1, j1;
     double fx, fy;
-    if (d.periodic) {
-        const double flx = std::floor(gx), fly = std::floor(gy);
-        fx = gx - flx;
-        fy = gy - fly;
-        i0 = wrap_index(int(std::fmod(flx, double(nx))), nx);
-        j0 = wrap_index(int(std::fmod(fly, double(ny))), ny);
-        i1 = i0 + 1 == nx ? 0 : i0 + 1;
-        j1 = j0 + 1 == ny ? 0 : j0 + 1;
+    if (periodic) {
+        const double flx = std::floor(g.x), fly = std::floor(g.y);
+        fx = g.x - flx;
+        fy = g.y - fly;
+        i0 = wrap_index(int(std::fmod(flx, double(cols))), cols);
+        j0 = wrap_index(int(std::fmod(fly, double(rows))), rows);
+        i1 = i0 + 1 == cols ? 0 : i0 + 1;
+        j1 = j0 + 1 == rows ? 0 : j0 + 1;
     } else {
-        gx = std::clamp(gx, 0.0, double(nx));
-        gy = std::clamp(gy, 0.0, double(ny - 1));
-        i0 = std::min(int(gx), nx - 1);
-        j0 = std::min(int(gy), ny - 2);
+        const double gx = std::clamp(g.x, 0.0, double(cols - 1)), gy = std::clamp(g.y, 0.0, double(rows - 1));
+        i0 = std::min(int(gx), cols - 2);
+        j0 = std::min(int(gy), rows - 2);
         fx = gx - i0;
         fy = gy - j0;
         i1 = i0 + 1;
         j1 = j0 + 1;
     }
-    const double* u = m_uf.data();
-    const std::size_t r0 = std::size_t(j0) * m_nux, r1 = std::size_t(j1) * m_nux;
-    return (1 - fy) * ((1 - fx) * u[r0 + i0] + fx * u[r0 + i1]) + fy * ((1 - fx) * u[r1 + i0] + fx * u[r1 + i1]);
+    const std::size_t r0 = std::size_t(j0) * std::size_t(cols), r1 = std::size_t(j1) * std::size_t(cols);
+    return (1 - fy) * ((1 - fx) * f[r0 + i0] + fx * f[r0 + i1]) + fy * ((1 - fx) * f[r1 + i0] + fx * f[r1 + i1]);
+}
+}  // namespace
+
+// u faces sit at (i h_x, (j + 1/2) h_y), v faces at ((i + 1/2) h_x, j h_y) from the domain's corner.
+double StableFluidsSolver::sample_u(Vec2d p) const {
+    if (!std::isfinite(p.x) || !std::isfinite(p.y)) return 0.0;
+    const Domain2& d = m_settings.domain;
+    const Vec2d g((p.x - d.min.x) / m_omega.h().x, (p.y - d.min.y) / m_omega.h().y - 0.5);
+    return sample_faces(m_uf, m_nux, m_settings.ny, g, d.periodic);
 }
 
 double StableFluidsSolver::sample_v(Vec2d p) const {
-    const Domain2& d = m_settings.domain;
-    const int nx = m_settings.nx, ny = m_settings.ny;
     if (!std::isfinite(p.x) || !std::isfinite(p.y)) return 0.0;
-    double gx = (p.x - d.min.x) / m_omega.h().x - 0.5, gy = (p.y - d.min.y) / m_omega.h().y;
-    int i0, j0, i1, j1;
-    double fx, fy;
-    if (d.periodic) {
-        const double flx = std::floor(gx), fly = std::floor(gy);
-        fx = gx - flx;
-        fy = gy - fly;
-        i0 = wrap_index(int(std::fmod(flx, double(nx))), nx);
-        j0 = wrap_index(int(std::fmod(fly, double(ny))), ny);
-        i1 = i0 + 1 == nx ? 0 : i0 + 1;
-        j1 = j0 + 1 == ny ? 0 : j0 + 1;
-    } else {
-        gx = std::clamp(gx, 0.0, double(nx - 1));
-        gy = std::clamp(gy, 0.0, double(ny));
-        i0 = std::min(int(gx), nx - 2);
-        j0 = std::min(int(gy), ny - 1);
-        fx = gx - i0;
-        fy = gy - j0;
-        i1 = i0 + 1;
-        j1 = j0 + 1;
-    }
-    const double* v = m_vf.data();
-    const std::size_t r0 = std::size_t(j0) * std::size_t(nx), r1 = std::size_t(j1) * std::size_t(nx);
-    return (1 - fy) * ((1 - fx) * v[r0 + i0] + fx * v[r0 + i1]) + fy * ((1 - fx) * v[r1 + i0] + fx * v[r1 + i1]);
+    const Domain2& d = m_settings.domain;
+    const Vec2d g((p.x - d.min.x) / m_omega.h().x - 0.5, (p.y - d.min.y) / m_omega.h().y);
+    return sample_faces(m_vf, m_settings.nx, m_nvy, g, d.periodic);
 }
 
 Vec2d StableFluidsSolver::velocity(Vec2d x) const { return {sample_u(x), sample_v(x)}; }

@@ -26,6 +26,22 @@ struct SumParams {
     int tn = 0;
 };
 
+SumParams sum_params(double delta, const Domain2& d, const PeriodicKernel* periodic) {
+    SumParams k;
+    k.d2 = delta * delta;
+    if (d.periodic) {
+        k.periodic = true;
+        k.lx = d.size().x;
+        k.ly = d.size().y;
+        k.inv_lx = 1 / k.lx;
+        k.inv_ly = 1 / k.ly;
+        k.tu = periodic->table_u();
+        k.tv = periodic->table_v();
+        k.tn = periodic->table_size();
+    }
+    return k;
+}
+
 // Sum over sources of gamma_j * 2 pi K_delta(t - p_j) (and of gamma_j * pi zeta_delta when w != null) for one
 // target. Sequential over the sources: the result does not depend on how targets are split.
 template <bool Periodic>
@@ -162,19 +178,7 @@ VortexParticleSolver::~VortexParticleSolver() = default;
 
 void VortexParticleSolver::sum_velocity(const double* tx, const double* ty, std::size_t n, const double* px,
                                         const double* py, double* u, double* v) {
-    SumParams k;
-    k.d2 = m_delta * m_delta;
-    const Domain2& d = m_settings.domain;
-    if (d.periodic) {
-        k.periodic = true;
-        k.lx = d.size().x;
-        k.ly = d.size().y;
-        k.inv_lx = 1 / k.lx;
-        k.inv_ly = 1 / k.ly;
-        k.tu = m_periodic->table_u();
-        k.tv = m_periodic->table_v();
-        k.tn = m_periodic->table_size();
-    }
+    const SumParams k = sum_params(m_delta, m_settings.domain, m_periodic.get());
     const std::size_t np = m_gamma.size();
     const double* g = m_gamma.data();
     const std::size_t blocks = (n + Block - 1) / Block;
@@ -291,19 +295,7 @@ bool VortexParticleSolver::step(double dt) {
 void VortexParticleSolver::ensure_fields() {
     if (m_fields_valid) return;
     Timer timer;
-    SumParams k;
-    k.d2 = m_delta * m_delta;
-    const Domain2& d = m_settings.domain;
-    if (d.periodic) {
-        k.periodic = true;
-        k.lx = d.size().x;
-        k.ly = d.size().y;
-        k.inv_lx = 1 / k.lx;
-        k.inv_ly = 1 / k.ly;
-        k.tu = m_periodic->table_u();
-        k.tv = m_periodic->table_v();
-        k.tn = m_periodic->table_size();
-    }
+    const SumParams k = sum_params(m_delta, m_settings.domain, m_periodic.get());
     const std::size_t cells = m_cx.size(), np = m_gamma.size();
     double* u = m_u.values().data();
     double* v = m_v.values().data();
