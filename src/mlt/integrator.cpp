@@ -292,7 +292,8 @@ RunResult MetropolisIntegrator::render(const Scene& scene, RunContext& ctx) {
             Chain& ch = chains[c];
             SampleCounters& cnt = counters[c];
             const uint64_t todo = steps_until(first + n, c) - steps_until(first, c);
-            auto target = [&](std::vector<double>& v, Slot slot) {
+            // One std::function per pass: built per step, it would allocate (the closure exceeds its small buffer).
+            const MarkovChain::Target target = [&](std::vector<double>& v, Slot slot) {
                 const auto t0 = Clock::now();
                 const double pi = evaluate(v, *ch.pss, ch.f[1 + int(slot)], cnt);
                 const double dt = std::chrono::duration<double>(Clock::now() - t0).count();
