@@ -142,6 +142,7 @@ RunResult MetropolisIntegrator::render(const Scene& scene, RunContext& ctx) {
     m_technique->validate(scene);
     const int w = sensor.film().width(), h = sensor.film().height();
     const ReconstructionFilter& filter = sensor.film().filter();
+    const int streams = m_technique->sample_streams();  // bdpt: camera, light and connection streams interleaved
     FilmDomain dom;
     dom.origin = Vec2d(-filter.radius());
     dom.extent = Vec2d(w + 2 * filter.radius(), h + 2 * filter.radius());
@@ -200,7 +201,7 @@ RunResult MetropolisIntegrator::render(const Scene& scene, RunContext& ctx) {
             Contributions f;
             for (std::size_t i = b * Block; i < std::min(nboot, (b + 1) * Block); ++i) {
                 if ((i & 255) == 0 && interrupt_requested()) return;
-                PrimarySampleSpace pss(boot_seed, i);
+                PrimarySampleSpace pss(boot_seed, i, streams);
                 x.clear();
                 boot_pi[i] = evaluate(x, pss, f, bc[b]);
             }
@@ -252,11 +253,11 @@ RunResult MetropolisIntegrator::render(const Scene& scene, RunContext& ctx) {
         parallel_for_units(chains.size(), [&](std::size_t c) {
             Chain& ch = chains[c];
             std::vector<double> x;
-            PrimarySampleSpace boot(boot_seed, start[c]);
+            PrimarySampleSpace boot(boot_seed, start[c], streams);
             const double pi = evaluate(x, boot, ch.f[0], counters[c]);
             if (!(pi > 0)) throw RuntimeError("internal error: a bootstrap state did not reproduce its value");
             ch.mc = std::make_unique<MarkovChain>(m_config, std::move(x), pi, chain_seed, c);
-            ch.pss = std::make_unique<PrimarySampleSpace>(pss_seed, c);
+            ch.pss = std::make_unique<PrimarySampleSpace>(pss_seed, c, streams);
         });
     }
     boot_pi = {};

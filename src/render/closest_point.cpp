@@ -123,16 +123,16 @@ struct Device {
 }  // namespace
 
 // ---------------------------------------------------------------------------------------------------------
-// 3D: triangles and spheres
+// 3D: triangles, spheres and discs
 
 namespace {
-struct SphereSet {
+struct RoundSet {  // spheres or discs: user geometry bounded by the ball of each centre and radius
     const ShapeGeometry* geometry;
-    const std::vector<uint32_t>* prims;  // Embree primitive -> sphere index
+    const std::vector<uint32_t>* prims;  // Embree primitive -> sphere / disc index
 };
 
-void sphere_bounds(const RTCBoundsFunctionArguments* args) {
-    const auto* set = static_cast<const SphereSet*>(args->geometryUserPtr);
+void round_bounds(const RTCBoundsFunctionArguments* args) {
+    const auto* set = static_cast<const RoundSet*>(args->geometryUserPtr);
     const uint32_t i = (*set->prims)[args->primID];
     const Vec3d c(set->geometry->positions[i]);
     const double r = set->geometry->radii[i];
@@ -148,7 +148,7 @@ void sphere_bounds(const RTCBoundsFunctionArguments* args) {
 
 struct ClosestPointQuery::Impl {
     Device embree;
-    std::vector<std::unique_ptr<SphereSet>> sphere_sets;
+    std::vector<std::unique_ptr<RoundSet>> round_sets;
     std::vector<ShapeGeometry> geometry;
     // Per shape: for each Embree primitive, the index of the primitive in `geometry` (empty: identity).
     std::vector<std::vector<uint32_t>> prim_map;
@@ -188,13 +188,21 @@ bool point_query_3d(RTCPointQueryFunctionArguments* args) {
             const double l = glm::length(d);
             normal = l > 0 ? d / l : Vec3d(0, 0, 1);
         }
-    } else {
+    } else if (g.type == ShapeGeometry::Type::Spheres) {
         const Vec3d c(g.positions[prim]);
         const double r = g.radii[prim];
         const Vec3d d = q->p - c;
         const double l = glm::length(d);
         normal = l > 0 ? d / l : Vec3d(0, 0, 1);
         point = c + r * normal;
+        if (g.flip_normals) normal = -normal;
+    } else {  // disc: project onto its plane, then clamp to the rim
+        const Vec3d c(g.positions[prim]);
+        const double r = g.radii[prim];
+        normal = glm::normalize(Vec3d(g.normals[prim]));
+        const Vec3d in_plane = (q->p - c) - glm::dot(q->p - c, normal) * normal;
+        const double l = glm::length(in_plane);
+        point = l > r ? c + (r / l) * in_plane : c + in_plane;
         if (g.flip_normals) normal = -normal;
     }
     const double dist = glm::length(q->p - point);
@@ -238,8 +246,11 @@ ClosestPointQuery::ClosestPointQuery(std::vector<ShapeGeometry> geometry) : m_im
             }
             if (keep.size() != g.indices.size() / 3) m.prim_map[s] = keep;
         } else {
+            const bool discs = g.type == ShapeGeometry::Type::Discs;
             for (std::size_t i = 0; i < std::min(g.positions.size(), g.radii.size()); ++i)
-                if (valid(Vec3d(g.positions[i])) && valid(g.radii[i]) && g.radii[i] >= 0) keep.push_back(uint32_t(i));
+                if (valid(Vec3d(g.positions[i])) && valid(g.radii[i]) && g.radii[i] >= 0 &&
+                    (!discs || (i < g.normals.size() && valid(Vec3d(g.normals[i])) && glm::length(Vec3d(g.normals[i])) > 0)))
+                    keep.push_back(uint32_t(i));
             if (keep.size() != g.positions.size()) m.prim_map[s] = keep;
         }
         m.primitives += keep.size();
@@ -264,13 +275,13 @@ ClosestPointQuery::ClosestPointQuery(std::vector<ShapeGeometry> geometry) : m_im
                     grow(Vec3d(g.positions[ib[3 * k + j]]), 0.0);
                 }
         } else {
-            // Embree 3 does not run point queries on its sphere primitives: spheres are user geometry here.
+            // Embree 3 does not run point queries on its point primitives: spheres and discs are user geometry here.
             m.prim_map[s] = keep;
             geom = rtcNewGeometry(m.embree.device, RTC_GEOMETRY_TYPE_USER);
             rtcSetGeometryUserPrimitiveCount(geom, unsigned(keep.size()));
-            m.sphere_sets.push_back(std::make_unique<SphereSet>(SphereSet{&g, &m.prim_map[s]}));
-            rtcSetGeometryUserData(geom, m.sphere_sets.back().get());
-            rtcSetGeometryBoundsFunction(geom, sphere_bounds, m.sphere_sets.back().get());
+            m.round_sets.push_back(std::make_unique<RoundSet>(RoundSet{&g, &m.prim_map[s]}));
+            rtcSetGeometryUserData(geom, m.round_sets.back().get());
+            rtcSetGeometryBoundsFunction(geom, round_bounds, m.round_sets.back().get());
             for (uint32_t k : keep) grow(Vec3d(g.positions[k]), g.radii[k]);
         }
         rtcSetGeometryPointQueryFunction(geom, point_query_3d);

@@ -67,8 +67,9 @@ Scene::Scene(const Properties& props) {
                                        sizeof(Vec3f), g.positions.size());
             rtcSetSharedGeometryBuffer(geom, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3, g.indices.data(), 0,
                                        3 * sizeof(uint32_t), g.indices.size() / 3);
-        } else {
-            geom = rtcNewGeometry(m_accel->device, RTC_GEOMETRY_TYPE_SPHERE_POINT);
+        } else {  // spheres and normal-oriented discs: Embree point primitives (centre and radius)
+            const bool discs = g.type == ShapeGeometry::Type::Discs;
+            geom = rtcNewGeometry(m_accel->device, discs ? RTC_GEOMETRY_TYPE_ORIENTED_DISC_POINT : RTC_GEOMETRY_TYPE_SPHERE_POINT);
             auto* v = static_cast<float*>(rtcSetNewGeometryBuffer(geom, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT4,
                                                                    4 * sizeof(float), g.positions.size()));
             for (std::size_t k = 0; k < g.positions.size(); ++k) {
@@ -77,11 +78,14 @@ Scene::Scene(const Properties& props) {
                 v[4 * k + 2] = g.positions[k].z;
                 v[4 * k + 3] = g.radii[k];
             }
+            if (discs)
+                rtcSetSharedGeometryBuffer(geom, RTC_BUFFER_TYPE_NORMAL, 0, RTC_FORMAT_FLOAT3, g.normals.data(), 0,
+                                           sizeof(Vec3f), g.normals.size());
         }
-        for (const auto& p : g.positions) {
-            float r = g.type == ShapeGeometry::Type::Spheres ? g.radii[std::size_t(&p - g.positions.data())] : 0.f;
-            m_bbox_min = glm::min(m_bbox_min, Vec3d(p) - double(r));
-            m_bbox_max = glm::max(m_bbox_max, Vec3d(p) + double(r));
+        for (std::size_t k = 0; k < g.positions.size(); ++k) {
+            const double r = g.type == ShapeGeometry::Type::Triangles ? 0.0 : double(g.radii[k]);
+            m_bbox_min = glm::min(m_bbox_min, Vec3d(g.positions[k]) - r);
+            m_bbox_max = glm::max(m_bbox_max, Vec3d(g.positions[k]) + r);
         }
         rtcCommitGeometry(geom);
         rtcAttachGeometryByID(m_accel->scene, geom, unsigned(i));
@@ -150,9 +154,14 @@ SurfaceInteraction Scene::interaction(const Ray& ray, const SurfaceHit& hit) con
                 si.ns = glm::dot(n, si.ng) < 0 ? -n : n;
             }
         }
-    } else {
+    } else if (g.type == ShapeGeometry::Type::Spheres) {
         Vec3d d = glm::normalize(hit.p - Vec3d(g.positions[hit.prim]));
         si.uv = {std::atan2(d.y, d.x) / (2 * Pi) + 0.5, std::acos(std::clamp(d.z, -1.0, 1.0)) / Pi};
+    } else {  // disc: polar coordinates (radius fraction, angle from the tangent)
+        const Vec3d d = hit.p - Vec3d(g.positions[hit.prim]), t(g.tangents[hit.prim]), n(g.normals[hit.prim]);
+        const double x = glm::dot(d, t), y = glm::dot(d, glm::cross(n, t));
+        const double phi = std::atan2(y, x);
+        si.uv = {std::min(1.0, std::hypot(x, y) / double(g.radii[hit.prim])), (phi < 0 ? phi + 2 * Pi : phi) / (2 * Pi)};
     }
     si.frame = Frame(si.ns);
     si.wi = si.to_local(-glm::normalize(ray.d));
@@ -203,8 +212,10 @@ std::optional<SurfaceHit> Scene::intersect(const Ray& ray) const {
         const uint32_t* tri = &g.indices[3 * std::size_t(hit.prim)];
         Vec3d p0 = g.positions[tri[0]], p1 = g.positions[tri[1]], p2 = g.positions[tri[2]];
         n = glm::cross(p1 - p0, p2 - p0);
-    } else {
+    } else if (g.type == ShapeGeometry::Type::Spheres) {
         n = hit.p - Vec3d(g.positions[hit.prim]);
+    } else {
+        n = Vec3d(g.normals[hit.prim]);
     }
     double len = glm::length(n);
     hit.ng = len > 0 ? n / len : Vec3d(0, 0, 1);

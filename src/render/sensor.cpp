@@ -31,10 +31,13 @@ ProjectiveSensor::ProjectiveSensor(const Properties& props) {
     std::tie(m_tan_x, m_tan_y) = fov_tangents(props, m_film->width(), m_film->height());
 }
 
-double ProjectiveSensor::pdf_direction(const Vec3d& d) const {
+double ProjectiveSensor::pdf_direction(const Vec3d& origin, const Vec3d& d) const {
     const Vec3d local = glm::normalize(Vec3d(m_to_world.inverse * glm::dvec4(d, 0.0)));
     if (!(local.z > 0)) return 0.0;
-    const double x = local.x / (local.z * m_tan_x), y = local.y / (local.z * m_tan_y);
+    // Where the ray meets the focal plane, as a pinhole direction (z = 1): inside the image or not.
+    const Vec3d lens = m_to_world.inverse * glm::dvec4(origin, 1.0);
+    const Vec3d q = lens * (1.0 / m_focus) + local * (1.0 / local.z);
+    const double x = q.x / m_tan_x, y = q.y / m_tan_y;
     const double mx = 1 + 2 * m_film->filter().radius() / m_film->width(),
                  my = 1 + 2 * m_film->filter().radius() / m_film->height();
     if (std::abs(x) > mx || std::abs(y) > my) return 0.0;

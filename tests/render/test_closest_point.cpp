@@ -351,6 +351,34 @@ TEST(ClosestPoint, FromSceneShapes) {
     EXPECT_NEAR(glm::length(r.normal), 1.0, 1e-12);
 }
 
+TEST(ClosestPoint, Disk) {
+    // A disk of radius 2 centred on (0, 0, 10), tilted 90 degrees about x: its plane is y = 0 around that centre
+    // (normal (0, -1, 0) is the rotated +z). Above the disk the closest point is the projection; beyond the rim,
+    // the rim point towards the query.
+    const std::string xml = R"(<scene version="3.0.0"><integrator type="ao"/><sensor type="perspective"/>
+        <shape type="disk"><transform name="to_world"><scale value="2"/><rotate x="1" angle="90"/><translate z="10"/></transform></shape>
+    </scene>)";
+    auto scene = std::dynamic_pointer_cast<Scene>(instantiate(parse_scene_string(xml)));
+    ASSERT_TRUE(scene);
+    ClosestPointQuery q = ClosestPointQuery::from_shapes(scene->shapes());
+    ClosestPoint r = q.closest({0.5, 3, 10.5});
+    ASSERT_TRUE(r);
+    EXPECT_NEAR(r.distance, 3.0, 1e-6);
+    EXPECT_NEAR(glm::length(r.point - Vec3d(0.5, 0, 10.5)), 0.0, 1e-6);
+    EXPECT_NEAR(std::abs(r.normal.y), 1.0, 1e-6);
+    r = q.closest({5, -4, 10});  // beyond the rim: nearest is (2, 0, 10), at distance hypot(3, 4) = 5
+    ASSERT_TRUE(r);
+    EXPECT_NEAR(r.distance, 5.0, 1e-6);
+    EXPECT_NEAR(glm::length(r.point - Vec3d(2, 0, 10)), 0.0, 1e-6);
+    // Brute force over random points: the distance is the exact point-to-disk distance.
+    Random rng(5, 3);
+    for (int i = 0; i < 500; ++i) {
+        const Vec3d p(rng.next_double() * 8 - 4, rng.next_double() * 8 - 4, 10 + rng.next_double() * 8 - 4);
+        const double rho = std::hypot(p.x, p.z - 10), out = std::max(0.0, rho - 2);
+        EXPECT_NEAR(q.closest(p).distance, std::hypot(out, p.y), 1e-6) << i;
+    }
+}
+
 // ---------------------------------------------------------------------------------------------------------
 // 2D segments
 

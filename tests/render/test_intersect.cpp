@@ -298,3 +298,50 @@ TEST(Intersect, MirroredTransformsKeepOrientation) {
     EXPECT_EQ(hit->shape, 1u);
     expect_vec_near(hit->ng, {0, 0, 1}, 1e-6, "mirrored rectangle: normal +z");
 }
+
+// The analytic disk (Embree's normal-oriented disc): radius 1 scaled by 1.5, tilted 30 degrees about x, moved to
+// (1, -2, 4). Hit distances, normals and polar uv against the plane-and-radius reference, on random rays.
+TEST(Intersect, DiskAnalyticDistanceNormalAndUv) {
+    auto scene = make_scene(R"(
+        <shape type="disk"><transform name="to_world"><scale value="1.5"/><rotate x="1" angle="30"/>
+            <translate x="1" y="-2" z="4"/></transform></shape>)");
+    const Vec3d c(1, -2, 4), n(0, -std::sin(Pi / 6), std::cos(Pi / 6)), tx(1, 0, 0), ty = glm::cross(n, tx);
+    const double R = 1.5;
+    Random rng(11, 2);
+    int hits = 0, misses = 0;
+    for (int i = 0; i < 4000; ++i) {
+        const Vec3d o = c + Vec3d(rng.next_double() * 16 - 8, rng.next_double() * 16 - 8, rng.next_double() * 16 - 8);
+        const Vec3d target = c + 1.4 * R * (2 * rng.next_double() - 1) * tx + 1.4 * R * (2 * rng.next_double() - 1) * ty;
+        const Vec3d d = target - o;
+        const double denom = glm::dot(d, n);
+        if (std::abs(denom) < 0.05 * glm::length(d)) continue;  // grazing: t is ill-conditioned (error ~ 1 / cos)
+        const double t_ref = glm::dot(c - o, n) / denom;
+        const Vec3d p = o + t_ref * d;
+        const double r = glm::length(p - c);
+        if (std::abs(r - R) < 1e-3) continue;  // within float precision of the rim
+        auto h = scene->intersect(Ray{o, d});
+        ASSERT_EQ(h.has_value(), t_ref > 0 && r < R) << "ray " << i;
+        if (!h) {
+            ++misses;
+            continue;
+        }
+        ++hits;
+        EXPECT_NEAR(h->t, t_ref, 1e-5 * (1 + t_ref)) << "ray " << i;
+        expect_vec_near(h->ng, n, 1e-6, "ng: the transformed +z, whichever side the ray comes from");
+        const SurfaceInteraction si = scene->interaction(Ray{o, d}, *h);
+        const double phi = std::atan2(glm::dot(p - c, ty), glm::dot(p - c, tx));
+        EXPECT_NEAR(si.uv.x, r / R, 1e-4) << "u = r / R";
+        const double v = (phi < 0 ? phi + 2 * Pi : phi) / (2 * Pi);
+        EXPECT_NEAR(std::remainder(si.uv.y - v, 1.0), 0.0, 1e-4 / std::max(r, 1e-2)) << "v = phi / 2 pi";
+    }
+    EXPECT_GT(hits, 1000);
+    EXPECT_GT(misses, 500);
+
+    // flip_normals reverses the normal and nothing else.
+    auto flipped = make_scene(R"(<shape type="disk"><boolean name="flip_normals" value="true"/></shape>)");
+    auto h = flipped->intersect(Ray{{0.2, 0.3, 2}, {0, 0, -1}});
+    ASSERT_TRUE(h);
+    EXPECT_NEAR(h->t, 2.0, 1e-6);
+    expect_vec_near(h->ng, {0, 0, -1}, 1e-12, "flipped disk normal");
+    EXPECT_FALSE(flipped->intersect(Ray{{1.2, 0, 2}, {0, 0, -1}}));  // outside the unit radius
+}

@@ -4,6 +4,7 @@
 //   - a point light of intensity I at height h over a diffuse plane: L = rho / pi * I / h^2 (deterministic);
 //   - a spherical area light (radius R, radiance Le, centre at height h) over a diffuse plane:
 //     L = rho * Le * (R / h)^2 (the sphere subtends a cap whose projected solid angle is pi (R/h)^2);
+//   - a disk light (radius R, radiance Le) facing down from height h: L = rho * Le * R^2 / (R^2 + h^2);
 //   - max_depth and hide_emitters semantics.
 // Tolerances: 5 standard errors of the image mean (pixels are independent), and at most 1 %.
 //
@@ -141,6 +142,25 @@ TEST(PathTracer, SphereLightOverPlane) {
     </scene>)", h, R, Le, rho);
     Bitmap img = render(xml, 2048);
     const double expect = rho * Le * (R / h) * (R / h);
+    ImageStats s = stats(img);
+    EXPECT_NEAR(s.mean, expect, 5 * s.stderr_);
+    EXPECT_NEAR(s.mean, expect, 0.01 * expect);
+}
+
+TEST(PathTracer, DiskLightOverPlane) {
+    // A disk light of radius R facing down from height h: the irradiance at its foot is pi Le R^2 / (R^2 + h^2)
+    // (the projected solid angle of a disk seen on its axis), so L = rho Le R^2 / (R^2 + h^2). Checks the disk's
+    // position sampling (pdf 1 / area), its normal, and MIS against BSDF sampling that hits it.
+    const double rho = 0.5, Le = 3, R = 0.8, h = 2;
+    std::string xml = R"(<scene version="3.0.0"><integrator type="path"><integer name="max_depth" value="2"/></integrator>)" +
+                      camera("3, 0, 3", "0, 0, 0", 0.05, 8, "0, 0, 1") + fmt::format(R"(
+        <shape type="disk"><transform name="to_world"><scale value="{}"/><rotate x="1" angle="180"/><translate z="{}"/></transform>
+            <emitter type="area"><rgb name="radiance" value="{}"/></emitter></shape>
+        <shape type="rectangle"><transform name="to_world"><scale value="20"/></transform>
+            <bsdf type="diffuse"><rgb name="reflectance" value="{}"/></bsdf></shape>
+    </scene>)", R, h, Le, rho);
+    Bitmap img = render(xml, 1024);
+    const double expect = rho * Le * R * R / (R * R + h * h);
     ImageStats s = stats(img);
     EXPECT_NEAR(s.mean, expect, 5 * s.stderr_);
     EXPECT_NEAR(s.mean, expect, 0.01 * expect);

@@ -75,6 +75,10 @@ public:
     /// Throws InputError if the scene is one sample() cannot handle (checked once, before any work, by
     /// render() and by integrators that drive sample() themselves, such as the Metropolis ones).
     virtual void validate(const Scene&) const {}
+    /// How many sample streams (SampleStream, sampler.h) sample() draws from: 1, the camera stream only (the
+    /// default), or SampleStreamCount for techniques that build a light subpath too. A PrimarySampleSpace that
+    /// drives sample() interleaves that many streams in its coordinates.
+    virtual int sample_streams() const { return 1; }
 
     /// Work-unit size in pixels (fixed: the split never depends on the thread count).
     static constexpr int TileSize = 32;

@@ -3,43 +3,59 @@
 // sampler hands out, so a Markov chain over paths can be a chain over those numbers. PrimarySampleSpace is the
 // Sampler that reads them from a state vector a Markov chain owns (MarkovChain keeps the accepted state x and
 // its proposals y, z side by side, which is its backup/restore; proposals are Mutation plugins):
-//   - bind() points the sampler at a state and rewinds it; next_1d()/next_2d() read coordinates in order;
+//   - bind() points the sampler at a state and rewinds it; next_1d()/next_2d() read coordinates in order
+//     (for a technique with several sample streams, see sampler.h, each stream reads its interleaved share);
 //   - the vector is extended lazily: reading a coordinate that does not exist yet appends a uniform draw (the
 //     prior) from the sampler's own stream, so paths of any length work and unread coordinates cost nothing.
 // Coordinates live on the torus [0, 1) (see torus_wrap / torus_delta in mlt/mutation.h).
 #include <kelvin/core/random.h>
 #include <kelvin/render/sampler.h>
 
+#include <algorithm>
 #include <vector>
 
 namespace kelvin {
 
 class PrimarySampleSpace final : public Sampler {
 public:
-    /// `seed`, `stream` key the stream that extends states lazily.
-    PrimarySampleSpace(uint64_t seed, uint64_t stream) : m_rng(seed, stream) {}
+    /// `seed`, `stream` key the random stream that extends states lazily. `streams`: how many sample streams
+    /// the technique uses (SamplingIntegrator::sample_streams(): 1 for path, SampleStreamCount for bdpt). With
+    /// one stream every set_stream() draws from the same sequence and coordinates are read in order; with n,
+    /// draw k of stream s reads coordinate k * n + s.
+    PrimarySampleSpace(uint64_t seed, uint64_t stream, int streams = 1)
+        : m_rng(seed, stream), m_streams(streams == 1 ? 1 : SampleStreamCount) {}
 
-    /// Read `state` from dimension 0 (the vector must outlive the reads).
+    /// Read `state` from the start of every stream (the vector must outlive the reads).
     void bind(std::vector<double>& state) {
         m_x = &state;
-        m_next = 0;
+        rewind();
     }
-    /// Dimensions read since bind().
-    std::size_t used() const { return m_next; }
+    /// Coordinates spanned by the reads since bind(): one past the highest index read.
+    std::size_t used() const { return m_used; }
+    /// How many interleaved streams the coordinates are split into (1 or SampleStreamCount).
+    int streams() const { return m_streams; }
 
     // Sampler.
     long long sample_count() const override { return 1; }
     std::unique_ptr<Sampler> clone() const override { return std::make_unique<PrimarySampleSpace>(*this); }
     /// Ignores its arguments: a PSS sampler is positioned by bind(), not by pixel and index.
-    void start(Vec2i, uint64_t, uint64_t) override { m_next = 0; }
-    double next_1d() override { return coordinate(m_next++); }
+    void start(Vec2i, uint64_t, uint64_t) override { rewind(); }
+    void set_stream(SampleStream s) override { m_cur = m_streams == 1 ? 0 : int(s); }
+    double next_1d() override { return coordinate(); }
     Vec2d next_2d() override {
-        const double a = coordinate(m_next++);
-        return {a, coordinate(m_next++)};
+        const double a = coordinate();
+        return {a, coordinate()};
     }
 
 private:
-    double coordinate(std::size_t i) {
+    void rewind() {
+        m_cur = 0;
+        m_used = 0;
+        for (auto& n : m_next) n = 0;
+    }
+    double coordinate() {
+        const std::size_t i = m_next[m_cur]++ * std::size_t(m_streams) + std::size_t(m_cur);
+        m_used = std::max(m_used, i + 1);
         std::vector<double>& x = *m_x;
         while (x.size() <= i) x.push_back(m_rng.next_double());  // the prior: uniform
         return x[i];
@@ -47,7 +63,9 @@ private:
 
     Random m_rng;
     std::vector<double>* m_x = nullptr;
-    std::size_t m_next = 0;
+    int m_streams = 1, m_cur = 0;
+    std::size_t m_next[SampleStreamCount] = {0, 0, 0};
+    std::size_t m_used = 0;
 };
 
 }  // namespace kelvin

@@ -40,11 +40,13 @@ public:
     /// Primary ray through film position `film_pos` (in pixels, (0,0) = top-left corner of the image),
     /// with `aperture` in [0,1)^2 for lens sampling.
     virtual Ray sample_ray(Vec2d film_pos, Vec2d aperture) const = 0;
-    /// Solid-angle density with which sample_ray produces unit direction `d` (world space), as used by
-    /// bidirectional MIS; 0 outside the field of view or if unsupported (default). Pinhole: 1 / (A cos^3).
-    virtual double pdf_direction(const Vec3d& d) const { return 0.0; }
-    /// A point camera (all rays start at one point): what bidirectional MIS currently assumes.
-    virtual bool is_pinhole() const { return false; }
+    /// Solid-angle density with which sample_ray, having chosen the ray origin `origin` (the pinhole, or a point
+    /// on the lens), produces unit direction `d` (world space), as used by bidirectional MIS; 0 outside the field
+    /// of view or if unsupported (default). Projective cameras: 1 / (A cos^3 theta).
+    virtual double pdf_direction(const Vec3d& origin, const Vec3d& d) const { return 0.0; }
+    /// True if sample_direct() and pdf_direction() are implemented, so that bidirectional techniques can
+    /// connect light paths to the sensor and weigh camera vertices.
+    virtual bool supports_connections() const { return false; }
     virtual const Film& film() const = 0;
     virtual const Sampler& sampler() const = 0;
     virtual const Transform& to_world() const = 0;
@@ -59,10 +61,12 @@ public:
     /// camera space), near_clip, far_clip, fov and fov_axis.
     explicit ProjectiveSensor(const Properties& props);
 
-    /// Solid-angle density of a camera ray's direction: 1 / (A cos^3 theta), A the image plane's area at unit
-    /// depth (the image extended by the filter radius, as camera samples reach); 0 outside. Exact for a pinhole;
-    /// for a lens the inside test is made from the lens centre (the interface passes no lens point).
-    double pdf_direction(const Vec3d& d) const override;
+    /// Solid-angle density of a camera ray's direction from `origin`: 1 / (A cos^3 theta), A the image plane's
+    /// area at unit depth (the image extended by the filter radius, as camera samples reach); 0 if the ray's
+    /// focal-plane point (for a pinhole: its direction) falls outside. For a lens the density per solid angle
+    /// is the same as a pinhole's: the focal-plane point is uniform over an area A F^2, and dA = F^2 dw / cos^3.
+    double pdf_direction(const Vec3d& origin, const Vec3d& d) const override;
+    bool supports_connections() const override { return true; }
     const Film& film() const override { return *m_film; }
     const Sampler& sampler() const override { return *m_sampler; }
     const Transform& to_world() const override { return m_to_world; }
@@ -93,6 +97,7 @@ protected:
     std::shared_ptr<Sampler> m_sampler;
     Transform m_to_world;
     double m_near = 0, m_far = 0, m_tan_x = 1, m_tan_y = 1;
+    double m_focus = 1;  ///< depth of the plane camera rays converge on (any value for a pinhole; thinlens sets it)
 };
 
 }  // namespace kelvin

@@ -14,12 +14,14 @@ namespace kelvin {
 
 /// World-space geometry in Embree-ready layout (float positions, 32-bit indices).
 struct ShapeGeometry {
-    enum class Type { Triangles, Spheres };
+    enum class Type { Triangles, Spheres, Discs };
     Type type = Type::Triangles;
-    std::vector<Vec3f> positions;    ///< triangle vertices, or sphere centres
+    std::vector<Vec3f> positions;    ///< triangle vertices, or sphere / disc centres
     std::vector<uint32_t> indices;   ///< 3 per triangle (counter-clockwise = front, normal by right hand)
-    std::vector<float> radii;        ///< spheres: one per centre
-    std::vector<Vec3f> normals;      ///< triangles: optional per-vertex shading normals (same count as positions)
+    std::vector<float> radii;        ///< spheres and discs: one per centre
+    std::vector<Vec3f> normals;      ///< triangles: optional per-vertex shading normals (same count as positions);
+                                     ///< discs: the unit normal of each disc (required)
+    std::vector<Vec3f> tangents;     ///< discs: a unit vector in each disc's plane, where the polar angle of uv is 0
     std::vector<Vec2f> uvs;          ///< triangles: optional per-vertex texture coordinates
     bool flip_normals = false;
 };

@@ -8,10 +8,15 @@
 //
 // Paths are terminated by max_depth and by Russian roulette from rr_depth on (roulette is not part of the
 // MIS densities; the estimate stays unbiased because every strategy's contribution is itself unbiased).
-// Primary sample layout: dimensions 0-3 pixel and lens, then 4 per camera-subpath bounce, then the emitter
-// choice and emission (5), 4 per light-subpath bounce, then 3 per next-event (s = 1) strategy. The light
-// subpath's dimensions therefore shift with the camera subpath's length; the multiplexed MLT issue needs a
-// stable split (e.g. two interleaved streams) and will change this layout.
+// Cameras: any sensor that supports connections (sample_direct, pdf_direction): the pinhole `perspective` and
+// the `thinlens`, whose camera vertex is the lens point of the ray (its area density is the same for every
+// strategy, so it cancels from the MIS weights; the directional density 1 / (A cos^3) holds from any lens point).
+//
+// Primary sample layout, in three sample streams (sampler.h) so that no subpath's numbers shift with another's
+// length: the camera stream holds the film position and lens (0-3), then 4 per camera-subpath bounce; the light
+// stream the emitter choice and emission (5), then 4 per light-subpath bounce; the connection stream 3 per
+// next-event (s = 1) strategy and 2 per light-tracing (t = 1) strategy (the lens point), in the order the
+// strategies are evaluated (t = 1..n_cam, s = 0..n_light).
 //
 // | parameter     | type    | default | meaning                                                  |
 // |---------------|---------|---------|----------------------------------------------------------|
@@ -73,11 +78,12 @@ public:
     }
     bool splats() const override { return true; }
 
+    int sample_streams() const override { return SampleStreamCount; }
+
     void validate(const Scene& scene) const override {
-        // The camera-vertex densities below assume a point camera.
-        if (!scene.sensor()->is_pinhole())
-            throw InputError({}, fmt::format("bdpt supports pinhole sensors only (perspective), not {}; use path "
-                                             "or ptracer", scene.sensor()->to_string()));
+        if (!scene.sensor()->supports_connections())
+            throw InputError({}, fmt::format("bdpt needs a sensor that light paths can connect to (perspective, "
+                                             "thinlens), not {}; use path", scene.sensor()->to_string()));
     }
 
     Color3 sample(const Scene& scene, Sampler& sampler, const Ray& camera_ray, SampleCounters& c) const override {
@@ -95,11 +101,12 @@ public:
         cam[0].type = VertexType::Camera;
         cam[0].beta = Color3(1.0);
         cam[0].p = ray.o;
-        const double cam_pdf_dir = sensor.pdf_direction(ray.d);
+        const double cam_pdf_dir = sensor.pdf_direction(ray.o, ray.d);
         const int n_cam = 1 + walk(scene, sampler, ray, Color3(1.0), cam_pdf_dir, max_edges, TransportMode::Radiance,
                                    cam.data(), c);
 
         // Light subpath.
+        sampler.set_stream(SampleStream::Light);
         int n_light = 0;
         auto [emitter, sel_pdf] = scene.sample_emitter(sampler.next_1d());
         const Vec2d u_pos = sampler.next_2d(), u_dir = sampler.next_2d();
@@ -129,11 +136,12 @@ public:
         }
 
         // All strategies.
+        sampler.set_stream(SampleStream::Connection);
         Color3 L(0.0);
         for (int t = 1; t <= n_cam; ++t)
             for (int s = 0; s <= n_light; ++s) {
                 const int edges = s + t - 1;
-                if (t == 1 && s == 0) continue;  // a pinhole cannot be hit
+                if (t == 1 && s == 0) continue;  // the camera (pinhole or lens) is not in the scene: never hit
                 // Emitters seen directly come from (s=0, t=2) alone, exactly and noise-free; (1, 1) would count
                 // them twice (pbrt makes the same choice, and mis_weight() returns 1 for s + t == 2).
                 if (t == 1 && s == 1) continue;
@@ -275,7 +283,7 @@ private:
         wn /= l;
         double p;
         if (v.type == VertexType::Camera) {
-            p = sensor.pdf_direction(wn);
+            p = sensor.pdf_direction(v.p, wn);
         } else {
             SurfaceInteraction si = v.si;
             si.wi = si.to_local(glm::normalize(prev->p - v.p));
@@ -318,10 +326,11 @@ private:
             }
             L *= pt.beta;
         } else if (t == 1) {
-            // Connect the light subpath's last vertex to the camera.
+            // Connect the light subpath's last vertex to the camera (a point on the lens, for a thin lens).
             const Vertex& qs = light[s - 1];
+            const Vec2d u_lens = sampler.next_2d();  // drawn whatever happens next: the layout stays fixed
             if (!qs.connectible() || qs.is_infinite()) return L;
-            auto sd = sensor.sample_direct(qs.p, Vec2d(0.5));
+            auto sd = sensor.sample_direct(qs.p, u_lens);
             if (!sd) return L;
             sampled.type = VertexType::Camera;
             sampled.p = sd->p;
@@ -337,9 +346,10 @@ private:
             film = sd->film;
         } else if (s == 1) {
             // Next-event estimation: sample a point on an emitter.
-            if (!pt.connectible() || pt.type != VertexType::Surface) return L;
-            auto [e, sel] = scene.sample_emitter(sampler.next_1d());
+            const double u_sel = sampler.next_1d();  // drawn whatever happens next: the layout stays fixed
             const Vec2d u = sampler.next_2d();
+            if (!pt.connectible() || pt.type != VertexType::Surface) return L;
+            auto [e, sel] = scene.sample_emitter(u_sel);
             if (!e) return L;
             auto ds = e->sample_direct(pt.p, u);
             if (!ds || !(ds->pdf > 0)) return L;

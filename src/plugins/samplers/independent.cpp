@@ -1,5 +1,6 @@
 // independent: uniform, independent random numbers (PCG32). Sample k of pixel (x, y) in a run with seed s
-// draws from its own PCG32 stream keyed by (s, seed, x, y, k), so any pixel sample can be reproduced alone.
+// draws from its own PCG32 stream keyed by (s, seed, x, y, k), so any pixel sample can be reproduced alone; the
+// light and connection sample streams (SampleStream) are further PCG32 streams keyed by the same and the stream.
 //
 // | parameter    | type    | default | meaning                                    |
 // |--------------|---------|---------|--------------------------------------------|
@@ -19,18 +20,27 @@ public:
     explicit Independent(const Properties& props)
         : m_count(props.get_int("sample_count", 1, 1LL << 40)), m_seed(uint64_t(props.get_int("seed"))) {}
     long long sample_count() const override { return m_count; }
-    std::unique_ptr<Sampler> clone() const override { return std::make_unique<Independent>(*this); }
-    void start(Vec2i pixel, uint64_t index, uint64_t seed) override {
-        uint64_t stream = hash_combine(hash_combine(uint64_t(uint32_t(pixel.x)), uint64_t(uint32_t(pixel.y))), index);
-        m_rng.seed_stream(hash_combine(seed, m_seed), stream);
+    std::unique_ptr<Sampler> clone() const override {
+        auto c = std::make_unique<Independent>(*this);
+        c->m_cur = &c->m_rng[m_cur - m_rng];  // point into the copy's own streams
+        return c;
     }
-    double next_1d() override { return m_rng.next_double(); }
-    Vec2d next_2d() override { return m_rng.next_2d(); }
+    void start(Vec2i pixel, uint64_t index, uint64_t seed) override {
+        const uint64_t stream = hash_combine(hash_combine(uint64_t(uint32_t(pixel.x)), uint64_t(uint32_t(pixel.y))), index);
+        const uint64_t key = hash_combine(seed, m_seed);
+        m_rng[0].seed_stream(key, stream);
+        for (int s = 1; s < SampleStreamCount; ++s) m_rng[s].seed_stream(key, hash_combine(stream, uint64_t(s)));
+        m_cur = &m_rng[0];
+    }
+    void set_stream(SampleStream s) override { m_cur = &m_rng[int(s)]; }
+    double next_1d() override { return m_cur->next_double(); }
+    Vec2d next_2d() override { return m_cur->next_2d(); }
 
 private:
     long long m_count;
     uint64_t m_seed;
-    Random m_rng;
+    Random m_rng[SampleStreamCount];
+    Random* m_cur = &m_rng[0];
 };
 
 }  // namespace

@@ -18,8 +18,9 @@
 //   - next_1d() is the van der Corput sequence with its own shuffle and scramble.
 // For a smooth integrand the error of a pixel estimate falls like N^-1.5 (Owen 1997) instead of N^-0.5.
 //
-// Dimensions are counted as the PSS layout counts them (next_1d takes one, next_2d two), and every number
-// depends only on (seed, pixel, sample index, dimension): like `independent`, any sample can be reproduced
+// Dimensions are counted as the PSS layout counts them (next_1d takes one, next_2d two, per sample stream,
+// interleaved across streams as in sampler.h), and every number depends only on (seed, pixel, sample index,
+// stream, dimension): like `independent`, any sample can be reproduced
 // alone and the image does not depend on the thread count. The net property holds for the first 2^m samples
 // of a pixel, so sample counts that are powers of two are best; other counts are allowed (a warning says so).
 //
@@ -98,17 +99,18 @@ public:
         key = hash_combine(key, uint64_t(uint32_t(pixel.x)) | (uint64_t(uint32_t(pixel.y)) << 32));
         m_key = hash_combine(key, index >> 32);
         m_index = uint32_t(index);
-        m_dim = 0;
+        for (auto& d : m_dims) d = 0;
+        m_stream = 0;
     }
+    void set_stream(SampleStream s) override { m_stream = int(s); }
     double next_1d() override {
-        const uint64_t h = hash_combine(m_key, m_dim++);
+        const uint64_t h = hash_combine(m_key, dim(1));
         const uint32_t i = shuffle_index(m_index, uint32_t(h));
         return to_unit(owen_scramble(reverse_bits(i), uint32_t(h >> 32)));
     }
     Vec2d next_2d() override {
-        const uint64_t h = hash_combine(m_key, m_dim);
+        const uint64_t h = hash_combine(m_key, dim(2));
         const uint64_t h2 = hash_combine(h, 0x32ULL);
-        m_dim += 2;
         const uint32_t i = shuffle_index(m_index, uint32_t(h));
         return {to_unit(owen_scramble(reverse_bits(i), uint32_t(h >> 32))),
                 to_unit(owen_scramble(sobol_second(i), uint32_t(h2)))};
@@ -119,7 +121,16 @@ private:
     uint64_t m_seed;
     uint64_t m_key = 0;
     uint32_t m_index = 0;
-    uint64_t m_dim = 0;
+    uint64_t m_dims[SampleStreamCount] = {0, 0, 0};  // dimensions drawn per sample stream
+    int m_stream = 0;
+
+    /// The dimension of the next draw (consuming `n`): stream s's dimensions are interleaved like the primary
+    /// sample space's (k * streams + s), so the camera stream alone counts 0, 3, 6, ... and stays stable.
+    uint64_t dim(int n) {
+        const uint64_t d = m_dims[m_stream] * SampleStreamCount + uint64_t(m_stream);
+        m_dims[m_stream] += uint64_t(n);
+        return d;
+    }
 };
 
 }  // namespace

@@ -56,7 +56,6 @@ public:
         s.weight = importance(cos_theta, s.dist);
         return s;
     }
-    bool is_pinhole() const override { return true; }
 };
 
 }  // namespace

@@ -101,7 +101,7 @@ public:
     }
 
 private:
-    double m_radius, m_focus;
+    double m_radius;
 };
 
 }  // namespace
