@@ -7,7 +7,7 @@ Writes into DIR (default: plots/ next to the CSV), for each metric M:
   error_vs_seconds_M.png/.svg   error against compute time, log-log: the mean over runs of every
                                 configuration (thick line) with a shaded band for the spread across runs
                                 (+-1 standard deviation, or min-max with --band minmax), like Figure 4.13 of
-                                the thesis
+                                the thesis; --center median plots the median over runs (band: half the IQR)
   error_vs_work_M.png/.svg      the same against work (samples per pixel, steps)
   error_vs_param_M.png/.svg     when every configuration is named K=NUMBER (a --sweep) or GROUP K=NUMBER (several
                                 sweeps of one parameter, e.g. one per solver): the error against the parameter,
@@ -87,7 +87,8 @@ class Curve:
         self.points.setdefault((row["trigger"], float(row["target"])), []).append(row)
 
     def series(self, metric, x):
-        """x (mean over runs), mean, std, min, max of the metric, per checkpoint, sorted by x."""
+        """x (mean over runs), centre (mean, or median with --center median), spread (std, or for the median half
+        the interquartile range), min, max of the metric, per checkpoint, sorted by x."""
         out = []
         for rows in self.points.values():
             vals = np.array([value(r, metric) for r in rows])
@@ -95,8 +96,8 @@ class Curve:
             vals = vals[np.isfinite(vals)]
             if len(vals) == 0:
                 continue
-            out.append((float(np.mean(xs)) if xs is not None else 0.0, float(np.mean(vals)),
-                        float(np.std(vals)), float(np.min(vals)), float(np.max(vals)), len(vals)))
+            out.append((float(np.mean(xs)) if xs is not None else 0.0, centre(vals),
+                        spread(vals), float(np.min(vals)), float(np.max(vals)), len(vals)))
         out.sort()
         return [np.array(c) for c in zip(*out)] if out else None
 
@@ -125,6 +126,21 @@ def save(fig, out, stem, formats):
         paths.append(p)
     plt.close(fig)
     return paths
+
+
+CENTER = "mean"  # --center: the statistic over runs that curves and tables report
+
+
+def centre(vals):
+    return float(np.median(vals) if CENTER == "median" else np.mean(vals))
+
+
+def spread(vals):
+    """std for the mean; half the interquartile range for the median (a robust spread)."""
+    if CENTER == "median":
+        q1, q3 = np.percentile(vals, [25, 75])
+        return float(0.5 * (q3 - q1))
+    return float(np.std(vals))
 
 
 def plot_error(curves, metric, x, band, out, formats, title):
@@ -158,8 +174,9 @@ def plot_error(curves, metric, x, band, out, formats, title):
     ax.set_xlabel(xlabel)
     ax.set_ylabel(LABELS.get(metric, metric))
     ax.grid(True, which="both", alpha=0.3)
-    ax.set_title(title or "%s against %s (band: %s)" % (LABELS.get(metric, metric), xlabel,
-                                                        "+-1 std" if band == "std" else "min-max"), fontsize=10)
+    ax.set_title(title or "%s %s against %s (band: %s)" % (CENTER, LABELS.get(metric, metric), xlabel,
+                                                           ("+-1 std" if CENTER == "mean" else "+-half IQR")
+                                                           if band == "std" else "min-max"), fontsize=10)
     ax.legend(fontsize=8)
     return save(fig, out, "error_vs_%s_%s" % (x, metric), formats)
 
@@ -328,7 +345,8 @@ def write_table(curves, metric, targets, out):
 
 
 def write_summary(curves, metrics, out):
-    """summary.md: per configuration and checkpoint, the mean (and std over runs) of time, work and metrics."""
+    """summary.md: per configuration and checkpoint, the mean time and work, and each metric's mean +- std over
+    runs (or, with --center median, its median [first quartile, third quartile])."""
     lines = ["| configuration | checkpoint | runs | seconds | work | " + " | ".join(LABELS.get(m, m) for m in metrics) + " |",
              "|---|---|---|---|---|" + "---|" * len(metrics)]
     for c in curves.values():
@@ -339,7 +357,13 @@ def write_summary(curves, metrics, out):
             for m in metrics:
                 v = np.array([value(r, m) for r in rows])
                 v = v[np.isfinite(v)]
-                cells.append("-" if len(v) == 0 else ("%.3g" % np.mean(v)) + (" ± %.2g" % np.std(v) if len(v) > 1 else ""))
+                if len(v) == 0:
+                    cells.append("-")
+                elif CENTER == "median":  # median [first quartile, third quartile]
+                    q1, q3 = np.percentile(v, [25, 75])
+                    cells.append("%.3g" % np.median(v) + (" [%.2g, %.2g]" % (q1, q3) if len(v) > 1 else ""))
+                else:
+                    cells.append("%.3g" % np.mean(v) + (" ± %.2g" % np.std(v) if len(v) > 1 else ""))
             cp = {"sim_time": "t = %g", "seconds": "%g s", "work": "%g " + rows[0]["unit"]}.get(trigger, "%g") % target
             lines.append("| %s | %s | %d | %.3g | %.4g | %s |" % (c.name, cp, len(rows), np.mean(secs), np.mean(work),
                                                                 " | ".join(cells)))
@@ -445,7 +469,11 @@ def main(argv):
     ap.add_argument("--out", help="output directory (default: plots/ next to the CSV)")
     ap.add_argument("--metrics", help="comma-separated metrics (default: rel_mse,l1,ssim for renders; "
                                       "rmse,rel_l2,max_abs for fields)")
-    ap.add_argument("--band", choices=["std", "minmax"], default="std", help="spread across runs (default std)")
+    ap.add_argument("--band", choices=["std", "minmax"], default="std",
+                    help="spread across runs: std (for --center median: half the interquartile range) or minmax")
+    ap.add_argument("--center", choices=["mean", "median"], default="mean",
+                    help="statistic over runs of the curves, summary and time-to-error table (default mean; the "
+                         "thesis reports medians)")
     ap.add_argument("--targets", help="error levels of the time-to-error table (comma-separated)")
     ap.add_argument("--crop", help="crop of the image grid: x,y,w,h in pixels, or in fractions of each image "
                                    "when all four are at most 1 (for images of several resolutions)")
@@ -453,6 +481,8 @@ def main(argv):
     ap.add_argument("--title", help="title of every plot")
     a = ap.parse_args(argv)
 
+    global CENTER
+    CENTER = a.center
     rows = read_rows(a.csv)
     field_study = "field" in rows[0]
     available = FIELD_METRICS if field_study else IMAGE_METRICS
