@@ -10,17 +10,21 @@
 // with the Gaussian filter that equality still holds pixel by pixel only if AOVs are accumulated with the
 // colour's rays and weights. The nested integrator's colour must be bit-identical to rendering it alone.
 //
-// Seen to fail (each change made by hand, the suite run, the change undone):
-//  (1) swapping the Y and Z channels of 3-vectors in AovIntegrator::put: GeometryAovsMatchTheCameraModel
-//      fails (normals read (0, 1, 0), positions leave their footprints);
-//  (2) AovIntegrator::sample drawing one number (sampler.next_1d()) before forwarding to the nested integrator,
-//      as an AOV path that consumed sampler numbers would: NestedColourIsBitIdentical fails for path and bdpt
-//      (and AovsAreFilteredLikeTheColour, the colour no longer matching the shape index);
-//  (3) the pixel loop adding the extra values with weight 1 instead of the filter weight: no test failed,
-//      because both filters in Kelvin sample offsets exactly and give every sample weight 1 (so the weights
-//      are the same by construction today); AovsAreFilteredLikeTheColour guards the ray/sample pairing;
-//  (4) depth returned as the hit's z-depth (distance along the optical axis): GeometryAovsMatchTheCameraModel
-//      fails off the image centre.
+// Seen to fail (each change made by hand, the Aov tests run, the change undone):
+//  (1) swapping the Y and Z components of 3-vectors in AovIntegrator::put: GeometryAovsMatchTheCameraModel
+//      (positions leave their footprints, normals read (0, 1, 0)) and AlbedoIsTheDiffuseReflectance fail;
+//  (2) AovIntegrator::sample drawing one number (sampler.next_1d()) before forwarding to the nested
+//      integrator, as an AOV path that consumed sampler numbers would: NestedColourIsBitIdentical fails
+//      (~1400 of 1440 colour values differ);
+//  (3) the pixel loop giving sample_extra the pixel-centre ray instead of the sample's ray:
+//      AovsAreFilteredLikeTheColour fails (R 0.25 where the shape index is 0 or 1);
+//  (4) depth as the distance along the world z axis (the test camera's optical axis, i.e. a z-depth):
+//      GeometryAovsMatchTheCameraModel fails (4.0 instead of 5.1 in the image corner);
+//  (5) adding the splat image at the RGB-only stride to the wider image (the pixel loop's develop before this
+//      change): NestedColourIsBitIdentical fails for bdpt;
+//  (6) twosided answering albedo() for its back side with the front BSDF: AlbedoIsTheDiffuseReflectance fails.
+// Not covered: both reconstruction filters draw offsets exactly (every sample weighs 1), so a loop that gave
+// the extra channels another weight than the colour's could not be told apart today.
 #include "cli/subprocess.h"
 #include "render/render_support.h"
 
