@@ -45,9 +45,9 @@ using namespace kelvin;
 
 namespace {
 
-constexpr double H = 4;                // camera height above the z = 0 plane
-constexpr double FovDeg = 60;          // horizontal field of view (square film: vertical too)
-constexpr double EdgeX = 1.5;          // shape 1 ends here; beyond, rays miss (ground half-width H tan 30 = 2.31)
+constexpr double H = 4;        // camera height above the z = 0 plane
+constexpr double FovDeg = 60;  // horizontal field of view (square film: vertical too)
+constexpr double EdgeX = 1.5;  // shape 1 ends here; beyond, rays miss (ground half-width H tan 30 = 2.31)
 
 // Shape 0: rectangle over x in [-3, 0], y in [-3, 3], diffuse 0.5. Shape 1: x in [0, 1.5], y in [-3, 3],
 // emitting radiance 1. The camera at (0, 0, H) looks down, image up = +y, so image right = +x.
@@ -80,7 +80,8 @@ std::string aov_integrator(const std::string& aovs, const std::string& nested) {
 }
 
 const std::string kPathDirect = R"(<integrator type="path"><integer name="max_depth" value="1"/></integrator>)";
-const std::string kGeometryAovs = "dd:depth,pos:position,ng:geo_normal,ns:sh_normal,tex:uv,si:shape_index,pi:prim_index";
+const std::string kGeometryAovs =
+    "dd:depth,pos:position,ng:geo_normal,ns:sh_normal,tex:uv,si:shape_index,pi:prim_index";
 
 int channel(const Bitmap& img, const std::string& name) {
     const int c = img.channel_index(name);
@@ -91,10 +92,11 @@ int channel(const Bitmap& img, const std::string& name) {
 }  // namespace
 
 TEST(Aov, ChannelNamesFollowTheTypes) {
-    const Bitmap img = ktest::render_xml(geometry_scene(aov_integrator(kGeometryAovs + ",alb:albedo", kPathDirect), 4, 1), 1);
-    const std::vector<std::string> expected = {"R",     "G",     "B",    "dd",   "pos.X", "pos.Y", "pos.Z",
-                                               "ng.X",  "ng.Y",  "ng.Z", "ns.X", "ns.Y",  "ns.Z",  "tex.U",
-                                               "tex.V", "si",    "pi",   "alb.R", "alb.G", "alb.B"};
+    const Bitmap img =
+        ktest::render_xml(geometry_scene(aov_integrator(kGeometryAovs + ",alb:albedo", kPathDirect), 4, 1), 1);
+    const std::vector<std::string> expected = {"R",     "G",    "B",    "dd",    "pos.X", "pos.Y", "pos.Z",
+                                               "ng.X",  "ng.Y", "ng.Z", "ns.X",  "ns.Y",  "ns.Z",  "tex.U",
+                                               "tex.V", "si",   "pi",   "alb.R", "alb.G", "alb.B"};
     EXPECT_EQ(img.channels(), expected);
 }
 
@@ -117,7 +119,8 @@ TEST(Aov, GeometryAovsMatchTheCameraModel) {
             // right = +x), film y in [y, y+1] to H t (1 - 2 fy / res) (image top = +y).
             const double x0 = H * t * (2.0 * x / res - 1), x1 = H * t * (2.0 * (x + 1) / res - 1);
             const double y0 = H * t * (1 - 2.0 * (y + 1) / res), y1 = H * t * (1 - 2.0 * y / res);
-            const bool must_hit = x1 < EdgeX, must_miss = x0 > EdgeX;
+            const bool must_hit = x1 < EdgeX;
+            const bool must_miss = x0 > EdgeX;
             const double depth = img.at(x, y, dd);
             if (depth == 0) {  // a miss: every AOV channel is 0
                 EXPECT_FALSE(must_hit);
@@ -191,7 +194,9 @@ std::string lit_scene(const std::string& integrator) {
             <sampler type="independent"><integer name="sample_count" value="4"/></sampler>
             <film type="hdrfilm"><integer name="width" value="24"/><integer name="height" value="20"/></film>
         </sensor>
-        <shape type="rectangle"><transform name="to_world"><scale value="3"/><rotate x="1" angle="-90"/></transform></shape>
+        <shape type="rectangle">
+            <transform name="to_world"><scale value="3"/><rotate x="1" angle="-90"/></transform>
+        </shape>
         <shape type="rectangle"><transform name="to_world"><scale value="3"/><translate z="-1.5"/></transform></shape>
         <shape type="sphere"><point name="center" x="0" y="0.5" z="0"/><float name="radius" value="0.5"/>
             <bsdf type="plastic"/></shape>
@@ -278,7 +283,9 @@ TEST(Aov, AlbedoIsTheDiffuseReflectance) {
         <shape type="rectangle"><transform name="to_world"><scale x="0.4" y="3" z="1"/><translate x="1"/></transform>
             <bsdf type="conductor"/></shape>
         <shape type="rectangle">
-            <transform name="to_world"><scale x="0.4" y="3" z="1"/><rotate y="1" angle="180"/><translate x="2"/></transform>
+            <transform name="to_world">
+                <scale x="0.4" y="3" z="1"/><rotate y="1" angle="180"/><translate x="2"/>
+            </transform>
             <bsdf type="twosided">
                 <bsdf type="diffuse"><rgb name="reflectance" value="0.9, 0.1, 0.1"/></bsdf>
                 <bsdf type="diffuse"><rgb name="reflectance" value="0.1, 0.9, 0.2"/></bsdf>
@@ -340,7 +347,8 @@ TEST(Aov, CliWritesAovChannelsToExr) {
     const auto r = kelvin::test::run_kelvin({scene.string(), "-o", out.string(), "--quiet"});
     ASSERT_EQ(r.exit_code, 0) << kelvin::test::describe(r);
     const Bitmap img = read_image(out);
-    for (const char* name : {"R", "G", "B", "dd", "nn.X", "nn.Y", "nn.Z"}) EXPECT_GE(img.channel_index(name), 0) << name;
+    for (const char* name : {"R", "G", "B", "dd", "nn.X", "nn.Y", "nn.Z"})
+        EXPECT_GE(img.channel_index(name), 0) << name;
     EXPECT_EQ(img.channel_count(), 7);
 }
 
@@ -361,7 +369,7 @@ TEST(Aov, BadAovsAreInputErrorsNamingAovs) {
         {"dd:depth,dd:shape_index", "channel \"dd\" is given twice"},
         {"n.X:depth,n:geo_normal", "channel \"n.X\" is given twice"},
         {"G:depth", "channel \"G\" would replace the colour channel"},
-        {"a b:depth", "contains ':' or whitespace"},
+        {"a b:depth", "contains whitespace"},
         {many, "at most 64"},
     };
     for (const auto& c : cases) {
@@ -385,8 +393,7 @@ TEST(Aov, BadAovsAreInputErrorsNamingAovs) {
 
 TEST(Aov, NestedIntegratorMustBeASamplingIntegrator) {
     // ptracer renders with its own loop (light paths, no camera rays); an aov inside an aov would lose channels.
-    for (const std::string nested : {std::string(R"(<integrator type="ptracer"/>)"),
-                                     aov_integrator("d:depth", "")}) {
+    for (const std::string nested : {std::string(R"(<integrator type="ptracer"/>)"), aov_integrator("d:depth", "")}) {
         SCOPED_TRACE(nested);
         const std::string msg = ktest::input_error_of(
             [&] { ktest::load_scene_xml(geometry_scene(aov_integrator("dd:depth", nested), 4, 1)); });

@@ -141,7 +141,8 @@ public:
         Color3 rho = glm::max(m_diffuse->eval(si.uv), Color3(0.0));
         if (m_nonlinear)
             rho = rho * (1 - m_fdr_int) / glm::max(Color3(1.0) - glm::min(rho, Color3(1.0)) * m_fdr_int, Color3(1e-6));
-        result += rho * ((1 - coating_albedo(wi.z)) * (1 - coating_albedo(wo.z)) * m_inv_ext_transmission * InvPi * wo.z);
+        const double transmitted = (1 - coating_albedo(wi.z)) * (1 - coating_albedo(wo.z));  // through the coat, twice
+        result += rho * (transmitted * m_inv_ext_transmission * InvPi * wo.z);
         return result;
     }
     double pdf(const BsdfContext&, const SurfaceInteraction& si, const Vec3d& wo) const override {

@@ -105,21 +105,33 @@ public:
         const SurfaceInteraction si = scene.interaction(ray, *hit);
         for (const AovType type : m_types) {
             switch (type) {
-            case AovType::Depth: *out++ = si.t * glm::length(ray.d); break;  // t is in units of |d|
-            case AovType::Position: out = put(out, si.p); break;
-            case AovType::Uv:
-                *out++ = si.uv.x;
-                *out++ = si.uv.y;
-                break;
-            case AovType::GeoNormal: out = put(out, si.ng); break;
-            case AovType::ShNormal: out = put(out, si.ns); break;
-            case AovType::ShapeIndex: *out++ = double(si.shape_index); break;
-            case AovType::PrimIndex: *out++ = double(si.prim); break;
-            case AovType::Albedo: {
-                const Bsdf* bsdf = si.shape ? si.shape->bsdf() : nullptr;
-                out = put(out, bsdf ? bsdf->albedo(si) : Color3(0.0));
-                break;
-            }
+                case AovType::Depth:
+                    *out++ = si.t * glm::length(ray.d);  // t is in units of |d|
+                    break;
+                case AovType::Position:
+                    out = put(out, si.p);
+                    break;
+                case AovType::Uv:
+                    *out++ = si.uv.x;
+                    *out++ = si.uv.y;
+                    break;
+                case AovType::GeoNormal:
+                    out = put(out, si.ng);
+                    break;
+                case AovType::ShNormal:
+                    out = put(out, si.ns);
+                    break;
+                case AovType::ShapeIndex:
+                    *out++ = double(si.shape_index);
+                    break;
+                case AovType::PrimIndex:
+                    *out++ = double(si.prim);
+                    break;
+                case AovType::Albedo: {
+                    const Bsdf* bsdf = si.shape ? si.shape->bsdf() : nullptr;
+                    out = put(out, bsdf ? bsdf->albedo(si) : Color3(0.0));
+                    break;
+                }
             }
         }
     }
@@ -147,13 +159,12 @@ private:
                 props.error("aovs", fmt::format("has an empty entry in \"{}\"", list));
             }
             const std::size_t colon = entry.find(':');
-            if (colon == std::string::npos)
-                props.error("aovs", fmt::format("entry \"{}\" is not name:type", entry));
+            if (colon == std::string::npos) props.error("aovs", fmt::format("entry \"{}\" is not name:type", entry));
             const std::string name(trim(std::string_view(entry).substr(0, colon)));
             const std::string type(trim(std::string_view(entry).substr(colon + 1)));
             if (name.empty()) props.error("aovs", fmt::format("entry \"{}\" has an empty channel name", entry));
-            if (std::any_of(name.begin(), name.end(), [](char ch) { return ch == ':' || std::isspace((unsigned char)ch); }))
-                props.error("aovs", fmt::format("channel name \"{}\" contains ':' or whitespace", name));
+            if (std::any_of(name.begin(), name.end(), [](char ch) { return std::isspace((unsigned char)ch); }))
+                props.error("aovs", fmt::format("channel name \"{}\" contains whitespace", name));
             const auto* info = std::find_if(aov_types().begin(), aov_types().end(),
                                             [&](const AovTypeInfo& t) { return type == t.name; });
             if (info == aov_types().end())
@@ -190,4 +201,5 @@ KELVIN_PLUGIN(kelvin::AovIntegrator, "integrator", "aov",
               kelvin::param::required(kelvin::PropType::String, "aovs",
                                       "name:type list; types depth, position, uv, geo_normal, sh_normal, "
                                       "shape_index, prim_index, albedo"),
-              kelvin::param::object("integrator", "integrator", "nested sampling integrator for R, G, B (none: black)"));
+              kelvin::param::object("integrator", "integrator",
+                                    "nested sampling integrator for R, G, B (none: black)"));
