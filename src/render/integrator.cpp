@@ -4,6 +4,11 @@
 // only). Every sample draws its numbers from the sampler positioned at (seed, pixel, sample index), and each
 // pixel's samples are accumulated in sample-index order by the one worker that owns its tile. So the image
 // for a given --spp is bit-identical whatever the thread count and however the passes are sized.
+//
+// Extra channels (SamplingIntegrator::extra_channels, e.g. the aov integrator's AOVs) share the colour's
+// accumulator: the buffer has 3 + E channels, a sample's colour and extra values are added with the same
+// filter weight, and develop() normalises every channel by the same weight sum. sample_extra() gets no
+// sampler, so R, G, B do not depend on whether extra channels are written.
 #include <kelvin/core/interrupt.h>
 #include <kelvin/core/logging.h>
 #include <kelvin/core/parallel.h>
@@ -85,8 +90,16 @@ RunResult SamplingIntegrator::render(const Scene& scene, RunContext& ctx) {
     const int w = sensor.film().width(), h = sensor.film().height();
     const int tx = (w + TileSize - 1) / TileSize, ty = (h + TileSize - 1) / TileSize;
     const std::size_t tiles = std::size_t(tx) * std::size_t(ty);
-    ImageBuffer buffer(w, h, 3);
-    const std::vector<std::string> rgb = {"R", "G", "B"};
+    std::vector<std::string> channels = {"R", "G", "B"};
+    const std::vector<std::string> extra = extra_channels();
+    // Integrators refuse more as bad input (aov: `aovs`); this guards the loop's stack array against a plugin
+    // that does not.
+    if (extra.size() > std::size_t(MaxExtraChannels))
+        throw_runtime("integrator '{}' declares {} extra channels; at most {} are supported", plugin_name(),
+                      extra.size(), int(MaxExtraChannels));
+    const int ne = int(extra.size());
+    channels.insert(channels.end(), extra.begin(), extra.end());
+    ImageBuffer buffer(w, h, 3 + ne);
     std::vector<SampleCounters> counters(tiles);
     const ReconstructionFilter& filter = sensor.film().filter();
     std::unique_ptr<SplatBuffer> splat_buffer;
@@ -95,12 +108,15 @@ RunResult SamplingIntegrator::render(const Scene& scene, RunContext& ctx) {
         for (std::size_t u = 0; u < tiles; ++u) counters[u].splats = &splat_buffer->sink(u);
     }
     auto develop = [&] {
-        Bitmap img = buffer.develop(rgb);
+        Bitmap img = buffer.develop(channels);
         if (splat_buffer) {
             uint64_t n = 0;
             for (const auto& c : counters) n += c.samples;
+            // The splat image is RGB only; extra channels are never splatted.
             Bitmap s = splat_buffer->develop(n > 0 ? 1.0 / double(n) : 0.0);
-            for (std::size_t i = 0; i < img.size(); ++i) img.data()[i] += s.data()[i];
+            const std::size_t stride = std::size_t(img.channel_count());
+            for (std::size_t p = 0; p < std::size_t(w) * std::size_t(h); ++p)
+                for (std::size_t c = 0; c < 3; ++c) img.data()[p * stride + c] += s.data()[p * 3 + c];
         }
         return img;
     };
@@ -122,7 +138,17 @@ RunResult SamplingIntegrator::render(const Scene& scene, RunContext& ctx) {
                         Ray ray = sensor.sample_ray(film, sampler->next_2d());
                         Color3 v = sample(scene, *sampler, ray, c);
                         if (!sanitize(v)) ++c.invalid;
-                        buffer.add(x, y, &v[0], weight);
+                        if (ne == 0) {
+                            buffer.add(x, y, &v[0], weight);
+                        } else {
+                            // Colour then extra values, in one fixed-size array (no allocation per sample).
+                            double values[3 + MaxExtraChannels];
+                            values[0] = v.r;
+                            values[1] = v.g;
+                            values[2] = v.b;
+                            sample_extra(scene, ray, values + 3, c);
+                            buffer.add(x, y, values, weight);
+                        }
                         ++c.samples;
                     }
             }

@@ -51,6 +51,10 @@ public:
                                              const Vec2d& u2) const = 0;
     virtual Color3 eval(const BsdfContext& ctx, const SurfaceInteraction& si, const Vec3d& wo) const = 0;
     virtual double pdf(const BsdfContext& ctx, const SurfaceInteraction& si, const Vec3d& wo) const = 0;
+    /// Diffuse reflectance at `si` (the texture value of the diffuse component: diffuse `reflectance`, plastic
+    /// and roughplastic `diffuse_reflectance`; twosided asks the side `si.wi` is on), for the `albedo` AOV.
+    /// Models without a diffuse component give 0. Not used for light transport.
+    virtual Color3 albedo(const SurfaceInteraction& si) const { return Color3(0.0); }
 };
 
 }  // namespace kelvin

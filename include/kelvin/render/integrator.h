@@ -1,7 +1,7 @@
 #pragma once
 // Integrators render a Scene. SamplingIntegrator implements the shared pixel loop once (tiles, passes,
 // determinism, time limit, partial output, interruption, NaN accounting); a concrete integrator only
-// estimates the radiance along one camera ray.
+// estimates the radiance along one camera ray (and, optionally, extra per-ray channels such as AOVs).
 #include <kelvin/core/job.h>
 #include <kelvin/core/random.h>
 #include <kelvin/render/ray.h>
@@ -80,8 +80,19 @@ public:
     /// drives sample() interleaves that many streams in its coordinates.
     virtual int sample_streams() const { return 1; }
 
+    /// Names of the channels the pixel loop writes after R, G, B (arbitrary output variables such as "depth"),
+    /// at most MaxExtraChannels of them. Asked once per render().
+    virtual std::vector<std::string> extra_channels() const { return {}; }
+    /// The extra channels' values for the camera ray `ray`, written to out[0 .. extra_channels().size()).
+    /// Called by the pixel loop right after sample() for the same ray, concurrently from several threads; the
+    /// values are filtered with the same reconstruction-filter weight as the colour. It gets no sampler, so
+    /// extra channels never shift the sample() numbers: R, G, B are the same as without them.
+    virtual void sample_extra(const Scene& scene, const Ray& ray, double* out, SampleCounters& counters) const {}
+
     /// Work-unit size in pixels (fixed: the split never depends on the thread count).
     static constexpr int TileSize = 32;
+    /// Upper bound of extra_channels().size(): the pixel loop keeps a sample's values in a fixed stack array.
+    static constexpr int MaxExtraChannels = 64;
 };
 
 }  // namespace kelvin

@@ -38,6 +38,7 @@ public:
         if (Frame::cos_theta(si.wi) <= 0 || Frame::cos_theta(wo) <= 0) return 0.0;
         return warp::square_to_cosine_hemisphere_pdf(wo);
     }
+    Color3 albedo(const SurfaceInteraction& si) const override { return m_reflectance->eval(si.uv); }
 
 private:
     std::shared_ptr<Texture> m_reflectance;

@@ -82,6 +82,7 @@ public:
         const double ps = prob_specular(fresnel_dielectric(si.wi.z, m_eta).F);
         return (1 - ps) * warp::square_to_cosine_hemisphere_pdf(wo);
     }
+    Color3 albedo(const SurfaceInteraction& si) const override { return m_diffuse->eval(si.uv); }
 
 private:
     double prob_specular(double Fi) const {

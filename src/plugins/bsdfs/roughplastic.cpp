@@ -141,7 +141,8 @@ public:
         Color3 rho = glm::max(m_diffuse->eval(si.uv), Color3(0.0));
         if (m_nonlinear)
             rho = rho * (1 - m_fdr_int) / glm::max(Color3(1.0) - glm::min(rho, Color3(1.0)) * m_fdr_int, Color3(1e-6));
-        result += rho * ((1 - albedo(wi.z)) * (1 - albedo(wo.z)) * m_inv_ext_transmission * InvPi * wo.z);
+        const double transmitted = (1 - coating_albedo(wi.z)) * (1 - coating_albedo(wo.z));  // through the coat, twice
+        result += rho * (transmitted * m_inv_ext_transmission * InvPi * wo.z);
         return result;
     }
     double pdf(const BsdfContext&, const SurfaceInteraction& si, const Vec3d& wo) const override {
@@ -154,16 +155,18 @@ public:
         if (!std::isfinite(p_spec)) p_spec = 0;
         return ps * p_spec + (1 - ps) * warp::square_to_cosine_hemisphere_pdf(wo);
     }
+    Color3 albedo(const SurfaceInteraction& si) const override { return m_diffuse->eval(si.uv); }
 
 private:
-    double albedo(double mu) const {
+    /// R(mu), interpolated in the table.
+    double coating_albedo(double mu) const {
         const double x = std::clamp(mu, 0.0, 1.0) * (kTableSize - 1);
         const int j = std::min(int(x), kTableSize - 2);
         const double t = x - j;
         return (1 - t) * m_table[j] + t * m_table[j + 1];
     }
     double prob_specular(double mu) const {
-        const double R = albedo(mu);
+        const double R = coating_albedo(mu);
         const double a = R * m_specular_weight, b = (1 - R) * (1 - m_specular_weight);
         return a + b > 0 ? a / (a + b) : 0.0;
     }

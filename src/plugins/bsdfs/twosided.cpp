@@ -62,6 +62,13 @@ public:
         back.wi = mirror(si.wi);
         return m_side[1]->pdf(ctx, back, mirror(wo));
     }
+    Color3 albedo(const SurfaceInteraction& si) const override {
+        if (si.wi.z > 0) return m_side[0]->albedo(si);
+        if (!(si.wi.z < 0)) return Color3(0.0);  // grazing: neither side, as eval()
+        SurfaceInteraction back = si;
+        back.wi = mirror(si.wi);
+        return m_side[1]->albedo(back);
+    }
 
 private:
     std::shared_ptr<Bsdf> m_side[2];
