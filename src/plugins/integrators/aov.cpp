@@ -90,6 +90,7 @@ public:
         return m_nested ? m_nested->sample(scene, sampler, ray, c) : Color3(0.0);
     }
     bool splats() const override { return m_nested && m_nested->splats(); }
+    int sample_streams() const override { return m_nested ? m_nested->sample_streams() : 1; }
     void validate(const Scene& scene) const override {
         if (m_nested) m_nested->validate(scene);
     }
