@@ -43,7 +43,6 @@ SimulationParams SimulationParams::parse(const Properties& props, const std::str
         p.steps = std::max(1LL, (long long)std::ceil(n - 1e-9));
     }
     p.viscosity = props.get_float("viscosity", 0.0, 1e300);
-    props.get_int("diffusion_samples", 1, 1 << 20);  // mcfluid's n_d: read (validated), not used
     p.advection = props.get_choice("advection", {"euler", "rk4"}) == "euler" ? Advection::Euler : Advection::RK4;
     p.output_every = props.get_int("output_every", 0, 1LL << 40);
     p.write_png = props.get_bool("write_png");
@@ -52,9 +51,6 @@ SimulationParams SimulationParams::parse(const Properties& props, const std::str
     p.color_range = props.get_float("color_range", 0.0, 1e300);
 
     p.field = props.get_object_as<VorticityField>("vorticity");
-    if (props.get_object("velocity"))
-        log_info("{}: <velocity> is mcfluid's Monte Carlo estimator; {} computes its velocity itself (ignored)", who,
-                 who);
     auto cache = props.get_object_as<CacheSpec>("cache");
     if (!cache) cache = std::dynamic_pointer_cast<CacheSpec>(Registry::instance().create(Properties("cache", "grid")));
     p.nx = cache->resolution_x();
@@ -64,6 +60,15 @@ SimulationParams SimulationParams::parse(const Properties& props, const std::str
     p.field->bind_domain(p.domain);
     p.field->check_domain(p.domain);
     p.dye = props.get_object_as<DyeSpec>("scalar");
+    return p;
+}
+
+SimulationParams SimulationParams::parse_baseline(const Properties& props, const std::string& who) {
+    SimulationParams p = parse(props, who);
+    props.get_int("diffusion_samples", 1, 1 << 20);  // mcfluid's n_d: read (validated), not used
+    if (props.get_object("velocity"))
+        log_info("{}: <velocity> is mcfluid's Monte Carlo estimator; {} computes its velocity itself (ignored)", who,
+                 who);
     return p;
 }
 

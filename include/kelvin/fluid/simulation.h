@@ -32,10 +32,12 @@ struct SimulationParams {
     std::shared_ptr<VorticityField> field;
     std::shared_ptr<DyeSpec> dye;
 
-    /// Reads and validates them (errors name the parameter). `who` prefixes log messages ("stable_fluids").
-    /// MCFluid-only inputs (<velocity>, diffusion_samples) are accepted and ignored with a note, so that an
-    /// mcfluid scene runs unchanged.
+    /// Reads and validates them (errors name the parameter; `who` names the solver in messages). mcfluid and the
+    /// baselines share this parser.
     static SimulationParams parse(const Properties& props, const std::string& who);
+    /// parse() for a baseline solver: MCFluid-only inputs (<velocity>, diffusion_samples) are also accepted and
+    /// ignored with a note, so that an mcfluid scene runs unchanged with `-D solver=...`.
+    static SimulationParams parse_baseline(const Properties& props, const std::string& who);
 };
 
 /// A solver the driver runs. Fields are on the output grid (nx x ny cell centres of the domain).

@@ -70,41 +70,25 @@ public:
             props.error("dimension",
                         "3D MCFluid (vortex stretching, Eqs. 5.14-5.21) is not implemented yet; only "
                         "dimension = 2 is supported");
-        if (dim != 2) props.error("dimension", fmt::format("must be 2 (got {})", dim));
-
-        const Vec3d lo = props.get_point("min"), hi = props.get_point("max");
-        if (lo.z != 0) props.error("min", "a 2D domain takes z = 0");
-        if (hi.z != 0) props.error("max", "a 2D domain takes z = 0");
-        for (double v : {lo.x, lo.y, hi.x, hi.y})
-            if (!std::isfinite(v))
-                props.error(std::isfinite(lo.x) && std::isfinite(lo.y) ? "max" : "min", "must be finite");
-        if (!(hi.x > lo.x) || !(hi.y > lo.y))
-            props.error("max", fmt::format("must exceed min in x and y (min = ({:g}, {:g}), max = ({:g}, {:g}))", lo.x,
-                                           lo.y, hi.x, hi.y));
-        m_settings.domain = {{lo.x, lo.y}, {hi.x, hi.y}, props.get_bool("periodic")};
-
-        m_settings.dt = props.get_float("dt", 0.0, 1e300);
-        if (!(m_settings.dt > 0)) props.error("dt", "must be positive");
-        m_steps = props.get_int("steps", 0, 1LL << 40);
-        m_end_time = props.get_float("end_time", 0.0, 1e300);
-        if (m_steps > 0 && m_end_time > 0) props.error("end_time", "give either steps or end_time, not both");
-        if (m_steps == 0 && m_end_time == 0) props.error("steps", "give the number of steps or an end_time (> 0)");
-        if (m_end_time > 0) {
-            const double n = m_end_time / m_settings.dt;
-            if (n > double(1LL << 40)) props.error("end_time", "needs more than 2^40 steps of dt");
-            m_steps = std::max(1LL, (long long)std::ceil(n - 1e-9));
-        }
-        m_settings.viscosity = props.get_float("viscosity", 0.0, 1e300);
+        // The parameters the baselines share (domain, dt, steps or end_time, viscosity, advection, outputs, the
+        // initial vorticity, the grid resolution, the dye): one parser for all 2D solvers.
+        const SimulationParams p = SimulationParams::parse(props, "mcfluid");
+        m_settings.domain = p.domain;
+        m_settings.dt = p.dt;
+        m_steps = p.steps;
+        m_end_time = p.end_time;
+        m_settings.viscosity = p.viscosity;
+        m_settings.advection = p.advection;
+        m_settings.nx = p.nx;
+        m_settings.ny = p.ny;
+        m_output_every = p.output_every;
+        m_write_png = p.write_png;
+        m_write_exr = p.write_exr;
+        m_write_csv = p.write_csv;
+        m_color_range = p.color_range;
+        m_field = p.field;
+        m_dye = p.dye;
         m_settings.diffusion_samples = int(props.get_int("diffusion_samples", 1, 1 << 20));
-        m_settings.advection =
-            props.get_choice("advection", {"euler", "rk4"}) == "euler" ? Advection::Euler : Advection::RK4;
-        m_output_every = props.get_int("output_every", 0, 1LL << 40);
-        m_write_png = props.get_bool("write_png");
-        m_write_exr = props.get_bool("write_exr");
-        m_write_csv = props.get_bool("write_csv");
-        m_color_range = props.get_float("color_range", 0.0, 1e300);
-
-        m_field = props.get_object_as<VorticityField>("vorticity");
         auto velocity = props.get_object_as<VelocityEstimatorSpec>("velocity");
         if (!velocity)
             velocity = std::dynamic_pointer_cast<VelocityEstimatorSpec>(
@@ -119,14 +103,6 @@ public:
                 props.error("velocity", "walk_on_spheres: " + why);
         }
         m_settings.interpolation = cache->interpolation();
-        m_settings.nx = cache->resolution_x();
-        const Vec2d size = m_settings.domain.size();
-        m_settings.ny = cache->resolution_y() > 0
-                            ? cache->resolution_y()
-                            : int(std::clamp(std::lround(m_settings.nx * size.y / size.x), 2L, 16384L));
-        m_field->bind_domain(m_settings.domain);
-        m_field->check_domain(m_settings.domain);
-        m_dye = props.get_object_as<DyeSpec>("scalar");
     }
 
     RunResult run(RunContext& ctx) override {
