@@ -147,6 +147,15 @@ RunResult SamplingIntegrator::render(const Scene& scene, RunContext& ctx) {
                             values[1] = v.g;
                             values[2] = v.b;
                             sample_extra(scene, ray, values + 3, c);
+                            // Extra values may be negative (positions, normals) but never NaN or infinite (a
+                            // mesh's NaN uv, an EXR texture's Inf): such a sample's extras are recorded as zero
+                            // and counted, like an invalid colour.
+                            bool finite = true;
+                            for (int e = 3; e < 3 + ne; ++e) finite = finite && std::isfinite(values[e]);
+                            if (!finite) {
+                                std::fill(values + 3, values + 3 + ne, 0.0);
+                                ++c.invalid;
+                            }
                             buffer.add(x, y, values, weight);
                         }
                         ++c.samples;

@@ -411,3 +411,46 @@ TEST(Aov, CliReportsBadAovsOnOneLine) {
     EXPECT_NE(lines[0].find("'aovs'"), std::string::npos) << lines[0];
     EXPECT_FALSE(std::filesystem::exists(dir / "out.exr"));
 }
+
+// The pixel loop never writes a NaN or infinite extra value into the image (a mesh's NaN uv, an EXR texture's
+// Inf albedo): the sample's extras are recorded as zero and counted in render.invalid_samples. Driven by a test
+// integrator whose first extra channel is NaN on the left half of the image and Inf on the right's top rows.
+namespace {
+class NonFiniteExtras final : public SamplingIntegrator {
+public:
+    Color3 sample(const Scene&, Sampler&, const Ray&, SampleCounters&) const override { return Color3(1.0); }
+    std::vector<std::string> extra_channels() const override { return {"a", "b"}; }
+    void sample_extra(const Scene&, const Ray& ray, double* out, SampleCounters&) const override {
+        out[0] = ray.d.x > 0 ? std::nan("") : (ray.d.y > 0.2 ? HUGE_VAL : 2.0);
+        out[1] = 1.0;
+    }
+};
+}  // namespace
+
+TEST(Aov, NonFiniteExtraValuesAreZeroedAndCounted) {
+    auto scene = ktest::load_scene_xml(R"(<scene version="3.0.0"><integrator type="path"/>
+        <sensor type="perspective"><film type="hdrfilm"><integer name="width" value="16"/><integer name="height" value="16"/>
+            <rfilter type="box"/></film></sensor></scene>)");
+    NonFiniteExtras integrator;
+    RunContext ctx;
+    ctx.spp = 2;
+    ctx.quiet = true;
+    const Bitmap img = integrator.render(*scene, ctx).image;
+    ASSERT_EQ(img.channel_count(), 5);
+    int zeroed = 0, kept = 0;
+    for (int y = 0; y < img.height(); ++y)
+        for (int x = 0; x < img.width(); ++x) {
+            const float a = img.at(x, y, 3), b = img.at(x, y, 4);
+            ASSERT_TRUE(std::isfinite(a) && std::isfinite(b)) << x << "," << y;
+            EXPECT_EQ(img.at(x, y, 0), 1.0f);  // the colour is untouched
+            if (b == 0.0f) {
+                EXPECT_EQ(a, 0.0f);  // every extra of an invalid sample is zero
+                ++zeroed;
+            } else if (b == 1.0f && a == 2.0f) {
+                ++kept;
+            }
+        }
+    EXPECT_GT(zeroed, 64);  // the NaN half and the Inf rows
+    EXPECT_GT(kept, 32);    // the finite quarter
+    EXPECT_GE(ctx.stats.get("render.invalid_samples"), 2.0 * zeroed);
+}
