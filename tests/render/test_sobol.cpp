@@ -297,3 +297,33 @@ TEST(Sobol, RejectsBadSampleCount) {
 }
 
 }  // namespace
+
+// Sample streams (sampler.h), for both built-in samplers: each stream keeps its own position, so the camera
+// stream's numbers are the same whether or not other streams were drawn from in between; streams differ from
+// each other; and a sample is reproducible from (seed, pixel, index) alone, whatever stream was used last.
+TEST(SampleStreams, EachStreamKeepsItsPosition) {
+    for (const char* type : {"independent", "sobol"}) {
+        auto a = make_sampler(type, 16), b = make_sampler(type, 16);
+        a->start({3, 5}, 7, 11);
+        b->start({3, 5}, 7, 11);
+        std::vector<double> plain, interleaved, light, connection;
+        for (int k = 0; k < 8; ++k) plain.push_back(a->next_1d());
+        for (int k = 0; k < 8; ++k) {
+            interleaved.push_back(b->next_1d());
+            b->set_stream(SampleStream::Light);
+            light.push_back(b->next_1d());
+            b->set_stream(SampleStream::Connection);
+            connection.push_back(b->next_2d().x);
+            b->set_stream(SampleStream::Camera);
+        }
+        EXPECT_EQ(plain, interleaved) << type;
+        EXPECT_NE(plain, light) << type;
+        EXPECT_NE(light, connection) << type;
+        // start() rewinds every stream and selects the camera stream, even from another stream.
+        b->set_stream(SampleStream::Light);
+        b->start({3, 5}, 7, 11);
+        EXPECT_EQ(b->next_1d(), plain[0]) << type;
+        b->set_stream(SampleStream::Light);
+        EXPECT_EQ(b->next_1d(), light[0]) << type;
+    }
+}

@@ -26,13 +26,20 @@ public:
         return c;
     }
     void start(Vec2i pixel, uint64_t index, uint64_t seed) override {
-        const uint64_t stream = hash_combine(hash_combine(uint64_t(uint32_t(pixel.x)), uint64_t(uint32_t(pixel.y))), index);
-        const uint64_t key = hash_combine(seed, m_seed);
-        m_rng[0].seed_stream(key, stream);
-        for (int s = 1; s < SampleStreamCount; ++s) m_rng[s].seed_stream(key, hash_combine(stream, uint64_t(s)));
+        m_stream = hash_combine(hash_combine(uint64_t(uint32_t(pixel.x)), uint64_t(uint32_t(pixel.y))), index);
+        m_key = hash_combine(seed, m_seed);
+        m_rng[0].seed_stream(m_key, m_stream);
+        m_seeded = 1;  // the light and connection streams are seeded when first used (path never uses them)
         m_cur = &m_rng[0];
     }
-    void set_stream(SampleStream s) override { m_cur = &m_rng[int(s)]; }
+    void set_stream(SampleStream s) override {
+        const int i = int(s);
+        if (!(m_seeded & (1u << i))) {
+            m_rng[i].seed_stream(m_key, hash_combine(m_stream, uint64_t(i)));
+            m_seeded |= 1u << i;
+        }
+        m_cur = &m_rng[i];
+    }
     double next_1d() override { return m_cur->next_double(); }
     Vec2d next_2d() override { return m_cur->next_2d(); }
 
@@ -41,6 +48,8 @@ private:
     uint64_t m_seed;
     Random m_rng[SampleStreamCount];
     Random* m_cur = &m_rng[0];
+    uint64_t m_key = 0, m_stream = 0;  // of the current sample
+    unsigned m_seeded = 0;              // bit s: stream s is seeded for the current sample
 };
 
 }  // namespace
