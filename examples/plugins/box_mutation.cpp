@@ -1,6 +1,8 @@
 // box: an out-of-tree proposal kernel (a `<mutation>` plugin), to show how a researcher adds one. Every
 // primary-sample coordinate moves by an independent uniform step in [-radius, radius], wrapped into [0, 1).
-// The kernel is symmetric, with density (1 / (2 radius))^n on the torus for radius <= 1/2.
+// The kernel is a symmetric random walk (the property every chain needs of its first stage, chain.h), with
+// density (1 / (2 radius))^n on the torus for radius <= 1/2. A chain asks a kernel to move one coordinate pair
+// at a time (sample_pair), only the pairs a path reads.
 //
 // | parameter | type  | default | meaning                                |
 // |-----------|-------|---------|----------------------------------------|
@@ -26,9 +28,8 @@ public:
         m_log_density = -std::log(2 * m_radius);
     }
 
-    void sample(kelvin::Coords x, std::span<double> y, kelvin::Random& rng) const override {
-        for (std::size_t i = 0; i < x.size(); ++i)
-            y[i] = kelvin::torus_wrap(x[i] + m_radius * (2 * rng.next_double() - 1));
+    void sample_pair(uint64_t, const double* x, double* y, kelvin::Random& rng) const override {
+        for (int i = 0; i < 2; ++i) y[i] = kelvin::torus_wrap(x[i] + m_radius * (2 * rng.next_double() - 1));
     }
     // Minimum-image differences: the density is the same across the seam of the torus as anywhere else.
     double log_density(kelvin::Coords from, kelvin::Coords to) const override {

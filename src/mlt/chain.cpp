@@ -1,11 +1,21 @@
-// Metropolis–Hastings with two-stage delayed rejection. See include/kelvin/mlt/chain.h.
+// Metropolis–Hastings with two-stage delayed rejection over lazily realised states. See
+// include/kelvin/mlt/chain.h for the algorithm and the exact semantics of the state space.
 #include <kelvin/core/error.h>
 #include <kelvin/mlt/chain.h>
 
 #include <algorithm>
+#include <chrono>
 #include <cmath>
 
 namespace kelvin {
+namespace {
+
+constexpr int X = 0, Y = 1, Z = 2, YS = 3;
+constexpr uint64_t TimingMask = 15;  // time every 16th step
+
+using Clock = std::chrono::steady_clock;
+
+}  // namespace
 
 DrType parse_dr_type(const std::string& s) {
     if (s == "none") return DrType::None;
@@ -17,146 +27,312 @@ DrType parse_dr_type(const std::string& s) {
 
 const char* to_string(DrType t) {
     switch (t) {
-        case DrType::None: return "none";
-        case DrType::Orbital: return "orbital";
-        case DrType::Mira: return "mira";
-        case DrType::Green: return "green";
+        case DrType::None:
+            return "none";
+        case DrType::Orbital:
+            return "orbital";
+        case DrType::Mira:
+            return "mira";
+        case DrType::Green:
+            return "green";
     }
     return "?";
 }
 
-MarkovChain::MarkovChain(const ChainConfig& config, std::vector<double> x0, double pi_x0, uint64_t seed,
-                         uint64_t stream)
-    : m_cfg(config), m_rng(seed, stream), m_x(std::move(x0)), m_fx(pi_x0) {
-    if (!m_cfg.first) throw Error("MarkovChain: a first-stage mutation is required");
-    if (m_cfg.first->second_stage_only()) throw Error("MarkovChain: " + m_cfg.first->to_string() + " is a second-stage kernel");
-    if (m_cfg.type != DrType::None && !m_cfg.second) throw Error("MarkovChain: delayed rejection needs a second-stage mutation");
-    if (!(m_fx > 0) || !std::isfinite(m_fx)) throw Error("MarkovChain: the initial state must have a positive, finite target value");
+void validate(const ChainConfig& c) {
+    if (!c.first) throw Error("MarkovChain: a first-stage mutation is required");
+    if (c.first->second_stage_only()) throw Error("MarkovChain: " + c.first->to_string() + " is a second-stage kernel");
+    if (!c.first->symmetric())
+        throw Error("MarkovChain: the first stage " + c.first->to_string() +
+                    " is not a symmetric random walk, which lazily extended states require (chain.h, rule 3)");
+    if (!(c.large_step_prob >= 0 && c.large_step_prob <= 1))
+        throw Error("MarkovChain: large_step_prob must be in [0, 1]");
+    if (c.type == DrType::None) return;
+    if (!c.second) throw Error("MarkovChain: delayed rejection needs a second-stage mutation");
+    switch (c.type) {
+        case DrType::Orbital:
+            if (!c.first->pairwise_isotropic())
+                throw Error(
+                    "MarkovChain: orbital delayed rejection (Eq. 4.7) needs a pairwise-isotropic first stage, not " +
+                    c.first->to_string());
+            if (!c.second->second_stage_only() || !c.second->uses_rejected())
+                throw Error("MarkovChain: orbital delayed rejection needs the orbital second stage, not " +
+                            c.second->to_string());
+            break;
+        case DrType::Green:
+            if (!c.second->symmetric() || c.second->uses_rejected())
+                throw Error(
+                    "MarkovChain: Green–Mira delayed rejection needs a symmetric second stage that ignores the "
+                    "rejected state (e.g. gaussian), not " +
+                    c.second->to_string() + "; use type mira");
+            break;
+        case DrType::Mira:
+            if (!c.first->factorizes())
+                throw Error(
+                    "MarkovChain: Tierney–Mira delayed rejection needs a first stage whose density is a product "
+                    "over coordinate pairs, not " +
+                    c.first->to_string());
+            if (c.second->second_stage_only())
+                throw Error("MarkovChain: " + c.second->to_string() + " has no density; use type orbital");
+            break;
+        case DrType::None:
+            break;
+    }
 }
 
-double MarkovChain::evaluate(const Target& target, std::vector<double>& v, Slot slot) {
+MarkovChain::MarkovChain(const ChainConfig& config, uint64_t seed, uint64_t stream, bool stage_timing)
+    : m_cfg(config), m_rng(seed, stream), m_timing(stage_timing) {
+    validate(m_cfg);
+    for (int k = 0; k < 4; ++k) {
+        m_src[std::size_t(k)].chain = this;
+        m_src[std::size_t(k)].slot = k;
+    }
+}
+
+void MarkovChain::grow(std::size_t pairs) {
+    if (pairs <= m_pairs) return;
+    pairs = std::max(pairs, 2 * m_pairs);
+    for (Lazy& s : m_s) {
+        s.v.resize(2 * pairs, 0.0);
+        s.realised.resize(pairs, 0);
+        s.read.resize(pairs, 0);
+    }
+    m_pairs = pairs;
+}
+
+void MarkovChain::next_epoch() {
+    if (m_epoch == UINT32_MAX - 1) {  // wrap-around: keep what x read, forget the rest
+        for (std::size_t p = 0; p < m_pairs; ++p) {
+            const bool x_read = m_s[X].read[p] == m_x_epoch;
+            for (Lazy& s : m_s) s.realised[p] = s.read[p] = 0;
+            m_s[X].read[p] = x_read ? 1 : 0;
+        }
+        m_x_epoch = 1;
+        m_epoch = 1;
+    }
+    ++m_epoch;
+}
+
+// Realises pair p of state `slot` for this step (rule 2 of chain.h).
+void MarkovChain::ensure(int slot, std::size_t p) {
+    Lazy& s = m_s[std::size_t(slot)];
+    double* v = s.v.data() + 2 * p;
+    if (slot == X) {
+        if (x_valid(p)) return;
+        v[0] = m_rng.next_double();  // a coordinate x's path never read: uniform (rule 1)
+        v[1] = m_rng.next_double();
+        s.realised[p] = m_epoch;
+        return;
+    }
+    if (s.realised[p] == m_epoch) return;
+    ensure(X, p);
+    const double* x = m_s[X].v.data() + 2 * p;
+    if (slot == Y) {
+        if (m_large) {
+            v[0] = m_rng.next_double();
+            v[1] = m_rng.next_double();
+        } else {
+            m_cfg.first->sample_pair(m_latent1, x, v, m_rng);
+        }
+    } else if (slot == Z) {
+        if (m_cfg.type == DrType::Mira && m_s[Y].read[p] != m_epoch) {
+            v[0] = x[0];  // Tierney–Mira moves only the pairs y read (rule 3)
+            v[1] = x[1];
+        } else if (m_cfg.second->uses_rejected()) {
+            ensure(Y, p);
+            m_cfg.second->sample_second_pair(m_latent2, x, m_s[Y].v.data() + 2 * p, v, m_rng);
+        } else {
+            m_cfg.second->sample_second_pair(m_latent2, x, x, v, m_rng);
+        }
+    } else {  // y* = z - (y - x), minimum-image differences
+        ensure(Y, p);
+        ensure(Z, p);
+        const double* y = m_s[Y].v.data() + 2 * p;
+        const double* z = m_s[Z].v.data() + 2 * p;
+        v[0] = torus_wrap(z[0] - torus_delta(x[0], y[0]));
+        v[1] = torus_wrap(z[1] - torus_delta(x[1], y[1]));
+    }
+    s.realised[p] = m_epoch;
+    ++m_stats.pairs_realised;
+}
+
+double MarkovChain::coordinate(int slot, std::size_t i) {
+    const std::size_t p = i >> 1;
+    if (p >= m_pairs) grow(p + 1);
+    ensure(slot, p);
+    Lazy& s = m_s[std::size_t(slot)];
+    s.read[p] = m_epoch;
+    if (slot == Y) m_y_read_end = std::max(m_y_read_end, p + 1);
+    return s.v[i];
+}
+
+double MarkovChain::evaluate(const Target& target, int slot) {
     ++m_stats.evaluations;
-    double f = target(v, slot);
+    double f = target(m_src[std::size_t(slot)], Slot(slot));
     if (!std::isfinite(f) || f < 0) {
         ++m_stats.invalid;  // an invalid proposal: zero target value, acceptance 0, never weighted
-        return 0.0;
+        f = 0.0;
     }
+    m_pi[std::size_t(slot)] = f;
     return f;
 }
 
-// 1 ^ pi_to Q(from|to) / (pi_from Q(to|from)), with the kernel's log-density ratio log Q(from|to) - log Q(to|from).
-double MarkovChain::first_acceptance(double pi_from, double pi_to, double log_q_back, double log_q_fwd) {
-    if (!(pi_to > 0) || log_q_back == -Inf) return 0.0;
-    if (!(pi_from > 0) || log_q_fwd == -Inf) return 1.0;
-    const double log_r = std::log(pi_to) - std::log(pi_from) + (log_q_back - log_q_fwd);
-    return log_r >= 0 ? 1.0 : std::exp(log_r);  // NaN (inf - inf) falls through to exp(NaN) -> checked below
+double MarkovChain::start(const Target& target, const std::vector<double>& x0) {
+    m_epoch = 1;
+    m_x_epoch = 1;
+    grow((x0.size() + 1) / 2);
+    Lazy& x = m_s[X];
+    for (std::size_t p = 0; p < m_pairs; ++p) x.realised[p] = x.read[p] = 0;
+    for (std::size_t i = 0; i < x0.size(); ++i) {
+        x.v[i] = x0[i];
+        x.realised[i / 2] = m_epoch;
+    }
+    if (x0.size() % 2) x.v[x0.size()] = m_rng.next_double();
+    const double pi = evaluate(target, X);
+    if (!(pi > 0) || !std::isfinite(pi))
+        throw Error("MarkovChain: the initial state must have a positive, finite target value");
+    m_started = true;
+    m_last = StepOutcome{};
+    return pi;
+}
+
+std::size_t MarkovChain::state_length() const {
+    std::size_t end = 0;
+    for (std::size_t p = 0; p < m_pairs; ++p)
+        if (m_s[X].read[p] == m_x_epoch) end = p + 1;
+    return 2 * end;
+}
+
+// log of the Tierney–Mira ratio, Eq. (4.2), over the pairs y read (rule 3 of chain.h).
+double MarkovChain::tierney_mira_log_ratio(double a1) {
+    const double pix = m_pi[X], piy = m_pi[Y], piz = m_pi[Z];
+    // Gather the pairs y read into contiguous spans.
+    std::vector<double>& g = m_scratch;
+    std::size_t n = 0;
+    for (std::size_t p = 0; p < m_y_read_end; ++p) {
+        if (m_s[Y].read[p] != m_epoch) continue;
+        ensure(Z, p);
+        ++n;
+    }
+    if (g.size() < 6 * n) g.resize(6 * n);
+    double *gx = g.data(), *gy = gx + 2 * n, *gz = gy + 2 * n;
+    std::size_t k = 0;
+    for (std::size_t p = 0; p < m_y_read_end; ++p) {
+        if (m_s[Y].read[p] != m_epoch) continue;
+        for (int j = 0; j < 2; ++j) {
+            gx[2 * k + std::size_t(j)] = m_s[X].v[2 * p + std::size_t(j)];
+            gy[2 * k + std::size_t(j)] = m_s[Y].v[2 * p + std::size_t(j)];
+            gz[2 * k + std::size_t(j)] = m_s[Z].v[2 * p + std::size_t(j)];
+        }
+        ++k;
+    }
+    const Coords xs(gx, 2 * n), ys(gy, 2 * n), zs(gz, 2 * n);
+    const Mutation &q1 = *m_cfg.first, &q2 = *m_cfg.second;
+    const double lq1_y_z = m_large ? 0.0 : q1.log_density(zs, ys);  // log Q1(y | z); a large step is uniform
+    const double lq1_y_x = m_large ? 0.0 : q1.log_density(xs, ys);  // log Q1(y | x)
+    const double lq2_x = q2.log_density_second(zs, ys, xs);         // log Q2(x | y, z)
+    const double lq2_z = q2.log_density_second(xs, ys, zs);         // log Q2(z | y, x)
+    const double a1_zy = std::min(1.0, piy / piz);                  // a1(z, y), Q1 symmetric
+    const double log_num = std::log(piz) + lq1_y_z + lq2_x + std::log1p(-a1_zy);
+    const double log_den = std::log(pix) + lq1_y_x + lq2_z + std::log1p(-a1);
+    if (!(log_den > -Inf)) {
+        ++m_stats.invalid;  // y or z proposed with zero density: cannot happen for a consistent kernel
+        return -Inf;
+    }
+    return log_num - log_den;  // -inf when the reverse path is impossible
 }
 
 StepOutcome MarkovChain::step(const Target& target) {
+    if (!m_started) throw Error("MarkovChain::step before start()");
     StepOutcome out;
+    next_epoch();
     ++m_stats.steps;
-    const std::size_t n = m_x.size();
-    const Mutation& q1 = *m_cfg.first;
-    const Coords xs(m_x.data(), n);
+    const bool timed = m_timing && (m_stats.steps & TimingMask) == 0;
+    Clock::time_point t0;
+    if (timed) t0 = Clock::now();
 
     // Stage 1.
-    m_y.resize(n);
     out.large = m_cfg.large_step_prob > 0 && m_rng.next_double() < m_cfg.large_step_prob;
-    double lq1_yx = 0, lq1_xy = 0;  // log Q1(y|x), log Q1(x|y); a large step is uniform (density 1 both ways)
+    m_large = out.large;
     if (out.large) {
         ++m_stats.large_steps;
-        for (double& v : m_y) v = m_rng.next_double();
     } else {
-        q1.sample(xs, std::span<double>(m_y.data(), n), m_rng);
-        if (!q1.symmetric()) {
-            lq1_yx = q1.log_density(xs, Coords(m_y.data(), n));
-            lq1_xy = q1.log_density(Coords(m_y.data(), n), xs);
-        }
+        m_latent1 = m_cfg.first->begin(m_rng);
     }
-    m_fy = evaluate(target, m_y, Slot::Y);
-    out.a1 = first_acceptance(m_fx, m_fy, lq1_xy, lq1_yx);
-    if (!(out.a1 >= 0)) out.a1 = 0;  // NaN from an undefined density ratio: reject
-    const double u1 = m_rng.next_double(), u2 = m_rng.next_double();
-    if (u1 < out.a1) {
+    m_y_read_end = 0;
+    const double pix = m_pi[X];
+    const double piy = evaluate(target, Y);
+    out.a1 = piy >= pix ? 1.0 : piy / pix;  // Q1 symmetric (rule 3); a large step is uniform
+    if (m_rng.next_double() < out.a1) {
         ++m_stats.stage1_accepted;
         if (out.large) ++m_stats.large_accepted;
         out.accepted = 1;
     }
-
-    const bool try_second = out.accepted == 0 && m_cfg.type != DrType::None && out.a1 < 1 &&
-                            (!out.large || m_cfg.timid_after_large);
+    double w_z = 0;
+    const bool try_second =
+        out.accepted == 0 && m_cfg.type != DrType::None && out.a1 < 1 && (!out.large || m_cfg.timid_after_large);
+    Clock::time_point t1;
+    if (timed) {
+        t1 = Clock::now();
+        m_stats.seconds_stage1 += double(TimingMask + 1) * std::chrono::duration<double>(t1 - t0).count();
+    }
     if (try_second) {
         out.second_stage = true;
         ++m_stats.stage2_attempted;
-        const Mutation& q2 = *m_cfg.second;
-        const Coords ys(m_y.data(), n);
-        m_z.resize(n);
-        q2.sample_second(xs, ys, std::span<double>(m_z.data(), n), m_rng);
-        m_fz = evaluate(target, m_z, Slot::Z);
-        const Coords zs(m_z.data(), n);
-        const double one_minus_a1_xy = 1 - out.a1;  // > 0: the first stage was rejected with a1 < 1
-        if (!(m_fz > 0)) {
-            out.a2 = 0;
-        } else if (m_cfg.type == DrType::Orbital) {
-            // Eq. (4.7). Valid for a circularly symmetric first stage and z on the orbit of y through x.
-            double den = m_fx - m_fy;
-            out.a2 = den > 0 ? std::min(1.0, std::max(0.0, m_fz - m_fy) / den) : 0.0;
-        } else {
-            // log Q1 densities of the stage-1 kernel (uniform for a large step).
-            auto lq1 = [&](Coords from, Coords to) { return out.large ? 0.0 : q1.log_density(from, to); };
-            double pi_mid;
-            Coords mid = ys;
-            if (m_cfg.type == DrType::Green) {
-                // Fictional state y* = z - (y - x) (minimum-image differences), Eqs. (4.8)-(4.9).
-                m_ystar.resize(n);
-                for (std::size_t i = 0; i < n; ++i) m_ystar[i] = torus_wrap(m_z[i] - torus_delta(m_x[i], m_y[i]));
-                pi_mid = evaluate(target, m_ystar, Slot::YStar);
-                mid = Coords(m_ystar.data(), n);
-            } else {
-                pi_mid = m_fy;  // Tierney–Mira: the reverse path passes through y itself, Eq. (4.2)
+        m_latent2 = m_cfg.second->begin(m_rng);
+        const double u2 = m_rng.next_double();
+        const double piz = evaluate(target, Z);
+        const double den = pix * (1 - out.a1);  // pi(x) (1 - a1(x, y)) = pi(x) - pi(y) > 0
+        if (piz > 0) {
+            switch (m_cfg.type) {
+                case DrType::Orbital:  // Eq. (4.7)
+                    out.a2 = piz > piy ? std::min(1.0, (piz - piy) / den) : 0.0;
+                    w_z = (1 - out.a1) * out.a2;
+                    break;
+                case DrType::Green: {  // Eq. (4.10) with every density cancelled
+                    const double a2_max = std::min(1.0, piz / den);
+                    if (u2 >= a2_max) {
+                        ++m_stats.ystar_skipped;  // rejected whatever pi(y*) is
+                        break;
+                    }
+                    ++m_stats.ystar_evaluations;
+                    out.ystar_traced = true;
+                    const double piys = evaluate(target, YS);
+                    out.a2 = piz > piys ? std::min(1.0, (piz - piys) / den) : 0.0;
+                    w_z = (1 - out.a1) * out.a2 / a2_max;  // unbiased: u2 < a2_max with probability a2_max
+                    break;
+                }
+                case DrType::Mira: {
+                    const double log_r = tierney_mira_log_ratio(out.a1);
+                    out.a2 = log_r >= 0 ? 1.0 : std::exp(log_r);
+                    if (!std::isfinite(out.a2)) out.a2 = 0;
+                    w_z = (1 - out.a1) * out.a2;
+                    break;
+                }
+                case DrType::None:
+                    break;
             }
-            const double lq1_mid_z = lq1(zs, mid);  // log Q1(mid | z)
-            const double lq1_z_mid = lq1(mid, zs);  // log Q1(z | mid)
-            const double lq1_y_x = lq1(xs, ys);     // log Q1(y | x)
-            // 1 - a1(z, mid): the probability that, from z, the first stage proposes mid and rejects it.
-            const double a1_z_mid = first_acceptance(m_fz, pi_mid, lq1_z_mid, lq1_mid_z);
-            const double lq2_x = q2.log_density_second(zs, mid, xs);  // log Q2(x | mid, z)
-            const double lq2_z = q2.log_density_second(xs, ys, zs);   // log Q2(z | y, x)
-            // a2 = 1 ^ pi(z) Q1(mid|z) Q2(x|mid,z) (1 - a1(z,mid)) / (pi(x) Q1(y|x) Q2(z|y,x) (1 - a1(x,y))),
-            // as a difference of logarithms: the densities of a long path over- or underflow as products.
-            const double log_num = std::log(m_fz) + lq1_mid_z + lq2_x + std::log1p(-a1_z_mid);
-            const double log_den = std::log(m_fx) + lq1_y_x + lq2_z + std::log(one_minus_a1_xy);
-            if (!(log_den > -Inf)) {
-                out.a2 = 0;  // y or z proposed with zero density: cannot happen for a consistent kernel
-                ++m_stats.invalid;
-            } else {
-                const double log_r = log_num - log_den;  // -inf when the reverse path is impossible: a2 = 0
-                out.a2 = log_r >= 0 ? 1.0 : std::exp(log_r);
-            }
-            if (!std::isfinite(out.a2)) out.a2 = 0;
         }
         if (u2 < out.a2) {
             ++m_stats.stage2_accepted;
             out.accepted = 2;
         }
+        if (timed)
+            m_stats.seconds_stage2 += double(TimingMask + 1) * std::chrono::duration<double>(Clock::now() - t1).count();
     }
 
     // Waste-recycling weights (Sec. 4.2.6).
     out.w_y = out.a1;
-    out.w_z = out.second_stage ? (1 - out.a1) * out.a2 : 0.0;
-    out.w_x = 1 - out.w_y - out.w_z;
+    out.w_z = w_z;
+    out.w_x = std::max(0.0, 1 - out.w_y - out.w_z);
 
-    // The step's three states stay readable for waste recycling: previous() (x), y(), z(). Copies into
-    // existing storage: no allocation once the vectors have grown.
-    m_old = m_x;
-    m_f_old = m_fx;
-    if (out.accepted == 1) {
-        m_x = m_y;
-        m_fx = m_fy;
-    } else if (out.accepted == 2) {
-        m_x = m_z;
-        m_fx = m_fz;
+    // The accepted state becomes x: O(1) swaps; what it read is what x keeps next step (rule 1).
+    if (out.accepted > 0) {
+        std::swap(m_s[X], m_s[std::size_t(out.accepted)]);
+        std::swap(m_pi[X], m_pi[std::size_t(out.accepted)]);
+        m_x_epoch = m_epoch;
     }
+    m_last = out;
     return out;
 }
 

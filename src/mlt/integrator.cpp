@@ -19,8 +19,6 @@
 namespace kelvin {
 namespace {
 
-using Clock = std::chrono::steady_clock;
-
 /// The contribution list F(x) of one state: (film position, value) pairs. A SplatSink, so that a path sampler
 /// that splats (bdpt) writes straight into it. Keeps its capacity: no allocation once warm.
 struct Contributions final : SplatSink {
@@ -78,9 +76,11 @@ MetropolisIntegrator::MetropolisIntegrator(const Properties& props, bool delayed
     m_chains = props.get_int("chains", 1, 1 << 24);
     m_mutations_per_pixel = props.get_float("mutations_per_pixel", 1e-9, 1e12);
     m_direct_samples = props.get_int("direct_samples", -1, 1 << 24);
-    if (m_direct_samples == 0) props.error("direct_samples", "must be -1 (the chains render direct light too) or at least 1");
+    if (m_direct_samples == 0)
+        props.error("direct_samples", "must be -1 (the chains render direct light too) or at least 1");
     m_normalization = props.get_float("normalization", -1, Inf);
-    if (!(m_normalization == -1 || m_normalization > 0)) props.error("normalization", "must be -1 (bootstrap) or positive");
+    if (!(m_normalization == -1 || m_normalization > 0))
+        props.error("normalization", "must be -1 (bootstrap) or positive");
     m_waste_recycling = props.get_bool("waste_recycling");
     m_config.large_step_prob = props.get_float("large_step_prob", 0, 1);
 
@@ -104,29 +104,40 @@ MetropolisIntegrator::MetropolisIntegrator(const Properties& props, bool delayed
                 m_second = make_mutation("orbital");
             } else {
                 const double sigma = scale_second * m_first->scale();
-                if (!(sigma <= 0.125)) props.error("scale_second", fmt::format("gives a second-stage sigma of {} (> 1/8)", sigma));
+                if (!(sigma <= 0.125))
+                    props.error("scale_second", fmt::format("gives a second-stage sigma of {} (> 1/8)", sigma));
                 m_second = make_mutation("gaussian", sigma);
             }
         } else if (props.has("scale_second")) {
-            props.error("scale_second", "sizes the default second stage only; set the nested <mutation name=\"second\"> instead");
+            props.error("scale_second",
+                        "sizes the default second stage only; set the nested <mutation name=\"second\"> instead");
         }
         const bool orbital_kernel = m_second->second_stage_only();
         if (m_config.type == DrType::Orbital && !m_first->pairwise_isotropic())
-            props.error("first", m_first->to_string() + " is not pairwise isotropic, as the orbital acceptance (Eq. 4.7) "
-                                 "requires; use kelemen_pair or gaussian");
+            props.error("first", m_first->to_string() +
+                                     " is not pairwise isotropic, as the orbital acceptance (Eq. 4.7) "
+                                     "requires; use kelemen_pair or gaussian");
         if (m_config.type == DrType::Orbital && m_second->plugin_name() != "orbital")
-            props.error("type", "'orbital' (Eq. 4.7) is valid only with the orbital second stage, not " + m_second->to_string());
+            props.error("type", "'orbital' (Eq. 4.7) is valid only with the orbital second stage, not " +
+                                    m_second->to_string());
         if (m_config.type != DrType::Orbital && orbital_kernel)
             props.error("second", m_second->to_string() + " has no density; use type=\"orbital\" with it");
     }
     m_config.first = m_first.get();
     m_config.second = m_second.get();
+    try {
+        validate(m_config);
+    } catch (const Error& e) {
+        props.error(delayed_rejection ? "type" : "mutation", e.what());
+    }
 
     // With direct_samples > 0 the chains sample paths of 3 or more edges and direct light (emitters seen
     // directly, one-bounce paths) is rendered by plain path tracing.
     const bool split = m_direct_samples > 0;
     m_technique = make_path_sampler(technique, max_depth, split ? 3 : 1, rr_depth, hide_emitters);
-    if (split) m_direct = make_path_sampler("path", max_depth < 0 ? 2 : std::min<long long>(2, max_depth), 1, rr_depth, hide_emitters);
+    if (split)
+        m_direct = make_path_sampler("path", max_depth < 0 ? 2 : std::min<long long>(2, max_depth), 1, rr_depth,
+                                     hide_emitters);
 }
 
 MetropolisIntegrator::~MetropolisIntegrator() = default;
@@ -150,10 +161,9 @@ RunResult MetropolisIntegrator::render(const Scene& scene, RunContext& ctx) {
     MltStatistics st;
     st.chains = uint64_t(m_chains);
 
-    // F(x) and pi(x) of the state `x`, read (and extended) through `pss`.
-    auto evaluate = [&](std::vector<double>& x, PrimarySampleSpace& pss, Contributions& out, SampleCounters& c) {
+    // F(x) and pi(x) of the state `pss` is bound to.
+    auto evaluate = [&](PrimarySampleSpace& pss, Contributions& out, SampleCounters& c) {
         out.clear();
-        pss.bind(x);
         const Vec2d film = dom.origin + pss.next_2d() * dom.extent;
         const Ray ray = sensor.sample_ray(film, pss.next_2d());
         c.splats = &out;
@@ -175,7 +185,8 @@ RunResult MetropolisIntegrator::render(const Scene& scene, RunContext& ctx) {
         dctx.quiet = true;
         RunResult r = m_direct->render(scene, dctx);
         direct = std::move(r.image);
-        for (const auto& c : dctx.stats.counters()) ctx.stats.add(fmt::format("mlt.direct.{}", c.name.substr(c.name.find('.') + 1)), c.value, c.unit);
+        for (const auto& c : dctx.stats.counters())
+            ctx.stats.add(fmt::format("mlt.direct.{}", c.name.substr(c.name.find('.') + 1)), c.value, c.unit);
         st.seconds_direct = t.seconds();
         if (r.interrupted) {
             RunResult out;
@@ -203,7 +214,8 @@ RunResult MetropolisIntegrator::render(const Scene& scene, RunContext& ctx) {
                 if ((i & 255) == 0 && interrupt_requested()) return;
                 PrimarySampleSpace pss(boot_seed, i, streams);
                 x.clear();
-                boot_pi[i] = evaluate(x, pss, f, bc[b]);
+                pss.bind(x);
+                boot_pi[i] = evaluate(pss, f, bc[b]);
             }
         });
         double sum = 0;
@@ -222,17 +234,18 @@ RunResult MetropolisIntegrator::render(const Scene& scene, RunContext& ctx) {
             return out;
         }
         if (st.bootstrap_nonzero == 0)
-            log_warn("{}: none of the {} bootstrap paths carries light; the Metropolis part of the image is black "
-                     "(raise bootstrap_samples if light paths are rare)", to_string(), nboot);
+            log_warn(
+                "{}: none of the {} bootstrap paths carries light; the Metropolis part of the image is black "
+                "(raise bootstrap_samples if light paths are rare)",
+                to_string(), nboot);
     }
 
     // 3. Chains.
     struct Chain {
         std::unique_ptr<MarkovChain> mc;
         std::unique_ptr<PrimarySampleSpace> pss;
-        Contributions f[4];  // x (current state), y, z, y*
+        Contributions f[4];  // indexed by Slot: x (current state), y, z, y*
         uint64_t steps_done = 0;
-        double t1 = 0, t2 = 0;
     };
     std::vector<Chain> chains(st.bootstrap_nonzero > 0 ? std::size_t(m_chains) : 0);
     if (!chains.empty()) {
@@ -254,10 +267,18 @@ RunResult MetropolisIntegrator::render(const Scene& scene, RunContext& ctx) {
             Chain& ch = chains[c];
             std::vector<double> x;
             PrimarySampleSpace boot(boot_seed, start[c], streams);
-            const double pi = evaluate(x, boot, ch.f[0], counters[c]);
-            if (!(pi > 0)) throw RuntimeError("internal error: a bootstrap state did not reproduce its value");
-            ch.mc = std::make_unique<MarkovChain>(m_config, std::move(x), pi, chain_seed, c);
+            boot.bind(x);
+            Contributions scratch;
+            if (!(evaluate(boot, scratch, counters[c]) > 0))
+                throw RuntimeError("internal error: a bootstrap state did not reproduce its value");
+            ch.mc = std::make_unique<MarkovChain>(m_config, chain_seed, c, /*stage_timing=*/m_delayed_rejection);
             ch.pss = std::make_unique<PrimarySampleSpace>(pss_seed, c, streams);
+            const MarkovChain::Target target = [&](CoordinateSource& src, Slot slot) {
+                ch.pss->bind(src);
+                return evaluate(*ch.pss, ch.f[int(slot)], counters[c]);
+            };
+            if (!(ch.mc->start(target, x) > 0))
+                throw RuntimeError("internal error: a chain's first state has no value");
         });
     }
     boot_pi = {};
@@ -294,12 +315,9 @@ RunResult MetropolisIntegrator::render(const Scene& scene, RunContext& ctx) {
             SampleCounters& cnt = counters[c];
             const uint64_t todo = steps_until(first + n, c) - steps_until(first, c);
             // One std::function per pass: built per step, it would allocate (the closure exceeds its small buffer).
-            const MarkovChain::Target target = [&](std::vector<double>& v, Slot slot) {
-                const auto t0 = Clock::now();
-                const double pi = evaluate(v, *ch.pss, ch.f[1 + int(slot)], cnt);
-                const double dt = std::chrono::duration<double>(Clock::now() - t0).count();
-                (slot == Slot::Y ? ch.t1 : ch.t2) += dt;
-                return pi;
+            const MarkovChain::Target target = [&](CoordinateSource& src, Slot slot) {
+                ch.pss->bind(src);
+                return evaluate(*ch.pss, ch.f[int(slot)], cnt);
             };
             for (uint64_t k = 0; k < todo; ++k) {
                 if ((k & 255) == 255 && interrupt_requested()) return;
@@ -356,8 +374,11 @@ RunResult MetropolisIntegrator::render(const Scene& scene, RunContext& ctx) {
         st.chain.stage2_accepted += s.stage2_accepted;
         st.chain.evaluations += s.evaluations;
         st.chain.invalid += s.invalid;
-        st.seconds_stage1 += ch.t1;
-        st.seconds_stage2 += ch.t2;
+        st.chain.ystar_evaluations += s.ystar_evaluations;
+        st.chain.ystar_skipped += s.ystar_skipped;
+        st.chain.pairs_realised += s.pairs_realised;
+        st.chain.seconds_stage1 += s.seconds_stage1;
+        st.chain.seconds_stage2 += s.seconds_stage2;
     }
     for (const auto& c : counters) st.invalid_contributions += c.invalid;
     st.splat_overflow = image.overflowed();

@@ -20,7 +20,8 @@ using namespace kelvin;
 
 using Density = std::function<double(double u, double v)>;
 
-inline std::shared_ptr<Mutation> mutation(const std::string& name, std::vector<std::pair<std::string, double>> params = {}) {
+inline std::shared_ptr<Mutation> mutation(const std::string& name,
+                                          std::vector<std::pair<std::string, double>> params = {}) {
     Properties p("mutation", name);
     for (auto& [k, v] : params) p.set_float(k, v);
     return std::dynamic_pointer_cast<Mutation>(Registry::instance().create(p));
@@ -79,9 +80,13 @@ struct ChainRun {
 // Chi-square tests reject at p < 1e-4 (chi2_sf: exact upper tail from the shared test support).
 inline constexpr double kAlpha = 1e-4;
 
-inline ChainRun run_chains(const Target& target, const ChainConfig& cfg, int chains = 20000, int steps = 60, uint64_t seed = 1) {
+inline ChainRun run_chains(const Target& target, const ChainConfig& cfg, int chains = 20000, int steps = 60,
+                           uint64_t seed = 1) {
     auto pi = [&](const std::vector<double>& s) { return target.pi(s[0], s[1]); };
-    MarkovChain::Target f = [&](std::vector<double>& s, Slot) { return pi(s); };
+    MarkovChain::Target f = [&](CoordinateSource& s, Slot) {
+        const double u = s.at(0);
+        return target.pi(u, s.at(1));
+    };
     std::vector<double> probs = cell_probabilities(target.pi);
     std::vector<int> counts(Bins * Bins, 0);
     ChainRun r;
@@ -94,7 +99,8 @@ inline ChainRun run_chains(const Target& target, const ChainConfig& cfg, int cha
             x = {init.next_double(), init.next_double()};
             fx = pi(x);
         } while (!(init.next_double() * target.pi_max < fx));
-        MarkovChain chain(cfg, x, fx, seed, uint64_t(c));
+        MarkovChain chain(cfg, seed, uint64_t(c));
+        if (chain.start(f, x) != fx) throw std::logic_error("the chain did not reproduce pi(x0)");
         double est = 0;
         for (int t = 0; t < steps; ++t) {
             StepOutcome o = chain.step(f);

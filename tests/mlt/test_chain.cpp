@@ -92,14 +92,6 @@ TEST(MarkovChain, EveryKernelAndDrVariantIsStationary) {
 
 // A deliberately wrong orbital acceptance (pi(z)/pi(x), ignoring the rejected y) must be detected by the
 // harness above: the test proves the stationarity tests have power.
-class WrongOrbital final : public Mutation {
-public:
-    void sample(Coords x, std::span<double> y, Random&) const override {
-        for (std::size_t i = 0; i < x.size(); ++i) y[i] = x[i];
-    }
-    double log_density(Coords, Coords) const override { return 0.0; }
-};
-
 TEST(MarkovChain, WrongAcceptanceIsDetected) {
     auto pair = mutation("kelemen_pair", {{"eps_min", 0.01}, {"eps_max", 0.12}}), orbital = mutation("orbital");
     // Emulate the wrong rule with the engine: type Mira with a second stage whose densities claim symmetry
@@ -118,13 +110,13 @@ TEST(MarkovChain, WrongAcceptanceIsDetected) {
             fx = t.pi(x[0], x[1]);
         } while (!(init.next_double() * t.pi_max < fx));
         for (int s = 0; s < steps; ++s) {
-            pair->sample(x, y, rng);
+            pair->sample_pair(0, x.data(), y.data(), rng);
             double fy = t.pi(y[0], y[1]);
             if (rng.next_double() < std::min(1.0, fy / fx)) {
                 x = y, fx = fy;
                 continue;
             }
-            orbital->sample_second(x, y, z, rng);
+            orbital->sample_second_pair(0, x.data(), y.data(), z.data(), rng);
             double fz = t.pi(z[0], z[1]);
             if (rng.next_double() < std::min(1.0, fz / fx)) x = z, fx = fz;  // WRONG: not Eq. (4.7)
         }
@@ -157,7 +149,7 @@ TEST(MarkovChain, OrbitalGeometryAndWrappedCauchy) {
         std::vector<double> x = {rng.next_double(), rng.next_double()}, y(2), z(2);
         double r = 0.001 + 0.05 * rng.next_double(), a = 2 * Pi * rng.next_double();
         y = {torus_wrap(x[0] + r * std::cos(a)), torus_wrap(x[1] + r * std::sin(a))};
-        orbital->sample_second(x, y, z, rng);
+        orbital->sample_second_pair(0, x.data(), y.data(), z.data(), rng);
         // z is on the orbit of y through x (minimum-image distances; before wrapping to 1e-12).
         double dzx = torus_delta(y[0], z[0]), dzy = torus_delta(y[1], z[1]);
         double dxx = torus_delta(y[0], x[0]), dxy = torus_delta(y[1], x[1]);
@@ -188,13 +180,15 @@ TEST(MarkovChain, DegenerateRatiosStayProbabilities) {
         ChainConfig cfg{type == DrType::Orbital ? pair.get() : kel.get(),
                         type == DrType::Orbital ? orbital.get() : fine.get(), type, 0.2, true};
         // A target that is constant (l_x == l_y), zero on a band, NaN on another and Inf on a third.
-        MarkovChain::Target f = [](std::vector<double>& s, Slot) {
-            if (s[0] > 0.2 && s[0] < 0.3) return 0.0;
-            if (s[0] > 0.4 && s[0] < 0.5) return std::nan("");
-            if (s[0] > 0.6 && s[0] < 0.7) return std::numeric_limits<double>::infinity();
+        MarkovChain::Target f = [](CoordinateSource& s, Slot) {
+            const double u = s.at(0);
+            if (u > 0.2 && u < 0.3) return 0.0;
+            if (u > 0.4 && u < 0.5) return std::nan("");
+            if (u > 0.6 && u < 0.7) return std::numeric_limits<double>::infinity();
             return 1.0;
         };
-        MarkovChain chain(cfg, {0.05, 0.5}, 1.0, 5, 0);
+        MarkovChain chain(cfg, 5, 0);
+        chain.start(f, {0.05, 0.5});
         for (int k = 0; k < 20000; ++k) {
             StepOutcome o = chain.step(f);
             ASSERT_TRUE(o.a1 >= 0 && o.a1 <= 1) << to_string(type);
@@ -213,10 +207,23 @@ TEST(MarkovChain, DegenerateRatiosStayProbabilities) {
 }
 
 TEST(MarkovChain, ConfigurationErrors) {
-    auto kel = mutation("kelemen"), orbital = mutation("orbital");
-    EXPECT_THROW(MarkovChain(ChainConfig{orbital.get(), nullptr, DrType::None}, {0.5}, 1.0, 0, 0), Error);
-    EXPECT_THROW(MarkovChain(ChainConfig{kel.get(), nullptr, DrType::Mira}, {0.5}, 1.0, 0, 0), Error);
-    EXPECT_THROW(MarkovChain(ChainConfig{kel.get(), nullptr, DrType::None}, {0.5}, 0.0, 0, 0), Error);
+    auto kel = mutation("kelemen"), orbital = mutation("orbital"), gauss = mutation("gaussian");
+    auto pair = mutation("kelemen_pair");
+    Properties mp("mutation", "mixture");
+    mp.set_object("", kel);
+    mp.set_object("", gauss);
+    auto mix = std::dynamic_pointer_cast<Mutation>(Registry::instance().create(mp));
+    EXPECT_THROW(MarkovChain(ChainConfig{orbital.get(), nullptr, DrType::None}, 0, 0), Error);
+    EXPECT_THROW(MarkovChain(ChainConfig{kel.get(), nullptr, DrType::Mira}, 0, 0), Error);
+    EXPECT_THROW(MarkovChain(ChainConfig{kel.get(), orbital.get(), DrType::Orbital}, 0, 0), Error);  // not isotropic
+    EXPECT_THROW(MarkovChain(ChainConfig{pair.get(), gauss.get(), DrType::Orbital}, 0, 0), Error);   // not on the orbit
+    EXPECT_THROW(MarkovChain(ChainConfig{kel.get(), orbital.get(), DrType::Green}, 0, 0), Error);    // Q2 uses y
+    EXPECT_THROW(MarkovChain(ChainConfig{kel.get(), orbital.get(), DrType::Mira}, 0, 0), Error);     // no density
+    EXPECT_THROW(MarkovChain(ChainConfig{mix.get(), gauss.get(), DrType::Mira}, 0, 0), Error);       // no product
+    EXPECT_NO_THROW(MarkovChain(ChainConfig{mix.get(), gauss.get(), DrType::Green}, 0, 0));
+    MarkovChain zero(ChainConfig{kel.get(), nullptr, DrType::None}, 0, 0);
+    EXPECT_THROW(zero.start([](CoordinateSource& s, Slot) { return s.at(0) * 0.0; }, {0.5}), Error);
+    EXPECT_THROW(zero.step([](CoordinateSource&, Slot) { return 1.0; }), Error);  // step before a successful start
     EXPECT_THROW(mutation("kelemen", {{"eps_min", 0.1}, {"eps_max", 0.01}}), InputError);
     EXPECT_THROW(mutation("orbital", {{"rho", 1.5}}), InputError);
 }

@@ -10,7 +10,6 @@
 
 #include "render/render_support.h"
 
-
 using namespace kelvin;
 
 namespace {
@@ -63,30 +62,34 @@ std::vector<Bitmap> seeds(const TestScene& xml, const std::string& file, long lo
 
 // 200 000 bootstrap paths: b's relative standard error is then about 1 % per run on the Cornell box (the
 // coefficient of variation of pi is about 4.5), so the mean of 8 seeds is known to 0.4 %: the 2 % check is 5 sigma.
-const std::string MltCommon = R"(<integer name="bootstrap_samples" value="200000"/><integer name="chains" value="64"/>)";
+const std::string MltCommon =
+    R"(<integer name="bootstrap_samples" value="200000"/><integer name="chains" value="64"/>)";
 
 std::string pssmlt(const std::string& mutation, const std::string& extra = "") {
     return "<integrator type=\"pssmlt\">" + MltCommon + extra + mutation + "</integrator>";
 }
 std::string drmlt(const std::string& type, const std::string& extra = "") {
-    return "<integrator type=\"drmlt\"><string name=\"type\" value=\"" + type + "\"/>" + MltCommon + extra + "</integrator>";
+    return "<integrator type=\"drmlt\"><string name=\"type\" value=\"" + type + "\"/>" + MltCommon + extra +
+           "</integrator>";
 }
 
 /// Every variant must agree with path tracing block by block (8 x 8 blocks of a 32 x 32 Cornell box, 8 seeds
 /// each, tolerance 5 estimated sigmas: see compare_blocks; at most one of the 16 blocks beyond, about 0.2 % of
 /// blocks are by chance), and the image means within 2 %. A wrong acceptance or weight moves every block.
-void expect_matches_path(const std::string& integrator, const std::string& file = "cornell-box.xml", long long mpp = 128,
-                         long long path_spp = 256, int res = 32, bool within_2_percent = true,
+void expect_matches_path(const std::string& integrator, const std::string& file = "cornell-box.xml",
+                         long long mpp = 128, long long path_spp = 256, int res = 32, bool within_2_percent = true,
                          const std::string& reference_integrator = "path") {
     static std::map<std::string, std::vector<Bitmap>> reference;  // reference renders, shared by the variants
     const std::string key = file + std::to_string(res) + "/" + std::to_string(path_spp) + reference_integrator;
     if (!reference.count(key))
-        reference[key] = seeds(scene_with(file, "<integrator type=\"" + reference_integrator + "\"/>", res), file, path_spp, 8, 100);
+        reference[key] =
+            seeds(scene_with(file, "<integrator type=\"" + reference_integrator + "\"/>", res), file, path_spp, 8, 100);
     const auto mlt = seeds(scene_with(file, integrator, res), file, mpp, 8);
     for (int c = 0; c < 3; ++c) {
         const auto cmp = ktest::compare_blocks(mlt, reference[key], 8, c);
         EXPECT_LE(cmp.outliers, 1) << integrator << " channel " << c;
-        std::printf("[ mlt ] %s channel %d: %.5f +- %.5f vs %.5f +- %.5f, %d outliers\n", file.c_str(), c, cmp.mean_a, cmp.mean_a > 0 ? cmp.se_a : 0, cmp.mean_b, cmp.se_b, cmp.outliers);
+        std::printf("[ mlt ] %s channel %d: %.5f +- %.5f vs %.5f +- %.5f, %d outliers\n", file.c_str(), c, cmp.mean_a,
+                    cmp.mean_a > 0 ? cmp.se_a : 0, cmp.mean_b, cmp.se_b, cmp.outliers);
         if (within_2_percent) EXPECT_NEAR(cmp.mean_a, cmp.mean_b, 0.02 * cmp.mean_b) << integrator << " channel " << c;
         EXPECT_NEAR(cmp.mean_a, cmp.mean_b, 5 * std::hypot(cmp.se_a, cmp.se_b)) << integrator << " channel " << c;
     }
@@ -97,16 +100,22 @@ TEST(MltIntegrators, PssmltGaussianMatchesPathTracing) { expect_matches_path(pss
 TEST(MltIntegrators, DrmltOrbitalMatchesPathTracing) { expect_matches_path(drmlt("orbital")); }
 TEST(MltIntegrators, DrmltMiraMatchesPathTracing) { expect_matches_path(drmlt("mira")); }
 TEST(MltIntegrators, DrmltGreenMatchesPathTracing) { expect_matches_path(drmlt("green")); }
+// Without recycling, a run's estimate of a dark block is skewed (low in most runs, high in the rare run whose
+// chain lingers there), which the 8-seed t-test assumes away: at 256 mutations/px one seed set of four tried had two
+// dark blocks low in all 8 runs (issue 12's new chain, same means); 768 keeps the skew well inside 5 sigma.
 TEST(MltIntegrators, WithoutWasteRecyclingAndDirectSamplesMatchesPathTracing) {
-    expect_matches_path(drmlt("mira", R"(<boolean name="waste_recycling" value="false"/><integer name="direct_samples" value="-1"/>)"), "cornell-box.xml", 256);
+    expect_matches_path(
+        drmlt("mira", R"(<boolean name="waste_recycling" value="false"/><integer name="direct_samples" value="-1"/>)"),
+        "cornell-box.xml", 768);
 }
 // bdpt costs about 5 path evaluations per state here: fewer bootstrap paths and mutations, so b's noise (about
 // 2.5 % per run) leaves the 5-sigma checks only.
 TEST(MltIntegrators, BdptTechniqueMatchesPathTracing) {
-    expect_matches_path("<integrator type=\"drmlt\"><string name=\"type\" value=\"green\"/><string name=\"technique\" "
-                        "value=\"bdpt\"/><integer name=\"bootstrap_samples\" value=\"40000\"/><integer name=\"chains\" "
-                        "value=\"64\"/></integrator>",
-                        "cornell-box.xml", 32, 256, 32, false);
+    expect_matches_path(
+        "<integrator type=\"drmlt\"><string name=\"type\" value=\"green\"/><string name=\"technique\" "
+        "value=\"bdpt\"/><integer name=\"bootstrap_samples\" value=\"40000\"/><integer name=\"chains\" "
+        "value=\"64\"/></integrator>",
+        "cornell-box.xml", 32, 256, 32, false);
 }
 
 // The caustic (L-S-S-D-E paths through a glass sphere from a small light) against bidirectional path tracing.
@@ -114,9 +123,10 @@ TEST(MltIntegrators, BdptTechniqueMatchesPathTracing) {
 // well: on the path technique, b's estimate is dominated by rare caustic hits (heavy-tailed), and a mean over
 // a few seeds says little; the path-technique variants below are given b (`normalization`) instead.
 TEST(MltIntegrators, DrmltMatchesBdptOnTheCaustic) {
-    expect_matches_path("<integrator type=\"drmlt\"><string name=\"technique\" value=\"bdpt\"/><integer "
-                        "name=\"bootstrap_samples\" value=\"40000\"/><integer name=\"chains\" value=\"64\"/></integrator>",
-                        "caustic.xml", 32, 256, 32, false, "bdpt");
+    expect_matches_path(
+        "<integrator type=\"drmlt\"><string name=\"technique\" value=\"bdpt\"/><integer "
+        "name=\"bootstrap_samples\" value=\"40000\"/><integer name=\"chains\" value=\"64\"/></integrator>",
+        "caustic.xml", 32, 256, 32, false, "bdpt");
 }
 
 // Every variant on the path technique against bdpt on the caustic, image means within 2 %. On the path technique
@@ -127,16 +137,20 @@ TEST(MltIntegrators, DrmltMatchesBdptOnTheCaustic) {
 double caustic_normalization() {
     static const double b = [] {
         const std::string file = "caustic.xml";
-        const TestScene ts = scene_with(file, "<integrator type=\"pssmlt\"><string name=\"technique\" value=\"bdpt\"/>"
-                                              "<integer name=\"bootstrap_samples\" value=\"2000000\"/>"
-                                              "<integer name=\"chains\" value=\"16\"/></integrator>", 32);
+        const TestScene ts = scene_with(file,
+                                        "<integrator type=\"pssmlt\"><string name=\"technique\" value=\"bdpt\"/>"
+                                        "<integer name=\"bootstrap_samples\" value=\"2000000\"/>"
+                                        "<integer name=\"chains\" value=\"16\"/></integrator>",
+                                        32);
         return run(ts, file, 1, 4242).stats.normalization;
     }();
     return b;
 }
 void expect_matches_bdpt_on_the_caustic(const std::string& integrator_head) {
-    const std::string extra = fmt::format(R"(<float name="normalization" value="{:.17g}"/><integer name="chains" value="64"/>)"
-                                          R"(<integer name="bootstrap_samples" value="20000"/>)", caustic_normalization());
+    const std::string extra =
+        fmt::format(R"(<float name="normalization" value="{:.17g}"/><integer name="chains" value="64"/>)"
+                    R"(<integer name="bootstrap_samples" value="20000"/>)",
+                    caustic_normalization());
     expect_matches_path(integrator_head + extra + "</integrator>", "caustic.xml", 128, 256, 32, true, "bdpt");
 }
 TEST(MltIntegrators, CausticPssmltKelemenWithKnownNormalization) {
@@ -211,7 +225,7 @@ TEST(MltIntegrators, StatisticsAndStageMap) {
     EXPECT_LT(s.stage1_acceptance(), 1.0);
     EXPECT_GT(s.chain.stage2_attempted, 0u);
     EXPECT_GT(s.stage2_acceptance(), 0.0);
-    EXPECT_GT(s.seconds_stage2, 0.0);
+    EXPECT_GT(s.chain.seconds_stage2, 0.0);
     EXPECT_GT(s.stage2_time_share(), 0.0);
     EXPECT_LT(s.stage2_time_share(), 1.0);
     EXPECT_EQ(s.splat_overflow, 0u);
@@ -231,17 +245,19 @@ TEST(MltIntegrators, StatisticsAndStageMap) {
     RunOut ps = run(scene_with(file, pssmlt(""), 16), file, 32, 5);
     EXPECT_LT(ps.image.channel_index("stages.R"), 0);
     EXPECT_EQ(ps.stats.chain.stage2_attempted, 0u);
-    EXPECT_EQ(ps.stats.seconds_stage2, 0.0);
+    EXPECT_EQ(ps.stats.chain.seconds_stage2, 0.0);
 }
 
 // The study scene (docs/mlt.md) loads and renders with each of its variants (the fragments in scenes/render/parts).
 TEST(MltIntegrators, EveryStudyVariantRenders) {
-    for (const char* variant : {"pssmlt-kelemen", "pssmlt-gaussian", "mixture", "drmlt-orbital", "drmlt-mira", "drmlt-green"})
+    for (const char* variant :
+         {"pssmlt-kelemen", "pssmlt-gaussian", "mixture", "drmlt-orbital", "drmlt-mira", "drmlt-green"})
         for (const char* geometry : {"door", "caustic"}) {
             SCOPED_TRACE(std::string(variant) + " " + geometry);
             ParseOptions opts;
             opts.defines = {{"variant", variant}, {"geometry", geometry}, {"res", "8"}};
-            auto scene = std::dynamic_pointer_cast<Scene>(instantiate(parse_scene_file(scene_path("mlt-study.xml"), opts)));
+            auto scene =
+                std::dynamic_pointer_cast<Scene>(instantiate(parse_scene_file(scene_path("mlt-study.xml"), opts)));
             ASSERT_TRUE(scene);
             auto* mlt = dynamic_cast<MetropolisIntegrator*>(scene->integrator());
             ASSERT_TRUE(mlt);
@@ -258,16 +274,33 @@ TEST(MltIntegrators, EveryStudyVariantRenders) {
 TEST(MltIntegrators, BadParametersAreInputErrors) {
     const std::string file = "cornell-box.xml";
     auto error_of = [&](const std::string& integrator) {
-        return ktest::input_error_of([&] { ktest::load_scene_xml(scene_with(file, integrator, 8).xml, {}, scene_path(file)); });
+        return ktest::input_error_of(
+            [&] { ktest::load_scene_xml(scene_with(file, integrator, 8).xml, {}, scene_path(file)); });
     };
-    EXPECT_NE(error_of(R"(<integrator type="drmlt"><mutation name="second" type="gaussian"/></integrator>)").find("orbital"), std::string::npos);
-    EXPECT_NE(error_of(R"(<integrator type="drmlt"><mutation name="first" type="kelemen"/></integrator>)").find("isotropic"), std::string::npos);
-    EXPECT_NE(error_of(R"(<integrator type="drmlt"><string name="type" value="mira"/><mutation name="second" type="orbital"/></integrator>)").find("density"), std::string::npos);
-    EXPECT_NE(error_of(R"(<integrator type="drmlt"><string name="type" value="tierney"/></integrator>)").find("type"), std::string::npos);
-    EXPECT_NE(error_of(R"(<integrator type="pssmlt"><mutation type="orbital"/></integrator>)").find("second-stage"), std::string::npos);
-    EXPECT_NE(error_of(R"(<integrator type="pssmlt"><integer name="direct_samples" value="0"/></integrator>)").find("direct_samples"), std::string::npos);
-    EXPECT_NE(error_of(R"(<integrator type="pssmlt"><float name="large_step_prob" value="1.5"/></integrator>)").find("large_step_prob"), std::string::npos);
-    EXPECT_NE(error_of(R"(<integrator type="pssmlt"><string name="technique" value="ptracer"/></integrator>)").find("technique"), std::string::npos);
+    EXPECT_NE(
+        error_of(R"(<integrator type="drmlt"><mutation name="second" type="gaussian"/></integrator>)").find("orbital"),
+        std::string::npos);
+    EXPECT_NE(
+        error_of(R"(<integrator type="drmlt"><mutation name="first" type="kelemen"/></integrator>)").find("isotropic"),
+        std::string::npos);
+    EXPECT_NE(
+        error_of(
+            R"(<integrator type="drmlt"><string name="type" value="mira"/><mutation name="second" type="orbital"/></integrator>)")
+            .find("density"),
+        std::string::npos);
+    EXPECT_NE(error_of(R"(<integrator type="drmlt"><string name="type" value="tierney"/></integrator>)").find("type"),
+              std::string::npos);
+    EXPECT_NE(error_of(R"(<integrator type="pssmlt"><mutation type="orbital"/></integrator>)").find("second-stage"),
+              std::string::npos);
+    EXPECT_NE(error_of(R"(<integrator type="pssmlt"><integer name="direct_samples" value="0"/></integrator>)")
+                  .find("direct_samples"),
+              std::string::npos);
+    EXPECT_NE(error_of(R"(<integrator type="pssmlt"><float name="large_step_prob" value="1.5"/></integrator>)")
+                  .find("large_step_prob"),
+              std::string::npos);
+    EXPECT_NE(error_of(R"(<integrator type="pssmlt"><string name="technique" value="ptracer"/></integrator>)")
+                  .find("technique"),
+              std::string::npos);
 }
 
 }  // namespace

@@ -1,26 +1,57 @@
 #pragma once
 // A Metropolis–Hastings chain with optional two-stage delayed rejection (DR), independent of rendering: the
-// target is any non-negative function of a point of the unit torus. This is the engine of the pssmlt and
-// drmlt integrators (thesis Ch. 4 and Appendix B; Rioux-Lavoie, Litalien et al. 2020), tested on analytic
-// targets in tests/mlt.
+// target is any non-negative function of a point of the unit torus that reads its coordinates lazily. This is
+// the engine of the pssmlt and drmlt integrators (thesis Ch. 4 and Appendix B; Rioux-Lavoie, Litalien et al.
+// 2020), tested on analytic targets in tests/mlt.
 //
 // One step (Algorithm B.1):
 //   y ~ Q1(. | x) (or, with probability large_step_prob, y uniform: a large step);
-//   a1 = 1 ^ pi(y) Q1(x|y) / (pi(x) Q1(y|x));                                   Eq. (4.1)
+//   a1 = 1 ^ pi(y) / pi(x)                                                              Eq. (4.1), Q1 symmetric
 //   if rejected and a second stage is configured (and allowed after a large step):
 //     orbital:  z on the orbit of y through x, a2 = 1 ^ (0 v (pi(z) - pi(y))) / (pi(x) - pi(y))   Eq. (4.7)
 //     mira:     z ~ Q2(. | y, x), a2 = 1 ^ pi(z) Q1(y|z) Q2(x|y,z) (1 - a1(z,y))
 //                                        / (pi(x) Q1(y|x) Q2(z|y,x) (1 - a1(x,y)))   Eq. (4.2)
-//     green:    as mira with the fictional y* = z - (y - x) in place of y in the numerator, Eqs. (4.8)-(4.9)
+//     green:    with the fictional y* = z - (y - x), Eqs. (4.8)-(4.10); for a symmetric Q1 and a symmetric Q2 that
+//               ignores y every density cancels:  a2 = 1 ^ (0 v (pi(z) - pi(y*))) / (pi(x) - pi(y)).
 // Waste recycling (Sec. 4.2.6): the step reports the expected-value weights of x, y and z:
-//   w_y = a1, w_z = (1 - a1) a2, w_x = (1 - a1)(1 - a2); y* never receives weight.
+//   w_y = a1, w_z = (1 - a1) a2, w_x = 1 - w_y - w_z; y* never receives weight.
+//
+// THE STATE SPACE. A state is an infinite sequence of coordinates (every coordinate exists); the target depends
+// on those its path reads, and which coordinates a path reads depends only on the values it has read before
+// (a path is a program that reads numbers). Under the target, the coordinates a state's path does not read are
+// then independent uniforms, whatever the coordinates it reads. Three rules follow, and make every chain type
+// exact (tests/mlt/test_chain.cpp, TransDimensional*):
+//   1. Refresh. At the start of each step, the coordinates x's path did not read are forgotten and redrawn
+//      uniformly when next needed: a Gibbs update of the unread coordinates given the read ones, which leaves
+//      the target invariant because the set it refreshes is a function of x alone. (What x read is kept per
+//      coordinate pair, so an unread coordinate that shares a pair with a read one is kept, not refreshed.)
+//   2. Lazy, consistent realisation. Within a step, a coordinate pair is realised the first time any proposal
+//      needs it: x's pair first (a uniform draw if x's path did not read it; it is then part of x for the rest
+//      of the step, shared by every proposal), then y's from x's by Q1, z's from x's (and y's) by Q2, and y*'s
+//      as z - (y - x). Drawing a coordinate when it is first needed rather than up front does not change its
+//      law, because nothing decided so far depended on it. A path therefore costs only the pairs it reads: the
+//      state is as long as the path, not as the longest path the chain ever accepted.
+//   3. Only kernels whose densities cancel on unread coordinates. The first stage must be a symmetric random
+//      walk (Mutation::symmetric(): every built-in kernel), so that Q1 cancels from a1 on every coordinate,
+//      read or not. Orbital needs a pairwise-isotropic first stage (Eq. 4.7 has no densities). Green–Mira needs a
+//      symmetric second stage that ignores y (every density then cancels, as above). Tierney–Mira cannot cancel
+//      Q1(y|z) / Q1(y|x) on coordinates nobody reads, so its second stage moves only the pairs the rejected
+//      proposal y read and keeps x's value on the others: there z = x, the Q1 factors are equal and the Q2 factors
+//      identical, and the ratio is computed over the pairs y read. This second stage depends on y only through
+//      which pairs y read, which is the same in the reverse move (x -> y -> z against z -> y -> x), so Eq. (4.2)
+//      holds as written.
+//
+// Green–Mira's y* is traced only when needed: with 1 - a1(z, y*) <= 1, a2 <= a2_max = 1 ^ pi(z) / (pi(x) (1 - a1));
+// if the step's uniform u2 >= a2_max the second stage is rejected whatever pi(y*) is. When y* is traced the
+// recycling weight of z is (1 - a1) a2 / a2_max, which is (1 - a1) a2 in expectation over u2: unbiased.
 //
 // Invalid target values (NaN, Inf, negative) make a proposal invalid: acceptance 0, counted, never weighted.
-// The state vector may grow while the target is evaluated (lazy primary samples): coordinates appended to a
-// proposal are independent uniform draws and are appended to the state as well.
+// No allocation per step once the state arrays have grown to the longest path.
+#include <kelvin/core/coordinates.h>
 #include <kelvin/core/random.h>
 #include <kelvin/mlt/mutation.h>
 
+#include <array>
 #include <cstdint>
 #include <functional>
 #include <string>
@@ -37,56 +68,100 @@ struct ChainConfig {
     const Mutation* second = nullptr;  ///< stage-2 kernel (required unless type == None)
     DrType type = DrType::None;
     double large_step_prob = 0.0;
-    bool timid_after_large = false;    ///< attempt a second stage after a rejected large step
+    bool timid_after_large = false;  ///< attempt a second stage after a rejected large step
 };
+/// Throws Error with the reason if `config` breaks rule 3 above (or lacks a kernel).
+void validate(const ChainConfig& config);
 
-/// Which proposal a target evaluation is for (lets the caller keep per-proposal data, e.g. splats).
-enum class Slot : uint8_t { Y = 0, Z = 1, YStar = 2 };
+/// Which state a target evaluation is for (lets the caller keep per-state data, e.g. splats).
+enum class Slot : uint8_t { X = 0, Y = 1, Z = 2, YStar = 3 };
 
 struct StepOutcome {
-    int accepted = 0;         ///< 0: stayed at x; 1: moved to y; 2: moved to z
-    bool large = false;       ///< the first stage was a large step
+    int accepted = 0;    ///< 0: stayed at x; 1: moved to y; 2: moved to z
+    bool large = false;  ///< the first stage was a large step
     bool second_stage = false;
-    double a1 = 0, a2 = 0;
-    double w_x = 1, w_y = 0, w_z = 0;  ///< expected-value weights of the old state, y and z
+    bool ystar_traced = false;         ///< Green–Mira evaluated y* (false when u2 decided without it)
+    double a1 = 0, a2 = 0;             ///< a2: 0 when a Green–Mira second stage was decided without y*
+    double w_x = 1, w_y = 0, w_z = 0;  ///< waste-recycling weights of the old state, y and z
 };
 
 struct ChainStats {
     uint64_t steps = 0, large_steps = 0, large_accepted = 0;
     uint64_t stage1_accepted = 0, stage2_attempted = 0, stage2_accepted = 0;
     uint64_t evaluations = 0, invalid = 0;
+    uint64_t ystar_evaluations = 0, ystar_skipped = 0;  ///< Green–Mira: y* traced, y* not needed
+    uint64_t pairs_realised = 0;                        ///< proposal coordinate pairs drawn (y, z, y*)
+    double seconds_stage1 = 0;  ///< first stage: sampling y, evaluating it, deciding (sampled, see below)
+    double seconds_stage2 = 0;  ///< second stage: sampling z (and y*), evaluating, densities, deciding
 };
 
 class MarkovChain {
 public:
-    /// Evaluates the target at `state` (which it may extend with fresh uniform coordinates). Returns pi >= 0.
-    using Target = std::function<double(std::vector<double>& state, Slot slot)>;
+    /// Evaluates the target on the state `source` reads (slot says which). Returns pi >= 0.
+    using Target = std::function<double(CoordinateSource& source, Slot slot)>;
 
-    MarkovChain(const ChainConfig& config, std::vector<double> x0, double pi_x0, uint64_t seed, uint64_t stream);
+    /// `stage_timing`: measure stage times on every 16th step (two clock reads per stage), for
+    /// ChainStats::seconds_stage*; scaled by 16 to estimate the whole run's.
+    MarkovChain(const ChainConfig& config, uint64_t seed, uint64_t stream, bool stage_timing = false);
+    MarkovChain(const MarkovChain&) = delete;  // its sources point at it
+    MarkovChain& operator=(const MarkovChain&) = delete;
+
+    /// Starts the chain at x0 (its path reads the coordinates it needs; missing ones are drawn uniformly) and
+    /// returns pi(x0). Throws Error if pi(x0) is not positive and finite.
+    double start(const Target& target, const std::vector<double>& x0);
 
     /// One DR step. Before the call, state()/value() are x; after it, the new current state. previous(), y()
-    /// and z() hold the step's three states (x and its proposals) for waste recycling, until the next step.
+    /// and z() hold the step's states (x and its proposals) for waste recycling, until the next step; only the
+    /// coordinate pairs realised during the step are meaningful (those the states' paths read among them).
     StepOutcome step(const Target& target);
 
-    const std::vector<double>& state() const { return m_x; }
-    double value() const { return m_fx; }
-    const std::vector<double>& previous() const { return m_old; }
-    double value_previous() const { return m_f_old; }
-    const std::vector<double>& y() const { return m_y; }
-    const std::vector<double>& z() const { return m_z; }
-    double value_y() const { return m_fy; }
-    double value_z() const { return m_fz; }
+    const std::vector<double>& state() const { return m_s[0].v; }
+    double value() const { return m_pi[0]; }
+    const std::vector<double>& previous() const { return m_s[m_last.accepted].v; }
+    double value_previous() const { return m_pi[m_last.accepted]; }
+    const std::vector<double>& y() const { return m_s[m_last.accepted == 1 ? 0 : 1].v; }
+    const std::vector<double>& z() const { return m_s[m_last.accepted == 2 ? 0 : 2].v; }
+    double value_y() const { return m_pi[m_last.accepted == 1 ? 0 : 1]; }
+    double value_z() const { return m_pi[m_last.accepted == 2 ? 0 : 2]; }
+    /// Coordinates (pairs x 2) the current state's path read.
+    std::size_t state_length() const;
     const ChainStats& stats() const { return m_stats; }
     Random& rng() { return m_rng; }
 
 private:
-    double evaluate(const Target& target, std::vector<double>& v, Slot slot);
-    static double first_acceptance(double pi_from, double pi_to, double log_q_back, double log_q_fwd);
+    struct Lazy {
+        std::vector<double> v;           ///< coordinate values, two per pair
+        std::vector<uint32_t> realised;  ///< per pair: the step (epoch) in which it was realised
+        std::vector<uint32_t> read;      ///< per pair: the epoch in which this state's own evaluation read it
+    };
+    /// The CoordinateSource a target reads a slot through.
+    struct Source final : CoordinateSource {
+        MarkovChain* chain = nullptr;
+        int slot = 0;
+        double at(std::size_t i) override { return chain->coordinate(slot, i); }
+    };
+
+    double coordinate(int slot, std::size_t i);
+    void ensure(int slot, std::size_t pair);
+    void grow(std::size_t pairs);
+    bool x_valid(std::size_t pair) const { return m_s[0].read[pair] == m_x_epoch || m_s[0].realised[pair] == m_epoch; }
+    double evaluate(const Target& target, int slot);
+    void next_epoch();
+    double tierney_mira_log_ratio(double a1);
 
     ChainConfig m_cfg;
     Random m_rng;
-    std::vector<double> m_x, m_y, m_z, m_ystar, m_old;
-    double m_fx, m_fy = 0, m_fz = 0, m_f_old = 0;
+    bool m_timing;
+    std::array<Lazy, 4> m_s;  // x, y, z, y*
+    std::array<Source, 4> m_src;
+    std::array<double, 4> m_pi{0, 0, 0, 0};
+    std::vector<double> m_scratch;  // Tierney–Mira: the pairs y read, gathered
+    std::size_t m_pairs = 0;        // capacity in pairs of every Lazy
+    std::size_t m_y_read_end = 0;   // one past the highest pair y's path read (this step)
+    uint32_t m_epoch = 1, m_x_epoch = 1;
+    uint64_t m_latent1 = 0, m_latent2 = 0;
+    bool m_large = false, m_started = false;
+    StepOutcome m_last;
     ChainStats m_stats;
 };
 

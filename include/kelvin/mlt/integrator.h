@@ -19,26 +19,27 @@ namespace kelvin {
 
 /// What a Metropolis render did, available after render() and printed with the run's statistics.
 struct MltStatistics {
-    ChainStats chain;                  ///< summed over chains
-    double normalization = 0;          ///< b, estimated (bootstrap) or given
+    ChainStats chain;          ///< summed over chains
+    double normalization = 0;  ///< b, estimated (bootstrap) or given
     uint64_t bootstrap_samples = 0;
-    uint64_t bootstrap_nonzero = 0;    ///< bootstrap paths with pi > 0
+    uint64_t bootstrap_nonzero = 0;  ///< bootstrap paths with pi > 0
     uint64_t chains = 0;
     uint64_t invalid_contributions = 0;  ///< NaN, Inf or negative path values recorded as zero
     uint64_t splat_overflow = 0;         ///< splats dropped as out of range (should stay 0)
     double seconds_bootstrap = 0, seconds_direct = 0, seconds_chains = 0;
-    double seconds_stage1 = 0;         ///< time evaluating first-stage proposals (summed over threads)
-    double seconds_stage2 = 0;         ///< time evaluating second-stage proposals, y* included
     double mutations_per_pixel = 0;
 
-    double stage1_acceptance() const { return rate(chain.stage1_accepted - chain.large_accepted, chain.steps - chain.large_steps); }
+    double stage1_acceptance() const {
+        return rate(chain.stage1_accepted - chain.large_accepted, chain.steps - chain.large_steps);
+    }
     double large_step_acceptance() const { return rate(chain.large_accepted, chain.large_steps); }
     double stage2_acceptance() const { return rate(chain.stage2_accepted, chain.stage2_attempted); }
     double mutations_per_second() const { return seconds_chains > 0 ? double(chain.steps) / seconds_chains : 0.0; }
-    /// Share of path-evaluation time spent in the second stage.
+    /// Share of the chains' step time spent in the second stage: sampling z (and y*), evaluating them, the
+    /// densities and the decision (measured by the chains on every 16th step).
     double stage2_time_share() const {
-        const double t = seconds_stage1 + seconds_stage2;
-        return t > 0 ? seconds_stage2 / t : 0.0;
+        const double t = chain.seconds_stage1 + chain.seconds_stage2;
+        return t > 0 ? chain.seconds_stage2 / t : 0.0;
     }
 
 private:

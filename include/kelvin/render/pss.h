@@ -1,13 +1,15 @@
 #pragma once
 // Primary sample space (Kelemen et al. 2002): a path is a deterministic function of the uniform numbers its
 // sampler hands out, so a Markov chain over paths can be a chain over those numbers. PrimarySampleSpace is the
-// Sampler that reads them from a state vector a Markov chain owns (MarkovChain keeps the accepted state x and
-// its proposals y, z side by side, which is its backup/restore; proposals are Mutation plugins):
-//   - bind() points the sampler at a state and rewinds it; next_1d()/next_2d() read coordinates in order
+// Sampler that reads them from a CoordinateSource (core/coordinates.h):
+//   - bind() points the sampler at a source and rewinds it; next_1d()/next_2d() read coordinates in order
 //     (for a technique with several sample streams, see sampler.h, each stream reads its interleaved share);
-//   - the vector is extended lazily: reading a coordinate that does not exist yet appends a uniform draw (the
-//     prior) from the sampler's own stream, so paths of any length work and unread coordinates cost nothing.
+//   - a Markov chain binds the lazily realised states it owns (MarkovChain::source(), mlt/chain.h), which
+//     realise a coordinate of a proposal from the current state and the kernel on first read;
+//   - bind(std::vector&) reads a plain vector that extends itself lazily: reading a coordinate that does not
+//     exist yet appends a uniform draw (the prior) from the sampler's own stream (the bootstrap's states).
 // Coordinates live on the torus [0, 1) (see torus_wrap / torus_delta in mlt/mutation.h).
+#include <kelvin/core/coordinates.h>
 #include <kelvin/core/random.h>
 #include <kelvin/render/sampler.h>
 
@@ -23,11 +25,24 @@ public:
     /// one stream every set_stream() draws from the same sequence and coordinates are read in order; with n,
     /// draw k of stream s reads coordinate k * n + s.
     PrimarySampleSpace(uint64_t seed, uint64_t stream, int streams = 1)
-        : m_rng(seed, stream), m_streams(streams == 1 ? 1 : SampleStreamCount) {}
+        : m_vector(seed, stream), m_streams(streams == 1 ? 1 : SampleStreamCount) {}
+    PrimarySampleSpace(const PrimarySampleSpace& o)
+        : Sampler(o),
+          m_vector(o.m_vector),
+          m_src(o.m_src == &o.m_vector ? &m_vector : o.m_src),
+          m_streams(o.m_streams) {}
+    PrimarySampleSpace& operator=(const PrimarySampleSpace&) = delete;
 
-    /// Read `state` from the start of every stream (the vector must outlive the reads).
+    /// Read `state` from the start of every stream, extending it with uniform draws from this sampler's own
+    /// random stream (the vector must outlive the reads).
     void bind(std::vector<double>& state) {
-        m_x = &state;
+        m_vector.x = &state;
+        m_src = &m_vector;
+        rewind();
+    }
+    /// Read the coordinates of `source` from the start of every stream (it must outlive the reads).
+    void bind(CoordinateSource& source) {
+        m_src = &source;
         rewind();
     }
     /// Coordinates spanned by the reads since bind(): one past the highest index read.
@@ -56,13 +71,22 @@ private:
     double coordinate() {
         const std::size_t i = m_next[m_cur]++ * std::size_t(m_streams) + std::size_t(m_cur);
         m_used = std::max(m_used, i + 1);
-        std::vector<double>& x = *m_x;
-        while (x.size() <= i) x.push_back(m_rng.next_double());  // the prior: uniform
-        return x[i];
+        return m_src->at(i);
     }
 
-    Random m_rng;
-    std::vector<double>* m_x = nullptr;
+    /// A vector that extends itself with uniform draws.
+    struct VectorSource final : CoordinateSource {
+        VectorSource(uint64_t seed, uint64_t stream) : rng(seed, stream) {}
+        double at(std::size_t i) override {
+            while (x->size() <= i) x->push_back(rng.next_double());  // the prior: uniform
+            return (*x)[i];
+        }
+        Random rng;
+        std::vector<double>* x = nullptr;
+    };
+
+    VectorSource m_vector;
+    CoordinateSource* m_src = nullptr;
     int m_streams = 1, m_cur = 0;
     std::size_t m_next[SampleStreamCount] = {0, 0, 0};
     std::size_t m_used = 0;

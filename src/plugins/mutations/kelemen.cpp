@@ -18,12 +18,14 @@ namespace {
 class Kelemen final : public Mutation {
 public:
     explicit Kelemen(const Properties& props) : m_law(KelemenLaw::from(props)) {}
-    void sample(Coords x, std::span<double> y, Random& rng) const override {
-        for (std::size_t i = 0; i < x.size(); ++i) y[i] = torus_wrap(x[i] + m_law.sample_signed(rng));
+    void sample_pair(uint64_t, const double* x, double* y, Random& rng) const override {
+        y[0] = torus_wrap(x[0] + m_law.sample_signed(rng));
+        y[1] = torus_wrap(x[1] + m_law.sample_signed(rng));
     }
     double log_density(Coords from, Coords to) const override {
         double lp = 0;
-        for (std::size_t i = 0; i < from.size() && lp > -Inf; ++i) lp += m_law.signed_log_pdf(torus_delta(from[i], to[i]));
+        for (std::size_t i = 0; i < from.size() && lp > -Inf; ++i)
+            lp += m_law.signed_log_pdf(torus_delta(from[i], to[i]));
         return lp;
     }
     double scale() const override { return m_law.eps_max; }

@@ -1,15 +1,22 @@
 // kelemen_pair: the pairwise Kelemen perturbation of Algorithm B.2, stage 1. Coordinates are grouped in pairs
 // (0,1), (2,3), ...; each pair moves by a distance d with Kelemen's radial law (density 1/(d log(eps_max /
 // eps_min)) on [eps_min, eps_max]) in a uniformly random direction, so the 2D density is
-// 1 / (2 pi d^2 log(eps_max / eps_min)): circularly symmetric, as the orbital second stage requires. An odd
-// last coordinate moves as in `kelemen`.
+// 1 / (2 pi d^2 log(eps_max / eps_min)): circularly symmetric, as the orbital second stage requires.
 //
-// | parameter | type  | default | meaning          |
-// |-----------|-------|---------|------------------|
-// | eps_min   | float | 1/1024  | smallest step    |
-// | eps_max   | float | 1/64    | largest step     |
+// The bounds are eps_min and eps_max times `scale`, 1.9 by default: the authors' implementation of DRMLT
+// (drmlt-mitsuba, src/integrators/drmlt/drmlt_sampler.h, `m_kelemenScale = 1.9`, "compensate for pairwise
+// sampling v.s. i.i.d.") scales Kelemen's bounds so for the orbital variant's first stage, so that a pair moves
+// about as far as two independent Kelemen coordinates do (steps 1.86e-3 to 2.97e-2 with Kelemen's 1/1024 and
+// 1/64); the thesis' text omits the factor. With scale 1 the first stage is timid and is accepted more often
+// than PSSMLT/K's (75 % against 64 % on the door), and the bold-then-timid design loses its bold stage.
 //
-//     <mutation type="kelemen_pair"/>
+// | parameter | type  | default | meaning                                     |
+// |-----------|-------|---------|---------------------------------------------|
+// | eps_min   | float | 1/1024  | smallest step, before scaling               |
+// | eps_max   | float | 1/64    | largest step, before scaling                |
+// | scale     | float | 1.9     | factor on both bounds (the authors' 1.9)    |
+//
+//     <mutation type="kelemen_pair"><float name="scale" value="1"/></mutation>
 #include <kelvin/core/registry.h>
 #include <kelvin/mlt/mutation.h>
 
@@ -18,28 +25,22 @@ namespace {
 
 class KelemenPair final : public Mutation {
 public:
-    explicit KelemenPair(const Properties& props) : m_law(KelemenLaw::from(props)) {}
-    void sample(Coords x, std::span<double> y, Random& rng) const override {
-        const std::size_t n = x.size();
-        std::size_t i = 0;
-        for (; i + 1 < n; i += 2) {
-            const double d = m_law.sample_length(rng.next_double()), phi = 2 * Pi * rng.next_double();
-            y[i] = torus_wrap(x[i] + d * std::cos(phi));
-            y[i + 1] = torus_wrap(x[i + 1] + d * std::sin(phi));
-        }
-        if (i < n) y[i] = torus_wrap(x[i] + m_law.sample_signed(rng));
+    explicit KelemenPair(const Properties& props)
+        : m_law(KelemenLaw::from(props, props.get_float("scale", 1e-6, 1e6))) {}
+    void sample_pair(uint64_t, const double* x, double* y, Random& rng) const override {
+        const double d = m_law.sample_length(rng.next_double());
+        const Vec2d dir = uniform_direction2(rng);
+        y[0] = torus_wrap(x[0] + d * dir.x);
+        y[1] = torus_wrap(x[1] + d * dir.y);
     }
     double log_density(Coords from, Coords to) const override {
-        const std::size_t n = from.size();
         double lp = 0;
-        std::size_t i = 0;
-        for (; i + 1 < n; i += 2) {
+        for (std::size_t i = 0; i + 1 < from.size(); i += 2) {
             const double dx = torus_delta(from[i], to[i]), dy = torus_delta(from[i + 1], to[i + 1]);
             const double d = std::sqrt(dx * dx + dy * dy);
             if (!m_law.in_range(d, 1e-9)) return -Inf;
             lp -= std::log(2 * Pi * d * d * m_law.log_ratio);  // radial density / circumference
         }
-        if (i < n) lp += m_law.signed_log_pdf(torus_delta(from[i], to[i]));
         return lp;
     }
     double scale() const override { return m_law.eps_max; }
@@ -54,5 +55,6 @@ private:
 
 KELVIN_PLUGIN(kelvin::KelemenPair, "mutation", "kelemen_pair",
               "Pairwise Kelemen perturbation: Kelemen radius, uniform angle (Algorithm B.2, stage 1).",
-              kelvin::param::real("eps_min", 1.0 / 1024, "smallest step"),
-              kelvin::param::real("eps_max", 1.0 / 64, "largest step"));
+              kelvin::param::real("eps_min", 1.0 / 1024, "smallest step, before scaling"),
+              kelvin::param::real("eps_max", 1.0 / 64, "largest step, before scaling"),
+              kelvin::param::real("scale", 1.9, "factor on both bounds (the authors' drmlt-mitsuba uses 1.9)"));

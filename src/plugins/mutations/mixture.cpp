@@ -27,6 +27,7 @@ public:
             m_parts.push_back(std::move(m));
         }
         if (m_parts.size() < 2) props.error("mutation", "a mixture needs at least two nested <mutation>s");
+        if (m_parts.size() > 255) props.error("mutation", "a mixture takes at most 255 components");
         std::string w = props.get_string("weights");
         if (w.empty()) {
             m_weights.assign(m_parts.size(), 1.0);
@@ -49,13 +50,21 @@ public:
         }
     }
     bool symmetric() const override { return m_symmetric; }
+    bool factorizes() const override { return false; }  // the component is shared by every pair
     bool pairwise_isotropic() const override { return m_isotropic; }
-    void sample(Coords x, std::span<double> y, Random& rng) const override {
-        double u = rng.next_double(), acc = 0;
-        for (std::size_t k = 0; k < m_parts.size(); ++k) {
+    // The latent word: the component in the low 8 bits, the component's own latent above them.
+    uint64_t begin(Random& rng) const override {
+        const double u = rng.next_double();
+        double acc = 0;
+        std::size_t k = 0;
+        for (; k + 1 < m_parts.size(); ++k) {
             acc += m_weights[k];
-            if (u < acc || k + 1 == m_parts.size()) return m_parts[k]->sample(x, y, rng);
+            if (u < acc) break;
         }
+        return (m_parts[k]->begin(rng) << 8) | uint64_t(k);
+    }
+    void sample_pair(uint64_t latent, const double* x, double* y, Random& rng) const override {
+        m_parts[latent & 0xff]->sample_pair(latent >> 8, x, y, rng);
     }
     double log_density(Coords from, Coords to) const override {
         // log sum_k w_k Q_k by a one-pass log-sum-exp (running maximum hi, sum s of exp(l - hi)).

@@ -1,13 +1,16 @@
 // orbital: the pairwise orbital second stage of delayed rejection (thesis Sec. 4.2.4, Algorithm B.2 stage 2).
 // For each coordinate pair, z moves on the circle centred on the rejected proposal y through the current state
 // x, at an angle theta from x drawn from the wrapped Cauchy distribution, Eq. (4.6):
-//     Q(theta; rho) = (1 - rho^2) / (2 pi (1 + rho^2 - 2 rho cos theta)),
-// sampled by inverting its CDF: theta = 2 atan(((1 - rho) / (1 + rho)) tan(pi (u - 1/2))).
+//     Q(theta; rho) = (1 - rho^2) / (2 pi (1 + rho^2 - 2 rho cos theta)).
 // Then Q1(y|z) = Q1(y|x) for a circularly symmetric first stage and the acceptance reduces to Eq. (4.7).
-// Differences use the minimum image on the torus. An odd last coordinate keeps x's value (its 1D "orbit"
-// {x, 2y - x} is left alone, which keeps the kernel symmetric).
+// Differences use the minimum image on the torus.
+//
+// No trigonometry: z - y is x - y rotated by theta. With t = tan(theta / 2), cos theta = (1 - t^2)/(1 + t^2)
+// and sin theta = 2t/(1 + t^2), and the wrapped Cauchy law is t = ((1 - rho)/(1 + rho)) C with C a standard
+// Cauchy variate (inverting the CDF gives theta = 2 atan(((1 - rho)/(1 + rho)) tan(pi (u - 1/2)))). C is the
+// ratio a/b of a point (a, b) uniform in the unit disk (its angle is uniform), drawn by rejection.
 // Only valid as the second stage of drmlt with type="orbital" after a circularly symmetric first stage
-// (kelemen_pair, or a large step).
+// (kelemen_pair, gaussian, or a large step).
 //
 // | parameter | type  | default     | meaning                                     |
 // |-----------|-------|-------------|---------------------------------------------|
@@ -26,33 +29,34 @@ public:
         m_tan_scale = (1 - m_rho) / (1 + m_rho);
     }
     bool second_stage_only() const override { return true; }
-    void sample(Coords x, std::span<double> y, Random&) const override {
-        for (std::size_t i = 0; i < x.size(); ++i) y[i] = x[i];  // never used as a first stage
+    bool uses_rejected() const override { return true; }
+    bool symmetric() const override { return false; }  // singular: has no density
+    void sample_pair(uint64_t, const double* x, double* y, Random&) const override {
+        y[0] = x[0];  // never used as a first stage
+        y[1] = x[1];
     }
-    double log_density(Coords, Coords) const override { return -Inf; }  // singular (on an orbit)
+    double log_density(Coords, Coords) const override { return -Inf; }
 
-    void sample_second(Coords x, Coords y, std::span<double> z, Random& rng) const override {
-        const std::size_t n = x.size();
-        std::size_t i = 0;
-        for (; i + 1 < n; i += 2) {
-            // u = y - x (minimum image); the orbit is centred on y and passes through x.
-            double u1 = torus_delta(x[i], y[i]), u2 = torus_delta(x[i + 1], y[i + 1]);
-            double r = std::sqrt(u1 * u1 + u2 * u2);
-            if (!(r > 0)) {
-                z[i] = x[i];
-                z[i + 1] = x[i + 1];
-                continue;
-            }
-            double mu = std::atan2(-u2, -u1);  // direction of x - y
-            double mu2 = mu + sample_angle(rng.next_double());
-            z[i] = torus_wrap(x[i] + u1 + r * std::cos(mu2));  // y + r (cos mu', sin mu'), y = x + u
-            z[i + 1] = torus_wrap(x[i + 1] + u2 + r * std::sin(mu2));
-        }
-        if (i < n) z[i] = x[i];
+    void sample_second_pair(uint64_t, const double* x, const double* y, double* z, Random& rng) const override {
+        // w = x - y (minimum image); z = y + R(theta) w.
+        const double w1 = -torus_delta(x[0], y[0]), w2 = -torus_delta(x[1], y[1]);
+        const Vec2d cs = rotation(rng);
+        z[0] = torus_wrap(x[0] - w1 + cs.x * w1 - cs.y * w2);
+        z[1] = torus_wrap(x[1] - w2 + cs.y * w1 + cs.x * w2);
     }
     double log_density_second(Coords, Coords, Coords) const override { return -Inf; }
 
-    /// Wrapped-Cauchy angle in (-pi, pi].
+    /// (cos theta, sin theta) of a wrapped-Cauchy angle.
+    Vec2d rotation(Random& rng) const {
+        for (;;) {
+            const double a = 2 * rng.next_double() - 1, b = 2 * rng.next_double() - 1;
+            if (a * a + b * b >= 1 || b == 0) continue;
+            // t = s a / b; cos = (1 - t^2)/(1 + t^2) = (b^2 - s^2 a^2)/(b^2 + s^2 a^2), sin = 2 s a b / (...).
+            const double sa = m_tan_scale * a, den = b * b + sa * sa;
+            return {(b * b - sa * sa) / den, 2 * sa * b / den};
+        }
+    }
+    /// Wrapped-Cauchy angle in (-pi, pi] by inversion (used by the tests as the reference law).
     double sample_angle(double u) const { return 2 * std::atan(m_tan_scale * std::tan(Pi * (u - 0.5))); }
     double angle_pdf(double theta) const {
         return (1 - m_rho * m_rho) / (2 * Pi * (1 + m_rho * m_rho - 2 * m_rho * std::cos(theta)));
