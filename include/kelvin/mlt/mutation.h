@@ -33,16 +33,21 @@ inline double torus_wrap(double x) {
 
 /// A point uniform on the unit circle as (cos, sin) without trigonometry: a uniform point of the unit disk by
 /// rejection, its angle doubled ((a^2 - b^2, 2ab) / (a^2 + b^2)), which is uniform on [0, 2 pi).
+/// Uniform in [-1, 1) from one 32-bit draw (a kernel's direction needs no more resolution than that).
+inline double signed_unit(Random& rng) { return double(int32_t(rng.next_u32())) * 0x1p-31; }
+/// Uniform in [0, 1) from one 32-bit draw.
+inline double unit32(Random& rng) { return double(rng.next_u32()) * 0x1p-32; }
+
 inline Vec2d uniform_direction2(Random& rng) {
     for (;;) {
-        const double a = 2 * rng.next_double() - 1, b = 2 * rng.next_double() - 1, r2 = a * a + b * b;
+        const double a = signed_unit(rng), b = signed_unit(rng), r2 = a * a + b * b;
         if (r2 < 1 && r2 > 1e-300) return {(a * a - b * b) / r2, 2 * a * b / r2};
     }
 }
 /// Two independent standard normals by Marsaglia's polar method (no trigonometry).
 inline Vec2d standard_normal2_polar(Random& rng) {
     for (;;) {
-        const double a = 2 * rng.next_double() - 1, b = 2 * rng.next_double() - 1, r2 = a * a + b * b;
+        const double a = signed_unit(rng), b = signed_unit(rng), r2 = a * a + b * b;
         if (r2 < 1 && r2 > 1e-300) {
             const double f = std::sqrt(-2 * std::log(r2) / r2);
             return {a * f, b * f};

@@ -28,7 +28,7 @@ public:
     explicit KelemenPair(const Properties& props)
         : m_law(KelemenLaw::from(props, props.get_float("scale", 1e-6, 1e6))) {}
     void sample_pair(uint64_t, const double* x, double* y, Random& rng) const override {
-        const double d = m_law.sample_length(rng.next_double());
+        const double d = m_law.sample_length(unit32(rng));
         const Vec2d dir = uniform_direction2(rng);
         y[0] = torus_wrap(x[0] + d * dir.x);
         y[1] = torus_wrap(x[1] + d * dir.y);

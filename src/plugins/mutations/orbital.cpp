@@ -49,7 +49,7 @@ public:
     /// (cos theta, sin theta) of a wrapped-Cauchy angle.
     Vec2d rotation(Random& rng) const {
         for (;;) {
-            const double a = 2 * rng.next_double() - 1, b = 2 * rng.next_double() - 1;
+            const double a = signed_unit(rng), b = signed_unit(rng);
             if (a * a + b * b >= 1 || b == 0) continue;
             // t = s a / b; cos = (1 - t^2)/(1 + t^2) = (b^2 - s^2 a^2)/(b^2 + s^2 a^2), sin = 2 s a b / (...).
             const double sa = m_tan_scale * a, den = b * b + sa * sa;
