@@ -67,21 +67,31 @@ mlt_study() {  # mlt_study GEOMETRY: the thesis' equal-time protocol on scenes/r
     direct=${MLT_DIRECT_SAMPLES:-$direct}
     ref_spp=${MLT_REF_SPP:-$ref_spp}
     local res=${MLT_RES:-256} report="mlt-$g" study=scenes/render/mlt-study.xml refscene=scenes/render/mlt-reference.xml
-    local setup="$OUT/mlt-$g-setup" ref="$OUT/mlt-$g-$res-reference.exr" dref="$OUT/mlt-$g-$res-direct.exr"
+    local setup="$OUT/mlt-$g-setup" ref="$OUT/mlt-$g-$res-reference.exr"
+    local wref="$OUT/mlt-$g-$res-reference-wide.exr" dref="$OUT/mlt-$g-$res-direct-wide.exr"
     [[ -n "$RUNS_SET" ]] || RUNS=10
     [[ -n "$THREADS_SET" ]] || THREADS=2
     mkdir -p "$setup"
     # 1. References (long; kept in $OUT and reused: delete them to render again). Seeds 1000+ (runs use 0-9).
-    if [[ ! -f "$ref" ]]; then
-        echo "== $report: bdpt reference, ${res}x$res, $ref_spp spp -> $ref"
-        "$KELVIN" "$refscene" -D geometry="$g" -D res="$res" --spp "$ref_spp" --seed 1000 -t "$THREADS" -q -o "$ref"
+    # They are rendered M pixels wider on every side (the field of view widened to match) so that they cover the
+    # margin the chains' film domain adds (tools/reference_normalization.py --margin); the studies measure
+    # errors against the inner res x res pixels.
+    local m=4 fov wres wfov
+    fov=$(sed -n 's/.*<default name="fov" value="\([^"]*\)".*/\1/p' "scenes/render/geometry/$g.xml")
+    wres=$((res + 2 * m))
+    wfov=$(/usr/bin/python3 -c "import math; print(repr(2 * math.degrees(math.atan(math.tan(math.radians($fov) / 2) * $wres / $res))))")
+    local wide=(-D geometry="$g" -D res="$wres" -D fov="$wfov" -t "$THREADS" -q)
+    if [[ ! -f "$wref" ]]; then
+        echo "== $report: bdpt reference, ${res}x$res + $m pixels on every side, $ref_spp spp -> $wref"
+        "$KELVIN" "$refscene" "${wide[@]}" --spp "$ref_spp" --seed 1000 -o "$wref"
     fi
-    local bargs=("$ref")
+    [[ -f "$ref" ]] || oiiotool "$wref" --ch R,G,B --cut "${res}x$res+$m+$m" -o "$ref"
+    local bargs=("$wref" --margin "$m")
     if ((direct > 0)); then  # the chains render paths of 3+ edges only: subtract the direct-only integral
         if [[ ! -f "$dref" ]]; then
             echo "== $report: direct-only reference (path, max_depth 2), ${MLT_DIRECT_REF_SPP:-1024} spp -> $dref"
-            "$KELVIN" "$refscene" -D geometry="$g" -D res="$res" -D integrator=path -D max_depth=2 \
-                --spp "${MLT_DIRECT_REF_SPP:-1024}" --seed 1001 -t "$THREADS" -q -o "$dref"
+            "$KELVIN" "$refscene" "${wide[@]}" -D integrator=path -D max_depth=2 \
+                --spp "${MLT_DIRECT_REF_SPP:-1024}" --seed 1001 -o "$dref"
         fi
         bargs+=(--direct "$dref")
     fi

@@ -4,6 +4,7 @@
     tools/reference_normalization.py REF.exr                         # direct_samples = -1: the chains render everything
     tools/reference_normalization.py REF.exr --direct DIRECT.exr     # direct_samples > 0: b of the chains' part only
     tools/reference_normalization.py REF.exr --direct DIRECT.exr -v  # the terms, on stderr
+    tools/reference_normalization.py WIDE.exr --margin 4 [--direct WIDE-DIRECT.exr]  # references that cover the margin
 
 Prints b (one number) on stdout: give it to the integrator as `normalization`.
 
@@ -20,8 +21,16 @@ W(p) = sum_j f(p - c_j) (1 inside the image away from its border; less in the ma
 The first term is the reference's luminance summed over its pixels. The second, the margin term, needs L outside
 the image, which the reference does not have: it is estimated with L constant over each pixel cell, continued
 beyond the image by the nearest border pixel (the filter is separable, so it is a sum of products of 1D
-integrals, computed exactly from the filter's CDF). For the default Gaussian (stddev 0.5, r = 2) on a 256 x 256
-image the margin term is about 3 % of b; the extrapolation error is a fraction of that.
+integrals, computed exactly from the filter's CDF). For the default Gaussian (stddev 0.5, r = 2) the margin term
+is 4 * 2 / w of b or so (8 % at 64 x 64, 3 % at 256 x 256), and the extrapolation can miss a good part of it
+where the image changes at its border (measured: +1.8 % on the door's direct light at 64 x 64).
+
+Exact alternative, --margin M: the reference is rendered wider, M more pixels on every side with the field of
+view widened to match (tan(fov'/2) = tan(fov/2) (w + 2M) / w; the inner w x h pixels are then those of the
+ordinary render), so it sees the margin. With M >= 2r, b = the sum over the wide image's pixel cells of
+lum(I') times the cell's area inside D: the wide image's own border deficit lies outside D, and what remains is
+the filter's blur across D's edge (second order). tools/convergence_reports.sh renders its references so, with
+M = 4, and crops the inner image for the error measurements.
 
 With direct_samples > 0 the integrator renders direct light (paths of 1 and 2 edges: emitters seen directly and
 one bounce, `path` with max_depth 2) apart and its chains cover paths of 3 or more edges only; b is then the
@@ -126,6 +135,21 @@ def integrate(img, filt):
     return pixel_sum + margin, pixel_sum, margin
 
 
+def integrate_wide(img, filt, margin):
+    """(b, pixel sum of the inner image, margin term) of a reference with `margin` extra pixels on every side."""
+    lum = img @ LUM
+    H, W = lum.shape
+    r = filt.radius
+
+    def cover(n):  # area of each cell of the wide axis inside D = [margin - r, n - margin + r]
+        idx = np.arange(n)
+        return np.clip(np.minimum(idx + 1, n - margin + r) - np.maximum(idx, margin - r), 0, 1)
+
+    b = float(cover(H) @ lum @ cover(W))
+    inner = float(lum[margin:H - margin, margin:W - margin].sum())
+    return b, inner, b - inner
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("reference", type=pathlib.Path, help="the full reference (EXR or PFM, R, G, B)")
@@ -136,24 +160,33 @@ def main():
                     help="the film's reconstruction filter (default gaussian, hdrfilm's default)")
     ap.add_argument("--stddev", type=float, default=0.5, help="gaussian stddev in pixels (default 0.5)")
     ap.add_argument("--radius", type=float, default=0.5, help="box radius in pixels (default 0.5)")
+    ap.add_argument("--margin", type=int, default=0,
+                    help="the references have this many extra pixels on every side (rendered with a widened field "
+                         "of view); at least 2 x the filter radius (4 for the default Gaussian)")
     ap.add_argument("-v", "--verbose", action="store_true", help="print the terms on stderr")
     a = ap.parse_args()
     filt = Filter1D(a.filter, a.stddev if a.filter == "gaussian" else a.radius)
 
+    if a.margin and a.margin < 2 * filt.radius:
+        sys.exit(f"reference_normalization: --margin {a.margin} is below 2 x the filter radius ({2 * filt.radius:g})")
+
+    def integral(img):
+        return integrate_wide(img, filt, a.margin) if a.margin else integrate(img, filt)
+
     full = read_rgb(a.reference)
     if not np.all(np.isfinite(full)):
         sys.exit(f"reference_normalization: {a.reference} has non-finite pixels")
-    b, s, m = integrate(full, filt)
+    b, s, m = integral(full)
     if a.verbose:
         h, w, _ = full.shape
-        print(f"{a.reference}: {w} x {h}, filter {a.filter} radius {filt.radius:g}: pixel sum {s:.6g} + margin "
+        print(f"{a.reference}: {w} x {h} (margin {a.margin}), filter {a.filter} radius {filt.radius:g}: pixel sum {s:.6g} + margin "
               f"{m:.6g} ({100 * m / b if b else 0:.2f} %) = {b:.6g}", file=sys.stderr)
     if a.direct:
         d = read_rgb(a.direct)
         if d.shape != full.shape:
             sys.exit(f"reference_normalization: {a.direct} is {d.shape[1]} x {d.shape[0]}, "
                      f"{a.reference} is {full.shape[1]} x {full.shape[0]}")
-        bd, sd, md = integrate(d, filt)
+        bd, sd, md = integral(d)
         if a.verbose:
             print(f"{a.direct}: direct only: pixel sum {sd:.6g} + margin {md:.6g} = {bd:.6g}; "
                   f"chains' part {b - bd:.6g} ({100 * (b - bd) / b if b else 0:.1f} % of the full integral)",
