@@ -19,7 +19,8 @@
 # Environment: KELVIN (default build/bin/kelvin), OUT (default /tmp/kelvin-convergence; studies there are
 # resumed, FRESH=1 deletes them first), RUNS (independent runs, default 3; the mlt-* studies: 10), THREADS
 # (default: all cores; the mlt-* studies: 2). The mlt-* studies also read MLT_RES (256), MLT_CHECKPOINTS (seconds,
-# default 30,60,120,240,480), MLT_REF_SPP (the bdpt reference's spp, per scene), MLT_DIRECT_REF_SPP (1024),
+# default 30,60,120,240,480), MLT_REF_SPP (the reference's spp, per scene), MLT_REF_INTEGRATOR (bdpt; path: see
+# docs/mlt-studies.md on bdpt's light-tracing strategy), MLT_DIRECT_REF_SPP (1024),
 # MLT_TECHNIQUE and MLT_DIRECT_SAMPLES (per scene), MLT_MIXTURE (1: the mixture baseline as a sixth variant),
 # MLT_MATCH_SPP (mutations per pixel of each sigma-matching render, default 4), MLT_FIGURES (1: copy the figures
 # into docs/img). Everything a study computes is kept in $OUT (references, normalisation, sigma) and reused.
@@ -82,8 +83,8 @@ mlt_study() {  # mlt_study GEOMETRY: the thesis' equal-time protocol on scenes/r
     wfov=$(/usr/bin/python3 -c "import math; print(repr(2 * math.degrees(math.atan(math.tan(math.radians($fov) / 2) * $wres / $res))))")
     local wide=(-D geometry="$g" -D res="$wres" -D fov="$wfov" -t "$THREADS" -q)
     if [[ ! -f "$wref" ]]; then
-        echo "== $report: bdpt reference, ${res}x$res + $m pixels on every side, $ref_spp spp -> $wref"
-        "$KELVIN" "$refscene" "${wide[@]}" --spp "$ref_spp" --seed 1000 -o "$wref"
+        echo "== $report: ${MLT_REF_INTEGRATOR:-bdpt} reference, ${res}x$res + $m pixels on every side, $ref_spp spp -> $wref"
+        "$KELVIN" "$refscene" "${wide[@]}" -D integrator="${MLT_REF_INTEGRATOR:-bdpt}" --spp "$ref_spp" --seed 1000 -o "$wref"
     fi
     [[ -f "$ref" ]] || oiiotool "$wref" --ch R,G,B --cut "${res}x$res+$m+$m" -o "$ref"
     local bargs=("$wref" --margin "$m")
