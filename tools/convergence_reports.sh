@@ -9,15 +9,28 @@
 #   tools/convergence_reports.sh fluid-visual   #   ... on a moving vortex dipole against a reference run, images
 #   tools/convergence_reports.sh fluid-baselines  # MCFluid, vortex particles and stable fluids vs resolution
 #   tools/convergence_reports.sh mlt            # the MLT family at equal time (MLT_REF=reference.exr, MLT_GEOMETRY)
+#   tools/convergence_reports.sh mlt-door       # the thesis' equal-time protocol on one scene (docs/mlt-studies.md):
+#   tools/convergence_reports.sh mlt-caustic    #   reference, normalisation from it, PSSMLT/G's sigma matched to DR,
+#   tools/convergence_reports.sh mlt-plates     #   10 runs of the six variants, median [IQR] tables and figures
+#   tools/convergence_reports.sh mlt-pool
+#   tools/convergence_reports.sh mlt-all        # the four
 #   tools/convergence_reports.sh all            # the six fluid reports
 #
 # Environment: KELVIN (default build/bin/kelvin), OUT (default /tmp/kelvin-convergence; studies there are
-# resumed, FRESH=1 deletes them first), RUNS (independent runs, default 3), THREADS (default: all cores).
+# resumed, FRESH=1 deletes them first), RUNS (independent runs, default 3; the mlt-* studies: 10), THREADS
+# (default: all cores; the mlt-* studies: 2). The mlt-* studies also read MLT_RES (256), MLT_CHECKPOINTS (seconds,
+# default 30,60,120,240,480), MLT_REF_SPP (the reference's spp, per scene), MLT_REF_INTEGRATOR (bdpt; path: see
+# docs/mlt-studies.md on bdpt's light-tracing strategy), MLT_DIRECT_REF_SPP (1024),
+# MLT_TECHNIQUE and MLT_DIRECT_SAMPLES (per scene), MLT_MIXTURE (1: the mixture baseline as a sixth variant),
+# MLT_MATCH_SPP (mutations per pixel of each sigma-matching render, default 4), MLT_FIGURES (1: copy the figures
+# into docs/img). Everything a study computes is kept in $OUT (references, normalisation, sigma) and reused.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
 KELVIN=${KELVIN:-build/bin/kelvin}
 OUT=${OUT:-/tmp/kelvin-convergence}
+RUNS_SET=${RUNS:-}
+THREADS_SET=${THREADS:-}
 RUNS=${RUNS:-3}
 THREADS=${THREADS:-0}
 TG=scenes/fluid/taylor_green.xml
@@ -41,6 +54,88 @@ configs() {  # configs NAME DEFINE V1 V2 ...: --config NAME=V:DEFINE=V for each 
     local name=$1 define=$2
     shift 2
     for v in "$@"; do printf -- '--config\n%s=%s:%s=%s\n' "$name" "$v" "$define" "$v"; done
+}
+
+mlt_study() {  # mlt_study GEOMETRY: the thesis' equal-time protocol on scenes/render/geometry/GEOMETRY.xml
+    local g=$1 technique direct ref_spp
+    case "$g" in  # per scene: the path sampler the chains drive, direct_samples, the reference's bdpt spp
+    door) technique=path direct=16 ref_spp=16384 ;;
+    caustic) technique=bdpt direct=16 ref_spp=16384 ;;
+    plates) technique=path direct=-1 ref_spp=8192 ;;  # the hard transport is two-edge: the chains render it
+    pool) technique=path direct=16 ref_spp=32768 ;;
+    esac
+    technique=${MLT_TECHNIQUE:-$technique}
+    direct=${MLT_DIRECT_SAMPLES:-$direct}
+    ref_spp=${MLT_REF_SPP:-$ref_spp}
+    local res=${MLT_RES:-256} report="mlt-$g" study=scenes/render/mlt-study.xml refscene=scenes/render/mlt-reference.xml
+    local setup="$OUT/mlt-$g-setup" ref="$OUT/mlt-$g-$res-reference.exr"
+    local wref="$OUT/mlt-$g-$res-reference-wide.exr" dref="$OUT/mlt-$g-$res-direct-wide.exr"
+    [[ -n "$RUNS_SET" ]] || RUNS=10
+    [[ -n "$THREADS_SET" ]] || THREADS=2
+    mkdir -p "$setup"
+    # 1. References (long; kept in $OUT and reused: delete them to render again). Seeds 1000+ (runs use 0-9).
+    # They are rendered M pixels wider on every side (the field of view widened to match) so that they cover the
+    # margin the chains' film domain adds (tools/reference_normalization.py --margin); the studies measure
+    # errors against the inner res x res pixels.
+    local m=4 fov wres wfov
+    fov=$(sed -n 's/.*<default name="fov" value="\([^"]*\)".*/\1/p' "scenes/render/geometry/$g.xml")
+    wres=$((res + 2 * m))
+    wfov=$(/usr/bin/python3 -c "import math; print(repr(2 * math.degrees(math.atan(math.tan(math.radians($fov) / 2) * $wres / $res))))")
+    local wide=(-D geometry="$g" -D res="$wres" -D fov="$wfov" -t "$THREADS" -q)
+    if [[ ! -f "$wref" ]]; then
+        echo "== $report: ${MLT_REF_INTEGRATOR:-bdpt} reference, ${res}x$res + $m pixels on every side, $ref_spp spp -> $wref"
+        "$KELVIN" "$refscene" "${wide[@]}" -D integrator="${MLT_REF_INTEGRATOR:-bdpt}" --spp "$ref_spp" --seed 1000 -o "$wref"
+    fi
+    [[ -f "$ref" ]] || oiiotool "$wref" --ch R,G,B --cut "${res}x$res+$m+$m" -o "$ref"
+    local bargs=("$wref" --margin "$m")
+    if ((direct > 0)); then  # the chains render paths of 3+ edges only: subtract the direct-only integral
+        if [[ ! -f "$dref" ]]; then
+            echo "== $report: direct-only reference (path, max_depth 2), ${MLT_DIRECT_REF_SPP:-1024} spp -> $dref"
+            "$KELVIN" "$refscene" "${wide[@]}" -D integrator=path -D max_depth=2 \
+                --spp "${MLT_DIRECT_REF_SPP:-1024}" --seed 1001 -o "$dref"
+        fi
+        bargs+=(--direct "$dref")
+    fi
+    # 2. The normalisation b from the reference (thesis Sec. 4.3.3), given to every variant.
+    local b
+    b=$(/usr/bin/python3 tools/reference_normalization.py "${bargs[@]}" -v 2>"$setup/normalization.log")
+    cat "$setup/normalization.log"
+    echo "normalization = $b" >"$setup/normalization.txt"
+    local common=(-D geometry="$g" -D res="$res" -D technique="$technique" -D direct_samples="$direct" -D normalization="$b")
+    # 3. PSSMLT/G's sigma matched to DR orbital's first-stage acceptance (reused while the settings are the same).
+    local sigma match=(scenes/render/mlt-study.xml "${common[@]}" --spp "${MLT_MATCH_SPP:-4}" -t "$THREADS")
+    if [[ -f "$setup/sigma.txt" && "$(head -1 "$setup/sigma.txt")" == "# ${match[*]}" ]] &&
+        grep -q "within_tolerance = True" "$setup/sigma.txt"; then
+        sigma=$(sed -n 's/^sigma = //p' "$setup/sigma.txt")
+    else
+        sigma=$(KELVIN="$KELVIN" /usr/bin/python3 tools/match_gaussian_sigma.py "${match[@]}" --record "$setup/sigma.tmp")
+        { echo "# ${match[*]}"; cat "$setup/sigma.tmp"; } >"$setup/sigma.txt"
+        rm -f "$setup/sigma.tmp"
+    fi
+    echo "== $report: normalization $b, matched sigma $sigma"
+    # 4. The study: every variant, RUNS runs each, equal-time checkpoints.
+    {
+        echo "# $report: generated by tools/convergence_reports.sh (sigma matched to drmlt-orbital, $setup/sigma.txt)"
+        echo "pssmlt-K: variant=pssmlt-kelemen"
+        echo "pssmlt-G: variant=pssmlt-gaussian sigma=$sigma"
+        [[ "${MLT_MIXTURE:-1}" == 1 ]] && echo "mixture: variant=mixture"
+        echo "dr-orbital: variant=drmlt-orbital"
+        echo "dr-mira: variant=drmlt-mira"
+        echo "dr-green: variant=drmlt-green"
+    } >"$setup/configs"
+    converge "$report" "$study" "${common[@]}" --reference "$ref" --config-file "$setup/configs" \
+        --checkpoints "${MLT_CHECKPOINTS:-30,60,120,240,480}"
+    cp "$setup/normalization.txt" "$setup/normalization.log" "$setup/sigma.txt" "$setup/configs" "$OUT/$report/"
+    # 5. Medians and interquartile ranges (the thesis' statistics), and the protocol's table.
+    /usr/bin/python3 tools/plot_convergence.py "$OUT/$report/convergence.csv" --center median --metrics rel_mse,l1 >/dev/null
+    /usr/bin/python3 tools/mlt_study_table.py "$OUT/$report" >"$OUT/$report/plots/table.md"
+    echo "== $report: $OUT/$report/plots/table.md"
+    cat "$OUT/$report/plots/table.md"
+    if [[ "${MLT_FIGURES:-1}" == 1 ]]; then
+        for f in error_vs_seconds_rel_mse.png error_vs_seconds_l1.png error_vs_work_rel_mse.png grid.png; do
+            cp "$OUT/$report/plots/$f" "docs/img/convergence_${report//-/_}_$f"
+        done
+    fi
 }
 
 report() {
@@ -86,16 +181,21 @@ report() {
         # The MLT family at equal time on one of the project's hard scenes: scenes/render/mlt-study.xml picks the
         # variant (scenes/render/mlt-study.configs, one configuration each) and the geometry (MLT_GEOMETRY: door or
         # caustic). MLT_REF is a long reference render of the same geometry and resolution.
+        # (Study directory mlt-custom-<geometry>: mlt-<geometry> is the protocol study below.)
         local geometry=${MLT_GEOMETRY:-door}
         : "${MLT_REF:?set MLT_REF to a reference EXR of scenes/render/$geometry.xml}"
-        converge "mlt-$geometry" "${MLT_SCENE:-scenes/render/mlt-study.xml}" -D geometry="$geometry" \
+        converge "mlt-custom-$geometry" "${MLT_SCENE:-scenes/render/mlt-study.xml}" -D geometry="$geometry" \
             --reference "$MLT_REF" --config-file "${MLT_CONFIGS:-scenes/render/mlt-study.configs}" \
             --checkpoints "${MLT_CHECKPOINTS:-5,10,20,40,80}"
-        figures "mlt-$geometry" error_vs_seconds_rel_mse.png error_vs_seconds_l1.png grid.png ;;
+        figures "mlt-custom-$geometry" error_vs_seconds_rel_mse.png error_vs_seconds_l1.png grid.png ;;
+    mlt-door | mlt-caustic | mlt-plates | mlt-pool)
+        mlt_study "${1#mlt-}" ;;
+    mlt-all)
+        for g in door caustic plates pool; do mlt_study "$g"; done ;;
     all)
         for r in fluid-nmc fluid-cells fluid-dt fluid-params fluid-visual fluid-baselines; do report "$r"; done ;;
     *)
-        echo "usage: $0 fluid-nmc|fluid-cells|fluid-dt|fluid-params|fluid-visual|fluid-baselines|mlt|all" >&2
+        echo "usage: $0 fluid-nmc|fluid-cells|fluid-dt|fluid-params|fluid-visual|fluid-baselines|mlt|mlt-door|mlt-caustic|mlt-plates|mlt-pool|mlt-all|all" >&2
         exit 2 ;;
     esac
 }

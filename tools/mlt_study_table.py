@@ -1,0 +1,100 @@
+#!/usr/bin/python3
+"""The table of an MLT equal-time study (docs/mlt-studies.md), in Markdown on stdout.
+
+    tools/mlt_study_table.py STUDY_DIR          # STUDY_DIR: a `kelvin converge` output directory
+
+One row per configuration: the median over runs, with the interquartile range [Q1, Q3], of the relative MSE and of
+L1 at every checkpoint; then the medians over runs of the mutations per pixel at the last checkpoint, of the
+mutations per second, of the small-step, large-step and second-stage acceptance and of the second stage's share
+of the path-evaluation time (convergence_stats.csv: the counters of each whole run). Above the table: the
+normalisation and the matched sigma when the study directory holds normalization.txt and sigma.txt (as
+tools/convergence_reports.sh leaves them). Quartiles are numpy's (linear interpolation); with fewer than 2 runs
+only the median is shown.
+"""
+import csv
+import os
+import sys
+from collections import defaultdict
+
+import numpy as np
+
+
+def fmt(v):
+    return "%.3g" % v
+
+
+def med_iqr(vals):
+    vals = np.asarray(vals, dtype=float)
+    if len(vals) == 0:
+        return ""
+    m = fmt(np.median(vals))
+    if len(vals) < 2:
+        return m
+    q1, q3 = np.percentile(vals, [25, 75])
+    return f"{m} [{fmt(q1)}, {fmt(q3)}]"
+
+
+def main():
+    if len(sys.argv) != 2:
+        sys.exit(__doc__)
+    d = sys.argv[1]
+    rows = list(csv.DictReader(open(os.path.join(d, "convergence.csv"))))
+    configs, targets = [], []
+    err = defaultdict(lambda: defaultdict(list))  # (config, target) -> metric -> values over runs
+    work = defaultdict(list)
+    for r in rows:
+        c, t = r["config"], r["target"]
+        if c not in configs:
+            configs.append(c)
+        if t not in targets:
+            targets.append(t)
+        for m in ("rel_mse", "l1"):
+            err[(c, t)][m].append(float(r[m]))
+    last = max(targets, key=float)
+    for r in rows:
+        if r["target"] == last:
+            work[r["config"]].append(float(r["work"]))
+    stats = defaultdict(lambda: defaultdict(list))
+    sp = os.path.join(d, "convergence_stats.csv")
+    if os.path.exists(sp):
+        for r in csv.DictReader(open(sp)):
+            try:
+                stats[r["config"]][r["counter"]].append(float(r["value"]))
+            except ValueError:
+                pass
+
+    out = []
+    for name in ("normalization.txt", "sigma.txt"):
+        p = os.path.join(d, name)
+        if os.path.exists(p):
+            for line in open(p):
+                if line.startswith(("normalization =", "sigma =", "acceptance =", "target_acceptance =")):
+                    out.append("- " + line.strip())
+    runs = max((len(v["rel_mse"]) for v in err.values()), default=0)
+    unit = rows[0]["unit"] if rows else ""
+    out.append(f"- {runs} runs per configuration; median [interquartile range] over runs; "
+               f"checkpoints in {rows[0]['trigger'] if rows else ''}")
+    out.append("")
+    head = ["variant"] + [f"rMSE at {t}" for t in targets] + [f"L1 at {t}" for t in targets] + [
+        f"{unit} at {last}", "mutations/s", "small-step acc.", "large-step acc.", "stage-2 acc.", "stage-2 time share"]
+    out.append("| " + " | ".join(head) + " |")
+    out.append("|" + "---|" * len(head))
+    for c in configs:
+        s = stats.get(c, {})
+
+        def sm(k):
+            v = s.get(k, [])
+            return fmt(np.median(v)) if v else ""
+
+        cells = [c] + [med_iqr(err[(c, t)]["rel_mse"]) for t in targets] + \
+                [med_iqr(err[(c, t)]["l1"]) for t in targets] + \
+                [fmt(np.median(work[c])) if work[c] else "", sm("mlt.mutations_per_second"),
+                 sm("mlt.acceptance.stage1_small"), sm("mlt.acceptance.large_step")] + \
+                ([sm("mlt.acceptance.stage2"), sm("mlt.stage2_time_share")] if "mlt.stage2_attempts" in s and
+                 np.median(s["mlt.stage2_attempts"]) > 0 else ["", ""])
+        out.append("| " + " | ".join(cells) + " |")
+    print("\n".join(out))
+
+
+if __name__ == "__main__":
+    main()
