@@ -400,11 +400,18 @@ RunResult MetropolisIntegrator::render(const Scene& scene, RunContext& ctx) {
     S.set("mlt.mutations_per_pixel", st.mutations_per_pixel);
     S.set("mlt.mutations_per_second", st.mutations_per_second());
     S.set("mlt.acceptance.stage1_small", st.stage1_acceptance());
+    if (st.chain.evaluations > st.chains)
+        S.set("mlt.coordinates_per_state",
+              2.0 * double(st.chain.pairs_realised) / double(st.chain.evaluations - st.chains));
     S.set("mlt.acceptance.large_step", st.large_step_acceptance());
     if (m_delayed_rejection) {
         S.set("mlt.acceptance.stage2", st.stage2_acceptance());
         S.add("mlt.stage2_attempts", double(st.chain.stage2_attempted), "attempts");
         S.set("mlt.stage2_time_share", st.stage2_time_share());
+        if (type() == DrType::Green) {
+            S.add("mlt.ystar_evaluations", double(st.chain.ystar_evaluations), "paths");
+            S.add("mlt.ystar_skipped", double(st.chain.ystar_skipped), "paths");
+        }
     }
     S.add_time("mlt.time.bootstrap", st.seconds_bootstrap);
     S.add_time("mlt.time.direct", st.seconds_direct);
