@@ -65,6 +65,11 @@ std::shared_ptr<Mutation> make_mutation(const std::string& type, double sigma = 
 
 }  // namespace
 
+long long auto_chain_count(double mutations, double mutations_per_chain) {
+    const double c = std::ceil(mutations / mutations_per_chain);
+    return (long long)std::clamp(c, double(MinAutoChains), double(MaxAutoChains));
+}
+
 MetropolisIntegrator::MetropolisIntegrator(const Properties& props, bool delayed_rejection)
     : m_delayed_rejection(delayed_rejection) {
     const std::string technique = props.get_choice("technique", {"path", "bdpt"});
@@ -73,7 +78,9 @@ MetropolisIntegrator::MetropolisIntegrator(const Properties& props, bool delayed
     const bool hide_emitters = props.get_bool("hide_emitters");
     if (max_depth == 0) props.error("max_depth", "must be -1 (unbounded) or at least 1");
     m_bootstrap_samples = props.get_int("bootstrap_samples", 1, 1LL << 40);
-    m_chains = props.get_int("chains", 1, 1 << 24);
+    m_chains = props.get_int("chains", -1, 1 << 24);
+    if (m_chains == 0) props.error("chains", "must be -1 (chosen from the mutation budget) or at least 1");
+    m_mutations_per_chain = props.get_float("mutations_per_chain", 1, 1e15);
     m_mutations_per_pixel = props.get_float("mutations_per_pixel", 1e-9, 1e12);
     m_direct_samples = props.get_int("direct_samples", -1, 1 << 24);
     if (m_direct_samples == 0)
@@ -159,7 +166,11 @@ RunResult MetropolisIntegrator::render(const Scene& scene, RunContext& ctx) {
     dom.extent = Vec2d(w + 2 * filter.radius(), h + 2 * filter.radius());
     dom.area = dom.extent.x * dom.extent.y;
     MltStatistics st;
-    st.chains = uint64_t(m_chains);
+    // The chain count: given, or chosen from the mutation budget (docs/mlt.md, "How many chains").
+    const double budget_mpp = ctx.spp > 0 ? double(ctx.spp) : m_mutations_per_pixel;
+    const long long n_chains =
+        m_chains > 0 ? m_chains : auto_chain_count(budget_mpp * double(w) * double(h), m_mutations_per_chain);
+    st.chains = uint64_t(n_chains);
 
     // F(x) and pi(x) of the state `pss` is bound to.
     auto evaluate = [&](PrimarySampleSpace& pss, Contributions& out, SampleCounters& c) {
@@ -201,7 +212,7 @@ RunResult MetropolisIntegrator::render(const Scene& scene, RunContext& ctx) {
                    pss_seed = hash_combine(ctx.seed, 0x70737321);
     const std::size_t nboot = std::size_t(m_bootstrap_samples);
     std::vector<double> boot_pi(nboot, 0.0);
-    std::vector<SampleCounters> counters(static_cast<std::size_t>(m_chains));
+    std::vector<SampleCounters> counters(static_cast<std::size_t>(n_chains));
     {
         Timer t;
         constexpr std::size_t Block = 4096;
@@ -247,7 +258,7 @@ RunResult MetropolisIntegrator::render(const Scene& scene, RunContext& ctx) {
         Contributions f[4];  // indexed by Slot: x (current state), y, z, y*
         uint64_t steps_done = 0;
     };
-    std::vector<Chain> chains(st.bootstrap_nonzero > 0 ? std::size_t(m_chains) : 0);
+    std::vector<Chain> chains(st.bootstrap_nonzero > 0 ? std::size_t(n_chains) : 0);
     if (!chains.empty()) {
         // Systematic resampling of the bootstrap states prop. to pi: chain c starts at the state whose
         // cumulative weight interval holds (c + u0) / C. Exact stationary start up to the bootstrap's b.

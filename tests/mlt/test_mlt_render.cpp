@@ -271,6 +271,18 @@ TEST(MltIntegrators, EveryStudyVariantRenders) {
         }
 }
 
+// chains = -1: the count follows the mutation budget (docs/mlt.md, "How many chains"), within its bounds.
+TEST(MltIntegrators, AutomaticChainCount) {
+    EXPECT_EQ(auto_chain_count(1e3, 1e5), MinAutoChains);
+    EXPECT_EQ(auto_chain_count(1e5 * 300.5, 1e5), 301);
+    EXPECT_EQ(auto_chain_count(1e12, 1e5), MaxAutoChains);
+    const std::string file = "cornell-box.xml";
+    const std::string xml = R"(<integrator type="pssmlt"><float name="mutations_per_chain" value="100"/></integrator>)";
+    RunOut r = run(scene_with(file, xml, 16), file, 64, 3);  // 16 x 16 x 64 mutations: 164 chains
+    EXPECT_EQ(r.stats.chains, 164u);
+    EXPECT_EQ(r.stats.chain.steps, 16u * 16u * 64u);
+}
+
 TEST(MltIntegrators, BadParametersAreInputErrors) {
     const std::string file = "cornell-box.xml";
     auto error_of = [&](const std::string& integrator) {
@@ -292,6 +304,13 @@ TEST(MltIntegrators, BadParametersAreInputErrors) {
               std::string::npos);
     EXPECT_NE(error_of(R"(<integrator type="pssmlt"><mutation type="orbital"/></integrator>)").find("second-stage"),
               std::string::npos);
+    EXPECT_NE(error_of(R"(<integrator type="pssmlt"><integer name="chains" value="0"/></integrator>)").find("chains"),
+              std::string::npos);
+    EXPECT_NE(
+        error_of(R"(<integrator type="drmlt"><string name="type" value="mira"/><mutation name="first" type="mixture">)"
+                 R"(<mutation type="kelemen"/><mutation type="gaussian"/></mutation></integrator>)")
+            .find("product"),
+        std::string::npos);
     EXPECT_NE(error_of(R"(<integrator type="pssmlt"><integer name="direct_samples" value="0"/></integrator>)")
                   .find("direct_samples"),
               std::string::npos);

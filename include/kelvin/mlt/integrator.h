@@ -46,6 +46,11 @@ private:
     static double rate(uint64_t a, uint64_t n) { return n > 0 ? double(a) / double(n) : 0.0; }
 };
 
+/// chains = -1: ceil(mutations / mutations_per_chain) chains, clamped to [MinAutoChains, MaxAutoChains] (at
+/// least enough units of work for any thread count to stay busy; docs/mlt.md, "How many chains").
+inline constexpr long long MinAutoChains = 64, MaxAutoChains = 4096;
+long long auto_chain_count(double mutations, double mutations_per_chain);
+
 class MetropolisIntegrator : public Integrator {
 public:
     /// `delayed_rejection`: read the parameters of `drmlt` (type, first/second) rather than `pssmlt`'s.
@@ -67,7 +72,7 @@ private:
     bool m_delayed_rejection;
     bool m_waste_recycling;
     long long m_bootstrap_samples, m_chains, m_direct_samples;
-    double m_mutations_per_pixel, m_normalization;
+    double m_mutations_per_pixel, m_normalization, m_mutations_per_chain;
     mutable std::mutex m_stats_mutex;
     MltStatistics m_stats;
 };

@@ -27,17 +27,18 @@ public:
 }  // namespace kelvin
 
 #define KELVIN_MLT_COMMON_PARAMS                                                                                      \
-    kelvin::param::string("technique", "path", "path sampler the chains drive: path | bdpt"),                        \
-        kelvin::param::integer("max_depth", -1, "longest contributing path in edges (-1: unbounded)"),              \
-        kelvin::param::integer("rr_depth", 5, "path length from which Russian roulette starts"),                    \
-        kelvin::param::boolean("hide_emitters", false, "directly visible emitters render black"),                   \
+    kelvin::param::string("technique", "path", "path sampler the chains drive: path | bdpt"),                         \
+        kelvin::param::integer("max_depth", -1, "longest contributing path in edges (-1: unbounded)"),                \
+        kelvin::param::integer("rr_depth", 5, "path length from which Russian roulette starts"),                      \
+        kelvin::param::boolean("hide_emitters", false, "directly visible emitters render black"),                     \
         kelvin::param::integer("bootstrap_samples", 100000, "independent paths that estimate b and seed the chains"), \
-        kelvin::param::integer("chains", 1000, "Markov chains (fixed: the result never depends on threads)"),       \
-        kelvin::param::real("mutations_per_pixel", 100, "chain steps per pixel (--spp overrides)"),                 \
-        kelvin::param::real("large_step_prob", 0.3, "probability of an independent (large) step"),                  \
-        kelvin::param::integer("direct_samples", 16,                                                                 \
-                               "spp of plain path tracing for direct light (-1: the chains render it too)"),         \
-        kelvin::param::real("normalization", -1, "b, the mean path luminance (-1: estimated by the bootstrap)"),    \
+        kelvin::param::integer("chains", -1, "Markov chains (-1: from the mutation budget; never from threads)"),     \
+        kelvin::param::real("mutations_per_chain", 100000, "chains = -1: mutations per chain aimed at"),              \
+        kelvin::param::real("mutations_per_pixel", 100, "chain steps per pixel (--spp overrides)"),                   \
+        kelvin::param::real("large_step_prob", 0.3, "probability of an independent (large) step"),                    \
+        kelvin::param::integer("direct_samples", 16,                                                                  \
+                               "spp of plain path tracing for direct light (-1: the chains render it too)"),          \
+        kelvin::param::real("normalization", -1, "b, the mean path luminance (-1: estimated by the bootstrap)"),      \
         kelvin::param::boolean("waste_recycling", true, "splat every proposal with its expected weight (Sec. 4.2.6)")
 
 KELVIN_PLUGIN(kelvin::Pssmlt, "integrator", "pssmlt",
@@ -49,6 +50,8 @@ KELVIN_PLUGIN(kelvin::Drmlt, "integrator", "drmlt",
               KELVIN_MLT_COMMON_PARAMS,
               kelvin::param::string("type", "orbital", "orbital (Eq. 4.7) | mira (Eq. 4.2) | green (Eqs. 4.8-4.10)"),
               kelvin::param::boolean("timid_after_large", false, "a rejected large step gets a second stage"),
-              kelvin::param::real("scale_second", 0.1, "default second stage (mira, green): Gaussian of this times the first stage's scale"),
-              kelvin::param::object("first", "mutation", "first stage (default kelemen_pair for orbital, else kelemen)"),
+              kelvin::param::real("scale_second", 0.1,
+                                  "default second stage (mira, green): Gaussian of this times the first stage's scale"),
+              kelvin::param::object("first", "mutation",
+                                    "first stage (default kelemen_pair for orbital, else kelemen)"),
               kelvin::param::object("second", "mutation", "second stage (default orbital, or the scaled Gaussian)"));
