@@ -10,7 +10,8 @@
 // light path: at alpha 0.001 it needs ~1e6 times more paths than the others, and with a few hundred thousand its
 // estimate is a handful of rare spikes whose spread over seeds underestimates its error. So ptracer is compared
 // with path on the same scene with every plate at alpha 0.03 (both distributions, both lights), where it converges;
-// the alpha 0.001 and 0.008 lobes are covered there by path against bdpt (and by BsdfChi2Lobe for the BSDF).
+// the alpha 0.001 and 0.008 lobes are covered there by path against bdpt and against BSDF sampling alone (path with
+// emitter_sampling = false, which shares no MIS weights with the others), and by BsdfChi2Lobe for the BSDF.
 //
 // The 1 % bound on the means is about 3 standard errors of the ratio for path/bdpt (0.3 %) and 2.5 for
 // path/ptracer (0.4 %); the seeds are fixed.
@@ -19,11 +20,17 @@
 // surface and hit it again at t ~ 0 about half the time; EmissionSample::spawn_ray):
 //   - path vs bdpt: ratio 0.959 +- 0.003, 18 of 64 blocks beyond 5 sigma;
 //   - path vs ptracer (then at 512 spp): ratio 0.455 +- 0.007, 56 of 64 blocks beyond 5 sigma;
-// and on a deliberately broken variant (tried by editing the code, then reverted):
+// (path was right all along: its code is unchanged but for the emitter_sampling option, and PathAndBsdfSampling-
+// Alone... checks it against the independent estimate), and on deliberately broken variants (each tried by editing
+// the code, then reverted):
 //   - roughconductor's pdf() 5 % too high in the core of the lobe (tan theta_h < alpha), sample() unchanged: the
 //     MIS weights of path and bdpt no longer sum to one and both lose about 1 % on the alpha 0.03 scene; path vs
 //     bdpt still agree (0.9955: they share pdf()), but ptracer, which never calls pdf(), does not: ratio
-//     1.016 +- 0.004, the mean check fails.
+//     1.016 +- 0.004, the mean check fails. BSDF sampling alone (PathAndBsdfSamplingAlone...) does not see it:
+//     on its black-floor scene path moves by 0.4 %, ratio 1.003 +- 0.003 (the chi-square tests catch it, p = 1e-8);
+//   - area emitters' pdf_direct() without the cosine at the light (the density path's MIS weights use when NEE
+//     or a BSDF-sampled ray reaches a light): path/bdpt 0.976 +- 0.003, path/BSDF sampling alone 0.978 +- 0.003,
+//     path/ptracer 0.951 +- 0.004 (3 blocks beyond 5 sigma): all three tests fail.
 #include "render/render_support.h"
 
 #include <kelvin/core/parser.h>
@@ -45,7 +52,8 @@ Vec3d normalized(const Vec3d& v) { return v / glm::length(v); }
 
 /// The test scene: plates of the given distributions and roughnesses (row by row), each tilted to mirror one of
 /// the two lights into the camera.
-std::string glossy_scene(const std::string& integrator, const std::vector<std::string>& alphas) {
+std::string glossy_scene(const std::string& integrator, const std::vector<std::string>& alphas,
+                         const std::string& floor = "0.4", const std::string& extra = "", int max_depth = 3) {
     const Vec3d camera(0, 2.5, 5), sphere(-0.9, 1.8, -2.2), rect(1.0, 1.6, -2.3);
     std::string plates;
     const double xs[3] = {-1.25, 0, 1.25};
@@ -65,7 +73,7 @@ std::string glossy_scene(const std::string& integrator, const std::vector<std::s
         }
     const Vec3d rt = rect + normalized(Vec3d(0.2, 0, 0.2) - rect);
     return fmt::format(R"(<scene version="3.0.0">
-        <integrator type="{}"><integer name="max_depth" value="3"/></integrator>
+        <integrator type="{}"><integer name="max_depth" value="{}"/>{}</integrator>
         <sensor type="perspective">
             <float name="fov" value="40"/>
             <transform name="to_world"><lookat origin="0, 2.5, 5" target="0, -0.25, 0.1" up="0, 1, 0"/></transform>
@@ -75,7 +83,7 @@ std::string glossy_scene(const std::string& integrator, const std::vector<std::s
         </sensor>
         <shape type="rectangle">
             <transform name="to_world"><scale value="4"/><rotate x="1" angle="-90"/></transform>
-            <bsdf type="diffuse"><rgb name="reflectance" value="0.4"/></bsdf>
+            <bsdf type="diffuse"><rgb name="reflectance" value="{}"/></bsdf>
         </shape>
         {}
         <shape type="sphere">
@@ -88,7 +96,8 @@ std::string glossy_scene(const std::string& integrator, const std::vector<std::s
             <emitter type="area"><rgb name="radiance" value="40"/></emitter>
         </shape>
     </scene>)",
-                       integrator, plates, sphere.x, sphere.y, sphere.z, rect.x, rect.y, rect.z, rt.x, rt.y, rt.z);
+                       integrator, max_depth, extra, floor, plates, sphere.x, sphere.y, sphere.z, rect.x, rect.y,
+                       rect.z, rt.x, rt.y, rt.z);
 }
 
 std::vector<Bitmap> renders(const std::string& xml, long long spp, uint64_t first_seed) {
@@ -98,8 +107,9 @@ std::vector<Bitmap> renders(const std::string& xml, long long spp, uint64_t firs
     return r;
 }
 
-void expect_agree(const std::vector<Bitmap>& ref, const std::vector<Bitmap>& other, const std::string& what) {
-    ktest::BlockComparison r = ktest::compare_blocks(ref, other, 4, 0);
+void expect_agree(const std::vector<Bitmap>& ref, const std::vector<Bitmap>& other, const std::string& what,
+                  double abs_floor = 0) {
+    ktest::BlockComparison r = ktest::compare_blocks(ref, other, 4, 0, 0, abs_floor);
     const double ratio = r.mean_b / r.mean_a;
     const double se = ratio * std::hypot(r.se_a / r.mean_a, r.se_b / r.mean_b);
     std::printf("[glossy] %s: means %.5f +- %.5f, %.5f +- %.5f, ratio %.4f +- %.4f, %d of %d blocks beyond 5 sigma\n",
@@ -137,6 +147,21 @@ TEST(GlossyAgree, PathAndBidirectionalOnSmallAlphaConductors) {
     const auto path = renders(glossy_scene("path", alphas), 1024, 100);
     const auto bdpt = renders(glossy_scene("bdpt", alphas), 512, 200);
     expect_agree(path, bdpt, "path vs bdpt, alpha 0.001 to 0.03");
+}
+
+// path and bdpt share the BSDF's pdf() in their MIS weights, so an error there moves both alike. BSDF sampling
+// alone (path with emitter_sampling = false) uses no MIS weights: against it, path's highlights at every alpha.
+// With a black floor and paths of two edges the image is the highlights alone (camera - plate - light), which
+// BSDF sampling finds efficiently at these roughnesses. The far tails of the lobes still make a few blocks of
+// ~1e-5 that BSDF sampling alone never hits in 8 runs, so its measured spread there is zero; one hit would add
+// Le / (spp 4^2) = 2.4e-3 to one run's block mean, 3e-4 to the mean over 8 runs, and 5 times that is the least
+// tolerance a block gets.
+TEST(GlossyAgree, PathAndBsdfSamplingAloneOnSmallAlphaConductors) {
+    const std::vector<std::string> alphas = {"0.001", "0.008", "0.03", "0.001", "0.008", "0.03"};
+    const auto path = renders(glossy_scene("path", alphas, "0", "", 2), 512, 500);
+    const auto bsdf =
+        renders(glossy_scene("path", alphas, "0", R"(<boolean name="emitter_sampling" value="false"/>)", 2), 1024, 600);
+    expect_agree(path, bsdf, "path vs BSDF sampling alone, alpha 0.001 to 0.03", 5 * 40.0 / (1024 * 16) / 8);
 }
 
 TEST(GlossyAgree, PathAndLightTracingOnGlossyConductors) {
