@@ -6,6 +6,7 @@
 #include <kelvin/core/parser.h>
 #include <kelvin/render/scene.h>
 
+#include <algorithm>
 #include <fstream>
 #include <memory>
 #include <sstream>
@@ -16,8 +17,8 @@ namespace ktest {
 /// Parse and instantiate `xml`; the root must be a kelvin::Scene. `filename` anchors relative paths.
 inline std::shared_ptr<kelvin::Scene> load_scene_xml(const std::string& xml, const kelvin::ParseOptions& opts = {},
                                                      const std::string& filename = "<string>") {
-    auto scene = std::dynamic_pointer_cast<kelvin::Scene>(
-        kelvin::instantiate(kelvin::parse_scene_string(xml, opts, filename)));
+    auto scene =
+        std::dynamic_pointer_cast<kelvin::Scene>(kelvin::instantiate(kelvin::parse_scene_string(xml, opts, filename)));
     if (!scene) throw std::runtime_error("the root object is not a kelvin::Scene");
     return scene;
 }
@@ -80,11 +81,13 @@ struct BlockComparison {
 
 /// Per B x B block of channel c, the mean over seeds and its variance from the spread over seeds; a block is
 /// an outlier if |mean_a - mean_b| > max(5 sqrt(var_a + var_b), rel_floor * max(mean_a, mean_b)). With 8
-/// seeds the t-distribution (7 dof) puts about 0.2 % of blocks beyond 5 estimated sigmas.
-inline BlockComparison compare_blocks(const std::vector<kelvin::Bitmap>& a, const std::vector<kelvin::Bitmap>& b,
-                                      int B, int c, double rel_floor = 0) {
+/// seeds the t-distribution (7 dof) puts about 0.2 % of blocks beyond 5 estimated sigmas. `abs_floor`, if given,
+/// is an absolute lower bound on the tolerance (for estimators whose rare events a block may not see at all).
+inline BlockComparison compare_blocks(const std::vector<kelvin::Bitmap>& a, const std::vector<kelvin::Bitmap>& b, int B,
+                                      int c, double rel_floor = 0, double abs_floor = 0) {
     const int w = a.at(0).width(), h = a.at(0).height(), nb = (w / B) * (h / B);
-    auto block_stats = [&](const std::vector<kelvin::Bitmap>& runs, std::vector<double>& mean, std::vector<double>& var) {
+    auto block_stats = [&](const std::vector<kelvin::Bitmap>& runs, std::vector<double>& mean,
+                           std::vector<double>& var) {
         const double n = double(runs.size());
         mean.assign(std::size_t(nb), 0.0);
         var.assign(std::size_t(nb), 0.0);
@@ -113,7 +116,7 @@ inline BlockComparison compare_blocks(const std::vector<kelvin::Bitmap>& a, cons
         r.mean_b += mb[k] / nb;
         var_a += va[k] / (double(nb) * nb);
         var_b += vb[k] / (double(nb) * nb);
-        const double tol = std::max(5 * std::sqrt(va[k] + vb[k]), rel_floor * std::max(ma[k], mb[k]));
+        const double tol = std::max({5 * std::sqrt(va[k] + vb[k]), rel_floor * std::max(ma[k], mb[k]), abs_floor});
         if (std::abs(ma[k] - mb[k]) > tol) ++r.outliers;
     }
     r.se_a = std::sqrt(var_a);

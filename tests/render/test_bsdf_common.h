@@ -92,6 +92,14 @@ struct Chi2Result {
 /// cell (adaptive 2D Simpson in theta and phi, with the sin(theta) Jacobian). Samples that fail or come from
 /// delta lobes go to one extra cell whose expected count is N (1 - integral of pdf). Cells expecting fewer
 /// than 5 samples are pooled (as in Mitsuba's test_chi2).
+///
+/// With `lobe_alpha` > 0 the cells are instead those of the half vector h = normalize(wi + wo) of a reflection,
+/// in coordinates that resolve a lobe of roughness alpha around the specular direction (h = z):
+/// x = s^2 / (1 + s^2) with s = tan(theta_h) / alpha (the CDF of GGX's D cos in theta_h, so that cells of x hold
+/// similar masses for any alpha) and y = phi_h / (2 pi), n_theta x n_phi cells of equal size in (x, y). Expected
+/// counts integrate pdf(wo(h)) |d omega_o / d omega_h| = pdf 4 |wo.h| over each cell, with
+/// d omega_h = alpha^2 cos^3(theta_h) / (2 (1 - x)^2) dx 2 pi dy. Directions with h.z <= 0 (no reflection
+/// lobe produces them) belong to the extra cell.
 class Chi2Test {
 public:
     int n_theta = 20, n_phi = 40;
@@ -99,6 +107,9 @@ public:
     uint64_t seed = 7;
     /// Absolute integration tolerance per quarter cell, in probability (times `samples`: error in counts).
     double tolerance = 1e-7;
+    /// > 0: bin the half vector around the specular direction at this roughness scale (see above).
+    double lobe_alpha = 0;
+    int lobe_split = 4, lobe_depth = 6;  // initial split and depth of cells the horizon crosses
 
     Chi2Result run(const Bsdf& bsdf, const BsdfContext& ctx, const Vec3d& wi, uint64_t stream) const {
         const SurfaceInteraction si = interaction_with(wi);
@@ -113,6 +124,14 @@ public:
                 other += 1;
                 continue;
             }
+            if (lobe_alpha > 0) {
+                const std::size_t k = lobe_cell(wi, bs->wo);
+                if (k == std::size_t(-1))
+                    other += 1;
+                else
+                    observed[k] += 1;
+                continue;
+            }
             observed[cell(bs->wo)] += 1;
         }
         auto f = [&](double theta, double phi) {
@@ -121,8 +140,56 @@ public:
             return bsdf.pdf(ctx, si, wo) * st;
         };
         double integral = 0;
+        if (lobe_alpha > 0) {
+            // Density of (x, y) on the unit square: pdf(wo) |d omega_o / d omega_h| |d omega_h / dx dy|. It is
+            // integrated in u = 1 - sqrt(1 - x) (dx = 2 (1 - u) du), which removes the (1 - x)^(-1/2) singularity
+            // of visible normals at grazing incidence (density ~ 1 / cos theta_h as theta_h -> pi / 2).
+            const double a2 = lobe_alpha * lobe_alpha;
+            auto half = [&](double u, double y) {
+                const double r = 1 - u, x = 1 - r * r;  // 1 - x = r^2
+                const double cos2 = r * r / (r * r + a2 * x), phi = 2 * Pi * y;
+                const double c = std::sqrt(cos2), s = std::sqrt(1 - cos2);
+                return Vec3d(s * std::cos(phi), s * std::sin(phi), c);
+            };
+            auto g = [&](double u, double y) {
+                const Vec3d h = half(u, y);
+                const double wi_h = glm::dot(wi, h);
+                if (!(wi_h > 0)) return 0.0;  // normalize(wi + wo) is then -h: the extra cell's
+                const Vec3d wo = 2.0 * wi_h * h - wi;
+                // d omega_h / du dy = a2 cos^3 / (2 (1 - x)^2) * 2 (1 - u) * 2 pi, with 1 - x = (1 - u)^2
+                const double r = 1 - u, c = h.z;
+                const double jac = 4 * wi_h * a2 * c * c * c / (r * r * r) * 2 * Pi;
+                return bsdf.pdf(ctx, si, wo) * jac;
+            };
+            const double dy = 1.0 / n_phi;
+            for (int t = 0; t < n_theta; ++t)
+                for (int p = 0; p < n_phi; ++p) {
+                    const double lo = 1 - std::sqrt(1 - double(t) / n_theta),
+                                 hi = 1 - std::sqrt(1 - double(t + 1) / n_theta);
+                    const double du = hi - lo, eps = 1e-9 * du;
+                    auto gc = [&](double u, double y) { return g(std::clamp(u, lo + eps, hi - eps), y); };
+                    // Cells that the horizon (wo.z = 0, where the pdf drops to zero) crosses are integrated on a
+                    // finer grid: adaptive Simpson underestimates a step it has not resolved.
+                    int above = 0;
+                    for (int a = 0; a <= 4; ++a)
+                        for (int b = 0; b <= 4; ++b) {
+                            const Vec3d h = half(std::clamp(lo + a / 4.0 * du, lo + eps, hi - eps), (p + b / 4.0) * dy);
+                            above += glm::dot(wi, h) > 0 && 2 * glm::dot(wi, h) * h.z - wi.z > 0;
+                        }
+                    const bool horizon = above > 0 && above < 25;
+                    const int k = horizon ? lobe_split : 2, depth = horizon ? lobe_depth : 6;
+                    double v = 0;
+                    for (int a = 0; a < k; ++a)
+                        for (int b = 0; b < k; ++b) {
+                            const double u0 = lo + du * a / k, y0 = (p + double(b) / k) * dy;
+                            v += adaptive(gc, u0, u0 + du / k, y0, y0 + dy / k, tolerance / (k * k / 4.0), depth);
+                        }
+                    expected[std::size_t(t * n_phi + p)] = v * samples;
+                    integral += v;
+                }
+        }
         const double dt = Pi / n_theta, dp = 2 * Pi / n_phi;
-        for (int t = 0; t < n_theta; ++t)
+        for (int t = 0; t < n_theta && !(lobe_alpha > 0); ++t)
             for (int p = 0; p < n_phi; ++p) {
                 double v = 0;
                 // Each cell starts split 2 x 2 so that narrow lobes are seen by the first estimates.
@@ -180,6 +247,21 @@ public:
     }
 
 private:
+    /// The half-vector cell of a reflected direction; size_t(-1) when h.z <= 0.
+    std::size_t lobe_cell(const Vec3d& wi, const Vec3d& wo) const {
+        const Vec3d sum = wi + glm::normalize(wo);
+        const double l = glm::length(sum);
+        if (!(l > 0)) return std::size_t(-1);
+        const Vec3d h = sum / l;
+        if (!(h.z > 0)) return std::size_t(-1);
+        const double t2 = (h.x * h.x + h.y * h.y) / (h.z * h.z) / (lobe_alpha * lobe_alpha);  // s^2
+        const double x = t2 / (1 + t2);
+        double phi = std::atan2(h.y, h.x);
+        if (phi < 0) phi += 2 * Pi;
+        const int t = std::clamp(int(x * n_theta), 0, n_theta - 1);
+        const int p = std::clamp(int(phi / (2 * Pi) * n_phi), 0, n_phi - 1);
+        return std::size_t(t * n_phi + p);
+    }
     std::size_t cell(const Vec3d& wo) const {
         const double theta = std::acos(std::clamp(wo.z / glm::length(wo), -1.0, 1.0));
         double phi = std::atan2(wo.y, wo.x);

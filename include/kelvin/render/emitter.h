@@ -31,17 +31,31 @@ struct DirectSample {
     double dist = Inf;  ///< distance from the reference point to p (Inf for infinite emitters)
     double pdf = 0;     ///< solid-angle density at the reference point (1 for delta emitters)
     bool delta = false;
-    Color3 weight{0.0}; ///< emitted radiance towards the reference point / pdf
+    Color3 weight{0.0};  ///< emitted radiance towards the reference point / pdf
 };
 
 /// An emitted ray (light tracing).
 struct EmissionSample {
     Ray ray;
-    Vec3d n{0.0};          ///< surface normal at the origin (zero for points)
-    Color3 weight{0.0};    ///< Le * |cos| / (pdf_pos * pdf_dir)
-    double pdf_pos = 0;    ///< area density of the origin (1 for delta positions)
-    double pdf_dir = 0;    ///< solid-angle density of the direction
+    Vec3d n{0.0};        ///< surface normal at the origin (zero for points)
+    Color3 weight{0.0};  ///< Le * |cos| / (pdf_pos * pdf_dir)
+    double pdf_pos = 0;  ///< area density of the origin (1 for delta positions)
+    double pdf_dir = 0;  ///< solid-angle density of the direction
     bool delta_pos = false;
+
+    /// The ray to trace. `ray` starts exactly on the emitter; from a surface emitter (n != 0) it is offset along
+    /// n as every ray leaving a surface is (SurfaceInteraction::spawn). Tracing `ray` itself from a curved
+    /// emitter hits the emitter's own surface at t ~ 0 about half of the time (the origin rounds to either side
+    /// of it), which ends the light path on the emitter's back face.
+    Ray spawn_ray() const {
+        if (n == Vec3d(0.0)) return ray;
+        SurfaceInteraction origin;
+        origin.p = ray.o;
+        origin.ng = n;
+        Ray r = origin.spawn(ray.d);
+        r.tmax = ray.tmax;
+        return r;
+    }
 };
 
 class Emitter : public Object {

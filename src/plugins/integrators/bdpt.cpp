@@ -45,12 +45,14 @@ struct Vertex {
     Color3 beta{0.0};
     double pdf_fwd = 0, pdf_rev = 0;
     bool delta = false;
-    Vec3d p{0.0}, ng{0.0};  // ng is zero for points (camera, point lights, infinite endpoints)
-    SurfaceInteraction si;  // surface vertices
+    Vec3d p{0.0}, ng{0.0};             // ng is zero for points (camera, point lights, infinite endpoints)
+    SurfaceInteraction si;             // surface vertices
     const Emitter* emitter = nullptr;  // light vertices, and surface vertices that emit
 
     bool on_surface() const { return type == VertexType::Surface || (type == VertexType::Light && ng != Vec3d(0.0)); }
-    bool is_light() const { return type == VertexType::Light || type == VertexType::Infinite || (type == VertexType::Surface && emitter); }
+    bool is_light() const {
+        return type == VertexType::Light || type == VertexType::Infinite || (type == VertexType::Surface && emitter);
+    }
     bool is_infinite() const { return type == VertexType::Infinite; }
     bool is_delta_light() const {
         return type == VertexType::Light && emitter && (emitter->flags() & EmitterFlags::Delta);
@@ -83,7 +85,8 @@ public:
     void validate(const Scene& scene) const override {
         if (!scene.sensor()->supports_connections())
             throw InputError({}, fmt::format("bdpt needs a sensor that light paths can connect to (perspective, "
-                                             "thinlens), not {}; use path", scene.sensor()->to_string()));
+                                             "thinlens), not {}; use path",
+                                             scene.sensor()->to_string()));
     }
 
     Color3 sample(const Scene& scene, Sampler& sampler, const Ray& camera_ray, SampleCounters& c) const override {
@@ -102,8 +105,8 @@ public:
         cam[0].beta = Color3(1.0);
         cam[0].p = ray.o;
         const double cam_pdf_dir = sensor.pdf_direction(ray.o, ray.d);
-        const int n_cam = 1 + walk(scene, sampler, ray, Color3(1.0), cam_pdf_dir, max_edges, TransportMode::Radiance,
-                                   cam.data(), c);
+        const int n_cam =
+            1 + walk(scene, sampler, ray, Color3(1.0), cam_pdf_dir, max_edges, TransportMode::Radiance, cam.data(), c);
 
         // Light subpath.
         sampler.set_stream(SampleStream::Light);
@@ -119,7 +122,7 @@ public:
                 y0.ng = (emitter->flags() & EmitterFlags::Surface) ? es->n : Vec3d(0.0);
                 y0.beta = Color3(1.0);  // not used: s = 1 strategies resample the emitter
                 y0.pdf_fwd = es->pdf_pos * sel_pdf;
-                Ray lr = es->ray;
+                Ray lr = es->spawn_ray();
                 lr.d = glm::normalize(lr.d);
                 n_light = 1 + walk(scene, sampler, lr, es->weight / sel_pdf, es->pdf_dir, max_edges - 1,
                                    TransportMode::Importance, light.data(), c);
@@ -185,7 +188,7 @@ private:
                     v.type = VertexType::Infinite;
                     v.beta = beta;
                     v.p = ray.o + ray.d;  // a direction: only (p - prev.p) is ever used
-                    v.pdf_fwd = pdf_fwd;   // solid angle: infinite vertices are never converted to area
+                    v.pdf_fwd = pdf_fwd;  // solid angle: infinite vertices are never converted to area
                     ++n;
                 }
                 break;
@@ -275,7 +278,8 @@ private:
     }
 
     // Area density with which vertex `v` (reached from `prev`) samples `next`.
-    double pdf(const Scene& scene, const Sensor& sensor, const Vertex& v, const Vertex* prev, const Vertex& next) const {
+    double pdf(const Scene& scene, const Sensor& sensor, const Vertex& v, const Vertex* prev,
+               const Vertex& next) const {
         if (v.type == VertexType::Light || v.type == VertexType::Infinite) return pdf_light(scene, v, next);
         Vec3d wn = next.p - v.p;
         double l = glm::length(wn);
@@ -407,7 +411,8 @@ private:
         if (qs) qs->delta = false;
 
         pt->pdf_rev = s > 0 ? pdf(scene, sensor, *qs, qs_minus, *pt) : pdf_light_origin(scene, *pt, *pt_minus);
-        if (pt_minus) pt_minus->pdf_rev = s > 0 ? pdf(scene, sensor, *pt, qs, *pt_minus) : pdf_light(scene, *pt, *pt_minus);
+        if (pt_minus)
+            pt_minus->pdf_rev = s > 0 ? pdf(scene, sensor, *pt, qs, *pt_minus) : pdf_light(scene, *pt, *pt_minus);
         if (qs) qs->pdf_rev = pdf(scene, sensor, *pt, pt_minus, *qs);
         if (qs_minus) qs_minus->pdf_rev = pdf(scene, sensor, *qs, pt, *qs_minus);
 
@@ -434,9 +439,10 @@ private:
 }  // namespace
 }  // namespace kelvin
 
-KELVIN_PLUGIN(kelvin::Bdpt, "integrator", "bdpt",
-              "Bidirectional path tracing: all (s, t) connection strategies with MIS; light-tracing strategies splatted.",
-              kelvin::param::integer("max_depth", -1, "longest contributing path in edges (-1: unbounded)"),
-              kelvin::param::integer("min_depth", 1, "shortest contributing path in edges"),
-              kelvin::param::integer("rr_depth", 5, "subpath length from which Russian roulette starts"),
-              kelvin::param::boolean("hide_emitters", false, "emitters seen directly render black"));
+KELVIN_PLUGIN(
+    kelvin::Bdpt, "integrator", "bdpt",
+    "Bidirectional path tracing: all (s, t) connection strategies with MIS; light-tracing strategies splatted.",
+    kelvin::param::integer("max_depth", -1, "longest contributing path in edges (-1: unbounded)"),
+    kelvin::param::integer("min_depth", 1, "shortest contributing path in edges"),
+    kelvin::param::integer("rr_depth", 5, "subpath length from which Russian roulette starts"),
+    kelvin::param::boolean("hide_emitters", false, "emitters seen directly render black"));

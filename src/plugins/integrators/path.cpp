@@ -2,16 +2,22 @@
 // heuristic, Veach 1997) between BSDF sampling and emitter sampling, and Russian roulette.
 //
 // Path length follows Mitsuba: max_depth = 1 shows emitters seen directly, 2 adds direct illumination, -1
-// is unbounded. min_depth = 3 leaves out both (the Metropolis integrators render them apart, by plain MC). Primary-sample-space layout (stable, so Markov chains can perturb it): dimensions 0-1 pixel,
-// 2-3 lens, then every bounce consumes exactly 7 numbers, used or not: emitter choice (1), point on the
-// emitter (2), BSDF component (1), BSDF direction (2), Russian roulette (1).
+// is unbounded. min_depth = 3 leaves out both (the Metropolis integrators render them apart, by plain MC).
+// Primary-sample-space layout (stable, so Markov chains can perturb it): dimensions 0-1 pixel, 2-3 lens, then every
+// bounce consumes exactly 7 numbers, used or not: emitter choice (1), point on the emitter (2), BSDF component (1),
+// BSDF direction (2), Russian roulette (1).
 //
-// | parameter     | type    | default | meaning                                                     |
-// |---------------|---------|---------|-------------------------------------------------------------|
-// | max_depth     | integer | -1      | longest path (in edges) that contributes; -1: unbounded     |
-// | min_depth     | integer | 1       | shortest path (in edges) that contributes                   |
-// | rr_depth      | integer | 5       | path length from which Russian roulette may stop paths      |
-// | hide_emitters | boolean | false   | emitters seen directly by the camera render black           |
+// | parameter        | type    | default | meaning                                                  |
+// |------------------|---------|---------|----------------------------------------------------------|
+// | max_depth        | integer | -1      | longest path (in edges) that contributes; -1: unbounded  |
+// | min_depth        | integer | 1       | shortest path (in edges) that contributes                |
+// | rr_depth         | integer | 5       | path length from which Russian roulette may stop paths   |
+// | hide_emitters    | boolean | false   | emitters seen directly by the camera render black        |
+// | emitter_sampling | boolean | true    | next-event estimation with MIS; false: BSDF sampling only |
+//
+// emitter_sampling = false leaves pure BSDF sampling (emitters count only when a sampled ray hits them, with
+// weight one): slow, but an estimator that shares neither emitter sampling nor MIS weights with the others,
+// which the tests use as a reference on near-specular scenes.
 //
 //     <integrator type="path"><integer name="max_depth" value="8"/></integrator>
 #include <kelvin/core/registry.h>
@@ -37,7 +43,8 @@ public:
         : m_max_depth(int(props.get_int("max_depth", -1, 1 << 20))),
           m_min_depth(int(props.get_int("min_depth", 1, 1 << 20))),
           m_rr_depth(int(props.get_int("rr_depth", 1, 1 << 20))),
-          m_hide_emitters(props.get_bool("hide_emitters")) {
+          m_hide_emitters(props.get_bool("hide_emitters")),
+          m_emitter_sampling(props.get_bool("emitter_sampling")) {
         if (m_max_depth == 0) props.error("max_depth", "must be -1 (unbounded) or at least 1");
     }
 
@@ -59,7 +66,7 @@ public:
                     if ((depth == 0 && m_hide_emitters) || depth + 1 < m_min_depth) break;
                     Color3 Le = e->eval(ray.o, Vec3d(0.0), -ray.d);
                     double w = 1.0;
-                    if (!prev_delta) {
+                    if (!prev_delta && m_emitter_sampling) {
                         double pl = scene.emitter_pdf(e) * e->pdf_direct(prev_p, Vec3d(0.0), Vec3d(0.0), ray.d);
                         w = power_heuristic(prev_bsdf_pdf, pl);
                     }
@@ -70,11 +77,12 @@ public:
             SurfaceInteraction si = scene.interaction(ray, *hit);
 
             // Emission found by BSDF sampling (or seen directly).
-            if (const Emitter* e = si.shape->emitter(); e && !(depth == 0 && m_hide_emitters) && depth + 1 >= m_min_depth) {
+            if (const Emitter* e = si.shape->emitter();
+                e && !(depth == 0 && m_hide_emitters) && depth + 1 >= m_min_depth) {
                 Color3 Le = e->eval(si.p, si.ng, -ray.d);
                 if (Le != Color3(0.0)) {
                     double w = 1.0;
-                    if (!prev_delta) {
+                    if (!prev_delta && m_emitter_sampling) {
                         double pl = scene.emitter_pdf(e) * e->pdf_direct(prev_p, si.p, si.ng, ray.d);
                         w = power_heuristic(prev_bsdf_pdf, pl);
                     }
@@ -91,7 +99,7 @@ public:
             const double u_rr = sampler.next_1d();
 
             // Next-event estimation.
-            if ((bsdf.flags() & BsdfFlags::Smooth) && depth + 2 >= m_min_depth) {
+            if (m_emitter_sampling && (bsdf.flags() & BsdfFlags::Smooth) && depth + 2 >= m_min_depth) {
                 auto [e, sel_pdf] = scene.sample_emitter(u_light);
                 if (e) {
                     if (auto ds = e->sample_direct(si.p, u_light2)) {
@@ -131,7 +139,7 @@ public:
 
 private:
     int m_max_depth, m_min_depth, m_rr_depth;
-    bool m_hide_emitters;
+    bool m_hide_emitters, m_emitter_sampling;
 };
 
 }  // namespace
@@ -142,4 +150,6 @@ KELVIN_PLUGIN(kelvin::PathTracer, "integrator", "path",
               kelvin::param::integer("max_depth", -1, "longest contributing path in edges (-1: unbounded)"),
               kelvin::param::integer("min_depth", 1, "shortest contributing path in edges"),
               kelvin::param::integer("rr_depth", 5, "path length from which Russian roulette starts"),
-              kelvin::param::boolean("hide_emitters", false, "directly visible emitters render black"));
+              kelvin::param::boolean("hide_emitters", false, "directly visible emitters render black"),
+              kelvin::param::boolean("emitter_sampling", true,
+                                     "next-event estimation with MIS (false: BSDF sampling alone, a reference)"));

@@ -82,8 +82,10 @@ public:
 
 private:
     void splat(SplatBuffer& splats, std::size_t unit, const Vec2d& film, Color3 v, SampleCounters& c) const {
-        if (!sanitize(v)) ++c.invalid;
-        else if (v != Color3(0.0)) splats.splat(unit, film, v);
+        if (!sanitize(v))
+            ++c.invalid;
+        else if (v != Color3(0.0))
+            splats.splat(unit, film, v);
     }
 
     void trace(const Scene& scene, const Sensor& sensor, Sampler& sampler, SplatBuffer& splats, std::size_t unit,
@@ -114,7 +116,7 @@ private:
 
         const BsdfContext bctx{TransportMode::Importance};
         Color3 beta = es->weight / sel_pdf;
-        Ray ray = es->ray;
+        Ray ray = es->spawn_ray();
         ray.d = glm::normalize(ray.d);
         for (long depth = 1;; ++depth) {  // `depth` edges traced so far
             ++c.rays;
@@ -134,7 +136,8 @@ private:
                     Color3 f = bsdf.eval(bctx, si, wo) * shading_correction(si, si.wi, wo);
                     if (f != Color3(0.0)) {
                         ++c.rays;
-                        if (!scene.occluded(si.spawn_to(sd->p))) splat(splats, unit, sd->film, beta * f * sd->weight, c);
+                        if (!scene.occluded(si.spawn_to(sd->p)))
+                            splat(splats, unit, sd->film, beta * f * sd->weight, c);
                     }
                 }
             }
