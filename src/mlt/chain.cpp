@@ -97,6 +97,7 @@ void MarkovChain::grow(std::size_t pairs) {
         s.realised.resize(pairs, 0);
         s.read.resize(pairs, 0);
     }
+    m_scratch.resize(6 * pairs);  // Tierney–Mira's gathered x, y, z
     m_pairs = pairs;
 }
 
@@ -214,7 +215,6 @@ double MarkovChain::tierney_mira_log_ratio(double a1) {
         ensure(Z, p);
         ++n;
     }
-    if (g.size() < 6 * n) g.resize(6 * n);
     double *gx = g.data(), *gy = gx + 2 * n, *gz = gy + 2 * n;
     std::size_t k = 0;
     for (std::size_t p = 0; p < m_y_read_end; ++p) {
