@@ -33,7 +33,7 @@ public:
         kelvin::param::boolean("hide_emitters", false, "directly visible emitters render black"),                     \
         kelvin::param::integer("bootstrap_samples", 100000, "independent paths that estimate b and seed the chains"), \
         kelvin::param::integer("chains", -1, "Markov chains (-1: from the mutation budget; never from threads)"),     \
-        kelvin::param::real("mutations_per_chain", 100000, "chains = -1: mutations per chain aimed at"),              \
+        kelvin::param::real("mutations_per_chain", 200000, "chains = -1: mutations per chain aimed at"),              \
         kelvin::param::real("mutations_per_pixel", 100, "chain steps per pixel (--spp overrides)"),                   \
         kelvin::param::real("large_step_prob", 0.3, "probability of an independent (large) step"),                    \
         kelvin::param::integer("direct_samples", 16,                                                                  \
