@@ -375,22 +375,7 @@ RunResult MetropolisIntegrator::render(const Scene& scene, RunContext& ctx) {
     if (!chains.empty()) loop = run_passes(ctx, target, "mutations/px", pass, develop, total.seconds());
     st.seconds_chains = tc.seconds();
 
-    for (const Chain& ch : chains) {
-        const ChainStats& s = ch.mc->stats();
-        st.chain.steps += s.steps;
-        st.chain.large_steps += s.large_steps;
-        st.chain.large_accepted += s.large_accepted;
-        st.chain.stage1_accepted += s.stage1_accepted;
-        st.chain.stage2_attempted += s.stage2_attempted;
-        st.chain.stage2_accepted += s.stage2_accepted;
-        st.chain.evaluations += s.evaluations;
-        st.chain.invalid += s.invalid;
-        st.chain.ystar_evaluations += s.ystar_evaluations;
-        st.chain.ystar_skipped += s.ystar_skipped;
-        st.chain.pairs_realised += s.pairs_realised;
-        st.chain.seconds_stage1 += s.seconds_stage1;
-        st.chain.seconds_stage2 += s.seconds_stage2;
-    }
+    for (const Chain& ch : chains) st.chain += ch.mc->stats();
     for (const auto& c : counters) st.invalid_contributions += c.invalid;
     st.splat_overflow = image.overflowed();
     st.mutations_per_pixel = double(st.chain.steps) / P;

@@ -27,6 +27,14 @@ inline std::shared_ptr<Mutation> mutation(const std::string& name,
     return std::dynamic_pointer_cast<Mutation>(Registry::instance().create(p));
 }
 
+/// An equally weighted mixture of two kernels.
+inline std::shared_ptr<Mutation> mixture_of(std::shared_ptr<Mutation> a, std::shared_ptr<Mutation> b) {
+    Properties p("mutation", "mixture");
+    p.set_object("", std::move(a));
+    p.set_object("", std::move(b));
+    return std::dynamic_pointer_cast<Mutation>(Registry::instance().create(p));
+}
+
 // --- targets on the unit torus (2D; 1D targets are embedded with a uniform second coordinate) -----------
 // (a) Eq. (4.4) with alpha = 1/10, beta = 1, mapped to u in [0, 1): density 5.5 on [0, 1/11), 0.55 after.
 inline double two_uniform(double u, double) { return u < 1.0 / 11 ? 5.5 : 0.55; }
@@ -113,12 +121,7 @@ inline ChainRun run_chains(const Target& target, const ChainConfig& cfg, int cha
         const auto& s = chain.state();
         int cell = std::min(Bins - 1, int(s[1] * Bins)) * Bins + std::min(Bins - 1, int(s[0] * Bins));
         ++counts[std::size_t(cell)];
-        const auto& st = chain.stats();
-        r.stats.steps += st.steps;
-        r.stats.stage1_accepted += st.stage1_accepted;
-        r.stats.stage2_attempted += st.stage2_attempted;
-        r.stats.stage2_accepted += st.stage2_accepted;
-        r.stats.invalid += st.invalid;
+        r.stats += chain.stats();
     }
     for (std::size_t k = 0; k < counts.size(); ++k) {
         double e = probs[k] * chains;

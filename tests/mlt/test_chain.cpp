@@ -44,10 +44,7 @@ std::vector<Variant> variants() {
     auto pair = mutation("kelemen_pair", {{"eps_min", 0.01}, {"eps_max", 0.12}});
     auto gauss = mutation("gaussian", {{"sigma", 0.06}});
     auto orbital = mutation("orbital"), fine = mutation("gaussian", {{"sigma", 0.012}});
-    Properties mp("mutation", "mixture");
-    mp.set_object("", kel);
-    mp.set_object("", mutation("gaussian", {{"sigma", 0.1}}));
-    auto mix = std::dynamic_pointer_cast<Mutation>(Registry::instance().create(mp));
+    auto mix = mixture_of(kel, mutation("gaussian", {{"sigma", 0.1}}));
     return {
         {"MH/kelemen", kel, nullptr, DrType::None},
         {"MH/kelemen_pair", pair, nullptr, DrType::None},
@@ -209,10 +206,7 @@ TEST(MarkovChain, DegenerateRatiosStayProbabilities) {
 TEST(MarkovChain, ConfigurationErrors) {
     auto kel = mutation("kelemen"), orbital = mutation("orbital"), gauss = mutation("gaussian");
     auto pair = mutation("kelemen_pair");
-    Properties mp("mutation", "mixture");
-    mp.set_object("", kel);
-    mp.set_object("", gauss);
-    auto mix = std::dynamic_pointer_cast<Mutation>(Registry::instance().create(mp));
+    auto mix = mixture_of(kel, gauss);
     EXPECT_THROW(MarkovChain(ChainConfig{orbital.get(), nullptr, DrType::None}, 0, 0), Error);
     EXPECT_THROW(MarkovChain(ChainConfig{kel.get(), nullptr, DrType::Mira}, 0, 0), Error);
     EXPECT_THROW(MarkovChain(ChainConfig{kel.get(), orbital.get(), DrType::Orbital}, 0, 0), Error);  // not isotropic

@@ -66,10 +66,7 @@ std::vector<Config> configs() {
     // at scale_second = 0.1 of the first stage's scale.
     auto kel = mutation("kelemen"), pair = mutation("kelemen_pair"), gauss = mutation("gaussian");
     auto orbital = mutation("orbital"), fine = mutation("gaussian", {{"sigma", 0.1 / 64}});
-    Properties mp("mutation", "mixture");
-    mp.set_object("", kel);
-    mp.set_object("", mutation("gaussian", {{"sigma", 0.1}}));
-    auto mix = std::dynamic_pointer_cast<Mutation>(Registry::instance().create(mp));
+    auto mix = mixture_of(kel, mutation("gaussian", {{"sigma", 0.1}}));
     return {
         {"MH/kelemen", kel, nullptr, DrType::None},
         {"MH/gaussian", gauss, nullptr, DrType::None},
@@ -155,13 +152,7 @@ Result run(const Config& c, std::size_t v_index, int chains = 20000, int steps =
             const int b = z < -2 ? 0 : z >= 2 ? VBins + 1 : 1 + std::min(VBins - 1, int((z + 2) / 0.5));
             ++vcount[std::size_t(b)];
         }
-        const ChainStats& s = chain.stats();
-        r.stats.steps += s.steps;
-        r.stats.stage1_accepted += s.stage1_accepted;
-        r.stats.stage2_attempted += s.stage2_attempted;
-        r.stats.stage2_accepted += s.stage2_accepted;
-        r.stats.ystar_evaluations += s.ystar_evaluations;
-        r.stats.ystar_skipped += s.ystar_skipped;
+        r.stats += chain.stats();
     }
     r.p_short = double(n_short) / chains;
     r.se_short = std::sqrt(p_short_exact() * (1 - p_short_exact()) / chains);

@@ -93,6 +93,16 @@ struct ChainStats {
     uint64_t pairs_realised = 0;                        ///< proposal coordinate pairs drawn (y, z, y*)
     double seconds_stage1 = 0;  ///< first stage: sampling y, evaluating it, deciding (sampled, see below)
     double seconds_stage2 = 0;  ///< second stage: sampling z (and y*), evaluating, densities, deciding
+
+    ChainStats& operator+=(const ChainStats& o) {
+        steps += o.steps, large_steps += o.large_steps, large_accepted += o.large_accepted;
+        stage1_accepted += o.stage1_accepted, stage2_attempted += o.stage2_attempted;
+        stage2_accepted += o.stage2_accepted, evaluations += o.evaluations, invalid += o.invalid;
+        ystar_evaluations += o.ystar_evaluations, ystar_skipped += o.ystar_skipped;
+        pairs_realised += o.pairs_realised;
+        seconds_stage1 += o.seconds_stage1, seconds_stage2 += o.seconds_stage2;
+        return *this;
+    }
 };
 
 class MarkovChain {
