@@ -213,15 +213,31 @@ INSTANTIATE_TEST_SUITE_P(Small, BsdfChi2Lobe, ::testing::ValuesIn(lobe_configs()
 
 // ----- negative controls: the test must reject a pdf that does not match the sampler.
 
-class MismatchedPdf final : public Bsdf {
+/// Forwards everything to `inner`; each control overrides what it breaks.
+class ForwardingBsdf : public Bsdf {
 public:
-    MismatchedPdf(std::shared_ptr<Bsdf> sampler, std::shared_ptr<Bsdf> density)
-        : m_sampler(std::move(sampler)), m_density(std::move(density)) {}
-    uint32_t flags() const override { return m_sampler->flags(); }
+    explicit ForwardingBsdf(std::shared_ptr<Bsdf> inner) : m_inner(std::move(inner)) {}
+    uint32_t flags() const override { return m_inner->flags(); }
     std::optional<BsdfSample> sample(const BsdfContext& ctx, const SurfaceInteraction& si, double u1,
                                      const Vec2d& u2) const override {
-        return m_sampler->sample(ctx, si, u1, u2);
+        return m_inner->sample(ctx, si, u1, u2);
     }
+    Color3 eval(const BsdfContext& ctx, const SurfaceInteraction& si, const Vec3d& wo) const override {
+        return m_inner->eval(ctx, si, wo);
+    }
+    double pdf(const BsdfContext& ctx, const SurfaceInteraction& si, const Vec3d& wo) const override {
+        return m_inner->pdf(ctx, si, wo);
+    }
+
+protected:
+    std::shared_ptr<Bsdf> m_inner;
+};
+
+/// Samples like `sampler`, evaluates and reports the density of `density`.
+class MismatchedPdf final : public ForwardingBsdf {
+public:
+    MismatchedPdf(std::shared_ptr<Bsdf> sampler, std::shared_ptr<Bsdf> density)
+        : ForwardingBsdf(std::move(sampler)), m_density(std::move(density)) {}
     Color3 eval(const BsdfContext& ctx, const SurfaceInteraction& si, const Vec3d& wo) const override {
         return m_density->eval(ctx, si, wo);
     }
@@ -230,7 +246,7 @@ public:
     }
 
 private:
-    std::shared_ptr<Bsdf> m_sampler, m_density;
+    std::shared_ptr<Bsdf> m_density;
 };
 
 TEST(BsdfChi2Control, RejectsPdfOfSlightlyWrongRoughness) {
@@ -252,18 +268,10 @@ TEST(BsdfChi2Control, RejectsPdfOfOtherDistribution) {
 }
 
 /// The pdf of `inner` times `factor` where tan(theta_h) < alpha: a pdf off by a factor in the core of the lobe.
-class ScaledCorePdf final : public Bsdf {
+class ScaledCorePdf final : public ForwardingBsdf {
 public:
     ScaledCorePdf(std::shared_ptr<Bsdf> inner, double alpha, double factor)
-        : m_inner(std::move(inner)), m_alpha(alpha), m_factor(factor) {}
-    uint32_t flags() const override { return m_inner->flags(); }
-    std::optional<BsdfSample> sample(const BsdfContext& ctx, const SurfaceInteraction& si, double u1,
-                                     const Vec2d& u2) const override {
-        return m_inner->sample(ctx, si, u1, u2);
-    }
-    Color3 eval(const BsdfContext& ctx, const SurfaceInteraction& si, const Vec3d& wo) const override {
-        return m_inner->eval(ctx, si, wo);
-    }
+        : ForwardingBsdf(std::move(inner)), m_alpha(alpha), m_factor(factor) {}
     double pdf(const BsdfContext& ctx, const SurfaceInteraction& si, const Vec3d& wo) const override {
         const double p = m_inner->pdf(ctx, si, wo);
         const Vec3d h = glm::normalize(si.wi + wo);
@@ -272,7 +280,6 @@ public:
     }
 
 private:
-    std::shared_ptr<Bsdf> m_inner;
     double m_alpha, m_factor;
 };
 
