@@ -182,8 +182,9 @@ double MarkovChain::start(const Target& target, const std::vector<double>& x0) {
     m_epoch = 1;
     m_x_epoch = 1;
     grow((x0.size() + 1) / 2);
+    for (Lazy& s : m_s)  // a restarted chain must not mistake an old stamp for one of the new epochs
+        for (std::size_t p = 0; p < m_pairs; ++p) s.realised[p] = s.read[p] = 0;
     Lazy& x = m_s[X];
-    for (std::size_t p = 0; p < m_pairs; ++p) x.realised[p] = x.read[p] = 0;
     for (std::size_t i = 0; i < x0.size(); ++i) {
         x.v[i] = x0[i];
         x.realised[i / 2] = m_epoch;
