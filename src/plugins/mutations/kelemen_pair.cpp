@@ -5,9 +5,9 @@
 //
 // The bounds are eps_min and eps_max times `scale`, 1.9 by default: the authors' implementation of DRMLT
 // (drmlt-mitsuba, src/integrators/drmlt/drmlt_sampler.h, `m_kelemenScale = 1.9`, "compensate for pairwise
-// sampling v.s. i.i.d.") scales Kelemen's bounds so for the orbital variant's first stage, so that a pair moves
-// about as far as two independent Kelemen coordinates do (steps 1.86e-3 to 2.97e-2 with Kelemen's 1/1024 and
-// 1/64); the thesis' text omits the factor. With scale 1 the first stage is timid and is accepted more often
+// sampling v.s. i.i.d.") scales Kelemen's bounds by it for the orbital variant's first stage, so that a pair
+// moves about as far as two independent Kelemen coordinates do (steps 1.86e-3 to 2.97e-2 with Kelemen's 1/1024
+// and 1/64); the thesis' text omits the factor. With scale 1 the first stage is timid and is accepted more often
 // than PSSMLT/K's (75 % against 64 % on the door), and the bold-then-timid design loses its bold stage.
 //
 // | parameter | type  | default | meaning                                     |
