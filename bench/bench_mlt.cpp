@@ -64,10 +64,14 @@ int main(int argc, char** argv) {
     long long mpp = 256;
     std::string geometry = "door";
     for (int i = 1; i + 1 < argc; i += 2) {
-        if (!std::strcmp(argv[i], "--rounds")) rounds = std::atoi(argv[i + 1]);
-        else if (!std::strcmp(argv[i], "--mpp")) mpp = std::atoll(argv[i + 1]);
-        else if (!std::strcmp(argv[i], "--res")) res = std::atoi(argv[i + 1]);
-        else if (!std::strcmp(argv[i], "--geometry")) geometry = argv[i + 1];
+        if (!std::strcmp(argv[i], "--rounds"))
+            rounds = std::atoi(argv[i + 1]);
+        else if (!std::strcmp(argv[i], "--mpp"))
+            mpp = std::atoll(argv[i + 1]);
+        else if (!std::strcmp(argv[i], "--res"))
+            res = std::atoi(argv[i + 1]);
+        else if (!std::strcmp(argv[i], "--geometry"))
+            geometry = argv[i + 1];
         else {
             std::fprintf(stderr, "usage: bench_mlt [--rounds N] [--mpp M] [--res R] [--geometry door|caustic]\n");
             return 2;
@@ -107,9 +111,11 @@ int main(int argc, char** argv) {
             std::fprintf(stderr, "round %d %-16s %8.0f mutations/s  (load %.2f)\n", r, v.label, s.mps, s.load);
         }
     }
-    std::printf("\n%s, %d x %d, %lld mutations/px, 1 thread, %d interleaved rounds (medians)\n", geometry.c_str(), res, res,
-                mpp, rounds);
-    std::printf("| variant | mutations/s | CPU us/mutation | x PSSMLT/K | stage-1 accept | stage-2 accept | stage-2 time share | CPU/wall |\n");
+    std::printf("\n%s, %d x %d, %lld mutations/px, 1 thread, %d interleaved rounds (medians)\n", geometry.c_str(), res,
+                res, mpp, rounds);
+    std::printf(
+        "| variant | mutations/s | CPU us/mutation | x PSSMLT/K | stage-1 accept | stage-2 accept | stage-2 time share "
+        "| CPU/wall |\n");
     std::printf("|---|---|---|---|---|---|---|---|\n");
     for (const Variant& v : Variants) {
         const auto& s = samples[v.label];
@@ -118,8 +124,9 @@ int main(int argc, char** argv) {
             for (const auto& e : s) x.push_back(e.*f);
             return median(x);
         };
-        std::printf("| %s | %.0f | %.2f | %.2f | %.3f | %.3f | %.3f | %.2f |\n", v.label, med(&Sample::mps), med(&Sample::us),
-                    median(ratios[v.label]), med(&Sample::a1), med(&Sample::a2), med(&Sample::share), med(&Sample::load));
+        std::printf("| %s | %.0f | %.2f | %.2f | %.3f | %.3f | %.3f | %.2f |\n", v.label, med(&Sample::mps),
+                    med(&Sample::us), median(ratios[v.label]), med(&Sample::a1), med(&Sample::a2), med(&Sample::share),
+                    med(&Sample::load));
     }
     return 0;
 }
