@@ -39,45 +39,53 @@ const char* to_string(DrType t) {
     return "?";
 }
 
-void validate(const ChainConfig& c) {
-    if (!c.first) throw Error("MarkovChain: a first-stage mutation is required");
-    if (c.first->second_stage_only()) throw Error("MarkovChain: " + c.first->to_string() + " is a second-stage kernel");
+std::optional<ChainConfigProblem> check(const ChainConfig& c) {
+    auto problem = [](const char* part, std::string why) { return ChainConfigProblem{part, std::move(why)}; };
+    if (!c.first) return problem("first", "a first-stage mutation is required");
+    if (c.first->second_stage_only())
+        return problem("first", c.first->to_string() + " is a second-stage kernel; use it as drmlt's second stage");
     if (!c.first->symmetric())
-        throw Error("MarkovChain: the first stage " + c.first->to_string() +
-                    " is not a symmetric random walk, which lazily extended states require (chain.h, rule 3)");
-    if (!(c.large_step_prob >= 0 && c.large_step_prob <= 1))
-        throw Error("MarkovChain: large_step_prob must be in [0, 1]");
-    if (c.type == DrType::None) return;
-    if (!c.second) throw Error("MarkovChain: delayed rejection needs a second-stage mutation");
+        return problem("first", c.first->to_string() +
+                                    " is not a symmetric random walk, which lazily extended states require (chain.h, "
+                                    "rule 3)");
+    if (!(c.large_step_prob >= 0 && c.large_step_prob <= 1)) return problem("large_step_prob", "must be in [0, 1]");
+    if (c.type == DrType::None) return std::nullopt;
+    if (!c.second) return problem("second", "delayed rejection needs a second-stage mutation");
+    const bool orbital_kernel = c.second->second_stage_only() && c.second->uses_rejected();
+    if (c.type != DrType::Orbital && c.second->second_stage_only())
+        return problem("second", c.second->to_string() + " has no density; use type=\"orbital\" with it");
     switch (c.type) {
         case DrType::Orbital:
+            if (!orbital_kernel)
+                return problem("type", "'orbital' (Eq. 4.7) is valid only with the orbital second stage, not " +
+                                           c.second->to_string());
             if (!c.first->pairwise_isotropic())
-                throw Error(
-                    "MarkovChain: orbital delayed rejection (Eq. 4.7) needs a pairwise-isotropic first stage, not " +
-                    c.first->to_string());
-            if (!c.second->second_stage_only() || !c.second->uses_rejected())
-                throw Error("MarkovChain: orbital delayed rejection needs the orbital second stage, not " +
-                            c.second->to_string());
+                return problem("first", c.first->to_string() +
+                                            " is not pairwise isotropic, as the orbital acceptance (Eq. 4.7) "
+                                            "requires; use kelemen_pair or gaussian");
             break;
         case DrType::Green:
             if (!c.second->symmetric() || c.second->uses_rejected())
-                throw Error(
-                    "MarkovChain: Green–Mira delayed rejection needs a symmetric second stage that ignores the "
-                    "rejected state (e.g. gaussian), not " +
-                    c.second->to_string() + "; use type mira");
+                return problem("second",
+                               "Green–Mira needs a symmetric second stage that ignores the rejected "
+                               "state (e.g. gaussian), not " +
+                                   c.second->to_string() + "; use type mira");
             break;
         case DrType::Mira:
             if (!c.first->factorizes())
-                throw Error(
-                    "MarkovChain: Tierney–Mira delayed rejection needs a first stage whose density is a product "
-                    "over coordinate pairs, not " +
-                    c.first->to_string());
-            if (c.second->second_stage_only())
-                throw Error("MarkovChain: " + c.second->to_string() + " has no density; use type orbital");
+                return problem("first",
+                               "Tierney–Mira needs a first stage whose density is a product over "
+                               "coordinate pairs, not " +
+                                   c.first->to_string());
             break;
         case DrType::None:
             break;
     }
+    return std::nullopt;
+}
+
+void validate(const ChainConfig& c) {
+    if (auto p = check(c)) throw Error("MarkovChain: " + p->why);
 }
 
 MarkovChain::MarkovChain(const ChainConfig& config, uint64_t seed, uint64_t stream, bool stage_timing)

@@ -94,8 +94,6 @@ MetropolisIntegrator::MetropolisIntegrator(const Properties& props, bool delayed
     if (!delayed_rejection) {
         m_first = props.get_object_as<Mutation>("mutation");
         if (!m_first) m_first = make_mutation("kelemen");
-        if (m_first->second_stage_only())
-            props.error("mutation", m_first->to_string() + " is a second-stage kernel; use it in drmlt");
         m_config.type = DrType::None;
     } else {
         const std::string type = props.get_choice("type", {"orbital", "mira", "green"});
@@ -104,7 +102,6 @@ MetropolisIntegrator::MetropolisIntegrator(const Properties& props, bool delayed
         const double scale_second = props.get_float("scale_second", 1e-6, 1e6);
         m_first = props.get_object_as<Mutation>("first");
         if (!m_first) m_first = make_mutation(m_config.type == DrType::Orbital ? "kelemen_pair" : "kelemen");
-        if (m_first->second_stage_only()) props.error("first", m_first->to_string() + " is a second-stage kernel");
         m_second = props.get_object_as<Mutation>("second");
         if (!m_second) {
             if (m_config.type == DrType::Orbital) {
@@ -119,23 +116,13 @@ MetropolisIntegrator::MetropolisIntegrator(const Properties& props, bool delayed
             props.error("scale_second",
                         "sizes the default second stage only; set the nested <mutation name=\"second\"> instead");
         }
-        const bool orbital_kernel = m_second->second_stage_only();
-        if (m_config.type == DrType::Orbital && !m_first->pairwise_isotropic())
-            props.error("first", m_first->to_string() +
-                                     " is not pairwise isotropic, as the orbital acceptance (Eq. 4.7) "
-                                     "requires; use kelemen_pair or gaussian");
-        if (m_config.type == DrType::Orbital && m_second->plugin_name() != "orbital")
-            props.error("type", "'orbital' (Eq. 4.7) is valid only with the orbital second stage, not " +
-                                    m_second->to_string());
-        if (m_config.type != DrType::Orbital && orbital_kernel)
-            props.error("second", m_second->to_string() + " has no density; use type=\"orbital\" with it");
     }
     m_config.first = m_first.get();
     m_config.second = m_second.get();
-    try {
-        validate(m_config);
-    } catch (const Error& e) {
-        props.error(delayed_rejection ? "type" : "mutation", e.what());
+    // One set of rules for the chain and the scene (chain.h, rule 3), reported against the parameter at fault.
+    if (auto p = check(m_config)) {
+        const std::string part = p->part;
+        props.error(!delayed_rejection && part == "first" ? std::string("mutation") : part, p->why);
     }
 
     // With direct_samples > 0 the chains sample paths of 3 or more edges and direct light (emitters seen

@@ -54,6 +54,7 @@
 #include <array>
 #include <cstdint>
 #include <functional>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -70,7 +71,14 @@ struct ChainConfig {
     double large_step_prob = 0.0;
     bool timid_after_large = false;  ///< attempt a second stage after a rejected large step
 };
-/// Throws Error with the reason if `config` breaks rule 3 above (or lacks a kernel).
+/// What is wrong with a configuration: the part at fault ("first", "second", "type", "large_step_prob") and why.
+struct ChainConfigProblem {
+    const char* part;
+    std::string why;
+};
+/// The first problem of `config` (a missing kernel, or a kernel that breaks rule 3 above), if any.
+std::optional<ChainConfigProblem> check(const ChainConfig& config);
+/// Throws Error with check()'s reason.
 void validate(const ChainConfig& config);
 
 /// Which state a target evaluation is for (lets the caller keep per-state data, e.g. splats).
