@@ -202,10 +202,12 @@ INSTANTIATE_TEST_SUITE_P(Layouts, TransDimensional, ::testing::Values(std::size_
 TEST(TransDimensional, StateLengthFollowsThePath) {
     auto kel = mutation("kelemen", {{"eps_min", 0.01}, {"eps_max", 0.2}});
     ChainConfig cfg{kel.get(), nullptr, DrType::None};
-    // Reads 2 coordinates if u < 1/2, else 40.
-    MarkovChain::Target target = [](CoordinateSource& s, Slot) {
+    // Reads 2 coordinates if u < 1/2, else 40; counts the pairs the proposals' paths read.
+    uint64_t pairs_read = 0;
+    MarkovChain::Target target = [&](CoordinateSource& s, Slot slot) {
         const int n = s.at(0) < 0.5 ? 2 : 40;
         for (int i = 1; i < n; ++i) s.at(std::size_t(i));
+        if (slot == Slot::Y) pairs_read += uint64_t(n / 2);
         return 1.0;
     };
     MarkovChain chain(cfg, 3, 0);
@@ -219,8 +221,8 @@ TEST(TransDimensional, StateLengthFollowsThePath) {
         checked += expect == 2;
     }
     EXPECT_GT(checked, 100);
-    // Proposals realise only what is read: at most 20 pairs per step here.
-    EXPECT_LE(chain.stats().pairs_realised, 20u * 2000u);
+    // Proposals realise exactly the pairs their paths read: none for coordinates x held from a longer path.
+    EXPECT_EQ(chain.stats().pairs_realised, pairs_read);
 }
 
 }  // namespace
