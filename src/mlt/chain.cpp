@@ -49,7 +49,11 @@ std::optional<ChainConfigProblem> check(const ChainConfig& c) {
                                     " is not a symmetric random walk, which lazily extended states require (chain.h, "
                                     "rule 3)");
     if (!(c.large_step_prob >= 0 && c.large_step_prob <= 1)) return problem("large_step_prob", "must be in [0, 1]");
-    if (c.type == DrType::None) return std::nullopt;
+    if (!(c.streams >= 1 && c.streams <= 32)) return problem("streams", "must be in [1, 32]");
+    if (c.type == DrType::None) {
+        if (c.mixture) return problem("mixture", "mixes the two stages of delayed rejection; set a type");
+        return std::nullopt;
+    }
     if (!c.second) return problem("second", "delayed rejection needs a second-stage mutation");
     const bool orbital_kernel = c.second->second_stage_only() && c.second->uses_rejected();
     if (c.type != DrType::Orbital && c.second->second_stage_only())
@@ -72,6 +76,7 @@ std::optional<ChainConfigProblem> check(const ChainConfig& c) {
                                    c.second->to_string() + "; use type mira");
             break;
         case DrType::Mira:
+            if (c.mixture) break;  // one stage: no Tierney–Mira ratio
             if (!c.first->factorizes())
                 return problem("first",
                                "Tierney–Mira needs a first stage whose density is a product over "
@@ -140,12 +145,23 @@ void MarkovChain::ensure(int slot, std::size_t p) {
         if (m_large) {
             v[0] = m_rng.next_double();
             v[1] = m_rng.next_double();
+        } else if (fixed_small(p) || (m_mix_second && !moved_second(p))) {
+            v[0] = x[0];  // a fixed pair, or one the mixture's second kernel does not move
+            v[1] = x[1];
+        } else if (m_mix_second) {
+            if (m_cfg.second->uses_rejected()) {  // orbital: a first-stage draw, then its orbit through x
+                double aux[2];
+                m_cfg.first->sample_pair(m_latent1, x, aux, m_rng);
+                m_cfg.second->sample_second_pair(m_latent2, x, aux, v, m_rng);
+            } else {
+                m_cfg.second->sample_second_pair(m_latent2, x, x, v, m_rng);
+            }
         } else {
             m_cfg.first->sample_pair(m_latent1, x, v, m_rng);
         }
     } else if (slot == Z) {
-        if (m_cfg.type == DrType::Mira && m_s[Y].read[p] != m_epoch) {
-            v[0] = x[0];  // Tierney–Mira moves only the pairs y read (rule 3)
+        if (fixed_small(p) || !moved_second(p) || (m_cfg.type == DrType::Mira && m_s[Y].read[p] != m_epoch)) {
+            v[0] = x[0];  // fixed, outside the second stage's streams, or (Tierney–Mira) not read by y (rule 3)
             v[1] = x[1];
         } else if (m_cfg.second->uses_rejected()) {
             ensure(Y, p);
@@ -263,23 +279,32 @@ StepOutcome MarkovChain::step(const Target& target) {
     // Stage 1.
     out.large = m_cfg.large_step_prob > 0 && m_rng.next_double() < m_cfg.large_step_prob;
     m_large = out.large;
+    m_mix_second = false;
     if (out.large) {
         ++m_stats.large_steps;
     } else {
         m_latent1 = m_cfg.first->begin(m_rng);
+        if (m_cfg.mixture && m_rng.next_double() < 0.5) {
+            m_mix_second = true;  // this step proposes with the second kernel (see chain.h, mixture)
+            m_latent2 = m_cfg.second->begin(m_rng);
+            ++m_stats.mixture_second;
+        }
     }
     m_y_read_end = 0;
     const double pix = m_pi[X];
     const double piy = evaluate(target, Y);
     out.a1 = piy >= pix ? 1.0 : piy / pix;  // Q1 symmetric (rule 3); a large step is uniform
     if (m_rng.next_double() < out.a1) {
-        ++m_stats.stage1_accepted;
+        if (m_mix_second)
+            ++m_stats.mixture_second_accepted;
+        else
+            ++m_stats.stage1_accepted;
         if (out.large) ++m_stats.large_accepted;
         out.accepted = 1;
     }
     double w_z = 0;
-    const bool try_second =
-        out.accepted == 0 && m_cfg.type != DrType::None && out.a1 < 1 && (!out.large || m_cfg.timid_after_large);
+    const bool try_second = out.accepted == 0 && m_cfg.type != DrType::None && !m_cfg.mixture && out.a1 < 1 &&
+                            (!out.large || m_cfg.timid_after_large);
     Clock::time_point t1;
     if (timed) {
         t1 = Clock::now();

@@ -7,11 +7,13 @@
 #include <kelvin/core/parallel.h>
 #include <kelvin/core/registry.h>
 #include <kelvin/mlt/integrator.h>
+#include <kelvin/render/bidirectional.h>
 #include <kelvin/render/film.h>
 #include <kelvin/render/pss.h>
 #include <kelvin/render/scene.h>
 
 #include <algorithm>
+#include <array>
 #include <atomic>
 #include <chrono>
 #include <cmath>
@@ -27,7 +29,9 @@ struct Contributions final : SplatSink {
         Color3 v;
     };
     std::vector<Item> items;
-    double pi = 0;  ///< target value: sum of luminances
+    double pi = 0;   ///< target value: sum of luminances
+    Vec2d film{-1};  ///< the state's own film position (camera, or light tracing): where the stage map counts it
+    int s = -1;      ///< mmlt: the strategy's light-subpath vertex count
 
     void splat(const Vec2d& film, const Color3& v) override {
         if (v != Color3(0.0)) items.push_back({film, v});
@@ -35,6 +39,8 @@ struct Contributions final : SplatSink {
     void clear() {
         items.clear();
         pi = 0;
+        film = Vec2d(-1);
+        s = -1;
     }
 };
 
@@ -44,6 +50,58 @@ struct FilmDomain {
     Vec2d origin{0.0}, extent{1.0};
     double area = 1;  ///< extent.x * extent.y: the camera contribution's factor (the inverse density of u)
 };
+
+/// Multiplexed MLT: one chain's light subpaths, kept so that a second stage that fixes the light subpath reuses
+/// the current state's vertices instead of re-tracing them. Four buffers, one owned by each slot (a
+/// permutation); view[slot] is the buffer holding that slot's light subpath: its own, or (a reusing z) x's.
+struct LightSubpaths {
+    std::array<std::vector<PathVertex>, 4> buf;
+    std::array<int, 4> owned{0, 1, 2, 3}, view{0, 1, 2, 3};
+    std::array<std::size_t, 4> draws{0, 0, 0, 0};  ///< light-stream numbers the slot's subpath read
+    std::array<int, 4> n{0, 0, 0, 0};              ///< its vertices
+
+    explicit LightSubpaths(int vertices) {
+        for (auto& b : buf) b.resize(std::size_t(vertices));
+    }
+    /// The buffer a fresh evaluation of `slot` writes: never the one x's subpath is in.
+    PathVertex* fresh(int slot) {
+        if (slot != 0 && owned[std::size_t(slot)] == view[0]) std::swap(owned[std::size_t(slot)], owned[0]);
+        view[std::size_t(slot)] = owned[std::size_t(slot)];
+        return buf[std::size_t(view[std::size_t(slot)])].data();
+    }
+    /// `slot` (z) uses x's subpath.
+    PathVertex* reuse(int slot) {
+        view[std::size_t(slot)] = view[0];
+        draws[std::size_t(slot)] = draws[0];
+        n[std::size_t(slot)] = n[0];
+        return buf[std::size_t(view[0])].data();
+    }
+    void accept(int slot) {
+        std::swap(owned[0], owned[std::size_t(slot)]);
+        std::swap(view[0], view[std::size_t(slot)]);
+        std::swap(draws[0], draws[std::size_t(slot)]);
+        std::swap(n[0], n[std::size_t(slot)]);
+    }
+};
+
+/// Rays traced per subpath (mmlt).
+struct SubpathRays {
+    uint64_t camera = 0, light = 0, connection = 0, light_stage2 = 0, reused = 0;
+};
+
+/// Strategies of a path of `edges` edges that mmlt chooses among (s = 0..edges; at one edge only (0, 2)).
+int strategy_count(int edges) { return edges == 1 ? 1 : edges + 1; }
+
+/// The streams a second stage that fixes the light subpath moves: camera and connection; with t = 1 (a pure
+/// light path, no camera subpath) every stream (thesis Sec. 4.3.1.2, "Handling Light Tracing").
+uint32_t second_stage_streams(int s, int edges) {
+    const uint32_t all = (1u << SampleStreamCount) - 1;
+    if (s < 0 || s == edges) return all;  // t = 1
+    return all & ~(1u << int(SampleStream::Light));
+}
+
+/// The pair index of the strategy selector: the first pair of the connection stream (pss.h's layout).
+constexpr std::size_t StrategyPair = std::size_t(SampleStream::Connection);
 
 std::shared_ptr<SamplingIntegrator> make_path_sampler(const std::string& technique, long long max_depth,
                                                       long long min_depth, long long rr_depth, bool hide_emitters) {
@@ -72,11 +130,16 @@ long long auto_chain_count(double mutations, double mutations_per_chain) {
 
 MetropolisIntegrator::MetropolisIntegrator(const Properties& props, bool delayed_rejection)
     : m_delayed_rejection(delayed_rejection) {
-    const std::string technique = props.get_choice("technique", {"path", "bdpt"});
+    const std::string technique = props.get_choice("technique", {"path", "bdpt", "mmlt"});
     const long long max_depth = props.get_int("max_depth", -1, 62);
     const long long rr_depth = props.get_int("rr_depth", 1, 1 << 20);
     const bool hide_emitters = props.get_bool("hide_emitters");
     if (max_depth == 0) props.error("max_depth", "must be -1 (unbounded) or at least 1");
+    m_mmlt = technique == "mmlt";
+    m_hide_emitters = hide_emitters;
+    m_technique_loc = props.location_of("technique");
+    if (m_mmlt && max_depth < 0)
+        props.error("max_depth", "technique=\"mmlt\" runs chains per path length and needs a finite max_depth");
     m_bootstrap_samples = props.get_int("bootstrap_samples", 1, 1LL << 40);
     m_chains = props.get_int("chains", -1, 1 << 24);
     if (m_chains == 0) props.error("chains", "must be -1 (chosen from the mutation budget) or at least 1");
@@ -99,6 +162,7 @@ MetropolisIntegrator::MetropolisIntegrator(const Properties& props, bool delayed
         const std::string type = props.get_choice("type", {"orbital", "mira", "green"});
         m_config.type = parse_dr_type(type);
         m_config.timid_after_large = props.get_bool("timid_after_large");
+        m_config.mixture = props.get_bool("mixture");
         const double scale_second = props.get_float("scale_second", 1e-6, 1e6);
         m_first = props.get_object_as<Mutation>("first");
         if (!m_first) m_first = make_mutation(m_config.type == DrType::Orbital ? "kelemen_pair" : "kelemen");
@@ -119,6 +183,11 @@ MetropolisIntegrator::MetropolisIntegrator(const Properties& props, bool delayed
     }
     m_config.first = m_first.get();
     m_config.second = m_second.get();
+    if (m_mmlt) {
+        // The state's strategy selector is a fixed pair: small steps keep (s, t), large steps redraw it.
+        m_config.streams = SampleStreamCount;
+        m_config.fixed_pairs = uint64_t(1) << StrategyPair;
+    }
     // One set of rules for the chain and the scene (chain.h, rule 3), reported against the parameter at fault.
     if (auto p = check(m_config)) {
         const std::string part = p->part;
@@ -128,7 +197,13 @@ MetropolisIntegrator::MetropolisIntegrator(const Properties& props, bool delayed
     // With direct_samples > 0 the chains sample paths of 3 or more edges and direct light (emitters seen
     // directly, one-bounce paths) is rendered by plain path tracing.
     const bool split = m_direct_samples > 0;
-    m_technique = make_path_sampler(technique, max_depth, split ? 3 : 1, rr_depth, hide_emitters);
+    m_min_edges = split ? 3 : 1;
+    m_max_edges = int(max_depth);
+    if (m_mmlt && split && max_depth < 3)
+        props.error("max_depth", "with direct_samples > 0 the chains render paths of 3 or more edges; max_depth " +
+                                     std::to_string(max_depth) + " leaves them nothing (set direct_samples=-1)");
+    // mmlt traces subpaths with the shared bidirectional core; the bdpt sampler stands for it in validate().
+    m_technique = make_path_sampler(m_mmlt ? "bdpt" : technique, max_depth, m_min_edges, rr_depth, hide_emitters);
     if (split)
         m_direct = make_path_sampler("path", max_depth < 0 ? 2 : std::min<long long>(2, max_depth), 1, rr_depth,
                                      hide_emitters);
@@ -144,10 +219,16 @@ MltStatistics MetropolisIntegrator::statistics() const {
 RunResult MetropolisIntegrator::render(const Scene& scene, RunContext& ctx) {
     Timer total;
     const Sensor& sensor = *scene.sensor();
+    if (m_mmlt && !sensor.supports_connections())
+        throw InputError(m_technique_loc,
+                         fmt::format("{}: parameter 'technique': mmlt connects light subpaths to the camera and needs "
+                                     "a perspective or thinlens sensor, not {}; use technique=\"path\"",
+                                     to_string(), sensor.to_string()));
     m_technique->validate(scene);
     const int w = sensor.film().width(), h = sensor.film().height();
     const ReconstructionFilter& filter = sensor.film().filter();
-    const int streams = m_technique->sample_streams();  // bdpt: camera, light and connection streams interleaved
+    // bdpt and mmlt: camera, light and connection streams interleaved pair by pair (pss.h).
+    const int streams = m_mmlt ? SampleStreamCount : m_technique->sample_streams();
     FilmDomain dom;
     dom.origin = Vec2d(-filter.radius());
     dom.extent = Vec2d(w + 2 * filter.radius(), h + 2 * filter.radius());
@@ -155,12 +236,23 @@ RunResult MetropolisIntegrator::render(const Scene& scene, RunContext& ctx) {
     MltStatistics st;
     // The chain count: given, or chosen from the mutation budget (docs/mlt.md, "How many chains").
     const double budget_mpp = ctx.spp > 0 ? double(ctx.spp) : m_mutations_per_pixel;
-    const long long n_chains =
+    long long n_chains =
         m_chains > 0 ? m_chains : auto_chain_count(budget_mpp * double(w) * double(h), m_mutations_per_chain);
-    st.chains = uint64_t(n_chains);
 
-    // F(x) and pi(x) of the state `pss` is bound to.
-    auto evaluate = [&](PrimarySampleSpace& pss, Contributions& out, SampleCounters& c) {
+    // Depths: one (edges -1: every length) for path and bdpt; one per path length for mmlt.
+    std::vector<int> depth_edges;
+    if (m_mmlt) {
+        for (int k = m_min_edges; k <= m_max_edges; ++k)
+            if (!(m_hide_emitters && k == 1)) depth_edges.push_back(k);
+    } else {
+        depth_edges.push_back(-1);
+    }
+    const std::size_t D = depth_edges.size();
+    const BidirectionalPaths bidir(1 << 30);  // mmlt: subpaths as long as the strategy needs, no roulette
+    const int max_vertices = m_mmlt ? m_max_edges + 1 : 0;
+
+    // F(x) and pi(x) of the state `pss` is bound to: a path or bdpt sample from a camera ray.
+    auto evaluate_camera = [&](PrimarySampleSpace& pss, Contributions& out, SampleCounters& c) {
         out.clear();
         const Vec2d film = dom.origin + pss.next_2d() * dom.extent;
         const Ray ray = sensor.sample_ray(film, pss.next_2d());
@@ -168,8 +260,74 @@ RunResult MetropolisIntegrator::render(const Scene& scene, RunContext& ctx) {
         Color3 L = m_technique->sample(scene, pss, ray, c);
         if (!sanitize(L)) ++c.invalid;
         out.splat(film, L * dom.area);
+        out.film = film;
         for (const auto& it : out.items) out.pi += luminance(it.v);
         ++c.samples;
+        return out.pi;
+    };
+    // mmlt: one strategy (s, t) of a path of `edges` edges, chosen by the selector pair, weighted by its MIS
+    // weight and by the number of strategies (the inverse probability of the choice). `reuse`: the state's light
+    // coordinates are x's (a second stage that fixes the light subpath): x's vertices are used, not re-traced.
+    auto evaluate_mmlt = [&](PrimarySampleSpace& pss, Contributions& out, SampleCounters& c, int edges,
+                             LightSubpaths& L, int slot, bool reuse, SubpathRays& rays) {
+        thread_local std::array<PathVertex, BidirectionalPaths::MaxVertices> cam, scratch;
+        out.clear();
+        ++c.samples;
+        const int n = strategy_count(edges);
+        pss.set_stream(SampleStream::Connection);
+        const double u = pss.next_1d();
+        pss.next_1d();  // the selector pair's second number: unused, the pair is the unit a chain fixes
+        const int s = n == 1 ? 0 : std::min(int(u * n), n - 1), t = edges + 1 - s;
+        out.s = s;
+        Vec2d film(0.0);
+        uint64_t r0 = c.rays;
+        if (t >= 2) {
+            pss.set_stream(SampleStream::Camera);
+            film = dom.origin + pss.next_2d() * dom.extent;
+            out.film = film;
+            const Ray ray = sensor.sample_ray(film, pss.next_2d());
+            const int nc = bidir.camera_subpath(scene, pss, ray, t - 1, cam.data(), c);
+            rays.camera += c.rays - r0;
+            if (nc < t) return 0.0;
+        } else {
+            cam[0] = PathVertex();
+        }
+        PathVertex* light = scratch.data();
+        if (s >= 2) {
+            pss.set_stream(SampleStream::Light);
+            const std::size_t k = std::size_t(slot);
+            if (reuse) {
+                light = L.reuse(slot);
+                for (std::size_t i = 0; i < L.draws[k]; ++i) pss.next_1d();  // z reads x's light numbers
+                ++rays.reused;
+            } else {
+                light = L.fresh(slot);
+                r0 = c.rays;
+                L.n[k] = bidir.light_subpath(scene, pss, s - 1, light, c);
+                L.draws[k] = pss.drawn(SampleStream::Light);
+                rays.light += c.rays - r0;
+                // A second stage whose light subpath is fixed (t >= 2; z has x's strategy) must trace none.
+                if (slot == int(Slot::Z) && t >= 2) rays.light_stage2 += c.rays - r0;
+            }
+            if (L.n[k] < s) return 0.0;
+        } else if (s == 1) {
+            pss.set_stream(SampleStream::Light);  // the emitter sample is the light subpath's one vertex
+        }
+        if (t == 1) pss.set_stream(SampleStream::Connection);  // the lens point, after the selector pair
+        r0 = c.rays;
+        Vec2d lt_film(0.0);
+        Color3 v = bidir.connect(scene, light, cam.data(), s, t, pss, lt_film, c);
+        rays.connection += c.rays - r0;
+        if (!sanitize(v)) ++c.invalid;
+        if (v == Color3(0.0)) return 0.0;
+        v *= double(n);
+        if (t == 1) {
+            out.film = lt_film;
+            out.splat(lt_film, v);
+        } else {
+            out.splat(film, v * dom.area);
+        }
+        for (const auto& it : out.items) out.pi += luminance(it.v);
         return out.pi;
     };
 
@@ -194,36 +352,57 @@ RunResult MetropolisIntegrator::render(const Scene& scene, RunContext& ctx) {
         }
     }
 
-    // 2. Bootstrap: b = E[pi] over independent uniform states; chains start from states resampled prop. to pi.
+    // 2. Bootstrap: b = E[pi] over independent uniform states (per path length for mmlt: bootstrap_samples each);
+    // chains start from states resampled prop. to pi.
     const uint64_t boot_seed = hash_combine(ctx.seed, 0x626f6f74), chain_seed = hash_combine(ctx.seed, 0x6d6c7463),
                    pss_seed = hash_combine(ctx.seed, 0x70737321);
     const std::size_t nboot = std::size_t(m_bootstrap_samples);
-    std::vector<double> boot_pi(nboot, 0.0);
-    std::vector<SampleCounters> counters(static_cast<std::size_t>(n_chains));
+    std::vector<double> boot_pi(nboot * D, 0.0);
+    std::vector<double> b_depth(D, 0.0);
+    std::vector<uint64_t> nonzero_depth(D, 0);
+    // Evaluates bootstrap state i (of depth i / nboot) into `f`, reading `x`.
+    auto evaluate_boot = [&](std::size_t i, std::vector<double>& x, Contributions& f, SampleCounters& c,
+                             LightSubpaths* L, SubpathRays& rays) {
+        PrimarySampleSpace pss(boot_seed, i, streams);
+        x.clear();
+        pss.bind(x);
+        if (!m_mmlt) return evaluate_camera(pss, f, c);
+        return evaluate_mmlt(pss, f, c, depth_edges[i / nboot], *L, 0, false, rays);
+    };
     {
         Timer t;
         constexpr std::size_t Block = 4096;
-        const std::size_t blocks = (nboot + Block - 1) / Block;
+        const std::size_t total_boot = nboot * D, blocks = (total_boot + Block - 1) / Block;
         std::vector<SampleCounters> bc(blocks);
+        std::vector<SubpathRays> brays(blocks);
         parallel_for_units(blocks, [&](std::size_t b) {
             std::vector<double> x;
             Contributions f;
-            for (std::size_t i = b * Block; i < std::min(nboot, (b + 1) * Block); ++i) {
+            std::unique_ptr<LightSubpaths> L = m_mmlt ? std::make_unique<LightSubpaths>(max_vertices) : nullptr;
+            for (std::size_t i = b * Block; i < std::min(total_boot, (b + 1) * Block); ++i) {
                 if ((i & 255) == 0 && interrupt_requested()) return;
-                PrimarySampleSpace pss(boot_seed, i, streams);
-                x.clear();
-                pss.bind(x);
-                boot_pi[i] = evaluate(pss, f, bc[b]);
+                boot_pi[i] = evaluate_boot(i, x, f, bc[b], L.get(), brays[b]);
             }
         });
-        double sum = 0;
-        for (double p : boot_pi) {
-            sum += p;
-            st.bootstrap_nonzero += p > 0;
+        for (std::size_t d = 0; d < D; ++d) {
+            double sum = 0;
+            for (std::size_t i = d * nboot; i < (d + 1) * nboot; ++i) {
+                sum += boot_pi[i];
+                nonzero_depth[d] += boot_pi[i] > 0;
+            }
+            b_depth[d] = sum / double(nboot);
+            st.bootstrap_nonzero += nonzero_depth[d];
         }
         for (const auto& c : bc) st.invalid_contributions += c.invalid;
-        st.bootstrap_samples = nboot;
-        st.normalization = m_normalization > 0 ? m_normalization : sum / double(nboot);
+        st.bootstrap_samples = nboot * D;
+        double b = 0;
+        for (double bd : b_depth) b += bd;
+        // A given normalisation fixes the total; the bootstrap still splits it over path lengths (mmlt).
+        if (m_normalization > 0) {
+            for (double& bd : b_depth) bd = b > 0 ? bd * m_normalization / b : m_normalization / double(D);
+            b = m_normalization;
+        }
+        st.normalization = b;
         st.seconds_bootstrap = t.seconds();
         if (interrupt_requested()) {
             RunResult out;
@@ -235,8 +414,36 @@ RunResult MetropolisIntegrator::render(const Scene& scene, RunContext& ctx) {
             log_warn(
                 "{}: none of the {} bootstrap paths carries light; the Metropolis part of the image is black "
                 "(raise bootstrap_samples if light paths are rare)",
-                to_string(), nboot);
+                to_string(), nboot * D);
     }
+
+    // Chains per depth: every depth whose bootstrap found light gets one, the rest in proportion to b_k (the
+    // share of the image's luminance it carries; largest remainders), so a depth's share of the mutations is
+    // about b_k / b, as in pbrt's MMLT, but never zero. Depth k's splats are weighted b_k C / (b n_k): each depth
+    // has its own normalisation, whatever its share.
+    std::vector<long long> chains_of(D, 0);
+    {
+        std::size_t lit = 0;
+        for (std::size_t d = 0; d < D; ++d) lit += nonzero_depth[d] > 0;
+        if (lit > 0 && n_chains < (long long)lit) n_chains = (long long)lit;
+        double b_lit = 0;
+        for (std::size_t d = 0; d < D; ++d)
+            if (nonzero_depth[d] > 0) b_lit += b_depth[d];
+        const long long spare = n_chains - (long long)lit;
+        long long given = 0;
+        std::vector<std::pair<double, std::size_t>> rem;
+        for (std::size_t d = 0; d < D; ++d) {
+            if (nonzero_depth[d] == 0) continue;
+            const double share = b_lit > 0 ? double(spare) * b_depth[d] / b_lit : 0.0;
+            chains_of[d] = 1 + (long long)std::floor(share);
+            given += chains_of[d];
+            rem.emplace_back(share - std::floor(share), d);
+        }
+        std::stable_sort(rem.begin(), rem.end(), [](const auto& a, const auto& b) { return a.first > b.first; });
+        for (std::size_t r = 0; given < n_chains && r < rem.size(); ++r, ++given) ++chains_of[rem[r].second];
+    }
+    st.chains = uint64_t(n_chains);
+    std::vector<SampleCounters> counters(static_cast<std::size_t>(n_chains));
 
     // 3. Chains.
     struct Chain {
@@ -244,36 +451,66 @@ RunResult MetropolisIntegrator::render(const Scene& scene, RunContext& ctx) {
         std::unique_ptr<PrimarySampleSpace> pss;
         Contributions f[4];  // indexed by Slot: x (current state), y, z, y*
         uint64_t steps_done = 0;
+        std::size_t depth = 0;
+        int edges = -1;
+        double scale = 1;  // splat weight: b_k C / (b n_k) for mmlt, 1 otherwise
+        std::unique_ptr<LightSubpaths> light;
+        SubpathRays rays;
+        std::vector<uint64_t> small, small_acc, att2, acc2;  // per strategy s (mmlt)
     };
     std::vector<Chain> chains(st.bootstrap_nonzero > 0 ? std::size_t(n_chains) : 0);
+    // The target of chain `ch` (the light subpath of z is x's when the second stage does not move the light
+    // stream, or, in a mixture, when y comes from the second kernel).
+    auto chain_eval = [&](Chain& ch, CoordinateSource& src, Slot slot, SampleCounters& cnt) {
+        ch.pss->bind(src);
+        if (!m_mmlt) return evaluate_camera(*ch.pss, ch.f[int(slot)], cnt);
+        const bool second = slot == Slot::Z || (slot == Slot::Y && ch.mc->proposing_with_second());
+        const bool light_fixed = !(second_stage_streams(ch.f[0].s, ch.edges) & (1u << int(SampleStream::Light)));
+        return evaluate_mmlt(*ch.pss, ch.f[int(slot)], cnt, ch.edges, *ch.light, int(slot), second && light_fixed,
+                             ch.rays);
+    };
     if (!chains.empty()) {
-        // Systematic resampling of the bootstrap states prop. to pi: chain c starts at the state whose
-        // cumulative weight interval holds (c + u0) / C. Exact stationary start up to the bootstrap's b.
-        std::vector<std::size_t> start(chains.size());
+        // Systematic resampling of each depth's bootstrap states prop. to pi: chain c of the depth starts at the
+        // state whose cumulative weight interval holds (c + u0) / C_k. Exact stationary start up to b.
         Random r(hash_combine(ctx.seed, 0x72657361), 0);
         const double u0 = r.next_double();
-        double total = 0;
-        for (double p : boot_pi) total += p;
-        double acc = 0;
-        std::size_t i = 0;
-        for (std::size_t c = 0; c < chains.size(); ++c) {
-            const double target = (double(c) + u0) / double(chains.size()) * total;
-            while (i + 1 < nboot && (acc + boot_pi[i] <= target || boot_pi[i] == 0)) acc += boot_pi[i++];
-            start[c] = i;
+        std::vector<std::size_t> start(chains.size());
+        std::size_t c = 0;
+        for (std::size_t d = 0; d < D; ++d) {
+            const std::size_t first = d * nboot, last = (d + 1) * nboot;
+            double total = 0;
+            for (std::size_t i = first; i < last; ++i) total += boot_pi[i];
+            double acc = 0;
+            std::size_t i = first;
+            const long long nd = m_mmlt ? chains_of[d] : n_chains;
+            for (long long j = 0; j < nd; ++j, ++c) {
+                const double target = (double(j) + u0) / double(nd) * total;
+                while (i + 1 < last && (acc + boot_pi[i] <= target || boot_pi[i] == 0)) acc += boot_pi[i++];
+                start[c] = i;
+                chains[c].depth = d;
+                chains[c].edges = depth_edges[d];
+                if (m_mmlt) {
+                    chains[c].scale = b_depth[d] * double(n_chains) / (st.normalization * double(nd));
+                    const std::size_t ns = std::size_t(strategy_count(depth_edges[d]));
+                    chains[c].small.assign(ns, 0);
+                    chains[c].small_acc.assign(ns, 0);
+                    chains[c].att2.assign(ns, 0);
+                    chains[c].acc2.assign(ns, 0);
+                }
+            }
         }
         parallel_for_units(chains.size(), [&](std::size_t c) {
             Chain& ch = chains[c];
             std::vector<double> x;
-            PrimarySampleSpace boot(boot_seed, start[c], streams);
-            boot.bind(x);
             Contributions scratch;
-            if (!(evaluate(boot, scratch, counters[c]) > 0))
+            SubpathRays ignored;
+            if (m_mmlt) ch.light = std::make_unique<LightSubpaths>(max_vertices);
+            if (!(evaluate_boot(start[c], x, scratch, counters[c], ch.light.get(), ignored) > 0))
                 throw RuntimeError("internal error: a bootstrap state did not reproduce its value");
             ch.mc = std::make_unique<MarkovChain>(m_config, chain_seed, c, /*stage_timing=*/m_delayed_rejection);
             ch.pss = std::make_unique<PrimarySampleSpace>(pss_seed, c, streams);
             const MarkovChain::Target target = [&](CoordinateSource& src, Slot slot) {
-                ch.pss->bind(src);
-                return evaluate(*ch.pss, ch.f[int(slot)], counters[c]);
+                return chain_eval(ch, src, slot, counters[c]);
             };
             if (!(ch.mc->start(target, x) > 0))
                 throw RuntimeError("internal error: a chain's first state has no value");
@@ -292,8 +529,8 @@ RunResult MetropolisIntegrator::render(const Scene& scene, RunContext& ctx) {
         const double s = weight / f.pi;
         for (const auto& it : f.items) image.splat(it.film, it.v * s);
     };
-    auto count_stage = [&](const std::vector<double>& state, int stage) {
-        const Vec2d film = dom.origin + Vec2d(state[0], state[1]) * dom.extent;
+    auto count_stage = [&](const Contributions& f, int stage) {
+        const Vec2d film = f.film;
         if (!(film.x >= 0 && film.y >= 0 && film.x < w && film.y < h)) return;
         stage_counts[(std::size_t(film.y) * std::size_t(w) + std::size_t(film.x)) * 2 + std::size_t(stage - 1)]
             .fetch_add(1, std::memory_order_relaxed);
@@ -314,28 +551,40 @@ RunResult MetropolisIntegrator::render(const Scene& scene, RunContext& ctx) {
             const uint64_t todo = steps_until(first + n, c) - steps_until(first, c);
             // One std::function per pass: built per step, it would allocate (the closure exceeds its small buffer).
             const MarkovChain::Target target = [&](CoordinateSource& src, Slot slot) {
-                ch.pss->bind(src);
-                return evaluate(*ch.pss, ch.f[int(slot)], cnt);
+                return chain_eval(ch, src, slot, cnt);
             };
             for (uint64_t k = 0; k < todo; ++k) {
                 if ((k & 255) == 255 && interrupt_requested()) return;
+                const int s_x = ch.f[0].s;
+                if (m_mmlt) ch.mc->set_second_stage_streams(second_stage_streams(s_x, ch.edges));
                 const StepOutcome o = ch.mc->step(target);
                 if (m_waste_recycling) {
-                    splat_state(ch.f[0], o.w_x);
-                    splat_state(ch.f[1], o.w_y);
-                    splat_state(ch.f[2], o.w_z);  // y* (f[3]) is never splatted
+                    splat_state(ch.f[0], o.w_x * ch.scale);
+                    splat_state(ch.f[1], o.w_y * ch.scale);
+                    splat_state(ch.f[2], o.w_z * ch.scale);  // y* (f[3]) is never splatted
+                }
+                if (m_mmlt && s_x >= 0) {
+                    const std::size_t si = std::size_t(s_x);
+                    if (!o.large) {
+                        ++ch.small[si];
+                        ch.small_acc[si] += o.accepted == 1;
+                    }
+                    if (o.second_stage) {
+                        ++ch.att2[si];
+                        ch.acc2[si] += o.accepted == 2;
+                    }
                 }
                 if (o.accepted > 0) {
                     std::swap(ch.f[0], ch.f[o.accepted]);
-                    if (!stage_counts.empty()) count_stage(ch.mc->state(), o.accepted);
+                    if (ch.light) ch.light->accept(o.accepted);
+                    if (!stage_counts.empty()) count_stage(ch.f[0], o.accepted);
                 }
-                if (!m_waste_recycling) splat_state(ch.f[0], 1.0);
+                if (!m_waste_recycling) splat_state(ch.f[0], ch.scale);
                 ++ch.steps_done;
                 steps_total.fetch_add(1, std::memory_order_relaxed);
             }
         });
     };
-
     auto develop = [&] {
         Bitmap img = direct.empty() ? Bitmap(w, h) : direct;
         const uint64_t n = steps_total.load();
@@ -363,6 +612,35 @@ RunResult MetropolisIntegrator::render(const Scene& scene, RunContext& ctx) {
     st.seconds_chains = tc.seconds();
 
     for (const Chain& ch : chains) st.chain += ch.mc->stats();
+    if (m_mmlt) {
+        st.depths.resize(D);
+        for (std::size_t d = 0; d < D; ++d) {
+            auto& ds = st.depths[d];
+            ds.edges = depth_edges[d];
+            ds.normalization = b_depth[d];
+            const std::size_t ns = std::size_t(strategy_count(depth_edges[d]));
+            ds.small_steps.assign(ns, 0);
+            ds.small_accepted.assign(ns, 0);
+            ds.stage2_attempted.assign(ns, 0);
+            ds.stage2_accepted.assign(ns, 0);
+        }
+        for (const Chain& ch : chains) {
+            auto& ds = st.depths[ch.depth];
+            ++ds.chains;
+            ds.steps += ch.steps_done;
+            for (std::size_t k = 0; k < ch.small.size(); ++k) {
+                ds.small_steps[k] += ch.small[k];
+                ds.small_accepted[k] += ch.small_acc[k];
+                ds.stage2_attempted[k] += ch.att2[k];
+                ds.stage2_accepted[k] += ch.acc2[k];
+            }
+            st.rays_camera += ch.rays.camera;
+            st.rays_light += ch.rays.light;
+            st.rays_connection += ch.rays.connection;
+            st.rays_light_stage2 += ch.rays.light_stage2;
+            st.light_subpaths_reused += ch.rays.reused;
+        }
+    }
     for (const auto& c : counters) st.invalid_contributions += c.invalid;
     st.splat_overflow = image.overflowed();
     st.mutations_per_pixel = double(st.chain.steps) / P;
@@ -378,7 +656,8 @@ RunResult MetropolisIntegrator::render(const Scene& scene, RunContext& ctx) {
     report_counters(ctx, counters, "mlt.path_evaluations");
     auto& S = ctx.stats;
     S.set("mlt.normalization", st.normalization);
-    S.set("mlt.bootstrap_nonzero_fraction", nboot ? double(st.bootstrap_nonzero) / double(nboot) : 0.0);
+    S.set("mlt.bootstrap_nonzero_fraction",
+          st.bootstrap_samples ? double(st.bootstrap_nonzero) / double(st.bootstrap_samples) : 0.0);
     S.add("mlt.mutations", double(st.chain.steps), "mutations");
     S.set("mlt.mutations_per_pixel", st.mutations_per_pixel);
     S.set("mlt.mutations_per_second", st.mutations_per_second());
@@ -387,13 +666,47 @@ RunResult MetropolisIntegrator::render(const Scene& scene, RunContext& ctx) {
         S.set("mlt.coordinates_per_state",
               2.0 * double(st.chain.pairs_realised) / double(st.chain.evaluations - st.chains));
     S.set("mlt.acceptance.large_step", st.large_step_acceptance());
-    if (m_delayed_rejection) {
+    if (m_delayed_rejection && !m_config.mixture) {
         S.set("mlt.acceptance.stage2", st.stage2_acceptance());
         S.add("mlt.stage2_attempts", double(st.chain.stage2_attempted), "attempts");
         S.set("mlt.stage2_time_share", st.stage2_time_share());
         if (type() == DrType::Green) {
             S.add("mlt.ystar_evaluations", double(st.chain.ystar_evaluations), "paths");
             S.add("mlt.ystar_skipped", double(st.chain.ystar_skipped), "paths");
+        }
+    }
+    if (m_config.mixture) {
+        S.add("mlt.mixture_second", double(st.chain.mixture_second), "mutations");
+        S.set(
+            "mlt.acceptance.mixture_second",
+            st.chain.mixture_second ? double(st.chain.mixture_second_accepted) / double(st.chain.mixture_second) : 0.0);
+    }
+    if (m_mmlt) {
+        auto rate = [](uint64_t a, uint64_t n) { return n ? double(a) / double(n) : 0.0; };
+        S.add("mlt.mmlt.rays.camera", double(st.rays_camera), "rays");
+        S.add("mlt.mmlt.rays.light", double(st.rays_light), "rays");
+        S.add("mlt.mmlt.rays.connection", double(st.rays_connection), "rays");
+        if (m_delayed_rejection && !m_config.mixture) {
+            S.add("mlt.mmlt.rays.light_stage2", double(st.rays_light_stage2), "rays");
+            S.add("mlt.mmlt.light_subpaths_reused", double(st.light_subpaths_reused), "paths");
+        }
+        for (const auto& ds : st.depths) {
+            const std::string k = fmt::format("mlt.mmlt.depth{}", ds.edges);
+            S.set(k + ".normalization", ds.normalization);
+            S.set(k + ".chains", double(ds.chains));
+            S.set(k + ".mutation_share", st.chain.steps ? double(ds.steps) / double(st.chain.steps) : 0.0);
+            uint64_t sm = 0, sa = 0, a2 = 0, c2 = 0;
+            for (std::size_t i = 0; i < ds.small_steps.size(); ++i) {
+                sm += ds.small_steps[i], sa += ds.small_accepted[i];
+                a2 += ds.stage2_attempted[i], c2 += ds.stage2_accepted[i];
+                if (ds.small_steps[i] == 0) continue;
+                const std::string ks = fmt::format("{}.s{}t{}", k, i, ds.edges + 1 - int(i));
+                S.set(ks + ".acceptance.stage1_small", rate(ds.small_accepted[i], ds.small_steps[i]));
+                if (m_delayed_rejection && !m_config.mixture)
+                    S.set(ks + ".acceptance.stage2", rate(ds.stage2_accepted[i], ds.stage2_attempted[i]));
+            }
+            S.set(k + ".acceptance.stage1_small", rate(sa, sm));
+            if (m_delayed_rejection && !m_config.mixture) S.set(k + ".acceptance.stage2", rate(c2, a2));
         }
     }
     S.add_time("mlt.time.bootstrap", st.seconds_bootstrap);

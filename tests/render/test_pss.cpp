@@ -71,31 +71,34 @@ TEST(PrimarySampleSpace, LazyExtensionIsUniformAndReproducible) {
     EXPECT_GT(ktest::chi2_sf(chi2, bins - 1), 1e-4);
 }
 
-TEST(PrimarySampleSpace, StreamsInterleave) {
-    // Three streams: draw k of stream s reads coordinate 3k + s, each stream keeps its own position, and start()
-    // (or bind) rewinds all of them to the camera stream.
+TEST(PrimarySampleSpace, StreamsInterleavePairByPair) {
+    // Three streams, interleaved by coordinate pair: draws 2j, 2j+1 of stream s read coordinates 2(3j + s) and
+    // 2(3j + s) + 1, so no pair mixes streams; each stream keeps its own position, and start() (or bind) rewinds
+    // all of them to the camera stream.
     PrimarySampleSpace pss(1, 0, SampleStreamCount);
     EXPECT_EQ(pss.streams(), 3);
     std::vector<double> state;
-    for (int i = 0; i < 12; ++i) state.push_back(i / 16.0);
+    for (int i = 0; i < 14; ++i) state.push_back(i / 16.0);
     pss.bind(state);
     EXPECT_EQ(pss.next_1d(), 0 / 16.0);
-    EXPECT_EQ(pss.next_1d(), 3 / 16.0);
-    pss.set_stream(SampleStream::Light);
     EXPECT_EQ(pss.next_1d(), 1 / 16.0);
+    pss.set_stream(SampleStream::Light);
+    EXPECT_EQ(pss.next_1d(), 2 / 16.0);
     pss.set_stream(SampleStream::Connection);
     const Vec2d c = pss.next_2d();
-    EXPECT_EQ(c.x, 2 / 16.0);
+    EXPECT_EQ(c.x, 4 / 16.0);
     EXPECT_EQ(c.y, 5 / 16.0);
     pss.set_stream(SampleStream::Camera);
-    EXPECT_EQ(pss.next_1d(), 6 / 16.0);
+    EXPECT_EQ(pss.next_1d(), 6 / 16.0);  // camera draw 2: the stream's second pair
     EXPECT_EQ(pss.used(), 7u);
+    pss.set_stream(SampleStream::Light);
+    EXPECT_EQ(pss.next_1d(), 3 / 16.0);  // light draw 1: the second half of the light stream's first pair
     pss.start({0, 0}, 0, 0);
     pss.set_stream(SampleStream::Light);
-    EXPECT_EQ(pss.next_1d(), 1 / 16.0);
+    EXPECT_EQ(pss.next_1d(), 2 / 16.0);
     // A read past the end extends the state through every index below it (the holes are prior draws too).
     pss.set_stream(SampleStream::Connection);
-    for (int k = 0; k < 6; ++k) pss.next_1d();  // coordinates 2, 5, ..., 17
+    for (int k = 0; k < 6; ++k) pss.next_1d();  // coordinates 4, 5, 10, 11, 16, 17
     EXPECT_EQ(state.size(), 18u);
     // With one stream, set_stream() changes nothing: coordinates are read in order.
     PrimarySampleSpace one(1, 0, 1);
@@ -112,8 +115,9 @@ TEST(PrimarySampleSpace, StreamsInterleave) {
 // (a camera subpath of several vertices, many camera-stream numbers) or misses it (none). With one sequential
 // stream (the layout before) the light subpath would start after the camera subpath's numbers and differ.
 TEST(PrimarySampleSpace, BdptLightSubpathDoesNotDependOnTheCameraSubpath) {
-    auto scene = ktest::load_scene_xml(ktest::read_text(std::string(KELVIN_SOURCE_DIR) + "/scenes/render/cornell-box.xml"),
-                                       {}, std::string(KELVIN_SOURCE_DIR) + "/scenes/render/cornell-box.xml");
+    auto scene =
+        ktest::load_scene_xml(ktest::read_text(std::string(KELVIN_SOURCE_DIR) + "/scenes/render/cornell-box.xml"), {},
+                              std::string(KELVIN_SOURCE_DIR) + "/scenes/render/cornell-box.xml");
     Properties p("integrator", "bdpt");
     auto bdpt = std::dynamic_pointer_cast<SamplingIntegrator>(Registry::instance().create(p));
     ASSERT_TRUE(bdpt);

@@ -45,6 +45,23 @@
 // if the step's uniform u2 >= a2_max the second stage is rejected whatever pi(y*) is. When y* is traced the
 // recycling weight of z is (1 - a1) a2 / a2_max, which is (1 - a1) a2 in expectation over u2: unbiased.
 //
+// STREAMS AND FIXED PAIRS (multiplexed MLT, thesis Sec. 4.3.1.2). A technique with several sample streams lays
+// its coordinates out pair by pair (render/pss.h: pair p belongs to stream p % streams), so the chain can treat
+// streams differently without knowing what they mean:
+//   - fixed_pairs: pairs (a bit per pair index, the first 64) that small steps keep at x's value, in both stages
+//     and in the mixture: MMLT's strategy selector. Large steps redraw them. The kernel is then the product of the
+//     identity on those pairs and the configured kernel on the others: still symmetric, and Eq. (4.7) still holds
+//     (Q1(y|z) = Q1(y|x) on pairs where x = y = z).
+//   - set_second_stage_streams(mask): the streams the second stage moves; its other pairs keep x's value (MMLT's
+//     "fix the emitter subpath, move the sensor subpath"). The mask may change from step to step as a function of
+//     the fixed pairs (the strategy), which x and z share, so the reverse move z -> y -> x uses the same mask and
+//     Eqs. (4.2), (4.7) and (4.10) hold with the sums and ratios over the moved pairs (on the others z = x).
+//   - mixture: instead of two stages, each step proposes with the first stage's kernel or, with probability 1/2,
+//     with the second stage's (for the orbital kernel: a first-stage draw y, then z on its orbit through x, never
+//     evaluated), accepted by plain Metropolis. Valid when that composite kernel is symmetric: a second stage
+//     that ignores y and is symmetric, or orbital after a pairwise-isotropic first stage (z - x is then
+//     (I - R(theta)) (y - x), isotropic). The "MMLT / X" baseline of Fig. 4.11.
+//
 // Invalid target values (NaN, Inf, negative) make a proposal invalid: acceptance 0, counted, never weighted.
 // No allocation per step once the state arrays have grown to the longest path.
 #include <kelvin/core/coordinates.h>
@@ -70,8 +87,12 @@ struct ChainConfig {
     DrType type = DrType::None;
     double large_step_prob = 0.0;
     bool timid_after_large = false;  ///< attempt a second stage after a rejected large step
+    bool mixture = false;            ///< one stage, the two kernels mixed with equal weights (see above)
+    int streams = 1;                 ///< sample streams: pair p belongs to stream p % streams
+    uint64_t fixed_pairs = 0;        ///< bit p: small steps keep pair p (p < 64)
 };
-/// What is wrong with a configuration: the part at fault ("first", "second", "type", "large_step_prob") and why.
+/// What is wrong with a configuration: the part at fault ("first", "second", "type", "large_step_prob",
+/// "mixture", "streams") and why.
 struct ChainConfigProblem {
     const char* part;
     std::string why;
@@ -97,8 +118,9 @@ struct ChainStats {
     uint64_t steps = 0, large_steps = 0, large_accepted = 0;
     uint64_t stage1_accepted = 0, stage2_attempted = 0, stage2_accepted = 0;
     uint64_t evaluations = 0, invalid = 0;
-    uint64_t ystar_evaluations = 0, ystar_skipped = 0;  ///< Green–Mira: y* traced, y* not needed
-    uint64_t pairs_realised = 0;                        ///< proposal coordinate pairs drawn (y, z, y*)
+    uint64_t ystar_evaluations = 0, ystar_skipped = 0;         ///< Green–Mira: y* traced, y* not needed
+    uint64_t pairs_realised = 0;                               ///< proposal coordinate pairs drawn (y, z, y*)
+    uint64_t mixture_second = 0, mixture_second_accepted = 0;  ///< mixture: steps proposed by the second kernel
     double seconds_stage1 = 0;  ///< first stage: sampling y, evaluating it, deciding (sampled, see below)
     double seconds_stage2 = 0;  ///< second stage: sampling z (and y*), evaluating, densities, deciding
 
@@ -108,6 +130,7 @@ struct ChainStats {
         stage2_accepted += o.stage2_accepted, evaluations += o.evaluations, invalid += o.invalid;
         ystar_evaluations += o.ystar_evaluations, ystar_skipped += o.ystar_skipped;
         pairs_realised += o.pairs_realised;
+        mixture_second += o.mixture_second, mixture_second_accepted += o.mixture_second_accepted;
         seconds_stage1 += o.seconds_stage1, seconds_stage2 += o.seconds_stage2;
         return *this;
     }
@@ -141,6 +164,11 @@ public:
     const std::vector<double>& z() const { return m_s[m_last.accepted == 2 ? 0 : 2].v; }
     double value_y() const { return m_pi[m_last.accepted == 1 ? 0 : 1]; }
     double value_z() const { return m_pi[m_last.accepted == 2 ? 0 : 2]; }
+    /// The streams (bit s: pairs p with p % streams == s) the next second stages (or mixture components) move;
+    /// the others keep x's value. All streams by default.
+    void set_second_stage_streams(uint32_t mask) { m_second_streams = mask; }
+    /// During a step of a mixture chain: the proposal y comes from the second kernel.
+    bool proposing_with_second() const { return m_mix_second; }
     /// Coordinates (pairs x 2) the current state's path read.
     std::size_t state_length() const;
     const ChainStats& stats() const { return m_stats; }
@@ -164,6 +192,8 @@ private:
     void grow(std::size_t pairs);
     bool x_valid(std::size_t pair) const { return m_s[0].read[pair] == m_x_epoch || m_s[0].realised[pair] == m_epoch; }
     double evaluate(const Target& target, int slot);
+    bool fixed_small(std::size_t p) const { return p < 64 && ((m_cfg.fixed_pairs >> p) & 1); }
+    bool moved_second(std::size_t p) const { return (m_second_streams >> (p % std::size_t(m_cfg.streams))) & 1; }
     void next_epoch();
     double tierney_mira_log_ratio(double a1);
 
@@ -178,7 +208,8 @@ private:
     std::size_t m_y_read_end = 0;   // one past the highest pair y's path read (this step)
     uint32_t m_epoch = 1, m_x_epoch = 1;
     uint64_t m_latent1 = 0, m_latent2 = 0;
-    bool m_large = false, m_started = false;
+    uint32_t m_second_streams = ~0u;
+    bool m_large = false, m_started = false, m_mix_second = false;
     StepOutcome m_last;
     ChainStats m_stats;
 };

@@ -3,12 +3,13 @@
 // `drmlt` integrators (Kelemen et al. 2002; thesis Ch. 4 and Appendix B; Rioux-Lavoie, Litalien et al., ACM
 // TOG 39(3), 2020). Parameters and the estimator are documented in docs/mlt.md.
 //
-// The chains run over a path sampler (`path` or `bdpt`) driven through PrimarySampleSpace. A state x is the
-// vector of primary samples; its contribution F(x) is a list of (film position, RGB) pairs: the camera
-// subpath's estimate at the film position the state's first two coordinates choose, and (bdpt) the
-// light-tracing strategies at theirs. The target is pi(x) = sum of the luminances. With b = E_uniform[pi]
-// (bootstrap), the image is  I_j = b / N  sum over steps and states s of  w_s  sum_c h_j(p_c) F_c(s) / pi(s),
-// with w_s the waste-recycling weights of the step (or 1 for the state the chain is in, without recycling).
+// The chains run over a path sampler (`path` or `bdpt`) driven through PrimarySampleSpace, or over one
+// bidirectional strategy per state (`mmlt`, multiplexed MLT: Hachisuka et al. 2014; thesis Sec. 4.3.1.2). A state x is
+// the vector of primary samples; its contribution F(x) is a list of (film position, RGB) pairs: the camera subpath's
+// estimate at the film position the state's first two coordinates choose, and (bdpt) the light-tracing strategies at
+// theirs. The target is pi(x) = sum of the luminances. With b = E_uniform[pi] (bootstrap), the image is  I_j = b / N
+// sum over steps and states s of  w_s  sum_c h_j(p_c) F_c(s) / pi(s), with w_s the waste-recycling weights of the step
+// (or 1 for the state the chain is in, without recycling).
 #include <kelvin/mlt/chain.h>
 #include <kelvin/render/integrator.h>
 
@@ -16,6 +17,17 @@
 #include <mutex>
 
 namespace kelvin {
+
+/// Multiplexed MLT (technique mmlt): what the chains of one path length did.
+struct MmltDepthStatistics {
+    int edges = 0;             ///< path length (edges) of this depth's chains
+    double normalization = 0;  ///< b_k: the bootstrap's mean target value at this length
+    uint64_t chains = 0;       ///< chains given to this length
+    uint64_t steps = 0;        ///< mutations made by them
+    /// Per strategy s = 0..edges (t = edges + 1 - s): small steps proposed and accepted while the state used s,
+    /// second stages attempted and accepted.
+    std::vector<uint64_t> small_steps, small_accepted, stage2_attempted, stage2_accepted;
+};
 
 /// What a Metropolis render did, available after render() and printed with the run's statistics.
 struct MltStatistics {
@@ -28,9 +40,15 @@ struct MltStatistics {
     uint64_t splat_overflow = 0;         ///< splats dropped as out of range (should stay 0)
     double seconds_bootstrap = 0, seconds_direct = 0, seconds_chains = 0;
     double mutations_per_pixel = 0;
+    std::vector<MmltDepthStatistics> depths;  ///< technique mmlt: per path length
+    /// technique mmlt: rays traced for camera subpaths, light subpaths and connections, over all evaluations;
+    /// light-subpath rays traced while evaluating second-stage proposals of states with t >= 2, whose light
+    /// subpath the second stage keeps (0: they are reused, not re-traced), and the proposals that reused it.
+    uint64_t rays_camera = 0, rays_light = 0, rays_connection = 0, rays_light_stage2 = 0, light_subpaths_reused = 0;
 
     double stage1_acceptance() const {
-        return rate(chain.stage1_accepted - chain.large_accepted, chain.steps - chain.large_steps);
+        return rate(chain.stage1_accepted - chain.large_accepted,
+                    chain.steps - chain.large_steps - chain.mixture_second);
     }
     double large_step_acceptance() const { return rate(chain.large_accepted, chain.large_steps); }
     double stage2_acceptance() const { return rate(chain.stage2_accepted, chain.stage2_attempted); }
@@ -70,6 +88,10 @@ private:
     ChainConfig m_config;
     std::shared_ptr<SamplingIntegrator> m_technique, m_direct;  // the path sampler; the direct-lighting renderer
     bool m_delayed_rejection;
+    bool m_mmlt = false;  // technique mmlt: one bidirectional strategy per state, chains per path length
+    int m_min_edges = 1, m_max_edges = -1;
+    bool m_hide_emitters = false;
+    SourceLoc m_technique_loc;
     bool m_waste_recycling;
     long long m_bootstrap_samples, m_chains, m_direct_samples;
     double m_mutations_per_pixel, m_normalization, m_mutations_per_chain;

@@ -21,11 +21,13 @@ namespace kelvin {
 class PrimarySampleSpace final : public Sampler {
 public:
     /// `seed`, `stream` key the random stream that extends states lazily. `streams`: how many sample streams
-    /// the technique uses (SamplingIntegrator::sample_streams(): 1 for path, SampleStreamCount for bdpt). With
-    /// one stream every set_stream() draws from the same sequence and coordinates are read in order; with n,
-    /// draw k of stream s reads coordinate k * n + s.
+    /// the technique uses (SamplingIntegrator::sample_streams(): 1 for path, SampleStreamCount for bdpt and
+    /// mmlt). With one stream every set_stream() draws from the same sequence and coordinates are read in order;
+    /// with n, the streams are interleaved pair by pair: draws 2j and 2j + 1 of stream s are coordinates
+    /// 2 (j n + s) and 2 (j n + s) + 1, so a coordinate pair (the unit a Markov chain moves, mlt/mutation.h)
+    /// never mixes two streams and pair p belongs to stream p % n.
     PrimarySampleSpace(uint64_t seed, uint64_t stream, int streams = 1)
-        : m_vector(seed, stream), m_streams(streams == 1 ? 1 : SampleStreamCount) {}
+        : m_vector(seed, stream), m_streams(std::clamp(streams, 1, SampleStreamCount)) {}
     PrimarySampleSpace(const PrimarySampleSpace& o)
         : Sampler(o),
           m_vector(o.m_vector),
@@ -47,7 +49,9 @@ public:
     }
     /// Coordinates spanned by the reads since bind(): one past the highest index read.
     std::size_t used() const { return m_used; }
-    /// How many interleaved streams the coordinates are split into (1 or SampleStreamCount).
+    /// Numbers drawn from stream `s` since bind().
+    std::size_t drawn(SampleStream s) const { return m_next[m_streams == 1 ? 0 : std::min(int(s), m_streams - 1)]; }
+    /// How many interleaved streams the coordinates are split into.
     int streams() const { return m_streams; }
 
     // Sampler.
@@ -55,7 +59,7 @@ public:
     std::unique_ptr<Sampler> clone() const override { return std::make_unique<PrimarySampleSpace>(*this); }
     /// Ignores its arguments: a PSS sampler is positioned by bind(), not by pixel and index.
     void start(Vec2i, uint64_t, uint64_t) override { rewind(); }
-    void set_stream(SampleStream s) override { m_cur = m_streams == 1 ? 0 : int(s); }
+    void set_stream(SampleStream s) override { m_cur = m_streams == 1 ? 0 : std::min(int(s), m_streams - 1); }
     double next_1d() override { return coordinate(); }
     Vec2d next_2d() override {
         const double a = coordinate();
@@ -69,7 +73,8 @@ private:
         for (auto& n : m_next) n = 0;
     }
     double coordinate() {
-        const std::size_t i = m_next[m_cur]++ * std::size_t(m_streams) + std::size_t(m_cur);
+        const std::size_t k = m_next[m_cur]++;
+        const std::size_t i = ((k >> 1) * std::size_t(m_streams) + std::size_t(m_cur)) * 2 + (k & 1);
         m_used = std::max(m_used, i + 1);
         return m_src->at(i);
     }

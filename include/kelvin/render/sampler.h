@@ -7,8 +7,9 @@
 // separate streams (SampleStream), each with its own position, so that the numbers of one subpath never shift
 // with the length of another. A Markov chain can then mutate one subpath and keep the other (multiplexed MLT),
 // and a light subpath is the same whatever camera subpath it is combined with. In the primary sample space the
-// streams are interleaved: draw k of stream s is coordinate k * streams + s (pbrt-v3's MLTSampler does the
-// same). start() selects the camera stream and rewinds all three.
+// streams are interleaved pair by pair (render/pss.h), so that a Markov chain, which moves coordinates in pairs,
+// can tell the streams apart (pbrt-v3's MLTSampler interleaves coordinate by coordinate). start() selects the
+// camera stream and rewinds all three.
 #include <kelvin/core/math.h>
 #include <kelvin/core/object.h>
 

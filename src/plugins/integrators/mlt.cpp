@@ -27,7 +27,7 @@ public:
 }  // namespace kelvin
 
 #define KELVIN_MLT_COMMON_PARAMS                                                                                      \
-    kelvin::param::string("technique", "path", "path sampler the chains drive: path | bdpt"),                         \
+    kelvin::param::string("technique", "path", "what a state is: path | bdpt | mmlt (one bidirectional strategy)"),   \
         kelvin::param::integer("max_depth", -1, "longest contributing path in edges (-1: unbounded)"),                \
         kelvin::param::integer("rr_depth", 5, "path length from which Russian roulette starts"),                      \
         kelvin::param::boolean("hide_emitters", false, "directly visible emitters render black"),                     \
@@ -50,6 +50,8 @@ KELVIN_PLUGIN(kelvin::Drmlt, "integrator", "drmlt",
               KELVIN_MLT_COMMON_PARAMS,
               kelvin::param::string("type", "orbital", "orbital (Eq. 4.7) | mira (Eq. 4.2) | green (Eqs. 4.8-4.10)"),
               kelvin::param::boolean("timid_after_large", false, "a rejected large step gets a second stage"),
+              kelvin::param::boolean("mixture", false,
+                                     "one stage: first or second kernel with probability 1/2 each (MMLT / X)"),
               kelvin::param::real("scale_second", 0.1,
                                   "default second stage (mira, green): Gaussian of this times the first stage's scale"),
               kelvin::param::object("first", "mutation",

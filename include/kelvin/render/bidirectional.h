@@ -1,0 +1,78 @@
+#pragma once
+// The bidirectional path-sampling core shared by `bdpt` (every strategy of a sample, Veach 1997, Ch. 10) and the
+// multiplexed Metropolis technique (`technique="mmlt"`: one strategy per state, Hachisuka et al. 2014): camera
+// and light subpaths traced from a Sampler, and the contribution of one connection strategy (s, t) weighted by
+// its multiple-importance weight among the strategies of its path length (power heuristic). Densities are kept
+// per vertex in area measure (forward: as sampled; reverse: as the opposite subpath would have sampled it) and
+// the weight is computed from ratios of those densities along the path, following the structure of pbrt-v3's
+// implementation (Pharr, Jakob and Humphreys, "Physically Based Rendering", 3rd ed., Sec. 16.3).
+//
+// Conventions: s light-subpath vertices y_0..y_{s-1}, t camera-subpath vertices z_0..z_{t-1}, a path of s + t
+// vertices and s + t - 1 edges. (s, t) = (0, 1) and (1, 1) are never used (the camera is not in the scene; an
+// emitter seen directly comes from (0, 2) alone). Random numbers: a camera subpath reads 4 per bounce from the
+// sampler's current stream (BSDF component, direction, roulette); a light subpath 5 (emitter choice, emission
+// position and direction) and then 4 per bounce; connect() reads 3 for s = 1 (emitter choice, point) and 2 for
+// t = 1 (lens point), whatever happens, so the layout never shifts.
+#include <kelvin/render/bsdf.h>
+#include <kelvin/render/integrator.h>
+#include <kelvin/render/interaction.h>
+
+#include <cstdint>
+
+namespace kelvin {
+
+class Emitter;
+class Scene;
+class Sensor;
+
+enum class PathVertexType : uint8_t { Camera, Light, Surface, Infinite };
+
+struct PathVertex {
+    PathVertexType type = PathVertexType::Surface;
+    Color3 beta{0.0};
+    double pdf_fwd = 0, pdf_rev = 0;
+    bool delta = false;
+    Vec3d p{0.0}, ng{0.0};             ///< ng is zero for points (camera, point lights, infinite endpoints)
+    SurfaceInteraction si;             ///< surface vertices
+    const Emitter* emitter = nullptr;  ///< light vertices, and surface vertices that emit
+
+    bool on_surface() const;
+    bool is_light() const;
+    bool is_infinite() const { return type == PathVertexType::Infinite; }
+    bool is_delta_light() const;
+    /// Can a deterministic connection reach this vertex? (Not through a delta BSDF.)
+    bool connectible() const;
+};
+
+class BidirectionalPaths {
+public:
+    static constexpr int MaxVertices = 64;  ///< hard cap per subpath
+
+    /// `rr_depth`: subpath length (in bounces) from which Russian roulette may stop a subpath; a value above
+    /// MaxVertices disables it (the multiplexed technique traces subpaths to the length its strategy needs).
+    explicit BidirectionalPaths(int rr_depth) : m_rr_depth(rr_depth) {}
+
+    /// The camera subpath from `ray` (a camera ray from the scene's sensor): cam[0] is the camera vertex, then at
+    /// most `max_bounces` more. Returns the number of vertices (>= 1).
+    int camera_subpath(const Scene& scene, Sampler& sampler, const Ray& ray, int max_bounces, PathVertex* cam,
+                       SampleCounters& c) const;
+    /// The light subpath: light[0] on an emitter (chosen by the scene's emitter distribution), then at most
+    /// `max_bounces` more. Returns the number of vertices (0 if the scene has no emitter or emission failed).
+    int light_subpath(const Scene& scene, Sampler& sampler, int max_bounces, PathVertex* light,
+                      SampleCounters& c) const;
+    /// The contribution of strategy (s, t), MIS-weighted among the strategies of its length; zero if the strategy
+    /// does not connect. For t = 1 the value belongs at `film` (light tracing). The vertex arrays are modified
+    /// during the call and restored before it returns.
+    Color3 connect(const Scene& scene, PathVertex* light, PathVertex* cam, int s, int t, Sampler& sampler, Vec2d& film,
+                   SampleCounters& c) const;
+
+private:
+    int walk(const Scene& scene, Sampler& sampler, Ray ray, Color3 beta, double pdf_dir, int max_bounces,
+             TransportMode mode, PathVertex* path, SampleCounters& c) const;
+    double mis_weight(const Scene& scene, const Sensor& sensor, PathVertex* light, PathVertex* cam,
+                      const PathVertex& sampled, int s, int t) const;
+
+    int m_rr_depth;
+};
+
+}  // namespace kelvin

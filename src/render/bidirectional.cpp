@@ -1,0 +1,344 @@
+// The bidirectional path-sampling core: see include/kelvin/render/bidirectional.h.
+#include <kelvin/render/bidirectional.h>
+#include <kelvin/render/film.h>
+#include <kelvin/render/scene.h>
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+
+namespace kelvin {
+
+bool PathVertex::on_surface() const {
+    return type == PathVertexType::Surface || (type == PathVertexType::Light && ng != Vec3d(0.0));
+}
+bool PathVertex::is_light() const {
+    return type == PathVertexType::Light || type == PathVertexType::Infinite ||
+           (type == PathVertexType::Surface && emitter);
+}
+bool PathVertex::is_delta_light() const {
+    return type == PathVertexType::Light && emitter && (emitter->flags() & EmitterFlags::Delta);
+}
+bool PathVertex::connectible() const {
+    if (type == PathVertexType::Surface) return (si.shape->bsdf()->flags() & BsdfFlags::Smooth) != 0;
+    if (type == PathVertexType::Light) return !(emitter->flags() & EmitterFlags::DeltaDirection);
+    return true;
+}
+
+namespace {
+
+constexpr double mis(double x) { return x * x; }  // power heuristic, exponent 2
+
+// Solid-angle density at `from` towards `to`, converted to area density at `to`.
+double convert_density(double pdf, const PathVertex& from, const PathVertex& to) {
+    if (to.is_infinite()) return pdf;
+    Vec3d w = to.p - from.p;
+    double d2 = glm::dot(w, w);
+    if (!(d2 > 0)) return 0.0;
+    double inv = 1.0 / d2;
+    if (to.on_surface()) pdf *= std::abs(glm::dot(to.ng, w * std::sqrt(inv)));
+    return pdf * inv;
+}
+
+double infinite_density(const Scene& scene, const Vec3d& d_from_scene_to_light_dir) {
+    // Density with which emitter sampling picks direction d among the infinite emitters.
+    double pdf = 0;
+    for (const Emitter* e : scene.environment_emitters())
+        pdf += scene.emitter_pdf(e) * e->pdf_direct(Vec3d(0.0), Vec3d(0.0), Vec3d(0.0), d_from_scene_to_light_dir);
+    return pdf;
+}
+
+// Area density with which `v` (a light vertex, or an emitting surface hit) emits towards `next`.
+double pdf_light(const Scene& scene, const PathVertex& v, const PathVertex& next) {
+    Vec3d w = next.p - v.p;
+    double d2 = glm::dot(w, w);
+    if (!(d2 > 0)) return 0.0;
+    w /= std::sqrt(d2);
+    double pdf;
+    if (v.is_infinite()) {
+        const Emitter* e = v.emitter ? v.emitter : scene.environment_emitters().front();
+        pdf = e->pdf_emission(Vec3d(0.0), Vec3d(0.0), -w).first;  // disk density
+    } else {
+        pdf = v.emitter->pdf_emission(v.p, v.ng, w).second / d2;
+    }
+    if (next.on_surface()) pdf *= std::abs(glm::dot(next.ng, w));
+    return pdf;
+}
+
+// Density of choosing `v` as a light-subpath origin (towards `next`).
+double pdf_light_origin(const Scene& scene, const PathVertex& v, const PathVertex& next) {
+    Vec3d w = next.p - v.p;
+    double l = glm::length(w);
+    if (!(l > 0)) return 0.0;
+    w /= l;
+    if (v.is_infinite()) return infinite_density(scene, -w);
+    return scene.emitter_pdf(v.emitter) * v.emitter->pdf_emission(v.p, v.ng, w).first;
+}
+
+// Area density with which vertex `v` (reached from `prev`) samples `next`.
+double pdf(const Scene& scene, const Sensor& sensor, const PathVertex& v, const PathVertex* prev,
+           const PathVertex& next) {
+    if (v.type == PathVertexType::Light || v.type == PathVertexType::Infinite) return pdf_light(scene, v, next);
+    Vec3d wn = next.p - v.p;
+    double l = glm::length(wn);
+    if (!(l > 0)) return 0.0;
+    wn /= l;
+    double p;
+    if (v.type == PathVertexType::Camera) {
+        p = sensor.pdf_direction(v.p, wn);
+    } else {
+        SurfaceInteraction si = v.si;
+        si.wi = si.to_local(glm::normalize(prev->p - v.p));
+        p = v.si.shape->bsdf()->pdf(BsdfContext{}, si, si.to_local(wn));
+    }
+    return convert_density(p, v, next);
+}
+
+// f * |cos| at `v` towards `next`, `v` having been reached from its own subpath's previous vertex.
+Color3 f(const PathVertex& v, const PathVertex& next, TransportMode mode) {
+    Vec3d wo = v.si.to_local(glm::normalize(next.p - v.p));
+    Color3 r = v.si.shape->bsdf()->eval(BsdfContext{mode}, v.si, wo);
+    if (mode == TransportMode::Importance) r *= shading_correction(v.si, v.si.wi, wo);
+    return r;
+}
+
+double geometry_visible(const Scene& scene, const PathVertex& a, const PathVertex& b, SampleCounters& c) {
+    // 1 / d^2 if unoccluded (cosines are inside f()), 0 otherwise.
+    ++c.rays;
+    Ray r = a.si.spawn_to(b.p);
+    if (scene.occluded(r)) return 0.0;
+    Vec3d d = b.p - a.p;
+    return 1.0 / glm::dot(d, d);
+}
+
+}  // namespace
+
+int BidirectionalPaths::camera_subpath(const Scene& scene, Sampler& sampler, const Ray& camera_ray, int max_bounces,
+                                       PathVertex* cam, SampleCounters& c) const {
+    const Sensor& sensor = *scene.sensor();
+    cam[0] = PathVertex();
+    Ray ray = camera_ray;
+    ray.d = glm::normalize(ray.d);
+    cam[0].type = PathVertexType::Camera;
+    cam[0].beta = Color3(1.0);
+    cam[0].p = ray.o;
+    const double pdf_dir = sensor.pdf_direction(ray.o, ray.d);
+    return 1 + walk(scene, sampler, ray, Color3(1.0), pdf_dir, max_bounces, TransportMode::Radiance, cam, c);
+}
+
+int BidirectionalPaths::light_subpath(const Scene& scene, Sampler& sampler, int max_bounces, PathVertex* light,
+                                      SampleCounters& c) const {
+    light[0] = PathVertex();
+    auto [emitter, sel_pdf] = scene.sample_emitter(sampler.next_1d());
+    const Vec2d u_pos = sampler.next_2d(), u_dir = sampler.next_2d();
+    if (!emitter) return 0;
+    auto es = emitter->sample_emission(u_pos, u_dir);
+    if (!es) return 0;
+    PathVertex& y0 = light[0];
+    y0.type = (emitter->flags() & EmitterFlags::Infinite) ? PathVertexType::Infinite : PathVertexType::Light;
+    y0.emitter = emitter;
+    y0.p = es->ray.o;
+    y0.ng = (emitter->flags() & EmitterFlags::Surface) ? es->n : Vec3d(0.0);
+    y0.beta = Color3(1.0);  // not used: s = 1 strategies resample the emitter
+    y0.pdf_fwd = es->pdf_pos * sel_pdf;
+    Ray lr = es->spawn_ray();
+    lr.d = glm::normalize(lr.d);
+    const int n = 1 + walk(scene, sampler, lr, es->weight / sel_pdf, es->pdf_dir, max_bounces,
+                           TransportMode::Importance, light, c);
+    if (y0.is_infinite()) {
+        // Infinite emitters start rays on a disk: y1's density is the disk's (area) density projected, and
+        // y0's is the directional density (pbrt-v3, Sec. 16.3.2).
+        if (n > 1) {
+            light[1].pdf_fwd = es->pdf_pos;
+            if (light[1].on_surface()) light[1].pdf_fwd *= std::abs(glm::dot(lr.d, light[1].ng));
+        }
+        y0.pdf_fwd = infinite_density(scene, -lr.d);  // direction from the scene to the light
+    }
+    return n;
+}
+
+// Random walk from `ray`; fills path[1..] and returns the number of vertices added.
+int BidirectionalPaths::walk(const Scene& scene, Sampler& sampler, Ray ray, Color3 beta, double pdf_dir, int max_edges,
+                             TransportMode mode, PathVertex* path, SampleCounters& c) const {
+    if (max_edges <= 0 || !(pdf_dir > 0)) return 0;
+    const BsdfContext ctx{mode};
+    int n = 0;
+    double pdf_fwd = pdf_dir;
+    for (int depth = 0;; ++depth) {
+        const double u_comp = sampler.next_1d();
+        const Vec2d u_bsdf = sampler.next_2d();
+        const double u_rr = sampler.next_1d();
+        ++c.rays;
+        auto hit = scene.intersect(ray);
+        PathVertex& prev = path[n];
+        PathVertex& v = path[n + 1];
+        v = PathVertex();
+        if (!hit) {
+            // A camera path escaping the scene ends on the environment (if any), as a light vertex.
+            if (mode == TransportMode::Radiance && !scene.environment_emitters().empty()) {
+                v.type = PathVertexType::Infinite;
+                v.beta = beta;
+                v.p = ray.o + ray.d;  // a direction: only (p - prev.p) is ever used
+                v.pdf_fwd = pdf_fwd;  // solid angle: infinite vertices are never converted to area
+                ++n;
+            }
+            break;
+        }
+        v.type = PathVertexType::Surface;
+        v.si = scene.interaction(ray, *hit);
+        v.p = v.si.p;
+        v.ng = v.si.ng;
+        v.emitter = v.si.shape->emitter();
+        v.beta = beta;
+        v.pdf_fwd = convert_density(pdf_fwd, prev, v);
+        ++n;
+        if (n >= max_edges || n + 1 >= MaxVertices) break;
+
+        const Bsdf& bsdf = *v.si.shape->bsdf();
+        auto bs = bsdf.sample(ctx, v.si, u_comp, u_bsdf);
+        if (!bs || bs->weight == Color3(0.0)) break;
+        Color3 w = bs->weight;
+        if (mode == TransportMode::Importance) w *= shading_correction(v.si, v.si.wi, bs->wo);
+        beta *= w;
+        double pdf_rev;
+        if (bs->sampled & BsdfFlags::Delta) {
+            v.delta = true;
+            pdf_fwd = pdf_rev = 0;
+        } else {
+            pdf_fwd = bs->pdf;
+            SurfaceInteraction rev = v.si;
+            rev.wi = bs->wo;
+            pdf_rev = bsdf.pdf(ctx, rev, v.si.wi);
+        }
+        prev.pdf_rev = convert_density(pdf_rev, v, prev);
+        if (depth + 1 >= m_rr_depth) {
+            double q = std::min(0.95, std::max({beta.r, beta.g, beta.b}));
+            if (!(u_rr < q)) break;
+            beta /= q;
+        }
+        ray = v.si.spawn(v.si.to_world(bs->wo));
+        ray.d = glm::normalize(ray.d);
+    }
+    return n;
+}
+
+Color3 BidirectionalPaths::connect(const Scene& scene, PathVertex* light, PathVertex* cam, int s, int t,
+                                   Sampler& sampler, Vec2d& film, SampleCounters& c) const {
+    const Sensor& sensor = *scene.sensor();
+    Color3 L(0.0);
+    PathVertex sampled;  // the resampled endpoint for s = 1 or t = 1
+    const PathVertex& pt = cam[t - 1];
+    if (s == 0) {
+        // The camera subpath hit an emitter.
+        if (!pt.is_light()) return L;
+        const PathVertex& prev = cam[t - 2];
+        Vec3d w = glm::normalize(prev.p - pt.p);
+        if (pt.is_infinite()) {
+            for (const Emitter* e : scene.environment_emitters()) L += e->eval(prev.p, Vec3d(0.0), w);
+        } else {
+            L = pt.emitter->eval(pt.p, pt.ng, w);
+        }
+        L *= pt.beta;
+    } else if (t == 1) {
+        // Connect the light subpath's last vertex to the camera (a point on the lens, for a thin lens).
+        const PathVertex& qs = light[s - 1];
+        const Vec2d u_lens = sampler.next_2d();  // drawn whatever happens next: the layout stays fixed
+        if (!qs.connectible() || qs.is_infinite()) return L;
+        auto sd = sensor.sample_direct(qs.p, u_lens);
+        if (!sd) return L;
+        sampled.type = PathVertexType::Camera;
+        sampled.p = sd->p;
+        sampled.beta = Color3(sd->weight);
+        Color3 contrib = qs.beta * f(qs, sampled, TransportMode::Importance);  // s >= 2 here
+        if (contrib == Color3(0.0)) return L;
+        ++c.rays;
+        SurfaceInteraction from;
+        from.p = qs.p;
+        from.ng = qs.ng == Vec3d(0.0) ? sd->d : qs.ng;
+        if (scene.occluded(from.spawn_to(sd->p))) return L;
+        L = contrib * sd->weight;
+        film = sd->film;
+    } else if (s == 1) {
+        // Next-event estimation: sample a point on an emitter.
+        const double u_sel = sampler.next_1d();  // drawn whatever happens next: the layout stays fixed
+        const Vec2d u = sampler.next_2d();
+        if (!pt.connectible() || pt.type != PathVertexType::Surface) return L;
+        auto [e, sel] = scene.sample_emitter(u_sel);
+        if (!e) return L;
+        auto ds = e->sample_direct(pt.p, u);
+        if (!ds || !(ds->pdf > 0)) return L;
+        sampled.type = (e->flags() & EmitterFlags::Infinite) ? PathVertexType::Infinite : PathVertexType::Light;
+        sampled.emitter = e;
+        sampled.p = ds->dist == Inf ? pt.p + ds->d : ds->p;
+        sampled.ng = (e->flags() & EmitterFlags::Surface) ? ds->n : Vec3d(0.0);
+        sampled.beta = ds->weight / sel;
+        sampled.pdf_fwd = pdf_light_origin(scene, sampled, pt);
+        Vec3d wo = pt.si.to_local(ds->d);
+        Color3 fv = pt.si.shape->bsdf()->eval(BsdfContext{}, pt.si, wo);
+        if (fv == Color3(0.0)) return L;
+        ++c.rays;
+        Ray shadow = ds->dist == Inf ? pt.si.spawn(ds->d) : pt.si.spawn_to(ds->p);
+        if (scene.occluded(shadow)) return L;
+        L = pt.beta * fv * sampled.beta;
+    } else {
+        const PathVertex& qs = light[s - 1];
+        if (!qs.connectible() || !pt.connectible() || qs.is_infinite() || pt.is_infinite()) return L;
+        if (qs.type != PathVertexType::Surface || pt.type != PathVertexType::Surface) return L;
+        Color3 fq = f(qs, pt, TransportMode::Importance), fp = f(pt, qs, TransportMode::Radiance);
+        if (fq == Color3(0.0) || fp == Color3(0.0)) return L;
+        double g = geometry_visible(scene, pt, qs, c);
+        if (g == 0) return L;
+        L = qs.beta * fq * fp * pt.beta * g;
+    }
+    if (L == Color3(0.0)) return L;
+    return L * mis_weight(scene, sensor, light, cam, sampled, s, t);
+}
+
+double BidirectionalPaths::mis_weight(const Scene& scene, const Sensor& sensor, PathVertex* light, PathVertex* cam,
+                                      const PathVertex& sampled, int s, int t) const {
+    if (s + t == 2) return 1.0;
+    // Work on copies of the (at most four) vertices whose densities change for this strategy.
+    std::array<PathVertex, 4> saved;
+    PathVertex* touched[4] = {nullptr, nullptr, nullptr, nullptr};
+    int nt = 0;
+    auto touch = [&](PathVertex* v) {
+        for (int i = 0; i < nt; ++i)
+            if (touched[i] == v) return;
+        saved[nt] = *v;
+        touched[nt++] = v;
+    };
+    if (s == 1) touch(&light[0]), light[0] = sampled;
+    if (t == 1) touch(&cam[0]), cam[0] = sampled;
+    PathVertex* qs = s > 0 ? &light[s - 1] : nullptr;
+    PathVertex* pt = &cam[t - 1];
+    PathVertex* qs_minus = s > 1 ? &light[s - 2] : nullptr;
+    PathVertex* pt_minus = t > 1 ? &cam[t - 2] : nullptr;
+    touch(pt);
+    if (qs) touch(qs);
+    if (pt_minus) touch(pt_minus);
+    if (qs_minus) touch(qs_minus);
+    pt->delta = false;
+    if (qs) qs->delta = false;
+
+    pt->pdf_rev = s > 0 ? pdf(scene, sensor, *qs, qs_minus, *pt) : pdf_light_origin(scene, *pt, *pt_minus);
+    if (pt_minus) pt_minus->pdf_rev = s > 0 ? pdf(scene, sensor, *pt, qs, *pt_minus) : pdf_light(scene, *pt, *pt_minus);
+    if (qs) qs->pdf_rev = pdf(scene, sensor, *pt, pt_minus, *qs);
+    if (qs_minus) qs_minus->pdf_rev = pdf(scene, sensor, *qs, pt, *qs_minus);
+
+    auto remap = [](double x) { return x != 0 ? x : 1.0; };
+    double sum = 0, ri = 1;
+    for (int i = t - 1; i > 0; --i) {
+        ri *= mis(remap(cam[i].pdf_rev)) / mis(remap(cam[i].pdf_fwd));
+        if (!cam[i].delta && !cam[i - 1].delta) sum += ri;
+    }
+    ri = 1;
+    for (int i = s - 1; i >= 0; --i) {
+        ri *= mis(remap(light[i].pdf_rev)) / mis(remap(light[i].pdf_fwd));
+        bool delta_before = i > 0 ? light[i - 1].delta : light[0].is_delta_light();
+        if (!light[i].delta && !delta_before) sum += ri;
+    }
+    for (int i = nt - 1; i >= 0; --i) *touched[i] = saved[i];
+    return 1.0 / (1.0 + sum);
+}
+
+}  // namespace kelvin
