@@ -232,18 +232,21 @@ std::size_t MarkovChain::state_length() const {
 // log of the Tierney–Mira ratio, Eq. (4.2), over the pairs y read (rule 3 of chain.h).
 double MarkovChain::tierney_mira_log_ratio(double a1) {
     const double pix = m_pi[X], piy = m_pi[Y], piz = m_pi[Z];
-    // Gather the pairs y read into contiguous spans.
+    // Gather the pairs y read into contiguous spans, but for those both stages keep at x's value (fixed pairs,
+    // and streams the second stage does not move): there Q1(y|z) = Q1(y|x) and Q2 is the identity both ways, so
+    // their factors cancel (and a kernel with a hole at zero, such as Kelemen's, has no density for them).
+    auto counted = [&](std::size_t p) { return m_s[Y].read[p] == m_epoch && !fixed_small(p) && moved_second(p); };
     std::vector<double>& g = m_scratch;
     std::size_t n = 0;
     for (std::size_t p = 0; p < m_y_read_end; ++p) {
-        if (m_s[Y].read[p] != m_epoch) continue;
+        if (!counted(p)) continue;
         ensure(Z, p);
         ++n;
     }
     double *gx = g.data(), *gy = gx + 2 * n, *gz = gy + 2 * n;
     std::size_t k = 0;
     for (std::size_t p = 0; p < m_y_read_end; ++p) {
-        if (m_s[Y].read[p] != m_epoch) continue;
+        if (!counted(p)) continue;
         for (int j = 0; j < 2; ++j) {
             gx[2 * k + std::size_t(j)] = m_s[X].v[2 * p + std::size_t(j)];
             gy[2 * k + std::size_t(j)] = m_s[Y].v[2 * p + std::size_t(j)];
