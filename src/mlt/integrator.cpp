@@ -457,6 +457,7 @@ RunResult MetropolisIntegrator::render(const Scene& scene, RunContext& ctx) {
         std::unique_ptr<LightSubpaths> light;
         SubpathRays rays;
         std::vector<uint64_t> small, small_acc, att2, acc2;  // per strategy s (mmlt)
+        uint64_t strategy_changes = 0;                       // by small steps (mmlt; must stay 0)
     };
     std::vector<Chain> chains(st.bootstrap_nonzero > 0 ? std::size_t(n_chains) : 0);
     // The target of chain `ch` (the light subpath of z is x's when the second stage does not move the light
@@ -577,6 +578,7 @@ RunResult MetropolisIntegrator::render(const Scene& scene, RunContext& ctx) {
                 if (o.accepted > 0) {
                     std::swap(ch.f[0], ch.f[o.accepted]);
                     if (ch.light) ch.light->accept(o.accepted);
+                    if (m_mmlt && !o.large && ch.f[0].s != s_x) ++ch.strategy_changes;
                     if (!stage_counts.empty()) count_stage(ch.f[0], o.accepted);
                 }
                 if (!m_waste_recycling) splat_state(ch.f[0], ch.scale);
@@ -639,6 +641,7 @@ RunResult MetropolisIntegrator::render(const Scene& scene, RunContext& ctx) {
             st.rays_connection += ch.rays.connection;
             st.rays_light_stage2 += ch.rays.light_stage2;
             st.light_subpaths_reused += ch.rays.reused;
+            st.mmlt_strategy_changes_small += ch.strategy_changes;
         }
     }
     for (const auto& c : counters) st.invalid_contributions += c.invalid;

@@ -45,6 +45,8 @@ struct MltStatistics {
     /// light-subpath rays traced while evaluating second-stage proposals of states with t >= 2, whose light
     /// subpath the second stage keeps (0: they are reused, not re-traced), and the proposals that reused it.
     uint64_t rays_camera = 0, rays_light = 0, rays_connection = 0, rays_light_stage2 = 0, light_subpaths_reused = 0;
+    /// technique mmlt: small steps after which the state's strategy differed from before (must stay 0).
+    uint64_t mmlt_strategy_changes_small = 0;
 
     double stage1_acceptance() const {
         return rate(chain.stage1_accepted - chain.large_accepted,
