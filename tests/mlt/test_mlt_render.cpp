@@ -254,12 +254,14 @@ TEST(MltIntegrators, StatisticsAndStageMap) {
 
 // The study scene (docs/mlt.md) loads and renders with each of its variants (the fragments in scenes/render/parts).
 TEST(MltIntegrators, EveryStudyVariantRenders) {
-    for (const char* variant :
-         {"pssmlt-kelemen", "pssmlt-gaussian", "mixture", "drmlt-orbital", "drmlt-mira", "drmlt-green"})
-        for (const char* geometry : {"door", "caustic"}) {
+    for (const char* variant : {"pssmlt-kelemen", "pssmlt-gaussian", "mixture", "drmlt-orbital", "drmlt-mira",
+                                "drmlt-green", "drmlt-orbital-mixture"})
+        for (const char* geometry : {"door", "caustic", "aquarium"}) {
             SCOPED_TRACE(std::string(variant) + " " + geometry);
             ParseOptions opts;
             opts.defines = {{"variant", variant}, {"geometry", geometry}, {"res", "8"}};
+            // The aquarium with the multiplexed technique (the thesis' Fig. 4.11 setting).
+            if (std::string(geometry) == "aquarium") opts.defines.insert({{"technique", "mmlt"}, {"max_depth", "8"}});
             auto scene =
                 std::dynamic_pointer_cast<Scene>(instantiate(parse_scene_file(scene_path("mlt-study.xml"), opts)));
             ASSERT_TRUE(scene);
