@@ -1,14 +1,17 @@
 // Multiplexed MLT throughput (issue 13): mutations per second of the chain phase of pssmlt over the techniques
 // path, bdpt and mmlt, and of the two other mmlt variants (MMLT / X, DR multiplexed-then-subpath), on
 // scenes/render/cornell-box.xml with max_depth 8 and all transport in the chains (direct_samples -1), one thread,
-// the variants interleaved round by round so that machine load affects them alike.
+// the variants interleaved round by round so that machine load affects them alike. "G": pssmlt with pbrt's small
+// step, a Gaussian of sigma 0.01, instead of the default Kelemen kernel (pbrt-v3's and v4's MLT use it).
 //
 // Per round and variant: one render of M mutations per pixel (M = 64 by default) at R x R (128). Reported per
 // variant: the median over rounds of mutations per second of the chain phase (thread CPU time of the run times
 // the chain phase's share of its wall time), CPU microseconds per mutation, rays per mutation, and the median of
 // the ratio to pssmlt over bdpt in the same round. CPU/wall is printed as the load indicator.
 //
-//   build/bin/bench_mmlt [--rounds 5] [--mpp 64] [--res 128]
+//   build/bin/bench_mmlt [--rounds 5] [--mpp 64] [--res 128] [--chains 64] [--only LABEL] [--extra XML]
+// (--only: the variants whose label contains LABEL, besides pssmlt over bdpt; --extra: XML appended to every
+// Metropolis integrator, e.g. '<float name="large_step_prob" value="0.1"/>'.)
 //
 // Equal CPU time (--rmse SECONDS): a reference (bdpt, max_depth 8, --ref-spp 2048 spp on 2 threads, cached in
 // --reference, default /tmp/kelvin-bench-mmlt-ref-RES.exr), then --rounds interleaved rounds of every Metropolis
@@ -56,12 +59,15 @@ struct Variant {
     const char* label;
     const char* integrator;  // replaces the scene's <integrator> element
 };
-const char* const Common =
-    R"(<integer name="max_depth" value="8"/><integer name="direct_samples" value="-1"/><integer name="chains" value="64"/>)";
+std::string Common = R"(<integer name="max_depth" value="8"/><integer name="direct_samples" value="-1"/>)";
 const Variant Variants[] = {
     {"pssmlt, bdpt", R"(<integrator type="pssmlt"><string name="technique" value="bdpt"/>)"},
+    {"pssmlt, bdpt, G", R"(<integrator type="pssmlt"><string name="technique" value="bdpt"/>)"
+                        R"(<mutation type="gaussian"><float name="sigma" value="0.01"/></mutation>)"},
     {"pssmlt, path", R"(<integrator type="pssmlt"><string name="technique" value="path"/>)"},
     {"MMLT/K (pssmlt, mmlt)", R"(<integrator type="pssmlt"><string name="technique" value="mmlt"/>)"},
+    {"MMLT/G (pssmlt, mmlt, G)", R"(<integrator type="pssmlt"><string name="technique" value="mmlt"/>)"
+                                 R"(<mutation type="gaussian"><float name="sigma" value="0.01"/></mutation>)"},
     {"MMLT/X",
      R"(<integrator type="drmlt"><string name="technique" value="mmlt"/><boolean name="mixture" value="true"/>)"},
     {"DR multiplexed-then-subpath", R"(<integrator type="drmlt"><string name="technique" value="mmlt"/>)"},
@@ -77,7 +83,8 @@ int main(int argc, char** argv) {
     int rounds = 5, res = 128;
     long long mpp = 64, ref_spp = 2048;
     double rmse_seconds = 0;
-    std::string reference;
+    std::string reference, only, extra;
+    long long chains = 64;
     for (int i = 1; i + 1 < argc; i += 2) {
         if (!std::strcmp(argv[i], "--rounds"))
             rounds = std::atoi(argv[i + 1]);
@@ -91,13 +98,24 @@ int main(int argc, char** argv) {
             ref_spp = std::atoll(argv[i + 1]);
         else if (!std::strcmp(argv[i], "--reference"))
             reference = argv[i + 1];
+        else if (!std::strcmp(argv[i], "--chains"))
+            chains = std::atoll(argv[i + 1]);
+        else if (!std::strcmp(argv[i], "--only"))
+            only = argv[i + 1];
+        else if (!std::strcmp(argv[i], "--extra"))
+            extra = argv[i + 1];
         else {
             std::fprintf(stderr,
-                         "usage: bench_mmlt [--rounds N] [--mpp M] [--res R] [--rmse SECONDS [--ref-spp N] "
-                         "[--reference FILE.exr]]\n");
+                         "usage: bench_mmlt [--rounds N] [--mpp M] [--res R] [--chains C] [--only LABEL] [--extra XML] "
+                         "[--rmse SECONDS [--ref-spp N] [--reference FILE.exr]]\n");
             return 2;
         }
     }
+    Common += "<integer name=\"chains\" value=\"" + std::to_string(chains) + "\"/>" + extra;
+    auto skip = [&](const Variant& v) {
+        return !only.empty() && std::string(v.label).find(only) == std::string::npos &&
+               std::string(v.label) != "pssmlt, bdpt";
+    };
     const std::string file = KELVIN_SOURCE_DIR "/scenes/render/cornell-box.xml";
     std::ifstream in(file);
     std::stringstream buf;
@@ -133,7 +151,7 @@ int main(int argc, char** argv) {
         for (int r = 0; r < rounds; ++r) {
             double base = 0;
             for (const Variant& v : Variants) {
-                if (std::string(v.label) == "pssmlt, path") continue;  // the path technique misses caustics here
+                if (std::string(v.label) == "pssmlt, path" || skip(v)) continue;
                 auto scene = scene_for(std::string(v.integrator) + Common + "</integrator>");
                 RunContext ctx;
                 ctx.quiet = true;
@@ -161,6 +179,7 @@ int main(int argc, char** argv) {
             res, res, rmse_seconds, rounds, ref_spp);
         std::printf(
             "| variant | rMSE | pssmlt-over-bdpt rMSE / rMSE | mutations/s | CPU/wall |\n|---|---|---|---|---|\n");
+        std::printf("(chains %lld%s%s)\n", chains, extra.empty() ? "" : ", extra ", extra.c_str());
         for (const Variant& v : Variants) {
             if (!err.count(v.label)) continue;
             std::printf("| %s | %.5f | %.2f | %.0f | %.2f |\n", v.label, median(err[v.label]), median(ratio[v.label]),
@@ -175,6 +194,7 @@ int main(int argc, char** argv) {
     for (int r = 0; r < rounds; ++r) {
         double base = 0;
         for (const Variant& v : Variants) {
+            if (skip(v)) continue;
             auto scene = scene_for(std::string(v.integrator) + Common + "</integrator>");
             RunContext ctx;
             ctx.quiet = true;
@@ -205,6 +225,7 @@ int main(int argc, char** argv) {
     std::printf("| variant | mutations/s | CPU us/mutation | rays/evaluation | x pssmlt over bdpt | CPU/wall |\n");
     std::printf("|---|---|---|---|---|---|\n");
     for (const Variant& v : Variants) {
+        if (skip(v)) continue;
         const auto& s = samples[v.label];
         auto med = [&](double Sample::*f) {
             std::vector<double> x;
