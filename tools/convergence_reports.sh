@@ -93,8 +93,11 @@ mlt_study() {  # mlt_study GEOMETRY [mmlt]: the thesis' equal-time protocol on s
     local wide=(-D geometry="$g" -D res="$wres" -D fov="$wfov" -t "$THREADS" -q)
     if [[ ! -f "$wref" ]]; then
         echo "== $report: ${MLT_REF_INTEGRATOR:-bdpt} reference, ${res}x$res + $m pixels on every side, $ref_spp spp -> $wref"
+        # Into a temporary name, kept only if the render completed: an interrupted kelvin still writes the image
+        # so far (exit 130), which must not pass for a reference next time.
         "$KELVIN" "$refscene" "${wide[@]}" -D integrator="${MLT_REF_INTEGRATOR:-bdpt}" -D max_depth="$max_depth" \
-            --spp "$ref_spp" --seed 1000 -o "$wref"
+            --spp "$ref_spp" --seed 1000 -o "${wref%.exr}.tmp.exr"
+        mv "${wref%.exr}.tmp.exr" "$wref"
     fi
     [[ -f "$ref" ]] || oiiotool "$wref" --ch R,G,B --cut "${res}x$res+$m+$m" -o "$ref"
     local bargs=("$wref" --margin "$m")
@@ -102,7 +105,8 @@ mlt_study() {  # mlt_study GEOMETRY [mmlt]: the thesis' equal-time protocol on s
         if [[ ! -f "$dref" ]]; then
             echo "== $report: direct-only reference (path, max_depth 2), ${MLT_DIRECT_REF_SPP:-1024} spp -> $dref"
             "$KELVIN" "$refscene" "${wide[@]}" -D integrator=path -D max_depth=2 \
-                --spp "${MLT_DIRECT_REF_SPP:-1024}" --seed 1001 -o "$dref"
+                --spp "${MLT_DIRECT_REF_SPP:-1024}" --seed 1001 -o "${dref%.exr}.tmp.exr"
+            mv "${dref%.exr}.tmp.exr" "$dref"
         fi
         bargs+=(--direct "$dref")
     fi
