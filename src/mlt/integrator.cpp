@@ -7,10 +7,11 @@
 #include <kelvin/core/parallel.h>
 #include <kelvin/core/registry.h>
 #include <kelvin/mlt/integrator.h>
-#include <kelvin/render/bidirectional.h>
 #include <kelvin/render/film.h>
 #include <kelvin/render/pss.h>
 #include <kelvin/render/scene.h>
+
+#include "mlt/multiplexed.h"
 
 #include <algorithm>
 #include <array>
@@ -20,88 +21,6 @@
 
 namespace kelvin {
 namespace {
-
-/// The contribution list F(x) of one state: (film position, value) pairs. A SplatSink, so that a path sampler
-/// that splats (bdpt) writes straight into it. Keeps its capacity: no allocation once warm.
-struct Contributions final : SplatSink {
-    struct Item {
-        Vec2d film;
-        Color3 v;
-    };
-    std::vector<Item> items;
-    double pi = 0;   ///< target value: sum of luminances
-    Vec2d film{-1};  ///< the state's own film position (camera, or light tracing): where the stage map counts it
-    int s = -1;      ///< mmlt: the strategy's light-subpath vertex count
-
-    void splat(const Vec2d& film, const Color3& v) override {
-        if (v != Color3(0.0)) items.push_back({film, v});
-    }
-    void clear() {
-        items.clear();
-        pi = 0;
-        film = Vec2d(-1);
-        s = -1;
-    }
-};
-
-/// Where camera samples land: the image grown by the filter radius on every side (border pixels receive
-/// samples from outside the image, as they do when the pixel loop importance-samples the filter).
-struct FilmDomain {
-    Vec2d origin{0.0}, extent{1.0};
-    double area = 1;  ///< extent.x * extent.y: the camera contribution's factor (the inverse density of u)
-};
-
-/// Multiplexed MLT: one chain's light subpaths, kept so that a second stage that fixes the light subpath reuses
-/// the current state's vertices instead of re-tracing them. Four buffers, one owned by each slot (a
-/// permutation); view[slot] is the buffer holding that slot's light subpath: its own, or (a reusing z) x's.
-struct LightSubpaths {
-    std::array<std::vector<PathVertex>, 4> buf;
-    std::array<int, 4> owned{0, 1, 2, 3}, view{0, 1, 2, 3};
-    std::array<std::size_t, 4> draws{0, 0, 0, 0};  ///< light-stream numbers the slot's subpath read
-    std::array<int, 4> n{0, 0, 0, 0};              ///< its vertices
-
-    explicit LightSubpaths(int vertices) {
-        for (auto& b : buf) b.resize(std::size_t(vertices));
-    }
-    /// The buffer a fresh evaluation of `slot` writes: never the one x's subpath is in.
-    PathVertex* fresh(int slot) {
-        if (slot != 0 && owned[std::size_t(slot)] == view[0]) std::swap(owned[std::size_t(slot)], owned[0]);
-        view[std::size_t(slot)] = owned[std::size_t(slot)];
-        return buf[std::size_t(view[std::size_t(slot)])].data();
-    }
-    /// `slot` (z) uses x's subpath.
-    PathVertex* reuse(int slot) {
-        view[std::size_t(slot)] = view[0];
-        draws[std::size_t(slot)] = draws[0];
-        n[std::size_t(slot)] = n[0];
-        return buf[std::size_t(view[0])].data();
-    }
-    void accept(int slot) {
-        std::swap(owned[0], owned[std::size_t(slot)]);
-        std::swap(view[0], view[std::size_t(slot)]);
-        std::swap(draws[0], draws[std::size_t(slot)]);
-        std::swap(n[0], n[std::size_t(slot)]);
-    }
-};
-
-/// Rays traced per subpath (mmlt).
-struct SubpathRays {
-    uint64_t camera = 0, light = 0, connection = 0, light_stage2 = 0, reused = 0;
-};
-
-/// Strategies of a path of `edges` edges that mmlt chooses among (s = 0..edges; at one edge only (0, 2)).
-int strategy_count(int edges) { return edges == 1 ? 1 : edges + 1; }
-
-/// The streams a second stage that fixes the light subpath moves: camera and connection; with t = 1 (a pure
-/// light path, no camera subpath) every stream (thesis Sec. 4.3.1.2, "Handling Light Tracing").
-uint32_t second_stage_streams(int s, int edges) {
-    const uint32_t all = (1u << SampleStreamCount) - 1;
-    if (s < 0 || s == edges) return all;  // t = 1
-    return all & ~(1u << int(SampleStream::Light));
-}
-
-/// The pair index of the strategy selector: the first pair of the connection stream (pss.h's layout).
-constexpr std::size_t StrategyPair = std::size_t(SampleStream::Connection);
 
 std::shared_ptr<SamplingIntegrator> make_path_sampler(const std::string& technique, long long max_depth,
                                                       long long min_depth, long long rr_depth, bool hide_emitters) {
@@ -248,7 +167,6 @@ RunResult MetropolisIntegrator::render(const Scene& scene, RunContext& ctx) {
         depth_edges.push_back(-1);
     }
     const std::size_t D = depth_edges.size();
-    const BidirectionalPaths bidir(1 << 30);  // mmlt: subpaths as long as the strategy needs, no roulette
     const int max_vertices = m_mmlt ? m_max_edges + 1 : 0;
 
     // F(x) and pi(x) of the state `pss` is bound to: a path or bdpt sample from a camera ray.
@@ -265,71 +183,7 @@ RunResult MetropolisIntegrator::render(const Scene& scene, RunContext& ctx) {
         ++c.samples;
         return out.pi;
     };
-    // mmlt: one strategy (s, t) of a path of `edges` edges, chosen by the selector pair, weighted by its MIS
-    // weight and by the number of strategies (the inverse probability of the choice). `reuse`: the state's light
-    // coordinates are x's (a second stage that fixes the light subpath): x's vertices are used, not re-traced.
-    auto evaluate_mmlt = [&](PrimarySampleSpace& pss, Contributions& out, SampleCounters& c, int edges,
-                             LightSubpaths& L, int slot, bool reuse, SubpathRays& rays) {
-        thread_local std::array<PathVertex, BidirectionalPaths::MaxVertices> cam, scratch;
-        out.clear();
-        ++c.samples;
-        const int n = strategy_count(edges);
-        pss.set_stream(SampleStream::Connection);
-        const double u = pss.next_1d();
-        pss.next_1d();  // the selector pair's second number: unused, the pair is the unit a chain fixes
-        const int s = n == 1 ? 0 : std::min(int(u * n), n - 1), t = edges + 1 - s;
-        out.s = s;
-        Vec2d film(0.0);
-        uint64_t r0 = c.rays;
-        if (t >= 2) {
-            pss.set_stream(SampleStream::Camera);
-            film = dom.origin + pss.next_2d() * dom.extent;
-            out.film = film;
-            const Ray ray = sensor.sample_ray(film, pss.next_2d());
-            const int nc = bidir.camera_subpath(scene, pss, ray, t - 1, cam.data(), c);
-            rays.camera += c.rays - r0;
-            if (nc < t) return 0.0;
-        } else {
-            cam[0] = PathVertex();
-        }
-        PathVertex* light = scratch.data();
-        if (s >= 2) {
-            pss.set_stream(SampleStream::Light);
-            const std::size_t k = std::size_t(slot);
-            if (reuse) {
-                light = L.reuse(slot);
-                for (std::size_t i = 0; i < L.draws[k]; ++i) pss.next_1d();  // z reads x's light numbers
-                ++rays.reused;
-            } else {
-                light = L.fresh(slot);
-                r0 = c.rays;
-                L.n[k] = bidir.light_subpath(scene, pss, s - 1, light, c);
-                L.draws[k] = pss.drawn(SampleStream::Light);
-                rays.light += c.rays - r0;
-                // A second stage whose light subpath is fixed (t >= 2; z has x's strategy) must trace none.
-                if (slot == int(Slot::Z) && t >= 2) rays.light_stage2 += c.rays - r0;
-            }
-            if (L.n[k] < s) return 0.0;
-        } else if (s == 1) {
-            pss.set_stream(SampleStream::Light);  // the emitter sample is the light subpath's one vertex
-        }
-        if (t == 1) pss.set_stream(SampleStream::Connection);  // the lens point, after the selector pair
-        r0 = c.rays;
-        Vec2d lt_film(0.0);
-        Color3 v = bidir.connect(scene, light, cam.data(), s, t, pss, lt_film, c);
-        rays.connection += c.rays - r0;
-        if (!sanitize(v)) ++c.invalid;
-        if (v == Color3(0.0)) return 0.0;
-        v *= double(n);
-        if (t == 1) {
-            out.film = lt_film;
-            out.splat(lt_film, v);
-        } else {
-            out.splat(film, v * dom.area);
-        }
-        for (const auto& it : out.items) out.pi += luminance(it.v);
-        return out.pi;
-    };
+    const MultiplexedTechnique multiplexed(scene, dom);
 
     // 1. Direct illumination by plain Monte Carlo (direct_samples > 0).
     Bitmap direct;
@@ -367,7 +221,7 @@ RunResult MetropolisIntegrator::render(const Scene& scene, RunContext& ctx) {
         x.clear();
         pss.bind(x);
         if (!m_mmlt) return evaluate_camera(pss, f, c);
-        return evaluate_mmlt(pss, f, c, depth_edges[i / nboot], *L, 0, false, rays);
+        return multiplexed.evaluate(pss, f, c, depth_edges[i / nboot], *L, 0, false, rays);
     };
     {
         Timer t;
@@ -467,8 +321,8 @@ RunResult MetropolisIntegrator::render(const Scene& scene, RunContext& ctx) {
         if (!m_mmlt) return evaluate_camera(*ch.pss, ch.f[int(slot)], cnt);
         const bool second = slot == Slot::Z || (slot == Slot::Y && ch.mc->proposing_with_second());
         const bool light_fixed = !(second_stage_streams(ch.f[0].s, ch.edges) & (1u << int(SampleStream::Light)));
-        return evaluate_mmlt(*ch.pss, ch.f[int(slot)], cnt, ch.edges, *ch.light, int(slot), second && light_fixed,
-                             ch.rays);
+        return multiplexed.evaluate(*ch.pss, ch.f[int(slot)], cnt, ch.edges, *ch.light, int(slot),
+                                    second && light_fixed, ch.rays);
     };
     if (!chains.empty()) {
         // Systematic resampling of each depth's bootstrap states prop. to pi: chain c of the depth starts at the
