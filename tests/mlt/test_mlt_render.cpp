@@ -3,7 +3,9 @@
 // thread count, statistics and stage-map outputs, bad input.
 #include <kelvin/core/error.h>
 #include <kelvin/core/parallel.h>
+#include <kelvin/core/registry.h>
 #include <kelvin/mlt/integrator.h>
+#include <kelvin/render/sensor.h>
 
 #include <fmt/format.h>
 #include <gtest/gtest.h>
@@ -374,6 +376,44 @@ TEST(MltIntegrators, MmltDeterministicWhateverTheThreadCount) {
     }
     ASSERT_EQ(one.size(), two.size());
     for (std::size_t i = 0; i < one.size(); ++i) ASSERT_EQ(one.data()[i], two.data()[i]) << i;
+}
+
+// A sensor that light paths cannot connect to (a pinhole that does not implement the connection interface, as an
+// orthographic or panoramic plugin might): mmlt refuses it before any work, with a line naming `technique`.
+class PinholeWithoutConnections final : public ProjectiveSensor {
+public:
+    using ProjectiveSensor::ProjectiveSensor;
+    Ray sample_ray(Vec2d film_pos, Vec2d) const override {
+        Ray r;
+        r.o = m_to_world.apply_point(Vec3d(0.0));
+        r.d = glm::normalize(m_to_world.apply_vector(glm::normalize(film_to_direction(film_pos))));
+        return r;
+    }
+    bool supports_connections() const override { return false; }
+};
+TEST(MltIntegrators, MmltRefusesASensorWithoutConnections) {
+    auto& registry = Registry::instance();
+    if (!registry.find("sensor", "test_pinhole_without_connections")) {
+        PluginInfo info = *registry.find("sensor", "perspective");  // the same parameters
+        info.name = "test_pinhole_without_connections";
+        info.factory = [](const Properties& p) -> ObjectPtr { return std::make_shared<PinholeWithoutConnections>(p); };
+        registry.register_plugin(info);
+    }
+    const std::string file = "cornell-box.xml";
+    TestScene ts = scene_with(file, mmlt(MmltK), 8);
+    const auto at = ts.xml.find(R"(<sensor type="perspective">)");
+    ASSERT_NE(at, std::string::npos);
+    ts.xml.replace(at, 27, R"(<sensor type="test_pinhole_without_connections">)");
+    ParseOptions opts;
+    opts.defines["res"] = "8";
+    auto scene = ktest::load_scene_xml(ts.xml, opts, scene_path(file));
+    RunContext ctx;
+    ctx.spp = 1;
+    ctx.quiet = true;
+    const std::string msg = ktest::input_error_of([&] { scene->run(ctx); });
+    EXPECT_NE(msg.find("technique"), std::string::npos) << msg;
+    EXPECT_NE(msg.find("mmlt"), std::string::npos) << msg;
+    EXPECT_EQ(msg.find('\n'), std::string::npos) << msg;  // one line
 }
 
 TEST(MltIntegrators, BadParametersAreInputErrors) {
