@@ -2,7 +2,9 @@
 // path, bdpt and mmlt, and of the two other mmlt variants (MMLT / X, DR multiplexed-then-subpath), on
 // scenes/render/cornell-box.xml with max_depth 8 and all transport in the chains (direct_samples -1), one thread,
 // the variants interleaved round by round so that machine load affects them alike. "G": pssmlt with pbrt's small
-// step, a Gaussian of sigma 0.01, instead of the default Kelemen kernel (pbrt-v3's and v4's MLT use it).
+// step, a Gaussian of sigma 0.01, instead of the default Kelemen kernel (pbrt-v3's and v4's MLT use it); "first
+// G 0.03": DR multiplexed-then-subpath with a Gaussian first stage of sigma 0.03 (bold: 3x pbrt's) before the
+// orbital move.
 //
 // Per round and variant: one render of M mutations per pixel (M = 64 by default) at R x R (128). Reported per
 // variant: the median over rounds of mutations per second of the chain phase (thread CPU time of the run times
@@ -10,8 +12,8 @@
 // the ratio to pssmlt over bdpt in the same round. CPU/wall is printed as the load indicator.
 //
 //   build/bin/bench_mmlt [--rounds 5] [--mpp 64] [--res 128] [--chains 64] [--only LABEL] [--extra XML]
-// (--only: the variants whose label contains LABEL, besides pssmlt over bdpt; --extra: XML appended to every
-// Metropolis integrator, e.g. '<float name="large_step_prob" value="0.1"/>'.)
+// (--only: the variants whose label contains LABEL, besides pssmlt over bdpt; --extra: XML appended to those
+// variants' integrators (to every one without --only), e.g. '<float name="large_step_prob" value="0.1"/>'.)
 //
 // Equal CPU time (--rmse SECONDS): a reference (bdpt, max_depth 8, --ref-spp 2048 spp on 2 threads, cached in
 // --reference, default /tmp/kelvin-bench-mmlt-ref-RES.exr), then --rounds interleaved rounds of every Metropolis
@@ -71,6 +73,9 @@ const Variant Variants[] = {
     {"MMLT/X",
      R"(<integrator type="drmlt"><string name="technique" value="mmlt"/><boolean name="mixture" value="true"/>)"},
     {"DR multiplexed-then-subpath", R"(<integrator type="drmlt"><string name="technique" value="mmlt"/>)"},
+    {"DR m-then-s, first G 0.03",
+     R"(<integrator type="drmlt"><string name="technique" value="mmlt"/>)"
+     R"(<mutation name="first" type="gaussian"><float name="sigma" value="0.03"/></mutation>)"},
 };
 
 struct Sample {
@@ -111,7 +116,12 @@ int main(int argc, char** argv) {
             return 2;
         }
     }
-    Common += "<integer name=\"chains\" value=\"" + std::to_string(chains) + "\"/>" + extra;
+    Common += "<integer name=\"chains\" value=\"" + std::to_string(chains) + "\"/>";
+    // --extra goes to the --only variants (all, without --only), not to the pssmlt-over-bdpt baseline.
+    auto integrator_of = [&](const Variant& v) {
+        const bool baseline = std::string(v.label) == "pssmlt, bdpt" && !only.empty();
+        return std::string(v.integrator) + Common + (baseline ? "" : extra) + "</integrator>";
+    };
     auto skip = [&](const Variant& v) {
         return !only.empty() && std::string(v.label).find(only) == std::string::npos &&
                std::string(v.label) != "pssmlt, bdpt";
@@ -152,7 +162,7 @@ int main(int argc, char** argv) {
             double base = 0;
             for (const Variant& v : Variants) {
                 if (std::string(v.label) == "pssmlt, path" || skip(v)) continue;
-                auto scene = scene_for(std::string(v.integrator) + Common + "</integrator>");
+                auto scene = scene_for(integrator_of(v));
                 RunContext ctx;
                 ctx.quiet = true;
                 ctx.time_limit = rmse_seconds;
@@ -195,7 +205,7 @@ int main(int argc, char** argv) {
         double base = 0;
         for (const Variant& v : Variants) {
             if (skip(v)) continue;
-            auto scene = scene_for(std::string(v.integrator) + Common + "</integrator>");
+            auto scene = scene_for(integrator_of(v));
             RunContext ctx;
             ctx.quiet = true;
             ctx.spp = mpp;
