@@ -8,7 +8,10 @@
 #include <OpenEXR/ImfHeader.h>
 #include <OpenEXR/ImfInputFile.h>
 #include <OpenEXR/ImfOutputFile.h>
+#include <OpenImageIO/filesystem.h>
 #include <OpenImageIO/imageio.h>
+#include <fcntl.h>
+#include <unistd.h>
 
 #include <algorithm>
 #include <bit>
@@ -153,6 +156,24 @@ static void write_pfm(const fs::path& path, const Bitmap& img) {
     if (!out) throw RuntimeError(fmt::format("write failed: {}", std::strerror(errno)));
 }
 
+// `bytes` into the file `path`, every system call checked (a short write on a full disk is an error).
+static void write_bytes(const fs::path& path, const std::vector<unsigned char>& bytes) {
+    const int fd = ::open(path.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
+    if (fd < 0) throw RuntimeError(std::strerror(errno));
+    std::size_t done = 0;
+    while (done < bytes.size()) {
+        const ssize_t n = ::write(fd, bytes.data() + done, bytes.size() - done);
+        if (n < 0 && errno == EINTR) continue;
+        if (n <= 0) {
+            const int err = n < 0 ? errno : ENOSPC;
+            ::close(fd);
+            throw RuntimeError(std::strerror(err));
+        }
+        done += std::size_t(n);
+    }
+    if (::close(fd) != 0) throw RuntimeError(std::strerror(errno));
+}
+
 // Writes `path` (a temporary file: see write_image) in the format of extension `e`. Failures are exceptions
 // whose message is the reason alone; write_atomically adds the output's name.
 static void write_image_file(const fs::path& path, const std::string& e, const Bitmap& img,
@@ -167,6 +188,11 @@ static void write_image_file(const fs::path& path, const std::string& e, const B
     }
     auto out = OIIO::ImageOutput::create(path.string());
     if (!out) throw RuntimeError(OIIO::geterror());
+    // OpenImageIO's writers do not all report failed writes (PNG in 2.4 ignores a short write on a full disk
+    // and closes "successfully"): encode into memory when the format allows, then write the bytes ourselves.
+    std::vector<unsigned char> bytes;
+    OIIO::Filesystem::IOVecOutput memory(bytes);
+    const bool in_memory = out->supports("ioproxy") && out->set_ioproxy(&memory);
     const std::size_t n = std::size_t(img.width()) * std::size_t(img.height());
     if (is_ldr(e)) {
         const double scale = std::exp2(opts.exposure);
@@ -189,6 +215,14 @@ static void write_image_file(const fs::path& path, const std::string& e, const B
         OIIO::ImageSpec spec(img.width(), img.height(), 3, OIIO::TypeDesc::FLOAT);
         if (!out->open(path.string(), spec) || !out->write_image(OIIO::TypeDesc::FLOAT, px.data()) || !out->close())
             throw RuntimeError(out->geterror());
+    }
+    if (in_memory) {
+        write_bytes(path, bytes);
+    } else {  // written by OpenImageIO itself: read it back, so that a truncated file is never renamed
+        auto in = OIIO::ImageInput::open(path.string());
+        std::vector<float> check(std::size_t(img.width()) * std::size_t(img.height()) * 3);
+        if (!in || !in->read_image(0, 0, 0, 3, OIIO::TypeDesc::FLOAT, check.data()))
+            throw RuntimeError("the written file does not read back (a full disk?)");
     }
 }
 
