@@ -40,7 +40,7 @@ enum class Wrap { Repeat, Mirror, Clamp };
 class BitmapTexture final : public Texture {
 public:
     explicit BitmapTexture(const Properties& props) {
-        const std::filesystem::path path = props.get_input_file("filename", "image file");
+        const std::filesystem::path path = props.get_path("filename");
         m_nearest = props.get_choice("filter_type", {"bilinear", "nearest"}) == "nearest";
         const std::string wrap = props.get_choice("wrap_mode", {"repeat", "mirror", "clamp"});
         m_wrap = wrap == "repeat" ? Wrap::Repeat : wrap == "mirror" ? Wrap::Mirror : Wrap::Clamp;
@@ -49,6 +49,7 @@ public:
         m_identity = m_to_uv.is_identity();
 
         Bitmap img;
+        props.get_input_file("filename", "image file");  // after the other parameters: their errors come first
         try {
             img = read_image(path);
         } catch (const Error& e) {
