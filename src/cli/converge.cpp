@@ -190,8 +190,7 @@ int run_converge(const ConvergeArgs& a) {
     o.allow_unused = a.allow_unused;
     o.quiet = a.quiet;
 
-    ThreadLimit limit(a.threads);
-    install_interrupt_handlers();
+    ThreadLimit limit(a.threads);  // (the signal handlers are installed first thing in main)
     Timer timer;
     const ConvergeSummary s = run_convergence(o);
     if (!a.quiet)

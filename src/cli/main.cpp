@@ -1,10 +1,11 @@
 // kelvin: the command-line driver. Thin by design: parse arguments, load the scene, run it, write, report.
 //
-// Exit codes: 0 success, 1 runtime failure, 2 bad input (scene, parameter, option), 130 interrupted
-// (the image computed so far has been written).
+// Exit codes: 0 success, 1 runtime failure, 2 bad input (scene, parameter, option, unusable output path),
+// 130 interrupted (the image computed so far has been written; nothing when interrupted while loading).
 #include "converge.h"
 
 #include <kelvin/core/error.h>
+#include <kelvin/core/files.h>
 #include <kelvin/core/interrupt.h>
 #include <kelvin/core/job.h>
 #include <kelvin/core/logging.h>
@@ -18,6 +19,7 @@
 
 #include <CLI/CLI.hpp>
 
+#include <csignal>
 #include <cstdio>
 #include <cstdlib>
 #include <filesystem>
@@ -28,7 +30,7 @@ using namespace kelvin;
 
 namespace {
 
-constexpr int ExitOk = 0, ExitRuntime = 1, ExitInput = 2, ExitInterrupted = 130;
+constexpr int ExitOk = 0, ExitRuntime = 1, ExitInput = 2, ExitInterrupted = InterruptedExitCode;
 
 struct Options {
     std::string scene;
@@ -75,26 +77,6 @@ void print_plugins(const std::string& kind) {
     if (last_kind.empty()) fmt::print("no plugins{}\n", kind.empty() ? "" : " of kind " + kind);
 }
 
-void write_atomically(const fs::path& path, const Bitmap& image, double exposure) {
-    // Write to a temporary name and rename, so a reader never sees a half-written file.
-    fs::path tmp = path;
-    tmp += ".partial" + path.extension().string();
-    try {
-        write_image(tmp, image, {exposure});
-    } catch (const RuntimeError& e) {
-        std::error_code ec;
-        fs::remove(tmp, ec);
-        throw RuntimeError(fmt::format("cannot write '{}': {}", path.string(), e.what()));
-    }
-    std::error_code ec;
-    fs::rename(tmp, path, ec);
-    if (ec) {
-        std::error_code ignored;
-        fs::remove(tmp, ignored);
-        throw RuntimeError(fmt::format("cannot write '{}': {}", path.string(), ec.message()));
-    }
-}
-
 std::string rate(double work, double seconds, const std::string& unit) {
     if (seconds <= 0) return "-";
     double r = work / seconds;
@@ -131,17 +113,26 @@ int run(const Options& o) {
     if (!is_supported_image_extension(out))
         throw InputError({}, fmt::format("-o '{}': unsupported image format '{}' (use .exr, .png, .jpg, .hdr, .pfm or "
                                          ".tif)", out.string(), out.extension().string()));
-    if (fs::path dir = out.parent_path(); !dir.empty() && !fs::is_directory(dir))
-        throw InputError({}, fmt::format("-o '{}': directory '{}' does not exist", out.string(), dir.string()));
     if (o.skip_existing && fs::exists(out)) {
         log_info("{} exists; skipping (--skip-existing)", out.string());
         return ExitOk;
     }
+    // Before any work: an output that cannot be written would throw the whole run away. (Simulation frames
+    // and CSV go beside it, so this covers them too.)
+    if (std::string why = output_file_problem(out); !why.empty())
+        throw InputError({}, fmt::format("-o '{}': {}", out.string(), why));
 
+    auto interrupted_while_loading = [&] {
+        std::fprintf(stderr, "kelvin: interrupted while loading %s; nothing written\n", scene_path.c_str());
+        return ExitInterrupted;
+    };
     Timer load_timer;
+    log_debug("loading {}", scene_path.string());
     ParsedScene parsed = parse_scene_file(scene_path, popts);
+    if (interrupt_requested()) return interrupted_while_loading();
     for (const auto& d : parsed.unused_defines) log_warn("-D {} is not used by the scene", d);
     ObjectPtr root = instantiate(parsed, {o.allow_unused});
+    if (interrupt_requested()) return interrupted_while_loading();
     auto job = std::dynamic_pointer_cast<Job>(root);
     if (!job) throw InputError(parsed.root->loc, "the root <scene> did not produce a runnable job");
     log_debug("loaded {} in {:.3f} s", scene_path.string(), load_timer.seconds());
@@ -155,13 +146,12 @@ int run(const Options& o) {
     ctx.quiet = o.quiet;
     ctx.output = out;
     ctx.write_partial_image = [&](const Bitmap& img) {
-        write_atomically(out, img, o.exposure);
+        write_image(out, img, {o.exposure});  // atomic: a viewer polling the file never sees half of it
         log_debug("wrote partial image {}", out.string());
     };
 
-    install_interrupt_handlers();
     RunResult result = job->run(ctx);
-    if (!result.image.empty()) write_atomically(out, result.image, o.exposure);
+    if (!result.image.empty()) write_image(out, result.image, {o.exposure});
 
     if (!o.quiet) {
         std::string what = result.image.empty() ? "" : fmt::format(", wrote {}", out.string());
@@ -177,6 +167,11 @@ int run(const Options& o) {
 }  // namespace
 
 int main(int argc, char** argv) {
+    // First thing: a signal at any moment (loading a scene included) stops the run cleanly with exit code 130.
+    install_interrupt_handlers();
+    // A file size limit (ulimit -f) makes a write fail with EFBIG, reported like a full disk, instead of
+    // killing the process with SIGXFSZ half-way through a file.
+    std::signal(SIGXFSZ, SIG_IGN);
     Options o;
     CLI::App app{"kelvin: Monte Carlo light transport and Monte Carlo fluid simulation", "kelvin"};
     app.set_version_flag("--version", std::string("kelvin ") + KELVIN_VERSION_STRING);

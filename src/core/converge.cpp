@@ -1,6 +1,7 @@
 // Convergence studies (include/kelvin/core/converge.h, docs/convergence.md).
 #include <kelvin/core/converge.h>
 #include <kelvin/core/error.h>
+#include <kelvin/core/files.h>
 #include <kelvin/core/image.h>
 #include <kelvin/core/interrupt.h>
 #include <kelvin/core/job.h>
@@ -72,6 +73,7 @@ ConvergeConfig parse_config_spec(const std::string& spec, const std::string& wha
 }
 
 std::vector<ConvergeConfig> read_config_file(const fs::path& path) {
+    check_input_file(path, "configuration file");
     std::ifstream in(path);
     if (!in) throw InputError({path.string(), 0, 0}, "cannot read the configuration file");
     std::vector<ConvergeConfig> out;
@@ -169,20 +171,6 @@ std::string join_row(const Row& r) {
 }
 
 std::string num(double v) { return fmt::format("{:.9g}", v); }
-
-void write_text_atomically(const fs::path& path, const std::string& text) {
-    fs::path tmp = path;
-    tmp += ".partial";
-    {
-        std::ofstream out(tmp, std::ios::binary | std::ios::trunc);
-        out << text;
-        out.flush();
-        if (!out) throw RuntimeError(fmt::format("cannot write '{}'", tmp.string()));
-    }
-    std::error_code ec;
-    fs::rename(tmp, path, ec);
-    if (ec) throw RuntimeError(fmt::format("cannot write '{}': {}", path.string(), ec.message()));
-}
 
 /// A table: header + rows, read from and written to a CSV file.
 struct Table {
@@ -335,6 +323,9 @@ private:
         if (o.output_dir.empty()) throw InputError({}, "converge: no output directory");
         if (fs::exists(o.output_dir) && !fs::is_directory(o.output_dir))
             throw InputError({}, fmt::format("-o '{}' exists and is not a directory", o.output_dir.string()));
+        // Before any run: a study that cannot write its CSV would throw its work away.
+        if (std::string why = output_dir_problem(o.output_dir); !why.empty())
+            throw InputError({}, fmt::format("-o '{}': {}", o.output_dir.string(), why));
 
         if (!o.reference.empty()) {
             if (!fs::is_regular_file(o.reference))

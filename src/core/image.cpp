@@ -1,5 +1,6 @@
 // Image I/O: OpenEXR for EXR (named float channels), OpenImageIO for everything else.
 #include <kelvin/core/error.h>
+#include <kelvin/core/files.h>
 #include <kelvin/core/image.h>
 
 #include <OpenEXR/ImfChannelList.h>
@@ -7,12 +8,17 @@
 #include <OpenEXR/ImfHeader.h>
 #include <OpenEXR/ImfInputFile.h>
 #include <OpenEXR/ImfOutputFile.h>
+#include <OpenImageIO/filesystem.h>
 #include <OpenImageIO/imageio.h>
+#include <fcntl.h>
+#include <unistd.h>
 
 #include <algorithm>
 #include <bit>
+#include <cerrno>
 #include <cmath>
 #include <cstdint>
+#include <cstring>
 #include <fstream>
 
 namespace kelvin {
@@ -70,6 +76,20 @@ bool is_supported_image_extension(const fs::path& path) {
     return e == ".exr" || is_ldr(e) || is_hdr_oiio(e);
 }
 
+// Before any pixel memory is allocated: a header may claim any size (an HDR header of 1e8 x 1e8 pixels).
+static void check_image_size(const fs::path& path, long long w, long long h, long long channels) {
+    if (w < 1 || h < 1 || channels < 1)
+        throw InputError({}, fmt::format("image file '{}' is empty or has an invalid size ({} x {} pixels, {} "
+                                         "channels)",
+                                         path.string(), w, h, channels));
+    const double values = double(w) * double(h) * double(channels);
+    if (values > double(MaxImageValues))
+        throw InputError(
+            {}, fmt::format("image file '{}' is {} x {} pixels with {} channels: more than the limit of "
+                            "{} values ({} GiB as 32-bit floats)",
+                            path.string(), w, h, channels, MaxImageValues, MaxImageValues * sizeof(float) >> 30));
+}
+
 static void write_exr(const fs::path& path, const Bitmap& img) {
     Imf::Header header(img.width(), img.height());
     for (const auto& c : img.channels()) header.channels().insert(c, Imf::Channel(Imf::FLOAT));
@@ -80,18 +100,25 @@ static void write_exr(const fs::path& path, const Bitmap& img) {
         fb.insert(img.channels()[c], Imf::Slice(Imf::FLOAT, base, sizeof(float) * nc,
                                                 sizeof(float) * nc * std::size_t(img.width())));
     }
-    Imf::OutputFile file(path.c_str(), header);
-    file.setFrameBuffer(fb);
-    file.writePixels(img.height());
+    {
+        Imf::OutputFile file(path.c_str(), header);
+        file.setFrameBuffer(fb);
+        file.writePixels(img.height());
+    }
+    // ~OutputFile writes the line offset table and swallows its errors (a full disk): read the file back's
+    // header and table, so that an incomplete file is never renamed over a good one.
+    if (!Imf::InputFile(path.c_str()).isComplete()) throw RuntimeError("the written EXR file is incomplete");
 }
 
 static Bitmap read_exr(const fs::path& path) {
     Imf::InputFile file(path.c_str());
     Imath::Box2i dw = file.header().dataWindow();
-    int w = dw.max.x - dw.min.x + 1, h = dw.max.y - dw.min.y + 1;
+    const long long w64 = (long long)dw.max.x - dw.min.x + 1, h64 = (long long)dw.max.y - dw.min.y + 1;
     std::vector<std::string> names;
     for (auto it = file.header().channels().begin(); it != file.header().channels().end(); ++it)
         names.push_back(it.name());
+    check_image_size(path, w64, h64, (long long)names.size());
+    const int w = int(w64), h = int(h64);
     // EXR stores channels alphabetically; put R, G, B, A first as users expect.
     std::vector<std::string> ordered;
     for (const char* n : {"R", "G", "B", "A"})
@@ -114,7 +141,7 @@ static Bitmap read_exr(const fs::path& path) {
 // OpenImageIO before 2.5 (Debian 12 ships 2.4) reads PFM but has no PFM writer, so write it here.
 static void write_pfm(const fs::path& path, const Bitmap& img) {
     std::ofstream out(path, std::ios::binary);
-    if (!out) throw RuntimeError(fmt::format("cannot write '{}': cannot open the file", path.string()));
+    if (!out) throw RuntimeError(fmt::format("cannot open the file: {}", std::strerror(errno)));
     // A negative scale marks little-endian floats.
     out << "PF\n" << img.width() << " " << img.height() << "\n"
         << (std::endian::native == std::endian::little ? "-1.0" : "1.0") << "\n";
@@ -124,7 +151,79 @@ static void write_pfm(const fs::path& path, const Bitmap& img) {
             for (int c = 0; c < 3; ++c) row[std::size_t(x) * 3 + std::size_t(c)] = img.at(x, y, c);
         out.write(reinterpret_cast<const char*>(row.data()), std::streamsize(row.size() * sizeof(float)));
     }
-    if (!out.flush()) throw RuntimeError(fmt::format("cannot write '{}': write failed", path.string()));
+    if (!out.flush()) throw RuntimeError(fmt::format("write failed: {}", std::strerror(errno)));
+    out.close();
+    if (!out) throw RuntimeError(fmt::format("write failed: {}", std::strerror(errno)));
+}
+
+// `bytes` into the file `path`, every system call checked (a short write on a full disk is an error).
+static void write_bytes(const fs::path& path, const std::vector<unsigned char>& bytes) {
+    const int fd = ::open(path.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
+    if (fd < 0) throw RuntimeError(std::strerror(errno));
+    std::size_t done = 0;
+    while (done < bytes.size()) {
+        const ssize_t n = ::write(fd, bytes.data() + done, bytes.size() - done);
+        if (n < 0 && errno == EINTR) continue;
+        if (n <= 0) {
+            const int err = n < 0 ? errno : ENOSPC;
+            ::close(fd);
+            throw RuntimeError(std::strerror(err));
+        }
+        done += std::size_t(n);
+    }
+    if (::close(fd) != 0) throw RuntimeError(std::strerror(errno));
+}
+
+// Writes `path` (a temporary file: see write_image) in the format of extension `e`. Failures are exceptions
+// whose message is the reason alone; write_atomically adds the output's name.
+static void write_image_file(const fs::path& path, const std::string& e, const Bitmap& img,
+                             const ImageWriteOptions& opts) {
+    if (e == ".exr") {
+        write_exr(path, img);
+        return;
+    }
+    if (e == ".pfm") {
+        write_pfm(path, img);
+        return;
+    }
+    auto out = OIIO::ImageOutput::create(path.string());
+    if (!out) throw RuntimeError(OIIO::geterror());
+    // OpenImageIO's writers do not all report failed writes (PNG in 2.4 ignores a short write on a full disk
+    // and closes "successfully"): encode into memory when the format allows, then write the bytes ourselves.
+    std::vector<unsigned char> bytes;
+    OIIO::Filesystem::IOVecOutput memory(bytes);
+    const bool in_memory = out->supports("ioproxy") && out->set_ioproxy(&memory);
+    const std::size_t n = std::size_t(img.width()) * std::size_t(img.height());
+    if (is_ldr(e)) {
+        const double scale = std::exp2(opts.exposure);
+        std::vector<uint8_t> px(n * 3);
+        for (std::size_t i = 0; i < n; ++i)
+            for (int c = 0; c < 3; ++c) {
+                double v = double(img.data()[i * std::size_t(img.channel_count()) + std::size_t(c)]) * scale;
+                if (!std::isfinite(v)) v = 0;  // never propagate NaN into an 8-bit image
+                v = linear_to_srgb(std::clamp(v, 0.0, 1.0));
+                px[i * 3 + std::size_t(c)] = uint8_t(std::lround(v * 255.0));
+            }
+        OIIO::ImageSpec spec(img.width(), img.height(), 3, OIIO::TypeDesc::UINT8);
+        spec.attribute("oiio:ColorSpace", "sRGB");
+        if (!out->open(path.string(), spec) || !out->write_image(OIIO::TypeDesc::UINT8, px.data()) || !out->close())
+            throw RuntimeError(out->geterror());
+    } else {
+        std::vector<float> px(n * 3);
+        for (std::size_t i = 0; i < n; ++i)
+            for (std::size_t c = 0; c < 3; ++c) px[i * 3 + c] = img.data()[i * std::size_t(img.channel_count()) + c];
+        OIIO::ImageSpec spec(img.width(), img.height(), 3, OIIO::TypeDesc::FLOAT);
+        if (!out->open(path.string(), spec) || !out->write_image(OIIO::TypeDesc::FLOAT, px.data()) || !out->close())
+            throw RuntimeError(out->geterror());
+    }
+    if (in_memory) {
+        write_bytes(path, bytes);
+    } else {  // written by OpenImageIO itself: read it back, so that a truncated file is never renamed
+        auto in = OIIO::ImageInput::open(path.string());
+        std::vector<float> check(std::size_t(img.width()) * std::size_t(img.height()) * 3);
+        if (!in || !in->read_image(0, 0, 0, 3, OIIO::TypeDesc::FLOAT, check.data()))
+            throw RuntimeError("the written file does not read back (a full disk?)");
+    }
 }
 
 void write_image(const fs::path& path, const Bitmap& img, const ImageWriteOptions& opts) {
@@ -134,58 +233,24 @@ void write_image(const fs::path& path, const Bitmap& img, const ImageWriteOption
                                          "or .tif)", e.empty() ? "(none)" : e, path.string()));
     if (img.channel_count() < 3 && e != ".exr")
         throw RuntimeError(fmt::format("cannot write '{}': an RGB image is needed", path.string()));
-    try {
-        if (e == ".exr") {
-            write_exr(path, img);
-            return;
-        }
-        if (e == ".pfm") {
-            write_pfm(path, img);
-            return;
-        }
-        auto out = OIIO::ImageOutput::create(path.string());
-        if (!out) throw RuntimeError(fmt::format("cannot write '{}': {}", path.string(), OIIO::geterror()));
-        const std::size_t n = std::size_t(img.width()) * std::size_t(img.height());
-        if (is_ldr(e)) {
-            const double scale = std::exp2(opts.exposure);
-            std::vector<uint8_t> px(n * 3);
-            for (std::size_t i = 0; i < n; ++i)
-                for (int c = 0; c < 3; ++c) {
-                    double v = double(img.data()[i * std::size_t(img.channel_count()) + std::size_t(c)]) * scale;
-                    if (!std::isfinite(v)) v = 0;  // never propagate NaN into an 8-bit image
-                    v = linear_to_srgb(std::clamp(v, 0.0, 1.0));
-                    px[i * 3 + std::size_t(c)] = uint8_t(std::lround(v * 255.0));
-                }
-            OIIO::ImageSpec spec(img.width(), img.height(), 3, OIIO::TypeDesc::UINT8);
-            spec.attribute("oiio:ColorSpace", "sRGB");
-            if (!out->open(path.string(), spec) || !out->write_image(OIIO::TypeDesc::UINT8, px.data()) ||
-                !out->close())
-                throw RuntimeError(fmt::format("cannot write '{}': {}", path.string(), out->geterror()));
-        } else {
-            std::vector<float> px(n * 3);
-            for (std::size_t i = 0; i < n; ++i)
-                for (std::size_t c = 0; c < 3; ++c) px[i * 3 + c] = img.data()[i * std::size_t(img.channel_count()) + c];
-            OIIO::ImageSpec spec(img.width(), img.height(), 3, OIIO::TypeDesc::FLOAT);
-            if (!out->open(path.string(), spec) || !out->write_image(OIIO::TypeDesc::FLOAT, px.data()) ||
-                !out->close())
-                throw RuntimeError(fmt::format("cannot write '{}': {}", path.string(), out->geterror()));
-        }
-    } catch (const Error&) {
-        throw;
-    } catch (const std::exception& ex) {
-        throw RuntimeError(fmt::format("cannot write '{}': {}", path.string(), ex.what()));
-    }
+    // A temporary file beside the output, flushed and renamed: a reader (or a crash, a full disk, a second
+    // Ctrl-C) never sees half a file, and a failed write leaves the previous file as it was.
+    write_atomically(path, [&](const fs::path& tmp) { write_image_file(tmp, e, img, opts); });
 }
 
 Bitmap read_image(const fs::path& path) {
-    std::error_code ec;
-    if (!fs::exists(path, ec)) throw InputError({}, fmt::format("image file '{}' does not exist", path.string()));
+    // A device (/dev/zero) would keep OpenImageIO's format probing busy for ever.
+    check_input_file(path, "image file");
     std::string e = ext_of(path);
     try {
         if (e == ".exr") return read_exr(path);
         auto in = OIIO::ImageInput::open(path.string());
         if (!in) throw InputError({}, fmt::format("cannot read image '{}': {}", path.string(), OIIO::geterror()));
         const OIIO::ImageSpec& spec = in->spec();
+        check_image_size(path, spec.width, spec.height, spec.nchannels);
+        if (spec.depth > 1)
+            throw InputError({}, fmt::format("image file '{}' is a volume ({} slices); a 2D image is needed",
+                                             path.string(), spec.depth));
         int nc = std::min(spec.nchannels, 4);
         std::vector<std::string> names = {"R", "G", "B", "A"};
         names.resize(std::size_t(std::max(nc, 3)));

@@ -1,3 +1,4 @@
+#include <kelvin/core/files.h>
 #include <kelvin/core/interrupt.h>
 
 #include <atomic>
@@ -10,13 +11,15 @@ namespace kelvin {
 namespace {
 std::atomic<int> g_interrupts{0};
 
-extern "C" void kelvin_on_signal(int sig) {
+extern "C" void kelvin_on_signal(int) {
     if (g_interrupts.fetch_add(1) >= 1) {
-        // Second signal: the user insists. Leave now, without running destructors.
+        // Second signal: the user insists. Leave now, without running destructors, but without leaving a
+        // half-written temporary file behind either (unlink is async-signal-safe).
+        remove_temporary_files();
         const char msg[] = "\nkelvin: interrupted twice, exiting without writing output\n";
         ssize_t r = write(STDERR_FILENO, msg, sizeof(msg) - 1);
         (void)r;
-        std::_Exit(128 + sig);
+        std::_Exit(InterruptedExitCode);
     }
 }
 }  // namespace

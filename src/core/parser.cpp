@@ -1,4 +1,5 @@
 // Mitsuba-style XML scene parser. See include/kelvin/core/parser.h and docs/scene-format.md.
+#include <kelvin/core/files.h>
 #include <kelvin/core/logging.h>
 #include <kelvin/core/parser.h>
 #include <kelvin/core/registry.h>
@@ -57,6 +58,72 @@ const std::vector<std::string>& structural_tags() {
     return tags;
 }
 
+// The offset of the first element nested deeper than `limit` levels (the root element is level 1), or -1.
+// A lexical scan of the text, before pugixml builds a tree: hostile nesting (a million levels) is refused
+// at once, not after building and walking it. Comments, CDATA, processing instructions, the DOCTYPE and
+// quoted attribute values are skipped; malformed text can only make the count wrong for input that pugixml
+// then rejects anyway.
+std::ptrdiff_t first_element_deeper_than(const std::string& s, int limit) {
+    const std::size_t n = s.size();
+    auto skip_past = [&](std::size_t from, std::string_view end) {
+        const std::size_t e = s.find(end, from);
+        return e == std::string::npos ? n : e + end.size();
+    };
+    int depth = 0;
+    std::size_t i = 0;
+    while (i < n) {
+        const std::size_t lt = s.find('<', i);
+        if (lt == std::string::npos || lt + 1 >= n) break;
+        const char c = s[lt + 1];
+        if (s.compare(lt, 4, "<!--") == 0) {
+            i = skip_past(lt + 4, "-->");
+        } else if (s.compare(lt, 9, "<![CDATA[") == 0) {
+            i = skip_past(lt + 9, "]]>");
+        } else if (c == '?') {
+            i = skip_past(lt + 2, "?>");
+        } else if (c == '!') {  // <!DOCTYPE ... [ internal subset ] >
+            int brackets = 0;
+            char quote = 0;
+            std::size_t j = lt + 2;
+            for (; j < n; ++j) {
+                const char ch = s[j];
+                if (quote) {
+                    if (ch == quote) quote = 0;
+                } else if (ch == '"' || ch == '\'') {
+                    quote = ch;
+                } else if (ch == '[') {
+                    ++brackets;
+                } else if (ch == ']') {
+                    --brackets;
+                } else if (ch == '>' && brackets <= 0) {
+                    break;
+                }
+            }
+            i = j + 1;
+        } else if (c == '/') {
+            --depth;
+            i = skip_past(lt + 2, ">");
+        } else {
+            char quote = 0;
+            std::size_t j = lt + 1;
+            for (; j < n; ++j) {
+                const char ch = s[j];
+                if (quote) {
+                    if (ch == quote) quote = 0;
+                } else if (ch == '"' || ch == '\'') {
+                    quote = ch;
+                } else if (ch == '>') {
+                    break;
+                }
+            }
+            if (++depth > limit) return std::ptrdiff_t(lt);
+            if (j < n && s[j - 1] == '/') --depth;  // <empty/>
+            i = j + 1;
+        }
+    }
+    return -1;
+}
+
 class Parser {
 public:
     explicit Parser(const ParseOptions& opts) : m_opts(opts) {
@@ -66,7 +133,7 @@ public:
     ParsedScene parse_root(const fs::path& path, const std::string* text, const std::string& display) {
         FileText& f = load(path, text, display, {});
         pugi::xml_document& doc = m_docs.emplace_back();
-        pugi::xml_node root = parse_xml(doc, f);
+        pugi::xml_node root = parse_xml(doc, f, 0);
         auto node = std::make_shared<SceneNode>();
         node->kind = "scene";
         node->loc = f.loc(root);
@@ -90,12 +157,8 @@ private:
         if (text) {
             f.content = *text;
         } else {
-            std::error_code ec;
-            if (!fs::exists(path, ec))
-                throw_input(from, "scene file '{}' does not exist", display);
-            if (fs::is_directory(path, ec)) throw_input(from, "'{}' is a directory, not a scene file", display);
             // Devices and pipes (/dev/zero, /dev/stdin) would be read forever.
-            if (!fs::is_regular_file(path, ec)) throw_input(from, "'{}' is not a regular file", display);
+            check_input_file(path, "scene file", from);
             std::ifstream in(path, std::ios::binary);
             if (!in) throw_input(from, "cannot open scene file '{}'", display);
             std::ostringstream ss;
@@ -113,7 +176,13 @@ private:
         return ec ? f.path.string() : c.string();
     }
 
-    pugi::xml_node parse_xml(pugi::xml_document& doc, const FileText& f) {
+    // `base_depth`: the nesting depth the file's root body continues (0 for the main file, the <include>'s
+    // depth for an included one).
+    pugi::xml_node parse_xml(pugi::xml_document& doc, const FileText& f, int base_depth) {
+        // An object's body may nest a value and a transform operation (2 levels) below the deepest object
+        // parse_body accepts; anything deeper is refused while reading, with the limit parse_body reports.
+        if (const std::ptrdiff_t at = first_element_deeper_than(f.content, m_opts.max_depth + 2 - base_depth); at >= 0)
+            throw_input(f.loc(at), "scene nesting deeper than {} levels", m_opts.max_depth);
         pugi::xml_parse_result r = doc.load_buffer(f.content.data(), f.content.size(), pugi::parse_default,
                                                    pugi::encoding_utf8);
         if (!r) throw InputError(f.loc(r.offset), fmt::format("XML syntax error: {}", r.description()));
@@ -158,6 +227,19 @@ private:
             i = j - 1;
         }
         return out;
+    }
+
+    // An element whose children the parser would not read (value tags, transform operations, <default>,
+    // <include>, <ref>, <plugin>): a child element or text is an error at the element, naming the child and
+    // its position. Comments are fine.
+    void reject_children(const pugi::xml_node& n, const FileText& f) {
+        for (pugi::xml_node c : n.children()) {
+            if (c.type() == pugi::node_element)
+                throw_input(f.loc(n), "<{}> takes no children (found <{}> at {})", n.name(), c.name(), f.loc(c).str());
+            if ((c.type() == pugi::node_pcdata || c.type() == pugi::node_cdata) && !trim(c.value()).empty())
+                throw_input(f.loc(n), "<{}> takes no children (found text '{}')", n.name(),
+                            std::string(trim(c.value()).substr(0, 20)));
+        }
     }
 
     void check_attributes(const pugi::xml_node& n, const FileText& f, std::initializer_list<const char*> allowed) {
@@ -225,7 +307,7 @@ private:
             if (op.type() != pugi::node_element) continue;
             std::string_view tag = op.name();
             SourceLoc loc = f.loc(op);
-            if (op.first_child()) throw_input(loc, "<{}> takes no children", tag);
+            reject_children(op, f);
             Transform m;
             if (tag == "translate") {
                 check_attributes(op, f, {"value", "x", "y", "z"});
@@ -284,7 +366,7 @@ private:
             target.values.push_back(std::move(v));
             return;
         }
-        if (n.first_child()) throw_input(loc, "<{}> takes no children", tag);
+        reject_children(n, f);
         if (tag == "point" || tag == "vector") {
             check_attributes(n, f, {"name", "value", "x", "y", "z"});
             v.name = attr(n, f, "name");
@@ -373,7 +455,7 @@ private:
                 parse_value(n, f, target);
             } else if (tag == "ref") {
                 check_attributes(n, f, {"id", "name"});
-                if (n.first_child()) throw_input(loc, "<ref> takes no children");
+                reject_children(n, f);
                 std::string id = attr(n, f, "id");
                 auto it = m_ids.find(id);
                 if (it == m_ids.end()) {
@@ -386,6 +468,7 @@ private:
                 target.children.push_back({attr(n, f, "name", false), it->second, true, loc});
             } else if (tag == "default") {
                 check_attributes(n, f, {"name", "value"});
+                reject_children(n, f);
                 std::string name = attr(n, f, "name");
                 std::string value = attr(n, f, "value");
                 if (name.empty() || !(std::isalpha(static_cast<unsigned char>(name[0])) || name[0] == '_'))
@@ -393,9 +476,11 @@ private:
                 m_params.emplace(name, value);  // -D and earlier defaults win
             } else if (tag == "include") {
                 check_attributes(n, f, {"filename"});
+                reject_children(n, f);
                 include(attr(n, f, "filename"), f, loc, target, depth);
             } else if (tag == "plugin") {
                 check_attributes(n, f, {"path"});
+                reject_children(n, f);
                 fs::path p = attr(n, f, "path");
                 if (p.is_relative()) p = f.path.parent_path() / p;
                 m_out.plugins.push_back({p.lexically_normal(), loc});
@@ -431,7 +516,7 @@ private:
         if (depth > m_opts.max_depth) throw_input(loc, "includes nested deeper than {} levels", m_opts.max_depth);
         FileText& f = load(p, nullptr, p.string(), loc);
         pugi::xml_document& doc = m_docs.emplace_back();
-        pugi::xml_node root = parse_xml(doc, f);
+        pugi::xml_node root = parse_xml(doc, f, depth);
         check_attributes(root, f, {"version"});
         m_include_stack.push_back(key);
         parse_body(root, f, target, depth + 1);

@@ -1,3 +1,4 @@
+#include <kelvin/core/files.h>
 #include <kelvin/core/properties.h>
 #include <kelvin/core/registry.h>
 #include <kelvin/core/strings.h>
@@ -247,6 +248,12 @@ std::filesystem::path Properties::get_path(std::string_view name) const {
         std::filesystem::path base = std::filesystem::path(loc.file).parent_path();
         return base / p;
     }
+    return p;
+}
+
+std::filesystem::path Properties::get_input_file(std::string_view name, std::string_view what) const {
+    std::filesystem::path p = get_path(name);
+    if (std::string why = input_file_problem(p, what); !why.empty()) error(name, why);
     return p;
 }
 

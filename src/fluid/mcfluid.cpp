@@ -10,6 +10,7 @@
 #include <kelvin/fluid/mcfluid.h>
 
 #include <algorithm>
+#include <atomic>
 #include <bit>
 #include <cmath>
 #include <cstring>
@@ -117,17 +118,24 @@ Vec2d MCFluidSolver::checked_velocity(Vec2d x, Random& rng, uint64_t& evals, uin
     return e.value;
 }
 
-void MCFluidSolver::ensure_velocity() {
-    if (m_velocity_valid) return;
+bool MCFluidSolver::ensure_velocity() {
+    if (m_velocity_valid) return true;
     Timer timer;
     const int nx = m_omega.nx(), ny = m_omega.ny();
     const int n = m_settings.velocity.samples;
     std::vector<RowWork> rows(std::size_t(ny), RowWork{});
+    std::atomic<bool> interrupted{false};
     parallel_for_units(std::size_t(ny), [&](std::size_t row) {
         const int j = int(row);
         Random rng(m_settings.seed, stream_of(m_step, TagVelocity, row));
         RowWork& w = rows[row];
         for (int i = 0; i < nx; ++i) {
+            // Every cell: one cell's estimate is n samples (Walk-on-Spheres walks with boundaries, each many
+            // closest-point queries), so a row can be long; the check is one relaxed atomic load.
+            if (interrupt_requested()) {
+                interrupted = true;
+                return;
+            }
             VelocityEstimate e = estimate_at(m_omega.cell_center(i, j), n, rng, w.walks);
             w.evals += uint64_t(e.samples);
             ++w.queries;
@@ -148,8 +156,15 @@ void MCFluidSolver::ensure_velocity() {
         add_walks(w.walks);
     }
     m_work.seconds_velocity += timer.seconds();
+    if (interrupted) {  // what the pass left is a mix of rows: no velocity rather than a wrong one
+        for (Grid2* g : {&m_u, &m_v, &m_var_u, &m_var_v}) std::fill(g->values().begin(), g->values().end(), 0.0);
+        return false;
+    }
     m_velocity_valid = true;
+    return true;
 }
+
+bool MCFluidSolver::velocity_available() { return ensure_velocity(); }
 
 const Grid2& MCFluidSolver::velocity_u() {
     ensure_velocity();
@@ -170,8 +185,8 @@ const Grid2& MCFluidSolver::velocity_variance_v() {
 
 bool MCFluidSolver::step(double dt) {
     if (!(dt > 0) || std::isnan(dt)) throw_runtime("MCFluidSolver::step: dt must be positive (got {})", dt);
-    ensure_velocity();  // k1 at the cell centres: the velocity of the current state
-    if (interrupt_requested()) return false;
+    // k1 at the cell centres: the velocity of the current state.
+    if (!ensure_velocity() || interrupt_requested()) return false;
     Timer timer;
     const int nx = m_omega.nx(), ny = m_omega.ny();
     const MCFluidSettings& s = m_settings;
@@ -191,6 +206,10 @@ bool MCFluidSolver::step(double dt) {
         Random rng(s.seed, stream_of(m_step, TagAdvection, row));
         RowWork& w = rows[row];
         for (int i = 0; i < nx; ++i) {
+            if (interrupt_requested()) {  // every cell, as in ensure_velocity: RK4 is 3 velocity estimates
+                interrupted = true;
+                return;
+            }
             const Vec2d x = m_omega.cell_center(i, j);
             const Vec2d k1(m_u.at(i, j), m_v.at(i, j));
             Vec2d xd;

@@ -4,7 +4,9 @@
 #include <fmt/format.h>
 
 #include <algorithm>
+#include <cerrno>
 #include <cmath>
+#include <cstring>
 #include <limits>
 #include <optional>
 
@@ -107,15 +109,29 @@ std::filesystem::path OutputPaths::csv() const {
     return p;
 }
 
-DiagnosticsCsv::DiagnosticsCsv(const std::filesystem::path& path) : m_path(path) {
-    m_file = std::fopen(path.c_str(), "w");
-    if (!m_file) throw_runtime("cannot write '{}'", path.string());
-    std::fprintf(m_file, "%s\n", header());
-    std::fflush(m_file);
+DiagnosticsCsv::DiagnosticsCsv(const std::filesystem::path& path)
+    : m_path(path), m_atomic(std::make_unique<AtomicFile>(path)) {
+    m_file = std::fopen(m_atomic->temp_path().c_str(), "w");
+    if (!m_file) throw_runtime("cannot write '{}': {}", path.string(), std::strerror(errno));
+    if (std::fprintf(m_file, "%s\n", header()) < 0 || std::fflush(m_file) != 0)
+        throw_runtime("cannot write '{}': {}", m_path.string(), std::strerror(errno));
 }
 
 DiagnosticsCsv::~DiagnosticsCsv() {
-    if (m_file) std::fclose(m_file);
+    if (m_file) std::fclose(m_file);  // m_atomic, not committed, removes the temporary file
+}
+
+void DiagnosticsCsv::close() {
+    if (!m_file) return;
+    const bool ok = std::fflush(m_file) == 0 && !std::ferror(m_file);
+    const int err = errno;
+    const bool closed = std::fclose(m_file) == 0;
+    m_file = nullptr;
+    if (!ok || !closed) {
+        m_atomic->discard();
+        throw_runtime("cannot write '{}': {}", m_path.string(), std::strerror(ok ? errno : err));
+    }
+    m_atomic->commit();
 }
 
 const char* DiagnosticsCsv::header() {
@@ -132,8 +148,8 @@ void DiagnosticsCsv::write(const FluidDiagnostics& d, double seconds, double eva
                                    std::isfinite(d.vorticity_rmse_exact)
                                        ? fmt::format("{:.6g}", d.vorticity_rmse_exact)
                                        : std::string());
-    if (std::fputs(line.c_str(), m_file) < 0) throw_runtime("cannot write '{}'", m_path.string());
-    std::fflush(m_file);
+    if (std::fputs(line.c_str(), m_file) < 0 || std::fflush(m_file) != 0)
+        throw_runtime("cannot write '{}': {}", m_path.string(), std::strerror(errno));
 }
 
 }  // namespace kelvin::fluid

@@ -213,6 +213,7 @@ RunResult run_fluid_solver(const std::string& who, FluidSolver& solver, const Si
     }
     progress.finish();
     result.interrupted = interrupt_requested();
+    if (csv) csv->close();  // the CSV so far replaces the previous one (interrupted runs included)
     if (stopped_by_time)
         log_warn("{}: time limit of {:g} s reached after {} of {} steps (t = {:g})", who, ctx.time_limit, done, p.steps,
                  solver.time());

@@ -6,6 +6,7 @@
 // numbering that tests, closest-point queries and users rely on. The format is simple enough that a strict
 // reader of a few hundred lines, with errors that name the file and the line, is the smaller risk.
 #include <kelvin/core/error.h>
+#include <kelvin/core/files.h>
 #include <kelvin/core/logging.h>
 #include <kelvin/render/ply.h>
 
@@ -557,8 +558,7 @@ MeshData read_ply_data(std::string_view data, const std::string& name) { return 
 
 MeshData read_ply(const std::filesystem::path& path) {
     const std::string name = path.string();
-    std::error_code ec;
-    if (!std::filesystem::is_regular_file(path, ec)) throw InputError(SourceLoc{name, 0, 0}, "PLY file not found");
+    check_input_file(path, "PLY file");  // a device would be read for ever
     std::ifstream in(path, std::ios::binary);
     if (!in) throw InputError(SourceLoc{name, 0, 0}, "cannot open the PLY file");
     std::ostringstream ss;

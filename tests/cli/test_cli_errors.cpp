@@ -170,13 +170,13 @@ TEST_F(CliErrors, OutputInMissingDirectoryIsRefusedBeforeRendering) {
     EXPECT_NE(line.find("does not exist"), std::string::npos) << line;
 }
 
-TEST_F(CliErrors, UnwritableOutputIsARuntimeFailure) {
-    // The output name is taken by a directory: the render runs, writing fails, exit code 1, and the message
-    // names the output the user asked for (not the temporary file).
+TEST_F(CliErrors, OutputNamingADirectoryIsRefusedBeforeRendering) {
+    // The output name is taken by a directory: refused up front (exit 2, see also test_cli_robust.cpp), and
+    // the message names the output the user asked for (not a temporary file).
     fs::path o = m_dir / "taken.exr";
     fs::create_directory(o);
     auto r = run_kelvin({TinyScene, "-q", "-o", o.string()});
-    std::string line = expect_one_error_line(r, 1);
+    std::string line = expect_one_error_line(r, 2);
     EXPECT_NE(line.find("'" + o.string() + "'"), std::string::npos) << line;
     EXPECT_TRUE(fs::is_directory(o));
     for (const auto& e : fs::directory_iterator(m_dir.path()))

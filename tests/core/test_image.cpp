@@ -6,9 +6,14 @@
 
 #include <OpenImageIO/imageio.h>
 
+#include <sys/resource.h>
+
 #include <cmath>
+#include <csignal>
 #include <cstring>
+#include <fstream>
 #include <limits>
+#include <sstream>
 
 using namespace kelvin;
 
@@ -19,6 +24,36 @@ uint32_t bits(float f) {
     std::memcpy(&u, &f, sizeof u);
     return u;
 }
+
+std::string slurp(const std::filesystem::path& p) {
+    std::ifstream in(p, std::ios::binary);
+    std::ostringstream s;
+    s << in.rdbuf();
+    return s.str();
+}
+
+/// Lowers the file size limit of this process (RLIMIT_FSIZE, like `ulimit -f`) for its lifetime; SIGXFSZ is
+/// ignored meanwhile, so an oversized write fails with EFBIG as on a full disk.
+class FileSizeLimit {
+public:
+    explicit FileSizeLimit(rlim_t bytes) {
+        getrlimit(RLIMIT_FSIZE, &m_old);
+        m_old_handler = std::signal(SIGXFSZ, SIG_IGN);
+        rlimit l = m_old;
+        l.rlim_cur = bytes;
+        setrlimit(RLIMIT_FSIZE, &l);
+    }
+    ~FileSizeLimit() {
+        setrlimit(RLIMIT_FSIZE, &m_old);
+        std::signal(SIGXFSZ, m_old_handler);
+    }
+    FileSizeLimit(const FileSizeLimit&) = delete;
+    FileSizeLimit& operator=(const FileSizeLimit&) = delete;
+
+private:
+    rlimit m_old{};
+    void (*m_old_handler)(int) = nullptr;
+};
 
 }  // namespace
 
@@ -219,4 +254,50 @@ TEST(Image, UnsupportedAndMissingFilesAreInputErrors) {
     EXPECT_THROW(write_image(dir.path() / "two.png", Bitmap(2, 2, {"A", "B"})), RuntimeError);
     EXPECT_THROW(write_image(dir.path() / "no" / "such" / "dir.png", b), RuntimeError);
     EXPECT_THROW(write_image(dir.path() / "no" / "such" / "dir.exr", b), RuntimeError);
+}
+
+TEST(Image, WriteBeyondTheFileSizeLimitKeepsThePreviousImage) {
+    // A full disk, simulated with a file size limit: the new image cannot be written, the previous one stays
+    // readable and unchanged, no temporary file is left, and the error names the output.
+    ktest::TempDir dir;
+    for (const char* name : {"frame.exr", "frame.png", "frame.pfm"}) {
+        const std::filesystem::path p = dir / name;
+        Bitmap small(4, 4);
+        for (std::size_t i = 0; i < small.size(); ++i) small.data()[i] = 0.25f;
+        write_image(p, small);
+        const std::string before = slurp(p);
+        ASSERT_FALSE(before.empty());
+        Bitmap big(512, 512);
+        uint32_t state = 12345;  // incompressible pixels, so that every format exceeds the limit
+        for (std::size_t i = 0; i < big.size(); ++i) {
+            state = state * 1664525u + 1013904223u;
+            big.data()[i] = float(state >> 8) / float(1u << 24);
+        }
+        std::string msg;
+        {
+            FileSizeLimit limit(64 * 1024);
+            try {
+                write_image(p, big);
+            } catch (const RuntimeError& e) {
+                msg = e.what();
+            }
+        }
+        EXPECT_CONTAINS(msg, "cannot write '" + p.string() + "'");
+        EXPECT_EQ(slurp(p), before) << name << ": the previous image was damaged";
+        EXPECT_EQ(read_image(p).width(), 4) << name;
+        for (const auto& f : std::filesystem::directory_iterator(dir.path()))
+            EXPECT_EQ(f.path().filename().string().find(".partial"), std::string::npos)
+                << "temporary file left: " << f.path();
+        std::filesystem::remove(p);
+    }
+}
+
+TEST(Image, HeaderClaimingAHugeImageIsRefusedBeforeAllocation) {
+    // A Radiance header may claim any size; the pixels are never allocated, and the message gives the limit.
+    ktest::TempDir dir;
+    const auto p = dir.write("huge.hdr", "#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n\n-Y 100000000 +X 100000000\n");
+    const std::string msg = ktest::input_error_of([&] { read_image(p); });
+    EXPECT_CONTAINS(msg, "huge.hdr");
+    EXPECT_CONTAINS(msg, "100000000 x 100000000");
+    EXPECT_CONTAINS(msg, fmt::format("limit of {} values", MaxImageValues));
 }

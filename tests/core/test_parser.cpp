@@ -541,6 +541,62 @@ TEST(Parser, NestingDeeperThanMaxDepthIsRejected) {
     EXPECT_CONTAINS(parse_error(nested(1000)), "deeper than 128");
 }
 
+// Children the parser would not read are errors where they are, not silently dropped: a plugin inside
+// <default> used to render with exit code 0. Seen to fail on the parser that only checked value tags.
+TEST(Parser, ChildrenOfDefaultIncludeAndPluginAreErrors) {
+    std::string msg = parse_error(
+        "<scene>\n  <default name=\"x\" value=\"1\">\n    <shape type=\"no_such_plugin\"/>\n  </default>\n"
+        "</scene>");
+    EXPECT_EQ(msg.rfind("<string>:2:3: ", 0), 0u) << msg;
+    EXPECT_CONTAINS(msg, "<default> takes no children");
+    EXPECT_CONTAINS(msg, "<shape> at <string>:3:5");
+    EXPECT_CONTAINS(parse_error("<scene><default name=\"x\" value=\"1\">text</default></scene>"),
+                    "takes no children (found text 'text')");
+    EXPECT_NO_THROW(parse("<scene><default name=\"x\" value=\"1\"><!-- a comment --></default></scene>"));
+
+    ktest::TempDir dir;
+    dir.write("inc.xml", "<scene/>");
+    const auto main = dir.write("main.xml",
+                                "<scene>\n  <include filename=\"inc.xml\">\n    <float name=\"a\" value=\"1\"/>\n"
+                                "  </include>\n</scene>\n");
+    msg = input_error_of([&] { parse_scene_file(main); });
+    EXPECT_CONTAINS(msg, "main.xml:2:3: <include> takes no children");
+    EXPECT_CONTAINS(msg, "main.xml:3:5");
+
+    ParseOptions no_load;
+    no_load.load_plugins = false;
+    msg = parse_error("<scene>\n  <plugin path=\"x.so\"><ktest type=\"leaf\"/></plugin>\n</scene>", no_load);
+    EXPECT_CONTAINS(msg, "<string>:2:3: <plugin> takes no children");
+    msg = parse_error(
+        "<scene><ktest type=\"leaf\" id=\"a\"/><ktest type=\"node\"><ref id=\"a\"><a/></ref></ktest></scene>");
+    EXPECT_CONTAINS(msg, "<ref> takes no children");
+}
+
+// Nesting depth is refused while reading the text, before a tree is built: an unclosed document a million
+// levels deep gets the depth error at the first element too deep, not an XML syntax error at its end (what a
+// check made while walking the finished tree gives). Comments and quoted '>' do not count.
+TEST(Parser, NestingDepthIsRefusedWhileReading) {
+    std::string xml = "<scene>";
+    for (int i = 0; i < 1000000; ++i) xml += "<a>";
+    std::string msg = parse_error(xml);
+    // <scene> is level 1; the default limit (128) allows 2 levels of values below the deepest object, so the
+    // 130th <a> (level 131, column 8 + 3 * 129) is the first refused.
+    EXPECT_EQ(msg.rfind("<string>:1:395: ", 0), 0u) << msg.substr(0, 200);
+    EXPECT_CONTAINS(msg, "deeper than 128 levels");
+
+    std::string commented = "<scene><!--";
+    for (int i = 0; i < 1000; ++i) commented += "<a>";
+    commented += "--><ktest type=\"leaf\"><string name=\"label\" value=\"a>b/\"/></ktest></scene>";
+    EXPECT_NO_THROW(parse(commented));
+
+    ParseOptions opts;
+    opts.max_depth = 3;
+    std::string deep = "<scene>";
+    for (int i = 0; i < 6; ++i) deep += "<ktest type=\"node\">";
+    msg = parse_error(deep, opts);  // unclosed, but refused for its depth first
+    EXPECT_CONTAINS(msg, "deeper than 3 levels");
+}
+
 TEST(Parser, PluginRequestsResolveRelativeToFile) {
     ktest::TempDir dir;
     auto f = dir.write("s/scene.xml", "<scene>\n  <plugin path=\"../mods/my.so\"/>\n</scene>\n");

@@ -7,6 +7,7 @@
 #include <kelvin/core/image.h>
 #include <kelvin/core/job.h>
 #include <kelvin/core/parser.h>
+#include <kelvin/fluid/output.h>
 
 #include <gtest/gtest.h>
 #include <sys/wait.h>
@@ -228,4 +229,42 @@ TEST(FluidScene, CliEndToEnd) {
     std::string bad = std::string("\"") + KELVIN_CLI + "\" \"" + scene_path.string() +
                       "\" -q -D res=16 -D interpolation=cubic -o \"" + out.string() + "\" 2>/dev/null";
     EXPECT_EQ(WEXITSTATUS(std::system(bad.c_str())), 2);
+}
+
+// The diagnostics CSV is written atomically: rows go to a temporary file beside it, which replaces the previous
+// CSV only on close(); a run that ends in an exception (no close) leaves the previous CSV and no temporary
+// file. Seen to fail when the CSV was opened in place (the previous file truncated at once).
+TEST(FluidScene, DiagnosticsCsvReplacesThePreviousFileOnlyWhenComplete) {
+    TempDir dir;
+    const std::filesystem::path p = dir / "run.csv";
+    auto slurp = [&] {
+        std::ifstream in(p, std::ios::binary);
+        std::ostringstream s;
+        s << in.rdbuf();
+        return s.str();
+    };
+    auto listing = [&] {
+        std::vector<std::string> names;
+        for (const auto& e : std::filesystem::directory_iterator(dir.path()))
+            names.push_back(e.path().filename().string());
+        return names;
+    };
+    dir.write("run.csv", "previous\n");
+    fluid::FluidDiagnostics d;
+    d.step = 3;
+    {
+        fluid::DiagnosticsCsv csv(p);
+        csv.write(d, 0.5, 10, 0);
+        EXPECT_EQ(slurp(), "previous\n") << "the previous CSV was touched before the new one was complete";
+        csv.close();
+    }
+    const std::string complete = slurp();
+    EXPECT_EQ(complete.rfind(std::string(fluid::DiagnosticsCsv::header()) + "\n3,", 0), 0u) << complete;
+    EXPECT_EQ(listing(), std::vector<std::string>{"run.csv"});
+    {
+        fluid::DiagnosticsCsv csv(p);  // destroyed without close(): as when a run throws
+        csv.write(d, 0.5, 10, 0);
+    }
+    EXPECT_EQ(slurp(), complete);
+    EXPECT_EQ(listing(), std::vector<std::string>{"run.csv"}) << "temporary file left behind";
 }

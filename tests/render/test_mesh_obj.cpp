@@ -149,5 +149,5 @@ TEST(MeshObj, MalformedFilesNameTheFileAndLine) {
     }
     std::string missing = input_error([&] { make_scene(obj_shape(dir.write("a", "").parent_path() / "missing.obj")); });
     EXPECT_NE(missing.find("missing.obj"), std::string::npos) << missing;
-    EXPECT_NE(missing.find("not found"), std::string::npos) << missing;
+    EXPECT_NE(missing.find("does not exist"), std::string::npos) << missing;
 }

@@ -3,6 +3,7 @@
 // points, and bad input through the scene front end.
 #include "wos_fluid_support.h"
 
+#include <kelvin/core/interrupt.h>
 #include <kelvin/core/job.h>
 #include <kelvin/core/parallel.h>
 #include <kelvin/core/parser.h>
@@ -114,6 +115,69 @@ TEST(WosSolver, BitIdenticalAcrossThreadCounts) {
     const auto a = run(1), b = run(2);
     EXPECT_TRUE(a.first == b.first);
     EXPECT_TRUE(a.second == b.second);
+}
+
+// An interrupt stops the Walk-on-Spheres velocity pass between cells, not after the whole grid (the pass used
+// not to look: a periodic-obstacle scene with many samples answered SIGTERM after 462 s). Deterministic: the
+// flag is set before the pass, so no walk may start; the velocity is then unavailable (zeros), and after
+// clear_interrupt() the same solver computes exactly the velocity of a solver never interrupted. Seen to fail
+// on the unchecked pass (every cell's walks run).
+TEST(WosSolver, VelocityPassStopsOnInterrupt) {
+    struct Guard {
+        Guard() { clear_interrupt(); }
+        ~Guard() { clear_interrupt(); }
+    } guard;
+    MCFluidSettings s = small_settings();
+    auto o = std::make_shared<WosVelocityOptions>();
+    o->shapes = {disk_boundary({0.4, 0.2}, 0.2)};
+    s.boundaries = o;
+    MCFluidSolver solver(s, two_vortices);
+    request_interrupt();
+    EXPECT_FALSE(solver.velocity_available());
+    EXPECT_EQ(solver.work().wos_walks, 0u);
+    for (double u : solver.velocity_u().values()) ASSERT_EQ(u, 0.0);
+    EXPECT_FALSE(solver.step());  // nothing moves either
+    EXPECT_EQ(solver.work().wos_walks, 0u);
+    EXPECT_EQ(solver.step_index(), 0);
+    clear_interrupt();
+    EXPECT_TRUE(solver.velocity_available());
+    EXPECT_GT(solver.work().wos_walks, 0u);
+    MCFluidSolver fresh(s, two_vortices);
+    EXPECT_TRUE(fresh.velocity_u().values() == solver.velocity_u().values());
+    EXPECT_TRUE(fresh.velocity_v().values() == solver.velocity_v().values());
+}
+
+// The same inside a run: a <simulation> with boundaries asked to stop before its first velocity pass returns
+// at once, interrupted, with the vorticity only (no made-up u and v channels) and no walk.
+TEST(WosSolver, InterruptedSceneRunReturnsTheVorticityWithoutWalking) {
+    struct Guard {
+        Guard() { clear_interrupt(); }
+        ~Guard() { clear_interrupt(); }
+    } guard;
+    const std::string xml = R"(<scene version="3.0.0">
+  <simulation type="mcfluid">
+    <integer name="steps" value="100"/>
+    <vorticity type="gaussian_vortices"><string name="vortices" value="0 0.5 0.4 0.08"/></vorticity>
+    <velocity type="walk_on_spheres">
+      <integer name="samples" value="64"/>
+      <boundary type="box"><point name="min" x="-0.15" y="-0.15"/><point name="max" x="0.15" y="0.15"/></boundary>
+    </velocity>
+    <cache type="grid"><integer name="resolution" value="32"/></cache>
+  </simulation>
+</scene>)";
+    auto job = std::dynamic_pointer_cast<Job>(instantiate(parse_scene_string(xml, {}, "interrupt.xml")));
+    ASSERT_TRUE(job);
+    RunContext ctx;
+    ctx.quiet = true;
+    request_interrupt();
+    RunResult r = job->run(ctx);
+    EXPECT_TRUE(r.interrupted);
+    EXPECT_EQ(r.work, 0.0);
+    EXPECT_EQ(ctx.stats.get("fluid.wos_walks"), 0.0);
+    ASSERT_FALSE(r.image.empty());
+    EXPECT_GE(r.image.channel_index("vorticity"), 0);
+    EXPECT_EQ(r.image.channel_index("u"), -1);
+    EXPECT_EQ(r.image.channel_index("v"), -1);
 }
 
 // Hard query points: on a boundary, within epsilon of it, at a sharp concave corner of a maze, inside a thin

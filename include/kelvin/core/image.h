@@ -6,6 +6,7 @@
 //   .hdr .pfm .tif  OpenImageIO, float R,G,B (linear)
 #include <kelvin/core/math.h>
 
+#include <cstddef>
 #include <filesystem>
 #include <string>
 #include <vector>
@@ -44,15 +45,22 @@ private:
     std::vector<float> m_data;  // interleaved, row-major, top row first
 };
 
+/// Largest image read_image accepts, in values (width x height x channels): 2^30 32-bit floats, 4 GiB. Checked
+/// against the file's header before any pixel memory is allocated.
+constexpr std::size_t MaxImageValues = std::size_t(1) << 30;
+
 struct ImageWriteOptions {
     double exposure = 0;  ///< LDR formats: multiply by 2^exposure before the sRGB curve
 };
 
 /// True if `path`'s extension is one write_image supports.
 bool is_supported_image_extension(const std::filesystem::path& path);
-/// Write by extension. Throws RuntimeError on I/O failure, InputError on an unsupported extension.
+/// Write by extension, atomically (core/files.h: a temporary file in the same directory, flushed, renamed; a
+/// failure leaves the previous file intact). Throws RuntimeError naming `path` and the reason on I/O failure,
+/// InputError on an unsupported extension.
 void write_image(const std::filesystem::path& path, const Bitmap& image, const ImageWriteOptions& opts = {});
-/// Read by extension (EXR keeps every channel; others give R,G,B[,A] linearised from sRGB for 8-bit).
+/// Read by extension (EXR keeps every channel; others give R,G,B[,A] linearised from sRGB for 8-bit). InputError
+/// when `path` is not a regular file (check_input_file), is unreadable, or is larger than MaxImageValues.
 Bitmap read_image(const std::filesystem::path& path);
 
 /// sRGB transfer function (linear -> display) and its inverse.

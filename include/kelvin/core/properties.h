@@ -112,6 +112,9 @@ public:
     std::string get_choice(std::string_view name, const std::vector<std::string>& choices) const;
     /// A file name, resolved relative to the directory of the scene file that gave it.
     std::filesystem::path get_path(std::string_view name) const;
+    /// get_path of an input file (`what`: "image file", "OBJ file", ...), checked with check_input_file before
+    /// any reader touches it: a missing file, a directory or a device is an error at the parameter.
+    std::filesystem::path get_input_file(std::string_view name, std::string_view what) const;
     /// An <rgb> (or a <float>, taken as grey).
     Color3 get_color(std::string_view name) const;
     Vec3d get_point(std::string_view name) const;

@@ -113,6 +113,12 @@ public:
     const Grid2& velocity_v();
     const Grid2& velocity_variance_u();
     const Grid2& velocity_variance_v();
+    /// Estimates the current state's velocity if not done yet; false when interrupt_requested() cut the
+    /// pass short (velocity_u() and the others then hold zeros, and the next call estimates again). Every
+    /// pass polls the interrupt flag once per cell.
+    bool velocity_available();
+    /// Energy and the other diagnostics of the current state (zero velocity when velocity_available() is
+    /// false).
     FluidDiagnostics diagnostics();
 
     // ----- pointwise API (the cached solver keeps the current state only: t >= time()).
@@ -139,7 +145,7 @@ public:
 
 private:
     void rebuild_estimator();
-    void ensure_velocity();
+    bool ensure_velocity();
     Vec2d checked_velocity(Vec2d x, Random& rng, uint64_t& evals, uint64_t& queries, uint64_t& invalid,
                            wos::WalkCounters& walks) const;
     VelocityEstimate estimate_at(Vec2d x, int n, Random& rng, wos::WalkCounters& walks) const;

@@ -1,6 +1,7 @@
 #pragma once
 // Outputs of fluid simulations: colour-mapped vorticity images, EXR field dumps and per-step CSV diagnostics.
 // Shared by every <simulation> plugin so that solvers can be compared file for file.
+#include <kelvin/core/files.h>
 #include <kelvin/core/image.h>
 #include <kelvin/core/stats.h>
 #include <kelvin/fluid/dye.h>
@@ -10,6 +11,7 @@
 
 #include <cstdio>
 #include <filesystem>
+#include <memory>
 #include <string>
 #include <vector>
 
@@ -52,11 +54,13 @@ void report_dye_stats(Stats& stats, const PassiveScalars* dye);
 /// The dye's part of the effects line: "dye none" or "dye pattern(...)".
 std::string dye_effect(const DyeSpec* spec);
 
-/// Per-step diagnostics CSV (one header line, one row per recorded state).
+/// Per-step diagnostics CSV (one header line, one row per recorded state). Written atomically: the rows go to
+/// a temporary file beside `path` (core/files.h), which replaces `path` on close(); until then a previous
+/// `path` is untouched, and destroyed without close() (an exception ended the run) the temporary is removed.
 class DiagnosticsCsv {
 public:
     DiagnosticsCsv() = default;
-    /// Opens (truncates) `path`; RuntimeError when it cannot be written.
+    /// Opens the temporary file; RuntimeError when it cannot be written.
     explicit DiagnosticsCsv(const std::filesystem::path& path);
     ~DiagnosticsCsv();
     DiagnosticsCsv(const DiagnosticsCsv&) = delete;
@@ -66,10 +70,13 @@ public:
     /// Biot–Savart kernel evaluations of that step.
     void write(const FluidDiagnostics& d, double seconds, double evals, uint64_t invalid);
     static const char* header();
+    /// Flush and rename the temporary file over `path`. RuntimeError naming `path` and the system error.
+    void close();
 
 private:
     std::FILE* m_file = nullptr;
     std::filesystem::path m_path;
+    std::unique_ptr<AtomicFile> m_atomic;
 };
 
 }  // namespace kelvin::fluid

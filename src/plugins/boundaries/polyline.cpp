@@ -93,7 +93,7 @@ public:
         if (has_file == has_points) props.error("filename", "give exactly one of filename and points");
         if (has_file) {
             m_name = props.get_path("filename").filename().string();
-            m_loops = read_polylines(props.get_path("filename"));
+            m_loops = read_polylines(props.get_input_file("filename", "polyline file"));
         } else {
             m_name = "inline";
             m_loops = {parse_points2(props, "points")};

@@ -43,10 +43,9 @@ class VdbField {
 public:
     VdbField(const Properties& props) {
         openvdb::initialize();
-        const std::filesystem::path path = props.get_path("filename");
+        const std::filesystem::path path = props.get_input_file("filename", "OpenVDB file");
         const std::string file = path.string();
         const std::string want = props.get_string("grid");
-        if (!std::filesystem::exists(path)) props.error("filename", fmt::format("no such file: '{}'", file));
         openvdb::GridBase::Ptr base;
         try {
             openvdb::io::File f(file);

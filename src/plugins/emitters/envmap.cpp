@@ -47,7 +47,7 @@ namespace {
 class EnvironmentMap final : public Emitter {
 public:
     explicit EnvironmentMap(const Properties& props) {
-        const std::filesystem::path path = props.get_path("filename");
+        const std::filesystem::path path = props.get_input_file("filename", "image file");
         Bitmap img;
         try {
             img = read_image(path);

@@ -37,7 +37,7 @@ class BitmapVorticity final : public VorticityField {
 public:
     explicit BitmapVorticity(const Properties& props)
         : m_scale(props.get_float("scale", -1e300, 1e300)), m_offset(props.get_float("offset", -1e300, 1e300)) {
-        m_path = props.get_path("filename");
+        m_path = props.get_input_file("filename", "image file");
         Bitmap img;
         try {
             img = read_image(m_path);

@@ -29,7 +29,7 @@ namespace {
 class BitmapDye final : public DyeSpec {
 public:
     explicit BitmapDye(const Properties& props) : m_common(props) {
-        m_path = props.get_path("filename");
+        m_path = props.get_input_file("filename", "image file");
         m_luminance = props.get_choice("mode", {"rgb", "luminance"}) == "luminance";
         Bitmap img;
         try {

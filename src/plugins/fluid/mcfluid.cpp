@@ -182,14 +182,17 @@ public:
             checkpoints.reached(ctx, cp);
         };
 
-        // State 0: its velocity is the first step's k1, so diagnostics cost nothing extra.
+        // State 0: its velocity is the first step's k1, so diagnostics cost nothing extra. An interrupt during
+        // that first velocity pass leaves nothing to record.
         FluidDiagnostics d0 = solver.diagnostics();
         d0.vorticity_rmse_exact = exact_vorticity_rmse(solver.vorticity_grid(), field, 0.0, settings.viscosity);
-        if (csv)
-            csv->write(d0, 0.0, double(solver.work().biot_savart_evals),
-                       solver.work().invalid_velocity + solver.work().invalid_vorticity);
-        write_frame();
-        if (checkpoints.active()) checkpoint(0);
+        if (solver.velocity_available()) {
+            if (csv)
+                csv->write(d0, 0.0, double(solver.work().biot_savart_evals),
+                           solver.work().invalid_velocity + solver.work().invalid_vorticity);
+            write_frame();
+            if (checkpoints.active()) checkpoint(0);
+        }
 
         ProgressReporter progress("Simulating", double(m_steps), "steps", ctx.quiet);
         Timer since_partial;
@@ -203,8 +206,11 @@ public:
             if (m_end_time > 0 && s == m_steps) dt = m_end_time - solver.time();
             if (!(dt > 0)) dt = settings.dt;
             if (!solver.step(dt)) break;
-            // The new state's velocity: diagnostics now, k1 of the next step later (computed once).
+            ++done;
+            // The new state's velocity: diagnostics now, k1 of the next step later (computed once). An
+            // interrupt during its pass ends the run with the new state and no velocity.
             FluidDiagnostics d = solver.diagnostics();
+            if (!solver.velocity_available()) break;
             d.vorticity_rmse_exact = exact_vorticity_rmse(solver.vorticity_grid(), field, d.time, settings.viscosity);
             const double seconds = step_timer.seconds();
             const FluidWork& after = solver.work();
@@ -212,7 +218,6 @@ public:
                 csv->write(d, seconds, double(after.biot_savart_evals - before.biot_savart_evals),
                            (after.invalid_velocity + after.invalid_vorticity) -
                                (before.invalid_velocity + before.invalid_vorticity));
-            ++done;
             if (m_output_every > 0 && (s % m_output_every == 0 || s == m_steps)) write_frame();
             progress.update(1);
             if (ctx.write_partial > 0 && ctx.write_partial_image && since_partial.seconds() >= ctx.write_partial) {
@@ -263,13 +268,22 @@ public:
                 "by zero",
                 w.invalid_velocity, w.invalid_vorticity);
 
-        const FluidDiagnostics dn = solver.diagnostics();
-        log_info(
-            "mcfluid: t = {:g}: energy {:.6g} (initial {:.6g}), enstrophy {:.6g} (initial {:.6g}), circulation "
-            "{:.6g}, max |omega| {:.6g}; active effects: advection{}{}",
-            dn.time, dn.kinetic_energy, d0.kinetic_energy, dn.enstrophy, d0.enstrophy, dn.circulation,
-            dn.max_abs_vorticity, viscous ? ", diffusion" : "", m_dye ? ", dye" : "");
-        result.image = field_image(solver.vorticity_grid(), &solver.velocity_u(), &solver.velocity_v(), range);
+        if (csv) csv->close();  // the CSV so far replaces the previous one (interrupted runs included)
+        if (solver.velocity_available()) {
+            const FluidDiagnostics dn = solver.diagnostics();
+            log_info(
+                "mcfluid: t = {:g}: energy {:.6g} (initial {:.6g}), enstrophy {:.6g} (initial {:.6g}), circulation "
+                "{:.6g}, max |omega| {:.6g}; active effects: advection{}{}",
+                dn.time, dn.kinetic_energy, d0.kinetic_energy, dn.enstrophy, d0.enstrophy, dn.circulation,
+                dn.max_abs_vorticity, viscous ? ", diffusion" : "", m_dye ? ", dye" : "");
+            result.image = field_image(solver.vorticity_grid(), &solver.velocity_u(), &solver.velocity_v(), range);
+        } else {  // interrupted while estimating the velocity: the vorticity channels only, no made-up velocity
+            log_info(
+                "mcfluid: interrupted at t = {:g} before the velocity of that state was estimated; the image has "
+                "no u and v channels",
+                solver.time());
+            result.image = field_image(solver.vorticity_grid(), nullptr, nullptr, range);
+        }
         result.work = double(done);
         result.seconds = total.seconds();
         return result;

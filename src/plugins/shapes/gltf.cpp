@@ -334,12 +334,9 @@ private:
 };
 
 Loaded load_gltf(const Properties& props) {
-    const std::filesystem::path path = props.get_path("filename");
+    const std::filesystem::path path = props.get_input_file("filename", "glTF file");
     const bool face_normals = props.get_bool("face_normals");
     const bool flip_tc = props.get_bool("flip_tex_coords");
-    std::error_code ec;
-    if (!std::filesystem::is_regular_file(path, ec))
-        props.error("filename", fmt::format("glTF file '{}' not found", path.string()));
     Loaded out;
     out.name = path.filename().string();
     out.mesh = GltfReader(path.string(), face_normals, flip_tc).read(path);

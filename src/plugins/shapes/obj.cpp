@@ -165,13 +165,10 @@ struct Loaded {
 };
 
 Loaded load_obj(const Properties& props) {
-    const std::filesystem::path path = props.get_path("filename");
+    const std::filesystem::path path = props.get_input_file("filename", "OBJ file");
     const bool face_normals = props.get_bool("face_normals");
     const bool flip_tc = props.get_bool("flip_tex_coords");
     const std::string file = path.string();
-    std::error_code ec;
-    if (!std::filesystem::is_regular_file(path, ec))
-        props.error("filename", fmt::format("OBJ file '{}' not found", file));
     std::ifstream in(path, std::ios::binary);
     std::ostringstream ss;
     ss << in.rdbuf();

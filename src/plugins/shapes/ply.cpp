@@ -33,12 +33,9 @@ struct Loaded {
 };
 
 Loaded load_ply(const Properties& props) {
-    const std::filesystem::path path = props.get_path("filename");
+    const std::filesystem::path path = props.get_input_file("filename", "PLY file");
     const bool face_normals = props.get_bool("face_normals");
     const bool flip_tc = props.get_bool("flip_tex_coords");
-    std::error_code ec;
-    if (!std::filesystem::is_regular_file(path, ec))
-        props.error("filename", fmt::format("PLY file '{}' not found", path.string()));
     Loaded out;
     out.name = path.filename().string();
     out.mesh = read_ply(path);

@@ -49,6 +49,7 @@ public:
         m_identity = m_to_uv.is_identity();
 
         Bitmap img;
+        props.get_input_file("filename", "image file");  // after the other parameters: their errors come first
         try {
             img = read_image(path);
         } catch (const Error& e) {
