@@ -257,7 +257,7 @@ TEST(MltIntegrators, StatisticsAndStageMap) {
 // The study scene (docs/mlt.md) loads and renders with each of its variants (the fragments in scenes/render/parts).
 TEST(MltIntegrators, EveryStudyVariantRenders) {
     for (const char* variant : {"pssmlt-kelemen", "pssmlt-gaussian", "mixture", "drmlt-orbital", "drmlt-mira",
-                                "drmlt-green", "drmlt-orbital-mixture"})
+                                "drmlt-green", "drmlt-orbital-mixture", "drmlt-orbital-gaussian"})
         for (const char* geometry : {"door", "caustic", "aquarium"}) {
             SCOPED_TRACE(std::string(variant) + " " + geometry);
             ParseOptions opts;
