@@ -37,7 +37,8 @@ std::vector<double> numbers(const std::string& text, const std::string& option, 
     std::vector<double> v;
     for (const auto& piece : split_list(text)) {
         auto d = parse_double(piece);
-        if (!d || !std::isfinite(*d)) throw InputError({}, fmt::format("{} '{}': '{}' is not a number", option, text, piece));
+        if (!d || !std::isfinite(*d))
+            throw InputError({}, fmt::format("{} '{}': '{}' is not a number", option, text, piece));
         v.push_back(*d);
     }
     if (v.size() != count)
@@ -75,7 +76,8 @@ std::string python() {
 
 int run_plot(const fs::path& csv, const fs::path& out_dir) {
     const fs::path script = plot_script();
-    if (!fs::exists(script)) throw RuntimeError(fmt::format("--plot: cannot find the plot script '{}'", script.string()));
+    if (!fs::exists(script))
+        throw RuntimeError(fmt::format("--plot: cannot find the plot script '{}'", script.string()));
     std::vector<std::string> args = {python(), script.string(), csv.string(), "--out", out_dir.string()};
     std::vector<char*> argv;
     for (auto& a : args) argv.push_back(a.data());
@@ -87,9 +89,10 @@ int run_plot(const fs::path& csv, const fs::path& out_dir) {
     while (waitpid(pid, &status, 0) < 0 && errno == EINTR) {
     }
     if (!WIFEXITED(status) || WEXITSTATUS(status) != 0)
-        throw RuntimeError(fmt::format("--plot: {} {} failed (exit status {}); the CSV is complete, rerun the script "
-                                       "by hand to see why", args[0], script.string(),
-                                       WIFEXITED(status) ? WEXITSTATUS(status) : -1));
+        throw RuntimeError(
+            fmt::format("--plot: {} {} failed (exit status {}); the CSV is complete, rerun the script "
+                        "by hand to see why",
+                        args[0], script.string(), WIFEXITED(status) ? WEXITSTATUS(status) : -1));
     return ExitOk;
 }
 
@@ -97,8 +100,9 @@ int run_plot(const fs::path& csv, const fs::path& out_dir) {
 
 CLI::App* add_converge_command(CLI::App& app, ConvergeArgs& a) {
     CLI::App* c = app.add_subcommand(
-        "converge", "Error against time: run a scene under several configurations and seeds, measure the error at "
-                    "checkpoints against a reference, write a CSV (docs/convergence.md)");
+        "converge",
+        "Error against time: run a scene under several configurations and seeds, measure the error at "
+        "checkpoints against a reference, write a CSV (docs/convergence.md)");
     c->add_option("scene", a.scene, "Scene file (XML)")->required();
     c->add_option("--reference", a.reference,
                   "Reference image (EXR): renders compare R,G,B; simulations compare the field channels. Simulations "
@@ -184,9 +188,9 @@ int run_converge(const ConvergeArgs& a) {
     }
     o.epsilon = a.epsilon;
     o.output_dir = a.output.empty() ? fs::path(fs::path(a.scene).stem().string() + "_converge") : fs::path(a.output);
-    o.images = a.images == "none"    ? ConvergeOptions::Images::None
-               : a.images == "all"   ? ConvergeOptions::Images::All
-                                     : ConvergeOptions::Images::First;
+    o.images = a.images == "none"  ? ConvergeOptions::Images::None
+               : a.images == "all" ? ConvergeOptions::Images::All
+                                   : ConvergeOptions::Images::First;
     o.allow_unused = a.allow_unused;
     o.quiet = a.quiet;
 

@@ -103,8 +103,7 @@ int run(const Options& o) {
     ParseOptions popts;
     for (const auto& d : o.defines) {
         auto eq = d.find('=');
-        if (eq == std::string::npos || eq == 0)
-            throw InputError({}, fmt::format("-D '{}': expected NAME=VALUE", d));
+        if (eq == std::string::npos || eq == 0) throw InputError({}, fmt::format("-D '{}': expected NAME=VALUE", d));
         popts.defines[d.substr(0, eq)] = d.substr(eq + 1);
     }
 
@@ -112,7 +111,8 @@ int run(const Options& o) {
     fs::path out = o.output.empty() ? fs::path(scene_path).replace_extension(".exr") : fs::path(o.output);
     if (!is_supported_image_extension(out))
         throw InputError({}, fmt::format("-o '{}': unsupported image format '{}' (use .exr, .png, .jpg, .hdr, .pfm or "
-                                         ".tif)", out.string(), out.extension().string()));
+                                         ".tif)",
+                                         out.string(), out.extension().string()));
     if (o.skip_existing && fs::exists(out)) {
         log_info("{} exists; skipping (--skip-existing)", out.string());
         return ExitOk;
@@ -157,7 +157,8 @@ int run(const Options& o) {
         std::string what = result.image.empty() ? "" : fmt::format(", wrote {}", out.string());
         std::fprintf(stderr, "%s %.4g %s in %.3f s (%s) on %d threads%s\n",
                      result.interrupted ? "Interrupted after" : "Done:", result.work, result.work_unit.c_str(),
-                     result.seconds, rate(result.work, result.seconds, result.work_unit).c_str(), thread_count(), what.c_str());
+                     result.seconds, rate(result.work, result.seconds, result.work_unit).c_str(), thread_count(),
+                     what.c_str());
         std::string report = ctx.stats.report();
         if (!report.empty()) std::fprintf(stderr, "%s", report.c_str());
     }
@@ -176,12 +177,14 @@ int main(int argc, char** argv) {
     CLI::App app{"kelvin: Monte Carlo light transport and Monte Carlo fluid simulation", "kelvin"};
     app.set_version_flag("--version", std::string("kelvin ") + KELVIN_VERSION_STRING);
     app.add_option("scene", o.scene, "Scene file (XML)");
-    app.add_option("-o,--output", o.output, "Output image; the extension picks the format (.exr .png .jpg .hdr .pfm .tif)");
+    app.add_option("-o,--output", o.output,
+                   "Output image; the extension picks the format (.exr .png .jpg .hdr .pfm .tif)");
     app.add_option("-D,--define", o.defines, "Set scene parameter NAME=VALUE (overrides <default>)")->take_all();
     app.add_option("-t,--threads", o.threads, "Worker threads (default: all cores); results do not depend on it")
         ->check(CLI::Range(0, 4096));
     app.add_option("--seed", o.seed, "Random seed");
-    app.add_option("--spp", o.spp, "Samples per pixel (overrides the scene's sampler)")->check(CLI::Range(1LL, 1LL << 40));
+    app.add_option("--spp", o.spp, "Samples per pixel (overrides the scene's sampler)")
+        ->check(CLI::Range(1LL, 1LL << 40));
     app.add_option("--time-limit", o.time_limit, "Stop after this many seconds (equal-time runs)")
         ->check(CLI::NonNegativeNumber);
     app.add_option("--write-partial", o.write_partial, "Write the image so far every N seconds")
@@ -192,8 +195,8 @@ int main(int argc, char** argv) {
     app.add_flag("--allow-unused", o.allow_unused, "Warn about unused scene parameters instead of failing");
     app.add_flag("-q,--quiet", o.quiet, "Only warnings and errors");
     app.add_flag("-v,--verbose", o.verbose, "Debug output");
-    auto* list = app.add_option("--list-plugins", o.list_kind, "List plugins (of KIND) with their parameters")
-                     ->expected(0, 1);
+    auto* list =
+        app.add_option("--list-plugins", o.list_kind, "List plugins (of KIND) with their parameters")->expected(0, 1);
     cli::ConvergeArgs converge_args;
     CLI::App* converge = cli::add_converge_command(app, converge_args);
     try {

@@ -50,7 +50,8 @@ void check_config_name(const std::string& name, const std::string& what) {
     for (char c : name)
         if (c == '\n' || c == '\r' || c == '"' || std::iscntrl((unsigned char)c))
             throw InputError({}, fmt::format("{}: the configuration name may not contain quotes or control "
-                                             "characters", what));
+                                             "characters",
+                                             what));
 }
 
 }  // namespace
@@ -156,7 +157,7 @@ namespace {
 
 using Row = std::vector<std::string>;
 
-const std::vector<std::string> CommonColumns = {"config", "run",  "seed", "trigger", "target",
+const std::vector<std::string> CommonColumns = {"config",  "run",  "seed", "trigger", "target",
                                                 "seconds", "work", "unit", "sim_time"};
 const std::vector<std::string> ImageColumns = {"mse", "rmse", "rel_mse", "l1", "rel_l1", "max_abs", "ssim"};
 const std::vector<std::string> FieldColumns = {"field", "region", "rmse", "rel_l2", "max_abs", "l1", "cells"};
@@ -191,7 +192,8 @@ struct Table {
             } else if (r.size() != t.header.size()) {
                 throw InputError({path.string(), n, 1},
                                  fmt::format("{} fields where the header has {} (a damaged file? remove it or "
-                                             "choose another --output)", r.size(), t.header.size()));
+                                             "choose another --output)",
+                                             r.size(), t.header.size()));
             } else {
                 t.rows.push_back(std::move(r));
             }
@@ -229,7 +231,7 @@ std::vector<std::string> settings_lines(const ConvergeOptions& o, const std::str
     if (!o.steps.empty()) s.push_back("checkpoints: steps " + list(o.steps));
     if (!o.sim_times.empty()) s.push_back("checkpoints: sim_time " + list(o.sim_times));
     s.push_back("reference: " + (o.reference.empty() ? std::string("exact solution")
-                                                       : fs::absolute(o.reference).lexically_normal().string()));
+                                                     : fs::absolute(o.reference).lexically_normal().string()));
     s.push_back("fields: " + list(o.fields));
     s.push_back("region: " + o.region.to_string());
     s.push_back("window: " + (o.window ? list(*o.window) : std::string("all")));
@@ -301,8 +303,9 @@ private:
         if (o.runs < 1) throw InputError({}, "converge: --runs must be at least 1");
         const int kinds = !o.seconds.empty() + !o.spp.empty() + !o.steps.empty() + !o.sim_times.empty();
         if (kinds == 0)
-            throw InputError({}, "converge: no checkpoints (give --checkpoints SECONDS, --spp N,... for renders, or "
-                                 "--steps / --times for simulations)");
+            throw InputError({},
+                             "converge: no checkpoints (give --checkpoints SECONDS, --spp N,... for renders, or "
+                             "--steps / --times for simulations)");
         if (kinds > 1)
             throw InputError({}, "converge: give one kind of checkpoints (--checkpoints, --spp, --steps or --times)");
         for (double s : o.seconds)
@@ -317,8 +320,8 @@ private:
                 throw InputError({}, fmt::format("converge: --field '{}': expected vorticity, u or v{}", f,
                                                  did_you_mean(f, {"vorticity", "u", "v"})));
         if (!(o.epsilon > 0)) throw InputError({}, "converge: --epsilon must be positive");
-        if (o.window && ((*o.window)[2] <= (*o.window)[0] || (*o.window)[3] <= (*o.window)[1] ||
-                         (*o.window)[0] < 0 || (*o.window)[1] < 0))
+        if (o.window && ((*o.window)[2] <= (*o.window)[0] || (*o.window)[3] <= (*o.window)[1] || (*o.window)[0] < 0 ||
+                         (*o.window)[1] < 0))
             throw InputError({}, "converge: --window x0,y0,x1,y1 needs 0 <= x0 < x1 and 0 <= y0 < y1");
         if (o.output_dir.empty()) throw InputError({}, "converge: no output directory");
         if (fs::exists(o.output_dir) && !fs::is_directory(o.output_dir))
@@ -341,23 +344,26 @@ private:
         for (std::size_t i = 0; i < o.configs.size(); ++i) {
             ParsedScene parsed = parse(o.configs[i]);
             bool sim = false;
-            for (const auto& child : parsed.root->children) sim = sim || (child.node && child.node->kind == "simulation");
+            for (const auto& child : parsed.root->children)
+                sim = sim || (child.node && child.node->kind == "simulation");
             if (i == 0) m_simulation = sim;
             if (sim != m_simulation)
-                throw InputError({o.scene.string(), 0, 0},
-                                 fmt::format("configuration '{}' runs a {} where '{}' runs a {}", o.configs[i].name,
-                                             sim ? "simulation" : "render", o.configs[0].name,
-                                             sim ? "render" : "simulation"));
+                throw InputError(
+                    {o.scene.string(), 0, 0},
+                    fmt::format("configuration '{}' runs a {} where '{}' runs a {}", o.configs[i].name,
+                                sim ? "simulation" : "render", o.configs[0].name, sim ? "render" : "simulation"));
         }
         if (m_simulation && !o.spp.empty())
-            throw InputError({o.scene.string(), 0, 0}, "the scene runs a simulation: use --steps, --times or "
-                                                       "--checkpoints, not --spp");
+            throw InputError({o.scene.string(), 0, 0},
+                             "the scene runs a simulation: use --steps, --times or "
+                             "--checkpoints, not --spp");
         if (!m_simulation && (!o.steps.empty() || !o.sim_times.empty()))
             throw InputError({o.scene.string(), 0, 0},
                              "the scene renders: use --spp or --checkpoints, not --steps or --times");
         if (!m_simulation && o.reference.empty())
-            throw InputError({o.scene.string(), 0, 0}, "the scene renders: give a --reference image (e.g. a long "
-                                                       "render: kelvin scene.xml --spp 4096 -o ref.exr)");
+            throw InputError({o.scene.string(), 0, 0},
+                             "the scene renders: give a --reference image (e.g. a long "
+                             "render: kelvin scene.xml --spp 4096 -o ref.exr)");
         if (!m_simulation && m_reference.channel_index("R") < 0)
             throw InputError({o.reference.string(), 0, 0}, "the reference image has no R, G, B channels");
     }
@@ -370,7 +376,8 @@ private:
         for (const auto& d : parsed.unused_defines)
             throw InputError({m_o.scene.string(), 0, 0},
                              fmt::format("configuration '{}': the scene does not use the parameter '{}' (it has no "
-                                         "<default name=\"{}\"> or $ reference)", c.name, d, d));
+                                         "<default name=\"{}\"> or $ reference)",
+                                         c.name, d, d));
         return parsed;
     }
 
@@ -422,7 +429,8 @@ private:
                     if (c.name == name && c.defines_string() != defs)
                         throw InputError({m_settings_path.string(), n, 1},
                                          fmt::format("configuration '{}' was run with '{}', now given '{}'; rename it "
-                                                     "or choose another --output", name, defs, c.defines_string()));
+                                                     "or choose another --output",
+                                                     name, defs, c.defines_string()));
                 continue;
             }
             if (!want_set.count(line)) {
@@ -432,8 +440,8 @@ private:
                     if (w.rfind(key + ":", 0) == 0) now = w;
                 throw InputError({m_settings_path.string(), n, 1},
                                  fmt::format("the study in this directory was run with '{}', this one has '{}'; choose "
-                                             "another --output to start a new study", line,
-                                             now.empty() ? "(nothing)" : now));
+                                             "another --output to start a new study",
+                                             line, now.empty() ? "(nothing)" : now));
             }
             ++seen;
         }
@@ -454,8 +462,9 @@ private:
     }
 
     void write_settings() {
-        std::string s = "# kelvin converge: the rows of convergence.csv depend on these settings; a resumed study "
-                        "must match them\n";
+        std::string s =
+            "# kelvin converge: the rows of convergence.csv depend on these settings; a resumed study "
+            "must match them\n";
         for (const auto& l : settings_lines(m_o, kind_columns())) s += l + "\n";
         std::map<std::string, std::string> configs = m_known_configs;
         for (const auto& c : m_o.configs) configs[c.name] = c.defines_string();
@@ -477,17 +486,23 @@ private:
 
     static std::string trigger_name(Checkpoint::Trigger t) {
         switch (t) {
-        case Checkpoint::Trigger::Seconds: return "seconds";
-        case Checkpoint::Trigger::Work: return "work";
-        case Checkpoint::Trigger::SimTime: return "sim_time";
+            case Checkpoint::Trigger::Seconds:
+                return "seconds";
+            case Checkpoint::Trigger::Work:
+                return "work";
+            case Checkpoint::Trigger::SimTime:
+                return "sim_time";
         }
         return "?";
     }
     static std::string label(const Checkpoint& cp) {
         switch (cp.trigger) {
-        case Checkpoint::Trigger::Seconds: return fmt::format("t{:g}s", cp.target);
-        case Checkpoint::Trigger::Work: return fmt::format("{}{:g}", cp.work_unit, cp.target);
-        case Checkpoint::Trigger::SimTime: return fmt::format("simt{:g}", cp.target);
+            case Checkpoint::Trigger::Seconds:
+                return fmt::format("t{:g}s", cp.target);
+            case Checkpoint::Trigger::Work:
+                return fmt::format("{}{:g}", cp.work_unit, cp.target);
+            case Checkpoint::Trigger::SimTime:
+                return fmt::format("simt{:g}", cp.target);
         }
         return "cp";
     }
@@ -525,7 +540,8 @@ private:
         if (!m_o.reference.empty()) {
             const int c = m_reference.channel_index(field);
             if (c < 0)
-                throw InputError({m_o.reference.string(), 0, 0}, fmt::format("the reference has no '{}' channel", field));
+                throw InputError({m_o.reference.string(), 0, 0},
+                                 fmt::format("the reference has no '{}' channel", field));
             const int w = m_reference.width(), h = m_reference.height();
             std::vector<double> v(g.cell_count());
             if (w == g.nx && h == g.ny) {  // the same grid: the values themselves (image rows run top down)
@@ -545,9 +561,8 @@ private:
                     const double y = (p.y - g.min.y) / (g.max.y - g.min.y) * h - 0.5;
                     const int x0 = int(std::floor(x)), y0 = int(std::floor(y));
                     const double fx = std::clamp(x - x0, 0.0, 1.0), fy = std::clamp(y - y0, 0.0, 1.0);
-                    v[std::size_t(j) * g.nx + i] =
-                        (1 - fy) * ((1 - fx) * ref(x0, y0) + fx * ref(x0 + 1, y0)) +
-                        fy * ((1 - fx) * ref(x0, y0 + 1) + fx * ref(x0 + 1, y0 + 1));
+                    v[std::size_t(j) * g.nx + i] = (1 - fy) * ((1 - fx) * ref(x0, y0) + fx * ref(x0 + 1, y0)) +
+                                                   fy * ((1 - fx) * ref(x0, y0 + 1) + fx * ref(x0 + 1, y0 + 1));
                 }
             return v;
         }
@@ -561,7 +576,8 @@ private:
                 if (!e)
                     throw InputError({m_o.scene.string(), 0, 0},
                                      fmt::format("the initial condition has no exact solution for '{}' (Taylor–Green "
-                                                 "and Lamb–Oseen do); give --reference", field));
+                                                 "and Lamb–Oseen do); give --reference",
+                                                 field));
                 v[std::size_t(j) * g.nx + i] = *e;
             }
         return v;
@@ -615,8 +631,14 @@ private:
                                        "exact solution or a reference field), not --spp"
                                      : "the scene renders: use --spp or --checkpoints with a --reference image, not "
                                        "--steps or --times");
-            Row base = {config.name,        std::to_string(r), std::to_string(seed), trigger_name(cp.trigger),
-                        num(cp.target),     fmt::format("{:.6f}", seconds),   num(cp.work), cp.work_unit,
+            Row base = {config.name,
+                        std::to_string(r),
+                        std::to_string(seed),
+                        trigger_name(cp.trigger),
+                        num(cp.target),
+                        fmt::format("{:.6f}", seconds),
+                        num(cp.work),
+                        cp.work_unit,
                         sim ? num(cp.sim_time) : std::string()};
             std::string image_rel;
             Bitmap img;
@@ -652,8 +674,7 @@ private:
             }
         };
 
-        if (!m_o.quiet)
-            log_info("converge: [{}/{}] {} run {} (seed {})", index, total, config.name, r, seed);
+        if (!m_o.quiet) log_info("converge: [{}/{}] {} run {} (seed {})", index, total, config.name, r, seed);
         // The job's own information lines (one set per run) would drown the study's; warnings still show.
         const LogLevel level = log_level();
         if (level == LogLevel::Info) set_log_level(LogLevel::Warn);
@@ -669,12 +690,15 @@ private:
         if (result.interrupted || interrupt_requested()) return false;
         const std::size_t fired = rows.size() / (sim_study ? m_o.fields.size() : 1);
         if (fired < expected)
-            log_warn("converge: {} run {}: {} of {} checkpoints reached before the run ended (the scene's own "
-                     "length: raise its steps, end time or sample count)", config.name, r, fired, expected);
+            log_warn(
+                "converge: {} run {}: {} of {} checkpoints reached before the run ended (the scene's own "
+                "length: raise its steps, end time or sample count)",
+                config.name, r, fired, expected);
 
         for (auto& row : rows) m_table.rows.push_back(std::move(row));
         for (const auto& c : ctx.stats.counters())
-            m_stats.rows.push_back({config.name, std::to_string(r), std::to_string(seed), c.name, num(c.value), c.unit});
+            m_stats.rows.push_back(
+                {config.name, std::to_string(r), std::to_string(seed), c.name, num(c.value), c.unit});
         m_stats.rows.push_back(
             {config.name, std::to_string(r), std::to_string(seed), "run.seconds", num(result.seconds), "s"});
         m_stats.rows.push_back(
@@ -685,8 +709,8 @@ private:
         write_text_atomically(m_csv_path, m_table.text());  // last: a run is finished once its rows are here
         m_done.insert({config.name, r});
         if (!m_o.quiet)
-            log_info("converge: {} run {}: {} checkpoint(s), {:.3g} {} in {:.3f} s", config.name, r, fired,
-                     result.work, result.work_unit, result.seconds);
+            log_info("converge: {} run {}: {} checkpoint(s), {:.3g} {} in {:.3f} s", config.name, r, fired, result.work,
+                     result.work_unit, result.seconds);
         return true;
     }
 

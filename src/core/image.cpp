@@ -97,8 +97,8 @@ static void write_exr(const fs::path& path, const Bitmap& img) {
     const std::size_t nc = std::size_t(img.channel_count());
     for (std::size_t c = 0; c < nc; ++c) {
         char* base = reinterpret_cast<char*>(const_cast<float*>(img.data()) + c);
-        fb.insert(img.channels()[c], Imf::Slice(Imf::FLOAT, base, sizeof(float) * nc,
-                                                sizeof(float) * nc * std::size_t(img.width())));
+        fb.insert(img.channels()[c],
+                  Imf::Slice(Imf::FLOAT, base, sizeof(float) * nc, sizeof(float) * nc * std::size_t(img.width())));
     }
     {
         Imf::OutputFile file(path.c_str(), header);
@@ -143,7 +143,8 @@ static void write_pfm(const fs::path& path, const Bitmap& img) {
     std::ofstream out(path, std::ios::binary);
     if (!out) throw RuntimeError(fmt::format("cannot open the file: {}", std::strerror(errno)));
     // A negative scale marks little-endian floats.
-    out << "PF\n" << img.width() << " " << img.height() << "\n"
+    out << "PF\n"
+        << img.width() << " " << img.height() << "\n"
         << (std::endian::native == std::endian::little ? "-1.0" : "1.0") << "\n";
     std::vector<float> row(std::size_t(img.width()) * 3);
     for (int y = img.height() - 1; y >= 0; --y) {  // bottom row first
@@ -230,7 +231,8 @@ void write_image(const fs::path& path, const Bitmap& img, const ImageWriteOption
     std::string e = ext_of(path);
     if (!is_supported_image_extension(path))
         throw InputError({}, fmt::format("unsupported output format '{}' for '{}' (use .exr, .png, .jpg, .hdr, .pfm "
-                                         "or .tif)", e.empty() ? "(none)" : e, path.string()));
+                                         "or .tif)",
+                                         e.empty() ? "(none)" : e, path.string()));
     if (img.channel_count() < 3 && e != ".exr")
         throw RuntimeError(fmt::format("cannot write '{}': an RGB image is needed", path.string()));
     // A temporary file beside the output, flushed and renamed: a reader (or a crash, a full disk, a second

@@ -1,10 +1,10 @@
 #include <kelvin/core/files.h>
 #include <kelvin/core/interrupt.h>
 
+#include <unistd.h>
 #include <atomic>
 #include <csignal>
 #include <cstdlib>
-#include <unistd.h>
 
 namespace kelvin {
 

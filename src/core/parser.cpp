@@ -49,8 +49,8 @@ struct FileText {
 };
 
 const std::vector<std::string>& value_tags() {
-    static const std::vector<std::string> tags = {"float", "integer", "boolean", "string", "rgb",
-                                                  "spectrum", "point", "vector", "transform"};
+    static const std::vector<std::string> tags = {"float",    "integer", "boolean", "string",   "rgb",
+                                                  "spectrum", "point",   "vector",  "transform"};
     return tags;
 }
 const std::vector<std::string>& structural_tags() {
@@ -69,6 +69,28 @@ std::ptrdiff_t first_element_deeper_than(const std::string& s, int limit) {
         const std::size_t e = s.find(end, from);
         return e == std::string::npos ? n : e + end.size();
     };
+    // The '>' that closes a tag whose text starts at `from`, skipping quoted attribute values (and, with
+    // `brackets`, a DOCTYPE's [ internal subset ]); n if there is none.
+    auto tag_end = [&](std::size_t from, bool brackets) {
+        int open = 0;
+        char quote = 0;
+        std::size_t j = from;
+        for (; j < n; ++j) {
+            const char ch = s[j];
+            if (quote) {
+                if (ch == quote) quote = 0;
+            } else if (ch == '"' || ch == '\'') {
+                quote = ch;
+            } else if (brackets && ch == '[') {
+                ++open;
+            } else if (brackets && ch == ']') {
+                --open;
+            } else if (ch == '>' && open <= 0) {
+                break;
+            }
+        }
+        return j;
+    };
     int depth = 0;
     std::size_t i = 0;
     while (i < n) {
@@ -82,40 +104,12 @@ std::ptrdiff_t first_element_deeper_than(const std::string& s, int limit) {
         } else if (c == '?') {
             i = skip_past(lt + 2, "?>");
         } else if (c == '!') {  // <!DOCTYPE ... [ internal subset ] >
-            int brackets = 0;
-            char quote = 0;
-            std::size_t j = lt + 2;
-            for (; j < n; ++j) {
-                const char ch = s[j];
-                if (quote) {
-                    if (ch == quote) quote = 0;
-                } else if (ch == '"' || ch == '\'') {
-                    quote = ch;
-                } else if (ch == '[') {
-                    ++brackets;
-                } else if (ch == ']') {
-                    --brackets;
-                } else if (ch == '>' && brackets <= 0) {
-                    break;
-                }
-            }
-            i = j + 1;
+            i = tag_end(lt + 2, true) + 1;
         } else if (c == '/') {
             --depth;
             i = skip_past(lt + 2, ">");
         } else {
-            char quote = 0;
-            std::size_t j = lt + 1;
-            for (; j < n; ++j) {
-                const char ch = s[j];
-                if (quote) {
-                    if (ch == quote) quote = 0;
-                } else if (ch == '"' || ch == '\'') {
-                    quote = ch;
-                } else if (ch == '>') {
-                    break;
-                }
-            }
+            const std::size_t j = tag_end(lt + 1, false);
             if (++depth > limit) return std::ptrdiff_t(lt);
             if (j < n && s[j - 1] == '/') --depth;  // <empty/>
             i = j + 1;
@@ -183,8 +177,8 @@ private:
         // parse_body accepts; anything deeper is refused while reading, with the limit parse_body reports.
         if (const std::ptrdiff_t at = first_element_deeper_than(f.content, m_opts.max_depth + 2 - base_depth); at >= 0)
             throw_input(f.loc(at), "scene nesting deeper than {} levels", m_opts.max_depth);
-        pugi::xml_parse_result r = doc.load_buffer(f.content.data(), f.content.size(), pugi::parse_default,
-                                                   pugi::encoding_utf8);
+        pugi::xml_parse_result r =
+            doc.load_buffer(f.content.data(), f.content.size(), pugi::parse_default, pugi::encoding_utf8);
         if (!r) throw InputError(f.loc(r.offset), fmt::format("XML syntax error: {}", r.description()));
         pugi::xml_node root;
         for (pugi::xml_node n : doc.children()) {
@@ -219,8 +213,10 @@ private:
             if (it == m_params.end()) {
                 std::vector<std::string> known;
                 for (const auto& kv : m_params) known.push_back(kv.first);
-                throw_input(loc, "undefined parameter '${}'{}: declare it with <default name=\"{}\" value=\"...\"/> "
-                                 "or pass -D {}=...", name, did_you_mean(name, known), name, name);
+                throw_input(loc,
+                            "undefined parameter '${}'{}: declare it with <default name=\"{}\" value=\"...\"/> "
+                            "or pass -D {}=...",
+                            name, did_you_mean(name, known), name, name);
             }
             m_used_params.insert(name);
             out += it->second;
@@ -461,8 +457,8 @@ private:
                 if (it == m_ids.end()) {
                     std::vector<std::string> known;
                     for (const auto& kv : m_ids) known.push_back(kv.first);
-                    throw_input(loc, "<ref> to unknown id '{}'{} (an id is visible after the element declaring it)",
-                                id, did_you_mean(id, known));
+                    throw_input(loc, "<ref> to unknown id '{}'{} (an id is visible after the element declaring it)", id,
+                                did_you_mean(id, known));
                 }
                 it->second->referenced = true;
                 target.children.push_back({attr(n, f, "name", false), it->second, true, loc});
@@ -558,15 +554,32 @@ public:
         props.set_id(node.id);
         for (const auto& v : node.values) {
             switch (v.type) {
-                case PropType::Bool: props.set_bool(v.name, std::get<bool>(v.value), v.loc); break;
-                case PropType::Int: props.set_int(v.name, std::get<long long>(v.value), v.loc); break;
-                case PropType::Float: props.set_float(v.name, std::get<double>(v.value), v.loc); break;
-                case PropType::String: props.set_string(v.name, std::get<std::string>(v.value), v.loc); break;
-                case PropType::Color: props.set_color(v.name, std::get<Vec3d>(v.value), v.loc); break;
-                case PropType::Point: props.set_point(v.name, std::get<Vec3d>(v.value), v.loc); break;
-                case PropType::Vector: props.set_vector(v.name, std::get<Vec3d>(v.value), v.loc); break;
-                case PropType::Transform: props.set_transform(v.name, std::get<Transform>(v.value), v.loc); break;
-                case PropType::Object: break;
+                case PropType::Bool:
+                    props.set_bool(v.name, std::get<bool>(v.value), v.loc);
+                    break;
+                case PropType::Int:
+                    props.set_int(v.name, std::get<long long>(v.value), v.loc);
+                    break;
+                case PropType::Float:
+                    props.set_float(v.name, std::get<double>(v.value), v.loc);
+                    break;
+                case PropType::String:
+                    props.set_string(v.name, std::get<std::string>(v.value), v.loc);
+                    break;
+                case PropType::Color:
+                    props.set_color(v.name, std::get<Vec3d>(v.value), v.loc);
+                    break;
+                case PropType::Point:
+                    props.set_point(v.name, std::get<Vec3d>(v.value), v.loc);
+                    break;
+                case PropType::Vector:
+                    props.set_vector(v.name, std::get<Vec3d>(v.value), v.loc);
+                    break;
+                case PropType::Transform:
+                    props.set_transform(v.name, std::get<Transform>(v.value), v.loc);
+                    break;
+                case PropType::Object:
+                    break;
             }
         }
         for (const auto& c : node.children) props.set_object(c.name, build(*c.node), c.loc);

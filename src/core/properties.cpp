@@ -11,15 +11,24 @@ namespace kelvin {
 
 const char* to_string(PropType t) {
     switch (t) {
-        case PropType::Bool: return "boolean";
-        case PropType::Int: return "integer";
-        case PropType::Float: return "float";
-        case PropType::String: return "string";
-        case PropType::Color: return "rgb";
-        case PropType::Point: return "point";
-        case PropType::Vector: return "vector";
-        case PropType::Transform: return "transform";
-        case PropType::Object: return "object";
+        case PropType::Bool:
+            return "boolean";
+        case PropType::Int:
+            return "integer";
+        case PropType::Float:
+            return "float";
+        case PropType::String:
+            return "string";
+        case PropType::Color:
+            return "rgb";
+        case PropType::Point:
+            return "point";
+        case PropType::Vector:
+            return "vector";
+        case PropType::Transform:
+            return "transform";
+        case PropType::Object:
+            return "object";
     }
     return "?";
 }
@@ -32,15 +41,22 @@ std::string ParamSpec::default_string() const {
     if (!default_value) return required ? "required" : "none";
     const PropValue& v = *default_value;
     switch (type) {
-        case PropType::Bool: return std::get<bool>(v) ? "true" : "false";
-        case PropType::Int: return fmt::format("{}", std::get<long long>(v));
-        case PropType::Float: return fmt::format("{}", std::get<double>(v));
-        case PropType::String: return "\"" + std::get<std::string>(v) + "\"";
+        case PropType::Bool:
+            return std::get<bool>(v) ? "true" : "false";
+        case PropType::Int:
+            return fmt::format("{}", std::get<long long>(v));
+        case PropType::Float:
+            return fmt::format("{}", std::get<double>(v));
+        case PropType::String:
+            return "\"" + std::get<std::string>(v) + "\"";
         case PropType::Color:
         case PropType::Point:
-        case PropType::Vector: return vec_string(std::get<Vec3d>(v));
-        case PropType::Transform: return std::get<Transform>(v).is_identity() ? "identity" : "(matrix)";
-        case PropType::Object: break;
+        case PropType::Vector:
+            return vec_string(std::get<Vec3d>(v));
+        case PropType::Transform:
+            return std::get<Transform>(v).is_identity() ? "identity" : "(matrix)";
+        case PropType::Object:
+            break;
     }
     return "?";
 }
@@ -54,15 +70,27 @@ static ParamSpec make(std::string name, PropType t, std::optional<PropValue> def
     s.doc = std::move(doc);
     return s;
 }
-ParamSpec boolean(std::string n, bool d, std::string doc) { return make(std::move(n), PropType::Bool, d, std::move(doc)); }
-ParamSpec integer(std::string n, long long d, std::string doc) { return make(std::move(n), PropType::Int, d, std::move(doc)); }
-ParamSpec real(std::string n, double d, std::string doc) { return make(std::move(n), PropType::Float, d, std::move(doc)); }
+ParamSpec boolean(std::string n, bool d, std::string doc) {
+    return make(std::move(n), PropType::Bool, d, std::move(doc));
+}
+ParamSpec integer(std::string n, long long d, std::string doc) {
+    return make(std::move(n), PropType::Int, d, std::move(doc));
+}
+ParamSpec real(std::string n, double d, std::string doc) {
+    return make(std::move(n), PropType::Float, d, std::move(doc));
+}
 ParamSpec string(std::string n, std::string d, std::string doc) {
     return make(std::move(n), PropType::String, std::move(d), std::move(doc));
 }
-ParamSpec color(std::string n, Color3 d, std::string doc) { return make(std::move(n), PropType::Color, d, std::move(doc)); }
-ParamSpec point(std::string n, Vec3d d, std::string doc) { return make(std::move(n), PropType::Point, d, std::move(doc)); }
-ParamSpec vector(std::string n, Vec3d d, std::string doc) { return make(std::move(n), PropType::Vector, d, std::move(doc)); }
+ParamSpec color(std::string n, Color3 d, std::string doc) {
+    return make(std::move(n), PropType::Color, d, std::move(doc));
+}
+ParamSpec point(std::string n, Vec3d d, std::string doc) {
+    return make(std::move(n), PropType::Point, d, std::move(doc));
+}
+ParamSpec vector(std::string n, Vec3d d, std::string doc) {
+    return make(std::move(n), PropType::Vector, d, std::move(doc));
+}
 ParamSpec transform(std::string n, std::string doc) {
     return make(std::move(n), PropType::Transform, Transform(), std::move(doc));
 }
@@ -108,14 +136,24 @@ void Properties::add(Entry e) {
 }
 
 void Properties::set_bool(std::string n, bool v, SourceLoc l) { add({std::move(n), PropType::Bool, v, std::move(l)}); }
-void Properties::set_int(std::string n, long long v, SourceLoc l) { add({std::move(n), PropType::Int, v, std::move(l)}); }
-void Properties::set_float(std::string n, double v, SourceLoc l) { add({std::move(n), PropType::Float, v, std::move(l)}); }
+void Properties::set_int(std::string n, long long v, SourceLoc l) {
+    add({std::move(n), PropType::Int, v, std::move(l)});
+}
+void Properties::set_float(std::string n, double v, SourceLoc l) {
+    add({std::move(n), PropType::Float, v, std::move(l)});
+}
 void Properties::set_string(std::string n, std::string v, SourceLoc l) {
     add({std::move(n), PropType::String, std::move(v), std::move(l)});
 }
-void Properties::set_color(std::string n, Color3 v, SourceLoc l) { add({std::move(n), PropType::Color, v, std::move(l)}); }
-void Properties::set_point(std::string n, Vec3d v, SourceLoc l) { add({std::move(n), PropType::Point, v, std::move(l)}); }
-void Properties::set_vector(std::string n, Vec3d v, SourceLoc l) { add({std::move(n), PropType::Vector, v, std::move(l)}); }
+void Properties::set_color(std::string n, Color3 v, SourceLoc l) {
+    add({std::move(n), PropType::Color, v, std::move(l)});
+}
+void Properties::set_point(std::string n, Vec3d v, SourceLoc l) {
+    add({std::move(n), PropType::Point, v, std::move(l)});
+}
+void Properties::set_vector(std::string n, Vec3d v, SourceLoc l) {
+    add({std::move(n), PropType::Vector, v, std::move(l)});
+}
 void Properties::set_transform(std::string n, Transform v, SourceLoc l) {
     add({std::move(n), PropType::Transform, v, std::move(l)});
 }
@@ -145,8 +183,8 @@ const ParamSpec& Properties::spec(std::string_view name, PropType expected) cons
     if (!m_info) return none;
     const ParamSpec* s = m_info->find_param(name);
     if (!s)
-        throw Error(fmt::format("internal error: {} reads parameter '{}' that its registration does not declare",
-                                who(), name));
+        throw Error(
+            fmt::format("internal error: {} reads parameter '{}' that its registration does not declare", who(), name));
     bool compatible = s->type == expected || (expected == PropType::Point && s->type == PropType::Vector) ||
                       (expected == PropType::Vector && s->type == PropType::Point);
     if (!compatible)
@@ -165,14 +203,15 @@ static bool accepts(PropType wanted, PropType given) {
     return false;
 }
 
-const Properties::Entry* Properties::lookup(std::string_view name, PropType expected, const ParamSpec** spec_out) const {
+const Properties::Entry* Properties::lookup(std::string_view name, PropType expected,
+                                            const ParamSpec** spec_out) const {
     const ParamSpec& s = spec(name, expected);
     *spec_out = &s;
     const Entry* e = find(name);
     if (!e) {
         if (s.default_value || (!s.required && m_info)) return nullptr;
-        throw InputError(m_loc, fmt::format("{}: missing required parameter '{}' (<{} name=\"{}\" .../>)", who(),
-                                            name, xml_tag(expected), name));
+        throw InputError(m_loc, fmt::format("{}: missing required parameter '{}' (<{} name=\"{}\" .../>)", who(), name,
+                                            xml_tag(expected), name));
     }
     e->queried = true;
     if (!accepts(expected, e->type))
@@ -181,7 +220,8 @@ const Properties::Entry* Properties::lookup(std::string_view name, PropType expe
     return e;
 }
 
-template <typename T> static T default_of(const ParamSpec& s, const Properties& p, std::string_view name) {
+template <typename T>
+static T default_of(const ParamSpec& s, const Properties& p, std::string_view name) {
     if (!s.default_value) p.error(name, "has no value and no default");
     return std::get<T>(*s.default_value);
 }
@@ -315,24 +355,25 @@ ObjectPtr Properties::get_object(std::string_view name) const {
                                                   kind.empty() ? "object" : kind, xml_tag(chosen->type)));
     const auto& o = std::get<ObjectPtr>(chosen->value);
     if (!kind.empty() && (!o || o->plugin_kind() != kind))
-        throw InputError(chosen->loc, fmt::format("{}: parameter '{}' must be a <{}>, got {}", who(), name, kind,
-                                                  describe(o)));
+        throw InputError(chosen->loc,
+                         fmt::format("{}: parameter '{}' must be a <{}>, got {}", who(), name, kind, describe(o)));
     return o;
 }
 
 ObjectPtr Properties::get_alternative_object(std::string_view name) const {
     const ParamSpec* s = m_info ? m_info->find_param(name) : nullptr;
     if (m_info && !s)
-        throw Error(fmt::format("internal error: {} reads parameter '{}' that its registration does not declare",
-                                who(), name));
+        throw Error(
+            fmt::format("internal error: {} reads parameter '{}' that its registration does not declare", who(), name));
     const Entry* e = find(name);
     if (!e || e->type != PropType::Object) return nullptr;
     e->queried = true;
     const auto& o = std::get<ObjectPtr>(e->value);
     const std::string kind = s ? s->object_kind : std::string();
     if (kind.empty() || !o || o->plugin_kind() != kind)
-        throw InputError(e->loc, fmt::format("{}: parameter '{}' cannot be {}{}", who(), name, describe(o),
-                                             kind.empty() ? "" : fmt::format(" (a value or a <{}> is expected)", kind)));
+        throw InputError(e->loc,
+                         fmt::format("{}: parameter '{}' cannot be {}{}", who(), name, describe(o),
+                                     kind.empty() ? "" : fmt::format(" (a value or a <{}> is expected)", kind)));
     return o;
 }
 

@@ -21,7 +21,6 @@ const char* to_string(Advection a) { return a == Advection::Euler ? "euler" : "r
 
 namespace {
 
-
 inline bool finite(Vec2d v) { return std::isfinite(v.x) && std::isfinite(v.y); }
 
 inline uint64_t stream_of(long long step, uint64_t tag, uint64_t unit) {
@@ -31,7 +30,7 @@ inline uint64_t stream_of(long long step, uint64_t tag, uint64_t unit) {
 /// Per-row counters, merged in row order after a pass.
 struct RowWork {
     uint64_t evals = 0, queries = 0, backtraces = 0, diffusion = 0, invalid_velocity = 0, invalid_vorticity = 0;
-    wos::WalkCounters walks;     // boundaries only
+    wos::WalkCounters walks;  // boundaries only
     uint64_t solid_departures = 0;
 };
 
@@ -216,8 +215,10 @@ bool MCFluidSolver::step(double dt) {
             if (s.advection == Advection::Euler) {
                 xd = x - dt * k1;  // Eq. (3.139)
             } else {               // Eqs. (3.140)-(3.144), velocity frozen at the previous step
-                const Vec2d k2 = checked_velocity(x - 0.5 * dt * k1, rng, w.evals, w.queries, w.invalid_velocity, w.walks);
-                const Vec2d k3 = checked_velocity(x - 0.5 * dt * k2, rng, w.evals, w.queries, w.invalid_velocity, w.walks);
+                const Vec2d k2 =
+                    checked_velocity(x - 0.5 * dt * k1, rng, w.evals, w.queries, w.invalid_velocity, w.walks);
+                const Vec2d k3 =
+                    checked_velocity(x - 0.5 * dt * k2, rng, w.evals, w.queries, w.invalid_velocity, w.walks);
                 const Vec2d k4 = checked_velocity(x - dt * k3, rng, w.evals, w.queries, w.invalid_velocity, w.walks);
                 xd = x - (dt / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4);
             }

@@ -203,6 +203,17 @@ inline std::string describe(const ProcessResult& r) {
 }
 
 /// The kelvin executable under test: $KELVIN_TEST_CLI if set (e.g. an installed copy), else the build's.
+/// A refused run: exit `code` (no timeout), one stderr line starting with "kelvin: error: ", which is returned.
+inline std::string expect_one_error_line(const ProcessResult& r, int code = 2) {
+    EXPECT_FALSE(r.timed_out) << describe(r);
+    EXPECT_EQ(r.exit_code, code) << describe(r);
+    auto lines = r.err_lines();
+    EXPECT_EQ(lines.size(), 1u) << describe(r);
+    if (lines.empty()) return {};
+    EXPECT_EQ(lines[0].rfind("kelvin: error: ", 0), 0u) << describe(r);
+    return lines[0];
+}
+
 inline std::string kelvin_exe() {
     if (const char* e = std::getenv("KELVIN_TEST_CLI"); e && *e) return e;
     return KELVIN_CLI;

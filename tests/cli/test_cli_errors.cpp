@@ -36,16 +36,6 @@ protected:
     }
     fs::path out(const std::string& name = "out.exr") const { return m_dir / name; }
 
-    /// Exit code 2, one stderr line starting with "kelvin: error:", which is returned.
-    static std::string expect_one_error_line(const ProcessResult& r, int code = 2) {
-        EXPECT_EQ(r.exit_code, code) << describe(r);
-        auto lines = r.err_lines();
-        EXPECT_EQ(lines.size(), 1u) << describe(r);
-        if (lines.empty()) return {};
-        EXPECT_EQ(lines[0].rfind("kelvin: error: ", 0), 0u) << describe(r);
-        return lines[0];
-    }
-
     TempDir m_dir;
 };
 

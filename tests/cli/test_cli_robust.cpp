@@ -31,15 +31,6 @@ protected:
                 found.push_back(e.path().filename().string());
         return found;
     }
-    static std::string expect_one_error_line(const ProcessResult& r, int code) {
-        EXPECT_FALSE(r.timed_out) << describe(r);
-        EXPECT_EQ(r.exit_code, code) << describe(r);
-        auto lines = r.err_lines();
-        EXPECT_EQ(lines.size(), 1u) << describe(r);
-        if (lines.empty()) return {};
-        EXPECT_EQ(lines[0].rfind("kelvin: error: ", 0), 0u) << describe(r);
-        return lines[0];
-    }
     TempDir m_dir;
 };
 

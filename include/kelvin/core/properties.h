@@ -122,7 +122,8 @@ public:
     Transform get_transform(std::string_view name) const;
     /// The nested object declared as param::object(name, kind): null if absent and optional.
     ObjectPtr get_object(std::string_view name) const;
-    template <typename T> std::shared_ptr<T> get_object_as(std::string_view name) const {
+    template <typename T>
+    std::shared_ptr<T> get_object_as(std::string_view name) const {
         ObjectPtr o = get_object(name);
         if (!o) return nullptr;
         auto t = std::dynamic_pointer_cast<T>(o);

@@ -35,7 +35,7 @@ struct OutputPaths {
     std::filesystem::path frame(long long step, int digits, const std::string& ext) const;  ///< <prefix>_0010.png
     /// A tagged frame: <prefix>_<tag>_0010.png (dye frames use the tag "dye").
     std::filesystem::path frame(long long step, int digits, const std::string& ext, const std::string& tag) const;
-    std::filesystem::path csv() const;                                                      ///< <prefix>.csv
+    std::filesystem::path csv() const;  ///< <prefix>.csv
     std::filesystem::path prefix;
 };
 
