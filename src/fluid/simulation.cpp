@@ -50,6 +50,9 @@ SimulationParams SimulationParams::parse(const Properties& props, const std::str
     p.write_csv = props.get_bool("write_csv");
     p.color_range = props.get_float("color_range", 0.0, 1e300);
 
+    if (auto obj = props.get_object("vorticity");
+        obj && !dynamic_cast<const VorticityField*>(obj.get()) && dynamic_cast<const VorticityField3*>(obj.get()))
+        props.error("vorticity", fmt::format("'{}' is a 3D vorticity field; {} is 2D", obj->plugin_name(), who));
     p.field = props.get_object_as<VorticityField>("vorticity");
     auto cache = props.get_object_as<CacheSpec>("cache");
     if (!cache) cache = std::dynamic_pointer_cast<CacheSpec>(Registry::instance().create(Properties("cache", "grid")));
@@ -170,8 +173,8 @@ RunResult run_fluid_solver(const std::string& who, FluidSolver& solver, const Si
                    : name == "v"       ? &solver.velocity_v()
                                        : nullptr;
         };
-        Checkpoint cp = state_checkpoint(steps, solver.time(), {p.domain.min, p.domain.max, p.nx, p.ny}, fields,
-                                         field, p.viscosity);
+        Checkpoint cp = state_checkpoint(steps, solver.time(), {p.domain.min, p.domain.max, p.nx, p.ny}, fields, field,
+                                         p.viscosity);
         cp.seconds = total.seconds() - checkpoints.overhead();
         cp.image = image;
         checkpoints.reached(ctx, cp);

@@ -4,6 +4,7 @@
 #include <kelvin/core/object.h>
 #include <kelvin/fluid/biot_savart.h>
 #include <kelvin/fluid/grid.h>
+#include <kelvin/fluid/grid3.h>
 
 #include <optional>
 #include <string>
@@ -32,6 +33,27 @@ public:
     virtual std::string description() const = 0;
 };
 
+/// An initial 3D vorticity field omega(0, x) (<vorticity type="..."> in a scene with dimension = 3). A 3D-only
+/// plugin derives from Object and VorticityField3 (vortex_ring, abc); a field that exists in both dimensions
+/// implements VorticityField and VorticityField3 (taylor_green). A scene of the other dimension refuses a plugin
+/// that lacks its interface with a one-line error naming `vorticity`.
+class VorticityField3 {
+public:
+    virtual ~VorticityField3() = default;
+    virtual Vec3d vorticity3(const Vec3d& x) const = 0;
+    /// The exact solution of the flow, where one is known (nullopt elsewhere, e.g. for t > 0).
+    virtual std::optional<Vec3d> exact_vorticity3(double t, const Vec3d& x, double viscosity) const {
+        return std::nullopt;
+    }
+    virtual std::optional<Vec3d> exact_velocity3(double t, const Vec3d& x, double viscosity) const {
+        return std::nullopt;
+    }
+    /// Called once with the simulation's domain: raise an InputError or log a warning when the field does not
+    /// suit the domain.
+    virtual void check_domain3(const Domain3& domain) const {}
+    virtual std::string description3() const = 0;
+};
+
 /// A velocity estimator (<velocity type="...">). Only Biot–Savart exists so far (open and periodic
 /// domains); Walk-on-Spheres for boundaries will be another implementation.
 class VelocityEstimatorSpec : public Object {
@@ -45,6 +67,8 @@ public:
     /// Cells along x; cells along y (0: chosen for square cells on the domain).
     virtual int resolution_x() const = 0;
     virtual int resolution_y() const = 0;
+    /// Cells along z in 3D (0: chosen for cubic cells on the domain).
+    virtual int resolution_z() const { return 0; }
     virtual Interpolation interpolation() const = 0;
 };
 

@@ -14,8 +14,8 @@
 //
 // | parameter         | type    | default   | meaning                                                      |
 // |-------------------|---------|-----------|--------------------------------------------------------------|
-// | dimension         | integer | 2         | 2 (3D is not implemented yet)                                 |
-// | min, max          | point   | -1 / 1    | the domain box (z = 0)                                        |
+// | dimension         | integer | 2         | 2, or 3: the Feynman–Kac Navier–Stokes solver (simulation3.h) |
+// | min, max          | point   | -1 / 1    | the domain box (2D: z = 0)                                    |
 // | periodic          | boolean | false     | periodic box, or open (free space, omega = 0 outside the box) |
 // | dt                | float   | 0.05      | time step                                                     |
 // | steps             | integer | 0         | number of steps (give steps or end_time)                      |
@@ -28,6 +28,11 @@
 // | write_exr         | boolean | true      | frames as EXR                                                 |
 // | write_csv         | boolean | true      | diagnostics CSV                                               |
 // | color_range       | float   | 0         | |omega| mapped to full colour; 0: max |omega| at t = 0         |
+// | stretching        | boolean | true      | 3D: vortex stretching (Eq. 5.21); false only to study it      |
+// | control_variates  | boolean | false     | 3D: previous step as control variate (Eq. 5.23)               |
+// | initial_samples   | integer | 0         | 3D, control variates: n_mc of the first velocity (0: n_mc)    |
+// | write_vdb         | boolean | true      | 3D: frames as OpenVDB (vorticity, |vorticity|, velocity)      |
+// | slice_axis        | string  | y         | 3D: PNG slice through the centre normal to x, y or z          |
 // | (vorticity)       | nested  | required  | initial condition                                             |
 // | (velocity)        | nested  | biot_savart | velocity estimator                                          |
 // | (cache)           | nested  | grid      | vorticity cache                                               |
@@ -53,6 +58,7 @@
 #include <kelvin/fluid/mcfluid.h>
 #include <kelvin/fluid/output.h>
 #include <kelvin/fluid/simulation.h>
+#include <kelvin/fluid/simulation3.h>
 
 #include <fmt/format.h>
 
@@ -66,10 +72,20 @@ class MCFluid final : public Job {
 public:
     explicit MCFluid(const Properties& props) {
         const long long dim = props.get_int("dimension");
-        if (dim == 3)
-            props.error("dimension",
-                        "3D MCFluid (vortex stretching, Eqs. 5.14-5.21) is not implemented yet; only "
-                        "dimension = 2 is supported");
+        if (dim == 3) {  // the Feynman–Kac Navier–Stokes solver (include/kelvin/fluid/simulation3.h)
+            m_3d = std::make_unique<Simulation3Params>(Simulation3Params::parse(props));
+            return;
+        }
+        if (dim != 2) props.error("dimension", fmt::format("must be 2 or 3 (got {})", dim));
+        for (const char* name : {"stretching", "control_variates", "initial_samples", "write_vdb", "slice_axis"})
+            if (props.has(name))
+                props.error(name,
+                            "is a 3D parameter (dimension = 3); 2D flows have no stretching term, and 2D "
+                            "outputs are PNG/EXR frames");
+        if (auto obj = props.get_object("vorticity");
+            obj && !dynamic_cast<const VorticityField*>(obj.get()) && dynamic_cast<const VorticityField3*>(obj.get()))
+            props.error("vorticity",
+                        fmt::format("'{}' is a 3D vorticity field; set dimension = 3", obj->plugin_name()));
         // The parameters the baselines share (domain, dt, steps or end_time, viscosity, advection, outputs, the
         // initial vorticity, the grid resolution, the dye): one parser for all 2D solvers.
         const SimulationParams p = SimulationParams::parse(props, "mcfluid");
@@ -103,9 +119,11 @@ public:
                 props.error("velocity", "walk_on_spheres: " + why);
         }
         m_settings.interpolation = cache->interpolation();
+        if (cache->resolution_z() != 0) props.error("cache", "resolution_z is for 3D caches (dimension = 3)");
     }
 
     RunResult run(RunContext& ctx) override {
+        if (m_3d) return run_mcfluid3(*m_3d, ctx);
         Timer total;
         MCFluidSettings settings = m_settings;
         settings.seed = ctx.seed;
@@ -122,15 +140,17 @@ public:
                  settings.ny, fluid::to_string(settings.interpolation), field.description());
         const std::string velocity_effect =
             settings.boundaries
-                ? fmt::format("Walk-on-Spheres free-slip velocity ({} gradient samples, antithetic {}, epsilon {:g}, "
-                              "max_steps {})",
-                              settings.velocity.samples, settings.boundaries->wos.antithetic ? "on" : "off",
-                              solver.boundary_field()->settings().epsilon, settings.boundaries->wos.max_steps)
+                ? fmt::format(
+                      "Walk-on-Spheres free-slip velocity ({} gradient samples, antithetic {}, epsilon {:g}, "
+                      "max_steps {})",
+                      settings.velocity.samples, settings.boundaries->wos.antithetic ? "on" : "off",
+                      solver.boundary_field()->settings().epsilon, settings.boundaries->wos.max_steps)
                 : fmt::format("Biot–Savart velocity (n_mc {}, importance {}, delta {:g}{})", settings.velocity.samples,
                               fluid::to_string(settings.velocity.importance), solver.delta(),
                               settings.domain.periodic ? ", periodic kernel" : "");
-        log_info("mcfluid: effects: advection ({}, dt {:g}, {} steps) with {}; boundaries {}; diffusion {}; "
-                 "stretching off (2D); {}",
+        log_info(
+            "mcfluid: effects: advection ({}, dt {:g}, {} steps) with {}; boundaries {}; diffusion {}; "
+            "stretching off (2D); {}",
             fluid::to_string(settings.advection), settings.dt, m_steps, velocity_effect,
             settings.boundaries ? describe(*settings.boundaries, settings.domain) : std::string("none"),
             viscous ? fmt::format("on (nu {:g}, Feynman–Kac, n_d {})", settings.viscosity, settings.diffusion_samples)
@@ -254,10 +274,11 @@ public:
         ctx.stats.add("fluid.wos_boundary_queries", double(w.wos_boundary_queries), "queries");
         ctx.stats.add("fluid.solid_departures", double(w.solid_departures), "points");
         if (w.wos_truncated + w.wos_invalid > 0)
-            log_warn("mcfluid: {} Walk-on-Spheres walk(s) hit max_steps ({}; ended at the nearest boundary) and {} were "
-                     "invalid (counted as zero) out of {}",
-                     w.wos_truncated, settings.boundaries ? settings.boundaries->wos.max_steps : 0, w.wos_invalid,
-                     w.wos_walks);
+            log_warn(
+                "mcfluid: {} Walk-on-Spheres walk(s) hit max_steps ({}; ended at the nearest boundary) and {} were "
+                "invalid (counted as zero) out of {}",
+                w.wos_truncated, settings.boundaries ? settings.boundaries->wos.max_steps : 0, w.wos_invalid,
+                w.wos_walks);
         ctx.stats.add_time("fluid.time.velocity", w.seconds_velocity);
         ctx.stats.add_time("fluid.time.advection", w.seconds_advection);
         ctx.stats.add_time("fluid.time.output", output_seconds);
@@ -298,6 +319,7 @@ private:
     double m_color_range = 0;
     std::shared_ptr<VorticityField> m_field;
     std::shared_ptr<DyeSpec> m_dye;
+    std::unique_ptr<Simulation3Params> m_3d;  ///< dimension = 3
 };
 
 }  // namespace
@@ -306,9 +328,9 @@ private:
 KELVIN_PLUGIN(kelvin::fluid::MCFluid, "simulation", "mcfluid",
               "2D Monte Carlo fluid solver (thesis Ch. 5): cached Biot–Savart MC velocity, semi-Lagrangian vorticity "
               "advection, Feynman–Kac viscosity.",
-              kelvin::param::integer("dimension", 2, "2 (3D is not implemented yet)"),
-              kelvin::param::point("min", kelvin::Vec3d(-1.0, -1.0, 0.0), "domain box corner (z = 0)"),
-              kelvin::param::point("max", kelvin::Vec3d(1.0, 1.0, 0.0), "domain box corner (z = 0)"),
+              kelvin::param::integer("dimension", 2, "2, or 3 (Feynman–Kac Navier–Stokes with stretching)"),
+              kelvin::param::point("min", kelvin::Vec3d(-1.0, -1.0, 0.0), "domain box corner (2D: z = 0)"),
+              kelvin::param::point("max", kelvin::Vec3d(1.0, 1.0, 0.0), "domain box corner (2D: z = 0)"),
               kelvin::param::boolean("periodic", false, "periodic box (true) or open free space (false)"),
               kelvin::param::real("dt", 0.05, "time step"),
               kelvin::param::integer("steps", 0, "number of steps (or give end_time)"),
@@ -321,6 +343,11 @@ KELVIN_PLUGIN(kelvin::fluid::MCFluid, "simulation", "mcfluid",
               kelvin::param::boolean("write_exr", true, "write frames as EXR (vorticity, u, v channels)"),
               kelvin::param::boolean("write_csv", true, "write <prefix>.csv diagnostics per step"),
               kelvin::param::real("color_range", 0.0, "|omega| mapped to full colour (0: max at t = 0)"),
+              kelvin::param::boolean("stretching", true, "3D: vortex stretching (Eq. 5.21); off only to study it"),
+              kelvin::param::boolean("control_variates", false, "3D: previous step as control variate (Eq. 5.23)"),
+              kelvin::param::integer("initial_samples", 0, "3D with control variates: n_mc of the first velocity"),
+              kelvin::param::boolean("write_vdb", true, "3D: write frames as OpenVDB files"),
+              kelvin::param::string("slice_axis", "y", "3D: PNG slices normal to 'x', 'y' or 'z'"),
               kelvin::param::object("vorticity", "vorticity", "initial vorticity field", true),
               kelvin::param::object("velocity", "velocity", "velocity estimator (default biot_savart)"),
               kelvin::param::object("cache", "cache", "vorticity cache (default grid)"),

@@ -8,6 +8,14 @@
 // the viscous flow decays as omega(t) = exp(-2 k^2 nu t) omega(0) (exp(-2 nu t) for k = 1). The exact
 // solution is for a periodic box whose sides are multiples of 2 pi / k, e.g. [-pi, pi]^2.
 //
+// In 3D (dimension = 3) it is the 3D Taylor–Green vortex, the classic transition-to-turbulence initial state,
+//
+//     u = (A / (2k)) (sin kx cos ky cos kz, -cos kx sin ky cos kz, 0),
+//     omega = (A / 2) (-cos kx sin ky sin kz, -sin kx cos ky sin kz, 2 sin kx sin ky cos kz),
+//
+// scaled so that omega_z on the plane z = 0 is the 2D field's A sin kx sin ky (up to a phase); the exact
+// solution is known at t = 0 only.
+//
 // | parameter  | type    | default | meaning                                     |
 // |------------|---------|---------|---------------------------------------------|
 // | amplitude  | float   | 1       | A, the peak vorticity                        |
@@ -25,7 +33,7 @@
 namespace kelvin::fluid {
 namespace {
 
-class TaylorGreen final : public VorticityField {
+class TaylorGreen final : public VorticityField, public VorticityField3 {
 public:
     explicit TaylorGreen(const Properties& props)
         : m_a(props.get_float("amplitude", -1e12, 1e12)), m_k(double(props.get_int("wavenumber", 1, 1 << 16))) {}
@@ -58,6 +66,36 @@ public:
     }
 
     std::string description() const override { return fmt::format("taylor_green(amplitude={:g}, k={:g})", m_a, m_k); }
+
+    // ----- 3D
+    Vec3d vorticity3(const Vec3d& x) const override {
+        const double k = m_k, sx = std::sin(k * x.x), cx = std::cos(k * x.x), sy = std::sin(k * x.y),
+                     cy = std::cos(k * x.y), sz = std::sin(k * x.z), cz = std::cos(k * x.z);
+        return 0.5 * m_a * Vec3d(-cx * sy * sz, -sx * cy * sz, 2 * sx * sy * cz);
+    }
+    std::optional<Vec3d> exact_vorticity3(double t, const Vec3d& x, double) const override {
+        if (t != 0) return std::nullopt;
+        return vorticity3(x);
+    }
+    std::optional<Vec3d> exact_velocity3(double t, const Vec3d& x, double) const override {
+        if (t != 0) return std::nullopt;
+        const double k = m_k, c = m_a / (2 * k);
+        return c * Vec3d(std::sin(k * x.x) * std::cos(k * x.y) * std::cos(k * x.z),
+                         -std::cos(k * x.x) * std::sin(k * x.y) * std::cos(k * x.z), 0.0);
+    }
+    void check_domain3(const Domain3& d) const override {
+        const double period = 2 * Pi / m_k;
+        auto fits = [&](double len) {
+            const double r = len / period;
+            return std::abs(r - std::nearbyint(r)) < 1e-6 * std::max(1.0, r) && std::nearbyint(r) >= 1;
+        };
+        if (!d.periodic)
+            log_warn("taylor_green on an open 3D domain: the field is cut at the box (use a periodic box)");
+        else if (!fits(d.size().x) || !fits(d.size().y) || !fits(d.size().z))
+            log_warn("taylor_green: the periodic box {} is not a multiple of the period 2 pi / k = {:g}", d.to_string(),
+                     period);
+    }
+    std::string description3() const override { return "3D " + description(); }
 
 private:
     double decay(double t, double nu) const { return std::exp(-2 * m_k * m_k * nu * t); }

@@ -1,0 +1,107 @@
+#pragma once
+// The 3D domain of a fluid simulation and the cell-centred grids that cache fields on it (the 3D
+// counterparts of grid.h; same conventions, one more axis).
+//
+//   - A Domain3 is the box [min, max]. Periodic: space is tiled by copies of the box. Open: the fluid fills
+//     space and the vorticity is zero outside the box.
+//   - A Grid3 stores one value per cell at the cell centres min + (i + 1/2, j + 1/2, k + 1/2) * h, x fastest.
+//     Interpolation represents the continuous field f_h(y) = sum_c f_c phi_c(y):
+//       nearest:   phi_c = indicator of cell c,
+//       trilinear: phi_c = product of tents of half-width h centred on cell c.
+//     Open domains use zero ghost cells beyond the grid; periodic domains wrap indices. The 3D Biot–Savart
+//     estimator integrates exactly this field, whatever its sampling strategy.
+//   - A VectorGrid3 is three Grid3 (structure of arrays) sharing the interpolation weights.
+#include <kelvin/core/math.h>
+#include <kelvin/fluid/grid.h>
+
+#include <cstddef>
+#include <string>
+#include <vector>
+
+namespace kelvin::fluid {
+
+struct Domain3 {
+    Vec3d min{-1.0};
+    Vec3d max{1.0};
+    bool periodic = false;
+
+    Vec3d size() const { return max - min; }
+    double volume() const { return (max.x - min.x) * (max.y - min.y) * (max.z - min.z); }
+    /// Periodic: the copy of p inside [min, max) (finite input only). Open: p unchanged.
+    Vec3d wrap(Vec3d p) const;
+    /// Periodic: the shortest representative of the difference vector r. Open: r unchanged.
+    Vec3d min_image(Vec3d r) const;
+    std::string to_string() const;
+};
+
+/// Trilinear (or nearest) interpolation weights of a point: up to 8 cells. Cells outside an open grid have
+/// weight 0 and index 0.
+struct Stencil3 {
+    std::size_t index[8];
+    double weight[8];
+    int count = 0;
+};
+
+/// A cell-centred scalar field (values in double, x fastest, then y, then z).
+class Grid3 {
+public:
+    Grid3() = default;
+    Grid3(const Domain3& domain, int nx, int ny, int nz);
+
+    const Domain3& domain() const { return m_domain; }
+    int nx() const { return m_nx; }
+    int ny() const { return m_ny; }
+    int nz() const { return m_nz; }
+    std::size_t cell_count() const { return m_values.size(); }
+    Vec3d h() const { return m_h; }
+    double cell_volume() const { return m_h.x * m_h.y * m_h.z; }
+    Vec3d cell_center(int i, int j, int k) const {
+        return {m_domain.min.x + (i + 0.5) * m_h.x, m_domain.min.y + (j + 0.5) * m_h.y,
+                m_domain.min.z + (k + 0.5) * m_h.z};
+    }
+    std::size_t index(int i, int j, int k) const {
+        return (std::size_t(k) * std::size_t(m_ny) + std::size_t(j)) * std::size_t(m_nx) + std::size_t(i);
+    }
+    double& at(int i, int j, int k) { return m_values[index(i, j, k)]; }
+    double at(int i, int j, int k) const { return m_values[index(i, j, k)]; }
+    std::vector<double>& values() { return m_values; }
+    const std::vector<double>& values() const { return m_values; }
+    void fill(double v);
+
+    /// Interpolation weights at p (see the header comment). Non-finite p gives no cell.
+    Stencil3 stencil(Vec3d p, Interpolation interp) const;
+    double sample(Vec3d p, Interpolation interp) const;
+    /// Value of cell (i, j, k) with the domain's rule: wrapped (periodic) or 0 outside (open).
+    double at_bc(int i, int j, int k) const;
+
+    double integral() const;
+    double max_abs() const;
+
+private:
+    Domain3 m_domain;
+    int m_nx = 0, m_ny = 0, m_nz = 0;
+    Vec3d m_h{0.0};
+    std::vector<double> m_values;
+};
+
+/// A cell-centred vector field: three Grid3 on the same cells.
+struct VectorGrid3 {
+    Grid3 x, y, z;
+
+    VectorGrid3() = default;
+    VectorGrid3(const Domain3& domain, int nx, int ny, int nz) : x(domain, nx, ny, nz), y(x), z(x) {}
+
+    std::size_t cell_count() const { return x.cell_count(); }
+    Vec3d at(std::size_t c) const { return {x.values()[c], y.values()[c], z.values()[c]}; }
+    void set(std::size_t c, Vec3d v) {
+        x.values()[c] = v.x;
+        y.values()[c] = v.y;
+        z.values()[c] = v.z;
+    }
+    Vec3d sample(Vec3d p, Interpolation interp) const;
+    void fill(Vec3d v);
+    /// max over cells of |v|.
+    double max_norm() const;
+};
+
+}  // namespace kelvin::fluid

@@ -1,0 +1,132 @@
+#pragma once
+// MCFluid in 3D: the cached Feynman–Kac Navier–Stokes solver of thesis Sections 5.3.2–5.3.4.
+//
+//     omega(t_i, x) = 1/n_d sum_j [ omega(t_{i-1}, x_j) + dt <(omega . grad) v>(t_{i-1}, x_j) ]          (Eq. 5.22)
+//     x_j ~ N(x_a, 2 nu dt I),   x_a = backtrace of x over dt through the Monte Carlo velocity <v>
+//     (omega . grad) v (x) ~ |omega| / h [ v(x + h/2 w) - v(x - h/2 w) ],  w = omega / |omega|          (Eq. 5.21)
+//
+// The cache holds omega(t_{i-1}) at the cell centres; the velocity at the cell centres is a Biot–Savart Monte
+// Carlo estimate from that cache (biot_savart3.h), stored as a second grid: it is the backtrace's first stage
+// and, interpolated, the velocity of the stretching segments (Sec. 5.3.3: "we fetch the cached velocities").
+// RK4's later stages are Monte Carlo estimates at their own points. h is the smallest cell size.
+//
+// Effects on demand: nu = 0 draws no Gaussian displacement (n_d is then 1); without control variates no
+// previous field is kept; `stretching` can be switched off only to study it (the physics needs it in 3D).
+//
+// Control variates (Eq. 5.23, Sec. 5.3.4): v(t) = BS[omega(t) - omega(t - dt)] + v(t - dt): the Monte Carlo
+// samples go to the difference of two consecutive caches (importance-sampled by its magnitude) and the previous
+// step's velocity is added (the cached value at cell centres, its interpolation at RK4 stage points). The
+// initial velocity is estimated once with `initial_samples`.
+//
+// Determinism: a pass is split into z-slabs of cells (one unit per z index); unit k of pass p at step s draws
+// from Random(seed, hash(hash(s, p), k)). Results are bit-identical whatever the thread count.
+#include <kelvin/core/random.h>
+#include <kelvin/fluid/biot_savart3.h>
+#include <kelvin/fluid/grid3.h>
+#include <kelvin/fluid/mcfluid.h>
+
+#include <cstdint>
+#include <functional>
+#include <memory>
+
+namespace kelvin::fluid {
+
+/// omega(0, x) in 3D.
+using InitialField3 = std::function<Vec3d(const Vec3d&)>;
+
+struct MCFluid3Settings {
+    Domain3 domain;
+    int nx = 32, ny = 32, nz = 32;
+    Interpolation interpolation = Interpolation::Bilinear;  ///< Bilinear means trilinear here
+    BiotSavartOptions velocity;                             ///< delta < 0: half the smallest cell size
+    Advection advection = Advection::RK4;
+    double dt = 0.05;
+    double viscosity = 0;
+    int diffusion_samples = 1;
+    bool stretching = true;
+    bool control_variates = false;
+    int initial_samples = 0;  ///< samples of the first velocity pass (0: velocity.samples)
+    uint64_t seed = 0;
+};
+
+/// Cumulative work of the 3D solver, per effect.
+struct FluidWork3 {
+    uint64_t biot_savart_evals = 0;
+    uint64_t velocity_queries = 0;
+    uint64_t advection_backtraces = 0;
+    uint64_t diffusion_samples = 0;        ///< Gaussian displacements (0 when inviscid)
+    uint64_t stretching_evals = 0;         ///< vortex-segment stretching estimates (Eq. 5.21)
+    uint64_t control_variate_queries = 0;  ///< velocity estimates that used the previous step as control variate
+    uint64_t invalid_velocity = 0;
+    uint64_t invalid_vorticity = 0;
+    double seconds_velocity = 0;
+    double seconds_advection = 0;  ///< backtraces (incl. RK stages), diffusion, stretching, interpolation
+};
+
+/// Integral diagnostics of a 3D state (midpoint rule over the cells).
+struct FluidDiagnostics3 {
+    long long step = 0;
+    double time = 0;
+    double kinetic_energy = 0;      ///< 1/2 int |u|^2 minus the estimated Monte Carlo noise energy
+    double kinetic_energy_raw = 0;  ///< 1/2 int |u_hat|^2
+    double enstrophy = 0;           ///< 1/2 int |omega|^2
+    double helicity = 0;            ///< int u . omega
+    Vec3d impulse{0.0};             ///< 1/2 int x cross omega
+    Vec3d centroid{0.0};            ///< int |omega| x / int |omega| (the domain's centre for an empty field)
+    double max_abs_vorticity = 0;
+    double divergence_rms = 0;  ///< RMS of div u by central differences of the cached velocity (interior cells)
+};
+
+class MCFluid3Solver {
+public:
+    MCFluid3Solver(const MCFluid3Settings& settings, const InitialField3& initial);
+    ~MCFluid3Solver();
+
+    const MCFluid3Settings& settings() const { return m_settings; }
+    double delta() const { return m_delta; }
+    double time() const { return m_time; }
+    long long step_index() const { return m_step; }
+    /// Length of the stretching segments (the smallest cell size).
+    double segment_length() const { return m_segment; }
+
+    /// One step of length dt; false (state unchanged) when interrupt_requested() stopped it.
+    bool step(double dt);
+    bool step() { return step(m_settings.dt); }
+
+    const VectorGrid3& vorticity_grid() const { return m_omega; }
+    /// Velocity at the cell centres of the current state (estimated on first use) and its variance.
+    const VectorGrid3& velocity_grid();
+    const VectorGrid3& velocity_variance();
+    /// False when an interrupt cut the velocity pass short (the grids then hold zeros).
+    bool velocity_available();
+    FluidDiagnostics3 diagnostics();
+
+    /// A Monte Carlo estimate of the current state's velocity at x with n samples (without control variates).
+    VelocityEstimate3 velocity_estimate(Vec3d x, int n, Random& rng) const;
+
+    const FluidWork3& work() const { return m_work; }
+
+    enum StreamTag : uint64_t { TagVelocity = 1, TagAdvection = 2 };
+
+private:
+    bool ensure_velocity();
+    Vec3d stage_velocity(Vec3d x, Random& rng, uint64_t& evals, uint64_t& queries, uint64_t& invalid) const;
+    void rebuild_estimators();
+
+    MCFluid3Settings m_settings;
+    double m_delta = 0, m_segment = 0;
+    double m_time = 0;
+    long long m_step = 0;
+    VectorGrid3 m_omega, m_next;
+    VectorGrid3 m_vel, m_var;
+    bool m_velocity_valid = false;
+    std::shared_ptr<const PeriodicKernel3> m_periodic;
+    std::unique_ptr<BiotSavartEstimator3> m_estimator;
+    // Control variates: the previous state's vorticity and velocity, and the estimator over the difference.
+    VectorGrid3 m_prev_omega, m_prev_vel, m_prev_var, m_diff;
+    bool m_have_prev = false;
+    std::unique_ptr<BiotSavartEstimator3> m_diff_estimator;
+    FluidWork3 m_work;
+};
+
+}  // namespace kelvin::fluid

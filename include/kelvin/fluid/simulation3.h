@@ -1,0 +1,48 @@
+#pragma once
+// The 3D side of <simulation type="mcfluid"> (dimension = 3): its parameters, its run loop and its outputs.
+//
+// Outputs (RunContext::output is a prefix, as in 2D):
+//   <prefix>.csv          one row per state: step, time, kinetic_energy, kinetic_energy_raw, enstrophy,
+//                         helicity, impulse_x/y/z, centroid_x/y/z, max_abs_vorticity, divergence_rms,
+//                         step_seconds, biot_savart_evals, invalid
+//   <prefix>_NNNN.vdb     every output_every steps (and the last): OpenVDB float grid "vorticity_magnitude",
+//                         vector grids "vorticity" and "velocity" (voxel = cache cell, world-space transform)
+//   <prefix>_NNNN.png     a slice through the middle of the box normal to `slice_axis`, the vorticity component
+//                         along that axis colour-mapped (blue negative, red positive)
+// and the last slice image is the run's image (the CLI writes it to -o).
+#include <kelvin/core/job.h>
+#include <kelvin/core/properties.h>
+#include <kelvin/fluid/fields.h>
+#include <kelvin/fluid/mcfluid3.h>
+
+#include <filesystem>
+#include <memory>
+
+namespace kelvin::fluid {
+
+struct Simulation3Params {
+    MCFluid3Settings settings;
+    long long steps = 0;
+    double end_time = 0;
+    long long output_every = 0;
+    bool write_png = true, write_vdb = true, write_csv = true;
+    double color_range = 0;
+    int slice_axis = 1;  ///< 0 x, 1 y, 2 z
+    std::shared_ptr<Object> field_object;
+    const VorticityField3* field = nullptr;
+
+    /// Reads and validates mcfluid's parameters for dimension = 3 (errors name the parameter).
+    static Simulation3Params parse(const Properties& props);
+};
+
+RunResult run_mcfluid3(const Simulation3Params& p, RunContext& ctx);
+
+/// Writes the state as an OpenVDB file (vorticity, |vorticity| and, when given, velocity), atomically.
+void write_vdb_frame(const std::filesystem::path& path, const VectorGrid3& vorticity, const VectorGrid3* velocity);
+
+/// The slice image: one pixel per cell of the plane through the box centre normal to `axis`, top row =
+/// largest coordinate; channels R, G, B (the component of `field` along `axis`, colour-mapped over
+/// [-range, range]) and "value".
+Bitmap slice_image(const VectorGrid3& field, int axis, double range);
+
+}  // namespace kelvin::fluid

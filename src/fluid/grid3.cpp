@@ -1,0 +1,149 @@
+#include <kelvin/fluid/grid3.h>
+
+#include <fmt/format.h>
+
+#include <algorithm>
+#include <cmath>
+
+namespace kelvin::fluid {
+
+namespace {
+double wrap1(double v, double lo, double len) {
+    double t = v - lo;
+    if (t >= 0 && t < len) return v;
+    t -= len * std::floor(t / len);
+    if (t < 0) t += len;
+    if (!(t >= 0 && t < len)) t = 0;
+    return lo + t;
+}
+inline int wrap_index(int i, int n) {
+    i %= n;
+    return i < 0 ? i + n : i;
+}
+}  // namespace
+
+Vec3d Domain3::wrap(Vec3d p) const {
+    if (!periodic) return p;
+    const Vec3d s = size();
+    return {wrap1(p.x, min.x, s.x), wrap1(p.y, min.y, s.y), wrap1(p.z, min.z, s.z)};
+}
+
+Vec3d Domain3::min_image(Vec3d r) const {
+    if (!periodic) return r;
+    const Vec3d s = size();
+    return {r.x - s.x * std::nearbyint(r.x / s.x), r.y - s.y * std::nearbyint(r.y / s.y),
+            r.z - s.z * std::nearbyint(r.z / s.z)};
+}
+
+std::string Domain3::to_string() const {
+    return fmt::format("[{:g}, {:g}] x [{:g}, {:g}] x [{:g}, {:g}] {}", min.x, max.x, min.y, max.y, min.z, max.z,
+                       periodic ? "periodic" : "open");
+}
+
+Grid3::Grid3(const Domain3& domain, int nx, int ny, int nz)
+    : m_domain(domain),
+      m_nx(nx),
+      m_ny(ny),
+      m_nz(nz),
+      m_values(std::size_t(nx) * std::size_t(ny) * std::size_t(nz), 0.0) {
+    const Vec3d s = domain.size();
+    m_h = {s.x / nx, s.y / ny, s.z / nz};
+}
+
+void Grid3::fill(double v) { std::fill(m_values.begin(), m_values.end(), v); }
+
+double Grid3::at_bc(int i, int j, int k) const {
+    if (m_domain.periodic) return at(wrap_index(i, m_nx), wrap_index(j, m_ny), wrap_index(k, m_nz));
+    if (i < 0 || j < 0 || k < 0 || i >= m_nx || j >= m_ny || k >= m_nz) return 0.0;
+    return at(i, j, k);
+}
+
+Stencil3 Grid3::stencil(Vec3d p, Interpolation interp) const {
+    Stencil3 s;
+    if (!std::isfinite(p.x) || !std::isfinite(p.y) || !std::isfinite(p.z)) return s;
+    p = m_domain.wrap(p);
+    double g[3] = {(p.x - m_domain.min.x) / m_h.x, (p.y - m_domain.min.y) / m_h.y, (p.z - m_domain.min.z) / m_h.z};
+    const int n[3] = {m_nx, m_ny, m_nz};
+    if (interp == Interpolation::Nearest) {
+        int c[3];
+        for (int a = 0; a < 3; ++a) {
+            if (!m_domain.periodic && (g[a] < 0 || g[a] >= n[a])) return s;
+            c[a] = std::clamp(int(g[a]), 0, n[a] - 1);
+        }
+        s.index[0] = index(c[0], c[1], c[2]);
+        s.weight[0] = 1;
+        s.count = 1;
+        return s;
+    }
+    int lo[3];
+    double f[3];
+    for (int a = 0; a < 3; ++a) {
+        g[a] -= 0.5;
+        if (!m_domain.periodic && (g[a] < -1 || g[a] >= n[a])) return s;
+        const double fl = std::floor(g[a]);
+        lo[a] = int(fl);
+        f[a] = g[a] - fl;
+    }
+    for (int c = 0; c < 8; ++c) {
+        int id[3];
+        double w = 1;
+        bool inside = true;
+        for (int a = 0; a < 3; ++a) {
+            const int bit = (c >> a) & 1;
+            id[a] = lo[a] + bit;
+            w *= bit ? f[a] : 1 - f[a];
+            if (m_domain.periodic)
+                id[a] = wrap_index(id[a], n[a]);
+            else if (id[a] < 0 || id[a] >= n[a])
+                inside = false;
+        }
+        if (!inside || w == 0) continue;
+        s.index[s.count] = index(id[0], id[1], id[2]);
+        s.weight[s.count] = w;
+        ++s.count;
+    }
+    return s;
+}
+
+double Grid3::sample(Vec3d p, Interpolation interp) const {
+    const Stencil3 s = stencil(p, interp);
+    double v = 0;
+    for (int c = 0; c < s.count; ++c) v += s.weight[c] * m_values[s.index[c]];
+    return v;
+}
+
+double Grid3::integral() const {
+    double s = 0;
+    for (double v : m_values) s += v;
+    return s * cell_volume();
+}
+
+double Grid3::max_abs() const {
+    double m = 0;
+    for (double v : m_values) m = std::max(m, std::abs(v));
+    return m;
+}
+
+Vec3d VectorGrid3::sample(Vec3d p, Interpolation interp) const {
+    const Stencil3 s = x.stencil(p, interp);
+    Vec3d v(0.0);
+    for (int c = 0; c < s.count; ++c) {
+        const std::size_t i = s.index[c];
+        v += s.weight[c] * Vec3d(x.values()[i], y.values()[i], z.values()[i]);
+    }
+    return v;
+}
+
+void VectorGrid3::fill(Vec3d v) {
+    x.fill(v.x);
+    y.fill(v.y);
+    z.fill(v.z);
+}
+
+double VectorGrid3::max_norm() const {
+    double m = 0;
+    for (std::size_t c = 0; c < cell_count(); ++c) m = std::max(m, glm::length(at(c)));
+    return m;
+}
+
+}  // namespace kelvin::fluid

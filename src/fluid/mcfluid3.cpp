@@ -1,0 +1,321 @@
+// The cached 3D MCFluid solver (thesis Sections 5.3.2–5.3.4): semi-Lagrangian backtrace through the
+// Biot–Savart Monte Carlo velocity, Feynman–Kac diffusion when viscous, vortex stretching by the vortex-segment
+// estimate (Eq. 5.21) on the cached velocity, and optional control variates (Eq. 5.23).
+#include <kelvin/core/error.h>
+#include <kelvin/core/interrupt.h>
+#include <kelvin/core/parallel.h>
+#include <kelvin/core/stats.h>
+#include <kelvin/fluid/mcfluid3.h>
+
+#include <algorithm>
+#include <atomic>
+#include <cmath>
+
+namespace kelvin::fluid {
+
+namespace {
+
+inline bool finite(Vec3d v) { return std::isfinite(v.x) && std::isfinite(v.y) && std::isfinite(v.z); }
+
+inline uint64_t stream_of(long long step, uint64_t tag, uint64_t unit) {
+    return hash_combine(hash_combine(uint64_t(step), tag), unit);
+}
+
+struct SlabWork {
+    uint64_t evals = 0, queries = 0, backtraces = 0, diffusion = 0, stretching = 0, cv = 0, invalid_velocity = 0,
+             invalid_vorticity = 0;
+};
+
+void check_settings(const MCFluid3Settings& s) {
+    const Vec3d size = s.domain.size();
+    for (int a = 0; a < 3; ++a)
+        if (!(size[a] > 0) || !std::isfinite(size[a]))
+            throw_runtime("MCFluid3Solver: empty or non-finite domain {}", s.domain.to_string());
+    const int m = BiotSavartEstimator3::MaxResolution;
+    if (s.nx < 2 || s.ny < 2 || s.nz < 2 || s.nx > m || s.ny > m || s.nz > m)
+        throw_runtime("MCFluid3Solver: cache resolution {}x{}x{} out of range [2, {}]", s.nx, s.ny, s.nz, m);
+    if (!(s.dt > 0) || !std::isfinite(s.dt)) throw_runtime("MCFluid3Solver: dt must be positive and finite");
+    if (!(s.viscosity >= 0) || !std::isfinite(s.viscosity)) throw_runtime("MCFluid3Solver: viscosity must be >= 0");
+    if (s.velocity.samples < 1) throw_runtime("MCFluid3Solver: velocity samples must be >= 1");
+    if (s.diffusion_samples < 1) throw_runtime("MCFluid3Solver: diffusion samples must be >= 1");
+    if (s.initial_samples < 0) throw_runtime("MCFluid3Solver: initial samples must be >= 0");
+}
+
+Vec3d standard_normal3(Random& rng) {
+    const Vec2d a = standard_normal2(rng), b = standard_normal2(rng);
+    return {a.x, a.y, b.x};
+}
+
+}  // namespace
+
+MCFluid3Solver::MCFluid3Solver(const MCFluid3Settings& settings, const InitialField3& initial) : m_settings(settings) {
+    check_settings(m_settings);
+    const MCFluid3Settings& s = m_settings;
+    m_omega = VectorGrid3(s.domain, s.nx, s.ny, s.nz);
+    const Vec3d h = m_omega.x.h();
+    m_segment = std::min({h.x, h.y, h.z});
+    m_delta = s.velocity.delta >= 0 ? s.velocity.delta : 0.5 * m_segment;
+    if (s.domain.periodic) m_periodic = std::make_shared<PeriodicKernel3>(s.domain.size());
+    for (int k = 0; k < s.nz; ++k)
+        for (int j = 0; j < s.ny; ++j)
+            for (int i = 0; i < s.nx; ++i) {
+                Vec3d w = initial(m_omega.x.cell_center(i, j, k));
+                if (!finite(w)) {
+                    ++m_work.invalid_vorticity;
+                    w = Vec3d(0.0);
+                }
+                m_omega.set(m_omega.x.index(i, j, k), w);
+            }
+    m_next = m_vel = m_var = VectorGrid3(s.domain, s.nx, s.ny, s.nz);
+    rebuild_estimators();
+}
+
+MCFluid3Solver::~MCFluid3Solver() = default;
+
+void MCFluid3Solver::rebuild_estimators() {
+    const MCFluid3Settings& s = m_settings;
+    m_estimator =
+        std::make_unique<BiotSavartEstimator3>(m_omega, s.interpolation, s.velocity.importance, m_delta, m_periodic);
+    if (m_have_prev) {
+        for (std::size_t c = 0; c < m_omega.cell_count(); ++c) m_diff.set(c, m_omega.at(c) - m_prev_omega.at(c));
+        m_diff_estimator =
+            std::make_unique<BiotSavartEstimator3>(m_diff, s.interpolation, s.velocity.importance, m_delta, m_periodic);
+    }
+    m_velocity_valid = false;
+}
+
+VelocityEstimate3 MCFluid3Solver::velocity_estimate(Vec3d x, int n, Random& rng) const {
+    return m_estimator->estimate(x, n, rng);
+}
+
+Vec3d MCFluid3Solver::stage_velocity(Vec3d x, Random& rng, uint64_t& evals, uint64_t& queries,
+                                     uint64_t& invalid) const {
+    const int n = m_settings.velocity.samples;
+    Vec3d v;
+    if (m_have_prev) {  // control variate: the difference field, plus the previous velocity interpolated at x
+        const VelocityEstimate3 e = m_diff_estimator->estimate(x, n, rng);
+        evals += uint64_t(e.samples);
+        v = e.value + m_prev_vel.sample(x, m_settings.interpolation);
+    } else {
+        const VelocityEstimate3 e = m_estimator->estimate(x, n, rng);
+        evals += uint64_t(e.samples);
+        v = e.value;
+    }
+    ++queries;
+    if (!finite(v)) {
+        ++invalid;
+        return Vec3d(0.0);
+    }
+    return v;
+}
+
+bool MCFluid3Solver::ensure_velocity() {
+    if (m_velocity_valid) return true;
+    Timer timer;
+    const MCFluid3Settings& s = m_settings;
+    const bool cv = m_have_prev;
+    const int n = (s.control_variates && m_step == 0 && s.initial_samples > 0) ? s.initial_samples : s.velocity.samples;
+    std::vector<SlabWork> slabs(std::size_t(s.nz), SlabWork{});
+    std::atomic<bool> interrupted{false};
+    parallel_for_units(std::size_t(s.nz), [&](std::size_t slab) {
+        const int k = int(slab);
+        Random rng(s.seed, stream_of(m_step, TagVelocity, slab));
+        SlabWork& w = slabs[slab];
+        for (int j = 0; j < s.ny; ++j) {
+            if (interrupt_requested()) {
+                interrupted = true;
+                return;
+            }
+            for (int i = 0; i < s.nx; ++i) {
+                const std::size_t c = m_omega.x.index(i, j, k);
+                const Vec3d x = m_omega.x.cell_center(i, j, k);
+                VelocityEstimate3 e = cv ? m_diff_estimator->estimate(x, n, rng) : m_estimator->estimate(x, n, rng);
+                w.evals += uint64_t(e.samples);
+                ++w.queries;
+                if (cv) {
+                    ++w.cv;
+                    e.value += m_prev_vel.at(c);
+                    e.variance += m_prev_var.at(c);
+                }
+                if (!finite(e.value) || !finite(e.variance)) {
+                    ++w.invalid_velocity;
+                    e = {};
+                }
+                m_vel.set(c, e.value);
+                m_var.set(c, e.variance);
+            }
+        }
+    });
+    for (const SlabWork& w : slabs) {
+        m_work.biot_savart_evals += w.evals;
+        m_work.velocity_queries += w.queries;
+        m_work.control_variate_queries += w.cv;
+        m_work.invalid_velocity += w.invalid_velocity;
+    }
+    m_work.seconds_velocity += timer.seconds();
+    if (interrupted) {
+        m_vel.fill(Vec3d(0.0));
+        m_var.fill(Vec3d(0.0));
+        return false;
+    }
+    m_velocity_valid = true;
+    return true;
+}
+
+bool MCFluid3Solver::velocity_available() { return ensure_velocity(); }
+
+const VectorGrid3& MCFluid3Solver::velocity_grid() {
+    ensure_velocity();
+    return m_vel;
+}
+
+const VectorGrid3& MCFluid3Solver::velocity_variance() {
+    ensure_velocity();
+    return m_var;
+}
+
+bool MCFluid3Solver::step(double dt) {
+    if (!(dt > 0) || std::isnan(dt)) throw_runtime("MCFluid3Solver::step: dt must be positive (got {})", dt);
+    if (!ensure_velocity() || interrupt_requested()) return false;
+    Timer timer;
+    const MCFluid3Settings& s = m_settings;
+    const bool viscous = s.viscosity > 0;
+    const int nd = viscous ? s.diffusion_samples : 1;
+    const double sigma = viscous ? std::sqrt(2 * s.viscosity * dt) : 0.0;
+    const double half_segment = 0.5 * m_segment, inv_segment = 1.0 / m_segment;
+    const Interpolation interp = s.interpolation;
+    std::vector<SlabWork> slabs(std::size_t(s.nz), SlabWork{});
+    std::atomic<bool> interrupted{false};
+
+    parallel_for_units(std::size_t(s.nz), [&](std::size_t slab) {
+        const int k = int(slab);
+        Random rng(s.seed, stream_of(m_step, TagAdvection, slab));
+        SlabWork& w = slabs[slab];
+        for (int j = 0; j < s.ny; ++j) {
+            if (interrupt_requested()) {
+                interrupted = true;
+                return;
+            }
+            for (int i = 0; i < s.nx; ++i) {
+                const std::size_t c = m_omega.x.index(i, j, k);
+                const Vec3d x = m_omega.x.cell_center(i, j, k);
+                const Vec3d k1 = m_vel.at(c);
+                Vec3d xd;
+                if (s.advection == Advection::Euler) {
+                    xd = x - dt * k1;
+                } else {  // RK4 with the velocity frozen at the previous step (Eqs. 3.140-3.144)
+                    const Vec3d k2 = stage_velocity(x - 0.5 * dt * k1, rng, w.evals, w.queries, w.invalid_velocity);
+                    const Vec3d k3 = stage_velocity(x - 0.5 * dt * k2, rng, w.evals, w.queries, w.invalid_velocity);
+                    const Vec3d k4 = stage_velocity(x - dt * k3, rng, w.evals, w.queries, w.invalid_velocity);
+                    if (m_have_prev) w.cv += 3;
+                    xd = x - (dt / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4);
+                }
+                ++w.backtraces;
+                if (!finite(xd)) {
+                    ++w.invalid_velocity;
+                    xd = x;
+                }
+                xd = s.domain.wrap(xd);
+                Vec3d sum(0.0);
+                for (int d = 0; d < nd; ++d) {
+                    const Vec3d xj = viscous ? xd + sigma * standard_normal3(rng) : xd;
+                    Vec3d om = m_omega.sample(xj, interp);
+                    if (s.stretching) {  // Eq. (5.21) on the cached velocity, forward Euler over dt (Eq. 5.22)
+                        const double mag = glm::length(om);
+                        if (mag > 0 && std::isfinite(mag)) {
+                            const Vec3d seg = (half_segment / mag) * om;
+                            const Vec3d dv = m_vel.sample(xj + seg, interp) - m_vel.sample(xj - seg, interp);
+                            om += (dt * mag * inv_segment) * dv;
+                            ++w.stretching;
+                        }
+                    }
+                    sum += om;
+                }
+                if (viscous) w.diffusion += uint64_t(nd);
+                Vec3d value = sum / double(nd);
+                if (!finite(value)) {
+                    ++w.invalid_vorticity;
+                    value = Vec3d(0.0);
+                }
+                m_next.set(c, value);
+            }
+        }
+    });
+    if (interrupted) return false;
+    for (const SlabWork& w : slabs) {
+        m_work.biot_savart_evals += w.evals;
+        m_work.velocity_queries += w.queries;
+        m_work.advection_backtraces += w.backtraces;
+        m_work.diffusion_samples += w.diffusion;
+        m_work.stretching_evals += w.stretching;
+        m_work.control_variate_queries += w.cv;
+        m_work.invalid_velocity += w.invalid_velocity;
+        m_work.invalid_vorticity += w.invalid_vorticity;
+    }
+    if (s.control_variates) {  // this state becomes the control variate of the next one
+        m_prev_omega = m_omega;
+        m_prev_vel = m_vel;
+        m_prev_var = m_var;
+        if (m_diff.cell_count() != m_omega.cell_count()) m_diff = VectorGrid3(s.domain, s.nx, s.ny, s.nz);
+        m_have_prev = true;
+    }
+    std::swap(m_omega, m_next);
+    m_time += dt;
+    ++m_step;
+    rebuild_estimators();
+    m_work.seconds_advection += timer.seconds();
+    return true;
+}
+
+FluidDiagnostics3 MCFluid3Solver::diagnostics() {
+    ensure_velocity();
+    const MCFluid3Settings& s = m_settings;
+    FluidDiagnostics3 d;
+    d.step = m_step;
+    d.time = m_time;
+    const double dv = m_omega.x.cell_volume();
+    double e = 0, noise = 0, z = 0, hel = 0, mx = 0, wsum = 0;
+    Vec3d imp(0.0), cen(0.0);
+    for (int k = 0; k < s.nz; ++k)
+        for (int j = 0; j < s.ny; ++j)
+            for (int i = 0; i < s.nx; ++i) {
+                const std::size_t c = m_omega.x.index(i, j, k);
+                const Vec3d x = m_omega.x.cell_center(i, j, k);
+                const Vec3d u = m_vel.at(c), w = m_omega.at(c), var = m_var.at(c);
+                e += glm::dot(u, u);
+                noise += var.x + var.y + var.z;
+                z += glm::dot(w, w);
+                hel += glm::dot(u, w);
+                imp += glm::cross(x, w);
+                const double m = glm::length(w);
+                mx = std::max(mx, m);
+                wsum += m;
+                cen += m * x;
+            }
+    d.kinetic_energy_raw = 0.5 * e * dv;
+    d.kinetic_energy = 0.5 * (e - noise) * dv;
+    d.enstrophy = 0.5 * z * dv;
+    d.helicity = hel * dv;
+    d.impulse = 0.5 * imp * dv;
+    d.centroid = wsum > 0 ? cen / wsum : 0.5 * (s.domain.min + s.domain.max);
+    d.max_abs_vorticity = mx;
+    // Divergence of the cached velocity by central differences; open domains skip the outer layer of cells,
+    // where the zero ghost cells are not the flow.
+    const Vec3d h = m_omega.x.h();
+    const int edge = s.domain.periodic ? 0 : 1;
+    double div2 = 0;
+    long long count = 0;
+    for (int k = edge; k < s.nz - edge; ++k)
+        for (int j = edge; j < s.ny - edge; ++j)
+            for (int i = edge; i < s.nx - edge; ++i) {
+                const double div = (m_vel.x.at_bc(i + 1, j, k) - m_vel.x.at_bc(i - 1, j, k)) / (2 * h.x) +
+                                   (m_vel.y.at_bc(i, j + 1, k) - m_vel.y.at_bc(i, j - 1, k)) / (2 * h.y) +
+                                   (m_vel.z.at_bc(i, j, k + 1) - m_vel.z.at_bc(i, j, k - 1)) / (2 * h.z);
+                div2 += div * div;
+                ++count;
+            }
+    d.divergence_rms = count > 0 ? std::sqrt(div2 / double(count)) : 0.0;
+    return d;
+}
+
+}  // namespace kelvin::fluid

@@ -1,0 +1,339 @@
+// mcfluid in 3D: parameters, run loop and outputs (see include/kelvin/fluid/simulation3.h).
+#include <kelvin/core/error.h>
+#include <kelvin/core/files.h>
+#include <kelvin/core/interrupt.h>
+#include <kelvin/core/logging.h>
+#include <kelvin/core/progress.h>
+#include <kelvin/core/registry.h>
+#include <kelvin/core/stats.h>
+#include <kelvin/fluid/output.h>
+#include <kelvin/fluid/simulation3.h>
+
+#include <fmt/format.h>
+#include <openvdb/openvdb.h>
+
+#include <algorithm>
+#include <cmath>
+#include <mutex>
+#include <string>
+
+namespace kelvin::fluid {
+
+Simulation3Params Simulation3Params::parse(const Properties& props) {
+    Simulation3Params p;
+    MCFluid3Settings& s = p.settings;
+    const Vec3d lo = props.get_point("min"), hi = props.get_point("max");
+    for (int a = 0; a < 3; ++a) {
+        if (!std::isfinite(lo[a])) props.error("min", "must be finite");
+        if (!std::isfinite(hi[a])) props.error("max", "must be finite");
+    }
+    if (!(hi.x > lo.x) || !(hi.y > lo.y) || !(hi.z > lo.z))
+        props.error("max", fmt::format("must exceed min in x, y and z (a 3D domain; min = ({:g}, {:g}, {:g}), max = "
+                                       "({:g}, {:g}, {:g}))",
+                                       lo.x, lo.y, lo.z, hi.x, hi.y, hi.z));
+    s.domain = {lo, hi, props.get_bool("periodic")};
+    s.dt = props.get_float("dt", 0.0, 1e300);
+    if (!(s.dt > 0)) props.error("dt", "must be positive");
+    p.steps = props.get_int("steps", 0, 1LL << 40);
+    p.end_time = props.get_float("end_time", 0.0, 1e300);
+    if (p.steps > 0 && p.end_time > 0) props.error("end_time", "give either steps or end_time, not both");
+    if (p.steps == 0 && p.end_time == 0) props.error("steps", "give the number of steps or an end_time (> 0)");
+    if (p.end_time > 0) {
+        const double n = p.end_time / s.dt;
+        if (n > double(1LL << 40)) props.error("end_time", "needs more than 2^40 steps of dt");
+        p.steps = std::max(1LL, (long long)std::ceil(n - 1e-9));
+    }
+    s.viscosity = props.get_float("viscosity", 0.0, 1e300);
+    s.diffusion_samples = int(props.get_int("diffusion_samples", 1, 1 << 20));
+    s.advection = props.get_choice("advection", {"euler", "rk4"}) == "euler" ? Advection::Euler : Advection::RK4;
+    s.stretching = props.get_bool("stretching");
+    s.control_variates = props.get_bool("control_variates");
+    s.initial_samples = int(props.get_int("initial_samples", 0, 1 << 24));
+    if (s.initial_samples > 0 && !s.control_variates)
+        props.error("initial_samples", "is the control variates' initial sample count; set control_variates = true");
+    p.output_every = props.get_int("output_every", 0, 1LL << 40);
+    p.write_png = props.get_bool("write_png");
+    p.write_vdb = props.get_bool("write_vdb");
+    p.write_csv = props.get_bool("write_csv");
+    if (props.has("write_exr") && props.get_bool("write_exr"))
+        props.error("write_exr", "3D frames are OpenVDB files (write_vdb) and PNG slices (write_png); set it false");
+    p.color_range = props.get_float("color_range", 0.0, 1e300);
+    const std::string axis = props.get_choice("slice_axis", {"x", "y", "z"});
+    p.slice_axis = axis == "x" ? 0 : (axis == "y" ? 1 : 2);
+
+    ObjectPtr obj = props.get_object("vorticity");
+    p.field = dynamic_cast<const VorticityField3*>(obj.get());
+    if (!p.field)
+        props.error("vorticity",
+                    fmt::format("'{}' is a 2D vorticity field; a dimension = 3 scene needs a 3D one (vortex_ring, abc, "
+                                "taylor_green)",
+                                obj ? obj->plugin_name() : std::string("?")));
+    p.field_object = obj;
+
+    if (auto velocity = props.get_object("velocity")) {
+        auto bs = std::dynamic_pointer_cast<VelocityEstimatorSpec>(velocity);
+        if (!bs || velocity->plugin_name() != "biot_savart")
+            props.error("velocity",
+                        fmt::format("'{}' is not available in 3D yet (3D free-slip obstacles by Walk-on-Spheres "
+                                    "are not implemented); use biot_savart",
+                                    velocity->plugin_name()));
+        s.velocity = bs->biot_savart();
+        if (s.velocity.importance == SourceSampling::Kernel)
+            props.error("velocity", "importance = kernel is 2D only; use vorticity or uniform in 3D");
+    }
+    auto cache = props.get_object_as<CacheSpec>("cache");
+    if (!cache) cache = std::dynamic_pointer_cast<CacheSpec>(Registry::instance().create(Properties("cache", "grid")));
+    const Vec3d size = s.domain.size();
+    s.nx = cache->resolution_x();
+    auto cubic = [&](double len) { return int(std::clamp(std::lround(s.nx * len / size.x), 2L, 1024L)); };
+    s.ny = cache->resolution_y() > 0 ? cache->resolution_y() : cubic(size.y);
+    s.nz = cache->resolution_z() > 0 ? cache->resolution_z() : cubic(size.z);
+    if (s.nx > BiotSavartEstimator3::MaxResolution || s.ny > BiotSavartEstimator3::MaxResolution ||
+        s.nz > BiotSavartEstimator3::MaxResolution)
+        props.error("cache", fmt::format("3D caches are limited to {} cells per axis (got {}x{}x{})",
+                                         BiotSavartEstimator3::MaxResolution, s.nx, s.ny, s.nz));
+    s.interpolation = cache->interpolation();
+    if (props.get_object("scalar")) props.error("scalar", "passive scalars (smoke) are not implemented in 3D yet");
+    p.field->check_domain3(s.domain);
+    return p;
+}
+
+// ------------------------------------------------------------------------------------------------
+// Outputs.
+
+namespace {
+
+openvdb::math::Transform::Ptr cell_transform(const Grid3& g) {
+    const Vec3d h = g.h();
+    openvdb::math::Mat4d m = openvdb::math::Mat4d::identity();
+    m.setToScale(openvdb::Vec3d(h.x, h.y, h.z));
+    const Vec3d origin = g.domain().min + 0.5 * h;  // voxel (0, 0, 0) is the first cell's centre
+    m.setTranslation(openvdb::Vec3d(origin.x, origin.y, origin.z));
+    return openvdb::math::Transform::createLinearTransform(m);
+}
+
+std::once_flag g_vdb_init;
+
+}  // namespace
+
+void write_vdb_frame(const std::filesystem::path& path, const VectorGrid3& vorticity, const VectorGrid3* velocity) {
+    std::call_once(g_vdb_init, [] { openvdb::initialize(); });
+    const Grid3& g = vorticity.x;
+    auto transform = cell_transform(g);
+    openvdb::GridPtrVec grids;
+    auto magnitude = openvdb::FloatGrid::create(0.f);
+    magnitude->setName("vorticity_magnitude");
+    magnitude->setGridClass(openvdb::GRID_FOG_VOLUME);
+    auto add_vector = [&](const VectorGrid3& field, const char* name) {
+        auto grid = openvdb::Vec3SGrid::create(openvdb::Vec3s(0.f));
+        grid->setName(name);
+        grid->setVectorType(openvdb::VEC_CONTRAVARIANT_RELATIVE);
+        grid->setTransform(transform->copy());
+        auto acc = grid->getAccessor();
+        for (int k = 0; k < g.nz(); ++k)
+            for (int j = 0; j < g.ny(); ++j)
+                for (int i = 0; i < g.nx(); ++i) {
+                    const Vec3d v = field.at(g.index(i, j, k));
+                    if (v != Vec3d(0.0))
+                        acc.setValue(openvdb::Coord(i, j, k), openvdb::Vec3s(float(v.x), float(v.y), float(v.z)));
+                }
+        grids.push_back(grid);
+    };
+    magnitude->setTransform(transform->copy());
+    {
+        auto acc = magnitude->getAccessor();
+        for (int k = 0; k < g.nz(); ++k)
+            for (int j = 0; j < g.ny(); ++j)
+                for (int i = 0; i < g.nx(); ++i) {
+                    const double m = glm::length(vorticity.at(g.index(i, j, k)));
+                    if (m != 0) acc.setValue(openvdb::Coord(i, j, k), float(m));
+                }
+    }
+    grids.push_back(magnitude);
+    add_vector(vorticity, "vorticity");
+    if (velocity) add_vector(*velocity, "velocity");
+    write_atomically(path, [&](const std::filesystem::path& tmp) {
+        openvdb::io::File file(tmp.string());
+        file.write(grids);
+        file.close();
+    });
+}
+
+Bitmap slice_image(const VectorGrid3& field, int axis, double range) {
+    const Grid3& g = field.x;
+    const Grid3& comp = axis == 0 ? field.x : (axis == 1 ? field.y : field.z);
+    // Image axes: (u, v) = (y, z) for axis x, (x, z) for axis y, (x, y) for axis z.
+    const int ua = axis == 0 ? 1 : 0, va = axis == 2 ? 1 : 2;
+    const int n[3] = {g.nx(), g.ny(), g.nz()};
+    const int width = n[ua], height = n[va];
+    const int mid = n[axis] / 2;
+    if (!(range > 0)) range = comp.max_abs();
+    if (!(range > 0)) range = 1;
+    Bitmap img(width, height, {"R", "G", "B", "value"});
+    for (int row = 0; row < height; ++row)
+        for (int col = 0; col < width; ++col) {
+            int c[3];
+            c[axis] = mid;
+            c[ua] = col;
+            c[va] = height - 1 - row;
+            const double w = comp.at(c[0], c[1], c[2]);
+            const Color3 rgb = diverging_colormap(w / range);
+            img.at(col, row, 0) = float(srgb_to_linear(rgb.r));
+            img.at(col, row, 1) = float(srgb_to_linear(rgb.g));
+            img.at(col, row, 2) = float(srgb_to_linear(rgb.b));
+            img.at(col, row, 3) = float(w);
+        }
+    return img;
+}
+
+// ------------------------------------------------------------------------------------------------
+// Run loop.
+
+RunResult run_mcfluid3(const Simulation3Params& p, RunContext& ctx) {
+    if (ctx.on_checkpoint)
+        throw_runtime("mcfluid: checkpoints (kelvin converge) are not available for 3D simulations yet");
+    Timer total;
+    MCFluid3Settings settings = p.settings;
+    settings.seed = ctx.seed;
+    if (ctx.spp > 0) {
+        settings.velocity.samples = int(std::min<long long>(ctx.spp, 1 << 24));
+        log_info("mcfluid: --spp {} overrides the Biot–Savart samples (n_mc)", settings.velocity.samples);
+    }
+    const VorticityField3& field = *p.field;
+    MCFluid3Solver solver(settings, [&field](const Vec3d& x) { return field.vorticity3(x); });
+    const bool viscous = settings.viscosity > 0;
+    log_info("mcfluid: 3D, domain {}, {}x{}x{} cache ({}), initial {}", settings.domain.to_string(), settings.nx,
+             settings.ny, settings.nz, settings.interpolation == Interpolation::Nearest ? "nearest" : "trilinear",
+             field.description3());
+    log_info(
+        "mcfluid: effects: advection ({}, dt {:g}, {} steps) with Biot–Savart velocity (n_mc {}, importance {}, delta "
+        "{:g}{}); stretching {}; diffusion {}; control variates {}; boundaries none; smoke none",
+        fluid::to_string(settings.advection), settings.dt, p.steps, settings.velocity.samples,
+        fluid::to_string(settings.velocity.importance), solver.delta(),
+        settings.domain.periodic ? ", Ewald periodic kernel" : "",
+        settings.stretching ? fmt::format("on (vortex segments, h = {:g})", solver.segment_length())
+                            : std::string("OFF (requested; the 3D equations need it)"),
+        viscous ? fmt::format("on (nu {:g}, Feynman–Kac, n_d {})", settings.viscosity, settings.diffusion_samples)
+                : std::string("off (inviscid)"),
+        settings.control_variates
+            ? fmt::format("on (initial samples {})",
+                          settings.initial_samples > 0 ? settings.initial_samples : settings.velocity.samples)
+            : std::string("off"));
+
+    OutputPaths paths(ctx.output);
+    RunResult result;
+    result.work_unit = "steps";
+    std::string csv =
+        "step,time,kinetic_energy,kinetic_energy_raw,enstrophy,helicity,impulse_x,impulse_y,impulse_z,centroid_x,"
+        "centroid_y,centroid_z,max_abs_vorticity,divergence_rms,step_seconds,biot_savart_evals,invalid\n";
+    auto add_row = [&](const FluidDiagnostics3& d, double seconds, double evals, uint64_t invalid) {
+        csv += fmt::format(
+            "{},{:.9g},{:.9g},{:.9g},{:.9g},{:.9g},{:.9g},{:.9g},{:.9g},{:.9g},{:.9g},{:.9g},{:.9g},{:.9g},"
+            "{:.6g},{:.0f},{}\n",
+            d.step, d.time, d.kinetic_energy, d.kinetic_energy_raw, d.enstrophy, d.helicity, d.impulse.x, d.impulse.y,
+            d.impulse.z, d.centroid.x, d.centroid.y, d.centroid.z, d.max_abs_vorticity, d.divergence_rms, seconds,
+            evals, invalid);
+    };
+    const int axis = p.slice_axis;
+    const VectorGrid3& omega0 = solver.vorticity_grid();
+    const double range =
+        p.color_range > 0 ? p.color_range : (axis == 0 ? omega0.x : (axis == 1 ? omega0.y : omega0.z)).max_abs();
+    const int digits = std::max(4, int(std::to_string(p.steps).size()));
+    double output_seconds = 0;
+    auto write_frame = [&]() {
+        if (!paths.enabled() || p.output_every == 0) return;
+        Timer t;
+        if (p.write_vdb) {
+            auto path = paths.frame(solver.step_index(), digits, ".vdb");
+            write_vdb_frame(path, solver.vorticity_grid(), &solver.velocity_grid());
+            result.files_written.push_back(path);
+        }
+        if (p.write_png) {
+            auto path = paths.frame(solver.step_index(), digits, ".png");
+            write_image(path, slice_image(solver.vorticity_grid(), axis, range));
+            result.files_written.push_back(path);
+        }
+        output_seconds += t.seconds();
+    };
+
+    const FluidDiagnostics3 d0 = solver.diagnostics();
+    if (solver.velocity_available()) {
+        add_row(d0, 0.0, double(solver.work().biot_savart_evals), solver.work().invalid_velocity);
+        write_frame();
+    }
+    ProgressReporter progress("Simulating", double(p.steps), "steps", ctx.quiet);
+    long long done = 0;
+    bool stopped_by_time = false;
+    Timer since_partial;
+    for (long long step = 1; step <= p.steps; ++step) {
+        if (interrupt_requested()) break;
+        const FluidWork3 before = solver.work();
+        Timer step_timer;
+        double dt = settings.dt;
+        if (p.end_time > 0 && step == p.steps) dt = p.end_time - solver.time();
+        if (!(dt > 0)) dt = settings.dt;
+        if (!solver.step(dt)) break;
+        ++done;
+        const FluidDiagnostics3 d = solver.diagnostics();
+        if (!solver.velocity_available()) break;
+        const FluidWork3& after = solver.work();
+        add_row(
+            d, step_timer.seconds(), double(after.biot_savart_evals - before.biot_savart_evals),
+            (after.invalid_velocity + after.invalid_vorticity) - (before.invalid_velocity + before.invalid_vorticity));
+        if (p.output_every > 0 && (step % p.output_every == 0 || step == p.steps)) write_frame();
+        progress.update(1);
+        if (ctx.write_partial > 0 && ctx.write_partial_image && since_partial.seconds() >= ctx.write_partial) {
+            ctx.write_partial_image(slice_image(solver.vorticity_grid(), axis, range));
+            since_partial.reset();
+        }
+        if (ctx.time_limit > 0 && total.seconds() >= ctx.time_limit && step < p.steps) {
+            stopped_by_time = true;
+            break;
+        }
+    }
+    progress.finish();
+    result.interrupted = interrupt_requested();
+    if (stopped_by_time)
+        log_warn("mcfluid: time limit of {:g} s reached after {} of {} steps (t = {:g})", ctx.time_limit, done, p.steps,
+                 solver.time());
+
+    const FluidWork3& w = solver.work();
+    ctx.stats.add("fluid.steps", double(done), "steps");
+    ctx.stats.set("fluid.time_simulated", solver.time(), "");
+    ctx.stats.add("fluid.cells", double(solver.vorticity_grid().cell_count()), "cells");
+    ctx.stats.add("fluid.biot_savart_evals", double(w.biot_savart_evals), "evals");
+    ctx.stats.add("fluid.velocity_queries", double(w.velocity_queries), "queries");
+    ctx.stats.add("fluid.advection_backtraces", double(w.advection_backtraces), "backtraces");
+    ctx.stats.add("fluid.diffusion_samples", double(w.diffusion_samples), "samples");
+    ctx.stats.add("fluid.stretching_evals", double(w.stretching_evals), "segments");
+    ctx.stats.add("fluid.control_variate_queries", double(w.control_variate_queries), "queries");
+    ctx.stats.add("fluid.invalid_velocity", double(w.invalid_velocity), "values");
+    ctx.stats.add("fluid.invalid_vorticity", double(w.invalid_vorticity), "values");
+    ctx.stats.add("fluid.wos_walks", 0.0, "walks");
+    ctx.stats.add_time("fluid.time.velocity", w.seconds_velocity);
+    ctx.stats.add_time("fluid.time.advection", w.seconds_advection);
+    ctx.stats.add_time("fluid.time.output", output_seconds);
+    if (w.invalid_velocity + w.invalid_vorticity > 0)
+        log_warn(
+            "mcfluid: {} non-finite velocity estimate(s) and {} non-finite vorticity value(s) were replaced by zero",
+            w.invalid_velocity, w.invalid_vorticity);
+    if (paths.enabled() && p.write_csv) {
+        write_text_atomically(paths.csv(), csv);
+        result.files_written.push_back(paths.csv());
+    }
+    if (solver.velocity_available()) {
+        const FluidDiagnostics3 dn = solver.diagnostics();
+        log_info(
+            "mcfluid: t = {:g}: energy {:.6g} (initial {:.6g}), enstrophy {:.6g}, helicity {:.6g}, max |omega| "
+            "{:.6g}; active effects: advection{}{}{}",
+            dn.time, dn.kinetic_energy, d0.kinetic_energy, dn.enstrophy, dn.helicity, dn.max_abs_vorticity,
+            settings.stretching ? ", stretching" : "", viscous ? ", diffusion" : "",
+            settings.control_variates ? ", control variates" : "");
+    }
+    result.image = slice_image(solver.vorticity_grid(), axis, range);
+    result.work = double(done);
+    result.seconds = total.seconds();
+    return result;
+}
+
+}  // namespace kelvin::fluid
