@@ -1,0 +1,150 @@
+// 3D MCFluid benchmarks (issue 15): Biot–Savart evaluations per second of one velocity pass over the cache, and
+// time per Feynman–Kac step at 64^3 and 128^3 with n_mc = 32 and 128, with and without control variates, and the
+// cost of each effect (stretching, diffusion, control variates) as a share of a step.
+//
+//     build/bin/bench_fluid3 --benchmark_counters_tabular=true
+//     build/bin/bench_fluid3 --benchmark_filter=Effects   # the per-effect costs at 64^3
+//
+// Field: the ABC flow on the periodic box [0, 2 pi]^3 (the whole box carries vorticity, so this is the periodic
+// kernel's worst case), and a vortex ring in an open box (concentrated vorticity). Threads: all cores unless
+// KELVIN_BENCH_THREADS is set. CPU time is reported per process (both threads), so evals/s per core is
+// evals / cpu_time. Figures are in docs/performance.md.
+#include <kelvin/core/parallel.h>
+#include <kelvin/fluid/mcfluid3.h>
+
+#include <benchmark/benchmark.h>
+
+#include <cmath>
+#include <cstdlib>
+
+using namespace kelvin;
+using namespace kelvin::fluid;
+
+namespace {
+
+int bench_threads() {
+    const char* env = std::getenv("KELVIN_BENCH_THREADS");
+    return env ? std::atoi(env) : 0;
+}
+
+Vec3d abc(const Vec3d& x) {
+    return {std::sin(x.z) + std::cos(x.y), std::sin(x.x) + std::cos(x.z), std::sin(x.y) + std::cos(x.x)};
+}
+
+Vec3d ring(const Vec3d& x) {
+    const double rho = std::hypot(x.x, x.y);
+    if (rho == 0) return Vec3d(0.0);
+    const double d2 = (rho - 1) * (rho - 1) + x.z * x.z;
+    const double m = 1 / (Pi * 0.04) * std::exp(-d2 / 0.04);
+    return (m / rho) * Vec3d(-x.y, x.x, 0.0);
+}
+
+MCFluid3Settings settings(int res, int nmc, bool periodic) {
+    MCFluid3Settings s;
+    s.domain = periodic ? Domain3{Vec3d(0.0), Vec3d(2 * Pi), true} : Domain3{Vec3d(-2.0), Vec3d(2.0), false};
+    s.nx = s.ny = s.nz = res;
+    s.velocity.samples = nmc;
+    s.advection = Advection::Euler;
+    s.dt = 0.05;
+    return s;
+}
+
+// One velocity pass over every cell centre.
+void BM_BiotSavart3Pass(benchmark::State& state, bool periodic) {
+    ThreadLimit limit(bench_threads());
+    const int res = int(state.range(0)), nmc = int(state.range(1));
+    MCFluid3Settings s = settings(res, nmc, periodic);
+    MCFluid3Solver solver(s, periodic ? InitialField3(abc) : InitialField3(ring));
+    std::shared_ptr<const PeriodicKernel3> kernel =
+        periodic ? std::make_shared<PeriodicKernel3>(s.domain.size()) : nullptr;
+    BiotSavartEstimator3 est(solver.vorticity_grid(), s.interpolation, SourceSampling::Vorticity, solver.delta(),
+                             kernel);
+    const Grid3& g = solver.vorticity_grid().x;
+    uint64_t pass = 0;
+    std::vector<double> sink(static_cast<std::size_t>(res), 0.0);
+    for (auto _ : state) {
+        parallel_for_units(std::size_t(res), [&](std::size_t k) {
+            Random rng(pass, k);
+            double acc = 0;
+            for (int j = 0; j < res; ++j)
+                for (int i = 0; i < res; ++i) acc += est.estimate(g.cell_center(i, j, int(k)), nmc, rng).value.x;
+            sink[k] = acc;
+        });
+        ++pass;
+        benchmark::DoNotOptimize(sink.data());
+    }
+    const double evals = double(res) * res * res * nmc * double(state.iterations());
+    state.counters["evals/s"] = benchmark::Counter(evals, benchmark::Counter::kIsRate);
+}
+
+// A full step (velocity pass + backtrace + stretching [+ diffusion]) of the ABC flow.
+void BM_Step3(benchmark::State& state, bool cv) {
+    ThreadLimit limit(bench_threads());
+    const int res = int(state.range(0)), nmc = int(state.range(1));
+    MCFluid3Settings s = settings(res, nmc, true);
+    s.control_variates = cv;
+    s.initial_samples = cv ? 4 * nmc : 0;
+    MCFluid3Solver solver(s, abc);
+    solver.step();  // the first step has no control variate yet
+    for (auto _ : state) solver.step();
+    const FluidWork3& w = solver.work();
+    state.counters["velocity_share"] = w.seconds_velocity / (w.seconds_velocity + w.seconds_advection);
+    state.counters["evals/step"] = double(w.biot_savart_evals) / double(solver.step_index());
+}
+
+// The cost of each effect at 64^3, n_mc 32: the same step with one effect switched on or off.
+void BM_Effects(benchmark::State& state) {
+    ThreadLimit limit(bench_threads());
+    const int which = int(state.range(0));  // 0 all off (advection only), 1 stretching, 2 + diffusion n_d 4, 3 + cv
+    MCFluid3Settings s = settings(64, 32, true);
+    s.stretching = which >= 1;
+    s.viscosity = which >= 2 ? 0.01 : 0.0;
+    s.diffusion_samples = 4;
+    s.control_variates = which >= 3;
+    MCFluid3Solver solver(s, abc);
+    solver.step();
+    for (auto _ : state) solver.step();
+    state.SetLabel(which == 0   ? "advection only"
+                   : which == 1 ? "+ stretching"
+                   : which == 2 ? "+ diffusion (n_d 4)"
+                                : "+ control variates");
+}
+
+}  // namespace
+
+BENCHMARK_CAPTURE(BM_BiotSavart3Pass, periodic_abc, true)
+    ->Args({64, 32})
+    ->Args({64, 128})
+    ->Args({128, 32})
+    ->Unit(benchmark::kMillisecond)
+    ->MeasureProcessCPUTime()
+    ->UseRealTime();
+BENCHMARK_CAPTURE(BM_BiotSavart3Pass, open_ring, false)
+    ->Args({64, 32})
+    ->Args({64, 128})
+    ->Unit(benchmark::kMillisecond)
+    ->MeasureProcessCPUTime()
+    ->UseRealTime();
+BENCHMARK_CAPTURE(BM_Step3, plain, false)
+    ->Args({64, 32})
+    ->Args({64, 128})
+    ->Args({128, 32})
+    ->Unit(benchmark::kMillisecond)
+    ->MeasureProcessCPUTime()
+    ->UseRealTime()
+    ->Iterations(2);
+BENCHMARK_CAPTURE(BM_Step3, control_variates, true)
+    ->Args({64, 32})
+    ->Args({64, 128})
+    ->Unit(benchmark::kMillisecond)
+    ->MeasureProcessCPUTime()
+    ->UseRealTime()
+    ->Iterations(2);
+BENCHMARK(BM_Effects)
+    ->DenseRange(0, 3)
+    ->Unit(benchmark::kMillisecond)
+    ->MeasureProcessCPUTime()
+    ->UseRealTime()
+    ->Iterations(3);
+
+BENCHMARK_MAIN();
