@@ -7,6 +7,7 @@
 #include <algorithm>
 #include <cmath>
 #include <complex>
+#include <limits>
 
 namespace kelvin::fluid {
 
@@ -148,6 +149,36 @@ Vec3d PeriodicKernel3::correction(Vec3d r) const {
     return out;
 }
 
+void PeriodicKernel3::correction4pi(float rx, float ry, float rz, float out[3]) const {
+    const float n = float(m_n);
+    float g[3] = {(rx * float(m_inv_period.x) + 0.5f) * n, (ry * float(m_inv_period.y) + 0.5f) * n,
+                  (rz * float(m_inv_period.z) + 0.5f) * n};
+    int c[3];
+    for (int a = 0; a < 3; ++a) {
+        g[a] = std::clamp(g[a], 0.0f, n);
+        c[a] = std::min(int(g[a]), m_n - 1);
+        g[a] -= float(c[a]);
+    }
+    const std::size_t n1 = std::size_t(m_n + 1);
+    const float* t = &m_table[((std::size_t(c[2]) * n1 + std::size_t(c[1])) * n1 + std::size_t(c[0])) * 3];
+    const std::size_t dy = n1 * 3, dz = n1 * n1 * 3;
+    const float wx[2] = {1 - g[0], g[0]}, wy[2] = {1 - g[1], g[1]}, wz[2] = {1 - g[2], g[2]};
+    float o0 = 0, o1 = 0, o2 = 0;
+    for (int bz = 0; bz < 2; ++bz)
+        for (int by = 0; by < 2; ++by) {
+            const float* row = t + std::size_t(by) * dy + std::size_t(bz) * dz;
+            const float wyz = wy[by] * wz[bz];
+            const float w0 = wx[0] * wyz, w1 = wx[1] * wyz;
+            o0 += w0 * row[0] + w1 * row[3];
+            o1 += w0 * row[1] + w1 * row[4];
+            o2 += w0 * row[2] + w1 * row[5];
+        }
+    const float s = float(4 * Pi);
+    out[0] = o0 * s;
+    out[1] = o1 * s;
+    out[2] = o2 * s;
+}
+
 // ------------------------------------------------------------------------------------------------
 // Estimator.
 
@@ -176,8 +207,8 @@ BiotSavartEstimator3::BiotSavartEstimator3(const VectorGrid3& vorticity, Interpo
 
     std::vector<uint32_t> cells;
     std::vector<double> weight;
+    std::vector<Vec3d> dirs;
     double total = 0;
-    m_dir.assign(g.cell_count(), Blob{0, 0, 0});
     for (int k = 0; k < g.nz(); ++k)
         for (int j = 0; j < g.ny(); ++j)
             for (int i = 0; i < g.nx(); ++i) {
@@ -188,7 +219,7 @@ BiotSavartEstimator3::BiotSavartEstimator3(const VectorGrid3& vorticity, Interpo
                 cells.push_back(pack3(i, j, k));
                 weight.push_back(m);
                 total += m;
-                m_dir[c] = Blob{float(w.x / m), float(w.y / m), float(w.z / m)};
+                dirs.push_back(w / m);
             }
     m_abs_integral = total * g.cell_volume();
     if (cells.empty() || !(m_abs_integral > 0) || !std::isfinite(m_abs_integral)) {
@@ -202,7 +233,16 @@ BiotSavartEstimator3::BiotSavartEstimator3(const VectorGrid3& vorticity, Interpo
     std::vector<uint32_t> small, large;
     for (std::size_t c = 0; c < n; ++c) (p[c] < 1 ? small : large).push_back(uint32_t(c));
     m_slots.resize(n);
-    for (std::size_t c = 0; c < n; ++c) m_slots[c] = {0xffffffffu, cells[c], cells[c]};
+    auto set_dir = [](float* d, const Vec3d& v) {
+        d[0] = float(v.x);
+        d[1] = float(v.y);
+        d[2] = float(v.z);
+    };
+    for (std::size_t c = 0; c < n; ++c) {
+        m_slots[c] = {0xffffffffu, cells[c], cells[c], {}, {}};
+        set_dir(m_slots[c].dself, dirs[c]);
+        set_dir(m_slots[c].dalias, dirs[c]);
+    }
     auto threshold = [](double prob) {
         const double t = std::ldexp(prob, 32);
         return t >= 4294967295.0 ? 0xffffffffu : uint32_t(std::max(t, 0.0));
@@ -213,90 +253,197 @@ BiotSavartEstimator3::BiotSavartEstimator3(const VectorGrid3& vorticity, Interpo
         large.pop_back();
         m_slots[s].threshold = threshold(p[s]);
         m_slots[s].alias = cells[l];
+        set_dir(m_slots[s].dalias, dirs[l]);
         p[l] = (p[l] + p[s]) - 1.0;
         (p[l] < 1 ? small : large).push_back(l);
     }
 }
 
+namespace {
+
+/// One batch in structure-of-arrays form: sample positions in cell units relative to the grid origin, and the
+/// source strength (unit direction for importance samples, omega_h(y) for uniform ones). Padding has w = 0.
+struct Batch3 {
+    alignas(64) float px[BiotSavartEstimator3::Batch], py[BiotSavartEstimator3::Batch],
+        pz[BiotSavartEstimator3::Batch];
+    alignas(64) float wx[BiotSavartEstimator3::Batch], wy[BiotSavartEstimator3::Batch],
+        wz[BiotSavartEstimator3::Batch];
+};
+
+struct Kernel3Params {
+    float qx, qy, qz;  ///< query, cell units
+    float hx, hy, hz;  ///< cell size
+    float nx, ny, nz;  ///< cells per axis (periodic minimum image in cell units)
+    float d2;
+};
+
+struct Sums3 {
+    double s[3] = {0, 0, 0}, q[3] = {0, 0, 0};
+};
+
+/// r = x - y in world units (minimum image when periodic), for the correction lookups.
+struct Offsets3 {
+    alignas(64) float rx[BiotSavartEstimator3::Batch], ry[BiotSavartEstimator3::Batch],
+        rz[BiotSavartEstimator3::Batch];
+};
+
+// The kernel: sum over the batch of w x G_delta(r) (times 4 pi) and its square, per component, in float lanes then
+// double. Compiled for AVX2 and for the baseline (chosen at load time); both give identical results (the same IEEE
+// operations per sample, no FMA contraction, the same summation order).
+template <bool Periodic>
+__attribute__((always_inline)) inline void kernel3_body(const Batch3& b, int count, const Kernel3Params& k,
+                                                        Offsets3& off, float* fx, float* fy, float* fz) {
+    const float inv_nx = 1.0f / k.nx, inv_ny = 1.0f / k.ny, inv_nz = 1.0f / k.nz;
+    for (int s = 0; s < count; ++s) {
+        float dx = k.qx - b.px[s], dy = k.qy - b.py[s], dz = k.qz - b.pz[s];
+        if constexpr (Periodic) {  // |d| < 1.5 n: floor(d/n + 1/2) = int(d/n + 3/2) - 1
+            dx -= k.nx * float(int(dx * inv_nx + 1.5f) - 1);
+            dy -= k.ny * float(int(dy * inv_ny + 1.5f) - 1);
+            dz -= k.nz * float(int(dz * inv_nz + 1.5f) - 1);
+        }
+        const float rx = dx * k.hx, ry = dy * k.hy, rz = dz * k.hz;
+        off.rx[s] = rx;
+        off.ry[s] = ry;
+        off.rz[s] = rz;
+        const float r2 = rx * rx + ry * ry + rz * rz + k.d2;
+        const float inv = r2 > 0.0f ? 1.0f / (r2 * std::sqrt(r2)) : 0.0f;
+        const float gx = rx * inv, gy = ry * inv, gz = rz * inv;
+        fx[s] = b.wy[s] * gz - b.wz[s] * gy;
+        fy[s] = b.wz[s] * gx - b.wx[s] * gz;
+        fz[s] = b.wx[s] * gy - b.wy[s] * gx;
+    }
+}
+
+__attribute__((target_clones("avx2", "default"))) void kernel3_open(const Batch3& b, int count,
+                                                                    const Kernel3Params& k, Offsets3& off, float* fx,
+                                                                    float* fy, float* fz) {
+    kernel3_body<false>(b, count, k, off, fx, fy, fz);
+}
+__attribute__((target_clones("avx2", "default"))) void kernel3_periodic(const Batch3& b, int count,
+                                                                        const Kernel3Params& k, Offsets3& off,
+                                                                        float* fx, float* fy, float* fz) {
+    kernel3_body<true>(b, count, k, off, fx, fy, fz);
+}
+
+}  // namespace
+
 VelocityEstimate3 BiotSavartEstimator3::estimate(Vec3d x, int n, Random& rng) const {
     VelocityEstimate3 out;
     if (empty() || n <= 0) return out;
+    if (!std::isfinite(x.x) || !std::isfinite(x.y) || !std::isfinite(x.z)) {
+        out.value = Vec3d(std::numeric_limits<double>::quiet_NaN());
+        return out;
+    }
     const Grid3& g = m_grid->x;
-    const Vec3d h = g.h(), lo = g.domain().min;
-    const bool periodic = g.domain().periodic;
-    const Vec3d period = g.domain().size();
-    const double d2 = m_delta * m_delta;
+    const Domain3& dom = g.domain();
+    const bool periodic = dom.periodic;
+    if (periodic) x = dom.wrap(x);
+    const Vec3d h = g.h(), lo = dom.min;
+    const bool importance = m_sampling == SourceSampling::Vorticity;
     const bool tent = m_interp == Interpolation::Bilinear;
-    const double region_volume = m_region_size.x * m_region_size.y * m_region_size.z;
+    const uint64_t slots = m_slots.size();
 
-    alignas(64) double rx[Batch], ry[Batch], rz[Batch], wx[Batch], wy[Batch], wz[Batch];
-    double s[3] = {0, 0, 0}, q[3] = {0, 0, 0};
-    for (int start = 0; start < n; start += Batch) {
-        const int count = std::min(Batch, n - start);
-        // 1. Samples: offsets r = x - y (minimum image) and source strengths w (before division by n).
-        for (int t = 0; t < count; ++t) {
-            Vec3d y, w;
-            if (m_sampling == SourceSampling::Vorticity) {
-                const Slot& slot = m_slots[rng.next_u32(uint32_t(m_slots.size()))];
-                const uint32_t cell = rng.next_u32() < slot.threshold ? slot.self : slot.alias;
-                const int i = int(cell & 1023u), j = int((cell >> 10) & 1023u), k = int(cell >> 20);
-                Vec3d off;
-                if (tent) {  // product of tents of half-width h: the sum of two uniforms per axis
-                    off = Vec3d(rng.next_float() + rng.next_float() - 1.0, rng.next_float() + rng.next_float() - 1.0,
-                                rng.next_float() + rng.next_float() - 1.0);
-                } else {
-                    off = Vec3d(rng.next_float() - 0.5, rng.next_float() - 0.5, rng.next_float() - 0.5);
-                }
-                y = lo + (Vec3d(i, j, k) + 0.5 + off) * h;
-                const Blob& b = m_dir[g.index(i, j, k)];
-                w = Vec3d(b.x, b.y, b.z) * m_abs_integral;
-            } else {
-                y = m_region_min + Vec3d(rng.next_double(), rng.next_double(), rng.next_double()) * m_region_size;
-                w = m_grid->sample(y, m_interp) * region_volume;
+    Kernel3Params k;
+    k.qx = float((x.x - lo.x) / h.x);
+    k.qy = float((x.y - lo.y) / h.y);
+    k.qz = float((x.z - lo.z) / h.z);
+    k.hx = float(h.x);
+    k.hy = float(h.y);
+    k.hz = float(h.z);
+    k.nx = float(g.nx());
+    k.ny = float(g.ny());
+    k.nz = float(g.nz());
+    k.d2 = float(m_delta * m_delta);
+
+    Batch3 b;
+    Offsets3 off;
+    alignas(64) float fx[Batch], fy[Batch], fz[Batch];
+    Sums3 sums;
+    for (int done = 0; done < n; done += Batch) {
+        const int m = std::min(Batch, n - done);
+        if (importance) {
+            // Three passes: the serial random-number chain, the independent alias-table and direction loads, and
+            // the arithmetic. One draw picks the slot and its accept fraction; two more give the offsets (the tent
+            // as the sum of two 8-bit uniforms per axis, the box as one 16-bit uniform per axis).
+            alignas(64) uint32_t r0[Batch], r1[Batch], r2[Batch], cell[Batch];
+            alignas(64) float dx[Batch], dy[Batch], dz[Batch];
+            for (int s = 0; s < m; ++s) {
+                r0[s] = rng.next_u32();
+                r1[s] = rng.next_u32();
+                r2[s] = rng.next_u32();
             }
-            Vec3d r = x - y;
-            if (periodic) r -= period * glm::round(r / period);
-            rx[t] = r.x;
-            ry[t] = r.y;
-            rz[t] = r.z;
-            wx[t] = w.x;
-            wy[t] = w.y;
-            wz[t] = w.z;
-        }
-        // 2. Kernel: a branch-free map over the batch (vectorised), then the periodic correction per sample.
-        alignas(64) double gx[Batch], gy[Batch], gz[Batch];
-        for (int t = 0; t < count; ++t) {
-            const double r2 = rx[t] * rx[t] + ry[t] * ry[t] + rz[t] * rz[t] + d2;
-            const double inv = r2 > 0 ? InvFourPi / (r2 * std::sqrt(r2)) : 0.0;
-            gx[t] = rx[t] * inv;
-            gy[t] = ry[t] * inv;
-            gz[t] = rz[t] * inv;
+            for (int s = 0; s < m; ++s) {
+                const uint64_t p = uint64_t(r0[s]) * slots;
+                const Slot& slot = m_slots[p >> 32];
+                const bool keep = uint32_t(p) < slot.threshold;
+                cell[s] = keep ? slot.self : slot.alias;
+                const float* d = keep ? slot.dself : slot.dalias;
+                dx[s] = d[0];
+                dy[s] = d[1];
+                dz[s] = d[2];
+            }
+            for (int s = 0; s < m; ++s) {
+                const uint32_t a = r1[s], c2 = r2[s], c = cell[s];
+                const int i = int(c & 1023u), j = int((c >> 10) & 1023u), kk = int(c >> 20);
+                float ox, oy, oz;
+                if (tent) {  // 8-bit midpoints, exact in float: the tent on (-1, 1)
+                    ox = float(int(a & 0xffu) + int((a >> 8) & 0xffu) + 1) * (1.0f / 256.0f) - 1.0f;
+                    oy = float(int((a >> 16) & 0xffu) + int(a >> 24) + 1) * (1.0f / 256.0f) - 1.0f;
+                    oz = float(int(c2 & 0xffu) + int((c2 >> 8) & 0xffu) + 1) * (1.0f / 256.0f) - 1.0f;
+                } else {
+                    ox = (float(int(a & 0xffffu)) + 0.5f) * (1.0f / 65536.0f) - 0.5f;
+                    oy = (float(int(a >> 16)) + 0.5f) * (1.0f / 65536.0f) - 0.5f;
+                    oz = (float(int(c2 & 0xffffu)) + 0.5f) * (1.0f / 65536.0f) - 0.5f;
+                }
+                b.px[s] = float(i) + 0.5f + ox;
+                b.py[s] = float(j) + 0.5f + oy;
+                b.pz[s] = float(kk) + 0.5f + oz;
+                b.wx[s] = dx[s];
+                b.wy[s] = dy[s];
+                b.wz[s] = dz[s];
+            }
+        } else {
+            for (int s = 0; s < m; ++s) {
+                const double ux = (double(rng.next_u32()) + 0.5) * 0x1p-32;
+                const double uy = (double(rng.next_u32()) + 0.5) * 0x1p-32;
+                const double uz = (double(rng.next_u32()) + 0.5) * 0x1p-32;
+                const Vec3d y = m_region_min + m_region_size * Vec3d(ux, uy, uz);
+                b.px[s] = float((y.x - lo.x) / h.x);
+                b.py[s] = float((y.y - lo.y) / h.y);
+                b.pz[s] = float((y.z - lo.z) / h.z);
+                const Vec3d w = m_grid->sample(y, m_interp);
+                b.wx[s] = float(w.x);
+                b.wy[s] = float(w.y);
+                b.wz[s] = float(w.z);
+            }
         }
         if (periodic)
-            for (int t = 0; t < count; ++t) {
-                const Vec3d c = m_periodic->correction(Vec3d(rx[t], ry[t], rz[t]));
-                gx[t] += c.x;
-                gy[t] += c.y;
-                gz[t] += c.z;
+            kernel3_periodic(b, m, k, off, fx, fy, fz);
+        else
+            kernel3_open(b, m, k, off, fx, fy, fz);
+        if (periodic)  // the smooth correction G_per - G (4 pi H) at the minimum images
+            for (int s = 0; s < m; ++s) {
+                float c[3];
+                m_periodic->correction4pi(off.rx[s], off.ry[s], off.rz[s], c);
+                fx[s] += b.wy[s] * c[2] - b.wz[s] * c[1];
+                fy[s] += b.wz[s] * c[0] - b.wx[s] * c[2];
+                fz[s] += b.wx[s] * c[1] - b.wy[s] * c[0];
             }
-        // 3. omega x G, summed with its square per component.
-        for (int t = 0; t < count; ++t) {
-            const double fx = wy[t] * gz[t] - wz[t] * gy[t];
-            const double fy = wz[t] * gx[t] - wx[t] * gz[t];
-            const double fz = wx[t] * gy[t] - wy[t] * gx[t];
-            s[0] += fx;
-            s[1] += fy;
-            s[2] += fz;
-            q[0] += fx * fx;
-            q[1] += fy * fy;
-            q[2] += fz * fz;
+        for (int s = 0; s < m; ++s) {
+            sums.s[0] += fx[s];
+            sums.s[1] += fy[s];
+            sums.s[2] += fz[s];
+            sums.q[0] += double(fx[s]) * fx[s];
+            sums.q[1] += double(fy[s]) * fy[s];
+            sums.q[2] += double(fz[s]) * fz[s];
         }
     }
-    const double inv_n = 1.0 / n;
+    const double weight = (importance ? m_abs_integral : m_region_size.x * m_region_size.y * m_region_size.z) * InvFourPi;
     for (int a = 0; a < 3; ++a) {
-        const double mean = s[a] * inv_n;
-        out.value[a] = mean;
-        out.variance[a] = n > 1 ? std::max(0.0, (q[a] * inv_n - mean * mean) / (n - 1)) : 0.0;
+        out.value[a] = weight * sums.s[a] / n;
+        if (n > 1)
+            out.variance[a] =
+                weight * weight * std::max(0.0, sums.q[a] - sums.s[a] * sums.s[a] / n) / (double(n) * (n - 1));
     }
     out.samples = n;
     return out;

@@ -45,6 +45,8 @@ public:
     static Vec3d exact(Vec3d r, Vec3d period, double alpha = 0);
     /// Tabulated G_per(r) - G(r), trilinear. r must be a minimum image.
     Vec3d correction(Vec3d r) const;
+    /// The same in float, times 4 pi (the estimator's inner loop).
+    void correction4pi(float rx, float ry, float rz, float out[3]) const;
 
 private:
     Vec3d m_period, m_inv_period;
@@ -81,12 +83,12 @@ public:
     static constexpr int MaxResolution = 1024;
 
 private:
+    /// One alias-table slot with both cells' unit directions (the sample's weight divided by its magnitude), so
+    /// that a sample costs one random memory access.
     struct Slot {
         uint32_t threshold;
         uint32_t self, alias;  ///< packed cells i | j << 10 | k << 20
-    };
-    struct Blob {  ///< a cell's unit direction (the sample's weight divided by its magnitude)
-        float x, y, z;
+        float dself[3], dalias[3];
     };
 
     const VectorGrid3* m_grid;
@@ -96,7 +98,6 @@ private:
     std::shared_ptr<const PeriodicKernel3> m_periodic;
     double m_abs_integral = 0;
     std::vector<Slot> m_slots;
-    std::vector<Blob> m_dir;  ///< per cell: omega_c / |omega_c| (zero cells unused)
     Vec3d m_region_min{0.0}, m_region_size{0.0};
 };
 
