@@ -264,10 +264,8 @@ namespace {
 /// One batch in structure-of-arrays form: sample positions in cell units relative to the grid origin, and the
 /// source strength (unit direction for importance samples, omega_h(y) for uniform ones). Padding has w = 0.
 struct Batch3 {
-    alignas(64) float px[BiotSavartEstimator3::Batch], py[BiotSavartEstimator3::Batch],
-        pz[BiotSavartEstimator3::Batch];
-    alignas(64) float wx[BiotSavartEstimator3::Batch], wy[BiotSavartEstimator3::Batch],
-        wz[BiotSavartEstimator3::Batch];
+    alignas(64) float px[BiotSavartEstimator3::Batch], py[BiotSavartEstimator3::Batch], pz[BiotSavartEstimator3::Batch];
+    alignas(64) float wx[BiotSavartEstimator3::Batch], wy[BiotSavartEstimator3::Batch], wz[BiotSavartEstimator3::Batch];
 };
 
 struct Kernel3Params {
@@ -283,8 +281,7 @@ struct Sums3 {
 
 /// r = x - y in world units (minimum image when periodic), for the correction lookups.
 struct Offsets3 {
-    alignas(64) float rx[BiotSavartEstimator3::Batch], ry[BiotSavartEstimator3::Batch],
-        rz[BiotSavartEstimator3::Batch];
+    alignas(64) float rx[BiotSavartEstimator3::Batch], ry[BiotSavartEstimator3::Batch], rz[BiotSavartEstimator3::Batch];
 };
 
 // The kernel: sum over the batch of w x G_delta(r) (times 4 pi) and its square, per component, in float lanes then
@@ -314,9 +311,8 @@ __attribute__((always_inline)) inline void kernel3_body(const Batch3& b, int cou
     }
 }
 
-__attribute__((target_clones("avx2", "default"))) void kernel3_open(const Batch3& b, int count,
-                                                                    const Kernel3Params& k, Offsets3& off, float* fx,
-                                                                    float* fy, float* fz) {
+__attribute__((target_clones("avx2", "default"))) void kernel3_open(const Batch3& b, int count, const Kernel3Params& k,
+                                                                    Offsets3& off, float* fx, float* fy, float* fz) {
     kernel3_body<false>(b, count, k, off, fx, fy, fz);
 }
 __attribute__((target_clones("avx2", "default"))) void kernel3_periodic(const Batch3& b, int count,
@@ -438,7 +434,8 @@ VelocityEstimate3 BiotSavartEstimator3::estimate(Vec3d x, int n, Random& rng) co
             sums.q[2] += double(fz[s]) * fz[s];
         }
     }
-    const double weight = (importance ? m_abs_integral : m_region_size.x * m_region_size.y * m_region_size.z) * InvFourPi;
+    const double weight =
+        (importance ? m_abs_integral : m_region_size.x * m_region_size.y * m_region_size.z) * InvFourPi;
     for (int a = 0; a < 3; ++a) {
         out.value[a] = weight * sums.s[a] / n;
         if (n > 1)

@@ -23,7 +23,7 @@ inline uint64_t stream_of(long long step, uint64_t tag, uint64_t unit) {
 
 struct SlabWork {
     uint64_t evals = 0, queries = 0, backtraces = 0, diffusion = 0, stretching = 0, cv = 0, invalid_velocity = 0,
-             invalid_vorticity = 0;
+             invalid_vorticity = 0, smoke = 0;
 };
 
 void check_settings(const MCFluid3Settings& s) {
@@ -216,6 +216,12 @@ bool MCFluid3Solver::step(double dt) {
                     xd = x;
                 }
                 xd = s.domain.wrap(xd);
+                if (m_smoke) {  // the same backtrace carries the smoke; the source adds rate dt inside its sphere
+                    double rho = m_density.sample(xd, interp);
+                    if (glm::length(x - m_smoke->center) <= m_smoke->radius) rho += dt * m_smoke->rate;
+                    m_density_next.values()[c] = std::isfinite(rho) ? rho : 0.0;
+                    ++w.smoke;
+                }
                 Vec3d sum(0.0);
                 for (int d = 0; d < nd; ++d) {
                     const Vec3d xj = viscous ? xd + sigma * standard_normal3(rng) : xd;
@@ -251,7 +257,9 @@ bool MCFluid3Solver::step(double dt) {
         m_work.control_variate_queries += w.cv;
         m_work.invalid_velocity += w.invalid_velocity;
         m_work.invalid_vorticity += w.invalid_vorticity;
+        m_work.smoke_lookups += w.smoke;
     }
+    if (m_smoke) std::swap(m_density, m_density_next);
     if (s.control_variates) {  // this state becomes the control variate of the next one
         m_prev_omega = m_omega;
         m_prev_vel = m_vel;
@@ -315,7 +323,22 @@ FluidDiagnostics3 MCFluid3Solver::diagnostics() {
                 ++count;
             }
     d.divergence_rms = count > 0 ? std::sqrt(div2 / double(count)) : 0.0;
+    if (m_smoke) d.smoke_mass = m_density.integral();
     return d;
+}
+
+void MCFluid3Solver::set_smoke(const Smoke3& smoke) {
+    if (m_step > 0) throw_runtime("MCFluid3Solver::set_smoke: smoke must be added before the first step");
+    if (!(smoke.radius > 0) || !std::isfinite(smoke.initial) || !std::isfinite(smoke.rate))
+        throw_runtime("MCFluid3Solver::set_smoke: radius must be positive, density and rate finite");
+    m_smoke = std::make_unique<Smoke3>(smoke);
+    const MCFluid3Settings& s = m_settings;
+    m_density = m_density_next = Grid3(s.domain, s.nx, s.ny, s.nz);
+    for (int k = 0; k < s.nz; ++k)
+        for (int j = 0; j < s.ny; ++j)
+            for (int i = 0; i < s.nx; ++i)
+                if (glm::length(m_density.cell_center(i, j, k) - smoke.center) <= smoke.radius)
+                    m_density.at(i, j, k) = smoke.initial;
 }
 
 }  // namespace kelvin::fluid

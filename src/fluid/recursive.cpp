@@ -13,8 +13,7 @@
 
 namespace kelvin::fluid {
 
-namespace {
-}  // namespace
+namespace {}  // namespace
 
 /// Density for importance sampling: (1 - eps) * |omega_0|_h / W + eps / |box|, where |omega_0|_h is the
 /// tent-basis interpolation of |omega_0| at the cell centres (so a cell is chosen by an alias table and a

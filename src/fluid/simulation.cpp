@@ -62,6 +62,9 @@ SimulationParams SimulationParams::parse(const Properties& props, const std::str
                                      : int(std::clamp(std::lround(p.nx * size.y / size.x), 2L, 16384L));
     p.field->bind_domain(p.domain);
     p.field->check_domain(p.domain);
+    if (auto obj = props.get_object("scalar"); obj && dynamic_cast<const SmokeSpec3*>(obj.get()))
+        props.error("scalar",
+                    fmt::format("'{}' is 3D smoke (dimension = 3); 2D scenes take a dye", obj->plugin_name()));
     p.dye = props.get_object_as<DyeSpec>("scalar");
     return p;
 }

@@ -50,7 +50,9 @@ Simulation3Params Simulation3Params::parse(const Properties& props) {
     s.control_variates = props.get_bool("control_variates");
     s.initial_samples = int(props.get_int("initial_samples", 0, 1 << 24));
     if (s.initial_samples > 0 && !s.control_variates)
-        props.error("initial_samples", "is the control variates' initial sample count; set control_variates = true");
+        log_info("mcfluid: initial_samples = {} is the control variates' initial sample count; control_variates is "
+                 "off, so every velocity pass uses n_mc",
+                 s.initial_samples); set control_variates = true");
     p.output_every = props.get_int("output_every", 0, 1LL << 40);
     p.write_png = props.get_bool("write_png");
     p.write_vdb = props.get_bool("write_vdb");
@@ -93,7 +95,12 @@ Simulation3Params Simulation3Params::parse(const Properties& props) {
         props.error("cache", fmt::format("3D caches are limited to {} cells per axis (got {}x{}x{})",
                                          BiotSavartEstimator3::MaxResolution, s.nx, s.ny, s.nz));
     s.interpolation = cache->interpolation();
-    if (props.get_object("scalar")) props.error("scalar", "passive scalars (smoke) are not implemented in 3D yet");
+    if (auto scalar = props.get_object("scalar")) {
+        p.smoke = std::dynamic_pointer_cast<SmokeSpec3>(scalar);
+        if (!p.smoke)
+            props.error("scalar",
+                        fmt::format("'{}' is a 2D dye; 3D scenes take <scalar type=\"smoke\">", scalar->plugin_name()));
+    }
     p.field->check_domain3(s.domain);
     return p;
 }
@@ -116,7 +123,8 @@ std::once_flag g_vdb_init;
 
 }  // namespace
 
-void write_vdb_frame(const std::filesystem::path& path, const VectorGrid3& vorticity, const VectorGrid3* velocity) {
+void write_vdb_frame(const std::filesystem::path& path, const VectorGrid3& vorticity, const VectorGrid3* velocity,
+                     const Grid3* density) {
     std::call_once(g_vdb_init, [] { openvdb::initialize(); });
     const Grid3& g = vorticity.x;
     auto transform = cell_transform(g);
@@ -150,6 +158,18 @@ void write_vdb_frame(const std::filesystem::path& path, const VectorGrid3& vorti
                 }
     }
     grids.push_back(magnitude);
+    if (density) {
+        auto grid = openvdb::FloatGrid::create(0.f);
+        grid->setName("density");
+        grid->setGridClass(openvdb::GRID_FOG_VOLUME);
+        grid->setTransform(transform->copy());
+        auto acc = grid->getAccessor();
+        for (int k = 0; k < g.nz(); ++k)
+            for (int j = 0; j < g.ny(); ++j)
+                for (int i = 0; i < g.nx(); ++i)
+                    if (const double v = density->at(i, j, k); v != 0) acc.setValue(openvdb::Coord(i, j, k), float(v));
+        grids.push_back(grid);
+    }
     add_vector(vorticity, "vorticity");
     if (velocity) add_vector(*velocity, "velocity");
     write_atomically(path, [&](const std::filesystem::path& tmp) {
@@ -201,13 +221,14 @@ RunResult run_mcfluid3(const Simulation3Params& p, RunContext& ctx) {
     }
     const VorticityField3& field = *p.field;
     MCFluid3Solver solver(settings, [&field](const Vec3d& x) { return field.vorticity3(x); });
+    if (p.smoke) solver.set_smoke({p.smoke->center(), p.smoke->radius(), p.smoke->initial_density(), p.smoke->rate()});
     const bool viscous = settings.viscosity > 0;
     log_info("mcfluid: 3D, domain {}, {}x{}x{} cache ({}), initial {}", settings.domain.to_string(), settings.nx,
              settings.ny, settings.nz, settings.interpolation == Interpolation::Nearest ? "nearest" : "trilinear",
              field.description3());
     log_info(
         "mcfluid: effects: advection ({}, dt {:g}, {} steps) with Biot–Savart velocity (n_mc {}, importance {}, delta "
-        "{:g}{}); stretching {}; diffusion {}; control variates {}; boundaries none; smoke none",
+        "{:g}{}); stretching {}; diffusion {}; control variates {}; boundaries none; smoke {}",
         fluid::to_string(settings.advection), settings.dt, p.steps, settings.velocity.samples,
         fluid::to_string(settings.velocity.importance), solver.delta(),
         settings.domain.periodic ? ", Ewald periodic kernel" : "",
@@ -218,21 +239,22 @@ RunResult run_mcfluid3(const Simulation3Params& p, RunContext& ctx) {
         settings.control_variates
             ? fmt::format("on (initial samples {})",
                           settings.initial_samples > 0 ? settings.initial_samples : settings.velocity.samples)
-            : std::string("off"));
+            : std::string("off"),
+        p.smoke ? p.smoke->description() : std::string("none"));
 
     OutputPaths paths(ctx.output);
     RunResult result;
     result.work_unit = "steps";
     std::string csv =
         "step,time,kinetic_energy,kinetic_energy_raw,enstrophy,helicity,impulse_x,impulse_y,impulse_z,centroid_x,"
-        "centroid_y,centroid_z,max_abs_vorticity,divergence_rms,step_seconds,biot_savart_evals,invalid\n";
+        "centroid_y,centroid_z,max_abs_vorticity,divergence_rms,smoke_mass,step_seconds,biot_savart_evals,invalid\n";
     auto add_row = [&](const FluidDiagnostics3& d, double seconds, double evals, uint64_t invalid) {
         csv += fmt::format(
             "{},{:.9g},{:.9g},{:.9g},{:.9g},{:.9g},{:.9g},{:.9g},{:.9g},{:.9g},{:.9g},{:.9g},{:.9g},{:.9g},"
-            "{:.6g},{:.0f},{}\n",
+            "{:.9g},{:.6g},{:.0f},{}\n",
             d.step, d.time, d.kinetic_energy, d.kinetic_energy_raw, d.enstrophy, d.helicity, d.impulse.x, d.impulse.y,
-            d.impulse.z, d.centroid.x, d.centroid.y, d.centroid.z, d.max_abs_vorticity, d.divergence_rms, seconds,
-            evals, invalid);
+            d.impulse.z, d.centroid.x, d.centroid.y, d.centroid.z, d.max_abs_vorticity, d.divergence_rms, d.smoke_mass,
+            seconds, evals, invalid);
     };
     const int axis = p.slice_axis;
     const VectorGrid3& omega0 = solver.vorticity_grid();
@@ -245,7 +267,7 @@ RunResult run_mcfluid3(const Simulation3Params& p, RunContext& ctx) {
         Timer t;
         if (p.write_vdb) {
             auto path = paths.frame(solver.step_index(), digits, ".vdb");
-            write_vdb_frame(path, solver.vorticity_grid(), &solver.velocity_grid());
+            write_vdb_frame(path, solver.vorticity_grid(), &solver.velocity_grid(), solver.smoke());
             result.files_written.push_back(path);
         }
         if (p.write_png) {
@@ -310,6 +332,7 @@ RunResult run_mcfluid3(const Simulation3Params& p, RunContext& ctx) {
     ctx.stats.add("fluid.invalid_velocity", double(w.invalid_velocity), "values");
     ctx.stats.add("fluid.invalid_vorticity", double(w.invalid_vorticity), "values");
     ctx.stats.add("fluid.wos_walks", 0.0, "walks");
+    ctx.stats.add("fluid.smoke_lookups", double(w.smoke_lookups), "lookups");
     ctx.stats.add_time("fluid.time.velocity", w.seconds_velocity);
     ctx.stats.add_time("fluid.time.advection", w.seconds_advection);
     ctx.stats.add_time("fluid.time.output", output_seconds);

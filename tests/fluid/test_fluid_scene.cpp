@@ -276,8 +276,9 @@ TEST(FluidScene, DiagnosticsCsvReplacesThePreviousFileOnlyWhenComplete) {
 
 namespace {
 
-std::string scene3(const std::string& sim, const std::string& vorticity = R"(<vorticity type="abc"/>)",
-                   const std::string& components = R"(<velocity type="biot_savart"><integer name="samples" value="8"/></velocity>
+std::string scene3(
+    const std::string& sim, const std::string& vorticity = R"(<vorticity type="abc"/>)",
+    const std::string& components = R"(<velocity type="biot_savart"><integer name="samples" value="8"/></velocity>
             <cache type="grid"><integer name="resolution" value="8"/></cache>)") {
     return R"(<scene version="3.0.0">
         <simulation type="mcfluid">
@@ -309,9 +310,8 @@ TEST(FluidScene3D, BadInputNamesTheParameter) {
                           R"(<velocity type="walk_on_spheres"/>)"));
     EXPECT_CONTAINS(e.what(), "'velocity'");
     EXPECT_CONTAINS(e.what(), "not available in 3D");
-    e = load_error(scene3(R"(<integer name="steps" value="2"/><integer name="initial_samples" value="64"/>)"));
-    EXPECT_CONTAINS(e.what(), "'initial_samples'");
-    e = load_error(scene3(R"(<integer name="steps" value="2"/>)", R"(<vorticity type="vortex_ring"><float name="core" value="2"/></vorticity>)"));
+    e = load_error(scene3(R"(<integer name="steps" value="2"/>)",
+                          R"(<vorticity type="vortex_ring"><float name="core" value="2"/></vorticity>)"));
     EXPECT_CONTAINS(e.what(), "'core'");
     EXPECT_FALSE(std::string(e.what()).find('\n') != std::string::npos) << "one line";
 }
@@ -321,7 +321,8 @@ TEST(FluidScene3D, BadInputNamesTheParameter) {
 // obstacles does no diffusion, control-variate or walk work.
 TEST(FluidScene3D, RunWritesCsvVdbAndSlicesAndOnlyRequestedWork) {
     TempDir dir;
-    auto job = load(scene3(R"(<integer name="steps" value="2"/><integer name="output_every" value="1"/>)"));
+    auto job = load(scene3(R"(<integer name="steps" value="2"/><integer name="output_every" value="1"/>
+            <scalar type="smoke"><point name="center" x="3" y="3" z="3"/><float name="radius" value="1"/></scalar>)"));
     RunContext ctx;
     ctx.quiet = true;
     ctx.output = dir.path() / "abc.png";
@@ -330,9 +331,9 @@ TEST(FluidScene3D, RunWritesCsvVdbAndSlicesAndOnlyRequestedWork) {
     std::ifstream csv(dir.path() / "abc.csv");
     std::string header, line;
     std::getline(csv, header);
-    for (const char* col : {"step", "time", "kinetic_energy", "enstrophy", "helicity", "impulse_x", "impulse_y",
-                            "impulse_z", "centroid_x", "centroid_y", "centroid_z", "max_abs_vorticity",
-                            "divergence_rms"})
+    for (const char* col :
+         {"step", "time", "kinetic_energy", "enstrophy", "helicity", "impulse_x", "impulse_y", "impulse_z",
+          "centroid_x", "centroid_y", "centroid_z", "max_abs_vorticity", "divergence_rms", "smoke_mass"})
         EXPECT_CONTAINS(header, col);
     int rows = 0;
     while (std::getline(csv, line)) ++rows;
@@ -346,8 +347,10 @@ TEST(FluidScene3D, RunWritesCsvVdbAndSlicesAndOnlyRequestedWork) {
     auto mag = openvdb::gridPtrCast<openvdb::FloatGrid>(f.readGrid("vorticity_magnitude"));
     auto vort = openvdb::gridPtrCast<openvdb::Vec3SGrid>(f.readGrid("vorticity"));
     auto vel = openvdb::gridPtrCast<openvdb::Vec3SGrid>(f.readGrid("velocity"));
+    auto density = openvdb::gridPtrCast<openvdb::FloatGrid>(f.readGrid("density"));
     f.close();
-    ASSERT_TRUE(mag && vort && vel);
+    ASSERT_TRUE(mag && vort && vel && density);
+    EXPECT_GT(density->activeVoxelCount(), 0u);
     const double h = 2 * Pi / 8;
     const openvdb::Vec3d c0 = mag->indexToWorld(openvdb::Vec3d(0, 0, 0));
     EXPECT_NEAR(c0.x(), 0.5 * h, 1e-9);
@@ -359,4 +362,8 @@ TEST(FluidScene3D, RunWritesCsvVdbAndSlicesAndOnlyRequestedWork) {
     EXPECT_EQ(ctx.stats.get("fluid.control_variate_queries"), 0.0);
     EXPECT_EQ(ctx.stats.get("fluid.wos_walks"), 0.0);
     EXPECT_EQ(ctx.stats.get("fluid.stretching_evals"), 2.0 * 8 * 8 * 8);
+    EXPECT_EQ(ctx.stats.get("fluid.smoke_lookups"), 2.0 * 8 * 8 * 8);
+    // A 2D dye in a 3D scene is refused.
+    InputError e = load_error(scene3(R"(<integer name="steps" value="2"/><scalar type="pattern"/>)"));
+    EXPECT_CONTAINS(e.what(), "'scalar'");
 }

@@ -37,11 +37,11 @@ namespace kelvin::fluid {
 
 /// What a fluid solver needs to know about a boundary besides its geometry (common <boundary> parameters).
 struct BoundaryRole {
-    double stream_value = 0;      ///< psi_0: the isovalue of Psi on the boundary (at the pivot if moving)
-    Vec2d velocity{0.0};          ///< rigid translation velocity U
-    double angular_velocity = 0;  ///< rigid rotation rate Omega (radians per unit time, counter-clockwise)
-    Vec2d pivot{0.0};             ///< rotation centre at t = 0 (moves with U)
-    bool fluid_inside = false;    ///< the fluid is inside the shape (a container) instead of outside (an obstacle)
+    double stream_value = 0;          ///< psi_0: the isovalue of Psi on the boundary (at the pivot if moving)
+    Vec2d velocity{0.0};              ///< rigid translation velocity U
+    double angular_velocity = 0;      ///< rigid rotation rate Omega (radians per unit time, counter-clockwise)
+    Vec2d pivot{0.0};                 ///< rotation centre at t = 0 (moves with U)
+    bool fluid_inside = false;        ///< the fluid is inside the shape (a container) instead of outside (an obstacle)
     bool stream_value_given = false;  ///< the scene set stream_value (else the default 0 was taken)
     bool moving() const { return velocity != Vec2d(0.0) || angular_velocity != 0; }
 };

@@ -54,6 +54,19 @@ public:
     virtual std::string description3() const = 0;
 };
 
+/// A 3D smoke source (<scalar type="smoke"> in a scene with dimension = 3): a passive density advected along the
+/// solver's own backtraces, initialised and fed inside a sphere.
+class SmokeSpec3 : public Object {
+public:
+    virtual Vec3d center() const = 0;
+    virtual double radius() const = 0;
+    /// Density inside the sphere at t = 0.
+    virtual double initial_density() const = 0;
+    /// Density added per unit time inside the sphere (0: no source after t = 0).
+    virtual double rate() const = 0;
+    virtual std::string description() const = 0;
+};
+
 /// A velocity estimator (<velocity type="...">). Only Biot–Savart exists so far (open and periodic
 /// domains); Walk-on-Spheres for boundaries will be another implementation.
 class VelocityEstimatorSpec : public Object {

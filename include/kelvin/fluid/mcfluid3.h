@@ -57,6 +57,7 @@ struct FluidWork3 {
     uint64_t diffusion_samples = 0;        ///< Gaussian displacements (0 when inviscid)
     uint64_t stretching_evals = 0;         ///< vortex-segment stretching estimates (Eq. 5.21)
     uint64_t control_variate_queries = 0;  ///< velocity estimates that used the previous step as control variate
+    uint64_t smoke_lookups = 0;            ///< smoke density values read (0 without smoke)
     uint64_t invalid_velocity = 0;
     uint64_t invalid_vorticity = 0;
     double seconds_velocity = 0;
@@ -75,6 +76,16 @@ struct FluidDiagnostics3 {
     Vec3d centroid{0.0};            ///< int |omega| x / int |omega| (the domain's centre for an empty field)
     double max_abs_vorticity = 0;
     double divergence_rms = 0;  ///< RMS of div u by central differences of the cached velocity (interior cells)
+    double smoke_mass = 0;      ///< integral of the smoke density (0 without smoke)
+};
+
+/// Smoke: a passive density carried along the solver's backtraces (no diffusion), set to `initial` inside a
+/// sphere at t = 0 and fed at `rate` per unit time inside it.
+struct Smoke3 {
+    Vec3d center{0.0};
+    double radius = 0.25;
+    double initial = 1;
+    double rate = 0;
 };
 
 class MCFluid3Solver {
@@ -106,6 +117,11 @@ public:
 
     const FluidWork3& work() const { return m_work; }
 
+    /// Adds smoke (before the first step). Without it no scalar is advected.
+    void set_smoke(const Smoke3& smoke);
+    /// The smoke density at the cell centres (null without smoke).
+    const Grid3* smoke() const { return m_smoke ? &m_density : nullptr; }
+
     enum StreamTag : uint64_t { TagVelocity = 1, TagAdvection = 2 };
 
 private:
@@ -127,6 +143,8 @@ private:
     bool m_have_prev = false;
     std::unique_ptr<BiotSavartEstimator3> m_diff_estimator;
     FluidWork3 m_work;
+    std::unique_ptr<Smoke3> m_smoke;
+    Grid3 m_density, m_density_next;
 };
 
 }  // namespace kelvin::fluid

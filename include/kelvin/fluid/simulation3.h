@@ -3,10 +3,11 @@
 //
 // Outputs (RunContext::output is a prefix, as in 2D):
 //   <prefix>.csv          one row per state: step, time, kinetic_energy, kinetic_energy_raw, enstrophy,
-//                         helicity, impulse_x/y/z, centroid_x/y/z, max_abs_vorticity, divergence_rms,
+//                         helicity, impulse_x/y/z, centroid_x/y/z, max_abs_vorticity, divergence_rms, smoke_mass,
 //                         step_seconds, biot_savart_evals, invalid
 //   <prefix>_NNNN.vdb     every output_every steps (and the last): OpenVDB float grid "vorticity_magnitude",
-//                         vector grids "vorticity" and "velocity" (voxel = cache cell, world-space transform)
+//                         vector grids "vorticity" and "velocity" (voxel = cache cell, world-space transform),
+//                         and "density" with smoke
 //   <prefix>_NNNN.png     a slice through the middle of the box normal to `slice_axis`, the vorticity component
 //                         along that axis colour-mapped (blue negative, red positive)
 // and the last slice image is the run's image (the CLI writes it to -o).
@@ -27,7 +28,8 @@ struct Simulation3Params {
     long long output_every = 0;
     bool write_png = true, write_vdb = true, write_csv = true;
     double color_range = 0;
-    int slice_axis = 1;  ///< 0 x, 1 y, 2 z
+    int slice_axis = 1;                 ///< 0 x, 1 y, 2 z
+    std::shared_ptr<SmokeSpec3> smoke;  ///< null: no smoke, no scalar work
     std::shared_ptr<Object> field_object;
     const VorticityField3* field = nullptr;
 
@@ -38,7 +40,8 @@ struct Simulation3Params {
 RunResult run_mcfluid3(const Simulation3Params& p, RunContext& ctx);
 
 /// Writes the state as an OpenVDB file (vorticity, |vorticity| and, when given, velocity), atomically.
-void write_vdb_frame(const std::filesystem::path& path, const VectorGrid3& vorticity, const VectorGrid3* velocity);
+void write_vdb_frame(const std::filesystem::path& path, const VectorGrid3& vorticity, const VectorGrid3* velocity,
+                     const Grid3* density = nullptr);
 
 /// The slice image: one pixel per cell of the plane through the box centre normal to `axis`, top row =
 /// largest coordinate; channels R, G, B (the component of `field` along `axis`, colour-mapped over
