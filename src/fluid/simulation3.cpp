@@ -50,9 +50,10 @@ Simulation3Params Simulation3Params::parse(const Properties& props) {
     s.control_variates = props.get_bool("control_variates");
     s.initial_samples = int(props.get_int("initial_samples", 0, 1 << 24));
     if (s.initial_samples > 0 && !s.control_variates)
-        log_info("mcfluid: initial_samples = {} is the control variates' initial sample count; control_variates is "
-                 "off, so every velocity pass uses n_mc",
-                 s.initial_samples); set control_variates = true");
+        log_info(
+            "mcfluid: initial_samples = {} is the control variates' initial sample count; control_variates is "
+            "off, so every velocity pass uses n_mc",
+            s.initial_samples);
     p.output_every = props.get_int("output_every", 0, 1LL << 40);
     p.write_png = props.get_bool("write_png");
     p.write_vdb = props.get_bool("write_vdb");
