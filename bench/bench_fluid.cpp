@@ -14,6 +14,8 @@
 
 #include <benchmark/benchmark.h>
 
+#include "bench_support.h"
+
 #include <cmath>
 #include <cstdlib>
 #include <memory>
@@ -23,10 +25,7 @@ using namespace kelvin::fluid;
 
 namespace {
 
-int bench_threads() {
-    const char* env = std::getenv("KELVIN_BENCH_THREADS");
-    return env ? std::atoi(env) : 0;
-}
+using kelvin::bench::bench_threads;
 
 MCFluidSettings taylor_green_settings(int res, int nmc, Advection adv) {
     MCFluidSettings s;

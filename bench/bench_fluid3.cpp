@@ -14,6 +14,8 @@
 
 #include <benchmark/benchmark.h>
 
+#include "bench_support.h"
+
 #include <cmath>
 #include <cstdlib>
 
@@ -22,10 +24,7 @@ using namespace kelvin::fluid;
 
 namespace {
 
-int bench_threads() {
-    const char* env = std::getenv("KELVIN_BENCH_THREADS");
-    return env ? std::atoi(env) : 0;
-}
+using kelvin::bench::bench_threads;
 
 Vec3d abc(const Vec3d& x) {
     return {std::sin(x.z) + std::cos(x.y), std::sin(x.x) + std::cos(x.z), std::sin(x.y) + std::cos(x.x)};

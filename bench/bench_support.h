@@ -1,7 +1,8 @@
 #pragma once
-// Helpers shared by the command-line benchmarks (bench_mlt, bench_mmlt): the calling thread's CPU time, and the
-// median of a sample.
+// Helpers shared by the benchmarks: the calling thread's CPU time, the median of a sample, and the thread count
+// from KELVIN_BENCH_THREADS.
 #include <algorithm>
+#include <cstdlib>
 #include <ctime>
 #include <vector>
 
@@ -18,6 +19,12 @@ inline double median(std::vector<double> v) {
     std::sort(v.begin(), v.end());
     const std::size_t n = v.size();
     return n == 0 ? 0.0 : n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
+}
+
+/// Worker threads for a benchmark: KELVIN_BENCH_THREADS, or 0 (all cores) when unset.
+inline int bench_threads() {
+    const char* env = std::getenv("KELVIN_BENCH_THREADS");
+    return env ? std::atoi(env) : 0;
 }
 
 }  // namespace kelvin::bench

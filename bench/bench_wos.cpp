@@ -20,9 +20,11 @@
 #include <kelvin/fluid/mcfluid.h>
 
 #include <benchmark/benchmark.h>
+
 #include <fmt/format.h>
 #include <openvdb/openvdb.h>
 #include <openvdb/tools/LevelSetSphere.h>
+#include "bench_support.h"
 
 #include <cmath>
 #include <cstdlib>
@@ -35,10 +37,7 @@ using namespace kelvin::fluid;
 
 namespace {
 
-int bench_threads() {
-    const char* env = std::getenv("KELVIN_BENCH_THREADS");
-    return env ? std::atoi(env) : 0;
-}
+using kelvin::bench::bench_threads;
 
 std::shared_ptr<const BoundaryShape> make(const std::string& type, const std::function<void(Properties&)>& set) {
     Properties p("boundary", type);

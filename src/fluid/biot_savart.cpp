@@ -1,6 +1,7 @@
 // Monte Carlo Biot–Savart estimation (thesis Eq. (5.5)) over a cached vorticity grid: alias-table
 // importance sampling by |omega|, the periodic kernel, and the SIMD-friendly inner loop.
 #include <kelvin/core/error.h>
+#include <kelvin/fluid/alias.h>
 #include <kelvin/fluid/biot_savart.h>
 
 #include <algorithm>
@@ -134,26 +135,9 @@ BiotSavartEstimator::BiotSavartEstimator(const Grid2& vorticity, Interpolation i
         m_abs_integral = 0;
         return;
     }
-    const std::size_t n = cells.size();
-    std::vector<double> p(n);
-    for (std::size_t k = 0; k < n; ++k) p[k] = weight[k] * double(n) / total;
-    std::vector<uint32_t> small, large;
-    for (std::size_t k = 0; k < n; ++k) (p[k] < 1 ? small : large).push_back(uint32_t(k));
-    m_slots.resize(n);
-    for (std::size_t k = 0; k < n; ++k) m_slots[k] = {0xffffffffu, cells[k], cells[k]};  // leftovers: keep self
-    auto threshold = [](double prob) {
-        const double t = std::ldexp(prob, 32);
-        return t >= 4294967295.0 ? 0xffffffffu : uint32_t(std::max(t, 0.0));
-    };
-    while (!small.empty() && !large.empty()) {
-        const uint32_t s = small.back(), l = large.back();
-        small.pop_back();
-        large.pop_back();
-        m_slots[s].threshold = threshold(p[s]);
-        m_slots[s].alias = cells[l];
-        p[l] = (p[l] + p[s]) - 1.0;
-        (p[l] < 1 ? small : large).push_back(l);
-    }
+    const std::vector<AliasEntry> table = build_alias_table(weight, total);
+    m_slots.resize(cells.size());
+    for (std::size_t k = 0; k < cells.size(); ++k) m_slots[k] = {table[k].threshold, cells[k], cells[table[k].alias]};
 }
 
 namespace {

@@ -2,6 +2,7 @@
 // importance sampling by |omega|, the Ewald-summed periodic kernel, and the batched inner loop.
 #include <kelvin/core/error.h>
 #include <kelvin/core/parallel.h>
+#include <kelvin/fluid/alias.h>
 #include <kelvin/fluid/biot_savart3.h>
 
 #include <algorithm>
@@ -226,36 +227,16 @@ BiotSavartEstimator3::BiotSavartEstimator3(const VectorGrid3& vorticity, Interpo
         m_abs_integral = 0;
         return;
     }
-    // Vose's alias method, in a fixed order (deterministic).
-    const std::size_t n = cells.size();
-    std::vector<double> p(n);
-    for (std::size_t c = 0; c < n; ++c) p[c] = weight[c] * double(n) / total;
-    std::vector<uint32_t> small, large;
-    for (std::size_t c = 0; c < n; ++c) (p[c] < 1 ? small : large).push_back(uint32_t(c));
-    m_slots.resize(n);
-    auto set_dir = [](float* d, const Vec3d& v) {
-        d[0] = float(v.x);
-        d[1] = float(v.y);
-        d[2] = float(v.z);
-    };
-    for (std::size_t c = 0; c < n; ++c) {
-        m_slots[c] = {0xffffffffu, cells[c], cells[c], {}, {}};
-        set_dir(m_slots[c].dself, dirs[c]);
-        set_dir(m_slots[c].dalias, dirs[c]);
-    }
-    auto threshold = [](double prob) {
-        const double t = std::ldexp(prob, 32);
-        return t >= 4294967295.0 ? 0xffffffffu : uint32_t(std::max(t, 0.0));
-    };
-    while (!small.empty() && !large.empty()) {
-        const uint32_t s = small.back(), l = large.back();
-        small.pop_back();
-        large.pop_back();
-        m_slots[s].threshold = threshold(p[s]);
-        m_slots[s].alias = cells[l];
-        set_dir(m_slots[s].dalias, dirs[l]);
-        p[l] = (p[l] + p[s]) - 1.0;
-        (p[l] < 1 ? small : large).push_back(l);
+    const std::vector<AliasEntry> table = build_alias_table(weight, total);
+    m_slots.resize(cells.size());
+    for (std::size_t c = 0; c < cells.size(); ++c) {
+        const uint32_t l = table[c].alias;
+        Slot& slot = m_slots[c];
+        slot = {table[c].threshold, cells[c], cells[l], {}, {}};
+        for (int a = 0; a < 3; ++a) {
+            slot.dself[a] = float(dirs[c][a]);
+            slot.dalias[a] = float(dirs[l][a]);
+        }
     }
 }
 

@@ -16,6 +16,22 @@
 
 namespace kelvin::fluid {
 
+TimeStepping TimeStepping::parse(const Properties& props) {
+    TimeStepping t;
+    t.dt = props.get_float("dt", 0.0, 1e300);
+    if (!(t.dt > 0)) props.error("dt", "must be positive");
+    t.steps = props.get_int("steps", 0, 1LL << 40);
+    t.end_time = props.get_float("end_time", 0.0, 1e300);
+    if (t.steps > 0 && t.end_time > 0) props.error("end_time", "give either steps or end_time, not both");
+    if (t.steps == 0 && t.end_time == 0) props.error("steps", "give the number of steps or an end_time (> 0)");
+    if (t.end_time > 0) {
+        const double n = t.end_time / t.dt;
+        if (n > double(1LL << 40)) props.error("end_time", "needs more than 2^40 steps of dt");
+        t.steps = std::max(1LL, (long long)std::ceil(n - 1e-9));
+    }
+    return t;
+}
+
 SimulationParams SimulationParams::parse(const Properties& props, const std::string& who) {
     SimulationParams p;
     const long long dim = props.get_int("dimension");
@@ -31,17 +47,10 @@ SimulationParams SimulationParams::parse(const Properties& props, const std::str
                                        lo.y, hi.x, hi.y));
     p.domain = {{lo.x, lo.y}, {hi.x, hi.y}, props.get_bool("periodic")};
 
-    p.dt = props.get_float("dt", 0.0, 1e300);
-    if (!(p.dt > 0)) props.error("dt", "must be positive");
-    p.steps = props.get_int("steps", 0, 1LL << 40);
-    p.end_time = props.get_float("end_time", 0.0, 1e300);
-    if (p.steps > 0 && p.end_time > 0) props.error("end_time", "give either steps or end_time, not both");
-    if (p.steps == 0 && p.end_time == 0) props.error("steps", "give the number of steps or an end_time (> 0)");
-    if (p.end_time > 0) {
-        const double n = p.end_time / p.dt;
-        if (n > double(1LL << 40)) props.error("end_time", "needs more than 2^40 steps of dt");
-        p.steps = std::max(1LL, (long long)std::ceil(n - 1e-9));
-    }
+    const TimeStepping ts = TimeStepping::parse(props);
+    p.dt = ts.dt;
+    p.steps = ts.steps;
+    p.end_time = ts.end_time;
     p.viscosity = props.get_float("viscosity", 0.0, 1e300);
     p.advection = props.get_choice("advection", {"euler", "rk4"}) == "euler" ? Advection::Euler : Advection::RK4;
     p.output_every = props.get_int("output_every", 0, 1LL << 40);

@@ -7,6 +7,7 @@
 #include <kelvin/core/registry.h>
 #include <kelvin/core/stats.h>
 #include <kelvin/fluid/output.h>
+#include <kelvin/fluid/simulation.h>
 #include <kelvin/fluid/simulation3.h>
 
 #include <fmt/format.h>
@@ -32,17 +33,10 @@ Simulation3Params Simulation3Params::parse(const Properties& props) {
                                        "({:g}, {:g}, {:g}))",
                                        lo.x, lo.y, lo.z, hi.x, hi.y, hi.z));
     s.domain = {lo, hi, props.get_bool("periodic")};
-    s.dt = props.get_float("dt", 0.0, 1e300);
-    if (!(s.dt > 0)) props.error("dt", "must be positive");
-    p.steps = props.get_int("steps", 0, 1LL << 40);
-    p.end_time = props.get_float("end_time", 0.0, 1e300);
-    if (p.steps > 0 && p.end_time > 0) props.error("end_time", "give either steps or end_time, not both");
-    if (p.steps == 0 && p.end_time == 0) props.error("steps", "give the number of steps or an end_time (> 0)");
-    if (p.end_time > 0) {
-        const double n = p.end_time / s.dt;
-        if (n > double(1LL << 40)) props.error("end_time", "needs more than 2^40 steps of dt");
-        p.steps = std::max(1LL, (long long)std::ceil(n - 1e-9));
-    }
+    const TimeStepping ts = TimeStepping::parse(props);
+    s.dt = ts.dt;
+    p.steps = ts.steps;
+    p.end_time = ts.end_time;
     s.viscosity = props.get_float("viscosity", 0.0, 1e300);
     s.diffusion_samples = int(props.get_int("diffusion_samples", 1, 1 << 20));
     s.advection = props.get_choice("advection", {"euler", "rk4"}) == "euler" ? Advection::Euler : Advection::RK4;

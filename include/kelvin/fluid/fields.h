@@ -6,10 +6,18 @@
 #include <kelvin/fluid/grid.h>
 #include <kelvin/fluid/grid3.h>
 
+#include <algorithm>
+#include <cmath>
 #include <optional>
 #include <string>
 
 namespace kelvin::fluid {
+
+/// True when `length` is a whole number (>= 1) of `period`s: a periodic box that fits a periodic field exactly.
+inline bool fits_period(double length, double period) {
+    const double r = length / period;
+    return std::abs(r - std::nearbyint(r)) < 1e-6 * std::max(1.0, r) && std::nearbyint(r) >= 1;
+}
 
 /// An initial vorticity field omega(0, x) (<vorticity type="...">).
 class VorticityField : public Object {

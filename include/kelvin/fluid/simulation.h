@@ -17,6 +17,15 @@
 
 namespace kelvin::fluid {
 
+/// dt, steps and end_time as every simulation (2D and 3D) reads them: give steps or end_time; end_time resolves to
+/// the number of steps that reach it (the last one shortened by the run loop).
+struct TimeStepping {
+    double dt = 0.05;
+    long long steps = 0;
+    double end_time = 0;
+    static TimeStepping parse(const Properties& props);
+};
+
 /// The parameters every 2D simulation reads (see docs/fluid.md, "Baselines").
 struct SimulationParams {
     Domain2 domain;

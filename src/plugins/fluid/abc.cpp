@@ -48,10 +48,7 @@ public:
 
     void check_domain3(const Domain3& d) const override {
         const double period = 2 * Pi / m_k;
-        auto fits = [&](double len) {
-            const double r = len / period;
-            return std::abs(r - std::nearbyint(r)) < 1e-6 * std::max(1.0, r) && std::nearbyint(r) >= 1;
-        };
+        auto fits = [&](double len) { return fits_period(len, period); };
         if (!d.periodic)
             log_warn(
                 "abc on an open domain: the field is cut at the box and is no longer the exact ABC flow (use "

@@ -25,7 +25,8 @@ namespace {
 
 class StableFluids final : public Job {
 public:
-    explicit StableFluids(const Properties& props) : m_params(SimulationParams::parse_baseline(props, "stable_fluids")) {
+    explicit StableFluids(const Properties& props)
+        : m_params(SimulationParams::parse_baseline(props, "stable_fluids")) {
         m_tolerance = props.get_float("tolerance", 1e-15, 1e-2);
         if (m_params.nx < 4 || m_params.ny < 4) props.error("cache", "stable_fluids needs at least 4x4 cells");
         if (!m_params.domain.periodic)

@@ -50,10 +50,7 @@ public:
 
     void check_domain(const Domain2& d) const override {
         const double period = 2 * Pi / m_k;
-        auto fits = [&](double len) {
-            double r = len / period;
-            return std::abs(r - std::nearbyint(r)) < 1e-6 * std::max(1.0, r) && std::nearbyint(r) >= 1;
-        };
+        auto fits = [&](double len) { return fits_period(len, period); };
         if (!d.periodic)
             log_warn(
                 "taylor_green on an open domain: the field is cut at the box and the flow is no longer the "
@@ -85,10 +82,7 @@ public:
     }
     void check_domain3(const Domain3& d) const override {
         const double period = 2 * Pi / m_k;
-        auto fits = [&](double len) {
-            const double r = len / period;
-            return std::abs(r - std::nearbyint(r)) < 1e-6 * std::max(1.0, r) && std::nearbyint(r) >= 1;
-        };
+        auto fits = [&](double len) { return fits_period(len, period); };
         if (!d.periodic)
             log_warn("taylor_green on an open 3D domain: the field is cut at the box (use a periodic box)");
         else if (!fits(d.size().x) || !fits(d.size().y) || !fits(d.size().z))

@@ -26,7 +26,8 @@ namespace {
 
 class VortexParticles final : public Job {
 public:
-    explicit VortexParticles(const Properties& props) : m_params(SimulationParams::parse_baseline(props, "vortex_particles")) {
+    explicit VortexParticles(const Properties& props)
+        : m_params(SimulationParams::parse_baseline(props, "vortex_particles")) {
         m_delta = props.get_float("blob_radius");
         if (!std::isfinite(m_delta) || (m_delta <= 0 && m_delta != -1))
             props.error("blob_radius", "must be positive, or -1 for one lattice spacing");
