@@ -107,6 +107,15 @@ MetropolisIntegrator::MetropolisIntegrator(const Properties& props, bool delayed
         m_config.streams = SampleStreamCount;
         m_config.fixed_pairs = uint64_t(1) << StrategyPair;
     }
+    // Local kernels (h2mc) need derivatives of the path contribution with respect to the primary samples, which no
+    // technique provides yet (issue 14): refused rather than run as a silent isotropic Gaussian.
+    {
+        const bool local1 = m_first->has_local(), local2 = m_second && m_second->has_local();
+        if (local1 || local2)
+            props.error(!delayed_rejection ? std::string("mutation") : std::string(local1 ? "first" : "second"),
+                        "h2mc needs derivatives of the path contribution, which technique '" + technique +
+                            "' does not provide yet");
+    }
     // One set of rules for the chain and the scene (chain.h, rule 3), reported against the parameter at fault.
     if (auto p = check(m_config)) {
         const std::string part = p->part;
