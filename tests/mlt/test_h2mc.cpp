@@ -7,11 +7,15 @@
 //     anisotropic Gaussian, a thin curved ridge and a target whose "path" reads a second pair on half of the
 //     space (the outside law and the block-only-on-one-side terms of the ratio);
 //   - the derivatives are evaluated only where needed (x's Gaussian cached across rejections).
-// Broken variants seen to fail (each by editing the code and running this file):
-//   - BlockGaussian::log_pdf without the mean shift (delta instead of delta - mean): the 2D chi-square gives
-//     p ~ 0 (chi2 > 10^4) and the 4D mean check fails; the MH stationarity tests fail on the Gaussian and ridge;
-//   - the MH ratio without the reverse density (local_log_ratio returning -forward only): stationarity fails;
-//   - the outside law's terms dropped from local_log_ratio: the trans-dimensional target fails.
+// Broken variants seen to fail (each by editing the code and running this file, 2026-11-24):
+//   - BlockGaussian::log_pdf without the mean shift (V^T delta instead of V^T (delta - mean)): the 2D chi-squares
+//     give 1.5e5, 2.7e4 and 1.6e7 (~150 dof), the 4D moments fail, and 13 of the 16 stationarity configurations
+//     fail (aniso Gaussian chi2 58 to 1097 on 15 dof, ridge MH 129 to 141 on 27, trans-dimensional chi2 of v 215 to
+//     4845); the three Green–Mira ones on the ridge do not (chi2 28 to 49 on 27 dof: the mean shift is small there);
+//   - the Hastings correction omitted (local_log_ratio returning 0, as if h2mc were symmetric): the same 13 fail
+//     with about the same figures, the same three do not;
+//   - the outside law's terms dropped from local_log_ratio: the trans-dimensional test fails in every configuration
+//     (P(long) z = +23 and +16 for MH, chi2 of s 90 to 1430).
 #include "mlt/chain_harness.h"
 
 #include <kelvin/mlt/chain.h>
