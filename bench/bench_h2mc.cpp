@@ -73,7 +73,7 @@ void BM_H2mcProposal(benchmark::State& state) {
     LocalWorkspace ws;
     BlockGaussian Gx, Gy;
     k.build(n, g.data(), H.data(), true, ws, Gx);
-    std::vector<double> d(std::size_t(n)), back(std::size_t(n));
+    std::vector<double> d(static_cast<std::size_t>(n)), back(static_cast<std::size_t>(n));
     Random rng(3, 0);
     for (auto _ : state) {
         Gx.sample(rng, d.data());
@@ -105,7 +105,7 @@ void BM_MhStepAnalytic(benchmark::State& state) {
             for (int i = 0; i < n * n; ++i) hess[i] = -A[std::size_t(i)];
         return -0.5 * q;
     };
-    std::vector<double> buf(std::size_t(n));
+    std::vector<double> buf(static_cast<std::size_t>(n));
     const MarkovChain::Target target = [&](CoordinateSource& s, Slot) {
         for (int i = 0; i < n; ++i) buf[std::size_t(i)] = s.at(std::size_t(i));
         return std::exp(logpi(buf.data(), nullptr, nullptr));

@@ -463,6 +463,18 @@ TEST(MltIntegrators, BadParametersAreInputErrors) {
     EXPECT_NE(
         error_of(R"(<integrator type="pssmlt"><boolean name="mixture" value="true"/></integrator>)").find("mixture"),
         std::string::npos);
+    // h2mc needs derivatives of the path contribution, which no technique provides yet (issue 14).
+    EXPECT_NE(error_of(R"(<integrator type="pssmlt"><mutation type="h2mc"/></integrator>)").find("derivatives"),
+              std::string::npos);
+    EXPECT_NE(error_of(R"(<integrator type="drmlt"><string name="type" value="green"/>)"
+                       R"(<mutation name="first" type="gaussian"/><mutation name="second" type="mixture">)"
+                       R"(<mutation type="h2mc"/><mutation type="gaussian"/></mutation></integrator>)")
+                  .find("derivatives"),
+              std::string::npos);
+    EXPECT_NE(error_of(R"(<integrator type="pssmlt"><mutation type="h2mc"><float name="sigma" value="0.1"/>)"
+                       R"(</mutation></integrator>)")
+                  .find("sigma"),
+              std::string::npos);
 }
 
 }  // namespace
