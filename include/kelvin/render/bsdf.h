@@ -36,11 +36,11 @@ struct BsdfContext {
 };
 
 struct BsdfSample {
-    Vec3d wo{0, 0, 1};       ///< sampled direction, local
-    Color3 weight{0.0};      ///< f * |cos(theta_o)| / pdf (for delta lobes: the lobe's throughput)
-    double pdf = 0;          ///< solid-angle density (for delta lobes: the discrete probability of the lobe)
-    uint32_t sampled = 0;    ///< BsdfFlags of the sampled component
-    double eta = 1;          ///< relative index of refraction crossed (1 for reflection)
+    Vec3d wo{0, 0, 1};     ///< sampled direction, local
+    Color3 weight{0.0};    ///< f * |cos(theta_o)| / pdf (for delta lobes: the lobe's throughput)
+    double pdf = 0;        ///< solid-angle density (for delta lobes: the discrete probability of the lobe)
+    uint32_t sampled = 0;  ///< BsdfFlags of the sampled component
+    double eta = 1;        ///< relative index of refraction crossed (1 for reflection)
 };
 
 class Bsdf : public Object {
@@ -55,6 +55,9 @@ public:
     /// and roughplastic `diffuse_reflectance`; twosided asks the side `si.wi` is on), for the `albedo` AOV.
     /// Models without a diffuse component give 0. Not used for light transport.
     virtual Color3 albedo(const SurfaceInteraction& si) const { return Color3(0.0); }
+    /// The BSDF's parameters do not vary over the surface (no texture lookups): what differentiable path
+    /// evaluation (render/path_derivatives.h) assumes of the BSDFs it differentiates.
+    virtual bool spatially_constant() const { return false; }
 };
 
 }  // namespace kelvin

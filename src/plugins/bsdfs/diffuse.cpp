@@ -39,6 +39,7 @@ public:
         return warp::square_to_cosine_hemisphere_pdf(wo);
     }
     Color3 albedo(const SurfaceInteraction& si) const override { return m_reflectance->eval(si.uv); }
+    bool spatially_constant() const override { return m_reflectance->is_constant(); }
 
 private:
     std::shared_ptr<Texture> m_reflectance;

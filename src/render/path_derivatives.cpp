@@ -1,0 +1,411 @@
+// Differentiable evaluation of the path technique's contribution (include/kelvin/render/path_derivatives.h).
+// One template, run in plain doubles (the value, for finite differences) and in nested Eigen::AutoDiffScalar (value,
+// gradient and Hessian: forward over forward). It mirrors src/plugins/integrators/path.cpp line by line for the
+// supported subset; every discrete decision is the renderer's own at the point.
+#include <kelvin/render/bsdf.h>
+#include <kelvin/render/mesh.h>
+#include <kelvin/render/path_derivatives.h>
+#include <kelvin/render/scene.h>
+
+#include <Eigen/Dense>
+#include <unsupported/Eigen/AutoDiff>
+
+#include <algorithm>
+#include <cmath>
+#include <vector>
+
+namespace kelvin {
+
+const char* to_string(PathDerivativeStatus s) {
+    switch (s) {
+        case PathDerivativeStatus::Ok:
+            return "ok";
+        case PathDerivativeStatus::Zero:
+            return "zero";
+        case PathDerivativeStatus::Unsupported:
+            return "unsupported";
+        case PathDerivativeStatus::Mismatch:
+            return "mismatch";
+        case PathDerivativeStatus::TooLong:
+            return "too long";
+    }
+    return "?";
+}
+
+namespace {
+
+using Inner = Eigen::AutoDiffScalar<Eigen::VectorXd>;
+using InnerVec = Eigen::Matrix<Inner, Eigen::Dynamic, 1>;
+using Outer = Eigen::AutoDiffScalar<InnerVec>;
+
+inline double val(double x) { return x; }
+inline double val(const Outer& x) { return x.value().value(); }
+
+template <class T>
+struct V3 {
+    T x, y, z;
+};
+template <class T>
+V3<T> operator+(const V3<T>& a, const V3<T>& b) {
+    return {a.x + b.x, a.y + b.y, a.z + b.z};
+}
+template <class T>
+V3<T> operator-(const V3<T>& a, const V3<T>& b) {
+    return {a.x - b.x, a.y - b.y, a.z - b.z};
+}
+template <class T>
+V3<T> operator*(const V3<T>& a, const T& s) {
+    return {a.x * s, a.y * s, a.z * s};
+}
+template <class T>
+T dot(const V3<T>& a, const V3<T>& b) {
+    return a.x * b.x + a.y * b.y + a.z * b.z;
+}
+template <class T>
+V3<T> cross(const V3<T>& a, const V3<T>& b) {
+    return {a.y * b.z - a.z * b.y, a.z * b.x - a.x * b.z, a.x * b.y - a.y * b.x};
+}
+template <class T>
+V3<T> constant(const Vec3d& v) {
+    return {T(v.x), T(v.y), T(v.z)};
+}
+template <class T>
+Vec3d value(const V3<T>& v) {
+    return {val(v.x), val(v.y), val(v.z)};
+}
+template <class T>
+V3<T> normalize(const V3<T>& v) {
+    using std::sqrt;
+    const T l = sqrt(dot(v, v));
+    return {v.x / l, v.y / l, v.z / l};
+}
+// Frame (render/frame.h) with constant axes.
+template <class T>
+V3<T> to_local(const Frame& f, const V3<T>& v) {
+    return {dot(v, constant<T>(f.s)), dot(v, constant<T>(f.t)), dot(v, constant<T>(f.n))};
+}
+template <class T>
+V3<T> to_world(const Frame& f, const V3<T>& v) {
+    return constant<T>(f.s) * v.x + constant<T>(f.t) * v.y + constant<T>(f.n) * v.z;
+}
+
+template <class T>
+struct C3 {
+    T r, g, b;
+};
+template <class T>
+C3<T> operator*(const C3<T>& a, const Color3& c) {
+    return {a.r * T(c.r), a.g * T(c.g), a.b * T(c.b)};
+}
+template <class T>
+C3<T> operator*(const C3<T>& a, const T& s) {
+    return {a.r * s, a.g * s, a.b * s};
+}
+template <class T>
+void add(C3<T>& acc, const C3<T>& v) {
+    acc.r = acc.r + v.r;
+    acc.g = acc.g + v.g;
+    acc.b = acc.b + v.b;
+}
+
+template <class T>
+T power_heuristic(const T& a, const T& b) {
+    const T a2 = a * a, b2 = b * b;
+    return val(a2) + val(b2) > 0 ? T(a2 / (a2 + b2)) : T(0.0);
+}
+
+// warp::square_to_uniform_disk_concentric and square_to_cosine_hemisphere (render/warp.h), branch by value.
+template <class T>
+V3<T> cosine_hemisphere(const T& u, const T& v) {
+    using std::cos;
+    using std::sin;
+    using std::sqrt;
+    const T x = u * T(2.0) - T(1.0), y = v * T(2.0) - T(1.0);
+    T dx(0.0), dy(0.0);
+    if (!(val(x) == 0 && val(y) == 0)) {
+        T r, phi;
+        if (std::abs(val(x)) > std::abs(val(y))) {
+            r = x;
+            phi = T(Pi / 4) * (y / x);
+        } else {
+            r = y;
+            phi = T(Pi / 2) - T(Pi / 4) * (x / y);
+        }
+        dx = r * cos(phi);
+        dy = r * sin(phi);
+    }
+    const T z2 = T(1.0) - dx * dx - dy * dy;
+    return {dx, dy, val(z2) > 0 ? T(sqrt(z2)) : T(0.0)};
+}
+
+// Coordinates: plain values, or nested-autodiff variables for the block's entries.
+struct DoubleReader {
+    const double* coords;
+    std::size_t length;
+    std::size_t next = 0;
+    bool overflow = false;
+    double read() {
+        if (next >= length) {
+            overflow = true;
+            return 0.5;
+        }
+        return coords[next++];
+    }
+};
+struct OuterReader {
+    const double* coords;
+    const int* block;
+    std::size_t length;
+    int n;
+    std::size_t next = 0;
+    bool overflow = false;
+    Outer read() {
+        if (next >= length) {
+            overflow = true;
+            return Outer(0.5);
+        }
+        const std::size_t i = next++;
+        const int k = block ? block[i] : -1;
+        if (k < 0) return Outer(coords[i]);
+        Outer x;
+        x.value() = Inner(coords[i], n, k);
+        x.derivatives().resize(n);
+        for (int j = 0; j < n; ++j) x.derivatives()(j) = Inner(j == k ? 1.0 : 0.0, Eigen::VectorXd::Zero(n));
+        return x;
+    }
+};
+
+}  // namespace
+
+struct PathDerivatives::Impl {
+    const Scene& scene;
+    PathDerivativeOptions o;
+    std::vector<ShapeGeometry> geometry;  // per shape, world space (as the scene gives Embree)
+    std::vector<int> emitter_shape;       // per scene emitter: the index of its shape, or -1
+
+    Impl(const Scene& s, const PathDerivativeOptions& opt) : scene(s), o(opt) {
+        for (const auto& sh : scene.shapes()) geometry.push_back(sh->geometry());
+        for (const Emitter* e : scene.emitters()) {
+            int k = -1;
+            for (std::size_t i = 0; i < scene.shapes().size(); ++i)
+                if (scene.shapes()[i]->emitter() == e) k = int(i);
+            emitter_shape.push_back(k);
+        }
+    }
+
+    bool flat_triangles(uint32_t shape) const {
+        const ShapeGeometry& g = geometry[shape];
+        return g.type == ShapeGeometry::Type::Triangles && g.normals.empty();
+    }
+
+    template <class T, class Reader>
+    PathDerivativeStatus run(Reader& rd, T& log_pi) const;
+};
+
+template <class T, class Reader>
+PathDerivativeStatus PathDerivatives::Impl::run(Reader& rd, T& log_pi) const {
+    using std::log;
+    using std::sqrt;
+    using S = PathDerivativeStatus;
+    const Sensor& sensor = *scene.sensor();
+    const auto* proj = dynamic_cast<const ProjectiveSensor*>(&sensor);
+    if (!proj || sensor.plugin_name() != "perspective") return S::Unsupported;
+
+    // The camera ray (integrator.cpp's evaluate_camera, the perspective sensor's sample_ray).
+    const T fx = T(o.film_origin.x) + rd.read() * T(o.film_extent.x);
+    const T fy = T(o.film_origin.y) + rd.read() * T(o.film_extent.y);
+    const T lx = rd.read(), ly = rd.read();
+    const Ray cam = sensor.sample_ray(Vec2d(val(fx), val(fy)), Vec2d(val(lx), val(ly)));
+    const auto [tan_x, tan_y] = proj->tangents();
+    const double W = sensor.film().width(), H = sensor.film().height();
+    const V3<T> d_cam =
+        normalize(V3<T>{T(tan_x) * (T(1.0) - T(2.0) * fx / T(W)), T(tan_y) * (T(1.0) - T(2.0) * fy / T(H)), T(1.0)});
+    const Mat4d& M = proj->to_world().matrix;
+    V3<T> d = normalize(V3<T>{T(M[0][0]) * d_cam.x + T(M[1][0]) * d_cam.y + T(M[2][0]) * d_cam.z,
+                              T(M[0][1]) * d_cam.x + T(M[1][1]) * d_cam.y + T(M[2][1]) * d_cam.z,
+                              T(M[0][2]) * d_cam.x + T(M[1][2]) * d_cam.y + T(M[2][2]) * d_cam.z});
+    V3<T> orig = constant<T>(cam.o);
+    Ray ray = cam;
+    ray.d = glm::normalize(ray.d);
+
+    const BsdfContext bctx;
+    C3<T> L{T(0.0), T(0.0), T(0.0)}, throughput{T(1.0), T(1.0), T(1.0)};
+    T prev_bsdf_pdf(1.0);
+    bool prev_delta = true;
+    V3<T> prev_p = orig;
+    const long max_len = o.max_depth < 0 ? std::numeric_limits<long>::max() : long(o.max_depth);
+
+    for (long depth = 0;; ++depth) {
+        auto hit = scene.intersect(ray);
+        if (!hit) {
+            if (!scene.environment_emitters().empty()) return S::Unsupported;
+            break;
+        }
+        if (!flat_triangles(hit->shape)) return S::Unsupported;
+        const SurfaceInteraction si = scene.interaction(ray, *hit);
+        // Differentiable re-intersection of the triangle Embree found (Moller-Trumbore).
+        const ShapeGeometry& g = geometry[hit->shape];
+        const uint32_t* tri = &g.indices[3 * std::size_t(hit->prim)];
+        const V3<T> a = constant<T>(Vec3d(g.positions[tri[0]])), b = constant<T>(Vec3d(g.positions[tri[1]])),
+                    c = constant<T>(Vec3d(g.positions[tri[2]]));
+        const V3<T> e1 = b - a, e2 = c - a, pvec = cross(d, e2), tvec = orig - a, qvec = cross(tvec, e1);
+        const T det = dot(e1, pvec);
+        const T t = dot(e2, qvec) / det;
+        if (!(std::abs(val(t) - hit->t) <= 1e-4 * (1 + hit->t))) return S::Mismatch;
+        const V3<T> p = orig + d * t;
+
+        // Emission found by BSDF sampling (or seen directly).
+        if (const Emitter* e = si.shape->emitter(); e && !(depth == 0 && o.hide_emitters) && depth + 1 >= o.min_depth) {
+            if (e->plugin_name() != "area") return S::Unsupported;
+            const Color3 Le = e->eval(si.p, si.ng, -ray.d);
+            if (Le != Color3(0.0)) {
+                T w(1.0);
+                if (!prev_delta) {
+                    const V3<T> v = p - prev_p;
+                    const T cos_e = -dot(constant<T>(si.ng), d);
+                    const T pl = T(scene.emitter_pdf(e)) * dot(v, v) / (cos_e * T(si.shape->surface_area()));
+                    w = power_heuristic(prev_bsdf_pdf, pl);
+                }
+                add(L, throughput * Le * w);
+            }
+        }
+        if (depth + 2 > max_len) break;
+
+        const Bsdf& bsdf = *si.shape->bsdf();
+        if (bsdf.plugin_name() != "diffuse" || !bsdf.spatially_constant()) return S::Unsupported;
+        const Color3 R = bsdf.albedo(si);
+        const T u_light = rd.read();
+        const T u_l0 = rd.read(), u_l1 = rd.read();
+        const T u_comp = rd.read();
+        const T u_d0 = rd.read(), u_d1 = rd.read();
+        const T u_rr = rd.read();
+        (void)u_comp;
+
+        // Next-event estimation (the diffuse BSDF is smooth; emitter sampling is on in the Metropolis techniques).
+        if (depth + 2 >= o.min_depth) {
+            auto [e, sel_pdf] = scene.sample_emitter(val(u_light));
+            if (e) {
+                if (auto ds = e->sample_direct(si.p, Vec2d(val(u_l0), val(u_l1)))) {
+                    const std::size_t ei = std::size_t(std::find(scene.emitters().begin(), scene.emitters().end(), e) -
+                                                       scene.emitters().begin());
+                    const int sh = ei < emitter_shape.size() ? emitter_shape[ei] : -1;
+                    const auto* mesh =
+                        sh >= 0 ? dynamic_cast<const TriangleMesh*>(scene.shapes()[std::size_t(sh)].get()) : nullptr;
+                    if (e->plugin_name() != "area" || !mesh || !flat_triangles(uint32_t(sh))) return S::Unsupported;
+                    // TriangleMesh::sample_position: the triangle by area, the remainder of u.x reused.
+                    const std::vector<double>& cdf = mesh->area_cdf();
+                    std::size_t k = std::size_t(std::lower_bound(cdf.begin(), cdf.end(), val(u_l0)) - cdf.begin());
+                    k = std::min(k, cdf.size() - 1);
+                    const double lo = k == 0 ? 0.0 : cdf[k - 1], width = cdf[k] - lo;
+                    T ux = width > 0 ? T((u_l0 - T(lo)) / T(width)) : T(0.5);
+                    if (val(ux) < 0) ux = T(0.0);
+                    if (val(ux) > 1.0 - 1e-16) ux = T(1.0 - 1e-16);
+                    const ShapeGeometry& eg = geometry[std::size_t(sh)];
+                    const uint32_t* et = &eg.indices[3 * k];
+                    const T su = sqrt(ux), b0 = T(1.0) - su, b1 = u_l1 * su, b2 = T(1.0) - b0 - b1;
+                    const V3<T> ps = constant<T>(Vec3d(eg.positions[et[0]])) * b0 +
+                                     constant<T>(Vec3d(eg.positions[et[1]])) * b1 +
+                                     constant<T>(Vec3d(eg.positions[et[2]])) * b2;
+                    if (glm::length(value(ps) - ds->p) > 1e-6 * (1 + glm::length(ds->p))) return S::Mismatch;
+                    // AreaEmitter::sample_direct.
+                    const V3<T> dv = ps - p;
+                    const T dist2 = dot(dv, dv), dist = sqrt(dist2);
+                    const V3<T> dir{dv.x / dist, dv.y / dist, dv.z / dist};
+                    const T cos_e = -dot(constant<T>(ds->n), dir);
+                    const T pdf = T(1.0 / mesh->surface_area()) * dist2 / cos_e;
+                    const Color3 radiance = ds->weight * ds->pdf;
+                    const V3<T> wo = to_local(si.frame, dir);
+                    const Color3 f_primal = bsdf.eval(bctx, si, si.to_local(ds->d));
+                    if (f_primal != Color3(0.0)) {
+                        const Ray shadow = ds->dist == Inf ? si.spawn(ds->d) : si.spawn_to(ds->p);
+                        if (!scene.occluded(shadow)) {
+                            const T cos_o = wo.z;
+                            const T bsdf_pdf = cos_o * T(InvPi);
+                            const T w = ds->delta ? T(1.0) : power_heuristic(T(pdf * T(sel_pdf)), bsdf_pdf);
+                            // f * weight * w / sel = (R / pi) cos_o * radiance / pdf * w / sel
+                            const T scale = T(InvPi) * cos_o / pdf * w / T(sel_pdf);
+                            add(L, throughput * R * radiance * scale);
+                        }
+                    }
+                }
+            }
+        }
+
+        // Continue by sampling the BSDF.
+        auto bs = bsdf.sample(bctx, si, val(u_comp), Vec2d(val(u_d0), val(u_d1)));
+        if (!bs || bs->weight == Color3(0.0)) break;
+        const V3<T> wo = cosine_hemisphere(u_d0, u_d1);
+        const T pdf = wo.z * T(InvPi);
+        throughput = throughput * R;
+        prev_delta = false;
+        prev_bsdf_pdf = pdf;
+        prev_p = p;
+        const Ray next = si.spawn(si.to_world(bs->wo));
+        // SurfaceInteraction::spawn's offset along ng: 1e-5 (1 + max |p_i|), a function of p like the rest.
+        {
+            const T* big = &p.x;
+            if (std::abs(val(p.y)) > std::abs(val(*big))) big = &p.y;
+            if (std::abs(val(p.z)) > std::abs(val(*big))) big = &p.z;
+            const T abs_big = val(*big) < 0 ? T(-*big) : *big;
+            const double side = glm::dot(si.to_world(bs->wo), si.ng) >= 0 ? 1.0 : -1.0;
+            orig = p + constant<T>(si.ng * side) * T(T(1e-5) * (T(1.0) + abs_big));
+        }
+        d = to_world(si.frame, wo);
+        ray = next;
+
+        // Russian roulette (eta_scale is 1: no transmission in the supported subset).
+        if (depth + 1 >= o.rr_depth) {
+            const T& m = val(throughput.r) >= val(throughput.g)
+                             ? (val(throughput.r) >= val(throughput.b) ? throughput.r : throughput.b)
+                             : (val(throughput.g) >= val(throughput.b) ? throughput.g : throughput.b);
+            const T q = val(m) < 0.95 ? m : T(0.95);
+            if (!(val(u_rr) < val(q))) break;
+            const T inv = T(1.0) / q;
+            throughput = throughput * inv;
+        }
+    }
+    if (rd.overflow) return S::TooLong;
+    const T pi = (L.r * T(0.212671) + L.g * T(0.715160) + L.b * T(0.072169)) * T(o.film_area);
+    if (!(val(pi) > 0)) return S::Zero;
+    log_pi = log(pi);
+    return S::Ok;
+}
+
+PathDerivatives::PathDerivatives(const Scene& scene, const PathDerivativeOptions& options)
+    : m_impl(std::make_unique<Impl>(scene, options)) {}
+PathDerivatives::~PathDerivatives() = default;
+
+PathDerivativeStatus PathDerivatives::log_value(const double* coords, std::size_t length, double* log_value) const {
+    DoubleReader rd{coords, length};
+    double lp = -Inf;
+    const PathDerivativeStatus s = m_impl->run<double>(rd, lp);
+    *log_value = s == PathDerivativeStatus::Ok ? lp : -Inf;
+    return s;
+}
+
+PathDerivativeStatus PathDerivatives::evaluate(const double* coords, const int* block, std::size_t length, int n,
+                                               double value, double* log_value, double* grad, double* hess) const {
+    if (n > m_impl->o.max_coordinates) return PathDerivativeStatus::TooLong;
+    OuterReader rd{coords, block, length, n};
+    Outer lp(0.0);
+    const PathDerivativeStatus s = m_impl->run<Outer>(rd, lp);
+    if (s != PathDerivativeStatus::Ok) return s;
+    const double v = lp.value().value();
+    if (value > 0 && !(std::abs(v - std::log(value)) <= 1e-4)) return PathDerivativeStatus::Mismatch;
+    if (log_value) *log_value = v;
+    if (grad) {
+        const Eigen::VectorXd& g = lp.value().derivatives();
+        for (int i = 0; i < n; ++i) grad[i] = i < g.size() ? g(i) : 0.0;
+    }
+    if (hess) {
+        const InnerVec& d = lp.derivatives();
+        for (int j = 0; j < n; ++j)
+            for (int i = 0; i < n; ++i) {
+                const double h = i < d.size() && j < d(i).derivatives().size() ? d(i).derivatives()(j) : 0.0;
+                hess[std::size_t(j) * std::size_t(n) + std::size_t(i)] = h;
+            }
+    }
+    return PathDerivativeStatus::Ok;
+}
+
+}  // namespace kelvin
