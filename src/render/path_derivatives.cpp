@@ -166,7 +166,7 @@ struct OuterReader {
         }
         const std::size_t i = next++;
         const int k = block ? block[i] : -1;
-        if (k < 0) return Outer(coords[i]);
+        if (k < 0 || k >= n) return Outer(coords[i]);  // held constant
         Outer x;
         x.value() = Inner(coords[i], n, k);
         x.derivatives().resize(n);
