@@ -1,19 +1,27 @@
-// The H2MC mutation's own cost (issue 14) for the block sizes of `path` states of k = 3..10 edges: the path
-// technique reads 4 numbers for the film and lens and 7 per bounce, so a path of k edges moves a block of
-// n = 4 + 7 (k - 1) coordinates, rounded up to whole pairs.
-//   BM_H2mcGaussian/k: the Gaussian from a gradient and Hessian (SelfAdjointEigenSolver, Li et al.'s formulas);
-//   BM_H2mcProposal/k: one proposal's kernel work in the chain: the proposal's Gaussian, one draw, and the
-//                      forward and reverse log densities (x's Gaussian is cached by the chain);
-//   BM_MhStepAnalytic/k: one MH step of a MarkovChain with h2mc on an analytic n-dimensional Gaussian target whose
-//                      derivatives cost O(n^2) (everything but a rendering technique's path and derivative
-//                      evaluations, which no technique provides yet).
-// The derivatives are a random symmetric Hessian scaled past the isotropic threshold (0.5 / sigma^2).
+// The H2MC mutation's cost (issue 14) for `path` states of k = 3..10 edges. The path technique reads 4 numbers for
+// the film and lens and 7 per bounce, so a path of k edges moves a block of n = 4 + 7 (k - 1) coordinates, rounded up
+// to whole pairs.
+//   BM_PathEvaluation/k:   one path sample of exactly k edges on the Cornell box (the path technique, as a chain
+//                          evaluates a state; max_depth k, no Russian roulette);
+//   BM_PathDerivatives/k:  the same path's log-luminance with its gradient and Hessian (render/path_derivatives.h,
+//                          nested Eigen::AutoDiffScalar);
+//   BM_H2mcProposalOnPath/k: one H2MC proposal's extra work on such a path: the proposal's derivatives and Gaussian,
+//                          a draw, and the forward and reverse densities (x's Gaussian is cached by the chain; the
+//                          proposal's path evaluation is BM_PathEvaluation);
+//   BM_H2mcGaussian/k:     the Gaussian alone from a random gradient and Hessian of that size (SelfAdjointEigenSolver,
+//                          Li et al.'s formulas);
+//   BM_MhStepAnalytic/k:   one MH step of a MarkovChain with h2mc on an analytic n-dimensional Gaussian target.
 //
-//   build/bench/bench_h2mc --benchmark_min_time=0.2
+//   build/bin/bench_h2mc --benchmark_min_time=0.2
+#include <kelvin/core/parser.h>
 #include <kelvin/core/registry.h>
 #include <kelvin/mlt/chain.h>
 #include <kelvin/mlt/local.h>
 #include <kelvin/mlt/mutation.h>
+#include <kelvin/render/path_derivatives.h>
+#include <kelvin/render/pss.h>
+#include <kelvin/render/scene.h>
+#include <kelvin/render/sensor.h>
 
 #include <benchmark/benchmark.h>
 
@@ -122,8 +130,120 @@ void BM_MhStepAnalytic(benchmark::State& state) {
     state.counters["acceptance"] = double(chain.stats().local_accepted) / double(chain.stats().local_proposals);
 }
 
+// The Cornell box at 32 x 32 with a path technique of max_depth k (no Russian roulette before k), and points whose
+// path has exactly k edges and carries light.
+struct PathBench {
+    std::shared_ptr<Scene> scene;
+    std::shared_ptr<SamplingIntegrator> path;
+    PathDerivativeOptions opt;
+    std::unique_ptr<PathDerivatives> D;
+    std::vector<std::vector<double>> points;
+    std::vector<double> values;
+    std::size_t length = 0;
+
+    explicit PathBench(int k) {
+        ParseOptions po;
+        po.defines["res"] = "32";
+        scene = std::dynamic_pointer_cast<Scene>(
+            instantiate(parse_scene_file(KELVIN_SOURCE_DIR "/scenes/render/cornell-box.xml", po)));
+        Properties p("integrator", "path");
+        p.set_int("max_depth", k);
+        p.set_int("min_depth", 1);
+        p.set_int("rr_depth", 100);
+        path = std::dynamic_pointer_cast<SamplingIntegrator>(Registry::instance().create(p));
+        const Sensor& s = *scene->sensor();
+        const double r = s.film().filter().radius();
+        opt.max_depth = k;
+        opt.min_depth = 1;
+        opt.rr_depth = 100;
+        opt.film_origin = Vec2d(-r);
+        opt.film_extent = Vec2d(s.film().width() + 2 * r, s.film().height() + 2 * r);
+        opt.film_area = opt.film_extent.x * opt.film_extent.y;
+        D = std::make_unique<PathDerivatives>(*scene, opt);
+        length = std::size_t(block_size(k));
+        Random rng(5, uint64_t(k));
+        for (int attempt = 0; attempt < 200000 && points.size() < 32; ++attempt) {
+            std::vector<double> x(length + 8);
+            for (double& v : x) v = rng.next_double();
+            std::size_t used = 0;
+            const double pi = eval(x, used);
+            if (pi > 0 && used + (used & 1) == length) {
+                points.push_back(x);
+                values.push_back(pi);
+            }
+        }
+    }
+    double eval(std::vector<double>& x, std::size_t& used) const {
+        PrimarySampleSpace pss(1, 0);
+        pss.bind(x);
+        const Sensor& s = *scene->sensor();
+        const Vec2d film = opt.film_origin + pss.next_2d() * opt.film_extent;
+        const Ray ray = s.sample_ray(film, pss.next_2d());
+        SampleCounters c;
+        const Color3 L = path->sample(*scene, pss, ray, c);
+        used = pss.used();
+        return luminance(L * opt.film_area);
+    }
+};
+
+void BM_PathEvaluation(benchmark::State& state) {
+    PathBench b(int(state.range(0)));
+    if (b.points.empty()) return state.SkipWithError("no path of that length found");
+    std::size_t i = 0, used = 0;
+    for (auto _ : state) benchmark::DoNotOptimize(b.eval(b.points[i++ % b.points.size()], used));
+    state.counters["n"] = double(b.length);
+}
+
+void BM_PathDerivatives(benchmark::State& state) {
+    PathBench b(int(state.range(0)));
+    if (b.points.empty()) return state.SkipWithError("no path of that length found");
+    const int n = int(b.length);
+    std::vector<int> block(b.length);
+    for (std::size_t i = 0; i < b.length; ++i) block[i] = int(i);
+    std::vector<double> g(b.length), H(b.length * b.length);
+    std::size_t i = 0, ok = 0, all = 0;
+    for (auto _ : state) {
+        const std::size_t k = i++ % b.points.size();
+        ok += b.D->evaluate(b.points[k].data(), block.data(), b.length, n, b.values[k], nullptr, g.data(), H.data()) ==
+              PathDerivativeStatus::Ok;
+        ++all;
+    }
+    state.counters["n"] = n;
+    state.counters["ok"] = double(ok) / double(all);
+}
+
+void BM_H2mcProposalOnPath(benchmark::State& state) {
+    PathBench b(int(state.range(0)));
+    if (b.points.empty()) return state.SkipWithError("no path of that length found");
+    const int n = int(b.length);
+    auto m = h2mc();
+    const LocalKernel& kern = *m->local(0);
+    std::vector<int> block(b.length);
+    for (std::size_t i = 0; i < b.length; ++i) block[i] = int(i);
+    std::vector<double> g(b.length), H(b.length * b.length), d(b.length), back(b.length);
+    LocalWorkspace ws;
+    BlockGaussian Gx, Gy;
+    b.D->evaluate(b.points[0].data(), block.data(), b.length, n, b.values[0], nullptr, g.data(), H.data());
+    kern.build(n, g.data(), H.data(), true, ws, Gx);
+    Random rng(3, 0);
+    std::size_t i = 0;
+    for (auto _ : state) {
+        const std::size_t k = 1 + i++ % (b.points.size() - 1);  // stands for the proposal y
+        Gx.sample(rng, d.data());
+        const bool ok = b.D->evaluate(b.points[k].data(), block.data(), b.length, n, b.values[k], nullptr, g.data(),
+                                      H.data()) == PathDerivativeStatus::Ok;
+        kern.build(n, g.data(), H.data(), ok, ws, Gy);
+        for (int j = 0; j < n; ++j) back[std::size_t(j)] = -d[std::size_t(j)];
+        benchmark::DoNotOptimize(Gx.log_pdf(d.data()) - Gy.log_pdf(back.data()));
+    }
+    state.counters["n"] = n;
+}
+
 }  // namespace
 
+BENCHMARK(BM_PathEvaluation)->DenseRange(3, 10);
+BENCHMARK(BM_PathDerivatives)->DenseRange(3, 10)->Unit(benchmark::kMillisecond);
+BENCHMARK(BM_H2mcProposalOnPath)->DenseRange(3, 10)->Unit(benchmark::kMillisecond);
 BENCHMARK(BM_H2mcGaussian)->DenseRange(3, 10);
 BENCHMARK(BM_H2mcProposal)->DenseRange(3, 10);
 BENCHMARK(BM_MhStepAnalytic)->DenseRange(3, 10);
