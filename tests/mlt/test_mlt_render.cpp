@@ -249,6 +249,12 @@ TEST(MltIntegrators, DeterministicWhateverTheThreadCount) {
     EXPECT_TRUE(differs);
 }
 
+// h2mc's derivatives and Gaussians are functions of the chain's own states: still bit-identical (issue 14).
+TEST(MltIntegrators, H2mcDeterministicWhateverTheThreadCount) {
+    const std::string file = "cornell-box.xml";
+    expect_same_image_for_1_and_2_threads(scene_with(file, pssmlt(R"(<mutation type="h2mc"/>)", H2mcCommon), 8), file);
+}
+
 TEST(MltIntegrators, StatisticsAndStageMap) {
     const std::string file = "cornell-box.xml";
     RunOut dr = run(scene_with(file, drmlt("orbital"), 16), file, 32, 5);
