@@ -98,6 +98,10 @@ C3<T> operator*(const C3<T>& a, const Color3& c) {
     return {a.r * T(c.r), a.g * T(c.g), a.b * T(c.b)};
 }
 template <class T>
+C3<T> operator*(const C3<T>& a, const C3<T>& b) {
+    return {a.r * b.r, a.g * b.g, a.b * b.b};
+}
+template <class T>
 C3<T> operator*(const C3<T>& a, const T& s) {
     return {a.r * s, a.g * s, a.b * s};
 }
@@ -136,6 +140,111 @@ V3<T> cosine_hemisphere(const T& u, const T& v) {
     }
     const T z2 = T(1.0) - dx * dx - dy * dy;
     return {dx, dy, val(z2) > 0 ? T(sqrt(z2)) : T(0.0)};
+}
+
+template <class T>
+T safe_sqrt(const T& v) {
+    using std::sqrt;
+    return val(v) > 0 ? T(sqrt(v)) : T(0.0);
+}
+template <class T>
+V3<T> normalize_or_zero(const V3<T>& v) {
+    using std::sqrt;
+    const T l2 = dot(v, v);
+    if (!(val(l2) > 0) || !std::isfinite(val(l2))) return {T(0.0), T(0.0), T(0.0)};
+    const T l = sqrt(l2);
+    return {v.x / l, v.y / l, v.z / l};
+}
+
+// fresnel_conductor (render/fresnel.cpp), one channel, branches by value.
+template <class T>
+T fresnel_conductor(const T& cos_i, double eta, double k) {
+    using std::sqrt;
+    T c = val(cos_i) < 0 ? T(-cos_i) : cos_i;
+    if (val(c) > 1) c = T(1.0);
+    const double n2r = eta * eta - k * k, n2i = 2.0 * eta * k;
+    if (n2r == 0 && n2i == 0) return T(1.0);
+    const T zr = T(n2r) - (T(1.0) - c * c);
+    const double zi = n2i;
+    const T r = sqrt(zr * zr + T(zi * zi));
+    const T ar = safe_sqrt(T(T(0.5) * (r + zr)));
+    T ai = safe_sqrt(T(T(0.5) * (r - zr)));
+    if (std::signbit(zi)) ai = T(-ai);
+    const T ds = (c + ar) * (c + ar) + ai * ai;
+    const T dp = (T(n2r) * c + ar) * (T(n2r) * c + ar) + (T(n2i) * c + ai) * (T(n2i) * c + ai);
+    if (!(val(ds) > 0) || !(val(dp) > 0)) return T(1.0);
+    const T rs = ((c - ar) * (c - ar) + ai * ai) / ds;
+    const T rp = ((T(n2r) * c - ar) * (T(n2r) * c - ar) + (T(n2i) * c - ai) * (T(n2i) * c - ai)) / dp;
+    const T F = T(0.5) * (rs + rp);
+    if (!std::isfinite(val(F))) return T(1.0);
+    if (val(F) < 0) return T(0.0);
+    if (val(F) > 1) return T(1.0);
+    return F;
+}
+template <class T>
+C3<T> fresnel_conductor(const T& cos_i, const Color3& eta, const Color3& k) {
+    return {fresnel_conductor(cos_i, eta.r, k.r), fresnel_conductor(cos_i, eta.g, k.g),
+            fresnel_conductor(cos_i, eta.b, k.b)};
+}
+
+// GGX (render/microfacet.cpp): D, Smith G1, the density of visible normals and Heitz's 2018 sampling.
+template <class T>
+T ggx_D(const V3<T>& m, double au, double av) {
+    if (!(val(m.z) > 0)) return T(0.0);
+    const T x = m.x / T(au), y = m.y / T(av), z2 = m.z * m.z;
+    const T t = x * x + y * y + z2;
+    const T r = T(1.0) / (T(Pi * au * av) * t * t);
+    return std::isfinite(val(r)) ? r : T(0.0);
+}
+template <class T>
+T ggx_G1(const V3<T>& w, const V3<T>& m, double au, double av) {
+    using std::sqrt;
+    if (!(val(dot(w, m)) * val(w.z) > 0)) return T(0.0);
+    const T z2 = w.z * w.z;
+    if (!(val(z2) > 0)) return T(0.0);
+    const T a2t2 = (T(au * au) * w.x * w.x + T(av * av) * w.y * w.y) / z2;
+    if (!(val(a2t2) > 0)) return T(1.0);
+    if (!std::isfinite(val(a2t2))) return T(0.0);
+    const T lambda = a2t2 / (T(2.0) * (sqrt(T(1.0) + a2t2) + T(1.0)));
+    return T(1.0) / (T(1.0) + lambda);
+}
+template <class T>
+T ggx_pdf(const V3<T>& wi, const V3<T>& m, double au, double av) {
+    if (!(val(wi.z) > 0) || !(val(m.z) > 0)) return T(0.0);
+    const T c = dot(wi, m);
+    if (!(val(c) > 0)) return T(0.0);
+    const T r = ggx_G1(wi, m, au, av) * c * ggx_D(m, au, av) / wi.z;
+    return std::isfinite(val(r)) ? r : T(0.0);
+}
+template <class T>
+V3<T> ggx_sample(const V3<T>& wi, const T& u0, const T& u1, double au, double av) {
+    using std::cos;
+    using std::sin;
+    using std::sqrt;
+    const V3<T> vh = normalize(V3<T>{T(au) * wi.x, T(av) * wi.y, wi.z});
+    const T len2 = vh.x * vh.x + vh.y * vh.y;
+    V3<T> t1{T(1.0), T(0.0), T(0.0)};
+    if (val(len2) > 0) {
+        const T l = sqrt(len2);
+        t1 = V3<T>{T(-vh.y / l), T(vh.x / l), T(0.0)};
+    }
+    const V3<T> t2 = cross(vh, t1);
+    const T r = sqrt(u0), phi = T(2 * Pi) * u1;
+    const T p1 = r * cos(phi);
+    T p2 = r * sin(phi);
+    const T s = T(0.5) * (T(1.0) + vh.z);
+    p2 = (T(1.0) - s) * safe_sqrt(T(T(1.0) - p1 * p1)) + s * p2;
+    const V3<T> nh = t1 * p1 + t2 * p2 + vh * safe_sqrt(T(T(1.0) - p1 * p1 - p2 * p2));
+    return normalize_or_zero(V3<T>{T(au) * nh.x, T(av) * nh.y, val(nh.z) > 0 ? nh.z : T(0.0)});
+}
+// RoughConductor::eval_reflection: f cos(theta_o) for a reflection about m.
+template <class T>
+C3<T> rough_reflection(const Bsdf::Model& b, const V3<T>& wi, const V3<T>& wo, const V3<T>& m) {
+    const T D = ggx_D(m, b.alpha_u, b.alpha_v),
+            G = ggx_G1(wi, m, b.alpha_u, b.alpha_v) * ggx_G1(wo, m, b.alpha_u, b.alpha_v);
+    const T s = D * G / (T(4.0) * wi.z);
+    if (!(val(s) > 0) || !std::isfinite(val(s))) return {T(0.0), T(0.0), T(0.0)};
+    return fresnel_conductor(dot(wi, m), b.eta, b.k) * b.reflectance * s;
 }
 
 // Coordinates: plain values, or nested-autodiff variables for the block's entries.
@@ -272,17 +381,40 @@ PathDerivativeStatus PathDerivatives::Impl::run(Reader& rd, T& log_pi) const {
         if (depth + 2 > max_len) break;
 
         const Bsdf& bsdf = *si.shape->bsdf();
-        if (bsdf.plugin_name() != "diffuse" || !bsdf.spatially_constant()) return S::Unsupported;
-        const Color3 R = bsdf.albedo(si);
+        const Bsdf::Model model = bsdf.model();
+        using Kind = Bsdf::Model::Kind;
+        if (model.kind == Kind::None) return S::Unsupported;
+        if (model.kind == Kind::RoughConductor && (!model.ggx || !model.sample_visible)) return S::Unsupported;
+        const Color3 R = model.reflectance;
         const T u_light = rd.read();
         const T u_l0 = rd.read(), u_l1 = rd.read();
         const T u_comp = rd.read();
         const T u_d0 = rd.read(), u_d1 = rd.read();
         const T u_rr = rd.read();
-        (void)u_comp;
+        const V3<T> wi = to_local(si.frame, V3<T>{T(-d.x), T(-d.y), T(-d.z)});
+        // The BSDF's value f cos(theta_o) and density for a direction wo, as eval and pdf (smooth models).
+        auto bsdf_eval = [&](const V3<T>& wo, T& pdf) -> C3<T> {
+            const C3<T> zero{T(0.0), T(0.0), T(0.0)};
+            pdf = T(0.0);
+            if (model.kind == Kind::Diffuse) {
+                if (!(val(wi.z) > 0) || !(val(wo.z) > 0)) return zero;
+                pdf = wo.z * T(InvPi);
+                const T c = wo.z * T(InvPi);
+                return C3<T>{c, c, c} * R;
+            }
+            if (!(val(wi.z) > 0) || !(val(wo.z) > 0)) return zero;  // rough conductor
+            const V3<T> h = normalize_or_zero(wi + wo);
+            if (val(h.z) <= 0) return zero;
+            const T wo_h = dot(wo, h);
+            if (val(wo_h) > 0) {
+                const T p = ggx_pdf(wi, h, model.alpha_u, model.alpha_v) / (T(4.0) * wo_h);
+                if (std::isfinite(val(p))) pdf = p;
+            }
+            return rough_reflection(model, wi, wo, h);
+        };
 
-        // Next-event estimation (the diffuse BSDF is smooth; emitter sampling is on in the Metropolis techniques).
-        if (depth + 2 >= o.min_depth) {
+        // Next-event estimation (smooth models; emitter sampling is on in the Metropolis techniques).
+        if ((bsdf.flags() & BsdfFlags::Smooth) && depth + 2 >= o.min_depth) {
             auto [e, sel_pdf] = scene.sample_emitter(val(u_light));
             if (e) {
                 if (auto ds = e->sample_direct(si.p, Vec2d(val(u_l0), val(u_l1)))) {
@@ -314,17 +446,15 @@ PathDerivativeStatus PathDerivatives::Impl::run(Reader& rd, T& log_pi) const {
                     const T cos_e = -dot(constant<T>(ds->n), dir);
                     const T pdf = T(1.0 / mesh->surface_area()) * dist2 / cos_e;
                     const Color3 radiance = ds->weight * ds->pdf;
-                    const V3<T> wo = to_local(si.frame, dir);
                     const Color3 f_primal = bsdf.eval(bctx, si, si.to_local(ds->d));
                     if (f_primal != Color3(0.0)) {
                         const Ray shadow = ds->dist == Inf ? si.spawn(ds->d) : si.spawn_to(ds->p);
                         if (!scene.occluded(shadow)) {
-                            const T cos_o = wo.z;
-                            const T bsdf_pdf = cos_o * T(InvPi);
+                            T bsdf_pdf(0.0);
+                            const C3<T> f = bsdf_eval(to_local(si.frame, dir), bsdf_pdf);
                             const T w = ds->delta ? T(1.0) : power_heuristic(T(pdf * T(sel_pdf)), bsdf_pdf);
-                            // f * weight * w / sel = (R / pi) cos_o * radiance / pdf * w / sel
-                            const T scale = T(InvPi) * cos_o / pdf * w / T(sel_pdf);
-                            add(L, throughput * R * radiance * scale);
+                            // f * weight * w / sel, weight = radiance / pdf
+                            add(L, throughput * f * radiance * T(w / (pdf * T(sel_pdf))));
                         }
                     }
                 }
@@ -334,11 +464,29 @@ PathDerivativeStatus PathDerivatives::Impl::run(Reader& rd, T& log_pi) const {
         // Continue by sampling the BSDF.
         auto bs = bsdf.sample(bctx, si, val(u_comp), Vec2d(val(u_d0), val(u_d1)));
         if (!bs || bs->weight == Color3(0.0)) break;
-        const V3<T> wo = cosine_hemisphere(u_d0, u_d1);
-        const T pdf = wo.z * T(InvPi);
-        throughput = throughput * R;
-        prev_delta = false;
-        prev_bsdf_pdf = pdf;
+        V3<T> wo;
+        if (model.kind == Kind::Diffuse) {
+            wo = cosine_hemisphere(u_d0, u_d1);
+            throughput = throughput * R;
+            prev_delta = false;
+            prev_bsdf_pdf = wo.z * T(InvPi);
+        } else if (model.kind == Kind::Conductor) {
+            wo = V3<T>{T(-wi.x), T(-wi.y), wi.z};
+            throughput = throughput * (fresnel_conductor(wi.z, model.eta, model.k) * R);
+            prev_delta = true;
+            prev_bsdf_pdf = T(1.0);
+        } else {  // RoughConductor::sample
+            const V3<T> m = ggx_sample(wi, u_d0, u_d1, model.alpha_u, model.alpha_v);
+            const T pm = ggx_pdf(wi, m, model.alpha_u, model.alpha_v);
+            wo = m * T(T(2.0) * dot(wi, m)) - wi;
+            const T pdf = pm / (T(4.0) * dot(wo, m));
+            const C3<T> f = rough_reflection(model, wi, wo, m);
+            const T inv = T(1.0) / pdf;
+            throughput = throughput * (f * inv);
+            prev_delta = false;
+            prev_bsdf_pdf = pdf;
+        }
+        if (glm::length(value(wo) - bs->wo) > 1e-6) return S::Mismatch;
         prev_p = p;
         const Ray next = si.spawn(si.to_world(bs->wo));
         // SurfaceInteraction::spawn's offset along ng: 1e-5 (1 + max |p_i|), a function of p like the rest.

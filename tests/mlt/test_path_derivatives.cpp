@@ -34,8 +34,14 @@ struct PathSetup {
     std::shared_ptr<SamplingIntegrator> path;
     PathDerivativeOptions opt;
 
-    explicit PathSetup(const std::string& file, int max_depth) {
+    explicit PathSetup(const std::string& file, int max_depth,
+                       const std::vector<std::pair<std::string, std::string>>& edits = {}) {
         std::string xml = ktest::read_text(std::string(KELVIN_SOURCE_DIR) + "/scenes/render/" + file);
+        for (const auto& [from, to] : edits) {  // replace the first occurrence after the last replacement's start
+            const auto at = xml.find(from);
+            if (at == std::string::npos) throw std::runtime_error("test scene edit: '" + from + "' not found");
+            xml.replace(at, from.size(), to);
+        }
         ParseOptions po;
         po.defines["res"] = "32";
         scene = ktest::load_scene_xml(xml, po, std::string(KELVIN_SOURCE_DIR) + "/scenes/render/" + file);
@@ -67,12 +73,11 @@ struct PathSetup {
     }
 };
 
-TEST(PathDerivatives, MatchFiniteDifferencesOnTheCornellBox) {
-    const PathSetup S("cornell-box.xml", 6);
+void expect_matches_finite_differences(const PathSetup& S, int wanted_points) {
     const PathDerivatives D(*S.scene, S.opt);
     Random rng(17, 0);
     int points = 0, grad_checked = 0, hess_checked = 0, grad_skipped = 0, hess_skipped = 0;
-    for (int attempt = 0; attempt < 4000 && points < 12; ++attempt) {
+    for (int attempt = 0; attempt < 4000 && points < wanted_points; ++attempt) {
         std::vector<double> x;
         for (int i = 0; i < 4 + 7 * 6; ++i) x.push_back(rng.next_double());
         std::size_t used = 0;
@@ -146,11 +151,39 @@ TEST(PathDerivatives, MatchFiniteDifferencesOnTheCornellBox) {
             for (int j = 0; j < i; ++j)
                 EXPECT_NEAR(H[std::size_t(j * n + i)], H[std::size_t(i * n + j)], 1e-9 * (1 + hmax));
     }
-    EXPECT_GE(points, 12);
+    EXPECT_GE(points, wanted_points);
     EXPECT_GT(grad_checked, 10 * grad_skipped);
     EXPECT_GT(hess_checked, 10 * hess_skipped);
     std::printf("points %d, gradient entries checked %d (skipped %d), Hessian entries checked %d (skipped %d)\n",
                 points, grad_checked, grad_skipped, hess_checked, hess_skipped);
+}
+
+TEST(PathDerivatives, MatchFiniteDifferencesOnTheCornellBox) {
+    expect_matches_finite_differences(PathSetup("cornell-box.xml", 6), 12);
+}
+
+// Conductors: the tall box a rough GGX copper (alpha 0.15), the short one a smooth aluminium mirror, the back wall a
+// rough anisotropic GGX gold (alpha_u 0.3, alpha_v 0.08).
+TEST(PathDerivatives, MatchFiniteDifferencesWithConductors) {
+    const std::string ggx_cu = R"(<bsdf type="roughconductor"><string name="distribution" value="ggx"/>)"
+                               R"(<string name="material" value="Cu"/><float name="alpha" value="0.15"/></bsdf>)";
+    const std::string mirror = R"(<bsdf type="conductor"><string name="material" value="Al"/></bsdf>)";
+    const std::string ggx_au = R"(<bsdf type="roughconductor"><string name="distribution" value="ggx"/>)"
+                               R"(<string name="material" value="Au"/><float name="alpha_u" value="0.3"/>)"
+                               R"(<float name="alpha_v" value="0.08"/></bsdf>)";
+    const PathSetup S("cornell-box.xml", 6,
+                      {{R"(<transform name="to_world"><translate y="1" z="-1"/></transform>
+        <ref id="white"/>)",
+                        R"(<transform name="to_world"><translate y="1" z="-1"/></transform>)" + ggx_au},
+                       {R"(<translate x="-0.33" y="0.6" z="-0.28"/>
+        </transform>
+        <ref id="white"/>)",
+                        R"(<translate x="-0.33" y="0.6" z="-0.28"/></transform>)" + ggx_cu},
+                       {R"(<translate x="0.35" y="0.3" z="0.32"/>
+        </transform>
+        <ref id="white"/>)",
+                        R"(<translate x="0.35" y="0.3" z="0.32"/></transform>)" + mirror}});
+    expect_matches_finite_differences(S, 16);
 }
 
 // The caustic scene (a glass sphere and a spherical light: every path that carries light touches a sphere through

@@ -55,9 +55,18 @@ public:
     /// and roughplastic `diffuse_reflectance`; twosided asks the side `si.wi` is on), for the `albedo` AOV.
     /// Models without a diffuse component give 0. Not used for light transport.
     virtual Color3 albedo(const SurfaceInteraction& si) const { return Color3(0.0); }
-    /// The BSDF's parameters do not vary over the surface (no texture lookups): what differentiable path
-    /// evaluation (render/path_derivatives.h) assumes of the BSDFs it differentiates.
-    virtual bool spatially_constant() const { return false; }
+    /// What differentiable path evaluation (render/path_derivatives.h) needs to re-evaluate the BSDF in its own
+    /// arithmetic: the model and its parameters, constant over the surface. Kind None (the default, and a textured
+    /// parameter): not differentiable.
+    struct Model {
+        enum class Kind { None, Diffuse, Conductor, RoughConductor } kind = Kind::None;
+        Color3 reflectance{0.0};   ///< diffuse reflectance, or the conductors' specular_reflectance
+        Color3 eta{0.0}, k{1.0};   ///< conductors: complex index of refraction
+        bool ggx = false;          ///< roughconductor: GGX (else Beckmann)
+        double alpha_u = 0, alpha_v = 0;
+        bool sample_visible = true;
+    };
+    virtual Model model() const { return {}; }
 };
 
 }  // namespace kelvin
