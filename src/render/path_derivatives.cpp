@@ -79,14 +79,29 @@ V3<T> normalize(const V3<T>& v) {
     const T l = sqrt(dot(v, v));
     return {v.x / l, v.y / l, v.z / l};
 }
-// Frame (render/frame.h) with constant axes.
+// Frame (render/frame.h): constant axes (flat triangles), or Duff et al.'s basis of a varying normal (spheres).
 template <class T>
-V3<T> to_local(const Frame& f, const V3<T>& v) {
-    return {dot(v, constant<T>(f.s)), dot(v, constant<T>(f.t)), dot(v, constant<T>(f.n))};
+struct FrameT {
+    V3<T> s, t, n;
+};
+template <class T>
+FrameT<T> frame_of(const Frame& f) {
+    return {constant<T>(f.s), constant<T>(f.t), constant<T>(f.n)};
 }
 template <class T>
-V3<T> to_world(const Frame& f, const V3<T>& v) {
-    return constant<T>(f.s) * v.x + constant<T>(f.t) * v.y + constant<T>(f.n) * v.z;
+FrameT<T> frame_of(const V3<T>& n) {
+    const double sign = std::copysign(1.0, val(n.z));
+    const T a = T(-1.0) / (T(sign) + n.z), b = n.x * n.y * a;
+    return {V3<T>{T(1.0) + T(sign) * n.x * n.x * a, T(sign) * b, T(-sign) * n.x},
+            V3<T>{b, T(sign) + n.y * n.y * a, T(-n.y)}, n};
+}
+template <class T>
+V3<T> to_local(const FrameT<T>& f, const V3<T>& v) {
+    return {dot(v, f.s), dot(v, f.t), dot(v, f.n)};
+}
+template <class T>
+V3<T> to_world(const FrameT<T>& f, const V3<T>& v) {
+    return f.s * v.x + f.t * v.y + f.n * v.z;
 }
 
 template <class T>
@@ -306,6 +321,10 @@ struct PathDerivatives::Impl {
         const ShapeGeometry& g = geometry[shape];
         return g.type == ShapeGeometry::Type::Triangles && g.normals.empty();
     }
+    bool sphere(uint32_t shape) const {
+        const ShapeGeometry& g = geometry[shape];
+        return g.type == ShapeGeometry::Type::Spheres && g.positions.size() == 1;
+    }
 
     template <class T, class Reader>
     PathDerivativeStatus run(Reader& rd, T& log_pi) const;
@@ -350,18 +369,37 @@ PathDerivativeStatus PathDerivatives::Impl::run(Reader& rd, T& log_pi) const {
             if (!scene.environment_emitters().empty()) return S::Unsupported;
             break;
         }
-        if (!flat_triangles(hit->shape)) return S::Unsupported;
+        const bool on_sphere = sphere(hit->shape);
+        if (!on_sphere && !flat_triangles(hit->shape)) return S::Unsupported;
         const SurfaceInteraction si = scene.interaction(ray, *hit);
-        // Differentiable re-intersection of the triangle Embree found (Moller-Trumbore).
+        // Differentiable re-intersection of the primitive Embree found: Moller-Trumbore for a triangle (the frame is
+        // constant), the quadratic for a sphere (the root Embree took; the normal and frame follow p).
         const ShapeGeometry& g = geometry[hit->shape];
-        const uint32_t* tri = &g.indices[3 * std::size_t(hit->prim)];
-        const V3<T> a = constant<T>(Vec3d(g.positions[tri[0]])), b = constant<T>(Vec3d(g.positions[tri[1]])),
-                    c = constant<T>(Vec3d(g.positions[tri[2]]));
-        const V3<T> e1 = b - a, e2 = c - a, pvec = cross(d, e2), tvec = orig - a, qvec = cross(tvec, e1);
-        const T det = dot(e1, pvec);
-        const T t = dot(e2, qvec) / det;
+        T t;
+        V3<T> ng = constant<T>(si.ng);
+        if (!on_sphere) {
+            const uint32_t* tri = &g.indices[3 * std::size_t(hit->prim)];
+            const V3<T> a = constant<T>(Vec3d(g.positions[tri[0]])), b = constant<T>(Vec3d(g.positions[tri[1]])),
+                        c = constant<T>(Vec3d(g.positions[tri[2]]));
+            const V3<T> e1 = b - a, e2 = c - a, pvec = cross(d, e2), tvec = orig - a, qvec = cross(tvec, e1);
+            t = dot(e2, qvec) / dot(e1, pvec);
+        } else {
+            const V3<T> oc = orig - constant<T>(Vec3d(g.positions[0]));
+            const double r = g.radii[0];
+            const T bq = dot(oc, d), cq = dot(oc, oc) - T(r * r), disc = bq * bq - cq;
+            if (!(val(disc) > 0)) return S::Mismatch;
+            const T sq = sqrt(disc), t0 = -bq - sq, t1 = -bq + sq;
+            t = std::abs(val(t0) - hit->t) <= std::abs(val(t1) - hit->t) ? t0 : t1;
+        }
         if (!(std::abs(val(t) - hit->t) <= 1e-4 * (1 + hit->t))) return S::Mismatch;
         const V3<T> p = orig + d * t;
+        if (on_sphere) {
+            ng = p - constant<T>(Vec3d(g.positions[0]));
+            ng = ng * T(T(1.0) / T(g.radii[0]));
+            if (glm::dot(value(ng), si.ng) < 0) ng = ng * T(-1.0);  // as the shape orients it (flip_normals)
+            ng = normalize(ng);
+        }
+        const FrameT<T> frame = on_sphere ? frame_of(ng) : frame_of<T>(si.frame);
 
         // Emission found by BSDF sampling (or seen directly).
         if (const Emitter* e = si.shape->emitter(); e && !(depth == 0 && o.hide_emitters) && depth + 1 >= o.min_depth) {
@@ -371,7 +409,7 @@ PathDerivativeStatus PathDerivatives::Impl::run(Reader& rd, T& log_pi) const {
                 T w(1.0);
                 if (!prev_delta) {
                     const V3<T> v = p - prev_p;
-                    const T cos_e = -dot(constant<T>(si.ng), d);
+                    const T cos_e = -dot(ng, d);
                     const T pl = T(scene.emitter_pdf(e)) * dot(v, v) / (cos_e * T(si.shape->surface_area()));
                     w = power_heuristic(prev_bsdf_pdf, pl);
                 }
@@ -391,7 +429,7 @@ PathDerivativeStatus PathDerivatives::Impl::run(Reader& rd, T& log_pi) const {
         const T u_comp = rd.read();
         const T u_d0 = rd.read(), u_d1 = rd.read();
         const T u_rr = rd.read();
-        const V3<T> wi = to_local(si.frame, V3<T>{T(-d.x), T(-d.y), T(-d.z)});
+        const V3<T> wi = to_local(frame, V3<T>{T(-d.x), T(-d.y), T(-d.z)});
         // The BSDF's value f cos(theta_o) and density for a direction wo, as eval and pdf (smooth models).
         auto bsdf_eval = [&](const V3<T>& wo, T& pdf) -> C3<T> {
             const C3<T> zero{T(0.0), T(0.0), T(0.0)};
@@ -423,35 +461,49 @@ PathDerivativeStatus PathDerivatives::Impl::run(Reader& rd, T& log_pi) const {
                     const int sh = ei < emitter_shape.size() ? emitter_shape[ei] : -1;
                     const auto* mesh =
                         sh >= 0 ? dynamic_cast<const TriangleMesh*>(scene.shapes()[std::size_t(sh)].get()) : nullptr;
-                    if (e->plugin_name() != "area" || !mesh || !flat_triangles(uint32_t(sh))) return S::Unsupported;
-                    // TriangleMesh::sample_position: the triangle by area, the remainder of u.x reused.
-                    const std::vector<double>& cdf = mesh->area_cdf();
-                    std::size_t k = std::size_t(std::lower_bound(cdf.begin(), cdf.end(), val(u_l0)) - cdf.begin());
-                    k = std::min(k, cdf.size() - 1);
-                    const double lo = k == 0 ? 0.0 : cdf[k - 1], width = cdf[k] - lo;
-                    T ux = width > 0 ? T((u_l0 - T(lo)) / T(width)) : T(0.5);
-                    if (val(ux) < 0) ux = T(0.0);
-                    if (val(ux) > 1.0 - 1e-16) ux = T(1.0 - 1e-16);
+                    const bool light_sphere = sh >= 0 && sphere(uint32_t(sh));
+                    if (e->plugin_name() != "area" || !((mesh && flat_triangles(uint32_t(sh))) || light_sphere))
+                        return S::Unsupported;
                     const ShapeGeometry& eg = geometry[std::size_t(sh)];
-                    const uint32_t* et = &eg.indices[3 * k];
-                    const T su = sqrt(ux), b0 = T(1.0) - su, b1 = u_l1 * su, b2 = T(1.0) - b0 - b1;
-                    const V3<T> ps = constant<T>(Vec3d(eg.positions[et[0]])) * b0 +
-                                     constant<T>(Vec3d(eg.positions[et[1]])) * b1 +
-                                     constant<T>(Vec3d(eg.positions[et[2]])) * b2;
-                    if (glm::length(value(ps) - ds->p) > 1e-6 * (1 + glm::length(ds->p))) return S::Mismatch;
+                    V3<T> ps, en = constant<T>(ds->n);
+                    if (light_sphere) {
+                        // Sphere::sample_position: uniform on the sphere (warp::square_to_uniform_sphere).
+                        using std::cos;
+                        using std::sin;
+                        const T z = T(1.0) - T(2.0) * u_l0, rr = safe_sqrt(T(T(1.0) - z * z)), phi = T(2 * Pi) * u_l1;
+                        const V3<T> dirs{rr * cos(phi), rr * sin(phi), z};
+                        ps = constant<T>(Vec3d(eg.positions[0])) + dirs * T(eg.radii[0]);
+                        en = eg.flip_normals ? dirs * T(-1.0) : dirs;
+                    } else {
+                        // TriangleMesh::sample_position: the triangle by area, the remainder of u.x reused.
+                        const std::vector<double>& cdf = mesh->area_cdf();
+                        std::size_t k = std::size_t(std::lower_bound(cdf.begin(), cdf.end(), val(u_l0)) - cdf.begin());
+                        k = std::min(k, cdf.size() - 1);
+                        const double lo = k == 0 ? 0.0 : cdf[k - 1], width = cdf[k] - lo;
+                        T ux = width > 0 ? T((u_l0 - T(lo)) / T(width)) : T(0.5);
+                        if (val(ux) < 0) ux = T(0.0);
+                        if (val(ux) > 1.0 - 1e-16) ux = T(1.0 - 1e-16);
+                        const uint32_t* et = &eg.indices[3 * k];
+                        const T su = sqrt(ux), b0 = T(1.0) - su, b1 = u_l1 * su, b2 = T(1.0) - b0 - b1;
+                        ps = constant<T>(Vec3d(eg.positions[et[0]])) * b0 +
+                             constant<T>(Vec3d(eg.positions[et[1]])) * b1 +
+                             constant<T>(Vec3d(eg.positions[et[2]])) * b2;
+                    }
+                    if (glm::length(value(ps) - ds->p) > 1e-5 * (1 + glm::length(ds->p))) return S::Mismatch;
+                    const double light_area = scene.shapes()[std::size_t(sh)]->surface_area();
                     // AreaEmitter::sample_direct.
                     const V3<T> dv = ps - p;
                     const T dist2 = dot(dv, dv), dist = sqrt(dist2);
                     const V3<T> dir{dv.x / dist, dv.y / dist, dv.z / dist};
-                    const T cos_e = -dot(constant<T>(ds->n), dir);
-                    const T pdf = T(1.0 / mesh->surface_area()) * dist2 / cos_e;
+                    const T cos_e = -dot(en, dir);
+                    const T pdf = T(1.0 / light_area) * dist2 / cos_e;
                     const Color3 radiance = ds->weight * ds->pdf;
                     const Color3 f_primal = bsdf.eval(bctx, si, si.to_local(ds->d));
                     if (f_primal != Color3(0.0)) {
                         const Ray shadow = ds->dist == Inf ? si.spawn(ds->d) : si.spawn_to(ds->p);
                         if (!scene.occluded(shadow)) {
                             T bsdf_pdf(0.0);
-                            const C3<T> f = bsdf_eval(to_local(si.frame, dir), bsdf_pdf);
+                            const C3<T> f = bsdf_eval(to_local(frame, dir), bsdf_pdf);
                             const T w = ds->delta ? T(1.0) : power_heuristic(T(pdf * T(sel_pdf)), bsdf_pdf);
                             // f * weight * w / sel, weight = radiance / pdf
                             add(L, throughput * f * radiance * T(w / (pdf * T(sel_pdf))));
@@ -496,9 +548,9 @@ PathDerivativeStatus PathDerivatives::Impl::run(Reader& rd, T& log_pi) const {
             if (std::abs(val(p.z)) > std::abs(val(*big))) big = &p.z;
             const T abs_big = val(*big) < 0 ? T(-*big) : *big;
             const double side = glm::dot(si.to_world(bs->wo), si.ng) >= 0 ? 1.0 : -1.0;
-            orig = p + constant<T>(si.ng * side) * T(T(1e-5) * (T(1.0) + abs_big));
+            orig = p + ng * T(T(side * 1e-5) * (T(1.0) + abs_big));
         }
-        d = to_world(si.frame, wo);
+        d = to_world(frame, wo);
         ray = next;
 
         // Russian roulette (eta_scale is 1: no transmission in the supported subset).

@@ -6,11 +6,13 @@
 //     matches central differences of the gradient (both with Richardson's extrapolation), entry by entry (relative 1e-4
 //     of the entry, or of 1e-3 of the largest entry for the small ones), where the finite difference is stable (h and
 //     h/2 agree);
-//   - paths through an unsupported plugin say so (the caustic scene's spheres).
+//   - paths through an unsupported plugin say so (the caustic scene's glass).
 // Seen to fail: the emitter's area density without the cosine (pdf = dist^2 / area: the value check, status
 // Mismatch), the inner derivative of one coordinate seeded as 1.001 (gradient entries off by 1e-3), and the ray
 // offset of SurfaceInteraction::spawn held constant instead of following p (one gradient entry off by 1.06e-4: the
-// first version of the code).
+// first version of the code), GGX's Lambda with 2.1 for 2, the mirror without its Fresnel factor, and a sphere's
+// shading frame taken from the renderer (float precision) instead of the path's own normal (caught by the share of
+// unstable differences: 1.5 % of the gradient entries).
 #include <kelvin/core/registry.h>
 #include <kelvin/render/integrator.h>
 #include <kelvin/render/path_derivatives.h>
@@ -152,8 +154,10 @@ void expect_matches_finite_differences(const PathSetup& S, int wanted_points) {
                 EXPECT_NEAR(H[std::size_t(j * n + i)], H[std::size_t(i * n + j)], 1e-9 * (1 + hmax));
     }
     EXPECT_GE(points, wanted_points);
-    EXPECT_GT(grad_checked, 10 * grad_skipped);
-    EXPECT_GT(hess_checked, 10 * hess_skipped);
+    // Unstable differences (an edge within h) are rare; many of them mean the plain-double evaluation is noisy, e.g.
+    // from using the renderer's float-precision hit data where the path's own values belong.
+    EXPECT_LE(500 * grad_skipped, grad_checked);
+    EXPECT_LE(500 * hess_skipped, hess_checked);
     std::printf("points %d, gradient entries checked %d (skipped %d), Hessian entries checked %d (skipped %d)\n",
                 points, grad_checked, grad_skipped, hess_checked, hess_skipped);
 }
@@ -186,8 +190,29 @@ TEST(PathDerivatives, MatchFiniteDifferencesWithConductors) {
     expect_matches_finite_differences(S, 16);
 }
 
-// The caustic scene (a glass sphere and a spherical light: every path that carries light touches a sphere through
-// next-event estimation): reported as unsupported, never differentiated, never a mismatch.
+// Veach's glossy plates: GGX plates of four roughnesses (down to alpha 0.008) lit by four spherical lights of
+// different sizes (spheres: the re-intersection's quadratic, a normal and frame that follow p, uniform sampling of a
+// spherical light).
+TEST(PathDerivatives, MatchFiniteDifferencesOnTheGlossyPlates) {
+    expect_matches_finite_differences(PathSetup("glossy-plates.xml", 4), 16);
+}
+
+// Spheres that paths bounce off (the frame follows the normal): a GGX copper sphere on the short box and a diffuse one
+// on the floor of the Cornell box.
+TEST(PathDerivatives, MatchFiniteDifferencesWithSpheres) {
+    const PathSetup S(
+        "cornell-box.xml", 6,
+        {{"</scene>",
+          R"(<shape type="sphere"><point name="center" x="0.35" y="0.85" z="0.32"/><float name="radius" value="0.25"/>)"
+          R"(<bsdf type="roughconductor"><string name="distribution" value="ggx"/><string name="material" value="Cu"/>)"
+          R"(<float name="alpha" value="0.2"/></bsdf></shape>)"
+          R"(<shape type="sphere"><point name="center" x="-0.6" y="0.25" z="0.5"/><float name="radius" value="0.25"/>)"
+          R"(</shape></scene>)"}});
+    expect_matches_finite_differences(S, 16);
+}
+
+// The caustic scene (a glass sphere): paths through the glass are reported as unsupported, never a mismatch; the
+// others are differentiated.
 TEST(PathDerivatives, UnsupportedPluginsAreReportedPerPath) {
     const PathSetup S("caustic.xml", 6);
     const PathDerivatives D(*S.scene, S.opt);
@@ -205,8 +230,8 @@ TEST(PathDerivatives, UnsupportedPluginsAreReportedPerPath) {
         const PathDerivativeStatus st = D.evaluate(x.data(), nullptr, len, 0, pi, nullptr, nullptr, nullptr);
         (st == PathDerivativeStatus::Ok ? ok : st == PathDerivativeStatus::Unsupported ? unsupported : other)++;
     }
-    EXPECT_GT(unsupported, 100);
-    EXPECT_EQ(ok, 0);
+    EXPECT_GT(unsupported, 10);
+    EXPECT_GT(ok, 10);
     EXPECT_EQ(other, 0);
     std::printf("caustic: %d differentiable, %d unsupported\n", ok, unsupported);
 }
