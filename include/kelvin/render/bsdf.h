@@ -60,9 +60,9 @@ public:
     /// parameter): not differentiable.
     struct Model {
         enum class Kind { None, Diffuse, Conductor, RoughConductor } kind = Kind::None;
-        Color3 reflectance{0.0};   ///< diffuse reflectance, or the conductors' specular_reflectance
-        Color3 eta{0.0}, k{1.0};   ///< conductors: complex index of refraction
-        bool ggx = false;          ///< roughconductor: GGX (else Beckmann)
+        Color3 reflectance{0.0};  ///< diffuse reflectance, or the conductors' specular_reflectance
+        Color3 eta{0.0}, k{1.0};  ///< conductors: complex index of refraction
+        bool ggx = false;         ///< roughconductor: GGX (else Beckmann)
         double alpha_u = 0, alpha_v = 0;
         bool sample_visible = true;
     };
