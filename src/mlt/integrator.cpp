@@ -311,6 +311,9 @@ RunResult MetropolisIntegrator::render(const Scene& scene, RunContext& ctx) {
     st.chains = uint64_t(n_chains);
     std::vector<SampleCounters> counters(static_cast<std::size_t>(n_chains));
 
+    // Outcomes of the path derivatives the local kernels asked for, by PathDerivativeStatus (statistics only).
+    std::array<std::atomic<uint64_t>, 5> derivative_status{};
+
     // 3. Chains.
     struct Chain {
         std::unique_ptr<MarkovChain> mc;
@@ -379,6 +382,7 @@ RunResult MetropolisIntegrator::render(const Scene& scene, RunContext& ctx) {
             o.film_area = dom.area;
             m_derivatives = std::make_unique<PathDerivatives>(scene, o);
         }
+        for (auto& n : derivative_status) n.store(0, std::memory_order_relaxed);
         parallel_for_units(chains.size(), [&](std::size_t c) {
             Chain& ch = chains[c];
             std::vector<double> x;
@@ -390,9 +394,12 @@ RunResult MetropolisIntegrator::render(const Scene& scene, RunContext& ctx) {
             ch.mc = std::make_unique<MarkovChain>(m_config, chain_seed, c, /*stage_timing=*/m_delayed_rejection);
             if (m_derivatives) {
                 const PathDerivatives* D = m_derivatives.get();
-                ch.mc->set_derivatives([D](const DerivativeQuery& q) {
-                    return D->evaluate(q.coords, q.block, q.length, q.n, q.value, nullptr, q.grad, q.hess) ==
-                           PathDerivativeStatus::Ok;
+                auto* status = derivative_status.data();
+                ch.mc->set_derivatives([D, status](const DerivativeQuery& q) {
+                    const PathDerivativeStatus s =
+                        D->evaluate(q.coords, q.block, q.length, q.n, q.value, nullptr, q.grad, q.hess);
+                    status[int(s)].fetch_add(1, std::memory_order_relaxed);
+                    return s == PathDerivativeStatus::Ok;
                 });
             }
             ch.pss = std::make_unique<PrimarySampleSpace>(pss_seed, c, streams);
@@ -570,6 +577,10 @@ RunResult MetropolisIntegrator::render(const Scene& scene, RunContext& ctx) {
         S.set("mlt.h2mc.acceptance", cs.local_proposals ? double(cs.local_accepted) / double(cs.local_proposals) : 0.0);
         S.add("mlt.h2mc.derivatives", double(cs.derivatives), "paths");
         S.add("mlt.h2mc.not_differentiable", double(cs.not_differentiable), "paths");
+        S.add("mlt.h2mc.unsupported", double(derivative_status[int(PathDerivativeStatus::Unsupported)].load()),
+              "paths");
+        S.add("mlt.h2mc.mismatch", double(derivative_status[int(PathDerivativeStatus::Mismatch)].load()), "paths");
+        S.add("mlt.h2mc.too_long", double(derivative_status[int(PathDerivativeStatus::TooLong)].load()), "paths");
         S.add("mlt.h2mc.small_hessian", double(cs.small_hessian), "paths");
         if (m_delayed_rejection) {
             S.set("mlt.h2mc.seconds_derivatives", cs.seconds_derivatives);
