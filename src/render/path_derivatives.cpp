@@ -34,7 +34,9 @@ const char* to_string(PathDerivativeStatus s) {
 
 namespace {
 
-using Inner = Eigen::AutoDiffScalar<Eigen::VectorXd>;
+constexpr int MaxBlock = 96;  // PathDerivativeOptions::max_coordinates may not exceed it
+using InnerDer = Eigen::Matrix<double, Eigen::Dynamic, 1, 0, MaxBlock, 1>;  // no heap: inline storage
+using Inner = Eigen::AutoDiffScalar<InnerDer>;
 using InnerVec = Eigen::Matrix<Inner, Eigen::Dynamic, 1>;
 using Outer = Eigen::AutoDiffScalar<InnerVec>;
 
@@ -294,7 +296,7 @@ struct OuterReader {
         Outer x;
         x.value() = Inner(coords[i], n, k);
         x.derivatives().resize(n);
-        for (int j = 0; j < n; ++j) x.derivatives()(j) = Inner(j == k ? 1.0 : 0.0, Eigen::VectorXd::Zero(n));
+        for (int j = 0; j < n; ++j) x.derivatives()(j) = Inner(j == k ? 1.0 : 0.0, InnerDer::Zero(n));
         return x;
     }
 };
@@ -585,7 +587,7 @@ PathDerivativeStatus PathDerivatives::log_value(const double* coords, std::size_
 
 PathDerivativeStatus PathDerivatives::evaluate(const double* coords, const int* block, std::size_t length, int n,
                                                double value, double* log_value, double* grad, double* hess) const {
-    if (n > m_impl->o.max_coordinates) return PathDerivativeStatus::TooLong;
+    if (n > std::min(m_impl->o.max_coordinates, MaxBlock)) return PathDerivativeStatus::TooLong;
     OuterReader rd{coords, block, length, n};
     Outer lp(0.0);
     const PathDerivativeStatus s = m_impl->run<Outer>(rd, lp);
@@ -594,7 +596,7 @@ PathDerivativeStatus PathDerivatives::evaluate(const double* coords, const int* 
     if (value > 0 && !(std::abs(v - std::log(value)) <= 1e-4)) return PathDerivativeStatus::Mismatch;
     if (log_value) *log_value = v;
     if (grad) {
-        const Eigen::VectorXd& g = lp.value().derivatives();
+        const InnerDer& g = lp.value().derivatives();
         for (int i = 0; i < n; ++i) grad[i] = i < g.size() ? g(i) : 0.0;
     }
     if (hess) {
