@@ -391,7 +391,8 @@ RunResult MetropolisIntegrator::render(const Scene& scene, RunContext& ctx) {
             if (m_mmlt) ch.light = std::make_unique<LightSubpaths>(max_vertices);
             if (!(evaluate_boot(start[c], x, scratch, counters[c], ch.light.get(), ignored) > 0))
                 throw RuntimeError("internal error: a bootstrap state did not reproduce its value");
-            ch.mc = std::make_unique<MarkovChain>(m_config, chain_seed, c, /*stage_timing=*/m_delayed_rejection);
+            ch.mc = std::make_unique<MarkovChain>(m_config, chain_seed, c,
+                                                  /*stage_timing=*/m_delayed_rejection || m_local);
             if (m_derivatives) {
                 const PathDerivatives* D = m_derivatives.get();
                 auto* status = derivative_status.data();
@@ -582,10 +583,8 @@ RunResult MetropolisIntegrator::render(const Scene& scene, RunContext& ctx) {
         S.add("mlt.h2mc.mismatch", double(derivative_status[int(PathDerivativeStatus::Mismatch)].load()), "paths");
         S.add("mlt.h2mc.too_long", double(derivative_status[int(PathDerivativeStatus::TooLong)].load()), "paths");
         S.add("mlt.h2mc.small_hessian", double(cs.small_hessian), "paths");
-        if (m_delayed_rejection) {
-            S.set("mlt.h2mc.seconds_derivatives", cs.seconds_derivatives);
-            S.set("mlt.h2mc.seconds_gaussians", cs.seconds_gaussians);
-        }
+        S.set("mlt.h2mc.seconds_derivatives", cs.seconds_derivatives);
+        S.set("mlt.h2mc.seconds_gaussians", cs.seconds_gaussians);
     }
     if (m_config.mixture) {
         S.add("mlt.mixture_second", double(st.chain.mixture_second), "mutations");
