@@ -2,6 +2,7 @@
 // include/kelvin/mlt/chain.h for the algorithm and the exact semantics of the state space.
 #include <kelvin/core/error.h>
 #include <kelvin/mlt/chain.h>
+#include <kelvin/mlt/local.h>
 
 #include <algorithm>
 #include <chrono>
@@ -42,6 +43,21 @@ const char* to_string(DrType t) {
 std::optional<ChainConfigProblem> check(const ChainConfig& c) {
     auto problem = [](const char* part, std::string why) { return ChainConfigProblem{part, std::move(why)}; };
     if (!c.first) return problem("first", "a first-stage mutation is required");
+    const bool local1 = c.first->has_local(), local2 = c.second && c.type != DrType::None && c.second->has_local();
+    if (local1 && c.type != DrType::None)
+        return problem("first", c.first->to_string() +
+                                    " has local (derivative-based) proposals, which are valid as the single stage or "
+                                    "as Green–Mira's second stage, not as a first stage of delayed rejection");
+    if (local2 && c.type != DrType::Green)
+        return problem("second", c.second->to_string() +
+                                     " has local (derivative-based) proposals; of the delayed-rejection types only "
+                                     "green takes them as the second stage");
+    if ((local1 || local2) && c.mixture)
+        return problem("mixture", "local (derivative-based) kernels are not supported in the mixture mode");
+    if ((local1 || local2) && (c.streams != 1 || c.fixed_pairs != 0))
+        return problem("streams",
+                       "local (derivative-based) kernels move every pair a path read jointly; several "
+                       "streams and fixed pairs are not supported with them");
     if (c.first->second_stage_only())
         return problem("first", c.first->to_string() + " is a second-stage kernel; use it as drmlt's second stage");
     if (!c.first->symmetric())
@@ -93,6 +109,18 @@ void validate(const ChainConfig& c) {
     if (auto p = check(c)) throw Error("MarkovChain: " + p->why);
 }
 
+// Local kernels: the Gaussians of x ([0], cached while x stays) and of the current proposal ([1]), with the pairs
+// of their blocks, and the scratch space of the derivative queries. Everything grows to the longest path once.
+struct MarkovChain::LocalState {
+    LocalWorkspace ws;
+    BlockGaussian g[2];
+    std::vector<uint32_t> pairs[2];
+    const LocalKernel* kernel[2] = {nullptr, nullptr};
+    bool x_ready = false;
+    std::vector<int> block;
+    std::vector<double> grad, hess, delta;
+};
+
 MarkovChain::MarkovChain(const ChainConfig& config, uint64_t seed, uint64_t stream, bool stage_timing)
     : m_cfg(config), m_rng(seed, stream), m_timing(stage_timing) {
     validate(m_cfg);
@@ -100,6 +128,112 @@ MarkovChain::MarkovChain(const ChainConfig& config, uint64_t seed, uint64_t stre
         m_src[std::size_t(k)].chain = this;
         m_src[std::size_t(k)].slot = k;
     }
+    if (m_cfg.first->has_local() || (m_cfg.second && m_cfg.type != DrType::None && m_cfg.second->has_local()))
+        m_local = std::make_unique<LocalState>();
+}
+
+MarkovChain::~MarkovChain() = default;
+
+void MarkovChain::set_derivatives(TargetDerivatives derivatives) { m_derivatives = std::move(derivatives); }
+
+// Builds the local Gaussian of `slot` (x: into the cache, unless it holds x's already; y or z: into [1]) from the
+// target's derivatives over the pairs that state's path read.
+bool MarkovChain::local_gaussian(int slot, const LocalKernel& k) {
+    LocalState& L = *m_local;
+    const int which = slot == X ? 0 : 1;
+    if (slot == X && L.x_ready && L.kernel[0] == &k) return true;
+    if (!m_derivatives)
+        throw Error("MarkovChain: a local (derivative-based) kernel needs the target's derivatives (set_derivatives)");
+    const Lazy& s = m_s[std::size_t(slot)];
+    const uint32_t stamp = slot == X ? m_x_epoch : m_epoch;
+    std::vector<uint32_t>& pairs = L.pairs[which];
+    pairs.clear();
+    for (std::size_t p = 0; p < m_pairs; ++p)
+        if (s.read[p] == stamp) pairs.push_back(uint32_t(p));
+    const int n = int(2 * pairs.size());
+    const std::size_t length = pairs.empty() ? 0 : 2 * (std::size_t(pairs.back()) + 1);
+    L.block.assign(length, -1);
+    for (std::size_t q = 0; q < pairs.size(); ++q) {
+        L.block[2 * pairs[q]] = int(2 * q);
+        L.block[2 * pairs[q] + 1] = int(2 * q + 1);
+    }
+    L.grad.assign(std::size_t(n), 0.0);
+    L.hess.assign(std::size_t(n) * std::size_t(n), 0.0);
+    DerivativeQuery query;
+    query.coords = s.v.data();
+    query.block = L.block.data();
+    query.length = length;
+    query.n = n;
+    query.value = m_pi[std::size_t(slot)];
+    query.grad = L.grad.data();
+    query.hess = L.hess.data();
+    Clock::time_point t0;
+    if (m_timing) t0 = Clock::now();
+    const bool differentiable = m_derivatives(query);
+    Clock::time_point t1;
+    if (m_timing) t1 = Clock::now();
+    ++m_stats.derivatives;
+    const LocalBuild b = k.build(n, L.grad.data(), L.hess.data(), differentiable, L.ws, L.g[which]);
+    if (m_timing) {
+        m_stats.seconds_derivatives += std::chrono::duration<double>(t1 - t0).count();
+        m_stats.seconds_gaussians += std::chrono::duration<double>(Clock::now() - t1).count();
+    }
+    if (b == LocalBuild::NotDifferentiable) ++m_stats.not_differentiable;
+    if (b == LocalBuild::SmallHessian) ++m_stats.small_hessian;
+    L.kernel[which] = &k;
+    if (slot == X) L.x_ready = true;
+    return true;
+}
+
+// Realises the pairs x's path read for the proposal `slot` jointly, from x's Gaussian (local.h); its other pairs
+// are realised lazily by the kernel's sample_pair, the outside law.
+void MarkovChain::sample_local_block(int slot) {
+    LocalState& L = *m_local;
+    const std::vector<uint32_t>& pairs = L.pairs[0];
+    L.delta.resize(2 * pairs.size());
+    L.g[0].sample(m_rng, L.delta.data());
+    Lazy& s = m_s[std::size_t(slot)];
+    const double* x = m_s[X].v.data();
+    for (std::size_t q = 0; q < pairs.size(); ++q) {
+        const std::size_t p = pairs[q];
+        for (std::size_t j = 0; j < 2; ++j) s.v[2 * p + j] = torus_wrap(x[2 * p + j] + L.delta[2 * q + j]);
+        s.realised[p] = m_epoch;
+        ++m_stats.pairs_realised;
+    }
+}
+
+// log Q(x | w) - log Q(w | x) for the local proposal w (= slot), both Gaussians built (local.h).
+double MarkovChain::local_log_ratio(int slot, const LocalKernel& k) {
+    LocalState& L = *m_local;
+    const Lazy &x = m_s[X], &w = m_s[std::size_t(slot)];
+    const double sigma = k.outside_sigma();
+    auto in_x = [&](std::size_t p) { return x.read[p] == m_x_epoch; };
+    auto in_w = [&](std::size_t p) { return w.read[p] == m_epoch; };
+    double forward = 0, reverse = 0;
+    // Forward: x's Gaussian over x's block, the outside law over the pairs only w read.
+    L.delta.resize(std::max(L.pairs[0].size(), L.pairs[1].size()) * 2);
+    for (std::size_t q = 0; q < L.pairs[0].size(); ++q) {
+        const std::size_t p = L.pairs[0][q];
+        for (std::size_t j = 0; j < 2; ++j) L.delta[2 * q + j] = torus_delta(x.v[2 * p + j], w.v[2 * p + j]);
+    }
+    forward += L.g[0].log_pdf(L.delta.data());
+    for (std::size_t p : L.pairs[1])
+        if (!in_x(p)) {
+            ensure(X, p);
+            forward += outside_log_pdf(sigma, torus_delta(x.v[2 * p], w.v[2 * p]),
+                                       torus_delta(x.v[2 * p + 1], w.v[2 * p + 1]));
+        }
+    // Reverse: w's Gaussian over w's block, the outside law over the pairs only x read.
+    for (std::size_t q = 0; q < L.pairs[1].size(); ++q) {
+        const std::size_t p = L.pairs[1][q];
+        for (std::size_t j = 0; j < 2; ++j) L.delta[2 * q + j] = torus_delta(w.v[2 * p + j], x.v[2 * p + j]);
+    }
+    reverse += L.g[1].log_pdf(L.delta.data());
+    for (std::size_t p : L.pairs[0])
+        if (!in_w(p))
+            reverse += outside_log_pdf(sigma, torus_delta(w.v[2 * p], x.v[2 * p]),
+                                       torus_delta(w.v[2 * p + 1], x.v[2 * p + 1]));
+    return reverse - forward;
 }
 
 void MarkovChain::grow(std::size_t pairs) {
@@ -219,6 +353,7 @@ double MarkovChain::start(const Target& target, const std::vector<double>& x0) {
         throw Error("MarkovChain: the initial state must have a positive, finite target value");
     m_started = true;
     m_last = StepOutcome{};
+    if (m_local) m_local->x_ready = false;
     return pi;
 }
 
@@ -295,9 +430,27 @@ StepOutcome MarkovChain::step(const Target& target) {
     }
     m_y_read_end = 0;
     const double pix = m_pi[X];
+    // A local first stage (MH only, check()): y's block from x's Gaussian, the Hastings ratio of local.h.
+    const LocalKernel* local1 =
+        !out.large && m_local && m_cfg.first->has_local() ? m_cfg.first->local(m_latent1) : nullptr;
+    if (local1) {
+        ++m_stats.local_proposals;
+        local_gaussian(X, *local1);
+        sample_local_block(Y);
+    }
     const double piy = evaluate(target, Y);
-    out.a1 = piy >= pix ? 1.0 : piy / pix;  // Q1 symmetric (rule 3); a large step is uniform
+    if (local1) {
+        out.a1 = 0;
+        if (piy > 0) {
+            local_gaussian(Y, *local1);
+            const double log_r = std::log(piy) - std::log(pix) + local_log_ratio(Y, *local1);
+            out.a1 = log_r >= 0 ? 1.0 : std::exp(log_r);
+        }
+    } else {
+        out.a1 = piy >= pix ? 1.0 : piy / pix;  // Q1 symmetric (rule 3); a large step is uniform
+    }
     if (m_rng.next_double() < out.a1) {
+        if (local1) ++m_stats.local_accepted;
         if (m_mix_second)
             ++m_stats.mixture_second_accepted;
         else
@@ -306,6 +459,7 @@ StepOutcome MarkovChain::step(const Target& target) {
         out.accepted = 1;
     }
     double w_z = 0;
+    m_local_accepted_kernel = nullptr;
     const bool try_second = out.accepted == 0 && m_cfg.type != DrType::None && !m_cfg.mixture && out.a1 < 1 &&
                             (!out.large || m_cfg.timid_after_large);
     Clock::time_point t1;
@@ -318,9 +472,28 @@ StepOutcome MarkovChain::step(const Target& target) {
         ++m_stats.stage2_attempted;
         m_latent2 = m_cfg.second->begin(m_rng);
         const double u2 = m_rng.next_double();
+        const LocalKernel* local2 = m_local && m_cfg.second->has_local() ? m_cfg.second->local(m_latent2) : nullptr;
+        if (local2) {
+            ++m_stats.local_proposals;
+            local_gaussian(X, *local2);
+            sample_local_block(Z);
+        }
         const double piz = evaluate(target, Z);
         const double den = pix * (1 - out.a1);  // pi(x) (1 - a1(x, y)) = pi(x) - pi(y) > 0
-        if (piz > 0) {
+        if (piz > 0 && local2) {  // Green–Mira (check()): Eq. (4.10) with the local ratio Q2(x|z) / Q2(z|x)
+            local_gaussian(Z, *local2);
+            const double log_q = local_log_ratio(Z, *local2), log_den = std::log(den);
+            const double a2_max = std::min(1.0, std::exp(std::log(piz) + log_q - log_den));
+            if (u2 >= a2_max) {
+                ++m_stats.ystar_skipped;  // rejected whatever pi(y*) is
+            } else {
+                ++m_stats.ystar_evaluations;
+                out.ystar_traced = true;
+                const double piys = evaluate(target, YS);
+                out.a2 = piz > piys ? std::min(1.0, std::exp(std::log(piz - piys) + log_q - log_den)) : 0.0;
+                w_z = (1 - out.a1) * out.a2 / a2_max;  // unbiased: u2 < a2_max with probability a2_max
+            }
+        } else if (piz > 0) {
             switch (m_cfg.type) {
                 case DrType::Orbital:  // Eq. (4.7)
                     out.a2 = piz > piy ? std::min(1.0, (piz - piy) / den) : 0.0;
@@ -352,8 +525,10 @@ StepOutcome MarkovChain::step(const Target& target) {
         }
         if (u2 < out.a2) {
             ++m_stats.stage2_accepted;
+            if (local2) ++m_stats.local_accepted;
             out.accepted = 2;
         }
+        m_local_accepted_kernel = out.accepted == 2 ? local2 : nullptr;
         if (timed)
             m_stats.seconds_stage2 += double(TimingMask + 1) * std::chrono::duration<double>(Clock::now() - t1).count();
     }
@@ -364,6 +539,18 @@ StepOutcome MarkovChain::step(const Target& target) {
     out.w_x = std::max(0.0, 1 - out.w_y - out.w_z);
 
     // The accepted state becomes x: O(1) swaps; what it read is what x keeps next step (rule 1).
+    if (out.accepted > 0 && m_local) {  // the accepted state's Gaussian, if it was built, becomes x's cache
+        const LocalKernel* built = out.accepted == 1 ? local1 : m_local_accepted_kernel;
+        LocalState& L = *m_local;
+        if (built) {
+            std::swap(L.g[0], L.g[1]);
+            std::swap(L.pairs[0], L.pairs[1]);
+            L.kernel[0] = built;
+            L.x_ready = true;
+        } else {
+            L.x_ready = false;
+        }
+    }
     if (out.accepted > 0) {
         std::swap(m_s[X], m_s[std::size_t(out.accepted)]);
         std::swap(m_pi[X], m_pi[std::size_t(out.accepted)]);

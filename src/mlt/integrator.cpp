@@ -8,6 +8,7 @@
 #include <kelvin/core/registry.h>
 #include <kelvin/mlt/integrator.h>
 #include <kelvin/render/film.h>
+#include <kelvin/render/path_derivatives.h>
 #include <kelvin/render/pss.h>
 #include <kelvin/render/scene.h>
 
@@ -107,6 +108,17 @@ MetropolisIntegrator::MetropolisIntegrator(const Properties& props, bool delayed
         m_config.streams = SampleStreamCount;
         m_config.fixed_pairs = uint64_t(1) << StrategyPair;
     }
+    // Local kernels (h2mc) need derivatives of the path contribution with respect to the primary samples, which the
+    // path technique provides (render/path_derivatives.h); the bidirectional ones do not.
+    {
+        const bool local1 = m_first->has_local(), local2 = m_second && m_second->has_local();
+        m_local = local1 || local2;
+        if (m_local && technique != "path")
+            props.error(!delayed_rejection ? std::string("mutation") : std::string(local1 ? "first" : "second"),
+                        "h2mc needs derivatives of the path contribution, which technique '" + technique +
+                            "' does not provide; use technique=\"path\"");
+    }
+    m_rr_depth = int(rr_depth);
     // One set of rules for the chain and the scene (chain.h, rule 3), reported against the parameter at fault.
     if (auto p = check(m_config)) {
         const std::string part = p->part;
@@ -299,6 +311,9 @@ RunResult MetropolisIntegrator::render(const Scene& scene, RunContext& ctx) {
     st.chains = uint64_t(n_chains);
     std::vector<SampleCounters> counters(static_cast<std::size_t>(n_chains));
 
+    // Outcomes of the path derivatives the local kernels asked for, by PathDerivativeStatus (statistics only).
+    std::array<std::atomic<uint64_t>, 5> derivative_status{};
+
     // 3. Chains.
     struct Chain {
         std::unique_ptr<MarkovChain> mc;
@@ -354,6 +369,20 @@ RunResult MetropolisIntegrator::render(const Scene& scene, RunContext& ctx) {
                 }
             }
         }
+        // Local kernels (h2mc): the chains ask the path technique's differentiable evaluation for derivatives; a path
+        // it cannot differentiate (an unsupported plugin, a mismatch) gives the kernel's isotropic fallback, counted.
+        if (m_local) {
+            PathDerivativeOptions o;
+            o.max_depth = m_max_edges;
+            o.min_depth = m_min_edges;
+            o.rr_depth = m_rr_depth;
+            o.hide_emitters = m_hide_emitters;
+            o.film_origin = dom.origin;
+            o.film_extent = dom.extent;
+            o.film_area = dom.area;
+            m_derivatives = std::make_unique<PathDerivatives>(scene, o);
+        }
+        for (auto& n : derivative_status) n.store(0, std::memory_order_relaxed);
         parallel_for_units(chains.size(), [&](std::size_t c) {
             Chain& ch = chains[c];
             std::vector<double> x;
@@ -362,7 +391,18 @@ RunResult MetropolisIntegrator::render(const Scene& scene, RunContext& ctx) {
             if (m_mmlt) ch.light = std::make_unique<LightSubpaths>(max_vertices);
             if (!(evaluate_boot(start[c], x, scratch, counters[c], ch.light.get(), ignored) > 0))
                 throw RuntimeError("internal error: a bootstrap state did not reproduce its value");
-            ch.mc = std::make_unique<MarkovChain>(m_config, chain_seed, c, /*stage_timing=*/m_delayed_rejection);
+            ch.mc = std::make_unique<MarkovChain>(m_config, chain_seed, c,
+                                                  /*stage_timing=*/m_delayed_rejection || m_local);
+            if (m_derivatives) {
+                const PathDerivatives* D = m_derivatives.get();
+                auto* status = derivative_status.data();
+                ch.mc->set_derivatives([D, status](const DerivativeQuery& q) {
+                    const PathDerivativeStatus s =
+                        D->evaluate(q.coords, q.block, q.length, q.n, q.value, nullptr, q.grad, q.hess);
+                    status[int(s)].fetch_add(1, std::memory_order_relaxed);
+                    return s == PathDerivativeStatus::Ok;
+                });
+            }
             ch.pss = std::make_unique<PrimarySampleSpace>(pss_seed, c, streams);
             const MarkovChain::Target target = [&](CoordinateSource& src, Slot slot) {
                 return chain_eval(ch, src, slot, counters[c]);
@@ -531,6 +571,20 @@ RunResult MetropolisIntegrator::render(const Scene& scene, RunContext& ctx) {
             S.add("mlt.ystar_evaluations", double(st.chain.ystar_evaluations), "paths");
             S.add("mlt.ystar_skipped", double(st.chain.ystar_skipped), "paths");
         }
+    }
+    if (m_local) {
+        const ChainStats& cs = st.chain;
+        S.add("mlt.h2mc.proposals", double(cs.local_proposals), "proposals");
+        S.set("mlt.h2mc.acceptance", cs.local_proposals ? double(cs.local_accepted) / double(cs.local_proposals) : 0.0);
+        S.add("mlt.h2mc.derivatives", double(cs.derivatives), "paths");
+        S.add("mlt.h2mc.not_differentiable", double(cs.not_differentiable), "paths");
+        S.add("mlt.h2mc.unsupported", double(derivative_status[int(PathDerivativeStatus::Unsupported)].load()),
+              "paths");
+        S.add("mlt.h2mc.mismatch", double(derivative_status[int(PathDerivativeStatus::Mismatch)].load()), "paths");
+        S.add("mlt.h2mc.too_long", double(derivative_status[int(PathDerivativeStatus::TooLong)].load()), "paths");
+        S.add("mlt.h2mc.small_hessian", double(cs.small_hessian), "paths");
+        S.set("mlt.h2mc.seconds_derivatives", cs.seconds_derivatives);
+        S.set("mlt.h2mc.seconds_gaussians", cs.seconds_gaussians);
     }
     if (m_config.mixture) {
         S.add("mlt.mixture_second", double(st.chain.mixture_second), "mutations");

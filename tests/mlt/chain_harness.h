@@ -88,8 +88,9 @@ struct ChainRun {
 // Chi-square tests reject at p < 1e-4 (chi2_sf: exact upper tail from the shared test support).
 inline constexpr double kAlpha = 1e-4;
 
+/// `derivatives`: the target's derivatives, for kernels with local proposals (h2mc).
 inline ChainRun run_chains(const Target& target, const ChainConfig& cfg, int chains = 20000, int steps = 60,
-                           uint64_t seed = 1) {
+                           uint64_t seed = 1, const TargetDerivatives* derivatives = nullptr) {
     auto pi = [&](const std::vector<double>& s) { return target.pi(s[0], s[1]); };
     MarkovChain::Target f = [&](CoordinateSource& s, Slot) {
         const double u = s.at(0);
@@ -108,6 +109,7 @@ inline ChainRun run_chains(const Target& target, const ChainConfig& cfg, int cha
             fx = pi(x);
         } while (!(init.next_double() * target.pi_max < fx));
         MarkovChain chain(cfg, seed, uint64_t(c));
+        if (derivatives) chain.set_derivatives(*derivatives);
         if (chain.start(f, x) != fx) throw std::logic_error("the chain did not reproduce pi(x0)");
         double est = 0;
         for (int t = 0; t < steps; ++t) {

@@ -6,6 +6,7 @@
 #include "mlt/chain_harness.h"
 
 #include <kelvin/mlt/chain.h>
+#include <kelvin/mlt/local.h>
 
 #include <gtest/gtest.h>
 
@@ -56,5 +57,42 @@ TEST(MarkovChain, StepsAllocateNothingOnceWarm) {
         for (int k = 0; k < 20000; ++k) chain.step(target);
         EXPECT_EQ(g_allocations.load() - before, 0);
         EXPECT_GT(chain.stats().stage1_accepted, 1000u);
+    }
+}
+
+// The same for local kernels (h2mc, issue 14): the Gaussians, block lists and eigensolvers (one per block size) grow
+// once. The derivatives are synthetic (a diagonal Hessian large enough for the anisotropic branch).
+TEST(MarkovChain, LocalKernelStepsAllocateNothingOnceWarm) {
+    auto h2mc = mutation("h2mc"), iso = mutation("gaussian", {{"sigma", 0.01}});
+    struct C {
+        const char* name;
+        ChainConfig cfg;
+    };
+    const C configs[] = {{"MH/h2mc", {h2mc.get(), nullptr, DrType::None, 0.3}},
+                         {"green/h2mc", {iso.get(), h2mc.get(), DrType::Green, 0.3, true}}};
+    const MarkovChain::Target target = [](CoordinateSource& s, Slot) {
+        const double u = s.at(0);
+        const int n = 2 + int(20 * u);
+        double sum = 0;
+        for (int i = 1; i < n; ++i) sum += s.at(std::size_t(i));
+        return 1.0 + u + 0.1 * sum / n;
+    };
+    const TargetDerivatives d = [](const DerivativeQuery& q) {
+        for (int i = 0; i < q.n; ++i) {
+            q.grad[i] = 1.0;
+            q.hess[std::size_t(i) * std::size_t(q.n) + std::size_t(i)] = i % 2 ? -1e4 : 2e4;
+        }
+        return true;
+    };
+    for (const C& c : configs) {
+        SCOPED_TRACE(c.name);
+        MarkovChain chain(c.cfg, 9, 0);
+        chain.set_derivatives(d);
+        chain.start(target, {0.99});
+        for (int k = 0; k < 3000; ++k) chain.step(target);
+        const long long before = g_allocations.load();
+        for (int k = 0; k < 5000; ++k) chain.step(target);
+        EXPECT_EQ(g_allocations.load() - before, 0);
+        EXPECT_GT(chain.stats().local_accepted, 50u);
     }
 }

@@ -62,6 +62,18 @@
 //     that ignores y and is symmetric, or orbital after a pairwise-isotropic first stage (z - x is then
 //     (I - R(theta)) (y - x), isotropic). The "MMLT / X" baseline of Fig. 4.11.
 //
+// LOCAL KERNELS (local.h: H2MC). A kernel whose proposal is local (Mutation::local(latent), e.g. `h2mc`, alone or
+// as a mixture component) moves every pair x's path read jointly, by a Gaussian built from the gradient and Hessian
+// of log pi at x, which the chain asks the target for (set_derivatives). The proposal w's Gaussian is built too,
+// for the reverse density, and only when pi(w) > 0; x's is cached while x stays (a rejected step costs no new
+// derivatives at x) and w's becomes x's when w is accepted. Allowed as the single stage (type None: MH with the
+// Hastings ratio of local.h; large steps as usual) and as Green–Mira's second stage, where (Q1 symmetric, Q2
+// ignoring y) Eq. (4.10) becomes
+//     a2 = 1 ^ (0 v (pi(z) - pi(y*))) Q2(x | z) / ((pi(x) - pi(y)) Q2(z | x)),
+// with the ratio of local.h. A mixture picks its component independently of the state, so each component may be
+// accepted with its own ratio (a symmetric one by the usual formulas). Not with Tierney–Mira, orbital, the mixture
+// mode, several streams or fixed pairs (refused by check()).
+//
 // Invalid target values (NaN, Inf, negative) make a proposal invalid: acceptance 0, counted, never weighted.
 // No allocation per step once the state arrays have grown to the longest path.
 #include <kelvin/core/coordinates.h>
@@ -71,11 +83,30 @@
 #include <array>
 #include <cstdint>
 #include <functional>
+#include <memory>
 #include <optional>
 #include <string>
 #include <vector>
 
 namespace kelvin {
+
+class LocalKernel;
+class BlockGaussian;
+
+/// What a local kernel asks the target for: the gradient and Hessian of log pi at a state with respect to the
+/// coordinates of the pairs its path read (the block, in increasing pair order).
+struct DerivativeQuery {
+    const double* coords = nullptr;  ///< the state's coordinates: index i is coords[i] (read pairs are realised)
+    const int* block = nullptr;      ///< per coordinate i < length: its position in the block, -1 if not read
+    std::size_t length = 0;          ///< coordinates `block` covers (2 x one past the highest read pair)
+    int n = 0;                       ///< block size (2 x the pairs read)
+    double value = 0;                ///< pi at the state (positive)
+    double* grad = nullptr;          ///< out: d log pi / d block_k, n values, zeroed by the chain
+    double* hess = nullptr;          ///< out: n x n column-major, zeroed by the chain
+};
+/// Fills grad and hess; returns false where log pi is not twice differentiable at the state (a discontinuity,
+/// an unsupported plugin): the local kernel then falls back to its isotropic Gaussian (counted).
+using TargetDerivatives = std::function<bool(const DerivativeQuery&)>;
 
 enum class DrType { None, Orbital, Mira, Green };
 DrType parse_dr_type(const std::string& s);  // "none" | "orbital" | "mira" | "green"
@@ -123,6 +154,11 @@ struct ChainStats {
     uint64_t mixture_second = 0, mixture_second_accepted = 0;  ///< mixture: steps proposed by the second kernel
     double seconds_stage1 = 0;  ///< first stage: sampling y, evaluating it, deciding (sampled, see below)
     double seconds_stage2 = 0;  ///< second stage: sampling z (and y*), evaluating, densities, deciding
+    // Local kernels (h2mc): proposals made by them, derivative evaluations (x's and proposals'), the Gaussians that
+    // fell back to isotropic because the target could not differentiate or because the Hessian was small, and
+    // (with stage timing, every call timed) the seconds in derivatives and in building the Gaussians.
+    uint64_t local_proposals = 0, local_accepted = 0, derivatives = 0, not_differentiable = 0, small_hessian = 0;
+    double seconds_derivatives = 0, seconds_gaussians = 0;
 
     ChainStats& operator+=(const ChainStats& o) {
         steps += o.steps, large_steps += o.large_steps, large_accepted += o.large_accepted;
@@ -132,6 +168,9 @@ struct ChainStats {
         pairs_realised += o.pairs_realised;
         mixture_second += o.mixture_second, mixture_second_accepted += o.mixture_second_accepted;
         seconds_stage1 += o.seconds_stage1, seconds_stage2 += o.seconds_stage2;
+        local_proposals += o.local_proposals, local_accepted += o.local_accepted, derivatives += o.derivatives;
+        not_differentiable += o.not_differentiable, small_hessian += o.small_hessian;
+        seconds_derivatives += o.seconds_derivatives, seconds_gaussians += o.seconds_gaussians;
         return *this;
     }
 };
@@ -144,8 +183,12 @@ public:
     /// `stage_timing`: measure stage times on every 16th step (two clock reads per stage), for
     /// ChainStats::seconds_stage*; scaled by 16 to estimate the whole run's.
     MarkovChain(const ChainConfig& config, uint64_t seed, uint64_t stream, bool stage_timing = false);
+    ~MarkovChain();
     MarkovChain(const MarkovChain&) = delete;  // its sources point at it
     MarkovChain& operator=(const MarkovChain&) = delete;
+
+    /// The target's derivatives, required before the first step when a kernel has local proposals (h2mc).
+    void set_derivatives(TargetDerivatives derivatives);
 
     /// Starts the chain at x0 (its path reads the coordinates it needs; missing ones are drawn uniformly) and
     /// returns pi(x0). Throws Error if pi(x0) is not positive and finite.
@@ -196,6 +239,10 @@ private:
     bool moved_second(std::size_t p) const { return (m_second_streams >> (p % std::size_t(m_cfg.streams))) & 1; }
     void next_epoch();
     double tierney_mira_log_ratio(double a1);
+    struct LocalState;
+    bool local_gaussian(int slot, const LocalKernel& k);
+    void sample_local_block(int slot);
+    double local_log_ratio(int slot, const LocalKernel& k);
 
     ChainConfig m_cfg;
     Random m_rng;
@@ -212,6 +259,9 @@ private:
     bool m_large = false, m_started = false, m_mix_second = false;
     StepOutcome m_last;
     ChainStats m_stats;
+    std::unique_ptr<LocalState> m_local;  // local kernels: derivatives, Gaussians of x and of the proposal
+    TargetDerivatives m_derivatives;
+    const LocalKernel* m_local_accepted_kernel = nullptr;  // the local kernel that made an accepted z
 };
 
 }  // namespace kelvin

@@ -17,6 +17,10 @@
 #include <mutex>
 
 namespace kelvin {
+class PathDerivatives;
+}
+
+namespace kelvin {
 
 /// Multiplexed MLT (technique mmlt): what the chains of one path length did.
 struct MmltDepthStatistics {
@@ -93,6 +97,9 @@ private:
     bool m_mmlt = false;  // technique mmlt: one bidirectional strategy per state, chains per path length
     int m_min_edges = 1, m_max_edges = -1;
     bool m_hide_emitters = false;
+    int m_rr_depth = 5;
+    bool m_local = false;  // a kernel has local proposals (h2mc): the chains get the path's derivatives
+    std::unique_ptr<PathDerivatives> m_derivatives;  // built per render when m_local
     SourceLoc m_technique_loc;
     bool m_waste_recycling;
     long long m_bootstrap_samples, m_chains, m_direct_samples;

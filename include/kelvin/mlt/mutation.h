@@ -19,6 +19,8 @@
 
 namespace kelvin {
 
+class LocalKernel;  // local.h
+
 /// b - a on the unit circle, in [-1/2, 1/2).
 inline double torus_delta(double a, double b) {
     double d = b - a;
@@ -130,6 +132,14 @@ public:
     virtual bool pairwise_isotropic() const { return false; }
     /// True if only sample_second_pair makes sense (a second-stage-only kernel such as `orbital`).
     virtual bool second_stage_only() const { return false; }
+    /// The local kernel (local.h: a Gaussian over every pair the current state's path read, shaped by derivatives
+    /// of log pi there, as `h2mc`) that makes the proposal of begin()'s `latent`; nullptr for pairwise kernels. The
+    /// chain then draws the read pairs jointly from it, the other pairs by sample_pair (the kernel's outside law),
+    /// and computes the Hastings ratio itself; log_density is not used for such proposals.
+    virtual const LocalKernel* local(uint64_t /*latent*/) const { return nullptr; }
+    /// Some proposal of this kernel is local (local() may be non-null). symmetric() then describes the pairwise
+    /// proposals only.
+    virtual bool has_local() const { return false; }
 };
 
 }  // namespace kelvin

@@ -36,11 +36,11 @@ struct BsdfContext {
 };
 
 struct BsdfSample {
-    Vec3d wo{0, 0, 1};       ///< sampled direction, local
-    Color3 weight{0.0};      ///< f * |cos(theta_o)| / pdf (for delta lobes: the lobe's throughput)
-    double pdf = 0;          ///< solid-angle density (for delta lobes: the discrete probability of the lobe)
-    uint32_t sampled = 0;    ///< BsdfFlags of the sampled component
-    double eta = 1;          ///< relative index of refraction crossed (1 for reflection)
+    Vec3d wo{0, 0, 1};     ///< sampled direction, local
+    Color3 weight{0.0};    ///< f * |cos(theta_o)| / pdf (for delta lobes: the lobe's throughput)
+    double pdf = 0;        ///< solid-angle density (for delta lobes: the discrete probability of the lobe)
+    uint32_t sampled = 0;  ///< BsdfFlags of the sampled component
+    double eta = 1;        ///< relative index of refraction crossed (1 for reflection)
 };
 
 class Bsdf : public Object {
@@ -55,6 +55,18 @@ public:
     /// and roughplastic `diffuse_reflectance`; twosided asks the side `si.wi` is on), for the `albedo` AOV.
     /// Models without a diffuse component give 0. Not used for light transport.
     virtual Color3 albedo(const SurfaceInteraction& si) const { return Color3(0.0); }
+    /// What differentiable path evaluation (render/path_derivatives.h) needs to re-evaluate the BSDF in its own
+    /// arithmetic: the model and its parameters, constant over the surface. Kind None (the default, and a textured
+    /// parameter): not differentiable.
+    struct Model {
+        enum class Kind { None, Diffuse, Conductor, RoughConductor } kind = Kind::None;
+        Color3 reflectance{0.0};  ///< diffuse reflectance, or the conductors' specular_reflectance
+        Color3 eta{0.0}, k{1.0};  ///< conductors: complex index of refraction
+        bool ggx = false;         ///< roughconductor: GGX (else Beckmann)
+        double alpha_u = 0, alpha_v = 0;
+        bool sample_visible = true;
+    };
+    virtual Model model() const { return {}; }
 };
 
 }  // namespace kelvin

@@ -22,6 +22,9 @@ public:
     PositionSample sample_position(const Vec2d& u) const override;
     std::size_t triangle_count() const { return m_geom.indices.size() / 3; }
     std::size_t dropped_triangles() const { return m_dropped; }
+    /// Cumulative triangle areas normalised to end at 1: sample_position picks the first triangle whose entry is
+    /// >= u.x and reuses (u.x - previous entry) / (its width).
+    const std::vector<double>& area_cdf() const { return m_cdf; }
 
 private:
     ShapeGeometry m_geom;

@@ -40,6 +40,15 @@ public:
     }
     Color3 eval(const BsdfContext&, const SurfaceInteraction&, const Vec3d&) const override { return Color3(0.0); }
     double pdf(const BsdfContext&, const SurfaceInteraction&, const Vec3d&) const override { return 0.0; }
+    Model model() const override {
+        Model m;
+        if (!m_specular->is_constant()) return m;
+        m.kind = Model::Kind::Conductor;
+        m.reflectance = m_specular->mean();
+        m.eta = m_ior.eta;
+        m.k = m_ior.k;
+        return m;
+    }
 
 private:
     ConductorIor m_ior;

@@ -39,6 +39,13 @@ public:
         return warp::square_to_cosine_hemisphere_pdf(wo);
     }
     Color3 albedo(const SurfaceInteraction& si) const override { return m_reflectance->eval(si.uv); }
+    Model model() const override {
+        Model m;
+        if (!m_reflectance->is_constant()) return m;
+        m.kind = Model::Kind::Diffuse;
+        m.reflectance = m_reflectance->mean();
+        return m;
+    }
 
 private:
     std::shared_ptr<Texture> m_reflectance;

@@ -75,6 +75,20 @@ public:
         return std::isfinite(p) ? p : 0.0;
     }
 
+    Model model() const override {
+        Model m;
+        if (!m_specular->is_constant()) return m;
+        m.kind = Model::Kind::RoughConductor;
+        m.reflectance = m_specular->mean();
+        m.eta = m_ior.eta;
+        m.k = m_ior.k;
+        m.ggx = m_distr.type() == MicrofacetType::GGX;
+        m.alpha_u = m_distr.alpha_u();
+        m.alpha_v = m_distr.alpha_v();
+        m.sample_visible = m_distr.sample_visible();
+        return m;
+    }
+
 private:
     static Vec3d half_vector(const Vec3d& wi, const Vec3d& wo) {
         const Vec3d h = wi + wo;

@@ -1,5 +1,8 @@
 // mixture: a weighted mixture of kernels, Q = sum_k w_k Q_k (the single-stage baseline DR is compared with,
-// thesis Sec. 4.2.7). Symmetric if every component is.
+// thesis Sec. 4.2.7). Symmetric if every component is. With a local component (h2mc) the component is chosen
+// independently of the state and each component's move is accepted with its own Hastings ratio (the thesis'
+// hybrid second stage: H2MC and a small isotropic Gaussian, equally weighted); log_density then describes the
+// pairwise proposals only.
 //
 // | parameter | type     | default        | meaning                                          |
 // |-----------|----------|----------------|--------------------------------------------------|
@@ -46,9 +49,13 @@ public:
         for (double& v : m_weights) v /= sum;
         for (const auto& p : m_parts) {
             m_symmetric = m_symmetric && p->symmetric();
-            m_isotropic = m_isotropic && p->pairwise_isotropic();
+            m_isotropic = m_isotropic && p->pairwise_isotropic() && !p->has_local();
+            m_local = m_local || p->has_local();
         }
     }
+    // A local component (h2mc) makes its proposal as a block; the chain asks for it by the latent.
+    const LocalKernel* local(uint64_t latent) const override { return m_parts[latent & 0xff]->local(latent >> 8); }
+    bool has_local() const override { return m_local; }
     bool symmetric() const override { return m_symmetric; }
     bool factorizes() const override { return false; }  // the component is shared by every pair
     bool pairwise_isotropic() const override { return m_isotropic; }
@@ -91,7 +98,7 @@ public:
 private:
     std::vector<std::shared_ptr<Mutation>> m_parts;
     std::vector<double> m_weights;
-    bool m_symmetric = true, m_isotropic = true;
+    bool m_symmetric = true, m_isotropic = true, m_local = false;
 };
 
 }  // namespace

@@ -1,0 +1,250 @@
+// The H2MC mutation's cost (issue 14) for `path` states of k = 3..10 edges. The path technique reads 4 numbers for
+// the film and lens and 7 per bounce, so a path of k edges moves a block of n = 4 + 7 (k - 1) coordinates, rounded up
+// to whole pairs.
+//   BM_PathEvaluation/k:   one path sample of exactly k edges on the Cornell box (the path technique, as a chain
+//                          evaluates a state; max_depth k, no Russian roulette);
+//   BM_PathDerivatives/k:  the same path's log-luminance with its gradient and Hessian (render/path_derivatives.h,
+//                          nested Eigen::AutoDiffScalar);
+//   BM_H2mcProposalOnPath/k: one H2MC proposal's extra work on such a path: the proposal's derivatives and Gaussian,
+//                          a draw, and the forward and reverse densities (x's Gaussian is cached by the chain; the
+//                          proposal's path evaluation is BM_PathEvaluation);
+//   BM_H2mcGaussian/k:     the Gaussian alone from a random gradient and Hessian of that size (SelfAdjointEigenSolver,
+//                          Li et al.'s formulas);
+//   BM_MhStepAnalytic/k:   one MH step of a MarkovChain with h2mc on an analytic n-dimensional Gaussian target.
+//
+//   build/bin/bench_h2mc --benchmark_min_time=0.2
+#include <kelvin/core/parser.h>
+#include <kelvin/core/registry.h>
+#include <kelvin/mlt/chain.h>
+#include <kelvin/mlt/local.h>
+#include <kelvin/mlt/mutation.h>
+#include <kelvin/render/path_derivatives.h>
+#include <kelvin/render/pss.h>
+#include <kelvin/render/scene.h>
+#include <kelvin/render/sensor.h>
+
+#include <benchmark/benchmark.h>
+
+#include <cmath>
+#include <vector>
+
+using namespace kelvin;
+
+namespace {
+
+int block_size(int k) {
+    const int n = 4 + 7 * (k - 1);
+    return n + (n & 1);
+}
+
+std::shared_ptr<Mutation> h2mc() {
+    Properties p("mutation", "h2mc");
+    return std::dynamic_pointer_cast<Mutation>(Registry::instance().create(p));
+}
+
+// A symmetric n x n Hessian with entries of both signs, its Frobenius norm about 4e4 (> 5000), and a gradient.
+void random_derivatives(int n, uint64_t seed, std::vector<double>& g, std::vector<double>& H) {
+    Random rng(seed, 0);
+    g.assign(std::size_t(n), 0.0);
+    H.assign(std::size_t(n * n), 0.0);
+    for (int i = 0; i < n; ++i) {
+        g[std::size_t(i)] = 200 * (rng.next_double() - 0.5);
+        for (int j = 0; j <= i; ++j) {
+            const double v = (rng.next_double() - 0.5) * 4e4 / n;
+            H[std::size_t(i * n + j)] = H[std::size_t(j * n + i)] = v + (i == j ? (i % 2 ? -2e4 : 1e4) : 0);
+        }
+    }
+}
+
+void BM_H2mcGaussian(benchmark::State& state) {
+    const int n = block_size(int(state.range(0)));
+    auto m = h2mc();
+    const LocalKernel& k = *m->local(0);
+    std::vector<double> g, H;
+    random_derivatives(n, 1, g, H);
+    LocalWorkspace ws;
+    BlockGaussian G;
+    for (auto _ : state) {
+        benchmark::DoNotOptimize(k.build(n, g.data(), H.data(), true, ws, G));
+        benchmark::DoNotOptimize(G.mean()[0]);
+    }
+    state.counters["n"] = n;
+}
+
+void BM_H2mcProposal(benchmark::State& state) {
+    const int n = block_size(int(state.range(0)));
+    auto m = h2mc();
+    const LocalKernel& k = *m->local(0);
+    std::vector<double> g, H, g2, H2;
+    random_derivatives(n, 1, g, H);
+    random_derivatives(n, 2, g2, H2);
+    LocalWorkspace ws;
+    BlockGaussian Gx, Gy;
+    k.build(n, g.data(), H.data(), true, ws, Gx);
+    std::vector<double> d(static_cast<std::size_t>(n)), back(static_cast<std::size_t>(n));
+    Random rng(3, 0);
+    for (auto _ : state) {
+        Gx.sample(rng, d.data());
+        k.build(n, g2.data(), H2.data(), true, ws, Gy);  // the proposal's Gaussian, for the reverse density
+        for (int i = 0; i < n; ++i) back[std::size_t(i)] = -d[std::size_t(i)];
+        benchmark::DoNotOptimize(Gx.log_pdf(d.data()) - Gy.log_pdf(back.data()));
+    }
+    state.counters["n"] = n;
+}
+
+void BM_MhStepAnalytic(benchmark::State& state) {
+    const int n = block_size(int(state.range(0)));
+    auto m = h2mc();
+    std::vector<double> g0, P;
+    random_derivatives(n, 4, g0, P);
+    // Target: exp(-1/2 d^T A d) around 1/2 with A = 1e4 I + a small symmetric perturbation (positive definite).
+    std::vector<double> A(std::size_t(n * n));
+    for (int i = 0; i < n; ++i)
+        for (int j = 0; j < n; ++j) A[std::size_t(i * n + j)] = (i == j ? 1e4 : 0) + 0.02 * P[std::size_t(i * n + j)];
+    auto logpi = [&](const double* x, double* grad, double* hess) {
+        double q = 0;
+        for (int i = 0; i < n; ++i) {
+            double r = 0;
+            for (int j = 0; j < n; ++j) r += A[std::size_t(i * n + j)] * torus_delta(0.5, x[j]);
+            q += torus_delta(0.5, x[i]) * r;
+            if (grad) grad[i] = -r;
+        }
+        if (hess)
+            for (int i = 0; i < n * n; ++i) hess[i] = -A[std::size_t(i)];
+        return -0.5 * q;
+    };
+    std::vector<double> buf(static_cast<std::size_t>(n));
+    const MarkovChain::Target target = [&](CoordinateSource& s, Slot) {
+        for (int i = 0; i < n; ++i) buf[std::size_t(i)] = s.at(std::size_t(i));
+        return std::exp(logpi(buf.data(), nullptr, nullptr));
+    };
+    ChainConfig cfg{m.get(), nullptr, DrType::None, 0.0};
+    MarkovChain chain(cfg, 5, 0);
+    chain.set_derivatives([&](const DerivativeQuery& q) {
+        logpi(q.coords, q.grad, q.hess);
+        return true;
+    });
+    chain.start(target, std::vector<double>(std::size_t(n), 0.5));
+    for (auto _ : state) benchmark::DoNotOptimize(chain.step(target).a1);
+    state.counters["n"] = n;
+    state.counters["acceptance"] = double(chain.stats().local_accepted) / double(chain.stats().local_proposals);
+}
+
+// The Cornell box at 32 x 32 with a path technique of max_depth k (no Russian roulette before k), and points whose
+// path has exactly k edges and carries light.
+struct PathBench {
+    std::shared_ptr<Scene> scene;
+    std::shared_ptr<SamplingIntegrator> path;
+    PathDerivativeOptions opt;
+    std::unique_ptr<PathDerivatives> D;
+    std::vector<std::vector<double>> points;
+    std::vector<double> values;
+    std::size_t length = 0;
+
+    explicit PathBench(int k) {
+        ParseOptions po;
+        po.defines["res"] = "32";
+        scene = std::dynamic_pointer_cast<Scene>(
+            instantiate(parse_scene_file(KELVIN_SOURCE_DIR "/scenes/render/cornell-box.xml", po)));
+        Properties p("integrator", "path");
+        p.set_int("max_depth", k);
+        p.set_int("min_depth", 1);
+        p.set_int("rr_depth", 100);
+        path = std::dynamic_pointer_cast<SamplingIntegrator>(Registry::instance().create(p));
+        const Sensor& s = *scene->sensor();
+        const double r = s.film().filter().radius();
+        opt.max_depth = k;
+        opt.min_depth = 1;
+        opt.rr_depth = 100;
+        opt.film_origin = Vec2d(-r);
+        opt.film_extent = Vec2d(s.film().width() + 2 * r, s.film().height() + 2 * r);
+        opt.film_area = opt.film_extent.x * opt.film_extent.y;
+        D = std::make_unique<PathDerivatives>(*scene, opt);
+        length = std::size_t(block_size(k));
+        Random rng(5, uint64_t(k));
+        for (int attempt = 0; attempt < 200000 && points.size() < 32; ++attempt) {
+            std::vector<double> x(length + 8);
+            for (double& v : x) v = rng.next_double();
+            std::size_t used = 0;
+            const double pi = eval(x, used);
+            if (pi > 0 && used + (used & 1) == length) {
+                points.push_back(x);
+                values.push_back(pi);
+            }
+        }
+    }
+    double eval(std::vector<double>& x, std::size_t& used) const {
+        PrimarySampleSpace pss(1, 0);
+        pss.bind(x);
+        const Sensor& s = *scene->sensor();
+        const Vec2d film = opt.film_origin + pss.next_2d() * opt.film_extent;
+        const Ray ray = s.sample_ray(film, pss.next_2d());
+        SampleCounters c;
+        const Color3 L = path->sample(*scene, pss, ray, c);
+        used = pss.used();
+        return luminance(L * opt.film_area);
+    }
+};
+
+void BM_PathEvaluation(benchmark::State& state) {
+    PathBench b(int(state.range(0)));
+    if (b.points.empty()) return state.SkipWithError("no path of that length found");
+    std::size_t i = 0, used = 0;
+    for (auto _ : state) benchmark::DoNotOptimize(b.eval(b.points[i++ % b.points.size()], used));
+    state.counters["n"] = double(b.length);
+}
+
+void BM_PathDerivatives(benchmark::State& state) {
+    PathBench b(int(state.range(0)));
+    if (b.points.empty()) return state.SkipWithError("no path of that length found");
+    const int n = int(b.length);
+    std::vector<int> block(b.length);
+    for (std::size_t i = 0; i < b.length; ++i) block[i] = int(i);
+    std::vector<double> g(b.length), H(b.length * b.length);
+    std::size_t i = 0, ok = 0, all = 0;
+    for (auto _ : state) {
+        const std::size_t k = i++ % b.points.size();
+        ok += b.D->evaluate(b.points[k].data(), block.data(), b.length, n, b.values[k], nullptr, g.data(), H.data()) ==
+              PathDerivativeStatus::Ok;
+        ++all;
+    }
+    state.counters["n"] = n;
+    state.counters["ok"] = double(ok) / double(all);
+}
+
+void BM_H2mcProposalOnPath(benchmark::State& state) {
+    PathBench b(int(state.range(0)));
+    if (b.points.empty()) return state.SkipWithError("no path of that length found");
+    const int n = int(b.length);
+    auto m = h2mc();
+    const LocalKernel& kern = *m->local(0);
+    std::vector<int> block(b.length);
+    for (std::size_t i = 0; i < b.length; ++i) block[i] = int(i);
+    std::vector<double> g(b.length), H(b.length * b.length), d(b.length), back(b.length);
+    LocalWorkspace ws;
+    BlockGaussian Gx, Gy;
+    b.D->evaluate(b.points[0].data(), block.data(), b.length, n, b.values[0], nullptr, g.data(), H.data());
+    kern.build(n, g.data(), H.data(), true, ws, Gx);
+    Random rng(3, 0);
+    std::size_t i = 0;
+    for (auto _ : state) {
+        const std::size_t k = 1 + i++ % (b.points.size() - 1);  // stands for the proposal y
+        Gx.sample(rng, d.data());
+        const bool ok = b.D->evaluate(b.points[k].data(), block.data(), b.length, n, b.values[k], nullptr, g.data(),
+                                      H.data()) == PathDerivativeStatus::Ok;
+        kern.build(n, g.data(), H.data(), ok, ws, Gy);
+        for (int j = 0; j < n; ++j) back[std::size_t(j)] = -d[std::size_t(j)];
+        benchmark::DoNotOptimize(Gx.log_pdf(d.data()) - Gy.log_pdf(back.data()));
+    }
+    state.counters["n"] = n;
+}
+
+}  // namespace
+
+BENCHMARK(BM_PathEvaluation)->DenseRange(3, 10);
+BENCHMARK(BM_PathDerivatives)->DenseRange(3, 10)->Unit(benchmark::kMillisecond);
+BENCHMARK(BM_H2mcProposalOnPath)->DenseRange(3, 10)->Unit(benchmark::kMillisecond);
+BENCHMARK(BM_H2mcGaussian)->DenseRange(3, 10);
+BENCHMARK(BM_H2mcProposal)->DenseRange(3, 10);
+BENCHMARK(BM_MhStepAnalytic)->DenseRange(3, 10);
+BENCHMARK_MAIN();

@@ -1,0 +1,62 @@
+#pragma once
+// Derivatives of the `path` technique's contribution with respect to its primary samples (issue 14; what H2MC needs,
+// mlt/local.h): the gradient and Hessian of log(luminance) of a path sample, exactly as the Metropolis integrators
+// evaluate a state of the path technique (film position from coordinates 0-1 over the film domain, lens 2-3, then 7
+// numbers per bounce; path.cpp), by forward-over-forward automatic differentiation (nested Eigen::AutoDiffScalar).
+//
+// The discrete decisions of the path (which primitive a ray hits, visibility of a shadow ray, the emitter chosen, the
+// triangle of the emitter, Russian roulette, which branch of a warp) are taken by the ordinary renderer (Embree) at
+// the point itself: they are locally constant, and the evaluation differentiates the continuous part of the path
+// they select: the camera ray, a differentiable re-intersection of the primitive Embree found (Moller-Trumbore), the
+// BSDF's and the emitter's sampling warps, values and densities, the MIS weights (power heuristic) and the Russian
+// roulette probability. On a discontinuity itself (an occlusion edge) the derivative is that of the side the point
+// is on; a path on whose one side the primal renderer decides differently is not detected in general.
+//
+// The supported subset, checked per path (anything else gives Unsupported, and the caller falls back): the
+// `perspective` sensor; triangle shapes without vertex normals (rectangle, cube, and meshes without normals); the
+// `diffuse` BSDF with a constant reflectance; `area` emitters on triangle meshes, and no environment emitter that the
+// path escapes to. As a safety net the evaluation compares its own value with the renderer's (`value` argument) and
+// reports Mismatch beyond a relative 1e-4.
+#include <kelvin/core/math.h>
+
+#include <cstddef>
+#include <memory>
+
+namespace kelvin {
+
+class Scene;
+
+struct PathDerivativeOptions {
+    int max_depth = -1, min_depth = 1, rr_depth = 5;  ///< as for the path technique
+    bool hide_emitters = false;
+    Vec2d film_origin{0.0}, film_extent{1.0};  ///< the film domain coordinates 0-1 map to (pixels)
+    double film_area = 1;                      ///< the value is luminance(L * film_area), as the MLT target
+    int max_coordinates = 96;                  ///< longer blocks are refused (TooLong)
+};
+
+enum class PathDerivativeStatus { Ok, Zero, Unsupported, Mismatch, TooLong };
+const char* to_string(PathDerivativeStatus s);
+
+class PathDerivatives {
+public:
+    PathDerivatives(const Scene& scene, const PathDerivativeOptions& options);
+    ~PathDerivatives();
+    PathDerivatives(const PathDerivatives&) = delete;
+    PathDerivatives& operator=(const PathDerivatives&) = delete;
+
+    /// log pi at the coordinates `coords` (index i: coords[i]) and its gradient and Hessian (n x n, column-major)
+    /// with respect to the block: coordinate i < length is block entry block[i] (-1: held constant). `value`: the
+    /// renderer's pi at the same point, for the Mismatch check (<= 0: not checked). grad and hess may be null (the
+    /// value alone). Thread-safe (no mutable state).
+    PathDerivativeStatus evaluate(const double* coords, const int* block, std::size_t length, int n, double value,
+                                  double* log_value, double* grad, double* hess) const;
+    /// log pi by the same code in plain doubles (for finite differences); -inf where pi = 0.
+    PathDerivativeStatus log_value(const double* coords, std::size_t length, double* log_value) const;
+
+    struct Impl;
+
+private:
+    std::unique_ptr<Impl> m_impl;
+};
+
+}  // namespace kelvin
