@@ -27,6 +27,7 @@
 #include <cstdlib>
 #include <filesystem>
 #include <map>
+#include <ostream>
 #include <string>
 #include <vector>
 
@@ -50,6 +51,9 @@ struct SceneCase {
     std::string integrator;  // from the file-name suffix
     fs::path ref, ref_var;
 };
+
+// gtest prints parameters on failure: the scene's name, not its bytes.
+void PrintTo(const SceneCase& c, std::ostream* os) { *os << c.name; }
 
 std::vector<SceneCase> scene_cases(bool with_volumes) {
     std::vector<SceneCase> out;
