@@ -37,13 +37,15 @@ Scene::Scene(const Properties& props) {
 
     if (m_simulation) {
         if (m_sensor || m_integrator || !m_shapes.empty() || !m_root_emitters.empty())
-            props.error("simulation", "a scene runs either a <simulation> or a render (sensor, integrator, "
-                                      "shapes), not both");
+            props.error("simulation",
+                        "a scene runs either a <simulation> or a render (sensor, integrator, "
+                        "shapes), not both");
         return;  // a simulation builds its own geometry queries; nothing to do here
     }
     if (!m_sensor) throw InputError(props.location(), "the scene has no <sensor> (and no <simulation>)");
     if (!m_integrator) {  // Mitsuba's default
-        m_integrator = std::dynamic_pointer_cast<Integrator>(Registry::instance().create(Properties("integrator", "path")));
+        m_integrator =
+            std::dynamic_pointer_cast<Integrator>(Registry::instance().create(Properties("integrator", "path")));
         log_info("no <integrator> given: using 'path'");
     }
     if (m_shapes.empty()) {
@@ -53,8 +55,8 @@ Scene::Scene(const Properties& props) {
 
     m_accel = std::make_unique<Accel>();
     m_accel->device = rtcNewDevice(nullptr);
-    if (!m_accel->device) throw RuntimeError(fmt::format("Embree device creation failed (error {})",
-                                                         int(rtcGetDeviceError(nullptr))));
+    if (!m_accel->device)
+        throw RuntimeError(fmt::format("Embree device creation failed (error {})", int(rtcGetDeviceError(nullptr))));
     rtcSetDeviceErrorFunction(m_accel->device, embree_error, nullptr);
     m_accel->scene = rtcNewScene(m_accel->device);
     m_accel->geometry.reserve(m_shapes.size());
@@ -69,9 +71,10 @@ Scene::Scene(const Properties& props) {
                                        3 * sizeof(uint32_t), g.indices.size() / 3);
         } else {  // spheres and normal-oriented discs: Embree point primitives (centre and radius)
             const bool discs = g.type == ShapeGeometry::Type::Discs;
-            geom = rtcNewGeometry(m_accel->device, discs ? RTC_GEOMETRY_TYPE_ORIENTED_DISC_POINT : RTC_GEOMETRY_TYPE_SPHERE_POINT);
+            geom = rtcNewGeometry(m_accel->device,
+                                  discs ? RTC_GEOMETRY_TYPE_ORIENTED_DISC_POINT : RTC_GEOMETRY_TYPE_SPHERE_POINT);
             auto* v = static_cast<float*>(rtcSetNewGeometryBuffer(geom, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT4,
-                                                                   4 * sizeof(float), g.positions.size()));
+                                                                  4 * sizeof(float), g.positions.size()));
             for (std::size_t k = 0; k < g.positions.size(); ++k) {
                 v[4 * k + 0] = g.positions[k].x;
                 v[4 * k + 1] = g.positions[k].y;
@@ -100,7 +103,8 @@ void Scene::setup_emitters() {
         if (Emitter* e = shape->emitter()) {
             if (!(e->flags() & EmitterFlags::Surface))
                 throw InputError({}, fmt::format("{} cannot be attached to {}: only area emitters are nested in a "
-                                                 "<shape>", e->to_string(), shape->to_string()));
+                                                 "<shape>",
+                                                 e->to_string(), shape->to_string()));
             e->set_shape(shape.get());
             m_emitters.push_back(e);
         }
@@ -142,8 +146,8 @@ SurfaceInteraction Scene::interaction(const Ray& ray, const SurfaceHit& hit) con
     if (g.type == ShapeGeometry::Type::Triangles) {
         const uint32_t* tri = &g.indices[3 * std::size_t(hit.prim)];
         const double b1 = hit.uv.x, b2 = hit.uv.y, b0 = 1 - b1 - b2;  // Embree's barycentrics
-        if (!g.uvs.empty())
-            si.uv = b0 * Vec2d(g.uvs[tri[0]]) + b1 * Vec2d(g.uvs[tri[1]]) + b2 * Vec2d(g.uvs[tri[2]]);
+        si.bary = {b1, b2};
+        if (!g.uvs.empty()) si.uv = b0 * Vec2d(g.uvs[tri[0]]) + b1 * Vec2d(g.uvs[tri[1]]) + b2 * Vec2d(g.uvs[tri[2]]);
         if (!g.normals.empty()) {
             Vec3d n = b0 * Vec3d(g.normals[tri[0]]) + b1 * Vec3d(g.normals[tri[1]]) + b2 * Vec3d(g.normals[tri[2]]);
             double l = glm::length(n);
@@ -161,7 +165,8 @@ SurfaceInteraction Scene::interaction(const Ray& ray, const SurfaceHit& hit) con
         const Vec3d d = hit.p - Vec3d(g.positions[hit.prim]), t(g.tangents[hit.prim]), n(g.normals[hit.prim]);
         const double x = glm::dot(d, t), y = glm::dot(d, glm::cross(n, t));
         const double phi = std::atan2(y, x);
-        si.uv = {std::min(1.0, std::hypot(x, y) / double(g.radii[hit.prim])), (phi < 0 ? phi + 2 * Pi : phi) / (2 * Pi)};
+        si.uv = {std::min(1.0, std::hypot(x, y) / double(g.radii[hit.prim])),
+                 (phi < 0 ? phi + 2 * Pi : phi) / (2 * Pi)};
     }
     si.frame = Frame(si.ns);
     si.wi = si.to_local(-glm::normalize(ray.d));

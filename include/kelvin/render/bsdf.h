@@ -36,11 +36,11 @@ struct BsdfContext {
 };
 
 struct BsdfSample {
-    Vec3d wo{0, 0, 1};       ///< sampled direction, local
-    Color3 weight{0.0};      ///< f * |cos(theta_o)| / pdf (for delta lobes: the lobe's throughput)
-    double pdf = 0;          ///< solid-angle density (for delta lobes: the discrete probability of the lobe)
-    uint32_t sampled = 0;    ///< BsdfFlags of the sampled component
-    double eta = 1;          ///< relative index of refraction crossed (1 for reflection)
+    Vec3d wo{0, 0, 1};     ///< sampled direction, local
+    Color3 weight{0.0};    ///< f * |cos(theta_o)| / pdf (for delta lobes: the lobe's throughput)
+    double pdf = 0;        ///< solid-angle density (for delta lobes: the discrete probability of the lobe)
+    uint32_t sampled = 0;  ///< BsdfFlags of the sampled component
+    double eta = 1;        ///< relative index of refraction crossed (1 for reflection)
 };
 
 class Bsdf : public Object {

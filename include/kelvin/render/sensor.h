@@ -6,17 +6,17 @@
 #include <kelvin/core/properties.h>
 
 #include <memory>
-#include <utility>
 #include <optional>
+#include <utility>
 
 namespace kelvin {
 
 /// A connection from a scene point to the sensor (light tracing).
 struct SensorDirectSample {
-    Vec2d film{0.0};     ///< film position (pixels) the connection lands on
-    Vec3d p{0.0};        ///< point on the sensor (the pinhole)
-    Vec3d d{0, 0, 1};    ///< unit direction from the scene point towards p
-    double dist = 0;     ///< distance to p
+    Vec2d film{0.0};   ///< film position (pixels) the connection lands on
+    Vec3d p{0.0};      ///< point on the sensor (the pinhole)
+    Vec3d d{0, 0, 1};  ///< unit direction from the scene point towards p
+    double dist = 0;   ///< distance to p
     /// Importance factor: a light-path vertex with throughput beta and BSDF value f (f includes |cos| at the
     /// vertex) adds beta * f * weight to the pixel's sum; the image is that sum divided by the number of light
     /// paths traced. For a pinhole: W * H / (A * cos^3(theta) * dist^2), A the image plane's area at unit
@@ -78,7 +78,8 @@ protected:
     }
     /// The film position (pixels) of camera-space direction `d` (d.z > 0).
     Vec2d direction_to_film(const Vec3d& d) const {
-        return {0.5 * m_film->width() * (1 - d.x / (d.z * m_tan_x)), 0.5 * m_film->height() * (1 - d.y / (d.z * m_tan_y))};
+        return {0.5 * m_film->width() * (1 - d.x / (d.z * m_tan_x)),
+                0.5 * m_film->height() * (1 - d.y / (d.z * m_tan_y))};
     }
     /// Within a filter radius of the image: camera samples reach that far (filter importance sampling), so
     /// light-tracing connections landing there still count (their splats cover border pixels).

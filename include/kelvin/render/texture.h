@@ -1,8 +1,9 @@
 #pragma once
-// Textures: spatially varying colours looked up by surface uv. A parameter declared with
-// param::texture(name, default, doc) accepts either an <rgb>/<float> or a nested <texture name=...>.
+// Textures: spatially varying colours looked up by surface uv (or, for mesh attributes, the surface point). A parameter
+// declared with param::texture(name, default, doc) accepts either an <rgb>/<float> or a nested <texture name=...>.
 #include <kelvin/core/object.h>
 #include <kelvin/core/properties.h>
+#include <kelvin/render/interaction.h>
 
 #include <memory>
 
@@ -11,6 +12,9 @@ namespace kelvin {
 class Texture : public Object {
 public:
     virtual Color3 eval(const Vec2d& uv) const = 0;
+    /// The value at a surface point; by default the uv lookup. Textures that read more of the surface (mesh
+    /// attributes) override it. BSDFs call this one.
+    virtual Color3 eval(const SurfaceInteraction& si) const { return eval(si.uv); }
     /// Average over [0,1]^2 (used for albedo estimates and light power).
     virtual Color3 mean() const = 0;
     virtual bool is_constant() const { return false; }

@@ -86,7 +86,7 @@ private:
         const double D = m_distr.D(m), G = m_distr.G(si.wi, wo, m);
         const double s = D * G / (4.0 * si.wi.z);
         if (!(s > 0) || !std::isfinite(s)) return Color3(0.0);
-        return m_specular->eval(si.uv) * fresnel_conductor(glm::dot(si.wi, m), m_ior.eta, m_ior.k) * s;
+        return m_specular->eval(si) * fresnel_conductor(glm::dot(si.wi, m), m_ior.eta, m_ior.k) * s;
     }
 
     MicrofacetDistribution m_distr;

@@ -137,8 +137,8 @@ public:
         const Vec3d h = glm::normalize(wi + wo);
         const double s = m_distr.D(h) * m_distr.G(wi, wo, h) / (4.0 * wi.z);
         if (s > 0 && std::isfinite(s))
-            result += m_specular->eval(si.uv) * (fresnel_dielectric(glm::dot(wi, h), m_eta).F * s);
-        Color3 rho = glm::max(m_diffuse->eval(si.uv), Color3(0.0));
+            result += m_specular->eval(si) * (fresnel_dielectric(glm::dot(wi, h), m_eta).F * s);
+        Color3 rho = glm::max(m_diffuse->eval(si), Color3(0.0));
         if (m_nonlinear)
             rho = rho * (1 - m_fdr_int) / glm::max(Color3(1.0) - glm::min(rho, Color3(1.0)) * m_fdr_int, Color3(1e-6));
         const double transmitted = (1 - coating_albedo(wi.z)) * (1 - coating_albedo(wo.z));  // through the coat, twice
@@ -155,7 +155,7 @@ public:
         if (!std::isfinite(p_spec)) p_spec = 0;
         return ps * p_spec + (1 - ps) * warp::square_to_cosine_hemisphere_pdf(wo);
     }
-    Color3 albedo(const SurfaceInteraction& si) const override { return m_diffuse->eval(si.uv); }
+    Color3 albedo(const SurfaceInteraction& si) const override { return m_diffuse->eval(si); }
 
 private:
     /// R(mu), interpolated in the table.
