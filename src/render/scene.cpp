@@ -132,6 +132,8 @@ std::pair<const Emitter*, double> Scene::sample_emitter(double u) const {
 
 double Scene::emitter_pdf(const Emitter*) const { return m_emitters.empty() ? 0.0 : 1.0 / double(m_emitters.size()); }
 
+static constexpr bool kMeshFrameFromUv = true;
+
 SurfaceInteraction Scene::interaction(const Ray& ray, const SurfaceHit& hit) const {
     SurfaceInteraction si;
     si.p = hit.p;
@@ -169,6 +171,33 @@ SurfaceInteraction Scene::interaction(const Ray& ray, const SurfaceHit& hit) con
                  (phi < 0 ? phi + 2 * Pi : phi) / (2 * Pi)};
     }
     si.frame = Frame(si.ns);
+    if (g.type == ShapeGeometry::Type::Triangles) {
+        // Mitsuba's shading frame: its tangent is dp/du of the uv parameterisation (Gram-Schmidt against the
+        // shading normal), or, without uvs or for a degenerate one, the first tangent of the orthonormal basis
+        // around the geometric normal. Anisotropic BSDFs (alpha_u, alpha_v) are oriented by it.
+        const uint32_t* tri = &g.indices[3 * std::size_t(hit.prim)];
+        Vec3d dp_du(0.0);
+        if (!g.uvs.empty()) {
+            const Vec2d duv0 = Vec2d(g.uvs[tri[1]]) - Vec2d(g.uvs[tri[0]]),
+                        duv1 = Vec2d(g.uvs[tri[2]]) - Vec2d(g.uvs[tri[0]]);
+            const Vec3d dp0 = Vec3d(g.positions[tri[1]]) - Vec3d(g.positions[tri[0]]),
+                        dp1 = Vec3d(g.positions[tri[2]]) - Vec3d(g.positions[tri[0]]);
+            const double det = duv0.x * duv1.y - duv0.y * duv1.x;
+            if (det != 0 && std::isfinite(det)) dp_du = (duv1.y * dp0 - duv0.y * dp1) / det;
+        }
+        if (!(glm::length(dp_du) > 0) || !std::isfinite(glm::length(dp_du))) dp_du = Frame(si.ng).s;
+        si.dp_du = dp_du;
+        if (kMeshFrameFromUv) {
+            Vec3d s_axis = dp_du - si.ns * glm::dot(si.ns, dp_du);
+            const double len = glm::length(s_axis);
+            if (len > 1e-12 * glm::length(dp_du) && std::isfinite(len)) {
+                si.frame.n = si.ns;
+                si.frame.s = s_axis / len;
+                si.frame.t = glm::cross(si.ns, si.frame.s);
+            }
+        }
+    }
+    if (g.type != ShapeGeometry::Type::Triangles) si.dp_du = si.frame.s;
     si.wi = si.to_local(-glm::normalize(ray.d));
     return si;
 }

@@ -26,7 +26,7 @@ std::pair<double, double> fov_tangents(const Properties& props, int width, int h
             props.error("focal_length",
                         fmt::format("'{}' is not a focal length such as \"50mm\"", props.get_string("focal_length")));
         fov = glm::degrees(2.0 * std::atan(std::sqrt(36.0 * 36.0 + 24.0 * 24.0) / (2.0 * *mm)));
-        if (props.has("fov_axis")) (void)props.get_string("fov_axis");  // Mitsuba ignores it here too
+        (void)props.get_choice("fov_axis", {"x", "y", "diagonal", "smaller", "larger"});  // not used here
         axis = "diagonal";
     }
     const double w = width, h = height, t = std::tan(glm::radians(fov) / 2);

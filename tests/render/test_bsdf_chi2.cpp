@@ -113,6 +113,18 @@ std::vector<Config> configs() {
                      });
                  },
                  kFront});
+    c.push_back({"normalmap_tilted_roughconductor",
+                 [] {
+                     auto inner = make_bsdf("roughconductor", rough("ggx", 0.3));
+                     Properties tp("texture", "rawconstant");
+                     tp.set_vector("value", {0.7, 0.45, 0.9});  // a normal tilted by about 33 degrees
+                     auto tex = Registry::instance().create(tp);
+                     return make_bsdf("normalmap", [=](Properties& p) {
+                         p.set_object("normalmap", tex);
+                         p.set_object("", inner);
+                     });
+                 },
+                 kFront});
     c.push_back({"blendbsdf_diffuse_roughconductor",
                  [] {
                      auto a = make_bsdf("diffuse"), b = make_bsdf("roughconductor", rough("beckmann", 0.2));

@@ -88,6 +88,26 @@ protected:
     fs::path dir;
 };
 
+// Read as one number (eval_1: roughness, opacity) Mitsuba 3's checkerboard swaps its squares ("the legacy scalar
+// checkerboard convention"); its colour reading does not. (Broken variant: eval_1 left as the luminance of eval,
+// Kelvin's first version: Mitsuba's textured roughconductor test scene fails with 974 of 6912 values rejected.)
+TEST(Texture, CheckerboardScalarReadingSwapsTheSquares) {
+    auto t = make_texture("checkerboard", [](Properties& p) {
+        p.set_float("color0", 0.8);
+        p.set_float("color1", 0.1);
+    });
+    SurfaceInteraction si;
+    si.uv = {0.25, 0.25};
+    EXPECT_NEAR(t->eval(si).r, 0.8, 1e-12);
+    EXPECT_NEAR(t->eval_1(si), 0.1, 1e-12);
+    si.uv = {0.75, 0.25};
+    EXPECT_NEAR(t->eval(si).r, 0.1, 1e-12);
+    EXPECT_NEAR(t->eval_1(si), 0.8, 1e-12);
+    // Any other texture reads its luminance.
+    auto c = make_texture("rawconstant", [](Properties& p) { p.set_vector("value", {1, 0, 0}); });
+    EXPECT_NEAR(c->eval_1(si), 0.212671, 1e-12);
+}
+
 TEST_F(BitmapTest, NearestAndBilinearTexels) {
     const fs::path p = write_grid("grid.exr");
     auto nearest = bitmap(p, "nearest", "repeat"), bilinear = bitmap(p, "bilinear", "repeat");

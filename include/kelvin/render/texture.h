@@ -15,6 +15,9 @@ public:
     /// The value at a surface point; by default the uv lookup. Textures that read more of the surface (mesh
     /// attributes) override it. BSDFs call this one.
     virtual Color3 eval(const SurfaceInteraction& si) const { return eval(si.uv); }
+    /// The value read as one number (roughness, opacity, blend weight: Mitsuba's eval_1): by default the
+    /// luminance of eval(si). Textures whose scalar reading differs in Mitsuba override it (checkerboard).
+    virtual double eval_1(const SurfaceInteraction& si) const { return luminance(eval(si)); }
     /// Average over [0,1]^2 (used for albedo estimates and light power).
     virtual Color3 mean() const = 0;
     virtual bool is_constant() const { return false; }

@@ -69,7 +69,7 @@ public:
     }
 
 private:
-    double weight(const SurfaceInteraction& si) const { return std::clamp(luminance(m_weight->eval(si)), 0.0, 1.0); }
+    double weight(const SurfaceInteraction& si) const { return std::clamp(m_weight->eval_1(si), 0.0, 1.0); }
 
     std::shared_ptr<Texture> m_weight;
     std::shared_ptr<Bsdf> m_bsdf[2];

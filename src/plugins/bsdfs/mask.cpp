@@ -62,7 +62,7 @@ public:
     Color3 albedo(const SurfaceInteraction& si) const override { return m_nested->albedo(si) * opacity(si); }
 
 private:
-    double opacity(const SurfaceInteraction& si) const { return std::clamp(luminance(m_opacity->eval(si)), 0.0, 1.0); }
+    double opacity(const SurfaceInteraction& si) const { return std::clamp(m_opacity->eval_1(si), 0.0, 1.0); }
 
     std::shared_ptr<Texture> m_opacity;
     std::shared_ptr<Bsdf> m_nested;

@@ -18,6 +18,7 @@
 // | filter_type | string    | bilinear | bilinear (between the four nearest pixel centres) or nearest |
 // | wrap_mode   | string    | repeat   | outside [0, 1]: repeat, mirror, or clamp                    |
 // | raw         | bool      | false    | keep the stored values of 8/16-bit files (no linearisation) |
+// | format      | string    | variant  | Mitsuba's storage precision: "variant" (float here); "fixed" is refused |
 // | to_uv       | transform | identity | transform applied to the uv coordinates                     |
 //
 //     <texture type="bitmap" name="reflectance"><string name="filename" value="wood.png"/></texture>
@@ -45,6 +46,10 @@ public:
         const std::string wrap = props.get_choice("wrap_mode", {"repeat", "mirror", "clamp"});
         m_wrap = wrap == "repeat" ? Wrap::Repeat : wrap == "mirror" ? Wrap::Mirror : Wrap::Clamp;
         const bool raw = props.get_bool("raw");
+        // Mitsuba's `format` chooses the storage precision; "fixed" (8-bit storage) would quantise, so only
+        // "variant" (full precision, which Kelvin's float storage is) is accepted.
+        if (props.get_choice("format", {"variant", "fixed"}) != "variant")
+            props.error("format", "'fixed' (8-bit storage) is not supported; Kelvin stores textures as float");
         m_to_uv = props.get_transform("to_uv");
         m_identity = m_to_uv.is_identity();
 
@@ -139,4 +144,5 @@ KELVIN_PLUGIN(kelvin::BitmapTexture, "texture", "bitmap", "Image texture (EXR, P
               kelvin::param::string("filter_type", "bilinear", "bilinear or nearest"),
               kelvin::param::string("wrap_mode", "repeat", "repeat, mirror or clamp"),
               kelvin::param::boolean("raw", false, "keep stored values of 8/16-bit files (no sRGB linearisation)"),
+              kelvin::param::string("format", "variant", "Mitsuba's storage precision: variant (Kelvin stores float)"),
               kelvin::param::transform("to_uv", "transform of the uv coordinates"));
