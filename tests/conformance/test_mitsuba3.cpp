@@ -89,18 +89,12 @@ std::vector<SceneCase> scene_cases(bool with_volumes) {
 // Scenes that load and render but are known to differ from Mitsuba 3 (reason printed when skipped).
 const std::map<std::string, std::string>& known_differences() {
     static const std::map<std::string, std::string> m = {
-        {"bsdf_spheres_test_roughplastic_linear_path",
-         "roughplastic is Kelvin's own energy-conserving approximation (docs/bsdfs.md); Mitsuba uses its "
-         "precomputed rough-transmittance tables"},
         {"bsdf_spheres_test_normalmap_path",
          "bitmap normal map: rejected values along the sphere's silhouette at the full budget (95 of 6912; "
          "passes at a quarter of it); grazing shading-normal handling differs, cause not yet found"},
         {"bsdf_spheres_test_normalmap_roughconductor_path",
          "bitmap normal map: rejected values along the sphere's silhouette at the full budget (70 of 6912; "
          "passes at a quarter of it); grazing shading-normal handling differs, cause not yet found"},
-        {"bsdf_spheres_test_roughplastic_nonlinear_path",
-         "roughplastic is Kelvin's own energy-conserving approximation (docs/bsdfs.md); Mitsuba uses its "
-         "precomputed rough-transmittance tables"},
     };
     return m;
 }
