@@ -162,7 +162,11 @@ SurfaceInteraction Scene::interaction(const Ray& ray, const SurfaceHit& hit) con
         }
     } else if (g.type == ShapeGeometry::Type::Spheres) {
         Vec3d d = glm::normalize(hit.p - Vec3d(g.positions[hit.prim]));
-        si.uv = {std::atan2(d.y, d.x) / (2 * Pi) + 0.5, std::acos(std::clamp(d.z, -1.0, 1.0)) / Pi};
+        // Mitsuba's sphere parameterisation: u = phi / (2 pi) with phi in [0, 2 pi), v = theta / pi (in world axes:
+        // a rotation in the sphere's to_world is not applied to uv).
+        double u = std::atan2(d.y, d.x) / (2 * Pi);
+        if (u < 0) u += 1;
+        si.uv = {u, std::acos(std::clamp(d.z, -1.0, 1.0)) / Pi};
     } else {  // disc: polar coordinates (radius fraction, angle from the tangent)
         const Vec3d d = hit.p - Vec3d(g.positions[hit.prim]), t(g.tangents[hit.prim]), n(g.normals[hit.prim]);
         const double x = glm::dot(d, t), y = glm::dot(d, glm::cross(n, t));
