@@ -670,11 +670,9 @@ public:
             }
         }
         for (const auto& c : node.children) {
-            // An object declared at the root with an id and used through <ref>s elsewhere (an emitter referenced
-            // from a shape) is a declaration: the scene gets it through its users, not a second time directly.
-            if (&node == m_scene.root.get() && !c.is_ref && c.node->referenced && c.node->kind != "bsdf" &&
-                c.node->kind != "texture")
-                continue;
+            // An emitter declared at the root with an id and referenced from a shape is a declaration: the scene
+            // gets it through the shape, not a second time directly (it would light the scene twice).
+            if (&node == m_scene.root.get() && !c.is_ref && c.node->referenced && c.node->kind == "emitter") continue;
             props.set_object(c.name, build(*c.node), c.loc);
         }
         ObjectPtr obj = Registry::instance().create(props, m_opts.allow_unused);
