@@ -180,17 +180,24 @@ SurfaceInteraction Scene::interaction(const Ray& ray, const SurfaceHit& hit) con
         // shading normal), or, without uvs or for a degenerate one, the first tangent of the orthonormal basis
         // around the geometric normal. Anisotropic BSDFs (alpha_u, alpha_v) are oriented by it.
         const uint32_t* tri = &g.indices[3 * std::size_t(hit.prim)];
-        Vec3d dp_du(0.0);
+        Vec3d dp_du(0.0), dp_dv(0.0);
         if (!g.uvs.empty()) {
             const Vec2d duv0 = Vec2d(g.uvs[tri[1]]) - Vec2d(g.uvs[tri[0]]),
                         duv1 = Vec2d(g.uvs[tri[2]]) - Vec2d(g.uvs[tri[0]]);
             const Vec3d dp0 = Vec3d(g.positions[tri[1]]) - Vec3d(g.positions[tri[0]]),
                         dp1 = Vec3d(g.positions[tri[2]]) - Vec3d(g.positions[tri[0]]);
             const double det = duv0.x * duv1.y - duv0.y * duv1.x;
-            if (det != 0 && std::isfinite(det)) dp_du = (duv1.y * dp0 - duv0.y * dp1) / det;
+            if (det != 0 && std::isfinite(det)) {
+                dp_du = (duv1.y * dp0 - duv0.y * dp1) / det;
+                dp_dv = (duv0.x * dp1 - duv1.x * dp0) / det;
+            }
         }
-        if (!(glm::length(dp_du) > 0) || !std::isfinite(glm::length(dp_du))) dp_du = Frame(si.ng).s;
+        if (!(glm::length(dp_du) > 0) || !std::isfinite(glm::length(dp_du))) {
+            dp_du = Frame(si.ng).s;
+            dp_dv = Frame(si.ng).t;
+        }
         si.dp_du = dp_du;
+        si.dp_dv = dp_dv;
         if (kMeshFrameFromUv) {
             Vec3d s_axis = dp_du - si.ns * glm::dot(si.ns, dp_du);
             const double len = glm::length(s_axis);
@@ -201,7 +208,10 @@ SurfaceInteraction Scene::interaction(const Ray& ray, const SurfaceHit& hit) con
             }
         }
     }
-    if (g.type != ShapeGeometry::Type::Triangles) si.dp_du = si.frame.s;
+    if (g.type != ShapeGeometry::Type::Triangles) {
+        si.dp_du = si.frame.s;
+        si.dp_dv = si.frame.t;
+    }
     si.wi = si.to_local(-glm::normalize(ray.d));
     return si;
 }

@@ -133,6 +133,25 @@ TEST_F(BitmapTest, NearestAndBilinearTexels) {
     expect_color(nearest->mean(), sum / 8.0);
 }
 
+// eval_1_grad (bump maps) is the derivative of the bilinear interpolant of the luminance: central differences of
+// eval_1 agree inside a texel cell (the interpolant is smooth there), in u and in v. (Broken variant: the
+// gradient without the resolution factor, per pixel instead of per unit of uv, is 4 and 2 times too small.)
+TEST_F(BitmapTest, ScalarGradientMatchesFiniteDifferences) {
+    auto t = bitmap(write_grid("grad.exr"), "bilinear", "repeat");
+    SurfaceInteraction si;
+    for (const Vec2d uv : {Vec2d(0.3, 0.4), Vec2d(0.55, 0.6), Vec2d(0.8, 0.3)}) {
+        const double h = 1e-6;
+        auto f = [&](Vec2d p) {
+            si.uv = p;
+            return t->eval_1(si);
+        };
+        si.uv = uv;
+        const Vec2d g = t->eval_1_grad(si);
+        EXPECT_NEAR(g.x, (f(uv + Vec2d(h, 0)) - f(uv - Vec2d(h, 0))) / (2 * h), 1e-6) << uv.x << "," << uv.y;
+        EXPECT_NEAR(g.y, (f(uv + Vec2d(0, h)) - f(uv - Vec2d(0, h))) / (2 * h), 1e-6) << uv.x << "," << uv.y;
+    }
+}
+
 TEST_F(BitmapTest, WrapModes) {
     const fs::path p = write_grid("grid.exr");
     auto rep = bitmap(p, "nearest", "repeat"), mir = bitmap(p, "nearest", "mirror"),

@@ -18,6 +18,9 @@ public:
     /// The value read as one number (roughness, opacity, blend weight: Mitsuba's eval_1): by default the
     /// luminance of eval(si). Textures whose scalar reading differs in Mitsuba override it (checkerboard).
     virtual double eval_1(const SurfaceInteraction& si) const { return luminance(eval(si)); }
+    /// Gradient of eval_1 with respect to the surface's (u, v) (Mitsuba's eval_1_grad, used by bump maps): zero
+    /// for textures that do not provide one.
+    virtual Vec2d eval_1_grad(const SurfaceInteraction& si) const { return Vec2d(0.0); }
     /// Average over [0,1]^2 (used for albedo estimates and light power).
     virtual Color3 mean() const = 0;
     virtual bool is_constant() const { return false; }
