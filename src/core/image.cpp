@@ -253,9 +253,11 @@ Bitmap read_image(const fs::path& path) {
         if (spec.depth > 1)
             throw InputError({}, fmt::format("image file '{}' is a volume ({} slices); a 2D image is needed",
                                              path.string(), spec.depth));
-        int nc = std::min(spec.nchannels, 4);
-        std::vector<std::string> names = {"R", "G", "B", "A"};
-        names.resize(std::size_t(std::max(nc, 3)));
+        // Grey (1 channel) and grey + alpha (2) fill R, G and B from the grey channel (and A from the alpha).
+        const bool grey = spec.nchannels <= 2;
+        const bool alpha = spec.nchannels == 2 || spec.nchannels >= 4;
+        std::vector<std::string> names = {"R", "G", "B"};
+        if (alpha) names.push_back("A");
         Bitmap img(spec.width, spec.height, names);
         std::vector<float> px(std::size_t(spec.width) * std::size_t(spec.height) * std::size_t(spec.nchannels));
         if (!in->read_image(0, 0, 0, spec.nchannels, OIIO::TypeDesc::FLOAT, px.data()))
@@ -264,7 +266,7 @@ Bitmap read_image(const fs::path& path) {
         const std::size_t n = std::size_t(spec.width) * std::size_t(spec.height);
         for (std::size_t i = 0; i < n; ++i)
             for (int c = 0; c < img.channel_count(); ++c) {
-                int src = std::min(c, spec.nchannels - 1);  // grey images fill R, G and B
+                const int src = c < 3 ? (grey ? 0 : c) : (grey ? 1 : 3);
                 float v = px[i * std::size_t(spec.nchannels) + std::size_t(src)];
                 if (srgb && c < 3) v = float(srgb_to_linear(v));
                 img.data()[i * std::size_t(img.channel_count()) + std::size_t(c)] = v;

@@ -3,6 +3,7 @@
 #include <kelvin/core/logging.h>
 #include <kelvin/core/parser.h>
 #include <kelvin/core/registry.h>
+#include <kelvin/core/spectrum.h>
 #include <kelvin/core/strings.h>
 
 #include <pugixml.hpp>
@@ -54,7 +55,7 @@ const std::vector<std::string>& value_tags() {
     return tags;
 }
 const std::vector<std::string>& structural_tags() {
-    static const std::vector<std::string> tags = {"ref", "default", "include", "plugin"};
+    static const std::vector<std::string> tags = {"ref", "default", "include", "plugin", "path"};
     return tags;
 }
 
@@ -137,7 +138,9 @@ public:
         m_include_stack.push_back(canonical_key(f));
         parse_body(root, f, *node, 1);
         m_include_stack.pop_back();
+        resolve_pending_refs();
         m_out.root = node;
+        m_out.search_paths.assign(m_search_paths.rbegin(), m_search_paths.rend());
         for (const auto& [k, v] : m_opts.defines)
             if (!m_used_params.count(k)) m_out.unused_defines.push_back(k);
         return std::move(m_out);
@@ -321,9 +324,12 @@ private:
                 check_attributes(op, f, {"origin", "target", "up"});
                 Vec3d o = vec3(op, f, attr(op, f, "origin"), "<lookat> origin", false);
                 Vec3d ta = vec3(op, f, attr(op, f, "target"), "<lookat> target", false);
-                Vec3d up = op.attribute("up") ? vec3(op, f, attr(op, f, "up"), "<lookat> up", false) : Vec3d(0, 1, 0);
                 Vec3d dir = ta - o;
                 if (glm::length(dir) == 0) throw_input(loc, "<lookat> origin and target coincide");
+                // Without `up`, Mitsuba takes the first tangent of its orthonormal basis around the view
+                // direction (Duff et al. 2017, "Building an Orthonormal Basis, Revisited").
+                Vec3d up = op.attribute("up") ? vec3(op, f, attr(op, f, "up"), "<lookat> up", false)
+                                              : mitsuba_tangent(glm::normalize(dir));
                 if (glm::length(glm::cross(glm::normalize(dir), up)) < 1e-9)
                     throw_input(loc, "<lookat> up vector is parallel to the viewing direction");
                 m = Transform::look_at(o, ta, up);
@@ -371,6 +377,15 @@ private:
             target.values.push_back(std::move(v));
             return;
         }
+        if (tag == "spectrum" && n.attribute("filename"))
+            throw_input(loc,
+                        "<spectrum filename=...>: spectra read from files are not supported; give "
+                        "value=\"wavelength:value, ...\" or use <rgb>");
+        if (tag == "spectrum" && n.attribute("type"))
+            throw_input(loc,
+                        "<spectrum type=\"{}\">: spectrum plugins are not supported; give value=\"...\" or use "
+                        "<rgb>",
+                        n.attribute("type").value());
         check_attributes(n, f, {"name", "value"});
         v.name = attr(n, f, "name");
         std::string value = attr(n, f, "value");
@@ -395,13 +410,30 @@ private:
             v.type = PropType::Color;
             v.value = vec3(n, f, value, what, true);
         } else if (tag == "spectrum") {
-            if (value.find(':') != std::string::npos)
-                throw_input(loc, "{}: wavelength-sampled spectra are not supported; Kelvin renders in RGB, use <rgb>",
-                            what);
+            // Converted to RGB as Mitsuba 3's RGB variants do (kelvin/core/spectrum.h): what a value means
+            // depends on whether it belongs to an emitter and on whether it is an index of refraction.
+            SpectrumRole role;
+            role.within_emitter = target.kind == "emitter";
+            role.unbounded = v.name == "eta" || v.name == "k" || v.name == "int_ior" || v.name == "ext_ior";
             auto parts = split_list(value);
-            if (parts.size() != 1) throw_input(loc, "{}: a <spectrum> takes one constant value; use <rgb>", what);
+            if (parts.empty()) throw_input(loc, "{}: empty spectrum", what);
             v.type = PropType::Color;
-            v.value = Vec3d(number(parts[0], loc, what));
+            if (parts.size() == 1 && parts[0].find(':') == std::string::npos) {
+                v.value = constant_spectrum_to_rgb(number(parts[0], loc, what), role);
+            } else {
+                std::vector<double> wl, vals;
+                for (const auto& p : parts) {
+                    const std::size_t colon = p.find(':');
+                    if (colon == std::string::npos || p.find(':', colon + 1) != std::string::npos)
+                        throw_input(loc, "{}: '{}' is not a wavelength:value pair", what, p);
+                    wl.push_back(number(p.substr(0, colon), loc, what));
+                    vals.push_back(number(p.substr(colon + 1), loc, what));
+                    if (wl.size() > 1 && !(wl.back() > wl[wl.size() - 2]))
+                        throw_input(loc, "{}: wavelengths must increase ({} after {})", what, wl.back(),
+                                    wl[wl.size() - 2]);
+                }
+                v.value = sampled_spectrum_to_rgb(wl, vals, role);
+            }
         }
         target.values.push_back(std::move(v));
     }
@@ -455,13 +487,13 @@ private:
                 std::string id = attr(n, f, "id");
                 auto it = m_ids.find(id);
                 if (it == m_ids.end()) {
-                    std::vector<std::string> known;
-                    for (const auto& kv : m_ids) known.push_back(kv.first);
-                    throw_input(loc, "<ref> to unknown id '{}'{} (an id is visible after the element declaring it)", id,
-                                did_you_mean(id, known));
+                    // A forward reference (Mitsuba resolves references after parsing): filled in at the end.
+                    target.children.push_back({attr(n, f, "name", false), nullptr, true, loc});
+                    m_pending.push_back({&target, target.children.size() - 1, id, loc});
+                } else {
+                    it->second->referenced = true;
+                    target.children.push_back({attr(n, f, "name", false), it->second, true, loc});
                 }
-                it->second->referenced = true;
-                target.children.push_back({attr(n, f, "name", false), it->second, true, loc});
             } else if (tag == "default") {
                 check_attributes(n, f, {"name", "value"});
                 reject_children(n, f);
@@ -470,6 +502,18 @@ private:
                 if (name.empty() || !(std::isalpha(static_cast<unsigned char>(name[0])) || name[0] == '_'))
                     throw_input(loc, "<default> name '{}' is not a valid parameter name", name);
                 m_params.emplace(name, value);  // -D and earlier defaults win
+            } else if (tag == "path") {
+                // Mitsuba's search path for file names: relative to the declaring file, searched after the
+                // folder of the file that names a file; later declarations are searched first.
+                check_attributes(n, f, {"value"});
+                reject_children(n, f);
+                if (target.kind != "scene") throw_input(loc, "<path> can only be a child of <scene>");
+                fs::path dir = attr(n, f, "value");
+                if (dir.is_relative()) dir = f.path.parent_path() / dir;
+                dir = dir.lexically_normal();
+                std::error_code ec;
+                if (!fs::is_directory(dir, ec)) throw_input(loc, "<path>: folder '{}' not found", dir.string());
+                m_search_paths.push_back(dir);
             } else if (tag == "include") {
                 check_attributes(n, f, {"filename"});
                 reject_children(n, f);
@@ -499,9 +543,17 @@ private:
     void include(const std::string& filename, const FileText& from, const SourceLoc& loc, SceneNode& target,
                  int depth) {
         fs::path p = filename;
-        if (p.is_relative()) p = from.path.parent_path() / p;
-        p = p.lexically_normal();
         std::error_code ec;
+        if (p.is_relative()) {
+            p = (from.path.parent_path() / p).lexically_normal();
+            if (!fs::exists(p, ec))
+                for (auto d = m_search_paths.rbegin(); d != m_search_paths.rend(); ++d)
+                    if (fs::exists(*d / filename, ec)) {
+                        p = (*d / filename).lexically_normal();
+                        break;
+                    }
+        }
+        p = p.lexically_normal();
         if (!fs::exists(p, ec)) throw_input(loc, "included file '{}' does not exist", p.string());
         std::string key = fs::weakly_canonical(p, ec).string();
         if (std::find(m_include_stack.begin(), m_include_stack.end(), key) != m_include_stack.end()) {
@@ -519,7 +571,38 @@ private:
         m_include_stack.pop_back();
     }
 
+    struct PendingRef {
+        SceneNode* target;
+        std::size_t child;
+        std::string id;
+        SourceLoc loc;
+    };
+
+    void resolve_pending_refs() {
+        for (const PendingRef& r : m_pending) {
+            auto it = m_ids.find(r.id);
+            if (it == m_ids.end()) {
+                std::vector<std::string> known;
+                for (const auto& kv : m_ids) known.push_back(kv.first);
+                throw_input(r.loc, "<ref> to unknown id '{}'{}", r.id, did_you_mean(r.id, known));
+            }
+            it->second->referenced = true;
+            r.target->children[r.child].node = it->second;
+        }
+        m_pending.clear();
+    }
+
+    // The first tangent of Mitsuba's coordinate_system(n) (Duff et al. 2017), used as <lookat>'s default up.
+    static Vec3d mitsuba_tangent(const Vec3d& n) {
+        const double sign = n.z >= 0 ? 1.0 : -1.0;
+        const double a = -1.0 / (sign + n.z);
+        const double b = n.x * n.y * a;
+        return {n.x * n.x * a * sign + 1.0, b * sign, -n.x * sign};
+    }
+
     const ParseOptions& m_opts;
+    std::vector<PendingRef> m_pending;
+    std::vector<fs::path> m_search_paths;  // in declaration order
     std::map<std::string, std::string> m_params;
     std::set<std::string> m_used_params;
     std::unordered_map<std::string, std::shared_ptr<SceneNode>> m_ids;
@@ -544,12 +627,16 @@ ParsedScene parse_scene_string(const std::string& xml, const ParseOptions& opts,
 namespace {
 class Instantiator {
 public:
-    explicit Instantiator(const InstantiateOptions& o) : m_opts(o) {}
+    Instantiator(const InstantiateOptions& o, const ParsedScene& scene) : m_opts(o), m_scene(scene) {}
 
     ObjectPtr build(const SceneNode& node) {
         auto it = m_cache.find(&node);
         if (it != m_cache.end()) return it->second;
+        if (!m_building.insert(&node).second)
+            throw_input(node.loc, "<{} id=\"{}\"> refers to itself through <ref>s (a reference cycle)", node.kind,
+                        node.id);
         Properties props(node.kind, node.type);
+        props.set_search_paths(m_scene.search_paths);
         props.set_location(node.loc);
         props.set_id(node.id);
         for (const auto& v : node.values) {
@@ -582,22 +669,30 @@ public:
                     break;
             }
         }
-        for (const auto& c : node.children) props.set_object(c.name, build(*c.node), c.loc);
+        for (const auto& c : node.children) {
+            // An emitter declared at the root with an id and referenced from a shape is a declaration: the scene
+            // gets it through the shape, not a second time directly (it would light the scene twice).
+            if (&node == m_scene.root.get() && !c.is_ref && c.node->referenced && c.node->kind == "emitter") continue;
+            props.set_object(c.name, build(*c.node), c.loc);
+        }
         ObjectPtr obj = Registry::instance().create(props, m_opts.allow_unused);
+        m_building.erase(&node);
         m_cache.emplace(&node, obj);
         return obj;
     }
 
 private:
     const InstantiateOptions& m_opts;
+    const ParsedScene& m_scene;
     std::unordered_map<const SceneNode*, ObjectPtr> m_cache;
+    std::set<const SceneNode*> m_building;
 };
 }  // namespace
 
 ObjectPtr instantiate(const ParsedScene& scene, const InstantiateOptions& opts) {
     if (!scene.root) throw InputError({}, "empty scene");
     for (const auto& p : scene.plugins) Registry::instance().load_plugin_module(p.path, p.loc);
-    Instantiator inst(opts);
+    Instantiator inst(opts, scene);
     return inst.build(*scene.root);
 }
 

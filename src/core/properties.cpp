@@ -284,11 +284,15 @@ std::filesystem::path Properties::get_path(std::string_view name) const {
     std::filesystem::path p = get_string(name);
     if (p.empty() || p.is_absolute()) return p;
     SourceLoc loc = location_of(name);
-    if (loc.valid() && loc.file != "<string>") {
-        std::filesystem::path base = std::filesystem::path(loc.file).parent_path();
-        return base / p;
+    std::filesystem::path first = p;
+    if (loc.valid() && loc.file != "<string>") first = std::filesystem::path(loc.file).parent_path() / p;
+    std::error_code ec;
+    if (m_search_paths.empty() || std::filesystem::exists(first, ec)) return first;
+    for (const auto& dir : m_search_paths) {
+        std::filesystem::path candidate = (dir / p).lexically_normal();
+        if (std::filesystem::exists(candidate, ec)) return candidate;
     }
-    return p;
+    return first;
 }
 
 std::filesystem::path Properties::get_input_file(std::string_view name, std::string_view what) const {

@@ -15,11 +15,14 @@ TriangleMesh::TriangleMesh(const Properties& props, const std::string& name, con
     const Transform t = props.get_transform("to_world");
     const double det = glm::determinant(Mat3d(t.matrix));
     if (!std::isfinite(det) || std::abs(det) < 1e-300) props.error("to_world", "is singular");
-    if (indices.size() % 3 != 0) throw InputError(props.location(), fmt::format("mesh '{}': index count is not a multiple of 3", name));
+    if (indices.size() % 3 != 0)
+        throw InputError(props.location(), fmt::format("mesh '{}': index count is not a multiple of 3", name));
     const bool has_n = !normals.empty() && normals.size() == positions.size();
     const bool has_uv = !uvs.empty() && uvs.size() == positions.size();
-    if (!normals.empty() && !has_n) log_warn("mesh '{}': {} normals for {} vertices; normals ignored", name, normals.size(), positions.size());
-    if (!uvs.empty() && !has_uv) log_warn("mesh '{}': {} uvs for {} vertices; uvs ignored", name, uvs.size(), positions.size());
+    if (!normals.empty() && !has_n)
+        log_warn("mesh '{}': {} normals for {} vertices; normals ignored", name, normals.size(), positions.size());
+    if (!uvs.empty() && !has_uv)
+        log_warn("mesh '{}': {} uvs for {} vertices; uvs ignored", name, uvs.size(), positions.size());
 
     m_geom.type = ShapeGeometry::Type::Triangles;
     m_geom.flip_normals = props.get_bool("flip_normals");
@@ -53,15 +56,67 @@ TriangleMesh::TriangleMesh(const Properties& props, const std::string& name, con
             continue;
         }
         m_geom.indices.insert(m_geom.indices.end(), {a, b, c});
+        m_kept.push_back(uint32_t(i / 3));
         m_area += area;
         m_cdf.push_back(m_area);
     }
     if (m_dropped > 0)
         log_warn("mesh '{}': dropped {} degenerate triangle(s) (zero area, non-finite vertices or bad indices)", name,
                  m_dropped);
-    if (m_geom.indices.empty()) throw InputError(props.location(), fmt::format("mesh '{}' has no valid triangle", name));
+    if (m_geom.indices.empty())
+        throw InputError(props.location(), fmt::format("mesh '{}' has no valid triangle", name));
     for (auto& c : m_cdf) c /= m_area;
     m_cdf.back() = 1.0;
+}
+
+void TriangleMesh::set_attributes(const Properties& props, std::vector<MeshAttribute> attributes) {
+    const std::size_t nv = m_geom.positions.size();
+    for (MeshAttribute& a : attributes) {
+        if (a.channels != 1 && a.channels != 3)
+            throw InputError(props.location(), fmt::format("mesh attribute '{}' has {} channels; 1 or 3 are supported",
+                                                           a.name, a.channels));
+        const std::size_t c = std::size_t(a.channels);
+        if (a.per_face) {
+            std::vector<float> kept;
+            kept.reserve(m_kept.size() * c);
+            for (uint32_t t : m_kept) {
+                if ((std::size_t(t) + 1) * c > a.data.size())
+                    throw InputError(props.location(), fmt::format("mesh attribute '{}' has too few values", a.name));
+                kept.insert(kept.end(), a.data.begin() + std::ptrdiff_t(t * c),
+                            a.data.begin() + std::ptrdiff_t((t + 1) * c));
+            }
+            a.data = std::move(kept);
+        } else if (a.data.size() != nv * c) {
+            throw InputError(props.location(), fmt::format("mesh attribute '{}' has {} values for {} vertices", a.name,
+                                                           a.data.size(), nv));
+        }
+        m_attributes.push_back(std::move(a));
+    }
+}
+
+bool TriangleMesh::has_attribute(std::string_view name) const {
+    for (const auto& a : m_attributes)
+        if (a.name == name) return true;
+    return false;
+}
+
+bool TriangleMesh::eval_attribute(std::string_view name, const SurfaceInteraction& si, Color3& out) const {
+    for (const auto& a : m_attributes) {
+        if (a.name != name) continue;
+        const std::size_t c = std::size_t(a.channels);
+        auto at = [&](std::size_t k) {
+            const float* v = &a.data[k * c];
+            return c == 1 ? Color3(v[0]) : Color3(v[0], v[1], v[2]);
+        };
+        if (a.per_face) {
+            out = at(si.prim);
+        } else {
+            const uint32_t* tri = &m_geom.indices[3 * std::size_t(si.prim)];
+            out = (1 - si.bary.x - si.bary.y) * at(tri[0]) + si.bary.x * at(tri[1]) + si.bary.y * at(tri[2]);
+        }
+        return true;
+    }
+    return false;
 }
 
 PositionSample TriangleMesh::sample_position(const Vec2d& u_in) const {

@@ -84,7 +84,7 @@ std::pair<long long, long long> int_range(PlyType t) {
 enum class Format { Ascii, BinaryLE, BinaryBE };
 
 // What a vertex property is used for.
-enum class Role : uint8_t { None, X, Y, Z, NX, NY, NZ, U, V, Indices };
+enum class Role : uint8_t { None, X, Y, Z, NX, NY, NZ, U, V, Indices, Attribute };
 
 struct Property {
     std::string name;
@@ -92,6 +92,7 @@ struct Property {
     bool list = false;
     PlyType count_type = PlyType::U8;
     Role role = Role::None;
+    int attribute = -1, channel = 0;  ///< Role::Attribute: index in MeshData::attributes, and channel
 };
 
 struct Element {
@@ -277,6 +278,8 @@ private:
         if (!is_integer(idx->type))
             fail_line(m_face->line, "face indices must have an integer type, not '{}'", type_name(idx->type));
         idx->role = Role::Indices;
+        make_attributes(*m_vertex, false);
+        make_attributes(*m_face, true);
 
         // Never trust the counts for allocation: reserve at most what the file could hold.
         const std::size_t cap = (m_data.size() - m_body) / 2 + 1;
@@ -285,6 +288,45 @@ private:
         if (m_has_normals) m_mesh.normals.reserve(nv);
         if (m_has_uvs) m_mesh.uvs.reserve(nv);
         m_mesh.indices.reserve(3 * std::size_t(std::min<uint64_t>(m_face->count, cap)));
+    }
+
+    // Mitsuba's mesh attributes: the element's remaining scalar properties, grouped by name prefix.
+    void make_attributes(Element& e, bool per_face) {
+        for (Property& p : e.props) {
+            if (p.role != Role::None || p.list) continue;
+            std::string prefix = p.name;
+            const std::size_t us = prefix.rfind('_');
+            if (us != std::string::npos && us + 1 < prefix.size() &&
+                prefix.find_first_not_of("0123456789", us + 1) == std::string::npos)
+                prefix.resize(us);
+            const std::string name = (per_face ? "face_" : "vertex_") + prefix;
+            int a = -1;
+            for (std::size_t k = 0; k < m_mesh.attributes.size(); ++k)
+                if (m_mesh.attributes[k].name == name) a = int(k);
+            if (a < 0) {
+                a = int(m_mesh.attributes.size());
+                m_mesh.attributes.push_back({name, per_face, 0, {}});
+            }
+            p.role = Role::Attribute;
+            p.attribute = a;
+            p.channel = m_mesh.attributes[std::size_t(a)].channels++;
+        }
+        m_scratch.assign(m_mesh.attributes.size() * 16, 0.0f);
+        for (const auto& at : m_mesh.attributes)
+            if (at.channels > 16) fail_line(e.line, "attribute '{}' has more than 16 channels", at.name);
+    }
+    void store_attribute(const Property& p, double v) {
+        if (p.role == Role::Attribute) m_scratch[std::size_t(p.attribute) * 16 + std::size_t(p.channel)] = float(v);
+    }
+    // Append the element's attribute values `copies` times (a face's values once per triangle of its fan).
+    void append_attributes(bool per_face, std::size_t copies) {
+        for (std::size_t a = 0; a < m_mesh.attributes.size(); ++a) {
+            MeshAttribute& at = m_mesh.attributes[a];
+            if (at.per_face != per_face) continue;
+            for (std::size_t c = 0; c < copies; ++c)
+                at.data.insert(at.data.end(), m_scratch.begin() + std::ptrdiff_t(a * 16),
+                               m_scratch.begin() + std::ptrdiff_t(a * 16 + std::size_t(at.channels)));
+        }
     }
 
     // ----- storing values
@@ -324,6 +366,7 @@ private:
         }
     }
     void end_vertex() {
+        append_attributes(false, 1);
         m_mesh.positions.push_back(m_pos);
         if (m_has_normals) m_mesh.normals.push_back(m_n);
         if (m_has_uvs) m_mesh.uvs.push_back(m_uv);
@@ -379,10 +422,12 @@ private:
                     return tok[t++];
                 };
                 if (is_vertex) begin_vertex();
+                const std::size_t tris_before = m_mesh.indices.size();
                 for (const Property& p : e.props) {
                     if (!p.list) {
                         double v = parse_number(token(p), p.type, p, e, i, line_no);
                         if (is_vertex) store(p.role, v);
+                        if (is_vertex || is_face) store_attribute(p, v);
                         continue;
                     }
                     long long n = (long long)parse_number(token(p), p.count_type, p, e, i, line_no);
@@ -405,6 +450,7 @@ private:
                     fail_line(line_no, "element '{}' #{}: {} value(s) more than its {} properties", e.name, i,
                               tok.size() - t, e.props.size());
                 if (is_vertex) end_vertex();
+                if (is_face) append_attributes(true, (m_mesh.indices.size() - tris_before) / 3);
             }
         }
         if (next_line()) log_warn("{}:{}: ignoring data after the last element", m_name, line_no);
@@ -457,6 +503,7 @@ private:
                      end - p);
             for (uint64_t i = 0; i < e.count; ++i) {
                 if (is_vertex) begin_vertex();
+                const std::size_t tris_before = m_mesh.indices.size();
                 for (const Property& prop : e.props) {
                     auto read = [&](PlyType t) -> double {
                         const std::size_t n = type_size(t);
@@ -472,6 +519,7 @@ private:
                     if (!prop.list) {
                         double v = read(prop.type);
                         if (is_vertex) store(prop.role, v);
+                        if (is_vertex || is_face) store_attribute(prop, v);
                         continue;
                     }
                     double n = read(prop.count_type);
@@ -491,6 +539,7 @@ private:
                     }
                 }
                 if (is_vertex) end_vertex();
+                if (is_face) append_attributes(true, (m_mesh.indices.size() - tris_before) / 3);
             }
         }
         if (p != end) log_warn("{}: ignoring {} byte(s) after the last element", m_name, end - p);
@@ -550,6 +599,7 @@ private:
     Vec3d m_pos{0.0}, m_n{0.0};
     Vec2d m_uv{0.0};
     MeshData m_mesh;
+    std::vector<float> m_scratch;  // the current element's attribute values (16 slots per attribute)
 };
 
 }  // namespace

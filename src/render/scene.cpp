@@ -37,13 +37,15 @@ Scene::Scene(const Properties& props) {
 
     if (m_simulation) {
         if (m_sensor || m_integrator || !m_shapes.empty() || !m_root_emitters.empty())
-            props.error("simulation", "a scene runs either a <simulation> or a render (sensor, integrator, "
-                                      "shapes), not both");
+            props.error("simulation",
+                        "a scene runs either a <simulation> or a render (sensor, integrator, "
+                        "shapes), not both");
         return;  // a simulation builds its own geometry queries; nothing to do here
     }
     if (!m_sensor) throw InputError(props.location(), "the scene has no <sensor> (and no <simulation>)");
     if (!m_integrator) {  // Mitsuba's default
-        m_integrator = std::dynamic_pointer_cast<Integrator>(Registry::instance().create(Properties("integrator", "path")));
+        m_integrator =
+            std::dynamic_pointer_cast<Integrator>(Registry::instance().create(Properties("integrator", "path")));
         log_info("no <integrator> given: using 'path'");
     }
     if (m_shapes.empty()) {
@@ -53,8 +55,8 @@ Scene::Scene(const Properties& props) {
 
     m_accel = std::make_unique<Accel>();
     m_accel->device = rtcNewDevice(nullptr);
-    if (!m_accel->device) throw RuntimeError(fmt::format("Embree device creation failed (error {})",
-                                                         int(rtcGetDeviceError(nullptr))));
+    if (!m_accel->device)
+        throw RuntimeError(fmt::format("Embree device creation failed (error {})", int(rtcGetDeviceError(nullptr))));
     rtcSetDeviceErrorFunction(m_accel->device, embree_error, nullptr);
     m_accel->scene = rtcNewScene(m_accel->device);
     m_accel->geometry.reserve(m_shapes.size());
@@ -69,9 +71,10 @@ Scene::Scene(const Properties& props) {
                                        3 * sizeof(uint32_t), g.indices.size() / 3);
         } else {  // spheres and normal-oriented discs: Embree point primitives (centre and radius)
             const bool discs = g.type == ShapeGeometry::Type::Discs;
-            geom = rtcNewGeometry(m_accel->device, discs ? RTC_GEOMETRY_TYPE_ORIENTED_DISC_POINT : RTC_GEOMETRY_TYPE_SPHERE_POINT);
+            geom = rtcNewGeometry(m_accel->device,
+                                  discs ? RTC_GEOMETRY_TYPE_ORIENTED_DISC_POINT : RTC_GEOMETRY_TYPE_SPHERE_POINT);
             auto* v = static_cast<float*>(rtcSetNewGeometryBuffer(geom, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT4,
-                                                                   4 * sizeof(float), g.positions.size()));
+                                                                  4 * sizeof(float), g.positions.size()));
             for (std::size_t k = 0; k < g.positions.size(); ++k) {
                 v[4 * k + 0] = g.positions[k].x;
                 v[4 * k + 1] = g.positions[k].y;
@@ -100,7 +103,8 @@ void Scene::setup_emitters() {
         if (Emitter* e = shape->emitter()) {
             if (!(e->flags() & EmitterFlags::Surface))
                 throw InputError({}, fmt::format("{} cannot be attached to {}: only area emitters are nested in a "
-                                                 "<shape>", e->to_string(), shape->to_string()));
+                                                 "<shape>",
+                                                 e->to_string(), shape->to_string()));
             e->set_shape(shape.get());
             m_emitters.push_back(e);
         }
@@ -128,6 +132,8 @@ std::pair<const Emitter*, double> Scene::sample_emitter(double u) const {
 
 double Scene::emitter_pdf(const Emitter*) const { return m_emitters.empty() ? 0.0 : 1.0 / double(m_emitters.size()); }
 
+static constexpr bool kMeshFrameFromUv = true;
+
 SurfaceInteraction Scene::interaction(const Ray& ray, const SurfaceHit& hit) const {
     SurfaceInteraction si;
     si.p = hit.p;
@@ -142,8 +148,8 @@ SurfaceInteraction Scene::interaction(const Ray& ray, const SurfaceHit& hit) con
     if (g.type == ShapeGeometry::Type::Triangles) {
         const uint32_t* tri = &g.indices[3 * std::size_t(hit.prim)];
         const double b1 = hit.uv.x, b2 = hit.uv.y, b0 = 1 - b1 - b2;  // Embree's barycentrics
-        if (!g.uvs.empty())
-            si.uv = b0 * Vec2d(g.uvs[tri[0]]) + b1 * Vec2d(g.uvs[tri[1]]) + b2 * Vec2d(g.uvs[tri[2]]);
+        si.bary = {b1, b2};
+        if (!g.uvs.empty()) si.uv = b0 * Vec2d(g.uvs[tri[0]]) + b1 * Vec2d(g.uvs[tri[1]]) + b2 * Vec2d(g.uvs[tri[2]]);
         if (!g.normals.empty()) {
             Vec3d n = b0 * Vec3d(g.normals[tri[0]]) + b1 * Vec3d(g.normals[tri[1]]) + b2 * Vec3d(g.normals[tri[2]]);
             double l = glm::length(n);
@@ -156,14 +162,56 @@ SurfaceInteraction Scene::interaction(const Ray& ray, const SurfaceHit& hit) con
         }
     } else if (g.type == ShapeGeometry::Type::Spheres) {
         Vec3d d = glm::normalize(hit.p - Vec3d(g.positions[hit.prim]));
-        si.uv = {std::atan2(d.y, d.x) / (2 * Pi) + 0.5, std::acos(std::clamp(d.z, -1.0, 1.0)) / Pi};
+        // Mitsuba's sphere parameterisation: u = phi / (2 pi) with phi in [0, 2 pi), v = theta / pi (in world axes:
+        // a rotation in the sphere's to_world is not applied to uv).
+        double u = std::atan2(d.y, d.x) / (2 * Pi);
+        if (u < 0) u += 1;
+        si.uv = {u, std::acos(std::clamp(d.z, -1.0, 1.0)) / Pi};
     } else {  // disc: polar coordinates (radius fraction, angle from the tangent)
         const Vec3d d = hit.p - Vec3d(g.positions[hit.prim]), t(g.tangents[hit.prim]), n(g.normals[hit.prim]);
         const double x = glm::dot(d, t), y = glm::dot(d, glm::cross(n, t));
         const double phi = std::atan2(y, x);
-        si.uv = {std::min(1.0, std::hypot(x, y) / double(g.radii[hit.prim])), (phi < 0 ? phi + 2 * Pi : phi) / (2 * Pi)};
+        si.uv = {std::min(1.0, std::hypot(x, y) / double(g.radii[hit.prim])),
+                 (phi < 0 ? phi + 2 * Pi : phi) / (2 * Pi)};
     }
     si.frame = Frame(si.ns);
+    if (g.type == ShapeGeometry::Type::Triangles) {
+        // Mitsuba's shading frame: its tangent is dp/du of the uv parameterisation (Gram-Schmidt against the
+        // shading normal), or, without uvs or for a degenerate one, the first tangent of the orthonormal basis
+        // around the geometric normal. Anisotropic BSDFs (alpha_u, alpha_v) are oriented by it.
+        const uint32_t* tri = &g.indices[3 * std::size_t(hit.prim)];
+        Vec3d dp_du(0.0), dp_dv(0.0);
+        if (!g.uvs.empty()) {
+            const Vec2d duv0 = Vec2d(g.uvs[tri[1]]) - Vec2d(g.uvs[tri[0]]),
+                        duv1 = Vec2d(g.uvs[tri[2]]) - Vec2d(g.uvs[tri[0]]);
+            const Vec3d dp0 = Vec3d(g.positions[tri[1]]) - Vec3d(g.positions[tri[0]]),
+                        dp1 = Vec3d(g.positions[tri[2]]) - Vec3d(g.positions[tri[0]]);
+            const double det = duv0.x * duv1.y - duv0.y * duv1.x;
+            if (det != 0 && std::isfinite(det)) {
+                dp_du = (duv1.y * dp0 - duv0.y * dp1) / det;
+                dp_dv = (duv0.x * dp1 - duv1.x * dp0) / det;
+            }
+        }
+        if (!(glm::length(dp_du) > 0) || !std::isfinite(glm::length(dp_du))) {
+            dp_du = Frame(si.ng).s;
+            dp_dv = Frame(si.ng).t;
+        }
+        si.dp_du = dp_du;
+        si.dp_dv = dp_dv;
+        if (kMeshFrameFromUv) {
+            Vec3d s_axis = dp_du - si.ns * glm::dot(si.ns, dp_du);
+            const double len = glm::length(s_axis);
+            if (len > 1e-12 * glm::length(dp_du) && std::isfinite(len)) {
+                si.frame.n = si.ns;
+                si.frame.s = s_axis / len;
+                si.frame.t = glm::cross(si.ns, si.frame.s);
+            }
+        }
+    }
+    if (g.type != ShapeGeometry::Type::Triangles) {
+        si.dp_du = si.frame.s;
+        si.dp_dv = si.frame.t;
+    }
     si.wi = si.to_local(-glm::normalize(ray.d));
     return si;
 }

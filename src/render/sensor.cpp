@@ -1,5 +1,8 @@
 #include <kelvin/core/registry.h>
+#include <kelvin/core/strings.h>
 #include <kelvin/render/sensor.h>
+
+#include <fmt/format.h>
 
 #include <cmath>
 #include <tuple>
@@ -7,15 +10,35 @@
 namespace kelvin {
 
 std::pair<double, double> fov_tangents(const Properties& props, int width, int height) {
-    const double fov = props.get_float("fov", 1e-6, 179.999);
-    std::string axis = props.get_choice("fov_axis", {"x", "y", "diagonal", "smaller", "larger"});
+    double fov;
+    std::string axis;
+    if (props.has("fov")) {
+        if (props.has("focal_length")) props.error("focal_length", "give either fov or focal_length, not both");
+        fov = props.get_float("fov", 1e-6, 179.999);
+        axis = props.get_choice("fov_axis", {"x", "y", "diagonal", "smaller", "larger"});
+    } else {
+        // Mitsuba: a focal length on a 36 x 24 mm film, measured along the diagonal (default 50 mm: 46.8 degrees
+        // across the diagonal, 34.02 degrees across a square film). fov_axis is then not used.
+        std::string f = props.get_string("focal_length");
+        if (f.size() > 2 && f.compare(f.size() - 2, 2, "mm") == 0) f.resize(f.size() - 2);
+        const auto mm = parse_double(f);
+        if (!mm || !(*mm > 0) || !std::isfinite(*mm))
+            props.error("focal_length",
+                        fmt::format("'{}' is not a focal length such as \"50mm\"", props.get_string("focal_length")));
+        fov = glm::degrees(2.0 * std::atan(std::sqrt(36.0 * 36.0 + 24.0 * 24.0) / (2.0 * *mm)));
+        (void)props.get_choice("fov_axis", {"x", "y", "diagonal", "smaller", "larger"});  // not used here
+        axis = "diagonal";
+    }
     const double w = width, h = height, t = std::tan(glm::radians(fov) / 2);
     if (axis == "smaller") axis = w <= h ? "x" : "y";
     if (axis == "larger") axis = w >= h ? "x" : "y";
     double tan_x;
-    if (axis == "x") tan_x = t;
-    else if (axis == "y") tan_x = t * w / h;
-    else tan_x = t * w / std::sqrt(w * w + h * h);
+    if (axis == "x")
+        tan_x = t;
+    else if (axis == "y")
+        tan_x = t * w / h;
+    else
+        tan_x = t * w / std::sqrt(w * w + h * h);
     return {tan_x, tan_x * h / w};
 }
 

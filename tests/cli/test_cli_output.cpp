@@ -84,7 +84,9 @@ TEST_F(CliOutput, ListPluginsShowsParametersAndDefaults) {
     EXPECT_TRUE(has_param(l, "integrator", "ao", "max_distance", "float", "-1")) << r.out;
     EXPECT_TRUE(has_param(l, "shape", "sphere", "radius", "float", "1")) << r.out;
     EXPECT_TRUE(has_param(l, "shape", "sphere", "center", "point", "[0, 0, 0]")) << r.out;
-    EXPECT_TRUE(has_param(l, "sensor", "perspective", "fov", "float", "39.5978")) << r.out;
+    // Mitsuba's default field of view: no fov, a 50 mm lens measured along the film's diagonal.
+    EXPECT_TRUE(has_param(l, "sensor", "perspective", "fov", "float", "none")) << r.out;
+    EXPECT_TRUE(has_param(l, "sensor", "perspective", "focal_length", "string", "\"50mm\"")) << r.out;
     EXPECT_TRUE(has_param(l, "sensor", "perspective", "near_clip", "float", "0.01")) << r.out;
     EXPECT_TRUE(has_param(l, "film", "hdrfilm", "width", "integer", "768")) << r.out;
     // A parameter must be listed under its own plugin only.

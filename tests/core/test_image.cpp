@@ -110,8 +110,8 @@ TEST(Image, SrgbCurve) {
 TEST(Image, ExrKeepsNamedChannelsBitExact) {
     ktest::TempDir dir;
     Bitmap b(5, 4, {"R", "G", "B", "stage.first"});
-    const float special[] = {0.0f, -0.0f, 1e-40f /* denormal */, 3.4e38f, -1.5f,
-                             std::numeric_limits<float>::infinity(), 0.1f, 1.0f / 3.0f};
+    const float special[] = {
+        0.0f, -0.0f, 1e-40f /* denormal */, 3.4e38f, -1.5f, std::numeric_limits<float>::infinity(), 0.1f, 1.0f / 3.0f};
     int k = 0;
     for (int y = 0; y < 4; ++y)
         for (int x = 0; x < 5; ++x)
@@ -235,6 +235,31 @@ TEST(Image, GreyPngFillsRgb) {
         EXPECT_EQ(r.at(0, 0, c), 0.0f);
         EXPECT_NEAR(r.at(1, 0, c), srgb_to_linear(188.0 / 255.0), 1e-6);
     }
+}
+
+// Grey + alpha (Mitsuba's leaf_mask.png): R, G and B all come from the grey channel, A from the alpha. (Broken
+// variant, the reader before this test: G and B were taken from the alpha channel.)
+TEST(Image, GreyAlphaPngFillsRgbFromGrey) {
+    ktest::TempDir dir;
+    auto path = dir.path() / "grey_alpha.png";
+    {
+        auto out = OIIO::ImageOutput::create(path.string());
+        ASSERT_TRUE(out);
+        OIIO::ImageSpec spec(2, 1, 2, OIIO::TypeDesc::UINT8);
+        spec.alpha_channel = 1;
+        const uint8_t px[4] = {0, 255, 188, 255};
+        ASSERT_TRUE(out->open(path.string(), spec));
+        ASSERT_TRUE(out->write_image(OIIO::TypeDesc::UINT8, px));
+        out->close();
+    }
+    Bitmap r = read_image(path);
+    ASSERT_EQ(r.channel_count(), 4);
+    for (int c = 0; c < 3; ++c) {
+        EXPECT_EQ(r.at(0, 0, c), 0.0f);
+        EXPECT_NEAR(r.at(1, 0, c), srgb_to_linear(188.0 / 255.0), 1e-6);
+    }
+    EXPECT_EQ(r.at(0, 0, 3), 1.0f);
+    EXPECT_EQ(r.at(1, 0, 3), 1.0f);
 }
 
 TEST(Image, UnsupportedAndMissingFilesAreInputErrors) {

@@ -103,6 +103,38 @@ std::vector<Config> configs() {
                      });
                  },
                  {dir(0.6, 1.0), dir(-0.6, 1.0), dir(-0.95, 5.0)}});
+    // Mitsuba's mask (the pass-through is a delta lobe: the extra cell expects 40 %) and blendbsdf.
+    c.push_back({"mask_roughconductor",
+                 [] {
+                     auto inner = make_bsdf("roughconductor", rough("ggx", 0.3));
+                     return make_bsdf("mask", [=](Properties& p) {
+                         p.set_float("opacity", 0.6);
+                         p.set_object("", inner);
+                     });
+                 },
+                 kFront});
+    c.push_back({"normalmap_tilted_roughconductor",
+                 [] {
+                     auto inner = make_bsdf("roughconductor", rough("ggx", 0.3));
+                     Properties tp("texture", "rawconstant");
+                     tp.set_vector("value", {0.7, 0.45, 0.9});  // a normal tilted by about 33 degrees
+                     auto tex = Registry::instance().create(tp);
+                     return make_bsdf("normalmap", [=](Properties& p) {
+                         p.set_object("normalmap", tex);
+                         p.set_object("", inner);
+                     });
+                 },
+                 kFront});
+    c.push_back({"blendbsdf_diffuse_roughconductor",
+                 [] {
+                     auto a = make_bsdf("diffuse"), b = make_bsdf("roughconductor", rough("beckmann", 0.2));
+                     return make_bsdf("blendbsdf", [=](Properties& p) {
+                         p.set_float("weight", 0.3);
+                         p.set_object("", a);
+                         p.set_object("", b);
+                     });
+                 },
+                 kFront});
     return c;
 }
 

@@ -259,11 +259,8 @@ TEST(BsdfProps, EnergyOfLosslessBsdfs) {
         {"dielectric", make_bsdf("dielectric")},
         {"dielectric_water", make_bsdf("dielectric", set_str("int_ior", "water"))},
         {"plastic_white", make_bsdf("plastic", [](Properties& p) { p.set_color("diffuse_reflectance", Color3(1.0)); })},
-        {"roughplastic_white", make_bsdf("roughplastic",
-                                         [](Properties& p) {
-                                             rough("ggx", 0.4)(p);
-                                             p.set_color("diffuse_reflectance", Color3(1.0));
-                                         })},
+        // (roughplastic is Mitsuba 3's model since issue 17, which is not exactly lossless: masking in the rough
+        // coating and its tables lose a little; EnergyAtMostOne still bounds it.)
         {"twosided_diffuse_white",
          two_sided(make_bsdf("diffuse", [](Properties& p) { p.set_color("reflectance", Color3(1.0)); }))},
         // Nearly smooth microfacet models lose almost nothing (single scattering): within 1%, not exactly.

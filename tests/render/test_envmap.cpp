@@ -16,9 +16,11 @@
 //   - sample_emission's ray travelling towards the sampled sky direction instead of away from it:
 //     SampledDirectionsMatchPdf (pdf_emission check) and PathAndLightTracingAgreeUnderAnEnvmap (light tracing
 //     35 % dark, 14 of 16 blocks) fail.
-// Measured (correct code): chi2 1239 for 1296 dof (p = 0.87); bright texel 0.99724 of the samples (expected
-// 0.99697); direct lighting 1.6522 +- 0.0046 vs quadrature 1.6507; path 0.6711 +- 0.0012 vs ptracer
-// 0.6715 +- 0.0030 (red).
+//   - the nearest-texel lookup Kelvin had before the bilinear one: TexelDirectionsFollowMitsubaAxes fails (the
+//     halfway values are not the means of their four texels).
+// Measured (correct code, bilinear lookup): chi2 1911 for 1972 dof (p = 0.84); bright cells 0.99972 of the
+// samples (expected 0.99966); direct lighting 1.7884 +- 0.0110 vs quadrature 1.7828; path 0.7135 +- 0.0017 vs
+// ptracer 0.7112 +- 0.0042 (red).
 #include "render/render_support.h"
 
 #include <kelvin/core/image.h>
@@ -76,32 +78,54 @@ Vec3d direction_of(double u, double v) {
     return {std::sin(phi) * std::sin(theta), std::cos(theta), -std::cos(phi) * std::sin(theta)};
 }
 
+// Mitsuba 3's bilinear lookup, written out independently of the plugin: the value at image position (u, v) of
+// the map f(i, j) (W x H texels) with texel values at the texel centres in u (periodic) and the corners in v.
+double bilinear(const std::function<double(int, int)>& f, int W, int H, double u, double v) {
+    double x = u * W - 0.5;
+    x -= W * std::floor(x / W);
+    const int i0 = std::min(W - 1, int(x)), i1 = (i0 + 1) % W;
+    const double fx = x - i0;
+    const double y = v * (H - 1);
+    const int j0 = std::min(H - 2, int(y));
+    const double fy = y - j0;
+    return (1 - fy) * ((1 - fx) * f(i0, j0) + fx * f(i1, j0)) + fy * ((1 - fx) * f(i0, j0 + 1) + fx * f(i1, j0 + 1));
+}
+
 Bitmap render(const std::string& xml, long long spp, uint64_t seed = 1) { return ktest::render_xml(xml, spp, seed); }
 ktest::ImageStats image_mean(const Bitmap& img, int c) { return ktest::image_stats(img, c); }
 
 const Transform kTilt = Transform::rotate({0, 1, 0}, 35) * Transform::rotate({1, 0, 0}, -20);
 
 TEST(Envmap, TexelDirectionsFollowMitsubaAxes) {
-    // A dark map with one marked texel per test direction: +y is row 0, u = 0 looks along -z, u = 1/4 along +x,
-    // u = 1/2 along +z; to_world rotates the whole map.
-    const int W = 16, H = 8;
-    auto file = write_map("axes.exr", W, H, [](int i, int j) { return Color3(i * 100 + j + 1); });
+    // Every texel value is seen exactly at its texel's centre in phi and its row's corner in theta (v = j / (H-1),
+    // Mitsuba's bilinear lookup); +y is row 0, u = 0 looks along -z, u = 1/4 along +x, u = 1/2 along +z; halfway
+    // between texels the lookup blends them; to_world rotates the whole map.
+    const int W = 16, H = 9;
+    auto f = [](int i, int j) { return double(i * 100 + i * i + j + 1); };
+    auto file = write_map("axes.exr", W, H, [&](int i, int j) { return Color3(f(i, j)); });
     auto e = make_envmap(file);
     auto value_towards = [&](const Emitter& em, const Vec3d& to_sky) {
         return em.eval(Vec3d(0.0), Vec3d(0.0), -to_sky).r;  // radiance arriving from `to_sky`
     };
-    for (int j = 0; j < H; ++j)
+    for (int j = 1; j < H - 1; ++j)  // (the poles have no azimuth)
         for (int i = 0; i < W; ++i) {
-            const Vec3d d = direction_of((i + 0.5) / W, (j + 0.5) / H);
-            EXPECT_EQ(value_towards(*e, d), i * 100 + j + 1) << i << "," << j;
+            EXPECT_NEAR(value_towards(*e, direction_of((i + 0.5) / W, double(j) / (H - 1))), f(i, j), 1e-9 * f(i, j))
+                << i << "," << j;
+            // Halfway between four texels: their mean.
+            const double mid = 0.25 * (f(i, j) + f((i + 1) % W, j) + f(i, j + 1) + f((i + 1) % W, j + 1));
+            EXPECT_NEAR(value_towards(*e, direction_of((i + 1.0) / W, (j + 0.5) / (H - 1))), mid, 1e-9 * mid)
+                << i << "," << j;
         }
-    EXPECT_EQ(value_towards(*e, glm::normalize(Vec3d(0.001, 0.2, -1))), 0 * 100 + 3 + 1);   // -z: column 0
-    EXPECT_EQ(value_towards(*e, glm::normalize(Vec3d(1, 0.2, 0.001))), 4 * 100 + 3 + 1);    // +x: column W/4
-    EXPECT_EQ(value_towards(*e, glm::normalize(Vec3d(-0.001, -0.2, 1))), 8 * 100 + 4 + 1);  // +z: column W/2
+    // On the equator (row 4): -z is u = 0 (between the last column and the first), +x u = 1/4 (between columns
+    // 3 and 4), +z u = 1/2 (between columns 7 and 8).
+    EXPECT_NEAR(value_towards(*e, Vec3d(0, 0, -1)), 0.5 * (f(15, 4) + f(0, 4)), 1e-9);
+    EXPECT_NEAR(value_towards(*e, Vec3d(1, 0, 0)), 0.5 * (f(3, 4) + f(4, 4)), 1e-9);
+    EXPECT_NEAR(value_towards(*e, Vec3d(0, 0, 1)), 0.5 * (f(7, 4) + f(8, 4)), 1e-9);
     auto rotated = make_envmap(file, kTilt, 2.0);
     for (Vec3d d : {Vec3d(0.3, 0.5, -0.8), Vec3d(-0.9, 0.1, 0.2), Vec3d(0.0, -1.0, 0.01)}) {
         d = glm::normalize(d);
-        EXPECT_EQ(value_towards(*rotated, kTilt.apply_vector(d)), 2 * value_towards(*e, d));
+        const double v = value_towards(*e, d);
+        EXPECT_NEAR(value_towards(*rotated, kTilt.apply_vector(d)), 2 * v, 1e-9 * v);
     }
 }
 
@@ -126,13 +150,15 @@ TEST(Envmap, ConstantMapIsTheConstantEmitter) {
     // Furnace: a diffuse sphere filling the view reflects rho * L, with the map as with `constant`.
     for (const std::string emitter :
          {fmt::format(R"(<emitter type="envmap"><string name="filename" value="{}"/>
-                          <transform name="to_world"><rotate y="1" angle="35"/></transform></emitter>)", file.string()),
+                          <transform name="to_world"><rotate y="1" angle="35"/></transform></emitter>)",
+                      file.string()),
           std::string(R"(<emitter type="constant"><rgb name="radiance" value="0.5, 1, 2"/></emitter>)")}) {
         const std::string xml = R"(<scene version="3.0.0"><integrator type="path"/>
             <sensor type="perspective"><float name="fov" value="10"/>
                 <transform name="to_world"><lookat origin="0, 0, 3" target="0, 0, 0" up="0, 1, 0"/></transform>
                 <film type="hdrfilm"><integer name="width" value="16"/><integer name="height" value="16"/></film>
-            </sensor>)" + emitter + R"(
+            </sensor>)" + emitter +
+                                R"(
             <shape type="sphere"><bsdf type="diffuse"><rgb name="reflectance" value="0.6"/></bsdf></shape>
         </scene>)";
         Bitmap img = render(xml, 256);
@@ -233,16 +259,26 @@ TEST(Envmap, SampledDirectionsMatchPdf) {
 }
 
 TEST(Envmap, BrightTexelAttractsNextEventEstimation) {
-    // 64 x 32 texels of 0.01 and one of 5000: next-event estimation picks the bright texel's solid angle with
-    // probability L_b Omega_b / sum L Omega (here 0.99...), and its directions land inside that texel.
+    // 64 x 32 texels of 0.01 and one of 5000. The bilinear lookup spreads the bright texel over the cells whose
+    // footprint reads it (columns bi-1 .. bi+1 and the rows r with floor(r (H-1)/H) <= bj <= ceil((r+1)(H-1)/H),
+    // the conservative bound of envmap.cpp): next-event estimation picks those cells with probability
+    // 5000 Omega / sum bound Omega (0.99...), and directions land in them.
     const int W = 64, H = 32, bi = 40, bj = 10;
     auto file = write_map("bright.exr", W, H, [&](int i, int j) { return Color3(i == bi && j == bj ? 5000.0 : 0.01); });
     auto e = make_envmap(file);
     auto omega = [&](int j) { return 2 * Pi / W * (std::cos(Pi * j / H) - std::cos(Pi * (j + 1) / H)); };
-    double sum = 0;
-    for (int j = 0; j < H; ++j) sum += W * 0.01 * omega(j);
-    sum += (5000 - 0.01) * omega(bj);
-    const double p_bright = 5000 * omega(bj) / sum;
+    auto bright_cell = [&](int i, int j) {
+        const int r0 = int(std::floor(double(j) * (H - 1) / H)), r1 = int(std::ceil(double(j + 1) * (H - 1) / H));
+        return std::abs(i - bi) <= 1 && r0 <= bj && bj <= r1;
+    };
+    double sum = 0, bright = 0;
+    for (int j = 0; j < H; ++j)
+        for (int i = 0; i < W; ++i) {
+            const double b = (bright_cell(i, j) ? 5000.0 : 0.01) * omega(j);
+            sum += b;
+            if (bright_cell(i, j)) bright += b;
+        }
+    const double p_bright = bright / sum;
     Random rng(2);
     const int n = 100000;
     int inside = 0;
@@ -254,25 +290,28 @@ TEST(Envmap, BrightTexelAttractsNextEventEstimation) {
         double u = std::atan2(d.x, -d.z) / (2 * Pi);
         if (u < 0) u += 1;
         const double v = std::acos(std::clamp(d.y, -1.0, 1.0)) / Pi;
-        if (int(u * W) == bi && int(v * H) == bj) ++inside;
+        if (bright_cell(std::min(W - 1, int(u * W)), std::min(H - 1, int(v * H)))) ++inside;
     }
     const double frac = double(inside) / n, se = std::sqrt(p_bright * (1 - p_bright) / n);
-    std::printf("[ envmap ] bright texel: %.5f of the samples (expected %.5f)\n", frac, p_bright);
+    std::printf("[ envmap ] bright cells: %.5f of the samples (expected %.5f)\n", frac, p_bright);
     EXPECT_GT(p_bright, 0.9);
     EXPECT_NEAR(frac, p_bright, 5 * se + 1e-4);
-    // The texel seen from its centre direction, and nothing of it from the opposite one.
-    const Vec3d centre = direction_of((bi + 0.5) / W, (bj + 0.5) / H);
-    EXPECT_EQ(e->eval(Vec3d(0.0), Vec3d(0.0), -centre).r, 5000.0);
+    // The texel seen exactly at its centre in phi and its corner in theta, and nothing of it from the opposite.
+    const Vec3d centre = direction_of((bi + 0.5) / W, double(bj) / (H - 1));
+    EXPECT_NEAR(e->eval(Vec3d(0.0), Vec3d(0.0), -centre).r, 5000.0, 1e-9 * 5000);
     EXPECT_NEAR(e->eval(Vec3d(0.0), Vec3d(0.0), centre).r, 0.01, 1e-7);
 }
 
 TEST(Envmap, DirectLightingMatchesQuadrature) {
     // A diffuse plane (normal +y) under a tilted, structured map: L = rho / pi * integral of L_env(w) max(0, w.y)
-    // dw, computed here by quadrature over every texel (16 x 16 points per texel in (cos theta, phi), rotated to
-    // world). Path tracing with max_depth 2 combines light and BSDF sampling with MIS.
+    // dw, computed here by quadrature of the bilinear map over every texel (16 x 16 points per texel in (cos theta,
+    // phi), rotated to world). Path tracing with max_depth 2 combines light and BSDF sampling with MIS.
     const int W = 16, H = 8;
+    auto sky = [](int i, int j) {
+        return 0.2 + 0.1 * j + (i == 5 && j == 2 ? 80.0 : 0.0) + (i == 12 && j == 1 ? 20.0 : 0.0);
+    };
     auto file = write_map("sky.exr", W, H, [&](int i, int j) {
-        double v = 0.2 + 0.1 * j + (i == 5 && j == 2 ? 80.0 : 0.0) + (i == 12 && j == 1 ? 20.0 : 0.0);
+        const double v = sky(i, j);
         return Color3(v, v * 0.8, v * 0.6);
     });
     const Transform R = Transform::rotate({0, 0, 1}, 25) * Transform::rotate({0, 1, 0}, 60);
@@ -282,17 +321,17 @@ TEST(Envmap, DirectLightingMatchesQuadrature) {
     for (int j = 0; j < H; ++j)
         for (int i = 0; i < W; ++i) {
             const double z0 = std::cos(Pi * j / H), z1 = std::cos(Pi * (j + 1) / H);
-            const double Lr = 0.2 + 0.1 * j + (i == 5 && j == 2 ? 80.0 : 0.0) + (i == 12 && j == 1 ? 20.0 : 0.0);
-            double cos_sum = 0;
+            double sum = 0;
             for (int a = 0; a < S; ++a)
                 for (int b = 0; b < S; ++b) {
                     const double z = z0 + (z1 - z0) * (a + 0.5) / S;
                     const double phi = 2 * Pi * (i + (b + 0.5) / S) / W;
                     const double r = std::sqrt(std::max(0.0, 1 - z * z));
                     const Vec3d local(std::sin(phi) * r, z, -std::cos(phi) * r);
-                    cos_sum += std::max(0.0, R.apply_vector(local).y);
+                    const double Lr = bilinear(sky, W, H, phi / (2 * Pi), std::acos(z) / Pi);
+                    sum += Lr * std::max(0.0, R.apply_vector(local).y);
                 }
-            expect += Lr * cos_sum * (z0 - z1) * (2 * Pi / W) / (S * S);
+            expect += sum * (z0 - z1) * (2 * Pi / W) / (S * S);
         }
     expect *= rho / Pi;
     const std::string xml = fmt::format(R"(<scene version="3.0.0">
@@ -342,8 +381,10 @@ TEST(Envmap, PathAndLightTracingAgreeUnderAnEnvmap) {
     std::vector<Bitmap> path, light;
     for (int s = 0; s < seeds; ++s) {
         for (const std::string integrator : {"path", "ptracer"}) {
-            const std::string xml = fmt::format(R"(<scene version="3.0.0"><integrator type="{}"/>)", integrator) + xml_body;
-            (integrator == "path" ? path : light).push_back(ktest::render_xml(xml, integrator == "path" ? 32 : 0, uint64_t(900 + s)));
+            const std::string xml =
+                fmt::format(R"(<scene version="3.0.0"><integrator type="{}"/>)", integrator) + xml_body;
+            (integrator == "path" ? path : light)
+                .push_back(ktest::render_xml(xml, integrator == "path" ? 32 : 0, uint64_t(900 + s)));
         }
     }
     for (int c = 0; c < 3; ++c) {
@@ -371,9 +412,11 @@ TEST(Envmap, ExampleSceneRenders) {
 TEST(Envmap, Errors) {
     auto error_of = [](const std::string& params) -> InputError {
         try {
-            instantiate(parse_scene_string(R"(<scene version="3.0.0"><integrator type="path"/><sensor type="perspective"/>
-                <emitter type="envmap">)" + params + "</emitter></scene>",
-                                           {}, "errors.xml"));
+            instantiate(
+                parse_scene_string(R"(<scene version="3.0.0"><integrator type="path"/><sensor type="perspective"/>
+                <emitter type="envmap">)" +
+                                       params + "</emitter></scene>",
+                                   {}, "errors.xml"));
         } catch (const InputError& e) {
             return e;
         }
@@ -388,13 +431,15 @@ TEST(Envmap, Errors) {
     EXPECT_EQ(missing.location().line, 3);
     EXPECT_NE(std::string(error_of("").what()).find("filename"), std::string::npos);  // required
     auto good = write_map("ok.exr", 4, 2, [](int, int) { return Color3(1.0); });
-    EXPECT_NE(std::string(error_of(fmt::format(R"(<string name="filename" value="{}"/><float name="scale" value="-1"/>)",
-                                               good.string()))
-                              .what())
-                  .find("scale"),
-              std::string::npos);
+    EXPECT_NE(
+        std::string(error_of(fmt::format(R"(<string name="filename" value="{}"/><float name="scale" value="-1"/>)",
+                                         good.string()))
+                        .what())
+            .find("scale"),
+        std::string::npos);
     EXPECT_NE(std::string(error_of(fmt::format(R"(<string name="filename" value="{}"/>
-        <transform name="to_world"><scale value="2"/></transform>)", good.string()))
+        <transform name="to_world"><scale value="2"/></transform>)",
+                                               good.string()))
                               .what())
                   .find("to_world"),
               std::string::npos);

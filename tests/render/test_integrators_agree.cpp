@@ -24,7 +24,6 @@ using namespace kelvin;
 
 namespace {
 
-
 Bitmap render(const std::string& integrator, int res, long long spp, uint64_t seed) {
     ParseOptions opts;
     opts.defines = {{"integrator", integrator}, {"res", std::to_string(res)}, {"spp", std::to_string(spp)}};
@@ -43,8 +42,8 @@ void expect_agree(const std::string& other, long long spp_other) {
         // The ceiling light's block is bright and nearly noise-free in both: a 1e-3 relative floor.
         ktest::BlockComparison r = ktest::compare_blocks(path, light, B, c, 1e-3);
         EXPECT_LE(r.outliers, 1) << other << ", channel " << c;
-        EXPECT_NEAR(r.mean_a / r.mean_b, 1.0, 0.01) << "channel " << c << ": path " << r.mean_a << ", " << other
-                                                    << " " << r.mean_b;
+        EXPECT_NEAR(r.mean_a / r.mean_b, 1.0, 0.01)
+            << "channel " << c << ": path " << r.mean_a << ", " << other << " " << r.mean_b;
     }
 }
 

@@ -311,7 +311,8 @@ TEST(Intersect, DiskAnalyticDistanceNormalAndUv) {
     int hits = 0, misses = 0;
     for (int i = 0; i < 4000; ++i) {
         const Vec3d o = c + Vec3d(rng.next_double() * 16 - 8, rng.next_double() * 16 - 8, rng.next_double() * 16 - 8);
-        const Vec3d target = c + 1.4 * R * (2 * rng.next_double() - 1) * tx + 1.4 * R * (2 * rng.next_double() - 1) * ty;
+        const Vec3d target =
+            c + 1.4 * R * (2 * rng.next_double() - 1) * tx + 1.4 * R * (2 * rng.next_double() - 1) * ty;
         const Vec3d d = target - o;
         const double denom = glm::dot(d, n);
         if (std::abs(denom) < 0.05 * glm::length(d)) continue;  // grazing: t is ill-conditioned (error ~ 1 / cos)

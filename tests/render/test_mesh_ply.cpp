@@ -286,3 +286,42 @@ TEST(MeshPly, TruncatedBinaryFilesNeverCrash) {
     }
     EXPECT_NO_THROW(read_ply_data(full, "full.ply"));
 }
+
+// Mitsuba's mesh attributes: extra vertex and face properties grouped by name prefix (`color_0..2` -> one
+// 3-channel attribute), face values repeated for every triangle of the face's fan. (Broken variant: without
+// the fan repetition the quad's second triangle reads the next face's values and the last check fails.)
+TEST(MeshPly, ExtraPropertiesBecomeMeshAttributes) {
+    const std::string ply = R"(ply
+format ascii 1.0
+element vertex 4
+property float x
+property float y
+property float z
+property float color_0
+property float color_1
+property float color_2
+property float mass
+element face 2
+property list uchar int vertex_indices
+property float weight_0
+end_header
+0 0 0 1 0 0 5
+1 0 0 0 1 0 6
+1 1 0 0 0 1 7
+0 1 0 1 1 1 8
+4 0 1 2 3 0.25
+3 0 2 3 0.75
+)";
+    MeshData m = read_ply_data(ply, "attr.ply");
+    ASSERT_EQ(m.attributes.size(), 3u);
+    EXPECT_EQ(m.attributes[0].name, "vertex_color");
+    EXPECT_EQ(m.attributes[0].channels, 3);
+    EXPECT_FALSE(m.attributes[0].per_face);
+    EXPECT_EQ(m.attributes[0].data, (std::vector<float>{1, 0, 0, 0, 1, 0, 0, 0, 1, 1, 1, 1}));
+    EXPECT_EQ(m.attributes[1].name, "vertex_mass");
+    EXPECT_EQ(m.attributes[1].data, (std::vector<float>{5, 6, 7, 8}));
+    EXPECT_EQ(m.attributes[2].name, "face_weight");
+    EXPECT_TRUE(m.attributes[2].per_face);
+    EXPECT_EQ(m.indices.size(), 9u);  // the quad's fan (2 triangles) and the triangle
+    EXPECT_EQ(m.attributes[2].data, (std::vector<float>{0.25f, 0.25f, 0.75f}));
+}

@@ -47,8 +47,7 @@ std::string camera(const std::string& origin, const std::string& target, double 
 TEST(PathTracer, FurnaceConvexObjectReflectsItsAlbedo) {
     // The sphere fills the frame (half-angle 5 deg < asin(1/3)): every pixel sees it. Only one bounce can
     // contribute, and its expectation is rho * 1.
-    std::string xml = R"(<scene version="3.0.0"><integrator type="path"/>)" +
-                      camera("0, 0, 3", "0, 0, 0", 10, 16) + R"(
+    std::string xml = R"(<scene version="3.0.0"><integrator type="path"/>)" + camera("0, 0, 3", "0, 0, 0", 10, 16) + R"(
         <emitter type="constant"><rgb name="radiance" value="1"/></emitter>
         <shape type="sphere"><bsdf type="diffuse"><rgb name="reflectance" value="0.5, 0.25, 0.8"/></bsdf></shape>
     </scene>)";
@@ -64,8 +63,7 @@ TEST(PathTracer, FurnaceConvexObjectReflectsItsAlbedo) {
 TEST(PathTracer, FurnaceInterreflection) {
     // Albedo 1 everywhere: light bounces between the sphere and the cube without loss, every pixel is 1
     // (background included). Paths end only through Russian roulette, which must stay unbiased.
-    std::string xml = R"(<scene version="3.0.0"><integrator type="path"/>)" +
-                      camera("0, 1, 6", "0, 0, 0", 40, 24) + R"(
+    std::string xml = R"(<scene version="3.0.0"><integrator type="path"/>)" + camera("0, 1, 6", "0, 0, 0", 40, 24) + R"(
         <emitter type="constant"><rgb name="radiance" value="1"/></emitter>
         <bsdf type="diffuse" id="white"><rgb name="reflectance" value="1"/></bsdf>
         <shape type="sphere"><point name="center" x="-0.8" y="0" z="0"/><ref id="white"/></shape>
@@ -88,7 +86,8 @@ TEST(PathTracer, FurnaceLosslessConductorAndDielectric) {
         SCOPED_TRACE(bsdf);
         std::string xml = R"(<scene version="3.0.0"><integrator type="path"/>)" + camera("0, 0, 3", "0, 0, 0", 30, 16) +
                           R"(<emitter type="constant"><rgb name="radiance" value="1"/></emitter>
-            <shape type="sphere">)" + std::string(bsdf) + R"(</shape></scene>)";
+            <shape type="sphere">)" +
+                          std::string(bsdf) + R"(</shape></scene>)";
         Bitmap img = render(xml, 128);
         ImageStats s = stats(img);
         EXPECT_NEAR(s.mean, 1.0, 5 * s.stderr_ + 1e-6);
@@ -101,12 +100,13 @@ TEST(PathTracer, ClosedFurnaceSumsAllBounces) {
     // geometric series Le (1 + rho + rho^2 + ...) = Le / (1 - rho). With rho = 0.9 paths are long (mean 10
     // bounces): Russian roulette and the emission/NEE bookkeeping of every bounce are exercised.
     const double rho = 0.9, Le = 0.1;
-    std::string xml = R"(<scene version="3.0.0"><integrator type="path"/>)" +
-                      camera("0, 0, 0.3", "0, 0, -1", 60, 16) + fmt::format(R"(
+    std::string xml = R"(<scene version="3.0.0"><integrator type="path"/>)" + camera("0, 0, 0.3", "0, 0, -1", 60, 16) +
+                      fmt::format(R"(
         <shape type="sphere"><boolean name="flip_normals" value="true"/>
             <bsdf type="diffuse"><rgb name="reflectance" value="{}"/></bsdf>
             <emitter type="area"><rgb name="radiance" value="{}"/></emitter></shape>
-    </scene>)", rho, Le);
+    </scene>)",
+                                  rho, Le);
     Bitmap img = render(xml, 128);
     const double expect = Le / (1 - rho);
     ImageStats s = stats(img);
@@ -117,12 +117,15 @@ TEST(PathTracer, ClosedFurnaceSumsAllBounces) {
 TEST(PathTracer, PointLightOverPlaneIsExact) {
     // rho / pi * I / h^2 at the foot of the light; the camera looks at it from the side with a tiny fov.
     const double rho = 0.5, I = 8, h = 2;
-    std::string xml = R"(<scene version="3.0.0"><integrator type="path"><integer name="max_depth" value="2"/></integrator>)" +
-                      camera("0, -3, 3", "0, 0, 0", 0.05, 4, "0, 0, 1") + fmt::format(R"(
+    std::string xml =
+        R"(<scene version="3.0.0"><integrator type="path"><integer name="max_depth" value="2"/></integrator>)" +
+        camera("0, -3, 3", "0, 0, 0", 0.05, 4, "0, 0, 1") +
+        fmt::format(R"(
         <emitter type="point"><point name="position" x="0" y="0" z="{}"/><rgb name="intensity" value="{}"/></emitter>
         <shape type="rectangle"><transform name="to_world"><scale value="10"/></transform>
             <bsdf type="diffuse"><rgb name="reflectance" value="{}"/></bsdf></shape>
-    </scene>)", h, I, rho);
+    </scene>)",
+                    h, I, rho);
     Bitmap img = render(xml, 4);
     const double expect = rho / Pi * I / (h * h);
     ImageStats s = stats(img);
@@ -133,13 +136,16 @@ TEST(PathTracer, PointLightOverPlaneIsExact) {
 TEST(PathTracer, SphereLightOverPlane) {
     // Emitter sampling and BSDF sampling both find the light; MIS must weigh them to exactly the right sum.
     const double rho = 0.5, Le = 2, R = 0.5, h = 3;
-    std::string xml = R"(<scene version="3.0.0"><integrator type="path"><integer name="max_depth" value="2"/></integrator>)" +
-                      camera("3, 0, 3", "0, 0, 0", 0.05, 8, "0, 0, 1") + fmt::format(R"(
+    std::string xml =
+        R"(<scene version="3.0.0"><integrator type="path"><integer name="max_depth" value="2"/></integrator>)" +
+        camera("3, 0, 3", "0, 0, 0", 0.05, 8, "0, 0, 1") +
+        fmt::format(R"(
         <shape type="sphere"><point name="center" x="0" y="0" z="{}"/><float name="radius" value="{}"/>
             <emitter type="area"><rgb name="radiance" value="{}"/></emitter></shape>
         <shape type="rectangle"><transform name="to_world"><scale value="20"/></transform>
             <bsdf type="diffuse"><rgb name="reflectance" value="{}"/></bsdf></shape>
-    </scene>)", h, R, Le, rho);
+    </scene>)",
+                    h, R, Le, rho);
     Bitmap img = render(xml, 2048);
     const double expect = rho * Le * (R / h) * (R / h);
     ImageStats s = stats(img);
@@ -152,13 +158,16 @@ TEST(PathTracer, DiskLightOverPlane) {
     // (the projected solid angle of a disk seen on its axis), so L = rho Le R^2 / (R^2 + h^2). Checks the disk's
     // position sampling (pdf 1 / area), its normal, and MIS against BSDF sampling that hits it.
     const double rho = 0.5, Le = 3, R = 0.8, h = 2;
-    std::string xml = R"(<scene version="3.0.0"><integrator type="path"><integer name="max_depth" value="2"/></integrator>)" +
-                      camera("3, 0, 3", "0, 0, 0", 0.05, 8, "0, 0, 1") + fmt::format(R"(
+    std::string xml =
+        R"(<scene version="3.0.0"><integrator type="path"><integer name="max_depth" value="2"/></integrator>)" +
+        camera("3, 0, 3", "0, 0, 0", 0.05, 8, "0, 0, 1") +
+        fmt::format(R"(
         <shape type="disk"><transform name="to_world"><scale value="{}"/><rotate x="1" angle="180"/><translate z="{}"/></transform>
             <emitter type="area"><rgb name="radiance" value="{}"/></emitter></shape>
         <shape type="rectangle"><transform name="to_world"><scale value="20"/></transform>
             <bsdf type="diffuse"><rgb name="reflectance" value="{}"/></bsdf></shape>
-    </scene>)", R, h, Le, rho);
+    </scene>)",
+                    R, h, Le, rho);
     Bitmap img = render(xml, 1024);
     const double expect = rho * Le * R * R / (R * R + h * h);
     ImageStats s = stats(img);
@@ -171,13 +180,16 @@ TEST(PathTracer, PointAndConstantLightsTogether) {
     // point light's exact term and the furnace term rho * 1 (the plane is seen from above only, and a
     // plane under uniform radiance receives irradiance pi: reflected radiance rho).
     const double rho = 0.5, I = 8, h = 2;
-    std::string xml = R"(<scene version="3.0.0"><integrator type="path"><integer name="max_depth" value="2"/></integrator>)" +
-                      camera("0, -3, 3", "0, 0, 0", 0.05, 8, "0, 0, 1") + fmt::format(R"(
+    std::string xml =
+        R"(<scene version="3.0.0"><integrator type="path"><integer name="max_depth" value="2"/></integrator>)" +
+        camera("0, -3, 3", "0, 0, 0", 0.05, 8, "0, 0, 1") +
+        fmt::format(R"(
         <emitter type="point"><point name="position" x="0" y="0" z="{}"/><rgb name="intensity" value="{}"/></emitter>
         <emitter type="constant"><rgb name="radiance" value="1"/></emitter>
         <shape type="rectangle"><transform name="to_world"><scale value="1000"/></transform>
             <bsdf type="diffuse"><rgb name="reflectance" value="{}"/></bsdf></shape>
-    </scene>)", h, I, rho);
+    </scene>)",
+                    h, I, rho);
     Bitmap img = render(xml, 512);
     const double expect = rho / Pi * I / (h * h) + rho;
     ImageStats s = stats(img);
@@ -213,8 +225,7 @@ TEST(PathTracer, MaxDepthAndHideEmitters) {
 TEST(PathTracer, RejectsBadParameters) {
     auto make = [](const std::string& params) {
         return instantiate(parse_scene_string(R"(<scene version="3.0.0"><integrator type="path">)" + params +
-                                              R"(</integrator>)" + camera("0,0,5", "0,0,0", 30, 4) +
-                                              "</scene>"));
+                                              R"(</integrator>)" + camera("0,0,5", "0,0,0", 30, 4) + "</scene>"));
     };
     try {
         make(R"(<integer name="max_depth" value="0"/>)");

@@ -3,14 +3,14 @@
 // light tracing agreeing with path tracing in a room lit by a spot.
 //
 // Seen to fail on deliberately broken variants of spot.cpp:
-//   - Mitsuba's linear ramp instead of the documented smoothstep: IrradianceAcrossTheBeam (0.25 instead of
-//     0.156 at s = 1/4), FalloffProfile and PowerAndEmissionAgree fail;
+//   - a smoothstep in the angle instead of Mitsuba 3's linear ramp (Kelvin's profile before issue 17):
+//     IrradianceAcrossTheBeam (0.156 instead of 0.25 at s = 1/4), FalloffProfile and PowerAndEmissionAgree fail;
 //   - power() without the transition band (2 pi I (1 - cos beam_width)): PowerAndEmissionAgree fails;
 //   - sample_emission's weight without the falloff: PowerAndEmissionAgree fails, and light tracing is 45 %
 //     too bright (PathAndLightTracingAgreeUnderASpot: 52-60 of 64 blocks beyond 5 sigma);
 //   - sample_emission's direction not rotated by to_world: PowerAndEmissionAgree fails, and light tracing
 //     lights the wrong part of the room (56-59 outlier blocks).
-// Measured (correct code): path 0.0917 +- 0.0003, ptracer 0.0918 +- 0.0002 (red), 0 outlier blocks.
+// Measured (correct code, linear ramp): path 0.0925 +- 0.0003, ptracer 0.0926 +- 0.0002 (red), 0 outlier blocks.
 #include "render/render_support.h"
 
 #include <kelvin/core/parser.h>
@@ -29,11 +29,11 @@ using namespace kelvin;
 
 namespace {
 
-double smoothstep_falloff(double theta_deg, double beam_deg, double cutoff_deg) {
+// Mitsuba 3's spot profile: a linear ramp in the angle between beam_width and cutoff_angle.
+double mitsuba_falloff(double theta_deg, double beam_deg, double cutoff_deg) {
     if (theta_deg <= beam_deg) return 1;
     if (theta_deg >= cutoff_deg) return 0;
-    const double s = (cutoff_deg - theta_deg) / (cutoff_deg - beam_deg);
-    return s * s * (3 - 2 * s);
+    return (cutoff_deg - theta_deg) / (cutoff_deg - beam_deg);
 }
 
 Bitmap render(const std::string& xml, long long spp, uint64_t seed = 1) { return ktest::render_xml(xml, spp, seed); }
@@ -75,7 +75,7 @@ TEST(Spot, IrradianceAcrossTheBeam) {
     const double h = 2, I = 8, rho = 0.5, cutoff = 20, beam = 15;  // beam_width defaults to 3/4 of cutoff_angle
     for (double theta : {0.0, 10.0, 15.0 + 0.25 * 5, 17.5, 15.0 + 0.75 * 5, 19.5, 20.5, 25.0, 60.0}) {
         const double x = h * std::tan(glm::radians(theta)), c = std::cos(glm::radians(theta));
-        const double expect = rho / Pi * I * smoothstep_falloff(theta, beam, cutoff) * c * c * c / (h * h);
+        const double expect = rho / Pi * I * mitsuba_falloff(theta, beam, cutoff) * c * c * c / (h * h);
         const Range r = radiance_range(x, h, I, rho, "");  // default cutoff_angle 20, beam_width 15
         if (expect == 0) {
             EXPECT_EQ(r.hi, 0.0) << "theta " << theta;
@@ -96,7 +96,8 @@ TEST(Spot, IrradianceAcrossTheBeam) {
     EXPECT_NEAR(r.hi, rho / Pi * I * c * c * c / (h * h), 2e-3 * rho / Pi * I / (h * h));
 }
 
-std::shared_ptr<Emitter> make_spot(const std::string& intensity, double cutoff, double beam, const Transform& to_world) {
+std::shared_ptr<Emitter> make_spot(const std::string& intensity, double cutoff, double beam,
+                                   const Transform& to_world) {
     Properties p("emitter", "spot");
     p.set_color("intensity", Color3(std::stod(intensity)));
     p.set_float("cutoff_angle", cutoff);
@@ -117,7 +118,7 @@ TEST(Spot, FalloffProfile) {
             const double dist = 2.5;
             const Vec3d ref = pos + dist * glm::normalize(m.apply_vector(local));
             auto ds = spot->sample_direct(ref, {0.3, 0.7});
-            const double expect = 3 * smoothstep_falloff(theta, 10, 40);
+            const double expect = 3 * mitsuba_falloff(theta, 10, 40);
             if (theta > 40) EXPECT_FALSE(ds) << "theta " << theta;  // no shadow ray is wasted outside the cone
             if (!ds) {
                 EXPECT_NEAR(expect, 0.0, 1e-9) << "theta " << theta;
@@ -147,7 +148,7 @@ TEST(Spot, PowerAndEmissionAgree) {
     double integral = 0;  // midpoint rule on [0, cutoff]
     for (int i = 0; i < nq; ++i) {
         const double t = (i + 0.5) / nq * glm::radians(cutoff);
-        integral += smoothstep_falloff(glm::degrees(t), beam, cutoff) * std::sin(t) * glm::radians(cutoff) / nq;
+        integral += mitsuba_falloff(glm::degrees(t), beam, cutoff) * std::sin(t) * glm::radians(cutoff) / nq;
     }
     const double power = 2 * Pi * I * integral;
     EXPECT_NEAR(spot->power().r, power, 1e-8 * power);
@@ -233,7 +234,8 @@ TEST(Spot, RejectsBadParameters) {
     auto error_of = [](const std::string& params) -> std::string {
         try {
             instantiate(parse_scene_string(R"(<scene version="3.0.0"><integrator type="path"/>
-                <sensor type="perspective"/><emitter type="spot">)" + params + "</emitter></scene>"));
+                <sensor type="perspective"/><emitter type="spot">)" +
+                                           params + "</emitter></scene>"));
         } catch (const InputError& e) {
             return e.what();
         }

@@ -88,6 +88,26 @@ protected:
     fs::path dir;
 };
 
+// Read as one number (eval_1: roughness, opacity) Mitsuba 3's checkerboard swaps its squares ("the legacy scalar
+// checkerboard convention"); its colour reading does not. (Broken variant: eval_1 left as the luminance of eval,
+// Kelvin's first version: Mitsuba's textured roughconductor test scene fails with 974 of 6912 values rejected.)
+TEST(Texture, CheckerboardScalarReadingSwapsTheSquares) {
+    auto t = make_texture("checkerboard", [](Properties& p) {
+        p.set_float("color0", 0.8);
+        p.set_float("color1", 0.1);
+    });
+    SurfaceInteraction si;
+    si.uv = {0.25, 0.25};
+    EXPECT_NEAR(t->eval(si).r, 0.8, 1e-12);
+    EXPECT_NEAR(t->eval_1(si), 0.1, 1e-12);
+    si.uv = {0.75, 0.25};
+    EXPECT_NEAR(t->eval(si).r, 0.1, 1e-12);
+    EXPECT_NEAR(t->eval_1(si), 0.8, 1e-12);
+    // Any other texture reads its luminance.
+    auto c = make_texture("rawconstant", [](Properties& p) { p.set_vector("value", {1, 0, 0}); });
+    EXPECT_NEAR(c->eval_1(si), 0.212671, 1e-12);
+}
+
 TEST_F(BitmapTest, NearestAndBilinearTexels) {
     const fs::path p = write_grid("grid.exr");
     auto nearest = bitmap(p, "nearest", "repeat"), bilinear = bitmap(p, "bilinear", "repeat");
@@ -111,6 +131,25 @@ TEST_F(BitmapTest, NearestAndBilinearTexels) {
     for (int y = 0; y < 2; ++y)
         for (int x = 0; x < 4; ++x) sum += texel(x, y);
     expect_color(nearest->mean(), sum / 8.0);
+}
+
+// eval_1_grad (bump maps) is the derivative of the bilinear interpolant of the luminance: central differences of
+// eval_1 agree inside a texel cell (the interpolant is smooth there), in u and in v. (Broken variant: the
+// gradient without the resolution factor, per pixel instead of per unit of uv, is 4 and 2 times too small.)
+TEST_F(BitmapTest, ScalarGradientMatchesFiniteDifferences) {
+    auto t = bitmap(write_grid("grad.exr"), "bilinear", "repeat");
+    SurfaceInteraction si;
+    for (const Vec2d uv : {Vec2d(0.3, 0.4), Vec2d(0.55, 0.6), Vec2d(0.8, 0.3)}) {
+        const double h = 1e-6;
+        auto f = [&](Vec2d p) {
+            si.uv = p;
+            return t->eval_1(si);
+        };
+        si.uv = uv;
+        const Vec2d g = t->eval_1_grad(si);
+        EXPECT_NEAR(g.x, (f(uv + Vec2d(h, 0)) - f(uv - Vec2d(h, 0))) / (2 * h), 1e-6) << uv.x << "," << uv.y;
+        EXPECT_NEAR(g.y, (f(uv + Vec2d(0, h)) - f(uv - Vec2d(0, h))) / (2 * h), 1e-6) << uv.x << "," << uv.y;
+    }
 }
 
 TEST_F(BitmapTest, WrapModes) {

@@ -62,7 +62,8 @@ TEST(ThinLens, FocalPlanePointsAreSharp) {
     // every lens point sees it at that film position.
     const double F = 4;
     auto lens = make_camera("thinlens", fmt::format(R"(<float name="aperture_radius" value="0.3"/>
-                                                      <float name="focus_distance" value="{}"/>)", F));
+                                                      <float name="focus_distance" value="{}"/>)",
+                                                    F));
     auto pin = make_camera("perspective", "");
     for (Vec2d film : {Vec2d(32, 24), Vec2d(3.5, 40.25), Vec2d(60, 2), Vec2d(0.5, 47.5)}) {
         const Vec3d q = point_at_depth(*pin, film, F);
@@ -85,8 +86,11 @@ TEST(ThinLens, CircleOfConfusionHasThePredictedRadius) {
     // pinhole projection, of radius R |1 - F / z| on the focal plane: R |1 - F/z| / (F tan(fov/2)) * W/2 pixels.
     const double R = 0.2, F = 3, fov = 50;
     const int W = 64, H = 48;
-    auto lens = make_camera("thinlens", fmt::format(R"(<float name="aperture_radius" value="{}"/>
-                                                      <float name="focus_distance" value="{}"/>)", R, F), W, H, fov);
+    auto lens = make_camera("thinlens",
+                            fmt::format(R"(<float name="aperture_radius" value="{}"/>
+                                                      <float name="focus_distance" value="{}"/>)",
+                                        R, F),
+                            W, H, fov);
     auto pin = make_camera("perspective", "", W, H, fov);
     const double px_per_unit = W / 2.0 / (F * std::tan(glm::radians(fov) / 2));
     for (double z : {1.5, 2.0, 6.0, 12.0}) {
@@ -132,7 +136,8 @@ TEST(ThinLens, ZeroApertureIsThePerspectiveCamera) {
             EXPECT_NEAR(sa->weight, sb->weight, 1e-9 * sb->weight);
             EXPECT_NEAR(sa->dist, sb->dist, 1e-12);
             EXPECT_LT(glm::length(sa->d - sb->d), 1e-12);
-            EXPECT_NEAR(a.pdf_direction(sa->p, -sa->d), b.pdf_direction(sb->p, -sb->d), 1e-9 * b.pdf_direction(sb->p, -sb->d));
+            EXPECT_NEAR(a.pdf_direction(sa->p, -sa->d), b.pdf_direction(sb->p, -sb->d),
+                        1e-9 * b.pdf_direction(sb->p, -sb->d));
         }
 }
 
@@ -156,10 +161,10 @@ TEST(ThinLens, SampleDirectInvertsSampleRay) {
                 EXPECT_NEAR(sd->dist, t, 1e-12);
             }
     const Transform& m = s.to_world();
-    EXPECT_FALSE(s.sample_direct(m.apply_point({0, 0, 0.3}), {0.5, 0.5}));   // nearer than near_clip
-    EXPECT_FALSE(s.sample_direct(m.apply_point({0, 0, 25}), {0.5, 0.5}));    // beyond far_clip
-    EXPECT_FALSE(s.sample_direct(m.apply_point({0, 0, -1}), {0.5, 0.5}));    // behind
-    EXPECT_FALSE(s.sample_direct(m.apply_point({5, 0, 1}), {0.5, 0.5}));     // outside the image
+    EXPECT_FALSE(s.sample_direct(m.apply_point({0, 0, 0.3}), {0.5, 0.5}));  // nearer than near_clip
+    EXPECT_FALSE(s.sample_direct(m.apply_point({0, 0, 25}), {0.5, 0.5}));   // beyond far_clip
+    EXPECT_FALSE(s.sample_direct(m.apply_point({0, 0, -1}), {0.5, 0.5}));   // behind
+    EXPECT_FALSE(s.sample_direct(m.apply_point({5, 0, 1}), {0.5, 0.5}));    // outside the image
 }
 
 TEST(ThinLens, RejectsBadParameters) {
@@ -199,7 +204,6 @@ Bitmap render_cornell_lens(const std::string& integrator, int res, long long spp
     opts.defines = {{"integrator", integrator}, {"res", std::to_string(res)}, {"spp", std::to_string(spp)}};
     return ktest::render_xml(xml, 0, seed, opts, KELVIN_SOURCE_DIR "/scenes/render/cornell-box.xml");
 }
-
 
 // Both estimators are unbiased for the same thin-lens measurement; light tracing depends on sample_direct's
 // film position and importance weight, path tracing on sample_ray, bdpt on both and on pdf_direction from the

@@ -25,7 +25,8 @@ struct SceneValue {
     SourceLoc loc;
 };
 
-/// A nested object: either declared inline (`node` owned here) or a <ref> to an object declared earlier.
+/// A nested object: either declared inline (`node` owned here) or a <ref> to an object declared anywhere in the
+/// scene (references are resolved after parsing, as in Mitsuba).
 struct SceneChild {
     std::string name;  ///< name= attribute, or empty
     std::shared_ptr<SceneNode> node;
@@ -55,14 +56,17 @@ struct ParseOptions {
 };
 
 struct ParsedScene {
-    std::shared_ptr<SceneNode> root;                 ///< the <scene> element
+    std::shared_ptr<SceneNode> root;  ///< the <scene> element
     struct PluginRequest {
         std::filesystem::path path;  ///< resolved relative to the file that asked
         SourceLoc loc;
     };
-    std::vector<PluginRequest> plugins;              ///< <plugin path="..."/> requests
-    std::vector<std::string> files;                  ///< every file read (main file and includes)
-    std::vector<std::string> unused_defines;         ///< -D names the scene never referenced
+    std::vector<PluginRequest> plugins;       ///< <plugin path="..."/> requests
+    std::vector<std::string> files;           ///< every file read (main file and includes)
+    std::vector<std::string> unused_defines;  ///< -D names the scene never referenced
+    /// <path value="..."/> folders (resolved), the most recently declared first: where relative file names
+    /// are looked for when they are not next to the file that names them.
+    std::vector<std::filesystem::path> search_paths;
 };
 
 ParsedScene parse_scene_file(const std::filesystem::path& path, const ParseOptions& opts = {});

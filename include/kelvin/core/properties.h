@@ -110,7 +110,9 @@ public:
     std::string get_string(std::string_view name) const;
     /// A string parameter that must be one of `choices`.
     std::string get_choice(std::string_view name, const std::vector<std::string>& choices) const;
-    /// A file name, resolved relative to the directory of the scene file that gave it.
+    /// A file name, resolved relative to the directory of the scene file that gave it; if no file exists there,
+    /// the scene's search paths (Mitsuba's `<path value="..."/>`, see search_paths()) are tried in order. When
+    /// nothing exists anywhere, the first candidate is returned (so that the error names it).
     std::filesystem::path get_path(std::string_view name) const;
     /// get_path of an input file (`what`: "image file", "OBJ file", ...), checked with check_input_file before
     /// any reader touches it: a missing file, a directory or a device is an error at the parameter.
@@ -146,6 +148,11 @@ public:
     std::vector<const Entry*> unqueried() const;
     void mark_all_queried() const;
 
+    /// Folders searched for file names after the folder of the file that gave them, in order (the parser fills
+    /// this from the scene's <path> elements, the most recently declared first, as Mitsuba's file resolver).
+    const std::vector<std::filesystem::path>& search_paths() const { return m_search_paths; }
+    void set_search_paths(std::vector<std::filesystem::path> paths) { m_search_paths = std::move(paths); }
+
     /// The declared parameters, attached by the registry before construction (may be null in raw use).
     const PluginInfo* info() const { return m_info; }
     void set_info(const PluginInfo* info) { m_info = info; }
@@ -161,6 +168,7 @@ private:
     std::string m_kind, m_plugin, m_id;
     SourceLoc m_loc;
     std::vector<Entry> m_entries;
+    std::vector<std::filesystem::path> m_search_paths;
     const PluginInfo* m_info = nullptr;
 };
 

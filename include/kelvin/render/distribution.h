@@ -52,8 +52,8 @@ private:
 class Distribution2D {
 public:
     struct Sample {
-        Vec2d p{0.0};    ///< point in [0, 1)^2
-        double pdf = 0;  ///< density w.r.t. area on the unit square
+        Vec2d p{0.0};      ///< point in [0, 1)^2
+        double pdf = 0;    ///< density w.r.t. area on the unit square
         int x = 0, y = 0;  ///< the cell
     };
 

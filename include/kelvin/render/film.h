@@ -61,8 +61,10 @@ void for_each_footprint_pixel(const ReconstructionFilter* filter, int width, int
     }
     const double r = filter->radius();
     if (!(film.x >= -r && film.y >= -r && film.x < width + r && film.y < height + r)) return;
-    const int x0 = std::max(0, int(std::ceil(film.x - 0.5 - r))), x1 = std::min(width - 1, int(std::floor(film.x - 0.5 + r)));
-    const int y0 = std::max(0, int(std::ceil(film.y - 0.5 - r))), y1 = std::min(height - 1, int(std::floor(film.y - 0.5 + r)));
+    const int x0 = std::max(0, int(std::ceil(film.x - 0.5 - r))),
+              x1 = std::min(width - 1, int(std::floor(film.x - 0.5 + r)));
+    const int y0 = std::max(0, int(std::ceil(film.y - 0.5 - r))),
+              y1 = std::min(height - 1, int(std::floor(film.y - 0.5 + r)));
     for (int y = y0; y <= y1; ++y)
         for (int x = x0; x <= x1; ++x) {
             const double w = filter->eval(Vec2d(x + 0.5, y + 0.5) - film);

@@ -37,8 +37,7 @@ PassLoopResult run_passes(RunContext& ctx, long long scene_target, const std::st
 
 /// Zero `v` and return false if any channel is NaN, infinite or negative (callers count these).
 inline bool sanitize(Color3& v) {
-    if (std::isfinite(v.r) && std::isfinite(v.g) && std::isfinite(v.b) && v.r >= 0 && v.g >= 0 && v.b >= 0)
-        return true;
+    if (std::isfinite(v.r) && std::isfinite(v.g) && std::isfinite(v.b) && v.r >= 0 && v.g >= 0 && v.b >= 0) return true;
     v = Color3(0.0);
     return false;
 }
@@ -55,8 +54,8 @@ class SplatSink;
 struct SampleCounters {
     uint64_t samples = 0;  ///< samples taken: camera samples, or light paths for light tracing
     uint64_t rays = 0;
-    uint64_t invalid = 0;  ///< NaN, Inf or negative estimates, recorded as zero
-    SplatSink* splats = nullptr;    ///< where contributions to other pixels go (set when the integrator splats)
+    uint64_t invalid = 0;         ///< NaN, Inf or negative estimates, recorded as zero
+    SplatSink* splats = nullptr;  ///< where contributions to other pixels go (set when the integrator splats)
 };
 
 /// Add per-unit counters to ctx.stats (`samples_name` for SampleCounters::samples, render.rays,

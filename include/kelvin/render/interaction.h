@@ -20,6 +20,9 @@ struct SurfaceInteraction {
     const Shape* shape = nullptr;
     uint32_t shape_index = 0;
     uint32_t prim = 0;
+    Vec2d bary{0.0};   ///< triangles: barycentric weights of the primitive's second and third vertices
+    Vec3d dp_du{0.0};  ///< world-space tangent dp/du (Mitsuba's; meshes: from the uvs, else the normal's basis)
+    Vec3d dp_dv{0.0};  ///< world-space tangent dp/dv (likewise)
 
     Vec3d to_local(const Vec3d& v) const { return frame.to_local(v); }
     Vec3d to_world(const Vec3d& v) const { return frame.to_world(v); }

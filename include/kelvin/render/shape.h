@@ -5,6 +5,7 @@
 #include <kelvin/core/properties.h>
 #include <kelvin/render/bsdf.h>
 #include <kelvin/render/emitter.h>
+#include <kelvin/render/ply.h>
 
 #include <cstdint>
 #include <memory>
@@ -16,13 +17,13 @@ namespace kelvin {
 struct ShapeGeometry {
     enum class Type { Triangles, Spheres, Discs };
     Type type = Type::Triangles;
-    std::vector<Vec3f> positions;    ///< triangle vertices, or sphere / disc centres
-    std::vector<uint32_t> indices;   ///< 3 per triangle (counter-clockwise = front, normal by right hand)
-    std::vector<float> radii;        ///< spheres and discs: one per centre
-    std::vector<Vec3f> normals;      ///< triangles: optional per-vertex shading normals (same count as positions);
-                                     ///< discs: the unit normal of each disc (required)
-    std::vector<Vec3f> tangents;     ///< discs: a unit vector in each disc's plane, where the polar angle of uv is 0
-    std::vector<Vec2f> uvs;          ///< triangles: optional per-vertex texture coordinates
+    std::vector<Vec3f> positions;   ///< triangle vertices, or sphere / disc centres
+    std::vector<uint32_t> indices;  ///< 3 per triangle (counter-clockwise = front, normal by right hand)
+    std::vector<float> radii;       ///< spheres and discs: one per centre
+    std::vector<Vec3f> normals;     ///< triangles: optional per-vertex shading normals (same count as positions);
+                                    ///< discs: the unit normal of each disc (required)
+    std::vector<Vec3f> tangents;    ///< discs: a unit vector in each disc's plane, where the polar angle of uv is 0
+    std::vector<Vec2f> uvs;         ///< triangles: optional per-vertex texture coordinates
     bool flip_normals = false;
 };
 
@@ -42,6 +43,14 @@ public:
     virtual double surface_area() const = 0;
     /// A point uniformly distributed over the surface (pdf = 1 / area), with the shape's oriented normal.
     virtual PositionSample sample_position(const Vec2d& u) const = 0;
+
+    /// Mitsuba's mesh attributes ("vertex_color", "face_weight", ...): the value at `si` (vertex attributes
+    /// interpolated, face attributes constant per face), 1 channel as grey. False when the shape has none by
+    /// that name.
+    virtual bool eval_attribute(std::string_view name, const SurfaceInteraction& si, Color3& out) const {
+        return false;
+    }
+    virtual bool has_attribute(std::string_view name) const { return false; }
 
     const Bsdf* bsdf() const { return m_bsdf.get(); }
     const Emitter* emitter() const { return m_emitter.get(); }

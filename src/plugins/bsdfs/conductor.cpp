@@ -33,7 +33,7 @@ public:
         BsdfSample bs;
         bs.wo = reflect(si.wi);
         bs.pdf = 1;
-        bs.weight = m_specular->eval(si.uv) * fresnel_conductor(cos_i, m_ior.eta, m_ior.k);
+        bs.weight = m_specular->eval(si) * fresnel_conductor(cos_i, m_ior.eta, m_ior.k);
         bs.sampled = BsdfFlags::DeltaReflection;
         bs.eta = 1;
         return bs;

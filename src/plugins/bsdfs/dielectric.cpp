@@ -43,14 +43,14 @@ public:
         if (u1 < fr.F) {
             bs.wo = reflect(si.wi);
             bs.pdf = fr.F;
-            bs.weight = m_reflectance->eval(si.uv);
+            bs.weight = m_reflectance->eval(si);
             bs.sampled = BsdfFlags::DeltaReflection;
             bs.eta = 1;
         } else {
             bs.wo = refract(si.wi, fr.cos_theta_t, fr.eta_ti);
             bs.pdf = 1 - fr.F;
             const double scale = ctx.mode == TransportMode::Radiance ? fr.eta_ti * fr.eta_ti : 1.0;
-            bs.weight = m_transmittance->eval(si.uv) * scale;
+            bs.weight = m_transmittance->eval(si) * scale;
             bs.sampled = BsdfFlags::DeltaTransmission;
             bs.eta = fr.eta_it;
         }

@@ -26,19 +26,19 @@ public:
         bs.wo = warp::square_to_cosine_hemisphere(u2);
         bs.pdf = warp::square_to_cosine_hemisphere_pdf(bs.wo);
         if (!(bs.pdf > 0)) return std::nullopt;
-        bs.weight = m_reflectance->eval(si.uv);  // f cos / pdf = (R/pi) cos / (cos/pi)
+        bs.weight = m_reflectance->eval(si);  // f cos / pdf = (R/pi) cos / (cos/pi)
         bs.sampled = BsdfFlags::DiffuseReflection;
         return bs;
     }
     Color3 eval(const BsdfContext&, const SurfaceInteraction& si, const Vec3d& wo) const override {
         if (Frame::cos_theta(si.wi) <= 0 || Frame::cos_theta(wo) <= 0) return Color3(0.0);
-        return m_reflectance->eval(si.uv) * (InvPi * Frame::cos_theta(wo));
+        return m_reflectance->eval(si) * (InvPi * Frame::cos_theta(wo));
     }
     double pdf(const BsdfContext&, const SurfaceInteraction& si, const Vec3d& wo) const override {
         if (Frame::cos_theta(si.wi) <= 0 || Frame::cos_theta(wo) <= 0) return 0.0;
         return warp::square_to_cosine_hemisphere_pdf(wo);
     }
-    Color3 albedo(const SurfaceInteraction& si) const override { return m_reflectance->eval(si.uv); }
+    Color3 albedo(const SurfaceInteraction& si) const override { return m_reflectance->eval(si); }
     Model model() const override {
         Model m;
         if (!m_reflectance->is_constant()) return m;

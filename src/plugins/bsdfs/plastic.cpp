@@ -61,7 +61,7 @@ public:
         if (u1 < ps) {
             bs.wo = reflect(si.wi);
             bs.pdf = ps;
-            bs.weight = m_specular->eval(si.uv) * (Fi / ps);
+            bs.weight = m_specular->eval(si) * (Fi / ps);
             bs.sampled = BsdfFlags::DeltaReflection;
         } else {
             bs.wo = warp::square_to_cosine_hemisphere(u2);
@@ -82,7 +82,7 @@ public:
         const double ps = prob_specular(fresnel_dielectric(si.wi.z, m_eta).F);
         return (1 - ps) * warp::square_to_cosine_hemisphere_pdf(wo);
     }
-    Color3 albedo(const SurfaceInteraction& si) const override { return m_diffuse->eval(si.uv); }
+    Color3 albedo(const SurfaceInteraction& si) const override { return m_diffuse->eval(si); }
 
 private:
     double prob_specular(double Fi) const {
@@ -92,7 +92,7 @@ private:
     /// Diffuse part, f * cos(theta_o).
     Color3 diffuse(const SurfaceInteraction& si, double Fi, const Vec3d& wo) const {
         const double Fo = fresnel_dielectric(wo.z, m_eta).F;
-        Color3 rho = glm::max(m_diffuse->eval(si.uv), Color3(0.0));
+        Color3 rho = glm::max(m_diffuse->eval(si), Color3(0.0));
         if (m_nonlinear)
             rho = rho * (1 - m_fdr_int) / glm::max(Color3(1.0) - glm::min(rho, Color3(1.0)) * m_fdr_int, Color3(1e-6));
         return rho * ((1 - Fi) * (1 - Fo) * m_inv_ext_transmission * InvPi * wo.z);

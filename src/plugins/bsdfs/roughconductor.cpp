@@ -10,12 +10,12 @@
 // | parameter            | type          | default  | meaning                                               |
 // |----------------------|---------------|----------|-------------------------------------------------------|
 // | distribution         | string        | beckmann | beckmann or ggx                                       |
-// | alpha                | float         | 0.1      | roughness in [0, 100] (below 1e-4: raised to 1e-4)    |
-// | alpha_u, alpha_v     | float         | 0.1      | anisotropic roughness along tangent and bitangent     |
-// | sample_visible       | bool          | true     | sample visible normals (else D(m) cos theta_m)        |
-// | material             | string        | none     | named conductor, as for `conductor`                   |
-// | eta, k               | rgb           | 0, 1     | explicit complex index (instead of material)          |
-// | specular_reflectance | rgb / texture | 1        | multiplies the reflectance                            |
+// | alpha                | float / texture | 0.1   | roughness in [0, 100] (below 1e-4: raised to 1e-4); a texture: its
+// luminance | | alpha_u, alpha_v     | float / texture | 0.1   | anisotropic roughness along tangent (dp/du) and
+// bitangent | | sample_visible       | bool          | true     | sample visible normals (else D(m) cos theta_m) | |
+// material             | string        | none     | named conductor, as for `conductor`                   | | eta, k |
+// rgb           | 0, 1     | explicit complex index (instead of material)          | | specular_reflectance | rgb /
+// texture | 1        | multiplies the reflectance                            |
 //
 //     <bsdf type="roughconductor">
 //         <string name="material" value="Al"/><string name="distribution" value="ggx"/>
@@ -27,32 +27,62 @@
 #include <kelvin/render/microfacet.h>
 #include <kelvin/render/texture.h>
 
+#include <fmt/format.h>
+
+#include <algorithm>
 #include <cmath>
 
 namespace kelvin {
 namespace {
 
+// Roughness: alpha (isotropic) or alpha_u and alpha_v, each a float or a texture (Mitsuba accepts textures
+// here too: a texture's luminance is the roughness at the surface point).
 class RoughConductor final : public Bsdf {
 public:
     explicit RoughConductor(const Properties& props)
-        : m_distr(microfacet_from_properties(props, true)),
+        : m_distr(MicrofacetType::Beckmann, 0.1, 0.1),
           m_ior(conductor_ior_from_properties(props)),
-          m_specular(get_texture(props, "specular_reflectance")) {}
+          m_specular(get_texture(props, "specular_reflectance")) {
+        const std::string dist = props.get_choice("distribution", {"beckmann", "ggx"});
+        m_type = dist == "ggx" ? MicrofacetType::GGX : MicrofacetType::Beckmann;
+        m_visible = props.get_bool("sample_visible");
+        if (props.has("alpha_u") || props.has("alpha_v")) {
+            if (props.has("alpha")) props.error("alpha", "give either 'alpha' or 'alpha_u' and 'alpha_v', not both");
+            if (!props.has("alpha_u") || !props.has("alpha_v"))
+                props.error(props.has("alpha_u") ? "alpha_u" : "alpha_v",
+                            "an anisotropic roughness needs both 'alpha_u' and 'alpha_v'");
+            m_alpha_u = get_texture(props, "alpha_u");
+            m_alpha_v = get_texture(props, "alpha_v");
+        } else {
+            m_alpha_u = m_alpha_v = get_texture(props, "alpha");
+        }
+        for (const char* name : {"alpha", "alpha_u", "alpha_v"}) {
+            if (!props.has(name) || props.get_alternative_object(name)) continue;
+            const Color3 c = props.get_color(name);
+            if (c.g != c.r || c.b != c.r) props.error(name, "must be one number (or a texture), not a colour");
+            if (!(c.r >= 0 && c.r <= 100)) props.error(name, fmt::format("{} is not in [0, 100]", c.r));
+        }
+        m_textured = !m_alpha_u->is_constant() || !m_alpha_v->is_constant();
+        if (!m_textured)
+            m_distr =
+                MicrofacetDistribution(m_type, luminance(m_alpha_u->mean()), luminance(m_alpha_v->mean()), m_visible);
+    }
     uint32_t flags() const override { return BsdfFlags::GlossyReflection; }
 
     std::optional<BsdfSample> sample(const BsdfContext& ctx, const SurfaceInteraction& si, double,
                                      const Vec2d& u2) const override {
         const Vec3d& wi = si.wi;
         if (!(wi.z > 0)) return std::nullopt;
-        const Vec3d m = m_distr.sample(wi, u2);
-        const double pm = m_distr.pdf(wi, m);
+        const MicrofacetDistribution distr = distribution(si);
+        const Vec3d m = distr.sample(wi, u2);
+        const double pm = distr.pdf(wi, m);
         if (!(pm > 0)) return std::nullopt;
         BsdfSample bs;
         bs.wo = reflect(wi, m);
         const double wo_m = glm::dot(bs.wo, m);
         if (!(bs.wo.z > 0) || !(wo_m > 0)) return std::nullopt;
         bs.pdf = pm / (4.0 * wo_m);
-        const Color3 f = eval_reflection(si, bs.wo, m);
+        const Color3 f = eval_reflection(distr, si, bs.wo, m);
         if (!(bs.pdf > 0) || !std::isfinite(bs.pdf)) return std::nullopt;
         bs.weight = f / bs.pdf;
         if (!std::isfinite(bs.weight.r + bs.weight.g + bs.weight.b)) return std::nullopt;
@@ -64,14 +94,14 @@ public:
         if (!(si.wi.z > 0) || !(wo.z > 0)) return Color3(0.0);
         const Vec3d h = half_vector(si.wi, wo);
         if (h.z <= 0) return Color3(0.0);
-        return eval_reflection(si, wo, h);
+        return eval_reflection(distribution(si), si, wo, h);
     }
     double pdf(const BsdfContext&, const SurfaceInteraction& si, const Vec3d& wo) const override {
         if (!(si.wi.z > 0) || !(wo.z > 0)) return 0.0;
         const Vec3d h = half_vector(si.wi, wo);
         const double wo_h = glm::dot(wo, h);
         if (!(wo_h > 0)) return 0.0;
-        const double p = m_distr.pdf(si.wi, h) / (4.0 * wo_h);
+        const double p = distribution(si).pdf(si.wi, h) / (4.0 * wo_h);
         return std::isfinite(p) ? p : 0.0;
     }
 
@@ -96,14 +126,24 @@ private:
         return l2 > 0 ? h / std::sqrt(l2) : Vec3d(0.0);
     }
     /// f * cos(theta_o) for a reflection about the microfacet normal m.
-    Color3 eval_reflection(const SurfaceInteraction& si, const Vec3d& wo, const Vec3d& m) const {
-        const double D = m_distr.D(m), G = m_distr.G(si.wi, wo, m);
+    Color3 eval_reflection(const MicrofacetDistribution& distr, const SurfaceInteraction& si, const Vec3d& wo,
+                           const Vec3d& m) const {
+        const double D = distr.D(m), G = distr.G(si.wi, wo, m);
         const double s = D * G / (4.0 * si.wi.z);
         if (!(s > 0) || !std::isfinite(s)) return Color3(0.0);
-        return m_specular->eval(si.uv) * fresnel_conductor(glm::dot(si.wi, m), m_ior.eta, m_ior.k) * s;
+        return m_specular->eval(si) * fresnel_conductor(glm::dot(si.wi, m), m_ior.eta, m_ior.k) * s;
+    }
+
+    MicrofacetDistribution distribution(const SurfaceInteraction& si) const {
+        if (!m_textured) return m_distr;
+        return {m_type, std::clamp(m_alpha_u->eval_1(si), 0.0, 100.0), std::clamp(m_alpha_v->eval_1(si), 0.0, 100.0),
+                m_visible};
     }
 
     MicrofacetDistribution m_distr;
+    MicrofacetType m_type = MicrofacetType::Beckmann;
+    bool m_visible = true, m_textured = false;
+    std::shared_ptr<Texture> m_alpha_u, m_alpha_v;
     ConductorIor m_ior;
     std::shared_ptr<Texture> m_specular;
 };
@@ -113,9 +153,9 @@ private:
 
 KELVIN_PLUGIN(kelvin::RoughConductor, "bsdf", "roughconductor", "Rough conductor (microfacet reflection).",
               kelvin::param::string("distribution", "beckmann", "microfacet distribution: beckmann or ggx"),
-              kelvin::param::real("alpha", 0.1, "isotropic roughness"),
-              kelvin::param::real("alpha_u", 0.1, "roughness along the tangent (anisotropic; with alpha_v)"),
-              kelvin::param::real("alpha_v", 0.1, "roughness along the bitangent (anisotropic; with alpha_u)"),
+              kelvin::param::texture("alpha", kelvin::Color3(0.1), "isotropic roughness (float or texture)"),
+              kelvin::param::texture("alpha_u", kelvin::Color3(0.1), "roughness along the tangent (with alpha_v)"),
+              kelvin::param::texture("alpha_v", kelvin::Color3(0.1), "roughness along the bitangent (with alpha_u)"),
               kelvin::param::boolean("sample_visible", true, "sample the visible normals"),
               kelvin::param::string("material", "none", "named conductor (Au, Ag, Cu, Al, ...) or none"),
               kelvin::param::color("eta", kelvin::Color3(0.0), "real part of the complex index (instead of material)"),

@@ -1,20 +1,16 @@
-// roughplastic: a rough dielectric coating over a diffuse base, an energy-conserving approximation in the
-// spirit of Mitsuba's `roughplastic` (which follows Weidlich and Wilkie 2007, "Arbitrarily layered micro-facet
-// surfaces"). The coating reflects with the microfacet lobe of `roughconductor` using the dielectric Fresnel
-// term (Walter et al. 2007, eq. 20); what it does not reflect reaches the diffuse base:
+// roughplastic: a rough dielectric coating over a diffuse base, as Mitsuba 3 models it (after Weidlich and
+// Wilkie 2007, "Arbitrarily layered micro-facet surfaces"). The coating reflects with the microfacet lobe of
+// `roughconductor` using the dielectric Fresnel term (Walter et al. 2007, eq. 20); the base is seen through it:
 //   f(wi, wo) = specular_reflectance F(wi.h) D(h) G(wi, wo, h) / (4 cos theta_i cos theta_o)
-//             + rho_eff T(wi) T(wo) / (pi (1 - R_avg)),
-// where R(mu) is the directional albedo of the specular lobe (for specular_reflectance = 1), T(mu) = 1 - R(mu),
-// and R_avg = 2 int_0^1 R(mu) mu dmu its cosine-weighted average. R is tabulated at construction (32 values of
-// mu, each an expectation over visible normals computed with a deterministic 32x32 midpoint rule) and
-// interpolated linearly; R_avg is integrated exactly from the interpolant. The diffuse term is symmetric
-// (reciprocal) and its albedo is exactly rho_eff T(wi), so the directional albedo is R(wi) + (1 - R(wi)) rho_eff:
-// with rho = 1 (nonlinear = false) and specular_reflectance = 1 the surface loses no energy. The approximation:
-// energy missing from the single-scattering specular lobe (masking) is sent to the base instead of being lost,
-// and the base's light leaves through the coating with the directional profile T(wo).
-//   rho_eff = diffuse_reflectance (nonlinear = false), or
-//   rho_eff = rho (1 - Fdr_int) / (1 - rho Fdr_int) (nonlinear = true; Fdr_int of the smooth coating, as `plastic`).
-// For alpha -> 0 the model tends to `plastic`. Sampling picks the specular lobe with probability
+//             + rho' t(wi) t(wo) / (pi eta^2),
+//   rho' = rho / (1 - Fdr_int)  (nonlinear = false),  rho / (1 - rho Fdr_int)  (nonlinear = true),
+// where t(mu) is the rough coating's transmittance (the expectation over visible normals of (1 - F) times the
+// masking of the refracted direction), Fdr_int = 2 int_0^1 r_int(mu) mu dmu the coating's rough internal
+// reflectance (seen from inside, with total internal reflection), and 1 / eta^2 the radiance change on leaving
+// the coating. The tables (t, r_int, and the outside albedo R used for sampling) are computed at construction
+// (32 values of mu, each a deterministic 32 x 32 midpoint rule over visible normals), interpolated linearly;
+// Fdr_int is integrated exactly from the interpolant. Like Mitsuba's, the model is not exactly energy
+// conserving (masking losses, the eta^2 factor). Sampling picks the specular lobe with probability
 // R(mu_i) s / (R(mu_i) s + (1 - R(mu_i)) d) (s, d: means of specular and diffuse reflectance), else the
 // cosine-weighted hemisphere; pdf() is the mixture. Isotropic roughness only (as Mitsuba). One-sided.
 //
@@ -50,37 +46,65 @@ namespace kelvin {
 namespace {
 
 constexpr int kTableSize = 32;
-using AlbedoTable = std::array<double, kTableSize>;  // R at mu_j = j / (kTableSize - 1)
+using AlbedoTable = std::array<double, kTableSize>;  // values at mu_j = j / (kTableSize - 1)
 
-/// Directional albedo of the coating's specular lobe, E_{m ~ D_wi}[F(wi.m) G1(wo, m)], on a mu grid. Cached
-/// by (distribution, alpha, eta): scenes and tests build many identical plastics.
-AlbedoTable specular_albedo_table(MicrofacetType type, double alpha, double eta) {
+/// The coating's tables, each an expectation over the visible normals m of wi = (sqrt(1 - mu^2), 0, mu)
+/// (deterministic 32 x 32 midpoint rule), as Mitsuba 3 precomputes them for its roughplastic:
+///   r_ext(mu) = E[F(wi.m, eta) G1(reflect(wi, m), m)]          specular albedo seen from outside,
+///   t_ext(mu) = E[(1 - F(wi.m, eta)) G1(refract(wi, m), m)]     rough transmittance into the coating,
+///   r_int(mu) = E[F(wi.m, 1 / eta) G1(reflect(wi, m), m)]        specular albedo seen from inside (TIR included).
+/// Cached by (distribution, alpha, eta): scenes and tests build many identical plastics.
+struct CoatingTables {
+    AlbedoTable r_ext{}, t_ext{}, r_int{};
+};
+
+CoatingTables coating_tables(MicrofacetType type, double alpha, double eta) {
     static std::mutex mutex;
-    static std::map<std::tuple<int, double, double>, AlbedoTable> cache;
+    static std::map<std::tuple<int, double, double>, CoatingTables> cache;
     const auto key = std::make_tuple(int(type), alpha, eta);
     {
         std::lock_guard<std::mutex> lock(mutex);
         if (auto it = cache.find(key); it != cache.end()) return it->second;
     }
     const MicrofacetDistribution distr(type, alpha, alpha, true);
-    AlbedoTable table{};
+    CoatingTables t;
     constexpr int n = 32;
     for (int j = 0; j < kTableSize; ++j) {
         const double mu = std::max(double(j) / (kTableSize - 1), 1e-4);
         const Vec3d wi(std::sqrt(1 - mu * mu), 0, mu);
-        double sum = 0;
+        double r_ext = 0, t_ext = 0, r_int = 0;
         for (int a = 0; a < n; ++a)
             for (int b = 0; b < n; ++b) {
                 const Vec3d m = distr.sample(wi, Vec2d((a + 0.5) / n, (b + 0.5) / n));
                 if (!(m.z > 0)) continue;
-                const Vec3d wo = 2.0 * glm::dot(wi, m) * m - wi;
-                sum += fresnel_dielectric(glm::dot(wi, m), eta).F * distr.G1(wo, m);
+                const double c = glm::dot(wi, m);
+                const Vec3d wr = 2.0 * c * m - wi;
+                const double g_r = distr.G1(wr, m);
+                const double F = fresnel_dielectric(c, eta).F;
+                r_ext += F * g_r;
+                r_int += fresnel_dielectric(c, 1.0 / eta).F * g_r;
+                // Refraction into the coating (relative index eta, from the side m faces).
+                const double sin2_t = (1 - c * c) / (eta * eta);
+                if (sin2_t < 1) {
+                    const double cos_t = std::sqrt(1 - sin2_t);
+                    const Vec3d wt = -wi / eta + (c / eta - cos_t) * m;
+                    t_ext += (1 - F) * distr.G1(wt, m);
+                }
             }
-        table[j] = std::clamp(sum / (n * n), 0.0, 1.0);
+        t.r_ext[j] = std::clamp(r_ext / (n * n), 0.0, 1.0);
+        t.t_ext[j] = std::clamp(t_ext / (n * n), 0.0, 1.0);
+        t.r_int[j] = std::clamp(r_int / (n * n), 0.0, 1.0);
     }
     std::lock_guard<std::mutex> lock(mutex);
-    cache.emplace(key, table);
-    return table;
+    cache.emplace(key, t);
+    return t;
+}
+
+double interpolate(const AlbedoTable& table, double mu) {
+    const double x = std::clamp(mu, 0.0, 1.0) * (kTableSize - 1);
+    const int j = std::min(int(x), kTableSize - 2);
+    const double t = x - j;
+    return (1 - t) * table[std::size_t(j)] + t * table[std::size_t(j) + 1];
 }
 
 class RoughPlastic final : public Bsdf {
@@ -92,16 +116,16 @@ public:
         const double int_ior = ior_from_properties(props, "int_ior"), ext_ior = ior_from_properties(props, "ext_ior");
         m_eta = int_ior / ext_ior;
         m_nonlinear = props.get_bool("nonlinear");
-        m_fdr_int = fresnel_diffuse_reflectance(1.0 / m_eta);
-        m_table = specular_albedo_table(m_distr.type(), m_distr.alpha_u(), m_eta);
-        // R_avg = 2 int R(mu) mu dmu, exact for the piecewise-linear interpolant (Simpson on each segment).
-        double r_avg = 0;
+        m_tables = coating_tables(m_distr.type(), m_distr.alpha_u(), m_eta);
+        // Fdr_int = 2 int r_int(mu) mu dmu, exact for the piecewise-linear interpolant (Simpson on each segment).
+        double fdr = 0;
         const double h = 1.0 / (kTableSize - 1);
         for (int j = 0; j + 1 < kTableSize; ++j) {
-            const double a = j * h, b = a + h, ra = m_table[j], rb = m_table[j + 1];
-            r_avg += h / 6.0 * (ra * a + 4.0 * (0.5 * (ra + rb)) * (0.5 * (a + b)) + rb * b);
+            const double a = j * h, b = a + h, ra = m_tables.r_int[std::size_t(j)],
+                         rb = m_tables.r_int[std::size_t(j) + 1];
+            fdr += h / 6.0 * (ra * a + 4.0 * (0.5 * (ra + rb)) * (0.5 * (a + b)) + rb * b);
         }
-        m_inv_ext_transmission = 1.0 / std::max(1e-12, 1.0 - 2.0 * r_avg);
+        m_fdr_int = std::clamp(2.0 * fdr, 0.0, 1.0 - 1e-9);
         const double d = luminance(m_diffuse->mean()), s = luminance(m_specular->mean());
         m_specular_weight = d + s > 0 ? s / (d + s) : 0.5;
     }
@@ -137,12 +161,14 @@ public:
         const Vec3d h = glm::normalize(wi + wo);
         const double s = m_distr.D(h) * m_distr.G(wi, wo, h) / (4.0 * wi.z);
         if (s > 0 && std::isfinite(s))
-            result += m_specular->eval(si.uv) * (fresnel_dielectric(glm::dot(wi, h), m_eta).F * s);
-        Color3 rho = glm::max(m_diffuse->eval(si.uv), Color3(0.0));
-        if (m_nonlinear)
-            rho = rho * (1 - m_fdr_int) / glm::max(Color3(1.0) - glm::min(rho, Color3(1.0)) * m_fdr_int, Color3(1e-6));
-        const double transmitted = (1 - coating_albedo(wi.z)) * (1 - coating_albedo(wo.z));  // through the coat, twice
-        result += rho * (transmitted * m_inv_ext_transmission * InvPi * wo.z);
+            result += m_specular->eval(si) * (fresnel_dielectric(glm::dot(wi, h), m_eta).F * s);
+        // Mitsuba 3's base: rho / (1 - Fdr_int) (or rho / (1 - rho Fdr_int), nonlinear), through the rough coating
+        // twice (t_ext), and the 1 / eta^2 of radiance leaving a medium of index eta.
+        const Color3 rho = glm::max(m_diffuse->eval(si), Color3(0.0));
+        const Color3 denom =
+            m_nonlinear ? Color3(1.0) - glm::min(rho, Color3(1.0)) * m_fdr_int : Color3(1.0 - m_fdr_int);
+        const double transmitted = interpolate(m_tables.t_ext, wi.z) * interpolate(m_tables.t_ext, wo.z);
+        result += rho / glm::max(denom, Color3(1e-9)) * (transmitted * InvPi * wo.z / (m_eta * m_eta));
         return result;
     }
     double pdf(const BsdfContext&, const SurfaceInteraction& si, const Vec3d& wo) const override {
@@ -155,16 +181,11 @@ public:
         if (!std::isfinite(p_spec)) p_spec = 0;
         return ps * p_spec + (1 - ps) * warp::square_to_cosine_hemisphere_pdf(wo);
     }
-    Color3 albedo(const SurfaceInteraction& si) const override { return m_diffuse->eval(si.uv); }
+    Color3 albedo(const SurfaceInteraction& si) const override { return m_diffuse->eval(si); }
 
 private:
-    /// R(mu), interpolated in the table.
-    double coating_albedo(double mu) const {
-        const double x = std::clamp(mu, 0.0, 1.0) * (kTableSize - 1);
-        const int j = std::min(int(x), kTableSize - 2);
-        const double t = x - j;
-        return (1 - t) * m_table[j] + t * m_table[j + 1];
-    }
+    /// The specular albedo seen from outside, R(mu).
+    double coating_albedo(double mu) const { return interpolate(m_tables.r_ext, mu); }
     double prob_specular(double mu) const {
         const double R = coating_albedo(mu);
         const double a = R * m_specular_weight, b = (1 - R) * (1 - m_specular_weight);
@@ -173,8 +194,8 @@ private:
 
     MicrofacetDistribution m_distr;
     std::shared_ptr<Texture> m_diffuse, m_specular;
-    AlbedoTable m_table{};
-    double m_eta = 1.49, m_fdr_int = 0, m_inv_ext_transmission = 1, m_specular_weight = 0.5;
+    CoatingTables m_tables;
+    double m_eta = 1.49, m_fdr_int = 0, m_specular_weight = 0.5;
     bool m_nonlinear = false;
 };
 

@@ -3,19 +3,21 @@
 // zenith, the last row the nadir. The direction
 //     d(phi, theta) = (sin phi sin theta, cos theta, -cos phi sin theta),  u = phi / (2 pi),  v = theta / pi,
 // is seen at image position (u W, v H): the left edge looks along -z, a quarter across along +x, the centre
-// along +z. Texel
-// (i, j) covers [i/W, (i+1)/W) x [j/H, (j+1)/H) and its radiance is constant over it (nearest lookup, as in
-// pbrt-v4's ImageInfiniteLight). to_world rotates the map.
+// along +z. to_world rotates the map.
 //
-// Importance sampling (Pharr, Jakob and Humphreys 2023, Sec. 12.5.2; Mitsuba 3): a texel is chosen with
-// probability proportional to its luminance times its solid angle, Omega_ij = 2 pi / W (cos theta_j -
-// cos theta_{j+1}) (the exact integral of sin theta over the texel), through a 2D piecewise-constant
-// distribution (marginal over rows, conditional per row); the direction is then uniform in the texel's solid
-// angle (phi uniform, cos theta uniform). So the solid-angle density is
-//     pdf(w) = luminance(texel(w)) / sum_k luminance_k Omega_k,
-// exactly proportional to the luminance the map shows in w: next-event estimation of a bare environment has
-// no variance from the map in luminance. (Sampling the cell uniformly in theta instead, with density
-// luminance sin theta_centre, would leave a sin theta / sin theta_centre factor.)
+// Lookup: bilinear, as Mitsuba 3's envmap: in phi the texel values sit at the texel centres (u = (i + 0.5) / W,
+// periodic: the last column blends into the first), in theta at the corners (v = j / (H - 1): the first row is
+// the zenith itself, the last the nadir). Directly seen backgrounds then match Mitsuba's pixel for pixel.
+//
+// Importance sampling (Pharr, Jakob and Humphreys 2023, Sec. 12.5.2), conservatively built for the bilinear
+// lookup: the sphere is cut into W x H cells [i/W, (i+1)/W) x [j/H, (j+1)/H); a cell is chosen with probability
+// proportional to its solid angle, Omega_ij = 2 pi / W (cos theta_j - cos theta_{j+1}), times the largest
+// luminance the lookup can take in it (the largest luminance of the texels its bilinear footprint reads: a
+// bilinear blend never exceeds its largest corner), through a 2D piecewise-constant distribution; the
+// direction is then uniform in the cell's solid angle (phi uniform, cos theta uniform). The solid-angle density
+//     pdf(w) = bound(cell(w)) / sum_k bound_k Omega_k
+// is positive wherever the lookup is (unbiased) and close to proportional to it; pdf_direct evaluates the same
+// expression, so emitter sampling and MIS agree with the lookup.
 //
 // Light tracing starts rays on a disk of the scene's bounding radius, perpendicular to the sampled direction
 // and tangent to the bounding sphere (as `constant` does): pdf_pos = 1 / (pi R^2).
@@ -85,8 +87,23 @@ public:
                                                         path.string(), i, j, c.r, c.g, c.b));
                 const std::size_t k = std::size_t(j) * std::size_t(m_width) + std::size_t(i);
                 m_texels[k] = c * m_scale;
-                weights[k] = luminance(m_texels[k]) * omega;
-                m_power += m_texels[k] * omega;  // integral of L over the sphere
+                m_power += m_texels[k] * omega;  // integral of L over the sphere (nearest-texel estimate)
+            }
+        }
+        // Cell (i, j) reads columns i - 1 .. i + 1 (phi: x = u W - 1/2) and rows floor(j (H-1) / H) ..
+        // ceil((j+1) (H-1) / H) (theta: y = v (H - 1)); its bound is their largest luminance.
+        for (int j = 0; j < m_height; ++j) {
+            const double omega = 2 * Pi / m_width * (m_cos_row[std::size_t(j)] - m_cos_row[std::size_t(j) + 1]);
+            const int r0 = std::max(0, int(std::floor(double(j) * (m_height - 1) / m_height)));
+            const int r1 = std::min(m_height - 1, int(std::ceil(double(j + 1) * (m_height - 1) / m_height)));
+            for (int i = 0; i < m_width; ++i) {
+                double bound = 0;
+                for (int r = r0; r <= r1; ++r)
+                    for (int di = -1; di <= 1; ++di) {
+                        const int col = ((i + di) % m_width + m_width) % m_width;
+                        bound = std::max(bound, luminance(texel(col, r)));
+                    }
+                weights[std::size_t(j) * std::size_t(m_width) + std::size_t(i)] = bound * omega;
             }
         }
         m_dist = Distribution2D(weights, m_width, m_height);
@@ -155,9 +172,23 @@ private:
         while (j < m_height - 1 && z <= m_cos_row[std::size_t(j) + 1]) ++j;
         return {i, j};
     }
+    const Color3& texel(int i, int j) const { return m_texels[std::size_t(j) * std::size_t(m_width) + std::size_t(i)]; }
+    /// Bilinear lookup (Mitsuba 3's): texel centres in phi (periodic), corners in theta.
     Color3 lookup(const Vec3d& v) const {
-        auto [i, j] = texel_of(glm::normalize(v));
-        return m_texels[std::size_t(j) * std::size_t(m_width) + std::size_t(i)];
+        const Vec3d n = glm::normalize(v);
+        double u = std::atan2(n.x, -n.z) * (0.5 * InvPi);
+        if (u < 0) u += 1;
+        const double t = std::acos(std::clamp(n.y, -1.0, 1.0)) * InvPi;
+        double x = u * m_width - 0.5;
+        if (x < 0) x += m_width;
+        const int i0 = std::clamp(int(x), 0, m_width - 1), i1 = (i0 + 1) % m_width;
+        const double fx = std::clamp(x - i0, 0.0, 1.0);
+        if (m_height == 1) return (1 - fx) * texel(i0, 0) + fx * texel(i1, 0);
+        const double y = t * (m_height - 1);
+        const int j0 = std::clamp(int(y), 0, m_height - 2);
+        const double fy = std::clamp(y - j0, 0.0, 1.0);
+        return (1 - fy) * ((1 - fx) * texel(i0, j0) + fx * texel(i1, j0)) +
+               fy * ((1 - fx) * texel(i0, j0 + 1) + fx * texel(i1, j0 + 1));
     }
     double pdf_local(const Vec3d& v) const {
         if (m_dist.empty()) return 0.0;

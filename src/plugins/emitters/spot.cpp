@@ -1,22 +1,24 @@
 // spot: a point light that shines into a cone around the +z axis of its to_world transform (Mitsuba's `spot`,
-// with the same parameters). Its radiant intensity in a direction at angle theta from the axis is
-//     I(theta) = intensity * falloff(theta),
+// with the same parameters and profile). Its radiant intensity in a direction at angle theta from the axis is
+//     I(theta) = intensity * texture(uv) * falloff(theta),
 //     falloff  = 1                      for theta <= beam_width,
-//                s^2 (3 - 2 s)          for beam_width < theta < cutoff_angle, s = (cutoff - theta) / (cutoff - beam),
-//                0                      for theta >= cutoff_angle.
-// The transition is a smoothstep in the angle, so the edge of the beam is continuous with a continuous slope
-// (pbrt-v4's SpotLight uses a smoothstep in cos theta; Mitsuba 3 a linear ramp in theta, which has a kink at both
-// ends; images differ slightly inside the transition band only). Irradiance at distance r is I(theta) cos / r^2.
+//                (cutoff - theta) / (cutoff - beam)   for beam_width < theta < cutoff_angle (Mitsuba's linear ramp),
+//                0                      for theta >= cutoff_angle,
+// where the optional `texture` is projected through the cone as Mitsuba does: a local direction (x, y, z) reads
+// uv = (1/2 + x / (2 z tan cutoff), 1/2 + y / (2 z tan cutoff)), the square image spanning the cutoff cone.
+// Irradiance at distance r is I(theta) cos / r^2.
 //
 // Light tracing emits directions uniformly in the cone of half-angle cutoff_angle, with weight I(theta) / pdf.
 // The total power is 2 pi intensity [(1 - cos beam) + integral from beam to cutoff of falloff(t) sin t dt], the
-// integral computed once by composite Simpson quadrature (the integrand is smooth on that interval).
+// integral computed once by composite Simpson quadrature (the integrand is smooth on that interval), times the
+// texture's mean (an estimate, used only to choose between emitters).
 //
 // | parameter    | type      | default             | meaning                                              |
 // |--------------|-----------|---------------------|------------------------------------------------------|
 // | intensity    | rgb       | 1                   | radiant intensity on the axis (W/sr)                 |
 // | cutoff_angle | float     | 20                  | half-angle (degrees) beyond which nothing is emitted |
 // | beam_width   | float     | 3/4 of cutoff_angle | half-angle (degrees) of the fully lit central beam   |
+// | texture      | rgb / texture | 1               | image projected through the cone (Mitsuba's `texture`) |
 // | to_world     | transform | identity            | places the light at its origin, shining along its +z (rigid) |
 //
 //     <emitter type="spot">
@@ -26,6 +28,7 @@
 //     </emitter>
 #include <kelvin/core/registry.h>
 #include <kelvin/render/emitter.h>
+#include <kelvin/render/texture.h>
 #include <kelvin/render/warp.h>
 
 #include <cmath>
@@ -41,19 +44,23 @@ ParamSpec without_default(ParamSpec s) {
 
 class SpotEmitter final : public Emitter {
 public:
-    explicit SpotEmitter(const Properties& props) : m_intensity(props.get_color("intensity")) {
-        if (m_intensity.r < 0 || m_intensity.g < 0 || m_intensity.b < 0) props.error("intensity", "must not be negative");
+    explicit SpotEmitter(const Properties& props)
+        : m_intensity(props.get_color("intensity")), m_texture(get_texture(props, "texture")) {
+        if (m_intensity.r < 0 || m_intensity.g < 0 || m_intensity.b < 0)
+            props.error("intensity", "must not be negative");
         const double cutoff = props.get_float("cutoff_angle", 0.0, 180.0);
         if (!(cutoff > 0)) props.error("cutoff_angle", "must be positive");
         const double beam = props.has("beam_width") ? props.get_float("beam_width", 0.0, 180.0) : 0.75 * cutoff;
         if (beam > cutoff) props.error("beam_width", fmt::format("must not exceed cutoff_angle ({})", cutoff));
         const Transform to_world = props.get_transform("to_world");
-        if (!to_world.is_rigid()) props.error("to_world", "must be a rigid transform (rotation and translation, no scaling)");
+        if (!to_world.is_rigid())
+            props.error("to_world", "must be a rigid transform (rotation and translation, no scaling)");
         m_to_world = to_world;
         m_pos = to_world.apply_point(Vec3d(0.0));
         m_cutoff = glm::radians(cutoff);
         m_beam = glm::radians(beam);
         m_cos_cutoff = std::cos(m_cutoff);
+        m_uv_factor = std::tan(m_cutoff);
 
         // Power: 2 pi I times the integral of falloff(theta) sin(theta) over [0, cutoff].
         double integral = 1 - std::cos(m_beam);
@@ -76,51 +83,56 @@ public:
     double falloff(double theta) const {
         if (theta <= m_beam) return 1.0;
         if (theta >= m_cutoff) return 0.0;
-        const double s = (m_cutoff - theta) / (m_cutoff - m_beam);
-        return s * s * (3 - 2 * s);
+        return (m_cutoff - theta) / (m_cutoff - m_beam);
     }
-    /// Falloff towards a direction given in the light's frame (need not be normalised).
-    double falloff_local(const Vec3d& v) const {
-        return falloff(std::atan2(std::sqrt(v.x * v.x + v.y * v.y), v.z));
+    /// Falloff times the projected texture towards a direction given in the light's frame (need not be
+    /// normalised).
+    Color3 falloff_local(const Vec3d& v) const {
+        const double f = falloff(std::atan2(std::sqrt(v.x * v.x + v.y * v.y), v.z));
+        if (!(f > 0)) return Color3(0.0);
+        const Vec2d uv(0.5 + 0.5 * v.x / (v.z * m_uv_factor), 0.5 + 0.5 * v.y / (v.z * m_uv_factor));
+        return m_texture->eval(uv) * f;
     }
 
     std::optional<DirectSample> sample_direct(const Vec3d& ref, const Vec2d&) const override {
         Vec3d d = m_pos - ref;
         const double dist2 = glm::dot(d, d);
         if (!(dist2 > 0)) return std::nullopt;
-        const double f = falloff_local(Vec3d(m_to_world.inverse * glm::dvec4(-d, 0.0)));
-        if (!(f > 0)) return std::nullopt;
+        const Color3 f = falloff_local(Vec3d(m_to_world.inverse * glm::dvec4(-d, 0.0)));
+        if (f == Color3(0.0)) return std::nullopt;
         DirectSample ds;
         ds.dist = std::sqrt(dist2);
         ds.d = d / ds.dist;
         ds.p = m_pos;
         ds.pdf = 1;
         ds.delta = true;
-        ds.weight = m_intensity * (f / dist2);
+        ds.weight = m_intensity * f / dist2;
         return ds;
     }
     double pdf_direct(const Vec3d&, const Vec3d&, const Vec3d&, const Vec3d&) const override { return 0; }
     Color3 eval(const Vec3d&, const Vec3d&, const Vec3d&) const override { return Color3(0.0); }
     std::optional<EmissionSample> sample_emission(const Vec2d&, const Vec2d& u_dir) const override {
         const Vec3d local = warp::square_to_uniform_cone(u_dir, m_cos_cutoff);
-        const double f = falloff_local(local);
-        if (!(f > 0)) return std::nullopt;
+        const Color3 f = falloff_local(local);
+        if (f == Color3(0.0)) return std::nullopt;
         EmissionSample es;
         es.ray = Ray{m_pos, glm::normalize(m_to_world.apply_vector(local)), 0.0, Inf};
         es.pdf_pos = 1;
         es.pdf_dir = warp::square_to_uniform_cone_pdf(m_cos_cutoff);
         es.delta_pos = true;
-        es.weight = m_intensity * (f / es.pdf_dir);
+        es.weight = m_intensity * f / es.pdf_dir;
         return es;
     }
     std::pair<double, double> pdf_emission(const Vec3d&, const Vec3d&, const Vec3d& d) const override {
         const Vec3d local = glm::normalize(Vec3d(m_to_world.inverse * glm::dvec4(d, 0.0)));
         return {1.0, local.z >= m_cos_cutoff ? warp::square_to_uniform_cone_pdf(m_cos_cutoff) : 0.0};
     }
-    Color3 power() const override { return m_intensity * (2 * Pi * m_falloff_integral); }
+    Color3 power() const override { return m_intensity * m_texture->mean() * (2 * Pi * m_falloff_integral); }
 
 private:
     Color3 m_intensity;
+    std::shared_ptr<Texture> m_texture;
+    double m_uv_factor = 1;
     Transform m_to_world;
     Vec3d m_pos{0.0};
     double m_cutoff = 0, m_beam = 0, m_cos_cutoff = 1, m_falloff_integral = 0;
@@ -129,9 +141,11 @@ private:
 }  // namespace
 }  // namespace kelvin
 
-KELVIN_PLUGIN(kelvin::SpotEmitter, "emitter", "spot", "Spot light: a point light shining into a cone with a smooth edge.",
+KELVIN_PLUGIN(kelvin::SpotEmitter, "emitter", "spot",
+              "Spot light: a point light shining into a cone (Mitsuba's linear edge).",
               kelvin::param::color("intensity", kelvin::Color3(1.0), "radiant intensity on the axis (W/sr)"),
               kelvin::param::real("cutoff_angle", 20.0, "half-angle (degrees) beyond which nothing is emitted"),
-              kelvin::without_default(kelvin::param::real("beam_width", 0.0,
-                                                      "half-angle (degrees) of the fully lit beam (default: 3/4 of cutoff_angle)")),
+              kelvin::without_default(kelvin::param::real(
+                  "beam_width", 0.0, "half-angle (degrees) of the fully lit beam (default: 3/4 of cutoff_angle)")),
+              kelvin::param::texture("texture", kelvin::Color3(1.0), "image projected through the cone"),
               kelvin::param::transform("to_world", "position (origin) and direction (+z) of the light; rigid"));

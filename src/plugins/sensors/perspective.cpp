@@ -3,8 +3,10 @@
 //
 // | parameter | type      | default  | meaning                                                       |
 // |-----------|-----------|----------|---------------------------------------------------------------|
-// | fov       | float     | 39.5978  | field of view in degrees (Mitsuba's 50 mm lens on 36 mm film)  |
+// | fov       | float     | from focal_length | field of view in degrees                             |
 // | fov_axis  | string    | "x"      | axis fov refers to: x, y, diagonal, smaller, larger           |
+// | focal_length | string | "50mm"  | without fov (Mitsuba): lens on 36 x 24 mm film, fov along the diagonal |
+// | focus_distance | float | far_clip | accepted as Mitsuba's perspective does; no effect on a pinhole |
 // | near_clip | float     | 0.01     | rays start at this distance                                   |
 // | far_clip  | float     | 10000    | and end at this one                                           |
 // | to_world  | transform | identity | camera-to-world (usually a <lookat>)                          |
@@ -25,9 +27,19 @@
 namespace kelvin {
 namespace {
 
+/// A parameter whose default depends on another one: declared without a default, read only when given.
+ParamSpec without_default(ParamSpec s) {
+    s.default_value.reset();
+    return s;
+}
+
 class Perspective final : public ProjectiveSensor {
 public:
-    explicit Perspective(const Properties& props) : ProjectiveSensor(props) {}
+    explicit Perspective(const Properties& props) : ProjectiveSensor(props) {
+        // Mitsuba's projective cameras all read focus_distance; a pinhole has everything in focus.
+        if (props.has("focus_distance") && !(props.get_float("focus_distance", 0.0, Inf) > 0))
+            props.error("focus_distance", "must be positive");
+    }
 
     Ray sample_ray(Vec2d film_pos, Vec2d) const override {
         const Vec3d d_cam = glm::normalize(film_to_direction(film_pos));
@@ -62,7 +74,12 @@ public:
 }  // namespace kelvin
 
 KELVIN_PLUGIN(kelvin::Perspective, "sensor", "perspective", "Pinhole perspective camera.",
-              kelvin::param::real("fov", 39.5978, "field of view in degrees"),
+              kelvin::without_default(kelvin::param::real("fov", 0.0,
+                                                          "field of view in degrees (default: from focal_length)")),
+              kelvin::param::string("focal_length", "50mm",
+                                    "used when no fov is given: focal length on 36 x 24 mm film, diagonal"),
+              kelvin::without_default(kelvin::param::real("focus_distance", 0.0,
+                                                          "accepted as in Mitsuba; a pinhole is in focus everywhere")),
               kelvin::param::string("fov_axis", "x", "axis the fov refers to: x, y, diagonal, smaller, larger"),
               kelvin::param::real("near_clip", 0.01, "near clipping distance"),
               kelvin::param::real("far_clip", 10000.0, "far clipping distance"),

@@ -26,13 +26,13 @@
 // |-----------------|-----------|-------------|-------------------------------------------------------------|
 // | aperture_radius | float     | required    | radius of the lens (scene units); 0: a pinhole               |
 // | focus_distance  | float     | far_clip    | distance from the lens to the plane in focus (along the axis) |
-// | fov             | float     | 39.5978     | field of view in degrees                                    |
-// | fov_axis        | string    | "x"         | axis fov refers to: x, y, diagonal, smaller, larger         |
-// | near_clip       | float     | 0.01        | nothing closer than this depth is seen                      |
-// | far_clip        | float     | 10000       | nothing farther than this depth is seen                     |
-// | to_world        | transform | identity    | camera-to-world (usually a <lookat>; rigid, no scaling)     |
-// | film            | film      | hdrfilm     | nested film                                                 |
-// | sampler         | sampler   | independent | nested sampler                                              |
+// | fov             | float     | from focal_length | field of view in degrees (without it: focal_length, default
+// "50mm" on 36 x 24 mm film, along the diagonal, as Mitsuba) | | fov_axis        | string    | "x"         | axis fov
+// refers to: x, y, diagonal, smaller, larger         | | near_clip       | float     | 0.01        | nothing closer
+// than this depth is seen                      | | far_clip        | float     | 10000       | nothing farther than
+// this depth is seen                     | | to_world        | transform | identity    | camera-to-world (usually a
+// <lookat>; rigid, no scaling)     | | film            | film      | hdrfilm     | nested film | | sampler         |
+// sampler   | independent | nested sampler                                              |
 //
 //     <sensor type="thinlens">
 //         <float name="aperture_radius" value="0.05"/>
@@ -110,8 +110,11 @@ private:
 KELVIN_PLUGIN(kelvin::ThinLens, "sensor", "thinlens", "Perspective camera with a thin lens (depth of field).",
               kelvin::param::required(kelvin::PropType::Float, "aperture_radius", "lens radius (0: a pinhole)"),
               kelvin::without_default(kelvin::param::real("focus_distance", 0.0,
-                                                      "distance to the plane in focus (default: far_clip)")),
-              kelvin::param::real("fov", 39.5978, "field of view in degrees"),
+                                                          "distance to the plane in focus (default: far_clip)")),
+              kelvin::without_default(kelvin::param::real("fov", 0.0,
+                                                          "field of view in degrees (default: from focal_length)")),
+              kelvin::param::string("focal_length", "50mm",
+                                    "used when no fov is given: focal length on 36 x 24 mm film, diagonal"),
               kelvin::param::string("fov_axis", "x", "axis the fov refers to: x, y, diagonal, smaller, larger"),
               kelvin::param::real("near_clip", 0.01, "near clipping depth"),
               kelvin::param::real("far_clip", 10000.0, "far clipping depth"),

@@ -4,8 +4,9 @@
 // Vertex positions x, y, z; optional normals nx, ny, nz; optional uvs named u/v, s/t, texture_u/texture_v or
 // texture_s/texture_t. Faces from the list `vertex_indices` (or `vertex_index`), polygons triangulated as
 // fans. Normals: the file's when present, else angle-weighted vertex normals (Mitsuba's behaviour);
-// face_normals = true discards both. Malformed files raise an InputError naming the file (and the line in
-// the header and in ascii bodies).
+// face_normals = true discards both. Other vertex and face properties become Mitsuba's mesh attributes
+// (`vertex_<name>`, `face_<name>`; see ply.h), read by the `mesh_attribute` texture. Malformed files raise an
+// InputError naming the file (and the line in the header and in ascii bodies).
 //
 // | parameter       | type      | default  | meaning                                     |
 // |-----------------|-----------|----------|---------------------------------------------|
@@ -55,7 +56,9 @@ public:
 
 private:
     PlyMesh(const Properties& props, Loaded&& m)
-        : TriangleMesh(props, m.name, m.mesh.positions, std::move(m.mesh.indices), m.mesh.normals, m.mesh.uvs) {}
+        : TriangleMesh(props, m.name, m.mesh.positions, std::move(m.mesh.indices), m.mesh.normals, m.mesh.uvs) {
+        set_attributes(props, std::move(m.mesh.attributes));
+    }
 };
 
 }  // namespace

@@ -18,6 +18,7 @@
 // | filter_type | string    | bilinear | bilinear (between the four nearest pixel centres) or nearest |
 // | wrap_mode   | string    | repeat   | outside [0, 1]: repeat, mirror, or clamp                    |
 // | raw         | bool      | false    | keep the stored values of 8/16-bit files (no linearisation) |
+// | format      | string    | variant  | Mitsuba's storage precision: "variant" (float here); "fixed" is refused |
 // | to_uv       | transform | identity | transform applied to the uv coordinates                     |
 //
 //     <texture type="bitmap" name="reflectance"><string name="filename" value="wood.png"/></texture>
@@ -45,6 +46,10 @@ public:
         const std::string wrap = props.get_choice("wrap_mode", {"repeat", "mirror", "clamp"});
         m_wrap = wrap == "repeat" ? Wrap::Repeat : wrap == "mirror" ? Wrap::Mirror : Wrap::Clamp;
         const bool raw = props.get_bool("raw");
+        // Mitsuba's `format` chooses the storage precision; "fixed" (8-bit storage) would quantise, so only
+        // "variant" (full precision, which Kelvin's float storage is) is accepted.
+        if (props.get_choice("format", {"variant", "fixed"}) != "variant")
+            props.error("format", "'fixed' (8-bit storage) is not supported; Kelvin stores textures as float");
         m_to_uv = props.get_transform("to_uv");
         m_identity = m_to_uv.is_identity();
 
@@ -99,6 +104,28 @@ public:
                ty * ((1 - tx) * texel(ix0, iy1) + tx * texel(ix1, iy1));
     }
     Color3 mean() const override { return m_mean; }
+    /// Gradient in (u, v) of the luminance of the bilinear interpolant (Mitsuba's eval_1_grad), through to_uv;
+    /// zero for nearest filtering.
+    Vec2d eval_1_grad(const SurfaceInteraction& si) const override {
+        if (m_nearest) return Vec2d(0.0);
+        Vec2d uv = si.uv;
+        if (!m_identity) {
+            const Vec3d p = m_to_uv.apply_point(Vec3d(uv.x, uv.y, 0));
+            uv = {p.x, p.y};
+        }
+        if (!std::isfinite(uv.x) || !std::isfinite(uv.y)) return Vec2d(0.0);
+        const double fx = uv.x * m_width - 0.5, fy = uv.y * m_height - 0.5;
+        const double x0 = std::floor(fx), y0 = std::floor(fy), tx = fx - x0, ty = fy - y0;
+        const int ix0 = index(x0, m_width), ix1 = index(x0 + 1, m_width);
+        const int iy0 = index(y0, m_height), iy1 = index(y0 + 1, m_height);
+        const double f00 = luminance(texel(ix0, iy0)), f10 = luminance(texel(ix1, iy0)),
+                     f01 = luminance(texel(ix0, iy1)), f11 = luminance(texel(ix1, iy1));
+        // Partials in pixel units, then through to_uv (transposed) and the resolution, as Mitsuba.
+        const double dx = (1 - ty) * (f10 - f00) + ty * (f11 - f01), dy = (1 - tx) * (f01 - f00) + tx * (f11 - f10);
+        if (m_identity) return {m_width * dx, m_height * dy};
+        const Mat4d& m = m_to_uv.matrix;
+        return {m_width * (m[0][0] * dx + m[0][1] * dy), m_height * (m[1][0] * dx + m[1][1] * dy)};
+    }
 
 private:
     Color3 texel(int x, int y) const { return m_texels[std::size_t(y) * m_width + x]; }
@@ -139,4 +166,5 @@ KELVIN_PLUGIN(kelvin::BitmapTexture, "texture", "bitmap", "Image texture (EXR, P
               kelvin::param::string("filter_type", "bilinear", "bilinear or nearest"),
               kelvin::param::string("wrap_mode", "repeat", "repeat, mirror or clamp"),
               kelvin::param::boolean("raw", false, "keep stored values of 8/16-bit files (no sRGB linearisation)"),
+              kelvin::param::string("format", "variant", "Mitsuba's storage precision: variant (Kelvin stores float)"),
               kelvin::param::transform("to_uv", "transform of the uv coordinates"));

@@ -5,6 +5,8 @@
 // transforms uv first (a <scale value="4"/> gives 4 x 4 periods on the unit square); `scale` multiplies uv too
 // (a shorthand for the same). color0 and color1 may be nested textures, looked up at the original uv.
 // mean() is the average of the two colours' means (exact when the unit square holds whole periods).
+// Read as one number (a roughness, an opacity: eval_1) the squares are swapped, as Mitsuba 3 does to keep its
+// legacy scalar convention: its float-valued checkerboards put color1 on [0, 0.5)^2.
 //
 // | parameter | type          | default  | meaning                                 |
 // |-----------|---------------|----------|-----------------------------------------|
@@ -35,18 +37,34 @@ public:
           m_identity(m_to_uv.is_identity()) {}
 
     Color3 eval(const Vec2d& uv) const override {
+        const Vec2d t = transformed(uv);
+        const double fu = t.x - std::floor(t.x), fv = t.y - std::floor(t.y);
+        return ((fu < 0.5) == (fv < 0.5)) ? m_color0->eval(uv) : m_color1->eval(uv);
+    }
+    Color3 eval(const SurfaceInteraction& si) const override {
+        const Vec2d t = transformed(si.uv);
+        const double fu = t.x - std::floor(t.x), fv = t.y - std::floor(t.y);
+        return ((fu < 0.5) == (fv < 0.5)) ? m_color0->eval(si) : m_color1->eval(si);
+    }
+    /// Read as one number, Mitsuba 3's checkerboard swaps the squares ("the legacy scalar checkerboard
+    /// convention" of its eval_1): color0 where exactly one of the fractional parts exceeds 1/2.
+    double eval_1(const SurfaceInteraction& si) const override {
+        const Vec2d t = transformed(si.uv);
+        const double fu = t.x - std::floor(t.x), fv = t.y - std::floor(t.y);
+        return ((fu > 0.5) != (fv > 0.5)) ? m_color0->eval_1(si) : m_color1->eval_1(si);
+    }
+    Color3 mean() const override { return 0.5 * (m_color0->mean() + m_color1->mean()); }
+
+private:
+    Vec2d transformed(const Vec2d& uv) const {
         Vec2d t = uv;
         if (!m_identity) {
             const Vec3d p = m_to_uv.apply_point(Vec3d(uv.x, uv.y, 0));
             t = {p.x, p.y};
         }
-        t *= m_scale;
-        const double fu = t.x - std::floor(t.x), fv = t.y - std::floor(t.y);
-        return ((fu < 0.5) == (fv < 0.5)) ? m_color0->eval(uv) : m_color1->eval(uv);
+        return t * m_scale;
     }
-    Color3 mean() const override { return 0.5 * (m_color0->mean() + m_color1->mean()); }
 
-private:
     std::shared_ptr<Texture> m_color0, m_color1;
     double m_scale;
     Transform m_to_uv;
