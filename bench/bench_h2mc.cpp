@@ -151,14 +151,10 @@ struct PathBench {
         p.set_int("min_depth", 1);
         p.set_int("rr_depth", 100);
         path = std::dynamic_pointer_cast<SamplingIntegrator>(Registry::instance().create(p));
-        const Sensor& s = *scene->sensor();
-        const double r = s.film().filter().radius();
         opt.max_depth = k;
         opt.min_depth = 1;
         opt.rr_depth = 100;
-        opt.film_origin = Vec2d(-r);
-        opt.film_extent = Vec2d(s.film().width() + 2 * r, s.film().height() + 2 * r);
-        opt.film_area = opt.film_extent.x * opt.film_extent.y;
+        opt.set_film(*scene->sensor());
         D = std::make_unique<PathDerivatives>(*scene, opt);
         length = std::size_t(block_size(k));
         Random rng(5, uint64_t(k));

@@ -26,6 +26,21 @@ struct SlabWork {
              invalid_vorticity = 0, smoke = 0;
 };
 
+/// The slabs' counters into the solver's, in slab order (both passes count into the same fields).
+void add_work(FluidWork3& total, const std::vector<SlabWork>& slabs) {
+    for (const SlabWork& w : slabs) {
+        total.biot_savart_evals += w.evals;
+        total.velocity_queries += w.queries;
+        total.advection_backtraces += w.backtraces;
+        total.diffusion_samples += w.diffusion;
+        total.stretching_evals += w.stretching;
+        total.control_variate_queries += w.cv;
+        total.invalid_velocity += w.invalid_velocity;
+        total.invalid_vorticity += w.invalid_vorticity;
+        total.smoke_lookups += w.smoke;
+    }
+}
+
 void check_settings(const MCFluid3Settings& s) {
     const Vec3d size = s.domain.size();
     for (int a = 0; a < 3; ++a)
@@ -146,12 +161,7 @@ bool MCFluid3Solver::ensure_velocity() {
             }
         }
     });
-    for (const SlabWork& w : slabs) {
-        m_work.biot_savart_evals += w.evals;
-        m_work.velocity_queries += w.queries;
-        m_work.control_variate_queries += w.cv;
-        m_work.invalid_velocity += w.invalid_velocity;
-    }
+    add_work(m_work, slabs);
     m_work.seconds_velocity += timer.seconds();
     if (interrupted) {
         m_vel.fill(Vec3d(0.0));
@@ -248,17 +258,7 @@ bool MCFluid3Solver::step(double dt) {
         }
     });
     if (interrupted) return false;
-    for (const SlabWork& w : slabs) {
-        m_work.biot_savart_evals += w.evals;
-        m_work.velocity_queries += w.queries;
-        m_work.advection_backtraces += w.backtraces;
-        m_work.diffusion_samples += w.diffusion;
-        m_work.stretching_evals += w.stretching;
-        m_work.control_variate_queries += w.cv;
-        m_work.invalid_velocity += w.invalid_velocity;
-        m_work.invalid_vorticity += w.invalid_vorticity;
-        m_work.smoke_lookups += w.smoke;
-    }
+    add_work(m_work, slabs);
     if (m_smoke) std::swap(m_density, m_density_next);
     if (s.control_variates) {  // this state becomes the control variate of the next one
         m_prev_omega = m_omega;

@@ -6,6 +6,7 @@
 #include <kelvin/render/mesh.h>
 #include <kelvin/render/path_derivatives.h>
 #include <kelvin/render/scene.h>
+#include <kelvin/render/sensor.h>
 
 #include <Eigen/Dense>
 #include <unsupported/Eigen/AutoDiff>
@@ -15,6 +16,13 @@
 #include <vector>
 
 namespace kelvin {
+
+void PathDerivativeOptions::set_film(const Sensor& sensor) {
+    const double r = sensor.film().filter().radius();
+    film_origin = Vec2d(-r);
+    film_extent = Vec2d(sensor.film().width() + 2 * r, sensor.film().height() + 2 * r);
+    film_area = film_extent.x * film_extent.y;
+}
 
 const char* to_string(PathDerivativeStatus s) {
     switch (s) {

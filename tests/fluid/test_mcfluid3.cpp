@@ -104,6 +104,39 @@ TEST(BiotSavart3, AbcVelocityConvergesAtTheMonteCarloRate) {
     }
 }
 
+// Tiny and huge scales: the Biot–Savart integral is scale-covariant (the same cell values on a box scaled by s, with
+// the mollifier scaled too, give s times the velocity), and the float kernel works in cell units, so with the same
+// random numbers the estimate at s = 1e-4 and 1e4 is s times the one at s = 1 up to float rounding, on periodic and
+// open boxes. A kernel that mixed world and cell units (or squared the mollifier in the wrong units) breaks this.
+TEST(BiotSavart3, EstimatesAreScaleCovariantFromTinyToHugeBoxes) {
+    const int res = 12;
+    for (bool periodic : {true, false}) {
+        auto estimate = [&](double scale) {
+            const Domain3 box{Vec3d(0.0), Vec3d(2 * Pi * scale), periodic};
+            VectorGrid3 omega(box, res, res, res);
+            for (int k = 0; k < res; ++k)
+                for (int j = 0; j < res; ++j)
+                    for (int i = 0; i < res; ++i)
+                        omega.set(omega.x.index(i, j, k), abc_velocity(omega.x.cell_center(i, j, k) / scale));
+            auto table = periodic ? std::make_shared<PeriodicKernel3>(box.size()) : nullptr;
+            const BiotSavartEstimator3 est(omega, Interpolation::Bilinear, SourceSampling::Vorticity,
+                                           0.5 * omega.x.h().x, table);
+            Random rng(21, 0);
+            std::vector<Vec3d> out;
+            for (const Vec3d& x : {Vec3d(1.0, 2.0, 3.0), Vec3d(5.5, 0.3, 4.1), Vec3d(3.0, 3.0, 0.2)})
+                out.push_back(est.estimate(x * scale, 512, rng).value / scale);
+            return out;
+        };
+        const std::vector<Vec3d> one = estimate(1.0);
+        for (double scale : {1e-4, 1e4}) {
+            const std::vector<Vec3d> scaled = estimate(scale);
+            for (std::size_t p = 0; p < one.size(); ++p)
+                EXPECT_LT(glm::length(scaled[p] - one[p]), 1e-3 * glm::length(one[p]) + 1e-9)
+                    << "scale " << scale << (periodic ? " periodic" : " open") << ", point " << p;
+        }
+    }
+}
+
 // Importance sampling by |omega| beats uniform sampling on a concentrated field (a thin ring in a large open box),
 // and both estimate the same velocity.
 TEST(BiotSavart3, VorticityImportanceSamplingBeatsUniformOnAConcentratedField) {

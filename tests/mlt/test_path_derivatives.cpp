@@ -52,14 +52,10 @@ struct PathSetup {
         p.set_int("min_depth", 3);
         p.set_int("rr_depth", 3);
         path = std::dynamic_pointer_cast<SamplingIntegrator>(Registry::instance().create(p));
-        const Sensor& s = *scene->sensor();
-        const double r = s.film().filter().radius();
         opt.max_depth = max_depth;
         opt.min_depth = 3;
         opt.rr_depth = 3;
-        opt.film_origin = Vec2d(-r);
-        opt.film_extent = Vec2d(s.film().width() + 2 * r, s.film().height() + 2 * r);
-        opt.film_area = opt.film_extent.x * opt.film_extent.y;
+        opt.set_film(*scene->sensor());
     }
     // The renderer's pi at `x` (the Metropolis integrators' evaluate_camera) and the coordinates it read.
     double primal(std::vector<double>& x, std::size_t& used) const {

@@ -24,6 +24,8 @@
 
 namespace kelvin {
 
+class Sensor;
+
 class Scene;
 
 struct PathDerivativeOptions {
@@ -32,6 +34,10 @@ struct PathDerivativeOptions {
     Vec2d film_origin{0.0}, film_extent{1.0};  ///< the film domain coordinates 0-1 map to (pixels)
     double film_area = 1;                      ///< the value is luminance(L * film_area), as the MLT target
     int max_coordinates = 96;                  ///< longer blocks are refused (TooLong)
+
+    /// The film domain the Metropolis integrators use: the film widened by the filter radius on every side,
+    /// film_area its area in pixels.
+    void set_film(const Sensor& sensor);
 };
 
 enum class PathDerivativeStatus { Ok, Zero, Unsupported, Mismatch, TooLong };
