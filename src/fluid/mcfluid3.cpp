@@ -5,6 +5,7 @@
 #include <kelvin/core/interrupt.h>
 #include <kelvin/core/parallel.h>
 #include <kelvin/core/stats.h>
+#include <kelvin/fluid/boundary.h>
 #include <kelvin/fluid/mcfluid3.h>
 
 #include <algorithm>
@@ -21,14 +22,19 @@ inline uint64_t stream_of(long long step, uint64_t tag, uint64_t unit) {
     return hash_combine(hash_combine(uint64_t(step), tag), unit);
 }
 
-struct SlabWork {
+}  // namespace
+
+struct MCFluid3Solver::SlabWork {
     uint64_t evals = 0, queries = 0, backtraces = 0, diffusion = 0, stretching = 0, cv = 0, invalid_velocity = 0,
-             invalid_vorticity = 0, smoke = 0;
+             invalid_vorticity = 0, smoke = 0, distance = 0, solid_departures = 0;
+    wos::WalkCounters walks;
 };
 
+namespace {
+
 /// The slabs' counters into the solver's, in slab order (both passes count into the same fields).
-void add_work(FluidWork3& total, const std::vector<SlabWork>& slabs) {
-    for (const SlabWork& w : slabs) {
+void add_work(FluidWork3& total, const std::vector<MCFluid3Solver::SlabWork>& slabs) {
+    for (const MCFluid3Solver::SlabWork& w : slabs) {
         total.biot_savart_evals += w.evals;
         total.velocity_queries += w.queries;
         total.advection_backtraces += w.backtraces;
@@ -38,6 +44,13 @@ void add_work(FluidWork3& total, const std::vector<SlabWork>& slabs) {
         total.invalid_velocity += w.invalid_velocity;
         total.invalid_vorticity += w.invalid_vorticity;
         total.smoke_lookups += w.smoke;
+        total.distance_queries += w.distance;
+        total.solid_departures += w.solid_departures;
+        total.wos_walks += w.walks.walks;
+        total.wos_steps += w.walks.steps;
+        total.wos_truncated += w.walks.truncated;
+        total.wos_invalid += w.walks.invalid;
+        total.wos_boundary_queries += w.walks.boundary_queries;
     }
 }
 
@@ -70,7 +83,7 @@ MCFluid3Solver::MCFluid3Solver(const MCFluid3Settings& settings, const InitialFi
     const Vec3d h = m_omega.x.h();
     m_segment = std::min({h.x, h.y, h.z});
     m_delta = s.velocity.delta >= 0 ? s.velocity.delta : 0.5 * m_segment;
-    if (s.domain.periodic) m_periodic = std::make_shared<PeriodicKernel3>(s.domain.size());
+    if (s.domain.periodic && !s.boundaries) m_periodic = std::make_shared<PeriodicKernel3>(s.domain.size());
     for (int k = 0; k < s.nz; ++k)
         for (int j = 0; j < s.ny; ++j)
             for (int i = 0; i < s.nx; ++i) {
@@ -89,36 +102,67 @@ MCFluid3Solver::~MCFluid3Solver() = default;
 
 void MCFluid3Solver::rebuild_estimators() {
     const MCFluid3Settings& s = m_settings;
-    m_estimator =
-        std::make_unique<BiotSavartEstimator3>(m_omega, s.interpolation, s.velocity.importance, m_delta, m_periodic);
+    if (s.boundaries) {         // Walk-on-Spheres: solids hold no vorticity; no Biot–Savart table is built
+        if (m_solid.empty()) {  // static solids: the mask is computed once
+            const WosVelocityField3 probe(*s.boundaries, s.domain, nullptr, s.interpolation);
+            m_solid.assign(m_omega.cell_count(), 0);
+            for (int k = 0; k < s.nz; ++k)
+                for (int j = 0; j < s.ny; ++j)
+                    for (int i = 0; i < s.nx; ++i)
+                        if (probe.solid_at(m_omega.x.cell_center(i, j, k)) >= 0) {
+                            m_solid[m_omega.x.index(i, j, k)] = 1;
+                            ++m_work.solid_cells;
+                        }
+        }
+        for (std::size_t c = 0; c < m_omega.cell_count(); ++c)
+            if (m_solid[c]) m_omega.set(c, Vec3d(0.0));
+        m_wos = std::make_unique<WosVelocityField3>(*s.boundaries, s.domain, &m_omega, s.interpolation);
+    } else {
+        m_estimator = std::make_unique<BiotSavartEstimator3>(m_omega, s.interpolation, s.velocity.importance, m_delta,
+                                                             m_periodic);
+    }
     if (m_have_prev) {
         for (std::size_t c = 0; c < m_omega.cell_count(); ++c) m_diff.set(c, m_omega.at(c) - m_prev_omega.at(c));
-        m_diff_estimator =
-            std::make_unique<BiotSavartEstimator3>(m_diff, s.interpolation, s.velocity.importance, m_delta, m_periodic);
+        if (s.boundaries)  // the boundary data of two consecutive states cancel: the difference has Psi = 0
+            m_diff_wos = std::make_unique<WosVelocityField3>(*s.boundaries, s.domain, &m_diff, s.interpolation, true);
+        else
+            m_diff_estimator = std::make_unique<BiotSavartEstimator3>(m_diff, s.interpolation, s.velocity.importance,
+                                                                      m_delta, m_periodic);
     }
     m_velocity_valid = false;
 }
 
 VelocityEstimate3 MCFluid3Solver::velocity_estimate(Vec3d x, int n, Random& rng) const {
+    wos::WalkCounters walks;
+    return velocity_estimate(x, n, rng, walks);
+}
+
+VelocityEstimate3 MCFluid3Solver::velocity_estimate(Vec3d x, int n, Random& rng, wos::WalkCounters& walks) const {
+    if (m_wos) return m_wos->estimate(x, n, rng, walks);
     return m_estimator->estimate(x, n, rng);
 }
 
-Vec3d MCFluid3Solver::stage_velocity(Vec3d x, Random& rng, uint64_t& evals, uint64_t& queries,
-                                     uint64_t& invalid) const {
-    const int n = m_settings.velocity.samples;
-    Vec3d v;
-    if (m_have_prev) {  // control variate: the difference field, plus the previous velocity interpolated at x
-        const VelocityEstimate3 e = m_diff_estimator->estimate(x, n, rng);
-        evals += uint64_t(e.samples);
-        v = e.value + m_prev_vel.sample(x, m_settings.interpolation);
-    } else {
-        const VelocityEstimate3 e = m_estimator->estimate(x, n, rng);
-        evals += uint64_t(e.samples);
-        v = e.value;
+VelocityEstimate3 MCFluid3Solver::estimate_at(Vec3d x, int n, Random& rng, SlabWork& w) const {
+    VelocityEstimate3 e;
+    if (m_have_prev)
+        e = m_diff_wos ? m_diff_wos->estimate(x, n, rng, w.walks) : m_diff_estimator->estimate(x, n, rng);
+    else
+        e = m_wos ? m_wos->estimate(x, n, rng, w.walks) : m_estimator->estimate(x, n, rng);
+    w.evals += uint64_t(e.samples);
+    ++w.queries;
+    return e;
+}
+
+Vec3d MCFluid3Solver::stage_velocity(Vec3d x, Random& rng, SlabWork& w) const {
+    // Control variate: the difference field, plus the previous velocity interpolated at x.
+    if (m_wos && m_wos->solid_at(x) >= 0) return Vec3d(0.0);
+    Vec3d v = estimate_at(x, m_settings.velocity.samples, rng, w).value;
+    if (m_have_prev) {
+        v += m_prev_vel.sample(x, m_settings.interpolation);
+        ++w.cv;
     }
-    ++queries;
     if (!finite(v)) {
-        ++invalid;
+        ++w.invalid_velocity;
         return Vec3d(0.0);
     }
     return v;
@@ -144,9 +188,12 @@ bool MCFluid3Solver::ensure_velocity() {
             for (int i = 0; i < s.nx; ++i) {
                 const std::size_t c = m_omega.x.index(i, j, k);
                 const Vec3d x = m_omega.x.cell_center(i, j, k);
-                VelocityEstimate3 e = cv ? m_diff_estimator->estimate(x, n, rng) : m_estimator->estimate(x, n, rng);
-                w.evals += uint64_t(e.samples);
-                ++w.queries;
+                if (m_wos && m_solid[c]) {  // static solids: zero velocity, no walk
+                    m_vel.set(c, Vec3d(0.0));
+                    m_var.set(c, Vec3d(0.0));
+                    continue;
+                }
+                VelocityEstimate3 e = estimate_at(x, n, rng, w);
                 if (cv) {
                     ++w.cv;
                     e.value += m_prev_vel.at(c);
@@ -214,16 +261,20 @@ bool MCFluid3Solver::step(double dt) {
                 if (s.advection == Advection::Euler) {
                     xd = x - dt * k1;
                 } else {  // RK4 with the velocity frozen at the previous step (Eqs. 3.140-3.144)
-                    const Vec3d k2 = stage_velocity(x - 0.5 * dt * k1, rng, w.evals, w.queries, w.invalid_velocity);
-                    const Vec3d k3 = stage_velocity(x - 0.5 * dt * k2, rng, w.evals, w.queries, w.invalid_velocity);
-                    const Vec3d k4 = stage_velocity(x - dt * k3, rng, w.evals, w.queries, w.invalid_velocity);
-                    if (m_have_prev) w.cv += 3;
+                    const Vec3d k2 = stage_velocity(x - 0.5 * dt * k1, rng, w);
+                    const Vec3d k3 = stage_velocity(x - 0.5 * dt * k2, rng, w);
+                    const Vec3d k4 = stage_velocity(x - dt * k3, rng, w);
                     xd = x - (dt / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4);
                 }
                 ++w.backtraces;
                 if (!finite(xd)) {
                     ++w.invalid_velocity;
                     xd = x;
+                }
+                if (m_wos) {  // a departure point inside a solid (or beyond the walls) moves to its surface
+                    const Vec3d pushed = m_wos->push_out(xd);
+                    if (pushed != xd) ++w.solid_departures;
+                    xd = pushed;
                 }
                 xd = s.domain.wrap(xd);
                 if (m_smoke) {  // the same backtrace carries the smoke; the source adds rate dt inside its sphere
@@ -239,10 +290,22 @@ bool MCFluid3Solver::step(double dt) {
                     if (s.stretching) {  // Eq. (5.21) on the cached velocity, forward Euler over dt (Eq. 5.22)
                         const double mag = glm::length(om);
                         if (mag > 0 && std::isfinite(mag)) {
-                            const Vec3d seg = (half_segment / mag) * om;
-                            const Vec3d dv = m_vel.sample(xj + seg, interp) - m_vel.sample(xj - seg, interp);
-                            om += (dt * mag * inv_segment) * dv;
-                            ++w.stretching;
+                            // Near a boundary the segment shrinks to min(h, 2 distance) (Sec. 5.3.3).
+                            double half = half_segment, inv = inv_segment;
+                            if (m_wos) {
+                                ++w.distance;
+                                const double dist = m_wos->distance(xj);
+                                if (dist < half_segment) {
+                                    half = dist;
+                                    inv = dist > 0 ? 0.5 / dist : 0.0;
+                                }
+                            }
+                            if (inv > 0) {
+                                const Vec3d seg = (half / mag) * om;
+                                const Vec3d dv = m_vel.sample(xj + seg, interp) - m_vel.sample(xj - seg, interp);
+                                om += (dt * mag * inv) * dv;
+                                ++w.stretching;
+                            }
                         }
                     }
                     sum += om;

@@ -6,6 +6,7 @@
 #include <kelvin/core/progress.h>
 #include <kelvin/core/registry.h>
 #include <kelvin/core/stats.h>
+#include <kelvin/fluid/boundary.h>
 #include <kelvin/fluid/output.h>
 #include <kelvin/fluid/simulation.h>
 #include <kelvin/fluid/simulation3.h>
@@ -69,14 +70,18 @@ Simulation3Params Simulation3Params::parse(const Properties& props) {
 
     if (auto velocity = props.get_object("velocity")) {
         auto bs = std::dynamic_pointer_cast<VelocityEstimatorSpec>(velocity);
-        if (!bs || velocity->plugin_name() != "biot_savart")
-            props.error("velocity",
-                        fmt::format("'{}' is not available in 3D yet (3D free-slip obstacles by Walk-on-Spheres "
-                                    "are not implemented); use biot_savart",
-                                    velocity->plugin_name()));
+        if (!bs) props.error("velocity", fmt::format("'{}' is not a velocity estimator", velocity->plugin_name()));
         s.velocity = bs->biot_savart();
-        if (s.velocity.importance == SourceSampling::Kernel)
+        if (auto wos = std::dynamic_pointer_cast<WosVelocitySpec>(velocity)) {
+            s.boundaries = std::make_shared<WosVelocityOptions>(wos->walk_on_spheres());
+            if (const std::string why = check_wos_options3(*s.boundaries, s.domain); !why.empty())
+                props.error("velocity", why);
+        } else if (velocity->plugin_name() != "biot_savart") {
+            props.error("velocity", fmt::format("'{}' is not available in 3D; use biot_savart or walk_on_spheres",
+                                                velocity->plugin_name()));
+        } else if (s.velocity.importance == SourceSampling::Kernel) {
             props.error("velocity", "importance = kernel is 2D only; use vorticity or uniform in 3D");
+        }
     }
     auto cache = props.get_object_as<CacheSpec>("cache");
     if (!cache) cache = std::dynamic_pointer_cast<CacheSpec>(Registry::instance().create(Properties("cache", "grid")));
@@ -221,12 +226,20 @@ RunResult run_mcfluid3(const Simulation3Params& p, RunContext& ctx) {
     log_info("mcfluid: 3D, domain {}, {}x{}x{} cache ({}), initial {}", settings.domain.to_string(), settings.nx,
              settings.ny, settings.nz, settings.interpolation == Interpolation::Nearest ? "nearest" : "trilinear",
              field.description3());
+    const std::string velocity =
+        settings.boundaries
+            ? fmt::format(
+                  "free-slip Walk-on-Spheres velocity on the vector potential ({} gradient samples, max {} "
+                  "steps, {} volume sampling)",
+                  settings.velocity.samples, settings.boundaries->wos.max_steps,
+                  settings.boundaries->vorticity_importance ? "|omega|-mixed" : "Green's-function")
+            : fmt::format("Biot–Savart velocity (n_mc {}, importance {}, delta {:g}{})", settings.velocity.samples,
+                          fluid::to_string(settings.velocity.importance), solver.delta(),
+                          settings.domain.periodic ? ", Ewald periodic kernel" : "");
     log_info(
-        "mcfluid: effects: advection ({}, dt {:g}, {} steps) with Biot–Savart velocity (n_mc {}, importance {}, delta "
-        "{:g}{}); stretching {}; diffusion {}; control variates {}; boundaries none; smoke {}",
-        fluid::to_string(settings.advection), settings.dt, p.steps, settings.velocity.samples,
-        fluid::to_string(settings.velocity.importance), solver.delta(),
-        settings.domain.periodic ? ", Ewald periodic kernel" : "",
+        "mcfluid: effects: advection ({}, dt {:g}, {} steps) with {}; stretching {}; diffusion {}; control variates "
+        "{}; boundaries {}; smoke {}",
+        fluid::to_string(settings.advection), settings.dt, p.steps, velocity,
         settings.stretching ? fmt::format("on (vortex segments, h = {:g})", solver.segment_length())
                             : std::string("OFF (requested; the 3D equations need it)"),
         viscous ? fmt::format("on (nu {:g}, Feynman–Kac, n_d {})", settings.viscosity, settings.diffusion_samples)
@@ -235,6 +248,7 @@ RunResult run_mcfluid3(const Simulation3Params& p, RunContext& ctx) {
             ? fmt::format("on (initial samples {})",
                           settings.initial_samples > 0 ? settings.initial_samples : settings.velocity.samples)
             : std::string("off"),
+        settings.boundaries ? describe3(*settings.boundaries, settings.domain) : std::string("none"),
         p.smoke ? p.smoke->description() : std::string("none"));
 
     OutputPaths paths(ctx.output);
@@ -326,7 +340,19 @@ RunResult run_mcfluid3(const Simulation3Params& p, RunContext& ctx) {
     ctx.stats.add("fluid.control_variate_queries", double(w.control_variate_queries), "queries");
     ctx.stats.add("fluid.invalid_velocity", double(w.invalid_velocity), "values");
     ctx.stats.add("fluid.invalid_vorticity", double(w.invalid_vorticity), "values");
-    ctx.stats.add("fluid.wos_walks", 0.0, "walks");
+    ctx.stats.add("fluid.wos_walks", double(w.wos_walks), "walks");
+    if (settings.boundaries) {
+        ctx.stats.add("fluid.wos_steps", double(w.wos_steps), "spheres");
+        ctx.stats.add("fluid.wos_truncated", double(w.wos_truncated), "walks");
+        ctx.stats.add("fluid.wos_invalid", double(w.wos_invalid), "walks");
+        ctx.stats.add("fluid.wos_boundary_queries", double(w.wos_boundary_queries), "queries");
+        ctx.stats.add("fluid.solid_cells", double(w.solid_cells), "cells");
+        ctx.stats.add("fluid.solid_departures", double(w.solid_departures), "backtraces");
+        ctx.stats.add("fluid.distance_queries", double(w.distance_queries), "queries");
+        if (w.wos_truncated + w.wos_invalid > 0)
+            log_warn("mcfluid: {} walk(s) reached max_steps and {} were invalid (counted as zero)", w.wos_truncated,
+                     w.wos_invalid);
+    }
     ctx.stats.add("fluid.smoke_lookups", double(w.smoke_lookups), "lookups");
     ctx.stats.add_time("fluid.time.velocity", w.seconds_velocity);
     ctx.stats.add_time("fluid.time.advection", w.seconds_advection);
@@ -343,10 +369,10 @@ RunResult run_mcfluid3(const Simulation3Params& p, RunContext& ctx) {
         const FluidDiagnostics3 dn = solver.diagnostics();
         log_info(
             "mcfluid: t = {:g}: energy {:.6g} (initial {:.6g}), enstrophy {:.6g}, helicity {:.6g}, max |omega| "
-            "{:.6g}; active effects: advection{}{}{}",
+            "{:.6g}; active effects: advection{}{}{}{}",
             dn.time, dn.kinetic_energy, d0.kinetic_energy, dn.enstrophy, dn.helicity, dn.max_abs_vorticity,
             settings.stretching ? ", stretching" : "", viscous ? ", diffusion" : "",
-            settings.control_variates ? ", control variates" : "");
+            settings.control_variates ? ", control variates" : "", settings.boundaries ? ", boundaries" : "");
     }
     result.image = slice_image(solver.vorticity_grid(), axis, range);
     result.work = double(done);

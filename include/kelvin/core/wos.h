@@ -52,6 +52,8 @@
 #include <kelvin/core/random.h>
 
 #include <glm/gtc/constants.hpp>
+#include <glm/gtc/matrix_transform.hpp>
+#include <glm/matrix.hpp>
 
 #include <algorithm>
 #include <cmath>
@@ -208,15 +210,47 @@ concept SampledSource = requires(const F& f, Random& rng, const Vec<D>& y) {
 /// Optionally, a sampled source evaluates f and its pdf together (one lookup instead of two).
 template <class F, int D>
 concept ValueAndPdf = requires(const F& f, const Vec<D>& y) {
-    { f.value_and_pdf(y, y) } -> std::convertible_to<std::pair<double, double>>;
+    { f.value_and_pdf(y, y).second } -> std::convertible_to<double>;
 };
+
+// Values: the solution may be a scalar (double) or a vector of independent components sharing the walks
+// (glm::vec<N, double>, e.g. a 3D vector potential): every component is estimated by the same spheres.
+inline bool is_zero(double v) { return v == 0; }
+template <int N>
+inline bool is_zero(const glm::vec<N, double, glm::defaultp>& v) {
+    return v == glm::vec<N, double, glm::defaultp>(0.0);
+}
+inline bool all_finite(double v) { return std::isfinite(v); }
+template <int N>
+inline bool all_finite(const glm::vec<N, double, glm::defaultp>& v) {
+    for (int i = 0; i < N; ++i)
+        if (!std::isfinite(v[i])) return false;
+    return true;
+}
+template <int C, int R>
+inline bool all_finite(const glm::mat<C, R, double, glm::defaultp>& m) {
+    for (int i = 0; i < C; ++i)
+        if (!all_finite(m[i])) return false;
+    return true;
+}
+/// The gradient contribution value x direction: a vector (scalar values) or the Jacobian whose column a is
+/// d(value)/dx_a (vector values).
+template <int D>
+inline Vec<D> outer(double v, const Vec<D>& n) {
+    return v * n;
+}
+template <int N, int D>
+inline glm::mat<D, N, double, glm::defaultp> outer(const glm::vec<N, double, glm::defaultp>& v, const Vec<D>& n) {
+    return glm::outerProduct(v, n);
+}
+
 template <int D, class F>
-inline std::pair<double, double> value_and_pdf(const F& f, const Vec<D>& y, const Vec<D>& x) {
+inline auto value_and_pdf(const F& f, const Vec<D>& y, const Vec<D>& x) {
     if constexpr (ValueAndPdf<F, D>) {
         return f.value_and_pdf(y, x);
     } else {
-        const double v = f(y);
-        return {v, v != 0 ? f.pdf(y, x) : 0.0};
+        const auto v = f(y);
+        return std::pair{v, !is_zero(v) ? double(f.pdf(y, x)) : 0.0};
     }
 }
 /// G(r) of the ball of radius R (non-negative, 1/(2 pi) or 1/(4 pi) included).
@@ -250,13 +284,14 @@ inline double green_gradient_pdf(double r, double R) {
 /// already knows it (negative: query it). Returns NaN for an invalid walk (counted by the caller through the
 /// estimators below, or check std::isfinite).
 template <int D, class Geometry, class Dirichlet, class Source>
-double walk(const Geometry& geometry, const Dirichlet& g, const Source& f, Vec<D> x, Random& rng, const Settings& s,
-            WalkCounters& c, double R0 = -1) {
+auto walk(const Geometry& geometry, const Dirichlet& g, const Source& f, Vec<D> x, Random& rng, const Settings& s,
+          WalkCounters& c, double R0 = -1) {
+    using Value = std::decay_t<decltype(g(std::declval<const BoundaryHit<D>&>()))>;
     ++c.walks;
-    double volume = 0;
+    Value volume(0.0);
     double R = R0 >= 0 ? R0 : geometry.distance(x);
     for (int k = 0;; ++k) {
-        if (!(R >= 0) || R == Inf) return std::numeric_limits<double>::quiet_NaN();  // NaN, negative, no boundary
+        if (!(R >= 0) || R == Inf) return Value(std::numeric_limits<double>::quiet_NaN());  // NaN, < 0, no boundary
         if (R < s.epsilon) break;
         if (k >= s.max_steps) {
             ++c.truncated;
@@ -270,10 +305,10 @@ double walk(const Geometry& geometry, const Dirichlet& g, const Source& f, Vec<D
             const double r = glm::length(y - x);
             if (r < R && r > 0) {
                 const auto [fy, py] = detail::value_and_pdf<D>(f, y, x);
-                if (fy != 0) {  // the densities are only needed where the source is not zero
+                if (!detail::is_zero(fy)) {  // the densities are only needed where the source is not zero
                     const double G = detail::green<D>(r, R);
                     const double q = a * G / green_integral<D>(R) + (1 - a) * py;
-                    if (q > 0) volume -= fy * G / q;
+                    if (q > 0) volume -= fy * (G / q);
                 }
             }
         } else if constexpr (detail::has_source<Source, D>) {
@@ -286,20 +321,22 @@ double walk(const Geometry& geometry, const Dirichlet& g, const Source& f, Vec<D
     return volume + g(geometry.closest(x));
 }
 
-/// One gradient sample at x0 with R0 = distance(x0) >= epsilon (Eq. 3.79; antithetic per Settings).
-/// Returns false for an invalid sample (non-finite anywhere); counters are updated either way.
-template <int D, class Geometry, class Dirichlet, class Source>
+/// One gradient sample at x0 with R0 = distance(x0) >= epsilon (Eq. 3.79; antithetic per Settings). `Out` is
+/// Vec<D> for scalar solutions and the Jacobian glm::mat<D, N, double> (column a = d/dx_a of the N
+/// components) for vector ones. Returns false for an invalid sample (non-finite anywhere); counters are
+/// updated either way.
+template <int D, class Geometry, class Dirichlet, class Source, class Out>
 bool gradient_sample(const Geometry& geometry, const Dirichlet& g, const Source& f, const Vec<D>& x0, double R0,
-                     Random& rng, const Settings& s, WalkCounters& c, Vec<D>& out) {
+                     Random& rng, const Settings& s, WalkCounters& c, Out& out) {
     const Vec<D> n = sample_direction<D>(rng);
     const double scale = double(D) / R0;
-    Vec<D> grad(0.0);
+    Out grad;
     if (s.antithetic) {
-        const double ua = walk<D>(geometry, g, f, x0 + R0 * n, rng, s, c);
-        const double ub = walk<D>(geometry, g, f, x0 - R0 * n, rng, s, c);
-        grad = (scale * 0.5 * (ua - ub)) * n;
+        const auto ua = walk<D>(geometry, g, f, x0 + R0 * n, rng, s, c);
+        const auto ub = walk<D>(geometry, g, f, x0 - R0 * n, rng, s, c);
+        grad = detail::outer((scale * 0.5) * (ua - ub), n);
     } else {
-        grad = (scale * walk<D>(geometry, g, f, x0 + R0 * n, rng, s, c)) * n;
+        grad = detail::outer(scale * walk<D>(geometry, g, f, x0 + R0 * n, rng, s, c), n);
     }
     if constexpr (detail::SampledSource<Source, D>) {
         const double a = f.green_fraction();
@@ -309,10 +346,11 @@ bool gradient_sample(const Geometry& geometry, const Dirichlet& g, const Source&
         const double r = glm::length(d);
         if (r < R0 && r > 0) {
             const auto [fy, py] = detail::value_and_pdf<D>(f, y, x0);
-            const double fd = s.antithetic ? 0.5 * (fy - f(x0 - d)) : fy;
-            if (fd != 0) {
-                const double q = a * detail::green_gradient_pdf<D>(r, R0) + (1 - a) * (fy != 0 ? py : f.pdf(y, x0));
-                if (q > 0) grad -= (fd / q) * (d * detail::green_gradient_factor<D>(r, R0));
+            const auto fd = s.antithetic ? 0.5 * (fy - f(x0 - d)) : fy;
+            if (!detail::is_zero(fd)) {
+                const double q =
+                    a * detail::green_gradient_pdf<D>(r, R0) + (1 - a) * (!detail::is_zero(fy) ? py : f.pdf(y, x0));
+                if (q > 0) grad -= detail::outer(fd * (1 / q), d * detail::green_gradient_factor<D>(r, R0));
             }
         }
     } else if constexpr (detail::has_source<Source, D>) {
@@ -320,12 +358,11 @@ bool gradient_sample(const Geometry& geometry, const Dirichlet& g, const Source&
         const Vec<D> dir = sample_direction<D>(rng);
         const double w = green_gradient_weight<D>(R0);
         if (s.antithetic)
-            grad -= (w * 0.5 * (f(x0 + r * dir) - f(x0 - r * dir))) * dir;
+            grad -= detail::outer((w * 0.5) * (f(x0 + r * dir) - f(x0 - r * dir)), dir);
         else
-            grad -= (w * f(x0 + r * dir)) * dir;
+            grad -= detail::outer(w * f(x0 + r * dir), dir);
     }
-    for (int i = 0; i < D; ++i)
-        if (!std::isfinite(grad[i])) return false;
+    if (!detail::all_finite(grad)) return false;
     out = grad;
     return true;
 }
@@ -351,7 +388,7 @@ ScalarEstimate solve(const Geometry& geometry, const Dirichlet& g, const Source&
     double sum = 0, sum2 = 0;
     for (int i = 0; i < n; ++i) {
         double v = walk<D>(geometry, g, f, x, rng, s, c, R0);
-        if (!std::isfinite(v)) {
+        if (!std::isfinite(v)) {  // (scalar solutions; vector ones call walk() directly)
             ++c.invalid;
             v = 0;
         }

@@ -25,9 +25,12 @@
 #include <kelvin/core/properties.h>
 #include <kelvin/core/registry.h>
 #include <kelvin/core/wos.h>
+#include <kelvin/fluid/alias.h>
 #include <kelvin/fluid/biot_savart.h>
+#include <kelvin/fluid/biot_savart3.h>
 #include <kelvin/fluid/fields.h>
 #include <kelvin/fluid/grid.h>
+#include <kelvin/fluid/grid3.h>
 
 #include <memory>
 #include <string>
@@ -192,6 +195,105 @@ private:
     std::vector<char> m_moving;
     VorticitySource m_source;  // with vorticity_importance
 };
+
+// ----------------------------------------------------------------------------------------------------------
+// 3D: free slip through a vector potential (thesis Sections 5.3.1-5.3.2 and 6.2.4).
+//
+// v = -curl Psi with Laplacian(Psi) = omega_h componentwise (the 3D analogue of Eq. 5.9: for a solenoidal Psi,
+// -curl curl Psi = Laplacian(Psi)), each component solved by the same walks (one walk carries the three
+// components; the gradient sample is the 3 x 3 Jacobian). Boundary values, the thesis' simplified condition
+// ("like Bridson et al., our current 3D results simply use Psi = 0"): Psi is a constant vector on every solid,
+// so its tangential derivatives vanish there and the normal velocity (which only involves them) is zero; the
+// tangential velocity at the solid is not constrained to the exact free-slip solution when the gauge matters
+// (several solids, handles: Sec. 6.2.4), which the docs say. With a uniform stream U = (inflow_speed, 0, 0)
+// the walls carry the stream's own potential Psi_U(x) = -1/2 U x (x - c) (c the box centre; -curl Psi_U = U),
+// so the fluid enters through the x- wall and leaves through x+, and each obstacle takes the constant
+// Psi_U(centre of its bounds): for a sphere this is exactly the boundary value of the potential flow past it,
+// Psi = Psi_U (1 - a^3 / r^3). Without a stream every boundary is at Psi = 0, the thesis' condition.
+
+/// The velocity of a 3D state with solid boundaries. Immutable and thread-safe once built; static solids.
+class WosVelocityField3 {
+public:
+    /// `omega` must outlive the field. Throws RuntimeError on an unusable configuration (see
+    /// check_wos_options3); plugins validate earlier and report InputErrors.
+    /// `homogeneous`: every boundary at Psi = 0 whatever the stream (the field of a difference of two states,
+    /// for control variates: the boundary data cancel).
+    WosVelocityField3(const WosVelocityOptions& options, const Domain3& domain, const VectorGrid3* omega,
+                      Interpolation interp, bool homogeneous = false);
+
+    /// The velocity at x with n gradient samples (2n walks with antithetic). Points inside a solid get zero
+    /// (static solids) without walking; points within epsilon of a boundary get zero (boundary_queries).
+    VelocityEstimate3 estimate(Vec3d x, int n, Random& rng, wos::WalkCounters& c) const;
+    /// Psi at x with n walks (value and per-component variance of the estimate).
+    VelocityEstimate3 stream_function(Vec3d x, int n, Random& rng, wos::WalkCounters& c) const;
+
+    /// Distance to the nearest boundary (walls, solids; periodic images included), and the closest point with
+    /// its piece: 0-5 the walls (x-, x+, y-, y+, z-, z+), 6 + i shape i.
+    double distance(Vec3d x) const;
+    wos::BoundaryHit<3> closest(Vec3d x) const;
+    /// Psi prescribed at a boundary point, and its difference to the uniform stream's potential there (what the
+    /// walks carry: the stream's part is added exactly).
+    Vec3d boundary_stream(const wos::BoundaryHit<3>& h) const;
+    Vec3d residual_stream(const wos::BoundaryHit<3>& h) const;
+    /// The uniform stream's potential Psi_U(x) (zero without a stream).
+    Vec3d stream_potential(Vec3d x) const;
+    /// Index of the solid containing x (-1: fluid).
+    int solid_at(Vec3d x) const;
+    /// A departure point that ended inside a solid moves to the closest point of that solid's boundary; one
+    /// beyond the walls is clamped into the box of cell centres.
+    Vec3d push_out(Vec3d x) const;
+
+    const wos::Settings& settings() const { return m_wos; }
+    bool walls() const { return m_walls; }
+
+    /// The source Laplacian(Psi) = omega_h with |omega|_h importance sampling (wos.h SampledSource): values
+    /// and |omega| from the same trilinear (or nearest) weights, cells from an alias table, the tent offset of
+    /// the interpolation, so the density of a sample is |omega|_h(y) / integral |omega|_h.
+    class VorticitySource {
+    public:
+        VorticitySource() = default;
+        VorticitySource(const VectorGrid3* omega, Interpolation interp);
+        Vec3d operator()(const Vec3d& y) const { return lookup(y).first; }
+        Vec3d sample(Random& rng, const Vec3d& x) const;
+        double pdf(const Vec3d& y, const Vec3d& x) const { return value_and_pdf(y, x).second; }
+        std::pair<Vec3d, double> value_and_pdf(const Vec3d& y, const Vec3d& x) const;
+        double green_fraction() const { return 0.5; }
+        bool empty() const { return m_total == 0; }
+
+    private:
+        std::pair<Vec3d, double> lookup(const Vec3d& y) const;
+
+        const VectorGrid3* m_omega = nullptr;
+        Interpolation m_interp = Interpolation::Bilinear;
+        Grid3 m_abs;         // |omega| per cell
+        double m_total = 0;  // sum |omega_k| * cell volume
+        std::vector<AliasEntry> m_table;
+        std::vector<uint32_t> m_cells;
+    };
+
+private:
+    WosVelocityOptions m_options;
+    Domain3 m_domain;
+    const VectorGrid3* m_omega;
+    Interpolation m_interp;
+    wos::Settings m_wos;
+    bool m_walls;
+    bool m_has_source = false;
+    bool m_homogeneous = false;
+    bool m_residual_data = false;                             // some boundary has Psi_b != Psi_U
+    Vec3d m_stream{0.0};                                      // U of the uniform stream
+    Vec3d m_center{0.0};                                      // the box centre (origin of Psi_U)
+    std::vector<Vec3d> m_shape_psi;                           // each solid's constant Psi
+    std::vector<const wos::BoundaryGeometry<3>*> m_geometry;  // each shape's provider
+    VorticitySource m_source;                                 // with vorticity_importance
+};
+
+/// Why these options cannot run a 3D simulation on `domain` ("" when they can): a 2D shape, a periodic domain
+/// without any solid, an open domain without walls or container, inflow ranges, a stream with a container,
+/// moving solids, per-boundary stream values.
+std::string check_wos_options3(const WosVelocityOptions& options, const Domain3& domain);
+/// One line for the run summary.
+std::string describe3(const WosVelocityOptions& options, const Domain3& domain);
 
 }  // namespace kelvin::fluid
 

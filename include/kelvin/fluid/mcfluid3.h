@@ -21,6 +21,7 @@
 // Determinism: a pass is split into z-slabs of cells (one unit per z index); unit k of pass p at step s draws
 // from Random(seed, hash(hash(s, p), k)). Results are bit-identical whatever the thread count.
 #include <kelvin/core/random.h>
+#include <kelvin/core/wos.h>
 #include <kelvin/fluid/biot_savart3.h>
 #include <kelvin/fluid/grid3.h>
 #include <kelvin/fluid/mcfluid.h>
@@ -28,8 +29,12 @@
 #include <cstdint>
 #include <functional>
 #include <memory>
+#include <vector>
 
 namespace kelvin::fluid {
+
+struct WosVelocityOptions;  // boundary.h
+class WosVelocityField3;
 
 /// omega(0, x) in 3D.
 using InitialField3 = std::function<Vec3d(const Vec3d&)>;
@@ -47,6 +52,10 @@ struct MCFluid3Settings {
     bool control_variates = false;
     int initial_samples = 0;  ///< samples of the first velocity pass (0: velocity.samples)
     uint64_t seed = 0;
+    /// Solid boundaries (walk_on_spheres, boundary.h): the velocity is the free-slip Walk-on-Spheres estimate
+    /// on the vector potential instead of Biot–Savart (velocity.samples = gradient samples per query). Null:
+    /// no distance query is built and no walk runs.
+    std::shared_ptr<const WosVelocityOptions> boundaries;
 };
 
 /// Cumulative work of the 3D solver, per effect.
@@ -58,6 +67,14 @@ struct FluidWork3 {
     uint64_t stretching_evals = 0;         ///< vortex-segment stretching estimates (Eq. 5.21)
     uint64_t control_variate_queries = 0;  ///< velocity estimates that used the previous step as control variate
     uint64_t smoke_lookups = 0;            ///< smoke density values read (0 without smoke)
+    uint64_t wos_walks = 0;                ///< Walk-on-Spheres walks (boundaries only)
+    uint64_t wos_steps = 0;                ///< spheres crossed by those walks
+    uint64_t wos_truncated = 0;            ///< walks that hit max_steps (ended at the nearest boundary, counted)
+    uint64_t wos_invalid = 0;              ///< walks with a non-finite distance or value (counted as zero)
+    uint64_t wos_boundary_queries = 0;     ///< velocity queries within epsilon of a boundary (zero gradient)
+    uint64_t distance_queries = 0;         ///< stretching-segment distance queries (boundaries only)
+    uint64_t solid_cells = 0;              ///< cells inside solids (their vorticity and velocity are zero)
+    uint64_t solid_departures = 0;         ///< backtraces that ended inside a solid and were moved to its surface
     uint64_t invalid_velocity = 0;
     uint64_t invalid_vorticity = 0;
     double seconds_velocity = 0;
@@ -97,8 +114,11 @@ public:
     double delta() const { return m_delta; }
     double time() const { return m_time; }
     long long step_index() const { return m_step; }
-    /// Length of the stretching segments (the smallest cell size).
+    /// Length of the stretching segments away from boundaries (the smallest cell size h); near a boundary a
+    /// segment at x is min(h, 2 distance(x)) long (Sec. 5.3.3), so both ends stay in the fluid.
     double segment_length() const { return m_segment; }
+    /// The boundaries of the current state (null without boundaries).
+    const WosVelocityField3* boundary_field() const { return m_wos.get(); }
 
     /// One step of length dt; false (state unchanged) when interrupt_requested() stopped it.
     bool step(double dt);
@@ -112,8 +132,10 @@ public:
     bool velocity_available();
     FluidDiagnostics3 diagnostics();
 
-    /// A Monte Carlo estimate of the current state's velocity at x with n samples (without control variates).
+    /// A Monte Carlo estimate of the current state's velocity at x with n samples (without control variates):
+    /// Biot–Savart, or Walk-on-Spheres with boundaries (then the walks count into `walks`).
     VelocityEstimate3 velocity_estimate(Vec3d x, int n, Random& rng) const;
+    VelocityEstimate3 velocity_estimate(Vec3d x, int n, Random& rng, wos::WalkCounters& walks) const;
 
     const FluidWork3& work() const { return m_work; }
 
@@ -123,10 +145,14 @@ public:
     const Grid3* smoke() const { return m_smoke ? &m_density : nullptr; }
 
     enum StreamTag : uint64_t { TagVelocity = 1, TagAdvection = 2 };
+    struct SlabWork;  ///< the work of one z-slab of a pass (defined in mcfluid3.cpp)
 
 private:
     bool ensure_velocity();
-    Vec3d stage_velocity(Vec3d x, Random& rng, uint64_t& evals, uint64_t& queries, uint64_t& invalid) const;
+    /// The velocity of the current state at x with n samples: through the control variate when one is kept
+    /// (`previous` is then the previous velocity at x), Biot–Savart or Walk-on-Spheres.
+    VelocityEstimate3 estimate_at(Vec3d x, int n, Random& rng, SlabWork& w) const;
+    Vec3d stage_velocity(Vec3d x, Random& rng, SlabWork& w) const;
     void rebuild_estimators();
 
     MCFluid3Settings m_settings;
@@ -142,6 +168,9 @@ private:
     VectorGrid3 m_prev_omega, m_prev_vel, m_prev_var, m_diff;
     bool m_have_prev = false;
     std::unique_ptr<BiotSavartEstimator3> m_diff_estimator;
+    // Boundaries: the free-slip field of the state and, with control variates, of the difference (zero data).
+    std::unique_ptr<WosVelocityField3> m_wos, m_diff_wos;
+    std::vector<uint8_t> m_solid;  ///< cells inside a solid (static: computed once)
     FluidWork3 m_work;
     std::unique_ptr<Smoke3> m_smoke;
     Grid3 m_density, m_density_next;

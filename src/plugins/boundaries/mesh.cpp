@@ -1,8 +1,11 @@
 // mesh: a triangle mesh or triangle soup from a nested <shape> (obj, ply, gltf, rectangle, cube, ...) as a
 // boundary, through Embree's closest-point queries (exact, unsigned distances).
 //
-//  * dimension 3: the triangles themselves (ClosestPointQuery); unsigned, no inside: open meshes, soups with
-//    holes and duplicated faces are fine (the solution is that of the region the walk starts in).
+//  * dimension 3: the triangles themselves (ClosestPointQuery). A closed, consistently oriented manifold (every
+//    edge shared by two triangles in opposite directions, vertices welded by position) knows its inside (sign by
+//    the angle-weighted pseudo-normal at the closest point), so it can be an obstacle whose cells hold no
+//    vorticity, or a container. Anything else (open meshes, soups with holes, duplicated faces) is unsigned
+//    with no inside: the solution is that of the region the walk starts in.
 //  * dimension 2: the triangles must lie in the plane z = 0 (within 1e-6 of the mesh size); the solid is the
 //    union of the triangles and its boundary the edges with triangles on one side only (edges keyed by their
 //    end-point coordinates; an edge with triangles on both sides is interior and dropped). Distances to those
@@ -22,6 +25,7 @@
 #include <kelvin/render/shape.h>
 
 #include <algorithm>
+#include <array>
 #include <map>
 
 namespace kelvin::fluid::boundaries {
@@ -136,24 +140,134 @@ private:
     std::vector<std::vector<uint32_t>> m_cells;
 };
 
+/// Whether a triangle set is a closed, consistently oriented 2-manifold: vertices welded by position, every
+/// edge shared by exactly two triangles that traverse it in opposite directions. Degenerate triangles break it.
+bool closed_manifold(const ShapeGeometry& g) {
+    std::map<std::array<float, 3>, uint32_t> weld;
+    std::vector<uint32_t> id(g.positions.size());
+    for (std::size_t i = 0; i < g.positions.size(); ++i) {
+        const Vec3f& p = g.positions[i];
+        id[i] = weld.emplace(std::array<float, 3>{p.x, p.y, p.z}, uint32_t(weld.size())).first->second;
+    }
+    std::map<std::pair<uint32_t, uint32_t>, int> directed;  // (a, b) -> times traversed a -> b
+    for (std::size_t t = 0; t + 2 < g.indices.size(); t += 3)
+        for (int e = 0; e < 3; ++e) {
+            const uint32_t a = id[g.indices[t + std::size_t(e)]], b = id[g.indices[t + std::size_t((e + 1) % 3)]];
+            if (a == b) return false;
+            if (++directed[{a, b}] > 1) return false;
+        }
+    for (const auto& [edge, count] : directed)
+        if (!directed.count({edge.second, edge.first})) return false;
+    return true;
+}
+
+/// A 3D triangle mesh. Closed, consistently oriented meshes know their inside: the sign of (p - c) . n at the
+/// closest point c with the angle-weighted pseudo-normal n of the feature (face, edge or vertex) c lies on
+/// (Baerentzen and Aanaes, "Signed distance computation using the angle weighted pseudonormal", IEEE TVCG 2005),
+/// exact for any closed manifold. Everything else (soups, open meshes) is unsigned.
 class Mesh3 final : public Boundary3 {
 public:
-    explicit Mesh3(const Properties& props) : Boundary3(props, false), m_query({read_triangles(props)}) {
-        if (m_role.moving()) props.error("velocity", "3D boundaries do not move (rigid motion is 2D only)");
-        if (m_query.primitive_count() == 0) props.error("shape", "the nested shape has no valid triangles");
-    }
+    explicit Mesh3(const Properties& props) : Mesh3(props, read_triangles(props)) {}
     double distance(const Vec3d& p) const override { return m_query.distance(p); }
     BoundaryHit<3> closest(const Vec3d& p) const override {
         const ClosestPoint c = m_query.closest(p);
         return {c.found ? c.point : p, c.normal, int(c.prim)};
     }
+    bool has_inside() const override { return m_closed; }
+    bool inside3(const Vec3d& p) const override {
+        if (!m_closed) return false;
+        const ClosestPoint c = m_query.closest(p);
+        if (!c.found) return false;
+        return glm::dot(p - c.point, pseudo_normal(c.prim, c.point)) < 0;
+    }
     std::pair<Vec3d, Vec3d> bounds() const override { return m_query.bounds(); }
     std::string description() const override {
-        return fmt::format("triangle mesh ({} triangles)", m_query.primitive_count());
+        return fmt::format("triangle mesh ({} triangles, {})", m_query.primitive_count(),
+                           m_closed ? "closed" : "open or soup: unsigned");
     }
 
 private:
+    Mesh3(const Properties& props, ShapeGeometry g)
+        : Boundary3(props, closed_manifold(g)), m_closed(closed_manifold(g)), m_query({g}) {
+        if (m_role.moving()) props.error("velocity", "3D boundaries do not move (rigid motion is 2D only)");
+        if (m_query.primitive_count() == 0) props.error("shape", "the nested shape has no valid triangles");
+        if (m_closed) build_pseudo_normals(g);
+    }
+
+    void build_pseudo_normals(const ShapeGeometry& g) {
+        std::map<std::array<float, 3>, uint32_t> weld;
+        m_vertex_id.resize(g.positions.size());
+        for (std::size_t i = 0; i < g.positions.size(); ++i) {
+            const Vec3f& p = g.positions[i];
+            m_vertex_id[i] = weld.emplace(std::array<float, 3>{p.x, p.y, p.z}, uint32_t(weld.size())).first->second;
+        }
+        const std::size_t nt = g.indices.size() / 3;
+        m_tri.resize(nt);
+        m_face_normal.resize(nt);
+        m_vertex_normal.assign(weld.size(), Vec3d(0.0));
+        double volume = 0;
+        for (std::size_t t = 0; t < nt; ++t) {
+            for (int k = 0; k < 3; ++k) m_tri[t][std::size_t(k)] = g.indices[3 * t + std::size_t(k)];
+            const Vec3d a(g.positions[m_tri[t][0]]), b(g.positions[m_tri[t][1]]), c(g.positions[m_tri[t][2]]);
+            const Vec3d n = glm::cross(b - a, c - a);
+            volume += glm::dot(a, glm::cross(b, c));
+            const double len = glm::length(n);
+            m_face_normal[t] = len > 0 ? n / len : Vec3d(0.0);
+        }
+        const double orient = volume < 0 ? -1.0 : 1.0;  // inward-facing meshes: flip every normal
+        for (Vec3d& n : m_face_normal) n *= orient;
+        for (std::size_t t = 0; t < nt; ++t)
+            for (int k = 0; k < 3; ++k) {  // the vertex's angle in this triangle
+                const Vec3d p(g.positions[m_tri[t][std::size_t(k)]]);
+                const Vec3d e1 = glm::normalize(Vec3d(g.positions[m_tri[t][std::size_t((k + 1) % 3)]]) - p);
+                const Vec3d e2 = glm::normalize(Vec3d(g.positions[m_tri[t][std::size_t((k + 2) % 3)]]) - p);
+                const double angle = std::acos(std::clamp(glm::dot(e1, e2), -1.0, 1.0));
+                m_vertex_normal[m_vertex_id[m_tri[t][std::size_t(k)]]] += angle * m_face_normal[t];
+            }
+        for (std::size_t t = 0; t < nt; ++t)  // edges: the sum of the two faces' normals
+            for (int k = 0; k < 3; ++k) {
+                const uint32_t a = m_vertex_id[m_tri[t][std::size_t(k)]],
+                               b = m_vertex_id[m_tri[t][std::size_t((k + 1) % 3)]];
+                m_edge_normal[{std::min(a, b), std::max(a, b)}] += m_face_normal[t];
+            }
+    }
+
+    Vec3d pseudo_normal(uint32_t prim, const Vec3d& q) const {
+        const auto& t = m_tri[prim];
+        const Vec3d a(m_positions(t[0])), b(m_positions(t[1])), c(m_positions(t[2]));
+        // Barycentric coordinates of q (the closest point lies in the triangle).
+        const Vec3d e0 = b - a, e1 = c - a, d = q - a;
+        const double d00 = glm::dot(e0, e0), d01 = glm::dot(e0, e1), d11 = glm::dot(e1, e1);
+        const double d20 = glm::dot(d, e0), d21 = glm::dot(d, e1);
+        const double den = d00 * d11 - d01 * d01;
+        if (!(den > 0)) return m_face_normal[prim];
+        const double v = (d11 * d20 - d01 * d21) / den, w = (d00 * d21 - d01 * d20) / den, u = 1 - v - w;
+        const double tol = 1e-7;
+        const double bary[3] = {u, v, w};
+        int zeros = 0, nonzero = -1, zero = -1;
+        for (int k = 0; k < 3; ++k) {
+            if (bary[k] <= tol)
+                ++zeros, zero = k;
+            else
+                nonzero = k;
+        }
+        if (zeros >= 2) return m_vertex_normal[m_vertex_id[t[std::size_t(nonzero)]]];  // a vertex
+        if (zeros == 1) {  // the edge opposite the zero coordinate
+            const uint32_t p0 = m_vertex_id[t[std::size_t((zero + 1) % 3)]],
+                           p1 = m_vertex_id[t[std::size_t((zero + 2) % 3)]];
+            const auto it = m_edge_normal.find({std::min(p0, p1), std::max(p0, p1)});
+            if (it != m_edge_normal.end()) return it->second;
+        }
+        return m_face_normal[prim];
+    }
+    Vec3d m_positions(uint32_t i) const { return Vec3d(m_query.geometry()[0].positions[i]); }
+
+    bool m_closed = false;
     ClosestPointQuery m_query;
+    std::vector<std::array<uint32_t, 3>> m_tri;
+    std::vector<uint32_t> m_vertex_id;
+    std::vector<Vec3d> m_face_normal, m_vertex_normal;
+    std::map<std::pair<uint32_t, uint32_t>, Vec3d> m_edge_normal;
 };
 
 ObjectPtr make_mesh(const Properties& props) {

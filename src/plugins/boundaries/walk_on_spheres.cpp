@@ -58,16 +58,14 @@ public:
         for (const ObjectPtr& o : props.get_objects("boundary")) {
             auto b = std::dynamic_pointer_cast<const BoundaryShape>(o);
             if (!b) props.error("boundary", "not a boundary shape");
-            if (b->dimension() != 2)
-                props.error("boundary", fmt::format("{}: the fluid solver is 2D; give the boundary dimension = 2",
-                                                    b->description()));
-            m_opt.shapes.push_back(b);
+            m_opt.shapes.push_back(b);  // the simulation checks the dimension (check_wos_options / 3)
         }
         // Section 6.2.4: with several disjoint boundaries the isovalues set the flux between them. Say so when
         // the scene left any obstacle's at the default (the thesis' choice: no net flow between boundaries).
         int obstacles = 0, defaulted = 0;
         bool outer = m_opt.walls;
         for (const auto& b : m_opt.shapes) {
+            if (b->dimension() != 2) continue;  // 3D solids take constant vector potentials (boundary.h)
             if (b->role().fluid_inside) {
                 outer = true;
                 continue;

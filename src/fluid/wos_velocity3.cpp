@@ -1,0 +1,353 @@
+// Free slip in 3D: the vector potential Psi by Walk-on-Spheres, each component with the harmonic Green's
+// function volume term, all three carried by the same walks, and the velocity as -curl Psi from the gradient
+// estimator (thesis Sections 5.3.1-5.3.2, 6.2.4). See include/kelvin/fluid/boundary.h.
+#include <kelvin/core/error.h>
+#include <kelvin/fluid/boundary.h>
+
+#include <fmt/format.h>
+
+#include <algorithm>
+#include <cmath>
+
+namespace kelvin::fluid {
+
+namespace {
+
+const int WallPieces = 6;
+
+Vec3d box_center(const BoundaryShape& s) {
+    const auto [lo, hi] = s.bounds();
+    return 0.5 * (lo + hi);
+}
+
+}  // namespace
+
+std::string check_wos_options3(const WosVelocityOptions& options, const Domain3& domain) {
+    bool container = false;
+    for (const auto& s : options.shapes) {
+        if (!s || s->dimension() != 3 || !s->geometry3())
+            return "every boundary of a 3D simulation must be 3D (sphere, box or capsule with dimension = 3, mesh or "
+                   "vdb with dimension = 3)";
+        const BoundaryRole& r = s->role();
+        if (r.moving()) return s->description() + ": 3D boundaries do not move (rigid motion is 2D only)";
+        if (r.stream_value_given)
+            return s->description() +
+                   ": stream_value is 2D only; 3D solids take the thesis' constant vector potential (Psi = 0, or the "
+                   "uniform stream's value at the solid's centre)";
+        container |= r.fluid_inside;
+    }
+    if (domain.periodic && options.shapes.empty())
+        return "a periodic domain needs at least one <boundary> (without any, use biot_savart)";
+    if (!domain.periodic && !options.walls && !container)
+        return "an open domain needs walls = true or a container boundary (fluid = 'inside'); walks would never end";
+    if (options.wall_stream_value != 0)
+        return "wall_stream_value is 2D only (3D walls carry Psi = 0, or the uniform stream's potential)";
+    if (options.inflow_speed != 0) {
+        if (domain.periodic || !options.walls) return "inflow_speed needs walls = true on a non-periodic domain";
+        if (options.inflow_min != options.inflow_max)
+            return "inflow_min/inflow_max are 2D only: in 3D the uniform stream enters through the whole x- wall";
+        if (container) return "inflow_speed with a container boundary: the stream would cross the container";
+    }
+    return "";
+}
+
+std::string describe3(const WosVelocityOptions& options, const Domain3& domain) {
+    std::string s = domain.periodic ? "periodic" : (options.walls ? "walls (Psi = 0)" : "no walls");
+    if (options.inflow_speed != 0)
+        s = fmt::format("walls with a uniform stream U = ({:g}, 0, 0) (inflow x-, outflow x+)", options.inflow_speed);
+    for (const auto& b : options.shapes) {
+        s += "; " + b->description();
+        s += b->role().fluid_inside ? " [container" : " [obstacle";
+        s += b->has_inside() ? "]" : ", unsigned]";
+    }
+    return s;
+}
+
+WosVelocityField3::WosVelocityField3(const WosVelocityOptions& options, const Domain3& domain, const VectorGrid3* omega,
+                                     Interpolation interp, bool homogeneous)
+    : m_options(options),
+      m_domain(domain),
+      m_omega(omega),
+      m_interp(interp),
+      m_wos(options.wos),
+      m_homogeneous(homogeneous) {
+    if (const std::string why = check_wos_options3(options, domain); !why.empty())
+        throw_runtime("walk_on_spheres: {}", why);
+    const Vec3d size = domain.size();
+    if (!(m_wos.epsilon > 0)) m_wos.epsilon = options.epsilon_relative * std::min({size.x, size.y, size.z});
+    m_walls = options.walls && !domain.periodic;
+    m_stream = homogeneous ? Vec3d(0.0) : Vec3d(options.inflow_speed, 0, 0);
+    m_center = 0.5 * (domain.min + domain.max);
+    m_has_source = omega && omega->max_norm() > 0;
+    if (m_has_source && options.vorticity_importance) m_source = VorticitySource(omega, interp);
+    for (const auto& s : options.shapes) {
+        m_geometry.push_back(s->geometry3());
+        m_shape_psi.push_back(s->role().fluid_inside ? Vec3d(0.0) : stream_potential(box_center(*s)));
+    }
+    m_residual_data = m_stream != Vec3d(0.0) && !options.shapes.empty();
+}
+
+Vec3d WosVelocityField3::stream_potential(Vec3d x) const { return -0.5 * glm::cross(m_stream, x - m_center); }
+
+double WosVelocityField3::distance(Vec3d x) const {
+    double d = Inf;
+    if (m_walls) {  // inside: the nearest face; outside: 0 (the walk stops at once and the caller clamps)
+        const Vec3d lo = x - m_domain.min, hi = m_domain.max - x;
+        d = std::max(0.0, std::min({lo.x, lo.y, lo.z, hi.x, hi.y, hi.z}));
+    }
+    if (!m_domain.periodic) {
+        for (const wos::BoundaryGeometry<3>* g : m_geometry) d = std::min(d, g->distance(x));
+        return d;
+    }
+    const Vec3d xw = m_domain.wrap(x), L = m_domain.size();
+    for (const wos::BoundaryGeometry<3>* g : m_geometry)  // the 27 nearest images of each shape
+        for (int a = -1; a <= 1; ++a)
+            for (int b = -1; b <= 1; ++b)
+                for (int c = -1; c <= 1; ++c) d = std::min(d, g->distance(xw + Vec3d(a * L.x, b * L.y, c * L.z)));
+    return d;
+}
+
+wos::BoundaryHit<3> WosVelocityField3::closest(Vec3d x) const {
+    wos::BoundaryHit<3> best{x, Vec3d(0.0), 0};
+    double bd = Inf;
+    if (m_walls) {
+        const wos::BoxBoundary<3> box{m_domain.min, m_domain.max};
+        best = box.closest(x);
+        bd = box.distance(x);
+    }
+    const Vec3d xw = m_domain.wrap(x), shift = x - xw, L = m_domain.size();
+    const int images = m_domain.periodic ? 1 : 0;
+    for (std::size_t i = 0; i < m_geometry.size(); ++i)
+        for (int a = -images; a <= images; ++a)
+            for (int b = -images; b <= images; ++b)
+                for (int c = -images; c <= images; ++c) {
+                    const Vec3d img = m_domain.periodic ? Vec3d(a * L.x, b * L.y, c * L.z) : Vec3d(0.0);
+                    const Vec3d q = m_domain.periodic ? xw + img : x;
+                    const double d = m_geometry[i]->distance(q);
+                    if (!(d < bd)) continue;
+                    bd = d;
+                    best = m_geometry[i]->closest(q);
+                    if (m_domain.periodic) best.point += shift - img;
+                    best.component = WallPieces + int(i);
+                }
+    return best;
+}
+
+Vec3d WosVelocityField3::boundary_stream(const wos::BoundaryHit<3>& h) const {
+    if (h.component < WallPieces) return stream_potential(h.point);
+    return m_shape_psi[std::size_t(h.component - WallPieces)];
+}
+
+Vec3d WosVelocityField3::residual_stream(const wos::BoundaryHit<3>& h) const {
+    if (h.component < WallPieces) return Vec3d(0.0);
+    return m_shape_psi[std::size_t(h.component - WallPieces)] - stream_potential(h.point);
+}
+
+int WosVelocityField3::solid_at(Vec3d x) const {
+    const Vec3d xw = m_domain.wrap(x), L = m_domain.size();
+    for (std::size_t i = 0; i < m_options.shapes.size(); ++i) {
+        const BoundaryShape& s = *m_options.shapes[i];
+        if (!s.has_inside()) continue;
+        const bool fluid_inside = s.role().fluid_inside;
+        if (!m_domain.periodic || fluid_inside) {  // a container on a periodic domain: the home image decides
+            if (s.inside3(m_domain.periodic ? xw : x) != fluid_inside) return int(i);
+            continue;
+        }
+        for (int a = -1; a <= 1; ++a)
+            for (int b = -1; b <= 1; ++b)
+                for (int c = -1; c <= 1; ++c)
+                    if (s.inside3(xw + Vec3d(a * L.x, b * L.y, c * L.z))) return int(i);
+    }
+    return -1;
+}
+
+Vec3d WosVelocityField3::push_out(Vec3d x) const {
+    if (m_walls) {  // into the box of cell centres: lookups there never blend in the zero ghost cells
+        const Vec3d half = m_omega ? 0.5 * m_omega->x.h() : Vec3d(0.0);
+        x = glm::clamp(x, m_domain.min + half, m_domain.max - half);
+    }
+    const int s = solid_at(x);
+    if (s < 0) return x;
+    const BoundaryShape& shape = *m_options.shapes[std::size_t(s)];
+    Vec3d q = x, back(0.0);
+    if (m_domain.periodic && !shape.role().fluid_inside) {  // the image that contains x
+        const Vec3d xw = m_domain.wrap(x), L = m_domain.size();
+        for (int a = -1; a <= 1; ++a)
+            for (int b = -1; b <= 1; ++b)
+                for (int c = -1; c <= 1; ++c) {
+                    const Vec3d img = xw + Vec3d(a * L.x, b * L.y, c * L.z);
+                    if (shape.inside3(img)) {
+                        q = img;
+                        back = x - img;
+                    }
+                }
+    }
+    return shape.geometry3()->closest(q).point + back;
+}
+
+namespace {
+
+/// v = -curl Psi from the Jacobian J (column a = dPsi/dx_a).
+inline Vec3d minus_curl(const glm::dmat3& J) { return {J[2][1] - J[1][2], J[0][2] - J[2][0], J[1][0] - J[0][1]}; }
+
+template <class Field, class Source>
+VelocityEstimate3 velocity_samples(const Field& field, const Source& f, Vec3d x, double R0, int n, Random& rng,
+                                   const wos::Settings& s, wos::WalkCounters& c) {
+    const auto g = [&field](const wos::BoundaryHit<3>& h) { return field.residual_stream(h); };
+    Vec3d sum(0.0), sum2(0.0);
+    for (int i = 0; i < n; ++i) {
+        glm::dmat3 J(0.0);
+        Vec3d v(0.0);
+        if (wos::gradient_sample<3>(field, g, f, x, R0, rng, s, c, J))
+            v = minus_curl(J);
+        else
+            ++c.invalid;
+        sum += v;
+        sum2 += v * v;
+    }
+    VelocityEstimate3 e;
+    if (n > 0) {
+        e.value = sum / double(n);
+        if (n > 1) e.variance = glm::max(Vec3d(0.0), (sum2 - sum * e.value) / (double(n) * double(n - 1)));
+    }
+    return e;
+}
+
+template <class Field, class Source>
+VelocityEstimate3 potential_samples(const Field& field, const Source& f, Vec3d x, double R0, int n, Random& rng,
+                                    const wos::Settings& s, wos::WalkCounters& c) {
+    const auto g = [&field](const wos::BoundaryHit<3>& h) { return field.residual_stream(h); };
+    Vec3d sum(0.0), sum2(0.0);
+    for (int i = 0; i < n; ++i) {
+        Vec3d v = wos::walk<3>(field, g, f, x, rng, s, c, R0);
+        if (!wos::detail::all_finite(v)) {
+            ++c.invalid;
+            v = Vec3d(0.0);
+        }
+        sum += v;
+        sum2 += v * v;
+    }
+    VelocityEstimate3 e;
+    if (n > 0) {
+        e.value = sum / double(n);
+        if (n > 1) e.variance = glm::max(Vec3d(0.0), (sum2 - sum * e.value) / (double(n) * double(n - 1)));
+    }
+    return e;
+}
+
+}  // namespace
+
+// The uniform stream's potential is harmonic and known: Psi = Psi_U + Psi', where the walks estimate only Psi'
+// (Laplacian Psi' = omega_h, Psi' = Psi_b - Psi_U on the boundary: zero on the walls, small on the solids) and the
+// velocity is U - curl Psi'. Same expectation, far less variance than walking on Psi itself.
+VelocityEstimate3 WosVelocityField3::estimate(Vec3d x, int n, Random& rng, wos::WalkCounters& c) const {
+    if (solid_at(x) >= 0) return {};  // static solids: no motion inside
+    VelocityEstimate3 e{m_stream, Vec3d(0.0), 0};
+    if (!m_has_source && !m_residual_data) return e;  // Psi' = 0 exactly: no walk
+    if (m_walls) x = glm::clamp(x, m_domain.min, m_domain.max);
+    const double R0 = distance(x);
+    if (!(R0 >= 0) || R0 == Inf) {
+        c.invalid += uint64_t(std::max(n, 0));
+        return {};
+    }
+    if (R0 < m_wos.epsilon) {
+        ++c.boundary_queries;
+        return {};
+    }
+    if (m_has_source && !m_source.empty()) {
+        e = velocity_samples(*this, m_source, x, R0, n, rng, m_wos, c);
+    } else if (m_has_source) {  // the thesis' Green's-function sampling of the volume term
+        const VectorGrid3& grid = *m_omega;
+        const Interpolation interp = m_interp;
+        const auto f = [&grid, interp](const Vec3d& y) { return grid.sample(y, interp); };
+        e = velocity_samples(*this, f, x, R0, n, rng, m_wos, c);
+    } else {
+        e = velocity_samples(*this, wos::NoSource{}, x, R0, n, rng, m_wos, c);
+    }
+    e.value += m_stream;
+    return e;
+}
+
+VelocityEstimate3 WosVelocityField3::stream_function(Vec3d x, int n, Random& rng, wos::WalkCounters& c) const {
+    VelocityEstimate3 e;
+    const double R0 = distance(x);
+    if (R0 >= 0 && R0 < m_wos.epsilon) {
+        e.value = boundary_stream(closest(x));
+        return e;
+    }
+    if (m_has_source && !m_source.empty()) {
+        e = potential_samples(*this, m_source, x, R0, n, rng, m_wos, c);
+    } else if (m_has_source) {
+        const VectorGrid3& grid = *m_omega;
+        const Interpolation interp = m_interp;
+        const auto f = [&grid, interp](const Vec3d& y) { return grid.sample(y, interp); };
+        e = potential_samples(*this, f, x, R0, n, rng, m_wos, c);
+    } else if (m_residual_data) {
+        e = potential_samples(*this, wos::NoSource{}, x, R0, n, rng, m_wos, c);
+    }
+    e.value += stream_potential(x);
+    return e;
+}
+
+// ----- |omega| importance sampling of the source
+
+WosVelocityField3::VorticitySource::VorticitySource(const VectorGrid3* omega, Interpolation interp)
+    : m_omega(omega), m_interp(interp), m_abs(omega->x) {
+    std::vector<double> w;
+    double sum = 0;
+    for (std::size_t k = 0; k < omega->cell_count(); ++k) {
+        const double a = glm::length(omega->at(k));
+        m_abs.values()[k] = std::isfinite(a) ? a : 0.0;
+        if (a > 0 && std::isfinite(a)) {
+            w.push_back(a);
+            m_cells.push_back(uint32_t(k));
+            sum += a;
+        }
+    }
+    if (w.empty()) return;
+    m_total = sum * m_abs.cell_volume();
+    m_table = build_alias_table(w, sum);
+}
+
+Vec3d WosVelocityField3::VorticitySource::sample(Random& rng, const Vec3d& x) const {
+    const uint32_t slot = rng.next_u32(uint32_t(m_table.size()));
+    const AliasEntry& e = m_table[slot];
+    const uint32_t k = m_cells[rng.next_u32() < e.threshold ? slot : e.alias];
+    const Grid3& g = m_abs;
+    const int i = int(k % uint32_t(g.nx())), j = int((k / uint32_t(g.nx())) % uint32_t(g.ny())),
+              l = int(k / (uint32_t(g.nx()) * uint32_t(g.ny())));
+    const Vec3d h = g.h();
+    Vec3d off;
+    if (m_interp == Interpolation::Bilinear)  // the trilinear tent of half-width h: a sum of two uniforms per axis
+        for (int a = 0; a < 3; ++a) off[a] = h[a] * (wos::uniform(rng) + wos::uniform(rng) - 1);
+    else
+        for (int a = 0; a < 3; ++a) off[a] = h[a] * (wos::uniform(rng) - 0.5);
+    const Vec3d y = g.cell_center(i, j, l) + off;
+    const Domain3& d = g.domain();
+    if (!d.periodic) return y;
+    return x + d.min_image(y - x);  // periodic: the image nearest the walk
+}
+
+std::pair<Vec3d, double> WosVelocityField3::VorticitySource::lookup(const Vec3d& y) const {
+    const Stencil3 st = m_abs.stencil(y, m_interp);
+    Vec3d v(0.0);
+    double a = 0;
+    const double *ox = m_omega->x.values().data(), *oy = m_omega->y.values().data(), *oz = m_omega->z.values().data(),
+                 *ab = m_abs.values().data();
+    for (int c = 0; c < st.count; ++c) {
+        const std::size_t k = st.index[c];
+        const double w = st.weight[c];
+        v += w * Vec3d(ox[k], oy[k], oz[k]);
+        a += w * ab[k];
+    }
+    return {v, a};
+}
+
+std::pair<Vec3d, double> WosVelocityField3::VorticitySource::value_and_pdf(const Vec3d& y, const Vec3d& x) const {
+    const auto [v, a] = lookup(y);
+    const Domain3& d = m_abs.domain();
+    if (d.periodic && d.min_image(y - x) != y - x) return {v, 0.0};  // outside sample()'s image
+    return {v, a / m_total};
+}
+
+}  // namespace kelvin::fluid
