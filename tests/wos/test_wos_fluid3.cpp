@@ -124,10 +124,10 @@ std::vector<Vec3d> probe_points(Vec3d c, double a) {
 
 // Closed meshes know their inside (angle-weighted pseudo-normals at the closest point): random points, and points
 // just outside and inside vertices and edge midpoints, where the closest feature is a vertex or an edge; an
-// inward-wound copy gives the same answer (orientation from the signed volume). A soup with a hole has no inside,
-// and using it as a container is a one-line error. Broken variant seen to fail: the face normal of the closest
-// triangle instead of the pseudo-normal (points radially outside a vertex are then called inside about half the
-// time).
+// inward-wound copy gives the same answer (orientation from the signed volume); points around a sharp edge of a
+// wedge. A soup with a hole has no inside, and using it as a container is a one-line error. Broken variant seen
+// to fail: the face normal of the closest triangle instead of the pseudo-normal (right on the convex sphere,
+// wrong for part of the points around the wedge's sharp edge).
 TEST(WosFluid3, ClosedMeshesKnowTheirInside) {
     const ktest::TempDir dir;
     const Vec3d c(0.1, -0.2, 0.05);
@@ -154,6 +154,21 @@ TEST(WosFluid3, ClosedMeshesKnowTheirInside) {
             EXPECT_TRUE(mesh->inside3(c + (r * 0.98) * d));
         }
     }
+    // A sharp (30 degree) convex edge: around it, the points whose closest feature is the edge lie outside, and
+    // the face normal of either adjacent face misclassifies part of them (the pseudo-normal does not).
+    const double t = std::tan(Pi / 12);
+    std::ofstream(dir / "wedge.obj") << fmt::format(
+        "v 0 0 -0.5\nv 1 {0} -0.5\nv 1 {1} -0.5\nv 0 0 0.5\nv 1 {0} 0.5\nv 1 {1} 0.5\n"
+        "f 1 3 2\nf 4 5 6\nf 1 2 5\nf 1 5 4\nf 3 1 4\nf 3 4 6\nf 2 3 6\nf 2 6 5\n",
+        -t, t);
+    auto wedge = mesh_boundary(dir / "wedge.obj");
+    ASSERT_TRUE(wedge->has_inside());
+    for (int k = 0; k < 72; ++k) {
+        const double phi = 2 * Pi * (k + 0.5) / 72;
+        const Vec3d p(0.03 * std::cos(phi), 0.03 * std::sin(phi), 0.1);
+        EXPECT_EQ(wedge->inside3(p), p.x > 0 && std::abs(p.y) < t * p.x) << "angle " << phi;
+    }
+
     auto soup = mesh_boundary(write_icosphere(dir, "soup.obj", c, r, 2, false, 17, 5));
     EXPECT_FALSE(soup->has_inside());
     EXPECT_NE(soup->description().find("unsigned"), std::string::npos);
