@@ -306,10 +306,25 @@ TEST(FluidScene3D, BadInputNamesTheParameter) {
     e = load_error(scene(R"(<integer name="steps" value="2"/><boolean name="stretching" value="false"/>)"));
     EXPECT_CONTAINS(e.what(), "'stretching'");
     EXPECT_CONTAINS(e.what(), "3D parameter");
+    // Boundaries of the wrong dimension, 2D-only boundary parameters, a periodic box without a solid.
     e = load_error(scene3(R"(<integer name="steps" value="2"/>)", R"(<vorticity type="abc"/>)",
                           R"(<velocity type="walk_on_spheres"/>)"));
     EXPECT_CONTAINS(e.what(), "'velocity'");
-    EXPECT_CONTAINS(e.what(), "not available in 3D");
+    EXPECT_CONTAINS(e.what(), "periodic domain needs at least one <boundary>");
+    e = load_error(scene3(R"(<integer name="steps" value="2"/>)", R"(<vorticity type="abc"/>)",
+                          R"(<velocity type="walk_on_spheres"><boundary type="disk"/></velocity>)"));
+    EXPECT_CONTAINS(e.what(), "'velocity'");
+    EXPECT_CONTAINS(e.what(), "must be 3D");
+    e = load_error(scene3(R"(<integer name="steps" value="2"/>)", R"(<vorticity type="abc"/>)",
+                          R"(<velocity type="walk_on_spheres"><boundary type="sphere">
+                                <float name="stream_value" value="1"/></boundary></velocity>)"));
+    EXPECT_CONTAINS(e.what(), "stream_value is 2D only");
+    e = load_error(scene(R"(<integer name="steps" value="2"/>)", R"(<vorticity type="taylor_green"/>)",
+                         R"(<velocity type="walk_on_spheres"><boundary type="sphere"/></velocity>)"));
+    EXPECT_CONTAINS(e.what(), "must be 2D");
+    e = load_error(scene3(R"(<integer name="steps" value="2"/>)", R"(<vorticity type="abc"/>)",
+                          R"(<velocity type="biot_savart_typo"/>)"));
+    EXPECT_CONTAINS(e.what(), "velocity");
     e = load_error(scene3(R"(<integer name="steps" value="2"/>)",
                           R"(<vorticity type="vortex_ring"><float name="core" value="2"/></vorticity>)"));
     EXPECT_CONTAINS(e.what(), "'core'");
@@ -366,4 +381,35 @@ TEST(FluidScene3D, RunWritesCsvVdbAndSlicesAndOnlyRequestedWork) {
     // A 2D dye in a 3D scene is refused.
     InputError e = load_error(scene3(R"(<integer name="steps" value="2"/><scalar type="pattern"/>)"));
     EXPECT_CONTAINS(e.what(), "'scalar'");
+}
+
+// A 3D scene with a free-slip obstacle (the shipped sphere scene at a tiny budget): walks instead of Biot–Savart,
+// a solid mask, finite diagnostics; the summary statistics name the walk work.
+TEST(FluidScene3D, SphereObstacleSceneRunsOnWalks) {
+    TempDir dir;
+    const fs::path scene_path = fs::path(KELVIN_SOURCE_DIR) / "scenes" / "fluid" / "sphere_obstacle.xml";
+    ParseOptions opts;
+    opts.defines = {{"res", "8"}, {"spp", "2"}, {"end", "0.2"}, {"every", "1"}};
+    auto job = std::dynamic_pointer_cast<Job>(instantiate(parse_scene_file(scene_path, opts)));
+    ASSERT_TRUE(job);
+    RunContext ctx;
+    ctx.quiet = true;
+    ctx.output = dir.path() / "sphere.png";
+    RunResult r = job->run(ctx);
+    EXPECT_EQ(r.work, 2);
+    EXPECT_GT(ctx.stats.get("fluid.wos_walks"), 0.0);
+    EXPECT_EQ(ctx.stats.get("fluid.biot_savart_evals"), 0.0);
+    EXPECT_GT(ctx.stats.get("fluid.solid_cells"), 0.0);
+    EXPECT_EQ(ctx.stats.get("fluid.wos_invalid"), 0.0);
+    std::ifstream csv(dir.path() / "sphere.csv");
+    std::string line;
+    std::getline(csv, line);
+    int rows = 0;
+    while (std::getline(csv, line)) {
+        ++rows;
+        EXPECT_EQ(line.find("nan"), std::string::npos) << line;
+        EXPECT_EQ(line.find("inf"), std::string::npos) << line;
+    }
+    EXPECT_EQ(rows, 3);
+    EXPECT_TRUE(fs::exists(dir.path() / "sphere_0002.vdb"));
 }
