@@ -1,6 +1,8 @@
 // 3D MCFluid benchmarks (issue 15): Biot–Savart evaluations per second of one velocity pass over the cache, and
 // time per Feynman–Kac step at 64^3 and 128^3 with n_mc = 32 and 128, with and without control variates, and the
-// cost of each effect (stretching, diffusion, control variates) as a share of a step.
+// cost of each effect (stretching, diffusion, control variates) as a share of a step; free-slip obstacles: velocity
+// queries per second by Walk-on-Spheres on the vector potential (16 gradient samples = 32 walks per query) for a
+// sphere, the bunny as a closed mesh and as a soup, and one full step of the bunny scene at 24^3.
 //
 //     build/bin/bench_fluid3 --benchmark_counters_tabular=true
 //     build/bin/bench_fluid3 --benchmark_filter=Effects   # the per-effect costs at 64^3
@@ -10,6 +12,8 @@
 // KELVIN_BENCH_THREADS is set. CPU time is reported per process (both threads), so evals/s per core is
 // evals / cpu_time. Figures are in docs/performance.md.
 #include <kelvin/core/parallel.h>
+#include <kelvin/core/registry.h>
+#include <kelvin/fluid/boundary.h>
 #include <kelvin/fluid/mcfluid3.h>
 
 #include <benchmark/benchmark.h>
@@ -109,8 +113,90 @@ void BM_Effects(benchmark::State& state) {
                                 : "+ control variates");
 }
 
+std::shared_ptr<const BoundaryShape> obstacle(int which) {
+    if (which == 0) {
+        Properties p("boundary", "sphere");
+        p.set_float("radius", 0.5);
+        return std::dynamic_pointer_cast<const BoundaryShape>(Registry::instance().create(p));
+    }
+    Properties sp("shape", "obj");
+    sp.set_string("filename", std::string(KELVIN_SOURCE_DIR) + (which == 1 ? "/scenes/fluid/meshes/bunny3d.obj"
+                                                                           : "/scenes/fluid/meshes/bunny3d_soup.obj"));
+    Properties p("boundary", "mesh");
+    p.set_int("dimension", 3);
+    p.set_object("shape", Registry::instance().create(sp));
+    return std::dynamic_pointer_cast<const BoundaryShape>(Registry::instance().create(p));
+}
+
+const char* obstacle_name(int which) { return which == 0 ? "sphere" : (which == 1 ? "bunny mesh" : "bunny soup"); }
+
+// Free-slip velocity queries around an obstacle in a [-2, 2]^3 box with a ring of vorticity (32^3 cache) and a
+// uniform stream: 16 gradient samples (32 walks) per query at the cache's cell centres, both cores.
+void BM_WosVelocity3(benchmark::State& state) {
+    ThreadLimit limit(bench_threads());
+    const int which = int(state.range(0));
+    WosVelocityOptions o;
+    o.inflow_speed = 0.3;
+    o.wos.max_steps = 256;
+    o.shapes = {obstacle(which)};
+    MCFluid3Settings s = settings(32, 16, false);
+    MCFluid3Solver solver(s, ring);
+    const WosVelocityField3 field(o, s.domain, &solver.vorticity_grid(), s.interpolation);
+    const Grid3& g = solver.vorticity_grid().x;
+    std::vector<wos::WalkCounters> counters(32);
+    std::vector<double> sink(32, 0.0);
+    uint64_t pass = 0, queries = 0;
+    for (auto _ : state) {
+        parallel_for_units(32, [&](std::size_t k) {
+            Random rng(pass, k);
+            double acc = 0;
+            for (int j = 0; j < 32; j += 4)  // every fourth row: 256 queries per slab
+                for (int i = 0; i < 32; ++i)
+                    acc += field.estimate(g.cell_center(i, j, int(k)), 16, rng, counters[k]).value.x;
+            sink[k] = acc;
+        });
+        ++pass;
+        queries += 32 * 8 * 32;
+        benchmark::DoNotOptimize(sink.data());
+    }
+    wos::WalkCounters total;
+    for (const auto& c : counters) total += c;
+    state.counters["queries/s"] = benchmark::Counter(double(queries), benchmark::Counter::kIsRate);
+    state.counters["walks/s"] = benchmark::Counter(double(total.walks), benchmark::Counter::kIsRate);
+    state.counters["steps/walk"] = double(total.steps) / double(std::max<uint64_t>(total.walks, 1));
+    state.SetLabel(obstacle_name(which));
+}
+
+// One full step (velocity pass + RK4 backtrace with 3 stage estimates + stretching) of a ring and smoke around the
+// obstacle at 24^3 with 8 gradient samples, as scenes/fluid/bunny3d.xml at its defaults.
+void BM_ObstacleStep3(benchmark::State& state) {
+    ThreadLimit limit(bench_threads());
+    const int which = int(state.range(0));
+    auto o = std::make_shared<WosVelocityOptions>();
+    o->inflow_speed = 0.3;
+    o->wos.max_steps = 256;
+    o->shapes = {obstacle(which)};
+    MCFluid3Settings s = settings(24, 8, false);
+    s.advection = Advection::RK4;
+    s.boundaries = o;
+    MCFluid3Solver solver(s, ring);
+    solver.step();
+    for (auto _ : state) solver.step();
+    const FluidWork3& w = solver.work();
+    state.counters["velocity_share"] = w.seconds_velocity / (w.seconds_velocity + w.seconds_advection);
+    state.counters["walks/step"] = double(w.wos_walks) / double(solver.step_index());
+    state.SetLabel(obstacle_name(which));
+}
+
 }  // namespace
 
+BENCHMARK(BM_WosVelocity3)->DenseRange(0, 2)->Unit(benchmark::kMillisecond)->MeasureProcessCPUTime()->UseRealTime();
+BENCHMARK(BM_ObstacleStep3)
+    ->DenseRange(0, 2)
+    ->Unit(benchmark::kMillisecond)
+    ->MeasureProcessCPUTime()
+    ->UseRealTime()
+    ->Iterations(1);
 BENCHMARK_CAPTURE(BM_BiotSavart3Pass, periodic_abc, true)
     ->Args({64, 32})
     ->Args({64, 128})

@@ -96,14 +96,14 @@ double WosVelocityField3::distance(Vec3d x) const {
         d = std::max(0.0, std::min({lo.x, lo.y, lo.z, hi.x, hi.y, hi.z}));
     }
     if (!m_domain.periodic) {
-        for (const wos::BoundaryGeometry<3>* g : m_geometry) d = std::min(d, g->distance(x));
+        for (const wos::BoundaryGeometry<3>* g : m_geometry) d = g->distance_within(x, d);
         return d;
     }
     const Vec3d xw = m_domain.wrap(x), L = m_domain.size();
     for (const wos::BoundaryGeometry<3>* g : m_geometry)  // the 27 nearest images of each shape
         for (int a = -1; a <= 1; ++a)
             for (int b = -1; b <= 1; ++b)
-                for (int c = -1; c <= 1; ++c) d = std::min(d, g->distance(xw + Vec3d(a * L.x, b * L.y, c * L.z)));
+                for (int c = -1; c <= 1; ++c) d = g->distance_within(xw + Vec3d(a * L.x, b * L.y, c * L.z), d);
     return d;
 }
 

@@ -85,6 +85,9 @@ public:
     virtual ~BoundaryGeometry() = default;
     /// Unsigned distance from p to the boundary, >= 0 (a lower bound is allowed). Inf: no boundary.
     virtual double distance(const Vec<D>& p) const = 0;
+    /// min(distance(p), bound): what a caller that already knows a boundary at `bound` (the walls, another
+    /// solid) needs; providers override it to stop searching beyond `bound`.
+    virtual double distance_within(const Vec<D>& p, double bound) const { return std::min(distance(p), bound); }
     /// The closest boundary point (default: p itself, piece 0; enough when g is defined everywhere).
     virtual BoundaryHit<D> closest(const Vec<D>& p) const { return {p, Vec<D>(0.0), 0}; }
 };

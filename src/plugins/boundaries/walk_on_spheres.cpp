@@ -8,7 +8,9 @@
 // cache. Boundaries: the domain box as walls (unless periodic), with optional inflow through its left wall and
 // outflow through its right (Fig. 5.6), and the nested <boundary> shapes, each with its isovalue, possibly
 // moving rigidly (Eqs. 5.12-5.13). Cells inside solids hold zero vorticity and the solid's velocity; departure
-// points that land inside a solid are moved to its surface. See docs/boundaries.md.
+// points that land inside a solid are moved to its surface. In 3D (dimension = 3 simulations, 3D boundaries) the
+// stream function is a vector potential with Psi constant on solids and the walls carrying the uniform stream of
+// `inflow_speed` along +x (include/kelvin/fluid/boundary.h, WosVelocityField3). See docs/boundaries.md.
 //
 // | parameter         | type    | default | meaning                                                        |
 // |-------------------|---------|---------|----------------------------------------------------------------|
@@ -94,8 +96,8 @@ private:
 }  // namespace kelvin::fluid
 
 KELVIN_PLUGIN(kelvin::fluid::WalkOnSpheres, "velocity", "walk_on_spheres",
-              "Free-slip velocity by Walk-on-Spheres on the stream function (Sec. 5.3.1): walls, inflow/outflow, "
-              "obstacles, moving solids.",
+              "Free-slip velocity by Walk-on-Spheres on the stream function (Sec. 5.3.1; 3D: vector potential): walls, "
+              "inflow/outflow, obstacles, moving solids (2D).",
               kelvin::param::integer("samples", 64, "gradient samples per velocity query (2 walks each, antithetic)"),
               kelvin::param::real("epsilon", 0.0, "shell width; 0: 1e-4 x the domain's smaller side"),
               kelvin::param::integer("max_steps", 4096, "spheres per walk before truncation (counted)"),
