@@ -161,7 +161,7 @@ double WosVelocityField::distance(Vec2d x) const {
     }
     if (!m_domain.periodic) {
         for (std::size_t i = 0; i < m_geometry.size(); ++i)
-            d = std::min(d, m_geometry[i]->distance(m_moving[i] ? to_local(int(i), x) : x));
+            d = m_geometry[i]->distance_within(m_moving[i] ? to_local(int(i), x) : x, d);
         return d;
     }
     const Vec2d xw = m_domain.wrap(x);
@@ -169,7 +169,7 @@ double WosVelocityField::distance(Vec2d x) const {
     for (std::size_t i = 0; i < m_geometry.size(); ++i)  // the 3 x 3 nearest images of each shape
         for (int a = -1; a <= 1; ++a)
             for (int b = -1; b <= 1; ++b)
-                d = std::min(d, m_geometry[i]->distance(to_local(int(i), xw + Vec2d(a * L.x, b * L.y))));
+                d = m_geometry[i]->distance_within(to_local(int(i), xw + Vec2d(a * L.x, b * L.y)), d);
     return d;
 }
 

@@ -8,6 +8,7 @@
 
 #include <fmt/format.h>
 
+#include <algorithm>
 #include <memory>
 #include <utility>
 #include <vector>
@@ -75,6 +76,9 @@ public:
             m_lo = glm::min(m_lo, p);
             m_hi = glm::max(m_hi, p);
         }
+        const std::size_t stride = std::max<std::size_t>(1, m_segments.size() / 64);
+        for (std::size_t i = 0; m_query && i < m_segments.size(); i += stride)
+            m_samples.push_back(m_points[m_segments[i][0]]);
     }
     static SegmentSet from_loops(const std::vector<std::vector<Vec2d>>& loops, bool closed) {
         std::vector<Vec2d> pts;
@@ -89,15 +93,25 @@ public:
         return SegmentSet(std::move(pts), std::move(segs));
     }
 
-    double distance(const Vec2d& p) const {
-        if (m_query) return m_query->distance(p);
+    double distance(const Vec2d& p) const { return distance_within(p, Inf); }
+    /// min(distance, bound). With the BVH, the search radius starts at min(bound, the distance to the nearest of
+    /// up to 64 segment end points) (points of the boundary, so an upper bound), which prunes the traversal; a
+    /// query farther than `bound` from the bounding box runs no search. Exact either way.
+    double distance_within(const Vec2d& p, double bound) const {
+        if (m_query) {
+            const Vec2d gap = glm::max(glm::max(m_lo - p, p - m_hi), Vec2d(0.0));
+            if (glm::length(gap) >= bound) return bound;
+            double upper = bound;
+            for (const Vec2d& v : m_samples) upper = std::min(upper, glm::length(p - v));
+            return std::min(bound, m_query->distance(p, upper * (1 + 1e-9) + 1e-300));
+        }
         double d2 = Inf;
         for (const auto& s : m_segments) {
             const Vec2d q = closest_point_on_segment(p, m_points[s[0]], m_points[s[1]]);
             const Vec2d d = p - q;
             d2 = std::min(d2, glm::dot(d, d));
         }
-        return std::sqrt(d2);
+        return std::min(bound, std::sqrt(d2));
     }
     BoundaryHit<2> closest(const Vec2d& p) const {
         BoundaryHit<2> h;
@@ -134,6 +148,7 @@ private:
     std::vector<ClosestSegmentQuery::Segment> m_segments;
     std::unique_ptr<ClosestSegmentQuery> m_query;
     Vec2d m_lo{Inf}, m_hi{-Inf};
+    std::vector<Vec2d> m_samples;  // segment end points that seed the BVH search radius
 };
 
 }  // namespace kelvin::fluid::boundaries

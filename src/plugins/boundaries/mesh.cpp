@@ -107,6 +107,7 @@ public:
         m_edge_count = segs.size();
     }
     double distance(const Vec2d& p) const override { return m_segments.distance(p); }
+    double distance_within(const Vec2d& p, double bound) const override { return m_segments.distance_within(p, bound); }
     BoundaryHit<2> closest(const Vec2d& p) const override { return m_segments.closest(p); }
     bool has_inside() const override { return true; }
     bool inside2(const Vec2d& p) const override {

@@ -22,6 +22,7 @@ public:
         m_edges = SegmentSet::from_loops({m_loop}, true);
     }
     double distance(const Vec2d& p) const override { return m_edges.distance(p); }
+    double distance_within(const Vec2d& p, double bound) const override { return m_edges.distance_within(p, bound); }
     BoundaryHit<2> closest(const Vec2d& p) const override { return m_edges.closest(p); }
     bool has_inside() const override { return true; }
     bool inside2(const Vec2d& p) const override { return inside_loop(m_loop, p); }

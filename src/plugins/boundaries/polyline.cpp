@@ -110,6 +110,7 @@ public:
         m_segments = SegmentSet::from_loops(m_loops, m_closed);
     }
     double distance(const Vec2d& p) const override { return m_segments.distance(p); }
+    double distance_within(const Vec2d& p, double bound) const override { return m_segments.distance_within(p, bound); }
     BoundaryHit<2> closest(const Vec2d& p) const override { return m_segments.closest(p); }
     bool has_inside() const override { return m_closed; }
     bool inside2(const Vec2d& p) const override { return m_closed && inside_loops(m_loops, p); }
