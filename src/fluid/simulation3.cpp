@@ -340,18 +340,15 @@ RunResult run_mcfluid3(const Simulation3Params& p, RunContext& ctx) {
     ctx.stats.add("fluid.control_variate_queries", double(w.control_variate_queries), "queries");
     ctx.stats.add("fluid.invalid_velocity", double(w.invalid_velocity), "values");
     ctx.stats.add("fluid.invalid_vorticity", double(w.invalid_vorticity), "values");
-    ctx.stats.add("fluid.wos_walks", double(w.wos_walks), "walks");
     if (settings.boundaries) {
-        ctx.stats.add("fluid.wos_steps", double(w.wos_steps), "spheres");
-        ctx.stats.add("fluid.wos_truncated", double(w.wos_truncated), "walks");
-        ctx.stats.add("fluid.wos_invalid", double(w.wos_invalid), "walks");
-        ctx.stats.add("fluid.wos_boundary_queries", double(w.wos_boundary_queries), "queries");
+        report_walks(ctx.stats, "fluid.wos_",
+                     {w.wos_walks, w.wos_steps, w.wos_truncated, w.wos_invalid, w.wos_boundary_queries}, "mcfluid",
+                     settings.boundaries->wos.max_steps);
         ctx.stats.add("fluid.solid_cells", double(w.solid_cells), "cells");
         ctx.stats.add("fluid.solid_departures", double(w.solid_departures), "backtraces");
         ctx.stats.add("fluid.distance_queries", double(w.distance_queries), "queries");
-        if (w.wos_truncated + w.wos_invalid > 0)
-            log_warn("mcfluid: {} walk(s) reached max_steps and {} were invalid (counted as zero)", w.wos_truncated,
-                     w.wos_invalid);
+    } else {
+        ctx.stats.add("fluid.wos_walks", 0.0, "walks");
     }
     ctx.stats.add("fluid.smoke_lookups", double(w.smoke_lookups), "lookups");
     ctx.stats.add_time("fluid.time.velocity", w.seconds_velocity);

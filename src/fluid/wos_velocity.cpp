@@ -1,6 +1,7 @@
 // Free-slip (and inflow/outflow, moving-solid) velocity by Walk-on-Spheres on the stream function (thesis
 // Section 5.3.1): the common <boundary> parameters, and WosVelocityField. See include/kelvin/fluid/boundary.h.
 #include <kelvin/core/error.h>
+#include <kelvin/core/logging.h>
 #include <kelvin/core/strings.h>
 #include <kelvin/fluid/boundary.h>
 
@@ -95,6 +96,20 @@ std::string check_wos_options(const WosVelocityOptions& options, const Domain2& 
                 options.inflow_min, options.inflow_max, domain.min.y, domain.max.y);
     }
     return "";
+}
+
+void report_walks(Stats& stats, const std::string& prefix, const wos::WalkCounters& c, const std::string& who,
+                  int max_steps) {
+    stats.add(prefix + "walks", double(c.walks), "walks");
+    stats.add(prefix + "steps", double(c.steps), "spheres");
+    stats.add(prefix + "truncated", double(c.truncated), "walks");
+    stats.add(prefix + "invalid", double(c.invalid), "walks");
+    stats.add(prefix + "boundary_queries", double(c.boundary_queries), "queries");
+    if (c.truncated + c.invalid > 0)
+        log_warn(
+            "{}: {} Walk-on-Spheres walk(s) hit max_steps ({}; ended at the nearest boundary) and {} were invalid "
+            "(counted as zero) out of {}",
+            who, c.truncated, max_steps, c.invalid, c.walks);
 }
 
 std::string describe(const WosVelocityOptions& options, const Domain2& domain) {

@@ -190,37 +190,14 @@ namespace {
 /// v = -curl Psi from the Jacobian J (column a = dPsi/dx_a).
 inline Vec3d minus_curl(const glm::dmat3& J) { return {J[2][1] - J[1][2], J[0][2] - J[2][0], J[1][0] - J[0][1]}; }
 
-template <class Field, class Source>
-VelocityEstimate3 velocity_samples(const Field& field, const Source& f, Vec3d x, double R0, int n, Random& rng,
-                                   const wos::Settings& s, wos::WalkCounters& c) {
-    const auto g = [&field](const wos::BoundaryHit<3>& h) { return field.residual_stream(h); };
+/// The mean of n vector samples and the variance of that mean, per component (NaN samples count as zero and
+/// as invalid).
+template <class Sample>
+VelocityEstimate3 mean_of(int n, wos::WalkCounters& c, Sample&& sample) {
     Vec3d sum(0.0), sum2(0.0);
     for (int i = 0; i < n; ++i) {
-        glm::dmat3 J(0.0);
         Vec3d v(0.0);
-        if (wos::gradient_sample<3>(field, g, f, x, R0, rng, s, c, J))
-            v = minus_curl(J);
-        else
-            ++c.invalid;
-        sum += v;
-        sum2 += v * v;
-    }
-    VelocityEstimate3 e;
-    if (n > 0) {
-        e.value = sum / double(n);
-        if (n > 1) e.variance = glm::max(Vec3d(0.0), (sum2 - sum * e.value) / (double(n) * double(n - 1)));
-    }
-    return e;
-}
-
-template <class Field, class Source>
-VelocityEstimate3 potential_samples(const Field& field, const Source& f, Vec3d x, double R0, int n, Random& rng,
-                                    const wos::Settings& s, wos::WalkCounters& c) {
-    const auto g = [&field](const wos::BoundaryHit<3>& h) { return field.residual_stream(h); };
-    Vec3d sum(0.0), sum2(0.0);
-    for (int i = 0; i < n; ++i) {
-        Vec3d v = wos::walk<3>(field, g, f, x, rng, s, c, R0);
-        if (!wos::detail::all_finite(v)) {
+        if (!sample(v) || !wos::detail::all_finite(v)) {
             ++c.invalid;
             v = Vec3d(0.0);
         }
@@ -233,6 +210,30 @@ VelocityEstimate3 potential_samples(const Field& field, const Source& f, Vec3d x
         if (n > 1) e.variance = glm::max(Vec3d(0.0), (sum2 - sum * e.value) / (double(n) * double(n - 1)));
     }
     return e;
+}
+
+/// -curl of the potential's deviation from the stream (gradient samples, antithetic per settings).
+template <class Field, class Source>
+VelocityEstimate3 velocity_samples(const Field& field, const Source& f, Vec3d x, double R0, int n, Random& rng,
+                                   const wos::Settings& s, wos::WalkCounters& c) {
+    const auto g = [&field](const wos::BoundaryHit<3>& h) { return field.residual_stream(h); };
+    return mean_of(n, c, [&](Vec3d& v) {
+        glm::dmat3 J(0.0);
+        if (!wos::gradient_sample<3>(field, g, f, x, R0, rng, s, c, J)) return false;
+        v = minus_curl(J);
+        return true;
+    });
+}
+
+/// The potential's deviation from the stream (walks from x).
+template <class Field, class Source>
+VelocityEstimate3 potential_samples(const Field& field, const Source& f, Vec3d x, double R0, int n, Random& rng,
+                                    const wos::Settings& s, wos::WalkCounters& c) {
+    const auto g = [&field](const wos::BoundaryHit<3>& h) { return field.residual_stream(h); };
+    return mean_of(n, c, [&](Vec3d& v) {
+        v = wos::walk<3>(field, g, f, x, rng, s, c, R0);
+        return true;
+    });
 }
 
 }  // namespace

@@ -24,6 +24,7 @@
 #include <kelvin/core/object.h>
 #include <kelvin/core/properties.h>
 #include <kelvin/core/registry.h>
+#include <kelvin/core/stats.h>
 #include <kelvin/core/wos.h>
 #include <kelvin/fluid/alias.h>
 #include <kelvin/fluid/biot_savart.h>
@@ -287,6 +288,12 @@ private:
     std::vector<const wos::BoundaryGeometry<3>*> m_geometry;  // each shape's provider
     VorticitySource m_source;                                 // with vorticity_importance
 };
+
+/// Adds a run's walk counters to `stats` as `<prefix>walks`, `steps`, `truncated`, `invalid` and
+/// `boundary_queries` (prefix "fluid.wos_" or "wos."), and warns (naming `who` and max_steps) when any walk was
+/// truncated or invalid.
+void report_walks(Stats& stats, const std::string& prefix, const wos::WalkCounters& c, const std::string& who,
+                  int max_steps);
 
 /// Why these options cannot run a 3D simulation on `domain` ("" when they can): a 2D shape, a periodic domain
 /// without any solid, an open domain without walls or container, inflow ranges, a stream with a container,

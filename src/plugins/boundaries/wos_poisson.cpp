@@ -122,14 +122,7 @@ public:
                     img.at(i, y, 5) > 0 ? Color3(0.2) : diverging_colormap(range > 0 ? img.at(i, y, 3) / range : 0));
         wos::WalkCounters c;
         for (const auto& r : rows) c += r;
-        ctx.stats.add("wos.walks", double(c.walks), "walks");
-        ctx.stats.add("wos.steps", double(c.steps), "steps");
-        ctx.stats.add("wos.truncated", double(c.truncated), "walks");
-        ctx.stats.add("wos.invalid", double(c.invalid), "walks");
-        ctx.stats.add("wos.boundary_queries", double(c.boundary_queries), "queries");
-        if (c.truncated + c.invalid > 0)
-            log_warn("wos_poisson: {} walk(s) hit max_steps and {} were invalid, out of {}", c.truncated, c.invalid,
-                     c.walks);
+        report_walks(ctx.stats, "wos.", c, "wos_poisson", m_options.wos.max_steps);
         RunResult result;
         result.image = std::move(img);
         result.work = double(walks);

@@ -267,18 +267,10 @@ public:
         ctx.stats.add("fluid.diffusion_samples", double(w.diffusion_samples), "samples");
         ctx.stats.add("fluid.invalid_velocity", double(w.invalid_velocity), "values");
         ctx.stats.add("fluid.invalid_vorticity", double(w.invalid_vorticity), "values");
-        ctx.stats.add("fluid.wos_walks", double(w.wos_walks), "walks");
-        ctx.stats.add("fluid.wos_steps", double(w.wos_steps), "steps");
-        ctx.stats.add("fluid.wos_truncated", double(w.wos_truncated), "walks");
-        ctx.stats.add("fluid.wos_invalid", double(w.wos_invalid), "walks");
-        ctx.stats.add("fluid.wos_boundary_queries", double(w.wos_boundary_queries), "queries");
+        report_walks(ctx.stats, "fluid.wos_",
+                     {w.wos_walks, w.wos_steps, w.wos_truncated, w.wos_invalid, w.wos_boundary_queries}, "mcfluid",
+                     settings.boundaries ? settings.boundaries->wos.max_steps : 0);
         ctx.stats.add("fluid.solid_departures", double(w.solid_departures), "points");
-        if (w.wos_truncated + w.wos_invalid > 0)
-            log_warn(
-                "mcfluid: {} Walk-on-Spheres walk(s) hit max_steps ({}; ended at the nearest boundary) and {} were "
-                "invalid (counted as zero) out of {}",
-                w.wos_truncated, settings.boundaries ? settings.boundaries->wos.max_steps : 0, w.wos_invalid,
-                w.wos_walks);
         ctx.stats.add_time("fluid.time.velocity", w.seconds_velocity);
         ctx.stats.add_time("fluid.time.advection", w.seconds_advection);
         ctx.stats.add_time("fluid.time.output", output_seconds);
