@@ -54,7 +54,7 @@ MCFluidSolver::MCFluidSolver(const MCFluidSettings& settings, const InitialField
     const Domain2& d = m_settings.domain;
     m_omega = Grid2(d, m_settings.nx, m_settings.ny);
     m_delta = m_settings.velocity.delta >= 0 ? m_settings.velocity.delta : 0.5 * std::min(m_omega.h().x, m_omega.h().y);
-    if (d.periodic) m_periodic = std::make_shared<PeriodicKernel>(d.size());
+    if (d.periodic && !m_settings.boundaries) m_periodic = std::make_shared<PeriodicKernel>(d.size());  // BS only
     for (int j = 0; j < m_omega.ny(); ++j)
         for (int i = 0; i < m_omega.nx(); ++i) {
             double w = initial(m_omega.cell_center(i, j));
@@ -72,13 +72,15 @@ MCFluidSolver::MCFluidSolver(const MCFluidSettings& settings, const InitialField
 MCFluidSolver::~MCFluidSolver() = default;
 
 void MCFluidSolver::rebuild_estimator() {
+    ++m_work.velocity_fields_built;
     if (m_settings.boundaries) {  // Walk-on-Spheres: solids placed at this state's time hold no vorticity
-        m_wos = std::make_unique<WosVelocityField>(*m_settings.boundaries, m_settings.domain, &m_omega,
-                                                   m_settings.interpolation, m_time);
+        // The solids first (a field without a source builds no sampling table), then the field of the state.
+        const WosVelocityField solids(*m_settings.boundaries, m_settings.domain, nullptr, m_settings.interpolation,
+                                      m_time);
         uint64_t solid = 0;
         for (int j = 0; j < m_omega.ny(); ++j)
             for (int i = 0; i < m_omega.nx(); ++i)
-                if (m_wos->solid_at(m_omega.cell_center(i, j)) >= 0) {
+                if (solids.solid_at(m_omega.cell_center(i, j)) >= 0) {
                     m_omega.at(i, j) = 0;
                     ++solid;
                 }

@@ -152,6 +152,15 @@ WosVelocityField::WosVelocityField(const WosVelocityOptions& options, const Doma
         m_options.inflow_min = y0;
         m_options.inflow_max = y1;
     }
+    // Psi is the same constant on every boundary, nothing moves and there is no source: Psi is that constant and
+    // the velocity exactly zero (no walk needed).
+    m_constant_psi = !m_has_source && options.inflow_speed == 0;
+    for (const auto& s : options.shapes) {
+        const BoundaryRole& r = s->role();
+        if (r.moving() || (m_walls && r.stream_value != options.wall_stream_value) ||
+            r.stream_value != options.shapes.front()->role().stream_value)
+            m_constant_psi = false;
+    }
     for (const auto& s : options.shapes) {
         const BoundaryRole& r = s->role();
         m_pivot.push_back(r.pivot + time * r.velocity);
@@ -405,6 +414,7 @@ VelocityEstimate WosVelocityField::estimate(Vec2d x, int n, Random& rng, wos::Wa
         e.value = shape_velocity(s, x);
         return e;
     }
+    if (m_constant_psi) return e;  // exactly zero: no walk
     if (m_walls) x = glm::clamp(x, m_domain.min, m_domain.max);
     const auto g = [this](const wos::BoundaryHit<2>& h) { return boundary_stream(h); };
     wos::GradientEstimate<2> ge;

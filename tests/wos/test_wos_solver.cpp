@@ -56,6 +56,41 @@ TEST(WosSolver, EffectsOnDemand) {
     EXPECT_EQ(wos.work().wos_truncated + wos.work().wos_invalid, 0u);
 }
 
+// No unrequested work with boundaries (issue 16, item 7): one velocity field per state (not two), no periodic
+// kernel table when the velocity is Walk-on-Spheres', and no walk when the velocity is known to be exactly zero (no
+// vorticity, every boundary at the same Psi, nothing moving, no inflow). A boundary at another Psi does drive a
+// flow, and then the walks run. Fails on the code before: two fields per state, a table on periodic domains, 18 000
+// walks for a zero flow.
+TEST(WosSolver, NoUnrequestedWork) {
+    MCFluidSettings s = small_settings();
+    auto still = std::make_shared<WosVelocityOptions>();
+    still->shapes = {disk_boundary({0.4, 0.2}, 0.2)};
+    s.boundaries = still;
+    MCFluidSolver quiet(s, [](const Vec2d&) { return 0.0; });
+    for (int i = 0; i < 3; ++i) ASSERT_TRUE(quiet.step());
+    EXPECT_EQ(quiet.work().velocity_fields_built, 4u);  // the initial state and one per step
+    EXPECT_EQ(quiet.work().wos_walks, 0u);
+    EXPECT_EQ(quiet.velocity_u().max_abs() + quiet.velocity_v().max_abs(), 0.0);
+
+    auto driven = std::make_shared<WosVelocityOptions>(*still);
+    driven->shapes = {disk_boundary({0.4, 0.2}, 0.2, "outside", 0.05)};
+    s.boundaries = driven;
+    MCFluidSolver flow(s, [](const Vec2d&) { return 0.0; });
+    ASSERT_TRUE(flow.step());
+    EXPECT_GT(flow.work().wos_walks, 0u);
+    EXPECT_GT(flow.velocity_u().max_abs(), 0.0);
+
+    MCFluidSettings p = small_settings();
+    p.domain.periodic = true;
+    MCFluidSolver bs(p, two_vortices);
+    EXPECT_NE(bs.periodic_kernel(), nullptr);
+    p.boundaries = still;
+    MCFluidSolver wos(p, two_vortices);
+    EXPECT_EQ(wos.periodic_kernel(), nullptr);
+    ASSERT_TRUE(wos.step());
+    EXPECT_GT(wos.work().wos_walks, 0u);
+}
+
 // Cells inside a solid hold zero vorticity (the initial condition is non-zero there) and the solid's velocity;
 // a moving square sweeps through a vortex for 6 steps: at every state the cells it covers are zero, departure
 // points that land inside it are counted, and everything stays finite. Broken variant seen to fail: solid cells

@@ -189,6 +189,7 @@ private:
     wos::Settings m_wos;
     bool m_walls;
     bool m_has_source = false;                                // omega is not identically zero
+    bool m_constant_psi = false;                              // the velocity is exactly zero (no walk)
     double m_psi_bottom = 0, m_psi_top = 0;                   // inflow: wall values below / above the inflow range
     std::vector<Vec2d> m_pivot;                               // pivot of each shape at this time
     std::vector<double> m_angle;                              // rotation of each shape at this time

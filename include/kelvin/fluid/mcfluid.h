@@ -53,21 +53,22 @@ struct MCFluidSettings {
 
 /// Cumulative work of a solver (each component counts its own).
 struct FluidWork {
-    uint64_t biot_savart_evals = 0;     ///< kernel evaluations (samples)
-    uint64_t velocity_queries = 0;      ///< Biot–Savart estimates
-    uint64_t advection_backtraces = 0;  ///< departure points traced
-    uint64_t diffusion_samples = 0;     ///< Gaussian displacements (Feynman–Kac diffusion)
-    uint64_t invalid_velocity = 0;      ///< non-finite velocity estimates (replaced by zero velocity)
-    uint64_t invalid_vorticity = 0;     ///< non-finite vorticity values (replaced by zero)
-    uint64_t wos_walks = 0;             ///< Walk-on-Spheres walks (boundaries only)
-    uint64_t wos_steps = 0;             ///< spheres crossed by those walks
-    uint64_t wos_truncated = 0;         ///< walks that hit max_steps (ended at the nearest boundary, counted)
-    uint64_t wos_invalid = 0;           ///< walks with a non-finite distance or value (counted as zero)
-    uint64_t wos_boundary_queries = 0;  ///< velocity queries within epsilon of a boundary (zero gradient)
-    uint64_t solid_departures = 0;      ///< departure points inside a solid, moved to its surface
-    uint64_t solid_cells = 0;           ///< cache cells inside solids at the current state
-    double seconds_velocity = 0;        ///< cell-centre velocity passes
-    double seconds_advection = 0;       ///< backtrace (incl. RK stages) + diffusion + interpolation passes
+    uint64_t biot_savart_evals = 0;      ///< kernel evaluations (samples)
+    uint64_t velocity_queries = 0;       ///< Biot–Savart estimates
+    uint64_t advection_backtraces = 0;   ///< departure points traced
+    uint64_t diffusion_samples = 0;      ///< Gaussian displacements (Feynman–Kac diffusion)
+    uint64_t invalid_velocity = 0;       ///< non-finite velocity estimates (replaced by zero velocity)
+    uint64_t invalid_vorticity = 0;      ///< non-finite vorticity values (replaced by zero)
+    uint64_t wos_walks = 0;              ///< Walk-on-Spheres walks (boundaries only)
+    uint64_t wos_steps = 0;              ///< spheres crossed by those walks
+    uint64_t wos_truncated = 0;          ///< walks that hit max_steps (ended at the nearest boundary, counted)
+    uint64_t wos_invalid = 0;            ///< walks with a non-finite distance or value (counted as zero)
+    uint64_t wos_boundary_queries = 0;   ///< velocity queries within epsilon of a boundary (zero gradient)
+    uint64_t solid_departures = 0;       ///< departure points inside a solid, moved to its surface
+    uint64_t solid_cells = 0;            ///< cache cells inside solids at the current state
+    uint64_t velocity_fields_built = 0;  ///< Biot–Savart tables or free-slip fields built (one per state)
+    double seconds_velocity = 0;         ///< cell-centre velocity passes
+    double seconds_advection = 0;        ///< backtrace (incl. RK stages) + diffusion + interpolation passes
 };
 
 /// Integral diagnostics of one state (integrals over the domain box, midpoint rule on the cells).
@@ -134,6 +135,8 @@ public:
     const WosVelocityField* boundary_field() const { return m_wos.get(); }
 
     const FluidWork& work() const { return m_work; }
+    /// The periodic kernel table (null unless the domain is periodic and the velocity is Biot–Savart's).
+    const PeriodicKernel* periodic_kernel() const { return m_periodic.get(); }
 
     /// Passive scalars (dye) carried along the same backtraces as the vorticity (the dye moves with exactly
     /// the flow the solver computes). Null (the default): no dye, and no dye work.
