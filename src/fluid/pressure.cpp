@@ -265,6 +265,7 @@ struct Level {
     std::vector<double> x, b, r, tmp;                    // work arrays (x, b unused on the finest level)
     std::vector<Prolong1> px, py;                        // this level's cells from the next coarser level
     std::vector<Restrict1> rx, ry;                       // the next coarser level's cells from this level
+    std::vector<int> band;  // fluid cells next to a closed or partial face (walls, solids): extra smoothing
 
     std::size_t cells() const { return std::size_t(nx) * std::size_t(ny); }
 
@@ -294,6 +295,35 @@ struct Level {
         b.assign(n, 0.0);
         r.assign(n, 0.0);
         rows_per_block = std::max(1, (8192 + nx - 1) / nx);
+        // The band: cells with a face coefficient below the level's full one (a closed or partly closed face),
+        // and their neighbours. Coarse operators represent the fine one worst there.
+        const double fw = *std::max_element(cw.begin(), cw.end()), fs = *std::max_element(cs.begin(), cs.end());
+        std::vector<uint8_t> mark(n, 0);
+        for (int j = 0; j < ny; ++j)
+            for (int i = 0; i < nx; ++i) {
+                const std::size_t c = std::size_t(j) * nx + i;
+                if (!(diag[c] > 0)) continue;
+                // Box walls are not in the band: the plain V-cycle handles them well (a solid's staircase not).
+                const bool w = (i > 0 || periodic) && cw[c] < 0.999 * fw;
+                const bool e = (i + 1 < nx || periodic) && ce[c] < 0.999 * fw;
+                const bool so = (j > 0 || periodic) && cs[c] < 0.999 * fs;
+                const bool no = (j + 1 < ny || periodic) && cn[c] < 0.999 * fs;
+                if (w || e || so || no)
+                    for (int dj = -1; dj <= 1; ++dj)
+                        for (int di = -1; di <= 1; ++di) {
+                            int ii = i + di, jj = j + dj;
+                            if (periodic) {
+                                ii = (ii + nx) % nx;
+                                jj = (jj + ny) % ny;
+                            } else if (ii < 0 || jj < 0 || ii >= nx || jj >= ny) {
+                                continue;
+                            }
+                            mark[std::size_t(jj) * nx + ii] = 1;
+                        }
+            }
+        band.clear();
+        for (std::size_t c = 0; c < n; ++c)
+            if (mark[c] && diag[c] > 0) band.push_back(int(c));
     }
 };
 
@@ -343,6 +373,22 @@ void sweep_rows(const Level& L, double* x, const double* b, int colour, int j0, 
     }
 }
 
+/// Gauss–Seidel over the band cells in a fixed order (forward or backward: adjoint pairs keep the V-cycle
+/// symmetric). Serial: the band has O(perimeter) cells.
+void band_sweep(const Level& L, double* x, const double* b, bool backward) {
+    const int nx = L.nx, ny = L.ny;
+    const std::size_t m = L.band.size();
+    for (std::size_t k = 0; k < m; ++k) {
+        const int c = L.band[backward ? m - 1 - k : k];
+        const int i = c % nx, j = c / nx;
+        const int iw = i > 0 ? i - 1 : (L.periodic ? nx - 1 : i), ie = i + 1 < nx ? i + 1 : (L.periodic ? 0 : i);
+        const int js = j > 0 ? j - 1 : (L.periodic ? ny - 1 : j), jn = j + 1 < ny ? j + 1 : (L.periodic ? 0 : j);
+        x[c] = (b[c] + L.cw[std::size_t(c)] * x[j * nx + iw] + L.ce[std::size_t(c)] * x[j * nx + ie] +
+                L.cs[std::size_t(c)] * x[js * nx + i] + L.cn[std::size_t(c)] * x[jn * nx + i]) *
+               L.inv_diag[std::size_t(c)];
+    }
+}
+
 void sweep(const Level& L, double* x, const double* b, int colour) {
     // On a periodic axis of odd length the last row meets the first one in the same colour: run it after the
     // others (a fixed order; rows of one colour are otherwise independent).
@@ -359,6 +405,7 @@ struct PoissonMultigrid::Impl {
     int max_iterations = 500;
     int smoothing = 2;
     int coarse_sweeps = 32;
+    int band_sweeps = 4;
     bool krylov = true;
     std::size_t fluid_cells = 0;
     std::vector<uint8_t> fluid;  // finest level
@@ -443,12 +490,16 @@ struct PoissonMultigrid::Impl {
             sweep(L, x, b, 0);
             sweep(L, x, b, 1);
         }
+        if (smoothing > 0)
+            for (int k = 0; k < band_sweeps; ++k) band_sweep(L, x, b, false);
         for_row_blocks(L.ny, L.rows_per_block,
                        [&](int j0, int j1, int) { residual_rows(L, x, b, L.r.data(), j0, j1); });
         restrict_to(l);
         Level& C = levels[std::size_t(l) + 1];
         vcycle(l + 1, C.x.data(), C.b.data());
         prolong_add(l, x);
+        if (smoothing > 0)
+            for (int k = 0; k < band_sweeps; ++k) band_sweep(L, x, b, true);
         for (int k = 0; k < smoothing; ++k) {  // the adjoint order: the V-cycle is a symmetric preconditioner
             sweep(L, x, b, 1);
             sweep(L, x, b, 0);
@@ -553,6 +604,7 @@ PoissonMultigrid::~PoissonMultigrid() = default;
 int PoissonMultigrid::levels() const { return int(m_impl->levels.size()); }
 void PoissonMultigrid::set_smoothing(int sweeps) { m_impl->smoothing = std::max(0, sweeps); }
 void PoissonMultigrid::set_krylov(bool on) { m_impl->krylov = on; }
+void PoissonMultigrid::set_band_sweeps(int sweeps) { m_impl->band_sweeps = std::max(0, sweeps); }
 
 void PoissonMultigrid::apply(const std::vector<double>& x, std::vector<double>& out) const {
     const Level& L = m_impl->levels[0];

@@ -17,10 +17,13 @@
 //     Neumann), and a DST-I (RODFT00) for node-centred Dirichlet problems (the initial stream function).
 //   - PoissonMultigrid: conjugate gradient preconditioned by one geometric multigrid V-cycle (cell-centred,
 //     bilinear prolongation, its transpose / 4 as restriction, rediscretised coarse operators whose face
-//     coefficients average the fine ones, red-black Gauss-Seidel smoothing 2 + 2, symmetric), written here:
+//     coefficients average the fine ones, red-black Gauss-Seidel smoothing 2 + 2, symmetric, plus 4 + 4
+//     Gauss-Seidel sweeps over a band of cells around the solids, where the coarse operators represent the fine
+//     one worst), written here:
 //     McAdams, Sifakis & Teran, "A parallel multigrid Poisson solver for fluids simulation on large grids"
 //     (SCA 2010) describe the same design. Work per iteration is O(cells); the iteration count does not grow with
-//     the grid (about 4 to 5 per decade of residual).
+//     the grid (7 to 8 PCG iterations to 1e-8 at 64^2..512^2 with a disk obstacle, 10 to 12 with a thin wall
+//     as well).
 //
 // Both are allocation-free after construction, parallel over fixed blocks of rows (TBB), and bit-identical for
 // any thread count (reductions are summed per block, then in block order).
@@ -87,6 +90,8 @@ public:
     /// iteration x += M (b - A x)).
     void set_smoothing(int sweeps);
     void set_krylov(bool on);
+    /// Extra Gauss–Seidel sweeps over the cells next to walls and solids, per side (default 4).
+    void set_band_sweeps(int sweeps);
     /// (A x) on the fine grid (solid cells 0).
     void apply(const std::vector<double>& x, std::vector<double>& out) const;
 
