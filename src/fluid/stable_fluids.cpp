@@ -196,6 +196,7 @@ StableFluidsSolver::StableFluidsSolver(const StableFluidsSettings& settings, con
     // FFT (periodic: the real DFT; walls: psi = 0 on them, a DST-I on the interior nodes).
     const int mx = per ? nx : nx - 1, my = per ? ny : ny - 1, off = per ? 0 : 1;
     std::vector<double> rhs(std::size_t(mx) * std::size_t(my));
+    double omega_max = 0;
     for (int j = 0; j < my; ++j)
         for (int i = 0; i < mx; ++i) {
             double w = initial(d.min + Vec2d((i + off) * hx, (j + off) * hy));
@@ -204,6 +205,7 @@ StableFluidsSolver::StableFluidsSolver(const StableFluidsSettings& settings, con
                 w = 0;
             }
             rhs[std::size_t(j) * mx + std::size_t(i)] = w;
+            omega_max = std::max(omega_max, std::abs(w));
         }
     std::vector<double> psi_in;
     if (per) {
@@ -223,16 +225,14 @@ StableFluidsSolver::StableFluidsSolver(const StableFluidsSettings& settings, con
         for (int i = 0; i < m_nux; ++i) m_uf[std::size_t(j) * m_nux + i] = (psi(i, j + 1) - psi(i, j)) / hy;
     for (int j = 0; j < m_nvy; ++j)
         for (int i = 0; i < nx; ++i) m_vf[std::size_t(j) * nx + i] = -(psi(i + 1, j) - psi(i, j)) / hx;
-    for (double& f : m_uf)
-        if (!std::isfinite(f)) {
-            ++m_invalid;
-            f = 0;
-        }
-    for (double& f : m_vf)
-        if (!std::isfinite(f)) {
-            ++m_invalid;
-            f = 0;
-        }
+    // An initial condition whose velocity overflows double precision is refused, not zeroed (issue 16, item 6).
+    for (const std::vector<double>* f : {&m_uf, &m_vf})
+        for (double x : *f)
+            if (!std::isfinite(x) || !std::isfinite(x * x * double(cells) * m_omega.cell_area()))
+                throw_runtime(
+                    "stable_fluids: the initial vorticity (max |omega| {:g}) overflows the solver: its "
+                    "velocity or kinetic energy is not finite in double precision; scale it down",
+                    omega_max);
     // With obstacles the stream function's field crosses the solids: close their faces and project once.
     if (!m_solid.empty()) {
         close_faces();
@@ -531,7 +531,27 @@ void StableFluidsSolver::ensure_fields() {
             m_u.at(i, j) = 0.5 * (u(i, j) + u(i + 1, j));
             m_v.at(i, j) = 0.5 * (v(i, j) + v(i, j + 1));
         }
+    // Nothing non-finite reaches an output: refuse it here, naming the field and the step.
+    for (const auto& [grid, name] :
+         {std::pair<const Grid2*, const char*>{&m_omega, "vorticity"}, {&m_u, "velocity u"}, {&m_v, "velocity v"}}) {
+        const std::vector<double>& vals = grid->values();
+        for (std::size_t k = 0; k < vals.size(); ++k)
+            if (!std::isfinite(vals[k]))
+                throw_runtime("stable_fluids: non-finite {} at step {} (cell {}, {}); refused before output", name,
+                              m_step, k % std::size_t(nx), k / std::size_t(nx));
+    }
     m_fields_valid = true;
+}
+
+FluidDiagnostics StableFluidsSolver::diagnostics() {
+    FluidDiagnostics d = FluidSolver::diagnostics();
+    for (const auto& [value, name] : {std::pair<double, const char*>{d.kinetic_energy, "kinetic energy"},
+                                      {d.enstrophy, "enstrophy"},
+                                      {d.circulation, "circulation"},
+                                      {d.max_abs_vorticity, "max |vorticity|"}})
+        if (!std::isfinite(value))
+            throw_runtime("stable_fluids: non-finite {} at step {}; refused before output", name, m_step);
+    return d;
 }
 
 const Grid2& StableFluidsSolver::vorticity_grid() {

@@ -15,6 +15,7 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <limits>
 #include <random>
 
 using namespace fluid_test;
@@ -353,4 +354,47 @@ TEST(Projection, PluginParameters) {
     EXPECT_NE(e.find("no fluid cell"), std::string::npos) << e;
     const kelvin::RunResult r = run_scene(scene("", disk_velocity));
     EXPECT_GE(r.work, 1);
+}
+
+// Issue 16, item 6 for the grid baseline: nothing non-finite reaches an output. A Gaussian vortex of circulation
+// 1e300 overflows the velocity: refused when the solver is built (the old code zeroed the overflowing faces,
+// wrote energy = inf in the CSV's first row and exited 0); the scene run fails with that one-line RuntimeError
+// (the CLI's exit 1). Face values that make a field or a diagnostic non-finite are refused, naming it and the
+// step.
+TEST(StableFluidsOutputs, NonFiniteValuesAreRefusedBeforeOutput) {
+    const Domain2 d{{-1.0, -1.0}, {1.0, 1.0}, false};
+    auto huge = [](const Vec2d& x) { return 1e300 * lo_omega(x, Vec2d(0.0, 0.0), 1.0, 0.2); };
+    for (Projection p : {Projection::FFT, Projection::Multigrid}) {
+        StableFluidsSettings s = sf(d, 16, p, 1e-8);
+        if (p == Projection::Multigrid) s.solid = in_disk;
+        try {
+            StableFluidsSolver solver(s, huge);
+            ADD_FAILURE() << "an overflowing initial condition was accepted";
+        } catch (const kelvin::RuntimeError& e) {
+            EXPECT_NE(std::string(e.what()).find("initial vorticity"), std::string::npos) << e.what();
+        }
+    }
+    const std::string xml = R"(<scene version="3.0.0"><simulation type="stable_fluids">
+        <float name="dt" value="0.05"/><integer name="steps" value="2"/><boolean name="write_csv" value="false"/>
+        <boolean name="write_png" value="false"/><boolean name="write_exr" value="false"/>
+        <vorticity type="gaussian_vortices"><string name="vortices" value="0 0 1e300 0.2"/></vorticity>
+        <cache type="grid"><integer name="resolution" value="16"/></cache></simulation></scene>)";
+    EXPECT_THROW(run_scene(xml), kelvin::RuntimeError);
+
+    StableFluidsSolver solver(sf(d, 16, Projection::FFT, 1e-8), [](const Vec2d&) { return 0.0; });
+    solver.set_face_velocity([](const Vec2d& x) { return Vec2d(x.x > 0.5 ? 1e200 : 0.0, 0.0); });
+    try {  // finite faces, but the kinetic energy overflows
+        solver.diagnostics();
+        ADD_FAILURE() << "non-finite energy accepted";
+    } catch (const kelvin::RuntimeError& e) {
+        EXPECT_NE(std::string(e.what()).find("kinetic energy at step 0"), std::string::npos) << e.what();
+    }
+    solver.set_face_velocity(
+        [](const Vec2d& x) { return Vec2d(x.x > 0.5 ? std::numeric_limits<double>::infinity() : 0.0, 0.0); });
+    try {
+        solver.vorticity_grid();
+        ADD_FAILURE() << "non-finite vorticity accepted";
+    } catch (const kelvin::RuntimeError& e) {
+        EXPECT_NE(std::string(e.what()).find("non-finite vorticity at step 0"), std::string::npos) << e.what();
+    }
 }

@@ -24,6 +24,11 @@
 // The initial velocity is u = curl psi with -Laplacian psi = omega at the grid nodes (psi = 0 on walls), which is
 // discretely divergence-free. Outputs on the cell centres: omega is the average of the node vorticities (the
 // discrete curl of the MAC velocity) around the cell, u and v the averages of the two faces.
+//
+// Non-finite values: a non-finite initial vorticity sample is counted and taken as 0 (as mcfluid does); an
+// initial condition whose velocity overflows is refused (RuntimeError); non-finite face values after a step are
+// counted and replaced by 0; a non-finite value about to reach an output (the fields, the diagnostics) is refused
+// with a RuntimeError naming the field and the step, never written.
 #include <kelvin/fluid/simulation.h>
 
 #include <kelvin/fluid/pressure.h>
@@ -62,6 +67,8 @@ public:
     const Grid2& vorticity_grid() override;
     const Grid2& velocity_u() override;
     const Grid2& velocity_v() override;
+    /// The base diagnostics, refused (RuntimeError naming the quantity and step) when one is not finite.
+    FluidDiagnostics diagnostics() override;
     PassiveScalars* dye() override { return m_dye.get(); }
     void set_dye(std::unique_ptr<PassiveScalars> dye) { m_dye = std::move(dye); }
     double evaluations() const override { return 0; }
