@@ -166,6 +166,24 @@ StableFluidsSolver::StableFluidsSolver(const StableFluidsSettings& settings, con
             m_vopen[std::size_t(j) * nx + std::size_t(i)] = closed ? 0 : 1;
         }
 
+    // Faces inside a solid (both cells solid): extrapolation targets.
+    if (!m_solid.empty()) {
+        m_uinner.assign(m_uf.size(), 0);
+        m_vinner.assign(m_vf.size(), 0);
+        for (int j = 0; j < ny; ++j)
+            for (int i = 0; i < m_nux; ++i) {
+                const bool wall = !per && (i == 0 || i == nx);
+                m_uinner[std::size_t(j) * m_nux + std::size_t(i)] =
+                    !wall && solid_cell(wrap_index(i - 1, nx), j) && solid_cell(i % nx, j);
+            }
+        for (int j = 0; j < m_nvy; ++j)
+            for (int i = 0; i < nx; ++i) {
+                const bool wall = !per && (j == 0 || j == ny);
+                m_vinner[std::size_t(j) * nx + std::size_t(i)] =
+                    !wall && solid_cell(i, wrap_index(j - 1, ny)) && solid_cell(i, j % ny);
+            }
+    }
+
     // The pressure solver.
     PoissonGrid pg;
     pg.nx = nx;
@@ -250,6 +268,40 @@ void StableFluidsSolver::close_faces() {
         for (std::size_t k = j * nx; k < (j + 1) * nx; ++k)
             if (!m_vopen[k]) m_vf[k] = 0;
     });
+}
+
+void StableFluidsSolver::extrapolate_into_solids() {
+    if (m_solid.empty()) return;
+    const bool per = m_settings.domain.periodic;
+    const int nx = m_settings.nx, ny = m_settings.ny;
+    // Reads open faces only and writes inner faces only: rows are independent, any thread count gives the same bits.
+    auto fill = [per](std::vector<double>& f, const std::vector<uint8_t>& open, const std::vector<uint8_t>& inner,
+                      int cols, int rows, int j) {
+        for (int i = 0; i < cols; ++i) {
+            const std::size_t k = std::size_t(j) * cols + std::size_t(i);
+            if (!inner[k]) continue;
+            double sum = 0;
+            int count = 0;
+            const int nb[4][2] = {{i - 1, j}, {i + 1, j}, {i, j - 1}, {i, j + 1}};
+            for (const auto& q : nb) {
+                int ii = q[0], jj = q[1];
+                if (per) {
+                    ii = wrap_index(ii, cols);
+                    jj = wrap_index(jj, rows);
+                } else if (ii < 0 || jj < 0 || ii >= cols || jj >= rows) {
+                    continue;
+                }
+                const std::size_t m = std::size_t(jj) * cols + std::size_t(ii);
+                if (open[m]) {
+                    sum += f[m];
+                    ++count;
+                }
+            }
+            f[k] = count ? sum / count : 0.0;
+        }
+    };
+    parallel_for_units(std::size_t(ny), [&](std::size_t j) { fill(m_uf, m_uopen, m_uinner, m_nux, ny, int(j)); });
+    parallel_for_units(std::size_t(m_nvy), [&](std::size_t j) { fill(m_vf, m_vopen, m_vinner, nx, m_nvy, int(j)); });
 }
 
 void StableFluidsSolver::set_face_velocity(const std::function<Vec2d(const Vec2d&)>& u) {
@@ -436,6 +488,10 @@ bool StableFluidsSolver::step(double dt) {
     const int nx = m_settings.nx, ny = m_settings.ny;
     const double hx = m_omega.h().x, hy = m_omega.h().y;
     Timer timer;
+
+    // Backtraces go through the velocity extended one layer into the solids (the inner faces are 0 again after
+    // the advection below, which writes 0 on every closed face).
+    extrapolate_into_solids();
 
     // The dye's departure points, through the velocity at the start of the step.
     if (m_dye) {

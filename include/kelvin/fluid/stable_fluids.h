@@ -17,7 +17,10 @@
 // Obstacles: solid cells are those whose centre the `solid` predicate accepts (the boundary shapes' inside,
 // "voxelised" at the cell centres). Faces touching a solid cell are closed: their normal velocity is 0 (static
 // obstacles), they drop out of the pressure operator, and the advected value there is discarded. The box walls
-// are closed the same way.
+// are closed the same way. Before each advection, the faces just inside a solid (both cells solid) take the mean
+// of their open neighbours (one layer of constant extrapolation, Bridson 2015, Section 4.5), so that a departure
+// point next to a solid interpolates the fluid's tangential velocity instead of zero: free slip at obstacles as
+// at the box walls (whose lookups clamp to the last row of faces).
 //
 // Domains: a periodic box, or (for "open" scenes) a closed box with free-slip walls (no flow through the walls,
 // no friction along them): a grid solver needs a finite box; a vortex far from the walls sees nearly free space.
@@ -115,6 +118,7 @@ private:
     void project();
     void diffuse(double dt);
     void close_faces();
+    void extrapolate_into_solids();
 
     StableFluidsSettings m_settings;
     std::unique_ptr<Impl> m_impl;
@@ -126,6 +130,7 @@ private:
     bool m_fields_valid = false;
     std::unique_ptr<PassiveScalars> m_dye;
     std::vector<uint8_t> m_solid, m_uopen, m_vopen;  ///< solid cells (empty: none); open faces
+    std::vector<uint8_t> m_uinner, m_vinner;         ///< faces inside a solid (both cells solid): extrapolated
     std::size_t m_fluid_cells = 0;
     Projection m_projection = Projection::Auto;
     std::vector<double> m_rhs, m_pressure;  ///< projection work arrays (m_pressure: the warm start)
