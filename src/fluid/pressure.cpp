@@ -119,10 +119,13 @@ void for_row_blocks(int ny, int rows_per_block, F&& body) {
         body(0, ny, 0);
         return;
     }
-    parallel_for_units(std::size_t(blocks), [&](std::size_t b) {
+    // The std::function holds one pointer: no heap allocation per call (the V-cycle makes dozens of these).
+    const auto unit = [&](std::size_t b) {
         const int j0 = int(b) * rows_per_block;
         body(j0, std::min(ny, j0 + rows_per_block), int(b));
-    });
+    };
+    const auto* u = &unit;
+    parallel_for_units(std::size_t(blocks), [u](std::size_t b) { (*u)(b); });
 }
 
 }  // namespace

@@ -93,6 +93,14 @@ struct Solver {
     }
 };
 
+/// parallel_for_units through a pointer to the body: the std::function then holds one pointer (no heap
+/// allocation per call, whatever the body captures).
+template <class F>
+void parallel_rows(std::size_t count, const F& body) {
+    const F* b = &body;
+    parallel_for_units(count, [b](std::size_t u) { (*b)(u); });
+}
+
 inline int wrap_index(int i, int n) {
     i %= n;
     return i < 0 ? i + n : i;
@@ -142,7 +150,7 @@ StableFluidsSolver::StableFluidsSolver(const StableFluidsSettings& settings, con
     const std::size_t cells = std::size_t(nx) * std::size_t(ny);
     if (m_settings.solid) {
         m_solid.assign(cells, 0);
-        parallel_for_units(std::size_t(ny), [&](std::size_t row) {
+        parallel_rows(std::size_t(ny), [&](std::size_t row) {
             for (int i = 0; i < nx; ++i)
                 m_solid[row * std::size_t(nx) + std::size_t(i)] =
                     m_settings.solid(m_omega.cell_center(i, int(row))) ? 1 : 0;
@@ -259,11 +267,11 @@ StableFluidsSolver::StableFluidsSolver(const StableFluidsSettings& settings, con
 }
 
 void StableFluidsSolver::close_faces() {
-    parallel_for_units(std::size_t(m_settings.ny), [&](std::size_t j) {
+    parallel_rows(std::size_t(m_settings.ny), [&](std::size_t j) {
         for (std::size_t k = j * m_nux; k < (j + 1) * std::size_t(m_nux); ++k)
             if (!m_uopen[k]) m_uf[k] = 0;
     });
-    parallel_for_units(std::size_t(m_nvy), [&](std::size_t j) {
+    parallel_rows(std::size_t(m_nvy), [&](std::size_t j) {
         const std::size_t nx = std::size_t(m_settings.nx);
         for (std::size_t k = j * nx; k < (j + 1) * nx; ++k)
             if (!m_vopen[k]) m_vf[k] = 0;
@@ -300,8 +308,8 @@ void StableFluidsSolver::extrapolate_into_solids() {
             f[k] = count ? sum / count : 0.0;
         }
     };
-    parallel_for_units(std::size_t(ny), [&](std::size_t j) { fill(m_uf, m_uopen, m_uinner, m_nux, ny, int(j)); });
-    parallel_for_units(std::size_t(m_nvy), [&](std::size_t j) { fill(m_vf, m_vopen, m_vinner, nx, m_nvy, int(j)); });
+    parallel_rows(std::size_t(ny), [&](std::size_t j) { fill(m_uf, m_uopen, m_uinner, m_nux, ny, int(j)); });
+    parallel_rows(std::size_t(m_nvy), [&](std::size_t j) { fill(m_vf, m_vopen, m_vinner, nx, m_nvy, int(j)); });
 }
 
 void StableFluidsSolver::set_face_velocity(const std::function<Vec2d(const Vec2d&)>& u) {
@@ -426,7 +434,7 @@ void StableFluidsSolver::project() {
     const int nx = m_settings.nx, ny = m_settings.ny;
     const double hx = m_omega.h().x, hy = m_omega.h().y;
     const bool solids = !m_solid.empty();
-    parallel_for_units(std::size_t(ny), [&](std::size_t row) {
+    parallel_rows(std::size_t(ny), [&](std::size_t row) {
         const int j = int(row);
         for (int i = 0; i < nx; ++i) {
             const std::size_t c = std::size_t(j) * nx + std::size_t(i);
@@ -447,7 +455,7 @@ void StableFluidsSolver::project() {
     ++m_projection_solves;
     if (!m_last_projection.converged) ++m_projection_unconverged;
     const std::vector<double>& p = m_pressure;
-    parallel_for_units(std::size_t(ny), [&](std::size_t row) {
+    parallel_rows(std::size_t(ny), [&](std::size_t row) {
         const int j = int(row);
         for (int i = per ? 0 : 1; i < nx; ++i) {
             const std::size_t f = std::size_t(j) * m_nux + std::size_t(i);
@@ -495,7 +503,7 @@ bool StableFluidsSolver::step(double dt) {
 
     // The dye's departure points, through the velocity at the start of the step.
     if (m_dye) {
-        parallel_for_units(std::size_t(ny), [&](std::size_t row) {
+        parallel_rows(std::size_t(ny), [&](std::size_t row) {
             const int j = int(row);
             for (int i = 0; i < nx; ++i) {
                 const Vec2d x = m_omega.cell_center(i, j);
@@ -508,7 +516,7 @@ bool StableFluidsSolver::step(double dt) {
     }
 
     // 1. Semi-Lagrangian advection of both components (Stam 1999, "move" step).
-    parallel_for_units(std::size_t(ny), [&](std::size_t row) {
+    parallel_rows(std::size_t(ny), [&](std::size_t row) {
         const int j = int(row);
         for (int i = 0; i < m_nux; ++i) {
             const std::size_t f = std::size_t(j) * m_nux + std::size_t(i);
@@ -520,7 +528,7 @@ bool StableFluidsSolver::step(double dt) {
             m_uf_next[f] = sample_u(backtrace(x, dt));
         }
     });
-    parallel_for_units(std::size_t(m_nvy), [&](std::size_t row) {
+    parallel_rows(std::size_t(m_nvy), [&](std::size_t row) {
         const int j = int(row);
         for (int i = 0; i < nx; ++i) {
             const std::size_t f = std::size_t(j) * nx + std::size_t(i);
