@@ -333,7 +333,8 @@ const char* disk_velocity = R"(<velocity type="walk_on_spheres"><boundary type="
 }  // namespace
 
 // The plugin: a bad projection name, the FFT with obstacles, and obstacles that leave no fluid are input errors
-// naming the parameter; an mcfluid obstacle scene runs with the grid solver (multigrid chosen).
+// naming the parameter (the old plugin ignored boundaries: the box covering the domain ran without a word); an
+// mcfluid obstacle scene runs with the grid solver (multigrid chosen); an obstacle outside the domain warns.
 TEST(Projection, PluginParameters) {
     std::string e = ktest::input_error_of([] {
         kelvin::instantiate(
@@ -354,6 +355,14 @@ TEST(Projection, PluginParameters) {
     EXPECT_NE(e.find("no fluid cell"), std::string::npos) << e;
     const kelvin::RunResult r = run_scene(scene("", disk_velocity));
     EXPECT_GE(r.work, 1);
+    // An obstacle outside the domain is a warning naming it (the old plugin ignored every boundary silently).
+    ktest::LogCapture log;
+    kelvin::instantiate(kelvin::parse_scene_string(scene("", R"(<velocity type="walk_on_spheres"><boundary type="disk">
+        <point name="center" x="5" y="0"/><float name="radius" value="0.2"/></boundary></velocity>)"),
+                                                   {}, "s.xml"));
+    bool warned = false;
+    for (const std::string& w : log.warnings()) warned |= w.find("covers no cell centre") != std::string::npos;
+    EXPECT_TRUE(warned);
 }
 
 // Issue 16, item 6 for the grid baseline: nothing non-finite reaches an output. A Gaussian vortex of circulation

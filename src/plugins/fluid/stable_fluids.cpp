@@ -77,14 +77,31 @@ public:
             names.push_back(shape->description());
         }
         if (m_obstacles.empty()) return;
-        // Item 6 of issue 16: boundaries that leave no fluid cell are an input error, not an empty run.
+        // Item 6 of issue 16: boundaries that leave no fluid cell are an input error, not an empty run; a solid
+        // that covers no cell centre (outside the domain, or thinner than a cell) is a warning.
         const Grid2 grid(m_params.domain, m_params.nx, m_params.ny);
         bool any_fluid = false;
-        for (int j = 0; j < m_params.ny && !any_fluid; ++j)
-            for (int i = 0; i < m_params.nx && !any_fluid; ++i) any_fluid = !solid(grid.cell_center(i, j));
+        std::vector<long long> covered(m_obstacles.size(), 0);
+        for (int j = 0; j < m_params.ny; ++j)
+            for (int i = 0; i < m_params.nx; ++i) {
+                const Vec2d c = grid.cell_center(i, j);
+                bool solid_here = false;
+                for (std::size_t k = 0; k < m_obstacles.size(); ++k)
+                    if (m_obstacles[k]->solid2(c)) {
+                        ++covered[k];
+                        solid_here = true;
+                    }
+                any_fluid |= !solid_here;
+            }
         if (!any_fluid)
             props.error("velocity", fmt::format("the boundaries {} leave no fluid cell on the {}x{} grid",
                                                 fmt::join(names, ", "), m_params.nx, m_params.ny));
+        for (std::size_t k = 0; k < m_obstacles.size(); ++k)
+            if (covered[k] == 0)
+                log_warn(
+                    "stable_fluids: boundary '{}' covers no cell centre of the {}x{} grid (outside the domain "
+                    "or thinner than a cell): the grid solver does not see it",
+                    names[k], m_params.nx, m_params.ny);
     }
 
     bool solid(const Vec2d& p) const {
