@@ -28,3 +28,8 @@ set_target_properties(OpenImageIO::OpenImageIO PROPERTIES INTERFACE_INCLUDE_DIRE
 # libtinyobjloader-dev: Wavefront OBJ meshes (the `obj` shape). Debian ships the implementation as a shared
 # library with a CMake package; nothing defines TINYOBJLOADER_IMPLEMENTATION in Kelvin.
 find_package(tinyobjloader CONFIG REQUIRED)
+
+# libfftw3-dev: the FFT pressure projection of stable_fluids (periodic boxes and closed boxes without obstacles).
+# FFTW ships a pkg-config file (its CMake package is not in Debian's -dev); linked privately by libkelvin.
+find_package(PkgConfig REQUIRED)
+pkg_check_modules(FFTW3 REQUIRED IMPORTED_TARGET fftw3)

@@ -22,6 +22,7 @@ packages=(
   libpugixml-dev                      # XML scenes
   libcli11-dev libfmt-dev             # command line, formatting
   libeigen3-dev                       # linear algebra
+  libfftw3-dev                        # FFT pressure projection of the stable_fluids baseline
   libpcg-cpp-dev                      # PCG32 random numbers
   libgtest-dev libgmock-dev libbenchmark-dev  # tests and micro-benchmarks
   python3 python3-matplotlib          # accuracy/time plots

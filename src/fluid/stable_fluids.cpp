@@ -1,5 +1,6 @@
-// The stable-fluids baseline (Stam 1999) on a MAC grid with Eigen's preconditioned conjugate gradient for the
-// implicit diffusion and the pressure projection (see include/kelvin/fluid/stable_fluids.h).
+// The stable-fluids baseline (Stam 1999) on a MAC grid: the pressure projection by FFT or multigrid-preconditioned
+// CG (src/fluid/pressure.cpp), the implicit diffusion by Eigen's preconditioned conjugate gradient (see
+// include/kelvin/fluid/stable_fluids.h).
 #include <kelvin/core/error.h>
 #include <kelvin/core/interrupt.h>
 #include <kelvin/core/parallel.h>
@@ -11,6 +12,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <numeric>
 
 namespace kelvin::fluid {
 
@@ -91,6 +93,14 @@ struct Solver {
     }
 };
 
+/// parallel_for_units through a pointer to the body: the std::function then holds one pointer (no heap
+/// allocation per call, whatever the body captures).
+template <class F>
+void parallel_rows(std::size_t count, const F& body) {
+    const F* b = &body;
+    parallel_for_units(count, [b](std::size_t u) { (*b)(u); });
+}
+
 inline int wrap_index(int i, int n) {
     i %= n;
     return i < 0 ? i + n : i;
@@ -98,8 +108,23 @@ inline int wrap_index(int i, int n) {
 
 }  // namespace
 
+const char* to_string(Projection p) {
+    switch (p) {
+        case Projection::Auto:
+            return "auto";
+        case Projection::FFT:
+            return "fft";
+        case Projection::Multigrid:
+            return "multigrid";
+        case Projection::CG:
+            return "cg";
+    }
+    return "?";
+}
+
 struct StableFluidsSolver::Impl {
-    Solver pressure, diffuse_u, diffuse_v;
+    Solver diffuse_u, diffuse_v;
+    std::unique_ptr<PoissonSolver> pressure;
 };
 
 StableFluidsSolver::StableFluidsSolver(const StableFluidsSettings& settings, const InitialField& initial)
@@ -121,9 +146,83 @@ StableFluidsSolver::StableFluidsSolver(const StableFluidsSettings& settings, con
     m_u = m_v = m_disp_x = m_disp_y = m_omega;
     const double hx = m_omega.h().x, hy = m_omega.h().y;
 
-    // Initial velocity: -Laplacian psi = omega at the nodes, u = d psi / dy, v = -d psi / dx on the faces.
+    // Solid cells: the obstacles' inside at the cell centres.
+    const std::size_t cells = std::size_t(nx) * std::size_t(ny);
+    if (m_settings.solid) {
+        m_solid.assign(cells, 0);
+        parallel_rows(std::size_t(ny), [&](std::size_t row) {
+            for (int i = 0; i < nx; ++i)
+                m_solid[row * std::size_t(nx) + std::size_t(i)] =
+                    m_settings.solid(m_omega.cell_center(i, int(row))) ? 1 : 0;
+        });
+        if (std::none_of(m_solid.begin(), m_solid.end(), [](uint8_t v) { return v != 0; })) m_solid.clear();
+    }
+    m_fluid_cells = cells - std::size_t(std::count(m_solid.begin(), m_solid.end(), uint8_t(1)));
+    if (m_fluid_cells == 0) throw_runtime("StableFluidsSolver: the obstacles cover every cell (no fluid left)");
+    m_uopen.assign(m_uf.size(), 1);
+    m_vopen.assign(m_vf.size(), 1);
+    for (int j = 0; j < ny; ++j)
+        for (int i = 0; i < m_nux; ++i) {
+            const bool wall = !per && (i == 0 || i == nx);
+            const bool closed = wall || solid_cell(wrap_index(i - 1, nx), j) || solid_cell(i % nx, j);
+            m_uopen[std::size_t(j) * m_nux + std::size_t(i)] = closed ? 0 : 1;
+        }
+    for (int j = 0; j < m_nvy; ++j)
+        for (int i = 0; i < nx; ++i) {
+            const bool wall = !per && (j == 0 || j == ny);
+            const bool closed = wall || solid_cell(i, wrap_index(j - 1, ny)) || solid_cell(i, j % ny);
+            m_vopen[std::size_t(j) * nx + std::size_t(i)] = closed ? 0 : 1;
+        }
+
+    // Faces inside a solid (both cells solid): extrapolation targets.
+    if (!m_solid.empty()) {
+        m_uinner.assign(m_uf.size(), 0);
+        m_vinner.assign(m_vf.size(), 0);
+        for (int j = 0; j < ny; ++j)
+            for (int i = 0; i < m_nux; ++i) {
+                const bool wall = !per && (i == 0 || i == nx);
+                m_uinner[std::size_t(j) * m_nux + std::size_t(i)] =
+                    !wall && solid_cell(wrap_index(i - 1, nx), j) && solid_cell(i % nx, j);
+            }
+        for (int j = 0; j < m_nvy; ++j)
+            for (int i = 0; i < nx; ++i) {
+                const bool wall = !per && (j == 0 || j == ny);
+                m_vinner[std::size_t(j) * nx + std::size_t(i)] =
+                    !wall && solid_cell(i, wrap_index(j - 1, ny)) && solid_cell(i, j % ny);
+            }
+    }
+
+    // The pressure solver.
+    PoissonGrid pg;
+    pg.nx = nx;
+    pg.ny = ny;
+    pg.hx = hx;
+    pg.hy = hy;
+    pg.periodic = per;
+    pg.solid = m_solid;
+    m_projection = m_settings.projection;
+    if (m_projection == Projection::Auto) m_projection = m_solid.empty() ? Projection::FFT : Projection::Multigrid;
+    switch (m_projection) {
+        case Projection::FFT:
+            if (!m_solid.empty())
+                throw_runtime("StableFluidsSolver: the FFT projection needs a box without obstacles (use multigrid)");
+            m_impl->pressure = std::make_unique<PoissonFFT>(pg);
+            break;
+        case Projection::Multigrid:
+            m_impl->pressure = std::make_unique<PoissonMultigrid>(pg);
+            break;
+        default:
+            m_impl->pressure = std::make_unique<PoissonEigenCG>(pg, m_settings.tolerance);
+            break;
+    }
+    m_rhs.assign(cells, 0.0);
+    m_pressure.assign(cells, 0.0);
+
+    // Initial velocity: -Laplacian psi = omega at the nodes, u = d psi / dy, v = -d psi / dx on the faces; psi by
+    // FFT (periodic: the real DFT; walls: psi = 0 on them, a DST-I on the interior nodes).
     const int mx = per ? nx : nx - 1, my = per ? ny : ny - 1, off = per ? 0 : 1;
-    Vec rhs(mx * my);
+    std::vector<double> rhs(std::size_t(mx) * std::size_t(my));
+    double omega_max = 0;
     for (int j = 0; j < my; ++j)
         for (int i = 0; i < mx; ++i) {
             double w = initial(d.min + Vec2d((i + off) * hx, (j + off) * hy));
@@ -131,25 +230,107 @@ StableFluidsSolver::StableFluidsSolver(const StableFluidsSettings& settings, con
                 ++m_invalid;
                 w = 0;
             }
-            rhs[j * mx + i] = w;
+            rhs[std::size_t(j) * mx + std::size_t(i)] = w;
+            omega_max = std::max(omega_max, std::abs(w));
         }
-    Solver psi_solver;
-    const BC bc = per ? BC::Periodic : BC::Dirichlet;
-    psi_solver.build(lattice_operator(mx, my, hx, hy, bc, bc, 0.0, 1.0, per), per, m_settings.tolerance);
-    m_cg_iterations += uint64_t(psi_solver.solve(rhs));
-    const Vec& psi_in = psi_solver.x;
+    std::vector<double> psi_in;
+    if (per) {
+        PoissonGrid nodes = pg;
+        nodes.solid.clear();
+        PoissonFFT psi_solver(nodes);
+        psi_solver.solve(rhs, psi_in, 0.0);
+    } else {
+        psi_in = PoissonFFT::solve_dirichlet_nodes(nx, ny, hx, hy, std::move(rhs));
+    }
     auto psi = [&](int i, int j) {  // node (i, j), i in [0, nx], j in [0, ny]
-        if (per) return psi_in[wrap_index(j, ny) * mx + wrap_index(i, nx)];
+        if (per) return psi_in[std::size_t(wrap_index(j, ny)) * mx + std::size_t(wrap_index(i, nx))];
         if (i <= 0 || j <= 0 || i >= nx || j >= ny) return 0.0;
-        return psi_in[(j - 1) * mx + (i - 1)];
+        return psi_in[std::size_t(j - 1) * mx + std::size_t(i - 1)];
     };
     for (int j = 0; j < ny; ++j)
         for (int i = 0; i < m_nux; ++i) m_uf[std::size_t(j) * m_nux + i] = (psi(i, j + 1) - psi(i, j)) / hy;
     for (int j = 0; j < m_nvy; ++j)
         for (int i = 0; i < nx; ++i) m_vf[std::size_t(j) * nx + i] = -(psi(i + 1, j) - psi(i, j)) / hx;
+    // An initial condition whose velocity overflows double precision is refused, not zeroed (issue 16, item 6).
+    for (const std::vector<double>* f : {&m_uf, &m_vf})
+        for (double x : *f)
+            if (!std::isfinite(x) || !std::isfinite(x * x * double(cells) * m_omega.cell_area()))
+                throw_runtime(
+                    "stable_fluids: the initial vorticity (max |omega| {:g}) overflows the solver: its "
+                    "velocity or kinetic energy is not finite in double precision; scale it down",
+                    omega_max);
+    // With obstacles the stream function's field crosses the solids: close their faces and project once.
+    if (!m_solid.empty()) {
+        close_faces();
+        project();
+    }
+}
 
-    const BC pbc = per ? BC::Periodic : BC::Neumann;
-    m_impl->pressure.build(lattice_operator(nx, ny, hx, hy, pbc, pbc, 0.0, 1.0, true), true, m_settings.tolerance);
+void StableFluidsSolver::close_faces() {
+    parallel_rows(std::size_t(m_settings.ny), [&](std::size_t j) {
+        for (std::size_t k = j * m_nux; k < (j + 1) * std::size_t(m_nux); ++k)
+            if (!m_uopen[k]) m_uf[k] = 0;
+    });
+    parallel_rows(std::size_t(m_nvy), [&](std::size_t j) {
+        const std::size_t nx = std::size_t(m_settings.nx);
+        for (std::size_t k = j * nx; k < (j + 1) * nx; ++k)
+            if (!m_vopen[k]) m_vf[k] = 0;
+    });
+}
+
+void StableFluidsSolver::extrapolate_into_solids() {
+    if (m_solid.empty()) return;
+    const bool per = m_settings.domain.periodic;
+    const int nx = m_settings.nx, ny = m_settings.ny;
+    // Reads open faces only and writes inner faces only: rows are independent, any thread count gives the same bits.
+    auto fill = [per](std::vector<double>& f, const std::vector<uint8_t>& open, const std::vector<uint8_t>& inner,
+                      int cols, int rows, int j) {
+        for (int i = 0; i < cols; ++i) {
+            const std::size_t k = std::size_t(j) * cols + std::size_t(i);
+            if (!inner[k]) continue;
+            double sum = 0;
+            int count = 0;
+            const int nb[4][2] = {{i - 1, j}, {i + 1, j}, {i, j - 1}, {i, j + 1}};
+            for (const auto& q : nb) {
+                int ii = q[0], jj = q[1];
+                if (per) {
+                    ii = wrap_index(ii, cols);
+                    jj = wrap_index(jj, rows);
+                } else if (ii < 0 || jj < 0 || ii >= cols || jj >= rows) {
+                    continue;
+                }
+                const std::size_t m = std::size_t(jj) * cols + std::size_t(ii);
+                if (open[m]) {
+                    sum += f[m];
+                    ++count;
+                }
+            }
+            f[k] = count ? sum / count : 0.0;
+        }
+    };
+    parallel_rows(std::size_t(ny), [&](std::size_t j) { fill(m_uf, m_uopen, m_uinner, m_nux, ny, int(j)); });
+    parallel_rows(std::size_t(m_nvy), [&](std::size_t j) { fill(m_vf, m_vopen, m_vinner, nx, m_nvy, int(j)); });
+}
+
+void StableFluidsSolver::set_face_velocity(const std::function<Vec2d(const Vec2d&)>& u) {
+    const Domain2& d = m_settings.domain;
+    const int nx = m_settings.nx, ny = m_settings.ny;
+    const double hx = m_omega.h().x, hy = m_omega.h().y;
+    for (int j = 0; j < ny; ++j)
+        for (int i = 0; i < m_nux; ++i)
+            m_uf[std::size_t(j) * m_nux + std::size_t(i)] = u(d.min + Vec2d(i * hx, (j + 0.5) * hy)).x;
+    for (int j = 0; j < m_nvy; ++j)
+        for (int i = 0; i < nx; ++i)
+            m_vf[std::size_t(j) * nx + std::size_t(i)] = u(d.min + Vec2d((i + 0.5) * hx, j * hy)).y;
+    close_faces();
+    m_fields_valid = false;
+}
+
+void StableFluidsSolver::project_velocity() {
+    Timer t;
+    project();
+    m_seconds_projection += t.seconds();
+    m_fields_valid = false;
 }
 
 StableFluidsSolver::~StableFluidsSolver() = default;
@@ -252,24 +433,42 @@ void StableFluidsSolver::project() {
     const bool per = m_settings.domain.periodic;
     const int nx = m_settings.nx, ny = m_settings.ny;
     const double hx = m_omega.h().x, hy = m_omega.h().y;
-    Vec b(nx * ny);
-    for (int j = 0; j < ny; ++j)
+    const bool solids = !m_solid.empty();
+    parallel_rows(std::size_t(ny), [&](std::size_t row) {
+        const int j = int(row);
         for (int i = 0; i < nx; ++i) {
+            const std::size_t c = std::size_t(j) * nx + std::size_t(i);
+            if (solids && m_solid[c]) {
+                m_rhs[c] = 0;
+                continue;
+            }
             const double ur = m_uf[std::size_t(j) * m_nux + std::size_t(per ? (i + 1) % nx : i + 1)];
             const double ul = m_uf[std::size_t(j) * m_nux + std::size_t(i)];
             const double vt = m_vf[std::size_t(per ? (j + 1) % ny : j + 1) * nx + std::size_t(i)];
             const double vb = m_vf[std::size_t(j) * nx + std::size_t(i)];
-            b[j * nx + i] = -((ur - ul) / hx + (vt - vb) / hy);  // -Laplacian p = -div u
+            m_rhs[c] = -((ur - ul) / hx + (vt - vb) / hy);  // -Laplacian p = -div u
         }
-    Solver& sp = m_impl->pressure;
-    m_cg_iterations += uint64_t(sp.solve(b));
-    const Vec& p = sp.x;
-    for (int j = 0; j < ny; ++j)
-        for (int i = per ? 0 : 1; i < nx; ++i)
-            m_uf[std::size_t(j) * m_nux + std::size_t(i)] -= (p[j * nx + i] - p[j * nx + wrap_index(i - 1, nx)]) / hx;
-    for (int j = per ? 0 : 1; j < ny; ++j)
-        for (int i = 0; i < nx; ++i)
-            m_vf[std::size_t(j) * nx + std::size_t(i)] -= (p[j * nx + i] - p[wrap_index(j - 1, ny) * nx + i]) / hy;
+    });
+    m_last_projection = m_impl->pressure->solve(m_rhs, m_pressure, m_settings.tolerance);
+    m_projection_iterations += uint64_t(m_last_projection.iterations);
+    if (m_projection == Projection::CG) m_cg_iterations += uint64_t(m_last_projection.iterations);
+    ++m_projection_solves;
+    if (!m_last_projection.converged) ++m_projection_unconverged;
+    const std::vector<double>& p = m_pressure;
+    parallel_rows(std::size_t(ny), [&](std::size_t row) {
+        const int j = int(row);
+        for (int i = per ? 0 : 1; i < nx; ++i) {
+            const std::size_t f = std::size_t(j) * m_nux + std::size_t(i);
+            if (m_uopen[f])
+                m_uf[f] -= (p[std::size_t(j) * nx + i] - p[std::size_t(j) * nx + wrap_index(i - 1, nx)]) / hx;
+        }
+        if (!per && j == 0) return;
+        for (int i = 0; i < nx; ++i) {
+            const std::size_t f = std::size_t(j) * nx + std::size_t(i);
+            if (m_vopen[f])
+                m_vf[f] -= (p[std::size_t(j) * nx + i] - p[std::size_t(wrap_index(j - 1, ny)) * nx + i]) / hy;
+        }
+    });
 }
 
 double StableFluidsSolver::max_divergence() const {
@@ -283,6 +482,7 @@ double StableFluidsSolver::max_divergence() const {
             const double ul = m_uf[std::size_t(j) * m_nux + std::size_t(i)];
             const double vt = m_vf[std::size_t(per ? (j + 1) % ny : j + 1) * nx + std::size_t(i)];
             const double vb = m_vf[std::size_t(j) * nx + std::size_t(i)];
+            if (solid_cell(i, j)) continue;
             m = std::max(m, std::abs((ur - ul) / hx + (vt - vb) / hy));
         }
     return m;
@@ -297,9 +497,13 @@ bool StableFluidsSolver::step(double dt) {
     const double hx = m_omega.h().x, hy = m_omega.h().y;
     Timer timer;
 
+    // Backtraces go through the velocity extended one layer into the solids (the inner faces are 0 again after
+    // the advection below, which writes 0 on every closed face).
+    extrapolate_into_solids();
+
     // The dye's departure points, through the velocity at the start of the step.
     if (m_dye) {
-        parallel_for_units(std::size_t(ny), [&](std::size_t row) {
+        parallel_rows(std::size_t(ny), [&](std::size_t row) {
             const int j = int(row);
             for (int i = 0; i < nx; ++i) {
                 const Vec2d x = m_omega.cell_center(i, j);
@@ -312,20 +516,28 @@ bool StableFluidsSolver::step(double dt) {
     }
 
     // 1. Semi-Lagrangian advection of both components (Stam 1999, "move" step).
-    parallel_for_units(std::size_t(ny), [&](std::size_t row) {
+    parallel_rows(std::size_t(ny), [&](std::size_t row) {
         const int j = int(row);
         for (int i = 0; i < m_nux; ++i) {
-            if (!per && (i == 0 || i == nx)) continue;  // walls
+            const std::size_t f = std::size_t(j) * m_nux + std::size_t(i);
+            if (!m_uopen[f]) {  // walls and solid faces
+                m_uf_next[f] = 0;
+                continue;
+            }
             const Vec2d x = d.min + Vec2d(i * hx, (j + 0.5) * hy);
-            m_uf_next[std::size_t(j) * m_nux + std::size_t(i)] = sample_u(backtrace(x, dt));
+            m_uf_next[f] = sample_u(backtrace(x, dt));
         }
     });
-    parallel_for_units(std::size_t(m_nvy), [&](std::size_t row) {
+    parallel_rows(std::size_t(m_nvy), [&](std::size_t row) {
         const int j = int(row);
-        if (!per && (j == 0 || j == ny)) return;
         for (int i = 0; i < nx; ++i) {
+            const std::size_t f = std::size_t(j) * nx + std::size_t(i);
+            if (!m_vopen[f]) {
+                m_vf_next[f] = 0;
+                continue;
+            }
             const Vec2d x = d.min + Vec2d((i + 0.5) * hx, j * hy);
-            m_vf_next[std::size_t(j) * nx + std::size_t(i)] = sample_v(backtrace(x, dt));
+            m_vf_next[f] = sample_v(backtrace(x, dt));
         }
     });
     m_backtraces += uint64_t(m_uf.size() + m_vf.size());
@@ -337,6 +549,7 @@ bool StableFluidsSolver::step(double dt) {
     if (m_settings.viscosity > 0) {
         Timer t;
         diffuse(dt);
+        if (!m_solid.empty()) close_faces();
         m_seconds_diffusion += t.seconds();
     }
     // 3. Projection onto divergence-free fields.
@@ -382,7 +595,27 @@ void StableFluidsSolver::ensure_fields() {
             m_u.at(i, j) = 0.5 * (u(i, j) + u(i + 1, j));
             m_v.at(i, j) = 0.5 * (v(i, j) + v(i, j + 1));
         }
+    // Nothing non-finite reaches an output: refuse it here, naming the field and the step.
+    for (const auto& [grid, name] :
+         {std::pair<const Grid2*, const char*>{&m_omega, "vorticity"}, {&m_u, "velocity u"}, {&m_v, "velocity v"}}) {
+        const std::vector<double>& vals = grid->values();
+        for (std::size_t k = 0; k < vals.size(); ++k)
+            if (!std::isfinite(vals[k]))
+                throw_runtime("stable_fluids: non-finite {} at step {} (cell {}, {}); refused before output", name,
+                              m_step, k % std::size_t(nx), k / std::size_t(nx));
+    }
     m_fields_valid = true;
+}
+
+FluidDiagnostics StableFluidsSolver::diagnostics() {
+    FluidDiagnostics d = FluidSolver::diagnostics();
+    for (const auto& [value, name] : {std::pair<double, const char*>{d.kinetic_energy, "kinetic energy"},
+                                      {d.enstrophy, "enstrophy"},
+                                      {d.circulation, "circulation"},
+                                      {d.max_abs_vorticity, "max |vorticity|"}})
+        if (!std::isfinite(value))
+            throw_runtime("stable_fluids: non-finite {} at step {}; refused before output", name, m_step);
+    return d;
 }
 
 const Grid2& StableFluidsSolver::vorticity_grid() {
@@ -401,6 +634,9 @@ const Grid2& StableFluidsSolver::velocity_v() {
 void StableFluidsSolver::report(Stats& stats) const {
     stats.add("fluid.advection_backtraces", double(m_backtraces), "backtraces");
     stats.add("fluid.cg_iterations", double(m_cg_iterations), "iterations");
+    stats.add("fluid.projection_solves", double(m_projection_solves), "solves");
+    stats.add("fluid.projection_iterations", double(m_projection_iterations), "iterations");
+    if (m_projection_unconverged) stats.add("fluid.projection_unconverged", double(m_projection_unconverged), "solves");
     stats.add("fluid.invalid_velocity", double(m_invalid), "values");
     stats.add_time("fluid.time.advection", m_seconds_advection);
     stats.add_time("fluid.time.diffusion", m_seconds_diffusion);

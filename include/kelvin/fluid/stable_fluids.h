@@ -5,33 +5,57 @@
 //   1. advection: every face velocity sample takes the interpolated (bilinear) velocity at its departure
 //      point, traced back through the old velocity (Euler or RK4, velocity frozen over the step);
 //   2. viscosity (nu > 0): implicit diffusion (I - nu dt Laplacian) u = u_advected per component;
-//   3. projection: -Laplacian p = -div u on the cells, u -= grad p, so that the discrete divergence is zero.
+//   3. projection: -Laplacian p = -div u on the fluid cells, u -= grad p on the open faces, so that the discrete
+//      divergence is zero (to the solver's tolerance).
 //
 // Every step is unconditionally stable (interpolation is a convex combination; the solves are implicit). The
-// linear systems are sparse symmetric positive (semi)definite and solved with Eigen's conjugate gradient
-// preconditioned by an incomplete Cholesky factorisation (the singular pure-Neumann / periodic pressure and
-// stream-function systems are made definite by fixing one unknown: their right-hand sides sum to zero, so
-// the fixed equation holds too).
+// pressure system is solved by a solver made for it (include/kelvin/fluid/pressure.h): FFTW's exact inverse of
+// the discrete operator on boxes without obstacles (a real DFT when periodic, a DCT with walls), multigrid-
+// preconditioned CG with obstacles, or (projection = CG, the old solver) Eigen's incomplete-Cholesky CG. The
+// implicit diffusion uses Eigen's incomplete-Cholesky CG; the initial stream function uses an FFT (DFT or DST).
+//
+// Obstacles: solid cells are those whose centre the `solid` predicate accepts (the boundary shapes' inside,
+// "voxelised" at the cell centres). Faces touching a solid cell are closed: their normal velocity is 0 (static
+// obstacles), they drop out of the pressure operator, and the advected value there is discarded. The box walls
+// are closed the same way. Before each advection, the faces just inside a solid (both cells solid) take the mean
+// of their open neighbours (one layer of constant extrapolation, Bridson 2015, Section 4.5), so that a departure
+// point next to a solid interpolates the fluid's tangential velocity instead of zero: free slip at obstacles as
+// at the box walls (whose lookups clamp to the last row of faces).
 //
 // Domains: a periodic box, or (for "open" scenes) a closed box with free-slip walls (no flow through the walls,
 // no friction along them): a grid solver needs a finite box; a vortex far from the walls sees nearly free space.
 // The initial velocity is u = curl psi with -Laplacian psi = omega at the grid nodes (psi = 0 on walls), which is
 // discretely divergence-free. Outputs on the cell centres: omega is the average of the node vorticities (the
 // discrete curl of the MAC velocity) around the cell, u and v the averages of the two faces.
+//
+// Non-finite values: a non-finite initial vorticity sample is counted and taken as 0 (as mcfluid does); an
+// initial condition whose velocity overflows is refused (RuntimeError); non-finite face values after a step are
+// counted and replaced by 0; a non-finite value about to reach an output (the fields, the diagnostics) is refused
+// with a RuntimeError naming the field and the step, never written.
 #include <kelvin/fluid/simulation.h>
 
+#include <kelvin/fluid/pressure.h>
+
+#include <functional>
 #include <memory>
 #include <vector>
 
 namespace kelvin::fluid {
+
+/// The pressure solver of the projection: Auto = FFT on boxes without solid cells, multigrid otherwise.
+enum class Projection { Auto, FFT, Multigrid, CG };
+const char* to_string(Projection p);
 
 struct StableFluidsSettings {
     Domain2 domain;  ///< periodic, or a closed box with free-slip walls
     int nx = 64, ny = 64;
     Advection advection = Advection::RK4;
     double viscosity = 0;
-    double tolerance = 1e-10;  ///< relative residual of the conjugate-gradient solves
+    double tolerance = 1e-10;  ///< relative residual of the iterative solves (pressure: ||b - A p|| / ||b||)
     uint64_t seed = 0;         ///< only a diffusive dye draws random numbers
+    Projection projection = Projection::Auto;
+    /// Solid obstacles: true at points inside a solid (evaluated at the cell centres once). Null: none.
+    std::function<bool(const Vec2d&)> solid;
 };
 
 class StableFluidsSolver final : public FluidSolver {
@@ -46,6 +70,8 @@ public:
     const Grid2& vorticity_grid() override;
     const Grid2& velocity_u() override;
     const Grid2& velocity_v() override;
+    /// The base diagnostics, refused (RuntimeError naming the quantity and step) when one is not finite.
+    FluidDiagnostics diagnostics() override;
     PassiveScalars* dye() override { return m_dye.get(); }
     void set_dye(std::unique_ptr<PassiveScalars> dye) { m_dye = std::move(dye); }
     double evaluations() const override { return 0; }
@@ -56,8 +82,32 @@ public:
     Vec2d velocity(Vec2d x) const;
     /// Largest |discrete divergence| over the cells (zero up to the solver tolerance after each step).
     double max_divergence() const;
-    /// Conjugate-gradient iterations so far (pressure, diffusion, stream function).
+    /// Eigen conjugate-gradient iterations so far (diffusion; the pressure with projection = CG).
     uint64_t cg_iterations() const { return m_cg_iterations; }
+    /// The projection solver in use (Auto resolved).
+    Projection projection() const { return m_projection; }
+    /// Iterations of the pressure solver so far (MG-PCG or Eigen CG; 0 for the FFT) and pressure solves.
+    uint64_t projection_iterations() const { return m_projection_iterations; }
+    uint64_t projection_solves() const { return m_projection_solves; }
+    /// The last pressure solve (its right-hand side norm ||div u*||_2 and residual).
+    const PoissonStats& last_projection() const { return m_last_projection; }
+    /// Projects the current face velocities (one pressure solve; what every step does last).
+    void project_velocity();
+    /// Sets the face velocities to the normal component of u at each face (closed faces: 0), no projection.
+    void set_face_velocity(const std::function<Vec2d(const Vec2d&)>& u);
+    /// Face values: u face (i, j) at (i h_x, (j + 1/2) h_y) from the corner, i < u_columns(); v face (i, j) at
+    /// ((i + 1/2) h_x, j h_y), j < v_rows().
+    int u_columns() const { return m_nux; }
+    int v_rows() const { return m_nvy; }
+    double face_u(int i, int j) const { return m_uf[std::size_t(j) * m_nux + std::size_t(i)]; }
+    double face_v(int i, int j) const { return m_vf[std::size_t(j) * m_settings.nx + std::size_t(i)]; }
+    bool face_u_open(int i, int j) const { return m_uopen[std::size_t(j) * m_nux + std::size_t(i)] != 0; }
+    bool face_v_open(int i, int j) const { return m_vopen[std::size_t(j) * m_settings.nx + std::size_t(i)] != 0; }
+    bool solid_cell(int i, int j) const { return !m_solid.empty() && m_solid[std::size_t(j) * m_settings.nx + i]; }
+    std::size_t fluid_cells() const { return m_fluid_cells; }
+    /// Wall-clock seconds spent so far in advection and in the projection.
+    double seconds_advection() const { return m_seconds_advection; }
+    double seconds_projection() const { return m_seconds_projection; }
 
 private:
     struct Impl;
@@ -67,6 +117,8 @@ private:
     Vec2d backtrace(Vec2d x, double dt) const;
     void project();
     void diffuse(double dt);
+    void close_faces();
+    void extrapolate_into_solids();
 
     StableFluidsSettings m_settings;
     std::unique_ptr<Impl> m_impl;
@@ -77,6 +129,13 @@ private:
     Grid2 m_omega, m_u, m_v, m_disp_x, m_disp_y;
     bool m_fields_valid = false;
     std::unique_ptr<PassiveScalars> m_dye;
+    std::vector<uint8_t> m_solid, m_uopen, m_vopen;  ///< solid cells (empty: none); open faces
+    std::vector<uint8_t> m_uinner, m_vinner;         ///< faces inside a solid (both cells solid): extrapolated
+    std::size_t m_fluid_cells = 0;
+    Projection m_projection = Projection::Auto;
+    std::vector<double> m_rhs, m_pressure;  ///< projection work arrays (m_pressure: the warm start)
+    PoissonStats m_last_projection;
+    uint64_t m_projection_iterations = 0, m_projection_solves = 0, m_projection_unconverged = 0;
     uint64_t m_invalid = 0, m_cg_iterations = 0, m_backtraces = 0;
     double m_seconds_advection = 0, m_seconds_projection = 0, m_seconds_diffusion = 0;
 };

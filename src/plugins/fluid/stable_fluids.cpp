@@ -1,24 +1,30 @@
 // stable_fluids: the grid baseline, Stam's "Stable Fluids" (1999) on a staggered MAC grid: semi-Lagrangian
-// advection of the velocity (Euler or RK4 backtraces, bilinear lookups), implicit viscosity and a pressure
-// projection, both solved with Eigen's incomplete-Cholesky conjugate gradient. Run as a Job by
-// `kelvin scene.xml`; takes the same scene as mcfluid (switch with one word: type="stable_fluids") and writes the
-// same files. The grid is the <cache type="grid"> resolution. A periodic scene is periodic; an open one becomes a
-// closed box with free-slip walls (a grid solver needs a finite box).
+// advection of the velocity (Euler or RK4 backtraces, bilinear lookups), implicit viscosity (Eigen's
+// incomplete-Cholesky CG) and a pressure projection by FFT (boxes without obstacles) or multigrid-preconditioned CG
+// (src/fluid/pressure.cpp). Run as a Job by `kelvin scene.xml`; takes the same scene as mcfluid (switch with one
+// word: type="stable_fluids") and writes the same files. The grid is the <cache type="grid"> resolution. A
+// periodic scene is periodic; an open one becomes a closed box with free-slip walls (a grid solver needs a finite
+// box). The static obstacles of mcfluid's <velocity type="walk_on_spheres"> (its <boundary> children with an
+// inside) become solid cells: every cell whose centre lies in a solid.
 //
-// | parameter | type  | default | meaning                                                               |
-// |-----------|-------|---------|-----------------------------------------------------------------------|
-// | (common)  |       |         | as mcfluid: min, max, periodic, dt, steps, end_time, viscosity,        |
-// |           |       |         | advection, output_every, write_*, color_range, <vorticity>, <cache>,   |
-// |           |       |         | <scalar>                                                               |
-// | tolerance | float | 1e-10   | relative residual of the conjugate-gradient solves                     |
+// | parameter  | type   | default | meaning                                                               |
+// |------------|--------|---------|-----------------------------------------------------------------------|
+// | (common)   |        |         | as mcfluid: min, max, periodic, dt, steps, end_time, viscosity,        |
+// |            |        |         | advection, output_every, write_*, color_range, <vorticity>, <cache>,   |
+// |            |        |         | <scalar>, <velocity> (walk_on_spheres: its boundaries)                 |
+// | tolerance  | float  | 1e-10   | relative residual of the iterative solves (pressure and diffusion)     |
+// | projection | string | auto    | pressure solver: auto (fft without obstacles, else multigrid), fft,    |
+// |            |        |         | multigrid (MG-preconditioned CG), cg (Eigen incomplete-Cholesky CG)    |
 //
 //     <simulation type="stable_fluids"> ... same children as mcfluid ... </simulation>
 #include <kelvin/core/job.h>
 #include <kelvin/core/logging.h>
 #include <kelvin/core/registry.h>
+#include <kelvin/fluid/boundary.h>
 #include <kelvin/fluid/stable_fluids.h>
 
 #include <fmt/format.h>
+#include <fmt/ranges.h>
 
 namespace kelvin::fluid {
 namespace {
@@ -28,10 +34,80 @@ public:
     explicit StableFluids(const Properties& props)
         : m_params(SimulationParams::parse_baseline(props, "stable_fluids")) {
         m_tolerance = props.get_float("tolerance", 1e-15, 1e-2);
+        const std::string proj = props.get_choice("projection", {"auto", "fft", "multigrid", "cg"});
+        m_projection = proj == "fft"         ? Projection::FFT
+                       : proj == "multigrid" ? Projection::Multigrid
+                       : proj == "cg"        ? Projection::CG
+                                             : Projection::Auto;
         if (m_params.nx < 4 || m_params.ny < 4) props.error("cache", "stable_fluids needs at least 4x4 cells");
         if (!m_params.domain.periodic)
             log_info("stable_fluids: the open domain {} becomes a closed box with free-slip walls",
                      m_params.domain.to_string());
+        read_obstacles(props);
+        if (m_projection == Projection::FFT && !m_obstacles.empty())
+            props.error("projection", "fft needs a box without obstacles; use multigrid (or auto)");
+    }
+
+    /// The solid shapes of <velocity type="walk_on_spheres"> (static, with an inside), checked on the grid.
+    void read_obstacles(const Properties& props) {
+        auto wos = std::dynamic_pointer_cast<const WosVelocitySpec>(props.get_object("velocity"));
+        if (!wos) return;
+        const WosVelocityOptions& o = wos->walk_on_spheres();
+        if (o.inflow_speed != 0)
+            props.error("velocity", "stable_fluids has no inflow/outflow walls (inflow_speed must be 0)");
+        std::vector<std::string> names;
+        for (const auto& shape : o.shapes) {
+            if (!shape || shape->dimension() != 2) props.error("velocity", "stable_fluids takes 2D boundaries only");
+            if (shape->role().moving())
+                props.error("velocity", fmt::format("stable_fluids has static obstacles only; boundary '{}' moves",
+                                                    shape->description()));
+            if (!shape->has_inside()) {
+                log_warn(
+                    "stable_fluids: boundary '{}' has no inside (unsigned); a grid solver cannot voxelise it, "
+                    "ignored",
+                    shape->description());
+                continue;
+            }
+            if (shape->role().stream_value != 0 || shape->role().stream_value_given)
+                log_warn(
+                    "stable_fluids: boundary '{}': stream_value (the flux between solids) has no effect on the "
+                    "grid solver, whose static solids carry no net flux between them",
+                    shape->description());
+            m_obstacles.push_back(shape);
+            names.push_back(shape->description());
+        }
+        if (m_obstacles.empty()) return;
+        // Item 6 of issue 16: boundaries that leave no fluid cell are an input error, not an empty run; a solid
+        // that covers no cell centre (outside the domain, or thinner than a cell) is a warning.
+        const Grid2 grid(m_params.domain, m_params.nx, m_params.ny);
+        bool any_fluid = false;
+        std::vector<long long> covered(m_obstacles.size(), 0);
+        for (int j = 0; j < m_params.ny; ++j)
+            for (int i = 0; i < m_params.nx; ++i) {
+                const Vec2d c = grid.cell_center(i, j);
+                bool solid_here = false;
+                for (std::size_t k = 0; k < m_obstacles.size(); ++k)
+                    if (m_obstacles[k]->solid2(c)) {
+                        ++covered[k];
+                        solid_here = true;
+                    }
+                any_fluid |= !solid_here;
+            }
+        if (!any_fluid)
+            props.error("velocity", fmt::format("the boundaries {} leave no fluid cell on the {}x{} grid",
+                                                fmt::join(names, ", "), m_params.nx, m_params.ny));
+        for (std::size_t k = 0; k < m_obstacles.size(); ++k)
+            if (covered[k] == 0)
+                log_warn(
+                    "stable_fluids: boundary '{}' covers no cell centre of the {}x{} grid (outside the domain "
+                    "or thinner than a cell): the grid solver does not see it",
+                    names[k], m_params.nx, m_params.ny);
+    }
+
+    bool solid(const Vec2d& p) const {
+        for (const auto& s : m_obstacles)
+            if (s->solid2(p)) return true;
+        return false;
     }
 
     RunResult run(RunContext& ctx) override {
@@ -43,28 +119,41 @@ public:
         s.viscosity = m_params.viscosity;
         s.tolerance = m_tolerance;
         s.seed = ctx.seed;
+        s.projection = m_projection;
+        if (!m_obstacles.empty()) s.solid = [this](const Vec2d& p) { return solid(p); };
         const VorticityField& field = *m_params.field;
         StableFluidsSolver solver(s, [&field](const Vec2d& x) { return field.vorticity(x); });
         if (m_params.dye) solver.set_dye(std::make_unique<PassiveScalars>(s.domain, *m_params.dye, s.nx, s.ny));
         const std::string effects = fmt::format(
-            "semi-Lagrangian advection ({}, dt {:g}, {} steps) on a {}x{} MAC grid; pressure projection (incomplete "
-            "Cholesky CG){}; boundaries {}",
+            "semi-Lagrangian advection ({}, dt {:g}, {} steps) on a {}x{} MAC grid; pressure projection ({}){}; "
+            "boundaries {}{}",
             fluid::to_string(s.advection), m_params.dt, m_params.steps, s.nx, s.ny,
-            s.viscosity > 0 ? "; implicit viscosity" : "",
-            s.domain.periodic ? "none (periodic)" : "free-slip box walls");
+            solver.projection() == Projection::FFT ? "FFT, exact inverse of the discrete Laplacian"
+            : solver.projection() == Projection::Multigrid
+                ? fmt::format("multigrid-preconditioned CG to {:g}", s.tolerance)
+                : fmt::format("incomplete-Cholesky CG to {:g}", s.tolerance),
+            s.viscosity > 0 ? "; implicit viscosity" : "", s.domain.periodic ? "periodic" : "free-slip box walls",
+            m_obstacles.empty() ? ""
+                                : fmt::format(" + {} static solid(s), {} fluid cells of {}", m_obstacles.size(),
+                                              solver.fluid_cells(), std::size_t(s.nx) * std::size_t(s.ny)));
         return run_fluid_solver("stable_fluids", solver, m_params, ctx, effects);
     }
 
 private:
     SimulationParams m_params;
     double m_tolerance = 1e-10;
+    Projection m_projection = Projection::Auto;
+    std::vector<std::shared_ptr<const BoundaryShape>> m_obstacles;
 };
 
 }  // namespace
 }  // namespace kelvin::fluid
 
-KELVIN_PLUGIN(kelvin::fluid::StableFluids, "simulation", "stable_fluids",
-              "Baseline: Stam's stable fluids on a MAC grid (semi-Lagrangian advection, implicit viscosity, pressure "
-              "projection with Eigen CG); same scene and outputs as mcfluid.",
-              KELVIN_FLUID_SIMULATION_PARAMS,
-              kelvin::param::real("tolerance", 1e-10, "relative residual of the conjugate-gradient solves"));
+KELVIN_PLUGIN(
+    kelvin::fluid::StableFluids, "simulation", "stable_fluids",
+    "Baseline: Stam's stable fluids on a MAC grid (semi-Lagrangian advection, implicit viscosity, pressure "
+    "projection by FFT or multigrid-preconditioned CG, static obstacles); same scene and outputs as mcfluid.",
+    KELVIN_FLUID_SIMULATION_PARAMS,
+    kelvin::param::real("tolerance", 1e-10, "relative residual of the iterative solves"),
+    kelvin::param::string("projection", "auto",
+                          "pressure solver: auto (fft without obstacles, else multigrid), fft, multigrid, cg"));
