@@ -69,7 +69,8 @@ std::filesystem::path OutputPaths::frame(long long step, int digits, const std::
     return p;
 }
 
-double exact_vorticity_rmse(const Grid2& omega, const VorticityField& field, double t, double viscosity) {
+double exact_vorticity_rmse(const Grid2& omega, const VorticityField& field, double t, double viscosity, bool bounded) {
+    if (bounded || !field.exact_on(omega.domain())) return std::numeric_limits<double>::quiet_NaN();
     double s = 0;
     for (int j = 0; j < omega.ny(); ++j)
         for (int i = 0; i < omega.nx(); ++i) {

@@ -31,6 +31,9 @@ public:
     virtual std::optional<Vec2d> exact_velocity(double t, const Vec2d& x, double viscosity) const {
         return std::nullopt;
     }
+    /// Whether exact_vorticity is the solution of the flow on `domain` (without solid boundaries): Taylor–Green
+    /// on periodic boxes that fit its period, vortices in open (free-space) domains.
+    virtual bool exact_on(const Domain2& domain) const { return false; }
     /// Called once with the simulation's domain before any other call, by every simulation: fields placed
     /// relative to the box (bitmap, vortex_sheet's wavelength) record it here.
     virtual void bind_domain(const Domain2& domain) {}

@@ -39,9 +39,11 @@ struct OutputPaths {
     std::filesystem::path prefix;
 };
 
-/// RMSE of `omega` at its cell centres against the field's exact solution at time t (NaN when the field knows
-/// none there).
-double exact_vorticity_rmse(const Grid2& omega, const VorticityField& field, double t, double viscosity);
+/// RMSE of `omega` at its cell centres against the field's exact solution at time t: NaN when the field knows
+/// none there, or when it is not the solution of this flow (VorticityField::exact_on the grid's domain is false,
+/// or `bounded`: solid boundaries change the flow).
+double exact_vorticity_rmse(const Grid2& omega, const VorticityField& field, double t, double viscosity,
+                            bool bounded = false);
 
 /// Writes the dye frames <prefix>_dye_NNNN.png (display colours) and .exr (display colours and the raw
 /// channels) when `dye` is not null; appends the files to `written`.

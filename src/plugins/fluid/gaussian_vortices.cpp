@@ -63,6 +63,7 @@ public:
         return w;
     }
 
+    bool exact_on(const Domain2&) const override { return true; }  // t = 0 only: the initial condition itself
     std::optional<double> exact_vorticity(double t, const Vec2d& x, double) const override {
         if (t != 0) return std::nullopt;
         return vorticity(x);

@@ -49,6 +49,7 @@ public:
         return Vec2d(-r.y * f, r.x * f);
     }
 
+    bool exact_on(const Domain2& d) const override { return !d.periodic; }
     void check_domain(const Domain2& d) const override {
         if (d.periodic)
             log_warn(

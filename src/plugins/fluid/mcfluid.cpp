@@ -205,7 +205,8 @@ public:
         // State 0: its velocity is the first step's k1, so diagnostics cost nothing extra. An interrupt during
         // that first velocity pass leaves nothing to record.
         FluidDiagnostics d0 = solver.diagnostics();
-        d0.vorticity_rmse_exact = exact_vorticity_rmse(solver.vorticity_grid(), field, 0.0, settings.viscosity);
+        d0.vorticity_rmse_exact =
+            exact_vorticity_rmse(solver.vorticity_grid(), field, 0.0, settings.viscosity, bool(settings.boundaries));
         if (solver.velocity_available()) {
             if (csv)
                 csv->write(d0, 0.0, double(solver.work().biot_savart_evals),
@@ -231,7 +232,8 @@ public:
             // interrupt during its pass ends the run with the new state and no velocity.
             FluidDiagnostics d = solver.diagnostics();
             if (!solver.velocity_available()) break;
-            d.vorticity_rmse_exact = exact_vorticity_rmse(solver.vorticity_grid(), field, d.time, settings.viscosity);
+            d.vorticity_rmse_exact = exact_vorticity_rmse(solver.vorticity_grid(), field, d.time, settings.viscosity,
+                                                          bool(settings.boundaries));
             const double seconds = step_timer.seconds();
             const FluidWork& after = solver.work();
             if (csv)

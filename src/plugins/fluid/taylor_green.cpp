@@ -48,6 +48,10 @@ public:
         return Vec2d(c * std::sin(m_k * x.x) * std::sin(m_k * x.y), c * std::cos(m_k * x.x) * std::cos(m_k * x.y));
     }
 
+    bool exact_on(const Domain2& d) const override {
+        const double period = 2 * Pi / m_k;
+        return d.periodic && fits_period(d.size().x, period) && fits_period(d.size().y, period);
+    }
     void check_domain(const Domain2& d) const override {
         const double period = 2 * Pi / m_k;
         auto fits = [&](double len) { return fits_period(len, period); };
