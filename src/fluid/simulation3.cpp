@@ -101,6 +101,9 @@ Simulation3Params Simulation3Params::parse(const Properties& props) {
             props.error("scalar",
                         fmt::format("'{}' is a 2D dye; 3D scenes take <scalar type=\"smoke\">", scalar->plugin_name()));
     }
+    if (s.boundaries)
+        if (const std::string why = check_wos_cells3(*s.boundaries, s.domain, s.nx, s.ny, s.nz); !why.empty())
+            props.error("velocity", "walk_on_spheres: " + why);
     p.field->check_domain3(s.domain);
     return p;
 }

@@ -98,6 +98,50 @@ std::string check_wos_options(const WosVelocityOptions& options, const Domain2& 
     return "";
 }
 
+std::string check_wos_cells(const WosVelocityOptions& options, const Domain2& domain, int nx, int ny) {
+    if (options.shapes.empty()) return "";
+    const WosVelocityField field(options, domain, nullptr, Interpolation::Bilinear, 0.0);
+    const Grid2 cells(domain, nx, ny);
+    std::size_t fluid = 0;
+    for (int j = 0; j < ny; ++j)
+        for (int i = 0; i < nx; ++i) {
+            const Vec2d x = cells.cell_center(i, j);
+            int first = -1;
+            for (std::size_t k = 0; k < options.shapes.size(); ++k) {
+                if (!options.shapes[k]->solid2(x)) continue;
+                if (first < 0) {
+                    first = int(k);
+                    continue;
+                }
+                const BoundaryShape& a = *options.shapes[std::size_t(first)];
+                const BoundaryShape& b = *options.shapes[k];
+                if (!a.role().fluid_inside && !b.role().fluid_inside && !a.role().moving() && !b.role().moving() &&
+                    a.role().stream_value != b.role().stream_value)
+                    return fmt::format(
+                        "the obstacles {} (stream_value {:g}) and {} (stream_value {:g}) overlap at ({:g}, {:g}): "
+                        "one solid cannot carry two values of Psi; give them the same stream_value",
+                        a.description(), a.role().stream_value, b.description(), b.role().stream_value, x.x, x.y);
+            }
+            if (field.solid_at(x) < 0) ++fluid;
+        }
+    if (fluid == 0) {
+        std::string names;
+        for (const auto& b : options.shapes) names += (names.empty() ? "" : ", ") + b->description();
+        return fmt::format(
+            "the boundaries leave no fluid cell in the {}x{} cache ({}); an obstacle covers the whole "
+            "domain, or a container (fluid = 'inside') encloses no cell centre",
+            nx, ny, names);
+    }
+    for (const auto& b : options.shapes) {
+        const auto [lo, hi] = b->bounds();
+        if (!domain.periodic &&
+            (hi.x < domain.min.x || lo.x > domain.max.x || hi.y < domain.min.y || lo.y > domain.max.y))
+            log_warn("walk_on_spheres: {} lies entirely outside the domain {}: it only bounds the walks from outside",
+                     b->description(), domain.to_string());
+    }
+    return "";
+}
+
 void report_walks(Stats& stats, const std::string& prefix, const wos::WalkCounters& c, const std::string& who,
                   int max_steps) {
     stats.add(prefix + "walks", double(c.walks), "walks");

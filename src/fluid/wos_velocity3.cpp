@@ -2,6 +2,7 @@
 // function volume term, all three carried by the same walks, and the velocity as -curl Psi from the gradient
 // estimator (thesis Sections 5.3.1-5.3.2, 6.2.4). See include/kelvin/fluid/boundary.h.
 #include <kelvin/core/error.h>
+#include <kelvin/core/logging.h>
 #include <kelvin/fluid/boundary.h>
 
 #include <fmt/format.h>
@@ -61,6 +62,33 @@ std::string describe3(const WosVelocityOptions& options, const Domain3& domain) 
         s += b->has_inside() ? "]" : ", unsigned]";
     }
     return s;
+}
+
+std::string check_wos_cells3(const WosVelocityOptions& options, const Domain3& domain, int nx, int ny, int nz) {
+    if (options.shapes.empty()) return "";
+    const WosVelocityField3 field(options, domain, nullptr, Interpolation::Bilinear);
+    const Grid3 cells(domain, nx, ny, nz);
+    bool fluid = false;
+    for (int k = 0; k < nz && !fluid; ++k)
+        for (int j = 0; j < ny && !fluid; ++j)
+            for (int i = 0; i < nx && !fluid; ++i) fluid = field.solid_at(cells.cell_center(i, j, k)) < 0;
+    if (!fluid) {
+        std::string names;
+        for (const auto& b : options.shapes) names += (names.empty() ? "" : ", ") + b->description();
+        return fmt::format(
+            "the boundaries leave no fluid cell in the {}x{}x{} cache ({}); an obstacle covers the "
+            "whole domain, or a container (fluid = 'inside') encloses no cell centre",
+            nx, ny, nz, names);
+    }
+    for (const auto& b : options.shapes) {
+        const auto [lo, hi] = b->bounds();
+        bool outside = false;
+        for (int a = 0; a < 3; ++a) outside |= hi[a] < domain.min[a] || lo[a] > domain.max[a];
+        if (!domain.periodic && outside)
+            log_warn("walk_on_spheres: {} lies entirely outside the domain {}: it only bounds the walks from outside",
+                     b->description(), domain.to_string());
+    }
+    return "";
 }
 
 WosVelocityField3::WosVelocityField3(const WosVelocityOptions& options, const Domain3& domain, const VectorGrid3* omega,

@@ -444,3 +444,45 @@ TEST(FluidScene, ExactErrorOnlyWhereTheExactSolutionHolds) {
     EXPECT_TRUE(last_exact_column(scene(steps, R"(<vorticity type="taylor_green"/>)", walls)).empty())
         << "Taylor–Green with an obstacle";
 }
+
+// Boundary sets that leave no fluid or are ill-posed are one-line errors naming the velocity and the boundaries
+// (issue 16, item 6); each ran to "energy 0" with exit 0 before. 2D: a box over the whole domain (boxes are
+// obstacles by default), a container disk that encloses no cell centre, overlapping obstacles with different stream
+// values; 3D: a sphere that swallows the box.
+TEST(FluidScene, BoundariesThatLeaveNoFluidAreRefused) {
+    const std::string steps = R"(<integer name="steps" value="1"/>)";
+    auto wos = [](const std::string& boundaries) {
+        return R"(<velocity type="walk_on_spheres"><integer name="samples" value="4"/>)" + boundaries +
+               R"(</velocity><cache type="grid"><integer name="resolution" value="16"/></cache>)";
+    };
+    InputError e = load_error(scene(steps, R"(<vorticity type="taylor_green"/>)",
+                                    wos(R"(<boundary type="box"><point name="min" x="-5" y="-5"/>
+                                           <point name="max" x="5" y="5"/></boundary>)")));
+    EXPECT_CONTAINS(e.what(), "'velocity'");
+    EXPECT_CONTAINS(e.what(), "no fluid cell");
+    EXPECT_CONTAINS(e.what(), "box");
+    e = load_error(scene(steps, R"(<vorticity type="taylor_green"/>)",
+                         wos(R"(<boundary type="disk"><float name="radius" value="0.01"/>
+                                <point name="center" x="0.05" y="0.05"/>
+                                <string name="fluid" value="inside"/></boundary>)")));
+    EXPECT_CONTAINS(e.what(), "no fluid cell");
+    e = load_error(scene(steps, R"(<vorticity type="taylor_green"/>)",
+                         wos(R"(<boundary type="disk"><float name="radius" value="0.6"/></boundary>
+                                <boundary type="disk"><point name="center" x="0.5" y="0"/>
+                                <float name="radius" value="0.6"/><float name="stream_value" value="1"/></boundary>)")));
+    EXPECT_CONTAINS(e.what(), "overlap");
+    EXPECT_CONTAINS(e.what(), "stream_value");
+    EXPECT_FALSE(std::string(e.what()).find('\n') != std::string::npos) << "one line";
+    // The same two disks with one stream value are one solid: accepted.
+    EXPECT_NO_THROW(load(scene(steps, R"(<vorticity type="taylor_green"/>)",
+                               wos(R"(<boundary type="disk"><float name="radius" value="0.6"/></boundary>
+                                      <boundary type="disk"><point name="center" x="0.5" y="0"/>
+                                      <float name="radius" value="0.6"/></boundary>)"))));
+    e = load_error(scene3(steps, R"(<vorticity type="abc"/>)",
+                          R"(<velocity type="walk_on_spheres"><boundary type="sphere">
+                                 <point name="center" x="3" y="3" z="3"/><float name="radius" value="20"/>
+                             </boundary></velocity>
+                             <cache type="grid"><integer name="resolution" value="8"/></cache>)"));
+    EXPECT_CONTAINS(e.what(), "'velocity'");
+    EXPECT_CONTAINS(e.what(), "no fluid cell");
+}

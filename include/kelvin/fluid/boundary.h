@@ -106,6 +106,10 @@ struct WosVelocityOptions {
 std::string check_wos_options(const WosVelocityOptions& options, const Domain2& domain);
 /// One line for the run summary.
 std::string describe(const WosVelocityOptions& options, const Domain2& domain);
+/// What the boundaries do to the nx x ny cache at t = 0 ("" when they are usable): an error when they leave no
+/// fluid cell, or when two solids of different stream values overlap (an ill-posed Dirichlet problem); warnings
+/// (logged) for a solid entirely outside the domain.
+std::string check_wos_cells(const WosVelocityOptions& options, const Domain2& domain, int nx, int ny);
 
 /// A <velocity type="walk_on_spheres"> plugin: Biot–Savart's interface (samples = gradient samples per query)
 /// plus the boundary options.
@@ -302,6 +306,8 @@ void report_walks(Stats& stats, const std::string& prefix, const wos::WalkCounte
 std::string check_wos_options3(const WosVelocityOptions& options, const Domain3& domain);
 /// One line for the run summary.
 std::string describe3(const WosVelocityOptions& options, const Domain3& domain);
+/// The 3D counterpart of check_wos_cells (no fluid cell: an error; a solid outside the domain: a warning).
+std::string check_wos_cells3(const WosVelocityOptions& options, const Domain3& domain, int nx, int ny, int nz);
 
 }  // namespace kelvin::fluid
 

@@ -117,6 +117,10 @@ public:
             m_settings.boundaries = std::make_shared<WosVelocityOptions>(wos->walk_on_spheres());
             if (const std::string why = check_wos_options(*m_settings.boundaries, m_settings.domain); !why.empty())
                 props.error("velocity", "walk_on_spheres: " + why);
+            if (const std::string why =
+                    check_wos_cells(*m_settings.boundaries, m_settings.domain, m_settings.nx, m_settings.ny);
+                !why.empty())
+                props.error("velocity", "walk_on_spheres: " + why);
         }
         m_settings.interpolation = cache->interpolation();
         if (cache->resolution_z() != 0) props.error("cache", "resolution_z is for 3D caches (dimension = 3)");
