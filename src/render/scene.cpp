@@ -33,7 +33,7 @@ Scene::Scene(const Properties& props) {
     m_simulation = props.get_object_as<Job>("simulation");
     for (auto& o : props.get_objects("emitter")) m_root_emitters.push_back(std::dynamic_pointer_cast<Emitter>(o));
     // Shared declarations at the root (<bsdf id=...>, <texture id=...>) are used through <ref> elsewhere.
-    for (const char* kind : {"bsdf", "texture"}) props.get_objects(kind);
+    for (const char* kind : {"bsdf", "texture", "medium", "phase", "volume"}) props.get_objects(kind);
 
     if (m_simulation) {
         if (m_sensor || m_integrator || !m_shapes.empty() || !m_root_emitters.empty())
@@ -291,4 +291,7 @@ KELVIN_PLUGIN(kelvin::Scene, "scene", "scene",
               kelvin::param::object("simulation", "simulation", "a fluid simulation to run instead of a render"),
               kelvin::param::objects("bsdf", "shared declarations (referenced with <ref>)"),
               kelvin::param::objects("texture", "shared declarations (referenced with <ref>)"),
+              kelvin::param::objects("medium", "shared declarations (referenced with <ref>)"),
+              kelvin::param::objects("phase", "shared declarations (referenced with <ref>)"),
+              kelvin::param::objects("volume", "shared declarations (referenced with <ref>)"),
               kelvin::param::objects("emitter", "light sources"));

@@ -22,6 +22,7 @@ enum : uint32_t {
     GlossyTransmission = 1u << 3,
     DeltaReflection = 1u << 4,
     DeltaTransmission = 1u << 5,
+    Null = 1u << 6,  ///< index-matched pass-through (the `null` BSDF): wo = -wi, not a scattering event
     Diffuse = DiffuseReflection | DiffuseTransmission,
     Glossy = GlossyReflection | GlossyTransmission,
     Delta = DeltaReflection | DeltaTransmission,
