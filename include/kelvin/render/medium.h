@@ -47,8 +47,12 @@ public:
     const Transform& to_world() const { return m_to_world; }
     /// Where the data came from, for errors ("grid 'density' of 'smoke.vdb'"); empty for constants.
     const std::string& source() const { return m_source; }
+    /// True for a grid of vectors (an OpenVDB vec3 grid, such as a velocity field), as opposed to scalar or RGB
+    /// data (a 3-channel .vol holds RGB, as in Mitsuba).
+    bool is_vector() const { return m_vector; }
 
 protected:
+    bool m_vector = false;
     Transform m_to_world;
     std::string m_source;
 };

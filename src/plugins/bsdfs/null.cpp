@@ -27,6 +27,7 @@ public:
     }
     Color3 eval(const BsdfContext&, const SurfaceInteraction&, const Vec3d&) const override { return Color3(0.0); }
     double pdf(const BsdfContext&, const SurfaceInteraction&, const Vec3d&) const override { return 0.0; }
+    Color3 eval_null_transmission(const SurfaceInteraction&) const override { return Color3(1.0); }
 };
 
 }  // namespace

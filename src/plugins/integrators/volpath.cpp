@@ -6,8 +6,10 @@
 //   media; render/medium.h). A real collision scatters by the phase function and counts as a bounce; null
 //   collisions do not.
 // - Shadow rays: ratio tracking (homogeneous media: exp(-sigma_t d)) through every medium they cross; they pass
-//   `null` surfaces (switching media at shapes with interior/exterior) and are blocked by any other surface.
-// - Surfaces: a `null` BSDF is crossed without counting a bounce; any other BSDF is a bounce. The medium changes
+//   surfaces with a Null component, weighted by it (eval_null_transmission: 1 for `null`, 1 - R for thindielectric;
+//   switching media at shapes with interior/exterior), and are blocked by any other surface.
+// - Surfaces: a Null event (the `null` BSDF, thindielectric's transmission) is crossed without counting a bounce
+//   and leaves the MIS state alone; any other sampled event is a bounce. The medium changes
 //   where a path crosses a shape that has an interior or an exterior (Mitsuba's rule: the side of the geometric
 //   normal the new direction points to). The camera starts in the sensor's medium.
 // - Emitters hit after a chain of delta (specular) events since the last smooth scattering count with weight 1
@@ -70,6 +72,8 @@ public:
             if (!hit) return tr;
             const Shape& shape = *scene.shapes()[hit->shape];
             if (!(shape.bsdf()->flags() & BsdfFlags::Null)) return Color3(0.0);
+            tr *= shape.bsdf()->eval_null_transmission(scene.interaction(ray, *hit));
+            if (tr == Color3(0.0)) return tr;
             medium = target_medium(shape, hit->ng, ray.d, medium);
             SurfaceInteraction at;
             at.p = hit->p;
@@ -178,11 +182,6 @@ public:
                 }
             }
             const Bsdf& bsdf = *si.shape->bsdf();
-            if (bsdf.flags() & BsdfFlags::Null) {  // index-matched: cross without a bounce
-                medium = target_medium(*si.shape, si.ng, ray.d, medium);
-                ray = si.spawn(ray.d);
-                continue;
-            }
 
             // Next-event estimation at the surface.
             const double u_light = sampler.next_1d();
@@ -218,6 +217,11 @@ public:
             const auto bs = bsdf.sample(bctx, si, u_comp, u_dir);
             if (!bs || bs->weight == Color3(0.0)) break;
             beta *= bs->weight;
+            if (bs->sampled & BsdfFlags::Null) {  // straight through (null, thindielectric): not a bounce
+                medium = target_medium(*si.shape, si.ng, ray.d, medium);
+                ray = si.spawn(ray.d);
+                continue;
+            }
             if (bs->sampled & BsdfFlags::Transmission) eta2 *= bs->eta * bs->eta;
             ++depth;
             specular_chain = (bs->sampled & BsdfFlags::Delta) != 0;  // Mitsuba: a delta event starts a chain

@@ -8,7 +8,7 @@
 //
 // | parameter      | type           | default   | meaning                                             |
 // |----------------|----------------|-----------|-----------------------------------------------------|
-// | sigma_t        | volume/float   | 1         | extinction (a scalar grid; constants may be RGB)    |
+// | sigma_t        | volume/float   | 1         | extinction: scalar or RGB data (not a vector grid)  |
 // | albedo         | volume/rgb     | 0.75      | single-scattering albedo (RGB grids allowed)        |
 // | scale          | float          | 1         | multiplies sigma_t                                  |
 // | majorant_block | integer        | 8         | voxels per max-grid cell along each axis            |
@@ -37,9 +37,9 @@ public:
         const int block = int(props.get_int("majorant_block", 1, 1 << 16));
         read_phase(props);
         const glm::ivec3 res = m_sigma_t->resolution();
-        if (m_sigma_t->channels() != 1 && res != glm::ivec3(1))
-            props.error("sigma_t", fmt::format("{} has {} channels (a vector grid); sigma_t needs a scalar grid",
-                                               m_sigma_t->source(), m_sigma_t->channels()));
+        if (m_sigma_t->is_vector())
+            props.error("sigma_t", fmt::format("{} is a vector grid; sigma_t needs a scalar (float) grid",
+                                               m_sigma_t->source()));
         if (m_sigma_t->max_over(glm::ivec3(0), res - 1) < 0)
             props.error("sigma_t", fmt::format("{} has negative values", m_sigma_t->source()));
         m_inv = m_sigma_t->to_world().inverse;

@@ -181,6 +181,7 @@ private:
             copy_dense<openvdb::DoubleGrid, 1>(*gd, bb);
         } else if (auto gv = openvdb::gridPtrCast<openvdb::Vec3SGrid>(base)) {
             m_channels = 3;
+            m_vector = true;
             copy_dense<openvdb::Vec3SGrid, 3>(*gv, bb);
         } else {
             props.error("grid", fmt::format("{} has type {}; gridvolume reads float, double and vec3s grids", m_source,
