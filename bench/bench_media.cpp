@@ -24,7 +24,8 @@ namespace {
 
 // Puffs of smoke: a few Gaussian blobs with a ripple, zero below a threshold (sparse, like simulated smoke).
 float smoke(double x, double y, double z) {
-    const double c[4][4] = {{0.35, 0.3, 0.4, 0.02}, {0.6, 0.55, 0.5, 0.03}, {0.45, 0.75, 0.6, 0.015}, {0.7, 0.3, 0.7, 0.01}};
+    const double c[4][4] = {
+        {0.35, 0.3, 0.4, 0.02}, {0.6, 0.55, 0.5, 0.03}, {0.45, 0.75, 0.6, 0.015}, {0.7, 0.3, 0.7, 0.01}};
     double v = 0;
     for (const auto& b : c) {
         const double r2 = (x - b[0]) * (x - b[0]) + (y - b[1]) * (y - b[1]) + (z - b[2]) * (z - b[2]);
@@ -47,7 +48,8 @@ std::shared_ptr<Medium> medium(int res) {
         for (int j = 0; j < res; ++j)
             for (int i = 0; i < res; ++i) {
                 const float v = smoke((i + 0.5) / res, (j + 0.5) / res, (k + 0.5) / res);
-                if (v > 0 || (i % (res - 1) == 0 && j % (res - 1) == 0 && k % (res - 1) == 0)) acc.setValueOn({i, j, k}, v);
+                if (v > 0 || (i % (res - 1) == 0 && j % (res - 1) == 0 && k % (res - 1) == 0))
+                    acc.setValueOn({i, j, k}, v);
             }
     {
         openvdb::GridPtrVec grids{grid};
@@ -116,8 +118,18 @@ void BM_Media_Transmittance(benchmark::State& state) { run<true>(state); }
 
 }  // namespace
 
-BENCHMARK(BM_Media_FreeFlight)->Args({128, 1})->Args({128, 2})->Args({256, 1})->Args({256, 2})
-    ->Unit(benchmark::kMillisecond)->UseRealTime();
-BENCHMARK(BM_Media_Transmittance)->Args({128, 1})->Args({128, 2})->Args({256, 1})->Args({256, 2})
-    ->Unit(benchmark::kMillisecond)->UseRealTime();
+BENCHMARK(BM_Media_FreeFlight)
+    ->Args({128, 1})
+    ->Args({128, 2})
+    ->Args({256, 1})
+    ->Args({256, 2})
+    ->Unit(benchmark::kMillisecond)
+    ->UseRealTime();
+BENCHMARK(BM_Media_Transmittance)
+    ->Args({128, 1})
+    ->Args({128, 2})
+    ->Args({256, 1})
+    ->Args({256, 2})
+    ->Unit(benchmark::kMillisecond)
+    ->UseRealTime();
 BENCHMARK_MAIN();

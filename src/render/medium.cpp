@@ -103,8 +103,7 @@ Color3 transmittance(const Medium& medium, const Ray& ray, double tmax, Sampler&
     return tr;
 }
 
-double transmittance_delta(const Medium& medium, const Ray& ray, double tmax, Sampler& sampler,
-                           MediumCounters& c) {
+double transmittance_delta(const Medium& medium, const Ray& ray, double tmax, Sampler& sampler, MediumCounters& c) {
     Color3 sigma_t, sigma_s;
     MajorantIterator it;
     MajorantSegment seg;

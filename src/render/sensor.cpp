@@ -1,6 +1,6 @@
-#include <kelvin/render/medium.h>
 #include <kelvin/core/registry.h>
 #include <kelvin/core/strings.h>
+#include <kelvin/render/medium.h>
 #include <kelvin/render/sensor.h>
 
 #include <fmt/format.h>

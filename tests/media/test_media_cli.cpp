@@ -25,7 +25,8 @@ std::string scene_with(const std::string& medium_body) {
 class MediaCli : public ::testing::Test {
 protected:
     void SetUp() override {
-        ktest::write_vdb(vdb(), "density", 4, 0.25, [](int, int, int) { return 1.f; }, true);
+        ktest::write_vdb(
+            vdb(), "density", 4, 0.25, [](int, int, int) { return 1.f; }, true);
     }
     fs::path vdb() const { return m_dir.path() / "grids.vdb"; }
     fs::path scene(const std::string& body) {
@@ -60,7 +61,8 @@ TEST_F(MediaCli, VectorGridWhereScalarNeeded) {
 }
 
 TEST_F(MediaCli, MissingVolumeFile) {
-    auto s = scene(R"(<volume type="gridvolume" name="sigma_t"><string name="filename" value="nowhere.vdb"/></volume>)");
+    auto s =
+        scene(R"(<volume type="gridvolume" name="sigma_t"><string name="filename" value="nowhere.vdb"/></volume>)");
     auto r = run_kelvin({s.string(), "-o", (m_dir.path() / "o.exr").string()});
     const std::string line = expect_one_error_line(r);
     EXPECT_NE(line.find("filename"), std::string::npos) << line;

@@ -77,6 +77,6 @@ protected:
 }  // namespace kelvin
 
 /// The media parameters every shape declares (append to its KELVIN_PLUGIN parameter list).
-#define KELVIN_SHAPE_MEDIA_PARAMS                                                                       \
-    kelvin::param::object("interior", "medium", "medium inside the shape (opposite the normal)"),      \
+#define KELVIN_SHAPE_MEDIA_PARAMS                                                                 \
+    kelvin::param::object("interior", "medium", "medium inside the shape (opposite the normal)"), \
         kelvin::param::object("exterior", "medium", "medium outside the shape (on the normal's side)")

@@ -160,7 +160,8 @@ public:
                         const Color3 Le = e->eval(ray.o, Vec3d(0.0), -ray.d);
                         double w = 1.0;
                         if (!specular_chain) {
-                            const double pl = scene.emitter_pdf(e) * e->pdf_direct(last_p, Vec3d(0.0), Vec3d(0.0), ray.d);
+                            const double pl =
+                                scene.emitter_pdf(e) * e->pdf_direct(last_p, Vec3d(0.0), Vec3d(0.0), ray.d);
                             w = power_heuristic(prev_pdf, pl);
                         }
                         L += beta * Le * w;
@@ -203,7 +204,8 @@ public:
                             const Medium* m = target_medium(*si.shape, si.ng, ds->d, medium);
                             const Color3 tr = shadow_transmittance(scene, shadow, m, sampler, c, mc);
                             if (tr != Color3(0.0)) {
-                                const double w = ds->delta ? 1.0 : power_heuristic(ds->pdf * sel_pdf, bsdf.pdf(bctx, si, wo));
+                                const double w =
+                                    ds->delta ? 1.0 : power_heuristic(ds->pdf * sel_pdf, bsdf.pdf(bctx, si, wo));
                                 L += beta * tr * f * ds->weight * (w / sel_pdf);
                             }
                         }
@@ -256,4 +258,3 @@ KELVIN_PLUGIN(kelvin::VolPath, "integrator", "volpathmis",
               kelvin::param::integer("max_depth", -1, "longest contributing path in edges (-1: unbounded)"),
               kelvin::param::integer("rr_depth", 5, "path length from which Russian roulette starts"),
               kelvin::param::boolean("hide_emitters", false, "directly visible emitters render black"));
-

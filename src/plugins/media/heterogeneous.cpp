@@ -38,8 +38,8 @@ public:
         read_phase(props);
         const glm::ivec3 res = m_sigma_t->resolution();
         if (m_sigma_t->is_vector())
-            props.error("sigma_t", fmt::format("{} is a vector grid; sigma_t needs a scalar (float) grid",
-                                               m_sigma_t->source()));
+            props.error("sigma_t",
+                        fmt::format("{} is a vector grid; sigma_t needs a scalar (float) grid", m_sigma_t->source()));
         if (m_sigma_t->max_over(glm::ivec3(0), res - 1) < 0)
             props.error("sigma_t", fmt::format("{} has negative values", m_sigma_t->source()));
         m_inv = m_sigma_t->to_world().inverse;

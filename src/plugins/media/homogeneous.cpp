@@ -76,7 +76,8 @@ private:
 KELVIN_PLUGIN(kelvin::Homogeneous, "medium", "homogeneous", "A medium with constant coefficients.",
               kelvin::param::color("sigma_t", kelvin::Color3(1.0), "extinction coefficient"),
               kelvin::param::color("albedo", kelvin::Color3(0.75), "single-scattering albedo"),
-              kelvin::param::color("sigma_a", kelvin::Color3(0.0), "absorption (with sigma_s, instead of sigma_t/albedo)"),
+              kelvin::param::color("sigma_a", kelvin::Color3(0.0),
+                                   "absorption (with sigma_s, instead of sigma_t/albedo)"),
               kelvin::param::color("sigma_s", kelvin::Color3(0.0), "scattering (with sigma_a)"),
               kelvin::param::real("scale", 1.0, "multiplies the coefficients"),
               kelvin::param::object("phase", "phase", "phase function (default: isotropic)"));

@@ -81,7 +81,8 @@ public:
     int channels() const override { return m_channels; }
     glm::ivec3 resolution() const override { return m_res; }
     double max_over(const glm::ivec3& lo_in, const glm::ivec3& hi_in) const override {
-        const glm::ivec3 lo = glm::clamp(lo_in, glm::ivec3(0), m_res - 1), hi = glm::clamp(hi_in, glm::ivec3(0), m_res - 1);
+        const glm::ivec3 lo = glm::clamp(lo_in, glm::ivec3(0), m_res - 1),
+                         hi = glm::clamp(hi_in, glm::ivec3(0), m_res - 1);
         float m = -std::numeric_limits<float>::infinity();
         for (int z = lo.z; z <= hi.z; ++z)
             for (int y = lo.y; y <= hi.y; ++y) {
@@ -109,7 +110,8 @@ private:
         in.read(reinterpret_cast<char*>(header), sizeof header);
         in.read(reinterpret_cast<char*>(bbox), sizeof bbox);
         if (!in) props.error("filename", fmt::format("'{}': truncated .vol header", file.string()));
-        if (header[0] != 1) props.error("filename", fmt::format("'{}': only float32 .vol data (encoding 1) is read", file.string()));
+        if (header[0] != 1)
+            props.error("filename", fmt::format("'{}': only float32 .vol data (encoding 1) is read", file.string()));
         m_res = {header[1], header[2], header[3]};
         m_channels = header[4];
         if (m_res.x <= 0 || m_res.y <= 0 || m_res.z <= 0 || (m_channels != 1 && m_channels != 3) ||
