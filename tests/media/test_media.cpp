@@ -4,6 +4,7 @@
 // estimators' own standard errors. Each statistical test names the broken variant it was seen to fail on.
 #include "media/media_support.h"
 
+#include <kelvin/core/parallel.h>
 #include <kelvin/render/frame.h>
 
 #include <fmt/format.h>
@@ -361,6 +362,42 @@ TEST(Media, BadInputIsALocatedError) {
             <rgb name="sigma_a" value="1"/></medium><shape type="sphere"><ref name="interior" id="m"/></shape></scene>)");
     });
     EXPECT_NE(e.find("sigma_t"), std::string::npos) << e;
+}
+
+}  // namespace
+
+namespace {
+
+// volpath is deterministic: the same image, bit for bit, with one thread and with two (every number of a path comes
+// from the pixel's sampler; no shared state).
+TEST(VolPath, ThreadCountIndependent) {
+    const std::string xml =
+        R"(<scene version="3.0.0"><integrator type="volpath"/>)" + camera("0, 0, 3", "0, 0, 0", 40, 16) + R"(
+        <emitter type="constant"><rgb name="radiance" value="0.5"/></emitter>
+        <emitter type="point"><point name="position" x="1" y="2" z="1"/><rgb name="intensity" value="3"/></emitter>
+        <shape type="sphere"><bsdf type="null"/>
+            <medium type="heterogeneous" name="interior"><float name="scale" value="3"/>
+                <volume type="constvolume" name="sigma_t"><rgb name="value" value="1, 2, 3"/>
+                    <transform name="to_world"><translate value="-0.5, -0.5, -0.5"/></transform></volume>
+                <rgb name="albedo" value="0.8"/><phase type="hg"><float name="g" value="0.4"/></phase></medium></shape>
+        <shape type="rectangle"><transform name="to_world"><rotate x="1" angle="-90"/><translate y="-1"/></transform></shape>
+    </scene>)";
+    Bitmap one, two;
+    {
+        ThreadLimit limit(1);
+        one = ktest::render_xml(xml, 8, 3);
+    }
+    {
+        ThreadLimit limit(2);
+        two = ktest::render_xml(xml, 8, 3);
+    }
+    ASSERT_EQ(one.size(), two.size());
+    double sum = 0;
+    for (std::size_t i = 0; i < one.size(); ++i) {
+        ASSERT_EQ(one.data()[i], two.data()[i]) << "value " << i;
+        sum += one.data()[i];
+    }
+    EXPECT_GT(sum, 0);
 }
 
 }  // namespace
