@@ -5,7 +5,8 @@
 // Placement. `.vol`: the voxels fill the local unit cube [0, 1]^3 (voxel centres at (i + 1/2) / res), which
 // `to_world` places; with use_grid_bbox the cube is first mapped onto the bounding box in the file's header.
 // `.vdb`: the grid keeps its own index-to-world transform (voxel (i, j, k)'s centre is where OpenVDB puts it), over
-// the bounding box of its active voxels, and `to_world` is applied after it. Values outside that box are the edge
+// the bounding box of its active voxels (a grid without active voxels is one voxel of its background value at index
+// 0), and `to_world` is applied after it. Values outside that box are the edge
 // values; a heterogeneous medium whose sigma_t this is has no density outside it.
 //
 // | parameter     | type      | default   | meaning                                                       |
@@ -169,7 +170,8 @@ private:
         if (!base->transform().isLinear())
             props.error("filename", fmt::format("{}: only linear grid transforms are supported", m_source));
         openvdb::CoordBBox bb = base->evalActiveVoxelBoundingBox();
-        if (bb.empty()) props.error("grid", fmt::format("{} has no active voxels", m_source));
+        // No active voxels (a simulation frame before any smoke): one voxel of the background value at index 0.
+        if (bb.empty()) bb = openvdb::CoordBBox(openvdb::Coord(0), openvdb::Coord(0));
         const openvdb::Coord dim = bb.dim();
         m_res = {dim.x(), dim.y(), dim.z()};
         if (double(m_res.x) * m_res.y * m_res.z > 1.2e9)
