@@ -363,6 +363,35 @@ TEST(Media, BadInputIsALocatedError) {
             <rgb name="sigma_a" value="1"/></medium><shape type="sphere"><ref name="interior" id="m"/></shape></scene>)");
     });
     EXPECT_NE(e.find("sigma_t"), std::string::npos) << e;
+    // An interior medium on an open shape (a rectangle; a cube with one face removed) is refused at the medium.
+    for (const char* shape : {R"(<shape type="rectangle">)", R"(<shape type="disk">)"}) {
+        e = ktest::input_error_of([&] {
+            ktest::load_scene_xml(R"(<scene version="3.0.0">)" + camera("0, 0, 3", "0, 0, 0", 30, 4) +
+                                  R"(<medium type="homogeneous" id="m"/>)" + shape +
+                                  R"(<bsdf type="null"/><ref name="interior" id="m"/></shape></scene>)");
+        });
+        EXPECT_NE(e.find("closed surface"), std::string::npos) << e;
+        EXPECT_NE(e.find("<string>:7:"), std::string::npos) << e;  // the <ref name="interior">
+    }
+    ktest::TempDir objdir;
+    const auto obj = objdir.write("open_cube.obj",
+                                  "v -1 -1 -1\nv 1 -1 -1\nv 1 1 -1\nv -1 1 -1\nv -1 -1 1\nv 1 -1 1\nv 1 1 1\n"
+                                  "v -1 1 1\nf 1 3 2\nf 1 4 3\nf 5 6 7\nf 5 7 8\nf 1 2 6\nf 1 6 5\n"
+                                  "f 2 3 7\nf 2 7 6\nf 4 8 7\nf 4 7 3\n");  // no x = -1 face
+    e = ktest::input_error_of([&] {
+        ktest::load_scene_xml(
+            R"(<scene version="3.0.0">)" + camera("0, 0, 3", "0, 0, 0", 30, 4) +
+            R"(<medium type="homogeneous" id="m"/><shape type="obj"><string name="filename" value=")" + obj.string() +
+            R"("/><bsdf type="null"/><ref name="interior" id="m"/></shape></scene>)");
+    });
+    EXPECT_NE(e.find("4 boundary edges"), std::string::npos) << e;
+    // Closed: the full cube, a sphere; and an open shape may carry an exterior medium.
+    for (const char* shape : {R"(<shape type="cube"><ref name="interior" id="m"/>)",
+                              R"(<shape type="sphere"><ref name="interior" id="m"/>)",
+                              R"(<shape type="rectangle"><ref name="exterior" id="m"/>)"})
+        EXPECT_NO_THROW(ktest::load_scene_xml(R"(<scene version="3.0.0">)" + camera("0, 0, 3", "0, 0, 0", 30, 4) +
+                                              R"(<medium type="homogeneous" id="m"/>)" + shape + "</shape></scene>"))
+            << shape;
 }
 
 }  // namespace

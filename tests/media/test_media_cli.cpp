@@ -77,4 +77,19 @@ TEST_F(MediaCli, CorruptVolFile) {
     EXPECT_NE(line.find("bad.vol"), std::string::npos) << line;
 }
 
+TEST_F(MediaCli, InteriorMediumOnAnOpenShape) {
+    fs::path p = m_dir.path() / "open.xml";
+    write_file(p, R"(<scene version="3.0.0">
+    <integrator type="volpath"/>
+    <sensor type="perspective"/>
+    <medium type="homogeneous" id="fog"/>
+    <shape type="rectangle"><bsdf type="null"/><ref name="interior" id="fog"/></shape>
+</scene>
+)");
+    auto r = run_kelvin({p.string(), "-o", (m_dir.path() / "o.exr").string()});
+    const std::string line = expect_one_error_line(r);
+    EXPECT_NE(line.find(p.string() + ":5:"), std::string::npos) << line;
+    EXPECT_NE(line.find("closed surface"), std::string::npos) << line;
+}
+
 }  // namespace

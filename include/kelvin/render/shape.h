@@ -60,6 +60,8 @@ public:
     const Medium* interior() const { return m_interior.get(); }
     const Medium* exterior() const { return m_exterior.get(); }
     bool is_medium_transition() const { return m_interior || m_exterior; }
+    /// Where the interior medium was given (for the scene's error when the shape is not closed).
+    const SourceLoc& interior_location() const { return m_interior_loc; }
     const Emitter* emitter() const { return m_emitter.get(); }
     Emitter* emitter() { return m_emitter.get(); }
 
@@ -72,6 +74,7 @@ protected:
     std::shared_ptr<Bsdf> m_bsdf;
     std::shared_ptr<Emitter> m_emitter;
     std::shared_ptr<Medium> m_interior, m_exterior;
+    SourceLoc m_interior_loc;
 };
 
 }  // namespace kelvin
