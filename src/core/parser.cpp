@@ -142,8 +142,9 @@ public:
         resolve_pending_refs();
         m_out.root = node;
         m_out.search_paths.assign(m_search_paths.rbegin(), m_search_paths.rend());
-        // Mitsuba's file resolver also holds the folder of the scene file itself (searched last), so that an included
-        // file can name files relative to the scene that includes it.
+        // Mitsuba's file resolver also holds the folder of the root scene file (searched last), so that an included
+        // file can name files relative to the scene that includes it (Mitsuba's include/test-scene-base.xml names
+        // meshes/background.obj next to the scene). Only for scenes that declare a <path>, as Mitsuba's do.
         if (!m_root_dir.empty() && !m_search_paths.empty()) m_out.search_paths.push_back(m_root_dir);
         for (const auto& [k, v] : m_opts.defines)
             if (!m_used_params.count(k)) m_out.unused_defines.push_back(k);
