@@ -478,3 +478,29 @@ TEST(VolPath, FluidSolverVdbOutputIsAMedium) {
 }
 
 }  // namespace
+
+namespace {
+
+// A camera inside a medium (Mitsuba: the sensor's nested <medium>): an emitter 2 units away through absorbing fog
+// shows Le exp(-sigma_t (2 - near_clip)) (the camera ray starts at the near plane, as in Mitsuba). Broken variant
+// seen to fail: ignoring the sensor's medium (Le).
+TEST(VolPath, CameraInsideAMedium) {
+    for (const char* ref : {R"(<ref id="fog"/>)", R"(<ref name="exterior" id="fog"/>)"}) {
+        const std::string xml = R"(<scene version="3.0.0"><integrator type="volpath"/>
+            <medium type="homogeneous" id="fog"><rgb name="sigma_t" value="0.5, 0.25, 1"/><rgb name="albedo" value="0"/></medium>)" +
+                                camera("0, 0, 0", "0, 0, -1", 0.5, 4, ref) + R"(
+            <shape type="rectangle"><transform name="to_world"><translate z="-2"/></transform>
+                <emitter type="area"><rgb name="radiance" value="2"/></emitter></shape>
+        </scene>)";
+        const Bitmap img = ktest::render_xml(xml, 1024, 1);
+        const double sigma[3] = {0.5, 0.25, 1};
+        for (int c = 0; c < 3; ++c) {  // free flights are stochastic: 5 standard errors and 1 %
+            const auto st = ktest::image_stats(img, c);
+            const double expect = 2 * std::exp(-sigma[c] * (2 - 0.01));
+            EXPECT_NEAR(st.mean, expect, std::max(5 * st.stderr_, 1e-6)) << ref << " " << c;
+            EXPECT_NEAR(st.mean, expect, 0.01 * expect) << ref << " " << c;
+        }
+    }
+}
+
+}  // namespace
