@@ -127,6 +127,7 @@ public:
 
     ParsedScene parse_root(const fs::path& path, const std::string* text, const std::string& display) {
         FileText& f = load(path, text, display, {});
+        m_root_dir = f.path.parent_path();
         pugi::xml_document& doc = m_docs.emplace_back();
         pugi::xml_node root = parse_xml(doc, f, 0);
         auto node = std::make_shared<SceneNode>();
@@ -141,6 +142,10 @@ public:
         resolve_pending_refs();
         m_out.root = node;
         m_out.search_paths.assign(m_search_paths.rbegin(), m_search_paths.rend());
+        // Mitsuba's file resolver also holds the folder of the root scene file (searched last), so that an included
+        // file can name files relative to the scene that includes it (Mitsuba's include/test-scene-base.xml names
+        // meshes/background.obj next to the scene). Only for scenes that declare a <path>, as Mitsuba's do.
+        if (!m_root_dir.empty() && !m_search_paths.empty()) m_out.search_paths.push_back(m_root_dir);
         for (const auto& [k, v] : m_opts.defines)
             if (!m_used_params.count(k)) m_out.unused_defines.push_back(k);
         return std::move(m_out);
@@ -552,6 +557,8 @@ private:
                         p = (*d / filename).lexically_normal();
                         break;
                     }
+            if (!fs::exists(p, ec) && !m_root_dir.empty() && fs::exists(m_root_dir / filename, ec))
+                p = (m_root_dir / filename).lexically_normal();  // Mitsuba: relative to the root scene's folder
         }
         p = p.lexically_normal();
         if (!fs::exists(p, ec)) throw_input(loc, "included file '{}' does not exist", p.string());
@@ -603,6 +610,7 @@ private:
     const ParseOptions& m_opts;
     std::vector<PendingRef> m_pending;
     std::vector<fs::path> m_search_paths;  // in declaration order
+    fs::path m_root_dir;                   // folder of the root scene file (Mitsuba's resolver searches it too)
     std::map<std::string, std::string> m_params;
     std::set<std::string> m_used_params;
     std::unordered_map<std::string, std::shared_ptr<SceneNode>> m_ids;

@@ -6,6 +6,8 @@
 #include <embree3/rtcore.h>
 
 #include <algorithm>
+#include <array>
+#include <map>
 #include <cmath>
 #include <limits>
 
@@ -22,6 +24,39 @@ struct Scene::Accel {
     }
 };
 
+// A shape with an interior medium must enclose it: discs are open; a triangle mesh is closed when every edge (between
+// vertices welded by position) is shared by an even, non-zero number of triangles.
+static void check_closed(const Shape& shape, const ShapeGeometry& g) {
+    std::size_t open = 0;
+    if (g.type == ShapeGeometry::Type::Discs) {
+        open = g.positions.size();
+    } else if (g.type == ShapeGeometry::Type::Triangles) {
+        std::map<std::array<float, 3>, uint32_t> weld;
+        std::vector<uint32_t> id(g.positions.size());
+        for (std::size_t k = 0; k < g.positions.size(); ++k)
+            id[k] = weld.emplace(std::array<float, 3>{g.positions[k].x, g.positions[k].y, g.positions[k].z},
+                                 uint32_t(weld.size()))
+                        .first->second;
+        std::map<std::pair<uint32_t, uint32_t>, uint32_t> edges;
+        for (std::size_t t = 0; t + 2 < g.indices.size(); t += 3)
+            for (int e = 0; e < 3; ++e) {
+                uint32_t a = id[g.indices[t + e]], b = id[g.indices[t + (e + 1) % 3]];
+                if (a == b) continue;
+                if (a > b) std::swap(a, b);
+                ++edges[{a, b}];
+            }
+        for (const auto& [edge, count] : edges) open += count % 2;
+    }
+    if (open)
+        throw InputError(shape.interior_location(),
+                         fmt::format("{}: an interior medium needs a closed surface, and this one is open ({}); use a "
+                                     "closed shape, or give the medium as 'exterior' of the other side",
+                                     shape.to_string(),
+                                     g.type == ShapeGeometry::Type::Discs
+                                         ? std::string("a disk")
+                                         : fmt::format("{} boundary edge{}", open, open == 1 ? "" : "s")));
+}
+
 static void embree_error(void*, RTCError code, const char* str) {
     log_error("Embree error {}: {}", int(code), str ? str : "");
 }
@@ -33,7 +68,7 @@ Scene::Scene(const Properties& props) {
     m_simulation = props.get_object_as<Job>("simulation");
     for (auto& o : props.get_objects("emitter")) m_root_emitters.push_back(std::dynamic_pointer_cast<Emitter>(o));
     // Shared declarations at the root (<bsdf id=...>, <texture id=...>) are used through <ref> elsewhere.
-    for (const char* kind : {"bsdf", "texture"}) props.get_objects(kind);
+    for (const char* kind : {"bsdf", "texture", "medium", "phase", "volume"}) props.get_objects(kind);
 
     if (m_simulation) {
         if (m_sensor || m_integrator || !m_shapes.empty() || !m_root_emitters.empty())
@@ -90,6 +125,7 @@ Scene::Scene(const Properties& props) {
             m_bbox_min = glm::min(m_bbox_min, Vec3d(g.positions[k]) - r);
             m_bbox_max = glm::max(m_bbox_max, Vec3d(g.positions[k]) + r);
         }
+        if (m_shapes[i]->interior()) check_closed(*m_shapes[i], g);
         rtcCommitGeometry(geom);
         rtcAttachGeometryByID(m_accel->scene, geom, unsigned(i));
         rtcReleaseGeometry(geom);
@@ -291,4 +327,7 @@ KELVIN_PLUGIN(kelvin::Scene, "scene", "scene",
               kelvin::param::object("simulation", "simulation", "a fluid simulation to run instead of a render"),
               kelvin::param::objects("bsdf", "shared declarations (referenced with <ref>)"),
               kelvin::param::objects("texture", "shared declarations (referenced with <ref>)"),
+              kelvin::param::objects("medium", "shared declarations (referenced with <ref>)"),
+              kelvin::param::objects("phase", "shared declarations (referenced with <ref>)"),
+              kelvin::param::objects("volume", "shared declarations (referenced with <ref>)"),
               kelvin::param::objects("emitter", "light sources"));

@@ -54,8 +54,10 @@ TEST(Mitsuba3Format, PathFindsIncludesAndFilesAfterTheNamingFilesFolder) {
     <texture type="bitmap" id="t"><string name="filename" value="tex.exr"/></texture>
 </scene>)");
     const ParsedScene ps = parse_scene_file(dir / "scenes" / "test" / "scene.xml");
-    ASSERT_EQ(ps.search_paths.size(), 1u);
+    // The <path> folder, then (Mitsuba's resolver, issue 18) the root scene's own folder.
+    ASSERT_EQ(ps.search_paths.size(), 2u);
     EXPECT_EQ(fs::weakly_canonical(ps.search_paths[0]), fs::weakly_canonical(dir / "scenes" / "common"));
+    EXPECT_EQ(fs::weakly_canonical(ps.search_paths[1]), fs::weakly_canonical(dir / "scenes" / "test"));
     EXPECT_EQ(ps.root->children.at(0).node->id, "shared");  // the include came from the search path
     EXPECT_NO_THROW(instantiate(ps));                       // and so did the texture's image
     // A missing folder is an error at the <path> element.

@@ -22,6 +22,7 @@ enum : uint32_t {
     GlossyTransmission = 1u << 3,
     DeltaReflection = 1u << 4,
     DeltaTransmission = 1u << 5,
+    Null = 1u << 6,  ///< index-matched pass-through (the `null` BSDF): wo = -wi, not a scattering event
     Diffuse = DiffuseReflection | DiffuseTransmission,
     Glossy = GlossyReflection | GlossyTransmission,
     Delta = DeltaReflection | DeltaTransmission,
@@ -51,6 +52,10 @@ public:
                                              const Vec2d& u2) const = 0;
     virtual Color3 eval(const BsdfContext& ctx, const SurfaceInteraction& si, const Vec3d& wo) const = 0;
     virtual double pdf(const BsdfContext& ctx, const SurfaceInteraction& si, const Vec3d& wo) const = 0;
+    /// The weight of the straight-through (Null) component for wo = -wi: what a shadow ray keeps when it crosses
+    /// this surface (1 for `null`, the transmittance of `thindielectric`); 0 for BSDFs without a Null component,
+    /// which block shadow rays. Mitsuba's eval_null_transmission.
+    virtual Color3 eval_null_transmission(const SurfaceInteraction& si) const { return Color3(0.0); }
     /// Diffuse reflectance at `si` (the texture value of the diffuse component: diffuse `reflectance`, plastic
     /// and roughplastic `diffuse_reflectance`; twosided asks the side `si.wi` is on), for the `albedo` AOV.
     /// Models without a diffuse component give 0. Not used for light transport.

@@ -28,6 +28,8 @@ struct SensorDirectSample {
 /// `props`) on a `width` x `height` film.
 std::pair<double, double> fov_tangents(const Properties& props, int width, int height);
 
+class Medium;
+
 class Sensor : public Object {
 public:
     /// Connect the scene point `ref` to the sensor (with `u` for lens sampling). nullopt if the point is
@@ -50,6 +52,12 @@ public:
     virtual const Film& film() const = 0;
     virtual const Sampler& sampler() const = 0;
     virtual const Transform& to_world() const = 0;
+    /// The medium the camera sits in (Mitsuba: a nested <medium>, or <ref name="medium"/"exterior" .../>); null
+    /// for vacuum.
+    const Medium* medium() const { return m_medium.get(); }
+
+protected:
+    std::shared_ptr<Medium> m_medium;
 };
 
 /// What the projective cameras (`perspective`, `thinlens`) share: the nested film and sampler, a rigid to_world,

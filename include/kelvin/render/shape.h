@@ -13,6 +13,8 @@
 
 namespace kelvin {
 
+class Medium;
+
 /// World-space geometry in Embree-ready layout (float positions, 32-bit indices).
 struct ShapeGeometry {
     enum class Type { Triangles, Spheres, Discs };
@@ -53,16 +55,31 @@ public:
     virtual bool has_attribute(std::string_view name) const { return false; }
 
     const Bsdf* bsdf() const { return m_bsdf.get(); }
+    /// Media on the two sides (Mitsuba's `interior` and `exterior`): the interior is on the side opposite the
+    /// geometric normal. Null when not given (a ray crossing keeps its medium unless the shape has either).
+    const Medium* interior() const { return m_interior.get(); }
+    const Medium* exterior() const { return m_exterior.get(); }
+    bool is_medium_transition() const { return m_interior || m_exterior; }
+    /// Where the interior medium was given (for the scene's error when the shape is not closed).
+    const SourceLoc& interior_location() const { return m_interior_loc; }
     const Emitter* emitter() const { return m_emitter.get(); }
     Emitter* emitter() { return m_emitter.get(); }
 
 protected:
     /// Reads the common nested objects: <bsdf> (default: diffuse) and <emitter> (optional). Every shape
-    /// plugin declares them with param::object("bsdf", "bsdf", ...) and param::object("emitter", "emitter", ...).
+    /// plugin declares them with param::object("bsdf", "bsdf", ...) and param::object("emitter", "emitter", ...),
+    /// and the media with KELVIN_SHAPE_MEDIA_PARAMS.
     void read_common(const Properties& props);
 
     std::shared_ptr<Bsdf> m_bsdf;
     std::shared_ptr<Emitter> m_emitter;
+    std::shared_ptr<Medium> m_interior, m_exterior;
+    SourceLoc m_interior_loc;
 };
 
 }  // namespace kelvin
+
+/// The media parameters every shape declares (append to its KELVIN_PLUGIN parameter list).
+#define KELVIN_SHAPE_MEDIA_PARAMS                                                                 \
+    kelvin::param::object("interior", "medium", "medium inside the shape (opposite the normal)"), \
+        kelvin::param::object("exterior", "medium", "medium outside the shape (on the normal's side)")

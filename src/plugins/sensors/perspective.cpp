@@ -85,4 +85,6 @@ KELVIN_PLUGIN(kelvin::Perspective, "sensor", "perspective", "Pinhole perspective
               kelvin::param::real("far_clip", 10000.0, "far clipping distance"),
               kelvin::param::transform("to_world", "camera-to-world transform (usually a <lookat>)"),
               kelvin::param::object("film", "film", "the film (default: hdrfilm)"),
+              kelvin::param::object("medium", "medium", "the medium the camera is in (default: none)"),
+              kelvin::param::object("exterior", "medium", "the same, under Mitsuba's other name"),
               kelvin::param::object("sampler", "sampler", "the sampler (default: independent)"));

@@ -72,4 +72,5 @@ KELVIN_PLUGIN(kelvin::Sphere, "shape", "sphere", "Analytic sphere (Embree sphere
               kelvin::param::transform("to_world", "object-to-world similarity transform"),
               kelvin::param::boolean("flip_normals", false, "make normals point inwards"),
               kelvin::param::object("bsdf", "bsdf", "surface scattering (default: diffuse, reflectance 0.5)"),
-              kelvin::param::object("emitter", "emitter", "makes the shape an area light"));
+              kelvin::param::object("emitter", "emitter", "makes the shape an area light"),
+              KELVIN_SHAPE_MEDIA_PARAMS);

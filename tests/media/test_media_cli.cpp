@@ -1,0 +1,95 @@
+// The `kelvin` executable on bad media input: a grid name not in the file, a vector grid where sigma_t needs a
+// scalar one, a missing volume file, an unknown phase parameter. Each is exit code 2 and one line naming the
+// parameter and the file.
+#include "cli/subprocess.h"
+#include "media/media_support.h"
+
+#include <fmt/format.h>
+#include <gtest/gtest.h>
+
+using namespace kelvin::test;
+
+namespace {
+
+std::string scene_with(const std::string& medium_body) {
+    return R"(<scene version="3.0.0">
+    <integrator type="volpath"/>
+    <sensor type="perspective"><film type="hdrfilm"><integer name="width" value="4"/><integer name="height" value="4"/></film></sensor>
+    <shape type="sphere"><bsdf type="null"/>
+        <medium type="heterogeneous" name="interior">)" +
+           medium_body + R"(</medium></shape>
+</scene>
+)";
+}
+
+class MediaCli : public ::testing::Test {
+protected:
+    void SetUp() override {
+        ktest::write_vdb(
+            vdb(), "density", 4, 0.25, [](int, int, int) { return 1.f; }, true);
+    }
+    fs::path vdb() const { return m_dir.path() / "grids.vdb"; }
+    fs::path scene(const std::string& body) {
+        fs::path p = m_dir.path() / "scene.xml";
+        write_file(p, scene_with(body));
+        return p;
+    }
+    ktest::TempDir m_dir;
+};
+
+TEST_F(MediaCli, GridNameNotInFile) {
+    auto s = scene(fmt::format(R"(<volume type="gridvolume" name="sigma_t"><string name="filename" value="{}"/>
+        <string name="grid" value="densty"/></volume>)",
+                               vdb().string()));
+    auto r = run_kelvin({s.string(), "-o", (m_dir.path() / "o.exr").string()});
+    const std::string line = expect_one_error_line(r);
+    EXPECT_NE(line.find("'grid'"), std::string::npos) << line;
+    EXPECT_NE(line.find("densty"), std::string::npos) << line;
+    EXPECT_NE(line.find(vdb().string()), std::string::npos) << line;
+    EXPECT_NE(line.find(s.string() + ":"), std::string::npos) << line;
+}
+
+TEST_F(MediaCli, VectorGridWhereScalarNeeded) {
+    auto s = scene(fmt::format(R"(<volume type="gridvolume" name="sigma_t"><string name="filename" value="{}"/>
+        <string name="grid" value="velocity"/></volume>)",
+                               vdb().string()));
+    auto r = run_kelvin({s.string(), "-o", (m_dir.path() / "o.exr").string()});
+    const std::string line = expect_one_error_line(r);
+    EXPECT_NE(line.find("sigma_t"), std::string::npos) << line;
+    EXPECT_NE(line.find("velocity"), std::string::npos) << line;
+    EXPECT_NE(line.find(vdb().string()), std::string::npos) << line;
+}
+
+TEST_F(MediaCli, MissingVolumeFile) {
+    auto s =
+        scene(R"(<volume type="gridvolume" name="sigma_t"><string name="filename" value="nowhere.vdb"/></volume>)");
+    auto r = run_kelvin({s.string(), "-o", (m_dir.path() / "o.exr").string()});
+    const std::string line = expect_one_error_line(r);
+    EXPECT_NE(line.find("filename"), std::string::npos) << line;
+    EXPECT_NE(line.find("nowhere.vdb"), std::string::npos) << line;
+}
+
+TEST_F(MediaCli, CorruptVolFile) {
+    write_file(m_dir.path() / "bad.vol", "VOL\x03garbage");
+    auto s = scene(R"(<volume type="gridvolume" name="sigma_t"><string name="filename" value="bad.vol"/></volume>)");
+    auto r = run_kelvin({s.string(), "-o", (m_dir.path() / "o.exr").string()});
+    const std::string line = expect_one_error_line(r);
+    EXPECT_NE(line.find("bad.vol"), std::string::npos) << line;
+}
+
+TEST_F(MediaCli, InteriorMediumOnAnOpenShape) {
+    fs::path p = m_dir.path() / "open.xml";
+    write_file(p, R"(<scene version="3.0.0">
+    <integrator type="volpath"/>
+    <sensor type="perspective"/>
+    <medium type="homogeneous" id="fog"/>
+    <shape type="rectangle"><bsdf type="null"/><ref name="interior" id="fog"/></shape>
+</scene>
+)");
+    auto r = run_kelvin({p.string(), "-o", (m_dir.path() / "o.exr").string()});
+    const std::string line = expect_one_error_line(r);
+    EXPECT_NE(line.find(p.string() + ":5:"), std::string::npos) << line;
+    EXPECT_NE(line.find("closed surface"), std::string::npos) << line;
+}
+
+}  // namespace
