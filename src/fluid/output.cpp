@@ -69,6 +69,31 @@ std::filesystem::path OutputPaths::frame(long long step, int digits, const std::
     return p;
 }
 
+void refuse_non_finite(const std::string& who, const FluidDiagnostics& d, long long step,
+                       std::initializer_list<std::pair<const Grid2*, const char*>> grids) {
+    auto refuse = [&](const std::string& what) {
+        if (step == 0)
+            throw_runtime(
+                "{}: non-finite {} at step 0: the initial vorticity (max |omega| {:g}) overflows the solver "
+                "in double precision; scale it down (refused before output)",
+                who, what, d.max_abs_vorticity);
+        throw_runtime("{}: non-finite {} at step {}; refused before output", who, what, step);
+    };
+    for (const auto& [value, name] : {std::pair<double, const char*>{d.kinetic_energy, "kinetic energy"},
+                                      {d.kinetic_energy_raw, "raw kinetic energy"},
+                                      {d.enstrophy, "enstrophy"},
+                                      {d.circulation, "circulation"},
+                                      {d.max_abs_vorticity, "max |vorticity|"}})
+        if (!std::isfinite(value)) refuse(name);
+    for (const auto& [grid, name] : grids) {
+        if (!grid) continue;
+        const std::vector<double>& v = grid->values();
+        for (std::size_t k = 0; k < v.size(); ++k)
+            if (!std::isfinite(v[k]))
+                refuse(fmt::format("{} (cell {}, {})", name, k % std::size_t(grid->nx()), k / std::size_t(grid->nx())));
+    }
+}
+
 double exact_vorticity_rmse(const Grid2& omega, const VorticityField& field, double t, double viscosity, bool bounded) {
     if (bounded || !field.exact_on(omega.domain())) return std::numeric_limits<double>::quiet_NaN();
     double s = 0;

@@ -486,3 +486,28 @@ TEST(FluidScene, BoundariesThatLeaveNoFluidAreRefused) {
     EXPECT_CONTAINS(e.what(), "'velocity'");
     EXPECT_CONTAINS(e.what(), "no fluid cell");
 }
+
+// Nothing non-finite reaches an output (issue 16, item 6): a Gaussian vortex of circulation 1e300 overflows the
+// enstrophy; the run fails with one line naming the quantity and step 0 (the CLI exits 1), and no CSV row with inf
+// is written. The code before wrote inf into the CSV and exited 0.
+TEST(FluidScene, NonFiniteStateIsRefusedBeforeOutput) {
+    TempDir dir;
+    auto job = load(scene(R"(<integer name="steps" value="1"/>)",
+                          R"(<vorticity type="gaussian_vortices"><string name="vortices" value="0 0 1e300 0.3"/>
+                             </vorticity>)"));
+    RunContext ctx;
+    ctx.quiet = true;
+    ctx.output = dir.path() / "huge.png";
+    try {
+        job->run(ctx);
+        ADD_FAILURE() << "a non-finite state must be refused";
+    } catch (const std::exception& e) {
+        EXPECT_CONTAINS(e.what(), "non-finite");
+        EXPECT_CONTAINS(e.what(), "step 0");
+        EXPECT_CONTAINS(e.what(), "overflows");
+        EXPECT_FALSE(std::string(e.what()).find('\n') != std::string::npos) << "one line";
+    }
+    std::ifstream csv(dir.path() / "huge.csv");
+    std::string text((std::istreambuf_iterator<char>(csv)), std::istreambuf_iterator<char>());
+    EXPECT_EQ(text.find("inf"), std::string::npos) << text;
+}

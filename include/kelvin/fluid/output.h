@@ -11,6 +11,7 @@
 
 #include <cstdio>
 #include <filesystem>
+#include <initializer_list>
 #include <memory>
 #include <string>
 #include <vector>
@@ -38,6 +39,12 @@ struct OutputPaths {
     std::filesystem::path csv() const;  ///< <prefix>.csv
     std::filesystem::path prefix;
 };
+
+/// Nothing non-finite reaches an output (issue 16, item 6): throws a one-line RuntimeError "<who>: non-finite
+/// <quantity> at step <step> ...; refused before output" when a diagnostic or a value of one of the grids is not
+/// finite. At step 0 the message says the initial condition overflows the solver.
+void refuse_non_finite(const std::string& who, const FluidDiagnostics& d, long long step,
+                       std::initializer_list<std::pair<const Grid2*, const char*>> grids);
 
 /// RMSE of `omega` at its cell centres against the field's exact solution at time t: NaN when the field knows
 /// none there, or when it is not the solution of this flow (VorticityField::exact_on the grid's domain is false,

@@ -212,6 +212,10 @@ public:
         d0.vorticity_rmse_exact =
             exact_vorticity_rmse(solver.vorticity_grid(), field, 0.0, settings.viscosity, bool(settings.boundaries));
         if (solver.velocity_available()) {
+            refuse_non_finite("mcfluid", d0, 0,
+                              {{&solver.vorticity_grid(), "vorticity"},
+                               {&solver.velocity_u(), "velocity u"},
+                               {&solver.velocity_v(), "velocity v"}});
             if (csv)
                 csv->write(d0, 0.0, double(solver.work().biot_savart_evals),
                            solver.work().invalid_velocity + solver.work().invalid_vorticity);
@@ -238,6 +242,10 @@ public:
             if (!solver.velocity_available()) break;
             d.vorticity_rmse_exact = exact_vorticity_rmse(solver.vorticity_grid(), field, d.time, settings.viscosity,
                                                           bool(settings.boundaries));
+            refuse_non_finite("mcfluid", d, s,
+                              {{&solver.vorticity_grid(), "vorticity"},
+                               {&solver.velocity_u(), "velocity u"},
+                               {&solver.velocity_v(), "velocity v"}});
             const double seconds = step_timer.seconds();
             const FluidWork& after = solver.work();
             if (csv)
