@@ -67,9 +67,10 @@ void Registry::register_plugin(PluginInfo info, int abi) {
     std::lock_guard lock(m_mutex);
     info.source = m_loading.empty() ? "builtin" : m_loading;
     if (abi != KELVIN_PLUGIN_ABI) {
-        m_load_errors.push_back(fmt::format("plugin {} '{}' from {} was built against plugin ABI {}, this library "
-                                            "has ABI {}; rebuild it against this Kelvin",
-                                            info.kind, info.name, info.source, abi, KELVIN_PLUGIN_ABI));
+        m_load_errors.push_back(
+            fmt::format("plugin {} '{}' from {} was built against plugin ABI {}, this library "
+                        "has ABI {}; rebuild it against this Kelvin",
+                        info.kind, info.name, info.source, abi, KELVIN_PLUGIN_ABI));
         return;
     }
     if (!has_kind(info.kind)) {

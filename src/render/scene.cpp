@@ -7,9 +7,9 @@
 
 #include <algorithm>
 #include <array>
-#include <map>
 #include <cmath>
 #include <limits>
+#include <map>
 
 namespace kelvin {
 

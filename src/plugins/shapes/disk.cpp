@@ -77,5 +77,4 @@ KELVIN_PLUGIN(kelvin::Disk, "shape", "disk", "Analytic unit disk in the z=0 plan
               kelvin::param::transform("to_world", "object-to-world transform (uniform scale in the disk's plane)"),
               kelvin::param::boolean("flip_normals", false, "the normal points along -z"),
               kelvin::param::object("bsdf", "bsdf", "surface scattering (default: diffuse, reflectance 0.5)"),
-              kelvin::param::object("emitter", "emitter", "makes the shape an area light"),
-              KELVIN_SHAPE_MEDIA_PARAMS);
+              kelvin::param::object("emitter", "emitter", "makes the shape an area light"), KELVIN_SHAPE_MEDIA_PARAMS);

@@ -49,11 +49,9 @@ KELVIN_PLUGIN(kelvin::Rectangle, "shape", "rectangle", "The square [-1,1]^2 in t
               kelvin::param::transform("to_world", "object-to-world transform"),
               kelvin::param::boolean("flip_normals", false, "reverse the orientation"),
               kelvin::param::object("bsdf", "bsdf", "surface scattering (default: diffuse, reflectance 0.5)"),
-              kelvin::param::object("emitter", "emitter", "makes the shape an area light"),
-              KELVIN_SHAPE_MEDIA_PARAMS);
+              kelvin::param::object("emitter", "emitter", "makes the shape an area light"), KELVIN_SHAPE_MEDIA_PARAMS);
 KELVIN_PLUGIN(kelvin::Cube, "shape", "cube", "The cube [-1,1]^3 with outward normals.",
               kelvin::param::transform("to_world", "object-to-world transform"),
               kelvin::param::boolean("flip_normals", false, "reverse the orientation"),
               kelvin::param::object("bsdf", "bsdf", "surface scattering (default: diffuse, reflectance 0.5)"),
-              kelvin::param::object("emitter", "emitter", "makes the shape an area light"),
-              KELVIN_SHAPE_MEDIA_PARAMS);
+              kelvin::param::object("emitter", "emitter", "makes the shape an area light"), KELVIN_SHAPE_MEDIA_PARAMS);

@@ -275,5 +275,4 @@ KELVIN_PLUGIN(kelvin::ObjMesh, "shape", "obj", "Triangle mesh from a Wavefront O
               kelvin::param::boolean("flip_normals", false, "reverse the orientation"),
               kelvin::param::boolean("flip_tex_coords", true, "v -> 1 - v (OBJ's uv origin is the bottom left)"),
               kelvin::param::object("bsdf", "bsdf", "surface scattering (default: diffuse, reflectance 0.5)"),
-              kelvin::param::object("emitter", "emitter", "makes the shape an area light"),
-              KELVIN_SHAPE_MEDIA_PARAMS);
+              kelvin::param::object("emitter", "emitter", "makes the shape an area light"), KELVIN_SHAPE_MEDIA_PARAMS);

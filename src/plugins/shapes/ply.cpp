@@ -71,5 +71,4 @@ KELVIN_PLUGIN(kelvin::PlyMesh, "shape", "ply", "Triangle mesh from a PLY file (a
               kelvin::param::boolean("flip_normals", false, "reverse the orientation"),
               kelvin::param::boolean("flip_tex_coords", false, "v -> 1 - v"),
               kelvin::param::object("bsdf", "bsdf", "surface scattering (default: diffuse, reflectance 0.5)"),
-              kelvin::param::object("emitter", "emitter", "makes the shape an area light"),
-              KELVIN_SHAPE_MEDIA_PARAMS);
+              kelvin::param::object("emitter", "emitter", "makes the shape an area light"), KELVIN_SHAPE_MEDIA_PARAMS);

@@ -29,8 +29,9 @@ public:
         // Embree spheres are round: the transform must scale all axes alike.
         Vec3d sx = t.apply_vector({1, 0, 0}), sy = t.apply_vector({0, 1, 0}), sz = t.apply_vector({0, 0, 1});
         double lx = glm::length(sx), ly = glm::length(sy), lz = glm::length(sz);
-        if (std::abs(lx - ly) > 1e-6 * lx || std::abs(lx - lz) > 1e-6 * lx || std::abs(glm::dot(sx, sy)) > 1e-6 * lx * ly ||
-            std::abs(glm::dot(sx, sz)) > 1e-6 * lx * lz || std::abs(glm::dot(sy, sz)) > 1e-6 * ly * lz)
+        if (std::abs(lx - ly) > 1e-6 * lx || std::abs(lx - lz) > 1e-6 * lx ||
+            std::abs(glm::dot(sx, sy)) > 1e-6 * lx * ly || std::abs(glm::dot(sx, sz)) > 1e-6 * lx * lz ||
+            std::abs(glm::dot(sy, sz)) > 1e-6 * ly * lz)
             props.error("to_world", "a sphere needs a similarity transform (no shear, no non-uniform scale)");
         m_center = t.apply_point(props.get_point("center"));
         m_radius = r * lx;
@@ -72,5 +73,4 @@ KELVIN_PLUGIN(kelvin::Sphere, "shape", "sphere", "Analytic sphere (Embree sphere
               kelvin::param::transform("to_world", "object-to-world similarity transform"),
               kelvin::param::boolean("flip_normals", false, "make normals point inwards"),
               kelvin::param::object("bsdf", "bsdf", "surface scattering (default: diffuse, reflectance 0.5)"),
-              kelvin::param::object("emitter", "emitter", "makes the shape an area light"),
-              KELVIN_SHAPE_MEDIA_PARAMS);
+              kelvin::param::object("emitter", "emitter", "makes the shape an area light"), KELVIN_SHAPE_MEDIA_PARAMS);
