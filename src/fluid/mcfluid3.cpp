@@ -54,6 +54,29 @@ void add_work(FluidWork3& total, const std::vector<MCFluid3Solver::SlabWork>& sl
     }
 }
 
+/// Runs `cell(c, x, rng, work)` over every cell (index c, centre x): one unit per z slab, drawing from the slab's
+/// own stream of (step, tag), checking for an interrupt every row. `slabs` gets one entry per slab (merge it in
+/// order). False when an interrupt cut the pass short.
+template <class Cell>
+bool for_each_cell(const MCFluid3Settings& s, const Grid3& g, long long step, uint64_t tag,
+                   std::vector<MCFluid3Solver::SlabWork>& slabs, Cell&& cell) {
+    slabs.assign(std::size_t(s.nz), MCFluid3Solver::SlabWork{});
+    std::atomic<bool> interrupted{false};
+    parallel_for_units(std::size_t(s.nz), [&](std::size_t slab) {
+        const int k = int(slab);
+        Random rng(s.seed, stream_of(step, tag, slab));
+        MCFluid3Solver::SlabWork& w = slabs[slab];
+        for (int j = 0; j < s.ny; ++j) {
+            if (interrupt_requested()) {
+                interrupted = true;
+                return;
+            }
+            for (int i = 0; i < s.nx; ++i) cell(g.index(i, j, k), g.cell_center(i, j, k), rng, w);
+        }
+    });
+    return !interrupted;
+}
+
 void check_settings(const MCFluid3Settings& s) {
     const Vec3d size = s.domain.size();
     for (int a = 0; a < 3; ++a)
@@ -174,43 +197,30 @@ bool MCFluid3Solver::ensure_velocity() {
     const MCFluid3Settings& s = m_settings;
     const bool cv = m_have_prev;
     const int n = (s.control_variates && m_step == 0 && s.initial_samples > 0) ? s.initial_samples : s.velocity.samples;
-    std::vector<SlabWork> slabs(std::size_t(s.nz), SlabWork{});
-    std::atomic<bool> interrupted{false};
-    parallel_for_units(std::size_t(s.nz), [&](std::size_t slab) {
-        const int k = int(slab);
-        Random rng(s.seed, stream_of(m_step, TagVelocity, slab));
-        SlabWork& w = slabs[slab];
-        for (int j = 0; j < s.ny; ++j) {
-            if (interrupt_requested()) {
-                interrupted = true;
-                return;
-            }
-            for (int i = 0; i < s.nx; ++i) {
-                const std::size_t c = m_omega.x.index(i, j, k);
-                const Vec3d x = m_omega.x.cell_center(i, j, k);
-                if (m_wos && m_solid[c]) {  // static solids: zero velocity, no walk
-                    m_vel.set(c, Vec3d(0.0));
-                    m_var.set(c, Vec3d(0.0));
-                    continue;
-                }
-                VelocityEstimate3 e = estimate_at(x, n, rng, w);
-                if (cv) {
-                    ++w.cv;
-                    e.value += m_prev_vel.at(c);
-                    e.variance += m_prev_var.at(c);
-                }
-                if (!finite(e.value) || !finite(e.variance)) {
-                    ++w.invalid_velocity;
-                    e = {};
-                }
-                m_vel.set(c, e.value);
-                m_var.set(c, e.variance);
-            }
-        }
-    });
+    std::vector<SlabWork> slabs;
+    const bool complete = for_each_cell(s, m_omega.x, m_step, TagVelocity, slabs,
+                                        [&](std::size_t c, const Vec3d& x, Random& rng, SlabWork& w) {
+                                            if (m_wos && m_solid[c]) {  // static solids: zero velocity, no walk
+                                                m_vel.set(c, Vec3d(0.0));
+                                                m_var.set(c, Vec3d(0.0));
+                                                return;
+                                            }
+                                            VelocityEstimate3 e = estimate_at(x, n, rng, w);
+                                            if (cv) {
+                                                ++w.cv;
+                                                e.value += m_prev_vel.at(c);
+                                                e.variance += m_prev_var.at(c);
+                                            }
+                                            if (!finite(e.value) || !finite(e.variance)) {
+                                                ++w.invalid_velocity;
+                                                e = {};
+                                            }
+                                            m_vel.set(c, e.value);
+                                            m_var.set(c, e.variance);
+                                        });
     add_work(m_work, slabs);
     m_work.seconds_velocity += timer.seconds();
-    if (interrupted) {
+    if (!complete) {
         m_vel.fill(Vec3d(0.0));
         m_var.fill(Vec3d(0.0));
         return false;
@@ -241,86 +251,72 @@ bool MCFluid3Solver::step(double dt) {
     const double sigma = viscous ? std::sqrt(2 * s.viscosity * dt) : 0.0;
     const double half_segment = 0.5 * m_segment, inv_segment = 1.0 / m_segment;
     const Interpolation interp = s.interpolation;
-    std::vector<SlabWork> slabs(std::size_t(s.nz), SlabWork{});
-    std::atomic<bool> interrupted{false};
-
-    parallel_for_units(std::size_t(s.nz), [&](std::size_t slab) {
-        const int k = int(slab);
-        Random rng(s.seed, stream_of(m_step, TagAdvection, slab));
-        SlabWork& w = slabs[slab];
-        for (int j = 0; j < s.ny; ++j) {
-            if (interrupt_requested()) {
-                interrupted = true;
-                return;
+    std::vector<SlabWork> slabs;
+    const bool complete = for_each_cell(
+        s, m_omega.x, m_step, TagAdvection, slabs, [&](std::size_t c, const Vec3d& x, Random& rng, SlabWork& w) {
+            const Vec3d k1 = m_vel.at(c);
+            Vec3d xd;
+            if (s.advection == Advection::Euler) {
+                xd = x - dt * k1;
+            } else {  // RK4 with the velocity frozen at the previous step (Eqs. 3.140-3.144)
+                const Vec3d k2 = stage_velocity(x - 0.5 * dt * k1, rng, w);
+                const Vec3d k3 = stage_velocity(x - 0.5 * dt * k2, rng, w);
+                const Vec3d k4 = stage_velocity(x - dt * k3, rng, w);
+                xd = x - (dt / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4);
             }
-            for (int i = 0; i < s.nx; ++i) {
-                const std::size_t c = m_omega.x.index(i, j, k);
-                const Vec3d x = m_omega.x.cell_center(i, j, k);
-                const Vec3d k1 = m_vel.at(c);
-                Vec3d xd;
-                if (s.advection == Advection::Euler) {
-                    xd = x - dt * k1;
-                } else {  // RK4 with the velocity frozen at the previous step (Eqs. 3.140-3.144)
-                    const Vec3d k2 = stage_velocity(x - 0.5 * dt * k1, rng, w);
-                    const Vec3d k3 = stage_velocity(x - 0.5 * dt * k2, rng, w);
-                    const Vec3d k4 = stage_velocity(x - dt * k3, rng, w);
-                    xd = x - (dt / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4);
-                }
-                ++w.backtraces;
-                if (!finite(xd)) {
-                    ++w.invalid_velocity;
-                    xd = x;
-                }
-                if (m_wos) {  // a departure point inside a solid (or beyond the walls) moves to its surface
-                    const Vec3d pushed = m_wos->push_out(xd);
-                    if (pushed != xd) ++w.solid_departures;
-                    xd = pushed;
-                }
-                xd = s.domain.wrap(xd);
-                if (m_smoke) {  // the same backtrace carries the smoke; the source adds rate dt inside its sphere
-                    double rho = m_density.sample(xd, interp);
-                    if (glm::length(x - m_smoke->center) <= m_smoke->radius) rho += dt * m_smoke->rate;
-                    m_density_next.values()[c] = std::isfinite(rho) ? rho : 0.0;
-                    ++w.smoke;
-                }
-                Vec3d sum(0.0);
-                for (int d = 0; d < nd; ++d) {
-                    const Vec3d xj = viscous ? xd + sigma * standard_normal3(rng) : xd;
-                    Vec3d om = m_omega.sample(xj, interp);
-                    if (s.stretching) {  // Eq. (5.21) on the cached velocity, forward Euler over dt (Eq. 5.22)
-                        const double mag = glm::length(om);
-                        if (mag > 0 && std::isfinite(mag)) {
-                            // Near a boundary the segment shrinks to min(h, 2 distance) (Sec. 5.3.3).
-                            double half = half_segment, inv = inv_segment;
-                            if (m_wos) {
-                                ++w.distance;
-                                const double dist = m_wos->distance(xj);
-                                if (dist < half_segment) {
-                                    half = dist;
-                                    inv = dist > 0 ? 0.5 / dist : 0.0;
-                                }
-                            }
-                            if (inv > 0) {
-                                const Vec3d seg = (half / mag) * om;
-                                const Vec3d dv = m_vel.sample(xj + seg, interp) - m_vel.sample(xj - seg, interp);
-                                om += (dt * mag * inv) * dv;
-                                ++w.stretching;
+            ++w.backtraces;
+            if (!finite(xd)) {
+                ++w.invalid_velocity;
+                xd = x;
+            }
+            if (m_wos) {  // a departure point inside a solid (or beyond the walls) moves to its surface
+                const Vec3d pushed = m_wos->push_out(xd);
+                if (pushed != xd) ++w.solid_departures;
+                xd = pushed;
+            }
+            xd = s.domain.wrap(xd);
+            if (m_smoke) {  // the same backtrace carries the smoke; the source adds rate dt inside its sphere
+                double rho = m_density.sample(xd, interp);
+                if (glm::length(x - m_smoke->center) <= m_smoke->radius) rho += dt * m_smoke->rate;
+                m_density_next.values()[c] = std::isfinite(rho) ? rho : 0.0;
+                ++w.smoke;
+            }
+            Vec3d sum(0.0);
+            for (int d = 0; d < nd; ++d) {
+                const Vec3d xj = viscous ? xd + sigma * standard_normal3(rng) : xd;
+                Vec3d om = m_omega.sample(xj, interp);
+                if (s.stretching) {  // Eq. (5.21) on the cached velocity, forward Euler over dt (Eq. 5.22)
+                    const double mag = glm::length(om);
+                    if (mag > 0 && std::isfinite(mag)) {
+                        // Near a boundary the segment shrinks to min(h, 2 distance) (Sec. 5.3.3).
+                        double half = half_segment, inv = inv_segment;
+                        if (m_wos) {
+                            ++w.distance;
+                            const double dist = m_wos->distance(xj);
+                            if (dist < half_segment) {
+                                half = dist;
+                                inv = dist > 0 ? 0.5 / dist : 0.0;
                             }
                         }
+                        if (inv > 0) {
+                            const Vec3d seg = (half / mag) * om;
+                            const Vec3d dv = m_vel.sample(xj + seg, interp) - m_vel.sample(xj - seg, interp);
+                            om += (dt * mag * inv) * dv;
+                            ++w.stretching;
+                        }
                     }
-                    sum += om;
                 }
-                if (viscous) w.diffusion += uint64_t(nd);
-                Vec3d value = sum / double(nd);
-                if (!finite(value)) {
-                    ++w.invalid_vorticity;
-                    value = Vec3d(0.0);
-                }
-                m_next.set(c, value);
+                sum += om;
             }
-        }
-    });
-    if (interrupted) return false;
+            if (viscous) w.diffusion += uint64_t(nd);
+            Vec3d value = sum / double(nd);
+            if (!finite(value)) {
+                ++w.invalid_vorticity;
+                value = Vec3d(0.0);
+            }
+            m_next.set(c, value);
+        });
+    if (!complete) return false;
     add_work(m_work, slabs);
     if (m_smoke) std::swap(m_density, m_density_next);
     if (s.control_variates) {  // this state becomes the control variate of the next one

@@ -332,17 +332,9 @@ RunResult run_mcfluid3(const Simulation3Params& p, RunContext& ctx) {
                  solver.time());
 
     const FluidWork3& w = solver.work();
-    ctx.stats.add("fluid.steps", double(done), "steps");
-    ctx.stats.set("fluid.time_simulated", solver.time(), "");
-    ctx.stats.add("fluid.cells", double(solver.vorticity_grid().cell_count()), "cells");
-    ctx.stats.add("fluid.biot_savart_evals", double(w.biot_savart_evals), "evals");
-    ctx.stats.add("fluid.velocity_queries", double(w.velocity_queries), "queries");
-    ctx.stats.add("fluid.advection_backtraces", double(w.advection_backtraces), "backtraces");
-    ctx.stats.add("fluid.diffusion_samples", double(w.diffusion_samples), "samples");
+    report_fluid_work(ctx.stats, done, solver.time(), solver.vorticity_grid().cell_count(), w);
     ctx.stats.add("fluid.stretching_evals", double(w.stretching_evals), "segments");
     ctx.stats.add("fluid.control_variate_queries", double(w.control_variate_queries), "queries");
-    ctx.stats.add("fluid.invalid_velocity", double(w.invalid_velocity), "values");
-    ctx.stats.add("fluid.invalid_vorticity", double(w.invalid_vorticity), "values");
     if (settings.boundaries) {
         report_walks(ctx.stats, "fluid.wos_",
                      {w.wos_walks, w.wos_steps, w.wos_truncated, w.wos_invalid, w.wos_boundary_queries}, "mcfluid",
@@ -354,8 +346,6 @@ RunResult run_mcfluid3(const Simulation3Params& p, RunContext& ctx) {
         ctx.stats.add("fluid.wos_walks", 0.0, "walks");
     }
     ctx.stats.add("fluid.smoke_lookups", double(w.smoke_lookups), "lookups");
-    ctx.stats.add_time("fluid.time.velocity", w.seconds_velocity);
-    ctx.stats.add_time("fluid.time.advection", w.seconds_advection);
     ctx.stats.add_time("fluid.time.output", output_seconds);
     if (w.invalid_velocity + w.invalid_vorticity > 0)
         log_warn(

@@ -3,8 +3,10 @@
 // gradient and Hessian: forward over forward). It mirrors src/plugins/integrators/path.cpp line by line for the
 // supported subset; every discrete decision is the renderer's own at the point.
 #include <kelvin/render/bsdf.h>
+#include <kelvin/render/integrator.h>
 #include <kelvin/render/mesh.h>
 #include <kelvin/render/path_derivatives.h>
+#include <kelvin/render/pss.h>
 #include <kelvin/render/scene.h>
 #include <kelvin/render/sensor.h>
 
@@ -22,6 +24,18 @@ void PathDerivativeOptions::set_film(const Sensor& sensor) {
     film_origin = Vec2d(-r);
     film_extent = Vec2d(sensor.film().width() + 2 * r, sensor.film().height() + 2 * r);
     film_area = film_extent.x * film_extent.y;
+}
+
+double camera_path_value(const Scene& scene, const SamplingIntegrator& path, const PathDerivativeOptions& options,
+                         std::vector<double>& x, std::size_t& used) {
+    PrimarySampleSpace pss(1, 0);
+    pss.bind(x);
+    const Vec2d film = options.film_origin + pss.next_2d() * options.film_extent;
+    const Ray ray = scene.sensor()->sample_ray(film, pss.next_2d());
+    SampleCounters c;
+    const Color3 L = path.sample(scene, pss, ray, c);
+    used = pss.used();
+    return luminance(L * options.film_area);
 }
 
 const char* to_string(PathDerivativeStatus s) {

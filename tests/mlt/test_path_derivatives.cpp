@@ -59,15 +59,7 @@ struct PathSetup {
     }
     // The renderer's pi at `x` (the Metropolis integrators' evaluate_camera) and the coordinates it read.
     double primal(std::vector<double>& x, std::size_t& used) const {
-        PrimarySampleSpace pss(1, 0);
-        pss.bind(x);
-        const Sensor& s = *scene->sensor();
-        const Vec2d film = opt.film_origin + pss.next_2d() * opt.film_extent;
-        const Ray ray = s.sample_ray(film, pss.next_2d());
-        SampleCounters c;
-        const Color3 L = path->sample(*scene, pss, ray, c);
-        used = pss.used();
-        return luminance(L * opt.film_area);
+        return camera_path_value(*scene, *path, opt, x, used);
     }
 };
 

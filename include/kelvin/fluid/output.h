@@ -40,6 +40,22 @@ struct OutputPaths {
     std::filesystem::path prefix;
 };
 
+/// The counters every MCFluid run reports (the 2D FluidWork and the 3D FluidWork3 share these names).
+template <class Work>
+void report_fluid_work(Stats& stats, long long steps, double sim_time, std::size_t cells, const Work& w) {
+    stats.add("fluid.steps", double(steps), "steps");
+    stats.set("fluid.time_simulated", sim_time, "");
+    stats.add("fluid.cells", double(cells), "cells");
+    stats.add("fluid.biot_savart_evals", double(w.biot_savart_evals), "evals");
+    stats.add("fluid.velocity_queries", double(w.velocity_queries), "queries");
+    stats.add("fluid.advection_backtraces", double(w.advection_backtraces), "backtraces");
+    stats.add("fluid.diffusion_samples", double(w.diffusion_samples), "samples");
+    stats.add("fluid.invalid_velocity", double(w.invalid_velocity), "values");
+    stats.add("fluid.invalid_vorticity", double(w.invalid_vorticity), "values");
+    stats.add_time("fluid.time.velocity", w.seconds_velocity);
+    stats.add_time("fluid.time.advection", w.seconds_advection);
+}
+
 /// Nothing non-finite reaches an output (issue 16, item 6): throws a one-line RuntimeError "<who>: non-finite
 /// <quantity> at step <step> ...; refused before output" when a diagnostic or a value of one of the grids is not
 /// finite. At step 0 the message says the initial condition overflows the solver.

@@ -21,6 +21,7 @@
 
 #include <cstddef>
 #include <memory>
+#include <vector>
 
 namespace kelvin {
 
@@ -39,6 +40,14 @@ struct PathDerivativeOptions {
     /// film_area its area in pixels.
     void set_film(const Sensor& sensor);
 };
+
+class SamplingIntegrator;
+
+/// The renderer's pi at the primary-sample point x, evaluated as the Metropolis integrators' camera technique does
+/// (a film point in the options' film domain, a lens point, then `path`'s sample): luminance(L * film_area).
+/// `used` gets the number of coordinates read. The value the derivatives are checked against.
+double camera_path_value(const Scene& scene, const SamplingIntegrator& path, const PathDerivativeOptions& options,
+                         std::vector<double>& x, std::size_t& used);
 
 enum class PathDerivativeStatus { Ok, Zero, Unsupported, Mismatch, TooLong };
 const char* to_string(PathDerivativeStatus s);

@@ -272,21 +272,11 @@ public:
                      m_steps, solver.time());
 
         const FluidWork& w = solver.work();
-        ctx.stats.add("fluid.steps", double(done), "steps");
-        ctx.stats.set("fluid.time_simulated", solver.time(), "");
-        ctx.stats.add("fluid.cells", double(solver.vorticity_grid().cell_count()), "cells");
-        ctx.stats.add("fluid.biot_savart_evals", double(w.biot_savart_evals), "evals");
-        ctx.stats.add("fluid.velocity_queries", double(w.velocity_queries), "queries");
-        ctx.stats.add("fluid.advection_backtraces", double(w.advection_backtraces), "backtraces");
-        ctx.stats.add("fluid.diffusion_samples", double(w.diffusion_samples), "samples");
-        ctx.stats.add("fluid.invalid_velocity", double(w.invalid_velocity), "values");
-        ctx.stats.add("fluid.invalid_vorticity", double(w.invalid_vorticity), "values");
+        report_fluid_work(ctx.stats, done, solver.time(), solver.vorticity_grid().cell_count(), w);
         report_walks(ctx.stats, "fluid.wos_",
                      {w.wos_walks, w.wos_steps, w.wos_truncated, w.wos_invalid, w.wos_boundary_queries}, "mcfluid",
                      settings.boundaries ? settings.boundaries->wos.max_steps : 0);
         ctx.stats.add("fluid.solid_departures", double(w.solid_departures), "points");
-        ctx.stats.add_time("fluid.time.velocity", w.seconds_velocity);
-        ctx.stats.add_time("fluid.time.advection", w.seconds_advection);
         ctx.stats.add_time("fluid.time.output", output_seconds);
         report_dye_stats(ctx.stats, solver.dye());
         if (w.invalid_velocity + w.invalid_vorticity > 0)
