@@ -183,10 +183,12 @@ TEST(WosFluid3, ClosedMeshesKnowTheirInside) {
 // The thesis' condition Psi = const on a solid is exact for the potential flow past a sphere in a uniform stream:
 // Psi = Psi_U (1 - a^3 / r^3). The estimator reproduces v = grad phi at 12 points around an off-centre sphere in
 // a box whose walls carry the stream's potential, for the analytic sphere, a closed icosphere mesh, a triangle
-// soup (a hole and duplicated faces: no inside) and an OpenVDB level set. Error budget per component: 5 standard
-// errors plus 0.02 U for the box (its walls hold Psi_U instead of Psi_U (1 - a^3/r^3), a relative change of
-// a^3 / r^3 < 0.01 there) and the tessellation. Broken variants seen to fail: the obstacle at Psi = 0 instead of
-// the stream's value at its centre (a spurious swirl of about 0.1 U), v = +curl Psi (the stream reverses).
+// soup (a hole and duplicated faces: no inside) and an OpenVDB level set. The box's walls hold Psi_U instead of
+// Psi_U (1 - a^3/r^3): an error of at most 1/2 U a^3 / r^2 = 0.01 U in Psi there, whose harmonic extension moves
+// the velocity at the probes by about 0.005 U (the tessellation and the VDB voxels add far less). Error budget:
+// per component 5 standard errors plus 0.01 U; all 36 components together a chi-square with 0.005 U systematic. Broken
+// variants seen to fail: the obstacle at Psi = 0 instead of the stream's value at its centre (a spurious swirl of about
+// 0.1 U), v = +curl Psi (the stream reverses).
 TEST(WosFluid3, PotentialFlowPastASphere) {
     const ktest::TempDir dir;
     const Domain3 box{Vec3d(-2.0), Vec3d(2.0), false};
@@ -209,12 +211,12 @@ TEST(WosFluid3, PotentialFlowPastASphere) {
             const Vec3d exact = potential_flow(pts[i], c, a, U);
             for (int k = 0; k < 3; ++k) {
                 const double err = std::abs(e.value[k] - exact[k]);
-                EXPECT_LT(err, 5 * std::sqrt(e.variance[k]) + 0.02 * U)
+                EXPECT_LT(err, 5 * std::sqrt(e.variance[k]) + 0.01 * U)
                     << "point " << i << " component " << k << ": " << e.value[k] << " vs " << exact[k];
-                chi2 += sq(err) / (e.variance[k] + sq(0.01 * U));
+                chi2 += sq(err) / (e.variance[k] + sq(0.005 * U));
             }
         }
-        // All 36 components together: the noise plus a systematic 0.01 U (box, tessellation) per component.
+        // All 36 components together: the noise plus a systematic 0.005 U (the box) per component.
         EXPECT_LT(chi2, chi2_bound(36.0)) << chi2;
         EXPECT_EQ(counters.truncated + counters.invalid, 0u);
         EXPECT_GT(counters.walks, 0u);
@@ -224,6 +226,40 @@ TEST(WosFluid3, PotentialFlowPastASphere) {
     for (const Vec3d& p : pts)
         deflection = std::max(deflection, glm::length(potential_flow(p, c, a, U) - Vec3d(U, 0, 0)));
     EXPECT_GT(deflection, 0.2);
+}
+
+// Tiny and huge scales: the same flow past a sphere (analytic and closed mesh) in a box scaled by 1e-4 and 1e4, with
+// the default relative shell width. The velocity is scale-free, so the same bounds as above hold at 6 points; the
+// mesh's Embree queries run in float at 1e4 and on a 1e-4 box.
+TEST(WosFluid3, PotentialFlowIsScaleCovariant) {
+    const ktest::TempDir dir;
+    const Vec3d c0(0.2, 0.1, -0.1);
+    const double a0 = 0.4, U = 1.0;
+    const std::vector<Vec3d> pts0 = probe_points(c0, a0);
+    for (double scale : {1e-4, 1e4}) {
+        const Domain3 box{Vec3d(-2.0 * scale), Vec3d(2.0 * scale), false};
+        const Vec3d c = scale * c0;
+        const double a = scale * a0;
+        std::vector<std::pair<std::string, std::shared_ptr<const BoundaryShape>>> shapes;
+        shapes.emplace_back("sphere", sphere_boundary(c, a));
+        shapes.emplace_back("closed mesh", mesh_boundary(write_icosphere(dir, "ico.obj", c, a, 4)));
+        for (const auto& [name, shape] : shapes) {
+            SCOPED_TRACE(name + fmt::format(" at scale {:g}", scale));
+            WosVelocityOptions o = stream_options(U, {shape});
+            o.wos.epsilon = 0;  // relative: 1e-4 of the box
+            const WosVelocityField3 field(o, box, nullptr, Interpolation::Bilinear);
+            wos::WalkCounters counters;
+            for (std::size_t i = 0; i < pts0.size(); i += 2) {
+                Random rng(11, i);
+                const VelocityEstimate3 e = field.estimate(scale * pts0[i], 1000, rng, counters);
+                const Vec3d exact = potential_flow(pts0[i], c0, a0, U);
+                for (int k = 0; k < 3; ++k)
+                    EXPECT_LT(std::abs(e.value[k] - exact[k]), 5 * std::sqrt(e.variance[k]) + 0.01 * U)
+                        << "point " << i << " component " << k << ": " << e.value[k] << " vs " << exact[k];
+            }
+            EXPECT_EQ(counters.truncated + counters.invalid, 0u);
+        }
+    }
 }
 
 /// A Gaussian-core vortex ring (radius R, circulation g, core s) centred at o, axis z, on the cells of `grid`.
@@ -243,9 +279,10 @@ void ring_field(VectorGrid3& grid, Vec3d o, double R, double g, double s) {
 }
 
 // Free slip with vorticity: a vortex ring below a sphere drives a flow whose normal component at the sphere's
-// surface vanishes (points 0.005 a above it; the normal velocity there is O(0.005) of the tangential one), while
+// surface vanishes (points 0.005 a above it; the normal velocity there is O(0.005) of the tangential one: bound 5
+// standard errors plus 0.03 of the tangential speed), while
 // without the sphere the same points see an O(1) normal velocity (the test has power). The four representations
-// of the sphere agree with each other within their standard errors.
+// of the sphere agree with each other within 5 standard errors of their difference.
 TEST(WosFluid3, NormalVelocityVanishesAtObstacles) {
     const ktest::TempDir dir;
     const Domain3 box{Vec3d(-1.5), Vec3d(1.5), false};
@@ -277,7 +314,7 @@ TEST(WosFluid3, NormalVelocityVanishesAtObstacles) {
             const double vn = glm::dot(e.value, dirs[i]);
             const double sn = std::sqrt(glm::dot(e.variance, dirs[i] * dirs[i]));
             const double vt = glm::length(e.value - vn * dirs[i]);
-            EXPECT_LT(std::abs(vn), 5 * sn + 0.03 * vt + 0.01) << "direction " << i << ": vn " << vn << " vt " << vt;
+            EXPECT_LT(std::abs(vn), 5 * sn + 0.03 * vt) << "direction " << i << ": vn " << vn << " vt " << vt;
             est.push_back(e);
         }
         EXPECT_EQ(counters.truncated + counters.invalid, 0u);
@@ -287,7 +324,7 @@ TEST(WosFluid3, NormalVelocityVanishesAtObstacles) {
         for (std::size_t i = 0; i < dirs.size(); ++i)
             for (int k = 0; k < 3; ++k) {
                 const double sd = std::sqrt(all[0][i].variance[k] + all[s][i].variance[k]);
-                EXPECT_LT(std::abs(all[0][i].value[k] - all[s][i].value[k]), 5 * sd + 0.01)
+                EXPECT_LT(std::abs(all[0][i].value[k] - all[s][i].value[k]), 5 * sd)
                     << shapes[s].first << " point " << i << " component " << k;
             }
     // Power: without the sphere (walls only) the normal components at the same points are large.
