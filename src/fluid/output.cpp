@@ -69,29 +69,51 @@ std::filesystem::path OutputPaths::frame(long long step, int digits, const std::
     return p;
 }
 
-void refuse_non_finite(const std::string& who, const FluidDiagnostics& d, long long step,
-                       std::initializer_list<std::pair<const Grid2*, const char*>> grids) {
+void refuse_non_finite_values(const std::string& who, long long step, double max_abs_vorticity,
+                              std::initializer_list<std::pair<double, const char*>> scalars,
+                              const std::vector<FieldValues>& fields) {
     auto refuse = [&](const std::string& what) {
         if (step == 0)
             throw_runtime(
                 "{}: non-finite {} at step 0: the initial vorticity (max |omega| {:g}) overflows the solver "
                 "in double precision; scale it down (refused before output)",
-                who, what, d.max_abs_vorticity);
+                who, what, max_abs_vorticity);
         throw_runtime("{}: non-finite {} at step {}; refused before output", who, what, step);
     };
-    for (const auto& [value, name] : {std::pair<double, const char*>{d.kinetic_energy, "kinetic energy"},
-                                      {d.kinetic_energy_raw, "raw kinetic energy"},
-                                      {d.enstrophy, "enstrophy"},
-                                      {d.circulation, "circulation"},
-                                      {d.max_abs_vorticity, "max |vorticity|"}})
+    for (const auto& [value, name] : scalars)
         if (!std::isfinite(value)) refuse(name);
-    for (const auto& [grid, name] : grids) {
-        if (!grid) continue;
-        const std::vector<double>& v = grid->values();
-        for (std::size_t k = 0; k < v.size(); ++k)
-            if (!std::isfinite(v[k]))
-                refuse(fmt::format("{} (cell {}, {})", name, k % std::size_t(grid->nx()), k / std::size_t(grid->nx())));
+    for (const FieldValues& f : fields) {
+        if (!f.values) continue;
+        const std::vector<double>& v = *f.values;
+        for (std::size_t k = 0; k < v.size(); ++k) {
+            if (std::isfinite(v[k])) continue;
+            const std::size_t nx = std::size_t(f.nx), i = k % nx, row = k / nx;
+            if (f.ny == 0) refuse(fmt::format("{} (cell {}, {})", f.name, i, row));
+            refuse(fmt::format("{} (cell {}, {}, {})", f.name, i, row % std::size_t(f.ny), row / std::size_t(f.ny)));
+        }
     }
+}
+
+void refuse_overflowing_state(const std::string& who, long long step, uint64_t replaced, std::size_t cells) {
+    if (replaced * 100 <= uint64_t(cells)) return;
+    throw_runtime(
+        "{}: {} non-finite velocity or vorticity values replaced at step {} ({} cells): the flow overflows double "
+        "precision{}; refused before output",
+        who, replaced, step, cells, step == 0 ? " (scale the initial vorticity down)" : "");
+}
+
+void refuse_non_finite(const std::string& who, const FluidDiagnostics& d, long long step,
+                       std::initializer_list<std::pair<const Grid2*, const char*>> grids) {
+    std::vector<FieldValues> fields;
+    for (const auto& [grid, name] : grids)
+        if (grid) fields.push_back({&grid->values(), name, grid->nx(), 0});
+    refuse_non_finite_values(who, step, d.max_abs_vorticity,
+                             {{d.kinetic_energy, "kinetic energy"},
+                              {d.kinetic_energy_raw, "raw kinetic energy"},
+                              {d.enstrophy, "enstrophy"},
+                              {d.circulation, "circulation"},
+                              {d.max_abs_vorticity, "max |vorticity|"}},
+                             fields);
 }
 
 double exact_vorticity_rmse(const Grid2& omega, const VorticityField& field, double t, double viscosity, bool bounded) {

@@ -290,7 +290,37 @@ RunResult run_mcfluid3(const Simulation3Params& p, RunContext& ctx) {
         output_seconds += t.seconds();
     };
 
+    // Nothing non-finite reaches the CSV or a frame: diagnostics and every grid an output carries are checked first.
+    auto refuse = [&](const FluidDiagnostics3& d) {
+        const VectorGrid3& w = solver.vorticity_grid();
+        const int nx = w.x.nx(), ny = w.x.ny();
+        std::vector<FieldValues> fields = {{&w.x.values(), "vorticity x", nx, ny},
+                                           {&w.y.values(), "vorticity y", nx, ny},
+                                           {&w.z.values(), "vorticity z", nx, ny}};
+        if (solver.velocity_available()) {
+            const VectorGrid3& u = solver.velocity_grid();
+            fields.push_back({&u.x.values(), "velocity x", nx, ny});
+            fields.push_back({&u.y.values(), "velocity y", nx, ny});
+            fields.push_back({&u.z.values(), "velocity z", nx, ny});
+        }
+        if (solver.smoke()) fields.push_back({&solver.smoke()->values(), "smoke density", nx, ny});
+        refuse_non_finite_values("mcfluid", d.step, d.max_abs_vorticity,
+                                 {{d.kinetic_energy, "kinetic energy"},
+                                  {d.kinetic_energy_raw, "raw kinetic energy"},
+                                  {d.enstrophy, "enstrophy"},
+                                  {d.helicity, "helicity"},
+                                  {d.impulse.x, "impulse x"},
+                                  {d.impulse.y, "impulse y"},
+                                  {d.impulse.z, "impulse z"},
+                                  {d.max_abs_vorticity, "max |vorticity|"},
+                                  {d.divergence_rms, "divergence RMS"},
+                                  {d.smoke_mass, "smoke mass"}},
+                                 fields);
+    };
     const FluidDiagnostics3 d0 = solver.diagnostics();
+    refuse_overflowing_state("mcfluid", 0, solver.work().invalid_velocity + solver.work().invalid_vorticity,
+                             solver.vorticity_grid().cell_count());
+    refuse(d0);
     if (solver.velocity_available()) {
         add_row(d0, 0.0, double(solver.work().biot_savart_evals), solver.work().invalid_velocity);
         write_frame();
@@ -311,6 +341,11 @@ RunResult run_mcfluid3(const Simulation3Params& p, RunContext& ctx) {
         const FluidDiagnostics3 d = solver.diagnostics();
         if (!solver.velocity_available()) break;
         const FluidWork3& after = solver.work();
+        refuse_overflowing_state(
+            "mcfluid", step,
+            (after.invalid_velocity + after.invalid_vorticity) - (before.invalid_velocity + before.invalid_vorticity),
+            solver.vorticity_grid().cell_count());
+        refuse(d);
         add_row(
             d, step_timer.seconds(), double(after.biot_savart_evals - before.biot_savart_evals),
             (after.invalid_velocity + after.invalid_vorticity) - (before.invalid_velocity + before.invalid_vorticity));

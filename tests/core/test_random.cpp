@@ -127,8 +127,8 @@ TEST(Random, NextFloatIsUniformChiSquare) {
 TEST(Random, BoundedIntegerIsUniformChiSquare) {
     // bound = 7, 1e6 samples: 6 degrees of freedom.
     // Broken variant checked (in a scratch copy): (next_u32() & 0xff) % 7 (modulo bias of a small range:
-    // values 0..3 have probability 37/256, values 4..6 36/256) gives chi2 ~ 245 and fails. The bias of next_u32() % 7 itself (~1e-9) would be
-    // too small for any sample size, which is why the broken variant uses a small range.
+    // values 0..3 have probability 37/256, values 4..6 36/256) gives chi2 ~ 245 and fails. The bias of next_u32() % 7
+    // itself (~1e-9) would be too small for any sample size, which is why the broken variant uses a small range.
     Random r(99, 5);
     const uint32_t bound = 7;
     const long long n = 1000000;
@@ -199,4 +199,21 @@ TEST(Random, HashCombineMixes) {
     for (int i = 0; i < k; ++i) bits += std::popcount(hash_combine(uint64_t(i), 3) ^ hash_combine(uint64_t(i) + 1, 3));
     bits /= k;
     EXPECT_NEAR(bits, 32.0, 5 * 4.0 / std::sqrt(double(k)));
+}
+
+TEST(Random, FillIsTheSerialSequence) {
+    // fill_u32 runs four interleaved LCG chains; it must give exactly what n calls of next_u32 give, and leave the
+    // generator where they leave it, for every n (tails of 0-3 values) and stream. Broken variant checked: c4 =
+    // c (1 + a + a^2) (a missing term) differs from the 5th value on.
+    for (uint64_t stream : {0ULL, 7ULL, 123456789ULL})
+        for (int n = 0; n <= 37; ++n) {
+            Random a(99, stream), b(99, stream);
+            a.next_u32();  // an odd start
+            b.next_u32();
+            uint32_t got[37];
+            a.fill_u32(got, n);
+            for (int i = 0; i < n; ++i) ASSERT_EQ(got[i], b.next_u32()) << "n " << n << " i " << i;
+            EXPECT_EQ(a.next_u32(), b.next_u32()) << "state after fill, n " << n;
+            EXPECT_TRUE(a == b);
+        }
 }

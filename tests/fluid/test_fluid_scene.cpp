@@ -511,3 +511,42 @@ TEST(FluidScene, NonFiniteStateIsRefusedBeforeOutput) {
     std::string text((std::istreambuf_iterator<char>(csv)), std::istreambuf_iterator<char>());
     EXPECT_EQ(text.find("inf"), std::string::npos) << text;
 }
+
+// A flow whose velocity overflows double precision (circulation 1e150: the velocity is finite, its variance is not)
+// makes every estimate non-finite. The solvers replace an isolated non-finite estimate by zero and count it; the
+// code before this test did so for every cell, and the run exited 0 with a field of zeros. Now a state with more
+// replaced values than 1 % of its cells is refused before output (one line naming the step; the CLI exits 1), in
+// 2D and 3D, and the CSV holds no row of that state.
+TEST(FluidScene, OverflowingFlowIsRefusedNotZeroed) {
+    const std::string scenes[2] = {
+        R"(<scene version="3.0.0"><simulation type="mcfluid">
+               <point name="min" x="-1" y="-1"/><point name="max" x="1" y="1"/>
+               <integer name="steps" value="2"/><float name="dt" value="0.1"/>
+               <vorticity type="gaussian_vortices"><string name="vortices" value="0 0 1e150 0.3"/></vorticity>
+               <velocity type="biot_savart"><integer name="samples" value="32"/></velocity>
+               <cache type="grid"><integer name="resolution" value="16"/></cache>
+           </simulation></scene>)",
+        scene3(R"(<integer name="steps" value="2"/><float name="dt" value="0.1"/>)",
+               R"(<vorticity type="vortex_ring"><point name="center" x="3.14" y="3.14" z="3.14"/>
+                      <float name="radius" value="1.5"/><float name="core" value="0.5"/>
+                      <float name="circulation" value="1e150"/></vorticity>)")};
+    for (const std::string& xml : scenes) {
+        TempDir dir;
+        auto job = load(xml);
+        RunContext ctx;
+        ctx.quiet = true;
+        ctx.output = dir.path() / "huge.png";
+        try {
+            job->run(ctx);
+            ADD_FAILURE() << "an overflowing flow must be refused:\n" << xml;
+        } catch (const std::exception& e) {
+            EXPECT_CONTAINS(e.what(), "non-finite");  // replaced estimates, or (3D) an enstrophy beyond DBL_MAX
+            EXPECT_CONTAINS(e.what(), "at step 1");
+            EXPECT_CONTAINS(e.what(), "refused before output");
+            EXPECT_FALSE(std::string(e.what()).find('\n') != std::string::npos) << "one line";
+        }
+        std::ifstream csv(dir.path() / "huge.csv");
+        std::string text((std::istreambuf_iterator<char>(csv)), std::istreambuf_iterator<char>());
+        EXPECT_EQ(text.find("\n1,"), std::string::npos) << "no row of the refused state:\n" << text;
+    }
+}

@@ -87,8 +87,8 @@ private:
     /// that a sample costs one random memory access.
     struct Slot {
         uint32_t threshold;
-        uint32_t self, alias;  ///< packed cells i | j << 10 | k << 20
-        float dself[3], dalias[3];
+        uint32_t self, alias;       ///< packed cells i | j << 10 | k << 20 (adjacent: the sampler indexes them)
+        float dself[3], dalias[3];  ///< unit directions of omega (adjacent, likewise)
     };
 
     const VectorGrid3* m_grid;

@@ -62,6 +62,24 @@ void report_fluid_work(Stats& stats, long long steps, double sim_time, std::size
 void refuse_non_finite(const std::string& who, const FluidDiagnostics& d, long long step,
                        std::initializer_list<std::pair<const Grid2*, const char*>> grids);
 
+/// The solvers replace an isolated non-finite estimate by zero and count it (`replaced`); when one state has more
+/// of them than 1 % of its `cells`, the flow as a whole has overflowed double precision and the zeros would stand
+/// for it: throws a one-line RuntimeError naming the count and the step, before anything of that state is output.
+void refuse_overflowing_state(const std::string& who, long long step, uint64_t replaced, std::size_t cells);
+
+/// One field for refuse_non_finite_values: its values (x fastest), a name for the message, and its cells per row
+/// and per layer (ny = 0 for a 2D field) to name the cell.
+struct FieldValues {
+    const std::vector<double>* values;
+    const char* name;
+    int nx, ny;
+};
+/// The check behind both solvers' refusals: `scalars` (diagnostics, by name) and every value of `fields`; at step
+/// 0 the message blames the initial condition, whose max |omega| is `max_abs_vorticity`.
+void refuse_non_finite_values(const std::string& who, long long step, double max_abs_vorticity,
+                              std::initializer_list<std::pair<double, const char*>> scalars,
+                              const std::vector<FieldValues>& fields);
+
 /// RMSE of `omega` at its cell centres against the field's exact solution at time t: NaN when the field knows
 /// none there, or when it is not the solution of this flow (VorticityField::exact_on the grid's domain is false,
 /// or `bounded`: solid boundaries change the flow).

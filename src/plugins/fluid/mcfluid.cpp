@@ -212,6 +212,8 @@ public:
         d0.vorticity_rmse_exact =
             exact_vorticity_rmse(solver.vorticity_grid(), field, 0.0, settings.viscosity, bool(settings.boundaries));
         if (solver.velocity_available()) {
+            refuse_overflowing_state("mcfluid", 0, solver.work().invalid_velocity + solver.work().invalid_vorticity,
+                                     solver.vorticity_grid().cell_count());
             refuse_non_finite("mcfluid", d0, 0,
                               {{&solver.vorticity_grid(), "vorticity"},
                                {&solver.velocity_u(), "velocity u"},
@@ -242,12 +244,16 @@ public:
             if (!solver.velocity_available()) break;
             d.vorticity_rmse_exact = exact_vorticity_rmse(solver.vorticity_grid(), field, d.time, settings.viscosity,
                                                           bool(settings.boundaries));
+            const FluidWork& after = solver.work();
+            refuse_overflowing_state("mcfluid", s,
+                                     (after.invalid_velocity + after.invalid_vorticity) -
+                                         (before.invalid_velocity + before.invalid_vorticity),
+                                     solver.vorticity_grid().cell_count());
             refuse_non_finite("mcfluid", d, s,
                               {{&solver.vorticity_grid(), "vorticity"},
                                {&solver.velocity_u(), "velocity u"},
                                {&solver.velocity_v(), "velocity v"}});
             const double seconds = step_timer.seconds();
-            const FluidWork& after = solver.work();
             if (csv)
                 csv->write(d, seconds, double(after.biot_savart_evals - before.biot_savart_evals),
                            (after.invalid_velocity + after.invalid_vorticity) -
