@@ -274,15 +274,12 @@ VelocityEstimate3 WosVelocityField3::estimate(Vec3d x, int n, Random& rng, wos::
     VelocityEstimate3 e{m_stream, Vec3d(0.0), 0};
     if (!m_has_source && !m_residual_data) return e;  // Psi' = 0 exactly: no walk
     if (m_walls) x = glm::clamp(x, m_domain.min, m_domain.max);
-    const double R0 = distance(x);
+    double R0 = distance(x);
     if (!(R0 >= 0) || R0 == Inf) {
         c.invalid += uint64_t(std::max(n, 0));
         return {};
     }
-    if (R0 < m_wos.epsilon) {
-        ++c.boundary_queries;
-        return {};
-    }
+    if (R0 < m_wos.epsilon && !wos::move_to_shell<3>(*this, x, R0, m_wos, c)) return {};
     if (m_has_source && !m_source.empty()) {
         e = velocity_samples(*this, m_source, x, R0, n, rng, m_wos, c);
     } else if (m_has_source) {  // the thesis' Green's-function sampling of the volume term

@@ -553,10 +553,20 @@ TEST(Wos, HardCasesStayFiniteAndAreCounted) {
         const ScalarEstimate near = solve<2>(disk, g, NoSource{}, Vec<2>(0.0, 0.9995), 64, rng, s, c);
         EXPECT_DOUBLE_EQ(near.value, -1.0);
         EXPECT_EQ(c.walks, 0u);
-        // The gradient there: zero, counted.
-        const GradientEstimate<2> gr = gradient<2>(disk, g, NoSource{}, Vec<2>(0.0, 0.9995), 64, rng, s, c);
-        EXPECT_EQ(gr.value, Vec<2>(0.0));
+        // The gradient there: estimated ShellEdge epsilon out from the boundary (move_to_shell), counted. The
+        // exact gradient of x^2 - y^2 at (0, 1 - 16e-3) is (0, -1.968); the code before returned zero. The
+        // estimator's tail is heavy this close to the boundary (about 11 per sample), hence many samples.
+        const GradientEstimate<2> gr = gradient<2>(disk, g, NoSource{}, Vec<2>(0.0, 0.9995), 16384, rng, s, c);
         EXPECT_EQ(c.boundary_queries, 1u);
+        EXPECT_GT(c.walks, 0u);
+        const Vec<2> exact(0.0, -2 * (1 - ShellEdge * s.epsilon));
+        for (int i = 0; i < 2; ++i)
+            EXPECT_NEAR(gr.value[i], exact[i], 5 * std::sqrt(gr.variance[i])) << "component " << i;
+        EXPECT_LT(5 * std::sqrt(gr.variance.y), 1.0) << "zero must be outside the tolerance";
+        // Exactly on the boundary there is no direction away from it: zero, counted.
+        const GradientEstimate<2> on_b = gradient<2>(disk, g, NoSource{}, Vec<2>(0.0, 1.0), 64, rng, s, c);
+        EXPECT_EQ(on_b.value, Vec<2>(0.0));
+        EXPECT_EQ(c.boundary_queries, 2u);
     }
     // Just outside epsilon: a finite value and gradient (large variance, but finite).
     {

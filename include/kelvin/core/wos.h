@@ -104,7 +104,7 @@ struct WalkCounters {
     uint64_t steps = 0;             ///< spheres jumped across (distance queries minus one per walk)
     uint64_t truncated = 0;         ///< walks that hit max_steps
     uint64_t invalid = 0;           ///< walks with a non-finite distance, g or f, or no boundary (count 0)
-    uint64_t boundary_queries = 0;  ///< gradient queries within epsilon of the boundary (returned zero)
+    uint64_t boundary_queries = 0;  ///< gradient queries within epsilon of the boundary (moved to the shell)
     WalkCounters& operator+=(const WalkCounters& o) {
         walks += o.walks;
         steps += o.steps;
@@ -406,21 +406,46 @@ ScalarEstimate solve(const Geometry& geometry, const Dirichlet& g, const Source&
     return e;
 }
 
-/// grad u(x) from n gradient samples (2n walks with antithetic). Within epsilon of the boundary: zero,
-/// counted in boundary_queries.
+/// Where move_to_shell puts a query, in units of epsilon from the boundary. The gradient estimator's standard
+/// deviation grows like d^-1/2 toward the boundary, with a heavy tail (measured on x^2 - y^2 in the unit disk,
+/// epsilon 1e-3: 31 per sample at d = 2 epsilon, 11 at 16 epsilon, 4.0 at 100 epsilon), while the constant
+/// extrapolation's error grows like d |grad v|; 16 epsilon (1.6e-3 of the domain at the default epsilon) is far
+/// below a cache cell and well out of the worst noise.
+inline constexpr double ShellEdge = 16;
+
+/// A gradient query x within epsilon of the boundary (R0 its distance) cannot be estimated where it is: the
+/// gradient estimator's ball would be thinner than the shell. It moves to ShellEdge x epsilon from its closest
+/// boundary point, along the direction away from it, and the gradient there stands for the gradient at x
+/// (constant extrapolation across the shell: at a free-slip wall, the slip velocity). Counted in
+/// boundary_queries. False when x lies on the boundary itself (no direction away from it) or the moved point is
+/// not at least epsilon from the boundary: the caller returns zero.
+template <int D, class Geometry>
+bool move_to_shell(const Geometry& geometry, Vec<D>& x, double& R0, const Settings& s, WalkCounters& c) {
+    ++c.boundary_queries;
+    const Vec<D> p = geometry.closest(x).point;
+    const Vec<D> d = x - p;
+    const double len = glm::length(d);
+    if (!(len > 0) || !std::isfinite(len)) return false;
+    const Vec<D> moved = p + d * (ShellEdge * s.epsilon / len);
+    const double r = geometry.distance(moved);
+    if (!(r >= s.epsilon) || r == Inf) return false;
+    x = moved;
+    R0 = r;
+    return true;
+}
+
+/// grad u(x) from n gradient samples (2n walks with antithetic). Within epsilon of the boundary: the gradient at
+/// the shell's edge (move_to_shell), counted in boundary_queries.
 template <int D, class Geometry, class Dirichlet, class Source>
-GradientEstimate<D> gradient(const Geometry& geometry, const Dirichlet& g, const Source& f, const Vec<D>& x, int n,
+GradientEstimate<D> gradient(const Geometry& geometry, const Dirichlet& g, const Source& f, Vec<D> x, int n,
                              Random& rng, const Settings& s, WalkCounters& c) {
     GradientEstimate<D> e;
-    const double R0 = geometry.distance(x);
+    double R0 = geometry.distance(x);
     if (!(R0 >= 0) || R0 == Inf) {
         c.invalid += uint64_t(std::max(n, 0));
         return e;
     }
-    if (R0 < s.epsilon) {
-        ++c.boundary_queries;
-        return e;
-    }
+    if (R0 < s.epsilon && !move_to_shell<D>(geometry, x, R0, s, c)) return e;
     Vec<D> sum(0.0), sum2(0.0);
     for (int i = 0; i < n; ++i) {
         Vec<D> v(0.0);

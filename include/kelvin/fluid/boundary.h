@@ -130,7 +130,8 @@ public:
                      double time);
 
     /// The velocity at x with n gradient samples. Points inside a solid get the solid's rigid velocity without
-    /// walking; points within epsilon of a boundary get zero gradient (counted in boundary_queries).
+    /// walking; points within epsilon of a boundary get the gradient at the shell's edge, 2 epsilon out (the slip
+    /// velocity; wos::move_to_shell, counted in boundary_queries).
     VelocityEstimate estimate(Vec2d x, int n, Random& rng, wos::WalkCounters& c) const;
     /// Psi at x with n walks.
     wos::ScalarEstimate stream_function(Vec2d x, int n, Random& rng, wos::WalkCounters& c) const;
@@ -228,7 +229,8 @@ public:
                       Interpolation interp, bool homogeneous = false);
 
     /// The velocity at x with n gradient samples (2n walks with antithetic). Points inside a solid get zero
-    /// (static solids) without walking; points within epsilon of a boundary get zero (boundary_queries).
+    /// (static solids) without walking; points within epsilon of a boundary get the velocity 2 epsilon out
+    /// (wos::move_to_shell, boundary_queries).
     VelocityEstimate3 estimate(Vec3d x, int n, Random& rng, wos::WalkCounters& c) const;
     /// Psi at x with n walks (value and per-component variance of the estimate).
     VelocityEstimate3 stream_function(Vec3d x, int n, Random& rng, wos::WalkCounters& c) const;

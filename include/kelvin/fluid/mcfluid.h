@@ -63,7 +63,7 @@ struct FluidWork {
     uint64_t wos_steps = 0;              ///< spheres crossed by those walks
     uint64_t wos_truncated = 0;          ///< walks that hit max_steps (ended at the nearest boundary, counted)
     uint64_t wos_invalid = 0;            ///< walks with a non-finite distance or value (counted as zero)
-    uint64_t wos_boundary_queries = 0;   ///< velocity queries within epsilon of a boundary (zero gradient)
+    uint64_t wos_boundary_queries = 0;   ///< velocity queries within epsilon of a boundary (moved to the shell)
     uint64_t solid_departures = 0;       ///< departure points inside a solid, moved to its surface
     uint64_t solid_cells = 0;            ///< cache cells inside solids at the current state
     uint64_t velocity_fields_built = 0;  ///< Biot–Savart tables or free-slip fields built (one per state)

@@ -71,7 +71,7 @@ struct FluidWork3 {
     uint64_t wos_steps = 0;                ///< spheres crossed by those walks
     uint64_t wos_truncated = 0;            ///< walks that hit max_steps (ended at the nearest boundary, counted)
     uint64_t wos_invalid = 0;              ///< walks with a non-finite distance or value (counted as zero)
-    uint64_t wos_boundary_queries = 0;     ///< velocity queries within epsilon of a boundary (zero gradient)
+    uint64_t wos_boundary_queries = 0;     ///< velocity queries within epsilon of a boundary (moved to the shell)
     uint64_t distance_queries = 0;         ///< stretching-segment distance queries (boundaries only)
     uint64_t solid_cells = 0;              ///< cells inside solids (their vorticity and velocity are zero)
     uint64_t solid_departures = 0;         ///< backtraces that ended inside a solid and were moved to its surface
