@@ -427,8 +427,8 @@ PathDerivativeStatus PathDerivatives::Impl::run(Reader& rd, T& log_pi) const {
 
         // Emission found by BSDF sampling (or seen directly).
         if (const Emitter* e = si.shape->emitter(); e && !(depth == 0 && o.hide_emitters) && depth + 1 >= o.min_depth) {
-            if (e->plugin_name() != "area") return S::Unsupported;
-            const Color3 Le = e->eval(si.p, si.ng, -ray.d);
+            if (e->plugin_name() != "area" || e->spatially_varying()) return S::Unsupported;
+            const Color3 Le = e->eval(si.p, si.ng, si.uv, -ray.d);
             if (Le != Color3(0.0)) {
                 T w(1.0);
                 if (!prev_delta) {
