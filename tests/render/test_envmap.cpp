@@ -105,7 +105,7 @@ TEST(Envmap, TexelDirectionsFollowMitsubaAxes) {
     auto file = write_map("axes.exr", W, H, [&](int i, int j) { return Color3(f(i, j)); });
     auto e = make_envmap(file);
     auto value_towards = [&](const Emitter& em, const Vec3d& to_sky) {
-        return em.eval(Vec3d(0.0), Vec3d(0.0), -to_sky).r;  // radiance arriving from `to_sky`
+        return em.eval(Vec3d(0.0), Vec3d(0.0), Vec2d(0.0), -to_sky).r;  // radiance arriving from `to_sky`
     };
     for (int j = 1; j < H - 1; ++j)  // (the poles have no azimuth)
         for (int i = 0; i < W; ++i) {
