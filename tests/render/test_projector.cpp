@@ -187,7 +187,7 @@ const char* kQuadScene = R"(<scene version="3.0.0">
 </scene>)";
 
 TEST(TexturedArea, DirectPdfIntegratesToOneAndLightingMatchesBruteForce) {
-    auto scene = ktest::load_scene_xml(fmt::format(kQuadScene, "path"));
+    auto scene = ktest::load_scene_xml(fmt::format(fmt::runtime(kQuadScene), "path"));
     const Emitter* e = scene->emitters()[0];
     ASSERT_TRUE(e->spatially_varying());
     Random rng(4, 2);
@@ -232,8 +232,8 @@ TEST(TexturedArea, DirectPdfIntegratesToOneAndLightingMatchesBruteForce) {
 }
 
 TEST(TexturedArea, LightTracingMatchesPathTracing) {
-    const Bitmap a = ktest::render_xml(fmt::format(kQuadScene, "path"), 256, 1);
-    const Bitmap b = ktest::render_xml(fmt::format(kQuadScene, "ptracer"), 256, 2);
+    const Bitmap a = ktest::render_xml(fmt::format(fmt::runtime(kQuadScene), "path"), 256, 1);
+    const Bitmap b = ktest::render_xml(fmt::format(fmt::runtime(kQuadScene), "ptracer"), 256, 2);
     double sa = 0, sb = 0;
     for (int y = 0; y < a.height(); ++y)
         for (int x = 0; x < a.width(); ++x) {
