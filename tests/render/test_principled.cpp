@@ -5,10 +5,11 @@
 //    with R0 = base_color: eval * 4 cos_i / (D G) equals base + (1 - base)(1 - wi.h)^5 to 1e-12, and as the
 //    roughness goes to 0 (alpha 1e-3) the albedo is that Fresnel term at wi (to 2e-3).
 //  * AlbedoAtMostOne: the mean sample weight (the albedo) of the lobes that conserve energy in Mitsuba's model
-//    (metallic, dielectric reflection + transmission in importance transport, the diffuse lobe at roughness 0,
-//    the thin sheet's specular and diffuse lobes) stays <= 1 at every incidence. Lobes that do not conserve
-//    energy in Mitsuba's model (Disney's retro-reflection at high roughness, sheen, clearcoat added on top) are
-//    printed, not bounded.
+//    (metallic, dielectric reflection + transmission in importance transport, the diffuse lobe alone at roughness
+//    0, the thin sheet's specular and diffuse lobes) stays <= 1 at every incidence. Combinations that do not
+//    conserve energy in Mitsuba's model are printed, not bounded: the diffuse lobe is not reduced by the specular
+//    reflection above it (white, roughness 0: albedo 1.35 at cos 0.05), Disney's retro-reflection at roughness 1
+//    (1.51 at cos 0.05, diffuse alone), sheen and clearcoat added on top.
 //  * Reciprocity: f(wi, wo) = f(wo, wi) for the reflection lobes of both models (eval() returns f |cos theta_o|).
 //  * ThinIsTwoSided: the thin sheet from below is its mirror image from above.
 //
@@ -111,8 +112,10 @@ TEST(Principled, AlbedoAtMostOne) {
         cases.push_back({"everything r=" + rs, "principled",
                          set({{"roughness", r}, {"sheen", 1}, {"clearcoat", 1}, {"metallic", 0.3}}), false, false});
     }
-    cases.push_back({"diffuse r=0", "principled", set({{"roughness", 0}}), true, false});
-    cases.push_back({"diffuse r=1", "principled", set({{"roughness", 1}}), false, false});
+    // specular = 0 is eta = 1: no specular reflection, the diffuse lobe alone.
+    cases.push_back({"diffuse alone r=0", "principled", set({{"roughness", 0}, {"specular", 0}}), true, false});
+    cases.push_back({"diffuse alone r=1", "principled", set({{"roughness", 1}, {"specular", 0}}), false, false});
+    cases.push_back({"diffuse+specular r=0", "principled", set({{"roughness", 0}}), false, false});
     cases.push_back({"thin diffuse r=0", "principledthin", set({{"roughness", 0}, {"diff_trans", 1.0}}), true, true});
     cases.push_back({"thin mixed r=0", "principledthin",
                      set({{"roughness", 0}, {"diff_trans", 2.0}, {"spec_trans", 0.5}}), true, true});
