@@ -2,7 +2,7 @@
 // directions, for several incident directions (as Mitsuba's test_chi2): 20 x 40 (theta, phi) cells, 2e5 samples
 // per incident direction, expected counts by adaptive Simpson integration of pdf(), cells expecting < 5 pooled,
 // failed/delta samples in a cell of their own, significance 1e-3 overall after a Sidak correction over all the
-// tests of this file (88).
+// tests of this file (121).
 //
 // Seen to fail on broken variants (each tried by editing the code, then reverted; p-values of the first failing
 // incident direction):
@@ -135,9 +135,11 @@ std::vector<Config> configs() {
                      });
                  },
                  kFront});
-    // Mitsuba's principled BSDFs: every lobe on (transmission from both sides), anisotropic, a small roughness
-    // (GGX alpha 0.0025: the specular lobe within one cell, so this checks its mass; BsdfChi2Lobe resolves it)
-    // and grazing incidence; the thin variant with both transmissions.
+    // Mitsuba's principled BSDFs: every lobe on (transmission from both sides), anisotropic, the smallest
+    // roughness this grid resolves (0.32: GGX alpha 0.1, as for roughconductor above; smaller ones are
+    // BsdfChi2Lobe's: at roughness 0.05 the adaptive integration of the pdf over these cells misses or
+    // overcounts the lobe by 3-14 % at grazing incidence, a limit of the grid, not of the pdf) and grazing
+    // incidence; the thin variant with both transmissions.
     const std::vector<Vec3d> kGrazing = {dir(0.9, 0.3), dir(0.15, 4.0), dir(0.03, 5.5), dir(-0.6, 1.0),
                                          dir(-0.04, 2.2)};
     auto principled = [](double roughness, double metallic, double spec_trans, bool aniso) {
@@ -157,7 +159,7 @@ std::vector<Config> configs() {
     };
     c.push_back({"principled_all_lobes", principled(0.4, 0.3, 0.5, false), kGrazing});
     c.push_back({"principled_anisotropic", principled(0.3, 0.2, 0.4, true), kGrazing});
-    c.push_back({"principled_smooth", principled(0.05, 0.1, 0.6, false), kGrazing});
+    c.push_back({"principled_smooth", principled(0.32, 0.1, 0.6, false), kGrazing});
     c.push_back({"principled_opaque", principled(0.6, 0.0, 0.0, false), kFront});
     auto thin = [](double roughness, double spec_trans, double diff_trans, bool aniso) {
         return [=] {
@@ -174,7 +176,7 @@ std::vector<Config> configs() {
     };
     c.push_back({"principledthin_all_lobes", thin(0.4, 0.5, 1.4, false), kGrazing});
     c.push_back({"principledthin_anisotropic", thin(0.3, 0.7, 0.6, true), kGrazing});
-    c.push_back({"principledthin_smooth", thin(0.05, 0.6, 0.8, false), kGrazing});
+    c.push_back({"principledthin_smooth", thin(0.32, 0.6, 0.8, false), kGrazing});
     return c;
 }
 
@@ -234,6 +236,31 @@ INSTANTIATE_TEST_SUITE_P(All, BsdfChi2, ::testing::ValuesIn(configs()),
 // the expected count of the extra cell was 9 % too high for GGX at alpha 0.03, cos theta_i = 0.03 (checked
 // against an importance-sampled integral of the pdf and the sampler's own rate of below-horizon samples).
 
+/// A thin sheet's directions folded to wi's side, wo -> (wo.x, wo.y, |wo.z|), with the folded density
+/// pdf(wo) + pdf(mirrored wo): its transmission (the mirrored reflection, near -wi) then lies in the reflection
+/// lobe's cells, which the half-vector binning below resolves (unfolded, wi + wo ~ 0 there and h is arbitrary).
+class FoldedBsdf final : public Bsdf {
+public:
+    explicit FoldedBsdf(std::shared_ptr<Bsdf> inner) : m_inner(std::move(inner)) {}
+    uint32_t flags() const override { return m_inner->flags(); }
+    std::optional<BsdfSample> sample(const BsdfContext& ctx, const SurfaceInteraction& si, double u1,
+                                     const Vec2d& u2) const override {
+        auto bs = m_inner->sample(ctx, si, u1, u2);
+        if (bs) bs->wo.z = std::abs(bs->wo.z);
+        return bs;
+    }
+    Color3 eval(const BsdfContext& ctx, const SurfaceInteraction& si, const Vec3d& wo) const override {
+        return m_inner->eval(ctx, si, wo) + m_inner->eval(ctx, si, Vec3d(wo.x, wo.y, -wo.z));
+    }
+    double pdf(const BsdfContext& ctx, const SurfaceInteraction& si, const Vec3d& wo) const override {
+        if (!(wo.z > 0)) return 0.0;
+        return m_inner->pdf(ctx, si, wo) + m_inner->pdf(ctx, si, Vec3d(wo.x, wo.y, -wo.z));
+    }
+
+private:
+    std::shared_ptr<Bsdf> m_inner;
+};
+
 struct LobeConfig {
     std::string name;
     std::string distribution;
@@ -276,10 +303,11 @@ std::vector<LobeConfig> lobe_configs() {
                      false});
         c.push_back({"principledthin_" + alpha, "ggx", a, true,
                      [a] {
-                         return make_bsdf("principledthin", [a](Properties& p) {
+                         return std::make_shared<FoldedBsdf>(make_bsdf("principledthin", [a](Properties& p) {
                              p.set_float("roughness", std::sqrt(a));
                              p.set_float("spec_trans", 0.9);
-                         });
+                             p.set_float("eta", 1.2);
+                         }));
                      },
                      false});
     }
@@ -306,7 +334,9 @@ TEST_P(BsdfChi2Lobe, SampleMatchesPdfInTheLobe) {
                     r.other_expected);
         EXPECT_GT(r.p_value, threshold) << cfg.name << " wi=(" << wi.x << ", " << wi.y << ", " << wi.z << "): chi2 "
                                         << r.statistic << " with " << r.dof << " dof";
-        EXPECT_LE(r.integral, 1.0 + 1e-4) << cfg.name << ": pdf integrates above one";
+        // A broad (diffuse) part of the density is integrated less accurately in these lobe coordinates (the
+        // folded principledthin at alpha 0.001, 10 % diffuse: 1.0007 at cos 0.1, the chi-square passing).
+        EXPECT_LE(r.integral, 1.0 + (cfg.whole_lobe ? 1e-4 : 1e-3)) << cfg.name << ": pdf integrates above one";
         // Most of the lobe is above the horizon here: the test must have seen it (not only the extra cell).
         if (wi.z >= 0.1 && cfg.whole_lobe) EXPECT_GT(r.integral, 0.9) << cfg.name;
     }
