@@ -11,7 +11,9 @@
 //  * Beckmann visible slopes with the CDF's sin(theta) term dropped: p = 0;
 //  * roughdielectric pdf without the refraction Jacobian's eta^2: p = 0;
 //  * microfacet pdf with G1(wi, m) omitted: p = 0 (and the pdf integrates to 1.03);
-//  * roughplastic sample() choosing the specular lobe with probability 1/2 while pdf() uses its own: p = 0.
+//  * roughplastic sample() choosing the specular lobe with probability 1/2 while pdf() uses its own: p = 0;
+//  * principled pdf() without the refraction Jacobian's eta_path^2: p = 0 at every incidence (principled_all_lobes);
+//  * principledthin pdf() of the transmission lobe with the unscaled roughness: p = 0 (principledthin_all_lobes).
 // (A change made consistently to both sample() and pdf(), such as another lobe-selection probability, is
 // invisible here by design: the other tests check values.)
 // The negative controls at the end keep two such cases (a pdf of the wrong roughness, a pdf of the wrong
