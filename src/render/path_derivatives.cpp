@@ -486,7 +486,8 @@ PathDerivativeStatus PathDerivatives::Impl::run(Reader& rd, T& log_pi) const {
                     const auto* mesh =
                         sh >= 0 ? dynamic_cast<const TriangleMesh*>(scene.shapes()[std::size_t(sh)].get()) : nullptr;
                     const bool light_sphere = sh >= 0 && sphere(uint32_t(sh));
-                    if (e->plugin_name() != "area" || !((mesh && flat_triangles(uint32_t(sh))) || light_sphere))
+                    if (e->plugin_name() != "area" || e->spatially_varying() ||
+                        !((mesh && flat_triangles(uint32_t(sh))) || light_sphere))
                         return S::Unsupported;
                     const ShapeGeometry& eg = geometry[std::size_t(sh)];
                     V3<T> ps, en = constant<T>(ds->n);
