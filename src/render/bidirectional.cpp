@@ -234,9 +234,9 @@ Color3 BidirectionalPaths::connect(const Scene& scene, PathVertex* light, PathVe
         const PathVertex& prev = cam[t - 2];
         Vec3d w = glm::normalize(prev.p - pt.p);
         if (pt.is_infinite()) {
-            for (const Emitter* e : scene.environment_emitters()) L += e->eval(prev.p, Vec3d(0.0), w);
+            for (const Emitter* e : scene.environment_emitters()) L += e->eval(prev.p, Vec3d(0.0), Vec2d(0.0), w);
         } else {
-            L = pt.emitter->eval(pt.p, pt.ng, w);
+            L = pt.emitter->eval(pt.p, pt.ng, pt.si.uv, w);
         }
         L *= pt.beta;
     } else if (t == 1) {

@@ -427,8 +427,8 @@ PathDerivativeStatus PathDerivatives::Impl::run(Reader& rd, T& log_pi) const {
 
         // Emission found by BSDF sampling (or seen directly).
         if (const Emitter* e = si.shape->emitter(); e && !(depth == 0 && o.hide_emitters) && depth + 1 >= o.min_depth) {
-            if (e->plugin_name() != "area") return S::Unsupported;
-            const Color3 Le = e->eval(si.p, si.ng, -ray.d);
+            if (e->plugin_name() != "area" || e->spatially_varying()) return S::Unsupported;
+            const Color3 Le = e->eval(si.p, si.ng, si.uv, -ray.d);
             if (Le != Color3(0.0)) {
                 T w(1.0);
                 if (!prev_delta) {
@@ -486,7 +486,8 @@ PathDerivativeStatus PathDerivatives::Impl::run(Reader& rd, T& log_pi) const {
                     const auto* mesh =
                         sh >= 0 ? dynamic_cast<const TriangleMesh*>(scene.shapes()[std::size_t(sh)].get()) : nullptr;
                     const bool light_sphere = sh >= 0 && sphere(uint32_t(sh));
-                    if (e->plugin_name() != "area" || !((mesh && flat_triangles(uint32_t(sh))) || light_sphere))
+                    if (e->plugin_name() != "area" || e->spatially_varying() ||
+                        !((mesh && flat_triangles(uint32_t(sh))) || light_sphere))
                         return S::Unsupported;
                     const ShapeGeometry& eg = geometry[std::size_t(sh)];
                     V3<T> ps, en = constant<T>(ds->n);

@@ -92,6 +92,36 @@ TEST_F(CliErrors, UnusedParameterIsAnErrorUnlessAllowed) {
     EXPECT_TRUE(fs::exists(out()));
 }
 
+// Mitsuba 3's principled BSDFs and projector (issue 17): out-of-range values and unknown parameters are one
+// line naming the file, line, column and parameter. (Broken variant: principled's metallic read without its
+// range check renders without complaint, exit 0.)
+TEST_F(CliErrors, PrincipledAndProjectorBadValues) {
+    const std::vector<std::pair<std::string, std::string>> cases = {
+        {"<shape type=\"sphere\"><bsdf type=\"principled\"><float name=\"metallic\" value=\"2\"/></bsdf></shape>",
+         "'metallic'"},
+        {"<shape type=\"sphere\"><bsdf type=\"principled\"><float name=\"eta\" value=\"1.4\"/>"
+         "<float name=\"specular\" value=\"0.3\"/></bsdf></shape>",
+         "'eta'"},
+        {"<shape type=\"sphere\"><bsdf type=\"principled\"><float name=\"metalic\" value=\"0.5\"/></bsdf></shape>",
+         "did you mean 'metallic'"},
+        {"<shape type=\"sphere\"><bsdf type=\"principledthin\"><float name=\"diff_trans\" value=\"2.5\"/></bsdf>"
+         "</shape>",
+         "'diff_trans'"},
+        {"<emitter type=\"projector\"><float name=\"scale\" value=\"-1\"/><rgb name=\"irradiance\" value=\"1\"/>"
+         "</emitter>",
+         "'scale'"},
+        {"<emitter type=\"projector\"><float name=\"scale\" value=\"2\"/></emitter>", "'irradiance'"},
+    };
+    for (const auto& [shape, needle] : cases) {
+        fs::path s = scene("principled.xml", scene_with("<integrator type=\"ao\"/>", shape));
+        auto r = run_kelvin({s.string(), "-o", out().string()});
+        std::string line = expect_one_error_line(r);
+        EXPECT_NE(line.find(s.string() + ":6:"), std::string::npos) << line;
+        EXPECT_NE(line.find(needle), std::string::npos) << line;
+        EXPECT_FALSE(fs::exists(out()));
+    }
+}
+
 TEST_F(CliErrors, MalformedNumberPointsAtTheElement) {
     fs::path s =
         scene("malformed.xml", scene_with("<integrator type=\"ao\"/>", "<shape type=\"sphere\"/>",

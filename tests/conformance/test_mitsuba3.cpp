@@ -8,10 +8,10 @@
 // reference's per-sample variance floored at 1e-4, p = 2 (1 - Phi(z)); a Sidak-corrected significance
 // alpha = 1 - 0.99^(1 / pixel_count); the scene passes when at least 99.75 % of the values have p > alpha.
 //
-// Budget: KELVIN_MITSUBA3_BUDGET (default 1: Mitsuba's own sample count, about 25 s of CPU for the scenes
-// Kelvin supports today) scales the sample count; z uses the spp actually rendered, so a reduced budget gives
-// a weaker test, never a biased one. tools/mitsuba3_conformance.sh runs it with a chosen budget and saves the
-// images.
+// Budget: KELVIN_MITSUBA3_BUDGET (default 1: Mitsuba's own sample count, about 32 s of CPU for the 24 surface
+// scenes, about 2 min more for the 12 media scenes) scales the sample count; z uses the spp actually rendered, so a
+// reduced budget gives a weaker test, never a biased one. tools/mitsuba3_conformance.sh runs it with a chosen budget
+// and saves the images.
 //
 // Scenes that load but differ from Mitsuba for a known reason are listed in known_differences() with the
 // reason and reported as skipped (the reason is printed); a scene that starts passing or failing otherwise

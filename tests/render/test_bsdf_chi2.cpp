@@ -2,7 +2,7 @@
 // directions, for several incident directions (as Mitsuba's test_chi2): 20 x 40 (theta, phi) cells, 2e5 samples
 // per incident direction, expected counts by adaptive Simpson integration of pdf(), cells expecting < 5 pooled,
 // failed/delta samples in a cell of their own, significance 1e-3 overall after a Sidak correction over all the
-// tests of this file (88).
+// tests of this file (121).
 //
 // Seen to fail on broken variants (each tried by editing the code, then reverted; p-values of the first failing
 // incident direction):
@@ -11,7 +11,9 @@
 //  * Beckmann visible slopes with the CDF's sin(theta) term dropped: p = 0;
 //  * roughdielectric pdf without the refraction Jacobian's eta^2: p = 0;
 //  * microfacet pdf with G1(wi, m) omitted: p = 0 (and the pdf integrates to 1.03);
-//  * roughplastic sample() choosing the specular lobe with probability 1/2 while pdf() uses its own: p = 0.
+//  * roughplastic sample() choosing the specular lobe with probability 1/2 while pdf() uses its own: p = 0;
+//  * principled pdf() without the refraction Jacobian's eta_path^2: p = 0 at every incidence (principled_all_lobes);
+//  * principledthin pdf() of the transmission lobe with the unscaled roughness: p = 0 (principledthin_all_lobes).
 // (A change made consistently to both sample() and pdf(), such as another lobe-selection probability, is
 // invisible here by design: the other tests check values.)
 // The negative controls at the end keep two such cases (a pdf of the wrong roughness, a pdf of the wrong
@@ -135,6 +137,48 @@ std::vector<Config> configs() {
                      });
                  },
                  kFront});
+    // Mitsuba's principled BSDFs: every lobe on (transmission from both sides), anisotropic, the smallest
+    // roughness this grid resolves (0.32: GGX alpha 0.1, as for roughconductor above; smaller ones are
+    // BsdfChi2Lobe's: at roughness 0.05 the adaptive integration of the pdf over these cells misses or
+    // overcounts the lobe by 3-14 % at grazing incidence, a limit of the grid, not of the pdf) and grazing
+    // incidence; the thin variant with both transmissions.
+    const std::vector<Vec3d> kGrazing = {dir(0.9, 0.3), dir(0.15, 4.0), dir(0.03, 5.5), dir(-0.6, 1.0),
+                                         dir(-0.04, 2.2)};
+    auto principled = [](double roughness, double metallic, double spec_trans, bool aniso) {
+        return [=] {
+            return make_bsdf("principled", [=](Properties& p) {
+                p.set_color("base_color", Color3(0.8, 0.5, 0.2));
+                p.set_float("roughness", roughness);
+                p.set_float("metallic", metallic);
+                p.set_float("spec_trans", spec_trans);
+                p.set_float("clearcoat", 0.6);
+                p.set_float("clearcoat_gloss", 0.3);
+                p.set_float("sheen", 0.5);
+                p.set_float("spec_tint", 0.4);
+                if (aniso) p.set_float("anisotropic", 0.7);
+            });
+        };
+    };
+    c.push_back({"principled_all_lobes", principled(0.4, 0.3, 0.5, false), kGrazing});
+    c.push_back({"principled_anisotropic", principled(0.3, 0.2, 0.4, true), kGrazing});
+    c.push_back({"principled_smooth", principled(0.32, 0.1, 0.6, false), kGrazing});
+    c.push_back({"principled_opaque", principled(0.6, 0.0, 0.0, false), kFront});
+    auto thin = [](double roughness, double spec_trans, double diff_trans, bool aniso) {
+        return [=] {
+            return make_bsdf("principledthin", [=](Properties& p) {
+                p.set_color("base_color", Color3(0.7, 0.1, 0.1));
+                p.set_float("roughness", roughness);
+                p.set_float("spec_trans", spec_trans);
+                p.set_float("diff_trans", diff_trans);
+                p.set_float("eta", 1.33);
+                p.set_float("sheen", 0.4);
+                if (aniso) p.set_float("anisotropic", 0.6);
+            });
+        };
+    };
+    c.push_back({"principledthin_all_lobes", thin(0.4, 0.5, 1.4, false), kGrazing});
+    c.push_back({"principledthin_anisotropic", thin(0.3, 0.7, 0.6, true), kGrazing});
+    c.push_back({"principledthin_smooth", thin(0.32, 0.6, 0.8, false), kGrazing});
     return c;
 }
 
@@ -194,11 +238,38 @@ INSTANTIATE_TEST_SUITE_P(All, BsdfChi2, ::testing::ValuesIn(configs()),
 // the expected count of the extra cell was 9 % too high for GGX at alpha 0.03, cos theta_i = 0.03 (checked
 // against an importance-sampled integral of the pdf and the sampler's own rate of below-horizon samples).
 
+/// A thin sheet's directions folded to wi's side, wo -> (wo.x, wo.y, |wo.z|), with the folded density
+/// pdf(wo) + pdf(mirrored wo): its transmission (the mirrored reflection, near -wi) then lies in the reflection
+/// lobe's cells, which the half-vector binning below resolves (unfolded, wi + wo ~ 0 there and h is arbitrary).
+class FoldedBsdf final : public Bsdf {
+public:
+    explicit FoldedBsdf(std::shared_ptr<Bsdf> inner) : m_inner(std::move(inner)) {}
+    uint32_t flags() const override { return m_inner->flags(); }
+    std::optional<BsdfSample> sample(const BsdfContext& ctx, const SurfaceInteraction& si, double u1,
+                                     const Vec2d& u2) const override {
+        auto bs = m_inner->sample(ctx, si, u1, u2);
+        if (bs) bs->wo.z = std::abs(bs->wo.z);
+        return bs;
+    }
+    Color3 eval(const BsdfContext& ctx, const SurfaceInteraction& si, const Vec3d& wo) const override {
+        return m_inner->eval(ctx, si, wo) + m_inner->eval(ctx, si, Vec3d(wo.x, wo.y, -wo.z));
+    }
+    double pdf(const BsdfContext& ctx, const SurfaceInteraction& si, const Vec3d& wo) const override {
+        if (!(wo.z > 0)) return 0.0;
+        return m_inner->pdf(ctx, si, wo) + m_inner->pdf(ctx, si, Vec3d(wo.x, wo.y, -wo.z));
+    }
+
+private:
+    std::shared_ptr<Bsdf> m_inner;
+};
+
 struct LobeConfig {
     std::string name;
     std::string distribution;
     double alpha;
     bool visible;
+    std::function<std::shared_ptr<Bsdf>()> make = {};  ///< another BSDF than roughconductor
+    bool whole_lobe = true;                            ///< all of the density is a reflection lobe
 };
 void PrintTo(const LobeConfig& c, std::ostream* os) { *os << c.name; }
 
@@ -212,6 +283,36 @@ std::vector<LobeConfig> lobe_configs() {
             c.push_back({"roughconductor_" + d + "_" + alpha, d, a, true});
             c.push_back({"roughconductor_" + d + "_" + alpha + "_allnormals", d, a, false});
         }
+    // principled: GGX alpha = roughness^2 (at least 1e-3). Metallic 1 is one reflection lobe; the mixed material
+    // adds diffuse, clearcoat and transmission (whose density is outside the lobe cells: the extra cell).
+    for (double a : {0.001, 0.008, 0.03}) {
+        const std::string alpha = a == 0.001 ? "0_001" : a == 0.008 ? "0_008" : "0_03";
+        c.push_back({"principled_metallic_" + alpha, "ggx", a, true, [a] {
+                         return make_bsdf("principled", [a](Properties& p) {
+                             p.set_float("roughness", std::sqrt(a));
+                             p.set_float("metallic", 1.0);
+                         });
+                     }});
+        c.push_back({"principled_mixed_" + alpha, "ggx", a, true,
+                     [a] {
+                         return make_bsdf("principled", [a](Properties& p) {
+                             p.set_float("roughness", std::sqrt(a));
+                             p.set_float("metallic", 0.5);
+                             p.set_float("spec_trans", 0.5);
+                             p.set_float("clearcoat", 0.5);
+                         });
+                     },
+                     false});
+        c.push_back({"principledthin_" + alpha, "ggx", a, true,
+                     [a] {
+                         return std::make_shared<FoldedBsdf>(make_bsdf("principledthin", [a](Properties& p) {
+                             p.set_float("roughness", std::sqrt(a));
+                             p.set_float("spec_trans", 0.9);
+                             p.set_float("eta", 1.2);
+                         }));
+                     },
+                     false});
+    }
     return c;
 }
 
@@ -220,8 +321,9 @@ class BsdfChi2Lobe : public ::testing::TestWithParam<LobeConfig> {};
 TEST_P(BsdfChi2Lobe, SampleMatchesPdfInTheLobe) {
     static const double threshold = sidak(1e-3, int(lobe_configs().size() * kLobeDirections.size()));
     const LobeConfig& cfg = GetParam();
-    auto bsdf = make_bsdf("roughconductor", with(rough(cfg.distribution, cfg.alpha, -1, cfg.visible),
-                                                 [](Properties& p) { p.set_string("material", "Cu"); }));
+    auto bsdf = cfg.make ? cfg.make()
+                         : make_bsdf("roughconductor", with(rough(cfg.distribution, cfg.alpha, -1, cfg.visible),
+                                                            [](Properties& p) { p.set_string("material", "Cu"); }));
     ASSERT_TRUE(bsdf);
     Chi2Test test;
     test.lobe_alpha = cfg.alpha;
@@ -234,9 +336,11 @@ TEST_P(BsdfChi2Lobe, SampleMatchesPdfInTheLobe) {
                     r.other_expected);
         EXPECT_GT(r.p_value, threshold) << cfg.name << " wi=(" << wi.x << ", " << wi.y << ", " << wi.z << "): chi2 "
                                         << r.statistic << " with " << r.dof << " dof";
-        EXPECT_LE(r.integral, 1.0 + 1e-4) << cfg.name << ": pdf integrates above one";
+        // A broad (diffuse) part of the density is integrated less accurately in these lobe coordinates (the
+        // folded principledthin at alpha 0.001, 10 % diffuse: 1.0007 at cos 0.1, the chi-square passing).
+        EXPECT_LE(r.integral, 1.0 + (cfg.whole_lobe ? 1e-4 : 1e-3)) << cfg.name << ": pdf integrates above one";
         // Most of the lobe is above the horizon here: the test must have seen it (not only the extra cell).
-        if (wi.z >= 0.1) EXPECT_GT(r.integral, 0.9) << cfg.name;
+        if (wi.z >= 0.1 && cfg.whole_lobe) EXPECT_GT(r.integral, 0.9) << cfg.name;
     }
 }
 

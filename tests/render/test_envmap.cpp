@@ -105,7 +105,7 @@ TEST(Envmap, TexelDirectionsFollowMitsubaAxes) {
     auto file = write_map("axes.exr", W, H, [&](int i, int j) { return Color3(f(i, j)); });
     auto e = make_envmap(file);
     auto value_towards = [&](const Emitter& em, const Vec3d& to_sky) {
-        return em.eval(Vec3d(0.0), Vec3d(0.0), -to_sky).r;  // radiance arriving from `to_sky`
+        return em.eval(Vec3d(0.0), Vec3d(0.0), Vec2d(0.0), -to_sky).r;  // radiance arriving from `to_sky`
     };
     for (int j = 1; j < H - 1; ++j)  // (the poles have no azimuth)
         for (int i = 0; i < W; ++i) {
@@ -201,7 +201,7 @@ TEST(Envmap, SampledDirectionsMatchPdf) {
         const Vec3d d = ds->d;
         ASSERT_NEAR(glm::length(d), 1, 1e-12);
         EXPECT_NEAR(ds->pdf, e->pdf_direct(Vec3d(0.0), ds->p, Vec3d(0.0), d), 1e-9 * ds->pdf);
-        const Color3 L = e->eval(Vec3d(0.0), Vec3d(0.0), -d);
+        const Color3 L = e->eval(Vec3d(0.0), Vec3d(0.0), Vec2d(0.0), -d);
         EXPECT_NEAR(glm::length(ds->weight - L / ds->pdf), 0, 1e-9 * glm::length(L / ds->pdf));
         const Vec3d local = glm::normalize(Vec3d(kTilt.inverse * glm::dvec4(d, 0.0)));
         double u = std::atan2(local.x, -local.z) / (2 * Pi);
@@ -298,8 +298,8 @@ TEST(Envmap, BrightTexelAttractsNextEventEstimation) {
     EXPECT_NEAR(frac, p_bright, 5 * se + 1e-4);
     // The texel seen exactly at its centre in phi and its corner in theta, and nothing of it from the opposite.
     const Vec3d centre = direction_of((bi + 0.5) / W, double(bj) / (H - 1));
-    EXPECT_NEAR(e->eval(Vec3d(0.0), Vec3d(0.0), -centre).r, 5000.0, 1e-9 * 5000);
-    EXPECT_NEAR(e->eval(Vec3d(0.0), Vec3d(0.0), centre).r, 0.01, 1e-7);
+    EXPECT_NEAR(e->eval(Vec3d(0.0), Vec3d(0.0), Vec2d(0.0), -centre).r, 5000.0, 1e-9 * 5000);
+    EXPECT_NEAR(e->eval(Vec3d(0.0), Vec3d(0.0), Vec2d(0.0), centre).r, 0.01, 1e-7);
 }
 
 TEST(Envmap, DirectLightingMatchesQuadrature) {

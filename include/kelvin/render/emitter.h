@@ -38,6 +38,7 @@ struct DirectSample {
 struct EmissionSample {
     Ray ray;
     Vec3d n{0.0};        ///< surface normal at the origin (zero for points)
+    Vec2d uv{0.0};       ///< surface uv of the origin (area emitters: where a textured radiance is read)
     Color3 weight{0.0};  ///< Le * |cos| / (pdf_pos * pdf_dir)
     double pdf_pos = 0;  ///< area density of the origin (1 for delta positions)
     double pdf_dir = 0;  ///< solid-angle density of the direction
@@ -66,9 +67,13 @@ public:
     /// Solid-angle density, at `ref`, of sample_direct choosing the point `p` (with normal `n`); 0 for delta
     /// emitters. For infinite emitters `p` is ignored and `n` is unused; `d` is the unit direction ref -> p.
     virtual double pdf_direct(const Vec3d& ref, const Vec3d& p, const Vec3d& n, const Vec3d& d) const = 0;
-    /// Radiance leaving the emitter at `p` (normal `n`) in unit direction `w` (pointing away from the emitter,
-    /// towards the viewer). For infinite emitters: radiance arriving along -w from infinity.
-    virtual Color3 eval(const Vec3d& p, const Vec3d& n, const Vec3d& w) const = 0;
+    /// Radiance leaving the emitter at `p` (normal `n`, surface coordinates `uv`) in unit direction `w` (pointing
+    /// away from the emitter, towards the viewer). For infinite emitters: radiance arriving along -w from infinity
+    /// (`n` and `uv` unused). An area emitter with a textured radiance reads its texture at `uv`.
+    virtual Color3 eval(const Vec3d& p, const Vec3d& n, const Vec2d& uv, const Vec3d& w) const = 0;
+    /// Whether eval() varies over the surface (a textured area emitter); differentiable path evaluation
+    /// (path_derivatives.h) supports only constant radiance.
+    virtual bool spatially_varying() const { return false; }
     /// Sample an emitted ray with `u_pos` for the origin and `u_dir` for the direction.
     virtual std::optional<EmissionSample> sample_emission(const Vec2d& u_pos, const Vec2d& u_dir) const = 0;
     /// Densities with which sample_emission produces origin `p` (normal `n`; area density, 1 for delta

@@ -24,6 +24,9 @@ public:
     /// Average over [0,1]^2 (used for albedo estimates and light power).
     virtual Color3 mean() const = 0;
     virtual bool is_constant() const { return false; }
+    /// Texels along u and v (Mitsuba's Texture::resolution): the image size of a bitmap, (1, 1) otherwise. The
+    /// projector emitter takes its aspect ratio from it.
+    virtual glm::ivec2 resolution() const { return {1, 1}; }
 };
 
 /// A constant colour as a texture.

@@ -1,14 +1,22 @@
-// area: a shape that emits constant radiance from its front side (the side its normal points to).
-// Next-event estimation samples the shape uniformly by area and converts to solid angle,
-//     pdf_omega = pdf_A * d^2 / |cos theta_e|.
+// area: a shape that emits radiance from its front side (the side its normal points to). The radiance is a
+// colour or a texture read at the surface's uv (Mitsuba's `radiance` texture: a bitmap glued on the emitter).
 //
-// | parameter | type | default | meaning                 |
-// |-----------|------|---------|-------------------------|
-// | radiance  | rgb  | 1       | emitted radiance (W/(m^2 sr)) |
+// Next-event estimation samples the shape uniformly by area and converts to solid angle,
+//     pdf_omega = pdf_A * d^2 / |cos theta_e|;
+// a textured radiance enters only through the sample's weight (L(uv) / pdf), so the density stays the shape's
+// and pdf_direct() needs no uv. Light tracing starts rays at a uniform point with a cosine-weighted direction,
+// weight L(uv) * pi * area. Uniform by area is unbiased for any texture (the density is positive wherever the
+// texture can be); unlike Mitsuba it does not importance-sample the texture, so a very uneven texture gives more
+// noise than Mitsuba, never another mean.
+//
+// | parameter | type          | default | meaning                                                |
+// |-----------|---------------|---------|--------------------------------------------------------|
+// | radiance  | rgb / texture | 1       | emitted radiance (W/(m^2 sr)); a texture is read at uv |
 //
 //     <shape type="rectangle"><emitter type="area"><rgb name="radiance" value="17, 12, 4"/></emitter></shape>
 #include <kelvin/core/registry.h>
 #include <kelvin/render/shape.h>
+#include <kelvin/render/texture.h>
 #include <kelvin/render/warp.h>
 
 namespace kelvin {
@@ -16,10 +24,18 @@ namespace {
 
 class AreaEmitter final : public Emitter {
 public:
-    explicit AreaEmitter(const Properties& props) : m_radiance(props.get_color("radiance")) {
-        if (m_radiance.r < 0 || m_radiance.g < 0 || m_radiance.b < 0) props.error("radiance", "must not be negative");
+    explicit AreaEmitter(const Properties& props) : m_radiance(get_texture(props, "radiance")) {
+        if (m_radiance->plugin_name() == "mesh_attribute")
+            props.error("radiance", "a mesh_attribute texture is not supported here (only textures read at uv)");
+        if (m_radiance->is_constant()) {
+            const Color3 c = m_radiance->mean();
+            if (c.r < 0 || c.g < 0 || c.b < 0) props.error("radiance", "must not be negative");
+        }
+        m_constant = m_radiance->is_constant();
+        m_value = m_radiance->mean();
     }
     uint32_t flags() const override { return EmitterFlags::Surface; }
+    bool spatially_varying() const override { return !m_constant; }
     void set_shape(const Shape* shape) override { m_shape = shape; }
 
     std::optional<DirectSample> sample_direct(const Vec3d& ref, const Vec2d& u) const override {
@@ -38,7 +54,7 @@ public:
         ds.dist = dist;
         ds.pdf = ps.pdf * dist2 / cos_e;
         if (!(ds.pdf > 0) || !std::isfinite(ds.pdf)) return std::nullopt;
-        ds.weight = m_radiance / ds.pdf;
+        ds.weight = radiance(ps.uv) / ds.pdf;
         return ds;
     }
     double pdf_direct(const Vec3d& ref, const Vec3d& p, const Vec3d& n, const Vec3d& d) const override {
@@ -47,8 +63,8 @@ public:
         Vec3d v = p - ref;
         return glm::dot(v, v) / (cos_e * m_shape->surface_area());
     }
-    Color3 eval(const Vec3d&, const Vec3d& n, const Vec3d& w) const override {
-        return glm::dot(n, w) > 0 ? m_radiance : Color3(0.0);
+    Color3 eval(const Vec3d&, const Vec3d& n, const Vec2d& uv, const Vec3d& w) const override {
+        return glm::dot(n, w) > 0 ? radiance(uv) : Color3(0.0);
     }
     std::optional<EmissionSample> sample_emission(const Vec2d& u_pos, const Vec2d& u_dir) const override {
         PositionSample ps = m_shape->sample_position(u_pos);
@@ -56,20 +72,29 @@ public:
         EmissionSample es;
         es.ray = Ray{ps.p, Frame(ps.n).to_world(local), 0.0, Inf};
         es.n = ps.n;
+        es.uv = ps.uv;
         es.pdf_pos = ps.pdf;
         es.pdf_dir = warp::square_to_cosine_hemisphere_pdf(local);
         if (!(es.pdf_dir > 0)) return std::nullopt;
-        es.weight = m_radiance * (Pi * m_shape->surface_area());  // Le cos / (pdf_pos pdf_dir)
+        es.weight = radiance(ps.uv) * (Pi * m_shape->surface_area());  // Le cos / (pdf_pos pdf_dir)
         return es;
     }
     std::pair<double, double> pdf_emission(const Vec3d&, const Vec3d& n, const Vec3d& d) const override {
         double c = glm::dot(n, d);
         return {1.0 / m_shape->surface_area(), c > 0 ? c * InvPi : 0.0};
     }
-    Color3 power() const override { return m_radiance * (Pi * (m_shape ? m_shape->surface_area() : 0.0)); }
+    /// For a texture: its mean over uv times the area (exact when uv is uniform over the surface; only used to
+    /// choose between emitters).
+    Color3 power() const override { return m_value * (Pi * (m_shape ? m_shape->surface_area() : 0.0)); }
 
 private:
-    Color3 m_radiance;
+    Color3 radiance(const Vec2d& uv) const {
+        return m_constant ? m_value : glm::max(m_radiance->eval(uv), Color3(0.0));
+    }
+
+    std::shared_ptr<Texture> m_radiance;
+    bool m_constant = true;
+    Color3 m_value{1.0};
     const Shape* m_shape = nullptr;
 };
 
@@ -77,4 +102,4 @@ private:
 }  // namespace kelvin
 
 KELVIN_PLUGIN(kelvin::AreaEmitter, "emitter", "area", "Diffuse area light on the front side of its shape.",
-              kelvin::param::color("radiance", kelvin::Color3(1.0), "emitted radiance"));
+              kelvin::param::texture("radiance", kelvin::Color3(1.0), "emitted radiance (colour or texture at uv)"));

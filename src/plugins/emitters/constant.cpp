@@ -36,7 +36,7 @@ public:
     double pdf_direct(const Vec3d&, const Vec3d&, const Vec3d&, const Vec3d&) const override {
         return warp::square_to_uniform_sphere_pdf();
     }
-    Color3 eval(const Vec3d&, const Vec3d&, const Vec3d&) const override { return m_radiance; }
+    Color3 eval(const Vec3d&, const Vec3d&, const Vec2d&, const Vec3d&) const override { return m_radiance; }
     std::optional<EmissionSample> sample_emission(const Vec2d& u_pos, const Vec2d& u_dir) const override {
         EmissionSample es;
         Vec3d d = warp::square_to_uniform_sphere(u_dir);

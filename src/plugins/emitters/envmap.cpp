@@ -130,7 +130,9 @@ public:
     double pdf_direct(const Vec3d&, const Vec3d&, const Vec3d&, const Vec3d& d) const override {
         return pdf_local(m_to_local * d);
     }
-    Color3 eval(const Vec3d&, const Vec3d&, const Vec3d& w) const override { return lookup(m_to_local * -w); }
+    Color3 eval(const Vec3d&, const Vec3d&, const Vec2d&, const Vec3d& w) const override {
+        return lookup(m_to_local * -w);
+    }
 
     std::optional<EmissionSample> sample_emission(const Vec2d& u_pos, const Vec2d& u_dir) const override {
         double pdf = 0;

@@ -35,7 +35,7 @@ public:
         return ds;
     }
     double pdf_direct(const Vec3d&, const Vec3d&, const Vec3d&, const Vec3d&) const override { return 0; }
-    Color3 eval(const Vec3d&, const Vec3d&, const Vec3d&) const override { return Color3(0.0); }
+    Color3 eval(const Vec3d&, const Vec3d&, const Vec2d&, const Vec3d&) const override { return Color3(0.0); }
     std::optional<EmissionSample> sample_emission(const Vec2d&, const Vec2d& u_dir) const override {
         EmissionSample es;
         es.ray = Ray{m_pos, warp::square_to_uniform_sphere(u_dir), 0.0, Inf};

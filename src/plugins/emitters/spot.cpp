@@ -110,7 +110,7 @@ public:
         return ds;
     }
     double pdf_direct(const Vec3d&, const Vec3d&, const Vec3d&, const Vec3d&) const override { return 0; }
-    Color3 eval(const Vec3d&, const Vec3d&, const Vec3d&) const override { return Color3(0.0); }
+    Color3 eval(const Vec3d&, const Vec3d&, const Vec2d&, const Vec3d&) const override { return Color3(0.0); }
     std::optional<EmissionSample> sample_emission(const Vec2d&, const Vec2d& u_dir) const override {
         const Vec3d local = warp::square_to_uniform_cone(u_dir, m_cos_cutoff);
         const Color3 f = falloff_local(local);

@@ -53,12 +53,13 @@ public:
         const auto hit = scene.intersect(ray);
         if (!hit) {
             if (!m_hide_emitters)
-                for (const Emitter* e : scene.environment_emitters()) L += e->eval(ray.o, Vec3d(0.0), -ray.d);
+                for (const Emitter* e : scene.environment_emitters())
+                    L += e->eval(ray.o, Vec3d(0.0), Vec2d(0.0), -ray.d);
             skip(sampler);
             return L;
         }
         const SurfaceInteraction si = scene.interaction(ray, *hit);
-        if (const Emitter* e = si.shape->emitter(); e && !m_hide_emitters) L += e->eval(si.p, si.ng, -ray.d);
+        if (const Emitter* e = si.shape->emitter(); e && !m_hide_emitters) L += e->eval(si.p, si.ng, si.uv, -ray.d);
         const Bsdf& bsdf = *si.shape->bsdf();
 
         // Emitter sampling.
@@ -94,7 +95,7 @@ public:
             const auto h2 = scene.intersect(next);
             if (!h2) {
                 for (const Emitter* e : scene.environment_emitters()) {
-                    const Color3 Le = e->eval(si.p, Vec3d(0.0), -d);
+                    const Color3 Le = e->eval(si.p, Vec3d(0.0), Vec2d(0.0), -d);
                     if (Le == Color3(0.0)) continue;
                     const double w = delta ? 1.0
                                            : mis(bs->pdf * m_frac_bsdf,
@@ -107,7 +108,7 @@ public:
             const SurfaceInteraction s2 = scene.interaction(next, *h2);
             const Emitter* e = s2.shape->emitter();
             if (!e) continue;
-            const Color3 Le = e->eval(s2.p, s2.ng, -d);
+            const Color3 Le = e->eval(s2.p, s2.ng, s2.uv, -d);
             if (Le == Color3(0.0)) continue;
             const double w = delta ? 1.0
                                    : mis(bs->pdf * m_frac_bsdf,

@@ -64,7 +64,7 @@ public:
             if (!hit) {
                 for (const Emitter* e : scene.environment_emitters()) {
                     if ((depth == 0 && m_hide_emitters) || depth + 1 < m_min_depth) break;
-                    Color3 Le = e->eval(ray.o, Vec3d(0.0), -ray.d);
+                    Color3 Le = e->eval(ray.o, Vec3d(0.0), Vec2d(0.0), -ray.d);
                     double w = 1.0;
                     if (!prev_delta && m_emitter_sampling) {
                         double pl = scene.emitter_pdf(e) * e->pdf_direct(prev_p, Vec3d(0.0), Vec3d(0.0), ray.d);
@@ -79,7 +79,7 @@ public:
             // Emission found by BSDF sampling (or seen directly).
             if (const Emitter* e = si.shape->emitter();
                 e && !(depth == 0 && m_hide_emitters) && depth + 1 >= m_min_depth) {
-                Color3 Le = e->eval(si.p, si.ng, -ray.d);
+                Color3 Le = e->eval(si.p, si.ng, si.uv, -ray.d);
                 if (Le != Color3(0.0)) {
                     double w = 1.0;
                     if (!prev_delta && m_emitter_sampling) {

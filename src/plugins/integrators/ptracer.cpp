@@ -101,7 +101,7 @@ private:
         // Path length 1: the emitter itself, seen by the camera (area emitters only; points cannot be seen).
         if (!m_hide_emitters && !es->delta_pos && (e->flags() & EmitterFlags::Surface)) {
             if (auto sd = sensor.sample_direct(es->ray.o, u_lens0)) {
-                Color3 Le = e->eval(es->ray.o, es->n, sd->d);
+                Color3 Le = e->eval(es->ray.o, es->n, es->uv, sd->d);
                 if (Le != Color3(0.0)) {
                     SurfaceInteraction origin;
                     origin.p = es->ray.o;

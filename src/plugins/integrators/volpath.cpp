@@ -157,7 +157,7 @@ public:
             if (!hit) {
                 if (!(depth == 0 && m_hide_emitters))
                     for (const Emitter* e : scene.environment_emitters()) {
-                        const Color3 Le = e->eval(ray.o, Vec3d(0.0), -ray.d);
+                        const Color3 Le = e->eval(ray.o, Vec3d(0.0), Vec2d(0.0), -ray.d);
                         double w = 1.0;
                         if (!specular_chain) {
                             const double pl =
@@ -172,7 +172,7 @@ public:
             // ---- a surface
             const SurfaceInteraction si = scene.interaction(ray, *hit);
             if (const Emitter* e = si.shape->emitter(); e && !(depth == 0 && m_hide_emitters)) {
-                const Color3 Le = e->eval(si.p, si.ng, -ray.d);
+                const Color3 Le = e->eval(si.p, si.ng, si.uv, -ray.d);
                 if (Le != Color3(0.0)) {
                     double w = 1.0;
                     if (!specular_chain) {

@@ -104,6 +104,7 @@ public:
                ty * ((1 - tx) * texel(ix0, iy1) + tx * texel(ix1, iy1));
     }
     Color3 mean() const override { return m_mean; }
+    glm::ivec2 resolution() const override { return {m_width, m_height}; }
     /// Gradient in (u, v) of the luminance of the bilinear interpolant (Mitsuba's eval_1_grad), through to_uv;
     /// zero for nearest filtering.
     Vec2d eval_1_grad(const SurfaceInteraction& si) const override {
