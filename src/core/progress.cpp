@@ -1,7 +1,9 @@
+#include <kelvin/core/interrupt.h>
 #include <kelvin/core/progress.h>
 
 #include <fmt/format.h>
 
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
@@ -20,6 +22,14 @@ std::string duration(double s) {
     if (t >= 3600) return fmt::format("{}h{:02}m", t / 3600, (t / 60) % 60);
     if (t >= 60) return fmt::format("{}m{:02}s", t / 60, t % 60);
     return fmt::format("{}s", t);
+}
+// A count with an SI prefix: 12, 1.5k, 3.2M.
+std::string amount(double v) {
+    const double a = std::abs(v);
+    if (a >= 1e9) return fmt::format("{:.3g}G", v / 1e9);
+    if (a >= 1e6) return fmt::format("{:.3g}M", v / 1e6);
+    if (a >= 1e4) return fmt::format("{:.3g}k", v / 1e3);
+    return fmt::format("{:.4g}", v);
 }
 }  // namespace
 
@@ -51,32 +61,56 @@ void ProgressReporter::finish() {
     m_finished = true;
 }
 
+std::string ProgressReporter::line(bool final) const {
+    const double elapsed = now_seconds() - m_start, done = m_done.load();
+    const bool has_total = m_total > 0 && std::isfinite(m_total);
+    const double work_frac = has_total ? std::min(1.0, done / m_total) : 0.0;
+    const double time_frac = m_time_limit > 0 ? std::min(1.0, elapsed / m_time_limit) : 0.0;
+    const double frac = std::max(work_frac, time_frac);
+    const double rate = elapsed > 0 ? done / elapsed : 0.0;
+    const bool interrupted = interrupt_requested();
+    std::string s = m_label;
+    if (m_terminal) {
+        constexpr int width = 30;
+        std::string bar(std::size_t(frac * width), '#');
+        bar.resize(width, '.');
+        s += fmt::format(" [{}] {:3.0f}%", bar, 100 * frac);
+    } else if (has_total || m_time_limit > 0) {
+        s += fmt::format(": {:.1f}%", 100 * frac);
+    } else {
+        s += ":";
+    }
+    s += has_total ? fmt::format(" {}/{} {}", amount(done), amount(m_total), m_unit)
+                   : fmt::format(" {} {}", amount(done), m_unit);
+    s += fmt::format(", {} {}/s, {}", amount(rate), m_unit, duration(elapsed));
+    if (m_time_limit > 0) s += fmt::format(" of {}", duration(m_time_limit));
+    if (final)
+        s += interrupted ? " (interrupted)" : "";
+    else if (interrupted)
+        s += ", interrupting";
+    else if (frac > 0)
+        s += ", ETA " + duration(elapsed * (1 - frac) / frac);
+    return s;
+}
+
 void ProgressReporter::print(bool final) {
     if (m_quiet) return;
-    double t = now_seconds();
+    const double t = now_seconds();
     std::unique_lock lock(m_mutex, std::try_to_lock);
     if (!lock.owns_lock() && !final) return;
     if (!lock.owns_lock()) lock.lock();
-    double min_gap = m_terminal ? 0.1 : m_interval;
+    if (m_finished) return;
+    const double min_gap = m_terminal ? 0.1 : m_interval;
     if (!final && t - m_last_print < min_gap) return;
+    // Work (or time) complete: the final line follows, and a plain log gets it once, not twice.
+    if (!final && ((m_total > 0 && m_done.load() >= m_total) || (m_time_limit > 0 && t - m_start >= m_time_limit)))
+        return;
     m_last_print = t;
-    double elapsed = t - m_start, done = m_done.load();
-    double frac = m_total > 0 ? std::min(1.0, done / m_total) : 0.0;
-    double rate = elapsed > 0 ? done / elapsed : 0.0;
-    double eta = frac > 0 ? elapsed * (1 - frac) / frac : -1;
-    if (m_terminal) {
-        const int width = 30;
-        int filled = int(frac * width);
-        std::string bar(std::size_t(filled), '#');
-        bar.resize(width, '.');
-        std::string line = fmt::format("\r{} [{}] {:5.1f}% {:.4g} {}/s, {} elapsed, ETA {}", m_label, bar, 100 * frac,
-                                       rate, m_unit, duration(elapsed), final ? "0s" : duration(eta));
-        std::fprintf(stderr, "%s\033[K%s", line.c_str(), final ? "\n" : "");
-    } else {
-        std::fprintf(stderr, "%s: %.4g/%.4g %s (%.1f%%), %.4g %s/s, %s elapsed%s\n", m_label.c_str(), done, m_total,
-                     m_unit.c_str(), 100 * frac, rate, m_unit.c_str(), duration(elapsed).c_str(),
-                     final ? "" : fmt::format(", ETA {}", duration(eta)).c_str());
-    }
+    const std::string s = line(final);
+    if (m_terminal)
+        std::fprintf(stderr, "\r%s\033[K%s", s.c_str(), final ? "\n" : "");
+    else
+        std::fprintf(stderr, "%s\n", s.c_str());
     std::fflush(stderr);
 }
 

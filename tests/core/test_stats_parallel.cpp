@@ -8,6 +8,7 @@
 #include <kelvin/core/random.h>
 #include <kelvin/core/stats.h>
 
+#include <algorithm>
 #include <atomic>
 #include <cmath>
 #include <cstring>
@@ -54,8 +55,14 @@ TEST(Stats, ReportHasOneLinePerCounter) {
     s.add("small", 7, "x");
     s.set("ratio", 0.123456);
     s.add_time("time/render", 1.5);
+    s.add("render.invalid_samples", 0, "samples");  // an effect that did not happen: not printed
+    s.add_time("time/unused", 0);
     std::string r = s.report();
-    EXPECT_EQ(std::count(r.begin(), r.end(), '\n'), 5);
+    EXPECT_EQ(std::count(r.begin(), r.end(), '\n'), 5) << r;
+    EXPECT_EQ(r.find("invalid_samples"), std::string::npos) << r;
+    EXPECT_EQ(r.find("unused"), std::string::npos) << r;
+    // No trailing spaces (checked failing with the old "{:.0f} " formatting of unitless counters).
+    EXPECT_EQ(r.find(" \n"), std::string::npos) << r;
     EXPECT_CONTAINS(r, "12.3 k");
     EXPECT_CONTAINS(r, "paths\n");
     EXPECT_CONTAINS(r, "2.5 M");
@@ -198,6 +205,37 @@ TEST(Progress, QuietReporterPrintsNothing) {
         p.finish();  // idempotent
     }
     std::string out = testing::internal::GetCapturedStderr();
-    EXPECT_CONTAINS(out, "render");
-    EXPECT_CONTAINS(out, "10/10 spp (100.0%)");
+    EXPECT_CONTAINS(out, "render: 100.0% 10/10 spp");
+    // The final line once: the update that completed the work does not print it first (checked failing with
+    // the completion check removed from ProgressReporter::print: two lines).
+    EXPECT_EQ(std::count(out.begin(), out.end(), '\n'), 1) << out;
+    EXPECT_EQ(out.find("ETA"), std::string::npos) << out;
+}
+
+TEST(Progress, TimeLimitShowsWorkDoneAndItsRate) {
+    ProgressReporter p("Rendering", 0, "spp");
+    p.set_terminal(false);
+    p.set_time_limit(10);
+    p.set(12);
+    const std::string l = p.line(false);
+    // The work in its own unit, not seconds per second (checked failing with the old "s" unit: "1 s/s").
+    EXPECT_CONTAINS(l, "Rendering: ");
+    EXPECT_CONTAINS(l, " 12 spp, ");
+    EXPECT_CONTAINS(l, " spp/s, ");
+    EXPECT_CONTAINS(l, " of 10s");
+    EXPECT_EQ(l.find("s/s"), l.find("spp/s") + 2) << l;
+}
+
+TEST(Progress, NoEtaAfterAnInterrupt) {
+    ProgressReporter p("Rendering", 100, "spp");
+    p.set_terminal(true);
+    p.set(50);
+    EXPECT_CONTAINS(p.line(false), "ETA");
+    request_interrupt();
+    const std::string running = p.line(false), final = p.line(true);
+    clear_interrupt();
+    EXPECT_EQ(running.find("ETA"), std::string::npos) << running;
+    EXPECT_EQ(final.find("ETA"), std::string::npos) << final;
+    EXPECT_CONTAINS(final, "50/100 spp");
+    EXPECT_CONTAINS(final, "(interrupted)");
 }
