@@ -75,8 +75,8 @@ void print_params(const PluginInfo& p, const std::string& indent) {
         for (std::size_t i = 0; i < 3; ++i) width[i] = std::max(width[i], rows.back()[i].size());
     }
     for (const auto& r : rows) {
-        std::string line = fmt::format("{}{:<{}}  {:<{}}  {:<{}}  {}", indent, r[0], width[0], r[1], width[1], r[2],
-                                       width[2], r[3]);
+        std::string line =
+            fmt::format("{}{:<{}}  {:<{}}  {:<{}}  {}", indent, r[0], width[0], r[1], width[1], r[2], width[2], r[3]);
         while (!line.empty() && line.back() == ' ') line.pop_back();
         fmt::print("{}\n", line);
     }
@@ -183,9 +183,7 @@ void check_defines(const ParsedScene& parsed, bool allow_unused) {
 }
 
 CropWindow parse_crop(const std::string& text) {
-    auto fail = [&](const std::string& why) {
-        throw InputError({}, fmt::format("--crop '{}': {}", text, why));
-    };
+    auto fail = [&](const std::string& why) { throw InputError({}, fmt::format("--crop '{}': {}", text, why)); };
     std::vector<long long> v;
     for (const auto& part : split_list(text)) {
         auto i = parse_int(part);
@@ -204,16 +202,16 @@ CropWindow parse_crop(const std::string& text) {
 void check_crop(const Job& job, const CropWindow& c, const std::string& text) {
     const auto* scene = dynamic_cast<const Scene*>(&job);
     if (!scene || !scene->integrator() || !scene->sensor())
-        throw InputError({}, fmt::format("--crop '{}': the scene is not a render (a simulation has no film to crop)",
-                                         text));
+        throw InputError(
+            {}, fmt::format("--crop '{}': the scene is not a render (a simulation has no film to crop)", text));
     if (!scene->integrator()->supports_crop())
         throw InputError({}, fmt::format("--crop '{}': integrator '{}' renders the whole film only (crop works with "
                                          "the pixel-sampling integrators: path, volpath, bdpt, direct, ao, aov, ...)",
                                          text, scene->integrator()->plugin_name()));
     const int w = scene->sensor()->film().width(), h = scene->sensor()->film().height();
     if (c.x1 > w || c.y1 > h)
-        throw InputError({}, fmt::format("--crop '{}': the window exceeds the {} x {} film (x1 <= {}, y1 <= {})", text,
-                                         w, h, w, h));
+        throw InputError(
+            {}, fmt::format("--crop '{}': the window exceeds the {} x {} film (x1 <= {}, y1 <= {})", text, w, h, w, h));
 }
 
 std::string rate(double work, double seconds, const std::string& unit) {

@@ -3,11 +3,11 @@
 
 #include <fmt/format.h>
 
+#include <unistd.h>
 #include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
-#include <unistd.h>
 
 namespace kelvin {
 
@@ -36,8 +36,12 @@ std::string amount(double v) {
 void ProgressReporter::set_enabled(bool enabled) { g_enabled = enabled; }
 
 ProgressReporter::ProgressReporter(std::string label, double total, std::string unit, bool quiet)
-    : m_label(std::move(label)), m_unit(std::move(unit)), m_total(total), m_quiet(quiet || !g_enabled),
-      m_terminal(isatty(STDERR_FILENO) != 0), m_start(now_seconds()) {
+    : m_label(std::move(label)),
+      m_unit(std::move(unit)),
+      m_total(total),
+      m_quiet(quiet || !g_enabled),
+      m_terminal(isatty(STDERR_FILENO) != 0),
+      m_start(now_seconds()) {
     m_last_print = m_start;
 }
 
@@ -83,7 +87,8 @@ std::string ProgressReporter::line(bool final) const {
     s += has_total ? fmt::format(" {}/{} {}", amount(done), amount(m_total), m_unit)
                    : fmt::format(" {} {}", amount(done), m_unit);
     s += fmt::format(", {} {}/s, {}", amount(rate), m_unit, duration(elapsed));
-    if (m_time_limit > 0) s += fmt::format(" of {}", duration(m_time_limit));
+    if (m_time_limit > 0)  // as given when short ("of 1.5s"), rounded like the elapsed time when long
+        s += " of " + (m_time_limit < 60 ? fmt::format("{:g}s", m_time_limit) : duration(m_time_limit));
     if (final)
         s += interrupted ? " (interrupted)" : "";
     else if (interrupted)

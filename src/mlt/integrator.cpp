@@ -1,11 +1,11 @@
 // pssmlt / drmlt: Metropolis light transport over the primary sample space. See include/kelvin/mlt/integrator.h
 // and docs/mlt.md.
-#include <kelvin/core/progress.h>
 #include <kelvin/core/colormap.h>
 #include <kelvin/core/error.h>
 #include <kelvin/core/interrupt.h>
 #include <kelvin/core/logging.h>
 #include <kelvin/core/parallel.h>
+#include <kelvin/core/progress.h>
 #include <kelvin/core/registry.h>
 #include <kelvin/mlt/integrator.h>
 #include <kelvin/render/film.h>

@@ -23,8 +23,8 @@
 namespace kelvin {
 
 PassLoopResult run_passes(RunContext& ctx, long long scene_target, const std::string& unit,
-                          const std::function<void(long long, long long)>& pass,
-                          const std::function<Bitmap()>& develop, double seconds_before) {
+                          const std::function<void(long long, long long)>& pass, const std::function<Bitmap()>& develop,
+                          double seconds_before) {
     const bool timed = ctx.time_limit > 0 && ctx.spp <= 0;
     long long target = ctx.spp > 0 ? ctx.spp : scene_target;
     if (timed) target = LLONG_MAX;  // equal-time rendering: as much work as time allows
@@ -147,7 +147,8 @@ RunResult SamplingIntegrator::render(const Scene& scene, RunContext& ctx) {
 
     auto pass = [&](long long first, long long n) {
         parallel_for_units(tiles, [&](std::size_t unit) {
-            const int x0 = ox + int(unit % std::size_t(tx)) * TileSize, y0 = oy + int(unit / std::size_t(tx)) * TileSize;
+            const int x0 = ox + int(unit % std::size_t(tx)) * TileSize,
+                      y0 = oy + int(unit / std::size_t(tx)) * TileSize;
             const int x1 = std::min(x0 + TileSize, ox + w), y1 = std::min(y0 + TileSize, oy + h);
             std::unique_ptr<Sampler> sampler = sensor.sampler().clone();
             SampleCounters& c = counters[unit];

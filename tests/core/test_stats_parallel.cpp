@@ -121,9 +121,10 @@ TEST(Parallel, UnitExceptionIsRethrown) {
     }
     EXPECT_GE(ran.load(), 1);
     // Kelvin's own exception types survive with their type and location.
-    EXPECT_THROW(parallel_for_units(64, [](std::size_t u) {
-                     if (u == 63) throw InputError({"s.xml", 1, 2}, "bad");
-                 }),
+    EXPECT_THROW(parallel_for_units(64,
+                                    [](std::size_t u) {
+                                        if (u == 63) throw InputError({"s.xml", 1, 2}, "bad");
+                                    }),
                  InputError);
     // A later call works normally.
     std::atomic<int> n{0};
@@ -223,7 +224,7 @@ TEST(Progress, TimeLimitShowsWorkDoneAndItsRate) {
     EXPECT_CONTAINS(l, " 12 spp, ");
     EXPECT_CONTAINS(l, " spp/s, ");
     EXPECT_CONTAINS(l, " of 10s");
-    EXPECT_EQ(l.find("s/s"), l.find("spp/s") + 2) << l;
+    EXPECT_EQ(l.find(" s/s"), std::string::npos) << l;
 }
 
 TEST(Progress, NoEtaAfterAnInterrupt) {

@@ -24,9 +24,9 @@ struct CropWindow {
 
 struct RunContext {
     uint64_t seed = 0;
-    long long spp = -1;          ///< override of the sample count (-1: the scene's own)
-    double time_limit = 0;       ///< seconds; 0 = none (equal-time runs stop after this)
-    double write_partial = 0;    ///< seconds between partial outputs; 0 = never
+    long long spp = -1;        ///< override of the sample count (-1: the scene's own)
+    double time_limit = 0;     ///< seconds; 0 = none (equal-time runs stop after this)
+    double write_partial = 0;  ///< seconds between partial outputs; 0 = never
     bool quiet = false;
     /// Label of the main progress line ("Rendering" when empty); nested passes (an MLT direct pass) set their own.
     std::string progress_label;
@@ -54,8 +54,8 @@ struct RunContext {
 };
 
 struct RunResult {
-    Bitmap image;             ///< final image (renders); may be empty for simulations
-    bool interrupted = false; ///< stopped early by a signal; `image` holds what was computed
+    Bitmap image;              ///< final image (renders); may be empty for simulations
+    bool interrupted = false;  ///< stopped early by a signal; `image` holds what was computed
     double seconds = 0;
     double work = 0;          ///< samples, paths or steps done
     std::string work_unit;    ///< "spp", "steps", ...
