@@ -192,7 +192,7 @@ TEST_F(CliInform, MltSummaryNamesTheVariantAndTheStageMap) {
 
 // ----- --stats
 
-// Checked failing with write_stats() writing "nan" for a non-finite counter (not JSON) and without "statistics".
+// Checked failing with the write_stats() call removed from main.cpp (no file).
 TEST_F(CliInform, StatsFileIsValidJsonWithSettingsAndEveryCounter) {
     const fs::path stats = m_dir / "run.json";
     auto r = run_kelvin(
@@ -296,20 +296,21 @@ TEST_F(CliInform, CropIsTheWindowOfTheFullRender) {
 }
 
 // BDPT's light-tracing strategies splat into any pixel: a crop keeps the splats of its own light paths (as pbrt-v4
-// does), so it equals the full render's window in expectation, not bit for bit. Its mean agrees within noise
-// (checked failing with the splats not moved into the window's coordinates: the light-tracing part lands offset).
+// does), so it equals the full render's window in expectation, not bit for bit. Its mean over the bottom half of
+// the image agrees within noise (checked failing with the splats not moved into the window's coordinates: the
+// light-tracing part of the top half lands in the window, ratio 0.89).
 TEST_F(CliInform, BdptCropAgreesWithTheFullRenderInExpectation) {
     const fs::path full = out("full.exr"), crop = out("crop.exr");
-    const std::vector<std::string> common = {LitScene, "-q", "-D", "integrator=bdpt", "-D", "spp=64"};
+    const std::vector<std::string> common = {LitScene, "-q", "-D", "integrator=bdpt", "-D", "spp=128"};
     auto args = common;
     args.insert(args.end(), {"-o", full.string()});
     ASSERT_EQ(run_kelvin(args, {}, 120s).exit_code, 0);
     args = common;
-    args.insert(args.end(), {"--crop", "4,20,2,22", "-o", crop.string()});
+    args.insert(args.end(), {"--crop", "0,24,12,24", "-o", crop.string()});
     ASSERT_EQ(run_kelvin(args, {}, 120s).exit_code, 0);
-    const kelvin::Bitmap c = kelvin::read_image(crop), f = window(kelvin::read_image(full), 4, 20, 2, 22);
-    ASSERT_EQ(c.width(), 16);
-    ASSERT_EQ(c.height(), 20);
+    const kelvin::Bitmap c = kelvin::read_image(crop), f = window(kelvin::read_image(full), 0, 24, 12, 24);
+    ASSERT_EQ(c.width(), 24);
+    ASSERT_EQ(c.height(), 12);
     double sc = 0, sf = 0;
     for (int y = 0; y < c.height(); ++y)
         for (int x = 0; x < c.width(); ++x) {
@@ -317,7 +318,7 @@ TEST_F(CliInform, BdptCropAgreesWithTheFullRenderInExpectation) {
             sf += f.at(x, y, 0) + f.at(x, y, 1) + f.at(x, y, 2);
         }
     EXPECT_GT(sf, 0.0);
-    EXPECT_NEAR(sc / sf, 1.0, 0.05) << "crop mean " << sc << " vs window of the full render " << sf;
+    EXPECT_NEAR(sc / sf, 1.0, 0.04) << "crop mean " << sc << " vs window of the full render " << sf;
 }
 
 // Checked failing with parse_crop() accepting three values and check_crop() not comparing with the film size.
