@@ -201,6 +201,7 @@ TEST(Progress, QuietReporterPrintsNothing) {
     {
         ProgressReporter p("render", 10, "spp");
         p.set_terminal(false);
+        p.set_interval(0);  // every update may print
         p.update(10);
         p.finish();
         p.finish();  // idempotent
@@ -219,7 +220,8 @@ TEST(Progress, TimeLimitShowsWorkDoneAndItsRate) {
     p.set_time_limit(10);
     p.set(12);
     const std::string l = p.line(false);
-    // The work in its own unit, not seconds per second (checked failing with the old "s" unit: "1 s/s").
+    // The work in its own unit, and the limit (checked failing with the time limit left out of line()). The CLI
+    // test CliInform.PlainProgressWithTimeLimitCountsSamples checks that run_passes reports spp, not seconds.
     EXPECT_CONTAINS(l, "Rendering: ");
     EXPECT_CONTAINS(l, " 12 spp, ");
     EXPECT_CONTAINS(l, " spp/s, ");
