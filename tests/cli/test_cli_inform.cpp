@@ -199,11 +199,11 @@ TEST_F(CliInform, SimulationProgressSummaryAndEveryFileNamed) {
     fs::create_directories(m_dir / "run");
     const fs::path o = m_dir / "run" / "tg.exr";
     auto r = run_kelvin(
-        {tg, "-D", "res=16", "-D", "spp=16", "-D", "end=0.2", "-D", "every=2", "--time-limit", "60", "-o", o.string()},
+        {tg, "-D", "res=16", "-D", "spp=16", "-D", "end=0.2", "-D", "every=2", "--time-limit", "30", "-o", o.string()},
         {}, 120s);
     ASSERT_EQ(r.exit_code, 0) << describe(r);
     EXPECT_TRUE(std::regex_search(r.err, std::regex("(^|\n)Simulating: 100\\.0% 4/4 steps, [0-9.kM]+ steps/s, [0-9]+s "
-                                                    "of 60s\n")))
+                                                    "of 30s\n")))
         << describe(r);
     EXPECT_TRUE(contains(r.err, "\nDone: mcfluid (2D, biot_savart), 4 steps in ")) << describe(r);
     // Effects that did not run print nothing (inviscid, no walls, nothing invalid): the summary once listed 22
