@@ -159,7 +159,8 @@ void print_scene_params(const ParsedScene& parsed) {
 
 // -D NAME=VALUE for a NAME the scene neither declares with <default> nor uses: a typo renders another image, so it
 // is an error (with the closest declared names), or with --allow-unused a warning.
-void check_defines(const ParsedScene& parsed, bool allow_unused) {
+// `listing` (--list-params): warn without mentioning --allow-unused.
+void check_defines(const ParsedScene& parsed, bool allow_unused, bool listing = false) {
     std::vector<std::string> declared;
     for (const auto& d : parsed.defaults) declared.push_back(d.name);
     for (const auto& name : parsed.unused_defines) {
@@ -173,8 +174,8 @@ void check_defines(const ParsedScene& parsed, bool allow_unused) {
         if (hint.empty() && declared.empty()) hint = " (it declares none)";
         if (hint.empty()) hint = " (kelvin --list-params lists them)";
         if (allow_unused)
-            log_warn("-D {}={}: the scene declares no parameter '{}'{}; ignored (--allow-unused)", name, value, name,
-                     hint);
+            log_warn("-D {}={}: the scene declares no parameter '{}'{}{}", name, value, name, hint,
+                     listing ? "" : "; ignored (--allow-unused)");
         else
             throw InputError({}, fmt::format("-D {}={}: the scene declares no parameter '{}'{}; --allow-unused "
                                              "ignores it",
@@ -318,7 +319,9 @@ int run(const Options& o) {
 
     fs::path scene_path = o.scene;
     if (o.list_params) {
-        print_scene_params(parse_scene_file(scene_path, popts));
+        const ParsedScene parsed = parse_scene_file(scene_path, popts);
+        print_scene_params(parsed);
+        check_defines(parsed, /*allow_unused=*/true, /*listing=*/true);  // a -D the scene does not know: a warning
         return ExitOk;
     }
     fs::path out = o.output.empty() ? fs::path(scene_path).replace_extension(".exr") : fs::path(o.output);

@@ -98,6 +98,11 @@ TEST_F(CliInform, ListParamsShowsDefaultsWithTheirDeclarations) {
     EXPECT_TRUE(std::regex_search(r.out, std::regex("(^|\n)res +16 +" + TinyScene + ":5:5\n"))) << r.out;
     EXPECT_TRUE(std::regex_search(r.out, std::regex("(^|\n)spp +4 +" + TinyScene + ":6:5\n"))) << r.out;
     EXPECT_EQ(lines_of(r.out).size(), 2u) << r.out;
+    // A -D the scene does not know: listed anyway, with a warning and a suggestion.
+    r = run_kelvin({"--list-params", TinyScene, "-D", "ress=3"});
+    EXPECT_EQ(r.exit_code, 0) << describe(r);
+    EXPECT_TRUE(contains(r.err, "-D ress=3: the scene declares no parameter 'ress' (did you mean 'res'?)\n"))
+        << describe(r);
 
     // Included files too, each default where it is declared; a -D shows as the value in effect.
     r = run_kelvin({"--list-params", MltStudy, "-D", "variant=drmlt-mira"});
