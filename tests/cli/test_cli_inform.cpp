@@ -167,8 +167,8 @@ TEST_F(CliInform, ListPluginsColumnsAlign) {
 
 // ----- the summary
 
-// Checked failing with the old summary ("Done: 4 spp", a "render.invalid_samples 0 samples" line, trailing spaces
-// after unitless counters, no "wrote" lines).
+// Checked failing with the zero filter removed from Stats::report (a "render.invalid_samples 0 samples" line). The
+// old summary ("Done: 4 spp ...", no "wrote" line, "value " before the newline of unitless counters) would fail it too.
 TEST_F(CliInform, SummaryNamesTheIntegratorAndOnlyCountersThatRan) {
     auto r = run_kelvin({TinyScene, "-o", out().string()});
     ASSERT_EQ(r.exit_code, 0) << describe(r);

@@ -61,7 +61,8 @@ TEST(Stats, ReportHasOneLinePerCounter) {
     EXPECT_EQ(std::count(r.begin(), r.end(), '\n'), 5) << r;
     EXPECT_EQ(r.find("invalid_samples"), std::string::npos) << r;
     EXPECT_EQ(r.find("unused"), std::string::npos) << r;
-    // No trailing spaces (checked failing with the old "{:.0f} " formatting of unitless counters).
+    // No trailing spaces (the old "{:.0f} " formatting left one after unitless counters). Zero counters: checked
+    // failing with the zero filter removed from Stats::report.
     EXPECT_EQ(r.find(" \n"), std::string::npos) << r;
     EXPECT_CONTAINS(r, "12.3 k");
     EXPECT_CONTAINS(r, "paths\n");
