@@ -23,13 +23,17 @@ std::string duration(double s) {
     if (t >= 60) return fmt::format("{}m{:02}s", t / 60, t % 60);
     return fmt::format("{}s", t);
 }
-// A count with an SI prefix: 12, 1.5k, 3.2M.
+// A count with an SI prefix: 12, 1.5k, 3.2M, 14300T; never "1e+04" (the prefix is picked after rounding).
 std::string amount(double v) {
-    const double a = std::abs(v);
-    if (a >= 1e9) return fmt::format("{:.3g}G", v / 1e9);
-    if (a >= 1e6) return fmt::format("{:.3g}M", v / 1e6);
-    if (a >= 1e4) return fmt::format("{:.3g}k", v / 1e3);
-    return fmt::format("{:.4g}", v);
+    if (!(std::abs(v) >= 9999.5)) return fmt::format("{:.4g}", v);  // NaN too
+    static const char* const prefixes[] = {"", "k", "M", "G", "T", "P"};
+    int i = 0;
+    double m = v;
+    while (std::abs(m) >= 999.5 && i < 5) {
+        m /= 1e3;
+        ++i;
+    }
+    return std::abs(m) >= 999.5 ? fmt::format("{:.0f}{}", m, prefixes[i]) : fmt::format("{:.3g}{}", m, prefixes[i]);
 }
 }  // namespace
 

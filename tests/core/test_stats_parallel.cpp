@@ -230,6 +230,18 @@ TEST(Progress, TimeLimitShowsWorkDoneAndItsRate) {
     EXPECT_EQ(l.find(" s/s"), std::string::npos) << l;
 }
 
+// Counts and rates print as digits with an SI prefix, never in exponent notation (checked failing with the
+// prefixes fixed by thresholds and nothing above G: "1e+03G spp", "1.43e+04G spp/s").
+TEST(Progress, CountsNeverUseExponents) {
+    for (double v : {9999.6, 999999.0, 999.9e6, 1e12, 1e21}) {
+        ProgressReporter p("Rendering", 0, "spp");
+        p.set_terminal(false);
+        p.set(v);
+        const std::string l = p.line(false);
+        EXPECT_EQ(l.find("e+"), std::string::npos) << l;
+    }
+}
+
 TEST(Progress, NoEtaAfterAnInterrupt) {
     ProgressReporter p("Rendering", 100, "spp");
     p.set_terminal(true);
