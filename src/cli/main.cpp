@@ -16,14 +16,23 @@
 #include <kelvin/core/stats.h>
 #include <kelvin/core/strings.h>
 #include <kelvin/core/version.h>
+#include <kelvin/render/film.h>
+#include <kelvin/render/integrator.h>
+#include <kelvin/render/scene.h>
+#include <kelvin/render/sensor.h>
 
 #include <CLI/CLI.hpp>
+#include <nlohmann/json.hpp>
 
+#include <algorithm>
+#include <array>
+#include <cmath>
 #include <csignal>
 #include <cstdio>
 #include <cstdlib>
 #include <filesystem>
 #include <iostream>
+#include <set>
 
 namespace fs = std::filesystem;
 using namespace kelvin;
@@ -47,12 +56,36 @@ struct Options {
     bool allow_unused = false;
     bool quiet = false;
     bool verbose = false;
-    std::string list_kind;
+    std::vector<std::string> list_args;  // --list-plugins [KIND [NAME]]
     bool list_plugins = false;
+    bool list_params = false;
+    std::string stats;
+    std::string crop;
+    std::vector<std::string> argv;
 };
 
-void print_plugins(const std::string& kind) {
+// The parameter table of one plugin, columns as wide as their longest entry.
+void print_params(const PluginInfo& p, const std::string& indent) {
+    std::vector<std::array<std::string, 4>> rows;
+    std::array<std::size_t, 3> width{0, 0, 0};
+    for (const ParamSpec& s : p.params) {
+        std::string type = s.type == PropType::Object ? "<" + s.object_kind + ">" : to_string(s.type);
+        if (s.type != PropType::Object && !s.object_kind.empty()) type += "|<" + s.object_kind + ">";
+        rows.push_back({s.name, type, s.default_string(), s.doc});
+        for (std::size_t i = 0; i < 3; ++i) width[i] = std::max(width[i], rows.back()[i].size());
+    }
+    for (const auto& r : rows) {
+        std::string line =
+            fmt::format("{}{:<{}}  {:<{}}  {:<{}}  {}", indent, r[0], width[0], r[1], width[1], r[2], width[2], r[3]);
+        while (!line.empty() && line.back() == ' ') line.pop_back();
+        fmt::print("{}\n", line);
+    }
+}
+
+// kelvin --list-plugins [KIND [NAME]]: every plugin (of KIND) with its parameters, or one plugin in full.
+void print_plugins(const std::vector<std::string>& args) {
     auto& reg = Registry::instance();
+    const std::string kind = args.empty() ? "" : args[0];
     if (!kind.empty() && !reg.has_kind(kind)) {
         std::string hint = did_you_mean(kind, reg.kind_names());
         if (hint.empty()) {
@@ -61,20 +94,125 @@ void print_plugins(const std::string& kind) {
         }
         throw InputError({}, fmt::format("--list-plugins: unknown kind '{}'{}", kind, hint));
     }
+    if (args.size() == 2) {
+        const PluginInfo* p = reg.find(kind, args[1]);
+        if (!p) {
+            std::vector<std::string> names;
+            for (const PluginInfo* q : reg.plugins(kind)) names.push_back(q->name);
+            std::string hint = did_you_mean(args[1], names);
+            if (hint.empty()) hint = " (kelvin --list-plugins " + kind + " lists them)";
+            throw InputError({}, fmt::format("--list-plugins: no {} plugin named '{}'{}", kind, args[1], hint));
+        }
+        fmt::print("{} {}: {}{}\n", p->kind, p->name, p->doc, p->source == "builtin" ? "" : "  [" + p->source + "]");
+        if (p->params.empty()) {
+            fmt::print("  (no parameters)\n");
+        } else {
+            fmt::print("\nparameters:\n");
+            print_params(*p, "  ");
+        }
+        return;
+    }
+    const std::vector<const PluginInfo*> plugins = reg.plugins(kind);
+    std::size_t name_width = 0;
+    for (const PluginInfo* p : plugins) name_width = std::max(name_width, p->name.size());
     std::string last_kind;
-    for (const PluginInfo* p : reg.plugins(kind)) {
+    for (const PluginInfo* p : plugins) {
         if (p->kind != last_kind) {
             fmt::print("{}{}\n", last_kind.empty() ? "" : "\n", p->kind);
             last_kind = p->kind;
         }
-        fmt::print("  {:<20} {}{}\n", p->name, p->doc, p->source == "builtin" ? "" : "  [" + p->source + "]");
-        for (const ParamSpec& s : p->params) {
-            std::string type = s.type == PropType::Object ? "<" + s.object_kind + ">" : to_string(s.type);
-            if (s.type != PropType::Object && !s.object_kind.empty()) type += "|<" + s.object_kind + ">";
-            fmt::print("      {:<18} {:<12} {:<16} {}\n", s.name, type, s.default_string(), s.doc);
-        }
+        std::string line = fmt::format("  {:<{}}  {}{}", p->name, name_width, p->doc,
+                                       p->source == "builtin" ? "" : "  [" + p->source + "]");
+        while (!line.empty() && line.back() == ' ') line.pop_back();
+        fmt::print("{}\n", line);
+        print_params(*p, "      ");
     }
     if (last_kind.empty()) fmt::print("no plugins{}\n", kind.empty() ? "" : " of kind " + kind);
+}
+
+// kelvin --list-params scene.xml: the scene's <default>s (included files too), their values and where they are
+// declared; a -D given on the same command line shows as the value in effect.
+void print_scene_params(const ParsedScene& parsed) {
+    if (parsed.defaults.empty()) {
+        fmt::print("{} declares no parameters (<default name=... value=.../>)\n", parsed.files.front());
+        return;
+    }
+    std::size_t nw = 0, vw = 0;
+    std::set<std::string> seen;
+    struct Row {
+        std::string name, value, where;
+    };
+    std::vector<Row> rows;
+    for (const auto& d : parsed.defaults) {
+        Row r{d.name, d.value, d.loc.str()};
+        if (auto it = parsed.defines.find(d.name); it != parsed.defines.end() && !seen.count(d.name))
+            r.value = it->second + " (-D; declared " + d.value + ")";
+        else if (seen.count(d.name))
+            r.value = d.value + " (ignored: declared before)";
+        seen.insert(d.name);
+        nw = std::max(nw, r.name.size());
+        vw = std::max(vw, r.value.size());
+        rows.push_back(std::move(r));
+    }
+    for (const auto& r : rows) fmt::print("{:<{}}  {:<{}}  {}\n", r.name, nw, r.value, vw, r.where);
+}
+
+// -D NAME=VALUE for a NAME the scene neither declares with <default> nor uses: a typo renders another image, so it
+// is an error (with the closest declared names), or with --allow-unused a warning.
+// `listing` (--list-params): warn without mentioning --allow-unused.
+void check_defines(const ParsedScene& parsed, bool allow_unused, bool listing = false) {
+    std::vector<std::string> declared;
+    for (const auto& d : parsed.defaults) declared.push_back(d.name);
+    for (const auto& name : parsed.unused_defines) {
+        const bool is_declared = std::find(declared.begin(), declared.end(), name) != declared.end();
+        const std::string value = parsed.defines.count(name) ? parsed.defines.at(name) : "";
+        if (is_declared) {
+            log_warn("-D {}={}: the scene declares '{}' but never uses it", name, value, name);
+            continue;
+        }
+        std::string hint = did_you_mean(name, declared);
+        if (hint.empty() && declared.empty()) hint = " (it declares none)";
+        if (hint.empty()) hint = " (kelvin --list-params lists them)";
+        if (allow_unused)
+            log_warn("-D {}={}: the scene declares no parameter '{}'{}{}", name, value, name, hint,
+                     listing ? "" : "; ignored (--allow-unused)");
+        else
+            throw InputError({}, fmt::format("-D {}={}: the scene declares no parameter '{}'{}; --allow-unused "
+                                             "ignores it",
+                                             name, value, name, hint));
+    }
+}
+
+CropWindow parse_crop(const std::string& text) {
+    auto fail = [&](const std::string& why) { throw InputError({}, fmt::format("--crop '{}': {}", text, why)); };
+    std::vector<long long> v;
+    for (const auto& part : split_list(text)) {
+        auto i = parse_int(part);
+        if (!i) fail("expected four integers x0,x1,y0,y1 (a pixel window [x0, x1) x [y0, y1))");
+        v.push_back(*i);
+    }
+    if (v.size() != 4) fail("expected four integers x0,x1,y0,y1 (a pixel window [x0, x1) x [y0, y1))");
+    for (long long x : v)
+        if (x < 0 || x > (1 << 30)) fail("pixel coordinates must be between 0 and the film size");
+    if (v[0] >= v[1]) fail(fmt::format("x0 = {} must be less than x1 = {}", v[0], v[1]));
+    if (v[2] >= v[3]) fail(fmt::format("y0 = {} must be less than y1 = {}", v[2], v[3]));
+    return {int(v[0]), int(v[1]), int(v[2]), int(v[3])};
+}
+
+// The crop window fits the film, and what runs can crop; else bad input before any work.
+void check_crop(const Job& job, const CropWindow& c, const std::string& text) {
+    const auto* scene = dynamic_cast<const Scene*>(&job);
+    if (!scene || !scene->integrator() || !scene->sensor())
+        throw InputError(
+            {}, fmt::format("--crop '{}': the scene is not a render (a simulation has no film to crop)", text));
+    if (!scene->integrator()->supports_crop())
+        throw InputError({}, fmt::format("--crop '{}': integrator '{}' renders the whole film only (crop works with "
+                                         "the pixel-sampling integrators: path, volpath, bdpt, direct, ao, aov, ...)",
+                                         text, scene->integrator()->plugin_name()));
+    const int w = scene->sensor()->film().width(), h = scene->sensor()->film().height();
+    if (c.x1 > w || c.y1 > h)
+        throw InputError(
+            {}, fmt::format("--crop '{}': the window exceeds the {} x {} film (x1 <= {}, y1 <= {})", text, w, h, w, h));
 }
 
 std::string rate(double work, double seconds, const std::string& unit) {
@@ -83,6 +221,75 @@ std::string rate(double work, double seconds, const std::string& unit) {
     if (r >= 1e6) return fmt::format("{:.3g} M{}/s", r / 1e6, unit);
     if (r >= 1e3) return fmt::format("{:.3g} k{}/s", r / 1e3, unit);
     return fmt::format("{:.3g} {}/s", r, unit);
+}
+
+// Header attributes of EXR outputs, names as in pbrt-v4 where it has one (renderTimeSeconds).
+std::vector<ImageAttribute> image_metadata(const Options& o, const RunContext& ctx, const RunResult& r,
+                                           const fs::path& scene_path) {
+    std::vector<ImageAttribute> m;
+    m.push_back({"integrator", r.description});
+    if (r.work_unit == "spp" && r.work < 2147483647.0)
+        m.push_back({"samplesPerPixel", int(r.work)});
+    else if (r.work_unit == "steps" && r.work < 2147483647.0)
+        m.push_back({"steps", int(r.work)});
+    else if (r.work_unit == "mutations/px")
+        m.push_back({"mutationsPerPixel", r.work});
+    else
+        m.push_back({"work", fmt::format("{:g} {}", r.work, r.work_unit)});
+    m.push_back({"seed", std::to_string(ctx.seed)});  // 64 bits: a string (EXR has no 64-bit integer attribute)
+    m.push_back({"renderTimeSeconds", r.seconds});
+    m.push_back({"threads", thread_count()});
+    m.push_back({"kelvinVersion", std::string(KELVIN_VERSION_STRING)});
+    std::error_code ec;
+    const fs::path abs = fs::absolute(scene_path, ec);
+    m.push_back({"scene", (ec ? scene_path : abs.lexically_normal()).string()});
+    if (!o.defines.empty()) {
+        std::string d;
+        for (const auto& def : o.defines) d += (d.empty() ? "-D " : " -D ") + def;
+        m.push_back({"defines", d});
+    }
+    if (!ctx.crop.empty()) m.push_back({"crop", o.crop});
+    if (r.interrupted) m.push_back({"interrupted", 1});
+    return m;
+}
+
+// --stats FILE.json: the run's settings, what it did and every statistic (zeros included), as JSON.
+void write_stats(const fs::path& path, const Options& o, const RunContext& ctx, const RunResult& r,
+                 const fs::path& scene_path, const fs::path& out, const std::vector<fs::path>& files) {
+    using nlohmann::json;
+    json j;
+    j["kelvin_version"] = KELVIN_VERSION_STRING;
+    j["command"] = o.argv;
+    j["scene"] = scene_path.string();
+    j["output"] = out.string();
+    j["integrator"] = r.description;
+    json defines = json::object();
+    for (const auto& d : o.defines) {
+        auto eq = d.find('=');
+        defines[d.substr(0, eq)] = d.substr(eq + 1);
+    }
+    j["defines"] = defines;
+    j["seed"] = ctx.seed;
+    j["threads"] = thread_count();
+    j["spp"] = ctx.spp > 0 ? json(ctx.spp) : json(nullptr);
+    j["time_limit"] = ctx.time_limit > 0 ? json(ctx.time_limit) : json(nullptr);
+    j["crop"] = ctx.crop.empty() ? json(nullptr) : json({ctx.crop.x0, ctx.crop.x1, ctx.crop.y0, ctx.crop.y1});
+    j["work"] = r.work;
+    j["work_unit"] = r.work_unit;
+    j["seconds"] = r.seconds;
+    j["interrupted"] = r.interrupted;
+    json written = json::array();
+    for (const auto& f : files) written.push_back(f.string());
+    j["files_written"] = written;
+    json stats = json::object();
+    for (const auto& c : ctx.stats.counters()) {
+        json e;
+        e["value"] = std::isfinite(c.value) ? json(c.value) : json(nullptr);  // JSON has no NaN or infinity
+        e["unit"] = c.unit;
+        stats[c.name] = e;
+    }
+    j["statistics"] = stats;
+    write_text_atomically(path, j.dump(2) + "\n");
 }
 
 int run(const Options& o) {
@@ -95,7 +302,9 @@ int run(const Options& o) {
     for (const auto& p : o.plugin_paths) reg.load_plugin_path(p);
 
     if (o.list_plugins) {
-        print_plugins(o.list_kind);
+        if (o.list_args.size() > 2)
+            throw InputError({}, "--list-plugins takes at most KIND and NAME (kelvin --list-plugins integrator path)");
+        print_plugins(o.list_args);
         return ExitOk;
     }
     if (o.scene.empty()) throw InputError({}, "no scene file given (usage: kelvin scene.xml [options]; see --help)");
@@ -106,8 +315,15 @@ int run(const Options& o) {
         if (eq == std::string::npos || eq == 0) throw InputError({}, fmt::format("-D '{}': expected NAME=VALUE", d));
         popts.defines[d.substr(0, eq)] = d.substr(eq + 1);
     }
+    const CropWindow crop = o.crop.empty() ? CropWindow{} : parse_crop(o.crop);
 
     fs::path scene_path = o.scene;
+    if (o.list_params) {
+        const ParsedScene parsed = parse_scene_file(scene_path, popts);
+        print_scene_params(parsed);
+        check_defines(parsed, /*allow_unused=*/true, /*listing=*/true);  // a -D the scene does not know: a warning
+        return ExitOk;
+    }
     fs::path out = o.output.empty() ? fs::path(scene_path).replace_extension(".exr") : fs::path(o.output);
     if (!is_supported_image_extension(out))
         throw InputError({}, fmt::format("-o '{}': unsupported image format '{}' (use .exr, .png, .jpg, .hdr, .pfm or "
@@ -121,6 +337,9 @@ int run(const Options& o) {
     // and CSV go beside it, so this covers them too.)
     if (std::string why = output_file_problem(out); !why.empty())
         throw InputError({}, fmt::format("-o '{}': {}", out.string(), why));
+    if (!o.stats.empty())
+        if (std::string why = output_file_problem(o.stats); !why.empty())
+            throw InputError({}, fmt::format("--stats '{}': {}", o.stats, why));
 
     auto interrupted_while_loading = [&] {
         std::fprintf(stderr, "kelvin: interrupted while loading %s; nothing written\n", scene_path.c_str());
@@ -130,11 +349,12 @@ int run(const Options& o) {
     log_debug("loading {}", scene_path.string());
     ParsedScene parsed = parse_scene_file(scene_path, popts);
     if (interrupt_requested()) return interrupted_while_loading();
-    for (const auto& d : parsed.unused_defines) log_warn("-D {} is not used by the scene", d);
+    check_defines(parsed, o.allow_unused);
     ObjectPtr root = instantiate(parsed, {o.allow_unused});
     if (interrupt_requested()) return interrupted_while_loading();
     auto job = std::dynamic_pointer_cast<Job>(root);
     if (!job) throw InputError(parsed.root->loc, "the root <scene> did not produce a runnable job");
+    if (!crop.empty()) check_crop(*job, crop, o.crop);
     log_debug("loaded {} in {:.3f} s", scene_path.string(), load_timer.seconds());
 
     ThreadLimit limit(o.threads);
@@ -144,23 +364,34 @@ int run(const Options& o) {
     ctx.time_limit = o.time_limit;
     ctx.write_partial = o.write_partial;
     ctx.quiet = o.quiet;
+    ctx.crop = crop;
     ctx.output = out;
     ctx.write_partial_image = [&](const Bitmap& img) {
-        write_image(out, img, {o.exposure});  // atomic: a viewer polling the file never sees half of it
+        write_image(out, img, {o.exposure, {}});  // atomic: a viewer polling the file never sees half of it
         log_debug("wrote partial image {}", out.string());
     };
 
     RunResult result = job->run(ctx);
-    if (!result.image.empty()) write_image(out, result.image, {o.exposure});
+    if (result.description.empty()) result.description = job->description();
+    std::vector<fs::path> files;
+    if (!result.image.empty()) {
+        write_image(out, result.image, {o.exposure, image_metadata(o, ctx, result, scene_path)});
+        files.push_back(out);
+    }
+    files.insert(files.end(), result.files_written.begin(), result.files_written.end());
+    if (!o.stats.empty()) {
+        files.push_back(o.stats);
+        write_stats(o.stats, o, ctx, result, scene_path, out, files);
+    }
 
     if (!o.quiet) {
-        std::string what = result.image.empty() ? "" : fmt::format(", wrote {}", out.string());
-        std::fprintf(stderr, "%s %.4g %s in %.3f s (%s) on %d threads%s\n",
-                     result.interrupted ? "Interrupted after" : "Done:", result.work, result.work_unit.c_str(),
-                     result.seconds, rate(result.work, result.seconds, result.work_unit).c_str(), thread_count(),
-                     what.c_str());
+        std::fprintf(stderr, "%s: %s, %.4g %s in %.3f s (%s) on %d threads\n",
+                     result.interrupted ? "Interrupted" : "Done", result.description.c_str(), result.work,
+                     result.work_unit.c_str(), result.seconds,
+                     rate(result.work, result.seconds, result.work_unit).c_str(), thread_count());
         std::string report = ctx.stats.report();
         if (!report.empty()) std::fprintf(stderr, "%s", report.c_str());
+        for (const auto& f : files) std::fprintf(stderr, "wrote %s\n", f.c_str());
     }
     return result.interrupted ? ExitInterrupted : ExitOk;
 }
@@ -192,11 +423,20 @@ int main(int argc, char** argv) {
     app.add_option("--exposure", o.exposure, "Exposure in stops for PNG/JPEG output");
     app.add_flag("--skip-existing", o.skip_existing, "Do nothing if the output file exists");
     app.add_option("--plugin-path", o.plugin_paths, "Load plugin modules (.so) from DIR (':'-separated list)");
-    app.add_flag("--allow-unused", o.allow_unused, "Warn about unused scene parameters instead of failing");
+    app.add_flag("--allow-unused", o.allow_unused,
+                 "Warn about unused scene parameters and unknown -D names instead of failing");
+    app.add_option("--stats", o.stats, "Write the run's settings and every statistic to FILE (JSON)");
+    app.add_option("--crop", o.crop,
+                   "Render only the pixel window x0,x1,y0,y1 ([x0, x1) x [y0, y1), pixels of the full film); the "
+                   "image has the window's size");
+    app.add_flag("--list-params", o.list_params,
+                 "List the scene's parameters (<default>s, included files too) with their values and where they are "
+                 "declared");
     app.add_flag("-q,--quiet", o.quiet, "Only warnings and errors");
     app.add_flag("-v,--verbose", o.verbose, "Debug output");
-    auto* list =
-        app.add_option("--list-plugins", o.list_kind, "List plugins (of KIND) with their parameters")->expected(0, 1);
+    auto* list = app.add_option("--list-plugins", o.list_args,
+                                "List plugins (of KIND) with their parameters; KIND NAME: that plugin only")
+                     ->expected(0, 2);
     cli::ConvergeArgs converge_args;
     CLI::App* converge = cli::add_converge_command(app, converge_args);
     try {
@@ -210,6 +450,7 @@ int main(int argc, char** argv) {
         return ExitInput;
     }
     o.list_plugins = list->count() > 0;
+    o.argv.assign(argv, argv + argc);
 
     try {
         return converge->parsed() ? cli::run_converge(converge_args) : run(o);

@@ -4,10 +4,13 @@
 #include <kelvin/core/image.h>
 
 #include <OpenEXR/ImfChannelList.h>
+#include <OpenEXR/ImfDoubleAttribute.h>
 #include <OpenEXR/ImfFrameBuffer.h>
 #include <OpenEXR/ImfHeader.h>
 #include <OpenEXR/ImfInputFile.h>
+#include <OpenEXR/ImfIntAttribute.h>
 #include <OpenEXR/ImfOutputFile.h>
+#include <OpenEXR/ImfStringAttribute.h>
 #include <OpenImageIO/filesystem.h>
 #include <OpenImageIO/imageio.h>
 #include <fcntl.h>
@@ -90,8 +93,16 @@ static void check_image_size(const fs::path& path, long long w, long long h, lon
                             path.string(), w, h, channels, MaxImageValues, MaxImageValues * sizeof(float) >> 30));
 }
 
-static void write_exr(const fs::path& path, const Bitmap& img) {
+static void write_exr(const fs::path& path, const Bitmap& img, const std::vector<ImageAttribute>& metadata) {
     Imf::Header header(img.width(), img.height());
+    for (const auto& a : metadata) {
+        if (const auto* v = std::get_if<std::string>(&a.value))
+            header.insert(a.name, Imf::StringAttribute(*v));
+        else if (const auto* i = std::get_if<int>(&a.value))
+            header.insert(a.name, Imf::IntAttribute(*i));
+        else
+            header.insert(a.name, Imf::DoubleAttribute(std::get<double>(a.value)));
+    }
     for (const auto& c : img.channels()) header.channels().insert(c, Imf::Channel(Imf::FLOAT));
     Imf::FrameBuffer fb;
     const std::size_t nc = std::size_t(img.channel_count());
@@ -180,7 +191,7 @@ static void write_bytes(const fs::path& path, const std::vector<unsigned char>& 
 static void write_image_file(const fs::path& path, const std::string& e, const Bitmap& img,
                              const ImageWriteOptions& opts) {
     if (e == ".exr") {
-        write_exr(path, img);
+        write_exr(path, img, opts.metadata);
         return;
     }
     if (e == ".pfm") {

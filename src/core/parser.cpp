@@ -119,13 +119,40 @@ std::ptrdiff_t first_element_deeper_than(const std::string& s, int limit) {
     return -1;
 }
 
+}  // namespace
+
+InputError blame_define(const InputError& e, const ParsedScene& scene) {
+    auto it = scene.define_uses.find(e.location().str());
+    if (it == scene.define_uses.end() || !e.location().valid()) return e;
+    std::string from;
+    for (const auto& name : it->second) {
+        auto d = scene.defines.find(name);
+        from += fmt::format("{}-D {}={}", from.empty() ? "" : ", ", name, d == scene.defines.end() ? "" : d->second);
+    }
+    return InputError(e.location(), from + ": " + e.bare_message());
+}
+
+namespace {
+
 class Parser {
 public:
     explicit Parser(const ParseOptions& opts) : m_opts(opts) {
         for (const auto& [k, v] : opts.defines) m_params[k] = v;
     }
 
+    // An error at an element whose attributes took a -D value names that -D: the user typed the value on the
+    // command line, not in the file.
     ParsedScene parse_root(const fs::path& path, const std::string* text, const std::string& display) {
+        m_out.defines = m_opts.defines;
+        try {
+            return parse_root_unchecked(path, text, display);
+        } catch (const InputError& e) {
+            throw blame_define(e, m_out);
+        }
+    }
+
+private:
+    ParsedScene parse_root_unchecked(const fs::path& path, const std::string* text, const std::string& display) {
         FileText& f = load(path, text, display, {});
         m_root_dir = f.path.parent_path();
         pugi::xml_document& doc = m_docs.emplace_back();
@@ -151,7 +178,6 @@ public:
         return std::move(m_out);
     }
 
-private:
     FileText& load(const fs::path& path, const std::string* text, const std::string& display, const SourceLoc& from) {
         FileText& f = m_files.emplace_back();
         f.path = path;
@@ -227,6 +253,10 @@ private:
                             name, did_you_mean(name, known), name, name);
             }
             m_used_params.insert(name);
+            if (m_opts.defines.count(name)) {
+                auto& uses = m_out.define_uses[loc.str()];
+                if (std::find(uses.begin(), uses.end(), name) == uses.end()) uses.push_back(name);
+            }
             out += it->second;
             i = j - 1;
         }
@@ -507,6 +537,7 @@ private:
                 if (name.empty() || !(std::isalpha(static_cast<unsigned char>(name[0])) || name[0] == '_'))
                     throw_input(loc, "<default> name '{}' is not a valid parameter name", name);
                 m_params.emplace(name, value);  // -D and earlier defaults win
+                m_out.defaults.push_back({name, value, loc});
             } else if (tag == "path") {
                 // Mitsuba's search path for file names: relative to the declaring file, searched after the
                 // folder of the file that names a file; later declarations are searched first.
@@ -701,7 +732,11 @@ ObjectPtr instantiate(const ParsedScene& scene, const InstantiateOptions& opts) 
     if (!scene.root) throw InputError({}, "empty scene");
     for (const auto& p : scene.plugins) Registry::instance().load_plugin_module(p.path, p.loc);
     Instantiator inst(opts, scene);
-    return inst.build(*scene.root);
+    try {
+        return inst.build(*scene.root);
+    } catch (const InputError& e) {
+        throw blame_define(e, scene);
+    }
 }
 
 ObjectPtr load_scene(const fs::path& path, const ParseOptions& popts, const InstantiateOptions& iopts) {

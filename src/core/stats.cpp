@@ -2,6 +2,7 @@
 
 #include <fmt/format.h>
 
+#include <algorithm>
 #include <cmath>
 
 namespace kelvin {
@@ -54,22 +55,38 @@ void Stats::clear() {
     m_counters.clear();
 }
 
-static std::string human(double v) {
-    double a = std::abs(v);
-    if (a >= 1e9) return fmt::format("{:.3g} G", v / 1e9);
-    if (a >= 1e6) return fmt::format("{:.3g} M", v / 1e6);
-    if (a >= 1e4) return fmt::format("{:.3g} k", v / 1e3);
-    if (v == std::floor(v)) return fmt::format("{:.0f} ", v);
-    return fmt::format("{:.4g} ", v);
+// A value with an SI prefix and its unit, without trailing spaces: "12.3 k paths", "7", "0.1235", "2.5 M".
+static std::string human(double v, const std::string& unit) {
+    const double a = std::abs(v);
+    std::string n;
+    if (a >= 1e9)
+        n = fmt::format("{:.3g} G", v / 1e9);
+    else if (a >= 1e6)
+        n = fmt::format("{:.3g} M", v / 1e6);
+    else if (a >= 1e4)
+        n = fmt::format("{:.3g} k", v / 1e3);
+    else if (v == std::floor(v))
+        n = fmt::format("{:.0f}", v);
+    else
+        n = fmt::format("{:.4g}", v);
+    if (unit.empty()) return n;
+    // "19.7 Mrays" (prefix and unit together), "7 x".
+    return n.back() == 'G' || n.back() == 'M' || n.back() == 'k' ? n + unit : n + " " + unit;
 }
 
 std::string Stats::report() const {
-    std::string out;
+    // Counters of effects that did not run (still zero) are left out; counters() (and kelvin --stats) has them all.
+    std::vector<Counter> shown;
+    std::size_t width = 0;
     for (const auto& c : counters()) {
-        if (c.is_time)
-            out += fmt::format("  {:<36} {:.3f} s\n", c.name, c.value);
-        else
-            out += fmt::format("  {:<36} {}{}\n", c.name, human(c.value), c.unit);
+        if (c.value == 0) continue;
+        width = std::max(width, c.name.size());
+        shown.push_back(c);
+    }
+    std::string out;
+    for (const auto& c : shown) {
+        const std::string value = c.is_time ? fmt::format("{:.3f} s", c.value) : human(c.value, c.unit);
+        out += fmt::format("  {:<{}}  {}\n", c.name, width, value);
     }
     return out;
 }

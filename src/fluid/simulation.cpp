@@ -198,6 +198,7 @@ RunResult run_fluid_solver(const std::string& who, FluidSolver& solver, const Si
     if (checkpoints.active()) checkpoint(0);
 
     ProgressReporter progress("Simulating", double(p.steps), "steps", ctx.quiet);
+    progress.set_time_limit(ctx.time_limit);
     Timer since_partial;
     long long done = 0;
     bool stopped_by_time = false;

@@ -326,6 +326,7 @@ RunResult run_mcfluid3(const Simulation3Params& p, RunContext& ctx) {
         write_frame();
     }
     ProgressReporter progress("Simulating", double(p.steps), "steps", ctx.quiet);
+    progress.set_time_limit(ctx.time_limit);
     long long done = 0;
     bool stopped_by_time = false;
     Timer since_partial;

@@ -5,6 +5,7 @@
 #include <kelvin/core/interrupt.h>
 #include <kelvin/core/logging.h>
 #include <kelvin/core/parallel.h>
+#include <kelvin/core/progress.h>
 #include <kelvin/core/registry.h>
 #include <kelvin/mlt/integrator.h>
 #include <kelvin/render/film.h>
@@ -142,6 +143,17 @@ MetropolisIntegrator::MetropolisIntegrator(const Properties& props, bool delayed
 
 MetropolisIntegrator::~MetropolisIntegrator() = default;
 
+std::string MetropolisIntegrator::description() const {
+    auto name = [](const Object* o) { return o && !o->plugin_name().empty() ? o->plugin_name() : std::string("?"); };
+    const std::string technique = m_mmlt ? "mmlt" : name(m_technique.get());
+    if (!m_delayed_rejection) return fmt::format("{} ({}, {})", plugin_name(), name(m_first.get()), technique);
+    const char* type = m_config.type == DrType::Orbital ? "orbital"
+                       : m_config.type == DrType::Mira  ? "Tierney–Mira"
+                                                        : "Green–Mira";
+    return fmt::format("{} ({}, {} {} {}, {})", plugin_name(), type, name(m_first.get()),
+                       m_config.mixture ? "mixed with" : "then", name(m_second.get()), technique);
+}
+
 MltStatistics MetropolisIntegrator::statistics() const {
     std::lock_guard lock(m_stats_mutex);
     return m_stats;
@@ -204,7 +216,8 @@ RunResult MetropolisIntegrator::render(const Scene& scene, RunContext& ctx) {
         RunContext dctx;
         dctx.seed = ctx.seed;
         dctx.spp = m_direct_samples;
-        dctx.quiet = true;
+        dctx.quiet = ctx.quiet;
+        dctx.progress_label = "Direct light";
         RunResult r = m_direct->render(scene, dctx);
         direct = std::move(r.image);
         for (const auto& c : dctx.stats.counters())
@@ -241,6 +254,7 @@ RunResult MetropolisIntegrator::render(const Scene& scene, RunContext& ctx) {
         const std::size_t total_boot = nboot * D, blocks = (total_boot + Block - 1) / Block;
         std::vector<SampleCounters> bc(blocks);
         std::vector<SubpathRays> brays(blocks);
+        ProgressReporter progress("Bootstrap", double(total_boot), "paths", ctx.quiet);
         parallel_for_units(blocks, [&](std::size_t b) {
             std::vector<double> x;
             Contributions f;
@@ -249,7 +263,9 @@ RunResult MetropolisIntegrator::render(const Scene& scene, RunContext& ctx) {
                 if ((i & 255) == 0 && interrupt_requested()) return;
                 boot_pi[i] = evaluate_boot(i, x, f, bc[b], L.get(), brays[b]);
             }
+            progress.update(double(std::min(total_boot, (b + 1) * Block) - b * Block));
         });
+        progress.finish();
         for (std::size_t d = 0; d < D; ++d) {
             double sum = 0;
             for (std::size_t i = d * nboot; i < (d + 1) * nboot; ++i) {

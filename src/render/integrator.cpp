@@ -23,13 +23,16 @@
 namespace kelvin {
 
 PassLoopResult run_passes(RunContext& ctx, long long scene_target, const std::string& unit,
-                          const std::function<void(long long, long long)>& pass,
-                          const std::function<Bitmap()>& develop, double seconds_before) {
+                          const std::function<void(long long, long long)>& pass, const std::function<Bitmap()>& develop,
+                          double seconds_before) {
     const bool timed = ctx.time_limit > 0 && ctx.spp <= 0;
     long long target = ctx.spp > 0 ? ctx.spp : scene_target;
     if (timed) target = LLONG_MAX;  // equal-time rendering: as much work as time allows
     Timer timer, since_partial;
-    ProgressReporter progress("Rendering", timed ? ctx.time_limit : double(target), timed ? "s" : unit, ctx.quiet);
+    // Work done/total in the job's unit; with a time limit the bar and ETA follow time when it is further along.
+    ProgressReporter progress(ctx.progress_label.empty() ? "Rendering" : ctx.progress_label,
+                              timed ? 0.0 : double(target), unit, ctx.quiet);
+    if (ctx.time_limit > 0) progress.set_time_limit(std::max(1e-9, ctx.time_limit - seconds_before));
     PassLoopResult r;
     CheckpointSchedule checkpoints(ctx);  // passes end exactly on work checkpoints; callback time is not counted
     long long size = 1;
@@ -42,7 +45,7 @@ PassLoopResult run_passes(RunContext& ctx, long long scene_target, const std::st
         }
         r.done += n;
         double elapsed = seconds_before + timer.seconds() - checkpoints.overhead();
-        progress.set(timed ? elapsed : double(r.done));
+        progress.set(double(r.done));
         if (checkpoints.active()) {
             Checkpoint cp;
             cp.seconds = elapsed;
@@ -87,7 +90,15 @@ void report_counters(RunContext& ctx, const std::vector<SampleCounters>& counter
 RunResult SamplingIntegrator::render(const Scene& scene, RunContext& ctx) {
     validate(scene);
     const Sensor& sensor = *scene.sensor();
-    const int w = sensor.film().width(), h = sensor.film().height();
+    // The pixels rendered: the film, or the crop window of it (RunContext::crop). Pixel (x, y) keeps its
+    // full-film coordinates (film position and sampler seed), so a cropped render's pixels are those of the
+    // full render with the same seed; only the image buffer is the window's size (indices x - ox, y - oy).
+    const int fw = sensor.film().width(), fh = sensor.film().height();
+    const CropWindow crop = ctx.crop.empty() ? CropWindow{0, fw, 0, fh} : ctx.crop;
+    if (crop.x0 < 0 || crop.y0 < 0 || crop.x1 > fw || crop.y1 > fh)
+        throw InputError({}, fmt::format("crop window [{}, {}) x [{}, {}) exceeds the {} x {} film", crop.x0, crop.x1,
+                                         crop.y0, crop.y1, fw, fh));
+    const int w = crop.width(), h = crop.height(), ox = crop.x0, oy = crop.y0;
     const int tx = (w + TileSize - 1) / TileSize, ty = (h + TileSize - 1) / TileSize;
     const std::size_t tiles = std::size_t(tx) * std::size_t(ty);
     std::vector<std::string> channels = {"R", "G", "B"};
@@ -103,9 +114,22 @@ RunResult SamplingIntegrator::render(const Scene& scene, RunContext& ctx) {
     std::vector<SampleCounters> counters(tiles);
     const ReconstructionFilter& filter = sensor.film().filter();
     std::unique_ptr<SplatBuffer> splat_buffer;
+    // Splats arrive in full-film coordinates; with a crop they are moved into the window's (and those that
+    // fall outside it dropped by the buffer).
+    struct OffsetSink final : SplatSink {
+        SplatSink* inner = nullptr;
+        Vec2d offset{0.0};
+        void splat(const Vec2d& film, const Color3& v) override { inner->splat(film - offset, v); }
+    };
+    std::vector<OffsetSink> offset_sinks;
     if (splats()) {
         splat_buffer = std::make_unique<SplatBuffer>(w, h, tiles, &filter);
-        for (std::size_t u = 0; u < tiles; ++u) counters[u].splats = &splat_buffer->sink(u);
+        offset_sinks.resize(tiles);
+        for (std::size_t u = 0; u < tiles; ++u) {
+            offset_sinks[u].inner = &splat_buffer->sink(u);
+            offset_sinks[u].offset = Vec2d(ox, oy);
+            counters[u].splats = ox == 0 && oy == 0 ? &splat_buffer->sink(u) : &offset_sinks[u];
+        }
     }
     auto develop = [&] {
         Bitmap img = buffer.develop(channels);
@@ -123,8 +147,9 @@ RunResult SamplingIntegrator::render(const Scene& scene, RunContext& ctx) {
 
     auto pass = [&](long long first, long long n) {
         parallel_for_units(tiles, [&](std::size_t unit) {
-            const int x0 = int(unit % std::size_t(tx)) * TileSize, y0 = int(unit / std::size_t(tx)) * TileSize;
-            const int x1 = std::min(x0 + TileSize, w), y1 = std::min(y0 + TileSize, h);
+            const int x0 = ox + int(unit % std::size_t(tx)) * TileSize,
+                      y0 = oy + int(unit / std::size_t(tx)) * TileSize;
+            const int x1 = std::min(x0 + TileSize, ox + w), y1 = std::min(y0 + TileSize, oy + h);
             std::unique_ptr<Sampler> sampler = sensor.sampler().clone();
             SampleCounters& c = counters[unit];
             for (int y = y0; y < y1; ++y) {
@@ -139,7 +164,7 @@ RunResult SamplingIntegrator::render(const Scene& scene, RunContext& ctx) {
                         Color3 v = sample(scene, *sampler, ray, c);
                         if (!sanitize(v)) ++c.invalid;
                         if (ne == 0) {
-                            buffer.add(x, y, &v[0], weight);
+                            buffer.add(x - ox, y - oy, &v[0], weight);
                         } else {
                             // Colour then extra values, in one fixed-size array (no allocation per sample).
                             double values[3 + MaxExtraChannels];
@@ -156,7 +181,7 @@ RunResult SamplingIntegrator::render(const Scene& scene, RunContext& ctx) {
                                 std::fill(values + 3, values + 3 + ne, 0.0);
                                 ++c.invalid;
                             }
-                            buffer.add(x, y, values, weight);
+                            buffer.add(x - ox, y - oy, values, weight);
                         }
                         ++c.samples;
                     }

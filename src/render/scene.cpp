@@ -254,9 +254,17 @@ SurfaceInteraction Scene::interaction(const Ray& ray, const SurfaceHit& hit) con
 
 Scene::~Scene() = default;
 
+std::string Scene::description() const {
+    if (m_simulation) return m_simulation->description();
+    return m_integrator ? m_integrator->description() : plugin_name();
+}
+
 RunResult Scene::run(RunContext& ctx) {
-    if (m_simulation) return m_simulation->run(ctx);
-    return m_integrator->render(*this, ctx);
+    if (!ctx.crop.empty() && (m_simulation || !m_integrator || !m_integrator->supports_crop()))
+        throw InputError({}, fmt::format("crop window: {} renders the whole film only", description()));
+    RunResult r = m_simulation ? m_simulation->run(ctx) : m_integrator->render(*this, ctx);
+    if (r.description.empty()) r.description = description();
+    return r;
 }
 
 static void to_embree(const Ray& ray, RTCRay& r) {

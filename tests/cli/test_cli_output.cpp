@@ -71,8 +71,9 @@ TEST_F(CliOutput, Version) {
 TEST_F(CliOutput, Help) {
     auto r = run_kelvin({"--help"});
     EXPECT_EQ(r.exit_code, 0) << describe(r);
-    for (const char* opt : {"--output", "--define", "--threads", "--seed", "--spp", "--time-limit", "--write-partial",
-                            "--skip-existing", "--plugin-path", "--allow-unused", "--list-plugins", "--version"})
+    for (const char* opt :
+         {"--output", "--define", "--threads", "--seed", "--spp", "--time-limit", "--write-partial", "--skip-existing",
+          "--plugin-path", "--allow-unused", "--list-plugins", "--version", "--stats", "--crop", "--list-params"})
         EXPECT_NE(r.out.find(opt), std::string::npos) << opt << "\n" << describe(r);
 }
 

@@ -81,7 +81,7 @@ TEST_F(CliRun, TimeLimitStopsAHugeRenderWithAnImage) {
     kelvin::Bitmap img = kelvin::read_image(o);
     EXPECT_EQ(img.width(), 32);
     EXPECT_GT(max_value(img), 0.0f);
-    EXPECT_NE(r.err.find("Done:"), std::string::npos) << describe(r);
+    EXPECT_NE(r.err.find("Done: ao, "), std::string::npos) << describe(r);
 }
 
 // A render that would take days; the test stops it with a signal.

@@ -8,6 +8,7 @@
 #include <kelvin/core/random.h>
 #include <kelvin/core/stats.h>
 
+#include <algorithm>
 #include <atomic>
 #include <cmath>
 #include <cstring>
@@ -54,8 +55,15 @@ TEST(Stats, ReportHasOneLinePerCounter) {
     s.add("small", 7, "x");
     s.set("ratio", 0.123456);
     s.add_time("time/render", 1.5);
+    s.add("render.invalid_samples", 0, "samples");  // an effect that did not happen: not printed
+    s.add_time("time/unused", 0);
     std::string r = s.report();
-    EXPECT_EQ(std::count(r.begin(), r.end(), '\n'), 5);
+    EXPECT_EQ(std::count(r.begin(), r.end(), '\n'), 5) << r;
+    EXPECT_EQ(r.find("invalid_samples"), std::string::npos) << r;
+    EXPECT_EQ(r.find("unused"), std::string::npos) << r;
+    // No trailing spaces (the old "{:.0f} " formatting left one after unitless counters). Zero counters: checked
+    // failing with the zero filter removed from Stats::report.
+    EXPECT_EQ(r.find(" \n"), std::string::npos) << r;
     EXPECT_CONTAINS(r, "12.3 k");
     EXPECT_CONTAINS(r, "paths\n");
     EXPECT_CONTAINS(r, "2.5 M");
@@ -114,9 +122,10 @@ TEST(Parallel, UnitExceptionIsRethrown) {
     }
     EXPECT_GE(ran.load(), 1);
     // Kelvin's own exception types survive with their type and location.
-    EXPECT_THROW(parallel_for_units(64, [](std::size_t u) {
-                     if (u == 63) throw InputError({"s.xml", 1, 2}, "bad");
-                 }),
+    EXPECT_THROW(parallel_for_units(64,
+                                    [](std::size_t u) {
+                                        if (u == 63) throw InputError({"s.xml", 1, 2}, "bad");
+                                    }),
                  InputError);
     // A later call works normally.
     std::atomic<int> n{0};
@@ -193,11 +202,56 @@ TEST(Progress, QuietReporterPrintsNothing) {
     {
         ProgressReporter p("render", 10, "spp");
         p.set_terminal(false);
+        p.set_interval(0);  // every update may print
         p.update(10);
         p.finish();
         p.finish();  // idempotent
     }
     std::string out = testing::internal::GetCapturedStderr();
-    EXPECT_CONTAINS(out, "render");
-    EXPECT_CONTAINS(out, "10/10 spp (100.0%)");
+    EXPECT_CONTAINS(out, "render: 100.0% 10/10 spp");
+    // The final line once: the update that completed the work does not print it first (checked failing with
+    // the completion check removed from ProgressReporter::print: two lines).
+    EXPECT_EQ(std::count(out.begin(), out.end(), '\n'), 1) << out;
+    EXPECT_EQ(out.find("ETA"), std::string::npos) << out;
+}
+
+TEST(Progress, TimeLimitShowsWorkDoneAndItsRate) {
+    ProgressReporter p("Rendering", 0, "spp");
+    p.set_terminal(false);
+    p.set_time_limit(10);
+    p.set(12);
+    const std::string l = p.line(false);
+    // The work in its own unit, and the limit (checked failing with the time limit left out of line()). The CLI
+    // test CliInform.PlainProgressWithTimeLimitCountsSamples checks that run_passes reports spp, not seconds.
+    EXPECT_CONTAINS(l, "Rendering: ");
+    EXPECT_CONTAINS(l, " 12 spp, ");
+    EXPECT_CONTAINS(l, " spp/s, ");
+    EXPECT_CONTAINS(l, " of 10s");
+    EXPECT_EQ(l.find(" s/s"), std::string::npos) << l;
+}
+
+// Counts and rates print as digits with an SI prefix, never in exponent notation (checked failing with the
+// prefixes fixed by thresholds and nothing above G: "1e+03G spp", "1.43e+04G spp/s").
+TEST(Progress, CountsNeverUseExponents) {
+    for (double v : {9999.6, 999999.0, 999.9e6, 1e12, 1e21}) {
+        ProgressReporter p("Rendering", 0, "spp");
+        p.set_terminal(false);
+        p.set(v);
+        const std::string l = p.line(false);
+        EXPECT_EQ(l.find("e+"), std::string::npos) << l;
+    }
+}
+
+TEST(Progress, NoEtaAfterAnInterrupt) {
+    ProgressReporter p("Rendering", 100, "spp");
+    p.set_terminal(true);
+    p.set(50);
+    EXPECT_CONTAINS(p.line(false), "ETA");
+    request_interrupt();
+    const std::string running = p.line(false), final = p.line(true);
+    clear_interrupt();
+    EXPECT_EQ(running.find("ETA"), std::string::npos) << running;
+    EXPECT_EQ(final.find("ETA"), std::string::npos) << final;
+    EXPECT_CONTAINS(final, "50/100 spp");
+    EXPECT_CONTAINS(final, "(interrupted)");
 }

@@ -9,6 +9,7 @@
 #include <cstddef>
 #include <filesystem>
 #include <string>
+#include <variant>
 #include <vector>
 
 namespace kelvin {
@@ -49,8 +50,16 @@ private:
 /// against the file's header before any pixel memory is allocated.
 constexpr std::size_t MaxImageValues = std::size_t(1) << 30;
 
+/// A named value stored in an image file's header (EXR only: a string, int or double attribute).
+struct ImageAttribute {
+    std::string name;
+    std::variant<std::string, int, double> value;
+};
+
 struct ImageWriteOptions {
     double exposure = 0;  ///< LDR formats: multiply by 2^exposure before the sRGB curve
+    /// EXR: extra header attributes (integrator, spp, seed, render time, ...). Ignored by the other formats.
+    std::vector<ImageAttribute> metadata;
 };
 
 /// True if `path`'s extension is one write_image supports.

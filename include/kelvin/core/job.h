@@ -13,12 +13,25 @@
 
 namespace kelvin {
 
+/// A pixel window of the film, [x0, x1) x [y0, y1) in pixels of the full image (`kelvin --crop`). Empty (the
+/// default): the whole film.
+struct CropWindow {
+    int x0 = 0, x1 = 0, y0 = 0, y1 = 0;
+    bool empty() const { return x1 <= x0 || y1 <= y0; }
+    int width() const { return x1 - x0; }
+    int height() const { return y1 - y0; }
+};
+
 struct RunContext {
     uint64_t seed = 0;
-    long long spp = -1;          ///< override of the sample count (-1: the scene's own)
-    double time_limit = 0;       ///< seconds; 0 = none (equal-time runs stop after this)
-    double write_partial = 0;    ///< seconds between partial outputs; 0 = never
+    long long spp = -1;        ///< override of the sample count (-1: the scene's own)
+    double time_limit = 0;     ///< seconds; 0 = none (equal-time runs stop after this)
+    double write_partial = 0;  ///< seconds between partial outputs; 0 = never
     bool quiet = false;
+    /// Label of the main progress line ("Rendering" when empty); nested passes (an MLT direct pass) set their own.
+    std::string progress_label;
+    /// Render only this window of the film (renders by sampling integrators; others refuse a non-empty one).
+    CropWindow crop;
     std::filesystem::path output;  ///< main output file (renders) or output prefix (simulations)
     /// Called with the image so far every `write_partial` seconds. (On interruption the job returns early
     /// with RunResult::interrupted set and the image so far; the caller writes it.)
@@ -41,11 +54,12 @@ struct RunContext {
 };
 
 struct RunResult {
-    Bitmap image;             ///< final image (renders); may be empty for simulations
-    bool interrupted = false; ///< stopped early by a signal; `image` holds what was computed
+    Bitmap image;              ///< final image (renders); may be empty for simulations
+    bool interrupted = false;  ///< stopped early by a signal; `image` holds what was computed
     double seconds = 0;
     double work = 0;          ///< samples, paths or steps done
     std::string work_unit;    ///< "spp", "steps", ...
+    std::string description;  ///< what ran, with its variant ("drmlt (orbital, Tierney–Mira)"); set by the job
     std::vector<std::filesystem::path> files_written;  ///< outputs the job wrote itself
 };
 

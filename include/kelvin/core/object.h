@@ -17,6 +17,9 @@ public:
     /// The id= given in the scene, or empty.
     const std::string& id() const { return m_id; }
     virtual std::string to_string() const;
+    /// A short human-readable name for run summaries and output metadata: the plugin name and, where the plugin
+    /// has variants, the variant ("drmlt (orbital, Tierney–Mira)"). Default: plugin_name().
+    virtual std::string description() const { return m_name; }
 
 private:
     friend class Registry;

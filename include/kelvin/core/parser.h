@@ -5,6 +5,7 @@
 //   2. instantiate: SceneNode tree -> objects, bottom-up, through the Registry. Objects declared once with
 //      id= and referenced several times are created once and shared.
 // Every error is an InputError carrying file:line:column.
+#include <kelvin/core/error.h>
 #include <kelvin/core/properties.h>
 
 #include <filesystem>
@@ -64,6 +65,18 @@ struct ParsedScene {
     std::vector<PluginRequest> plugins;       ///< <plugin path="..."/> requests
     std::vector<std::string> files;           ///< every file read (main file and includes)
     std::vector<std::string> unused_defines;  ///< -D names the scene never referenced
+    /// Every <default> met (main file and includes), in document order. A name declared twice appears twice;
+    /// the first declaration (or a -D) wins, as in Mitsuba.
+    struct Default {
+        std::string name;
+        std::string value;  ///< the value as declared (before -D)
+        SourceLoc loc;      ///< file:line:column of the <default> element
+    };
+    std::vector<Default> defaults;
+    /// -D values by name, and the -D names substituted into each element's attributes (by the element's
+    /// SourceLoc::str()): an error at such an element names the -D it came from ("-D res=abc: ...").
+    std::map<std::string, std::string> defines;
+    std::map<std::string, std::vector<std::string>> define_uses;
     /// <path value="..."/> folders (resolved), the most recently declared first: where relative file names
     /// are looked for when they are not next to the file that names them.
     std::vector<std::filesystem::path> search_paths;
@@ -80,6 +93,10 @@ struct InstantiateOptions {
 
 /// Load the requested plugin modules and build the object tree. Returns the root object.
 ObjectPtr instantiate(const ParsedScene& scene, const InstantiateOptions& opts = {});
+
+/// `e` with the -D definitions used at its location named first ("-D res=abc: malformed integer ..."), or `e`.
+/// parse_scene_* and instantiate apply it to the errors they throw.
+InputError blame_define(const InputError& e, const ParsedScene& scene);
 
 /// Convenience: parse a file and instantiate it.
 ObjectPtr load_scene(const std::filesystem::path& path, const ParseOptions& popts = {},

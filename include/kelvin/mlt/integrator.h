@@ -82,6 +82,8 @@ public:
     ~MetropolisIntegrator() override;
 
     RunResult render(const Scene& scene, RunContext& ctx) override;
+    /// "drmlt (orbital, Tierney–Mira)": the plugin, its mutation(s) and, for drmlt, the delayed-rejection type.
+    std::string description() const override;
     /// The statistics of the last render() (thread-safe to read after it returns).
     MltStatistics statistics() const;
 

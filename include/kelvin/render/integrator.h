@@ -45,6 +45,8 @@ inline bool sanitize(Color3& v) {
 class Integrator : public Object {
 public:
     virtual RunResult render(const Scene& scene, RunContext& ctx) = 0;
+    /// True if render() honours RunContext::crop (renders only that pixel window, into an image of its size).
+    virtual bool supports_crop() const { return false; }
 };
 
 class SplatSink;
@@ -66,6 +68,7 @@ void report_counters(RunContext& ctx, const std::vector<SampleCounters>& counter
 class SamplingIntegrator : public Integrator {
 public:
     RunResult render(const Scene& scene, RunContext& ctx) override;
+    bool supports_crop() const override { return true; }
     /// Estimate of the value carried by `ray` (RGB). Called concurrently from several threads.
     virtual Color3 sample(const Scene& scene, Sampler& sampler, const Ray& ray, SampleCounters& counters) const = 0;
     /// True if sample() also splats contributions to other pixels (counters.splats). The pixel loop then adds

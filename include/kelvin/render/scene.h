@@ -21,6 +21,8 @@ public:
     ~Scene() override;
 
     RunResult run(RunContext& ctx) override;
+    /// The integrator's (or simulation's) description.
+    std::string description() const override;
 
     /// Closest hit along the ray within [tmin, tmax], or nullopt.
     std::optional<SurfaceHit> intersect(const Ray& ray) const;

@@ -112,6 +112,7 @@ public:
         auto cache = props.get_object_as<CacheSpec>("cache");
         if (!cache)
             cache = std::dynamic_pointer_cast<CacheSpec>(Registry::instance().create(Properties("cache", "grid")));
+        m_velocity_name = velocity->plugin_name();
         m_settings.velocity = velocity->biot_savart();
         if (auto wos = std::dynamic_pointer_cast<const WosVelocitySpec>(velocity)) {  // solid boundaries
             m_settings.boundaries = std::make_shared<WosVelocityOptions>(wos->walk_on_spheres());
@@ -124,6 +125,10 @@ public:
         }
         m_settings.interpolation = cache->interpolation();
         if (cache->resolution_z() != 0) props.error("cache", "resolution_z is for 3D caches (dimension = 3)");
+    }
+
+    std::string description() const override {
+        return m_3d ? plugin_name() + " (3D)" : fmt::format("{} (2D, {})", plugin_name(), m_velocity_name);
     }
 
     RunResult run(RunContext& ctx) override {
@@ -226,6 +231,7 @@ public:
         }
 
         ProgressReporter progress("Simulating", double(m_steps), "steps", ctx.quiet);
+        progress.set_time_limit(ctx.time_limit);
         Timer since_partial;
         long long done = 0;
         bool stopped_by_time = false;
@@ -322,6 +328,7 @@ private:
     std::shared_ptr<VorticityField> m_field;
     std::shared_ptr<DyeSpec> m_dye;
     std::unique_ptr<Simulation3Params> m_3d;  ///< dimension = 3
+    std::string m_velocity_name;              ///< the velocity estimator plugin (2D)
 };
 
 }  // namespace
