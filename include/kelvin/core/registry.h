@@ -15,8 +15,9 @@
 #include <string>
 #include <vector>
 
-/// Bumped whenever a change to the public headers breaks binary compatibility of plugins.
-#define KELVIN_PLUGIN_ABI 1
+/// Bumped whenever a change to the public headers breaks binary compatibility of plugins (2: Object::description,
+/// Emitter::eval with the surface uv, RunContext/RunResult fields for the CLI).
+#define KELVIN_PLUGIN_ABI 2
 
 namespace kelvin {
 
