@@ -112,7 +112,8 @@ Vec2d MCFluidSolver::checked_velocity(Vec2d x, Random& rng, uint64_t& evals, uin
     VelocityEstimate e = estimate_at(x, m_settings.velocity.samples, rng, walks);
     evals += uint64_t(e.samples);
     ++queries;
-    if (!finite(e.value)) {
+    // The same validity check as the cell pass: a finite value whose variance overflowed is not an estimate.
+    if (!finite(e.value) || !std::isfinite(e.variance.x) || !std::isfinite(e.variance.y)) {
         ++invalid;
         return Vec2d(0.0);
     }
@@ -244,7 +245,11 @@ bool MCFluidSolver::step(double dt) {
                 value = m_omega.sample(xd, interp);
             } else {  // Feynman–Kac diffusion: Gaussian displacement of variance 2 nu dt per axis (Eq. 5.22)
                 double sum = 0;
-                for (int k = 0; k < nd; ++k) sum += m_omega.sample(xd + sigma * standard_normal2(rng), interp);
+                for (int k = 0; k < nd; ++k) {
+                    Vec2d y = xd + sigma * standard_normal2(rng);
+                    if (m_wos) y = m_wos->reflect_out(y);  // free slip: nothing diffuses into a wall
+                    sum += m_omega.sample(y, interp);
+                }
                 value = sum / nd;
                 w.diffusion += uint64_t(nd);
             }

@@ -179,12 +179,13 @@ VelocityEstimate3 MCFluid3Solver::estimate_at(Vec3d x, int n, Random& rng, SlabW
 Vec3d MCFluid3Solver::stage_velocity(Vec3d x, Random& rng, SlabWork& w) const {
     // Control variate: the difference field, plus the previous velocity interpolated at x.
     if (m_wos && m_wos->solid_at(x) >= 0) return Vec3d(0.0);
-    Vec3d v = estimate_at(x, m_settings.velocity.samples, rng, w).value;
+    const VelocityEstimate3 e = estimate_at(x, m_settings.velocity.samples, rng, w);
+    Vec3d v = e.value;
     if (m_have_prev) {
         v += m_prev_vel.sample(x, m_settings.interpolation);
         ++w.cv;
     }
-    if (!finite(v)) {
+    if (!finite(v) || !finite(e.variance)) {  // the cell pass's check: a value with an overflowed variance too
         ++w.invalid_velocity;
         return Vec3d(0.0);
     }
@@ -283,7 +284,11 @@ bool MCFluid3Solver::step(double dt) {
             }
             Vec3d sum(0.0);
             for (int d = 0; d < nd; ++d) {
-                const Vec3d xj = viscous ? xd + sigma * standard_normal3(rng) : xd;
+                Vec3d xj = xd;
+                if (viscous) {
+                    xj += sigma * standard_normal3(rng);
+                    if (m_wos) xj = m_wos->reflect_out(xj);  // free slip: nothing diffuses into a wall
+                }
                 Vec3d om = m_omega.sample(xj, interp);
                 if (s.stretching) {  // Eq. (5.21) on the cached velocity, forward Euler over dt (Eq. 5.22)
                     const double mag = glm::length(om);

@@ -394,10 +394,10 @@ RunResult run_mcfluid3(const Simulation3Params& p, RunContext& ctx) {
     if (solver.velocity_available()) {
         const FluidDiagnostics3 dn = solver.diagnostics();
         log_info(
-            "mcfluid: t = {:g}: energy {:.6g} (initial {:.6g}), enstrophy {:.6g}, helicity {:.6g}, max |omega| "
-            "{:.6g}; active effects: advection{}{}{}{}",
-            dn.time, dn.kinetic_energy, d0.kinetic_energy, dn.enstrophy, dn.helicity, dn.max_abs_vorticity,
-            settings.stretching ? ", stretching" : "", viscous ? ", diffusion" : "",
+            "mcfluid: t = {:g}: energy noise-corrected {:.6g}, raw {:.6g} (initial {:.6g}, {:.6g}), enstrophy {:.6g}, "
+            "helicity {:.6g}, max |omega| {:.6g}; active effects: advection{}{}{}{}",
+            dn.time, dn.kinetic_energy, dn.kinetic_energy_raw, d0.kinetic_energy, d0.kinetic_energy_raw, dn.enstrophy,
+            dn.helicity, dn.max_abs_vorticity, settings.stretching ? ", stretching" : "", viscous ? ", diffusion" : "",
             settings.control_variates ? ", control variates" : "", settings.boundaries ? ", boundaries" : "");
     }
     result.image = slice_image(solver.vorticity_grid(), axis, range);

@@ -351,6 +351,8 @@ Vec2d WosVelocityField::push_out(Vec2d x) const {
     return p + back;
 }
 
+Vec2d WosVelocityField::reflect_out(Vec2d y) const { return detail::reflect_out(*this, m_domain.min, m_domain.max, y); }
+
 // ----- |omega| importance sampling of the source
 
 WosVelocityField::VorticitySource::VorticitySource(const Grid2* omega, Interpolation interp)

@@ -189,6 +189,10 @@ int WosVelocityField3::solid_at(Vec3d x) const {
     return -1;
 }
 
+Vec3d WosVelocityField3::reflect_out(Vec3d y) const {
+    return detail::reflect_out(*this, m_domain.min, m_domain.max, y);
+}
+
 Vec3d WosVelocityField3::push_out(Vec3d x) const {
     if (m_walls) {  // into the box of cell centres: lookups there never blend in the zero ghost cells
         const Vec3d half = m_omega ? 0.5 * m_omega->x.h() : Vec3d(0.0);

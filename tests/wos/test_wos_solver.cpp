@@ -388,3 +388,50 @@ TEST(WosSolver, PoissonScenePluginSolvesTheAnnulus) {
 }
 
 }  // namespace
+
+namespace {
+
+// Free slip lets no vorticity diffuse into a wall (issue 16, item 6): a diffusion sample that crossed a wall or
+// ended inside a solid is mirrored back into the fluid. Geometry first: across each wall crossed, across the
+// closest point of a disk, and onto that point when the mirror image is solid too; fluid points are unchanged.
+TEST(WosSolver, DiffusionSamplesAreReflectedOutOfWallsAndSolids) {
+    auto o = std::make_shared<WosVelocityOptions>();
+    o->shapes = {disk_boundary({0.5, 0.0}, 0.2)};
+    const Domain2 d{{-1, -1}, {1, 1}, false};
+    const WosVelocityField f(*o, d, nullptr, Interpolation::Bilinear, 0);
+    auto near = [](Vec2d a, Vec2d b) { return glm::length(a - b) < 1e-12; };
+    EXPECT_TRUE(near(f.reflect_out({-0.3, 0.4}), {-0.3, 0.4}));
+    EXPECT_TRUE(near(f.reflect_out({-1.1, 0.4}), {-0.9, 0.4}));
+    EXPECT_TRUE(near(f.reflect_out({-1.25, 1.5}), {-0.75, 0.5}));  // two walls
+    EXPECT_TRUE(near(f.reflect_out({0.6, 0.0}), {0.8, 0.0}));      // 0.1 inside the disk -> 0.1 outside
+    EXPECT_TRUE(near(f.reflect_out({0.5, 0.15}), {0.5, 0.25}));
+    // Mirrored across the disk's closest point (0.5, -0.2) from (0.5, -0.05) gives (0.5, -0.35): fluid.
+    EXPECT_TRUE(near(f.reflect_out({0.5, -0.05}), {0.5, -0.35}));
+}
+
+// And in the solver: a viscous flow in a box with free-slip walls keeps its circulation (diffusion with a
+// reflecting wall conserves the integral of omega; semi-Lagrangian advection of a slow flow nearly does). A
+// broad vortex puts vorticity next to the walls; nu dt is large so that a quarter of the diffusion samples near
+// a wall cross it. Measured: relative change -1.4 % over 4 steps with reflection; the code before (samples
+// beyond the walls read the zero ghost cells) lost 12.5 %.
+TEST(WosSolver, ViscousFlowKeepsItsCirculationAtFreeSlipWalls) {
+    MCFluidSettings s = small_settings();
+    s.nx = s.ny = 16;
+    s.viscosity = 0.05;
+    s.dt = 0.1;
+    s.diffusion_samples = 8;
+    auto o = std::make_shared<WosVelocityOptions>();
+    s.boundaries = o;  // the walls only
+    MCFluidSolver solver(s, [](const Vec2d& x) { return std::exp(-glm::dot(x, x) / 0.8); });
+    auto circulation = [&] {
+        double sum = 0;
+        for (double w : solver.vorticity_grid().values()) sum += w;
+        return sum;
+    };
+    const double c0 = circulation();
+    for (int i = 0; i < 4; ++i) ASSERT_TRUE(solver.step());
+    const double rel = circulation() / c0 - 1;
+    EXPECT_LT(std::abs(rel), 0.03) << "relative change of the circulation " << rel;
+}
+
+}  // namespace

@@ -149,6 +149,11 @@ public:
     /// A departure point that ended inside a solid is moved to the closest point of that solid's boundary; one
     /// beyond the walls is clamped into the box of cell centres (inflow carries the values next to the wall).
     Vec2d push_out(Vec2d x) const;
+    /// A Feynman–Kac diffusion sample y that crossed a free-slip boundary, reflected back into the fluid: across
+    /// the walls it crossed, then across the closest point of the solid it ended in (that point itself when the
+    /// mirror image is in a solid too: thin solids, corners); a fluid point is unchanged (but for push_out's clamp
+    /// into the box of cell centres). Free slip lets no vorticity diffuse into a wall.
+    Vec2d reflect_out(Vec2d y) const;
 
     double time() const { return m_time; }
     const wos::Settings& settings() const { return m_wos; }
@@ -250,6 +255,8 @@ public:
     /// A departure point that ended inside a solid moves to the closest point of that solid's boundary; one
     /// beyond the walls is clamped into the box of cell centres.
     Vec3d push_out(Vec3d x) const;
+    /// A diffusion sample that crossed a boundary, reflected back into the fluid (as WosVelocityField::reflect_out).
+    Vec3d reflect_out(Vec3d y) const;
 
     const wos::Settings& settings() const { return m_wos; }
     bool walls() const { return m_walls; }
@@ -310,6 +317,26 @@ std::string check_wos_options3(const WosVelocityOptions& options, const Domain3&
 std::string describe3(const WosVelocityOptions& options, const Domain3& domain);
 /// The 3D counterpart of check_wos_cells (no fluid cell: an error; a solid outside the domain: a warning).
 std::string check_wos_cells3(const WosVelocityOptions& options, const Domain3& domain, int nx, int ny, int nz);
+
+namespace detail {
+/// WosVelocityField(3)::reflect_out for a field with walls(), solid_at and push_out over the box [lo, hi].
+template <class Field, class V>
+V reflect_out(const Field& f, const V& lo, const V& hi, V y) {
+    if (f.walls())
+        for (int a = 0; a < V::length(); ++a) {
+            if (y[a] < lo[a])
+                y[a] = 2 * lo[a] - y[a];
+            else if (y[a] > hi[a])
+                y[a] = 2 * hi[a] - y[a];
+        }
+    if (f.solid_at(y) >= 0) {
+        const V p = f.push_out(y);
+        const V mirrored = 2.0 * p - y;
+        y = f.solid_at(mirrored) < 0 ? mirrored : p;
+    }
+    return f.push_out(y);
+}
+}  // namespace detail
 
 }  // namespace kelvin::fluid
 

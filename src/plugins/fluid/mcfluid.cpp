@@ -301,10 +301,11 @@ public:
         if (solver.velocity_available()) {
             const FluidDiagnostics dn = solver.diagnostics();
             log_info(
-                "mcfluid: t = {:g}: energy {:.6g} (initial {:.6g}), enstrophy {:.6g} (initial {:.6g}), circulation "
-                "{:.6g}, max |omega| {:.6g}; active effects: advection{}{}",
-                dn.time, dn.kinetic_energy, d0.kinetic_energy, dn.enstrophy, d0.enstrophy, dn.circulation,
-                dn.max_abs_vorticity, viscous ? ", diffusion" : "", m_dye ? ", dye" : "");
+                "mcfluid: t = {:g}: energy noise-corrected {:.6g}, raw {:.6g} (initial {:.6g}, {:.6g}), enstrophy "
+                "{:.6g} (initial {:.6g}), circulation {:.6g}, max |omega| {:.6g}; active effects: advection{}{}",
+                dn.time, dn.kinetic_energy, dn.kinetic_energy_raw, d0.kinetic_energy, d0.kinetic_energy_raw,
+                dn.enstrophy, d0.enstrophy, dn.circulation, dn.max_abs_vorticity, viscous ? ", diffusion" : "",
+                m_dye ? ", dye" : "");
             result.image = field_image(solver.vorticity_grid(), &solver.velocity_u(), &solver.velocity_v(), range);
         } else {  // interrupted while estimating the velocity: the vorticity channels only, no made-up velocity
             log_info(
