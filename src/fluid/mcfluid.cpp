@@ -300,8 +300,8 @@ bool MCFluidSolver::advance_to(double t) {
     return true;
 }
 
-FluidDiagnostics MCFluidSolver::diagnostics() {
-    ensure_velocity();
+FluidDiagnostics MCFluidSolver::diagnostics(bool with_velocity) {
+    if (with_velocity) ensure_velocity();
     FluidDiagnostics d;
     d.step = m_step;
     d.time = m_time;
@@ -315,8 +315,8 @@ FluidDiagnostics MCFluidSolver::diagnostics() {
         c += w;
         mx = std::max(mx, std::abs(w));
     }
-    d.kinetic_energy_raw = 0.5 * e * a;
-    d.kinetic_energy = 0.5 * (e - noise) * a;
+    d.kinetic_energy_raw = with_velocity ? 0.5 * e * a : std::numeric_limits<double>::quiet_NaN();
+    d.kinetic_energy = with_velocity ? 0.5 * (e - noise) * a : std::numeric_limits<double>::quiet_NaN();
     d.enstrophy = 0.5 * z * a;
     d.circulation = c * a;
     d.max_abs_vorticity = mx;

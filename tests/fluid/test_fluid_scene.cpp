@@ -550,3 +550,30 @@ TEST(FluidScene, OverflowingFlowIsRefusedNotZeroed) {
         EXPECT_EQ(text.find("\n1,"), std::string::npos) << "no row of the refused state:\n" << text;
     }
 }
+
+// No unrequested work (issue 16, item 7): the final state's velocity is estimated only when an output needs it.
+// Three Euler steps to a PNG without the CSV do 3 velocity passes (states 0-2, each the next step's k1), not 4,
+// and the image has no u and v channels; with the CSV (its energy column) or an EXR result (u and v channels)
+// the 4th pass runs. The code before always ran it.
+TEST(FluidScene, FinalVelocityPassOnlyWhenAnOutputNeedsIt) {
+    struct Case {
+        const char* output;
+        bool csv;
+        double passes;
+    };
+    for (const Case& c : {Case{"run.png", false, 3}, Case{"run.png", true, 4}, Case{"run.exr", false, 4}}) {
+        SCOPED_TRACE(std::string(c.output) + (c.csv ? " with csv" : " without csv"));
+        TempDir dir;
+        std::string sim = R"(<integer name="steps" value="3"/><string name="advection" value="euler"/>)";
+        if (!c.csv) sim += R"(<boolean name="write_csv" value="false"/>)";
+        auto job = load(scene(sim));
+        RunContext ctx;
+        ctx.quiet = true;
+        ctx.output = dir.path() / c.output;
+        RunResult r = job->run(ctx);
+        EXPECT_EQ(r.work, 3);
+        EXPECT_EQ(ctx.stats.get("fluid.biot_savart_evals"), 16.0 * 16 * 16 * c.passes);
+        EXPECT_EQ(r.image.channel_index("u") >= 0, c.passes == 4);
+        EXPECT_GE(r.image.channel_index("vorticity"), 0);
+    }
+}

@@ -119,8 +119,8 @@ public:
     /// pass polls the interrupt flag once per cell.
     bool velocity_available();
     /// Energy and the other diagnostics of the current state (zero velocity when velocity_available() is
-    /// false).
-    FluidDiagnostics diagnostics();
+    /// false). Without `with_velocity` no velocity pass is run and the energies are NaN (not estimated).
+    FluidDiagnostics diagnostics(bool with_velocity = true);
 
     // ----- pointwise API (the cached solver keeps the current state only: t >= time()).
     /// omega(t, x): advances to t, then interpolates the cache.

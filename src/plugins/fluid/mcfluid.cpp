@@ -62,6 +62,8 @@
 
 #include <fmt/format.h>
 
+#include <algorithm>
+#include <cctype>
 #include <cmath>
 #include <optional>
 
@@ -177,10 +179,11 @@ public:
         const double range = m_color_range > 0 ? m_color_range : solver.vorticity_grid().max_abs();
         const int digits = std::max(4, int(std::to_string(m_steps).size()));
         double output_seconds = 0;
-        auto write_frame = [&]() {
+        auto write_frame = [&](bool uv) {  // uv: the state's velocity channels (estimated if not yet)
             if (!paths.enabled() || m_output_every == 0 || (!m_write_png && !m_write_exr)) return;
             Timer t;
-            Bitmap img = field_image(solver.vorticity_grid(), &solver.velocity_u(), &solver.velocity_v(), range);
+            Bitmap img = field_image(solver.vorticity_grid(), uv ? &solver.velocity_u() : nullptr,
+                                     uv ? &solver.velocity_v() : nullptr, range);
             for (const char* ext : {".png", ".exr"}) {
                 if ((ext[1] == 'p' && !m_write_png) || (ext[1] == 'e' && !m_write_exr)) continue;
                 auto p = paths.frame(solver.step_index(), digits, ext);
@@ -226,10 +229,23 @@ public:
             if (csv)
                 csv->write(d0, 0.0, double(solver.work().biot_savart_evals),
                            solver.work().invalid_velocity + solver.work().invalid_vorticity);
-            write_frame();
+            write_frame(true);
             if (checkpoints.active()) checkpoint(0);
         }
 
+        // The last state's velocity is estimated only when an output needs it (issue 16, item 7): the CSV (its
+        // energies), a checkpoint, an EXR result or frame (u and v channels), partial images, or a host that
+        // takes the image itself (no output path). Otherwise a run of n steps does n velocity passes, not n + 1.
+        std::string ext = ctx.output.extension().string();
+        std::transform(ext.begin(), ext.end(), ext.begin(), [](unsigned char ch) { return char(std::tolower(ch)); });
+        auto velocity_needed_at = [&](long long s) {
+            if (s < m_steps || csv || checkpoints.active() || ctx.write_partial > 0 || ctx.output.empty() ||
+                ext == ".exr")
+                return true;
+            const bool frame = paths.enabled() && m_output_every > 0;
+            return frame && m_write_exr;
+        };
+        bool final_without_velocity = false;
         ProgressReporter progress("Simulating", double(m_steps), "steps", ctx.quiet);
         progress.set_time_limit(ctx.time_limit);
         Timer since_partial;
@@ -244,6 +260,18 @@ public:
             if (!(dt > 0)) dt = settings.dt;
             if (!solver.step(dt)) break;
             ++done;
+            if (!velocity_needed_at(s)) {  // the final state, vorticity only
+                const FluidDiagnostics d = solver.diagnostics(false);
+                refuse_non_finite_values("mcfluid", s, d.max_abs_vorticity,
+                                         {{d.enstrophy, "enstrophy"},
+                                          {d.circulation, "circulation"},
+                                          {d.max_abs_vorticity, "max |vorticity|"}},
+                                         {{&solver.vorticity_grid().values(), "vorticity", settings.nx, 0}});
+                if (m_output_every > 0) write_frame(false);
+                final_without_velocity = true;
+                progress.update(1);
+                break;
+            }
             // The new state's velocity: diagnostics now, k1 of the next step later (computed once). An
             // interrupt during its pass ends the run with the new state and no velocity.
             FluidDiagnostics d = solver.diagnostics();
@@ -264,7 +292,7 @@ public:
                 csv->write(d, seconds, double(after.biot_savart_evals - before.biot_savart_evals),
                            (after.invalid_velocity + after.invalid_vorticity) -
                                (before.invalid_velocity + before.invalid_vorticity));
-            if (m_output_every > 0 && (s % m_output_every == 0 || s == m_steps)) write_frame();
+            if (m_output_every > 0 && (s % m_output_every == 0 || s == m_steps)) write_frame(true);
             progress.update(1);
             if (ctx.write_partial > 0 && ctx.write_partial_image && since_partial.seconds() >= ctx.write_partial) {
                 ctx.write_partial_image(
@@ -298,7 +326,16 @@ public:
                 w.invalid_velocity, w.invalid_vorticity);
 
         if (csv) csv->close();  // the CSV so far replaces the previous one (interrupted runs included)
-        if (solver.velocity_available()) {
+        if (final_without_velocity) {
+            const FluidDiagnostics dn = solver.diagnostics(false);
+            log_info(
+                "mcfluid: t = {:g}: enstrophy {:.6g} (initial {:.6g}), circulation {:.6g}, max |omega| {:.6g} (the "
+                "final state's velocity and energy were not estimated: no output needs them; the CSV or an .exr "
+                "output does); active effects: advection{}{}",
+                dn.time, dn.enstrophy, d0.enstrophy, dn.circulation, dn.max_abs_vorticity, viscous ? ", diffusion" : "",
+                m_dye ? ", dye" : "");
+            result.image = field_image(solver.vorticity_grid(), nullptr, nullptr, range);
+        } else if (solver.velocity_available()) {
             const FluidDiagnostics dn = solver.diagnostics();
             log_info(
                 "mcfluid: t = {:g}: energy noise-corrected {:.6g}, raw {:.6g} (initial {:.6g}, {:.6g}), enstrophy "
