@@ -172,15 +172,16 @@ void BM_WosVelocity3(benchmark::State& state) {
 }
 
 // One full step (velocity pass + RK4 backtrace with 3 stage estimates + stretching) of a ring and smoke around the
-// obstacle at 24^3 with 8 gradient samples, as scenes/fluid/bunny3d.xml at its defaults.
+// obstacle at 24^3 with 8 gradient samples, as scenes/fluid/bunny3d.xml at its defaults, and with the thesis' 128
+// walks per query on the bunny.
 void BM_ObstacleStep3(benchmark::State& state) {
     ThreadLimit limit(bench_threads());
-    const int which = int(state.range(0));
+    const int which = int(state.range(0)), samples = int(state.range(1));
     auto o = std::make_shared<WosVelocityOptions>();
     o->inflow_speed = 0.3;
     o->wos.max_steps = 256;
     o->shapes = {obstacle(which)};
-    MCFluid3Settings s = settings(24, 8, false);
+    MCFluid3Settings s = settings(24, samples, false);
     s.advection = Advection::RK4;
     s.boundaries = o;
     MCFluid3Solver solver(s, ring);
@@ -196,7 +197,10 @@ void BM_ObstacleStep3(benchmark::State& state) {
 
 BENCHMARK(BM_WosVelocity3)->DenseRange(0, 2)->Unit(benchmark::kMillisecond)->MeasureProcessCPUTime()->UseRealTime();
 BENCHMARK(BM_ObstacleStep3)
-    ->DenseRange(0, 2)
+    ->Args({0, 8})
+    ->Args({1, 8})
+    ->Args({2, 8})
+    ->Args({1, 64})  // the thesis' 128 walks per query (64 antithetic gradient samples), on the bunny mesh
     ->Unit(benchmark::kMillisecond)
     ->MeasureProcessCPUTime()
     ->UseRealTime()

@@ -184,26 +184,16 @@ public:
         }
         if (brdf > 0 && reflect && front) {  // diffuse, retro-reflection, fake subsurface, sheen
             const double Fo = schlick_weight(std::abs(co)), Fi = schlick_weight(std::abs(ci));
-            const double f_diff = (1 - 0.5 * Fi) * (1 - 0.5 * Fo);
-            const double cos_d = glm::dot(h, wo), roughness = m_roughness(si);
-            const double Rr = 2 * roughness * cos_d * cos_d;
-            const double f_retro = Rr * (Fo + Fi + Fo * Fi * (Rr - 1));
-            double f = f_diff + f_retro;
-            if (m_flatness.given) {
-                const double Fss90 = Rr / 2, Fss = lerp(1, Fss90, Fo) * lerp(1, Fss90, Fi);
-                const double f_ss = 1.25 * (Fss * (1 / (std::abs(co) + std::abs(ci)) - 0.5) + 0.5);
-                f = lerp(f, f_ss, m_flatness(si));
-            }
+            const double cos_d = glm::dot(h, wo);
+            const double f = diffuse_factor(Fi, Fo, std::abs(ci), std::abs(co), cos_d, m_roughness(si),
+                                            m_flatness.given, m_flatness.given ? m_flatness(si) : 0.0);
             value += base * (brdf * std::abs(co) * InvPi * f);
             if (m_sheen.given && 1 - metallic > 0) {
                 const double sheen = m_sheen(si);
                 if (sheen > 0) {
                     const double Fd = schlick_weight(std::abs(cos_d));
-                    Color3 c_sheen(1.0);
-                    if (m_sheen_tint.given) {
-                        const double st = m_sheen_tint(si);
-                        c_sheen = Color3(1.0) + (tint_color(base, luminance(base)) - Color3(1.0)) * st;
-                    }
+                    const Color3 c_sheen =
+                        sheen_color(base, m_sheen_tint.given, m_sheen_tint.given ? m_sheen_tint(si) : 0.0);
                     value += c_sheen * (sheen * (1 - metallic) * Fd * std::abs(co));
                 }
             }

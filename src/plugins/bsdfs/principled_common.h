@@ -96,6 +96,25 @@ inline bool compatible(const Vec3d& m, const Vec3d& wi, const Vec3d& wo, double 
 
 inline double lerp(double a, double b, double t) { return a + t * (b - a); }
 
+/// The diffuse lobe of both principled BSDFs without base |cos| / pi: Burley's diffuse with retro-reflection
+/// (Fi, Fo the Schlick weights of the two directions, cos_d = h . wo), blended toward the fake-subsurface term by
+/// `flatness` when `flat` (Mitsuba's rule: only a given flatness computes it).
+inline double diffuse_factor(double Fi, double Fo, double abs_ci, double abs_co, double cos_d, double roughness,
+                             bool flat, double flatness) {
+    const double f_diff = (1 - 0.5 * Fi) * (1 - 0.5 * Fo);
+    const double Rr = 2 * roughness * cos_d * cos_d;
+    const double f = f_diff + Rr * (Fo + Fi + Fo * Fi * (Rr - 1));
+    if (!flat) return f;
+    const double Fss90 = Rr / 2, Fss = lerp(1, Fss90, Fo) * lerp(1, Fss90, Fi);
+    const double f_ss = 1.25 * (Fss * (1 / (abs_co + abs_ci) - 0.5) + 0.5);
+    return lerp(f, f_ss, flatness);
+}
+
+/// The sheen's colour: white, or `tint` of the way to the base colour's hue.
+inline Color3 sheen_color(const Color3& base, bool tinted, double tint) {
+    return tinted ? Color3(1.0) + (tint_color(base, luminance(base)) - Color3(1.0)) * tint : Color3(1.0);
+}
+
 /// A scalar parameter: a float in [lo, hi] (refused otherwise, naming the parameter) or a texture, whose
 /// eval_1 is clamped to [lo, hi] at the surface. `given` is Mitsuba's "the lobe is on" flag: the parameter was
 /// given and is not the number 0.
