@@ -90,6 +90,8 @@ void check_settings(const MCFluid3Settings& s) {
     if (s.velocity.samples < 1) throw_runtime("MCFluid3Solver: velocity samples must be >= 1");
     if (s.diffusion_samples < 1) throw_runtime("MCFluid3Solver: diffusion samples must be >= 1");
     if (s.initial_samples < 0) throw_runtime("MCFluid3Solver: initial samples must be >= 0");
+    if (!(s.control_variate_blend > 0 && s.control_variate_blend <= 1))
+        throw_runtime("MCFluid3Solver: control_variate_blend must lie in (0, 1]");
 }
 
 Vec3d standard_normal3(Random& rng) {
@@ -176,15 +178,27 @@ VelocityEstimate3 MCFluid3Solver::estimate_at(Vec3d x, int n, Random& rng, SlabW
     return e;
 }
 
+void MCFluid3Solver::blend_direct(Vec3d x, int n, Random& rng, SlabWork& w, VelocityEstimate3& e) const {
+    const double beta = m_settings.control_variate_blend;
+    if (!(m_have_prev && beta < 1)) return;
+    const VelocityEstimate3 d = m_wos ? m_wos->estimate(x, n, rng, w.walks) : m_estimator->estimate(x, n, rng);
+    w.evals += uint64_t(d.samples);
+    ++w.queries;
+    e.value = beta * e.value + (1 - beta) * d.value;
+    e.variance = (beta * beta) * e.variance + ((1 - beta) * (1 - beta)) * d.variance;
+}
+
 Vec3d MCFluid3Solver::stage_velocity(Vec3d x, Random& rng, SlabWork& w) const {
-    // Control variate: the difference field, plus the previous velocity interpolated at x.
+    // Control variate: the difference field, plus the previous velocity interpolated at x (blended with a direct
+    // estimate when control_variate_blend < 1).
     if (m_wos && m_wos->solid_at(x) >= 0) return Vec3d(0.0);
-    const VelocityEstimate3 e = estimate_at(x, m_settings.velocity.samples, rng, w);
-    Vec3d v = e.value;
+    VelocityEstimate3 e = estimate_at(x, m_settings.velocity.samples, rng, w);
     if (m_have_prev) {
-        v += m_prev_vel.sample(x, m_settings.interpolation);
+        e.value += m_prev_vel.sample(x, m_settings.interpolation);
         ++w.cv;
+        blend_direct(x, m_settings.velocity.samples, rng, w, e);
     }
+    const Vec3d v = e.value;
     if (!finite(v) || !finite(e.variance)) {  // the cell pass's check: a value with an overflowed variance too
         ++w.invalid_velocity;
         return Vec3d(0.0);
@@ -211,6 +225,7 @@ bool MCFluid3Solver::ensure_velocity() {
                                                 ++w.cv;
                                                 e.value += m_prev_vel.at(c);
                                                 e.variance += m_prev_var.at(c);
+                                                blend_direct(x, n, rng, w, e);
                                             }
                                             if (!finite(e.value) || !finite(e.variance)) {
                                                 ++w.invalid_velocity;

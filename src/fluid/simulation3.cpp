@@ -44,6 +44,7 @@ Simulation3Params Simulation3Params::parse(const Properties& props) {
     s.stretching = props.get_bool("stretching");
     s.control_variates = props.get_bool("control_variates");
     s.initial_samples = int(props.get_int("initial_samples", 0, 1 << 24));
+    s.control_variate_blend = props.get_float("control_variate_blend", 1e-6, 1.0);
     if (s.initial_samples > 0 && !s.control_variates)
         log_info(
             "mcfluid: initial_samples = {} is the control variates' initial sample count; control_variates is "
@@ -248,8 +249,11 @@ RunResult run_mcfluid3(const Simulation3Params& p, RunContext& ctx) {
         viscous ? fmt::format("on (nu {:g}, Feynman–Kac, n_d {})", settings.viscosity, settings.diffusion_samples)
                 : std::string("off (inviscid)"),
         settings.control_variates
-            ? fmt::format("on (initial samples {})",
-                          settings.initial_samples > 0 ? settings.initial_samples : settings.velocity.samples)
+            ? fmt::format("on (initial samples {}{})",
+                          settings.initial_samples > 0 ? settings.initial_samples : settings.velocity.samples,
+                          settings.control_variate_blend < 1
+                              ? fmt::format(", blend {:g}", settings.control_variate_blend)
+                              : std::string())
             : std::string("off"),
         settings.boundaries ? describe3(*settings.boundaries, settings.domain) : std::string("none"),
         p.smoke ? p.smoke->description() : std::string("none"));

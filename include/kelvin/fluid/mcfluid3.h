@@ -51,6 +51,10 @@ struct MCFluid3Settings {
     bool stretching = true;
     bool control_variates = false;
     int initial_samples = 0;  ///< samples of the first velocity pass (0: velocity.samples)
+    /// beta of the blended control variate: v = beta (v_prev + BS[omega - omega_prev]) + (1 - beta) BS[omega] with
+    /// n_mc samples for each part when beta < 1 (the general control-variate form of thesis Sec. 6.2.1); 1 is Eq.
+    /// 5.23, whose error is carried from step to step and accumulates, where with beta < 1 it decays as beta^k.
+    double control_variate_blend = 1;
     uint64_t seed = 0;
     /// Solid boundaries (walk_on_spheres, boundary.h): the velocity is the free-slip Walk-on-Spheres estimate
     /// on the vector potential instead of Biot–Savart (velocity.samples = gradient samples per query). Null:
@@ -153,6 +157,9 @@ private:
     /// (`previous` is then the previous velocity at x), Biot–Savart or Walk-on-Spheres.
     VelocityEstimate3 estimate_at(Vec3d x, int n, Random& rng, SlabWork& w) const;
     Vec3d stage_velocity(Vec3d x, Random& rng, SlabWork& w) const;
+    /// With control variates and control_variate_blend beta < 1: e (the control-variate estimate at x) becomes
+    /// beta e + (1 - beta) x a direct estimate with n samples, variances combined likewise.
+    void blend_direct(Vec3d x, int n, Random& rng, SlabWork& w, VelocityEstimate3& e) const;
     void rebuild_estimators();
 
     MCFluid3Settings m_settings;

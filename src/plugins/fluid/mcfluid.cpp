@@ -31,6 +31,8 @@
 // | stretching        | boolean | true      | 3D: vortex stretching (Eq. 5.21); false only to study it      |
 // | control_variates  | boolean | false     | 3D: previous step as control variate (Eq. 5.23)               |
 // | initial_samples   | integer | 0         | 3D, control variates: n_mc of the first velocity (0: n_mc)    |
+// | control_variate_blend | float | 1       | 3D, control variates: beta in (0, 1]; < 1 mixes in a direct   |
+// |                   |         |           | estimate, (1 - beta), so carried errors decay as beta^k       |
 // | write_vdb         | boolean | true      | 3D: frames as OpenVDB (vorticity, |vorticity|, velocity)      |
 // | slice_axis        | string  | y         | 3D: PNG slice through the centre normal to x, y or z          |
 // | (vorticity)       | nested  | required  | initial condition                                             |
@@ -79,7 +81,8 @@ public:
             return;
         }
         if (dim != 2) props.error("dimension", fmt::format("must be 2 or 3 (got {})", dim));
-        for (const char* name : {"stretching", "control_variates", "initial_samples", "write_vdb", "slice_axis"})
+        for (const char* name :
+             {"stretching", "control_variates", "initial_samples", "control_variate_blend", "write_vdb", "slice_axis"})
             if (props.has(name))
                 props.error(name,
                             "is a 3D parameter (dimension = 3); 2D flows have no stretching term, and 2D "
@@ -393,6 +396,9 @@ KELVIN_PLUGIN(kelvin::fluid::MCFluid, "simulation", "mcfluid",
               kelvin::param::boolean("stretching", true, "3D: vortex stretching (Eq. 5.21); off only to study it"),
               kelvin::param::boolean("control_variates", false, "3D: previous step as control variate (Eq. 5.23)"),
               kelvin::param::integer("initial_samples", 0, "3D with control variates: n_mc of the first velocity"),
+              kelvin::param::real("control_variate_blend", 1.0,
+                                  "3D with control variates: beta in (0, 1]; below 1 a direct estimate of weight "
+                                  "1 - beta is mixed in (n_mc more samples)"),
               kelvin::param::boolean("write_vdb", true, "3D: write frames as OpenVDB files"),
               kelvin::param::string("slice_axis", "y", "3D: PNG slices normal to 'x', 'y' or 'z'"),
               kelvin::param::object("vorticity", "vorticity", "initial vorticity field", true),
