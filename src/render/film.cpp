@@ -6,7 +6,9 @@
 namespace kelvin {
 
 ImageBuffer::ImageBuffer(int width, int height, int channels)
-    : m_width(width), m_height(height), m_channels(channels),
+    : m_width(width),
+      m_height(height),
+      m_channels(channels),
       m_data(std::size_t(width) * std::size_t(height) * std::size_t(channels + 1), 0.0) {}
 
 Bitmap ImageBuffer::develop(const std::vector<std::string>& names) const {
@@ -14,7 +16,8 @@ Bitmap ImageBuffer::develop(const std::vector<std::string>& names) const {
     const int nc = std::min<int>(m_channels, int(names.size()));
     for (int y = 0; y < m_height; ++y)
         for (int x = 0; x < m_width; ++x) {
-            const double* px = &m_data[(std::size_t(y) * std::size_t(m_width) + std::size_t(x)) * std::size_t(m_channels + 1)];
+            const double* px =
+                &m_data[(std::size_t(y) * std::size_t(m_width) + std::size_t(x)) * std::size_t(m_channels + 1)];
             const double w = px[m_channels];
             for (int c = 0; c < nc; ++c) out.at(x, y, c) = w > 0 ? float(px[c] / w) : 0.f;
         }
@@ -22,7 +25,11 @@ Bitmap ImageBuffer::develop(const std::vector<std::string>& names) const {
 }
 
 SplatBuffer::SplatBuffer(int width, int height, std::size_t units, const ReconstructionFilter* filter)
-    : m_width(width), m_height(height), m_filter(filter), m_lists(units), m_sinks(units),
+    : m_width(width),
+      m_height(height),
+      m_filter(filter),
+      m_lists(units),
+      m_sinks(units),
       m_acc(std::size_t(width) * std::size_t(height) * 3, 0.0) {
     for (std::size_t u = 0; u < units; ++u) {
         m_sinks[u].buffer = this;
@@ -78,7 +85,9 @@ void FixedPointSplatImage::splat(const Vec2d& film, const Color3& v) {
     for_each_footprint_pixel(m_filter, m_width, m_height, film, [&](std::size_t pixel, double w) {
         std::atomic<int64_t>* px = &m_acc[pixel * 3];
         for (int c = 0; c < 3; ++c) {
-            const int64_t q = std::llround(w * v[c] * FixedScale);
+            // Rounded half away from zero like std::llround (a libm call), inline; |x| < 2^62 here.
+            const double x = w * v[c] * FixedScale;
+            const int64_t q = int64_t(x + (x < 0 ? -0.5 : 0.5));
             if (q != 0) px[c].fetch_add(q, std::memory_order_relaxed);
         }
     });
@@ -87,7 +96,8 @@ void FixedPointSplatImage::splat(const Vec2d& film, const Color3& v) {
 Bitmap FixedPointSplatImage::develop(double scale) const {
     Bitmap out(m_width, m_height);
     const double s = scale / FixedScale;
-    for (std::size_t i = 0; i < m_acc.size(); ++i) out.data()[i] = float(double(m_acc[i].load(std::memory_order_relaxed)) * s);
+    for (std::size_t i = 0; i < m_acc.size(); ++i)
+        out.data()[i] = float(double(m_acc[i].load(std::memory_order_relaxed)) * s);
     return out;
 }
 

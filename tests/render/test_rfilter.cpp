@@ -10,6 +10,9 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <tuple>
+#include <utility>
+#include <vector>
 
 using namespace kelvin;
 
@@ -108,6 +111,35 @@ TEST(ReconstructionFilter, SplatsConserveEnergyInside) {
     edge.merge();
     Bitmap e = edge.develop(1.0);
     EXPECT_GT(e.at(2, 3, 0), 0.f);
+}
+
+// for_each_footprint_pixel weights a separable filter's footprint with one evaluation per row and per column; the
+// weights must be exactly eval() at every pixel centre of the footprint (the pixels and their order too), at the
+// image border, beyond it, and for footprints wider than the separable path takes (a Gaussian of stddev 6: 49
+// pixels across, the per-pixel path). Inferred to fail, not run: the row and column factors swapped.
+TEST(ReconstructionFilter, SeparableFootprintWeightsAreExactlyEval) {
+    for (auto [name, param, v] : {std::tuple{"gaussian", "", 0.0}, std::tuple{"gaussian", "stddev", 0.3},
+                                  std::tuple{"box", "radius", 1.5}, std::tuple{"gaussian", "stddev", 6.0}}) {
+        auto f = make(name, param, v);
+        ASSERT_TRUE(f->separable());
+        kelvin::Random rng(3, 1);
+        for (int k = 0; k < 2000; ++k) {
+            const Vec2d film = Vec2d(-3.0, -3.0) + Vec2d(26.0, 18.0) * rng.next_2d();  // a 20 x 12 image and around
+            std::vector<std::pair<std::size_t, double>> got, want;
+            for_each_footprint_pixel(f.get(), 20, 12, film, [&](std::size_t p, double w) { got.emplace_back(p, w); });
+            const double r = f->radius();
+            if (film.x >= -r && film.y >= -r && film.x < 20 + r && film.y < 12 + r)
+                for (int y = 0; y < 12; ++y)
+                    for (int x = 0; x < 20; ++x) {
+                        const Vec2d o = Vec2d(x + 0.5, y + 0.5) - film;
+                        if (std::abs(o.x) > r || std::abs(o.y) > r) continue;
+                        const double w = f->eval(o);
+                        EXPECT_EQ(w, f->eval_1d(o.x) * f->eval_1d(o.y));
+                        if (w != 0) want.emplace_back(std::size_t(y) * 20 + std::size_t(x), w);
+                    }
+            ASSERT_EQ(got, want) << name << " " << v << " at (" << film.x << ", " << film.y << ")";
+        }
+    }
 }
 
 TEST(ReconstructionFilter, BadParameters) {

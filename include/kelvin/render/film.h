@@ -65,6 +65,18 @@ void for_each_footprint_pixel(const ReconstructionFilter* filter, int width, int
               x1 = std::min(width - 1, int(std::floor(film.x - 0.5 + r)));
     const int y0 = std::max(0, int(std::ceil(film.y - 0.5 - r))),
               y1 = std::min(height - 1, int(std::floor(film.y - 0.5 + r)));
+    constexpr int MaxSide = 32;  // separable footprints up to 32 x 32 pixels: one evaluation per row and column
+    if (filter->separable() && x1 - x0 < MaxSide && y1 - y0 < MaxSide) {
+        double wx[MaxSide], wy[MaxSide];
+        for (int x = x0; x <= x1; ++x) wx[x - x0] = filter->eval_1d(x + 0.5 - film.x);
+        for (int y = y0; y <= y1; ++y) wy[y - y0] = filter->eval_1d(y + 0.5 - film.y);
+        for (int y = y0; y <= y1; ++y)
+            for (int x = x0; x <= x1; ++x) {
+                const double w = wx[x - x0] * wy[y - y0];
+                if (w != 0) fn(std::size_t(y) * std::size_t(width) + std::size_t(x), w);
+            }
+        return;
+    }
     for (int y = y0; y <= y1; ++y)
         for (int x = x0; x <= x1; ++x) {
             const double w = filter->eval(Vec2d(x + 0.5, y + 0.5) - film);

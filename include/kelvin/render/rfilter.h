@@ -19,6 +19,11 @@ public:
     virtual double eval(const Vec2d& offset) const = 0;
     /// An offset drawn with density proportional to |eval| and its weight eval/pdf (1 for positive filters).
     virtual std::pair<Vec2d, double> sample(const Vec2d& u) const = 0;
+    /// A separable filter: eval(o) == eval_1d(o.x) * eval_1d(o.y) exactly (bit for bit), so a splat's footprint
+    /// is weighted with one evaluation per row and per column instead of one per pixel (for_each_footprint_pixel).
+    virtual bool separable() const { return false; }
+    /// The 1D factor of a separable filter (unused otherwise).
+    virtual double eval_1d(double /*offset*/) const { return 0.0; }
 };
 
 }  // namespace kelvin

@@ -18,13 +18,10 @@ class BoxFilter final : public ReconstructionFilter {
 public:
     explicit BoxFilter(const Properties& props) : m_radius(props.get_float("radius", 1e-3, 16.0)) {}
     double radius() const override { return m_radius; }
-    double eval(const Vec2d& o) const override {
-        if (std::abs(o.x) > m_radius || std::abs(o.y) > m_radius) return 0.0;
-        return 1.0 / (4 * m_radius * m_radius);
-    }
-    std::pair<Vec2d, double> sample(const Vec2d& u) const override {
-        return {(2.0 * u - 1.0) * m_radius, 1.0};
-    }
+    double eval(const Vec2d& o) const override { return eval_1d(o.x) * eval_1d(o.y); }
+    bool separable() const override { return true; }
+    double eval_1d(double t) const override { return std::abs(t) > m_radius ? 0.0 : 1.0 / (2 * m_radius); }
+    std::pair<Vec2d, double> sample(const Vec2d& u) const override { return {(2.0 * u - 1.0) * m_radius, 1.0}; }
 
 private:
     double m_radius;

@@ -25,14 +25,14 @@ double erfinv(double x) {
     if (w < 5.0) {
         w -= 2.5;
         p = 2.81022636e-08;
-        for (double c : {3.43273939e-07, -3.5233877e-06, -4.39150654e-06, 0.00021858087, -0.00125372503,
-                         -0.00417768164, 0.246640727, 1.50140941})
+        for (double c : {3.43273939e-07, -3.5233877e-06, -4.39150654e-06, 0.00021858087, -0.00125372503, -0.00417768164,
+                         0.246640727, 1.50140941})
             p = c + p * w;
     } else {
         w = std::sqrt(w) - 3.0;
         p = -0.000200214257;
-        for (double c : {0.000100950558, 0.00134934322, -0.00367342844, 0.00573950773, -0.0076224613,
-                         0.00943887047, 1.00167406, 2.83297682})
+        for (double c : {0.000100950558, 0.00134934322, -0.00367342844, 0.00573950773, -0.0076224613, 0.00943887047,
+                         1.00167406, 2.83297682})
             p = c + p * w;
     }
     double y = p * x;
@@ -48,9 +48,11 @@ public:
         m_norm1d = 1.0 / (m_sigma * std::sqrt(2 * Pi) * m_erf_r);  // 1D truncated-normal density at 0
     }
     double radius() const override { return m_radius; }
-    double eval(const Vec2d& o) const override {
-        if (std::abs(o.x) > m_radius || std::abs(o.y) > m_radius) return 0.0;
-        return m_norm1d * m_norm1d * std::exp(-(o.x * o.x + o.y * o.y) / (2 * m_sigma * m_sigma));
+    double eval(const Vec2d& o) const override { return eval_1d(o.x) * eval_1d(o.y); }
+    bool separable() const override { return true; }
+    double eval_1d(double t) const override {
+        if (std::abs(t) > m_radius) return 0.0;
+        return m_norm1d * std::exp(-(t * t) / (2 * m_sigma * m_sigma));
     }
     std::pair<Vec2d, double> sample(const Vec2d& u) const override {
         auto one = [&](double v) {
