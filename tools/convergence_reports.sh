@@ -24,8 +24,9 @@
 # default 30,60,120,240,480), MLT_REF_SPP (the reference's spp, per scene), MLT_REF_INTEGRATOR (bdpt; path: see
 # docs/mlt-studies.md on bdpt's light-tracing strategy), MLT_DIRECT_REF_SPP (1024),
 # MLT_TECHNIQUE and MLT_DIRECT_SAMPLES (per scene), MLT_MIXTURE (1: the mixture baseline as a variant),
-# MLT_VARIANTS (which of pssmlt-K pssmlt-G mixture dr-orbital dr-orbital-G dr-mira dr-green, in that order by
-# default), MLT_DR_SIGMA (dr-orbital-G's first-stage sigma, 0.03),
+# MLT_VARIANTS (which of pssmlt-K pssmlt-G pssmlt-G-bold mixture dr-orbital dr-orbital-G dr-mira dr-green; by
+# default all but pssmlt-G-bold, in that order), MLT_DR_SIGMA (the sigma of dr-orbital-G's first stage and of
+# pssmlt-G-bold, 0.03),
 # MLT_MATCH_SPP (mutations per pixel of each sigma-matching render, default 4), MLT_FIGURES (1: copy the figures
 # into docs/img). Everything a study computes is kept in $OUT (references, normalisation, sigma) and reused.
 set -euo pipefail
@@ -166,6 +167,8 @@ mlt_sigma_configs() {  # (mlt_study's locals) the PSSMLT family's configurations
             case "$v" in
             pssmlt-K) echo "pssmlt-K: variant=pssmlt-kelemen" ;;
             pssmlt-G) echo "pssmlt-G: variant=pssmlt-gaussian sigma=$sigma" ;;
+            # the single-stage counterpart of dr-orbital-G: its first stage alone
+            pssmlt-G-bold) echo "pssmlt-G-bold: variant=pssmlt-gaussian sigma=${MLT_DR_SIGMA:-0.03}" ;;
             mixture) if [[ "${MLT_MIXTURE:-1}" == 1 ]]; then echo "mixture: variant=mixture"; fi ;;
             dr-orbital) echo "dr-orbital: variant=drmlt-orbital" ;;
             # DR orbital after a bold Gaussian first stage (sigma ${MLT_DR_SIGMA:-0.03}; docs/mlt-studies.md)
