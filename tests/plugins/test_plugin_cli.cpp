@@ -15,6 +15,7 @@
 #include <kelvin/core/image.h>
 #include <kelvin/testing/velocity_harness.h>
 
+#include <cstdio>
 #include <fstream>
 #include <numbers>
 
@@ -275,7 +276,9 @@ double initial_energy(const fs::path& csv) {
 // the variance each estimate reports matches the spread of the 400 (a ratio within 1 +- 0.35: the relative
 // standard error of a 400-sample variance is sqrt(2/399) = 7 %, so 0.35 is 5 of them). The negative control is
 // run every time: the same field times 2 pi (a missing 1/(2 pi)) must be more than 5 standard errors off at every
-// point (it is off by 10 to 60 of them), so the comparison can fail.
+// point (it is 89 to 129 off, the correct plugin 0.2 to 1.9), so the comparison can fail. The broken variant was
+// also run for real: the plugin built with its kernel multiplied by 2 pi fails this test (|z| 89 to 128) and
+// OutOfTreeVelocityEstimatorInAScene (initial energy 20.5 against 0.515).
 TEST_F(PluginCli, OutOfTreeVelocityEstimatorAgreesWithBiotSavart) {
     kelvin::Registry::instance().load_plugin_module(m_plugin_dir / "uniform_biot_savart.so");
     kelvin::Properties props("velocity", "uniform_biot_savart");
@@ -301,6 +304,8 @@ TEST_F(PluginCli, OutOfTreeVelocityEstimatorAgreesWithBiotSavart) {
         EXPECT_LT(kt::max_abs_z(a, b), 5.0) << "at (" << x.x << ", " << x.y << "): plugin (" << a.mean.x << ", "
                                             << a.mean.y << "), built-in (" << b.mean.x << ", " << b.mean.y << ")";
         EXPECT_GT(kt::max_abs_z(w, b), 5.0) << "the 2 pi variant passes at (" << x.x << ", " << x.y << ")";
+        std::printf("uniform_biot_savart at (%g, %g): |z| %.2f against biot_savart; the 2 pi variant: |z| %.1f\n", x.x,
+                    x.y, kt::max_abs_z(a, b), kt::max_abs_z(w, b));
         for (int k = 0; k < 2; ++k) {
             EXPECT_NEAR(a.reported_variance[k] / a.empirical_variance[k], 1.0, 0.35) << "component " << k;
             EXPECT_NEAR(b.reported_variance[k] / b.empirical_variance[k], 1.0, 0.35) << "component " << k;
@@ -316,9 +321,9 @@ TEST_F(PluginCli, OutOfTreeVelocityEstimatorAgreesWithBiotSavart) {
 }
 
 // From a scene, through `kelvin`: the mcfluid solver runs with the plugin's estimator, and the initial kinetic
-// energy (noise-corrected, CSV row 0) matches the built-in estimator's run of the same scene within 3 % (at
-// 32^2 cells and 1024 samples both estimates of the energy, about 0.2, are within 1 % of each other; a missing
-// 1/(2 pi) would multiply it by 39).
+// energy (noise-corrected, CSV row 0) matches the built-in estimator's run of the same scene within 8 %. The
+// energy is about 0.513; over seeds 1-3 the plugin's estimate of it had a standard deviation of 0.008 (1.5 %;
+// the built-in's 0.0006), so 8 % is 5 standard deviations. A missing 1/(2 pi) would multiply it by 39.
 TEST_F(PluginCli, OutOfTreeVelocityEstimatorInAScene) {
     const fs::path out = m_dir / "plugin.exr", ref = m_dir / "builtin.exr";
     auto r = run_kelvin({VortexScene.string(), "-q", "-o", out.string(), "--plugin-path", m_plugin_dir.string()});
@@ -329,7 +334,7 @@ TEST_F(PluginCli, OutOfTreeVelocityEstimatorInAScene) {
     ASSERT_TRUE(fs::exists(m_dir / "builtin.csv"));
     const double e = initial_energy(m_dir / "plugin.csv"), e0 = initial_energy(m_dir / "builtin.csv");
     EXPECT_GT(e0, 0.0);
-    EXPECT_NEAR(e / e0, 1.0, 0.03) << "plugin " << e << ", built-in " << e0;
+    EXPECT_NEAR(e / e0, 1.0, 0.08) << "plugin " << e << ", built-in " << e0;
 }
 
 // Bad input is a one-line error naming the scene's element, exit code 2: an unknown estimator, the 2D-only plugin
