@@ -99,6 +99,6 @@ private:
 };
 
 /// The chi-square upper tail (kelvin/testing/statistics.h, installed for plugin authors' tests).
-using kelvin::testing::chi2_sf;
+using kelvin::testkit::chi2_sf;
 
 }  // namespace ktest

@@ -7,5 +7,5 @@
 
 namespace ktest {
 using namespace kelvin;
-using namespace kelvin::testing;
+using namespace kelvin::testkit;
 }  // namespace ktest

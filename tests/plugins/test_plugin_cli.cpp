@@ -290,7 +290,7 @@ TEST_F(PluginCli, OutOfTreeVelocityEstimatorAgreesWithBiotSavart) {
     EXPECT_FALSE(est->supports(3));
     EXPECT_EQ(est->boundaries(), nullptr);
 
-    namespace kt = kelvin::testing;
+    namespace kt = kelvin::testkit;
     const kt::VelocityTestCase c = kt::gaussian_vortex_pair();
     const auto mine = est->build2(c.state);
     const auto ref = kt::builtin_biot_savart(c.state);

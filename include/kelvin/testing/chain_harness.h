@@ -3,11 +3,11 @@
 // by tests/mlt and out-of-tree plugin tests (a mutation written outside the tree is checked exactly like a
 // built-in one; tests/plugins/test_plugin_cli.cpp does so for examples/plugins/box_mutation.cpp):
 //
-//     auto mine = kelvin::testing::mutation("box", {{"radius", 0.02}});
+//     auto mine = kelvin::testkit::mutation("box", {{"radius", 0.02}});
 //     kelvin::ChainConfig cfg{mine.get(), nullptr, kelvin::DrType::Mira, 0.0, false};
-//     for (const auto& t : kelvin::testing::Targets) {
-//         kelvin::testing::ChainRun r = kelvin::testing::run_chains(t, cfg);
-//         EXPECT_GT(kelvin::testing::chi2_sf(r.chi2, r.dof), kelvin::testing::kAlpha);
+//     for (const auto& t : kelvin::testkit::Targets) {
+//         kelvin::testkit::ChainRun r = kelvin::testkit::run_chains(t, cfg);
+//         EXPECT_GT(kelvin::testkit::chi2_sf(r.chi2, r.dof), kelvin::testkit::kAlpha);
 //     }
 //
 // N independent chains start from exact samples of the target (rejection sampling) and run T steps. A kernel
@@ -26,7 +26,7 @@
 #include <utility>
 #include <vector>
 
-namespace kelvin::testing {
+namespace kelvin::testkit {
 
 using Density = std::function<double(double u, double v)>;
 
@@ -151,4 +151,4 @@ inline ChainRun run_chains(const Target& target, const ChainConfig& cfg, int cha
     return r;
 }
 
-}  // namespace kelvin::testing
+}  // namespace kelvin::testkit

@@ -3,7 +3,7 @@
 #include <algorithm>
 #include <cmath>
 
-namespace kelvin::testing {
+namespace kelvin::testkit {
 
 /// Upper tail P(X > x) of the chi-square distribution with k degrees of freedom: the regularised upper
 /// incomplete gamma function Q(k/2, x/2), by its series below a + 1 and its continued fraction above
@@ -36,4 +36,4 @@ inline double chi2_sf(double x, double k) {
     return std::exp(log_prefix) * h;
 }
 
-}  // namespace kelvin::testing
+}  // namespace kelvin::testkit

@@ -7,13 +7,13 @@
 // standard errors (z-scores); and the variance each estimate reports agrees with the spread of the estimates.
 // A wrong normalisation (a missing 1/(2 pi), a missing area factor) moves the mean by many standard errors.
 //
-//     kelvin::testing::VelocityTestCase c = kelvin::testing::gaussian_vortex_pair();   // a cache, a state
+//     kelvin::testkit::VelocityTestCase c = kelvin::testkit::gaussian_vortex_pair();   // a cache, a state
 //     auto mine = my_estimator->build2(c.state);
-//     auto ref = kelvin::testing::builtin_biot_savart(c.state, 256);
+//     auto ref = kelvin::testkit::builtin_biot_savart(c.state, 256);
 //     for (Vec2d x : c.points) {
-//         auto a = kelvin::testing::mean_estimate(*mine, x, 1024, 400, 1);
-//         auto b = kelvin::testing::mean_estimate(*ref, x, 1024, 400, 2);
-//         EXPECT_LT(kelvin::testing::max_abs_z(a, b), 5.0);
+//         auto a = kelvin::testkit::mean_estimate(*mine, x, 1024, 400, 1);
+//         auto b = kelvin::testkit::mean_estimate(*ref, x, 1024, 400, 2);
+//         EXPECT_LT(kelvin::testkit::max_abs_z(a, b), 5.0);
 //     }
 #include <kelvin/core/random.h>
 #include <kelvin/core/wos.h>
@@ -27,7 +27,7 @@
 #include <memory>
 #include <vector>
 
-namespace kelvin::testing {
+namespace kelvin::testkit {
 
 using fluid::VelocityField2;
 using fluid::VelocityState2;
@@ -131,4 +131,4 @@ private:
     double m_factor;
 };
 
-}  // namespace kelvin::testing
+}  // namespace kelvin::testkit
