@@ -7,6 +7,7 @@
 #include <kelvin/core/parallel.h>
 #include <kelvin/core/stats.h>
 #include <kelvin/fluid/boundary.h>
+#include <kelvin/fluid/estimators.h>
 #include <kelvin/fluid/mcfluid.h>
 
 #include <algorithm>
@@ -51,6 +52,16 @@ void check_settings(const MCFluidSettings& s) {
 
 MCFluidSolver::MCFluidSolver(const MCFluidSettings& settings, const InitialField& initial) : m_settings(settings) {
     check_settings(m_settings);
+    if (!m_settings.estimator) {  // the built-in estimator the settings describe
+        if (m_settings.boundaries)
+            m_settings.estimator = std::make_shared<WosVelocity>(*m_settings.boundaries);
+        else
+            m_settings.estimator = std::make_shared<BiotSavartVelocity>(m_settings.velocity);
+    } else if (!m_settings.boundaries) {
+        m_settings.boundaries = m_settings.estimator->boundaries();
+    }
+    if (!m_settings.estimator->supports(2))
+        throw_runtime("MCFluidSolver: velocity estimator '{}' has no 2D field", m_settings.estimator->plugin_name());
     const Domain2& d = m_settings.domain;
     m_omega = Grid2(d, m_settings.nx, m_settings.ny);
     m_delta = m_settings.velocity.delta >= 0 ? m_settings.velocity.delta : 0.5 * std::min(m_omega.h().x, m_omega.h().y);
@@ -85,18 +96,27 @@ void MCFluidSolver::rebuild_estimator() {
                     ++solid;
                 }
         m_work.solid_cells = solid;
-        m_wos = std::make_unique<WosVelocityField>(*m_settings.boundaries, m_settings.domain, &m_omega,
-                                                   m_settings.interpolation, m_time);
-    } else {
-        m_estimator = std::make_unique<BiotSavartEstimator>(m_omega, m_settings.interpolation,
-                                                            m_settings.velocity.importance, m_delta, m_periodic);
     }
+    VelocityState2 state;
+    state.domain = m_settings.domain;
+    state.omega = &m_omega;
+    state.interpolation = m_settings.interpolation;
+    state.delta = m_delta;
+    state.time = m_time;
+    state.periodic = m_periodic;
+    m_wos = nullptr;
+    m_field = m_settings.estimator->build2(state);
+    if (!m_field)
+        throw_runtime("MCFluidSolver: velocity estimator '{}' built no field", m_settings.estimator->plugin_name());
+    m_wos = m_field->boundaries();
+    if (m_settings.boundaries && !m_wos)
+        throw_runtime("MCFluidSolver: velocity estimator '{}' declares boundaries but its field has none",
+                      m_settings.estimator->plugin_name());
     m_velocity_valid = false;
 }
 
 VelocityEstimate MCFluidSolver::estimate_at(Vec2d x, int n, Random& rng, wos::WalkCounters& walks) const {
-    if (m_wos) return m_wos->estimate(x, n, rng, walks);
-    return m_estimator->estimate(x, n, rng);
+    return m_field->estimate(x, n, rng, walks);  // one virtual call per query; the sample loop is the field's
 }
 
 void MCFluidSolver::add_walks(const wos::WalkCounters& c) {

@@ -6,6 +6,7 @@
 #include <kelvin/core/parallel.h>
 #include <kelvin/core/stats.h>
 #include <kelvin/fluid/boundary.h>
+#include <kelvin/fluid/estimators.h>
 #include <kelvin/fluid/mcfluid3.h>
 
 #include <algorithm>
@@ -103,6 +104,16 @@ Vec3d standard_normal3(Random& rng) {
 
 MCFluid3Solver::MCFluid3Solver(const MCFluid3Settings& settings, const InitialField3& initial) : m_settings(settings) {
     check_settings(m_settings);
+    if (!m_settings.estimator) {  // the built-in estimator the settings describe
+        if (m_settings.boundaries)
+            m_settings.estimator = std::make_shared<WosVelocity>(*m_settings.boundaries);
+        else
+            m_settings.estimator = std::make_shared<BiotSavartVelocity>(m_settings.velocity);
+    } else if (!m_settings.boundaries) {
+        m_settings.boundaries = m_settings.estimator->boundaries();
+    }
+    if (!m_settings.estimator->supports(3))
+        throw_runtime("MCFluid3Solver: velocity estimator '{}' has no 3D field", m_settings.estimator->plugin_name());
     const MCFluid3Settings& s = m_settings;
     m_omega = VectorGrid3(s.domain, s.nx, s.ny, s.nz);
     const Vec3d h = m_omega.x.h();
@@ -141,18 +152,29 @@ void MCFluid3Solver::rebuild_estimators() {
         }
         for (std::size_t c = 0; c < m_omega.cell_count(); ++c)
             if (m_solid[c]) m_omega.set(c, Vec3d(0.0));
-        m_wos = std::make_unique<WosVelocityField3>(*s.boundaries, s.domain, &m_omega, s.interpolation);
-    } else {
-        m_estimator = std::make_unique<BiotSavartEstimator3>(m_omega, s.interpolation, s.velocity.importance, m_delta,
-                                                             m_periodic);
     }
+    VelocityState3 state;
+    state.domain = s.domain;
+    state.omega = &m_omega;
+    state.interpolation = s.interpolation;
+    state.delta = m_delta;
+    state.periodic = m_periodic;
+    m_wos = nullptr;
+    m_field = s.estimator->build3(state);
+    if (!m_field) throw_runtime("MCFluid3Solver: velocity estimator '{}' built no field", s.estimator->plugin_name());
+    m_wos = m_field->boundaries();
+    if (s.boundaries && !m_wos)
+        throw_runtime("MCFluid3Solver: velocity estimator '{}' declares boundaries but its field has none",
+                      s.estimator->plugin_name());
     if (m_have_prev) {
         for (std::size_t c = 0; c < m_omega.cell_count(); ++c) m_diff.set(c, m_omega.at(c) - m_prev_omega.at(c));
-        if (s.boundaries)  // the boundary data of two consecutive states cancel: the difference has Psi = 0
-            m_diff_wos = std::make_unique<WosVelocityField3>(*s.boundaries, s.domain, &m_diff, s.interpolation, true);
-        else
-            m_diff_estimator = std::make_unique<BiotSavartEstimator3>(m_diff, s.interpolation, s.velocity.importance,
-                                                                      m_delta, m_periodic);
+        // With boundaries the boundary data of two consecutive states cancel: the difference has Psi = 0.
+        VelocityState3 diff = state;
+        diff.omega = &m_diff;
+        diff.difference = true;
+        m_diff_field = s.estimator->build3(diff);
+        if (!m_diff_field)
+            throw_runtime("MCFluid3Solver: velocity estimator '{}' built no field", s.estimator->plugin_name());
     }
     m_velocity_valid = false;
 }
@@ -163,16 +185,15 @@ VelocityEstimate3 MCFluid3Solver::velocity_estimate(Vec3d x, int n, Random& rng)
 }
 
 VelocityEstimate3 MCFluid3Solver::velocity_estimate(Vec3d x, int n, Random& rng, wos::WalkCounters& walks) const {
-    if (m_wos) return m_wos->estimate(x, n, rng, walks);
-    return m_estimator->estimate(x, n, rng);
+    return m_field->estimate(x, n, rng, walks);
 }
 
 VelocityEstimate3 MCFluid3Solver::estimate_at(Vec3d x, int n, Random& rng, SlabWork& w) const {
     VelocityEstimate3 e;
     if (m_have_prev)
-        e = m_diff_wos ? m_diff_wos->estimate(x, n, rng, w.walks) : m_diff_estimator->estimate(x, n, rng);
+        e = m_diff_field->estimate(x, n, rng, w.walks);
     else
-        e = m_wos ? m_wos->estimate(x, n, rng, w.walks) : m_estimator->estimate(x, n, rng);
+        e = m_field->estimate(x, n, rng, w.walks);
     w.evals += uint64_t(e.samples);
     ++w.queries;
     return e;
@@ -181,7 +202,7 @@ VelocityEstimate3 MCFluid3Solver::estimate_at(Vec3d x, int n, Random& rng, SlabW
 void MCFluid3Solver::blend_direct(Vec3d x, int n, Random& rng, SlabWork& w, VelocityEstimate3& e) const {
     const double beta = m_settings.control_variate_blend;
     if (!(m_have_prev && beta < 1)) return;
-    const VelocityEstimate3 d = m_wos ? m_wos->estimate(x, n, rng, w.walks) : m_estimator->estimate(x, n, rng);
+    const VelocityEstimate3 d = m_field->estimate(x, n, rng, w.walks);
     w.evals += uint64_t(d.samples);
     ++w.queries;
     e.value = beta * e.value + (1 - beta) * d.value;

@@ -69,21 +69,24 @@ Simulation3Params Simulation3Params::parse(const Properties& props) {
                                 obj ? obj->plugin_name() : std::string("?")));
     p.field_object = obj;
 
-    if (auto velocity = props.get_object("velocity")) {
-        auto bs = std::dynamic_pointer_cast<VelocityEstimatorSpec>(velocity);
-        if (!bs) props.error("velocity", fmt::format("'{}' is not a velocity estimator", velocity->plugin_name()));
-        s.velocity = bs->biot_savart();
-        if (auto wos = std::dynamic_pointer_cast<WosVelocitySpec>(velocity)) {
-            s.boundaries = std::make_shared<WosVelocityOptions>(wos->walk_on_spheres());
-            if (const std::string why = check_wos_options3(*s.boundaries, s.domain); !why.empty())
-                props.error("velocity", why);
-        } else if (velocity->plugin_name() != "biot_savart") {
-            props.error("velocity", fmt::format("'{}' is not available in 3D; use biot_savart or walk_on_spheres",
-                                                velocity->plugin_name()));
-        } else if (s.velocity.importance == SourceSampling::Kernel) {
-            props.error("velocity", "importance = kernel is 2D only; use vorticity or uniform in 3D");
-        }
+    // The estimator, through its interface only (velocity.h); default biot_savart.
+    if (auto obj = props.get_object("velocity")) {
+        auto velocity = std::dynamic_pointer_cast<const VelocityEstimator>(obj);
+        if (!velocity) props.error("velocity", fmt::format("'{}' is not a velocity estimator", obj->plugin_name()));
+        if (!velocity->supports(3))
+            props.error("velocity",
+                        fmt::format("'{}' is not available in 3D (a 2D velocity estimator); use a 3D one such as "
+                                    "biot_savart or walk_on_spheres",
+                                    velocity->plugin_name()));
+        s.estimator = velocity;
+    } else {
+        s.estimator = std::dynamic_pointer_cast<const VelocityEstimator>(
+            Registry::instance().create(Properties("velocity", "biot_savart")));
     }
+    s.velocity.samples = s.estimator->samples();
+    s.velocity.delta = s.estimator->delta();
+    s.boundaries = s.estimator->boundaries();
+    if (const std::string why = s.estimator->check3(s.domain); !why.empty()) props.error("velocity", why);
     auto cache = props.get_object_as<CacheSpec>("cache");
     if (!cache) cache = std::dynamic_pointer_cast<CacheSpec>(Registry::instance().create(Properties("cache", "grid")));
     const Vec3d size = s.domain.size();
@@ -237,9 +240,7 @@ RunResult run_mcfluid3(const Simulation3Params& p, RunContext& ctx) {
                   "steps, {} volume sampling)",
                   settings.velocity.samples, settings.boundaries->wos.max_steps,
                   settings.boundaries->vorticity_importance ? "|omega|-mixed" : "Green's-function")
-            : fmt::format("Biot–Savart velocity (n_mc {}, importance {}, delta {:g}{})", settings.velocity.samples,
-                          fluid::to_string(settings.velocity.importance), solver.delta(),
-                          settings.domain.periodic ? ", Ewald periodic kernel" : "");
+            : settings.estimator->effect(settings.velocity.samples, solver.delta(), settings.domain.periodic);
     log_info(
         "mcfluid: effects: advection ({}, dt {:g}, {} steps) with {}; stretching {}; diffusion {}; control variates "
         "{}; boundaries {}; smoke {}",

@@ -493,3 +493,27 @@ wos::ScalarEstimate WosVelocityField::stream_function(Vec2d x, int n, Random& rn
 }
 
 }  // namespace kelvin::fluid
+
+// ----------------------------------------------------------------------------------------------------------
+// WosVelocity: the walk_on_spheres estimator (velocity.h interface).
+
+namespace kelvin::fluid {
+
+WosVelocity::WosVelocity(const WosVelocityOptions& options)
+    : m_options(std::make_shared<const WosVelocityOptions>(options)) {}
+
+int WosVelocity::samples() const { return m_options ? m_options->samples : WosVelocityOptions{}.samples; }
+
+std::string WosVelocity::check2(const Domain2& domain) const { return check_wos_options(*m_options, domain); }
+
+std::string WosVelocity::check3(const Domain3& domain) const { return check_wos_options3(*m_options, domain); }
+
+std::unique_ptr<VelocityField2> WosVelocity::build2(const VelocityState2& s) const {
+    return std::make_unique<WosVelocityField>(*m_options, s.domain, s.omega, s.interpolation, s.time);
+}
+
+std::unique_ptr<VelocityField3> WosVelocity::build3(const VelocityState3& s) const {
+    return std::make_unique<WosVelocityField3>(*m_options, s.domain, s.omega, s.interpolation, s.difference);
+}
+
+}  // namespace kelvin::fluid

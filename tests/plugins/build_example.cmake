@@ -41,7 +41,8 @@ elseif(MODE STREQUAL "install-tree")
   foreach(_f ${_expected_dir}/KelvinConfig.cmake ${_expected_dir}/KelvinConfigVersion.cmake
              ${_expected_dir}/KelvinTargets.cmake ${INSTALL_PREFIX}/${INSTALL_BINDIR}/kelvin
              ${INSTALL_PREFIX}/include/kelvin/core/registry.h ${INSTALL_PREFIX}/include/kelvin/core/version.h
-             ${INSTALL_PREFIX}/include/kelvin/render/integrator.h)
+             ${INSTALL_PREFIX}/include/kelvin/render/integrator.h ${INSTALL_PREFIX}/include/kelvin/fluid/velocity.h
+             ${INSTALL_PREFIX}/include/kelvin/testing/velocity_harness.h)
     expect_file(${_f})
   endforeach()
   # The installed package must not point back into the build or source tree.
@@ -72,7 +73,7 @@ if(NOT _found STREQUAL _expected)
 endif()
 
 run("build examples/plugins (${MODE})" ${CMAKE_COMMAND} --build ${EXAMPLE_BINARY_DIR} --config ${BUILD_TYPE})
-foreach(_module IN ITEMS depth_integrator box_mutation)
+foreach(_module IN ITEMS depth_integrator box_mutation uniform_biot_savart)
   file(GLOB_RECURSE _modules ${EXAMPLE_BINARY_DIR}/${_module}.so)
   if(NOT _modules)
     message(FATAL_ERROR "the build produced no ${_module}.so in ${EXAMPLE_BINARY_DIR}")

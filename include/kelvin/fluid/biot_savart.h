@@ -21,6 +21,7 @@
 // weigh zero).
 #include <kelvin/core/random.h>
 #include <kelvin/fluid/grid.h>
+#include <kelvin/fluid/velocity.h>
 
 #include <cstdint>
 #include <memory>
@@ -67,16 +68,10 @@ private:
     std::vector<float> m_u, m_v;
 };
 
-/// A velocity estimate with the variance of the estimate itself (sample variance / n), per component.
-struct VelocityEstimate {
-    Vec2d value{0.0};
-    Vec2d variance{0.0};
-    int samples = 0;  ///< kernel evaluations done (0 for an empty field)
-};
-
 /// Biot–Savart Monte Carlo estimator over a cached vorticity grid. Building it scans the grid (the alias
-/// table); estimate() is const and thread-safe. The grid must outlive the estimator.
-class BiotSavartEstimator {
+/// table); estimate() is const and thread-safe. The grid must outlive the estimator. It is the field of the
+/// built-in `biot_savart` velocity estimator (BiotSavartVelocity, estimators.h).
+class BiotSavartEstimator final : public VelocityField2 {
 public:
     /// `periodic` is required when the grid's domain is periodic (shared between steps: it is only a table).
     BiotSavartEstimator(const Grid2& vorticity, Interpolation interp, SourceSampling sampling, double delta,
@@ -84,6 +79,10 @@ public:
 
     /// Estimate with `n` samples drawn from `rng`. An empty field gives exactly zero (and draws nothing).
     VelocityEstimate estimate(Vec2d x, int n, Random& rng) const;
+    /// VelocityField2: the same estimate (no walks).
+    VelocityEstimate estimate(Vec2d x, int n, Random& rng, wos::WalkCounters&) const override {
+        return estimate(x, n, rng);
+    }
     Vec2d velocity(Vec2d x, int n, Random& rng) const { return estimate(x, n, rng).value; }
 
     /// True when the field is zero everywhere (velocity is exactly zero, no sample is drawn).

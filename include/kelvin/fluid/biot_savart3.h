@@ -54,16 +54,9 @@ private:
     std::vector<float> m_table;  ///< (n+1)^3 nodes x 3 components, x fastest
 };
 
-/// A 3D velocity estimate with the variance of the estimate itself (sample variance / n), per component.
-struct VelocityEstimate3 {
-    Vec3d value{0.0};
-    Vec3d variance{0.0};
-    int samples = 0;  ///< kernel evaluations done (0 for an empty field)
-};
-
 /// Biot–Savart Monte Carlo estimator over a cached 3D vorticity grid. Building it scans the grid (alias table);
 /// estimate() is const and thread-safe. The grid must outlive the estimator.
-class BiotSavartEstimator3 {
+class BiotSavartEstimator3 final : public VelocityField3 {
 public:
     /// `sampling` is Uniform or Vorticity (Kernel sampling is 2D only). `periodic` is required when the grid's
     /// domain is periodic.
@@ -72,6 +65,10 @@ public:
 
     /// Estimate with `n` samples from `rng`. An empty field gives exactly zero and draws nothing.
     VelocityEstimate3 estimate(Vec3d x, int n, Random& rng) const;
+    /// VelocityField3: the same estimate (no walks).
+    VelocityEstimate3 estimate(Vec3d x, int n, Random& rng, wos::WalkCounters&) const override {
+        return estimate(x, n, rng);
+    }
 
     bool empty() const { return m_abs_integral == 0; }
     double delta() const { return m_delta; }

@@ -32,6 +32,7 @@
 #include <kelvin/fluid/fields.h>
 #include <kelvin/fluid/grid.h>
 #include <kelvin/fluid/grid3.h>
+#include <kelvin/fluid/velocity.h>
 
 #include <memory>
 #include <string>
@@ -111,18 +112,36 @@ std::string describe(const WosVelocityOptions& options, const Domain2& domain);
 /// (logged) for a solid entirely outside the domain.
 std::string check_wos_cells(const WosVelocityOptions& options, const Domain2& domain, int nx, int ny);
 
-/// A <velocity type="walk_on_spheres"> plugin: Biot–Savart's interface (samples = gradient samples per query)
-/// plus the boundary options.
-class WosVelocitySpec : public VelocityEstimatorSpec {
+/// The built-in Walk-on-Spheres velocity estimator behind <velocity type="walk_on_spheres"> (the plugin only
+/// parses its parameters): samples = gradient samples per query; its fields are WosVelocityField (2D) and
+/// WosVelocityField3, and boundaries() hands the solvers the solids they advect and diffuse around.
+class WosVelocity : public VelocityEstimator {
 public:
-    virtual const WosVelocityOptions& walk_on_spheres() const = 0;
+    WosVelocity() = default;
+    explicit WosVelocity(const WosVelocityOptions& options);
+
+    const WosVelocityOptions& walk_on_spheres() const { return *m_options; }
+    int samples() const override;
+    bool supports(int dimension) const override { return dimension == 2 || dimension == 3; }
+    /// check_wos_options / check_wos_options3.
+    std::string check2(const Domain2& domain) const override;
+    std::string check3(const Domain3& domain) const override;
+    std::unique_ptr<VelocityField2> build2(const VelocityState2& state) const override;
+    std::unique_ptr<VelocityField3> build3(const VelocityState3& state) const override;
+    std::shared_ptr<const WosVelocityOptions> boundaries() const override { return m_options; }
+
+protected:
+    std::shared_ptr<const WosVelocityOptions> m_options;
 };
+
+/// The former name of WosVelocity (a plugin class that exposes walk_on_spheres()).
+using WosVelocitySpec = WosVelocity;
 
 /// The velocity of a state with solid boundaries: v = -curl Psi with Laplacian(Psi) = omega_h (the cache,
 /// with zero in solid cells) and Psi given on every boundary, estimated by the gradient WoS estimator with an
 /// antithetic first step. Immutable and thread-safe once built; one per state (a moving solid is placed at
 /// the state's time).
-class WosVelocityField {
+class WosVelocityField final : public VelocityField2 {
 public:
     /// `omega` must outlive the field. Throws RuntimeError on an unusable configuration (periodic without any
     /// solid, a 3D shape); plugins validate earlier and report InputErrors.
@@ -132,7 +151,8 @@ public:
     /// The velocity at x with n gradient samples. Points inside a solid get the solid's rigid velocity without
     /// walking; points within epsilon of a boundary get the gradient at the shell's edge, 2 epsilon out (the slip
     /// velocity; wos::move_to_shell, counted in boundary_queries).
-    VelocityEstimate estimate(Vec2d x, int n, Random& rng, wos::WalkCounters& c) const;
+    VelocityEstimate estimate(Vec2d x, int n, Random& rng, wos::WalkCounters& c) const override;
+    const WosVelocityField* boundaries() const override { return this; }
     /// Psi at x with n walks.
     wos::ScalarEstimate stream_function(Vec2d x, int n, Random& rng, wos::WalkCounters& c) const;
 
@@ -224,7 +244,7 @@ private:
 // Psi = Psi_U (1 - a^3 / r^3). Without a stream every boundary is at Psi = 0, the thesis' condition.
 
 /// The velocity of a 3D state with solid boundaries. Immutable and thread-safe once built; static solids.
-class WosVelocityField3 {
+class WosVelocityField3 final : public VelocityField3 {
 public:
     /// `omega` must outlive the field. Throws RuntimeError on an unusable configuration (see
     /// check_wos_options3); plugins validate earlier and report InputErrors.
@@ -236,7 +256,8 @@ public:
     /// The velocity at x with n gradient samples (2n walks with antithetic). Points inside a solid get zero
     /// (static solids) without walking; points within epsilon of a boundary get the velocity 2 epsilon out
     /// (wos::move_to_shell, boundary_queries).
-    VelocityEstimate3 estimate(Vec3d x, int n, Random& rng, wos::WalkCounters& c) const;
+    VelocityEstimate3 estimate(Vec3d x, int n, Random& rng, wos::WalkCounters& c) const override;
+    const WosVelocityField3* boundaries() const override { return this; }
     /// Psi at x with n walks (value and per-component variance of the estimate).
     VelocityEstimate3 stream_function(Vec3d x, int n, Random& rng, wos::WalkCounters& c) const;
 

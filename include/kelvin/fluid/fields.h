@@ -1,10 +1,12 @@
 #pragma once
-// Plugin interfaces of the fluid solver: initial vorticity fields (<vorticity>), velocity estimators
-// (<velocity>) and caches (<cache>). Concrete plugins live in src/plugins/fluid/, one file each.
+// Plugin interfaces of the fluid solver: initial vorticity fields (<vorticity>), smoke (<scalar>) and caches
+// (<cache>); velocity estimators (<velocity>) are in velocity.h. Concrete plugins live in src/plugins/fluid/, one file
+// each.
 #include <kelvin/core/object.h>
 #include <kelvin/fluid/biot_savart.h>
 #include <kelvin/fluid/grid.h>
 #include <kelvin/fluid/grid3.h>
+#include <kelvin/fluid/velocity.h>
 
 #include <algorithm>
 #include <cmath>
@@ -78,12 +80,8 @@ public:
     virtual std::string description() const = 0;
 };
 
-/// A velocity estimator (<velocity type="...">). Only Biot–Savart exists so far (open and periodic
-/// domains); Walk-on-Spheres for boundaries will be another implementation.
-class VelocityEstimatorSpec : public Object {
-public:
-    virtual const BiotSavartOptions& biot_savart() const = 0;
-};
+// Velocity estimators (<velocity type="...">) implement VelocityEstimator (velocity.h): the built-in
+// biot_savart (estimators.h) and walk_on_spheres (boundary.h), and any plugin.
 
 /// A field cache (<cache type="grid">).
 class CacheSpec : public Object {

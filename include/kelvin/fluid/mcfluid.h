@@ -17,6 +17,7 @@
 #include <kelvin/fluid/biot_savart.h>
 #include <kelvin/fluid/dye.h>
 #include <kelvin/fluid/grid.h>
+#include <kelvin/fluid/velocity.h>
 
 #include <atomic>
 #include <cstdint>
@@ -48,7 +49,13 @@ struct MCFluidSettings {
     uint64_t seed = 0;
     /// Solid boundaries (walk_on_spheres, boundary.h): the velocity is the free-slip Walk-on-Spheres estimate
     /// with velocity.samples gradient samples. Null: Biot–Savart, and no distance query or walk ever runs.
+    /// With an `estimator`, its boundaries() (when these are null).
     std::shared_ptr<const WosVelocityOptions> boundaries;
+    /// The velocity estimator (velocity.h; a <velocity> plugin). Null: the built-in one these settings describe,
+    /// WosVelocity with `boundaries`, else BiotSavartVelocity(velocity). The solver always asks it for the field
+    /// of a state and queries that field with velocity.samples samples (velocity.delta resolved into the state's
+    /// mollifier); velocity.importance matters only to the built-in default.
+    std::shared_ptr<const VelocityEstimator> estimator;
 };
 
 /// Cumulative work of a solver (each component counts its own).
@@ -132,10 +139,12 @@ public:
     /// samples from `rng`.
     VelocityEstimate velocity_estimate(Vec2d x, int n, Random& rng) const;
     /// The boundaries placed at the current state (null without boundaries).
-    const WosVelocityField* boundary_field() const { return m_wos.get(); }
+    const WosVelocityField* boundary_field() const { return m_wos; }
+    /// The velocity field of the current state (built by settings().estimator).
+    const VelocityField2& velocity_field() const { return *m_field; }
 
     const FluidWork& work() const { return m_work; }
-    /// The periodic kernel table (null unless the domain is periodic and the velocity is Biot–Savart's).
+    /// The periodic kernel table (null unless the domain is periodic without solid boundaries).
     const PeriodicKernel* periodic_kernel() const { return m_periodic.get(); }
 
     /// Passive scalars (dye) carried along the same backtraces as the vorticity (the dye moves with exactly
@@ -162,8 +171,8 @@ private:
     Grid2 m_u, m_v, m_var_u, m_var_v;
     bool m_velocity_valid = false;
     std::shared_ptr<const PeriodicKernel> m_periodic;
-    std::unique_ptr<BiotSavartEstimator> m_estimator;
-    std::unique_ptr<WosVelocityField> m_wos;  ///< with boundaries, instead of m_estimator
+    std::unique_ptr<VelocityField2> m_field;  ///< the current state's velocity (settings().estimator)
+    const WosVelocityField* m_wos = nullptr;  ///< m_field->boundaries(): solids, walls (null without boundaries)
     FluidWork m_work;
     std::unique_ptr<PassiveScalars> m_dye;
     Grid2 m_disp_x, m_disp_y;  ///< displacement x - x_departure of the last step (only with a dye)

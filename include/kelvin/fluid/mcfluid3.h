@@ -60,6 +60,11 @@ struct MCFluid3Settings {
     /// on the vector potential instead of Biot–Savart (velocity.samples = gradient samples per query). Null:
     /// no distance query is built and no walk runs.
     std::shared_ptr<const WosVelocityOptions> boundaries;
+    /// The velocity estimator (velocity.h; a <velocity> plugin that supports dimension 3). Null: the built-in one
+    /// these settings describe (WosVelocity with `boundaries`, else BiotSavartVelocity(velocity)). Its fields are
+    /// queried with velocity.samples samples; with control variates a second field is built over the difference
+    /// of two consecutive caches (VelocityState3::difference).
+    std::shared_ptr<const VelocityEstimator> estimator;
 };
 
 /// Cumulative work of the 3D solver, per effect.
@@ -122,7 +127,7 @@ public:
     /// segment at x is min(h, 2 distance(x)) long (Sec. 5.3.3), so both ends stay in the fluid.
     double segment_length() const { return m_segment; }
     /// The boundaries of the current state (null without boundaries).
-    const WosVelocityField3* boundary_field() const { return m_wos.get(); }
+    const WosVelocityField3* boundary_field() const { return m_wos; }
 
     /// One step of length dt; false (state unchanged) when interrupt_requested() stopped it.
     bool step(double dt);
@@ -170,13 +175,13 @@ private:
     VectorGrid3 m_vel, m_var;
     bool m_velocity_valid = false;
     std::shared_ptr<const PeriodicKernel3> m_periodic;
-    std::unique_ptr<BiotSavartEstimator3> m_estimator;
-    // Control variates: the previous state's vorticity and velocity, and the estimator over the difference.
+    std::unique_ptr<VelocityField3> m_field;  ///< the state's velocity (settings().estimator)
+    // Control variates: the previous state's vorticity and velocity, and the field over the difference.
     VectorGrid3 m_prev_omega, m_prev_vel, m_prev_var, m_diff;
     bool m_have_prev = false;
-    std::unique_ptr<BiotSavartEstimator3> m_diff_estimator;
-    // Boundaries: the free-slip field of the state and, with control variates, of the difference (zero data).
-    std::unique_ptr<WosVelocityField3> m_wos, m_diff_wos;
+    std::unique_ptr<VelocityField3> m_diff_field;
+    /// Boundaries: m_field->boundaries(), the free-slip field of the state (null without boundaries).
+    const WosVelocityField3* m_wos = nullptr;
     std::vector<uint8_t> m_solid;  ///< cells inside a solid (static: computed once)
     FluidWork3 m_work;
     std::unique_ptr<Smoke3> m_smoke;

@@ -40,33 +40,33 @@
 namespace kelvin::fluid {
 namespace {
 
-class WalkOnSpheres final : public WosVelocitySpec {
+class WalkOnSpheres final : public WosVelocity {
 public:
     explicit WalkOnSpheres(const Properties& props) {
-        m_bs.samples = int(props.get_int("samples", 1, 1 << 24));
-        m_opt.samples = m_bs.samples;
-        m_opt.wos.epsilon = props.get_float("epsilon", 0.0, 1e300);
-        m_opt.wos.max_steps = int(props.get_int("max_steps", 1, 1 << 30));
-        m_opt.wos.antithetic = props.get_bool("antithetic");
-        m_opt.vorticity_importance = props.get_choice("importance", {"vorticity", "green"}) == "vorticity";
-        m_opt.walls = props.get_bool("walls");
-        m_opt.wall_stream_value = props.get_float("wall_stream_value");
-        m_opt.inflow_speed = props.get_float("inflow_speed");
-        m_opt.inflow_min = props.get_float("inflow_min");
-        m_opt.inflow_max = props.get_float("inflow_max");
+        WosVelocityOptions opt;
+        opt.samples = int(props.get_int("samples", 1, 1 << 24));
+        opt.wos.epsilon = props.get_float("epsilon", 0.0, 1e300);
+        opt.wos.max_steps = int(props.get_int("max_steps", 1, 1 << 30));
+        opt.wos.antithetic = props.get_bool("antithetic");
+        opt.vorticity_importance = props.get_choice("importance", {"vorticity", "green"}) == "vorticity";
+        opt.walls = props.get_bool("walls");
+        opt.wall_stream_value = props.get_float("wall_stream_value");
+        opt.inflow_speed = props.get_float("inflow_speed");
+        opt.inflow_min = props.get_float("inflow_min");
+        opt.inflow_max = props.get_float("inflow_max");
         for (const char* n : {"wall_stream_value", "inflow_speed", "inflow_min", "inflow_max"})
             if (!std::isfinite(props.get_float(n))) props.error(n, "must be finite");
-        if (m_opt.inflow_min > m_opt.inflow_max) props.error("inflow_max", "must be >= inflow_min");
+        if (opt.inflow_min > opt.inflow_max) props.error("inflow_max", "must be >= inflow_min");
         for (const ObjectPtr& o : props.get_objects("boundary")) {
             auto b = std::dynamic_pointer_cast<const BoundaryShape>(o);
             if (!b) props.error("boundary", "not a boundary shape");
-            m_opt.shapes.push_back(b);  // the simulation checks the dimension (check_wos_options / 3)
+            opt.shapes.push_back(b);  // the simulation checks the dimension (check_wos_options / 3)
         }
         // Section 6.2.4: with several disjoint boundaries the isovalues set the flux between them. Say so when
         // the scene left any obstacle's at the default (the thesis' choice: no net flow between boundaries).
         int obstacles = 0, defaulted = 0;
-        bool outer = m_opt.walls;
-        for (const auto& b : m_opt.shapes) {
+        bool outer = opt.walls;
+        for (const auto& b : opt.shapes) {
             if (b->dimension() != 2) continue;  // 3D solids take constant vector potentials (boundary.h)
             if (b->role().fluid_inside) {
                 outer = true;
@@ -81,15 +81,10 @@ public:
                 "inflow): that fixes the flux between them and the walls (thesis Section 6.2.4; right for symmetric "
                 "layouts). Give stream_value per boundary to choose it (docs/boundaries.md).",
                 defaulted);
-        if (!m_opt.wos.antithetic)
+        if (!opt.wos.antithetic)
             log_warn("walk_on_spheres: antithetic = false: the gradient variance grows with |Psi| on the boundary");
+        m_options = std::make_shared<const WosVelocityOptions>(std::move(opt));
     }
-    const BiotSavartOptions& biot_savart() const override { return m_bs; }
-    const WosVelocityOptions& walk_on_spheres() const override { return m_opt; }
-
-private:
-    BiotSavartOptions m_bs;
-    WosVelocityOptions m_opt;
 };
 
 }  // namespace

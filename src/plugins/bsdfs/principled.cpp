@@ -45,6 +45,7 @@
 //     </bsdf>
 #include "principled_common.h"
 
+#include <kelvin/core/param_helpers.h>
 #include <kelvin/core/registry.h>
 #include <kelvin/render/bsdf.h>
 #include <kelvin/render/fresnel.h>
@@ -289,11 +290,6 @@ private:
     double m_eta = 1.5;
     double m_rate_diffuse = 1, m_rate_spec = 1, m_rate_cc = 1;
 };
-
-ParamSpec without_default(ParamSpec s) {
-    s.default_value.reset();
-    return s;
-}
 
 }  // namespace
 }  // namespace kelvin

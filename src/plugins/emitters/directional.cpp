@@ -9,6 +9,7 @@
 //
 //     <emitter type="directional"><vector name="direction" value="0, 0, -1"/><rgb name="irradiance"
 //     value="2"/></emitter>
+#include <kelvin/core/param_helpers.h>
 #include <kelvin/core/registry.h>
 #include <kelvin/render/emitter.h>
 #include <kelvin/render/frame.h>
@@ -16,11 +17,6 @@
 
 namespace kelvin {
 namespace {
-
-ParamSpec without_default(ParamSpec s) {
-    s.default_value.reset();
-    return s;
-}
 
 class DirectionalEmitter final : public Emitter {
 public:

@@ -30,6 +30,7 @@
 //         <texture name="irradiance" type="bitmap"><string name="filename" value="flower.bmp"/></texture>
 //         <transform name="to_world"><lookat origin="-8, 6, 0" target="-8, 0, 0" up="0, 0, 1"/></transform>
 //     </emitter>
+#include <kelvin/core/param_helpers.h>
 #include <kelvin/core/registry.h>
 #include <kelvin/render/distribution.h>
 #include <kelvin/render/emitter.h>
@@ -42,10 +43,6 @@
 namespace kelvin {
 namespace {
 
-ParamSpec without_default(ParamSpec s) {
-    s.default_value.reset();
-    return s;
-}
 ParamSpec required_texture(std::string name, std::string doc) {
     ParamSpec s = without_default(param::texture(std::move(name), Color3(0.0), std::move(doc)));
     s.required = true;

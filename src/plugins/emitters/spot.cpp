@@ -26,6 +26,7 @@
 //         <float name="cutoff_angle" value="30"/>
 //         <transform name="to_world"><lookat origin="0, 1.9, 0" target="0, 0, 0" up="0, 0, 1"/></transform>
 //     </emitter>
+#include <kelvin/core/param_helpers.h>
 #include <kelvin/core/registry.h>
 #include <kelvin/render/emitter.h>
 #include <kelvin/render/texture.h>
@@ -37,11 +38,6 @@ namespace kelvin {
 namespace {
 
 /// A parameter whose default depends on another one: declared without a default, read only when given.
-ParamSpec without_default(ParamSpec s) {
-    s.default_value.reset();
-    return s;
-}
-
 class SpotEmitter final : public Emitter {
 public:
     explicit SpotEmitter(const Properties& props)

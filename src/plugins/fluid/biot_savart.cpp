@@ -22,14 +22,14 @@
 //     <velocity type="biot_savart"><integer name="samples" value="1024"/></velocity>
 #include <kelvin/core/logging.h>
 #include <kelvin/core/registry.h>
-#include <kelvin/fluid/fields.h>
+#include <kelvin/fluid/estimators.h>
 
 #include <cmath>
 
 namespace kelvin::fluid {
 namespace {
 
-class BiotSavart final : public VelocityEstimatorSpec {
+class BiotSavart final : public BiotSavartVelocity {
 public:
     explicit BiotSavart(const Properties& props) {
         m_options.samples = int(props.get_int("samples", 1, 1 << 24));
@@ -47,10 +47,6 @@ public:
                 "biot_savart: delta = 0 uses the singular kernel; the estimate stays finite and unbiased but "
                 "its variance grows logarithmically near samples (use delta > 0 or -1 for half a cell)");
     }
-    const BiotSavartOptions& biot_savart() const override { return m_options; }
-
-private:
-    BiotSavartOptions m_options;
 };
 
 }  // namespace

@@ -61,6 +61,7 @@
 #include <kelvin/fluid/output.h>
 #include <kelvin/fluid/simulation.h>
 #include <kelvin/fluid/simulation3.h>
+#include <kelvin/fluid/velocity.h>
 
 #include <fmt/format.h>
 
@@ -110,24 +111,34 @@ public:
         m_field = p.field;
         m_dye = p.dye;
         m_settings.diffusion_samples = int(props.get_int("diffusion_samples", 1, 1 << 20));
-        auto velocity = props.get_object_as<VelocityEstimatorSpec>("velocity");
-        if (!velocity)
-            velocity = std::dynamic_pointer_cast<VelocityEstimatorSpec>(
+        // The velocity estimator, through its interface only (velocity.h): built-in or a plugin's.
+        std::shared_ptr<const VelocityEstimator> velocity;
+        if (auto obj = props.get_object("velocity")) {
+            velocity = std::dynamic_pointer_cast<const VelocityEstimator>(obj);
+            if (!velocity) props.error("velocity", fmt::format("'{}' is not a velocity estimator", obj->plugin_name()));
+        } else {
+            velocity = std::dynamic_pointer_cast<const VelocityEstimator>(
                 Registry::instance().create(Properties("velocity", "biot_savart")));
+        }
+        if (!velocity->supports(2))
+            props.error("velocity", fmt::format("'{}' is a 3D velocity estimator; set dimension = 3 or use a 2D one "
+                                                "such as biot_savart or walk_on_spheres",
+                                                velocity->plugin_name()));
         auto cache = props.get_object_as<CacheSpec>("cache");
         if (!cache)
             cache = std::dynamic_pointer_cast<CacheSpec>(Registry::instance().create(Properties("cache", "grid")));
         m_velocity_name = velocity->plugin_name();
-        m_settings.velocity = velocity->biot_savart();
-        if (auto wos = std::dynamic_pointer_cast<const WosVelocitySpec>(velocity)) {  // solid boundaries
-            m_settings.boundaries = std::make_shared<WosVelocityOptions>(wos->walk_on_spheres());
-            if (const std::string why = check_wos_options(*m_settings.boundaries, m_settings.domain); !why.empty())
-                props.error("velocity", "walk_on_spheres: " + why);
+        m_settings.estimator = velocity;
+        m_settings.velocity.samples = velocity->samples();
+        m_settings.velocity.delta = velocity->delta();
+        if (const std::string why = velocity->check2(m_settings.domain); !why.empty())
+            props.error("velocity", velocity->plugin_name() + ": " + why);
+        m_settings.boundaries = velocity->boundaries();
+        if (m_settings.boundaries)  // solid boundaries: what they leave of the cache
             if (const std::string why =
                     check_wos_cells(*m_settings.boundaries, m_settings.domain, m_settings.nx, m_settings.ny);
                 !why.empty())
-                props.error("velocity", "walk_on_spheres: " + why);
-        }
+                props.error("velocity", velocity->plugin_name() + ": " + why);
         m_settings.interpolation = cache->interpolation();
         if (cache->resolution_z() != 0) props.error("cache", "resolution_z is for 3D caches (dimension = 3)");
     }
@@ -159,9 +170,7 @@ public:
                       "max_steps {})",
                       settings.velocity.samples, settings.boundaries->wos.antithetic ? "on" : "off",
                       solver.boundary_field()->settings().epsilon, settings.boundaries->wos.max_steps)
-                : fmt::format("Biot–Savart velocity (n_mc {}, importance {}, delta {:g}{})", settings.velocity.samples,
-                              fluid::to_string(settings.velocity.importance), solver.delta(),
-                              settings.domain.periodic ? ", periodic kernel" : "");
+                : settings.estimator->effect(settings.velocity.samples, solver.delta(), settings.domain.periodic);
         log_info(
             "mcfluid: effects: advection ({}, dt {:g}, {} steps) with {}; boundaries {}; diffusion {}; "
             "stretching off (2D); {}",

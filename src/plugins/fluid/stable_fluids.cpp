@@ -48,11 +48,13 @@ public:
             props.error("projection", "fft needs a box without obstacles; use multigrid (or auto)");
     }
 
-    /// The solid shapes of <velocity type="walk_on_spheres"> (static, with an inside), checked on the grid.
+    /// The solid shapes of the <velocity> estimator's boundaries (walk_on_spheres; static, with an inside),
+    /// checked on the grid.
     void read_obstacles(const Properties& props) {
-        auto wos = std::dynamic_pointer_cast<const WosVelocitySpec>(props.get_object("velocity"));
-        if (!wos) return;
-        const WosVelocityOptions& o = wos->walk_on_spheres();
+        auto velocity = std::dynamic_pointer_cast<const VelocityEstimator>(props.get_object("velocity"));
+        const std::shared_ptr<const WosVelocityOptions> boundaries = velocity ? velocity->boundaries() : nullptr;
+        if (!boundaries) return;  // the estimator itself is mcfluid's; the grid solver only takes its solids
+        const WosVelocityOptions& o = *boundaries;
         if (o.inflow_speed != 0)
             props.error("velocity", "stable_fluids has no inflow/outflow walls (inflow_speed must be 0)");
         std::vector<std::string> names;

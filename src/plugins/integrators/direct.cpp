@@ -15,6 +15,7 @@
 // | hide_emitters   | boolean | false   | emitters seen directly by the camera render black  |
 //
 //     <integrator type="direct"><integer name="emitter_samples" value="2"/></integrator>
+#include <kelvin/core/param_helpers.h>
 #include <kelvin/core/registry.h>
 #include <kelvin/render/scene.h>
 
@@ -22,11 +23,6 @@
 
 namespace kelvin {
 namespace {
-
-ParamSpec without_default(ParamSpec s) {
-    s.default_value.reset();
-    return s;
-}
 
 class DirectIntegrator final : public SamplingIntegrator {
 public:

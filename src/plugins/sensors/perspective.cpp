@@ -18,6 +18,7 @@
 //         <transform name="to_world"><lookat origin="0,1,5" target="0,0,0" up="0,1,0"/></transform>
 //         <film type="hdrfilm"><integer name="width" value="256"/><integer name="height" value="256"/></film>
 //     </sensor>
+#include <kelvin/core/param_helpers.h>
 #include <kelvin/core/registry.h>
 #include <kelvin/render/sensor.h>
 
@@ -28,11 +29,6 @@ namespace kelvin {
 namespace {
 
 /// A parameter whose default depends on another one: declared without a default, read only when given.
-ParamSpec without_default(ParamSpec s) {
-    s.default_value.reset();
-    return s;
-}
-
 class Perspective final : public ProjectiveSensor {
 public:
     explicit Perspective(const Properties& props) : ProjectiveSensor(props) {

@@ -40,6 +40,7 @@
 //         <float name="fov" value="39.3"/>
 //         <transform name="to_world"><lookat origin="0,1,3.9" target="0,1,0" up="0,1,0"/></transform>
 //     </sensor>
+#include <kelvin/core/param_helpers.h>
 #include <kelvin/core/registry.h>
 #include <kelvin/render/sensor.h>
 #include <kelvin/render/warp.h>
@@ -51,11 +52,6 @@ namespace kelvin {
 namespace {
 
 /// A parameter whose default depends on another one: declared without a default, read only when given.
-ParamSpec without_default(ParamSpec s) {
-    s.default_value.reset();
-    return s;
-}
-
 class ThinLens final : public ProjectiveSensor {
 public:
     explicit ThinLens(const Properties& props) : ProjectiveSensor(props) {

@@ -1,0 +1,31 @@
+#pragma once
+// The built-in Biot–Savart velocity estimator behind <velocity type="biot_savart"> (the plugin in
+// src/plugins/fluid/biot_savart.cpp only parses its parameters), usable directly by code that builds solvers
+// without a scene. The Walk-on-Spheres one, WosVelocity, is in boundary.h.
+#include <kelvin/fluid/biot_savart.h>
+#include <kelvin/fluid/biot_savart3.h>
+#include <kelvin/fluid/velocity.h>
+
+namespace kelvin::fluid {
+
+/// Biot–Savart Monte Carlo (Eqs. 5.4, 5.5) over the cache: BiotSavartEstimator in 2D, BiotSavartEstimator3 in
+/// 3D (importance = kernel is 2D only), the periodic kernel on periodic domains.
+class BiotSavartVelocity : public VelocityEstimator {
+public:
+    BiotSavartVelocity() = default;
+    explicit BiotSavartVelocity(const BiotSavartOptions& options) : m_options(options) {}
+
+    const BiotSavartOptions& options() const { return m_options; }
+    int samples() const override { return m_options.samples; }
+    double delta() const override { return m_options.delta; }
+    bool supports(int dimension) const override { return dimension == 2 || dimension == 3; }
+    std::string check3(const Domain3& domain) const override;
+    std::unique_ptr<VelocityField2> build2(const VelocityState2& state) const override;
+    std::unique_ptr<VelocityField3> build3(const VelocityState3& state) const override;
+    std::string effect(int samples, double delta, bool periodic) const override;
+
+protected:
+    BiotSavartOptions m_options;
+};
+
+}  // namespace kelvin::fluid

@@ -1,0 +1,42 @@
+// The velocity estimator interface's defaults (velocity.h) and the built-in Biot–Savart estimator
+// (estimators.h). The Walk-on-Spheres estimator is in wos_velocity.cpp.
+#include <kelvin/core/error.h>
+#include <kelvin/fluid/estimators.h>
+
+#include <fmt/format.h>
+
+namespace kelvin::fluid {
+
+std::unique_ptr<VelocityField2> VelocityEstimator::build2(const VelocityState2&) const {
+    throw_runtime("velocity estimator '{}' has no 2D field (supports(2) is false)", plugin_name());
+}
+
+std::unique_ptr<VelocityField3> VelocityEstimator::build3(const VelocityState3&) const {
+    throw_runtime("velocity estimator '{}' has no 3D field (supports(3) is false)", plugin_name());
+}
+
+std::string VelocityEstimator::effect(int samples, double delta, bool periodic) const {
+    return fmt::format("{} velocity (n_mc {}{})", plugin_name().empty() ? std::string("plugin") : plugin_name(),
+                       samples, periodic ? ", periodic" : "");
+}
+
+std::string BiotSavartVelocity::check3(const Domain3&) const {
+    if (m_options.importance == SourceSampling::Kernel)
+        return "importance = kernel is 2D only; use vorticity or uniform in 3D";
+    return {};
+}
+
+std::unique_ptr<VelocityField2> BiotSavartVelocity::build2(const VelocityState2& s) const {
+    return std::make_unique<BiotSavartEstimator>(*s.omega, s.interpolation, m_options.importance, s.delta, s.periodic);
+}
+
+std::unique_ptr<VelocityField3> BiotSavartVelocity::build3(const VelocityState3& s) const {
+    return std::make_unique<BiotSavartEstimator3>(*s.omega, s.interpolation, m_options.importance, s.delta, s.periodic);
+}
+
+std::string BiotSavartVelocity::effect(int samples, double delta, bool periodic) const {
+    return fmt::format("Biot–Savart velocity (n_mc {}, importance {}, delta {:g}{})", samples,
+                       fluid::to_string(m_options.importance), delta, periodic ? ", periodic kernel" : "");
+}
+
+}  // namespace kelvin::fluid
