@@ -52,16 +52,8 @@ void check_settings(const MCFluidSettings& s) {
 
 MCFluidSolver::MCFluidSolver(const MCFluidSettings& settings, const InitialField& initial) : m_settings(settings) {
     check_settings(m_settings);
-    if (!m_settings.estimator) {  // the built-in estimator the settings describe
-        if (m_settings.boundaries)
-            m_settings.estimator = std::make_shared<WosVelocity>(*m_settings.boundaries);
-        else
-            m_settings.estimator = std::make_shared<BiotSavartVelocity>(m_settings.velocity);
-    } else if (!m_settings.boundaries) {
-        m_settings.boundaries = m_settings.estimator->boundaries();
-    }
-    if (!m_settings.estimator->supports(2))
-        throw_runtime("MCFluidSolver: velocity estimator '{}' has no 2D field", m_settings.estimator->plugin_name());
+    m_settings.estimator =
+        resolve_estimator(m_settings.estimator, m_settings.boundaries, m_settings.velocity, 2, "MCFluidSolver");
     const Domain2& d = m_settings.domain;
     m_omega = Grid2(d, m_settings.nx, m_settings.ny);
     m_delta = m_settings.velocity.delta >= 0 ? m_settings.velocity.delta : 0.5 * std::min(m_omega.h().x, m_omega.h().y);

@@ -104,16 +104,8 @@ Vec3d standard_normal3(Random& rng) {
 
 MCFluid3Solver::MCFluid3Solver(const MCFluid3Settings& settings, const InitialField3& initial) : m_settings(settings) {
     check_settings(m_settings);
-    if (!m_settings.estimator) {  // the built-in estimator the settings describe
-        if (m_settings.boundaries)
-            m_settings.estimator = std::make_shared<WosVelocity>(*m_settings.boundaries);
-        else
-            m_settings.estimator = std::make_shared<BiotSavartVelocity>(m_settings.velocity);
-    } else if (!m_settings.boundaries) {
-        m_settings.boundaries = m_settings.estimator->boundaries();
-    }
-    if (!m_settings.estimator->supports(3))
-        throw_runtime("MCFluid3Solver: velocity estimator '{}' has no 3D field", m_settings.estimator->plugin_name());
+    m_settings.estimator =
+        resolve_estimator(m_settings.estimator, m_settings.boundaries, m_settings.velocity, 3, "MCFluid3Solver");
     const MCFluid3Settings& s = m_settings;
     m_omega = VectorGrid3(s.domain, s.nx, s.ny, s.nz);
     const Vec3d h = m_omega.x.h();

@@ -1,6 +1,7 @@
 // The velocity estimator interface's defaults (velocity.h) and the built-in Biot–Savart estimator
 // (estimators.h). The Walk-on-Spheres estimator is in wos_velocity.cpp.
 #include <kelvin/core/error.h>
+#include <kelvin/fluid/boundary.h>
 #include <kelvin/fluid/estimators.h>
 
 #include <fmt/format.h>
@@ -37,6 +38,23 @@ std::unique_ptr<VelocityField3> BiotSavartVelocity::build3(const VelocityState3&
 std::string BiotSavartVelocity::effect(int samples, double delta, bool periodic) const {
     return fmt::format("Biot–Savart velocity (n_mc {}, importance {}, delta {:g}{})", samples,
                        fluid::to_string(m_options.importance), delta, periodic ? ", periodic kernel" : "");
+}
+
+std::shared_ptr<const VelocityEstimator> resolve_estimator(std::shared_ptr<const VelocityEstimator> estimator,
+                                                           std::shared_ptr<const WosVelocityOptions>& boundaries,
+                                                           const BiotSavartOptions& velocity, int dimension,
+                                                           const char* solver) {
+    if (!estimator) {
+        if (boundaries)
+            estimator = std::make_shared<WosVelocity>(*boundaries);
+        else
+            estimator = std::make_shared<BiotSavartVelocity>(velocity);
+    } else if (!boundaries) {
+        boundaries = estimator->boundaries();
+    }
+    if (!estimator->supports(dimension))
+        throw_runtime("{}: velocity estimator '{}' has no {}D field", solver, estimator->plugin_name(), dimension);
+    return estimator;
 }
 
 }  // namespace kelvin::fluid
