@@ -50,6 +50,11 @@ Simulation3Params Simulation3Params::parse(const Properties& props) {
             "mcfluid: initial_samples = {} is the control variates' initial sample count; control_variates is "
             "off, so every velocity pass uses n_mc",
             s.initial_samples);
+    if (s.control_variate_blend < 1 && !s.control_variates)
+        log_info(
+            "mcfluid: control_variate_blend = {:g} blends the control variate; control_variates is off, so it "
+            "has no effect",
+            s.control_variate_blend);
     p.output_every = props.get_int("output_every", 0, 1LL << 40);
     p.write_png = props.get_bool("write_png");
     p.write_vdb = props.get_bool("write_vdb");

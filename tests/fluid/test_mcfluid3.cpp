@@ -381,8 +381,10 @@ TEST(MCFluid3, BlendedControlVariatesForgetAnEarlierError) {
                  plain = error_after(false, 1, 16);
     std::printf("after 10 steps, squared velocity error: pure CV %.4g, blended (1/2) %.4g, plain (16 samples) %.4g\n",
                 pure, blended, plain);
-    EXPECT_LT(blended, 0.6 * pure) << "the blended control variate must forget the initial error";
-    EXPECT_LT(blended, plain) << "at equal samples the blend must still beat plain Monte Carlo";
+    // Bounds from the expectations above: blended / pure <= (sigma^2 / 3) / sigma^2 = 1/3 and blended / plain = 2/3,
+    // plus the sums' own scatter (about 250 cells x 3 components: some 5 % relative). Measured 0.18 and 0.49.
+    EXPECT_LT(blended, 0.4 * pure) << "the blended control variate must forget the initial error";
+    EXPECT_LT(blended, 0.75 * plain) << "at equal samples the blend must beat plain Monte Carlo";
 }
 
 TEST(MCFluid3, EmptyFieldHasExactlyZeroVelocityAndDrawsNothing) {
