@@ -7,7 +7,8 @@ find_package(pugixml CONFIG REQUIRED)         # libpugixml-dev: XML scenes
 find_package(TBB CONFIG REQUIRED)             # libtbb-dev: parallel loops
 find_package(embree 3 CONFIG REQUIRED)        # libembree-dev: ray and closest-point queries
 find_package(OpenEXR 3 CONFIG REQUIRED)       # libopenexr-dev: EXR with named channels
-find_package(OpenImageIO CONFIG REQUIRED)     # libopenimageio-dev: PNG/JPEG/HDR, textures
+find_package(OpenImageIO CONFIG REQUIRED)     # libopenimageio-dev: JPEG/HDR/TIFF (module loaded on first use)
+find_package(PNG REQUIRED)                    # libpng-dev: PNG output and textures without OpenImageIO
 find_package(TinyGLTF CONFIG REQUIRED)        # libtinygltf-dev: glTF 2.0 meshes
 find_package(Eigen3 3.3 CONFIG REQUIRED)      # libeigen3-dev: linear algebra (H2MC, solvers)
 find_package(CLI11 CONFIG REQUIRED)           # libcli11-dev: command line

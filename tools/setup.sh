@@ -13,7 +13,8 @@ packages=(
   cmake ninja-build g++ pkg-config
   libembree-dev                       # ray and closest-point queries
   libopenexr-dev                      # EXR output with named channels
-  libopenimageio-dev openimageio-tools  # PNG/JPEG/HDR I/O (Debian's CMake config also wants the tools)
+  libpng-dev                          # PNG I/O without OpenImageIO
+  libopenimageio-dev openimageio-tools  # JPEG/HDR/TIFF I/O, a module loaded on first use (Debian's CMake config also wants the tools)
   libglm-dev                          # math
   libtinygltf-dev nlohmann-json3-dev  # glTF meshes
   libtinyobjloader-dev                # Wavefront OBJ meshes

@@ -5,6 +5,7 @@
 
 #include <kelvin/core/converge.h>
 #include <kelvin/core/error.h>
+#include <kelvin/core/install.h>
 #include <kelvin/core/interrupt.h>
 #include <kelvin/core/logging.h>
 #include <kelvin/core/parallel.h>
@@ -56,16 +57,11 @@ std::vector<long long> counts(const std::string& text, const std::string& option
     return out;
 }
 
-/// The plot script: $KELVIN_PLOT_SCRIPT, the installed copy next to the executable, or the source tree's.
+/// The plot script: $KELVIN_PLOT_SCRIPT, else the data directory's (core/install.h: the installation's
+/// share/kelvin/tools, or the build tree's mirror).
 fs::path plot_script() {
     if (const char* env = std::getenv("KELVIN_PLOT_SCRIPT"); env && *env) return env;
-    std::error_code ec;
-    const fs::path exe = fs::read_symlink("/proc/self/exe", ec);
-    if (!ec) {
-        const fs::path installed = exe.parent_path().parent_path() / "share" / "kelvin" / "plot_convergence.py";
-        if (fs::exists(installed)) return installed;
-    }
-    return fs::path(KELVIN_TOOLS_DIR) / "plot_convergence.py";
+    return data_tool("plot_convergence.py");
 }
 
 /// Debian's python3 (which has python3-matplotlib), unless $KELVIN_PYTHON says otherwise.
@@ -76,8 +72,11 @@ std::string python() {
 
 int run_plot(const fs::path& csv, const fs::path& out_dir) {
     const fs::path script = plot_script();
-    if (!fs::exists(script))
-        throw RuntimeError(fmt::format("--plot: cannot find the plot script '{}'", script.string()));
+    if (script.empty() || !fs::exists(script))
+        throw RuntimeError(
+            fmt::format("--plot: cannot find plot_convergence.py (looked in '{}'; set KELVIN_DATA_DIR "
+                        "or KELVIN_PLOT_SCRIPT)",
+                        (data_directory() / "tools").string()));
     std::vector<std::string> args = {python(), script.string(), csv.string(), "--out", out_dir.string()};
     std::vector<char*> argv;
     for (auto& a : args) argv.push_back(a.data());

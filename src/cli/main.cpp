@@ -6,6 +6,7 @@
 
 #include <kelvin/core/error.h>
 #include <kelvin/core/files.h>
+#include <kelvin/core/install.h>
 #include <kelvin/core/interrupt.h>
 #include <kelvin/core/job.h>
 #include <kelvin/core/logging.h>
@@ -329,6 +330,8 @@ int run(const Options& o) {
         throw InputError({}, fmt::format("-o '{}': unsupported image format '{}' (use .exr, .png, .jpg, .hdr, .pfm or "
                                          ".tif)",
                                          out.string(), out.extension().string()));
+    if (std::string why = image_format_problem(out); !why.empty())
+        throw RuntimeError(fmt::format("-o '{}': {}", out.string(), why));
     if (o.skip_existing && fs::exists(out)) {
         log_info("{} exists; skipping (--skip-existing)", out.string());
         return ExitOk;
@@ -407,6 +410,15 @@ int main(int argc, char** argv) {
     Options o;
     CLI::App app{"kelvin: Monte Carlo light transport and Monte Carlo fluid simulation", "kelvin"};
     app.set_version_flag("--version", std::string("kelvin ") + KELVIN_VERSION_STRING);
+    app.footer([] {
+        const fs::path data = data_directory();
+        if (data.empty()) return std::string("Kelvin's data directory (scenes, docs, tools) was not found.");
+        return fmt::format(
+            "Scenes, examples and documentation: {0}/scenes, {0}/examples, {0}/docs\n"
+            "Plots: {0}/tools/plot_fluid.py RUN.csv (a simulation's diagnostics; --montage for frames), "
+            "kelvin converge --plot (tools/plot_convergence.py)",
+            data.string());
+    });
     app.add_option("scene", o.scene, "Scene file (XML)");
     app.add_option("-o,--output", o.output,
                    "Output image; the extension picks the format (.exr .png .jpg .hdr .pfm .tif)");

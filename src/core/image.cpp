@@ -1,4 +1,7 @@
-// Image I/O: OpenEXR for EXR (named float channels), OpenImageIO for everything else.
+// Image I/O: OpenEXR for EXR (named float channels), libpng for PNG (image_png.cpp), PFM written here, and
+// OpenImageIO for the rest (JPEG, HDR, TIFF; PFM reading) through a module loaded on first use (image_codec.h).
+#include "image_codec.h"
+
 #include <kelvin/core/error.h>
 #include <kelvin/core/files.h>
 #include <kelvin/core/image.h>
@@ -11,8 +14,6 @@
 #include <OpenEXR/ImfIntAttribute.h>
 #include <OpenEXR/ImfOutputFile.h>
 #include <OpenEXR/ImfStringAttribute.h>
-#include <OpenImageIO/filesystem.h>
-#include <OpenImageIO/imageio.h>
 #include <fcntl.h>
 #include <unistd.h>
 
@@ -23,6 +24,7 @@
 #include <cstdint>
 #include <cstring>
 #include <fstream>
+#include <stdexcept>
 
 namespace kelvin {
 
@@ -79,8 +81,19 @@ bool is_supported_image_extension(const fs::path& path) {
     return e == ".exr" || is_ldr(e) || is_hdr_oiio(e);
 }
 
+std::string image_format_problem(const fs::path& path) {
+    const std::string e = ext_of(path);
+    if (e == ".exr" || e == ".png") return {};
+    try {
+        detail::oiio_codec();
+    } catch (const std::exception& ex) {
+        return ex.what();
+    }
+    return {};
+}
+
 // Before any pixel memory is allocated: a header may claim any size (an HDR header of 1e8 x 1e8 pixels).
-static void check_image_size(const fs::path& path, long long w, long long h, long long channels) {
+void detail::check_image_size(const fs::path& path, long long w, long long h, long long channels) {
     if (w < 1 || h < 1 || channels < 1)
         throw InputError({}, fmt::format("image file '{}' is empty or has an invalid size ({} x {} pixels, {} "
                                          "channels)",
@@ -128,7 +141,7 @@ static Bitmap read_exr(const fs::path& path) {
     std::vector<std::string> names;
     for (auto it = file.header().channels().begin(); it != file.header().channels().end(); ++it)
         names.push_back(it.name());
-    check_image_size(path, w64, h64, (long long)names.size());
+    detail::check_image_size(path, w64, h64, (long long)names.size());
     const int w = int(w64), h = int(h64);
     // EXR stores channels alphabetically; put R, G, B, A first as users expect.
     std::vector<std::string> ordered;
@@ -168,8 +181,7 @@ static void write_pfm(const fs::path& path, const Bitmap& img) {
     if (!out) throw RuntimeError(fmt::format("write failed: {}", std::strerror(errno)));
 }
 
-// `bytes` into the file `path`, every system call checked (a short write on a full disk is an error).
-static void write_bytes(const fs::path& path, const std::vector<unsigned char>& bytes) {
+void detail::write_bytes(const fs::path& path, const std::vector<unsigned char>& bytes) {
     const int fd = ::open(path.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
     if (fd < 0) throw RuntimeError(std::strerror(errno));
     std::size_t done = 0;
@@ -186,6 +198,36 @@ static void write_bytes(const fs::path& path, const std::vector<unsigned char>& 
     if (::close(fd) != 0) throw RuntimeError(std::strerror(errno));
 }
 
+std::vector<uint8_t> detail::encode_srgb8(const Bitmap& img, double exposure) {
+    const double scale = std::exp2(exposure);
+    const std::size_t n = std::size_t(img.width()) * std::size_t(img.height()), nc = std::size_t(img.channel_count());
+    std::vector<uint8_t> px(n * 3);
+    for (std::size_t i = 0; i < n; ++i)
+        for (std::size_t c = 0; c < 3; ++c) {
+            double v = double(img.data()[i * nc + c]) * scale;
+            if (!std::isfinite(v)) v = 0;  // never propagate NaN into an 8-bit image
+            px[i * 3 + c] = uint8_t(std::lround(linear_to_srgb(std::clamp(v, 0.0, 1.0)) * 255.0));
+        }
+    return px;
+}
+
+Bitmap detail::bitmap_from_interleaved(int width, int height, int channels, const float* values, bool srgb) {
+    const bool grey = channels <= 2;
+    const bool alpha = channels == 2 || channels >= 4;
+    std::vector<std::string> names = {"R", "G", "B"};
+    if (alpha) names.push_back("A");
+    Bitmap img(width, height, names);
+    const std::size_t n = std::size_t(width) * std::size_t(height), nc = std::size_t(img.channel_count());
+    for (std::size_t i = 0; i < n; ++i)
+        for (std::size_t c = 0; c < nc; ++c) {
+            const std::size_t src = c < 3 ? (grey ? 0 : c) : (grey ? 1 : 3);
+            float v = values[i * std::size_t(channels) + src];
+            if (srgb && c < 3) v = float(srgb_to_linear(v));
+            img.data()[i * nc + c] = v;
+        }
+    return img;
+}
+
 // Writes `path` (a temporary file: see write_image) in the format of extension `e`. Failures are exceptions
 // whose message is the reason alone; write_atomically adds the output's name.
 static void write_image_file(const fs::path& path, const std::string& e, const Bitmap& img,
@@ -198,44 +240,11 @@ static void write_image_file(const fs::path& path, const std::string& e, const B
         write_pfm(path, img);
         return;
     }
-    auto out = OIIO::ImageOutput::create(path.string());
-    if (!out) throw RuntimeError(OIIO::geterror());
-    // OpenImageIO's writers do not all report failed writes (PNG in 2.4 ignores a short write on a full disk
-    // and closes "successfully"): encode into memory when the format allows, then write the bytes ourselves.
-    std::vector<unsigned char> bytes;
-    OIIO::Filesystem::IOVecOutput memory(bytes);
-    const bool in_memory = out->supports("ioproxy") && out->set_ioproxy(&memory);
-    const std::size_t n = std::size_t(img.width()) * std::size_t(img.height());
-    if (is_ldr(e)) {
-        const double scale = std::exp2(opts.exposure);
-        std::vector<uint8_t> px(n * 3);
-        for (std::size_t i = 0; i < n; ++i)
-            for (int c = 0; c < 3; ++c) {
-                double v = double(img.data()[i * std::size_t(img.channel_count()) + std::size_t(c)]) * scale;
-                if (!std::isfinite(v)) v = 0;  // never propagate NaN into an 8-bit image
-                v = linear_to_srgb(std::clamp(v, 0.0, 1.0));
-                px[i * 3 + std::size_t(c)] = uint8_t(std::lround(v * 255.0));
-            }
-        OIIO::ImageSpec spec(img.width(), img.height(), 3, OIIO::TypeDesc::UINT8);
-        spec.attribute("oiio:ColorSpace", "sRGB");
-        if (!out->open(path.string(), spec) || !out->write_image(OIIO::TypeDesc::UINT8, px.data()) || !out->close())
-            throw RuntimeError(out->geterror());
-    } else {
-        std::vector<float> px(n * 3);
-        for (std::size_t i = 0; i < n; ++i)
-            for (std::size_t c = 0; c < 3; ++c) px[i * 3 + c] = img.data()[i * std::size_t(img.channel_count()) + c];
-        OIIO::ImageSpec spec(img.width(), img.height(), 3, OIIO::TypeDesc::FLOAT);
-        if (!out->open(path.string(), spec) || !out->write_image(OIIO::TypeDesc::FLOAT, px.data()) || !out->close())
-            throw RuntimeError(out->geterror());
+    if (e == ".png") {
+        detail::write_bytes(path, detail::encode_png(img, opts.exposure));
+        return;
     }
-    if (in_memory) {
-        write_bytes(path, bytes);
-    } else {  // written by OpenImageIO itself: read it back, so that a truncated file is never renamed
-        auto in = OIIO::ImageInput::open(path.string());
-        std::vector<float> check(std::size_t(img.width()) * std::size_t(img.height()) * 3);
-        if (!in || !in->read_image(0, 0, 0, 3, OIIO::TypeDesc::FLOAT, check.data()))
-            throw RuntimeError("the written file does not read back (a full disk?)");
-    }
+    detail::oiio_codec().write(path, e, img, opts);
 }
 
 void write_image(const fs::path& path, const Bitmap& img, const ImageWriteOptions& opts) {
@@ -252,37 +261,13 @@ void write_image(const fs::path& path, const Bitmap& img, const ImageWriteOption
 }
 
 Bitmap read_image(const fs::path& path) {
-    // A device (/dev/zero) would keep OpenImageIO's format probing busy for ever.
+    // A device (/dev/zero) would keep a format's probing busy for ever.
     check_input_file(path, "image file");
     std::string e = ext_of(path);
     try {
         if (e == ".exr") return read_exr(path);
-        auto in = OIIO::ImageInput::open(path.string());
-        if (!in) throw InputError({}, fmt::format("cannot read image '{}': {}", path.string(), OIIO::geterror()));
-        const OIIO::ImageSpec& spec = in->spec();
-        check_image_size(path, spec.width, spec.height, spec.nchannels);
-        if (spec.depth > 1)
-            throw InputError({}, fmt::format("image file '{}' is a volume ({} slices); a 2D image is needed",
-                                             path.string(), spec.depth));
-        // Grey (1 channel) and grey + alpha (2) fill R, G and B from the grey channel (and A from the alpha).
-        const bool grey = spec.nchannels <= 2;
-        const bool alpha = spec.nchannels == 2 || spec.nchannels >= 4;
-        std::vector<std::string> names = {"R", "G", "B"};
-        if (alpha) names.push_back("A");
-        Bitmap img(spec.width, spec.height, names);
-        std::vector<float> px(std::size_t(spec.width) * std::size_t(spec.height) * std::size_t(spec.nchannels));
-        if (!in->read_image(0, 0, 0, spec.nchannels, OIIO::TypeDesc::FLOAT, px.data()))
-            throw InputError({}, fmt::format("cannot read image '{}': {}", path.string(), in->geterror()));
-        bool srgb = spec.format.basetype == OIIO::TypeDesc::UINT8 || spec.format.basetype == OIIO::TypeDesc::UINT16;
-        const std::size_t n = std::size_t(spec.width) * std::size_t(spec.height);
-        for (std::size_t i = 0; i < n; ++i)
-            for (int c = 0; c < img.channel_count(); ++c) {
-                const int src = c < 3 ? (grey ? 0 : c) : (grey ? 1 : 3);
-                float v = px[i * std::size_t(spec.nchannels) + std::size_t(src)];
-                if (srgb && c < 3) v = float(srgb_to_linear(v));
-                img.data()[i * std::size_t(img.channel_count()) + std::size_t(c)] = v;
-            }
-        return img;
+        if (e == ".png") return detail::read_png(path);
+        return detail::oiio_codec().read(path);
     } catch (const Error&) {
         throw;
     } catch (const std::exception& ex) {

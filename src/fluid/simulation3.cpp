@@ -1,4 +1,6 @@
 // mcfluid in 3D: parameters, run loop and outputs (see include/kelvin/fluid/simulation3.h).
+#include "core/vdb_io.h"
+
 #include <kelvin/core/error.h>
 #include <kelvin/core/files.h>
 #include <kelvin/core/interrupt.h>
@@ -12,7 +14,6 @@
 #include <kelvin/fluid/simulation3.h>
 
 #include <fmt/format.h>
-#include <openvdb/openvdb.h>
 
 #include <algorithm>
 #include <cmath>
@@ -120,75 +121,9 @@ Simulation3Params Simulation3Params::parse(const Properties& props) {
 // ------------------------------------------------------------------------------------------------
 // Outputs.
 
-namespace {
-
-openvdb::math::Transform::Ptr cell_transform(const Grid3& g) {
-    const Vec3d h = g.h();
-    openvdb::math::Mat4d m = openvdb::math::Mat4d::identity();
-    m.setToScale(openvdb::Vec3d(h.x, h.y, h.z));
-    const Vec3d origin = g.domain().min + 0.5 * h;  // voxel (0, 0, 0) is the first cell's centre
-    m.setTranslation(openvdb::Vec3d(origin.x, origin.y, origin.z));
-    return openvdb::math::Transform::createLinearTransform(m);
-}
-
-std::once_flag g_vdb_init;
-
-}  // namespace
-
 void write_vdb_frame(const std::filesystem::path& path, const VectorGrid3& vorticity, const VectorGrid3* velocity,
                      const Grid3* density) {
-    std::call_once(g_vdb_init, [] { openvdb::initialize(); });
-    const Grid3& g = vorticity.x;
-    auto transform = cell_transform(g);
-    openvdb::GridPtrVec grids;
-    auto magnitude = openvdb::FloatGrid::create(0.f);
-    magnitude->setName("vorticity_magnitude");
-    magnitude->setGridClass(openvdb::GRID_FOG_VOLUME);
-    auto add_vector = [&](const VectorGrid3& field, const char* name) {
-        auto grid = openvdb::Vec3SGrid::create(openvdb::Vec3s(0.f));
-        grid->setName(name);
-        grid->setVectorType(openvdb::VEC_CONTRAVARIANT_RELATIVE);
-        grid->setTransform(transform->copy());
-        auto acc = grid->getAccessor();
-        for (int k = 0; k < g.nz(); ++k)
-            for (int j = 0; j < g.ny(); ++j)
-                for (int i = 0; i < g.nx(); ++i) {
-                    const Vec3d v = field.at(g.index(i, j, k));
-                    if (v != Vec3d(0.0))
-                        acc.setValue(openvdb::Coord(i, j, k), openvdb::Vec3s(float(v.x), float(v.y), float(v.z)));
-                }
-        grids.push_back(grid);
-    };
-    magnitude->setTransform(transform->copy());
-    {
-        auto acc = magnitude->getAccessor();
-        for (int k = 0; k < g.nz(); ++k)
-            for (int j = 0; j < g.ny(); ++j)
-                for (int i = 0; i < g.nx(); ++i) {
-                    const double m = glm::length(vorticity.at(g.index(i, j, k)));
-                    if (m != 0) acc.setValue(openvdb::Coord(i, j, k), float(m));
-                }
-    }
-    grids.push_back(magnitude);
-    if (density) {
-        auto grid = openvdb::FloatGrid::create(0.f);
-        grid->setName("density");
-        grid->setGridClass(openvdb::GRID_FOG_VOLUME);
-        grid->setTransform(transform->copy());
-        auto acc = grid->getAccessor();
-        for (int k = 0; k < g.nz(); ++k)
-            for (int j = 0; j < g.ny(); ++j)
-                for (int i = 0; i < g.nx(); ++i)
-                    if (const double v = density->at(i, j, k); v != 0) acc.setValue(openvdb::Coord(i, j, k), float(v));
-        grids.push_back(grid);
-    }
-    add_vector(vorticity, "vorticity");
-    if (velocity) add_vector(*velocity, "velocity");
-    write_atomically(path, [&](const std::filesystem::path& tmp) {
-        openvdb::io::File file(tmp.string());
-        file.write(grids);
-        file.close();
-    });
+    kelvin::detail::vdb_codec().write_frame(path, vorticity, velocity, density);  // OpenVDB, loaded on first use
 }
 
 Bitmap slice_image(const VectorGrid3& field, int axis, double range) {

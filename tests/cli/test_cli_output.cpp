@@ -182,3 +182,66 @@ TEST_F(CliOutput, DefineOverridesDefault) {
 }
 
 }  // namespace
+
+// ----- Start-up (issue 19): OpenImageIO (~260 shared libraries) and OpenVDB (~70,000 relocations) are loaded only by
+// a run whose files need them (src/core/modules.h). The dynamic loader's own log (LD_DEBUG=libs, into
+// LD_DEBUG_OUTPUT.<pid>) says what was loaded.
+
+namespace {
+
+std::string loader_log(const fs::path& dir) {
+    std::string all;
+    for (const auto& e : fs::directory_iterator(dir))
+        if (e.path().filename().string().rfind("ld.", 0) == 0) all += read_file(e.path());
+    return all;
+}
+
+}  // namespace
+
+TEST_F(CliOutput, PngAndExrRunsLoadNeitherOpenImageIONorOpenVdb) {
+    for (const char* name : {"out.png", "out.exr"}) {
+        const fs::path logs = m_dir / (std::string("logs_") + name);
+        fs::create_directories(logs);
+        auto r = run_kelvin({TinyScene, "-o", (m_dir / name).string()},
+                            {{"LD_DEBUG", "libs"}, {"LD_DEBUG_OUTPUT", (logs / "ld").string()}});
+        ASSERT_EQ(r.exit_code, 0) << describe(r);
+        const std::string log = loader_log(logs);
+        ASSERT_NE(log.find("libkelvin.so"), std::string::npos) << "no loader log was written";
+        EXPECT_EQ(log.find("libOpenImageIO"), std::string::npos) << name << ": OpenImageIO was loaded";
+        EXPECT_EQ(log.find("libkelvin_oiio"), std::string::npos) << name;
+        EXPECT_EQ(log.find("libopenvdb"), std::string::npos) << name << ": OpenVDB was loaded";
+    }
+    auto v = run_kelvin({"--version"}, {{"LD_DEBUG", "libs"}, {"LD_DEBUG_OUTPUT", (m_dir / "ld").string()}});
+    ASSERT_EQ(v.exit_code, 0) << describe(v);
+    EXPECT_EQ(loader_log(m_dir.path()).find("libOpenImageIO"), std::string::npos);
+    EXPECT_EQ(loader_log(m_dir.path()).find("libopenvdb"), std::string::npos);
+}
+
+TEST_F(CliOutput, JpegOutputLoadsTheOpenImageIOModuleOnFirstUse) {
+    const fs::path o = m_dir / "out.jpg";
+    auto r = run_kelvin({TinyScene, "-o", o.string(), "-v"},
+                        {{"LD_DEBUG", "libs"}, {"LD_DEBUG_OUTPUT", (m_dir / "ld").string()}});
+    ASSERT_EQ(r.exit_code, 0) << describe(r);
+    EXPECT_EQ(magic(o, 3), std::string("\xff\xd8\xff", 3));  // JPEG's SOI marker
+    EXPECT_NE(r.err.find("loaded the OpenImageIO module"), std::string::npos) << r.err;
+    EXPECT_NE(loader_log(m_dir.path()).find("libOpenImageIO"), std::string::npos);
+    kelvin::Bitmap img = kelvin::read_image(o);
+    EXPECT_EQ(img.width(), 16);
+}
+
+// An installation without the module (a packager forgot it): a JPEG output fails before rendering with one line
+// naming the missing file; PNG and EXR work as before.
+TEST_F(CliOutput, AMissingOpenImageIOModuleFailsJpegOutputEarly) {
+    const fs::path lib = m_dir / "lib";
+    fs::create_directories(lib);
+    fs::copy_file(fs::canonical(fs::path(KELVIN_BINARY_DIR) / "lib" / "libkelvin.so"), lib / "libkelvin.so.0");
+    const std::map<std::string, std::string> env = {{"LD_LIBRARY_PATH", lib.string()}};
+    auto r = run_kelvin({TinyScene, "-o", (m_dir / "out.jpg").string()}, env);
+    EXPECT_EQ(r.exit_code, 1) << describe(r);
+    EXPECT_NE(r.err.find("libkelvin_oiio.so"), std::string::npos) << r.err;
+    EXPECT_EQ(r.err.find("spp"), std::string::npos) << "rendered before failing: " << r.err;
+    EXPECT_EQ(r.err_lines().size(), 1u) << r.err;
+    EXPECT_FALSE(fs::exists(m_dir / "out.jpg"));
+    auto png = run_kelvin({TinyScene, "-o", (m_dir / "out.png").string()}, env);
+    EXPECT_EQ(png.exit_code, 0) << describe(png);
+}

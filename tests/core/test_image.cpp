@@ -5,8 +5,9 @@
 #include <kelvin/core/image.h>
 
 #include <OpenImageIO/imageio.h>
-
+#include <png.h>
 #include <sys/resource.h>
+#include <zlib.h>
 
 #include <cmath>
 #include <csignal>
@@ -325,4 +326,97 @@ TEST(Image, HeaderClaimingAHugeImageIsRefusedBeforeAllocation) {
     EXPECT_CONTAINS(msg, "huge.hdr");
     EXPECT_CONTAINS(msg, "100000000 x 100000000");
     EXPECT_CONTAINS(msg, fmt::format("limit of {} values", MaxImageValues));
+}
+
+// ----- PNG through libpng (src/core/image_png.cpp): every layout a PNG file may have reads as OpenImageIO read it.
+
+// 16-bit samples keep their 16 bits (a reader that kept the high byte only is off by up to 255/65535).
+TEST(Image, SixteenBitPngKeepsFullPrecision) {
+    ktest::TempDir dir;
+    auto path = dir.path() / "deep.png";
+    const uint16_t px[4 * 3] = {0, 1, 255, 256, 4097, 30001, 65534, 65535, 12345, 54321, 7, 40000};
+    {
+        auto out = OIIO::ImageOutput::create(path.string());
+        ASSERT_TRUE(out);
+        OIIO::ImageSpec spec(2, 2, 3, OIIO::TypeDesc::UINT16);
+        ASSERT_TRUE(out->open(path.string(), spec));
+        ASSERT_TRUE(out->write_image(OIIO::TypeDesc::UINT16, px));
+        out->close();
+    }
+    Bitmap r = read_image(path);
+    ASSERT_EQ(r.channel_count(), 3);
+    for (int i = 0; i < 4; ++i)
+        for (int c = 0; c < 3; ++c)
+            EXPECT_NEAR(r.data()[i * 3 + c], srgb_to_linear(px[i * 3 + c] / 65535.0), 2e-7) << i << "," << c;
+}
+
+// A palette image with a transparent entry: expanded to R, G, B from the palette and A from tRNS.
+TEST(Image, PalettePngWithTransparencyIsExpanded) {
+    ktest::TempDir dir;
+    auto path = dir.path() / "palette.png";
+    png_image image;
+    std::memset(&image, 0, sizeof image);
+    image.version = PNG_IMAGE_VERSION;
+    image.width = 3;
+    image.height = 1;
+    image.format = PNG_FORMAT_RGBA_COLORMAP;
+    image.colormap_entries = 3;
+    const uint8_t colormap[3 * 4] = {255, 0, 0, 255, 0, 188, 0, 255, 10, 20, 30, 0};
+    const uint8_t indices[3] = {2, 0, 1};
+    ASSERT_TRUE(png_image_write_to_file(&image, path.c_str(), 0, indices, 0, colormap)) << image.message;
+    Bitmap r = read_image(path);
+    ASSERT_EQ(r.channel_count(), 4);
+    EXPECT_NEAR(r.at(0, 0, 2), srgb_to_linear(30 / 255.0), 1e-6);
+    EXPECT_EQ(r.at(0, 0, 3), 0.0f);
+    EXPECT_EQ(r.at(1, 0, 0), 1.0f);
+    EXPECT_EQ(r.at(1, 0, 1), 0.0f);
+    EXPECT_EQ(r.at(1, 0, 3), 1.0f);
+    EXPECT_NEAR(r.at(2, 0, 1), srgb_to_linear(188 / 255.0), 1e-6);
+}
+
+// Kelvin's own PNGs: OpenImageIO reads back exactly the 8-bit values of the sRGB encoding.
+TEST(Image, PngWrittenByKelvinReadsTheSameInOpenImageIO) {
+    ktest::TempDir dir;
+    Bitmap b(5, 3);
+    for (std::size_t i = 0; i < b.size(); ++i) b.data()[i] = float(i) / float(b.size());
+    auto path = dir.path() / "ours.png";
+    write_image(path, b);
+    auto in = OIIO::ImageInput::open(path.string());
+    ASSERT_TRUE(in) << OIIO::geterror();
+    ASSERT_EQ(in->spec().nchannels, 3);
+    std::vector<uint8_t> px(b.size());
+    ASSERT_TRUE(in->read_image(0, 0, 0, 3, OIIO::TypeDesc::UINT8, px.data()));
+    for (std::size_t i = 0; i < b.size(); ++i)
+        EXPECT_EQ(px[i], uint8_t(std::lround(linear_to_srgb(b.data()[i]) * 255.0))) << i;
+}
+
+// A truncated file and a header claiming a huge image are InputErrors naming the file, never a crash or an
+// allocation of the claimed size.
+TEST(Image, TruncatedAndHugePngsAreInputErrors) {
+    ktest::TempDir dir;
+    Bitmap b(64, 64);
+    for (std::size_t i = 0; i < b.size(); ++i) b.data()[i] = float(i % 97) / 97.f;
+    auto good = dir.path() / "good.png";
+    write_image(good, b);
+    const std::string bytes = slurp(good);
+    auto cut = dir.write("cut.png", bytes.substr(0, bytes.size() / 2));
+    EXPECT_CONTAINS(ktest::input_error_of([&] { read_image(cut); }), "cut.png");
+
+    // Signature, an IHDR chunk of 100000 x 100000 RGB pixels (below libpng's own limit of 10^6 per side) and the
+    // start of an empty IDAT chunk: libpng reads the header up to the first IDAT.
+    std::string png = "\x89PNG\r\n\x1a\n";
+    const auto chunk = [&](const std::string& type_and_data) {
+        const std::size_t n = type_and_data.size() - 4;
+        for (int shift : {24, 16, 8, 0}) png += char((n >> shift) & 0xff);
+        png += type_and_data;
+        const uLong crc = crc32(crc32(0, nullptr, 0), reinterpret_cast<const Bytef*>(type_and_data.data()),
+                                uInt(type_and_data.size()));
+        for (int shift : {24, 16, 8, 0}) png += char((crc >> shift) & 0xff);
+    };
+    chunk(std::string("IHDR\0\x01\x86\xa0\0\x01\x86\xa0\x08\x02\0\0\0", 17));
+    chunk("IDAT");
+    auto huge = dir.write("huge.png", png);
+    const std::string msg = ktest::input_error_of([&] { read_image(huge); });
+    EXPECT_CONTAINS(msg, "huge.png");
+    EXPECT_CONTAINS(msg, "100000 x 100000");
 }

@@ -60,6 +60,37 @@ TEST_F(MediaCli, VectorGridWhereScalarNeeded) {
     EXPECT_NE(line.find(vdb().string()), std::string::npos) << line;
 }
 
+// OpenVDB is a module loaded on first use (src/core/modules.h): a .vdb volume loads it, and an installation without
+// it gives the usual located one-line error naming the parameter and the missing module.
+TEST_F(MediaCli, VdbVolumeLoadsTheOpenVdbModule) {
+    auto s = scene(fmt::format(R"(<volume type="gridvolume" name="sigma_t"><string name="filename" value="{}"/>
+        </volume>)",
+                               vdb().string()));
+    const fs::path logs = m_dir.path() / "logs";
+    fs::create_directories(logs);
+    auto r = run_kelvin({s.string(), "--spp", "1", "-o", (m_dir.path() / "o.exr").string()},
+                        {{"LD_DEBUG", "libs"}, {"LD_DEBUG_OUTPUT", (logs / "ld").string()}});
+    ASSERT_EQ(r.exit_code, 0) << describe(r);
+    std::string log;
+    for (const auto& e : fs::directory_iterator(logs)) log += read_file(e.path());
+    EXPECT_NE(log.find("libkelvin_vdb.so"), std::string::npos);
+    EXPECT_NE(log.find("libopenvdb"), std::string::npos);
+}
+
+TEST_F(MediaCli, MissingOpenVdbModuleIsALocatedError) {
+    const fs::path lib = m_dir.path() / "lib";
+    fs::create_directories(lib);
+    fs::copy_file(fs::canonical(fs::path(KELVIN_BINARY_DIR) / "lib" / "libkelvin.so"), lib / "libkelvin.so.0");
+    auto s = scene(fmt::format(R"(<volume type="gridvolume" name="sigma_t"><string name="filename" value="{}"/>
+        </volume>)",
+                               vdb().string()));
+    auto r = run_kelvin({s.string(), "-o", (m_dir.path() / "o.exr").string()}, {{"LD_LIBRARY_PATH", lib.string()}});
+    const std::string line = expect_one_error_line(r);
+    EXPECT_NE(line.find("'filename'"), std::string::npos) << line;
+    EXPECT_NE(line.find("libkelvin_vdb.so"), std::string::npos) << line;
+    EXPECT_NE(line.find(s.string() + ":"), std::string::npos) << line;
+}
+
 TEST_F(MediaCli, MissingVolumeFile) {
     auto s =
         scene(R"(<volume type="gridvolume" name="sigma_t"><string name="filename" value="nowhere.vdb"/></volume>)");

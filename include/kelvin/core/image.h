@@ -2,8 +2,11 @@
 // Images: a float bitmap with named channels ("R", "G", "B", and any extra AOV such as "stage.first"),
 // written and read by extension:
 //   .exr            OpenEXR, 32-bit float, every channel by name (extra channels kept)
-//   .png .jpg .jpeg OpenImageIO, 8-bit sRGB of R,G,B after exposure (2^exposure) and clamping
-//   .hdr .pfm .tif  OpenImageIO, float R,G,B (linear)
+//   .png            libpng, 8-bit sRGB of R,G,B after exposure (2^exposure) and clamping (reads 8 and 16 bits)
+//   .jpg .jpeg      OpenImageIO, as PNG
+//   .hdr .pfm .tif  float R,G,B (linear): PFM written by Kelvin, the others and PFM reading by OpenImageIO
+// OpenImageIO lives in a module (libkelvin_oiio.so beside libkelvin.so) loaded on the first image that needs it:
+// a process that only touches EXR and PNG never loads it (and its ~260 shared libraries).
 #include <kelvin/core/math.h>
 
 #include <cstddef>
@@ -64,6 +67,10 @@ struct ImageWriteOptions {
 
 /// True if `path`'s extension is one write_image supports.
 bool is_supported_image_extension(const std::filesystem::path& path);
+/// Empty when images of `path`'s (supported) extension can be read and written in this process; otherwise why not
+/// (the OpenImageIO module a JPEG, HDR or TIFF file needs cannot be loaded). Loads that module if needed, so that
+/// a run can fail before its work rather than when writing its result.
+std::string image_format_problem(const std::filesystem::path& path);
 /// Write by extension, atomically (core/files.h: a temporary file in the same directory, flushed, renamed; a
 /// failure leaves the previous file intact). Throws RuntimeError naming `path` and the reason on I/O failure,
 /// InputError on an unsupported extension.

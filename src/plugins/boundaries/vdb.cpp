@@ -30,9 +30,7 @@
 //
 //     <boundary type="vdb"><string name="filename" value="obstacle.vdb"/></boundary>
 #include "boundary_common.h"
-
-#include <openvdb/openvdb.h>
-#include <openvdb/tools/Interpolation.h>
+#include "core/vdb_io.h"
 
 #include <kelvin/render/closest_point.h>
 
@@ -42,55 +40,23 @@ namespace {
 class VdbField {
 public:
     VdbField(const Properties& props) {
-        openvdb::initialize();
         const std::filesystem::path path = props.get_input_file("filename", "OpenVDB file");
-        const std::string file = path.string();
-        const std::string want = props.get_string("grid");
-        openvdb::GridBase::Ptr base;
         try {
-            openvdb::io::File f(file);
-            f.open();
-            if (want.empty()) {
-                for (auto it = f.beginName(); it != f.endName(); ++it) {
-                    openvdb::GridBase::Ptr g = f.readGrid(it.gridName());
-                    if (openvdb::gridPtrCast<openvdb::FloatGrid>(g)) {
-                        base = g;
-                        break;
-                    }
-                }
-                if (!base) props.error("filename", fmt::format("'{}' has no float grid", file));
-            } else {
-                if (!f.hasGrid(want)) props.error("grid", fmt::format("'{}' has no grid named '{}'", file, want));
-                base = f.readGrid(want);
-            }
-            f.close();
-        } catch (const openvdb::Exception& e) {
-            props.error("filename", fmt::format("cannot read OpenVDB file '{}': {}", file, e.what()));
+            m_grid = kelvin::detail::vdb_codec().read_float_grid(path, props.get_string("grid"));
+        } catch (const kelvin::detail::VdbInputError& e) {
+            props.error(e.param, e.what());
+        } catch (const std::runtime_error& e) {  // the OpenVDB module cannot be loaded
+            props.error("filename", e.what());
         }
-        m_grid = openvdb::gridPtrCast<openvdb::FloatGrid>(base);
-        if (!m_grid) props.error("grid", fmt::format("grid '{}' in '{}' is not a float grid", base->getName(), file));
-        if (!m_grid->transform().isLinear())
-            props.error("filename", fmt::format("'{}': only linear (voxel) transforms are supported", file));
-        m_voxel = m_grid->voxelSize()[0];
-        const openvdb::CoordBBox bb = m_grid->evalActiveVoxelBoundingBox();
-        if (bb.empty())
-            props.error("filename", fmt::format("grid '{}' in '{}' has no active voxels", m_grid->getName(), file));
-        const openvdb::Vec3d a = m_grid->indexToWorld(bb.min().asVec3d() - 1.0);
-        const openvdb::Vec3d b = m_grid->indexToWorld(bb.max().asVec3d() + 1.0);
-        m_lo = {std::min(a.x(), b.x()), std::min(a.y(), b.y()), std::min(a.z(), b.z())};
-        m_hi = {std::max(a.x(), b.x()), std::max(a.y(), b.y()), std::max(a.z(), b.z())};
-        m_name = path.filename().string() + (m_grid->getName().empty() ? "" : ":" + m_grid->getName());
-        m_background = std::abs(double(m_grid->background()));
+        m_voxel = m_grid->voxel;
+        m_name = path.filename().string() + (m_grid->grid_name.empty() ? "" : ":" + m_grid->grid_name);
         // The leaf nodes' boxes (voxel cells, world space) as 12 triangles each, for the far-field bound.
         ShapeGeometry boxes;
-        for (auto leaf = m_grid->constTree().cbeginLeaf(); leaf; ++leaf) {
-            const openvdb::CoordBBox nb = leaf->getNodeBoundingBox();
-            const openvdb::Vec3d lo = m_grid->indexToWorld(nb.min().asVec3d() - 0.5);
-            const openvdb::Vec3d hi = m_grid->indexToWorld(nb.max().asVec3d() + 0.5);
+        for (const auto& [lo, hi] : m_grid->leaf_boxes) {
             const uint32_t base = uint32_t(boxes.positions.size());
             for (int k = 0; k < 8; ++k)
-                boxes.positions.push_back(Vec3f(float(k & 1 ? hi.x() : lo.x()), float(k & 2 ? hi.y() : lo.y()),
-                                                float(k & 4 ? hi.z() : lo.z())));
+                boxes.positions.push_back(
+                    Vec3f(float(k & 1 ? hi.x : lo.x), float(k & 2 ? hi.y : lo.y), float(k & 4 ? hi.z : lo.z)));
             static const uint32_t faces[12][3] = {{0, 1, 3}, {0, 3, 2}, {4, 6, 7}, {4, 7, 5}, {0, 4, 5}, {0, 5, 1},
                                                   {2, 3, 7}, {2, 7, 6}, {0, 2, 6}, {0, 6, 4}, {1, 5, 7}, {1, 7, 3}};
             for (const auto& f : faces)
@@ -99,19 +65,16 @@ public:
         m_leaves = std::make_unique<ClosestPointQuery>(std::vector<ShapeGeometry>{std::move(boxes)});
     }
 
-    double phi(const Vec3d& p) const {
-        const openvdb::Vec3d ijk = m_grid->worldToIndex(openvdb::Vec3d(p.x, p.y, p.z));
-        return double(openvdb::tools::BoxSampler::sample(m_grid->constTree(), ijk));
-    }
+    double phi(const Vec3d& p) const { return m_grid->sample(p); }
     /// `unsigned_input`: the grid holds an unsigned distance, whose trilinear interpolation never reaches zero at
     /// the kink on the surface; the interpolation is within a voxel diagonal of the true distance (1-Lipschitz
     /// samples), so |phi| - sqrt(3) h is a lower bound that does reach zero there.
     double distance(const Vec3d& p, bool unsigned_input = false) const {
-        const openvdb::Vec3d ijk = m_grid->worldToIndex(openvdb::Vec3d(p.x, p.y, p.z));
-        double v = std::abs(double(openvdb::tools::BoxSampler::sample(m_grid->constTree(), ijk)));
+        bool in_leaf = false;
+        double v = std::abs(m_grid->sample(p, &in_leaf));
         if (!std::isfinite(v)) return v;
         if (unsigned_input) v = std::max(0.0, v - std::sqrt(3.0) * m_voxel);
-        if (m_grid->constTree().probeConstLeaf(openvdb::Coord::floor(ijk))) return v;
+        if (in_leaf) return v;
         return std::max(v, m_leaves->distance(p) - std::sqrt(3.0) * m_voxel);
     }
     Vec3d gradient(const Vec3d& p) const {
@@ -128,10 +91,11 @@ public:
     /// active box; saddles resolved by the cell's mean).
     SegmentSet contour(double z) const {
         const double h = m_voxel;
-        const int nx = int(std::ceil((m_hi.x - m_lo.x) / h)) + 1, ny = int(std::ceil((m_hi.y - m_lo.y) / h)) + 1;
+        const Vec3d lo = m_grid->lo, hi = m_grid->hi;
+        const int nx = int(std::ceil((hi.x - lo.x) / h)) + 1, ny = int(std::ceil((hi.y - lo.y) / h)) + 1;
         std::vector<double> v(std::size_t(nx) * std::size_t(ny));
         auto at = [&](int i, int j) -> double& { return v[std::size_t(j) * std::size_t(nx) + std::size_t(i)]; };
-        auto pos = [&](int i, int j) { return Vec2d(m_lo.x + i * h, m_lo.y + j * h); };
+        auto pos = [&](int i, int j) { return Vec2d(lo.x + i * h, lo.y + j * h); };
         for (int j = 0; j < ny; ++j)
             for (int i = 0; i < nx; ++i) {
                 const Vec2d q = pos(i, j);
@@ -176,16 +140,15 @@ public:
             }
         return SegmentSet(std::move(pts), std::move(segs));
     }
-    Vec3d lo() const { return m_lo; }
-    Vec3d hi() const { return m_hi; }
+    Vec3d lo() const { return m_grid->lo; }
+    Vec3d hi() const { return m_grid->hi; }
     const std::string& name() const { return m_name; }
     double voxel() const { return m_voxel; }
 
 private:
-    openvdb::FloatGrid::Ptr m_grid;
+    std::unique_ptr<kelvin::detail::VdbFloatGrid> m_grid;  // OpenVDB's grid, behind the VDB module (core/vdb_io.h)
     std::unique_ptr<ClosestPointQuery> m_leaves;
-    double m_voxel = 1, m_background = 0;
-    Vec3d m_lo{0.0}, m_hi{0.0};
+    double m_voxel = 1;
     std::string m_name;
 };
 

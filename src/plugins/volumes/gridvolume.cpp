@@ -20,11 +20,11 @@
 //
 //     <volume type="gridvolume" name="sigma_t"><string name="filename" value="smoke.vdb"/>
 //         <string name="grid" value="density"/></volume>
+#include "core/vdb_io.h"
+
 #include <kelvin/core/error.h>
 #include <kelvin/core/registry.h>
 #include <kelvin/render/medium.h>
-
-#include <openvdb/openvdb.h>
 
 #include <algorithm>
 #include <cmath>
@@ -127,84 +127,24 @@ private:
         check_finite(props, file);
     }
 
-    template <typename GridT, int C>
-    void copy_dense(const GridT& g, const openvdb::CoordBBox& bb) {
-        auto acc = g.getConstAccessor();
-        m_data.resize(std::size_t(m_res.x) * m_res.y * m_res.z * C);
-        std::size_t k = 0;
-        for (int z = 0; z < m_res.z; ++z)
-            for (int y = 0; y < m_res.y; ++y)
-                for (int x = 0; x < m_res.x; ++x) {
-                    const auto v = acc.getValue(bb.min().offsetBy(x, y, z));
-                    if constexpr (C == 1) {
-                        m_data[k++] = float(v);
-                    } else {
-                        m_data[k++] = float(v[0]);
-                        m_data[k++] = float(v[1]);
-                        m_data[k++] = float(v[2]);
-                    }
-                }
-    }
-
     Transform read_vdb(const Properties& props, const std::filesystem::path& file, const std::string& name) {
-        openvdb::initialize();
-        openvdb::GridBase::Ptr base;
-        std::vector<std::string> names;
+        detail::VdbDense d;
         try {
-            openvdb::io::File f(file.string());
-            f.open();
-            for (auto it = f.beginName(); it != f.endName(); ++it) names.push_back(it.gridName());
-            if (names.empty()) props.error("filename", fmt::format("'{}' has no grids", file.string()));
-            const std::string chosen = name.empty() ? names.front() : name;
-            if (std::find(names.begin(), names.end(), chosen) == names.end()) {
-                std::string list;
-                for (const auto& n : names) list += (list.empty() ? "'" : ", '") + n + "'";
-                props.error("grid", fmt::format("no grid named '{}' in '{}' (it has {})", chosen, file.string(), list));
-            }
-            base = f.readGrid(chosen);
-            f.close();
-        } catch (const openvdb::Exception& e) {
-            props.error("filename", fmt::format("cannot read '{}' as OpenVDB: {}", file.string(), e.what()));
+            d = detail::vdb_codec().read_dense(file, name, 1.2e9);
+        } catch (const detail::VdbInputError& e) {
+            props.error(e.param, e.what());
+        } catch (const std::runtime_error& e) {  // the OpenVDB module cannot be loaded
+            props.error("filename", e.what());
         }
-        m_source = fmt::format("grid '{}' of '{}'", base->getName(), file.string());
-        if (!base->transform().isLinear())
-            props.error("filename", fmt::format("{}: only linear grid transforms are supported", m_source));
-        openvdb::CoordBBox bb = base->evalActiveVoxelBoundingBox();
-        // No active voxels (a simulation frame before any smoke): one voxel of the background value at index 0.
-        if (bb.empty()) bb = openvdb::CoordBBox(openvdb::Coord(0), openvdb::Coord(0));
-        const openvdb::Coord dim = bb.dim();
-        m_res = {dim.x(), dim.y(), dim.z()};
-        if (double(m_res.x) * m_res.y * m_res.z > 1.2e9)
-            props.error("grid", fmt::format("{}: active bounding box {}x{}x{} is too large for a dense copy", m_source,
-                                            m_res.x, m_res.y, m_res.z));
-        if (auto g = openvdb::gridPtrCast<openvdb::FloatGrid>(base)) {
-            m_channels = 1;
-            copy_dense<openvdb::FloatGrid, 1>(*g, bb);
-        } else if (auto gd = openvdb::gridPtrCast<openvdb::DoubleGrid>(base)) {
-            m_channels = 1;
-            copy_dense<openvdb::DoubleGrid, 1>(*gd, bb);
-        } else if (auto gv = openvdb::gridPtrCast<openvdb::Vec3SGrid>(base)) {
-            m_channels = 3;
-            m_vector = true;
-            copy_dense<openvdb::Vec3SGrid, 3>(*gv, bb);
-        } else {
-            props.error("grid", fmt::format("{} has type {}; gridvolume reads float, double and vec3s grids", m_source,
-                                            base->valueType()));
-        }
+        m_source = fmt::format("grid '{}' of '{}'", d.grid_name, file.string());
+        m_res = {d.res[0], d.res[1], d.res[2]};
+        m_channels = d.channels;
+        m_vector = d.channels == 3;
+        m_data = std::move(d.data);
         check_finite(props, file);
         // local [0,1]^3 -> index space (voxel centres at integers) -> the grid's world space.
-        const auto& xf = base->transform();
-        const openvdb::Vec3d o = xf.indexToWorld(openvdb::Vec3d(0, 0, 0));
-        const openvdb::Vec3d ex = xf.indexToWorld(openvdb::Vec3d(1, 0, 0)) - o,
-                             ey = xf.indexToWorld(openvdb::Vec3d(0, 1, 0)) - o,
-                             ez = xf.indexToWorld(openvdb::Vec3d(0, 0, 1)) - o;
-        Mat4d index_to_world(1.0);
-        index_to_world[0] = glm::dvec4(ex.x(), ex.y(), ex.z(), 0);
-        index_to_world[1] = glm::dvec4(ey.x(), ey.y(), ey.z(), 0);
-        index_to_world[2] = glm::dvec4(ez.x(), ez.y(), ez.z(), 0);
-        index_to_world[3] = glm::dvec4(o.x(), o.y(), o.z(), 1);
-        const Vec3d lo = Vec3d(bb.min().x(), bb.min().y(), bb.min().z()) - 0.5;
-        return Transform(index_to_world) * Transform::translate(lo) * Transform::scale(Vec3d(m_res));
+        const Vec3d lo = Vec3d(d.bbox_min[0], d.bbox_min[1], d.bbox_min[2]) - 0.5;
+        return Transform(d.index_to_world) * Transform::translate(lo) * Transform::scale(Vec3d(m_res));
     }
 
     void check_finite(const Properties& props, const std::filesystem::path& file) {

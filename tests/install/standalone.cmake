@@ -1,0 +1,70 @@
+# Run by tests/install/CMakeLists.txt (ctest install_standalone). Fails with a message at the first problem.
+function(run_checked)
+  cmake_parse_arguments(R "" "OUTPUT;WORKING_DIRECTORY" "COMMAND" ${ARGN})
+  if(NOT R_WORKING_DIRECTORY)
+    set(R_WORKING_DIRECTORY ${WORK})
+  endif()
+  # Nothing of the environment may point back at the build or the source tree.
+  execute_process(COMMAND ${CMAKE_COMMAND} -E env --unset=KELVIN_DATA_DIR --unset=KELVIN_PLOT_SCRIPT
+                          --unset=LD_LIBRARY_PATH --unset=KELVIN_PLUGIN_PATH ${R_COMMAND}
+                  WORKING_DIRECTORY ${R_WORKING_DIRECTORY} RESULT_VARIABLE rc OUTPUT_VARIABLE out ERROR_VARIABLE err)
+  if(NOT rc EQUAL 0)
+    message(FATAL_ERROR "failed (${rc}): ${R_COMMAND}\n${out}\n${err}")
+  endif()
+  if(R_OUTPUT)
+    set(${R_OUTPUT} "${out}${err}" PARENT_SCOPE)
+  endif()
+endfunction()
+
+file(REMOVE_RECURSE ${PREFIX} ${WORK})
+file(MAKE_DIRECTORY ${WORK})
+run_checked(COMMAND ${CMAKE_COMMAND} --install ${BUILD_DIR} --prefix ${PREFIX} OUTPUT _ignored)
+set(kelvin ${PREFIX}/bin/kelvin)
+set(data ${PREFIX}/share/kelvin)
+foreach(f scenes/tests/tiny.xml docs/cli.md examples/plugins/CMakeLists.txt tools/plot_convergence.py
+          tools/plot_fluid.py)
+  if(NOT EXISTS ${data}/${f})
+    message(FATAL_ERROR "not installed: ${data}/${f}")
+  endif()
+endforeach()
+
+# --help names the installed data directory (not the build's or the source's).
+run_checked(COMMAND ${kelvin} --help OUTPUT help)
+string(FIND "${help}" "${data}/scenes" at)
+if(at EQUAL -1)
+  message(FATAL_ERROR "kelvin --help does not name ${data}/scenes:\n${help}")
+endif()
+
+# A scene from the installation renders.
+run_checked(COMMAND ${kelvin} ${data}/scenes/tests/tiny.xml -q -o ${WORK}/tiny.png)
+if(NOT EXISTS ${WORK}/tiny.png)
+  message(FATAL_ERROR "no image written")
+endif()
+
+# kelvin converge --plot with the installed plot script (skipped without Debian's python3-matplotlib).
+if(PYTHON)
+  execute_process(COMMAND ${PYTHON} -c "import matplotlib" RESULT_VARIABLE no_mpl OUTPUT_QUIET ERROR_QUIET)
+endif()
+if(PYTHON AND NOT no_mpl)
+  run_checked(COMMAND ${kelvin} converge ${data}/scenes/fluid/taylor_green.xml -D res=16 -D end=0.1 -D dt=0.05
+                      --sweep spp=4,16 --times 0.05,0.1 --runs 2 -t 1 -o ${WORK}/study --plot OUTPUT conv)
+  file(GLOB plots ${WORK}/study/plots/*.png)
+  if(NOT plots)
+    message(FATAL_ERROR "kelvin converge --plot wrote no plot:\n${conv}")
+  endif()
+else()
+  message(STATUS "install_standalone: converge --plot not checked (no python3-matplotlib)")
+endif()
+
+# find_package(Kelvin) from the prefix alone, and data_directory() from a host program.
+run_checked(COMMAND ${CMAKE_COMMAND} -S ${HOST_SOURCE} -B ${WORK}/host -G ${GENERATOR}
+                    -DCMAKE_CXX_COMPILER=${CXX_COMPILER} -DCMAKE_MAKE_PROGRAM=${MAKE_PROGRAM}
+                    -DCMAKE_PREFIX_PATH=${PREFIX} -DCMAKE_FIND_USE_PACKAGE_REGISTRY=OFF -DCMAKE_BUILD_TYPE=Release
+            OUTPUT _ignored)
+run_checked(COMMAND ${CMAKE_COMMAND} --build ${WORK}/host OUTPUT _ignored)
+run_checked(COMMAND ${WORK}/host/data_dir_check OUTPUT host)
+string(FIND "${host}" "data_directory: ${data}" at)
+if(at EQUAL -1)
+  message(FATAL_ERROR "the host program's data_directory() is not the installation's:\n${host}")
+endif()
+message(STATUS "install_standalone: OK (${PREFIX})")
