@@ -1,10 +1,12 @@
 #!/usr/bin/python3
 """Plots of the per-step diagnostics CSV that every Kelvin fluid simulation writes (docs/fluid.md).
 
-    tools/plot_fluid.py RUN.csv [MORE.csv ...] [--labels A,B,...] [--out PREFIX] [--table FILE]
-    tools/plot_fluid.py --montage PREFIX[,PREFIX...] --steps 0,20,40 [--labels A,B,...] [--dye] --out FILE.png
+    tools/plot_fluid.py RUN [MORE ...] [--labels A,B,...] [--out PREFIX] [--table FILE]
+    tools/plot_fluid.py --montage RUN[,RUN...] --steps 0,20,40 [--labels A,B,...] [--dye] --out FILE.png
 
-Writes PREFIX.png and PREFIX.svg (default PREFIX: the first CSV's path without .csv, plus "_plot"): one panel per
+RUN is a run's folder (what `kelvin scene.xml -o out/run.exr` writes into out/run/) or its diagnostics CSV.
+
+Writes PREFIX.png and PREFIX.svg (default PREFIX: RUN/plot for the first run): one panel per
 diagnostic against simulated time, one curve per CSV (e.g. mcfluid, vortex_particles and stable_fluids runs of
 the same scene):
   kinetic energy (noise-corrected for mcfluid; dashed: the raw estimate when it differs), enstrophy,
@@ -13,8 +15,9 @@ the same scene):
 Prints (and with --table writes) a Markdown table per CSV: steps, end time, mean seconds per step, energy and
 enstrophy at the end relative to t = 0, and the final RMSE against the exact solution.
 
---montage puts the frames PREFIX_NNNN.png (or PREFIX_dye_NNNN.png with --dye) of several runs side by side: one
-row per run, one column per step, titled with the simulated time from PREFIX.csv (like the thesis' Figure 5.10).
+--montage puts the frames RUN/vorticity_NNNN.png (or RUN/dye_NNNN.png with --dye) of several runs side by side: one
+row per run, one column per step, titled with the simulated time from RUN/diagnostics.csv (like the thesis' Figure
+5.10). (Every run also writes RUN/montage.png by itself: up to 8 of its frames, without titles.)
 
 Needs Python 3 with matplotlib (Debian: python3-matplotlib; tools/setup.sh installs it). Exit status 2 on bad
 input (a missing file, a CSV without the expected columns).
@@ -79,18 +82,36 @@ def table(rows):
     return "\n".join(out) + "\n"
 
 
-def frame_path(prefix, step, dye):
-    tag = "_dye" if dye else ""
+def run_dir(path):
+    """A run's folder from the folder itself or its diagnostics.csv."""
+    return os.path.dirname(path) if path.endswith(".csv") else path
+
+
+def run_csv(path):
+    """A run's diagnostics CSV from the folder or the CSV itself."""
+    return path if path.endswith(".csv") else os.path.join(path, "diagnostics.csv")
+
+
+def run_label(path):
+    """The run's name: its folder's name (a CSV not named diagnostics.csv: its own name)."""
+    if path.endswith(".csv") and os.path.basename(path) != "diagnostics.csv":
+        return os.path.splitext(os.path.basename(path))[0]
+    return os.path.basename(os.path.normpath(run_dir(path))) or "run"
+
+
+def frame_path(run, step, dye):
+    kind = "dye" if dye else "vorticity"
     for digits in range(4, 13):
-        p = f"{prefix}{tag}_{step:0{digits}d}.png"
+        p = os.path.join(run_dir(run), f"{kind}_{step:0{digits}d}.png")
         if os.path.isfile(p):
             return p
-    fail(f"no frame {prefix}{tag}_{step:04d}.png (was the run made with output_every dividing {step}?)")
+    fail(f"no frame {os.path.join(run_dir(run), f'{kind}_{step:04d}.png')} (was the run made with output_every "
+         f"dividing {step}?)")
 
 
 def montage(a, plt, image):
     prefixes = a.montage.split(",")
-    labels = a.labels.split(",") if a.labels else [os.path.basename(p) for p in prefixes]
+    labels = a.labels.split(",") if a.labels else [run_label(p) for p in prefixes]
     if len(labels) != len(prefixes):
         fail(f"{len(labels)} label(s) for {len(prefixes)} run(s)")
     if not a.steps:
@@ -100,8 +121,8 @@ def montage(a, plt, image):
         fail("--montage needs --out FILE.png")
     times = {}
     for p in prefixes:
-        if os.path.isfile(p + ".csv"):
-            c = read_csv(p + ".csv")
+        if os.path.isfile(run_csv(p)):
+            c = read_csv(run_csv(p))
             times[p] = dict(zip((int(x) for x in c["step"]), c["time"]))
     size = a.cell
     fig, axes = plt.subplots(len(prefixes), len(steps), figsize=(size * len(steps), size * len(prefixes) + 0.3),
@@ -124,8 +145,8 @@ def montage(a, plt, image):
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("csv", nargs="*", help="diagnostics CSV(s) written by a fluid simulation")
-    ap.add_argument("--montage", help="comma-separated output prefixes whose frames to put side by side")
+    ap.add_argument("csv", nargs="*", help="runs: folders written by a fluid simulation, or their diagnostics CSVs")
+    ap.add_argument("--montage", help="comma-separated run folders whose frames to put side by side")
     ap.add_argument("--steps", help="--montage: comma-separated steps (columns)")
     ap.add_argument("--dye", action="store_true", help="--montage: the dye frames")
     ap.add_argument("--cell", type=float, default=1.3, help="--montage: inches per frame")
@@ -148,11 +169,15 @@ def main():
     if not a.csv:
         fail("give at least one CSV (or --montage)")
 
-    labels = a.labels.split(",") if a.labels else [os.path.splitext(os.path.basename(p))[0] for p in a.csv]
+    labels = a.labels.split(",") if a.labels else [run_label(p) for p in a.csv]
     if len(labels) != len(a.csv):
-        fail(f"{len(labels)} label(s) for {len(a.csv)} CSV file(s)")
-    runs = [(lab, read_csv(p)) for lab, p in zip(labels, a.csv)]
-    out = a.out or os.path.splitext(a.csv[0])[0] + "_plot"
+        fail(f"{len(labels)} label(s) for {len(a.csv)} run(s)")
+    runs = [(lab, read_csv(run_csv(p))) for lab, p in zip(labels, a.csv)]
+    first = a.csv[0]
+    if first.endswith(".csv") and os.path.basename(first) != "diagnostics.csv":
+        out = a.out or os.path.splitext(first)[0] + "_plot"
+    else:
+        out = a.out or os.path.join(run_dir(first), "plot")
 
     has_exact = any(any(not math.isnan(v) for v in c.get("vorticity_rmse_exact", [])) for _, c in runs)
     panels = [("kinetic_energy", "kinetic energy  ½∫|u|²", False), ("enstrophy", "enstrophy  ½∫ω²", False),

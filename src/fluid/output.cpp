@@ -45,30 +45,6 @@ Bitmap field_image(const Grid2& omega, const Grid2* u, const Grid2* v, double ra
     return img;
 }
 
-OutputPaths::OutputPaths(const std::filesystem::path& output, const std::string& name) {
-    if (output.empty()) return;
-    std::error_code ec;
-    if (std::filesystem::is_directory(output, ec)) {
-        prefix = output / name;
-        return;
-    }
-    prefix = output;
-    prefix.replace_extension();
-}
-
-std::filesystem::path OutputPaths::frame(long long step, int digits, const std::string& ext) const {
-    std::filesystem::path p = prefix;
-    p += fmt::format("_{:0{}d}{}", step, digits, ext);
-    return p;
-}
-
-std::filesystem::path OutputPaths::frame(long long step, int digits, const std::string& ext,
-                                         const std::string& tag) const {
-    std::filesystem::path p = prefix;
-    p += fmt::format("_{}_{:0{}d}{}", tag, step, digits, ext);
-    return p;
-}
-
 void refuse_non_finite_values(const std::string& who, long long step, double max_abs_vorticity,
                               std::initializer_list<std::pair<double, const char*>> scalars,
                               const std::vector<FieldValues>& fields) {
@@ -129,18 +105,6 @@ double exact_vorticity_rmse(const Grid2& omega, const VorticityField& field, dou
     return std::sqrt(s / double(omega.cell_count()));
 }
 
-void write_dye_frame(const OutputPaths& paths, long long step, int digits, const PassiveScalars* dye, bool png,
-                     bool exr, std::vector<std::filesystem::path>& written) {
-    if (!dye || !paths.enabled() || (!png && !exr)) return;
-    const Bitmap img = dye->image();
-    for (const char* ext : {".png", ".exr"}) {
-        if ((ext[1] == 'p' && !png) || (ext[1] == 'e' && !exr)) continue;
-        const auto p = paths.frame(step, digits, ext, "dye");
-        write_image(p, img);
-        written.push_back(p);
-    }
-}
-
 void report_dye_stats(Stats& stats, const PassiveScalars* dye) {
     const DyeWork w = dye ? dye->work() : DyeWork{};
     stats.add("fluid.dye_lookups", double(w.lookups), "lookups");
@@ -150,12 +114,6 @@ void report_dye_stats(Stats& stats, const PassiveScalars* dye) {
 }
 
 std::string dye_effect(const DyeSpec* spec) { return spec ? "dye " + spec->description() : std::string("dye none"); }
-
-std::filesystem::path OutputPaths::csv() const {
-    std::filesystem::path p = prefix;
-    p += ".csv";
-    return p;
-}
 
 DiagnosticsCsv::DiagnosticsCsv(const std::filesystem::path& path)
     : m_path(path), m_atomic(std::make_unique<AtomicFile>(path)) {

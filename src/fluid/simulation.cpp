@@ -58,6 +58,7 @@ SimulationParams SimulationParams::parse(const Properties& props, const std::str
     p.write_exr = props.get_bool("write_exr");
     p.write_csv = props.get_bool("write_csv");
     p.color_range = props.get_float("color_range", 0.0, 1e300);
+    p.frames = FrameStyle::parse(props);
 
     if (auto obj = props.get_object("vorticity");
         obj && !dynamic_cast<const VorticityField*>(obj.get()) && dynamic_cast<const VorticityField3*>(obj.get()))
@@ -146,29 +147,18 @@ RunResult run_fluid_solver(const std::string& who, FluidSolver& solver, const Si
     std::optional<DiagnosticsCsv> csv;
     RunResult result;
     result.work_unit = "steps";
+    FrameWriter frames(paths, p.output_every, p.write_png, p.write_exr, p.frames, p.steps, result.files_written);
     if (paths.enabled() && p.write_csv) {
         csv.emplace(paths.csv());
         result.files_written.push_back(paths.csv());
     }
     const double range = p.color_range > 0 ? p.color_range : solver.vorticity_grid().max_abs();
-    const int digits = std::max(4, int(std::to_string(p.steps).size()));
-    double output_seconds = 0;
     auto image = [&] {
         return field_image(solver.vorticity_grid(), &solver.velocity_u(), &solver.velocity_v(), range);
     };
     auto write_frame = [&] {
-        if (!paths.enabled() || p.output_every == 0 || (!p.write_png && !p.write_exr)) return;
-        Timer t;
-        const Bitmap img = image();
-        for (const char* ext : {".png", ".exr"}) {
-            if ((ext[1] == 'p' && !p.write_png) || (ext[1] == 'e' && !p.write_exr)) continue;
-            const auto f = paths.frame(solver.step_index(), digits, ext);
-            write_image(f, img);
-            result.files_written.push_back(f);
-        }
-        write_dye_frame(paths, solver.step_index(), digits, solver.dye(), p.write_png, p.write_exr,
-                        result.files_written);
-        output_seconds += t.seconds();
+        if (frames.enabled())
+            frames.write_2d(solver.step_index(), image(), range, nullptr, p.domain.min, p.domain.max, solver.dye());
     };
     auto diagnostics = [&] {
         FluidDiagnostics d = solver.diagnostics();
@@ -215,7 +205,7 @@ RunResult run_fluid_solver(const std::string& who, FluidSolver& solver, const Si
         const double seconds = step_timer.seconds();
         if (csv) csv->write(d, seconds, solver.evaluations() - evals_before, solver.invalid() - invalid_before);
         ++done;
-        if (p.output_every > 0 && (s % p.output_every == 0 || s == p.steps)) write_frame();
+        if (frames.due(s)) write_frame();
         progress.update(1);
         if (ctx.write_partial > 0 && ctx.write_partial_image && since_partial.seconds() >= ctx.write_partial) {
             ctx.write_partial_image(image());
@@ -238,7 +228,8 @@ RunResult run_fluid_solver(const std::string& who, FluidSolver& solver, const Si
     ctx.stats.set("fluid.time_simulated", solver.time(), "");
     ctx.stats.add("fluid.cells", double(solver.vorticity_grid().cell_count()), "cells");
     solver.report(ctx.stats);
-    ctx.stats.add_time("fluid.time.output", output_seconds);
+    frames.finish();
+    ctx.stats.add_time("fluid.time.output", frames.seconds());
     report_dye_stats(ctx.stats, solver.dye());
     if (solver.invalid() > 0) log_warn("{}: {} non-finite value(s) were replaced by zero", who, solver.invalid());
 

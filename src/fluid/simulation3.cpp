@@ -63,6 +63,7 @@ Simulation3Params Simulation3Params::parse(const Properties& props) {
     if (props.has("write_exr") && props.get_bool("write_exr"))
         props.error("write_exr", "3D frames are OpenVDB files (write_vdb) and PNG slices (write_png); set it false");
     p.color_range = props.get_float("color_range", 0.0, 1e300);
+    p.frames = FrameStyle::parse(props);
     const std::string axis = props.get_choice("slice_axis", {"x", "y", "z"});
     p.slice_axis = axis == "x" ? 0 : (axis == "y" ? 1 : 2);
 
@@ -202,6 +203,8 @@ RunResult run_mcfluid3(const Simulation3Params& p, RunContext& ctx) {
     OutputPaths paths(ctx.output);
     RunResult result;
     result.work_unit = "steps";
+    // The data frames are the .vdb files (the EXR role of 2D).
+    FrameWriter frames(paths, p.output_every, p.write_png, p.write_vdb, p.frames, p.steps, result.files_written);
     std::string csv =
         "step,time,kinetic_energy,kinetic_energy_raw,enstrophy,helicity,impulse_x,impulse_y,impulse_z,centroid_x,"
         "centroid_y,centroid_z,max_abs_vorticity,divergence_rms,smoke_mass,step_seconds,biot_savart_evals,invalid\n";
@@ -217,22 +220,14 @@ RunResult run_mcfluid3(const Simulation3Params& p, RunContext& ctx) {
     const VectorGrid3& omega0 = solver.vorticity_grid();
     const double range =
         p.color_range > 0 ? p.color_range : (axis == 0 ? omega0.x : (axis == 1 ? omega0.y : omega0.z)).max_abs();
-    const int digits = std::max(4, int(std::to_string(p.steps).size()));
-    double output_seconds = 0;
     auto write_frame = [&]() {
-        if (!paths.enabled() || p.output_every == 0) return;
-        Timer t;
-        if (p.write_vdb) {
-            auto path = paths.frame(solver.step_index(), digits, ".vdb");
-            write_vdb_frame(path, solver.vorticity_grid(), &solver.velocity_grid(), solver.smoke());
-            result.files_written.push_back(path);
-        }
-        if (p.write_png) {
-            auto path = paths.frame(solver.step_index(), digits, ".png");
-            write_image(path, slice_image(solver.vorticity_grid(), axis, range));
-            result.files_written.push_back(path);
-        }
-        output_seconds += t.seconds();
+        if (!frames.enabled()) return;
+        if (p.write_vdb)
+            frames.write_data("fields", solver.step_index(), ".vdb", [&](const std::filesystem::path& path) {
+                write_vdb_frame(path, solver.vorticity_grid(), &solver.velocity_grid(), solver.smoke());
+            });
+        frames.write_png("vorticity", solver.step_index(), slice_image(solver.vorticity_grid(), axis, range), "value",
+                         range, {0, 0}, {1, 1});
     };
 
     // Nothing non-finite reaches the CSV or a frame: diagnostics and every grid an output carries are checked first.
@@ -295,7 +290,7 @@ RunResult run_mcfluid3(const Simulation3Params& p, RunContext& ctx) {
         add_row(
             d, step_timer.seconds(), double(after.biot_savart_evals - before.biot_savart_evals),
             (after.invalid_velocity + after.invalid_vorticity) - (before.invalid_velocity + before.invalid_vorticity));
-        if (p.output_every > 0 && (step % p.output_every == 0 || step == p.steps)) write_frame();
+        if (frames.due(step)) write_frame();
         progress.update(1);
         if (ctx.write_partial > 0 && ctx.write_partial_image && since_partial.seconds() >= ctx.write_partial) {
             ctx.write_partial_image(slice_image(solver.vorticity_grid(), axis, range));
@@ -327,7 +322,8 @@ RunResult run_mcfluid3(const Simulation3Params& p, RunContext& ctx) {
         ctx.stats.add("fluid.wos_walks", 0.0, "walks");
     }
     ctx.stats.add("fluid.smoke_lookups", double(w.smoke_lookups), "lookups");
-    ctx.stats.add_time("fluid.time.output", output_seconds);
+    frames.finish();
+    ctx.stats.add_time("fluid.time.output", frames.seconds());
     if (w.invalid_velocity + w.invalid_vorticity > 0)
         log_warn(
             "mcfluid: {} non-finite velocity estimate(s) and {} non-finite vorticity value(s) were replaced by zero",

@@ -220,9 +220,11 @@ TEST_F(CliInform, SimulationProgressSummaryAndEveryFileNamed) {
     for (const auto& l : r.err_lines())
         if (l.rfind("wrote ", 0) == 0) named.insert(l.substr(6));
     std::set<std::string> on_disk;
-    for (const auto& e : fs::directory_iterator(m_dir / "run")) on_disk.insert(e.path().string());
+    for (const auto& e : fs::recursive_directory_iterator(m_dir / "run"))
+        if (e.is_regular_file()) on_disk.insert(e.path().string());
     EXPECT_EQ(named, on_disk) << describe(r);
-    EXPECT_GE(on_disk.size(), 5u);  // the image, the CSV, frames
+    EXPECT_GE(on_disk.size(), 5u);  // the image, the CSV, frames, the montage
+    EXPECT_TRUE(on_disk.count((m_dir / "run" / "tg" / "montage.png").string())) << describe(r);
 }
 
 // ----- --stats

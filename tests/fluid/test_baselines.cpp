@@ -240,14 +240,14 @@ TEST(Baselines, OneWordSwitchesTheSolver) {
         kelvin::RunResult r = job->run(ctx);
         EXPECT_EQ(fired, 1) << type;
         EXPECT_EQ(r.work, 2) << type;
-        std::ifstream csv(dir.path() / "run.csv");
+        std::ifstream csv(dir.path() / "run" / "diagnostics.csv");
         std::string header, row;
         std::getline(csv, header);
         EXPECT_EQ(header, DiagnosticsCsv::header()) << type;
         std::getline(csv, row);
         EXPECT_NE(row.substr(row.rfind(',') + 1), "") << type << ": TG has an exact solution";
-        for (const char* f : {"run_0002.png", "run_0002.exr", "run_dye_0001.png", "run_dye_0002.exr"})
-            EXPECT_TRUE(fs::exists(dir.path() / f)) << type << " " << f;
+        for (const char* f : {"vorticity_0002.png", "fields_0002.exr", "dye_0001.png", "dye_0002.exr", "montage.png"})
+            EXPECT_TRUE(fs::exists(dir.path() / "run" / f)) << type << " " << f;
         EXPECT_EQ(ctx.stats.get("fluid.dye_lookups"), 16.0 * 16 * 2) << type;
         EXPECT_EQ(ctx.stats.get("fluid.steps"), 2.0) << type;
         EXPECT_EQ(r.image.width(), 16) << type;

@@ -51,7 +51,7 @@ const std::string kLamb = R"(<vorticity type="lamb_oseen"><float name="radius" v
 
 // Effects on demand: without a <scalar> no dye exists and the counters stay at zero; with one, every step reads
 // cells x channels values (a coloured dye: 3 channels), the effects line names it, and frames
-// <prefix>_dye_NNNN.png/.exr appear beside the vorticity frames.
+// dye_NNNN.png/.exr appear beside the vorticity frames in the run's folder.
 TEST(FluidInputs, DyeWorkOnlyWhenDeclared) {
     for (bool with_dye : {false, true}) {
         ktest::TempDir dir;
@@ -73,11 +73,11 @@ TEST(FluidInputs, DyeWorkOnlyWhenDeclared) {
             if (msg.find("mcfluid: effects:") != std::string::npos)
                 named = msg.find(with_dye ? "dye pattern(stripes" : "dye none") != std::string::npos;
         EXPECT_TRUE(named) << "the effects line names the dye";
-        EXPECT_EQ(fs::exists(dir.path() / "run_dye_0002.png"), with_dye);
-        EXPECT_EQ(fs::exists(dir.path() / "run_dye_0003.exr"), with_dye);
-        EXPECT_TRUE(fs::exists(dir.path() / "run_0002.png"));
+        EXPECT_EQ(fs::exists(dir.path() / "run" / "dye_0002.png"), with_dye);
+        EXPECT_EQ(fs::exists(dir.path() / "run" / "dye_0003.exr"), with_dye);
+        EXPECT_TRUE(fs::exists(dir.path() / "run" / "vorticity_0002.png"));
         if (with_dye) {
-            Bitmap img = read_image(dir.path() / "run_dye_0000.exr");
+            Bitmap img = read_image(dir.path() / "run" / "dye_0000.exr");
             EXPECT_EQ(img.width(), 16);
             // Stripes of width 0.3 with an edge at y = 0: the cell centred at y = 0.0625 (row 7 from the top) is
             // in stripe 0 (value 1: color1 = blue).
@@ -127,7 +127,7 @@ TEST(FluidInputs, BitmapVorticityAndDye) {
         ctx.quiet = true;
         ctx.output = dir.path() / "out.exr";
         job->run(ctx);
-        return read_image(dir.path() / "out_0000.exr");
+        return read_image(dir.path() / "out" / "fields_0000.exr");
     };
     const std::string png_path = (dir.path() / "w.png").string(), exr_path = (dir.path() / "w.exr").string();
     Bitmap f = run(R"(<vorticity type="bitmap"><string name="filename" value=")" + png_path +
@@ -136,7 +136,7 @@ TEST(FluidInputs, BitmapVorticityAndDye) {
     const int cw = f.channel_index("vorticity");
     ASSERT_GE(cw, 0);
     for (int k = 0; k < 4; ++k) EXPECT_NEAR(f.at(k % 2, k / 2, cw), 4 * (stored[k] - 0.5), 1e-5) << k;
-    Bitmap d = read_image(dir.path() / "out_dye_0000.exr");
+    Bitmap d = read_image(dir.path() / "out" / "dye_0000.exr");
     for (int k = 0; k < 4; ++k) EXPECT_NEAR(d.at(k % 2, k / 2, 0), srgb_to_linear(stored[k]), 1e-5) << k;
 
     f = run(R"(<vorticity type="bitmap"><string name="filename" value=")" + exr_path + R"("/></vorticity>)", "");

@@ -153,8 +153,9 @@ TEST(FluidScene, InviscidRunDoesNoDiffusionWork) {
     }
 }
 
-// The files of a run: <prefix>.csv with a header and one row per state, frames every N steps (and the last),
-// PNG colour map and EXR with named channels; the run's image carries the same channels.
+// The files of a run, in the folder named after the output (run.exr -> run/): diagnostics.csv with a header and
+// one row per state, frames every N steps (and the last): PNG colour map at frame_size, EXR with named channels at
+// the grid's resolution, a montage; the run's image carries the same channels.
 TEST(FluidScene, WritesCsvAndFrames) {
     TempDir dir;
     auto job = load(scene(R"(<integer name="steps" value="5"/><integer name="output_every" value="2"/>)"));
@@ -163,7 +164,8 @@ TEST(FluidScene, WritesCsvAndFrames) {
     ctx.seed = 3;
     ctx.output = dir.path() / "run.exr";
     RunResult r = job->run(ctx);
-    std::ifstream csv(dir.path() / "run.csv");
+    const fs::path run = dir.path() / "run";
+    std::ifstream csv(run / "diagnostics.csv");
     ASSERT_TRUE(csv.good());
     std::string header, line;
     std::getline(csv, header);
@@ -177,25 +179,37 @@ TEST(FluidScene, WritesCsvAndFrames) {
         if (!line.empty()) ++rows;
     EXPECT_EQ(rows, 6);  // states 0..5
     for (int step : {0, 2, 4, 5}) {
-        char name[32];
-        std::snprintf(name, sizeof name, "run_%04d", step);
-        EXPECT_TRUE(fs::exists(dir.path() / (std::string(name) + ".png"))) << name;
-        ASSERT_TRUE(fs::exists(dir.path() / (std::string(name) + ".exr"))) << name;
+        const std::string n = fmt::format("_{:04d}", step);
+        EXPECT_TRUE(fs::exists(run / ("vorticity" + n + ".png"))) << n;
+        ASSERT_TRUE(fs::exists(run / ("fields" + n + ".exr"))) << n;
     }
-    EXPECT_FALSE(fs::exists(dir.path() / "run_0001.png"));
+    EXPECT_FALSE(fs::exists(run / "vorticity_0001.png"));
     EXPECT_FALSE(fs::exists(dir.path() / "run.exr"));  // the CLI writes the final image, not the job
-    Bitmap frame = read_image(dir.path() / "run_0004.exr");
+    Bitmap frame = read_image(run / "fields_0004.exr");
     EXPECT_GE(frame.channel_index("vorticity"), 0);
     EXPECT_GE(frame.channel_index("u"), 0);
     EXPECT_GE(frame.channel_index("v"), 0);
     EXPECT_EQ(frame.width(), 16);
-    EXPECT_EQ(r.files_written.size(), 1u + 4 * 2);
-    // Output directory form: an existing directory gets <dir>/mcfluid.*
+    // PNG frames for people: 512 pixels across (frame_size), the colour map of the EXR's vorticity: where a cell's
+    // vorticity is the largest, the pixel at its centre is the warmest.
+    Bitmap png = read_image(run / "vorticity_0004.png");
+    EXPECT_EQ(png.width(), 512);
+    EXPECT_EQ(png.height(), 512);
+    const int cw = frame.channel_index("vorticity");
+    int bi = 0, bj = 0;
+    for (int j = 0; j < 16; ++j)
+        for (int i = 0; i < 16; ++i)
+            if (frame.at(i, j, cw) > frame.at(bi, bj, cw)) bi = i, bj = j;
+    const int px = bi * 32 + 16, py = bj * 32 + 16;  // the cell's centre in the frame
+    EXPECT_GT(png.at(px, py, 0), png.at(px, py, 2)) << "the largest vorticity is not red";
+    EXPECT_TRUE(fs::exists(run / "montage.png"));
+    EXPECT_EQ(r.files_written.size(), 1u + 4 * 2 + 1);  // CSV, 4 x (PNG, EXR), montage
+    // Output directory form: an existing directory gets <dir>/mcfluid/
     RunContext ctx2;
     ctx2.quiet = true;
     ctx2.output = dir.path();
     load(scene(R"(<integer name="steps" value="1"/>)"))->run(ctx2);
-    EXPECT_TRUE(fs::exists(dir.path() / "mcfluid.csv"));
+    EXPECT_TRUE(fs::exists(dir.path() / "mcfluid" / "diagnostics.csv"));
 }
 
 // Every shipped scene loads, and runs one tiny step with -D overrides (keeps scenes/fluid/ valid).
@@ -228,7 +242,7 @@ TEST(FluidScene, CliEndToEnd) {
                       "\" -q -t 2 -D res=16 -D spp=8 -D end=0.1 -D every=0 -o \"" + out.string() + "\"";
     ASSERT_EQ(std::system(cmd.c_str()), 0) << cmd;
     EXPECT_TRUE(fs::exists(out));
-    EXPECT_TRUE(fs::exists(dir.path() / "tg.csv"));
+    EXPECT_TRUE(fs::exists(dir.path() / "tg" / "diagnostics.csv"));
     std::string bad = std::string("\"") + KELVIN_CLI + "\" \"" + scene_path.string() +
                       "\" -q -D res=16 -D interpolation=cubic -o \"" + out.string() + "\" 2>/dev/null";
     EXPECT_EQ(WEXITSTATUS(std::system(bad.c_str())), 2);
@@ -343,7 +357,7 @@ TEST(FluidScene3D, RunWritesCsvVdbAndSlicesAndOnlyRequestedWork) {
     ctx.output = dir.path() / "abc.png";
     RunResult r = job->run(ctx);
     EXPECT_EQ(r.work, 2);
-    std::ifstream csv(dir.path() / "abc.csv");
+    std::ifstream csv(dir.path() / "abc" / "diagnostics.csv");
     std::string header, line;
     std::getline(csv, header);
     for (const char* col :
@@ -353,8 +367,9 @@ TEST(FluidScene3D, RunWritesCsvVdbAndSlicesAndOnlyRequestedWork) {
     int rows = 0;
     while (std::getline(csv, line)) ++rows;
     EXPECT_EQ(rows, 3);
-    EXPECT_TRUE(fs::exists(dir.path() / "abc_0002.png"));
-    const fs::path vdb = dir.path() / "abc_0002.vdb";
+    EXPECT_TRUE(fs::exists(dir.path() / "abc" / "vorticity_0002.png"));
+    EXPECT_EQ(read_image(dir.path() / "abc" / "vorticity_0002.png").width(), 512);  // a slice at frame_size
+    const fs::path vdb = dir.path() / "abc" / "fields_0002.vdb";
     ASSERT_TRUE(fs::exists(vdb));
     openvdb::initialize();
     openvdb::io::File f(vdb.string());
@@ -401,7 +416,7 @@ TEST(FluidScene3D, SphereObstacleSceneRunsOnWalks) {
     EXPECT_EQ(ctx.stats.get("fluid.biot_savart_evals"), 0.0);
     EXPECT_GT(ctx.stats.get("fluid.solid_cells"), 0.0);
     EXPECT_EQ(ctx.stats.get("fluid.wos_invalid"), 0.0);
-    std::ifstream csv(dir.path() / "sphere.csv");
+    std::ifstream csv(dir.path() / "sphere" / "diagnostics.csv");
     std::string line;
     std::getline(csv, line);
     int rows = 0;
@@ -411,7 +426,7 @@ TEST(FluidScene3D, SphereObstacleSceneRunsOnWalks) {
         EXPECT_EQ(line.find("inf"), std::string::npos) << line;
     }
     EXPECT_EQ(rows, 3);
-    EXPECT_TRUE(fs::exists(dir.path() / "sphere_0002.vdb"));
+    EXPECT_TRUE(fs::exists(dir.path() / "sphere" / "fields_0002.vdb"));
 }
 
 // The CSV's vorticity_rmse_exact is computed only where the exact solution holds (issue 16, item 7): Taylor–Green
@@ -425,7 +440,7 @@ TEST(FluidScene, ExactErrorOnlyWhereTheExactSolutionHolds) {
         ctx.quiet = true;
         ctx.output = dir.path() / "run.png";
         job->run(ctx);
-        std::ifstream csv(dir.path() / "run.csv");
+        std::ifstream csv(dir.path() / "run" / "diagnostics.csv");
         std::string line, last;
         while (std::getline(csv, line)) last = line;
         return last.substr(last.rfind(',') + 1);
@@ -507,7 +522,7 @@ TEST(FluidScene, NonFiniteStateIsRefusedBeforeOutput) {
         EXPECT_CONTAINS(e.what(), "overflows");
         EXPECT_FALSE(std::string(e.what()).find('\n') != std::string::npos) << "one line";
     }
-    std::ifstream csv(dir.path() / "huge.csv");
+    std::ifstream csv(dir.path() / "huge" / "diagnostics.csv");
     std::string text((std::istreambuf_iterator<char>(csv)), std::istreambuf_iterator<char>());
     EXPECT_EQ(text.find("inf"), std::string::npos) << text;
 }
@@ -545,7 +560,7 @@ TEST(FluidScene, OverflowingFlowIsRefusedNotZeroed) {
             EXPECT_CONTAINS(e.what(), "refused before output");
             EXPECT_FALSE(std::string(e.what()).find('\n') != std::string::npos) << "one line";
         }
-        std::ifstream csv(dir.path() / "huge.csv");
+        std::ifstream csv(dir.path() / "huge" / "diagnostics.csv");
         std::string text((std::istreambuf_iterator<char>(csv)), std::istreambuf_iterator<char>());
         EXPECT_EQ(text.find("\n1,"), std::string::npos) << "no row of the refused state:\n" << text;
     }

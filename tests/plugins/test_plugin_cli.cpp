@@ -330,9 +330,11 @@ TEST_F(PluginCli, OutOfTreeVelocityEstimatorInAScene) {
     ASSERT_EQ(r.exit_code, 0) << describe(r);
     auto b = run_kelvin({VortexScene.string(), "-q", "-D", "velocity=biot_savart", "-o", ref.string()});
     ASSERT_EQ(b.exit_code, 0) << describe(b);
-    ASSERT_TRUE(fs::exists(m_dir / "plugin.csv"));
-    ASSERT_TRUE(fs::exists(m_dir / "builtin.csv"));
-    const double e = initial_energy(m_dir / "plugin.csv"), e0 = initial_energy(m_dir / "builtin.csv");
+    const fs::path plugin_csv = m_dir / "plugin" / "diagnostics.csv",
+                   builtin_csv = m_dir / "builtin" / "diagnostics.csv";
+    ASSERT_TRUE(fs::exists(plugin_csv));
+    ASSERT_TRUE(fs::exists(builtin_csv));
+    const double e = initial_energy(plugin_csv), e0 = initial_energy(builtin_csv);
     EXPECT_GT(e0, 0.0);
     EXPECT_NEAR(e / e0, 1.0, 0.08) << "plugin " << e << ", built-in " << e0;
 }

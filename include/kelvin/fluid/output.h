@@ -3,6 +3,8 @@
 // Shared by every <simulation> plugin so that solvers can be compared file for file.
 #include <kelvin/core/files.h>
 #include <kelvin/core/image.h>
+#include <kelvin/core/properties.h>
+#include <kelvin/core/registry.h>
 #include <kelvin/core/stats.h>
 #include <kelvin/fluid/dye.h>
 #include <kelvin/fluid/fields.h>
@@ -11,6 +13,7 @@
 
 #include <cstdio>
 #include <filesystem>
+#include <functional>
 #include <initializer_list>
 #include <memory>
 #include <string>
@@ -27,17 +30,105 @@ Color3 diverging_colormap(double t);
 /// when given, "u" and "v". `range` <= 0 means max |omega|.
 Bitmap field_image(const Grid2& omega, const Grid2* u, const Grid2* v, double range);
 
-/// Where a simulation writes its files. `output` is RunContext::output: an existing directory gives the
-/// prefix <dir>/<name>; a file name gives its path without extension ("out/run.exr" -> "out/run"); empty
-/// means no files.
+/// Where a simulation writes its files: one folder per run, named after the output. `output` is RunContext::output
+/// (the CLI's `-o`): a file name gives the folder of the same path without extension ("out/run.exr" -> "out/run/",
+/// beside the final image "out/run.exr" that the CLI writes); an existing directory D gives "D/<name>/"; empty
+/// means no files. Inside: diagnostics.csv, <kind>_NNNN.<ext> frames (kind: vorticity, fields, dye, ...),
+/// montage.png, <kind>.mp4.
 struct OutputPaths {
     explicit OutputPaths(const std::filesystem::path& output, const std::string& name = "mcfluid");
-    bool enabled() const { return !prefix.empty(); }
-    std::filesystem::path frame(long long step, int digits, const std::string& ext) const;  ///< <prefix>_0010.png
-    /// A tagged frame: <prefix>_<tag>_0010.png (dye frames use the tag "dye").
-    std::filesystem::path frame(long long step, int digits, const std::string& ext, const std::string& tag) const;
-    std::filesystem::path csv() const;  ///< <prefix>.csv
-    std::filesystem::path prefix;
+    bool enabled() const { return !dir.empty(); }
+    /// Creates the folder (and its parents); RuntimeError naming it when that fails (a file of that name exists).
+    void create() const;
+    std::filesystem::path file(const std::string& name) const { return dir / name; }
+    /// <dir>/<kind>_0010.png
+    std::filesystem::path frame(const std::string& kind, long long step, int digits, const std::string& ext) const;
+    std::filesystem::path csv() const { return dir / "diagnostics.csv"; }
+    std::filesystem::path dir;
+};
+
+/// What a PNG frame draws over the flow: solids filled grey, and boundaries (walls, solid outlines, thin sheets)
+/// as dark lines. Either function may be empty.
+struct FrameOverlay {
+    std::function<bool(Vec2d)> solid;       ///< inside a solid
+    std::function<double(Vec2d)> distance;  ///< distance to the nearest boundary
+    bool fixed = true;                      ///< the boundaries never move (the mask is computed once per size)
+    explicit operator bool() const { return bool(solid) || bool(distance); }
+};
+
+/// The overlay of `width` x `height` pixels over the box [lo, hi] (top row = largest y), one byte per pixel:
+/// 0 flow, 1 solid, 2 boundary line (within 0.75 pixel of a boundary: lines 1.5 pixels wide).
+std::vector<uint8_t> overlay_mask(const FrameOverlay& overlay, int width, int height, Vec2d lo, Vec2d hi);
+
+/// How PNG frames look and what is made of them at the end of a run (every simulation's frame_size, montage,
+/// write_video and video_fps parameters; KELVIN_FRAME_STYLE_PARAMS declares them).
+struct FrameStyle {
+    int size = 512;       ///< pixels along the longer side of a PNG frame; 0: one pixel per cell
+    bool montage = true;  ///< montage.png: up to 8 frames of the run, evenly spaced, left to right, top to bottom
+    bool video = false;   ///< <kind>.mp4 of the PNG frames (ffmpeg)
+    double fps = 24;
+    /// Reads and checks them: write_video without an `ffmpeg` on PATH is an InputError at write_video.
+    static FrameStyle parse(const Properties& props);
+};
+
+#define KELVIN_FRAME_STYLE_PARAMS                                                                             \
+    kelvin::param::integer("frame_size", 512, "PNG frames: pixels along the longer side (0: one per cell)"),  \
+        kelvin::param::boolean("montage", true, "write montage.png: up to 8 frames of the run side by side"), \
+        kelvin::param::boolean("write_video", false, "write <kind>.mp4 of the PNG frames (needs ffmpeg)"),    \
+        kelvin::param::real("video_fps", 24.0, "frames per second of the video")
+
+/// A display image of `fields` (one pixel per cell, top row = largest y): channel `channel` bilinearly resampled
+/// to the centres of `width` x `height` pixels and colour-mapped over [-range, range]; with `channel` null, R, G
+/// and B resampled as they are (a dye's colours). `mask` (overlay_mask of the same size; may be null) paints
+/// solids grey and boundary lines dark.
+Bitmap display_frame(const Bitmap& fields, const char* channel, double range, int width, int height,
+                     const std::vector<uint8_t>* mask = nullptr);
+
+/// The frames of one run: PNGs resized and overlaid for people, EXRs (fields, one pixel per cell) and VDBs as
+/// data, every file appended to `written`; at finish(), montage.png and the videos. Used by every simulation.
+class FrameWriter {
+public:
+    /// `every`: a frame every N steps and at the last step (0: none); `png`, `exr`: which formats; `steps`: the
+    /// run's length (for the numbering's width and the montage's choice of frames). Creates the folder.
+    FrameWriter(const OutputPaths& paths, long long every, bool png, bool exr, const FrameStyle& style, long long steps,
+                std::vector<std::filesystem::path>& written);
+    bool enabled() const { return m_paths.enabled() && m_every > 0 && (m_png || m_exr); }
+    bool due(long long step) const { return m_every > 0 && (step % m_every == 0 || step == m_steps); }
+    /// A 2D state: `fields` from field_image (its "vorticity" channel is shown) and the dye, if any.
+    void write_2d(long long step, const Bitmap& fields, double range, const FrameOverlay* overlay, Vec2d lo, Vec2d hi,
+                  const PassiveScalars* dye);
+    /// A PNG frame of kind `kind` from `fields`' channel `channel` (3D: a slice's "value").
+    void write_png(const std::string& kind, long long step, const Bitmap& fields, const char* channel, double range,
+                   Vec2d lo, Vec2d hi);
+    /// A data file of kind `kind` written by `write` (3D: the .vdb frames).
+    void write_data(const std::string& kind, long long step, const std::string& ext,
+                    const std::function<void(const std::filesystem::path&)>& write);
+    /// montage.png and, with write_video, one .mp4 per PNG kind. A failed video is a warning (the frames are there).
+    void finish();
+    /// Seconds spent writing so far.
+    double seconds() const { return m_seconds; }
+
+private:
+    struct Thumb {
+        long long step;
+        Bitmap image;
+    };
+    std::pair<int, int> frame_size(int nx, int ny) const;
+    void add_png(const std::string& kind, long long step, const Bitmap& image);
+    const std::vector<uint8_t>* mask(const FrameOverlay* overlay, long long step, int w, int h, Vec2d lo, Vec2d hi);
+    OutputPaths m_paths;
+    long long m_every, m_steps;
+    bool m_png, m_exr;
+    FrameStyle m_style;
+    int m_digits;
+    std::vector<std::filesystem::path>& m_written;
+    std::vector<std::pair<std::string, std::vector<std::filesystem::path>>> m_png_frames;  // by kind, in order
+    std::vector<long long> m_montage_steps;
+    std::vector<Thumb> m_thumbs;  // the main kind's frames at m_montage_steps
+    std::vector<uint8_t> m_mask;  // the last overlay mask, kept while its size is asked for and the overlay is fixed
+    int m_mask_w = 0, m_mask_h = 0;
+    long long m_mask_step = -1;
+    double m_seconds = 0;
 };
 
 /// The counters every MCFluid run reports (the 2D FluidWork and the 3D FluidWork3 share these names).
@@ -85,11 +176,6 @@ void refuse_non_finite_values(const std::string& who, long long step, double max
 /// or `bounded`: solid boundaries change the flow).
 double exact_vorticity_rmse(const Grid2& omega, const VorticityField& field, double t, double viscosity,
                             bool bounded = false);
-
-/// Writes the dye frames <prefix>_dye_NNNN.png (display colours) and .exr (display colours and the raw
-/// channels) when `dye` is not null; appends the files to `written`.
-void write_dye_frame(const OutputPaths& paths, long long step, int digits, const PassiveScalars* dye, bool png,
-                     bool exr, std::vector<std::filesystem::path>& written);
 
 /// The dye's counters and timer into `stats` (zeros without dye, so that "no dye work" is visible):
 /// fluid.dye_lookups, fluid.dye_diffusion_samples, fluid.dye_invalid, fluid.time.dye.

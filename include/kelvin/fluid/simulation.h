@@ -10,6 +10,7 @@
 #include <kelvin/fluid/dye.h>
 #include <kelvin/fluid/fields.h>
 #include <kelvin/fluid/mcfluid.h>
+#include <kelvin/fluid/output.h>
 
 #include <functional>
 #include <memory>
@@ -37,6 +38,7 @@ struct SimulationParams {
     long long output_every = 0;
     bool write_png = true, write_exr = true, write_csv = true;
     double color_range = 0;
+    FrameStyle frames;     ///< frame_size, montage, write_video, video_fps
     int nx = 64, ny = 64;  ///< <cache type="grid"> resolution (square cells when resolution_y = 0)
     std::shared_ptr<VorticityField> field;
     std::shared_ptr<DyeSpec> dye;
@@ -94,23 +96,23 @@ FluidDiagnostics grid_diagnostics(const Grid2& omega, const Grid2& u, const Grid
 }  // namespace kelvin::fluid
 
 /// The parameter declarations shared by the baseline simulations (same names and defaults as mcfluid).
-#define KELVIN_FLUID_SIMULATION_PARAMS                                                                       \
-    kelvin::param::integer("dimension", 2, "2 (3D is not implemented)"),                                     \
-        kelvin::param::point("min", kelvin::Vec3d(-1.0, -1.0, 0.0), "domain box corner (z = 0)"),            \
-        kelvin::param::point("max", kelvin::Vec3d(1.0, 1.0, 0.0), "domain box corner (z = 0)"),              \
-        kelvin::param::boolean("periodic", false, "periodic box (true) or open (false)"),                    \
-        kelvin::param::real("dt", 0.05, "time step"),                                                        \
-        kelvin::param::integer("steps", 0, "number of steps (or give end_time)"),                            \
-        kelvin::param::real("end_time", 0.0, "simulated time (or give steps)"),                              \
-        kelvin::param::real("viscosity", 0.0, "kinematic viscosity nu (0: inviscid)"),                       \
-        kelvin::param::integer("diffusion_samples", 1, "mcfluid's n_d; accepted and ignored"),               \
-        kelvin::param::string("advection", "rk4", "'euler' or 'rk4'"),                                       \
-        kelvin::param::integer("output_every", 0, "write PNG/EXR frames every N steps (0: none)"),           \
-        kelvin::param::boolean("write_png", true, "write frames as PNG"),                                    \
-        kelvin::param::boolean("write_exr", true, "write frames as EXR"),                                    \
-        kelvin::param::boolean("write_csv", true, "write <prefix>.csv diagnostics per step"),                \
-        kelvin::param::real("color_range", 0.0, "|omega| mapped to full colour (0: max at t = 0)"),          \
-        kelvin::param::object("vorticity", "vorticity", "initial vorticity field", true),                    \
-        kelvin::param::object("velocity", "velocity", "mcfluid's velocity estimator; accepted and ignored"), \
-        kelvin::param::object("cache", "cache", "grid: its resolution is the solver's (default 64)"),        \
+#define KELVIN_FLUID_SIMULATION_PARAMS                                                                               \
+    kelvin::param::integer("dimension", 2, "2 (3D is not implemented)"),                                             \
+        kelvin::param::point("min", kelvin::Vec3d(-1.0, -1.0, 0.0), "domain box corner (z = 0)"),                    \
+        kelvin::param::point("max", kelvin::Vec3d(1.0, 1.0, 0.0), "domain box corner (z = 0)"),                      \
+        kelvin::param::boolean("periodic", false, "periodic box (true) or open (false)"),                            \
+        kelvin::param::real("dt", 0.05, "time step"),                                                                \
+        kelvin::param::integer("steps", 0, "number of steps (or give end_time)"),                                    \
+        kelvin::param::real("end_time", 0.0, "simulated time (or give steps)"),                                      \
+        kelvin::param::real("viscosity", 0.0, "kinematic viscosity nu (0: inviscid)"),                               \
+        kelvin::param::integer("diffusion_samples", 1, "mcfluid's n_d; accepted and ignored"),                       \
+        kelvin::param::string("advection", "rk4", "'euler' or 'rk4'"),                                               \
+        kelvin::param::integer("output_every", 0, "write PNG/EXR frames every N steps (0: none)"),                   \
+        kelvin::param::boolean("write_png", true, "write frames as PNG"),                                            \
+        kelvin::param::boolean("write_exr", true, "write frames as EXR"),                                            \
+        kelvin::param::boolean("write_csv", true, "write diagnostics.csv, one row per step"),                        \
+        kelvin::param::real("color_range", 0.0, "|omega| mapped to full colour (0: max at t = 0)"),                  \
+        KELVIN_FRAME_STYLE_PARAMS, kelvin::param::object("vorticity", "vorticity", "initial vorticity field", true), \
+        kelvin::param::object("velocity", "velocity", "mcfluid's velocity estimator; accepted and ignored"),         \
+        kelvin::param::object("cache", "cache", "grid: its resolution is the solver's (default 64)"),                \
         kelvin::param::object("scalar", "scalar", "passive scalar (dye) advected with the flow (optional)")

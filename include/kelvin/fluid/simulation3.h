@@ -1,20 +1,22 @@
 #pragma once
 // The 3D side of <simulation type="mcfluid"> (dimension = 3): its parameters, its run loop and its outputs.
 //
-// Outputs (RunContext::output is a prefix, as in 2D):
-//   <prefix>.csv          one row per state: step, time, kinetic_energy, kinetic_energy_raw, enstrophy,
-//                         helicity, impulse_x/y/z, centroid_x/y/z, max_abs_vorticity, divergence_rms, smoke_mass,
-//                         step_seconds, biot_savart_evals, invalid
-//   <prefix>_NNNN.vdb     every output_every steps (and the last): OpenVDB float grid "vorticity_magnitude",
-//                         vector grids "vorticity" and "velocity" (voxel = cache cell, world-space transform),
-//                         and "density" with smoke
-//   <prefix>_NNNN.png     a slice through the middle of the box normal to `slice_axis`, the vorticity component
-//                         along that axis colour-mapped (blue negative, red positive)
+// Outputs, in the run's folder (output.h, OutputPaths: "-o out/ring.png" gives "out/ring/"), as in 2D:
+//   diagnostics.csv        one row per state: step, time, kinetic_energy, kinetic_energy_raw, enstrophy,
+//                          helicity, impulse_x/y/z, centroid_x/y/z, max_abs_vorticity, divergence_rms, smoke_mass,
+//                          step_seconds, biot_savart_evals, invalid
+//   fields_NNNN.vdb        every output_every steps (and the last): OpenVDB float grid "vorticity_magnitude",
+//                          vector grids "vorticity" and "velocity" (voxel = cache cell, world-space transform),
+//                          and "density" with smoke
+//   vorticity_NNNN.png     a slice through the middle of the box normal to `slice_axis`, the vorticity component
+//                          along that axis colour-mapped (blue negative, red positive), frame_size pixels wide
+//   montage.png, vorticity.mp4 (write_video)
 // and the last slice image is the run's image (the CLI writes it to -o).
 #include <kelvin/core/job.h>
 #include <kelvin/core/properties.h>
 #include <kelvin/fluid/fields.h>
 #include <kelvin/fluid/mcfluid3.h>
+#include <kelvin/fluid/output.h>
 
 #include <filesystem>
 #include <memory>
@@ -28,6 +30,7 @@ struct Simulation3Params {
     long long output_every = 0;
     bool write_png = true, write_vdb = true, write_csv = true;
     double color_range = 0;
+    FrameStyle frames;                  ///< frame_size, montage, write_video, video_fps
     int slice_axis = 1;                 ///< 0 x, 1 y, 2 z
     std::shared_ptr<SmokeSpec3> smoke;  ///< null: no smoke, no scalar work
     std::shared_ptr<Object> field_object;

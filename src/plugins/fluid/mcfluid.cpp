@@ -4,10 +4,13 @@
 // Gaussian displacements of variance 2 nu dt (Eq. 5.22). The solver is assembled from what the scene
 // declares: an inviscid scene never runs the diffusion step; 2D never evaluates stretching.
 //
-// Outputs (RunContext::output is a prefix: "out/run.exr" -> "out/run"; an existing directory D -> "D/mcfluid"):
-//   <prefix>.csv          diagnostics per step (energy, enstrophy, circulation, max |omega|, timings)
-//   <prefix>_NNNN.png     colour-mapped vorticity every `output_every` steps (and the last step)
-//   <prefix>_NNNN.exr     channels R, G, B (colour map), vorticity, u, v at the cell centres
+// Outputs, in the run's folder (output.h, OutputPaths: "out/run.exr" -> "out/run/"; a directory D -> "D/mcfluid/"):
+//   diagnostics.csv        diagnostics per step (energy, enstrophy, circulation, max |omega|, timings)
+//   vorticity_NNNN.png     colour-mapped vorticity every `output_every` steps (and the last step), frame_size
+//                          pixels wide, solids and walls drawn
+//   fields_NNNN.exr        channels R, G, B (colour map), vorticity, u, v at the cell centres
+//   dye_NNNN.png/.exr      the dye, with a <scalar>
+//   montage.png, vorticity.mp4 and dye.mp4 (write_video)
 // and the final state is returned as the run's image (the CLI writes it to -o). The run's seed is --seed;
 // --spp overrides n_mc; --time-limit stops after the step that exceeds it; --write-partial writes the
 // current state to -o every N seconds.
@@ -28,6 +31,10 @@
 // | write_exr         | boolean | true      | frames as EXR                                                 |
 // | write_csv         | boolean | true      | diagnostics CSV                                               |
 // | color_range       | float   | 0         | |omega| mapped to full colour; 0: max |omega| at t = 0         |
+// | frame_size        | integer | 512       | PNG frames: pixels along the longer side (0: one per cell)    |
+// | montage           | boolean | true      | montage.png: up to 8 frames of the run                        |
+// | write_video       | boolean | false     | <kind>.mp4 of the PNG frames (ffmpeg on PATH)                 |
+// | video_fps         | float   | 24        | the video's frame rate                                        |
 // | stretching        | boolean | true      | 3D: vortex stretching (Eq. 5.21); false only to study it      |
 // | control_variates  | boolean | false     | 3D: previous step as control variate (Eq. 5.23)               |
 // | initial_samples   | integer | 0         | 3D, control variates: n_mc of the first velocity (0: n_mc)    |
@@ -108,6 +115,7 @@ public:
         m_write_exr = p.write_exr;
         m_write_csv = p.write_csv;
         m_color_range = p.color_range;
+        m_frames = p.frames;
         m_field = p.field;
         m_dye = p.dye;
         m_settings.diffusion_samples = int(props.get_int("diffusion_samples", 1, 1 << 20));
@@ -184,27 +192,27 @@ public:
         std::optional<DiagnosticsCsv> csv;
         RunResult result;
         result.work_unit = "steps";
+        FrameWriter frames(paths, m_output_every, m_write_png, m_write_exr, m_frames, m_steps, result.files_written);
         if (paths.enabled() && m_write_csv) {
             csv.emplace(paths.csv());
             result.files_written.push_back(paths.csv());
         }
         const double range = m_color_range > 0 ? m_color_range : solver.vorticity_grid().max_abs();
-        const int digits = std::max(4, int(std::to_string(m_steps).size()));
-        double output_seconds = 0;
+        // PNG frames draw the solids and the walls of the state's boundaries (moving solids where they are).
+        FrameOverlay overlay;
+        if (settings.boundaries)
+            for (const auto& shape : settings.boundaries->shapes)
+                if (shape->role().moving()) overlay.fixed = false;
         auto write_frame = [&](bool uv) {  // uv: the state's velocity channels (estimated if not yet)
-            if (!paths.enabled() || m_output_every == 0 || (!m_write_png && !m_write_exr)) return;
-            Timer t;
-            Bitmap img = field_image(solver.vorticity_grid(), uv ? &solver.velocity_u() : nullptr,
-                                     uv ? &solver.velocity_v() : nullptr, range);
-            for (const char* ext : {".png", ".exr"}) {
-                if ((ext[1] == 'p' && !m_write_png) || (ext[1] == 'e' && !m_write_exr)) continue;
-                auto p = paths.frame(solver.step_index(), digits, ext);
-                write_image(p, img);
-                result.files_written.push_back(p);
+            if (!frames.enabled()) return;
+            if (const WosVelocityField* b = solver.boundary_field()) {
+                overlay.solid = [b](Vec2d x) { return b->solid_at(x) >= 0; };
+                overlay.distance = [b](Vec2d x) { return b->distance(x); };
             }
-            write_dye_frame(paths, solver.step_index(), digits, solver.dye(), m_write_png, m_write_exr,
-                            result.files_written);
-            output_seconds += t.seconds();
+            const Bitmap img = field_image(solver.vorticity_grid(), uv ? &solver.velocity_u() : nullptr,
+                                           uv ? &solver.velocity_v() : nullptr, range);
+            frames.write_2d(solver.step_index(), img, range, overlay ? &overlay : nullptr, settings.domain.min,
+                            settings.domain.max, solver.dye());
         };
 
         // Checkpoints (core/checkpoint.h): the state after the steps that reach them, fields on the cache grid.
@@ -304,7 +312,7 @@ public:
                 csv->write(d, seconds, double(after.biot_savart_evals - before.biot_savart_evals),
                            (after.invalid_velocity + after.invalid_vorticity) -
                                (before.invalid_velocity + before.invalid_vorticity));
-            if (m_output_every > 0 && (s % m_output_every == 0 || s == m_steps)) write_frame(true);
+            if (frames.due(s)) write_frame(true);
             progress.update(1);
             if (ctx.write_partial > 0 && ctx.write_partial_image && since_partial.seconds() >= ctx.write_partial) {
                 ctx.write_partial_image(
@@ -329,7 +337,8 @@ public:
                      {w.wos_walks, w.wos_steps, w.wos_truncated, w.wos_invalid, w.wos_boundary_queries}, "mcfluid",
                      settings.boundaries ? settings.boundaries->wos.max_steps : 0);
         ctx.stats.add("fluid.solid_departures", double(w.solid_departures), "points");
-        ctx.stats.add_time("fluid.time.output", output_seconds);
+        frames.finish();
+        ctx.stats.add_time("fluid.time.output", frames.seconds());
         report_dye_stats(ctx.stats, solver.dye());
         if (w.invalid_velocity + w.invalid_vorticity > 0)
             log_warn(
@@ -375,6 +384,7 @@ private:
     long long m_output_every = 0;
     bool m_write_png = true, m_write_exr = true, m_write_csv = true;
     double m_color_range = 0;
+    FrameStyle m_frames;
     std::shared_ptr<VorticityField> m_field;
     std::shared_ptr<DyeSpec> m_dye;
     std::unique_ptr<Simulation3Params> m_3d;  ///< dimension = 3
@@ -400,8 +410,9 @@ KELVIN_PLUGIN(kelvin::fluid::MCFluid, "simulation", "mcfluid",
               kelvin::param::integer("output_every", 0, "write PNG/EXR frames every N steps (0: none)"),
               kelvin::param::boolean("write_png", true, "write frames as PNG (colour-mapped vorticity)"),
               kelvin::param::boolean("write_exr", true, "write frames as EXR (vorticity, u, v channels)"),
-              kelvin::param::boolean("write_csv", true, "write <prefix>.csv diagnostics per step"),
+              kelvin::param::boolean("write_csv", true, "write diagnostics.csv, one row per step"),
               kelvin::param::real("color_range", 0.0, "|omega| mapped to full colour (0: max at t = 0)"),
+              KELVIN_FRAME_STYLE_PARAMS,
               kelvin::param::boolean("stretching", true, "3D: vortex stretching (Eq. 5.21); off only to study it"),
               kelvin::param::boolean("control_variates", false, "3D: previous step as control variate (Eq. 5.23)"),
               kelvin::param::integer("initial_samples", 0, "3D with control variates: n_mc of the first velocity"),
