@@ -139,6 +139,16 @@ ObjectPtr Registry::create(const Properties& props_in, bool allow_unused) const 
     ObjectPtr obj;
     try {
         obj = info.factory(props);
+    } catch (const InputError& e) {
+        // An error inside an asset the plugin read (a mesh, a polyline file: located in that file, not in the
+        // scene) also names the scene element that loaded it, so that both places are on the one line.
+        const std::string& file = e.location().file;
+        const auto& entries = props.entries();
+        const bool in_scene =
+            file == props.location().file ||
+            std::any_of(entries.begin(), entries.end(), [&](const auto& en) { return en.loc.file == file; });
+        if (in_scene || !props.location().valid()) throw;
+        throw InputError(props.location(), fmt::format("<{} type=\"{}\">: {}", info.kind, info.name, e.what()));
     } catch (const Error&) {
         throw;
     } catch (const std::exception& e) {

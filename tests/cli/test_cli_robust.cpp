@@ -95,6 +95,31 @@ TEST_F(CliRobust, DeviceInputFilesAreRefusedAtTheirElement) {
     }
 }
 
+// An error inside an asset names both places on its one line: the asset's file and line, and the scene element
+// that loaded it (issue 20, item 5). Before: only the asset ("bad.obj:3: ..."), so in a scene loading many meshes
+// nothing said which element was at fault. (Checked failing with the rewrapping in Registry::create removed.)
+TEST_F(CliRobust, AssetErrorsNameTheAssetLineAndTheSceneElement) {
+    write_file(m_dir / "bad.obj", "v 0 0 0\nv 1 0 0\nf 1 2 7\n");
+    write_file(m_dir / "bad.poly", "v 0 0\nv 1 0\nv 1 oops\nl 1 2 3\n");
+    struct Case {
+        std::string name, text, element, asset;
+    };
+    const std::vector<Case> cases = {
+        {"obj", render_scene_naming("<shape type=\"obj\">", "</shape>", (m_dir / "bad.obj").string()),
+         ":6:5:", (m_dir / "bad.obj").string() + ":3"},
+        {"polyline", fluid_scene_naming("polyline", (m_dir / "bad.poly").string()),
+         ":4:13:", (m_dir / "bad.poly").string() + ":3"},
+    };
+    for (const Case& c : cases) {
+        SCOPED_TRACE(c.name);
+        const fs::path s = scene(c.name + ".xml", c.text);
+        auto r = run_kelvin({s.string(), "-q", "-o", (m_dir / (c.name + ".exr")).string()}, {}, 20s);
+        const std::string line = expect_one_error_line(r, 2);
+        EXPECT_NE(line.find(s.string() + c.element), std::string::npos) << line;
+        EXPECT_NE(line.find(c.asset), std::string::npos) << line;
+    }
+}
+
 // An output that cannot be written is refused before any work, with the path and the reason: a directory, a
 // directory that takes no file (/proc, even for root). Before: the render ran to its end (here: 60 s of
 // --time-limit) and then failed with exit code 1, its work lost.
