@@ -29,13 +29,15 @@ if(NOT _rc EQUAL 0)
   message(FATAL_ERROR "building the fuzzer failed (${_rc})")
 endif()
 
-# Fresh seed corpus every run: the repository's scenes and the XML test fixtures.
+# Fresh seed corpus every run: the repository's scenes, the XML test fixtures and the checked-in seeds of
+# tests/fuzz/corpus (parser features the scenes do not use: entities, CDATA, deep nesting, refs, defaults, ...).
 set(_corpus ${WORK_DIR}/corpus)
 set(_artifacts ${WORK_DIR}/artifacts)
 set(_cwd ${WORK_DIR}/cwd)  # empty working directory: relative <include>s made up by the fuzzer find nothing
 file(REMOVE_RECURSE ${_corpus} ${_artifacts} ${_cwd})
 file(MAKE_DIRECTORY ${_corpus} ${_artifacts} ${_cwd})
-file(GLOB_RECURSE _seeds ${KELVIN_SOURCE_DIR}/scenes/*.xml ${KELVIN_SOURCE_DIR}/tests/data/*.xml)
+file(GLOB_RECURSE _seeds ${KELVIN_SOURCE_DIR}/scenes/*.xml ${KELVIN_SOURCE_DIR}/tests/data/*.xml
+     ${KELVIN_SOURCE_DIR}/tests/fuzz/corpus/*)
 set(_n 0)
 foreach(_s IN LISTS _seeds)
   get_filename_component(_name ${_s} NAME)
