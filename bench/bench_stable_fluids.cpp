@@ -3,7 +3,10 @@
 // Benchmark: the configurations run interleaved (round r runs every configuration once, then round r + 1), so
 // that a change of the machine's load hits all of them alike; medians over the rounds.
 //
-//   build/bin/bench_stable_fluids [--rounds 3] [--tolerance 1e-5] [--euler] [--cg512] [--sizes 128,256,512]
+//   build/bin/bench_stable_fluids [--rounds 3] [--tolerance 1e-5] [--euler] [--cg512] [--sizes 128,256,512] [--flip]
+//
+// --flip adds the FLIP baseline (issue 16, item 2: 6 particles per cell on the same grid and projection) on both
+// scenes with the default projection.
 //
 // Scenes: Taylor–Green on the periodic [-pi, pi]^2 (fft, multigrid, cg) and a Lamb–Oseen vortex beside a disk
 // obstacle of radius 0.3 in the closed box [-1, 1]^2 (multigrid, cg). CPU time is the process's (all threads);
@@ -42,9 +45,11 @@ struct Config {
     int n;
     Projection projection;
     int threads;
+    bool flip = false;
     std::string key() const {
         char buf[128];
-        std::snprintf(buf, sizeof buf, "%-5s %4d^2 %-9s %dT", scene.c_str(), n, to_string(projection), threads);
+        std::snprintf(buf, sizeof buf, "%-5s %4d^2 %-9s %dT%s", scene.c_str(), n, to_string(projection), threads,
+                      flip ? " flip" : "");
         return buf;
     }
 };
@@ -60,6 +65,7 @@ Sample run(const Config& c, double tolerance, Advection adv) {
     s.projection = c.projection;
     s.tolerance = tolerance;
     s.advection = adv;
+    if (c.flip) s.transport = Transport::FLIP;
     InitialField omega;
     double dt;
     if (c.scene == "tg") {
@@ -97,7 +103,7 @@ int main(int argc, char** argv) {
     int rounds = 3;
     double tolerance = 1e-5;
     Advection adv = Advection::RK4;
-    bool cg512 = false;
+    bool cg512 = false, flip = false;
     std::vector<int> sizes = {128, 256, 512};
     for (int a = 1; a < argc; ++a) {
         const std::string arg = argv[a];
@@ -109,6 +115,8 @@ int main(int argc, char** argv) {
             adv = Advection::Euler;
         else if (arg == "--cg512")
             cg512 = true;
+        else if (arg == "--flip")
+            flip = true;
         else if (arg == "--sizes" && a + 1 < argc) {
             sizes.clear();
             for (char* t = std::strtok(argv[++a], ","); t; t = std::strtok(nullptr, ",")) sizes.push_back(std::atoi(t));
@@ -124,6 +132,10 @@ int main(int argc, char** argv) {
                 if (p != Projection::CG || n < 512 || cg512) configs.push_back({"tg", n, p, t});
             for (Projection p : {Projection::Multigrid, Projection::CG})
                 if (p != Projection::CG || n < 512 || cg512) configs.push_back({"disk", n, p, t});
+            if (flip) {
+                configs.push_back({"tg", n, Projection::FFT, t, true});
+                configs.push_back({"disk", n, Projection::Multigrid, t, true});
+            }
         }
     std::map<std::string, std::vector<Sample>> samples;
     for (int r = 0; r < rounds; ++r)

@@ -4,6 +4,7 @@
 #include <kelvin/core/error.h>
 #include <kelvin/core/interrupt.h>
 #include <kelvin/core/parallel.h>
+#include <kelvin/core/random.h>
 #include <kelvin/core/stats.h>
 #include <kelvin/fluid/stable_fluids.h>
 
@@ -264,6 +265,144 @@ StableFluidsSolver::StableFluidsSolver(const StableFluidsSettings& settings, con
         close_faces();
         project();
     }
+    if (m_settings.transport == Transport::FLIP) {
+        if (!(m_settings.flip_ratio >= 0 && m_settings.flip_ratio <= 1))
+            throw_runtime("StableFluidsSolver: flip_ratio must be in [0, 1] (got {})", m_settings.flip_ratio);
+        if (m_settings.particles_per_cell < 1 || m_settings.particles_per_cell > 256)
+            throw_runtime("StableFluidsSolver: particles_per_cell must be in [1, 256] (got {})",
+                          m_settings.particles_per_cell);
+        extrapolate_into_solids();
+        m_cell_count.assign(cells, 0);
+        m_uw.assign(m_uf.size(), 0.0);
+        m_vw.assign(m_vf.size(), 0.0);
+        for (int j = 0; j < ny; ++j)
+            for (int i = 0; i < nx; ++i)
+                if (!solid_cell(i, j))
+                    seed_particles(i, j, m_settings.particles_per_cell,
+                                   std::size_t(j) * std::size_t(nx) + std::size_t(i));
+        m_particles_seeded = 0;  // counts reseeding only
+    }
+}
+
+// `count` particles in cell (i, j), stratified over a near-square lattice of sub-cells and jittered (stream
+// `stream` of the run's seed: the same particles whatever the thread count), with the grid's velocity there.
+void StableFluidsSolver::seed_particles(int i, int j, int count, uint64_t stream) {
+    Random rng(m_settings.seed ^ 0x666c6970ULL, stream);
+    const int sx = int(std::ceil(std::sqrt(double(count)))), sy = (count + sx - 1) / sx;
+    const Vec2d h = m_omega.h(), corner = m_settings.domain.min + Vec2d(i * h.x, j * h.y);
+    for (int k = 0; k < count; ++k) {
+        const double u = rng.next_double(), v = rng.next_double();
+        const Vec2d x = corner + Vec2d((k % sx + u) / sx * h.x, (k / sx + v) / sy * h.y);
+        m_px.push_back(x);
+        m_pv.push_back(velocity(x));
+    }
+    m_particles_seeded += uint64_t(count);
+}
+
+void StableFluidsSolver::flip_transport(double dt) {
+    const Domain2& d = m_settings.domain;
+    const int nx = m_settings.nx;
+    const Vec2d h = m_omega.h();
+    auto cell_of = [&](Vec2d x) {
+        const int i = std::clamp(int(std::floor((x.x - d.min.x) / h.x)), 0, nx - 1);
+        const int j = std::clamp(int(std::floor((x.y - d.min.y) / h.y)), 0, m_settings.ny - 1);
+        return std::size_t(j) * std::size_t(nx) + std::size_t(i);
+    };
+    // Advection: the backtrace's integrator run forward (RK4 or Euler through the frozen velocity; wrapped in a
+    // periodic box, clamped to a closed one). A particle that would end in a solid cell stays where it was.
+    const std::size_t chunks = (m_px.size() + 4095) / 4096;
+    std::vector<uint64_t> blocked(chunks, 0);
+    parallel_rows(chunks, [&](std::size_t chunk) {
+        const std::size_t end = std::min(m_px.size(), (chunk + 1) * 4096);
+        for (std::size_t k = chunk * 4096; k < end; ++k) {
+            const Vec2d x = backtrace(m_px[k], -dt);
+            if (!m_solid.empty() && m_solid[cell_of(x)]) {
+                ++blocked[chunk];
+                continue;
+            }
+            m_px[k] = x;
+        }
+    });
+    for (uint64_t b : blocked) m_particles_blocked += b;
+    m_backtraces += uint64_t(m_px.size());
+    reseed_particles();
+    particles_to_grid();
+    m_uf_next = m_uf;
+    m_vf_next = m_vf;
+}
+
+// Cells emptied by the flow get particles again, up to half the nominal count; crowded cells (more than twice it)
+// lose their last ones, in index order (deterministic).
+void StableFluidsSolver::reseed_particles() {
+    const Domain2& d = m_settings.domain;
+    const int nx = m_settings.nx, ny = m_settings.ny, ppc = m_settings.particles_per_cell;
+    const Vec2d h = m_omega.h();
+    std::fill(m_cell_count.begin(), m_cell_count.end(), 0);
+    std::size_t kept = 0;
+    for (std::size_t k = 0; k < m_px.size(); ++k) {
+        const int i = std::clamp(int(std::floor((m_px[k].x - d.min.x) / h.x)), 0, nx - 1);
+        const int j = std::clamp(int(std::floor((m_px[k].y - d.min.y) / h.y)), 0, ny - 1);
+        int& n = m_cell_count[std::size_t(j) * std::size_t(nx) + std::size_t(i)];
+        if (n >= 2 * ppc) {
+            ++m_particles_removed;
+            continue;
+        }
+        ++n;
+        m_px[kept] = m_px[k];
+        m_pv[kept] = m_pv[k];
+        ++kept;
+    }
+    m_px.resize(kept);
+    m_pv.resize(kept);
+    const int low = std::max(1, ppc / 2);
+    const uint64_t cells = uint64_t(nx) * uint64_t(ny);
+    for (int j = 0; j < ny; ++j)
+        for (int i = 0; i < nx; ++i) {
+            const std::size_t c = std::size_t(j) * std::size_t(nx) + std::size_t(i);
+            if (m_cell_count[c] < low && !solid_cell(i, j))
+                seed_particles(i, j, low - m_cell_count[c], cells * uint64_t(m_step + 1) + c);
+        }
+}
+
+// P2G: each face takes the particles' velocity component averaged with bilinear hat weights over the two cells
+// around it; an open face no particle reaches keeps its value, a closed face is 0.
+void StableFluidsSolver::particles_to_grid() {
+    const Domain2& d = m_settings.domain;
+    const bool per = d.periodic;
+    const int nx = m_settings.nx, ny = m_settings.ny;
+    const Vec2d h = m_omega.h();
+    std::fill(m_uf_next.begin(), m_uf_next.end(), 0.0);
+    std::fill(m_vf_next.begin(), m_vf_next.end(), 0.0);
+    std::fill(m_uw.begin(), m_uw.end(), 0.0);
+    std::fill(m_vw.begin(), m_vw.end(), 0.0);
+    auto splat = [per](std::vector<double>& sum, std::vector<double>& weight, int cols, int rows, Vec2d g,
+                       double value) {
+        const double fx0 = std::floor(g.x), fy0 = std::floor(g.y);
+        const double fx = g.x - fx0, fy = g.y - fy0;
+        for (int b = 0; b < 2; ++b)
+            for (int a = 0; a < 2; ++a) {
+                int i = int(fx0) + a, j = int(fy0) + b;
+                if (per) {
+                    i = wrap_index(i, cols);
+                    j = wrap_index(j, rows);
+                } else if (i < 0 || j < 0 || i >= cols || j >= rows) {
+                    continue;
+                }
+                const double w = (a ? fx : 1 - fx) * (b ? fy : 1 - fy);
+                const std::size_t f = std::size_t(j) * std::size_t(cols) + std::size_t(i);
+                sum[f] += w * value;
+                weight[f] += w;
+            }
+    };
+    for (std::size_t k = 0; k < m_px.size(); ++k) {
+        const Vec2d p = m_px[k];
+        splat(m_uf_next, m_uw, m_nux, ny, Vec2d((p.x - d.min.x) / h.x, (p.y - d.min.y) / h.y - 0.5), m_pv[k].x);
+        splat(m_vf_next, m_vw, nx, m_nvy, Vec2d((p.x - d.min.x) / h.x - 0.5, (p.y - d.min.y) / h.y), m_pv[k].y);
+    }
+    for (std::size_t f = 0; f < m_uf.size(); ++f)
+        m_uf[f] = !m_uopen[f] ? 0.0 : m_uw[f] > 1e-9 ? m_uf_next[f] / m_uw[f] : m_uf[f];
+    for (std::size_t f = 0; f < m_vf.size(); ++f)
+        m_vf[f] = !m_vopen[f] ? 0.0 : m_vw[f] > 1e-9 ? m_vf_next[f] / m_vw[f] : m_vf[f];
 }
 
 void StableFluidsSolver::close_faces() {
@@ -515,34 +654,40 @@ bool StableFluidsSolver::step(double dt) {
         });
     }
 
-    // 1. Semi-Lagrangian advection of both components (Stam 1999, "move" step).
-    parallel_rows(std::size_t(ny), [&](std::size_t row) {
-        const int j = int(row);
-        for (int i = 0; i < m_nux; ++i) {
-            const std::size_t f = std::size_t(j) * m_nux + std::size_t(i);
-            if (!m_uopen[f]) {  // walls and solid faces
-                m_uf_next[f] = 0;
-                continue;
+    if (m_settings.transport == Transport::FLIP) {
+        // 1. FLIP: the particles move through the velocity of the start of the step, then carry theirs to the
+        // faces; the faces' values before the projection are kept for the particles' update after it.
+        flip_transport(dt);
+    } else {
+        // 1. Semi-Lagrangian advection of both components (Stam 1999, "move" step).
+        parallel_rows(std::size_t(ny), [&](std::size_t row) {
+            const int j = int(row);
+            for (int i = 0; i < m_nux; ++i) {
+                const std::size_t f = std::size_t(j) * m_nux + std::size_t(i);
+                if (!m_uopen[f]) {  // walls and solid faces
+                    m_uf_next[f] = 0;
+                    continue;
+                }
+                const Vec2d x = d.min + Vec2d(i * hx, (j + 0.5) * hy);
+                m_uf_next[f] = sample_u(backtrace(x, dt));
             }
-            const Vec2d x = d.min + Vec2d(i * hx, (j + 0.5) * hy);
-            m_uf_next[f] = sample_u(backtrace(x, dt));
-        }
-    });
-    parallel_rows(std::size_t(m_nvy), [&](std::size_t row) {
-        const int j = int(row);
-        for (int i = 0; i < nx; ++i) {
-            const std::size_t f = std::size_t(j) * nx + std::size_t(i);
-            if (!m_vopen[f]) {
-                m_vf_next[f] = 0;
-                continue;
+        });
+        parallel_rows(std::size_t(m_nvy), [&](std::size_t row) {
+            const int j = int(row);
+            for (int i = 0; i < nx; ++i) {
+                const std::size_t f = std::size_t(j) * nx + std::size_t(i);
+                if (!m_vopen[f]) {
+                    m_vf_next[f] = 0;
+                    continue;
+                }
+                const Vec2d x = d.min + Vec2d((i + 0.5) * hx, j * hy);
+                m_vf_next[f] = sample_v(backtrace(x, dt));
             }
-            const Vec2d x = d.min + Vec2d((i + 0.5) * hx, j * hy);
-            m_vf_next[f] = sample_v(backtrace(x, dt));
-        }
-    });
-    m_backtraces += uint64_t(m_uf.size() + m_vf.size());
-    std::swap(m_uf, m_uf_next);
-    std::swap(m_vf, m_vf_next);
+        });
+        m_backtraces += uint64_t(m_uf.size() + m_vf.size());
+        std::swap(m_uf, m_uf_next);
+        std::swap(m_vf, m_vf_next);
+    }
     m_seconds_advection += timer.seconds();
 
     // 2. Viscosity: implicit diffusion.
@@ -557,6 +702,29 @@ bool StableFluidsSolver::step(double dt) {
     project();
     m_seconds_projection += t.seconds();
 
+    if (m_settings.transport == Transport::FLIP) {
+        // 4. The particles take the grid's change over the projection (FLIP) blended with its value (PIC).
+        Timer g2p;
+        const double a = m_settings.flip_ratio;
+        const bool per = d.periodic;
+        auto before = [&](Vec2d p) {  // the faces' values after P2G, before diffusion and projection
+            const Vec2d gu((p.x - d.min.x) / hx, (p.y - d.min.y) / hy - 0.5);
+            const Vec2d gv((p.x - d.min.x) / hx - 0.5, (p.y - d.min.y) / hy);
+            return Vec2d(sample_faces(m_uf_next, m_nux, ny, gu, per), sample_faces(m_vf_next, nx, m_nvy, gv, per));
+        };
+        const std::size_t chunks = (m_px.size() + 4095) / 4096;
+        parallel_rows(chunks, [&](std::size_t chunk) {
+            const std::size_t end = std::min(m_px.size(), (chunk + 1) * 4096);
+            for (std::size_t k = chunk * 4096; k < end; ++k) {
+                const Vec2d pic = velocity(m_px[k]);
+                const Vec2d flip = m_pv[k] + (pic - before(m_px[k]));
+                Vec2d v = a * flip + (1 - a) * pic;
+                if (!std::isfinite(v.x) || !std::isfinite(v.y)) v = pic;
+                m_pv[k] = v;
+            }
+        });
+        m_seconds_advection += g2p.seconds();
+    }
     for (double* f : {m_uf.data(), m_vf.data()}) {
         const std::size_t n = f == m_uf.data() ? m_uf.size() : m_vf.size();
         for (std::size_t k = 0; k < n; ++k)
@@ -633,6 +801,12 @@ const Grid2& StableFluidsSolver::velocity_v() {
 
 void StableFluidsSolver::report(Stats& stats) const {
     stats.add("fluid.advection_backtraces", double(m_backtraces), "backtraces");
+    if (m_settings.transport == Transport::FLIP) {
+        stats.set("fluid.flip_particles", double(m_px.size()), "particles");
+        stats.add("fluid.flip_reseeded", double(m_particles_seeded), "particles");
+        stats.add("fluid.flip_removed", double(m_particles_removed), "particles");
+        stats.add("fluid.flip_blocked", double(m_particles_blocked), "moves");
+    }
     stats.add("fluid.cg_iterations", double(m_cg_iterations), "iterations");
     stats.add("fluid.projection_solves", double(m_projection_solves), "solves");
     stats.add("fluid.projection_iterations", double(m_projection_iterations), "iterations");

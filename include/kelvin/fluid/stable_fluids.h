@@ -42,6 +42,12 @@
 
 namespace kelvin::fluid {
 
+/// How the velocity moves: semi-Lagrangian backtraces of the face values (Stam's stable fluids), or FLIP particles
+/// (Zhu and Bridson 2005; Bridson 2015, Ch. 7): particles carry the velocity, are splatted to the faces (P2G,
+/// bilinear hat weights), the grid is projected, and each particle takes a blend of the grid's change (FLIP) and the
+/// grid's value (PIC), `flip_ratio` : 1 - `flip_ratio`; the particles then move through the projected velocity.
+enum class Transport { SemiLagrangian, FLIP };
+
 /// The pressure solver of the projection: Auto = FFT on boxes without solid cells, multigrid otherwise.
 enum class Projection { Auto, FFT, Multigrid, CG };
 const char* to_string(Projection p);
@@ -56,6 +62,9 @@ struct StableFluidsSettings {
     Projection projection = Projection::Auto;
     /// Solid obstacles: true at points inside a solid (evaluated at the cell centres once). Null: none.
     std::function<bool(const Vec2d&)> solid;
+    Transport transport = Transport::SemiLagrangian;
+    double flip_ratio = 0.95;    ///< FLIP: weight of the grid's change (1: pure FLIP, 0: PIC)
+    int particles_per_cell = 6;  ///< FLIP: particles seeded per fluid cell (the thesis' FLIP baseline: 6)
 };
 
 class StableFluidsSolver final : public FluidSolver {
@@ -108,6 +117,9 @@ public:
     /// Wall-clock seconds spent so far in advection and in the projection.
     double seconds_advection() const { return m_seconds_advection; }
     double seconds_projection() const { return m_seconds_projection; }
+    /// FLIP: the particles' positions and velocities (empty for semi-Lagrangian transport).
+    const std::vector<Vec2d>& particle_positions() const { return m_px; }
+    const std::vector<Vec2d>& particle_velocities() const { return m_pv; }
 
 private:
     struct Impl;
@@ -119,6 +131,10 @@ private:
     void diffuse(double dt);
     void close_faces();
     void extrapolate_into_solids();
+    void seed_particles(int i, int j, int count, uint64_t stream);
+    void flip_transport(double dt);
+    void particles_to_grid();
+    void reseed_particles();
 
     StableFluidsSettings m_settings;
     std::unique_ptr<Impl> m_impl;
@@ -138,6 +154,11 @@ private:
     uint64_t m_projection_iterations = 0, m_projection_solves = 0, m_projection_unconverged = 0;
     uint64_t m_invalid = 0, m_cg_iterations = 0, m_backtraces = 0;
     double m_seconds_advection = 0, m_seconds_projection = 0, m_seconds_diffusion = 0;
+    // FLIP
+    std::vector<Vec2d> m_px, m_pv;   ///< particle positions and velocities
+    std::vector<double> m_uw, m_vw;  ///< P2G weight sums per face
+    std::vector<int> m_cell_count;   ///< particles per cell (reseeding)
+    uint64_t m_particles_seeded = 0, m_particles_removed = 0, m_particles_blocked = 0;
 };
 
 }  // namespace kelvin::fluid

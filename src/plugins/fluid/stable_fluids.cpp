@@ -17,6 +17,18 @@
 // |            |        |         | multigrid (MG-preconditioned CG), cg (Eigen incomplete-Cholesky CG)    |
 //
 //     <simulation type="stable_fluids"> ... same children as mcfluid ... </simulation>
+//
+// flip: the particle baseline the thesis compares against (FLIP, Zhu and Bridson 2005), on the same MAC grid,
+// projection, obstacles and outputs: particles_per_cell (6) particles per fluid cell carry the velocity; each step
+// they move through the grid velocity (the `advection` integrator run forward), are splatted to the faces, the grid
+// is projected, and each particle takes flip_ratio (0.95) of the grid's change plus the rest of its value (PIC).
+// Cells the flow empties are reseeded to half the nominal count, crowded ones (twice it) thinned.
+//
+// | parameter          | type    | default | meaning                                                      |
+// |--------------------|---------|---------|--------------------------------------------------------------|
+// | (stable_fluids')   |         |         | all of the above                                             |
+// | flip_ratio         | float   | 0.95    | weight of the grid's change in the particles' update (0: PIC) |
+// | particles_per_cell | integer | 6       | particles seeded per fluid cell                              |
 #include <kelvin/core/job.h>
 #include <kelvin/core/logging.h>
 #include <kelvin/core/registry.h>
@@ -31,17 +43,23 @@ namespace {
 
 class StableFluids final : public Job {
 public:
-    explicit StableFluids(const Properties& props)
-        : m_params(SimulationParams::parse_baseline(props, "stable_fluids")) {
+    StableFluids(const Properties& props, Transport transport)
+        : m_who(transport == Transport::FLIP ? "flip" : "stable_fluids"),
+          m_params(SimulationParams::parse_baseline(props, m_who)),
+          m_transport(transport) {
+        if (transport == Transport::FLIP) {
+            m_flip_ratio = props.get_float("flip_ratio", 0.0, 1.0);
+            m_particles_per_cell = int(props.get_int("particles_per_cell", 1, 256));
+        }
         m_tolerance = props.get_float("tolerance", 1e-15, 1e-2);
         const std::string proj = props.get_choice("projection", {"auto", "fft", "multigrid", "cg"});
         m_projection = proj == "fft"         ? Projection::FFT
                        : proj == "multigrid" ? Projection::Multigrid
                        : proj == "cg"        ? Projection::CG
                                              : Projection::Auto;
-        if (m_params.nx < 4 || m_params.ny < 4) props.error("cache", "stable_fluids needs at least 4x4 cells");
+        if (m_params.nx < 4 || m_params.ny < 4) props.error("cache", m_who + " needs at least 4x4 cells");
         if (!m_params.domain.periodic)
-            log_info("stable_fluids: the open domain {} becomes a closed box with free-slip walls",
+            log_info("{}: the open domain {} becomes a closed box with free-slip walls", m_who,
                      m_params.domain.to_string());
         read_obstacles(props);
         if (m_projection == Projection::FFT && !m_obstacles.empty())
@@ -56,25 +74,23 @@ public:
         if (!boundaries) return;  // the estimator itself is mcfluid's; the grid solver only takes its solids
         const WosVelocityOptions& o = *boundaries;
         if (o.inflow_speed != 0)
-            props.error("velocity", "stable_fluids has no inflow/outflow walls (inflow_speed must be 0)");
+            props.error("velocity", m_who + " has no inflow/outflow walls (inflow_speed must be 0)");
         std::vector<std::string> names;
         for (const auto& shape : o.shapes) {
-            if (!shape || shape->dimension() != 2) props.error("velocity", "stable_fluids takes 2D boundaries only");
+            if (!shape || shape->dimension() != 2) props.error("velocity", m_who + " takes 2D boundaries only");
             if (shape->role().moving())
-                props.error("velocity", fmt::format("stable_fluids has static obstacles only; boundary '{}' moves",
+                props.error("velocity", fmt::format("{} has static obstacles only; boundary '{}' moves", m_who,
                                                     shape->description()));
             if (!shape->has_inside()) {
-                log_warn(
-                    "stable_fluids: boundary '{}' has no inside (unsigned); a grid solver cannot voxelise it, "
-                    "ignored",
-                    shape->description());
+                log_warn("{}: boundary '{}' has no inside (unsigned); a grid solver cannot voxelise it, ignored", m_who,
+                         shape->description());
                 continue;
             }
             if (shape->role().stream_value != 0 || shape->role().stream_value_given)
                 log_warn(
-                    "stable_fluids: boundary '{}': stream_value (the flux between solids) has no effect on the "
+                    "{}: boundary '{}': stream_value (the flux between solids) has no effect on the "
                     "grid solver, whose static solids carry no net flux between them",
-                    shape->description());
+                    m_who, shape->description());
             m_obstacles.push_back(shape);
             names.push_back(shape->description());
         }
@@ -101,9 +117,9 @@ public:
         for (std::size_t k = 0; k < m_obstacles.size(); ++k)
             if (covered[k] == 0)
                 log_warn(
-                    "stable_fluids: boundary '{}' covers no cell centre of the {}x{} grid (outside the domain "
+                    "{}: boundary '{}' covers no cell centre of the {}x{} grid (outside the domain "
                     "or thinner than a cell): the grid solver does not see it",
-                    names[k], m_params.nx, m_params.ny);
+                    m_who, names[k], m_params.nx, m_params.ny);
     }
 
     bool solid(const Vec2d& p) const {
@@ -122,14 +138,21 @@ public:
         s.tolerance = m_tolerance;
         s.seed = ctx.seed;
         s.projection = m_projection;
+        s.transport = m_transport;
+        s.flip_ratio = m_flip_ratio;
+        s.particles_per_cell = m_particles_per_cell;
         if (!m_obstacles.empty()) s.solid = [this](const Vec2d& p) { return solid(p); };
         const VorticityField& field = *m_params.field;
         StableFluidsSolver solver(s, [&field](const Vec2d& x) { return field.vorticity(x); });
         if (m_params.dye) solver.set_dye(std::make_unique<PassiveScalars>(s.domain, *m_params.dye, s.nx, s.ny));
+        const std::string transport =
+            m_transport == Transport::FLIP
+                ? fmt::format("FLIP particles ({} per cell, flip_ratio {:g}, {} moves)", s.particles_per_cell,
+                              s.flip_ratio, fluid::to_string(s.advection))
+                : fmt::format("semi-Lagrangian advection ({})", fluid::to_string(s.advection));
         const std::string effects = fmt::format(
-            "semi-Lagrangian advection ({}, dt {:g}, {} steps) on a {}x{} MAC grid; pressure projection ({}){}; "
-            "boundaries {}{}",
-            fluid::to_string(s.advection), m_params.dt, m_params.steps, s.nx, s.ny,
+            "{}, dt {:g}, {} steps, on a {}x{} MAC grid; pressure projection ({}){}; boundaries {}{}", transport,
+            m_params.dt, m_params.steps, s.nx, s.ny,
             solver.projection() == Projection::FFT ? "FFT, exact inverse of the discrete Laplacian"
             : solver.projection() == Projection::Multigrid
                 ? fmt::format("multigrid-preconditioned CG to {:g}", s.tolerance)
@@ -138,11 +161,15 @@ public:
             m_obstacles.empty() ? ""
                                 : fmt::format(" + {} static solid(s), {} fluid cells of {}", m_obstacles.size(),
                                               solver.fluid_cells(), std::size_t(s.nx) * std::size_t(s.ny)));
-        return run_fluid_solver("stable_fluids", solver, m_params, ctx, effects);
+        return run_fluid_solver(m_who, solver, m_params, ctx, effects);
     }
 
 private:
+    std::string m_who;
     SimulationParams m_params;
+    Transport m_transport;
+    double m_flip_ratio = 0.95;
+    int m_particles_per_cell = 6;
     double m_tolerance = 1e-10;
     Projection m_projection = Projection::Auto;
     std::vector<std::shared_ptr<const BoundaryShape>> m_obstacles;
@@ -151,11 +178,30 @@ private:
 }  // namespace
 }  // namespace kelvin::fluid
 
-KELVIN_PLUGIN(
-    kelvin::fluid::StableFluids, "simulation", "stable_fluids",
+static const kelvin::PluginRegistrar kelvin_stable_fluids_registrar(
+    "simulation", "stable_fluids",
     "Baseline: Stam's stable fluids on a MAC grid (semi-Lagrangian advection, implicit viscosity, pressure "
     "projection by FFT or multigrid-preconditioned CG, static obstacles); same scene and outputs as mcfluid.",
-    KELVIN_FLUID_SIMULATION_PARAMS,
-    kelvin::param::real("tolerance", 1e-10, "relative residual of the iterative solves"),
-    kelvin::param::string("projection", "auto",
-                          "pressure solver: auto (fft without obstacles, else multigrid), fft, multigrid, cg"));
+    std::vector<kelvin::ParamSpec>{
+        KELVIN_FLUID_SIMULATION_PARAMS,
+        kelvin::param::real("tolerance", 1e-10, "relative residual of the iterative solves"),
+        kelvin::param::string("projection", "auto",
+                              "pressure solver: auto (fft without obstacles, else multigrid), fft, multigrid, cg")},
+    [](const kelvin::Properties& p) -> kelvin::ObjectPtr {
+        return std::make_shared<kelvin::fluid::StableFluids>(p, kelvin::fluid::Transport::SemiLagrangian);
+    });
+
+static const kelvin::PluginRegistrar kelvin_flip_registrar(
+    "simulation", "flip",
+    "Baseline: FLIP particles (6 per cell, flip_ratio 0.95) on the stable_fluids MAC grid and projection, static "
+    "obstacles; same scene and outputs as mcfluid.",
+    std::vector<kelvin::ParamSpec>{
+        KELVIN_FLUID_SIMULATION_PARAMS,
+        kelvin::param::real("tolerance", 1e-10, "relative residual of the iterative solves"),
+        kelvin::param::string("projection", "auto",
+                              "pressure solver: auto (fft without obstacles, else multigrid), fft, multigrid, cg"),
+        kelvin::param::real("flip_ratio", 0.95, "weight of the grid's change in the particles' update (0: PIC)"),
+        kelvin::param::integer("particles_per_cell", 6, "particles seeded per fluid cell")},
+    [](const kelvin::Properties& p) -> kelvin::ObjectPtr {
+        return std::make_shared<kelvin::fluid::StableFluids>(p, kelvin::fluid::Transport::FLIP);
+    });
