@@ -242,8 +242,8 @@ std::string cornell(const std::string& sampler, int count) {
         <scene version="3.0.0">
             <integrator type="path"><integer name="max_depth" value="4"/></integrator>
             <sensor type="perspective">
-                <float name="fov" value="50"/>
-                <transform name="to_world"><lookat origin="0, 0, 4" target="0, 0, 0" up="0, 1, 0"/></transform>
+                <float name="fov" value="80"/>
+                <transform name="to_world"><lookat origin="0, 0, 0.9" target="0, 0, 0" up="0, 1, 0"/></transform>
                 <sampler type="{}"><integer name="sample_count" value="{}"/></sampler>
                 <film type="hdrfilm"><integer name="width" value="24"/><integer name="height" value="24"/>
                     <rfilter type="box"/></film>
@@ -297,6 +297,7 @@ TEST(PatternSamplers, UnbiasedAgainstIndependent) {
             ktest::BlockComparison r = ktest::compare_blocks(a, b, 4, c, 1e-3);
             EXPECT_LE(r.outliers, 1) << type << " channel " << c;
             EXPECT_NEAR(r.mean_a, r.mean_b, 5 * std::sqrt(r.se_a * r.se_a + r.se_b * r.se_b)) << type;
+            EXPECT_GT(r.mean_b, 0.05) << "the test scene must not be black";
         }
     }
 }

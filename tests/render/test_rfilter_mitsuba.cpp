@@ -114,7 +114,7 @@ TEST(MitsubaFilters, SamplesAreExactAndSigned) {
         for (int i = 0; i <= m; ++i)
             a += ((i == 0 || i == m) ? 1 : (i % 2 ? 4 : 2)) * std::abs(c.filter->eval_1d(-r + i * 2 * r / m));
         a *= 2 * r / m / 3;
-        const int bins = 40, n = 300000;
+        const int bins = 40, n = 100000;
         std::vector<double> expected(bins, 0.0);
         for (int b = 0; b < bins; ++b) {
             const int sub = 400;
@@ -127,14 +127,18 @@ TEST(MitsubaFilters, SamplesAreExactAndSigned) {
         kelvin::Random rng(11, 2);
         const std::function<double(Vec2d)> g[2] = {[](Vec2d) { return 1.0; },
                                                    [](Vec2d o) { return std::cos(1.3 * o.x) + o.y * o.y; }};
-        double sum[2] = {0, 0}, sum2[2] = {0, 0};
+        double sum[2] = {0, 0}, sum2[2] = {0, 0}, w_abs = 0;
         for (int k = 0; k < n; ++k) {
             auto [o, w] = c.filter->sample(rng.next_2d());
             ASSERT_LE(std::abs(o.x), r);
             ASSERT_LE(std::abs(o.y), r);
             const double e = c.filter->eval(o);
             if (e != 0) {
-                ASSERT_NEAR(std::abs(w), a * a, 1e-9 * a * a) << c.label;
+                // One magnitude for every sample, bit for bit; A^2 to the accuracy of Simpson's rule across the
+                // kinks of |f|.
+                if (w_abs == 0) w_abs = std::abs(w);
+                ASSERT_EQ(std::abs(w), w_abs) << c.label;
+                ASSERT_NEAR(std::abs(w), a * a, 1e-7 * a * a) << c.label;
                 ASSERT_EQ(w > 0, e > 0) << c.label << " at " << o.x << "," << o.y;
             }
             ++count[std::min(bins - 1, int((o.x + r) / (2 * r) * bins))];
@@ -153,7 +157,7 @@ TEST(MitsubaFilters, SamplesAreExactAndSigned) {
         EXPECT_GE(dof, 30) << c.label;
         EXPECT_LT(chi2, 72.05) << c.label;
         // Integrals of f g on a grid (separable f).
-        const int q = 600;
+        const int q = 300;
         double ig[2] = {0, 0};
         for (int j = 0; j < q; ++j)
             for (int i = 0; i < q; ++i) {
