@@ -2,12 +2,12 @@
 // construction promises holds exactly for every dimension of every pixel and stream (one sample per stratum),
 // Mitsuba's rounding of sample_count, uniformity and independence of dimensions over many pixels (chi-square),
 // determinism (same seed same numbers; the same image with 1 and 4 threads), and an unbiased render.
-// Seen to fail: stratified's permutation not keyed by the dimension (StratificationOfEveryDimension passes, but
-// DimensionsAreIndependentAndUniform fails: dimensions identical); multijitter's sub-row permutation indexed by y
-// instead of x (the y projection loses its N strata: StratificationOfEveryDimension); orthogonal's column formula
-// with (c + 1) instead of (c - 1) for c >= 2 (column p equals column 0 for p = 2... and pairs repeat values:
-// StratificationOfEveryDimension); ldsampler's second coordinate computed like the first
-// (StratificationOfEveryDimension: the elementary intervals of shape 1/2 x 1/(N/2) get two samples).
+// Seen to fail: stratified's 1D permutation keyed by dimension 0 for every call (StratificationOfEveryDimension
+// passes, DimensionsAreIndependentAndUniform fails: the two 1D calls are identical strata); multijitter's sub-column
+// permutation taken of x instead of y (the x projection loses its N strata: StratificationOfEveryDimension);
+// orthogonal's column formula with (c + 1) instead of (c - 1) for c >= 2 (two columns share a slope:
+// OrthogonalArrayStrengthTwo); ldsampler's second coordinate computed like the first (StratificationOfEveryDimension:
+// the elementary intervals other than N x 1 and 1 x N get two samples).
 #include "render/render_support.h"
 
 #include <kelvin/core/parallel.h>
@@ -195,20 +195,21 @@ TEST(PatternSamplers, DimensionsAreIndependentAndUniform) {
     for (const char* type : {"stratified", "multijitter", "orthogonal", "ldsampler"}) {
         auto s = make(type, 16, 0);
         const int n = int(s->sample_count());
-        std::vector<double> joint01(64, 0), joint13(64, 0), within(64, 0);
+        std::vector<double> joint01(64, 0), joint13(64, 0), within(64, 0), joint24(64, 0);
         int total = 0;
         for (int py = 0; py < 64; ++py)
             for (int px = 0; px < 64; ++px) {
-                Draws d = draw(*s, {px, py}, 0, n, 5, {2, 2, 1, 2});
+                Draws d = draw(*s, {px, py}, 0, n, 5, {2, 2, 1, 2, 1});
                 for (int k = 0; k < n; ++k) {
                     auto bin = [](double a, double b) { return std::size_t(int(a * 8) * 8 + int(b * 8)); };
                     ++joint01[bin(d[0][std::size_t(k)].x, d[1][std::size_t(k)].x)];
                     ++joint13[bin(d[1][std::size_t(k)].y, d[3][std::size_t(k)].x)];
                     ++within[bin(d[3][std::size_t(k)].x, d[3][std::size_t(k)].y)];
+                    ++joint24[bin(d[2][std::size_t(k)].x, d[4][std::size_t(k)].x)];  // two 1D calls
                     ++total;
                 }
             }
-        for (auto* h : {&joint01, &joint13, &within}) {
+        for (auto* h : {&joint01, &joint13, &within, &joint24}) {
             double chi2 = 0, e = total / 64.0;
             for (double c : *h) chi2 += (c - e) * (c - e) / e;
             EXPECT_LT(chi2, 103.4) << type;

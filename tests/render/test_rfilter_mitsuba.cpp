@@ -4,7 +4,8 @@
 // (the film's signed weight normalisation) and negative lobes produce no NaN or unbounded pixels.
 // Seen to fail: Mitchell's C term of the outer piece with the wrong sign (ProfilesMatchMitsuba, IntegratesToOne);
 // sampling from the raw profile table without the sign cuts (the sign check in SamplesAreExactAndSigned); the
-// film dividing only positive weight sums (`w > 0`, ConstantImageStaysConstant with lanczos).
+// film dividing only positive weight sums (`w > 0`: ConstantImageStaysConstant at 1 spp, for every negative-lobe
+// filter); the orthographic y extent not divided by the aspect ratio is in test_orthographic.cpp.
 #include "render/render_support.h"
 
 #include <kelvin/core/random.h>
@@ -190,15 +191,17 @@ TEST(MitsubaFilters, ConstantImageStaysConstant) {
     // Every sample sees the same radiance, so each pixel's weighted mean is exactly that radiance whatever the
     // signs of its weights, as long as they do not cancel (the weight sum is a multiple of A^2: 0 or at least
     // A^2 in magnitude). 64 samples per pixel: a cancelling sum needs 32 negative samples.
-    for (const char* f : {"tent", "mitchell", "catmullrom", "lanczos"}) {
-        const Bitmap img = ktest::render_xml(env_scene(fmt::format(R"(<rfilter type="{}"/>)", f), 64), 0, 5);
-        for (int y = 0; y < img.height(); ++y)
-            for (int x = 0; x < img.width(); ++x) {
-                EXPECT_NEAR(img.at(x, y, 0), 0.25, 1e-6) << f;
-                EXPECT_NEAR(img.at(x, y, 1), 1.0, 1e-6) << f;
-                EXPECT_NEAR(img.at(x, y, 2), 3.0, 1e-6) << f;
-            }
-    }
+    // At 1 spp a pixel's only sample may be negative: its value is still the radiance (w L / w).
+    for (const char* f : {"tent", "mitchell", "catmullrom", "lanczos"})
+        for (int spp : {64, 1}) {
+            const Bitmap img = ktest::render_xml(env_scene(fmt::format(R"(<rfilter type="{}"/>)", f), spp), 0, 5);
+            for (int y = 0; y < img.height(); ++y)
+                for (int x = 0; x < img.width(); ++x) {
+                    EXPECT_NEAR(img.at(x, y, 0), 0.25, 1e-6) << f;
+                    EXPECT_NEAR(img.at(x, y, 1), 1.0, 1e-6) << f;
+                    EXPECT_NEAR(img.at(x, y, 2), 3.0, 1e-6) << f;
+                }
+        }
 }
 
 TEST(MitsubaFilters, NegativeLobesStayBoundedAtLowSampleCounts) {
