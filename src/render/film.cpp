@@ -18,8 +18,10 @@ Bitmap ImageBuffer::develop(const std::vector<std::string>& names) const {
         for (int x = 0; x < m_width; ++x) {
             const double* px =
                 &m_data[(std::size_t(y) * std::size_t(m_width) + std::size_t(x)) * std::size_t(m_channels + 1)];
+            // Filters with negative lobes (mitchell, lanczos) give negative sample weights, so a weight sum
+            // may be negative: it is divided by all the same, as Mitsuba's film does; 0 where it is 0.
             const double w = px[m_channels];
-            for (int c = 0; c < nc; ++c) out.at(x, y, c) = w > 0 ? float(px[c] / w) : 0.f;
+            for (int c = 0; c < nc; ++c) out.at(x, y, c) = w != 0 ? float(px[c] / w) : 0.f;
         }
     return out;
 }
