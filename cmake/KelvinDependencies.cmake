@@ -9,6 +9,7 @@ find_package(embree 3 CONFIG REQUIRED)        # libembree-dev: ray and closest-p
 find_package(OpenEXR 3 CONFIG REQUIRED)       # libopenexr-dev: EXR with named channels
 find_package(OpenImageIO CONFIG REQUIRED)     # libopenimageio-dev: JPEG/HDR/TIFF (module loaded on first use)
 find_package(PNG REQUIRED)                    # libpng-dev: PNG output and textures without OpenImageIO
+find_package(ZLIB REQUIRED)                   # zlib1g-dev (with libpng-dev): Mitsuba's .serialized meshes
 find_package(TinyGLTF CONFIG REQUIRED)        # libtinygltf-dev: glTF 2.0 meshes
 find_package(Eigen3 3.3 CONFIG REQUIRED)      # libeigen3-dev: linear algebra (H2MC, solvers)
 find_package(CLI11 CONFIG REQUIRED)           # libcli11-dev: command line

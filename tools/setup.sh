@@ -13,7 +13,7 @@ packages=(
   cmake ninja-build g++ pkg-config
   libembree-dev                       # ray and closest-point queries
   libopenexr-dev                      # EXR output with named channels
-  libpng-dev                          # PNG I/O without OpenImageIO
+  libpng-dev zlib1g-dev               # PNG I/O without OpenImageIO; .serialized meshes
   libopenimageio-dev openimageio-tools  # JPEG/HDR/TIFF I/O, a module loaded on first use (Debian's CMake config also wants the tools)
   libglm-dev                          # math
   libtinygltf-dev nlohmann-json3-dev  # glTF meshes
