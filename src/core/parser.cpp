@@ -1,4 +1,13 @@
 // Mitsuba-style XML scene parser. See include/kelvin/core/parser.h and docs/scene-format.md.
+//
+// Two phases. Parsing (class Parser) turns the text into a tree of SceneNodes without creating any object: the
+// text is scanned for hostile nesting before pugixml reads it (first_element_deeper_than), <default>s and -D
+// values are substituted into $names, <include>s are read recursively (cycles and non-regular files refused),
+// <path> adds search folders, value tags (<float>, <rgb>, <spectrum>, <transform>, ...) become typed entries with
+// their file:line:col (FileText turns pugixml's byte offsets into positions), <ref>s are resolved after the whole
+// file is read (forward references allowed, cycles refused), and any child a tag does not use is an error.
+// Instantiation (class Instantiator) then builds the objects bottom-up through the plugin registry, children
+// first, so every object is created from Properties that are complete and located.
 #include <kelvin/core/files.h>
 #include <kelvin/core/logging.h>
 #include <kelvin/core/parser.h>

@@ -1,3 +1,13 @@
+// Properties: the typed, located parameters of one object as the scene gave them, and the rules for reading them.
+//
+// An Entry is (name, value, source location, queried flag). The parser fills a Properties per element; the registry
+// attaches the plugin's declared ParamSpecs (set_info) before calling its factory. Every get_* goes through spec():
+// the name must be declared (an undeclared name is a programming error in the plugin, reported as such), the given
+// value's type must be one the declaration accepts (accepts(): an integer where a float is declared is fine, a
+// string is not), an absent value takes the declaration's default (default_of()), and ranges and choices are
+// checked where the getter takes them. Every failure is an InputError located at the parameter (location_of():
+// the entry's position, else the element's), so a bad value names its file:line:col. Reading an entry marks it
+// queried; after the factory the registry reports any entry nobody read (a misspelt name never passes silently).
 #include <kelvin/core/files.h>
 #include <kelvin/core/properties.h>
 #include <kelvin/core/registry.h>
