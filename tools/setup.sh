@@ -31,6 +31,7 @@ packages=(
 if [[ "${1:-}" == "--tests" ]]; then
   packages+=(clang libclang-rt-14-dev)  # libFuzzer target of the scene parser
   packages+=(ffmpeg)                    # the fluid videos' test (write_video); users install it to make videos
+  packages+=(clang-format)              # ctest format_check
 fi
 
 missing=()

@@ -1,0 +1,22 @@
+# ctest format_check (issue 19, item 7): every C++ source of the project is as .clang-format formats it. Lists the
+# files clang-format would change and fails; `clang-format -i FILE` fixes one.
+#   cmake -DCLANG_FORMAT=... -DSOURCE_DIR=... -P format_check.cmake
+file(GLOB_RECURSE _files RELATIVE ${SOURCE_DIR}
+     ${SOURCE_DIR}/src/*.cpp ${SOURCE_DIR}/src/*.h ${SOURCE_DIR}/include/*.h ${SOURCE_DIR}/tests/*.cpp
+     ${SOURCE_DIR}/tests/*.h ${SOURCE_DIR}/bench/*.cpp ${SOURCE_DIR}/bench/*.h ${SOURCE_DIR}/examples/*.cpp
+     ${SOURCE_DIR}/examples/*.h)
+set(_bad "")
+foreach(_f IN LISTS _files)
+  execute_process(COMMAND ${CLANG_FORMAT} --dry-run --Werror ${_f} WORKING_DIRECTORY ${SOURCE_DIR}
+                  RESULT_VARIABLE _rc OUTPUT_QUIET ERROR_QUIET)
+  if(NOT _rc EQUAL 0)
+    list(APPEND _bad ${_f})
+  endif()
+endforeach()
+list(LENGTH _files _n)
+if(_bad)
+  list(LENGTH _bad _nb)
+  string(REPLACE ";" "\n  " _list "${_bad}")
+  message(FATAL_ERROR "${_nb} of ${_n} files are not formatted (clang-format -i <file>):\n  ${_list}")
+endif()
+message(STATUS "format_check: ${_n} files formatted")
