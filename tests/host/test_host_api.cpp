@@ -448,7 +448,8 @@ TEST(HostDict, RootKeysReservedNamesAndSimulations) {
     Dict scene = render_dict({{"type", "drmlt"}, {"param:type", "mira"}, {"bootstrap_samples", 1000}});
     scene.set("ball2", Dict{{"type", "sphere"}, {"center", point(0, 0, -3)}, {"bsdf", ref("red")}});
     auto job = job_of(load_dict(scene));
-    EXPECT_CONTAINS(job->description(), "mira");
+    EXPECT_CONTAINS(job->description(), "Tierney–Mira");
+    EXPECT_EQ(job->description().find("orbital"), std::string::npos) << job->description();  // not the default
     const std::string bad = ktest::input_error_of([] {
         load_dict(render_dict({{"type", "drmlt"}, {"param:type", "mirra"}}));
     });
