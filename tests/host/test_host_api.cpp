@@ -162,8 +162,8 @@ bool same_pixels(const Bitmap& a, const Bitmap& b) {
 // ----- progress
 
 // A spp render: one pass "Rendering" in spp from 0 to the requested total. `quiet` silences the stderr line but
-// not the callback. (Checked failing with the callback left out of ProgressReporter::report: no reports; with
-// the final report skipped: the last done is short of the total.)
+// not the callback. (Checked failing with the callback left out of ProgressReporter::report: the start report
+// only.)
 TEST(HostProgress, SampledRenderReportsMonotoneWorkAndItsTotal) {
     QuietLogs logs;
     auto job = job_of(load_dict(render_dict({{"type", "path"}, {"max_depth", 4}})));
@@ -183,7 +183,7 @@ TEST(HostProgress, SampledRenderReportsMonotoneWorkAndItsTotal) {
 }
 
 // MLT: the direct-light pass and the bootstrap are nested passes of their own, then the mutations.
-// (Checked failing with the direct pass's context not given the callback: the "Direct light" pass missing.)
+// (Checked failing with the direct pass's context not given the callback: two passes, not three.)
 TEST(HostProgress, MetropolisReportsItsNestedPasses) {
     QuietLogs logs;
     auto job = job_of(load_dict(render_dict(
@@ -255,8 +255,8 @@ TEST(HostProgress, ReportsAreThrottled) {
 
 // Two renders at once; the first is cancelled (from the second's callback, once the second has started its
 // work), the second completes all its samples and gives the same image as when it runs alone. (Checked
-// failing with run_passes polling interrupt_requested() only: the first render runs to its 1 000 000 spp, i.e.
-// the test times out; with the pixel loop polling the global flag only, the first render finishes its pass.)
+// failing with run_passes polling interrupt_requested() between passes: the cancelled render's passes, emptied
+// by the pixel loop's own check, run up to its 1 000 000 spp and it is not reported interrupted.)
 TEST(HostCancel, CancellingOneOfTwoConcurrentRendersStopsOnlyThatOne) {
     QuietLogs logs;
     InterruptGuard guard;
@@ -292,9 +292,9 @@ TEST(HostCancel, CancellingOneOfTwoConcurrentRendersStopsOnlyThatOne) {
 }
 
 // The same with two simulations: the cancelled one stops after the step in progress (the solver's own loops
-// poll the job's token), the other computes every step, exactly as alone. (Checked failing with the solvers
-// given no token: the cancelled run finishes its current step before noticing, and with the run loop polling
-// the global flag only: the cancelled run completes all its steps.)
+// poll the job's token), the other computes every step, exactly as alone. (Checked failing with both the run
+// loop and the solver polling the global flag only: the cancelled run completes its 1000 steps. Either check
+// alone stops it: the step returns false, or the loop breaks.)
 TEST(HostCancel, CancellingOneOfTwoConcurrentSimulationsStopsOnlyThatOne) {
     QuietLogs logs;
     InterruptGuard guard;
@@ -336,7 +336,8 @@ TEST(HostCancel, CreatedSolverHonoursItsToken) {
     EXPECT_TRUE(solver->step(0.1));
 }
 
-// Ctrl-C (the process-wide flag) still stops every job, with or without a token of its own.
+// Ctrl-C (the process-wide flag) still stops every job, with or without a token of its own. (Checked failing
+// with run_passes polling the token's own flag only: the render runs on towards its 1 000 000 spp.)
 TEST(HostCancel, GlobalInterruptStillStopsJobs) {
     QuietLogs logs;
     InterruptGuard guard;
@@ -386,8 +387,7 @@ TEST(HostCancel, TokenCopiesShareOneFlag) {
 // ----- the scene builder
 
 // The dict and its XML twin give the same image, bit for bit, for the same seed. (Checked failing with the
-// dict's transforms composed in the other order, and with a bare triple typed as a vector: the second is an
-// error "must be given as <point>, not <vector>".)
+// dict's colours rounded to float, and with bare triples always typed as colours: "must be given as <point>".)
 TEST(HostDict, SameImageAsTheXmlScene) {
     QuietLogs logs;
     auto from_dict = job_of(load_dict(render_dict({{"type", "path"}, {"max_depth", 4}})));
@@ -472,9 +472,9 @@ TEST(HostDict, RootKeysReservedNamesAndSimulations) {
 
 // The solver a host takes from a loaded scene computes the states run() computes, bit for bit; pointwise
 // vorticity at a cell centre is the grid's value; pointwise velocity agrees with the grid's velocity within the
-// Monte Carlo error of both estimates. (Checked failing with create_solver ignoring ctx.seed: the states differ;
-// with velocity_at returning the grid velocity interpolated: the z-test is trivially met but bit equality of
-// repeated queries still holds, so the velocity check below also compares with the exact solution.)
+// Monte Carlo error of both estimates. (Checked failing with create_solver ignoring ctx, so another seed: the
+// states differ; and with MCFluidSolver::velocity_at removed, so the grid interpolated: z = 0, below the lower
+// bound.)
 TEST(HostSolver, LoadedSimulationStepsAndAnswersPointwise) {
     QuietLogs logs;
     auto job = lamb_oseen("0.3");
