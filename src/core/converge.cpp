@@ -279,7 +279,7 @@ public:
                     ++summary.runs_skipped;
                     continue;
                 }
-                if (interrupt_requested() || !run_one(config, r, index, total)) {
+                if (m_o.cancel.stop_requested() || !run_one(config, r, index, total)) {
                     summary.interrupted = true;
                     break;
                 }
@@ -595,6 +595,7 @@ private:
         RunContext ctx;
         ctx.seed = seed;
         ctx.quiet = true;
+        ctx.cancel = m_o.cancel;
         if (!m_o.seconds.empty()) {
             ctx.checkpoint_seconds = m_o.seconds;
             ctx.time_limit = m_o.seconds.back();
@@ -687,7 +688,7 @@ private:
             throw;
         }
         set_log_level(level);
-        if (result.interrupted || interrupt_requested()) return false;
+        if (result.interrupted || m_o.cancel.stop_requested()) return false;
         const std::size_t fired = rows.size() / (sim_study ? m_o.fields.size() : 1);
         if (fired < expected)
             log_warn(

@@ -1,4 +1,6 @@
 #include <kelvin/core/interrupt.h>
+#include <kelvin/core/job.h>
+#include <kelvin/core/logging.h>
 #include <kelvin/core/progress.h>
 
 #include <fmt/format.h>
@@ -39,34 +41,88 @@ std::string amount(double v) {
 
 void ProgressReporter::set_enabled(bool enabled) { g_enabled = enabled; }
 
-ProgressReporter::ProgressReporter(std::string label, double total, std::string unit, bool quiet)
+double ProgressInfo::fraction() const {
+    const double work = total > 0 && std::isfinite(total) ? std::min(1.0, done / total) : 0.0;
+    const double time = time_limit > 0 ? std::min(1.0, seconds / time_limit) : 0.0;
+    return std::max(work, time);
+}
+
+ProgressReporter::ProgressReporter(std::string label, double total, std::string unit, bool quiet,
+                                   ProgressCallback callback, CancelToken cancel, bool nested)
     : m_label(std::move(label)),
       m_unit(std::move(unit)),
       m_total(total),
       m_quiet(quiet || !g_enabled),
       m_terminal(isatty(STDERR_FILENO) != 0),
+      m_nested(nested),
+      m_callback(std::move(callback)),
+      m_cancel(std::move(cancel)),
       m_start(now_seconds()) {
+    begin();
+}
+
+ProgressReporter::ProgressReporter(const RunContext& ctx, std::string label, double total, std::string unit,
+                                   double time_limit, bool nested)
+    : m_label(std::move(label)),
+      m_unit(std::move(unit)),
+      m_total(total),
+      m_time_limit(time_limit),
+      m_quiet(ctx.quiet || !g_enabled),
+      m_terminal(isatty(STDERR_FILENO) != 0),
+      m_nested(nested || ctx.progress_nested),
+      m_callback(ctx.on_progress),
+      m_cancel(ctx.cancel),
+      m_start(now_seconds()) {
+    begin();
+}
+
+void ProgressReporter::begin() {
     m_last_print = m_start;
+    if (m_callback) {  // the start of the pass: a host learns the total before any work is done
+        m_last_callback = m_start;
+        m_callback(info(false));
+    }
 }
 
 ProgressReporter::~ProgressReporter() {
-    if (!m_finished) finish();
+    if (m_finished) return;
+    try {
+        finish();
+    } catch (const std::exception& e) {  // a throwing callback must not terminate the process from a destructor
+        log_warn("progress callback failed: {}", e.what());
+    } catch (...) {
+        log_warn("progress callback failed");
+    }
 }
 
 void ProgressReporter::update(double amount) {
-    m_done.fetch_add(amount);
-    print(false);
+    m_done.fetch_add(amount, std::memory_order_relaxed);
+    report(false);
 }
 
 void ProgressReporter::set(double done) {
-    m_done.store(done);
-    print(false);
+    m_done.store(done, std::memory_order_relaxed);
+    report(false);
 }
 
 void ProgressReporter::finish() {
     if (m_finished) return;
-    print(true);
+    report(true);
     m_finished = true;
+}
+
+ProgressInfo ProgressReporter::info(bool final) const {
+    ProgressInfo p;
+    p.label = m_label;
+    p.unit = m_unit;
+    p.done = std::max(m_reported, m_done.load(std::memory_order_relaxed));
+    p.total = m_total > 0 && std::isfinite(m_total) ? m_total : 0.0;
+    p.seconds = now_seconds() - m_start;
+    p.time_limit = m_time_limit;
+    p.nested = m_nested;
+    p.final = final;
+    p.interrupted = m_cancel.stop_requested();
+    return p;
 }
 
 std::string ProgressReporter::line(bool final) const {
@@ -76,7 +132,7 @@ std::string ProgressReporter::line(bool final) const {
     const double time_frac = m_time_limit > 0 ? std::min(1.0, elapsed / m_time_limit) : 0.0;
     const double frac = std::max(work_frac, time_frac);
     const double rate = elapsed > 0 ? done / elapsed : 0.0;
-    const bool interrupted = interrupt_requested();
+    const bool interrupted = m_cancel.stop_requested();
     std::string s = m_label;
     if (m_terminal) {
         constexpr int width = 30;
@@ -102,25 +158,35 @@ std::string ProgressReporter::line(bool final) const {
     return s;
 }
 
-void ProgressReporter::print(bool final) {
-    if (m_quiet) return;
+void ProgressReporter::report(bool final) {
+    const bool line_wanted = !m_quiet, callback_wanted = bool(m_callback);
+    if (!line_wanted && !callback_wanted) return;
     const double t = now_seconds();
     std::unique_lock lock(m_mutex, std::try_to_lock);
-    if (!lock.owns_lock() && !final) return;
+    if (!lock.owns_lock() && !final) return;  // another thread is reporting: this update shows in a later one
     if (!lock.owns_lock()) lock.lock();
     if (m_finished) return;
-    const double min_gap = m_terminal ? 0.1 : m_interval;
-    if (!final && t - m_last_print < min_gap) return;
-    // Work (or time) complete: the final line follows, and a plain log gets it once, not twice.
+    // Work (or time) complete: the final report follows, and a plain log gets it once, not twice.
     if (!final && ((m_total > 0 && m_done.load() >= m_total) || (m_time_limit > 0 && t - m_start >= m_time_limit)))
         return;
-    m_last_print = t;
-    const std::string s = line(final);
-    if (m_terminal)
-        std::fprintf(stderr, "\r%s\033[K%s", s.c_str(), final ? "\n" : "");
-    else
-        std::fprintf(stderr, "%s\n", s.c_str());
-    std::fflush(stderr);
+    const double min_gap = m_terminal ? 0.1 : m_interval;
+    const bool line_due = line_wanted && (final || t - m_last_print >= min_gap);
+    const bool callback_due = callback_wanted && (final || t - m_last_callback >= CallbackInterval);
+    if (!line_due && !callback_due) return;
+    m_reported = std::max(m_reported, m_done.load());
+    if (line_due) {
+        m_last_print = t;
+        const std::string s = line(final);
+        if (m_terminal)
+            std::fprintf(stderr, "\r%s\033[K%s", s.c_str(), final ? "\n" : "");
+        else
+            std::fprintf(stderr, "%s\n", s.c_str());
+        std::fflush(stderr);
+    }
+    if (callback_due) {
+        m_last_callback = t;
+        m_callback(info(final));
+    }
 }
 
 }  // namespace kelvin

@@ -146,7 +146,7 @@ bool MCFluidSolver::ensure_velocity() {
         for (int i = 0; i < nx; ++i) {
             // Every cell: one cell's estimate is n samples (Walk-on-Spheres walks with boundaries, each many
             // closest-point queries), so a row can be long; the check is one relaxed atomic load.
-            if (interrupt_requested()) {
+            if (stop_requested()) {
                 interrupted = true;
                 return;
             }
@@ -200,7 +200,7 @@ const Grid2& MCFluidSolver::velocity_variance_v() {
 bool MCFluidSolver::step(double dt) {
     if (!(dt > 0) || std::isnan(dt)) throw_runtime("MCFluidSolver::step: dt must be positive (got {})", dt);
     // k1 at the cell centres: the velocity of the current state.
-    if (!ensure_velocity() || interrupt_requested()) return false;
+    if (!ensure_velocity() || stop_requested()) return false;
     Timer timer;
     const int nx = m_omega.nx(), ny = m_omega.ny();
     const MCFluidSettings& s = m_settings;
@@ -212,7 +212,7 @@ bool MCFluidSolver::step(double dt) {
     std::atomic<bool> interrupted{false};
 
     parallel_for_units(std::size_t(ny), [&](std::size_t row) {
-        if (interrupt_requested()) {
+        if (stop_requested()) {
             interrupted = true;
             return;
         }
@@ -220,7 +220,7 @@ bool MCFluidSolver::step(double dt) {
         Random rng(s.seed, stream_of(m_step, TagAdvection, row));
         RowWork& w = rows[row];
         for (int i = 0; i < nx; ++i) {
-            if (interrupt_requested()) {  // every cell, as in ensure_velocity: RK4 is 3 velocity estimates
+            if (stop_requested()) {  // every cell, as in ensure_velocity: RK4 is 3 velocity estimates
                 interrupted = true;
                 return;
             }
@@ -355,6 +355,20 @@ Vec2d MCFluidSolver::velocity(double t, Vec2d x) {
     wos::WalkCounters walks;
     Vec2d v = checked_velocity(x, rng, evals, queries, invalid, walks);
     return v;
+}
+
+void MCFluidSolver::report(Stats& stats) const {
+    const FluidWork& w = m_work;
+    stats.add("fluid.biot_savart_evals", double(w.biot_savart_evals), "evals");
+    stats.add("fluid.velocity_queries", double(w.velocity_queries), "queries");
+    stats.add("fluid.advection_backtraces", double(w.advection_backtraces), "backtraces");
+    stats.add("fluid.diffusion_samples", double(w.diffusion_samples), "samples");
+    stats.add("fluid.invalid_velocity", double(w.invalid_velocity), "values");
+    stats.add("fluid.invalid_vorticity", double(w.invalid_vorticity), "values");
+    stats.add("fluid.wos_walks", double(w.wos_walks), "walks");
+    stats.add("fluid.solid_departures", double(w.solid_departures), "points");
+    stats.add_time("fluid.time.velocity", w.seconds_velocity);
+    stats.add_time("fluid.time.advection", w.seconds_advection);
 }
 
 VelocityEstimate MCFluidSolver::velocity_estimate(Vec2d x, int n, Random& rng) const {

@@ -11,6 +11,7 @@
 
 #include <algorithm>
 #include <atomic>
+#include <bit>
 #include <cmath>
 
 namespace kelvin::fluid {
@@ -56,11 +57,11 @@ void add_work(FluidWork3& total, const std::vector<MCFluid3Solver::SlabWork>& sl
 }
 
 /// Runs `cell(c, x, rng, work)` over every cell (index c, centre x): one unit per z slab, drawing from the slab's
-/// own stream of (step, tag), checking for an interrupt every row. `slabs` gets one entry per slab (merge it in
-/// order). False when an interrupt cut the pass short.
+/// own stream of (step, tag), checking `stop` (the solver's token or an interrupt) every row. `slabs` gets one
+/// entry per slab (merge it in order). False when a stop cut the pass short.
 template <class Cell>
 bool for_each_cell(const MCFluid3Settings& s, const Grid3& g, long long step, uint64_t tag,
-                   std::vector<MCFluid3Solver::SlabWork>& slabs, Cell&& cell) {
+                   std::vector<MCFluid3Solver::SlabWork>& slabs, const CancelToken& stop, Cell&& cell) {
     slabs.assign(std::size_t(s.nz), MCFluid3Solver::SlabWork{});
     std::atomic<bool> interrupted{false};
     parallel_for_units(std::size_t(s.nz), [&](std::size_t slab) {
@@ -68,7 +69,7 @@ bool for_each_cell(const MCFluid3Settings& s, const Grid3& g, long long step, ui
         Random rng(s.seed, stream_of(step, tag, slab));
         MCFluid3Solver::SlabWork& w = slabs[slab];
         for (int j = 0; j < s.ny; ++j) {
-            if (interrupt_requested()) {
+            if (stop.stop_requested()) {
                 interrupted = true;
                 return;
             }
@@ -180,6 +181,14 @@ VelocityEstimate3 MCFluid3Solver::velocity_estimate(Vec3d x, int n, Random& rng,
     return m_field->estimate(x, n, rng, walks);
 }
 
+Vec3d MCFluid3Solver::velocity_at(Vec3d x) const {
+    const uint64_t key = hash_combine(hash_combine(std::bit_cast<uint64_t>(x.x), std::bit_cast<uint64_t>(x.y)),
+                                      std::bit_cast<uint64_t>(x.z));
+    Random rng(m_settings.seed, stream_of(m_step, TagQuery, key));
+    const VelocityEstimate3 e = velocity_estimate(x, m_settings.velocity.samples, rng);
+    return finite(e.value) ? e.value : Vec3d(0.0);
+}
+
 VelocityEstimate3 MCFluid3Solver::estimate_at(Vec3d x, int n, Random& rng, SlabWork& w) const {
     VelocityEstimate3 e;
     if (m_have_prev)
@@ -226,7 +235,7 @@ bool MCFluid3Solver::ensure_velocity() {
     const bool cv = m_have_prev;
     const int n = (s.control_variates && m_step == 0 && s.initial_samples > 0) ? s.initial_samples : s.velocity.samples;
     std::vector<SlabWork> slabs;
-    const bool complete = for_each_cell(s, m_omega.x, m_step, TagVelocity, slabs,
+    const bool complete = for_each_cell(s, m_omega.x, m_step, TagVelocity, slabs, cancel_token(),
                                         [&](std::size_t c, const Vec3d& x, Random& rng, SlabWork& w) {
                                             if (m_wos && m_solid[c]) {  // static solids: zero velocity, no walk
                                                 m_vel.set(c, Vec3d(0.0));
@@ -272,7 +281,7 @@ const VectorGrid3& MCFluid3Solver::velocity_variance() {
 
 bool MCFluid3Solver::step(double dt) {
     if (!(dt > 0) || std::isnan(dt)) throw_runtime("MCFluid3Solver::step: dt must be positive (got {})", dt);
-    if (!ensure_velocity() || interrupt_requested()) return false;
+    if (!ensure_velocity() || stop_requested()) return false;
     Timer timer;
     const MCFluid3Settings& s = m_settings;
     const bool viscous = s.viscosity > 0;
@@ -282,7 +291,8 @@ bool MCFluid3Solver::step(double dt) {
     const Interpolation interp = s.interpolation;
     std::vector<SlabWork> slabs;
     const bool complete = for_each_cell(
-        s, m_omega.x, m_step, TagAdvection, slabs, [&](std::size_t c, const Vec3d& x, Random& rng, SlabWork& w) {
+        s, m_omega.x, m_step, TagAdvection, slabs, cancel_token(),
+        [&](std::size_t c, const Vec3d& x, Random& rng, SlabWork& w) {
             const Vec3d k1 = m_vel.at(c);
             Vec3d xd;
             if (s.advection == Advection::Euler) {

@@ -7,6 +7,7 @@
 #include <kelvin/core/stats.h>
 #include <kelvin/fluid/output.h>
 #include <kelvin/fluid/simulation.h>
+#include <kelvin/render/scene.h>
 
 #include <fmt/format.h>
 
@@ -127,6 +128,33 @@ FluidDiagnostics grid_diagnostics(const Grid2& omega, const Grid2& u, const Grid
     return d;
 }
 
+std::unique_ptr<FluidSolver> Simulation::create_solver(const RunContext&) const {
+    throw InputError({}, fmt::format("simulation '{}' is {}D: use create_solver3", plugin_name(), dimension()));
+}
+
+std::unique_ptr<MCFluid3Solver> Simulation::create_solver3(const RunContext&) const {
+    throw InputError({}, fmt::format("simulation '{}' is {}D: use create_solver", plugin_name(), dimension()));
+}
+
+std::shared_ptr<Simulation> find_simulation(const ObjectPtr& root) {
+    if (auto sim = std::dynamic_pointer_cast<Simulation>(root)) return sim;
+    if (auto scene = std::dynamic_pointer_cast<Scene>(root)) {
+        if (auto sim = std::dynamic_pointer_cast<Simulation>(scene->simulation())) return sim;
+        throw InputError({}, scene->simulation() ? fmt::format("the scene's <simulation type=\"{}\"> offers no solver",
+                                                               scene->simulation()->plugin_name())
+                                                 : std::string("the scene has no <simulation> (it is a render)"));
+    }
+    throw InputError({}, fmt::format("{} is not a scene or a simulation",
+                                     root ? "<" + root->plugin_kind() + " type=\"" + root->plugin_name() + "\">"
+                                          : std::string("a null object")));
+}
+
+double FluidSolver::vorticity_at(Vec2d x) { return vorticity_grid().sample(x, Interpolation::Bilinear); }
+
+Vec2d FluidSolver::velocity_at(Vec2d x) {
+    return {velocity_u().sample(x, Interpolation::Bilinear), velocity_v().sample(x, Interpolation::Bilinear)};
+}
+
 FluidDiagnostics FluidSolver::diagnostics() {
     FluidDiagnostics d = grid_diagnostics(vorticity_grid(), velocity_u(), velocity_v());
     d.step = step_index();
@@ -136,6 +164,7 @@ FluidDiagnostics FluidSolver::diagnostics() {
 
 RunResult run_fluid_solver(const std::string& who, FluidSolver& solver, const SimulationParams& p, RunContext& ctx,
                            const std::string& effects) {
+    solver.set_cancel_token(ctx.cancel);  // the solver's own loops stop with this job
     Timer total;
     const VorticityField& field = *p.field;
     log_info("{}: 2D, domain {}, {}x{} grid, initial {}", who, p.domain.to_string(), p.nx, p.ny, field.description());
@@ -187,19 +216,16 @@ RunResult run_fluid_solver(const std::string& who, FluidSolver& solver, const Si
     write_frame();
     if (checkpoints.active()) checkpoint(0);
 
-    ProgressReporter progress("Simulating", double(p.steps), "steps", ctx.quiet);
-    progress.set_time_limit(ctx.time_limit);
+    ProgressReporter progress(ctx, "Simulating", double(p.steps), "steps", ctx.time_limit);
     Timer since_partial;
     long long done = 0;
     bool stopped_by_time = false;
     for (long long s = 1; s <= p.steps; ++s) {
-        if (interrupt_requested()) break;
+        if (ctx.cancel.stop_requested()) break;
         const double evals_before = solver.evaluations();
         const uint64_t invalid_before = solver.invalid();
         Timer step_timer;
-        double dt = p.dt;
-        if (p.end_time > 0 && s == p.steps) dt = p.end_time - solver.time();
-        if (!(dt > 0)) dt = p.dt;
+        const double dt = TimeStepping{p.dt, p.steps, p.end_time}.step_length(s, solver.time());
         if (!solver.step(dt)) break;
         const FluidDiagnostics d = diagnostics();
         const double seconds = step_timer.seconds();
@@ -218,7 +244,7 @@ RunResult run_fluid_solver(const std::string& who, FluidSolver& solver, const Si
         }
     }
     progress.finish();
-    result.interrupted = interrupt_requested();
+    result.interrupted = ctx.cancel.stop_requested();
     if (csv) csv->close();  // the CSV so far replaces the previous one (interrupted runs included)
     if (stopped_by_time)
         log_warn("{}: time limit of {:g} s reached after {} of {} steps (t = {:g})", who, ctx.time_limit, done, p.steps,

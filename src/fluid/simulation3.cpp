@@ -157,19 +157,34 @@ Bitmap slice_image(const VectorGrid3& field, int axis, double range) {
 // ------------------------------------------------------------------------------------------------
 // Run loop.
 
+namespace {
+// The solver's settings for a run with `ctx`: the scene's, with the run's seed and --spp as n_mc.
+MCFluid3Settings settings_for(const Simulation3Params& p, const RunContext& ctx) {
+    MCFluid3Settings settings = p.settings;
+    settings.seed = ctx.seed;
+    if (ctx.spp > 0) settings.velocity.samples = int(std::min<long long>(ctx.spp, 1 << 24));
+    return settings;
+}
+}  // namespace
+
+std::unique_ptr<MCFluid3Solver> create_mcfluid3_solver(const Simulation3Params& p, const RunContext& ctx) {
+    const VorticityField3* field = p.field;
+    auto solver = std::make_unique<MCFluid3Solver>(settings_for(p, ctx),
+                                                   [field](const Vec3d& x) { return field->vorticity3(x); });
+    if (p.smoke) solver->set_smoke({p.smoke->center(), p.smoke->radius(), p.smoke->initial_density(), p.smoke->rate()});
+    solver->set_cancel_token(ctx.cancel);
+    return solver;
+}
+
 RunResult run_mcfluid3(const Simulation3Params& p, RunContext& ctx) {
     if (ctx.on_checkpoint)
         throw_runtime("mcfluid: checkpoints (kelvin converge) are not available for 3D simulations yet");
     Timer total;
-    MCFluid3Settings settings = p.settings;
-    settings.seed = ctx.seed;
-    if (ctx.spp > 0) {
-        settings.velocity.samples = int(std::min<long long>(ctx.spp, 1 << 24));
-        log_info("mcfluid: --spp {} overrides the Biot–Savart samples (n_mc)", settings.velocity.samples);
-    }
+    const MCFluid3Settings settings = settings_for(p, ctx);
+    if (ctx.spp > 0) log_info("mcfluid: --spp {} overrides the Biot–Savart samples (n_mc)", settings.velocity.samples);
     const VorticityField3& field = *p.field;
-    MCFluid3Solver solver(settings, [&field](const Vec3d& x) { return field.vorticity3(x); });
-    if (p.smoke) solver.set_smoke({p.smoke->center(), p.smoke->radius(), p.smoke->initial_density(), p.smoke->rate()});
+    const std::unique_ptr<MCFluid3Solver> owned = create_mcfluid3_solver(p, ctx);
+    MCFluid3Solver& solver = *owned;
     const bool viscous = settings.viscosity > 0;
     log_info("mcfluid: 3D, domain {}, {}x{}x{} cache ({}), initial {}", settings.domain.to_string(), settings.nx,
              settings.ny, settings.nz, settings.interpolation == Interpolation::Nearest ? "nearest" : "trilinear",
@@ -265,18 +280,15 @@ RunResult run_mcfluid3(const Simulation3Params& p, RunContext& ctx) {
         add_row(d0, 0.0, double(solver.work().biot_savart_evals), solver.work().invalid_velocity);
         write_frame();
     }
-    ProgressReporter progress("Simulating", double(p.steps), "steps", ctx.quiet);
-    progress.set_time_limit(ctx.time_limit);
+    ProgressReporter progress(ctx, "Simulating", double(p.steps), "steps", ctx.time_limit);
     long long done = 0;
     bool stopped_by_time = false;
     Timer since_partial;
     for (long long step = 1; step <= p.steps; ++step) {
-        if (interrupt_requested()) break;
+        if (ctx.cancel.stop_requested()) break;
         const FluidWork3 before = solver.work();
         Timer step_timer;
-        double dt = settings.dt;
-        if (p.end_time > 0 && step == p.steps) dt = p.end_time - solver.time();
-        if (!(dt > 0)) dt = settings.dt;
+        const double dt = TimeStepping{settings.dt, p.steps, p.end_time}.step_length(step, solver.time());
         if (!solver.step(dt)) break;
         ++done;
         const FluidDiagnostics3 d = solver.diagnostics();
@@ -302,7 +314,7 @@ RunResult run_mcfluid3(const Simulation3Params& p, RunContext& ctx) {
         }
     }
     progress.finish();
-    result.interrupted = interrupt_requested();
+    result.interrupted = ctx.cancel.stop_requested();
     if (stopped_by_time)
         log_warn("mcfluid: time limit of {:g} s reached after {} of {} steps (t = {:g})", ctx.time_limit, done, p.steps,
                  solver.time());

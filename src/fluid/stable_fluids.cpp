@@ -629,7 +629,7 @@ double StableFluidsSolver::max_divergence() const {
 
 bool StableFluidsSolver::step(double dt) {
     if (!(dt > 0) || std::isnan(dt)) throw_runtime("StableFluidsSolver::step: dt must be positive (got {})", dt);
-    if (interrupt_requested()) return false;
+    if (stop_requested()) return false;
     const Domain2& d = m_settings.domain;
     const bool per = d.periodic;
     const int nx = m_settings.nx, ny = m_settings.ny;

@@ -209,9 +209,15 @@ void VortexParticleSolver::velocity_at(const std::vector<double>& x, const std::
     sum_velocity(x.data(), y.data(), x.size(), m_x.data(), m_y.data(), u.data(), v.data());
 }
 
+Vec2d VortexParticleSolver::velocity_at(Vec2d x) {
+    double u = 0, v = 0;
+    sum_velocity(&x.x, &x.y, 1, m_x.data(), m_y.data(), &u, &v);
+    return {u, v};
+}
+
 bool VortexParticleSolver::step(double dt) {
     if (!(dt > 0) || std::isnan(dt)) throw_runtime("VortexParticleSolver::step: dt must be positive (got {})", dt);
-    if (interrupt_requested()) return false;
+    if (stop_requested()) return false;
     Timer timer;
     const std::size_t n = m_x.size();
     const Domain2& d = m_settings.domain;
@@ -263,7 +269,7 @@ bool VortexParticleSolver::step(double dt) {
         }
     }
     m_seconds_velocity += timer.seconds();
-    if (interrupt_requested()) return false;  // (the state is mid-step; the caller stops anyway)
+    if (stop_requested()) return false;  // (the state is mid-step; the caller stops anyway)
 
     // Viscosity: Chorin's random walk, variance 2 nu dt per axis; blocks of particles own their streams.
     if (m_settings.viscosity > 0) {

@@ -218,6 +218,9 @@ RunResult MetropolisIntegrator::render(const Scene& scene, RunContext& ctx) {
         dctx.spp = m_direct_samples;
         dctx.quiet = ctx.quiet;
         dctx.progress_label = "Direct light";
+        dctx.on_progress = ctx.on_progress;
+        dctx.progress_nested = true;
+        dctx.cancel = ctx.cancel;
         RunResult r = m_direct->render(scene, dctx);
         direct = std::move(r.image);
         for (const auto& c : dctx.stats.counters())
@@ -254,13 +257,13 @@ RunResult MetropolisIntegrator::render(const Scene& scene, RunContext& ctx) {
         const std::size_t total_boot = nboot * D, blocks = (total_boot + Block - 1) / Block;
         std::vector<SampleCounters> bc(blocks);
         std::vector<SubpathRays> brays(blocks);
-        ProgressReporter progress("Bootstrap", double(total_boot), "paths", ctx.quiet);
+        ProgressReporter progress(ctx, "Bootstrap", double(total_boot), "paths", /*time_limit=*/0, /*nested=*/true);
         parallel_for_units(blocks, [&](std::size_t b) {
             std::vector<double> x;
             Contributions f;
             std::unique_ptr<LightSubpaths> L = m_mmlt ? std::make_unique<LightSubpaths>(max_vertices) : nullptr;
             for (std::size_t i = b * Block; i < std::min(total_boot, (b + 1) * Block); ++i) {
-                if ((i & 255) == 0 && interrupt_requested()) return;
+                if ((i & 255) == 0 && ctx.cancel.stop_requested()) return;
                 boot_pi[i] = evaluate_boot(i, x, f, bc[b], L.get(), brays[b]);
             }
             progress.update(double(std::min(total_boot, (b + 1) * Block) - b * Block));
@@ -286,7 +289,7 @@ RunResult MetropolisIntegrator::render(const Scene& scene, RunContext& ctx) {
         }
         st.normalization = b;
         st.seconds_bootstrap = t.seconds();
-        if (interrupt_requested()) {
+        if (ctx.cancel.stop_requested()) {
             RunResult out;
             out.interrupted = true;
             out.image = direct.empty() ? Bitmap(w, h) : std::move(direct);
@@ -465,7 +468,7 @@ RunResult MetropolisIntegrator::render(const Scene& scene, RunContext& ctx) {
                 return chain_eval(ch, src, slot, cnt);
             };
             for (uint64_t k = 0; k < todo; ++k) {
-                if ((k & 255) == 255 && interrupt_requested()) return;
+                if ((k & 255) == 255 && ctx.cancel.stop_requested()) return;
                 const int s_x = ch.f[0].s;
                 if (m_mmlt) ch.mc->set_second_stage_streams(second_stage_streams(s_x, ch.edges));
                 const StepOutcome o = ch.mc->step(target);

@@ -30,16 +30,16 @@ PassLoopResult run_passes(RunContext& ctx, long long scene_target, const std::st
     if (timed) target = LLONG_MAX;  // equal-time rendering: as much work as time allows
     Timer timer, since_partial;
     // Work done/total in the job's unit; with a time limit the bar and ETA follow time when it is further along.
-    ProgressReporter progress(ctx.progress_label.empty() ? "Rendering" : ctx.progress_label,
-                              timed ? 0.0 : double(target), unit, ctx.quiet);
-    if (ctx.time_limit > 0) progress.set_time_limit(std::max(1e-9, ctx.time_limit - seconds_before));
+    ProgressReporter progress(ctx, ctx.progress_label.empty() ? "Rendering" : ctx.progress_label,
+                              timed ? 0.0 : double(target), unit,
+                              ctx.time_limit > 0 ? std::max(1e-9, ctx.time_limit - seconds_before) : 0.0);
     PassLoopResult r;
     CheckpointSchedule checkpoints(ctx);  // passes end exactly on work checkpoints; callback time is not counted
     long long size = 1;
     while (r.done < target) {
         const long long n = std::min({size, target - r.done, checkpoints.work_until_next(r.done)});
         pass(r.done, n);
-        if (interrupt_requested()) {
+        if (ctx.cancel.stop_requested()) {
             r.interrupted = true;
             break;
         }
@@ -153,7 +153,7 @@ RunResult SamplingIntegrator::render(const Scene& scene, RunContext& ctx) {
             std::unique_ptr<Sampler> sampler = sensor.sampler().clone();
             SampleCounters& c = counters[unit];
             for (int y = y0; y < y1; ++y) {
-                if (interrupt_requested()) return;
+                if (ctx.cancel.stop_requested()) return;
                 for (int x = x0; x < x1; ++x)
                     for (long long k = first; k < first + n; ++k) {
                         sampler->start({x, y}, uint64_t(k), ctx.seed);

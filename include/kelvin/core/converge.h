@@ -15,6 +15,7 @@
 // are rewritten (atomically) after every run, with rows in a canonical order (configurations in the order
 // given, then runs, then checkpoints), so an interrupted study that is resumed ends with the same rows as
 // an uninterrupted one (all but the `seconds` column, with work checkpoints).
+#include <kelvin/core/interrupt.h>
 #include <kelvin/core/metrics.h>
 
 #include <array>
@@ -76,6 +77,8 @@ struct ConvergeOptions {
     enum class Images { None, First, All } images = Images::First;
     bool allow_unused = false;
     bool quiet = false;
+    /// Stops the study (and the run in progress) when cancelled; a process-wide interrupt stops it too.
+    CancelToken cancel;
 };
 
 struct ConvergeSummary {

@@ -1,9 +1,11 @@
 #pragma once
 // A Job is what `kelvin scene.xml` runs: a render (the scene's integrator) or a simulation. The CLI and host
-// applications drive it through RunContext and read back a RunResult.
+// applications drive it through RunContext and read back a RunResult (docs/host-api.md).
 #include <kelvin/core/checkpoint.h>
 #include <kelvin/core/image.h>
+#include <kelvin/core/interrupt.h>
 #include <kelvin/core/object.h>
+#include <kelvin/core/progress.h>
 #include <kelvin/core/stats.h>
 
 #include <cstdint>
@@ -27,9 +29,20 @@ struct RunContext {
     long long spp = -1;        ///< override of the sample count (-1: the scene's own)
     double time_limit = 0;     ///< seconds; 0 = none (equal-time runs stop after this)
     double write_partial = 0;  ///< seconds between partial outputs; 0 = never
-    bool quiet = false;
+    bool quiet = false;        ///< no progress line on stderr (on_progress still gets every report)
     /// Label of the main progress line ("Rendering" when empty); nested passes (an MLT direct pass) set their own.
     std::string progress_label;
+    /// Structured progress for a host (core/progress.h): every pass of the job (sample passes, an MLT
+    /// bootstrap and direct-light pass, simulation steps) reports its start, then at most every 0.1 s, then a
+    /// final report. Called from the job's threads, one call at a time; keep it short and do not throw.
+    ProgressCallback on_progress;
+    /// Set by a job running another job as one of its passes (MLT's direct-light render): that job's reports
+    /// are flagged ProgressInfo::nested.
+    bool progress_nested = false;
+    /// This job's cancellation token. Keep a copy and call cancel() from any thread: the job stops at its next
+    /// poll (within a pass, a row of pixels or cells) and returns what it has with RunResult::interrupted set.
+    /// Only this job stops; a process-wide interrupt (Ctrl-C in `kelvin`, request_interrupt()) stops every job.
+    CancelToken cancel;
     /// Render only this window of the film (renders by sampling integrators; others refuse a non-empty one).
     CropWindow crop;
     std::filesystem::path output;  ///< main output file (renders) or output prefix (simulations)
@@ -55,7 +68,7 @@ struct RunContext {
 
 struct RunResult {
     Bitmap image;              ///< final image (renders); may be empty for simulations
-    bool interrupted = false;  ///< stopped early by a signal; `image` holds what was computed
+    bool interrupted = false;  ///< stopped early (ctx.cancel or a signal); `image` holds what was computed
     double seconds = 0;
     double work = 0;          ///< samples, paths or steps done
     std::string work_unit;    ///< "spp", "steps", ...

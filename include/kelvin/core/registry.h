@@ -16,8 +16,9 @@
 #include <vector>
 
 /// Bumped whenever a change to the public headers breaks binary compatibility of plugins (2: Object::description,
-/// Emitter::eval with the surface uv, RunContext/RunResult fields for the CLI).
-#define KELVIN_PLUGIN_ABI 2
+/// Emitter::eval with the surface uv, RunContext/RunResult fields for the CLI; 3: RunContext's progress callback
+/// and cancellation token, FluidSolver's pointwise queries).
+#define KELVIN_PLUGIN_ABI 3
 
 namespace kelvin {
 

@@ -17,6 +17,7 @@
 #include <kelvin/fluid/biot_savart.h>
 #include <kelvin/fluid/dye.h>
 #include <kelvin/fluid/grid.h>
+#include <kelvin/fluid/solver.h>
 #include <kelvin/fluid/velocity.h>
 
 #include <atomic>
@@ -78,56 +79,45 @@ struct FluidWork {
     double seconds_advection = 0;        ///< backtrace (incl. RK stages) + diffusion + interpolation passes
 };
 
-/// Integral diagnostics of one state (integrals over the domain box, midpoint rule on the cells).
-struct FluidDiagnostics {
-    long long step = 0;
-    double time = 0;
-    double kinetic_energy = 0;      ///< 1/2 int |u|^2, minus the estimated Monte Carlo noise energy
-    double kinetic_energy_raw = 0;  ///< 1/2 int |u_hat|^2 of the noisy estimate
-    double enstrophy = 0;           ///< 1/2 int omega^2
-    double circulation = 0;         ///< int omega
-    double max_abs_vorticity = 0;
-    /// RMSE of the vorticity at the cell centres against the initial condition's exact solution (NaN: none
-    /// known; see exact_vorticity_rmse in output.h).
-    double vorticity_rmse_exact = std::numeric_limits<double>::quiet_NaN();
-};
-
-/// The practical cached solver (Section 5.3.3).
-class MCFluidSolver {
+/// The practical cached solver (Section 5.3.3). A FluidSolver (solver.h): the run loop and hosts step it through
+/// that interface; the rest of its API (variances, the velocity field, work counters) is its own.
+class MCFluidSolver final : public FluidSolver {
 public:
     /// Initialises the cache with `initial` at the cell centres (non-finite values count as invalid and
     /// are stored as zero). Throws RuntimeError on settings the caller should have validated.
     MCFluidSolver(const MCFluidSettings& settings, const InitialField& initial);
-    ~MCFluidSolver();
+    ~MCFluidSolver() override;
 
     const MCFluidSettings& settings() const { return m_settings; }
     /// The mollifier actually used (settings().velocity.delta, or half a cell when that is negative).
     double delta() const { return m_delta; }
-    double time() const { return m_time; }
-    long long step_index() const { return m_step; }
+    double time() const override { return m_time; }
+    long long step_index() const override { return m_step; }
 
     /// One step of length dt (> 0; the last step of a run may be shorter than settings().dt). Returns false
-    /// (and keeps the previous state) when interrupt_requested() stopped it.
-    bool step(double dt);
+    /// (and keeps the previous state) when the cancel token or a process-wide interrupt stopped it.
+    bool step(double dt) override;
     bool step() { return step(m_settings.dt); }
-    /// Steps until time() == t (the last step shortened to land on t). False if interrupted.
+    /// Steps until time() == t (the last step shortened to land on t). False if stopped.
     bool advance_to(double t);
 
     /// The cache: omega at cell centres of the current state.
     const Grid2& vorticity_grid() const { return m_omega; }
+    const Grid2& vorticity_grid() override { return m_omega; }
     /// Velocity at the cell centres of the current state (estimated on first use with the step's own
     /// random streams, so asking for it never changes the simulation) and the variance of each estimate.
-    const Grid2& velocity_u();
-    const Grid2& velocity_v();
+    const Grid2& velocity_u() override;
+    const Grid2& velocity_v() override;
     const Grid2& velocity_variance_u();
     const Grid2& velocity_variance_v();
-    /// Estimates the current state's velocity if not done yet; false when interrupt_requested() cut the
-    /// pass short (velocity_u() and the others then hold zeros, and the next call estimates again). Every
-    /// pass polls the interrupt flag once per cell.
+    /// Estimates the current state's velocity if not done yet; false when a stop (cancel token or interrupt)
+    /// cut the pass short (velocity_u() and the others then hold zeros, and the next call estimates again).
+    /// Every pass polls once per cell.
     bool velocity_available();
     /// Energy and the other diagnostics of the current state (zero velocity when velocity_available() is
     /// false). Without `with_velocity` no velocity pass is run and the energies are NaN (not estimated).
-    FluidDiagnostics diagnostics(bool with_velocity = true);
+    FluidDiagnostics diagnostics(bool with_velocity);
+    FluidDiagnostics diagnostics() override { return diagnostics(true); }
 
     // ----- pointwise API (the cached solver keeps the current state only: t >= time()).
     /// omega(t, x): advances to t, then interpolates the cache.
@@ -135,6 +125,9 @@ public:
     /// v(t, x): advances to t, then a Biot–Savart estimate from the cache with n_mc samples on a stream
     /// derived from (seed, step, x), so the same query gives the same answer.
     Vec2d velocity(double t, Vec2d x);
+    /// vorticity(time(), x) and velocity(time(), x): the FluidSolver queries.
+    double vorticity_at(Vec2d x) override { return m_omega.sample(x, m_settings.interpolation); }
+    Vec2d velocity_at(Vec2d x) override { return velocity(m_time, x); }
     /// A Biot–Savart estimate (Walk-on-Spheres with boundaries) of the current state's velocity at x with n
     /// samples from `rng`.
     VelocityEstimate velocity_estimate(Vec2d x, int n, Random& rng) const;
@@ -151,6 +144,12 @@ public:
     /// the flow the solver computes). Null (the default): no dye, and no dye work.
     void set_dye(std::unique_ptr<PassiveScalars> dye);
     PassiveScalars* dye() const { return m_dye.get(); }
+    PassiveScalars* dye() override { return m_dye.get(); }
+
+    /// FluidSolver's counters: kernel evaluations, non-finite values, and the work counters into `stats`.
+    double evaluations() const override { return double(m_work.biot_savart_evals); }
+    uint64_t invalid() const override { return m_work.invalid_velocity + m_work.invalid_vorticity; }
+    void report(Stats& stats) const override;
 
     /// Stream tags of the passes (part of the determinism contract; tests use them).
     enum StreamTag : uint64_t { TagVelocity = 1, TagAdvection = 2, TagQuery = 3, TagDye = 4 };

@@ -114,7 +114,9 @@ struct Smoke3 {
     double rate = 0;
 };
 
-class MCFluid3Solver {
+/// The 3D solver. Cancellable (core/interrupt.h): step() and the velocity pass poll the token set with
+/// set_cancel_token() (or a process-wide interrupt) once per row of cells.
+class MCFluid3Solver : public Cancellable {
 public:
     MCFluid3Solver(const MCFluid3Settings& settings, const InitialField3& initial);
     ~MCFluid3Solver();
@@ -129,7 +131,7 @@ public:
     /// The boundaries of the current state (null without boundaries).
     const WosVelocityField3* boundary_field() const { return m_wos; }
 
-    /// One step of length dt; false (state unchanged) when interrupt_requested() stopped it.
+    /// One step of length dt; false (state unchanged) when the cancel token or a process-wide interrupt stopped it.
     bool step(double dt);
     bool step() { return step(m_settings.dt); }
 
@@ -137,9 +139,17 @@ public:
     /// Velocity at the cell centres of the current state (estimated on first use) and its variance.
     const VectorGrid3& velocity_grid();
     const VectorGrid3& velocity_variance();
-    /// False when an interrupt cut the velocity pass short (the grids then hold zeros).
+    /// False when a stop (cancel token or interrupt) cut the velocity pass short (the grids then hold zeros).
     bool velocity_available();
     FluidDiagnostics3 diagnostics();
+
+    // ----- pointwise queries of the current state (hosts, docs/host-api.md).
+    /// omega at x: the cache interpolated as the solver interpolates it (trilinear or nearest).
+    Vec3d vorticity_at(Vec3d x) const { return m_omega.sample(x, m_settings.interpolation); }
+    /// The velocity at x: a fresh Monte Carlo estimate with the solver's n_mc samples (Biot–Savart, or
+    /// Walk-on-Spheres with boundaries; without control variates), on a random stream fixed by (seed, step, x),
+    /// so the same query gives the same answer.
+    Vec3d velocity_at(Vec3d x) const;
 
     /// A Monte Carlo estimate of the current state's velocity at x with n samples (without control variates):
     /// Biot–Savart, or Walk-on-Spheres with boundaries (then the walks count into `walks`).
@@ -153,7 +163,7 @@ public:
     /// The smoke density at the cell centres (null without smoke).
     const Grid3* smoke() const { return m_smoke ? &m_density : nullptr; }
 
-    enum StreamTag : uint64_t { TagVelocity = 1, TagAdvection = 2 };
+    enum StreamTag : uint64_t { TagVelocity = 1, TagAdvection = 2, TagQuery = 3 };
     struct SlabWork;  ///< the work of one z-slab of a pass (defined in mcfluid3.cpp)
 
 private:

@@ -10,6 +10,8 @@
 #include <kelvin/fluid/dye.h>
 #include <kelvin/fluid/fields.h>
 #include <kelvin/fluid/mcfluid.h>
+#include <kelvin/fluid/mcfluid3.h>
+#include <kelvin/fluid/solver.h>
 #include <kelvin/fluid/output.h>
 
 #include <functional>
@@ -25,6 +27,13 @@ struct TimeStepping {
     long long steps = 0;
     double end_time = 0;
     static TimeStepping parse(const Properties& props);
+    /// The length of step `step` (1-based) taken at simulated time `time`, as every run loop takes it: dt, the
+    /// last one shortened to land on end_time. A host stepping a solver itself uses it to compute run()'s states.
+    double step_length(long long step, double time) const {
+        double h = dt;
+        if (end_time > 0 && step == steps) h = end_time - time;
+        return h > 0 ? h : dt;
+    }
 };
 
 /// The parameters every 2D simulation reads (see docs/fluid.md, "Baselines").
@@ -51,27 +60,34 @@ struct SimulationParams {
     static SimulationParams parse_baseline(const Properties& props, const std::string& who);
 };
 
-/// A solver the driver runs. Fields are on the output grid (nx x ny cell centres of the domain).
-class FluidSolver {
+/// A <simulation> plugin (mcfluid, stable_fluids, vortex_particles) as a host drives it: run() it as any Job, or
+/// take its solver and step and query it yourself (docs/host-api.md). find_simulation() gets it from a loaded
+/// scene.
+class Simulation : public Job {
 public:
-    virtual ~FluidSolver() = default;
-    virtual double time() const = 0;
-    virtual long long step_index() const = 0;
-    /// One step of length dt; false (state unchanged) when interrupt_requested() stopped it.
-    virtual bool step(double dt) = 0;
-    virtual const Grid2& vorticity_grid() = 0;
-    virtual const Grid2& velocity_u() = 0;
-    virtual const Grid2& velocity_v() = 0;
-    /// Energy, enstrophy, circulation and max |omega| of the fields above (energy_raw = energy: no noise).
-    virtual FluidDiagnostics diagnostics();
-    virtual PassiveScalars* dye() = 0;
-    /// Kernel evaluations so far (the CSV's biot_savart_evals column: particle pairs; 0 for grid solvers).
-    virtual double evaluations() const = 0;
-    /// Non-finite values met so far (replaced by zero).
-    virtual uint64_t invalid() const = 0;
-    /// Counters and timers into `stats` (fluid.*).
-    virtual void report(Stats& stats) const = 0;
+    /// 2, or 3 (mcfluid with dimension = 3).
+    virtual int dimension() const { return 2; }
+    /// dt, steps and end_time as the scene gives them (steps resolved from end_time).
+    virtual TimeStepping time_stepping() const = 0;
+    /// The kinematic viscosity nu.
+    virtual double viscosity() const = 0;
+    /// The initial vorticity field of a 2D simulation (its exact_vorticity/exact_velocity give the exact
+    /// solution where one is known: Lamb–Oseen, Taylor–Green); null in 3D.
+    virtual std::shared_ptr<const VorticityField> vorticity_field() const { return nullptr; }
+
+    /// The solver of a 2D simulation at t = 0, set up as run(ctx) sets it up: from the scene's parameters,
+    /// ctx.seed, ctx.spp (mcfluid: n_mc) and ctx.cancel (the solver's cancel token). Stepping it by
+    /// time_stepping().step_length(s, time) computes the states run(ctx) computes, bit for bit. No file is written and
+    /// nothing is logged. The solver may refer to this object: keep the simulation (or its scene) alive while using it.
+    /// Throws InputError for a 3D simulation.
+    virtual std::unique_ptr<FluidSolver> create_solver(const RunContext& ctx) const;
+    /// The same for a 3D simulation (mcfluid with dimension = 3); throws InputError for a 2D one.
+    virtual std::unique_ptr<MCFluid3Solver> create_solver3(const RunContext& ctx) const;
 };
+
+/// The simulation of a loaded scene: `root` itself when it is one, or the <simulation> of a <scene>. Throws
+/// InputError when there is none (a render scene).
+std::shared_ptr<Simulation> find_simulation(const ObjectPtr& root);
 
 /// The run loop of a baseline: CSV row per state, frames every output_every steps (and the last), dye frames,
 /// progress, --time-limit, --write-partial, interruption, counters and the end-of-run summary. `effects` is

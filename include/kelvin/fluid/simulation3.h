@@ -41,6 +41,9 @@ struct Simulation3Params {
 };
 
 RunResult run_mcfluid3(const Simulation3Params& p, RunContext& ctx);
+/// The solver run_mcfluid3(p, ctx) steps, at t = 0: ctx.seed, ctx.spp as n_mc, the smoke, ctx.cancel as its
+/// token. It refers to p.field: keep `p` (the simulation) alive while using it.
+std::unique_ptr<MCFluid3Solver> create_mcfluid3_solver(const Simulation3Params& p, const RunContext& ctx);
 
 /// Writes the state as an OpenVDB file (vorticity, |vorticity| and, when given, velocity), atomically.
 void write_vdb_frame(const std::filesystem::path& path, const VectorGrid3& vorticity, const VectorGrid3* velocity,

@@ -59,6 +59,8 @@ public:
     uint64_t invalid() const override { return m_invalid; }
     void report(Stats& stats) const override;
 
+    /// The particle velocity at x (direct sum over the particles).
+    Vec2d velocity_at(Vec2d x) override;
     /// The particle velocity at arbitrary points (direct sum): (u, v) for each (x, y).
     void velocity_at(const std::vector<double>& x, const std::vector<double>& y, std::vector<double>& u,
                      std::vector<double>& v);

@@ -19,14 +19,15 @@ class Scene;
 /// Outcome of run_passes.
 struct PassLoopResult {
     long long done = 0;        ///< passes' worth of work completed (spp, or spp-equivalents)
-    bool interrupted = false;  ///< stopped by interrupt_requested()
+    bool interrupted = false;  ///< stopped by ctx.cancel or a process-wide interrupt
     double seconds = 0;
 };
 
 /// The progressive loop every integrator shares. Renders `pass(first, count)` for growing counts until
 /// `scene_target` units are done (ctx.spp overrides it; with ctx.time_limit and no ctx.spp the target is
-/// unbounded and time decides), polls interrupt_requested() between passes, writes ctx.write_partial_image
-/// every ctx.write_partial seconds from `develop()`, and shows progress. Pass sizes grow 1, 2, 4, ... but stay
+/// unbounded and time decides), polls ctx.cancel.stop_requested() between passes (`pass` should poll it too, per
+/// row or so), writes ctx.write_partial_image every ctx.write_partial seconds from `develop()`, and reports
+/// progress (stderr and ctx.on_progress). Pass sizes grow 1, 2, 4, ... but stay
 /// near a second, so limits and Ctrl-C are honoured promptly. A pass must give the same result however the
 /// work is split into passes (its output may depend on `first` and `count` only through the unit indices).
 /// `seconds_before`: time the job spent before the loop (a Metropolis bootstrap), counted against the time

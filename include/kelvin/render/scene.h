@@ -44,6 +44,9 @@ public:
     const std::vector<std::shared_ptr<Shape>>& shapes() const { return m_shapes; }
     const Sensor* sensor() const { return m_sensor.get(); }
     Integrator* integrator() const { return m_integrator.get(); }
+    /// The <simulation> the scene runs instead of a render (null for a render); fluid/simulation.h's
+    /// find_simulation gives it as a fluid::Simulation.
+    const std::shared_ptr<Job>& simulation() const { return m_simulation; }
     /// Axis-aligned bounds of all geometry (empty box if none).
     std::pair<Vec3d, Vec3d> bounds() const { return {m_bbox_min, m_bbox_max}; }
 

@@ -89,8 +89,9 @@ public:
             img.add_channel("du_dy");
         }
         std::vector<wos::WalkCounters> rows(static_cast<std::size_t>(ny), wos::WalkCounters{});
-        ProgressReporter progress("Solving", double(ny), "rows", ctx.quiet);
+        ProgressReporter progress(ctx, "Solving", double(ny), "rows");
         parallel_for_units(std::size_t(ny), [&](std::size_t row) {
+            if (ctx.cancel.stop_requested()) return;  // rows not solved stay zero; the result says interrupted
             const int j = int(row);
             Random rng(ctx.seed, row);
             for (int i = 0; i < nx; ++i) {
@@ -124,6 +125,7 @@ public:
         for (const auto& r : rows) c += r;
         report_walks(ctx.stats, "wos.", c, "wos_poisson", m_options.wos.max_steps);
         RunResult result;
+        result.interrupted = ctx.cancel.stop_requested();
         result.image = std::move(img);
         result.work = double(walks);
         result.work_unit = "walks/pixel";

@@ -80,7 +80,7 @@
 namespace kelvin::fluid {
 namespace {
 
-class MCFluid final : public Job {
+class MCFluid final : public Simulation {
 public:
     explicit MCFluid(const Properties& props) {
         const long long dim = props.get_int("dimension");
@@ -155,18 +155,50 @@ public:
         return m_3d ? plugin_name() + " (3D)" : fmt::format("{} (2D, {})", plugin_name(), m_velocity_name);
     }
 
+    // ----- Simulation (simulation.h): what a host drives itself.
+    int dimension() const override { return m_3d ? 3 : 2; }
+    TimeStepping time_stepping() const override {
+        if (m_3d) return {m_3d->settings.dt, m_3d->steps, m_3d->end_time};
+        return {m_settings.dt, m_steps, m_end_time};
+    }
+    double viscosity() const override { return m_3d ? m_3d->settings.viscosity : m_settings.viscosity; }
+    std::shared_ptr<const VorticityField> vorticity_field() const override { return m_field; }
+    std::unique_ptr<FluidSolver> create_solver(const RunContext& ctx) const override {
+        if (m_3d) return Simulation::create_solver(ctx);  // the error
+        return make_solver(ctx);
+    }
+    std::unique_ptr<MCFluid3Solver> create_solver3(const RunContext& ctx) const override {
+        if (!m_3d) return Simulation::create_solver3(ctx);
+        return create_mcfluid3_solver(*m_3d, ctx);
+    }
+
+    /// The solver's settings for a run with `ctx`: the scene's, with the run's seed and --spp as n_mc.
+    MCFluidSettings settings_for(const RunContext& ctx) const {
+        MCFluidSettings settings = m_settings;
+        settings.seed = ctx.seed;
+        if (ctx.spp > 0) settings.velocity.samples = int(std::min<long long>(ctx.spp, 1 << 24));
+        return settings;
+    }
+    /// The solver run(ctx) steps, at t = 0 (with the dye, and ctx.cancel as its token).
+    std::unique_ptr<MCFluidSolver> make_solver(const RunContext& ctx) const {
+        const MCFluidSettings settings = settings_for(ctx);
+        const VorticityField* field = m_field.get();
+        auto solver =
+            std::make_unique<MCFluidSolver>(settings, [field](const Vec2d& x) { return field->vorticity(x); });
+        if (m_dye) solver->set_dye(std::make_unique<PassiveScalars>(settings.domain, *m_dye, settings.nx, settings.ny));
+        solver->set_cancel_token(ctx.cancel);
+        return solver;
+    }
+
     RunResult run(RunContext& ctx) override {
         if (m_3d) return run_mcfluid3(*m_3d, ctx);
         Timer total;
-        MCFluidSettings settings = m_settings;
-        settings.seed = ctx.seed;
-        if (ctx.spp > 0) {  // --spp: the Monte Carlo sample count of a simulation is n_mc
-            settings.velocity.samples = int(std::min<long long>(ctx.spp, 1 << 24));
+        const MCFluidSettings settings = settings_for(ctx);
+        if (ctx.spp > 0)  // --spp: the Monte Carlo sample count of a simulation is n_mc
             log_info("mcfluid: --spp {} overrides the Biot–Savart samples (n_mc)", settings.velocity.samples);
-        }
         const VorticityField& field = *m_field;
-        MCFluidSolver solver(settings, [&field](const Vec2d& x) { return field.vorticity(x); });
-        if (m_dye) solver.set_dye(std::make_unique<PassiveScalars>(settings.domain, *m_dye, settings.nx, settings.ny));
+        const std::unique_ptr<MCFluidSolver> owned = make_solver(ctx);
+        MCFluidSolver& solver = *owned;
         const bool viscous = settings.viscosity > 0;
 
         log_info("mcfluid: 2D, domain {}, {}x{} cache ({}), initial {}", settings.domain.to_string(), settings.nx,
@@ -266,18 +298,15 @@ public:
             return frame && m_write_exr;
         };
         bool final_without_velocity = false;
-        ProgressReporter progress("Simulating", double(m_steps), "steps", ctx.quiet);
-        progress.set_time_limit(ctx.time_limit);
+        ProgressReporter progress(ctx, "Simulating", double(m_steps), "steps", ctx.time_limit);
         Timer since_partial;
         long long done = 0;
         bool stopped_by_time = false;
         for (long long s = 1; s <= m_steps; ++s) {
-            if (interrupt_requested()) break;
+            if (ctx.cancel.stop_requested()) break;
             const FluidWork before = solver.work();
             Timer step_timer;
-            double dt = settings.dt;
-            if (m_end_time > 0 && s == m_steps) dt = m_end_time - solver.time();
-            if (!(dt > 0)) dt = settings.dt;
+            const double dt = time_stepping().step_length(s, solver.time());
             if (!solver.step(dt)) break;
             ++done;
             if (!velocity_needed_at(s)) {  // the final state, vorticity only
@@ -326,7 +355,7 @@ public:
             }
         }
         progress.finish();
-        result.interrupted = interrupt_requested();
+        result.interrupted = ctx.cancel.stop_requested();
         if (stopped_by_time)
             log_warn("mcfluid: time limit of {:g} s reached after {} of {} steps (t = {:g})", ctx.time_limit, done,
                      m_steps, solver.time());

@@ -41,7 +41,7 @@
 namespace kelvin::fluid {
 namespace {
 
-class StableFluids final : public Job {
+class StableFluids final : public Simulation {
 public:
     StableFluids(const Properties& props, Transport transport)
         : m_who(transport == Transport::FLIP ? "flip" : "stable_fluids"),
@@ -128,7 +128,14 @@ public:
         return false;
     }
 
-    RunResult run(RunContext& ctx) override {
+    int dimension() const override { return 2; }
+    TimeStepping time_stepping() const override { return {m_params.dt, m_params.steps, m_params.end_time}; }
+    double viscosity() const override { return m_params.viscosity; }
+    std::shared_ptr<const VorticityField> vorticity_field() const override { return m_params.field; }
+    std::unique_ptr<FluidSolver> create_solver(const RunContext& ctx) const override { return make_solver(ctx); }
+
+    /// The solver run(ctx) steps, at t = 0 (with the dye and ctx.cancel as its token); it refers to this object.
+    std::unique_ptr<StableFluidsSolver> make_solver(const RunContext& ctx) const {
         StableFluidsSettings s;
         s.domain = m_params.domain;
         s.nx = m_params.nx;
@@ -142,9 +149,17 @@ public:
         s.flip_ratio = m_flip_ratio;
         s.particles_per_cell = m_particles_per_cell;
         if (!m_obstacles.empty()) s.solid = [this](const Vec2d& p) { return solid(p); };
-        const VorticityField& field = *m_params.field;
-        StableFluidsSolver solver(s, [&field](const Vec2d& x) { return field.vorticity(x); });
-        if (m_params.dye) solver.set_dye(std::make_unique<PassiveScalars>(s.domain, *m_params.dye, s.nx, s.ny));
+        const VorticityField* field = m_params.field.get();
+        auto solver = std::make_unique<StableFluidsSolver>(s, [field](const Vec2d& x) { return field->vorticity(x); });
+        if (m_params.dye) solver->set_dye(std::make_unique<PassiveScalars>(s.domain, *m_params.dye, s.nx, s.ny));
+        solver->set_cancel_token(ctx.cancel);
+        return solver;
+    }
+
+    RunResult run(RunContext& ctx) override {
+        const std::unique_ptr<StableFluidsSolver> owned = make_solver(ctx);
+        StableFluidsSolver& solver = *owned;
+        const StableFluidsSettings& s = solver.settings();
         const std::string transport =
             m_transport == Transport::FLIP
                 ? fmt::format("FLIP particles ({} per cell, flip_ratio {:g}, {} moves)", s.particles_per_cell,

@@ -24,7 +24,7 @@
 namespace kelvin::fluid {
 namespace {
 
-class VortexParticles final : public Job {
+class VortexParticles final : public Simulation {
 public:
     explicit VortexParticles(const Properties& props)
         : m_params(SimulationParams::parse_baseline(props, "vortex_particles")) {
@@ -34,7 +34,14 @@ public:
         m_threshold = props.get_float("threshold", 0.0, 1.0);
     }
 
-    RunResult run(RunContext& ctx) override {
+    int dimension() const override { return 2; }
+    TimeStepping time_stepping() const override { return {m_params.dt, m_params.steps, m_params.end_time}; }
+    double viscosity() const override { return m_params.viscosity; }
+    std::shared_ptr<const VorticityField> vorticity_field() const override { return m_params.field; }
+    std::unique_ptr<FluidSolver> create_solver(const RunContext& ctx) const override { return make_solver(ctx); }
+
+    /// The solver run(ctx) steps, at t = 0 (with the dye and ctx.cancel as its token).
+    std::unique_ptr<VortexParticleSolver> make_solver(const RunContext& ctx) const {
         VortexParticleSettings s;
         s.domain = m_params.domain;
         s.nx = m_params.nx;
@@ -44,9 +51,18 @@ public:
         s.viscosity = m_params.viscosity;
         s.threshold = m_threshold;
         s.seed = ctx.seed;
-        const VorticityField& field = *m_params.field;
-        VortexParticleSolver solver(s, [&field](const Vec2d& x) { return field.vorticity(x); });
-        if (m_params.dye) solver.set_dye(std::make_unique<PassiveScalars>(s.domain, *m_params.dye, s.nx, s.ny));
+        const VorticityField* field = m_params.field.get();
+        auto solver =
+            std::make_unique<VortexParticleSolver>(s, [field](const Vec2d& x) { return field->vorticity(x); });
+        if (m_params.dye) solver->set_dye(std::make_unique<PassiveScalars>(s.domain, *m_params.dye, s.nx, s.ny));
+        solver->set_cancel_token(ctx.cancel);
+        return solver;
+    }
+
+    RunResult run(RunContext& ctx) override {
+        const std::unique_ptr<VortexParticleSolver> owned = make_solver(ctx);
+        VortexParticleSolver& solver = *owned;
+        const VortexParticleSettings& s = solver.settings();
         const std::string effects = fmt::format(
             "particle transport ({}, dt {:g}, {} steps, {} particles) with direct Biot–Savart summation (blob "
             "radius {:g}{}){}; boundaries none ({})",

@@ -59,7 +59,7 @@ public:
                 const std::size_t p0 = unit * PathsPerUnit, p1 = std::min(paths, p0 + PathsPerUnit);
                 for (long long k = first; k < first + n; ++k)
                     for (std::size_t p = p0; p < p1; ++p) {
-                        if ((p & 255) == 0 && interrupt_requested()) return;
+                        if ((p & 255) == 0 && ctx.cancel.stop_requested()) return;
                         sampler->start({int(p % std::size_t(w)), int(p / std::size_t(w))}, uint64_t(k), seed);
                         trace(scene, sensor, *sampler, splats, unit, counters[unit]);
                         ++counters[unit].samples;
