@@ -29,11 +29,20 @@ void log_message(LogLevel level, const std::string& msg) {
     }
     const char* prefix = "";
     switch (level) {
-        case LogLevel::Debug: prefix = "debug: "; break;
-        case LogLevel::Info: prefix = ""; break;
-        case LogLevel::Warn: prefix = "warning: "; break;
-        case LogLevel::Error: prefix = "error: "; break;
-        case LogLevel::Off: return;
+        case LogLevel::Debug:
+            prefix = "debug: ";
+            break;
+        case LogLevel::Info:
+            prefix = "";
+            break;
+        case LogLevel::Warn:
+            prefix = "warning: ";
+            break;
+        case LogLevel::Error:
+            prefix = "error: ";
+            break;
+        case LogLevel::Off:
+            return;
     }
     std::fprintf(stderr, "%s%s\n", prefix, msg.c_str());
 }

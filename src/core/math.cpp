@@ -13,9 +13,7 @@ Vec3d Transform::apply_point(const Vec3d& p) const {
     return r.w == 1.0 ? Vec3d(r) : Vec3d(r) / r.w;
 }
 Vec3d Transform::apply_vector(const Vec3d& v) const { return Vec3d(matrix * glm::dvec4(v, 0.0)); }
-Vec3d Transform::apply_normal(const Vec3d& n) const {
-    return Vec3d(glm::transpose(inverse) * glm::dvec4(n, 0.0));
-}
+Vec3d Transform::apply_normal(const Vec3d& n) const { return Vec3d(glm::transpose(inverse) * glm::dvec4(n, 0.0)); }
 
 bool Transform::is_rigid(double tol) const {
     const Mat3d m(matrix);
@@ -29,9 +27,7 @@ bool Transform::is_rigid(double tol) const {
 Transform Transform::translate(const Vec3d& t) {
     return {glm::translate(Mat4d(1.0), t), glm::translate(Mat4d(1.0), -t)};
 }
-Transform Transform::scale(const Vec3d& s) {
-    return {glm::scale(Mat4d(1.0), s), glm::scale(Mat4d(1.0), 1.0 / s)};
-}
+Transform Transform::scale(const Vec3d& s) { return {glm::scale(Mat4d(1.0), s), glm::scale(Mat4d(1.0), 1.0 / s)}; }
 Transform Transform::rotate(const Vec3d& axis, double angle_deg) {
     Mat4d m = glm::rotate(Mat4d(1.0), glm::radians(angle_deg), glm::normalize(axis));
     return {m, glm::transpose(m)};

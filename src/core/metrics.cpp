@@ -31,8 +31,8 @@ std::vector<int> channel_indices(const Bitmap& image, const std::vector<std::str
 
 void check_sizes(const Bitmap& image, const Bitmap& reference) {
     if (image.width() != reference.width() || image.height() != reference.height())
-        throw InputError({}, fmt::format("the image is {}x{} but the reference is {}x{}", image.width(),
-                                         image.height(), reference.width(), reference.height()));
+        throw InputError({}, fmt::format("the image is {}x{} but the reference is {}x{}", image.width(), image.height(),
+                                         reference.width(), reference.height()));
     if (image.empty()) throw InputError({}, "cannot compare empty images");
 }
 
@@ -133,8 +133,8 @@ double ssim_plane(std::span<const double> a, std::span<const double> b, int widt
                   const SsimOptions& opts) {
     const std::size_t n = std::size_t(width) * std::size_t(height);
     if (width <= 0 || height <= 0 || a.size() != n || b.size() != n)
-        throw InputError({}, fmt::format("ssim: planes of {} and {} values for a {}x{} image", a.size(), b.size(),
-                                         width, height));
+        throw InputError(
+            {}, fmt::format("ssim: planes of {} and {} values for a {}x{} image", a.size(), b.size(), width, height));
     if (!(opts.sigma > 0) || opts.radius < 0) throw InputError({}, "ssim: sigma must be positive, radius >= 0");
     std::vector<double> kernel(std::size_t(2 * opts.radius + 1));
     for (int k = -opts.radius; k <= opts.radius; ++k)
@@ -221,8 +221,8 @@ std::string FieldRegion::to_string() const {
 
 namespace {
 
-FieldErrors field_errors_where(std::span<const double> values, std::span<const double> reference,
-                               const CellGrid2& grid, const std::function<bool(Vec2d)>& inside) {
+FieldErrors field_errors_where(std::span<const double> values, std::span<const double> reference, const CellGrid2& grid,
+                               const std::function<bool(Vec2d)>& inside) {
     if (values.size() != grid.cell_count() || reference.size() != grid.cell_count())
         throw InputError({}, fmt::format("field errors: {} values and {} reference values for a {}x{} grid",
                                          values.size(), reference.size(), grid.nx, grid.ny));
@@ -257,15 +257,16 @@ FieldErrors field_errors(std::span<const double> values, std::span<const double>
 std::vector<double> sample_field(const CellGrid2& grid, const std::function<double(Vec2d)>& fn) {
     std::vector<double> out(grid.cell_count());
     for (int j = 0; j < grid.ny; ++j)
-        for (int i = 0; i < grid.nx; ++i) out[std::size_t(j) * std::size_t(grid.nx) + std::size_t(i)] = fn(grid.cell_center(i, j));
+        for (int i = 0; i < grid.nx; ++i)
+            out[std::size_t(j) * std::size_t(grid.nx) + std::size_t(i)] = fn(grid.cell_center(i, j));
     return out;
 }
 
 std::vector<RadialError> radial_errors(std::span<const double> values, std::span<const double> reference,
                                        const CellGrid2& grid, Vec2d center, double max_radius, int bins) {
     if (!(max_radius > 0) || bins < 1)
-        throw InputError({}, fmt::format("radial errors: need max_radius > 0 and bins >= 1 (got {:g}, {})",
-                                         max_radius, bins));
+        throw InputError(
+            {}, fmt::format("radial errors: need max_radius > 0 and bins >= 1 (got {:g}, {})", max_radius, bins));
     std::vector<RadialError> out;
     for (int b = 0; b < bins; ++b) {
         RadialError r;

@@ -12,9 +12,7 @@ ThreadLimit::ThreadLimit(int threads) {
 }
 ThreadLimit::~ThreadLimit() { delete static_cast<tbb::global_control*>(m_control); }
 
-int thread_count() {
-    return int(tbb::global_control::active_value(tbb::global_control::max_allowed_parallelism));
-}
+int thread_count() { return int(tbb::global_control::active_value(tbb::global_control::max_allowed_parallelism)); }
 
 void parallel_for_units(std::size_t count, const std::function<void(std::size_t)>& body) {
     if (count == 0) return;

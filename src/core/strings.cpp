@@ -34,8 +34,7 @@ std::vector<std::string> close_matches(std::string_view word, const std::vector<
         bool prefix = !word.empty() && c.size() > word.size() && c.compare(0, word.size(), word) == 0;
         if (d <= limit || prefix) scored.emplace_back(prefix ? std::min(d, limit) : d, c);
     }
-    std::stable_sort(scored.begin(), scored.end(),
-                     [](const auto& x, const auto& y) { return x.first < y.first; });
+    std::stable_sort(scored.begin(), scored.end(), [](const auto& x, const auto& y) { return x.first < y.first; });
     std::vector<std::string> out;
     for (auto& s : scored) {
         if (out.size() >= max) break;

@@ -249,7 +249,8 @@ ClosestPointQuery::ClosestPointQuery(std::vector<ShapeGeometry> geometry) : m_im
             const bool discs = g.type == ShapeGeometry::Type::Discs;
             for (std::size_t i = 0; i < std::min(g.positions.size(), g.radii.size()); ++i)
                 if (valid(Vec3d(g.positions[i])) && valid(g.radii[i]) && g.radii[i] >= 0 &&
-                    (!discs || (i < g.normals.size() && valid(Vec3d(g.normals[i])) && glm::length(Vec3d(g.normals[i])) > 0)))
+                    (!discs ||
+                     (i < g.normals.size() && valid(Vec3d(g.normals[i])) && glm::length(Vec3d(g.normals[i])) > 0)))
                     keep.push_back(uint32_t(i));
             if (keep.size() != g.positions.size()) m.prim_map[s] = keep;
         }

@@ -23,7 +23,8 @@ Distribution1D::Distribution1D(std::vector<double> weights) : m_weights(std::mov
     for (std::size_t i = 0; i < m_weights.size(); ++i) {
         const double w = m_weights[i];
         if (!(w >= 0) || !std::isfinite(w))
-            throw std::invalid_argument(fmt::format("Distribution1D: weight {} of cell {} is negative or not finite", w, i));
+            throw std::invalid_argument(
+                fmt::format("Distribution1D: weight {} of cell {} is negative or not finite", w, i));
         m_cdf[i + 1] = m_cdf[i] + w;
     }
     m_total = m_cdf.back();

@@ -65,8 +65,8 @@ TEST(Checkpoints, ScheduleFiresEachCheckpointOnceInOrder) {
     EXPECT_EQ(s.work_until_next(16), LLONG_MAX);
     EXPECT_EQ(s.seconds_until_next(0.7), std::numeric_limits<double>::infinity());
     using T = Checkpoint::Trigger;
-    const std::vector<std::pair<T, double>> want = {
-        {T::Work, 1}, {T::Seconds, 0.5}, {T::Work, 4}, {T::Work, 16}, {T::SimTime, 0.1}, {T::SimTime, 0.3}};
+    const std::vector<std::pair<T, double>> want = {{T::Work, 1},  {T::Seconds, 0.5}, {T::Work, 4},
+                                                    {T::Work, 16}, {T::SimTime, 0.1}, {T::SimTime, 0.3}};
     EXPECT_EQ(fired, want);
     EXPECT_GE(s.overhead(), 0.0);
 

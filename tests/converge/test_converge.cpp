@@ -51,9 +51,7 @@ std::vector<std::string> deterministic_rows(const fs::path& p) {
     return out;
 }
 
-double num(const std::map<std::string, std::string>& row, const std::string& key) {
-    return std::stod(row.at(key));
-}
+double num(const std::map<std::string, std::string>& row, const std::string& key) { return std::stod(row.at(key)); }
 
 /// Debian's python3 with matplotlib (python3-matplotlib, installed by tools/setup.sh).
 std::string python() { return fs::exists("/usr/bin/python3") ? "/usr/bin/python3" : "python3"; }
@@ -73,8 +71,12 @@ protected:
         return run_kelvin(args, {}, std::chrono::seconds(120));
     }
     std::vector<std::string> render_study(const fs::path& ref, const fs::path& out, int runs) {
-        return {"--reference", ref.string(), "--config", "path:integrator=path", "--config", "pt:integrator=ptracer",
-                "--runs", std::to_string(runs), "--spp", "1,4,16,64", "-o", out.string()};
+        return {"--reference", ref.string(),
+                "--config",    "path:integrator=path",
+                "--config",    "pt:integrator=ptracer",
+                "--runs",      std::to_string(runs),
+                "--spp",       "1,4,16,64",
+                "-o",          out.string()};
     }
     static void expect_input_error(const ProcessResult& r, const std::string& fragment) {
         EXPECT_EQ(r.exit_code, 2) << describe(r);
@@ -95,8 +97,9 @@ TEST(ConvergeInput, ConfigurationsAndLists) {
     EXPECT_EQ(c.defines_string(), "integrator=mlt;max_depth=3");
     EXPECT_EQ(kelvin::parse_config_spec("integrator=path", "--config").name, "integrator=path");
     EXPECT_TRUE(kelvin::parse_config_spec("baseline:", "--config").defines.empty());
-    EXPECT_NE(ktest::input_error_of([] { kelvin::parse_config_spec("path", "--config 'path'"); }).find("--config 'path'"),
-              std::string::npos);
+    EXPECT_NE(
+        ktest::input_error_of([] { kelvin::parse_config_spec("path", "--config 'path'"); }).find("--config 'path'"),
+        std::string::npos);
     EXPECT_NE(ktest::input_error_of([] { kelvin::parse_config_spec("a:b", "--config"); }).find("NAME=VALUE"),
               std::string::npos);
     EXPECT_THROW(kelvin::parse_config_spec(":a=1", "--config"), kelvin::InputError);
@@ -113,7 +116,8 @@ TEST(ConvergeInput, ConfigurationsAndLists) {
     EXPECT_THROW(kelvin::parse_number_list("", "--times"), kelvin::InputError);
 
     TempDir dir;
-    auto file = dir.write("configs.txt", "# integrators\npath: integrator=path max_depth=3\n\npt: integrator=ptracer\n");
+    auto file =
+        dir.write("configs.txt", "# integrators\npath: integrator=path max_depth=3\n\npt: integrator=ptracer\n");
     auto configs = kelvin::read_config_file(file);
     ASSERT_EQ(configs.size(), 2u);
     EXPECT_EQ(configs[0].defines.size(), 2u);
@@ -203,7 +207,8 @@ TEST_F(ConvergeCli, ResumedStudyReproducesTheRows) {
     EXPECT_NE(b2.err.find("2 run(s)"), std::string::npos) << b2.err;  // only the missing runs
     EXPECT_NE(b2.err.find("(2 already done)"), std::string::npos) << b2.err;
     EXPECT_EQ(deterministic_rows(pieces / "convergence.csv"), deterministic_rows(whole / "convergence.csv"));
-    EXPECT_EQ(deterministic_rows(pieces / "convergence_stats.csv"), deterministic_rows(whole / "convergence_stats.csv"));
+    EXPECT_EQ(deterministic_rows(pieces / "convergence_stats.csv"),
+              deterministic_rows(whole / "convergence_stats.csv"));
 
     // Nothing left to do: nothing recomputed, the file unchanged.
     const std::string before = read_file(pieces / "convergence.csv");
@@ -223,8 +228,9 @@ TEST_F(ConvergeCli, ResumedStudyReproducesTheRows) {
 
 TEST_F(ConvergeCli, BadInputIsOneLineAndExitCode2) {
     const fs::path ref = reference(), out = m_dir / "bad";
-    expect_input_error(converge({"--reference", ref.string(), "--config", "x:nosuch=1", "--spp", "1", "-o", out.string()}),
-                       "does not use the parameter 'nosuch'");
+    expect_input_error(
+        converge({"--reference", ref.string(), "--config", "x:nosuch=1", "--spp", "1", "-o", out.string()}),
+        "does not use the parameter 'nosuch'");
     expect_input_error(converge({"--reference", (m_dir / "missing.exr").string(), "--config", "p:integrator=path",
                                  "--spp", "1", "-o", out.string()}),
                        "missing.exr: no such reference image");
@@ -235,16 +241,15 @@ TEST_F(ConvergeCli, BadInputIsOneLineAndExitCode2) {
     expect_input_error(converge({"--reference", ref.string(), "--config", "p:integrator=path", "--spp", "1",
                                  "--checkpoints", "1", "-o", out.string()}),
                        "one kind of checkpoints");
-    expect_input_error(converge({"--reference", ref.string(), "--config", "p:res=16", "--spp", "1", "-o",
-                                 out.string()}),
-                       "the reference is 24x24 but the render is 16x16");
-    expect_input_error(converge({"--config", "p:integrator=path", "--spp", "1", "-o", out.string()}),
-                       "--reference");
+    expect_input_error(
+        converge({"--reference", ref.string(), "--config", "p:res=16", "--spp", "1", "-o", out.string()}),
+        "the reference is 24x24 but the render is 16x16");
+    expect_input_error(converge({"--config", "p:integrator=path", "--spp", "1", "-o", out.string()}), "--reference");
     auto fluid = run_kelvin({"converge", TaylorGreen, "-q", "--sweep", "spp=4", "--spp", "1", "-D", "res=8", "-o",
                              (m_dir / "fluid").string()});
     expect_input_error(fluid, "the scene runs a simulation");
-    expect_input_error(run_kelvin({"converge", TaylorGreen, "--sweep", "spp=4", "--times", "0.1", "--field", "p",
-                                   "-o", (m_dir / "fluid").string()}),
+    expect_input_error(run_kelvin({"converge", TaylorGreen, "--sweep", "spp=4", "--times", "0.1", "--field", "p", "-o",
+                                   (m_dir / "fluid").string()}),
                        "--field 'p'");
 }
 
@@ -292,8 +297,9 @@ TEST_F(ConvergeCli, FluidAgainstAReferenceRun) {
     args.insert(args.end(), common.begin(), common.end());
     auto r = run_kelvin(args);
     ASSERT_EQ(r.exit_code, 0) << describe(r);
-    args = {"converge", TaylorGreen, "-q", "--reference", ref.string(), "--config", "same:spp=16", "--config",
-            "fewer:spp=4", "--times", "0.2", "--field", "vorticity", "--field", "u", "-o", out.string()};
+    args = {"converge",    TaylorGreen, "-q",          "--reference", ref.string(), "--config",
+            "same:spp=16", "--config",  "fewer:spp=4", "--times",     "0.2",        "--field",
+            "vorticity",   "--field",   "u",           "-o",          out.string()};
     args.insert(args.end(), common.begin(), common.end());
     r = run_kelvin(args);
     ASSERT_EQ(r.exit_code, 0) << describe(r);
@@ -310,14 +316,28 @@ TEST_F(ConvergeCli, FluidAgainstAReferenceRun) {
 
 TEST_F(ConvergeCli, InterruptedStudyKeepsFinishedRunsAndResumes) {
     const fs::path ref = reference(), out = m_dir / "cut";
-    const std::vector<std::string> args = {"converge", Tiny, "-q", "--reference", ref.string(), "--config",
-                                           "path:integrator=path", "--config", "pt:integrator=ptracer", "--runs", "3",
-                                           "--checkpoints", "0.3,0.6", "-o", out.string()};
+    const std::vector<std::string> args = {"converge",
+                                           Tiny,
+                                           "-q",
+                                           "--reference",
+                                           ref.string(),
+                                           "--config",
+                                           "path:integrator=path",
+                                           "--config",
+                                           "pt:integrator=ptracer",
+                                           "--runs",
+                                           "3",
+                                           "--checkpoints",
+                                           "0.3,0.6",
+                                           "-o",
+                                           out.string()};
     {
         Process p(kelvin_exe(), args);
         // Interrupt once the first run's rows are in (the header and 2 rows).
         const bool started = p.wait_until(
-            [&] { return fs::exists(out / "convergence.csv") && lines_of(read_file(out / "convergence.csv")).size() >= 3; },
+            [&] {
+                return fs::exists(out / "convergence.csv") && lines_of(read_file(out / "convergence.csv")).size() >= 3;
+            },
             std::chrono::seconds(60));
         ASSERT_TRUE(started);
         p.signal(SIGINT);

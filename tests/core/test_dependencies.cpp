@@ -1,15 +1,15 @@
 // Smoke tests: each Debian dependency is found, links, and really works (not just compiles).
 #include "test_support.h"
 
-#include <Eigen/Dense>
 #include <OpenImageIO/imagebuf.h>
 #include <OpenImageIO/imageio.h>
 #include <embree3/rtcore.h>
 #include <openvdb/openvdb.h>
-#include <pugixml.hpp>
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_reduce.h>
 #include <tiny_gltf.h>  // implementation lives in Debian's libtinygltf.so: no TINYGLTF_IMPLEMENTATION
+#include <Eigen/Dense>
+#include <pugixml.hpp>
 
 #include <cmath>
 #include <cstring>
@@ -114,7 +114,8 @@ TEST(Dependencies, TinyGltfLoadsOneTriangle) {
   "scenes": [{"nodes": [0]}],
   "nodes": [{"mesh": 0}],
   "meshes": [{"primitives": [{"attributes": {"POSITION": 0}}]}],
-  "buffers": [{"byteLength": 36, "uri": "data:application/octet-stream;base64,)" + b64 + R"("}],
+  "buffers": [{"byteLength": 36, "uri": "data:application/octet-stream;base64,)" +
+                       b64 + R"("}],
   "bufferViews": [{"buffer": 0, "byteOffset": 0, "byteLength": 36}],
   "accessors": [{"bufferView": 0, "componentType": 5126, "count": 3, "type": "VEC3",
                  "min": [0, 0, 0], "max": [1, 1, 0.5]}]

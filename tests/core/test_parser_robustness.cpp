@@ -52,8 +52,10 @@ private:
 std::string printable(const std::string& s, std::size_t max = 120) {
     std::string out;
     for (unsigned char c : s.substr(0, max)) {
-        if (c >= 32 && c < 127) out += char(c);
-        else out += fmt::format("\\x{:02x}", c);
+        if (c >= 32 && c < 127)
+            out += char(c);
+        else
+            out += fmt::format("\\x{:02x}", c);
     }
     return s.size() > max ? out + "..." : out;
 }
@@ -102,9 +104,15 @@ TEST(ParserRobustness, EveryTruncatedPrefix) {
     int parsed = 0, rejected = 0, other = 0;
     for (std::size_t n = 0; n < xml.size(); ++n) {
         switch (try_parse(xml.substr(0, n))) {
-            case Outcome::Parsed: ++parsed; break;
-            case Outcome::InputErr: ++rejected; break;
-            case Outcome::Other: ++other; break;
+            case Outcome::Parsed:
+                ++parsed;
+                break;
+            case Outcome::InputErr:
+                ++rejected;
+                break;
+            case Outcome::Other:
+                ++other;
+                break;
         }
         if (other > 0) break;
     }
@@ -151,11 +159,37 @@ TEST(ParserRobustness, MutatedValidScene) {
     ktest::register_test_plugins();
     const std::string xml = valid_scene();
     // Tokens that steer mutations into the interesting parts of the grammar.
-    const std::vector<std::string> tokens = {
-        "<", ">", "/>", "</", "\"", "$", "$spp", "$undefined", "<ref id=\"shared\"/>", "<include filename=\"",
-        "<transform name=\"t\">", "</transform>", "<ktest type=\"node\">", "</ktest>", "<float name=\"value\" value=\"",
-        "nan", "1e309", "-", "\xff", "&amp;", "&#0;", "<![CDATA[", "]]>", "<!--", "-->", "id=\"shared\"", "x=\"1\"",
-        "<matrix value=\"1 0 0 0 0 1 0 0 0 0 1 0 0 0 0 1\"/>", "<scene>", "</scene>", "<default name=\"a\" value=\"$a\"/>"};
+    const std::vector<std::string> tokens = {"<",
+                                             ">",
+                                             "/>",
+                                             "</",
+                                             "\"",
+                                             "$",
+                                             "$spp",
+                                             "$undefined",
+                                             "<ref id=\"shared\"/>",
+                                             "<include filename=\"",
+                                             "<transform name=\"t\">",
+                                             "</transform>",
+                                             "<ktest type=\"node\">",
+                                             "</ktest>",
+                                             "<float name=\"value\" value=\"",
+                                             "nan",
+                                             "1e309",
+                                             "-",
+                                             "\xff",
+                                             "&amp;",
+                                             "&#0;",
+                                             "<![CDATA[",
+                                             "]]>",
+                                             "<!--",
+                                             "-->",
+                                             "id=\"shared\"",
+                                             "x=\"1\"",
+                                             "<matrix value=\"1 0 0 0 0 1 0 0 0 0 1 0 0 0 0 1\"/>",
+                                             "<scene>",
+                                             "</scene>",
+                                             "<default name=\"a\" value=\"$a\"/>"};
     Random rng(7, 3);
     int other = 0, parsed = 0;
     for (int i = 0; i < 4000 && other == 0; ++i) {
@@ -164,10 +198,18 @@ TEST(ParserRobustness, MutatedValidScene) {
         for (int e = 0; e < edits && !s.empty(); ++e) {
             std::size_t pos = rng.next_u32(uint32_t(s.size()));
             switch (rng.next_u32(4)) {
-                case 0: s[pos] = char(rng.next_u32(256)); break;                              // flip a byte
-                case 1: s.erase(pos, 1 + rng.next_u32(40)); break;                            // cut a span
-                case 2: s.insert(pos, tokens[rng.next_u32(uint32_t(tokens.size()))]); break;  // insert a token
-                case 3: s.insert(pos, s.substr(rng.next_u32(uint32_t(s.size())), rng.next_u32(80))); break;
+                case 0:
+                    s[pos] = char(rng.next_u32(256));
+                    break;  // flip a byte
+                case 1:
+                    s.erase(pos, 1 + rng.next_u32(40));
+                    break;  // cut a span
+                case 2:
+                    s.insert(pos, tokens[rng.next_u32(uint32_t(tokens.size()))]);
+                    break;  // insert a token
+                case 3:
+                    s.insert(pos, s.substr(rng.next_u32(uint32_t(s.size())), rng.next_u32(80)));
+                    break;
             }
         }
         Outcome o = try_parse(s);
@@ -275,9 +317,10 @@ TEST(ParserRobustness, HugeAndHostileValues) {
     // Substitution is not recursive: a value containing '$' after expansion is taken literally.
     ParseOptions opts;
     opts.defines = {{"a", "$$b"}};
-    ParsedScene s = parse_scene_string("<scene><default name=\"b\" value=\"[$a]\"/><ktest type=\"leaf\">"
-                                       "<string name=\"label\" value=\"$b$b\"/></ktest></scene>",
-                                       opts);
+    ParsedScene s = parse_scene_string(
+        "<scene><default name=\"b\" value=\"[$a]\"/><ktest type=\"leaf\">"
+        "<string name=\"label\" value=\"$b$b\"/></ktest></scene>",
+        opts);
     EXPECT_EQ(std::get<std::string>(s.root->children.at(0).node->values.at(0).value), "[$$b][$$b]");
     // Self-reference in a default is an undefined parameter, not an endless expansion.
     EXPECT_EQ(try_parse("<scene><default name=\"c\" value=\"$c$c\"/></scene>", &msg), Outcome::InputErr);

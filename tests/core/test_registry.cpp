@@ -215,8 +215,9 @@ TEST(Registry, FactoryExceptionsBecomeRuntimeErrorsWithContext) {
 }
 
 TEST(Registry, MissingPluginModuleIsAnInputError) {
-    std::string msg = input_error_of(
-        [] { Registry::instance().load_plugin_module("/nonexistent/kelvin_plugin.so", {"s.xml", 1, 2}); });
+    std::string msg = input_error_of([] {
+        Registry::instance().load_plugin_module("/nonexistent/kelvin_plugin.so", {"s.xml", 1, 2});
+    });
     EXPECT_CONTAINS(msg, "s.xml:1:2");
     EXPECT_CONTAINS(msg, "does not exist");
     ktest::TempDir dir;

@@ -73,16 +73,15 @@ void register_test_plugins() {
                                     }));
 
         for (const char* name : {"sphere", "cube", "cylinder"})
-            r.register_plugin(make_info(kKind, name, {}, [](const Properties&) -> ObjectPtr {
-                return std::make_shared<Probe>();
-            }));
+            r.register_plugin(
+                make_info(kKind, name, {}, [](const Properties&) -> ObjectPtr { return std::make_shared<Probe>(); }));
 
-        r.register_plugin(make_info("scene", kScenePlugin, {param::objects(kKind, "children")},
-                                    [](const Properties& p) -> ObjectPtr {
-                                        auto o = std::make_shared<Probe>();
-                                        o->children = p.get_objects(kKind);
-                                        return o;
-                                    }));
+        r.register_plugin(
+            make_info("scene", kScenePlugin, {param::objects(kKind, "children")}, [](const Properties& p) -> ObjectPtr {
+                auto o = std::make_shared<Probe>();
+                o->children = p.get_objects(kKind);
+                return o;
+            }));
         auto errors = r.take_load_errors();
         for (const auto& e : errors)
             if (e.find("ktest") != std::string::npos) ADD_FAILURE() << "test plugin registration failed: " << e;
@@ -104,6 +103,5 @@ ProbeHook::ProbeHook(ProbeFn fn) {
     g_probe = std::move(fn);
 }
 ProbeHook::~ProbeHook() { g_probe = nullptr; }
-
 
 }  // namespace ktest

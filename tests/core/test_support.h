@@ -56,6 +56,6 @@ public:
 }  // namespace ktest
 
 /// EXPECT that `haystack` contains `needle`, printing both when not.
-#define EXPECT_CONTAINS(haystack, needle)                                                            \
-    EXPECT_NE(std::string(haystack).find(needle), std::string::npos)                                 \
+#define EXPECT_CONTAINS(haystack, needle)                            \
+    EXPECT_NE(std::string(haystack).find(needle), std::string::npos) \
         << "expected to find \"" << (needle) << "\" in:\n  " << (haystack)

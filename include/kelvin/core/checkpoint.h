@@ -26,13 +26,13 @@ struct RunContext;
 struct Checkpoint {
     enum class Trigger { Seconds, Work, SimTime };
     Trigger trigger = Trigger::Work;
-    int index = 0;       ///< position in the trigger's list (RunContext::checkpoint_seconds, _work, _sim_times)
-    double target = 0;   ///< the scheduled value: seconds, work units or simulated time
+    int index = 0;      ///< position in the trigger's list (RunContext::checkpoint_seconds, _work, _sim_times)
+    double target = 0;  ///< the scheduled value: seconds, work units or simulated time
     /// Compute seconds on the job's own clock (the one its time limit and time checkpoints use), excluding
     /// time spent in checkpoint callbacks. A consumer comparing whole runs times Job::run itself, as
     /// `kelvin converge` does, so that setup the job's clock may not count is charged too.
     double seconds = 0;
-    double work = 0;     ///< work done so far: spp (renders), steps (simulations)
+    double work = 0;  ///< work done so far: spp (renders), steps (simulations)
     std::string work_unit;
     /// The result so far, computed on call: the developed image (renders, normalised exactly like the final
     /// image) or the field image of the current state (simulations). Empty when the job has none.

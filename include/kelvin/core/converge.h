@@ -58,10 +58,10 @@ struct ConvergeOptions {
     uint64_t seed = 0;                           ///< run r uses seed + r (the same seeds for every configuration)
 
     // Checkpoints: exactly one kind.
-    std::vector<double> seconds;   ///< compute times; the run's time limit is the last one
-    std::vector<long long> spp;    ///< renders: samples per pixel; the run renders max(spp)
-    std::vector<long long> steps;  ///< simulations: steps
-    std::vector<double> sim_times; ///< simulations: simulated times
+    std::vector<double> seconds;    ///< compute times; the run's time limit is the last one
+    std::vector<long long> spp;     ///< renders: samples per pixel; the run renders max(spp)
+    std::vector<long long> steps;   ///< simulations: steps
+    std::vector<double> sim_times;  ///< simulations: simulated times
 
     /// Renders: an image with R, G, B (required). Simulations: an image with a channel per compared field,
     /// one pixel per cell, top row = largest y (what `kelvin sim.xml -o ref.exr` writes), over the same box;
@@ -69,7 +69,7 @@ struct ConvergeOptions {
     /// solution.
     std::filesystem::path reference;
     std::vector<std::string> fields = {"vorticity"};  ///< simulations: fields compared
-    FieldRegion region;                                ///< simulations: cells compared
+    FieldRegion region;                               ///< simulations: cells compared
     std::optional<std::array<int, 4>> window;         ///< renders: pixels [x0, x1) x [y0, y1) compared
     double epsilon = RelativeEpsilon;
 

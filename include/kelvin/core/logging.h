@@ -15,16 +15,20 @@ LogLevel log_level();
 void set_log_sink(std::function<void(LogLevel, const std::string&)> sink);
 void log_message(LogLevel level, const std::string& msg);
 
-template <typename... Args> void log_debug(fmt::format_string<Args...> f, Args&&... args) {
+template <typename... Args>
+void log_debug(fmt::format_string<Args...> f, Args&&... args) {
     if (log_level() <= LogLevel::Debug) log_message(LogLevel::Debug, fmt::format(f, std::forward<Args>(args)...));
 }
-template <typename... Args> void log_info(fmt::format_string<Args...> f, Args&&... args) {
+template <typename... Args>
+void log_info(fmt::format_string<Args...> f, Args&&... args) {
     if (log_level() <= LogLevel::Info) log_message(LogLevel::Info, fmt::format(f, std::forward<Args>(args)...));
 }
-template <typename... Args> void log_warn(fmt::format_string<Args...> f, Args&&... args) {
+template <typename... Args>
+void log_warn(fmt::format_string<Args...> f, Args&&... args) {
     if (log_level() <= LogLevel::Warn) log_message(LogLevel::Warn, fmt::format(f, std::forward<Args>(args)...));
 }
-template <typename... Args> void log_error(fmt::format_string<Args...> f, Args&&... args) {
+template <typename... Args>
+void log_error(fmt::format_string<Args...> f, Args&&... args) {
     if (log_level() <= LogLevel::Error) log_message(LogLevel::Error, fmt::format(f, std::forward<Args>(args)...));
 }
 

@@ -34,8 +34,8 @@ inline constexpr double RelativeEpsilon = 1e-2;
 // ----------------------------------------------------------------------------------------------- images
 
 struct SsimOptions {
-    double sigma = 1.5;     ///< Gaussian window standard deviation (pixels)
-    int radius = 5;         ///< window half-width: (2 radius + 1)^2 pixels (11 x 11 in Wang et al.)
+    double sigma = 1.5;  ///< Gaussian window standard deviation (pixels)
+    int radius = 5;      ///< window half-width: (2 radius + 1)^2 pixels (11 x 11 in Wang et al.)
     double k1 = 0.01, k2 = 0.03;
     double data_range = 1;  ///< L in C1 = (k1 L)^2, C2 = (k2 L)^2
     /// Compare what a display shows: luminance clamped to [0, 1] and sRGB-encoded (true, the default for

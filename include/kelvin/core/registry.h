@@ -109,9 +109,9 @@ struct KindRegistrar {
 
 /// Register `Class` (constructible from `const kelvin::Properties&`) as plugin `name` of `kind`.
 /// The trailing arguments are the ParamSpec list (kelvin::param::...).
-#define KELVIN_PLUGIN(Class, kind, name, doc, ...)                                                  \
-    static const ::kelvin::PluginRegistrar KELVIN_CONCAT(kelvin_registrar_, __LINE__)(               \
-        kind, name, doc, std::vector<::kelvin::ParamSpec>{__VA_ARGS__},                              \
+#define KELVIN_PLUGIN(Class, kind, name, doc, ...)                                     \
+    static const ::kelvin::PluginRegistrar KELVIN_CONCAT(kelvin_registrar_, __LINE__)( \
+        kind, name, doc, std::vector<::kelvin::ParamSpec>{__VA_ARGS__},                \
         [](const ::kelvin::Properties& p) -> ::kelvin::ObjectPtr { return std::make_shared<Class>(p); })
 
 /// Register a new kind of object (a new XML tag), e.g. from an out-of-tree module.

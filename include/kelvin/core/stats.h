@@ -14,8 +14,8 @@ namespace kelvin {
 class Stats {
 public:
     struct Counter {
-        std::string name;   ///< "render/rays"
-        std::string unit;   ///< "rays", "s", ...
+        std::string name;  ///< "render/rays"
+        std::string unit;  ///< "rays", "s", ...
         double value = 0;
         bool is_time = false;
     };
@@ -28,7 +28,7 @@ public:
     void set(const std::string& name, double value, const std::string& unit = "");
     double get(const std::string& name) const;  ///< 0 when absent
     bool has(const std::string& name) const;
-    std::vector<Counter> counters() const;      ///< sorted by name
+    std::vector<Counter> counters() const;  ///< sorted by name
     void clear();
     /// Multi-line report, one counter per line.
     std::string report() const;
@@ -42,9 +42,7 @@ private:
 class Timer {
 public:
     Timer() : m_start(std::chrono::steady_clock::now()) {}
-    double seconds() const {
-        return std::chrono::duration<double>(std::chrono::steady_clock::now() - m_start).count();
-    }
+    double seconds() const { return std::chrono::duration<double>(std::chrono::steady_clock::now() - m_start).count(); }
     void reset() { m_start = std::chrono::steady_clock::now(); }
 
 private:

@@ -11,8 +11,8 @@
 #include <kelvin/fluid/fields.h>
 #include <kelvin/fluid/mcfluid.h>
 #include <kelvin/fluid/mcfluid3.h>
-#include <kelvin/fluid/solver.h>
 #include <kelvin/fluid/output.h>
+#include <kelvin/fluid/solver.h>
 
 #include <functional>
 #include <memory>

@@ -49,7 +49,7 @@ private:
     Random m_rng[SampleStreamCount];
     Random* m_cur = &m_rng[0];
     uint64_t m_key = 0, m_stream = 0;  // of the current sample
-    unsigned m_seeded = 0;              // bit s: stream s is seeded for the current sample
+    unsigned m_seeded = 0;             // bit s: stream s is seeded for the current sample
 };
 
 }  // namespace

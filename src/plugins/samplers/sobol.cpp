@@ -86,9 +86,10 @@ public:
     explicit Sobol(const Properties& props)
         : m_count(props.get_int("sample_count", 1, 1LL << 40)), m_seed(uint64_t(props.get_int("seed"))) {
         if (!std::has_single_bit(uint64_t(m_count)))
-            log_warn("sampler 'sobol': sample_count {} is not a power of two; the first 2^m samples of a pixel are "
-                     "the best stratified, so {} or {} would converge better",
-                     m_count, std::bit_floor(uint64_t(m_count)), std::bit_ceil(uint64_t(m_count)));
+            log_warn(
+                "sampler 'sobol': sample_count {} is not a power of two; the first 2^m samples of a pixel are "
+                "the best stratified, so {} or {} would converge better",
+                m_count, std::bit_floor(uint64_t(m_count)), std::bit_ceil(uint64_t(m_count)));
     }
     long long sample_count() const override { return m_count; }
     std::unique_ptr<Sampler> clone() const override { return std::make_unique<Sobol>(*this); }
