@@ -9,6 +9,7 @@
 #include <kelvin/fluid/boundary.h>
 #include <kelvin/fluid/estimators.h>
 #include <kelvin/fluid/mcfluid.h>
+#include <kelvin/fluid/output.h>
 
 #include <algorithm>
 #include <atomic>
@@ -359,16 +360,9 @@ Vec2d MCFluidSolver::velocity(double t, Vec2d x) {
 
 void MCFluidSolver::report(Stats& stats) const {
     const FluidWork& w = m_work;
-    stats.add("fluid.biot_savart_evals", double(w.biot_savart_evals), "evals");
-    stats.add("fluid.velocity_queries", double(w.velocity_queries), "queries");
-    stats.add("fluid.advection_backtraces", double(w.advection_backtraces), "backtraces");
-    stats.add("fluid.diffusion_samples", double(w.diffusion_samples), "samples");
-    stats.add("fluid.invalid_velocity", double(w.invalid_velocity), "values");
-    stats.add("fluid.invalid_vorticity", double(w.invalid_vorticity), "values");
+    report_fluid_counters(stats, w);
     stats.add("fluid.wos_walks", double(w.wos_walks), "walks");
     stats.add("fluid.solid_departures", double(w.solid_departures), "points");
-    stats.add_time("fluid.time.velocity", w.seconds_velocity);
-    stats.add_time("fluid.time.advection", w.seconds_advection);
 }
 
 VelocityEstimate MCFluidSolver::velocity_estimate(Vec2d x, int n, Random& rng) const {

@@ -311,19 +311,19 @@ void StableFluidsSolver::flip_transport(double dt) {
     // Advection: the backtrace's integrator run forward (RK4 or Euler through the frozen velocity; wrapped in a
     // periodic box, clamped to a closed one). A particle that would end in a solid cell stays where it was.
     const std::size_t chunks = (m_px.size() + 4095) / 4096;
-    std::vector<uint64_t> blocked(chunks, 0);
+    m_blocked.assign(chunks, 0);  // no allocation once the particle count has been reached
     parallel_rows(chunks, [&](std::size_t chunk) {
         const std::size_t end = std::min(m_px.size(), (chunk + 1) * 4096);
         for (std::size_t k = chunk * 4096; k < end; ++k) {
             const Vec2d x = backtrace(m_px[k], -dt);
             if (!m_solid.empty() && m_solid[cell_of(x)]) {
-                ++blocked[chunk];
+                ++m_blocked[chunk];
                 continue;
             }
             m_px[k] = x;
         }
     });
-    for (uint64_t b : blocked) m_particles_blocked += b;
+    for (uint64_t b : m_blocked) m_particles_blocked += b;
     m_backtraces += uint64_t(m_px.size());
     reseed_particles();
     particles_to_grid();

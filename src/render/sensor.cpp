@@ -43,15 +43,19 @@ std::pair<double, double> fov_tangents(const Properties& props, int width, int h
     return {tan_x, tan_x * h / w};
 }
 
-ProjectiveSensor::ProjectiveSensor(const Properties& props) {
-    m_film = object_or_default<Film>(props, "film", "film", "hdrfilm");
-    m_sampler = object_or_default<Sampler>(props, "sampler", "sampler", "independent");
-    m_to_world = props.get_transform("to_world");
+void Sensor::read_medium(const Properties& props) {
     m_medium = props.get_object_as<Medium>("medium");
     if (auto e = props.has("exterior") ? props.get_object_as<Medium>("exterior") : nullptr) {
         if (m_medium) props.error("exterior", "give the camera's medium once (as 'medium' or 'exterior')");
         m_medium = e;
     }
+}
+
+ProjectiveSensor::ProjectiveSensor(const Properties& props) {
+    m_film = object_or_default<Film>(props, "film", "film", "hdrfilm");
+    m_sampler = object_or_default<Sampler>(props, "sampler", "sampler", "independent");
+    m_to_world = props.get_transform("to_world");
+    read_medium(props);
     if (!m_to_world.is_rigid())
         props.error("to_world", "must be a rigid transform (rotation, translation, mirror; no scaling)");
     m_near = props.get_float("near_clip", 0.0, Inf);

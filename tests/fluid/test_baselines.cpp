@@ -354,6 +354,7 @@ TEST(Flip, TaylorGreenErrorFallsWithResolution) {
     std::cout << "[ measured ] flip TG RMSE(16, 32, 64) = " << errs[0] << " " << errs[1] << " " << errs[2] << "\n";
     EXPECT_LT(errs[1], 0.7 * errs[0]);
     EXPECT_LT(errs[2], 0.7 * errs[1]);
+    EXPECT_LT(errs[2], 0.02);  // measured 0.012 (deterministic run: the seed fixes the particles)
 }
 
 // FLIP's point: it carries the velocity on particles with little numerical dissipation; PIC (flip_ratio 0) averages
@@ -370,9 +371,32 @@ TEST(Flip, KeepsMoreEnergyThanPicAndThanSemiLagrangian) {
     const double flip = loss(flip_tg(32)), pic = loss(flip_tg(32, 0.0)), sl = loss(sf_tg(32));
     std::cout << "[ measured ] TG energy lost by t = 2 at 32^2: flip " << flip << ", pic " << pic
               << ", semi-Lagrangian " << sl << "\n";
-    EXPECT_LT(flip, 0.7 * pic);
-    EXPECT_LT(flip, sl);
+    // Deterministic runs (measured 0.086, 0.64, 0.15): bounds at about 1.5x the measured ratios.
+    EXPECT_LT(flip, 0.2 * pic);
+    EXPECT_LT(flip, 0.85 * sl);
     EXPECT_GE(flip, 0.0);
+}
+
+// The hard regime: time steps of 1000 in a closed box (a CFL number of thousands). The particles are clamped into
+// the box, the grid is projected, and nothing becomes non-finite; the energy does not grow.
+TEST(Flip, HugeTimeStepInClosedBoxStaysFiniteAndInTheBox) {
+    StableFluidsSettings s;
+    s.domain = {{-1, -1}, {1, 1}, false};
+    s.nx = s.ny = 32;
+    s.transport = Transport::FLIP;
+    StableFluidsSolver solver(s, [](const Vec2d& x) { return lo_omega(x, Vec2d(0.2, 0.0), 1.0, 0.2); });
+    const double e0 = solver.diagnostics().kinetic_energy;
+    for (int k = 0; k < 3; ++k) ASSERT_TRUE(solver.step(1e3));
+    const FluidDiagnostics d = solver.diagnostics();
+    EXPECT_TRUE(std::isfinite(d.kinetic_energy));
+    EXPECT_LE(d.kinetic_energy, e0 * (1 + 1e-9));
+    EXPECT_LT(solver.max_divergence(), 1e-6);
+    EXPECT_EQ(solver.invalid(), 0u);
+    for (const Vec2d& p : solver.particle_positions()) {
+        ASSERT_TRUE(std::isfinite(p.x) && std::isfinite(p.y));
+        ASSERT_TRUE(p.x >= -1 && p.x <= 1 && p.y >= -1 && p.y <= 1) << p.x << ", " << p.y;
+    }
+    for (const Vec2d& v : solver.particle_velocities()) ASSERT_TRUE(std::isfinite(v.x) && std::isfinite(v.y));
 }
 
 // Obstacles: no particle ever sits in a solid cell (none is seeded there, a move into one is refused), faces

@@ -6,13 +6,7 @@ foreach(_v EXAMPLE_SOURCE_DIR EXAMPLE_BINARY_DIR KELVIN_DIR GENERATOR CXX_COMPIL
   endif()
 endforeach()
 
-function(run what)
-  execute_process(COMMAND ${ARGN} RESULT_VARIABLE rc OUTPUT_VARIABLE out ERROR_VARIABLE out)
-  if(NOT rc EQUAL 0)
-    message(FATAL_ERROR "${what} failed (${rc}):\n${ARGN}\n${out}")
-  endif()
-  message(STATUS "${what}: ok")
-endfunction()
+include(${CMAKE_CURRENT_LIST_DIR}/../run_step.cmake)
 
 file(REMOVE_RECURSE ${EXAMPLE_BINARY_DIR} ${OUT_DIR})
 file(MAKE_DIRECTORY ${OUT_DIR})

@@ -7,13 +7,7 @@ foreach(_v EXAMPLE_SOURCE_DIR EXAMPLE_BINARY_DIR GENERATOR CXX_COMPILER BUILD_TY
   endif()
 endforeach()
 
-function(run what)
-  execute_process(COMMAND ${ARGN} RESULT_VARIABLE rc OUTPUT_VARIABLE out ERROR_VARIABLE out)
-  if(NOT rc EQUAL 0)
-    message(FATAL_ERROR "${what} failed (${rc}):\n${ARGN}\n${out}")
-  endif()
-  message(STATUS "${what}: ok")
-endfunction()
+include(${CMAKE_CURRENT_LIST_DIR}/../run_step.cmake)
 
 function(expect_file path)
   if(NOT EXISTS "${path}")

@@ -131,12 +131,9 @@ private:
     double m_seconds = 0;
 };
 
-/// The counters every MCFluid run reports (the 2D FluidWork and the 3D FluidWork3 share these names).
+/// The work counters and timers of an MCFluid solver (the 2D FluidWork and the 3D FluidWork3 share these names).
 template <class Work>
-void report_fluid_work(Stats& stats, long long steps, double sim_time, std::size_t cells, const Work& w) {
-    stats.add("fluid.steps", double(steps), "steps");
-    stats.set("fluid.time_simulated", sim_time, "");
-    stats.add("fluid.cells", double(cells), "cells");
+void report_fluid_counters(Stats& stats, const Work& w) {
     stats.add("fluid.biot_savart_evals", double(w.biot_savart_evals), "evals");
     stats.add("fluid.velocity_queries", double(w.velocity_queries), "queries");
     stats.add("fluid.advection_backtraces", double(w.advection_backtraces), "backtraces");
@@ -145,6 +142,15 @@ void report_fluid_work(Stats& stats, long long steps, double sim_time, std::size
     stats.add("fluid.invalid_vorticity", double(w.invalid_vorticity), "values");
     stats.add_time("fluid.time.velocity", w.seconds_velocity);
     stats.add_time("fluid.time.advection", w.seconds_advection);
+}
+
+/// The counters every MCFluid run reports: the run's steps, simulated time and cells, and the solver's counters.
+template <class Work>
+void report_fluid_work(Stats& stats, long long steps, double sim_time, std::size_t cells, const Work& w) {
+    stats.add("fluid.steps", double(steps), "steps");
+    stats.set("fluid.time_simulated", sim_time, "");
+    stats.add("fluid.cells", double(cells), "cells");
+    report_fluid_counters(stats, w);
 }
 
 /// Nothing non-finite reaches an output (issue 16, item 6): throws a one-line RuntimeError "<who>: non-finite

@@ -155,9 +155,10 @@ private:
     uint64_t m_invalid = 0, m_cg_iterations = 0, m_backtraces = 0;
     double m_seconds_advection = 0, m_seconds_projection = 0, m_seconds_diffusion = 0;
     // FLIP
-    std::vector<Vec2d> m_px, m_pv;   ///< particle positions and velocities
-    std::vector<double> m_uw, m_vw;  ///< P2G weight sums per face
-    std::vector<int> m_cell_count;   ///< particles per cell (reseeding)
+    std::vector<Vec2d> m_px, m_pv;    ///< particle positions and velocities
+    std::vector<double> m_uw, m_vw;   ///< P2G weight sums per face
+    std::vector<int> m_cell_count;    ///< particles per cell (reseeding)
+    std::vector<uint64_t> m_blocked;  ///< FLIP: refused moves per block of particles (reused every step)
     uint64_t m_particles_seeded = 0, m_particles_removed = 0, m_particles_blocked = 0;
 };
 

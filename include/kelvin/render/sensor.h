@@ -57,6 +57,8 @@ public:
     const Medium* medium() const { return m_medium.get(); }
 
 protected:
+    /// Reads the camera's medium into m_medium: a nested `medium`, or `exterior` (Mitsuba's name); both is an error.
+    void read_medium(const Properties& props);
     std::shared_ptr<Medium> m_medium;
 };
 

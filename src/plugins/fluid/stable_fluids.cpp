@@ -193,16 +193,25 @@ private:
 }  // namespace
 }  // namespace kelvin::fluid
 
+namespace {
+/// The parameters of the MAC-grid solvers (stable_fluids, flip): the simulations' own, then the projection's, then
+/// `extra`.
+std::vector<kelvin::ParamSpec> grid_solver_params(std::vector<kelvin::ParamSpec> extra = {}) {
+    std::vector<kelvin::ParamSpec> p{
+        KELVIN_FLUID_SIMULATION_PARAMS,
+        kelvin::param::real("tolerance", 1e-10, "relative residual of the iterative solves"),
+        kelvin::param::string("projection", "auto",
+                              "pressure solver: auto (fft without obstacles, else multigrid), fft, multigrid, cg")};
+    p.insert(p.end(), extra.begin(), extra.end());
+    return p;
+}
+}  // namespace
+
 static const kelvin::PluginRegistrar kelvin_stable_fluids_registrar(
     "simulation", "stable_fluids",
     "Baseline: Stam's stable fluids on a MAC grid (semi-Lagrangian advection, implicit viscosity, pressure "
     "projection by FFT or multigrid-preconditioned CG, static obstacles); same scene and outputs as mcfluid.",
-    std::vector<kelvin::ParamSpec>{
-        KELVIN_FLUID_SIMULATION_PARAMS,
-        kelvin::param::real("tolerance", 1e-10, "relative residual of the iterative solves"),
-        kelvin::param::string("projection", "auto",
-                              "pressure solver: auto (fft without obstacles, else multigrid), fft, multigrid, cg")},
-    [](const kelvin::Properties& p) -> kelvin::ObjectPtr {
+    grid_solver_params(), [](const kelvin::Properties& p) -> kelvin::ObjectPtr {
         return std::make_shared<kelvin::fluid::StableFluids>(p, kelvin::fluid::Transport::SemiLagrangian);
     });
 
@@ -210,13 +219,9 @@ static const kelvin::PluginRegistrar kelvin_flip_registrar(
     "simulation", "flip",
     "Baseline: FLIP particles (6 per cell, flip_ratio 0.95) on the stable_fluids MAC grid and projection, static "
     "obstacles; same scene and outputs as mcfluid.",
-    std::vector<kelvin::ParamSpec>{
-        KELVIN_FLUID_SIMULATION_PARAMS,
-        kelvin::param::real("tolerance", 1e-10, "relative residual of the iterative solves"),
-        kelvin::param::string("projection", "auto",
-                              "pressure solver: auto (fft without obstacles, else multigrid), fft, multigrid, cg"),
-        kelvin::param::real("flip_ratio", 0.95, "weight of the grid's change in the particles' update (0: PIC)"),
-        kelvin::param::integer("particles_per_cell", 6, "particles seeded per fluid cell")},
+    grid_solver_params({kelvin::param::real("flip_ratio", 0.95,
+                                            "weight of the grid's change in the particles' update (0: PIC)"),
+                        kelvin::param::integer("particles_per_cell", 6, "particles seeded per fluid cell")}),
     [](const kelvin::Properties& p) -> kelvin::ObjectPtr {
         return std::make_shared<kelvin::fluid::StableFluids>(p, kelvin::fluid::Transport::FLIP);
     });

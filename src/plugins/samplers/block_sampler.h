@@ -87,6 +87,12 @@ protected:
         if (!m_jitter) return 0.5;
         return to_unit(hash_combine(m_sample_key, (d << 3) | (uint64_t(m_stream) << 1) | uint64_t(axis)));
     }
+    /// One sample in each of the N intervals [i/N, (i+1)/N) of the next dimension, the order shuffled per dimension
+    /// (stratified and multijitter's next_1d).
+    double stratified_1d() {
+        const uint64_t d = next_dimension();
+        return (permute(m_index, uint32_t(m_count), dim_seed(d, 0)) + jitter(d, 0)) / double(m_count);
+    }
     /// The current sample's index within its block, and the block size N.
     uint32_t index() const { return m_index; }
     int current_stream() const { return m_stream; }

@@ -43,11 +43,7 @@ public:
         m_ry = uint32_t(y);
     }
     std::unique_ptr<Sampler> clone() const override { return std::make_unique<MultiJitter>(*this); }
-    double next_1d() override {
-        const uint64_t d = next_dimension();
-        const uint32_t p = permute(index(), count(), dim_seed(d, 0));
-        return (p + jitter(d, 0)) / count();
-    }
+    double next_1d() override { return stratified_1d(); }
     Vec2d next_2d() override {
         const uint64_t d = next_dimension();
         const uint32_t s = permute(index(), count(), dim_seed(d, 0));

@@ -31,11 +31,7 @@ public:
         while (m_res * m_res < count()) ++m_res;
     }
     std::unique_ptr<Sampler> clone() const override { return std::make_unique<Stratified>(*this); }
-    double next_1d() override {
-        const uint64_t d = next_dimension();
-        const uint32_t p = permute(index(), count(), dim_seed(d, 0));
-        return (p + jitter(d, 0)) / count();
-    }
+    double next_1d() override { return stratified_1d(); }
     Vec2d next_2d() override {
         const uint64_t d = next_dimension();
         const uint32_t p = permute(index(), count(), dim_seed(d, 0));

@@ -42,11 +42,7 @@ public:
         m_film = object_or_default<Film>(props, "film", "film", "hdrfilm");
         m_sampler = object_or_default<Sampler>(props, "sampler", "sampler", "independent");
         m_to_world = props.get_transform("to_world");
-        m_medium = props.get_object_as<Medium>("medium");
-        if (auto e = props.has("exterior") ? props.get_object_as<Medium>("exterior") : nullptr) {
-            if (m_medium) props.error("exterior", "give the camera's medium once (as 'medium' or 'exterior')");
-            m_medium = e;
-        }
+        read_medium(props);
         m_near = props.get_float("near_clip", 0.0, Inf);
         m_far = props.get_float("far_clip", 0.0, Inf);
         if (!(m_far > m_near)) props.error("far_clip", "must exceed near_clip");
