@@ -35,3 +35,20 @@ find_package(tinyobjloader CONFIG REQUIRED)
 # FFTW ships a pkg-config file (its CMake package is not in Debian's -dev); linked privately by libkelvin.
 find_package(PkgConfig REQUIRED)
 pkg_check_modules(FFTW3 REQUIRED IMPORTED_TARGET fftw3)
+
+# libopenmpi-dev (optional): distributed runs under mpirun (issue 21). Found with CMake's FindMPI; when absent, or with
+# -DKELVIN_MPI=OFF, the MPI module is not built and single-process Kelvin is unchanged. MPI is linked by a private
+# module only (src/core/distributed.h), so processes not started by mpirun never load it.
+option(KELVIN_WITH_MPI "Build the MPI module for distributed runs if MPI is found" ON)
+set(KELVIN_MPI OFF)
+if(KELVIN_WITH_MPI)
+  # The C API, used from C++ (the project enables CXX only); no MPI C++ bindings.
+  set(MPI_CXX_SKIP_MPICXX ON)
+  find_package(MPI COMPONENTS CXX QUIET)
+  if(MPI_CXX_FOUND)
+    set(KELVIN_MPI ON)
+    message(STATUS "Kelvin: MPI ${MPI_CXX_VERSION} found; distributed runs enabled (${MPIEXEC_EXECUTABLE})")
+  else()
+    message(STATUS "Kelvin: MPI not found; distributed runs disabled (install libopenmpi-dev to enable them)")
+  endif()
+endif()

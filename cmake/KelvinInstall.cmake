@@ -9,7 +9,7 @@ install(TARGETS kelvin kelvin_cli EXPORT KelvinTargets
         LIBRARY DESTINATION ${CMAKE_INSTALL_LIBDIR}
         RUNTIME DESTINATION ${CMAKE_INSTALL_BINDIR})
 # libkelvin finds its private modules beside itself (src/core/modules.h).
-install(TARGETS kelvin_oiio kelvin_vdb LIBRARY DESTINATION ${CMAKE_INSTALL_LIBDIR})
+install(TARGETS ${KELVIN_PRIVATE_MODULES} LIBRARY DESTINATION ${CMAKE_INSTALL_LIBDIR})
 install(DIRECTORY ${PROJECT_SOURCE_DIR}/include/kelvin DESTINATION ${CMAKE_INSTALL_INCLUDEDIR}
         FILES_MATCHING PATTERN "*.h")
 install(FILES ${PROJECT_BINARY_DIR}/include/kelvin/core/version.h

@@ -25,6 +25,7 @@ packages=(
   libeigen3-dev                       # linear algebra
   libfftw3-dev                        # FFT pressure projection of the stable_fluids baseline
   libpcg-cpp-dev                      # PCG32 random numbers
+  libopenmpi-dev openmpi-bin          # distributed runs under mpirun (optional: the build works without them)
   libgtest-dev libgmock-dev libbenchmark-dev  # tests and micro-benchmarks
   python3 python3-matplotlib          # accuracy/time plots
 )

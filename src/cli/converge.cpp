@@ -134,7 +134,7 @@ CLI::App* add_converge_command(CLI::App& app, ConvergeArgs& a) {
     return c;
 }
 
-int run_converge(const ConvergeArgs& a) {
+int run_converge(const ConvergeArgs& a, Communicator& world) {
     set_log_level(a.quiet ? LogLevel::Warn : a.verbose ? LogLevel::Debug : LogLevel::Info);
     ProgressReporter::set_enabled(false);
     auto& reg = Registry::instance();

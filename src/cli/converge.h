@@ -5,6 +5,10 @@
 #include <string>
 #include <vector>
 
+namespace kelvin {
+class Communicator;
+}
+
 namespace kelvin::cli {
 
 struct ConvergeArgs {
@@ -21,6 +25,7 @@ struct ConvergeArgs {
 CLI::App* add_converge_command(CLI::App& app, ConvergeArgs& args);
 /// Runs it: exit code 0, 1 (runtime failure, e.g. the plot script failed), 130 (interrupted); throws
 /// InputError on bad input (the caller prints it and exits with 2).
-int run_converge(const ConvergeArgs& args);
+/// `world`: the ranks of an MPI job (core/distributed.h); the study's runs are spread over them.
+int run_converge(const ConvergeArgs& args, Communicator& world);
 
 }  // namespace kelvin::cli

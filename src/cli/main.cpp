@@ -4,6 +4,7 @@
 // 130 interrupted (the image computed so far has been written; nothing when interrupted while loading).
 #include "converge.h"
 
+#include <kelvin/core/distributed.h>
 #include <kelvin/core/error.h>
 #include <kelvin/core/files.h>
 #include <kelvin/core/install.h>
@@ -293,10 +294,135 @@ void write_stats(const fs::path& path, const Options& o, const RunContext& ctx, 
     write_text_atomically(path, j.dump(2) + "\n");
 }
 
-int run(const Options& o) {
-    set_log_level(o.quiet ? LogLevel::Warn : o.verbose ? LogLevel::Debug : LogLevel::Info);
-    ProgressReporter::set_enabled(!o.quiet);
+// The part of a run before the job starts (options, scene, outputs): the job to run, or an exit code.
+struct Prepared {
+    std::shared_ptr<Job> job;
+    fs::path scene_path, out;
+    CropWindow crop;
+    int exit_code = ExitOk;  // meaningful when !job
+};
 
+Prepared prepare(const Options& o, bool root);
+
+// Distributed runs: every rank prepares the run itself (scene and outputs), then the ranks agree before any
+// collective. If any rank failed, every rank exits with the first failing rank's code and rank 0 prints that
+// rank's message once: a bad scene is one error line and the same exit code from every rank, and a rank that
+// cannot read a file the others can never leaves them waiting.
+Prepared prepare_everywhere(const Options& o, Communicator& world) {
+    Prepared p;
+    int code = ExitOk;
+    std::string message;
+    try {
+        p = prepare(o, world.root());
+        if (!p.job) code = p.exit_code;
+    } catch (const InputError& e) {
+        code = ExitInput, message = e.what();
+    } catch (const std::exception& e) {
+        code = ExitRuntime, message = e.what();
+    }
+    if (!world.distributed()) {
+        if (!message.empty()) {
+            // Rethrown as what it was, for main's handler.
+            if (code == ExitInput) throw InputError({}, message);
+            throw RuntimeError(message);
+        }
+        return p;
+    }
+    // (code, message) of every rank; the first non-zero code wins, the job runs only if every rank is ready.
+    std::string mine(sizeof(int), '\0');
+    std::memcpy(mine.data(), &code, sizeof(int));
+    mine += message;
+    std::vector<std::size_t> offsets;
+    const std::vector<char> all = world.allgather(mine.data(), mine.size(), &offsets);
+    for (int r = 0; r < world.size(); ++r) {
+        const char* at = all.data() + offsets[std::size_t(r)];
+        int c = 0;
+        std::memcpy(&c, at, sizeof(int));
+        if (c == ExitOk) continue;
+        const std::string m(at + sizeof(int), all.data() + offsets[std::size_t(r) + 1]);
+        if (world.root() && !m.empty())
+            std::fprintf(stderr, "kelvin: error: %s%s\n", r == 0 ? "" : fmt::format("rank {}: ", r).c_str(), m.c_str());
+        Prepared failed;
+        failed.exit_code = c;
+        return failed;
+    }
+    return p;
+}
+
+int run(const Options& o, Communicator& world) {
+    // Only rank 0 of a distributed run reports; the others print errors only.
+    set_log_level(!world.root() ? LogLevel::Error
+                  : o.quiet     ? LogLevel::Warn
+                  : o.verbose   ? LogLevel::Debug
+                                : LogLevel::Info);
+    ProgressReporter::set_enabled(!o.quiet && world.root());
+    Prepared p = prepare_everywhere(o, world);
+    if (!p.job) return p.exit_code;
+    Job& job = *p.job;
+    const fs::path& scene_path = p.scene_path;
+    const fs::path& out = p.out;
+    const bool root = world.root();
+
+    ThreadLimit limit(o.threads);
+    RunContext ctx;
+    ctx.seed = o.seed;
+    ctx.spp = o.spp;
+    ctx.time_limit = o.time_limit;
+    ctx.write_partial = o.write_partial;
+    ctx.quiet = o.quiet || !root;
+    ctx.crop = p.crop;
+    ctx.output = out;
+    ctx.comm = &world;
+    ctx.write_partial_image = [&](const Bitmap& img) {
+        write_image(out, img, {o.exposure, {}});  // atomic: a viewer polling the file never sees half of it
+        log_debug("wrote partial image {}", out.string());
+    };
+
+    RunResult result;
+    try {
+        result = job.run(ctx);
+    } catch (const std::exception& e) {
+        // An error while the ranks work together may be this rank's alone, with the others waiting in a
+        // collective: say which rank failed and end the whole run.
+        if (!world.distributed()) throw;
+        const int code = dynamic_cast<const InputError*>(&e) ? ExitInput : ExitRuntime;
+        std::fprintf(stderr, "kelvin: error: rank %d: %s\n", world.rank(), e.what());
+        std::fflush(stderr);
+        world.abort(code);
+    }
+    if (!root) return result.interrupted ? ExitInterrupted : ExitOk;
+    if (result.description.empty()) result.description = job.description();
+    std::vector<fs::path> files;
+    if (!result.image.empty()) {
+        write_image(out, result.image, {o.exposure, image_metadata(o, ctx, result, scene_path)});
+        files.push_back(out);
+    }
+    files.insert(files.end(), result.files_written.begin(), result.files_written.end());
+    if (!o.stats.empty()) {
+        files.push_back(o.stats);
+        write_stats(o.stats, o, ctx, result, scene_path, out, files);
+    }
+
+    if (!o.quiet) {
+        std::fprintf(stderr, "%s: %s, %.4g %s in %.3f s (%s) on %s\n", result.interrupted ? "Interrupted" : "Done",
+                     result.description.c_str(), result.work, result.work_unit.c_str(), result.seconds,
+                     rate(result.work, result.seconds, result.work_unit).c_str(),
+                     world.distributed() ? fmt::format("{} ranks x {} threads", world.size(), thread_count()).c_str()
+                                         : fmt::format("{} threads", thread_count()).c_str());
+        std::string report = ctx.stats.report();
+        if (!report.empty()) std::fprintf(stderr, "%s", report.c_str());
+        for (const auto& f : files) std::fprintf(stderr, "wrote %s\n", f.c_str());
+    }
+    return result.interrupted ? ExitInterrupted : ExitOk;
+}
+
+// `prints`: this process prints listings (rank 0 of a distributed run, or a single process).
+Prepared prepare(const Options& o, bool prints) {
+    auto finished = [](int code) {
+        Prepared p;
+        p.exit_code = code;
+        return p;
+    };
     auto& reg = Registry::instance();
     for (const auto& e : reg.take_load_errors()) log_error("built-in plugin registration: {}", e);
     if (const char* env = std::getenv("KELVIN_PLUGIN_PATH"); env && *env) reg.load_plugin_path(env);
@@ -305,8 +431,8 @@ int run(const Options& o) {
     if (o.list_plugins) {
         if (o.list_args.size() > 2)
             throw InputError({}, "--list-plugins takes at most KIND and NAME (kelvin --list-plugins integrator path)");
-        print_plugins(o.list_args);
-        return ExitOk;
+        if (prints) print_plugins(o.list_args);
+        return finished(ExitOk);
     }
     if (o.scene.empty()) throw InputError({}, "no scene file given (usage: kelvin scene.xml [options]; see --help)");
 
@@ -321,9 +447,9 @@ int run(const Options& o) {
     fs::path scene_path = o.scene;
     if (o.list_params) {
         const ParsedScene parsed = parse_scene_file(scene_path, popts);
-        print_scene_params(parsed);
+        if (prints) print_scene_params(parsed);
         check_defines(parsed, /*allow_unused=*/true, /*listing=*/true);  // a -D the scene does not know: a warning
-        return ExitOk;
+        return finished(ExitOk);
     }
     fs::path out = o.output.empty() ? fs::path(scene_path).replace_extension(".exr") : fs::path(o.output);
     if (!is_supported_image_extension(out))
@@ -334,7 +460,7 @@ int run(const Options& o) {
         throw RuntimeError(fmt::format("-o '{}': {}", out.string(), why));
     if (o.skip_existing && fs::exists(out)) {
         log_info("{} exists; skipping (--skip-existing)", out.string());
-        return ExitOk;
+        return finished(ExitOk);
     }
     // Before any work: an output that cannot be written would throw the whole run away. (Simulation frames
     // and CSV go beside it, so this covers them too.)
@@ -345,8 +471,8 @@ int run(const Options& o) {
             throw InputError({}, fmt::format("--stats '{}': {}", o.stats, why));
 
     auto interrupted_while_loading = [&] {
-        std::fprintf(stderr, "kelvin: interrupted while loading %s; nothing written\n", scene_path.c_str());
-        return ExitInterrupted;
+        if (prints) std::fprintf(stderr, "kelvin: interrupted while loading %s; nothing written\n", scene_path.c_str());
+        return finished(ExitInterrupted);
     };
     Timer load_timer;
     log_debug("loading {}", scene_path.string());
@@ -360,43 +486,12 @@ int run(const Options& o) {
     if (!crop.empty()) check_crop(*job, crop, o.crop);
     log_debug("loaded {} in {:.3f} s", scene_path.string(), load_timer.seconds());
 
-    ThreadLimit limit(o.threads);
-    RunContext ctx;
-    ctx.seed = o.seed;
-    ctx.spp = o.spp;
-    ctx.time_limit = o.time_limit;
-    ctx.write_partial = o.write_partial;
-    ctx.quiet = o.quiet;
-    ctx.crop = crop;
-    ctx.output = out;
-    ctx.write_partial_image = [&](const Bitmap& img) {
-        write_image(out, img, {o.exposure, {}});  // atomic: a viewer polling the file never sees half of it
-        log_debug("wrote partial image {}", out.string());
-    };
-
-    RunResult result = job->run(ctx);
-    if (result.description.empty()) result.description = job->description();
-    std::vector<fs::path> files;
-    if (!result.image.empty()) {
-        write_image(out, result.image, {o.exposure, image_metadata(o, ctx, result, scene_path)});
-        files.push_back(out);
-    }
-    files.insert(files.end(), result.files_written.begin(), result.files_written.end());
-    if (!o.stats.empty()) {
-        files.push_back(o.stats);
-        write_stats(o.stats, o, ctx, result, scene_path, out, files);
-    }
-
-    if (!o.quiet) {
-        std::fprintf(stderr, "%s: %s, %.4g %s in %.3f s (%s) on %d threads\n",
-                     result.interrupted ? "Interrupted" : "Done", result.description.c_str(), result.work,
-                     result.work_unit.c_str(), result.seconds,
-                     rate(result.work, result.seconds, result.work_unit).c_str(), thread_count());
-        std::string report = ctx.stats.report();
-        if (!report.empty()) std::fprintf(stderr, "%s", report.c_str());
-        for (const auto& f : files) std::fprintf(stderr, "wrote %s\n", f.c_str());
-    }
-    return result.interrupted ? ExitInterrupted : ExitOk;
+    Prepared p;
+    p.job = std::move(job);
+    p.scene_path = scene_path;
+    p.out = out;
+    p.crop = crop;
+    return p;
 }
 
 }  // namespace
@@ -464,8 +559,13 @@ int main(int argc, char** argv) {
     o.list_plugins = list->count() > 0;
     o.argv.assign(argv, argv + argc);
 
+    // Started by mpirun: the ranks of one run (core/distributed.h); MPI is finalised when main returns.
+    struct FinalizeWorld {
+        ~FinalizeWorld() { finalize_world(); }
+    } finalize_world_at_exit;
     try {
-        return converge->parsed() ? cli::run_converge(converge_args) : run(o);
+        Communicator& world = world_communicator();
+        return converge->parsed() ? cli::run_converge(converge_args, world) : run(o, world);
     } catch (const InputError& e) {
         std::fprintf(stderr, "kelvin: error: %s\n", e.what());
         return ExitInput;

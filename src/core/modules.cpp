@@ -31,7 +31,7 @@ static std::filesystem::path library_dir() {
     return std::filesystem::path(info.dli_fname).parent_path();
 }
 
-const void* load_module_table(const char* file, const char* entry, const char* what) {
+const void* load_module_table(const char* file, const char* entry, const char* what, bool global) {
     static std::mutex mutex;
     static std::map<std::string, Loaded> modules;  // by file name; entries live for the process
     std::lock_guard lock(mutex);
@@ -41,7 +41,7 @@ const void* load_module_table(const char* file, const char* entry, const char* w
         const std::filesystem::path path = library_dir() / file;
         // RTLD_LAZY, as the loader binds functions at start-up (RTLD_NOW would bind all of OpenImageIO's dependencies'
         // functions: +20 % on a JPEG run); RTLD_LOCAL keeps them out of the global namespace. Never closed.
-        if (void* handle = dlopen(path.c_str(), RTLD_LAZY | RTLD_LOCAL); !handle) {
+        if (void* handle = dlopen(path.c_str(), RTLD_LAZY | (global ? RTLD_GLOBAL : RTLD_LOCAL)); !handle) {
             m.error = fmt::format("{} could not be loaded ({})", what, dlerror());
         } else if (auto table = reinterpret_cast<const void* (*)()>(dlsym(handle, entry)); !table) {
             m.error = fmt::format("'{}' is not {} ({})", path.string(), what, dlerror());

@@ -13,6 +13,8 @@ namespace kelvin::detail {
 /// The table returned by `entry` of module `file` (e.g. "libkelvin_vdb.so"), looked up in the directory of
 /// libkelvin.so and loaded once per process. Throws std::runtime_error with the loader's message when the module
 /// cannot be loaded; later calls repeat that error. `what` names the module in messages ("the OpenVDB module").
-const void* load_module_table(const char* file, const char* entry, const char* what);
+/// `global`: load with RTLD_GLOBAL (the MPI module: MPI's own components, loaded by MPI with dlopen, bind to the
+/// MPI library's symbols).
+const void* load_module_table(const char* file, const char* entry, const char* what, bool global = false);
 
 }  // namespace kelvin::detail

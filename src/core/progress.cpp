@@ -1,3 +1,4 @@
+#include <kelvin/core/distributed.h>
 #include <kelvin/core/interrupt.h>
 #include <kelvin/core/job.h>
 #include <kelvin/core/logging.h>
@@ -67,10 +68,11 @@ ProgressReporter::ProgressReporter(const RunContext& ctx, std::string label, dou
       m_unit(std::move(unit)),
       m_total(total),
       m_time_limit(time_limit),
-      m_quiet(ctx.quiet || !g_enabled),
+      // A distributed job reports from rank 0 only (core/distributed.h).
+      m_quiet(ctx.quiet || !g_enabled || !communicator_of(ctx).root()),
       m_terminal(isatty(STDERR_FILENO) != 0),
       m_nested(nested || ctx.progress_nested),
-      m_callback(ctx.on_progress),
+      m_callback(communicator_of(ctx).root() ? ctx.on_progress : ProgressCallback()),
       m_cancel(ctx.cancel),
       m_start(now_seconds()) {
     begin();

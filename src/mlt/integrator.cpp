@@ -1,6 +1,7 @@
 // pssmlt / drmlt: Metropolis light transport over the primary sample space. See include/kelvin/mlt/integrator.h
 // and docs/mlt.md.
 #include <kelvin/core/colormap.h>
+#include <kelvin/core/distributed.h>
 #include <kelvin/core/error.h>
 #include <kelvin/core/interrupt.h>
 #include <kelvin/core/logging.h>
@@ -161,6 +162,10 @@ MltStatistics MetropolisIntegrator::statistics() const {
 
 RunResult MetropolisIntegrator::render(const Scene& scene, RunContext& ctx) {
     Timer total;
+    // Distributed (core/distributed.h): bootstrap blocks and chains are work units owned round-robin; the bootstrap
+    // values are shared (each written by one rank: an exact sum), the fixed-point splats and counters are integer
+    // sums, so rank 0's image is bit-identical to one process's.
+    Communicator& comm = communicator_of(ctx);
     const Sensor& sensor = *scene.sensor();
     if (m_mmlt && !sensor.supports_connections())
         throw InputError(m_technique_loc,
@@ -221,6 +226,7 @@ RunResult MetropolisIntegrator::render(const Scene& scene, RunContext& ctx) {
         dctx.on_progress = ctx.on_progress;
         dctx.progress_nested = true;
         dctx.cancel = ctx.cancel;
+        dctx.comm = ctx.comm;
         RunResult r = m_direct->render(scene, dctx);
         direct = std::move(r.image);
         for (const auto& c : dctx.stats.counters())
@@ -258,7 +264,7 @@ RunResult MetropolisIntegrator::render(const Scene& scene, RunContext& ctx) {
         std::vector<SampleCounters> bc(blocks);
         std::vector<SubpathRays> brays(blocks);
         ProgressReporter progress(ctx, "Bootstrap", double(total_boot), "paths", /*time_limit=*/0, /*nested=*/true);
-        parallel_for_units(blocks, [&](std::size_t b) {
+        parallel_for_owned_units(comm, blocks, [&](std::size_t b) {
             std::vector<double> x;
             Contributions f;
             std::unique_ptr<LightSubpaths> L = m_mmlt ? std::make_unique<LightSubpaths>(max_vertices) : nullptr;
@@ -266,9 +272,11 @@ RunResult MetropolisIntegrator::render(const Scene& scene, RunContext& ctx) {
                 if ((i & 255) == 0 && ctx.cancel.stop_requested()) return;
                 boot_pi[i] = evaluate_boot(i, x, f, bc[b], L.get(), brays[b]);
             }
-            progress.update(double(std::min(total_boot, (b + 1) * Block) - b * Block));
+            // (A distributed bootstrap reports rank 0's share, scaled to the whole.)
+            progress.update(double(std::min(total_boot, (b + 1) * Block) - b * Block) * double(comm.size()));
         });
         progress.finish();
+        allreduce_sum(comm, boot_pi);
         for (std::size_t d = 0; d < D; ++d) {
             double sum = 0;
             for (std::size_t i = d * nboot; i < (d + 1) * nboot; ++i) {
@@ -289,7 +297,7 @@ RunResult MetropolisIntegrator::render(const Scene& scene, RunContext& ctx) {
         }
         st.normalization = b;
         st.seconds_bootstrap = t.seconds();
-        if (ctx.cancel.stop_requested()) {
+        if (any_rank(comm, ctx.cancel.stop_requested())) {
             RunResult out;
             out.interrupted = true;
             out.image = direct.empty() ? Bitmap(w, h) : std::move(direct);
@@ -402,7 +410,7 @@ RunResult MetropolisIntegrator::render(const Scene& scene, RunContext& ctx) {
             m_derivatives = std::make_unique<PathDerivatives>(scene, o);
         }
         for (auto& n : derivative_status) n.store(0, std::memory_order_relaxed);
-        parallel_for_units(chains.size(), [&](std::size_t c) {
+        parallel_for_owned_units(comm, chains.size(), [&](std::size_t c) {
             Chain& ch = chains[c];
             std::vector<double> x;
             Contributions scratch;
@@ -459,7 +467,7 @@ RunResult MetropolisIntegrator::render(const Scene& scene, RunContext& ctx) {
     };
 
     auto pass = [&](long long first, long long n) {
-        parallel_for_units(chains.size(), [&](std::size_t c) {
+        parallel_for_owned_units(comm, chains.size(), [&](std::size_t c) {
             Chain& ch = chains[c];
             SampleCounters& cnt = counters[c];
             const uint64_t todo = steps_until(first + n, c) - steps_until(first, c);
@@ -502,18 +510,22 @@ RunResult MetropolisIntegrator::render(const Scene& scene, RunContext& ctx) {
     };
     auto develop = [&] {
         Bitmap img = direct.empty() ? Bitmap(w, h) : direct;
-        const uint64_t n = steps_total.load();
+        uint64_t n = steps_total.load();
+        if (comm.distributed()) comm.allreduce(&n, 1, ReduceOp::Sum);
         if (n > 0) {
-            Bitmap m = image.develop(st.normalization / double(n));
+            Bitmap m = image.develop(st.normalization / double(n), comm);
             for (std::size_t i = 0; i < img.size(); ++i) img.data()[i] += m.data()[i];
         }
         if (m_delayed_rejection) {
+            std::vector<uint64_t> counts(stage_counts.size());
+            for (std::size_t k = 0; k < counts.size(); ++k) counts[k] = stage_counts[k].load(std::memory_order_relaxed);
+            allreduce_sum(comm, counts);
             const int r = img.add_channel("stages.R"), g = img.add_channel("stages.G");
             for (int y = 0; y < h; ++y)
                 for (int x = 0; x < w; ++x) {
                     const std::size_t k = (std::size_t(y) * std::size_t(w) + std::size_t(x)) * 2;
-                    img.at(x, y, r) = float(stage_counts[k].load(std::memory_order_relaxed));
-                    img.at(x, y, g) = float(stage_counts[k + 1].load(std::memory_order_relaxed));
+                    img.at(x, y, r) = float(counts[k]);
+                    img.at(x, y, g) = float(counts[k + 1]);
                 }
         }
         return img;
@@ -526,7 +538,14 @@ RunResult MetropolisIntegrator::render(const Scene& scene, RunContext& ctx) {
     if (!chains.empty()) loop = run_passes(ctx, target, "mutations/px", pass, develop, total.seconds());
     st.seconds_chains = tc.seconds();
 
-    for (const Chain& ch : chains) st.chain += ch.mc->stats();
+    // Statistics: this rank's chains (those it owns have a MarkovChain), then summed over ranks in rank order.
+    for (const Chain& ch : chains)
+        if (ch.mc) st.chain += ch.mc->stats();
+    if (comm.distributed()) {
+        ChainStats sum;
+        for (const ChainStats& cs : allgather_vector(comm, std::vector<ChainStats>{st.chain})) sum += cs;
+        st.chain = sum;
+    }
     if (m_mmlt) {
         st.depths.resize(D);
         for (std::size_t d = 0; d < D; ++d) {
@@ -542,6 +561,7 @@ RunResult MetropolisIntegrator::render(const Scene& scene, RunContext& ctx) {
         for (const Chain& ch : chains) {
             auto& ds = st.depths[ch.depth];
             ++ds.chains;
+            if (!ch.mc) continue;  // another rank's
             ds.steps += ch.steps_done;
             for (std::size_t k = 0; k < ch.small.size(); ++k) {
                 ds.small_steps[k] += ch.small[k];
@@ -556,9 +576,33 @@ RunResult MetropolisIntegrator::render(const Scene& scene, RunContext& ctx) {
             st.light_subpaths_reused += ch.rays.reused;
             st.mmlt_strategy_changes_small += ch.strategy_changes;
         }
+        if (comm.distributed()) {
+            // Every per-depth and per-strategy count, flattened, summed over ranks and put back.
+            std::vector<uint64_t*> fields = {&st.rays_camera,           &st.rays_light,
+                                             &st.rays_connection,       &st.rays_light_stage2,
+                                             &st.light_subpaths_reused, &st.mmlt_strategy_changes_small};
+            for (auto& ds : st.depths) {
+                fields.push_back(&ds.steps);
+                for (auto* v : {&ds.small_steps, &ds.small_accepted, &ds.stage2_attempted, &ds.stage2_accepted})
+                    for (auto& x : *v) fields.push_back(&x);
+            }
+            std::vector<uint64_t> flat(fields.size());
+            for (std::size_t i = 0; i < fields.size(); ++i) flat[i] = *fields[i];
+            allreduce_sum(comm, flat);
+            for (std::size_t i = 0; i < fields.size(); ++i) *fields[i] = flat[i];
+        }
     }
     for (const auto& c : counters) st.invalid_contributions += c.invalid;
     st.splat_overflow = image.overflowed();
+    std::vector<uint64_t> derivative_counts(derivative_status.size());
+    for (std::size_t i = 0; i < derivative_counts.size(); ++i) derivative_counts[i] = derivative_status[i].load();
+    if (comm.distributed()) {
+        std::vector<uint64_t> v = {st.invalid_contributions, st.splat_overflow};
+        v.insert(v.end(), derivative_counts.begin(), derivative_counts.end());
+        allreduce_sum(comm, v);
+        st.invalid_contributions = v[0], st.splat_overflow = v[1];
+        std::copy(v.begin() + 2, v.end(), derivative_counts.begin());
+    }
     st.mutations_per_pixel = double(st.chain.steps) / P;
 
     RunResult result;
@@ -597,10 +641,9 @@ RunResult MetropolisIntegrator::render(const Scene& scene, RunContext& ctx) {
         S.set("mlt.h2mc.acceptance", cs.local_proposals ? double(cs.local_accepted) / double(cs.local_proposals) : 0.0);
         S.add("mlt.h2mc.derivatives", double(cs.derivatives), "paths");
         S.add("mlt.h2mc.not_differentiable", double(cs.not_differentiable), "paths");
-        S.add("mlt.h2mc.unsupported", double(derivative_status[int(PathDerivativeStatus::Unsupported)].load()),
-              "paths");
-        S.add("mlt.h2mc.mismatch", double(derivative_status[int(PathDerivativeStatus::Mismatch)].load()), "paths");
-        S.add("mlt.h2mc.too_long", double(derivative_status[int(PathDerivativeStatus::TooLong)].load()), "paths");
+        S.add("mlt.h2mc.unsupported", double(derivative_counts[int(PathDerivativeStatus::Unsupported)]), "paths");
+        S.add("mlt.h2mc.mismatch", double(derivative_counts[int(PathDerivativeStatus::Mismatch)]), "paths");
+        S.add("mlt.h2mc.too_long", double(derivative_counts[int(PathDerivativeStatus::TooLong)]), "paths");
         S.add("mlt.h2mc.small_hessian", double(cs.small_hessian), "paths");
         S.set("mlt.h2mc.seconds_derivatives", cs.seconds_derivatives);
         S.set("mlt.h2mc.seconds_gaussians", cs.seconds_gaussians);
@@ -648,7 +691,7 @@ RunResult MetropolisIntegrator::render(const Scene& scene, RunContext& ctx) {
     }
 
     // The stage map as a heat map: G / (R + G + 0.01), second-stage share of the acceptances (Fig. 4.1).
-    if (m_delayed_rejection && !ctx.output.empty()) {
+    if (m_delayed_rejection && !ctx.output.empty() && comm.root()) {
         Bitmap heat(w, h);
         const int r = result.image.channel_index("stages.R"), g = result.image.channel_index("stages.G");
         for (int y = 0; y < h; ++y)

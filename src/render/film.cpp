@@ -1,7 +1,10 @@
 #include <kelvin/render/film.h>
 
+#include <kelvin/core/distributed.h>
+
 #include <algorithm>
 #include <cmath>
+#include <cstring>
 
 namespace kelvin {
 
@@ -24,6 +27,13 @@ Bitmap ImageBuffer::develop(const std::vector<std::string>& names) const {
             for (int c = 0; c < nc; ++c) out.at(x, y, c) = w != 0 ? float(px[c] / w) : 0.f;
         }
     return out;
+}
+
+Bitmap ImageBuffer::develop(const std::vector<std::string>& names, Communicator& comm) const {
+    if (!comm.distributed()) return develop(names);
+    ImageBuffer merged = *this;
+    allreduce_sum(comm, merged.m_data);
+    return merged.develop(names);
 }
 
 SplatBuffer::SplatBuffer(int width, int height, std::size_t units, const ReconstructionFilter* filter)
@@ -56,6 +66,33 @@ void SplatBuffer::merge() {
         }
         list.clear();
     }
+}
+
+void SplatBuffer::merge(Communicator& comm) {
+    if (!comm.distributed()) return merge();
+    // This rank's lists as (unit, count, records...), then rank 0 puts every list back in its unit and folds.
+    std::vector<char> mine;
+    for (std::size_t u = 0; u < m_lists.size(); ++u) {
+        auto& list = m_lists[u];
+        if (list.empty()) continue;
+        const uint64_t header[2] = {uint64_t(u), uint64_t(list.size())};
+        const auto* h = reinterpret_cast<const char*>(header);
+        const auto* r = reinterpret_cast<const char*>(list.data());
+        mine.insert(mine.end(), h, h + sizeof header);
+        mine.insert(mine.end(), r, r + list.size() * sizeof(Record));
+        list.clear();
+    }
+    const std::vector<char> all = comm.gather(mine.data(), mine.size(), nullptr);
+    for (std::size_t at = 0; at < all.size();) {
+        uint64_t header[2];
+        std::memcpy(header, all.data() + at, sizeof header);
+        at += sizeof header;
+        auto& list = m_lists[std::size_t(header[0])];
+        list.resize(std::size_t(header[1]));
+        std::memcpy(list.data(), all.data() + at, list.size() * sizeof(Record));
+        at += list.size() * sizeof(Record);
+    }
+    merge();
 }
 
 Bitmap SplatBuffer::develop(double scale) const {
@@ -95,12 +132,26 @@ void FixedPointSplatImage::splat(const Vec2d& film, const Color3& v) {
     });
 }
 
-Bitmap FixedPointSplatImage::develop(double scale) const {
-    Bitmap out(m_width, m_height);
+// Fixed-point sums times `scale`, as an RGB image.
+template <class Get>
+static Bitmap develop_fixed(int w, int h, std::size_t n, double scale, Get get) {
+    Bitmap out(w, h);
     const double s = scale / FixedScale;
-    for (std::size_t i = 0; i < m_acc.size(); ++i)
-        out.data()[i] = float(double(m_acc[i].load(std::memory_order_relaxed)) * s);
+    for (std::size_t i = 0; i < n; ++i) out.data()[i] = float(double(get(i)) * s);
     return out;
+}
+
+Bitmap FixedPointSplatImage::develop(double scale, Communicator& comm) const {
+    if (!comm.distributed()) return develop(scale);
+    std::vector<int64_t> sum(m_acc.size());
+    for (std::size_t i = 0; i < m_acc.size(); ++i) sum[i] = m_acc[i].load(std::memory_order_relaxed);
+    allreduce_sum(comm, sum);
+    return develop_fixed(m_width, m_height, sum.size(), scale, [&](std::size_t i) { return sum[i]; });
+}
+
+Bitmap FixedPointSplatImage::develop(double scale) const {
+    return develop_fixed(m_width, m_height, m_acc.size(), scale,
+                         [&](std::size_t i) { return m_acc[i].load(std::memory_order_relaxed); });
 }
 
 }  // namespace kelvin

@@ -9,6 +9,7 @@
 // accumulator: the buffer has 3 + E channels, a sample's colour and extra values are added with the same
 // filter weight, and develop() normalises every channel by the same weight sum. sample_extra() gets no
 // sampler, so R, G, B do not depend on whether extra channels are written.
+#include <kelvin/core/distributed.h>
 #include <kelvin/core/interrupt.h>
 #include <kelvin/core/logging.h>
 #include <kelvin/core/parallel.h>
@@ -25,6 +26,15 @@ namespace kelvin {
 PassLoopResult run_passes(RunContext& ctx, long long scene_target, const std::string& unit,
                           const std::function<void(long long, long long)>& pass, const std::function<Bitmap()>& develop,
                           double seconds_before) {
+    Communicator& comm = communicator_of(ctx);
+    const bool distributed = comm.distributed();
+    if (distributed && (!ctx.checkpoint_seconds.empty() || !ctx.checkpoint_work.empty()))
+        throw RuntimeError(
+            "checkpoints are not supported in a distributed job (a convergence study distributes "
+            "its runs instead: kelvin converge under mpirun)");
+    // Every decision below (stop, pass size, partial output) is taken from rank 0's clock, so that all ranks do
+    // the same passes (core/distributed.h).
+    if (distributed) comm.broadcast(&seconds_before, sizeof seconds_before);
     const bool timed = ctx.time_limit > 0 && ctx.spp <= 0;
     long long target = ctx.spp > 0 ? ctx.spp : scene_target;
     if (timed) target = LLONG_MAX;  // equal-time rendering: as much work as time allows
@@ -39,12 +49,20 @@ PassLoopResult run_passes(RunContext& ctx, long long scene_target, const std::st
     while (r.done < target) {
         const long long n = std::min({size, target - r.done, checkpoints.work_until_next(r.done)});
         pass(r.done, n);
-        if (ctx.cancel.stop_requested()) {
+        double elapsed = seconds_before + timer.seconds() - checkpoints.overhead();
+        bool stop = ctx.cancel.stop_requested();
+        bool partial_due = ctx.write_partial > 0 && since_partial.seconds() >= ctx.write_partial;
+        if (distributed) {
+            // One collective per pass: stop if any rank must; rank 0's time and partial-output clock.
+            double s[3] = {stop ? 1.0 : 0.0, comm.root() ? elapsed : -HUGE_VAL, comm.root() && partial_due ? 1.0 : 0.0};
+            comm.allreduce(s, 3, ReduceOp::Max);
+            stop = s[0] > 0, elapsed = s[1], partial_due = s[2] > 0;
+        }
+        if (stop) {
             r.interrupted = true;
             break;
         }
         r.done += n;
-        double elapsed = seconds_before + timer.seconds() - checkpoints.overhead();
         progress.set(double(r.done));
         if (checkpoints.active()) {
             Checkpoint cp;
@@ -56,8 +74,9 @@ PassLoopResult run_passes(RunContext& ctx, long long scene_target, const std::st
             elapsed = seconds_before + timer.seconds() - checkpoints.overhead();
         }
         if (ctx.time_limit > 0 && elapsed >= ctx.time_limit) break;
-        if (ctx.write_partial > 0 && ctx.write_partial_image && since_partial.seconds() >= ctx.write_partial) {
-            ctx.write_partial_image(develop());
+        if (partial_due && ctx.write_partial_image) {
+            Bitmap partial = develop();  // collective in a distributed job; rank 0 writes
+            if (comm.root()) ctx.write_partial_image(partial);
             since_partial.reset();
         }
         const double per_unit = (elapsed - seconds_before) / double(r.done);
@@ -80,6 +99,11 @@ void report_counters(RunContext& ctx, const std::vector<SampleCounters>& counter
         total.rays += c.rays;
         total.invalid += c.invalid;
     }
+    if (Communicator& comm = communicator_of(ctx); comm.distributed()) {  // units of other ranks count too
+        uint64_t t[3] = {total.samples, total.rays, total.invalid};
+        comm.allreduce(t, 3, ReduceOp::Sum);
+        total.samples = t[0], total.rays = t[1], total.invalid = t[2];
+    }
     ctx.stats.add(samples_name, double(total.samples), "samples");
     ctx.stats.add("render.rays", double(total.rays), "rays");
     ctx.stats.add("render.invalid_samples", double(total.invalid), "samples");
@@ -89,6 +113,9 @@ void report_counters(RunContext& ctx, const std::vector<SampleCounters>& counter
 
 RunResult SamplingIntegrator::render(const Scene& scene, RunContext& ctx) {
     validate(scene);
+    // Distributed: each rank renders the tiles it owns; tiles never share pixels, so the buffers merge by a sum
+    // in which every pixel has one non-zero term (exact), and splats are folded on rank 0 in tile order.
+    Communicator& comm = communicator_of(ctx);
     const Sensor& sensor = *scene.sensor();
     // The pixels rendered: the film, or the crop window of it (RunContext::crop). Pixel (x, y) keeps its
     // full-film coordinates (film position and sampler seed), so a cropped render's pixels are those of the
@@ -132,10 +159,11 @@ RunResult SamplingIntegrator::render(const Scene& scene, RunContext& ctx) {
         }
     }
     auto develop = [&] {
-        Bitmap img = buffer.develop(channels);
+        Bitmap img = buffer.develop(channels, comm);
         if (splat_buffer) {
             uint64_t n = 0;
             for (const auto& c : counters) n += c.samples;
+            if (comm.distributed()) comm.allreduce(&n, 1, ReduceOp::Sum);
             // The splat image is RGB only; extra channels are never splatted.
             Bitmap s = splat_buffer->develop(n > 0 ? 1.0 / double(n) : 0.0);
             const std::size_t stride = std::size_t(img.channel_count());
@@ -146,7 +174,7 @@ RunResult SamplingIntegrator::render(const Scene& scene, RunContext& ctx) {
     };
 
     auto pass = [&](long long first, long long n) {
-        parallel_for_units(tiles, [&](std::size_t unit) {
+        parallel_for_owned_units(comm, tiles, [&](std::size_t unit) {
             const int x0 = ox + int(unit % std::size_t(tx)) * TileSize,
                       y0 = oy + int(unit / std::size_t(tx)) * TileSize;
             const int x1 = std::min(x0 + TileSize, ox + w), y1 = std::min(y0 + TileSize, oy + h);
@@ -187,7 +215,7 @@ RunResult SamplingIntegrator::render(const Scene& scene, RunContext& ctx) {
                     }
             }
         });
-        if (splat_buffer) splat_buffer->merge();
+        if (splat_buffer) splat_buffer->merge(comm);
     };
     PassLoopResult loop = run_passes(ctx, sensor.sampler().sample_count(), "spp", pass, develop);
 

@@ -15,6 +15,8 @@
 
 namespace kelvin {
 
+class Communicator;
+
 /// A pixel window of the film, [x0, x1) x [y0, y1) in pixels of the full image (`kelvin --crop`). Empty (the
 /// default): the whole film.
 struct CropWindow {
@@ -50,6 +52,10 @@ struct RunContext {
     /// with RunResult::interrupted set and the image so far; the caller writes it.)
     std::function<void(const Bitmap&)> write_partial_image;
     Stats stats;
+    /// The ranks this job is spread over (core/distributed.h); null: this process alone. With several ranks every
+    /// rank calls run() with the same settings; the result (image, fields, statistics) is complete on rank 0, and
+    /// only rank 0 reports progress and calls write_partial_image. `kelvin` under mpirun sets the world here.
+    Communicator* comm = nullptr;
 
     // ----- checkpoints (convergence studies, `kelvin converge`): intermediate results without restarting.
     // Contract for every job (see core/checkpoint.h; run_passes and mcfluid implement it): when

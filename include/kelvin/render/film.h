@@ -16,6 +16,8 @@
 
 namespace kelvin {
 
+class Communicator;
+
 /// Per-pixel accumulators: sum of weighted values for each channel, and the sum of weights.
 class ImageBuffer {
 public:
@@ -32,6 +34,9 @@ public:
     }
     /// Normalised values (sum / weight; 0 where no weight) with the given channel names.
     Bitmap develop(const std::vector<std::string>& names) const;
+    /// The same for a buffer whose pixels are split over the ranks of `comm` (each pixel written by one rank):
+    /// the sums are merged first (collective; exact). Complete on every rank.
+    Bitmap develop(const std::vector<std::string>& names, Communicator& comm) const;
 
 private:
     int m_width = 0, m_height = 0, m_channels = 0;
@@ -104,6 +109,10 @@ public:
     SplatSink& sink(std::size_t unit) { return m_sinks[unit]; }
     /// Fold every unit's list into the accumulator, in unit order, and empty the lists.
     void merge();
+    /// The same when the units are split over the ranks of `comm` (collective): every rank's lists are gathered
+    /// to rank 0 and folded there in unit order, so rank 0's accumulator is bit-identical to one process's.
+    /// Other ranks' accumulators stay empty.
+    void merge(Communicator& comm);
     /// Accumulated values times `scale`, as an RGB image.
     Bitmap develop(double scale) const;
 
@@ -138,6 +147,8 @@ public:
     void splat(const Vec2d& film, const Color3& v);
     /// Accumulated values times `scale`, as an RGB image.
     Bitmap develop(double scale) const;
+    /// The same, summed over the ranks of `comm` first (collective; integer sums are exact).
+    Bitmap develop(double scale, Communicator& comm) const;
     uint64_t overflowed() const { return m_overflow.load(std::memory_order_relaxed); }
     void clear();
 

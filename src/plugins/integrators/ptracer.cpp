@@ -14,6 +14,7 @@
 // | hide_emitters | boolean | false   | do not render emitters seen directly                      |
 //
 //     <integrator type="ptracer"><integer name="max_depth" value="8"/></integrator>
+#include <kelvin/core/distributed.h>
 #include <kelvin/core/interrupt.h>
 #include <kelvin/core/parallel.h>
 #include <kelvin/core/registry.h>
@@ -46,15 +47,21 @@ public:
         SplatBuffer splats(w, h, units, &sensor.film().filter());
         std::vector<SampleCounters> counters(units);
         const uint64_t seed = hash_combine(ctx.seed, 0x4c49474854ULL);  // light paths: their own streams
+        // Distributed: ranks trace the units they own; splats are folded on rank 0 in unit order.
+        Communicator& comm = communicator_of(ctx);
         auto traced = [&] {
             uint64_t n = 0;
             for (const auto& c : counters) n += c.samples;
+            if (comm.distributed()) comm.allreduce(&n, 1, ReduceOp::Sum);
             return n;
         };
-        auto develop = [&] { return splats.develop(traced() > 0 ? 1.0 / double(traced()) : 0.0); };
+        auto develop = [&] {
+            const uint64_t n = traced();
+            return splats.develop(n > 0 ? 1.0 / double(n) : 0.0);
+        };
 
         auto pass = [&](long long first, long long n) {
-            parallel_for_units(units, [&](std::size_t unit) {
+            parallel_for_owned_units(comm, units, [&](std::size_t unit) {
                 std::unique_ptr<Sampler> sampler = sensor.sampler().clone();
                 const std::size_t p0 = unit * PathsPerUnit, p1 = std::min(paths, p0 + PathsPerUnit);
                 for (long long k = first; k < first + n; ++k)
@@ -65,7 +72,7 @@ public:
                         ++counters[unit].samples;
                     }
             });
-            splats.merge();
+            splats.merge(comm);
         };
         PassLoopResult loop = run_passes(ctx, sensor.sampler().sample_count(), "spp", pass, develop);
 

@@ -1,0 +1,279 @@
+// Distributed runs (issue 21, core/distributed.h): `mpirun -np N kelvin ...` gives the same bits as one process.
+//
+// Every test runs the real `kelvin` under the real MPI launcher on localhost (2 ranks, --oversubscribe), and compares
+// the pixels (every channel, bit for bit) with `kelvin` run alone and with `mpirun -np 1`. A merge that summed
+// floating-point splats per rank, a rank that rendered tiles it does not own, or passes sized from each rank's own
+// clock would all change bits. Skipped when this build has no MPI module.
+#include "cli/subprocess.h"
+
+#include <kelvin/core/image.h>
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <cstring>
+#include <regex>
+
+namespace kelvin::test {
+namespace {
+
+#ifdef KELVIN_MPIEXEC
+const std::string Mpiexec = KELVIN_MPIEXEC;
+#else
+const std::string Mpiexec;
+#endif
+const std::string Scenes = std::string(KELVIN_SOURCE_DIR) + "/scenes/";
+
+// OpenMPI refuses root without these (CI runs as root); never more ranks than asked.
+const std::map<std::string, std::string> MpiEnv = {{"OMPI_ALLOW_RUN_AS_ROOT", "1"},
+                                                   {"OMPI_ALLOW_RUN_AS_ROOT_CONFIRM", "1"}};
+
+class Distributed : public ::testing::Test {
+public:
+    void SetUp() override {
+        if (Mpiexec.empty() ||
+            !fs::exists(fs::path(KELVIN_CLI).parent_path().parent_path() / "lib" / "libkelvin_mpi.so"))
+            GTEST_SKIP() << "this build has no MPI module (install libopenmpi-dev and reconfigure)";
+    }
+    // `kelvin args...` under mpirun with `np` ranks; --quiet keeps mpirun's own banners out of stderr.
+    ProcessResult mpirun(int np, std::vector<std::string> args, double timeout = 120) {
+        std::vector<std::string> a = {"-np", std::to_string(np), "--oversubscribe", "--quiet", KELVIN_CLI};
+        a.insert(a.end(), args.begin(), args.end());
+        return run_process(Mpiexec, a, MpiEnv, std::chrono::duration<double>(timeout));
+    }
+    ProcessResult alone(std::vector<std::string> args) {
+        return run_process(KELVIN_CLI, args, {}, std::chrono::seconds(120));
+    }
+    TempDir dir;
+};
+
+// Same size, channels and bits; on failure, how many values differ and the largest difference.
+::testing::AssertionResult same_bits(const fs::path& a, const fs::path& b) {
+    const Bitmap x = read_image(a), y = read_image(b);
+    if (x.width() != y.width() || x.height() != y.height() || x.channels() != y.channels())
+        return ::testing::AssertionFailure() << a << " and " << b << " differ in size or channels";
+    const std::size_t n = x.size();
+    if (n == 0) return ::testing::AssertionFailure() << a << " is empty";
+    if (std::memcmp(x.data(), y.data(), n * sizeof(float)) == 0) return ::testing::AssertionSuccess();
+    std::size_t differ = 0;
+    double worst = 0;
+    for (std::size_t i = 0; i < n; ++i)
+        if (std::memcmp(&x.data()[i], &y.data()[i], sizeof(float)) != 0) {
+            ++differ;
+            worst = std::max(worst, double(std::abs(x.data()[i] - y.data()[i])));
+        }
+    return ::testing::AssertionFailure() << a << " and " << b << ": " << differ << " of " << n
+                                         << " values differ, largest difference " << worst;
+}
+
+bool has_light(const fs::path& p) {
+    const Bitmap img = read_image(p);
+    double sum = 0;
+    for (std::size_t i = 0; i < img.size(); ++i) {
+        if (!std::isfinite(img.data()[i])) return false;
+        sum += img.data()[i];
+    }
+    return sum > 0;
+}
+
+std::size_t count_lines(const std::string& text, const std::string& needle) {
+    std::size_t n = 0;
+    for (const auto& l : lines_of(text))
+        if (l.find(needle) != std::string::npos) ++n;
+    return n;
+}
+
+// One scene, rendered alone, with mpirun -np 1 and with -np 2: the three images are bit-identical.
+void expect_identical(Distributed& t, const fs::path& dir, const std::string& name, std::vector<std::string> args) {
+    const fs::path one = dir / (name + "_alone.exr"), np1 = dir / (name + "_np1.exr"), np2 = dir / (name + "_np2.exr");
+    auto with = [&](const fs::path& out) {
+        std::vector<std::string> a = args;
+        a.insert(a.end(), {"-q", "-o", out.string()});
+        return a;
+    };
+    ProcessResult r = t.alone(with(one));
+    ASSERT_EQ(r.exit_code, 0) << describe(r);
+    r = t.mpirun(1, with(np1));
+    ASSERT_EQ(r.exit_code, 0) << describe(r);
+    r = t.mpirun(2, with(np2));
+    ASSERT_EQ(r.exit_code, 0) << describe(r);
+    EXPECT_TRUE(has_light(one)) << "the comparison needs an image with light in it";
+    EXPECT_TRUE(same_bits(one, np1));
+    EXPECT_TRUE(same_bits(one, np2));
+}
+
+// --- the pixel-sampling integrators: tiles owned round-robin, buffers merged exactly
+
+TEST_F(Distributed, PathTracerIsBitIdentical) {
+    expect_identical(*this, dir.path(), "path",
+                     {Scenes + "render/cornell-box.xml", "-D", "res=40", "--spp", "3", "--seed", "7"});
+}
+
+TEST_F(Distributed, LightTracerSplatsAreFoldedInUnitOrder) {
+    // ptracer's splats are double sums whose order matters: gathered to rank 0 and folded in unit order.
+    expect_identical(*this, dir.path(), "ptracer",
+                     {Scenes + "render/cornell-box.xml", "-D", "res=64", "-D", "integrator=ptracer", "--spp", "3"});
+}
+
+TEST_F(Distributed, BidirectionalIsBitIdentical) {
+    // bdpt splats its t = 1 strategies onto other tiles' pixels as well as writing its own.
+    expect_identical(*this, dir.path(), "bdpt",
+                     {Scenes + "render/cornell-box.xml", "-D", "res=40", "-D", "integrator=bdpt", "--spp", "2"});
+}
+
+TEST_F(Distributed, AovChannelsAreBitIdentical) {
+    expect_identical(*this, dir.path(), "aov", {Scenes + "render/aov.xml", "-D", "res=40", "--spp", "2"});
+}
+
+TEST_F(Distributed, CropWindowIsBitIdentical) {
+    expect_identical(*this, dir.path(), "crop",
+                     {Scenes + "render/cornell-box.xml", "-D", "res=64", "--spp", "2", "--crop", "8,56,20,50"});
+}
+
+// --- Metropolis: bootstrap blocks and chains are units; splats are fixed-point integer sums
+
+TEST_F(Distributed, PssmltIsBitIdentical) {
+    expect_identical(*this, dir.path(), "pssmlt",
+                     {Scenes + "render/mlt-study.xml", "-D", "variant=pssmlt-kelemen", "-D", "res=24", "--spp", "4"});
+}
+
+TEST_F(Distributed, DrmltOrbitalIsBitIdentical) {
+    // Also the stage channels (stages.R, stages.G): per-pixel acceptance counts summed over ranks.
+    expect_identical(*this, dir.path(), "drmlt",
+                     {Scenes + "render/mlt-study.xml", "-D", "variant=drmlt-orbital", "-D", "res=24", "--spp", "4"});
+}
+
+TEST_F(Distributed, DrmltGreenMiraOnBdptIsBitIdentical) {
+    expect_identical(*this, dir.path(), "green",
+                     {Scenes + "render/mlt-study.xml", "-D", "variant=drmlt-green", "-D", "technique=bdpt", "-D",
+                      "max_depth=6", "-D", "res=20", "--spp", "3"});
+}
+
+TEST_F(Distributed, MultiplexedDrmltIsBitIdentical) {
+    // Chains per path length, each with its own normalisation from the shared bootstrap.
+    expect_identical(*this, dir.path(), "mmlt",
+                     {Scenes + "render/mlt-study.xml", "-D", "variant=drmlt-orbital", "-D", "technique=mmlt", "-D",
+                      "max_depth=5", "-D", "direct_samples=-1", "-D", "res=20", "--spp", "3"});
+}
+
+TEST_F(Distributed, ComparisonSeesADifferentSeed) {
+    // The comparison can fail: the same render with another seed is not bit-identical.
+    const fs::path a = dir.path() / "a.exr", b = dir.path() / "b.exr";
+    ASSERT_EQ(
+        alone({Scenes + "render/cornell-box.xml", "-D", "res=32", "--spp", "2", "-q", "-o", a.string()}).exit_code, 0);
+    ASSERT_EQ(mpirun(2, {Scenes + "render/cornell-box.xml", "-D", "res=32", "--spp", "2", "--seed", "1", "-q", "-o",
+                         b.string()})
+                  .exit_code,
+              0);
+    EXPECT_FALSE(same_bits(a, b));
+}
+
+// --- behaving as one process
+
+TEST_F(Distributed, OnlyRankZeroReportsAndWrites) {
+    const fs::path out = dir.path() / "img.exr", stats = dir.path() / "stats.json";
+    ProcessResult r = mpirun(2, {Scenes + "render/cornell-box.xml", "-D", "res=32", "--spp", "2", "-o", out.string(),
+                                 "--stats", stats.string()});
+    ASSERT_EQ(r.exit_code, 0) << describe(r);
+    EXPECT_EQ(count_lines(r.err, "Done: path"), 1u) << r.err;
+    EXPECT_EQ(count_lines(r.err, "on 2 ranks x"), 1u) << r.err;
+    EXPECT_EQ(count_lines(r.err, "wrote "), 2u) << r.err;
+    // Statistics are the whole run's: 32 x 32 pixels x 2 spp camera samples, not one rank's share.
+    const std::string json = read_file(stats);
+    EXPECT_TRUE(std::regex_search(json, std::regex("\"render.camera_samples\": \\{\\s*\"unit\": \"samples\",\\s*"
+                                                   "\"value\": 2048(\\.0)?\\s*\\}")))
+        << json;
+}
+
+TEST_F(Distributed, TimeLimitStopsEveryRankTogether) {
+    // A time limit with no sample count: rank 0's clock decides for everyone, so both ranks stop after the same
+    // pass and the run ends (a rank left waiting in a collective would hang it).
+    const fs::path out = dir.path() / "timed.exr";
+    ProcessResult r = mpirun(2,
+                             {Scenes + "render/mlt-study.xml", "-D", "res=24", "--time-limit", "1.5", "--write-partial",
+                              "0.3", "-o", out.string()},
+                             60);
+    ASSERT_FALSE(r.timed_out) << describe(r);
+    ASSERT_EQ(r.exit_code, 0) << describe(r);
+    EXPECT_EQ(count_lines(r.err, "Done: drmlt"), 1u) << r.err;
+    EXPECT_TRUE(has_light(out));
+}
+
+TEST_F(Distributed, InterruptedRunWritesOnePartialImage) {
+    // Ctrl-C reaches mpirun, which passes SIGTERM to the ranks: they stop together, rank 0 writes the image so far.
+    const fs::path out = dir.path() / "partial.exr";
+    std::vector<std::string> a = {
+        "-np", "2",      "--oversubscribe", "--quiet", KELVIN_CLI, Scenes + "render/cornell-box.xml",
+        "-D",  "res=48", "--spp",           "1000000", "-o",       out.string()};
+    Process p(Mpiexec, a, MpiEnv);
+    ASSERT_TRUE(
+        p.wait_until([&] { return p.stderr_so_far().find("spp") != std::string::npos; }, std::chrono::seconds(60)))
+        << p.stderr_so_far();
+    std::this_thread::sleep_for(std::chrono::milliseconds(300));
+    p.signal(SIGINT);
+    ProcessResult r = p.wait(std::chrono::seconds(60));
+    ASSERT_FALSE(r.timed_out) << describe(r);
+    EXPECT_NE(r.exit_code, 0) << describe(r);  // mpirun's own status after Ctrl-C (the ranks exit 130)
+    EXPECT_EQ(count_lines(r.err, "Interrupted: path"), 1u) << r.err;
+    EXPECT_EQ(count_lines(r.err, "wrote "), 1u) << r.err;
+    ASSERT_TRUE(fs::exists(out)) << r.err;
+    EXPECT_TRUE(has_light(out));
+}
+
+TEST_F(Distributed, SignalToOneRankStopsAll) {
+    // A signal that reaches one rank only (a batch system, a node's watchdog): the other rank learns it at the end
+    // of the pass, and the run ends as interrupted with exit code 130.
+    const fs::path out = dir.path() / "one.exr";
+    std::vector<std::string> a = {
+        "-np", "2",      "--oversubscribe", "--quiet", KELVIN_CLI, Scenes + "render/cornell-box.xml",
+        "-D",  "res=48", "--spp",           "1000000", "-o",       out.string()};
+    Process p(Mpiexec, a, MpiEnv);
+    ASSERT_TRUE(
+        p.wait_until([&] { return p.stderr_so_far().find("spp") != std::string::npos; }, std::chrono::seconds(60)));
+    // The ranks are mpirun's children; signal the first of them.
+    const ProcessResult ps = run_process("/usr/bin/pgrep", {"-P", std::to_string(p.pid())}, {});
+    const std::vector<std::string> pids = lines_of(ps.out);
+    ASSERT_FALSE(pids.empty()) << ps.out << ps.err;
+    ::kill(std::stoi(pids.front()), SIGTERM);
+    ProcessResult r = p.wait(std::chrono::seconds(60));
+    ASSERT_FALSE(r.timed_out) << describe(r);
+    EXPECT_EQ(r.exit_code, 130) << describe(r);
+    EXPECT_EQ(count_lines(r.err, "Interrupted: path"), 1u) << r.err;
+    EXPECT_TRUE(has_light(out));
+}
+
+TEST_F(Distributed, BadSceneIsOneErrorLineAndExitTwo) {
+    const fs::path bad = dir.path() / "bad.xml";
+    write_file(bad,
+               "<scene version=\"3.0.0\">\n  <integrator type=\"path\"><integer name=\"max_depth\" value=\"x\"/>"
+               "</integrator>\n</scene>\n");
+    ProcessResult r = mpirun(2, {bad.string(), "-o", (dir.path() / "bad.exr").string()}, 60);
+    ASSERT_FALSE(r.timed_out) << describe(r);
+    EXPECT_EQ(r.exit_code, 2) << describe(r);
+    ASSERT_EQ(r.err_lines().size(), 1u) << r.err;
+    EXPECT_TRUE(std::regex_search(r.err, std::regex("^kelvin: error: .*bad\\.xml:2:"))) << r.err;
+    EXPECT_FALSE(fs::exists(dir.path() / "bad.exr"));
+}
+
+TEST_F(Distributed, AFileOnlyOneRankCannotReadIsOneErrorNoHang) {
+    // The scene exists for rank 0 only (the file name differs per rank through OpenMPI's per-rank environment,
+    // OMPI_COMM_WORLD_RANK): rank 1 fails to load, rank 0 must not wait for it in a collective, and the one error
+    // line names the rank.
+    fs::create_symlink(Scenes + "render/cornell-box.xml", dir.path() / "scene_0.xml");
+    // Rank r loads scene_$OMPI_COMM_WORLD_RANK.xml through a tiny shell wrapper.
+    const fs::path wrapper = dir.path() / "per_rank.sh";
+    write_file(wrapper,
+               "#!/bin/sh\nexec \"$@\" \"" + (dir.path() / "scene_").string() + "$OMPI_COMM_WORLD_RANK.xml\"\n");
+    fs::permissions(wrapper, fs::perms::owner_all);
+    ProcessResult r = run_process(Mpiexec,
+                                  {"-np", "2", "--oversubscribe", "--quiet", wrapper.string(), KELVIN_CLI, "-D",
+                                   "res=16", "--spp", "1", "-o", (dir.path() / "x.exr").string()},
+                                  MpiEnv, std::chrono::seconds(60));
+    ASSERT_FALSE(r.timed_out) << describe(r);
+    EXPECT_EQ(r.exit_code, 2) << describe(r);
+    ASSERT_EQ(r.err_lines().size(), 1u) << r.err;
+    EXPECT_TRUE(std::regex_search(r.err, std::regex("^kelvin: error: rank 1: .*scene_1\\.xml"))) << r.err;
+}
+
+}  // namespace
+}  // namespace kelvin::test
