@@ -1,4 +1,5 @@
 // The scene: a Job that renders (integrator + sensor + Embree geometry) or runs a simulation.
+#include <kelvin/core/distributed.h>
 #include <kelvin/core/logging.h>
 #include <kelvin/core/registry.h>
 #include <kelvin/render/scene.h>
@@ -259,9 +260,30 @@ std::string Scene::description() const {
     return m_integrator ? m_integrator->description() : plugin_name();
 }
 
+bool Scene::distributable() const {
+    return m_simulation ? m_simulation->distributable() : m_integrator && m_integrator->distributable();
+}
+
 RunResult Scene::run(RunContext& ctx) {
     if (!ctx.crop.empty() && (m_simulation || !m_integrator || !m_integrator->supports_crop()))
         throw InputError({}, fmt::format("crop window: {} renders the whole film only", description()));
+    // A job that cannot spread its work over ranks runs on rank 0 alone (core/distributed.h).
+    Communicator* comm = ctx.comm;
+    if (comm && comm->distributed() && !distributable()) {
+        if (!comm->root()) {
+            RunResult idle;
+            idle.description = description();
+            return idle;
+        }
+        log_warn("{} does not run distributed: rank 0 runs it alone, the other {} rank(s) wait", description(),
+                 comm->size() - 1);
+        ctx.comm = nullptr;
+    }
+    struct Restore {
+        RunContext& ctx;
+        Communicator* comm;
+        ~Restore() { ctx.comm = comm; }
+    } restore{ctx, comm};
     RunResult r = m_simulation ? m_simulation->run(ctx) : m_integrator->render(*this, ctx);
     if (r.description.empty()) r.description = description();
     return r;

@@ -85,6 +85,10 @@ struct RunResult {
 class Job : public Object {
 public:
     virtual RunResult run(RunContext& ctx) = 0;
+    /// True if run() spreads its work over the ranks of RunContext::comm (core/distributed.h) with a result
+    /// identical to one process's. A scene whose job is not (the grid and particle baselines) runs on rank 0
+    /// alone; the other ranks return at once.
+    virtual bool distributable() const { return false; }
 };
 
 }  // namespace kelvin

@@ -80,6 +80,7 @@ public:
     /// `delayed_rejection`: read the parameters of `drmlt` (type, first/second) rather than `pssmlt`'s.
     MetropolisIntegrator(const Properties& props, bool delayed_rejection);
     ~MetropolisIntegrator() override;
+    bool distributable() const override { return true; }
 
     RunResult render(const Scene& scene, RunContext& ctx) override;
     /// "drmlt (orbital, Tierney–Mira)": the plugin, its mutation(s) and, for drmlt, the delayed-rejection type.

@@ -48,6 +48,8 @@ public:
     virtual RunResult render(const Scene& scene, RunContext& ctx) = 0;
     /// True if render() honours RunContext::crop (renders only that pixel window, into an image of its size).
     virtual bool supports_crop() const { return false; }
+    /// True if render() spreads its work over the ranks of RunContext::comm (Job::distributable).
+    virtual bool distributable() const { return false; }
 };
 
 class SplatSink;
@@ -70,6 +72,7 @@ class SamplingIntegrator : public Integrator {
 public:
     RunResult render(const Scene& scene, RunContext& ctx) override;
     bool supports_crop() const override { return true; }
+    bool distributable() const override { return true; }
     /// Estimate of the value carried by `ray` (RGB). Called concurrently from several threads.
     virtual Color3 sample(const Scene& scene, Sampler& sampler, const Ray& ray, SampleCounters& counters) const = 0;
     /// True if sample() also splats contributions to other pixels (counters.splats). The pixel loop then adds

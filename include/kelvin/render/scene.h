@@ -21,6 +21,7 @@ public:
     ~Scene() override;
 
     RunResult run(RunContext& ctx) override;
+    bool distributable() const override;
     /// The integrator's (or simulation's) description.
     std::string description() const override;
 

@@ -39,6 +39,8 @@ public:
         if (m_max_depth == 0) props.error("max_depth", "must be -1 (unbounded) or at least 1");
     }
 
+    bool distributable() const override { return true; }
+
     RunResult render(const Scene& scene, RunContext& ctx) override {
         const Sensor& sensor = *scene.sensor();
         const int w = sensor.film().width(), h = sensor.film().height();
