@@ -3,6 +3,8 @@
 // --plot runs tools/plot_convergence.py on the CSV.
 #include "converge.h"
 
+#include <kelvin/core/distributed.h>
+
 #include <kelvin/core/converge.h>
 #include <kelvin/core/error.h>
 #include <kelvin/core/install.h>
@@ -135,7 +137,11 @@ CLI::App* add_converge_command(CLI::App& app, ConvergeArgs& a) {
 }
 
 int run_converge(const ConvergeArgs& a, Communicator& world) {
-    set_log_level(a.quiet ? LogLevel::Warn : a.verbose ? LogLevel::Debug : LogLevel::Info);
+    // Under mpirun the runs are spread over the ranks; rank 0 reports and writes (core/converge.h).
+    set_log_level(!world.root() ? LogLevel::Error
+                  : a.quiet     ? LogLevel::Warn
+                  : a.verbose   ? LogLevel::Debug
+                                : LogLevel::Info);
     ProgressReporter::set_enabled(false);
     auto& reg = Registry::instance();
     for (const auto& e : reg.take_load_errors()) log_error("built-in plugin registration: {}", e);
@@ -192,14 +198,18 @@ int run_converge(const ConvergeArgs& a, Communicator& world) {
                                    : ConvergeOptions::Images::First;
     o.allow_unused = a.allow_unused;
     o.quiet = a.quiet;
+    o.comm = &world;
 
     ThreadLimit limit(a.threads);  // (the signal handlers are installed first thing in main)
     Timer timer;
     const ConvergeSummary s = run_convergence(o);
+    if (!world.root()) return s.interrupted ? ExitInterrupted : ExitOk;
     if (!a.quiet)
-        std::fprintf(stderr, "%s %d run(s) in %.1f s (%d already done), %zu rows in %s on %d threads\n",
+        std::fprintf(stderr, "%s %d run(s) in %.1f s (%d already done), %zu rows in %s on %s\n",
                      s.interrupted ? "Interrupted after" : "Done:", s.runs_done, timer.seconds(), s.runs_skipped,
-                     s.rows, s.csv.string().c_str(), thread_count());
+                     s.rows, s.csv.string().c_str(),
+                     world.distributed() ? fmt::format("{} ranks x {} threads", world.size(), thread_count()).c_str()
+                                         : fmt::format("{} threads", thread_count()).c_str());
     if (s.interrupted) return ExitInterrupted;
     if (a.plot) {
         run_plot(s.csv, o.output_dir / "plots");

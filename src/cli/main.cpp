@@ -304,47 +304,21 @@ struct Prepared {
 
 Prepared prepare(const Options& o, bool root);
 
-// Distributed runs: every rank prepares the run itself (scene and outputs), then the ranks agree before any
-// collective. If any rank failed, every rank exits with the first failing rank's code and rank 0 prints that
-// rank's message once: a bad scene is one error line and the same exit code from every rank, and a rank that
-// cannot read a file the others can never leaves them waiting.
+// Distributed runs: every rank prepares the run itself (scene and outputs), and the ranks agree before any
+// collective (run_agreeing): if any rank failed, every rank throws that rank's error and rank 0 prints it once, so a
+// bad scene is one error line and the same exit code from every rank, and a rank that cannot read a file the others
+// can never leaves them waiting. A rank that stops without an error (interrupted while loading, --skip-existing)
+// stops them all.
 Prepared prepare_everywhere(const Options& o, Communicator& world) {
     Prepared p;
-    int code = ExitOk;
-    std::string message;
-    try {
-        p = prepare(o, world.root());
-        if (!p.job) code = p.exit_code;
-    } catch (const InputError& e) {
-        code = ExitInput, message = e.what();
-    } catch (const std::exception& e) {
-        code = ExitRuntime, message = e.what();
-    }
-    if (!world.distributed()) {
-        if (!message.empty()) {
-            // Rethrown as what it was, for main's handler.
-            if (code == ExitInput) throw InputError({}, message);
-            throw RuntimeError(message);
+    run_agreeing(world, [&] { p = prepare(o, world.root()); });
+    if (world.distributed()) {
+        uint64_t stop[2] = {p.job ? 0u : 1u, uint64_t(p.job ? 0 : p.exit_code)};
+        world.allreduce(stop, 2, ReduceOp::Max);
+        if (stop[0] && p.job) {
+            p.job.reset();
+            p.exit_code = int(stop[1]);
         }
-        return p;
-    }
-    // (code, message) of every rank; the first non-zero code wins, the job runs only if every rank is ready.
-    std::string mine(sizeof(int), '\0');
-    std::memcpy(mine.data(), &code, sizeof(int));
-    mine += message;
-    std::vector<std::size_t> offsets;
-    const std::vector<char> all = world.allgather(mine.data(), mine.size(), &offsets);
-    for (int r = 0; r < world.size(); ++r) {
-        const char* at = all.data() + offsets[std::size_t(r)];
-        int c = 0;
-        std::memcpy(&c, at, sizeof(int));
-        if (c == ExitOk) continue;
-        const std::string m(at + sizeof(int), all.data() + offsets[std::size_t(r) + 1]);
-        if (world.root() && !m.empty())
-            std::fprintf(stderr, "kelvin: error: %s%s\n", r == 0 ? "" : fmt::format("rank {}: ", r).c_str(), m.c_str());
-        Prepared failed;
-        failed.exit_code = c;
-        return failed;
     }
     return p;
 }
@@ -563,14 +537,17 @@ int main(int argc, char** argv) {
     struct FinalizeWorld {
         ~FinalizeWorld() { finalize_world(); }
     } finalize_world_at_exit;
+    // Errors reach here identically on every rank (run_agreeing) or on rank 0 alone (writing the output): rank 0
+    // prints them. (An error of one rank while the ranks work together ends the run in run().)
+    Communicator* world = nullptr;
     try {
-        Communicator& world = world_communicator();
-        return converge->parsed() ? cli::run_converge(converge_args, world) : run(o, world);
+        world = &world_communicator();
+        return converge->parsed() ? cli::run_converge(converge_args, *world) : run(o, *world);
     } catch (const InputError& e) {
-        std::fprintf(stderr, "kelvin: error: %s\n", e.what());
+        if (!world || world->root()) std::fprintf(stderr, "kelvin: error: %s\n", e.what());
         return ExitInput;
     } catch (const std::exception& e) {
-        std::fprintf(stderr, "kelvin: error: %s\n", e.what());
+        if (!world || world->root()) std::fprintf(stderr, "kelvin: error: %s\n", e.what());
         return ExitRuntime;
     }
 }

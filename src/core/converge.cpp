@@ -1,5 +1,6 @@
 // Convergence studies (include/kelvin/core/converge.h, docs/convergence.md).
 #include <kelvin/core/converge.h>
+#include <kelvin/core/distributed.h>
 #include <kelvin/core/error.h>
 #include <kelvin/core/files.h>
 #include <kelvin/core/image.h>
@@ -248,43 +249,94 @@ struct RunKey {
 
 class Study {
 public:
-    explicit Study(const ConvergeOptions& o) : m_o(o) {}
+    explicit Study(const ConvergeOptions& o) : m_o(o), m_comm(o.comm ? *o.comm : local_communicator()) {}
 
     ConvergeSummary run() {
-        validate();
-        fs::create_directories(m_o.output_dir);
-        m_csv_path = m_o.output_dir / "convergence.csv";
-        m_stats_path = m_o.output_dir / "convergence_stats.csv";
-        m_settings_path = m_o.output_dir / "convergence.settings";
-        load_existing();
-        write_settings();
-        // The reference next to the checkpoint images, for the plots' image grid (a simulation's reference run
-        // has the colour-mapped field in R, G, B).
-        if (m_o.images != ConvergeOptions::Images::None && m_reference.channel_index("R") == 0 &&
-            m_reference.channel_count() >= 3) {
-            fs::create_directories(m_o.output_dir / "images");
-            write_image(m_o.output_dir / "images" / "reference.png", m_reference);
+        // Every rank validates and reads the existing study (read only); they agree on errors before any rank
+        // writes or runs anything (core/distributed.h).
+        run_agreeing(m_comm, [&] {
+            validate();
+            m_csv_path = m_o.output_dir / "convergence.csv";
+            m_stats_path = m_o.output_dir / "convergence_stats.csv";
+            m_settings_path = m_o.output_dir / "convergence.settings";
+            load_existing();
+        });
+        if (m_comm.root()) {
+            fs::create_directories(m_o.output_dir);
+            write_settings();
+            // The reference next to the checkpoint images, for the plots' image grid (a simulation's reference run
+            // has the colour-mapped field in R, G, B).
+            if (m_o.images != ConvergeOptions::Images::None && m_reference.channel_index("R") == 0 &&
+                m_reference.channel_count() >= 3) {
+                fs::create_directories(m_o.output_dir / "images");
+                write_image(m_o.output_dir / "images" / "reference.png", m_reference);
+            }
         }
 
         ConvergeSummary summary;
         summary.csv = m_csv_path;
         summary.stats_csv = m_stats_path;
         const int total = m_o.runs * int(m_o.configs.size());
-        int index = 0;
         // Run-major: every configuration's run 0 first, so a cut-off study has something for each.
-        for (int r = 0; r < m_o.runs && !summary.interrupted; ++r)
+        struct Pending {
+            const ConvergeConfig* config;
+            int run, index;
+        };
+        std::vector<Pending> pending;
+        int index = 0;
+        for (int r = 0; r < m_o.runs; ++r)
             for (const auto& config : m_o.configs) {
                 ++index;
-                if (m_done.count({config.name, r})) {
+                if (m_done.count({config.name, r}))
                     ++summary.runs_skipped;
+                else
+                    pending.push_back({&config, r, index});
+            }
+        // Rounds of one run per rank (one process: one run per round); rank 0 records a round's runs in study
+        // order, so the CSV is the one a single process writes, and a cut-off study keeps every finished round.
+        const std::size_t ranks = std::size_t(m_comm.size());
+        for (std::size_t first = 0; first < pending.size() && !summary.interrupted; first += ranks) {
+            RunOutcome mine;
+            if (const std::size_t k = first + std::size_t(m_comm.rank()); k < pending.size()) {
+                const Pending& p = pending[k];
+                if (m_o.cancel.stop_requested()) {
+                    mine.interrupted = true;
+                } else if (!m_comm.distributed()) {
+                    mine = run_one(*p.config, p.run, p.index, total);
+                } else {
+                    // An error in one rank's run must not leave the others waiting: it travels with the outcome.
+                    try {
+                        mine = run_one(*p.config, p.run, p.index, total);
+                    } catch (const InputError& e) {
+                        mine.error = 1, mine.message = e.what();
+                    } catch (const std::exception& e) {
+                        mine.error = 2, mine.message = e.what();
+                    }
+                }
+            }
+            const std::vector<RunOutcome> round = exchange(mine);
+            for (std::size_t i = 0; i < round.size(); ++i) {
+                const RunOutcome& o = round[i];
+                if (o.error) {
+                    const std::string m = (i == 0 ? "" : fmt::format("rank {}: ", i)) + o.message;
+                    if (o.error == 1) throw InputError({}, m);
+                    throw RuntimeError(m);
+                }
+            }
+            for (std::size_t i = 0; i < round.size(); ++i) {
+                if (round[i].interrupted) {
+                    summary.interrupted = true;
                     continue;
                 }
-                if (m_o.cancel.stop_requested() || !run_one(config, r, index, total)) {
-                    summary.interrupted = true;
-                    break;
-                }
+                if (first + i >= pending.size()) continue;
+                record(round[i], i);
                 ++summary.runs_done;
             }
+            if (m_comm.root() && summary.runs_done > 0) {
+                write_text_atomically(m_stats_path, m_stats.text());
+                write_text_atomically(m_csv_path, m_table.text());  // last: a run is finished once its rows are here
+            }
+        }
         summary.rows = m_table.rows.size();
         return summary;
     }
@@ -583,8 +635,70 @@ private:
         return v;
     }
 
-    /// Runs one (configuration, run) pair; false when interrupted (nothing recorded).
-    bool run_one(const ConvergeConfig& config, int r, int index, int total) {
+    /// What one (configuration, run) pair produced: its rows, or why it has none.
+    struct RunOutcome {
+        bool interrupted = false;
+        int error = 0;  ///< 1: InputError, 2: another error (distributed studies carry errors to rank 0)
+        std::string message;
+        std::string config;
+        int run = 0;
+        std::size_t fired = 0;
+        double work = 0, seconds = 0;
+        std::string work_unit;
+        std::vector<Row> rows, stats;
+    };
+
+    /// Every rank's outcome of a round, in rank order, on every rank.
+    std::vector<RunOutcome> exchange(const RunOutcome& mine) {
+        if (!m_comm.distributed()) return {mine};
+        // Serialised as CSV records: a header record, then the rows, then the counters.
+        std::string text =
+            join_row({mine.interrupted ? "1" : "0", std::to_string(mine.error), mine.message, mine.config,
+                      std::to_string(mine.run), std::to_string(mine.fired), num(mine.work), num(mine.seconds),
+                      mine.work_unit, std::to_string(mine.rows.size()), std::to_string(mine.stats.size())}) +
+            "\n";
+        for (const auto* rows : {&mine.rows, &mine.stats})
+            for (const Row& r : *rows) text += join_row(r) + "\n";
+        std::vector<std::size_t> offsets;
+        const std::vector<char> all = m_comm.allgather(text.data(), text.size(), &offsets);
+        std::vector<RunOutcome> out(std::size_t(m_comm.size()));
+        for (std::size_t r = 0; r < out.size(); ++r) {
+            std::istringstream in(std::string(all.data() + offsets[r], all.data() + offsets[r + 1]));
+            std::string line;
+            std::getline(in, line);
+            const Row h = csv_split(line, "a rank's outcome");
+            RunOutcome& o = out[r];
+            o.interrupted = h.at(0) == "1";
+            o.error = int(parse_int(h.at(1)).value_or(2));
+            o.message = h.at(2);
+            o.config = h.at(3);
+            o.run = int(parse_int(h.at(4)).value_or(0));
+            o.fired = std::size_t(parse_int(h.at(5)).value_or(0));
+            o.work = std::stod(h.at(6));
+            o.seconds = std::stod(h.at(7));
+            o.work_unit = h.at(8);
+            const auto nrows = std::size_t(parse_int(h.at(9)).value_or(0)),
+                       nstats = std::size_t(parse_int(h.at(10)).value_or(0));
+            for (std::size_t i = 0; i < nrows + nstats && std::getline(in, line); ++i)
+                (i < nrows ? o.rows : o.stats).push_back(csv_split(line, "a rank's outcome"));
+        }
+        return out;
+    }
+
+    /// Adds a finished run's rows (the caller writes the files); `rank` ran it.
+    void record(const RunOutcome& o, std::size_t rank) {
+        for (const auto& row : o.rows) m_table.rows.push_back(row);
+        for (const auto& row : o.stats) m_stats.rows.push_back(row);
+        sort_rows(m_table);
+        sort_rows(m_stats);
+        m_done.insert({o.config, o.run});
+        if (!m_o.quiet && m_comm.root())
+            log_info("converge: {} run {}: {} checkpoint(s), {:.3g} {} in {:.3f} s{}", o.config, o.run, o.fired, o.work,
+                     o.work_unit, o.seconds, m_comm.distributed() ? fmt::format(" (rank {})", rank) : "");
+    }
+
+    /// Runs one (configuration, run) pair; its rows, or interrupted (nothing to record).
+    RunOutcome run_one(const ConvergeConfig& config, int r, int index, int total) {
         const uint64_t seed = m_o.seed + uint64_t(r);
         ParsedScene parsed = parse(config);
         ObjectPtr root = instantiate(parsed, {m_o.allow_unused});
@@ -675,7 +789,8 @@ private:
             }
         };
 
-        if (!m_o.quiet) log_info("converge: [{}/{}] {} run {} (seed {})", index, total, config.name, r, seed);
+        if (!m_o.quiet && m_comm.root())
+            log_info("converge: [{}/{}] {} run {} (seed {})", index, total, config.name, r, seed);
         // The job's own information lines (one set per run) would drown the study's; warnings still show.
         const LogLevel level = log_level();
         if (level == LogLevel::Info) set_log_level(LogLevel::Warn);
@@ -688,7 +803,11 @@ private:
             throw;
         }
         set_log_level(level);
-        if (result.interrupted || m_o.cancel.stop_requested()) return false;
+        RunOutcome out;
+        if (result.interrupted || m_o.cancel.stop_requested()) {
+            out.interrupted = true;
+            return out;
+        }
         const std::size_t fired = rows.size() / (sim_study ? m_o.fields.size() : 1);
         if (fired < expected)
             log_warn(
@@ -696,26 +815,24 @@ private:
                 "length: raise its steps, end time or sample count)",
                 config.name, r, fired, expected);
 
-        for (auto& row : rows) m_table.rows.push_back(std::move(row));
+        out.config = config.name;
+        out.run = r;
+        out.fired = fired;
+        out.work = result.work;
+        out.work_unit = result.work_unit;
+        out.seconds = result.seconds;
+        out.rows = std::move(rows);
         for (const auto& c : ctx.stats.counters())
-            m_stats.rows.push_back(
-                {config.name, std::to_string(r), std::to_string(seed), c.name, num(c.value), c.unit});
-        m_stats.rows.push_back(
+            out.stats.push_back({config.name, std::to_string(r), std::to_string(seed), c.name, num(c.value), c.unit});
+        out.stats.push_back(
             {config.name, std::to_string(r), std::to_string(seed), "run.seconds", num(result.seconds), "s"});
-        m_stats.rows.push_back(
+        out.stats.push_back(
             {config.name, std::to_string(r), std::to_string(seed), "run.work", num(result.work), result.work_unit});
-        sort_rows(m_table);
-        sort_rows(m_stats);
-        write_text_atomically(m_stats_path, m_stats.text());
-        write_text_atomically(m_csv_path, m_table.text());  // last: a run is finished once its rows are here
-        m_done.insert({config.name, r});
-        if (!m_o.quiet)
-            log_info("converge: {} run {}: {} checkpoint(s), {:.3g} {} in {:.3f} s", config.name, r, fired, result.work,
-                     result.work_unit, result.seconds);
-        return true;
+        return out;
     }
 
     const ConvergeOptions& m_o;
+    Communicator& m_comm;
     bool m_simulation = false;  ///< the scene runs a <simulation> (else it renders)
     Bitmap m_reference;
     fs::path m_csv_path, m_stats_path, m_settings_path;

@@ -107,6 +107,31 @@ void finalize_world() {
     world_module = nullptr;
 }
 
+void run_agreeing(Communicator& comm, const std::function<void()>& body) {
+    if (!comm.distributed()) return body();
+    // (kind, message) of every rank: kind 0 = fine, 1 = InputError, 2 = another error.
+    char kind = 0;
+    std::string message;
+    try {
+        body();
+    } catch (const InputError& e) {
+        kind = 1, message = e.what();
+    } catch (const std::exception& e) {
+        kind = 2, message = e.what();
+    }
+    std::string mine = std::string(1, kind) + message;
+    std::vector<std::size_t> offsets;
+    const std::vector<char> all = comm.allgather(mine.data(), mine.size(), &offsets);
+    for (int r = 0; r < comm.size(); ++r) {
+        const char* at = all.data() + offsets[std::size_t(r)];
+        if (offsets[std::size_t(r) + 1] == offsets[std::size_t(r)] || at[0] == 0) continue;
+        const std::string m =
+            (r == 0 ? "" : fmt::format("rank {}: ", r)) + std::string(at + 1, all.data() + offsets[std::size_t(r) + 1]);
+        if (at[0] == 1) throw InputError({}, m);
+        throw RuntimeError(m);
+    }
+}
+
 void parallel_for_owned_units(const Communicator& comm, std::size_t count,
                               const std::function<void(std::size_t)>& body) {
     if (comm.size() == 1) return parallel_for_units(count, body);

@@ -277,3 +277,97 @@ TEST_F(Distributed, AFileOnlyOneRankCannotReadIsOneErrorNoHang) {
 
 }  // namespace
 }  // namespace kelvin::test
+
+// --- kelvin converge: the runs of a study are the units
+
+namespace kelvin::test {
+namespace {
+
+// convergence.csv without its timing column (seconds): what a study computes, which must not depend on the ranks.
+std::string csv_without_seconds(const fs::path& p) {
+    std::string out;
+    for (const auto& line : lines_of(read_file(p))) {
+        std::vector<std::string> f;
+        std::size_t at = 0;
+        for (std::size_t c; (c = line.find(',', at)) != std::string::npos; at = c + 1)
+            f.push_back(line.substr(at, c - at));
+        f.push_back(line.substr(at));
+        if (f.size() > 5) f.erase(f.begin() + 5);
+        for (const auto& x : f) out += x + ",";
+        out += "\n";
+    }
+    return out;
+}
+
+class DistributedConverge : public Distributed {
+public:
+    std::vector<std::string> study(const fs::path& ref, const fs::path& out, int runs) {
+        return {"converge",
+                Scenes + "tests/converge.xml",
+                "-q",
+                "--reference",
+                ref.string(),
+                "--config",
+                "path:integrator=path",
+                "--config",
+                "pt:integrator=ptracer",
+                "--runs",
+                std::to_string(runs),
+                "--spp",
+                "1,4,16",
+                "-o",
+                out.string()};
+    }
+    fs::path reference() {
+        const fs::path ref = dir.path() / "ref.exr";
+        const ProcessResult r =
+            alone({Scenes + "tests/converge.xml", "-q", "--spp", "64", "--seed", "1000", "-o", ref.string()});
+        EXPECT_EQ(r.exit_code, 0) << describe(r);
+        return ref;
+    }
+};
+
+TEST_F(DistributedConverge, StudyOverRanksWritesTheSingleProcessCsv) {
+    const fs::path ref = reference(), one = dir.path() / "one", two = dir.path() / "two";
+    ProcessResult r = alone(study(ref, one, 3));
+    ASSERT_EQ(r.exit_code, 0) << describe(r);
+    r = mpirun(2, study(ref, two, 3));
+    ASSERT_EQ(r.exit_code, 0) << describe(r);
+    const std::string a = csv_without_seconds(one / "convergence.csv"),
+                      b = csv_without_seconds(two / "convergence.csv");
+    EXPECT_EQ(lines_of(a).size(), 1u + 2 * 3 * 3);  // header, 2 configurations x 3 runs x 3 checkpoints
+    EXPECT_EQ(a, b);
+    // Each rank wrote the checkpoint images of the runs it ran (run 0 of path on rank 0, of pt on rank 1).
+    EXPECT_TRUE(fs::exists(two / "images" / "path" / "run0_spp16.exr"));
+    EXPECT_TRUE(fs::exists(two / "images" / "pt" / "run0_spp16.exr"));
+    EXPECT_TRUE(same_bits(one / "images" / "pt" / "run0_spp16.exr", two / "images" / "pt" / "run0_spp16.exr"));
+}
+
+TEST_F(DistributedConverge, ResumesAStudyStartedByOneProcess) {
+    const fs::path ref = reference(), one = dir.path() / "one", two = dir.path() / "two";
+    ProcessResult r = alone(study(ref, one, 3));
+    ASSERT_EQ(r.exit_code, 0) << describe(r);
+    // One run per configuration alone, then the rest over two ranks, then nothing left to do.
+    r = alone(study(ref, two, 1));
+    ASSERT_EQ(r.exit_code, 0) << describe(r);
+    std::vector<std::string> a = study(ref, two, 3);
+    a.erase(std::find(a.begin(), a.end(), "-q"));
+    r = mpirun(2, a);
+    ASSERT_EQ(r.exit_code, 0) << describe(r);
+    EXPECT_NE(r.err.find("Done: 4 run(s)"), std::string::npos) << r.err;
+    EXPECT_NE(r.err.find("(2 already done)"), std::string::npos) << r.err;
+    EXPECT_EQ(csv_without_seconds(one / "convergence.csv"), csv_without_seconds(two / "convergence.csv"));
+}
+
+TEST_F(DistributedConverge, BadStudyIsOneErrorLine) {
+    const fs::path ref = reference();
+    ProcessResult r = mpirun(2, {"converge", Scenes + "tests/converge.xml", "--reference", ref.string(), "--config",
+                                 "x:nonexistent_parameter=1", "--spp", "1", "-o", (dir.path() / "bad").string()});
+    ASSERT_FALSE(r.timed_out);
+    EXPECT_EQ(r.exit_code, 2) << describe(r);
+    ASSERT_EQ(r.err_lines().size(), 1u) << r.err;
+    EXPECT_NE(r.err.find("nonexistent_parameter"), std::string::npos) << r.err;
+}
+
+}  // namespace
+}  // namespace kelvin::test

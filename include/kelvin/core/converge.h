@@ -29,6 +29,8 @@
 
 namespace kelvin {
 
+class Communicator;
+
 struct SourceLoc;
 
 /// One configuration: a name and the -D scene parameters it sets.
@@ -79,6 +81,12 @@ struct ConvergeOptions {
     bool quiet = false;
     /// Stops the study (and the run in progress) when cancelled; a process-wide interrupt stops it too.
     CancelToken cancel;
+    /// The ranks of an MPI job (core/distributed.h); null: this process alone. Every rank calls run_convergence with
+    /// the same options; a run is the unit of work (rank k runs the pending runs k, k + N, ... in study order, each
+    /// on its own threads), and rank 0 alone writes the CSV, after every round of N runs, in the same order as one
+    /// process. Checkpoint images are written by the rank that ran them: the output directory must be on a file
+    /// system every rank sees.
+    Communicator* comm = nullptr;
 };
 
 struct ConvergeSummary {
@@ -91,7 +99,8 @@ struct ConvergeSummary {
 
 /// Validate the options (InputError on bad input: missing scene or reference, unknown -D names, no
 /// checkpoints, a settings file that does not match...), then run every (configuration, run) pair that
-/// the CSV does not have yet. Stops early (summary.interrupted) on interrupt_requested().
+/// the CSV does not have yet. Stops early (summary.interrupted) on interrupt_requested(). With several ranks
+/// (ConvergeOptions::comm) the summary is the whole study's on every rank.
 ConvergeSummary run_convergence(const ConvergeOptions& opts);
 
 /// CSV helpers (RFC 4180 quoting), shared with the tests.

@@ -88,6 +88,13 @@ void finalize_world();
 void parallel_for_owned_units(const Communicator& comm, std::size_t count,
                               const std::function<void(std::size_t unit)>& body);
 
+/// Run `body` on every rank and agree on failure (collective, once `body` returns or throws): if it threw on any
+/// rank, every rank throws the first failing rank's error (an InputError stays one, and a rank other than 0 is named
+/// in the message: "rank 1: ..."); otherwise every rank returns. For work whose errors may differ between ranks (a
+/// file one node cannot read) before the ranks work together: no rank is left waiting in a later collective, and
+/// rank 0 alone can report the error once.
+void run_agreeing(Communicator& comm, const std::function<void()>& body);
+
 /// True on every rank if `flag` is true on any rank.
 inline bool any_rank(Communicator& comm, bool flag) {
     if (!comm.distributed()) return flag;
