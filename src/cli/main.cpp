@@ -365,6 +365,11 @@ int run(const Options& o, Communicator& world) {
         world.abort(code);
     }
     if (!root) return result.interrupted ? ExitInterrupted : ExitOk;
+    if (world.distributed()) {  // rank 0's share of the communication (docs/distributed.md)
+        const Communicator::Traffic t = world.traffic();
+        ctx.stats.add("distributed.collectives", double(t.collectives), "calls");
+        ctx.stats.add("distributed.bytes_rank0", double(t.bytes), "B");
+    }
     if (result.description.empty()) result.description = job.description();
     std::vector<fs::path> files;
     if (!result.image.empty()) {

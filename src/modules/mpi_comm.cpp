@@ -52,6 +52,7 @@ public:
     void allreduce(int64_t* data, std::size_t n, ReduceOp op) override { reduce(data, n, MPI_INT64_T, op); }
     void allreduce(uint64_t* data, std::size_t n, ReduceOp op) override { reduce(data, n, MPI_UINT64_T, op); }
     void broadcast(void* data, std::size_t bytes) override {
+        count(m_rank == 0 ? bytes : 0);
         check(MPI_Bcast(data, count_of(bytes), MPI_BYTE, 0, MPI_COMM_WORLD), "MPI_Bcast");
     }
     std::vector<char> allgather(const void* data, std::size_t bytes, std::vector<std::size_t>* offsets) override {
@@ -60,7 +61,11 @@ public:
     std::vector<char> gather(const void* data, std::size_t bytes, std::vector<std::size_t>* offsets) override {
         return collect(data, bytes, offsets, /*all=*/false);
     }
-    void barrier() override { check(MPI_Barrier(MPI_COMM_WORLD), "MPI_Barrier"); }
+    void barrier() override {
+        count(0);
+        check(MPI_Barrier(MPI_COMM_WORLD), "MPI_Barrier");
+    }
+    Traffic traffic() const override { return m_traffic; }
     [[noreturn]] void abort(int exit_code) override {
         MPI_Abort(MPI_COMM_WORLD, exit_code);
         std::_Exit(exit_code);
@@ -72,6 +77,7 @@ private:
         constexpr std::size_t Chunk = std::size_t(1) << 28;
         int bytes_per = 0;
         MPI_Type_size(type, &bytes_per);
+        count(n * std::size_t(bytes_per));
         for (std::size_t i = 0; i < n; i += Chunk) {
             const int c = int(std::min(Chunk, n - i));
             check(MPI_Allreduce(MPI_IN_PLACE, static_cast<char*>(data) + i * std::size_t(bytes_per), c, type,
@@ -81,6 +87,7 @@ private:
     }
     std::vector<char> collect(const void* data, std::size_t bytes, std::vector<std::size_t>* offsets, bool all) {
         const int mine = count_of(bytes);
+        count(bytes);
         std::vector<int> counts(std::size_t(m_size), 0), displs(std::size_t(m_size), 0);
         if (all)
             check(MPI_Allgather(&mine, 1, MPI_INT, counts.data(), 1, MPI_INT, MPI_COMM_WORLD), "MPI_Allgather");
@@ -114,7 +121,13 @@ private:
         return out;
     }
 
+    void count(std::size_t bytes) {
+        ++m_traffic.collectives;
+        m_traffic.bytes += bytes;
+    }
+
     int m_rank = 0, m_size = 1;
+    Traffic m_traffic;
 };
 
 MpiCommunicator* the_world = nullptr;

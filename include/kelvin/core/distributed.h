@@ -62,6 +62,12 @@ public:
     virtual void barrier() = 0;
     /// End every rank of the run now with `exit_code` (an error on one rank that the others cannot see).
     [[noreturn]] virtual void abort(int exit_code) = 0;
+
+    /// What this rank has communicated so far: collective calls, and bytes it contributed to them.
+    struct Traffic {
+        uint64_t collectives = 0, bytes = 0;
+    };
+    virtual Traffic traffic() const { return {}; }
 };
 
 /// The communicator of a single process (rank 0 of 1); every collective is the identity.
