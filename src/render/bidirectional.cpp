@@ -44,7 +44,7 @@ double infinite_density(const Scene& scene, const Vec3d& d_from_scene_to_light_d
     // Density with which emitter sampling picks direction d among the infinite emitters.
     double pdf = 0;
     for (const Emitter* e : scene.environment_emitters())
-        pdf += scene.emitter_pdf(e) * e->pdf_direct(Vec3d(0.0), Vec3d(0.0), Vec3d(0.0), d_from_scene_to_light_dir);
+        pdf += scene.emitter_pdf(e) * e->pdf_direct({.d = d_from_scene_to_light_dir});
     return pdf;
 }
 

@@ -142,7 +142,7 @@ TEST(Envmap, ConstantMapIsTheConstantEmitter) {
         auto ds = env->sample_direct(Vec3d(0.1, 0.2, 0.3), rng.next_2d());
         ASSERT_TRUE(ds);
         EXPECT_NEAR(ds->pdf, 1 / (4 * Pi), 1e-12);
-        EXPECT_NEAR(env->pdf_direct(Vec3d(0.0), Vec3d(0.0), Vec3d(0.0), ds->d), 1 / (4 * Pi), 1e-12);
+        EXPECT_NEAR(env->pdf_direct({.d = ds->d}), 1 / (4 * Pi), 1e-12);
         EXPECT_NEAR(glm::length(ds->weight - L * (4 * Pi)), 0, 1e-9);
         EXPECT_EQ(ds->dist, Inf);
     }
@@ -200,7 +200,7 @@ TEST(Envmap, SampledDirectionsMatchPdf) {
         ASSERT_TRUE(ds);
         const Vec3d d = ds->d;
         ASSERT_NEAR(glm::length(d), 1, 1e-12);
-        EXPECT_NEAR(ds->pdf, e->pdf_direct(Vec3d(0.0), ds->p, Vec3d(0.0), d), 1e-9 * ds->pdf);
+        EXPECT_NEAR(ds->pdf, e->pdf_direct({.p = ds->p, .d = d}), 1e-9 * ds->pdf);
         const Color3 L = e->eval(Vec3d(0.0), Vec3d(0.0), Vec2d(0.0), -d);
         EXPECT_NEAR(glm::length(ds->weight - L / ds->pdf), 0, 1e-9 * glm::length(L / ds->pdf));
         const Vec3d local = glm::normalize(Vec3d(kTilt.inverse * glm::dvec4(d, 0.0)));
@@ -218,7 +218,7 @@ TEST(Envmap, SampledDirectionsMatchPdf) {
             const double omega = (za - zb) * 2 * Pi / NU;
             const double zc = 0.5 * (za + zb), r = std::sqrt(1 - zc * zc), phi = 2 * Pi * (iu + 0.5) / NU;
             const Vec3d centre(std::sin(phi) * r, zc, -std::cos(phi) * r);
-            const double pdf = e->pdf_direct(Vec3d(0.0), Vec3d(0.0), Vec3d(0.0), kTilt.apply_vector(centre));
+            const double pdf = e->pdf_direct({.d = kTilt.apply_vector(centre)});
             total_pdf += pdf * omega;
             expected[std::size_t(iz * NU + iu)] = pdf * omega * n;
         }
@@ -251,7 +251,7 @@ TEST(Envmap, SampledDirectionsMatchPdf) {
         auto es = e->sample_emission(rng.next_2d(), rng.next_2d());
         ASSERT_TRUE(es);
         const Vec3d d = glm::normalize(es->ray.d);
-        EXPECT_NEAR(es->pdf_dir, e->pdf_direct(Vec3d(0.0), Vec3d(0.0), Vec3d(0.0), -d), 1e-9 * es->pdf_dir);
+        EXPECT_NEAR(es->pdf_dir, e->pdf_direct({.d = -d}), 1e-9 * es->pdf_dir);
         auto [pos, dir] = e->pdf_emission(es->ray.o, es->n, d);
         EXPECT_NEAR(pos, es->pdf_pos, 1e-12);
         EXPECT_NEAR(dir, es->pdf_dir, 1e-9 * dir);

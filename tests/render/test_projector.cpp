@@ -227,7 +227,7 @@ TEST(TexturedArea, DirectPdfIntegratesToOneAndLightingMatchesBruteForce) {
             if (hit) {
                 const SurfaceInteraction si = scene->interaction(r, *hit);
                 if (si.shape->emitter() == e) {
-                    const double q = e->pdf_direct(ref, si.p, si.ng, d) * 4 * Pi;
+                    const double q = e->pdf_direct({ref, si.p, si.ng, d}) * 4 * Pi;
                     pdf_sum += q;
                     pdf_sum2 += q * q;
                     v = e->eval(si.p, si.ng, si.uv, -d).r * std::max(0.0, d.z) * 4 * Pi;

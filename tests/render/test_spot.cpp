@@ -131,7 +131,7 @@ TEST(Spot, FalloffProfile) {
         }
     }
     EXPECT_EQ(spot->eval(pos, Vec3d(0.0), Vec2d(0.0), Vec3d(0, 0, 1)), Color3(0.0));
-    EXPECT_EQ(spot->pdf_direct(Vec3d(0.0), pos, Vec3d(0.0), Vec3d(0, 1, 0)), 0.0);
+    EXPECT_EQ(spot->pdf_direct({.p = pos, .d = Vec3d(0, 1, 0)}), 0.0);
     EXPECT_EQ(spot->flags(), uint32_t(EmitterFlags::DeltaPosition));
 }
 

@@ -18,7 +18,7 @@
 /// Bumped whenever a change to the public headers breaks binary compatibility of plugins (2: Object::description,
 /// Emitter::eval with the surface uv, RunContext/RunResult fields for the CLI; 3: RunContext's progress callback
 /// and cancellation token, FluidSolver's pointwise queries).
-#define KELVIN_PLUGIN_ABI 3
+#define KELVIN_PLUGIN_ABI 4
 
 namespace kelvin {
 

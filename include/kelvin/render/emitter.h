@@ -59,14 +59,23 @@ struct EmissionSample {
     }
 };
 
+/// Where a direction from a lit point reaches an emitter: what pdf_direct() reads (the role of Mitsuba 3's
+/// DirectionSample and pbrt-v4's LightSampleContext). Emitters at infinity read `d` only.
+struct DirectQuery {
+    Vec3d ref{0.0};  ///< the lit point
+    Vec3d p{0.0};    ///< the point of the emitter the direction reaches
+    Vec3d n{0.0};    ///< the emitter's normal at p
+    Vec3d d{0.0};    ///< unit direction from ref towards p
+};
+
 class Emitter : public Object {
 public:
     virtual uint32_t flags() const = 0;
     /// Sample a point of the emitter as seen from `ref`.
     virtual std::optional<DirectSample> sample_direct(const Vec3d& ref, const Vec2d& u) const = 0;
-    /// Solid-angle density, at `ref`, of sample_direct choosing the point `p` (with normal `n`); 0 for delta
-    /// emitters. For infinite emitters `p` is ignored and `n` is unused; `d` is the unit direction ref -> p.
-    virtual double pdf_direct(const Vec3d& ref, const Vec3d& p, const Vec3d& n, const Vec3d& d) const = 0;
+    /// Solid-angle density, at q.ref, of sample_direct choosing the point q.p (with normal q.n) in direction q.d;
+    /// 0 for delta emitters. Infinite emitters read q.d only.
+    virtual double pdf_direct(const DirectQuery& q) const = 0;
     /// Radiance leaving the emitter at `p` (normal `n`, surface coordinates `uv`) in unit direction `w` (pointing
     /// away from the emitter, towards the viewer). For infinite emitters: radiance arriving along -w from infinity
     /// (`n` and `uv` unused). An area emitter with a textured radiance reads its texture at `uv`.

@@ -57,10 +57,10 @@ public:
         ds.weight = radiance(ps.uv) / ds.pdf;
         return ds;
     }
-    double pdf_direct(const Vec3d& ref, const Vec3d& p, const Vec3d& n, const Vec3d& d) const override {
-        double cos_e = -glm::dot(n, d);
+    double pdf_direct(const DirectQuery& q) const override {
+        double cos_e = -glm::dot(q.n, q.d);
         if (cos_e <= 0) return 0.0;
-        Vec3d v = p - ref;
+        Vec3d v = q.p - q.ref;
         return glm::dot(v, v) / (cos_e * m_shape->surface_area());
     }
     Color3 eval(const Vec3d&, const Vec3d& n, const Vec2d& uv, const Vec3d& w) const override {

@@ -33,9 +33,7 @@ public:
         ds.weight = m_radiance / ds.pdf;
         return ds;
     }
-    double pdf_direct(const Vec3d&, const Vec3d&, const Vec3d&, const Vec3d&) const override {
-        return warp::square_to_uniform_sphere_pdf();
-    }
+    double pdf_direct(const DirectQuery&) const override { return warp::square_to_uniform_sphere_pdf(); }
     Color3 eval(const Vec3d&, const Vec3d&, const Vec2d&, const Vec3d&) const override { return m_radiance; }
     std::optional<EmissionSample> sample_emission(const Vec2d& u_pos, const Vec2d& u_dir) const override {
         EmissionSample es;

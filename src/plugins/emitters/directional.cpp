@@ -46,7 +46,7 @@ public:
         ds.weight = m_irradiance;
         return ds;
     }
-    double pdf_direct(const Vec3d&, const Vec3d&, const Vec3d&, const Vec3d&) const override { return 0; }
+    double pdf_direct(const DirectQuery&) const override { return 0; }
     Color3 eval(const Vec3d&, const Vec3d&, const Vec2d&, const Vec3d&) const override { return Color3(0.0); }
     std::optional<EmissionSample> sample_emission(const Vec2d& u_pos, const Vec2d&) const override {
         // Rays start on a disc of the scene's bounding radius, perpendicular to the direction, upstream.

@@ -127,9 +127,7 @@ public:
         ds.weight = lookup(m_to_local * d) / pdf;
         return ds;
     }
-    double pdf_direct(const Vec3d&, const Vec3d&, const Vec3d&, const Vec3d& d) const override {
-        return pdf_local(m_to_local * d);
-    }
+    double pdf_direct(const DirectQuery& q) const override { return pdf_local(m_to_local * q.d); }
     Color3 eval(const Vec3d&, const Vec3d&, const Vec2d&, const Vec3d& w) const override {
         return lookup(m_to_local * -w);
     }

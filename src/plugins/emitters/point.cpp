@@ -34,7 +34,7 @@ public:
         ds.weight = m_intensity / dist2;
         return ds;
     }
-    double pdf_direct(const Vec3d&, const Vec3d&, const Vec3d&, const Vec3d&) const override { return 0; }
+    double pdf_direct(const DirectQuery&) const override { return 0; }
     Color3 eval(const Vec3d&, const Vec3d&, const Vec2d&, const Vec3d&) const override { return Color3(0.0); }
     std::optional<EmissionSample> sample_emission(const Vec2d&, const Vec2d& u_dir) const override {
         EmissionSample es;

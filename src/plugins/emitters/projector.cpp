@@ -120,7 +120,7 @@ public:
         ds.weight = irr * (Pi * m_scale * dist / (local.z * local.z * local.z));
         return ds;
     }
-    double pdf_direct(const Vec3d&, const Vec3d&, const Vec3d&, const Vec3d&) const override { return 0; }
+    double pdf_direct(const DirectQuery&) const override { return 0; }
     Color3 eval(const Vec3d&, const Vec3d&, const Vec2d&, const Vec3d&) const override { return Color3(0.0); }
 
     std::optional<EmissionSample> sample_emission(const Vec2d&, const Vec2d& u_dir) const override {

@@ -93,10 +93,10 @@ public:
                 for (const Emitter* e : scene.environment_emitters()) {
                     const Color3 Le = e->eval(si.p, Vec3d(0.0), Vec2d(0.0), -d);
                     if (Le == Color3(0.0)) continue;
-                    const double w = delta ? 1.0
-                                           : mis(bs->pdf * m_frac_bsdf,
-                                                 scene.emitter_pdf(e) * e->pdf_direct(si.p, Vec3d(0.0), Vec3d(0.0), d) *
-                                                     m_frac_emitter);
+                    const double w =
+                        delta ? 1.0
+                              : mis(bs->pdf * m_frac_bsdf,
+                                    scene.emitter_pdf(e) * e->pdf_direct({.ref = si.p, .d = d}) * m_frac_emitter);
                     L += bs->weight * Le * (w / m_bsdf_samples);
                 }
                 continue;
@@ -108,7 +108,7 @@ public:
             if (Le == Color3(0.0)) continue;
             const double w = delta ? 1.0
                                    : mis(bs->pdf * m_frac_bsdf,
-                                         scene.emitter_pdf(e) * e->pdf_direct(si.p, s2.p, s2.ng, d) * m_frac_emitter);
+                                         scene.emitter_pdf(e) * e->pdf_direct({si.p, s2.p, s2.ng, d}) * m_frac_emitter);
             L += bs->weight * Le * (w / m_bsdf_samples);
         }
         return L;

@@ -67,7 +67,7 @@ public:
                     Color3 Le = e->eval(ray.o, Vec3d(0.0), Vec2d(0.0), -ray.d);
                     double w = 1.0;
                     if (!prev_delta && m_emitter_sampling) {
-                        double pl = scene.emitter_pdf(e) * e->pdf_direct(prev_p, Vec3d(0.0), Vec3d(0.0), ray.d);
+                        double pl = scene.emitter_pdf(e) * e->pdf_direct({.ref = prev_p, .d = ray.d});
                         w = power_heuristic(prev_bsdf_pdf, pl);
                     }
                     L += throughput * Le * w;
@@ -83,7 +83,7 @@ public:
                 if (Le != Color3(0.0)) {
                     double w = 1.0;
                     if (!prev_delta && m_emitter_sampling) {
-                        double pl = scene.emitter_pdf(e) * e->pdf_direct(prev_p, si.p, si.ng, ray.d);
+                        double pl = scene.emitter_pdf(e) * e->pdf_direct({prev_p, si.p, si.ng, ray.d});
                         w = power_heuristic(prev_bsdf_pdf, pl);
                     }
                     L += throughput * Le * w;

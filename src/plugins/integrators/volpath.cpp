@@ -160,8 +160,7 @@ public:
                         const Color3 Le = e->eval(ray.o, Vec3d(0.0), Vec2d(0.0), -ray.d);
                         double w = 1.0;
                         if (!specular_chain) {
-                            const double pl =
-                                scene.emitter_pdf(e) * e->pdf_direct(last_p, Vec3d(0.0), Vec3d(0.0), ray.d);
+                            const double pl = scene.emitter_pdf(e) * e->pdf_direct({.ref = last_p, .d = ray.d});
                             w = power_heuristic(prev_pdf, pl);
                         }
                         L += beta * Le * w;
@@ -176,7 +175,7 @@ public:
                 if (Le != Color3(0.0)) {
                     double w = 1.0;
                     if (!specular_chain) {
-                        const double pl = scene.emitter_pdf(e) * e->pdf_direct(last_p, si.p, si.ng, ray.d);
+                        const double pl = scene.emitter_pdf(e) * e->pdf_direct({last_p, si.p, si.ng, ray.d});
                         w = power_heuristic(prev_pdf, pl);
                     }
                     L += beta * Le * w;
