@@ -160,105 +160,158 @@ MltStatistics MetropolisIntegrator::statistics() const {
     return m_stats;
 }
 
-RunResult MetropolisIntegrator::render(const Scene& scene, RunContext& ctx) {
-    Timer total;
-    // Distributed (core/distributed.h): bootstrap blocks and chains are work units owned round-robin; the bootstrap
-    // values are shared (each written by one rank: an exact sum), the fixed-point splats and counters are integer
-    // sums, so rank 0's image is bit-identical to one process's.
-    Communicator& comm = communicator_of(ctx);
-    const Sensor& sensor = *scene.sensor();
-    if (m_mmlt && !sensor.supports_connections())
-        throw InputError(m_technique_loc,
-                         fmt::format("{}: parameter 'technique': mmlt connects light subpaths to the camera and needs "
-                                     "a perspective or thinlens sensor, not {}; use technique=\"path\"",
-                                     to_string(), sensor.to_string()));
-    m_technique->validate(scene);
-    const int w = sensor.film().width(), h = sensor.film().height();
-    const ReconstructionFilter& filter = sensor.film().filter();
-    // bdpt and mmlt: camera, light and connection streams interleaved pair by pair (pss.h).
-    const int streams = m_mmlt ? SampleStreamCount : m_technique->sample_streams();
-    FilmDomain dom;
-    dom.origin = Vec2d(-filter.radius());
-    dom.extent = Vec2d(w + 2 * filter.radius(), h + 2 * filter.radius());
-    dom.area = dom.extent.x * dom.extent.y;
-    MltStatistics st;
-    // The chain count: given, or chosen from the mutation budget (docs/mlt.md, "How many chains").
-    const double budget_mpp = ctx.spp > 0 ? double(ctx.spp) : m_mutations_per_pixel;
-    long long n_chains =
-        m_chains > 0 ? m_chains : auto_chain_count(budget_mpp * double(w) * double(h), m_mutations_per_chain);
-
-    // Depths: one (edges -1: every length) for path and bdpt; one per path length for mmlt.
-    std::vector<int> depth_edges;
-    if (m_mmlt) {
-        for (int k = m_min_edges; k <= m_max_edges; ++k)
-            if (!(m_hide_emitters && k == 1)) depth_edges.push_back(k);
-    } else {
-        depth_edges.push_back(-1);
+// One render(): its steps are the methods of this class, called in order by run(), and the state they share is
+// its members.
+//
+//   direct_pass()     direct illumination by plain Monte Carlo (direct_samples > 0)
+//   bootstrap()       b = E[pi] over independent uniform states (per path length for mmlt)
+//   allocate_chains() chains per path length, in proportion to each length's share of b
+//   start_chains()    each chain starts at a bootstrap state resampled in proportion to pi
+//   run_chains()      the progressive loop of mutations (run_passes), splatting into a fixed-point image
+//   gather()          the chains' statistics, summed over ranks
+//   report()          statistics into ctx.stats, the stage map
+//
+// Distributed (core/distributed.h): bootstrap blocks and chains are work units owned round-robin; the bootstrap
+// values are shared (each written by one rank: an exact sum), the fixed-point splats and counters are integer sums,
+// so rank 0's image is bit-identical to one process's.
+class MetropolisIntegrator::Render {
+public:
+    Render(MetropolisIntegrator& mlt, const Scene& scene, RunContext& ctx)
+        : I(mlt),
+          scene(scene),
+          ctx(ctx),
+          comm(communicator_of(ctx)),
+          sensor(*scene.sensor()),
+          w(sensor.film().width()),
+          h(sensor.film().height()),
+          filter(sensor.film().filter()),
+          // bdpt and mmlt: camera, light and connection streams interleaved pair by pair (pss.h).
+          streams(mlt.m_mmlt ? SampleStreamCount : mlt.m_technique->sample_streams()),
+          dom{Vec2d(-filter.radius()), Vec2d(w + 2 * filter.radius(), h + 2 * filter.radius()),
+              (w + 2 * filter.radius()) * (h + 2 * filter.radius())},
+          multiplexed(scene, dom),
+          image(w, h, &filter),
+          boot_seed(hash_combine(ctx.seed, 0x626f6f74)),
+          chain_seed(hash_combine(ctx.seed, 0x6d6c7463)),
+          pss_seed(hash_combine(ctx.seed, 0x70737321)),
+          nboot(std::size_t(mlt.m_bootstrap_samples)) {
+        // The chain count: given, or chosen from the mutation budget (docs/mlt.md, "How many chains").
+        const double budget_mpp = ctx.spp > 0 ? double(ctx.spp) : I.m_mutations_per_pixel;
+        n_chains =
+            I.m_chains > 0 ? I.m_chains : auto_chain_count(budget_mpp * double(w) * double(h), I.m_mutations_per_chain);
+        // Depths: one (edges -1: every length) for path and bdpt; one per path length for mmlt.
+        if (I.m_mmlt) {
+            for (int k = I.m_min_edges; k <= I.m_max_edges; ++k)
+                if (!(I.m_hide_emitters && k == 1)) depth_edges.push_back(k);
+        } else {
+            depth_edges.push_back(-1);
+        }
+        D = depth_edges.size();
+        max_vertices = I.m_mmlt ? I.m_max_edges + 1 : 0;
     }
-    const std::size_t D = depth_edges.size();
-    const int max_vertices = m_mmlt ? m_max_edges + 1 : 0;
+
+    RunResult run() {
+        if (!direct_pass() || !bootstrap()) return interrupted_result();
+        allocate_chains();
+        start_chains();
+        const PassLoopResult loop = run_chains();
+        gather();
+        RunResult result;
+        result.image = develop();
+        result.interrupted = loop.interrupted;
+        result.seconds = total.seconds();
+        result.work = st.mutations_per_pixel;
+        result.work_unit = "mutations/px";
+        report(result);
+        return result;
+    }
+
+private:
+    struct Chain {
+        std::unique_ptr<MarkovChain> mc;  // null on ranks that do not own the chain
+        std::unique_ptr<PrimarySampleSpace> pss;
+        Contributions f[4];  // indexed by Slot: x (current state), y, z, y*
+        uint64_t steps_done = 0;
+        std::size_t depth = 0;
+        int edges = -1;
+        double scale = 1;  // splat weight: b_k C / (b n_k) for mmlt, 1 otherwise
+        std::unique_ptr<LightSubpaths> light;
+        SubpathRays rays;
+        std::vector<uint64_t> small, small_acc, att2, acc2;  // per strategy s (mmlt)
+        uint64_t strategy_changes = 0;                       // by small steps (mmlt; must stay 0)
+    };
 
     // F(x) and pi(x) of the state `pss` is bound to: a path or bdpt sample from a camera ray.
-    auto evaluate_camera = [&](PrimarySampleSpace& pss, Contributions& out, SampleCounters& c) {
+    double evaluate_camera(PrimarySampleSpace& pss, Contributions& out, SampleCounters& c) const {
         out.clear();
         const Vec2d film = dom.origin + pss.next_2d() * dom.extent;
         const Ray ray = sensor.sample_ray(film, pss.next_2d());
         c.splats = &out;
-        Color3 L = m_technique->sample(scene, pss, ray, c);
+        Color3 L = I.m_technique->sample(scene, pss, ray, c);
         if (!sanitize(L)) ++c.invalid;
         out.splat(film, L * dom.area);
         out.film = film;
         for (const auto& it : out.items) out.pi += luminance(it.v);
         ++c.samples;
         return out.pi;
-    };
-    const MultiplexedTechnique multiplexed(scene, dom);
+    }
 
-    // 1. Direct illumination by plain Monte Carlo (direct_samples > 0).
-    Bitmap direct;
-    if (m_direct) {
+    // Evaluates bootstrap state i (of depth i / nboot) into `f`, reading `x`.
+    double evaluate_boot(std::size_t i, std::vector<double>& x, Contributions& f, SampleCounters& c, LightSubpaths* L,
+                         SubpathRays& rays) const {
+        PrimarySampleSpace pss(boot_seed, i, streams);
+        x.clear();
+        pss.bind(x);
+        if (!I.m_mmlt) return evaluate_camera(pss, f, c);
+        return multiplexed.evaluate(pss, f, c, depth_edges[i / nboot], *L, 0, false, rays);
+    }
+
+    // The target of chain `ch` (the light subpath of z is x's when the second stage does not move the light
+    // stream, or, in a mixture, when y comes from the second kernel).
+    double chain_eval(Chain& ch, CoordinateSource& src, Slot slot, SampleCounters& cnt) const {
+        ch.pss->bind(src);
+        if (!I.m_mmlt) return evaluate_camera(*ch.pss, ch.f[int(slot)], cnt);
+        const bool second = slot == Slot::Z || (slot == Slot::Y && ch.mc->proposing_with_second());
+        const bool light_fixed = !(second_stage_streams(ch.f[0].s, ch.edges) & (1u << int(SampleStream::Light)));
+        return multiplexed.evaluate(*ch.pss, ch.f[int(slot)], cnt, ch.edges, *ch.light, int(slot),
+                                    second && light_fixed, ch.rays);
+    }
+
+    RunResult interrupted_result() {
+        RunResult out;
+        out.interrupted = true;
+        out.image = direct.empty() ? Bitmap(w, h) : std::move(direct);
+        return out;
+    }
+
+    // 1. Direct illumination by plain Monte Carlo (direct_samples > 0). False if interrupted.
+    bool direct_pass() {
+        if (!I.m_direct) return true;
         Timer t;
         RunContext dctx;
         dctx.seed = ctx.seed;
-        dctx.spp = m_direct_samples;
+        dctx.spp = I.m_direct_samples;
         dctx.quiet = ctx.quiet;
         dctx.progress_label = "Direct light";
         dctx.on_progress = ctx.on_progress;
         dctx.progress_nested = true;
         dctx.cancel = ctx.cancel;
         dctx.comm = ctx.comm;
-        RunResult r = m_direct->render(scene, dctx);
+        RunResult r = I.m_direct->render(scene, dctx);
         direct = std::move(r.image);
         for (const auto& c : dctx.stats.counters())
             ctx.stats.add(fmt::format("mlt.direct.{}", c.name.substr(c.name.find('.') + 1)), c.value, c.unit);
         st.seconds_direct = t.seconds();
-        if (r.interrupted) {
-            RunResult out;
-            out.interrupted = true;
-            out.image = std::move(direct);
-            return out;
-        }
+        return !r.interrupted;
     }
 
     // 2. Bootstrap: b = E[pi] over independent uniform states (per path length for mmlt: bootstrap_samples each);
-    // chains start from states resampled prop. to pi.
-    const uint64_t boot_seed = hash_combine(ctx.seed, 0x626f6f74), chain_seed = hash_combine(ctx.seed, 0x6d6c7463),
-                   pss_seed = hash_combine(ctx.seed, 0x70737321);
-    const std::size_t nboot = std::size_t(m_bootstrap_samples);
-    std::vector<double> boot_pi(nboot * D, 0.0);
-    std::vector<double> b_depth(D, 0.0);
-    std::vector<uint64_t> nonzero_depth(D, 0);
-    // Evaluates bootstrap state i (of depth i / nboot) into `f`, reading `x`.
-    auto evaluate_boot = [&](std::size_t i, std::vector<double>& x, Contributions& f, SampleCounters& c,
-                             LightSubpaths* L, SubpathRays& rays) {
-        PrimarySampleSpace pss(boot_seed, i, streams);
-        x.clear();
-        pss.bind(x);
-        if (!m_mmlt) return evaluate_camera(pss, f, c);
-        return multiplexed.evaluate(pss, f, c, depth_edges[i / nboot], *L, 0, false, rays);
-    };
-    {
+    // chains start from states resampled prop. to pi. False if interrupted.
+    bool bootstrap() {
         Timer t;
+        boot_pi.assign(nboot * D, 0.0);
+        b_depth.assign(D, 0.0);
+        nonzero_depth.assign(D, 0);
         constexpr std::size_t Block = 4096;
         const std::size_t total_boot = nboot * D, blocks = (total_boot + Block - 1) / Block;
         std::vector<SampleCounters> bc(blocks);
@@ -267,7 +320,7 @@ RunResult MetropolisIntegrator::render(const Scene& scene, RunContext& ctx) {
         parallel_for_owned_units(comm, blocks, [&](std::size_t b) {
             std::vector<double> x;
             Contributions f;
-            std::unique_ptr<LightSubpaths> L = m_mmlt ? std::make_unique<LightSubpaths>(max_vertices) : nullptr;
+            std::unique_ptr<LightSubpaths> L = I.m_mmlt ? std::make_unique<LightSubpaths>(max_vertices) : nullptr;
             for (std::size_t i = b * Block; i < std::min(total_boot, (b + 1) * Block); ++i) {
                 if ((i & 255) == 0 && ctx.cancel.stop_requested()) return;
                 boot_pi[i] = evaluate_boot(i, x, f, bc[b], L.get(), brays[b]);
@@ -291,31 +344,27 @@ RunResult MetropolisIntegrator::render(const Scene& scene, RunContext& ctx) {
         double b = 0;
         for (double bd : b_depth) b += bd;
         // A given normalisation fixes the total; the bootstrap still splits it over path lengths (mmlt).
-        if (m_normalization > 0) {
-            for (double& bd : b_depth) bd = b > 0 ? bd * m_normalization / b : m_normalization / double(D);
-            b = m_normalization;
+        if (I.m_normalization > 0) {
+            for (double& bd : b_depth) bd = b > 0 ? bd * I.m_normalization / b : I.m_normalization / double(D);
+            b = I.m_normalization;
         }
         st.normalization = b;
         st.seconds_bootstrap = t.seconds();
-        if (any_rank(comm, ctx.cancel.stop_requested())) {
-            RunResult out;
-            out.interrupted = true;
-            out.image = direct.empty() ? Bitmap(w, h) : std::move(direct);
-            return out;
-        }
+        if (any_rank(comm, ctx.cancel.stop_requested())) return false;
         if (st.bootstrap_nonzero == 0)
             log_warn(
                 "{}: none of the {} bootstrap paths carries light; the Metropolis part of the image is black "
                 "(raise bootstrap_samples if light paths are rare)",
-                to_string(), nboot * D);
+                I.to_string(), nboot * D);
+        return true;
     }
 
-    // Chains per depth: every depth whose bootstrap found light gets one, the rest in proportion to b_k (the
+    // 3. Chains per depth: every depth whose bootstrap found light gets one, the rest in proportion to b_k (the
     // share of the image's luminance it carries; largest remainders), so a depth's share of the mutations is
     // about b_k / b, as in pbrt's MMLT, but never zero. Depth k's splats are weighted b_k C / (b n_k): each depth
     // has its own normalisation, whatever its share.
-    std::vector<long long> chains_of(D, 0);
-    {
+    void allocate_chains() {
+        chains_of.assign(D, 0);
         std::size_t lit = 0;
         for (std::size_t d = 0; d < D; ++d) lit += nonzero_depth[d] > 0;
         if (lit > 0 && n_chains < (long long)lit) n_chains = (long long)lit;
@@ -334,59 +383,37 @@ RunResult MetropolisIntegrator::render(const Scene& scene, RunContext& ctx) {
         }
         std::stable_sort(rem.begin(), rem.end(), [](const auto& a, const auto& b) { return a.first > b.first; });
         for (std::size_t r = 0; given < n_chains && r < rem.size(); ++r, ++given) ++chains_of[rem[r].second];
+        st.chains = uint64_t(n_chains);
+        counters.assign(static_cast<std::size_t>(n_chains), SampleCounters{});
+        chains = std::vector<Chain>(st.bootstrap_nonzero > 0 ? std::size_t(n_chains) : 0);
+        if (I.m_delayed_rejection) {
+            stage_counts = std::vector<std::atomic<uint32_t>>(std::size_t(w) * std::size_t(h) * 2);
+            for (auto& c : stage_counts) c.store(0, std::memory_order_relaxed);
+        }
     }
-    st.chains = uint64_t(n_chains);
-    std::vector<SampleCounters> counters(static_cast<std::size_t>(n_chains));
 
-    // Outcomes of the path derivatives the local kernels asked for, by PathDerivativeStatus (statistics only).
-    std::array<std::atomic<uint64_t>, 5> derivative_status{};
-
-    // 3. Chains.
-    struct Chain {
-        std::unique_ptr<MarkovChain> mc;
-        std::unique_ptr<PrimarySampleSpace> pss;
-        Contributions f[4];  // indexed by Slot: x (current state), y, z, y*
-        uint64_t steps_done = 0;
-        std::size_t depth = 0;
-        int edges = -1;
-        double scale = 1;  // splat weight: b_k C / (b n_k) for mmlt, 1 otherwise
-        std::unique_ptr<LightSubpaths> light;
-        SubpathRays rays;
-        std::vector<uint64_t> small, small_acc, att2, acc2;  // per strategy s (mmlt)
-        uint64_t strategy_changes = 0;                       // by small steps (mmlt; must stay 0)
-    };
-    std::vector<Chain> chains(st.bootstrap_nonzero > 0 ? std::size_t(n_chains) : 0);
-    // The target of chain `ch` (the light subpath of z is x's when the second stage does not move the light
-    // stream, or, in a mixture, when y comes from the second kernel).
-    auto chain_eval = [&](Chain& ch, CoordinateSource& src, Slot slot, SampleCounters& cnt) {
-        ch.pss->bind(src);
-        if (!m_mmlt) return evaluate_camera(*ch.pss, ch.f[int(slot)], cnt);
-        const bool second = slot == Slot::Z || (slot == Slot::Y && ch.mc->proposing_with_second());
-        const bool light_fixed = !(second_stage_streams(ch.f[0].s, ch.edges) & (1u << int(SampleStream::Light)));
-        return multiplexed.evaluate(*ch.pss, ch.f[int(slot)], cnt, ch.edges, *ch.light, int(slot),
-                                    second && light_fixed, ch.rays);
-    };
-    if (!chains.empty()) {
-        // Systematic resampling of each depth's bootstrap states prop. to pi: chain c of the depth starts at the
-        // state whose cumulative weight interval holds (c + u0) / C_k. Exact stationary start up to b.
+    // 4. Systematic resampling of each depth's bootstrap states prop. to pi: chain c of the depth starts at the
+    // state whose cumulative weight interval holds (c + u0) / C_k. Exact stationary start up to b.
+    void start_chains() {
+        if (chains.empty()) return;
         Random r(hash_combine(ctx.seed, 0x72657361), 0);
         const double u0 = r.next_double();
         std::vector<std::size_t> start(chains.size());
         std::size_t c = 0;
         for (std::size_t d = 0; d < D; ++d) {
             const std::size_t first = d * nboot, last = (d + 1) * nboot;
-            double total = 0;
-            for (std::size_t i = first; i < last; ++i) total += boot_pi[i];
+            double sum = 0;
+            for (std::size_t i = first; i < last; ++i) sum += boot_pi[i];
             double acc = 0;
             std::size_t i = first;
-            const long long nd = m_mmlt ? chains_of[d] : n_chains;
+            const long long nd = I.m_mmlt ? chains_of[d] : n_chains;
             for (long long j = 0; j < nd; ++j, ++c) {
-                const double target = (double(j) + u0) / double(nd) * total;
+                const double target = (double(j) + u0) / double(nd) * sum;
                 while (i + 1 < last && (acc + boot_pi[i] <= target || boot_pi[i] == 0)) acc += boot_pi[i++];
                 start[c] = i;
                 chains[c].depth = d;
                 chains[c].edges = depth_edges[d];
-                if (m_mmlt) {
+                if (I.m_mmlt) {
                     chains[c].scale = b_depth[d] * double(n_chains) / (st.normalization * double(nd));
                     const std::size_t ns = std::size_t(strategy_count(depth_edges[d]));
                     chains[c].small.assign(ns, 0);
@@ -398,16 +425,16 @@ RunResult MetropolisIntegrator::render(const Scene& scene, RunContext& ctx) {
         }
         // Local kernels (h2mc): the chains ask the path technique's differentiable evaluation for derivatives; a path
         // it cannot differentiate (an unsupported plugin, a mismatch) gives the kernel's isotropic fallback, counted.
-        if (m_local) {
+        if (I.m_local) {
             PathDerivativeOptions o;
-            o.max_depth = m_max_edges;
-            o.min_depth = m_min_edges;
-            o.rr_depth = m_rr_depth;
-            o.hide_emitters = m_hide_emitters;
+            o.max_depth = I.m_max_edges;
+            o.min_depth = I.m_min_edges;
+            o.rr_depth = I.m_rr_depth;
+            o.hide_emitters = I.m_hide_emitters;
             o.film_origin = dom.origin;
             o.film_extent = dom.extent;
             o.film_area = dom.area;
-            m_derivatives = std::make_unique<PathDerivatives>(scene, o);
+            I.m_derivatives = std::make_unique<PathDerivatives>(scene, o);
         }
         for (auto& n : derivative_status) n.store(0, std::memory_order_relaxed);
         parallel_for_owned_units(comm, chains.size(), [&](std::size_t c) {
@@ -415,17 +442,17 @@ RunResult MetropolisIntegrator::render(const Scene& scene, RunContext& ctx) {
             std::vector<double> x;
             Contributions scratch;
             SubpathRays ignored;
-            if (m_mmlt) ch.light = std::make_unique<LightSubpaths>(max_vertices);
+            if (I.m_mmlt) ch.light = std::make_unique<LightSubpaths>(max_vertices);
             if (!(evaluate_boot(start[c], x, scratch, counters[c], ch.light.get(), ignored) > 0))
                 throw RuntimeError("internal error: a bootstrap state did not reproduce its value");
-            ch.mc = std::make_unique<MarkovChain>(m_config, chain_seed, c,
-                                                  /*stage_timing=*/m_delayed_rejection || m_local);
-            if (m_derivatives) {
-                const PathDerivatives* D = m_derivatives.get();
+            ch.mc = std::make_unique<MarkovChain>(I.m_config, chain_seed, c,
+                                                  /*stage_timing=*/I.m_delayed_rejection || I.m_local);
+            if (I.m_derivatives) {
+                const PathDerivatives* PD = I.m_derivatives.get();
                 auto* status = derivative_status.data();
-                ch.mc->set_derivatives([D, status](const DerivativeQuery& q) {
+                ch.mc->set_derivatives([PD, status](const DerivativeQuery& q) {
                     const PathDerivativeStatus s =
-                        D->evaluate(q.coords, q.block, q.length, q.n, q.value, nullptr, q.grad, q.hess);
+                        PD->evaluate(q.coords, q.block, q.length, q.n, q.value, nullptr, q.grad, q.hess);
                     status[int(s)].fetch_add(1, std::memory_order_relaxed);
                     return s == PathDerivativeStatus::Ok;
                 });
@@ -437,36 +464,31 @@ RunResult MetropolisIntegrator::render(const Scene& scene, RunContext& ctx) {
             if (!(ch.mc->start(target, x) > 0))
                 throw RuntimeError("internal error: a chain's first state has no value");
         });
+        boot_pi = {};
     }
-    boot_pi = {};
 
-    FixedPointSplatImage image(w, h, &filter);
-    std::vector<std::atomic<uint32_t>> stage_counts(m_delayed_rejection ? std::size_t(w) * std::size_t(h) * 2 : 0);
-    for (auto& s : stage_counts) s.store(0, std::memory_order_relaxed);
-    const double P = double(w) * double(h);
-    std::atomic<uint64_t> steps_total{0};
-
-    auto splat_state = [&](const Contributions& f, double weight) {
+    void splat_state(const Contributions& f, double weight) {
         if (!(weight > 0) || !(f.pi > 0)) return;
         const double s = weight / f.pi;
         for (const auto& it : f.items) image.splat(it.film, it.v * s);
-    };
-    auto count_stage = [&](const Contributions& f, int stage) {
+    }
+    void count_stage(const Contributions& f, int stage) {
         const Vec2d film = f.film;
         if (!(film.x >= 0 && film.y >= 0 && film.x < w && film.y < h)) return;
         stage_counts[(std::size_t(film.y) * std::size_t(w) + std::size_t(film.x)) * 2 + std::size_t(stage - 1)]
             .fetch_add(1, std::memory_order_relaxed);
-    };
+    }
 
     // Steps of chain c once `units` mutations per pixel are done in total: the work of a unit is split over the
     // chains by a rule that depends on `units` only, so the result never depends on how passes are sized.
-    auto steps_until = [&](long long units, std::size_t c) -> uint64_t {
+    uint64_t steps_until(long long units, std::size_t c) const {
         const unsigned __int128 all = (unsigned __int128)(units) * (unsigned __int128)(uint64_t(w) * uint64_t(h));
         const auto C = (unsigned __int128)chains.size();
         return uint64_t(all * (c + 1) / C - all * c / C);
-    };
+    }
 
-    auto pass = [&](long long first, long long n) {
+    // One pass of the chains this rank owns: each chain makes its share of `n` mutations per pixel.
+    void pass(long long first, long long n) {
         parallel_for_owned_units(comm, chains.size(), [&](std::size_t c) {
             Chain& ch = chains[c];
             SampleCounters& cnt = counters[c];
@@ -478,14 +500,14 @@ RunResult MetropolisIntegrator::render(const Scene& scene, RunContext& ctx) {
             for (uint64_t k = 0; k < todo; ++k) {
                 if ((k & 255) == 255 && ctx.cancel.stop_requested()) return;
                 const int s_x = ch.f[0].s;
-                if (m_mmlt) ch.mc->set_second_stage_streams(second_stage_streams(s_x, ch.edges));
+                if (I.m_mmlt) ch.mc->set_second_stage_streams(second_stage_streams(s_x, ch.edges));
                 const StepOutcome o = ch.mc->step(target);
-                if (m_waste_recycling) {
+                if (I.m_waste_recycling) {
                     splat_state(ch.f[0], o.w_x * ch.scale);
                     splat_state(ch.f[1], o.w_y * ch.scale);
                     splat_state(ch.f[2], o.w_z * ch.scale);  // y* (f[3]) is never splatted
                 }
-                if (m_mmlt && s_x >= 0) {
+                if (I.m_mmlt && s_x >= 0) {
                     const std::size_t si = std::size_t(s_x);
                     if (!o.large) {
                         ++ch.small[si];
@@ -499,16 +521,19 @@ RunResult MetropolisIntegrator::render(const Scene& scene, RunContext& ctx) {
                 if (o.accepted > 0) {
                     std::swap(ch.f[0], ch.f[o.accepted]);
                     if (ch.light) ch.light->accept(o.accepted);
-                    if (m_mmlt && !o.large && ch.f[0].s != s_x) ++ch.strategy_changes;
+                    if (I.m_mmlt && !o.large && ch.f[0].s != s_x) ++ch.strategy_changes;
                     if (!stage_counts.empty()) count_stage(ch.f[0], o.accepted);
                 }
-                if (!m_waste_recycling) splat_state(ch.f[0], ch.scale);
+                if (!I.m_waste_recycling) splat_state(ch.f[0], ch.scale);
                 ++ch.steps_done;
                 steps_total.fetch_add(1, std::memory_order_relaxed);
             }
         });
-    };
-    auto develop = [&] {
+    }
+
+    // The image so far: the direct pass plus the chains' splats, and for drmlt the stage channels (collective in a
+    // distributed run).
+    Bitmap develop() const {
         Bitmap img = direct.empty() ? Bitmap(w, h) : direct;
         uint64_t n = steps_total.load();
         if (comm.distributed()) comm.allreduce(&n, 1, ReduceOp::Sum);
@@ -516,37 +541,60 @@ RunResult MetropolisIntegrator::render(const Scene& scene, RunContext& ctx) {
             Bitmap m = image.develop(st.normalization / double(n), comm);
             for (std::size_t i = 0; i < img.size(); ++i) img.data()[i] += m.data()[i];
         }
-        if (m_delayed_rejection) {
-            std::vector<uint64_t> counts(stage_counts.size());
-            for (std::size_t k = 0; k < counts.size(); ++k) counts[k] = stage_counts[k].load(std::memory_order_relaxed);
-            allreduce_sum(comm, counts);
+        if (I.m_delayed_rejection) {
+            std::vector<uint64_t> stages(stage_counts.size());
+            for (std::size_t k = 0; k < stages.size(); ++k) stages[k] = stage_counts[k].load(std::memory_order_relaxed);
+            allreduce_sum(comm, stages);
             const int r = img.add_channel("stages.R"), g = img.add_channel("stages.G");
             for (int y = 0; y < h; ++y)
                 for (int x = 0; x < w; ++x) {
                     const std::size_t k = (std::size_t(y) * std::size_t(w) + std::size_t(x)) * 2;
-                    img.at(x, y, r) = float(counts[k]);
-                    img.at(x, y, g) = float(counts[k + 1]);
+                    img.at(x, y, r) = float(stages[k]);
+                    img.at(x, y, g) = float(stages[k + 1]);
                 }
         }
         return img;
-    };
-
-    Timer tc;
-    // Equal-time runs and checkpoints charge the bootstrap and the direct pass.
-    const long long target = (long long)std::ceil(m_mutations_per_pixel);
-    PassLoopResult loop;
-    if (!chains.empty()) loop = run_passes(ctx, target, "mutations/px", pass, develop, total.seconds());
-    st.seconds_chains = tc.seconds();
-
-    // Statistics: this rank's chains (those it owns have a MarkovChain), then summed over ranks in rank order.
-    for (const Chain& ch : chains)
-        if (ch.mc) st.chain += ch.mc->stats();
-    if (comm.distributed()) {
-        ChainStats sum;
-        for (const ChainStats& cs : allgather_vector(comm, std::vector<ChainStats>{st.chain})) sum += cs;
-        st.chain = sum;
     }
-    if (m_mmlt) {
+
+    // 5. The chains' progressive loop. Equal-time runs and checkpoints charge the bootstrap and the direct pass.
+    PassLoopResult run_chains() {
+        Timer tc;
+        const long long target = (long long)std::ceil(I.m_mutations_per_pixel);
+        PassLoopResult loop;
+        if (!chains.empty())
+            loop = run_passes(
+                ctx, target, "mutations/px", [&](long long first, long long n) { pass(first, n); },
+                [&] { return develop(); }, total.seconds());
+        st.seconds_chains = tc.seconds();
+        return loop;
+    }
+
+    // 6. Statistics: this rank's chains (those it owns have a MarkovChain), then summed over ranks.
+    void gather() {
+        for (const Chain& ch : chains)
+            if (ch.mc) st.chain += ch.mc->stats();
+        if (comm.distributed()) {
+            ChainStats sum;
+            for (const ChainStats& cs : allgather_vector(comm, std::vector<ChainStats>{st.chain})) sum += cs;
+            st.chain = sum;
+        }
+        if (I.m_mmlt) gather_depths();
+        for (const auto& c : counters) st.invalid_contributions += c.invalid;
+        st.splat_overflow = image.overflowed();
+        derivative_counts.resize(derivative_status.size());
+        for (std::size_t i = 0; i < derivative_counts.size(); ++i) derivative_counts[i] = derivative_status[i].load();
+        if (comm.distributed()) {
+            std::vector<uint64_t> v = {st.invalid_contributions, st.splat_overflow};
+            v.insert(v.end(), derivative_counts.begin(), derivative_counts.end());
+            allreduce_sum(comm, v);
+            st.invalid_contributions = v[0], st.splat_overflow = v[1];
+            std::copy(v.begin() + 2, v.end(), derivative_counts.begin());
+        }
+        st.mutations_per_pixel = double(st.chain.steps) / (double(w) * double(h));
+    }
+
+    // Per path length (mmlt): chains, mutations, acceptance per strategy, rays.
+    void gather_depths() {
         st.depths.resize(D);
         for (std::size_t d = 0; d < D; ++d) {
             auto& ds = st.depths[d];
@@ -576,90 +624,85 @@ RunResult MetropolisIntegrator::render(const Scene& scene, RunContext& ctx) {
             st.light_subpaths_reused += ch.rays.reused;
             st.mmlt_strategy_changes_small += ch.strategy_changes;
         }
-        if (comm.distributed()) {
-            // Every per-depth and per-strategy count, flattened, summed over ranks and put back.
-            std::vector<uint64_t*> fields = {&st.rays_camera,           &st.rays_light,
-                                             &st.rays_connection,       &st.rays_light_stage2,
-                                             &st.light_subpaths_reused, &st.mmlt_strategy_changes_small};
-            for (auto& ds : st.depths) {
-                fields.push_back(&ds.steps);
-                for (auto* v : {&ds.small_steps, &ds.small_accepted, &ds.stage2_attempted, &ds.stage2_accepted})
-                    for (auto& x : *v) fields.push_back(&x);
-            }
-            std::vector<uint64_t> flat(fields.size());
-            for (std::size_t i = 0; i < fields.size(); ++i) flat[i] = *fields[i];
-            allreduce_sum(comm, flat);
-            for (std::size_t i = 0; i < fields.size(); ++i) *fields[i] = flat[i];
+        if (!comm.distributed()) return;
+        // Every per-depth and per-strategy count, flattened, summed over ranks and put back.
+        std::vector<uint64_t*> fields = {&st.rays_camera,           &st.rays_light,
+                                         &st.rays_connection,       &st.rays_light_stage2,
+                                         &st.light_subpaths_reused, &st.mmlt_strategy_changes_small};
+        for (auto& ds : st.depths) {
+            fields.push_back(&ds.steps);
+            for (auto* v : {&ds.small_steps, &ds.small_accepted, &ds.stage2_attempted, &ds.stage2_accepted})
+                for (auto& x : *v) fields.push_back(&x);
         }
+        std::vector<uint64_t> flat(fields.size());
+        for (std::size_t i = 0; i < fields.size(); ++i) flat[i] = *fields[i];
+        allreduce_sum(comm, flat);
+        for (std::size_t i = 0; i < fields.size(); ++i) *fields[i] = flat[i];
     }
-    for (const auto& c : counters) st.invalid_contributions += c.invalid;
-    st.splat_overflow = image.overflowed();
-    std::vector<uint64_t> derivative_counts(derivative_status.size());
-    for (std::size_t i = 0; i < derivative_counts.size(); ++i) derivative_counts[i] = derivative_status[i].load();
-    if (comm.distributed()) {
-        std::vector<uint64_t> v = {st.invalid_contributions, st.splat_overflow};
-        v.insert(v.end(), derivative_counts.begin(), derivative_counts.end());
-        allreduce_sum(comm, v);
-        st.invalid_contributions = v[0], st.splat_overflow = v[1];
-        std::copy(v.begin() + 2, v.end(), derivative_counts.begin());
-    }
-    st.mutations_per_pixel = double(st.chain.steps) / P;
 
-    RunResult result;
-    result.image = develop();
-    result.interrupted = loop.interrupted;
-    result.seconds = total.seconds();
-    result.work = st.mutations_per_pixel;
-    result.work_unit = "mutations/px";
-
-    // Statistics: printed by the CLI, readable through statistics().
-    report_counters(ctx, counters, "mlt.path_evaluations");
-    auto& S = ctx.stats;
-    S.set("mlt.normalization", st.normalization);
-    S.set("mlt.bootstrap_nonzero_fraction",
-          st.bootstrap_samples ? double(st.bootstrap_nonzero) / double(st.bootstrap_samples) : 0.0);
-    S.add("mlt.mutations", double(st.chain.steps), "mutations");
-    S.set("mlt.mutations_per_pixel", st.mutations_per_pixel);
-    S.set("mlt.mutations_per_second", st.mutations_per_second());
-    S.set("mlt.acceptance.stage1_small", st.stage1_acceptance());
-    if (st.chain.evaluations > st.chains)
-        S.set("mlt.coordinates_per_state",
-              2.0 * double(st.chain.pairs_realised) / double(st.chain.evaluations - st.chains));
-    S.set("mlt.acceptance.large_step", st.large_step_acceptance());
-    if (m_delayed_rejection && !m_config.mixture) {
-        S.set("mlt.acceptance.stage2", st.stage2_acceptance());
-        S.add("mlt.stage2_attempts", double(st.chain.stage2_attempted), "attempts");
-        S.set("mlt.stage2_time_share", st.stage2_time_share());
-        if (type() == DrType::Green) {
-            S.add("mlt.ystar_evaluations", double(st.chain.ystar_evaluations), "paths");
-            S.add("mlt.ystar_skipped", double(st.chain.ystar_skipped), "paths");
-        }
-    }
-    if (m_local) {
+    // 7. Statistics (printed by the CLI, readable through statistics()) and the stage map.
+    void report(RunResult& result) {
+        report_counters(ctx, counters, "mlt.path_evaluations");
+        auto& S = ctx.stats;
         const ChainStats& cs = st.chain;
-        S.add("mlt.h2mc.proposals", double(cs.local_proposals), "proposals");
-        S.set("mlt.h2mc.acceptance", cs.local_proposals ? double(cs.local_accepted) / double(cs.local_proposals) : 0.0);
-        S.add("mlt.h2mc.derivatives", double(cs.derivatives), "paths");
-        S.add("mlt.h2mc.not_differentiable", double(cs.not_differentiable), "paths");
-        S.add("mlt.h2mc.unsupported", double(derivative_counts[int(PathDerivativeStatus::Unsupported)]), "paths");
-        S.add("mlt.h2mc.mismatch", double(derivative_counts[int(PathDerivativeStatus::Mismatch)]), "paths");
-        S.add("mlt.h2mc.too_long", double(derivative_counts[int(PathDerivativeStatus::TooLong)]), "paths");
-        S.add("mlt.h2mc.small_hessian", double(cs.small_hessian), "paths");
-        S.set("mlt.h2mc.seconds_derivatives", cs.seconds_derivatives);
-        S.set("mlt.h2mc.seconds_gaussians", cs.seconds_gaussians);
+        S.set("mlt.normalization", st.normalization);
+        S.set("mlt.bootstrap_nonzero_fraction",
+              st.bootstrap_samples ? double(st.bootstrap_nonzero) / double(st.bootstrap_samples) : 0.0);
+        S.add("mlt.mutations", double(cs.steps), "mutations");
+        S.set("mlt.mutations_per_pixel", st.mutations_per_pixel);
+        S.set("mlt.mutations_per_second", st.mutations_per_second());
+        S.set("mlt.acceptance.stage1_small", st.stage1_acceptance());
+        if (cs.evaluations > st.chains)
+            S.set("mlt.coordinates_per_state", 2.0 * double(cs.pairs_realised) / double(cs.evaluations - st.chains));
+        S.set("mlt.acceptance.large_step", st.large_step_acceptance());
+        if (I.m_delayed_rejection && !I.m_config.mixture) {
+            S.set("mlt.acceptance.stage2", st.stage2_acceptance());
+            S.add("mlt.stage2_attempts", double(cs.stage2_attempted), "attempts");
+            S.set("mlt.stage2_time_share", st.stage2_time_share());
+            if (I.type() == DrType::Green) {
+                S.add("mlt.ystar_evaluations", double(cs.ystar_evaluations), "paths");
+                S.add("mlt.ystar_skipped", double(cs.ystar_skipped), "paths");
+            }
+        }
+        if (I.m_local) {
+            S.add("mlt.h2mc.proposals", double(cs.local_proposals), "proposals");
+            S.set("mlt.h2mc.acceptance",
+                  cs.local_proposals ? double(cs.local_accepted) / double(cs.local_proposals) : 0.0);
+            S.add("mlt.h2mc.derivatives", double(cs.derivatives), "paths");
+            S.add("mlt.h2mc.not_differentiable", double(cs.not_differentiable), "paths");
+            S.add("mlt.h2mc.unsupported", double(derivative_counts[int(PathDerivativeStatus::Unsupported)]), "paths");
+            S.add("mlt.h2mc.mismatch", double(derivative_counts[int(PathDerivativeStatus::Mismatch)]), "paths");
+            S.add("mlt.h2mc.too_long", double(derivative_counts[int(PathDerivativeStatus::TooLong)]), "paths");
+            S.add("mlt.h2mc.small_hessian", double(cs.small_hessian), "paths");
+            S.set("mlt.h2mc.seconds_derivatives", cs.seconds_derivatives);
+            S.set("mlt.h2mc.seconds_gaussians", cs.seconds_gaussians);
+        }
+        if (I.m_config.mixture) {
+            S.add("mlt.mixture_second", double(cs.mixture_second), "mutations");
+            S.set("mlt.acceptance.mixture_second",
+                  cs.mixture_second ? double(cs.mixture_second_accepted) / double(cs.mixture_second) : 0.0);
+        }
+        if (I.m_mmlt) report_depths();
+        S.add_time("mlt.time.bootstrap", st.seconds_bootstrap);
+        S.add_time("mlt.time.direct", st.seconds_direct);
+        S.add_time("mlt.time.chains", st.seconds_chains);
+        if (st.splat_overflow > 0) {
+            S.add("mlt.splat_overflow", double(st.splat_overflow), "splats");
+            log_warn("{}: {} splat(s) out of the accumulator's range were dropped", I.to_string(), st.splat_overflow);
+        }
+        if (I.m_delayed_rejection && !ctx.output.empty() && comm.root()) write_stage_map(result);
+        std::lock_guard lock(I.m_stats_mutex);
+        I.m_stats = st;
     }
-    if (m_config.mixture) {
-        S.add("mlt.mixture_second", double(st.chain.mixture_second), "mutations");
-        S.set(
-            "mlt.acceptance.mixture_second",
-            st.chain.mixture_second ? double(st.chain.mixture_second_accepted) / double(st.chain.mixture_second) : 0.0);
-    }
-    if (m_mmlt) {
+
+    void report_depths() {
+        auto& S = ctx.stats;
         auto rate = [](uint64_t a, uint64_t n) { return n ? double(a) / double(n) : 0.0; };
+        const bool stage2 = I.m_delayed_rejection && !I.m_config.mixture;
         S.add("mlt.mmlt.rays.camera", double(st.rays_camera), "rays");
         S.add("mlt.mmlt.rays.light", double(st.rays_light), "rays");
         S.add("mlt.mmlt.rays.connection", double(st.rays_connection), "rays");
-        if (m_delayed_rejection && !m_config.mixture) {
+        if (stage2) {
             S.add("mlt.mmlt.rays.light_stage2", double(st.rays_light_stage2), "rays");
             S.add("mlt.mmlt.light_subpaths_reused", double(st.light_subpaths_reused), "paths");
         }
@@ -675,23 +718,15 @@ RunResult MetropolisIntegrator::render(const Scene& scene, RunContext& ctx) {
                 if (ds.small_steps[i] == 0) continue;
                 const std::string ks = fmt::format("{}.s{}t{}", k, i, ds.edges + 1 - int(i));
                 S.set(ks + ".acceptance.stage1_small", rate(ds.small_accepted[i], ds.small_steps[i]));
-                if (m_delayed_rejection && !m_config.mixture)
-                    S.set(ks + ".acceptance.stage2", rate(ds.stage2_accepted[i], ds.stage2_attempted[i]));
+                if (stage2) S.set(ks + ".acceptance.stage2", rate(ds.stage2_accepted[i], ds.stage2_attempted[i]));
             }
             S.set(k + ".acceptance.stage1_small", rate(sa, sm));
-            if (m_delayed_rejection && !m_config.mixture) S.set(k + ".acceptance.stage2", rate(c2, a2));
+            if (stage2) S.set(k + ".acceptance.stage2", rate(c2, a2));
         }
-    }
-    S.add_time("mlt.time.bootstrap", st.seconds_bootstrap);
-    S.add_time("mlt.time.direct", st.seconds_direct);
-    S.add_time("mlt.time.chains", st.seconds_chains);
-    if (st.splat_overflow > 0) {
-        S.add("mlt.splat_overflow", double(st.splat_overflow), "splats");
-        log_warn("{}: {} splat(s) out of the accumulator's range were dropped", to_string(), st.splat_overflow);
     }
 
     // The stage map as a heat map: G / (R + G + 0.01), second-stage share of the acceptances (Fig. 4.1).
-    if (m_delayed_rejection && !ctx.output.empty() && comm.root()) {
+    void write_stage_map(RunResult& result) const {
         Bitmap heat(w, h);
         const int r = result.image.channel_index("stages.R"), g = result.image.channel_index("stages.G");
         for (int y = 0; y < h; ++y)
@@ -705,9 +740,48 @@ RunResult MetropolisIntegrator::render(const Scene& scene, RunContext& ctx) {
         result.files_written.push_back(path);
     }
 
-    std::lock_guard lock(m_stats_mutex);
-    m_stats = st;
-    return result;
+    MetropolisIntegrator& I;
+    const Scene& scene;
+    RunContext& ctx;
+    Communicator& comm;
+    const Sensor& sensor;
+    const int w, h;
+    const ReconstructionFilter& filter;
+    const int streams;
+    const FilmDomain dom;
+    const MultiplexedTechnique multiplexed;
+    Timer total;
+    MltStatistics st;
+    long long n_chains = 0;
+    std::vector<int> depth_edges;
+    std::size_t D = 0;
+    int max_vertices = 0;
+
+    Bitmap direct;
+    FixedPointSplatImage image;
+    const uint64_t boot_seed, chain_seed, pss_seed;
+    const std::size_t nboot;
+    std::vector<double> boot_pi, b_depth;
+    std::vector<uint64_t> nonzero_depth;
+    std::vector<long long> chains_of;
+    std::vector<Chain> chains;
+    std::vector<SampleCounters> counters;
+    std::vector<std::atomic<uint32_t>> stage_counts;
+    std::atomic<uint64_t> steps_total{0};
+    // Outcomes of the path derivatives the local kernels asked for, by PathDerivativeStatus (statistics only).
+    std::array<std::atomic<uint64_t>, 5> derivative_status{};
+    std::vector<uint64_t> derivative_counts;
+};
+
+RunResult MetropolisIntegrator::render(const Scene& scene, RunContext& ctx) {
+    const Sensor& sensor = *scene.sensor();
+    if (m_mmlt && !sensor.supports_connections())
+        throw InputError(m_technique_loc,
+                         fmt::format("{}: parameter 'technique': mmlt connects light subpaths to the camera and needs "
+                                     "a perspective or thinlens sensor, not {}; use technique=\"path\"",
+                                     to_string(), sensor.to_string()));
+    m_technique->validate(scene);
+    return Render(*this, scene, ctx).run();
 }
 
 }  // namespace kelvin

@@ -93,6 +93,7 @@ public:
     const Mutation* second_stage() const { return m_second.get(); }
 
 private:
+    class Render;  // one render()'s steps and state (integrator.cpp)
     std::shared_ptr<Mutation> m_first, m_second;
     ChainConfig m_config;
     std::shared_ptr<SamplingIntegrator> m_technique, m_direct;  // the path sampler; the direct-lighting renderer
