@@ -247,201 +247,175 @@ struct RunKey {
     bool operator<(const RunKey& o) const { return std::tie(config, run) < std::tie(o.config, o.run); }
 };
 
-class Study {
+/// What a study compares against: a render's reference image, or a simulation's reference field (a reference run's
+/// EXR) or exact solution.
+class Reference {
 public:
-    explicit Study(const ConvergeOptions& o) : m_o(o), m_comm(o.comm ? *o.comm : local_communicator()) {}
+    explicit Reference(const ConvergeOptions& o) : m_o(o) {}
 
-    ConvergeSummary run() {
-        // Every rank validates and reads the existing study (read only); they agree on errors before any rank
-        // writes or runs anything (core/distributed.h).
-        run_agreeing(m_comm, [&] {
-            validate();
-            m_csv_path = m_o.output_dir / "convergence.csv";
-            m_stats_path = m_o.output_dir / "convergence_stats.csv";
-            m_settings_path = m_o.output_dir / "convergence.settings";
-            load_existing();
-        });
-        if (m_comm.root()) {
-            fs::create_directories(m_o.output_dir);
-            write_settings();
-            // The reference next to the checkpoint images, for the plots' image grid (a simulation's reference run
-            // has the colour-mapped field in R, G, B).
-            if (m_o.images != ConvergeOptions::Images::None && m_reference.channel_index("R") == 0 &&
-                m_reference.channel_count() >= 3) {
-                fs::create_directories(m_o.output_dir / "images");
-                write_image(m_o.output_dir / "images" / "reference.png", m_reference);
-            }
+    /// Reads ConvergeOptions::reference, if given.
+    void load() {
+        if (m_o.reference.empty()) return;
+        if (!fs::is_regular_file(m_o.reference))
+            throw InputError({m_o.reference.string(), 0, 0}, "no such reference image");
+        try {
+            m_reference = read_image(m_o.reference);
+        } catch (const Error& e) {
+            throw InputError({m_o.reference.string(), 0, 0}, fmt::format("cannot read the reference: {}", e.what()));
         }
+    }
+    const Bitmap& image() const { return m_reference; }
 
-        ConvergeSummary summary;
-        summary.csv = m_csv_path;
-        summary.stats_csv = m_stats_path;
-        const int total = m_o.runs * int(m_o.configs.size());
-        // Run-major: every configuration's run 0 first, so a cut-off study has something for each.
-        struct Pending {
-            const ConvergeConfig* config;
-            int run, index;
+    /// Image errors of a render at a checkpoint (the window, if any, cut from both).
+    ImageErrors image_errors(const Bitmap& img) const {
+        if (img.width() != m_reference.width() || img.height() != m_reference.height())
+            throw InputError({m_o.reference.string(), 0, 0},
+                             fmt::format("the reference is {}x{} but the render is {}x{}", m_reference.width(),
+                                         m_reference.height(), img.width(), img.height()));
+        ImageMetricOptions mo;
+        mo.epsilon = m_o.epsilon;
+        auto crop = [&](const Bitmap& b) {
+            if (!m_o.window) return b;
+            const auto& w = *m_o.window;
+            if (w[2] > b.width() || w[3] > b.height())
+                throw InputError({}, fmt::format("--window {},{},{},{} exceeds the {}x{} image", w[0], w[1], w[2], w[3],
+                                                 b.width(), b.height()));
+            Bitmap c(w[2] - w[0], w[3] - w[1], b.channels());
+            for (int y = w[1]; y < w[3]; ++y)
+                for (int x = w[0]; x < w[2]; ++x)
+                    for (int k = 0; k < b.channel_count(); ++k) c.at(x - w[0], y - w[1], k) = b.at(x, y, k);
+            return c;
         };
-        std::vector<Pending> pending;
-        int index = 0;
-        for (int r = 0; r < m_o.runs; ++r)
-            for (const auto& config : m_o.configs) {
-                ++index;
-                if (m_done.count({config.name, r}))
-                    ++summary.runs_skipped;
-                else
-                    pending.push_back({&config, r, index});
-            }
-        // Rounds of one run per rank (one process: one run per round); rank 0 records a round's runs in study
-        // order, so the CSV is the one a single process writes, and a cut-off study keeps every finished round.
-        const std::size_t ranks = std::size_t(m_comm.size());
-        for (std::size_t first = 0; first < pending.size() && !summary.interrupted; first += ranks) {
-            RunOutcome mine;
-            if (const std::size_t k = first + std::size_t(m_comm.rank()); k < pending.size()) {
-                const Pending& p = pending[k];
-                if (m_o.cancel.stop_requested()) {
-                    mine.interrupted = true;
-                } else if (!m_comm.distributed()) {
-                    mine = run_one(*p.config, p.run, p.index, total);
-                } else {
-                    // An error in one rank's run must not leave the others waiting: it travels with the outcome.
-                    try {
-                        mine = run_one(*p.config, p.run, p.index, total);
-                    } catch (const InputError& e) {
-                        mine.error = 1, mine.message = e.what();
-                    } catch (const std::exception& e) {
-                        mine.error = 2, mine.message = e.what();
-                    }
-                }
-            }
-            const std::vector<RunOutcome> round = exchange(mine);
-            for (std::size_t i = 0; i < round.size(); ++i) {
-                const RunOutcome& o = round[i];
-                if (o.error) {
-                    const std::string m = (i == 0 ? "" : fmt::format("rank {}: ", i)) + o.message;
-                    if (o.error == 1) throw InputError({}, m);
-                    throw RuntimeError(m);
-                }
-            }
-            for (std::size_t i = 0; i < round.size(); ++i) {
-                if (round[i].interrupted) {
-                    summary.interrupted = true;
-                    continue;
-                }
-                if (first + i >= pending.size()) continue;
-                record(round[i], i);
-                ++summary.runs_done;
-            }
-            if (m_comm.root() && summary.runs_done > 0) {
-                write_text_atomically(m_stats_path, m_stats.text());
-                write_text_atomically(m_csv_path, m_table.text());  // last: a run is finished once its rows are here
-            }
+        try {
+            return kelvin::image_errors(crop(img), crop(m_reference), mo);
+        } catch (const InputError& e) {
+            throw InputError({m_o.reference.string(), 0, 0}, e.bare_message());
         }
-        summary.rows = m_table.rows.size();
-        return summary;
+    }
+
+    /// Reference values of `field` at the checkpoint's cells (row 0 at min.y).
+    std::vector<double> field(const Checkpoint& cp, const std::string& field) const {
+        const CellGrid2& g = cp.grid;
+        if (!m_o.reference.empty()) {
+            const int c = m_reference.channel_index(field);
+            if (c < 0)
+                throw InputError({m_o.reference.string(), 0, 0},
+                                 fmt::format("the reference has no '{}' channel", field));
+            const int w = m_reference.width(), h = m_reference.height();
+            std::vector<double> v(g.cell_count());
+            if (w == g.nx && h == g.ny) {  // the same grid: the values themselves (image rows run top down)
+                for (int j = 0; j < g.ny; ++j)
+                    for (int i = 0; i < g.nx; ++i) v[std::size_t(j) * g.nx + i] = m_reference.at(i, h - 1 - j, c);
+                return v;
+            }
+            // Another resolution over the same box: bilinear between the reference's cell centres (clamped to
+            // the outermost centres), at this grid's cell centres.
+            auto ref = [&](int i, int j) {  // j counts up from min.y
+                return double(m_reference.at(std::clamp(i, 0, w - 1), h - 1 - std::clamp(j, 0, h - 1), c));
+            };
+            for (int j = 0; j < g.ny; ++j)
+                for (int i = 0; i < g.nx; ++i) {
+                    const Vec2d p = g.cell_center(i, j);
+                    const double x = (p.x - g.min.x) / (g.max.x - g.min.x) * w - 0.5;
+                    const double y = (p.y - g.min.y) / (g.max.y - g.min.y) * h - 0.5;
+                    const int x0 = int(std::floor(x)), y0 = int(std::floor(y));
+                    const double fx = std::clamp(x - x0, 0.0, 1.0), fy = std::clamp(y - y0, 0.0, 1.0);
+                    v[std::size_t(j) * g.nx + i] = (1 - fy) * ((1 - fx) * ref(x0, y0) + fx * ref(x0 + 1, y0)) +
+                                                   fy * ((1 - fx) * ref(x0, y0 + 1) + fx * ref(x0 + 1, y0 + 1));
+                }
+            return v;
+        }
+        if (!cp.exact)
+            throw InputError({m_o.scene.string(), 0, 0},
+                             "the simulation knows no exact solution; give --reference (a reference run's EXR)");
+        std::vector<double> v(g.cell_count());
+        for (int j = 0; j < g.ny; ++j)
+            for (int i = 0; i < g.nx; ++i) {
+                auto e = cp.exact(field, cp.sim_time, g.cell_center(i, j));
+                if (!e)
+                    throw InputError({m_o.scene.string(), 0, 0},
+                                     fmt::format("the initial condition has no exact solution for '{}' (Taylor–Green "
+                                                 "and Lamb–Oseen do); give --reference",
+                                                 field));
+                v[std::size_t(j) * g.nx + i] = *e;
+            }
+        return v;
     }
 
 private:
-    void validate() {
-        const ConvergeOptions& o = m_o;
-        if (o.scene.empty()) throw InputError({}, "converge: no scene given");
-        if (!fs::is_regular_file(o.scene)) throw InputError({o.scene.string(), 0, 0}, "no such scene file");
-        if (o.configs.empty())
-            throw InputError({}, "converge: no configuration (give --config NAME:K=V,..., --config-file or --sweep)");
-        std::set<std::string> names;
-        for (const auto& c : o.configs)
-            if (!names.insert(c.name).second)
-                throw InputError({}, fmt::format("converge: configuration '{}' is given twice", c.name));
-        if (o.runs < 1) throw InputError({}, "converge: --runs must be at least 1");
-        const int kinds = !o.seconds.empty() + !o.spp.empty() + !o.steps.empty() + !o.sim_times.empty();
-        if (kinds == 0)
-            throw InputError({},
-                             "converge: no checkpoints (give --checkpoints SECONDS, --spp N,... for renders, or "
-                             "--steps / --times for simulations)");
-        if (kinds > 1)
-            throw InputError({}, "converge: give one kind of checkpoints (--checkpoints, --spp, --steps or --times)");
-        for (double s : o.seconds)
-            if (!(s > 0)) throw InputError({}, "converge: --checkpoints: times must be positive");
-        for (long long s : o.spp)
-            if (s < 1) throw InputError({}, "converge: --spp: sample counts must be at least 1");
-        for (long long s : o.steps)
-            if (s < 0) throw InputError({}, "converge: --steps: step counts must be non-negative");
-        if (o.fields.empty()) throw InputError({}, "converge: no --field to compare");
-        for (const auto& f : o.fields)
-            if (f != "vorticity" && f != "u" && f != "v")
-                throw InputError({}, fmt::format("converge: --field '{}': expected vorticity, u or v{}", f,
-                                                 did_you_mean(f, {"vorticity", "u", "v"})));
-        if (!(o.epsilon > 0)) throw InputError({}, "converge: --epsilon must be positive");
-        if (o.window && ((*o.window)[2] <= (*o.window)[0] || (*o.window)[3] <= (*o.window)[1] || (*o.window)[0] < 0 ||
-                         (*o.window)[1] < 0))
-            throw InputError({}, "converge: --window x0,y0,x1,y1 needs 0 <= x0 < x1 and 0 <= y0 < y1");
-        if (o.output_dir.empty()) throw InputError({}, "converge: no output directory");
-        if (fs::exists(o.output_dir) && !fs::is_directory(o.output_dir))
-            throw InputError({}, fmt::format("-o '{}' exists and is not a directory", o.output_dir.string()));
-        // Before any run: a study that cannot write its CSV would throw its work away.
-        if (std::string why = output_dir_problem(o.output_dir); !why.empty())
-            throw InputError({}, fmt::format("-o '{}': {}", o.output_dir.string(), why));
+    const ConvergeOptions& m_o;
+    Bitmap m_reference;
+};
 
-        if (!o.reference.empty()) {
-            if (!fs::is_regular_file(o.reference))
-                throw InputError({o.reference.string(), 0, 0}, "no such reference image");
-            try {
-                m_reference = read_image(o.reference);
-            } catch (const Error& e) {
-                throw InputError({o.reference.string(), 0, 0}, fmt::format("cannot read the reference: {}", e.what()));
-            }
-        }
-        // Every configuration must parse, and use every parameter it sets: a misspelt -D would silently run
-        // the same configuration twice. The first one tells renders from simulations.
-        for (std::size_t i = 0; i < o.configs.size(); ++i) {
-            ParsedScene parsed = parse(o.configs[i]);
-            bool sim = false;
-            for (const auto& child : parsed.root->children)
-                sim = sim || (child.node && child.node->kind == "simulation");
-            if (i == 0) m_simulation = sim;
-            if (sim != m_simulation)
-                throw InputError(
-                    {o.scene.string(), 0, 0},
-                    fmt::format("configuration '{}' runs a {} where '{}' runs a {}", o.configs[i].name,
-                                sim ? "simulation" : "render", o.configs[0].name, sim ? "render" : "simulation"));
-        }
-        if (m_simulation && !o.spp.empty())
-            throw InputError({o.scene.string(), 0, 0},
-                             "the scene runs a simulation: use --steps, --times or "
-                             "--checkpoints, not --spp");
-        if (!m_simulation && (!o.steps.empty() || !o.sim_times.empty()))
-            throw InputError({o.scene.string(), 0, 0},
-                             "the scene renders: use --spp or --checkpoints, not --steps or --times");
-        if (!m_simulation && o.reference.empty())
-            throw InputError({o.scene.string(), 0, 0},
-                             "the scene renders: give a --reference image (e.g. a long "
-                             "render: kelvin scene.xml --spp 4096 -o ref.exr)");
-        if (!m_simulation && m_reference.channel_index("R") < 0)
-            throw InputError({o.reference.string(), 0, 0}, "the reference image has no R, G, B channels");
+/// What one (configuration, run) pair produced: its rows, or why it has none.
+struct RunOutcome {
+    bool interrupted = false;
+    int error = 0;  ///< 1: InputError, 2: another error (distributed studies carry errors to rank 0)
+    std::string message;
+    std::string config;
+    int run = 0;
+    std::size_t fired = 0;
+    double work = 0, seconds = 0;
+    std::string work_unit;
+    std::vector<Row> rows, stats;
+};
+
+/// The study's files: convergence.csv (a row per checkpoint, and field), convergence_stats.csv (a row per counter of a
+/// run) and convergence.settings (what the rows depend on; a resumed study must match it). Read by every rank,
+/// written by rank 0.
+class StudyFiles {
+public:
+    StudyFiles(const ConvergeOptions& o) : m_o(o) {}
+
+    /// The existing study in ConvergeOptions::output_dir, if any (InputError if it cannot be resumed).
+    void load(bool simulation) {
+        m_simulation = simulation;
+        m_csv_path = m_o.output_dir / "convergence.csv";
+        m_stats_path = m_o.output_dir / "convergence_stats.csv";
+        m_settings_path = m_o.output_dir / "convergence.settings";
+        load_existing();
+    }
+    bool done(const std::string& config, int run) const { return m_done.count({config, run}) > 0; }
+    void write_settings() const {
+        std::string s =
+            "# kelvin converge: the rows of convergence.csv depend on these settings; a resumed study "
+            "must match them\n";
+        for (const auto& l : settings_lines(m_o, kind_columns())) s += l + "\n";
+        std::map<std::string, std::string> configs = m_known_configs;
+        for (const auto& c : m_o.configs) configs[c.name] = c.defines_string();
+        for (const auto& [name, defs] : configs) s += "config " + name + ": " + defs + "\n";
+        write_text_atomically(m_settings_path, s);
     }
 
-    ParsedScene parse(const ConvergeConfig& c) const {
-        ParseOptions popts;
-        popts.defines = m_o.defines;
-        for (const auto& [k, v] : c.defines) popts.defines[k] = v;
-        ParsedScene parsed = parse_scene_file(m_o.scene, popts);
-        for (const auto& d : parsed.unused_defines)
-            throw InputError({m_o.scene.string(), 0, 0},
-                             fmt::format("configuration '{}': the scene does not use the parameter '{}' (it has no "
-                                         "<default name=\"{}\"> or $ reference)",
-                                         c.name, d, d));
-        return parsed;
+    /// Adds a finished run's rows (the caller writes the files); `rank` ran it.
+    void add(const RunOutcome& o, std::size_t rank, const Communicator& comm) {
+        for (const auto& row : o.rows) m_table.rows.push_back(row);
+        for (const auto& row : o.stats) m_stats.rows.push_back(row);
+        sort_rows(m_table);
+        sort_rows(m_stats);
+        m_done.insert({o.config, o.run});
+        if (!m_o.quiet && comm.root())
+            log_info("converge: {} run {}: {} checkpoint(s), {:.3g} {} in {:.3f} s{}", o.config, o.run, o.fired, o.work,
+                     o.work_unit, o.seconds, comm.distributed() ? fmt::format(" (rank {})", rank) : "");
     }
 
+    void write() const {
+        write_text_atomically(m_stats_path, m_stats.text());
+        write_text_atomically(m_csv_path, m_table.text());  // last: a run is finished once its rows are here
+    }
+    std::size_t rows() const { return m_table.rows.size(); }
+    const fs::path& csv_path() const { return m_csv_path; }
+    const fs::path& stats_path() const { return m_stats_path; }
+
+private:
     std::string kind_columns() const {
         // The metric columns depend on the kind of job (validate() found it in the scene).
-        return is_simulation_study() ? "field" : "image";
+        return m_simulation ? "field" : "image";
     }
-    bool is_simulation_study() const { return m_simulation; }
 
     std::vector<std::string> header() const {
         std::vector<std::string> h = CommonColumns;
-        const auto& m = is_simulation_study() ? FieldColumns : ImageColumns;
+        const auto& m = m_simulation ? FieldColumns : ImageColumns;
         h.insert(h.end(), m.begin(), m.end());
         h.push_back("image");
         return h;
@@ -513,17 +487,6 @@ private:
             log_info("converge: resuming {}: {} finished run(s) kept", m_csv_path.string(), m_done.size());
     }
 
-    void write_settings() {
-        std::string s =
-            "# kelvin converge: the rows of convergence.csv depend on these settings; a resumed study "
-            "must match them\n";
-        for (const auto& l : settings_lines(m_o, kind_columns())) s += l + "\n";
-        std::map<std::string, std::string> configs = m_known_configs;
-        for (const auto& c : m_o.configs) configs[c.name] = c.defines_string();
-        for (const auto& [name, defs] : configs) s += "config " + name + ": " + defs + "\n";
-        write_text_atomically(m_settings_path, s);
-    }
-
     /// Rows in canonical order: configurations as given (unknown ones after, by name), runs, checkpoints.
     void sort_rows(Table& t) const {
         std::map<std::string, std::size_t> order;
@@ -534,6 +497,189 @@ private:
                                    parse_int(r[1]).value_or(0));
         };
         std::stable_sort(t.rows.begin(), t.rows.end(), [&](const Row& a, const Row& b) { return key(a) < key(b); });
+    }
+
+    const ConvergeOptions& m_o;
+    bool m_simulation = false;
+    fs::path m_csv_path, m_stats_path, m_settings_path;
+    Table m_table, m_stats;
+    std::set<RunKey> m_done;
+    std::map<std::string, std::string> m_known_configs;
+};
+
+/// Running a study: every rank validates the options and reads the existing files, then the pending runs are
+/// spread over the ranks in rounds (one run per rank), and rank 0 records each round in study order.
+class Study {
+public:
+    explicit Study(const ConvergeOptions& o)
+        : m_o(o), m_comm(o.comm ? *o.comm : local_communicator()), m_reference(o), m_files(o) {}
+
+    ConvergeSummary run() {
+        // Every rank validates and reads the existing study (read only); they agree on errors before any rank
+        // writes or runs anything (core/distributed.h).
+        run_agreeing(m_comm, [&] {
+            validate();
+            m_files.load(m_simulation);
+        });
+        if (m_comm.root()) {
+            fs::create_directories(m_o.output_dir);
+            m_files.write_settings();
+            // The reference next to the checkpoint images, for the plots' image grid (a simulation's reference run
+            // has the colour-mapped field in R, G, B).
+            if (m_o.images != ConvergeOptions::Images::None && m_reference.image().channel_index("R") == 0 &&
+                m_reference.image().channel_count() >= 3) {
+                fs::create_directories(m_o.output_dir / "images");
+                write_image(m_o.output_dir / "images" / "reference.png", m_reference.image());
+            }
+        }
+
+        ConvergeSummary summary;
+        summary.csv = m_files.csv_path();
+        summary.stats_csv = m_files.stats_path();
+        const int total = m_o.runs * int(m_o.configs.size());
+        // Run-major: every configuration's run 0 first, so a cut-off study has something for each.
+        struct Pending {
+            const ConvergeConfig* config;
+            int run, index;
+        };
+        std::vector<Pending> pending;
+        int index = 0;
+        for (int r = 0; r < m_o.runs; ++r)
+            for (const auto& config : m_o.configs) {
+                ++index;
+                if (m_files.done(config.name, r))
+                    ++summary.runs_skipped;
+                else
+                    pending.push_back({&config, r, index});
+            }
+        // Rounds of one run per rank (one process: one run per round); rank 0 records a round's runs in study
+        // order, so the CSV is the one a single process writes, and a cut-off study keeps every finished round.
+        const std::size_t ranks = std::size_t(m_comm.size());
+        for (std::size_t first = 0; first < pending.size() && !summary.interrupted; first += ranks) {
+            RunOutcome mine;
+            if (const std::size_t k = first + std::size_t(m_comm.rank()); k < pending.size()) {
+                const Pending& p = pending[k];
+                if (m_o.cancel.stop_requested()) {
+                    mine.interrupted = true;
+                } else if (!m_comm.distributed()) {
+                    mine = run_one(*p.config, p.run, p.index, total);
+                } else {
+                    // An error in one rank's run must not leave the others waiting: it travels with the outcome.
+                    try {
+                        mine = run_one(*p.config, p.run, p.index, total);
+                    } catch (const InputError& e) {
+                        mine.error = 1, mine.message = e.what();
+                    } catch (const std::exception& e) {
+                        mine.error = 2, mine.message = e.what();
+                    }
+                }
+            }
+            const std::vector<RunOutcome> round = exchange(mine);
+            for (std::size_t i = 0; i < round.size(); ++i) {
+                const RunOutcome& o = round[i];
+                if (o.error) {
+                    const std::string m = (i == 0 ? "" : fmt::format("rank {}: ", i)) + o.message;
+                    if (o.error == 1) throw InputError({}, m);
+                    throw RuntimeError(m);
+                }
+            }
+            for (std::size_t i = 0; i < round.size(); ++i) {
+                if (round[i].interrupted) {
+                    summary.interrupted = true;
+                    continue;
+                }
+                if (first + i >= pending.size()) continue;
+                m_files.add(round[i], i, m_comm);
+                ++summary.runs_done;
+            }
+            if (m_comm.root() && summary.runs_done > 0) m_files.write();
+        }
+        summary.rows = m_files.rows();
+        return summary;
+    }
+
+private:
+    void validate() {
+        const ConvergeOptions& o = m_o;
+        if (o.scene.empty()) throw InputError({}, "converge: no scene given");
+        if (!fs::is_regular_file(o.scene)) throw InputError({o.scene.string(), 0, 0}, "no such scene file");
+        if (o.configs.empty())
+            throw InputError({}, "converge: no configuration (give --config NAME:K=V,..., --config-file or --sweep)");
+        std::set<std::string> names;
+        for (const auto& c : o.configs)
+            if (!names.insert(c.name).second)
+                throw InputError({}, fmt::format("converge: configuration '{}' is given twice", c.name));
+        if (o.runs < 1) throw InputError({}, "converge: --runs must be at least 1");
+        const int kinds = !o.seconds.empty() + !o.spp.empty() + !o.steps.empty() + !o.sim_times.empty();
+        if (kinds == 0)
+            throw InputError({},
+                             "converge: no checkpoints (give --checkpoints SECONDS, --spp N,... for renders, or "
+                             "--steps / --times for simulations)");
+        if (kinds > 1)
+            throw InputError({}, "converge: give one kind of checkpoints (--checkpoints, --spp, --steps or --times)");
+        for (double s : o.seconds)
+            if (!(s > 0)) throw InputError({}, "converge: --checkpoints: times must be positive");
+        for (long long s : o.spp)
+            if (s < 1) throw InputError({}, "converge: --spp: sample counts must be at least 1");
+        for (long long s : o.steps)
+            if (s < 0) throw InputError({}, "converge: --steps: step counts must be non-negative");
+        if (o.fields.empty()) throw InputError({}, "converge: no --field to compare");
+        for (const auto& f : o.fields)
+            if (f != "vorticity" && f != "u" && f != "v")
+                throw InputError({}, fmt::format("converge: --field '{}': expected vorticity, u or v{}", f,
+                                                 did_you_mean(f, {"vorticity", "u", "v"})));
+        if (!(o.epsilon > 0)) throw InputError({}, "converge: --epsilon must be positive");
+        if (o.window && ((*o.window)[2] <= (*o.window)[0] || (*o.window)[3] <= (*o.window)[1] || (*o.window)[0] < 0 ||
+                         (*o.window)[1] < 0))
+            throw InputError({}, "converge: --window x0,y0,x1,y1 needs 0 <= x0 < x1 and 0 <= y0 < y1");
+        if (o.output_dir.empty()) throw InputError({}, "converge: no output directory");
+        if (fs::exists(o.output_dir) && !fs::is_directory(o.output_dir))
+            throw InputError({}, fmt::format("-o '{}' exists and is not a directory", o.output_dir.string()));
+        // Before any run: a study that cannot write its CSV would throw its work away.
+        if (std::string why = output_dir_problem(o.output_dir); !why.empty())
+            throw InputError({}, fmt::format("-o '{}': {}", o.output_dir.string(), why));
+
+        m_reference.load();
+        // Every configuration must parse, and use every parameter it sets: a misspelt -D would silently run
+        // the same configuration twice. The first one tells renders from simulations.
+        for (std::size_t i = 0; i < o.configs.size(); ++i) {
+            ParsedScene parsed = parse(o.configs[i]);
+            bool sim = false;
+            for (const auto& child : parsed.root->children)
+                sim = sim || (child.node && child.node->kind == "simulation");
+            if (i == 0) m_simulation = sim;
+            if (sim != m_simulation)
+                throw InputError(
+                    {o.scene.string(), 0, 0},
+                    fmt::format("configuration '{}' runs a {} where '{}' runs a {}", o.configs[i].name,
+                                sim ? "simulation" : "render", o.configs[0].name, sim ? "render" : "simulation"));
+        }
+        if (m_simulation && !o.spp.empty())
+            throw InputError({o.scene.string(), 0, 0},
+                             "the scene runs a simulation: use --steps, --times or "
+                             "--checkpoints, not --spp");
+        if (!m_simulation && (!o.steps.empty() || !o.sim_times.empty()))
+            throw InputError({o.scene.string(), 0, 0},
+                             "the scene renders: use --spp or --checkpoints, not --steps or --times");
+        if (!m_simulation && o.reference.empty())
+            throw InputError({o.scene.string(), 0, 0},
+                             "the scene renders: give a --reference image (e.g. a long "
+                             "render: kelvin scene.xml --spp 4096 -o ref.exr)");
+        if (!m_simulation && m_reference.image().channel_index("R") < 0)
+            throw InputError({o.reference.string(), 0, 0}, "the reference image has no R, G, B channels");
+    }
+
+    ParsedScene parse(const ConvergeConfig& c) const {
+        ParseOptions popts;
+        popts.defines = m_o.defines;
+        for (const auto& [k, v] : c.defines) popts.defines[k] = v;
+        ParsedScene parsed = parse_scene_file(m_o.scene, popts);
+        for (const auto& d : parsed.unused_defines)
+            throw InputError({m_o.scene.string(), 0, 0},
+                             fmt::format("configuration '{}': the scene does not use the parameter '{}' (it has no "
+                                         "<default name=\"{}\"> or $ reference)",
+                                         c.name, d, d));
+        return parsed;
     }
 
     static std::string trigger_name(Checkpoint::Trigger t) {
@@ -558,95 +704,6 @@ private:
         }
         return "cp";
     }
-
-    /// Image errors of a render at a checkpoint (the window, if any, cut from both).
-    ImageErrors render_errors(const Bitmap& img) const {
-        if (img.width() != m_reference.width() || img.height() != m_reference.height())
-            throw InputError({m_o.reference.string(), 0, 0},
-                             fmt::format("the reference is {}x{} but the render is {}x{}", m_reference.width(),
-                                         m_reference.height(), img.width(), img.height()));
-        ImageMetricOptions mo;
-        mo.epsilon = m_o.epsilon;
-        auto crop = [&](const Bitmap& b) {
-            if (!m_o.window) return b;
-            const auto& w = *m_o.window;
-            if (w[2] > b.width() || w[3] > b.height())
-                throw InputError({}, fmt::format("--window {},{},{},{} exceeds the {}x{} image", w[0], w[1], w[2], w[3],
-                                                 b.width(), b.height()));
-            Bitmap c(w[2] - w[0], w[3] - w[1], b.channels());
-            for (int y = w[1]; y < w[3]; ++y)
-                for (int x = w[0]; x < w[2]; ++x)
-                    for (int k = 0; k < b.channel_count(); ++k) c.at(x - w[0], y - w[1], k) = b.at(x, y, k);
-            return c;
-        };
-        try {
-            return image_errors(crop(img), crop(m_reference), mo);
-        } catch (const InputError& e) {
-            throw InputError({m_o.reference.string(), 0, 0}, e.bare_message());
-        }
-    }
-
-    /// Reference values of `field` at the checkpoint's cells (row 0 at min.y).
-    std::vector<double> field_reference(const Checkpoint& cp, const std::string& field) const {
-        const CellGrid2& g = cp.grid;
-        if (!m_o.reference.empty()) {
-            const int c = m_reference.channel_index(field);
-            if (c < 0)
-                throw InputError({m_o.reference.string(), 0, 0},
-                                 fmt::format("the reference has no '{}' channel", field));
-            const int w = m_reference.width(), h = m_reference.height();
-            std::vector<double> v(g.cell_count());
-            if (w == g.nx && h == g.ny) {  // the same grid: the values themselves (image rows run top down)
-                for (int j = 0; j < g.ny; ++j)
-                    for (int i = 0; i < g.nx; ++i) v[std::size_t(j) * g.nx + i] = m_reference.at(i, h - 1 - j, c);
-                return v;
-            }
-            // Another resolution over the same box: bilinear between the reference's cell centres (clamped to
-            // the outermost centres), at this grid's cell centres.
-            auto ref = [&](int i, int j) {  // j counts up from min.y
-                return double(m_reference.at(std::clamp(i, 0, w - 1), h - 1 - std::clamp(j, 0, h - 1), c));
-            };
-            for (int j = 0; j < g.ny; ++j)
-                for (int i = 0; i < g.nx; ++i) {
-                    const Vec2d p = g.cell_center(i, j);
-                    const double x = (p.x - g.min.x) / (g.max.x - g.min.x) * w - 0.5;
-                    const double y = (p.y - g.min.y) / (g.max.y - g.min.y) * h - 0.5;
-                    const int x0 = int(std::floor(x)), y0 = int(std::floor(y));
-                    const double fx = std::clamp(x - x0, 0.0, 1.0), fy = std::clamp(y - y0, 0.0, 1.0);
-                    v[std::size_t(j) * g.nx + i] = (1 - fy) * ((1 - fx) * ref(x0, y0) + fx * ref(x0 + 1, y0)) +
-                                                   fy * ((1 - fx) * ref(x0, y0 + 1) + fx * ref(x0 + 1, y0 + 1));
-                }
-            return v;
-        }
-        if (!cp.exact)
-            throw InputError({m_o.scene.string(), 0, 0},
-                             "the simulation knows no exact solution; give --reference (a reference run's EXR)");
-        std::vector<double> v(g.cell_count());
-        for (int j = 0; j < g.ny; ++j)
-            for (int i = 0; i < g.nx; ++i) {
-                auto e = cp.exact(field, cp.sim_time, g.cell_center(i, j));
-                if (!e)
-                    throw InputError({m_o.scene.string(), 0, 0},
-                                     fmt::format("the initial condition has no exact solution for '{}' (Taylor–Green "
-                                                 "and Lamb–Oseen do); give --reference",
-                                                 field));
-                v[std::size_t(j) * g.nx + i] = *e;
-            }
-        return v;
-    }
-
-    /// What one (configuration, run) pair produced: its rows, or why it has none.
-    struct RunOutcome {
-        bool interrupted = false;
-        int error = 0;  ///< 1: InputError, 2: another error (distributed studies carry errors to rank 0)
-        std::string message;
-        std::string config;
-        int run = 0;
-        std::size_t fired = 0;
-        double work = 0, seconds = 0;
-        std::string work_unit;
-        std::vector<Row> rows, stats;
-    };
 
     /// Every rank's outcome of a round, in rank order, on every rank.
     std::vector<RunOutcome> exchange(const RunOutcome& mine) {
@@ -685,29 +742,10 @@ private:
         return out;
     }
 
-    /// Adds a finished run's rows (the caller writes the files); `rank` ran it.
-    void record(const RunOutcome& o, std::size_t rank) {
-        for (const auto& row : o.rows) m_table.rows.push_back(row);
-        for (const auto& row : o.stats) m_stats.rows.push_back(row);
-        sort_rows(m_table);
-        sort_rows(m_stats);
-        m_done.insert({o.config, o.run});
-        if (!m_o.quiet && m_comm.root())
-            log_info("converge: {} run {}: {} checkpoint(s), {:.3g} {} in {:.3f} s{}", o.config, o.run, o.fired, o.work,
-                     o.work_unit, o.seconds, m_comm.distributed() ? fmt::format(" (rank {})", rank) : "");
-    }
-
-    /// Runs one (configuration, run) pair; its rows, or interrupted (nothing to record).
-    RunOutcome run_one(const ConvergeConfig& config, int r, int index, int total) {
-        const uint64_t seed = m_o.seed + uint64_t(r);
-        ParsedScene parsed = parse(config);
-        ObjectPtr root = instantiate(parsed, {m_o.allow_unused});
-        auto job = std::dynamic_pointer_cast<Job>(root);
-        if (!job) throw InputError(parsed.root->loc, "the root <scene> did not produce a runnable job");
-
-        const bool sim_study = is_simulation_study();
-        RunContext ctx;
-        ctx.seed = seed;
+    /// Sets up the context of run `r` (seed m_o.seed + r): its checkpoints, and the sample count or time limit that
+    /// reaches the last one.
+    void configure(RunContext& ctx, int r) const {
+        ctx.seed = m_o.seed + uint64_t(r);
         ctx.quiet = true;
         ctx.cancel = m_o.cancel;
         if (!m_o.seconds.empty()) {
@@ -720,12 +758,79 @@ private:
         }
         if (!m_o.steps.empty()) ctx.checkpoint_work = m_o.steps;
         ctx.checkpoint_sim_times = m_o.sim_times;
+    }
+
+    /// The CSV rows of one checkpoint of run `r` of `config` (one per compared field for a simulation), reached
+    /// after `seconds` of compute; writes its images when `write_images`.
+    std::vector<Row> checkpoint_rows(const ConvergeConfig& config, int r, uint64_t seed, const Checkpoint& cp,
+                                     double seconds, bool write_images) const {
+        const bool sim = cp.sim_time >= 0;
+        if (sim != m_simulation)
+            throw InputError({m_o.scene.string(), 0, 0},
+                             sim ? "the scene runs a simulation: use --steps, --times or --checkpoints (and the "
+                                   "exact solution or a reference field), not --spp"
+                                 : "the scene renders: use --spp or --checkpoints with a --reference image, not "
+                                   "--steps or --times");
+        const Row base = {config.name,
+                          std::to_string(r),
+                          std::to_string(seed),
+                          trigger_name(cp.trigger),
+                          num(cp.target),
+                          fmt::format("{:.6f}", seconds),
+                          num(cp.work),
+                          cp.work_unit,
+                          sim ? num(cp.sim_time) : std::string()};
+        std::string image_rel;
+        Bitmap img;
+        if (write_images || !sim) img = cp.image();
+        if (write_images && !img.empty()) {
+            const fs::path image_dir = m_o.output_dir / "images" / safe_name(config.name);
+            fs::create_directories(image_dir);
+            const std::string stem = safe_name(fmt::format("run{}_{}", r, label(cp)));  // "mutations/px8"
+            write_image(image_dir / (stem + ".exr"), img);
+            write_image(image_dir / (stem + ".png"), img);
+            image_rel = (fs::path("images") / safe_name(config.name) / (stem + ".png")).string();
+        }
+        std::vector<Row> rows;
+        if (!sim) {
+            const ImageErrors e = m_reference.image_errors(img);
+            Row row = base;
+            for (double v : {e.mse, e.rmse, e.rel_mse, e.l1, e.rel_l1, e.max_abs, e.ssim}) row.push_back(num(v));
+            row.push_back(image_rel);
+            rows.push_back(std::move(row));
+            return rows;
+        }
+        for (const auto& f : m_o.fields) {
+            std::vector<double> values;
+            if (!cp.field || !cp.field(f, values))
+                throw InputError({m_o.scene.string(), 0, 0}, fmt::format("the simulation has no field '{}'", f));
+            const std::vector<double> ref = m_reference.field(cp, f);
+            const FieldErrors e = field_errors(values, ref, cp.grid, m_o.region);
+            Row row = base;
+            row.push_back(f);
+            row.push_back(m_o.region.to_string());
+            for (double v : {e.rmse, e.rel_l2, e.max_abs, e.l1}) row.push_back(num(v));
+            row.push_back(std::to_string(e.cells));
+            row.push_back(image_rel);
+            rows.push_back(std::move(row));
+        }
+        return rows;
+    }
+
+    /// Runs one (configuration, run) pair; its rows, or interrupted (nothing to record).
+    RunOutcome run_one(const ConvergeConfig& config, int r, int index, int total) {
+        const uint64_t seed = m_o.seed + uint64_t(r);
+        ParsedScene parsed = parse(config);
+        ObjectPtr root = instantiate(parsed, {m_o.allow_unused});
+        auto job = std::dynamic_pointer_cast<Job>(root);
+        if (!job) throw InputError(parsed.root->loc, "the root <scene> did not produce a runnable job");
+
+        RunContext ctx;
+        configure(ctx, r);
         const std::size_t expected =
             std::max({m_o.seconds.size(), m_o.spp.size(), m_o.steps.size(), m_o.sim_times.size()});
-
         const bool write_images =
             m_o.images == ConvergeOptions::Images::All || (m_o.images == ConvergeOptions::Images::First && r == 0);
-        const fs::path image_dir = m_o.output_dir / "images" / safe_name(config.name);
         std::vector<Row> rows;
         // The seconds column is the compute time of the whole Job::run so far (its setup, e.g. an MLT bootstrap
         // or building the solver, included: equal time means equal time) without the time spent in this
@@ -739,54 +844,7 @@ private:
                 Timer timer;
                 ~AddTime() { total += timer.seconds(); }
             } add_time{in_callbacks, {}};
-            const bool sim = cp.sim_time >= 0;
-            if (sim != sim_study)
-                throw InputError({m_o.scene.string(), 0, 0},
-                                 sim ? "the scene runs a simulation: use --steps, --times or --checkpoints (and the "
-                                       "exact solution or a reference field), not --spp"
-                                     : "the scene renders: use --spp or --checkpoints with a --reference image, not "
-                                       "--steps or --times");
-            Row base = {config.name,
-                        std::to_string(r),
-                        std::to_string(seed),
-                        trigger_name(cp.trigger),
-                        num(cp.target),
-                        fmt::format("{:.6f}", seconds),
-                        num(cp.work),
-                        cp.work_unit,
-                        sim ? num(cp.sim_time) : std::string()};
-            std::string image_rel;
-            Bitmap img;
-            if (write_images || !sim) img = cp.image();
-            if (write_images && !img.empty()) {
-                fs::create_directories(image_dir);
-                const std::string stem = safe_name(fmt::format("run{}_{}", r, label(cp)));  // "mutations/px8"
-                write_image(image_dir / (stem + ".exr"), img);
-                write_image(image_dir / (stem + ".png"), img);
-                image_rel = (fs::path("images") / safe_name(config.name) / (stem + ".png")).string();
-            }
-            if (!sim) {
-                const ImageErrors e = render_errors(img);
-                Row row = base;
-                for (double v : {e.mse, e.rmse, e.rel_mse, e.l1, e.rel_l1, e.max_abs, e.ssim}) row.push_back(num(v));
-                row.push_back(image_rel);
-                rows.push_back(std::move(row));
-                return;
-            }
-            for (const auto& f : m_o.fields) {
-                std::vector<double> values;
-                if (!cp.field || !cp.field(f, values))
-                    throw InputError({m_o.scene.string(), 0, 0}, fmt::format("the simulation has no field '{}'", f));
-                const std::vector<double> ref = field_reference(cp, f);
-                const FieldErrors e = field_errors(values, ref, cp.grid, m_o.region);
-                Row row = base;
-                row.push_back(f);
-                row.push_back(m_o.region.to_string());
-                for (double v : {e.rmse, e.rel_l2, e.max_abs, e.l1}) row.push_back(num(v));
-                row.push_back(std::to_string(e.cells));
-                row.push_back(image_rel);
-                rows.push_back(std::move(row));
-            }
+            for (Row& row : checkpoint_rows(config, r, seed, cp, seconds, write_images)) rows.push_back(std::move(row));
         };
 
         if (!m_o.quiet && m_comm.root())
@@ -808,7 +866,7 @@ private:
             out.interrupted = true;
             return out;
         }
-        const std::size_t fired = rows.size() / (sim_study ? m_o.fields.size() : 1);
+        const std::size_t fired = rows.size() / (m_simulation ? m_o.fields.size() : 1);
         if (fired < expected)
             log_warn(
                 "converge: {} run {}: {} of {} checkpoints reached before the run ended (the scene's own "
@@ -834,11 +892,8 @@ private:
     const ConvergeOptions& m_o;
     Communicator& m_comm;
     bool m_simulation = false;  ///< the scene runs a <simulation> (else it renders)
-    Bitmap m_reference;
-    fs::path m_csv_path, m_stats_path, m_settings_path;
-    Table m_table, m_stats;
-    std::set<RunKey> m_done;
-    std::map<std::string, std::string> m_known_configs;
+    Reference m_reference;
+    StudyFiles m_files;
 };
 
 }  // namespace
