@@ -239,7 +239,7 @@ private:
 ParsedScene parse_dict(const Dict& d, const DictOptions& opts) { return DictParser(opts).parse(d); }
 
 ObjectPtr load_dict(const Dict& d, const DictOptions& opts) {
-    return instantiate(parse_dict(d, opts), {opts.allow_unused});
+    return instantiate(parse_dict(d, opts), {opts.allow_unused, "set DictOptions::allow_unused to ignore"});
 }
 
 }  // namespace kelvin

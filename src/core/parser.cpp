@@ -723,7 +723,7 @@ public:
             if (&node == m_scene.root.get() && !c.is_ref && c.node->referenced && c.node->kind == "emitter") continue;
             props.set_object(c.name, build(*c.node), c.loc);
         }
-        ObjectPtr obj = Registry::instance().create(props, m_opts.allow_unused);
+        ObjectPtr obj = Registry::instance().create(props, m_opts.allow_unused, m_opts.unused_hint);
         m_building.erase(&node);
         m_cache.emplace(&node, obj);
         return obj;

@@ -132,7 +132,7 @@ std::vector<const PluginInfo*> Registry::plugins(std::string_view kind) const {
     return out;
 }
 
-ObjectPtr Registry::create(const Properties& props_in, bool allow_unused) const {
+ObjectPtr Registry::create(const Properties& props_in, bool allow_unused, std::string_view unused_hint) const {
     const PluginInfo& info = get(props_in.kind(), props_in.plugin(), props_in.location());
     Properties props = props_in;
     props.set_info(&info);
@@ -174,7 +174,7 @@ ObjectPtr Registry::create(const Properties& props_in, bool allow_unused) const 
             what = fmt::format("parameter '{}' is not used by {} '{}'{}", e->name, info.kind, info.name,
                                did_you_mean(e->name, declared));
         }
-        if (!allow_unused) throw InputError(e->loc, what + " (pass --allow-unused to ignore)");
+        if (!allow_unused) throw InputError(e->loc, fmt::format("{} ({})", what, unused_hint));
         log_warn("{}{}{}", e->loc.str(), e->loc.valid() ? ": " : "", what);
     }
     return obj;

@@ -412,6 +412,9 @@ TEST(HostDict, ErrorsNameTheKey) {
     });
     EXPECT_CONTAINS(misspelt, "dict:integrator.max_dpth: ");
     EXPECT_CONTAINS(misspelt, "did you mean 'max_depth'");
+    // The hint is the host's switch, not the command line's.
+    EXPECT_CONTAINS(misspelt, "(set DictOptions::allow_unused to ignore)");
+    EXPECT_EQ(misspelt.find("--allow-unused"), std::string::npos) << misspelt;
 
     const std::string unknown = ktest::input_error_of([] { load_dict(render_dict({{"type", "paht"}})); });
     EXPECT_CONTAINS(unknown, "dict:integrator.type: ");

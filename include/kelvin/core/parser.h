@@ -89,6 +89,8 @@ ParsedScene parse_scene_string(const std::string& xml, const ParseOptions& opts 
 
 struct InstantiateOptions {
     bool allow_unused = false;  ///< unread parameters are warnings instead of errors
+    /// How the caller turns that on, for the error's hint ("pass --allow-unused to ignore" in `kelvin`).
+    std::string unused_hint = "pass --allow-unused to ignore";
 };
 
 /// Load the requested plugin modules and build the object tree. Returns the root object.

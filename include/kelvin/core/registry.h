@@ -57,9 +57,10 @@ public:
     const PluginInfo& get(std::string_view kind, std::string_view name, const SourceLoc& loc = {}) const;
     std::vector<const PluginInfo*> plugins(std::string_view kind = {}) const;
 
-    /// Build an object from properties naming its kind and plugin. Unread parameters are an InputError,
-    /// or a warning when `allow_unused` is set.
-    ObjectPtr create(const Properties& props, bool allow_unused = false) const;
+    /// Build an object from properties naming its kind and plugin. Unread parameters are an InputError ending in
+    /// "(`unused_hint`)", or a warning when `allow_unused` is set.
+    ObjectPtr create(const Properties& props, bool allow_unused = false,
+                     std::string_view unused_hint = "pass --allow-unused to ignore") const;
 
     /// dlopen a plugin module (a .so file) or every .so in a directory. Loading a module twice is a no-op.
     /// A missing path or a module that fails to load is an InputError at `loc`.
