@@ -183,6 +183,17 @@ private:
                         auto child = object(*v, child_path, &info, name);
                         const bool anon = unnamed(name, child->kind, &info);
                         node->children.push_back({anon ? std::string() : name, child, false, cat});
+                    } else if constexpr (std::is_same_v<T, DictValue::Built>) {
+                        if (!v) throw_input(cat, "a null object");
+                        if (v->plugin_kind().empty())
+                            throw_input(cat, "an object not made by the plugin registry (no kind and type)");
+                        auto child = std::make_shared<SceneNode>();
+                        child->kind = v->plugin_kind();
+                        child->type = v->plugin_name();
+                        child->loc = cat;
+                        child->built = v;
+                        const bool anon = unnamed(name, child->kind, &info);
+                        node->children.push_back({anon ? std::string() : name, child, false, cat});
                     } else if constexpr (std::is_same_v<T, dict::Ref>) {
                         node->children.push_back({name, nullptr, true, cat});
                         m_refs.push_back({node.get(), node->children.size() - 1, v.id, name, cat});

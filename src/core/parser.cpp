@@ -678,6 +678,7 @@ public:
     Instantiator(const InstantiateOptions& o, const ParsedScene& scene) : m_opts(o), m_scene(scene) {}
 
     ObjectPtr build(const SceneNode& node) {
+        if (node.built) return node.built;
         auto it = m_cache.find(&node);
         if (it != m_cache.end()) return it->second;
         if (!m_building.insert(&node).second)

@@ -6,7 +6,10 @@
 #include <kelvin/core/job.h>
 #include <kelvin/core/logging.h>
 #include <kelvin/core/parser.h>
+#include <kelvin/core/registry.h>
 #include <kelvin/fluid/simulation.h>
+#include <kelvin/render/scene.h>
+#include <kelvin/render/shape.h>
 
 #include "common/support.h"
 
@@ -402,6 +405,42 @@ TEST(HostDict, SameImageAsTheXmlScene) {
     double sum = 0;
     for (int i = 0; i < a.width() * a.height() * a.channel_count(); ++i) sum += a.data()[i];
     EXPECT_GT(sum, 0.0);  // something is lit
+}
+
+// A built object given to a dict is used as it is: the scene holds that very object, and renders the image the
+// same object written inline gives. (Checked failing with the built node ignored: a new default BSDF is made.)
+TEST(HostDict, BuiltObjectsAreUsedAsTheyAre) {
+    QuietLogs logs;
+    Properties props("bsdf", "diffuse");
+    props.set_color("reflectance", Vec3d(0.8, 0.15, 0.1));
+    const ObjectPtr red = Registry::instance().create(props);
+    Dict with_built = render_dict({{"type", "path"}, {"max_depth", 4}});
+    Dict d;
+    for (const DictEntry& e : with_built.entries()) {
+        if (e.key == "red") continue;  // the declared BSDF, replaced by the built one below
+        if (e.key == "ball")
+            d.set("ball", Dict{{"type", "sphere"},
+                               {"to_world", Transform::translate({0.2, 0, 0}) * Transform::scale({0.8, 0.8, 0.8})},
+                               {"bsdf", red}});
+        else
+            d.set(e.key, e.value);
+    }
+    auto scene = std::dynamic_pointer_cast<Scene>(load_dict(d));
+    ASSERT_TRUE(scene);
+    bool shared = false;
+    for (const auto& shape : scene->shapes()) shared = shared || shape->bsdf() == red.get();
+    EXPECT_TRUE(shared) << "the ball's BSDF is the built object itself";
+    auto inline_scene = job_of(load_dict(render_dict({{"type", "path"}, {"max_depth", 4}})));
+    RunContext c1, c2;
+    c1.quiet = c2.quiet = true;
+    c1.seed = c2.seed = 3;
+    c1.spp = c2.spp = 4;
+    EXPECT_TRUE(same_pixels(scene->run(c1).image, inline_scene->run(c2).image));
+    // A null object is an error at its key.
+    const std::string null_error = ktest::input_error_of([] {
+        load_dict({{"type", "scene"}, {"bsdf", std::shared_ptr<Object>()}});
+    });
+    EXPECT_CONTAINS(null_error, "dict:bsdf: a null object");
 }
 
 // Errors name the dict path of the offending key, as XML errors name file:line:column. (Checked failing with

@@ -29,7 +29,8 @@
 //  - Values: bool, integers, floating point, strings; rgb(...), point(...), vector(...) (or a bare Vec3d /
 //    {x, y, z}, typed as the parameter is declared); Transform (Transform::translate, scale, rotate, look_at, a
 //    4x4 matrix, composed with *); ref("id") to an object declared with {"id", ...} or to a root-level key.
-//    A parameter whose name is reserved ("type", "id") is written "param:type".
+//    A parameter whose name is reserved ("type", "id") is written "param:type". An object built already
+//    (std::shared_ptr to a plugin object: a BSDF shared by two scenes, a host's own emitter) is used as it is.
 #include <kelvin/core/error.h>
 #include <kelvin/core/math.h>
 #include <kelvin/core/object.h>
@@ -78,8 +79,10 @@ public:
         Vec3d value;
         bool valid = true;  ///< false: an initialiser list of the wrong length (reported by load_dict)
     };
+    /// An object built already (by an earlier load_dict, Registry::create or the host's own plugin class).
+    using Built = std::shared_ptr<kelvin::Object>;
     using Variant = std::variant<bool, long long, double, std::string, Triple, dict::Rgb, dict::Point, dict::Vector,
-                                 Transform, Object, dict::Ref>;
+                                 Transform, Object, dict::Ref, Built>;
 
     DictValue(bool v) : m_value(v) {}
     template <std::integral T>
@@ -96,6 +99,9 @@ public:
     DictValue(dict::Vector v) : m_value(v) {}
     DictValue(const Transform& t) : m_value(t) {}
     DictValue(dict::Ref r) : m_value(std::move(r)) {}
+    /// A built object, used as it is (shared, not copied): {"bsdf", my_bsdf}.
+    template <class T>
+    requires std::derived_from<T, kelvin::Object> DictValue(std::shared_ptr<T> o) : m_value(Built(std::move(o))) {}
     /// A nested object: {{"type", "diffuse"}, {"reflectance", rgb(0.5)}}.
     DictValue(std::initializer_list<DictEntry> entries);
     DictValue(const Dict& d);

@@ -44,6 +44,8 @@ struct SceneNode {
     std::vector<SceneValue> values;
     std::vector<SceneChild> children;
     bool referenced = false;  ///< some <ref> points at it
+    /// An object built before (a host's object given to load_dict): instantiation uses it as it is.
+    std::shared_ptr<Object> built;
 };
 
 struct ParseOptions {
