@@ -67,4 +67,25 @@ string(FIND "${host}" "data_directory: ${data}" at)
 if(at EQUAL -1)
   message(FATAL_ERROR "the host program's data_directory() is not the installation's:\n${host}")
 endif()
+
+# The installed host examples (share/kelvin/examples/host), built against the installation alone: the README's
+# snippet (`minimal`) renders an installed scene and turns a bad scene into exit code 2.
+run_checked(COMMAND ${CMAKE_COMMAND} -S ${data}/examples/host -B ${WORK}/examples -G ${GENERATOR}
+                    -DCMAKE_CXX_COMPILER=${CXX_COMPILER} -DCMAKE_MAKE_PROGRAM=${MAKE_PROGRAM}
+                    -DCMAKE_PREFIX_PATH=${PREFIX} -DCMAKE_FIND_USE_PACKAGE_REGISTRY=OFF -DCMAKE_BUILD_TYPE=Release
+            OUTPUT configured)
+string(FIND "${configured}" "from ${PREFIX}/" at)
+if(at EQUAL -1)
+  message(FATAL_ERROR "the host examples did not find Kelvin in ${PREFIX}:\n${configured}")
+endif()
+run_checked(COMMAND ${CMAKE_COMMAND} --build ${WORK}/examples --target minimal OUTPUT _ignored)
+run_checked(COMMAND ${WORK}/examples/minimal ${data}/scenes/tests/tiny.xml ${WORK}/minimal.exr OUTPUT _ignored)
+if(NOT EXISTS ${WORK}/minimal.exr)
+  message(FATAL_ERROR "the installed minimal example wrote no image")
+endif()
+execute_process(COMMAND ${WORK}/examples/minimal ${WORK}/no_such_scene.xml ${WORK}/bad.exr RESULT_VARIABLE rc
+                OUTPUT_QUIET ERROR_QUIET)
+if(NOT rc EQUAL 2)
+  message(FATAL_ERROR "the installed minimal example exited ${rc} on a missing scene (expected 2)")
+endif()
 message(STATUS "install_standalone: OK (${PREFIX})")
