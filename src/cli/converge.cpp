@@ -3,6 +3,8 @@
 // --plot runs tools/plot_convergence.py on the CSV.
 #include "converge.h"
 
+#include "common.h"
+
 #include <kelvin/core/distributed.h>
 
 #include <kelvin/core/converge.h>
@@ -138,15 +140,9 @@ CLI::App* add_converge_command(CLI::App& app, ConvergeArgs& a) {
 
 int run_converge(const ConvergeArgs& a, Communicator& world) {
     // Under mpirun the runs are spread over the ranks; rank 0 reports and writes (core/converge.h).
-    set_log_level(!world.root() ? LogLevel::Error
-                  : a.quiet     ? LogLevel::Warn
-                  : a.verbose   ? LogLevel::Debug
-                                : LogLevel::Info);
+    set_verbosity(world, a.quiet, a.verbose);
     ProgressReporter::set_enabled(false);
-    auto& reg = Registry::instance();
-    for (const auto& e : reg.take_load_errors()) log_error("built-in plugin registration: {}", e);
-    if (const char* env = std::getenv("KELVIN_PLUGIN_PATH"); env && *env) reg.load_plugin_path(env);
-    for (const auto& p : a.plugin_paths) reg.load_plugin_path(p);
+    load_plugins(a.plugin_paths);
 
     ConvergeOptions o;
     o.scene = a.scene;

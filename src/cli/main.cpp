@@ -2,6 +2,7 @@
 //
 // Exit codes: 0 success, 1 runtime failure, 2 bad input (scene, parameter, option, unusable output path),
 // 130 interrupted (the image computed so far has been written; nothing when interrupted while loading).
+#include "common.h"
 #include "converge.h"
 
 #include <kelvin/core/distributed.h>
@@ -324,11 +325,7 @@ Prepared prepare_everywhere(const Options& o, Communicator& world) {
 }
 
 int run(const Options& o, Communicator& world) {
-    // Only rank 0 of a distributed run reports; the others print errors only.
-    set_log_level(!world.root() ? LogLevel::Error
-                  : o.quiet     ? LogLevel::Warn
-                  : o.verbose   ? LogLevel::Debug
-                                : LogLevel::Info);
+    cli::set_verbosity(world, o.quiet, o.verbose);
     ProgressReporter::set_enabled(!o.quiet && world.root());
     Prepared p = prepare_everywhere(o, world);
     if (!p.job) return p.exit_code;
@@ -402,10 +399,7 @@ Prepared prepare(const Options& o, bool prints) {
         p.exit_code = code;
         return p;
     };
-    auto& reg = Registry::instance();
-    for (const auto& e : reg.take_load_errors()) log_error("built-in plugin registration: {}", e);
-    if (const char* env = std::getenv("KELVIN_PLUGIN_PATH"); env && *env) reg.load_plugin_path(env);
-    for (const auto& p : o.plugin_paths) reg.load_plugin_path(p);
+    cli::load_plugins(o.plugin_paths);
 
     if (o.list_plugins) {
         if (o.list_args.size() > 2)
