@@ -1,5 +1,8 @@
 // Passive scalars (dye): semi-Lagrangian transport along the flow solver's displacements, with an optional
 // Feynman–Kac diffusion average (see include/kelvin/fluid/dye.h).
+#include "fluid/slabs.h"
+
+#include <kelvin/core/distributed.h>
 #include <kelvin/core/error.h>
 #include <kelvin/core/parallel.h>
 #include <kelvin/core/random.h>
@@ -34,12 +37,13 @@ PassiveScalars::PassiveScalars(const Domain2& domain, const DyeSpec& spec, int s
 }
 
 namespace {
-struct RowWork {
+struct RowWork {  // uint64_t only: summed over the ranks (SlabPass::reduce)
     uint64_t lookups = 0, diffusion = 0, invalid = 0;
 };
 }  // namespace
 
-void PassiveScalars::advect(const Grid2& disp_x, const Grid2& disp_y, double dt, uint64_t seed, uint64_t stream) {
+void PassiveScalars::advect(const Grid2& disp_x, const Grid2& disp_y, double dt, uint64_t seed, uint64_t stream,
+                            Communicator* comm) {
     Timer timer;
     const Grid2& g0 = m_grids[0];
     const Domain2& dom = g0.domain();
@@ -51,11 +55,12 @@ void PassiveScalars::advect(const Grid2& disp_x, const Grid2& disp_y, double dt,
     // Open domains: the displacement is interpolated between the solver's cell centres and held constant
     // beyond the outermost ones (not faded to the zero ghost cells).
     const Vec2d lo = disp_x.cell_center(0, 0), hi = disp_x.cell_center(disp_x.nx() - 1, disp_x.ny() - 1);
-    std::vector<RowWork> rows(std::size_t(ny), RowWork{});
-    parallel_for_units(std::size_t(ny), [&](std::size_t row) {
+    SlabPass pass(comm ? *comm : local_communicator(), std::size_t(ny), std::size_t(nx));  // this rank's rows
+    std::vector<RowWork> rows(pass.size(), RowWork{});
+    pass.run([&](std::size_t row) {
         const int j = int(row);
         Random rng(seed, hash_combine(stream, row));
-        RowWork& w = rows[row];
+        RowWork& w = rows[row - pass.begin()];
         for (int i = 0; i < nx; ++i) {
             const Vec2d x = g0.cell_center(i, j);
             Vec2d d;
@@ -101,11 +106,19 @@ void PassiveScalars::advect(const Grid2& disp_x, const Grid2& disp_y, double dt,
             w.diffusion += uint64_t(nd);
         }
     });
+    RowWork total;
     for (const RowWork& w : rows) {
-        m_work.lookups += w.lookups;
-        m_work.diffusion_samples += w.diffusion;
-        m_work.invalid += w.invalid;
+        total.lookups += w.lookups;
+        total.diffusion += w.diffusion;
+        total.invalid += w.invalid;
     }
+    pass.reduce(total, false);  // the pass polls no stop: it is short, and a step stops before it or not at all
+    std::vector<std::vector<double>*> channels;
+    for (Grid2& g : m_next) channels.push_back(&g.values());
+    pass.gather(channels);
+    m_work.lookups += total.lookups;
+    m_work.diffusion_samples += total.diffusion;
+    m_work.invalid += total.invalid;
     std::swap(m_grids, m_next);
     ++m_work.steps;
     m_work.seconds += timer.seconds();

@@ -2,6 +2,12 @@
 // step; every cell of the new step is the semi-Lagrangian backtrace (Euler or RK4) through Biot–Savart Monte
 // Carlo velocities drawn from that grid, followed by the Feynman–Kac diffusion average (Eq. 5.22) when the
 // fluid is viscous.
+//
+// Distributed runs (set_communicator): every pass runs a slab of rows per rank and ends with the ranks' slabs
+// exchanged (SlabPass, fluid/slabs.h), so every rank steps the same state.
+#include "fluid/slabs.h"
+
+#include <kelvin/core/distributed.h>
 #include <kelvin/core/error.h>
 #include <kelvin/core/interrupt.h>
 #include <kelvin/core/parallel.h>
@@ -29,11 +35,23 @@ inline uint64_t stream_of(long long step, uint64_t tag, uint64_t unit) {
     return hash_combine(hash_combine(uint64_t(step), tag), unit);
 }
 
-/// Per-row counters, merged in row order after a pass.
+/// Per-row counters, merged in row order after a pass (then summed over the ranks: uint64_t only, SlabPass).
 struct RowWork {
     uint64_t evals = 0, queries = 0, backtraces = 0, diffusion = 0, invalid_velocity = 0, invalid_vorticity = 0;
     wos::WalkCounters walks;  // boundaries only
     uint64_t solid_departures = 0;
+
+    RowWork& operator+=(const RowWork& o) {
+        evals += o.evals;
+        queries += o.queries;
+        backtraces += o.backtraces;
+        diffusion += o.diffusion;
+        invalid_velocity += o.invalid_velocity;
+        invalid_vorticity += o.invalid_vorticity;
+        walks += o.walks;
+        solid_departures += o.solid_departures;
+        return *this;
+    }
 };
 
 void check_settings(const MCFluidSettings& s) {
@@ -51,7 +69,8 @@ void check_settings(const MCFluidSettings& s) {
 
 }  // namespace
 
-MCFluidSolver::MCFluidSolver(const MCFluidSettings& settings, const InitialField& initial) : m_settings(settings) {
+MCFluidSolver::MCFluidSolver(const MCFluidSettings& settings, const InitialField& initial)
+    : m_settings(settings), m_comm(&local_communicator()) {
     check_settings(m_settings);
     m_settings.estimator =
         resolve_estimator(m_settings.estimator, m_settings.boundaries, m_settings.velocity, 2, "MCFluidSolver");
@@ -74,6 +93,8 @@ MCFluidSolver::MCFluidSolver(const MCFluidSettings& settings, const InitialField
 }
 
 MCFluidSolver::~MCFluidSolver() = default;
+
+void MCFluidSolver::set_communicator(Communicator* comm) { m_comm = comm ? comm : &local_communicator(); }
 
 void MCFluidSolver::rebuild_estimator() {
     ++m_work.velocity_fields_built;
@@ -138,12 +159,13 @@ bool MCFluidSolver::ensure_velocity() {
     Timer timer;
     const int nx = m_omega.nx(), ny = m_omega.ny();
     const int n = m_settings.velocity.samples;
-    std::vector<RowWork> rows(std::size_t(ny), RowWork{});
+    SlabPass pass(*m_comm, std::size_t(ny), std::size_t(nx));  // this rank's rows
+    std::vector<RowWork> rows(pass.size(), RowWork{});
     std::atomic<bool> interrupted{false};
-    parallel_for_units(std::size_t(ny), [&](std::size_t row) {
+    pass.run([&](std::size_t row) {
         const int j = int(row);
         Random rng(m_settings.seed, stream_of(m_step, TagVelocity, row));
-        RowWork& w = rows[row];
+        RowWork& w = rows[row - pass.begin()];
         for (int i = 0; i < nx; ++i) {
             // Every cell: one cell's estimate is n samples (Walk-on-Spheres walks with boundaries, each many
             // closest-point queries), so a row can be long; the check is one relaxed atomic load.
@@ -164,17 +186,20 @@ bool MCFluidSolver::ensure_velocity() {
             m_var_v.at(i, j) = e.variance.y;
         }
     });
-    for (const RowWork& w : rows) {
-        m_work.biot_savart_evals += w.evals;
-        m_work.velocity_queries += w.queries;
-        m_work.invalid_velocity += w.invalid_velocity;
-        add_walks(w.walks);
-    }
-    m_work.seconds_velocity += timer.seconds();
-    if (interrupted) {  // what the pass left is a mix of rows: no velocity rather than a wrong one
+    RowWork total;
+    for (const RowWork& w : rows) total += w;
+    const bool stopped = pass.reduce(total, interrupted);  // every rank's rows; a stop on any rank
+    m_work.biot_savart_evals += total.evals;
+    m_work.velocity_queries += total.queries;
+    m_work.invalid_velocity += total.invalid_velocity;
+    add_walks(total.walks);
+    if (stopped) {  // what the pass left is a mix of rows: no velocity rather than a wrong one
         for (Grid2* g : {&m_u, &m_v, &m_var_u, &m_var_v}) std::fill(g->values().begin(), g->values().end(), 0.0);
+        m_work.seconds_velocity += timer.seconds();
         return false;
     }
+    pass.gather({&m_u.values(), &m_v.values(), &m_var_u.values(), &m_var_v.values()});
+    m_work.seconds_velocity += timer.seconds();
     m_velocity_valid = true;
     return true;
 }
@@ -200,8 +225,8 @@ const Grid2& MCFluidSolver::velocity_variance_v() {
 
 bool MCFluidSolver::step(double dt) {
     if (!(dt > 0) || std::isnan(dt)) throw_runtime("MCFluidSolver::step: dt must be positive (got {})", dt);
-    // k1 at the cell centres: the velocity of the current state.
-    if (!ensure_velocity() || stop_requested()) return false;
+    // k1 at the cell centres: the velocity of the current state. (A stop on any rank stops every rank's step.)
+    if (!ensure_velocity() || any_rank(*m_comm, stop_requested())) return false;
     Timer timer;
     const int nx = m_omega.nx(), ny = m_omega.ny();
     const MCFluidSettings& s = m_settings;
@@ -209,17 +234,18 @@ bool MCFluidSolver::step(double dt) {
     const int nd = viscous ? s.diffusion_samples : 1;
     const double sigma = viscous ? std::sqrt(2 * s.viscosity * dt) : 0.0;
     const Interpolation interp = s.interpolation;
-    std::vector<RowWork> rows(std::size_t(ny), RowWork{});
+    SlabPass pass(*m_comm, std::size_t(ny), std::size_t(nx));  // this rank's rows
+    std::vector<RowWork> rows(pass.size(), RowWork{});
     std::atomic<bool> interrupted{false};
 
-    parallel_for_units(std::size_t(ny), [&](std::size_t row) {
+    pass.run([&](std::size_t row) {
         if (stop_requested()) {
             interrupted = true;
             return;
         }
         const int j = int(row);
         Random rng(s.seed, stream_of(m_step, TagAdvection, row));
-        RowWork& w = rows[row];
+        RowWork& w = rows[row - pass.begin()];
         for (int i = 0; i < nx; ++i) {
             if (stop_requested()) {  // every cell, as in ensure_velocity: RK4 is 3 velocity estimates
                 interrupted = true;
@@ -273,19 +299,24 @@ bool MCFluidSolver::step(double dt) {
             m_next.at(i, j) = value;
         }
     });
-    if (interrupted) return false;
+    RowWork total;
+    for (const RowWork& w : rows) total += w;
+    if (pass.reduce(total, interrupted)) return false;  // stopped on some rank: every rank keeps the state
+    // The new vorticity (and the dye's displacements) of every rank's rows, before anything reads them.
+    if (m_dye)
+        pass.gather({&m_next.values(), &m_disp_x.values(), &m_disp_y.values()});
+    else
+        pass.gather({&m_next.values()});
 
-    for (const RowWork& w : rows) {
-        m_work.biot_savart_evals += w.evals;
-        m_work.velocity_queries += w.queries;
-        m_work.advection_backtraces += w.backtraces;
-        m_work.diffusion_samples += w.diffusion;
-        m_work.invalid_velocity += w.invalid_velocity;
-        m_work.invalid_vorticity += w.invalid_vorticity;
-        add_walks(w.walks);
-        m_work.solid_departures += w.solid_departures;
-    }
-    if (m_dye) m_dye->advect(m_disp_x, m_disp_y, dt, s.seed, stream_of(m_step, TagDye, 0));
+    m_work.biot_savart_evals += total.evals;
+    m_work.velocity_queries += total.queries;
+    m_work.advection_backtraces += total.backtraces;
+    m_work.diffusion_samples += total.diffusion;
+    m_work.invalid_velocity += total.invalid_velocity;
+    m_work.invalid_vorticity += total.invalid_vorticity;
+    add_walks(total.walks);
+    m_work.solid_departures += total.solid_departures;
+    if (m_dye) m_dye->advect(m_disp_x, m_disp_y, dt, s.seed, stream_of(m_step, TagDye, 0), m_comm);
     std::swap(m_omega, m_next);
     m_time += dt;
     ++m_step;

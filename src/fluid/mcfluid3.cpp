@@ -1,6 +1,12 @@
 // The cached 3D MCFluid solver (thesis Sections 5.3.2–5.3.4): semi-Lagrangian backtrace through the
 // Biot–Savart Monte Carlo velocity, Feynman–Kac diffusion when viscous, vortex stretching by the vortex-segment
 // estimate (Eq. 5.21) on the cached velocity, and optional control variates (Eq. 5.23).
+//
+// Distributed runs (set_communicator): every pass runs a range of z slabs per rank and ends with the ranks' cells
+// exchanged (SlabPass, fluid/slabs.h), so every rank steps the same state.
+#include "fluid/slabs.h"
+
+#include <kelvin/core/distributed.h>
 #include <kelvin/core/error.h>
 #include <kelvin/core/interrupt.h>
 #include <kelvin/core/parallel.h>
@@ -26,48 +32,63 @@ inline uint64_t stream_of(long long step, uint64_t tag, uint64_t unit) {
 
 }  // namespace
 
-struct MCFluid3Solver::SlabWork {
+struct MCFluid3Solver::SlabWork {  // uint64_t only: summed over the ranks (SlabPass::reduce)
     uint64_t evals = 0, queries = 0, backtraces = 0, diffusion = 0, stretching = 0, cv = 0, invalid_velocity = 0,
              invalid_vorticity = 0, smoke = 0, distance = 0, solid_departures = 0;
     wos::WalkCounters walks;
+
+    SlabWork& operator+=(const SlabWork& o) {
+        evals += o.evals;
+        queries += o.queries;
+        backtraces += o.backtraces;
+        diffusion += o.diffusion;
+        stretching += o.stretching;
+        cv += o.cv;
+        invalid_velocity += o.invalid_velocity;
+        invalid_vorticity += o.invalid_vorticity;
+        smoke += o.smoke;
+        distance += o.distance;
+        solid_departures += o.solid_departures;
+        walks += o.walks;
+        return *this;
+    }
 };
 
 namespace {
 
-/// The slabs' counters into the solver's, in slab order (both passes count into the same fields).
-void add_work(FluidWork3& total, const std::vector<MCFluid3Solver::SlabWork>& slabs) {
-    for (const MCFluid3Solver::SlabWork& w : slabs) {
-        total.biot_savart_evals += w.evals;
-        total.velocity_queries += w.queries;
-        total.advection_backtraces += w.backtraces;
-        total.diffusion_samples += w.diffusion;
-        total.stretching_evals += w.stretching;
-        total.control_variate_queries += w.cv;
-        total.invalid_velocity += w.invalid_velocity;
-        total.invalid_vorticity += w.invalid_vorticity;
-        total.smoke_lookups += w.smoke;
-        total.distance_queries += w.distance;
-        total.solid_departures += w.solid_departures;
-        total.wos_walks += w.walks.walks;
-        total.wos_steps += w.walks.steps;
-        total.wos_truncated += w.walks.truncated;
-        total.wos_invalid += w.walks.invalid;
-        total.wos_boundary_queries += w.walks.boundary_queries;
-    }
+/// A pass's counters (all ranks' slabs) into the solver's (both passes count into the same fields).
+void add_work(FluidWork3& total, const MCFluid3Solver::SlabWork& w) {
+    total.biot_savart_evals += w.evals;
+    total.velocity_queries += w.queries;
+    total.advection_backtraces += w.backtraces;
+    total.diffusion_samples += w.diffusion;
+    total.stretching_evals += w.stretching;
+    total.control_variate_queries += w.cv;
+    total.invalid_velocity += w.invalid_velocity;
+    total.invalid_vorticity += w.invalid_vorticity;
+    total.smoke_lookups += w.smoke;
+    total.distance_queries += w.distance;
+    total.solid_departures += w.solid_departures;
+    total.wos_walks += w.walks.walks;
+    total.wos_steps += w.walks.steps;
+    total.wos_truncated += w.walks.truncated;
+    total.wos_invalid += w.walks.invalid;
+    total.wos_boundary_queries += w.walks.boundary_queries;
 }
 
-/// Runs `cell(c, x, rng, work)` over every cell (index c, centre x): one unit per z slab, drawing from the slab's
-/// own stream of (step, tag), checking `stop` (the solver's token or an interrupt) every row. `slabs` gets one
-/// entry per slab (merge it in order). False when a stop cut the pass short.
+/// Runs `cell(c, x, rng, work)` over the cells (index c, centre x) of this rank's z slabs in `pass`: one unit per
+/// z slab, drawing from the slab's own stream of (step, tag), checking `stop` (the solver's token or an interrupt)
+/// every row. `work` gets the counters of every rank's slabs. False on every rank when a stop on any rank cut the
+/// pass short; otherwise the caller gathers the fields the pass wrote (SlabPass::gather).
 template <class Cell>
-bool for_each_cell(const MCFluid3Settings& s, const Grid3& g, long long step, uint64_t tag,
-                   std::vector<MCFluid3Solver::SlabWork>& slabs, const CancelToken& stop, Cell&& cell) {
-    slabs.assign(std::size_t(s.nz), MCFluid3Solver::SlabWork{});
+bool for_each_cell(SlabPass& pass, const MCFluid3Settings& s, const Grid3& g, long long step, uint64_t tag,
+                   MCFluid3Solver::SlabWork& work, const CancelToken& stop, Cell&& cell) {
+    std::vector<MCFluid3Solver::SlabWork> slabs(pass.size(), MCFluid3Solver::SlabWork{});
     std::atomic<bool> interrupted{false};
-    parallel_for_units(std::size_t(s.nz), [&](std::size_t slab) {
+    pass.run([&](std::size_t slab) {
         const int k = int(slab);
         Random rng(s.seed, stream_of(step, tag, slab));
-        MCFluid3Solver::SlabWork& w = slabs[slab];
+        MCFluid3Solver::SlabWork& w = slabs[slab - pass.begin()];
         for (int j = 0; j < s.ny; ++j) {
             if (stop.stop_requested()) {
                 interrupted = true;
@@ -76,7 +97,9 @@ bool for_each_cell(const MCFluid3Settings& s, const Grid3& g, long long step, ui
             for (int i = 0; i < s.nx; ++i) cell(g.index(i, j, k), g.cell_center(i, j, k), rng, w);
         }
     });
-    return !interrupted;
+    work = {};
+    for (const MCFluid3Solver::SlabWork& w : slabs) work += w;
+    return !pass.reduce(work, interrupted);
 }
 
 void check_settings(const MCFluid3Settings& s) {
@@ -103,7 +126,8 @@ Vec3d standard_normal3(Random& rng) {
 
 }  // namespace
 
-MCFluid3Solver::MCFluid3Solver(const MCFluid3Settings& settings, const InitialField3& initial) : m_settings(settings) {
+MCFluid3Solver::MCFluid3Solver(const MCFluid3Settings& settings, const InitialField3& initial)
+    : m_settings(settings), m_comm(&local_communicator()) {
     check_settings(m_settings);
     m_settings.estimator =
         resolve_estimator(m_settings.estimator, m_settings.boundaries, m_settings.velocity, 3, "MCFluid3Solver");
@@ -128,6 +152,8 @@ MCFluid3Solver::MCFluid3Solver(const MCFluid3Settings& settings, const InitialFi
 }
 
 MCFluid3Solver::~MCFluid3Solver() = default;
+
+void MCFluid3Solver::set_communicator(Communicator* comm) { m_comm = comm ? comm : &local_communicator(); }
 
 void MCFluid3Solver::rebuild_estimators() {
     const MCFluid3Settings& s = m_settings;
@@ -234,8 +260,9 @@ bool MCFluid3Solver::ensure_velocity() {
     const MCFluid3Settings& s = m_settings;
     const bool cv = m_have_prev;
     const int n = (s.control_variates && m_step == 0 && s.initial_samples > 0) ? s.initial_samples : s.velocity.samples;
-    std::vector<SlabWork> slabs;
-    const bool complete = for_each_cell(s, m_omega.x, m_step, TagVelocity, slabs, cancel_token(),
+    SlabPass pass(*m_comm, std::size_t(s.nz), std::size_t(s.nx) * std::size_t(s.ny));  // this rank's z slabs
+    SlabWork work;
+    const bool complete = for_each_cell(pass, s, m_omega.x, m_step, TagVelocity, work, cancel_token(),
                                         [&](std::size_t c, const Vec3d& x, Random& rng, SlabWork& w) {
                                             if (m_wos && m_solid[c]) {  // static solids: zero velocity, no walk
                                                 m_vel.set(c, Vec3d(0.0));
@@ -256,13 +283,16 @@ bool MCFluid3Solver::ensure_velocity() {
                                             m_vel.set(c, e.value);
                                             m_var.set(c, e.variance);
                                         });
-    add_work(m_work, slabs);
-    m_work.seconds_velocity += timer.seconds();
+    add_work(m_work, work);
     if (!complete) {
         m_vel.fill(Vec3d(0.0));
         m_var.fill(Vec3d(0.0));
+        m_work.seconds_velocity += timer.seconds();
         return false;
     }
+    pass.gather({&m_vel.x.values(), &m_vel.y.values(), &m_vel.z.values(), &m_var.x.values(), &m_var.y.values(),
+                 &m_var.z.values()});
+    m_work.seconds_velocity += timer.seconds();
     m_velocity_valid = true;
     return true;
 }
@@ -281,7 +311,8 @@ const VectorGrid3& MCFluid3Solver::velocity_variance() {
 
 bool MCFluid3Solver::step(double dt) {
     if (!(dt > 0) || std::isnan(dt)) throw_runtime("MCFluid3Solver::step: dt must be positive (got {})", dt);
-    if (!ensure_velocity() || stop_requested()) return false;
+    // (A stop on any rank stops every rank's step.)
+    if (!ensure_velocity() || any_rank(*m_comm, stop_requested())) return false;
     Timer timer;
     const MCFluid3Settings& s = m_settings;
     const bool viscous = s.viscosity > 0;
@@ -289,9 +320,10 @@ bool MCFluid3Solver::step(double dt) {
     const double sigma = viscous ? std::sqrt(2 * s.viscosity * dt) : 0.0;
     const double half_segment = 0.5 * m_segment, inv_segment = 1.0 / m_segment;
     const Interpolation interp = s.interpolation;
-    std::vector<SlabWork> slabs;
+    SlabPass pass(*m_comm, std::size_t(s.nz), std::size_t(s.nx) * std::size_t(s.ny));  // this rank's z slabs
+    SlabWork work;
     const bool complete = for_each_cell(
-        s, m_omega.x, m_step, TagAdvection, slabs, cancel_token(),
+        pass, s, m_omega.x, m_step, TagAdvection, work, cancel_token(),
         [&](std::size_t c, const Vec3d& x, Random& rng, SlabWork& w) {
             const Vec3d k1 = m_vel.at(c);
             Vec3d xd;
@@ -360,7 +392,11 @@ bool MCFluid3Solver::step(double dt) {
             m_next.set(c, value);
         });
     if (!complete) return false;
-    add_work(m_work, slabs);
+    // The new vorticity (and smoke) of every rank's slabs, before anything reads them.
+    std::vector<std::vector<double>*> fields = {&m_next.x.values(), &m_next.y.values(), &m_next.z.values()};
+    if (m_smoke) fields.push_back(&m_density_next.values());
+    pass.gather(fields);
+    add_work(m_work, work);
     if (m_smoke) std::swap(m_density, m_density_next);
     if (s.control_variates) {  // this state becomes the control variate of the next one
         m_prev_omega = m_omega;

@@ -1,5 +1,6 @@
 // The shared parameters and run loop of the baseline fluid solvers (see include/kelvin/fluid/simulation.h).
 #include <kelvin/core/checkpoint.h>
+#include <kelvin/core/distributed.h>
 #include <kelvin/core/interrupt.h>
 #include <kelvin/core/logging.h>
 #include <kelvin/core/progress.h>
@@ -31,6 +32,12 @@ TimeStepping TimeStepping::parse(const Properties& props) {
         t.steps = std::max(1LL, (long long)std::ceil(n - 1e-9));
     }
     return t;
+}
+
+bool time_limit_reached(Communicator& comm, double time_limit, double elapsed) {
+    if (!(time_limit > 0)) return false;
+    comm.broadcast(&elapsed, sizeof elapsed);  // rank 0's clock
+    return elapsed >= time_limit;
 }
 
 SimulationParams SimulationParams::parse(const Properties& props, const std::string& who) {

@@ -1,6 +1,7 @@
 // mcfluid in 3D: parameters, run loop and outputs (see include/kelvin/fluid/simulation3.h).
 #include "core/vdb_io.h"
 
+#include <kelvin/core/distributed.h>
 #include <kelvin/core/error.h>
 #include <kelvin/core/files.h>
 #include <kelvin/core/interrupt.h>
@@ -173,6 +174,7 @@ std::unique_ptr<MCFluid3Solver> create_mcfluid3_solver(const Simulation3Params& 
                                                    [field](const Vec3d& x) { return field->vorticity3(x); });
     if (p.smoke) solver->set_smoke({p.smoke->center(), p.smoke->radius(), p.smoke->initial_density(), p.smoke->rate()});
     solver->set_cancel_token(ctx.cancel);
+    solver->set_communicator(ctx.comm);
     return solver;
 }
 
@@ -215,11 +217,15 @@ RunResult run_mcfluid3(const Simulation3Params& p, RunContext& ctx) {
         settings.boundaries ? describe3(*settings.boundaries, settings.domain) : std::string("none"),
         p.smoke ? p.smoke->description() : std::string("none"));
 
-    OutputPaths paths(ctx.output);
+    // Distributed: every rank steps the whole state (the solver's passes are collectives) and takes the same
+    // decisions; only rank 0 writes files and reports progress.
+    Communicator& comm = communicator_of(ctx);
+    const OutputPaths paths(ctx.output);
     RunResult result;
     result.work_unit = "steps";
     // The data frames are the .vdb files (the EXR role of 2D).
-    FrameWriter frames(paths, p.output_every, p.write_png, p.write_vdb, p.frames, p.steps, result.files_written);
+    FrameWriter frames(comm.root() ? paths : OutputPaths({}), p.output_every, p.write_png, p.write_vdb, p.frames,
+                       p.steps, result.files_written);
     std::string csv =
         "step,time,kinetic_energy,kinetic_energy_raw,enstrophy,helicity,impulse_x,impulse_y,impulse_z,centroid_x,"
         "centroid_y,centroid_z,max_abs_vorticity,divergence_rms,smoke_mass,step_seconds,biot_savart_evals,invalid\n";
@@ -285,7 +291,7 @@ RunResult run_mcfluid3(const Simulation3Params& p, RunContext& ctx) {
     bool stopped_by_time = false;
     Timer since_partial;
     for (long long step = 1; step <= p.steps; ++step) {
-        if (ctx.cancel.stop_requested()) break;
+        if (any_rank(comm, ctx.cancel.stop_requested())) break;
         const FluidWork3 before = solver.work();
         Timer step_timer;
         const double dt = TimeStepping{settings.dt, p.steps, p.end_time}.step_length(step, solver.time());
@@ -304,17 +310,18 @@ RunResult run_mcfluid3(const Simulation3Params& p, RunContext& ctx) {
             (after.invalid_velocity + after.invalid_vorticity) - (before.invalid_velocity + before.invalid_vorticity));
         if (frames.due(step)) write_frame();
         progress.update(1);
-        if (ctx.write_partial > 0 && ctx.write_partial_image && since_partial.seconds() >= ctx.write_partial) {
+        if (comm.root() && ctx.write_partial > 0 && ctx.write_partial_image &&
+            since_partial.seconds() >= ctx.write_partial) {
             ctx.write_partial_image(slice_image(solver.vorticity_grid(), axis, range));
             since_partial.reset();
         }
-        if (ctx.time_limit > 0 && total.seconds() >= ctx.time_limit && step < p.steps) {
+        if (step < p.steps && time_limit_reached(comm, ctx.time_limit, total.seconds())) {
             stopped_by_time = true;
             break;
         }
     }
     progress.finish();
-    result.interrupted = ctx.cancel.stop_requested();
+    result.interrupted = any_rank(comm, ctx.cancel.stop_requested());
     if (stopped_by_time)
         log_warn("mcfluid: time limit of {:g} s reached after {} of {} steps (t = {:g})", ctx.time_limit, done, p.steps,
                  solver.time());
@@ -340,7 +347,7 @@ RunResult run_mcfluid3(const Simulation3Params& p, RunContext& ctx) {
         log_warn(
             "mcfluid: {} non-finite velocity estimate(s) and {} non-finite vorticity value(s) were replaced by zero",
             w.invalid_velocity, w.invalid_vorticity);
-    if (paths.enabled() && p.write_csv) {
+    if (paths.enabled() && p.write_csv && comm.root()) {
         write_text_atomically(paths.csv(), csv);
         result.files_written.push_back(paths.csv());
     }

@@ -14,7 +14,8 @@
 // DyeWork counts the lookups that a dye costs.
 //
 // Determinism: the dye pass is split into rows; row r draws from Random(seed, hash_combine(stream, r)) with the
-// caller's per-step `stream`, so results do not depend on the thread count.
+// caller's per-step `stream`, so results do not depend on the thread count, nor on the ranks of a distributed run
+// (each runs a slab of rows, then the ranks exchange them).
 #include <kelvin/core/image.h>
 #include <kelvin/core/object.h>
 #include <kelvin/fluid/grid.h>
@@ -23,6 +24,10 @@
 #include <cstdint>
 #include <string>
 #include <vector>
+
+namespace kelvin {
+class Communicator;  // core/distributed.h
+}
 
 namespace kelvin::fluid {
 
@@ -83,7 +88,11 @@ public:
     /// One step of length dt. (disp_x, disp_y) is the displacement of the step at the cell centres of the
     /// solver's grid: a particle now at x was at x - disp(x) at the start of the step. On a periodic domain the
     /// departure point wraps; on an open one dye outside the box is zero (it leaves and is lost).
-    void advect(const Grid2& disp_x, const Grid2& disp_y, double dt, uint64_t seed, uint64_t stream);
+    /// `comm` (null: this process alone): the ranks of a distributed run, which all call advect with the same whole
+    /// displacement grids; each advects a slab of rows, and every rank ends with the whole dye (its counters summed
+    /// over the ranks).
+    void advect(const Grid2& disp_x, const Grid2& disp_y, double dt, uint64_t seed, uint64_t stream,
+                Communicator* comm = nullptr);
 
     /// The dye as an image (top row = largest y): R, G, B display colours (a scalar dye is shown as ink on
     /// white: 0 white, `range` and above full ink), then one channel per dye channel with its raw values.

@@ -11,7 +11,9 @@
 // queries).
 //
 // Determinism: a step is split into rows of cells; row r of pass p at step s draws from
-// Random(seed, hash(hash(s, p), r)). Results are bit-identical whatever the thread count.
+// Random(seed, hash(hash(s, p), r)). Results are bit-identical whatever the thread count, and whatever the number of
+// ranks of a distributed run (set_communicator): each rank runs a contiguous slab of rows of every pass, and the
+// ranks exchange their slabs (allgather) before the next pass reads the grids.
 #include <kelvin/core/random.h>
 #include <kelvin/core/wos.h>
 #include <kelvin/fluid/biot_savart.h>
@@ -26,6 +28,10 @@
 #include <limits>
 #include <memory>
 #include <optional>
+
+namespace kelvin {
+class Communicator;  // core/distributed.h
+}
 
 namespace kelvin::fluid {
 
@@ -59,7 +65,9 @@ struct MCFluidSettings {
     std::shared_ptr<const VelocityEstimator> estimator;
 };
 
-/// Cumulative work of a solver (each component counts its own).
+/// Cumulative work of a solver (each component counts its own). In a distributed run the counters are the whole
+/// run's (summed over the ranks: the same as one process's); the seconds are this rank's own (its passes, with the
+/// time spent exchanging slabs).
 struct FluidWork {
     uint64_t biot_savart_evals = 0;      ///< kernel evaluations (samples)
     uint64_t velocity_queries = 0;       ///< Biot–Savart estimates
@@ -140,6 +148,12 @@ public:
     /// The periodic kernel table (null unless the domain is periodic without solid boundaries).
     const PeriodicKernel* periodic_kernel() const { return m_periodic.get(); }
 
+    /// The ranks the passes are spread over (core/distributed.h); null (the default): this process alone. Every
+    /// rank then makes the same calls (steps, velocity passes, diagnostics) in the same order: each pass is a
+    /// collective, after which every rank holds the whole state, bit-identical to a single process's. A stop on
+    /// any rank stops the pass on every rank. `comm` must outlive the solver.
+    void set_communicator(Communicator* comm);
+
     /// Passive scalars (dye) carried along the same backtraces as the vorticity (the dye moves with exactly
     /// the flow the solver computes). Null (the default): no dye, and no dye work.
     void set_dye(std::unique_ptr<PassiveScalars> dye);
@@ -163,6 +177,7 @@ private:
     void add_walks(const wos::WalkCounters& c);
 
     MCFluidSettings m_settings;
+    Communicator* m_comm;  ///< never null (the local communicator by default)
     double m_delta = 0;
     double m_time = 0;
     long long m_step = 0;

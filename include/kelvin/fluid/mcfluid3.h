@@ -19,7 +19,9 @@
 // initial velocity is estimated once with `initial_samples`.
 //
 // Determinism: a pass is split into z-slabs of cells (one unit per z index); unit k of pass p at step s draws
-// from Random(seed, hash(hash(s, p), k)). Results are bit-identical whatever the thread count.
+// from Random(seed, hash(hash(s, p), k)). Results are bit-identical whatever the thread count, and whatever the
+// number of ranks of a distributed run (set_communicator): each rank runs a contiguous range of z indices of every
+// pass, and the ranks exchange their cells (allgather) before the next pass reads the grids.
 #include <kelvin/core/random.h>
 #include <kelvin/core/wos.h>
 #include <kelvin/fluid/biot_savart3.h>
@@ -67,7 +69,8 @@ struct MCFluid3Settings {
     std::shared_ptr<const VelocityEstimator> estimator;
 };
 
-/// Cumulative work of the 3D solver, per effect.
+/// Cumulative work of the 3D solver, per effect. In a distributed run the counters are the whole run's (summed over
+/// the ranks); the seconds are this rank's own, with the time spent exchanging cells.
 struct FluidWork3 {
     uint64_t biot_savart_evals = 0;
     uint64_t velocity_queries = 0;
@@ -158,6 +161,11 @@ public:
 
     const FluidWork3& work() const { return m_work; }
 
+    /// The ranks the passes are spread over (core/distributed.h); null (the default): this process alone. As for
+    /// MCFluidSolver::set_communicator: every rank makes the same calls in the same order, each pass is a
+    /// collective, and every rank then holds the whole state (vorticity, velocity, smoke) of a single process.
+    void set_communicator(Communicator* comm);
+
     /// Adds smoke (before the first step). Without it no scalar is advected.
     void set_smoke(const Smoke3& smoke);
     /// The smoke density at the cell centres (null without smoke).
@@ -178,6 +186,7 @@ private:
     void rebuild_estimators();
 
     MCFluid3Settings m_settings;
+    Communicator* m_comm;  ///< never null (the local communicator by default)
     double m_delta = 0, m_segment = 0;
     double m_time = 0;
     long long m_step = 0;

@@ -36,6 +36,11 @@ struct TimeStepping {
     }
 };
 
+/// The time limit of a run loop (RunContext::time_limit; 0: none) after `elapsed` seconds, decided by rank 0's clock
+/// for every rank of a distributed run (one broadcast; none without a limit or with one rank), so that all ranks stop
+/// after the same step.
+bool time_limit_reached(Communicator& comm, double time_limit, double elapsed);
+
 /// The parameters every 2D simulation reads (see docs/fluid.md, "Baselines").
 struct SimulationParams {
     Domain2 domain;
@@ -76,7 +81,8 @@ public:
     virtual std::shared_ptr<const VorticityField> vorticity_field() const { return nullptr; }
 
     /// The solver of a 2D simulation at t = 0, set up as run(ctx) sets it up: from the scene's parameters,
-    /// ctx.seed, ctx.spp (mcfluid: n_mc) and ctx.cancel (the solver's cancel token). Stepping it by
+    /// ctx.seed, ctx.spp (mcfluid: n_mc), ctx.cancel (the solver's cancel token) and ctx.comm (mcfluid: the ranks its
+    /// passes are spread over; every rank must then make the same calls). Stepping it by
     /// time_stepping().step_length(s, time) computes the states run(ctx) computes, bit for bit. No file is written and
     /// nothing is logged. The solver may refer to this object: keep the simulation (or its scene) alive while using it.
     /// Throws InputError for a 3D simulation.

@@ -15,6 +15,13 @@
 // --spp overrides n_mc; --time-limit stops after the step that exceeds it; --write-partial writes the
 // current state to -o every N seconds.
 //
+// Distributed (`mpirun -np N kelvin scene.xml`, 2D and 3D): every pass of a step runs a slab of cache rows (3D: z
+// slabs) per rank, and the ranks exchange their slabs before the next pass (the solvers' set_communicator), so every
+// rank holds the whole state, bit-identical to one process's, and computes the same diagnostics. The ranks take
+// every decision together: a stop on any rank ends the run on all of them at the same step, and the time limit is
+// rank 0's clock. Only rank 0 writes files (frames, CSV, montage, video, partial images) and reports progress.
+// Checkpoints (kelvin converge) are refused in a distributed run: a study distributes its runs instead.
+//
 // | parameter         | type    | default   | meaning                                                      |
 // |-------------------|---------|-----------|--------------------------------------------------------------|
 // | dimension         | integer | 2         | 2, or 3: the Feynman–Kac Navier–Stokes solver (simulation3.h) |
@@ -56,6 +63,8 @@
 //         <velocity type="biot_savart"><integer name="samples" value="256"/></velocity>
 //         <cache type="grid"><integer name="resolution" value="64"/></cache>
 //     </simulation>
+#include <kelvin/core/distributed.h>
+#include <kelvin/core/error.h>
 #include <kelvin/core/interrupt.h>
 #include <kelvin/core/job.h>
 #include <kelvin/core/logging.h>
@@ -154,6 +163,8 @@ public:
     std::string description() const override {
         return m_3d ? plugin_name() + " (3D)" : fmt::format("{} (2D, {})", plugin_name(), m_velocity_name);
     }
+    /// The passes of both solvers split over ranks (see the header comment).
+    bool distributable() const override { return true; }
 
     // ----- Simulation (simulation.h): what a host drives itself.
     int dimension() const override { return m_3d ? 3 : 2; }
@@ -179,7 +190,7 @@ public:
         if (ctx.spp > 0) settings.velocity.samples = int(std::min<long long>(ctx.spp, 1 << 24));
         return settings;
     }
-    /// The solver run(ctx) steps, at t = 0 (with the dye, and ctx.cancel as its token).
+    /// The solver run(ctx) steps, at t = 0 (with the dye, ctx.cancel as its token and ctx.comm as its ranks).
     std::unique_ptr<MCFluidSolver> make_solver(const RunContext& ctx) const {
         const MCFluidSettings settings = settings_for(ctx);
         const VorticityField* field = m_field.get();
@@ -187,6 +198,7 @@ public:
             std::make_unique<MCFluidSolver>(settings, [field](const Vec2d& x) { return field->vorticity(x); });
         if (m_dye) solver->set_dye(std::make_unique<PassiveScalars>(settings.domain, *m_dye, settings.nx, settings.ny));
         solver->set_cancel_token(ctx.cancel);
+        solver->set_communicator(ctx.comm);
         return solver;
     }
 
@@ -220,12 +232,17 @@ public:
                     : std::string("off (inviscid)"),
             dye_effect(m_dye.get()));
 
-        OutputPaths paths(ctx.output);
+        // Only rank 0 writes; the other ranks have no output folder, but take every decision that depends on the
+        // outputs (which velocity passes to run) as rank 0 does: `paths` and `csv_wanted` are the same everywhere.
+        Communicator& comm = communicator_of(ctx);
+        const OutputPaths paths(ctx.output);
+        const bool csv_wanted = paths.enabled() && m_write_csv;
         std::optional<DiagnosticsCsv> csv;
         RunResult result;
         result.work_unit = "steps";
-        FrameWriter frames(paths, m_output_every, m_write_png, m_write_exr, m_frames, m_steps, result.files_written);
-        if (paths.enabled() && m_write_csv) {
+        FrameWriter frames(comm.root() ? paths : OutputPaths({}), m_output_every, m_write_png, m_write_exr, m_frames,
+                           m_steps, result.files_written);
+        if (csv_wanted && comm.root()) {
             csv.emplace(paths.csv());
             result.files_written.push_back(paths.csv());
         }
@@ -249,6 +266,10 @@ public:
 
         // Checkpoints (core/checkpoint.h): the state after the steps that reach them, fields on the cache grid.
         CheckpointSchedule checkpoints(ctx);
+        if (checkpoints.active() && comm.distributed())
+            throw RuntimeError(
+                "mcfluid: checkpoints are not supported in a distributed job (a convergence study distributes its "
+                "runs instead: kelvin converge under mpirun)");
         auto checkpoint = [&](long long steps) {
             auto fields = [&solver](const std::string& name) -> const Grid2* {
                 return name == "vorticity" ? &solver.vorticity_grid()
@@ -291,7 +312,7 @@ public:
         std::string ext = ctx.output.extension().string();
         std::transform(ext.begin(), ext.end(), ext.begin(), [](unsigned char ch) { return char(std::tolower(ch)); });
         auto velocity_needed_at = [&](long long s) {
-            if (s < m_steps || csv || checkpoints.active() || ctx.write_partial > 0 || ctx.output.empty() ||
+            if (s < m_steps || csv_wanted || checkpoints.active() || ctx.write_partial > 0 || ctx.output.empty() ||
                 ext == ".exr")
                 return true;
             const bool frame = paths.enabled() && m_output_every > 0;
@@ -303,7 +324,7 @@ public:
         long long done = 0;
         bool stopped_by_time = false;
         for (long long s = 1; s <= m_steps; ++s) {
-            if (ctx.cancel.stop_requested()) break;
+            if (any_rank(comm, ctx.cancel.stop_requested())) break;
             const FluidWork before = solver.work();
             Timer step_timer;
             const double dt = time_stepping().step_length(s, solver.time());
@@ -343,19 +364,20 @@ public:
                                (before.invalid_velocity + before.invalid_vorticity));
             if (frames.due(s)) write_frame(true);
             progress.update(1);
-            if (ctx.write_partial > 0 && ctx.write_partial_image && since_partial.seconds() >= ctx.write_partial) {
+            if (comm.root() && ctx.write_partial > 0 && ctx.write_partial_image &&
+                since_partial.seconds() >= ctx.write_partial) {
                 ctx.write_partial_image(
                     field_image(solver.vorticity_grid(), &solver.velocity_u(), &solver.velocity_v(), range));
                 since_partial.reset();
             }
             if (checkpoints.active()) checkpoint(done);
-            if (ctx.time_limit > 0 && total.seconds() - checkpoints.overhead() >= ctx.time_limit && s < m_steps) {
+            if (s < m_steps && time_limit_reached(comm, ctx.time_limit, total.seconds() - checkpoints.overhead())) {
                 stopped_by_time = true;
                 break;
             }
         }
         progress.finish();
-        result.interrupted = ctx.cancel.stop_requested();
+        result.interrupted = any_rank(comm, ctx.cancel.stop_requested());
         if (stopped_by_time)
             log_warn("mcfluid: time limit of {:g} s reached after {} of {} steps (t = {:g})", ctx.time_limit, done,
                      m_steps, solver.time());
