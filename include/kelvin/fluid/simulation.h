@@ -79,6 +79,9 @@ public:
     /// The initial vorticity field of a 2D simulation (its exact_vorticity/exact_velocity give the exact
     /// solution where one is known: Lamb–Oseen, Taylor–Green); null in 3D.
     virtual std::shared_ptr<const VorticityField> vorticity_field() const { return nullptr; }
+    /// The initial vorticity field of a 3D simulation (exact_vorticity3/exact_velocity3 where known: Taylor–Green);
+    /// null in 2D. It lives as long as the simulation.
+    virtual const VorticityField3* vorticity_field3() const { return nullptr; }
 
     /// The solver of a 2D simulation at t = 0, set up as run(ctx) sets it up: from the scene's parameters,
     /// ctx.seed, ctx.spp (mcfluid: n_mc), ctx.cancel (the solver's cancel token) and ctx.comm (mcfluid: the ranks its

@@ -168,6 +168,7 @@ public:
 
     // ----- Simulation (simulation.h): what a host drives itself.
     int dimension() const override { return m_3d ? 3 : 2; }
+    const VorticityField3* vorticity_field3() const override { return m_3d ? m_3d->field : nullptr; }
     TimeStepping time_stepping() const override {
         if (m_3d) return {m_3d->settings.dt, m_3d->steps, m_3d->end_time};
         return {m_settings.dt, m_steps, m_end_time};
