@@ -4,9 +4,9 @@
 # shared): every round runs each mode once, in turn; the table gives medians of wall time and CPU time (user + sys
 # of all processes, mpirun included) and the speed-up of 2 ranks over 1 rank.
 #
-#   bench/bench_distributed.sh [ROUNDS] [CASE...]      # default 5 rounds; cases: render mlt fluid3d
+#   bench/bench_distributed.sh [ROUNDS] [CASE...]      # default 5 rounds; cases: render mlt fluid2d fluid3d
 #
-# Modes: "1 rank"  = mpirun -np 1 kelvin -t 1
+# Modes: "1 rank"  = mpirun -np 1 --bind-to none kelvin -t 1
 #        "2 ranks" = mpirun -np 2 --bind-to none kelvin -t 1   (one thread per rank)
 #        "2 threads" = kelvin -t 2                             (one process, no MPI)
 # Environment: BUILD_DIR (default build).
@@ -15,7 +15,7 @@ cd "$(dirname "$0")/.."
 ROUNDS="${1:-5}"
 shift || true
 CASES=("$@")
-((${#CASES[@]})) || CASES=(render mlt fluid3d)
+((${#CASES[@]})) || CASES=(render mlt fluid2d fluid3d)
 KELVIN="${BUILD_DIR:-build}/bin/kelvin"
 export OMPI_ALLOW_RUN_AS_ROOT=1 OMPI_ALLOW_RUN_AS_ROOT_CONFIRM=1
 OUT=$(mktemp -d)
@@ -25,7 +25,8 @@ args_of() {
   case "$1" in
     render) echo "scenes/render/cornell-box.xml -D res=256 --spp 48" ;;
     mlt) echo "scenes/render/mlt-study.xml -D variant=drmlt-orbital -D res=128 --spp 24" ;;
-    fluid3d) echo "scenes/fluid/taylor_green_3d.xml -D res=24 -D end=0.5" ;;
+    fluid2d) echo "scenes/fluid/taylor_green.xml -D res=256 -D spp=512 -D end=0.2 -D every=0" ;;
+    fluid3d) echo "scenes/fluid/vortex_ring.xml -D res=64 -D spp=64 -D end=0.4 -D every=0" ;;
     *) echo "unknown case $1" >&2; exit 2 ;;
   esac
 }
@@ -45,7 +46,7 @@ for c in "${CASES[@]}"; do
   read -r -a A <<<"$(args_of "$c")"
   : >"$OUT/$c.1rank"; : >"$OUT/$c.2ranks"; : >"$OUT/$c.2threads"
   for ((r = 0; r < ROUNDS; ++r)); do
-    timed mpirun -np 1 --quiet "$KELVIN" "${A[@]}" -t 1 -q -o "$OUT/a.exr" >>"$OUT/$c.1rank"
+    timed mpirun -np 1 --bind-to none --quiet "$KELVIN" "${A[@]}" -t 1 -q -o "$OUT/a.exr" >>"$OUT/$c.1rank"
     timed mpirun -np 2 --bind-to none --quiet "$KELVIN" "${A[@]}" -t 1 -q -o "$OUT/b.exr" >>"$OUT/$c.2ranks"
     timed "$KELVIN" "${A[@]}" -t 2 -q -o "$OUT/c.exr" >>"$OUT/$c.2threads"
   done
