@@ -1,7 +1,8 @@
 // MCFluid micro-benchmarks: Biot–Savart evaluations per second and time per solver step at the thesis'
 // settings (256^2 and 512^2 caches, n_mc = 256 and 1024), on the steady Taylor–Green field (periodic box,
 // so the periodic kernel is included) and on a Lamb–Oseen vortex in an open box. The baselines on the same
-// fields: a stable-fluids step (128^2..512^2) and a vortex-particle step (32^2..128^2 particles, pairs/s).
+// fields: a stable-fluids step (128^2..512^2) and a vortex-particle step (32^2..128^2 particles, pairs/s), and
+// one vortex-particle velocity evaluation by the Barnes–Hut tree against the direct sum (64^2..256^2 particles).
 //
 //     build-fluid/bin/bench_fluid --benchmark_counters_tabular=true
 //     build-fluid/bin/bench_fluid --benchmark_filter=Step   # only the solver steps
@@ -16,9 +17,11 @@
 
 #include "bench_support.h"
 
+#include <algorithm>
 #include <cmath>
 #include <cstdlib>
 #include <memory>
+#include <vector>
 
 using namespace kelvin;
 using namespace kelvin::fluid;
@@ -97,8 +100,8 @@ void BM_StableFluidsStep(benchmark::State& state) {
     state.counters["threads"] = thread_count();
 }
 
-// Vortex particles (direct O(N^2) Biot–Savart sum), one particle per cell: Taylor–Green (periodic kernel) or a
-// Lamb–Oseen vortex (open box).
+// Vortex particles, one particle per cell: Taylor–Green (periodic kernel, direct O(N^2) sum) or a Lamb–Oseen
+// vortex (open box, the default Barnes–Hut tree).
 void BM_VortexParticlesStep(benchmark::State& state, bool periodic, Advection adv) {
     ThreadLimit limit(bench_threads());
     VortexParticleSettings s;
@@ -110,6 +113,26 @@ void BM_VortexParticlesStep(benchmark::State& state, bool periodic, Advection ad
     for (auto _ : state) solver.step(0.05);
     state.counters["pairs/s"] = benchmark::Counter(solver.evaluations() - pairs0, benchmark::Counter::kIsRate);
     state.counters["particles"] = double(solver.particle_count());
+    state.counters["threads"] = thread_count();
+}
+
+// One velocity evaluation at the particles (what each RK stage does; the tree is rebuilt inside), Lamb–Oseen
+// vortex on the open box, N = res^2 particles: the Barnes–Hut tree (theta 0.5, leaves of 16) against the direct
+// sum. CPU time of the process (KELVIN_BENCH_THREADS=1 for the single-core figures).
+void BM_VortexParticleSum(benchmark::State& state, ParticleSummation summation) {
+    ThreadLimit limit(bench_threads());
+    VortexParticleSettings s;
+    s.domain = Domain2{{-1, -1}, {1, 1}, false};
+    s.nx = s.ny = int(state.range(0));
+    s.summation = summation;
+    VortexParticleSolver solver(s, lamb_oseen);
+    std::vector<double> u, v;
+    const double evals0 = solver.evaluations();
+    for (auto _ : state) solver.velocity_at(solver.xs(), solver.ys(), u, v);
+    state.counters["particles"] = double(solver.particle_count());
+    state.counters["evals/target"] =
+        (solver.evaluations() - evals0) /
+        (double(solver.particle_count()) * std::max<double>(1.0, double(state.iterations())));
     state.counters["threads"] = thread_count();
 }
 
@@ -149,4 +172,16 @@ BENCHMARK_CAPTURE(BM_VortexParticlesStep, open_euler, false, Advection::Euler)
     ->Arg(128)
     ->Unit(benchmark::kMillisecond)
     ->UseRealTime();
+BENCHMARK_CAPTURE(BM_VortexParticleSum, tree, ParticleSummation::Tree)
+    ->Arg(64)
+    ->Arg(128)
+    ->Arg(256)
+    ->Unit(benchmark::kMillisecond)
+    ->MeasureProcessCPUTime();
+BENCHMARK_CAPTURE(BM_VortexParticleSum, direct, ParticleSummation::Direct)
+    ->Arg(64)
+    ->Arg(128)
+    ->Arg(256)
+    ->Unit(benchmark::kMillisecond)
+    ->MeasureProcessCPUTime();
 BENCHMARK_MAIN();

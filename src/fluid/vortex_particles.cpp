@@ -1,5 +1,6 @@
-// The vortex particle baseline: direct Biot–Savart summation over Rosenhead–Moore blobs, RK4 or Euler transport,
-// Chorin's random walk for viscosity (see include/kelvin/fluid/vortex_particles.h).
+// The vortex particle baseline: Biot–Savart summation over Rosenhead–Moore blobs (Barnes–Hut tree code or the
+// direct sum), RK4 or Euler transport, Chorin's random walk for viscosity (see
+// include/kelvin/fluid/vortex_particles.h).
 #include <kelvin/core/error.h>
 #include <kelvin/core/interrupt.h>
 #include <kelvin/core/parallel.h>
@@ -8,7 +9,9 @@
 #include <kelvin/fluid/vortex_particles.h>
 
 #include <algorithm>
+#include <atomic>
 #include <cmath>
+#include <cstdint>
 
 namespace kelvin::fluid {
 
@@ -115,7 +118,188 @@ __attribute__((target_clones("avx2", "default"))) void sum_block_periodic(const 
 
 inline bool finite2(double a, double b) { return std::isfinite(a) && std::isfinite(b); }
 
+constexpr int TreeMaxDepth = 48;
+
+// The tree needs a finite bounding box; non-finite positions (a blown-up run) go to the direct sum, which counts
+// and zeroes the resulting values.
+bool all_finite(const double* x, const double* y, std::size_t n) {
+    for (std::size_t i = 0; i < n; ++i)
+        if (!finite2(x[i], y[i])) return false;
+    return true;
+}  // coincident particles end in a leaf of any size at this depth
+
 }  // namespace
+
+// ----- Barnes–Hut quadtree (Barnes & Hut 1986).
+//
+// Built sequentially per evaluation (deterministic); the particles are copied in tree order so that every node
+// owns a contiguous range. Per node: the square cell (x0, y0, size), the total circulation G, the expansion centre
+// c (the |Gamma|-weighted centre of its particles, = the circulation-weighted centre when the signs agree) and the
+// dipole D = sum_j Gamma_j (p_j - c) about it (zero when the signs agree). Far field, with r = t - c:
+//     sum_j Gamma_j K(r - e_j) = G K(r) - (D . grad) K(r) + O(|Gamma| |e|^2 / d^3),
+// the same mollified kernel (and its exact gradient) as the leaves, so theta -> 0 gives the direct sum.
+struct VortexParticleSolver::Tree {
+    struct Node {
+        double x0 = 0, y0 = 0, size = 0;                      // cell
+        double cx = 0, cy = 0, g = 0, a = 0, dx = 0, dy = 0;  // centre, circulation, |circulation|, dipole
+        uint32_t begin = 0, end = 0;                          // particles [begin, end) in tree order
+        int32_t child = -1;                                   // first child (children contiguous), -1: leaf
+        int32_t nchild = 0;
+    };
+    std::vector<Node> nodes;
+    std::vector<uint32_t> order, scratch;
+    std::vector<uint8_t> quad;
+    std::vector<double> x, y, g;  // particles in tree order
+
+    void build(const double* px, const double* py, const double* gamma, std::size_t n, int leaf) {
+        nodes.clear();
+        order.resize(n);
+        scratch.resize(n);
+        quad.resize(n);
+        for (std::size_t i = 0; i < n; ++i) order[i] = uint32_t(i);
+        double lo_x = px[0], hi_x = px[0], lo_y = py[0], hi_y = py[0];
+        for (std::size_t i = 1; i < n; ++i) {
+            lo_x = std::min(lo_x, px[i]);
+            hi_x = std::max(hi_x, px[i]);
+            lo_y = std::min(lo_y, py[i]);
+            hi_y = std::max(hi_y, py[i]);
+        }
+        Node root;
+        root.x0 = lo_x;
+        root.y0 = lo_y;
+        root.size = std::max(hi_x - lo_x, hi_y - lo_y) * (1 + 1e-12) + 1e-300;
+        root.end = uint32_t(n);
+        nodes.push_back(root);
+        split(0, px, py, leaf, 0);
+        x.resize(n);
+        y.resize(n);
+        g.resize(n);
+        for (std::size_t k = 0; k < n; ++k) {
+            x[k] = px[order[k]];
+            y[k] = py[order[k]];
+            g[k] = gamma[order[k]];
+        }
+        moments(0);
+    }
+
+    // Partition node ni's particles into its (non-empty) quadrants, stable, and recurse.
+    void split(int32_t ni, const double* px, const double* py, int leaf, int depth) {
+        const Node nd = nodes[std::size_t(ni)];
+        if (nd.end - nd.begin <= uint32_t(leaf) || depth >= TreeMaxDepth) return;
+        const double h = 0.5 * nd.size, mx = nd.x0 + h, my = nd.y0 + h;
+        uint32_t count[4] = {0, 0, 0, 0};
+        for (uint32_t k = nd.begin; k < nd.end; ++k) {
+            const uint32_t i = order[k];
+            quad[k] = uint8_t((px[i] >= mx ? 1 : 0) | (py[i] >= my ? 2 : 0));
+            ++count[quad[k]];
+        }
+        uint32_t start[4], pos[4];
+        start[0] = nd.begin;
+        for (int q = 1; q < 4; ++q) start[q] = start[q - 1] + count[q - 1];
+        for (int q = 0; q < 4; ++q) pos[q] = start[q];
+        for (uint32_t k = nd.begin; k < nd.end; ++k) scratch[pos[quad[k]]++] = order[k];
+        std::copy(scratch.begin() + nd.begin, scratch.begin() + nd.end, order.begin() + nd.begin);
+        const int32_t first = int32_t(nodes.size());
+        int32_t made = 0;
+        for (int q = 0; q < 4; ++q) {
+            if (count[q] == 0) continue;
+            Node c;
+            c.x0 = (q & 1) ? mx : nd.x0;
+            c.y0 = (q & 2) ? my : nd.y0;
+            c.size = h;
+            c.begin = start[q];
+            c.end = start[q] + count[q];
+            nodes.push_back(c);
+            ++made;
+        }
+        nodes[std::size_t(ni)].child = first;
+        nodes[std::size_t(ni)].nchild = made;
+        for (int32_t c = 0; c < made; ++c) split(first + c, px, py, leaf, depth + 1);
+    }
+
+    // Circulation, centre and dipole, bottom-up (children combined in a fixed order).
+    void moments(int32_t ni) {
+        const Node nd = nodes[std::size_t(ni)];
+        double g0 = 0, a0 = 0, ax = 0, ay = 0;
+        if (nd.child < 0) {
+            for (uint32_t k = nd.begin; k < nd.end; ++k) {
+                g0 += g[k];
+                a0 += std::abs(g[k]);
+                ax += std::abs(g[k]) * x[k];
+                ay += std::abs(g[k]) * y[k];
+            }
+        } else {
+            for (int32_t c = nd.child; c < nd.child + nd.nchild; ++c) {
+                moments(c);
+                const Node& ch = nodes[std::size_t(c)];
+                g0 += ch.g;
+                a0 += ch.a;
+                ax += ch.a * ch.cx;
+                ay += ch.a * ch.cy;
+            }
+        }
+        Node& n2 = nodes[std::size_t(ni)];
+        n2.g = g0;
+        n2.a = a0;
+        n2.cx = a0 > 0 ? ax / a0 : n2.x0 + 0.5 * n2.size;
+        n2.cy = a0 > 0 ? ay / a0 : n2.y0 + 0.5 * n2.size;
+        double dx = 0, dy = 0;
+        if (n2.child < 0) {
+            for (uint32_t k = n2.begin; k < n2.end; ++k) {
+                dx += g[k] * (x[k] - n2.cx);
+                dy += g[k] * (y[k] - n2.cy);
+            }
+        } else {
+            for (int32_t c = n2.child; c < n2.child + n2.nchild; ++c) {
+                const Node& ch = nodes[std::size_t(c)];
+                dx += ch.dx + ch.g * (ch.cx - n2.cx);
+                dy += ch.dy + ch.g * (ch.cy - n2.cy);
+            }
+        }
+        n2.dx = dx;
+        n2.dy = dy;
+    }
+
+    // Sums of Gamma 2 pi K_delta(t - p) (and Gamma pi zeta_delta / delta^2 when w) for one target, as sum_one.
+    // Returns the number of kernel evaluations (leaf pairs + accepted nodes).
+    uint64_t sum(double tx, double ty, double d2, double theta2, double& u, double& v, double* w) const {
+        double su = 0, sv = 0, sw = 0;
+        uint64_t evals = 0;
+        int32_t stack[4 * TreeMaxDepth + 8];
+        int top = 0;
+        stack[top++] = 0;
+        while (top > 0) {
+            const Node& nd = nodes[std::size_t(stack[--top])];
+            const double rx = tx - nd.cx, ry = ty - nd.cy, r2 = rx * rx + ry * ry;
+            const bool inside = tx >= nd.x0 && tx <= nd.x0 + nd.size && ty >= nd.y0 && ty <= nd.y0 + nd.size;
+            if (!inside && nd.size * nd.size < theta2 * r2) {
+                // Far field: monopole at c plus the dipole term -(D . grad) K, K = (-ry, rx) / q, q = r^2 + d^2.
+                const double inv = 1.0 / (r2 + d2), inv2 = inv * inv;
+                const double dudx = 2 * rx * ry * inv2, dudy = -inv + 2 * ry * ry * inv2;
+                const double dvdx = inv - 2 * rx * rx * inv2, dvdy = -2 * rx * ry * inv2;
+                su += nd.g * (-ry * inv) - (nd.dx * dudx + nd.dy * dudy);
+                sv += nd.g * (rx * inv) - (nd.dx * dvdx + nd.dy * dvdy);
+                if (w) sw += nd.g * inv2 + 4 * inv2 * inv * (nd.dx * rx + nd.dy * ry);
+                ++evals;
+            } else if (nd.child < 0) {
+                for (uint32_t k = nd.begin; k < nd.end; ++k) {
+                    const double dx = tx - x[k], dy = ty - y[k];
+                    const double inv = 1.0 / (dx * dx + dy * dy + d2);
+                    su -= g[k] * dy * inv;
+                    sv += g[k] * dx * inv;
+                    if (w) sw += g[k] * inv * inv;
+                }
+                evals += nd.end - nd.begin;
+            } else {
+                for (int32_t c = nd.child + nd.nchild - 1; c >= nd.child; --c) stack[top++] = c;  // child 0 first
+            }
+        }
+        u = su;
+        v = sv;
+        if (w) *w = sw;
+        return evals;
+    }
+};
 
 VortexParticleSolver::VortexParticleSolver(const VortexParticleSettings& settings, const InitialField& initial)
     : m_settings(settings) {
@@ -130,6 +314,11 @@ VortexParticleSolver::VortexParticleSolver(const VortexParticleSettings& setting
     m_delta = m_settings.delta >= 0 ? m_settings.delta : std::min(h.x, h.y);
     if (!(m_delta > 0) || !std::isfinite(m_delta)) throw_runtime("VortexParticleSolver: delta must be positive");
     if (d.periodic) m_periodic = std::make_shared<PeriodicKernel>(d.size());
+    if (!(m_settings.theta > 0 && m_settings.theta <= 1))
+        throw_runtime("VortexParticleSolver: theta must be in (0, 1] (got {})", m_settings.theta);
+    if (m_settings.leaf_size < 1) throw_runtime("VortexParticleSolver: leaf_size must be >= 1");
+    m_use_tree = m_settings.summation == ParticleSummation::Tree && !d.periodic;
+    if (m_use_tree) m_tree = std::make_unique<Tree>();
 
     std::vector<double> w(m_omega.cell_count());
     double wmax = 0;
@@ -176,8 +365,43 @@ VortexParticleSolver::VortexParticleSolver(const VortexParticleSettings& setting
 
 VortexParticleSolver::~VortexParticleSolver() = default;
 
+void VortexParticleSolver::tree_sum(const double* tx, const double* ty, std::size_t n, const double* px,
+                                    const double* py, double* u, double* v, double* w) {
+    const std::size_t np = m_gamma.size();
+    if (np == 0) {
+        std::fill(u, u + n, 0.0);
+        std::fill(v, v + n, 0.0);
+        if (w) std::fill(w, w + n, 0.0);
+        return;
+    }
+    m_tree->build(px, py, m_gamma.data(), np, m_settings.leaf_size);
+    const Tree& tree = *m_tree;
+    const double d2 = m_delta * m_delta, theta2 = m_settings.theta * m_settings.theta;
+    const std::size_t blocks = (n + Block - 1) / Block;
+    std::atomic<uint64_t> evals{0};  // an integer sum: the same whatever the order of the blocks
+    parallel_for_units(blocks, [&](std::size_t b) {
+        const std::size_t t0 = b * Block, t1 = std::min(n, t0 + Block);
+        uint64_t e = 0;
+        for (std::size_t t = t0; t < t1; ++t) e += tree.sum(tx[t], ty[t], d2, theta2, u[t], v[t], w ? w + t : nullptr);
+        evals.fetch_add(e, std::memory_order_relaxed);
+    });
+    m_pairs += evals.load();
+}
+
 void VortexParticleSolver::sum_velocity(const double* tx, const double* ty, std::size_t n, const double* px,
                                         const double* py, double* u, double* v) {
+    if (m_use_tree && all_finite(px, py, m_gamma.size())) {
+        tree_sum(tx, ty, n, px, py, u, v, nullptr);
+        for (std::size_t t = 0; t < n; ++t) {
+            u[t] *= 0.5 / Pi;
+            v[t] *= 0.5 / Pi;
+            if (!finite2(u[t], v[t])) {
+                ++m_invalid;
+                u[t] = v[t] = 0;
+            }
+        }
+        return;
+    }
     const SumParams k = sum_params(m_delta, m_settings.domain, m_periodic.get());
     const std::size_t np = m_gamma.size();
     const double* g = m_gamma.data();
@@ -307,14 +531,18 @@ void VortexParticleSolver::ensure_fields() {
     double* v = m_v.values().data();
     double* w = m_omega.values().data();
     const std::size_t blocks = (cells + Block - 1) / Block;
+    const bool tree = m_use_tree && all_finite(m_x.data(), m_y.data(), np);
+    if (tree) tree_sum(m_cx.data(), m_cy.data(), cells, m_x.data(), m_y.data(), u, v, w);
     parallel_for_units(blocks, [&](std::size_t b) {
         const std::size_t t0 = b * Block, nt = std::min(Block, cells - t0);
-        if (k.periodic)
-            sum_block_periodic(m_cx.data() + t0, m_cy.data() + t0, nt, np, m_x.data(), m_y.data(), m_gamma.data(), k,
+        if (!tree) {
+            if (k.periodic)
+                sum_block_periodic(m_cx.data() + t0, m_cy.data() + t0, nt, np, m_x.data(), m_y.data(), m_gamma.data(),
+                                   k, u + t0, v + t0, w + t0);
+            else
+                sum_block_open(m_cx.data() + t0, m_cy.data() + t0, nt, np, m_x.data(), m_y.data(), m_gamma.data(), k,
                                u + t0, v + t0, w + t0);
-        else
-            sum_block_open(m_cx.data() + t0, m_cy.data() + t0, nt, np, m_x.data(), m_y.data(), m_gamma.data(), k,
-                           u + t0, v + t0, w + t0);
+        }
         // u, v: 1/(2 pi) K; omega: zeta = delta^2 / (pi q^2).
         for (std::size_t t = t0; t < t0 + nt; ++t) {
             u[t] *= 0.5 / Pi;
@@ -322,7 +550,7 @@ void VortexParticleSolver::ensure_fields() {
             w[t] *= k.d2 / Pi;
         }
     });
-    m_pairs += uint64_t(cells) * uint64_t(np);
+    if (!tree) m_pairs += uint64_t(cells) * uint64_t(np);
     for (std::size_t t = 0; t < cells; ++t)
         if (!finite2(u[t], v[t]) || !std::isfinite(w[t])) {
             ++m_invalid;

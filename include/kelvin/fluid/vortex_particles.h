@@ -10,8 +10,16 @@
 //
 // and the particles move with it (forward Euler or classical RK4 over the coupled system). Viscosity is the
 // random walk of Chorin (1973): each step every particle takes a Gaussian step of variance 2 nu dt per axis.
-// The sum is O(N^2) per evaluation, parallel over fixed blocks of targets (each target's sum is sequential:
-// results do not depend on the thread count); no per-pair allocation or virtual call.
+// The sum is by default a Barnes–Hut tree code (Barnes & Hut, Nature 324, 1986): a quadtree over the particles,
+// built once per evaluation, with per node the total circulation, the |Gamma|-weighted centre and the dipole
+// about it; a node whose cell size s and distance d to the target satisfy s < theta d (target outside the cell)
+// is taken as one blob at its centre plus the dipole correction (the same mollified kernel and its gradient),
+// other nodes are opened, leaves of at most leaf_size particles are summed directly. Cost O(N log N) per
+// evaluation; the error is the quadrupole remainder, O(theta^2) relative. The direct O(N^2) sum stays as an
+// option (summation = Direct), and periodic domains always use it (the tree covers open domains only: its
+// far-field terms would need the gradient of the periodic kernel's correction table). Both are parallel over
+// fixed blocks of targets, each target's sum sequential in a fixed order (the tree is built sequentially):
+// results do not depend on the thread count; no per-pair allocation or virtual call.
 //
 // Outputs live on the lattice's cell centres: omega_h and u by the same direct sums. A dye is advected
 // semi-Lagrangian through the particle velocity (backtraces of the cell centres with the scene's scheme, the
@@ -24,6 +32,9 @@
 
 namespace kelvin::fluid {
 
+/// How the particle velocity is summed: Barnes–Hut tree code (open domains) or the direct O(N^2) sum.
+enum class ParticleSummation { Tree, Direct };
+
 struct VortexParticleSettings {
     Domain2 domain;
     int nx = 64, ny = 64;  ///< seeding lattice = output grid
@@ -33,6 +44,9 @@ struct VortexParticleSettings {
     /// Particles with |omega| <= threshold * max |omega| at seeding are not created (0: only exact zeros).
     double threshold = 0;
     uint64_t seed = 0;
+    ParticleSummation summation = ParticleSummation::Tree;  ///< periodic domains: always Direct
+    double theta = 0.5;  ///< tree opening angle, in (0, 1]: a node is used whole when size < theta * distance
+    int leaf_size = 16;  ///< tree: at most this many particles per leaf (summed directly)
 };
 
 class VortexParticleSolver final : public FluidSolver {
@@ -42,6 +56,8 @@ public:
 
     const VortexParticleSettings& settings() const { return m_settings; }
     double delta() const { return m_delta; }
+    /// True when the velocity is summed by the tree code (Tree requested and an open domain).
+    bool uses_tree() const { return m_use_tree; }
     std::size_t particle_count() const { return m_x.size(); }
     const std::vector<double>& xs() const { return m_x; }
     const std::vector<double>& ys() const { return m_y; }
@@ -66,7 +82,12 @@ public:
                      std::vector<double>& v);
 
 private:
+    struct Tree;
     void ensure_fields();
+    /// Velocity (and vorticity when w != null) of the particles (px, py, m_gamma) at n targets by the tree
+    /// code; adds the kernel evaluations (leaf pairs and accepted nodes) to m_pairs.
+    void tree_sum(const double* tx, const double* ty, std::size_t n, const double* px, const double* py, double* u,
+                  double* v, double* w);
     /// Velocity of the particle set (px, py, gamma) at n targets; adds the pair count.
     void sum_velocity(const double* tx, const double* ty, std::size_t n, const double* px, const double* py, double* u,
                       double* v);
@@ -77,6 +98,8 @@ private:
     long long m_step = 0;
     std::vector<double> m_x, m_y, m_gamma;
     std::shared_ptr<const PeriodicKernel> m_periodic;
+    bool m_use_tree = false;
+    std::unique_ptr<Tree> m_tree;  // rebuilt per evaluation, storage kept
     // Scratch of the stages (sized once: no allocation per step).
     std::vector<double> m_sx, m_sy, m_ku[4], m_kv[4];
     std::vector<double> m_cx, m_cy, m_bx, m_by, m_cu[4], m_cv[4];  // cell centres, dye backtrace

@@ -1,8 +1,9 @@
 // vortex_particles: the vortex particle (blob) baseline, run as a Job by `kelvin scene.xml`. One particle per
 // cell of the <cache type="grid"> lattice carries the circulation omega h^2 of its cell; the velocity is the
-// direct O(N^2) Biot–Savart sum over the particles with the Rosenhead–Moore kernel (the periodic kernel on
-// periodic boxes); particles move by RK4 or Euler; viscosity is Chorin's random walk. Takes the same scene as
-// mcfluid (switch with one word: type="vortex_particles") and writes the same files.
+// Biot–Savart sum over the particles with the Rosenhead–Moore kernel, by a Barnes–Hut tree code (O(N log N)) or
+// the direct O(N^2) sum (periodic boxes: always direct, with the periodic kernel); particles move by RK4 or Euler;
+// viscosity is Chorin's random walk. Takes the same scene as mcfluid (switch with one word: type="vortex_particles")
+// and writes the same files.
 //
 // | parameter      | type    | default | meaning                                                         |
 // |----------------|---------|---------|-----------------------------------------------------------------|
@@ -11,6 +12,8 @@
 // |                |         |         | <cache> (lattice = output grid), <scalar>                        |
 // | blob_radius    | float   | -1      | delta of the blobs; -1: one lattice spacing                      |
 // | threshold      | float   | 0       | skip cells with |omega| <= threshold * max |omega| at seeding    |
+// | summation      | string  | tree    | "tree" (Barnes–Hut, open domains) or "direct" (O(N^2))          |
+// | theta          | float   | 0.5     | tree opening angle in (0, 1]: smaller is more accurate, slower   |
 //
 //     <simulation type="vortex_particles"> ... same children as mcfluid ... </simulation>
 #include <kelvin/core/job.h>
@@ -32,6 +35,10 @@ public:
         if (!std::isfinite(m_delta) || (m_delta <= 0 && m_delta != -1))
             props.error("blob_radius", "must be positive, or -1 for one lattice spacing");
         m_threshold = props.get_float("threshold", 0.0, 1.0);
+        m_summation = props.get_choice("summation", {"tree", "direct"}) == "tree" ? ParticleSummation::Tree
+                                                                                  : ParticleSummation::Direct;
+        m_theta = props.get_float("theta");
+        if (!(m_theta > 0 && m_theta <= 1)) props.error("theta", fmt::format("must be in (0, 1] (got {:g})", m_theta));
     }
 
     int dimension() const override { return 2; }
@@ -51,6 +58,8 @@ public:
         s.viscosity = m_params.viscosity;
         s.threshold = m_threshold;
         s.seed = ctx.seed;
+        s.summation = m_summation;
+        s.theta = m_theta;
         const VorticityField* field = m_params.field.get();
         auto solver =
             std::make_unique<VortexParticleSolver>(s, [field](const Vec2d& x) { return field->vorticity(x); });
@@ -64,25 +73,33 @@ public:
         VortexParticleSolver& solver = *owned;
         const VortexParticleSettings& s = solver.settings();
         const std::string effects = fmt::format(
-            "particle transport ({}, dt {:g}, {} steps, {} particles) with direct Biot–Savart summation (blob "
+            "particle transport ({}, dt {:g}, {} steps, {} particles) with {} Biot–Savart summation (blob "
             "radius {:g}{}){}; boundaries none ({})",
-            fluid::to_string(s.advection), m_params.dt, m_params.steps, solver.particle_count(), solver.delta(),
-            s.domain.periodic ? ", periodic kernel" : "", s.viscosity > 0 ? ", viscosity by random walk" : "",
-            s.domain.periodic ? "periodic" : "free space");
+            fluid::to_string(s.advection), m_params.dt, m_params.steps, solver.particle_count(),
+            solver.uses_tree()                       ? fmt::format("Barnes–Hut tree (theta {:g})", s.theta)
+            : s.summation == ParticleSummation::Tree ? std::string("direct (periodic domain: no tree)")
+                                                     : std::string("direct"),
+            solver.delta(), s.domain.periodic ? ", periodic kernel" : "",
+            s.viscosity > 0 ? ", viscosity by random walk" : "", s.domain.periodic ? "periodic" : "free space");
         return run_fluid_solver("vortex_particles", solver, m_params, ctx, effects);
     }
 
 private:
     SimulationParams m_params;
-    double m_delta = -1, m_threshold = 0;
+    double m_delta = -1, m_threshold = 0, m_theta = 0.5;
+    ParticleSummation m_summation = ParticleSummation::Tree;
 };
 
 }  // namespace
 }  // namespace kelvin::fluid
 
 KELVIN_PLUGIN(kelvin::fluid::VortexParticles, "simulation", "vortex_particles",
-              "Baseline: vortex particles (blobs) with direct O(N^2) Biot–Savart summation, RK4/Euler, random-walk "
-              "viscosity; same scene and outputs as mcfluid.",
+              "Baseline: vortex particles (blobs) with Barnes–Hut tree (O(N log N)) or direct O(N^2) Biot–Savart "
+              "summation, RK4/Euler, random-walk viscosity; same scene and outputs as mcfluid.",
               KELVIN_FLUID_SIMULATION_PARAMS,
               kelvin::param::real("blob_radius", -1.0, "blob radius delta; -1: one lattice spacing"),
-              kelvin::param::real("threshold", 0.0, "skip cells with |omega| <= threshold * max |omega|"));
+              kelvin::param::real("threshold", 0.0, "skip cells with |omega| <= threshold * max |omega|"),
+              kelvin::param::string("summation", "tree",
+                                    "'tree' (Barnes–Hut, open domains; periodic boxes use direct) or 'direct'"),
+              kelvin::param::real("theta", 0.5,
+                                  "tree opening angle in (0, 1]: node used whole if size < theta * distance"));
