@@ -262,7 +262,8 @@ struct VortexParticleSolver::Tree {
 
     // Sums of Gamma 2 pi K_delta(t - p) (and Gamma pi zeta_delta / delta^2 when w) for one target, as sum_one.
     // Returns the number of kernel evaluations (leaf pairs + accepted nodes).
-    uint64_t sum(double tx, double ty, double d2, double theta2, double& u, double& v, double* w) const {
+    __attribute__((always_inline)) inline uint64_t sum(double tx, double ty, double d2, double theta2, double& u,
+                                                       double& v, double* w) const {
         double su = 0, sv = 0, sw = 0;
         uint64_t evals = 0;
         int32_t stack[4 * TreeMaxDepth + 8];
@@ -298,6 +299,13 @@ struct VortexParticleSolver::Tree {
         v = sv;
         if (w) *w = sw;
         return evals;
+    }
+    __attribute__((target_clones("avx2", "default"))) uint64_t sum_block(const double* tx, const double* ty,
+                                                                         std::size_t nt, double d2, double theta2,
+                                                                         double* u, double* v, double* w) const {
+        uint64_t e = 0;
+        for (std::size_t t = 0; t < nt; ++t) e += sum(tx[t], ty[t], d2, theta2, u[t], v[t], w ? w + t : nullptr);
+        return e;
     }
 };
 
@@ -381,8 +389,7 @@ void VortexParticleSolver::tree_sum(const double* tx, const double* ty, std::siz
     std::atomic<uint64_t> evals{0};  // an integer sum: the same whatever the order of the blocks
     parallel_for_units(blocks, [&](std::size_t b) {
         const std::size_t t0 = b * Block, t1 = std::min(n, t0 + Block);
-        uint64_t e = 0;
-        for (std::size_t t = t0; t < t1; ++t) e += tree.sum(tx[t], ty[t], d2, theta2, u[t], v[t], w ? w + t : nullptr);
+        const uint64_t e = tree.sum_block(tx + t0, ty + t0, t1 - t0, d2, theta2, u + t0, v + t0, w ? w + t0 : nullptr);
         evals.fetch_add(e, std::memory_order_relaxed);
     });
     m_pairs += evals.load();
