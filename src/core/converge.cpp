@@ -708,9 +708,12 @@ private:
     /// Every rank's outcome of a round, in rank order, on every rank.
     std::vector<RunOutcome> exchange(const RunOutcome& mine) {
         if (!m_comm.distributed()) return {mine};
-        // Serialised as CSV records: a header record, then the rows, then the counters.
+        // Serialised as CSV records, one per line: a header record, then the rows, then the counters. (An error
+        // message is one line; a line break in it would split the record, so it becomes a space.)
+        std::string message = mine.message;
+        std::replace(message.begin(), message.end(), '\n', ' ');
         std::string text =
-            join_row({mine.interrupted ? "1" : "0", std::to_string(mine.error), mine.message, mine.config,
+            join_row({mine.interrupted ? "1" : "0", std::to_string(mine.error), message, mine.config,
                       std::to_string(mine.run), std::to_string(mine.fired), num(mine.work), num(mine.seconds),
                       mine.work_unit, std::to_string(mine.rows.size()), std::to_string(mine.stats.size())}) +
             "\n";

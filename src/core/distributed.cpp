@@ -87,10 +87,9 @@ Communicator& world_communicator() {
             detail::load_module_table("libkelvin_mpi.so", KELVIN_MPI_MODULE_ENTRY, "the MPI module", /*global=*/true));
     } catch (const std::runtime_error& e) {
         if (size == 1) return local_communicator();  // mpirun -np 1: one process is one process
-        throw InputError({}, fmt::format("started by an MPI launcher with {} ranks, but {}; this kelvin cannot run "
-                                         "distributed (rebuild with Debian's libopenmpi-dev installed, or run without "
-                                         "mpirun)",
-                                         size, e.what()));
+        throw InputError({}, fmt::format("started by an MPI launcher{}, but {}; this kelvin cannot run distributed "
+                                         "(rebuild with Debian's libopenmpi-dev installed, or run without mpirun)",
+                                         size > 0 ? fmt::format(" with {} ranks", size) : std::string(), e.what()));
     }
     std::string error;
     Communicator* c = module->init(&error);

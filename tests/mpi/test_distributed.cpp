@@ -70,6 +70,30 @@ TEST_F(Distributed, CropWindowIsBitIdentical) {
                      {Scenes + "render/cornell-box.xml", "-D", "res=64", "--spp", "2", "--crop", "8,56,20,50"});
 }
 
+// More ranks than work units: a 24 x 24 film is one tile and one block of light paths, and 2 chains over 3 ranks
+// leave rank 2 with nothing to do. Such a rank must still take part in every collective (a rank that skipped one
+// would hang the run) and contribute nothing to the sums.
+TEST_F(Distributed, RanksWithoutWorkUnitsTakePartAndAddNothing) {
+    auto three_ranks = [&](const std::string& name, std::vector<std::string> args) {
+        const fs::path one = dir.path() / (name + "_alone.exr"), np3 = dir.path() / (name + "_np3.exr");
+        std::vector<std::string> a = args, b = args;
+        a.insert(a.end(), {"-q", "-o", one.string()});
+        b.insert(b.end(), {"-q", "-o", np3.string()});
+        ProcessResult r = alone(a);
+        ASSERT_EQ(r.exit_code, 0) << describe(r);
+        r = mpirun(3, b, 60);
+        ASSERT_FALSE(r.timed_out) << describe(r);
+        ASSERT_EQ(r.exit_code, 0) << describe(r);
+        EXPECT_TRUE(has_light(one)) << name;
+        EXPECT_TRUE(same_bits(one, np3)) << name;
+    };
+    three_ranks("path", {Scenes + "render/cornell-box.xml", "-D", "res=24", "--spp", "2"});
+    three_ranks("ptracer",
+                {Scenes + "render/cornell-box.xml", "-D", "res=24", "-D", "integrator=ptracer", "--spp", "2"});
+    three_ranks("pssmlt", {Scenes + "render/mlt-study.xml", "-D", "variant=pssmlt-kelemen", "-D", "res=12", "-D",
+                           "chains=2", "--spp", "2"});
+}
+
 // --- Metropolis: bootstrap blocks and chains are units; splats are fixed-point integer sums
 
 TEST_F(Distributed, PssmltIsBitIdentical) {
