@@ -88,17 +88,9 @@ std::vector<SceneCase> scene_cases(bool with_volumes) {
 
 // Scenes that load and render but are known to differ from Mitsuba 3 (reason printed when skipped).
 const std::map<std::string, std::string>& known_differences() {
-    static const std::map<std::string, std::string> m = {
-        {"bsdf_spheres_test_bumpmap_path",
-         "bump map: rejected values along the sphere's silhouette at the full budget (77 of 6912; passes at a "
-         "quarter of it), as with the bitmap normal maps: grazing shading-normal handling differs"},
-        {"bsdf_spheres_test_normalmap_path",
-         "bitmap normal map: rejected values along the sphere's silhouette at the full budget (95 of 6912; "
-         "passes at a quarter of it); grazing shading-normal handling differs, cause not yet found"},
-        {"bsdf_spheres_test_normalmap_roughconductor_path",
-         "bitmap normal map: rejected values along the sphere's silhouette at the full budget (70 of 6912; "
-         "passes at a quarter of it); grazing shading-normal handling differs, cause not yet found"},
-    };
+    // Empty since the bump and normal maps follow Mitsuba 3.7 (flip_invalid_normals, use_shadowing_function):
+    // before, their three scenes failed along the sphere's silhouette (70-95 of 6912 values rejected).
+    static const std::map<std::string, std::string> m = {};
     return m;
 }
 

@@ -16,6 +16,7 @@
 // integral of D(m) m.z over the hemisphere = 1.
 #include <kelvin/core/math.h>
 #include <kelvin/core/properties.h>
+#include <kelvin/render/frame.h>
 
 #include <string>
 
@@ -72,5 +73,17 @@ MicrofacetDistribution microfacet_from_properties(const Properties& props, bool 
 /// Inverse error function on (-1, 1): Giles 2010 initial guess refined by Newton steps on std::erf (on erfc
 /// in the tails, where erf is flat); clamped to +-6 at and beyond +-1.
 double erfinv(double y);
+
+/// Shadowing of a bump- or normal-mapped surface (Conty Estevez, Lecocq and Stein 2019, "A microfacet-based
+/// shadowing function to solve the bump terminator problem", Ray Tracing Gems ch. 12): the perturbed normal `n`
+/// is read as a microfacet of a GGX surface with alpha^2 = min(tan^2 theta_n / 8, 1), and G = 2 / (1 + sqrt(1 +
+/// alpha^2 tan^2 theta_o)) is its Smith shadowing for `wo`; both in the unperturbed local frame. 1 for n = (0, 0,
+/// 1) or wo = (0, 0, 1), 0 for a grazing wo. Used by `bumpmap` and `normalmap` (Mitsuba 3.7's
+/// use_shadowing_function).
+inline double bump_shadow_terminator(const Vec3d& n, const Vec3d& wo) {
+    const double alpha2 = std::min(0.125 * Frame::tan2_theta(n), 1.0);
+    const double g = 2.0 / (1.0 + std::sqrt(1.0 + alpha2 * Frame::tan2_theta(wo)));
+    return std::isfinite(g) ? g : 0.0;
+}
 
 }  // namespace kelvin
