@@ -10,6 +10,8 @@
 
 #include <embree3/rtcore.h>
 
+#include "cylinder.h"
+
 #include <algorithm>
 #include <cmath>
 #include <limits>
@@ -123,7 +125,7 @@ struct Device {
 }  // namespace
 
 // ---------------------------------------------------------------------------------------------------------
-// 3D: triangles, spheres and discs
+// 3D: triangles, spheres, discs and cylinders
 
 namespace {
 struct RoundSet {  // spheres or discs: user geometry bounded by the ball of each centre and radius
@@ -134,15 +136,23 @@ struct RoundSet {  // spheres or discs: user geometry bounded by the ball of eac
 void round_bounds(const RTCBoundsFunctionArguments* args) {
     const auto* set = static_cast<const RoundSet*>(args->geometryUserPtr);
     const uint32_t i = (*set->prims)[args->primID];
-    const Vec3d c(set->geometry->positions[i]);
-    const double r = set->geometry->radii[i];
+    const ShapeGeometry& g = *set->geometry;
+    Vec3d lo, hi;
+    if (g.type == ShapeGeometry::Type::Cylinders) {
+        std::tie(lo, hi) = cylinder::bounds(cylinder::of(g, i));
+    } else {
+        const Vec3d c(g.positions[i]);
+        const double r = g.radii[i];
+        lo = c - r;
+        hi = c + r;
+    }
     RTCBounds* o = args->bounds_o;
-    o->lower_x = round_down(c.x - r);
-    o->lower_y = round_down(c.y - r);
-    o->lower_z = round_down(c.z - r);
-    o->upper_x = round_up(c.x + r);
-    o->upper_y = round_up(c.y + r);
-    o->upper_z = round_up(c.z + r);
+    o->lower_x = round_down(lo.x);
+    o->lower_y = round_down(lo.y);
+    o->lower_z = round_down(lo.z);
+    o->upper_x = round_up(hi.x);
+    o->upper_y = round_up(hi.y);
+    o->upper_z = round_up(hi.z);
 }
 }  // namespace
 
@@ -196,6 +206,9 @@ bool point_query_3d(RTCPointQueryFunctionArguments* args) {
         normal = l > 0 ? d / l : Vec3d(0, 0, 1);
         point = c + r * normal;
         if (g.flip_normals) normal = -normal;
+    } else if (g.type == ShapeGeometry::Type::Cylinders) {
+        point = cylinder::closest_point(cylinder::of(g, prim), q->p, normal);
+        if (g.flip_normals) normal = -normal;
     } else {  // disc: project onto its plane, then clamp to the rim
         const Vec3d c(g.positions[prim]);
         const double r = g.radii[prim];
@@ -246,11 +259,14 @@ ClosestPointQuery::ClosestPointQuery(std::vector<ShapeGeometry> geometry) : m_im
             }
             if (keep.size() != g.indices.size() / 3) m.prim_map[s] = keep;
         } else {
-            const bool discs = g.type == ShapeGeometry::Type::Discs;
+            const bool oriented = g.type == ShapeGeometry::Type::Discs || g.type == ShapeGeometry::Type::Cylinders;
+            const bool cylinders = g.type == ShapeGeometry::Type::Cylinders;
             for (std::size_t i = 0; i < std::min(g.positions.size(), g.radii.size()); ++i)
                 if (valid(Vec3d(g.positions[i])) && valid(g.radii[i]) && g.radii[i] >= 0 &&
-                    (!discs ||
-                     (i < g.normals.size() && valid(Vec3d(g.normals[i])) && glm::length(Vec3d(g.normals[i])) > 0)))
+                    (!oriented ||
+                     (i < g.normals.size() && valid(Vec3d(g.normals[i])) && glm::length(Vec3d(g.normals[i])) > 0)) &&
+                    (!cylinders || (i < g.tangents.size() && i < g.lengths.size() && valid(g.lengths[i]) &&
+                                    g.lengths[i] >= 0 && valid(Vec3d(g.tangents[i])))))
                     keep.push_back(uint32_t(i));
             if (keep.size() != g.positions.size()) m.prim_map[s] = keep;
         }
@@ -276,14 +292,23 @@ ClosestPointQuery::ClosestPointQuery(std::vector<ShapeGeometry> geometry) : m_im
                     grow(Vec3d(g.positions[ib[3 * k + j]]), 0.0);
                 }
         } else {
-            // Embree 3 does not run point queries on its point primitives: spheres and discs are user geometry here.
+            // Embree 3 does not run point queries on its point primitives: spheres, discs and cylinders are user
+            // geometry here.
             m.prim_map[s] = keep;
             geom = rtcNewGeometry(m.embree.device, RTC_GEOMETRY_TYPE_USER);
             rtcSetGeometryUserPrimitiveCount(geom, unsigned(keep.size()));
             m.round_sets.push_back(std::make_unique<RoundSet>(RoundSet{&g, &m.prim_map[s]}));
             rtcSetGeometryUserData(geom, m.round_sets.back().get());
             rtcSetGeometryBoundsFunction(geom, round_bounds, m.round_sets.back().get());
-            for (uint32_t k : keep) grow(Vec3d(g.positions[k]), g.radii[k]);
+            for (uint32_t k : keep) {
+                if (g.type == ShapeGeometry::Type::Cylinders) {
+                    const auto [lo, hi] = cylinder::bounds(cylinder::of(g, k));
+                    grow(lo, 0.0);
+                    grow(hi, 0.0);
+                } else {
+                    grow(Vec3d(g.positions[k]), g.radii[k]);
+                }
+            }
         }
         rtcSetGeometryPointQueryFunction(geom, point_query_3d);
         rtcCommitGeometry(geom);

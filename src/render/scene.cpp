@@ -6,6 +6,8 @@
 
 #include <embree3/rtcore.h>
 
+#include "cylinder.h"
+
 #include <algorithm>
 #include <array>
 #include <cmath>
@@ -29,7 +31,7 @@ struct Scene::Accel {
 // vertices welded by position) is shared by an even, non-zero number of triangles.
 static void check_closed(const Shape& shape, const ShapeGeometry& g) {
     std::size_t open = 0;
-    if (g.type == ShapeGeometry::Type::Discs) {
+    if (g.type == ShapeGeometry::Type::Discs || g.type == ShapeGeometry::Type::Cylinders) {
         open = g.positions.size();
     } else if (g.type == ShapeGeometry::Type::Triangles) {
         std::map<std::array<float, 3>, uint32_t> weld;
@@ -53,9 +55,67 @@ static void check_closed(const Shape& shape, const ShapeGeometry& g) {
                          fmt::format("{}: an interior medium needs a closed surface, and this one is open ({}); use a "
                                      "closed shape, or give the medium as 'exterior' of the other side",
                                      shape.to_string(),
-                                     g.type == ShapeGeometry::Type::Discs
-                                         ? std::string("a disk")
+                                     g.type == ShapeGeometry::Type::Discs ? std::string("a disk")
+                                     : g.type == ShapeGeometry::Type::Cylinders
+                                         ? std::string("a cylinder has no caps")
                                          : fmt::format("{} boundary edge{}", open, open == 1 ? "" : "s")));
+}
+
+// Cylinders are Embree user geometry: bounds and ray tests in double (cylinder.h). Kelvin traces single rays, but
+// the callbacks handle any packet width Embree hands them.
+static void cylinder_bounds(const RTCBoundsFunctionArguments* args) {
+    const auto* g = static_cast<const ShapeGeometry*>(args->geometryUserPtr);
+    const auto [lo, hi] = cylinder::bounds(cylinder::of(*g, args->primID));
+    RTCBounds* o = args->bounds_o;
+    const float inf = std::numeric_limits<float>::infinity();
+    o->lower_x = std::nextafter(float(lo.x), -inf);
+    o->lower_y = std::nextafter(float(lo.y), -inf);
+    o->lower_z = std::nextafter(float(lo.z), -inf);
+    o->upper_x = std::nextafter(float(hi.x), inf);
+    o->upper_y = std::nextafter(float(hi.y), inf);
+    o->upper_z = std::nextafter(float(hi.z), inf);
+}
+
+template <typename Hit>
+static void cylinder_trace(const ShapeGeometry& g, unsigned prim, RTCRayN* ray, unsigned N, const int* valid,
+                           Hit&& on_hit) {
+    const cylinder::View c = cylinder::of(g, prim);
+    for (unsigned i = 0; i < N; ++i) {
+        if (valid[i] != -1) continue;
+        const Vec3d o(RTCRayN_org_x(ray, N, i), RTCRayN_org_y(ray, N, i), RTCRayN_org_z(ray, N, i));
+        const Vec3d d(RTCRayN_dir_x(ray, N, i), RTCRayN_dir_y(ray, N, i), RTCRayN_dir_z(ray, N, i));
+        if (auto t = cylinder::intersect(c, o, d, RTCRayN_tnear(ray, N, i), RTCRayN_tfar(ray, N, i)))
+            on_hit(i, *t, c, o + *t * d);
+    }
+}
+
+static void cylinder_intersect(const RTCIntersectFunctionNArguments* args) {
+    const auto& g = *static_cast<const ShapeGeometry*>(args->geometryUserPtr);
+    RTCRayN* ray = RTCRayHitN_RayN(args->rayhit, args->N);
+    RTCHitN* hit = RTCRayHitN_HitN(args->rayhit, args->N);
+    const unsigned N = args->N;
+    cylinder_trace(g, args->primID, ray, N, args->valid, [&](unsigned i, double t, const cylinder::View& c, Vec3d p) {
+        const Vec3d l = cylinder::local(c, p);
+        double phi = std::atan2(l.y, l.x);
+        if (phi < 0) phi += 2 * Pi;
+        RTCRayN_tfar(ray, N, i) = float(t);
+        RTCHitN_Ng_x(hit, N, i) = float(l.x * c.ex.x + l.y * c.ey.x);
+        RTCHitN_Ng_y(hit, N, i) = float(l.x * c.ex.y + l.y * c.ey.y);
+        RTCHitN_Ng_z(hit, N, i) = float(l.x * c.ex.z + l.y * c.ey.z);
+        RTCHitN_u(hit, N, i) = float(phi / (2 * Pi));
+        RTCHitN_v(hit, N, i) = float(std::clamp(l.z / c.L, 0.0, 1.0));
+        RTCHitN_primID(hit, N, i) = args->primID;
+        RTCHitN_geomID(hit, N, i) = args->geomID;
+        RTCHitN_instID(hit, N, i, 0) = args->context->instID[0];
+    });
+}
+
+static void cylinder_occluded(const RTCOccludedFunctionNArguments* args) {
+    const auto& g = *static_cast<const ShapeGeometry*>(args->geometryUserPtr);
+    cylinder_trace(g, args->primID, args->ray, args->N, args->valid,
+                   [&](unsigned i, double, const cylinder::View&, Vec3d) {
+                       RTCRayN_tfar(args->ray, args->N, i) = -std::numeric_limits<float>::infinity();
+                   });
 }
 
 static void embree_error(void*, RTCError code, const char* str) {
@@ -105,6 +165,13 @@ Scene::Scene(const Properties& props) {
                                        sizeof(Vec3f), g.positions.size());
             rtcSetSharedGeometryBuffer(geom, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3, g.indices.data(), 0,
                                        3 * sizeof(uint32_t), g.indices.size() / 3);
+        } else if (g.type == ShapeGeometry::Type::Cylinders) {
+            geom = rtcNewGeometry(m_accel->device, RTC_GEOMETRY_TYPE_USER);
+            rtcSetGeometryUserPrimitiveCount(geom, unsigned(g.positions.size()));
+            rtcSetGeometryUserData(geom, &g);
+            rtcSetGeometryBoundsFunction(geom, cylinder_bounds, nullptr);
+            rtcSetGeometryIntersectFunction(geom, cylinder_intersect);
+            rtcSetGeometryOccludedFunction(geom, cylinder_occluded);
         } else {  // spheres and normal-oriented discs: Embree point primitives (centre and radius)
             const bool discs = g.type == ShapeGeometry::Type::Discs;
             geom = rtcNewGeometry(m_accel->device,
@@ -122,6 +189,12 @@ Scene::Scene(const Properties& props) {
                                            sizeof(Vec3f), g.normals.size());
         }
         for (std::size_t k = 0; k < g.positions.size(); ++k) {
+            if (g.type == ShapeGeometry::Type::Cylinders) {
+                const auto [lo, hi] = cylinder::bounds(cylinder::of(g, k));
+                m_bbox_min = glm::min(m_bbox_min, lo);
+                m_bbox_max = glm::max(m_bbox_max, hi);
+                continue;
+            }
             const double r = g.type == ShapeGeometry::Type::Triangles ? 0.0 : double(g.radii[k]);
             m_bbox_min = glm::min(m_bbox_min, Vec3d(g.positions[k]) - r);
             m_bbox_max = glm::max(m_bbox_max, Vec3d(g.positions[k]) + r);
@@ -204,6 +277,13 @@ SurfaceInteraction Scene::interaction(const Ray& ray, const SurfaceHit& hit) con
         double u = std::atan2(d.y, d.x) / (2 * Pi);
         if (u < 0) u += 1;
         si.uv = {u, std::acos(std::clamp(d.z, -1.0, 1.0)) / Pi};
+    } else if (g.type == ShapeGeometry::Type::Cylinders) {
+        // Mitsuba's parameterisation: u = phi / (2 pi) from the tangent, v = z / L; dp/du = 2 pi (-y, x, 0) and
+        // dp/dv = L ez in the cylinder's frame; the shading frame's tangent is dp/du.
+        const cylinder::View c = cylinder::of(g, hit.prim);
+        const Vec3d l = cylinder::local(c, hit.p);
+        si.dp_du = 2 * Pi * (l.x * c.ey - l.y * c.ex);
+        si.dp_dv = c.L * c.ez;
     } else {  // disc: polar coordinates (radius fraction, angle from the tangent)
         const Vec3d d = hit.p - Vec3d(g.positions[hit.prim]), t(g.tangents[hit.prim]), n(g.normals[hit.prim]);
         const double x = glm::dot(d, t), y = glm::dot(d, glm::cross(n, t));
@@ -245,7 +325,13 @@ SurfaceInteraction Scene::interaction(const Ray& ray, const SurfaceHit& hit) con
             }
         }
     }
-    if (g.type != ShapeGeometry::Type::Triangles) {
+    if (g.type == ShapeGeometry::Type::Cylinders) {
+        const double l = glm::length(si.dp_du);
+        if (l > 0 && std::isfinite(l)) {
+            si.frame.s = si.dp_du / l;
+            si.frame.t = glm::cross(si.frame.n, si.frame.s);
+        }
+    } else if (g.type != ShapeGeometry::Type::Triangles) {
         si.dp_du = si.frame.s;
         si.dp_dv = si.frame.t;
     }
@@ -328,6 +414,13 @@ std::optional<SurfaceHit> Scene::intersect(const Ray& ray) const {
         n = glm::cross(p1 - p0, p2 - p0);
     } else if (g.type == ShapeGeometry::Type::Spheres) {
         n = hit.p - Vec3d(g.positions[hit.prim]);
+    } else if (g.type == ShapeGeometry::Type::Cylinders) {
+        // The radial direction; the point is moved onto the surface along it (float t leaves it off by ~1e-7 r).
+        const cylinder::View c = cylinder::of(g, hit.prim);
+        const Vec3d l = cylinder::local(c, hit.p);
+        const double rho = std::hypot(l.x, l.y);
+        n = l.x * c.ex + l.y * c.ey;
+        if (rho > 0) hit.p += (c.r - rho) / rho * n;
     } else {
         n = Vec3d(g.normals[hit.prim]);
     }

@@ -17,14 +17,16 @@ class Medium;
 
 /// World-space geometry in Embree-ready layout (float positions, 32-bit indices).
 struct ShapeGeometry {
-    enum class Type { Triangles, Spheres, Discs };
+    enum class Type { Triangles, Spheres, Discs, Cylinders };
     Type type = Type::Triangles;
-    std::vector<Vec3f> positions;   ///< triangle vertices, or sphere / disc centres
+    std::vector<Vec3f> positions;   ///< triangle vertices, sphere / disc centres, or cylinder base centres
     std::vector<uint32_t> indices;  ///< 3 per triangle (counter-clockwise = front, normal by right hand)
-    std::vector<float> radii;       ///< spheres and discs: one per centre
+    std::vector<float> radii;       ///< spheres, discs and cylinders: one per centre
     std::vector<Vec3f> normals;     ///< triangles: optional per-vertex shading normals (same count as positions);
-                                    ///< discs: the unit normal of each disc (required)
-    std::vector<Vec3f> tangents;    ///< discs: a unit vector in each disc's plane, where the polar angle of uv is 0
+                                    ///< discs: the unit normal of each disc (required); cylinders: the unit axis
+    std::vector<Vec3f> tangents;    ///< discs and cylinders: a unit vector perpendicular to the normal / axis, where
+                                    ///< the polar angle of uv is 0
+    std::vector<float> lengths;     ///< cylinders: the length along the axis (open ends: no caps)
     std::vector<Vec2f> uvs;         ///< triangles: optional per-vertex texture coordinates
     bool flip_normals = false;
 };
