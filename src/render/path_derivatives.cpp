@@ -341,11 +341,14 @@ struct PathDerivatives::Impl {
         }
     }
 
+    // Slots past the scene's own shapes are instanced shapes (Scene::shape_of): not differentiated.
     bool flat_triangles(uint32_t shape) const {
+        if (shape >= geometry.size()) return false;
         const ShapeGeometry& g = geometry[shape];
         return g.type == ShapeGeometry::Type::Triangles && g.normals.empty();
     }
     bool sphere(uint32_t shape) const {
+        if (shape >= geometry.size()) return false;
         const ShapeGeometry& g = geometry[shape];
         return g.type == ShapeGeometry::Type::Spheres && g.positions.size() == 1;
     }

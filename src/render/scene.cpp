@@ -11,18 +11,43 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <deque>
 #include <limits>
 #include <map>
 
 namespace kelvin {
 
+// Every surface a hit can land on is a slot: the scene's own shapes first (slot = shape index, geomID in the top
+// Embree scene), then, per instance, the shapes of its group (slot = first_slot + index in the group). A slot
+// knows its shape, its geometry (in the group's space for instances) and its instance's transform.
 struct Scene::Accel {
+    struct Slot {
+        const Shape* shape = nullptr;
+        const ShapeGeometry* geometry = nullptr;
+        int instance = -1;  ///< index into `instances`, or -1
+    };
+    struct Group {
+        RTCScene scene = nullptr;
+        std::deque<ShapeGeometry> geometry;  // stable addresses: Embree shares the buffers
+        Vec3d lo{Inf}, hi{-Inf};
+    };
+    struct Instance {
+        Transform to_world, to_object;
+        uint32_t first_slot = 0;
+    };
+
     RTCDevice device = nullptr;
     RTCScene scene = nullptr;
-    std::vector<ShapeGeometry> geometry;  // kept: Embree shares these buffers, and normals are computed from them
+    std::deque<ShapeGeometry> geometry;  // the scene's own shapes; kept: Embree shares these buffers
+    std::map<const ShapeGroup*, Group> groups;
+    std::vector<Instance> instances;  // top-level geomID = shape count + index
+    std::vector<Slot> slots;
+    uint32_t own_shapes = 0;
 
     ~Accel() {
         if (scene) rtcReleaseScene(scene);
+        for (auto& [key, g] : groups)
+            if (g.scene) rtcReleaseScene(g.scene);
         if (device) rtcReleaseDevice(device);
     }
 };
@@ -118,12 +143,73 @@ static void cylinder_occluded(const RTCOccludedFunctionNArguments* args) {
                    });
 }
 
+// World (or group) bounds of one shape's geometry.
+static std::pair<Vec3d, Vec3d> geometry_bounds(const ShapeGeometry& g) {
+    Vec3d lo(Inf), hi(-Inf);
+    for (std::size_t k = 0; k < g.positions.size(); ++k) {
+        if (g.type == ShapeGeometry::Type::Cylinders) {
+            const auto [a, b] = cylinder::bounds(cylinder::of(g, k));
+            lo = glm::min(lo, a);
+            hi = glm::max(hi, b);
+            continue;
+        }
+        const double r = g.type == ShapeGeometry::Type::Triangles ? 0.0 : double(g.radii[k]);
+        lo = glm::min(lo, Vec3d(g.positions[k]) - r);
+        hi = glm::max(hi, Vec3d(g.positions[k]) + r);
+    }
+    return {lo, hi};
+}
+
+// One shape's geometry as an Embree geometry of `scene` with ID `id` (`g` must outlive the scene: its buffers are
+// shared, and user geometry points at it).
+static void attach(RTCDevice device, RTCScene scene, const ShapeGeometry& g, unsigned id) {
+    RTCGeometry geom;
+    if (g.type == ShapeGeometry::Type::Triangles) {
+        geom = rtcNewGeometry(device, RTC_GEOMETRY_TYPE_TRIANGLE);
+        rtcSetSharedGeometryBuffer(geom, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3, g.positions.data(), 0,
+                                   sizeof(Vec3f), g.positions.size());
+        rtcSetSharedGeometryBuffer(geom, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3, g.indices.data(), 0,
+                                   3 * sizeof(uint32_t), g.indices.size() / 3);
+    } else if (g.type == ShapeGeometry::Type::Cylinders) {
+        geom = rtcNewGeometry(device, RTC_GEOMETRY_TYPE_USER);
+        rtcSetGeometryUserPrimitiveCount(geom, unsigned(g.positions.size()));
+        rtcSetGeometryUserData(geom, const_cast<ShapeGeometry*>(&g));
+        rtcSetGeometryBoundsFunction(geom, cylinder_bounds, nullptr);
+        rtcSetGeometryIntersectFunction(geom, cylinder_intersect);
+        rtcSetGeometryOccludedFunction(geom, cylinder_occluded);
+    } else {  // spheres and normal-oriented discs: Embree point primitives (centre and radius)
+        const bool discs = g.type == ShapeGeometry::Type::Discs;
+        geom = rtcNewGeometry(device, discs ? RTC_GEOMETRY_TYPE_ORIENTED_DISC_POINT : RTC_GEOMETRY_TYPE_SPHERE_POINT);
+        auto* v = static_cast<float*>(rtcSetNewGeometryBuffer(geom, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT4,
+                                                              4 * sizeof(float), g.positions.size()));
+        for (std::size_t k = 0; k < g.positions.size(); ++k) {
+            v[4 * k + 0] = g.positions[k].x;
+            v[4 * k + 1] = g.positions[k].y;
+            v[4 * k + 2] = g.positions[k].z;
+            v[4 * k + 3] = g.radii[k];
+        }
+        if (discs)
+            rtcSetSharedGeometryBuffer(geom, RTC_BUFFER_TYPE_NORMAL, 0, RTC_FORMAT_FLOAT3, g.normals.data(), 0,
+                                       sizeof(Vec3f), g.normals.size());
+    }
+    rtcCommitGeometry(geom);
+    rtcAttachGeometryByID(scene, geom, id);
+    rtcReleaseGeometry(geom);
+}
+
 static void embree_error(void*, RTCError code, const char* str) {
     log_error("Embree error {}: {}", int(code), str ? str : "");
 }
 
 Scene::Scene(const Properties& props) {
-    for (auto& o : props.get_objects("shape")) m_shapes.push_back(std::dynamic_pointer_cast<Shape>(o));
+    std::vector<std::shared_ptr<const ShapeInstance>>& instances = m_instances;
+    for (auto& o : props.get_objects("shape")) {
+        if (auto shape = std::dynamic_pointer_cast<Shape>(o))
+            m_shapes.push_back(std::move(shape));
+        else if (auto inst = std::dynamic_pointer_cast<const ShapeInstance>(o))
+            instances.push_back(std::move(inst));
+        // a ShapeGroup is not rendered by itself: only through the instances that reference it
+    }
     m_sensor = props.get_object_as<Sensor>("sensor");
     m_integrator = props.get_object_as<Integrator>("integrator");
     m_simulation = props.get_object_as<Job>("simulation");
@@ -132,7 +218,7 @@ Scene::Scene(const Properties& props) {
     for (const char* kind : {"bsdf", "texture", "medium", "phase", "volume"}) props.get_objects(kind);
 
     if (m_simulation) {
-        if (m_sensor || m_integrator || !m_shapes.empty() || !m_root_emitters.empty())
+        if (m_sensor || m_integrator || !m_shapes.empty() || !instances.empty() || !m_root_emitters.empty())
             props.error("simulation",
                         "a scene runs either a <simulation> or a render (sensor, integrator, "
                         "shapes), not both");
@@ -144,7 +230,7 @@ Scene::Scene(const Properties& props) {
             std::dynamic_pointer_cast<Integrator>(Registry::instance().create(Properties("integrator", "path")));
         log_info("no <integrator> given: using 'path'");
     }
-    if (m_shapes.empty()) {
+    if (m_shapes.empty() && instances.empty()) {
         setup_emitters();
         return;
     }
@@ -155,53 +241,53 @@ Scene::Scene(const Properties& props) {
         throw RuntimeError(fmt::format("Embree device creation failed (error {})", int(rtcGetDeviceError(nullptr))));
     rtcSetDeviceErrorFunction(m_accel->device, embree_error, nullptr);
     m_accel->scene = rtcNewScene(m_accel->device);
-    m_accel->geometry.reserve(m_shapes.size());
+    Accel& acc = *m_accel;
+    acc.own_shapes = uint32_t(m_shapes.size());
     for (std::size_t i = 0; i < m_shapes.size(); ++i) {
-        ShapeGeometry& g = m_accel->geometry.emplace_back(m_shapes[i]->geometry());
-        RTCGeometry geom;
-        if (g.type == ShapeGeometry::Type::Triangles) {
-            geom = rtcNewGeometry(m_accel->device, RTC_GEOMETRY_TYPE_TRIANGLE);
-            rtcSetSharedGeometryBuffer(geom, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3, g.positions.data(), 0,
-                                       sizeof(Vec3f), g.positions.size());
-            rtcSetSharedGeometryBuffer(geom, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3, g.indices.data(), 0,
-                                       3 * sizeof(uint32_t), g.indices.size() / 3);
-        } else if (g.type == ShapeGeometry::Type::Cylinders) {
-            geom = rtcNewGeometry(m_accel->device, RTC_GEOMETRY_TYPE_USER);
-            rtcSetGeometryUserPrimitiveCount(geom, unsigned(g.positions.size()));
-            rtcSetGeometryUserData(geom, &g);
-            rtcSetGeometryBoundsFunction(geom, cylinder_bounds, nullptr);
-            rtcSetGeometryIntersectFunction(geom, cylinder_intersect);
-            rtcSetGeometryOccludedFunction(geom, cylinder_occluded);
-        } else {  // spheres and normal-oriented discs: Embree point primitives (centre and radius)
-            const bool discs = g.type == ShapeGeometry::Type::Discs;
-            geom = rtcNewGeometry(m_accel->device,
-                                  discs ? RTC_GEOMETRY_TYPE_ORIENTED_DISC_POINT : RTC_GEOMETRY_TYPE_SPHERE_POINT);
-            auto* v = static_cast<float*>(rtcSetNewGeometryBuffer(geom, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT4,
-                                                                  4 * sizeof(float), g.positions.size()));
-            for (std::size_t k = 0; k < g.positions.size(); ++k) {
-                v[4 * k + 0] = g.positions[k].x;
-                v[4 * k + 1] = g.positions[k].y;
-                v[4 * k + 2] = g.positions[k].z;
-                v[4 * k + 3] = g.radii[k];
-            }
-            if (discs)
-                rtcSetSharedGeometryBuffer(geom, RTC_BUFFER_TYPE_NORMAL, 0, RTC_FORMAT_FLOAT3, g.normals.data(), 0,
-                                           sizeof(Vec3f), g.normals.size());
-        }
-        for (std::size_t k = 0; k < g.positions.size(); ++k) {
-            if (g.type == ShapeGeometry::Type::Cylinders) {
-                const auto [lo, hi] = cylinder::bounds(cylinder::of(g, k));
-                m_bbox_min = glm::min(m_bbox_min, lo);
-                m_bbox_max = glm::max(m_bbox_max, hi);
-                continue;
-            }
-            const double r = g.type == ShapeGeometry::Type::Triangles ? 0.0 : double(g.radii[k]);
-            m_bbox_min = glm::min(m_bbox_min, Vec3d(g.positions[k]) - r);
-            m_bbox_max = glm::max(m_bbox_max, Vec3d(g.positions[k]) + r);
-        }
+        ShapeGeometry& g = acc.geometry.emplace_back(m_shapes[i]->geometry());
+        const auto [lo, hi] = geometry_bounds(g);
+        m_bbox_min = glm::min(m_bbox_min, lo);
+        m_bbox_max = glm::max(m_bbox_max, hi);
         if (m_shapes[i]->interior()) check_closed(*m_shapes[i], g);
+        attach(acc.device, acc.scene, g, unsigned(i));
+        acc.slots.push_back({m_shapes[i].get(), &g, -1});
+    }
+    for (const auto& inst : instances) {
+        const ShapeGroup* key = &inst->group();
+        auto [it, fresh] = acc.groups.try_emplace(key);
+        Accel::Group& group = it->second;
+        if (fresh) {  // the group's geometry, once, in its own Embree scene
+            group.scene = rtcNewScene(acc.device);
+            for (std::size_t k = 0; k < key->shapes().size(); ++k) {
+                ShapeGeometry& g = group.geometry.emplace_back(key->shapes()[k]->geometry());
+                const auto [lo, hi] = geometry_bounds(g);
+                group.lo = glm::min(group.lo, lo);
+                group.hi = glm::max(group.hi, hi);
+                attach(acc.device, group.scene, g, unsigned(k));
+            }
+            rtcCommitScene(group.scene);
+        }
+        Accel::Instance& rec = acc.instances.emplace_back();
+        rec.to_world = inst->to_world();
+        rec.to_object = Transform(inst->to_world().inverse, inst->to_world().matrix);
+        rec.first_slot = uint32_t(acc.slots.size());
+        for (std::size_t k = 0; k < key->shapes().size(); ++k)
+            acc.slots.push_back({key->shapes()[k].get(), &group.geometry[k], int(acc.instances.size() - 1)});
+        for (int c = 0; c < 8; ++c) {  // the world box of the group's box corners
+            const Vec3d corner(c & 1 ? group.hi.x : group.lo.x, c & 2 ? group.hi.y : group.lo.y,
+                               c & 4 ? group.hi.z : group.lo.z);
+            const Vec3d w = rec.to_world.apply_point(corner);
+            m_bbox_min = glm::min(m_bbox_min, w);
+            m_bbox_max = glm::max(m_bbox_max, w);
+        }
+        RTCGeometry geom = rtcNewGeometry(acc.device, RTC_GEOMETRY_TYPE_INSTANCE);
+        rtcSetGeometryInstancedScene(geom, group.scene);
+        float m[12];  // 3x4, column major
+        for (int col = 0; col < 4; ++col)
+            for (int row = 0; row < 3; ++row) m[3 * col + row] = float(rec.to_world.matrix[col][row]);
+        rtcSetGeometryTransform(geom, 0, RTC_FORMAT_FLOAT3X4_COLUMN_MAJOR, m);
         rtcCommitGeometry(geom);
-        rtcAttachGeometryByID(m_accel->scene, geom, unsigned(i));
+        rtcAttachGeometryByID(acc.scene, geom, unsigned(acc.own_shapes + acc.instances.size() - 1));
         rtcReleaseGeometry(geom);
     }
     rtcCommitScene(m_accel->scene);
@@ -244,19 +330,11 @@ double Scene::emitter_pdf(const Emitter*) const { return m_emitters.empty() ? 0.
 
 static constexpr bool kMeshFrameFromUv = true;
 
-SurfaceInteraction Scene::interaction(const Ray& ray, const SurfaceHit& hit) const {
-    SurfaceInteraction si;
-    si.p = hit.p;
-    si.t = hit.t;
-    si.ng = hit.ng;
-    si.ns = hit.ng;
-    si.shape_index = hit.shape;
-    si.shape = m_shapes[hit.shape].get();
-    si.prim = hit.prim;
-    si.uv = hit.uv;
-    const ShapeGeometry& g = m_accel->geometry[hit.shape];
+// The interaction's uv, shading normal, frame and dp/du from one shape's geometry, in that geometry's space (the
+// group's for an instance): `si.p` and `si.ng` are given in it, and `hit` carries Embree's primitive and uv.
+static void fill_local(SurfaceInteraction& si, const ShapeGeometry& g, const SurfaceHit& hit) {
     if (g.type == ShapeGeometry::Type::Triangles) {
-        const uint32_t* tri = &g.indices[3 * std::size_t(hit.prim)];
+        const uint32_t* tri = &g.indices[3 * std::size_t(si.prim)];
         const double b1 = hit.uv.x, b2 = hit.uv.y, b0 = 1 - b1 - b2;  // Embree's barycentrics
         si.bary = {b1, b2};
         if (!g.uvs.empty()) si.uv = b0 * Vec2d(g.uvs[tri[0]]) + b1 * Vec2d(g.uvs[tri[1]]) + b2 * Vec2d(g.uvs[tri[2]]);
@@ -271,7 +349,7 @@ SurfaceInteraction Scene::interaction(const Ray& ray, const SurfaceHit& hit) con
             }
         }
     } else if (g.type == ShapeGeometry::Type::Spheres) {
-        Vec3d d = glm::normalize(hit.p - Vec3d(g.positions[hit.prim]));
+        Vec3d d = glm::normalize(si.p - Vec3d(g.positions[si.prim]));
         // Mitsuba's sphere parameterisation: u = phi / (2 pi) with phi in [0, 2 pi), v = theta / pi (in world axes:
         // a rotation in the sphere's to_world is not applied to uv).
         double u = std::atan2(d.y, d.x) / (2 * Pi);
@@ -280,23 +358,22 @@ SurfaceInteraction Scene::interaction(const Ray& ray, const SurfaceHit& hit) con
     } else if (g.type == ShapeGeometry::Type::Cylinders) {
         // Mitsuba's parameterisation: u = phi / (2 pi) from the tangent, v = z / L; dp/du = 2 pi (-y, x, 0) and
         // dp/dv = L ez in the cylinder's frame; the shading frame's tangent is dp/du.
-        const cylinder::View c = cylinder::of(g, hit.prim);
-        const Vec3d l = cylinder::local(c, hit.p);
+        const cylinder::View c = cylinder::of(g, si.prim);
+        const Vec3d l = cylinder::local(c, si.p);
         si.dp_du = 2 * Pi * (l.x * c.ey - l.y * c.ex);
         si.dp_dv = c.L * c.ez;
     } else {  // disc: polar coordinates (radius fraction, angle from the tangent)
-        const Vec3d d = hit.p - Vec3d(g.positions[hit.prim]), t(g.tangents[hit.prim]), n(g.normals[hit.prim]);
+        const Vec3d d = si.p - Vec3d(g.positions[si.prim]), t(g.tangents[si.prim]), n(g.normals[si.prim]);
         const double x = glm::dot(d, t), y = glm::dot(d, glm::cross(n, t));
         const double phi = std::atan2(y, x);
-        si.uv = {std::min(1.0, std::hypot(x, y) / double(g.radii[hit.prim])),
-                 (phi < 0 ? phi + 2 * Pi : phi) / (2 * Pi)};
+        si.uv = {std::min(1.0, std::hypot(x, y) / double(g.radii[si.prim])), (phi < 0 ? phi + 2 * Pi : phi) / (2 * Pi)};
     }
     si.frame = Frame(si.ns);
     if (g.type == ShapeGeometry::Type::Triangles) {
         // Mitsuba's shading frame: its tangent is dp/du of the uv parameterisation (Gram-Schmidt against the
         // shading normal), or, without uvs or for a degenerate one, the first tangent of the orthonormal basis
         // around the geometric normal. Anisotropic BSDFs (alpha_u, alpha_v) are oriented by it.
-        const uint32_t* tri = &g.indices[3 * std::size_t(hit.prim)];
+        const uint32_t* tri = &g.indices[3 * std::size_t(si.prim)];
         Vec3d dp_du(0.0), dp_dv(0.0);
         if (!g.uvs.empty()) {
             const Vec2d duv0 = Vec2d(g.uvs[tri[1]]) - Vec2d(g.uvs[tri[0]]),
@@ -334,6 +411,37 @@ SurfaceInteraction Scene::interaction(const Ray& ray, const SurfaceHit& hit) con
     } else if (g.type != ShapeGeometry::Type::Triangles) {
         si.dp_du = si.frame.s;
         si.dp_dv = si.frame.t;
+    }
+}
+
+SurfaceInteraction Scene::interaction(const Ray& ray, const SurfaceHit& hit) const {
+    const Accel& acc = *m_accel;
+    const Accel::Slot& slot = acc.slots[hit.shape];
+    const Accel::Instance* xf = slot.instance >= 0 ? &acc.instances[std::size_t(slot.instance)] : nullptr;
+    SurfaceInteraction si;
+    si.t = hit.t;
+    si.shape_index = hit.shape;
+    si.shape = slot.shape;
+    si.prim = hit.prim;
+    si.uv = hit.uv;
+    si.p = xf ? xf->to_object.apply_point(hit.p) : hit.p;
+    si.ng = xf ? glm::normalize(xf->to_object.apply_normal(hit.ng)) : hit.ng;
+    si.ns = si.ng;
+    fill_local(si, *slot.geometry, hit);
+    if (xf) {  // back to world space: normals with the inverse transpose, tangents as vectors
+        si.p = hit.p;
+        si.ng = hit.ng;
+        si.ns = glm::normalize(xf->to_world.apply_normal(si.ns));
+        si.dp_du = xf->to_world.apply_vector(si.dp_du);
+        si.dp_dv = xf->to_world.apply_vector(si.dp_dv);
+        Vec3d s = xf->to_world.apply_vector(si.frame.s);
+        s -= si.ns * glm::dot(si.ns, s);
+        const double l = glm::length(s);
+        si.frame = Frame(si.ns);
+        if (l > 0 && std::isfinite(l)) {
+            si.frame.s = s / l;
+            si.frame.t = glm::cross(si.ns, si.frame.s);
+        }
     }
     si.wi = si.to_local(-glm::normalize(ray.d));
     return si;
@@ -400,35 +508,48 @@ std::optional<SurfaceHit> Scene::intersect(const Ray& ray) const {
     rh.hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
     rtcIntersect1(m_accel->scene, &context, &rh);
     if (rh.hit.geomID == RTC_INVALID_GEOMETRY_ID) return std::nullopt;
+    const Accel& acc = *m_accel;
     SurfaceHit hit;
     hit.t = rh.ray.tfar;
     hit.p = ray.at(hit.t);
-    hit.shape = rh.hit.geomID;
+    const unsigned inst = rh.hit.instID[0];
+    hit.shape = inst == RTC_INVALID_GEOMETRY_ID ? rh.hit.geomID
+                                                : acc.instances[inst - acc.own_shapes].first_slot + rh.hit.geomID;
     hit.prim = rh.hit.primID;
     hit.uv = {rh.hit.u, rh.hit.v};
-    const ShapeGeometry& g = m_accel->geometry[hit.shape];
+    const Accel::Slot& slot = acc.slots[hit.shape];
+    const ShapeGeometry& g = *slot.geometry;
+    const Accel::Instance* xf = slot.instance >= 0 ? &acc.instances[std::size_t(slot.instance)] : nullptr;
+    Vec3d p = xf ? xf->to_object.apply_point(hit.p) : hit.p;  // in the geometry's own space
     Vec3d n;
     if (g.type == ShapeGeometry::Type::Triangles) {
         const uint32_t* tri = &g.indices[3 * std::size_t(hit.prim)];
         Vec3d p0 = g.positions[tri[0]], p1 = g.positions[tri[1]], p2 = g.positions[tri[2]];
         n = glm::cross(p1 - p0, p2 - p0);
     } else if (g.type == ShapeGeometry::Type::Spheres) {
-        n = hit.p - Vec3d(g.positions[hit.prim]);
+        n = p - Vec3d(g.positions[hit.prim]);
     } else if (g.type == ShapeGeometry::Type::Cylinders) {
         // The radial direction; the point is moved onto the surface along it (float t leaves it off by ~1e-7 r).
         const cylinder::View c = cylinder::of(g, hit.prim);
-        const Vec3d l = cylinder::local(c, hit.p);
+        const Vec3d l = cylinder::local(c, p);
         const double rho = std::hypot(l.x, l.y);
         n = l.x * c.ex + l.y * c.ey;
-        if (rho > 0) hit.p += (c.r - rho) / rho * n;
+        if (rho > 0) {
+            p += (c.r - rho) / rho * n;
+            hit.p = xf ? xf->to_world.apply_point(p) : p;
+        }
     } else {
         n = Vec3d(g.normals[hit.prim]);
     }
+    if (xf) n = xf->to_world.apply_normal(n);
     double len = glm::length(n);
     hit.ng = len > 0 ? n / len : Vec3d(0, 0, 1);
     if (g.flip_normals) hit.ng = -hit.ng;
     return hit;
 }
+
+const Shape& Scene::shape_of(const SurfaceHit& hit) const { return *m_accel->slots[hit.shape].shape; }
+std::size_t Scene::instance_count() const { return m_accel ? m_accel->instances.size() : 0; }
 
 bool Scene::occluded(const Ray& ray) const {
     if (!m_accel) return false;

@@ -20,7 +20,7 @@ struct SurfaceHit {
     Vec3d p{0.0};
     Vec3d ng{0.0, 0.0, 1.0};  ///< geometric normal, unit length, as the shape orients it
     Vec2d uv{0.0};
-    uint32_t shape = 0;  ///< index into Scene::shapes()
+    uint32_t shape = 0;  ///< the surface hit: Scene::shapes() index, or past them an instanced shape (Scene::shape_of)
     uint32_t prim = 0;   ///< primitive (triangle) index within the shape
 };
 

@@ -42,7 +42,12 @@ public:
     /// Probability that sample_emitter picks `e`.
     double emitter_pdf(const Emitter* e) const;
 
+    /// The scene's own shapes (declaration order). Instanced shapes are not among them: a hit's shape is
+    /// shape_of(hit), and SurfaceHit::shape indexes the shapes first, then each instance's group in turn.
     const std::vector<std::shared_ptr<Shape>>& shapes() const { return m_shapes; }
+    const Shape& shape_of(const SurfaceHit& hit) const;
+    /// Number of instances (shapegroup placements).
+    std::size_t instance_count() const;
     const Sensor* sensor() const { return m_sensor.get(); }
     Integrator* integrator() const { return m_integrator.get(); }
     /// The <simulation> the scene runs instead of a render (null for a render); fluid/simulation.h's
@@ -55,6 +60,7 @@ private:
     void setup_emitters();
     struct Accel;
     std::vector<std::shared_ptr<Shape>> m_shapes;
+    std::vector<std::shared_ptr<const ShapeInstance>> m_instances;  // keep their groups (and shapes) alive
     std::shared_ptr<Sensor> m_sensor;
     std::shared_ptr<Integrator> m_integrator;
     std::shared_ptr<Job> m_simulation;

@@ -79,6 +79,33 @@ protected:
     SourceLoc m_interior_loc;
 };
 
+/// Mitsuba's `shapegroup`: shapes declared once, under an id, and placed in the scene only by `instance`s (the
+/// group itself is not rendered). Its shapes keep their own BSDFs; area emitters, media and nested groups or
+/// instances are refused when the group is built.
+class ShapeGroup : public Object {
+public:
+    explicit ShapeGroup(std::vector<std::shared_ptr<Shape>> shapes) : m_shapes(std::move(shapes)) {}
+    const std::vector<std::shared_ptr<Shape>>& shapes() const { return m_shapes; }
+
+private:
+    std::vector<std::shared_ptr<Shape>> m_shapes;
+};
+
+/// Mitsuba's `instance`: a shape group placed by an affine `to_world`. The scene traces it as an Embree instance
+/// of the group's geometry, which is built once however many instances use it.
+class ShapeInstance : public Object {
+public:
+    ShapeInstance(std::shared_ptr<const ShapeGroup> group, const Transform& to_world)
+        : m_group(std::move(group)), m_to_world(to_world) {}
+    const ShapeGroup& group() const { return *m_group; }
+    const std::shared_ptr<const ShapeGroup>& group_ptr() const { return m_group; }
+    const Transform& to_world() const { return m_to_world; }
+
+private:
+    std::shared_ptr<const ShapeGroup> m_group;
+    Transform m_to_world;
+};
+
 }  // namespace kelvin
 
 /// The media parameters every shape declares (append to its KELVIN_PLUGIN parameter list).

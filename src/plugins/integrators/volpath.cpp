@@ -70,7 +70,7 @@ public:
                 if (tr == Color3(0.0)) return tr;
             }
             if (!hit) return tr;
-            const Shape& shape = *scene.shapes()[hit->shape];
+            const Shape& shape = scene.shape_of(*hit);
             if (!(shape.bsdf()->flags() & BsdfFlags::Null)) return Color3(0.0);
             tr *= shape.bsdf()->eval_null_transmission(scene.interaction(ray, *hit));
             if (tr == Color3(0.0)) return tr;
