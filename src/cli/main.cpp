@@ -19,6 +19,7 @@
 #include <kelvin/core/stats.h>
 #include <kelvin/core/strings.h>
 #include <kelvin/core/version.h>
+#include <kelvin/core/video.h>
 #include <kelvin/render/film.h>
 #include <kelvin/render/integrator.h>
 #include <kelvin/render/scene.h>
@@ -29,6 +30,7 @@
 
 #include <algorithm>
 #include <array>
+#include <cctype>
 #include <cmath>
 #include <csignal>
 #include <cstdio>
@@ -36,6 +38,7 @@
 #include <filesystem>
 #include <iostream>
 #include <set>
+#include <sstream>
 
 namespace fs = std::filesystem;
 using namespace kelvin;
@@ -64,6 +67,9 @@ struct Options {
     bool list_params = false;
     std::string stats;
     std::string crop;
+    std::string frames;  // --frames FIRST:LAST[:STEP]
+    std::string video;   // --video FILE.mp4
+    double fps = 24;
     std::vector<std::string> argv;
 };
 
@@ -392,6 +398,101 @@ int run(const Options& o, Communicator& world) {
     return result.interrupted ? ExitInterrupted : ExitOk;
 }
 
+// --frames: the scene once per frame, with -D frame=NNNN (zero-padded to at least 4 digits, as the fluid solver
+// names its frames) and an output name per frame; then, with --video, the frames as an MP4 (ffmpeg).
+struct FrameRange {
+    long long first = 0, last = 0, step = 1;
+    int digits = 4;
+};
+
+FrameRange parse_frames(const std::string& text) {
+    FrameRange r;
+    std::vector<long long> v;
+    std::stringstream ss(text);
+    std::string part;
+    bool ok = !text.empty();
+    while (ok && std::getline(ss, part, ':')) {
+        std::size_t used = 0;
+        try {
+            v.push_back(std::stoll(part, &used));
+        } catch (const std::exception&) {
+            ok = false;
+        }
+        ok = ok && used == part.size();
+    }
+    ok = ok && (v.size() == 2 || v.size() == 3) && v[0] >= 0 && v[1] >= v[0] && (v.size() == 2 || v[2] >= 1);
+    if (!ok)
+        throw InputError({}, fmt::format("--frames '{}': expected FIRST:LAST or FIRST:LAST:STEP (integers, 0 <= FIRST "
+                                         "<= LAST, STEP >= 1)",
+                                         text));
+    r.first = v[0];
+    r.last = v[1];
+    r.step = v.size() == 3 ? v[2] : 1;
+    r.digits = std::max(4, int(std::to_string(r.last).size()));
+    return r;
+}
+
+// The output file of frame `f`: `pattern` with its one printf-style %d (%04d, ...) replaced, or, without one,
+// NAME_NNNN.EXT.
+fs::path frame_output(const std::string& pattern, long long f, int digits) {
+    const std::size_t pct = pattern.find('%');
+    if (pct == std::string::npos) {
+        fs::path p(pattern);
+        const std::string ext = p.extension().string();
+        return p.replace_extension().string() + fmt::format("_{:0{}d}", f, digits) + ext;
+    }
+    std::size_t i = pct + 1;
+    const bool zero = i < pattern.size() && pattern[i] == '0';
+    if (zero) ++i;
+    int width = 0;
+    while (i < pattern.size() && std::isdigit(static_cast<unsigned char>(pattern[i])) && width < 100)
+        width = width * 10 + (pattern[i++] - '0');
+    if (i >= pattern.size() || pattern[i] != 'd' || pattern.find('%', i + 1) != std::string::npos)
+        throw InputError({}, fmt::format("-o '{}': a frame pattern has exactly one %d (e.g. frame_%04d.png)", pattern));
+    const std::string number = zero ? fmt::format("{:0{}d}", f, width) : fmt::format("{:{}d}", f, width);
+    return pattern.substr(0, pct) + number + pattern.substr(i + 1);
+}
+
+int run_frames(const Options& o, Communicator& world) {
+    const FrameRange r = parse_frames(o.frames);
+    for (const auto& d : o.defines)
+        if (d.rfind("frame=", 0) == 0)
+            throw InputError({}, fmt::format("-D '{}': --frames sets the parameter 'frame' itself", d));
+    const std::string pattern = o.output.empty() ? fs::path(o.scene).replace_extension(".exr").string() : o.output;
+    const fs::path first = frame_output(pattern, r.first, r.digits);  // a bad pattern is an error before any work
+    if (first.has_parent_path() && !fs::exists(first.parent_path()) && world.root()) {
+        std::error_code ec;  // a sequence gets its own folder; a failure is reported by the -o check below
+        fs::create_directories(first.parent_path(), ec);
+    }
+    if (!o.video.empty()) {
+        if (fs::path(o.video).extension() != ".mp4")
+            throw InputError({}, fmt::format("--video '{}': the video is an .mp4 file", o.video));
+        if (find_on_path("ffmpeg").empty())
+            throw InputError({}, "--video needs ffmpeg, which is not on PATH (Debian: apt-get install ffmpeg)");
+        if (std::string why = output_file_problem(o.video); !why.empty())
+            throw InputError({}, fmt::format("--video '{}': {}", o.video, why));
+    }
+    std::vector<fs::path> written;
+    const long long count = (r.last - r.first) / r.step + 1;
+    for (long long f = r.first, k = 1; f <= r.last; f += r.step, ++k) {
+        Options one = o;
+        one.frames.clear();
+        one.defines.push_back(fmt::format("frame={:0{}d}", f, r.digits));
+        one.output = frame_output(pattern, f, r.digits).string();
+        if (world.root() && !o.quiet) log_info("frame {} ({} of {}): {}", f, k, count, one.output);
+        const int rc = run(one, world);
+        if (rc != ExitOk) return rc;  // an interrupted or failed frame ends the sequence; earlier frames stay
+        written.push_back(one.output);
+    }
+    if (!o.video.empty() && world.root()) {
+        if (const std::string why = encode_video(written, o.fps, o.video); !why.empty())
+            throw RuntimeError(
+                fmt::format("--video '{}' not written: {}; the {} frames are written", o.video, why, written.size()));
+        if (!o.quiet) std::fprintf(stderr, "wrote %s (%zu frames at %g fps)\n", o.video.c_str(), written.size(), o.fps);
+    }
+    return ExitOk;
+}
+
 // `prints`: this process prints listings (rank 0 of a distributed run, or a single process).
 Prepared prepare(const Options& o, bool prints) {
     auto finished = [](int code) {
@@ -509,6 +610,11 @@ int main(int argc, char** argv) {
     app.add_option("--crop", o.crop,
                    "Render only the pixel window x0,x1,y0,y1 ([x0, x1) x [y0, y1), pixels of the full film); the "
                    "image has the window's size");
+    app.add_option("--frames", o.frames,
+                   "Render a sequence FIRST:LAST[:STEP]: the scene once per frame with -D frame=NNNN; -o names the "
+                   "frames (frame_%04d.png, or NAME_NNNN.EXT)");
+    app.add_option("--video", o.video, "With --frames: also encode the frames as this .mp4 (ffmpeg)");
+    app.add_option("--fps", o.fps, "Frames per second of --video (default 24)")->check(CLI::Range(0.1, 1000.0));
     app.add_flag("--list-params", o.list_params,
                  "List the scene's parameters (<default>s, included files too) with their values and where they are "
                  "declared");
@@ -541,7 +647,10 @@ int main(int argc, char** argv) {
     Communicator* world = nullptr;
     try {
         world = &world_communicator();
-        return converge->parsed() ? cli::run_converge(converge_args, *world) : run(o, *world);
+        if (converge->parsed()) return cli::run_converge(converge_args, *world);
+        if (!o.video.empty() && o.frames.empty())
+            throw InputError({}, "--video needs --frames (the frames of the video)");
+        return o.frames.empty() ? run(o, *world) : run_frames(o, *world);
     } catch (const InputError& e) {
         if (!world || world->root()) std::fprintf(stderr, "kelvin: error: %s\n", e.what());
         return ExitInput;

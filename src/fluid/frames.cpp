@@ -4,6 +4,7 @@
 #include <kelvin/core/files.h>
 #include <kelvin/core/logging.h>
 #include <kelvin/core/parallel.h>
+#include <kelvin/core/video.h>
 #include <kelvin/fluid/output.h>
 
 #include <fcntl.h>
@@ -49,22 +50,6 @@ fs::path OutputPaths::frame(const std::string& kind, long long step, int digits,
 }
 
 // ----- style
-
-namespace {
-
-// The first executable `name` on PATH (empty when none).
-fs::path find_on_path(const std::string& name) {
-    const char* path = std::getenv("PATH");
-    std::stringstream dirs(path ? path : "/usr/bin:/bin");
-    std::string d;
-    while (std::getline(dirs, d, ':')) {
-        const fs::path p = fs::path(d.empty() ? "." : d) / name;
-        if (::access(p.c_str(), X_OK) == 0) return p;
-    }
-    return {};
-}
-
-}  // namespace
 
 FrameStyle FrameStyle::parse(const Properties& props) {
     FrameStyle s;
@@ -245,36 +230,6 @@ void FrameWriter::write_data(const std::string& kind, long long step, const std:
     m_seconds += t.seconds();
 }
 
-namespace {
-
-// Runs `args` (args[0] found on PATH) with stdout discarded and stderr into `log`; the exit status (-1: not run).
-int run_program(const std::vector<std::string>& args, const fs::path& log) {
-    posix_spawn_file_actions_t fa;
-    posix_spawn_file_actions_init(&fa);
-    posix_spawn_file_actions_addopen(&fa, 0, "/dev/null", O_RDONLY, 0);
-    posix_spawn_file_actions_addopen(&fa, 1, "/dev/null", O_WRONLY, 0);
-    posix_spawn_file_actions_addopen(&fa, 2, log.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
-    std::vector<char*> argv;
-    for (const auto& a : args) argv.push_back(const_cast<char*>(a.c_str()));
-    argv.push_back(nullptr);
-    pid_t pid = 0;
-    const int rc = posix_spawnp(&pid, args[0].c_str(), &fa, nullptr, argv.data(), environ);
-    posix_spawn_file_actions_destroy(&fa);
-    if (rc != 0) return -1;
-    int status = 0;
-    while (waitpid(pid, &status, 0) < 0 && errno == EINTR) {
-    }
-    return WIFEXITED(status) ? WEXITSTATUS(status) : -1;
-}
-
-std::string quote_for_concat(const fs::path& p) {
-    std::string s = p.string(), out = "'";
-    for (char c : s) out += c == '\'' ? std::string("'\\''") : std::string(1, c);
-    return out + "'";
-}
-
-}  // namespace
-
 void FrameWriter::finish() {
     if (!enabled()) return;
     Timer t;
@@ -308,40 +263,11 @@ void FrameWriter::finish() {
     if (m_style.video) {
         for (const auto& [kind, frames] : m_png_frames) {
             if (frames.empty()) continue;
-            const fs::path list = m_paths.file("." + kind + "_frames.txt"),
-                           log = m_paths.file("." + kind + "_ffmpeg.log");
-            {
-                std::ofstream out(list);
-                for (const auto& f : frames)
-                    out << "file " << quote_for_concat(fs::absolute(f)) << "\nduration " << 1.0 / m_style.fps << "\n";
-            }
             const fs::path video = m_paths.file(kind + ".mp4");
-            int status = -1;
-            try {
-                write_atomically(video, [&](const fs::path& tmp) {
-                    status =
-                        run_program({"ffmpeg", "-nostdin", "-y", "-loglevel", "error", "-f", "concat", "-safe", "0",
-                                     "-i", list.string(), "-vf",
-                                     fmt::format("fps={:g},pad=ceil(iw/2)*2:ceil(ih/2)*2,format=yuv420p", m_style.fps),
-                                     "-c:v", "libx264", "-f", "mp4", tmp.string()},
-                                    log);
-                    if (status != 0) throw RuntimeError("ffmpeg failed");
-                });
-            } catch (const std::exception&) {
-            }
-            if (status == 0) {
+            if (const std::string why = encode_video(frames, m_style.fps, video); why.empty())
                 m_written.push_back(video);
-            } else {
-                std::ifstream in(log);
-                std::string first;
-                std::getline(in, first);
-                log_warn("video {} not written: ffmpeg {} ({}); the frames are in {}", video.string(),
-                         status < 0 ? std::string("could not run") : fmt::format("exited with {}", status),
-                         first.empty() ? std::string("no message") : first, m_paths.dir.string());
-            }
-            std::error_code ec;
-            fs::remove(list, ec);
-            fs::remove(log, ec);
+            else
+                log_warn("video {} not written: {}; the frames are in {}", video.string(), why, m_paths.dir.string());
         }
     }
     m_seconds += t.seconds();
