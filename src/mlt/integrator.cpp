@@ -52,7 +52,7 @@ long long auto_chain_count(double mutations, double mutations_per_chain) {
 
 MetropolisIntegrator::MetropolisIntegrator(const Properties& props, bool delayed_rejection)
     : m_delayed_rejection(delayed_rejection) {
-    const std::string technique = props.get_choice("technique", {"path", "bdpt", "mmlt"});
+    const std::string technique = props.get_choice("technique", {"path", "bdpt", "mmlt", "volpath"});
     const long long max_depth = props.get_int("max_depth", -1, 62);
     const long long rr_depth = props.get_int("rr_depth", 1, 1 << 20);
     const bool hide_emitters = props.get_bool("hide_emitters");
@@ -138,8 +138,9 @@ MetropolisIntegrator::MetropolisIntegrator(const Properties& props, bool delayed
     // mmlt traces subpaths with the shared bidirectional core; the bdpt sampler stands for it in validate().
     m_technique = make_path_sampler(m_mmlt ? "bdpt" : technique, max_depth, m_min_edges, rr_depth, hide_emitters);
     if (split)
-        m_direct = make_path_sampler("path", max_depth < 0 ? 2 : std::min<long long>(2, max_depth), 1, rr_depth,
-                                     hide_emitters);
+        // (volpath's own direct pass: a one-bounce path through a medium needs its free flights.)
+        m_direct = make_path_sampler(technique == "volpath" ? "volpath" : "path",
+                                     max_depth < 0 ? 2 : std::min<long long>(2, max_depth), 1, rr_depth, hide_emitters);
 }
 
 MetropolisIntegrator::~MetropolisIntegrator() = default;

@@ -124,6 +124,25 @@ TEST(MltIntegrators, BdptTechniqueMatchesPathTracing) {
         "cornell-box.xml", 32, 256, 32, false);
 }
 
+// Metropolis over participating media (issue 18 item 4): technique="volpath" makes a state a volumetric path (its
+// primary samples drive free flights, ratio tracking and phase sampling as well as the surfaces), and the direct
+// pass is volpath too. The foggy Cornell box (haze everywhere, a glass sphere holding a dense coloured medium) at
+// 32 x 32 and max_depth 8, against volpath with the same max_depth, block by block over 8 seeds and means within 2 %.
+// Seen to fail: the direct pass left to `path` (it ignores the haze: the image 15 % too dark, 12-13 of 16 blocks
+// beyond 5 sigma). A volpath ignoring min_depth would count the direct light twice.
+const std::string VolpathDepth8 = R"(<integrator type="volpath"><integer name="max_depth" value="8"/></integrator>)";
+const std::string VolpathTechnique =
+    R"(<string name="technique" value="volpath"/><integer name="max_depth" value="8"/>)"
+    R"(<integer name="bootstrap_samples" value="100000"/><integer name="chains" value="64"/>)";
+TEST(MltIntegrators, PssmltOverVolpathMatchesVolpath) {
+    expect_matches_path("<integrator type=\"pssmlt\">" + VolpathTechnique + "</integrator>", "foggy-cornell.xml", 64,
+                        256, 32, true, VolpathDepth8);
+}
+TEST(MltIntegrators, DrmltOverVolpathMatchesVolpath) {
+    expect_matches_path("<integrator type=\"drmlt\">" + VolpathTechnique + "</integrator>", "foggy-cornell.xml", 64,
+                        256, 32, true, VolpathDepth8);
+}
+
 // H2MC (issue 14): the h2mc kernel with the path technique's derivatives (render/path_derivatives.h), alone on the
 // Cornell box and as the thesis' hybrid second stage after a Gaussian first stage on the Cornell box with metal boxes
 // (glossy GGX copper and a mirror: there 11 % of the derivative evaluations give anisotropic proposals, against 8 %). A

@@ -27,7 +27,9 @@ public:
 }  // namespace kelvin
 
 #define KELVIN_MLT_COMMON_PARAMS                                                                                      \
-    kelvin::param::string("technique", "path", "what a state is: path | bdpt | mmlt (one bidirectional strategy)"),   \
+    kelvin::param::string(                                                                                            \
+        "technique", "path",                                                                                          \
+        "what a state is: path | bdpt | mmlt (one bidirectional strategy) | volpath (paths through media)"),          \
         kelvin::param::integer("max_depth", -1, "longest contributing path in edges (-1: unbounded)"),                \
         kelvin::param::integer("rr_depth", 5, "path length from which Russian roulette starts"),                      \
         kelvin::param::boolean("hide_emitters", false, "directly visible emitters render black"),                     \

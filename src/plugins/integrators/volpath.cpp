@@ -22,6 +22,9 @@
 // | parameter     | type    | default | meaning                                                   |
 // |---------------|---------|---------|-----------------------------------------------------------|
 // | max_depth     | integer | -1      | longest path (in edges) that contributes; -1: unbounded   |
+// | min_depth     | integer | 1       | shortest path (in edges) that contributes (Kelvin's; the  |
+// |               |         |         | Metropolis integrators' chains use it to leave short paths |
+// |               |         |         | to their direct pass)                                      |
 // | rr_depth      | integer | 5       | path length from which Russian roulette may stop paths    |
 // | hide_emitters | boolean | false   | emitters seen directly by the camera render black         |
 //
@@ -51,6 +54,7 @@ class VolPath final : public SamplingIntegrator {
 public:
     explicit VolPath(const Properties& props)
         : m_max_depth(int(props.get_int("max_depth", -1, 1 << 20))),
+          m_min_depth(int(props.get_int("min_depth", 1, 1 << 20))),
           m_rr_depth(int(props.get_int("rr_depth", 0, 1 << 20))),
           m_hide_emitters(props.get_bool("hide_emitters")) {
         if (m_max_depth == 0) props.error("max_depth", "must be -1 (unbounded) or at least 1");
@@ -127,11 +131,11 @@ public:
                     const Vec3d p = ray.at(ff.t), wi = -ray.d;
                     const PhaseFunction& phase = medium->phase();
                     specular_chain = false;
-                    // Next-event estimation through the medium.
+                    // Next-event estimation through the medium (a path of depth + 1 edges).
                     const double u_light = sampler.next_1d();
                     const Vec2d u_light2 = sampler.next_2d();
                     auto [e, sel_pdf] = scene.sample_emitter(u_light);
-                    if (e) {
+                    if (e && depth + 1 >= m_min_depth) {
                         if (auto ds = e->sample_direct(p, u_light2)) {
                             const double ph = phase.eval(wi, ds->d);
                             if (ph > 0 && ds->weight != Color3(0.0)) {
@@ -155,7 +159,7 @@ public:
 
             // ---- the ray left the scene
             if (!hit) {
-                if (!(depth == 0 && m_hide_emitters))
+                if (!(depth == 0 && m_hide_emitters) && depth + 1 >= m_min_depth)
                     for (const Emitter* e : scene.environment_emitters()) {
                         const Color3 Le = e->eval(ray.o, Vec3d(0.0), Vec2d(0.0), -ray.d);
                         double w = 1.0;
@@ -170,7 +174,8 @@ public:
 
             // ---- a surface
             const SurfaceInteraction si = scene.interaction(ray, *hit);
-            if (const Emitter* e = si.shape->emitter(); e && !(depth == 0 && m_hide_emitters)) {
+            if (const Emitter* e = si.shape->emitter();
+                e && !(depth == 0 && m_hide_emitters) && depth + 1 >= m_min_depth) {
                 const Color3 Le = e->eval(si.p, si.ng, si.uv, -ray.d);
                 if (Le != Color3(0.0)) {
                     double w = 1.0;
@@ -186,7 +191,7 @@ public:
             // Next-event estimation at the surface.
             const double u_light = sampler.next_1d();
             const Vec2d u_light2 = sampler.next_2d();
-            if ((bsdf.flags() & BsdfFlags::Smooth) && depth + 1 < max_len) {
+            if ((bsdf.flags() & BsdfFlags::Smooth) && depth + 1 < max_len && depth + 2 >= m_min_depth) {
                 auto [e, sel_pdf] = scene.sample_emitter(u_light);
                 if (e) {
                     if (auto ds = e->sample_direct(si.p, u_light2)) {
@@ -236,7 +241,7 @@ public:
     }
 
 private:
-    int m_max_depth, m_rr_depth;
+    int m_max_depth, m_min_depth, m_rr_depth;
     bool m_hide_emitters;
 };
 
@@ -246,6 +251,7 @@ private:
 KELVIN_PLUGIN(kelvin::VolPath, "integrator", "volpath",
               "Volumetric path tracing: delta/ratio tracking in media, NEE with MIS through null boundaries.",
               kelvin::param::integer("max_depth", -1, "longest contributing path in edges (-1: unbounded)"),
+              kelvin::param::integer("min_depth", 1, "shortest contributing path in edges"),
               kelvin::param::integer("rr_depth", 5, "path length from which Russian roulette starts"),
               kelvin::param::boolean("hide_emitters", false, "directly visible emitters render black"));
 
@@ -255,5 +261,6 @@ KELVIN_PLUGIN(kelvin::VolPath, "integrator", "volpath",
 KELVIN_PLUGIN(kelvin::VolPath, "integrator", "volpathmis",
               "Mitsuba's volpathmis: rendered with volpath's estimator (same expectation).",
               kelvin::param::integer("max_depth", -1, "longest contributing path in edges (-1: unbounded)"),
+              kelvin::param::integer("min_depth", 1, "shortest contributing path in edges"),
               kelvin::param::integer("rr_depth", 5, "path length from which Russian roulette starts"),
               kelvin::param::boolean("hide_emitters", false, "directly visible emitters render black"));
