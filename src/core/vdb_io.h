@@ -58,6 +58,9 @@ struct VdbCodec {
     /// A 3D simulation's frame (simulation3.h, write_vdb_frame): written atomically.
     void (*write_frame)(const std::filesystem::path& path, const fluid::VectorGrid3& vorticity,
                         const fluid::VectorGrid3* velocity, const fluid::Grid3* density);
+    /// Float grids by name (fog volumes, voxel (0, 0, 0) at the first cell's centre), written atomically.
+    void (*write_grids)(const std::filesystem::path& path,
+                        const std::vector<std::pair<std::string, const fluid::Grid3*>>& grids);
 };
 
 /// The VDB module's table, loaded on first use (modules.h).

@@ -5,7 +5,10 @@
 #include <kelvin/core/logging.h>
 #include <kelvin/core/parallel.h>
 #include <kelvin/core/video.h>
+#include <kelvin/fluid/dye.h>
+#include <kelvin/fluid/grid3.h>
 #include <kelvin/fluid/output.h>
+#include <kelvin/fluid/simulation3.h>
 
 #include <fcntl.h>
 #include <fmt/format.h>
@@ -57,6 +60,7 @@ FrameStyle FrameStyle::parse(const Properties& props) {
     s.montage = props.get_bool("montage");
     s.video = props.get_bool("write_video");
     s.fps = props.get_float("video_fps", 0.1, 1000.0);
+    s.dye_slab = props.get_float("vdb_slab", 0.0, 1e30);
     if (s.video && find_on_path("ffmpeg").empty())
         props.error("write_video", "needs ffmpeg, which is not on PATH (Debian: apt-get install ffmpeg)");
     return s;
@@ -184,6 +188,51 @@ const std::vector<uint8_t>* FrameWriter::mask(const FrameOverlay* overlay, long 
     return &m_mask;
 }
 
+namespace {
+
+// A 2D dye extruded along z into a slab `depth` thick, centred on z = 0, its cells about as deep as they are wide:
+// the grids a `heterogeneous` medium reads (`dye`; and `dye_r`, `dye_g`, `dye_b` for a coloured dye, whose `dye`
+// is then the Rec. 709 luminance).
+struct DyeSlab {
+    std::vector<std::pair<std::string, Grid3>> grids;
+    std::vector<std::pair<std::string, const Grid3*>> view() const {
+        std::vector<std::pair<std::string, const Grid3*>> v;
+        for (const auto& [name, g] : grids) v.emplace_back(name, &g);
+        return v;
+    }
+};
+
+DyeSlab dye_slab(const PassiveScalars& dye, double depth) {
+    const Grid2& g0 = dye.channel(0);
+    const Domain2& d2 = g0.domain();
+    Domain3 d3;
+    d3.min = Vec3d(d2.min.x, d2.min.y, -0.5 * depth);
+    d3.max = Vec3d(d2.max.x, d2.max.y, 0.5 * depth);
+    const int nz = std::max(1, int(std::lround(depth / g0.h().x)));
+    auto extrude = [&](const std::function<double(int, int)>& value) {
+        Grid3 g(d3, g0.nx(), g0.ny(), nz);
+        for (int k = 0; k < nz; ++k)
+            for (int j = 0; j < g0.ny(); ++j)
+                for (int i = 0; i < g0.nx(); ++i) g.at(i, j, k) = value(i, j);
+        return g;
+    };
+    DyeSlab slab;
+    if (dye.channel_count() == 3) {
+        const char* names[3] = {"dye_r", "dye_g", "dye_b"};
+        for (int c = 0; c < 3; ++c)
+            slab.grids.emplace_back(names[c], extrude([&](int i, int j) { return dye.channel(c).at(i, j); }));
+        slab.grids.emplace_back("dye", extrude([&](int i, int j) {
+                                    return 0.2126 * dye.channel(0).at(i, j) + 0.7152 * dye.channel(1).at(i, j) +
+                                           0.0722 * dye.channel(2).at(i, j);
+                                }));
+    } else {
+        slab.grids.emplace_back("dye", extrude([&](int i, int j) { return dye.channel(0).at(i, j); }));
+    }
+    return slab;
+}
+
+}  // namespace
+
 void FrameWriter::write_2d(long long step, const Bitmap& fields, double range, const FrameOverlay* overlay, Vec2d lo,
                            Vec2d hi, const PassiveScalars* dye) {
     if (!enabled()) return;
@@ -206,6 +255,11 @@ void FrameWriter::write_2d(long long step, const Bitmap& fields, double range, c
         if (m_png) {
             const auto [dw, dh] = frame_size(img.width(), img.height());
             add_png("dye", step, display_frame(img, nullptr, 1, dw, dh, mask(overlay, step, dw, dh, lo, hi)));
+        }
+        if (m_style.dye_slab > 0) {
+            const fs::path p = m_paths.frame("dye", step, m_digits, ".vdb");
+            write_vdb_grids(p, dye_slab(*dye, m_style.dye_slab).view());
+            m_written.push_back(p);
         }
     }
     m_seconds += t.seconds();

@@ -65,6 +65,8 @@ Simulation3Params Simulation3Params::parse(const Properties& props) {
         props.error("write_exr", "3D frames are OpenVDB files (write_vdb) and PNG slices (write_png); set it false");
     p.color_range = props.get_float("color_range", 0.0, 1e300);
     p.frames = FrameStyle::parse(props);
+    if (p.frames.dye_slab > 0)
+        props.error("vdb_slab", "is for a 2D dye; 3D runs write the smoke's `density` grid in their fields_NNNN.vdb");
     const std::string axis = props.get_choice("slice_axis", {"x", "y", "z"});
     p.slice_axis = axis == "x" ? 0 : (axis == "y" ? 1 : 2);
 
@@ -126,6 +128,11 @@ Simulation3Params Simulation3Params::parse(const Properties& props) {
 void write_vdb_frame(const std::filesystem::path& path, const VectorGrid3& vorticity, const VectorGrid3* velocity,
                      const Grid3* density) {
     kelvin::detail::vdb_codec().write_frame(path, vorticity, velocity, density);  // OpenVDB, loaded on first use
+}
+
+void write_vdb_grids(const std::filesystem::path& path,
+                     const std::vector<std::pair<std::string, const Grid3*>>& grids) {
+    kelvin::detail::vdb_codec().write_grids(path, grids);
 }
 
 Bitmap slice_image(const VectorGrid3& field, int axis, double range) {

@@ -53,7 +53,7 @@ public:
         std::memcpy(v.data(), &work, sizeof(Work));
         v[n] = stopped ? 1 : 0;
         m_comm.allreduce(v.data(), v.size(), ReduceOp::Sum);
-        std::memcpy(&work, v.data(), sizeof(Work));
+        std::memcpy(static_cast<void*>(&work), v.data(), sizeof(Work));  // trivially copyable (asserted above)
         return v[n] != 0;
     }
 

@@ -225,7 +225,30 @@ void write_frame(const std::filesystem::path& path, const fluid::VectorGrid3& vo
     });
 }
 
-const VdbCodec codec{&read_float_grid, &read_dense, &write_frame};
+void write_grids(const std::filesystem::path& path,
+                 const std::vector<std::pair<std::string, const fluid::Grid3*>>& fields) {
+    initialize();
+    openvdb::GridPtrVec grids;
+    for (const auto& [name, g] : fields) {
+        auto grid = openvdb::FloatGrid::create(0.f);
+        grid->setName(name);
+        grid->setGridClass(openvdb::GRID_FOG_VOLUME);
+        grid->setTransform(cell_transform(*g));
+        auto acc = grid->getAccessor();
+        for (int k = 0; k < g->nz(); ++k)
+            for (int j = 0; j < g->ny(); ++j)
+                for (int i = 0; i < g->nx(); ++i)
+                    if (const double v = g->at(i, j, k); v != 0) acc.setValue(openvdb::Coord(i, j, k), float(v));
+        grids.push_back(grid);
+    }
+    write_atomically(path, [&](const std::filesystem::path& tmp) {
+        openvdb::io::File file(tmp.string());
+        file.write(grids);
+        file.close();
+    });
+}
+
+const VdbCodec codec{&read_float_grid, &read_dense, &write_frame, &write_grids};
 
 }  // namespace
 }  // namespace kelvin::detail

@@ -504,3 +504,52 @@ TEST(VolPath, CameraInsideAMedium) {
 }
 
 }  // namespace
+
+namespace {
+
+// The 2D solver's dye as a medium (issue 18 item 3): with `vdb_slab` a 2D run also writes dye_NNNN.vdb, the dye
+// extruded into a slab of that thickness centred on z = 0. Read by `gridvolume`, a ray along z through a cell of dye
+// 1 meets the optical depth scale x thickness, and through dye 0 none; a coloured dye gives dye_r, dye_g, dye_b and
+// its luminance as `dye`. Broken variants seen to fail: the slab's cells as deep as the whole slab with nz = 1 but
+// the z extent taken as one cell (tau 8x too small); the channels written in the wrong order (dye_r = blue).
+TEST(VolPath, TwoDimensionalDyeSlabIsAMedium) {
+    ktest::TempDir dir;
+    auto run = [&](const std::string& name, const std::string& colours) {
+        const std::string xml = R"(<scene version="3.0.0"><simulation type="mcfluid">
+            <integer name="steps" value="1"/><float name="dt" value="1e-9"/><integer name="output_every" value="1"/>
+            <float name="vdb_slab" value="0.5"/><boolean name="write_png" value="false"/>
+            <cache type="grid"><integer name="resolution" value="16"/></cache>
+            <velocity type="biot_savart"><integer name="samples" value="4"/></velocity>
+            <vorticity type="lamb_oseen"/>
+            <scalar type="pattern"><string name="pattern" value="half"/>)" +
+                                colours + R"(</scalar></simulation></scene>)";
+        auto job = std::dynamic_pointer_cast<Job>(instantiate(parse_scene_string(xml)));
+        RunContext ctx;
+        ctx.quiet = true;
+        ctx.output = dir / (name + ".exr");
+        job->run(ctx);
+        return dir / name / "dye_0000.vdb";
+    };
+    const double scale = 3.0, depth = 0.5;
+    const std::filesystem::path grey = run("grey", "");
+    ASSERT_TRUE(std::filesystem::exists(grey));
+    auto m = ktest::vdb_medium(grey, "dye", scale);
+    // Above y = 0 the dye is 1, below 0 (cells away from the edge; rays along z through the whole slab).
+    EXPECT_NEAR(optical_depth_marched(*m, Ray{Vec3d(0.3, 0.6, 2), Vec3d(0, 0, -1)}, 4, 8000).r, scale * depth,
+                1e-3 * scale * depth);
+    EXPECT_NEAR(optical_depth_marched(*m, Ray{Vec3d(-0.2, -0.6, 2), Vec3d(0, 0, -1)}, 4, 8000).r, 0.0, 1e-9);
+
+    const std::filesystem::path rgb =
+        run("rgb", R"(<rgb name="color0" value="0, 0, 0"/><rgb name="color1" value="1, 0.5, 0.25"/>)");
+    const double expect[3] = {1.0, 0.5, 0.25};
+    const char* names[3] = {"dye_r", "dye_g", "dye_b"};
+    const Ray up{Vec3d(0.3, 0.6, 2), Vec3d(0, 0, -1)};
+    for (int c = 0; c < 3; ++c)
+        EXPECT_NEAR(optical_depth_marched(*ktest::vdb_medium(rgb, names[c], 1.0), up, 4, 8000).r, expect[c] * depth,
+                    1e-3)
+            << names[c];
+    EXPECT_NEAR(optical_depth_marched(*ktest::vdb_medium(rgb, "dye", 1.0), up, 4, 8000).r,
+                (0.2126 * 1 + 0.7152 * 0.5 + 0.0722 * 0.25) * depth, 1e-3);
+}
+
+}  // namespace

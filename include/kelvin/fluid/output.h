@@ -67,6 +67,10 @@ struct FrameStyle {
     bool montage = true;  ///< montage.png: up to 8 frames of the run, evenly spaced, left to right, top to bottom
     bool video = false;   ///< <kind>.mp4 of the PNG frames (ffmpeg)
     double fps = 24;
+    /// 2D runs with a dye: also write dye_NNNN.vdb, the dye extruded into a slab this thick along z (centred on
+    /// z = 0; world units; 0: none), for rendering as a medium (grids `dye`, and `dye_r`, `dye_g`, `dye_b` for a
+    /// coloured dye, whose `dye` is then its luminance).
+    double dye_slab = 0;
     /// Reads and checks them: write_video without an `ffmpeg` on PATH is an InputError at write_video.
     static FrameStyle parse(const Properties& props);
 };
@@ -75,7 +79,8 @@ struct FrameStyle {
     kelvin::param::integer("frame_size", 512, "PNG frames: pixels along the longer side (0: one per cell)"),  \
         kelvin::param::boolean("montage", true, "write montage.png: up to 8 frames of the run side by side"), \
         kelvin::param::boolean("write_video", false, "write <kind>.mp4 of the PNG frames (needs ffmpeg)"),    \
-        kelvin::param::real("video_fps", 24.0, "frames per second of the video")
+        kelvin::param::real("video_fps", 24.0, "frames per second of the video"),                             \
+        kelvin::param::real("vdb_slab", 0.0, "2D dye: also write dye_NNNN.vdb, the dye as a slab this thick (0: no)")
 
 /// A display image of `fields` (one pixel per cell, top row = largest y): channel `channel` bilinearly resampled
 /// to the centres of `width` x `height` pixels and colour-mapped over [-range, range]; with `channel` null, R, G

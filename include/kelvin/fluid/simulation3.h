@@ -45,6 +45,9 @@ RunResult run_mcfluid3(const Simulation3Params& p, RunContext& ctx);
 /// token. It refers to p.field: keep `p` (the simulation) alive while using it.
 std::unique_ptr<MCFluid3Solver> create_mcfluid3_solver(const Simulation3Params& p, const RunContext& ctx);
 
+/// Float grids by name as an OpenVDB file (fog volumes; voxel (0, 0, 0) at each grid's first cell centre), atomically.
+void write_vdb_grids(const std::filesystem::path& path, const std::vector<std::pair<std::string, const Grid3*>>& grids);
+
 /// Writes the state as an OpenVDB file (vorticity, |vorticity| and, when given, velocity), atomically.
 void write_vdb_frame(const std::filesystem::path& path, const VectorGrid3& vorticity, const VectorGrid3* velocity,
                      const Grid3* density = nullptr);

@@ -42,6 +42,7 @@
 // | montage           | boolean | true      | montage.png: up to 8 frames of the run                        |
 // | write_video       | boolean | false     | <kind>.mp4 of the PNG frames (ffmpeg on PATH)                 |
 // | video_fps         | float   | 24        | the video's frame rate                                        |
+// | vdb_slab          | float   | 0         | 2D dye: also dye_NNNN.vdb, the dye as a slab this thick        |
 // | stretching        | boolean | true      | 3D: vortex stretching (Eq. 5.21); false only to study it      |
 // | control_variates  | boolean | false     | 3D: previous step as control variate (Eq. 5.23)               |
 // | initial_samples   | integer | 0         | 3D, control variates: n_mc of the first velocity (0: n_mc)    |
