@@ -40,6 +40,19 @@ inline kelvin::Bitmap render_xml(const std::string& xml, long long spp, uint64_t
     return render(*load_scene_xml(xml, opts, filename), spp, seed);
 }
 
+/// A scene of `shapes` (XML) with a placeholder sensor and integrator, for tests of the geometry alone.
+inline std::shared_ptr<kelvin::Scene> geometry_scene(const std::string& shapes) {
+    return load_scene_xml(R"(<scene version="3.0.0"><integrator type="ao"/><sensor type="perspective"/>)" + shapes +
+                          "</scene>");
+}
+
+/// Component-wise EXPECT_NEAR of two vectors, `what` naming the quantity in the failure message.
+inline void expect_vec_near(const kelvin::Vec3d& a, const kelvin::Vec3d& b, double tol, const std::string& what) {
+    EXPECT_NEAR(a.x, b.x, tol) << what;
+    EXPECT_NEAR(a.y, b.y, tol) << what;
+    EXPECT_NEAR(a.z, b.z, tol) << what;
+}
+
 inline std::string read_text(const std::filesystem::path& path) {
     std::ifstream in(path, std::ios::binary);
     if (!in) throw std::runtime_error("cannot read " + path.string());

@@ -22,16 +22,8 @@ using namespace kelvin;
 
 namespace {
 
-std::shared_ptr<Scene> make_scene(const std::string& shapes) {
-    return ktest::load_scene_xml("<scene version=\"3.0.0\"><integrator type=\"ao\"/><sensor type=\"perspective\"/>" +
-                                 shapes + "</scene>");
-}
-
-void expect_vec_near(const Vec3d& a, const Vec3d& b, double tol, const std::string& what) {
-    EXPECT_NEAR(a.x, b.x, tol) << what;
-    EXPECT_NEAR(a.y, b.y, tol) << what;
-    EXPECT_NEAR(a.z, b.z, tol) << what;
-}
+using ktest::expect_vec_near;
+std::shared_ptr<Scene> make_scene(const std::string& shapes) { return ktest::geometry_scene(shapes); }
 
 // Reference for the cylinder x^2 + y^2 = r^2, z0 <= z <= z1: the ray's closest approach to the z axis in the xy
 // plane, then half-chords either side of it (no quadratic formula); -1 for a miss.

@@ -20,16 +20,8 @@ using namespace kelvin;
 
 namespace {
 
-std::shared_ptr<Scene> make_scene(const std::string& body) {
-    return ktest::load_scene_xml("<scene version=\"3.0.0\"><integrator type=\"ao\"/><sensor type=\"perspective\"/>" +
-                                 body + "</scene>");
-}
-
-void expect_vec_near(const Vec3d& a, const Vec3d& b, double tol, const std::string& what) {
-    EXPECT_NEAR(a.x, b.x, tol) << what;
-    EXPECT_NEAR(a.y, b.y, tol) << what;
-    EXPECT_NEAR(a.z, b.z, tol) << what;
-}
+using ktest::expect_vec_near;
+std::shared_ptr<Scene> make_scene(const std::string& shapes) { return ktest::geometry_scene(shapes); }
 
 // The group's shapes, each with its own transform inside the group (a rectangle: a mesh with uvs, whose tangent
 // follows dp/du; Kelvin's cube has no uvs, so its tangent is an arbitrary basis of the space it is built in).
