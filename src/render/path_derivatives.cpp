@@ -426,7 +426,7 @@ PathDerivativeStatus PathDerivatives::Impl::run(Reader& rd, T& log_pi) const {
             if (glm::dot(value(ng), si.ng) < 0) ng = ng * T(-1.0);  // as the shape orients it (flip_normals)
             ng = normalize(ng);
         }
-        const FrameT<T> frame = on_sphere ? frame_of(ng) : frame_of<T>(si.frame);
+        const FrameT<T> geometric_frame = on_sphere ? frame_of(ng) : frame_of<T>(si.frame);
 
         // Emission found by BSDF sampling (or seen directly).
         if (const Emitter* e = si.shape->emitter(); e && !(depth == 0 && o.hide_emitters) && depth + 1 >= o.min_depth) {
@@ -456,6 +456,10 @@ PathDerivativeStatus PathDerivatives::Impl::run(Reader& rd, T& log_pi) const {
         const T u_comp = rd.read();
         const T u_d0 = rd.read(), u_d1 = rd.read();
         const T u_rr = rd.read();
+        // twosided seen from below: the nested model in the mirrored frame (z of wi and wo negated, as the plugin).
+        FrameT<T> frame = geometric_frame;
+        const bool mirrored = model.two_sided && si.wi.z < 0;
+        if (mirrored) frame.n = frame.n * T(-1.0);
         const V3<T> wi = to_local(frame, V3<T>{T(-d.x), T(-d.y), T(-d.z)});
         // The BSDF's value f cos(theta_o) and density for a direction wo, as eval and pdf (smooth models).
         auto bsdf_eval = [&](const V3<T>& wo, T& pdf) -> C3<T> {
@@ -566,7 +570,8 @@ PathDerivativeStatus PathDerivatives::Impl::run(Reader& rd, T& log_pi) const {
             prev_delta = false;
             prev_bsdf_pdf = pdf;
         }
-        if (glm::length(value(wo) - bs->wo) > 1e-6) return S::Mismatch;
+        if (glm::length(value(wo) - (mirrored ? Vec3d(bs->wo.x, bs->wo.y, -bs->wo.z) : bs->wo)) > 1e-6)
+            return S::Mismatch;
         prev_p = p;
         const Ray next = si.spawn(si.to_world(bs->wo));
         // SurfaceInteraction::spawn's offset along ng: 1e-5 (1 + max |p_i|), a function of p like the rest.

@@ -70,6 +70,7 @@ public:
         bool ggx = false;         ///< roughconductor: GGX (else Beckmann)
         double alpha_u = 0, alpha_v = 0;
         bool sample_visible = true;
+        bool two_sided = false;  ///< `twosided` with one model on both sides: seen from below, z of wi and wo negated
     };
     virtual Model model() const { return {}; }
 };
