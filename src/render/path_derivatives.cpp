@@ -347,6 +347,11 @@ struct PathDerivatives::Impl {
         const ShapeGeometry& g = geometry[shape];
         return g.type == ShapeGeometry::Type::Triangles && g.normals.empty();
     }
+    // Triangles with or without vertex normals (the shading normal interpolated differentiably).
+    bool triangles(uint32_t shape) const {
+        if (shape >= geometry.size()) return false;
+        return geometry[shape].type == ShapeGeometry::Type::Triangles;
+    }
     bool sphere(uint32_t shape) const {
         if (shape >= geometry.size()) return false;
         const ShapeGeometry& g = geometry[shape];
@@ -397,19 +402,22 @@ PathDerivativeStatus PathDerivatives::Impl::run(Reader& rd, T& log_pi) const {
             break;
         }
         const bool on_sphere = sphere(hit->shape);
-        if (!on_sphere && !flat_triangles(hit->shape)) return S::Unsupported;
+        if (!on_sphere && !triangles(hit->shape)) return S::Unsupported;
         const SurfaceInteraction si = scene.interaction(ray, *hit);
         // Differentiable re-intersection of the primitive Embree found: Moller-Trumbore for a triangle (the frame is
         // constant), the quadratic for a sphere (the root Embree took; the normal and frame follow p).
         const ShapeGeometry& g = geometry[hit->shape];
-        T t;
+        T t, bary_u(0.0), bary_v(0.0);
         V3<T> ng = constant<T>(si.ng);
         if (!on_sphere) {
             const uint32_t* tri = &g.indices[3 * std::size_t(hit->prim)];
             const V3<T> a = constant<T>(Vec3d(g.positions[tri[0]])), b = constant<T>(Vec3d(g.positions[tri[1]])),
                         c = constant<T>(Vec3d(g.positions[tri[2]]));
             const V3<T> e1 = b - a, e2 = c - a, pvec = cross(d, e2), tvec = orig - a, qvec = cross(tvec, e1);
-            t = dot(e2, qvec) / dot(e1, pvec);
+            const T det = dot(e1, pvec);
+            t = dot(e2, qvec) / det;
+            bary_u = dot(tvec, pvec) / det;  // Embree's barycentrics: u weighs tri[1], v tri[2]
+            bary_v = dot(d, qvec) / det;
         } else {
             const V3<T> oc = orig - constant<T>(Vec3d(g.positions[0]));
             const double r = g.radii[0];
@@ -426,7 +434,30 @@ PathDerivativeStatus PathDerivatives::Impl::run(Reader& rd, T& log_pi) const {
             if (glm::dot(value(ng), si.ng) < 0) ng = ng * T(-1.0);  // as the shape orients it (flip_normals)
             ng = normalize(ng);
         }
-        const FrameT<T> geometric_frame = on_sphere ? frame_of(ng) : frame_of<T>(si.frame);
+        FrameT<T> geometric_frame = on_sphere ? frame_of(ng) : frame_of<T>(si.frame);
+        if (!on_sphere && !g.normals.empty()) {
+            // Scene::interaction for a mesh with vertex normals: the normals interpolated with the barycentrics (a
+            // function of the ray), normalised, turned to the geometric normal's side; the tangent is dp/du (constant
+            // on the triangle) made orthogonal to that normal.
+            const uint32_t* tri = &g.indices[3 * std::size_t(hit->prim)];
+            const T b0 = T(1.0) - bary_u - bary_v;
+            V3<T> n = constant<T>(Vec3d(g.normals[tri[0]])) * b0 + constant<T>(Vec3d(g.normals[tri[1]])) * bary_u +
+                      constant<T>(Vec3d(g.normals[tri[2]])) * bary_v;
+            if (glm::length(value(n)) <= 0) return S::Unsupported;
+            n = normalize(n);
+            if (g.flip_normals) n = n * T(-1.0);
+            if (glm::dot(value(n), si.ng) < 0) n = n * T(-1.0);
+            const V3<T> dpdu = constant<T>(si.dp_du);
+            const V3<T> sx = dpdu - n * dot(n, dpdu);
+            if (!(glm::length(value(sx)) > 1e-12 * glm::length(si.dp_du))) return S::Unsupported;
+            geometric_frame.n = n;
+            geometric_frame.s = normalize(sx);
+            geometric_frame.t = cross(n, geometric_frame.s);
+            // The renderer's frame comes from Embree's float barycentrics: equal to about 1e-6.
+            if (glm::length(value(geometric_frame.n) - si.frame.n) > 1e-4 ||
+                glm::length(value(geometric_frame.s) - si.frame.s) > 1e-4)
+                return S::Mismatch;
+        }
 
         // Emission found by BSDF sampling (or seen directly).
         if (const Emitter* e = si.shape->emitter(); e && !(depth == 0 && o.hide_emitters) && depth + 1 >= o.min_depth) {

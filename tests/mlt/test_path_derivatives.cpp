@@ -24,7 +24,11 @@
 
 #include "render/render_support.h"
 
+#include <fmt/format.h>
+
 #include <cmath>
+#include <filesystem>
+#include <fstream>
 #include <limits>
 
 using namespace kelvin;
@@ -211,6 +215,50 @@ TEST(PathDerivatives, MatchFiniteDifferencesWithTwoSidedPanels) {
           R"(<rotate z="1" angle="25"/><translate y="1" z="0.2"/></transform>)"
           R"(<bsdf type="twosided"><bsdf type="roughconductor"><string name="distribution" value="ggx"/>)"
           R"(<string name="material" value="Cu"/><float name="alpha" value="0.25"/></bsdf></bsdf></shape></scene>)"}});
+    expect_matches_finite_differences(S, 16);
+}
+
+// Meshes with vertex normals (issue 14): a coarse UV sphere (12 x 8 quads, vertex normals and uvs, written here as an
+// OBJ) of rough copper and one of diffuse white in the Cornell box. The shading normal is the normalised
+// barycentric blend of the vertex normals, the barycentrics functions of the ray (Moller-Trumbore), and the frame's
+// tangent dp/du made orthogonal to it. Broken variant seen to fail: the normals interpolated with the barycentrics
+// held constant (the finite-difference check fails).
+std::string write_uv_sphere(const std::filesystem::path& dir) {
+    const int nu = 12, nv = 8;
+    std::string obj = "# UV sphere with vertex normals and uvs\n";
+    for (int j = 0; j <= nv; ++j)
+        for (int i = 0; i <= nu; ++i) {
+            const double th = Pi * j / nv, ph = 2 * Pi * i / nu;
+            const double x = std::sin(th) * std::cos(ph), y = std::cos(th), z = std::sin(th) * std::sin(ph);
+            obj += fmt::format("v {} {} {}\nvn {} {} {}\nvt {} {}\n", x, y, z, x, y, z, double(i) / nu, double(j) / nv);
+        }
+    auto id = [&](int i, int j) { return j * (nu + 1) + i + 1; };
+    for (int j = 0; j < nv; ++j)
+        for (int i = 0; i < nu; ++i) {
+            const int a = id(i, j), b = id(i + 1, j), c = id(i + 1, j + 1), d = id(i, j + 1);
+            if (j > 0) obj += fmt::format("f {0}/{0}/{0} {1}/{1}/{1} {2}/{2}/{2}\n", a, b, c);
+            if (j < nv - 1) obj += fmt::format("f {0}/{0}/{0} {1}/{1}/{1} {2}/{2}/{2}\n", a, c, d);
+        }
+    const auto path = dir / "uv_sphere.obj";
+    std::ofstream(path) << obj;
+    return path.string();
+}
+
+TEST(PathDerivatives, MatchFiniteDifferencesWithVertexNormals) {
+    ktest::TempDir dir;
+    const std::string mesh = write_uv_sphere(dir.path());
+    const PathSetup S(
+        "cornell-box.xml", 6,
+        {{"</scene>",
+          fmt::format(
+              R"(<shape type="obj"><string name="filename" value="{0}"/>)"
+              R"(<transform name="to_world"><scale value="0.25"/><translate x="0.35" y="0.85" z="0.32"/></transform>)"
+              R"(<bsdf type="roughconductor"><string name="distribution" value="ggx"/>)"
+              R"(<string name="material" value="Cu"/><float name="alpha" value="0.2"/></bsdf></shape>)"
+              R"(<shape type="obj"><string name="filename" value="{0}"/>)"
+              R"(<transform name="to_world"><scale value="0.25"/><translate x="-0.6" y="0.25" z="0.5"/></transform>)"
+              R"(</shape></scene>)",
+              mesh)}});
     expect_matches_finite_differences(S, 16);
 }
 
