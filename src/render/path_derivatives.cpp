@@ -521,55 +521,73 @@ PathDerivativeStatus PathDerivatives::Impl::run(Reader& rd, T& log_pi) const {
                     const std::size_t ei = std::size_t(std::find(scene.emitters().begin(), scene.emitters().end(), e) -
                                                        scene.emitters().begin());
                     const int sh = ei < emitter_shape.size() ? emitter_shape[ei] : -1;
-                    const auto* mesh =
-                        sh >= 0 ? dynamic_cast<const TriangleMesh*>(scene.shapes()[std::size_t(sh)].get()) : nullptr;
-                    const bool light_sphere = sh >= 0 && sphere(uint32_t(sh));
-                    if (e->plugin_name() != "area" || e->spatially_varying() ||
-                        !((mesh && flat_triangles(uint32_t(sh))) || light_sphere))
-                        return S::Unsupported;
-                    const ShapeGeometry& eg = geometry[std::size_t(sh)];
-                    V3<T> ps, en = constant<T>(ds->n);
-                    if (light_sphere) {
-                        // Sphere::sample_position: uniform on the sphere (warp::square_to_uniform_sphere).
-                        using std::cos;
-                        using std::sin;
-                        const T z = T(1.0) - T(2.0) * u_l0, rr = safe_sqrt(T(T(1.0) - z * z)), phi = T(2 * Pi) * u_l1;
-                        const V3<T> dirs{rr * cos(phi), rr * sin(phi), z};
-                        ps = constant<T>(Vec3d(eg.positions[0])) + dirs * T(eg.radii[0]);
-                        en = eg.flip_normals ? dirs * T(-1.0) : dirs;
-                    } else {
-                        // TriangleMesh::sample_position: the triangle by area, the remainder of u.x reused.
-                        const std::vector<double>& cdf = mesh->area_cdf();
-                        std::size_t k = std::size_t(std::lower_bound(cdf.begin(), cdf.end(), val(u_l0)) - cdf.begin());
-                        k = std::min(k, cdf.size() - 1);
-                        const double lo = k == 0 ? 0.0 : cdf[k - 1], width = cdf[k] - lo;
-                        T ux = width > 0 ? T((u_l0 - T(lo)) / T(width)) : T(0.5);
-                        if (val(ux) < 0) ux = T(0.0);
-                        if (val(ux) > 1.0 - 1e-16) ux = T(1.0 - 1e-16);
-                        const uint32_t* et = &eg.indices[3 * k];
-                        const T su = sqrt(ux), b0 = T(1.0) - su, b1 = u_l1 * su, b2 = T(1.0) - b0 - b1;
-                        ps = constant<T>(Vec3d(eg.positions[et[0]])) * b0 +
-                             constant<T>(Vec3d(eg.positions[et[1]])) * b1 +
-                             constant<T>(Vec3d(eg.positions[et[2]])) * b2;
-                    }
-                    if (glm::length(value(ps) - ds->p) > 1e-5 * (1 + glm::length(ds->p))) return S::Mismatch;
-                    const double light_area = scene.shapes()[std::size_t(sh)]->surface_area();
-                    // AreaEmitter::sample_direct.
-                    const V3<T> dv = ps - p;
-                    const T dist2 = dot(dv, dv), dist = sqrt(dist2);
-                    const V3<T> dir{dv.x / dist, dv.y / dist, dv.z / dist};
-                    const T cos_e = -dot(en, dir);
-                    const T pdf = T(1.0 / light_area) * dist2 / cos_e;
-                    const Color3 radiance = ds->weight * ds->pdf;
-                    const Color3 f_primal = bsdf.eval(bctx, si, si.to_local(ds->d));
-                    if (f_primal != Color3(0.0)) {
-                        const Ray shadow = ds->dist == Inf ? si.spawn(ds->d) : si.spawn_to(ds->p);
-                        if (!scene.occluded(shadow)) {
+                    if (e->plugin_name() == "point") {
+                        // PointEmitter::sample_direct: intensity / dist^2 from a fixed position, a delta light (MIS
+                        // weight 1); the intensity is the renderer's weight times its dist^2.
+                        const V3<T> dv = constant<T>(ds->p) - p;
+                        const T dist2 = dot(dv, dv), dist = sqrt(dist2);
+                        const V3<T> dir{dv.x / dist, dv.y / dist, dv.z / dist};
+                        const Color3 intensity = ds->weight * (ds->dist * ds->dist);
+                        const Color3 f_primal = bsdf.eval(bctx, si, si.to_local(ds->d));
+                        if (f_primal != Color3(0.0) && !scene.occluded(si.spawn_to(ds->p))) {
                             T bsdf_pdf(0.0);
                             const C3<T> f = bsdf_eval(to_local(frame, dir), bsdf_pdf);
-                            const T w = ds->delta ? T(1.0) : power_heuristic(T(pdf * T(sel_pdf)), bsdf_pdf);
-                            // f * weight * w / sel, weight = radiance / pdf
-                            add(L, throughput * f * radiance * T(w / (pdf * T(sel_pdf))));
+                            add(L, throughput * f * intensity * T(T(1.0) / (dist2 * T(sel_pdf))));
+                        }
+                    } else {
+                        const auto* mesh =
+                            sh >= 0 ? dynamic_cast<const TriangleMesh*>(scene.shapes()[std::size_t(sh)].get())
+                                    : nullptr;
+                        const bool light_sphere = sh >= 0 && sphere(uint32_t(sh));
+                        if (e->plugin_name() != "area" || e->spatially_varying() ||
+                            !((mesh && flat_triangles(uint32_t(sh))) || light_sphere))
+                            return S::Unsupported;
+                        const ShapeGeometry& eg = geometry[std::size_t(sh)];
+                        V3<T> ps, en = constant<T>(ds->n);
+                        if (light_sphere) {
+                            // Sphere::sample_position: uniform on the sphere (warp::square_to_uniform_sphere).
+                            using std::cos;
+                            using std::sin;
+                            const T z = T(1.0) - T(2.0) * u_l0, rr = safe_sqrt(T(T(1.0) - z * z)),
+                                    phi = T(2 * Pi) * u_l1;
+                            const V3<T> dirs{rr * cos(phi), rr * sin(phi), z};
+                            ps = constant<T>(Vec3d(eg.positions[0])) + dirs * T(eg.radii[0]);
+                            en = eg.flip_normals ? dirs * T(-1.0) : dirs;
+                        } else {
+                            // TriangleMesh::sample_position: the triangle by area, the remainder of u.x reused.
+                            const std::vector<double>& cdf = mesh->area_cdf();
+                            std::size_t k =
+                                std::size_t(std::lower_bound(cdf.begin(), cdf.end(), val(u_l0)) - cdf.begin());
+                            k = std::min(k, cdf.size() - 1);
+                            const double lo = k == 0 ? 0.0 : cdf[k - 1], width = cdf[k] - lo;
+                            T ux = width > 0 ? T((u_l0 - T(lo)) / T(width)) : T(0.5);
+                            if (val(ux) < 0) ux = T(0.0);
+                            if (val(ux) > 1.0 - 1e-16) ux = T(1.0 - 1e-16);
+                            const uint32_t* et = &eg.indices[3 * k];
+                            const T su = sqrt(ux), b0 = T(1.0) - su, b1 = u_l1 * su, b2 = T(1.0) - b0 - b1;
+                            ps = constant<T>(Vec3d(eg.positions[et[0]])) * b0 +
+                                 constant<T>(Vec3d(eg.positions[et[1]])) * b1 +
+                                 constant<T>(Vec3d(eg.positions[et[2]])) * b2;
+                        }
+                        if (glm::length(value(ps) - ds->p) > 1e-5 * (1 + glm::length(ds->p))) return S::Mismatch;
+                        const double light_area = scene.shapes()[std::size_t(sh)]->surface_area();
+                        // AreaEmitter::sample_direct.
+                        const V3<T> dv = ps - p;
+                        const T dist2 = dot(dv, dv), dist = sqrt(dist2);
+                        const V3<T> dir{dv.x / dist, dv.y / dist, dv.z / dist};
+                        const T cos_e = -dot(en, dir);
+                        const T pdf = T(1.0 / light_area) * dist2 / cos_e;
+                        const Color3 radiance = ds->weight * ds->pdf;
+                        const Color3 f_primal = bsdf.eval(bctx, si, si.to_local(ds->d));
+                        if (f_primal != Color3(0.0)) {
+                            const Ray shadow = ds->dist == Inf ? si.spawn(ds->d) : si.spawn_to(ds->p);
+                            if (!scene.occluded(shadow)) {
+                                T bsdf_pdf(0.0);
+                                const C3<T> f = bsdf_eval(to_local(frame, dir), bsdf_pdf);
+                                const T w = ds->delta ? T(1.0) : power_heuristic(T(pdf * T(sel_pdf)), bsdf_pdf);
+                                // f * weight * w / sel, weight = radiance / pdf
+                                add(L, throughput * f * radiance * T(w / (pdf * T(sel_pdf))));
+                            }
                         }
                     }
                 }
