@@ -369,7 +369,7 @@ PathDerivativeStatus PathDerivatives::Impl::run(Reader& rd, T& log_pi) const {
     using S = PathDerivativeStatus;
     const Sensor& sensor = *scene.sensor();
     const auto* proj = dynamic_cast<const ProjectiveSensor*>(&sensor);
-    if (!proj || sensor.plugin_name() != "perspective") return S::Unsupported;
+    if (!proj || (sensor.plugin_name() != "perspective" && sensor.plugin_name() != "thinlens")) return S::Unsupported;
 
     // The camera ray (integrator.cpp's evaluate_camera, the perspective sensor's sample_ray).
     const T fx = T(o.film_origin.x) + rd.read() * T(o.film_extent.x);
@@ -378,13 +378,26 @@ PathDerivativeStatus PathDerivatives::Impl::run(Reader& rd, T& log_pi) const {
     const Ray cam = sensor.sample_ray(Vec2d(val(fx), val(fy)), Vec2d(val(lx), val(ly)));
     const auto [tan_x, tan_y] = proj->tangents();
     const double W = sensor.film().width(), H = sensor.film().height();
-    const V3<T> d_cam =
-        normalize(V3<T>{T(tan_x) * (T(1.0) - T(2.0) * fx / T(W)), T(tan_y) * (T(1.0) - T(2.0) * fy / T(H)), T(1.0)});
+    const V3<T> pinhole{T(tan_x) * (T(1.0) - T(2.0) * fx / T(W)), T(tan_y) * (T(1.0) - T(2.0) * fy / T(H)), T(1.0)};
+    // A thin lens (the thinlens sensor's sample_ray): from the lens point towards the focal plane's point.
+    const ProjectiveSensor::Lens lens = proj->lens();
+    V3<T> lens_point{T(0.0), T(0.0), T(0.0)};
+    if (lens.aperture_radius > 0) {
+        const V3<T> disk = cosine_hemisphere(lx, ly);  // its x, y: the concentric disk
+        lens_point = V3<T>{disk.x * T(lens.aperture_radius), disk.y * T(lens.aperture_radius), T(0.0)};
+    }
+    const V3<T> d_cam = normalize(pinhole * T(lens.focus_distance) - lens_point);
     const Mat4d& M = proj->to_world().matrix;
     V3<T> d = normalize(V3<T>{T(M[0][0]) * d_cam.x + T(M[1][0]) * d_cam.y + T(M[2][0]) * d_cam.z,
                               T(M[0][1]) * d_cam.x + T(M[1][1]) * d_cam.y + T(M[2][1]) * d_cam.z,
                               T(M[0][2]) * d_cam.x + T(M[1][2]) * d_cam.y + T(M[2][2]) * d_cam.z});
-    V3<T> orig = constant<T>(cam.o);
+    V3<T> orig = lens.aperture_radius > 0 ? V3<T>{T(M[0][0]) * lens_point.x + T(M[1][0]) * lens_point.y + T(M[3][0]),
+                                                  T(M[0][1]) * lens_point.x + T(M[1][1]) * lens_point.y + T(M[3][1]),
+                                                  T(M[0][2]) * lens_point.x + T(M[1][2]) * lens_point.y + T(M[3][2])}
+                                          : constant<T>(cam.o);
+    if (glm::length(value(orig) - cam.o) > 1e-9 * (1 + glm::length(cam.o)) ||
+        glm::length(value(d) - glm::normalize(cam.d)) > 1e-9)
+        return S::Mismatch;
     Ray ray = cam;
     ray.d = glm::normalize(ray.d);
 

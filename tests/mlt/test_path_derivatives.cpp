@@ -272,6 +272,17 @@ TEST(PathDerivatives, MatchFiniteDifferencesWithAPointLight) {
     expect_matches_finite_differences(S, 16);
 }
 
+// The thinlens sensor (issue 14): the camera ray from a point of the lens (the aperture sample through the concentric
+// map) towards the focal plane, so the lens coordinates carry derivatives too. Broken variant seen to fail: the ray's
+// origin held at the lens centre (the differentiable ray no longer matches the renderer's: every path a mismatch).
+TEST(PathDerivatives, MatchFiniteDifferencesThroughAThinLens) {
+    const PathSetup S(
+        "cornell-box.xml", 6,
+        {{R"(<sensor type="perspective">)", R"(<sensor type="thinlens"><float name="aperture_radius" value="0.08"/>)"
+                                            R"(<float name="focus_distance" value="3.4"/>)"}});
+    expect_matches_finite_differences(S, 16);
+}
+
 // The caustic scene (a glass sphere): paths through the glass are reported as unsupported, never a mismatch; the
 // others are differentiated.
 TEST(PathDerivatives, UnsupportedPluginsAreReportedPerPath) {

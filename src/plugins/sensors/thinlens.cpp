@@ -60,6 +60,8 @@ public:
         if (!(m_focus > 0)) props.error("focus_distance", "must be positive");
     }
 
+    Lens lens() const override { return {m_radius, m_focus}; }
+
     Ray sample_ray(Vec2d film_pos, Vec2d aperture) const override {
         // The pinhole direction (z = 1) scaled onto the focal plane, and a point on the lens.
         const Vec3d q = m_focus * film_to_direction(film_pos);
