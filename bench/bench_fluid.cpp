@@ -57,17 +57,22 @@ void BM_BiotSavartPass(benchmark::State& state, bool periodic, SourceSampling sa
     BiotSavartEstimator est(grid, s.interpolation, sampling, solver.delta(), kernel);
     std::vector<double> out(std::size_t(res) * res);
     uint64_t pass = 0;
+    double cpu = 0;
     for (auto _ : state) {
+        const double c0 = kelvin::bench::process_cpu_seconds();
         parallel_for_units(std::size_t(res), [&](std::size_t row) {
             Random rng(pass, row);
             for (int i = 0; i < res; ++i)
                 out[row * std::size_t(res) + std::size_t(i)] = est.velocity(grid.cell_center(i, int(row)), nmc, rng).x;
         });
+        cpu += kelvin::bench::process_cpu_seconds() - c0;
         benchmark::DoNotOptimize(out.data());
         ++pass;
     }
     const double evals = double(res) * res * nmc;
     state.counters["evals/s"] = benchmark::Counter(evals * double(state.iterations()), benchmark::Counter::kIsRate);
+    // Per core: CPU time of the passes, all threads (the figure to compare on a loaded machine, and with bench_fluid3).
+    state.counters["evals/cpu_s"] = evals * double(state.iterations()) / cpu;
     state.counters["ns/eval"] = benchmark::Counter(evals * double(state.iterations()) * 1e-9,
                                                    benchmark::Counter::kIsRate | benchmark::Counter::kInvert);
     state.counters["threads"] = thread_count();
@@ -149,6 +154,20 @@ BENCHMARK_CAPTURE(BM_BiotSavartPass, periodic_uniform, true, SourceSampling::Uni
     ->Unit(benchmark::kMillisecond)
     ->UseRealTime();
 BENCHMARK_CAPTURE(BM_BiotSavartPass, open_vorticity, false, SourceSampling::Vorticity)->Apply(Sizes);
+// Against bench_fluid3's BiotSavart3Pass at n_mc 128: 256^2 and 512^2 cells are as many alias slots as 32^3 x 2
+// and 64^3 (docs/performance.md, "Against the 2D kernel"). CPU time, so run them with KELVIN_BENCH_THREADS=1.
+BENCHMARK_CAPTURE(BM_BiotSavartPass, periodic_vorticity, true, SourceSampling::Vorticity)
+    ->Args({256, 128})
+    ->Args({512, 128})
+    ->Unit(benchmark::kMillisecond)
+    ->MeasureProcessCPUTime()
+    ->UseRealTime();
+BENCHMARK_CAPTURE(BM_BiotSavartPass, open_vorticity, false, SourceSampling::Vorticity)
+    ->Args({256, 128})
+    ->Args({512, 128})
+    ->Unit(benchmark::kMillisecond)
+    ->MeasureProcessCPUTime()
+    ->UseRealTime();
 BENCHMARK_CAPTURE(BM_Step, euler, Advection::Euler)->Apply(Sizes);
 BENCHMARK_CAPTURE(BM_Step, rk4, Advection::RK4)
     ->Args({256, 256})

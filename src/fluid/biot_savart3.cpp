@@ -6,6 +6,7 @@
 #include <kelvin/fluid/biot_savart3.h>
 
 #include <algorithm>
+#include <cfloat>
 #include <cmath>
 #include <complex>
 #include <limits>
@@ -242,11 +243,17 @@ BiotSavartEstimator3::BiotSavartEstimator3(const VectorGrid3& vorticity, Interpo
 
 namespace {
 
-/// One batch in structure-of-arrays form: sample positions in cell units relative to the grid origin, and the
-/// source strength (unit direction for importance samples, omega_h(y) for uniform ones). Padding has w = 0.
+/// One batch in structure-of-arrays form: sample positions in cell units relative to the grid origin, the source
+/// strength (unit direction for importance samples, omega_h(y) for uniform ones; padding has w = 0), the offsets
+/// r = x - y in world units (minimum image when periodic, for the correction lookups) and the contributions
+/// w x G (times 4 pi). One object, so that the kernel's loops index one restrict-qualified base and vectorise
+/// without run-time alias checks.
 struct Batch3 {
-    alignas(64) float px[BiotSavartEstimator3::Batch], py[BiotSavartEstimator3::Batch], pz[BiotSavartEstimator3::Batch];
-    alignas(64) float wx[BiotSavartEstimator3::Batch], wy[BiotSavartEstimator3::Batch], wz[BiotSavartEstimator3::Batch];
+    static constexpr int N = BiotSavartEstimator3::Batch;
+    alignas(64) float px[N], py[N], pz[N];
+    alignas(64) float wx[N], wy[N], wz[N];
+    alignas(64) float rx[N], ry[N], rz[N];
+    alignas(64) float fx[N], fy[N], fz[N];
 };
 
 struct Kernel3Params {
@@ -286,17 +293,11 @@ __attribute__((target_clones("avx2", "default"))) void accumulate3(const float* 
         }
 }
 
-/// r = x - y in world units (minimum image when periodic), for the correction lookups.
-struct Offsets3 {
-    alignas(64) float rx[BiotSavartEstimator3::Batch], ry[BiotSavartEstimator3::Batch], rz[BiotSavartEstimator3::Batch];
-};
-
 // The kernel: sum over the batch of w x G_delta(r) (times 4 pi) and its square, per component, in float lanes then
 // double. Compiled for AVX2 and for the baseline (chosen at load time); both give identical results (the same IEEE
 // operations per sample, no FMA contraction, the same summation order).
 template <bool Periodic>
-__attribute__((always_inline)) inline void kernel3_body(const Batch3& b, int count, const Kernel3Params& k,
-                                                        Offsets3& off, float* fx, float* fy, float* fz) {
+__attribute__((always_inline)) inline void kernel3_body(Batch3& __restrict b, int count, const Kernel3Params& k) {
     const float inv_nx = 1.0f / k.nx, inv_ny = 1.0f / k.ny, inv_nz = 1.0f / k.nz;
     for (int s = 0; s < count; ++s) {
         float dx = k.qx - b.px[s], dy = k.qy - b.py[s], dz = k.qz - b.pz[s];
@@ -306,15 +307,22 @@ __attribute__((always_inline)) inline void kernel3_body(const Batch3& b, int cou
             dz -= k.nz * float(int(dz * inv_nz + 1.5f) - 1);
         }
         const float rx = dx * k.hx, ry = dy * k.hy, rz = dz * k.hz;
-        off.rx[s] = rx;
-        off.ry[s] = ry;
-        off.rz[s] = rz;
+        if constexpr (Periodic) {
+            b.rx[s] = rx;
+            b.ry[s] = ry;
+            b.rz[s] = rz;
+        }
+        // r^-3, branch-free so that the loop vectorises (a select on values, never a division by zero: r = 0 with
+        // delta = 0, or r2 so small that r2^(3/2) underflows, contributes zero). The file is built with
+        // -fno-math-errno -fno-trapping-math (src/CMakeLists.txt), without which GCC keeps this loop scalar.
         const float r2 = rx * rx + ry * ry + rz * rz + k.d2;
-        const float inv = r2 > 0.0f ? 1.0f / (r2 * std::sqrt(r2)) : 0.0f;
+        const float den = r2 * std::sqrt(r2);
+        const float q = 1.0f / std::max(den, FLT_MIN);
+        const float inv = den > 0.0f ? q : 0.0f;
         const float gx = rx * inv, gy = ry * inv, gz = rz * inv;
-        fx[s] = b.wy[s] * gz - b.wz[s] * gy;
-        fy[s] = b.wz[s] * gx - b.wx[s] * gz;
-        fz[s] = b.wx[s] * gy - b.wy[s] * gx;
+        b.fx[s] = b.wy[s] * gz - b.wz[s] * gy;
+        b.fy[s] = b.wz[s] * gx - b.wx[s] * gz;
+        b.fz[s] = b.wx[s] * gy - b.wy[s] * gx;
     }
 }
 
@@ -350,14 +358,11 @@ __attribute__((target_clones("avx2", "default"))) void positions3_box(const uint
     positions3_body<false>(r1, r2, cell, m, b);
 }
 
-__attribute__((target_clones("avx2", "default"))) void kernel3_open(const Batch3& b, int count, const Kernel3Params& k,
-                                                                    Offsets3& off, float* fx, float* fy, float* fz) {
-    kernel3_body<false>(b, count, k, off, fx, fy, fz);
+__attribute__((target_clones("avx2", "default"))) void kernel3_open(Batch3& b, int count, const Kernel3Params& k) {
+    kernel3_body<false>(b, count, k);
 }
-__attribute__((target_clones("avx2", "default"))) void kernel3_periodic(const Batch3& b, int count,
-                                                                        const Kernel3Params& k, Offsets3& off,
-                                                                        float* fx, float* fy, float* fz) {
-    kernel3_body<true>(b, count, k, off, fx, fy, fz);
+__attribute__((target_clones("avx2", "default"))) void kernel3_periodic(Batch3& b, int count, const Kernel3Params& k) {
+    kernel3_body<true>(b, count, k);
 }
 
 }  // namespace
@@ -391,8 +396,6 @@ VelocityEstimate3 BiotSavartEstimator3::estimate(Vec3d x, int n, Random& rng) co
     k.d2 = float(m_delta * m_delta);
 
     Batch3 b;
-    Offsets3 off;
-    alignas(64) float fx[Batch], fy[Batch], fz[Batch];
     Sums3 sums;
     // Importance sampling is bound by the alias table's cache misses (a 64^3 table is 9 MB): each batch's draws are
     // made one batch ahead and its slots prefetched, so the misses overlap the previous batch's arithmetic. The
@@ -448,19 +451,19 @@ VelocityEstimate3 BiotSavartEstimator3::estimate(Vec3d x, int n, Random& rng) co
             }
         }
         if (periodic)
-            kernel3_periodic(b, m, k, off, fx, fy, fz);
+            kernel3_periodic(b, m, k);
         else
-            kernel3_open(b, m, k, off, fx, fy, fz);
+            kernel3_open(b, m, k);
         if (periodic)  // the smooth correction G_per - G (4 pi H) at the minimum images
             for (int s = 0; s < m; ++s) {
                 float c[3];
-                m_periodic->correction4pi(off.rx[s], off.ry[s], off.rz[s], c);
-                fx[s] += b.wy[s] * c[2] - b.wz[s] * c[1];
-                fy[s] += b.wz[s] * c[0] - b.wx[s] * c[2];
-                fz[s] += b.wx[s] * c[1] - b.wy[s] * c[0];
+                m_periodic->correction4pi(b.rx[s], b.ry[s], b.rz[s], c);
+                b.fx[s] += b.wy[s] * c[2] - b.wz[s] * c[1];
+                b.fy[s] += b.wz[s] * c[0] - b.wx[s] * c[2];
+                b.fz[s] += b.wx[s] * c[1] - b.wy[s] * c[0];
             }
-        for (int s = m; s < padded; ++s) fx[s] = fy[s] = fz[s] = 0.0f;
-        accumulate3(fx, fy, fz, padded, sums);
+        for (int s = m; s < padded; ++s) b.fx[s] = b.fy[s] = b.fz[s] = 0.0f;
+        accumulate3(b.fx, b.fy, b.fz, padded, sums);
     }
     const double weight =
         (importance ? m_abs_integral : m_region_size.x * m_region_size.y * m_region_size.z) * InvFourPi;
