@@ -1,0 +1,56 @@
+// The batched PCG32 draw behind Random::fill_u32 (random.h): eight interleaved LCG chains in vector lanes, for the
+// hot loops that need many draws at once (the 3D Biot–Savart sampler). Bit for bit the serial sequence.
+#include <kelvin/core/random.h>
+
+#include <cstring>
+
+namespace kelvin::detail {
+
+namespace {
+typedef uint64_t U64x4 __attribute__((vector_size(32)));
+typedef uint32_t U32x4 __attribute__((vector_size(16)));
+
+/// PCG32's XSH RR output of four states (pcg-cpp's xsh_rr_mixin for 64-bit state, 32-bit output).
+inline U32x4 xsh_rr(U64x4 s) {
+    const U32x4 x = __builtin_convertvector(((s >> 18u) ^ s) >> 27u, U32x4);
+    const U32x4 rot = __builtin_convertvector(s >> 59u, U32x4);
+    return (x >> rot) | (x << ((-rot) & 31u));
+}
+
+inline uint32_t xsh_rr(uint64_t s) {
+    const uint32_t x = uint32_t(((s >> 18u) ^ s) >> 27u), rot = uint32_t(s >> 59u);
+    return (x >> rot) | (x << ((-rot) & 31u));
+}
+}  // namespace
+
+// Lanes l = 0..7 hold the states of draws i + l; one step of every lane is state * a^8 + c (1 + a + ... + a^7). The
+// AVX2 clone does the 64-bit products with vpmuludq and the rotations with vpsrlvd/vpsllvd; the baseline clone is
+// the same arithmetic, emulated. Integer arithmetic: both give the serial values exactly.
+__attribute__((target_clones("avx2", "default"))) uint64_t pcg32_fill(uint64_t state, uint64_t a, uint64_t c,
+                                                                      uint32_t* out, int n) {
+    int i = 0;
+    if (n >= 8) {
+        uint64_t lane[8], ak = 1, ck = 0;  // after the loop: ak = a^8, ck = c (1 + a + ... + a^7)
+        for (int l = 0; l < 8; ++l) {
+            lane[l] = state * ak + ck;
+            ck = ck * a + c;
+            ak *= a;
+        }
+        U64x4 lo = {lane[0], lane[1], lane[2], lane[3]}, hi = {lane[4], lane[5], lane[6], lane[7]};
+        for (; i + 8 <= n; i += 8) {
+            const U32x4 o0 = xsh_rr(lo), o1 = xsh_rr(hi);
+            std::memcpy(out + i, &o0, sizeof o0);
+            std::memcpy(out + i + 4, &o1, sizeof o1);
+            lo = lo * ak + ck;
+            hi = hi * ak + ck;
+        }
+        state = lo[0];
+    }
+    for (; i < n; ++i) {
+        out[i] = xsh_rr(state);
+        state = state * a + c;
+    }
+    return state;
+}
+
+}  // namespace kelvin::detail
