@@ -33,8 +33,8 @@ Vec3d biot_savart_kernel3(Vec3d r, double delta);
 /// The triply periodic correction G_per - G for a box of size `period`, tabulated on the minimum-image cell.
 class PeriodicKernel3 {
 public:
-    /// `table_size` intervals per axis over [-L/2, L/2]^3 (even, >= 4). Building it costs (n+1)^3 Ewald sums
-    /// (0.1-0.3 s at 32 on one core; done in parallel).
+    /// `table_size` intervals per axis over [-L/2, L/2]^3 (even, >= 4), stored as the positive octant (H is odd in
+    /// each coordinate of its own component and even in the others). Building it costs (n/2+1)^3 Ewald sums.
     explicit PeriodicKernel3(Vec3d period, int table_size = 32);
     Vec3d period() const { return m_period; }
     int table_size() const { return m_n; }
@@ -45,13 +45,17 @@ public:
     static Vec3d exact(Vec3d r, Vec3d period, double alpha = 0);
     /// Tabulated G_per(r) - G(r), trilinear. r must be a minimum image.
     Vec3d correction(Vec3d r) const;
-    /// The same in float, times 4 pi (the estimator's inner loop).
-    void correction4pi(float rx, float ry, float rz, float out[3]) const;
+
+    /// Nodes per axis of the octant table (table_size / 2 + 1).
+    int octant_nodes() const { return m_n / 2 + 1; }
+    /// The octant table for the estimator's inner loop: octant_nodes()^3 nodes, x fastest, of four floats each
+    /// (4 pi H_x, 4 pi H_y, 4 pi H_z, 0) at r = (i Lx, j Ly, k Lz) / table_size.
+    const float* octant() const { return m_octant.data(); }
 
 private:
     Vec3d m_period, m_inv_period;
     int m_n;
-    std::vector<float> m_table;  ///< (n+1)^3 nodes x 3 components, x fastest
+    std::vector<float> m_octant;
 };
 
 /// Biot–Savart Monte Carlo estimator over a cached 3D vorticity grid. Building it scans the grid (alias table);
