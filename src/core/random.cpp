@@ -8,14 +8,7 @@ namespace kelvin::detail {
 
 namespace {
 typedef uint64_t U64x4 __attribute__((vector_size(32)));
-typedef uint32_t U32x4 __attribute__((vector_size(16)));
-
-/// PCG32's XSH RR output of four states (pcg-cpp's xsh_rr_mixin for 64-bit state, 32-bit output).
-inline U32x4 xsh_rr(U64x4 s) {
-    const U32x4 x = __builtin_convertvector(((s >> 18u) ^ s) >> 27u, U32x4);
-    const U32x4 rot = __builtin_convertvector(s >> 59u, U32x4);
-    return (x >> rot) | (x << ((-rot) & 31u));
-}
+typedef uint32_t U32x8 __attribute__((vector_size(32)));
 
 inline uint32_t xsh_rr(uint64_t s) {
     const uint32_t x = uint32_t(((s >> 18u) ^ s) >> 27u), rot = uint32_t(s >> 59u);
@@ -24,7 +17,7 @@ inline uint32_t xsh_rr(uint64_t s) {
 }  // namespace
 
 // Lanes l = 0..7 hold the states of draws i + l; one step of every lane is state * a^8 + c (1 + a + ... + a^7). The
-// AVX2 clone does the 64-bit products with vpmuludq and the rotations with vpsrlvd/vpsllvd; the baseline clone is
+// AVX2 clone does the 64-bit products with vpmuludq and the rotations with vpsrlvq; the baseline clone is
 // the same arithmetic, emulated. Integer arithmetic: both give the serial values exactly.
 __attribute__((target_clones("avx2", "default"))) uint64_t pcg32_fill(uint64_t state, uint64_t a, uint64_t c,
                                                                       uint32_t* out, int n) {
@@ -38,9 +31,13 @@ __attribute__((target_clones("avx2", "default"))) uint64_t pcg32_fill(uint64_t s
         }
         U64x4 lo = {lane[0], lane[1], lane[2], lane[3]}, hi = {lane[4], lane[5], lane[6], lane[7]};
         for (; i + 8 <= n; i += 8) {
-            const U32x4 o0 = xsh_rr(lo), o1 = xsh_rr(hi);
-            std::memcpy(out + i, &o0, sizeof o0);
-            std::memcpy(out + i + 4, &o1, sizeof o1);
+            // PCG32's XSH RR output (pcg-cpp's xsh_rr_mixin, 64-bit state, 32-bit output) in the low halves of the
+            // 64-bit lanes: the 32-bit value doubled into both halves, so that one variable 64-bit shift rotates it.
+            const U64x4 xl = ((lo >> 18u) ^ lo) >> 27u, xh = ((hi >> 18u) ^ hi) >> 27u;
+            const U64x4 rl = ((xl & 0xffffffffu) | (xl << 32u)) >> (lo >> 59u);
+            const U64x4 rh = ((xh & 0xffffffffu) | (xh << 32u)) >> (hi >> 59u);
+            const U32x8 o = __builtin_shufflevector(U32x8(rl), U32x8(rh), 0, 2, 4, 6, 8, 10, 12, 14);
+            std::memcpy(out + i, &o, sizeof o);
             lo = lo * ak + ck;
             hi = hi * ak + ck;
         }
