@@ -80,17 +80,23 @@ public:
     double abs_integral() const { return m_abs_integral; }
 
     static constexpr int Batch = 64;
-    /// Largest grid (cells per axis) the packed alias table supports (10 bits per axis).
+    /// Largest grid (cells per axis) the alias table supports: grid indices below 2^30, which the sampler splits
+    /// into (i, j, k) exactly in double and float arithmetic.
     static constexpr int MaxResolution = 1024;
 
 private:
-    /// One alias-table slot with both cells' unit directions (the sample's weight divided by its magnitude), so
-    /// that a sample costs one random memory access.
-    struct Slot {
-        uint32_t threshold;
-        uint32_t self, alias;       ///< packed cells i | j << 10 | k << 20 (adjacent: the sampler indexes them)
-        float dself[3], dalias[3];  ///< unit directions of omega (adjacent, likewise)
+    /// One alias-table slot per grid cell (grid order, x fastest: a draw's slot is its own cell) with the alias's
+    /// grid index and both cells' unit directions of omega (the sample's weight divided by its magnitude) as
+    /// octahedral codes: 16 bytes, aligned, so a sample reads one cache line and a 64^3 table is 4 MB (it was 36
+    /// bytes per non-zero cell with float directions: 9.4 MB, 1.56 lines per sample, 2-3x slower at 64^3). A code
+    /// is within 1.3e-4 rad of the float direction (mean 4.5e-5), far below the Monte Carlo error and the periodic
+    /// table's 5e-3.
+    struct alignas(16) Slot {
+        uint32_t threshold;      ///< keep the slot's own cell when the accept fraction is below it
+        uint32_t alias;          ///< grid index of the alias cell
+        uint32_t dself, dalias;  ///< octahedral codes, 2 x 16 bits (adjacent: the sampler indexes them)
     };
+    static_assert(sizeof(Slot) == 16);
 
     const VectorGrid3* m_grid;
     Interpolation m_interp;
