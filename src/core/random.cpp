@@ -4,7 +4,7 @@
 
 #include <cstring>
 
-namespace kelvin::detail {
+namespace kelvin {
 
 namespace {
 typedef uint64_t U64x4 __attribute__((vector_size(32)));
@@ -19,8 +19,8 @@ inline uint32_t xsh_rr(uint64_t s) {
 // Lanes l = 0..7 hold the states of draws i + l; one step of every lane is state * a^8 + c (1 + a + ... + a^7). The
 // AVX2 clone does the 64-bit products with vpmuludq and the rotations with vpsrlvq; the baseline clone is
 // the same arithmetic, emulated. Integer arithmetic: both give the serial values exactly.
-__attribute__((target_clones("avx2", "default"))) uint64_t pcg32_fill(uint64_t state, uint64_t a, uint64_t c,
-                                                                      uint32_t* out, int n) {
+__attribute__((target_clones("avx2", "default"))) uint64_t Random::fill_lanes(uint64_t state, uint64_t a, uint64_t c,
+                                                                              uint32_t* out, int n) {
     int i = 0;
     if (n >= 8) {
         uint64_t lane[8], ak = 1, ck = 0;  // after the loop: ak = a^8, ck = c (1 + a + ... + a^7)
@@ -50,4 +50,4 @@ __attribute__((target_clones("avx2", "default"))) uint64_t pcg32_fill(uint64_t s
     return state;
 }
 
-}  // namespace kelvin::detail
+}  // namespace kelvin

@@ -22,12 +22,6 @@ constexpr uint64_t hash_combine(uint64_t a, uint64_t b) {
 
 class Random;
 
-namespace detail {
-/// n successive PCG32 (XSH RR, 64-bit state) outputs from `state` with multiplier a and increment c, in vector
-/// lanes (src/core/random.cpp); returns the state after them.
-uint64_t pcg32_fill(uint64_t state, uint64_t a, uint64_t c, uint32_t* out, int n);
-}  // namespace detail
-
 /// Two independent standard normal variates (Box–Muller).
 inline Vec2d standard_normal2(Random& rng);
 
@@ -63,10 +57,13 @@ public:
     bool operator==(const Random& o) const { return m_rng == o.m_rng; }
 
 private:
+    /// n successive PCG32 (XSH RR, 64-bit state) outputs from `state` with multiplier a and increment c, in vector
+    /// lanes (src/core/random.cpp); returns the state after them.
+    static uint64_t fill_lanes(uint64_t state, uint64_t a, uint64_t c, uint32_t* out, int n);
     /// pcg32 with access to its state for fill_u32.
     struct Engine : pcg32 {
         using pcg32::pcg32;
-        void fill(uint32_t* out, int n) { state_ = detail::pcg32_fill(state_, multiplier(), increment(), out, n); }
+        void fill(uint32_t* out, int n) { state_ = fill_lanes(state_, multiplier(), increment(), out, n); }
     };
     Engine m_rng;
 };
