@@ -286,34 +286,32 @@ struct Octant3 {
     float gmax = 0;                ///< table_size / 2, the octant's far face
 };
 
-struct Sums3 {
-    double s[3] = {0, 0, 0}, q[3] = {0, 0, 0};
-};
-
 constexpr int Lanes = 8;
+
+/// Running sums of the samples and their squares per component, in fixed lanes over the whole estimate (reduced
+/// once at the end, in a fixed order).
+struct Sums3 {
+    alignas(64) double a[3][Lanes] = {}, q[3][Lanes] = {};
+};
 static_assert(BiotSavartEstimator3::Batch % Lanes == 0);
 
-/// Adds the batch's values and squares to the sums: partial sums in fixed lanes (the same order on every ISA, so
-/// they vectorise without reassociation), in double so that squares of large samples (a query on a sample point
+/// Adds the batch's values and squares to the lane sums (the same order on every ISA, so they vectorise without
+/// reassociation), in double so that squares of large samples (a query on a sample point
 /// with delta = 0, tiny scales) cannot overflow. `count` is a multiple of Lanes, padding zero.
 __attribute__((target_clones("avx2", "default"))) void accumulate3(const float* fx, const float* fy, const float* fz,
                                                                    int count, Sums3& out) {
-    double a[3][Lanes] = {}, q[3][Lanes] = {};
+    Sums3 t = out;  // a local copy: its lanes stay in registers across the loop
     for (int base = 0; base < count; base += Lanes)
         for (int l = 0; l < Lanes; ++l) {
             const double x = fx[base + l], y = fy[base + l], z = fz[base + l];
-            a[0][l] += x;
-            a[1][l] += y;
-            a[2][l] += z;
-            q[0][l] += x * x;
-            q[1][l] += y * y;
-            q[2][l] += z * z;
+            t.a[0][l] += x;
+            t.a[1][l] += y;
+            t.a[2][l] += z;
+            t.q[0][l] += x * x;
+            t.q[1][l] += y * y;
+            t.q[2][l] += z * z;
         }
-    for (int c = 0; c < 3; ++c)
-        for (int l = 0; l < Lanes; ++l) {
-            out.s[c] += a[c][l];
-            out.q[c] += q[c][l];
-        }
+    out = t;
 }
 
 // The kernel: sum over the batch of w x G_delta(r) (times 4 pi) and its square, per component, in float lanes then
@@ -509,6 +507,7 @@ VelocityEstimate3 BiotSavartEstimator3::estimate(Vec3d x, int n, Random& rng) co
     alignas(64) uint32_t draws[2][3 * Batch];
     const auto draw_batch = [&](uint32_t* r, int m) {
         rng.fill_u32(r, 3 * m);  // sample s draws r[s] (slot), r[m + s] and r[2m + s] (offsets)
+#pragma GCC unroll 4
         for (int s = 0; s < m; ++s) __builtin_prefetch(&m_slots[(uint64_t(r[s]) * slots) >> 32]);  // one line
     };
     if (importance) draw_batch(draws[0], std::min(Batch, n));
@@ -521,6 +520,7 @@ VelocityEstimate3 BiotSavartEstimator3::estimate(Vec3d x, int n, Random& rng) co
             const uint32_t* r = draws[batch & 1];
             if (n - done > Batch) draw_batch(draws[(batch + 1) & 1], std::min(Batch, n - done - Batch));
             alignas(64) uint32_t cell[Batch], dir[Batch];
+#pragma GCC unroll 4
             for (int s = 0; s < m; ++s) {
                 const uint64_t p = uint64_t(r[s]) * slots;
                 const uint32_t self = uint32_t(p >> 32);
@@ -561,10 +561,13 @@ VelocityEstimate3 BiotSavartEstimator3::estimate(Vec3d x, int n, Random& rng) co
     const double weight =
         (importance ? m_abs_integral : m_region_size.x * m_region_size.y * m_region_size.z) * InvFourPi;
     for (int a = 0; a < 3; ++a) {
-        out.value[a] = weight * sums.s[a] / n;
-        if (n > 1)
-            out.variance[a] =
-                weight * weight * std::max(0.0, sums.q[a] - sums.s[a] * sums.s[a] / n) / (double(n) * (n - 1));
+        double sum = 0, sq = 0;
+        for (int l = 0; l < Lanes; ++l) {
+            sum += sums.a[a][l];
+            sq += sums.q[a][l];
+        }
+        out.value[a] = weight * sum / n;
+        if (n > 1) out.variance[a] = weight * weight * std::max(0.0, sq - sum * sum / n) / (double(n) * (n - 1));
     }
     out.samples = n;
     return out;
