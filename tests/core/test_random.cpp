@@ -202,15 +202,16 @@ TEST(Random, HashCombineMixes) {
 }
 
 TEST(Random, FillIsTheSerialSequence) {
-    // fill_u32 runs four interleaved LCG chains; it must give exactly what n calls of next_u32 give, and leave the
-    // generator where they leave it, for every n (tails of 0-3 values) and stream. Broken variant checked: c4 =
-    // c (1 + a + a^2) (a missing term) differs from the 5th value on.
+    // fill_u32 runs eight interleaved LCG chains in vector lanes; it must give exactly what n calls of next_u32
+    // give, and leave the generator where they leave it, for every n (tails of 0-7 values, several rounds of the
+    // lanes) and stream. Broken variants checked: c8 = c (1 + a + ... + a^6) (a missing term) differs from the 9th
+    // value on; a rotation by (32 - rot) without the & 31 differs wherever rot = 0.
     for (uint64_t stream : {0ULL, 7ULL, 123456789ULL})
-        for (int n = 0; n <= 37; ++n) {
+        for (int n = 0; n <= 203; ++n) {
             Random a(99, stream), b(99, stream);
             a.next_u32();  // an odd start
             b.next_u32();
-            uint32_t got[37];
+            uint32_t got[203];
             a.fill_u32(got, n);
             for (int i = 0; i < n; ++i) ASSERT_EQ(got[i], b.next_u32()) << "n " << n << " i " << i;
             EXPECT_EQ(a.next_u32(), b.next_u32()) << "state after fill, n " << n;

@@ -32,9 +32,9 @@ public:
     void seed_stream(uint64_t seed, uint64_t stream) { m_rng.seed(hash_combine(seed, 0x6b656c76696eULL), stream); }
 
     uint32_t next_u32() { return m_rng(); }
-    /// The next `n` values of next_u32, bit for bit, in order: four interleaved LCG chains (state k + 4 is a^4
-    /// state k + c (a^3 + a^2 + a + 1)) instead of one serial chain, so hot loops that need many draws are not
-    /// bound by the multiply latency of the generator.
+    /// The next `n` values of next_u32, bit for bit, in order: eight interleaved LCG chains in vector lanes
+    /// (state k + 8 is a^8 state k + c (1 + a + ... + a^7)) instead of one serial chain, so hot loops that need
+    /// many draws are bound neither by the multiply latency of the generator nor by its scalar output function.
     void fill_u32(uint32_t* out, int n) { m_rng.fill(out, n); }
     /// Uniform in [0, bound) without modulo bias.
     uint32_t next_u32(uint32_t bound) { return m_rng(bound); }
@@ -57,27 +57,13 @@ public:
     bool operator==(const Random& o) const { return m_rng == o.m_rng; }
 
 private:
+    /// n successive PCG32 (XSH RR, 64-bit state) outputs from `state` with multiplier a and increment c, in vector
+    /// lanes (src/core/random.cpp); returns the state after them.
+    static uint64_t fill_lanes(uint64_t state, uint64_t a, uint64_t c, uint32_t* out, int n);
     /// pcg32 with access to its state for fill_u32.
     struct Engine : pcg32 {
         using pcg32::pcg32;
-        void fill(uint32_t* out, int n) {
-            const uint64_t a = multiplier(), c = increment();
-            const uint64_t a2 = a * a, a4 = a2 * a2, c4 = c * (1 + a) * (1 + a2);
-            uint64_t s0 = state_, s1 = s0 * a + c, s2 = s1 * a + c, s3 = s2 * a + c;
-            int i = 0;
-            for (; i + 4 <= n; i += 4) {
-                out[i] = output(s0);
-                out[i + 1] = output(s1);
-                out[i + 2] = output(s2);
-                out[i + 3] = output(s3);
-                s0 = s0 * a4 + c4;
-                s1 = s1 * a4 + c4;
-                s2 = s2 * a4 + c4;
-                s3 = s3 * a4 + c4;
-            }
-            state_ = s0;
-            for (; i < n; ++i) out[i] = (*this)();
-        }
+        void fill(uint32_t* out, int n) { state_ = fill_lanes(state_, multiplier(), increment(), out, n); }
     };
     Engine m_rng;
 };
