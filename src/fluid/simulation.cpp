@@ -91,8 +91,10 @@ SimulationParams SimulationParams::parse_baseline(const Properties& props, const
     SimulationParams p = parse(props, who);
     props.get_int("diffusion_samples", 1, 1 << 20);  // mcfluid's n_d: read (validated), not used
     if (props.get_object("velocity"))
-        log_info("{}: <velocity> is mcfluid's Monte Carlo estimator; {} computes its velocity itself (ignored)", who,
-                 who);
+        log_info(
+            "{}: <velocity> is mcfluid's Monte Carlo estimator; {} computes its velocity itself (only the "
+            "estimator's boundaries are used)",
+            who, who);
     return p;
 }
 

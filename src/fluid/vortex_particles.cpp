@@ -6,6 +6,8 @@
 #include <kelvin/core/parallel.h>
 #include <kelvin/core/random.h>
 #include <kelvin/core/stats.h>
+#include <kelvin/fluid/boundary.h>
+#include <kelvin/fluid/panels.h>
 #include <kelvin/fluid/vortex_particles.h>
 
 #include <algorithm>
@@ -300,6 +302,32 @@ struct VortexParticleSolver::Tree {
         if (w) *w = sw;
         return evals;
     }
+    // Sum of Gamma log(|t - p|^2 + delta^2) (4 pi times the blobs' stream function) for one target, with the same
+    // opening rule: far field G log q - 2 (D . r) / q (q = |r|^2 + delta^2), the dipole term of f(r - e) = f(r) -
+    // e . grad f(r).
+    double stream(double tx, double ty, double d2, double theta2) const {
+        double s = 0;
+        int32_t stack[4 * TreeMaxDepth + 8];
+        int top = 0;
+        stack[top++] = 0;
+        while (top > 0) {
+            const Node& nd = nodes[std::size_t(stack[--top])];
+            const double rx = tx - nd.cx, ry = ty - nd.cy, r2 = rx * rx + ry * ry;
+            const bool inside = tx >= nd.x0 && tx <= nd.x0 + nd.size && ty >= nd.y0 && ty <= nd.y0 + nd.size;
+            if (!inside && nd.size * nd.size < theta2 * r2) {
+                const double q = r2 + d2;
+                s += nd.g * std::log(q) - 2 * (nd.dx * rx + nd.dy * ry) / q;
+            } else if (nd.child < 0) {
+                for (uint32_t k = nd.begin; k < nd.end; ++k) {
+                    const double dx = tx - x[k], dy = ty - y[k];
+                    s += g[k] * std::log(dx * dx + dy * dy + d2);
+                }
+            } else {
+                for (int32_t c = nd.child + nd.nchild - 1; c >= nd.child; --c) stack[top++] = c;
+            }
+        }
+        return s;
+    }
     __attribute__((target_clones("avx2", "default"))) uint64_t sum_block(const double* tx, const double* ty,
                                                                          std::size_t nt, double d2, double theta2,
                                                                          double* u, double* v, double* w) const {
@@ -327,6 +355,7 @@ VortexParticleSolver::VortexParticleSolver(const VortexParticleSettings& setting
     if (m_settings.leaf_size < 1) throw_runtime("VortexParticleSolver: leaf_size must be >= 1");
     m_use_tree = m_settings.summation == ParticleSummation::Tree && !d.periodic;
     if (m_use_tree) m_tree = std::make_unique<Tree>();
+    if (m_settings.boundaries) build_panels();
 
     std::vector<double> w(m_omega.cell_count());
     double wmax = 0;
@@ -346,6 +375,7 @@ VortexParticleSolver::VortexParticleSolver(const VortexParticleSettings& setting
             const double v = w[std::size_t(j) * std::size_t(m_omega.nx()) + std::size_t(i)];
             if (v == 0 || std::abs(v) <= cut) continue;
             const Vec2d c = m_omega.cell_center(i, j);
+            if (m_bounds && m_bounds->solid_at(c) >= 0) continue;  // no vorticity inside a solid
             m_x.push_back(c.x);
             m_y.push_back(c.y);
             m_gamma.push_back(v * h.x * h.y);
@@ -373,6 +403,94 @@ VortexParticleSolver::VortexParticleSolver(const VortexParticleSettings& setting
 
 VortexParticleSolver::~VortexParticleSolver() = default;
 
+void VortexParticleSolver::build_panels() {
+    const WosVelocityOptions& o = *m_settings.boundaries;
+    const Domain2& d = m_settings.domain;
+    if (d.periodic) throw_runtime("vortex_particles: free-slip boundaries need an open domain (not periodic)");
+    if (o.inflow_speed != 0) throw_runtime("vortex_particles: no inflow/outflow walls (inflow_speed must be 0)");
+    m_bounds = std::make_unique<WosVelocityField>(o, d, nullptr, Interpolation::Bilinear, 0.0);
+    const Vec2d h = m_omega.h();
+    const double len = m_settings.panel_length > 0 ? m_settings.panel_length : std::min(h.x, h.y);
+    std::vector<Segment2> panels;
+    std::vector<double> psi;
+    // Psi prescribed on a piece (0-3 the walls, 4 + i shape i), as the walk takes it (WosVelocityField).
+    auto add = [&](const Segment2& s, int component) {
+        const std::size_t first = panels.size();
+        VortexPanels::subdivide(s, len, panels);
+        for (std::size_t k = first; k < panels.size(); ++k) {
+            wos::BoundaryHit<2> hit;
+            hit.point = 0.5 * (panels[k][0] + panels[k][1]);
+            hit.component = component;
+            psi.push_back(m_bounds->boundary_stream(hit));
+        }
+    };
+    if (m_bounds->walls()) {
+        const Vec2d a = d.min, c = d.max, b(c.x, a.y), e(a.x, c.y);
+        add({e, a}, 0);  // x-
+        add({b, c}, 1);  // x+
+        add({a, b}, 2);  // y-
+        add({c, e}, 3);  // y+
+    }
+    for (std::size_t i = 0; i < o.shapes.size(); ++i) {
+        const BoundaryShape& s = *o.shapes[i];
+        if (s.role().moving()) throw_runtime("vortex_particles: boundary '{}' moves; panels are static", s.id());
+        const std::vector<Segment2> segs = s.segments2(len);
+        if (segs.empty())
+            throw_runtime("vortex_particles: boundary '{}' ({}) gives no segments for the panel method", s.id(),
+                          s.description());
+        for (const Segment2& g : segs)
+            if (glm::length(g[1] - g[0]) > 0) add(g, 4 + int(i));
+    }
+    if (panels.size() > 8192)
+        throw_runtime(
+            "vortex_particles: {} panels (more than 8192: the dense panel system would not fit); raise "
+            "panel_length",
+            panels.size());
+    m_panels = std::make_unique<VortexPanels>(std::move(panels), std::move(psi));
+    m_psi_mid.resize(m_panels->size());
+    m_solid_cell.assign(m_omega.cell_count(), 0);
+    for (int j = 0; j < m_omega.ny(); ++j)
+        for (int i = 0; i < m_omega.nx(); ++i)
+            m_solid_cell[std::size_t(j) * std::size_t(m_omega.nx()) + std::size_t(i)] =
+                m_bounds->solid_at(m_omega.cell_center(i, j)) >= 0 ? 1 : 0;
+}
+
+void VortexParticleSolver::solve_panels(const double* px, const double* py, bool tree_built) {
+    const std::size_t np = m_gamma.size(), P = m_panels->size();
+    const double d2 = m_delta * m_delta, theta2 = m_settings.theta * m_settings.theta;
+    const std::vector<Vec2d>& mid = m_panels->midpoints();
+    const double* g = m_gamma.data();
+    const std::size_t blocks = (P + Block - 1) / Block;
+    parallel_for_units(blocks, [&](std::size_t b) {
+        for (std::size_t i = b * Block; i < std::min(P, (b + 1) * Block); ++i) {
+            double s = 0;
+            if (tree_built) {
+                s = m_tree->stream(mid[i].x, mid[i].y, d2, theta2);
+            } else {
+                for (std::size_t k = 0; k < np; ++k) {
+                    const double dx = mid[i].x - px[k], dy = mid[i].y - py[k];
+                    s += g[k] * std::log(dx * dx + dy * dy + d2);
+                }
+            }
+            m_psi_mid[i] = s / (4 * Pi);  // Gamma log(|r|^2 + delta^2) / (4 pi): the blobs' Psi
+        }
+    });
+    m_panels->solve(m_psi_mid.data());
+    ++m_panel_solves;
+}
+
+void VortexParticleSolver::add_panel_velocity(const double* tx, const double* ty, std::size_t n, double* u,
+                                              double* v) const {
+    const std::size_t blocks = (n + Block - 1) / Block;
+    parallel_for_units(blocks, [&](std::size_t b) {
+        for (std::size_t t = b * Block; t < std::min(n, (b + 1) * Block); ++t) {
+            const Vec2d w = m_panels->velocity({tx[t], ty[t]});
+            u[t] += w.x;
+            v[t] += w.y;
+        }
+    });
+}
+
 void VortexParticleSolver::tree_sum(const double* tx, const double* ty, std::size_t n, const double* px,
                                     const double* py, double* u, double* v, double* w) {
     const std::size_t np = m_gamma.size();
@@ -397,16 +515,22 @@ void VortexParticleSolver::tree_sum(const double* tx, const double* ty, std::siz
 
 void VortexParticleSolver::sum_velocity(const double* tx, const double* ty, std::size_t n, const double* px,
                                         const double* py, double* u, double* v) {
-    if (m_use_tree && all_finite(px, py, m_gamma.size())) {
+    const bool finite = all_finite(px, py, m_gamma.size());
+    if (m_use_tree && finite) {
         tree_sum(tx, ty, n, px, py, u, v, nullptr);
         for (std::size_t t = 0; t < n; ++t) {
             u[t] *= 0.5 / Pi;
             v[t] *= 0.5 / Pi;
+        }
+        if (m_panels) {
+            solve_panels(px, py, !m_gamma.empty());
+            add_panel_velocity(tx, ty, n, u, v);
+        }
+        for (std::size_t t = 0; t < n; ++t)
             if (!finite2(u[t], v[t])) {
                 ++m_invalid;
                 u[t] = v[t] = 0;
             }
-        }
         return;
     }
     const SumParams k = sum_params(m_delta, m_settings.domain, m_periodic.get());
@@ -426,6 +550,10 @@ void VortexParticleSolver::sum_velocity(const double* tx, const double* ty, std:
         }
     });
     m_pairs += uint64_t(n) * uint64_t(np);
+    if (m_panels && finite) {
+        solve_panels(px, py, false);
+        add_panel_velocity(tx, ty, n, u, v);
+    }
     for (std::size_t t = 0; t < n; ++t)
         if (!finite2(u[t], v[t])) {
             ++m_invalid;
@@ -501,20 +629,29 @@ bool VortexParticleSolver::step(double dt) {
     }
     m_seconds_velocity += timer.seconds();
     if (stop_requested()) return false;  // (the state is mid-step; the caller stops anyway)
+    if (m_bounds) push_out_of_solids();
 
     // Viscosity: Chorin's random walk, variance 2 nu dt per axis; blocks of particles own their streams.
     if (m_settings.viscosity > 0) {
         const double sigma = std::sqrt(2 * m_settings.viscosity * dt);
         const std::size_t blocks = (n + 255) / 256;
+        std::atomic<uint64_t> reflected{0};
         parallel_for_units(blocks, [&](std::size_t b) {
             Random rng(m_settings.seed, hash_combine(hash_combine(uint64_t(m_step), TagWalk), b));
             for (std::size_t p = b * 256; p < std::min(n, (b + 1) * 256); ++p) {
                 const Vec2d xi = standard_normal2(rng);
                 m_x[p] += sigma * xi.x;
                 m_y[p] += sigma * xi.y;
+                if (m_bounds) {  // free slip: a step that crossed a wall is reflected back into the fluid
+                    const Vec2d y = m_bounds->reflect_out({m_x[p], m_y[p]});
+                    if (y.x != m_x[p] || y.y != m_y[p]) reflected.fetch_add(1, std::memory_order_relaxed);
+                    m_x[p] = y.x;
+                    m_y[p] = y.y;
+                }
             }
         });
         m_walk_steps += n;
+        m_reflected += reflected.load();
     }
     if (d.periodic)
         for (std::size_t p = 0; p < n; ++p) {
@@ -527,6 +664,20 @@ bool VortexParticleSolver::step(double dt) {
     ++m_step;
     m_fields_valid = false;
     return true;
+}
+
+void VortexParticleSolver::push_out_of_solids() {
+    const Domain2& d = m_settings.domain;
+    for (std::size_t p = 0; p < m_x.size(); ++p) {
+        const Vec2d x(m_x[p], m_y[p]);
+        if (!finite2(x.x, x.y)) continue;
+        const bool outside = x.x < d.min.x || x.x > d.max.x || x.y < d.min.y || x.y > d.max.y;
+        if (!outside && m_bounds->solid_at(x) < 0) continue;
+        const Vec2d y = m_bounds->push_out(x);
+        m_x[p] = y.x;
+        m_y[p] = y.y;
+        ++m_pushed_out;
+    }
 }
 
 void VortexParticleSolver::ensure_fields() {
@@ -558,6 +709,12 @@ void VortexParticleSolver::ensure_fields() {
         }
     });
     if (!tree) m_pairs += uint64_t(cells) * uint64_t(np);
+    if (m_panels && all_finite(m_x.data(), m_y.data(), np)) {
+        solve_panels(m_x.data(), m_y.data(), tree && np > 0);
+        add_panel_velocity(m_cx.data(), m_cy.data(), cells, u, v);
+        for (std::size_t t = 0; t < cells; ++t)
+            if (m_solid_cell[t]) u[t] = v[t] = w[t] = 0;  // static solids: at rest
+    }
     for (std::size_t t = 0; t < cells; ++t)
         if (!finite2(u[t], v[t]) || !std::isfinite(w[t])) {
             ++m_invalid;
@@ -585,6 +742,12 @@ void VortexParticleSolver::report(Stats& stats) const {
     stats.add("fluid.particle_pairs", double(m_pairs), "pairs");
     stats.add("fluid.random_walk_steps", double(m_walk_steps), "steps");
     stats.add("fluid.invalid_velocity", double(m_invalid), "values");
+    if (m_panels) {
+        stats.add("fluid.panels", double(m_panels->size()), "panels");
+        stats.add("fluid.panel_solves", double(m_panel_solves), "solves");
+        stats.add("fluid.particles_pushed_out", double(m_pushed_out), "particles");
+        stats.add("fluid.random_walk_reflections", double(m_reflected), "steps");
+    }
     stats.add_time("fluid.time.velocity", m_seconds_velocity);
     stats.add_time("fluid.time.fields", m_seconds_fields);
 }

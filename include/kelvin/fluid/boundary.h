@@ -34,6 +34,7 @@
 #include <kelvin/fluid/grid3.h>
 #include <kelvin/fluid/velocity.h>
 
+#include <array>
 #include <memory>
 #include <string>
 #include <vector>
@@ -68,6 +69,10 @@ public:
     virtual std::pair<Vec3d, Vec3d> bounds() const = 0;
     /// One line for the run summary.
     virtual std::string description() const = 0;
+    /// A 2D shape as straight segments, curved pieces cut into chords no longer than `max_length`: what methods that
+    /// discretise the boundary need (the panel method of the vortex_particles baseline, fluid/panels.h). Empty when
+    /// the shape cannot give them (3D shapes, unsigned grids).
+    virtual std::vector<std::array<Vec2d, 2>> segments2(double max_length) const { return {}; }
 
     const BoundaryRole& role() const { return m_role; }
     /// The solid region of a 2D shape: inside an obstacle, outside a container (false without has_inside()).

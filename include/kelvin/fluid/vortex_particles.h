@@ -21,6 +21,13 @@
 // fixed blocks of targets, each target's sum sequential in a fixed order (the tree is built sequentially):
 // results do not depend on the thread count; no per-pair allocation or virtual call.
 //
+// Free-slip walls and obstacles (the thesis' particle baseline, after Park & Kim 2005): mcfluid's boundaries (the
+// <boundary> children of <velocity type="walk_on_spheres">, the domain box's walls) are cut into vortex panels
+// (fluid/panels.h) whose strengths make Psi equal each boundary's isovalue at the panel midpoints, from the particles'
+// own stream function there (summed by the same tree or directly); the panels' velocity is added at every
+// evaluation. The same Dirichlet problem as MCFluid's walks, so the two solve the same flow. Particles that end a
+// step inside a solid are moved to its surface, random-walk steps that cross a wall are reflected (both counted).
+//
 // Outputs live on the lattice's cell centres: omega_h and u by the same direct sums. A dye is advected
 // semi-Lagrangian through the particle velocity (backtraces of the cell centres with the scene's scheme, the
 // velocity frozen over the step).
@@ -31,6 +38,10 @@
 #include <vector>
 
 namespace kelvin::fluid {
+
+struct WosVelocityOptions;
+class WosVelocityField;
+class VortexPanels;
 
 /// How the particle velocity is summed: Barnes–Hut tree code (open domains) or the direct O(N^2) sum.
 enum class ParticleSummation { Tree, Direct };
@@ -47,6 +58,10 @@ struct VortexParticleSettings {
     ParticleSummation summation = ParticleSummation::Tree;  ///< periodic domains: always Direct
     double theta = 0.5;  ///< tree opening angle, in (0, 1]: a node is used whole when size < theta * distance
     int leaf_size = 16;  ///< tree: at most this many particles per leaf (summed directly)
+    /// Free-slip walls and static obstacles by the panel method (null: free space, or the periodic box). Open
+    /// domains only; no inflow, no moving solid, every solid able to give its segments (BoundaryShape::segments2).
+    std::shared_ptr<const WosVelocityOptions> boundaries;
+    double panel_length = -1;  ///< longest panel; <= 0: one lattice spacing
 };
 
 class VortexParticleSolver final : public FluidSolver {
@@ -59,6 +74,8 @@ public:
     /// True when the velocity is summed by the tree code (Tree requested and an open domain).
     bool uses_tree() const { return m_use_tree; }
     std::size_t particle_count() const { return m_x.size(); }
+    /// The panels of the free-slip boundaries (null without boundaries).
+    const VortexPanels* panels() const { return m_panels.get(); }
     const std::vector<double>& xs() const { return m_x; }
     const std::vector<double>& ys() const { return m_y; }
     const std::vector<double>& circulations() const { return m_gamma; }
@@ -88,7 +105,17 @@ private:
     /// code; adds the kernel evaluations (leaf pairs and accepted nodes) to m_pairs.
     void tree_sum(const double* tx, const double* ty, std::size_t n, const double* px, const double* py, double* u,
                   double* v, double* w);
-    /// Velocity of the particle set (px, py, gamma) at n targets; adds the pair count.
+    /// The panels' strengths for the particles at (px, py): their stream function at the panel midpoints (by the tree
+    /// when `tree_built`, else directly), then the panel system.
+    void solve_panels(const double* px, const double* py, bool tree_built);
+    /// The boundaries' panels and the solid cells (constructor).
+    void build_panels();
+    /// Particles that a step left inside a solid (or beyond the walls) are moved to its surface (push_out).
+    void push_out_of_solids();
+    /// Adds the panels' velocity at n targets.
+    void add_panel_velocity(const double* tx, const double* ty, std::size_t n, double* u, double* v) const;
+    /// Velocity of the particle set (px, py, gamma) at n targets, with the panels' when there are boundaries; adds
+    /// the pair count.
     void sum_velocity(const double* tx, const double* ty, std::size_t n, const double* px, const double* py, double* u,
                       double* v);
 
@@ -106,6 +133,11 @@ private:
     Grid2 m_omega, m_u, m_v, m_disp_x, m_disp_y;
     bool m_fields_valid = false;
     std::unique_ptr<PassiveScalars> m_dye;
+    std::unique_ptr<WosVelocityField> m_bounds;  // the boundaries at t = 0 (static): solids, push_out, reflect_out
+    std::unique_ptr<VortexPanels> m_panels;
+    std::vector<double> m_psi_mid;   // the particles' stream function at the panel midpoints
+    std::vector<char> m_solid_cell;  // lattice cells inside a solid (outputs zero there)
+    uint64_t m_pushed_out = 0, m_reflected = 0, m_panel_solves = 0;
     uint64_t m_pairs = 0, m_invalid = 0, m_walk_steps = 0;
     double m_seconds_velocity = 0, m_seconds_fields = 0;
 };

@@ -9,6 +9,7 @@
 #include <fmt/format.h>
 
 #include <algorithm>
+#include <array>
 #include <memory>
 #include <utility>
 #include <vector>
@@ -62,6 +63,19 @@ inline bool inside_loops(const std::vector<std::vector<Vec2d>>& loops, const Vec
     bool in = false;
     for (const auto& loop : loops) in ^= inside_loop(loop, p);
     return in;
+}
+
+/// The arc of the circle (c, r) from angle a0 to a1 (radians, counter-clockwise) as chords of at most max_length
+/// (at least `min_pieces`), appended to out.
+inline void arc_chords(Vec2d c, double r, double a0, double a1, double max_length, int min_pieces,
+                       std::vector<std::array<Vec2d, 2>>& out) {
+    const double len = r * std::abs(a1 - a0);
+    const int k = std::max(min_pieces, max_length > 0 ? int(std::ceil(len / max_length)) : min_pieces);
+    auto at = [&](int i) {
+        const double a = a0 + (a1 - a0) * double(i) / k;
+        return c + r * Vec2d(std::cos(a), std::sin(a));
+    };
+    for (int i = 0; i < k; ++i) out.push_back({at(i), at(i + 1)});
 }
 
 /// Segments as a distance provider: brute force below 32 segments, Embree's BVH above. The component of a
@@ -140,6 +154,13 @@ public:
         return h;
     }
     std::size_t size() const { return m_segments.size(); }
+    /// The segments as end-point pairs (BoundaryShape::segments2).
+    std::vector<std::array<Vec2d, 2>> segment_list() const {
+        std::vector<std::array<Vec2d, 2>> out;
+        out.reserve(m_segments.size());
+        for (const auto& s : m_segments) out.push_back({m_points[s[0]], m_points[s[1]]});
+        return out;
+    }
     Vec2d lo() const { return m_lo; }
     Vec2d hi() const { return m_hi; }
 

@@ -38,6 +38,10 @@ public:
     std::pair<Vec3d, Vec3d> bounds() const override {
         return {{m_box.lo.x, m_box.lo.y, 0}, {m_box.hi.x, m_box.hi.y, 0}};
     }
+    std::vector<std::array<Vec2d, 2>> segments2(double) const override {
+        const Vec2d a = m_box.lo, c = m_box.hi, b(c.x, a.y), d(a.x, c.y);
+        return {{a, b}, {b, c}, {c, d}, {d, a}};
+    }
     std::string description() const override {
         return fmt::format("box [{:g}, {:g}] x [{:g}, {:g}]", m_box.lo.x, m_box.hi.x, m_box.lo.y, m_box.hi.y);
     }

@@ -73,6 +73,18 @@ public:
         return {{lo.x, lo.y, 0}, {hi.x, hi.y, 0}};
     }
     std::string description() const override { return fmt::format("capsule (radius {:g})", m_c.r); }
+    /// Two half circles about the end points joined by the two sides.
+    std::vector<std::array<Vec2d, 2>> segments2(double max_length) const override {
+        const Vec2d ab = m_c.b - m_c.a;
+        const double phi = glm::length(ab) > 0 ? std::atan2(ab.y, ab.x) : 0.0;
+        std::vector<std::array<Vec2d, 2>> out;
+        arc_chords(m_c.b, m_c.r, phi - Pi / 2, phi + Pi / 2, max_length, 4, out);
+        const Vec2d n = m_c.r * Vec2d(-std::sin(phi), std::cos(phi));
+        if (glm::length(ab) > 0) out.push_back({m_c.b + n, m_c.a + n});
+        arc_chords(m_c.a, m_c.r, phi + Pi / 2, phi + 3 * Pi / 2, max_length, 4, out);
+        if (glm::length(ab) > 0) out.push_back({m_c.a - n, m_c.b - n});
+        return out;
+    }
 
 private:
     CapsuleGeometry<2> m_c;

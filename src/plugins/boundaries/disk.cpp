@@ -34,6 +34,11 @@ public:
         const double r = m_disk.radius;
         return {{m_disk.center.x - r, m_disk.center.y - r, 0}, {m_disk.center.x + r, m_disk.center.y + r, 0}};
     }
+    std::vector<std::array<Vec2d, 2>> segments2(double max_length) const override {
+        std::vector<std::array<Vec2d, 2>> out;
+        arc_chords(m_disk.center, m_disk.radius, 0, 2 * Pi, max_length, 8, out);
+        return out;
+    }
     std::string description() const override {
         return fmt::format("disk (centre ({:g}, {:g}), radius {:g})", m_disk.center.x, m_disk.center.y, m_disk.radius);
     }

@@ -110,6 +110,8 @@ public:
     double distance_within(const Vec2d& p, double bound) const override { return m_segments.distance_within(p, bound); }
     BoundaryHit<2> closest(const Vec2d& p) const override { return m_segments.closest(p); }
     bool has_inside() const override { return true; }
+    /// The mesh's boundary edges (interior edges are shared by two triangles and carry no wall).
+    std::vector<std::array<Vec2d, 2>> segments2(double) const override { return m_segments.segment_list(); }
     bool inside2(const Vec2d& p) const override {
         if (p.x < m_lo.x || p.y < m_lo.y || p.x > m_hi.x || p.y > m_hi.y) return false;
         const Vec2i c = cell_of(p);

@@ -29,6 +29,7 @@ public:
     std::pair<Vec3d, Vec3d> bounds() const override {
         return {{m_edges.lo().x, m_edges.lo().y, 0}, {m_edges.hi().x, m_edges.hi().y, 0}};
     }
+    std::vector<std::array<Vec2d, 2>> segments2(double) const override { return m_edges.segment_list(); }
     std::string description() const override { return fmt::format("polygon ({} edges)", m_edges.size()); }
 
 private:

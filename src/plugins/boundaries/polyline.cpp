@@ -114,6 +114,7 @@ public:
     BoundaryHit<2> closest(const Vec2d& p) const override { return m_segments.closest(p); }
     bool has_inside() const override { return m_closed; }
     bool inside2(const Vec2d& p) const override { return m_closed && inside_loops(m_loops, p); }
+    std::vector<std::array<Vec2d, 2>> segments2(double) const override { return m_segments.segment_list(); }
     std::pair<Vec3d, Vec3d> bounds() const override {
         return {{m_segments.lo().x, m_segments.lo().y, 0}, {m_segments.hi().x, m_segments.hi().y, 0}};
     }

@@ -187,6 +187,10 @@ public:
     }
     bool has_inside() const override { return m_signed; }
     bool inside2(const Vec2d& p) const override { return m_signed && m_f.phi({p.x, p.y, m_z}) < 0; }
+    /// Signed: the zero contour of the slice; unsigned grids have none.
+    std::vector<std::array<Vec2d, 2>> segments2(double) const override {
+        return m_signed ? m_contour.segment_list() : std::vector<std::array<Vec2d, 2>>{};
+    }
     std::pair<Vec3d, Vec3d> bounds() const override { return {m_f.lo(), m_f.hi()}; }
     std::string description() const override {
         return fmt::format("OpenVDB {} ({}, voxel {:g}, slice z = {:g}{})", m_f.name(),

@@ -14,10 +14,17 @@
 // | threshold      | float   | 0       | skip cells with |omega| <= threshold * max |omega| at seeding    |
 // | summation      | string  | tree    | "tree" (Barnes–Hut, open domains) or "direct" (O(N^2))          |
 // | theta          | float   | 0.5     | tree opening angle in (0, 1]: smaller is more accurate, slower   |
+// | panel_length   | float   | -1      | longest boundary panel; -1: one lattice spacing                  |
+//
+// Free-slip walls and obstacles: a <velocity type="walk_on_spheres"> child's boundaries (the domain's walls and its
+// <boundary> solids, static, open domains, no inflow) become vortex panels (fluid/panels.h): the same Dirichlet
+// problem for Psi as mcfluid's walks, with each solid's stream_value.
 //
 //     <simulation type="vortex_particles"> ... same children as mcfluid ... </simulation>
 #include <kelvin/core/job.h>
 #include <kelvin/core/registry.h>
+#include <kelvin/fluid/boundary.h>
+#include <kelvin/fluid/panels.h>
 #include <kelvin/fluid/vortex_particles.h>
 
 #include <fmt/format.h>
@@ -39,6 +46,37 @@ public:
                                                                                   : ParticleSummation::Direct;
         m_theta = props.get_float("theta");
         if (!(m_theta > 0 && m_theta <= 1)) props.error("theta", fmt::format("must be in (0, 1] (got {:g})", m_theta));
+        m_panel_length = props.get_float("panel_length");
+        if (!std::isfinite(m_panel_length) || (m_panel_length <= 0 && m_panel_length != -1))
+            props.error("panel_length", "must be positive, or -1 for one lattice spacing");
+        read_boundaries(props);
+    }
+
+    /// The <velocity> estimator's boundaries (walk_on_spheres), checked as mcfluid checks them, plus what the panel
+    /// method needs: an open domain, no inflow, static solids that give their segments.
+    void read_boundaries(const Properties& props) {
+        auto velocity = std::dynamic_pointer_cast<const VelocityEstimator>(props.get_object("velocity"));
+        m_boundaries = velocity ? velocity->boundaries() : nullptr;
+        if (!m_boundaries) return;
+        const WosVelocityOptions& o = *m_boundaries;
+        const Domain2& d = m_params.domain;
+        if (d.periodic)
+            props.error("velocity", "vortex_particles: free-slip boundaries need an open domain (periodic is set)");
+        if (o.inflow_speed != 0)
+            props.error("velocity", "vortex_particles has no inflow/outflow walls (inflow_speed must be 0)");
+        if (const std::string why = check_wos_options(o, d); !why.empty()) props.error("velocity", why);
+        for (const auto& shape : o.shapes) {
+            if (shape->role().moving())
+                props.error("velocity", fmt::format("vortex_particles has static obstacles only; boundary '{}' moves",
+                                                    shape->description()));
+            if (shape->segments2(1).empty())
+                props.error("velocity", fmt::format("vortex_particles: boundary '{}' gives no segments for the panel "
+                                                    "method (use polygon, polyline, disk, box, capsule, a 2D mesh or "
+                                                    "a signed level set)",
+                                                    shape->description()));
+        }
+        if (const std::string why = check_wos_cells(o, d, m_params.nx, m_params.ny); !why.empty())
+            props.error("velocity", why);
     }
 
     int dimension() const override { return 2; }
@@ -60,6 +98,8 @@ public:
         s.seed = ctx.seed;
         s.summation = m_summation;
         s.theta = m_theta;
+        s.boundaries = m_boundaries;
+        s.panel_length = m_panel_length;
         const VorticityField* field = m_params.field.get();
         auto solver =
             std::make_unique<VortexParticleSolver>(s, [field](const Vec2d& x) { return field->vorticity(x); });
@@ -74,19 +114,24 @@ public:
         const VortexParticleSettings& s = solver.settings();
         const std::string effects = fmt::format(
             "particle transport ({}, dt {:g}, {} steps, {} particles) with {} Biot–Savart summation (blob "
-            "radius {:g}{}){}; boundaries none ({})",
+            "radius {:g}{}){}; boundaries {}",
             fluid::to_string(s.advection), m_params.dt, m_params.steps, solver.particle_count(),
             solver.uses_tree()                       ? fmt::format("Barnes–Hut tree (theta {:g})", s.theta)
             : s.summation == ParticleSummation::Tree ? std::string("direct (periodic domain: no tree)")
                                                      : std::string("direct"),
             solver.delta(), s.domain.periodic ? ", periodic kernel" : "",
-            s.viscosity > 0 ? ", viscosity by random walk" : "", s.domain.periodic ? "periodic" : "free space");
+            s.viscosity > 0 ? ", viscosity by random walk" : "",
+            solver.panels()     ? fmt::format("free slip by {} vortex panels ({})", solver.panels()->size(),
+                                              describe(*m_boundaries, s.domain))
+            : s.domain.periodic ? std::string("none (periodic)")
+                                : std::string("none (free space)"));
         return run_fluid_solver("vortex_particles", solver, m_params, ctx, effects);
     }
 
 private:
     SimulationParams m_params;
-    double m_delta = -1, m_threshold = 0, m_theta = 0.5;
+    double m_delta = -1, m_threshold = 0, m_theta = 0.5, m_panel_length = -1;
+    std::shared_ptr<const WosVelocityOptions> m_boundaries;
     ParticleSummation m_summation = ParticleSummation::Tree;
 };
 
@@ -102,4 +147,5 @@ KELVIN_PLUGIN(kelvin::fluid::VortexParticles, "simulation", "vortex_particles",
               kelvin::param::string("summation", "tree",
                                     "'tree' (Barnes–Hut, open domains; periodic boxes use direct) or 'direct'"),
               kelvin::param::real("theta", 0.5,
-                                  "tree opening angle in (0, 1]: node used whole if size < theta * distance"));
+                                  "tree opening angle in (0, 1]: node used whole if size < theta * distance"),
+              kelvin::param::real("panel_length", -1.0, "longest free-slip boundary panel; -1: one lattice spacing"));

@@ -1,0 +1,139 @@
+// The vortex panel method of the vortex particle baseline (include/kelvin/fluid/panels.h).
+#include <kelvin/core/error.h>
+#include <kelvin/fluid/panels.h>
+
+#include <Eigen/Dense>
+
+#include <cmath>
+
+namespace kelvin::fluid {
+namespace {
+
+// Local coordinates of x against the panel: xi along the tangent from a, eta along n = (-t_y, t_x).
+struct Local {
+    double xi, eta, len;
+    Vec2d t;
+};
+inline Local local(const Segment2& p, Vec2d x) {
+    const Vec2d d = p[1] - p[0];
+    const double len = glm::length(d);
+    const Vec2d t = d / len, r = x - p[0];
+    return {glm::dot(r, t), t.x * r.y - t.y * r.x, len, t};
+}
+
+// Antiderivative in u of log sqrt(u^2 + eta^2): u log sqrt(u^2 + eta^2) - u + eta atan(u / eta).
+inline double log_antiderivative(double u, double eta) {
+    const double q = u * u + eta * eta;
+    double f = (u != 0 ? 0.5 * u * std::log(q) : 0.0) - u;
+    if (eta != 0) f += eta * std::atan(u / eta);
+    return f;
+}
+
+// J grad of 1/(2 pi) log|x - y| summed over the two-point Gauss rule on the panel (weights len / 2).
+inline Vec2d gauss_velocity(Vec2d mid, Vec2d t, double len, Vec2d x) {
+    const Vec2d o = t * (len * 0.28867513459481287);  // len / (2 sqrt 3)
+    const Vec2d r1 = x - (mid - o), r2 = x - (mid + o);
+    const double i1 = 1.0 / glm::dot(r1, r1), i2 = 1.0 / glm::dot(r2, r2);
+    const Vec2d g = (r1 * i1 + r2 * i2) * (len * 0.5 / (2 * Pi));
+    return {-g.y, g.x};
+}
+
+}  // namespace
+
+struct VortexPanels::Solver {
+    Eigen::PartialPivLU<Eigen::MatrixXd> lu;
+    Eigen::VectorXd rhs, x;
+};
+
+VortexPanels::VortexPanels() = default;
+VortexPanels::~VortexPanels() = default;
+VortexPanels::VortexPanels(VortexPanels&&) noexcept = default;
+VortexPanels& VortexPanels::operator=(VortexPanels&&) noexcept = default;
+
+double VortexPanels::panel_stream(const Segment2& panel, Vec2d x) {
+    const Local l = local(panel, x);
+    return (log_antiderivative(l.len - l.xi, l.eta) - log_antiderivative(-l.xi, l.eta)) / (2 * Pi);
+}
+
+Vec2d VortexPanels::panel_velocity(const Segment2& panel, Vec2d x) {
+    const Local l = local(panel, x);
+    const double qa = l.xi * l.xi + l.eta * l.eta, qb = (l.xi - l.len) * (l.xi - l.len) + l.eta * l.eta;
+    if (!(qa > 0) || !(qb > 0)) return Vec2d(0.0);
+    // int (x - y) / |x - y|^2 ds: along t, 1/2 log(qa / qb); along n, the angle the panel subtends at x.
+    const double gt = 0.5 * std::log(qa / qb);
+    const double gn = std::atan2(l.eta * l.len, l.xi * (l.xi - l.len) + l.eta * l.eta);
+    const Vec2d n(-l.t.y, l.t.x);
+    const Vec2d g = (l.t * gt + n * gn) / (2 * Pi);
+    return {-g.y, g.x};
+}
+
+void VortexPanels::subdivide(const Segment2& s, double max_length, std::vector<Segment2>& out) {
+    const double len = glm::length(s[1] - s[0]);
+    const int k = max_length > 0 && len > max_length ? int(std::ceil(len / max_length)) : 1;
+    for (int i = 0; i < k; ++i)
+        out.push_back({s[0] + (s[1] - s[0]) * (double(i) / k), s[0] + (s[1] - s[0]) * (double(i + 1) / k)});
+}
+
+VortexPanels::VortexPanels(std::vector<Segment2> panels, std::vector<double> psi_boundary)
+    : m_panels(std::move(panels)), m_psi_b(std::move(psi_boundary)) {
+    const std::size_t p = m_panels.size();
+    if (m_psi_b.size() != p) throw_runtime("VortexPanels: {} panels but {} boundary values", p, m_psi_b.size());
+    if (p == 0) return;
+    for (const Segment2& s : m_panels) {
+        const double len = glm::length(s[1] - s[0]);
+        if (!(len > 0) || !std::isfinite(len))
+            throw_runtime("VortexPanels: degenerate panel ({}, {}) - ({}, {})", s[0].x, s[0].y, s[1].x, s[1].y);
+        m_len.push_back(len);
+        m_mid.push_back(0.5 * (s[0] + s[1]));
+        m_t.push_back((s[1] - s[0]) / len);
+    }
+    Eigen::MatrixXd a(p + 1, p + 1);
+    for (std::size_t j = 0; j < p; ++j) {
+        for (std::size_t i = 0; i < p; ++i) a(Eigen::Index(i), Eigen::Index(j)) = panel_stream(m_panels[j], m_mid[i]);
+        a(Eigen::Index(p), Eigen::Index(j)) = m_len[j];
+        a(Eigen::Index(j), Eigen::Index(p)) = 1;
+    }
+    a(Eigen::Index(p), Eigen::Index(p)) = 0;
+    m_solver = std::make_unique<Solver>();
+    m_solver->lu.compute(a);
+    // A (numerically) singular system shows as a tiny reciprocal condition estimate; overlapping or repeated
+    // panels make it so.
+    const double rcond = m_solver->lu.rcond();
+    if (!(rcond > 1e-14))
+        throw_runtime("VortexPanels: the panel system is singular (reciprocal condition {:g}); overlapping panels?",
+                      rcond);
+    m_solver->rhs = Eigen::VectorXd::Zero(Eigen::Index(p + 1));
+    m_solver->x = Eigen::VectorXd::Zero(Eigen::Index(p + 1));
+    m_gamma.assign(p + 1, 0.0);
+}
+
+void VortexPanels::solve(const double* psi_free) {
+    const std::size_t p = m_panels.size();
+    if (p == 0) return;
+    Solver& s = *m_solver;
+    for (std::size_t i = 0; i < p; ++i) s.rhs(Eigen::Index(i)) = m_psi_b[i] - psi_free[i];
+    s.rhs(Eigen::Index(p)) = 0;
+    s.x = s.lu.solve(s.rhs);
+    for (std::size_t i = 0; i <= p; ++i) m_gamma[i] = s.x(Eigen::Index(i));
+}
+
+Vec2d VortexPanels::velocity(Vec2d x) const {
+    Vec2d v(0.0);
+    for (std::size_t j = 0; j < m_panels.size(); ++j) {
+        const Vec2d d = x - m_mid[j];
+        const double g = m_gamma[j];
+        if (glm::dot(d, d) > 16 * m_len[j] * m_len[j])
+            v += g * gauss_velocity(m_mid[j], m_t[j], m_len[j], x);
+        else
+            v += g * panel_velocity(m_panels[j], x);
+    }
+    return v;
+}
+
+double VortexPanels::stream(Vec2d x) const {
+    double s = m_panels.empty() ? 0.0 : m_gamma[m_panels.size()];
+    for (std::size_t j = 0; j < m_panels.size(); ++j) s += m_gamma[j] * panel_stream(m_panels[j], x);
+    return s;
+}
+
+}  // namespace kelvin::fluid
