@@ -67,6 +67,33 @@ Vec2d VortexPanels::panel_velocity(const Segment2& panel, Vec2d x) {
     return {-g.y, g.x};
 }
 
+std::vector<Segment2> VortexPanels::merge_chains(const std::vector<Segment2>& segments, double max_length,
+                                                 double max_turn) {
+    std::vector<Segment2> out;
+    const double cos_turn = std::cos(max_turn);
+    std::size_t first = 0;  // the merged panel covers segments [first, i)
+    auto turns_little = [&](const Segment2& chord, std::size_t from, std::size_t to) {
+        const Vec2d d = chord[1] - chord[0];
+        const double l = glm::length(d);
+        if (!(l > 0)) return false;
+        for (std::size_t k = from; k < to; ++k) {
+            const Vec2d e = segments[k][1] - segments[k][0];
+            const double le = glm::length(e);
+            if (le > 0 && glm::dot(d, e) < cos_turn * l * le) return false;
+        }
+        return true;
+    };
+    for (std::size_t i = 1; i <= segments.size(); ++i) {
+        if (i < segments.size() && segments[i][0] == segments[i - 1][1]) {
+            const Segment2 chord{segments[first][0], segments[i][1]};
+            if (glm::length(chord[1] - chord[0]) <= max_length && turns_little(chord, first, i + 1)) continue;
+        }
+        out.push_back({segments[first][0], segments[i - 1][1]});
+        first = i;
+    }
+    return out;
+}
+
 void VortexPanels::subdivide(const Segment2& s, double max_length, std::vector<Segment2>& out) {
     const double len = glm::length(s[1] - s[0]);
     const int k = max_length > 0 && len > max_length ? int(std::ceil(len / max_length)) : 1;

@@ -407,7 +407,6 @@ void VortexParticleSolver::build_panels() {
     const WosVelocityOptions& o = *m_settings.boundaries;
     const Domain2& d = m_settings.domain;
     if (d.periodic) throw_runtime("vortex_particles: free-slip boundaries need an open domain (not periodic)");
-    if (o.inflow_speed != 0) throw_runtime("vortex_particles: no inflow/outflow walls (inflow_speed must be 0)");
     m_bounds = std::make_unique<WosVelocityField>(o, d, nullptr, Interpolation::Bilinear, 0.0);
     const Vec2d h = m_omega.h();
     const double len = m_settings.panel_length > 0 ? m_settings.panel_length : std::min(h.x, h.y);
@@ -434,7 +433,7 @@ void VortexParticleSolver::build_panels() {
     for (std::size_t i = 0; i < o.shapes.size(); ++i) {
         const BoundaryShape& s = *o.shapes[i];
         if (s.role().moving()) throw_runtime("vortex_particles: boundary '{}' moves; panels are static", s.id());
-        const std::vector<Segment2> segs = s.segments2(len);
+        const std::vector<Segment2> segs = VortexPanels::merge_chains(s.segments2(len), len);
         if (segs.empty())
             throw_runtime("vortex_particles: boundary '{}' ({}) gives no segments for the panel method", s.id(),
                           s.description());
@@ -578,7 +577,7 @@ bool VortexParticleSolver::step(double dt) {
     if (!(dt > 0) || std::isnan(dt)) throw_runtime("VortexParticleSolver::step: dt must be positive (got {})", dt);
     if (stop_requested()) return false;
     Timer timer;
-    const std::size_t n = m_x.size();
+    std::size_t n = m_x.size();  // (fewer after the step when particles leave through the outflow)
     const Domain2& d = m_settings.domain;
 
     // The dye's backtrace through the velocity of the state at the start of the step (frozen over the step).
@@ -629,7 +628,10 @@ bool VortexParticleSolver::step(double dt) {
     }
     m_seconds_velocity += timer.seconds();
     if (stop_requested()) return false;  // (the state is mid-step; the caller stops anyway)
-    if (m_bounds) push_out_of_solids();
+    if (m_bounds) {
+        push_out_of_solids();
+        n = m_x.size();
+    }
 
     // Viscosity: Chorin's random walk, variance 2 nu dt per axis; blocks of particles own their streams.
     if (m_settings.viscosity > 0) {
@@ -668,16 +670,32 @@ bool VortexParticleSolver::step(double dt) {
 
 void VortexParticleSolver::push_out_of_solids() {
     const Domain2& d = m_settings.domain;
+    const WosVelocityOptions& o = *m_settings.boundaries;
+    double y0 = o.inflow_min, y1 = o.inflow_max;
+    if (y0 == y1) y0 = d.min.y, y1 = d.max.y;
+    std::size_t kept = 0;
     for (std::size_t p = 0; p < m_x.size(); ++p) {
-        const Vec2d x(m_x[p], m_y[p]);
-        if (!finite2(x.x, x.y)) continue;
-        const bool outside = x.x < d.min.x || x.x > d.max.x || x.y < d.min.y || x.y > d.max.y;
-        if (!outside && m_bounds->solid_at(x) < 0) continue;
-        const Vec2d y = m_bounds->push_out(x);
-        m_x[p] = y.x;
-        m_y[p] = y.y;
-        ++m_pushed_out;
+        Vec2d x(m_x[p], m_y[p]);
+        // Through the outflow (the right wall's inflow range) vorticity leaves the domain: the particle is removed.
+        if (o.inflow_speed != 0 && x.x > d.max.x && x.y >= y0 && x.y <= y1) {
+            ++m_left_domain;
+            continue;
+        }
+        if (finite2(x.x, x.y)) {
+            const bool outside = x.x < d.min.x || x.x > d.max.x || x.y < d.min.y || x.y > d.max.y;
+            if (outside || m_bounds->solid_at(x) >= 0) {
+                x = m_bounds->push_out(x);
+                ++m_pushed_out;
+            }
+        }
+        m_x[kept] = x.x;
+        m_y[kept] = x.y;
+        m_gamma[kept] = m_gamma[p];
+        ++kept;
     }
+    m_x.resize(kept);  // no reallocation: the scratch arrays keep their (larger) sizes
+    m_y.resize(kept);
+    m_gamma.resize(kept);
 }
 
 void VortexParticleSolver::ensure_fields() {
@@ -746,6 +764,7 @@ void VortexParticleSolver::report(Stats& stats) const {
         stats.add("fluid.panels", double(m_panels->size()), "panels");
         stats.add("fluid.panel_solves", double(m_panel_solves), "solves");
         stats.add("fluid.particles_pushed_out", double(m_pushed_out), "particles");
+        stats.add("fluid.particles_through_outflow", double(m_left_domain), "particles");
         stats.add("fluid.random_walk_reflections", double(m_reflected), "steps");
     }
     stats.add_time("fluid.time.velocity", m_seconds_velocity);

@@ -56,6 +56,11 @@ public:
     static double panel_stream(const Segment2& panel, Vec2d x);
     static Vec2d panel_velocity(const Segment2& panel, Vec2d x);
 
+    /// Consecutive segments of a chain (one's end is the next one's start) merged while the merged chord stays no
+    /// longer than max_length and turns by less than max_turn radians from every segment it replaces: a fine outline
+    /// (a 1024-gon, a traced contour) at the panel length, corners kept.
+    static std::vector<Segment2> merge_chains(const std::vector<Segment2>& segments, double max_length,
+                                              double max_turn = 0.35);
     /// The pieces of `s` no longer than max_length (equal parts), appended to out.
     static void subdivide(const Segment2& s, double max_length, std::vector<Segment2>& out);
 

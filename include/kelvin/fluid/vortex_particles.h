@@ -59,7 +59,8 @@ struct VortexParticleSettings {
     double theta = 0.5;  ///< tree opening angle, in (0, 1]: a node is used whole when size < theta * distance
     int leaf_size = 16;  ///< tree: at most this many particles per leaf (summed directly)
     /// Free-slip walls and static obstacles by the panel method (null: free space, or the periodic box). Open
-    /// domains only; no inflow, no moving solid, every solid able to give its segments (BoundaryShape::segments2).
+    /// domains only; no moving solid, every solid able to give its segments (BoundaryShape::segments2). With inflow
+    /// (the walls' Psi ramps, as for mcfluid) particles that cross the outflow leave the simulation.
     std::shared_ptr<const WosVelocityOptions> boundaries;
     double panel_length = -1;  ///< longest panel; <= 0: one lattice spacing
 };
@@ -110,7 +111,8 @@ private:
     void solve_panels(const double* px, const double* py, bool tree_built);
     /// The boundaries' panels and the solid cells (constructor).
     void build_panels();
-    /// Particles that a step left inside a solid (or beyond the walls) are moved to its surface (push_out).
+    /// Particles that a step left inside a solid (or beyond the walls) are moved to its surface (push_out); those
+    /// that crossed the outflow are removed.
     void push_out_of_solids();
     /// Adds the panels' velocity at n targets.
     void add_panel_velocity(const double* tx, const double* ty, std::size_t n, double* u, double* v) const;
@@ -137,7 +139,7 @@ private:
     std::unique_ptr<VortexPanels> m_panels;
     std::vector<double> m_psi_mid;   // the particles' stream function at the panel midpoints
     std::vector<char> m_solid_cell;  // lattice cells inside a solid (outputs zero there)
-    uint64_t m_pushed_out = 0, m_reflected = 0, m_panel_solves = 0;
+    uint64_t m_pushed_out = 0, m_reflected = 0, m_panel_solves = 0, m_left_domain = 0;
     uint64_t m_pairs = 0, m_invalid = 0, m_walk_steps = 0;
     double m_seconds_velocity = 0, m_seconds_fields = 0;
 };

@@ -17,8 +17,8 @@
 // | panel_length   | float   | -1      | longest boundary panel; -1: one lattice spacing                  |
 //
 // Free-slip walls and obstacles: a <velocity type="walk_on_spheres"> child's boundaries (the domain's walls and its
-// <boundary> solids, static, open domains, no inflow) become vortex panels (fluid/panels.h): the same Dirichlet
-// problem for Psi as mcfluid's walks, with each solid's stream_value.
+// <boundary> solids, static, open domains, inflow/outflow walls too) become vortex panels (fluid/panels.h): the same
+// Dirichlet problem for Psi as mcfluid's walks, with each solid's stream_value.
 //
 //     <simulation type="vortex_particles"> ... same children as mcfluid ... </simulation>
 #include <kelvin/core/job.h>
@@ -62,8 +62,6 @@ public:
         const Domain2& d = m_params.domain;
         if (d.periodic)
             props.error("velocity", "vortex_particles: free-slip boundaries need an open domain (periodic is set)");
-        if (o.inflow_speed != 0)
-            props.error("velocity", "vortex_particles has no inflow/outflow walls (inflow_speed must be 0)");
         if (const std::string why = check_wos_options(o, d); !why.empty()) props.error("velocity", why);
         for (const auto& shape : o.shapes) {
             if (shape->role().moving())
