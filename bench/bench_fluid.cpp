@@ -9,7 +9,10 @@
 //
 // Threads: all the machine's cores unless KELVIN_BENCH_THREADS is set. Figures are in docs/fluid.md.
 #include <kelvin/core/parallel.h>
+#include <kelvin/core/registry.h>
+#include <kelvin/fluid/boundary.h>
 #include <kelvin/fluid/mcfluid.h>
+#include <kelvin/fluid/panels.h>
 #include <kelvin/fluid/stable_fluids.h>
 #include <kelvin/fluid/vortex_particles.h>
 
@@ -141,6 +144,29 @@ void BM_VortexParticleSum(benchmark::State& state, ParticleSummation summation) 
     state.counters["threads"] = thread_count();
 }
 
+// The same evaluation with free-slip walls and a disk obstacle (radius 0.25 at (0.3, 0), Psi 0) by the panel method
+// (panels of one lattice spacing): the tree sum, the particles' stream function at the panel midpoints (tree), the
+// back-substitution and the panels' velocity at every particle. `panels` in the counters; compare with
+// BM_VortexParticleSum/tree for the boundaries' share.
+void BM_VortexParticleSumPanels(benchmark::State& state) {
+    ThreadLimit limit(bench_threads());
+    VortexParticleSettings s;
+    s.domain = Domain2{{-1, -1}, {1, 1}, false};
+    s.nx = s.ny = int(state.range(0));
+    Properties disk("boundary", "disk");
+    disk.set_point("center", Vec3d(0.3, 0, 0));
+    disk.set_float("radius", 0.25);
+    auto o = std::make_shared<WosVelocityOptions>();
+    o->shapes = {std::dynamic_pointer_cast<const BoundaryShape>(Registry::instance().create(disk))};
+    s.boundaries = o;
+    VortexParticleSolver solver(s, lamb_oseen);
+    std::vector<double> u, v;
+    for (auto _ : state) solver.velocity_at(solver.xs(), solver.ys(), u, v);
+    state.counters["particles"] = double(solver.particle_count());
+    state.counters["panels"] = double(solver.panels()->size());
+    state.counters["threads"] = thread_count();
+}
+
 void Sizes(benchmark::internal::Benchmark* b) {
     b->Args({256, 256})->Args({256, 1024})->Args({512, 256})->Args({512, 1024});
     b->Unit(benchmark::kMillisecond)->UseRealTime()->MinTime(1.0);
@@ -192,6 +218,12 @@ BENCHMARK_CAPTURE(BM_VortexParticlesStep, open_euler, false, Advection::Euler)
     ->Unit(benchmark::kMillisecond)
     ->UseRealTime();
 BENCHMARK_CAPTURE(BM_VortexParticleSum, tree, ParticleSummation::Tree)
+    ->Arg(64)
+    ->Arg(128)
+    ->Arg(256)
+    ->Unit(benchmark::kMillisecond)
+    ->MeasureProcessCPUTime();
+BENCHMARK(BM_VortexParticleSumPanels)
     ->Arg(64)
     ->Arg(128)
     ->Arg(256)

@@ -33,7 +33,8 @@ inline double log_antiderivative(double u, double eta) {
 inline Vec2d gauss_velocity(Vec2d mid, Vec2d t, double len, Vec2d x) {
     const Vec2d o = t * (len * 0.28867513459481287);  // len / (2 sqrt 3)
     const Vec2d r1 = x - (mid - o), r2 = x - (mid + o);
-    const double i1 = 1.0 / glm::dot(r1, r1), i2 = 1.0 / glm::dot(r2, r2);
+    const double q1 = glm::dot(r1, r1), q2 = glm::dot(r2, r2);
+    const double i1 = q1 > 0 ? 1.0 / q1 : 0.0, i2 = q2 > 0 ? 1.0 / q2 : 0.0;  // a target on a node: that node skipped
     const Vec2d g = (r1 * i1 + r2 * i2) * (len * 0.5 / (2 * Pi));
     return {-g.y, g.x};
 }
@@ -129,6 +130,39 @@ VortexPanels::VortexPanels(std::vector<Segment2> panels, std::vector<double> psi
     if (!(rcond > 1e-14))
         throw_runtime("VortexPanels: the panel system is singular (reciprocal condition {:g}); overlapping panels?",
                       rcond);
+    // Gauss nodes of the far-field rule.
+    for (std::size_t j = 0; j < p; ++j) {
+        const Vec2d o = m_t[j] * (m_len[j] * 0.28867513459481287);  // len / (2 sqrt 3)
+        m_gx.push_back(m_mid[j].x - o.x);
+        m_gy.push_back(m_mid[j].y - o.y);
+        m_gx.push_back(m_mid[j].x + o.x);
+        m_gy.push_back(m_mid[j].y + o.y);
+    }
+    m_gc.assign(2 * p, 0.0);
+    // The grid of midpoints (at most 2^22 cells: coarser cells for a few tiny panels in a large domain).
+    Vec2d lo = m_mid[0], hi = m_mid[0];
+    double longest = 0;
+    for (std::size_t j = 0; j < p; ++j) {
+        lo = glm::min(lo, m_mid[j]);
+        hi = glm::max(hi, m_mid[j]);
+        longest = std::max(longest, m_len[j]);
+    }
+    m_cell = 4 * longest;
+    while ((hi.x - lo.x) / m_cell * ((hi.y - lo.y) / m_cell) > double(1 << 22)) m_cell *= 2;
+    m_grid_lo = lo;
+    m_gnx = int((hi.x - lo.x) / m_cell) + 1;
+    m_gny = int((hi.y - lo.y) / m_cell) + 1;
+    m_cell_start.assign(std::size_t(m_gnx) * std::size_t(m_gny) + 1, 0);
+    auto cell_of = [&](Vec2d x) {
+        const int i = std::min(m_gnx - 1, int((x.x - m_grid_lo.x) / m_cell));
+        const int k = std::min(m_gny - 1, int((x.y - m_grid_lo.y) / m_cell));
+        return std::size_t(k) * std::size_t(m_gnx) + std::size_t(i);
+    };
+    for (std::size_t j = 0; j < p; ++j) ++m_cell_start[cell_of(m_mid[j]) + 1];
+    for (std::size_t c = 1; c < m_cell_start.size(); ++c) m_cell_start[c] += m_cell_start[c - 1];
+    m_cell_panels.resize(p);
+    std::vector<uint32_t> fill(m_cell_start.begin(), m_cell_start.end() - 1);
+    for (std::size_t j = 0; j < p; ++j) m_cell_panels[fill[cell_of(m_mid[j])]++] = uint32_t(j);
     m_solver->rhs = Eigen::VectorXd::Zero(Eigen::Index(p + 1));
     m_solver->x = Eigen::VectorXd::Zero(Eigen::Index(p + 1));
     m_gamma.assign(p + 1, 0.0);
@@ -142,19 +176,37 @@ void VortexPanels::solve(const double* psi_free) {
     s.rhs(Eigen::Index(p)) = 0;
     s.x = s.lu.solve(s.rhs);
     for (std::size_t i = 0; i <= p; ++i) m_gamma[i] = s.x(Eigen::Index(i));
+    for (std::size_t j = 0; j < p; ++j) m_gc[2 * j] = m_gc[2 * j + 1] = 0.5 * m_gamma[j] * m_len[j];
+}
+
+Vec2d VortexPanels::near_correction(Vec2d x) const {
+    Vec2d v(0.0);
+    if (m_panels.empty()) return v;
+    const double fi = (x.x - m_grid_lo.x) / m_cell, fk = (x.y - m_grid_lo.y) / m_cell;
+    if (!(fi > -2 && fk > -2 && fi < m_gnx + 1 && fk < m_gny + 1)) return v;  // (NaN: nothing near)
+    const int ci = int(std::floor(fi)), ck = int(std::floor(fk));
+    for (int k = std::max(0, ck - 1); k <= std::min(m_gny - 1, ck + 1); ++k)
+        for (int i = std::max(0, ci - 1); i <= std::min(m_gnx - 1, ci + 1); ++i) {
+            const std::size_t c = std::size_t(k) * std::size_t(m_gnx) + std::size_t(i);
+            for (uint32_t e = m_cell_start[c]; e < m_cell_start[c + 1]; ++e) {
+                const std::size_t j = m_cell_panels[e];
+                const Vec2d d = x - m_mid[j];
+                if (glm::dot(d, d) > 16 * m_len[j] * m_len[j]) continue;
+                v += m_gamma[j] * (panel_velocity(m_panels[j], x) - gauss_velocity(m_mid[j], m_t[j], m_len[j], x));
+            }
+        }
+    return v;
 }
 
 Vec2d VortexPanels::velocity(Vec2d x) const {
-    Vec2d v(0.0);
-    for (std::size_t j = 0; j < m_panels.size(); ++j) {
-        const Vec2d d = x - m_mid[j];
-        const double g = m_gamma[j];
-        if (glm::dot(d, d) > 16 * m_len[j] * m_len[j])
-            v += g * gauss_velocity(m_mid[j], m_t[j], m_len[j], x);
-        else
-            v += g * panel_velocity(m_panels[j], x);
+    double su = 0, sv = 0;
+    for (std::size_t q = 0; q < m_gx.size(); ++q) {
+        const double dx = x.x - m_gx[q], dy = x.y - m_gy[q], r2 = dx * dx + dy * dy;
+        if (!(r2 > 0)) continue;  // on a node: the exact near field covers it
+        su -= m_gc[q] * dy / r2;
+        sv += m_gc[q] * dx / r2;
     }
-    return v;
+    return Vec2d(su, sv) / (2 * Pi) + near_correction(x);
 }
 
 double VortexPanels::stream(Vec2d x) const {

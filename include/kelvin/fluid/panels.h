@@ -23,6 +23,7 @@
 #include <kelvin/core/math.h>
 
 #include <array>
+#include <cstdint>
 #include <memory>
 #include <vector>
 
@@ -48,8 +49,17 @@ public:
     /// Strengths from Psi of the free field at the midpoints (size() values).
     void solve(const double* psi_free);
     const std::vector<double>& strengths() const { return m_gamma; }  ///< gamma_j, then C
-    /// The panels' velocity and stream function at x with the current strengths.
+    /// The panels' velocity and stream function at x with the current strengths: the far-field rule's point vortices
+    /// summed directly, plus near_correction(x).
     Vec2d velocity(Vec2d x) const;
+    /// The far-field rule as point vortices, two per panel in panel order (the two-point Gauss nodes), each of
+    /// circulation gamma_j L_j / 2 (updated by solve()): what a tree code sums for many targets.
+    const std::vector<double>& gauss_x() const { return m_gx; }
+    const std::vector<double>& gauss_y() const { return m_gy; }
+    const std::vector<double>& gauss_circulation() const { return m_gc; }
+    /// Over the panels near x (midpoint within 4 panel lengths), the exact velocity minus their Gauss nodes' (found
+    /// through a uniform grid of the midpoints): the Gauss nodes' sum plus this is velocity(x).
+    Vec2d near_correction(Vec2d x) const;
     double stream(Vec2d x) const;
 
     /// Per unit strength, exact: 1/(2 pi) int log|x - y| ds over the segment, and J grad of it (0 at an end point).
@@ -69,6 +79,13 @@ private:
     std::vector<Vec2d> m_mid, m_t;  // midpoints, unit tangents
     std::vector<double> m_len, m_psi_b;
     std::vector<double> m_gamma;
+    std::vector<double> m_gx, m_gy, m_gc;  // Gauss nodes and their circulations
+    // Midpoints binned on a uniform grid of cells of 4 x the longest panel (CSR): the near panels of x are in the 3 x 3
+    // cells around it.
+    Vec2d m_grid_lo{0.0};
+    double m_cell = 1;
+    int m_gnx = 0, m_gny = 0;
+    std::vector<uint32_t> m_cell_start, m_cell_panels;
     struct Solver;  // the factored system (Eigen, private to the library)
     std::unique_ptr<Solver> m_solver;
 };

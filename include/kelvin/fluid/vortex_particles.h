@@ -114,8 +114,9 @@ private:
     /// Particles that a step left inside a solid (or beyond the walls) are moved to its surface (push_out); those
     /// that crossed the outflow are removed.
     void push_out_of_solids();
-    /// Adds the panels' velocity at n targets.
-    void add_panel_velocity(const double* tx, const double* ty, std::size_t n, double* u, double* v) const;
+    /// Adds the panels' velocity at n targets (tree summation: their Gauss nodes by a tree of their own, plus the
+    /// exact near field; direct: VortexPanels::velocity).
+    void add_panel_velocity(const double* tx, const double* ty, std::size_t n, double* u, double* v);
     /// Velocity of the particle set (px, py, gamma) at n targets, with the panels' when there are boundaries; adds
     /// the pair count.
     void sum_velocity(const double* tx, const double* ty, std::size_t n, const double* px, const double* py, double* u,
@@ -137,8 +138,9 @@ private:
     std::unique_ptr<PassiveScalars> m_dye;
     std::unique_ptr<WosVelocityField> m_bounds;  // the boundaries at t = 0 (static): solids, push_out, reflect_out
     std::unique_ptr<VortexPanels> m_panels;
-    std::vector<double> m_psi_mid;   // the particles' stream function at the panel midpoints
-    std::vector<char> m_solid_cell;  // lattice cells inside a solid (outputs zero there)
+    std::unique_ptr<Tree> m_panel_tree;  // the panels' Gauss nodes (tree summation)
+    std::vector<double> m_psi_mid;       // the particles' stream function at the panel midpoints
+    std::vector<char> m_solid_cell;      // lattice cells inside a solid (outputs zero there)
     uint64_t m_pushed_out = 0, m_reflected = 0, m_panel_solves = 0, m_left_domain = 0;
     uint64_t m_pairs = 0, m_invalid = 0, m_walk_steps = 0;
     double m_seconds_velocity = 0, m_seconds_fields = 0;
