@@ -8,6 +8,8 @@
 #   tools/convergence_reports.sh fluid-params   # one degraded parameter at a time (like Fig. 5.9)
 #   tools/convergence_reports.sh fluid-visual   #   ... on a moving vortex dipole against a reference run, images
 #   tools/convergence_reports.sh fluid-baselines  # MCFluid, vortex particles and stable fluids vs resolution
+#   tools/convergence_reports.sh fluid-lamb-oseen # the four solvers on a viscous Lamb–Oseen vortex (open box)
+#   tools/convergence_reports.sh fluid-obstacle   # the four solvers on a Lamb–Oseen vortex in a disk container
 #   tools/convergence_reports.sh mlt            # the MLT family at equal time (MLT_REF=reference.exr, MLT_GEOMETRY)
 #   tools/convergence_reports.sh mlt-door       # the thesis' equal-time protocol on one scene (docs/mlt-studies.md):
 #   tools/convergence_reports.sh mlt-caustic    #   reference, normalisation from it, PSSMLT/G's sigma matched to DR,
@@ -16,7 +18,7 @@
 #   tools/convergence_reports.sh mlt-all        # the four
 #   tools/convergence_reports.sh mmlt-door      # the multiplexed family (Fig. 4.11): MMLT / K, MMLT / X, DR
 #   tools/convergence_reports.sh mmlt-aquarium  #   multiplexed-then-subpath, technique mmlt, MLT_MAX_DEPTH (8)
-#   tools/convergence_reports.sh all            # the six fluid reports
+#   tools/convergence_reports.sh all            # the eight fluid reports
 #
 # Environment: KELVIN (default build/bin/kelvin), OUT (default /tmp/kelvin-convergence; studies there are
 # resumed, FRESH=1 deletes them first), RUNS (independent runs, default 3; the mlt-* studies: 10), THREADS
@@ -220,6 +222,26 @@ report() {
         done
         converge fluid-baselines "$TG" -D spp=256 -D dt=0.05 -D end=1 "${c[@]}" --times 0.5,1
         figures fluid-baselines error_vs_cost_rmse.png error_vs_param_rmse.png ;;
+    fluid-lamb-oseen | fluid-obstacle)
+        # Equal-error tables with an exact solution away from periodic boxes (issue 16, item 4): the four solvers at
+        # 16^2, 32^2 and 64^2 on a Lamb–Oseen vortex, viscous in an open box (fluid-lamb-oseen; the grid solvers
+        # close the box [-1.2, 1.2]^2 with free-slip walls, 8 core radii from the centre) or inviscid, centred in a disk
+        # container (fluid-obstacle: every solver's curved wall, a streamline of the exact flow).
+        # The errors are over the cells where the exact solution holds and away from the walls, whose free-slip
+        # velocity jump the grid solvers' curl turns into a vortex sheet in the first cells: the box [-1, 1]^2 of
+        # the open case, the disk of radius 0.8 inside the container of radius 0.9 (outside it the exact free-space
+        # flow is not the container's).
+        local scene=scenes/fluid/lamb_oseen.xml spp=128 region=(--window -1,-1,1,1)
+        if [[ "$1" == fluid-obstacle ]]; then
+            scene=scenes/fluid/lamb_oseen_disk.xml spp=32 region=(--disk 0,0,0.8)
+        fi
+        c=()
+        for s in mcfluid vortex_particles stable_fluids flip; do
+            for r in 16 32 64; do c+=(--config "$s res=$r:solver=$s,res=$r"); done
+        done
+        converge "$1" "$scene" -D spp=$spp -D dt=0.05 -D end=1 "${region[@]}" --field vorticity --field u \
+            "${c[@]}" --times 0.5,1
+        figures "$1" error_vs_cost_rmse.png error_vs_param_rmse.png ;;
     mlt)
         # The MLT family at equal time on one of the project's hard scenes: scenes/render/mlt-study.xml picks the
         # variant (scenes/render/mlt-study.configs, one configuration each) and the geometry (MLT_GEOMETRY: door or
@@ -238,9 +260,10 @@ report() {
     mlt-all)
         for g in door caustic plates pool; do mlt_study "$g"; done ;;
     all)
-        for r in fluid-nmc fluid-cells fluid-dt fluid-params fluid-visual fluid-baselines; do report "$r"; done ;;
+        for r in fluid-nmc fluid-cells fluid-dt fluid-params fluid-visual fluid-baselines fluid-lamb-oseen \
+            fluid-obstacle; do report "$r"; done ;;
     *)
-        echo "usage: $0 fluid-nmc|fluid-cells|fluid-dt|fluid-params|fluid-visual|fluid-baselines|mlt|mlt-door|mlt-caustic|mlt-plates|mlt-pool|mlt-all|mmlt-door|mmlt-aquarium|all" >&2
+        echo "usage: $0 fluid-nmc|fluid-cells|fluid-dt|fluid-params|fluid-visual|fluid-baselines|fluid-lamb-oseen|fluid-obstacle|mlt|mlt-door|mlt-caustic|mlt-plates|mlt-pool|mlt-all|mmlt-door|mmlt-aquarium|all" >&2
         exit 2 ;;
     esac
 }
