@@ -127,13 +127,13 @@ void BM_VortexParticlesStep(benchmark::State& state, bool periodic, Advection ad
 // One velocity evaluation at the particles (what each RK stage does; the tree is rebuilt inside), Lamb–Oseen
 // vortex on the open box, N = res^2 particles: the Barnes–Hut tree (theta 0.5, leaves of 16) against the direct
 // sum. CPU time of the process (KELVIN_BENCH_THREADS=1 for the single-core figures).
-void BM_VortexParticleSum(benchmark::State& state, ParticleSummation summation) {
+void BM_VortexParticleSum(benchmark::State& state, ParticleSummation summation, bool periodic) {
     ThreadLimit limit(bench_threads());
     VortexParticleSettings s;
-    s.domain = Domain2{{-1, -1}, {1, 1}, false};
+    s.domain = periodic ? Domain2{{-Pi, -Pi}, {Pi, Pi}, true} : Domain2{{-1, -1}, {1, 1}, false};
     s.nx = s.ny = int(state.range(0));
     s.summation = summation;
-    VortexParticleSolver solver(s, lamb_oseen);
+    VortexParticleSolver solver(s, periodic ? InitialField(taylor_green) : InitialField(lamb_oseen));
     std::vector<double> u, v;
     const double evals0 = solver.evaluations();
     for (auto _ : state) solver.velocity_at(solver.xs(), solver.ys(), u, v);
@@ -217,7 +217,7 @@ BENCHMARK_CAPTURE(BM_VortexParticlesStep, open_euler, false, Advection::Euler)
     ->Arg(128)
     ->Unit(benchmark::kMillisecond)
     ->UseRealTime();
-BENCHMARK_CAPTURE(BM_VortexParticleSum, tree, ParticleSummation::Tree)
+BENCHMARK_CAPTURE(BM_VortexParticleSum, tree, ParticleSummation::Tree, false)
     ->Arg(64)
     ->Arg(128)
     ->Arg(256)
@@ -229,10 +229,23 @@ BENCHMARK(BM_VortexParticleSumPanels)
     ->Arg(256)
     ->Unit(benchmark::kMillisecond)
     ->MeasureProcessCPUTime();
-BENCHMARK_CAPTURE(BM_VortexParticleSum, direct, ParticleSummation::Direct)
+BENCHMARK_CAPTURE(BM_VortexParticleSum, direct, ParticleSummation::Direct, false)
     ->Arg(64)
     ->Arg(128)
     ->Arg(256)
+    ->Unit(benchmark::kMillisecond)
+    ->MeasureProcessCPUTime();
+// Periodic Taylor–Green: the tree over the 3 x 3 images plus the interpolated far images against the direct sum
+// with the periodic kernel.
+BENCHMARK_CAPTURE(BM_VortexParticleSum, periodic_tree, ParticleSummation::Tree, true)
+    ->Arg(64)
+    ->Arg(128)
+    ->Arg(256)
+    ->Unit(benchmark::kMillisecond)
+    ->MeasureProcessCPUTime();
+BENCHMARK_CAPTURE(BM_VortexParticleSum, periodic_direct, ParticleSummation::Direct, true)
+    ->Arg(64)
+    ->Arg(128)
     ->Unit(benchmark::kMillisecond)
     ->MeasureProcessCPUTime();
 BENCHMARK_MAIN();

@@ -15,9 +15,10 @@
 // about it; a node whose cell size s and distance d to the target satisfy s < theta d (target outside the cell)
 // is taken as one blob at its centre plus the dipole correction (the same mollified kernel and its gradient),
 // other nodes are opened, leaves of at most leaf_size particles are summed directly. Cost O(N log N) per
-// evaluation; the error is the quadrupole remainder, O(theta^2) relative. The direct O(N^2) sum stays as an
-// option (summation = Direct), and periodic domains always use it (the tree covers open domains only: its
-// far-field terms would need the gradient of the periodic kernel's correction table). Both are parallel over
+// evaluation; the error is the quadrupole remainder, O(theta^2) relative. On periodic boxes the tree runs over the
+// particles tiled 3 x 3 and the images beyond, whose sum is smooth, are interpolated from a lattice of nodes where
+// it is evaluated exactly (periodic_tree_sum). The direct O(N^2) sum stays as an option (summation = Direct,
+// with the periodic kernel on periodic boxes). Both are parallel over
 // fixed blocks of targets, each target's sum sequential in a fixed order (the tree is built sequentially):
 // results do not depend on the thread count; no per-pair allocation or virtual call.
 //
@@ -55,7 +56,7 @@ struct VortexParticleSettings {
     /// Particles with |omega| <= threshold * max |omega| at seeding are not created (0: only exact zeros).
     double threshold = 0;
     uint64_t seed = 0;
-    ParticleSummation summation = ParticleSummation::Tree;  ///< periodic domains: always Direct
+    ParticleSummation summation = ParticleSummation::Tree;
     double theta = 0.5;  ///< tree opening angle, in (0, 1]: a node is used whole when size < theta * distance
     int leaf_size = 16;  ///< tree: at most this many particles per leaf (summed directly)
     /// Free-slip walls and static obstacles by the panel method (null: free space, or the periodic box). Open
@@ -72,7 +73,7 @@ public:
 
     const VortexParticleSettings& settings() const { return m_settings; }
     double delta() const { return m_delta; }
-    /// True when the velocity is summed by the tree code (Tree requested and an open domain).
+    /// True when the velocity is summed by the tree code (Tree requested).
     bool uses_tree() const { return m_use_tree; }
     std::size_t particle_count() const { return m_x.size(); }
     /// The panels of the free-slip boundaries (null without boundaries).
@@ -106,6 +107,15 @@ private:
     /// code; adds the kernel evaluations (leaf pairs and accepted nodes) to m_pairs.
     void tree_sum(const double* tx, const double* ty, std::size_t n, const double* px, const double* py, double* u,
                   double* v, double* w);
+    /// tree_sum on a periodic box: the tree over the particles tiled 3 x 3 plus the smooth remainder of the far
+    /// images, interpolated from a lattice of nodes (vortex_particles.cpp).
+    void periodic_tree_sum(const double* tx, const double* ty, std::size_t n, const double* px, const double* py,
+                           double* u, double* v, double* w);
+    static constexpr int PeriodicNodes = 16;  ///< remainder lattice: L / 16 (plus a halo ring)
+    struct PeriodicScratch {
+        std::vector<double> x, y, g, nx, ny, fu, fv, tu, tv;
+    };
+    PeriodicScratch m_pscratch;
     /// The panels' strengths for the particles at (px, py): their stream function at the panel midpoints (by the tree
     /// when `tree_built`, else directly), then the panel system.
     void solve_panels(const double* px, const double* py, bool tree_built);

@@ -1,9 +1,9 @@
 // vortex_particles: the vortex particle (blob) baseline, run as a Job by `kelvin scene.xml`. One particle per
 // cell of the <cache type="grid"> lattice carries the circulation omega h^2 of its cell; the velocity is the
-// Biot–Savart sum over the particles with the Rosenhead–Moore kernel, by a Barnes–Hut tree code (O(N log N)) or
-// the direct O(N^2) sum (periodic boxes: always direct, with the periodic kernel); particles move by RK4 or Euler;
-// viscosity is Chorin's random walk. Takes the same scene as mcfluid (switch with one word: type="vortex_particles")
-// and writes the same files.
+// Biot–Savart sum over the particles with the Rosenhead–Moore kernel, by a Barnes–Hut tree code (O(N log N); on
+// periodic boxes over the 3 x 3 images, the farther ones interpolated) or the direct O(N^2) sum; particles move by RK4
+// or Euler; viscosity is Chorin's random walk. Takes the same scene as mcfluid (switch with one word:
+// type="vortex_particles") and writes the same files.
 //
 // | parameter      | type    | default | meaning                                                         |
 // |----------------|---------|---------|-----------------------------------------------------------------|
@@ -12,7 +12,8 @@
 // |                |         |         | <cache> (lattice = output grid), <scalar>                        |
 // | blob_radius    | float   | -1      | delta of the blobs; -1: one lattice spacing                      |
 // | threshold      | float   | 0       | skip cells with |omega| <= threshold * max |omega| at seeding    |
-// | summation      | string  | tree    | "tree" (Barnes–Hut, open domains) or "direct" (O(N^2))          |
+// | summation      | string  | tree    | "tree" (Barnes–Hut; periodic: 3x3 images + far images lattice)  |
+// |                |         |         | or "direct" (O(N^2))                                             |
 // | theta          | float   | 0.5     | tree opening angle in (0, 1]: smaller is more accurate, slower   |
 // | panel_length   | float   | -1      | longest boundary panel; -1: one lattice spacing                  |
 //
@@ -114,9 +115,11 @@ public:
             "particle transport ({}, dt {:g}, {} steps, {} particles) with {} Biot–Savart summation (blob "
             "radius {:g}{}){}; boundaries {}",
             fluid::to_string(s.advection), m_params.dt, m_params.steps, solver.particle_count(),
-            solver.uses_tree()                       ? fmt::format("Barnes–Hut tree (theta {:g})", s.theta)
-            : s.summation == ParticleSummation::Tree ? std::string("direct (periodic domain: no tree)")
-                                                     : std::string("direct"),
+            solver.uses_tree() ? fmt::format("Barnes–Hut tree (theta {:g}{})", s.theta,
+                                             s.domain.periodic ? ", periodic: 3 x 3 images, the far images "
+                                                                 "interpolated from a 16 x 16 lattice"
+                                                               : "")
+                               : std::string("direct"),
             solver.delta(), s.domain.periodic ? ", periodic kernel" : "",
             s.viscosity > 0 ? ", viscosity by random walk" : "",
             solver.panels()     ? fmt::format("free slip by {} vortex panels ({})", solver.panels()->size(),
@@ -136,14 +139,14 @@ private:
 }  // namespace
 }  // namespace kelvin::fluid
 
-KELVIN_PLUGIN(kelvin::fluid::VortexParticles, "simulation", "vortex_particles",
-              "Baseline: vortex particles (blobs) with Barnes–Hut tree (O(N log N)) or direct O(N^2) Biot–Savart "
-              "summation, RK4/Euler, random-walk viscosity; same scene and outputs as mcfluid.",
-              KELVIN_FLUID_SIMULATION_PARAMS,
-              kelvin::param::real("blob_radius", -1.0, "blob radius delta; -1: one lattice spacing"),
-              kelvin::param::real("threshold", 0.0, "skip cells with |omega| <= threshold * max |omega|"),
-              kelvin::param::string("summation", "tree",
-                                    "'tree' (Barnes–Hut, open domains; periodic boxes use direct) or 'direct'"),
-              kelvin::param::real("theta", 0.5,
-                                  "tree opening angle in (0, 1]: node used whole if size < theta * distance"),
-              kelvin::param::real("panel_length", -1.0, "longest free-slip boundary panel; -1: one lattice spacing"));
+KELVIN_PLUGIN(
+    kelvin::fluid::VortexParticles, "simulation", "vortex_particles",
+    "Baseline: vortex particles (blobs) with Barnes–Hut tree (O(N log N)) or direct O(N^2) Biot–Savart "
+    "summation, RK4/Euler, random-walk viscosity; same scene and outputs as mcfluid.",
+    KELVIN_FLUID_SIMULATION_PARAMS,
+    kelvin::param::real("blob_radius", -1.0, "blob radius delta; -1: one lattice spacing"),
+    kelvin::param::real("threshold", 0.0, "skip cells with |omega| <= threshold * max |omega|"),
+    kelvin::param::string("summation", "tree",
+                          "'tree' (Barnes–Hut; periodic boxes: 3 x 3 images + interpolated far images) or 'direct'"),
+    kelvin::param::real("theta", 0.5, "tree opening angle in (0, 1]: node used whole if size < theta * distance"),
+    kelvin::param::real("panel_length", -1.0, "longest free-slip boundary panel; -1: one lattice spacing"));
