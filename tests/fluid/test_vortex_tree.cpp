@@ -157,8 +157,8 @@ TEST(VortexTree, LambOseenConvergesWithTheTreeAsDefault) {
 // (measured 6.8e-5, 9.3e-4, 7.6e-3 at theta 0.15, 0.3, 0.6: the same theta^3 law as the open tree with a constant
 // about 8x larger: the remainder at the nodes carries the tree's error too, and a target accepts about 3x more
 // nodes among the 9 N particles), it does less work than the direct sum at 64^2 particles, and theta -> 0 leaves
-// only the interpolation error (5e-5). Broken variants seen to fail: the remainder not
-// added (only 3 x 3 images: 2.7e-2), linear instead of cubic interpolation (4e-3), targets not wrapped (3e-1).
+// only the interpolation error (5e-5). Broken variants seen to fail: the remainder not added (only the 3 x 3
+// images: 6.7e-2 at every theta), targets not wrapped into the box (3e-2 to 6.6e2).
 TEST(VortexTree, PeriodicTreeMatchesTheDirectSum) {
     const auto field = [](const Vec2d& x) {
         return std::sin(x.x) * std::cos(2 * x.y) + 4 * lo_omega(x, {0.5, -0.3}, 1.0, 0.4) -
