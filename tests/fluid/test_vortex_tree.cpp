@@ -153,12 +153,13 @@ TEST(VortexTree, LambOseenConvergesWithTheTreeAsDefault) {
 // Periodic boxes: the tree over the particles tiled 3 x 3 plus the far images' smooth remainder interpolated from a
 // 16 x 16 lattice (vortex_particles.cpp). Against the direct sum with the periodic kernel, at the particles and at
 // targets outside the box (wrapped), on a mixed-sign field of zero net circulation (as vorticity on a torus must be)
-// in a non-square box: the relative max-norm error is bounded by theta^3 / 20 plus 1e-4 for the interpolation
-// (measured 6.8e-5, 9.3e-4, 7.6e-3 at theta 0.15, 0.3, 0.6: the same theta^3 law as the open tree with a constant
-// about 8x larger: the remainder at the nodes carries the tree's error too, and a target accepts about 3x more
-// nodes among the 9 N particles), it does less work than the direct sum at 64^2 particles, and theta -> 0 leaves
-// only the interpolation error (5e-5). Broken variants seen to fail: the remainder not added (only the 3 x 3
-// images: 6.7e-2 at every theta), targets not wrapped into the box (3e-2 to 6.6e2).
+// in a non-square box: the relative max-norm error is bounded by theta^3 / 50 plus 1e-4 for the interpolation, as
+// the open tree's (the periodic sum opens nodes at theta / 2: at equal angle its error constant is about 8x the
+// open tree's, the nodes' remainder carrying the tree's error too and a target accepting ~3x more nodes among 9 N
+// particles: 9.3e-4 and 7.6e-3 at angles 0.3 and 0.6); it does less work than the direct sum at 64^2 particles for
+// theta >= 0.6, and theta -> 0 leaves only the interpolation error (5e-5). Broken variants seen to fail: the
+// remainder not added (only the 3 x 3 images: 6.7e-2 at every theta), targets not wrapped into the box (3e-2 to
+// 6.6e2).
 TEST(VortexTree, PeriodicTreeMatchesTheDirectSum) {
     const auto field = [](const Vec2d& x) {
         return std::sin(x.x) * std::cos(2 * x.y) + 4 * lo_omega(x, {0.5, -0.3}, 1.0, 0.4) -
@@ -190,8 +191,8 @@ TEST(VortexTree, PeriodicTreeMatchesTheDirectSum) {
         }
         std::cout << "[ measured ] periodic vortex tree theta " << theta << ": rel. error " << err / umax
                   << ", evaluations per target " << evals << " (direct 4096)\n";
-        EXPECT_LT(err / umax, std::pow(theta, 3) / 20 + 1e-4) << "theta " << theta;
-        if (theta >= 0.3) EXPECT_LT(evals, 4096.0);
+        EXPECT_LT(err / umax, std::pow(theta, 3) / 50 + 1e-4) << "theta " << theta;
+        if (theta >= 0.6) EXPECT_LT(evals, 4096.0);
         if (theta < 1e-6) EXPECT_GT(err / umax, 1e-6);  // the interpolation's own error: the remainder is used
     }
 }
