@@ -262,12 +262,11 @@ struct VortexParticleSolver::Tree {
         n2.dy = dy;
     }
 
-    // Sums of Gamma 2 pi K_delta(t - p) (and Gamma pi zeta_delta / delta^2 when w) for one target, as sum_one.
-    // Returns the number of kernel evaluations (leaf pairs + accepted nodes).
-    __attribute__((always_inline)) inline uint64_t sum(double tx, double ty, double d2, double theta2, double& u,
-                                                       double& v, double* w) const {
-        double su = 0, sv = 0, sw = 0;
-        uint64_t evals = 0;
+    // The traversal for one target: far(node, rx, ry, r2) for each node accepted (s < theta d, target outside its
+    // cell; r = target - its centre), leaf(node) for each leaf opened; children in a fixed order (child 0 first).
+    template <class Far, class Leaf>
+    __attribute__((always_inline)) inline void visit(double tx, double ty, double theta2, Far&& far,
+                                                     Leaf&& leaf) const {
         int32_t stack[4 * TreeMaxDepth + 8];
         int top = 0;
         stack[top++] = 0;
@@ -275,7 +274,24 @@ struct VortexParticleSolver::Tree {
             const Node& nd = nodes[std::size_t(stack[--top])];
             const double rx = tx - nd.cx, ry = ty - nd.cy, r2 = rx * rx + ry * ry;
             const bool inside = tx >= nd.x0 && tx <= nd.x0 + nd.size && ty >= nd.y0 && ty <= nd.y0 + nd.size;
-            if (!inside && nd.size * nd.size < theta2 * r2) {
+            if (!inside && nd.size * nd.size < theta2 * r2)
+                far(nd, rx, ry, r2);
+            else if (nd.child < 0)
+                leaf(nd);
+            else
+                for (int32_t c = nd.child + nd.nchild - 1; c >= nd.child; --c) stack[top++] = c;
+        }
+    }
+
+    // Sums of Gamma 2 pi K_delta(t - p) (and Gamma pi zeta_delta / delta^2 when w) for one target, as sum_one.
+    // Returns the number of kernel evaluations (leaf pairs + accepted nodes).
+    __attribute__((always_inline)) inline uint64_t sum(double tx, double ty, double d2, double theta2, double& u,
+                                                       double& v, double* w) const {
+        double su = 0, sv = 0, sw = 0;
+        uint64_t evals = 0;
+        visit(
+            tx, ty, theta2,
+            [&](const Node& nd, double rx, double ry, double r2) {
                 // Far field: monopole at c plus the dipole term -(D . grad) K, K = (-ry, rx) / q, q = r^2 + d^2.
                 const double inv = 1.0 / (r2 + d2), inv2 = inv * inv;
                 const double dudx = 2 * rx * ry * inv2, dudy = -inv + 2 * ry * ry * inv2;
@@ -284,7 +300,8 @@ struct VortexParticleSolver::Tree {
                 sv += nd.g * (rx * inv) - (nd.dx * dvdx + nd.dy * dvdy);
                 if (w) sw += nd.g * inv2 + 4 * inv2 * inv * (nd.dx * rx + nd.dy * ry);
                 ++evals;
-            } else if (nd.child < 0) {
+            },
+            [&](const Node& nd) {
                 for (uint32_t k = nd.begin; k < nd.end; ++k) {
                     const double dx = tx - x[k], dy = ty - y[k];
                     const double inv = 1.0 / (dx * dx + dy * dy + d2);
@@ -293,10 +310,7 @@ struct VortexParticleSolver::Tree {
                     if (w) sw += g[k] * inv * inv;
                 }
                 evals += nd.end - nd.begin;
-            } else {
-                for (int32_t c = nd.child + nd.nchild - 1; c >= nd.child; --c) stack[top++] = c;  // child 0 first
-            }
-        }
+            });
         u = su;
         v = sv;
         if (w) *w = sw;
@@ -307,25 +321,18 @@ struct VortexParticleSolver::Tree {
     // e . grad f(r).
     double stream(double tx, double ty, double d2, double theta2) const {
         double s = 0;
-        int32_t stack[4 * TreeMaxDepth + 8];
-        int top = 0;
-        stack[top++] = 0;
-        while (top > 0) {
-            const Node& nd = nodes[std::size_t(stack[--top])];
-            const double rx = tx - nd.cx, ry = ty - nd.cy, r2 = rx * rx + ry * ry;
-            const bool inside = tx >= nd.x0 && tx <= nd.x0 + nd.size && ty >= nd.y0 && ty <= nd.y0 + nd.size;
-            if (!inside && nd.size * nd.size < theta2 * r2) {
+        visit(
+            tx, ty, theta2,
+            [&](const Node& nd, double rx, double ry, double r2) {
                 const double q = r2 + d2;
                 s += nd.g * std::log(q) - 2 * (nd.dx * rx + nd.dy * ry) / q;
-            } else if (nd.child < 0) {
+            },
+            [&](const Node& nd) {
                 for (uint32_t k = nd.begin; k < nd.end; ++k) {
                     const double dx = tx - x[k], dy = ty - y[k];
                     s += g[k] * std::log(dx * dx + dy * dy + d2);
                 }
-            } else {
-                for (int32_t c = nd.child + nd.nchild - 1; c >= nd.child; --c) stack[top++] = c;
-            }
-        }
+            });
         return s;
     }
     __attribute__((target_clones("avx2", "default"))) uint64_t sum_block(const double* tx, const double* ty,
