@@ -10,6 +10,7 @@
 #   tools/convergence_reports.sh fluid-baselines  # MCFluid, vortex particles and stable fluids vs resolution
 #   tools/convergence_reports.sh fluid-lamb-oseen # the four solvers on a viscous Lamb–Oseen vortex (open box)
 #   tools/convergence_reports.sh fluid-obstacle   # the four solvers on a Lamb–Oseen vortex in a disk container
+#   tools/convergence_reports.sh fluid-shear      # the four solvers on the shear layer against two 512^2 references
 #   tools/convergence_reports.sh mlt            # the MLT family at equal time (MLT_REF=reference.exr, MLT_GEOMETRY)
 #   tools/convergence_reports.sh mlt-door       # the thesis' equal-time protocol on one scene (docs/mlt-studies.md):
 #   tools/convergence_reports.sh mlt-caustic    #   reference, normalisation from it, PSSMLT/G's sigma matched to DR,
@@ -18,7 +19,7 @@
 #   tools/convergence_reports.sh mlt-all        # the four
 #   tools/convergence_reports.sh mmlt-door      # the multiplexed family (Fig. 4.11): MMLT / K, MMLT / X, DR
 #   tools/convergence_reports.sh mmlt-aquarium  #   multiplexed-then-subpath, technique mmlt, MLT_MAX_DEPTH (8)
-#   tools/convergence_reports.sh all            # the eight fluid reports
+#   tools/convergence_reports.sh all            # the nine fluid reports
 #
 # Environment: KELVIN (default build/bin/kelvin), OUT (default /tmp/kelvin-convergence; studies there are
 # resumed, FRESH=1 deletes them first), RUNS (independent runs, default 3; the mlt-* studies: 10), THREADS
@@ -242,6 +243,24 @@ report() {
         converge "$1" "$scene" -D spp=$spp -D dt=0.05 -D end=1 "${region[@]}" --field vorticity --field u \
             "${c[@]}" --times 0.5,1
         figures "$1" error_vs_cost_rmse.png error_vs_param_rmse.png ;;
+    fluid-shear)
+        # The shear layer has no exact solution: two references at 512^2 and dt = 0.0125 (stable fluids and FLIP,
+        # kept in $OUT), the four solvers at 32^2..128^2 against each, at t = 2 (before the roll-up saturates).
+        mkdir -p "$OUT/fluid-shear-refs"
+        for ref in stable_fluids flip; do
+            [[ -f "$OUT/fluid-shear-refs/$ref.exr" ]] ||
+                "$KELVIN" scenes/fluid/shear_layer.xml -D solver=$ref -D res=512 -D dt=0.0125 -D end=2 -D every=0 \
+                    -q -o "$OUT/fluid-shear-refs/$ref.exr"
+        done
+        c=()
+        for s in mcfluid vortex_particles stable_fluids flip; do
+            for r in 32 64 128; do c+=(--config "$s res=$r:solver=$s,res=$r"); done
+        done
+        for ref in stable_fluids flip; do
+            converge "fluid-shear-$ref" scenes/fluid/shear_layer.xml -D spp=128 -D dt=0.05 -D end=2 "${c[@]}" \
+                --reference "$OUT/fluid-shear-refs/$ref.exr" --times 2
+        done
+        figures fluid-shear-stable_fluids error_vs_cost_rmse.png ;;
     mlt)
         # The MLT family at equal time on one of the project's hard scenes: scenes/render/mlt-study.xml picks the
         # variant (scenes/render/mlt-study.configs, one configuration each) and the geometry (MLT_GEOMETRY: door or
@@ -261,9 +280,9 @@ report() {
         for g in door caustic plates pool; do mlt_study "$g"; done ;;
     all)
         for r in fluid-nmc fluid-cells fluid-dt fluid-params fluid-visual fluid-baselines fluid-lamb-oseen \
-            fluid-obstacle; do report "$r"; done ;;
+            fluid-obstacle fluid-shear; do report "$r"; done ;;
     *)
-        echo "usage: $0 fluid-nmc|fluid-cells|fluid-dt|fluid-params|fluid-visual|fluid-baselines|fluid-lamb-oseen|fluid-obstacle|mlt|mlt-door|mlt-caustic|mlt-plates|mlt-pool|mlt-all|mmlt-door|mmlt-aquarium|all" >&2
+        echo "usage: $0 fluid-nmc|fluid-cells|fluid-dt|fluid-params|fluid-visual|fluid-baselines|fluid-lamb-oseen|fluid-obstacle|fluid-shear|mlt|mlt-door|mlt-caustic|mlt-plates|mlt-pool|mlt-all|mmlt-door|mmlt-aquarium|all" >&2
         exit 2 ;;
     esac
 }
