@@ -334,6 +334,21 @@ TEST(MltIntegrators, EveryStudyVariantRenders) {
             EXPECT_EQ(ctx.stats.get("render.invalid_samples"), 0.0);
             EXPECT_GT(ktest::image_stats(img, 1).mean, 0.0);
         }
+    // The H2MC variants (path technique only): the door's plugins are differentiable, so derivatives are taken.
+    for (const char* variant : {"pssmlt-h2mc", "drmlt-h2mc"}) {
+        SCOPED_TRACE(variant);
+        ParseOptions opts;
+        opts.defines = {{"variant", variant}, {"geometry", "door"}, {"res", "8"}, {"max_depth", "6"}};
+        auto scene = std::dynamic_pointer_cast<Scene>(instantiate(parse_scene_file(scene_path("mlt-study.xml"), opts)));
+        ASSERT_TRUE(scene);
+        RunContext ctx;
+        ctx.spp = 2;
+        ctx.quiet = true;
+        const Bitmap img = scene->run(ctx).image;
+        EXPECT_EQ(ctx.stats.get("render.invalid_samples"), 0.0);
+        EXPECT_GT(ktest::image_stats(img, 1).mean, 0.0);
+        EXPECT_GT(ctx.stats.get("mlt.h2mc.derivatives"), 0.0);
+    }
 }
 
 // chains = -1: the count follows the mutation budget (docs/mlt.md, "How many chains"), within its bounds.
