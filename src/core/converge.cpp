@@ -624,10 +624,15 @@ private:
         for (long long s : o.steps)
             if (s < 0) throw InputError({}, "converge: --steps: step counts must be non-negative");
         if (o.fields.empty()) throw InputError({}, "converge: no --field to compare");
+        // 2D: vorticity, u, v; 3D also the vectors' components and the velocity vector (checked against the
+        // simulation's own fields when it runs).
+        const std::vector<std::string> known = {"vorticity", "u",           "v",           "w",
+                                                "velocity",  "vorticity_x", "vorticity_y", "vorticity_z"};
         for (const auto& f : o.fields)
-            if (f != "vorticity" && f != "u" && f != "v")
-                throw InputError({}, fmt::format("converge: --field '{}': expected vorticity, u or v{}", f,
-                                                 did_you_mean(f, {"vorticity", "u", "v"})));
+            if (std::find(known.begin(), known.end(), f) == known.end())
+                throw InputError({}, fmt::format("converge: --field '{}': expected vorticity, u or v (3D also w, "
+                                                 "velocity, vorticity_x, vorticity_y, vorticity_z){}",
+                                                 f, did_you_mean(f, known)));
         if (!(o.epsilon > 0)) throw InputError({}, "converge: --epsilon must be positive");
         if (o.window && ((*o.window)[2] <= (*o.window)[0] || (*o.window)[3] <= (*o.window)[1] || (*o.window)[0] < 0 ||
                          (*o.window)[1] < 0))
@@ -805,10 +810,15 @@ private:
         }
         for (const auto& f : m_o.fields) {
             std::vector<double> values;
-            if (!cp.field || !cp.field(f, values))
-                throw InputError({m_o.scene.string(), 0, 0}, fmt::format("the simulation has no field '{}'", f));
-            const std::vector<double> ref = m_reference.field(cp, f);
-            const FieldErrors e = field_errors(values, ref, cp.grid, m_o.region);
+            FieldErrors e;
+            if (cp.dimension == 3) {
+                e = field_errors3(cp, f);
+            } else {
+                if (!cp.field || !cp.field(f, values))
+                    throw InputError({m_o.scene.string(), 0, 0}, fmt::format("the simulation has no field '{}'", f));
+                const std::vector<double> ref = m_reference.field(cp, f);
+                e = field_errors(values, ref, cp.grid, m_o.region);
+            }
             Row row = base;
             row.push_back(f);
             row.push_back(m_o.region.to_string());
@@ -818,6 +828,41 @@ private:
             rows.push_back(std::move(row));
         }
         return rows;
+    }
+
+    /// A 3D checkpoint's errors for `field` against the exact solution, over every cell: "vorticity" and "velocity"
+    /// are vectors (vorticity_x/y/z, u/v/w; vector_field_errors), any other name one component.
+    FieldErrors field_errors3(const Checkpoint& cp, const std::string& field) const {
+        const SourceLoc where{m_o.scene.string(), 0, 0};
+        if (!m_o.reference.empty())
+            throw InputError(where, "3D studies compare with the exact solution; --reference takes 2D field images");
+        if (m_o.region.use_box || m_o.region.use_disk)
+            throw InputError(where, "--window and --disk are 2D regions; a 3D study compares every cell");
+        const std::vector<std::string> comps =
+            field == "vorticity"  ? std::vector<std::string>{"vorticity_x", "vorticity_y", "vorticity_z"}
+            : field == "velocity" ? std::vector<std::string>{"u", "v", "w"}
+                                  : std::vector<std::string>{field};
+        const CellGrid3& g = cp.grid3;
+        const std::size_t n = g.cell_count();
+        std::vector<double> values, ref, part;
+        for (const std::string& c : comps) {
+            if (!cp.field || !cp.field(c, part) || part.size() != n)
+                throw InputError(where, fmt::format("the simulation has no field '{}'", c));
+            values.insert(values.end(), part.begin(), part.end());
+            if (!cp.exact3)
+                throw InputError(where, "the simulation knows no exact solution (3D: abc and taylor_green at t = 0)");
+            for (int k = 0; k < g.nz; ++k)
+                for (int j = 0; j < g.ny; ++j)
+                    for (int i = 0; i < g.nx; ++i) {
+                        const std::optional<double> e = cp.exact3(c, cp.sim_time, g.cell_center(i, j, k));
+                        if (!e)
+                            throw InputError(where, fmt::format("the initial condition has no exact solution for "
+                                                                "'{}' at t = {:g} (abc has one at every time)",
+                                                                c, cp.sim_time));
+                        ref.push_back(*e);
+                    }
+        }
+        return vector_field_errors(values, ref, n, int(comps.size()));
     }
 
     /// Runs one (configuration, run) pair; its rows, or interrupted (nothing to record).

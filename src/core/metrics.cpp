@@ -254,6 +254,38 @@ FieldErrors field_errors(std::span<const double> values, std::span<const double>
     return field_errors_where(values, reference, grid, [&](Vec2d p) { return region.contains(p); });
 }
 
+FieldErrors vector_field_errors(std::span<const double> values, std::span<const double> reference, std::size_t cells,
+                                int components) {
+    const std::size_t n = cells * std::size_t(std::max(components, 0));
+    if (components < 1 || values.size() != n || reference.size() != n)
+        throw InputError({}, fmt::format("field errors: {} values and {} reference values for {} cells of {} "
+                                         "components",
+                                         values.size(), reference.size(), cells, components));
+    FieldErrors e;
+    double sq = 0, ref_sq = 0, ab = 0, mx = 0;
+    for (std::size_t k = 0; k < cells; ++k) {
+        double d2 = 0, r2 = 0;
+        for (int c = 0; c < components; ++c) {
+            const std::size_t i = std::size_t(c) * cells + k;
+            const double d = values[i] - reference[i];
+            d2 += d * d;
+            r2 += reference[i] * reference[i];
+        }
+        const double d = std::sqrt(d2);
+        sq += d2;
+        ref_sq += r2;
+        ab += d;
+        if (std::isnan(d) || d > mx) mx = std::isnan(mx) ? mx : d;
+    }
+    e.cells = cells;
+    if (cells == 0) return {NaN, NaN, NaN, NaN, 0};
+    e.rmse = std::sqrt(sq / double(cells));
+    e.rel_l2 = ref_sq > 0 ? std::sqrt(sq / ref_sq) : (sq > 0 ? std::numeric_limits<double>::infinity() : sq);
+    e.max_abs = mx;
+    e.l1 = ab / double(cells);
+    return e;
+}
+
 std::vector<double> sample_field(const CellGrid2& grid, const std::function<double(Vec2d)>& fn) {
     std::vector<double> out(grid.cell_count());
     for (int j = 0; j < grid.ny; ++j)

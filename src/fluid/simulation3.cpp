@@ -186,8 +186,6 @@ std::unique_ptr<MCFluid3Solver> create_mcfluid3_solver(const Simulation3Params& 
 }
 
 RunResult run_mcfluid3(const Simulation3Params& p, RunContext& ctx) {
-    if (ctx.on_checkpoint)
-        throw_runtime("mcfluid: checkpoints (kelvin converge) are not available for 3D simulations yet");
     Timer total;
     const MCFluid3Settings settings = settings_for(p, ctx);
     if (ctx.spp > 0) log_info("mcfluid: --spp {} overrides the Biot–Savart samples (n_mc)", settings.velocity.samples);
@@ -285,6 +283,47 @@ RunResult run_mcfluid3(const Simulation3Params& p, RunContext& ctx) {
                                   {d.smoke_mass, "smoke mass"}},
                                  fields);
     };
+    // Checkpoints (core/checkpoint.h, `kelvin converge`): the state after the steps that reach them, the vorticity
+    // and velocity components on the cache grid, the field's exact solution where it has one (abc).
+    CheckpointSchedule checkpoints(ctx);
+    if (checkpoints.active() && comm.distributed())
+        throw RuntimeError(
+            "mcfluid: checkpoints are not supported in a distributed job (a convergence study distributes its runs "
+            "instead: kelvin converge under mpirun)");
+    auto checkpoint = [&](long long steps) {
+        Checkpoint cp;
+        cp.work = double(steps);
+        cp.work_unit = "steps";
+        cp.sim_time = solver.time();
+        cp.dimension = 3;
+        cp.grid3 = {settings.domain.min, settings.domain.max, settings.nx, settings.ny, settings.nz};
+        cp.field = [&solver](const std::string& name, std::vector<double>& values) {
+            const VectorGrid3& w = solver.vorticity_grid();
+            const Grid3* g = name == "vorticity_x"   ? &w.x
+                             : name == "vorticity_y" ? &w.y
+                             : name == "vorticity_z" ? &w.z
+                                                     : nullptr;
+            if (!g && solver.velocity_available()) {
+                const VectorGrid3& u = solver.velocity_grid();
+                g = name == "u" ? &u.x : name == "v" ? &u.y : name == "w" ? &u.z : nullptr;
+            }
+            if (g) values = g->values();
+            return g != nullptr;
+        };
+        const double nu = settings.viscosity;
+        cp.exact3 = [&field, nu](const std::string& name, double t, Vec3d x) -> std::optional<double> {
+            const bool vort = name.rfind("vorticity_", 0) == 0;
+            const std::optional<Vec3d> e = vort ? field.exact_vorticity3(t, x, nu) : field.exact_velocity3(t, x, nu);
+            if (!e) return std::nullopt;
+            const char c = vort ? name.back() : name == "u" ? 'x' : name == "v" ? 'y' : name == "w" ? 'z' : '?';
+            if (c == '?') return std::nullopt;
+            return c == 'x' ? e->x : c == 'y' ? e->y : e->z;
+        };
+        cp.seconds = total.seconds() - checkpoints.overhead();
+        cp.image = [&] { return slice_image(solver.vorticity_grid(), axis, range); };
+        checkpoints.reached(ctx, cp);
+    };
+
     const FluidDiagnostics3 d0 = solver.diagnostics();
     refuse_overflowing_state("mcfluid", 0, solver.work().invalid_velocity + solver.work().invalid_vorticity,
                              solver.vorticity_grid().cell_count());
@@ -292,6 +331,7 @@ RunResult run_mcfluid3(const Simulation3Params& p, RunContext& ctx) {
     if (solver.velocity_available()) {
         add_row(d0, 0.0, double(solver.work().biot_savart_evals), solver.work().invalid_velocity);
         write_frame();
+        if (checkpoints.active()) checkpoint(0);
     }
     ProgressReporter progress(ctx, "Simulating", double(p.steps), "steps", ctx.time_limit);
     long long done = 0;
@@ -316,6 +356,7 @@ RunResult run_mcfluid3(const Simulation3Params& p, RunContext& ctx) {
             d, step_timer.seconds(), double(after.biot_savart_evals - before.biot_savart_evals),
             (after.invalid_velocity + after.invalid_vorticity) - (before.invalid_velocity + before.invalid_vorticity));
         if (frames.due(step)) write_frame();
+        if (checkpoints.active()) checkpoint(done);
         progress.update(1);
         if (comm.root() && ctx.write_partial > 0 && ctx.write_partial_image &&
             since_partial.seconds() >= ctx.write_partial) {

@@ -290,6 +290,41 @@ TEST_F(ConvergeCli, FluidErrorFallsWithBiotSavartSamples) {
     EXPECT_GT(fs::file_size(out / "plots" / "error_vs_seconds_rmse.svg"), 100u);
 }
 
+// 3D (issue 15): the ABC flow against its exact solution (omega = u, steady). At step 0 the cache is the exact
+// vorticity at the cell centres (error 0 to rounding) and the velocity error is the Biot–Savart estimate's noise, which
+// falls as n_mc^-1/2: 1024 samples against 16 give 1/8 of it (asserted below 1/4). The vectors are compared as vectors
+// (vector_field_errors: cells = nx ny nz, not 3x); regions and references are refused in 3D with one line. Broken
+// variant seen to fail: the exact velocity's components permuted (u from exact y: the error stops falling, 0.71 of
+// the 16-sample error instead of 0.15).
+TEST_F(ConvergeCli, ThreeDimensionalFluidAgainstTheExactAbcFlow) {
+    const std::string abc = std::string(KELVIN_SOURCE_DIR) + "/scenes/fluid/abc.xml";
+    const fs::path out = m_dir / "abc";
+    auto r = run_kelvin({"converge", abc,           "-q",      "-D",        "res=12",  "-D",       "end=0.2",
+                         "--sweep",  "spp=16,1024", "--field", "vorticity", "--field", "velocity", "--field",
+                         "w",        "--steps",     "0,2",     "--runs",    "1",       "-o",       out.string()},
+                        {}, std::chrono::seconds(120));
+    ASSERT_EQ(r.exit_code, 0) << describe(r);
+    const Table t = read_csv(out / "convergence.csv");
+    ASSERT_EQ(t.size(), 2u * 2u * 3u);
+    std::map<std::string, double> velocity0;
+    for (const auto& row : t) {
+        EXPECT_EQ(row.at("cells"), "1728");
+        EXPECT_EQ(row.at("region"), "all");
+        if (num(row, "work") == 0 && row.at("field") == "vorticity") EXPECT_LT(num(row, "rmse"), 1e-12);
+        if (num(row, "work") == 0 && row.at("field") == "velocity") velocity0[row.at("config")] = num(row, "rmse");
+        if (num(row, "work") == 2) EXPECT_GT(num(row, "rmse"), 0.0);
+    }
+    ASSERT_EQ(velocity0.size(), 2u);
+    EXPECT_GT(velocity0["spp=16"], 0.0);
+    EXPECT_LT(velocity0["spp=1024"], 0.25 * velocity0["spp=16"]);
+    expect_input_error(run_kelvin({"converge", abc, "-q", "--config", "a:res=8", "--disk", "0,0,1", "--steps", "0",
+                                   "-o", (m_dir / "abc2").string()}),
+                       "2D regions");
+    expect_input_error(run_kelvin({"converge", abc, "-q", "--config", "a:res=8", "--reference", reference().string(),
+                                   "--steps", "0", "-o", (m_dir / "abc3").string()}),
+                       "exact solution");
+}
+
 TEST_F(ConvergeCli, FluidAgainstAReferenceRun) {
     // A reference run written by `kelvin sim.xml -o ref.exr` (fields at the cell centres, top row = largest y):
     // the same settings and seed reproduce it to float precision (so rows and orientation line up; a flipped

@@ -47,6 +47,13 @@ struct Checkpoint {
     /// The exact value of a named field at (t, x) when the job knows one (Taylor–Green, Lamb–Oseen initial
     /// conditions), std::nullopt otherwise. Empty when the job knows no exact solution at all.
     std::function<std::optional<double>(const std::string& name, double t, Vec2d x)> exact;
+
+    // ----- 3D simulations (dimension 3): grid3 and exact3 replace grid and exact. Fields are components:
+    // "vorticity_x", "vorticity_y", "vorticity_z", "u", "v", "w" (i fastest, then j, then k); `kelvin converge`
+    // compares "vorticity" and "velocity" as vectors of three of them.
+    int dimension = 2;
+    CellGrid3 grid3;
+    std::function<std::optional<double>(const std::string& name, double t, Vec3d x)> exact3;
 };
 
 using CheckpointCallback = std::function<void(const Checkpoint&)>;

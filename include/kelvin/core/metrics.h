@@ -90,6 +90,18 @@ struct CellGrid2 {
     }
 };
 
+/// A cell-centred 3D grid over the box [min, max]: nx x ny x nz cells, values with i fastest, then j, then k
+/// (index (k ny + j) nx + i).
+struct CellGrid3 {
+    Vec3d min{0.0}, max{1.0};
+    int nx = 0, ny = 0, nz = 0;
+    std::size_t cell_count() const { return std::size_t(nx) * std::size_t(ny) * std::size_t(nz); }
+    Vec3d cell_center(int i, int j, int k) const {
+        return {min.x + (i + 0.5) * (max.x - min.x) / nx, min.y + (j + 0.5) * (max.y - min.y) / ny,
+                min.z + (k + 0.5) * (max.z - min.z) / nz};
+    }
+};
+
 /// Cells over which a field error is measured: all, those whose centre lies in a box, in a disk, or both
 /// (intersection). Distances are Euclidean in the box (periodic images are not considered).
 struct FieldRegion {
@@ -116,6 +128,13 @@ struct FieldErrors {
 /// Throws InputError on mismatched sizes.
 FieldErrors field_errors(std::span<const double> values, std::span<const double> reference, const CellGrid2& grid,
                          const FieldRegion& region = {});
+
+/// Errors of a vector field of `components` components over `cells` cells, the values stored component after
+/// component (`components` blocks of `cells` values): per cell the Euclidean norm of the difference, so rmse =
+/// sqrt(mean |d|^2), max_abs = max |d|, l1 = mean |d|, rel_l2 = sqrt(sum |d|^2 / sum |reference|^2). One component is
+/// field_errors over every cell. Throws InputError on mismatched sizes.
+FieldErrors vector_field_errors(std::span<const double> values, std::span<const double> reference, std::size_t cells,
+                                int components);
 
 /// A field evaluated at the cell centres: fn(cell centre) for every cell, row 0 at min.y.
 std::vector<double> sample_field(const CellGrid2& grid, const std::function<double(Vec2d)>& fn);
