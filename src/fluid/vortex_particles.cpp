@@ -410,27 +410,15 @@ VortexParticleSolver::VortexParticleSolver(const VortexParticleSettings& setting
 
 VortexParticleSolver::~VortexParticleSolver() = default;
 
-void VortexParticleSolver::build_panels() {
-    const WosVelocityOptions& o = *m_settings.boundaries;
-    const Domain2& d = m_settings.domain;
-    if (d.periodic) throw_runtime("vortex_particles: free-slip boundaries need an open domain (not periodic)");
-    m_bounds = std::make_unique<WosVelocityField>(o, d, nullptr, Interpolation::Bilinear, 0.0);
-    const Vec2d h = m_omega.h();
-    const double len = m_settings.panel_length > 0 ? m_settings.panel_length : std::min(h.x, h.y);
+std::vector<Segment2> boundary_panels(const WosVelocityOptions& o, const Domain2& d, bool walls, double length,
+                                      std::vector<int>* pieces) {
     std::vector<Segment2> panels;
-    std::vector<double> psi;
-    // Psi prescribed on a piece (0-3 the walls, 4 + i shape i), as the walk takes it (WosVelocityField).
-    auto add = [&](const Segment2& s, int component) {
+    auto add = [&](const Segment2& s, int piece) {
         const std::size_t first = panels.size();
-        VortexPanels::subdivide(s, len, panels);
-        for (std::size_t k = first; k < panels.size(); ++k) {
-            wos::BoundaryHit<2> hit;
-            hit.point = 0.5 * (panels[k][0] + panels[k][1]);
-            hit.component = component;
-            psi.push_back(m_bounds->boundary_stream(hit));
-        }
+        VortexPanels::subdivide(s, length, panels);
+        if (pieces) pieces->insert(pieces->end(), panels.size() - first, piece);
     };
-    if (m_bounds->walls()) {
+    if (walls) {
         const Vec2d a = d.min, c = d.max, b(c.x, a.y), e(a.x, c.y);
         add({e, a}, 0);  // x-
         add({b, c}, 1);  // x+
@@ -439,19 +427,41 @@ void VortexParticleSolver::build_panels() {
     }
     for (std::size_t i = 0; i < o.shapes.size(); ++i) {
         const BoundaryShape& s = *o.shapes[i];
-        if (s.role().moving()) throw_runtime("vortex_particles: boundary '{}' moves; panels are static", s.id());
-        const std::vector<Segment2> segs = VortexPanels::merge_chains(s.segments2(len), len);
+        const std::vector<Segment2> segs = VortexPanels::merge_chains(s.segments2(length), length);
         if (segs.empty())
             throw_runtime("vortex_particles: boundary '{}' ({}) gives no segments for the panel method", s.id(),
                           s.description());
         for (const Segment2& g : segs)
             if (glm::length(g[1] - g[0]) > 0) add(g, 4 + int(i));
     }
-    if (panels.size() > 8192)
+    return panels;
+}
+
+void VortexParticleSolver::build_panels() {
+    const WosVelocityOptions& o = *m_settings.boundaries;
+    const Domain2& d = m_settings.domain;
+    if (d.periodic) throw_runtime("vortex_particles: free-slip boundaries need an open domain (not periodic)");
+    m_bounds = std::make_unique<WosVelocityField>(o, d, nullptr, Interpolation::Bilinear, 0.0);
+    for (const auto& shape : o.shapes)
+        if (shape->role().moving())
+            throw_runtime("vortex_particles: boundary '{}' moves; panels are static", shape->id());
+    const Vec2d h = m_omega.h();
+    const double len = m_settings.panel_length > 0 ? m_settings.panel_length : std::min(h.x, h.y);
+    std::vector<int> pieces;
+    std::vector<Segment2> panels = boundary_panels(o, d, m_bounds->walls(), len, &pieces);
+    if (panels.size() > MaxPanels)
         throw_runtime(
-            "vortex_particles: {} panels (more than 8192: the dense panel system would not fit); raise "
-            "panel_length",
-            panels.size());
+            "vortex_particles: {} panels (more than {}: the dense panel system would take over 130 MB); "
+            "raise panel_length",
+            panels.size(), MaxPanels);
+    // Psi prescribed on each panel's piece at its midpoint, as the walk takes it (WosVelocityField).
+    std::vector<double> psi;
+    for (std::size_t k = 0; k < panels.size(); ++k) {
+        wos::BoundaryHit<2> hit;
+        hit.point = 0.5 * (panels[k][0] + panels[k][1]);
+        hit.component = pieces[k];
+        psi.push_back(m_bounds->boundary_stream(hit));
+    }
     m_panels = std::make_unique<VortexPanels>(std::move(panels), std::move(psi));
     if (m_use_tree) m_panel_tree = std::make_unique<Tree>();
     m_psi_mid.resize(m_panels->size());

@@ -4,6 +4,7 @@
 // MCFluid's walks, particles kept out of solids, and the inputs it refuses.
 #include "wos_fluid_support.h"
 
+#include <kelvin/core/parser.h>
 #include <kelvin/core/random.h>
 #include <kelvin/fluid/panels.h>
 #include <kelvin/fluid/vortex_particles.h>
@@ -358,6 +359,35 @@ TEST(VortexParticlePanels, RefusesWhatThePanelsCannotDo) {
     })};
     s.boundaries = moving;
     EXPECT_THROW(VortexParticleSolver(s, vortex_pair), RuntimeError);
+}
+
+// The scene's inputs (one-line input errors naming the parameter): boundaries on a periodic box, a moving solid, a
+// solid without segments (maze), and panels so short that the dense system would not fit.
+TEST(VortexParticlePanels, SceneInputErrors) {
+    const auto scene = [](const std::string& sim, const std::string& boundary) {
+        return std::string(R"(<scene version="3.0.0"><simulation type="vortex_particles">
+            <point name="min" x="-1" y="-1"/><point name="max" x="1" y="1"/>)") +
+               sim + R"(<float name="dt" value="0.1"/><integer name="steps" value="1"/>
+            <vorticity type="lamb_oseen"/><cache type="grid"><integer name="resolution" value="16"/></cache>
+            <velocity type="walk_on_spheres">)" +
+               boundary + "</velocity></simulation></scene>";
+    };
+    const std::string disk = R"(<boundary type="disk"><float name="radius" value="0.2"/></boundary>)";
+    struct Case {
+        std::string sim, boundary, fragment;
+    };
+    for (const Case& c :
+         {Case{R"(<boolean name="periodic" value="true"/>)", disk, "periodic"},
+          Case{"", R"(<boundary type="disk"><vector name="velocity" x="1" y="0" z="0"/></boundary>)", "moves"},
+          Case{"", R"(<boundary type="maze"><string name="boxes" value="0 0 0.2 0.2"/></boundary>)", "no segments"},
+          Case{R"(<float name="panel_length" value="1e-4"/>)", disk, "panel_length"}}) {
+        const std::string msg = ktest::input_error_of(
+            [&] { kelvin::instantiate(kelvin::parse_scene_string(scene(c.sim, c.boundary), {}, "p.xml")); });
+        EXPECT_NE(msg.find(c.fragment), std::string::npos) << msg;
+        EXPECT_EQ(msg.find('\n'), std::string::npos) << msg;
+    }
+    // And a good one builds.
+    EXPECT_NO_THROW(kelvin::instantiate(kelvin::parse_scene_string(scene("", disk), {}, "p.xml")));
 }
 
 }  // namespace

@@ -35,6 +35,7 @@
 #include <kelvin/fluid/biot_savart.h>
 #include <kelvin/fluid/simulation.h>
 
+#include <array>
 #include <memory>
 #include <vector>
 
@@ -43,6 +44,14 @@ namespace kelvin::fluid {
 struct WosVelocityOptions;
 class WosVelocityField;
 class VortexPanels;
+
+/// The free-slip panels of `boundaries` on `domain` (fluid/panels.h): the walls when `walls` (pieces 0-3: x-, x+, y-,
+/// y+) and every solid's segments (piece 4 + i; fine outlines merged) cut to at most `length`; `pieces` (when not
+/// null) gets each panel's piece. Throws RuntimeError naming a solid that gives no segments.
+std::vector<std::array<Vec2d, 2>> boundary_panels(const WosVelocityOptions& boundaries, const Domain2& domain,
+                                                  bool walls, double length, std::vector<int>* pieces);
+/// At most this many panels (the dense (P + 1)^2 system: 134 MB at 4096).
+constexpr std::size_t MaxPanels = 4096;
 
 /// How the particle velocity is summed: Barnes–Hut tree code (open domains) or the direct O(N^2) sum.
 enum class ParticleSummation { Tree, Direct };

@@ -76,6 +76,15 @@ public:
         }
         if (const std::string why = check_wos_cells(o, d, m_params.nx, m_params.ny); !why.empty())
             props.error("velocity", why);
+        const double h = std::min(d.size().x / m_params.nx, d.size().y / m_params.ny);
+        const double length = m_panel_length > 0 ? m_panel_length : h;
+        const std::size_t panels = boundary_panels(o, d, o.walls, length, nullptr).size();
+        if (panels > MaxPanels)
+            props.error(
+                m_panel_length > 0 ? "panel_length" : "velocity",
+                fmt::format("the boundaries make {} panels of length {:g} (at most {}: the dense panel system); "
+                            "raise panel_length",
+                            panels, length, MaxPanels));
     }
 
     int dimension() const override { return 2; }
