@@ -431,8 +431,9 @@ std::vector<Segment2> boundary_panels(const WosVelocityOptions& o, const Domain2
         if (segs.empty())
             throw_runtime("vortex_particles: boundary '{}' ({}) gives no segments for the panel method", s.id(),
                           s.description());
+        const double tiny = 1e-12 * glm::length(d.size());  // rounding slivers are no panel
         for (const Segment2& g : segs)
-            if (glm::length(g[1] - g[0]) > 0) add(g, 4 + int(i));
+            if (glm::length(g[1] - g[0]) > tiny) add(g, 4 + int(i));
     }
     return panels;
 }

@@ -362,8 +362,10 @@ TEST(VortexParticlePanels, RefusesWhatThePanelsCannotDo) {
 }
 
 // The scene's inputs (one-line input errors naming the parameter): boundaries on a periodic box, a moving solid, a
-// solid without segments (maze), and panels so short that the dense system would not fit.
+// solid without segments (an unsigned VDB grid), and panels so short that the dense system would not fit.
 TEST(VortexParticlePanels, SceneInputErrors) {
+    const ktest::TempDir dir;
+    const std::string vdb = write_sphere_vdb(dir, "s.vdb", {0, 0}, 0.2, 0.02).string();
     const auto scene = [](const std::string& sim, const std::string& boundary) {
         return std::string(R"(<scene version="3.0.0"><simulation type="vortex_particles">
             <point name="min" x="-1" y="-1"/><point name="max" x="1" y="1"/>)") +
@@ -376,11 +378,14 @@ TEST(VortexParticlePanels, SceneInputErrors) {
     struct Case {
         std::string sim, boundary, fragment;
     };
-    for (const Case& c :
-         {Case{R"(<boolean name="periodic" value="true"/>)", disk, "periodic"},
-          Case{"", R"(<boundary type="disk"><vector name="velocity" x="1" y="0" z="0"/></boundary>)", "moves"},
-          Case{"", R"(<boundary type="maze"><string name="boxes" value="0 0 0.2 0.2"/></boundary>)", "no segments"},
-          Case{R"(<float name="panel_length" value="1e-4"/>)", disk, "panel_length"}}) {
+    const std::string moving = R"(<boundary type="disk"><vector name="velocity" x="1" y="0" z="0"/></boundary>)";
+    const std::string unsigned_vdb = R"(<boundary type="vdb"><string name="filename" value=")" + vdb +
+                                     R"("/><boolean name="signed" value="false"/></boundary>)";
+    const std::vector<Case> cases = {{R"(<boolean name="periodic" value="true"/>)", disk, "periodic"},
+                                     {"", moving, "moves"},
+                                     {"", unsigned_vdb, "no segments"},
+                                     {R"(<float name="panel_length" value="1e-4"/>)", disk, "panel_length"}};
+    for (const Case& c : cases) {
         const std::string msg = ktest::input_error_of(
             [&] { kelvin::instantiate(kelvin::parse_scene_string(scene(c.sim, c.boundary), {}, "p.xml")); });
         EXPECT_NE(msg.find(c.fragment), std::string::npos) << msg;
@@ -388,6 +393,70 @@ TEST(VortexParticlePanels, SceneInputErrors) {
     }
     // And a good one builds.
     EXPECT_NO_THROW(kelvin::instantiate(kelvin::parse_scene_string(scene("", disk), {}, "p.xml")));
+}
+
+// The maze's segments are the boundary of the union of its boxes: two boxes overlapping by a quarter (perimeter 6,
+// not 8) and two layout cells side by side (6 cells, not 8; their shared edge, a rounding apart in the layout's
+// arithmetic, gives no sliver); no piece lies inside the union, each appears once.
+TEST(VortexParticlePanels, MazeOutlineIsTheUnionsBoundary) {
+    const auto maze = [](const std::function<void(Properties&)>& set) { return make_boundary("maze", set); };
+    const auto total = [](const std::vector<std::array<Vec2d, 2>>& segs) {
+        double l = 0;
+        for (const auto& s : segs) l += glm::length(s[1] - s[0]);
+        return l;
+    };
+    const auto overlap = maze([](Properties& p) { p.set_string("boxes", "0 0 1 1; 0.5 0.5 1.5 1.5"); });
+    const auto segs = overlap->segments2(0.1);
+    EXPECT_NEAR(total(segs), 6.0, 1e-12);
+    for (const auto& s : segs) EXPECT_FALSE(overlap->inside2(0.5 * (s[0] + s[1])));
+    const auto cells = maze([](Properties& p) {
+        p.set_string("layout", "##");
+        p.set_point("origin", Vec3d(-0.7, 0.1, 0));
+        p.set_float("cell", 0.1);
+    });
+    EXPECT_NEAR(total(cells->segments2(0.1)), 0.6, 1e-12);
+    const auto rows = maze([](Properties& p) {
+        p.set_string("layout", "#/#/#");
+        p.set_point("origin", Vec3d(-1, -1, 0));
+        p.set_float("cell", 0.2);
+    });
+    EXPECT_NEAR(total(rows->segments2(0.1)), 1.6, 1e-12);  // a 0.2 x 0.6 column: no edge between its rows
+
+    // Flow beside a maze of three boxes: the normal velocity at the maze's panel midpoints away from the cell
+    // corners (where the flow around a convex corner is singular, r^-1/3, and corner panels carry normal velocities
+    // of the speed's order) is small against the largest speed on the maze and falls with the panel length: measured
+    // 0.0094 at 0.04 and 0.0043 at 0.01 (0.46x for 4x finer: about h^(2/3), the corners' singularity polluting
+    // their neighbourhood; first order on smooth walls, VortexPanels.PointVortexOutsideACylinder...).
+    auto o = std::make_shared<WosVelocityOptions>();
+    o->shapes = {maze([](Properties& p) {
+        p.set_string("layout", "###./#.../#.##");
+        p.set_point("origin", Vec3d(-0.5, -0.4, 0));
+        p.set_float("cell", 0.2);
+    })};
+    double normals[2] = {0, 0}, speed = 0;
+    for (int k = 0; k < 2; ++k) {
+        VortexParticleSettings s = box_settings(48);
+        s.boundaries = o;
+        s.threshold = 1e-3;
+        s.panel_length = k == 0 ? 0.04 : 0.01;
+        VortexParticleSolver vp(s, [](Vec2d x) {
+            const Vec2d r = x - Vec2d(0.55, 0.5);
+            return 20 * std::exp(-glm::dot(r, r) / 0.02);
+        });
+        const VortexPanels& panels = *vp.panels();
+        for (std::size_t i = 0; i < panels.size(); ++i) {
+            const Vec2d m = panels.midpoints()[i], t = panels.panels()[i][1] - panels.panels()[i][0];
+            if (std::abs(m.x) > 0.99 || std::abs(m.y) > 0.99) continue;  // a wall
+            const Vec2d u = vp.velocity_at(m);
+            if (k == 0) speed = std::max(speed, glm::length(u));
+            const Vec2d g = (m - Vec2d(-0.5, -0.4)) / 0.2;
+            if (glm::length(g - glm::round(g)) * 0.2 < 0.05) continue;  // next to a cell corner
+            normals[k] = std::max(normals[k], std::abs(glm::dot(u, Vec2d(-t.y, t.x) / glm::length(t))));
+        }
+    }
+    EXPECT_GT(speed, 0.05);
+    EXPECT_LT(normals[0], 0.1 * speed);
+    EXPECT_LT(normals[1], 0.6 * normals[0]) << normals[0] << " " << normals[1];
 }
 
 }  // namespace

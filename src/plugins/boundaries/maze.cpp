@@ -16,6 +16,8 @@
 
 #include <kelvin/core/strings.h>
 
+#include <set>
+
 namespace kelvin::fluid::boundaries {
 namespace {
 
@@ -99,6 +101,53 @@ public:
     }
     std::pair<Vec3d, Vec3d> bounds() const override { return {{m_lo.x, m_lo.y, 0}, {m_hi.x, m_hi.y, 0}}; }
     std::string description() const override { return fmt::format("maze ({} boxes)", m_boxes.size()); }
+    /// The outline of the union of the boxes: each box edge cut at every other box's edge coordinates, and a piece
+    /// kept when the point just outside its middle (along the edge's outward normal) lies in no box, so shared and
+    /// covered edges drop out. Curved pieces do not exist: max_length is the panel builder's business.
+    std::vector<std::array<Vec2d, 2>> segments2(double) const override {
+        std::vector<double> xs, ys;
+        for (const auto& b : m_boxes) {
+            xs.insert(xs.end(), {b.lo.x, b.hi.x});
+            ys.insert(ys.end(), {b.lo.y, b.hi.y});
+        }
+        std::sort(xs.begin(), xs.end());
+        std::sort(ys.begin(), ys.end());
+        const double eps = 1e-9 * std::max({m_hi.x - m_lo.x, m_hi.y - m_lo.y, 1e-300});
+        std::vector<std::array<Vec2d, 2>> out;
+        // One edge from a to b (counter-clockwise around its box), outward normal n, cut at the coordinates in cuts.
+        auto edge = [&](Vec2d a, Vec2d b, Vec2d n, const std::vector<double>& cuts, int axis) {
+            const double lo = std::min(a[axis], b[axis]), hi = std::max(a[axis], b[axis]);
+            std::vector<double> t = {lo};
+            for (double c : cuts)
+                if (c > lo && c < hi && c > t.back()) t.push_back(c);
+            t.push_back(hi);
+            const bool up = b[axis] > a[axis];
+            for (std::size_t k = 0; k + 1 < t.size(); ++k) {
+                Vec2d p = a, q = a;
+                p[axis] = up ? t[k] : t[t.size() - 1 - k];
+                q[axis] = up ? t[k + 1] : t[t.size() - 2 - k];
+                // (Layout rows put the "same" coordinate a rounding apart: such slivers are no wall.)
+                if (glm::length(q - p) > eps && !inside2(0.5 * (p + q) + eps * n)) out.push_back({p, q});
+            }
+        };
+        for (const auto& b : m_boxes) {
+            const Vec2d p0 = b.lo, p1(b.hi.x, b.lo.y), p2 = b.hi, p3(b.lo.x, b.hi.y);
+            edge(p0, p1, {0, -1}, xs, 0);
+            edge(p1, p2, {1, 0}, ys, 1);
+            edge(p2, p3, {0, 1}, xs, 0);
+            edge(p3, p0, {-1, 0}, ys, 1);
+        }
+        // Boxes that overlap along an edge with the same outside give the same piece twice: keep one.
+        std::vector<std::array<Vec2d, 2>> unique;
+        auto key = [](const std::array<Vec2d, 2>& e) {
+            const auto a = std::make_pair(e[0].x, e[0].y), b = std::make_pair(e[1].x, e[1].y);
+            return a < b ? std::make_pair(a, b) : std::make_pair(b, a);
+        };
+        std::set<decltype(key(out[0]))> seen;
+        for (const auto& e : out)
+            if (seen.insert(key(e)).second) unique.push_back(e);
+        return unique;
+    }
     std::size_t box_count() const { return m_boxes.size(); }
 
 private:
