@@ -662,7 +662,7 @@ void VortexParticleSolver::periodic_tree_sum(const double* tx, const double* ty,
 void VortexParticleSolver::sum_velocity(const double* tx, const double* ty, std::size_t n, const double* px,
                                         const double* py, double* u, double* v) {
     const bool finite = all_finite(px, py, m_gamma.size());
-    if (m_use_tree && finite) {
+    if (m_use_tree && finite && tree_pays(m_gamma.size())) {
         tree_sum(tx, ty, n, px, py, u, v, nullptr);
         for (std::size_t t = 0; t < n; ++t) {
             u[t] *= 0.5 / Pi;
@@ -854,7 +854,7 @@ void VortexParticleSolver::ensure_fields() {
     double* v = m_v.values().data();
     double* w = m_omega.values().data();
     const std::size_t blocks = (cells + Block - 1) / Block;
-    const bool tree = m_use_tree && all_finite(m_x.data(), m_y.data(), np);
+    const bool tree = m_use_tree && all_finite(m_x.data(), m_y.data(), np) && tree_pays(np);
     if (tree) tree_sum(m_cx.data(), m_cy.data(), cells, m_x.data(), m_y.data(), u, v, w);
     parallel_for_units(blocks, [&](std::size_t b) {
         const std::size_t t0 = b * Block, nt = std::min(Block, cells - t0);

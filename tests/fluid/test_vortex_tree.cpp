@@ -231,7 +231,7 @@ TEST(VortexTree, SceneParameters) {
     for (const Case& c : {Case{"", false, "Barnes–Hut tree (theta 0.5)"},
                           Case{R"(<float name="theta" value="0.3"/>)", false, "Barnes–Hut tree (theta 0.3)"},
                           Case{R"(<string name="summation" value="direct"/>)", false, "with direct Biot–Savart"},
-                          Case{"", true, "Barnes–Hut tree (theta 0.5, periodic: 3 x 3 images"}}) {
+                          Case{"", true, "direct (periodic box with fewer than 2048 particles"}}) {
         ktest::TempDir dir;
         auto job = std::dynamic_pointer_cast<kelvin::Job>(
             kelvin::instantiate(kelvin::parse_scene_string(scene(c.extra, c.periodic), {}, "s.xml")));

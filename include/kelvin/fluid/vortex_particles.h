@@ -82,8 +82,16 @@ public:
 
     const VortexParticleSettings& settings() const { return m_settings; }
     double delta() const { return m_delta; }
-    /// True when the velocity is summed by the tree code (Tree requested).
-    bool uses_tree() const { return m_use_tree; }
+    /// Below this many particles a periodic box sums directly: the remainder's (16 + 3)^2 nodes of N pairs each and
+    /// the tree over 9 N particles cost more than N^2 (measured: 0.30 s against 0.07 s for 256 particles over 20
+    /// RK4 steps; 3.7x faster than direct at 4096).
+    static constexpr std::size_t PeriodicTreeMinParticles = 2048;
+    bool tree_pays(std::size_t particles) const {
+        return !m_settings.domain.periodic || particles >= PeriodicTreeMinParticles;
+    }
+    /// True when the velocity is summed by the tree code (Tree requested; on a periodic box with at least
+    /// PeriodicTreeMinParticles particles).
+    bool uses_tree() const { return m_use_tree && tree_pays(m_gamma.size()); }
     std::size_t particle_count() const { return m_x.size(); }
     /// The panels of the free-slip boundaries (null without boundaries).
     const VortexPanels* panels() const { return m_panels.get(); }

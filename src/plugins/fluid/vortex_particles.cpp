@@ -124,11 +124,16 @@ public:
             "particle transport ({}, dt {:g}, {} steps, {} particles) with {} Biot–Savart summation (blob "
             "radius {:g}{}){}; boundaries {}",
             fluid::to_string(s.advection), m_params.dt, m_params.steps, solver.particle_count(),
-            solver.uses_tree() ? fmt::format("Barnes–Hut tree (theta {:g}{})", s.theta,
-                                             s.domain.periodic ? ", periodic: 3 x 3 images, the far images "
-                                                                 "interpolated from a 16 x 16 lattice"
-                                                               : "")
-                               : std::string("direct"),
+            solver.uses_tree()
+                ? fmt::format("Barnes–Hut tree (theta {:g}{})", s.theta,
+                              s.domain.periodic
+                                  ? ", periodic: 3 x 3 images, the far images interpolated from a 16 x 16 "
+                                    "lattice"
+                                  : "")
+            : s.summation == ParticleSummation::Tree
+                ? fmt::format("direct (periodic box with fewer than {} particles: cheaper than the tree)",
+                              VortexParticleSolver::PeriodicTreeMinParticles)
+                : std::string("direct"),
             solver.delta(), s.domain.periodic ? ", periodic kernel" : "",
             s.viscosity > 0 ? ", viscosity by random walk" : "",
             solver.panels()     ? fmt::format("free slip by {} vortex panels ({})", solver.panels()->size(),
