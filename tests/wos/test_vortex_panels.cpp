@@ -147,6 +147,8 @@ TEST(VortexPanels, PointVortexOutsideACylinderMatchesTheCircleTheorem) {
             speed = std::max(speed, glm::length(u));
         }
         normals.push_back(normal / speed);
+        // The collocation itself: Psi_f + the sheets' Psi (with the free constant) is the isovalue at every midpoint.
+        for (const Vec2d& m : panels.midpoints()) EXPECT_NEAR(v.psi(m) + panels.stream(m), 0.0, 1e-10);
         // Total circulation of the sheets: zero (Kelvin's theorem from rest).
         double total = 0;
         for (std::size_t j = 0; j < panels.size(); ++j)
