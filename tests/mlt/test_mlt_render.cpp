@@ -313,6 +313,22 @@ TEST(MltIntegrators, StatisticsAndStageMap) {
 
 // The study scene (docs/mlt.md) loads and renders with each of its variants (the fragments in scenes/render/parts).
 TEST(MltIntegrators, EveryStudyVariantRenders) {
+    // Renders scenes/render/mlt-study.xml with `opts` at 2 mutations per pixel: a clean, non-black image; returns
+    // the number of H2MC derivative evaluations (-1 when the scene did not load).
+    const auto render = [](const ParseOptions& opts, const std::string& variant) {
+        auto scene = std::dynamic_pointer_cast<Scene>(instantiate(parse_scene_file(scene_path("mlt-study.xml"), opts)));
+        auto* mlt = scene ? dynamic_cast<MetropolisIntegrator*>(scene->integrator()) : nullptr;
+        EXPECT_TRUE(mlt);
+        if (!mlt) return -1.0;
+        EXPECT_EQ(mlt->type() != DrType::None, variant.rfind("drmlt", 0) == 0);
+        RunContext ctx;
+        ctx.spp = 2;
+        ctx.quiet = true;
+        const Bitmap img = scene->run(ctx).image;
+        EXPECT_EQ(ctx.stats.get("render.invalid_samples"), 0.0);
+        EXPECT_GT(ktest::image_stats(img, 1).mean, 0.0);
+        return ctx.stats.get("mlt.h2mc.derivatives");
+    };
     for (const char* variant : {"pssmlt-kelemen", "pssmlt-gaussian", "mixture", "drmlt-orbital", "drmlt-mira",
                                 "drmlt-green", "drmlt-orbital-mixture", "drmlt-orbital-gaussian"})
         for (const char* geometry : {"door", "caustic", "aquarium"}) {
@@ -321,33 +337,14 @@ TEST(MltIntegrators, EveryStudyVariantRenders) {
             opts.defines = {{"variant", variant}, {"geometry", geometry}, {"res", "8"}};
             // The aquarium with the multiplexed technique (the thesis' Fig. 4.11 setting).
             if (std::string(geometry) == "aquarium") opts.defines.insert({{"technique", "mmlt"}, {"max_depth", "8"}});
-            auto scene =
-                std::dynamic_pointer_cast<Scene>(instantiate(parse_scene_file(scene_path("mlt-study.xml"), opts)));
-            ASSERT_TRUE(scene);
-            auto* mlt = dynamic_cast<MetropolisIntegrator*>(scene->integrator());
-            ASSERT_TRUE(mlt);
-            EXPECT_EQ(mlt->type() != DrType::None, std::string(variant).rfind("drmlt", 0) == 0);
-            RunContext ctx;
-            ctx.spp = 2;
-            ctx.quiet = true;
-            const Bitmap img = scene->run(ctx).image;
-            EXPECT_EQ(ctx.stats.get("render.invalid_samples"), 0.0);
-            EXPECT_GT(ktest::image_stats(img, 1).mean, 0.0);
+            render(opts, variant);
         }
     // The H2MC variants (path technique only): the door's plugins are differentiable, so derivatives are taken.
     for (const char* variant : {"pssmlt-h2mc", "drmlt-h2mc"}) {
         SCOPED_TRACE(variant);
         ParseOptions opts;
         opts.defines = {{"variant", variant}, {"geometry", "door"}, {"res", "8"}, {"max_depth", "6"}};
-        auto scene = std::dynamic_pointer_cast<Scene>(instantiate(parse_scene_file(scene_path("mlt-study.xml"), opts)));
-        ASSERT_TRUE(scene);
-        RunContext ctx;
-        ctx.spp = 2;
-        ctx.quiet = true;
-        const Bitmap img = scene->run(ctx).image;
-        EXPECT_EQ(ctx.stats.get("render.invalid_samples"), 0.0);
-        EXPECT_GT(ktest::image_stats(img, 1).mean, 0.0);
-        EXPECT_GT(ctx.stats.get("mlt.h2mc.derivatives"), 0.0);
+        EXPECT_GT(render(opts, variant), 0.0);
     }
 }
 
