@@ -76,9 +76,6 @@ public:
             m_lo = glm::min(m_lo, p);
             m_hi = glm::max(m_hi, p);
         }
-        const std::size_t stride = std::max<std::size_t>(1, m_segments.size() / 64);
-        for (std::size_t i = 0; m_query && i < m_segments.size(); i += stride)
-            m_samples.push_back(m_points[m_segments[i][0]]);
     }
     static SegmentSet from_loops(const std::vector<std::vector<Vec2d>>& loops, bool closed) {
         std::vector<Vec2d> pts;
@@ -94,16 +91,15 @@ public:
     }
 
     double distance(const Vec2d& p) const { return distance_within(p, Inf); }
-    /// min(distance, bound). With the BVH, the search radius starts at min(bound, the distance to the nearest of
-    /// up to 64 segment end points) (points of the boundary, so an upper bound), which prunes the traversal; a
-    /// query farther than `bound` from the bounding box runs no search. Exact either way.
+    /// min(distance, bound), exact either way. With the BVH (nearest child first), the search radius starts at
+    /// `bound`; a query farther than `bound` from the bounding box runs no search.
     double distance_within(const Vec2d& p, double bound) const {
         if (m_query) {
-            const Vec2d gap = glm::max(glm::max(m_lo - p, p - m_hi), Vec2d(0.0));
-            if (glm::length(gap) >= bound) return bound;
-            double upper = bound;
-            for (const Vec2d& v : m_samples) upper = std::min(upper, glm::length(p - v));
-            return std::min(bound, m_query->distance(p, upper * (1 + 1e-9) + 1e-300));
+            if (bound < Inf) {
+                const Vec2d gap = glm::max(glm::max(m_lo - p, p - m_hi), Vec2d(0.0));
+                if (glm::length(gap) >= bound) return bound;
+            }
+            return std::min(bound, m_query->distance(p, bound));
         }
         double d2 = Inf;
         for (const auto& s : m_segments) {
@@ -148,7 +144,6 @@ private:
     std::vector<ClosestSegmentQuery::Segment> m_segments;
     std::unique_ptr<ClosestSegmentQuery> m_query;
     Vec2d m_lo{Inf}, m_hi{-Inf};
-    std::vector<Vec2d> m_samples;  // segment end points that seed the BVH search radius
 };
 
 }  // namespace kelvin::fluid::boundaries
