@@ -52,7 +52,17 @@ Vec2d closest_point_on_segment(const Vec2d& p, const Vec2d& a, const Vec2d& b, d
 
 static double length2(const Vec3d& v) { return glm::dot(v, v); }
 
+namespace {
+inline Vec3d triangle_point(const Vec3d& p, const Vec3d& a, const Vec3d& b, const Vec3d& c);
+}  // namespace
+
 Vec3d closest_point_on_triangle(const Vec3d& p, const Vec3d& a, const Vec3d& b, const Vec3d& c) {
+    return triangle_point(p, a, b, c);
+}
+
+namespace {
+/// closest_point_on_triangle, inline here for the triangle BVH's leaves (the same arithmetic).
+__attribute__((always_inline)) inline Vec3d triangle_point(const Vec3d& p, const Vec3d& a, const Vec3d& b, const Vec3d& c) {
     const Vec3d ab = b - a, ac = c - a, bc = c - b;
     // A (nearly) degenerate triangle is the union of its edges; Ericson's divisions need a proper triangle.
     const double lmax = std::max({length2(ab), length2(ac), length2(bc)});
@@ -85,6 +95,7 @@ Vec3d closest_point_on_triangle(const Vec3d& p, const Vec3d& a, const Vec3d& b, 
     const double denom = 1.0 / (va + vb + vc);
     return a + ab * (vb * denom) + ac * (vc * denom);
 }
+}  // namespace
 
 // ---------------------------------------------------------------------------------------------------------
 // Embree plumbing shared by both queries
@@ -138,6 +149,305 @@ struct Device {
 }  // namespace
 
 // ---------------------------------------------------------------------------------------------------------
+// Own BVH traversal (2D segments, 3D triangles): Embree's builder makes the tree (rtcBuildBVH, 4 children per
+// node), copied into flat arrays that the searches below walk nearest child first.
+
+namespace {
+
+constexpr uint32_t kLeafBit = 0x80000000u;  // a child code with this bit is a leaf block index
+constexpr int kStackSize = 256;
+
+struct BuildItem {
+    bool leaf;
+};
+struct BuildInner : BuildItem {
+    unsigned count = 0;
+    void* child[4] = {};
+    RTCBounds bounds[4];
+};
+struct BuildLeaf : BuildItem {
+    unsigned count = 0;
+    unsigned prim[RTC_BUILD_MAX_PRIMITIVES_PER_LEAF];
+};
+
+void* build_node(RTCThreadLocalAllocator alloc, unsigned int count, void*) {
+    auto* n = new (rtcThreadLocalAlloc(alloc, sizeof(BuildInner), 16)) BuildInner;
+    n->leaf = false;
+    n->count = count;
+    return n;
+}
+void build_children(void* node, void** children, unsigned int count, void*) {
+    for (unsigned i = 0; i < count; ++i) static_cast<BuildInner*>(node)->child[i] = children[i];
+}
+void build_bounds(void* node, const RTCBounds** bounds, unsigned int count, void*) {
+    for (unsigned i = 0; i < count; ++i) static_cast<BuildInner*>(node)->bounds[i] = *bounds[i];
+}
+void* build_leaf(RTCThreadLocalAllocator alloc, const RTCBuildPrimitive* prims, size_t count, void*) {
+    auto* l = new (rtcThreadLocalAlloc(alloc, sizeof(BuildLeaf), 16)) BuildLeaf;
+    l->leaf = true;
+    l->count = unsigned(std::min<size_t>(count, RTC_BUILD_MAX_PRIMITIVES_PER_LEAF));
+    for (unsigned i = 0; i < l->count; ++i) l->prim[i] = prims[i].primID;
+    return l;
+}
+
+/// The float pruning threshold on squared box distances for a search radius r (see the section comment): the
+/// square of r padded by a relative 1e-6 of r and of the query point's magnitude, rounded up, at least 1e-37 (so
+/// that the float underflow of tiny box distances never prunes).
+inline float prune_threshold(double r, double scale) {
+    if (!(r < 1e30)) return std::numeric_limits<float>::max();
+    const double padded = r + 1e-6 * (r + scale) + 1e-30;
+    const double t2 = padded * padded * (1 + 1e-7);  // float() below rounds down by at most 2^-24
+    return std::clamp(float(t2), 1e-37f, std::numeric_limits<float>::max());
+}
+
+}  // namespace
+
+namespace {
+
+// ---------------------------------------------------------------------------------------------------------
+// 3D triangle meshes: the same traversal as the 2D segments below, with 3D boxes (MINMAXDIST over three axes)
+// and leaves of up to four triangles measured by closest_point_on_triangle in double, so distances equal a
+// brute-force minimum bit for bit. Used by ClosestPointQuery when every shape is a triangle mesh (the other
+// primitives stay in Embree's point query).
+
+struct TriangleBvh {
+    struct alignas(16) Node {
+        float lo[3][4], hi[3][4];  // per axis, the four children; empty slots: lo = +inf, hi = -inf
+        uint32_t child[4];
+    };
+    struct Triangle {
+        Vec3d a, b, c;
+        uint32_t shape, prim;
+    };
+    static constexpr unsigned kLeafTriangles = 4;
+    std::vector<Node> nodes;
+    std::vector<Triangle> triangles;  // in leaf order; a leaf code is kLeafBit | first << 3 | (count - 1)
+    std::vector<Triangle> input;      // the build's primitives (primID indexes them)
+    uint32_t root = 0;
+    int depth = 0;
+
+    uint32_t flatten(const BuildItem* item, int level) {
+        depth = std::max(depth, level);
+        if (item->leaf) {
+            const auto* l = static_cast<const BuildLeaf*>(item);
+            if (triangles.size() >= (1u << 28)) throw RuntimeError("closest-point query: too many triangles");
+            const std::size_t first = triangles.size();
+            for (unsigned i = 0; i < l->count; ++i) triangles.push_back(input[l->prim[i]]);
+            return kLeafBit | uint32_t(first) << 3 | (std::max(l->count, 1u) - 1);
+        }
+        const auto* n = static_cast<const BuildInner*>(item);
+        const std::size_t index = nodes.size();
+        nodes.emplace_back();
+        for (int k = 0; k < 4; ++k) {
+            Node& node = nodes[index];
+            const bool used = unsigned(k) < n->count;
+            const RTCBounds& b = n->bounds[used ? k : 0];
+            const float inf = std::numeric_limits<float>::infinity();
+            node.lo[0][k] = used ? b.lower_x : inf;
+            node.lo[1][k] = used ? b.lower_y : inf;
+            node.lo[2][k] = used ? b.lower_z : inf;
+            node.hi[0][k] = used ? b.upper_x : -inf;
+            node.hi[1][k] = used ? b.upper_y : -inf;
+            node.hi[2][k] = used ? b.upper_z : -inf;
+            node.child[k] = 0;
+        }
+        for (unsigned k = 0; k < n->count; ++k) {
+            const uint32_t code = flatten(static_cast<const BuildItem*>(n->child[k]), level + 1);
+            nodes[index].child[k] = code;
+        }
+        return uint32_t(index);
+    }
+
+    /// The squared distance to the nearest triangle (Inf: none) and, with Track, its slot in `triangles` (ties
+    /// towards the lowest (shape, prim)). The radius starts at max_radius.
+    template <bool Track>
+    double search(const Vec3d& p, double max_radius, uint32_t& best_slot) const {
+        const double scale = std::max({std::abs(p.x), std::abs(p.y), std::abs(p.z)});
+        double best = Inf;
+        double bound = max_radius;
+        float thr = prune_threshold(bound, scale);
+        float upper_best = std::numeric_limits<float>::infinity();
+        const float f[3] = {float(p.x), float(p.y), float(p.z)};
+        uint32_t stack_code[kStackSize];
+        float stack_d2[kStackSize];
+        int sp = 0;
+        uint32_t code = root;
+        for (;;) {
+            if (code & kLeafBit) {
+                const uint32_t first = (code & ~kLeafBit) >> 3, count = (code & 7u) + 1;
+                for (uint32_t i = first; i < first + count; ++i) {
+                    const Triangle& t = triangles[i];
+                    const Vec3d d = p - triangle_point(p, t.a, t.b, t.c);
+                    const double d2 = glm::dot(d, d);
+                    if (d2 < best || (Track && d2 == best &&
+                                      std::pair(t.shape, t.prim) <
+                                          std::pair(triangles[best_slot].shape, triangles[best_slot].prim))) {
+                        best = d2;
+                        best_slot = i;
+                        const double r = std::sqrt(d2);
+                        if (r < bound) {
+                            bound = r;
+                            thr = prune_threshold(bound, scale);
+                        }
+                    }
+                }
+            } else {
+                const Node& n = nodes[code];
+                alignas(16) float d2[4];
+                float upper2;
+                unsigned mask;
+#if defined(__SSE2__)
+                {
+                    const __m128 zero = _mm_setzero_ps();
+                    const __m128 abs_mask = _mm_castsi128_ps(_mm_set1_epi32(0x7fffffff));
+                    __m128 dist2 = zero, near2[3], far2[3];
+                    for (int a = 0; a < 3; ++a) {
+                        const __m128 pa = _mm_set1_ps(f[a]);
+                        const __m128 l = _mm_sub_ps(_mm_load_ps(n.lo[a]), pa), h = _mm_sub_ps(pa, _mm_load_ps(n.hi[a]));
+                        const __m128 d = _mm_max_ps(_mm_max_ps(l, h), zero);
+                        dist2 = _mm_add_ps(dist2, _mm_mul_ps(d, d));
+                        const __m128 al = _mm_and_ps(l, abs_mask), ah = _mm_and_ps(h, abs_mask);
+                        const __m128 nr = _mm_min_ps(al, ah), fr = _mm_max_ps(al, ah);
+                        near2[a] = _mm_mul_ps(nr, nr);
+                        far2[a] = _mm_mul_ps(fr, fr);
+                    }
+                    const __m128 hit = _mm_cmple_ps(dist2, _mm_set1_ps(thr));
+                    mask = unsigned(_mm_movemask_ps(hit));
+                    _mm_store_ps(d2, _mm_or_ps(_mm_and_ps(hit, dist2), _mm_andnot_ps(hit, _mm_set1_ps(Inf))));
+                    __m128 mm = _mm_min_ps(_mm_min_ps(_mm_add_ps(near2[0], _mm_add_ps(far2[1], far2[2])),
+                                                      _mm_add_ps(near2[1], _mm_add_ps(far2[0], far2[2]))),
+                                           _mm_add_ps(near2[2], _mm_add_ps(far2[0], far2[1])));
+                    mm = _mm_min_ps(mm, _mm_shuffle_ps(mm, mm, _MM_SHUFFLE(2, 3, 0, 1)));
+                    mm = _mm_min_ps(mm, _mm_shuffle_ps(mm, mm, _MM_SHUFFLE(1, 0, 3, 2)));
+                    upper2 = _mm_cvtss_f32(mm);
+                }
+#else
+                mask = 0;
+                upper2 = std::numeric_limits<float>::infinity();
+                for (int k = 0; k < 4; ++k) {
+                    float dist2 = 0, nr2[3], fr2[3];
+                    for (int a = 0; a < 3; ++a) {
+                        const float l = n.lo[a][k] - f[a], h = f[a] - n.hi[a][k];
+                        const float d = std::max(std::max(l, h), 0.f);
+                        dist2 += d * d;
+                        const float nr = std::min(std::abs(l), std::abs(h)), fr = std::max(std::abs(l), std::abs(h));
+                        nr2[a] = nr * nr;
+                        fr2[a] = fr * fr;
+                    }
+                    d2[k] = dist2 <= thr ? dist2 : std::numeric_limits<float>::infinity();
+                    if (dist2 <= thr) mask |= 1u << k;
+                    upper2 = std::min(
+                        {upper2, nr2[0] + (fr2[1] + fr2[2]), nr2[1] + (fr2[0] + fr2[2]), nr2[2] + (fr2[0] + fr2[1])});
+                }
+#endif
+                if (upper2 < upper_best) {
+                    upper_best = upper2;
+                    const double u = std::sqrt(double(upper2));
+                    const double r = u + 1e-6 * (u + scale);
+                    if (r < bound) {
+                        bound = r;
+                        thr = prune_threshold(bound, scale);
+                    }
+                }
+                if (mask != 0) {
+                    if ((mask & (mask - 1)) == 0) {
+                        code = n.child[__builtin_ctz(mask)];
+                        continue;
+                    }
+                    float d[4] = {d2[0], d2[1], d2[2], d2[3]};
+                    uint32_t c[4] = {n.child[0], n.child[1], n.child[2], n.child[3]};
+                    const auto cx = [&](int i, int j) {
+                        const float a = d[i], b = d[j];
+                        const uint32_t ca = c[i], cb = c[j];
+                        const bool swap = b < a;
+                        d[i] = swap ? b : a;
+                        d[j] = swap ? a : b;
+                        c[i] = swap ? cb : ca;
+                        c[j] = swap ? ca : cb;
+                    };
+                    cx(0, 1);
+                    cx(2, 3);
+                    cx(0, 2);
+                    cx(1, 3);
+                    cx(1, 2);
+                    const int m = int((0x4332322132212110ull >> (4 * mask)) & 15);
+                    for (int j = m - 1; j > 0; --j) {
+                        stack_code[sp] = c[j];
+                        stack_d2[sp] = d[j];
+                        ++sp;
+                    }
+                    code = c[0];
+                    continue;
+                }
+            }
+            for (;;) {
+                if (sp == 0) return best;
+                --sp;
+                if (stack_d2[sp] <= thr) break;
+            }
+            code = stack_code[sp];
+        }
+    }
+};
+
+/// The triangle BVH of the triangles keep[s] of each shape s of `geometry` (null when there are none).
+std::unique_ptr<TriangleBvh> build_triangle_bvh(RTCDevice device, const std::vector<ShapeGeometry>& geometry,
+                                                const std::vector<std::vector<uint32_t>>& keep) {
+    auto bvh = std::make_unique<TriangleBvh>();
+    std::vector<RTCBuildPrimitive> prims;
+    for (std::size_t s = 0; s < geometry.size(); ++s) {
+        const ShapeGeometry& g = geometry[s];
+        for (const uint32_t t : keep[s]) {
+            const uint32_t* v = &g.indices[3 * std::size_t(t)];
+            const Vec3d a(g.positions[v[0]]), b(g.positions[v[1]]), c(g.positions[v[2]]);
+            const Vec3d lo = glm::min(a, glm::min(b, c)), hi = glm::max(a, glm::max(b, c));
+            RTCBuildPrimitive p;
+            p.lower_x = round_down(lo.x);
+            p.lower_y = round_down(lo.y);
+            p.lower_z = round_down(lo.z);
+            p.upper_x = round_up(hi.x);
+            p.upper_y = round_up(hi.y);
+            p.upper_z = round_up(hi.z);
+            p.geomID = 0;
+            p.primID = unsigned(bvh->input.size());
+            prims.push_back(p);
+            bvh->input.push_back({a, b, c, uint32_t(s), t});
+        }
+    }
+    if (prims.empty()) return nullptr;
+    RTCBVH handle = rtcNewBVH(device);
+    RTCBuildArguments args = rtcDefaultBuildArguments();
+    args.byteSize = sizeof(args);
+    args.buildQuality = RTC_BUILD_QUALITY_MEDIUM;
+    args.maxBranchingFactor = 4;
+    args.maxDepth = 64;
+    args.maxLeafSize = TriangleBvh::kLeafTriangles;
+    args.bvh = handle;
+    args.primitives = prims.data();
+    args.primitiveCount = prims.size();
+    args.primitiveArrayCapacity = prims.size();
+    args.createNode = build_node;
+    args.setNodeChildren = build_children;
+    args.setNodeBounds = build_bounds;
+    args.createLeaf = build_leaf;
+    const auto* root = static_cast<const BuildItem*>(rtcBuildBVH(&args));
+    if (!root) {
+        rtcReleaseBVH(handle);
+        throw RuntimeError(
+            fmt::format("closest-point query: Embree's BVH build failed (error {})", int(rtcGetDeviceError(device))));
+    }
+    bvh->root = bvh->flatten(root, 0);
+    rtcReleaseBVH(handle);
+    bvh->input.clear();
+    bvh->input.shrink_to_fit();
+    if (3 * (bvh->depth + 2) + 1 > kStackSize)
+        throw RuntimeError(fmt::format("closest-point query: BVH depth {} too large", bvh->depth));
+    return bvh;
+}
+
+}  // namespace
+
+// ---------------------------------------------------------------------------------------------------------
 // 3D: triangles, spheres, discs and cylinders
 
 namespace {
@@ -177,6 +487,7 @@ struct ClosestPointQuery::Impl {
     std::vector<std::vector<uint32_t>> prim_map;
     std::size_t primitives = 0;
     Vec3d lo{Inf}, hi{-Inf};
+    std::unique_ptr<TriangleBvh> triangles;  // when every shape is a triangle mesh (no Embree scene then)
 };
 
 namespace {
@@ -253,6 +564,10 @@ ClosestPointQuery::ClosestPointQuery(std::vector<ShapeGeometry> geometry) : m_im
     Impl& m = *m_impl;
     m.geometry = std::move(geometry);
     m.prim_map.resize(m.geometry.size());
+    // Triangle meshes only: the own BVH (build_triangle_bvh) instead of an Embree scene.
+    bool all_triangles = !m.geometry.empty();
+    for (const ShapeGeometry& g : m.geometry) all_triangles = all_triangles && g.type == ShapeGeometry::Type::Triangles;
+    std::vector<std::vector<uint32_t>> kept(m.geometry.size());
     for (std::size_t s = 0; s < m.geometry.size(); ++s) {
         const ShapeGeometry& g = m.geometry[s];
         std::vector<uint32_t> keep;  // valid primitives
@@ -285,6 +600,12 @@ ClosestPointQuery::ClosestPointQuery(std::vector<ShapeGeometry> geometry) : m_im
         }
         m.primitives += keep.size();
         if (keep.empty()) continue;  // nothing valid: the ID stays unused
+        if (all_triangles) {
+            for (uint32_t t : keep)
+                for (int j = 0; j < 3; ++j) grow(Vec3d(g.positions[g.indices[3 * std::size_t(t) + j]]), 0.0);
+            kept[s] = std::move(keep);
+            continue;
+        }
 
         RTCGeometry geom;
         if (triangles) {
@@ -328,7 +649,10 @@ ClosestPointQuery::ClosestPointQuery(std::vector<ShapeGeometry> geometry) : m_im
         rtcAttachGeometryByID(m.embree.scene, geom, unsigned(s));
         rtcReleaseGeometry(geom);
     }
-    rtcCommitScene(m.embree.scene);
+    if (all_triangles)
+        m.triangles = build_triangle_bvh(m.embree.device, m.geometry, kept);
+    else
+        rtcCommitScene(m.embree.scene);
 }
 
 ClosestPointQuery ClosestPointQuery::from_shapes(const std::vector<std::shared_ptr<Shape>>& shapes) {
@@ -342,9 +666,36 @@ ClosestPointQuery::~ClosestPointQuery() = default;
 ClosestPointQuery::ClosestPointQuery(ClosestPointQuery&&) noexcept = default;
 ClosestPointQuery& ClosestPointQuery::operator=(ClosestPointQuery&&) noexcept = default;
 
+double ClosestPointQuery::distance(const Vec3d& p, double max_radius) const {
+    if (!m_impl->triangles) return closest(p, max_radius).distance;
+    if (!valid(p) || !(max_radius >= 0)) return Inf;
+    uint32_t slot = 0;
+    const double dist = std::sqrt(m_impl->triangles->search<false>(p, max_radius, slot));
+    return dist <= max_radius ? dist : Inf;
+}
+
 ClosestPoint ClosestPointQuery::closest(const Vec3d& p, double max_radius) const {
     Query3 q{m_impl.get(), p, max_radius, 0.0, {}};
     if (!valid(p) || !(max_radius >= 0) || m_impl->primitives == 0) return q.best;
+    if (const TriangleBvh* bvh = m_impl->triangles.get()) {
+        uint32_t slot = 0;
+        if (!(bvh->search<true>(p, max_radius, slot) < Inf)) return q.best;
+        const TriangleBvh::Triangle& t = bvh->triangles[slot];
+        const Vec3d point = triangle_point(p, t.a, t.b, t.c);
+        const double dist = glm::length(p - point);
+        if (!(dist <= max_radius)) return q.best;
+        Vec3d normal = glm::cross(t.b - t.a, t.c - t.a);  // as point_query_3d
+        const double len = glm::length(normal);
+        if (len > 0 && std::isfinite(len)) {
+            normal /= len;
+            if (m_impl->geometry[t.shape].flip_normals) normal = -normal;
+        } else {
+            const Vec3d d = p - point;
+            const double l = glm::length(d);
+            normal = l > 0 ? d / l : Vec3d(0, 0, 1);
+        }
+        return {true, dist, point, normal, t.shape, t.prim};
+    }
     q.scale = std::max({std::abs(p.x), std::abs(p.y), std::abs(p.z)});
     RTCPointQuery pq;
     pq.x = float(p.x);
@@ -363,7 +714,6 @@ std::size_t ClosestPointQuery::primitive_count() const { return m_impl->primitiv
 std::pair<Vec3d, Vec3d> ClosestPointQuery::bounds() const { return {m_impl->lo, m_impl->hi}; }
 
 // ---------------------------------------------------------------------------------------------------------
-// ---------------------------------------------------------------------------------------------------------
 // 2D: segments in a 4-wide BVH built by Embree's builder (rtcBuildBVH), traversed here
 //
 // Each node keeps the float bounds of its (up to) four children side by side, rounded outwards from the double
@@ -381,51 +731,6 @@ std::pair<Vec3d, Vec3d> ClosestPointQuery::bounds() const { return {m_impl->lo, 
 namespace {
 
 constexpr unsigned kLeafSegments = 4;
-constexpr uint32_t kLeafBit = 0x80000000u;  // a child code with this bit is a leaf block index
-constexpr int kStackSize = 256;
-
-struct BuildItem {
-    bool leaf;
-};
-struct BuildInner : BuildItem {
-    unsigned count = 0;
-    void* child[4] = {};
-    RTCBounds bounds[4];
-};
-struct BuildLeaf : BuildItem {
-    unsigned count = 0;
-    unsigned prim[RTC_BUILD_MAX_PRIMITIVES_PER_LEAF];
-};
-
-void* build_node(RTCThreadLocalAllocator alloc, unsigned int count, void*) {
-    auto* n = new (rtcThreadLocalAlloc(alloc, sizeof(BuildInner), 16)) BuildInner;
-    n->leaf = false;
-    n->count = count;
-    return n;
-}
-void build_children(void* node, void** children, unsigned int count, void*) {
-    for (unsigned i = 0; i < count; ++i) static_cast<BuildInner*>(node)->child[i] = children[i];
-}
-void build_bounds(void* node, const RTCBounds** bounds, unsigned int count, void*) {
-    for (unsigned i = 0; i < count; ++i) static_cast<BuildInner*>(node)->bounds[i] = *bounds[i];
-}
-void* build_leaf(RTCThreadLocalAllocator alloc, const RTCBuildPrimitive* prims, size_t count, void*) {
-    auto* l = new (rtcThreadLocalAlloc(alloc, sizeof(BuildLeaf), 16)) BuildLeaf;
-    l->leaf = true;
-    l->count = unsigned(std::min<size_t>(count, RTC_BUILD_MAX_PRIMITIVES_PER_LEAF));
-    for (unsigned i = 0; i < l->count; ++i) l->prim[i] = prims[i].primID;
-    return l;
-}
-
-/// The float pruning threshold on squared box distances for a search radius r (see the section comment): the
-/// square of r padded by a relative 1e-6 of r and of the query point's magnitude, rounded up, at least 1e-37 (so
-/// that the float underflow of tiny box distances never prunes).
-inline float prune_threshold(double r, double scale) {
-    if (!(r < 1e30)) return std::numeric_limits<float>::max();
-    const double padded = r + 1e-6 * (r + scale) + 1e-30;
-    const double t2 = padded * padded * (1 + 1e-7);  // float() below rounds down by at most 2^-24
-    return std::clamp(float(t2), 1e-37f, std::numeric_limits<float>::max());
-}
 
 }  // namespace
 

@@ -217,6 +217,48 @@ TEST(ClosestPoint, AgreesWithBruteForceOnRandomGeometry) {
     }
 }
 
+// Triangle meshes only: ClosestPointQuery's own BVH (not Embree's point query). Both distance() and closest()
+// against brute force, never above it, at scales 1e-9, 1 and 1e6 and 1e6 away from the origin, with points on,
+// near and far from the surface. Removing the float padding of the BVH's pruning radius fails the offset case.
+TEST(ClosestPoint, TriangleMeshesAgreeWithBruteForceAtEveryScale) {
+    const std::pair<double, Vec3d> setups[] = {
+        {1e-9, Vec3d(0.0)}, {1.0, Vec3d(0.0)}, {1e6, Vec3d(0.0)}, {1.0, Vec3d(1e6, -1e6, 5e5)}};
+    uint64_t seed = 0;
+    for (const auto& [scale, offset] : setups) {
+        SCOPED_TRACE(testing::Message() << "scale " << scale << ", offset " << offset.x);
+        Random rng(++seed, 9);
+        std::vector<ShapeGeometry> geom = {random_soup(rng, 300), uv_sphere({0.5, 0.5, 0.5}, 0.35, 24, 12)};
+        geom[1].flip_normals = true;
+        for (ShapeGeometry& g : geom)
+            for (Vec3f& v : g.positions) v = Vec3f(offset + scale * Vec3d(v));
+        const ClosestPointQuery q(geom);
+        std::vector<Vec3d> points;
+        for (int i = 0; i < 1000; ++i) points.push_back(offset + scale * random_point(rng, -0.5, 1.5));
+        for (int i = 0; i < 600; ++i) points.push_back(point_on(geom[i % 2], rng));
+        for (int i = 0; i < 600; ++i) {
+            const Vec3d on = point_on(geom[i % 2], rng);
+            points.push_back(on + scale * std::pow(10.0, -12 + 10 * rng.next_double()) *
+                                      glm::normalize(random_point(rng, -1, 1)));
+        }
+        for (int i = 0; i < 100; ++i) points.push_back(Vec3d(geom[0].positions[std::size_t(i) * 3]));
+        for (int i = 0; i < 100; ++i)
+            points.push_back(offset +
+                             scale * (10.0 + 1e3 * rng.next_double()) * glm::normalize(random_point(rng, -1, 1)));
+        int failures = 0;
+        for (const Vec3d& p : points) {
+            const double truth = brute_force(geom, p).distance;
+            const double d = q.distance(p);
+            const ClosestPoint r = q.closest(p);
+            const bool ok = d <= truth && d >= truth * (1 - 1e-6) && r.found && r.distance == d &&
+                            r.distance == prim_distance(geom[r.shape], r.prim, p);
+            if (!ok && ++failures <= 3)
+                ADD_FAILURE() << "p = " << p.x << " " << p.y << " " << p.z << ": brute force " << truth << ", distance "
+                              << d << ", closest " << r.distance;
+        }
+        EXPECT_EQ(failures, 0);
+    }
+}
+
 TEST(ClosestPoint, NormalsAndPointsOfKnownShapes) {
     // A unit square (two triangles) in z = 0, normal +z, and a sphere of radius 1 at (5, 0, 0) flipped.
     ShapeGeometry quad;

@@ -50,8 +50,8 @@ public:
 
     /// The nearest point of any shape whose distance to `p` is at most `max_radius`. Thread-safe.
     ClosestPoint closest(const Vec3d& p, double max_radius = Inf) const;
-    /// Just the distance: Inf when nothing lies within max_radius.
-    double distance(const Vec3d& p, double max_radius = Inf) const { return closest(p, max_radius).distance; }
+    /// Just the distance: Inf when nothing lies within max_radius (the same value as closest's).
+    double distance(const Vec3d& p, double max_radius = Inf) const;
 
     const std::vector<ShapeGeometry>& geometry() const;
     /// Number of valid primitives (triangles and spheres) in the BVH.
