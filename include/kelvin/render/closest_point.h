@@ -80,7 +80,7 @@ struct ClosestPoint2D {
 
 /// Segments in the plane (polylines, polygons, segment soups) for the 2D fluid solver and Walk-on-Spheres: a
 /// 4-wide BVH built by Embree's builder (rtcBuildBVH) with float child bounds (four box tests per node in one
-/// vector, nearest child first, the search radius seeded by the boxes' MINMAXDIST) and leaves of four segments
+/// vector, nearest child first, the search radius seeded by the boxes' MINMAXDIST) and leaves of eight segments
 /// measured in double with the arithmetic of closest_point_on_segment, so distances equal a brute-force minimum
 /// bit for bit. distance() keeps no closest point (what a walk's step needs); closest() breaks ties between
 /// segments at the same distance towards the lowest index.
