@@ -341,7 +341,7 @@ struct TriangleBvh {
                         {upper2, nr2[0] + (fr2[1] + fr2[2]), nr2[1] + (fr2[0] + fr2[2]), nr2[2] + (fr2[0] + fr2[1])});
                 }
 #endif
-                if (upper2 < upper_best) {
+                if (code == root && upper2 < upper_best) {  // the root's MINMAXDIST only, as in the 2D search
                     upper_best = upper2;
                     const double u = std::sqrt(double(upper2));
                     const double r = u + 1e-6 * (u + scale);
@@ -371,12 +371,11 @@ struct TriangleBvh {
                     cx(0, 2);
                     cx(1, 3);
                     cx(1, 2);
-                    const int m = int((0x4332322132212110ull >> (4 * mask)) & 15);
-                    for (int j = m - 1; j > 0; --j) {
-                        stack_code[sp] = c[j];
-                        stack_d2[sp] = d[j];
-                        ++sp;
+                    for (int j = 0; j < 3; ++j) {  // as in the 2D search: missed children are dropped when popped
+                        stack_code[sp + j] = c[3 - j];
+                        stack_d2[sp + j] = d[3 - j];
                     }
+                    sp += 3;
                     code = c[0];
                     continue;
                 }
@@ -722,8 +721,8 @@ std::pair<Vec3d, Vec3d> ClosestPointQuery::bounds() const { return {m_impl->lo, 
 // child whose box lies beyond the best distance so far is pruned. Box distances are lower bounds of the true
 // ones up to the float rounding of the query point and of the arithmetic, which the pruning radius covers with the
 // same padding as the 3D query (a relative 1e-6 of the distance plus the point's magnitude). The radius starts
-// at the smallest MINMAXDIST of the boxes seen (an upper bound of the answer), so the first descent already
-// prunes. Leaves hold up to eight segments side by side in double, measured two at a time in SSE2 with exactly
+// at the smallest MINMAXDIST of the root's child boxes (an upper bound of the answer), so the first descent
+// already prunes. Leaves hold up to eight segments side by side in double, measured two at a time in SSE2 with exactly
 // the operations of closest_point_on_segment (no fused multiply-adds: the same IEEE results lane by lane), so the
 // minimum is the brute-force minimum bit for bit: the BVH only prunes. The search is distance-only; closest()
 // also keeps the segment (ties to the lowest index, as a brute-force loop would) and measures its point and
@@ -908,8 +907,8 @@ double ClosestSegmentQuery::Impl::search(const Vec2d& p, double max_radius, uint
             // et al. 1995: every side of a tight box touches a segment, so the farther end of the nearer side
             // along either axis bounds the distance to the box's segments from above). Boxes are tight up to
             // the outward float rounding of the segments' bounds (one ulp), which the padding covers, so the
-            // smallest MINMAXDIST of any visited node bounds the answer. Only until the first leaf: then the best
-            // segment bounds it (MINMAXDIST rarely beats it, and skipping it saves a tenth of the time).
+            // smallest MINMAXDIST of any visited node bounds the answer. Only at the root: deeper nodes tighten it
+            // little before the first leaf does, and each tightening puts a square root on the critical path.
             float upper2;
 #if defined(__SSE2__)
             const __m128 px = _mm_set1_ps(fx), py = _mm_set1_ps(fy), zero = _mm_setzero_ps();
@@ -922,7 +921,7 @@ double ClosestSegmentQuery::Impl::search(const Vec2d& p, double max_radius, uint
             // Missed children at +inf, so that they sort last.
             _mm_store_ps(d2, _mm_or_ps(_mm_and_ps(hit, v), _mm_andnot_ps(hit, _mm_set1_ps(Inf))));
             upper2 = std::numeric_limits<float>::infinity();
-            if (best == Inf) {
+            if (code == root) {
                 const __m128 abs_mask = _mm_castsi128_ps(_mm_set1_epi32(0x7fffffff));
                 const __m128 alx = _mm_and_ps(lx, abs_mask), ahx = _mm_and_ps(hx, abs_mask);
                 const __m128 aly = _mm_and_ps(ly, abs_mask), ahy = _mm_and_ps(hy, abs_mask);
@@ -982,13 +981,17 @@ double ClosestSegmentQuery::Impl::search(const Vec2d& p, double max_radius, uint
                 cx(0, 2);
                 cx(1, 3);
                 cx(1, 2);
-                int m = int((0x4332322132212110ull >> (4 * mask)) & 15);  // popcount of 4 bits
-                if constexpr (Fault == 1) --m;                            // deliberately wrong: drop the farthest child
-                for (int j = m - 1; j > 0; --j) {
-                    stack_code[sp] = c[j];
-                    stack_d2[sp] = d[j];
-                    ++sp;
+                if constexpr (Fault == 1) {  // deliberately wrong: drop the farthest child
+                    const int m = int((0x4332322132212110ull >> (4 * mask)) & 15);  // popcount of 4 bits
+                    d[m - 1] = std::numeric_limits<float>::infinity();
                 }
+                // Push c[3], c[2], c[1] (farthest first) without a loop or a count: missed children sit below the
+                // others at +inf and are dropped when popped.
+                for (int j = 0; j < 3; ++j) {
+                    stack_code[sp + j] = c[3 - j];
+                    stack_d2[sp + j] = d[3 - j];
+                }
+                sp += 3;
                 code = c[0];
                 continue;
             }
