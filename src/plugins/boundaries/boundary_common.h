@@ -1,7 +1,7 @@
 #pragma once
 // Shared pieces of the <boundary> plugins: 2D/3D bases (the plugin is its own distance provider), the
 // dimension parameter, point-in-polygon by crossings (even-odd: loops inside loops are holes) and a segment-set
-// provider over Embree's ClosestSegmentQuery.
+// provider over ClosestSegmentQuery (a segment BVH; include/kelvin/render/closest_point.h).
 #include <kelvin/core/properties.h>
 #include <kelvin/fluid/boundary.h>
 #include <kelvin/render/closest_point.h>
@@ -64,7 +64,7 @@ inline bool inside_loops(const std::vector<std::vector<Vec2d>>& loops, const Vec
     return in;
 }
 
-/// Segments as a distance provider: brute force below 32 segments, Embree's BVH above. The component of a
+/// Segments as a distance provider: brute force below 32 segments, ClosestSegmentQuery's BVH above. The component of a
 /// hit is the segment index.
 class SegmentSet {
 public:

@@ -1,5 +1,5 @@
 // mesh: a triangle mesh or triangle soup from a nested <shape> (obj, ply, gltf, rectangle, cube, ...) as a
-// boundary, through Embree's closest-point queries (exact, unsigned distances).
+// boundary, through the BVHs of ClosestPointQuery / ClosestSegmentQuery (exact, unsigned distances).
 //
 //  * dimension 3: the triangles themselves (ClosestPointQuery). A closed, consistently oriented manifold (every
 //    edge shared by two triangles in opposite directions, vertices welded by position) knows its inside (sign by
@@ -293,7 +293,7 @@ ObjectPtr make_mesh(const Properties& props) {
 
 static const kelvin::PluginRegistrar kelvin_boundary_mesh(
     "boundary", "mesh",
-    "Triangle mesh or soup from a nested <shape> via Embree closest-point queries (2D: planar union of triangles).",
+    "Triangle mesh or soup from a nested <shape> via exact closest-point queries (2D: planar union of triangles).",
     kelvin::fluid::with_boundary_params(
         {kelvin::param::integer("dimension", 2, "2 (triangles in the plane z = 0) or 3"),
          kelvin::param::object("shape", "shape", "a triangle shape (obj, ply, gltf, rectangle, ...)", true)}),
