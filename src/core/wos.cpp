@@ -70,19 +70,6 @@ BoundaryHit<D> SphereBoundary<D>::closest(const Vec<D>& p) const {
 }
 
 template <int D>
-double BoxBoundary<D>::distance(const Vec<D>& p) const {
-    // Outside: Euclidean distance to the box. Inside: distance to the nearest face.
-    double out2 = 0, in = Inf;
-    for (int i = 0; i < D; ++i) {
-        const double below = lo[i] - p[i], above = p[i] - hi[i];
-        const double e = std::max(below, above);
-        if (e > 0) out2 += e * e;
-        in = std::min(in, std::min(p[i] - lo[i], hi[i] - p[i]));
-    }
-    return out2 > 0 ? std::sqrt(out2) : std::max(in, 0.0);
-}
-
-template <int D>
 BoundaryHit<D> BoxBoundary<D>::closest(const Vec<D>& p) const {
     BoundaryHit<D> h;
     bool outside = false;

@@ -217,6 +217,48 @@ TEST(ClosestPoint, AgreesWithBruteForceOnRandomGeometry) {
     }
 }
 
+// Triangle meshes only: ClosestPointQuery's own BVH (not Embree's point query). Both distance() and closest()
+// against brute force, never above it, at scales 1e-9, 1 and 1e6 and 1e6 away from the origin, with points on,
+// near and far from the surface. Removing the float padding of the BVH's pruning radius fails the offset case.
+TEST(ClosestPoint, TriangleMeshesAgreeWithBruteForceAtEveryScale) {
+    const std::pair<double, Vec3d> setups[] = {
+        {1e-9, Vec3d(0.0)}, {1.0, Vec3d(0.0)}, {1e6, Vec3d(0.0)}, {1.0, Vec3d(1e6, -1e6, 5e5)}};
+    uint64_t seed = 0;
+    for (const auto& [scale, offset] : setups) {
+        SCOPED_TRACE(testing::Message() << "scale " << scale << ", offset " << offset.x);
+        Random rng(++seed, 9);
+        std::vector<ShapeGeometry> geom = {random_soup(rng, 300), uv_sphere({0.5, 0.5, 0.5}, 0.35, 24, 12)};
+        geom[1].flip_normals = true;
+        for (ShapeGeometry& g : geom)
+            for (Vec3f& v : g.positions) v = Vec3f(offset + scale * Vec3d(v));
+        const ClosestPointQuery q(geom);
+        std::vector<Vec3d> points;
+        for (int i = 0; i < 1000; ++i) points.push_back(offset + scale * random_point(rng, -0.5, 1.5));
+        for (int i = 0; i < 600; ++i) points.push_back(point_on(geom[i % 2], rng));
+        for (int i = 0; i < 600; ++i) {
+            const Vec3d on = point_on(geom[i % 2], rng);
+            points.push_back(on + scale * std::pow(10.0, -12 + 10 * rng.next_double()) *
+                                      glm::normalize(random_point(rng, -1, 1)));
+        }
+        for (int i = 0; i < 100; ++i) points.push_back(Vec3d(geom[0].positions[std::size_t(i) * 3]));
+        for (int i = 0; i < 100; ++i)
+            points.push_back(offset +
+                             scale * (10.0 + 1e3 * rng.next_double()) * glm::normalize(random_point(rng, -1, 1)));
+        int failures = 0;
+        for (const Vec3d& p : points) {
+            const double truth = brute_force(geom, p).distance;
+            const double d = q.distance(p);
+            const ClosestPoint r = q.closest(p);
+            const bool ok = d <= truth && d >= truth * (1 - 1e-6) && r.found && r.distance == d &&
+                            r.distance == prim_distance(geom[r.shape], r.prim, p);
+            if (!ok && ++failures <= 3)
+                ADD_FAILURE() << "p = " << p.x << " " << p.y << " " << p.z << ": brute force " << truth << ", distance "
+                              << d << ", closest " << r.distance;
+        }
+        EXPECT_EQ(failures, 0);
+    }
+}
+
 TEST(ClosestPoint, NormalsAndPointsOfKnownShapes) {
     // A unit square (two triangles) in z = 0, normal +z, and a sphere of radius 1 at (5, 0, 0) flipped.
     ShapeGeometry quad;
@@ -490,4 +532,127 @@ TEST(ClosestSegment, InvalidSegmentsAndEmpty) {
 
     ClosestSegmentQuery none({}, {});
     EXPECT_FALSE(none.closest({0, 0}));
+}
+
+// The segment BVH's distances against brute force over every segment, at many points and at every scale: the
+// query must return the distance (within a relative 1e-6; by construction it is bit-identical) and never more
+// than the true distance (Walk-on-Spheres' spheres must stay inside the domain). Points: uniform around the
+// geometry, exactly on segments, within 1e-12..1e-2 (relative) of them on either side, at vertices, at
+// zero-length segments, far away; geometry: a segment soup with zero-length and duplicated segments, a long
+// segment and a 1024-gon, scaled by 1e-9, 1 and 1e6 and also moved 1e6 away from the origin (the float
+// bounds' rounding is then large compared with the features).
+namespace {
+
+struct SegmentCase {
+    std::vector<Vec2d> points;
+    std::vector<ClosestSegmentQuery::Segment> segments;
+};
+
+SegmentCase segment_case(double scale, Vec2d offset, uint64_t seed) {
+    Random rng(seed, 1);
+    SegmentCase c;
+    auto add = [&](Vec2d a, Vec2d b) {
+        c.points.push_back(offset + scale * a);
+        c.points.push_back(offset + scale * b);
+        c.segments.push_back({uint32_t(c.points.size() - 2), uint32_t(c.points.size() - 1)});
+    };
+    for (int i = 0; i < 300; ++i) {  // a soup
+        const Vec2d a(2 * rng.next_double() - 1, 2 * rng.next_double() - 1);
+        add(a, a + 0.2 * Vec2d(rng.next_double() - 0.5, rng.next_double() - 0.5));
+    }
+    for (int i = 0; i < 20; ++i) {  // zero-length segments (points)
+        const Vec2d a(2 * rng.next_double() - 1, 2 * rng.next_double() - 1);
+        add(a, a);
+    }
+    add({-3, -0.3}, {3, 0.31});  // a long one across everything
+    const uint32_t dup = c.segments[5][0];
+    c.segments.push_back({dup, c.segments[5][1]});  // duplicated (both orientations)
+    c.segments.push_back({c.segments[5][1], dup});
+    const int n = 1024;  // a regular 1024-gon of radius 1.5 (a closed polygon: shared vertices)
+    const uint32_t base = uint32_t(c.points.size());
+    for (int i = 0; i < n; ++i)
+        c.points.push_back(offset + scale * 1.5 * Vec2d(std::cos(2 * Pi * i / n), std::sin(2 * Pi * i / n)));
+    for (int i = 0; i < n; ++i) c.segments.push_back({base + uint32_t(i), base + uint32_t((i + 1) % n)});
+    return c;
+}
+
+/// The brute-force distance: closest_point_on_segment over every segment.
+double brute_distance(const SegmentCase& c, const Vec2d& p) {
+    double best = Inf;
+    for (const auto& s : c.segments)
+        best = std::min(best, glm::length(p - closest_point_on_segment(p, c.points[s[0]], c.points[s[1]])));
+    return best;
+}
+
+/// Query points near the geometry, on it and far from it.
+std::vector<Vec2d> segment_queries(const SegmentCase& c, double scale, Vec2d offset, uint64_t seed) {
+    Random rng(seed, 2);
+    std::vector<Vec2d> q;
+    for (int i = 0; i < 1500; ++i)
+        q.push_back(offset + scale * Vec2d(4 * rng.next_double() - 2, 4 * rng.next_double() - 2));
+    for (int i = 0; i < 1500; ++i) {
+        const auto& s = c.segments[rng.next_u32(uint32_t(c.segments.size()))];
+        const Vec2d a = c.points[s[0]], b = c.points[s[1]];
+        const double t = i % 7 == 0 ? 0.0 : (i % 7 == 1 ? 1.0 : rng.next_double());
+        const Vec2d on = a + t * (b - a);
+        const Vec2d d = b - a;
+        const double len = glm::length(d);
+        const Vec2d normal = len > 0 ? Vec2d(-d.y, d.x) / len : Vec2d(0, 1);
+        if (i % 3 == 0) {
+            q.push_back(on);  // on the segment (or at a vertex)
+        } else {
+            const double off = scale * std::pow(10.0, -12 + 10 * rng.next_double()) * (i % 2 ? 1 : -1);
+            q.push_back(on + off * normal);
+        }
+    }
+    for (int i = 0; i < 200; ++i) {
+        const double a = 2 * Pi * rng.next_double();
+        q.push_back(offset + scale * (3 + 1e3 * rng.next_double()) * Vec2d(std::cos(a), std::sin(a)));
+    }
+    return q;
+}
+
+/// Failures of distance() and closest() against brute force over `queries` (printing the first few).
+int segment_failures(const ClosestSegmentQuery& query, const SegmentCase& c, const std::vector<Vec2d>& queries) {
+    int failures = 0;
+    for (const Vec2d& p : queries) {
+        const double truth = brute_distance(c, p);
+        const double d = query.distance(p);
+        const ClosestPoint2D r = query.closest(p);
+        const auto& s = c.segments[r.segment];
+        const double at_segment = glm::length(p - closest_point_on_segment(p, c.points[s[0]], c.points[s[1]]));
+        const bool ok = d <= truth && d >= truth * (1 - 1e-6) && r.found && r.distance <= truth &&
+                        r.distance >= truth * (1 - 1e-6) && at_segment == r.distance;
+        if (!ok && ++failures <= 3 && !detail::segment_bvh_fault)
+            ADD_FAILURE() << "p = (" << p.x << ", " << p.y << "): brute force " << truth << ", distance " << d
+                          << ", closest " << r.distance << " (segment " << r.segment << " at " << at_segment << ")";
+    }
+    return failures;
+}
+
+}  // namespace
+
+TEST(ClosestSegment, DistanceMatchesBruteForceAtEveryScale) {
+    const std::pair<double, Vec2d> setups[] = {
+        {1e-9, Vec2d(0.0)}, {1.0, Vec2d(0.0)}, {1e6, Vec2d(0.0)}, {1.0, Vec2d(1e6, -1e6)}, {1e-9, Vec2d(1.0, 0.0)}};
+    uint64_t seed = 0;
+    for (const auto& [scale, offset] : setups) {
+        SCOPED_TRACE(testing::Message() << "scale " << scale << ", offset (" << offset.x << ", " << offset.y << ")");
+        const SegmentCase c = segment_case(scale, offset, ++seed);
+        const ClosestSegmentQuery query(c.points, c.segments);
+        ASSERT_EQ(query.primitive_count(), c.segments.size());
+        EXPECT_EQ(segment_failures(query, c, segment_queries(c, scale, offset, seed)), 0);
+    }
+}
+
+TEST(ClosestSegment, BrokenTraversalFailsTheBruteForceCheck) {
+    // The check above must be able to fail: a traversal that skips a child it should visit is caught.
+    const SegmentCase c = segment_case(1.0, Vec2d(0.0), 1);
+    const ClosestSegmentQuery query(c.points, c.segments);
+    const std::vector<Vec2d> queries = segment_queries(c, 1.0, Vec2d(0.0), 1);
+    detail::segment_bvh_fault = 1;
+    const int broken = segment_failures(query, c, queries);
+    detail::segment_bvh_fault = 0;
+    EXPECT_GT(broken, 10) << "a traversal that skips children went unnoticed";
+    EXPECT_EQ(segment_failures(query, c, queries), 0);
 }

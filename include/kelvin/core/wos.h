@@ -59,6 +59,7 @@
 #include <cmath>
 #include <concepts>
 #include <cstdint>
+#include <cstring>
 #include <functional>
 #include <limits>
 #include <type_traits>
@@ -142,18 +143,65 @@ struct NoSource {
 /// A uniform double in [0, 1) from one 32-bit draw.
 inline double uniform(Random& rng) { return double(rng.next_u32()) * 0x1p-32; }
 
-/// A uniform direction on the unit sphere S^{D-1} (2D: one draw, 3D: two).
+namespace detail {
+/// sin and cos of x in [0, pi/4] (the fdlibm kernels __kernel_sin / __kernel_cos without the tail term: within
+/// about 1 ulp of the correctly rounded values).
+inline void sincos_octant(double x, double& s, double& c) {
+    const double z = x * x;
+    const double ps = -1.66666666666666324348e-01 +
+                      z * (8.33333333332248946124e-03 +
+                           z * (-1.98412698298579493134e-04 +
+                                z * (2.75573137070700676789e-06 +
+                                     z * (-2.50507602534068634195e-08 + z * 1.58969099521155010221e-10))));
+    const double pc = 4.16666666666666019037e-02 +
+                      z * (-1.38888888888741095749e-03 +
+                           z * (2.48015872894767294178e-05 +
+                                z * (-2.75573143513906633035e-07 +
+                                     z * (2.08757232129817482790e-09 + z * -1.13596475577881948265e-11))));
+    s = x + x * z * ps;
+    c = 1 - (0.5 * z - z * (z * pc));
+}
+}  // namespace detail
+
+/// (cos a, sin a) for a = 2 pi u / 2^32: the angle of one 32-bit draw, without libm. The top three bits pick the
+/// octant, the other 29 the angle within it (measured from the octant's nearer axis, so the argument stays in
+/// [0, pi/4]); the octant's swap and signs are applied without branches.
+inline Vec<2> unit_circle_point(uint32_t u) {
+    const uint32_t o = u >> 29, r = u & 0x1fffffffu;
+    const uint32_t odd = o & 1;
+    // Odd octants measure from the far end: pi/4 - theta, an exact integer in (0, 2^29].
+    const double x = double(odd ? 0x20000000u - r : r) * (Pi / 4 * 0x1p-29);
+    double s, c;
+    detail::sincos_octant(x, s, c);
+    // Within the quadrant: (c, s) in even octants, (s, c) in odd ones; the quadrant's rotation by 90 degrees swaps
+    // again in quadrants 1 and 3 and sets the signs.
+    const uint32_t q = o >> 1;
+    const uint64_t swap = uint64_t(0) - uint64_t((odd ^ q) & 1);
+    uint64_t cb, sb;
+    std::memcpy(&cb, &c, 8);
+    std::memcpy(&sb, &s, 8);
+    uint64_t xb = (cb & ~swap) | (sb & swap), yb = (sb & ~swap) | (cb & swap);
+    xb ^= uint64_t((q ^ (q >> 1)) & 1) << 63;
+    yb ^= uint64_t(q >> 1) << 63;
+    double dx, dy;
+    std::memcpy(&dx, &xb, 8);
+    std::memcpy(&dy, &yb, 8);
+    return {dx, dy};
+}
+
+/// A uniform direction on the unit sphere S^{D-1} (2D: one draw, 3D: two). The angle is 2 pi u for the draw's
+/// u = k / 2^32, as with std::cos and std::sin, computed by unit_circle_point (about 4x cheaper than libm's
+/// sincos, which was 40% of a walk's time on an analytic boundary).
 template <int D>
 inline Vec<D> sample_direction(Random& rng) {
     if constexpr (D == 2) {
-        const double a = 2 * Pi * uniform(rng);
-        return {std::cos(a), std::sin(a)};
+        return unit_circle_point(rng.next_u32());
     } else {
         static_assert(D == 3, "Walk-on-Spheres is implemented in 2D and 3D");
         const double z = 1 - 2 * uniform(rng);
         const double s = std::sqrt(std::max(0.0, 1 - z * z));
-        const double a = 2 * Pi * uniform(rng);
-        return {s * std::cos(a), s * std::sin(a), z};
+        const Vec<2> c = unit_circle_point(rng.next_u32());
+        return {s * c.x, s * c.y, z};
     }
 }
 
@@ -503,7 +551,18 @@ struct SphereBoundary {
 template <int D>
 struct BoxBoundary {
     Vec<D> lo{-1.0}, hi{1.0};
-    double distance(const Vec<D>& p) const;
+    /// Inline (a walk's step on a box is a few nanoseconds; a call into the library was a fifth of it).
+    double distance(const Vec<D>& p) const {
+        // Outside: Euclidean distance to the box. Inside: distance to the nearest face.
+        double out2 = 0, in = Inf;
+        for (int i = 0; i < D; ++i) {
+            const double below = lo[i] - p[i], above = p[i] - hi[i];
+            const double e = std::max(below, above);
+            if (e > 0) out2 += e * e;
+            in = std::min(in, std::min(p[i] - lo[i], hi[i] - p[i]));
+        }
+        return out2 > 0 ? std::sqrt(out2) : std::max(in, 0.0);
+    }
     /// Pieces: face 2 * axis + (0: lo side, 1: hi side).
     BoundaryHit<D> closest(const Vec<D>& p) const;
 };

@@ -50,8 +50,8 @@ public:
 
     /// The nearest point of any shape whose distance to `p` is at most `max_radius`. Thread-safe.
     ClosestPoint closest(const Vec3d& p, double max_radius = Inf) const;
-    /// Just the distance: Inf when nothing lies within max_radius.
-    double distance(const Vec3d& p, double max_radius = Inf) const { return closest(p, max_radius).distance; }
+    /// Just the distance: Inf when nothing lies within max_radius (the same value as closest's).
+    double distance(const Vec3d& p, double max_radius = Inf) const;
 
     const std::vector<ShapeGeometry>& geometry() const;
     /// Number of valid primitives (triangles and spheres) in the BVH.
@@ -78,9 +78,12 @@ struct ClosestPoint2D {
     explicit operator bool() const { return found; }
 };
 
-/// Segments in the plane (polylines, polygons, segment soups) for the 2D fluid solver. Embree user geometry
-/// (one primitive per segment, bounds in the z = 0 plane) gives the BVH; distances are computed in double
-/// from the double input.
+/// Segments in the plane (polylines, polygons, segment soups) for the 2D fluid solver and Walk-on-Spheres: a
+/// 4-wide BVH built by Embree's builder (rtcBuildBVH) with float child bounds (four box tests per node in one
+/// vector, nearest child first, the search radius seeded by the boxes' MINMAXDIST) and leaves of eight segments
+/// measured in double with the arithmetic of closest_point_on_segment, so distances equal a brute-force minimum
+/// bit for bit. distance() keeps no closest point (what a walk's step needs); closest() breaks ties between
+/// segments at the same distance towards the lowest index.
 class ClosestSegmentQuery {
 public:
     using Segment = std::array<uint32_t, 2>;
@@ -95,7 +98,9 @@ public:
 
     /// The nearest point of any segment within max_radius of `p`. Thread-safe.
     ClosestPoint2D closest(const Vec2d& p, double max_radius = Inf) const;
-    double distance(const Vec2d& p, double max_radius = Inf) const { return closest(p, max_radius).distance; }
+    /// Just the distance (Inf when nothing lies within max_radius): the same value as closest(p,
+    /// max_radius).distance, from a search that keeps no closest point.
+    double distance(const Vec2d& p, double max_radius = Inf) const;
 
     const std::vector<Vec2d>& points() const;
     const std::vector<Segment>& segments() const;
@@ -106,6 +111,13 @@ public:
 private:
     std::unique_ptr<Impl> m_impl;
 };
+
+namespace detail {
+/// Test hook: non-zero makes ClosestSegmentQuery's traversal deliberately wrong (1: it skips the farthest child of
+/// every node where several are within reach), so that tests can show that their brute-force check catches a
+/// broken BVH. Never set outside tests.
+extern int segment_bvh_fault;
+}  // namespace detail
 
 /// Closest point to `p` on the triangle (a, b, c) (Ericson's region tests; degenerate triangles handled as
 /// their longest edge or a point). Exposed for tests and for callers that measure single triangles.

@@ -1,7 +1,7 @@
 #pragma once
 // Shared pieces of the <boundary> plugins: 2D/3D bases (the plugin is its own distance provider), the
 // dimension parameter, point-in-polygon by crossings (even-odd: loops inside loops are holes) and a segment-set
-// provider over Embree's ClosestSegmentQuery.
+// provider over ClosestSegmentQuery (a segment BVH; include/kelvin/render/closest_point.h).
 #include <kelvin/core/properties.h>
 #include <kelvin/fluid/boundary.h>
 #include <kelvin/render/closest_point.h>
@@ -78,7 +78,7 @@ inline void arc_chords(Vec2d c, double r, double a0, double a1, double max_lengt
     for (int i = 0; i < k; ++i) out.push_back({at(i), at(i + 1)});
 }
 
-/// Segments as a distance provider: brute force below 32 segments, Embree's BVH above. The component of a
+/// Segments as a distance provider: brute force below 32 segments, ClosestSegmentQuery's BVH above. The component of a
 /// hit is the segment index.
 class SegmentSet {
 public:
@@ -90,9 +90,6 @@ public:
             m_lo = glm::min(m_lo, p);
             m_hi = glm::max(m_hi, p);
         }
-        const std::size_t stride = std::max<std::size_t>(1, m_segments.size() / 64);
-        for (std::size_t i = 0; m_query && i < m_segments.size(); i += stride)
-            m_samples.push_back(m_points[m_segments[i][0]]);
     }
     static SegmentSet from_loops(const std::vector<std::vector<Vec2d>>& loops, bool closed) {
         std::vector<Vec2d> pts;
@@ -108,16 +105,15 @@ public:
     }
 
     double distance(const Vec2d& p) const { return distance_within(p, Inf); }
-    /// min(distance, bound). With the BVH, the search radius starts at min(bound, the distance to the nearest of
-    /// up to 64 segment end points) (points of the boundary, so an upper bound), which prunes the traversal; a
-    /// query farther than `bound` from the bounding box runs no search. Exact either way.
+    /// min(distance, bound), exact either way. With the BVH (nearest child first), the search radius starts at
+    /// `bound`; a query farther than `bound` from the bounding box runs no search.
     double distance_within(const Vec2d& p, double bound) const {
         if (m_query) {
-            const Vec2d gap = glm::max(glm::max(m_lo - p, p - m_hi), Vec2d(0.0));
-            if (glm::length(gap) >= bound) return bound;
-            double upper = bound;
-            for (const Vec2d& v : m_samples) upper = std::min(upper, glm::length(p - v));
-            return std::min(bound, m_query->distance(p, upper * (1 + 1e-9) + 1e-300));
+            if (bound < Inf) {
+                const Vec2d gap = glm::max(glm::max(m_lo - p, p - m_hi), Vec2d(0.0));
+                if (glm::length(gap) >= bound) return bound;
+            }
+            return std::min(bound, m_query->distance(p, bound));
         }
         double d2 = Inf;
         for (const auto& s : m_segments) {
@@ -169,7 +165,6 @@ private:
     std::vector<ClosestSegmentQuery::Segment> m_segments;
     std::unique_ptr<ClosestSegmentQuery> m_query;
     Vec2d m_lo{Inf}, m_hi{-Inf};
-    std::vector<Vec2d> m_samples;  // segment end points that seed the BVH search radius
 };
 
 }  // namespace kelvin::fluid::boundaries

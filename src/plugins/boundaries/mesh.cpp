@@ -1,5 +1,5 @@
 // mesh: a triangle mesh or triangle soup from a nested <shape> (obj, ply, gltf, rectangle, cube, ...) as a
-// boundary, through Embree's closest-point queries (exact, unsigned distances).
+// boundary, through the BVHs of ClosestPointQuery / ClosestSegmentQuery (exact, unsigned distances).
 //
 //  * dimension 3: the triangles themselves (ClosestPointQuery). A closed, consistently oriented manifold (every
 //    edge shared by two triangles in opposite directions, vertices welded by position) knows its inside (sign by
@@ -173,16 +173,14 @@ class Mesh3 final : public Boundary3 {
 public:
     explicit Mesh3(const Properties& props) : Mesh3(props, read_triangles(props)) {}
     double distance(const Vec3d& p) const override { return distance_within(p, Inf); }
-    /// Exact, searched within min(bound, an upper bound): the distance to the nearest of up to 64 sample vertices
-    /// (points of the surface) seeds Embree's query radius, which prunes the BVH from far away; beyond the
-    /// bounding box by `bound` no query runs at all.
+    /// Exact, searched within `bound` by the query's own BVH (nearest child first, the radius seeded by the boxes'
+    /// MINMAXDIST); beyond the bounding box by `bound` no query runs at all.
     double distance_within(const Vec3d& p, double bound) const override {
-        const Vec3d gap = glm::max(glm::max(m_lo - p, p - m_hi), Vec3d(0.0));
-        if (glm::length(gap) >= bound) return bound;
-        double upper = bound;
-        for (const Vec3d& v : m_samples) upper = std::min(upper, glm::length(p - v));
-        const double d = m_query.distance(p, upper * (1 + 1e-9) + 1e-300);
-        return std::min(d, bound);
+        if (bound < Inf) {
+            const Vec3d gap = glm::max(glm::max(m_lo - p, p - m_hi), Vec3d(0.0));
+            if (glm::length(gap) >= bound) return bound;
+        }
+        return std::min(m_query.distance(p, bound), bound);
     }
     BoundaryHit<3> closest(const Vec3d& p) const override {
         const ClosestPoint c = m_query.closest(p);
@@ -208,11 +206,6 @@ private:
         if (m_query.primitive_count() == 0) props.error("shape", "the nested shape has no valid triangles");
         if (m_closed) build_pseudo_normals(g);
         std::tie(m_lo, m_hi) = m_query.bounds();
-        const std::size_t stride = std::max<std::size_t>(1, g.indices.size() / 64);
-        for (std::size_t i = 0; i < g.indices.size(); i += stride) {
-            const Vec3d v(g.positions[g.indices[i]]);
-            if (std::isfinite(v.x) && std::isfinite(v.y) && std::isfinite(v.z)) m_samples.push_back(v);
-        }
     }
 
     void build_pseudo_normals(const ShapeGeometry& g) {
@@ -286,7 +279,6 @@ private:
     bool m_closed = false;
     ClosestPointQuery m_query;
     Vec3d m_lo{0.0}, m_hi{0.0};
-    std::vector<Vec3d> m_samples;  // vertices of referenced triangles: distances to them bound the distance above
     std::vector<std::array<uint32_t, 3>> m_tri;
     std::vector<uint32_t> m_vertex_id;
     std::vector<Vec3d> m_face_normal, m_vertex_normal;
@@ -303,7 +295,7 @@ ObjectPtr make_mesh(const Properties& props) {
 
 static const kelvin::PluginRegistrar kelvin_boundary_mesh(
     "boundary", "mesh",
-    "Triangle mesh or soup from a nested <shape> via Embree closest-point queries (2D: planar union of triangles).",
+    "Triangle mesh or soup from a nested <shape> via exact closest-point queries (2D: planar union of triangles).",
     kelvin::fluid::with_boundary_params(
         {kelvin::param::integer("dimension", 2, "2 (triangles in the plane z = 0) or 3"),
          kelvin::param::object("shape", "shape", "a triangle shape (obj, ply, gltf, rectangle, ...)", true)}),

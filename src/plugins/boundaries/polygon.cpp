@@ -1,5 +1,5 @@
 // polygon: a closed 2D polygon given inline, as a solid (or, with fluid = "inside", a container). Exact
-// distance to its edges (brute force for small polygons, Embree's BVH from 32 edges on); inside by the
+// distance to its edges (brute force for small polygons, a segment BVH from 32 edges on); inside by the
 // even-odd rule. Either orientation; self-intersections are allowed (even-odd decides).
 //
 // | parameter | type   | default  | meaning                                         |

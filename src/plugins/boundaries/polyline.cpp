@@ -1,6 +1,6 @@
 // polyline: 2D segments from an OBJ-style file ('v x y [z]' vertices, 'l i j k ...' polylines, 1-based or
-// negative indices, '#' comments) or inline points, through Embree's closest-segment queries (exact distance).
-// Open polylines and segment soups give unsigned distances only (the fluid flows on both sides); `closed`
+// negative indices, '#' comments) or inline points, through ClosestSegmentQuery's segment BVH (exact
+// distance). Open polylines and segment soups give unsigned distances only (the fluid flows on both sides); `closed`
 // joins each polyline's ends and adds an inside by the even-odd rule (loops inside loops are holes), so a
 // closed outline can also be a container (fluid = "inside": the bunny scene).
 //
@@ -133,7 +133,7 @@ private:
 }  // namespace kelvin::fluid::boundaries
 
 KELVIN_BOUNDARY_PLUGIN(kelvin::fluid::boundaries::Polyline, "polyline",
-                       "2D polylines (OBJ 'v'/'l' file or inline points) via Embree closest-segment queries.",
+                       "2D polylines (OBJ 'v'/'l' file or inline points) via exact closest-segment queries.",
                        kelvin::param::string("filename", "", "OBJ-style polyline file ('v x y', 'l i j ...')"),
                        kelvin::param::string("points", "", "inline \"x y, x y, ...\" instead of a file"),
                        kelvin::param::boolean("closed", false, "join ends; the shape gets an inside (even-odd)"),

@@ -3,7 +3,7 @@
 //
 // Distance: |phi(p)| (trilinear, BoxSampler) inside the narrow band. Outside it phi is the background value (a lower
 // bound of the distance, but a small one: a walk through the interior of a container would crawl), so points
-// whose voxel lies in no leaf node also get the distance to the nearest leaf node's box (Embree closest-point
+// whose voxel lies in no leaf node also get the distance to the nearest leaf node's box (a closest-point
 // query over the leaves' boxes) minus sqrt(3) voxels (the zero set lies within one voxel diagonal of an active
 // voxel); the larger of the two is used. Lower bounds keep Walk-on-Spheres unbiased (smaller spheres).
 // Interpolation is not an exact distance: near the surface the error is O(h^2 curvature), i.e. a walk may step
@@ -11,7 +11,7 @@
 // Closest point: p - phi grad(phi) / |grad(phi)| (central differences over half a voxel).
 // 2D signed grids do better: the zero contour of the slice is extracted once by marching squares on a lattice of
 // voxel spacing (its error is O(h^2 curvature), the order of the interpolation's) and distances, closest points
-// and the component are those of that polyline (Embree closest-segment queries: exact, fast); inside is phi < 0.
+// and the component are those of that polyline (ClosestSegmentQuery: exact, fast); inside is phi < 0.
 // signed = true: phi < 0 is inside (OpenVDB's level-set convention); signed = false: unsigned distance input,
 // no inside (the fluid flows on both sides of a thin sheet); since the trilinear interpolation of an unsigned
 // distance never reaches zero at the surface, |phi| - sqrt(3) voxels is used (a lower bound that does): walks stop
