@@ -217,6 +217,22 @@ BENCHMARK_CAPTURE(BM_VortexParticlesStep, open_euler, false, Advection::Euler)
     ->Arg(128)
     ->Unit(benchmark::kMillisecond)
     ->UseRealTime();
+// Issue 16's grids for every baseline: 128^2, 256^2 and 512^2 particles (one per cell), RK4, the tree on the open
+// box and on the periodic one (one step each: a 512^2 RK4 step is four sums over 262 144 particles).
+BENCHMARK_CAPTURE(BM_VortexParticlesStep, open_rk4, false, Advection::RK4)
+    ->Arg(128)
+    ->Arg(256)
+    ->Arg(512)
+    ->Unit(benchmark::kMillisecond)
+    ->MeasureProcessCPUTime()
+    ->Iterations(1);
+BENCHMARK_CAPTURE(BM_VortexParticlesStep, periodic_tree_rk4, true, Advection::RK4)
+    ->Arg(128)
+    ->Arg(256)
+    ->Arg(512)
+    ->Unit(benchmark::kMillisecond)
+    ->MeasureProcessCPUTime()
+    ->Iterations(1);
 BENCHMARK_CAPTURE(BM_VortexParticleSum, tree, ParticleSummation::Tree, false)
     ->Arg(64)
     ->Arg(128)
