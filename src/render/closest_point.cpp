@@ -758,9 +758,7 @@ struct ClosestSegmentQuery::Impl {
 
 /// Test hook (tests/render/test_closest_point.cpp): a non-zero value makes the 2D traversal deliberately wrong
 /// (1: it drops the farthest of the children it should visit), to show that the brute-force test catches it.
-namespace detail {
-int segment_bvh_fault = 0;
-}
+int ClosestSegmentQuery::traversal_fault = 0;
 
 uint32_t ClosestSegmentQuery::Impl::flatten(const BuildItem* item, int level) {
     depth = std::max(depth, level);
@@ -1082,8 +1080,8 @@ ClosestPoint2D ClosestSegmentQuery::closest(const Vec2d& p, double max_radius) c
     const Impl& m = *m_impl;
     if (!valid(p.x) || !valid(p.y) || !(max_radius >= 0) || m.valid_count == 0) return best;
     uint32_t seg = 0;
-    const double d2 =
-        detail::segment_bvh_fault ? m.search<true, 1>(p, max_radius, seg) : m.search<true, 0>(p, max_radius, seg);
+    const double d2 = ClosestSegmentQuery::traversal_fault ? m.search<true, 1>(p, max_radius, seg)
+                                                           : m.search<true, 0>(p, max_radius, seg);
     if (!(d2 < Inf)) return best;
     const Vec2d a = m.points[m.segments[seg][0]], b = m.points[m.segments[seg][1]];
     double t;
@@ -1106,8 +1104,8 @@ double ClosestSegmentQuery::distance(const Vec2d& p, double max_radius) const {
     const Impl& m = *m_impl;
     if (!valid(p.x) || !valid(p.y) || !(max_radius >= 0) || m.valid_count == 0) return Inf;
     uint32_t seg = 0;
-    const double d2 =
-        detail::segment_bvh_fault ? m.search<false, 1>(p, max_radius, seg) : m.search<false, 0>(p, max_radius, seg);
+    const double d2 = ClosestSegmentQuery::traversal_fault ? m.search<false, 1>(p, max_radius, seg)
+                                                           : m.search<false, 0>(p, max_radius, seg);
     const double dist = std::sqrt(d2);
     return dist <= max_radius ? dist : Inf;
 }

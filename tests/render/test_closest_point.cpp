@@ -623,7 +623,7 @@ int segment_failures(const ClosestSegmentQuery& query, const SegmentCase& c, con
         const double at_segment = glm::length(p - closest_point_on_segment(p, c.points[s[0]], c.points[s[1]]));
         const bool ok = d <= truth && d >= truth * (1 - 1e-6) && r.found && r.distance <= truth &&
                         r.distance >= truth * (1 - 1e-6) && at_segment == r.distance;
-        if (!ok && ++failures <= 3 && !detail::segment_bvh_fault)
+        if (!ok && ++failures <= 3 && !ClosestSegmentQuery::traversal_fault)
             ADD_FAILURE() << "p = (" << p.x << ", " << p.y << "): brute force " << truth << ", distance " << d
                           << ", closest " << r.distance << " (segment " << r.segment << " at " << at_segment << ")";
     }
@@ -650,9 +650,9 @@ TEST(ClosestSegment, BrokenTraversalFailsTheBruteForceCheck) {
     const SegmentCase c = segment_case(1.0, Vec2d(0.0), 1);
     const ClosestSegmentQuery query(c.points, c.segments);
     const std::vector<Vec2d> queries = segment_queries(c, 1.0, Vec2d(0.0), 1);
-    detail::segment_bvh_fault = 1;
+    ClosestSegmentQuery::traversal_fault = 1;
     const int broken = segment_failures(query, c, queries);
-    detail::segment_bvh_fault = 0;
+    ClosestSegmentQuery::traversal_fault = 0;
     EXPECT_GT(broken, 10) << "a traversal that skips children went unnoticed";
     EXPECT_EQ(segment_failures(query, c, queries), 0);
 }

@@ -108,16 +108,15 @@ public:
 
     struct Impl;  ///< opaque (Embree state, defined in closest_point.cpp)
 
+    /// Test hook: non-zero makes the traversal deliberately wrong (1: it skips the farthest child of every node where
+    /// several are within reach), so that tests can show that their brute-force check catches a broken BVH. Never set
+    /// outside tests. (A static member, not a kelvin::detail name: `detail::` must stay unambiguous in code that
+    /// uses both kelvin and kelvin::wos.)
+    static int traversal_fault;
+
 private:
     std::unique_ptr<Impl> m_impl;
 };
-
-namespace detail {
-/// Test hook: non-zero makes ClosestSegmentQuery's traversal deliberately wrong (1: it skips the farthest child of
-/// every node where several are within reach), so that tests can show that their brute-force check catches a
-/// broken BVH. Never set outside tests.
-extern int segment_bvh_fault;
-}  // namespace detail
 
 /// Closest point to `p` on the triangle (a, b, c) (Ericson's region tests; degenerate triangles handled as
 /// their longest edge or a point). Exposed for tests and for callers that measure single triangles.
