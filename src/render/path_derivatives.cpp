@@ -5,6 +5,7 @@
 #include <kelvin/render/bsdf.h>
 #include <kelvin/render/integrator.h>
 #include <kelvin/render/mesh.h>
+#include <kelvin/render/microfacet.h>
 #include <kelvin/render/path_derivatives.h>
 #include <kelvin/render/pss.h>
 #include <kelvin/render/scene.h>
@@ -81,13 +82,15 @@ template <class T>
 V3<T> operator*(const V3<T>& a, const T& s) {
     return {a.x * s, a.y * s, a.z * s};
 }
+// Products of two constants have empty derivative vectors; Eigen's AutoDiffScalar resizes an empty plain operand to
+// match the other one, but not an empty expression, so each product is evaluated (T) before the sum.
 template <class T>
 T dot(const V3<T>& a, const V3<T>& b) {
-    return a.x * b.x + a.y * b.y + a.z * b.z;
+    return T(a.x * b.x) + T(a.y * b.y) + T(a.z * b.z);
 }
 template <class T>
 V3<T> cross(const V3<T>& a, const V3<T>& b) {
-    return {a.y * b.z - a.z * b.y, a.z * b.x - a.x * b.z, a.x * b.y - a.y * b.x};
+    return {T(a.y * b.z) - T(a.z * b.y), T(a.z * b.x) - T(a.x * b.z), T(a.x * b.y) - T(a.y * b.x)};
 }
 template <class T>
 V3<T> constant(const Vec3d& v) {
@@ -226,37 +229,79 @@ C3<T> fresnel_conductor(const T& cos_i, const Color3& eta, const Color3& k) {
             fresnel_conductor(cos_i, eta.b, k.b)};
 }
 
-// GGX (render/microfacet.cpp): D, Smith G1, the density of visible normals and Heitz's 2018 sampling.
+// A function known by its value f0 and first two derivatives f1, f2 at x's value, applied to x: the value, gradient
+// and Hessian are exact (the second-order Taylor polynomial around the value; its deviation is O(dx^3), invisible to
+// forward-over-forward derivatives of order two). In plain doubles it is f0.
 template <class T>
-T ggx_D(const V3<T>& m, double au, double av) {
+T lift2(const T& x, double f0, double f1, double f2) {
+    const T dx = x - T(val(x));
+    return T(f0) + dx * (T(f1) + T(0.5 * f2) * dx);
+}
+constexpr double kInvSqrtPi = 0.56418958354775628695;  // 1 / sqrt(pi)
+template <class T>
+T erf_t(const T& x) {
+    const double v = val(x), d = 2 * kInvSqrtPi * std::exp(-v * v);
+    return lift2(x, std::erf(v), d, -2 * v * d);
+}
+template <class T>
+T erfc_t(const T& x) {
+    const double v = val(x), d = 2 * kInvSqrtPi * std::exp(-v * v);
+    return lift2(x, std::erfc(v), -d, 2 * v * d);
+}
+
+// Microfacet distributions (render/microfacet.cpp), Beckmann and GGX, anisotropic: D, Smith's Lambda and G1, the
+// density of sampled normals and both ways of sampling them, for the model's distribution.
+template <class T>
+T mf_D(const V3<T>& m, const Bsdf::Model& b) {
+    using std::exp;
     if (!(val(m.z) > 0)) return T(0.0);
+    const double au = b.alpha_u, av = b.alpha_v;
     const T x = m.x / T(au), y = m.y / T(av), z2 = m.z * m.z;
-    const T t = x * x + y * y + z2;
-    const T r = T(1.0) / (T(Pi * au * av) * t * t);
+    T r;
+    if (b.ggx) {
+        const T t = T(x * x) + T(y * y) + z2;
+        r = T(1.0) / (T(Pi * au * av) * t * t);
+    } else {
+        const T z4 = z2 * z2;
+        if (!(val(z4) > 0)) return T(0.0);
+        r = T(exp(T(-(T(x * x) + T(y * y)) / z2))) / T(T(Pi * au * av) * z4);
+    }
     return std::isfinite(val(r)) ? r : T(0.0);
 }
 template <class T>
-T ggx_G1(const V3<T>& w, const V3<T>& m, double au, double av) {
+T mf_G1(const V3<T>& w, const V3<T>& m, const Bsdf::Model& b) {
+    using std::exp;
     using std::sqrt;
     if (!(val(dot(w, m)) * val(w.z) > 0)) return T(0.0);
+    const double au = b.alpha_u, av = b.alpha_v;
     const T z2 = w.z * w.z;
     if (!(val(z2) > 0)) return T(0.0);
-    const T a2t2 = (T(au * au) * w.x * w.x + T(av * av) * w.y * w.y) / z2;
+    const T a2t2 = (T(T(au * au) * w.x * w.x) + T(T(av * av) * w.y * w.y)) / z2;
     if (!(val(a2t2) > 0)) return T(1.0);
     if (!std::isfinite(val(a2t2))) return T(0.0);
-    const T lambda = a2t2 / (T(2.0) * (sqrt(T(1.0) + a2t2) + T(1.0)));
+    T lambda;
+    if (b.ggx) {
+        lambda = a2t2 / (T(2.0) * (sqrt(T(1.0) + a2t2) + T(1.0)));
+    } else {
+        const T a = T(1.0) / sqrt(a2t2);  // 1 / (alpha tan theta)
+        lambda = T(0.5) * (T(exp(T(-a * a))) * T(kInvSqrtPi) / a - erfc_t(a));
+    }
+    if (!std::isfinite(val(lambda))) return T(0.0);
+    if (val(lambda) < 0) lambda = T(0.0);
     return T(1.0) / (T(1.0) + lambda);
 }
 template <class T>
-T ggx_pdf(const V3<T>& wi, const V3<T>& m, double au, double av) {
+T mf_pdf(const V3<T>& wi, const V3<T>& m, const Bsdf::Model& b) {
     if (!(val(wi.z) > 0) || !(val(m.z) > 0)) return T(0.0);
+    if (!b.sample_visible) return mf_D(m, b) * m.z;
     const T c = dot(wi, m);
     if (!(val(c) > 0)) return T(0.0);
-    const T r = ggx_G1(wi, m, au, av) * c * ggx_D(m, au, av) / wi.z;
+    const T r = mf_G1(wi, m, b) * c * mf_D(m, b) / wi.z;
     return std::isfinite(val(r)) ? r : T(0.0);
 }
+// Heitz 2018's visible GGX normals.
 template <class T>
-V3<T> ggx_sample(const V3<T>& wi, const T& u0, const T& u1, double au, double av) {
+V3<T> ggx_visible_sample(const V3<T>& wi, const T& u0, const T& u1, double au, double av) {
     using std::cos;
     using std::sin;
     using std::sqrt;
@@ -276,11 +321,107 @@ V3<T> ggx_sample(const V3<T>& wi, const T& u0, const T& u1, double au, double av
     const V3<T> nh = t1 * p1 + t2 * p2 + vh * safe_sqrt(T(T(1.0) - p1 * p1 - p2 * p2));
     return normalize_or_zero(V3<T>{T(au) * nh.x, T(av) * nh.y, val(nh.z) > 0 ? nh.z : T(0.0)});
 }
+// Heitz and d'Eon 2014's visible Beckmann normals. The renderer inverts the visible-slope CDF
+//   C(x) = cos theta (1 + erf x) / 2 + sin theta exp(-x^2) / (2 sqrt(pi)) = u0 C(hi)
+// and draws y = erf^-1(2 u1 - 1) iteratively; its normal at the point gives both slopes (x0, y0). Two Newton steps,
+// in T from the constant (x0, y0), on those equations shifted to pass exactly through (x0, y0) (each residual minus
+// its value) carry the derivatives of the implicit function: the first step its exact gradient, the second its exact
+// Hessian (the error after k steps is O(|du|^(2^k))). The value stays the renderer's: near the top of the CDF, where
+// C' vanishes, its iteration stops short of the root, and plain Newton steps from there can run off.
+template <class T>
+V3<T> beckmann_visible_sample(const V3<T>& wi, const T& u0, const T& u1, double au, double av) {
+    using std::exp;
+    using std::sqrt;
+    const V3<T> zero{T(0.0), T(0.0), T(0.0)};
+    const MicrofacetDistribution distr(MicrofacetType::Beckmann, au, av, true);
+    const Vec3d m0 = distr.sample(value(wi), Vec2d(val(u0), val(u1)));
+    if (!(m0.z > 0)) return zero;
+    const V3<T> ws = normalize(V3<T>{T(au) * wi.x, T(av) * wi.y, wi.z});
+    const T cos_t = ws.z;
+    T sin_t(0.0), cphi(1.0), sphi(0.0);
+    if (val(ws.x * ws.x + ws.y * ws.y) > 0) {
+        sin_t = sqrt(T(T(ws.x * ws.x) + T(ws.y * ws.y)));
+        cphi = ws.x / sin_t;
+        sphi = ws.y / sin_t;
+    }
+    // The renderer's slopes: (sx, sy) = (-m.x / m.z, -m.y / m.z), unstretched, rotated back by -phi.
+    const double gx = -m0.x / m0.z / au, gy = -m0.y / m0.z / av, c = val(cphi), s = val(sphi);
+    const double x0 = c * gx + s * gy, y0 = -s * gx + c * gy;
+    const bool cot = val(sin_t) > 0 && val(cos_t) < 6.0 * val(sin_t);
+    const T hi = cot ? T(cos_t / sin_t) : T(6.0);
+    auto C = [&](const T& x) -> T {
+        const T e = exp(T(-x * x));
+        return T(T(0.5) * cos_t * erfc_t(T(-x))) + T(T(0.5) * sin_t * T(kInvSqrtPi) * e);
+    };
+    T x(x0);
+    if (x0 > -6.0 + 1e-9 && (cot || x0 < 6.0 - 1e-9)) {  // not at the renderer's clamp
+        const T target = u0 * C(hi);
+        for (int it = 0; it < 2; ++it) {
+            const T e = exp(T(-x * x));
+            const T d1 = T(cos_t - x * sin_t) * e * T(kInvSqrtPi);
+            if (!(val(d1) > 0)) break;
+            const T r = C(x) - target;
+            x = x - T(r - T(val(r))) / d1;
+        }
+    }
+    // y = erf^-1(2 u1 - 1), as erfc(-y) = 2 u1 for y < 0 and erfc(y) = 2 (1 - u1) otherwise (precise in the tails).
+    T y(y0);
+    if (std::abs(y0) < 6.0 - 1e-9) {
+        for (int it = 0; it < 2; ++it) {
+            const T e = exp(T(-y * y));
+            const T d = T(2 * kInvSqrtPi) * e;
+            if (!(val(d) > 0)) break;
+            if (y0 < 0) {
+                const T r = erfc_t(T(-y)) - T(2.0) * u1;
+                y = y - T(r - T(val(r))) / d;
+            } else {
+                const T r = erfc_t(y) - T(2.0) * (T(1.0) - u1);
+                y = y + T(r - T(val(r))) / d;
+            }
+        }
+    }
+    const T sx = (T(cphi * x) - T(sphi * y)) * T(au), sy = (T(sphi * x) + T(cphi * y)) * T(av);
+    return normalize_or_zero(V3<T>{T(-sx), T(-sy), T(1.0)});
+}
+// Walter et al.'s sampling of all normals, D(m) cos theta_m (MicrofacetDistribution::sample_all).
+template <class T>
+V3<T> mf_sample_all(const T& u0, const T& u1, const Bsdf::Model& b) {
+    using std::cos;
+    using std::log;
+    using std::sin;
+    using std::sqrt;
+    const double au = b.alpha_u, av = b.alpha_v;
+    T cphi, sphi, inv_a2;
+    if (au == av) {
+        const T phi = T(2 * Pi) * u1;
+        cphi = cos(phi);
+        sphi = sin(phi);
+        inv_a2 = T(1.0 / (au * au));
+    } else {
+        // phi = atan2(av sin(2 pi u), au cos(2 pi u)): its cosine and sine directly.
+        const T a = T(av) * sin(T(T(2 * Pi) * u1)), c = T(au) * cos(T(T(2 * Pi) * u1));
+        const T r = sqrt(T(T(a * a) + T(c * c)));
+        cphi = c / r;
+        sphi = a / r;
+        const T cc = cphi / T(au), ss = sphi / T(av);
+        inv_a2 = T(cc * cc) + T(ss * ss);
+    }
+    const T v = val(u0) < 1.0 - 1e-16 ? u0 : T(1.0 - 1e-16);
+    const T tan2 = b.ggx ? T(v / ((T(1.0) - v) * inv_a2)) : T(-log(T(T(1.0) - v)) / inv_a2);
+    const T cos_t = T(1.0) / sqrt(T(T(1.0) + tan2)), sin_t = safe_sqrt(T(T(1.0) - cos_t * cos_t));
+    return {sin_t * cphi, sin_t * sphi, cos_t};
+}
+template <class T>
+V3<T> mf_sample(const V3<T>& wi, const T& u0, const T& u1, const Bsdf::Model& b) {
+    if (!b.sample_visible) return mf_sample_all(u0, u1, b);
+    if (!(val(wi.z) > 0)) return {T(0.0), T(0.0), T(0.0)};
+    return b.ggx ? ggx_visible_sample(wi, u0, u1, b.alpha_u, b.alpha_v)
+                 : beckmann_visible_sample(wi, u0, u1, b.alpha_u, b.alpha_v);
+}
 // RoughConductor::eval_reflection: f cos(theta_o) for a reflection about m.
 template <class T>
 C3<T> rough_reflection(const Bsdf::Model& b, const V3<T>& wi, const V3<T>& wo, const V3<T>& m) {
-    const T D = ggx_D(m, b.alpha_u, b.alpha_v),
-            G = ggx_G1(wi, m, b.alpha_u, b.alpha_v) * ggx_G1(wo, m, b.alpha_u, b.alpha_v);
+    const T D = mf_D(m, b), G = mf_G1(wi, m, b) * mf_G1(wo, m, b);
     const T s = D * G / (T(4.0) * wi.z);
     if (!(val(s) > 0) || !std::isfinite(val(s))) return {T(0.0), T(0.0), T(0.0)};
     return fresnel_conductor(dot(wi, m), b.eta, b.k) * b.reflectance * s;
@@ -492,8 +633,8 @@ PathDerivativeStatus PathDerivatives::Impl::run(Reader& rd, T& log_pi) const {
         const Bsdf& bsdf = *si.shape->bsdf();
         const Bsdf::Model model = bsdf.model();
         using Kind = Bsdf::Model::Kind;
-        if (model.kind == Kind::None) return S::Unsupported;
-        if (model.kind == Kind::RoughConductor && (!model.ggx || !model.sample_visible)) return S::Unsupported;
+        if (model.kind != Kind::Diffuse && model.kind != Kind::Conductor && model.kind != Kind::RoughConductor)
+            return S::Unsupported;
         const Color3 R = model.reflectance;
         const T u_light = rd.read();
         const T u_l0 = rd.read(), u_l1 = rd.read();
@@ -520,7 +661,7 @@ PathDerivativeStatus PathDerivatives::Impl::run(Reader& rd, T& log_pi) const {
             if (val(h.z) <= 0) return zero;
             const T wo_h = dot(wo, h);
             if (val(wo_h) > 0) {
-                const T p = ggx_pdf(wi, h, model.alpha_u, model.alpha_v) / (T(4.0) * wo_h);
+                const T p = mf_pdf(wi, h, model) / (T(4.0) * wo_h);
                 if (std::isfinite(val(p))) pdf = p;
             }
             return rough_reflection(model, wi, wo, h);
@@ -622,8 +763,8 @@ PathDerivativeStatus PathDerivatives::Impl::run(Reader& rd, T& log_pi) const {
             prev_delta = true;
             prev_bsdf_pdf = T(1.0);
         } else {  // RoughConductor::sample
-            const V3<T> m = ggx_sample(wi, u_d0, u_d1, model.alpha_u, model.alpha_v);
-            const T pm = ggx_pdf(wi, m, model.alpha_u, model.alpha_v);
+            const V3<T> m = mf_sample(wi, u_d0, u_d1, model);
+            const T pm = mf_pdf(wi, m, model);
             wo = m * T(T(2.0) * dot(wi, m)) - wi;
             const T pdf = pm / (T(4.0) * dot(wo, m));
             const C3<T> f = rough_reflection(model, wi, wo, m);

@@ -88,11 +88,13 @@ void expect_matches_finite_differences(const PathSetup& S, int wanted_points) {
         ++points;
         double lv2 = 0;
         ASSERT_EQ(D.log_value(x.data(), len, &lv2), PathDerivativeStatus::Ok);
-        EXPECT_NEAR(lv2, std::log(pi), 1e-5);
         EXPECT_NEAR(lv, lv2, 1e-10);
-        // Gradient against central differences of the log value.
         double gmax = 0;
         for (double v : g) gmax = std::max(gmax, std::abs(v));
+        // The renderer's hit points come from Embree's float t: equal to about 1e-7, which moves log pi by up to about
+        // 1e-7 times its gradient (large on the tail of a narrow Beckmann lobe). 1e-4 is evaluate()'s Mismatch bound.
+        EXPECT_NEAR(lv2, std::log(pi), std::min(1e-4, 1e-5 + 1e-6 * gmax)) << "max |gradient| " << gmax;
+        // Gradient against central differences of the log value.
         auto fd = [&](int i, double h) {
             std::vector<double> a = x, b = x;
             a[std::size_t(i)] += h;
@@ -179,6 +181,54 @@ TEST(PathDerivatives, MatchFiniteDifferencesWithConductors) {
         </transform>
         <ref id="white"/>)",
                         R"(<translate x="0.35" y="0.3" z="0.32"/></transform>)" + mirror}});
+    expect_matches_finite_differences(S, 16);
+}
+
+// The Cornell box with its back wall, tall box and short box replaced by the given BSDFs (XML).
+PathSetup cornell_with(const std::string& back, const std::string& tall, const std::string& short_box,
+                       int max_depth = 6) {
+    return PathSetup("cornell-box.xml", max_depth,
+                     {{R"(<transform name="to_world"><translate y="1" z="-1"/></transform>
+        <ref id="white"/>)",
+                       R"(<transform name="to_world"><translate y="1" z="-1"/></transform>)" + back},
+                      {R"(<translate x="-0.33" y="0.6" z="-0.28"/>
+        </transform>
+        <ref id="white"/>)",
+                       R"(<translate x="-0.33" y="0.6" z="-0.28"/></transform>)" + tall},
+                      {R"(<translate x="0.35" y="0.3" z="0.32"/>
+        </transform>
+        <ref id="white"/>)",
+                       R"(<translate x="0.35" y="0.3" z="0.32"/></transform>)" + short_box}});
+}
+
+// Beckmann conductors with visible-normal sampling (Heitz and d'Eon 2014: the renderer's Halley iteration on the
+// visible-slope CDF and erf^-1, differentiated by two Newton steps from its answer): the tall box a rough copper
+// (alpha 0.15), the back wall an anisotropic gold (alpha_u 0.3, alpha_v 0.08), the short box a rougher aluminium
+// (alpha 0.4). Broken variants seen to fail: the slopes held at the renderer's values (no Newton steps: the
+// finite-difference check fails on the direction coordinates), one Newton step only (Hessian entries off), and
+// Beckmann's Lambda with erfc held constant.
+TEST(PathDerivatives, MatchFiniteDifferencesWithBeckmann) {
+    const PathSetup S = cornell_with(
+        R"(<bsdf type="roughconductor"><string name="material" value="Au"/><float name="alpha_u" value="0.3"/>)"
+        R"(<float name="alpha_v" value="0.08"/></bsdf>)",
+        R"(<bsdf type="roughconductor"><string name="material" value="Cu"/><float name="alpha" value="0.15"/></bsdf>)",
+        R"(<bsdf type="roughconductor"><string name="material" value="Al"/><float name="alpha" value="0.4"/></bsdf>)");
+    expect_matches_finite_differences(S, 16);
+}
+
+// sample_visible = false (Walter et al.'s sampling of D(m) cos theta_m, with the anisotropic azimuth): Beckmann and
+// GGX, isotropic and anisotropic.
+TEST(PathDerivatives, MatchFiniteDifferencesWithoutVisibleNormalSampling) {
+    const std::string all = R"(<boolean name="sample_visible" value="false"/>)";
+    const PathSetup S = cornell_with(
+        R"(<bsdf type="roughconductor"><string name="material" value="Au"/><float name="alpha_u" value="0.3"/>)"
+        R"(<float name="alpha_v" value="0.1"/>)" +
+            all + "</bsdf>",
+        R"(<bsdf type="roughconductor"><string name="distribution" value="ggx"/><string name="material" value="Cu"/>)"
+        R"(<float name="alpha_u" value="0.1"/><float name="alpha_v" value="0.25"/>)" +
+            all + "</bsdf>",
+        R"(<bsdf type="roughconductor"><string name="material" value="Al"/><float name="alpha" value="0.2"/>)" + all +
+            "</bsdf>");
     expect_matches_finite_differences(S, 16);
 }
 
