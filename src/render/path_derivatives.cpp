@@ -5,6 +5,7 @@
 #include <kelvin/render/bsdf.h>
 #include <kelvin/render/integrator.h>
 #include <kelvin/render/mesh.h>
+#include <kelvin/render/microfacet.h>
 #include <kelvin/render/path_derivatives.h>
 #include <kelvin/render/pss.h>
 #include <kelvin/render/scene.h>
@@ -81,13 +82,15 @@ template <class T>
 V3<T> operator*(const V3<T>& a, const T& s) {
     return {a.x * s, a.y * s, a.z * s};
 }
+// Products of two constants have empty derivative vectors; Eigen's AutoDiffScalar resizes an empty plain operand to
+// match the other one, but not an empty expression, so each product is evaluated (T) before the sum.
 template <class T>
 T dot(const V3<T>& a, const V3<T>& b) {
-    return a.x * b.x + a.y * b.y + a.z * b.z;
+    return T(a.x * b.x) + T(a.y * b.y) + T(a.z * b.z);
 }
 template <class T>
 V3<T> cross(const V3<T>& a, const V3<T>& b) {
-    return {a.y * b.z - a.z * b.y, a.z * b.x - a.x * b.z, a.x * b.y - a.y * b.x};
+    return {T(a.y * b.z) - T(a.z * b.y), T(a.z * b.x) - T(a.x * b.z), T(a.x * b.y) - T(a.y * b.x)};
 }
 template <class T>
 V3<T> constant(const Vec3d& v) {
@@ -226,37 +229,79 @@ C3<T> fresnel_conductor(const T& cos_i, const Color3& eta, const Color3& k) {
             fresnel_conductor(cos_i, eta.b, k.b)};
 }
 
-// GGX (render/microfacet.cpp): D, Smith G1, the density of visible normals and Heitz's 2018 sampling.
+// A function known by its value f0 and first two derivatives f1, f2 at x's value, applied to x: the value, gradient
+// and Hessian are exact (the second-order Taylor polynomial around the value; its deviation is O(dx^3), invisible to
+// forward-over-forward derivatives of order two). In plain doubles it is f0.
 template <class T>
-T ggx_D(const V3<T>& m, double au, double av) {
+T lift2(const T& x, double f0, double f1, double f2) {
+    const T dx = x - T(val(x));
+    return T(f0) + dx * (T(f1) + T(0.5 * f2) * dx);
+}
+constexpr double kInvSqrtPi = 0.56418958354775628695;  // 1 / sqrt(pi)
+template <class T>
+T erf_t(const T& x) {
+    const double v = val(x), d = 2 * kInvSqrtPi * std::exp(-v * v);
+    return lift2(x, std::erf(v), d, -2 * v * d);
+}
+template <class T>
+T erfc_t(const T& x) {
+    const double v = val(x), d = 2 * kInvSqrtPi * std::exp(-v * v);
+    return lift2(x, std::erfc(v), -d, 2 * v * d);
+}
+
+// Microfacet distributions (render/microfacet.cpp), Beckmann and GGX, anisotropic: D, Smith's Lambda and G1, the
+// density of sampled normals and both ways of sampling them, for the model's distribution.
+template <class T>
+T mf_D(const V3<T>& m, const Bsdf::Model& b) {
+    using std::exp;
     if (!(val(m.z) > 0)) return T(0.0);
+    const double au = b.alpha_u, av = b.alpha_v;
     const T x = m.x / T(au), y = m.y / T(av), z2 = m.z * m.z;
-    const T t = x * x + y * y + z2;
-    const T r = T(1.0) / (T(Pi * au * av) * t * t);
+    T r;
+    if (b.ggx) {
+        const T t = T(x * x) + T(y * y) + z2;
+        r = T(1.0) / (T(Pi * au * av) * t * t);
+    } else {
+        const T z4 = z2 * z2;
+        if (!(val(z4) > 0)) return T(0.0);
+        r = T(exp(T(-(T(x * x) + T(y * y)) / z2))) / T(T(Pi * au * av) * z4);
+    }
     return std::isfinite(val(r)) ? r : T(0.0);
 }
 template <class T>
-T ggx_G1(const V3<T>& w, const V3<T>& m, double au, double av) {
+T mf_G1(const V3<T>& w, const V3<T>& m, const Bsdf::Model& b) {
+    using std::exp;
     using std::sqrt;
     if (!(val(dot(w, m)) * val(w.z) > 0)) return T(0.0);
+    const double au = b.alpha_u, av = b.alpha_v;
     const T z2 = w.z * w.z;
     if (!(val(z2) > 0)) return T(0.0);
-    const T a2t2 = (T(au * au) * w.x * w.x + T(av * av) * w.y * w.y) / z2;
+    const T a2t2 = (T(T(au * au) * w.x * w.x) + T(T(av * av) * w.y * w.y)) / z2;
     if (!(val(a2t2) > 0)) return T(1.0);
     if (!std::isfinite(val(a2t2))) return T(0.0);
-    const T lambda = a2t2 / (T(2.0) * (sqrt(T(1.0) + a2t2) + T(1.0)));
+    T lambda;
+    if (b.ggx) {
+        lambda = a2t2 / (T(2.0) * (sqrt(T(1.0) + a2t2) + T(1.0)));
+    } else {
+        const T a = T(1.0) / sqrt(a2t2);  // 1 / (alpha tan theta)
+        lambda = T(0.5) * (T(exp(T(-a * a))) * T(kInvSqrtPi) / a - erfc_t(a));
+    }
+    if (!std::isfinite(val(lambda))) return T(0.0);
+    if (val(lambda) < 0) lambda = T(0.0);
     return T(1.0) / (T(1.0) + lambda);
 }
 template <class T>
-T ggx_pdf(const V3<T>& wi, const V3<T>& m, double au, double av) {
+T mf_pdf(const V3<T>& wi, const V3<T>& m, const Bsdf::Model& b) {
     if (!(val(wi.z) > 0) || !(val(m.z) > 0)) return T(0.0);
+    if (!b.sample_visible) return mf_D(m, b) * m.z;
     const T c = dot(wi, m);
     if (!(val(c) > 0)) return T(0.0);
-    const T r = ggx_G1(wi, m, au, av) * c * ggx_D(m, au, av) / wi.z;
+    const T r = mf_G1(wi, m, b) * c * mf_D(m, b) / wi.z;
     return std::isfinite(val(r)) ? r : T(0.0);
 }
+// Heitz 2018's visible GGX normals.
 template <class T>
-V3<T> ggx_sample(const V3<T>& wi, const T& u0, const T& u1, double au, double av) {
+V3<T> ggx_visible_sample(const V3<T>& wi, const T& u0, const T& u1, double au, double av) {
     using std::cos;
     using std::sin;
     using std::sqrt;
@@ -276,14 +321,420 @@ V3<T> ggx_sample(const V3<T>& wi, const T& u0, const T& u1, double au, double av
     const V3<T> nh = t1 * p1 + t2 * p2 + vh * safe_sqrt(T(T(1.0) - p1 * p1 - p2 * p2));
     return normalize_or_zero(V3<T>{T(au) * nh.x, T(av) * nh.y, val(nh.z) > 0 ? nh.z : T(0.0)});
 }
+// Heitz and d'Eon 2014's visible Beckmann normals. The renderer inverts the visible-slope CDF
+//   C(x) = cos theta (1 + erf x) / 2 + sin theta exp(-x^2) / (2 sqrt(pi)) = u0 C(hi)
+// and draws y = erf^-1(2 u1 - 1) iteratively; its normal at the point gives both slopes (x0, y0). Two Newton steps,
+// in T from the constant (x0, y0), on those equations shifted to pass exactly through (x0, y0) (each residual minus
+// its value) carry the derivatives of the implicit function: the first step its exact gradient, the second its exact
+// Hessian (the error after k steps is O(|du|^(2^k))). The value stays the renderer's: near the top of the CDF, where
+// C' vanishes, its iteration stops short of the root, and plain Newton steps from there can run off.
+template <class T>
+V3<T> beckmann_visible_sample(const V3<T>& wi, const T& u0, const T& u1, double au, double av) {
+    using std::exp;
+    using std::sqrt;
+    const V3<T> zero{T(0.0), T(0.0), T(0.0)};
+    const MicrofacetDistribution distr(MicrofacetType::Beckmann, au, av, true);
+    const Vec3d m0 = distr.sample(value(wi), Vec2d(val(u0), val(u1)));
+    if (!(m0.z > 0)) return zero;
+    const V3<T> ws = normalize(V3<T>{T(au) * wi.x, T(av) * wi.y, wi.z});
+    const T cos_t = ws.z;
+    T sin_t(0.0), cphi(1.0), sphi(0.0);
+    if (val(ws.x * ws.x + ws.y * ws.y) > 0) {
+        sin_t = sqrt(T(T(ws.x * ws.x) + T(ws.y * ws.y)));
+        cphi = ws.x / sin_t;
+        sphi = ws.y / sin_t;
+    }
+    // The renderer's slopes: (sx, sy) = (-m.x / m.z, -m.y / m.z), unstretched, rotated back by -phi.
+    const double gx = -m0.x / m0.z / au, gy = -m0.y / m0.z / av, c = val(cphi), s = val(sphi);
+    const double x0 = c * gx + s * gy, y0 = -s * gx + c * gy;
+    const bool cot = val(sin_t) > 0 && val(cos_t) < 6.0 * val(sin_t);
+    const T hi = cot ? T(cos_t / sin_t) : T(6.0);
+    auto C = [&](const T& x) -> T {
+        const T e = exp(T(-x * x));
+        return T(T(0.5) * cos_t * erfc_t(T(-x))) + T(T(0.5) * sin_t * T(kInvSqrtPi) * e);
+    };
+    T x(x0);
+    if (x0 > -6.0 + 1e-9 && (cot || x0 < 6.0 - 1e-9)) {  // not at the renderer's clamp
+        const T target = u0 * C(hi);
+        for (int it = 0; it < 2; ++it) {
+            const T e = exp(T(-x * x));
+            const T d1 = T(cos_t - x * sin_t) * e * T(kInvSqrtPi);
+            if (!(val(d1) > 0)) break;
+            const T r = C(x) - target;
+            x = x - T(r - T(val(r))) / d1;
+        }
+    }
+    // y = erf^-1(2 u1 - 1), as erfc(-y) = 2 u1 for y < 0 and erfc(y) = 2 (1 - u1) otherwise (precise in the tails).
+    T y(y0);
+    if (std::abs(y0) < 6.0 - 1e-9) {
+        for (int it = 0; it < 2; ++it) {
+            const T e = exp(T(-y * y));
+            const T d = T(2 * kInvSqrtPi) * e;
+            if (!(val(d) > 0)) break;
+            if (y0 < 0) {
+                const T r = erfc_t(T(-y)) - T(2.0) * u1;
+                y = y - T(r - T(val(r))) / d;
+            } else {
+                const T r = erfc_t(y) - T(2.0) * (T(1.0) - u1);
+                y = y + T(r - T(val(r))) / d;
+            }
+        }
+    }
+    const T sx = (T(cphi * x) - T(sphi * y)) * T(au), sy = (T(sphi * x) + T(cphi * y)) * T(av);
+    return normalize_or_zero(V3<T>{T(-sx), T(-sy), T(1.0)});
+}
+// Walter et al.'s sampling of all normals, D(m) cos theta_m (MicrofacetDistribution::sample_all).
+template <class T>
+V3<T> mf_sample_all(const T& u0, const T& u1, const Bsdf::Model& b) {
+    using std::cos;
+    using std::log;
+    using std::sin;
+    using std::sqrt;
+    const double au = b.alpha_u, av = b.alpha_v;
+    T cphi, sphi, inv_a2;
+    if (au == av) {
+        const T phi = T(2 * Pi) * u1;
+        cphi = cos(phi);
+        sphi = sin(phi);
+        inv_a2 = T(1.0 / (au * au));
+    } else {
+        // phi = atan2(av sin(2 pi u), au cos(2 pi u)): its cosine and sine directly.
+        const T a = T(av) * sin(T(T(2 * Pi) * u1)), c = T(au) * cos(T(T(2 * Pi) * u1));
+        const T r = sqrt(T(T(a * a) + T(c * c)));
+        cphi = c / r;
+        sphi = a / r;
+        const T cc = cphi / T(au), ss = sphi / T(av);
+        inv_a2 = T(cc * cc) + T(ss * ss);
+    }
+    const T v = val(u0) < 1.0 - 1e-16 ? u0 : T(1.0 - 1e-16);
+    const T tan2 = b.ggx ? T(v / ((T(1.0) - v) * inv_a2)) : T(-log(T(T(1.0) - v)) / inv_a2);
+    const T cos_t = T(1.0) / sqrt(T(T(1.0) + tan2)), sin_t = safe_sqrt(T(T(1.0) - cos_t * cos_t));
+    return {sin_t * cphi, sin_t * sphi, cos_t};
+}
+template <class T>
+V3<T> mf_sample(const V3<T>& wi, const T& u0, const T& u1, const Bsdf::Model& b) {
+    if (!b.sample_visible) return mf_sample_all(u0, u1, b);
+    if (!(val(wi.z) > 0)) return {T(0.0), T(0.0), T(0.0)};
+    return b.ggx ? ggx_visible_sample(wi, u0, u1, b.alpha_u, b.alpha_v)
+                 : beckmann_visible_sample(wi, u0, u1, b.alpha_u, b.alpha_v);
+}
 // RoughConductor::eval_reflection: f cos(theta_o) for a reflection about m.
 template <class T>
 C3<T> rough_reflection(const Bsdf::Model& b, const V3<T>& wi, const V3<T>& wo, const V3<T>& m) {
-    const T D = ggx_D(m, b.alpha_u, b.alpha_v),
-            G = ggx_G1(wi, m, b.alpha_u, b.alpha_v) * ggx_G1(wo, m, b.alpha_u, b.alpha_v);
+    const T D = mf_D(m, b), G = mf_G1(wi, m, b) * mf_G1(wo, m, b);
     const T s = D * G / (T(4.0) * wi.z);
     if (!(val(s) > 0) || !std::isfinite(val(s))) return {T(0.0), T(0.0), T(0.0)};
     return fresnel_conductor(dot(wi, m), b.eta, b.k) * b.reflectance * s;
+}
+
+// fresnel_dielectric (render/fresnel.cpp): F, the signed cosine of the refracted direction and the relative indices
+// (which depend on the side only).
+template <class T>
+struct FresnelT {
+    T F, cos_t;
+    double eta_it = 1, eta_ti = 1;
+};
+template <class T>
+FresnelT<T> fresnel_dielectric(const T& cos_i, double eta) {
+    using std::sqrt;
+    FresnelT<T> r;
+    r.eta_it = val(cos_i) >= 0 ? eta : 1.0 / eta;
+    r.eta_ti = 1.0 / r.eta_it;
+    T ci = val(cos_i) < 0 ? T(-cos_i) : cos_i;
+    if (val(ci) > 1) ci = T(1.0);
+    T one_minus = T(1.0) - ci * ci;
+    if (val(one_minus) < 0) one_minus = T(0.0);
+    const T sin2_t = T(r.eta_ti * r.eta_ti) * one_minus;
+    if (val(sin2_t) >= 1.0) {  // total internal reflection
+        r.F = T(1.0);
+        r.cos_t = T(0.0);
+        return r;
+    }
+    const T ct = sqrt(T(T(1.0) - sin2_t));
+    const T rs = (ci - T(r.eta_it) * ct) / (ci + T(r.eta_it) * ct);
+    const T rp = (T(r.eta_it) * ci - ct) / (T(r.eta_it) * ci + ct);
+    r.F = T(0.5) * (rs * rs + rp * rp);
+    if (val(r.F) < 0) r.F = T(0.0);
+    if (val(r.F) > 1) r.F = T(1.0);
+    r.cos_t = val(cos_i) >= 0 ? T(-ct) : ct;
+    return r;
+}
+
+// atan2(y, x): the angle a0 of the values, plus the angle of (x, y) rotated by -a0, whose tangent r = y' / x' has
+// value 0: atan r = r - r^3 / 3 + ..., so r carries the exact gradient and Hessian.
+template <class T>
+T atan2_t(const T& y, const T& x) {
+    const double a0 = std::atan2(val(y), val(x)), c = std::cos(a0), s = std::sin(a0);
+    const T xr = T(x * T(c)) + T(y * T(s)), yr = T(y * T(c)) - T(x * T(s));
+    return T(a0) + yr / xr;
+}
+
+template <class T>
+T abs_t(const T& x) {
+    return val(x) < 0 ? T(-x) : x;
+}
+
+// Plastic and RoughPlastic: the specular lobe's sampling probability from the coating's albedo A (F_i, or R(mu_i)).
+template <class T>
+T plastic_prob_specular(const T& A, double specular_weight) {
+    const T a = A * T(specular_weight), b = (T(1.0) - A) * T(1.0 - specular_weight);
+    return val(a + b) > 0 ? T(a / (a + b)) : T(0.0);
+}
+// RoughPlastic's linear interpolation of a coating table at mu (the segment by value).
+template <class T>
+T coating_table(const double* table, int n, const T& mu) {
+    T x = val(mu) < 0 ? T(0.0) : val(mu) > 1 ? T(1.0) : mu;
+    x = x * T(double(n - 1));
+    const int j = std::min(int(val(x)), n - 2);
+    const T t = x - T(double(j));
+    return (T(1.0) - t) * T(table[j]) + t * T(table[j + 1]);
+}
+// Plastic's rho_eff and RoughPlastic's rho' (constants of the model).
+inline Color3 plastic_rho(const Bsdf::Model& b) {
+    Color3 rho = b.reflectance;
+    if (b.nonlinear)
+        rho = rho * (1 - b.fdr_int) / glm::max(Color3(1.0) - glm::min(rho, Color3(1.0)) * b.fdr_int, Color3(1e-6));
+    return rho;
+}
+inline Color3 rough_plastic_rho(const Bsdf::Model& b) {
+    const Color3 rho = b.reflectance;
+    const Color3 denom = b.nonlinear ? Color3(1.0) - glm::min(rho, Color3(1.0)) * b.fdr_int : Color3(1.0 - b.fdr_int);
+    return rho / glm::max(denom, Color3(1e-9));
+}
+// Plastic::diffuse: f cos(theta_o) of the base seen through the smooth coating.
+template <class T>
+C3<T> plastic_diffuse(const Bsdf::Model& b, const T& Fi, const V3<T>& wo) {
+    const T Fo = fresnel_dielectric(wo.z, b.ior).F;
+    const T s = T(T(1.0) - Fi) * T(T(1.0) - Fo) * T(b.inv_ext_transmission * InvPi) * wo.z;
+    return C3<T>{s, s, s} * plastic_rho(b);
+}
+// RoughPlastic::eval and pdf (wi.z > 0 and wo.z > 0).
+template <class T>
+C3<T> rough_plastic_eval(const Bsdf::Model& b, const V3<T>& wi, const V3<T>& wo) {
+    const V3<T> h = normalize(wi + wo);
+    const T s = mf_D(h, b) * mf_G1(wi, h, b) * mf_G1(wo, h, b) / (T(4.0) * wi.z);
+    C3<T> result{T(0.0), T(0.0), T(0.0)};
+    if (val(s) > 0 && std::isfinite(val(s))) {
+        const T v = fresnel_dielectric(dot(wi, h), b.ior).F * s;
+        result = C3<T>{v, v, v} * b.specular_reflectance;
+    }
+    const T tables =
+        T(coating_table(b.coating_t_ext, b.coating_size, wi.z) * coating_table(b.coating_t_ext, b.coating_size, wo.z));
+    const T tr = T(tables * wo.z) * T(InvPi / (b.ior * b.ior));
+    add(result, C3<T>{tr, tr, tr} * rough_plastic_rho(b));
+    return result;
+}
+template <class T>
+T rough_plastic_pdf(const Bsdf::Model& b, const V3<T>& wi, const V3<T>& wo) {
+    const T ps = plastic_prob_specular(coating_table(b.coating_r_ext, b.coating_size, wi.z), b.specular_weight);
+    const V3<T> h = normalize(wi + wo);
+    const T wo_h = dot(wo, h);
+    T p_spec = val(wo_h) > 0 ? T(mf_pdf(wi, h, b) / (T(4.0) * wo_h)) : T(0.0);
+    if (!std::isfinite(val(p_spec))) p_spec = T(0.0);
+    return T(ps * p_spec) + T(T(T(1.0) - ps) * wo.z * T(InvPi));
+}
+// RoughDielectric::eval_local: f |cos theta_o| in the mirrored frame (wi.z > 0), radiance transport.
+template <class T>
+C3<T> rough_dielectric_local(const Bsdf::Model& b, const V3<T>& wi, const V3<T>& wo, const V3<T>& m, double eta) {
+    const C3<T> zero{T(0.0), T(0.0), T(0.0)};
+    const T wi_m = dot(wi, m), wo_m = dot(wo, m);
+    const T D = mf_D(m, b), G = mf_G1(wi, m, b) * mf_G1(wo, m, b);
+    const T F = fresnel_dielectric(wi_m, eta).F;
+    if (!(val(D * G) > 0)) return zero;
+    if (val(wo.z) > 0) {
+        const T v = F * D * G / (T(4.0) * wi.z);
+        return std::isfinite(val(v)) ? C3<T>{v, v, v} * b.specular_reflectance : zero;
+    }
+    const T denom = wi_m + T(eta) * wo_m;
+    T v = T(T(1.0) - F) * D * G * T(eta * eta) * abs_t(T(wi_m * wo_m)) / T(wi.z * denom * denom);
+    v = v / T(eta * eta);  // TransportMode::Radiance
+    return std::isfinite(val(v)) && val(v) > 0 ? C3<T>{v, v, v} * b.specular_transmittance : zero;
+}
+// RoughDielectric::half_vector: the pair mirrored so that wi is on the upper side, the relative index seen from wi,
+// the microfacet normal of the pair. False where the pair cannot be connected by one microfacet.
+template <class T>
+bool rough_dielectric_half(const Bsdf::Model& b, const V3<T>& wi_in, const V3<T>& wo_in, V3<T>& wi, V3<T>& wo, V3<T>& m,
+                           double& eta) {
+    using std::sqrt;
+    if (val(wi_in.z) == 0 || val(wo_in.z) == 0) return false;
+    const double s = val(wi_in.z) > 0 ? 1.0 : -1.0;
+    eta = val(wi_in.z) > 0 ? b.ior : 1.0 / b.ior;
+    wi = wi_in * T(s);
+    wo = wo_in * T(s);
+    const V3<T> h = val(wo.z) > 0 ? wi + wo : wi + wo * T(eta);
+    const T l2 = dot(h, h);
+    if (!(val(l2) > 0)) return false;
+    m = h * T(T(1.0) / sqrt(l2));
+    if (val(m.z) < 0) m = m * T(-1.0);
+    if (!(val(dot(wi, m)) > 0) || !(val(dot(wo, m)) * val(wo.z) > 0)) return false;
+    return val(m.z) > 0;
+}
+
+// The BSDF's smooth part for a direction wo, as eval (f |cos theta_o|) and pdf return it; wi and wo local.
+template <class T>
+C3<T> bsdf_eval(const Bsdf::Model& b, const V3<T>& wi, const V3<T>& wo, T& pdf) {
+    using Kind = Bsdf::Model::Kind;
+    const C3<T> zero{T(0.0), T(0.0), T(0.0)};
+    pdf = T(0.0);
+    switch (b.kind) {
+        case Kind::Diffuse: {
+            if (!(val(wi.z) > 0) || !(val(wo.z) > 0)) return zero;
+            pdf = wo.z * T(InvPi);
+            const T c = wo.z * T(InvPi);
+            return C3<T>{c, c, c} * b.reflectance;
+        }
+        case Kind::RoughConductor: {
+            if (!(val(wi.z) > 0) || !(val(wo.z) > 0)) return zero;
+            const V3<T> h = normalize_or_zero(wi + wo);
+            if (val(h.z) <= 0) return zero;
+            const T wo_h = dot(wo, h);
+            if (val(wo_h) > 0) {
+                const T p = mf_pdf(wi, h, b) / (T(4.0) * wo_h);
+                if (std::isfinite(val(p))) pdf = p;
+            }
+            return rough_reflection(b, wi, wo, h);
+        }
+        case Kind::RoughDielectric: {
+            V3<T> wl, ol, m;
+            double eta = 1;
+            if (!rough_dielectric_half(b, wi, wo, wl, ol, m, eta)) return zero;
+            const T pm = mf_pdf(wl, m, b);
+            const T wi_m = dot(wl, m), wo_m = dot(ol, m);
+            const T F = fresnel_dielectric(wi_m, eta).F;
+            T p;
+            if (val(ol.z) > 0) {
+                p = T(F * pm) / T(T(4.0) * wo_m);
+            } else {
+                const T denom = wi_m + T(eta) * wo_m;
+                p = T(T(T(1.0) - F) * pm * T(eta * eta) * abs_t(wo_m)) / T(denom * denom);
+            }
+            pdf = std::isfinite(val(p)) && val(p) > 0 ? p : T(0.0);
+            return rough_dielectric_local(b, wl, ol, m, eta);
+        }
+        case Kind::Plastic: {
+            if (!(val(wi.z) > 0) || !(val(wo.z) > 0)) return zero;
+            const T Fi = fresnel_dielectric(wi.z, b.ior).F;
+            pdf = (T(1.0) - plastic_prob_specular(Fi, b.specular_weight)) * wo.z * T(InvPi);
+            return plastic_diffuse(b, Fi, wo);
+        }
+        case Kind::RoughPlastic: {
+            if (!(val(wi.z) > 0) || !(val(wo.z) > 0)) return zero;
+            pdf = rough_plastic_pdf(b, wi, wo);
+            return rough_plastic_eval(b, wi, wo);
+        }
+        default:  // delta models: nothing for eval and pdf
+            return zero;
+    }
+}
+
+// The BSDF's sample(): the direction, the weight f |cos| / pdf, the density and the component, the component chosen
+// by value as the renderer chooses it (locally constant). False where the model gives nothing.
+template <class T>
+struct BsdfSampleT {
+    V3<T> wo;
+    C3<T> weight;
+    T pdf;
+    bool delta = false, transmission = false;
+    double eta = 1;
+};
+template <class T>
+bool bsdf_sample(const Bsdf::Model& b, const V3<T>& wi, const T& u_comp, const T& u0, const T& u1,
+                 BsdfSampleT<T>& out) {
+    using Kind = Bsdf::Model::Kind;
+    const C3<T> one{T(1.0), T(1.0), T(1.0)};
+    switch (b.kind) {
+        case Kind::Diffuse:
+            out.wo = cosine_hemisphere(u0, u1);
+            out.weight = one * b.reflectance;
+            out.pdf = out.wo.z * T(InvPi);
+            return true;
+        case Kind::Conductor:
+            out.wo = V3<T>{T(-wi.x), T(-wi.y), wi.z};
+            out.weight = fresnel_conductor(wi.z, b.eta, b.k) * b.reflectance;
+            out.pdf = T(1.0);
+            out.delta = true;
+            return true;
+        case Kind::RoughConductor: {
+            const V3<T> m = mf_sample(wi, u0, u1, b);
+            const T pm = mf_pdf(wi, m, b);
+            out.wo = m * T(T(2.0) * dot(wi, m)) - wi;
+            out.pdf = pm / (T(4.0) * dot(out.wo, m));
+            out.weight = rough_reflection(b, wi, out.wo, m) * T(T(1.0) / out.pdf);
+            return true;
+        }
+        case Kind::Dielectric: {
+            // Dielectric::sample: reflection with probability F (weight: the tint), else refraction (the tint
+            // times eta_ti^2, radiance transport).
+            const FresnelT<T> fr = fresnel_dielectric(wi.z, b.ior);
+            out.delta = true;
+            if (val(u_comp) < val(fr.F)) {
+                out.wo = V3<T>{T(-wi.x), T(-wi.y), wi.z};
+                out.pdf = fr.F;
+                out.weight = one * b.specular_reflectance;
+            } else {
+                out.wo = V3<T>{T(-wi.x) * T(fr.eta_ti), T(-wi.y) * T(fr.eta_ti), fr.cos_t};
+                out.pdf = T(1.0) - fr.F;
+                out.weight = one * (b.specular_transmittance * (fr.eta_ti * fr.eta_ti));
+                out.transmission = true;
+                out.eta = fr.eta_it;
+            }
+            return true;
+        }
+        case Kind::RoughDielectric: {
+            const double s = val(wi.z) > 0 ? 1.0 : -1.0, eta = val(wi.z) > 0 ? b.ior : 1.0 / b.ior;
+            const V3<T> w = wi * T(s);
+            const V3<T> m = mf_sample(w, u0, u1, b);
+            const T pm = mf_pdf(w, m, b);
+            if (!(val(pm) > 0)) return false;
+            const T wi_m = dot(w, m);
+            const FresnelT<T> fr = fresnel_dielectric(wi_m, eta);
+            V3<T> wo;
+            if (val(u_comp) < val(fr.F)) {
+                wo = m * T(T(2.0) * wi_m) - w;
+                out.pdf = T(fr.F * pm) / T(T(4.0) * dot(wo, m));
+            } else {
+                wo = m * T(wi_m * T(fr.eta_ti) + fr.cos_t) - w * T(fr.eta_ti);
+                const T wo_m = dot(wo, m), denom = wi_m + T(eta) * wo_m;
+                out.pdf = T(T(T(1.0) - fr.F) * pm * T(eta * eta) * abs_t(wo_m)) / T(denom * denom);
+                out.transmission = true;
+                out.eta = eta;
+            }
+            out.wo = wo * T(s);
+            out.weight = rough_dielectric_local(b, w, wo, m, eta) * T(T(1.0) / out.pdf);
+            return true;
+        }
+        case Kind::Plastic: {
+            const T Fi = fresnel_dielectric(wi.z, b.ior).F;
+            const T ps = plastic_prob_specular(Fi, b.specular_weight);
+            if (val(u_comp) < val(ps)) {
+                out.wo = V3<T>{T(-wi.x), T(-wi.y), wi.z};
+                out.pdf = ps;
+                out.weight = one * b.specular_reflectance * T(Fi / ps);
+                out.delta = true;
+            } else {
+                out.wo = cosine_hemisphere(u0, u1);
+                out.pdf = (T(1.0) - ps) * out.wo.z * T(InvPi);
+                out.weight = plastic_diffuse(b, Fi, out.wo) * T(T(1.0) / out.pdf);
+            }
+            return true;
+        }
+        case Kind::RoughPlastic: {
+            const T ps = plastic_prob_specular(coating_table(b.coating_r_ext, b.coating_size, wi.z), b.specular_weight);
+            if (val(u_comp) < val(ps)) {
+                const V3<T> m = mf_sample(wi, u0, u1, b);
+                if (!(val(m.z) > 0)) return false;
+                out.wo = m * T(T(2.0) * dot(wi, m)) - wi;
+            } else {
+                out.wo = cosine_hemisphere(u0, u1);
+            }
+            if (!(val(out.wo.z) > 0)) return false;
+            out.pdf = rough_plastic_pdf(b, wi, out.wo);
+            out.weight = rough_plastic_eval(b, wi, out.wo) * T(T(1.0) / out.pdf);
+            return true;
+        }
+        default:
+            return false;
+    }
 }
 
 // Coordinates: plain values, or nested-autodiff variables for the block's entries.
@@ -352,6 +803,11 @@ struct PathDerivatives::Impl {
         if (shape >= geometry.size()) return false;
         return geometry[shape].type == ShapeGeometry::Type::Triangles;
     }
+    bool disc(uint32_t shape) const {
+        if (shape >= geometry.size()) return false;
+        const ShapeGeometry& g = geometry[shape];
+        return g.type == ShapeGeometry::Type::Discs && g.positions.size() == 1;
+    }
     bool sphere(uint32_t shape) const {
         if (shape >= geometry.size()) return false;
         const ShapeGeometry& g = geometry[shape];
@@ -404,6 +860,8 @@ PathDerivativeStatus PathDerivatives::Impl::run(Reader& rd, T& log_pi) const {
     const BsdfContext bctx;
     C3<T> L{T(0.0), T(0.0), T(0.0)}, throughput{T(1.0), T(1.0), T(1.0)};
     T prev_bsdf_pdf(1.0);
+    double eta_scale = 1.0;
+    bool refracted = false;
     bool prev_delta = true;
     V3<T> prev_p = orig;
     const long max_len = o.max_depth < 0 ? std::numeric_limits<long>::max() : long(o.max_depth);
@@ -414,15 +872,19 @@ PathDerivativeStatus PathDerivatives::Impl::run(Reader& rd, T& log_pi) const {
             if (!scene.environment_emitters().empty()) return S::Unsupported;
             break;
         }
-        const bool on_sphere = sphere(hit->shape);
-        if (!on_sphere && !triangles(hit->shape)) return S::Unsupported;
+        const bool on_sphere = sphere(hit->shape), on_disc = disc(hit->shape);
+        if (!on_sphere && !on_disc && !triangles(hit->shape)) return S::Unsupported;
         const SurfaceInteraction si = scene.interaction(ray, *hit);
         // Differentiable re-intersection of the primitive Embree found: Moller-Trumbore for a triangle (the frame is
         // constant), the quadratic for a sphere (the root Embree took; the normal and frame follow p).
         const ShapeGeometry& g = geometry[hit->shape];
         T t, bary_u(0.0), bary_v(0.0);
         V3<T> ng = constant<T>(si.ng);
-        if (!on_sphere) {
+        if (on_disc) {
+            // The disk's plane (Embree's oriented disc: the centre and normal it was given).
+            const V3<T> c = constant<T>(Vec3d(g.positions[0])), n = constant<T>(glm::normalize(Vec3d(g.normals[0])));
+            t = dot(c - orig, n) / dot(d, n);
+        } else if (!on_sphere) {
             const uint32_t* tri = &g.indices[3 * std::size_t(hit->prim)];
             const V3<T> a = constant<T>(Vec3d(g.positions[tri[0]])), b = constant<T>(Vec3d(g.positions[tri[1]])),
                         c = constant<T>(Vec3d(g.positions[tri[2]]));
@@ -448,7 +910,7 @@ PathDerivativeStatus PathDerivatives::Impl::run(Reader& rd, T& log_pi) const {
             ng = normalize(ng);
         }
         FrameT<T> geometric_frame = on_sphere ? frame_of(ng) : frame_of<T>(si.frame);
-        if (!on_sphere && !g.normals.empty()) {
+        if (!on_sphere && !on_disc && !g.normals.empty()) {
             // Scene::interaction for a mesh with vertex normals: the normals interpolated with the barycentrics (a
             // function of the ray), normalised, turned to the geometric normal's side; the tangent is dp/du (constant
             // on the triangle) made orthogonal to that normal.
@@ -493,8 +955,6 @@ PathDerivativeStatus PathDerivatives::Impl::run(Reader& rd, T& log_pi) const {
         const Bsdf::Model model = bsdf.model();
         using Kind = Bsdf::Model::Kind;
         if (model.kind == Kind::None) return S::Unsupported;
-        if (model.kind == Kind::RoughConductor && (!model.ggx || !model.sample_visible)) return S::Unsupported;
-        const Color3 R = model.reflectance;
         const T u_light = rd.read();
         const T u_l0 = rd.read(), u_l1 = rd.read();
         const T u_comp = rd.read();
@@ -505,26 +965,7 @@ PathDerivativeStatus PathDerivatives::Impl::run(Reader& rd, T& log_pi) const {
         const bool mirrored = model.two_sided && si.wi.z < 0;
         if (mirrored) frame.n = frame.n * T(-1.0);
         const V3<T> wi = to_local(frame, V3<T>{T(-d.x), T(-d.y), T(-d.z)});
-        // The BSDF's value f cos(theta_o) and density for a direction wo, as eval and pdf (smooth models).
-        auto bsdf_eval = [&](const V3<T>& wo, T& pdf) -> C3<T> {
-            const C3<T> zero{T(0.0), T(0.0), T(0.0)};
-            pdf = T(0.0);
-            if (model.kind == Kind::Diffuse) {
-                if (!(val(wi.z) > 0) || !(val(wo.z) > 0)) return zero;
-                pdf = wo.z * T(InvPi);
-                const T c = wo.z * T(InvPi);
-                return C3<T>{c, c, c} * R;
-            }
-            if (!(val(wi.z) > 0) || !(val(wo.z) > 0)) return zero;  // rough conductor
-            const V3<T> h = normalize_or_zero(wi + wo);
-            if (val(h.z) <= 0) return zero;
-            const T wo_h = dot(wo, h);
-            if (val(wo_h) > 0) {
-                const T p = ggx_pdf(wi, h, model.alpha_u, model.alpha_v) / (T(4.0) * wo_h);
-                if (std::isfinite(val(p))) pdf = p;
-            }
-            return rough_reflection(model, wi, wo, h);
-        };
+        auto bsdf_eval = [&](const V3<T>& wo, T& pdf) -> C3<T> { return kelvin::bsdf_eval(model, wi, wo, pdf); };
 
         // Next-event estimation (smooth models; emitter sampling is on in the Metropolis techniques).
         if ((bsdf.flags() & BsdfFlags::Smooth) && depth + 2 >= o.min_depth) {
@@ -547,17 +988,52 @@ PathDerivativeStatus PathDerivatives::Impl::run(Reader& rd, T& log_pi) const {
                             const C3<T> f = bsdf_eval(to_local(frame, dir), bsdf_pdf);
                             add(L, throughput * f * intensity * T(T(1.0) / (dist2 * T(sel_pdf))));
                         }
+                    } else if (e->plugin_name() == "spot") {
+                        // SpotEmitter::sample_direct: intensity falloff(theta) / dist^2 from a fixed position (a
+                        // delta light), theta the angle of the direction from the light to p with the light's axis,
+                        // falloff 1 inside the beam and Mitsuba's linear ramp (cutoff - theta) / (cutoff - beam)
+                        // out to the cutoff (the renderer gives no sample beyond it).
+                        const Emitter::Model em = e->model();
+                        if (em.kind != Emitter::Model::Kind::Spot) return S::Unsupported;
+                        const V3<T> dv = constant<T>(ds->p) - p;
+                        const T dist2 = dot(dv, dv), dist = sqrt(dist2);
+                        const V3<T> dir{dv.x / dist, dv.y / dist, dv.z / dist};
+                        const Mat4d& M = em.to_local;  // world to the light's frame; v = M (p - light)
+                        const V3<T> r0 = constant<T>(Vec3d(-M[0][0], -M[1][0], -M[2][0])),
+                                    r1 = constant<T>(Vec3d(-M[0][1], -M[1][1], -M[2][1])),
+                                    r2 = constant<T>(Vec3d(-M[0][2], -M[1][2], -M[2][2]));
+                        const V3<T> v{dot(r0, dv), dot(r1, dv), dot(r2, dv)};
+                        const T rho2 = T(v.x * v.x) + T(v.y * v.y);
+                        T falloff(1.0);
+                        if (!(std::atan2(std::sqrt(val(rho2)), val(v.z)) <= em.beam))
+                            falloff = (T(em.cutoff) - atan2_t(T(sqrt(rho2)), v.z)) / T(em.cutoff - em.beam);
+                        const Color3 weight = em.intensity * (val(falloff) / val(dist2));
+                        if (glm::length(weight - ds->weight) > 1e-6 * (1 + glm::length(ds->weight))) return S::Mismatch;
+                        const Color3 f_primal = bsdf.eval(bctx, si, si.to_local(ds->d));
+                        if (f_primal != Color3(0.0) && !scene.occluded(si.spawn_to(ds->p))) {
+                            T bsdf_pdf(0.0);
+                            const C3<T> f = bsdf_eval(to_local(frame, dir), bsdf_pdf);
+                            add(L, throughput * f * em.intensity * T(falloff / (dist2 * T(sel_pdf))));
+                        }
                     } else {
                         const auto* mesh =
                             sh >= 0 ? dynamic_cast<const TriangleMesh*>(scene.shapes()[std::size_t(sh)].get())
                                     : nullptr;
-                        const bool light_sphere = sh >= 0 && sphere(uint32_t(sh));
+                        const bool light_sphere = sh >= 0 && sphere(uint32_t(sh)),
+                                   light_disc = sh >= 0 && disc(uint32_t(sh));
                         if (e->plugin_name() != "area" || e->spatially_varying() ||
-                            !((mesh && flat_triangles(uint32_t(sh))) || light_sphere))
+                            !((mesh && flat_triangles(uint32_t(sh))) || light_sphere || light_disc))
                             return S::Unsupported;
                         const ShapeGeometry& eg = geometry[std::size_t(sh)];
                         V3<T> ps, en = constant<T>(ds->n);
-                        if (light_sphere) {
+                        if (light_disc) {
+                            // Disk::sample_position: the concentric map onto the disk (tangent, bitangent).
+                            const V3<T> dk = cosine_hemisphere(u_l0, u_l1);  // its x, y: the concentric disk
+                            const Vec3d n = glm::normalize(Vec3d(eg.normals[0])), tg(eg.tangents[0]);
+                            ps = constant<T>(Vec3d(eg.positions[0])) +
+                                 (constant<T>(tg) * dk.x + constant<T>(glm::cross(n, tg)) * dk.y) *
+                                     T(double(eg.radii[0]));
+                        } else if (light_sphere) {
                             // Sphere::sample_position: uniform on the sphere (warp::square_to_uniform_sphere).
                             using std::cos;
                             using std::sin;
@@ -610,29 +1086,21 @@ PathDerivativeStatus PathDerivatives::Impl::run(Reader& rd, T& log_pi) const {
         // Continue by sampling the BSDF.
         auto bs = bsdf.sample(bctx, si, val(u_comp), Vec2d(val(u_d0), val(u_d1)));
         if (!bs || bs->weight == Color3(0.0)) break;
-        V3<T> wo;
-        if (model.kind == Kind::Diffuse) {
-            wo = cosine_hemisphere(u_d0, u_d1);
-            throughput = throughput * R;
-            prev_delta = false;
-            prev_bsdf_pdf = wo.z * T(InvPi);
-        } else if (model.kind == Kind::Conductor) {
-            wo = V3<T>{T(-wi.x), T(-wi.y), wi.z};
-            throughput = throughput * (fresnel_conductor(wi.z, model.eta, model.k) * R);
-            prev_delta = true;
-            prev_bsdf_pdf = T(1.0);
-        } else {  // RoughConductor::sample
-            const V3<T> m = ggx_sample(wi, u_d0, u_d1, model.alpha_u, model.alpha_v);
-            const T pm = ggx_pdf(wi, m, model.alpha_u, model.alpha_v);
-            wo = m * T(T(2.0) * dot(wi, m)) - wi;
-            const T pdf = pm / (T(4.0) * dot(wo, m));
-            const C3<T> f = rough_reflection(model, wi, wo, m);
-            const T inv = T(1.0) / pdf;
-            throughput = throughput * (f * inv);
-            prev_delta = false;
-            prev_bsdf_pdf = pdf;
-        }
-        if (glm::length(value(wo) - (mirrored ? Vec3d(bs->wo.x, bs->wo.y, -bs->wo.z) : bs->wo)) > 1e-6)
+        BsdfSampleT<T> smp;
+        if (!bsdf_sample(model, wi, u_comp, u_d0, u_d1, smp)) return S::Mismatch;
+        const V3<T>& wo = smp.wo;
+        if (smp.delta != ((bs->sampled & BsdfFlags::Delta) != 0) ||
+            smp.transmission != ((bs->sampled & BsdfFlags::Transmission) != 0))
+            return S::Mismatch;
+        throughput = throughput * smp.weight;
+        if (smp.transmission) eta_scale *= smp.eta * smp.eta;
+        prev_delta = smp.delta;
+        prev_bsdf_pdf = smp.pdf;
+        // The renderer's direction comes from its float-precision hit (about 1e-7): equal to 1e-6 after reflections;
+        // refraction amplifies the difference (near grazing exit and total internal reflection), and the path keeps it.
+        refracted = refracted || smp.transmission;
+        const double wo_tolerance = refracted ? 1e-4 : 1e-6;
+        if (glm::length(value(wo) - (mirrored ? Vec3d(bs->wo.x, bs->wo.y, -bs->wo.z) : bs->wo)) > wo_tolerance)
             return S::Mismatch;
         prev_p = p;
         const Ray next = si.spawn(si.to_world(bs->wo));
@@ -648,12 +1116,12 @@ PathDerivativeStatus PathDerivatives::Impl::run(Reader& rd, T& log_pi) const {
         d = to_world(frame, wo);
         ray = next;
 
-        // Russian roulette (eta_scale is 1: no transmission in the supported subset).
+        // Russian roulette on the throughput times eta_scale (the refraction scale removed, as path.cpp).
         if (depth + 1 >= o.rr_depth) {
             const T& m = val(throughput.r) >= val(throughput.g)
                              ? (val(throughput.r) >= val(throughput.b) ? throughput.r : throughput.b)
                              : (val(throughput.g) >= val(throughput.b) ? throughput.g : throughput.b);
-            const T q = val(m) < 0.95 ? m : T(0.95);
+            const T q = val(m) * eta_scale < 0.95 ? T(m * T(eta_scale)) : T(0.95);
             if (!(val(u_rr) < val(q))) break;
             const T inv = T(1.0) / q;
             throughput = throughput * inv;

@@ -64,13 +64,35 @@ public:
     /// arithmetic: the model and its parameters, constant over the surface. Kind None (the default, and a textured
     /// parameter): not differentiable.
     struct Model {
-        enum class Kind { None, Diffuse, Conductor, RoughConductor } kind = Kind::None;
-        Color3 reflectance{0.0};  ///< diffuse reflectance, or the conductors' specular_reflectance
+        enum class Kind {
+            None,
+            Diffuse,
+            Conductor,
+            RoughConductor,
+            Dielectric,
+            RoughDielectric,
+            Plastic,
+            RoughPlastic
+        } kind = Kind::None;
+        Color3 reflectance{0.0};  ///< diffuse reflectance (the plastics' diffuse_reflectance), or the conductors'
+                                  ///< specular_reflectance
         Color3 eta{0.0}, k{1.0};  ///< conductors: complex index of refraction
-        bool ggx = false;         ///< roughconductor: GGX (else Beckmann)
+        bool ggx = false;         ///< microfacet models: GGX (else Beckmann)
         double alpha_u = 0, alpha_v = 0;
         bool sample_visible = true;
         bool two_sided = false;  ///< `twosided` with one model on both sides: seen from below, z of wi and wo negated
+        // Dielectrics and plastics.
+        double ior = 1;                      ///< int_ior / ext_ior
+        Color3 specular_reflectance{1.0};    ///< tint of the reflection (dielectrics, plastics)
+        Color3 specular_transmittance{1.0};  ///< tint of the transmission (dielectrics)
+        bool nonlinear = false;              ///< plastics: the colour shift of internal scattering
+        double specular_weight = 0.5;        ///< plastics: the specular lobe's sampling weight s / (d + s)
+        double fdr_int = 0;                  ///< plastics: internal diffuse Fresnel reflectance
+        double inv_ext_transmission = 1;     ///< plastic: 1 / (1 - Fdr_ext)
+        /// roughplastic: its coating tables r_ext and t_ext (values at mu = j / (size - 1)), owned by the BSDF.
+        const double* coating_r_ext = nullptr;
+        const double* coating_t_ext = nullptr;
+        int coating_size = 0;
     };
     virtual Model model() const { return {}; }
 };

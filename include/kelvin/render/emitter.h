@@ -95,6 +95,17 @@ public:
     /// Total emitted power (watts, per channel); used to pick emitters in proportion to their power.
     virtual Color3 power() const = 0;
 
+    /// What differentiable path evaluation (render/path_derivatives.h) needs to re-evaluate a delta emitter in its
+    /// own arithmetic (area and point emitters are read from their samples). Kind None (the default, and a
+    /// textured spot): not differentiable.
+    struct Model {
+        enum class Kind { None, Spot } kind = Kind::None;
+        Color3 intensity{0.0};        ///< spot: intensity on the axis times the (constant) texture
+        Mat4d to_local{1.0};          ///< spot: world to the light's frame (it shines along +z)
+        double beam = 0, cutoff = 0;  ///< spot: half-angles (radians) of the full beam and of the cutoff
+    };
+    virtual Model model() const { return {}; }
+
     /// Called by the scene before rendering: the shape an area emitter sits on, the scene's bounding sphere.
     virtual void set_shape(const Shape*) {}
     virtual void set_scene_bounds(const Vec3d& center, double radius) {}

@@ -59,6 +59,15 @@ public:
     }
     Color3 eval(const BsdfContext&, const SurfaceInteraction&, const Vec3d&) const override { return Color3(0.0); }
     double pdf(const BsdfContext&, const SurfaceInteraction&, const Vec3d&) const override { return 0.0; }
+    Model model() const override {
+        Model m;
+        if (!m_reflectance->is_constant() || !m_transmittance->is_constant()) return m;
+        m.kind = Model::Kind::Dielectric;
+        m.ior = m_eta;
+        m.specular_reflectance = m_reflectance->mean();
+        m.specular_transmittance = m_transmittance->mean();
+        return m;
+    }
 
 private:
     double m_eta;  // int_ior / ext_ior

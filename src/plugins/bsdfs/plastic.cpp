@@ -83,6 +83,19 @@ public:
         return (1 - ps) * warp::square_to_cosine_hemisphere_pdf(wo);
     }
     Color3 albedo(const SurfaceInteraction& si) const override { return m_diffuse->eval(si); }
+    Model model() const override {
+        Model m;
+        if (!m_diffuse->is_constant() || !m_specular->is_constant()) return m;
+        m.kind = Model::Kind::Plastic;
+        m.reflectance = glm::max(m_diffuse->mean(), Color3(0.0));
+        m.specular_reflectance = m_specular->mean();
+        m.ior = m_eta;
+        m.nonlinear = m_nonlinear;
+        m.specular_weight = m_specular_weight;
+        m.fdr_int = m_fdr_int;
+        m.inv_ext_transmission = m_inv_ext_transmission;
+        return m;
+    }
 
 private:
     double prob_specular(double Fi) const {

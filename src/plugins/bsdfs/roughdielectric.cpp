@@ -114,6 +114,20 @@ public:
         return std::isfinite(p) && p > 0 ? p : 0.0;
     }
 
+    Model model() const override {
+        Model m;
+        if (!m_reflectance->is_constant() || !m_transmittance->is_constant()) return m;
+        m.kind = Model::Kind::RoughDielectric;
+        m.ggx = m_distr.type() == MicrofacetType::GGX;
+        m.alpha_u = m_distr.alpha_u();
+        m.alpha_v = m_distr.alpha_v();
+        m.sample_visible = m_distr.sample_visible();
+        m.ior = m_eta;
+        m.specular_reflectance = m_reflectance->mean();
+        m.specular_transmittance = m_transmittance->mean();
+        return m;
+    }
+
 private:
     /// Mirror (wi, wo) so that wi is on the upper side, pick the relative index seen from wi and the half vector
     /// of the pair (oriented up). False when the pair cannot be connected by one microfacet.

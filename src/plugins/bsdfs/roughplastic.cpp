@@ -182,6 +182,25 @@ public:
         return ps * p_spec + (1 - ps) * warp::square_to_cosine_hemisphere_pdf(wo);
     }
     Color3 albedo(const SurfaceInteraction& si) const override { return m_diffuse->eval(si); }
+    Model model() const override {
+        Model m;
+        if (!m_diffuse->is_constant() || !m_specular->is_constant()) return m;
+        m.kind = Model::Kind::RoughPlastic;
+        m.reflectance = glm::max(m_diffuse->mean(), Color3(0.0));
+        m.specular_reflectance = m_specular->mean();
+        m.ggx = m_distr.type() == MicrofacetType::GGX;
+        m.alpha_u = m_distr.alpha_u();
+        m.alpha_v = m_distr.alpha_v();
+        m.sample_visible = m_distr.sample_visible();
+        m.ior = m_eta;
+        m.nonlinear = m_nonlinear;
+        m.specular_weight = m_specular_weight;
+        m.fdr_int = m_fdr_int;
+        m.coating_r_ext = m_tables.r_ext.data();
+        m.coating_t_ext = m_tables.t_ext.data();
+        m.coating_size = kTableSize;
+        return m;
+    }
 
 private:
     /// The specular albedo seen from outside, R(mu).

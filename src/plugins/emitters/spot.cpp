@@ -123,6 +123,16 @@ public:
         const Vec3d local = glm::normalize(Vec3d(m_to_world.inverse * glm::dvec4(d, 0.0)));
         return {1.0, local.z >= m_cos_cutoff ? warp::square_to_uniform_cone_pdf(m_cos_cutoff) : 0.0};
     }
+    Model model() const override {
+        Model m;
+        if (!m_texture->is_constant()) return m;
+        m.kind = Model::Kind::Spot;
+        m.intensity = m_intensity * m_texture->mean();
+        m.to_local = m_to_world.inverse;
+        m.beam = m_beam;
+        m.cutoff = m_cutoff;
+        return m;
+    }
     Color3 power() const override { return m_intensity * m_texture->mean() * (2 * Pi * m_falloff_integral); }
 
 private:
