@@ -167,6 +167,11 @@ void BM_VortexParticleSumPanels(benchmark::State& state) {
     state.counters["threads"] = thread_count();
 }
 
+/// The particle sums' lattices (64^2, 128^2, 256^2 particles), CPU time of the process.
+void ParticleSizes(benchmark::internal::Benchmark* b) {
+    b->Arg(64)->Arg(128)->Arg(256)->Unit(benchmark::kMillisecond)->MeasureProcessCPUTime();
+}
+
 void Sizes(benchmark::internal::Benchmark* b) {
     b->Args({256, 256})->Args({256, 1024})->Args({512, 256})->Args({512, 1024});
     b->Unit(benchmark::kMillisecond)->UseRealTime()->MinTime(1.0);
@@ -233,32 +238,12 @@ BENCHMARK_CAPTURE(BM_VortexParticlesStep, periodic_tree_rk4, true, Advection::RK
     ->Unit(benchmark::kMillisecond)
     ->MeasureProcessCPUTime()
     ->Iterations(1);
-BENCHMARK_CAPTURE(BM_VortexParticleSum, tree, ParticleSummation::Tree, false)
-    ->Arg(64)
-    ->Arg(128)
-    ->Arg(256)
-    ->Unit(benchmark::kMillisecond)
-    ->MeasureProcessCPUTime();
-BENCHMARK(BM_VortexParticleSumPanels)
-    ->Arg(64)
-    ->Arg(128)
-    ->Arg(256)
-    ->Unit(benchmark::kMillisecond)
-    ->MeasureProcessCPUTime();
-BENCHMARK_CAPTURE(BM_VortexParticleSum, direct, ParticleSummation::Direct, false)
-    ->Arg(64)
-    ->Arg(128)
-    ->Arg(256)
-    ->Unit(benchmark::kMillisecond)
-    ->MeasureProcessCPUTime();
+BENCHMARK_CAPTURE(BM_VortexParticleSum, tree, ParticleSummation::Tree, false)->Apply(ParticleSizes);
+BENCHMARK(BM_VortexParticleSumPanels)->Apply(ParticleSizes);
+BENCHMARK_CAPTURE(BM_VortexParticleSum, direct, ParticleSummation::Direct, false)->Apply(ParticleSizes);
 // Periodic Taylor–Green: the tree over the 3 x 3 images plus the interpolated far images against the direct sum
 // with the periodic kernel.
-BENCHMARK_CAPTURE(BM_VortexParticleSum, periodic_tree, ParticleSummation::Tree, true)
-    ->Arg(64)
-    ->Arg(128)
-    ->Arg(256)
-    ->Unit(benchmark::kMillisecond)
-    ->MeasureProcessCPUTime();
+BENCHMARK_CAPTURE(BM_VortexParticleSum, periodic_tree, ParticleSummation::Tree, true)->Apply(ParticleSizes);
 BENCHMARK_CAPTURE(BM_VortexParticleSum, periodic_direct, ParticleSummation::Direct, true)
     ->Arg(64)
     ->Arg(128)

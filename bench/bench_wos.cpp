@@ -57,19 +57,15 @@ std::string polygon_points(Vec2d c, double r, int n) {
 // ---------------------------------------------------------------------------------------------------------
 // Laplace on the square and on the 1024-gon: walks/s on one thread, RMSE at 256 walks.
 
-template <class Geometry>
-void laplace(benchmark::State& state, const Geometry& geo, bool polygon) {
+/// Walks from every point of `pts` for u = x^2 - y^2 (harmonic in 2D and 3D) with Dirichlet data u on `geo`,
+/// n walks each, epsilon 1e-3: walks per second, steps per walk and the RMSE of the last pass.
+template <int D, class Geometry>
+void laplace_points(benchmark::State& state, const Geometry& geo, const std::vector<wos::Vec<D>>& pts) {
     const int n = int(state.range(0));
     wos::Settings s;
     s.epsilon = 1e-3;
-    std::vector<Vec2d> pts;
-    for (int j = 0; j < 32; ++j)
-        for (int i = 0; i < 32; ++i) {
-            const Vec2d p(-1 + (i + 0.5) / 16, -1 + (j + 0.5) / 16);
-            if (!polygon || glm::length(p) < 0.99) pts.push_back(p);
-        }
-    auto u = [](const Vec2d& p) { return p.x * p.x - p.y * p.y; };
-    auto g = [&](const wos::BoundaryHit<2>& h) { return u(h.point); };
+    auto u = [](const wos::Vec<D>& p) { return p.x * p.x - p.y * p.y; };
+    auto g = [&](const wos::BoundaryHit<D>& h) { return u(h.point); };
     wos::WalkCounters c;
     double sse = 0;
     uint64_t pass = 0;
@@ -77,7 +73,7 @@ void laplace(benchmark::State& state, const Geometry& geo, bool polygon) {
         sse = 0;
         for (std::size_t k = 0; k < pts.size(); ++k) {
             Random rng(pass, k);
-            const wos::ScalarEstimate e = wos::solve<2>(geo, g, wos::NoSource{}, pts[k], n, rng, s, c);
+            const wos::ScalarEstimate e = wos::solve<D>(geo, g, wos::NoSource{}, pts[k], n, rng, s, c);
             sse += (e.value - u(pts[k])) * (e.value - u(pts[k]));
         }
         ++pass;
@@ -86,6 +82,17 @@ void laplace(benchmark::State& state, const Geometry& geo, bool polygon) {
     state.counters["steps/walk"] = double(c.steps) / double(c.walks);
     state.counters["rmse"] = std::sqrt(sse / double(pts.size()));
     state.counters["points"] = double(pts.size());
+}
+
+template <class Geometry>
+void laplace(benchmark::State& state, const Geometry& geo, bool polygon) {
+    std::vector<Vec2d> pts;
+    for (int j = 0; j < 32; ++j)
+        for (int i = 0; i < 32; ++i) {
+            const Vec2d p(-1 + (i + 0.5) / 16, -1 + (j + 0.5) / 16);
+            if (!polygon || glm::length(p) < 0.99) pts.push_back(p);
+        }
+    laplace_points<2>(state, geo, pts);
 }
 
 void BM_LaplaceSquare(benchmark::State& state) { laplace(state, wos::BoxBoundary<2>{{-1, -1}, {1, 1}}, false); }
@@ -99,7 +106,6 @@ void BM_LaplacePolygon1024(benchmark::State& state) {
 // triangle BVH), epsilon 1e-3, on the points of a 16^3 lattice over its bounds that lie inside it at least 0.01
 // from the surface, 16 walks each. Zombie has no figure for this; it is Kelvin before/after.
 void BM_LaplaceBunny3(benchmark::State& state) {
-    const int n = int(state.range(0));
     Properties sp("shape", "obj");
     sp.set_string("filename", std::string(KELVIN_SOURCE_DIR) + "/scenes/fluid/meshes/bunny3d.obj");
     Properties bp("boundary", "mesh");
@@ -115,26 +121,7 @@ void BM_LaplaceBunny3(benchmark::State& state) {
                 const Vec3d x = lo + (hi - lo) * Vec3d((i + 0.5) / 16, (j + 0.5) / 16, (k + 0.5) / 16);
                 if (bunny->inside3(x) && geo.distance(x) > 1e-2) pts.push_back(x);
             }
-    wos::Settings s;
-    s.epsilon = 1e-3;
-    auto u = [](const Vec3d& x) { return x.x * x.x - x.y * x.y; };  // harmonic in 3D too
-    auto g = [&](const wos::BoundaryHit<3>& h) { return u(h.point); };
-    wos::WalkCounters c;
-    double sse = 0;
-    uint64_t pass = 0;
-    for (auto _ : state) {
-        sse = 0;
-        for (std::size_t k = 0; k < pts.size(); ++k) {
-            Random rng(pass, k);
-            const wos::ScalarEstimate e = wos::solve<3>(geo, g, wos::NoSource{}, pts[k], n, rng, s, c);
-            sse += (e.value - u(pts[k])) * (e.value - u(pts[k]));
-        }
-        ++pass;
-    }
-    state.counters["walks/s"] = benchmark::Counter(double(c.walks), benchmark::Counter::kIsRate);
-    state.counters["steps/walk"] = double(c.steps) / double(c.walks);
-    state.counters["rmse"] = std::sqrt(sse / double(pts.size()));
-    state.counters["points"] = double(pts.size());
+    laplace_points<3>(state, geo, pts);
 }
 
 // ---------------------------------------------------------------------------------------------------------

@@ -147,6 +147,7 @@ VortexPanels::VortexPanels(std::vector<Segment2> panels, std::vector<double> psi
         hi = glm::max(hi, m_mid[j]);
         longest = std::max(longest, m_len[j]);
     }
+    m_longest = longest;
     m_cell = 4 * longest;
     while ((hi.x - lo.x) / m_cell * ((hi.y - lo.y) / m_cell) > double(1 << 22)) m_cell *= 2;
     m_grid_lo = lo;

@@ -503,8 +503,7 @@ void VortexParticleSolver::add_panel_velocity(const double* tx, const double* ty
         // The panels' far-field point vortices (two Gauss nodes each) by their own tree (no mollification: a radius
         // of 1e-12 panel lengths only keeps a target on a node finite), plus the exact near field.
         const VortexPanels& pn = *m_panels;
-        double longest = 0;
-        for (const Segment2& s : pn.panels()) longest = std::max(longest, glm::length(s[1] - s[0]));
+        const double longest = pn.longest();
         // A wall's sheet is strong and of one sign over long stretches while its velocity cancels against the facing
         // wall's inside the box: the far-field error relative to the net velocity is larger than for the particles,
         // so the opening angle is 0.4 x theta (error ~ theta^3: 16x smaller).

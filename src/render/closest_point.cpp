@@ -201,6 +201,25 @@ inline float prune_threshold(double r, double scale) {
     return std::clamp(float(t2), 1e-37f, std::numeric_limits<float>::max());
 }
 
+/// Sorts a node's four children by their squared box distances, nearest first: a branchless network of five
+/// compare-exchanges (children out of reach carry +inf and sort last). Shared by the 2D and 3D traversals.
+inline void sort_children(float d[4], uint32_t c[4]) {
+    const auto cx = [&](int i, int j) {
+        const float a = d[i], b = d[j];
+        const uint32_t ca = c[i], cb = c[j];
+        const bool swap = b < a;
+        d[i] = swap ? b : a;
+        d[j] = swap ? a : b;
+        c[i] = swap ? cb : ca;
+        c[j] = swap ? ca : cb;
+    };
+    cx(0, 1);
+    cx(2, 3);
+    cx(0, 2);
+    cx(1, 3);
+    cx(1, 2);
+}
+
 }  // namespace
 
 namespace {
@@ -357,20 +376,7 @@ struct TriangleBvh {
                     }
                     float d[4] = {d2[0], d2[1], d2[2], d2[3]};
                     uint32_t c[4] = {n.child[0], n.child[1], n.child[2], n.child[3]};
-                    const auto cx = [&](int i, int j) {
-                        const float a = d[i], b = d[j];
-                        const uint32_t ca = c[i], cb = c[j];
-                        const bool swap = b < a;
-                        d[i] = swap ? b : a;
-                        d[j] = swap ? a : b;
-                        c[i] = swap ? cb : ca;
-                        c[j] = swap ? ca : cb;
-                    };
-                    cx(0, 1);
-                    cx(2, 3);
-                    cx(0, 2);
-                    cx(1, 3);
-                    cx(1, 2);
+                    sort_children(d, c);
                     for (int j = 0; j < 3; ++j) {  // as in the 2D search: missed children are dropped when popped
                         stack_code[sp + j] = c[3 - j];
                         stack_d2[sp + j] = d[3 - j];
@@ -965,20 +971,7 @@ double ClosestSegmentQuery::Impl::search(const Vec2d& p, double max_radius, uint
                 // five compare-exchanges; missed children sort last and are not pushed).
                 float d[4] = {d2[0], d2[1], d2[2], d2[3]};
                 uint32_t c[4] = {n.child[0], n.child[1], n.child[2], n.child[3]};
-                const auto cx = [&](int i, int j) {
-                    const float a = d[i], b = d[j];
-                    const uint32_t ca = c[i], cb = c[j];
-                    const bool swap = b < a;
-                    d[i] = swap ? b : a;
-                    d[j] = swap ? a : b;
-                    c[i] = swap ? cb : ca;
-                    c[j] = swap ? ca : cb;
-                };
-                cx(0, 1);
-                cx(2, 3);
-                cx(0, 2);
-                cx(1, 3);
-                cx(1, 2);
+                sort_children(d, c);
                 if constexpr (Fault == 1) {  // deliberately wrong: drop the farthest child
                     const int m = int((0x4332322132212110ull >> (4 * mask)) & 15);  // popcount of 4 bits
                     d[m - 1] = std::numeric_limits<float>::infinity();

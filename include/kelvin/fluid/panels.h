@@ -45,6 +45,7 @@ public:
     bool empty() const { return m_panels.empty(); }
     const std::vector<Segment2>& panels() const { return m_panels; }
     const std::vector<Vec2d>& midpoints() const { return m_mid; }
+    double longest() const { return m_longest; }  ///< the longest panel's length
 
     /// Strengths from Psi of the free field at the midpoints (size() values).
     void solve(const double* psi_free);
@@ -83,7 +84,7 @@ private:
     // Midpoints binned on a uniform grid of cells of 4 x the longest panel (CSR): the near panels of x are in the 3 x 3
     // cells around it.
     Vec2d m_grid_lo{0.0};
-    double m_cell = 1;
+    double m_cell = 1, m_longest = 0;
     int m_gnx = 0, m_gny = 0;
     std::vector<uint32_t> m_cell_start, m_cell_panels;
     struct Solver;  // the factored system (Eigen, private to the library)
