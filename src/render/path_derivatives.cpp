@@ -1,7 +1,8 @@
 // Differentiable evaluation of the path technique's contribution (include/kelvin/render/path_derivatives.h).
-// One template, run in plain doubles (the value, for finite differences) and in nested Eigen::AutoDiffScalar (value,
-// gradient and Hessian: forward over forward). It mirrors src/plugins/integrators/path.cpp line by line for the
-// supported subset; every discrete decision is the renderer's own at the point.
+// One template, run in plain doubles (the value, for finite differences) and in nested fixed-size
+// Eigen::AutoDiffScalar (value, gradient and Hessian: forward over forward, bounce by bounce). It mirrors
+// src/plugins/integrators/path.cpp line by line for the supported subset; every discrete decision is the renderer's own
+// at the point.
 #include <kelvin/render/bsdf.h>
 #include <kelvin/render/integrator.h>
 #include <kelvin/render/mesh.h>
@@ -58,13 +59,32 @@ const char* to_string(PathDerivativeStatus s) {
 namespace {
 
 constexpr int MaxBlock = 96;  // PathDerivativeOptions::max_coordinates may not exceed it
-using InnerDer = Eigen::Matrix<double, Eigen::Dynamic, 1, 0, MaxBlock, 1>;  // no heap: inline storage
-using Inner = Eigen::AutoDiffScalar<InnerDer>;
-using InnerVec = Eigen::Matrix<Inner, Eigen::Dynamic, 1>;
-using Outer = Eigen::AutoDiffScalar<InnerVec>;
+
+// The derivatives are taken bounce by bounce (a checkpointed second-order chain rule). Between bounces the path
+// carries 16 numbers, its *state* s (the ray's origin and direction, the previous vertex, the throughput, the
+// radiance gathered so far, the previous BSDF density); bounce i maps (s_i, u_i) to s_{i+1}, u_i the (at most 4)
+// coordinates it reads that move the path continuously (the 3 others of a bounce only choose: read_discrete), and
+// log pi = G(s_K). Each bounce runs in nested fixed-size AutoDiff over its own 16 + 4
+// inputs (value, Jacobian and Hessians of its 16 outputs), and evaluate() composes them: the Jacobians forward,
+// then the Hessian backward (H = J_K^T (d2 G) J_K + sum_i Jz_i^T (sum_k lambda_{i+1,k} d2 F_{i,k}) Jz_i, lambda the
+// adjoint of the state). The cost per operation is that of 20 inputs whatever the path's length, instead of n^2.
+// A block that fits one local (n <= 20) is differentiated directly by the same type.
+constexpr int Carried = 16, LocalN = 20, LocalCoords = LocalN - Carried;
+using LocalDer = Eigen::Matrix<double, LocalN, 1>;
+using Inner = Eigen::AutoDiffScalar<LocalDer>;
+using InnerVec = Eigen::Matrix<Inner, LocalN, 1>;
+using Local = Eigen::AutoDiffScalar<InnerVec>;
 
 inline double val(double x) { return x; }
-inline double val(const Outer& x) { return x.value().value(); }
+inline double val(const Local& x) { return x.value().value(); }
+
+// Input k of a local (its value v): unit first derivative, zero second.
+Local local_variable(double v, int k) {
+    Local x;
+    x.value() = Inner(v, LocalN, k);
+    for (int j = 0; j < LocalN; ++j) x.derivatives()(j) = Inner(j == k ? 1.0 : 0.0, LocalDer::Zero());
+    return x;
+}
 
 template <class T>
 struct V3 {
@@ -82,8 +102,9 @@ template <class T>
 V3<T> operator*(const V3<T>& a, const T& s) {
     return {a.x * s, a.y * s, a.z * s};
 }
-// Products of two constants have empty derivative vectors; Eigen's AutoDiffScalar resizes an empty plain operand to
-// match the other one, but not an empty expression, so each product is evaluated (T) before the sum.
+// Each product is evaluated (T) before the sum: shallower expression templates. (With dynamic-size derivatives, as
+// before the bounce-by-bounce evaluation, a product of constants had an empty derivative vector, which Eigen does not
+// resize inside an expression.)
 template <class T>
 T dot(const V3<T>& a, const V3<T>& b) {
     return T(a.x * b.x) + T(a.y * b.y) + T(a.z * b.z);
@@ -750,27 +771,76 @@ struct DoubleReader {
         }
         return coords[next++];
     }
+    double read_discrete() { return read(); }
+    void checkpoint(double* const*) {}
 };
-struct OuterReader {
+// The bounces recorded by a segmented evaluation: per bounce the Jacobian A (16 x 20) and the Hessians (20 x 20) of
+// its 16 outputs with respect to its inputs (the 16 carried numbers, then the coordinates it read), and the block
+// entries of those coordinates.
+struct Bounce {
+    int coords = 0;
+    int index[LocalCoords];
+    Eigen::Matrix<double, Carried, LocalN> A;
+    Eigen::Matrix<double, LocalN, LocalN> H[Carried];
+};
+struct LocalTape {
+    std::vector<Bounce> bounces;  // bounces[0, used): kept across calls (per thread), so nothing is reallocated
+    std::size_t used = 0;
+    int coords = 0;  // coordinates read in the current bounce
+    int index[LocalCoords];
+    bool too_many = false;  // a bounce read more than LocalCoords coordinates (not the path technique's layout)
+    std::vector<Eigen::MatrixXd> Jz;  // per record, d(inputs)/d(block): LocalN x cols
+    std::vector<int> cols;            // per record: 1 + the largest block entry read up to it
+    Eigen::MatrixXd Js, T1, H;
+};
+
+struct LocalReader {
     const double* coords;
     const int* block;
     std::size_t length;
     int n;
+    LocalTape* tape;  // null: direct (the block's entries are the local's inputs)
     std::size_t next = 0;
     bool overflow = false;
-    Outer read() {
+    Local read() {
         if (next >= length) {
             overflow = true;
-            return Outer(0.5);
+            return Local(0.5);
         }
         const std::size_t i = next++;
         const int k = block ? block[i] : -1;
-        if (k < 0 || k >= n) return Outer(coords[i]);  // held constant
-        Outer x;
-        x.value() = Inner(coords[i], n, k);
-        x.derivatives().resize(n);
-        for (int j = 0; j < n; ++j) x.derivatives()(j) = Inner(j == k ? 1.0 : 0.0, InnerDer::Zero(n));
-        return x;
+        if (k < 0 || k >= n) return Local(coords[i]);  // held constant
+        if (!tape) return local_variable(coords[i], k);
+        if (tape->coords >= LocalCoords) {
+            tape->too_many = true;
+            return Local(coords[i]);
+        }
+        tape->index[tape->coords] = k;
+        return local_variable(coords[i], Carried + tape->coords++);
+    }
+    Local read_discrete() {
+        if (next >= length) {
+            overflow = true;
+            return Local(0.5);
+        }
+        return Local(coords[next++]);
+    }
+    // Between bounces (and after the last): record the bounce that ends and make the carried numbers the next
+    // bounce's first 16 inputs.
+    void checkpoint(Local* const* carried) {
+        if (!tape) return;
+        LocalTape& t = *tape;
+        if (t.used == t.bounces.size()) t.bounces.emplace_back();
+        Bounce& b = t.bounces[t.used++];
+        b.coords = t.coords;
+        std::copy(t.index, t.index + t.coords, b.index);
+        for (int k = 0; k < Carried; ++k) {
+            const Local& c = *carried[k];
+            b.A.row(k) = c.value().derivatives().transpose();
+            for (int j = 0; j < LocalN; ++j) b.H[k].row(j) = c.derivatives()(j).derivatives().transpose();
+        }
+        for (int k = 0; k < Carried; ++k) *carried[k] = local_variable(val(*carried[k]), k);
+        t.coords = 0;
     }
 };
 
@@ -865,8 +935,14 @@ PathDerivativeStatus PathDerivatives::Impl::run(Reader& rd, T& log_pi) const {
     bool prev_delta = true;
     V3<T> prev_p = orig;
     const long max_len = o.max_depth < 0 ? std::numeric_limits<long>::max() : long(o.max_depth);
+    // What the path carries from one bounce to the next (all of it: nothing else computed in a bounce is used in a
+    // later one); a segmented evaluation differentiates each bounce with respect to these and its own coordinates.
+    T* const carried[Carried] = {&orig.x,       &orig.y,       &orig.z,       &d.x,          &d.y, &d.z,
+                                 &prev_p.x,     &prev_p.y,     &prev_p.z,     &L.r,          &L.g, &L.b,
+                                 &throughput.r, &throughput.g, &throughput.b, &prev_bsdf_pdf};
 
     for (long depth = 0;; ++depth) {
+        rd.checkpoint(carried);
         auto hit = scene.intersect(ray);
         if (!hit) {
             if (!scene.environment_emitters().empty()) return S::Unsupported;
@@ -955,11 +1031,13 @@ PathDerivativeStatus PathDerivatives::Impl::run(Reader& rd, T& log_pi) const {
         const Bsdf::Model model = bsdf.model();
         using Kind = Bsdf::Model::Kind;
         if (model.kind == Kind::None) return S::Unsupported;
-        const T u_light = rd.read();
+        // The emitter, the BSDF component and roulette use their coordinate only in a comparison (read_discrete: a
+        // constant, its derivatives zero); the other four move the path continuously.
+        const T u_light = rd.read_discrete();
         const T u_l0 = rd.read(), u_l1 = rd.read();
-        const T u_comp = rd.read();
+        const T u_comp = rd.read_discrete();
         const T u_d0 = rd.read(), u_d1 = rd.read();
-        const T u_rr = rd.read();
+        const T u_rr = rd.read_discrete();
         // twosided seen from below: the nested model in the mirrored frame (z of wi and wo negated, as the plugin).
         FrameT<T> frame = geometric_frame;
         const bool mirrored = model.two_sided && si.wi.z < 0;
@@ -1128,6 +1206,7 @@ PathDerivativeStatus PathDerivatives::Impl::run(Reader& rd, T& log_pi) const {
         }
     }
     if (rd.overflow) return S::TooLong;
+    rd.checkpoint(carried);
     const T pi = (L.r * T(0.212671) + L.g * T(0.715160) + L.b * T(0.072169)) * T(o.film_area);
     if (!(val(pi) > 0)) return S::Zero;
     log_pi = log(pi);
@@ -1148,27 +1227,75 @@ PathDerivativeStatus PathDerivatives::log_value(const double* coords, std::size_
 
 PathDerivativeStatus PathDerivatives::evaluate(const double* coords, const int* block, std::size_t length, int n,
                                                double value, double* log_value, double* grad, double* hess) const {
-    if (n > std::min(m_impl->o.max_coordinates, MaxBlock)) return PathDerivativeStatus::TooLong;
-    OuterReader rd{coords, block, length, n};
-    Outer lp(0.0);
-    const PathDerivativeStatus s = m_impl->run<Outer>(rd, lp);
-    if (s != PathDerivativeStatus::Ok) return s;
-    const double v = lp.value().value();
-    if (value > 0 && !(std::abs(v - std::log(value)) <= 1e-4)) return PathDerivativeStatus::Mismatch;
+    using S = PathDerivativeStatus;
+    if (n > std::min(m_impl->o.max_coordinates, MaxBlock)) return S::TooLong;
+    thread_local LocalTape tape;  // per thread: its arrays grow once
+    const bool segmented = n > LocalN || m_impl->o.always_segmented;
+    tape.used = 0;
+    tape.coords = 0;
+    tape.too_many = false;
+    LocalReader rd{coords, block, length, n, segmented ? &tape : nullptr};
+    Local lp(0.0);
+    const S s = m_impl->run<Local>(rd, lp);
+    if (s != S::Ok) return s;
+    if (tape.too_many) return S::Unsupported;
+    const double v = val(lp);
+    if (value > 0 && !(std::abs(v - std::log(value)) <= 1e-4)) return S::Mismatch;
     if (log_value) *log_value = v;
+    if (!grad && !hess) return S::Ok;
+    Eigen::Map<Eigen::VectorXd> g(grad ? grad : nullptr, grad ? n : 0);
+    Eigen::Map<Eigen::MatrixXd> H(hess ? hess : nullptr, hess ? n : 0, hess ? n : 0);
+    if (!segmented) {
+        for (int i = 0; i < n && grad; ++i) g(i) = lp.value().derivatives()(i);
+        for (int j = 0; j < n && hess; ++j)
+            for (int i = 0; i < n; ++i) H(i, j) = lp.derivatives()(i).derivatives()(j);
+        return S::Ok;
+    }
+
+    // Forward: the Jacobian of each record's inputs with respect to the block (the carried numbers' rows from the
+    // previous record, a unit row per coordinate read). Records: the camera, then one per bounce; G (log pi of the
+    // carried radiance) follows the last.
+    // Only the block entries read so far can have non-zero columns: each record's Jacobian keeps the first
+    // cols of them (the block's entries are in reading order along the path, so that is about half on average).
+    const std::size_t K = tape.used;
+    if (tape.Jz.size() < K) tape.Jz.resize(K), tape.cols.resize(K);
+    tape.Js.resize(Carried, 0);
+    int cols = 0;
+    for (std::size_t i = 0; i < K; ++i) {
+        const Bounce& b = tape.bounces[i];
+        const int before = cols;
+        for (int c = 0; c < b.coords; ++c) cols = std::max(cols, b.index[c] + 1);
+        tape.cols[i] = cols;
+        Eigen::MatrixXd& J = tape.Jz[i];
+        J.setZero(LocalN, cols);
+        J.topLeftCorner(Carried, before) = tape.Js;
+        for (int c = 0; c < b.coords; ++c) J(Carried + c, b.index[c]) = 1.0;
+        tape.Js.noalias() = b.A * J;  // the record's outputs: the next one's carried inputs
+    }
+    const Eigen::Matrix<double, Carried, 1> gG = lp.value().derivatives().head<Carried>();
     if (grad) {
-        const InnerDer& g = lp.value().derivatives();
-        for (int i = 0; i < n; ++i) grad[i] = i < g.size() ? g(i) : 0.0;
+        g.setZero();
+        g.head(cols).noalias() = tape.Js.transpose() * gG;
     }
-    if (hess) {
-        const InnerVec& d = lp.derivatives();
-        for (int j = 0; j < n; ++j)
-            for (int i = 0; i < n; ++i) {
-                const double h = i < d.size() && j < d(i).derivatives().size() ? d(i).derivatives()(j) : 0.0;
-                hess[std::size_t(j) * std::size_t(n) + std::size_t(i)] = h;
-            }
+    if (!hess) return S::Ok;
+    Eigen::Matrix<double, LocalN, LocalN> M;
+    for (int j = 0; j < LocalN; ++j) M.row(j) = lp.derivatives()(j).derivatives().transpose();
+    tape.T1.noalias() = M.topLeftCorner<Carried, Carried>() * tape.Js;
+    H.setZero();
+    H.topLeftCorner(cols, cols).noalias() = tape.Js.transpose() * tape.T1;
+    // Backward: the adjoint of each record's outputs weighs the Hessians of those outputs.
+    Eigen::Matrix<double, Carried, 1> lambda = gG;
+    for (std::size_t i = K; i-- > 0;) {
+        const Bounce& b = tape.bounces[i];
+        M.setZero();
+        for (int k = 0; k < Carried; ++k)
+            if (lambda(k) != 0) M += lambda(k) * b.H[k];
+        const Eigen::MatrixXd& J = tape.Jz[i];
+        tape.T1.noalias() = M * J;
+        H.topLeftCorner(tape.cols[i], tape.cols[i]).noalias() += J.transpose() * tape.T1;
+        lambda = (b.A.transpose() * lambda).head<Carried>();
     }
-    return PathDerivativeStatus::Ok;
+    return S::Ok;
 }
 
 }  // namespace kelvin

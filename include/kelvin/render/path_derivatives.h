@@ -2,7 +2,10 @@
 // Derivatives of the `path` technique's contribution with respect to its primary samples (issue 14; what H2MC needs,
 // mlt/local.h): the gradient and Hessian of log(luminance) of a path sample, exactly as the Metropolis integrators
 // evaluate a state of the path technique (film position from coordinates 0-1 over the film domain, lens 2-3, then 7
-// numbers per bounce; path.cpp), by forward-over-forward automatic differentiation (nested Eigen::AutoDiffScalar).
+// numbers per bounce; path.cpp), by forward-over-forward automatic differentiation (nested Eigen::AutoDiffScalar of
+// a fixed size, 20): bounce by bounce with respect to the 16 numbers the path carries between bounces and the
+// bounce's own continuous coordinates, the bounces composed by the chain rule (Jacobians forward, the Hessian
+// backward). A path of n coordinates costs O(n) nested operations of size 20 plus O(n^2) per bounce to compose.
 //
 // The discrete decisions of the path (which primitive a ray hits, visibility of a shadow ray, the emitter chosen, the
 // triangle of the emitter, Russian roulette, which branch of a warp) are taken by the ordinary renderer (Embree) at
@@ -38,6 +41,9 @@ struct PathDerivativeOptions {
     Vec2d film_origin{0.0}, film_extent{1.0};  ///< the film domain coordinates 0-1 map to (pixels)
     double film_area = 1;                      ///< the value is luminance(L * film_area), as the MLT target
     int max_coordinates = 96;                  ///< longer blocks are refused (TooLong)
+    /// Differentiate bounce by bounce even when the block fits one local (24 inputs): for tests, which compare the
+    /// two ways. Longer blocks are always segmented.
+    bool always_segmented = false;
 
     /// The film domain the Metropolis integrators use: the film widened by the filter radius on every side,
     /// film_area its area in pixels.
