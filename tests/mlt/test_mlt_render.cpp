@@ -339,13 +339,15 @@ TEST(MltIntegrators, EveryStudyVariantRenders) {
             if (std::string(geometry) == "aquarium") opts.defines.insert({{"technique", "mmlt"}, {"max_depth", "8"}});
             render(opts, variant);
         }
-    // The H2MC variants (path technique only): the door's plugins are differentiable, so derivatives are taken.
-    for (const char* variant : {"pssmlt-h2mc", "drmlt-h2mc"}) {
-        SCOPED_TRACE(variant);
-        ParseOptions opts;
-        opts.defines = {{"variant", variant}, {"geometry", "door"}, {"res", "8"}, {"max_depth", "6"}};
-        EXPECT_GT(render(opts, variant), 0.0);
-    }
+    // The H2MC variants (path technique only): the plugins of the door and of the Fig. 4.12 scenes (rough torus,
+    // chess) are differentiable, so derivatives are taken.
+    for (const char* variant : {"pssmlt-h2mc", "drmlt-h2mc"})
+        for (const char* geometry : {"door", "torus", "chess"}) {
+            SCOPED_TRACE(std::string(variant) + " " + geometry);
+            ParseOptions opts;
+            opts.defines = {{"variant", variant}, {"geometry", geometry}, {"res", "8"}, {"max_depth", "6"}};
+            EXPECT_GT(render(opts, variant), 0.0);
+        }
 }
 
 // chains = -1: the count follows the mutation budget (docs/mlt.md, "How many chains"), within its bounds.
