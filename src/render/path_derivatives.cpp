@@ -1113,7 +1113,8 @@ PathDerivativeStatus PathDerivatives::Impl::run(Reader& rd, T& log_pi) const {
         if (depth + 2 > max_len) break;
 
         const Bsdf& bsdf = *si.shape->bsdf();
-        const Bsdf::Model model = bsdf.model();
+        Bsdf::Model model = bsdf.model();
+        if (model.two_sided && si.wi.z < 0) model = bsdf.back_model();  // a twosided's second side
         using Kind = Bsdf::Model::Kind;
         if (model.kind == Kind::None) return S::Unsupported;
         // The emitter, the BSDF component and roulette use their coordinate only in a comparison (read_discrete: a
@@ -1191,8 +1192,10 @@ PathDerivativeStatus PathDerivatives::Impl::run(Reader& rd, T& log_pi) const {
                                     : nullptr;
                         const bool light_sphere = sh >= 0 && sphere(uint32_t(sh)),
                                    light_disc = sh >= 0 && disc(uint32_t(sh));
+                        // On a mesh with vertex normals too: the light's sample, its normal and its density use
+                        // the triangle's plane (TriangleMesh::sample_position, AreaEmitter).
                         if (e->plugin_name() != "area" || e->spatially_varying() ||
-                            !((mesh && flat_triangles(uint32_t(sh))) || light_sphere || light_disc))
+                            !((mesh && triangles(uint32_t(sh))) || light_sphere || light_disc))
                             return S::Unsupported;
                         const ShapeGeometry& eg = geometry[std::size_t(sh)];
                         long long triangle = 0;

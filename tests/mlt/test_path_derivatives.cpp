@@ -412,6 +412,62 @@ TEST(PathDerivatives, MatchFiniteDifferencesWithTwoSidedPanels) {
     expect_matches_finite_differences(S, 16);
 }
 
+// twosided with two different sides (issue 14): the same tilted panel, rough GGX copper in front and a rough
+// plastic behind, and a second panel of Beckmann gold in front and diffuse behind; seen from below, the second BSDF
+// (Bsdf::back_model) in the mirrored frame. The test counts only points whose camera ray hits a twosided panel, and
+// needs both sides among them. Broken variant seen to fail: the front's model used on both sides (every back-side
+// path a mismatch).
+TEST(PathDerivatives, MatchFiniteDifferencesWithTwoDifferentSides) {
+    const PathSetup S(
+        "cornell-box.xml", 6,
+        {{"</scene>",
+          R"(<shape type="rectangle"><transform name="to_world"><scale value="0.35"/><rotate x="1" angle="70"/>)"
+          R"(<rotate z="1" angle="25"/><translate y="1" z="0.2"/></transform>)"
+          R"(<bsdf type="twosided"><bsdf type="roughconductor"><string name="distribution" value="ggx"/>)"
+          R"(<string name="material" value="Cu"/><float name="alpha" value="0.25"/></bsdf>)"
+          R"(<bsdf type="roughplastic"><rgb name="diffuse_reflectance" value="0.2, 0.5, 0.3"/>)"
+          R"(<float name="alpha" value="0.2"/></bsdf></bsdf></shape>)"
+          R"(<shape type="rectangle"><transform name="to_world"><scale value="0.3"/><rotate x="1" angle="-110"/>)"
+          R"(<rotate z="1" angle="-30"/><translate x="-0.5" y="0.6" z="0.3"/></transform>)"
+          R"(<bsdf type="twosided"><bsdf type="roughconductor"><string name="distribution" value="beckmann"/>)"
+          R"(<string name="material" value="Au"/><float name="alpha" value="0.2"/></bsdf>)"
+          R"(<bsdf type="diffuse"><rgb name="reflectance" value="0.6, 0.3, 0.2"/></bsdf></bsdf></shape></scene>)"}});
+    // Both sides are seen by the camera (the two panels face it with different sides).
+    int front = 0, back = 0;
+    Random rng(3, 0);
+    for (int i = 0; i < 20000; ++i) {
+        const Vec2d film = S.opt.film_origin + Vec2d(rng.next_double(), rng.next_double()) * S.opt.film_extent;
+        const Ray ray = S.scene->sensor()->sample_ray(film, Vec2d(0.5));
+        const auto hit = S.scene->intersect(ray);
+        if (!hit || S.scene->shape_of(*hit).bsdf()->plugin_name() != "twosided") continue;
+        (S.scene->interaction(ray, *hit).wi.z > 0 ? front : back)++;
+    }
+    EXPECT_GT(front, 100);
+    EXPECT_GT(back, 100);
+    expect_matches_finite_differences(S, 24, bsdf_named("twosided"));
+}
+
+// An area light on a mesh with vertex normals (issue 14): a small UV-sphere mesh emitter (below) beside the ceiling
+// light; its samples, normals and densities are those of the triangles' planes, as TriangleMesh::sample_position and
+// AreaEmitter use them. The sample's coordinate is stretched by the number of triangles (168 here: the triangle's
+// share of the CDF maps to [0, 1)), so its higher derivatives are large and the differences of h and h/2 may
+// disagree by more than 1e-4 without a discontinuity (seen: one gradient entry whose Richardson value still equals
+// the derivative to 1e-5): up to one entry in 100 may be unstable.
+std::string write_uv_sphere(const std::filesystem::path& dir);
+TEST(PathDerivatives, MatchFiniteDifferencesWithALightOnASmoothMesh) {
+    ktest::TempDir dir;
+    const std::string mesh = write_uv_sphere(dir.path());
+    const PathSetup S(
+        "cornell-box.xml", 6,
+        {{"</scene>",
+          fmt::format(R"(<shape type="obj"><string name="filename" value="{0}"/>)"
+                      R"(<transform name="to_world"><scale value="0.12"/><translate x="0.4" y="1.3" z="0.3"/>)"
+                      R"(</transform><emitter type="area"><rgb name="radiance" value="30, 25, 20"/></emitter>)"
+                      R"(</shape></scene>)",
+                      mesh)}});
+    expect_matches_finite_differences(S, 16, {}, 100);
+}
+
 // Meshes with vertex normals (issue 14): a coarse UV sphere (12 x 8 quads, vertex normals and uvs, written here as an
 // OBJ) of rough copper and one of diffuse white in the Cornell box. The shading normal is the normalised
 // barycentric blend of the vertex normals, the barycentrics functions of the ray (Moller-Trumbore), and the frame's

@@ -95,6 +95,9 @@ public:
         int coating_size = 0;
     };
     virtual Model model() const { return {}; }
+    /// The model seen from below the shading frame (wi.z < 0) when model().two_sided: the second BSDF of a
+    /// `twosided` with two sides (the same as model() otherwise).
+    virtual Model back_model() const { return model(); }
 };
 
 }  // namespace kelvin
