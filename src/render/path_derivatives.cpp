@@ -11,6 +11,7 @@
 #include <kelvin/render/pss.h>
 #include <kelvin/render/scene.h>
 #include <kelvin/render/sensor.h>
+#include <kelvin/render/texture.h>
 
 #include <Eigen/Dense>
 #include <unsupported/Eigen/AutoDiff>
@@ -763,12 +764,12 @@ bool bsdf_sample(const Bsdf::Model& b, const V3<T>& wi, const T& u_comp, const T
 // The discrete decisions a path takes, in order, where a change makes its contribution jump: the shape each ray hits
 // (for flat triangle meshes also the plane: crossing between coplanar triangles changes nothing), per next-event
 // estimate the emitter, its triangle and the shadow ray's visibility, the sampled component (reflection or
-// refraction, specular or diffuse), roulette. Changes that fade the contribution out continuously are not
-// discontinuities: a light sample that does not exist or that the BSDF gives zero (AnyNee matches any estimate), a
-// path that ends because its sampled direction carries nothing (End: what follows is not compared), the spot's
-// linear ramp. Recorded by the plain-double evaluation for the discontinuity check
+// refraction, specular or diffuse), roulette, the piece of a piecewise-constant texture. Changes that fade the
+// contribution out continuously are not discontinuities: a light sample that does not exist or that the BSDF gives zero
+// (AnyNee matches any estimate), a path that ends because its sampled direction carries nothing (End: what follows is
+// not compared), the spot's linear ramp. Recorded by the plain-double evaluation for the discontinuity check
 // (PathDerivativeOptions::discontinuity_radius).
-enum class Decide { Miss, Hit, Nee, Component, End, Roulette };
+enum class Decide { Miss, Hit, Nee, Component, End, Roulette, Texture };
 constexpr long long AnyNee = -1;  // no light sample, or a BSDF zero towards it: its contribution fades out there
 struct Decision {
     Decide kind;
@@ -1129,7 +1130,41 @@ PathDerivativeStatus PathDerivatives::Impl::run(Reader& rd, T& log_pi) const {
         const bool mirrored = model.two_sided && si.wi.z < 0;
         if (mirrored) frame.n = frame.n * T(-1.0);
         const V3<T> wi = to_local(frame, V3<T>{T(-d.x), T(-d.y), T(-d.z)});
-        auto bsdf_eval = [&](const V3<T>& wo, T& pdf) -> C3<T> { return kelvin::bsdf_eval(model, wi, wo, pdf); };
+        // A textured reflectance (Bsdf::Model::texture, a factor of the whole lobe): its value at the hit's uv, the
+        // mesh's uvs interpolated with the barycentrics (or the barycentrics themselves, as Scene::interaction).
+        C3<T> tex{T(1.0), T(1.0), T(1.0)};
+        const bool textured = model.texture != nullptr;
+        if (textured) {
+            TextureLocal tl;
+            if (on_sphere || on_disc || !model.texture->local(si.uv, tl)) return S::Unsupported;
+            T u = bary_u, v = bary_v;
+            if (!g.uvs.empty()) {
+                const uint32_t* tri = &g.indices[3 * std::size_t(hit->prim)];
+                const T b0 = T(1.0) - bary_u - bary_v;
+                const Vec2d t0(g.uvs[tri[0]]), t1(g.uvs[tri[1]]), t2(g.uvs[tri[2]]);
+                u = T(b0 * T(t0.x)) + T(bary_u * T(t1.x)) + T(bary_v * T(t2.x));
+                v = T(b0 * T(t0.y)) + T(bary_u * T(t1.y)) + T(bary_v * T(t2.y));
+            }
+            // The renderer's uv comes from Embree's float barycentrics.
+            if (std::abs(val(u) - si.uv.x) > 1e-5 || std::abs(val(v) - si.uv.y) > 1e-5) return S::Mismatch;
+            auto colour = [](const Color3& c) { return C3<T>{T(c.r), T(c.g), T(c.b)}; };
+            if (tl.bilinear) {
+                const T tx = T(T(tl.A[0][0]) * u) + T(T(tl.A[0][1]) * v) + T(tl.b[0] - tl.x0);
+                const T ty = T(T(tl.A[1][0]) * u) + T(T(tl.A[1][1]) * v) + T(tl.b[1] - tl.y0);
+                const T sx = T(1.0) - tx, sy = T(1.0) - ty;
+                tex = colour(tl.c[0]) * T(sx * sy);
+                add(tex, colour(tl.c[1]) * T(tx * sy));
+                add(tex, colour(tl.c[2]) * T(sx * ty));
+                add(tex, colour(tl.c[3]) * T(tx * ty));
+            } else {
+                tex = colour(tl.c[0]);
+                rd.decide(Decide::Texture, tl.cell);
+            }
+        }
+        auto bsdf_eval = [&](const V3<T>& wo, T& pdf) -> C3<T> {
+            const C3<T> f = kelvin::bsdf_eval(model, wi, wo, pdf);
+            return textured ? f * tex : f;
+        };
 
         // Next-event estimation (smooth models; emitter sampling is on in the Metropolis techniques).
         if ((bsdf.flags() & BsdfFlags::Smooth) && depth + 2 >= o.min_depth) {
@@ -1275,6 +1310,7 @@ PathDerivativeStatus PathDerivatives::Impl::run(Reader& rd, T& log_pi) const {
             smp.transmission != ((bs->sampled & BsdfFlags::Transmission) != 0))
             return S::Mismatch;
         throughput = throughput * smp.weight;
+        if (textured) throughput = throughput * tex;
         if (smp.transmission) eta_scale *= smp.eta * smp.eta;
         prev_delta = smp.delta;
         prev_bsdf_pdf = smp.pdf;

@@ -15,6 +15,7 @@
 // first version of the code), GGX's Lambda with 2.1 for 2, the mirror without its Fresnel factor, and a sphere's
 // shading frame taken from the renderer (float precision) instead of the path's own normal (caught by the share of
 // unstable differences: 1.5 % of the gradient entries).
+#include <kelvin/core/image.h>
 #include <kelvin/core/registry.h>
 #include <kelvin/render/integrator.h>
 #include <kelvin/render/path_derivatives.h>
@@ -445,6 +446,39 @@ TEST(PathDerivatives, MatchFiniteDifferencesWithTwoDifferentSides) {
     EXPECT_GT(front, 100);
     EXPECT_GT(back, 100);
     expect_matches_finite_differences(S, 24, bsdf_named("twosided"));
+}
+
+// Textured reflectances (issue 14): the back wall diffuse with a bilinear 8 x 8 bitmap, the tall box rough GGX
+// copper whose specular_reflectance is a checkerboard (piecewise constant: the square is a decision), the short
+// box diffuse with a nearest-filtered bitmap under a rotated, scaled to_uv. The texture's value at the hit's uv
+// (the barycentrics through the mesh's uvs) is a factor of the whole lobe (Texture::local). Only points whose
+// camera ray hits a textured BSDF are counted. Broken variant seen to fail: the bilinear weights held constant.
+TEST(PathDerivatives, MatchFiniteDifferencesWithTextures) {
+    ktest::TempDir dir;
+    Bitmap img(8, 8);
+    for (int y = 0; y < 8; ++y)
+        for (int x = 0; x < 8; ++x) {
+            img.at(x, y, 0) = float(0.2 + 0.6 * ((x * 5 + y * 3) % 8) / 7.0);
+            img.at(x, y, 1) = float(0.3 + 0.5 * ((x * 2 + y * 7) % 8) / 7.0);
+            img.at(x, y, 2) = float(0.1 + 0.7 * ((x + y) % 8) / 7.0);
+        }
+    const std::string file = (dir.path() / "texels.exr").string();
+    write_image(file, img);
+    const PathSetup S =
+        cornell_with(fmt::format(R"(<bsdf type="diffuse"><texture type="bitmap" name="reflectance">)"
+                                 R"(<string name="filename" value="{}"/></texture></bsdf>)",
+                                 file),
+                     R"(<bsdf type="roughconductor"><string name="distribution" value="ggx"/>)"
+                     R"(<string name="material" value="Cu"/><float name="alpha" value="0.2"/>)"
+                     R"(<texture type="checkerboard" name="specular_reflectance"><rgb name="color0" value="0.9"/>)"
+                     R"(<rgb name="color1" value="0.4, 0.5, 0.6"/><float name="scale" value="3"/></texture></bsdf>)",
+                     fmt::format(R"(<bsdf type="diffuse"><texture type="bitmap" name="reflectance">)"
+                                 R"(<string name="filename" value="{}"/><string name="filter_type" value="nearest"/>)"
+                                 R"(<transform name="to_uv"><rotate z="1" angle="30"/><scale value="2"/></transform>)"
+                                 R"(</texture></bsdf>)",
+                                 file));
+    expect_matches_finite_differences(
+        S, 24, [](const Shape& sh) { return sh.bsdf() && sh.bsdf()->model().texture != nullptr; });
 }
 
 // An area light on a mesh with vertex normals (issue 14): a small UV-sphere mesh emitter (below) beside the ceiling
