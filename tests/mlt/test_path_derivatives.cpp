@@ -402,14 +402,16 @@ TEST(PathDerivatives, MatchFiniteDifferencesWithSpheres) {
 // sees one side and paths bouncing off the walls reach both; seen from below, the nested model is evaluated in the
 // mirrored frame (z of wi and wo negated), as the plugin does. Broken variant seen to fail: the frame not mirrored
 // (the renderer's sampled direction differs: every back-side path a mismatch, counted as a failure).
+// The twosided tests' tilted panel (its shape and transform: a <bsdf> and </shape> follow) and its copper.
+const std::string TiltedPanel =
+    R"(<shape type="rectangle"><transform name="to_world"><scale value="0.35"/><rotate x="1" angle="70"/>)"
+    R"(<rotate z="1" angle="25"/><translate y="1" z="0.2"/></transform>)";
+const std::string RoughCopper = R"(<bsdf type="roughconductor"><string name="distribution" value="ggx"/>)"
+                                R"(<string name="material" value="Cu"/><float name="alpha" value="0.25"/></bsdf>)";
 TEST(PathDerivatives, MatchFiniteDifferencesWithTwoSidedPanels) {
     const PathSetup S(
         "cornell-box.xml", 6,
-        {{"</scene>",
-          R"(<shape type="rectangle"><transform name="to_world"><scale value="0.35"/><rotate x="1" angle="70"/>)"
-          R"(<rotate z="1" angle="25"/><translate y="1" z="0.2"/></transform>)"
-          R"(<bsdf type="twosided"><bsdf type="roughconductor"><string name="distribution" value="ggx"/>)"
-          R"(<string name="material" value="Cu"/><float name="alpha" value="0.25"/></bsdf></bsdf></shape></scene>)"}});
+        {{"</scene>", TiltedPanel + R"(<bsdf type="twosided">)" + RoughCopper + "</bsdf></shape></scene>"}});
     expect_matches_finite_differences(S, 16);
 }
 
@@ -422,17 +424,14 @@ TEST(PathDerivatives, MatchFiniteDifferencesWithTwoDifferentSides) {
     const PathSetup S(
         "cornell-box.xml", 6,
         {{"</scene>",
-          R"(<shape type="rectangle"><transform name="to_world"><scale value="0.35"/><rotate x="1" angle="70"/>)"
-          R"(<rotate z="1" angle="25"/><translate y="1" z="0.2"/></transform>)"
-          R"(<bsdf type="twosided"><bsdf type="roughconductor"><string name="distribution" value="ggx"/>)"
-          R"(<string name="material" value="Cu"/><float name="alpha" value="0.25"/></bsdf>)"
-          R"(<bsdf type="roughplastic"><rgb name="diffuse_reflectance" value="0.2, 0.5, 0.3"/>)"
-          R"(<float name="alpha" value="0.2"/></bsdf></bsdf></shape>)"
-          R"(<shape type="rectangle"><transform name="to_world"><scale value="0.3"/><rotate x="1" angle="-110"/>)"
-          R"(<rotate z="1" angle="-30"/><translate x="-0.5" y="0.6" z="0.3"/></transform>)"
-          R"(<bsdf type="twosided"><bsdf type="roughconductor"><string name="distribution" value="beckmann"/>)"
-          R"(<string name="material" value="Au"/><float name="alpha" value="0.2"/></bsdf>)"
-          R"(<bsdf type="diffuse"><rgb name="reflectance" value="0.6, 0.3, 0.2"/></bsdf></bsdf></shape></scene>)"}});
+          TiltedPanel + R"(<bsdf type="twosided">)" + RoughCopper +
+              R"(<bsdf type="roughplastic"><rgb name="diffuse_reflectance" value="0.2, 0.5, 0.3"/>)"
+              R"(<float name="alpha" value="0.2"/></bsdf></bsdf></shape>)"
+              R"(<shape type="rectangle"><transform name="to_world"><scale value="0.3"/><rotate x="1" angle="-110"/>)"
+              R"(<rotate z="1" angle="-30"/><translate x="-0.5" y="0.6" z="0.3"/></transform>)"
+              R"(<bsdf type="twosided"><bsdf type="roughconductor"><string name="distribution" value="beckmann"/>)"
+              R"(<string name="material" value="Au"/><float name="alpha" value="0.2"/></bsdf>)"
+              R"(<bsdf type="diffuse"><rgb name="reflectance" value="0.6, 0.3, 0.2"/></bsdf></bsdf></shape></scene>)"}});
     // Both sides are seen by the camera (the two panels face it with different sides).
     int front = 0, back = 0;
     Random rng(3, 0);
