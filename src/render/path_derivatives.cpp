@@ -11,6 +11,7 @@
 #include <kelvin/render/pss.h>
 #include <kelvin/render/scene.h>
 #include <kelvin/render/sensor.h>
+#include <kelvin/render/texture.h>
 
 #include <Eigen/Dense>
 #include <unsupported/Eigen/AutoDiff>
@@ -52,6 +53,8 @@ const char* to_string(PathDerivativeStatus s) {
             return "mismatch";
         case PathDerivativeStatus::TooLong:
             return "too long";
+        case PathDerivativeStatus::Discontinuous:
+            return "discontinuous";
     }
     return "?";
 }
@@ -758,6 +761,33 @@ bool bsdf_sample(const Bsdf::Model& b, const V3<T>& wi, const T& u_comp, const T
     }
 }
 
+// The discrete decisions a path takes, in order, where a change makes its contribution jump: the shape each ray hits
+// (for flat triangle meshes also the plane: crossing between coplanar triangles changes nothing), per next-event
+// estimate the emitter, its triangle and the shadow ray's visibility, the sampled component (reflection or
+// refraction, specular or diffuse), roulette, the piece of a piecewise-constant texture. Changes that fade the
+// contribution out continuously are not discontinuities: a light sample that does not exist or that the BSDF gives zero
+// (AnyNee matches any estimate), a path that ends because its sampled direction carries nothing (End: what follows is
+// not compared), the spot's linear ramp. Recorded by the plain-double evaluation for the discontinuity check
+// (PathDerivativeOptions::discontinuity_radius).
+enum class Decide { Miss, Hit, Nee, Component, End, Roulette, Texture };
+constexpr long long AnyNee = -1;  // no light sample, or a BSDF zero towards it: its contribution fades out there
+struct Decision {
+    Decide kind;
+    long long a;
+    Vec3d n;
+};
+bool same_decisions(const std::vector<Decision>& a, const std::vector<Decision>& b) {
+    for (std::size_t i = 0;; ++i) {
+        const bool end_a = i == a.size() || a[i].kind == Decide::End, end_b = i == b.size() || b[i].kind == Decide::End;
+        if (end_a || end_b)
+            return (end_a && end_b) || (i < a.size() && a[i].kind == Decide::End) ||
+                   (i < b.size() && b[i].kind == Decide::End);
+        if (a[i].kind != b[i].kind) return false;
+        if (a[i].kind == Decide::Nee && (a[i].a == AnyNee || b[i].a == AnyNee)) continue;
+        if (a[i].a != b[i].a || glm::length(a[i].n - b[i].n) > 1e-6) return false;
+    }
+}
+
 // Coordinates: plain values, or nested-autodiff variables for the block's entries.
 struct DoubleReader {
     const double* coords;
@@ -767,12 +797,28 @@ struct DoubleReader {
     double read() {
         if (next >= length) {
             overflow = true;
+            discrete_read = false;
             return 0.5;
         }
+        note_read(next);
         return coords[next++];
     }
-    double read_discrete() { return read(); }
+    double read_discrete() {
+        discrete_read = true;
+        return read();
+    }
     void checkpoint(double* const*) {}
+    // Optional records: the decisions, and the positions of the coordinates that move the path continuously.
+    std::vector<Decision>* decisions = nullptr;
+    std::vector<std::size_t>* continuous = nullptr;
+    bool discrete_read = false;
+    void decide(Decide kind, long long a = 0, const Vec3d& n = Vec3d(0.0)) {
+        if (decisions) decisions->push_back({kind, a, n});
+    }
+    void note_read(std::size_t i) {
+        if (continuous && !discrete_read) continuous->push_back(i);
+        discrete_read = false;
+    }
 };
 // The bounces recorded by a segmented evaluation: per bounce the Jacobian A (16 x 20) and the Hessians (20 x 20) of
 // its 16 outputs with respect to its inputs (the 16 carried numbers, then the coordinates it read), and the block
@@ -818,6 +864,7 @@ struct LocalReader {
         tape->index[tape->coords] = k;
         return local_variable(coords[i], Carried + tape->coords++);
     }
+    void decide(Decide, long long = 0, const Vec3d& = Vec3d(0.0)) {}
     Local read_discrete() {
         if (next >= length) {
             overflow = true;
@@ -886,6 +933,43 @@ struct PathDerivatives::Impl {
 
     template <class T, class Reader>
     PathDerivativeStatus run(Reader& rd, T& log_pi) const;
+
+    // Discontinuous if a decision of the path changes within discontinuity_radius of the point along a coordinate of
+    // the block that moves the path continuously (each shifted both ways, wrapped to [0, 1)); the point's own
+    // status if it is not Ok; else Ok.
+    PathDerivativeStatus near_discontinuity(const double* coords, const int* block, std::size_t length, int n) const {
+        using S = PathDerivativeStatus;
+        thread_local std::vector<Decision> base, other;
+        thread_local std::vector<std::size_t> continuous;
+        thread_local std::vector<double> shifted;
+        base.clear();
+        continuous.clear();
+        DoubleReader r0{coords, length};
+        r0.decisions = &base;
+        r0.continuous = &continuous;
+        double lp = 0;
+        const S s0 = run<double>(r0, lp);
+        if (s0 != S::Ok) return s0;
+        shifted.assign(coords, coords + length);
+        const double h = o.discontinuity_radius;
+        for (const std::size_t i : continuous) {
+            if (block[i] < 0 || block[i] >= n) continue;
+            for (const double step : {h, -h}) {
+                double v = coords[i] + step;
+                v -= std::floor(v);
+                shifted[i] = v;
+                other.clear();
+                DoubleReader r{shifted.data(), length};
+                r.decisions = &other;
+                const S s = run<double>(r, lp);
+                // Zero there (the contribution faded out) compares by decisions; a path that leaves the supported
+                // set or cannot be re-evaluated consistently (a grazing hit) counts as a change.
+                if ((s != S::Ok && s != S::Zero) || !same_decisions(base, other)) return S::Discontinuous;
+            }
+            shifted[i] = coords[i];
+        }
+        return S::Ok;
+    }
 };
 
 template <class T, class Reader>
@@ -945,12 +1029,14 @@ PathDerivativeStatus PathDerivatives::Impl::run(Reader& rd, T& log_pi) const {
         rd.checkpoint(carried);
         auto hit = scene.intersect(ray);
         if (!hit) {
+            rd.decide(Decide::Miss);
             if (!scene.environment_emitters().empty()) return S::Unsupported;
             break;
         }
         const bool on_sphere = sphere(hit->shape), on_disc = disc(hit->shape);
         if (!on_sphere && !on_disc && !triangles(hit->shape)) return S::Unsupported;
         const SurfaceInteraction si = scene.interaction(ray, *hit);
+        rd.decide(Decide::Hit, hit->shape, flat_triangles(hit->shape) ? si.ng : Vec3d(0.0));
         // Differentiable re-intersection of the primitive Embree found: Moller-Trumbore for a triangle (the frame is
         // constant), the quadratic for a sphere (the root Embree took; the normal and frame follow p).
         const ShapeGeometry& g = geometry[hit->shape];
@@ -1028,7 +1114,8 @@ PathDerivativeStatus PathDerivatives::Impl::run(Reader& rd, T& log_pi) const {
         if (depth + 2 > max_len) break;
 
         const Bsdf& bsdf = *si.shape->bsdf();
-        const Bsdf::Model model = bsdf.model();
+        Bsdf::Model model = bsdf.model();
+        if (model.two_sided && si.wi.z < 0) model = bsdf.back_model();  // a twosided's second side
         using Kind = Bsdf::Model::Kind;
         if (model.kind == Kind::None) return S::Unsupported;
         // The emitter, the BSDF component and roulette use their coordinate only in a comparison (read_discrete: a
@@ -1043,15 +1130,52 @@ PathDerivativeStatus PathDerivatives::Impl::run(Reader& rd, T& log_pi) const {
         const bool mirrored = model.two_sided && si.wi.z < 0;
         if (mirrored) frame.n = frame.n * T(-1.0);
         const V3<T> wi = to_local(frame, V3<T>{T(-d.x), T(-d.y), T(-d.z)});
-        auto bsdf_eval = [&](const V3<T>& wo, T& pdf) -> C3<T> { return kelvin::bsdf_eval(model, wi, wo, pdf); };
+        // A textured reflectance (Bsdf::Model::texture, a factor of the whole lobe): its value at the hit's uv, the
+        // mesh's uvs interpolated with the barycentrics (or the barycentrics themselves, as Scene::interaction).
+        C3<T> tex{T(1.0), T(1.0), T(1.0)};
+        const bool textured = model.texture != nullptr;
+        if (textured) {
+            TextureLocal tl;
+            if (on_sphere || on_disc || !model.texture->local(si.uv, tl)) return S::Unsupported;
+            T u = bary_u, v = bary_v;
+            if (!g.uvs.empty()) {
+                const uint32_t* tri = &g.indices[3 * std::size_t(hit->prim)];
+                const T b0 = T(1.0) - bary_u - bary_v;
+                const Vec2d t0(g.uvs[tri[0]]), t1(g.uvs[tri[1]]), t2(g.uvs[tri[2]]);
+                u = T(b0 * T(t0.x)) + T(bary_u * T(t1.x)) + T(bary_v * T(t2.x));
+                v = T(b0 * T(t0.y)) + T(bary_u * T(t1.y)) + T(bary_v * T(t2.y));
+            }
+            // The renderer's uv comes from Embree's float barycentrics.
+            if (std::abs(val(u) - si.uv.x) > 1e-5 || std::abs(val(v) - si.uv.y) > 1e-5) return S::Mismatch;
+            auto colour = [](const Color3& c) { return C3<T>{T(c.r), T(c.g), T(c.b)}; };
+            if (tl.bilinear) {
+                const T tx = T(T(tl.A[0][0]) * u) + T(T(tl.A[0][1]) * v) + T(tl.b[0] - tl.x0);
+                const T ty = T(T(tl.A[1][0]) * u) + T(T(tl.A[1][1]) * v) + T(tl.b[1] - tl.y0);
+                const T sx = T(1.0) - tx, sy = T(1.0) - ty;
+                tex = colour(tl.c[0]) * T(sx * sy);
+                add(tex, colour(tl.c[1]) * T(tx * sy));
+                add(tex, colour(tl.c[2]) * T(sx * ty));
+                add(tex, colour(tl.c[3]) * T(tx * ty));
+            } else {
+                tex = colour(tl.c[0]);
+                rd.decide(Decide::Texture, tl.cell);
+            }
+        }
+        auto bsdf_eval = [&](const V3<T>& wo, T& pdf) -> C3<T> {
+            const C3<T> f = kelvin::bsdf_eval(model, wi, wo, pdf);
+            return textured ? f * tex : f;
+        };
 
         // Next-event estimation (smooth models; emitter sampling is on in the Metropolis techniques).
         if ((bsdf.flags() & BsdfFlags::Smooth) && depth + 2 >= o.min_depth) {
             auto [e, sel_pdf] = scene.sample_emitter(val(u_light));
             if (e) {
-                if (auto ds = e->sample_direct(si.p, Vec2d(val(u_l0), val(u_l1)))) {
-                    const std::size_t ei = std::size_t(std::find(scene.emitters().begin(), scene.emitters().end(), e) -
-                                                       scene.emitters().begin());
+                const std::size_t ei = std::size_t(std::find(scene.emitters().begin(), scene.emitters().end(), e) -
+                                                   scene.emitters().begin());
+                const long long nee = (long long)ei << 33;  // | (light triangle + 1) << 1 | occluded
+                auto ds = e->sample_direct(si.p, Vec2d(val(u_l0), val(u_l1)));
+                if (!ds) rd.decide(Decide::Nee, AnyNee);
+                if (ds) {
                     const int sh = ei < emitter_shape.size() ? emitter_shape[ei] : -1;
                     if (e->plugin_name() == "point") {
                         // PointEmitter::sample_direct: intensity / dist^2 from a fixed position, a delta light (MIS
@@ -1061,7 +1185,9 @@ PathDerivativeStatus PathDerivatives::Impl::run(Reader& rd, T& log_pi) const {
                         const V3<T> dir{dv.x / dist, dv.y / dist, dv.z / dist};
                         const Color3 intensity = ds->weight * (ds->dist * ds->dist);
                         const Color3 f_primal = bsdf.eval(bctx, si, si.to_local(ds->d));
-                        if (f_primal != Color3(0.0) && !scene.occluded(si.spawn_to(ds->p))) {
+                        const bool lit = f_primal != Color3(0.0) && !scene.occluded(si.spawn_to(ds->p));
+                        rd.decide(Decide::Nee, f_primal == Color3(0.0) ? AnyNee : nee | (lit ? 0 : 1));
+                        if (lit) {
                             T bsdf_pdf(0.0);
                             const C3<T> f = bsdf_eval(to_local(frame, dir), bsdf_pdf);
                             add(L, throughput * f * intensity * T(T(1.0) / (dist2 * T(sel_pdf))));
@@ -1088,7 +1214,9 @@ PathDerivativeStatus PathDerivatives::Impl::run(Reader& rd, T& log_pi) const {
                         const Color3 weight = em.intensity * (val(falloff) / val(dist2));
                         if (glm::length(weight - ds->weight) > 1e-6 * (1 + glm::length(ds->weight))) return S::Mismatch;
                         const Color3 f_primal = bsdf.eval(bctx, si, si.to_local(ds->d));
-                        if (f_primal != Color3(0.0) && !scene.occluded(si.spawn_to(ds->p))) {
+                        const bool lit = f_primal != Color3(0.0) && !scene.occluded(si.spawn_to(ds->p));
+                        rd.decide(Decide::Nee, f_primal == Color3(0.0) ? AnyNee : nee | (lit ? 0 : 1));
+                        if (lit) {
                             T bsdf_pdf(0.0);
                             const C3<T> f = bsdf_eval(to_local(frame, dir), bsdf_pdf);
                             add(L, throughput * f * em.intensity * T(falloff / (dist2 * T(sel_pdf))));
@@ -1099,10 +1227,13 @@ PathDerivativeStatus PathDerivatives::Impl::run(Reader& rd, T& log_pi) const {
                                     : nullptr;
                         const bool light_sphere = sh >= 0 && sphere(uint32_t(sh)),
                                    light_disc = sh >= 0 && disc(uint32_t(sh));
+                        // On a mesh with vertex normals too: the light's sample, its normal and its density use
+                        // the triangle's plane (TriangleMesh::sample_position, AreaEmitter).
                         if (e->plugin_name() != "area" || e->spatially_varying() ||
-                            !((mesh && flat_triangles(uint32_t(sh))) || light_sphere || light_disc))
+                            !((mesh && triangles(uint32_t(sh))) || light_sphere || light_disc))
                             return S::Unsupported;
                         const ShapeGeometry& eg = geometry[std::size_t(sh)];
+                        long long triangle = 0;
                         V3<T> ps, en = constant<T>(ds->n);
                         if (light_disc) {
                             // Disk::sample_position: the concentric map onto the disk (tangent, bitangent).
@@ -1126,6 +1257,7 @@ PathDerivativeStatus PathDerivatives::Impl::run(Reader& rd, T& log_pi) const {
                             std::size_t k =
                                 std::size_t(std::lower_bound(cdf.begin(), cdf.end(), val(u_l0)) - cdf.begin());
                             k = std::min(k, cdf.size() - 1);
+                            triangle = (long long)k + 1;
                             const double lo = k == 0 ? 0.0 : cdf[k - 1], width = cdf[k] - lo;
                             T ux = width > 0 ? T((u_l0 - T(lo)) / T(width)) : T(0.5);
                             if (val(ux) < 0) ux = T(0.0);
@@ -1146,9 +1278,12 @@ PathDerivativeStatus PathDerivatives::Impl::run(Reader& rd, T& log_pi) const {
                         const T pdf = T(1.0 / light_area) * dist2 / cos_e;
                         const Color3 radiance = ds->weight * ds->pdf;
                         const Color3 f_primal = bsdf.eval(bctx, si, si.to_local(ds->d));
+                        if (f_primal == Color3(0.0)) rd.decide(Decide::Nee, AnyNee);
                         if (f_primal != Color3(0.0)) {
                             const Ray shadow = ds->dist == Inf ? si.spawn(ds->d) : si.spawn_to(ds->p);
-                            if (!scene.occluded(shadow)) {
+                            const bool occluded = scene.occluded(shadow);
+                            rd.decide(Decide::Nee, nee | triangle << 1 | (occluded ? 1 : 0));
+                            if (!occluded) {
                                 T bsdf_pdf(0.0);
                                 const C3<T> f = bsdf_eval(to_local(frame, dir), bsdf_pdf);
                                 const T w = ds->delta ? T(1.0) : power_heuristic(T(pdf * T(sel_pdf)), bsdf_pdf);
@@ -1163,14 +1298,19 @@ PathDerivativeStatus PathDerivatives::Impl::run(Reader& rd, T& log_pi) const {
 
         // Continue by sampling the BSDF.
         auto bs = bsdf.sample(bctx, si, val(u_comp), Vec2d(val(u_d0), val(u_d1)));
-        if (!bs || bs->weight == Color3(0.0)) break;
+        if (!bs || bs->weight == Color3(0.0)) {
+            rd.decide(Decide::End);
+            break;
+        }
         BsdfSampleT<T> smp;
         if (!bsdf_sample(model, wi, u_comp, u_d0, u_d1, smp)) return S::Mismatch;
+        rd.decide(Decide::Component, (smp.delta ? 2 : 0) + (smp.transmission ? 1 : 0));
         const V3<T>& wo = smp.wo;
         if (smp.delta != ((bs->sampled & BsdfFlags::Delta) != 0) ||
             smp.transmission != ((bs->sampled & BsdfFlags::Transmission) != 0))
             return S::Mismatch;
         throughput = throughput * smp.weight;
+        if (textured) throughput = throughput * tex;
         if (smp.transmission) eta_scale *= smp.eta * smp.eta;
         prev_delta = smp.delta;
         prev_bsdf_pdf = smp.pdf;
@@ -1200,6 +1340,7 @@ PathDerivativeStatus PathDerivatives::Impl::run(Reader& rd, T& log_pi) const {
                              ? (val(throughput.r) >= val(throughput.b) ? throughput.r : throughput.b)
                              : (val(throughput.g) >= val(throughput.b) ? throughput.g : throughput.b);
             const T q = val(m) * eta_scale < 0.95 ? T(m * T(eta_scale)) : T(0.95);
+            rd.decide(Decide::Roulette, val(u_rr) < val(q) ? 1 : 0);
             if (!(val(u_rr) < val(q))) break;
             const T inv = T(1.0) / q;
             throughput = throughput * inv;
@@ -1229,6 +1370,10 @@ PathDerivativeStatus PathDerivatives::evaluate(const double* coords, const int* 
                                                double value, double* log_value, double* grad, double* hess) const {
     using S = PathDerivativeStatus;
     if (n > std::min(m_impl->o.max_coordinates, MaxBlock)) return S::TooLong;
+    if (m_impl->o.discontinuity_radius > 0 && block) {
+        const S d = m_impl->near_discontinuity(coords, block, length, n);
+        if (d != S::Ok) return d;
+    }
     thread_local LocalTape tape;  // per thread: its arrays grow once
     const bool segmented = n > LocalN || m_impl->o.always_segmented;
     tape.used = 0;
