@@ -9,7 +9,7 @@ mutations per second, of the small-step, large-step and second-stage acceptance 
 of the path-evaluation time (convergence_stats.csv: the counters of each whole run). When a configuration uses
 the h2mc mutation, a second table gives the medians over runs of its counters (mlt.h2mc.*): H2MC proposals and
 their acceptance, derivative evaluations, the shares of them that were not differentiable (unsupported, mismatch,
-too long) and that fell back to the isotropic Gaussian for a small Hessian, and the share of the run's time spent
+too long, next to a discontinuity) and that fell back to the isotropic Gaussian for a small Hessian, and the share of the run's time spent
 in derivatives (seconds_derivatives / run.seconds: meaningful with one thread). Above the table: the
 normalisation and the matched sigma when the study directory holds normalization.txt and sigma.txt (as
 tools/convergence_reports.sh leaves them). Quartiles are numpy's (linear interpolation); with fewer than 2 runs
@@ -100,18 +100,19 @@ def main():
     h2mc = [c for c in configs if stats.get(c, {}).get("mlt.h2mc.derivatives")]
     if h2mc:
         out += ["", "| variant | H2MC proposals | H2MC acc. | derivatives | not differentiable | unsupported | mismatch | "
-                "too long | small Hessian | time in derivatives |", "|" + "---|" * 10]
+                "too long | discontinuous | small Hessian | time in derivatives |", "|" + "---|" * 11]
         for c in h2mc:
             s = stats[c]
 
-            def per_run(num, den):  # median over runs of num / den
-                v = [a / b for a, b in zip(s.get(num, []), s.get(den, [])) if b > 0]
+            def per_run(num, den):  # median over runs of num / den (a counter never incremented may be absent: 0)
+                nums = s.get(num) or [0.0] * len(s.get(den, []))
+                v = [a / b for a, b in zip(nums, s.get(den, [])) if b > 0]
                 return fmt(np.median(v)) if v else ""
 
             cells = [c, fmt(np.median(s["mlt.h2mc.proposals"])), fmt(np.median(s["mlt.h2mc.acceptance"])),
                      fmt(np.median(s["mlt.h2mc.derivatives"]))] + \
                 [per_run("mlt.h2mc." + k, "mlt.h2mc.derivatives")
-                 for k in ("not_differentiable", "unsupported", "mismatch", "too_long", "small_hessian")] + \
+                 for k in ("not_differentiable", "unsupported", "mismatch", "too_long", "discontinuous", "small_hessian")] + \
                 [per_run("mlt.h2mc.seconds_derivatives", "run.seconds")]
             out.append("| " + " | ".join(cells) + " |")
         out.append("")
