@@ -3,8 +3,9 @@
 // to whole pairs.
 //   BM_PathEvaluation/k:   one path sample of exactly k edges on the Cornell box (the path technique, as a chain
 //                          evaluates a state; max_depth k, no Russian roulette);
-//   BM_PathDerivatives/k:  the same path's log-luminance with its gradient and Hessian (render/path_derivatives.h,
-//                          nested Eigen::AutoDiffScalar);
+//   BM_PathDerivatives/k/check: the same path's log-luminance with its gradient and Hessian
+//                          (render/path_derivatives.h, bounce by bounce in nested Eigen::AutoDiffScalar), without
+//                          (check:0) and with (check:1, the default) the discontinuity check;
 //   BM_H2mcProposalOnPath/k: one H2MC proposal's extra work on such a path: the proposal's derivatives and Gaussian,
 //                          a draw, and the forward and reverse densities (x's Gaussian is cached by the chain; the
 //                          proposal's path evaluation is BM_PathEvaluation);
@@ -141,7 +142,7 @@ struct PathBench {
     std::vector<double> values;
     std::size_t length = 0;
 
-    explicit PathBench(int k) {
+    explicit PathBench(int k, double discontinuity_radius = PathDerivativeOptions().discontinuity_radius) {
         ParseOptions po;
         po.defines["res"] = "32";
         scene = std::dynamic_pointer_cast<Scene>(
@@ -155,6 +156,7 @@ struct PathBench {
         opt.min_depth = 1;
         opt.rr_depth = 100;
         opt.set_film(*scene->sensor());
+        opt.discontinuity_radius = discontinuity_radius;
         D = std::make_unique<PathDerivatives>(*scene, opt);
         length = std::size_t(block_size(k));
         Random rng(5, uint64_t(k));
@@ -183,7 +185,7 @@ void BM_PathEvaluation(benchmark::State& state) {
 }
 
 void BM_PathDerivatives(benchmark::State& state) {
-    PathBench b(int(state.range(0)));
+    PathBench b(int(state.range(0)), state.range(1) ? PathDerivativeOptions().discontinuity_radius : 0.0);
     if (b.points.empty()) return state.SkipWithError("no path of that length found");
     const int n = int(b.length);
     std::vector<int> block(b.length);
@@ -230,7 +232,10 @@ void BM_H2mcProposalOnPath(benchmark::State& state) {
 }  // namespace
 
 BENCHMARK(BM_PathEvaluation)->DenseRange(3, 10);
-BENCHMARK(BM_PathDerivatives)->DenseRange(3, 10)->Unit(benchmark::kMillisecond);
+BENCHMARK(BM_PathDerivatives)
+    ->ArgsProduct({benchmark::CreateDenseRange(3, 10, 1), {0, 1}})
+    ->ArgNames({"k", "check"})
+    ->Unit(benchmark::kMillisecond);
 BENCHMARK(BM_H2mcProposalOnPath)->DenseRange(3, 10)->Unit(benchmark::kMillisecond);
 BENCHMARK(BM_H2mcGaussian)->DenseRange(3, 10);
 BENCHMARK(BM_H2mcProposal)->DenseRange(3, 10);

@@ -6,7 +6,11 @@
 One row per configuration: the median over runs, with the interquartile range [Q1, Q3], of the relative MSE and of
 L1 at every checkpoint; then the medians over runs of the mutations per pixel at the last checkpoint, of the
 mutations per second, of the small-step, large-step and second-stage acceptance and of the second stage's share
-of the path-evaluation time (convergence_stats.csv: the counters of each whole run). Above the table: the
+of the path-evaluation time (convergence_stats.csv: the counters of each whole run). When a configuration uses
+the h2mc mutation, a second table gives the medians over runs of its counters (mlt.h2mc.*): H2MC proposals and
+their acceptance, derivative evaluations, the shares of them that were not differentiable (unsupported, mismatch,
+too long, next to a discontinuity) and that fell back to the isotropic Gaussian for a small Hessian, and the share of the run's time spent
+in derivatives (seconds_derivatives / run.seconds: meaningful with one thread). Above the table: the
 normalisation and the matched sigma when the study directory holds normalization.txt and sigma.txt (as
 tools/convergence_reports.sh leaves them). Quartiles are numpy's (linear interpolation); with fewer than 2 runs
 only the median is shown.
@@ -93,6 +97,27 @@ def main():
                 ([sm("mlt.acceptance.stage2"), sm("mlt.stage2_time_share")] if "mlt.stage2_attempts" in s and
                  np.median(s["mlt.stage2_attempts"]) > 0 else ["", ""])
         out.append("| " + " | ".join(cells) + " |")
+    h2mc = [c for c in configs if stats.get(c, {}).get("mlt.h2mc.derivatives")]
+    if h2mc:
+        out += ["", "| variant | H2MC proposals | H2MC acc. | derivatives | not differentiable | unsupported | mismatch | "
+                "too long | discontinuous | small Hessian | time in derivatives |", "|" + "---|" * 11]
+        for c in h2mc:
+            s = stats[c]
+
+            def per_run(num, den):  # median over runs of num / den (a counter never incremented may be absent: 0)
+                nums = s.get(num) or [0.0] * len(s.get(den, []))
+                v = [a / b for a, b in zip(nums, s.get(den, [])) if b > 0]
+                return fmt(np.median(v)) if v else ""
+
+            cells = [c, fmt(np.median(s["mlt.h2mc.proposals"])), fmt(np.median(s["mlt.h2mc.acceptance"])),
+                     fmt(np.median(s["mlt.h2mc.derivatives"]))] + \
+                [per_run("mlt.h2mc." + k, "mlt.h2mc.derivatives")
+                 for k in ("not_differentiable", "unsupported", "mismatch", "too_long", "discontinuous", "small_hessian")] + \
+                [per_run("mlt.h2mc.seconds_derivatives", "run.seconds")]
+            out.append("| " + " | ".join(cells) + " |")
+        out.append("")
+        out.append("(medians over runs; the shares are of the derivative evaluations, the time share of the run's "
+                   "seconds)")
     print("\n".join(out))
 
 

@@ -425,7 +425,8 @@ private:
             }
         }
         // Local kernels (h2mc): the chains ask the path technique's differentiable evaluation for derivatives; a path
-        // it cannot differentiate (an unsupported plugin, a mismatch) gives the kernel's isotropic fallback, counted.
+        // it cannot differentiate (an unsupported plugin, a mismatch, a discontinuity) gives the kernel's isotropic
+        // fallback, counted.
         if (I.m_local) {
             PathDerivativeOptions o;
             o.max_depth = I.m_max_edges;
@@ -674,6 +675,8 @@ private:
             S.add("mlt.h2mc.unsupported", double(derivative_counts[int(PathDerivativeStatus::Unsupported)]), "paths");
             S.add("mlt.h2mc.mismatch", double(derivative_counts[int(PathDerivativeStatus::Mismatch)]), "paths");
             S.add("mlt.h2mc.too_long", double(derivative_counts[int(PathDerivativeStatus::TooLong)]), "paths");
+            S.add("mlt.h2mc.discontinuous", double(derivative_counts[int(PathDerivativeStatus::Discontinuous)]),
+                  "paths");
             S.add("mlt.h2mc.small_hessian", double(cs.small_hessian), "paths");
             S.set("mlt.h2mc.seconds_derivatives", cs.seconds_derivatives);
             S.set("mlt.h2mc.seconds_gaussians", cs.seconds_gaussians);
@@ -770,7 +773,7 @@ private:
     std::vector<std::atomic<uint32_t>> stage_counts;
     std::atomic<uint64_t> steps_total{0};
     // Outcomes of the path derivatives the local kernels asked for, by PathDerivativeStatus (statistics only).
-    std::array<std::atomic<uint64_t>, 5> derivative_status{};
+    std::array<std::atomic<uint64_t>, PathDerivativeStatusCount> derivative_status{};
     std::vector<uint64_t> derivative_counts;
 };
 

@@ -1,7 +1,8 @@
 // Differentiable evaluation of the path technique's contribution (include/kelvin/render/path_derivatives.h).
-// One template, run in plain doubles (the value, for finite differences) and in nested Eigen::AutoDiffScalar (value,
-// gradient and Hessian: forward over forward). It mirrors src/plugins/integrators/path.cpp line by line for the
-// supported subset; every discrete decision is the renderer's own at the point.
+// One template, run in plain doubles (the value, for finite differences) and in nested fixed-size
+// Eigen::AutoDiffScalar (value, gradient and Hessian: forward over forward, bounce by bounce). It mirrors
+// src/plugins/integrators/path.cpp line by line for the supported subset; every discrete decision is the renderer's own
+// at the point.
 #include <kelvin/render/bsdf.h>
 #include <kelvin/render/integrator.h>
 #include <kelvin/render/mesh.h>
@@ -10,6 +11,7 @@
 #include <kelvin/render/pss.h>
 #include <kelvin/render/scene.h>
 #include <kelvin/render/sensor.h>
+#include <kelvin/render/texture.h>
 
 #include <Eigen/Dense>
 #include <unsupported/Eigen/AutoDiff>
@@ -51,6 +53,8 @@ const char* to_string(PathDerivativeStatus s) {
             return "mismatch";
         case PathDerivativeStatus::TooLong:
             return "too long";
+        case PathDerivativeStatus::Discontinuous:
+            return "discontinuous";
     }
     return "?";
 }
@@ -58,13 +62,32 @@ const char* to_string(PathDerivativeStatus s) {
 namespace {
 
 constexpr int MaxBlock = 96;  // PathDerivativeOptions::max_coordinates may not exceed it
-using InnerDer = Eigen::Matrix<double, Eigen::Dynamic, 1, 0, MaxBlock, 1>;  // no heap: inline storage
-using Inner = Eigen::AutoDiffScalar<InnerDer>;
-using InnerVec = Eigen::Matrix<Inner, Eigen::Dynamic, 1>;
-using Outer = Eigen::AutoDiffScalar<InnerVec>;
+
+// The derivatives are taken bounce by bounce (a checkpointed second-order chain rule). Between bounces the path
+// carries 16 numbers, its *state* s (the ray's origin and direction, the previous vertex, the throughput, the
+// radiance gathered so far, the previous BSDF density); bounce i maps (s_i, u_i) to s_{i+1}, u_i the (at most 4)
+// coordinates it reads that move the path continuously (the 3 others of a bounce only choose: read_discrete), and
+// log pi = G(s_K). Each bounce runs in nested fixed-size AutoDiff over its own 16 + 4
+// inputs (value, Jacobian and Hessians of its 16 outputs), and evaluate() composes them: the Jacobians forward,
+// then the Hessian backward (H = J_K^T (d2 G) J_K + sum_i Jz_i^T (sum_k lambda_{i+1,k} d2 F_{i,k}) Jz_i, lambda the
+// adjoint of the state). The cost per operation is that of 20 inputs whatever the path's length, instead of n^2.
+// A block that fits one local (n <= 20) is differentiated directly by the same type.
+constexpr int Carried = 16, LocalN = 20, LocalCoords = LocalN - Carried;
+using LocalDer = Eigen::Matrix<double, LocalN, 1>;
+using Inner = Eigen::AutoDiffScalar<LocalDer>;
+using InnerVec = Eigen::Matrix<Inner, LocalN, 1>;
+using Local = Eigen::AutoDiffScalar<InnerVec>;
 
 inline double val(double x) { return x; }
-inline double val(const Outer& x) { return x.value().value(); }
+inline double val(const Local& x) { return x.value().value(); }
+
+// Input k of a local (its value v): unit first derivative, zero second.
+Local local_variable(double v, int k) {
+    Local x;
+    x.value() = Inner(v, LocalN, k);
+    for (int j = 0; j < LocalN; ++j) x.derivatives()(j) = Inner(j == k ? 1.0 : 0.0, LocalDer::Zero());
+    return x;
+}
 
 template <class T>
 struct V3 {
@@ -82,8 +105,9 @@ template <class T>
 V3<T> operator*(const V3<T>& a, const T& s) {
     return {a.x * s, a.y * s, a.z * s};
 }
-// Products of two constants have empty derivative vectors; Eigen's AutoDiffScalar resizes an empty plain operand to
-// match the other one, but not an empty expression, so each product is evaluated (T) before the sum.
+// Each product is evaluated (T) before the sum: shallower expression templates. (With dynamic-size derivatives, as
+// before the bounce-by-bounce evaluation, a product of constants had an empty derivative vector, which Eigen does not
+// resize inside an expression.)
 template <class T>
 T dot(const V3<T>& a, const V3<T>& b) {
     return T(a.x * b.x) + T(a.y * b.y) + T(a.z * b.z);
@@ -737,6 +761,33 @@ bool bsdf_sample(const Bsdf::Model& b, const V3<T>& wi, const T& u_comp, const T
     }
 }
 
+// The discrete decisions a path takes, in order, where a change makes its contribution jump: the shape each ray hits
+// (for flat triangle meshes also the plane: crossing between coplanar triangles changes nothing), per next-event
+// estimate the emitter, its triangle and the shadow ray's visibility, the sampled component (reflection or
+// refraction, specular or diffuse), roulette, the piece of a piecewise-constant texture. Changes that fade the
+// contribution out continuously are not discontinuities: a light sample that does not exist or that the BSDF gives zero
+// (AnyNee matches any estimate), a path that ends because its sampled direction carries nothing (End: what follows is
+// not compared), the spot's linear ramp. Recorded by the plain-double evaluation for the discontinuity check
+// (PathDerivativeOptions::discontinuity_radius).
+enum class Decide { Miss, Hit, Nee, Component, End, Roulette, Texture };
+constexpr long long AnyNee = -1;  // no light sample, or a BSDF zero towards it: its contribution fades out there
+struct Decision {
+    Decide kind;
+    long long a;
+    Vec3d n;
+};
+bool same_decisions(const std::vector<Decision>& a, const std::vector<Decision>& b) {
+    for (std::size_t i = 0;; ++i) {
+        const bool end_a = i == a.size() || a[i].kind == Decide::End, end_b = i == b.size() || b[i].kind == Decide::End;
+        if (end_a || end_b)
+            return (end_a && end_b) || (i < a.size() && a[i].kind == Decide::End) ||
+                   (i < b.size() && b[i].kind == Decide::End);
+        if (a[i].kind != b[i].kind) return false;
+        if (a[i].kind == Decide::Nee && (a[i].a == AnyNee || b[i].a == AnyNee)) continue;
+        if (a[i].a != b[i].a || glm::length(a[i].n - b[i].n) > 1e-6) return false;
+    }
+}
+
 // Coordinates: plain values, or nested-autodiff variables for the block's entries.
 struct DoubleReader {
     const double* coords;
@@ -746,31 +797,97 @@ struct DoubleReader {
     double read() {
         if (next >= length) {
             overflow = true;
+            discrete_read = false;
             return 0.5;
         }
+        note_read(next);
         return coords[next++];
     }
+    double read_discrete() {
+        discrete_read = true;
+        return read();
+    }
+    void checkpoint(double* const*) {}
+    // Optional records: the decisions, and the positions of the coordinates that move the path continuously.
+    std::vector<Decision>* decisions = nullptr;
+    std::vector<std::size_t>* continuous = nullptr;
+    bool discrete_read = false;
+    void decide(Decide kind, long long a = 0, const Vec3d& n = Vec3d(0.0)) {
+        if (decisions) decisions->push_back({kind, a, n});
+    }
+    void note_read(std::size_t i) {
+        if (continuous && !discrete_read) continuous->push_back(i);
+        discrete_read = false;
+    }
 };
-struct OuterReader {
+// The bounces recorded by a segmented evaluation: per bounce the Jacobian A (16 x 20) and the Hessians (20 x 20) of
+// its 16 outputs with respect to its inputs (the 16 carried numbers, then the coordinates it read), and the block
+// entries of those coordinates.
+struct Bounce {
+    int coords = 0;
+    int index[LocalCoords];
+    Eigen::Matrix<double, Carried, LocalN> A;
+    Eigen::Matrix<double, LocalN, LocalN> H[Carried];
+};
+struct LocalTape {
+    std::vector<Bounce> bounces;  // bounces[0, used): kept across calls (per thread), so nothing is reallocated
+    std::size_t used = 0;
+    int coords = 0;  // coordinates read in the current bounce
+    int index[LocalCoords];
+    bool too_many = false;  // a bounce read more than LocalCoords coordinates (not the path technique's layout)
+    std::vector<Eigen::MatrixXd> Jz;  // per record, d(inputs)/d(block): LocalN x cols
+    std::vector<int> cols;            // per record: 1 + the largest block entry read up to it
+    Eigen::MatrixXd Js, T1, H;
+};
+
+struct LocalReader {
     const double* coords;
     const int* block;
     std::size_t length;
     int n;
+    LocalTape* tape;  // null: direct (the block's entries are the local's inputs)
     std::size_t next = 0;
     bool overflow = false;
-    Outer read() {
+    Local read() {
         if (next >= length) {
             overflow = true;
-            return Outer(0.5);
+            return Local(0.5);
         }
         const std::size_t i = next++;
         const int k = block ? block[i] : -1;
-        if (k < 0 || k >= n) return Outer(coords[i]);  // held constant
-        Outer x;
-        x.value() = Inner(coords[i], n, k);
-        x.derivatives().resize(n);
-        for (int j = 0; j < n; ++j) x.derivatives()(j) = Inner(j == k ? 1.0 : 0.0, InnerDer::Zero(n));
-        return x;
+        if (k < 0 || k >= n) return Local(coords[i]);  // held constant
+        if (!tape) return local_variable(coords[i], k);
+        if (tape->coords >= LocalCoords) {
+            tape->too_many = true;
+            return Local(coords[i]);
+        }
+        tape->index[tape->coords] = k;
+        return local_variable(coords[i], Carried + tape->coords++);
+    }
+    void decide(Decide, long long = 0, const Vec3d& = Vec3d(0.0)) {}
+    Local read_discrete() {
+        if (next >= length) {
+            overflow = true;
+            return Local(0.5);
+        }
+        return Local(coords[next++]);
+    }
+    // Between bounces (and after the last): record the bounce that ends and make the carried numbers the next
+    // bounce's first 16 inputs.
+    void checkpoint(Local* const* carried) {
+        if (!tape) return;
+        LocalTape& t = *tape;
+        if (t.used == t.bounces.size()) t.bounces.emplace_back();
+        Bounce& b = t.bounces[t.used++];
+        b.coords = t.coords;
+        std::copy(t.index, t.index + t.coords, b.index);
+        for (int k = 0; k < Carried; ++k) {
+            const Local& c = *carried[k];
+            b.A.row(k) = c.value().derivatives().transpose();
+            for (int j = 0; j < LocalN; ++j) b.H[k].row(j) = c.derivatives()(j).derivatives().transpose();
+        }
+        for (int k = 0; k < Carried; ++k) *carried[k] = local_variable(val(*carried[k]), k);
+        t.coords = 0;
     }
 };
 
@@ -816,6 +933,43 @@ struct PathDerivatives::Impl {
 
     template <class T, class Reader>
     PathDerivativeStatus run(Reader& rd, T& log_pi) const;
+
+    // Discontinuous if a decision of the path changes within discontinuity_radius of the point along a coordinate of
+    // the block that moves the path continuously (each shifted both ways, wrapped to [0, 1)); the point's own
+    // status if it is not Ok; else Ok.
+    PathDerivativeStatus near_discontinuity(const double* coords, const int* block, std::size_t length, int n) const {
+        using S = PathDerivativeStatus;
+        thread_local std::vector<Decision> base, other;
+        thread_local std::vector<std::size_t> continuous;
+        thread_local std::vector<double> shifted;
+        base.clear();
+        continuous.clear();
+        DoubleReader r0{coords, length};
+        r0.decisions = &base;
+        r0.continuous = &continuous;
+        double lp = 0;
+        const S s0 = run<double>(r0, lp);
+        if (s0 != S::Ok) return s0;
+        shifted.assign(coords, coords + length);
+        const double h = o.discontinuity_radius;
+        for (const std::size_t i : continuous) {
+            if (block[i] < 0 || block[i] >= n) continue;
+            for (const double step : {h, -h}) {
+                double v = coords[i] + step;
+                v -= std::floor(v);
+                shifted[i] = v;
+                other.clear();
+                DoubleReader r{shifted.data(), length};
+                r.decisions = &other;
+                const S s = run<double>(r, lp);
+                // Zero there (the contribution faded out) compares by decisions; a path that leaves the supported
+                // set or cannot be re-evaluated consistently (a grazing hit) counts as a change.
+                if ((s != S::Ok && s != S::Zero) || !same_decisions(base, other)) return S::Discontinuous;
+            }
+            shifted[i] = coords[i];
+        }
+        return S::Ok;
+    }
 };
 
 template <class T, class Reader>
@@ -865,16 +1019,24 @@ PathDerivativeStatus PathDerivatives::Impl::run(Reader& rd, T& log_pi) const {
     bool prev_delta = true;
     V3<T> prev_p = orig;
     const long max_len = o.max_depth < 0 ? std::numeric_limits<long>::max() : long(o.max_depth);
+    // What the path carries from one bounce to the next (all of it: nothing else computed in a bounce is used in a
+    // later one); a segmented evaluation differentiates each bounce with respect to these and its own coordinates.
+    T* const carried[Carried] = {&orig.x,       &orig.y,       &orig.z,       &d.x,          &d.y, &d.z,
+                                 &prev_p.x,     &prev_p.y,     &prev_p.z,     &L.r,          &L.g, &L.b,
+                                 &throughput.r, &throughput.g, &throughput.b, &prev_bsdf_pdf};
 
     for (long depth = 0;; ++depth) {
+        rd.checkpoint(carried);
         auto hit = scene.intersect(ray);
         if (!hit) {
+            rd.decide(Decide::Miss);
             if (!scene.environment_emitters().empty()) return S::Unsupported;
             break;
         }
         const bool on_sphere = sphere(hit->shape), on_disc = disc(hit->shape);
         if (!on_sphere && !on_disc && !triangles(hit->shape)) return S::Unsupported;
         const SurfaceInteraction si = scene.interaction(ray, *hit);
+        rd.decide(Decide::Hit, hit->shape, flat_triangles(hit->shape) ? si.ng : Vec3d(0.0));
         // Differentiable re-intersection of the primitive Embree found: Moller-Trumbore for a triangle (the frame is
         // constant), the quadratic for a sphere (the root Embree took; the normal and frame follow p).
         const ShapeGeometry& g = geometry[hit->shape];
@@ -952,28 +1114,68 @@ PathDerivativeStatus PathDerivatives::Impl::run(Reader& rd, T& log_pi) const {
         if (depth + 2 > max_len) break;
 
         const Bsdf& bsdf = *si.shape->bsdf();
-        const Bsdf::Model model = bsdf.model();
+        Bsdf::Model model = bsdf.model();
+        if (model.two_sided && si.wi.z < 0) model = bsdf.back_model();  // a twosided's second side
         using Kind = Bsdf::Model::Kind;
         if (model.kind == Kind::None) return S::Unsupported;
-        const T u_light = rd.read();
+        // The emitter, the BSDF component and roulette use their coordinate only in a comparison (read_discrete: a
+        // constant, its derivatives zero); the other four move the path continuously.
+        const T u_light = rd.read_discrete();
         const T u_l0 = rd.read(), u_l1 = rd.read();
-        const T u_comp = rd.read();
+        const T u_comp = rd.read_discrete();
         const T u_d0 = rd.read(), u_d1 = rd.read();
-        const T u_rr = rd.read();
+        const T u_rr = rd.read_discrete();
         // twosided seen from below: the nested model in the mirrored frame (z of wi and wo negated, as the plugin).
         FrameT<T> frame = geometric_frame;
         const bool mirrored = model.two_sided && si.wi.z < 0;
         if (mirrored) frame.n = frame.n * T(-1.0);
         const V3<T> wi = to_local(frame, V3<T>{T(-d.x), T(-d.y), T(-d.z)});
-        auto bsdf_eval = [&](const V3<T>& wo, T& pdf) -> C3<T> { return kelvin::bsdf_eval(model, wi, wo, pdf); };
+        // A textured reflectance (Bsdf::Model::texture, a factor of the whole lobe): its value at the hit's uv, the
+        // mesh's uvs interpolated with the barycentrics (or the barycentrics themselves, as Scene::interaction).
+        C3<T> tex{T(1.0), T(1.0), T(1.0)};
+        const bool textured = model.texture != nullptr;
+        if (textured) {
+            TextureLocal tl;
+            if (on_sphere || on_disc || !model.texture->local(si.uv, tl)) return S::Unsupported;
+            T u = bary_u, v = bary_v;
+            if (!g.uvs.empty()) {
+                const uint32_t* tri = &g.indices[3 * std::size_t(hit->prim)];
+                const T b0 = T(1.0) - bary_u - bary_v;
+                const Vec2d t0(g.uvs[tri[0]]), t1(g.uvs[tri[1]]), t2(g.uvs[tri[2]]);
+                u = T(b0 * T(t0.x)) + T(bary_u * T(t1.x)) + T(bary_v * T(t2.x));
+                v = T(b0 * T(t0.y)) + T(bary_u * T(t1.y)) + T(bary_v * T(t2.y));
+            }
+            // The renderer's uv comes from Embree's float barycentrics.
+            if (std::abs(val(u) - si.uv.x) > 1e-5 || std::abs(val(v) - si.uv.y) > 1e-5) return S::Mismatch;
+            auto colour = [](const Color3& c) { return C3<T>{T(c.r), T(c.g), T(c.b)}; };
+            if (tl.bilinear) {
+                const T tx = T(T(tl.A[0][0]) * u) + T(T(tl.A[0][1]) * v) + T(tl.b[0] - tl.x0);
+                const T ty = T(T(tl.A[1][0]) * u) + T(T(tl.A[1][1]) * v) + T(tl.b[1] - tl.y0);
+                const T sx = T(1.0) - tx, sy = T(1.0) - ty;
+                tex = colour(tl.c[0]) * T(sx * sy);
+                add(tex, colour(tl.c[1]) * T(tx * sy));
+                add(tex, colour(tl.c[2]) * T(sx * ty));
+                add(tex, colour(tl.c[3]) * T(tx * ty));
+            } else {
+                tex = colour(tl.c[0]);
+                rd.decide(Decide::Texture, tl.cell);
+            }
+        }
+        auto bsdf_eval = [&](const V3<T>& wo, T& pdf) -> C3<T> {
+            const C3<T> f = kelvin::bsdf_eval(model, wi, wo, pdf);
+            return textured ? f * tex : f;
+        };
 
         // Next-event estimation (smooth models; emitter sampling is on in the Metropolis techniques).
         if ((bsdf.flags() & BsdfFlags::Smooth) && depth + 2 >= o.min_depth) {
             auto [e, sel_pdf] = scene.sample_emitter(val(u_light));
             if (e) {
-                if (auto ds = e->sample_direct(si.p, Vec2d(val(u_l0), val(u_l1)))) {
-                    const std::size_t ei = std::size_t(std::find(scene.emitters().begin(), scene.emitters().end(), e) -
-                                                       scene.emitters().begin());
+                const std::size_t ei = std::size_t(std::find(scene.emitters().begin(), scene.emitters().end(), e) -
+                                                   scene.emitters().begin());
+                const long long nee = (long long)ei << 33;  // | (light triangle + 1) << 1 | occluded
+                auto ds = e->sample_direct(si.p, Vec2d(val(u_l0), val(u_l1)));
+                if (!ds) rd.decide(Decide::Nee, AnyNee);
+                if (ds) {
                     const int sh = ei < emitter_shape.size() ? emitter_shape[ei] : -1;
                     if (e->plugin_name() == "point") {
                         // PointEmitter::sample_direct: intensity / dist^2 from a fixed position, a delta light (MIS
@@ -983,7 +1185,9 @@ PathDerivativeStatus PathDerivatives::Impl::run(Reader& rd, T& log_pi) const {
                         const V3<T> dir{dv.x / dist, dv.y / dist, dv.z / dist};
                         const Color3 intensity = ds->weight * (ds->dist * ds->dist);
                         const Color3 f_primal = bsdf.eval(bctx, si, si.to_local(ds->d));
-                        if (f_primal != Color3(0.0) && !scene.occluded(si.spawn_to(ds->p))) {
+                        const bool lit = f_primal != Color3(0.0) && !scene.occluded(si.spawn_to(ds->p));
+                        rd.decide(Decide::Nee, f_primal == Color3(0.0) ? AnyNee : nee | (lit ? 0 : 1));
+                        if (lit) {
                             T bsdf_pdf(0.0);
                             const C3<T> f = bsdf_eval(to_local(frame, dir), bsdf_pdf);
                             add(L, throughput * f * intensity * T(T(1.0) / (dist2 * T(sel_pdf))));
@@ -1010,7 +1214,9 @@ PathDerivativeStatus PathDerivatives::Impl::run(Reader& rd, T& log_pi) const {
                         const Color3 weight = em.intensity * (val(falloff) / val(dist2));
                         if (glm::length(weight - ds->weight) > 1e-6 * (1 + glm::length(ds->weight))) return S::Mismatch;
                         const Color3 f_primal = bsdf.eval(bctx, si, si.to_local(ds->d));
-                        if (f_primal != Color3(0.0) && !scene.occluded(si.spawn_to(ds->p))) {
+                        const bool lit = f_primal != Color3(0.0) && !scene.occluded(si.spawn_to(ds->p));
+                        rd.decide(Decide::Nee, f_primal == Color3(0.0) ? AnyNee : nee | (lit ? 0 : 1));
+                        if (lit) {
                             T bsdf_pdf(0.0);
                             const C3<T> f = bsdf_eval(to_local(frame, dir), bsdf_pdf);
                             add(L, throughput * f * em.intensity * T(falloff / (dist2 * T(sel_pdf))));
@@ -1021,10 +1227,13 @@ PathDerivativeStatus PathDerivatives::Impl::run(Reader& rd, T& log_pi) const {
                                     : nullptr;
                         const bool light_sphere = sh >= 0 && sphere(uint32_t(sh)),
                                    light_disc = sh >= 0 && disc(uint32_t(sh));
+                        // On a mesh with vertex normals too: the light's sample, its normal and its density use
+                        // the triangle's plane (TriangleMesh::sample_position, AreaEmitter).
                         if (e->plugin_name() != "area" || e->spatially_varying() ||
-                            !((mesh && flat_triangles(uint32_t(sh))) || light_sphere || light_disc))
+                            !((mesh && triangles(uint32_t(sh))) || light_sphere || light_disc))
                             return S::Unsupported;
                         const ShapeGeometry& eg = geometry[std::size_t(sh)];
+                        long long triangle = 0;
                         V3<T> ps, en = constant<T>(ds->n);
                         if (light_disc) {
                             // Disk::sample_position: the concentric map onto the disk (tangent, bitangent).
@@ -1048,6 +1257,7 @@ PathDerivativeStatus PathDerivatives::Impl::run(Reader& rd, T& log_pi) const {
                             std::size_t k =
                                 std::size_t(std::lower_bound(cdf.begin(), cdf.end(), val(u_l0)) - cdf.begin());
                             k = std::min(k, cdf.size() - 1);
+                            triangle = (long long)k + 1;
                             const double lo = k == 0 ? 0.0 : cdf[k - 1], width = cdf[k] - lo;
                             T ux = width > 0 ? T((u_l0 - T(lo)) / T(width)) : T(0.5);
                             if (val(ux) < 0) ux = T(0.0);
@@ -1068,9 +1278,12 @@ PathDerivativeStatus PathDerivatives::Impl::run(Reader& rd, T& log_pi) const {
                         const T pdf = T(1.0 / light_area) * dist2 / cos_e;
                         const Color3 radiance = ds->weight * ds->pdf;
                         const Color3 f_primal = bsdf.eval(bctx, si, si.to_local(ds->d));
+                        if (f_primal == Color3(0.0)) rd.decide(Decide::Nee, AnyNee);
                         if (f_primal != Color3(0.0)) {
                             const Ray shadow = ds->dist == Inf ? si.spawn(ds->d) : si.spawn_to(ds->p);
-                            if (!scene.occluded(shadow)) {
+                            const bool occluded = scene.occluded(shadow);
+                            rd.decide(Decide::Nee, nee | triangle << 1 | (occluded ? 1 : 0));
+                            if (!occluded) {
                                 T bsdf_pdf(0.0);
                                 const C3<T> f = bsdf_eval(to_local(frame, dir), bsdf_pdf);
                                 const T w = ds->delta ? T(1.0) : power_heuristic(T(pdf * T(sel_pdf)), bsdf_pdf);
@@ -1085,14 +1298,19 @@ PathDerivativeStatus PathDerivatives::Impl::run(Reader& rd, T& log_pi) const {
 
         // Continue by sampling the BSDF.
         auto bs = bsdf.sample(bctx, si, val(u_comp), Vec2d(val(u_d0), val(u_d1)));
-        if (!bs || bs->weight == Color3(0.0)) break;
+        if (!bs || bs->weight == Color3(0.0)) {
+            rd.decide(Decide::End);
+            break;
+        }
         BsdfSampleT<T> smp;
         if (!bsdf_sample(model, wi, u_comp, u_d0, u_d1, smp)) return S::Mismatch;
+        rd.decide(Decide::Component, (smp.delta ? 2 : 0) + (smp.transmission ? 1 : 0));
         const V3<T>& wo = smp.wo;
         if (smp.delta != ((bs->sampled & BsdfFlags::Delta) != 0) ||
             smp.transmission != ((bs->sampled & BsdfFlags::Transmission) != 0))
             return S::Mismatch;
         throughput = throughput * smp.weight;
+        if (textured) throughput = throughput * tex;
         if (smp.transmission) eta_scale *= smp.eta * smp.eta;
         prev_delta = smp.delta;
         prev_bsdf_pdf = smp.pdf;
@@ -1122,12 +1340,14 @@ PathDerivativeStatus PathDerivatives::Impl::run(Reader& rd, T& log_pi) const {
                              ? (val(throughput.r) >= val(throughput.b) ? throughput.r : throughput.b)
                              : (val(throughput.g) >= val(throughput.b) ? throughput.g : throughput.b);
             const T q = val(m) * eta_scale < 0.95 ? T(m * T(eta_scale)) : T(0.95);
+            rd.decide(Decide::Roulette, val(u_rr) < val(q) ? 1 : 0);
             if (!(val(u_rr) < val(q))) break;
             const T inv = T(1.0) / q;
             throughput = throughput * inv;
         }
     }
     if (rd.overflow) return S::TooLong;
+    rd.checkpoint(carried);
     const T pi = (L.r * T(0.212671) + L.g * T(0.715160) + L.b * T(0.072169)) * T(o.film_area);
     if (!(val(pi) > 0)) return S::Zero;
     log_pi = log(pi);
@@ -1148,27 +1368,79 @@ PathDerivativeStatus PathDerivatives::log_value(const double* coords, std::size_
 
 PathDerivativeStatus PathDerivatives::evaluate(const double* coords, const int* block, std::size_t length, int n,
                                                double value, double* log_value, double* grad, double* hess) const {
-    if (n > std::min(m_impl->o.max_coordinates, MaxBlock)) return PathDerivativeStatus::TooLong;
-    OuterReader rd{coords, block, length, n};
-    Outer lp(0.0);
-    const PathDerivativeStatus s = m_impl->run<Outer>(rd, lp);
-    if (s != PathDerivativeStatus::Ok) return s;
-    const double v = lp.value().value();
-    if (value > 0 && !(std::abs(v - std::log(value)) <= 1e-4)) return PathDerivativeStatus::Mismatch;
+    using S = PathDerivativeStatus;
+    if (n > std::min(m_impl->o.max_coordinates, MaxBlock)) return S::TooLong;
+    if (m_impl->o.discontinuity_radius > 0 && block) {
+        const S d = m_impl->near_discontinuity(coords, block, length, n);
+        if (d != S::Ok) return d;
+    }
+    thread_local LocalTape tape;  // per thread: its arrays grow once
+    const bool segmented = n > LocalN || m_impl->o.always_segmented;
+    tape.used = 0;
+    tape.coords = 0;
+    tape.too_many = false;
+    LocalReader rd{coords, block, length, n, segmented ? &tape : nullptr};
+    Local lp(0.0);
+    const S s = m_impl->run<Local>(rd, lp);
+    if (s != S::Ok) return s;
+    if (tape.too_many) return S::Unsupported;
+    const double v = val(lp);
+    if (value > 0 && !(std::abs(v - std::log(value)) <= 1e-4)) return S::Mismatch;
     if (log_value) *log_value = v;
+    if (!grad && !hess) return S::Ok;
+    Eigen::Map<Eigen::VectorXd> g(grad ? grad : nullptr, grad ? n : 0);
+    Eigen::Map<Eigen::MatrixXd> H(hess ? hess : nullptr, hess ? n : 0, hess ? n : 0);
+    if (!segmented) {
+        for (int i = 0; i < n && grad; ++i) g(i) = lp.value().derivatives()(i);
+        for (int j = 0; j < n && hess; ++j)
+            for (int i = 0; i < n; ++i) H(i, j) = lp.derivatives()(i).derivatives()(j);
+        return S::Ok;
+    }
+
+    // Forward: the Jacobian of each record's inputs with respect to the block (the carried numbers' rows from the
+    // previous record, a unit row per coordinate read). Records: the camera, then one per bounce; G (log pi of the
+    // carried radiance) follows the last.
+    // Only the block entries read so far can have non-zero columns: each record's Jacobian keeps the first
+    // cols of them (the block's entries are in reading order along the path, so that is about half on average).
+    const std::size_t K = tape.used;
+    if (tape.Jz.size() < K) tape.Jz.resize(K), tape.cols.resize(K);
+    tape.Js.resize(Carried, 0);
+    int cols = 0;
+    for (std::size_t i = 0; i < K; ++i) {
+        const Bounce& b = tape.bounces[i];
+        const int before = cols;
+        for (int c = 0; c < b.coords; ++c) cols = std::max(cols, b.index[c] + 1);
+        tape.cols[i] = cols;
+        Eigen::MatrixXd& J = tape.Jz[i];
+        J.setZero(LocalN, cols);
+        J.topLeftCorner(Carried, before) = tape.Js;
+        for (int c = 0; c < b.coords; ++c) J(Carried + c, b.index[c]) = 1.0;
+        tape.Js.noalias() = b.A * J;  // the record's outputs: the next one's carried inputs
+    }
+    const Eigen::Matrix<double, Carried, 1> gG = lp.value().derivatives().head<Carried>();
     if (grad) {
-        const InnerDer& g = lp.value().derivatives();
-        for (int i = 0; i < n; ++i) grad[i] = i < g.size() ? g(i) : 0.0;
+        g.setZero();
+        g.head(cols).noalias() = tape.Js.transpose() * gG;
     }
-    if (hess) {
-        const InnerVec& d = lp.derivatives();
-        for (int j = 0; j < n; ++j)
-            for (int i = 0; i < n; ++i) {
-                const double h = i < d.size() && j < d(i).derivatives().size() ? d(i).derivatives()(j) : 0.0;
-                hess[std::size_t(j) * std::size_t(n) + std::size_t(i)] = h;
-            }
+    if (!hess) return S::Ok;
+    Eigen::Matrix<double, LocalN, LocalN> M;
+    for (int j = 0; j < LocalN; ++j) M.row(j) = lp.derivatives()(j).derivatives().transpose();
+    tape.T1.noalias() = M.topLeftCorner<Carried, Carried>() * tape.Js;
+    H.setZero();
+    H.topLeftCorner(cols, cols).noalias() = tape.Js.transpose() * tape.T1;
+    // Backward: the adjoint of each record's outputs weighs the Hessians of those outputs.
+    Eigen::Matrix<double, Carried, 1> lambda = gG;
+    for (std::size_t i = K; i-- > 0;) {
+        const Bounce& b = tape.bounces[i];
+        M.setZero();
+        for (int k = 0; k < Carried; ++k)
+            if (lambda(k) != 0) M += lambda(k) * b.H[k];
+        const Eigen::MatrixXd& J = tape.Jz[i];
+        tape.T1.noalias() = M * J;
+        H.topLeftCorner(tape.cols[i], tape.cols[i]).noalias() += J.transpose() * tape.T1;
+        lambda = (b.A.transpose() * lambda).head<Carried>();
     }
-    return PathDerivativeStatus::Ok;
+    return S::Ok;
 }
 
 }  // namespace kelvin

@@ -11,6 +11,8 @@
 
 namespace kelvin {
 
+class Texture;
+
 enum class TransportMode { Radiance, Importance };
 
 namespace BsdfFlags {
@@ -76,6 +78,9 @@ public:
         } kind = Kind::None;
         Color3 reflectance{0.0};  ///< diffuse reflectance (the plastics' diffuse_reflectance), or the conductors'
                                   ///< specular_reflectance
+        /// diffuse's reflectance or the conductors' specular_reflectance as a texture (Texture::local): a factor of
+        /// the whole lobe, `reflectance` then 1. Null: constant.
+        const Texture* texture = nullptr;
         Color3 eta{0.0}, k{1.0};  ///< conductors: complex index of refraction
         bool ggx = false;         ///< microfacet models: GGX (else Beckmann)
         double alpha_u = 0, alpha_v = 0;
@@ -95,6 +100,9 @@ public:
         int coating_size = 0;
     };
     virtual Model model() const { return {}; }
+    /// The model seen from below the shading frame (wi.z < 0) when model().two_sided: the second BSDF of a
+    /// `twosided` with two sides (the same as model() otherwise).
+    virtual Model back_model() const { return model(); }
 };
 
 }  // namespace kelvin

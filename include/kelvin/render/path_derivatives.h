@@ -2,24 +2,30 @@
 // Derivatives of the `path` technique's contribution with respect to its primary samples (issue 14; what H2MC needs,
 // mlt/local.h): the gradient and Hessian of log(luminance) of a path sample, exactly as the Metropolis integrators
 // evaluate a state of the path technique (film position from coordinates 0-1 over the film domain, lens 2-3, then 7
-// numbers per bounce; path.cpp), by forward-over-forward automatic differentiation (nested Eigen::AutoDiffScalar).
+// numbers per bounce; path.cpp), by forward-over-forward automatic differentiation (nested Eigen::AutoDiffScalar of
+// a fixed size, 20): bounce by bounce with respect to the 16 numbers the path carries between bounces and the
+// bounce's own continuous coordinates, the bounces composed by the chain rule (Jacobians forward, the Hessian
+// backward). A path of n coordinates costs O(n) nested operations of size 20 plus O(n^2) per bounce to compose.
 //
 // The discrete decisions of the path (which primitive a ray hits, visibility of a shadow ray, the emitter chosen, the
 // triangle of the emitter, Russian roulette, which branch of a warp) are taken by the ordinary renderer (Embree) at
 // the point itself: they are locally constant, and the evaluation differentiates the continuous part of the path
 // they select: the camera ray, a differentiable re-intersection of the primitive Embree found (Moller-Trumbore), the
 // BSDF's and the emitter's sampling warps, values and densities, the MIS weights (power heuristic) and the Russian
-// roulette probability. On a discontinuity itself (an occlusion edge) the derivative is that of the side the point
-// is on; a path on whose one side the primal renderer decides differently is not detected in general.
+// roulette probability. Discontinuities (occlusion edges, silhouettes, a shadow's edge, the edge of a cube's face, a
+// light triangle's boundary in the emitter's sampling map) are detected, not differentiated through: the decisions
+// are re-taken with each continuous coordinate moved by discontinuity_radius either way, and a path whose decisions
+// change there is Discontinuous. (A discontinuity farther than that along a diagonal direction is not seen.)
 //
 // The supported subset, checked per path (anything else gives Unsupported, and the caller falls back): the
 // `perspective` and `thinlens` sensors; triangle meshes (with or without vertex normals: rectangle, cube, OBJ...),
 // `sphere` and `disk`; the BSDFs that describe themselves by Bsdf::model() (diffuse, conductor, roughconductor and
 // roughdielectric with GGX or Beckmann, with or without visible-normal sampling, dielectric, plastic, roughplastic,
-// twosided around one of them; constant parameters only); `area` emitters on flat meshes, spheres and disks, `point`
-// and `spot` emitters (Emitter::model()); no environment emitter that the path escapes to. docs/mlt.md lists it with
-// its tests. As a safety net the evaluation compares its own value with the renderer's (`value` argument) and reports
-// Mismatch beyond a relative 1e-4.
+// twosided around one or two of them; constant parameters, or for diffuse's reflectance and the conductors'
+// specular_reflectance a texture that Texture::local describes, on triangle meshes); `area` emitters on meshes, spheres
+// and disks, `point` and `spot` emitters (Emitter::model()); no environment emitter that the path escapes to.
+// docs/mlt.md lists it with its tests. As a safety net the evaluation compares its own value with the renderer's
+// (`value` argument) and reports Mismatch beyond a relative 1e-4.
 #include <kelvin/core/math.h>
 
 #include <cstddef>
@@ -38,6 +44,13 @@ struct PathDerivativeOptions {
     Vec2d film_origin{0.0}, film_extent{1.0};  ///< the film domain coordinates 0-1 map to (pixels)
     double film_area = 1;                      ///< the value is luminance(L * film_area), as the MLT target
     int max_coordinates = 96;                  ///< longer blocks are refused (TooLong)
+    /// Differentiate bounce by bounce even when the block fits one local (24 inputs): for tests, which compare the
+    /// two ways. Longer blocks are always segmented.
+    bool always_segmented = false;
+    /// A path whose discrete decisions change when one of its continuous coordinates moves by this much (either
+    /// way) is reported Discontinuous instead of differentiated; 0: not checked. The check costs two plain path
+    /// evaluations per continuous coordinate (a fifth to a half more than the derivatives alone, bench_h2mc).
+    double discontinuity_radius = 1e-5;
 
     /// The film domain the Metropolis integrators use: the film widened by the filter radius on every side,
     /// film_area its area in pixels.
@@ -52,7 +65,11 @@ class SamplingIntegrator;
 double camera_path_value(const Scene& scene, const SamplingIntegrator& path, const PathDerivativeOptions& options,
                          std::vector<double>& x, std::size_t& used);
 
-enum class PathDerivativeStatus { Ok, Zero, Unsupported, Mismatch, TooLong };
+/// Discontinuous: a discrete decision of the path (the shape a ray hits, a shadow ray's visibility, the sampled
+/// component, roulette, ...) changes within PathDerivativeOptions::discontinuity_radius of the point: the point is on
+/// (or next to) an occlusion edge or another discontinuity of the contribution, and is not differentiated.
+enum class PathDerivativeStatus { Ok, Zero, Unsupported, Mismatch, TooLong, Discontinuous };
+constexpr int PathDerivativeStatusCount = 6;
 const char* to_string(PathDerivativeStatus s);
 
 class PathDerivatives {

@@ -9,6 +9,18 @@
 
 namespace kelvin {
 
+/// A texture around one uv point, as the differentiable path evaluation needs it (render/path_derivatives.h): with
+/// (x, y) = A uv + b, the value is c[0] (1 - tx)(1 - ty) + c[1] tx (1 - ty) + c[2] (1 - tx) ty + c[3] tx ty, with
+/// (tx, ty) = (x - x0, y - y0) the position within the cell at (x0, y0), if `bilinear`; otherwise the constant c[0],
+/// `cell` naming the piece (a change of piece is a discontinuity).
+struct TextureLocal {
+    double A[2][2] = {{1, 0}, {0, 1}}, b[2] = {0, 0};
+    double x0 = 0, y0 = 0;
+    Color3 c[4] = {Color3(0.0), Color3(0.0), Color3(0.0), Color3(0.0)};
+    bool bilinear = false;
+    long long cell = 0;
+};
+
 class Texture : public Object {
 public:
     virtual Color3 eval(const Vec2d& uv) const = 0;
@@ -27,6 +39,14 @@ public:
     /// Texels along u and v (Mitsuba's Texture::resolution): the image size of a bitmap, (1, 1) otherwise. The
     /// projector emitter takes its aspect ratio from it.
     virtual glm::ivec2 resolution() const { return {1, 1}; }
+    /// The texture around uv as a TextureLocal; false where it cannot describe itself so (the default; constant
+    /// textures, checkerboards of constant colours and bitmaps can).
+    virtual bool local(const Vec2d& uv, TextureLocal& out) const {
+        if (!is_constant()) return false;
+        out = TextureLocal{};
+        out.c[0] = mean();
+        return true;
+    }
 };
 
 /// A constant colour as a texture.

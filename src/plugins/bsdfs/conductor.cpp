@@ -42,9 +42,11 @@ public:
     double pdf(const BsdfContext&, const SurfaceInteraction&, const Vec3d&) const override { return 0.0; }
     Model model() const override {
         Model m;
-        if (!m_specular->is_constant()) return m;
         m.kind = Model::Kind::Conductor;
-        m.reflectance = m_specular->mean();
+        if (m_specular->is_constant())
+            m.reflectance = m_specular->mean();
+        else
+            m.texture = m_specular.get(), m.reflectance = Color3(1.0);
         m.eta = m_ior.eta;
         m.k = m_ior.k;
         return m;

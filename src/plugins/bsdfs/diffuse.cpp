@@ -41,9 +41,11 @@ public:
     Color3 albedo(const SurfaceInteraction& si) const override { return m_reflectance->eval(si); }
     Model model() const override {
         Model m;
-        if (!m_reflectance->is_constant()) return m;
         m.kind = Model::Kind::Diffuse;
-        m.reflectance = m_reflectance->mean();
+        if (m_reflectance->is_constant())
+            m.reflectance = m_reflectance->mean();
+        else
+            m.texture = m_reflectance.get(), m.reflectance = Color3(1.0);
         return m;
     }
 

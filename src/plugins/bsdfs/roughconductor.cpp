@@ -107,9 +107,11 @@ public:
 
     Model model() const override {
         Model m;
-        if (!m_specular->is_constant()) return m;
         m.kind = Model::Kind::RoughConductor;
-        m.reflectance = m_specular->mean();
+        if (m_specular->is_constant())
+            m.reflectance = m_specular->mean();
+        else
+            m.texture = m_specular.get(), m.reflectance = Color3(1.0);
         m.eta = m_ior.eta;
         m.k = m_ior.k;
         m.ggx = m_distr.type() == MicrofacetType::GGX;

@@ -62,14 +62,10 @@ public:
         back.wi = mirror(si.wi);
         return m_side[1]->pdf(ctx, back, mirror(wo));
     }
-    /// Differentiable path evaluation (render/path_derivatives.h): the nested model, two-sided, when both sides are
-    /// the same BSDF.
-    Model model() const override {
-        if (m_side[1] != m_side[0]) return {};
-        Model m = m_side[0]->model();
-        if (m.kind != Model::Kind::None) m.two_sided = true;
-        return m;
-    }
+    /// Differentiable path evaluation (render/path_derivatives.h): the front's model, two-sided; seen from below,
+    /// the back's (back_model, in the mirrored frame).
+    Model model() const override { return side_model(0); }
+    Model back_model() const override { return side_model(1); }
     Color3 albedo(const SurfaceInteraction& si) const override {
         if (si.wi.z > 0) return m_side[0]->albedo(si);
         if (!(si.wi.z < 0)) return Color3(0.0);  // grazing: neither side, as eval()
@@ -79,6 +75,11 @@ public:
     }
 
 private:
+    Model side_model(int side) const {
+        Model m = m_side[side]->model();
+        if (m.kind != Model::Kind::None) m.two_sided = true;
+        return m;
+    }
     std::shared_ptr<Bsdf> m_side[2];
 };
 

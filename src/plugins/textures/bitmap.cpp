@@ -105,6 +105,40 @@ public:
     }
     Color3 mean() const override { return m_mean; }
     glm::ivec2 resolution() const override { return {m_width, m_height}; }
+    /// Bilinear: the four texels around uv and the affine map from uv to texel coordinates (to_uv's, times the
+    /// resolution, minus the half texel); nearest: the texel, which names the piece.
+    bool local(const Vec2d& uv_in, TextureLocal& out) const override {
+        out = TextureLocal{};
+        Vec2d o(0.0), eu(1.0, 0.0), ev(0.0, 1.0), uv = uv_in;
+        if (!m_identity) {
+            auto apply = [&](const Vec2d& q) {
+                const Vec3d p = m_to_uv.apply_point(Vec3d(q.x, q.y, 0));
+                return Vec2d(p.x, p.y);
+            };
+            o = apply(Vec2d(0.0));
+            eu = apply(Vec2d(1.0, 0.0)) - o;
+            ev = apply(Vec2d(0.0, 1.0)) - o;
+            uv = apply(uv_in);
+        }
+        if (!std::isfinite(uv.x) || !std::isfinite(uv.y)) return false;
+        const double half = m_nearest ? 0.0 : 0.5;
+        out.A[0][0] = eu.x * m_width, out.A[0][1] = ev.x * m_width;
+        out.A[1][0] = eu.y * m_height, out.A[1][1] = ev.y * m_height;
+        out.b[0] = o.x * m_width - half, out.b[1] = o.y * m_height - half;
+        const double x = uv.x * m_width - half, y = uv.y * m_height - half;
+        out.x0 = std::floor(x), out.y0 = std::floor(y);
+        if (m_nearest) {
+            const int ix = index(out.x0, m_width), iy = index(out.y0, m_height);
+            out.c[0] = texel(ix, iy);
+            out.cell = (long long)out.x0 * 1000003LL + (long long)out.y0;
+            return true;
+        }
+        const int ix0 = index(out.x0, m_width), ix1 = index(out.x0 + 1, m_width);
+        const int iy0 = index(out.y0, m_height), iy1 = index(out.y0 + 1, m_height);
+        out.c[0] = texel(ix0, iy0), out.c[1] = texel(ix1, iy0), out.c[2] = texel(ix0, iy1), out.c[3] = texel(ix1, iy1);
+        out.bilinear = true;
+        return true;
+    }
     /// Gradient in (u, v) of the luminance of the bilinear interpolant (Mitsuba's eval_1_grad), through to_uv;
     /// zero for nearest filtering.
     Vec2d eval_1_grad(const SurfaceInteraction& si) const override {

@@ -54,6 +54,17 @@ public:
         return ((fu > 0.5) != (fv > 0.5)) ? m_color0->eval_1(si) : m_color1->eval_1(si);
     }
     Color3 mean() const override { return 0.5 * (m_color0->mean() + m_color1->mean()); }
+    /// Piecewise constant: the square's colour, the square (floor of 2 t) naming the piece.
+    bool local(const Vec2d& uv, TextureLocal& out) const override {
+        if (!m_color0->is_constant() || !m_color1->is_constant()) return false;
+        const Vec2d t = transformed(uv);
+        if (!std::isfinite(t.x) || !std::isfinite(t.y)) return false;
+        const double fu = t.x - std::floor(t.x), fv = t.y - std::floor(t.y);
+        out = TextureLocal{};
+        out.c[0] = ((fu < 0.5) == (fv < 0.5)) ? m_color0->mean() : m_color1->mean();
+        out.cell = (long long)std::floor(2 * t.x) * 1000003LL + (long long)std::floor(2 * t.y);
+        return true;
+    }
 
 private:
     Vec2d transformed(const Vec2d& uv) const {
