@@ -108,7 +108,7 @@ TEST_F(CliInform, ListParamsShowsDefaultsWithTheirDeclarations) {
     r = run_kelvin({"--list-params", MltStudy, "-D", "variant=drmlt-mira"});
     ASSERT_EQ(r.exit_code, 0) << describe(r);
     EXPECT_TRUE(std::regex_search(
-        r.out, std::regex("(^|\n)variant +drmlt-mira \\(-D; declared drmlt-orbital\\) +" + MltStudy + ":14:5\n")))
+        r.out, std::regex("(^|\n)variant +drmlt-mira \\(-D; declared drmlt-orbital\\) +" + MltStudy + ":15:5\n")))
         << r.out;
     EXPECT_TRUE(contains(r.out, "parts/mlt-drmlt-mira.xml:7:5")) << r.out;  // chains, in the included part
     EXPECT_TRUE(std::regex_search(r.out, std::regex("(^|\n)fov +60 +.*geometry/door.xml:7:5\n"))) << r.out;
