@@ -64,15 +64,18 @@ namespace {
 constexpr int MaxBlock = 96;  // PathDerivativeOptions::max_coordinates may not exceed it
 
 // The derivatives are taken bounce by bounce (a checkpointed second-order chain rule). Between bounces the path
-// carries 16 numbers, its *state* s (the ray's origin and direction, the previous vertex, the throughput, the
-// radiance gathered so far, the previous BSDF density); bounce i maps (s_i, u_i) to s_{i+1}, u_i the (at most 4)
-// coordinates it reads that move the path continuously (the 3 others of a bounce only choose: read_discrete), and
-// log pi = G(s_K). Each bounce runs in nested fixed-size AutoDiff over its own 16 + 4
-// inputs (value, Jacobian and Hessians of its 16 outputs), and evaluate() composes them: the Jacobians forward,
-// then the Hessian backward (H = J_K^T (d2 G) J_K + sum_i Jz_i^T (sum_k lambda_{i+1,k} d2 F_{i,k}) Jz_i, lambda the
-// adjoint of the state). The cost per operation is that of 20 inputs whatever the path's length, instead of n^2.
+// carries 11 numbers, its *state* s (the ray's direction, the previous vertex, from which the next ray's origin
+// follows, the throughput, the luminance gathered so far, the previous BSDF density); bounce i maps (s_i, u_i) to
+// s_{i+1}, u_i the (at most 4) coordinates it reads that move the path continuously (the 3 others of a bounce only
+// choose: read_discrete), and log pi = G(s_K). A *record* is two consecutive bounces (the camera and the first, the
+// second and third, ...): it runs in nested fixed-size AutoDiff over its own 11 + 8 inputs (value, Jacobian and
+// Hessians of its 11 outputs), and evaluate() composes the records: the Jacobians forward, then the Hessian backward
+// (H = J_K^T (d2 G) J_K + sum_i Jz_i^T (sum_k lambda_{i+1,k} d2 F_{i,k}) Jz_i, lambda the adjoint of the state).
+// The cost per operation is that of 20 inputs whatever the path's length, instead of n^2. (Measured by instruction
+// count on a path of 6 edges: carrying 16 numbers with one bounce per record cost 17 % more; Eigen's nested
+// operations of size 16 or 19 cost as much as, or more than, size 20, and size 24 (three bounces) 50 % more.)
 // A block that fits one local (n <= 20) is differentiated directly by the same type.
-constexpr int Carried = 16, LocalN = 20, LocalCoords = LocalN - Carried;
+constexpr int Carried = 11, LocalN = 20, LocalCoords = LocalN - Carried;
 using LocalDer = Eigen::Matrix<double, LocalN, 1>;
 using Inner = Eigen::AutoDiffScalar<LocalDer>;
 using InnerVec = Eigen::Matrix<Inner, LocalN, 1>;
@@ -170,6 +173,11 @@ C3<T> operator*(const C3<T>& a, const C3<T>& b) {
 template <class T>
 C3<T> operator*(const C3<T>& a, const T& s) {
     return {a.r * s, a.g * s, a.b * s};
+}
+// The luminance (render/color.h's weights) of a colour.
+template <class T>
+T luminance_of(const C3<T>& c) {
+    return T(c.r * T(0.212671)) + T(c.g * T(0.715160)) + T(c.b * T(0.072169));
 }
 template <class T>
 void add(C3<T>& acc, const C3<T>& v) {
@@ -807,7 +815,7 @@ struct DoubleReader {
         discrete_read = true;
         return read();
     }
-    void checkpoint(double* const*) {}
+    void checkpoint(double* const*, bool = true) {}
     // Optional records: the decisions, and the positions of the coordinates that move the path continuously.
     std::vector<Decision>* decisions = nullptr;
     std::vector<std::size_t>* continuous = nullptr;
@@ -820,9 +828,9 @@ struct DoubleReader {
         discrete_read = false;
     }
 };
-// The bounces recorded by a segmented evaluation: per bounce the Jacobian A (16 x 20) and the Hessians (20 x 20) of
-// its 16 outputs with respect to its inputs (the 16 carried numbers, then the coordinates it read), and the block
-// entries of those coordinates.
+// The bounces recorded by a segmented evaluation: per bounce the Jacobian A (Carried x LocalN) and the Hessians
+// (LocalN x LocalN) of its outputs with respect to its inputs (the carried numbers, then the coordinates it read), and
+// the block entries of those coordinates.
 struct Bounce {
     int coords = 0;
     int index[LocalCoords];
@@ -873,10 +881,13 @@ struct LocalReader {
         return Local(coords[next++]);
     }
     // Between bounces (and after the last): record the bounce that ends and make the carried numbers the next
-    // bounce's first 16 inputs.
-    void checkpoint(Local* const* carried) {
+    // bounce's first Carried inputs.
+    // A bounce reads at most 4 continuous coordinates: while another fits, the record goes on (fewer, longer
+    // records: less to compose); `last` ends it whatever the room.
+    void checkpoint(Local* const* carried, bool last = false) {
         if (!tape) return;
         LocalTape& t = *tape;
+        if (!last && t.coords + 4 <= LocalCoords) return;
         if (t.used == t.bounces.size()) t.bounces.emplace_back();
         Bounce& b = t.bounces[t.used++];
         b.coords = t.coords;
@@ -1012,21 +1023,41 @@ PathDerivativeStatus PathDerivatives::Impl::run(Reader& rd, T& log_pi) const {
     ray.d = glm::normalize(ray.d);
 
     const BsdfContext bctx;
-    C3<T> L{T(0.0), T(0.0), T(0.0)}, throughput{T(1.0), T(1.0), T(1.0)};
+    C3<T> throughput{T(1.0), T(1.0), T(1.0)};
+    T lum(0.0);  // the luminance of the radiance gathered so far (all that pi needs of it: luminance is linear)
     T prev_bsdf_pdf(1.0);
     double eta_scale = 1.0;
-    bool refracted = false;
+    bool imprecise = false;  // the renderer's ray is known to float precision only (below)
     bool prev_delta = true;
     V3<T> prev_p = orig;
+    // The next ray's origin is a function of the previous vertex (SurfaceInteraction::spawn's offset along the
+    // geometric normal, itself a function of the vertex on a sphere), recomputed after each checkpoint: not carried.
+    struct Spawn {
+        bool offset = false;  // false: the camera's ray, from prev_p itself
+        bool sphere = false;  // the normal: (p - centre) / radius, turned by orient; else the constant n
+        Vec3d n{0.0}, centre{0.0};
+        double radius = 1, orient = 1, side = 1;
+    } spawn;
     const long max_len = o.max_depth < 0 ? std::numeric_limits<long>::max() : long(o.max_depth);
     // What the path carries from one bounce to the next (all of it: nothing else computed in a bounce is used in a
     // later one); a segmented evaluation differentiates each bounce with respect to these and its own coordinates.
-    T* const carried[Carried] = {&orig.x,       &orig.y,       &orig.z,       &d.x,          &d.y, &d.z,
-                                 &prev_p.x,     &prev_p.y,     &prev_p.z,     &L.r,          &L.g, &L.b,
-                                 &throughput.r, &throughput.g, &throughput.b, &prev_bsdf_pdf};
+    T* const carried[Carried] = {&d.x,          &d.y,          &d.z,          &prev_p.x, &prev_p.y,     &prev_p.z,
+                                 &throughput.r, &throughput.g, &throughput.b, &lum,      &prev_bsdf_pdf};
 
     for (long depth = 0;; ++depth) {
         rd.checkpoint(carried);
+        if (!spawn.offset) {
+            orig = prev_p;
+        } else {
+            // SurfaceInteraction::spawn's offset along ng: 1e-5 (1 + max |p_i|).
+            V3<T> n = constant<T>(spawn.n);
+            if (spawn.sphere) n = normalize((prev_p - constant<T>(spawn.centre)) * T(spawn.orient / spawn.radius));
+            const T* big = &prev_p.x;
+            if (std::abs(val(prev_p.y)) > std::abs(val(*big))) big = &prev_p.y;
+            if (std::abs(val(prev_p.z)) > std::abs(val(*big))) big = &prev_p.z;
+            const T abs_big = val(*big) < 0 ? T(-*big) : *big;
+            orig = prev_p + n * T(T(spawn.side * 1e-5) * (T(1.0) + abs_big));
+        }
         auto hit = scene.intersect(ray);
         if (!hit) {
             rd.decide(Decide::Miss);
@@ -1072,7 +1103,8 @@ PathDerivativeStatus PathDerivatives::Impl::run(Reader& rd, T& log_pi) const {
             ng = normalize(ng);
         }
         FrameT<T> geometric_frame = on_sphere ? frame_of(ng) : frame_of<T>(si.frame);
-        if (!on_sphere && !on_disc && !g.normals.empty()) {
+        const bool smooth_normals = !on_sphere && !on_disc && !g.normals.empty();
+        if (smooth_normals) {
             // Scene::interaction for a mesh with vertex normals: the normals interpolated with the barycentrics (a
             // function of the ray), normalised, turned to the geometric normal's side; the tangent is dp/du (constant
             // on the triangle) made orthogonal to that normal.
@@ -1108,7 +1140,7 @@ PathDerivativeStatus PathDerivatives::Impl::run(Reader& rd, T& log_pi) const {
                     const T pl = T(scene.emitter_pdf(e)) * dot(v, v) / (cos_e * T(si.shape->surface_area()));
                     w = power_heuristic(prev_bsdf_pdf, pl);
                 }
-                add(L, throughput * Le * w);
+                lum = lum + luminance_of(throughput * Le) * w;
             }
         }
         if (depth + 2 > max_len) break;
@@ -1190,7 +1222,7 @@ PathDerivativeStatus PathDerivatives::Impl::run(Reader& rd, T& log_pi) const {
                         if (lit) {
                             T bsdf_pdf(0.0);
                             const C3<T> f = bsdf_eval(to_local(frame, dir), bsdf_pdf);
-                            add(L, throughput * f * intensity * T(T(1.0) / (dist2 * T(sel_pdf))));
+                            lum = lum + luminance_of(throughput * f * intensity) / T(dist2 * T(sel_pdf));
                         }
                     } else if (e->plugin_name() == "spot") {
                         // SpotEmitter::sample_direct: intensity falloff(theta) / dist^2 from a fixed position (a
@@ -1219,7 +1251,7 @@ PathDerivativeStatus PathDerivatives::Impl::run(Reader& rd, T& log_pi) const {
                         if (lit) {
                             T bsdf_pdf(0.0);
                             const C3<T> f = bsdf_eval(to_local(frame, dir), bsdf_pdf);
-                            add(L, throughput * f * em.intensity * T(falloff / (dist2 * T(sel_pdf))));
+                            lum = lum + luminance_of(throughput * f * em.intensity) * T(falloff / (dist2 * T(sel_pdf)));
                         }
                     } else {
                         const auto* mesh =
@@ -1288,7 +1320,7 @@ PathDerivativeStatus PathDerivatives::Impl::run(Reader& rd, T& log_pi) const {
                                 const C3<T> f = bsdf_eval(to_local(frame, dir), bsdf_pdf);
                                 const T w = ds->delta ? T(1.0) : power_heuristic(T(pdf * T(sel_pdf)), bsdf_pdf);
                                 // f * weight * w / sel, weight = radiance / pdf
-                                add(L, throughput * f * radiance * T(w / (pdf * T(sel_pdf))));
+                                lum = lum + luminance_of(throughput * f * radiance) * T(w / (pdf * T(sel_pdf)));
                             }
                         }
                     }
@@ -1314,22 +1346,26 @@ PathDerivativeStatus PathDerivatives::Impl::run(Reader& rd, T& log_pi) const {
         if (smp.transmission) eta_scale *= smp.eta * smp.eta;
         prev_delta = smp.delta;
         prev_bsdf_pdf = smp.pdf;
-        // The renderer's direction comes from its float-precision hit (about 1e-7): equal to 1e-6 after reflections;
-        // refraction amplifies the difference (near grazing exit and total internal reflection), and the path keeps it.
-        refracted = refracted || smp.transmission;
-        const double wo_tolerance = refracted ? 1e-4 : 1e-6;
+        // The renderer's direction comes from its float-precision hit (about 1e-7): equal to 1e-6 after reflections
+        // off flat surfaces. Refraction amplifies the difference (near grazing exit and total internal reflection),
+        // and so does a shading normal interpolated with Embree's float barycentrics (it differs from the
+        // differentiable one by up to about 1e-5, checked above to 1e-4; a glossy reflection turns that into the
+        // direction: with 1e-6, 4.7 % of such reflections were refused on the chess board); the path keeps it.
+        imprecise = imprecise || smp.transmission || smooth_normals;
+        const double wo_tolerance = imprecise ? 1e-4 : 1e-6;
         if (glm::length(value(wo) - (mirrored ? Vec3d(bs->wo.x, bs->wo.y, -bs->wo.z) : bs->wo)) > wo_tolerance)
             return S::Mismatch;
         prev_p = p;
         const Ray next = si.spawn(si.to_world(bs->wo));
-        // SurfaceInteraction::spawn's offset along ng: 1e-5 (1 + max |p_i|), a function of p like the rest.
-        {
-            const T* big = &p.x;
-            if (std::abs(val(p.y)) > std::abs(val(*big))) big = &p.y;
-            if (std::abs(val(p.z)) > std::abs(val(*big))) big = &p.z;
-            const T abs_big = val(*big) < 0 ? T(-*big) : *big;
-            const double side = glm::dot(si.to_world(bs->wo), si.ng) >= 0 ? 1.0 : -1.0;
-            orig = p + ng * T(T(side * 1e-5) * (T(1.0) + abs_big));
+        spawn.offset = true;
+        spawn.sphere = on_sphere;
+        spawn.side = glm::dot(si.to_world(bs->wo), si.ng) >= 0 ? 1.0 : -1.0;
+        if (on_sphere) {
+            spawn.centre = Vec3d(g.positions[0]);
+            spawn.radius = g.radii[0];
+            spawn.orient = glm::dot(value(p) - spawn.centre, si.ng) < 0 ? -1.0 : 1.0;
+        } else {
+            spawn.n = value(ng);
         }
         d = to_world(frame, wo);
         ray = next;
@@ -1347,8 +1383,8 @@ PathDerivativeStatus PathDerivatives::Impl::run(Reader& rd, T& log_pi) const {
         }
     }
     if (rd.overflow) return S::TooLong;
-    rd.checkpoint(carried);
-    const T pi = (L.r * T(0.212671) + L.g * T(0.715160) + L.b * T(0.072169)) * T(o.film_area);
+    rd.checkpoint(carried, true);
+    const T pi = lum * T(o.film_area);
     if (!(val(pi) > 0)) return S::Zero;
     log_pi = log(pi);
     return S::Ok;

@@ -3,8 +3,8 @@
 // mlt/local.h): the gradient and Hessian of log(luminance) of a path sample, exactly as the Metropolis integrators
 // evaluate a state of the path technique (film position from coordinates 0-1 over the film domain, lens 2-3, then 7
 // numbers per bounce; path.cpp), by forward-over-forward automatic differentiation (nested Eigen::AutoDiffScalar of
-// a fixed size, 20): bounce by bounce with respect to the 16 numbers the path carries between bounces and the
-// bounce's own continuous coordinates, the bounces composed by the chain rule (Jacobians forward, the Hessian
+// a fixed size, 20): two bounces at a time with respect to the 11 numbers the path carries between bounces and the
+// bounces' own continuous coordinates, these records composed by the chain rule (Jacobians forward, the Hessian
 // backward). A path of n coordinates costs O(n) nested operations of size 20 plus O(n^2) per bounce to compose.
 //
 // The discrete decisions of the path (which primitive a ray hits, visibility of a shadow ray, the emitter chosen, the
