@@ -1206,6 +1206,7 @@ PathDerivativeStatus PathDerivatives::Impl::run(Reader& rd, T& log_pi) const {
             TextureLocal tl;
             if (!texture->local(si.uv, tl)) return S::Unsupported;
             T u = bary_u, v = bary_v;
+            double angle_tolerance = 1e-5;  // of a sphere's u, a disk's v
             if (on_sphere || on_disc) {
                 long long seam = 0;
                 if (!round_uv(g, on_sphere, p, u, v, seam)) return S::Unsupported;
@@ -1214,6 +1215,9 @@ PathDerivativeStatus PathDerivatives::Impl::run(Reader& rd, T& log_pi) const {
                 const double renderer = on_sphere ? si.uv.x : si.uv.y;
                 angle = angle + T(std::round(renderer - val(angle)));
                 rd.decide(Decide::Texture, seam);
+                // The angle's error grows as 1 / (distance from the axis): near a pole or the disk's centre.
+                const double axis = on_sphere ? std::sin(Pi * val(v)) : val(u);
+                angle_tolerance = 1e-5 / std::max(axis, 1e-2);
             } else if (!g.uvs.empty()) {
                 const uint32_t* tri = &g.indices[3 * std::size_t(hit->prim)];
                 const T b0 = T(1.0) - bary_u - bary_v;
@@ -1222,7 +1226,9 @@ PathDerivativeStatus PathDerivatives::Impl::run(Reader& rd, T& log_pi) const {
                 v = T(b0 * T(t0.y)) + T(bary_u * T(t1.y)) + T(bary_v * T(t2.y));
             }
             // The renderer's uv comes from Embree's float barycentrics (or its float-precision hit point).
-            if (std::abs(val(u) - si.uv.x) > 1e-5 || std::abs(val(v) - si.uv.y) > 1e-5) return S::Mismatch;
+            if (std::abs(val(u) - si.uv.x) > (on_sphere ? angle_tolerance : 1e-5) ||
+                std::abs(val(v) - si.uv.y) > (on_disc ? angle_tolerance : 1e-5))
+                return S::Mismatch;
             auto colour = [](const Color3& c) { return C3<T>{T(c.r), T(c.g), T(c.b)}; };
             C3<T> looked_up = colour(tl.c[0]);
             if (tl.bilinear) {
