@@ -649,6 +649,81 @@ TEST(PathDerivatives, MatchFiniteDifferencesWithTexturesOnSpheresAndDisks) {
     expect_texture_read(S, textured_round_shapes(file, mean, false), round, 200);
 }
 
+// The seam of a sphere's uv is a decision (round_uv): u jumps from 1 to 0 across phi = 0, where a bilinear bitmap in
+// clamp mode (not periodic) jumps from its last column to its first. On a diffuse sphere in the Cornell box (direct
+// light, max_depth 2, from a point light in front instead of the ceiling's light), columns of the film are scanned for
+// a jump of the renderer's u, each found by bisection on the film's y to 1e-12; there the derivatives are refused
+// (Discontinuous), while 1e-3 away on the same side they are given (Ok). Seen to fail with the seam's decision left out
+// (every seam point Ok).
+TEST(PathDerivatives, ASpheresTextureSeamIsADecision) {
+    ktest::TempDir dir;
+    const std::string file = write_texels(dir.path());
+    PathSetup S(
+        "cornell-box.xml", 2,
+        {{R"(<emitter type="area"><rgb name="radiance" value="17, 12, 4"/></emitter>)", ""},
+         {"</scene>",
+          fmt::format(
+              R"(<emitter type="point"><point name="position" x="0.2" y="1.2" z="2"/>)"
+              R"(<rgb name="intensity" value="5"/></emitter>)"
+              R"(<shape type="sphere"><point name="center" x="-0.55" y="0.3" z="0.55"/>)"
+              R"(<float name="radius" value="0.3"/><bsdf type="diffuse"><texture type="bitmap" name="reflectance">)"
+              R"(<string name="filename" value="{}"/><string name="wrap_mode" value="clamp"/></texture>)"
+              R"(</bsdf></shape></scene>)",
+              file)}});
+    S.opt.min_depth = 1;
+    const PathDerivatives D(*S.scene, S.opt);
+    const std::size_t len = 4 + 7 * 2;
+    std::vector<int> block(len);
+    for (std::size_t i = 0; i < len; ++i) block[i] = int(i);
+    // The renderer's u where the camera ray of x hits the sphere, else -1.
+    auto u_of = [&](const std::vector<double>& x) {
+        const Vec2d film = S.opt.film_origin + Vec2d(x[0], x[1]) * S.opt.film_extent;
+        const Ray ray = S.scene->sensor()->sample_ray(film, Vec2d(x[2], x[3]));
+        const auto hit = S.scene->intersect(ray);
+        if (!hit || S.scene->shape_of(*hit).plugin_name() != "sphere") return -1.0;
+        return S.scene->interaction(ray, *hit).uv.x;
+    };
+    auto lit = [&](const std::vector<double>& x) {
+        double lv = 0;
+        return D.log_value(x.data(), len, &lv) == PathDerivativeStatus::Ok;
+    };
+    auto status = [&](const std::vector<double>& x) {
+        std::vector<double> g(len), H(len * len);
+        double lv = 0;
+        return D.evaluate(x.data(), block.data(), len, int(len), 0, &lv, g.data(), H.data());
+    };
+    Random rng(31, 0);
+    int seams = 0;
+    for (int column = 0; column < 16; ++column) {
+        std::vector<double> x;
+        for (std::size_t i = 0; i < len; ++i) x.push_back(rng.next_double());
+        x[0] = 0.33 + 0.006 * column;  // columns across the sphere's right half, where its seam is in view
+        auto at = [&](double v) {
+            std::vector<double> y = x;
+            y[1] = v;
+            return y;
+        };
+        constexpr int Steps = 256;
+        for (int k = 0; k < Steps; ++k) {
+            double a = 0.5 + 0.5 * k / Steps, b = 0.5 + 0.5 * (k + 1) / Steps;
+            const double ua = u_of(at(a)), ub = u_of(at(b));
+            if (ua < 0 || ub < 0 || std::abs(ua - ub) < 0.5) continue;
+            for (int it = 0; it < 60 && b - a > 1e-12; ++it) {
+                const double m = 0.5 * (a + b), um = u_of(at(m));
+                if (um < 0) break;
+                (std::abs(um - ua) < 0.5 ? a : b) = m;
+            }
+            if (!(b - a <= 1e-12) || !lit(at(a))) continue;
+            EXPECT_EQ(status(at(a)), PathDerivativeStatus::Discontinuous) << "column " << column << ", v " << a;
+            if (u_of(at(a - 1e-3)) >= 0 && std::abs(u_of(at(a - 1e-3)) - ua) < 0.5 && lit(at(a - 1e-3)))
+                EXPECT_EQ(status(at(a - 1e-3)), PathDerivativeStatus::Ok) << "column " << column << ", v " << a - 1e-3;
+            ++seams;
+        }
+    }
+    std::printf("seam points %d\n", seams);
+    EXPECT_GE(seams, 5);
+}
+
 // An area light on a mesh with vertex normals (issue 14): a small UV-sphere mesh emitter (below) beside the ceiling
 // light; its samples, normals and densities are those of the triangles' planes, as TriangleMesh::sample_position and
 // AreaEmitter use them. The sample's coordinate is stretched by the number of triangles (168 here: the triangle's
