@@ -533,16 +533,43 @@ inline Color3 rough_plastic_rho(const Bsdf::Model& b) {
     const Color3 denom = b.nonlinear ? Color3(1.0) - glm::min(rho, Color3(1.0)) * b.fdr_int : Color3(1.0 - b.fdr_int);
     return rho / glm::max(denom, Color3(1e-9));
 }
+// The same of a textured diffuse reflectance rho (Bsdf::Model::diffuse_texture; already clamped below at 0), one
+// channel, the plugins' min and max taken by value.
+template <class T>
+T plastic_rho(const Bsdf::Model& b, const T& rho) {
+    if (!b.nonlinear) return rho;
+    const T r1 = val(rho) > 1 ? T(1.0) : rho;
+    T den = T(1.0) - r1 * T(b.fdr_int);
+    if (val(den) < 1e-6) den = T(1e-6);
+    return rho * T(1 - b.fdr_int) / den;
+}
+template <class T>
+T rough_plastic_rho(const Bsdf::Model& b, const T& rho) {
+    T den = T(1.0 - b.fdr_int);
+    if (b.nonlinear) den = T(1.0) - (val(rho) > 1 ? T(1.0) : rho) * T(b.fdr_int);
+    if (val(den) < 1e-9) den = T(1e-9);
+    return rho / den;
+}
+// The plastics' base: its f cos(theta_o) without the reflectance, s, times rho_eff (or rho'): the model's constant, or
+// from the textured reflectance `diffuse` at the hit.
+template <class T>
+C3<T> plastic_base(const Bsdf::Model& b, const T& s, const C3<T>* diffuse, bool rough) {
+    if (!diffuse) return C3<T>{s, s, s} * (rough ? rough_plastic_rho(b) : plastic_rho(b));
+    if (rough)
+        return {s * rough_plastic_rho(b, diffuse->r), s * rough_plastic_rho(b, diffuse->g),
+                s * rough_plastic_rho(b, diffuse->b)};
+    return {s * plastic_rho(b, diffuse->r), s * plastic_rho(b, diffuse->g), s * plastic_rho(b, diffuse->b)};
+}
 // Plastic::diffuse: f cos(theta_o) of the base seen through the smooth coating.
 template <class T>
-C3<T> plastic_diffuse(const Bsdf::Model& b, const T& Fi, const V3<T>& wo) {
+C3<T> plastic_diffuse(const Bsdf::Model& b, const T& Fi, const V3<T>& wo, const C3<T>* diffuse) {
     const T Fo = fresnel_dielectric(wo.z, b.ior).F;
     const T s = T(T(1.0) - Fi) * T(T(1.0) - Fo) * T(b.inv_ext_transmission * InvPi) * wo.z;
-    return C3<T>{s, s, s} * plastic_rho(b);
+    return plastic_base(b, s, diffuse, false);
 }
 // RoughPlastic::eval and pdf (wi.z > 0 and wo.z > 0).
 template <class T>
-C3<T> rough_plastic_eval(const Bsdf::Model& b, const V3<T>& wi, const V3<T>& wo) {
+C3<T> rough_plastic_eval(const Bsdf::Model& b, const V3<T>& wi, const V3<T>& wo, const C3<T>* diffuse) {
     const V3<T> h = normalize(wi + wo);
     const T s = mf_D(h, b) * mf_G1(wi, h, b) * mf_G1(wo, h, b) / (T(4.0) * wi.z);
     C3<T> result{T(0.0), T(0.0), T(0.0)};
@@ -553,7 +580,7 @@ C3<T> rough_plastic_eval(const Bsdf::Model& b, const V3<T>& wi, const V3<T>& wo)
     const T tables =
         T(coating_table(b.coating_t_ext, b.coating_size, wi.z) * coating_table(b.coating_t_ext, b.coating_size, wo.z));
     const T tr = T(tables * wo.z) * T(InvPi / (b.ior * b.ior));
-    add(result, C3<T>{tr, tr, tr} * rough_plastic_rho(b));
+    add(result, plastic_base(b, tr, diffuse, true));
     return result;
 }
 template <class T>
@@ -602,9 +629,10 @@ bool rough_dielectric_half(const Bsdf::Model& b, const V3<T>& wi_in, const V3<T>
     return val(m.z) > 0;
 }
 
-// The BSDF's smooth part for a direction wo, as eval (f |cos theta_o|) and pdf return it; wi and wo local.
+// The BSDF's smooth part for a direction wo, as eval (f |cos theta_o|) and pdf return it; wi and wo local. `diffuse`:
+// the plastics' textured diffuse reflectance at the hit (Bsdf::Model::diffuse_texture), null for the model's constant.
 template <class T>
-C3<T> bsdf_eval(const Bsdf::Model& b, const V3<T>& wi, const V3<T>& wo, T& pdf) {
+C3<T> bsdf_eval(const Bsdf::Model& b, const V3<T>& wi, const V3<T>& wo, T& pdf, const C3<T>* diffuse = nullptr) {
     using Kind = Bsdf::Model::Kind;
     const C3<T> zero{T(0.0), T(0.0), T(0.0)};
     pdf = T(0.0);
@@ -647,12 +675,12 @@ C3<T> bsdf_eval(const Bsdf::Model& b, const V3<T>& wi, const V3<T>& wo, T& pdf) 
             if (!(val(wi.z) > 0) || !(val(wo.z) > 0)) return zero;
             const T Fi = fresnel_dielectric(wi.z, b.ior).F;
             pdf = (T(1.0) - plastic_prob_specular(Fi, b.specular_weight)) * wo.z * T(InvPi);
-            return plastic_diffuse(b, Fi, wo);
+            return plastic_diffuse(b, Fi, wo, diffuse);
         }
         case Kind::RoughPlastic: {
             if (!(val(wi.z) > 0) || !(val(wo.z) > 0)) return zero;
             pdf = rough_plastic_pdf(b, wi, wo);
-            return rough_plastic_eval(b, wi, wo);
+            return rough_plastic_eval(b, wi, wo, diffuse);
         }
         default:  // delta models: nothing for eval and pdf
             return zero;
@@ -660,7 +688,8 @@ C3<T> bsdf_eval(const Bsdf::Model& b, const V3<T>& wi, const V3<T>& wo, T& pdf) 
 }
 
 // The BSDF's sample(): the direction, the weight f |cos| / pdf, the density and the component, the component chosen
-// by value as the renderer chooses it (locally constant). False where the model gives nothing.
+// by value as the renderer chooses it (locally constant). False where the model gives nothing. `diffuse` as for
+// bsdf_eval.
 template <class T>
 struct BsdfSampleT {
     V3<T> wo;
@@ -670,8 +699,8 @@ struct BsdfSampleT {
     double eta = 1;
 };
 template <class T>
-bool bsdf_sample(const Bsdf::Model& b, const V3<T>& wi, const T& u_comp, const T& u0, const T& u1,
-                 BsdfSampleT<T>& out) {
+bool bsdf_sample(const Bsdf::Model& b, const V3<T>& wi, const T& u_comp, const T& u0, const T& u1, BsdfSampleT<T>& out,
+                 const C3<T>* diffuse = nullptr) {
     using Kind = Bsdf::Model::Kind;
     const C3<T> one{T(1.0), T(1.0), T(1.0)};
     switch (b.kind) {
@@ -746,7 +775,7 @@ bool bsdf_sample(const Bsdf::Model& b, const V3<T>& wi, const T& u_comp, const T
             } else {
                 out.wo = cosine_hemisphere(u0, u1);
                 out.pdf = (T(1.0) - ps) * out.wo.z * T(InvPi);
-                out.weight = plastic_diffuse(b, Fi, out.wo) * T(T(1.0) / out.pdf);
+                out.weight = plastic_diffuse(b, Fi, out.wo, diffuse) * T(T(1.0) / out.pdf);
             }
             return true;
         }
@@ -761,12 +790,47 @@ bool bsdf_sample(const Bsdf::Model& b, const V3<T>& wi, const T& u_comp, const T
             }
             if (!(val(out.wo.z) > 0)) return false;
             out.pdf = rough_plastic_pdf(b, wi, out.wo);
-            out.weight = rough_plastic_eval(b, wi, out.wo) * T(T(1.0) / out.pdf);
+            out.weight = rough_plastic_eval(b, wi, out.wo, diffuse) * T(T(1.0) / out.pdf);
             return true;
         }
         default:
             return false;
     }
+}
+
+// The uv of a hit on a sphere or a disk as a function of its point p (Scene::interaction's fill_local, in world
+// space as the geometry is): on a sphere Mitsuba's (phi / 2 pi, theta / pi) of the direction from the centre in world
+// axes (phi wrapped to [0, 2 pi)); on a disk its polar coordinates, (r / radius capped at 1, phi / 2 pi) with phi the
+// angle from the disk's tangent towards normal x tangent, wrapped to [0, 2 pi). `seam`: whether the hit is in the
+// quadrant below the wrap (phi in (-pi/2, 0)): the angle's coordinate jumps from 1 to 0 across phi = 0, which a texture
+// that is not periodic there sees as a jump, so the side is a decision (it also changes, harmlessly, at phi = -pi/2).
+// False where the parameterisation is singular (a sphere's pole, a disk's centre).
+template <class T>
+bool round_uv(const ShapeGeometry& g, bool on_sphere, const V3<T>& p, T& u, T& v, long long& seam) {
+    using std::sqrt;
+    constexpr double inv_2pi = 1.0 / (2 * Pi);
+    if (on_sphere) {
+        const V3<T> dir = normalize(p - constant<T>(Vec3d(g.positions[0])));
+        const double z = val(dir.z), s2 = 1 - z * z;
+        if (!(s2 > 1e-12)) return false;
+        u = atan2_t(dir.y, dir.x) * T(inv_2pi);
+        if (val(u) < 0) u = u + T(1.0);
+        // acos(z) / pi, from its value and first two derivatives (-1 / sqrt(1 - z^2), -z / (1 - z^2)^(3/2)).
+        v = lift2(dir.z, std::acos(z), -1 / std::sqrt(s2), -z / (s2 * std::sqrt(s2))) * T(InvPi);
+        seam = val(dir.x) > 0 && val(dir.y) < 0;
+        return true;
+    }
+    const Vec3d t(g.tangents[0]), n(g.normals[0]);
+    const V3<T> dd = p - constant<T>(Vec3d(g.positions[0]));
+    const T x = dot(dd, constant<T>(t)), y = dot(dd, constant<T>(glm::cross(n, t)));
+    const T r2 = T(x * x) + T(y * y);
+    if (!(val(r2) > 0)) return false;
+    u = sqrt(r2) / T(double(g.radii[0]));
+    if (val(u) > 1) u = T(1.0);
+    v = atan2_t(y, x) * T(inv_2pi);
+    if (val(v) < 0) v = v + T(1.0);
+    seam = val(x) > 0 && val(y) < 0;
+    return true;
 }
 
 // The discrete decisions a path takes, in order, where a change makes its contribution jump: the shape each ray hits
@@ -1162,41 +1226,70 @@ PathDerivativeStatus PathDerivatives::Impl::run(Reader& rd, T& log_pi) const {
         const bool mirrored = model.two_sided && si.wi.z < 0;
         if (mirrored) frame.n = frame.n * T(-1.0);
         const V3<T> wi = to_local(frame, V3<T>{T(-d.x), T(-d.y), T(-d.z)});
-        // A textured reflectance (Bsdf::Model::texture, a factor of the whole lobe): its value at the hit's uv, the
-        // mesh's uvs interpolated with the barycentrics (or the barycentrics themselves, as Scene::interaction).
-        C3<T> tex{T(1.0), T(1.0), T(1.0)};
+        // A textured reflectance: its value at the hit's uv (Texture::local), the uv a function of the path: the
+        // mesh's uvs interpolated with the barycentrics (or the barycentrics themselves, as Scene::interaction), a
+        // sphere's or a disk's parameterisation of p (round_uv). Bsdf::Model::texture is a factor of the whole lobe
+        // (`tex`); Model::diffuse_texture the plastics' diffuse reflectance (`diffuse`, read inside the model).
+        C3<T> tex{T(1.0), T(1.0), T(1.0)}, diffuse_value{T(0.0), T(0.0), T(0.0)};
         const bool textured = model.texture != nullptr;
-        if (textured) {
+        const Texture* texture = textured ? model.texture : model.diffuse_texture;
+        if (textured && model.diffuse_texture) return S::Unsupported;
+        if (texture) {
             TextureLocal tl;
-            if (on_sphere || on_disc || !model.texture->local(si.uv, tl)) return S::Unsupported;
+            if (!texture->local(si.uv, tl)) return S::Unsupported;
             T u = bary_u, v = bary_v;
-            if (!g.uvs.empty()) {
+            double angle_tolerance = 1e-5;  // of a sphere's u, a disk's v
+            if (on_sphere || on_disc) {
+                long long seam = 0;
+                if (!round_uv(g, on_sphere, p, u, v, seam)) return S::Unsupported;
+                // The angle's coordinate near its wrap: the renderer's side (its p differs by about 1e-7).
+                T& angle = on_sphere ? u : v;
+                const double renderer = on_sphere ? si.uv.x : si.uv.y;
+                angle = angle + T(std::round(renderer - val(angle)));
+                rd.decide(Decide::Texture, seam);
+                // The angle's error grows as 1 / (distance from the axis): near a pole or the disk's centre.
+                const double axis = on_sphere ? std::sin(Pi * val(v)) : val(u);
+                angle_tolerance = 1e-5 / std::max(axis, 1e-2);
+            } else if (!g.uvs.empty()) {
                 const uint32_t* tri = &g.indices[3 * std::size_t(hit->prim)];
                 const T b0 = T(1.0) - bary_u - bary_v;
                 const Vec2d t0(g.uvs[tri[0]]), t1(g.uvs[tri[1]]), t2(g.uvs[tri[2]]);
                 u = T(b0 * T(t0.x)) + T(bary_u * T(t1.x)) + T(bary_v * T(t2.x));
                 v = T(b0 * T(t0.y)) + T(bary_u * T(t1.y)) + T(bary_v * T(t2.y));
             }
-            // The renderer's uv comes from Embree's float barycentrics.
-            if (std::abs(val(u) - si.uv.x) > 1e-5 || std::abs(val(v) - si.uv.y) > 1e-5) return S::Mismatch;
+            // The renderer's uv comes from Embree's float barycentrics (or its float-precision hit point).
+            if (std::abs(val(u) - si.uv.x) > (on_sphere ? angle_tolerance : 1e-5) ||
+                std::abs(val(v) - si.uv.y) > (on_disc ? angle_tolerance : 1e-5))
+                return S::Mismatch;
             auto colour = [](const Color3& c) { return C3<T>{T(c.r), T(c.g), T(c.b)}; };
+            C3<T> looked_up = colour(tl.c[0]);
             if (tl.bilinear) {
                 const T tx = T(T(tl.A[0][0]) * u) + T(T(tl.A[0][1]) * v) + T(tl.b[0] - tl.x0);
                 const T ty = T(T(tl.A[1][0]) * u) + T(T(tl.A[1][1]) * v) + T(tl.b[1] - tl.y0);
                 const T sx = T(1.0) - tx, sy = T(1.0) - ty;
-                tex = colour(tl.c[0]) * T(sx * sy);
-                add(tex, colour(tl.c[1]) * T(tx * sy));
-                add(tex, colour(tl.c[2]) * T(sx * ty));
-                add(tex, colour(tl.c[3]) * T(tx * ty));
+                looked_up = colour(tl.c[0]) * T(sx * sy);
+                add(looked_up, colour(tl.c[1]) * T(tx * sy));
+                add(looked_up, colour(tl.c[2]) * T(sx * ty));
+                add(looked_up, colour(tl.c[3]) * T(tx * ty));
             } else {
-                tex = colour(tl.c[0]);
                 rd.decide(Decide::Texture, tl.cell);
             }
+            if (textured) {
+                tex = looked_up;
+            } else {  // the plugins' max(rho, 0), by value
+                for (T* c : {&looked_up.r, &looked_up.g, &looked_up.b})
+                    if (val(*c) < 0) *c = T(0.0);
+                diffuse_value = looked_up;
+            }
         }
+        const C3<T>* diffuse = model.diffuse_texture ? &diffuse_value : nullptr;
         auto bsdf_eval = [&](const V3<T>& wo, T& pdf) -> C3<T> {
-            const C3<T> f = kelvin::bsdf_eval(model, wi, wo, pdf);
+            const C3<T> f = kelvin::bsdf_eval(model, wi, wo, pdf, diffuse);
             return textured ? f * tex : f;
         };
+        // The BSDF sampling below, with the textured diffuse reflectance.
+        auto bsdf_sample = [&](const Bsdf::Model& b, const V3<T>& w, const T& uc, const T& u0, const T& u1,
+                               BsdfSampleT<T>& out) { return kelvin::bsdf_sample(b, w, uc, u0, u1, out, diffuse); };
 
         // Next-event estimation (smooth models; emitter sampling is on in the Metropolis techniques).
         if ((bsdf.flags() & BsdfFlags::Smooth) && depth + 2 >= o.min_depth) {

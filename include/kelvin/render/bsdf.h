@@ -63,8 +63,8 @@ public:
     /// Models without a diffuse component give 0. Not used for light transport.
     virtual Color3 albedo(const SurfaceInteraction& si) const { return Color3(0.0); }
     /// What differentiable path evaluation (render/path_derivatives.h) needs to re-evaluate the BSDF in its own
-    /// arithmetic: the model and its parameters, constant over the surface. Kind None (the default, and a textured
-    /// parameter): not differentiable.
+    /// arithmetic: the model and its parameters, constant over the surface except the textures it names (`texture`,
+    /// `diffuse_texture`). Kind None (the default, and any other textured parameter): not differentiable.
     struct Model {
         enum class Kind {
             None,
@@ -81,6 +81,11 @@ public:
         /// diffuse's reflectance or the conductors' specular_reflectance as a texture (Texture::local): a factor of
         /// the whole lobe, `reflectance` then 1. Null: constant.
         const Texture* texture = nullptr;
+        /// The plastics' diffuse_reflectance as a texture (Texture::local): its value at the hit, clamped below at 0
+        /// as the plugins clamp it, takes the place of `reflectance` in the diffuse base only (rho, the non-linear
+        /// term with fdr_int); the specular coating is not scaled. `reflectance` then the texture's mean (unused).
+        /// Null: constant.
+        const Texture* diffuse_texture = nullptr;
         Color3 eta{0.0}, k{1.0};  ///< conductors: complex index of refraction
         bool ggx = false;         ///< microfacet models: GGX (else Beckmann)
         double alpha_u = 0, alpha_v = 0;

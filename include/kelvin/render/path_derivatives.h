@@ -21,9 +21,10 @@
 // `perspective` and `thinlens` sensors; triangle meshes (with or without vertex normals: rectangle, cube, OBJ...),
 // `sphere` and `disk`; the BSDFs that describe themselves by Bsdf::model() (diffuse, conductor, roughconductor and
 // roughdielectric with GGX or Beckmann, with or without visible-normal sampling, dielectric, plastic, roughplastic,
-// twosided around one or two of them; constant parameters, or for diffuse's reflectance and the conductors'
-// specular_reflectance a texture that Texture::local describes, on triangle meshes); `area` emitters on meshes, spheres
-// and disks, `point` and `spot` emitters (Emitter::model()); no environment emitter that the path escapes to.
+// twosided around one or two of them; constant parameters, or for diffuse's reflectance, the conductors'
+// specular_reflectance and the plastics' diffuse_reflectance a texture that Texture::local describes, on triangle
+// meshes, spheres and disks); `area` emitters on meshes, spheres and disks, `point` and `spot` emitters
+// (Emitter::model()); no environment emitter that the path escapes to.
 // docs/mlt.md lists it with its tests. As a safety net the evaluation compares its own value with the renderer's
 // (`value` argument) and reports Mismatch beyond a relative 1e-4.
 #include <kelvin/core/math.h>

@@ -107,6 +107,9 @@ public:
 
     Model model() const override {
         Model m;
+        // A textured roughness is not differentiable (the model's alphas are numbers; m_distr then holds only the
+        // constructor's placeholder, Beckmann 0.1).
+        if (m_textured) return m;
         m.kind = Model::Kind::RoughConductor;
         if (m_specular->is_constant())
             m.reflectance = m_specular->mean();

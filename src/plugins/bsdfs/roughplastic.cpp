@@ -184,7 +184,9 @@ public:
     Color3 albedo(const SurfaceInteraction& si) const override { return m_diffuse->eval(si); }
     Model model() const override {
         Model m;
-        if (!m_diffuse->is_constant() || !m_specular->is_constant()) return m;
+        if (!m_specular->is_constant()) return m;
+        // A textured diffuse_reflectance scales the base only (Model::diffuse_texture), read where eval() reads it.
+        if (!m_diffuse->is_constant()) m.diffuse_texture = m_diffuse.get();
         m.kind = Model::Kind::RoughPlastic;
         m.reflectance = glm::max(m_diffuse->mean(), Color3(0.0));
         m.specular_reflectance = m_specular->mean();
