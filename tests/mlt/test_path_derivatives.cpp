@@ -537,6 +537,22 @@ bool textured_model(const Shape& sh) {
     return m.texture != nullptr || m.diffuse_texture != nullptr;
 }
 
+// A scene's texture parameter: a bitmap of `file` (with `extra` inside), or, for the untextured twin scene, its mean
+// as a constant colour.
+std::string bitmap_or_mean(const std::string& name, const std::string& file, const std::string& extra,
+                           const Color3& mean, bool textured) {
+    if (!textured) return fmt::format(R"(<rgb name="{}" value="{}, {}, {}"/>)", name, mean.r, mean.g, mean.b);
+    return fmt::format(R"(<texture type="bitmap" name="{}"><string name="filename" value="{}"/>{}</texture>)", name,
+                       file, extra);
+}
+// A two-colour checkerboard diffuse_reflectance of the given scale, or a constant colour.
+std::string checker_or_constant(int scale, bool textured) {
+    if (!textured) return R"(<rgb name="diffuse_reflectance" value="0.5, 0.4, 0.45"/>)";
+    return fmt::format(R"(<texture type="checkerboard" name="diffuse_reflectance"><rgb name="color0" value="0.8, 0.3, )"
+                       R"(0.2"/><rgb name="color1" value="0.2, 0.5, 0.7"/><float name="scale" value="{}"/></texture>)",
+                       scale);
+}
+
 // The plastics' textured diffuse reflectance (issue 14; Bsdf::Model::diffuse_texture): the texture scales the base
 // only, inside the coating's formula, not the specular lobe (plastic.cpp's rho_eff, roughplastic.cpp's rho'). The back
 // wall a linear plastic with a bilinear 8 x 8 bitmap, the tall box a non-linear GGX roughplastic (alpha 0.2) with a
@@ -545,15 +561,9 @@ bool textured_model(const Shape& sh) {
 // Only points whose camera ray hits a textured BSDF are counted. Broken variants seen to fail: listed in docs/mlt.md.
 PathSetup textured_plastics(const std::string& file, const Color3& mean, bool textured) {
     auto bitmap = [&](const std::string& name, const std::string& extra) {
-        if (!textured) return fmt::format(R"(<rgb name="{}" value="{}, {}, {}"/>)", name, mean.r, mean.g, mean.b);
-        return fmt::format(R"(<texture type="bitmap" name="{}"><string name="filename" value="{}"/>{}</texture>)", name,
-                           file, extra);
+        return bitmap_or_mean(name, file, extra, mean, textured);
     };
-    const std::string checker =
-        textured
-            ? R"(<texture type="checkerboard" name="diffuse_reflectance"><rgb name="color0" value="0.8, 0.3, 0.2"/>)"
-              R"(<rgb name="color1" value="0.2, 0.5, 0.7"/><float name="scale" value="3"/></texture>)"
-            : R"(<rgb name="diffuse_reflectance" value="0.5, 0.4, 0.45"/>)";
+    const std::string checker = checker_or_constant(3, textured);
     return PathSetup(
         "cornell-box.xml", 6,
         {{R"(<transform name="to_world"><rotate x="1" angle="-90"/></transform>
@@ -596,22 +606,16 @@ TEST(PathDerivatives, MatchFiniteDifferencesWithTexturedPlastics) {
 // sphere placed by a rotated, scaled to_world (the uv stays in world axes) of non-linear GGX roughplastic with a
 // checkerboard diffuse reflectance, a tilted disk of rough GGX copper whose specular_reflectance is a bilinear bitmap,
 // and a disk on the back wall of Beckmann roughplastic with a nearest bitmap under a scaled to_uv. Only points whose
-// camera ray hits one of them are counted. (A smooth plastic sphere there fails evaluate's 1e-6 bound on the reflected
-// direction in 8 of 200 points, the renderer's float hit 2.5 away turning the normal by about 6e-7: not a texture
-// matter.) One point on the diffuse sphere, with log pi's gradient 4e4, has 3 gradient entries whose differences at h
-// and h/2 disagree by 2 to 4 % (their Richardson values within 0.15 % of the derivatives): up to one entry in 100 may
-// be unstable.
+// camera ray hits one of them are counted. (A smooth plastic sphere there failed evaluate's bound on the reflected
+// direction, then 1e-6, in 8 of 200 points, the renderer's float hit 2.5 away turning the normal by about 6e-7: not a
+// texture matter; the bound after a sphere is 1e-4 since.) One point on the diffuse sphere, with log pi's gradient 4e4,
+// has 3 gradient entries whose differences at h and h/2 disagree by 2 to 4 % (their Richardson values within 0.15 % of
+// the derivatives): up to one entry in 100 may be unstable.
 PathSetup textured_round_shapes(const std::string& file, const Color3& mean, bool textured) {
     auto bitmap = [&](const std::string& name, const std::string& extra) {
-        if (!textured) return fmt::format(R"(<rgb name="{}" value="{}, {}, {}"/>)", name, mean.r, mean.g, mean.b);
-        return fmt::format(R"(<texture type="bitmap" name="{}"><string name="filename" value="{}"/>{}</texture>)", name,
-                           file, extra);
+        return bitmap_or_mean(name, file, extra, mean, textured);
     };
-    const std::string checker =
-        textured
-            ? R"(<texture type="checkerboard" name="diffuse_reflectance"><rgb name="color0" value="0.8, 0.3, 0.2"/>)"
-              R"(<rgb name="color1" value="0.2, 0.5, 0.7"/><float name="scale" value="4"/></texture>)"
-            : R"(<rgb name="diffuse_reflectance" value="0.5, 0.4, 0.45"/>)";
+    const std::string checker = checker_or_constant(4, textured);
     return PathSetup(
         "cornell-box.xml", 6,
         {{"</scene>",
