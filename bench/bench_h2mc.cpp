@@ -11,7 +11,10 @@
 //                          proposal's path evaluation is BM_PathEvaluation);
 //   BM_H2mcGaussian/k:     the Gaussian alone from a random gradient and Hessian of that size (SelfAdjointEigenSolver,
 //                          Li et al.'s formulas);
-//   BM_MhStepAnalytic/k:   one MH step of a MarkovChain with h2mc on an analytic n-dimensional Gaussian target.
+//   BM_MhStepAnalytic/k:   one MH step of a MarkovChain with h2mc on an analytic n-dimensional Gaussian target;
+//   BM_NestedAutoDiffOp/op: one operation of the nested AutoDiff type the derivatives use (size 20: value, gradient
+//                          and Hessian), assigned to a variable as the evaluation does: op 0 a + c (c a double
+//                          constant), 1 a * b, 2 a * T(c) (the constant as a full nested number).
 //
 //   build/bin/bench_h2mc --benchmark_min_time=0.2
 #include <kelvin/core/parser.h>
@@ -25,6 +28,8 @@
 #include <kelvin/render/sensor.h>
 
 #include <benchmark/benchmark.h>
+#include <Eigen/Dense>
+#include <unsupported/Eigen/AutoDiff>
 
 #include <cmath>
 #include <vector>
@@ -229,6 +234,31 @@ void BM_H2mcProposalOnPath(benchmark::State& state) {
     state.counters["n"] = n;
 }
 
+// The same type as src/render/path_derivatives.cpp's Local (20 inputs, forward over forward).
+using NestedDer = Eigen::Matrix<double, 20, 1>;
+using NestedInner = Eigen::AutoDiffScalar<NestedDer>;
+using Nested = Eigen::AutoDiffScalar<Eigen::Matrix<NestedInner, 20, 1>>;
+Nested nested_variable(double v, int k) {
+    Nested x;
+    x.value() = NestedInner(v, 20, k);
+    for (int j = 0; j < 20; ++j) x.derivatives()(j) = NestedInner(j == k ? 1.0 : 0.0, NestedDer::Zero());
+    return x;
+}
+void BM_NestedAutoDiffOp(benchmark::State& state) {
+    const int op = int(state.range(0));
+    Nested a = nested_variable(0.3, 1);
+    const Nested b = nested_variable(1.0000001, 2);
+    for (auto _ : state) {
+        if (op == 0)
+            a = Nested(a + 1e-9);
+        else if (op == 1)
+            a = Nested(a * b);
+        else
+            a = Nested(a * Nested(1.0000001));
+        benchmark::DoNotOptimize(a);
+    }
+}
+
 }  // namespace
 
 BENCHMARK(BM_PathEvaluation)->DenseRange(3, 10);
@@ -240,4 +270,5 @@ BENCHMARK(BM_H2mcProposalOnPath)->DenseRange(3, 10)->Unit(benchmark::kMillisecon
 BENCHMARK(BM_H2mcGaussian)->DenseRange(3, 10);
 BENCHMARK(BM_H2mcProposal)->DenseRange(3, 10);
 BENCHMARK(BM_MhStepAnalytic)->DenseRange(3, 10);
+BENCHMARK(BM_NestedAutoDiffOp)->DenseRange(0, 2)->ArgName("op");
 BENCHMARK_MAIN();

@@ -76,6 +76,7 @@ constexpr int MaxBlock = 96;  // PathDerivativeOptions::max_coordinates may not 
 // operations of size 16 or 19 cost as much as, or more than, size 20, and size 24 (three bounces) 50 % more.)
 // A block that fits one local (n <= 20) is differentiated directly by the same type.
 constexpr int Carried = 11, LocalN = 20, LocalCoords = LocalN - Carried;
+constexpr int BounceCoords = 4;  // the continuous coordinates a bounce reads, at most
 using LocalDer = Eigen::Matrix<double, LocalN, 1>;
 using Inner = Eigen::AutoDiffScalar<LocalDer>;
 using InnerVec = Eigen::Matrix<Inner, LocalN, 1>;
@@ -174,7 +175,7 @@ template <class T>
 C3<T> operator*(const C3<T>& a, const T& s) {
     return {a.r * s, a.g * s, a.b * s};
 }
-// The luminance (render/color.h's weights) of a colour.
+// The luminance of a colour (core/math.h's luminance(), its weights).
 template <class T>
 T luminance_of(const C3<T>& c) {
     return T(c.r * T(0.212671)) + T(c.g * T(0.715160)) + T(c.b * T(0.072169));
@@ -521,20 +522,8 @@ T coating_table(const double* table, int n, const T& mu) {
     const T t = x - T(double(j));
     return (T(1.0) - t) * T(table[j]) + t * T(table[j + 1]);
 }
-// Plastic's rho_eff and RoughPlastic's rho' (constants of the model).
-inline Color3 plastic_rho(const Bsdf::Model& b) {
-    Color3 rho = b.reflectance;
-    if (b.nonlinear)
-        rho = rho * (1 - b.fdr_int) / glm::max(Color3(1.0) - glm::min(rho, Color3(1.0)) * b.fdr_int, Color3(1e-6));
-    return rho;
-}
-inline Color3 rough_plastic_rho(const Bsdf::Model& b) {
-    const Color3 rho = b.reflectance;
-    const Color3 denom = b.nonlinear ? Color3(1.0) - glm::min(rho, Color3(1.0)) * b.fdr_int : Color3(1.0 - b.fdr_int);
-    return rho / glm::max(denom, Color3(1e-9));
-}
-// The same of a textured diffuse reflectance rho (Bsdf::Model::diffuse_texture; already clamped below at 0), one
-// channel, the plugins' min and max taken by value.
+// Plastic's rho_eff and RoughPlastic's rho' of a diffuse reflectance rho (clamped below at 0), one channel, the
+// plugins' min and max taken by value.
 template <class T>
 T plastic_rho(const Bsdf::Model& b, const T& rho) {
     if (!b.nonlinear) return rho;
@@ -549,6 +538,15 @@ T rough_plastic_rho(const Bsdf::Model& b, const T& rho) {
     if (b.nonlinear) den = T(1.0) - (val(rho) > 1 ? T(1.0) : rho) * T(b.fdr_int);
     if (val(den) < 1e-9) den = T(1e-9);
     return rho / den;
+}
+// The same of the model's constant reflectance, in doubles.
+inline Color3 plastic_rho(const Bsdf::Model& b) {
+    const Color3& r = b.reflectance;
+    return {plastic_rho(b, r.r), plastic_rho(b, r.g), plastic_rho(b, r.b)};
+}
+inline Color3 rough_plastic_rho(const Bsdf::Model& b) {
+    const Color3& r = b.reflectance;
+    return {rough_plastic_rho(b, r.r), rough_plastic_rho(b, r.g), rough_plastic_rho(b, r.b)};
 }
 // The plastics' base: its f cos(theta_o) without the reflectance, s, times rho_eff (or rho'): the model's constant, or
 // from the textured reflectance `diffuse` at the hit.
@@ -946,12 +944,12 @@ struct LocalReader {
     }
     // Between bounces (and after the last): record the bounce that ends and make the carried numbers the next
     // bounce's first Carried inputs.
-    // A bounce reads at most 4 continuous coordinates: while another fits, the record goes on (fewer, longer
-    // records: less to compose); `last` ends it whatever the room.
+    // A bounce reads at most BounceCoords continuous coordinates: while another bounce's fit, the record goes on
+    // (fewer, longer records: less to compose); `last` ends it whatever the room.
     void checkpoint(Local* const* carried, bool last = false) {
         if (!tape) return;
         LocalTape& t = *tape;
-        if (!last && t.coords + 4 <= LocalCoords) return;
+        if (!last && t.coords + BounceCoords <= LocalCoords) return;
         if (t.used == t.bounces.size()) t.bounces.emplace_back();
         Bounce& b = t.bounces[t.used++];
         b.coords = t.coords;
