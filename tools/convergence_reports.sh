@@ -107,13 +107,30 @@ mlt_study() {  # mlt_study GEOMETRY [mmlt|h2mc]: the thesis' equal-time protocol
     wres=$((res + 2 * m))
     wfov=$(/usr/bin/python3 -c "import math; print(repr(2 * math.degrees(math.atan(math.tan(math.radians($fov) / 2) * $wres / $res))))")
     local wide=(-D geometry="$g" -D res="$wres" -D fov="$wfov" -t "${MLT_REF_THREADS:-$THREADS}" -q)
+    # The reference is the mean of two independent halves (ref_spp / 2 each, seeds 1000 and 1002), kept beside
+    # it, so that tools/reference_floor.py can measure the error its own noise adds to every variant.
+    local half h hspp=$(((ref_spp + 1) / 2))
     if [[ ! -f "$wref" ]]; then
-        echo "== $report: ${MLT_REF_INTEGRATOR:-bdpt} reference, ${res}x$res + $m pixels on every side, $ref_spp spp -> $wref"
-        # Into a temporary name, kept only if the render completed: an interrupted kelvin still writes the image
-        # so far (exit 130), which must not pass for a reference next time.
-        "$KELVIN" "$refscene" "${wide[@]}" -D integrator="${MLT_REF_INTEGRATOR:-bdpt}" -D max_depth="$max_depth" \
-            --spp "$ref_spp" --seed 1000 -o "${wref%.exr}.tmp.exr"
+        echo "== $report: ${MLT_REF_INTEGRATOR:-bdpt} reference, ${res}x$res + $m pixels on every side, 2 x $hspp spp -> $wref"
+        for h in a b; do
+            half="${wref%.exr}-$h.exr"
+            [[ -f "$half" ]] && continue
+            # Into a temporary name, kept only if the render completed: an interrupted kelvin still writes the
+            # image so far (exit 130), which must not pass for a reference next time.
+            "$KELVIN" "$refscene" "${wide[@]}" -D integrator="${MLT_REF_INTEGRATOR:-bdpt}" -D max_depth="$max_depth" \
+                --spp "$hspp" --seed "$([[ $h == a ]] && echo 1000 || echo 1002)" -o "${half%.exr}.tmp.exr"
+            mv "${half%.exr}.tmp.exr" "$half"
+        done
+        oiiotool "${wref%.exr}-a.exr" --ch R,G,B "${wref%.exr}-b.exr" --ch R,G,B --add --mulc 0.5 \
+            -o "${wref%.exr}.tmp.exr"
         mv "${wref%.exr}.tmp.exr" "$wref"
+    fi
+    if [[ -f "${wref%.exr}-a.exr" && -f "${wref%.exr}-b.exr" ]]; then  # older studies have a single reference
+        /usr/bin/python3 tools/reference_floor.py "${wref%.exr}-a.exr" "${wref%.exr}-b.exr" --margin "$m" \
+            >"$setup/reference_floor.txt"
+        cat "$setup/reference_floor.txt"
+    else
+        rm -f "$setup/reference_floor.txt"
     fi
     [[ -f "$ref" ]] || oiiotool "$wref" --ch R,G,B --cut "${res}x$res+$m+$m" -o "$ref"
     local bargs=("$wref" --margin "$m")
@@ -139,6 +156,8 @@ mlt_study() {  # mlt_study GEOMETRY [mmlt|h2mc]: the thesis' equal-time protocol
             echo "mmlt-K: variant=pssmlt-kelemen"
             echo "mmlt-X: variant=drmlt-orbital-mixture"
             echo "dr-mmlt: variant=drmlt-orbital"
+            # DR multiplexed-then-subpath after a bold Gaussian first stage (the best variant at 64 x 64, docs/mlt.md)
+            echo "dr-mmlt-G: variant=drmlt-orbital-gaussian first_sigma=${MLT_DR_SIGMA:-0.03}"
         } >"$setup/configs"
     elif [[ "$family" == h2mc ]]; then
         common+=(-D max_depth="$max_depth")
@@ -158,6 +177,7 @@ mlt_study() {  # mlt_study GEOMETRY [mmlt|h2mc]: the thesis' equal-time protocol
     converge "$report" "$study" "${common[@]}" --reference "$ref" --config-file "$setup/configs" \
         --checkpoints "${MLT_CHECKPOINTS:-30,60,120,240,480}"
     cp "$setup/normalization.txt" "$setup/normalization.log" "$setup/configs" "$OUT/$report/"
+    [[ -f "$setup/reference_floor.txt" ]] && cp "$setup/reference_floor.txt" "$OUT/$report/"
     [[ -f "$setup/sigma.txt" ]] && cp "$setup/sigma.txt" "$OUT/$report/"
     # 5. Medians and interquartile ranges (the thesis' statistics), and the protocol's table.
     /usr/bin/python3 tools/plot_convergence.py "$OUT/$report/convergence.csv" --center median --metrics rel_mse,l1 >/dev/null

@@ -11,8 +11,9 @@ the h2mc mutation, a second table gives the medians over runs of its counters (m
 their acceptance, derivative evaluations, the shares of them that were not differentiable (unsupported, mismatch,
 too long, next to a discontinuity) and that fell back to the isotropic Gaussian for a small Hessian, and the share of the run's time spent
 in derivatives (seconds_derivatives / run.seconds: meaningful with one thread). Above the table: the
-normalisation and the matched sigma when the study directory holds normalization.txt and sigma.txt (as
-tools/convergence_reports.sh leaves them). Quartiles are numpy's (linear interpolation); with fewer than 2 runs
+normalisation, the matched sigma and the reference's error floor when the study directory holds normalization.txt,
+sigma.txt and reference_floor.txt (as tools/convergence_reports.sh leaves them); with the floor, a column gives the
+median rMSE at the last checkpoint minus it. Quartiles are numpy's (linear interpolation); with fewer than 2 runs
 only the median is shown.
 """
 import csv
@@ -68,18 +69,26 @@ def main():
                 pass
 
     out = []
-    for name in ("normalization.txt", "sigma.txt"):
+    floor = None
+    for name in ("normalization.txt", "sigma.txt", "reference_floor.txt"):
         p = os.path.join(d, name)
         if os.path.exists(p):
             for line in open(p):
-                if line.startswith(("normalization =", "sigma =", "acceptance =", "target_acceptance =")):
+                if line.startswith(("normalization =", "sigma =", "acceptance =", "target_acceptance =",
+                                    "floor_rel_mse =", "floor_rel_mse_se =")):
                     out.append("- " + line.strip())
+                if line.startswith("floor_rel_mse ="):
+                    floor = float(line.split("=")[1])
     runs = max((len(v["rel_mse"]) for v in err.values()), default=0)
     unit = rows[0]["unit"] if rows else ""
     out.append(f"- {runs} runs per configuration; median [interquartile range] over runs; "
                f"checkpoints in {rows[0]['trigger'] if rows else ''}")
     out.append("")
-    head = ["variant"] + [f"rMSE at {t}" for t in targets] + [f"L1 at {t}" for t in targets] + [
+    if floor is not None:
+        out.append("- rMSE - floor: the median rMSE at the last checkpoint minus the reference's own floor "
+                   "(tools/reference_floor.py), the run's error against the true image")
+    head = ["variant"] + [f"rMSE at {t}" for t in targets] + (
+        [f"rMSE - floor at {last}"] if floor is not None else []) + [f"L1 at {t}" for t in targets] + [
         f"{unit} at {last}", "mutations/s", "small-step acc.", "large-step acc.", "stage-2 acc.", "stage-2 time share"]
     out.append("| " + " | ".join(head) + " |")
     out.append("|" + "---|" * len(head))
@@ -91,6 +100,7 @@ def main():
             return fmt(np.median(v)) if v else ""
 
         cells = [c] + [med_iqr(err[(c, t)]["rel_mse"]) for t in targets] + \
+                ([fmt(np.median(err[(c, last)]["rel_mse"]) - floor)] if floor is not None else []) + \
                 [med_iqr(err[(c, t)]["l1"]) for t in targets] + \
                 [fmt(np.median(work[c])) if work[c] else "", sm("mlt.mutations_per_second"),
                  sm("mlt.acceptance.stage1_small"), sm("mlt.acceptance.large_step")] + \
