@@ -78,7 +78,10 @@ def main():
                                     "floor_rel_mse =", "floor_rel_mse_se =")):
                     out.append("- " + line.strip())
                 if line.startswith("floor_rel_mse ="):
-                    floor = float(line.split("=")[1])
+                    try:
+                        floor = float(line.split("=")[1])
+                    except ValueError:
+                        sys.exit(f"mlt_study_table: {p}: cannot read the floor from '{line.strip()}'")
     runs = max((len(v["rel_mse"]) for v in err.values()), default=0)
     unit = rows[0]["unit"] if rows else ""
     out.append(f"- {runs} runs per configuration; median [interquartile range] over runs; "

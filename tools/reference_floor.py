@@ -32,6 +32,11 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from reference_normalization import read_rgb  # noqa: E402
 
 
+def fail(msg):
+    print(f"reference_floor: {msg}", file=sys.stderr)
+    sys.exit(2)
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("a")
@@ -41,18 +46,26 @@ def main():
     ap.add_argument("--spp", type=float, nargs=2, metavar=("N_REF", "N_OTHER"),
                     help="the reference is A (N_REF spp); B is an independent render of N_OTHER spp")
     args = ap.parse_args()
-    a, b = read_rgb(args.a), read_rgb(args.b)
+    images = []
+    for path in (args.a, args.b):
+        try:
+            images.append(read_rgb(path))
+        except SystemExit as e:  # read_rgb's one-line message, under this tool's name and bad input's exit code
+            fail(str(e.code).replace("reference_normalization: ", "").splitlines()[0])
+    a, b = images
     if a.shape != b.shape:
-        sys.exit(f"reference_floor: {args.a} is {a.shape[1]}x{a.shape[0]} but {args.b} is {b.shape[1]}x{b.shape[0]}")
+        fail(f"{args.a} is {a.shape[1]}x{a.shape[0]} but {args.b} is {b.shape[1]}x{b.shape[0]}")
+    if not (np.isfinite(a).all() and np.isfinite(b).all()):
+        fail(f"{args.a} or {args.b} holds NaN or infinite pixels")
     m = args.margin
     if m > 0:
         if 2 * m >= min(a.shape[0], a.shape[1]):
-            sys.exit(f"reference_floor: --margin {m} leaves no pixel of a {a.shape[1]}x{a.shape[0]} image")
+            fail(f"--margin {m} leaves no pixel of a {a.shape[1]}x{a.shape[0]} image")
         a, b = a[m:-m, m:-m], b[m:-m, m:-m]
     if args.spp:
         na, nb = args.spp
-        if na <= 0 or nb <= 0:
-            sys.exit(f"reference_floor: --spp {na:g} {nb:g}: both must be positive")
+        if not (na > 0 and nb > 0):
+            fail(f"--spp {na:g} {nb:g}: both must be positive")
         r, share = a, nb / (na + nb)  # Var(A) / (Var(A) + Var(B))
     else:
         r, share = 0.5 * (a + b), 0.25  # Var(mean of halves) = E[(A - B)^2] / 4

@@ -7,10 +7,10 @@ A true image T (smooth, with dark and bright regions) and per-pixel noise levels
 halves A and B (T plus Gaussian noise of standard deviation s) and, for --spp, a reference R of 4x less variance
 and an independent render of the given variance. The tool's floor must match the exact expectation of what a
 noisy reference adds, E[(R - T)^2] / (R^2 + 0.01) averaged over pixels and channels, computed here from the known
-T over 12 independent draws of the noise: within 5 standard errors of the per-draw spread plus 2 %, which bounds by
-how much the relative-MSE estimate may differ from the truth at this noise level (its denominator holds the noisy
-reference; docs/mlt-studies.md). A floor off by a
-factor 2 (the halves' variance instead of their mean's) fails by far. Skipped (exit 0, "SKIPPED") without oiiotool.
+T over 12 independent draws of the noise: within 5 standard errors of the per-draw spread plus 1 %, the estimate's
+own bias for the relative MSE at this noise level (its denominator holds the noisy reference, docs/mlt-studies.md;
+-0.8 % for the halves and -0.2 % with --spp over 400 draws). The image has a band 50x brighter and a band of exact
+black. A floor off by a factor 2 (the halves' variance instead of their mean's) fails by far. Skipped (exit 0, "SKIPPED") without oiiotool.
 """
 import os
 import shutil
@@ -47,7 +47,9 @@ def main():
     h, w = 64, 80
     y, x = np.mgrid[0:h, 0:w]
     t = np.stack([0.05 + 2.0 * np.exp(-((x - 30) ** 2 + (y - 15) ** 2) / 60.0) + 0.3 * (x / w) * c for c in (1, 0.8, 0.5)], axis=2)
-    s = 0.01 + 0.03 * t  # per-pixel standard deviation of one half: small against T, as in a usable reference
+    t[:, 60:70] *= 50.0  # a band 50x brighter (a highlight) and one of exact black (both halves 0, as rendered)
+    t[:, 70:] = 0.0
+    s = np.where(t > 0, 0.01 + 0.03 * t, 0.0)  # per-pixel standard deviation of one half, small against T
     inner = (slice(2, -2), slice(2, -2))
     failures = []
     for mode in ("halves", "spp"):
@@ -66,7 +68,7 @@ def main():
             tru.append(((ri - ti) ** 2 / (ri * ri + 0.01)).mean())
         est, tru = np.array(est), np.array(tru)
         d = est - tru
-        tol = 5 * d.std(ddof=1) / np.sqrt(len(d)) + 0.02 * tru.mean()
+        tol = 5 * d.std(ddof=1) / np.sqrt(len(d)) + 0.01 * tru.mean()
         print(f"{mode}: floor estimate {est.mean():.6g}, true {tru.mean():.6g}, difference {d.mean():.3g} "
               f"(tolerance {tol:.3g})")
         if abs(d.mean()) > tol:
