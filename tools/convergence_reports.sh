@@ -34,7 +34,7 @@
 # default all but pssmlt-G-bold, in that order), MLT_DR_SIGMA (the sigma of dr-orbital-G's first stage and of
 # pssmlt-G-bold, 0.03),
 # MLT_MATCH_SPP (mutations per pixel of each sigma-matching render, default 4), MLT_FIGURES (1: copy the figures
-# into docs/img). Everything a study computes is kept in $OUT (references, normalisation, sigma) and reused.
+# into docs/img), MLT_IMAGES (the checkpoint images kept: all, the default, for tools/run_spread.py; first; none). Everything a study computes is kept in $OUT (references, normalisation, sigma) and reused.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -175,7 +175,7 @@ mlt_study() {  # mlt_study GEOMETRY [mmlt|h2mc]: the thesis' equal-time protocol
         return 0
     fi
     converge "$report" "$study" "${common[@]}" --reference "$ref" --config-file "$setup/configs" \
-        --checkpoints "${MLT_CHECKPOINTS:-30,60,120,240,480}"
+        --checkpoints "${MLT_CHECKPOINTS:-30,60,120,240,480}" --images "${MLT_IMAGES:-all}"
     cp "$setup/normalization.txt" "$setup/normalization.log" "$setup/configs" "$OUT/$report/"
     [[ -f "$setup/reference_floor.txt" ]] && cp "$setup/reference_floor.txt" "$OUT/$report/"
     [[ -f "$setup/sigma.txt" ]] && cp "$setup/sigma.txt" "$OUT/$report/"
