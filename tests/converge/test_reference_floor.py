@@ -19,12 +19,8 @@ import sys
 
 import numpy as np
 
-
-def write_pfm(path, img):
-    h, w, _ = img.shape
-    with open(path, "wb") as f:
-        f.write(b"PF\n%d %d\n-1.0\n" % (w, h))
-        f.write(np.ascontiguousarray(img[::-1], dtype="<f4").tobytes())  # PFM rows run bottom to top
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from synthetic_images import true_image, write_pfm  # noqa: E402
 
 
 def floor_of(script, a, b, extra, out):
@@ -44,11 +40,7 @@ def main():
         return
     os.makedirs(out, exist_ok=True)
     rng = np.random.default_rng(12)
-    h, w = 64, 80
-    y, x = np.mgrid[0:h, 0:w]
-    t = np.stack([0.05 + 2.0 * np.exp(-((x - 30) ** 2 + (y - 15) ** 2) / 60.0) + 0.3 * (x / w) * c for c in (1, 0.8, 0.5)], axis=2)
-    t[:, 60:70] *= 50.0  # a band 50x brighter (a highlight) and one of exact black (both halves 0, as rendered)
-    t[:, 70:] = 0.0
+    t = true_image(64, 80, 30, 15, 60.0)  # with a band 50x brighter and one of exact black
     s = np.where(t > 0, 0.01 + 0.03 * t, 0.0)  # per-pixel standard deviation of one half, small against T
     inner = (slice(2, -2), slice(2, -2))
     failures = []

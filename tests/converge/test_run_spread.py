@@ -28,16 +28,12 @@ import sys
 
 import numpy as np
 
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from synthetic_images import true_image, write_pfm  # noqa: E402
+
 EPS = 0.01
 COLUMNS = ["config", "run", "seed", "trigger", "target", "seconds", "work", "unit", "sim_time", "mse", "rmse",
            "rel_mse", "l1", "rel_l1", "max_abs", "ssim", "image"]
-
-
-def write_pfm(path, img):
-    h, w, _ = img.shape
-    with open(path, "wb") as f:
-        f.write(b"PF\n%d %d\n-1.0\n" % (w, h))
-        f.write(np.ascontiguousarray(img[::-1], dtype="<f4").tobytes())  # PFM rows run bottom to top
 
 
 def make_study(d, rng, t, s):
@@ -94,12 +90,7 @@ def main():
         return
     os.makedirs(out, exist_ok=True)
     rng = np.random.default_rng(7)
-    h, w = 40, 48
-    y, x = np.mgrid[0:h, 0:w]
-    t = np.stack([0.05 + 2.0 * np.exp(-((x - 20) ** 2 + (y - 12) ** 2) / 50.0) + 0.3 * (x / w) * c
-                  for c in (1, 0.8, 0.5)], axis=2)
-    t[:, 36:42] *= 50.0
-    t[:, 42:] = 0.0
+    t = true_image(40, 48, 20, 12, 50.0)
     s = np.where(t > 0, 0.02 + 0.1 * t, 0.0)
     failures = []
 
