@@ -39,20 +39,28 @@ def med_iqr(vals):
     return f"{m} [{fmt(q1)}, {fmt(q3)}]"
 
 
+def read_study(d):
+    """(rows, configurations, checkpoint targets) of STUDY_DIR/convergence.csv, the latter two in order of first
+    appearance."""
+    rows = list(csv.DictReader(open(os.path.join(d, "convergence.csv"))))
+    configs, targets = [], []
+    for r in rows:
+        if r["config"] not in configs:
+            configs.append(r["config"])
+        if r["target"] not in targets:
+            targets.append(r["target"])
+    return rows, configs, targets
+
+
 def main():
     if len(sys.argv) != 2:
         sys.exit(__doc__)
     d = sys.argv[1]
-    rows = list(csv.DictReader(open(os.path.join(d, "convergence.csv"))))
-    configs, targets = [], []
+    rows, configs, targets = read_study(d)
     err = defaultdict(lambda: defaultdict(list))  # (config, target) -> metric -> values over runs
     work = defaultdict(list)
     for r in rows:
         c, t = r["config"], r["target"]
-        if c not in configs:
-            configs.append(c)
-        if t not in targets:
-            targets.append(t)
         for m in ("rel_mse", "l1"):
             err[(c, t)][m].append(float(r[m]))
     last = max(targets, key=float)

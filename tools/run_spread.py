@@ -35,6 +35,7 @@ from collections import defaultdict
 import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from mlt_study_table import read_study  # noqa: E402
 from reference_normalization import read_rgb  # noqa: E402
 
 
@@ -113,21 +114,18 @@ def main():
     cp = os.path.join(d, "convergence.csv")
     if not os.path.exists(cp):
         fail(f"{d}: no convergence.csv")
-    rows = list(csv.DictReader(open(cp)))
-    if rows and "image" not in rows[0]:
-        fail(f"{cp}: no image column (a simulation study?)")
-    configs, targets = [], []
     images = defaultdict(dict)  # (config, target) -> run -> path of the EXR
-    for r in rows:
-        c, t = r["config"], r["target"]
-        if c not in configs:
-            configs.append(c)
-        if t not in targets:
-            targets.append(t)
-        if r["image"]:
-            p = os.path.join(d, r["image"])
-            stem, ext = os.path.splitext(p)
-            images[(c, t)][int(r["run"])] = stem + ".exr" if ext.lower() == ".png" else p
+    try:
+        rows, configs, targets = read_study(d)
+        if rows and "image" not in rows[0]:
+            fail(f"{cp}: no image column (a simulation study?)")
+        for r in rows:
+            if r["image"]:
+                p = os.path.join(d, r["image"])
+                stem, ext = os.path.splitext(p)
+                images[(r["config"], r["target"])][int(r["run"])] = stem + ".exr" if ext.lower() == ".png" else p
+    except (KeyError, ValueError, TypeError, csv.Error) as e:
+        fail(f"{cp}: not a convergence table ({type(e).__name__}: {e})")
     baseline = args.baseline or (configs[0] if configs else None)
     if baseline not in configs:
         fail(f"--baseline '{baseline}': no such configuration in {cp} ({', '.join(configs)})")

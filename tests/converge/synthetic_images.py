@@ -1,5 +1,21 @@
 """Synthetic images of known truth for the tests of the study tools (test_reference_floor.py, test_run_spread.py)."""
+import os
+import shutil
+import sys
+
 import numpy as np
+
+
+def test_arguments(name):
+    """(SCRIPT, OUTDIR) from the command line, OUTDIR created; exits 0 with "SKIPPED" (ctest's skip) without
+    oiiotool, which the tools read images with."""
+    if len(sys.argv) != 3:
+        sys.exit(f"usage: {name}.py SCRIPT OUTDIR")
+    if shutil.which("oiiotool") is None:
+        print(f"{name}: SKIPPED (no oiiotool)")
+        sys.exit(0)
+    os.makedirs(sys.argv[2], exist_ok=True)
+    return sys.argv[1], sys.argv[2]
 
 
 def write_pfm(path, img):

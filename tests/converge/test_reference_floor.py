@@ -13,14 +13,13 @@ own bias for the relative MSE at this noise level (its denominator holds the noi
 black. A floor off by a factor 2 (the halves' variance instead of their mean's) fails by far. Skipped (exit 0, "SKIPPED") without oiiotool.
 """
 import os
-import shutil
 import subprocess
 import sys
 
 import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from synthetic_images import true_image, write_pfm  # noqa: E402
+from synthetic_images import test_arguments, true_image, write_pfm  # noqa: E402
 
 
 def floor_of(script, a, b, extra, out):
@@ -34,11 +33,7 @@ def floor_of(script, a, b, extra, out):
 
 
 def main():
-    script, out = sys.argv[1], sys.argv[2]
-    if shutil.which("oiiotool") is None:
-        print("test_reference_floor: SKIPPED (no oiiotool)")
-        return
-    os.makedirs(out, exist_ok=True)
+    script, out = test_arguments("test_reference_floor")
     rng = np.random.default_rng(12)
     t = true_image(64, 80, 30, 15, 60.0)  # with a band 50x brighter and one of exact black
     s = np.where(t > 0, 0.01 + 0.03 * t, 0.0)  # per-pixel standard deviation of one half, small against T
