@@ -29,7 +29,8 @@
 # default 30,60,120,240,480), MLT_REF_SPP (the reference's spp, per scene), MLT_REF_INTEGRATOR (bdpt; path: see
 # docs/mlt-studies.md on bdpt's light-tracing strategy), MLT_DIRECT_REF_SPP (1024),
 # MLT_REF_THREADS (the references' threads, default THREADS), MLT_SETUP_ONLY (1: stop after the references and b),
-# MLT_TECHNIQUE and MLT_DIRECT_SAMPLES (per scene), MLT_MIXTURE (1: the mixture baseline as a variant),
+# MLT_TECHNIQUE (per scene), MLT_DIRECT_SAMPLES (-1, the chains render everything; 16, the integrators' split),
+# MLT_MIXTURE (1: the mixture baseline as a variant),
 # MLT_VARIANTS (which of pssmlt-K pssmlt-G pssmlt-G-bold mixture dr-orbital dr-orbital-G dr-mira dr-green; by
 # default all but pssmlt-G-bold, in that order), MLT_DR_SIGMA (the sigma of dr-orbital-G's first stage and of
 # pssmlt-G-bold, 0.03),
@@ -73,19 +74,21 @@ mlt_study() {  # mlt_study GEOMETRY [mmlt|h2mc]: the thesis' equal-time protocol
     # h2mc: cheap then expensive (Fig. 4.12): DR Gaussian-then-H2MC (green, Gaussian 0.01 first, then the mixture of
     # H2MC and a Gaussian of 0.0025), H2MC (pssmlt) and PSSMLT/G with DR's first stage (sigma 0.01), on the path
     # technique (the one H2MC differentiates) with max_depth MLT_MAX_DEPTH (8), the reference too.
-    local g=$1 family=${2:-pss} technique direct ref_spp max_depth=-1
-    case "$g" in  # per scene: the path sampler the chains drive, direct_samples, the reference's bdpt spp
-    # The chains render everything (direct_samples -1): a direct pass of fixed spp does not improve with the
-    # budget, and at 256 x 256 it was 82-86 % of every variant's error on the door after 120 s (16 spp), so the
-    # study measured the pass, not the chains, as on the caustic and the pool at 64 x 64 (docs/mlt-studies.md); on
-    # the plates the hard transport is itself two-edge. MLT_DIRECT_SAMPLES=16 gives the integrators' default split.
-    door) technique=path direct=-1 ref_spp=16384 ;;
-    caustic) technique=bdpt direct=-1 ref_spp=16384 ;;
-    plates) technique=path direct=-1 ref_spp=8192 ;;
-    pool) technique=path direct=-1 ref_spp=32768 ;;
-    aquarium) technique=bdpt direct=-1 ref_spp=16384 ;;
-    torus | chess) technique=path direct=-1 ref_spp=16384 ;;
+    local g=$1 family=${2:-pss} technique ref_spp max_depth=-1
+    case "$g" in  # per scene: the path sampler the chains drive and the reference's bdpt spp
+    door) technique=path ref_spp=16384 ;;
+    caustic) technique=bdpt ref_spp=16384 ;;
+    plates) technique=path ref_spp=8192 ;;
+    pool) technique=path ref_spp=32768 ;;
+    aquarium) technique=bdpt ref_spp=16384 ;;
+    torus | chess) technique=path ref_spp=16384 ;;
     esac
+    # The chains render everything (direct_samples -1) on every scene: a direct pass of fixed spp does not improve
+    # with the budget, and at 256 x 256 it was 82-86 % of every variant's error on the door after 120 s (16 spp),
+    # so the study measured the pass, not the chains, as on the caustic and the pool at 64 x 64
+    # (docs/mlt-studies.md); on the plates the hard transport is itself two-edge. MLT_DIRECT_SAMPLES=16 gives the
+    # integrators' default split.
+    local direct=${MLT_DIRECT_SAMPLES:--1}
     local report="mlt-$g"
     if [[ "$family" == mmlt ]]; then
         technique=mmlt max_depth=${MLT_MAX_DEPTH:-8} report="mmlt-$g"
@@ -93,7 +96,6 @@ mlt_study() {  # mlt_study GEOMETRY [mmlt|h2mc]: the thesis' equal-time protocol
         max_depth=${MLT_MAX_DEPTH:-8}
     fi
     technique=${MLT_TECHNIQUE:-$technique}
-    direct=${MLT_DIRECT_SAMPLES:-$direct}
     ref_spp=${MLT_REF_SPP:-$ref_spp}
     local res=${MLT_RES:-256} study=scenes/render/mlt-study.xml refscene=scenes/render/mlt-reference.xml
     local setup="$OUT/$report-setup" ref="$OUT/$report-$res-reference.exr"
