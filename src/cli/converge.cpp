@@ -157,7 +157,10 @@ int run_converge(const ConvergeArgs& a, Communicator& world) {
     for (const auto& s : a.sweeps)
         for (auto& c : sweep_configs(s)) o.configs.push_back(std::move(c));
     o.runs = a.runs;
-    o.seed = a.seed;
+    o.seed = parse_seed(a.seed, "--seed");
+    if (o.seed > UINT64_MAX - uint64_t(a.runs - 1))
+        throw InputError(
+            {}, fmt::format("--seed {} with --runs {}: the last run's seed would pass 2^64 - 1", a.seed, a.runs));
     if (!a.seconds.empty()) o.seconds = parse_number_list(a.seconds, "--checkpoints");
     if (!a.spp.empty()) o.spp = counts(a.spp, "--spp");
     if (!a.steps.empty()) o.steps = counts(a.steps, "--steps");

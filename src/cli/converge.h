@@ -16,7 +16,7 @@ struct ConvergeArgs {
     std::vector<std::string> configs, sweeps, defines, fields, plugin_paths;
     std::string seconds, spp, steps, times, pixels, window, disk;
     int runs = 1, threads = 0;
-    unsigned long long seed = 0;
+    std::string seed = "0";
     double epsilon = 1e-2;
     bool plot = false, allow_unused = false, quiet = false, verbose = false;
 };

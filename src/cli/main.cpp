@@ -46,12 +46,15 @@ using namespace kelvin;
 namespace {
 
 constexpr int ExitOk = 0, ExitRuntime = 1, ExitInput = 2, ExitInterrupted = InterruptedExitCode;
+// --exposure bound, in stops: 2^64 already maps every pixel value a float holds to black or white in 8 bits.
+constexpr double MaxExposure = 64;
 
 struct Options {
     std::string scene;
     std::string output;
     std::vector<std::string> defines;
     int threads = 0;
+    std::string seed_text = "0";
     uint64_t seed = 0;
     long long spp = -1;
     double time_limit = 0;
@@ -363,7 +366,7 @@ int run(const Options& o, Communicator& world) {
         // collective: say which rank failed and end the whole run.
         if (!world.distributed()) throw;
         const int code = dynamic_cast<const InputError*>(&e) ? ExitInput : ExitRuntime;
-        std::fprintf(stderr, "kelvin: error: rank %d: %s\n", world.rank(), e.what());
+        std::fprintf(stderr, "kelvin: error: rank %d: %s\n", world.rank(), cli::error_line(e.what()).c_str());
         std::fflush(stderr);
         world.abort(code);
     }
@@ -532,17 +535,29 @@ Prepared prepare(const Options& o, bool prints) {
                                          out.string(), out.extension().string()));
     if (std::string why = image_format_problem(out); !why.empty())
         throw RuntimeError(fmt::format("-o '{}': {}", out.string(), why));
-    if (o.skip_existing && fs::exists(out)) {
-        log_info("{} exists; skipping (--skip-existing)", out.string());
-        return finished(ExitOk);
+    if (o.skip_existing) {
+        // Done means a complete output: outputs are written atomically, so an existing non-empty file is one;
+        // an empty file (a crash of another program, a `touch`) is not, and is rendered again.
+        std::error_code ec;
+        const auto size = fs::is_regular_file(out, ec) ? fs::file_size(out, ec) : 0;
+        if (!ec && size > 0) {
+            log_info("{} exists; skipping (--skip-existing)", out.string());
+            return finished(ExitOk);
+        }
+        if (fs::exists(out, ec)) log_warn("{} exists but is empty; rendering it again (--skip-existing)", out.string());
     }
     // Before any work: an output that cannot be written would throw the whole run away. (Simulation frames
     // and CSV go beside it, so this covers them too.)
     if (std::string why = output_file_problem(out); !why.empty())
         throw InputError({}, fmt::format("-o '{}': {}", out.string(), why));
-    if (!o.stats.empty())
+    if (!o.stats.empty()) {
         if (std::string why = output_file_problem(o.stats); !why.empty())
             throw InputError({}, fmt::format("--stats '{}': {}", o.stats, why));
+        if (same_file(o.stats, out))
+            throw InputError({}, fmt::format("--stats '{}' is the output image -o '{}': the statistics would replace "
+                                             "the image",
+                                             o.stats, out.string()));
+    }
 
     auto interrupted_while_loading = [&] {
         if (prints) std::fprintf(stderr, "kelvin: interrupted while loading %s; nothing written\n", scene_path.c_str());
@@ -594,14 +609,15 @@ int main(int argc, char** argv) {
     app.add_option("-D,--define", o.defines, "Set scene parameter NAME=VALUE (overrides <default>)")->take_all();
     app.add_option("-t,--threads", o.threads, "Worker threads (default: all cores); results do not depend on it")
         ->check(CLI::Range(0, 4096));
-    app.add_option("--seed", o.seed, "Random seed");
+    app.add_option("--seed", o.seed_text, "Random seed (0 to 2^64 - 1)");
     app.add_option("--spp", o.spp, "Samples per pixel (overrides the scene's sampler)")
         ->check(CLI::Range(1LL, 1LL << 40));
     app.add_option("--time-limit", o.time_limit, "Stop after this many seconds (equal-time runs)")
-        ->check(CLI::NonNegativeNumber);
+        ->check(cli::finite_non_negative());
     app.add_option("--write-partial", o.write_partial, "Write the image so far every N seconds")
-        ->check(CLI::NonNegativeNumber);
-    app.add_option("--exposure", o.exposure, "Exposure in stops for PNG/JPEG output");
+        ->check(cli::finite_non_negative());
+    app.add_option("--exposure", o.exposure, "Exposure in stops for PNG/JPEG output")
+        ->check(cli::finite_range(-MaxExposure, MaxExposure));
     app.add_flag("--skip-existing", o.skip_existing, "Do nothing if the output file exists");
     app.add_option("--plugin-path", o.plugin_paths, "Load plugin modules (.so) from DIR (':'-separated list)");
     app.add_flag("--allow-unused", o.allow_unused,
@@ -632,7 +648,7 @@ int main(int argc, char** argv) {
     } catch (const CLI::CallForVersion& e) {
         return app.exit(e);
     } catch (const CLI::ParseError& e) {
-        std::fprintf(stderr, "kelvin: error: %s (see kelvin --help)\n", e.what());
+        std::fprintf(stderr, "kelvin: error: %s (see kelvin --help)\n", cli::error_line(e.what()).c_str());
         return ExitInput;
     }
     o.list_plugins = list->count() > 0;
@@ -646,16 +662,23 @@ int main(int argc, char** argv) {
     // prints them. (An error of one rank while the ranks work together ends the run in run().)
     Communicator* world = nullptr;
     try {
+        o.seed = cli::parse_seed(o.seed_text, "--seed");
         world = &world_communicator();
         if (converge->parsed()) return cli::run_converge(converge_args, *world);
         if (!o.video.empty() && o.frames.empty())
             throw InputError({}, "--video needs --frames (the frames of the video)");
         return o.frames.empty() ? run(o, *world) : run_frames(o, *world);
     } catch (const InputError& e) {
-        if (!world || world->root()) std::fprintf(stderr, "kelvin: error: %s\n", e.what());
+        if (!world || world->root()) std::fprintf(stderr, "kelvin: error: %s\n", cli::error_line(e.what()).c_str());
         return ExitInput;
+    } catch (const std::bad_alloc&) {
+        if (!world || world->root())
+            std::fprintf(stderr,
+                         "kelvin: error: out of memory (an allocation failed; lower the resolution or sample count, "
+                         "or raise the memory limit)\n");
+        return ExitRuntime;
     } catch (const std::exception& e) {
-        if (!world || world->root()) std::fprintf(stderr, "kelvin: error: %s\n", e.what());
+        if (!world || world->root()) std::fprintf(stderr, "kelvin: error: %s\n", cli::error_line(e.what()).c_str());
         return ExitRuntime;
     }
 }

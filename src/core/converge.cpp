@@ -256,8 +256,8 @@ public:
     /// Reads ConvergeOptions::reference, if given.
     void load() {
         if (m_o.reference.empty()) return;
-        if (!fs::is_regular_file(m_o.reference))
-            throw InputError({m_o.reference.string(), 0, 0}, "no such reference image");
+        if (std::string why = input_file_problem(m_o.reference, "reference image"); !why.empty())
+            throw InputError({}, "--reference: " + why);
         try {
             m_reference = read_image(m_o.reference);
         } catch (const Error& e) {

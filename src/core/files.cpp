@@ -48,6 +48,13 @@ void unregister_temp(int slot) {
     if (slot >= 0) g_temps[std::size_t(slot)].state.store(0, std::memory_order_release);
 }
 
+// The longest file name `dir` takes (NAME_MAX: 255 bytes on ext4, xfs, btrfs, tmpfs).
+std::size_t name_max(const fs::path& dir) {
+    errno = 0;
+    const long n = ::pathconf(dir.empty() ? "." : dir.c_str(), _PC_NAME_MAX);
+    return n > 0 ? std::size_t(n) : 255;
+}
+
 std::string probe_dir(const fs::path& dir) {
     const fs::path probe = dir / fmt::format(".kelvin-probe-{}-{}", long(::getpid()), g_counter.fetch_add(1));
     const int fd = ::open(probe.c_str(), O_WRONLY | O_CREAT | O_EXCL | O_CLOEXEC, 0600);
@@ -88,7 +95,17 @@ std::string output_file_problem(const fs::path& path) {
     const fs::file_status ds = fs::status(dir, ec);
     if (!fs::exists(ds)) return fmt::format("directory '{}' does not exist", dir.string());
     if (!fs::is_directory(ds)) return fmt::format("'{}' is not a directory", dir.string());
+    if (const std::size_t n = path.filename().string().size(), limit = name_max(dir); n > limit)
+        return fmt::format("the file name is {} bytes long, more than the {} its directory takes", n, limit);
     return probe_dir(dir);
+}
+
+bool same_file(const fs::path& a, const fs::path& b) {
+    std::error_code ec;
+    if (fs::exists(a, ec) && fs::exists(b, ec)) return fs::equivalent(a, b, ec) && !ec;
+    const fs::path ca = fs::weakly_canonical(fs::absolute(a, ec), ec);
+    const fs::path cb = fs::weakly_canonical(fs::absolute(b, ec), ec);
+    return ca.lexically_normal() == cb.lexically_normal();
 }
 
 std::string output_dir_problem(const fs::path& dir) {
@@ -109,10 +126,19 @@ std::string output_dir_problem(const fs::path& dir) {
 }
 
 AtomicFile::AtomicFile(fs::path target) : m_target(std::move(target)) {
-    std::string name = m_target.stem().string();
-    name += fmt::format(".partial-{}-{}", long(::getpid()), g_counter.fetch_add(1));
-    name += m_target.extension().string();
-    m_temp = m_target.parent_path() / name;
+    // NAME.partial-PID-N.EXT, with NAME shortened when the whole would not fit the directory's name limit (a
+    // target name that itself fits must never fail at the end of a run for its temporary name). The extension
+    // stays: writers pick the format by it.
+    const std::string suffix = fmt::format(".partial-{}-{}", long(::getpid()), g_counter.fetch_add(1));
+    const std::string ext = m_target.extension().string();
+    std::string stem = m_target.stem().string();
+    const std::size_t limit = name_max(m_target.parent_path());
+    if (stem.size() + suffix.size() + ext.size() > limit) {
+        stem.resize(limit > suffix.size() + ext.size() ? limit - suffix.size() - ext.size() : 0);
+        while (!stem.empty() && (static_cast<unsigned char>(stem.back()) & 0xC0) == 0x80) stem.pop_back();
+        if (!stem.empty() && static_cast<unsigned char>(stem.back()) >= 0xC0) stem.pop_back();
+    }
+    m_temp = m_target.parent_path() / (stem + suffix + ext);
     m_slot = register_temp(m_temp);  // before the file exists: a signal at any moment finds it
 }
 

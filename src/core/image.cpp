@@ -247,6 +247,21 @@ static void write_image_file(const fs::path& path, const std::string& e, const B
     detail::oiio_codec().write(path, e, img, opts);
 }
 
+std::string non_finite_problem(const Bitmap& img) {
+    const float* v = img.data();
+    const std::size_t nc = std::size_t(img.channel_count());
+    const std::size_t n = std::size_t(img.width()) * std::size_t(img.height()) * nc;
+    std::size_t first = n, count = 0;
+    for (std::size_t i = 0; i < n; ++i)
+        if (!std::isfinite(v[i])) {
+            if (count++ == 0) first = i;
+        }
+    if (count == 0) return {};
+    const std::size_t pixel = first / nc, c = first % nc;
+    return fmt::format("channel '{}' is {} at pixel ({}, {}); {} value(s) are not finite", img.channels()[c], v[first],
+                       pixel % std::size_t(img.width()), pixel / std::size_t(img.width()), count);
+}
+
 void write_image(const fs::path& path, const Bitmap& img, const ImageWriteOptions& opts) {
     std::string e = ext_of(path);
     if (!is_supported_image_extension(path))
@@ -255,6 +270,12 @@ void write_image(const fs::path& path, const Bitmap& img, const ImageWriteOption
                                          e.empty() ? "(none)" : e, path.string()));
     if (img.channel_count() < 3 && e != ".exr")
         throw RuntimeError(fmt::format("cannot write '{}': an RGB image is needed", path.string()));
+    // The last line of defence: every producer checks its own values and says which quantity went wrong; an image
+    // that still holds a NaN or an infinity is refused here rather than written.
+    if (!opts.allow_non_finite)
+        if (std::string why = non_finite_problem(img); !why.empty())
+            throw RuntimeError(fmt::format("not writing '{}': {} (numerical trouble is never written into an output)",
+                                           path.string(), why));
     // A temporary file beside the output, flushed and renamed: a reader (or a crash, a full disk, a second
     // Ctrl-C) never sees half a file, and a failed write leaves the previous file as it was.
     write_atomically(path, [&](const fs::path& tmp) { write_image_file(tmp, e, img, opts); });

@@ -481,12 +481,12 @@ private:
             .fetch_add(1, std::memory_order_relaxed);
     }
 
-    // Steps of chain c once `units` mutations per pixel are done in total: the work of a unit is split over the
-    // chains by a rule that depends on `units` only, so the result never depends on how passes are sized.
+    // Steps of chain c once `units` mutations per pixel are done in total: the work of a unit is dealt to the chains
+    // round robin (chain_steps), a rule that depends on `units` only, so the result never depends on how passes are
+    // sized, and no pass gives a chain a negative share.
     uint64_t steps_until(long long units, std::size_t c) const {
         const unsigned __int128 all = (unsigned __int128)(units) * (unsigned __int128)(uint64_t(w) * uint64_t(h));
-        const auto C = (unsigned __int128)chains.size();
-        return uint64_t(all * (c + 1) / C - all * c / C);
+        return chain_steps(all, c, chains.size());
     }
 
     // One pass of the chains this rank owns: each chain makes its share of `n` mutations per pixel.

@@ -236,7 +236,13 @@ TEST_F(ConvergeCli, BadInputIsOneLineAndExitCode2) {
         "does not use the parameter 'nosuch'");
     expect_input_error(converge({"--reference", (m_dir / "missing.exr").string(), "--config", "p:integrator=path",
                                  "--spp", "1", "-o", out.string()}),
-                       "missing.exr: no such reference image");
+                       "missing.exr' does not exist");
+    expect_input_error(
+        converge({"--reference", "/dev/zero", "--config", "p:integrator=path", "--spp", "1", "-o", out.string()}),
+        "'/dev/zero' is not a regular file");
+    expect_input_error(converge({"--reference", ref.string(), "--config", "p:integrator=path", "--spp", "1", "--seed",
+                                 "-1", "-o", out.string()}),
+                       "--seed '-1'");
     expect_input_error(converge({"--reference", ref.string(), "--config", "p:integrator=path", "-o", out.string()}),
                        "no checkpoints");
     expect_input_error(converge({"--reference", ref.string(), "--config", "p:integrator", "--spp", "1"}),

@@ -17,6 +17,7 @@
 #include <sstream>
 
 using namespace kelvin;
+namespace fs = std::filesystem;
 
 namespace {
 
@@ -118,7 +119,9 @@ TEST(Image, ExrKeepsNamedChannelsBitExact) {
         for (int x = 0; x < 5; ++x)
             for (int c = 0; c < 4; ++c, ++k) b.at(x, y, c) = k < 8 ? special[k] : float(k) * 0.37f - 3.0f;
     auto path = dir.path() / "out.exr";
-    write_image(path, b);
+    ImageWriteOptions opts;
+    opts.allow_non_finite = true;  // the infinity is part of what must round-trip
+    write_image(path, b, opts);
     Bitmap r = read_image(path);
     ASSERT_EQ(r.width(), 5);
     ASSERT_EQ(r.height(), 4);
@@ -187,13 +190,46 @@ TEST(Image, NanPixelBecomesZeroInPng) {
     b.set_rgb(1, 0, Color3(nan, 0.5, nan));
     b.set_rgb(2, 0, Color3(-nan, -nan, -nan));
     auto path = dir.path() / "nan.png";
-    write_image(path, b);
+    ImageWriteOptions opts;
+    opts.allow_non_finite = true;
+    write_image(path, b, opts);
     Bitmap r = read_image(path);
     EXPECT_EQ(r.at(1, 0, 0), 0.0f);
     EXPECT_EQ(r.at(1, 0, 2), 0.0f);
     EXPECT_NEAR(r.at(1, 0, 1), 0.5, 0.01);  // its finite neighbour channel is untouched
     for (int c = 0; c < 3; ++c) EXPECT_EQ(r.at(2, 0, c), 0.0f);
     EXPECT_NEAR(r.at(0, 0, 0), 0.5, 0.01);
+}
+
+// An image holding a NaN or an infinity is refused by every format, by default: the message names the channel, the
+// first pixel and the count, and the previous file is left as it was.
+TEST(Image, NonFiniteImagesAreNotWritten) {
+    ktest::TempDir dir;
+    for (const char* name : {"a.exr", "a.png", "a.pfm"}) {
+        SCOPED_TRACE(name);
+        const fs::path path = dir.path() / name;
+        Bitmap good(4, 3);
+        good.set_rgb(1, 1, Color3(0.25, 0.5, 0.75));
+        write_image(path, good);
+        const auto size = fs::file_size(path);
+        Bitmap bad = good;
+        bad.at(2, 1, 1) = std::numeric_limits<float>::infinity();
+        bad.at(3, 2, 0) = std::numeric_limits<float>::quiet_NaN();
+        try {
+            write_image(path, bad);
+            ADD_FAILURE() << "a non-finite image was written";
+        } catch (const RuntimeError& e) {
+            EXPECT_NE(std::string(e.what()).find("channel 'G' is inf at pixel (2, 1); 2 value(s) are not finite"),
+                      std::string::npos)
+                << e.what();
+        }
+        EXPECT_EQ(fs::file_size(path), size);
+        EXPECT_NEAR(read_image(path).at(1, 1, 2), good.at(1, 1, 2), 0.01);  // the old file, 8 bits in PNG
+    }
+    Bitmap b(2, 2);
+    EXPECT_EQ(non_finite_problem(b), "");
+    b.at(1, 1, 2) = -std::numeric_limits<float>::infinity();
+    EXPECT_EQ(non_finite_problem(b), "channel 'B' is -inf at pixel (1, 1); 1 value(s) are not finite");
 }
 
 TEST(Image, FloatFormatsRoundTrip) {

@@ -10,6 +10,9 @@
 #include <fmt/format.h>
 #include <gtest/gtest.h>
 
+#include <algorithm>
+#include <random>
+
 #include "render/render_support.h"
 
 using namespace kelvin;
@@ -37,13 +40,14 @@ struct RunOut {
     double invalid = 0;
 };
 
-RunOut run(const TestScene& ts, const std::string& file, long long spp, uint64_t seed) {
+RunOut run(const TestScene& ts, const std::string& file, long long spp, uint64_t seed, double time_limit = 0) {
     ParseOptions opts;
     opts.defines["res"] = std::to_string(ts.res);
     auto scene = ktest::load_scene_xml(ts.xml, opts, scene_path(file));
     RunContext ctx;
     ctx.spp = spp;
     ctx.seed = seed;
+    ctx.time_limit = time_limit;
     ctx.quiet = true;
     RunOut r;
     r.image = scene->run(ctx).image;
@@ -399,6 +403,49 @@ TEST(MltIntegrators, EveryStudyVariantRenders) {
             opts.defines = {{"variant", variant}, {"geometry", geometry}, {"res", "8"}, {"max_depth", "6"}};
             EXPECT_GT(render(opts, variant), 0.0);
         }
+}
+
+// The steps dealt to the chains (chain_steps), over random chain counts, pixel counts and pass sizes: no pass gives a
+// chain a negative share, every pass's shares sum to the pass, and the chains' totals differ by at most one. (A
+// contiguous split, floor(A (c+1) / C) - floor(A c / C), fails the first: with C = 5 chain 2 has 1 step at A = 2
+// and 0 at A = 3, which wrapped an unsigned count to 2^64 - 1 and never ended the run.)
+TEST(MltIntegrators, ChainStepsNeverDecrease) {
+    std::mt19937_64 rng(7);
+    for (int trial = 0; trial < 2000; ++trial) {
+        const uint64_t C = 1 + rng() % (trial % 3 == 0 ? 5000 : 40);
+        const uint64_t pixels = 1 + rng() % (trial % 2 ? 4 : 4096);
+        unsigned __int128 total = 0;
+        std::vector<uint64_t> done(C, 0);
+        for (int pass = 0; pass < 6; ++pass) {
+            const unsigned __int128 next = total + (unsigned __int128)(rng() % 7) * pixels;
+            unsigned __int128 sum = 0;
+            for (uint64_t c = 0; c < C; ++c) {
+                const uint64_t before = chain_steps(total, c, C), after = chain_steps(next, c, C);
+                ASSERT_EQ(before, done[c]);
+                ASSERT_GE(after, before) << "chain " << c << " of " << C;
+                sum += after - before;
+                done[c] = after;
+            }
+            ASSERT_TRUE(sum == next - total);
+            const auto [lo, hi] = std::minmax_element(done.begin(), done.end());
+            ASSERT_LE(*hi - *lo, 1u);
+            total = next;
+        }
+    }
+    // Totals past 2^64 (2^40 mutations per pixel of a 4096^2 image) stay exact.
+    const unsigned __int128 huge = (unsigned __int128)(1ULL << 40) * (4096u * 4096u);
+    EXPECT_EQ(chain_steps(huge, 0, 4096), uint64_t(huge / 4096));
+}
+
+// Far more chains than pixels and a budget far beyond the time limit: the run ends at the limit (this never ended
+// when a pass gave a chain a negative share).
+TEST(MltIntegrators, ManyChainsFewPixelsEndsAtTimeLimit) {
+    const std::string file = "cornell-box.xml";
+    const std::string xml = R"(<integrator type="drmlt"><integer name="chains" value="997"/></integrator>)";
+    Timer t;
+    RunOut r = run(scene_with(file, xml, 4), file, 2000000, 3, 0.5);
+    EXPECT_TRUE(r.stats.chain.steps > 0);
+    EXPECT_LT(t.seconds(), 30.0);  // a hang detector (the limit is 0.5 s), not a speed test
 }
 
 // chains = -1: the count follows the mutation budget (docs/mlt.md, "How many chains"), within its bounds.

@@ -31,6 +31,9 @@ std::string output_file_problem(const std::filesystem::path& path);
 /// The same for a directory that will hold outputs: an existing one must take a probe file; a missing one
 /// (created later) needs its nearest existing ancestor to be a directory that takes one.
 std::string output_dir_problem(const std::filesystem::path& dir);
+/// True when `a` and `b` name one file: the same inode when both exist (hard and symbolic links too), else the
+/// same absolute path once "." and ".." and symbolic links of the existing part are resolved.
+bool same_file(const std::filesystem::path& a, const std::filesystem::path& b);
 
 /// A temporary file beside `target` (same directory, same extension: writers that pick the format by
 /// extension see the right one) that replaces `target` on commit(). Destroyed uncommitted, it is removed.

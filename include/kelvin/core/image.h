@@ -63,7 +63,14 @@ struct ImageWriteOptions {
     double exposure = 0;  ///< LDR formats: multiply by 2^exposure before the sRGB curve
     /// EXR: extra header attributes (integrator, spp, seed, render time, ...). Ignored by the other formats.
     std::vector<ImageAttribute> metadata;
+    /// write_image refuses an image with a NaN or infinite value (numerical trouble is never written into an output);
+    /// true writes it as it is (tests that make hostile input files).
+    bool allow_non_finite = false;
 };
+
+/// The first NaN or infinite value of `img`: "channel 'R' is inf at pixel (3, 4); 12 values are not finite".
+/// Empty when every value is finite.
+std::string non_finite_problem(const Bitmap& img);
 
 /// True if `path`'s extension is one write_image supports.
 bool is_supported_image_extension(const std::filesystem::path& path);

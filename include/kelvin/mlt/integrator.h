@@ -75,6 +75,15 @@ private:
 inline constexpr long long MinAutoChains = 64, MaxAutoChains = 4096;
 long long auto_chain_count(double mutations, double mutations_per_chain);
 
+/// The steps chain `c` of `chains` has made once `total` steps are made by all of them: step k of the run belongs
+/// to chain k mod chains (round robin), so every chain's count never decreases as `total` grows, the counts sum
+/// to `total` and differ by at most one. A pass from total a to b gives chain c chain_steps(b, c, C) -
+/// chain_steps(a, c, C) >= 0 steps, whatever the pass sizes, the chain count and the pixel count.
+constexpr uint64_t chain_steps(unsigned __int128 total, uint64_t c, uint64_t chains) {
+    if (total <= c) return 0;
+    return uint64_t((total - 1 - c) / chains + 1);
+}
+
 class MetropolisIntegrator : public Integrator {
 public:
     /// `delayed_rejection`: read the parameters of `drmlt` (type, first/second) rather than `pssmlt`'s.
