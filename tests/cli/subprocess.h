@@ -8,6 +8,7 @@
 #include <fcntl.h>
 #include <signal.h>
 #include <spawn.h>
+#include <sys/resource.h>
 #include <sys/stat.h>
 #include <sys/wait.h>
 #include <unistd.h>
@@ -17,6 +18,7 @@
 #include <cstring>
 #include <filesystem>
 #include <fstream>
+#include <iterator>
 #include <map>
 #include <optional>
 #include <sstream>
@@ -57,6 +59,7 @@ struct ProcessResult {
     int exit_code = -1;   ///< exit status, or -1 if killed by a signal
     int term_signal = 0;  ///< the signal that killed it, or 0
     bool timed_out = false;
+    double cpu_seconds = 0;  ///< user + system CPU time of the child, all its threads (from wait4)
     std::string out, err;
     std::vector<std::string> err_lines() const { return lines_of(err); }
 };
@@ -125,6 +128,20 @@ public:
 
     pid_t pid() const { return m_pid; }
     void signal(int sig) const { ::kill(m_pid, sig); }
+    /// The CPU time (user + system, all threads) the running child has used so far, from /proc (10 ms ticks);
+    /// -1 once it has exited.
+    double cpu_seconds_so_far() const {
+        std::ifstream in("/proc/" + std::to_string(m_pid) + "/stat");
+        std::string text((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+        const auto close = text.rfind(')');
+        if (close == std::string::npos) return -1;
+        std::istringstream fields(text.substr(close + 2));
+        std::string f;
+        double ticks = 0;
+        for (int i = 3; fields >> f; ++i)
+            if (i == 14 || i == 15) ticks += std::stod(f);  // utime, stime
+        return ticks / double(::sysconf(_SC_CLK_TCK));
+    }
     /// What the child has written to stderr so far.
     std::string stderr_so_far() const { return read_file(m_dir / "stderr"); }
     bool running() {
@@ -170,9 +187,12 @@ private:
     void poll() {
         if (m_done) return;
         int status = 0;
-        pid_t r = waitpid(m_pid, &status, WNOHANG);
+        struct rusage usage {};
+        pid_t r = wait4(m_pid, &status, WNOHANG, &usage);
         if (r == m_pid) {
             m_done = true;
+            m_result.cpu_seconds = double(usage.ru_utime.tv_sec) + 1e-6 * double(usage.ru_utime.tv_usec) +
+                                   double(usage.ru_stime.tv_sec) + 1e-6 * double(usage.ru_stime.tv_usec);
             if (WIFEXITED(status)) m_result.exit_code = WEXITSTATUS(status);
             if (WIFSIGNALED(status)) m_result.term_signal = WTERMSIG(status);
         }

@@ -1,17 +1,22 @@
 #!/usr/bin/python3
-"""A seeded mutation fuzzer of Kelvin scenes (issue 20, item 7): mutants of the shipped scenes, run by `kelvin`.
+"""A seeded mutation fuzzer of Kelvin scenes: mutants of the shipped scenes, run by `kelvin`.
 
     tests/fuzz/mutate_scenes.py --kelvin build/bin/kelvin --scenes scenes --work /tmp/mutants [--count 300]
-                                [--seed 1] [--jobs 2] [--keep]
+                                [--seed 1] [--jobs 2] [--extremes] [--keep]
 
 Each mutant is one shipped scene with one to three mutations: a number made extreme (0, -1, 1e308, NaN, Inf,
 1e-308, 2^63), scaled or made negative; a string emptied, misspelt or pointed at /dev/zero or a missing file; an
 element deleted, duplicated, moved into another or renamed; a plugin type swapped or misspelt; the text truncated or
-bytes flipped. It runs with small budgets (--time-limit, -D res=8 spp=2 end=0.05 every=0 with --allow-unused) and
-is classified by exit code:
+bytes flipped. With --extremes most mutations are of magnitude instead: a coordinate, radius, circulation or any
+other number scaled to the edges of float and double (1e18 to 1e308 and 1e-38 to 1e-308, both signs), and a
+translation or scale of 1e19 to 1e300 added to a transform (the camera, a light, a mesh: the sizes that once
+crashed Embree). It runs with small budgets (--time-limit, -D res=8 spp=2 end=0.05 every=0 with --allow-unused,
+the image written as PFM) and is classified by exit code and output:
 
-    0  a run; 2  bad input, which must be one line "kelvin: error: ..." on stderr; 130 never (no signal is sent)
-    anything else (1, a signal, a crash, a timeout, 2 with more or less than one error line): a FAILURE
+    0  a run, whose image must hold only finite values;
+    2  bad input, which must be one line "kelvin: error: ..." on stderr; 130 never (no signal is sent)
+    anything else (1, a signal, a crash, a timeout, 2 with more or less than one error line, exit 0 with a
+    non-finite or unreadable image): a FAILURE
 
 Exit status 0 when every mutant passed, 1 otherwise (the failures are listed, and kept in --work as
 mutant_NNNN.xml with their stderr). Reproducible: the same seed gives the same mutants.
@@ -20,7 +25,9 @@ import argparse
 import concurrent.futures
 import os
 import random
+import math
 import re
+import struct
 import subprocess
 import sys
 import time
@@ -28,6 +35,9 @@ import xml.etree.ElementTree as ET
 
 EXTREME_NUMBERS = ["0", "-1", "1e308", "-1e308", "nan", "inf", "-inf", "1e-308", "9223372036854775807",
                    "-9223372036854775808", "4294967296", "1e12", "0.0000001"]
+# Magnitudes at the edges of what float (geometry, images) and double (accumulators) hold, and just past them.
+EXTREME_MAGNITUDES = ["1.8e18", "1e19", "3.4e38", "3.5e38", "1e39", "1e100", "1e150", "1e154", "1e155", "1e300",
+                      "1e-38", "1e-39", "1e-300"]
 NUMBER = re.compile(r"^[-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?$")
 SMALL = ["-D", "res=8", "-D", "spp=2", "-D", "end=0.05", "-D", "every=0", "--allow-unused"]
 
@@ -54,6 +64,37 @@ def mutate_value(rng, value):
     if choice < 0.8:
         return "no_such_file_" + str(rng.randint(0, 999)) + os.path.splitext(value)[1]
     return value + rng.choice(["x", "_", "1", " ", "$undefined"])
+
+
+def extreme_value(rng, value):
+    """A number of the value scaled to an extreme magnitude, sign kept or flipped."""
+    parts = [p.strip() for p in value.split(",")]
+    if not all(NUMBER.match(p) for p in parts if p):
+        return mutate_value(rng, value)
+    i = rng.randrange(len(parts))
+    m = rng.choice(EXTREME_MAGNITUDES)
+    parts[i] = ("-" if rng.random() < 0.3 else "") + m
+    return ", ".join(parts)
+
+
+def extreme_mutation(rng, root):
+    """A magnitude mutation: a number made extreme, or a huge translation or scale added to a transform."""
+    elements = list(root.iter())
+    transforms = [e for e in elements if e.tag == "transform"]
+    if transforms and rng.random() < 0.4:
+        t = rng.choice(transforms)
+        m = rng.choice(["1e19", "1e20", "1e38", "1e39", "1e150", "1e300", "1e-30", "1e-300"])
+        if rng.random() < 0.5:
+            op = ET.Element("translate", {rng.choice("xyz"): ("-" if rng.random() < 0.3 else "") + m})
+        else:
+            op = ET.Element("scale", {"value": m})
+        t.append(op)
+        return
+    numeric = [(e, k) for e in elements for k, v in sorted(e.attrib.items())
+               if k in ("value", "x", "y", "z", "origin", "target", "up") and any(c.isdigit() for c in v)]
+    if numeric:
+        e, k = rng.choice(numeric)
+        e.attrib[k] = extreme_value(rng, e.attrib[k])
 
 
 def tree_mutation(rng, root):
@@ -89,8 +130,8 @@ def tree_mutation(rng, root):
         e.attrib[rng.choice(["value", "name", "type", "id"])] = mutate_value(rng, "1")
 
 
-def mutant(rng, text):
-    if rng.random() < 0.15:  # byte level
+def mutant(rng, text, extremes=False):
+    if not extremes and rng.random() < 0.15:  # byte level
         data = bytearray(text.encode())
         if rng.random() < 0.5:
             return bytes(data[: rng.randrange(len(data))])
@@ -102,12 +143,39 @@ def mutant(rng, text):
     except ET.ParseError:
         return text.encode()
     for _ in range(rng.randint(1, 3)):
-        tree_mutation(rng, root)
+        if extremes and rng.random() < 0.8:
+            extreme_mutation(rng, root)
+        else:
+            tree_mutation(rng, root)
     return ET.tostring(root)
 
 
+def pfm_problem(path):
+    """Why the PFM image at `path` is not a complete image of finite values; None when it is."""
+    try:
+        with open(path, "rb") as f:
+            data = f.read()
+    except OSError as e:
+        return f"cannot read the output: {e}"
+    parts = data.split(b"\n", 3)
+    if len(parts) < 4 or parts[0] not in (b"PF", b"Pf"):
+        return "the output is not a PFM image"
+    try:
+        w, h = (int(x) for x in parts[1].split())
+        scale = float(parts[2])
+    except ValueError:
+        return "the output's PFM header is malformed"
+    channels = 3 if parts[0] == b"PF" else 1
+    n = w * h * channels
+    if len(parts[3]) != 4 * n:
+        return f"the output holds {len(parts[3])} bytes of pixels, {4 * n} expected (a cut file)"
+    values = struct.unpack(("<" if scale < 0 else ">") + f"{n}f", parts[3])
+    bad = sum(1 for v in values if not math.isfinite(v))
+    return f"the output holds {bad} non-finite values" if bad else None
+
+
 def run(kelvin, path, timeout, time_limit):
-    out = os.path.splitext(path)[0] + "_out.exr"
+    out = os.path.splitext(path)[0] + "_out.pfm"
     cmd = [kelvin, path, "-q", "-t", "1", "--time-limit", str(time_limit), "-o", out] + SMALL
     start = time.monotonic()
     try:
@@ -116,6 +184,12 @@ def run(kelvin, path, timeout, time_limit):
         return "timeout", f"still running after {timeout} s", time.monotonic() - start
     seconds = time.monotonic() - start
     if p.returncode == 0:
+        # A simulation writes its fields beside the image (and no PFM when its fields are not RGB): the image is
+        # checked when there is one; the writers themselves refuse non-finite values (exit 1, a failure here).
+        if os.path.exists(out):
+            why = pfm_problem(out)
+            if why:
+                return "FAIL", f"exit 0 but {why}", seconds
         return "ok", "", seconds
     errors = [l for l in p.stderr.splitlines() if l.startswith("kelvin: error:")]
     if p.returncode == 2 and len(errors) == 1:
@@ -137,6 +211,8 @@ def main():
     ap.add_argument("--timeout", type=float, default=60.0, help="seconds before a mutant counts as hung")
     ap.add_argument("--time-limit", type=float, default=0.5, help="kelvin's --time-limit for each mutant")
     ap.add_argument("--keep", action="store_true", help="keep passing mutants too")
+    ap.add_argument("--extremes", action="store_true",
+                    help="mostly magnitude mutations: numbers and transforms at the edges of float and double")
     a = ap.parse_args()
 
     sources = []
@@ -164,7 +240,7 @@ def main():
                       text)
         path = os.path.join(a.work, f"mutant_{i:04d}.xml")
         with open(path, "wb") as f:
-            f.write(mutant(rng, text))
+            f.write(mutant(rng, text, a.extremes))
         jobs.append((path, os.path.relpath(src, a.scenes)))
 
     counts = {"ok": 0, "input": 0, "FAIL": 0, "timeout": 0}
@@ -182,9 +258,10 @@ def main():
                 f.write(msg + "\n")
         elif not a.keep:
             os.remove(path)
-            out = os.path.splitext(path)[0] + "_out.exr"
-            if os.path.exists(out):
-                os.remove(out)
+            stem = os.path.basename(os.path.splitext(path)[0]) + "_out"
+            for f in os.listdir(a.work):  # the image and what a run writes beside it (MLT's stage map)
+                if f.startswith(stem) and os.path.isfile(os.path.join(a.work, f)):
+                    os.remove(os.path.join(a.work, f))
             folder = os.path.splitext(path)[0] + "_out"
             if os.path.isdir(folder):
                 for root, dirs, files in os.walk(folder, topdown=False):
@@ -193,7 +270,8 @@ def main():
                     for d in dirs:
                         os.rmdir(os.path.join(root, d))
                 os.rmdir(folder)
-    print(f"mutate_scenes: {a.count} mutants of {len(sources)} scenes (seed {a.seed}) in {time.monotonic() - start:.1f} s: "
+    kind = "magnitude mutants" if a.extremes else "mutants"
+    print(f"mutate_scenes: {a.count} {kind} of {len(sources)} scenes (seed {a.seed}) in {time.monotonic() - start:.1f} s: "
           f"{counts['ok']} ran, {counts['input']} refused in one line, {counts['FAIL']} failed, "
           f"{counts['timeout']} hung; slowest {slowest[0]:.1f} s ({os.path.basename(slowest[1])})")
     for path, src, cls, msg in failures:

@@ -1,0 +1,120 @@
+// How soon every kind of job stops (docs/cli.md, "Interrupts"): each job at parameters that make its largest
+// indivisible piece of work as big as a user can legally ask for (one pass over a large image, a huge walk count per
+// cell, expensive Metropolis derivatives, a large mesh being read), SIGTERM once it is working, and the CPU time it
+// uses after the signal — writing what it has, all threads counted — must stay under 0.5 s. It used to be as coarse
+// as the largest piece: 23 s for Walk-on-Spheres at 4e6 walks per cell, a whole 1-spp pass for a render, 255 steps
+// of every chain in turn for drmlt, the whole file for a mesh loader.
+#include "cli/subprocess.h"
+
+#include <gtest/gtest.h>
+
+#include <chrono>
+#include <csignal>
+#include <fstream>
+#include <thread>
+
+using namespace kelvin::test;
+using namespace std::chrono_literals;
+
+namespace {
+
+const std::string Src = KELVIN_SOURCE_DIR;
+constexpr double MaxCpuAfterSignal = 0.5;
+
+struct Job {
+    std::string name;
+    std::vector<std::string> args;  ///< the output (-o) is added
+    double warm_cpu = 0.6;          ///< CPU seconds the job runs before the signal (it is then inside its big piece)
+};
+
+std::ostream& operator<<(std::ostream& os, const Job& j) { return os << j.name; }
+
+std::vector<Job> jobs() {
+    const std::string render = Src + "/scenes/render/";
+    const std::string fluid = Src + "/scenes/fluid/";
+    return {
+        // One pass of 1 spp over 1.4 M pixels of multi-bounce light takes seconds.
+        {"path_one_big_pass", {render + "cornell-box.xml", "-D", "res=1200", "--spp", "100000"}},
+        {"bdpt_one_big_pass",
+         {render + "cornell-box.xml", "-D", "res=1000", "-D", "integrator=bdpt", "--spp", "100000"}},
+        {"drmlt_chains", {render + "mlt-study.xml", "-D", "res=64", "--spp", "1000000"}},
+        // Derivatives cost hundreds of path evaluations per step.
+        {"drmlt_h2mc_chains",
+         {render + "mlt-study.xml", "-D", "res=32", "-D", "variant=drmlt-h2mc", "-D", "geometry=torus", "--spp",
+          "1000000"}},
+        {"mcfluid_2d_biot_savart", {fluid + "taylor_green.xml", "-D", "res=64", "-D", "spp=1000000", "-D", "end=100"}},
+        // Walk-on-Spheres: 16.7 M walks for every cell of an 8 x 8 grid.
+        {"mcfluid_2d_walk_on_spheres", {fluid + "cylinder.xml", "-D", "res=8", "-D", "spp=16777216", "-D", "end=100"}},
+        {"mcfluid_3d", {fluid + "vortex_ring.xml", "-D", "res=40", "-D", "spp=100000", "-D", "end=100"}},
+        {"stable_fluids",
+         {fluid + "taylor_green.xml", "-D", "solver=stable_fluids", "-D", "res=2048", "-D", "end=100"}},
+        {"flip", {fluid + "taylor_green.xml", "-D", "solver=flip", "-D", "res=1024", "-D", "end=100"}},
+        {"vortex_particles",
+         {fluid + "taylor_green.xml", "-D", "solver=vortex_particles", "-D", "res=256", "-D", "end=100"}},
+        {"wos_laplace", {Src + "/scenes/wos/laplace.xml", "-D", "res=8", "-D", "spp=16777216"}},
+    };
+}
+
+class StopLatency : public ::testing::TestWithParam<Job> {};
+
+}  // namespace
+
+TEST_P(StopLatency, SigtermStopsWithinHalfASecondOfCpu) {
+    const Job& job = GetParam();
+    TempDir dir;
+    std::vector<std::string> args = job.args;
+    for (const std::string& a : std::vector<std::string>{"-q", "-t", "2", "-o", (dir / "out.exr").string()})
+        args.push_back(a);
+    Process p(kelvin_exe(), args);
+    // Let it work: until it has used warm_cpu seconds of CPU (at most 20 s of wall time).
+    const bool working = p.wait_until([&] { return p.cpu_seconds_so_far() >= job.warm_cpu; }, 20s);
+    ASSERT_TRUE(working) << "the job ended (or never got going) before the signal: " << describe(p.wait(1s));
+    const double before = p.cpu_seconds_so_far();
+    p.signal(SIGTERM);
+    const ProcessResult r = p.wait(60s);
+    ASSERT_FALSE(r.timed_out) << "still running 60 s after SIGTERM";
+    EXPECT_EQ(r.exit_code, 130) << describe(r);
+    const double after = r.cpu_seconds - before;
+    EXPECT_LE(after, MaxCpuAfterSignal) << job.name << " used " << after << " s of CPU after SIGTERM";
+    RecordProperty("cpu_after_signal", std::to_string(after));
+}
+
+INSTANTIATE_TEST_SUITE_P(EveryJobKind, StopLatency, ::testing::ValuesIn(jobs()),
+                         [](const ::testing::TestParamInfo<Job>& info) { return info.param.name; });
+
+// Loading a large mesh: SIGTERM while the OBJ is being read ends the run at once with 130 and nothing written.
+TEST(StopLatencyLoading, SigtermWhileReadingALargeMesh) {
+    TempDir dir;
+    {
+        // A 600 x 600 grid of quads as triangles, its faces twice: about 45 MB of OBJ text.
+        std::ofstream obj(dir / "big.obj");
+        const int n = 600;
+        for (int j = 0; j <= n; ++j)
+            for (int i = 0; i <= n; ++i) obj << "v " << i * 0.001 << ' ' << j * 0.001 << " 0.123456789\n";
+        for (int rep = 0; rep < 2; ++rep)
+            for (int j = 0; j < n; ++j)
+                for (int i = 0; i < n; ++i) {
+                    const int a = j * (n + 1) + i + 1, b = a + 1, c = a + n + 1, d = c + 1;
+                    obj << "f " << a << ' ' << b << ' ' << d << "\nf " << a << ' ' << d << ' ' << c << '\n';
+                }
+    }
+    write_file(dir / "scene.xml", R"(<scene version="3.0.0">
+    <integrator type="ao"/>
+    <sensor type="perspective">
+        <transform name="to_world"><lookat origin="0.3, 0.3, 2" target="0.3, 0.3, 0" up="0, 1, 0"/></transform>
+        <sampler type="independent"><integer name="sample_count" value="1"/></sampler>
+        <film type="hdrfilm"><integer name="width" value="8"/><integer name="height" value="8"/></film>
+    </sensor>
+    <shape type="obj"><string name="filename" value="big.obj"/></shape>
+</scene>
+)");
+    Process p(kelvin_exe(), {(dir / "scene.xml").string(), "-q", "-o", (dir / "out.exr").string()});
+    ASSERT_TRUE(p.wait_until([&] { return p.cpu_seconds_so_far() >= 0.3; }, 20s)) << describe(p.wait(1s));
+    const double before = p.cpu_seconds_so_far();
+    p.signal(SIGTERM);
+    const ProcessResult r = p.wait(60s);
+    ASSERT_FALSE(r.timed_out);
+    EXPECT_EQ(r.exit_code, 130) << describe(r);
+    EXPECT_LE(r.cpu_seconds - before, MaxCpuAfterSignal);
+    EXPECT_FALSE(fs::exists(dir / "out.exr"));
+}
