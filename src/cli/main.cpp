@@ -630,7 +630,7 @@ int main(int argc, char** argv) {
                    "Render a sequence FIRST:LAST[:STEP]: the scene once per frame with -D frame=NNNN; -o names the "
                    "frames (frame_%04d.png, or NAME_NNNN.EXT)");
     app.add_option("--video", o.video, "With --frames: also encode the frames as this .mp4 (ffmpeg)");
-    app.add_option("--fps", o.fps, "Frames per second of --video (default 24)")->check(CLI::Range(0.1, 1000.0));
+    app.add_option("--fps", o.fps, "Frames per second of --video (default 24)")->check(cli::finite_range(0.1, 1000));
     app.add_flag("--list-params", o.list_params,
                  "List the scene's parameters (<default>s, included files too) with their values and where they are "
                  "declared");

@@ -50,6 +50,7 @@ TEST(CliHostile, NonFiniteAndOutOfRangeNumbersAreRefused) {
         {"--spp", "0"},
         {"--spp", "nan"},
         {"-t", "-1"},
+        {"--fps", "nan"},
     };
     for (const auto& [option, value] : cases) {
         SCOPED_TRACE(option + " " + value);

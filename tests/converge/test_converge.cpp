@@ -243,6 +243,9 @@ TEST_F(ConvergeCli, BadInputIsOneLineAndExitCode2) {
     expect_input_error(converge({"--reference", ref.string(), "--config", "p:integrator=path", "--spp", "1", "--seed",
                                  "-1", "-o", out.string()}),
                        "--seed '-1'");
+    expect_input_error(converge({"--reference", ref.string(), "--config", "p:integrator=path", "--spp", "1",
+                                 "--epsilon", "nan", "-o", out.string()}),
+                       "--epsilon");
     expect_input_error(converge({"--reference", ref.string(), "--config", "p:integrator=path", "-o", out.string()}),
                        "no checkpoints");
     expect_input_error(converge({"--reference", ref.string(), "--config", "p:integrator", "--spp", "1"}),
