@@ -28,11 +28,13 @@ packages=(
   libopenmpi-dev openmpi-bin          # distributed runs under mpirun (optional: the build works without them)
   libgtest-dev libgmock-dev libbenchmark-dev  # tests and micro-benchmarks
   python3 python3-matplotlib          # accuracy/time plots
+  python3-dev pybind11-dev python3-numpy  # the kelvin Python module (optional: the build works without them)
 )
 if [[ "${1:-}" == "--tests" ]]; then
   packages+=(clang libclang-rt-14-dev)  # libFuzzer target of the scene parser
   packages+=(ffmpeg)                    # the fluid videos' test (write_video); users install it to make videos
   packages+=(clang-format)              # ctest format_check
+  packages+=(python3-pytest)            # the Python module's tests
 fi
 
 missing=()

@@ -169,32 +169,6 @@ void print_scene_params(const ParsedScene& parsed) {
     for (const auto& r : rows) fmt::print("{:<{}}  {:<{}}  {}\n", r.name, nw, r.value, vw, r.where);
 }
 
-// -D NAME=VALUE for a NAME the scene neither declares with <default> nor uses: a typo renders another image, so it
-// is an error (with the closest declared names), or with --allow-unused a warning.
-// `listing` (--list-params): warn without mentioning --allow-unused.
-void check_defines(const ParsedScene& parsed, bool allow_unused, bool listing = false) {
-    std::vector<std::string> declared;
-    for (const auto& d : parsed.defaults) declared.push_back(d.name);
-    for (const auto& name : parsed.unused_defines) {
-        const bool is_declared = std::find(declared.begin(), declared.end(), name) != declared.end();
-        const std::string value = parsed.defines.count(name) ? parsed.defines.at(name) : "";
-        if (is_declared) {
-            log_warn("-D {}={}: the scene declares '{}' but never uses it", name, value, name);
-            continue;
-        }
-        std::string hint = did_you_mean(name, declared);
-        if (hint.empty() && declared.empty()) hint = " (it declares none)";
-        if (hint.empty()) hint = " (kelvin --list-params lists them)";
-        if (allow_unused)
-            log_warn("-D {}={}: the scene declares no parameter '{}'{}{}", name, value, name, hint,
-                     listing ? "" : "; ignored (--allow-unused)");
-        else
-            throw InputError({}, fmt::format("-D {}={}: the scene declares no parameter '{}'{}; --allow-unused "
-                                             "ignores it",
-                                             name, value, name, hint));
-    }
-}
-
 CropWindow parse_crop(const std::string& text) {
     auto fail = [&](const std::string& why) { throw InputError({}, fmt::format("--crop '{}': {}", text, why)); };
     std::vector<long long> v;
@@ -525,7 +499,7 @@ Prepared prepare(const Options& o, bool prints) {
     if (o.list_params) {
         const ParsedScene parsed = parse_scene_file(scene_path, popts);
         if (prints) print_scene_params(parsed);
-        check_defines(parsed, /*allow_unused=*/true, /*listing=*/true);  // a -D the scene does not know: a warning
+        check_defines(parsed, /*allow_unused=*/true, "", /*listing=*/true);  // a -D the scene does not know: a warning
         return finished(ExitOk);
     }
     fs::path out = o.output.empty() ? fs::path(scene_path).replace_extension(".exr") : fs::path(o.output);
@@ -567,7 +541,7 @@ Prepared prepare(const Options& o, bool prints) {
     log_debug("loading {}", scene_path.string());
     ParsedScene parsed = parse_scene_file(scene_path, popts);
     if (interrupt_requested()) return interrupted_while_loading();
-    check_defines(parsed, o.allow_unused);
+    check_defines(parsed, o.allow_unused, "--allow-unused ignores it");
     ObjectPtr root = instantiate(parsed, {o.allow_unused});
     if (interrupt_requested()) return interrupted_while_loading();
     auto job = std::dynamic_pointer_cast<Job>(root);

@@ -102,6 +102,12 @@ ObjectPtr instantiate(const ParsedScene& scene, const InstantiateOptions& opts =
 /// parse_scene_* and instantiate apply it to the errors they throw.
 InputError blame_define(const InputError& e, const ParsedScene& scene);
 
+/// The -D values a scene did not use (ParsedScene::unused_defines): a name the scene neither declares with <default>
+/// nor uses as $NAME is a typo that would run another scene, so it is an InputError naming the closest declared
+/// names and `allow_hint` (how the caller ignores it: "--allow-unused ignores it"), or with `allow_unused` a warning.
+/// A declared but unused name is a warning. `listing` (kelvin --list-params): warnings only, without the hint.
+void check_defines(const ParsedScene& scene, bool allow_unused, const std::string& allow_hint, bool listing = false);
+
 /// Convenience: parse a file and instantiate it.
 ObjectPtr load_scene(const std::filesystem::path& path, const ParseOptions& popts = {},
                      const InstantiateOptions& iopts = {});
