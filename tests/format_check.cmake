@@ -4,7 +4,7 @@
 file(GLOB_RECURSE _files RELATIVE ${SOURCE_DIR}
      ${SOURCE_DIR}/src/*.cpp ${SOURCE_DIR}/src/*.h ${SOURCE_DIR}/include/*.h ${SOURCE_DIR}/tests/*.cpp
      ${SOURCE_DIR}/tests/*.h ${SOURCE_DIR}/bench/*.cpp ${SOURCE_DIR}/bench/*.h ${SOURCE_DIR}/examples/*.cpp
-     ${SOURCE_DIR}/examples/*.h)
+     ${SOURCE_DIR}/examples/*.h ${SOURCE_DIR}/python/*.cpp)
 set(_bad "")
 foreach(_f IN LISTS _files)
   execute_process(COMMAND ${CLANG_FORMAT} --dry-run --Werror ${_f} WORKING_DIRECTORY ${SOURCE_DIR}

@@ -88,4 +88,48 @@ execute_process(COMMAND ${WORK}/examples/minimal ${WORK}/no_such_scene.xml ${WOR
 if(NOT rc EQUAL 2)
   message(FATAL_ERROR "the installed minimal example exited ${rc} on a missing scene (expected 2)")
 endif()
+# The Python module from the prefix alone (when it was built): a Cornell box written here, outside the project,
+# rendered to a NumPy array whose mean is the CLI's image's, and a fluid scene of the installation stepped.
+if(PYTHON_MODULE)
+  file(WRITE ${WORK}/box.xml [=[<scene version="3.0.0">
+  <integrator type="path"><integer name="max_depth" value="5"/></integrator>
+  <sensor type="perspective"><float name="fov" value="39"/>
+    <transform name="to_world"><lookat origin="0, 0, 3.9" target="0, 0, 0" up="0, 1, 0"/></transform>
+    <sampler type="independent"><integer name="sample_count" value="16"/></sampler>
+    <film type="hdrfilm"><integer name="width" value="32"/><integer name="height" value="32"/></film>
+  </sensor>
+  <bsdf type="diffuse" id="white"><rgb name="reflectance" value="0.75"/></bsdf>
+  <bsdf type="diffuse" id="red"><rgb name="reflectance" value="0.65, 0.05, 0.05"/></bsdf>
+  <bsdf type="diffuse" id="green"><rgb name="reflectance" value="0.12, 0.45, 0.15"/></bsdf>
+  <shape type="rectangle"><transform name="to_world"><rotate x="1" angle="-90"/><translate y="-1"/></transform><ref id="white"/></shape>
+  <shape type="rectangle"><transform name="to_world"><rotate x="1" angle="90"/><translate y="1"/></transform><ref id="white"/></shape>
+  <shape type="rectangle"><transform name="to_world"><translate z="-1"/></transform><ref id="white"/></shape>
+  <shape type="rectangle"><transform name="to_world"><rotate y="1" angle="90"/><translate x="-1"/></transform><ref id="red"/></shape>
+  <shape type="rectangle"><transform name="to_world"><rotate y="1" angle="-90"/><translate x="1"/></transform><ref id="green"/></shape>
+  <shape type="rectangle">
+    <transform name="to_world"><scale value="0.25"/><rotate x="1" angle="90"/><translate y="0.99"/></transform>
+    <emitter type="area"><rgb name="radiance" value="15"/></emitter>
+  </shape>
+</scene>
+]=])
+  run_checked(COMMAND ${kelvin} ${WORK}/box.xml -q --seed 3 -o ${WORK}/box.exr OUTPUT _ignored)
+  file(WRITE ${WORK}/check.py [=[
+import sys
+import numpy as np
+import kelvin
+assert kelvin.__file__.startswith(sys.argv[1]), kelvin.__file__
+image = kelvin.render(kelvin.load_file(sys.argv[2] + "/box.xml"), seed=3)
+cli = kelvin.read(sys.argv[2] + "/box.exr")
+assert image.shape == (32, 32, 3) and image.mean() > 0.05, image.mean()
+assert abs(image.mean() - cli.mean()) <= 1e-6 * cli.mean(), (image.mean(), cli.mean())
+sim = kelvin.Simulation(kelvin.load_file(kelvin.data_directory() / "scenes" / "fluid" / "lamb_oseen.xml", res=16), spp=16)
+sim.step()
+assert sim.step_index == 1 and np.isfinite(sim.vorticity()).all()
+print("python: OK", image.mean())
+]=])
+  set(site ${PREFIX}/${PYTHON_INSTALL_DIR})
+  run_checked(COMMAND ${CMAKE_COMMAND} -E env PYTHONPATH=${site} ${PYTHON} ${WORK}/check.py ${site} ${WORK}
+              OUTPUT pyout)
+  message(STATUS "install_standalone: ${pyout}")
+endif()
 message(STATUS "install_standalone: OK (${PREFIX})")
