@@ -36,6 +36,9 @@ struct FileText {
     fs::path path;        // path used to resolve relative references
     std::string content;
     std::vector<std::size_t> line_starts;
+    /// Written for Mitsuba 0.5/0.6 (<scene version="0.x.y">): parameter names are camelCase and are upgraded to
+    /// snake_case as they are read, as Mitsuba 3 upgrades such files.
+    bool legacy = false;
 
     void index() {
         line_starts.assign(1, 0);
@@ -143,6 +146,40 @@ InputError blame_define(const InputError& e, const ParsedScene& scene) {
 
 namespace {
 
+/// Mitsuba 0.6's camelCase parameter names as Mitsuba 2 and 3 spell them: "toWorld" -> "to_world", "intIOR" ->
+/// "int_ior", "sampleCount" -> "sample_count". An underscore goes before a capital that follows a lower-case letter
+/// or a digit, and before the last capital of a run followed by a lower-case letter ("HDRFile" -> "hdr_file").
+std::string snake_case(std::string_view name) {
+    std::string out;
+    auto lower = [](char c) { return std::islower(static_cast<unsigned char>(c)) != 0; };
+    auto upper = [](char c) { return std::isupper(static_cast<unsigned char>(c)) != 0; };
+    auto digit = [](char c) { return std::isdigit(static_cast<unsigned char>(c)) != 0; };
+    for (std::size_t i = 0; i < name.size(); ++i) {
+        const char c = name[i];
+        if (upper(c) && i > 0) {
+            const char prev = name[i - 1];
+            const bool next_lower = i + 1 < name.size() && lower(name[i + 1]);
+            if (lower(prev) || digit(prev) || (upper(prev) && next_lower)) out += '_';
+        }
+        out += char(std::tolower(static_cast<unsigned char>(c)));
+    }
+    return out;
+}
+
+/// True for a <scene version="..."> older than 2.0.0 (Mitsuba 0.x).
+bool legacy_version(const pugi::xml_node& root) {
+    const pugi::xml_attribute v = root.attribute("version");
+    if (!v) return false;
+    const std::string_view s = v.value();
+    const std::size_t dot = s.find('.');
+    const std::string_view major = s.substr(0, dot);
+    if (major.empty() || major.size() > 3 || !std::all_of(major.begin(), major.end(), [](char c) {
+            return std::isdigit(static_cast<unsigned char>(c)) != 0;
+        }))
+        return false;
+    return std::stoi(std::string(major)) < 2;
+}
+
 class Parser {
 public:
     explicit Parser(const ParseOptions& opts) : m_opts(opts) {
@@ -166,6 +203,7 @@ private:
         m_root_dir = f.path.parent_path();
         pugi::xml_document& doc = m_docs.emplace_back();
         pugi::xml_node root = parse_xml(doc, f, 0);
+        mark_legacy(f, root);
         auto node = std::make_shared<SceneNode>();
         node->kind = "scene";
         node->loc = f.loc(root);
@@ -185,6 +223,20 @@ private:
         for (const auto& [k, v] : m_opts.defines)
             if (!m_used_params.count(k)) m_out.unused_defines.push_back(k);
         return std::move(m_out);
+    }
+
+    // A Mitsuba 0.x file (each file by its own version, as Mitsuba 3 upgrades them one by one).
+    static void mark_legacy(FileText& f, const pugi::xml_node& root) {
+        f.legacy = legacy_version(root);
+        if (f.legacy)
+            log_debug("{}: a Mitsuba {} scene: parameter names upgraded from camelCase to snake_case", f.display,
+                      root.attribute("version").value());
+    }
+    // The `name` of a parameter (a value, a named object or <ref>), upgraded for a Mitsuba 0.x file. (<default>
+    // names are the file's own $-parameters and stay as written.)
+    std::string param_name(const pugi::xml_node& n, const FileText& f, bool required = true) {
+        std::string name = attr(n, f, "name", required);
+        return f.legacy ? snake_case(name) : name;
     }
 
     FileText& load(const fs::path& path, const std::string* text, const std::string& display, const SourceLoc& from) {
@@ -406,7 +458,7 @@ private:
         v.loc = loc;
         if (tag == "transform") {
             check_attributes(n, f, {"name"});
-            v.name = attr(n, f, "name");
+            v.name = param_name(n, f);
             v.type = PropType::Transform;
             v.value = parse_transform(n, f, 0);
             target.values.push_back(std::move(v));
@@ -415,7 +467,7 @@ private:
         reject_children(n, f);
         if (tag == "point" || tag == "vector") {
             check_attributes(n, f, {"name", "value", "x", "y", "z"});
-            v.name = attr(n, f, "name");
+            v.name = param_name(n, f);
             v.type = tag == "point" ? PropType::Point : PropType::Vector;
             v.value = xyz(n, f, fmt::format("<{} name=\"{}\">", tag, v.name), 0.0, false);
             target.values.push_back(std::move(v));
@@ -431,7 +483,7 @@ private:
                         "<rgb>",
                         n.attribute("type").value());
         check_attributes(n, f, {"name", "value"});
-        v.name = attr(n, f, "name");
+        v.name = param_name(n, f);
         std::string value = attr(n, f, "value");
         std::string what = fmt::format("<{} name=\"{}\">", tag, v.name);
         if (tag == "float") {
@@ -532,11 +584,11 @@ private:
                 auto it = m_ids.find(id);
                 if (it == m_ids.end()) {
                     // A forward reference (Mitsuba resolves references after parsing): filled in at the end.
-                    target.children.push_back({attr(n, f, "name", false), nullptr, true, loc});
+                    target.children.push_back({param_name(n, f, false), nullptr, true, loc});
                     m_pending.push_back({&target, target.children.size() - 1, id, loc});
                 } else {
                     it->second->referenced = true;
-                    target.children.push_back({attr(n, f, "name", false), it->second, true, loc});
+                    target.children.push_back({param_name(n, f, false), it->second, true, loc});
                 }
             } else if (tag == "default") {
                 check_attributes(n, f, {"name", "value"});
@@ -573,7 +625,7 @@ private:
             } else if (tag == "scene") {
                 throw_input(loc, "<scene> cannot be nested (use <include filename=\"...\"/>)");
             } else if (Registry::instance().has_kind(tag)) {
-                std::string name = n.attribute("name") ? attr(n, f, "name") : std::string();
+                std::string name = n.attribute("name") ? param_name(n, f) : std::string();
                 auto child = parse_object(n, f, depth);
                 target.children.push_back({name, child, false, loc});
             } else {
@@ -613,6 +665,7 @@ private:
         pugi::xml_document& doc = m_docs.emplace_back();
         pugi::xml_node root = parse_xml(doc, f, depth);
         check_attributes(root, f, {"version"});
+        mark_legacy(f, root);
         m_include_stack.push_back(key);
         parse_body(root, f, target, depth + 1);
         m_include_stack.pop_back();
