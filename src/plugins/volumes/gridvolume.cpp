@@ -148,9 +148,14 @@ private:
     }
 
     void check_finite(const Properties& props, const std::filesystem::path& file) {
-        for (float v : m_data)
-            if (!std::isfinite(v))
-                props.error("filename", fmt::format("'{}' contains NaN or infinite values", file.string()));
+        for (std::size_t i = 0; i < m_data.size(); ++i)
+            if (!std::isfinite(m_data[i])) {  // name the first bad voxel: (x, y, z), channel and value
+                const std::size_t v = i / std::size_t(m_channels), c = i % std::size_t(m_channels);
+                const std::size_t x = v % std::size_t(m_res.x), y = v / std::size_t(m_res.x) % std::size_t(m_res.y),
+                                  z = v / (std::size_t(m_res.x) * std::size_t(m_res.y));
+                props.error("filename", fmt::format("'{}': voxel ({}, {}, {}) channel {} is {} (grids must be finite)",
+                                                    file.string(), x, y, z, c, m_data[i]));
+            }
     }
 
     std::vector<float> m_data;
