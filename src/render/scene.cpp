@@ -16,6 +16,7 @@
 #include <deque>
 #include <limits>
 #include <map>
+#include <unordered_map>
 
 namespace kelvin {
 
@@ -206,11 +207,21 @@ static void embree_error(void*, RTCError code, const char* str) {
 }
 
 // Where each nested object of the scene element was declared (for errors found once the scene is assembled).
-static SourceLoc location_of_object(const Properties& props, const Object* o) {
-    for (const auto& e : props.entries())
-        if (e.type == PropType::Object && std::get<ObjectPtr>(e.value).get() == o && e.loc.valid()) return e.loc;
-    return props.location();
-}
+class ObjectLocations {
+public:
+    explicit ObjectLocations(const Properties& props) : m_default(props.location()) {
+        for (const auto& e : props.entries())
+            if (e.type == PropType::Object && e.loc.valid()) m_where.emplace(std::get<ObjectPtr>(e.value).get(), e.loc);
+    }
+    const SourceLoc& operator()(const Object* o) const {
+        const auto it = m_where.find(o);
+        return it == m_where.end() ? m_default : it->second;
+    }
+
+private:
+    SourceLoc m_default;
+    std::unordered_map<const Object*, SourceLoc> m_where;
+};
 
 // Box of geometry in its own space, refused if beyond the scene extent (extent.h). Empty geometry has no box.
 static std::pair<Vec3d, Vec3d> checked_bounds(const ShapeGeometry& g, const Shape& shape, const SourceLoc& loc) {
@@ -262,7 +273,8 @@ Scene::Scene(const Properties& props) {
         return;  // a simulation builds its own geometry queries; nothing to do here
     }
     if (!m_sensor) throw InputError(props.location(), "the scene has no <sensor> (and no <simulation>)");
-    check_sensor_extent(*m_sensor, location_of_object(props, m_sensor.get()));
+    const ObjectLocations location_of(props);
+    check_sensor_extent(*m_sensor, location_of(m_sensor.get()));
     if (!m_integrator) {  // Mitsuba's default
         m_integrator =
             std::dynamic_pointer_cast<Integrator>(Registry::instance().create(Properties("integrator", "path")));
@@ -283,7 +295,7 @@ Scene::Scene(const Properties& props) {
     acc.own_shapes = uint32_t(m_shapes.size());
     for (std::size_t i = 0; i < m_shapes.size(); ++i) {
         ShapeGeometry& g = acc.geometry.emplace_back(m_shapes[i]->geometry());
-        const auto [lo, hi] = checked_bounds(g, *m_shapes[i], location_of_object(props, m_shapes[i].get()));
+        const auto [lo, hi] = checked_bounds(g, *m_shapes[i], location_of(m_shapes[i].get()));
         m_bbox_min = glm::min(m_bbox_min, lo);
         m_bbox_max = glm::max(m_bbox_max, hi);
         if (m_shapes[i]->interior()) check_closed(*m_shapes[i], g);
@@ -298,7 +310,7 @@ Scene::Scene(const Properties& props) {
             group.scene = rtcNewScene(acc.device);
             for (std::size_t k = 0; k < key->shapes().size(); ++k) {
                 ShapeGeometry& g = group.geometry.emplace_back(key->shapes()[k]->geometry());
-                const auto [lo, hi] = checked_bounds(g, *key->shapes()[k], location_of_object(props, inst.get()));
+                const auto [lo, hi] = checked_bounds(g, *key->shapes()[k], location_of(inst.get()));
                 group.lo = glm::min(group.lo, lo);
                 group.hi = glm::max(group.hi, hi);
                 attach(acc.device, group.scene, g, unsigned(k));
@@ -318,7 +330,7 @@ Scene::Scene(const Properties& props) {
             const Vec3d w = rec.to_world.apply_point(corner);
             // A corner beyond the extent (or NaN from an overflowing product) is refused, not folded by min/max.
             check_scene_point(w, fmt::format("{}: a corner of its group's box", inst->to_string()),
-                              location_of_object(props, inst.get()));
+                              location_of(inst.get()));
             inst_lo = glm::min(inst_lo, w);
             inst_hi = glm::max(inst_hi, w);
         }

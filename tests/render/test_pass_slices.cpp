@@ -23,15 +23,10 @@ using namespace kelvin;
 
 namespace {
 
-RunContext quiet_context() {
-    RunContext ctx;
-    ctx.quiet = true;
-    return ctx;
-}
-
 // Each (pass, unit) visited exactly once, and within a pass the slices come in unit order, contiguous.
 TEST(PassSlices, SlicesCoverEveryUnitOfEveryPassInOrder) {
-    RunContext ctx = quiet_context();
+    RunContext ctx;
+    ctx.quiet = true;
     ctx.spp = 40;
     constexpr std::size_t Units = 997;
     std::mutex m;
@@ -70,7 +65,8 @@ TEST(PassSlices, SlicesCoverEveryUnitOfEveryPassInOrder) {
 
 // A stop requested inside the first pass ends the loop at the next slice: later units never run.
 TEST(PassSlices, StopBetweenSlicesEndsThePass) {
-    RunContext ctx = quiet_context();
+    RunContext ctx;
+    ctx.quiet = true;
     ctx.spp = 1;
     constexpr std::size_t Units = 4096;
     std::atomic<std::size_t> ran{0};
@@ -90,7 +86,8 @@ TEST(PassSlices, StopBetweenSlicesEndsThePass) {
 
 // The time limit ends a pass that would take 4 s (4000 units of 1 ms) inside it, and the cut pass is not counted.
 TEST(PassSlices, TimeLimitEndsALongPassBetweenSlices) {
-    RunContext ctx = quiet_context();
+    RunContext ctx;
+    ctx.quiet = true;
     ctx.spp = 1;
     ctx.time_limit = 0.3;
     constexpr std::size_t Units = 4000;
@@ -111,7 +108,8 @@ TEST(PassSlices, TimeLimitEndsALongPassBetweenSlices) {
 
 // --write-partial inside the first pass: partial images are written between slices.
 TEST(PassSlices, PartialOutputInsideALongPass) {
-    RunContext ctx = quiet_context();
+    RunContext ctx;
+    ctx.quiet = true;
     ctx.spp = 1;
     ctx.write_partial = 0.1;
     int partials = 0;

@@ -54,9 +54,10 @@ bool skip_image(tinygltf::Image*, const int, std::string*, std::string*, int, in
     return true;
 }
 
-// Peak memory of a load per byte of glTF file or buffer (the bytes twice, tinygltf's model, the mesh in doubles and
-// its float copy; /usr/bin/time -v on generated meshes, docs/rendering.md "Limits", rounded up).
-constexpr double GltfBytesPerFileByte = 6.0;
+// Peak memory of a render per byte of glTF file or buffer (the bytes twice, tinygltf's model, the mesh in doubles, its
+// float copy and Embree's BVH): 7.9 measured with /usr/bin/time -v on a triangle grid with an 18 MB .bin
+// (docs/rendering.md, "Input sizes"), rounded up.
+constexpr double GltfBytesPerFileByte = 9.0;
 
 // tinygltf reads the .gltf/.glb and its external buffers through this: each file is checked against the memory it
 // will need and read with stop checks (core/loading.h; Interrupted and InputError propagate through tinygltf).
