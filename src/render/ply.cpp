@@ -626,6 +626,7 @@ std::vector<Vec3d> compute_vertex_normals(const std::vector<Vec3d>& positions, c
     std::vector<Vec3d> n(positions.size(), Vec3d(0.0));
     auto finite = [](const Vec3d& v) { return std::isfinite(v.x) && std::isfinite(v.y) && std::isfinite(v.z); };
     for (std::size_t i = 0; i + 2 < indices.size(); i += 3) {
+        if (i % (3 << 16) == 0) throw_if_interrupted();  // every 65536 triangles: a stop while loading
         const uint32_t v[3] = {indices[i], indices[i + 1], indices[i + 2]};
         if (v[0] >= positions.size() || v[1] >= positions.size() || v[2] >= positions.size()) continue;
         const Vec3d p[3] = {positions[v[0]], positions[v[1]], positions[v[2]]};

@@ -1,7 +1,10 @@
 // The scene: a Job that renders (integrator + sensor + Embree geometry) or runs a simulation.
 #include <kelvin/core/distributed.h>
+#include <kelvin/core/interrupt.h>
+#include <kelvin/core/loading.h>
 #include <kelvin/core/logging.h>
 #include <kelvin/core/registry.h>
+#include <kelvin/core/stats.h>
 #include <kelvin/render/extent.h>
 #include <kelvin/render/scene.h>
 
@@ -203,7 +206,24 @@ static void attach(RTCDevice device, RTCScene scene, const ShapeGeometry& g, uns
 }
 
 static void embree_error(void*, RTCError code, const char* str) {
+    if (code == RTC_ERROR_CANCELLED) return;  // a stop during a BVH build (build_bvh): reported as Interrupted
     log_error("Embree error {}: {}", int(code), str ? str : "");
+}
+
+// Embree's BVH build is one call (seconds for tens of millions of triangles); its progress monitor polls for a stop,
+// and a cancelled build ends the load with Interrupted (core/loading.h: "interrupted while loading", exit 130).
+static bool keep_building(void*, double) { return !interrupt_requested(); }
+
+static std::size_t primitive_count(const ShapeGeometry& g) {
+    return g.type == ShapeGeometry::Type::Triangles ? g.indices.size() / 3 : g.positions.size();
+}
+
+static void build_bvh(RTCScene scene, std::size_t primitives) {
+    Timer t;
+    rtcSetSceneProgressMonitorFunction(scene, keep_building, nullptr);
+    rtcCommitScene(scene);
+    throw_if_interrupted();
+    log_debug("Embree BVH of {} primitive(s) built in {:.3f} s", primitives, t.seconds());
 }
 
 // Where each nested object of the scene element was declared (for errors found once the scene is assembled).
@@ -315,7 +335,9 @@ Scene::Scene(const Properties& props) {
                 group.hi = glm::max(group.hi, hi);
                 attach(acc.device, group.scene, g, unsigned(k));
             }
-            rtcCommitScene(group.scene);
+            std::size_t prims = 0;
+            for (const auto& g : group.geometry) prims += primitive_count(g);
+            build_bvh(group.scene, prims);
         }
         Accel::Instance& rec = acc.instances.emplace_back();
         rec.to_world = inst->to_world();
@@ -346,7 +368,9 @@ Scene::Scene(const Properties& props) {
         rtcAttachGeometryByID(acc.scene, geom, unsigned(acc.own_shapes + acc.instances.size() - 1));
         rtcReleaseGeometry(geom);
     }
-    rtcCommitScene(m_accel->scene);
+    std::size_t prims = acc.instances.size();
+    for (const auto& g : acc.geometry) prims += primitive_count(g);
+    build_bvh(m_accel->scene, prims);
     setup_emitters();
 }
 
