@@ -2,11 +2,9 @@
 // the slicing; a stop or the time limit between slices ends the loop inside a pass; and a pass cut short is not
 // counted as done.
 //
-// Seen to fail on deliberately broken variants of run_passes:
-//   - `begin = end + 1` (a unit skipped at each slice boundary): SlicesCoverEveryUnitOfEveryPassInOrder fails;
-//   - no checks between slices (the stop polled after the whole pass only): StopBetweenSlicesEndsThePass fails
-//     (all 4096 units of the pass run after the stop);
-//   - the time limit checked between passes only: TimeLimitEndsALongPassBetweenSlices fails (the 4 s pass runs).
+// Seen to fail on a deliberately broken variant of run_passes: every pass run as one slice (the checks between
+// passes only, as before slicing): all four tests fail (one call per pass; the 4096 and 4000 units of the first pass
+// run after the stop and past the time limit; no partial image inside the 1 s pass).
 #include <kelvin/core/interrupt.h>
 #include <kelvin/core/job.h>
 #include <kelvin/render/integrator.h>
