@@ -295,6 +295,32 @@ TEST_F(CliRenderReliability, SigtermInsideALongPassStopsWithinHalfASecondOfCpu) 
     EXPECT_TRUE(fs::exists(out()));
 }
 
+// CPU seconds the child used until it exited (read from its zombie before it is reaped), or a negative value.
+double cpu_until_exit(Process& p, std::chrono::duration<double> timeout = 60s) {
+    const auto deadline = std::chrono::steady_clock::now() + timeout;
+    while (std::chrono::steady_clock::now() < deadline) {
+        auto now = cpu_and_state(p.pid());
+        if (!now) return -1;
+        if (now->second == 'Z') return now->first;
+        std::this_thread::sleep_for(2ms);
+    }
+    return -1;
+}
+
+// --time-limit 0.5 ends the only pass (--spp 1, several seconds of CPU on one thread) inside it: the run uses less
+// than 1.5 s of CPU (0.9 s measured: the limit, at most a quarter-second slice, loading and writing) and writes the
+// image. Seen to fail on main: the pass ran to its end (2.9 s of CPU).
+TEST_F(CliRenderReliability, TimeLimitEndsALongPassInsideIt) {
+    const fs::path s = scene("long.xml", long_pass_scene());
+    Process p(kelvin_exe(), {s.string(), "-o", out().string(), "-t", "1", "--spp", "1", "--time-limit", "0.5"});
+    const double cpu = cpu_until_exit(p);
+    const ProcessResult r = p.wait(60s);
+    EXPECT_EQ(r.exit_code, 0) << describe(r);
+    EXPECT_GE(cpu, 0.0) << describe(r);
+    EXPECT_LT(cpu, 1.5) << describe(r);
+    EXPECT_TRUE(fs::exists(out()));
+}
+
 // A drmlt render stops within 0.1 s of CPU after SIGTERM. Seen to fail on main: chains polled every 256 steps, and
 // each chain started after the stop still ran 255 steps.
 TEST_F(CliRenderReliability, SigtermStopsDrmltWithinATenthOfASecondOfCpu) {
