@@ -10,6 +10,7 @@
 #include <kelvin/core/files.h>
 #include <kelvin/core/install.h>
 #include <kelvin/core/interrupt.h>
+#include <kelvin/core/loading.h>
 #include <kelvin/core/job.h>
 #include <kelvin/core/logging.h>
 #include <kelvin/core/parallel.h>
@@ -645,6 +646,9 @@ int main(int argc, char** argv) {
     } catch (const InputError& e) {
         if (!world || world->root()) std::fprintf(stderr, "kelvin: error: %s\n", cli::error_line(e.what()).c_str());
         return ExitInput;
+    } catch (const Interrupted&) {  // a stop seen by a loader outside the paths that turn it into an empty result
+        if (!world || world->root()) std::fprintf(stderr, "kelvin: interrupted while loading; nothing written\n");
+        return ExitInterrupted;
     } catch (const std::bad_alloc&) {
         if (!world || world->root())
             std::fprintf(stderr,

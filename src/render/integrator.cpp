@@ -184,7 +184,8 @@ void report_counters(RunContext& ctx, const std::vector<SampleCounters>& counter
     ctx.stats.add("render.rays", double(total.rays), "rays");
     ctx.stats.add("render.invalid_samples", double(total.invalid), "samples");
     if (total.invalid > 0)
-        log_warn("{} sample(s) were NaN, infinite or negative and were recorded as zero", total.invalid);
+        log_warn("{} sample(s) were NaN, infinite, negative or above {:g} and were recorded as zero", total.invalid,
+                 MaxSampleValue);
 }
 
 RunResult SamplingIntegrator::render(const Scene& scene, RunContext& ctx) {

@@ -52,9 +52,14 @@ class Communicator;
 void parallel_for_owned_units(const Communicator& comm, std::size_t begin, std::size_t end,
                               const std::function<void(std::size_t unit)>& body);
 
-/// Zero `v` and return false if any channel is NaN, infinite or negative (callers count these).
+/// The largest sample value an image takes: beyond it a sum of samples could overflow the float an image stores (an
+/// emitter or albedo of 1e150 makes finite doubles that are infinite as floats). Far above any physical radiance.
+inline constexpr double MaxSampleValue = 1e30;
+
+/// Zero `v` and return false if any channel is NaN, infinite, negative or above MaxSampleValue (callers count these).
 inline bool sanitize(Color3& v) {
-    if (std::isfinite(v.r) && std::isfinite(v.g) && std::isfinite(v.b) && v.r >= 0 && v.g >= 0 && v.b >= 0) return true;
+    auto ok = [](double c) { return c >= 0 && c <= MaxSampleValue; };  // false for NaN
+    if (ok(v.r) && ok(v.g) && ok(v.b)) return true;
     v = Color3(0.0);
     return false;
 }
