@@ -869,7 +869,12 @@ private:
     RunOutcome run_one(const ConvergeConfig& config, int r, int index, int total) {
         const uint64_t seed = m_o.seed + uint64_t(r);
         ParsedScene parsed = parse(config);
+        // A stop while loading leaves no scene (parse_scene_file, instantiate: core/loading.h): the run is dropped.
+        RunOutcome stopped;
+        stopped.interrupted = true;
+        if (!parsed.root && interrupt_requested()) return stopped;
         ObjectPtr root = instantiate(parsed, {m_o.allow_unused});
+        if (!root && interrupt_requested()) return stopped;
         auto job = std::dynamic_pointer_cast<Job>(root);
         if (!job) throw InputError(parsed.root->loc, "the root <scene> did not produce a runnable job");
 

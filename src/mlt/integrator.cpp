@@ -489,9 +489,10 @@ private:
         return chain_steps(all, c, chains.size());
     }
 
-    // One pass of the chains this rank owns: each chain makes its share of `n` mutations per pixel.
-    void pass(long long first, long long n) {
-        parallel_for_owned_units(comm, chains.size(), [&](std::size_t c) {
+    // One slice of a pass: each chain of [begin, end) this rank owns makes its share of `n` mutations per pixel. The
+    // chains splat into a fixed-point image (integer sums: order-independent), so slicing never changes the image.
+    void pass(long long first, long long n, std::size_t begin, std::size_t end) {
+        parallel_for_owned_units(comm, begin, end, [&](std::size_t c) {
             Chain& ch = chains[c];
             SampleCounters& cnt = counters[c];
             const uint64_t todo = steps_until(first + n, c) - steps_until(first, c);
@@ -500,7 +501,7 @@ private:
                 return chain_eval(ch, src, slot, cnt);
             };
             for (uint64_t k = 0; k < todo; ++k) {
-                if ((k & 255) == 255 && ctx.cancel.stop_requested()) return;
+                if (ctx.cancel.stop_requested()) return;  // every step: a chain started after a stop makes none
                 const int s_x = ch.f[0].s;
                 if (I.m_mmlt) ch.mc->set_second_stage_streams(second_stage_streams(s_x, ch.edges));
                 const StepOutcome o = ch.mc->step(target);
@@ -565,7 +566,8 @@ private:
         PassLoopResult loop;
         if (!chains.empty())
             loop = run_passes(
-                ctx, target, "mutations/px", [&](long long first, long long n) { pass(first, n); },
+                ctx, target, "mutations/px", chains.size(),
+                [&](long long first, long long n, std::size_t begin, std::size_t end) { pass(first, n, begin, end); },
                 [&] { return develop(); }, total.seconds());
         st.seconds_chains = tc.seconds();
         return loop;

@@ -23,18 +23,50 @@
 
 namespace kelvin {
 
-PassLoopResult run_passes(RunContext& ctx, long long scene_target, const std::string& unit,
-                          const std::function<void(long long, long long)>& pass, const std::function<Bitmap()>& develop,
-                          double seconds_before) {
+void parallel_for_owned_units(const Communicator& comm, std::size_t begin, std::size_t end,
+                              const std::function<void(std::size_t unit)>& body) {
+    if (end <= begin) return;
+    if (comm.size() == 1) return parallel_for_units(end - begin, [&](std::size_t i) { body(begin + i); });
+    // Round-robin ownership (Communicator::owns): the first unit >= begin this rank owns, then every size()-th.
+    const auto n = std::size_t(comm.size()), r = std::size_t(comm.rank());
+    const std::size_t first = begin + (r + n - begin % n) % n;
+    const std::size_t mine = first < end ? (end - first + n - 1) / n : 0;
+    parallel_for_units(mine, [&](std::size_t i) { body(first + i * n); });
+}
+
+// Slices. A pass is `count` units of work (spp) over `units` work units (tiles, chains). It is run slice by slice,
+// a slice being a contiguous range [begin, end) of work units, each doing the pass's whole `count` for its units;
+// between slices the loop polls the stop, the time limit, the partial output and the progress line, so that a pass
+// longer than SliceSeconds (the first 1-spp pass of a huge image, a long Metropolis pass) stays responsive. The
+// slicing never changes a result: a work unit owns its pixels (or its chain) and does its samples of the pass in
+// order whichever slice it falls in, and splats are folded in unit order (SplatBuffer::merge after each slice
+// continues the same order) or added as fixed-point integers (Metropolis: order-independent). Slice lengths follow
+// the measured time per unit, starting at a few units per thread and growing at most 4x per slice; in a distributed
+// job rank 0 decides them and every rank uses the same.
+namespace {
+constexpr double SliceSeconds = 0.25;
+}
+
+PassLoopResult run_passes(RunContext& ctx, long long scene_target, const std::string& unit, std::size_t units,
+                          const SlicedPass& pass, const std::function<Bitmap()>& develop, double seconds_before) {
     Communicator& comm = communicator_of(ctx);
     const bool distributed = comm.distributed();
     if (distributed && (!ctx.checkpoint_seconds.empty() || !ctx.checkpoint_work.empty()))
         throw RuntimeError(
             "checkpoints are not supported in a distributed job (a convergence study distributes "
             "its runs instead: kelvin converge under mpirun)");
-    // Every decision below (stop, pass size, partial output) is taken from rank 0's clock, so that all ranks do
-    // the same passes (core/distributed.h).
-    if (distributed) comm.broadcast(&seconds_before, sizeof seconds_before);
+    units = std::max<std::size_t>(units, 1);
+    // The smallest slice: 8 units per thread of every rank (so that a slice keeps all threads busy, and a slice's
+    // last unit idles the others briefly). Rank 0's value, like every decision below.
+    double min_slice = double(std::min<std::size_t>(
+        units, std::size_t(8) * std::size_t(std::max(1, thread_count())) * std::size_t(comm.size())));
+    // Every decision below (stop, pass and slice sizes, partial output) is taken from rank 0's clock, so that all
+    // ranks do the same passes and slices (core/distributed.h).
+    if (distributed) {
+        double b[2] = {seconds_before, min_slice};
+        comm.broadcast(b, sizeof b);
+        seconds_before = b[0], min_slice = b[1];
+    }
     const bool timed = ctx.time_limit > 0 && ctx.spp <= 0;
     long long target = ctx.spp > 0 ? ctx.spp : scene_target;
     if (timed) target = LLONG_MAX;  // equal-time rendering: as much work as time allows
@@ -45,23 +77,58 @@ PassLoopResult run_passes(RunContext& ctx, long long scene_target, const std::st
                               ctx.time_limit > 0 ? std::max(1e-9, ctx.time_limit - seconds_before) : 0.0);
     PassLoopResult r;
     CheckpointSchedule checkpoints(ctx);  // passes end exactly on work checkpoints; callback time is not counted
+    double unit_seconds = -1;             // seconds per work unit per unit of `count` (rank 0's measure); < 0: unknown
     long long size = 1;
-    while (r.done < target) {
+    bool time_up = false;
+    while (r.done < target && !time_up) {
         const long long n = std::min({size, target - r.done, checkpoints.work_until_next(r.done)});
-        pass(r.done, n);
-        double elapsed = seconds_before + timer.seconds() - checkpoints.overhead();
-        bool stop = ctx.cancel.stop_requested();
-        bool partial_due = ctx.write_partial > 0 && since_partial.seconds() >= ctx.write_partial;
-        if (distributed) {
-            // One collective per pass: stop if any rank must; rank 0's time and partial-output clock.
-            double s[3] = {stop ? 1.0 : 0.0, comm.root() ? elapsed : -HUGE_VAL, comm.root() && partial_due ? 1.0 : 0.0};
-            comm.allreduce(s, 3, ReduceOp::Max);
-            stop = s[0] > 0, elapsed = s[1], partial_due = s[2] > 0;
+        bool stop = false, partial_due = false;
+        double elapsed = 0;
+        // Slice length: what fits SliceSeconds at the measured rate, at least min_slice, at most 4x the last.
+        std::size_t slice = unit_seconds < 0
+                                ? std::size_t(min_slice)
+                                : std::size_t(std::clamp(SliceSeconds / std::max(unit_seconds * double(n), 1e-12),
+                                                         min_slice, double(units)));
+        for (std::size_t begin = 0; begin < units;) {
+            const std::size_t end = std::min(units, begin + slice);
+            Timer slice_timer;
+            pass(r.done, n, begin, end);
+            const double slice_seconds = slice_timer.seconds();
+            elapsed = seconds_before + timer.seconds() - checkpoints.overhead();
+            stop = ctx.cancel.stop_requested();
+            partial_due = ctx.write_partial > 0 && since_partial.seconds() >= ctx.write_partial;
+            double per = slice_seconds / (double(end - begin) * double(n));
+            if (distributed) {
+                // One collective per slice: stop if any rank must; rank 0's time, partial-output clock and rate.
+                double s[4] = {stop ? 1.0 : 0.0, comm.root() ? elapsed : -HUGE_VAL,
+                               comm.root() && partial_due ? 1.0 : 0.0, comm.root() ? per : -HUGE_VAL};
+                comm.allreduce(s, 4, ReduceOp::Max);
+                stop = s[0] > 0, elapsed = s[1], partial_due = s[2] > 0, per = s[3];
+            }
+            if (stop) break;
+            unit_seconds = per;
+            const double fit = SliceSeconds / std::max(per * double(n), 1e-12);
+            slice = std::size_t(std::clamp(std::min(fit, 4.0 * double(end - begin)), min_slice, double(units)));
+            begin = end;
+            if (begin == units) break;  // the pass is complete: the checks below the slice loop follow
+            // Inside the pass: progress, the time limit (not with checkpoints: they end passes exactly) and
+            // partial output.
+            progress.set(double(r.done) + double(n) * double(begin) / double(units));
+            if (ctx.time_limit > 0 && !checkpoints.active() && elapsed >= ctx.time_limit) {
+                time_up = true;
+                break;
+            }
+            if (partial_due && ctx.write_partial_image) {
+                Bitmap partial = develop();  // collective in a distributed job; rank 0 writes
+                if (comm.root()) ctx.write_partial_image(partial);
+                since_partial.reset();
+            }
         }
         if (stop) {
             r.interrupted = true;
             break;
         }
+        if (time_up) break;  // a pass cut short by the time limit: `done` counts complete passes only
         r.done += n;
         progress.set(double(r.done));
         if (checkpoints.active()) {
@@ -90,6 +157,15 @@ PassLoopResult run_passes(RunContext& ctx, long long scene_target, const std::st
     progress.finish();
     r.seconds = timer.seconds();
     return r;
+}
+
+PassLoopResult run_passes(RunContext& ctx, long long scene_target, const std::string& unit,
+                          const std::function<void(long long, long long)>& pass, const std::function<Bitmap()>& develop,
+                          double seconds_before) {
+    return run_passes(
+        ctx, scene_target, unit, 1,
+        [&](long long first, long long count, std::size_t, std::size_t) { pass(first, count); }, develop,
+        seconds_before);
 }
 
 void report_counters(RunContext& ctx, const std::vector<SampleCounters>& counters, const std::string& samples_name) {
@@ -173,16 +249,16 @@ RunResult SamplingIntegrator::render(const Scene& scene, RunContext& ctx) {
         return img;
     };
 
-    auto pass = [&](long long first, long long n) {
-        parallel_for_owned_units(comm, tiles, [&](std::size_t unit) {
+    auto pass = [&](long long first, long long n, std::size_t begin, std::size_t end) {
+        parallel_for_owned_units(comm, begin, end, [&](std::size_t unit) {
             const int x0 = ox + int(unit % std::size_t(tx)) * TileSize,
                       y0 = oy + int(unit / std::size_t(tx)) * TileSize;
             const int x1 = std::min(x0 + TileSize, ox + w), y1 = std::min(y0 + TileSize, oy + h);
             std::unique_ptr<Sampler> sampler = sensor.sampler().clone();
             SampleCounters& c = counters[unit];
-            for (int y = y0; y < y1; ++y) {
-                if (ctx.cancel.stop_requested()) return;
-                for (int x = x0; x < x1; ++x)
+            for (int y = y0; y < y1; ++y)
+                for (int x = x0; x < x1; ++x) {
+                    if (ctx.cancel.stop_requested()) return;  // per pixel: a pixel's samples of one pass are brief
                     for (long long k = first; k < first + n; ++k) {
                         sampler->start({x, y}, uint64_t(k), ctx.seed);
                         // Dimensions 0-1: position (filter importance sampling); 2-3: lens; 4+: the integrator's.
@@ -213,11 +289,11 @@ RunResult SamplingIntegrator::render(const Scene& scene, RunContext& ctx) {
                         }
                         ++c.samples;
                     }
-            }
+                }
         });
-        if (splat_buffer) splat_buffer->merge(comm);
+        if (splat_buffer) splat_buffer->merge(comm);  // slices come in unit order: the fold order is the pass's
     };
-    PassLoopResult loop = run_passes(ctx, sensor.sampler().sample_count(), "spp", pass, develop);
+    PassLoopResult loop = run_passes(ctx, sensor.sampler().sample_count(), "spp", tiles, pass, develop);
 
     RunResult result;
     result.work_unit = "spp";

@@ -1,3 +1,4 @@
+#include <kelvin/core/loading.h>
 #include <kelvin/core/logging.h>
 #include <kelvin/render/mesh.h>
 
@@ -43,6 +44,7 @@ TriangleMesh::TriangleMesh(const Properties& props, const std::string& name, con
     m_geom.indices.reserve(indices.size());
     m_cdf.reserve(indices.size() / 3);
     for (std::size_t i = 0; i < indices.size(); i += 3) {
+        if (i % (3 << 16) == 0) throw_if_interrupted();  // every 65536 triangles: a stop while loading
         uint32_t a = indices[i], b = indices[i + 1], c = indices[i + 2];
         if (a >= positions.size() || b >= positions.size() || c >= positions.size()) {
             ++m_dropped;

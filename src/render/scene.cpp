@@ -1,7 +1,11 @@
 // The scene: a Job that renders (integrator + sensor + Embree geometry) or runs a simulation.
 #include <kelvin/core/distributed.h>
+#include <kelvin/core/interrupt.h>
+#include <kelvin/core/loading.h>
 #include <kelvin/core/logging.h>
 #include <kelvin/core/registry.h>
+#include <kelvin/core/stats.h>
+#include <kelvin/render/extent.h>
 #include <kelvin/render/scene.h>
 
 #include <embree3/rtcore.h>
@@ -10,10 +14,12 @@
 
 #include <algorithm>
 #include <array>
+#include <atomic>
 #include <cmath>
 #include <deque>
 #include <limits>
 #include <map>
+#include <unordered_map>
 
 namespace kelvin {
 
@@ -43,6 +49,8 @@ struct Scene::Accel {
     std::vector<Instance> instances;  // top-level geomID = shape count + index
     std::vector<Slot> slots;
     uint32_t own_shapes = 0;
+    /// Rays refused before they reached Embree (extent.h): counted, reported after the run.
+    mutable std::atomic<uint64_t> invalid_rays{0};
 
     ~Accel() {
         if (scene) rtcReleaseScene(scene);
@@ -198,7 +206,67 @@ static void attach(RTCDevice device, RTCScene scene, const ShapeGeometry& g, uns
 }
 
 static void embree_error(void*, RTCError code, const char* str) {
+    if (code == RTC_ERROR_CANCELLED) return;  // a stop during a BVH build (build_bvh): reported as Interrupted
     log_error("Embree error {}: {}", int(code), str ? str : "");
+}
+
+// Embree's BVH build is one call (seconds for tens of millions of triangles); its progress monitor polls for a stop,
+// and a cancelled build ends the load with Interrupted (core/loading.h: "interrupted while loading", exit 130).
+static bool keep_building(void*, double) { return !interrupt_requested(); }
+
+static std::size_t primitive_count(const ShapeGeometry& g) {
+    return g.type == ShapeGeometry::Type::Triangles ? g.indices.size() / 3 : g.positions.size();
+}
+
+static void build_bvh(RTCScene scene, std::size_t primitives) {
+    Timer t;
+    rtcSetSceneProgressMonitorFunction(scene, keep_building, nullptr);
+    rtcCommitScene(scene);
+    throw_if_interrupted();
+    log_debug("Embree BVH of {} primitive(s) built in {:.3f} s", primitives, t.seconds());
+}
+
+// Where each nested object of the scene element was declared (for errors found once the scene is assembled).
+class ObjectLocations {
+public:
+    explicit ObjectLocations(const Properties& props) : m_default(props.location()) {
+        for (const auto& e : props.entries())
+            if (e.type == PropType::Object && e.loc.valid()) m_where.emplace(std::get<ObjectPtr>(e.value).get(), e.loc);
+    }
+    const SourceLoc& operator()(const Object* o) const {
+        const auto it = m_where.find(o);
+        return it == m_where.end() ? m_default : it->second;
+    }
+
+private:
+    SourceLoc m_default;
+    std::unordered_map<const Object*, SourceLoc> m_where;
+};
+
+// Box of geometry in its own space, refused if beyond the scene extent (extent.h). Empty geometry has no box.
+static std::pair<Vec3d, Vec3d> checked_bounds(const ShapeGeometry& g, const Shape& shape, const SourceLoc& loc) {
+    const auto [lo, hi] = geometry_bounds(g);
+    if (!g.positions.empty()) check_scene_extent(lo, hi, shape.to_string(), loc);
+    return {lo, hi};
+}
+
+// The sensor's rays through the film's corners and centre (and the aperture's corners) must be traceable: their
+// origins within the scene extent, their directions finite and non-zero (a scale of 1e300 in to_world overflows).
+static void check_sensor_extent(const Sensor& sensor, const SourceLoc& loc) {
+    const double w = sensor.film().width(), h = sensor.film().height();
+    for (const Vec2d film : {Vec2d(0, 0), Vec2d(w, 0), Vec2d(0, h), Vec2d(w, h), Vec2d(0.5 * w, 0.5 * h)})
+        for (const Vec2d aperture : {Vec2d(0.5, 0.5), Vec2d(0, 0), Vec2d(1, 1)}) {
+            const Ray r = sensor.sample_ray(film, aperture);
+            check_scene_point(r.o,
+                              fmt::format("{}: the ray through film position ({:g}, {:g}) starts, and",
+                                          sensor.to_string(), film.x, film.y),
+                              loc);
+            const double len = glm::length(r.d);
+            if (!(len > 0) || !std::isfinite(len))
+                throw InputError(loc, fmt::format("{}: the ray through film position ({:g}, {:g}) has direction ({:g}, "
+                                                  "{:g}, {:g}): to_world overflows or is degenerate",
+                                                  sensor.to_string(), film.x, film.y, r.d.x, r.d.y, r.d.z));
+        }
 }
 
 Scene::Scene(const Properties& props) {
@@ -225,6 +293,8 @@ Scene::Scene(const Properties& props) {
         return;  // a simulation builds its own geometry queries; nothing to do here
     }
     if (!m_sensor) throw InputError(props.location(), "the scene has no <sensor> (and no <simulation>)");
+    const ObjectLocations location_of(props);
+    check_sensor_extent(*m_sensor, location_of(m_sensor.get()));
     if (!m_integrator) {  // Mitsuba's default
         m_integrator =
             std::dynamic_pointer_cast<Integrator>(Registry::instance().create(Properties("integrator", "path")));
@@ -245,7 +315,7 @@ Scene::Scene(const Properties& props) {
     acc.own_shapes = uint32_t(m_shapes.size());
     for (std::size_t i = 0; i < m_shapes.size(); ++i) {
         ShapeGeometry& g = acc.geometry.emplace_back(m_shapes[i]->geometry());
-        const auto [lo, hi] = geometry_bounds(g);
+        const auto [lo, hi] = checked_bounds(g, *m_shapes[i], location_of(m_shapes[i].get()));
         m_bbox_min = glm::min(m_bbox_min, lo);
         m_bbox_max = glm::max(m_bbox_max, hi);
         if (m_shapes[i]->interior()) check_closed(*m_shapes[i], g);
@@ -260,12 +330,14 @@ Scene::Scene(const Properties& props) {
             group.scene = rtcNewScene(acc.device);
             for (std::size_t k = 0; k < key->shapes().size(); ++k) {
                 ShapeGeometry& g = group.geometry.emplace_back(key->shapes()[k]->geometry());
-                const auto [lo, hi] = geometry_bounds(g);
+                const auto [lo, hi] = checked_bounds(g, *key->shapes()[k], location_of(inst.get()));
                 group.lo = glm::min(group.lo, lo);
                 group.hi = glm::max(group.hi, hi);
                 attach(acc.device, group.scene, g, unsigned(k));
             }
-            rtcCommitScene(group.scene);
+            std::size_t prims = 0;
+            for (const auto& g : group.geometry) prims += primitive_count(g);
+            build_bvh(group.scene, prims);
         }
         Accel::Instance& rec = acc.instances.emplace_back();
         rec.to_world = inst->to_world();
@@ -273,13 +345,19 @@ Scene::Scene(const Properties& props) {
         rec.first_slot = uint32_t(acc.slots.size());
         for (std::size_t k = 0; k < key->shapes().size(); ++k)
             acc.slots.push_back({key->shapes()[k].get(), &group.geometry[k], int(acc.instances.size() - 1)});
-        for (int c = 0; c < 8; ++c) {  // the world box of the group's box corners
+        Vec3d inst_lo(Inf), inst_hi(-Inf);
+        for (int c = 0; c < 8 && group.lo.x <= group.hi.x; ++c) {  // the world box of the group's box corners
             const Vec3d corner(c & 1 ? group.hi.x : group.lo.x, c & 2 ? group.hi.y : group.lo.y,
                                c & 4 ? group.hi.z : group.lo.z);
             const Vec3d w = rec.to_world.apply_point(corner);
-            m_bbox_min = glm::min(m_bbox_min, w);
-            m_bbox_max = glm::max(m_bbox_max, w);
+            // A corner beyond the extent (or NaN from an overflowing product) is refused, not folded by min/max.
+            check_scene_point(w, fmt::format("{}: a corner of its group's box", inst->to_string()),
+                              location_of(inst.get()));
+            inst_lo = glm::min(inst_lo, w);
+            inst_hi = glm::max(inst_hi, w);
         }
+        m_bbox_min = glm::min(m_bbox_min, inst_lo);
+        m_bbox_max = glm::max(m_bbox_max, inst_hi);
         RTCGeometry geom = rtcNewGeometry(acc.device, RTC_GEOMETRY_TYPE_INSTANCE);
         rtcSetGeometryInstancedScene(geom, group.scene);
         float m[12];  // 3x4, column major
@@ -290,7 +368,9 @@ Scene::Scene(const Properties& props) {
         rtcAttachGeometryByID(acc.scene, geom, unsigned(acc.own_shapes + acc.instances.size() - 1));
         rtcReleaseGeometry(geom);
     }
-    rtcCommitScene(m_accel->scene);
+    std::size_t prims = acc.instances.size();
+    for (const auto& g : acc.geometry) prims += primitive_count(g);
+    build_bvh(m_accel->scene, prims);
     setup_emitters();
 }
 
@@ -480,7 +560,22 @@ RunResult Scene::run(RunContext& ctx) {
     } restore{ctx, comm};
     RunResult r = m_simulation ? m_simulation->run(ctx) : m_integrator->render(*this, ctx);
     if (r.description.empty()) r.description = description();
+    if (m_accel)
+        if (const uint64_t bad = m_accel->invalid_rays.exchange(0); bad > 0) {
+            ctx.stats.add("render.invalid_rays", double(bad), "rays");
+            log_warn("{} ray(s) had a non-finite or too distant origin or direction and were not traced", bad);
+        }
     return r;
+}
+
+// Embree asserts on rays it cannot trace (extent.h). Scene coordinates are checked when the scene is built, but a ray
+// can still be made invalid by arithmetic (an overflowing product, a NaN direction from a degenerate sample); such a
+// ray is refused here and counted (Accel::invalid_rays) instead of reaching Embree.
+static bool traceable(const RTCRay& r) {
+    const float big = EmbreeLargestCoordinate;
+    return std::abs(r.org_x) <= big && std::abs(r.org_y) <= big && std::abs(r.org_z) <= big &&
+           std::abs(r.dir_x) <= big && std::abs(r.dir_y) <= big && std::abs(r.dir_z) <= big && r.tnear >= 0 &&
+           r.tnear <= std::numeric_limits<float>::infinity() && !std::isnan(r.tfar);
 }
 
 static void to_embree(const Ray& ray, RTCRay& r) {
@@ -504,6 +599,10 @@ std::optional<SurfaceHit> Scene::intersect(const Ray& ray) const {
     rtcInitIntersectContext(&context);
     RTCRayHit rh;
     to_embree(ray, rh.ray);
+    if (!traceable(rh.ray)) {
+        m_accel->invalid_rays.fetch_add(1, std::memory_order_relaxed);
+        return std::nullopt;
+    }
     rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
     rh.hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
     rtcIntersect1(m_accel->scene, &context, &rh);
@@ -557,6 +656,10 @@ bool Scene::occluded(const Ray& ray) const {
     rtcInitIntersectContext(&context);
     RTCRay r;
     to_embree(ray, r);
+    if (!traceable(r)) {  // counted, and treated as blocked: no light arrives along a ray that cannot be traced
+        m_accel->invalid_rays.fetch_add(1, std::memory_order_relaxed);
+        return true;
+    }
     rtcOccluded1(m_accel->scene, &context, &r);
     return r.tfar < 0;  // Embree sets tfar to -inf on a hit
 }

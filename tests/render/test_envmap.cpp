@@ -36,7 +36,9 @@
 
 #include <cmath>
 #include <filesystem>
+#include <fstream>
 #include <functional>
+#include <limits>
 
 using namespace kelvin;
 namespace fs = std::filesystem;
@@ -443,9 +445,20 @@ TEST(Envmap, Errors) {
                               .what())
                   .find("to_world"),
               std::string::npos);
-    auto bad = write_map("nan.exr", 4, 2, [](int i, int) { return Color3(i == 2 ? std::nan("") : 1.0); });
+    // write_image refuses non-finite images, so the NaN texel (2, 0) is written as raw PFM (rows bottom to top).
+    const fs::path bad = scratch("nan.pfm");
+    {
+        std::ofstream f(bad, std::ios::binary);
+        f << "PF\n4 2\n-1.0\n";
+        float data[2][4][3];
+        for (auto& row : data)
+            for (auto& px : row)
+                for (float& c : px) c = 1.0f;
+        for (float& c : data[1][2]) c = std::numeric_limits<float>::quiet_NaN();
+        f.write(reinterpret_cast<const char*>(data), sizeof data);
+    }
     InputError nan = error_of(fmt::format(R"(<string name="filename" value="{}"/>)", bad.string()));
-    EXPECT_NE(std::string(nan.what()).find("nan.exr"), std::string::npos) << nan.what();
+    EXPECT_NE(std::string(nan.what()).find("nan.pfm"), std::string::npos) << nan.what();
     EXPECT_NE(std::string(nan.what()).find("(2, 0)"), std::string::npos) << nan.what();
 }
 

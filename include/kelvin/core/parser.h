@@ -84,6 +84,8 @@ struct ParsedScene {
     std::vector<std::filesystem::path> search_paths;
 };
 
+/// Read and parse a scene file (and its includes). A stop while reading (interrupt_requested()) returns a
+/// ParsedScene without a root.
 ParsedScene parse_scene_file(const std::filesystem::path& path, const ParseOptions& opts = {});
 /// `filename` is used in messages and to resolve relative paths (relative to its directory).
 ParsedScene parse_scene_string(const std::string& xml, const ParseOptions& opts = {},
@@ -95,7 +97,8 @@ struct InstantiateOptions {
     std::string unused_hint = "pass --allow-unused to ignore";
 };
 
-/// Load the requested plugin modules and build the object tree. Returns the root object.
+/// Load the requested plugin modules and build the object tree. Returns the root object, or null when a loader
+/// stopped because interrupt_requested() was set (core/loading.h: the caller reports the stop).
 ObjectPtr instantiate(const ParsedScene& scene, const InstantiateOptions& opts = {});
 
 /// `e` with the -D definitions used at its location named first ("-D res=abc: malformed integer ..."), or `e`.

@@ -23,18 +23,34 @@ struct PassLoopResult {
     double seconds = 0;
 };
 
-/// The progressive loop every integrator shares. Renders `pass(first, count)` for growing counts until
-/// `scene_target` units are done (ctx.spp overrides it; with ctx.time_limit and no ctx.spp the target is
-/// unbounded and time decides), polls ctx.cancel.stop_requested() between passes (`pass` should poll it too, per
-/// row or so), writes ctx.write_partial_image every ctx.write_partial seconds from `develop()`, and reports
-/// progress (stderr and ctx.on_progress). Pass sizes grow 1, 2, 4, ... but stay
-/// near a second, so limits and Ctrl-C are honoured promptly. A pass must give the same result however the
-/// work is split into passes (its output may depend on `first` and `count` only through the unit indices).
-/// `seconds_before`: time the job spent before the loop (a Metropolis bootstrap), counted against the time
-/// limit and in checkpoint times, so that equal-time comparisons charge it.
+/// One slice of a pass (see run_passes): `count` units of work (spp, mutations per pixel) starting at `first`, done
+/// by the work units [begin, end) (tiles, chains) of this rank.
+using SlicedPass = std::function<void(long long first, long long count, std::size_t begin, std::size_t end)>;
+
+/// The progressive loop every integrator shares. Renders passes `pass(first, count, ...)` of growing counts until
+/// `scene_target` units are done (ctx.spp overrides it; with ctx.time_limit and no ctx.spp the target is unbounded
+/// and time decides). Pass sizes grow 1, 2, 4, ... but stay near a second. A pass is run in slices of its `units` work
+/// units (a pass over units [0, units) is pass(first, count, 0, a), pass(first, count, a, b), ...) each near a
+/// quarter of a second, and between slices, as between passes, the loop polls ctx.cancel.stop_requested() (`pass`
+/// should poll it too, per pixel or chain step), honours ctx.time_limit, writes ctx.write_partial_image every
+/// ctx.write_partial seconds from `develop()` and reports progress (stderr and ctx.on_progress). A slice must give
+/// the same result however passes and slices are cut (its output may depend on `first`, `count`, `begin` and `end`
+/// only through the unit indices): every work unit doing its samples in order does. A pass cut short by the time
+/// limit is not counted in PassLoopResult::done. `seconds_before`: time the job spent before the loop (a Metropolis
+/// bootstrap), counted against the time limit and in checkpoint times, so that equal-time comparisons charge it.
+PassLoopResult run_passes(RunContext& ctx, long long scene_target, const std::string& unit, std::size_t units,
+                          const SlicedPass& pass, const std::function<Bitmap()>& develop, double seconds_before = 0);
+
+/// The same with a pass that cannot be sliced (one work unit): the checks happen between passes only.
 PassLoopResult run_passes(RunContext& ctx, long long scene_target, const std::string& unit,
                           const std::function<void(long long first, long long count)>& pass,
                           const std::function<Bitmap()>& develop, double seconds_before = 0);
+
+class Communicator;
+/// parallel_for_owned_units (core/distributed.h) over the units [begin, end) only: the units of the range this rank
+/// owns, on this rank's threads.
+void parallel_for_owned_units(const Communicator& comm, std::size_t begin, std::size_t end,
+                              const std::function<void(std::size_t unit)>& body);
 
 /// Zero `v` and return false if any channel is NaN, infinite or negative (callers count these).
 inline bool sanitize(Color3& v) {

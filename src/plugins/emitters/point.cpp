@@ -9,6 +9,7 @@
 //     <emitter type="point"><point name="position" x="0" y="4" z="0"/><rgb name="intensity" value="10"/></emitter>
 #include <kelvin/core/registry.h>
 #include <kelvin/render/emitter.h>
+#include <kelvin/render/extent.h>
 #include <kelvin/render/warp.h>
 
 namespace kelvin {
@@ -18,7 +19,10 @@ class PointEmitter final : public Emitter {
 public:
     explicit PointEmitter(const Properties& props)
         : m_intensity(props.get_color("intensity")),
-          m_pos(props.get_transform("to_world").apply_point(props.get_point("position"))) {}
+          m_pos(props.get_transform("to_world").apply_point(props.get_point("position"))) {
+        check_scene_point(m_pos, "<emitter type=\"point\">: parameter 'position': the light",
+                          props.location_of("position"));
+    }
     uint32_t flags() const override { return EmitterFlags::DeltaPosition; }
 
     std::optional<DirectSample> sample_direct(const Vec3d& ref, const Vec2d&) const override {

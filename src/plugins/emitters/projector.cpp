@@ -34,6 +34,7 @@
 #include <kelvin/core/registry.h>
 #include <kelvin/render/distribution.h>
 #include <kelvin/render/emitter.h>
+#include <kelvin/render/extent.h>
 #include <kelvin/render/sensor.h>
 #include <kelvin/render/texture.h>
 
@@ -64,6 +65,8 @@ public:
             props.error("to_world", "must be a rigid transform (rotation and translation, no scaling)");
         m_to_world = to_world;
         m_pos = to_world.apply_point(Vec3d(0.0));
+        check_scene_point(m_pos, "<emitter type=\"projector\">: parameter 'to_world': the light",
+                          props.location_of("to_world"));
         m_axis = glm::normalize(to_world.apply_vector(Vec3d(0, 0, 1)));
         const glm::ivec2 res = glm::max(m_irradiance->resolution(), glm::ivec2(1));
         std::tie(m_tan_x, m_tan_y) = fov_tangents(props, res.x, res.y);

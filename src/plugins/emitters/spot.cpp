@@ -29,6 +29,7 @@
 #include <kelvin/core/param_helpers.h>
 #include <kelvin/core/registry.h>
 #include <kelvin/render/emitter.h>
+#include <kelvin/render/extent.h>
 #include <kelvin/render/texture.h>
 #include <kelvin/render/warp.h>
 
@@ -53,6 +54,8 @@ public:
             props.error("to_world", "must be a rigid transform (rotation and translation, no scaling)");
         m_to_world = to_world;
         m_pos = to_world.apply_point(Vec3d(0.0));
+        check_scene_point(m_pos, "<emitter type=\"spot\">: parameter 'to_world': the light",
+                          props.location_of("to_world"));
         m_cutoff = glm::radians(cutoff);
         m_beam = glm::radians(beam);
         m_cos_cutoff = std::cos(m_cutoff);

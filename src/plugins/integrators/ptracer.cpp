@@ -62,8 +62,8 @@ public:
             return splats.develop(n > 0 ? 1.0 / double(n) : 0.0);
         };
 
-        auto pass = [&](long long first, long long n) {
-            parallel_for_owned_units(comm, units, [&](std::size_t unit) {
+        auto pass = [&](long long first, long long n, std::size_t begin, std::size_t end) {
+            parallel_for_owned_units(comm, begin, end, [&](std::size_t unit) {
                 std::unique_ptr<Sampler> sampler = sensor.sampler().clone();
                 const std::size_t p0 = unit * PathsPerUnit, p1 = std::min(paths, p0 + PathsPerUnit);
                 for (long long k = first; k < first + n; ++k)
@@ -74,9 +74,9 @@ public:
                         ++counters[unit].samples;
                     }
             });
-            splats.merge(comm);
+            splats.merge(comm);  // slices come in unit order: the fold order is the pass's
         };
-        PassLoopResult loop = run_passes(ctx, sensor.sampler().sample_count(), "spp", pass, develop);
+        PassLoopResult loop = run_passes(ctx, sensor.sampler().sample_count(), "spp", units, pass, develop);
 
         RunResult result;
         result.work_unit = "spp";

@@ -27,6 +27,7 @@
 //         <string name="filename" value="meshes/torus-knot.gltf"/>
 //         <bsdf type="diffuse"><rgb name="reflectance" value="0.7, 0.5, 0.3"/></bsdf>
 //     </shape>
+#include <kelvin/core/loading.h>
 #include <kelvin/core/logging.h>
 #include <kelvin/core/registry.h>
 #include <kelvin/render/mesh.h>
@@ -53,6 +54,19 @@ bool skip_image(tinygltf::Image*, const int, std::string*, std::string*, int, in
     return true;
 }
 
+// Peak memory of a render per byte of glTF file or buffer (the bytes twice, tinygltf's model, the mesh in doubles, its
+// float copy and Embree's BVH): 7.9 measured with /usr/bin/time -v on a triangle grid with an 18 MB .bin
+// (docs/rendering.md, "Input sizes"), rounded up.
+constexpr double GltfBytesPerFileByte = 9.0;
+
+// tinygltf reads the .gltf/.glb and its external buffers through this: each file is checked against the memory it
+// will need and read with stop checks (core/loading.h; Interrupted and InputError propagate through tinygltf).
+bool read_whole_file(std::vector<unsigned char>* out, std::string*, const std::string& path, void*) {
+    const std::string text = read_file_polling(path, "glTF file", SourceLoc{path, 0, 0}, GltfBytesPerFileByte);
+    out->assign(text.begin(), text.end());
+    return true;
+}
+
 class GltfReader {
 public:
     GltfReader(std::string file, bool face_normals, bool flip_tc)
@@ -61,6 +75,9 @@ public:
     MeshData read(const std::filesystem::path& path) {
         tinygltf::TinyGLTF loader;
         loader.SetImageLoader(skip_image, nullptr);
+        tinygltf::FsCallbacks fs{&tinygltf::FileExists, &tinygltf::ExpandFilePath, &read_whole_file,
+                                 &tinygltf::WriteWholeFile, nullptr};
+        loader.SetFsCallbacks(fs);
         std::string err, warn;
         std::string ext = path.extension().string();
         std::transform(ext.begin(), ext.end(), ext.begin(), [](unsigned char c) { return char(std::tolower(c)); });
@@ -68,6 +85,8 @@ public:
         try {
             ok = ext == ".glb" ? loader.LoadBinaryFromFile(&m_model, &err, &warn, path.string())
                                : loader.LoadASCIIFromFile(&m_model, &err, &warn, path.string());
+        } catch (const Error&) {  // from read_whole_file: a stop, a file too large or unreadable
+            throw;
         } catch (const std::exception& e) {  // nlohmann::json type errors escape tinygltf on some inputs
             fail("{}", e.what());
         }

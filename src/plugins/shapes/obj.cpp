@@ -28,6 +28,7 @@
 //         <transform name="to_world"><scale value="2"/></transform>
 //         <bsdf type="diffuse"/>
 //     </shape>
+#include <kelvin/core/loading.h>
 #include <kelvin/core/logging.h>
 #include <kelvin/core/registry.h>
 #include <kelvin/render/mesh.h>
@@ -92,6 +93,7 @@ ObjScan scan_obj(std::string_view text, const std::string& file) {
         pos = end;
         if (pos < text.size()) pos += text.compare(pos, 2, "\r\n") == 0 ? 2 : 1;
         ++line_no;
+        if ((line_no & 0xFFFF) == 0) throw_if_interrupted();  // 65536 lines: a few milliseconds
         if (auto hash = line.find('#'); hash != std::string_view::npos) line = line.substr(0, hash);
         s.clean.append(line).push_back('\n');  // tinyobjloader does not strip comments after statements
         auto tok = tokens(line);
@@ -164,27 +166,39 @@ struct Loaded {
     MeshData mesh;
 };
 
+// Peak memory of a render per byte of OBJ file (the text, its cleaned copy, tinyobjloader's arrays, the scan's doubles,
+// the welded mesh, its float copy for the scene and Embree's BVH): 8.2 measured with /usr/bin/time -v on a 36 MB
+// triangle grid (docs/rendering.md, "Input sizes"), rounded up.
+constexpr double ObjBytesPerFileByte = 9.0;
+
 Loaded load_obj(const Properties& props) {
     const std::filesystem::path path = props.get_input_file("filename", "OBJ file");
     const bool face_normals = props.get_bool("face_normals");
     const bool flip_tc = props.get_bool("flip_tex_coords");
     const std::string file = path.string();
-    std::ifstream in(path, std::ios::binary);
-    std::ostringstream ss;
-    ss << in.rdbuf();
-    if (!in) props.error("filename", fmt::format("cannot read OBJ file '{}'", file));
-    const std::string text = std::move(ss).str();
+    // Refused before reading when the mesh would not fit (ObjBytesPerFileByte); read with stop checks.
+    const std::string text = read_file_polling(path, "OBJ file", props.location_of("filename"), ObjBytesPerFileByte);
 
     ObjScan scan = scan_obj(text, file);
 
-    tinyobj::ObjReaderConfig config;
-    config.triangulate = false;  // fans below, as Mitsuba does
-    config.vertex_color = false;
-    tinyobj::ObjReader reader;
-    // Materials are not used: an empty material text keeps tinyobjloader from opening .mtl files.
-    if (!reader.ParseFromString(scan.clean, "", config)) throw InputError(SourceLoc{file, 0, 0}, reader.Error());
-    if (!reader.Warning().empty()) log_debug("{}: tinyobjloader: {}", file, reader.Warning());
-    const tinyobj::attrib_t& attrib = reader.GetAttrib();
+    // tinyobjloader reads the scanned text through a stream buffer that polls for a stop every 256 KiB: a stop ends
+    // its input, and the load with Interrupted. Materials are not used: an empty material stream keeps
+    // tinyobjloader from opening .mtl files. No triangulation: fans below, as Mitsuba does.
+    tinyobj::attrib_t attrib;
+    std::vector<tinyobj::shape_t> shapes;
+    {
+        std::vector<tinyobj::material_t> materials;
+        std::string warn, err;
+        PollingStringBuf obj_buf(scan.clean);
+        std::istream obj_in(&obj_buf);
+        std::istringstream mtl_in;
+        tinyobj::MaterialStreamReader mtl(mtl_in);
+        const bool ok = tinyobj::LoadObj(&attrib, &shapes, &materials, &warn, &err, &obj_in, &mtl,
+                                         /*triangulate=*/false, /*default_vcols_fallback=*/false);
+        if (obj_buf.stopped()) throw Interrupted();
+        if (!ok) throw InputError(SourceLoc{file, 0, 0}, err);
+        if (!warn.empty()) log_debug("{}: tinyobjloader: {}", file, warn);
+    }
     if (attrib.vertices.size() != 3 * scan.v.size() || attrib.normals.size() != 3 * scan.vn.size() ||
         attrib.texcoords.size() != 2 * scan.vt.size())
         throw InputError(SourceLoc{file, 0, 0},
@@ -206,10 +220,11 @@ Loaded load_obj(const Properties& props) {
     std::vector<uint32_t> indices;
     std::vector<uint32_t> poly;
     bool any_normal = false, all_normals = true, any_uv = false;
-    for (const auto& shape : reader.GetShapes()) {
+    for (const auto& shape : shapes) {
         const auto& m = shape.mesh;
         std::size_t offset = 0;
         for (std::size_t f = 0; f < m.num_face_vertices.size(); ++f) {
+            if ((f & 0xFFFF) == 0xFFFF) throw_if_interrupted();
             const std::size_t n = m.num_face_vertices[f];
             if (offset + n > m.indices.size()) throw InputError(SourceLoc{file, 0, 0}, "inconsistent face data");
             poly.clear();

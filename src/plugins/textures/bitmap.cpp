@@ -79,8 +79,13 @@ public:
                 Color3 c(img.at(x, y, ch[0]), img.at(x, y, ch[1]), img.at(x, y, ch[2]));
                 if (encoded)
                     for (int k = 0; k < 3; ++k) c[k] = linear_to_srgb(c[k]);
+                // A NaN or infinite texel is bad input, as in an envmap: zeroing it would render black without a
+                // word, and keeping it would poison every sample that reads it.
                 for (int k = 0; k < 3; ++k)
-                    if (!std::isfinite(c[k])) c[k] = 0;  // a NaN texel must not poison renders
+                    if (!std::isfinite(c[k]))
+                        props.error("filename",
+                                    fmt::format("'{}': texel ({}, {}) channel {} is {} (textures must be finite)",
+                                                path.string(), x, y, img.channels()[std::size_t(ch[k])], c[k]));
                 m_texels[std::size_t(y) * m_width + x] = c;
                 sum += c;
             }

@@ -29,6 +29,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstring>
+#include <filesystem>
 #include <fstream>
 #include <vector>
 
@@ -121,7 +122,16 @@ private:
                                                 file.string(), m_res.x, m_res.y, m_res.z, m_channels));
         lo = {bbox[0], bbox[1], bbox[2]};
         hi = {bbox[3], bbox[4], bbox[5]};
-        m_data.resize(std::size_t(m_res.x) * m_res.y * m_res.z * m_channels);
+        // The header's size is checked against the bytes the file holds before anything is allocated.
+        const uint64_t values = uint64_t(m_res.x) * uint64_t(m_res.y) * uint64_t(m_res.z) * uint64_t(m_channels);
+        std::error_code ec;
+        const uint64_t file_bytes = uint64_t(std::filesystem::file_size(file, ec));
+        const uint64_t header_bytes = 4 + sizeof header + sizeof bbox;
+        if (ec || file_bytes < header_bytes || (file_bytes - header_bytes) / sizeof(float) < values)
+            props.error("filename", fmt::format("'{}': truncated .vol data (the header announces {}x{}x{}x{} values, "
+                                                "the file holds {} bytes)",
+                                                file.string(), m_res.x, m_res.y, m_res.z, m_channels, file_bytes));
+        m_data.resize(std::size_t(values));
         in.read(reinterpret_cast<char*>(m_data.data()), std::streamsize(m_data.size() * sizeof(float)));
         if (!in) props.error("filename", fmt::format("'{}': truncated .vol data", file.string()));
         check_finite(props, file);
@@ -148,9 +158,14 @@ private:
     }
 
     void check_finite(const Properties& props, const std::filesystem::path& file) {
-        for (float v : m_data)
-            if (!std::isfinite(v))
-                props.error("filename", fmt::format("'{}' contains NaN or infinite values", file.string()));
+        for (std::size_t i = 0; i < m_data.size(); ++i)
+            if (!std::isfinite(m_data[i])) {  // name the first bad voxel: (x, y, z), channel and value
+                const std::size_t v = i / std::size_t(m_channels), c = i % std::size_t(m_channels);
+                const std::size_t x = v % std::size_t(m_res.x), y = v / std::size_t(m_res.x) % std::size_t(m_res.y),
+                                  z = v / (std::size_t(m_res.x) * std::size_t(m_res.y));
+                props.error("filename", fmt::format("'{}': voxel ({}, {}, {}) channel {} is {} (grids must be finite)",
+                                                    file.string(), x, y, z, c, m_data[i]));
+            }
     }
 
     std::vector<float> m_data;
