@@ -12,7 +12,7 @@
 #   tools/convergence_reports.sh fluid-obstacle   # the four solvers on a Lamb–Oseen vortex in a disk container
 #   tools/convergence_reports.sh fluid-shear      # the four solvers on the shear layer against two 512^2 references
 #   tools/convergence_reports.sh mlt            # the MLT family at equal time (MLT_REF=reference.exr, MLT_GEOMETRY)
-#   tools/convergence_reports.sh mlt-door       # the thesis' equal-time protocol on one scene (docs/mlt-studies.md):
+#   tools/convergence_reports.sh mlt-door       # the thesis' equal-time protocol on one scene (docs/studies/mlt.md):
 #   tools/convergence_reports.sh mlt-caustic    #   reference, normalisation from it, PSSMLT/G's sigma matched to DR,
 #   tools/convergence_reports.sh mlt-plates     #   10 runs of the six variants, median [IQR] tables and figures
 #   tools/convergence_reports.sh mlt-pool
@@ -27,7 +27,7 @@
 # resumed, FRESH=1 deletes them first), RUNS (independent runs, default 3; the mlt-* studies: 10), THREADS
 # (default: all cores; the mlt-* studies: 2). The mlt-* studies also read MLT_RES (256), MLT_CHECKPOINTS (seconds,
 # default 30,60,120,240,480), MLT_REF_SPP (the reference's spp, per scene), MLT_REF_INTEGRATOR (bdpt; path: see
-# docs/mlt-studies.md on bdpt's light-tracing strategy), MLT_DIRECT_REF_SPP (1024),
+# docs/studies/mlt.md on bdpt's light-tracing strategy), MLT_DIRECT_REF_SPP (1024),
 # MLT_REF_THREADS (the references' threads, default THREADS), MLT_SETUP_ONLY (1: stop after the references and b),
 # MLT_TECHNIQUE (per scene), MLT_DIRECT_SAMPLES (-1, the chains render everything; 16, the integrators' split),
 # MLT_MIXTURE (1: the mixture baseline as a variant),
@@ -86,7 +86,7 @@ mlt_study() {  # mlt_study GEOMETRY [mmlt|h2mc]: the thesis' equal-time protocol
     # The chains render everything (direct_samples -1) on every scene: a direct pass of fixed spp does not improve
     # with the budget, and at 256 x 256 it was 82-86 % of every variant's error on the door after 120 s (16 spp),
     # so the study measured the pass, not the chains, as on the caustic and the pool at 64 x 64
-    # (docs/mlt-studies.md); on the plates the hard transport is itself two-edge. MLT_DIRECT_SAMPLES=16 gives the
+    # (docs/studies/mlt.md); on the plates the hard transport is itself two-edge. MLT_DIRECT_SAMPLES=16 gives the
     # integrators' default split.
     local direct=${MLT_DIRECT_SAMPLES:--1}
     local report="mlt-$g"
@@ -161,7 +161,7 @@ mlt_study() {  # mlt_study GEOMETRY [mmlt|h2mc]: the thesis' equal-time protocol
             echo "mmlt-K: variant=pssmlt-kelemen"
             echo "mmlt-X: variant=drmlt-orbital-mixture"
             echo "dr-mmlt: variant=drmlt-orbital"
-            # DR multiplexed-then-subpath after a bold Gaussian first stage (the best variant at 64 x 64, docs/mlt.md)
+            # DR multiplexed-then-subpath after a bold Gaussian first stage (the best variant at 64 x 64, docs/studies/mlt.md)
             echo "dr-mmlt-G: variant=drmlt-orbital-gaussian first_sigma=${MLT_DR_SIGMA:-0.03}"
         } >"$setup/configs"
     elif [[ "$family" == h2mc ]]; then
@@ -221,7 +221,7 @@ mlt_sigma_configs() {  # (mlt_study's locals) the PSSMLT family's configurations
             pssmlt-G-bold) echo "pssmlt-G-bold: variant=pssmlt-gaussian sigma=${MLT_DR_SIGMA:-0.03}" ;;
             mixture) if [[ "${MLT_MIXTURE:-1}" == 1 ]]; then echo "mixture: variant=mixture"; fi ;;
             dr-orbital) echo "dr-orbital: variant=drmlt-orbital" ;;
-            # DR orbital after a bold Gaussian first stage (sigma ${MLT_DR_SIGMA:-0.03}; docs/mlt-studies.md)
+            # DR orbital after a bold Gaussian first stage (sigma ${MLT_DR_SIGMA:-0.03}; docs/studies/mlt.md)
             dr-orbital-G) echo "dr-orbital-G: variant=drmlt-orbital-gaussian first_sigma=${MLT_DR_SIGMA:-0.03}" ;;
             dr-mira) echo "dr-mira: variant=drmlt-mira" ;;
             dr-green) echo "dr-green: variant=drmlt-green" ;;

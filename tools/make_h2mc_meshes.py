@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Writes the meshes of the two H2MC study scenes (docs/mlt.md, "Results: cheap then expensive at equal time"):
+"""Writes the meshes of the two H2MC study scenes (docs/studies/mlt.md, "Results: cheap then expensive at equal time"):
 the rough torus (scenes/render/geometry/torus.xml) and the chess board (scenes/render/geometry/chess.xml).
 
     python3 tools/make_h2mc_meshes.py scenes/render/meshes        # -> torus.ply, chess-*.ply there

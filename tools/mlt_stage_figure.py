@@ -1,10 +1,10 @@
 #!/usr/bin/python3
-"""One figure per scene for docs/mlt.md: the render of each delayed-rejection variant next to its stage map.
+"""One figure per scene for docs/studies/mlt.md: the render of each delayed-rejection variant next to its stage map.
 
     tools/mlt_stage_figure.py OUT.png DIR SCENE VARIANT...
 
 DIR holds SCENE-VARIANT.exr and SCENE-VARIANT_stages.png as `kelvin ... -o DIR/SCENE-VARIANT.exr` writes them
-(docs/mlt.md gives the commands). The EXR is shown in sRGB through oiiotool (Debian: openimageio-tools).
+(docs/studies/mlt.md gives the commands). The EXR is shown in sRGB through oiiotool (Debian: openimageio-tools).
 """
 import os
 import subprocess

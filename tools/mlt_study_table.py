@@ -1,5 +1,5 @@
 #!/usr/bin/python3
-"""The table of an MLT equal-time study (docs/mlt-studies.md), in Markdown on stdout.
+"""The table of an MLT equal-time study (docs/studies/mlt.md), in Markdown on stdout.
 
     tools/mlt_study_table.py STUDY_DIR          # STUDY_DIR: a `kelvin converge` output directory
 

@@ -1,5 +1,5 @@
 #!/usr/bin/python3
-"""The error a noisy reference adds to every variant of a study (docs/mlt-studies.md), from its two halves.
+"""The error a noisy reference adds to every variant of a study (docs/studies/mlt.md), from its two halves.
 
     tools/reference_floor.py HALF_A.exr HALF_B.exr [--margin M] [--eps 0.01]
     tools/reference_floor.py REF.exr OTHER.exr --spp N_REF N_OTHER [--margin M]   # REF itself is the reference

@@ -1,5 +1,5 @@
 #!/usr/bin/python3
-"""A study's error without the reference's noise: the spread between its independent runs (docs/mlt-studies.md).
+"""A study's error without the reference's noise: the spread between its independent runs (docs/studies/mlt.md).
 
     tools/run_spread.py STUDY_DIR [--baseline CONFIG]
 
