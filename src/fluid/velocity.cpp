@@ -28,11 +28,17 @@ std::string BiotSavartVelocity::check3(const Domain3&) const {
 }
 
 std::unique_ptr<VelocityField2> BiotSavartVelocity::build2(const VelocityState2& s) const {
-    return std::make_unique<BiotSavartEstimator>(*s.omega, s.interpolation, m_options.importance, s.delta, s.periodic);
+    auto field =
+        std::make_unique<BiotSavartEstimator>(*s.omega, s.interpolation, m_options.importance, s.delta, s.periodic);
+    field->set_stop(s.stop);
+    return field;
 }
 
 std::unique_ptr<VelocityField3> BiotSavartVelocity::build3(const VelocityState3& s) const {
-    return std::make_unique<BiotSavartEstimator3>(*s.omega, s.interpolation, m_options.importance, s.delta, s.periodic);
+    auto field =
+        std::make_unique<BiotSavartEstimator3>(*s.omega, s.interpolation, m_options.importance, s.delta, s.periodic);
+    field->set_stop(s.stop);
+    return field;
 }
 
 std::string BiotSavartVelocity::effect(int samples, double delta, bool periodic) const {

@@ -509,11 +509,15 @@ std::string WosVelocity::check2(const Domain2& domain) const { return check_wos_
 std::string WosVelocity::check3(const Domain3& domain) const { return check_wos_options3(*m_options, domain); }
 
 std::unique_ptr<VelocityField2> WosVelocity::build2(const VelocityState2& s) const {
-    return std::make_unique<WosVelocityField>(*m_options, s.domain, s.omega, s.interpolation, s.time);
+    auto field = std::make_unique<WosVelocityField>(*m_options, s.domain, s.omega, s.interpolation, s.time);
+    field->set_stop(s.stop);
+    return field;
 }
 
 std::unique_ptr<VelocityField3> WosVelocity::build3(const VelocityState3& s) const {
-    return std::make_unique<WosVelocityField3>(*m_options, s.domain, s.omega, s.interpolation, s.difference);
+    auto field = std::make_unique<WosVelocityField3>(*m_options, s.domain, s.omega, s.interpolation, s.difference);
+    field->set_stop(s.stop);
+    return field;
 }
 
 }  // namespace kelvin::fluid

@@ -271,7 +271,7 @@ TEST(FluidScene, DiagnosticsCsvReplacesThePreviousFileOnlyWhenComplete) {
     d.step = 3;
     {
         fluid::DiagnosticsCsv csv(p);
-        csv.write(d, 0.5, 10, 0);
+        csv.write(d, 0.5, 10, 0, 0.25);
         EXPECT_EQ(slurp(), "previous\n") << "the previous CSV was touched before the new one was complete";
         csv.close();
     }
@@ -280,7 +280,7 @@ TEST(FluidScene, DiagnosticsCsvReplacesThePreviousFileOnlyWhenComplete) {
     EXPECT_EQ(listing(), std::vector<std::string>{"run.csv"});
     {
         fluid::DiagnosticsCsv csv(p);  // destroyed without close(): as when a run throws
-        csv.write(d, 0.5, 10, 0);
+        csv.write(d, 0.5, 10, 0, 0.25);
     }
     EXPECT_EQ(slurp(), complete);
     EXPECT_EQ(listing(), std::vector<std::string>{"run.csv"}) << "temporary file left behind";
