@@ -44,6 +44,15 @@ void check_frames_folder(const OutputPaths& paths, const std::string& who) {
 
 // Bytes per cell, measured as the peak resident size of a run at two resolutions (256^2 and 1024^2 in 2D, 48^3 to
 // 128^3 in 3D; /usr/bin/time -v), and accounted for by the solvers' grids (docs/fluid.md, "Memory").
+std::string check_scale(const std::string& name, double value, double smaller_side, double fraction,
+                        const std::string& why) {
+    if (value < fraction * smaller_side) return {};
+    return fmt::format("{} = {:g} is too large for the domain, whose smaller side is {:g}: it must be below {:g} ({} "
+                       "of that side): {}",
+                       name, value, smaller_side, fraction * smaller_side,
+                       fraction == 0.5 ? std::string("half") : fmt::format("{:g}", fraction), why);
+}
+
 double memory_estimate_2d(const std::string& solver, long long nx, long long ny, bool dye) {
     double per_cell = 110;  // mcfluid: omega, next, u, v and their variances (48 B), the alias table, the EXR image
     if (solver == "stable_fluids") per_cell = 560;  // MAC faces, pressure multigrid levels, advection buffers

@@ -4,6 +4,7 @@
 #include <kelvin/core/logging.h>
 #include <kelvin/core/strings.h>
 #include <kelvin/fluid/boundary.h>
+#include <kelvin/fluid/checks.h>
 
 #include <fmt/format.h>
 
@@ -75,6 +76,16 @@ Vec2d rotate(Vec2d v, double a) {
 }  // namespace
 
 std::string check_wos_options(const WosVelocityOptions& options, const Domain2& domain) {
+    // The shell: a query within epsilon of a boundary moves ShellEdge epsilon away from it (wos::move_to_shell),
+    // which must stay within the domain's half-width, or every estimate is zero or undefined.
+    const Vec2d size = domain.size();
+    if (std::string why = check_scale(
+            "epsilon", options.wos.epsilon, std::min(size.x, size.y), 0.5 / wos::ShellEdge,
+            fmt::format("queries within epsilon of a boundary move {:g} epsilon away from it, across the domain "
+                        "(the velocity would be zero or undefined everywhere)",
+                        wos::ShellEdge));
+        !why.empty())
+        return why;
     bool container = false;
     for (const auto& s : options.shapes) {
         if (!s || s->dimension() != 2 || !s->geometry2())

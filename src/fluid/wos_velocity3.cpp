@@ -4,6 +4,7 @@
 #include <kelvin/core/error.h>
 #include <kelvin/core/logging.h>
 #include <kelvin/fluid/boundary.h>
+#include <kelvin/fluid/checks.h>
 
 #include <fmt/format.h>
 
@@ -24,6 +25,14 @@ Vec3d box_center(const BoundaryShape& s) {
 }  // namespace
 
 std::string check_wos_options3(const WosVelocityOptions& options, const Domain3& domain) {
+    const Vec3d size = domain.size();  // as in 2D (check_wos_options)
+    if (std::string why = check_scale(
+            "epsilon", options.wos.epsilon, std::min({size.x, size.y, size.z}), 0.5 / wos::ShellEdge,
+            fmt::format("queries within epsilon of a boundary move {:g} epsilon away from it, across the domain "
+                        "(the velocity would be zero or undefined everywhere)",
+                        wos::ShellEdge));
+        !why.empty())
+        return why;
     bool container = false;
     for (const auto& s : options.shapes) {
         if (!s || s->dimension() != 3 || !s->geometry3())

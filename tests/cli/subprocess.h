@@ -8,6 +8,7 @@
 #include <fcntl.h>
 #include <signal.h>
 #include <spawn.h>
+#include <sys/resource.h>
 #include <sys/stat.h>
 #include <sys/wait.h>
 #include <unistd.h>
@@ -57,6 +58,7 @@ struct ProcessResult {
     int exit_code = -1;   ///< exit status, or -1 if killed by a signal
     int term_signal = 0;  ///< the signal that killed it, or 0
     bool timed_out = false;
+    double cpu_seconds = 0;  ///< the child's user + system CPU time (getrusage of the child, from wait4)
     std::string out, err;
     std::vector<std::string> err_lines() const { return lines_of(err); }
 };
@@ -170,9 +172,12 @@ private:
     void poll() {
         if (m_done) return;
         int status = 0;
-        pid_t r = waitpid(m_pid, &status, WNOHANG);
+        struct rusage ru {};
+        pid_t r = wait4(m_pid, &status, WNOHANG, &ru);
         if (r == m_pid) {
             m_done = true;
+            m_result.cpu_seconds = double(ru.ru_utime.tv_sec + ru.ru_stime.tv_sec) +
+                                   1e-6 * double(ru.ru_utime.tv_usec + ru.ru_stime.tv_usec);
             if (WIFEXITED(status)) m_result.exit_code = WEXITSTATUS(status);
             if (WIFSIGNALED(status)) m_result.term_signal = WTERMSIG(status);
         }

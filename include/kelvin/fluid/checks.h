@@ -55,6 +55,12 @@ struct RunSources {
     static RunSources from(const Properties& props, const std::string& vorticity_plugin, const std::string& strength);
 };
 
+/// The bound of a length parameter of an estimator or boundary against the domain (scene load, exit 2): "" when
+/// `value` is below `fraction` x `smaller_side` (the domain's smaller side), otherwise one line naming the parameter,
+/// both sizes and `why` (what the parameter would do at that size).
+std::string check_scale(const std::string& name, double value, double smaller_side, double fraction,
+                        const std::string& why);
+
 /// A named scalar of a state (a diagnostic written to the CSV).
 struct NamedValue {
     double value;
