@@ -14,8 +14,7 @@ namespace kelvin::fluid {
 
 namespace fs = std::filesystem;
 
-RunSources RunSources::from(const Properties& props, const std::string& vorticity_plugin,
-                            const std::string& strength) {
+RunSources RunSources::from(const Properties& props, const std::string& vorticity_plugin, const std::string& strength) {
     RunSources s;
     s.dt = props.location_of("dt");
     s.vorticity = props.location_of("vorticity");
@@ -47,23 +46,24 @@ void check_frames_folder(const OutputPaths& paths, const std::string& who) {
 std::string check_scale(const std::string& name, double value, double smaller_side, double fraction,
                         const std::string& why) {
     if (value < fraction * smaller_side) return {};
-    return fmt::format("{} = {:g} is too large for the domain, whose smaller side is {:g}: it must be below {:g} ({} "
-                       "of that side): {}",
-                       name, value, smaller_side, fraction * smaller_side,
-                       fraction == 0.5 ? std::string("half") : fmt::format("{:g}", fraction), why);
+    return fmt::format(
+        "{} = {:g} is too large for the domain, whose smaller side is {:g}: it must be below {:g} ({} "
+        "of that side): {}",
+        name, value, smaller_side, fraction * smaller_side,
+        fraction == 0.5 ? std::string("half") : fmt::format("{:g}", fraction), why);
 }
 
 double memory_estimate_2d(const std::string& solver, long long nx, long long ny, bool dye) {
     double per_cell = 110;  // mcfluid: omega, next, u, v and their variances (48 B), the alias table, the EXR image
-    if (solver == "stable_fluids") per_cell = 560;  // MAC faces, pressure multigrid levels, advection buffers
-    if (solver == "flip") per_cell = 780;           // stable_fluids' grids and 4 particles per cell
+    if (solver == "stable_fluids") per_cell = 560;     // MAC faces, pressure multigrid levels, advection buffers
+    if (solver == "flip") per_cell = 780;              // stable_fluids' grids and 4 particles per cell
     if (solver == "vortex_particles") per_cell = 330;  // particles (position, strength, velocity) and the tree
     if (dye) per_cell += 64;                           // the dye's channels and displacements
     return 24e6 + per_cell * double(nx) * double(ny);
 }
 
-double memory_estimate_3d(long long nx, long long ny, long long nz, bool control_variates, bool smoke,
-                          bool boundaries, bool vdb) {
+double memory_estimate_3d(long long nx, long long ny, long long nz, bool control_variates, bool smoke, bool boundaries,
+                          bool vdb) {
     // Vector grids of doubles: vorticity, the next vorticity, velocity and its variance (96 B per cell); with
     // control variates the previous state's three and the difference (96 B more) and a second estimator.
     double per_cell = 96 + 40;  // + the Biot–Savart estimator's alias table and directions
@@ -91,9 +91,9 @@ std::string StepChecks::unrepresentable(const std::vector<NamedValue>& scalars,
         for (std::size_t k = 0; k < v.size(); ++k) {
             if (std::abs(v[k]) <= FloatMax) continue;  // (NaN fails the comparison too)
             const std::size_t nx = std::size_t(f.nx), i = k % nx, row = k / nx;
-            const std::string cell = f.ny == 0 ? fmt::format("cell ({}, {})", i, row)
-                                               : fmt::format("cell ({}, {}, {})", i, row % std::size_t(f.ny),
-                                                             row / std::size_t(f.ny));
+            const std::string cell =
+                f.ny == 0 ? fmt::format("cell ({}, {})", i, row)
+                          : fmt::format("cell ({}, {}, {})", i, row % std::size_t(f.ny), row / std::size_t(f.ny));
             return fmt::format("{} = {:g} at {}{}", f.name, v[k], cell,
                                std::isfinite(v[k]) ? " (beyond float32's 3.4e+38: inf when written)" : "");
         }
@@ -105,26 +105,27 @@ std::string StepChecks::state(long long step, const std::vector<NamedValue>& sca
                               const std::vector<FieldValues>& fields, uint64_t replaced, std::size_t cells) {
     std::string what;
     if (cells > 0 && replaced * 100 > uint64_t(cells))
-        what = fmt::format("{} non-finite velocity or vorticity estimates replaced by zero ({} cells): the flow "
-                           "overflows double precision",
-                           replaced, cells);
+        what = fmt::format(
+            "{} non-finite velocity or vorticity estimates replaced by zero ({} cells): the flow "
+            "overflows double precision",
+            replaced, cells);
     else
         what = unrepresentable(scalars, fields);
     if (what.empty()) return {};
     ++m_non_finite;
     if (step == 0) {
-        const std::string param = m_src.strength.empty()
-                                      ? std::string("parameter 'vorticity'")
-                                      : fmt::format("vorticity '{}': parameter '{}'", m_src.vorticity_plugin,
-                                                    m_src.strength);
+        const std::string param = m_src.strength.empty() ? std::string("parameter 'vorticity'")
+                                                         : fmt::format("vorticity '{}': parameter '{}'",
+                                                                       m_src.vorticity_plugin, m_src.strength);
         throw InputError(m_src.vorticity,
                          fmt::format("{}: the initial state cannot be represented: {} (fields are stored as "
                                      "32-bit floats); scale it down",
                                      param, what));
     }
-    return fmt::format("{}: stopped at step {}: {}; nothing of that step was written (the frames and CSV of the "
-                       "earlier steps are kept)",
-                       m_who, step, what);
+    return fmt::format(
+        "{}: stopped at step {}: {}; nothing of that step was written (the frames and CSV of the "
+        "earlier steps are kept)",
+        m_who, step, what);
 }
 
 double StepChecks::cfl(long long step, double max_speed, double dt, bool last) {

@@ -179,7 +179,7 @@ FluidDiagnostics FluidSolver::diagnostics() {
 RunResult run_fluid_solver(const std::string& who, FluidSolver& solver, const SimulationParams& p, RunContext& ctx,
                            const std::string& effects) {
     check_frames_folder(OutputPaths(ctx.output, who), who);  // before any work
-    solver.set_cancel_token(ctx.cancel);  // the solver's own loops stop with this job
+    solver.set_cancel_token(ctx.cancel);                     // the solver's own loops stop with this job
     Timer total;
     // The time limit inside a step: the solver's loops poll the watch's token (checks.h).
     TimeLimitWatch watch(ctx.time_limit);

@@ -19,9 +19,9 @@
 // every sample is a vortex blob of equal strength), or proportionally to 1/|x - y| on a disk around the
 // query point that covers the support (the minimum-image cell on periodic domains; samples outside it
 // weigh zero).
+#include <kelvin/core/interrupt.h>
 #include <kelvin/core/random.h>
 #include <kelvin/fluid/grid.h>
-#include <kelvin/core/interrupt.h>
 #include <kelvin/fluid/velocity.h>
 
 #include <cstdint>

@@ -76,8 +76,8 @@ void check_frames_folder(const OutputPaths& paths, const std::string& who);
 double memory_estimate_2d(const std::string& solver, long long nx, long long ny, bool dye);
 /// The same for 3D mcfluid: its vector grids (with control variates the previous state's too), the estimator's
 /// tables, smoke and solids, and the VDB frame written from them.
-double memory_estimate_3d(long long nx, long long ny, long long nz, bool control_variates, bool smoke,
-                          bool boundaries, bool vdb);
+double memory_estimate_3d(long long nx, long long ny, long long nz, bool control_variates, bool smoke, bool boundaries,
+                          bool vdb);
 
 /// The checks of one run, step by step.
 class StepChecks {

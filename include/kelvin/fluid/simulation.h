@@ -59,8 +59,8 @@ struct SimulationParams {
     std::shared_ptr<DyeSpec> dye;
     RunSources sources;  ///< where the scene gave dt and the initial vorticity (checks.h)
 
-    /// Reads and validates them (and the memory the solver `who` will need at this resolution, checks.h) (errors name the parameter; `who` names the solver in messages). mcfluid and the
-    /// baselines share this parser.
+    /// Reads and validates them (and the memory the solver `who` will need at this resolution, checks.h) (errors name
+    /// the parameter; `who` names the solver in messages). mcfluid and the baselines share this parser.
     static SimulationParams parse(const Properties& props, const std::string& who);
     /// parse() for a baseline solver: MCFluid-only inputs (<velocity>, diffusion_samples) are also accepted and
     /// ignored with a note, so that an mcfluid scene runs unchanged with `-D solver=...`.

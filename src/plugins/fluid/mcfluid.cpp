@@ -306,8 +306,8 @@ public:
                 fields.push_back({&solver.velocity_u().values(), "velocity u", nx, 0});
                 fields.push_back({&solver.velocity_v().values(), "velocity v", nx, 0});
             }
-            const std::string why = checks.state(d.step, diagnostic_values(d, uv), fields, replaced,
-                                                 solver.vorticity_grid().cell_count());
+            const std::string why =
+                checks.state(d.step, diagnostic_values(d, uv), fields, replaced, solver.vorticity_grid().cell_count());
             if (why.empty()) return;
             if (csv) csv->close();
             throw RuntimeError(why);
@@ -383,8 +383,8 @@ public:
             d.vorticity_rmse_exact = exact_vorticity_rmse(solver.vorticity_grid(), field, d.time, settings.viscosity,
                                                           bool(settings.boundaries));
             const FluidWork& after = solver.work();
-            const uint64_t replaced =
-                (after.invalid_velocity + after.invalid_vorticity) - (before.invalid_velocity + before.invalid_vorticity);
+            const uint64_t replaced = (after.invalid_velocity + after.invalid_vorticity) -
+                                      (before.invalid_velocity + before.invalid_vorticity);
             check_state(d, true, replaced);
             const double c = cfl(s);
             const double seconds = step_timer.seconds();
