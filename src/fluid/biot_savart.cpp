@@ -343,6 +343,10 @@ VelocityEstimate BiotSavartEstimator::estimate(Vec2d x, int n, Random& rng) cons
             kernel_periodic(b, padded, k, sums);
         else
             kernel_open(b, padded, k, sums);
+        if (m_stop && (done / Batch) % 64 == 63 && m_stop->stop_requested()) {  // the pass is discarded
+            n = done + m;
+            break;
+        }
     }
 
     const double weight = (importance                             ? m_abs_integral

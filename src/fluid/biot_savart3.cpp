@@ -557,6 +557,10 @@ VelocityEstimate3 BiotSavartEstimator3::estimate(Vec3d x, int n, Random& rng) co
         if (periodic) correction3(b, m, oct);  // the smooth correction G_per - G (4 pi H) at the minimum images
         for (int s = m; s < padded; ++s) b.fx[s] = b.fy[s] = b.fz[s] = 0.0f;
         accumulate3(b.fx, b.fy, b.fz, padded, sums);
+        if (m_stop && batch % 64 == 63 && m_stop->stop_requested()) {  // the pass is discarded
+            n = done + m;
+            break;
+        }
     }
     const double weight =
         (importance ? m_abs_integral : m_region_size.x * m_region_size.y * m_region_size.z) * InvFourPi;

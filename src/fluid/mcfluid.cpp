@@ -118,6 +118,7 @@ void MCFluidSolver::rebuild_estimator() {
     state.delta = m_delta;
     state.time = m_time;
     state.periodic = m_periodic;
+    state.stop = this;
     m_wos = nullptr;
     m_field = m_settings.estimator->build2(state);
     if (!m_field)

@@ -78,24 +78,27 @@ void add_work(FluidWork3& total, const MCFluid3Solver::SlabWork& w) {
 
 /// Runs `cell(c, x, rng, work)` over the cells (index c, centre x) of this rank's z slabs in `pass`: one unit per
 /// z slab, drawing from the slab's own stream of (step, tag), checking `stop` (the solver's token or an interrupt)
-/// every row. `work` gets the counters of every rank's slabs. False on every rank when a stop on any rank cut the
+/// every cell. `work` gets the counters of every rank's slabs. False on every rank when a stop on any rank cut the
 /// pass short; otherwise the caller gathers the fields the pass wrote (SlabPass::gather).
 template <class Cell>
 bool for_each_cell(SlabPass& pass, const MCFluid3Settings& s, const Grid3& g, long long step, uint64_t tag,
-                   MCFluid3Solver::SlabWork& work, const CancelToken& stop, Cell&& cell) {
+                   MCFluid3Solver::SlabWork& work, const Cancellable& stop, Cell&& cell) {
     std::vector<MCFluid3Solver::SlabWork> slabs(pass.size(), MCFluid3Solver::SlabWork{});
     std::atomic<bool> interrupted{false};
     pass.run([&](std::size_t slab) {
         const int k = int(slab);
         Random rng(s.seed, stream_of(step, tag, slab));
         MCFluid3Solver::SlabWork& w = slabs[slab - pass.begin()];
-        for (int j = 0; j < s.ny; ++j) {
-            if (stop.stop_requested()) {
-                interrupted = true;
-                return;
+        for (int j = 0; j < s.ny; ++j)
+            for (int i = 0; i < s.nx; ++i) {
+                // Every cell: a cell's estimates are n_mc samples each (walks with boundaries), so a row can take
+                // seconds at a large n_mc; the estimators poll within their sample loops too.
+                if (stop.stop_requested()) {
+                    interrupted = true;
+                    return;
+                }
+                cell(g.index(i, j, k), g.cell_center(i, j, k), rng, w);
             }
-            for (int i = 0; i < s.nx; ++i) cell(g.index(i, j, k), g.cell_center(i, j, k), rng, w);
-        }
     });
     work = {};
     for (const MCFluid3Solver::SlabWork& w : slabs) work += w;
@@ -178,6 +181,7 @@ void MCFluid3Solver::rebuild_estimators() {
     state.interpolation = s.interpolation;
     state.delta = m_delta;
     state.periodic = m_periodic;
+    state.stop = this;
     m_wos = nullptr;
     m_field = s.estimator->build3(state);
     if (!m_field) throw_runtime("MCFluid3Solver: velocity estimator '{}' built no field", s.estimator->plugin_name());
@@ -262,7 +266,7 @@ bool MCFluid3Solver::ensure_velocity() {
     const int n = (s.control_variates && m_step == 0 && s.initial_samples > 0) ? s.initial_samples : s.velocity.samples;
     SlabPass pass(*m_comm, std::size_t(s.nz), std::size_t(s.nx) * std::size_t(s.ny));  // this rank's z slabs
     SlabWork work;
-    const bool complete = for_each_cell(pass, s, m_omega.x, m_step, TagVelocity, work, cancel_token(),
+    const bool complete = for_each_cell(pass, s, m_omega.x, m_step, TagVelocity, work, *this,
                                         [&](std::size_t c, const Vec3d& x, Random& rng, SlabWork& w) {
                                             if (m_wos && m_solid[c]) {  // static solids: zero velocity, no walk
                                                 m_vel.set(c, Vec3d(0.0));
@@ -323,7 +327,7 @@ bool MCFluid3Solver::step(double dt) {
     SlabPass pass(*m_comm, std::size_t(s.nz), std::size_t(s.nx) * std::size_t(s.ny));  // this rank's z slabs
     SlabWork work;
     const bool complete = for_each_cell(
-        pass, s, m_omega.x, m_step, TagAdvection, work, cancel_token(),
+        pass, s, m_omega.x, m_step, TagAdvection, work, *this,
         [&](std::size_t c, const Vec3d& x, Random& rng, SlabWork& w) {
             const Vec3d k1 = m_vel.at(c);
             Vec3d xd;

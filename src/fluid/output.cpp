@@ -142,16 +142,17 @@ void DiagnosticsCsv::close() {
 
 const char* DiagnosticsCsv::header() {
     return "step,time,kinetic_energy,kinetic_energy_raw,enstrophy,circulation,max_abs_vorticity,seconds,"
-           "biot_savart_evals,biot_savart_evals_per_second,invalid,vorticity_rmse_exact";
+           "biot_savart_evals,biot_savart_evals_per_second,invalid,vorticity_rmse_exact,cfl";
 }
 
-void DiagnosticsCsv::write(const FluidDiagnostics& d, double seconds, double evals, uint64_t invalid) {
+void DiagnosticsCsv::write(const FluidDiagnostics& d, double seconds, double evals, uint64_t invalid, double cfl) {
     if (!m_file) return;
     const double rate = seconds > 0 ? evals / seconds : 0.0;
     std::string line = fmt::format(
-        "{},{:.10g},{:.10g},{:.10g},{:.10g},{:.10g},{:.10g},{:.6g},{:.0f},{:.6g},{},{}\n", d.step, d.time,
+        "{},{:.10g},{:.10g},{:.10g},{:.10g},{:.10g},{:.10g},{:.6g},{:.0f},{:.6g},{},{},{:.6g}\n", d.step, d.time,
         d.kinetic_energy, d.kinetic_energy_raw, d.enstrophy, d.circulation, d.max_abs_vorticity, seconds, evals, rate,
-        invalid, std::isfinite(d.vorticity_rmse_exact) ? fmt::format("{:.6g}", d.vorticity_rmse_exact) : std::string());
+        invalid, std::isfinite(d.vorticity_rmse_exact) ? fmt::format("{:.6g}", d.vorticity_rmse_exact) : std::string(),
+        cfl);
     if (std::fputs(line.c_str(), m_file) < 0 || std::fflush(m_file) != 0)
         throw_runtime("cannot write '{}': {}", m_path.string(), std::strerror(errno));
 }

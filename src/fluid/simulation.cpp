@@ -3,6 +3,7 @@
 #include <kelvin/core/distributed.h>
 #include <kelvin/core/interrupt.h>
 #include <kelvin/core/logging.h>
+#include <kelvin/core/memory.h>
 #include <kelvin/core/progress.h>
 #include <kelvin/core/registry.h>
 #include <kelvin/core/stats.h>
@@ -84,6 +85,10 @@ SimulationParams SimulationParams::parse(const Properties& props, const std::str
         props.error("scalar",
                     fmt::format("'{}' is 3D smoke (dimension = 3); 2D scenes take a dye", obj->plugin_name()));
     p.dye = props.get_object_as<DyeSpec>("scalar");
+    p.sources = RunSources::from(props, p.field->plugin_name(), p.field->strength_parameter());
+    // The memory the run will need, before anything is allocated (checks.h: measured per cell).
+    check_memory(memory_estimate_2d(who, p.nx, p.ny, bool(p.dye)),
+                 fmt::format("{}: a {}x{} grid (parameter 'resolution')", who, p.nx, p.ny), props.location_of("cache"));
     return p;
 }
 
@@ -173,8 +178,14 @@ FluidDiagnostics FluidSolver::diagnostics() {
 
 RunResult run_fluid_solver(const std::string& who, FluidSolver& solver, const SimulationParams& p, RunContext& ctx,
                            const std::string& effects) {
-    solver.set_cancel_token(ctx.cancel);  // the solver's own loops stop with this job
+    check_frames_folder(OutputPaths(ctx.output, who), who);  // before any work
+    solver.set_cancel_token(ctx.cancel);                     // the solver's own loops stop with this job
     Timer total;
+    // The time limit inside a step: the solver's loops poll the watch's token (checks.h).
+    TimeLimitWatch watch(ctx.time_limit);
+    solver.set_time_limit_token(watch.token());
+    const Vec2d cell = solver.vorticity_grid().h(), size = p.domain.size();
+    StepChecks checks(who, p.sources, std::min(cell.x, cell.y), std::min(size.x, size.y));
     const VorticityField& field = *p.field;
     log_info("{}: 2D, domain {}, {}x{} grid, initial {}", who, p.domain.to_string(), p.nx, p.ny, field.description());
     log_info("{}: effects: {}; diffusion {}; stretching off (2D); {}", who, effects,
@@ -220,8 +231,34 @@ RunResult run_fluid_solver(const std::string& who, FluidSolver& solver, const Si
         checkpoints.reached(ctx, cp);
     };
 
+    // Nothing non-finite reaches the CSV or a frame (checks.h): the initial state is refused as input (exit 2,
+    // naming the initial vorticity's strength), a later one stops the run with the earlier steps' outputs (exit 1).
+    auto check_state = [&](const FluidDiagnostics& d, uint64_t replaced) {
+        const int nx = p.nx;
+        const std::string why = checks.state(d.step, diagnostic_values(d),
+                                             {{&solver.vorticity_grid().values(), "vorticity", nx, 0},
+                                              {&solver.velocity_u().values(), "velocity u", nx, 0},
+                                              {&solver.velocity_v().values(), "velocity v", nx, 0}},
+                                             replaced, solver.vorticity_grid().cell_count());
+        if (why.empty()) return;
+        if (csv) csv->close();
+        throw RuntimeError(why);
+    };
+    // The state's CFL number for the step that starts from it; a refused dt keeps the earlier rows.
+    auto cfl = [&](long long s) {
+        const double dt = TimeStepping{p.dt, p.steps, p.end_time}.step_length(s + 1, solver.time());
+        try {
+            return checks.cfl(s, max_speed({&solver.velocity_u().values(), &solver.velocity_v().values()}), dt,
+                              s == p.steps);
+        } catch (...) {
+            if (csv && s > 0) csv->close();
+            throw;
+        }
+    };
+
     const FluidDiagnostics d0 = diagnostics();
-    if (csv) csv->write(d0, 0.0, solver.evaluations(), solver.invalid());
+    check_state(d0, 0);
+    if (csv) csv->write(d0, 0.0, solver.evaluations(), solver.invalid(), cfl(0));
     write_frame();
     if (checkpoints.active()) checkpoint(0);
 
@@ -237,8 +274,10 @@ RunResult run_fluid_solver(const std::string& who, FluidSolver& solver, const Si
         const double dt = TimeStepping{p.dt, p.steps, p.end_time}.step_length(s, solver.time());
         if (!solver.step(dt)) break;
         const FluidDiagnostics d = diagnostics();
+        check_state(d, solver.invalid() - invalid_before);
+        const double c = cfl(s);
         const double seconds = step_timer.seconds();
-        if (csv) csv->write(d, seconds, solver.evaluations() - evals_before, solver.invalid() - invalid_before);
+        if (csv) csv->write(d, seconds, solver.evaluations() - evals_before, solver.invalid() - invalid_before, c);
         ++done;
         if (frames.due(s)) write_frame();
         progress.update(1);
@@ -246,7 +285,10 @@ RunResult run_fluid_solver(const std::string& who, FluidSolver& solver, const Si
             ctx.write_partial_image(image());
             since_partial.reset();
         }
-        if (checkpoints.active()) checkpoint(done);
+        if (checkpoints.active()) {
+            checkpoint(done);
+            if (ctx.time_limit > 0) watch.set_limit(ctx.time_limit + checkpoints.overhead());
+        }
         if (ctx.time_limit > 0 && total.seconds() - checkpoints.overhead() >= ctx.time_limit && s < p.steps) {
             stopped_by_time = true;
             break;
@@ -254,6 +296,9 @@ RunResult run_fluid_solver(const std::string& who, FluidSolver& solver, const Si
     }
     progress.finish();
     result.interrupted = ctx.cancel.stop_requested();
+    // The limit passed inside a step (the watch stopped it; the partial step was discarded): as at a step boundary.
+    if (!result.interrupted && done < p.steps && watch.passed()) stopped_by_time = true;
+    checks.report(ctx.stats);
     if (csv) csv->close();  // the CSV so far replaces the previous one (interrupted runs included)
     if (stopped_by_time)
         log_warn("{}: time limit of {:g} s reached after {} of {} steps (t = {:g})", who, ctx.time_limit, done, p.steps,

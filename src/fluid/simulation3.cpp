@@ -6,6 +6,7 @@
 #include <kelvin/core/files.h>
 #include <kelvin/core/interrupt.h>
 #include <kelvin/core/logging.h>
+#include <kelvin/core/memory.h>
 #include <kelvin/core/progress.h>
 #include <kelvin/core/registry.h>
 #include <kelvin/core/stats.h>
@@ -119,19 +120,62 @@ Simulation3Params Simulation3Params::parse(const Properties& props) {
         if (const std::string why = check_wos_cells3(*s.boundaries, s.domain, s.nx, s.ny, s.nz); !why.empty())
             props.error("velocity", "walk_on_spheres: " + why);
     p.field->check_domain3(s.domain);
+    p.sources = RunSources::from(props, obj->plugin_name(), p.field->strength_parameter3());
+    // The memory the run will need, before anything is allocated (checks.h: measured per cell).
+    check_memory(memory_estimate_3d(s.nx, s.ny, s.nz, s.control_variates, bool(p.smoke), bool(s.boundaries),
+                                    p.write_vdb && p.output_every > 0),
+                 fmt::format("mcfluid: a {}x{}x{} cache (parameter 'resolution')", s.nx, s.ny, s.nz),
+                 props.location_of("cache"));
     return p;
 }
 
 // ------------------------------------------------------------------------------------------------
 // Outputs.
 
+namespace {
+// The backstop of every VDB write (as write_image's for images): OpenVDB stores float32, so a double beyond
+// 3.4e38 would be written as inf. The solvers' own checks (checks.h) stop a run before it gets here.
+void refuse_unstorable(const std::filesystem::path& path, const Grid3& g, const std::string& name) {
+    const std::vector<double>& v = g.values();
+    std::size_t bad = 0, first = 0;
+    for (std::size_t k = 0; k < v.size(); ++k)
+        if (!(std::abs(v[k]) <= FloatMax) && bad++ == 0) first = k;
+    if (bad == 0) return;
+    const std::size_t nx = std::size_t(g.nx()), ny = std::size_t(g.ny());
+    throw_runtime(
+        "not writing '{}': grid '{}' is {:g} at voxel ({}, {}, {}); {} value(s) are not finite as 32-bit floats "
+        "(numerical trouble is never written into an output)",
+        path.string(), name, v[first], first % nx, (first / nx) % ny, first / (nx * ny), bad);
+}
+}  // namespace
+
 void write_vdb_frame(const std::filesystem::path& path, const VectorGrid3& vorticity, const VectorGrid3* velocity,
                      const Grid3* density) {
+    refuse_unstorable(path, vorticity.x, "vorticity x");
+    refuse_unstorable(path, vorticity.y, "vorticity y");
+    refuse_unstorable(path, vorticity.z, "vorticity z");
+    // |vorticity| is stored too: finite components can still have a magnitude beyond float32.
+    for (std::size_t c = 0; c < vorticity.cell_count(); ++c)
+        if (const double m = glm::length(vorticity.at(c)); !(m <= FloatMax)) {
+            const std::size_t nx = std::size_t(vorticity.x.nx()), ny = std::size_t(vorticity.x.ny());
+            throw_runtime(
+                "not writing '{}': grid 'vorticity_magnitude' is {:g} at voxel ({}, {}, {}), not finite as a 32-bit "
+                "float (numerical trouble is never written into an output)",
+                path.string(), m, c % nx, (c / nx) % ny, c / (nx * ny));
+        }
+    if (velocity) {
+        refuse_unstorable(path, velocity->x, "velocity x");
+        refuse_unstorable(path, velocity->y, "velocity y");
+        refuse_unstorable(path, velocity->z, "velocity z");
+    }
+    if (density) refuse_unstorable(path, *density, "density");
     kelvin::detail::vdb_codec().write_frame(path, vorticity, velocity, density);  // OpenVDB, loaded on first use
 }
 
 void write_vdb_grids(const std::filesystem::path& path,
                      const std::vector<std::pair<std::string, const Grid3*>>& grids) {
+    for (const auto& [name, grid] : grids)
+        if (grid) refuse_unstorable(path, *grid, name);
     kelvin::detail::vdb_codec().write_grids(path, grids);
 }
 
@@ -186,13 +230,19 @@ std::unique_ptr<MCFluid3Solver> create_mcfluid3_solver(const Simulation3Params& 
 }
 
 RunResult run_mcfluid3(const Simulation3Params& p, RunContext& ctx) {
+    check_frames_folder(OutputPaths(ctx.output), "mcfluid");  // before any work
     Timer total;
+    // The time limit inside a step: the solver's passes poll the watch's token (checks.h).
+    TimeLimitWatch watch(ctx.time_limit);
     const MCFluid3Settings settings = settings_for(p, ctx);
     if (ctx.spp > 0) log_info("mcfluid: --spp {} overrides the Biot–Savart samples (n_mc)", settings.velocity.samples);
     const VorticityField3& field = *p.field;
     const std::unique_ptr<MCFluid3Solver> owned = create_mcfluid3_solver(p, ctx);
     MCFluid3Solver& solver = *owned;
+    solver.set_time_limit_token(watch.token());
     const bool viscous = settings.viscosity > 0;
+    const Vec3d cell = solver.vorticity_grid().x.h(), size = settings.domain.size();
+    StepChecks checks("mcfluid", p.sources, std::min({cell.x, cell.y, cell.z}), std::min({size.x, size.y, size.z}));
     log_info("mcfluid: 3D, domain {}, {}x{}x{} cache ({}), initial {}", settings.domain.to_string(), settings.nx,
              settings.ny, settings.nz, settings.interpolation == Interpolation::Nearest ? "nearest" : "trilinear",
              field.description3());
@@ -233,14 +283,21 @@ RunResult run_mcfluid3(const Simulation3Params& p, RunContext& ctx) {
                        p.steps, result.files_written);
     std::string csv =
         "step,time,kinetic_energy,kinetic_energy_raw,enstrophy,helicity,impulse_x,impulse_y,impulse_z,centroid_x,"
-        "centroid_y,centroid_z,max_abs_vorticity,divergence_rms,smoke_mass,step_seconds,biot_savart_evals,invalid\n";
-    auto add_row = [&](const FluidDiagnostics3& d, double seconds, double evals, uint64_t invalid) {
+        "centroid_y,centroid_z,max_abs_vorticity,divergence_rms,smoke_mass,step_seconds,biot_savart_evals,invalid,"
+        "cfl\n";
+    auto add_row = [&](const FluidDiagnostics3& d, double seconds, double evals, uint64_t invalid, double cfl) {
         csv += fmt::format(
             "{},{:.9g},{:.9g},{:.9g},{:.9g},{:.9g},{:.9g},{:.9g},{:.9g},{:.9g},{:.9g},{:.9g},{:.9g},{:.9g},"
-            "{:.9g},{:.6g},{:.0f},{}\n",
+            "{:.9g},{:.6g},{:.0f},{},{:.6g}\n",
             d.step, d.time, d.kinetic_energy, d.kinetic_energy_raw, d.enstrophy, d.helicity, d.impulse.x, d.impulse.y,
             d.impulse.z, d.centroid.x, d.centroid.y, d.centroid.z, d.max_abs_vorticity, d.divergence_rms, d.smoke_mass,
-            seconds, evals, invalid);
+            seconds, evals, invalid, cfl);
+    };
+    auto save_csv = [&] {  // at the end of the run, or before a stop (the rows of the steps before it)
+        if (paths.enabled() && p.write_csv && comm.root()) {
+            write_text_atomically(paths.csv(), csv);
+            result.files_written.push_back(paths.csv());
+        }
     };
     const int axis = p.slice_axis;
     const VectorGrid3& omega0 = solver.vorticity_grid();
@@ -256,8 +313,10 @@ RunResult run_mcfluid3(const Simulation3Params& p, RunContext& ctx) {
                          range, {0, 0}, {1, 1});
     };
 
-    // Nothing non-finite reaches the CSV or a frame: diagnostics and every grid an output carries are checked first.
-    auto refuse = [&](const FluidDiagnostics3& d) {
+    // Nothing non-finite reaches the CSV or a frame: diagnostics and every grid an output carries are checked first
+    // (as the float32 the VDB frames store). The initial state is refused as input (exit 2, naming the initial
+    // vorticity's strength); a later one stops the run with the CSV of the earlier steps (exit 1).
+    auto refuse = [&](const FluidDiagnostics3& d, uint64_t replaced) {
         const VectorGrid3& w = solver.vorticity_grid();
         const int nx = w.x.nx(), ny = w.x.ny();
         std::vector<FieldValues> fields = {{&w.x.values(), "vorticity x", nx, ny},
@@ -270,18 +329,33 @@ RunResult run_mcfluid3(const Simulation3Params& p, RunContext& ctx) {
             fields.push_back({&u.z.values(), "velocity z", nx, ny});
         }
         if (solver.smoke()) fields.push_back({&solver.smoke()->values(), "smoke density", nx, ny});
-        refuse_non_finite_values("mcfluid", d.step, d.max_abs_vorticity,
-                                 {{d.kinetic_energy, "kinetic energy"},
-                                  {d.kinetic_energy_raw, "raw kinetic energy"},
-                                  {d.enstrophy, "enstrophy"},
-                                  {d.helicity, "helicity"},
-                                  {d.impulse.x, "impulse x"},
-                                  {d.impulse.y, "impulse y"},
-                                  {d.impulse.z, "impulse z"},
-                                  {d.max_abs_vorticity, "max |vorticity|"},
-                                  {d.divergence_rms, "divergence RMS"},
-                                  {d.smoke_mass, "smoke mass"}},
-                                 fields);
+        const std::string why = checks.state(d.step,
+                                             {{d.kinetic_energy, "kinetic energy"},
+                                              {d.kinetic_energy_raw, "raw kinetic energy"},
+                                              {d.enstrophy, "enstrophy"},
+                                              {d.helicity, "helicity"},
+                                              {d.impulse.x, "impulse x"},
+                                              {d.impulse.y, "impulse y"},
+                                              {d.impulse.z, "impulse z"},
+                                              {d.max_abs_vorticity, "max |vorticity|"},
+                                              {d.divergence_rms, "divergence RMS"},
+                                              {d.smoke_mass, "smoke mass"}},
+                                             fields, replaced, w.cell_count());
+        if (why.empty()) return;
+        save_csv();
+        throw RuntimeError(why);
+    };
+    // The state's CFL number for the step that starts from it (0 without a velocity).
+    auto cfl = [&](long long step) {
+        if (!solver.velocity_available()) return 0.0;
+        const VectorGrid3& u = solver.velocity_grid();
+        const double dt = TimeStepping{settings.dt, p.steps, p.end_time}.step_length(step + 1, solver.time());
+        try {
+            return checks.cfl(step, max_speed({&u.x.values(), &u.y.values(), &u.z.values()}), dt, step == p.steps);
+        } catch (...) {  // a refused dt mid-run: the CSV of the steps before it is kept
+            if (step > 0) save_csv();
+            throw;
+        }
     };
     // Checkpoints (core/checkpoint.h, `kelvin converge`): the state after the steps that reach them, the vorticity
     // and velocity components on the cache grid, the field's exact solution where it has one (abc).
@@ -325,11 +399,10 @@ RunResult run_mcfluid3(const Simulation3Params& p, RunContext& ctx) {
     };
 
     const FluidDiagnostics3 d0 = solver.diagnostics();
-    refuse_overflowing_state("mcfluid", 0, solver.work().invalid_velocity + solver.work().invalid_vorticity,
-                             solver.vorticity_grid().cell_count());
-    refuse(d0);
+    refuse(d0, solver.work().invalid_velocity + solver.work().invalid_vorticity);
     if (solver.velocity_available()) {
-        add_row(d0, 0.0, double(solver.work().biot_savart_evals), solver.work().invalid_velocity);
+        const double cfl0 = cfl(0);
+        add_row(d0, 0.0, double(solver.work().biot_savart_evals), solver.work().invalid_velocity, cfl0);
         write_frame();
         if (checkpoints.active()) checkpoint(0);
     }
@@ -347,14 +420,11 @@ RunResult run_mcfluid3(const Simulation3Params& p, RunContext& ctx) {
         const FluidDiagnostics3 d = solver.diagnostics();
         if (!solver.velocity_available()) break;
         const FluidWork3& after = solver.work();
-        refuse_overflowing_state(
-            "mcfluid", step,
-            (after.invalid_velocity + after.invalid_vorticity) - (before.invalid_velocity + before.invalid_vorticity),
-            solver.vorticity_grid().cell_count());
-        refuse(d);
-        add_row(
-            d, step_timer.seconds(), double(after.biot_savart_evals - before.biot_savart_evals),
-            (after.invalid_velocity + after.invalid_vorticity) - (before.invalid_velocity + before.invalid_vorticity));
+        const uint64_t replaced =
+            (after.invalid_velocity + after.invalid_vorticity) - (before.invalid_velocity + before.invalid_vorticity);
+        refuse(d, replaced);
+        const double c = cfl(step);
+        add_row(d, step_timer.seconds(), double(after.biot_savart_evals - before.biot_savart_evals), replaced, c);
         if (frames.due(step)) write_frame();
         if (checkpoints.active()) checkpoint(done);
         progress.update(1);
@@ -370,9 +440,12 @@ RunResult run_mcfluid3(const Simulation3Params& p, RunContext& ctx) {
     }
     progress.finish();
     result.interrupted = any_rank(comm, ctx.cancel.stop_requested());
+    // The limit passed inside a step (the watch stopped it; the partial step was discarded): as at a step boundary.
+    if (!result.interrupted && done < p.steps && any_rank(comm, watch.passed())) stopped_by_time = true;
     if (stopped_by_time)
         log_warn("mcfluid: time limit of {:g} s reached after {} of {} steps (t = {:g})", ctx.time_limit, done, p.steps,
                  solver.time());
+    checks.report(ctx.stats);
 
     const FluidWork3& w = solver.work();
     report_fluid_work(ctx.stats, done, solver.time(), solver.vorticity_grid().cell_count(), w);
@@ -395,10 +468,7 @@ RunResult run_mcfluid3(const Simulation3Params& p, RunContext& ctx) {
         log_warn(
             "mcfluid: {} non-finite velocity estimate(s) and {} non-finite vorticity value(s) were replaced by zero",
             w.invalid_velocity, w.invalid_vorticity);
-    if (paths.enabled() && p.write_csv && comm.root()) {
-        write_text_atomically(paths.csv(), csv);
-        result.files_written.push_back(paths.csv());
-    }
+    save_csv();
     if (solver.velocity_available()) {
         const FluidDiagnostics3 dn = solver.diagnostics();
         log_info(

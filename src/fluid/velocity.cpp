@@ -2,6 +2,7 @@
 // (estimators.h). The Walk-on-Spheres estimator is in wos_velocity.cpp.
 #include <kelvin/core/error.h>
 #include <kelvin/fluid/boundary.h>
+#include <kelvin/fluid/checks.h>
 #include <kelvin/fluid/estimators.h>
 
 #include <fmt/format.h>
@@ -21,18 +22,39 @@ std::string VelocityEstimator::effect(int samples, double delta, bool periodic) 
                        samples, periodic ? ", periodic" : "");
 }
 
-std::string BiotSavartVelocity::check3(const Domain3&) const {
+namespace {
+// The mollifier radius against the domain: a radius of half its smaller side smooths every structure in it away.
+std::string check_delta(double delta, double smaller_side) {
+    if (!(delta > 0)) return {};  // -1: half a cache cell; 0: singular
+    return check_scale("delta", delta, smaller_side, 0.5,
+                       "the mollified kernel would smooth every structure of the flow away (velocity near zero)");
+}
+}  // namespace
+
+std::string BiotSavartVelocity::check2(const Domain2& domain) const {
+    const Vec2d size = domain.size();
+    return check_delta(m_options.delta, std::min(size.x, size.y));
+}
+
+std::string BiotSavartVelocity::check3(const Domain3& domain) const {
     if (m_options.importance == SourceSampling::Kernel)
         return "importance = kernel is 2D only; use vorticity or uniform in 3D";
-    return {};
+    const Vec3d size = domain.size();
+    return check_delta(m_options.delta, std::min({size.x, size.y, size.z}));
 }
 
 std::unique_ptr<VelocityField2> BiotSavartVelocity::build2(const VelocityState2& s) const {
-    return std::make_unique<BiotSavartEstimator>(*s.omega, s.interpolation, m_options.importance, s.delta, s.periodic);
+    auto field =
+        std::make_unique<BiotSavartEstimator>(*s.omega, s.interpolation, m_options.importance, s.delta, s.periodic);
+    field->set_stop(s.stop);
+    return field;
 }
 
 std::unique_ptr<VelocityField3> BiotSavartVelocity::build3(const VelocityState3& s) const {
-    return std::make_unique<BiotSavartEstimator3>(*s.omega, s.interpolation, m_options.importance, s.delta, s.periodic);
+    auto field =
+        std::make_unique<BiotSavartEstimator3>(*s.omega, s.interpolation, m_options.importance, s.delta, s.periodic);
+    field->set_stop(s.stop);
+    return field;
 }
 
 std::string BiotSavartVelocity::effect(int samples, double delta, bool periodic) const {

@@ -683,6 +683,7 @@ void VortexParticleSolver::sum_velocity(const double* tx, const double* ty, std:
     const double* g = m_gamma.data();
     const std::size_t blocks = (n + Block - 1) / Block;
     parallel_for_units(blocks, [&](std::size_t b) {
+        if (m_stoppable && stop_requested()) return;  // step() discards the step (it checks after every sum)
         const std::size_t t0 = b * Block, nt = std::min(Block, n - t0);
         if (k.periodic)
             sum_block_periodic(tx + t0, ty + t0, nt, np, px, py, g, k, u + t0, v + t0, nullptr);
@@ -751,8 +752,16 @@ bool VortexParticleSolver::step(double dt) {
         }
     }
 
-    // Particles: Euler or classical RK4 on the coupled system (every stage moves the sources too).
+    // Particles: Euler or classical RK4 on the coupled system (every stage moves the sources too). A stop
+    // (interrupt or time limit) during a stage leaves the particles where they were: the step is discarded.
+    if (stop_requested()) return false;
+    struct Stoppable {  // only the stages' sums may end early: other sums' results are used as they are
+        bool& flag;
+        explicit Stoppable(bool& f) : flag(f) { flag = true; }
+        ~Stoppable() { flag = false; }
+    } stoppable(m_stoppable);
     sum_velocity(m_x.data(), m_y.data(), n, m_x.data(), m_y.data(), m_ku[0].data(), m_kv[0].data());
+    if (stop_requested()) return false;
     if (m_settings.advection == Advection::RK4) {
         const double f[3] = {0.5, 0.5, 1.0};
         for (int s = 1; s < 4; ++s) {
@@ -761,6 +770,7 @@ bool VortexParticleSolver::step(double dt) {
                 m_sy[p] = m_y[p] + f[s - 1] * dt * m_kv[s - 1][p];
             }
             sum_velocity(m_sx.data(), m_sy.data(), n, m_sx.data(), m_sy.data(), m_ku[s].data(), m_kv[s].data());
+            if (stop_requested()) return false;
         }
         for (std::size_t p = 0; p < n; ++p) {
             m_x[p] += dt / 6 * (m_ku[0][p] + 2 * m_ku[1][p] + 2 * m_ku[2][p] + m_ku[3][p]);
@@ -773,7 +783,6 @@ bool VortexParticleSolver::step(double dt) {
         }
     }
     m_seconds_velocity += timer.seconds();
-    if (stop_requested()) return false;  // (the state is mid-step; the caller stops anyway)
     if (m_bounds) {
         push_out_of_solids();
         n = m_x.size();

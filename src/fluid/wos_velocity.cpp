@@ -4,6 +4,7 @@
 #include <kelvin/core/logging.h>
 #include <kelvin/core/strings.h>
 #include <kelvin/fluid/boundary.h>
+#include <kelvin/fluid/checks.h>
 
 #include <fmt/format.h>
 
@@ -75,6 +76,16 @@ Vec2d rotate(Vec2d v, double a) {
 }  // namespace
 
 std::string check_wos_options(const WosVelocityOptions& options, const Domain2& domain) {
+    // The shell: a query within epsilon of a boundary moves ShellEdge epsilon away from it (wos::move_to_shell),
+    // which must stay within the domain's half-width, or every estimate is zero or undefined.
+    const Vec2d size = domain.size();
+    if (std::string why = check_scale(
+            "epsilon", options.wos.epsilon, std::min(size.x, size.y), 0.5 / wos::ShellEdge,
+            fmt::format("queries within epsilon of a boundary move {:g} epsilon away from it, across the domain "
+                        "(the velocity would be zero or undefined everywhere)",
+                        wos::ShellEdge));
+        !why.empty())
+        return why;
     bool container = false;
     for (const auto& s : options.shapes) {
         if (!s || s->dimension() != 2 || !s->geometry2())
@@ -509,11 +520,15 @@ std::string WosVelocity::check2(const Domain2& domain) const { return check_wos_
 std::string WosVelocity::check3(const Domain3& domain) const { return check_wos_options3(*m_options, domain); }
 
 std::unique_ptr<VelocityField2> WosVelocity::build2(const VelocityState2& s) const {
-    return std::make_unique<WosVelocityField>(*m_options, s.domain, s.omega, s.interpolation, s.time);
+    auto field = std::make_unique<WosVelocityField>(*m_options, s.domain, s.omega, s.interpolation, s.time);
+    field->set_stop(s.stop);
+    return field;
 }
 
 std::unique_ptr<VelocityField3> WosVelocity::build3(const VelocityState3& s) const {
-    return std::make_unique<WosVelocityField3>(*m_options, s.domain, s.omega, s.interpolation, s.difference);
+    auto field = std::make_unique<WosVelocityField3>(*m_options, s.domain, s.omega, s.interpolation, s.difference);
+    field->set_stop(s.stop);
+    return field;
 }
 
 }  // namespace kelvin::fluid

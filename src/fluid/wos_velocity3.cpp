@@ -4,6 +4,7 @@
 #include <kelvin/core/error.h>
 #include <kelvin/core/logging.h>
 #include <kelvin/fluid/boundary.h>
+#include <kelvin/fluid/checks.h>
 
 #include <fmt/format.h>
 
@@ -24,6 +25,14 @@ Vec3d box_center(const BoundaryShape& s) {
 }  // namespace
 
 std::string check_wos_options3(const WosVelocityOptions& options, const Domain3& domain) {
+    const Vec3d size = domain.size();  // as in 2D (check_wos_options)
+    if (std::string why = check_scale(
+            "epsilon", options.wos.epsilon, std::min({size.x, size.y, size.z}), 0.5 / wos::ShellEdge,
+            fmt::format("queries within epsilon of a boundary move {:g} epsilon away from it, across the domain "
+                        "(the velocity would be zero or undefined everywhere)",
+                        wos::ShellEdge));
+        !why.empty())
+        return why;
     bool container = false;
     for (const auto& s : options.shapes) {
         if (!s || s->dimension() != 3 || !s->geometry3())
@@ -225,7 +234,7 @@ inline Vec3d minus_curl(const glm::dmat3& J) { return {J[2][1] - J[1][2], J[0][2
 /// The mean of n vector samples and the variance of that mean, per component (NaN samples count as zero and
 /// as invalid).
 template <class Sample>
-VelocityEstimate3 mean_of(int n, wos::WalkCounters& c, Sample&& sample) {
+VelocityEstimate3 mean_of(int n, const wos::Settings& s, wos::WalkCounters& c, Sample&& sample) {
     Vec3d sum(0.0), sum2(0.0);
     for (int i = 0; i < n; ++i) {
         Vec3d v(0.0);
@@ -235,6 +244,7 @@ VelocityEstimate3 mean_of(int n, wos::WalkCounters& c, Sample&& sample) {
         }
         sum += v;
         sum2 += v * v;
+        if (wos::stop_due(s, i)) n = i + 1;  // stopped: the samples so far (the solver discards the pass)
     }
     VelocityEstimate3 e;
     if (n > 0) {
@@ -249,7 +259,7 @@ template <class Field, class Source>
 VelocityEstimate3 velocity_samples(const Field& field, const Source& f, Vec3d x, double R0, int n, Random& rng,
                                    const wos::Settings& s, wos::WalkCounters& c) {
     const auto g = [&field](const wos::BoundaryHit<3>& h) { return field.residual_stream(h); };
-    return mean_of(n, c, [&](Vec3d& v) {
+    return mean_of(n, s, c, [&](Vec3d& v) {
         glm::dmat3 J(0.0);
         if (!wos::gradient_sample<3>(field, g, f, x, R0, rng, s, c, J)) return false;
         v = minus_curl(J);
@@ -262,7 +272,7 @@ template <class Field, class Source>
 VelocityEstimate3 potential_samples(const Field& field, const Source& f, Vec3d x, double R0, int n, Random& rng,
                                     const wos::Settings& s, wos::WalkCounters& c) {
     const auto g = [&field](const wos::BoundaryHit<3>& h) { return field.residual_stream(h); };
-    return mean_of(n, c, [&](Vec3d& v) {
+    return mean_of(n, s, c, [&](Vec3d& v) {
         v = wos::walk<3>(field, g, f, x, rng, s, c, R0);
         return true;
     });

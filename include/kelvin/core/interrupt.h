@@ -52,13 +52,17 @@ class Cancellable {
 public:
     void set_cancel_token(CancelToken token) { m_cancel = std::move(token); }
     const CancelToken& cancel_token() const { return m_cancel; }
-    bool stop_requested() const { return m_cancel.stop_requested(); }
+    /// A second token that stops the loops without meaning "interrupted": the run's time limit, raised by a watch
+    /// (fluid/checks.h, TimeLimitWatch) when the limit passes in the middle of a step. Unset: no time limit.
+    void set_time_limit_token(CancelToken token) { m_time_limit = std::move(token); }
+    bool stop_requested() const { return m_cancel.stop_requested() || m_time_limit.cancelled(); }
 
 protected:
     ~Cancellable() = default;
 
 private:
     CancelToken m_cancel;
+    CancelToken m_time_limit;
 };
 
 }  // namespace kelvin

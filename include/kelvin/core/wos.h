@@ -48,6 +48,7 @@
 // is the runtime-polymorphic form (what plugins implement), and estimate_solution/estimate_gradient over a
 // Problem<D> are the non-template entry points. The walks allocate nothing and consume a fixed number of
 // random draws per step, so a given Random stream gives the same result on any machine and thread count.
+#include <kelvin/core/interrupt.h>
 #include <kelvin/core/math.h>
 #include <kelvin/core/random.h>
 
@@ -97,7 +98,18 @@ struct Settings {
     double epsilon = 1e-4;   ///< shell width: a walk stops when the distance drops below it
     int max_steps = 1024;    ///< spheres per walk before it is truncated (and counted)
     bool antithetic = true;  ///< gradient: mirror the first boundary and volume samples (Fig. 5.5)
+    /// Polled every StopPollSamples samples of an estimate (null: never): when it asks to stop, the estimate
+    /// returns early with the samples done so far, and the caller (a solver's pass) discards the whole pass.
+    const Cancellable* stop = nullptr;
 };
+
+/// Samples of an estimate between two polls of Settings::stop: a sample is one walk (two with antithetic
+/// gradients) of up to max_steps closest-point queries, so 16 of them stay far below 0.1 s.
+inline constexpr int StopPollSamples = 16;
+/// True when sample i (0-based) of an estimate is the last before a poll and `s` asks to stop.
+inline bool stop_due(const Settings& s, int i) {
+    return s.stop && (i + 1) % StopPollSamples == 0 && s.stop->stop_requested();
+}
 
 /// Work and trouble of a batch of walks. Accumulate per work unit, merge in a fixed order.
 struct WalkCounters {
@@ -445,6 +457,7 @@ ScalarEstimate solve(const Geometry& geometry, const Dirichlet& g, const Source&
         }
         sum += v;
         sum2 += v * v;
+        if (stop_due(s, i)) n = i + 1;  // stopped: the mean of the samples so far (the caller discards it)
     }
     e.samples = n;
     if (n > 0) {
@@ -503,6 +516,7 @@ GradientEstimate<D> gradient(const Geometry& geometry, const Dirichlet& g, const
         }
         sum += v;
         sum2 += v * v;
+        if (stop_due(s, i)) n = i + 1;  // stopped: the mean of the samples so far (the caller discards it)
     }
     e.samples = n;
     if (n > 0) {

@@ -19,6 +19,7 @@
 // every sample is a vortex blob of equal strength), or proportionally to 1/|x - y| on a disk around the
 // query point that covers the support (the minimum-image cell on periodic domains; samples outside it
 // weigh zero).
+#include <kelvin/core/interrupt.h>
 #include <kelvin/core/random.h>
 #include <kelvin/fluid/grid.h>
 #include <kelvin/fluid/velocity.h>
@@ -94,10 +95,13 @@ public:
 
     /// Samples per internal batch (the SIMD kernel's unit).
     static constexpr int Batch = 64;
+    /// What estimate() polls every 64 batches (4096 samples) to stop early (VelocityState::stop); null: never.
+    void set_stop(const Cancellable* stop) { m_stop = stop; }
     /// Largest grid (cells per axis) the packed alias table supports.
     static constexpr int MaxResolution = 32767;
 
 private:
+    const Cancellable* m_stop = nullptr;
     /// One alias-table slot over the non-zero cells: the cell itself and its alias, each packed as
     /// i | j << 15 | (omega < 0) << 30.
     struct Slot {

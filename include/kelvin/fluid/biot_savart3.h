@@ -80,11 +80,14 @@ public:
     double abs_integral() const { return m_abs_integral; }
 
     static constexpr int Batch = 64;
+    /// What estimate() polls every 64 batches (4096 samples) to stop early (VelocityState::stop); null: never.
+    void set_stop(const Cancellable* stop) { m_stop = stop; }
     /// Largest grid (cells per axis) the alias table supports: grid indices below 2^30, which the sampler splits
     /// into (i, j, k) exactly in double and float arithmetic.
     static constexpr int MaxResolution = 1024;
 
 private:
+    const Cancellable* m_stop = nullptr;
     /// One alias-table slot per grid cell (grid order, x fastest: a draw's slot is its own cell) with the alias's
     /// grid index and both cells' unit directions of omega (the sample's weight divided by its magnitude) as
     /// octahedral codes: 16 bytes, aligned, so a sample reads one cache line and a 64^3 table is 4 MB (it was 36

@@ -182,6 +182,8 @@ public:
 
     double time() const { return m_time; }
     const wos::Settings& settings() const { return m_wos; }
+    /// What the estimates poll to stop early (VelocityState2::stop); null: never.
+    void set_stop(const Cancellable* stop) { m_wos.stop = stop; }
     bool walls() const { return m_walls; }
     const Domain2& domain() const { return m_domain; }
 
@@ -285,6 +287,8 @@ public:
     Vec3d reflect_out(Vec3d y) const;
 
     const wos::Settings& settings() const { return m_wos; }
+    /// What the estimates poll to stop early (VelocityState2::stop); null: never.
+    void set_stop(const Cancellable* stop) { m_wos.stop = stop; }
     bool walls() const { return m_walls; }
 
     /// The source Laplacian(Psi) = omega_h with |omega|_h importance sampling (wos.h SampledSource): values

@@ -19,6 +19,7 @@ public:
     int samples() const override { return m_options.samples; }
     double delta() const override { return m_options.delta; }
     bool supports(int dimension) const override { return dimension == 2 || dimension == 3; }
+    std::string check2(const Domain2& domain) const override;
     std::string check3(const Domain3& domain) const override;
     std::unique_ptr<VelocityField2> build2(const VelocityState2& state) const override;
     std::unique_ptr<VelocityField3> build3(const VelocityState3& state) const override;

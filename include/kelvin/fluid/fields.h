@@ -44,6 +44,9 @@ public:
     virtual void check_domain(const Domain2& domain) const {}
     /// One line for the run summary ("taylor_green(amplitude=1, k=1)").
     virtual std::string description() const = 0;
+    /// The parameter that scales the field ("circulation", "amplitude"): what an error names when the initial
+    /// state is too strong to be represented (fluid/checks.h). Empty: not known.
+    virtual std::string strength_parameter() const { return {}; }
 };
 
 /// An initial 3D vorticity field omega(0, x) (<vorticity type="..."> in a scene with dimension = 3). A 3D-only
@@ -65,6 +68,8 @@ public:
     /// suit the domain.
     virtual void check_domain3(const Domain3& domain) const {}
     virtual std::string description3() const = 0;
+    /// As VorticityField::strength_parameter.
+    virtual std::string strength_parameter3() const { return {}; }
 };
 
 /// A 3D smoke source (<scalar type="smoke"> in a scene with dimension = 3): a passive density advected along the

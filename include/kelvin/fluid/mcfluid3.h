@@ -118,7 +118,8 @@ struct Smoke3 {
 };
 
 /// The 3D solver. Cancellable (core/interrupt.h): step() and the velocity pass poll the token set with
-/// set_cancel_token() (or a process-wide interrupt) once per row of cells.
+/// set_cancel_token() (or a process-wide interrupt, or the time limit's token) once per cell, and the estimators
+/// within their sample loops.
 class MCFluid3Solver : public Cancellable {
 public:
     MCFluid3Solver(const MCFluid3Settings& settings, const InitialField3& initial);

@@ -207,8 +207,8 @@ public:
     DiagnosticsCsv& operator=(const DiagnosticsCsv&) = delete;
     bool is_open() const { return m_file != nullptr; }
     /// `seconds`: wall time of the step that produced the state (0 for the initial state); `evals`: the
-    /// Biot–Savart kernel evaluations of that step.
-    void write(const FluidDiagnostics& d, double seconds, double evals, uint64_t invalid);
+    /// Biot–Savart kernel evaluations of that step; `cfl`: the state's CFL number max |u| dt / h (checks.h).
+    void write(const FluidDiagnostics& d, double seconds, double evals, uint64_t invalid, double cfl);
     static const char* header();
     /// Flush and rename the temporary file over `path`. RuntimeError naming `path` and the system error.
     void close();

@@ -7,6 +7,7 @@
 #include <kelvin/core/checkpoint.h>
 #include <kelvin/core/job.h>
 #include <kelvin/core/properties.h>
+#include <kelvin/fluid/checks.h>
 #include <kelvin/fluid/dye.h>
 #include <kelvin/fluid/fields.h>
 #include <kelvin/fluid/mcfluid.h>
@@ -56,9 +57,10 @@ struct SimulationParams {
     int nx = 64, ny = 64;  ///< <cache type="grid"> resolution (square cells when resolution_y = 0)
     std::shared_ptr<VorticityField> field;
     std::shared_ptr<DyeSpec> dye;
+    RunSources sources;  ///< where the scene gave dt and the initial vorticity (checks.h)
 
-    /// Reads and validates them (errors name the parameter; `who` names the solver in messages). mcfluid and the
-    /// baselines share this parser.
+    /// Reads and validates them (and the memory the solver `who` will need at this resolution, checks.h) (errors name
+    /// the parameter; `who` names the solver in messages). mcfluid and the baselines share this parser.
     static SimulationParams parse(const Properties& props, const std::string& who);
     /// parse() for a baseline solver: MCFluid-only inputs (<velocity>, diffusion_samples) are also accepted and
     /// ignored with a note, so that an mcfluid scene runs unchanged with `-D solver=...`.

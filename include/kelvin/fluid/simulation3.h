@@ -4,7 +4,7 @@
 // Outputs, in the run's folder (output.h, OutputPaths: "-o out/ring.png" gives "out/ring/"), as in 2D:
 //   diagnostics.csv        one row per state: step, time, kinetic_energy, kinetic_energy_raw, enstrophy,
 //                          helicity, impulse_x/y/z, centroid_x/y/z, max_abs_vorticity, divergence_rms, smoke_mass,
-//                          step_seconds, biot_savart_evals, invalid
+//                          step_seconds, biot_savart_evals, invalid, cfl
 //   fields_NNNN.vdb        every output_every steps (and the last): OpenVDB float grid "vorticity_magnitude",
 //                          vector grids "vorticity" and "velocity" (voxel = cache cell, world-space transform),
 //                          and "density" with smoke
@@ -14,6 +14,7 @@
 // and the last slice image is the run's image (the CLI writes it to -o).
 #include <kelvin/core/job.h>
 #include <kelvin/core/properties.h>
+#include <kelvin/fluid/checks.h>
 #include <kelvin/fluid/fields.h>
 #include <kelvin/fluid/mcfluid3.h>
 #include <kelvin/fluid/output.h>
@@ -35,6 +36,7 @@ struct Simulation3Params {
     std::shared_ptr<SmokeSpec3> smoke;  ///< null: no smoke, no scalar work
     std::shared_ptr<Object> field_object;
     const VorticityField3* field = nullptr;
+    RunSources sources;  ///< where the scene gave dt and the initial vorticity (checks.h)
 
     /// Reads and validates mcfluid's parameters for dimension = 3 (errors name the parameter).
     static Simulation3Params parse(const Properties& props);
@@ -46,9 +48,13 @@ RunResult run_mcfluid3(const Simulation3Params& p, RunContext& ctx);
 std::unique_ptr<MCFluid3Solver> create_mcfluid3_solver(const Simulation3Params& p, const RunContext& ctx);
 
 /// Float grids by name as an OpenVDB file (fog volumes; voxel (0, 0, 0) at each grid's first cell centre), atomically.
+/// A value that is not finite as a float32 (NaN, inf, or beyond 3.4e38) is refused before anything is written:
+/// RuntimeError naming the file, the grid and the voxel.
 void write_vdb_grids(const std::filesystem::path& path, const std::vector<std::pair<std::string, const Grid3*>>& grids);
 
-/// Writes the state as an OpenVDB file (vorticity, |vorticity| and, when given, velocity), atomically.
+/// Writes the state as an OpenVDB file (vorticity, |vorticity| and, when given, velocity), atomically. Like
+/// write_vdb_grids, refuses (RuntimeError naming the file, the grid and the voxel) a value that is not finite as a
+/// float32, before anything is written.
 void write_vdb_frame(const std::filesystem::path& path, const VectorGrid3& vorticity, const VectorGrid3* velocity,
                      const Grid3* density = nullptr);
 

@@ -19,6 +19,7 @@
 // WosVelocity (walk_on_spheres, boundary.h: solid boundaries by Walk-on-Spheres). A plugin derives from
 // VelocityEstimator, and from VelocityField2 (or 3) for its field, in one file; see docs/fluid.md ("Writing a
 // velocity estimator") and examples/plugins/uniform_biot_savart.cpp.
+#include <kelvin/core/interrupt.h>
 #include <kelvin/core/math.h>
 #include <kelvin/core/object.h>
 #include <kelvin/core/random.h>
@@ -65,6 +66,10 @@ struct VelocityState2 {
     /// The doubly periodic kernel correction on periodic domains without solid boundaries (null otherwise);
     /// shared by every state, built once by the solver.
     std::shared_ptr<const PeriodicKernel> periodic;
+    /// The solver whose passes query the field (null: never stopped): an estimate with many samples polls its
+    /// stop_requested() within the sample loop (every few thousand samples, every 64 walks) and returns early;
+    /// the solver then discards the whole pass, so the early value is never used. It outlives the field.
+    const Cancellable* stop = nullptr;
 };
 
 /// What the 3D solver hands an estimator to build the velocity of one state (or of the difference of two
@@ -78,6 +83,7 @@ struct VelocityState3 {
     /// True when omega is the difference of two consecutive states (control variates, Eq. 5.23): any boundary
     /// data of the two states cancel (a Walk-on-Spheres field takes Psi = 0 on every boundary).
     bool difference = false;
+    const Cancellable* stop = nullptr;  ///< as in VelocityState2
 };
 
 /// The velocity of one 2D state. Immutable once built; estimate() is called concurrently from many threads.

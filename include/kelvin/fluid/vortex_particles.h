@@ -118,6 +118,7 @@ public:
                      std::vector<double>& v);
 
 private:
+    bool m_stoppable = false;  ///< inside step()'s particle stages: sum_velocity may end early on a stop
     struct Tree;
     void ensure_fields();
     /// Velocity (and vorticity when w != null) of the particles (px, py, m_gamma) at n targets by the tree

@@ -57,6 +57,10 @@ public:
             log_warn("abc: the periodic box {} is not a multiple of the period 2 pi / k = {:g}", d.to_string(), period);
     }
 
+    std::string strength_parameter3() const override {  // the largest coefficient
+        const double a = std::abs(m_a), b = std::abs(m_b), c = std::abs(m_c);
+        return a >= b && a >= c ? "A" : (b >= c ? "B" : "C");
+    }
     std::string description3() const override {
         return fmt::format("abc(A={:g}, B={:g}, C={:g}, k={:g})", m_a, m_b, m_c, m_k);
     }

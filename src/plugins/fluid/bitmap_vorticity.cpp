@@ -93,6 +93,7 @@ public:
         return (1 - ay) * ((1 - ax) * t(i, j) + ax * t(i1, j)) + ay * ((1 - ax) * t(i, j1) + ax * t(i1, j1));
     }
 
+    std::string strength_parameter() const override { return "scale"; }
     std::string description() const override {
         return fmt::format("bitmap('{}', {}x{}, {}, scale={:g}, offset={:g})", m_path.filename().string(), m_w, m_h,
                            m_source, m_scale, m_offset);

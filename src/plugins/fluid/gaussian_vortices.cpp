@@ -92,6 +92,7 @@ public:
         }
     }
 
+    std::string strength_parameter() const override { return "vortices"; }
     std::string description() const override {
         std::string s = "gaussian_vortices(";
         for (std::size_t k = 0; k < m_vortices.size(); ++k)

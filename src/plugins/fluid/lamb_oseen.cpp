@@ -62,6 +62,7 @@ public:
                      m_sigma);
     }
 
+    std::string strength_parameter() const override { return "circulation"; }
     std::string description() const override {
         return fmt::format("lamb_oseen(center=({:g}, {:g}), circulation={:g}, radius={:g})", m_center.x, m_center.y,
                            m_gamma, m_sigma);

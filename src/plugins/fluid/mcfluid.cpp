@@ -128,6 +128,7 @@ public:
         m_frames = p.frames;
         m_field = p.field;
         m_dye = p.dye;
+        m_sources = p.sources;
         m_settings.diffusion_samples = int(props.get_int("diffusion_samples", 1, 1 << 20));
         // The velocity estimator, through its interface only (velocity.h): built-in or a plugin's.
         std::shared_ptr<const VelocityEstimator> velocity;
@@ -206,14 +207,20 @@ public:
 
     RunResult run(RunContext& ctx) override {
         if (m_3d) return run_mcfluid3(*m_3d, ctx);
+        check_frames_folder(OutputPaths(ctx.output), "mcfluid");  // before any work
         Timer total;
+        // The time limit inside a step: the solver's passes poll the watch's token (checks.h).
+        TimeLimitWatch watch(ctx.time_limit);
         const MCFluidSettings settings = settings_for(ctx);
         if (ctx.spp > 0)  // --spp: the Monte Carlo sample count of a simulation is n_mc
             log_info("mcfluid: --spp {} overrides the Biot–Savart samples (n_mc)", settings.velocity.samples);
         const VorticityField& field = *m_field;
         const std::unique_ptr<MCFluidSolver> owned = make_solver(ctx);
         MCFluidSolver& solver = *owned;
+        solver.set_time_limit_token(watch.token());
         const bool viscous = settings.viscosity > 0;
+        const Vec2d cell = solver.vorticity_grid().h(), size = settings.domain.size();
+        StepChecks checks("mcfluid", m_sources, std::min(cell.x, cell.y), std::min(size.x, size.y));
 
         log_info("mcfluid: 2D, domain {}, {}x{} cache ({}), initial {}", settings.domain.to_string(), settings.nx,
                  settings.ny, fluid::to_string(settings.interpolation), field.description());
@@ -289,23 +296,49 @@ public:
             checkpoints.reached(ctx, cp);
         };
 
+        // Nothing non-finite reaches the CSV or a frame: the diagnostics and every field an output carries are checked
+        // first (as the float32 EXR stores). The initial state is refused as input (exit 2, naming the initial
+        // vorticity's strength); a later one stops the run with the CSV and frames of the earlier steps (exit 1).
+        const int nx = settings.nx;
+        auto check_state = [&](const FluidDiagnostics& d, bool uv, uint64_t replaced) {
+            std::vector<FieldValues> fields = {{&solver.vorticity_grid().values(), "vorticity", nx, 0}};
+            if (uv) {
+                fields.push_back({&solver.velocity_u().values(), "velocity u", nx, 0});
+                fields.push_back({&solver.velocity_v().values(), "velocity v", nx, 0});
+            }
+            const std::string why =
+                checks.state(d.step, diagnostic_values(d, uv), fields, replaced, solver.vorticity_grid().cell_count());
+            if (why.empty()) return;
+            if (csv) csv->close();
+            throw RuntimeError(why);
+        };
+        // The state's CFL number for the step that starts from it (checks.h); a refused dt keeps the earlier rows.
+        auto cfl = [&](long long s) {
+            const double dt = time_stepping().step_length(s + 1, solver.time());
+            try {
+                return checks.cfl(s, max_speed({&solver.velocity_u().values(), &solver.velocity_v().values()}), dt,
+                                  s == m_steps);
+            } catch (...) {
+                if (csv && s > 0) csv->close();
+                throw;
+            }
+        };
+
         // State 0: its velocity is the first step's k1, so diagnostics cost nothing extra. An interrupt during
         // that first velocity pass leaves nothing to record.
         FluidDiagnostics d0 = solver.diagnostics();
         d0.vorticity_rmse_exact =
             exact_vorticity_rmse(solver.vorticity_grid(), field, 0.0, settings.viscosity, bool(settings.boundaries));
         if (solver.velocity_available()) {
-            refuse_overflowing_state("mcfluid", 0, solver.work().invalid_velocity + solver.work().invalid_vorticity,
-                                     solver.vorticity_grid().cell_count());
-            refuse_non_finite("mcfluid", d0, 0,
-                              {{&solver.vorticity_grid(), "vorticity"},
-                               {&solver.velocity_u(), "velocity u"},
-                               {&solver.velocity_v(), "velocity v"}});
+            check_state(d0, true, solver.work().invalid_velocity + solver.work().invalid_vorticity);
+            const double cfl0 = cfl(0);
             if (csv)
                 csv->write(d0, 0.0, double(solver.work().biot_savart_evals),
-                           solver.work().invalid_velocity + solver.work().invalid_vorticity);
+                           solver.work().invalid_velocity + solver.work().invalid_vorticity, cfl0);
             write_frame(true);
             if (checkpoints.active()) checkpoint(0);
+        } else {  // stopped during that pass: the vorticity is still the image
+            check_state(d0, false, 0);
         }
 
         // The last state's velocity is estimated only when an output needs it (issue 16, item 7): the CSV (its
@@ -334,11 +367,10 @@ public:
             ++done;
             if (!velocity_needed_at(s)) {  // the final state, vorticity only
                 const FluidDiagnostics d = solver.diagnostics(false);
-                refuse_non_finite_values("mcfluid", s, d.max_abs_vorticity,
-                                         {{d.enstrophy, "enstrophy"},
-                                          {d.circulation, "circulation"},
-                                          {d.max_abs_vorticity, "max |vorticity|"}},
-                                         {{&solver.vorticity_grid().values(), "vorticity", settings.nx, 0}});
+                const FluidWork& after = solver.work();
+                check_state(d, false,
+                            (after.invalid_velocity + after.invalid_vorticity) -
+                                (before.invalid_velocity + before.invalid_vorticity));
                 if (m_output_every > 0) write_frame(false);
                 final_without_velocity = true;
                 progress.update(1);
@@ -351,19 +383,12 @@ public:
             d.vorticity_rmse_exact = exact_vorticity_rmse(solver.vorticity_grid(), field, d.time, settings.viscosity,
                                                           bool(settings.boundaries));
             const FluidWork& after = solver.work();
-            refuse_overflowing_state("mcfluid", s,
-                                     (after.invalid_velocity + after.invalid_vorticity) -
-                                         (before.invalid_velocity + before.invalid_vorticity),
-                                     solver.vorticity_grid().cell_count());
-            refuse_non_finite("mcfluid", d, s,
-                              {{&solver.vorticity_grid(), "vorticity"},
-                               {&solver.velocity_u(), "velocity u"},
-                               {&solver.velocity_v(), "velocity v"}});
+            const uint64_t replaced = (after.invalid_velocity + after.invalid_vorticity) -
+                                      (before.invalid_velocity + before.invalid_vorticity);
+            check_state(d, true, replaced);
+            const double c = cfl(s);
             const double seconds = step_timer.seconds();
-            if (csv)
-                csv->write(d, seconds, double(after.biot_savart_evals - before.biot_savart_evals),
-                           (after.invalid_velocity + after.invalid_vorticity) -
-                               (before.invalid_velocity + before.invalid_vorticity));
+            if (csv) csv->write(d, seconds, double(after.biot_savart_evals - before.biot_savart_evals), replaced, c);
             if (frames.due(s)) write_frame(true);
             progress.update(1);
             if (comm.root() && ctx.write_partial > 0 && ctx.write_partial_image &&
@@ -372,7 +397,10 @@ public:
                     field_image(solver.vorticity_grid(), &solver.velocity_u(), &solver.velocity_v(), range));
                 since_partial.reset();
             }
-            if (checkpoints.active()) checkpoint(done);
+            if (checkpoints.active()) {
+                checkpoint(done);
+                if (ctx.time_limit > 0) watch.set_limit(ctx.time_limit + checkpoints.overhead());
+            }
             if (s < m_steps && time_limit_reached(comm, ctx.time_limit, total.seconds() - checkpoints.overhead())) {
                 stopped_by_time = true;
                 break;
@@ -380,6 +408,10 @@ public:
         }
         progress.finish();
         result.interrupted = any_rank(comm, ctx.cancel.stop_requested());
+        // The limit passed inside a step (the watch stopped it; the partial step was discarded): as at a step
+        // boundary.
+        if (!result.interrupted && done < m_steps && any_rank(comm, watch.passed())) stopped_by_time = true;
+        checks.report(ctx.stats);
         if (stopped_by_time)
             log_warn("mcfluid: time limit of {:g} s reached after {} of {} steps (t = {:g})", ctx.time_limit, done,
                      m_steps, solver.time());
@@ -418,11 +450,11 @@ public:
                 dn.enstrophy, d0.enstrophy, dn.circulation, dn.max_abs_vorticity, viscous ? ", diffusion" : "",
                 m_dye ? ", dye" : "");
             result.image = field_image(solver.vorticity_grid(), &solver.velocity_u(), &solver.velocity_v(), range);
-        } else {  // interrupted while estimating the velocity: the vorticity channels only, no made-up velocity
+        } else {  // interrupted (or out of time) while estimating the velocity: the vorticity channels only
             log_info(
-                "mcfluid: interrupted at t = {:g} before the velocity of that state was estimated; the image has "
-                "no u and v channels",
-                solver.time());
+                "mcfluid: {} at t = {:g} before the velocity of that state was estimated; the image has no u and v "
+                "channels",
+                result.interrupted ? "interrupted" : "stopped by the time limit", solver.time());
             result.image = field_image(solver.vorticity_grid(), nullptr, nullptr, range);
         }
         result.work = double(done);
@@ -440,6 +472,7 @@ private:
     FrameStyle m_frames;
     std::shared_ptr<VorticityField> m_field;
     std::shared_ptr<DyeSpec> m_dye;
+    RunSources m_sources;
     std::unique_ptr<Simulation3Params> m_3d;  ///< dimension = 3
     std::string m_velocity_name;              ///< the velocity estimator plugin (2D)
 };

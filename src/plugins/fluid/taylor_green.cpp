@@ -66,6 +66,8 @@ public:
                 d.to_string(), period);
     }
 
+    std::string strength_parameter() const override { return "amplitude"; }
+    std::string strength_parameter3() const override { return "amplitude"; }
     std::string description() const override { return fmt::format("taylor_green(amplitude={:g}, k={:g})", m_a, m_k); }
 
     // ----- 3D

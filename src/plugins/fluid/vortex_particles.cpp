@@ -50,6 +50,17 @@ public:
         m_panel_length = props.get_float("panel_length");
         if (!std::isfinite(m_panel_length) || (m_panel_length <= 0 && m_panel_length != -1))
             props.error("panel_length", "must be positive, or -1 for one lattice spacing");
+        // Lengths against the domain (checks.h): half its smaller side at most.
+        const Vec2d size = m_params.domain.size();
+        const double side = std::min(size.x, size.y);
+        if (const std::string why = check_scale("blob_radius", m_delta, side, 0.5,
+                                                "every blob would cover the domain (the velocity smoothed away)");
+            m_delta > 0 && !why.empty())
+            props.error("blob_radius", why);
+        if (const std::string why = check_scale("panel_length", m_panel_length, side, 0.5,
+                                                "a panel would be longer than the boundaries it discretises");
+            m_panel_length > 0 && !why.empty())
+            props.error("panel_length", why);
         read_boundaries(props);
     }
 

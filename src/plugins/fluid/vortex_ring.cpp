@@ -77,6 +77,7 @@ public:
         (void)d;  // rings may start anywhere; vorticity leaving an open box is lost (documented)
     }
 
+    std::string strength_parameter3() const override { return "circulation"; }
     std::string description3() const override {
         return fmt::format("vortex_ring(R={:g}, Gamma={:g}, core={:g}, rings={})", m_radius, m_gamma, m_core,
                            m_offsets.size());

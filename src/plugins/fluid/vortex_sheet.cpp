@@ -71,6 +71,7 @@ public:
                 "gives the classic Kelvin–Helmholtz layer");
     }
 
+    std::string strength_parameter() const override { return "velocity"; }
     std::string description() const override {
         return fmt::format("vortex_sheet(y={:g}, U={:g}, thickness={:g}, perturbation={:g}, modes={}{})", m_y0, m_u,
                            m_delta, m_eps, m_modes, m_double ? ", double layer" : "");
