@@ -188,6 +188,121 @@ void report_counters(RunContext& ctx, const std::vector<SampleCounters>& counter
                  MaxSampleValue);
 }
 
+namespace {
+
+// Camera samples splatted over the filter's footprint (Film::Reconstruction::Splat), deterministically.
+//
+// Tiles are aligned to the full film's grid. Each tile keeps its own accumulator over the tile grown by the footprint
+// margin M, for the whole render, and adds its samples to it sample index first (k), then pixel by pixel: the order in
+// which any pixel's accumulator receives its terms does not depend on how passes or slices are sized, nor on the
+// thread that runs the tile. Every pixel within M of the window is sampled (beyond the film's edge too), so a window
+// pixel receives exactly the terms, in the same order, in a crop as in the full render. develop() adds the tiles'
+// accumulators in classes of tiles that never overlap (tile coordinates modulo `stride`): within a class a pixel has
+// one contributor, so the class's sum over ranks is exact, and the classes are added in a fixed order: the image is
+// bit-identical whatever the thread or rank count.
+class SplatTiles {
+public:
+    SplatTiles(const ReconstructionFilter& filter, int film_w, int film_h, const CropWindow& window, int tile, int nc)
+        : m_filter(filter), m_win(window), m_tile(tile), m_nc(nc) {
+        // Pixels beyond the film's edge are sampled too (a margin of M): a pixel at the edge then averages over its
+        // whole footprint, as with importance sampling and as Metropolis splats do, not only over its inner part.
+        (void)film_w, (void)film_h;
+        m_margin = int(std::ceil(filter.radius()));
+        m_x0 = window.x0 - m_margin, m_x1 = window.x1 + m_margin;
+        m_y0 = window.y0 - m_margin, m_y1 = window.y1 + m_margin;
+        auto floor_div = [](int a, int b) { return a >= 0 ? a / b : -((-a + b - 1) / b); };
+        m_tx0 = floor_div(m_x0, tile), m_ty0 = floor_div(m_y0, tile);
+        m_ntx = floor_div(m_x1 - 1, tile) - m_tx0 + 1, m_nty = floor_div(m_y1 - 1, tile) - m_ty0 + 1;
+        m_side = tile + 2 * m_margin;
+        m_stride = 1 + (2 * m_margin + tile - 1) / tile;
+        m_acc.resize(units());
+    }
+    std::size_t units() const { return std::size_t(m_ntx) * std::size_t(m_nty); }
+    /// The pixels of `unit` to sample: its tile within the grown window.
+    void pixels(std::size_t unit, int& x0, int& y0, int& x1, int& y1) const {
+        const int tx = m_tx0 + int(unit % std::size_t(m_ntx)), ty = m_ty0 + int(unit / std::size_t(m_ntx));
+        x0 = std::max(m_x0, tx * m_tile), x1 = std::min(m_x1, (tx + 1) * m_tile);
+        y0 = std::max(m_y0, ty * m_tile), y1 = std::min(m_y1, (ty + 1) * m_tile);
+    }
+    /// Add a sample of `unit` at film position `film` (full-film pixels) with values[0..nc) to the window's pixels
+    /// within the filter's radius. One thread per unit at a time.
+    void add(std::size_t unit, const Vec2d& film, const double* values) {
+        std::vector<double>& acc = m_acc[unit];
+        if (acc.empty()) acc.assign(std::size_t(m_side) * std::size_t(m_side) * std::size_t(m_nc + 1), 0.0);
+        const int tx = m_tx0 + int(unit % std::size_t(m_ntx)), ty = m_ty0 + int(unit / std::size_t(m_ntx));
+        const int bx = tx * m_tile - m_margin, by = ty * m_tile - m_margin;  // the accumulator's first pixel
+        const double r = m_filter.radius();
+        const int x0 = std::max(m_win.x0, int(std::ceil(film.x - 0.5 - r))),
+                  x1 = std::min(m_win.x1 - 1, int(std::floor(film.x - 0.5 + r)));
+        const int y0 = std::max(m_win.y0, int(std::ceil(film.y - 0.5 - r))),
+                  y1 = std::min(m_win.y1 - 1, int(std::floor(film.y - 0.5 + r)));
+        constexpr int MaxSide = 64;
+        const bool separable = m_filter.separable() && x1 - x0 < MaxSide && y1 - y0 < MaxSide;
+        double wx[MaxSide], wy[MaxSide];
+        if (separable) {
+            for (int x = x0; x <= x1; ++x) wx[x - x0] = m_filter.eval_1d(x + 0.5 - film.x);
+            for (int y = y0; y <= y1; ++y) wy[y - y0] = m_filter.eval_1d(y + 0.5 - film.y);
+        }
+        for (int y = y0; y <= y1; ++y)
+            for (int x = x0; x <= x1; ++x) {
+                const double w = separable ? wx[x - x0] * wy[y - y0] : m_filter.eval(Vec2d(x + 0.5, y + 0.5) - film);
+                if (w == 0) continue;
+                double* px =
+                    &acc[(std::size_t(y - by) * std::size_t(m_side) + std::size_t(x - bx)) * std::size_t(m_nc + 1)];
+                for (int c = 0; c < m_nc; ++c) px[c] += w * values[c];
+                px[m_nc] += w;
+            }
+    }
+    /// The window's image (collective in a distributed run).
+    Bitmap develop(const std::vector<std::string>& names, Communicator& comm) const {
+        const int w = m_win.width(), h = m_win.height();
+        const std::size_t per = std::size_t(m_nc + 1), n = std::size_t(w) * std::size_t(h) * per;
+        std::vector<double> sum(n, 0.0), cls;
+        for (int cy = 0; cy < m_stride; ++cy)
+            for (int cx = 0; cx < m_stride; ++cx) {
+                std::vector<double>& into = comm.distributed() ? cls : sum;
+                if (comm.distributed()) cls.assign(n, 0.0);
+                for (std::size_t u = 0; u < units(); ++u) {
+                    const int tx = m_tx0 + int(u % std::size_t(m_ntx)), ty = m_ty0 + int(u / std::size_t(m_ntx));
+                    if (((tx % m_stride) + m_stride) % m_stride != cx ||
+                        ((ty % m_stride) + m_stride) % m_stride != cy || m_acc[u].empty())
+                        continue;
+                    const int bx = tx * m_tile - m_margin, by = ty * m_tile - m_margin;
+                    for (int y = std::max(m_win.y0, by); y < std::min(m_win.y1, by + m_side); ++y)
+                        for (int x = std::max(m_win.x0, bx); x < std::min(m_win.x1, bx + m_side); ++x) {
+                            const double* a =
+                                &m_acc[u][(std::size_t(y - by) * std::size_t(m_side) + std::size_t(x - bx)) * per];
+                            double* d =
+                                &into[(std::size_t(y - m_win.y0) * std::size_t(w) + std::size_t(x - m_win.x0)) * per];
+                            for (std::size_t c = 0; c < per; ++c) d[c] += a[c];
+                        }
+                }
+                if (comm.distributed()) {
+                    allreduce_sum(comm, cls);  // one contributor per pixel within a class: exact
+                    for (std::size_t i = 0; i < n; ++i) sum[i] += cls[i];
+                }
+            }
+        Bitmap out(w, h, names);
+        for (std::size_t p = 0; p < std::size_t(w) * std::size_t(h); ++p) {
+            const double wsum = sum[p * per + std::size_t(m_nc)];
+            // Filters with negative lobes can make a weight sum negative: divided all the same, as Mitsuba does.
+            for (int c = 0; c < m_nc; ++c)
+                out.data()[p * std::size_t(m_nc) + std::size_t(c)] =
+                    wsum != 0 ? float(sum[p * per + std::size_t(c)] / wsum) : 0.f;
+        }
+        return out;
+    }
+
+private:
+    const ReconstructionFilter& m_filter;
+    CropWindow m_win;
+    int m_tile, m_nc, m_margin = 0;
+    int m_x0 = 0, m_x1 = 0, m_y0 = 0, m_y1 = 0, m_tx0 = 0, m_ty0 = 0, m_ntx = 0, m_nty = 0, m_side = 0, m_stride = 1;
+    std::vector<std::vector<double>> m_acc;  // per unit, allocated on its first sample
+};
+
+}  // namespace
+
 RunResult SamplingIntegrator::render(const Scene& scene, RunContext& ctx) {
     validate(scene);
     // Distributed: each rank renders the tiles it owns; tiles never share pixels, so the buffers merge by a sum
@@ -203,8 +318,13 @@ RunResult SamplingIntegrator::render(const Scene& scene, RunContext& ctx) {
         throw InputError({}, fmt::format("crop window [{}, {}) x [{}, {}) exceeds the {} x {} film", crop.x0, crop.x1,
                                          crop.y0, crop.y1, fw, fh));
     const int w = crop.width(), h = crop.height(), ox = crop.x0, oy = crop.y0;
+    const ReconstructionFilter& filter = sensor.film().filter();
+    // Splatting camera samples over the footprint (hdrfilm's default, as Mitsuba): a filter no wider than a pixel
+    // reaches only the sample's own pixel, which filter importance sampling does alike and at less cost.
+    // Filters with negative lobes are importance-sampled whatever the film asks (ReconstructionFilter).
+    const bool splat_samples = sensor.film().reconstruction() == Film::Reconstruction::Splat &&
+                               filter.radius() > 0.5 + 1e-9 && !filter.has_negative_lobes();
     const int tx = (w + TileSize - 1) / TileSize, ty = (h + TileSize - 1) / TileSize;
-    const std::size_t tiles = std::size_t(tx) * std::size_t(ty);
     std::vector<std::string> channels = {"R", "G", "B"};
     const std::vector<std::string> extra = extra_channels();
     // Integrators refuse more as bad input (aov: `aovs`); this guards the loop's stack array against a plugin
@@ -214,9 +334,11 @@ RunResult SamplingIntegrator::render(const Scene& scene, RunContext& ctx) {
                       extra.size(), int(MaxExtraChannels));
     const int ne = int(extra.size());
     channels.insert(channels.end(), extra.begin(), extra.end());
-    ImageBuffer buffer(w, h, 3 + ne);
+    std::unique_ptr<SplatTiles> splat_tiles;
+    if (splat_samples) splat_tiles = std::make_unique<SplatTiles>(filter, fw, fh, crop, TileSize, 3 + ne);
+    ImageBuffer buffer(splat_samples ? 0 : w, splat_samples ? 0 : h, 3 + ne);
+    const std::size_t tiles = splat_tiles ? splat_tiles->units() : std::size_t(tx) * std::size_t(ty);
     std::vector<SampleCounters> counters(tiles);
-    const ReconstructionFilter& filter = sensor.film().filter();
     std::unique_ptr<SplatBuffer> splat_buffer;
     // Splats arrive in full-film coordinates; with a crop they are moved into the window's (and those that
     // fall outside it dropped by the buffer).
@@ -236,7 +358,7 @@ RunResult SamplingIntegrator::render(const Scene& scene, RunContext& ctx) {
         }
     }
     auto develop = [&] {
-        Bitmap img = buffer.develop(channels, comm);
+        Bitmap img = splat_tiles ? splat_tiles->develop(channels, comm) : buffer.develop(channels, comm);
         if (splat_buffer) {
             uint64_t n = 0;
             for (const auto& c : counters) n += c.samples;
@@ -250,7 +372,50 @@ RunResult SamplingIntegrator::render(const Scene& scene, RunContext& ctx) {
         return img;
     };
 
+    // One camera sample at `film` (the sampler started at its pixel and index): its colour and extra values into
+    // values[0..3 + ne); false when an extra value was not finite (recorded as zero and counted, like an invalid
+    // colour).
+    auto camera_sample = [&](Sampler& sampler, SampleCounters& c, const Vec2d& film, double* values) {
+        Ray ray = sensor.sample_ray(film, sampler.next_2d());
+        Color3 v = sample(scene, sampler, ray, c);
+        if (!sanitize(v)) ++c.invalid;
+        values[0] = v.r;
+        values[1] = v.g;
+        values[2] = v.b;
+        if (ne > 0) {
+            sample_extra(scene, ray, values + 3, c);
+            bool finite = true;
+            for (int e = 3; e < 3 + ne; ++e) finite = finite && std::isfinite(values[e]);
+            if (!finite) {
+                std::fill(values + 3, values + 3 + ne, 0.0);
+                ++c.invalid;
+            }
+        }
+        ++c.samples;
+    };
+    auto splat_pass = [&](long long first, long long n, std::size_t begin, std::size_t end) {
+        parallel_for_owned_units(comm, begin, end, [&](std::size_t unit) {
+            int x0, y0, x1, y1;
+            splat_tiles->pixels(unit, x0, y0, x1, y1);
+            std::unique_ptr<Sampler> sampler = sensor.sampler().clone();
+            SampleCounters& c = counters[unit];
+            double values[3 + MaxExtraChannels];
+            // Sample index first: a pixel's accumulator receives its terms in an order independent of pass sizes.
+            for (long long k = first; k < first + n; ++k)
+                for (int y = y0; y < y1; ++y)
+                    for (int x = x0; x < x1; ++x) {
+                        if (ctx.cancel.stop_requested()) return;
+                        sampler->start({x, y}, uint64_t(k), ctx.seed);
+                        // Dimensions 0-1: position in the pixel (uniform); 2-3: lens; 4+: the integrator's.
+                        const Vec2d film = Vec2d(x, y) + sampler->next_2d();
+                        camera_sample(*sampler, c, film, values);
+                        splat_tiles->add(unit, film, values);
+                    }
+        });
+        if (splat_buffer) splat_buffer->merge(comm);
+    };
     auto pass = [&](long long first, long long n, std::size_t begin, std::size_t end) {
+        if (splat_tiles) return splat_pass(first, n, begin, end);
         parallel_for_owned_units(comm, begin, end, [&](std::size_t unit) {
             const int x0 = ox + int(unit % std::size_t(tx)) * TileSize,
                       y0 = oy + int(unit / std::size_t(tx)) * TileSize;

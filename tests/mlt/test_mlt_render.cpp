@@ -160,13 +160,16 @@ TEST(MltIntegrators, PssmltH2mcMatchesPathTracing) {
     expect_matches_path(pssmlt(R"(<mutation type="h2mc"/>)", H2mcCommon), "cornell-box.xml", 16, 256, 16, true,
                         PathDepth4);
 }
+// On the metal boxes the 8-seed mean at 16 mutations per pixel has a standard error of about 1.1 % (measured: red
+// 0.2020 +- 0.0022), so a fixed 2 % bound would be a 2-sigma test that fails by chance; the block test at 5 sigma is
+// the check here.
 TEST(MltIntegrators, DrmltGaussianThenH2mcHybridMatchesPathTracing) {
     expect_matches_path(
         drmlt("green", H2mcCommon +
                            R"(<mutation name="first" type="gaussian"><float name="sigma" value="0.01"/></mutation>)"
                            R"(<mutation name="second" type="mixture"><mutation type="h2mc"/>)"
                            R"(<mutation type="gaussian"><float name="sigma" value="0.0025"/></mutation></mutation>)"),
-        "cornell-box-metals.xml", 16, 256, 16, true, PathDepth4);
+        "cornell-box-metals.xml", 16, 256, 16, false, PathDepth4);
 }
 
 // The caustic (L-S-S-D-E paths through a glass sphere from a small light) against bidirectional path tracing.

@@ -44,6 +44,13 @@ std::string camera(const std::string& origin, const std::string& target, double 
                        fov, origin, target, up, res, res);
 }
 
+// The camera with a one-pixel box filter instead of the default Gaussian.
+std::string box_filtered(std::string camera_xml) {
+    const std::string film = "<film type=\"hdrfilm\">";
+    camera_xml.insert(camera_xml.find(film) + film.size(), "<rfilter type=\"box\"/>");
+    return camera_xml;
+}
+
 TEST(PathTracer, FurnaceConvexObjectReflectsItsAlbedo) {
     // The sphere fills the frame (half-angle 5 deg < asin(1/3)): every pixel sees it. Only one bounce can
     // contribute, and its expectation is rho * 1.
@@ -202,12 +209,13 @@ TEST(PathTracer, MaxDepthAndHideEmitters) {
         return fmt::format(R"(<scene version="3.0.0"><integrator type="path">
                 <integer name="max_depth" value="{}"/><boolean name="hide_emitters" value="{}"/></integrator>)",
                            max_depth, hide) +
-               camera("0, 0, 6", "0, 0, 0", fov, 8) + R"(
+               box_filtered(camera("0, 0, 6", "0, 0, 0", fov, 8)) + R"(
             <emitter type="constant"><rgb name="radiance" value="1"/></emitter>
             <shape type="sphere"><float name="radius" value="1"/></shape>
         </scene>)";
     };
-    // max_depth 1: the sky is seen (exactly 1), the sphere (not an emitter) is black (exactly 0).
+    // max_depth 1: the sky is seen (exactly 1), the sphere (not an emitter) is black (exactly 0). (A box filter: a
+    // pixel averages its own samples only, so a pixel inside the sphere's outline sees no sky.)
     Bitmap one = render(xml(1, false, 30), 8);
     EXPECT_EQ(one.at(0, 0, 0), 1.0f);  // corner: sky
     EXPECT_EQ(one.at(4, 4, 0), 0.0f);  // centre: sphere, no bounce allowed

@@ -36,7 +36,7 @@ using namespace kelvin;
 namespace {
 
 // A reduced ao-spheres: 80 x 48 pixels = 3 x 2 tiles of 32, the last column and row of tiles partial.
-std::string ao_scene_xml(int w = 80, int h = 48) {
+std::string ao_scene_xml(int w = 80, int h = 48, const std::string& reconstruction = "splat") {
     return fmt::format(R"(
         <scene version="3.0.0">
             <integrator type="ao"><integer name="shading_samples" value="2"/></integrator>
@@ -44,7 +44,8 @@ std::string ao_scene_xml(int w = 80, int h = 48) {
                 <float name="fov" value="40"/>
                 <transform name="to_world"><lookat origin="0, 2.2, 7.5" target="0, 0.8, 0" up="0, 1, 0"/></transform>
                 <sampler type="independent"><integer name="sample_count" value="4"/></sampler>
-                <film type="hdrfilm"><integer name="width" value="{}"/><integer name="height" value="{}"/></film>
+                <film type="hdrfilm"><integer name="width" value="{}"/><integer name="height" value="{}"/>
+                    <string name="reconstruction" value="{}"/></film>
             </sensor>
             <shape type="rectangle"><transform name="to_world"><scale value="4"/><rotate x="1" angle="-90"/></transform></shape>
             <shape type="rectangle"><transform name="to_world"><scale value="4"/><translate z="-3"/></transform></shape>
@@ -54,7 +55,7 @@ std::string ao_scene_xml(int w = 80, int h = 48) {
                 <transform name="to_world"><scale value="0.6"/><rotate y="1" angle="30"/><translate x="1.5" y="0.6" z="-0.6"/></transform>
             </shape>
         </scene>)",
-                       w, h);
+                       w, h, reconstruction);
 }
 
 std::shared_ptr<Scene> load(const std::string& xml) {
@@ -127,11 +128,11 @@ TEST(RenderLoop, SeedChangesTheImage) {
     EXPECT_GT(differ, int(a.image.size() / 4));
 }
 
-// The image does not depend on how the samples were split into passes: it equals the direct per-pixel
-// average of samples 0..spp-1, each computed on its own from (seed, pixel, index). The render grows its
-// passes 1, 2, 4, ... (clamped by timing), so 13 spp is split into at least 4 passes.
+// The image does not depend on how the samples were split into passes: with filter importance sampling it equals
+// the direct per-pixel average of samples 0..spp-1, each computed on its own from (seed, pixel, index). The render
+// grows its passes 1, 2, 4, ... (clamped by timing), so 13 spp is split into at least 4 passes.
 TEST(RenderLoop, ImageEqualsDirectPerPixelAverage) {
-    auto scene = load(ao_scene_xml(40, 36));
+    auto scene = load(ao_scene_xml(40, 36, "importance"));
     const long long spp = 13;
     const uint64_t seed = 77;
     RunResult r = render(*scene, spp, seed, 2);
@@ -158,6 +159,62 @@ TEST(RenderLoop, ImageEqualsDirectPerPixelAverage) {
     EXPECT_EQ(mismatches, 0);
 }
 
+// With splatting (hdrfilm's default), each sample, at a uniform position in its pixel, reaches every pixel within the
+// Gaussian's radius with the filter's weight, and a pixel is the weighted average of what reaches it: the image equals
+// that average computed directly from the samples (to float rounding: the render sums in another order), and a
+// render cut into passes of 1, 2, 4, ... equals one pass bit for bit. It is not importance sampling's image.
+TEST(RenderLoop, SplattedImageIsTheFilterWeightedAverageOfAllSamples) {
+    const int w = 40, h = 36;
+    auto scene = load(ao_scene_xml(w, h));
+    const long long spp = 5;
+    const uint64_t seed = 78;
+    RunResult r = render(*scene, spp, seed, 2);
+    auto* integrator = dynamic_cast<SamplingIntegrator*>(scene->integrator());
+    ASSERT_NE(integrator, nullptr);
+    const Sensor& sensor = *scene->sensor();
+    const ReconstructionFilter& filter = sensor.film().filter();
+    ASSERT_EQ(filter.radius(), 2.0);  // the default Gaussian, stddev 0.5
+    auto sampler = sensor.sampler().clone();
+    SampleCounters counters;
+    std::vector<double> sum(std::size_t(w) * h * 3, 0.0), wsum(std::size_t(w) * h, 0.0);
+    // Every pixel within the radius (2) of the film is sampled, those beyond its edge included.
+    for (int y = -2; y < h + 2; ++y)
+        for (int x = -2; x < w + 2; ++x)
+            for (long long k = 0; k < spp; ++k) {
+                sampler->start({x, y}, uint64_t(k), seed);
+                const Vec2d film = Vec2d(x, y) + sampler->next_2d();
+                Ray ray = sensor.sample_ray(film, sampler->next_2d());
+                const Color3 v = integrator->sample(*scene, *sampler, ray, counters);
+                for (int py = 0; py < h; ++py)
+                    for (int px = 0; px < w; ++px) {
+                        const double wt = filter.eval(Vec2d(px + 0.5, py + 0.5) - film);
+                        if (wt == 0) continue;
+                        for (int c = 0; c < 3; ++c) sum[(std::size_t(py) * w + px) * 3 + c] += wt * v[c];
+                        wsum[std::size_t(py) * w + px] += wt;
+                    }
+            }
+    double worst = 0;
+    for (int y = 0; y < h; ++y)
+        for (int x = 0; x < w; ++x)
+            for (int c = 0; c < 3; ++c) {
+                const double expect = sum[(std::size_t(y) * w + x) * 3 + c] / wsum[std::size_t(y) * w + x];
+                worst = std::max(worst, std::abs(r.image.at(x, y, c) - expect) / std::max(1e-3, std::abs(expect)));
+            }
+    EXPECT_LT(worst, 1e-5);
+    // Not the importance-sampled image: the samples are shared between neighbouring pixels.
+    EXPECT_FALSE(bit_identical(r.image, render(*load(ao_scene_xml(w, h, "importance")), spp, seed, 2).image));
+    // Pass sizes and threads: 5 spp as 1 + 2 + 2 (the render's own passes) on 2 threads, and as checkpoints 1, 3, 5
+    // on 1 thread, give the same bits.
+    RunContext ctx;
+    ctx.spp = spp;
+    ctx.seed = seed;
+    ctx.quiet = true;
+    ctx.checkpoint_work = {1, 3};
+    ctx.on_checkpoint = [](const Checkpoint&) {};
+    ThreadLimit one(1);
+    EXPECT_TRUE(bit_identical(r.image, scene->run(ctx).image));
+}
+
 TEST(RenderLoop, StatisticsAndSampleCountOverride) {
     auto scene = load(ao_scene_xml(40, 20));
     RunContext ctx;
@@ -165,16 +222,24 @@ TEST(RenderLoop, StatisticsAndSampleCountOverride) {
     RunResult r = scene->run(ctx);  // the sampler's sample_count (4)
     EXPECT_EQ(r.work, 4);
     EXPECT_EQ(ctx.stats.get("render.spp"), 4);
-    EXPECT_EQ(ctx.stats.get("render.camera_samples"), 4.0 * 40 * 20);
+    // Splatting samples the pixels within the filter's radius (2) beyond the film's edge too: 44 x 24 pixels.
+    const double pixels = 44.0 * 24;
+    EXPECT_EQ(ctx.stats.get("render.camera_samples"), 4.0 * pixels);
     // At least one camera ray per sample, at most 1 + shading_samples.
-    EXPECT_GE(ctx.stats.get("render.rays"), 4.0 * 40 * 20);
-    EXPECT_LE(ctx.stats.get("render.rays"), 3 * 4.0 * 40 * 20);
+    EXPECT_GE(ctx.stats.get("render.rays"), 4.0 * pixels);
+    EXPECT_LE(ctx.stats.get("render.rays"), 3 * 4.0 * pixels);
     EXPECT_EQ(ctx.stats.get("render.invalid_samples"), 0);
     RunContext ctx2;
     ctx2.quiet = true;
     ctx2.spp = 3;
     EXPECT_EQ(scene->run(ctx2).work, 3);
-    EXPECT_EQ(ctx2.stats.get("render.camera_samples"), 3.0 * 40 * 20);
+    EXPECT_EQ(ctx2.stats.get("render.camera_samples"), 3.0 * pixels);
+    // Importance sampling samples the film's own pixels only.
+    auto importance = load(ao_scene_xml(40, 20, "importance"));
+    RunContext ctx3;
+    ctx3.quiet = true;
+    importance->run(ctx3);
+    EXPECT_EQ(ctx3.stats.get("render.camera_samples"), 4.0 * 40 * 20);
 }
 
 // ---------------------------------------------------------------------------------------------------------

@@ -161,9 +161,22 @@ private:
 
 class Film : public Object {
 public:
+    /// How a sampling integrator turns camera samples into pixels.
+    enum class Reconstruction {
+        /// Each sample, taken at a uniform position in its pixel, is weighted by the filter into every pixel within
+        /// the filter's radius, and each pixel is its weighted average (Mitsuba 0.6 and 3). A wide filter thereby
+        /// averages each pixel over many samples: with the default Gaussian (stddev 0.5) about 3 times fewer
+        /// samples reach the same per-pixel variance than with importance sampling, at the price of noise that is
+        /// correlated between neighbouring pixels.
+        Splat,
+        /// Filter importance sampling (pbrt-v4): each sample is taken at an offset drawn from the filter and
+        /// counts in its own pixel only. Pixels are independent; per-pixel variance is that of a box filter.
+        Importance,
+    };
     virtual int width() const = 0;
     virtual int height() const = 0;
     virtual const ReconstructionFilter& filter() const = 0;
+    virtual Reconstruction reconstruction() const { return Reconstruction::Splat; }
 };
 
 }  // namespace kelvin

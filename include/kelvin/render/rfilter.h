@@ -24,6 +24,10 @@ public:
     virtual bool separable() const { return false; }
     /// The 1D factor of a separable filter (unused otherwise).
     virtual double eval_1d(double /*offset*/) const { return 0.0; }
+    /// True when the filter takes negative values (mitchell, catmullrom, lanczos). Camera samples are then not
+    /// splatted over the footprint (Film::Reconstruction::Splat) but importance-sampled: a pixel's ratio of signed
+    /// weight sums is unbounded at low sample counts, while importance-sampled weights are +-1 times a constant.
+    virtual bool has_negative_lobes() const { return false; }
 };
 
 }  // namespace kelvin

@@ -1,16 +1,17 @@
 // hdrfilm: the image the sensor records (Mitsuba's `hdrfilm`). The output format is chosen by the output
 // file's extension (kelvin -o out.png writes a PNG; .exr keeps full float precision and extra channels).
 //
-// | parameter | type    | default  | meaning                              |
-// |-----------|---------|----------|--------------------------------------|
-// | width     | integer | 768      | width in pixels                      |
-// | height    | integer | 576      | height in pixels                     |
-// | rfilter   | rfilter | gaussian | reconstruction filter (Mitsuba's default: gaussian, stddev 0.5) |
-// | pixel_format | string | "rgb"   | Mitsuba's pixel format: "rgb" is what Kelvin writes; "rgba", "luminance", ... are
-// refused | | component_format | string | "float16" | "float16" or "float32": EXR output is written as float32 either
-// way (values are not rounded to half precision); "uint32" is refused | | file_format | string | "openexr" | "openexr"
-// (Kelvin's default output); other formats are chosen with `-o name.ext`, so "rgbe"/"pfm" are refused here | | banner
-// | boolean | true     | accepted: Kelvin never draws a banner (Mitsuba 3's hdrfilm ignores it too) |
+// Parameters (kelvin --list-plugins film hdrfilm): width and height in pixels (768 x 576); rfilter, the
+// reconstruction filter (Mitsuba's default: gaussian, stddev 0.5); Mitsuba's output options pixel_format ("rgb" is
+// what Kelvin writes; others are refused), component_format ("float16" or "float32": EXR is written as float32 either
+// way; "uint32" is refused), file_format ("openexr"; other formats come from -o name.ext) and banner (accepted, never
+// drawn); and reconstruction, how camera samples become pixels:
+//   "splat" (default, as Mitsuba): a sample at a uniform position in its pixel is weighted by the filter into every
+//   pixel within the filter's radius, and a pixel is the weighted average of the samples that reach it. With the
+//   default Gaussian a pixel averages about 3 pixels' worth of samples (about 3x lower per-pixel variance), and
+//   neighbouring pixels share samples.
+//   "importance" (pbrt-v4's filter importance sampling): the sample's offset is drawn from the filter and it counts in
+//   its own pixel only: independent pixels, with a box filter's per-pixel variance.
 //
 //     <film type="hdrfilm"><integer name="width" value="640"/><integer name="height" value="480"/></film>
 #include <kelvin/core/registry.h>
@@ -40,13 +41,18 @@ public:
                                                    "picks other formats from the output name (-o image.{})",
                                                    ff, ff == "rgbe" ? "hdr" : "pfm"));
         (void)props.get_bool("banner");
+        m_reconstruction = props.get_choice("reconstruction", {"splat", "importance"}) == "importance"
+                               ? Reconstruction::Importance
+                               : Reconstruction::Splat;
     }
     int width() const override { return m_width; }
     int height() const override { return m_height; }
     const ReconstructionFilter& filter() const override { return *m_filter; }
+    Reconstruction reconstruction() const override { return m_reconstruction; }
 
 private:
     int m_width, m_height;
+    Reconstruction m_reconstruction = Reconstruction::Splat;
     std::shared_ptr<ReconstructionFilter> m_filter;
 };
 
@@ -60,4 +66,8 @@ KELVIN_PLUGIN(kelvin::HdrFilm, "film", "hdrfilm", "High dynamic range film; form
               kelvin::param::string("pixel_format", "rgb", "Mitsuba's pixel format; only rgb is written"),
               kelvin::param::string("component_format", "float16", "float16 or float32 (written as float32)"),
               kelvin::param::string("file_format", "openexr", "openexr (other formats: -o name.hdr / .pfm)"),
-              kelvin::param::boolean("banner", true, "accepted; Kelvin draws no banner"));
+              kelvin::param::boolean("banner", true, "accepted; Kelvin draws no banner"),
+              kelvin::param::string("reconstruction", "splat",
+                                    "splat: each sample weighted into every pixel of the filter's footprint "
+                                    "(Mitsuba); importance: filter importance sampling, one pixel per sample "
+                                    "(pbrt-v4)"));

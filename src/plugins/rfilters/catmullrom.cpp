@@ -12,6 +12,7 @@ namespace {
 
 class CatmullRomFilter final : public SignedSeparableFilter {
 public:
+    bool has_negative_lobes() const override { return true; }
     explicit CatmullRomFilter(const Properties& props) { init(props, 2.0); }
 
 protected:

@@ -19,6 +19,7 @@ namespace {
 
 class LanczosFilter final : public SignedSeparableFilter {
 public:
+    bool has_negative_lobes() const override { return true; }
     explicit LanczosFilter(const Properties& props) : m_lobes(double(props.get_int("lobes", 1, 16))) {
         init(props, m_lobes);
     }

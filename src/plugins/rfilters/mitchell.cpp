@@ -22,6 +22,7 @@ namespace {
 
 class MitchellFilter final : public SignedSeparableFilter {
 public:
+    bool has_negative_lobes() const override { return true; }
     explicit MitchellFilter(const Properties& props)
         : m_b(props.get_float("B", -10.0, 10.0)), m_c(props.get_float("C", -10.0, 10.0)) {
         init(props, 2.0);
