@@ -156,13 +156,14 @@ TEST(MltIntegrators, DrmltOverVolpathMatchesVolpath) {
 // image mean per run, shared by the variants of a seed) the error floor of the 2 % check.
 const std::string H2mcCommon = R"(<integer name="max_depth" value="4"/><integer name="direct_samples" value="256"/>)";
 const std::string PathDepth4 = R"(<integrator type="path"><integer name="max_depth" value="4"/></integrator>)";
+// At 16 mutations per pixel the 8-seed means have standard errors of about 0.9 % (Cornell box) and 1.1 % (metal
+// boxes), the path-traced references about 0.7 % (measured, red channel), so a fixed 2 % bound on their difference
+// would be a 1.5 to 2-sigma test that fails by chance; the block test at 5 sigma of the estimators' own errors is the
+// check for these two.
 TEST(MltIntegrators, PssmltH2mcMatchesPathTracing) {
-    expect_matches_path(pssmlt(R"(<mutation type="h2mc"/>)", H2mcCommon), "cornell-box.xml", 16, 256, 16, true,
+    expect_matches_path(pssmlt(R"(<mutation type="h2mc"/>)", H2mcCommon), "cornell-box.xml", 16, 256, 16, false,
                         PathDepth4);
 }
-// On the metal boxes the 8-seed mean at 16 mutations per pixel has a standard error of about 1.1 % (measured: red
-// 0.2020 +- 0.0022), so a fixed 2 % bound would be a 2-sigma test that fails by chance; the block test at 5 sigma is
-// the check here.
 TEST(MltIntegrators, DrmltGaussianThenH2mcHybridMatchesPathTracing) {
     expect_matches_path(
         drmlt("green", H2mcCommon +
