@@ -155,7 +155,11 @@ private:
     uint64_t m_invalid = 0, m_cg_iterations = 0, m_backtraces = 0;
     double m_seconds_advection = 0, m_seconds_projection = 0, m_seconds_diffusion = 0;
     // FLIP
-    std::vector<Vec2d> m_px, m_pv;    ///< particle positions and velocities
+    std::vector<Vec2d> m_px, m_pv;  ///< particle positions and velocities
+    /// The state at the start of the step in progress, restored when a stop cuts the step short (step() returns
+    /// false with the state unchanged, as every solver's step does).
+    std::vector<double> m_saved_uf, m_saved_vf, m_saved_pressure;
+    std::vector<Vec2d> m_saved_px, m_saved_pv;
     std::vector<double> m_uw, m_vw;   ///< P2G weight sums per face
     std::vector<int> m_cell_count;    ///< particles per cell (reseeding)
     std::vector<uint64_t> m_blocked;  ///< FLIP: refused moves per block of particles (reused every step)

@@ -26,6 +26,7 @@
 //     <simulation type="wos_poisson">
 //         <boundary type="disk"><float name="radius" value="0.3"/><float name="stream_value" value="1"/></boundary>
 //     </simulation>
+#include <kelvin/core/interrupt.h>
 #include <kelvin/core/job.h>
 #include <kelvin/core/logging.h>
 #include <kelvin/core/parallel.h>
@@ -79,7 +80,13 @@ public:
                     const double f = m_source->vorticity(source.cell_center(i, j));
                     source.at(i, j) = std::isfinite(f) ? f : 0.0;
                 }
-        const WosVelocityField field(m_options, m_domain, m_source ? &source : nullptr, Interpolation::Bilinear, 0);
+        WosVelocityField field(m_options, m_domain, m_source ? &source : nullptr, Interpolation::Bilinear, 0);
+        // The walks poll the job's token within an estimate (core/wos.h, StopPollSamples), so a stop lands within a
+        // fraction of a second even at millions of walks per pixel.
+        struct Stop final : Cancellable {};
+        Stop stop;
+        stop.set_cancel_token(ctx.cancel);
+        field.set_stop(&stop);
         log_info("wos_poisson: {}x{} pixels, {} walks each, epsilon {:g}, max_steps {}; boundaries {}; source {}", nx,
                  ny, walks, field.settings().epsilon, field.settings().max_steps, describe(m_options, m_domain),
                  m_source ? m_source->description() : std::string("none (Laplace)"));
@@ -95,6 +102,7 @@ public:
             const int j = int(row);
             Random rng(ctx.seed, row);
             for (int i = 0; i < nx; ++i) {
+                if (ctx.cancel.stop_requested()) return;  // an estimate cut short is not written
                 const Vec2d x = source.cell_center(i, j);
                 const int y = ny - 1 - j;  // top row = largest y
                 if (field.solid_at(x) >= 0) {
@@ -102,10 +110,12 @@ public:
                     continue;
                 }
                 const wos::ScalarEstimate u = field.stream_function(x, walks, rng, rows[row]);
+                if (ctx.cancel.stop_requested()) return;
                 img.at(i, y, 3) = float(u.value);
                 img.at(i, y, 4) = float(u.variance);
                 if (m_gradient) {  // v = (-du/dy, du/dx)
                     const VelocityEstimate v = field.estimate(x, walks, rng, rows[row]);
+                    if (ctx.cancel.stop_requested()) return;
                     img.at(i, y, 6) = float(v.value.y);
                     img.at(i, y, 7) = float(-v.value.x);
                 }
