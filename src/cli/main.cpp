@@ -10,8 +10,8 @@
 #include <kelvin/core/files.h>
 #include <kelvin/core/install.h>
 #include <kelvin/core/interrupt.h>
-#include <kelvin/core/loading.h>
 #include <kelvin/core/job.h>
+#include <kelvin/core/loading.h>
 #include <kelvin/core/logging.h>
 #include <kelvin/core/parallel.h>
 #include <kelvin/core/parser.h>

@@ -37,6 +37,16 @@ Simulation3Params Simulation3Params::parse(const Properties& props) {
                                        "({:g}, {:g}, {:g}))",
                                        lo.x, lo.y, lo.z, hi.x, hi.y, hi.z));
     s.domain = {lo, hi, props.get_bool("periodic")};
+    if (s.domain.periodic) {
+        // The periodic Biot–Savart kernel (an Ewald sum, biot_savart3.h) is tabulated for boxes whose sides differ by
+        // at most 8x.
+        const Vec3d size = hi - lo;
+        const double ratio = std::max({size.x, size.y, size.z}) / std::min({size.x, size.y, size.z});
+        if (!(ratio <= 8))
+            props.error("max", fmt::format("a periodic box's sides may differ by at most 8x; these differ by {:.3g}x "
+                                           "({:g} x {:g} x {:g})",
+                                           ratio, size.x, size.y, size.z));
+    }
     const TimeStepping ts = TimeStepping::parse(props);
     s.dt = ts.dt;
     p.steps = ts.steps;

@@ -31,7 +31,11 @@ std::vector<ParamSpec> with_boundary_params(std::vector<ParamSpec> own) {
 BoundaryShape::BoundaryShape(const Properties& props, bool has_inside) {
     m_role.stream_value = props.get_float("stream_value");
     m_role.stream_value_given = props.has("stream_value");
-    if (!std::isfinite(m_role.stream_value)) props.error("stream_value", "must be finite");
+    // A value whose gradients (its difference over a walk's epsilon) overflow is no boundary condition a float field
+    // can hold: 1e30 is far above any physical stream function.
+    if (!(std::abs(m_role.stream_value) <= 1e30))
+        props.error("stream_value",
+                    fmt::format("must be finite and at most 1e30 in magnitude, got {:g}", m_role.stream_value));
     const Vec3d v = props.get_vector("velocity");
     if (v.z != 0) props.error("velocity", "a 2D boundary moves in the plane (z = 0)");
     m_role.velocity = {v.x, v.y};
@@ -75,6 +79,20 @@ Vec2d rotate(Vec2d v, double a) {
 }
 }  // namespace
 
+std::string check_boundary_extent(const BoundaryShape& s) {
+    // Closest-point and ray queries on boundaries run in float (Embree, render/closest_point.h): coordinates are held
+    // to the scene limit the renderer keeps (1e17, docs/cli.md), beyond which float distances lose every digit.
+    constexpr double MaxBoundaryCoordinate = 1e17;
+    const auto [lo, hi] = s.bounds();
+    for (int a = 0; a < 3; ++a)
+        if (!(std::abs(lo[a]) <= MaxBoundaryCoordinate && std::abs(hi[a]) <= MaxBoundaryCoordinate))
+            return fmt::format(
+                "{}: its bounds ({:g}, {:g}, {:g}) to ({:g}, {:g}, {:g}) reach beyond {:g}, the coordinates "
+                "its queries can resolve",
+                s.description(), lo.x, lo.y, lo.z, hi.x, hi.y, hi.z, MaxBoundaryCoordinate);
+    return {};
+}
+
 std::string check_wos_options(const WosVelocityOptions& options, const Domain2& domain) {
     // The shell: a query within epsilon of a boundary moves ShellEdge epsilon away from it (wos::move_to_shell),
     // which must stay within the domain's half-width, or every estimate is zero or undefined.
@@ -90,6 +108,7 @@ std::string check_wos_options(const WosVelocityOptions& options, const Domain2& 
     for (const auto& s : options.shapes) {
         if (!s || s->dimension() != 2 || !s->geometry2())
             return "every boundary of a 2D simulation must be 2D (give dimension = 2)";
+        if (std::string why = check_boundary_extent(*s); !why.empty()) return why;
         container |= s->role().fluid_inside;
     }
     if (domain.periodic && options.shapes.empty())

@@ -38,6 +38,7 @@ std::string check_wos_options3(const WosVelocityOptions& options, const Domain3&
         if (!s || s->dimension() != 3 || !s->geometry3())
             return "every boundary of a 3D simulation must be 3D (sphere, box or capsule with dimension = 3, mesh or "
                    "vdb with dimension = 3)";
+        if (std::string why = check_boundary_extent(*s); !why.empty()) return why;
         const BoundaryRole& r = s->role();
         if (r.moving()) return s->description() + ": 3D boundaries do not move (rigid motion is 2D only)";
         if (r.stream_value_given)

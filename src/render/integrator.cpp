@@ -383,6 +383,8 @@ RunResult SamplingIntegrator::render(const Scene& scene, RunContext& ctx) {
         values[1] = v.g;
         values[2] = v.b;
         if (ne > 0) {
+            // Extra values may be negative (positions, normals) but never NaN or infinite (a mesh's NaN uv, an EXR
+            // texture's Inf): such a sample's extras are recorded as zero and counted, like an invalid colour.
             sample_extra(scene, ray, values + 3, c);
             bool finite = true;
             for (int e = 3; e < 3 + ne; ++e) finite = finite && std::isfinite(values[e]);
@@ -422,6 +424,7 @@ RunResult SamplingIntegrator::render(const Scene& scene, RunContext& ctx) {
             const int x1 = std::min(x0 + TileSize, ox + w), y1 = std::min(y0 + TileSize, oy + h);
             std::unique_ptr<Sampler> sampler = sensor.sampler().clone();
             SampleCounters& c = counters[unit];
+            double values[3 + MaxExtraChannels];
             for (int y = y0; y < y1; ++y)
                 for (int x = x0; x < x1; ++x) {
                     if (ctx.cancel.stop_requested()) return;  // per pixel: a pixel's samples of one pass are brief
@@ -429,31 +432,8 @@ RunResult SamplingIntegrator::render(const Scene& scene, RunContext& ctx) {
                         sampler->start({x, y}, uint64_t(k), ctx.seed);
                         // Dimensions 0-1: position (filter importance sampling); 2-3: lens; 4+: the integrator's.
                         auto [offset, weight] = filter.sample(sampler->next_2d());
-                        Vec2d film = Vec2d(x + 0.5, y + 0.5) + offset;
-                        Ray ray = sensor.sample_ray(film, sampler->next_2d());
-                        Color3 v = sample(scene, *sampler, ray, c);
-                        if (!sanitize(v)) ++c.invalid;
-                        if (ne == 0) {
-                            buffer.add(x - ox, y - oy, &v[0], weight);
-                        } else {
-                            // Colour then extra values, in one fixed-size array (no allocation per sample).
-                            double values[3 + MaxExtraChannels];
-                            values[0] = v.r;
-                            values[1] = v.g;
-                            values[2] = v.b;
-                            sample_extra(scene, ray, values + 3, c);
-                            // Extra values may be negative (positions, normals) but never NaN or infinite (a
-                            // mesh's NaN uv, an EXR texture's Inf): such a sample's extras are recorded as zero
-                            // and counted, like an invalid colour.
-                            bool finite = true;
-                            for (int e = 3; e < 3 + ne; ++e) finite = finite && std::isfinite(values[e]);
-                            if (!finite) {
-                                std::fill(values + 3, values + 3 + ne, 0.0);
-                                ++c.invalid;
-                            }
-                            buffer.add(x - ox, y - oy, values, weight);
-                        }
-                        ++c.samples;
+                        camera_sample(*sampler, c, Vec2d(x + 0.5, y + 0.5) + offset, values);
+                        buffer.add(x - ox, y - oy, values, weight);
                     }
                 }
         });

@@ -251,7 +251,9 @@ TEST_F(CliInform, StatsFileIsValidJsonWithSettingsAndEveryCounter) {
     EXPECT_EQ(j["interrupted"], false);
     EXPECT_GT(j["statistics"]["render.rays"]["value"].get<double>(), 0.0);
     EXPECT_EQ(j["statistics"]["render.rays"]["unit"], "rays");
-    EXPECT_EQ(j["statistics"]["render.camera_samples"]["value"], 16 * 16 * 3);
+    // Every camera sample traced: the film's 16 x 16 pixels and the ring of 2 beyond its edge that the default
+    // Gaussian's splatting samples (docs/rendering.md), 3 each.
+    EXPECT_EQ(j["statistics"]["render.camera_samples"]["value"], 20 * 20 * 3);
     // Every statistic, the zeros the summary leaves out included.
     EXPECT_EQ(j["statistics"]["render.invalid_samples"]["value"], 0);
     EXPECT_EQ(j["files_written"], nlohmann::json::array({out().string(), stats.string()}));

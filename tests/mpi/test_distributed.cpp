@@ -142,10 +142,11 @@ TEST_F(Distributed, OnlyRankZeroReportsAndWrites) {
     EXPECT_EQ(count_lines(r.err, "Done: path"), 1u) << r.err;
     EXPECT_EQ(count_lines(r.err, "on 2 ranks x"), 1u) << r.err;
     EXPECT_EQ(count_lines(r.err, "wrote "), 2u) << r.err;
-    // Statistics are the whole run's: 32 x 32 pixels x 2 spp camera samples, not one rank's share.
+    // Statistics are the whole run's: 36 x 36 pixels (the film's 32 and the 2 beyond each edge that splatting
+    // samples) x 2 spp camera samples, not one rank's share.
     const std::string json = read_file(stats);
     EXPECT_TRUE(std::regex_search(json, std::regex("\"render.camera_samples\": \\{\\s*\"unit\": \"samples\",\\s*"
-                                                   "\"value\": 2048(\\.0)?\\s*\\}")))
+                                                   "\"value\": 2592(\\.0)?\\s*\\}")))
         << json;
 }
 

@@ -110,6 +110,8 @@ struct WosVelocityOptions {
 /// Why these options cannot run on `domain` ("" when they can): a periodic domain without any boundary, an
 /// open domain without walls or container, a 3D shape, bad inflow range.
 std::string check_wos_options(const WosVelocityOptions& options, const Domain2& domain);
+/// Why a boundary's bounds are beyond what its queries resolve (|coordinate| > 1e17, or not finite); empty when fine.
+std::string check_boundary_extent(const BoundaryShape& shape);
 /// One line for the run summary.
 std::string describe(const WosVelocityOptions& options, const Domain2& domain);
 /// What the boundaries do to the nx x ny cache at t = 0 ("" when they are usable): an error when they leave no
