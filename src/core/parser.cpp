@@ -9,6 +9,7 @@
 // Instantiation (class Instantiator) then builds the objects bottom-up through the plugin registry, children
 // first, so every object is created from Properties that are complete and located.
 #include <kelvin/core/files.h>
+#include <kelvin/core/interrupt.h>
 #include <kelvin/core/loading.h>
 #include <kelvin/core/logging.h>
 #include <kelvin/core/parser.h>
@@ -19,10 +20,13 @@
 #include <pugixml.hpp>
 
 #include <algorithm>
+#include <atomic>
+#include <chrono>
 #include <deque>
 #include <fstream>
 #include <set>
 #include <sstream>
+#include <thread>
 #include <unordered_map>
 
 namespace kelvin {
@@ -113,8 +117,12 @@ std::ptrdiff_t first_element_deeper_than(const std::string& s, int limit) {
         return j;
     };
     int depth = 0;
-    std::size_t i = 0;
+    std::size_t i = 0, next_poll = std::size_t(1) << 22;
     while (i < n) {
+        if (i >= next_poll) {  // every 4 MiB scanned (a few ms): a huge file can be stopped while it is checked
+            throw_if_interrupted();
+            next_poll = i + (std::size_t(1) << 22);
+        }
         const std::size_t lt = s.find('<', i);
         if (lt == std::string::npos || lt + 1 >= n) break;
         const char c = s[lt + 1];
@@ -186,6 +194,38 @@ bool legacy_version(const pugi::xml_node& root) {
         }))
         return false;
     return std::stoi(std::string(major)) < 2;
+}
+
+/// pugixml reads a document in one call (about 25 ms per MB): a large file is read on a thread of its own while this
+/// one polls for a stop every 20 ms. A stop throws Interrupted at once; the reading thread, which owns a copy of the
+/// text and its document, finishes on its own and frees them.
+pugi::xml_parse_result parse_polling(pugi::xml_document& doc, const std::string& text) {
+    constexpr std::size_t Direct = std::size_t(4) << 20;  // below 4 MiB (0.1 s) read here
+    if (text.size() < Direct)
+        return doc.load_buffer(text.data(), text.size(), pugi::parse_default, pugi::encoding_utf8);
+    struct Job {
+        std::string text;
+        pugi::xml_document doc;
+        pugi::xml_parse_result result;
+        std::atomic<bool> done{false};
+    };
+    auto job = std::make_shared<Job>();
+    job->text = text;
+    std::thread reader([job] {
+        job->result =
+            job->doc.load_buffer(job->text.data(), job->text.size(), pugi::parse_default, pugi::encoding_utf8);
+        job->done.store(true, std::memory_order_release);
+    });
+    while (!job->done.load(std::memory_order_acquire)) {
+        if (interrupt_requested()) {
+            reader.detach();
+            throw Interrupted();
+        }
+        std::this_thread::sleep_for(std::chrono::milliseconds(20));
+    }
+    reader.join();
+    doc = std::move(job->doc);  // the document owns its own copy of the text (load_buffer)
+    return job->result;
 }
 
 class Parser {
@@ -279,8 +319,7 @@ private:
         // parse_body accepts; anything deeper is refused while reading, with the limit parse_body reports.
         if (const std::ptrdiff_t at = first_element_deeper_than(f.content, m_opts.max_depth + 2 - base_depth); at >= 0)
             throw_input(f.loc(at), "scene nesting deeper than {} levels", m_opts.max_depth);
-        pugi::xml_parse_result r =
-            doc.load_buffer(f.content.data(), f.content.size(), pugi::parse_default, pugi::encoding_utf8);
+        const pugi::xml_parse_result r = parse_polling(doc, f.content);
         if (!r) throw InputError(f.loc(r.offset), fmt::format("XML syntax error: {}", r.description()));
         pugi::xml_node root;
         for (pugi::xml_node n : doc.children()) {
@@ -572,6 +611,7 @@ private:
         if (depth > m_opts.max_depth)
             throw_input(f.loc(parent), "scene nesting deeper than {} levels", m_opts.max_depth);
         for (pugi::xml_node n : parent.children()) {
+            if ((++m_elements & 0xffff) == 0) throw_if_interrupted();  // every 65 536 elements (tens of ms)
             if (n.type() == pugi::node_pcdata || n.type() == pugi::node_cdata) {
                 if (!trim(n.value()).empty())
                     throw_input(f.loc(n), "unexpected text '{}' inside <{}>",
@@ -717,6 +757,7 @@ private:
     std::vector<std::string> m_include_stack;
     std::deque<FileText> m_files;
     std::deque<pugi::xml_document> m_docs;
+    uint64_t m_elements = 0;  // elements read so far, for the stop polls
     ParsedScene m_out;
 };
 

@@ -129,3 +129,24 @@ TEST(StopLatencyLoading, SigtermWhileReadingALargeMesh) {
     EXPECT_LE(r.cpu_seconds - before, MaxCpuAfterSignal);
     EXPECT_FALSE(fs::exists(dir / "out.exr"));
 }
+
+// Reading a large scene file: the XML parse (one call of pugixml, about 25 ms per MB) runs on a thread of its own while
+// the loader polls, so SIGTERM in the middle of an 80 MB scene ends the run at once with 130.
+TEST(StopLatencyLoading, SigtermWhileParsingALargeSceneFile) {
+    TempDir dir;
+    {
+        std::ofstream xml(dir / "big.xml");
+        xml << "<scene version=\"3.0.0\">\n";
+        for (int i = 0; i < 2500000; ++i) xml << "    <default name=\"p" << i << "\" value=\"0.123456789\"/>\n";
+        xml << "    <integrator type=\"ao\"/>\n</scene>\n";
+    }
+    Process p(kelvin_exe(), {(dir / "big.xml").string(), "-q", "-o", (dir / "out.exr").string()});
+    ASSERT_TRUE(p.wait_until([&] { return p.cpu_seconds_so_far() >= 0.3; }, 20s)) << describe(p.wait(1s));
+    const double before = p.cpu_seconds_so_far();
+    p.signal(SIGTERM);
+    const ProcessResult r = p.wait(60s);
+    ASSERT_FALSE(r.timed_out);
+    EXPECT_EQ(r.exit_code, 130) << describe(r);
+    EXPECT_LE(r.cpu_seconds - before, MaxCpuAfterSignal);
+    EXPECT_FALSE(fs::exists(dir / "out.exr"));
+}
