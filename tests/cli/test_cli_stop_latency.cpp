@@ -65,6 +65,22 @@ std::vector<Job> jobs() {
 
 class StopLatency : public ::testing::TestWithParam<Job> {};
 
+// Lets `p` work until it has used `warm_cpu` seconds of CPU (at most 20 s of wall time), sends SIGTERM and expects
+// exit 130 within MaxCpuAfterSignal seconds of CPU; returns the CPU seconds used after the signal (-1 on failure).
+double cpu_after_sigterm(Process& p, double warm_cpu) {
+    const bool working = p.wait_until([&] { return p.cpu_seconds_so_far() >= warm_cpu; }, 20s);
+    EXPECT_TRUE(working) << "the job ended (or never got going) before the signal: " << describe(p.wait(1s));
+    if (!working) return -1;
+    const double before = p.cpu_seconds_so_far();
+    p.signal(SIGTERM);
+    const ProcessResult r = p.wait(60s);
+    EXPECT_FALSE(r.timed_out) << "still running 60 s after SIGTERM";
+    EXPECT_EQ(r.exit_code, 130) << describe(r);
+    const double after = r.cpu_seconds - before;
+    EXPECT_LE(after, MaxCpuAfterSignal) << after << " s of CPU after SIGTERM";
+    return after;
+}
+
 }  // namespace
 
 TEST_P(StopLatency, SigtermStopsWithinHalfASecondOfCpu) {
@@ -77,16 +93,7 @@ TEST_P(StopLatency, SigtermStopsWithinHalfASecondOfCpu) {
     for (const std::string& a : std::vector<std::string>{"-q", "-t", "2", "-o", (dir / "out.pfm").string()})
         args.push_back(a);
     Process p(kelvin_exe(), args);
-    // Let it work: until it has used warm_cpu seconds of CPU (at most 20 s of wall time).
-    const bool working = p.wait_until([&] { return p.cpu_seconds_so_far() >= job.warm_cpu; }, 20s);
-    ASSERT_TRUE(working) << "the job ended (or never got going) before the signal: " << describe(p.wait(1s));
-    const double before = p.cpu_seconds_so_far();
-    p.signal(SIGTERM);
-    const ProcessResult r = p.wait(60s);
-    ASSERT_FALSE(r.timed_out) << "still running 60 s after SIGTERM";
-    EXPECT_EQ(r.exit_code, 130) << describe(r);
-    const double after = r.cpu_seconds - before;
-    EXPECT_LE(after, MaxCpuAfterSignal) << job.name << " used " << after << " s of CPU after SIGTERM";
+    const double after = cpu_after_sigterm(p, job.warm_cpu);
     RecordProperty("cpu_after_signal", std::to_string(after));
 }
 
@@ -120,13 +127,7 @@ TEST(StopLatencyLoading, SigtermWhileReadingALargeMesh) {
 </scene>
 )");
     Process p(kelvin_exe(), {(dir / "scene.xml").string(), "-q", "-o", (dir / "out.exr").string()});
-    ASSERT_TRUE(p.wait_until([&] { return p.cpu_seconds_so_far() >= 0.3; }, 20s)) << describe(p.wait(1s));
-    const double before = p.cpu_seconds_so_far();
-    p.signal(SIGTERM);
-    const ProcessResult r = p.wait(60s);
-    ASSERT_FALSE(r.timed_out);
-    EXPECT_EQ(r.exit_code, 130) << describe(r);
-    EXPECT_LE(r.cpu_seconds - before, MaxCpuAfterSignal);
+    cpu_after_sigterm(p, 0.3);
     EXPECT_FALSE(fs::exists(dir / "out.exr"));
 }
 
@@ -141,12 +142,6 @@ TEST(StopLatencyLoading, SigtermWhileParsingALargeSceneFile) {
         xml << "    <integrator type=\"ao\"/>\n</scene>\n";
     }
     Process p(kelvin_exe(), {(dir / "big.xml").string(), "-q", "-o", (dir / "out.exr").string()});
-    ASSERT_TRUE(p.wait_until([&] { return p.cpu_seconds_so_far() >= 0.3; }, 20s)) << describe(p.wait(1s));
-    const double before = p.cpu_seconds_so_far();
-    p.signal(SIGTERM);
-    const ProcessResult r = p.wait(60s);
-    ASSERT_FALSE(r.timed_out);
-    EXPECT_EQ(r.exit_code, 130) << describe(r);
-    EXPECT_LE(r.cpu_seconds - before, MaxCpuAfterSignal);
+    cpu_after_sigterm(p, 0.3);
     EXPECT_FALSE(fs::exists(dir / "out.exr"));
 }
