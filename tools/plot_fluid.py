@@ -189,6 +189,7 @@ def main():
     rows = (len(panels) + cols - 1) // cols
     fig, axes = plt.subplots(rows, cols, figsize=(4.2 * cols, 3.2 * rows), squeeze=False)
     for ax, (key, title, logy) in zip(axes.flat, panels):
+        raw_drawn = False
         for lab, c in runs:
             t, y = c["time"], c.get(key, [])
             pts = [(ti, yi) for ti, yi in zip(t, y) if not math.isnan(yi) and (not logy or yi > 0)]
@@ -200,7 +201,11 @@ def main():
             if key == "kinetic_energy" and "kinetic_energy_raw" in c:
                 raw = c["kinetic_energy_raw"]
                 if any(abs(r - e) > 1e-12 * max(1.0, abs(e)) for r, e in zip(raw, y) if not math.isnan(r)):
-                    ax.plot(t, raw, ls="--", lw=1, color=line.get_color())
+                    ax.plot(t, raw, ls="--", lw=1, color=line.get_color(),
+                            label=f"{lab}: raw (before the noise correction)")
+                    raw_drawn = True
+        if raw_drawn and ax is not axes.flat[0]:
+            ax.legend(fontsize=7)  # the dashed lines are named where they are drawn
         ax.set_title(title, fontsize=10)
         ax.set_xlabel("t")
         if logy:
