@@ -181,6 +181,14 @@ def plot_error(curves, metric, x, band, out, formats, title):
     return save(fig, out, "error_vs_%s_%s" % (x, metric), formats)
 
 
+def param_label(param, curves):
+    """The axis label of a swept scene parameter: the shipped scenes' `spp` is samples per pixel in a render and the
+    Monte Carlo sample count n_mc of each velocity estimate in a simulation (whose work unit is steps)."""
+    if param == "spp":
+        return "spp: n_mc, samples per velocity estimate" if unit_of(curves) == "steps" else "spp: samples per pixel"
+    return param
+
+
 def unit_of(curves):
     for c in curves.values():
         for rows in c.points.values():
@@ -256,7 +264,7 @@ def plot_param(curves, metric, param, out, formats, title):
         return []
     ax.set_xscale("log")
     ax.set_yscale("log")
-    ax.set_xlabel(param)
+    ax.set_xlabel(param_label(param, curves))
     ax.set_ylabel(LABELS.get(metric, metric))
     ax.grid(True, which="both", alpha=0.3)
     ax.set_title(title or "%s against %s (mean +- std over runs)" % (LABELS.get(metric, metric), param), fontsize=10)
@@ -479,6 +487,7 @@ def main(argv):
                                    "when all four are at most 1 (for images of several resolutions)")
     ap.add_argument("--formats", default="png,svg", help="plot formats (default png,svg)")
     ap.add_argument("--title", help="title of every plot")
+    ap.add_argument("-q", "--quiet", action="store_true", help="do not list the files written")
     a = ap.parse_args(argv)
 
     global CENTER
@@ -518,8 +527,9 @@ def main(argv):
     grid = image_grid(rows, os.path.dirname(os.path.abspath(a.csv)), crop, out)
     if grid:
         written.append(grid)
-    for p in written:
-        print(p)
+    if not a.quiet:
+        for p in written:
+            print(p)
     return 0
 
 

@@ -74,14 +74,17 @@ std::string python() {
     return fs::exists("/usr/bin/python3") ? "/usr/bin/python3" : "python3";
 }
 
-int run_plot(const fs::path& csv, const fs::path& out_dir) {
+int run_plot(const fs::path& csv, const fs::path& out_dir, const ConvergeArgs& a) {
     const fs::path script = plot_script();
     if (script.empty() || !fs::exists(script))
         throw RuntimeError(
             fmt::format("--plot: cannot find plot_convergence.py (looked in '{}'; set KELVIN_DATA_DIR "
                         "or KELVIN_PLOT_SCRIPT)",
                         (data_directory() / "tools").string()));
-    std::vector<std::string> args = {python(), script.string(), csv.string(), "--out", out_dir.string()};
+    std::vector<std::string> args = {python(),         script.string(), csv.string(),  "--out",
+                                     out_dir.string(), "--formats",     a.plot_formats};
+    if (!a.plot_metrics.empty()) args.insert(args.end(), {"--metrics", a.plot_metrics});
+    if (a.quiet) args.push_back("--quiet");
     std::vector<char*> argv;
     for (auto& a : args) argv.push_back(a.data());
     argv.push_back(nullptr);
@@ -132,6 +135,15 @@ CLI::App* add_converge_command(CLI::App& app, ConvergeArgs& a) {
     c->add_flag("--plot", a.plot, "Run tools/plot_convergence.py on the CSV (plots in <output>/plots)");
     c->add_option("-t,--threads", a.threads, "Worker threads (default: all cores)")->check(CLI::Range(0, 4096));
     c->add_option("--plugin-path", a.plugin_paths, "Load plugin modules (.so) from DIR");
+    c->add_option("--plot-metrics", a.plot_metrics,
+                  "With --plot: the metrics to plot, comma-separated (default: rel_mse,l1,ssim for renders; "
+                  "rmse,rel_l2,max_abs for fields)");
+    c->add_option("--plot-formats", a.plot_formats, "With --plot: the plot formats, comma-separated (default png)")
+        ->check([](const std::string& v) -> std::string {
+            for (const auto& f : split_list(v))
+                if (f != "png" && f != "svg" && f != "pdf") return "formats are png, svg and pdf";
+            return v.empty() ? std::string("no format given") : std::string();
+        });
     c->add_flag("--allow-unused", a.allow_unused, "Warn about unused scene parameters instead of failing");
     c->add_flag("-q,--quiet", a.quiet, "Only warnings and errors");
     c->add_flag("-v,--verbose", a.verbose, "Debug output");
@@ -211,7 +223,7 @@ int run_converge(const ConvergeArgs& a, Communicator& world) {
                                          : fmt::format("{} threads", thread_count()).c_str());
     if (s.interrupted) return ExitInterrupted;
     if (a.plot) {
-        run_plot(s.csv, o.output_dir / "plots");
+        run_plot(s.csv, o.output_dir / "plots", a);
         if (!a.quiet) std::fprintf(stderr, "plots in %s\n", (o.output_dir / "plots").string().c_str());
     }
     return ExitOk;

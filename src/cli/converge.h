@@ -15,6 +15,7 @@ struct ConvergeArgs {
     std::string scene, reference, output, config_file, images = "first";
     std::vector<std::string> configs, sweeps, defines, fields, plugin_paths;
     std::string seconds, spp, steps, times, pixels, window, disk;
+    std::string plot_metrics, plot_formats = "png";  ///< --plot-metrics, --plot-formats (plot_convergence.py)
     int runs = 1, threads = 0;
     std::string seed = "0";
     double epsilon = 1e-2;

@@ -269,8 +269,26 @@ TEST_F(ConvergeCli, FluidErrorFallsWithBiotSavartSamples) {
     // Taylor–Green against its exact solution: 64x the Biot–Savart samples lowers the vorticity RMSE (noise
     // ~ 1/sqrt(n_mc)) until interpolation error dominates; at 32^2 cells and t = 0.25 the drop is about 3x.
     const fs::path out = m_dir / "tg";
-    auto r = run_kelvin({"converge", TaylorGreen, "-q", "-D", "res=32", "-D", "end=0.25", "--sweep", "spp=4,256",
-                         "--times", "0,0.25", "--runs", "2", "-o", out.string(), "--plot"},
+    auto r = run_kelvin({"converge",
+                         TaylorGreen,
+                         "-q",
+                         "-D",
+                         "res=32",
+                         "-D",
+                         "end=0.25",
+                         "--sweep",
+                         "spp=4,256",
+                         "--times",
+                         "0,0.25",
+                         "--runs",
+                         "2",
+                         "-o",
+                         out.string(),
+                         "--plot",
+                         "--plot-metrics",
+                         "rmse,rel_l2",
+                         "--plot-formats",
+                         "png,svg"},
                         {}, std::chrono::seconds(120));
     ASSERT_EQ(r.exit_code, 0) << describe(r);
     const Table t = read_csv(out / "convergence.csv");
@@ -294,9 +312,14 @@ TEST_F(ConvergeCli, FluidErrorFallsWithBiotSavartSamples) {
         const double few = at_end[std::make_pair(std::string("spp=4"), run)];
         EXPECT_LT(many, 0.6 * few) << "run " << run;
     }
-    // --plot: the sweep's error-versus-parameter plot, among others.
+    // --plot: the sweep's error-versus-parameter plot, among others, for the metrics and formats asked (-q: no file
+    // list), and nothing for the metric left out.
     EXPECT_GT(fs::file_size(out / "plots" / "error_vs_param_rmse.png"), 100u);
     EXPECT_GT(fs::file_size(out / "plots" / "error_vs_seconds_rmse.svg"), 100u);
+    EXPECT_NE(read_file(out / "plots" / "error_vs_param_rmse.svg").find("n_mc, samples per velocity estimate"),
+              std::string::npos);
+    EXPECT_FALSE(fs::exists(out / "plots" / "error_vs_seconds_max_abs.png"));
+    EXPECT_EQ(r.out.find("plots/"), std::string::npos) << r.out;
 }
 
 // 3D (issue 15): the ABC flow against its exact solution (omega = u, steady). At step 0 the cache is the exact
