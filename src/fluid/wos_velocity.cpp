@@ -80,17 +80,14 @@ Vec2d rotate(Vec2d v, double a) {
 }  // namespace
 
 std::string check_boundary_extent(const BoundaryShape& s) {
-    // Closest-point and ray queries on boundaries run in float (Embree, render/closest_point.h): coordinates are held
-    // to the scene limit the renderer keeps (1e17, docs/cli.md), beyond which float distances lose every digit.
-    constexpr double MaxBoundaryCoordinate = 1e17;
+    // Closest-point and ray queries on boundaries run in float on Embree (render/closest_point.h): boundaries keep to
+    // the scene extent the renderer keeps (core/math.h), beyond which float distances lose every digit.
     const auto [lo, hi] = s.bounds();
-    for (int a = 0; a < 3; ++a)
-        if (!(std::abs(lo[a]) <= MaxBoundaryCoordinate && std::abs(hi[a]) <= MaxBoundaryCoordinate))
-            return fmt::format(
-                "{}: its bounds ({:g}, {:g}, {:g}) to ({:g}, {:g}, {:g}) reach beyond {:g}, the coordinates "
-                "its queries can resolve",
-                s.description(), lo.x, lo.y, lo.z, hi.x, hi.y, hi.z, MaxBoundaryCoordinate);
-    return {};
+    if (within_scene_extent(lo) && within_scene_extent(hi)) return {};
+    return fmt::format(
+        "{}: its bounds ({:g}, {:g}, {:g}) to ({:g}, {:g}, {:g}) reach beyond {:g}, the coordinates its "
+        "queries can resolve",
+        s.description(), lo.x, lo.y, lo.z, hi.x, hi.y, hi.z, MaxSceneCoordinate);
 }
 
 std::string check_wos_options(const WosVelocityOptions& options, const Domain2& domain) {

@@ -202,11 +202,10 @@ namespace {
 // bit-identical whatever the thread or rank count.
 class SplatTiles {
 public:
-    SplatTiles(const ReconstructionFilter& filter, int film_w, int film_h, const CropWindow& window, int tile, int nc)
+    SplatTiles(const ReconstructionFilter& filter, const CropWindow& window, int tile, int nc)
         : m_filter(filter), m_win(window), m_tile(tile), m_nc(nc) {
         // Pixels beyond the film's edge are sampled too (a margin of M): a pixel at the edge then averages over its
         // whole footprint, as with importance sampling and as Metropolis splats do, not only over its inner part.
-        (void)film_w, (void)film_h;
         m_margin = int(std::ceil(filter.radius()));
         m_x0 = window.x0 - m_margin, m_x1 = window.x1 + m_margin;
         m_y0 = window.y0 - m_margin, m_y1 = window.y1 + m_margin;
@@ -231,27 +230,16 @@ public:
         if (acc.empty()) acc.assign(std::size_t(m_side) * std::size_t(m_side) * std::size_t(m_nc + 1), 0.0);
         const int tx = m_tx0 + int(unit % std::size_t(m_ntx)), ty = m_ty0 + int(unit / std::size_t(m_ntx));
         const int bx = tx * m_tile - m_margin, by = ty * m_tile - m_margin;  // the accumulator's first pixel
-        const double r = m_filter.radius();
-        const int x0 = std::max(m_win.x0, int(std::ceil(film.x - 0.5 - r))),
-                  x1 = std::min(m_win.x1 - 1, int(std::floor(film.x - 0.5 + r)));
-        const int y0 = std::max(m_win.y0, int(std::ceil(film.y - 0.5 - r))),
-                  y1 = std::min(m_win.y1 - 1, int(std::floor(film.y - 0.5 + r)));
-        constexpr int MaxSide = 64;
-        const bool separable = m_filter.separable() && x1 - x0 < MaxSide && y1 - y0 < MaxSide;
-        double wx[MaxSide], wy[MaxSide];
-        if (separable) {
-            for (int x = x0; x <= x1; ++x) wx[x - x0] = m_filter.eval_1d(x + 0.5 - film.x);
-            for (int y = y0; y <= y1; ++y) wy[y - y0] = m_filter.eval_1d(y + 0.5 - film.y);
-        }
-        for (int y = y0; y <= y1; ++y)
-            for (int x = x0; x <= x1; ++x) {
-                const double w = separable ? wx[x - x0] * wy[y - y0] : m_filter.eval(Vec2d(x + 0.5, y + 0.5) - film);
-                if (w == 0) continue;
-                double* px =
-                    &acc[(std::size_t(y - by) * std::size_t(m_side) + std::size_t(x - bx)) * std::size_t(m_nc + 1)];
+        // The footprint within the window (for_each_footprint_pixel, in window coordinates), into the accumulator.
+        const int ww = m_win.width();
+        for_each_footprint_pixel(
+            &m_filter, ww, m_win.height(), film - Vec2d(m_win.x0, m_win.y0), [&](std::size_t pixel, double w) {
+                const int x = m_win.x0 + int(pixel % std::size_t(ww)) - bx;
+                const int y = m_win.y0 + int(pixel / std::size_t(ww)) - by;
+                double* px = &acc[(std::size_t(y) * std::size_t(m_side) + std::size_t(x)) * std::size_t(m_nc + 1)];
                 for (int c = 0; c < m_nc; ++c) px[c] += w * values[c];
                 px[m_nc] += w;
-            }
+            });
     }
     /// The window's image (collective in a distributed run).
     Bitmap develop(const std::vector<std::string>& names, Communicator& comm) const {
@@ -335,7 +323,7 @@ RunResult SamplingIntegrator::render(const Scene& scene, RunContext& ctx) {
     const int ne = int(extra.size());
     channels.insert(channels.end(), extra.begin(), extra.end());
     std::unique_ptr<SplatTiles> splat_tiles;
-    if (splat_samples) splat_tiles = std::make_unique<SplatTiles>(filter, fw, fh, crop, TileSize, 3 + ne);
+    if (splat_samples) splat_tiles = std::make_unique<SplatTiles>(filter, crop, TileSize, 3 + ne);
     ImageBuffer buffer(splat_samples ? 0 : w, splat_samples ? 0 : h, 3 + ne);
     const std::size_t tiles = splat_tiles ? splat_tiles->units() : std::size_t(tx) * std::size_t(ty);
     std::vector<SampleCounters> counters(tiles);

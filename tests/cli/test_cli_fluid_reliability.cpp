@@ -215,6 +215,37 @@ TEST(FluidReliability, EstimatorLengthsLargerThanTheDomainAreRefused) {
     EXPECT_NE(line.find("smaller side is 2.4"), std::string::npos) << line;
 }
 
+// Inputs at the edges of float and double that the scene mutation fuzzer found (fuzz_scene_extremes_2 and _3): each was
+// exit 1 after the setup, or an infinite gradient refused only by the image writer; now bad input naming what is wrong.
+TEST(FluidReliability, ExtremeGeometryAndBoundaryValuesAreRefused) {
+    TempDir dir;
+    // A boundary beyond the coordinates its (float) closest-point queries resolve.
+    const fs::path far = edited_scene(dir.path(), "cylinder.xml", "<point name=\"center\" x=\"-0.8\" y=\"0\"/>",
+                                      "<point name=\"center\" x=\"-0.8\" y=\"1e39\"/>");
+    std::string line =
+        expect_one_error_line(run_kelvin({far.string(), "-q", "-D", "res=8", "-o", (dir.path() / "f.exr").string()}));
+    EXPECT_NE(line.find("reach beyond 1e+17"), std::string::npos) << line;
+    // A boundary value whose gradient overflows (wos_poisson wrote -inf du_dx).
+    const std::string laplace = std::string(KELVIN_SOURCE_DIR) + "/scenes/wos/laplace.xml";
+    std::string text = read_file(laplace);
+    const std::string cold = "<float name=\"stream_value\" value=\"-1\"/>";
+    text.replace(text.find(cold), cold.size(), "<float name=\"stream_value\" value=\"1e300\"/>");
+    const std::string mesh = "value=\"../fluid/meshes/";  // relative to the shipped scene: made absolute in the copy
+    text.replace(text.find(mesh), mesh.size(), "value=\"" + std::string(KELVIN_SOURCE_DIR) + "/scenes/fluid/meshes/");
+    write_file(dir.path() / "laplace.xml", text);
+    line = expect_one_error_line(run_kelvin(
+        {(dir.path() / "laplace.xml").string(), "-q", "-D", "res=8", "-o", (dir.path() / "w.exr").string()}));
+    EXPECT_NE(line.find("stream_value"), std::string::npos) << line;
+    EXPECT_NE(line.find("1e+300"), std::string::npos) << line;
+    // A periodic 3D box too elongated for its tabulated Ewald kernel.
+    const fs::path box = edited_scene(dir.path(), "taylor_green_3d.xml", "<point name=\"max\" x=\"6.283185307179586\"",
+                                      "<point name=\"max\" x=\"1e155\"");
+    line =
+        expect_one_error_line(run_kelvin({box.string(), "-q", "-D", "res=8", "-o", (dir.path() / "b.exr").string()}));
+    EXPECT_NE(line.find("at most 8x"), std::string::npos) << line;
+    EXPECT_NE(line.find("max"), std::string::npos) << line;
+}
+
 // The frames folder beside -o is a file: exit 2 before any work (it was exit 1 after the setup).
 TEST(FluidReliability, FramesFolderThatIsAFileIsRefusedBeforeWork) {
     for (const std::vector<std::string>& a :

@@ -2,6 +2,7 @@
 // Math types. GLM underneath; geometry in float, accumulators and parameters in double.
 #include <glm/glm.hpp>
 
+#include <cmath>
 #include <cstdint>
 #include <limits>
 #include <numbers>
@@ -53,5 +54,16 @@ struct Transform {
 
 /// Luminance of linear sRGB/Rec.709 primaries.
 inline double luminance(const Color3& c) { return 0.212671 * c.r + 0.715160 * c.g + 0.072169 * c.b; }
+
+/// The largest |x|, |y| or |z| a scene point may have: geometry, sensors, lights and fluid boundaries alike. Ray and
+/// closest-point queries run in single precision on Embree, which refuses coordinates beyond FLT_LARGE = 1.844e18; the
+/// limit keeps an order of magnitude of margin (render/extent.h).
+constexpr double MaxSceneCoordinate = 1e17;
+
+/// True if every component of `p` is finite and within MaxSceneCoordinate (NaN fails).
+inline bool within_scene_extent(const Vec3d& p) {
+    return std::abs(p.x) <= MaxSceneCoordinate && std::abs(p.y) <= MaxSceneCoordinate &&
+           std::abs(p.z) <= MaxSceneCoordinate;
+}
 
 }  // namespace kelvin

@@ -19,16 +19,9 @@
 
 namespace kelvin {
 
-/// The largest |x|, |y| or |z| a scene point may have (metres or whatever unit the scene uses).
-constexpr double MaxSceneCoordinate = 1e17;
+// MaxSceneCoordinate and within_scene_extent: core/math.h (fluid boundaries keep the same limit).
 /// Embree's bound on ray origins and directions (FLT_LARGE in Embree's kernels/common/math/constants.h).
 constexpr float EmbreeLargestCoordinate = 1.844e18f;
-
-/// True if every component of `p` is finite and within MaxSceneCoordinate (NaN fails).
-inline bool within_scene_extent(const Vec3d& p) {
-    return std::abs(p.x) <= MaxSceneCoordinate && std::abs(p.y) <= MaxSceneCoordinate &&
-           std::abs(p.z) <= MaxSceneCoordinate;
-}
 
 /// Throws InputError(loc, "<what> ...") unless the box [lo, hi] lies within the scene extent.
 inline void check_scene_extent(const Vec3d& lo, const Vec3d& hi, std::string_view what, const SourceLoc& loc) {
