@@ -11,6 +11,7 @@
 #include <kelvin/core/parallel.h>
 #include <kelvin/core/registry.h>
 #include <kelvin/fluid/boundary.h>
+#include <kelvin/fluid/estimators.h>
 #include <kelvin/fluid/mcfluid.h>
 #include <kelvin/fluid/panels.h>
 #include <kelvin/fluid/stable_fluids.h>
@@ -37,7 +38,7 @@ MCFluidSettings taylor_green_settings(int res, int nmc, Advection adv) {
     MCFluidSettings s;
     s.domain = {{-Pi, -Pi}, {Pi, Pi}, true};
     s.nx = s.ny = res;
-    s.velocity.samples = nmc;
+    s.samples = nmc;
     s.advection = adv;
     s.dt = 0.05;
     return s;
@@ -52,7 +53,7 @@ void BM_BiotSavartPass(benchmark::State& state, bool periodic, SourceSampling sa
     const int res = int(state.range(0)), nmc = int(state.range(1));
     MCFluidSettings s = taylor_green_settings(res, nmc, Advection::Euler);
     if (!periodic) s.domain = {{-1, -1}, {1, 1}, false};
-    s.velocity.importance = sampling;
+    s.estimator = std::make_shared<BiotSavartVelocity>(BiotSavartOptions{nmc, sampling, -1});
     MCFluidSolver solver(s, periodic ? InitialField(taylor_green) : InitialField(lamb_oseen));
     const Grid2& grid = solver.vorticity_grid();
     std::shared_ptr<const PeriodicKernel> kernel =

@@ -46,7 +46,7 @@ MCFluid3Settings settings(int res, int nmc, bool periodic) {
     MCFluid3Settings s;
     s.domain = periodic ? Domain3{Vec3d(0.0), Vec3d(2 * Pi), true} : Domain3{Vec3d(-2.0), Vec3d(2.0), false};
     s.nx = s.ny = s.nz = res;
-    s.velocity.samples = nmc;
+    s.samples = nmc;
     s.advection = Advection::Euler;
     s.dt = 0.05;
     return s;

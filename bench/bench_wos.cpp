@@ -210,7 +210,7 @@ void BM_WosStep(benchmark::State& state) {
     MCFluidSettings s;
     s.domain = {{-1, -1}, {1, 1}, false};
     s.nx = s.ny = int(state.range(0));
-    s.velocity.samples = int(state.range(1));
+    s.samples = int(state.range(1));
     s.advection = Advection::Euler;
     auto o = std::make_shared<WosVelocityOptions>();
     o->shapes = {obstacle("disk")};

@@ -63,7 +63,7 @@ void check_settings(const MCFluidSettings& s) {
                       BiotSavartEstimator::MaxResolution);
     if (!(s.dt > 0) || !std::isfinite(s.dt)) throw_runtime("MCFluidSolver: dt must be positive and finite");
     if (!(s.viscosity >= 0) || !std::isfinite(s.viscosity)) throw_runtime("MCFluidSolver: viscosity must be >= 0");
-    if (s.velocity.samples < 1) throw_runtime("MCFluidSolver: velocity samples must be >= 1");
+    if (s.samples < 0) throw_runtime("MCFluidSolver: velocity samples must be >= 1 (0: the estimator's)");
     if (s.diffusion_samples < 1) throw_runtime("MCFluidSolver: diffusion samples must be >= 1");
 }
 
@@ -72,11 +72,13 @@ void check_settings(const MCFluidSettings& s) {
 MCFluidSolver::MCFluidSolver(const MCFluidSettings& settings, const InitialField& initial)
     : m_settings(settings), m_comm(&local_communicator()) {
     check_settings(m_settings);
-    m_settings.estimator =
-        resolve_estimator(m_settings.estimator, m_settings.boundaries, m_settings.velocity, 2, "MCFluidSolver");
+    m_settings.estimator = resolve_estimator(m_settings.estimator, m_settings.boundaries, 2, "MCFluidSolver");
+    if (m_settings.samples == 0) m_settings.samples = m_settings.estimator->samples();
+    if (m_settings.samples < 1) throw_runtime("MCFluidSolver: velocity samples must be >= 1");
     const Domain2& d = m_settings.domain;
     m_omega = Grid2(d, m_settings.nx, m_settings.ny);
-    m_delta = m_settings.velocity.delta >= 0 ? m_settings.velocity.delta : 0.5 * std::min(m_omega.h().x, m_omega.h().y);
+    const double delta = m_settings.estimator->delta();
+    m_delta = delta >= 0 ? delta : 0.5 * std::min(m_omega.h().x, m_omega.h().y);
     if (d.periodic && !m_settings.boundaries) m_periodic = std::make_shared<PeriodicKernel>(d.size());  // BS only
     for (int j = 0; j < m_omega.ny(); ++j)
         for (int i = 0; i < m_omega.nx(); ++i) {
@@ -144,7 +146,7 @@ void MCFluidSolver::add_walks(const wos::WalkCounters& c) {
 
 Vec2d MCFluidSolver::checked_velocity(Vec2d x, Random& rng, uint64_t& evals, uint64_t& queries, uint64_t& invalid,
                                       wos::WalkCounters& walks) const {
-    VelocityEstimate e = estimate_at(x, m_settings.velocity.samples, rng, walks);
+    VelocityEstimate e = estimate_at(x, m_settings.samples, rng, walks);
     evals += uint64_t(e.samples);
     ++queries;
     // The same validity check as the cell pass: a finite value whose variance overflowed is not an estimate.
@@ -159,7 +161,7 @@ bool MCFluidSolver::ensure_velocity() {
     if (m_velocity_valid) return true;
     Timer timer;
     const int nx = m_omega.nx(), ny = m_omega.ny();
-    const int n = m_settings.velocity.samples;
+    const int n = m_settings.samples;
     SlabPass pass(*m_comm, std::size_t(ny), std::size_t(nx));  // this rank's rows
     std::vector<RowWork> rows(pass.size(), RowWork{});
     std::atomic<bool> interrupted{false};

@@ -116,7 +116,7 @@ void check_settings(const MCFluid3Settings& s) {
         throw_runtime("MCFluid3Solver: cache resolution {}x{}x{} out of range [2, {}]", s.nx, s.ny, s.nz, m);
     if (!(s.dt > 0) || !std::isfinite(s.dt)) throw_runtime("MCFluid3Solver: dt must be positive and finite");
     if (!(s.viscosity >= 0) || !std::isfinite(s.viscosity)) throw_runtime("MCFluid3Solver: viscosity must be >= 0");
-    if (s.velocity.samples < 1) throw_runtime("MCFluid3Solver: velocity samples must be >= 1");
+    if (s.samples < 0) throw_runtime("MCFluid3Solver: velocity samples must be >= 1 (0: the estimator's)");
     if (s.diffusion_samples < 1) throw_runtime("MCFluid3Solver: diffusion samples must be >= 1");
     if (s.initial_samples < 0) throw_runtime("MCFluid3Solver: initial samples must be >= 0");
     if (!(s.control_variate_blend > 0 && s.control_variate_blend <= 1))
@@ -133,13 +133,14 @@ Vec3d standard_normal3(Random& rng) {
 MCFluid3Solver::MCFluid3Solver(const MCFluid3Settings& settings, const InitialField3& initial)
     : m_settings(settings), m_comm(&local_communicator()) {
     check_settings(m_settings);
-    m_settings.estimator =
-        resolve_estimator(m_settings.estimator, m_settings.boundaries, m_settings.velocity, 3, "MCFluid3Solver");
+    m_settings.estimator = resolve_estimator(m_settings.estimator, m_settings.boundaries, 3, "MCFluid3Solver");
+    if (m_settings.samples == 0) m_settings.samples = m_settings.estimator->samples();
+    if (m_settings.samples < 1) throw_runtime("MCFluid3Solver: velocity samples must be >= 1");
     const MCFluid3Settings& s = m_settings;
     m_omega = VectorGrid3(s.domain, s.nx, s.ny, s.nz);
     const Vec3d h = m_omega.x.h();
     m_segment = std::min({h.x, h.y, h.z});
-    m_delta = s.velocity.delta >= 0 ? s.velocity.delta : 0.5 * m_segment;
+    m_delta = s.estimator->delta() >= 0 ? s.estimator->delta() : 0.5 * m_segment;
     if (s.domain.periodic && !s.boundaries) m_periodic = std::make_shared<PeriodicKernel3>(s.domain.size());
     for (int k = 0; k < s.nz; ++k)
         for (int j = 0; j < s.ny; ++j)
@@ -216,7 +217,7 @@ Vec3d MCFluid3Solver::velocity_at(Vec3d x) const {
     const uint64_t key = hash_combine(hash_combine(std::bit_cast<uint64_t>(x.x), std::bit_cast<uint64_t>(x.y)),
                                       std::bit_cast<uint64_t>(x.z));
     Random rng(m_settings.seed, stream_of(m_step, TagQuery, key));
-    const VelocityEstimate3 e = velocity_estimate(x, m_settings.velocity.samples, rng);
+    const VelocityEstimate3 e = velocity_estimate(x, m_settings.samples, rng);
     return finite(e.value) ? e.value : Vec3d(0.0);
 }
 
@@ -245,11 +246,11 @@ Vec3d MCFluid3Solver::stage_velocity(Vec3d x, Random& rng, SlabWork& w) const {
     // Control variate: the difference field, plus the previous velocity interpolated at x (blended with a direct
     // estimate when control_variate_blend < 1).
     if (m_wos && m_wos->solid_at(x) >= 0) return Vec3d(0.0);
-    VelocityEstimate3 e = estimate_at(x, m_settings.velocity.samples, rng, w);
+    VelocityEstimate3 e = estimate_at(x, m_settings.samples, rng, w);
     if (m_have_prev) {
         e.value += m_prev_vel.sample(x, m_settings.interpolation);
         ++w.cv;
-        blend_direct(x, m_settings.velocity.samples, rng, w, e);
+        blend_direct(x, m_settings.samples, rng, w, e);
     }
     const Vec3d v = e.value;
     if (!finite(v) || !finite(e.variance)) {  // the cell pass's check: a value with an overflowed variance too
@@ -264,7 +265,7 @@ bool MCFluid3Solver::ensure_velocity() {
     Timer timer;
     const MCFluid3Settings& s = m_settings;
     const bool cv = m_have_prev;
-    const int n = (s.control_variates && m_step == 0 && s.initial_samples > 0) ? s.initial_samples : s.velocity.samples;
+    const int n = (s.control_variates && m_step == 0 && s.initial_samples > 0) ? s.initial_samples : s.samples;
     SlabPass pass(*m_comm, std::size_t(s.nz), std::size_t(s.nx) * std::size_t(s.ny));  // this rank's z slabs
     SlabWork work;
     const bool complete = for_each_cell(pass, s, m_omega.x, m_step, TagVelocity, work, *this,

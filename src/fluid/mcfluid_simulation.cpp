@@ -52,8 +52,6 @@ MCFluidParams MCFluidParams::parse(const Properties& props) {
     auto cache = props.get_object_as<CacheSpec>("cache");
     if (!cache) cache = std::dynamic_pointer_cast<CacheSpec>(Registry::instance().create(Properties("cache", "grid")));
     s.estimator = velocity;
-    s.velocity.samples = velocity->samples();
-    s.velocity.delta = velocity->delta();
     if (const std::string why = velocity->check2(s.domain); !why.empty())
         props.error("velocity", velocity->plugin_name() + ": " + why);
     s.boundaries = velocity->boundaries();
@@ -68,7 +66,7 @@ MCFluidParams MCFluidParams::parse(const Properties& props) {
 std::unique_ptr<MCFluidSolver> create_mcfluid_solver(const MCFluidParams& p, const RunContext& ctx) {
     MCFluidSettings settings = p.settings;
     settings.seed = ctx.seed;
-    settings.velocity.samples = run_samples(ctx, settings.velocity.samples);
+    settings.samples = run_samples(ctx, settings.estimator->samples());
     const VorticityField* field = p.common.field.get();
     auto solver = std::make_unique<MCFluidSolver>(settings, [field](const Vec2d& x) { return field->vorticity(x); });
     if (p.common.dye)
@@ -118,16 +116,16 @@ public:
         const MCFluidSettings& s = m_mc.settings();
         std::vector<std::string> lines;
         if (m_spp)  // --spp: the Monte Carlo sample count of a simulation is n_mc
-            lines.push_back(fmt::format("--spp {} overrides the Biot–Savart samples (n_mc)", s.velocity.samples));
+            lines.push_back(fmt::format("--spp {} overrides the Biot–Savart samples (n_mc)", s.samples));
         lines.push_back(fmt::format("2D, domain {}, {}x{} cache ({}), initial {}", s.domain.to_string(), s.nx, s.ny,
                                     fluid::to_string(s.interpolation), m_p.field->description()));
         const std::string velocity =
             s.boundaries ? fmt::format(
                                "Walk-on-Spheres free-slip velocity ({} gradient samples, antithetic {}, epsilon {:g}, "
                                "max_steps {})",
-                               s.velocity.samples, s.boundaries->wos.antithetic ? "on" : "off",
+                               s.samples, s.boundaries->wos.antithetic ? "on" : "off",
                                m_mc.boundary_field()->settings().epsilon, s.boundaries->wos.max_steps)
-                         : s.estimator->effect(s.velocity.samples, m_mc.delta(), s.domain.periodic);
+                         : s.estimator->effect(s.samples, m_mc.delta(), s.domain.periodic);
         lines.push_back(fmt::format(
             "effects: advection ({}, dt {:g}, {} steps) with {}; boundaries {}; diffusion {}; stretching off (2D); {}",
             fluid::to_string(s.advection), s.dt, m_p.steps, velocity,

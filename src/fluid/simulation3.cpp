@@ -104,8 +104,6 @@ Simulation3Params Simulation3Params::parse(const Properties& props) {
         s.estimator = std::dynamic_pointer_cast<const VelocityEstimator>(
             Registry::instance().create(Properties("velocity", "biot_savart")));
     }
-    s.velocity.samples = s.estimator->samples();
-    s.velocity.delta = s.estimator->delta();
     s.boundaries = s.estimator->boundaries();
     if (const std::string why = s.estimator->check3(s.domain); !why.empty()) props.error("velocity", why);
     auto cache = props.get_object_as<CacheSpec>("cache");
@@ -234,7 +232,7 @@ DriverSettings Simulation3Params::driver_settings() const {
 std::unique_ptr<MCFluid3Solver> create_mcfluid3_solver(const Simulation3Params& p, const RunContext& ctx) {
     MCFluid3Settings settings = p.settings;
     settings.seed = ctx.seed;
-    settings.velocity.samples = run_samples(ctx, settings.velocity.samples);
+    settings.samples = run_samples(ctx, settings.estimator->samples());
     const VorticityField3* field = p.field;
     auto solver = std::make_unique<MCFluid3Solver>(settings, [field](const Vec3d& x) { return field->vorticity3(x); });
     if (p.smoke) solver->set_smoke({p.smoke->center(), p.smoke->radius(), p.smoke->initial_density(), p.smoke->rate()});
@@ -373,8 +371,7 @@ public:
         const MCFluid3Solver& solver = *m_solver;
         const MCFluid3Settings& s = solver.settings();
         std::vector<std::string> lines;
-        if (m_spp)
-            lines.push_back(fmt::format("--spp {} overrides the Biot–Savart samples (n_mc)", s.velocity.samples));
+        if (m_spp) lines.push_back(fmt::format("--spp {} overrides the Biot–Savart samples (n_mc)", s.samples));
         lines.push_back(fmt::format("3D, domain {}, {}x{}x{} cache ({}), initial {}", s.domain.to_string(), s.nx, s.ny,
                                     s.nz, s.interpolation == Interpolation::Nearest ? "nearest" : "trilinear",
                                     m_p.field->description3()));
@@ -383,9 +380,9 @@ public:
                 ? fmt::format(
                       "free-slip Walk-on-Spheres velocity on the vector potential ({} gradient samples, max {} "
                       "steps, {} volume sampling)",
-                      s.velocity.samples, s.boundaries->wos.max_steps,
+                      s.samples, s.boundaries->wos.max_steps,
                       s.boundaries->vorticity_importance ? "|omega|-mixed" : "Green's-function")
-                : s.estimator->effect(s.velocity.samples, solver.delta(), s.domain.periodic);
+                : s.estimator->effect(s.samples, solver.delta(), s.domain.periodic);
         lines.push_back(fmt::format(
             "effects: advection ({}, dt {:g}, {} steps) with {}; stretching {}; diffusion {}; control variates {}; "
             "boundaries {}; smoke {}",
@@ -395,8 +392,7 @@ public:
             s.viscosity > 0 ? fmt::format("on (nu {:g}, Feynman–Kac, n_d {})", s.viscosity, s.diffusion_samples)
                             : std::string("off (inviscid)"),
             s.control_variates
-                ? fmt::format("on (initial samples {}{})",
-                              s.initial_samples > 0 ? s.initial_samples : s.velocity.samples,
+                ? fmt::format("on (initial samples {}{})", s.initial_samples > 0 ? s.initial_samples : s.samples,
                               s.control_variate_blend < 1 ? fmt::format(", blend {:g}", s.control_variate_blend)
                                                           : std::string())
                 : std::string("off"),

@@ -64,13 +64,12 @@ std::string BiotSavartVelocity::effect(int samples, double delta, bool periodic)
 
 std::shared_ptr<const VelocityEstimator> resolve_estimator(std::shared_ptr<const VelocityEstimator> estimator,
                                                            std::shared_ptr<const WosVelocityOptions>& boundaries,
-                                                           const BiotSavartOptions& velocity, int dimension,
-                                                           const char* solver) {
+                                                           int dimension, const char* solver) {
     if (!estimator) {
         if (boundaries)
             estimator = std::make_shared<WosVelocity>(*boundaries);
         else
-            estimator = std::make_shared<BiotSavartVelocity>(velocity);
+            estimator = std::make_shared<BiotSavartVelocity>();
     } else if (!boundaries) {
         boundaries = estimator->boundaries();
     }

@@ -197,7 +197,7 @@ TEST(Dye, McfluidCarriesDyeWithTheExactDifferentialRotation) {
         MCFluidSettings st;
         st.domain = box;
         st.nx = st.ny = n;
-        st.velocity.samples = 256;
+        st.samples = 256;
         st.dt = dt;
         st.advection = Advection::RK4;
         st.seed = uint64_t(100 + seed);

@@ -177,7 +177,7 @@ TEST(FluidInputs, VortexSheetVelocityJump) {
     s.domain = {{0, 0}, {2 * Pi, 2 * Pi}, true};
     field->bind_domain(s.domain);
     s.nx = s.ny = 64;
-    s.velocity.samples = 1024;
+    s.samples = 1024;
     fluid::MCFluidSolver solver(s, [&](const Vec2d& x) { return field->vorticity(x); });
     EXPECT_NEAR(solver.vorticity_grid().integral(), 0.0, 1e-9);
     EXPECT_NEAR(field->vorticity({1.0, Pi / 2}), -0.8 / 0.15, 1e-12);

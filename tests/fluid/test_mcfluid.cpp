@@ -5,6 +5,7 @@
 
 #include <kelvin/core/error.h>
 #include <kelvin/core/parallel.h>
+#include <kelvin/fluid/estimators.h>
 
 #include <gtest/gtest.h>
 
@@ -22,7 +23,7 @@ MCFluidSettings tg_settings(int res, int nmc, double dt, Advection adv = Advecti
     MCFluidSettings s;
     s.domain = tg_box();
     s.nx = s.ny = res;
-    s.velocity.samples = nmc;
+    s.samples = nmc;
     s.dt = dt;
     s.advection = adv;
     s.seed = 11;
@@ -134,7 +135,7 @@ TEST(MCFluid, LambOseenCoreGrowsAs4NuT) {
         MCFluidSettings s;
         s.domain = {{-1.2, -1.2}, {1.2, 1.2}, false};
         s.nx = s.ny = 96;
-        s.velocity.samples = 64;
+        s.samples = 64;
         s.dt = 0.25;
         s.advection = Advection::Euler;
         s.viscosity = viscous ? 0.01 : 0.0;
@@ -228,8 +229,7 @@ TEST(MCFluid, RecursiveAndCachedAgree) {
         MCFluidSettings s;
         s.domain = box;
         s.nx = s.ny = 96;
-        s.velocity.samples = 256;
-        s.velocity.delta = delta;
+        s.estimator = std::make_shared<BiotSavartVelocity>(BiotSavartOptions{256, SourceSampling::Vorticity, delta});
         s.dt = dt;
         s.advection = Advection::Euler;
         s.seed = 100 + uint64_t(seed);

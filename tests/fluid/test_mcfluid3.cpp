@@ -3,6 +3,7 @@
 // speed, viscosity, control variates, effects on demand, hard cases and determinism.
 #include <kelvin/core/parallel.h>
 #include <kelvin/fluid/biot_savart3.h>
+#include <kelvin/fluid/estimators.h>
 #include <kelvin/fluid/mcfluid3.h>
 
 #include <gtest/gtest.h>
@@ -169,7 +170,7 @@ MCFluid3Settings abc_settings(int res, int samples, double dt) {
     MCFluid3Settings s;
     s.domain = abc_box();
     s.nx = s.ny = s.nz = res;
-    s.velocity.samples = samples;
+    s.samples = samples;
     s.dt = dt;
     s.advection = Advection::RK4;
     s.seed = 5;
@@ -253,7 +254,7 @@ TEST(MCFluid3, VortexRingMovesAtSaffmansSpeed) {
     MCFluid3Settings s;
     s.domain = {Vec3d(-2, -2, -1.5), Vec3d(2, 2, 2.5), false};
     s.nx = s.ny = s.nz = 40;
-    s.velocity.samples = 64;
+    s.samples = 64;
     s.dt = 0.1;
     s.seed = 9;
     const double R = 1, gamma = 1, sigma = 0.2;
@@ -313,7 +314,7 @@ TEST(MCFluid3, ControlVariatesLowerTheVelocityErrorOnTheLeapfrogRings) {
         MCFluid3Settings s;
         s.domain = {Vec3d(-2.5, -2.5, -1.5), Vec3d(2.5, 2.5, 3.5), false};
         s.nx = s.ny = s.nz = 20;
-        s.velocity.samples = 16;
+        s.samples = 16;
         s.dt = 0.1;
         s.seed = 9;
         s.control_variates = cv;
@@ -399,7 +400,7 @@ TEST(MCFluid3, EmptyFieldHasExactlyZeroVelocityAndDrawsNothing) {
 TEST(MCFluid3, HardCasesStayFinite) {
     // A huge time step, and the singular kernel (delta = 0) with samples landing on query points.
     MCFluid3Settings s = abc_settings(8, 32, 1e6);
-    s.velocity.delta = 0;
+    s.estimator = std::make_shared<BiotSavartVelocity>(BiotSavartOptions{s.samples, SourceSampling::Vorticity, 0.0});
     MCFluid3Solver solver(s, [](const Vec3d& x) { return abc_velocity(x); });
     for (int i = 0; i < 3; ++i) ASSERT_TRUE(solver.step());
     const VectorGrid3& w = solver.vorticity_grid();
@@ -436,7 +437,7 @@ TEST(MCFluid3, SmokeIsCarriedByTheRingAndFedByItsSource) {
     MCFluid3Settings s;
     s.domain = {Vec3d(-2, -2, -1.5), Vec3d(2, 2, 2.5), false};
     s.nx = s.ny = s.nz = 24;
-    s.velocity.samples = 32;
+    s.samples = 32;
     s.dt = 0.1;
     s.advection = Advection::Euler;
     auto ring = [](const Vec3d& x) { return ring_omega(x, 1.0, 1.0, 0.3); };

@@ -345,7 +345,7 @@ MCFluid3Settings boundary_settings(const Domain3& box, int res, std::shared_ptr<
     MCFluid3Settings s;
     s.domain = box;
     s.nx = s.ny = s.nz = res;
-    s.velocity.samples = 8;
+    s.samples = 8;
     s.dt = 0.1;
     s.seed = 42;
     s.boundaries = std::move(b);

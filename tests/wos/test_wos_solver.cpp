@@ -25,7 +25,7 @@ MCFluidSettings small_settings() {
     MCFluidSettings s;
     s.domain = {{-1, -1}, {1, 1}, false};
     s.nx = s.ny = 24;
-    s.velocity.samples = 8;
+    s.samples = 8;
     s.dt = 0.05;
     s.seed = 7;
     return s;

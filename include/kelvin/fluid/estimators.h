@@ -30,11 +30,10 @@ protected:
 };
 
 /// The estimator a solver (MCFluidSolver, MCFluid3Solver) queries: `estimator` when given, whose boundaries() then
-/// fill `boundaries` if unset; otherwise the built-in one the settings describe (WosVelocity over `boundaries`,
-/// BiotSavartVelocity with `velocity`). Throws, naming `solver`, when it has no field of `dimension`.
+/// fill `boundaries` if unset; otherwise the built-in one (WosVelocity over `boundaries`, else BiotSavartVelocity with
+/// its defaults). Throws, naming `solver`, when it has no field of `dimension`.
 std::shared_ptr<const VelocityEstimator> resolve_estimator(std::shared_ptr<const VelocityEstimator> estimator,
                                                            std::shared_ptr<const WosVelocityOptions>& boundaries,
-                                                           const BiotSavartOptions& velocity, int dimension,
-                                                           const char* solver);
+                                                           int dimension, const char* solver);
 
 }  // namespace kelvin::fluid

@@ -48,21 +48,23 @@ struct MCFluidSettings {
     Domain2 domain;
     int nx = 64, ny = 64;  ///< cache cells
     Interpolation interpolation = Interpolation::Bilinear;
-    BiotSavartOptions velocity;  ///< delta < 0: half a cell (resolved by the solver)
     Advection advection = Advection::RK4;
     double dt = 0.05;
     double viscosity = 0;       ///< nu; 0 = inviscid: the diffusion step never runs
     int diffusion_samples = 1;  ///< n_d (used only when viscosity > 0)
     uint64_t seed = 0;
     /// Solid boundaries (walk_on_spheres, boundary.h): the velocity is the free-slip Walk-on-Spheres estimate
-    /// with velocity.samples gradient samples. Null: Biot–Savart, and no distance query or walk ever runs.
+    /// with `samples` gradient samples. Null: Biot–Savart, and no distance query or walk ever runs.
     /// With an `estimator`, its boundaries() (when these are null).
     std::shared_ptr<const WosVelocityOptions> boundaries;
-    /// The velocity estimator (velocity.h; a <velocity> plugin). Null: the built-in one these settings describe,
-    /// WosVelocity with `boundaries`, else BiotSavartVelocity(velocity). The solver always asks it for the field
-    /// of a state and queries that field with velocity.samples samples (velocity.delta resolved into the state's
-    /// mollifier); velocity.importance matters only to the built-in default.
+    /// The velocity estimator (velocity.h; a <velocity> plugin): the one owner of the mollifier delta (its delta();
+    /// negative: half a cell), of its sampling options and of the scene's sample count. Null: WosVelocity over
+    /// `boundaries`, else BiotSavartVelocity with its defaults. The solver asks it for the field of each state and
+    /// queries that field with `samples` samples.
     std::shared_ptr<const VelocityEstimator> estimator;
+    /// n_mc, the samples per velocity query of this run (a run's --spp: run_samples); 0: the estimator's samples().
+    /// The solver's settings() hold the value in use.
+    int samples = 0;
 };
 
 /// Cumulative work of a solver (each component counts its own). In a distributed run the counters are the whole
@@ -97,7 +99,7 @@ public:
     ~MCFluidSolver() override;
 
     const MCFluidSettings& settings() const { return m_settings; }
-    /// The mollifier actually used (settings().velocity.delta, or half a cell when that is negative).
+    /// The mollifier actually used (the estimator's delta(), or half a cell when that is negative).
     double delta() const { return m_delta; }
     double time() const override { return m_time; }
     long long step_index() const override { return m_step; }
