@@ -10,11 +10,11 @@
 #include <kelvin/render/path_derivatives.h>
 #include <kelvin/render/pss.h>
 #include <kelvin/render/scene.h>
+#include <kelvin/render/second_order.h>
 #include <kelvin/render/sensor.h>
 #include <kelvin/render/texture.h>
 
 #include <Eigen/Dense>
-#include <unsupported/Eigen/AutoDiff>
 
 #include <algorithm>
 #include <cmath>
@@ -77,21 +77,13 @@ constexpr int MaxBlock = 96;  // PathDerivativeOptions::max_coordinates may not 
 // A block that fits one local (n <= 20) is differentiated directly by the same type.
 constexpr int Carried = 11, LocalN = 20, LocalCoords = LocalN - Carried;
 constexpr int BounceCoords = 4;  // the continuous coordinates a bounce reads, at most
-using LocalDer = Eigen::Matrix<double, LocalN, 1>;
-using Inner = Eigen::AutoDiffScalar<LocalDer>;
-using InnerVec = Eigen::Matrix<Inner, LocalN, 1>;
-using Local = Eigen::AutoDiffScalar<InnerVec>;
+using Local = SecondOrder<LocalN>;
 
 inline double val(double x) { return x; }
-inline double val(const Local& x) { return x.value().value(); }
+inline double val(const Local& x) { return x.value(); }
 
 // Input k of a local (its value v): unit first derivative, zero second.
-Local local_variable(double v, int k) {
-    Local x;
-    x.value() = Inner(v, LocalN, k);
-    for (int j = 0; j < LocalN; ++j) x.derivatives()(j) = Inner(j == k ? 1.0 : 0.0, LocalDer::Zero());
-    return x;
-}
+Local local_variable(double v, int k) { return Local::variable(v, k); }
 
 template <class T>
 struct V3 {
@@ -270,6 +262,8 @@ T lift2(const T& x, double f0, double f1, double f2) {
     const T dx = x - T(val(x));
     return T(f0) + dx * (T(f1) + T(0.5 * f2) * dx);
 }
+inline double lift2(double, double f0, double, double) { return f0; }
+inline Local lift2(const Local& x, double f0, double f1, double f2) { return apply(x, f0, f1, f2); }
 constexpr double kInvSqrtPi = 0.56418958354775628695;  // 1 / sqrt(pi)
 template <class T>
 T erf_t(const T& x) {
@@ -501,6 +495,7 @@ T atan2_t(const T& y, const T& x) {
     const T xr = T(x * T(c)) + T(y * T(s)), yr = T(y * T(c)) - T(x * T(s));
     return T(a0) + yr / xr;
 }
+inline Local atan2_t(const Local& y, const Local& x) { return atan2(y, x); }
 
 template <class T>
 T abs_t(const T& x) {
@@ -897,7 +892,7 @@ struct Bounce {
     int coords = 0;
     int index[LocalCoords];
     Eigen::Matrix<double, Carried, LocalN> A;
-    Eigen::Matrix<double, LocalN, LocalN> H[Carried];
+    Local out[Carried];  // the outputs, their Hessians (only their live part is copied)
 };
 struct LocalTape {
     std::vector<Bounce> bounces;  // bounces[0, used): kept across calls (per thread), so nothing is reallocated
@@ -956,8 +951,8 @@ struct LocalReader {
         std::copy(t.index, t.index + t.coords, b.index);
         for (int k = 0; k < Carried; ++k) {
             const Local& c = *carried[k];
-            b.A.row(k) = c.value().derivatives().transpose();
-            for (int j = 0; j < LocalN; ++j) b.H[k].row(j) = c.derivatives()(j).derivatives().transpose();
+            for (int j = 0; j < LocalN; ++j) b.A(k, j) = c.grad(j);
+            b.out[k] = c;
         }
         for (int k = 0; k < Carried; ++k) *carried[k] = local_variable(val(*carried[k]), k);
         t.coords = 0;
@@ -1519,9 +1514,9 @@ PathDerivativeStatus PathDerivatives::evaluate(const double* coords, const int* 
     Eigen::Map<Eigen::VectorXd> g(grad ? grad : nullptr, grad ? n : 0);
     Eigen::Map<Eigen::MatrixXd> H(hess ? hess : nullptr, hess ? n : 0, hess ? n : 0);
     if (!segmented) {
-        for (int i = 0; i < n && grad; ++i) g(i) = lp.value().derivatives()(i);
+        for (int i = 0; i < n && grad; ++i) g(i) = lp.grad(i);
         for (int j = 0; j < n && hess; ++j)
-            for (int i = 0; i < n; ++i) H(i, j) = lp.derivatives()(i).derivatives()(j);
+            for (int i = 0; i < n; ++i) H(i, j) = lp.hess(i, j);
         return S::Ok;
     }
 
@@ -1545,14 +1540,16 @@ PathDerivativeStatus PathDerivatives::evaluate(const double* coords, const int* 
         for (int c = 0; c < b.coords; ++c) J(Carried + c, b.index[c]) = 1.0;
         tape.Js.noalias() = b.A * J;  // the record's outputs: the next one's carried inputs
     }
-    const Eigen::Matrix<double, Carried, 1> gG = lp.value().derivatives().head<Carried>();
+    Eigen::Matrix<double, Carried, 1> gG;
+    for (int k = 0; k < Carried; ++k) gG(k) = lp.grad(k);
     if (grad) {
         g.setZero();
         g.head(cols).noalias() = tape.Js.transpose() * gG;
     }
     if (!hess) return S::Ok;
     Eigen::Matrix<double, LocalN, LocalN> M;
-    for (int j = 0; j < LocalN; ++j) M.row(j) = lp.derivatives()(j).derivatives().transpose();
+    for (int j = 0; j < LocalN; ++j)
+        for (int i = 0; i < LocalN; ++i) M(j, i) = lp.hess(j, i);
     tape.T1.noalias() = M.topLeftCorner<Carried, Carried>() * tape.Js;
     H.setZero();
     H.topLeftCorner(cols, cols).noalias() = tape.Js.transpose() * tape.T1;
@@ -1562,7 +1559,9 @@ PathDerivativeStatus PathDerivatives::evaluate(const double* coords, const int* 
         const Bounce& b = tape.bounces[i];
         M.setZero();
         for (int k = 0; k < Carried; ++k)
-            if (lambda(k) != 0) M += lambda(k) * b.H[k];
+            if (lambda(k) != 0)
+                for (int j = 0; j < LocalN; ++j)
+                    for (int i = 0; i < LocalN; ++i) M(j, i) += lambda(k) * b.out[k].hess(j, i);
         const Eigen::MatrixXd& J = tape.Jz[i];
         tape.T1.noalias() = M * J;
         H.topLeftCorner(tape.cols[i], tape.cols[i]).noalias() += J.transpose() * tape.T1;
