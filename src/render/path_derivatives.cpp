@@ -900,9 +900,10 @@ struct LocalTape {
     int coords = 0;  // coordinates read in the current bounce
     int index[LocalCoords];
     bool too_many = false;  // a bounce read more than LocalCoords coordinates (not the path technique's layout)
-    std::vector<Eigen::MatrixXd> Jz;  // per record, d(inputs)/d(block): LocalN x cols
-    std::vector<int> cols;            // per record: 1 + the largest block entry read up to it
-    Eigen::MatrixXd Js, T1, H;
+    // Per record, the derivatives of its carried inputs with respect to the block (Carried x cols: only the block
+    // entries read before it can be non-zero), and cols.
+    std::vector<Eigen::Matrix<double, Carried, Eigen::Dynamic>> S;
+    std::vector<int> cols;
 };
 
 struct LocalReader {
@@ -1520,52 +1521,78 @@ PathDerivativeStatus PathDerivatives::evaluate(const double* coords, const int* 
         return S::Ok;
     }
 
-    // Forward: the Jacobian of each record's inputs with respect to the block (the carried numbers' rows from the
-    // previous record, a unit row per coordinate read). Records: the camera, then one per bounce; G (log pi of the
-    // carried radiance) follows the last.
-    // Only the block entries read so far can have non-zero columns: each record's Jacobian keeps the first
-    // cols of them (the block's entries are in reading order along the path, so that is about half on average).
+    // The records compose by the chain rule. With s_r the carried inputs of record r and u_r its coordinates, record
+    // r maps z_r = (s_r, u_r) to s_{r+1} = F_r(z_r) (Jacobian [A_r B_r], Hessians d2F_{r,k}), and log pi = G(s_K).
+    // Forward: S_r = ds_r / d(block) = A_{r-1} S_{r-1} + B_{r-1} (unit columns of u_{r-1}), S_0 = 0 (the camera's
+    // state is a constant). Backward, with the adjoint lambda_{r+1} = dG / ds_{r+1} and Pi_{r+1} = the Hessian of
+    // log pi with respect to s_{r+1} (the later coordinates held): the Hessian with respect to z_r is
+    //   Q_r = sum_k lambda_{r+1,k} d2F_{r,k} + [A_r B_r]^T Pi_{r+1} [A_r B_r],
+    // whose (u, u) block is H's block of u_r, whose (s, u) block carries u_r's coupling to every earlier coordinate
+    // (H[earlier, u_r] = S_r^T Q_su), and whose (s, s) block is Pi_r. Cost per record O(Carried (LocalN^2 + cols
+    // LocalCoords)): the Hessian's n^2 entries are each written once.
     const std::size_t K = tape.used;
-    if (tape.Jz.size() < K) tape.Jz.resize(K), tape.cols.resize(K);
-    tape.Js.resize(Carried, 0);
+    if (tape.S.size() < K + 1) tape.S.resize(K + 1), tape.cols.resize(K + 1);
     int cols = 0;
-    for (std::size_t i = 0; i < K; ++i) {
-        const Bounce& b = tape.bounces[i];
+    tape.cols[0] = 0;
+    tape.S[0].resize(Carried, 0);
+    for (std::size_t r = 0; r < K; ++r) {
+        const Bounce& b = tape.bounces[r];
         const int before = cols;
         for (int c = 0; c < b.coords; ++c) cols = std::max(cols, b.index[c] + 1);
-        tape.cols[i] = cols;
-        Eigen::MatrixXd& J = tape.Jz[i];
-        J.setZero(LocalN, cols);
-        J.topLeftCorner(Carried, before) = tape.Js;
-        for (int c = 0; c < b.coords; ++c) J(Carried + c, b.index[c]) = 1.0;
-        tape.Js.noalias() = b.A * J;  // the record's outputs: the next one's carried inputs
+        tape.cols[r + 1] = cols;
+        Eigen::Matrix<double, Carried, Eigen::Dynamic>& S1 = tape.S[r + 1];
+        S1.resize(Carried, cols);
+        S1.rightCols(cols - before).setZero();
+        S1.leftCols(before).noalias() = b.A.leftCols<Carried>() * tape.S[r];
+        for (int c = 0; c < b.coords; ++c) S1.col(b.index[c]) += b.A.col(Carried + c);
     }
-    Eigen::Matrix<double, Carried, 1> gG;
-    for (int k = 0; k < Carried; ++k) gG(k) = lp.grad(k);
-    if (grad) {
-        g.setZero();
-        g.head(cols).noalias() = tape.Js.transpose() * gG;
-    }
-    if (!hess) return S::Ok;
-    Eigen::Matrix<double, LocalN, LocalN> M;
-    for (int j = 0; j < LocalN; ++j)
-        for (int i = 0; i < LocalN; ++i) M(j, i) = lp.hess(j, i);
-    tape.T1.noalias() = M.topLeftCorner<Carried, Carried>() * tape.Js;
-    H.setZero();
-    H.topLeftCorner(cols, cols).noalias() = tape.Js.transpose() * tape.T1;
-    // Backward: the adjoint of each record's outputs weighs the Hessians of those outputs.
-    Eigen::Matrix<double, Carried, 1> lambda = gG;
-    for (std::size_t i = K; i-- > 0;) {
-        const Bounce& b = tape.bounces[i];
-        M.setZero();
-        for (int k = 0; k < Carried; ++k)
-            if (lambda(k) != 0)
-                for (int j = 0; j < LocalN; ++j)
-                    for (int i = 0; i < LocalN; ++i) M(j, i) += lambda(k) * b.out[k].hess(j, i);
-        const Eigen::MatrixXd& J = tape.Jz[i];
-        tape.T1.noalias() = M * J;
-        H.topLeftCorner(tape.cols[i], tape.cols[i]).noalias() += J.transpose() * tape.T1;
-        lambda = (b.A.transpose() * lambda).head<Carried>();
+    Eigen::Matrix<double, Carried, 1> lambda;
+    for (int k = 0; k < Carried; ++k) lambda(k) = lp.grad(k);
+    if (grad) g.setZero();
+    if (hess) H.setZero();
+    Eigen::Matrix<double, Carried, Carried> Pi;
+    for (int k = 0; k < Carried; ++k)
+        for (int j = 0; j < Carried; ++j) Pi(k, j) = lp.hess(k, j);
+    Eigen::Matrix<double, LocalN, LocalN> Q;
+    Eigen::Matrix<double, Carried, LocalN> PiJ;
+    for (std::size_t r = K; r-- > 0;) {
+        const Bounce& b = tape.bounces[r];
+        const int m = Carried + b.coords;
+        for (int c = 0; c < b.coords; ++c)
+            if (grad) g(b.index[c]) += b.A.col(Carried + c).dot(lambda);
+        if (hess) {
+            // Q = sum_k lambda_k d2F_k (the lower triangle, from each output's live part) + J^T Pi J.
+            Q.setZero();
+            for (int k = 0; k < Carried; ++k) {
+                const Local& o = b.out[k];
+                const double l = lambda(k);
+                if (l == 0 || o.constant()) continue;
+                for (int i = o.lo(); i < o.hi(); ++i) {
+                    const double* row = o.row(i);
+                    for (int j = o.lo(); j <= i; ++j) Q(i, j) += l * row[j];
+                }
+            }
+            for (int i = 0; i < m; ++i)
+                for (int j = 0; j < i; ++j) Q(j, i) = Q(i, j);
+            PiJ.noalias() = Pi * b.A;
+            Q.noalias() += b.A.transpose() * PiJ;
+            for (int c = 0; c < b.coords; ++c)
+                for (int e = 0; e < b.coords; ++e) H(b.index[c], b.index[e]) += Q(Carried + c, Carried + e);
+            const int cb = tape.cols[r];
+            if (cb > 0) {
+                const Eigen::Matrix<double, Carried, Eigen::Dynamic>& Sr = tape.S[r];
+                for (int c = 0; c < b.coords; ++c) {
+                    const int col = b.index[c];
+                    for (int i = 0; i < cb; ++i) {
+                        const double v = Sr.col(i).dot(Q.block<Carried, 1>(0, Carried + c));
+                        H(i, col) += v;
+                        H(col, i) += v;
+                    }
+                }
+            }
+            Pi = Q.topLeftCorner<Carried, Carried>();
+        }
+        lambda = b.A.leftCols<Carried>().transpose() * lambda;
     }
     return S::Ok;
 }
