@@ -75,7 +75,16 @@ constexpr int MaxBlock = 96;  // PathDerivativeOptions::max_coordinates may not 
 // count on a path of 6 edges: carrying 16 numbers with one bounce per record cost 17 % more; Eigen's nested
 // operations of size 16 or 19 cost as much as, or more than, size 20, and size 24 (three bounces) 50 % more.)
 // A block that fits one local (n <= 20) is differentiated directly by the same type.
-constexpr int Carried = 11, LocalN = 20, LocalCoords = LocalN - Carried;
+constexpr int Carried = 11, LocalN = 15, LocalCoords = LocalN - Carried;
+// A local's inputs are numbered so that those used together are neighbours (SecondOrder's cost follows the range of
+// inputs a number depends on): Phys[k] is the input of logical input k, logical 0-10 the carried numbers in the order
+// of run()'s `carried` (direction, previous vertex, throughput, luminance, BSDF density), 11-14 the bounce's
+// coordinates in reading order (the light sample's two, the BSDF sample's two). Inputs: throughput 0-2, luminance 3,
+// density 4, light sample 5-6, previous vertex 7-9, direction 10-12, BSDF sample 13-14: the intersection depends on
+// 7-12, the light sample's direction and the BSDF's value on 5-12, the BSDF's sampled direction and weight on 10-14,
+// and only the few products that update the throughput and the luminance on more.
+constexpr int Phys[LocalN] = {10, 11, 12, 7, 8, 9, 0, 1, 2, 3, 4, 5, 6, 13, 14};
+constexpr int Logical[LocalN] = {6, 7, 8, 9, 10, 11, 12, 3, 4, 5, 0, 1, 2, 13, 14};
 constexpr int BounceCoords = 4;  // the continuous coordinates a bounce reads, at most
 using Local = SecondOrder<LocalN>;
 
@@ -902,7 +911,7 @@ struct LocalTape {
     bool too_many = false;  // a bounce read more than LocalCoords coordinates (not the path technique's layout)
     // Per record, the derivatives of its carried inputs with respect to the block (Carried x cols: only the block
     // entries read before it can be non-zero), and cols.
-    std::vector<Eigen::Matrix<double, Carried, Eigen::Dynamic>> S;
+    std::vector<Eigen::Matrix<double, Carried, Eigen::Dynamic, Eigen::RowMajor>> S;
     std::vector<int> cols;
 };
 
@@ -928,7 +937,7 @@ struct LocalReader {
             return Local(coords[i]);
         }
         tape->index[tape->coords] = k;
-        return local_variable(coords[i], Carried + tape->coords++);
+        return local_variable(coords[i], Phys[Carried + tape->coords++]);
     }
     void decide(Decide, long long = 0, const Vec3d& = Vec3d(0.0)) {}
     Local read_discrete() {
@@ -952,10 +961,10 @@ struct LocalReader {
         std::copy(t.index, t.index + t.coords, b.index);
         for (int k = 0; k < Carried; ++k) {
             const Local& c = *carried[k];
-            for (int j = 0; j < LocalN; ++j) b.A(k, j) = c.grad(j);
+            for (int j = 0; j < LocalN; ++j) b.A(k, j) = c.grad(Phys[j]);
             b.out[k] = c;
         }
-        for (int k = 0; k < Carried; ++k) *carried[k] = local_variable(val(*carried[k]), k);
+        for (int k = 0; k < Carried; ++k) *carried[k] = local_variable(val(*carried[k]), Phys[k]);
         t.coords = 0;
     }
 };
@@ -1540,24 +1549,26 @@ PathDerivativeStatus PathDerivatives::evaluate(const double* coords, const int* 
         const int before = cols;
         for (int c = 0; c < b.coords; ++c) cols = std::max(cols, b.index[c] + 1);
         tape.cols[r + 1] = cols;
-        Eigen::Matrix<double, Carried, Eigen::Dynamic>& S1 = tape.S[r + 1];
-        S1.resize(Carried, cols);
-        S1.rightCols(cols - before).setZero();
-        S1.leftCols(before).noalias() = b.A.leftCols<Carried>() * tape.S[r];
-        for (int c = 0; c < b.coords; ++c) S1.col(b.index[c]) += b.A.col(Carried + c);
+        Eigen::Matrix<double, Carried, Eigen::Dynamic, Eigen::RowMajor>& S1 = tape.S[r + 1];
+        S1.setZero(Carried, cols);
+        // A is sparse (most carried numbers depend on few of the others): its non-zero entries only.
+        for (int k = 0; k < Carried; ++k) {
+            for (int j = 0; j < Carried && before > 0; ++j)
+                if (const double a = b.A(k, j); a != 0) S1.row(k).head(before) += a * tape.S[r].row(j);
+            for (int c = 0; c < b.coords; ++c) S1(k, b.index[c]) += b.A(k, Carried + c);
+        }
     }
     Eigen::Matrix<double, Carried, 1> lambda;
-    for (int k = 0; k < Carried; ++k) lambda(k) = lp.grad(k);
+    for (int k = 0; k < Carried; ++k) lambda(k) = lp.grad(Phys[k]);
     if (grad) g.setZero();
     if (hess) H.setZero();
     Eigen::Matrix<double, Carried, Carried> Pi;
     for (int k = 0; k < Carried; ++k)
-        for (int j = 0; j < Carried; ++j) Pi(k, j) = lp.hess(k, j);
+        for (int j = 0; j < Carried; ++j) Pi(k, j) = lp.hess(Phys[k], Phys[j]);
     Eigen::Matrix<double, LocalN, LocalN> Q;
     Eigen::Matrix<double, Carried, LocalN> PiJ;
     for (std::size_t r = K; r-- > 0;) {
         const Bounce& b = tape.bounces[r];
-        const int m = Carried + b.coords;
         for (int c = 0; c < b.coords; ++c)
             if (grad) g(b.index[c]) += b.A.col(Carried + c).dot(lambda);
         if (hess) {
@@ -1569,18 +1580,26 @@ PathDerivativeStatus PathDerivatives::evaluate(const double* coords, const int* 
                 if (l == 0 || o.constant()) continue;
                 for (int i = o.lo(); i < o.hi(); ++i) {
                     const double* row = o.row(i);
-                    for (int j = o.lo(); j <= i; ++j) Q(i, j) += l * row[j];
+                    const int li = Logical[i];
+                    for (int j = o.lo(); j < i; ++j) {
+                        Q(li, Logical[j]) += l * row[j];
+                        Q(Logical[j], li) += l * row[j];
+                    }
+                    Q(li, li) += l * row[i];
                 }
             }
-            for (int i = 0; i < m; ++i)
-                for (int j = 0; j < i; ++j) Q(j, i) = Q(i, j);
-            PiJ.noalias() = Pi * b.A;
-            Q.noalias() += b.A.transpose() * PiJ;
+            PiJ.setZero();
+            for (int k = 0; k < Carried; ++k)
+                for (int j = 0; j < LocalN; ++j)
+                    if (const double a = b.A(k, j); a != 0) PiJ.col(j) += a * Pi.col(k);
+            for (int k = 0; k < Carried; ++k)
+                for (int j = 0; j < LocalN; ++j)
+                    if (const double a = b.A(k, j); a != 0) Q.col(j) += a * PiJ.row(k).transpose();
             for (int c = 0; c < b.coords; ++c)
                 for (int e = 0; e < b.coords; ++e) H(b.index[c], b.index[e]) += Q(Carried + c, Carried + e);
             const int cb = tape.cols[r];
             if (cb > 0) {
-                const Eigen::Matrix<double, Carried, Eigen::Dynamic>& Sr = tape.S[r];
+                const Eigen::Matrix<double, Carried, Eigen::Dynamic, Eigen::RowMajor>& Sr = tape.S[r];
                 for (int c = 0; c < b.coords; ++c) {
                     const int col = b.index[c];
                     for (int i = 0; i < cb; ++i) {

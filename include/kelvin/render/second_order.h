@@ -27,7 +27,7 @@ public:
     static constexpr int Packed = N * (N + 1) / 2;
     static constexpr int offset(int i) { return i * (i + 1) / 2; }
 
-    SecondOrder() = default;  // the constant 0
+    SecondOrder() {}  // the constant 0 (user-provided: value-initialisation does not clear the arrays)
     explicit SecondOrder(double v) : m_v(v) {}
     /// Input k (0 <= k < N) with value v: unit derivative along k, no second derivative.
     static SecondOrder variable(double v, int k) {
