@@ -121,6 +121,15 @@ template <class T>
 V3<T> cross(const V3<T>& a, const V3<T>& b) {
     return {T(a.y * b.z) - T(a.z * b.y), T(a.z * b.x) - T(a.x * b.z), T(a.x * b.y) - T(a.y * b.x)};
 }
+// The same for SecondOrder numbers, each in one pass (SecondOrder::sum_of_products).
+inline Local dot(const V3<Local>& a, const V3<Local>& b) {
+    return Local::sum_of_products<3>({&a.x, &a.y, &a.z}, {&b.x, &b.y, &b.z}, {1.0, 1.0, 1.0});
+}
+inline V3<Local> cross(const V3<Local>& a, const V3<Local>& b) {
+    return {Local::sum_of_products<2>({&a.y, &a.z}, {&b.z, &b.y}, {1.0, -1.0}),
+            Local::sum_of_products<2>({&a.z, &a.x}, {&b.x, &b.z}, {1.0, -1.0}),
+            Local::sum_of_products<2>({&a.x, &a.y}, {&b.y, &b.x}, {1.0, -1.0})};
+}
 template <class T>
 V3<T> constant(const Vec3d& v) {
     return {T(v.x), T(v.y), T(v.z)};
@@ -159,6 +168,12 @@ template <class T>
 V3<T> to_world(const FrameT<T>& f, const V3<T>& v) {
     return f.s * v.x + f.t * v.y + f.n * v.z;
 }
+inline V3<Local> to_world(const FrameT<Local>& f, const V3<Local>& v) {
+    const Local* w[3] = {&v.x, &v.y, &v.z};
+    return {Local::sum_of_products<3>({&f.s.x, &f.t.x, &f.n.x}, w, {1.0, 1.0, 1.0}),
+            Local::sum_of_products<3>({&f.s.y, &f.t.y, &f.n.y}, w, {1.0, 1.0, 1.0}),
+            Local::sum_of_products<3>({&f.s.z, &f.t.z, &f.n.z}, w, {1.0, 1.0, 1.0})};
+}
 
 template <class T>
 struct C3 {
@@ -180,6 +195,10 @@ C3<T> operator*(const C3<T>& a, const T& s) {
 template <class T>
 T luminance_of(const C3<T>& c) {
     return T(c.r * T(0.212671)) + T(c.g * T(0.715160)) + T(c.b * T(0.072169));
+}
+inline Local luminance_of(const C3<Local>& c) {
+    static const Local w[3] = {Local(0.212671), Local(0.715160), Local(0.072169)};
+    return Local::sum_of_products<3>({&c.r, &c.g, &c.b}, {&w[0], &w[1], &w[2]}, {1.0, 1.0, 1.0});
 }
 template <class T>
 void add(C3<T>& acc, const C3<T>& v) {

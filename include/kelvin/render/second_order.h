@@ -184,7 +184,69 @@ public:
         return r;
     }
 
+    /// sum_k s[k] a[k] b[k] in one pass over the union of the live ranges, without the temporaries of the
+    /// products and sums: a dot product, a component of a cross product, a linear combination (constant b[k]).
+    template <int K>
+    static SecondOrder sum_of_products(const SecondOrder* const (&a)[K], const SecondOrder* const (&b)[K],
+                                       const double (&s)[K]) {
+        SecondOrder r;
+        int lo = N, hi = 0;
+        bool outer = false;  // some product of two non-constants
+        for (int k = 0; k < K; ++k) {
+            r.m_v += s[k] * a[k]->m_v * b[k]->m_v;
+            const bool ca = a[k]->constant(), cb = b[k]->constant();
+            if (!ca) lo = std::min(lo, a[k]->m_lo), hi = std::max(hi, a[k]->m_hi);
+            if (!cb) lo = std::min(lo, b[k]->m_lo), hi = std::max(hi, b[k]->m_hi);
+            outer = outer || (!ca && !cb);
+        }
+        if (lo >= hi) return r;
+        r.m_lo = lo;
+        r.m_hi = hi;
+        // The gradients extended by zeros over the union; the factors each operand's derivatives are scaled by.
+        double ga[K][N], gb[K][N], fa[K], fb[K];
+        for (int k = 0; k < K; ++k) {
+            fa[k] = s[k] * b[k]->m_v;
+            fb[k] = s[k] * a[k]->m_v;
+            for (int i = lo; i < hi; ++i) ga[k][i] = gb[k][i] = 0.0;
+            for (int i = a[k]->m_lo; i < a[k]->m_hi; ++i) ga[k][i] = a[k]->m_g[i];
+            for (int i = b[k]->m_lo; i < b[k]->m_hi; ++i) gb[k][i] = b[k]->m_g[i];
+        }
+        for (int i = lo; i < hi; ++i) {
+            double g = 0;
+            for (int k = 0; k < K; ++k) g += fa[k] * ga[k][i] + fb[k] * gb[k][i];
+            r.m_g[i] = g;
+        }
+        // The outer products s_k (ga_k gb_k^T + gb_k ga_k^T), or zeros; then each operand's Hessian, scaled.
+        for (int i = lo; i < hi; ++i) {
+            const int o = offset(i);
+            if (!outer) {
+                for (int j = lo; j <= i; ++j) r.m_h[o + j] = 0.0;
+                continue;
+            }
+            double ca[K], cb[K];
+            for (int k = 0; k < K; ++k) ca[k] = s[k] * gb[k][i], cb[k] = s[k] * ga[k][i];
+            for (int j = lo; j <= i; ++j) {
+                double h = 0;
+                for (int k = 0; k < K; ++k) h += ca[k] * ga[k][j] + cb[k] * gb[k][j];
+                r.m_h[o + j] = h;
+            }
+        }
+        for (int k = 0; k < K; ++k) {
+            r.add_scaled(*a[k], fa[k]);
+            r.add_scaled(*b[k], fb[k]);
+        }
+        return r;
+    }
+
 private:
+    // The Hessian += c times a's, over a's live range (within this one's).
+    void add_scaled(const SecondOrder& a, double c) {
+        if (c == 0) return;
+        for (int i = a.m_lo; i < a.m_hi; ++i) {
+            const int o = offset(i);
+            for (int j = a.m_lo; j <= i; ++j) m_h[o + j] += c * a.m_h[o + j];
+        }
+    }
     static SecondOrder shifted(const SecondOrder& a, double v) {
         SecondOrder r(a);
         r.m_v = v;
@@ -207,7 +269,8 @@ private:
             std::copy(o.m_h, o.m_h + offset(m_hi), m_h);
             return;
         }
-        for (int i = m_lo; i < m_hi; ++i) std::copy(o.m_h + offset(i) + m_lo, o.m_h + offset(i) + i + 1, m_h + offset(i) + m_lo);
+        for (int i = m_lo; i < m_hi; ++i)
+            std::copy(o.m_h + offset(i) + m_lo, o.m_h + offset(i) + i + 1, m_h + offset(i) + m_lo);
     }
     // *this = f(a, b) over the union of the live ranges (the *this may not alias a or b). The template flags leave
     // out the second-order terms that are zero for the operation.
@@ -255,7 +318,10 @@ private:
             }
             return;
         }
-        // Different ranges: the gradients extended by zeros over the union, then the Hessians added on their own.
+        if (b.m_lo >= a.m_lo && b.m_hi <= a.m_hi) return nested<AA, AB, BB>(a, b, fa, fb, faa, fab, fbb);
+        if (a.m_lo >= b.m_lo && a.m_hi <= b.m_hi) return nested<BB, AB, AA>(b, a, fb, fa, fbb, fab, faa);
+        // Overlapping or disjoint ranges: the gradients extended by zeros over the union, then the Hessians added
+        // on their own.
         double ga[N], gb[N];
         for (int i = m_lo; i < m_hi; ++i) {
             ga[i] = i >= a.m_lo && i < a.m_hi ? a.m_g[i] : 0.0;
@@ -266,14 +332,36 @@ private:
             const double ca = (AA ? faa * ga[i] : 0.0) + (AB ? fab * gb[i] : 0.0);
             const double cb = (AB ? fab * ga[i] : 0.0) + (BB ? fbb * gb[i] : 0.0);
             const int o = offset(i);
-            if (AA || AB || BB)
-                for (int j = m_lo; j <= i; ++j) m_h[o + j] = ca * ga[j] + cb * gb[j];
-            else
-                for (int j = m_lo; j <= i; ++j) m_h[o + j] = 0.0;
+            for (int j = m_lo; j <= i; ++j) m_h[o + j] = ca * ga[j] + cb * gb[j];
         }
         for (int i = a.m_lo; i < a.m_hi; ++i) {
             const int o = offset(i);
             for (int j = a.m_lo; j <= i; ++j) m_h[o + j] += fa * a.m_h[o + j];
+        }
+        for (int i = b.m_lo; i < b.m_hi; ++i) {
+            const int o = offset(i);
+            for (int j = b.m_lo; j <= i; ++j) m_h[o + j] += fb * b.m_h[o + j];
+        }
+    }
+    // binary() where b's range lies within a's (the range of the result, already set): a pass over a's range with
+    // the outer products (b's gradient extended by zeros), then b's Hessian added over its own.
+    template <bool AA, bool AB, bool BB>
+    void nested(const SecondOrder& a, const SecondOrder& b, double fa, double fb, double faa, double fab, double fbb) {
+        double gb[N];
+        for (int i = m_lo; i < m_hi; ++i) gb[i] = 0.0;
+        for (int i = b.m_lo; i < b.m_hi; ++i) gb[i] = b.m_g[i];
+        for (int i = m_lo; i < m_hi; ++i) {
+            const double ai = a.m_g[i];
+            m_g[i] = fa * ai + fb * gb[i];
+            const double ca = (AA ? faa * ai : 0.0) + (AB ? fab * gb[i] : 0.0);
+            const double cb = (AB ? fab * ai : 0.0) + (BB ? fbb * gb[i] : 0.0);
+            const int o = offset(i);
+            for (int j = m_lo; j <= i; ++j) {
+                double h = fa * a.m_h[o + j];
+                if (AA || AB) h += ca * a.m_g[j];
+                if (AB || BB) h += cb * gb[j];
+                m_h[o + j] = h;
+            }
         }
         for (int i = b.m_lo; i < b.m_hi; ++i) {
             const int o = offset(i);
