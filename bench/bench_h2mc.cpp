@@ -11,6 +11,8 @@
 //                          timed in alternating batches over the same 32 points so that both see the same load of
 //                          the machine; evals_per_derivative_checked the same with the discontinuity check (which
 //                          adds two plain evaluations per continuous coordinate);
+//   BM_InstructionCountBatches/k: 64 derivative evaluations and 64 plain evaluations, once, for callgrind
+//                          (docs/performance.md gives the command);
 //   BM_H2mcProposalOnPath/k: one H2MC proposal's extra work on such a path: the proposal's derivatives and Gaussian,
 //                          a draw, and the forward and reverse densities (x's Gaussian is cached by the chain; the
 //                          proposal's path evaluation is BM_PathEvaluation);
@@ -259,6 +261,34 @@ void BM_EvalsPerDerivative(benchmark::State& state) {
     state.counters["evals_per_derivative_checked"] = t_checked / t_eval;
 }
 
+// Instruction counts: 64 derivative evaluations (check:0) or 64 plain evaluations over the 32 points of a
+// PathBench, in functions of their own for callgrind's --toggle-collect (docs/performance.md, "H2MC derivatives").
+__attribute__((noinline)) void derivative_batch(const PathBench& b, const std::vector<int>& block,
+                                                std::vector<double>& g, std::vector<double>& H) {
+    for (std::size_t i = 0; i < 64; ++i) {
+        const std::size_t k = i % b.points.size();
+        benchmark::DoNotOptimize(b.D->evaluate(b.points[k].data(), block.data(), b.length, int(b.length), b.values[k],
+                                               nullptr, g.data(), H.data()));
+    }
+}
+__attribute__((noinline)) void evaluation_batch(PathBench& b) {
+    std::size_t used = 0;
+    for (std::size_t i = 0; i < 64; ++i) benchmark::DoNotOptimize(b.eval(b.points[i % b.points.size()], used));
+}
+void BM_InstructionCountBatches(benchmark::State& state) {
+    PathBench b(int(state.range(0)), 0.0);
+    if (b.points.empty()) return state.SkipWithError("no path of that length found");
+    std::vector<int> block(b.length);
+    for (std::size_t i = 0; i < b.length; ++i) block[i] = int(i);
+    std::vector<double> g(b.length), H(b.length * b.length);
+    b.D->evaluate(b.points[0].data(), block.data(), b.length, int(b.length), b.values[0], nullptr, g.data(),
+                  H.data());  // the per-thread workspace grows here, outside the batches
+    for (auto _ : state) {
+        evaluation_batch(b);
+        derivative_batch(b, block, g, H);
+    }
+}
+
 void BM_H2mcProposalOnPath(benchmark::State& state) {
     PathBench b(int(state.range(0)));
     if (b.points.empty()) return state.SkipWithError("no path of that length found");
@@ -340,6 +370,7 @@ BENCHMARK(BM_PathDerivatives)
     ->ArgNames({"k", "check"})
     ->Unit(benchmark::kMillisecond);
 BENCHMARK(BM_EvalsPerDerivative)->Arg(3)->Arg(6)->Arg(10)->ArgName("k")->Unit(benchmark::kMillisecond);
+BENCHMARK(BM_InstructionCountBatches)->Arg(3)->Arg(6)->Arg(10)->ArgName("k")->Iterations(1);
 BENCHMARK(BM_H2mcProposalOnPath)->DenseRange(3, 10)->Unit(benchmark::kMillisecond);
 BENCHMARK(BM_H2mcGaussian)->DenseRange(3, 10);
 BENCHMARK(BM_H2mcProposal)->DenseRange(3, 10);
