@@ -15,7 +15,8 @@
 // nested-range kernel without the b part of its outer products (`h += cb * gb[j]` dropped) fails all three tests;
 // erfc's first derivative with the wrong sign fails the finite-difference comparison (Eigen has no erfc); and
 // sum_of_products without its operands' Hessians (add_scaled a no-op) fails the finite-difference comparison and
-// ConstantsVariablesAndSumOfProducts.
+// ConstantsVariablesAndSumOfProducts, and so does its linear-combination path skipping an operand by address (a
+// number that appears twice then counted once).
 #include <kelvin/render/second_order.h>
 
 #include <gtest/gtest.h>
@@ -449,4 +450,14 @@ TEST(SecondOrder, ConstantsVariablesAndSumOfProducts) {
     }
     EXPECT_EQ(fused.lo(), 2);
     EXPECT_EQ(fused.hi(), 7);
+    // A linear combination (every product has a constant) with one number on both sides, the first spanning the
+    // union of the ranges: w c + c w + 3 w^2 (w = sin x, so that its own Hessian counts).
+    const SO three(3.0), w = sin(x), w2 = w * w;
+    const SO lin = SO::sum_of_products<3>({&w, &c, &w2}, {&c, &w, &three}, {1.0, 1.0, 1.0});
+    const SO lin_plain = w * c + c * w + 3.0 * w2;
+    EXPECT_NEAR(lin.value(), lin_plain.value(), 1e-14);
+    for (int i = 0; i < N; ++i) {
+        EXPECT_NEAR(lin.grad(i), lin_plain.grad(i), 1e-13) << i;
+        for (int j = 0; j < N; ++j) EXPECT_NEAR(lin.hess(i, j), lin_plain.hess(i, j), 1e-13) << i << ", " << j;
+    }
 }

@@ -202,38 +202,67 @@ public:
         if (lo >= hi) return r;
         r.m_lo = lo;
         r.m_hi = hi;
-        // The gradients extended by zeros over the union; the factors each operand's derivatives are scaled by.
-        double ga[K][N], gb[K][N], fa[K], fb[K];
+        // The factors of each operand's derivatives; the gradient, operand by operand over its own range.
+        double fa[K], fb[K];
+        for (int i = lo; i < hi; ++i) r.m_g[i] = 0.0;
         for (int k = 0; k < K; ++k) {
             fa[k] = s[k] * b[k]->m_v;
             fb[k] = s[k] * a[k]->m_v;
-            for (int i = lo; i < hi; ++i) ga[k][i] = gb[k][i] = 0.0;
-            for (int i = a[k]->m_lo; i < a[k]->m_hi; ++i) ga[k][i] = a[k]->m_g[i];
-            for (int i = b[k]->m_lo; i < b[k]->m_hi; ++i) gb[k][i] = b[k]->m_g[i];
+            for (int i = a[k]->m_lo; i < a[k]->m_hi; ++i) r.m_g[i] += fa[k] * a[k]->m_g[i];
+            for (int i = b[k]->m_lo; i < b[k]->m_hi; ++i) r.m_g[i] += fb[k] * b[k]->m_g[i];
         }
-        for (int i = lo; i < hi; ++i) {
-            double g = 0;
-            for (int k = 0; k < K; ++k) g += fa[k] * ga[k][i] + fb[k] * gb[k][i];
-            r.m_g[i] = g;
+        // The Hessian: the outer products s_k (ga_k gb_k^T + gb_k ga_k^T) of the products of two non-constants
+        // (their gradients extended by zeros over the union), or zeros; then each operand's Hessian, scaled.
+        if (outer) {
+            double ga[K][N], gb[K][N];
+            int pairs[K], np = 0;
+            for (int k = 0; k < K; ++k) {
+                if (a[k]->constant() || b[k]->constant()) continue;
+                pairs[np++] = k;
+                for (int i = lo; i < hi; ++i) {
+                    ga[k][i] = i >= a[k]->m_lo && i < a[k]->m_hi ? a[k]->m_g[i] : 0.0;
+                    gb[k][i] = i >= b[k]->m_lo && i < b[k]->m_hi ? b[k]->m_g[i] : 0.0;
+                }
+            }
+            for (int i = lo; i < hi; ++i) {
+                const int o = offset(i);
+                double ca[K], cb[K];
+                for (int q = 0; q < np; ++q)
+                    ca[q] = s[pairs[q]] * gb[pairs[q]][i], cb[q] = s[pairs[q]] * ga[pairs[q]][i];
+                for (int j = lo; j <= i; ++j) {
+                    double h = 0;
+                    for (int q = 0; q < np; ++q) h += ca[q] * ga[pairs[q]][j] + cb[q] * gb[pairs[q]][j];
+                    r.m_h[o + j] = h;
+                }
+            }
+            for (int k = 0; k < K; ++k) {
+                r.add_scaled(*a[k], fa[k]);
+                r.add_scaled(*b[k], fb[k]);
+            }
+            return r;
         }
-        // The outer products s_k (ga_k gb_k^T + gb_k ga_k^T), or zeros; then each operand's Hessian, scaled.
+        // No outer products (a linear combination): the first operand that spans the union writes its part, the
+        // others add theirs.
+        const SecondOrder* first = nullptr;
+        double ff = 0;
+        int first_k = -1;  // the operand a[first_k] (first_b: b[first_k])
+        bool first_b = false;
+        for (int k = 0; k < K && !first; ++k) {
+            if (a[k]->m_lo == lo && a[k]->m_hi == hi)
+                first = a[k], ff = fa[k], first_k = k;
+            else if (b[k]->m_lo == lo && b[k]->m_hi == hi)
+                first = b[k], ff = fb[k], first_k = k, first_b = true;
+        }
         for (int i = lo; i < hi; ++i) {
             const int o = offset(i);
-            if (!outer) {
+            if (first)
+                for (int j = lo; j <= i; ++j) r.m_h[o + j] = ff * first->m_h[o + j];
+            else
                 for (int j = lo; j <= i; ++j) r.m_h[o + j] = 0.0;
-                continue;
-            }
-            double ca[K], cb[K];
-            for (int k = 0; k < K; ++k) ca[k] = s[k] * gb[k][i], cb[k] = s[k] * ga[k][i];
-            for (int j = lo; j <= i; ++j) {
-                double h = 0;
-                for (int k = 0; k < K; ++k) h += ca[k] * ga[k][j] + cb[k] * gb[k][j];
-                r.m_h[o + j] = h;
-            }
         }
         for (int k = 0; k < K; ++k) {
-            r.add_scaled(*a[k], fa[k]);
-            r.add_scaled(*b[k], fb[k]);
+            if (k != first_k || first_b) r.add_scaled(*a[k], fa[k]);
+            if (k != first_k || !first_b) r.add_scaled(*b[k], fb[k]);
         }
         return r;
     }
