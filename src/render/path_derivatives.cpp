@@ -1,6 +1,6 @@
 // Differentiable evaluation of the path technique's contribution (include/kelvin/render/path_derivatives.h).
-// One template, run in plain doubles (the value, for finite differences) and in nested fixed-size
-// Eigen::AutoDiffScalar (value, gradient and Hessian: forward over forward, bounce by bounce). It mirrors
+// One template, run in plain doubles (the value, for finite differences) and in SecondOrder numbers
+// (render/second_order.h: value, gradient and packed Hessian, bounce by bounce). It mirrors
 // src/plugins/integrators/path.cpp line by line for the supported subset; every discrete decision is the renderer's own
 // at the point.
 #include <kelvin/render/bsdf.h>
@@ -67,14 +67,13 @@ constexpr int MaxBlock = 96;  // PathDerivativeOptions::max_coordinates may not 
 // carries 11 numbers, its *state* s (the ray's direction, the previous vertex, from which the next ray's origin
 // follows, the throughput, the luminance gathered so far, the previous BSDF density); bounce i maps (s_i, u_i) to
 // s_{i+1}, u_i the (at most 4) coordinates it reads that move the path continuously (the 3 others of a bounce only
-// choose: read_discrete), and log pi = G(s_K). A *record* is two consecutive bounces (the camera and the first, the
-// second and third, ...): it runs in nested fixed-size AutoDiff over its own 11 + 8 inputs (value, Jacobian and
-// Hessians of its 11 outputs), and evaluate() composes the records: the Jacobians forward, then the Hessian backward
-// (H = J_K^T (d2 G) J_K + sum_i Jz_i^T (sum_k lambda_{i+1,k} d2 F_{i,k}) Jz_i, lambda the adjoint of the state).
-// The cost per operation is that of 20 inputs whatever the path's length, instead of n^2. (Measured by instruction
-// count on a path of 6 edges: carrying 16 numbers with one bounce per record cost 17 % more; Eigen's nested
-// operations of size 16 or 19 cost as much as, or more than, size 20, and size 24 (three bounces) 50 % more.)
-// A block that fits one local (n <= 20) is differentiated directly by the same type.
+// choose: read_discrete), and log pi = G(s_K). A *record* is one bounce (the camera's first): it runs in
+// SecondOrder numbers over its own 11 + 4 inputs (value, Jacobian and Hessians of its 11 outputs), and evaluate()
+// composes the records by the chain rule (the Jacobians forward, the second-order adjoint of the state backward; see
+// there). The cost per operation is that of the few of the 15 inputs the operation depends on, whatever the path's
+// length. (Measured by instruction count on a path of 6 edges, callgrind: two bounces per record over 20 inputs,
+// carried numbers first, 634 k instructions per derivative evaluation; one bounce over 15 inputs numbered by use,
+// 553 k, the composition then included.) A block that fits one local (n <= 15) is differentiated directly.
 constexpr int Carried = 11, LocalN = 15, LocalCoords = LocalN - Carried;
 // A local's inputs are numbered so that those used together are neighbours (SecondOrder's cost follows the range of
 // inputs a number depends on): Phys[k] is the input of logical input k, logical 0-10 the carried numbers in the order
@@ -913,8 +912,8 @@ struct DoubleReader {
         discrete_read = false;
     }
 };
-// The bounces recorded by a segmented evaluation: per bounce the Jacobian A (Carried x LocalN) and the Hessians
-// (LocalN x LocalN) of its outputs with respect to its inputs (the carried numbers, then the coordinates it read), and
+// The bounces recorded by a segmented evaluation: per bounce the Jacobian A (Carried x LocalN, logical inputs: the
+// carried numbers, then the coordinates it read) and its outputs themselves (their Hessians over physical inputs), and
 // the block entries of those coordinates.
 struct Bounce {
     int coords = 0;
