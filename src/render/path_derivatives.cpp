@@ -86,12 +86,11 @@ constexpr int Phys[LocalN] = {10, 11, 12, 7, 8, 9, 0, 1, 2, 3, 4, 5, 6, 13, 14};
 constexpr int Logical[LocalN] = {6, 7, 8, 9, 10, 11, 12, 3, 4, 5, 0, 1, 2, 13, 14};
 constexpr int BounceCoords = 4;  // the continuous coordinates a bounce reads, at most
 using Local = SecondOrder<LocalN>;
+using Gradient = FirstOrder<LocalN>;
 
 inline double val(double x) { return x; }
 inline double val(const Local& x) { return x.value(); }
-
-// Input k of a local (its value v): unit first derivative, zero second.
-Local local_variable(double v, int k) { return Local::variable(v, k); }
+inline double val(const Gradient& x) { return x.value(); }
 
 template <class T>
 struct V3 {
@@ -121,13 +120,16 @@ V3<T> cross(const V3<T>& a, const V3<T>& b) {
     return {T(a.y * b.z) - T(a.z * b.y), T(a.z * b.x) - T(a.x * b.z), T(a.x * b.y) - T(a.y * b.x)};
 }
 // The same for SecondOrder numbers, each in one pass (SecondOrder::sum_of_products).
-inline Local dot(const V3<Local>& a, const V3<Local>& b) {
-    return Local::sum_of_products<3>({&a.x, &a.y, &a.z}, {&b.x, &b.y, &b.z}, {1.0, 1.0, 1.0});
+template <bool H>
+SecondOrder<LocalN, H> dot(const V3<SecondOrder<LocalN, H>>& a, const V3<SecondOrder<LocalN, H>>& b) {
+    return SecondOrder<LocalN, H>::template sum_of_products<3>({&a.x, &a.y, &a.z}, {&b.x, &b.y, &b.z}, {1.0, 1.0, 1.0});
 }
-inline V3<Local> cross(const V3<Local>& a, const V3<Local>& b) {
-    return {Local::sum_of_products<2>({&a.y, &a.z}, {&b.z, &b.y}, {1.0, -1.0}),
-            Local::sum_of_products<2>({&a.z, &a.x}, {&b.x, &b.z}, {1.0, -1.0}),
-            Local::sum_of_products<2>({&a.x, &a.y}, {&b.y, &b.x}, {1.0, -1.0})};
+template <bool H>
+V3<SecondOrder<LocalN, H>> cross(const V3<SecondOrder<LocalN, H>>& a, const V3<SecondOrder<LocalN, H>>& b) {
+    using T = SecondOrder<LocalN, H>;
+    return {T::template sum_of_products<2>({&a.y, &a.z}, {&b.z, &b.y}, {1.0, -1.0}),
+            T::template sum_of_products<2>({&a.z, &a.x}, {&b.x, &b.z}, {1.0, -1.0}),
+            T::template sum_of_products<2>({&a.x, &a.y}, {&b.y, &b.x}, {1.0, -1.0})};
 }
 template <class T>
 V3<T> constant(const Vec3d& v) {
@@ -167,11 +169,13 @@ template <class T>
 V3<T> to_world(const FrameT<T>& f, const V3<T>& v) {
     return f.s * v.x + f.t * v.y + f.n * v.z;
 }
-inline V3<Local> to_world(const FrameT<Local>& f, const V3<Local>& v) {
-    const Local* w[3] = {&v.x, &v.y, &v.z};
-    return {Local::sum_of_products<3>({&f.s.x, &f.t.x, &f.n.x}, w, {1.0, 1.0, 1.0}),
-            Local::sum_of_products<3>({&f.s.y, &f.t.y, &f.n.y}, w, {1.0, 1.0, 1.0}),
-            Local::sum_of_products<3>({&f.s.z, &f.t.z, &f.n.z}, w, {1.0, 1.0, 1.0})};
+template <bool H>
+V3<SecondOrder<LocalN, H>> to_world(const FrameT<SecondOrder<LocalN, H>>& f, const V3<SecondOrder<LocalN, H>>& v) {
+    using T = SecondOrder<LocalN, H>;
+    const T* w[3] = {&v.x, &v.y, &v.z};
+    return {T::template sum_of_products<3>({&f.s.x, &f.t.x, &f.n.x}, w, {1.0, 1.0, 1.0}),
+            T::template sum_of_products<3>({&f.s.y, &f.t.y, &f.n.y}, w, {1.0, 1.0, 1.0}),
+            T::template sum_of_products<3>({&f.s.z, &f.t.z, &f.n.z}, w, {1.0, 1.0, 1.0})};
 }
 
 template <class T>
@@ -195,9 +199,11 @@ template <class T>
 T luminance_of(const C3<T>& c) {
     return T(c.r * T(0.212671)) + T(c.g * T(0.715160)) + T(c.b * T(0.072169));
 }
-inline Local luminance_of(const C3<Local>& c) {
-    static const Local w[3] = {Local(0.212671), Local(0.715160), Local(0.072169)};
-    return Local::sum_of_products<3>({&c.r, &c.g, &c.b}, {&w[0], &w[1], &w[2]}, {1.0, 1.0, 1.0});
+template <bool H>
+SecondOrder<LocalN, H> luminance_of(const C3<SecondOrder<LocalN, H>>& c) {
+    using T = SecondOrder<LocalN, H>;
+    static const T w[3] = {T(0.212671), T(0.715160), T(0.072169)};
+    return T::template sum_of_products<3>({&c.r, &c.g, &c.b}, {&w[0], &w[1], &w[2]}, {1.0, 1.0, 1.0});
 }
 template <class T>
 void add(C3<T>& acc, const C3<T>& v) {
@@ -291,6 +297,7 @@ T lift2(const T& x, double f0, double f1, double f2) {
 }
 inline double lift2(double, double f0, double, double) { return f0; }
 inline Local lift2(const Local& x, double f0, double f1, double f2) { return apply(x, f0, f1, f2); }
+inline Gradient lift2(const Gradient& x, double f0, double f1, double f2) { return apply(x, f0, f1, f2); }
 constexpr double kInvSqrtPi = 0.56418958354775628695;  // 1 / sqrt(pi)
 template <class T>
 T erf_t(const T& x) {
@@ -523,6 +530,7 @@ T atan2_t(const T& y, const T& x) {
     return T(a0) + yr / xr;
 }
 inline Local atan2_t(const Local& y, const Local& x) { return atan2(y, x); }
+inline Gradient atan2_t(const Gradient& y, const Gradient& x) { return atan2(y, x); }
 
 template <class T>
 T abs_t(const T& x) {
@@ -933,6 +941,8 @@ struct LocalTape {
     std::vector<int> cols;
 };
 
+// T: Local (gradient and Hessian) or Gradient (gradient only: evaluate() without a Hessian).
+template <class T>
 struct LocalReader {
     const double* coords;
     const int* block;
@@ -941,35 +951,35 @@ struct LocalReader {
     LocalTape* tape;  // null: direct (the block's entries are the local's inputs)
     std::size_t next = 0;
     bool overflow = false;
-    Local read() {
+    T read() {
         if (next >= length) {
             overflow = true;
-            return Local(0.5);
+            return T(0.5);
         }
         const std::size_t i = next++;
         const int k = block ? block[i] : -1;
-        if (k < 0 || k >= n) return Local(coords[i]);  // held constant
-        if (!tape) return local_variable(coords[i], k);
+        if (k < 0 || k >= n) return T(coords[i]);  // held constant
+        if (!tape) return T::variable(coords[i], k);
         if (tape->coords >= LocalCoords) {
             tape->too_many = true;
-            return Local(coords[i]);
+            return T(coords[i]);
         }
         tape->index[tape->coords] = k;
-        return local_variable(coords[i], Phys[Carried + tape->coords++]);
+        return T::variable(coords[i], Phys[Carried + tape->coords++]);
     }
     void decide(Decide, long long = 0, const Vec3d& = Vec3d(0.0)) {}
-    Local read_discrete() {
+    T read_discrete() {
         if (next >= length) {
             overflow = true;
-            return Local(0.5);
+            return T(0.5);
         }
-        return Local(coords[next++]);
+        return T(coords[next++]);
     }
     // Between bounces (and after the last): record the bounce that ends and make the carried numbers the next
     // bounce's first Carried inputs.
     // A bounce reads at most BounceCoords continuous coordinates: while another bounce's fit, the record goes on
     // (fewer, longer records: less to compose); `last` ends it whatever the room.
-    void checkpoint(Local* const* carried, bool last = false) {
+    void checkpoint(T* const* carried, bool last = false) {
         if (!tape) return;
         LocalTape& t = *tape;
         if (!last && t.coords + BounceCoords <= LocalCoords) return;
@@ -978,11 +988,11 @@ struct LocalReader {
         b.coords = t.coords;
         std::copy(t.index, t.index + t.coords, b.index);
         for (int k = 0; k < Carried; ++k) {
-            const Local& c = *carried[k];
+            const T& c = *carried[k];
             for (int j = 0; j < LocalN; ++j) b.A(k, j) = c.grad(Phys[j]);
-            b.out[k] = c;
+            if constexpr (T::Hessian) b.out[k] = c;
         }
-        for (int k = 0; k < Carried; ++k) *carried[k] = local_variable(val(*carried[k]), Phys[k]);
+        for (int k = 0; k < Carried; ++k) *carried[k] = T::variable(val(*carried[k]), Phys[k]);
         t.coords = 0;
     }
 };
@@ -1530,7 +1540,31 @@ PathDerivativeStatus PathDerivatives::evaluate(const double* coords, const int* 
     tape.used = 0;
     tape.coords = 0;
     tape.too_many = false;
-    LocalReader rd{coords, block, length, n, segmented ? &tape : nullptr};
+    if (grad && !hess) {
+        // The gradient alone, in FirstOrder numbers: the records' Jacobians composed backward (the adjoint).
+        LocalReader<Gradient> rd{coords, block, length, n, segmented ? &tape : nullptr};
+        Gradient lp(0.0);
+        const S s = m_impl->run<Gradient>(rd, lp);
+        if (s != S::Ok) return s;
+        if (tape.too_many) return S::Unsupported;
+        const double v = val(lp);
+        if (value > 0 && !(std::abs(v - std::log(value)) <= 1e-4)) return S::Mismatch;
+        if (log_value) *log_value = v;
+        std::fill(grad, grad + n, 0.0);
+        if (!segmented) {
+            for (int i = 0; i < n; ++i) grad[i] = lp.grad(i);
+            return S::Ok;
+        }
+        Eigen::Matrix<double, Carried, 1> lambda;
+        for (int k = 0; k < Carried; ++k) lambda(k) = lp.grad(Phys[k]);
+        for (std::size_t r = tape.used; r-- > 0;) {
+            const Bounce& b = tape.bounces[r];
+            for (int c = 0; c < b.coords; ++c) grad[b.index[c]] += b.A.col(Carried + c).dot(lambda);
+            lambda = b.A.leftCols<Carried>().transpose() * lambda;
+        }
+        return S::Ok;
+    }
+    LocalReader<Local> rd{coords, block, length, n, segmented ? &tape : nullptr};
     Local lp(0.0);
     const S s = m_impl->run<Local>(rd, lp);
     if (s != S::Ok) return s;

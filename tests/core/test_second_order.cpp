@@ -7,7 +7,8 @@
 //     1e-9 relative (both are exact up to rounding);
 //   - central finite differences of the plain-double evaluation of the same composition, for all of those and the
 //     operations Eigen lacks (atan, erf, erfc, apply with given derivatives, sum_of_products): gradient to 1e-6,
-//     Hessian to 1e-4 relative (steps 1e-5 and 1e-4; the differences' own error is about 1e-9 and 1e-7).
+//     Hessian to 1e-4 relative (steps 1e-5 and 1e-4; the differences' own error is about 1e-9 and 1e-7); there too
+//     FirstOrder<N> (the gradient alone) against SecondOrder's value and gradient.
 // The inputs are numbered with gaps and in shuffled order (inputs 1 and 4 of 8 never appear), so the live ranges of
 // the operands differ, nest, overlap and are disjoint, which exercises every path of the binary kernels.
 //
@@ -16,7 +17,8 @@
 // erfc's first derivative with the wrong sign fails the finite-difference comparison (Eigen has no erfc); and
 // sum_of_products without its operands' Hessians (add_scaled a no-op) fails the finite-difference comparison and
 // ConstantsVariablesAndSumOfProducts, and so does its linear-combination path skipping an operand by address (a
-// number that appears twice then counted once).
+// number that appears twice then counted once). FirstOrder's binary kernel assigning b's part instead of adding it
+// fails the finite-difference test's FirstOrder comparison.
 #include <kelvin/render/second_order.h>
 
 #include <gtest/gtest.h>
@@ -34,6 +36,9 @@ namespace {
 
 constexpr int N = 8;
 using SO = SecondOrder<N>;
+using FO = FirstOrder<N>;  // the gradient alone
+template <bool H>
+using Num = SecondOrder<N, H>;
 using InnerDer = Eigen::Matrix<double, N, 1>;
 using Inner = Eigen::AutoDiffScalar<InnerDer>;
 using Nested = Eigen::AutoDiffScalar<Eigen::Matrix<Inner, N, 1>>;
@@ -81,7 +86,10 @@ struct Step {
 
 // Plain doubles (the finite differences' evaluation).
 double v_of(double x) { return x; }
-double v_of(const SO& x) { return x.value(); }
+template <bool H>
+double v_of(const Num<H>& x) {
+    return x.value();
+}
 double v_of(const Nested& x) { return x.value().value(); }
 
 // The operations that Eigen's type spells differently.
@@ -117,16 +125,29 @@ Nested mixed(Op op, const Nested& a, double c) {
 }
 
 double f_atan(double x) { return std::atan(x); }
-SO f_atan(const SO& x) { return atan(x); }
+template <bool H>
+Num<H> f_atan(const Num<H>& x) {
+    return atan(x);
+}
 double f_erf(double x) { return std::erf(x); }
-SO f_erf(const SO& x) { return erf(x); }
+template <bool H>
+Num<H> f_erf(const Num<H>& x) {
+    return erf(x);
+}
 double f_erfc(double x) { return std::erfc(x); }
-SO f_erfc(const SO& x) { return erfc(x); }
+template <bool H>
+Num<H> f_erfc(const Num<H>& x) {
+    return erfc(x);
+}
 double f_apply(double x) { return std::cosh(x); }
-SO f_apply(const SO& x) { return apply(x, std::cosh(x.value()), std::sinh(x.value()), std::cosh(x.value())); }
+template <bool H>
+Num<H> f_apply(const Num<H>& x) {
+    return apply(x, std::cosh(x.value()), std::sinh(x.value()), std::cosh(x.value()));
+}
 double f_dot3(const double* a[3], const double* b[3]) { return *a[0] * *b[0] - *a[1] * *b[1] + *a[2] * *b[2]; }
-SO f_dot3(const SO* a[3], const SO* b[3]) {
-    return SO::sum_of_products<3>({a[0], a[1], a[2]}, {b[0], b[1], b[2]}, {1.0, -1.0, 1.0});
+template <bool H>
+Num<H> f_dot3(const Num<H>* a[3], const Num<H>* b[3]) {
+    return Num<H>::template sum_of_products<3>({a[0], a[1], a[2]}, {b[0], b[1], b[2]}, {1.0, -1.0, 1.0});
 }
 template <class T>
 T f_atan(const T&) {
@@ -148,7 +169,10 @@ Nested f_dot3(const Nested**, const Nested**) { return Nested(0.0); }
 
 // a^c; Eigen's pow does not nest: exp(c log a) (a > 0 in the programs).
 double f_pow(double a, double c) { return std::pow(a, c); }
-SO f_pow(const SO& a, double c) { return pow(a, c); }
+template <bool H>
+Num<H> f_pow(const Num<H>& a, double c) {
+    return pow(a, c);
+}
 Nested f_pow(const Nested& a, double c) {
     using std::exp;
     using std::log;
@@ -395,7 +419,15 @@ TEST(SecondOrder, MatchesFiniteDifferencesOnRandomCompositionsOfEveryOperation) 
         const Program p = make_program(rng, 16, OpCount);
         for (const Step& s : p.steps) ++op_seen[s.op];
         const auto so = run_program<SO>(p, p.x0, [&](int i, double v) { return SO::variable(v, p.index[i]); });
+        const auto fo = run_program<FO>(p, p.x0, [&](int i, double v) { return FO::variable(v, p.index[i]); });
         const std::size_t n = p.x0.size();
+        // FirstOrder: the same value and gradient as SecondOrder's (the same formulas), no Hessian.
+        for (std::size_t e = 0; e < so.size(); ++e) {
+            EXPECT_EQ(fo[e].value(), so[e].value()) << e;
+            for (int i = 0; i < N; ++i)
+                EXPECT_NEAR(fo[e].grad(i), so[e].grad(i), 1e-12 * (1 + std::abs(so[e].grad(i))));
+            EXPECT_EQ(fo[e].hess(0, 0), 0.0);
+        }
         auto values = [&](const std::vector<double>& x) {
             return run_program<double>(p, x, [](int, double v) { return v; });
         };

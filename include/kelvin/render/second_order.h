@@ -14,17 +14,19 @@
 // of two numbers a, b
 //   g = f_a g_a + f_b g_b,  H = f_a H_a + f_b H_b + f_aa g_a g_a^T + f_ab (g_a g_b^T + g_b g_a^T) + f_bb g_b g_b^T,
 // with the partial derivatives of f at the values; no expression templates and no temporaries beyond the result.
-// tests/render/test_second_order.cpp checks each operation against finite differences and Eigen's nested AutoDiff.
+// SecondOrder<N, false> (FirstOrder<N>) carries the value and gradient only, for the same code.
+// tests/core/test_second_order.cpp checks each operation against finite differences and Eigen's nested AutoDiff.
 #include <algorithm>
 #include <cmath>
 
 namespace kelvin {
 
-template <int N>
+template <int N, bool WithHessian = true>
 class SecondOrder {
 public:
     static constexpr int Size = N;
     static constexpr int Packed = N * (N + 1) / 2;
+    static constexpr bool Hessian = WithHessian;
     static constexpr int offset(int i) { return i * (i + 1) / 2; }
 
     SecondOrder() {}  // the constant 0 (user-provided: value-initialisation does not clear the arrays)
@@ -35,7 +37,7 @@ public:
         r.m_lo = k;
         r.m_hi = k + 1;
         r.m_g[k] = 1;
-        r.m_h[offset(k) + k] = 0;
+        if constexpr (WithHessian) r.m_h[offset(k) + k] = 0;
         return r;
     }
 
@@ -61,6 +63,7 @@ public:
     int hi() const { return m_hi; }
     double grad(int i) const { return i >= m_lo && i < m_hi ? m_g[i] : 0.0; }
     double hess(int i, int j) const {
+        if constexpr (!WithHessian) return 0.0;
         if (i < j) std::swap(i, j);
         return j >= m_lo && i < m_hi ? m_h[offset(i) + j] : 0.0;
     }
@@ -75,6 +78,7 @@ public:
         for (int i = a.m_lo; i < a.m_hi; ++i) {
             const double gi = a.m_g[i], c = f2 * gi;
             r.m_g[i] = f1 * gi;
+            if constexpr (!WithHessian) continue;
             const int o = offset(i);
             for (int j = a.m_lo; j <= i; ++j) r.m_h[o + j] = f1 * a.m_h[o + j] + c * a.m_g[j];
         }
@@ -211,6 +215,7 @@ public:
             for (int i = a[k]->m_lo; i < a[k]->m_hi; ++i) r.m_g[i] += fa[k] * a[k]->m_g[i];
             for (int i = b[k]->m_lo; i < b[k]->m_hi; ++i) r.m_g[i] += fb[k] * b[k]->m_g[i];
         }
+        if constexpr (!WithHessian) return r;
         // The Hessian: the outer products s_k (ga_k gb_k^T + gb_k ga_k^T) of the products of two non-constants
         // (their gradients extended by zeros over the union), or zeros; then each operand's Hessian, scaled.
         if (outer) {
@@ -270,7 +275,7 @@ public:
 private:
     // The Hessian += c times a's, over a's live range (within this one's).
     void add_scaled(const SecondOrder& a, double c) {
-        if (c == 0) return;
+        if (!WithHessian || c == 0) return;
         for (int i = a.m_lo; i < a.m_hi; ++i) {
             const int o = offset(i);
             for (int j = a.m_lo; j <= i; ++j) m_h[o + j] += c * a.m_h[o + j];
@@ -287,6 +292,7 @@ private:
         r.m_hi = a.m_hi;
         for (int i = a.m_lo; i < a.m_hi; ++i) {
             r.m_g[i] = c * a.m_g[i];
+            if constexpr (!WithHessian) continue;
             const int o = offset(i);
             for (int j = a.m_lo; j <= i; ++j) r.m_h[o + j] = c * a.m_h[o + j];
         }
@@ -294,6 +300,7 @@ private:
     }
     void copy_live(const SecondOrder& o) {
         std::copy(o.m_g + m_lo, o.m_g + m_hi, m_g + m_lo);
+        if constexpr (!WithHessian) return;
         if (m_lo == 0 && m_hi > 0) {
             std::copy(o.m_h, o.m_h + offset(m_hi), m_h);
             return;
@@ -307,6 +314,18 @@ private:
     void binary(const SecondOrder& a, const SecondOrder& b, double f, double fa, double fb, double faa, double fab,
                 double fbb) {
         m_v = f;
+        if constexpr (!WithHessian) {
+            m_lo = std::min(a.constant() ? N : a.m_lo, b.constant() ? N : b.m_lo);
+            m_hi = std::max(a.m_hi, b.m_hi);
+            if (m_lo >= m_hi) {
+                m_lo = m_hi = 0;
+                return;
+            }
+            for (int i = m_lo; i < m_hi; ++i) m_g[i] = 0.0;
+            for (int i = a.m_lo; i < a.m_hi; ++i) m_g[i] = fa * a.m_g[i];
+            for (int i = b.m_lo; i < b.m_hi; ++i) m_g[i] += fb * b.m_g[i];
+            return;
+        }
         if (b.m_lo == b.m_hi) {  // b constant: f(a) with b's value
             m_lo = a.m_lo;
             m_hi = a.m_hi;
@@ -401,7 +420,11 @@ private:
     double m_v = 0;
     int m_lo = 0, m_hi = 0;
     double m_g[N];
-    double m_h[Packed];
+    double m_h[WithHessian ? Packed : 1];
 };
+
+/// The gradient alone (no Hessian stored or computed): the same operations, O(m) each.
+template <int N>
+using FirstOrder = SecondOrder<N, false>;
 
 }  // namespace kelvin
