@@ -4,17 +4,27 @@
 //   BM_PathEvaluation/k:   one path sample of exactly k edges on the Cornell box (the path technique, as a chain
 //                          evaluates a state; max_depth k, no Russian roulette);
 //   BM_PathDerivatives/k/check: the same path's log-luminance with its gradient and Hessian
-//                          (render/path_derivatives.h, bounce by bounce in nested Eigen::AutoDiffScalar), without
-//                          (check:0) and with (check:1, the default) the discontinuity check;
+//                          (render/path_derivatives.h, bounce by bounce in SecondOrder numbers), without (check:0) and
+//                          with (check:1, the default) the discontinuity check;
+//   BM_EvalsPerDerivative/k: the counter evals_per_derivative: the CPU time of one gradient and Hessian (check:0)
+//                          over that of one plain path evaluation (BM_PathEvaluation) of the same points, the two
+//                          timed in alternating batches over the same 32 points so that both see the same load of
+//                          the machine; evals_per_derivative_checked the same with the discontinuity check (which
+//                          adds two plain evaluations per continuous coordinate); evals_per_gradient the gradient
+//                          alone (evaluate without a Hessian, no check);
+//   BM_InstructionCountBatches/k: 64 derivative evaluations and 64 plain evaluations, once, for callgrind
+//                          (docs/performance.md gives the command);
 //   BM_H2mcProposalOnPath/k: one H2MC proposal's extra work on such a path: the proposal's derivatives and Gaussian,
 //                          a draw, and the forward and reverse densities (x's Gaussian is cached by the chain; the
 //                          proposal's path evaluation is BM_PathEvaluation);
 //   BM_H2mcGaussian/k:     the Gaussian alone from a random gradient and Hessian of that size (SelfAdjointEigenSolver,
 //                          Li et al.'s formulas);
 //   BM_MhStepAnalytic/k:   one MH step of a MarkovChain with h2mc on an analytic n-dimensional Gaussian target;
-//   BM_NestedAutoDiffOp/op: one operation of the nested AutoDiff type the derivatives use (size 20: value, gradient
-//                          and Hessian), assigned to a variable as the evaluation does: op 0 a + c (c a double
-//                          constant), 1 a * b, 2 a * T(c) (the constant as a full nested number).
+//   BM_NestedAutoDiffOp/op: one operation of Eigen's nested AutoDiff type of size 20 (value, gradient and Hessian), the
+//                          type the derivatives used before SecondOrder, assigned to a variable: op 0 a + c (c a
+//                          double constant), 1 a * b, 2 a * T(c) (the constant as a full nested number);
+//   BM_SecondOrderOp/op:   the same operations of SecondOrder<15> (render/second_order.h), a and b depending on all
+//                          15 inputs (its worst case: in a path most numbers depend on 2 to 6).
 //
 //   build/bin/bench_h2mc --benchmark_min_time=0.2
 #include <kelvin/core/parser.h>
@@ -25,6 +35,7 @@
 #include <kelvin/render/path_derivatives.h>
 #include <kelvin/render/pss.h>
 #include <kelvin/render/scene.h>
+#include <kelvin/render/second_order.h>
 #include <kelvin/render/sensor.h>
 
 #include <benchmark/benchmark.h>
@@ -32,6 +43,7 @@
 #include <unsupported/Eigen/AutoDiff>
 
 #include <cmath>
+#include <ctime>
 #include <vector>
 
 using namespace kelvin;
@@ -207,6 +219,83 @@ void BM_PathDerivatives(benchmark::State& state) {
     state.counters["ok"] = double(ok) / double(all);
 }
 
+double thread_cpu_seconds() {
+    timespec t{};
+    clock_gettime(CLOCK_THREAD_CPUTIME_ID, &t);
+    return double(t.tv_sec) + 1e-9 * double(t.tv_nsec);
+}
+
+void BM_EvalsPerDerivative(benchmark::State& state) {
+    PathBench b(int(state.range(0)), 0.0);
+    if (b.points.empty()) return state.SkipWithError("no path of that length found");
+    PathDerivatives checked(*b.scene, [&] {
+        PathDerivativeOptions o = b.opt;
+        o.discontinuity_radius = PathDerivativeOptions().discontinuity_radius;
+        return o;
+    }());
+    const int n = int(b.length);
+    std::vector<int> block(b.length);
+    for (std::size_t i = 0; i < b.length; ++i) block[i] = int(i);
+    std::vector<double> g(b.length), H(b.length * b.length);
+    double t_eval = 0, t_der = 0, t_checked = 0, t_grad = 0;
+    std::size_t batches = 0, ok = 0, used = 0;
+    for (auto _ : state) {
+        const double t0 = thread_cpu_seconds();
+        for (std::size_t k = 0; k < b.points.size(); ++k) benchmark::DoNotOptimize(b.eval(b.points[k], used));
+        const double t1 = thread_cpu_seconds();
+        for (std::size_t k = 0; k < b.points.size(); ++k)
+            ok += b.D->evaluate(b.points[k].data(), block.data(), b.length, n, b.values[k], nullptr, g.data(),
+                                H.data()) == PathDerivativeStatus::Ok;
+        const double t2 = thread_cpu_seconds();
+        for (std::size_t k = 0; k < b.points.size(); ++k)
+            benchmark::DoNotOptimize(checked.evaluate(b.points[k].data(), block.data(), b.length, n, b.values[k],
+                                                      nullptr, g.data(), H.data()));
+        const double t3 = thread_cpu_seconds();
+        for (std::size_t k = 0; k < b.points.size(); ++k)
+            benchmark::DoNotOptimize(
+                b.D->evaluate(b.points[k].data(), block.data(), b.length, n, b.values[k], nullptr, g.data(), nullptr));
+        const double t4 = thread_cpu_seconds();
+        t_eval += t1 - t0;
+        t_der += t2 - t1;
+        t_checked += t3 - t2;
+        t_grad += t4 - t3;
+        ++batches;
+    }
+    state.counters["n"] = n;
+    state.counters["ok"] = double(ok) / double(batches * b.points.size());
+    state.counters["evals_per_derivative"] = t_der / t_eval;
+    state.counters["evals_per_derivative_checked"] = t_checked / t_eval;
+    state.counters["evals_per_gradient"] = t_grad / t_eval;
+}
+
+// Instruction counts: 64 derivative evaluations (check:0) or 64 plain evaluations over the 32 points of a
+// PathBench, in functions of their own for callgrind's --toggle-collect (docs/performance.md, "H2MC derivatives").
+__attribute__((noinline)) void derivative_batch(const PathBench& b, const std::vector<int>& block,
+                                                std::vector<double>& g, std::vector<double>& H) {
+    for (std::size_t i = 0; i < 64; ++i) {
+        const std::size_t k = i % b.points.size();
+        benchmark::DoNotOptimize(b.D->evaluate(b.points[k].data(), block.data(), b.length, int(b.length), b.values[k],
+                                               nullptr, g.data(), H.data()));
+    }
+}
+__attribute__((noinline)) void evaluation_batch(PathBench& b) {
+    std::size_t used = 0;
+    for (std::size_t i = 0; i < 64; ++i) benchmark::DoNotOptimize(b.eval(b.points[i % b.points.size()], used));
+}
+void BM_InstructionCountBatches(benchmark::State& state) {
+    PathBench b(int(state.range(0)), 0.0);
+    if (b.points.empty()) return state.SkipWithError("no path of that length found");
+    std::vector<int> block(b.length);
+    for (std::size_t i = 0; i < b.length; ++i) block[i] = int(i);
+    std::vector<double> g(b.length), H(b.length * b.length);
+    b.D->evaluate(b.points[0].data(), block.data(), b.length, int(b.length), b.values[0], nullptr, g.data(),
+                  H.data());  // the per-thread workspace grows here, outside the batches
+    for (auto _ : state) {
+        evaluation_batch(b);
+        derivative_batch(b, block, g, H);
+    }
+}
+
 void BM_H2mcProposalOnPath(benchmark::State& state) {
     PathBench b(int(state.range(0)));
     if (b.points.empty()) return state.SkipWithError("no path of that length found");
@@ -234,7 +323,7 @@ void BM_H2mcProposalOnPath(benchmark::State& state) {
     state.counters["n"] = n;
 }
 
-// The same type as src/render/path_derivatives.cpp's Local (20 inputs, forward over forward).
+// Eigen's nested AutoDiff of size 20, the type src/render/path_derivatives.cpp used before SecondOrder.
 using NestedDer = Eigen::Matrix<double, 20, 1>;
 using NestedInner = Eigen::AutoDiffScalar<NestedDer>;
 using Nested = Eigen::AutoDiffScalar<Eigen::Matrix<NestedInner, 20, 1>>;
@@ -259,6 +348,27 @@ void BM_NestedAutoDiffOp(benchmark::State& state) {
     }
 }
 
+using SO = SecondOrder<15>;
+SO second_order_full(double v, int k) {  // a number that depends on all 15 inputs
+    SO x = SO::variable(v, k);
+    for (int j = 0; j < 15; ++j) x = x + SO::variable(0.01 * j, j) * SO::variable(0.02, (j + 1) % 15);
+    return x;
+}
+void BM_SecondOrderOp(benchmark::State& state) {
+    const int op = int(state.range(0));
+    SO a = second_order_full(0.3, 1);
+    const SO b = second_order_full(1.0000001, 2);
+    for (auto _ : state) {
+        if (op == 0)
+            a = a + 1e-9;
+        else if (op == 1)
+            a = a * b;
+        else
+            a = a * SO(1.0000001);
+        benchmark::DoNotOptimize(a);
+    }
+}
+
 }  // namespace
 
 BENCHMARK(BM_PathEvaluation)->DenseRange(3, 10);
@@ -266,9 +376,12 @@ BENCHMARK(BM_PathDerivatives)
     ->ArgsProduct({benchmark::CreateDenseRange(3, 10, 1), {0, 1}})
     ->ArgNames({"k", "check"})
     ->Unit(benchmark::kMillisecond);
+BENCHMARK(BM_EvalsPerDerivative)->Arg(3)->Arg(6)->Arg(10)->ArgName("k")->Unit(benchmark::kMillisecond);
+BENCHMARK(BM_InstructionCountBatches)->Arg(3)->Arg(6)->Arg(10)->ArgName("k")->Iterations(1);
 BENCHMARK(BM_H2mcProposalOnPath)->DenseRange(3, 10)->Unit(benchmark::kMillisecond);
 BENCHMARK(BM_H2mcGaussian)->DenseRange(3, 10);
 BENCHMARK(BM_H2mcProposal)->DenseRange(3, 10);
 BENCHMARK(BM_MhStepAnalytic)->DenseRange(3, 10);
 BENCHMARK(BM_NestedAutoDiffOp)->DenseRange(0, 2)->ArgName("op");
+BENCHMARK(BM_SecondOrderOp)->DenseRange(0, 2)->ArgName("op");
 BENCHMARK_MAIN();

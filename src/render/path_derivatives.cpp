@@ -1,6 +1,6 @@
 // Differentiable evaluation of the path technique's contribution (include/kelvin/render/path_derivatives.h).
-// One template, run in plain doubles (the value, for finite differences) and in nested fixed-size
-// Eigen::AutoDiffScalar (value, gradient and Hessian: forward over forward, bounce by bounce). It mirrors
+// One template, run in plain doubles (the value, for finite differences) and in SecondOrder numbers
+// (render/second_order.h: value, gradient and packed Hessian, bounce by bounce). It mirrors
 // src/plugins/integrators/path.cpp line by line for the supported subset; every discrete decision is the renderer's own
 // at the point.
 #include <kelvin/render/bsdf.h>
@@ -10,11 +10,11 @@
 #include <kelvin/render/path_derivatives.h>
 #include <kelvin/render/pss.h>
 #include <kelvin/render/scene.h>
+#include <kelvin/render/second_order.h>
 #include <kelvin/render/sensor.h>
 #include <kelvin/render/texture.h>
 
 #include <Eigen/Dense>
-#include <unsupported/Eigen/AutoDiff>
 
 #include <algorithm>
 #include <cmath>
@@ -67,31 +67,30 @@ constexpr int MaxBlock = 96;  // PathDerivativeOptions::max_coordinates may not 
 // carries 11 numbers, its *state* s (the ray's direction, the previous vertex, from which the next ray's origin
 // follows, the throughput, the luminance gathered so far, the previous BSDF density); bounce i maps (s_i, u_i) to
 // s_{i+1}, u_i the (at most 4) coordinates it reads that move the path continuously (the 3 others of a bounce only
-// choose: read_discrete), and log pi = G(s_K). A *record* is two consecutive bounces (the camera and the first, the
-// second and third, ...): it runs in nested fixed-size AutoDiff over its own 11 + 8 inputs (value, Jacobian and
-// Hessians of its 11 outputs), and evaluate() composes the records: the Jacobians forward, then the Hessian backward
-// (H = J_K^T (d2 G) J_K + sum_i Jz_i^T (sum_k lambda_{i+1,k} d2 F_{i,k}) Jz_i, lambda the adjoint of the state).
-// The cost per operation is that of 20 inputs whatever the path's length, instead of n^2. (Measured by instruction
-// count on a path of 6 edges: carrying 16 numbers with one bounce per record cost 17 % more; Eigen's nested
-// operations of size 16 or 19 cost as much as, or more than, size 20, and size 24 (three bounces) 50 % more.)
-// A block that fits one local (n <= 20) is differentiated directly by the same type.
-constexpr int Carried = 11, LocalN = 20, LocalCoords = LocalN - Carried;
+// choose: read_discrete), and log pi = G(s_K). A *record* is one bounce (the camera's first): it runs in
+// SecondOrder numbers over its own 11 + 4 inputs (value, Jacobian and Hessians of its 11 outputs), and evaluate()
+// composes the records by the chain rule (the Jacobians forward, the second-order adjoint of the state backward; see
+// there). The cost per operation is that of the few of the 15 inputs the operation depends on, whatever the path's
+// length. (Measured by instruction count on a path of 6 edges, callgrind: two bounces per record over 20 inputs,
+// carried numbers first, 634 k instructions per derivative evaluation; one bounce over 15 inputs numbered by use,
+// 553 k, the composition then included.) A block that fits one local (n <= 15) is differentiated directly.
+constexpr int Carried = 11, LocalN = 15, LocalCoords = LocalN - Carried;
+// A local's inputs are numbered so that those used together are neighbours (SecondOrder's cost follows the range of
+// inputs a number depends on): Phys[k] is the input of logical input k, logical 0-10 the carried numbers in the order
+// of run()'s `carried` (direction, previous vertex, throughput, luminance, BSDF density), 11-14 the bounce's
+// coordinates in reading order (the light sample's two, the BSDF sample's two). Inputs: throughput 0-2, luminance 3,
+// density 4, light sample 5-6, previous vertex 7-9, direction 10-12, BSDF sample 13-14: the intersection depends on
+// 7-12, the light sample's direction and the BSDF's value on 5-12, the BSDF's sampled direction and weight on 10-14,
+// and only the few products that update the throughput and the luminance on more.
+constexpr int Phys[LocalN] = {10, 11, 12, 7, 8, 9, 0, 1, 2, 3, 4, 5, 6, 13, 14};
+constexpr int Logical[LocalN] = {6, 7, 8, 9, 10, 11, 12, 3, 4, 5, 0, 1, 2, 13, 14};
 constexpr int BounceCoords = 4;  // the continuous coordinates a bounce reads, at most
-using LocalDer = Eigen::Matrix<double, LocalN, 1>;
-using Inner = Eigen::AutoDiffScalar<LocalDer>;
-using InnerVec = Eigen::Matrix<Inner, LocalN, 1>;
-using Local = Eigen::AutoDiffScalar<InnerVec>;
+using Local = SecondOrder<LocalN>;
+using Gradient = FirstOrder<LocalN>;
 
 inline double val(double x) { return x; }
-inline double val(const Local& x) { return x.value().value(); }
-
-// Input k of a local (its value v): unit first derivative, zero second.
-Local local_variable(double v, int k) {
-    Local x;
-    x.value() = Inner(v, LocalN, k);
-    for (int j = 0; j < LocalN; ++j) x.derivatives()(j) = Inner(j == k ? 1.0 : 0.0, LocalDer::Zero());
-    return x;
-}
+inline double val(const Local& x) { return x.value(); }
+inline double val(const Gradient& x) { return x.value(); }
 
 template <class T>
 struct V3 {
@@ -119,6 +118,18 @@ T dot(const V3<T>& a, const V3<T>& b) {
 template <class T>
 V3<T> cross(const V3<T>& a, const V3<T>& b) {
     return {T(a.y * b.z) - T(a.z * b.y), T(a.z * b.x) - T(a.x * b.z), T(a.x * b.y) - T(a.y * b.x)};
+}
+// The same for SecondOrder numbers, each in one pass (SecondOrder::sum_of_products).
+template <bool H>
+SecondOrder<LocalN, H> dot(const V3<SecondOrder<LocalN, H>>& a, const V3<SecondOrder<LocalN, H>>& b) {
+    return SecondOrder<LocalN, H>::template sum_of_products<3>({&a.x, &a.y, &a.z}, {&b.x, &b.y, &b.z}, {1.0, 1.0, 1.0});
+}
+template <bool H>
+V3<SecondOrder<LocalN, H>> cross(const V3<SecondOrder<LocalN, H>>& a, const V3<SecondOrder<LocalN, H>>& b) {
+    using T = SecondOrder<LocalN, H>;
+    return {T::template sum_of_products<2>({&a.y, &a.z}, {&b.z, &b.y}, {1.0, -1.0}),
+            T::template sum_of_products<2>({&a.z, &a.x}, {&b.x, &b.z}, {1.0, -1.0}),
+            T::template sum_of_products<2>({&a.x, &a.y}, {&b.y, &b.x}, {1.0, -1.0})};
 }
 template <class T>
 V3<T> constant(const Vec3d& v) {
@@ -158,6 +169,14 @@ template <class T>
 V3<T> to_world(const FrameT<T>& f, const V3<T>& v) {
     return f.s * v.x + f.t * v.y + f.n * v.z;
 }
+template <bool H>
+V3<SecondOrder<LocalN, H>> to_world(const FrameT<SecondOrder<LocalN, H>>& f, const V3<SecondOrder<LocalN, H>>& v) {
+    using T = SecondOrder<LocalN, H>;
+    const T* w[3] = {&v.x, &v.y, &v.z};
+    return {T::template sum_of_products<3>({&f.s.x, &f.t.x, &f.n.x}, w, {1.0, 1.0, 1.0}),
+            T::template sum_of_products<3>({&f.s.y, &f.t.y, &f.n.y}, w, {1.0, 1.0, 1.0}),
+            T::template sum_of_products<3>({&f.s.z, &f.t.z, &f.n.z}, w, {1.0, 1.0, 1.0})};
+}
 
 template <class T>
 struct C3 {
@@ -179,6 +198,12 @@ C3<T> operator*(const C3<T>& a, const T& s) {
 template <class T>
 T luminance_of(const C3<T>& c) {
     return T(c.r * T(0.212671)) + T(c.g * T(0.715160)) + T(c.b * T(0.072169));
+}
+template <bool H>
+SecondOrder<LocalN, H> luminance_of(const C3<SecondOrder<LocalN, H>>& c) {
+    using T = SecondOrder<LocalN, H>;
+    static const T w[3] = {T(0.212671), T(0.715160), T(0.072169)};
+    return T::template sum_of_products<3>({&c.r, &c.g, &c.b}, {&w[0], &w[1], &w[2]}, {1.0, 1.0, 1.0});
 }
 template <class T>
 void add(C3<T>& acc, const C3<T>& v) {
@@ -270,6 +295,9 @@ T lift2(const T& x, double f0, double f1, double f2) {
     const T dx = x - T(val(x));
     return T(f0) + dx * (T(f1) + T(0.5 * f2) * dx);
 }
+inline double lift2(double, double f0, double, double) { return f0; }
+inline Local lift2(const Local& x, double f0, double f1, double f2) { return apply(x, f0, f1, f2); }
+inline Gradient lift2(const Gradient& x, double f0, double f1, double f2) { return apply(x, f0, f1, f2); }
 constexpr double kInvSqrtPi = 0.56418958354775628695;  // 1 / sqrt(pi)
 template <class T>
 T erf_t(const T& x) {
@@ -501,6 +529,8 @@ T atan2_t(const T& y, const T& x) {
     const T xr = T(x * T(c)) + T(y * T(s)), yr = T(y * T(c)) - T(x * T(s));
     return T(a0) + yr / xr;
 }
+inline Local atan2_t(const Local& y, const Local& x) { return atan2(y, x); }
+inline Gradient atan2_t(const Gradient& y, const Gradient& x) { return atan2(y, x); }
 
 template <class T>
 T abs_t(const T& x) {
@@ -890,14 +920,14 @@ struct DoubleReader {
         discrete_read = false;
     }
 };
-// The bounces recorded by a segmented evaluation: per bounce the Jacobian A (Carried x LocalN) and the Hessians
-// (LocalN x LocalN) of its outputs with respect to its inputs (the carried numbers, then the coordinates it read), and
+// The bounces recorded by a segmented evaluation: per bounce the Jacobian A (Carried x LocalN, logical inputs: the
+// carried numbers, then the coordinates it read) and its outputs themselves (their Hessians over physical inputs), and
 // the block entries of those coordinates.
 struct Bounce {
     int coords = 0;
     int index[LocalCoords];
     Eigen::Matrix<double, Carried, LocalN> A;
-    Eigen::Matrix<double, LocalN, LocalN> H[Carried];
+    Local out[Carried];  // the outputs, their Hessians (only their live part is copied)
 };
 struct LocalTape {
     std::vector<Bounce> bounces;  // bounces[0, used): kept across calls (per thread), so nothing is reallocated
@@ -905,11 +935,14 @@ struct LocalTape {
     int coords = 0;  // coordinates read in the current bounce
     int index[LocalCoords];
     bool too_many = false;  // a bounce read more than LocalCoords coordinates (not the path technique's layout)
-    std::vector<Eigen::MatrixXd> Jz;  // per record, d(inputs)/d(block): LocalN x cols
-    std::vector<int> cols;            // per record: 1 + the largest block entry read up to it
-    Eigen::MatrixXd Js, T1, H;
+    // Per record, the derivatives of its carried inputs with respect to the block (Carried x cols: only the block
+    // entries read before it can be non-zero), and cols.
+    std::vector<Eigen::Matrix<double, Carried, Eigen::Dynamic, Eigen::RowMajor>> S;
+    std::vector<int> cols;
 };
 
+// T: Local (gradient and Hessian) or Gradient (gradient only: evaluate() without a Hessian).
+template <class T>
 struct LocalReader {
     const double* coords;
     const int* block;
@@ -918,35 +951,35 @@ struct LocalReader {
     LocalTape* tape;  // null: direct (the block's entries are the local's inputs)
     std::size_t next = 0;
     bool overflow = false;
-    Local read() {
+    T read() {
         if (next >= length) {
             overflow = true;
-            return Local(0.5);
+            return T(0.5);
         }
         const std::size_t i = next++;
         const int k = block ? block[i] : -1;
-        if (k < 0 || k >= n) return Local(coords[i]);  // held constant
-        if (!tape) return local_variable(coords[i], k);
+        if (k < 0 || k >= n) return T(coords[i]);  // held constant
+        if (!tape) return T::variable(coords[i], k);
         if (tape->coords >= LocalCoords) {
             tape->too_many = true;
-            return Local(coords[i]);
+            return T(coords[i]);
         }
         tape->index[tape->coords] = k;
-        return local_variable(coords[i], Carried + tape->coords++);
+        return T::variable(coords[i], Phys[Carried + tape->coords++]);
     }
     void decide(Decide, long long = 0, const Vec3d& = Vec3d(0.0)) {}
-    Local read_discrete() {
+    T read_discrete() {
         if (next >= length) {
             overflow = true;
-            return Local(0.5);
+            return T(0.5);
         }
-        return Local(coords[next++]);
+        return T(coords[next++]);
     }
     // Between bounces (and after the last): record the bounce that ends and make the carried numbers the next
     // bounce's first Carried inputs.
     // A bounce reads at most BounceCoords continuous coordinates: while another bounce's fit, the record goes on
     // (fewer, longer records: less to compose); `last` ends it whatever the room.
-    void checkpoint(Local* const* carried, bool last = false) {
+    void checkpoint(T* const* carried, bool last = false) {
         if (!tape) return;
         LocalTape& t = *tape;
         if (!last && t.coords + BounceCoords <= LocalCoords) return;
@@ -955,11 +988,11 @@ struct LocalReader {
         b.coords = t.coords;
         std::copy(t.index, t.index + t.coords, b.index);
         for (int k = 0; k < Carried; ++k) {
-            const Local& c = *carried[k];
-            b.A.row(k) = c.value().derivatives().transpose();
-            for (int j = 0; j < LocalN; ++j) b.H[k].row(j) = c.derivatives()(j).derivatives().transpose();
+            const T& c = *carried[k];
+            for (int j = 0; j < LocalN; ++j) b.A(k, j) = c.grad(Phys[j]);
+            if constexpr (T::Hessian) b.out[k] = c;
         }
-        for (int k = 0; k < Carried; ++k) *carried[k] = local_variable(val(*carried[k]), k);
+        for (int k = 0; k < Carried; ++k) *carried[k] = T::variable(val(*carried[k]), Phys[k]);
         t.coords = 0;
     }
 };
@@ -1507,7 +1540,31 @@ PathDerivativeStatus PathDerivatives::evaluate(const double* coords, const int* 
     tape.used = 0;
     tape.coords = 0;
     tape.too_many = false;
-    LocalReader rd{coords, block, length, n, segmented ? &tape : nullptr};
+    if (grad && !hess) {
+        // The gradient alone, in FirstOrder numbers: the records' Jacobians composed backward (the adjoint).
+        LocalReader<Gradient> rd{coords, block, length, n, segmented ? &tape : nullptr};
+        Gradient lp(0.0);
+        const S s = m_impl->run<Gradient>(rd, lp);
+        if (s != S::Ok) return s;
+        if (tape.too_many) return S::Unsupported;
+        const double v = val(lp);
+        if (value > 0 && !(std::abs(v - std::log(value)) <= 1e-4)) return S::Mismatch;
+        if (log_value) *log_value = v;
+        std::fill(grad, grad + n, 0.0);
+        if (!segmented) {
+            for (int i = 0; i < n; ++i) grad[i] = lp.grad(i);
+            return S::Ok;
+        }
+        Eigen::Matrix<double, Carried, 1> lambda;
+        for (int k = 0; k < Carried; ++k) lambda(k) = lp.grad(Phys[k]);
+        for (std::size_t r = tape.used; r-- > 0;) {
+            const Bounce& b = tape.bounces[r];
+            for (int c = 0; c < b.coords; ++c) grad[b.index[c]] += b.A.col(Carried + c).dot(lambda);
+            lambda = b.A.leftCols<Carried>().transpose() * lambda;
+        }
+        return S::Ok;
+    }
+    LocalReader<Local> rd{coords, block, length, n, segmented ? &tape : nullptr};
     Local lp(0.0);
     const S s = m_impl->run<Local>(rd, lp);
     if (s != S::Ok) return s;
@@ -1519,54 +1576,94 @@ PathDerivativeStatus PathDerivatives::evaluate(const double* coords, const int* 
     Eigen::Map<Eigen::VectorXd> g(grad ? grad : nullptr, grad ? n : 0);
     Eigen::Map<Eigen::MatrixXd> H(hess ? hess : nullptr, hess ? n : 0, hess ? n : 0);
     if (!segmented) {
-        for (int i = 0; i < n && grad; ++i) g(i) = lp.value().derivatives()(i);
+        for (int i = 0; i < n && grad; ++i) g(i) = lp.grad(i);
         for (int j = 0; j < n && hess; ++j)
-            for (int i = 0; i < n; ++i) H(i, j) = lp.derivatives()(i).derivatives()(j);
+            for (int i = 0; i < n; ++i) H(i, j) = lp.hess(i, j);
         return S::Ok;
     }
 
-    // Forward: the Jacobian of each record's inputs with respect to the block (the carried numbers' rows from the
-    // previous record, a unit row per coordinate read). Records: the camera, then one per bounce; G (log pi of the
-    // carried radiance) follows the last.
-    // Only the block entries read so far can have non-zero columns: each record's Jacobian keeps the first
-    // cols of them (the block's entries are in reading order along the path, so that is about half on average).
+    // The records compose by the chain rule. With s_r the carried inputs of record r and u_r its coordinates, record
+    // r maps z_r = (s_r, u_r) to s_{r+1} = F_r(z_r) (Jacobian [A_r B_r], Hessians d2F_{r,k}), and log pi = G(s_K).
+    // Forward: S_r = ds_r / d(block) = A_{r-1} S_{r-1} + B_{r-1} (unit columns of u_{r-1}), S_0 = 0 (the camera's
+    // state is a constant). Backward, with the adjoint lambda_{r+1} = dG / ds_{r+1} and Pi_{r+1} = the Hessian of
+    // log pi with respect to s_{r+1} (the later coordinates held): the Hessian with respect to z_r is
+    //   Q_r = sum_k lambda_{r+1,k} d2F_{r,k} + [A_r B_r]^T Pi_{r+1} [A_r B_r],
+    // whose (u, u) block is H's block of u_r, whose (s, u) block carries u_r's coupling to every earlier coordinate
+    // (H[earlier, u_r] = S_r^T Q_su), and whose (s, s) block is Pi_r. Cost per record O(Carried (LocalN^2 + cols
+    // LocalCoords)): the Hessian's n^2 entries are each written once.
     const std::size_t K = tape.used;
-    if (tape.Jz.size() < K) tape.Jz.resize(K), tape.cols.resize(K);
-    tape.Js.resize(Carried, 0);
+    if (tape.S.size() < K + 1) tape.S.resize(K + 1), tape.cols.resize(K + 1);
     int cols = 0;
-    for (std::size_t i = 0; i < K; ++i) {
-        const Bounce& b = tape.bounces[i];
+    tape.cols[0] = 0;
+    tape.S[0].resize(Carried, 0);
+    for (std::size_t r = 0; r < K; ++r) {
+        const Bounce& b = tape.bounces[r];
         const int before = cols;
         for (int c = 0; c < b.coords; ++c) cols = std::max(cols, b.index[c] + 1);
-        tape.cols[i] = cols;
-        Eigen::MatrixXd& J = tape.Jz[i];
-        J.setZero(LocalN, cols);
-        J.topLeftCorner(Carried, before) = tape.Js;
-        for (int c = 0; c < b.coords; ++c) J(Carried + c, b.index[c]) = 1.0;
-        tape.Js.noalias() = b.A * J;  // the record's outputs: the next one's carried inputs
+        tape.cols[r + 1] = cols;
+        Eigen::Matrix<double, Carried, Eigen::Dynamic, Eigen::RowMajor>& S1 = tape.S[r + 1];
+        S1.setZero(Carried, cols);
+        // A is sparse (most carried numbers depend on few of the others): its non-zero entries only.
+        for (int k = 0; k < Carried; ++k) {
+            for (int j = 0; j < Carried && before > 0; ++j)
+                if (const double a = b.A(k, j); a != 0) S1.row(k).head(before) += a * tape.S[r].row(j);
+            for (int c = 0; c < b.coords; ++c) S1(k, b.index[c]) += b.A(k, Carried + c);
+        }
     }
-    const Eigen::Matrix<double, Carried, 1> gG = lp.value().derivatives().head<Carried>();
-    if (grad) {
-        g.setZero();
-        g.head(cols).noalias() = tape.Js.transpose() * gG;
-    }
-    if (!hess) return S::Ok;
-    Eigen::Matrix<double, LocalN, LocalN> M;
-    for (int j = 0; j < LocalN; ++j) M.row(j) = lp.derivatives()(j).derivatives().transpose();
-    tape.T1.noalias() = M.topLeftCorner<Carried, Carried>() * tape.Js;
-    H.setZero();
-    H.topLeftCorner(cols, cols).noalias() = tape.Js.transpose() * tape.T1;
-    // Backward: the adjoint of each record's outputs weighs the Hessians of those outputs.
-    Eigen::Matrix<double, Carried, 1> lambda = gG;
-    for (std::size_t i = K; i-- > 0;) {
-        const Bounce& b = tape.bounces[i];
-        M.setZero();
-        for (int k = 0; k < Carried; ++k)
-            if (lambda(k) != 0) M += lambda(k) * b.H[k];
-        const Eigen::MatrixXd& J = tape.Jz[i];
-        tape.T1.noalias() = M * J;
-        H.topLeftCorner(tape.cols[i], tape.cols[i]).noalias() += J.transpose() * tape.T1;
-        lambda = (b.A.transpose() * lambda).head<Carried>();
+    Eigen::Matrix<double, Carried, 1> lambda;
+    for (int k = 0; k < Carried; ++k) lambda(k) = lp.grad(Phys[k]);
+    if (grad) g.setZero();
+    if (hess) H.setZero();
+    Eigen::Matrix<double, Carried, Carried> Pi;
+    for (int k = 0; k < Carried; ++k)
+        for (int j = 0; j < Carried; ++j) Pi(k, j) = lp.hess(Phys[k], Phys[j]);
+    Eigen::Matrix<double, LocalN, LocalN> Q;
+    Eigen::Matrix<double, Carried, LocalN> PiJ;
+    for (std::size_t r = K; r-- > 0;) {
+        const Bounce& b = tape.bounces[r];
+        for (int c = 0; c < b.coords; ++c)
+            if (grad) g(b.index[c]) += b.A.col(Carried + c).dot(lambda);
+        if (hess) {
+            // Q = sum_k lambda_k d2F_k (the lower triangle, from each output's live part) + J^T Pi J.
+            Q.setZero();
+            for (int k = 0; k < Carried; ++k) {
+                const Local& o = b.out[k];
+                const double l = lambda(k);
+                if (l == 0 || o.constant()) continue;
+                for (int i = o.lo(); i < o.hi(); ++i) {
+                    const double* row = o.row(i);
+                    const int li = Logical[i];
+                    for (int j = o.lo(); j < i; ++j) {
+                        Q(li, Logical[j]) += l * row[j];
+                        Q(Logical[j], li) += l * row[j];
+                    }
+                    Q(li, li) += l * row[i];
+                }
+            }
+            PiJ.setZero();
+            for (int k = 0; k < Carried; ++k)
+                for (int j = 0; j < LocalN; ++j)
+                    if (const double a = b.A(k, j); a != 0) PiJ.col(j) += a * Pi.col(k);
+            for (int k = 0; k < Carried; ++k)
+                for (int j = 0; j < LocalN; ++j)
+                    if (const double a = b.A(k, j); a != 0) Q.col(j) += a * PiJ.row(k).transpose();
+            for (int c = 0; c < b.coords; ++c)
+                for (int e = 0; e < b.coords; ++e) H(b.index[c], b.index[e]) += Q(Carried + c, Carried + e);
+            const int cb = tape.cols[r];
+            if (cb > 0) {
+                const Eigen::Matrix<double, Carried, Eigen::Dynamic, Eigen::RowMajor>& Sr = tape.S[r];
+                for (int c = 0; c < b.coords; ++c) {
+                    const int col = b.index[c];
+                    for (int i = 0; i < cb; ++i) {
+                        const double v = Sr.col(i).dot(Q.block<Carried, 1>(0, Carried + c));
+                        H(i, col) += v;
+                        H(col, i) += v;
+                    }
+                }
+            }
+            Pi = Q.topLeftCorner<Carried, Carried>();
+        }
+        lambda = b.A.leftCols<Carried>().transpose() * lambda;
     }
     return S::Ok;
 }

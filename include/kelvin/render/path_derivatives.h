@@ -2,10 +2,12 @@
 // Derivatives of the `path` technique's contribution with respect to its primary samples (issue 14; what H2MC needs,
 // mlt/local.h): the gradient and Hessian of log(luminance) of a path sample, exactly as the Metropolis integrators
 // evaluate a state of the path technique (film position from coordinates 0-1 over the film domain, lens 2-3, then 7
-// numbers per bounce; path.cpp), by forward-over-forward automatic differentiation (nested Eigen::AutoDiffScalar of
-// a fixed size, 20): two bounces at a time with respect to the 11 numbers the path carries between bounces and the
-// bounces' own continuous coordinates, these records composed by the chain rule (Jacobians forward, the Hessian
-// backward). A path of n coordinates costs O(n) nested operations of size 20 plus O(n^2) per bounce to compose.
+// numbers per bounce; path.cpp), by second-order forward automatic differentiation (SecondOrder numbers,
+// render/second_order.h: value, gradient and packed Hessian over at most 15 inputs): one bounce at a time with
+// respect to the 11 numbers the path carries between bounces and the bounce's own continuous coordinates, these
+// records composed by the chain rule (Jacobians forward, the second-order adjoint of the carried numbers backward).
+// A path of n coordinates costs O(n) operations on small numbers plus O(n) per bounce to compose (O(n^2) in all:
+// each Hessian entry is written once); about 15 plain path evaluations (bench_h2mc's evals_per_derivative).
 //
 // The discrete decisions of the path (which primitive a ray hits, visibility of a shadow ray, the emitter chosen, the
 // triangle of the emitter, Russian roulette, which branch of a warp) are taken by the ordinary renderer (Embree) at
@@ -45,12 +47,12 @@ struct PathDerivativeOptions {
     Vec2d film_origin{0.0}, film_extent{1.0};  ///< the film domain coordinates 0-1 map to (pixels)
     double film_area = 1;                      ///< the value is luminance(L * film_area), as the MLT target
     int max_coordinates = 96;                  ///< longer blocks are refused (TooLong)
-    /// Differentiate bounce by bounce even when the block fits one local (24 inputs): for tests, which compare the
+    /// Differentiate bounce by bounce even when the block fits one local (15 inputs): for tests, which compare the
     /// two ways. Longer blocks are always segmented.
     bool always_segmented = false;
     /// A path whose discrete decisions change when one of its continuous coordinates moves by this much (either
     /// way) is reported Discontinuous instead of differentiated; 0: not checked. The check costs two plain path
-    /// evaluations per continuous coordinate (a fifth to a half more than the derivatives alone, bench_h2mc).
+    /// evaluations per continuous coordinate (three to six times the derivatives alone, bench_h2mc).
     double discontinuity_radius = 1e-5;
 
     /// The film domain the Metropolis integrators use: the film widened by the filter radius on every side,
@@ -83,7 +85,8 @@ public:
     /// log pi at the coordinates `coords` (index i: coords[i]) and its gradient and Hessian (n x n, column-major)
     /// with respect to the block: coordinate i < length is block entry block[i] (-1: held constant). `value`: the
     /// renderer's pi at the same point, for the Mismatch check (<= 0: not checked). grad and hess may be null (the
-    /// value alone). Thread-safe (no mutable state).
+    /// value alone); with grad and a null hess the gradient alone is computed, at about a third of the cost (about 5
+    /// plain path evaluations instead of 15, bench_h2mc's evals_per_gradient). Thread-safe (no mutable state).
     PathDerivativeStatus evaluate(const double* coords, const int* block, std::size_t length, int n, double value,
                                   double* log_value, double* grad, double* hess) const;
     /// log pi by the same code in plain doubles (for finite differences); -inf where pi = 0.
