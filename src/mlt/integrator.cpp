@@ -117,7 +117,7 @@ MetropolisIntegrator::MetropolisIntegrator(const Properties& props, bool delayed
         m_local = local1 || local2;
         if (m_local && technique != "path")
             props.error(!delayed_rejection ? std::string("mutation") : std::string(local1 ? "first" : "second"),
-                        "h2mc needs derivatives of the path contribution, which technique '" + technique +
+                        "h2mc and langevin need derivatives of the path contribution, which technique '" + technique +
                             "' does not provide; use technique=\"path\"");
     }
     m_rr_depth = int(rr_depth);
@@ -669,19 +669,21 @@ private:
             }
         }
         if (I.m_local) {
-            S.add("mlt.h2mc.proposals", double(cs.local_proposals), "proposals");
-            S.set("mlt.h2mc.acceptance",
-                  cs.local_proposals ? double(cs.local_accepted) / double(cs.local_proposals) : 0.0);
-            S.add("mlt.h2mc.derivatives", double(cs.derivatives), "paths");
-            S.add("mlt.h2mc.not_differentiable", double(cs.not_differentiable), "paths");
-            S.add("mlt.h2mc.unsupported", double(derivative_counts[int(PathDerivativeStatus::Unsupported)]), "paths");
-            S.add("mlt.h2mc.mismatch", double(derivative_counts[int(PathDerivativeStatus::Mismatch)]), "paths");
-            S.add("mlt.h2mc.too_long", double(derivative_counts[int(PathDerivativeStatus::TooLong)]), "paths");
-            S.add("mlt.h2mc.discontinuous", double(derivative_counts[int(PathDerivativeStatus::Discontinuous)]),
-                  "paths");
-            S.add("mlt.h2mc.small_hessian", double(cs.small_hessian), "paths");
-            S.set("mlt.h2mc.seconds_derivatives", cs.seconds_derivatives);
-            S.set("mlt.h2mc.seconds_gaussians", cs.seconds_gaussians);
+            // Named after the kernel: mlt.langevin.* when a stage is a langevin mutation, mlt.h2mc.* otherwise.
+            const bool lgv =
+                I.m_first->plugin_name() == "langevin" || (I.m_second && I.m_second->plugin_name() == "langevin");
+            const std::string k = lgv ? "mlt.langevin." : "mlt.h2mc.";
+            S.add(k + "proposals", double(cs.local_proposals), "proposals");
+            S.set(k + "acceptance", cs.local_proposals ? double(cs.local_accepted) / double(cs.local_proposals) : 0.0);
+            S.add(k + "derivatives", double(cs.derivatives), "paths");
+            S.add(k + "not_differentiable", double(cs.not_differentiable), "paths");
+            S.add(k + "unsupported", double(derivative_counts[int(PathDerivativeStatus::Unsupported)]), "paths");
+            S.add(k + "mismatch", double(derivative_counts[int(PathDerivativeStatus::Mismatch)]), "paths");
+            S.add(k + "too_long", double(derivative_counts[int(PathDerivativeStatus::TooLong)]), "paths");
+            S.add(k + "discontinuous", double(derivative_counts[int(PathDerivativeStatus::Discontinuous)]), "paths");
+            if (!lgv) S.add(k + "small_hessian", double(cs.small_hessian), "paths");
+            S.set(k + "seconds_derivatives", cs.seconds_derivatives);
+            S.set(k + "seconds_gaussians", cs.seconds_gaussians);
         }
         if (I.m_config.mixture) {
             S.add("mlt.mixture_second", double(cs.mixture_second), "mutations");
