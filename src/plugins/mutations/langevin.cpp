@@ -12,20 +12,28 @@
 // Sigma = eps^2 M; the chain's local ratio (local.h, MarkovChain::local_log_ratio) accepts x -> y with
 //     a = 1 ^ pi(y) N(x - y; mu_y, Sigma) / (pi(x) N(y - x; mu_x, Sigma))   (times the outside law's terms),
 // where mu_y uses the gradient at y and the same M: the reverse move's density is the kernel's at y, under the
-// adaptation state the step was made with. As the second stage of Green–Mira DR (after a cheap first stage, e.g. a
+// adaptation state the step was made with (with preconditioner="local", M(y) and Sigma(y) = eps^2 M(y) from y's
+// gradient). As the second stage of Green–Mira DR (after a cheap first stage, e.g. a
 // Gaussian) the same ratio Q2(x | z) / Q2(z | x) enters Eq. (4.10).
 //
-// ADAPTATION AND THE STATIONARY DISTRIBUTION. M is the only adapted quantity (no momentum). The paper adapts online,
-// per chain, and appeals to controlled-MCMC theory (diminishing adaptation, Roberts & Rosenthal 2007) for ergodicity.
-// Kelvin does the same in a form whose correctness is easy to state:
-//   1. frozen per step: within a step (its proposal and, in DR, its second stage) M is fixed; the forward and the
-//      reverse densities are built under the same M, so every step's kernel satisfies detailed balance for pi;
-//   2. updated between steps, once per state the chain enters, from that state's gradient: v_i is the plain
-//      running mean of g_i^2 (weight 1/k for the k-th observation of coordinate i: Adam's bias-corrected second
-//      moment with beta2 -> 1, so the adaptation diminishes);
-//   3. stopped: after `adapt_steps` observations of a coordinate its v_i is frozen, so from then on the chain is an
-//      ordinary, fixed Metropolis-Hastings chain for pi (ergodic and exact). The adaptation's transient is what
-//      biases a finite run, and only while it lasts; adapt_steps = 0 gives plain MALA (M = I), exact from the start.
+// ADAPTATION AND THE STATIONARY DISTRIBUTION (`preconditioner`). M is the only adapted quantity (no momentum).
+//   - `adaptive` (default; the paper's online scheme): v_i is the chain's running second moment. The paper adapts per
+//     chain and appeals to controlled-MCMC theory (diminishing adaptation, Roberts & Rosenthal 2007) for ergodicity;
+//     Kelvin does the same in a form whose properties are easy to state:
+//       1. frozen per step: within a step (its proposal and, in DR, its second stage) M is fixed; the forward and the
+//          reverse densities are built under the same M, so every step's kernel satisfies detailed balance for pi;
+//       2. updated between steps, once per state the chain enters, from that state's gradient: v_i is the plain
+//          running mean of g_i^2 (weight 1/k for the k-th observation of coordinate i: Adam's bias-corrected second
+//          moment with beta2 -> 1), so the adaptation diminishes;
+//       3. stopped: after `adapt_steps` observations of a coordinate its v_i is frozen, and from then on the chain is
+//          an ordinary, fixed Metropolis-Hastings chain for pi.
+//     Because M is learnt from the chain's own states, the state and M are dependent: a chain started in the
+//     stationary distribution leaves it while it adapts and returns to it at the chain's mixing rate after M
+//     freezes. The error is a start-up transient, asymptotically zero (the chain average converges to the right
+//     value) but not zero in a finite run; docs/mlt.md gives its size on analytic targets and on the Cornell box.
+//   - `local`: m_i = delta / (delta + |g_i(x)|), the gradient at the state itself (RMSprop with beta2 = 0). A
+//     function of the state alone, so the reverse density uses M(y) and g(y) and the chain is exact in every step.
+//   - `none`: M = I, plain MALA (exact).
 // Each chain owns its state (MarkovChain's LocalState), so images stay identical whatever the thread count.
 //
 // THE BOUNDARY. Primary sample space is the unit torus: steps are minimum-image differences, states wrap, and the
@@ -40,6 +48,7 @@
 // |-------------|---------|---------|-------------------------------------------------------------------------|
 // | sigma       | float   | 0.01    | eps: the step's standard deviation where m_i = 1 (and the outside law)  |
 // | delta       | float   | 100     | the preconditioner's gradient scale: m_i = delta / (delta + sqrt(v_i))  |
+// | preconditioner | string | adaptive | adaptive (the chain's running moments), local, none              |
 // | adapt_steps | integer | 1000    | observations per coordinate after which M is frozen; 0: M = I           |
 // | max_drift   | float   | 2       | the drift's cap, in standard deviations per coordinate                  |
 //
@@ -60,6 +69,16 @@ public:
         m_sigma = props.get_float("sigma", 1e-6, 1.0 / 32);
         m_delta = props.get_float("delta", 1e-9, 1e12);
         m_adapt_steps = uint32_t(props.get_int("adapt_steps", 0, 1000000000));
+        const std::string pre = props.get_string("preconditioner");
+        if (pre == "adaptive")
+            m_mode = Mode::Adaptive;
+        else if (pre == "local")
+            m_mode = Mode::Local;
+        else if (pre == "none")
+            m_mode = Mode::None;
+        else
+            props.error("preconditioner", "'" + pre + "' is not one of adaptive, local, none");
+        if (m_mode != Mode::Adaptive) m_adapt_steps = 0;
         m_max_drift = props.get_float("max_drift", 0.0, 8.0);
     }
 
@@ -99,7 +118,8 @@ public:
         double* basis = out.basis();
         double worst = 0;  // the largest |drift| / sd over the block
         for (int i = 0; i < n; ++i) {
-            const double m = preconditioner(state, pairs, i);
+            const double m =
+                m_mode == Mode::Local ? m_delta / (m_delta + std::abs(grad[i])) : preconditioner(state, pairs, i);
             sd[i] = m_sigma * std::sqrt(m);
             mean[i] = 0.5 * m_sigma * m_sigma * m * grad[i];
             worst = std::max(worst, std::abs(mean[i]) / sd[i]);
@@ -146,6 +166,8 @@ private:
         return m_delta / (m_delta + std::sqrt(state.moment[c]));
     }
 
+    enum class Mode { Adaptive, Local, None };
+    Mode m_mode = Mode::Adaptive;
     double m_sigma = 0.01, m_delta = 100, m_max_drift = 2;
     uint32_t m_adapt_steps = 1000;
 };
@@ -153,9 +175,12 @@ private:
 }  // namespace
 }  // namespace kelvin
 
-KELVIN_PLUGIN(kelvin::Langevin, "mutation", "langevin",
-              "Preconditioned Metropolis-adjusted Langevin (Luan et al. 2020); needs the target's gradient.",
-              kelvin::param::real("sigma", 0.01, "step eps: standard deviation where unpreconditioned (<= 1/32)"),
-              kelvin::param::real("delta", 100.0, "gradient scale of the preconditioner delta / (delta + sqrt(v))"),
-              kelvin::param::integer("adapt_steps", 1000, "observations per coordinate before M freezes; 0: M = I"),
-              kelvin::param::real("max_drift", 2.0, "drift cap in standard deviations per coordinate (MALTA)"));
+KELVIN_PLUGIN(
+    kelvin::Langevin, "mutation", "langevin",
+    "Preconditioned Metropolis-adjusted Langevin (Luan et al. 2020); needs the target's gradient.",
+    kelvin::param::real("sigma", 0.01, "step eps: standard deviation where unpreconditioned (<= 1/32)"),
+    kelvin::param::real("delta", 100.0, "gradient scale of the preconditioner delta / (delta + sqrt(v))"),
+    kelvin::param::string("preconditioner", "adaptive",
+                          "adaptive (the chain's running moments), local (the state's gradient), none (M = I)"),
+    kelvin::param::integer("adapt_steps", 1000, "observations per coordinate before M freezes; 0: M = I"),
+    kelvin::param::real("max_drift", 2.0, "drift cap in standard deviations per coordinate (MALTA)"));
