@@ -679,6 +679,19 @@ TEST(MltIntegrators, BadParametersAreInputErrors) {
                        R"(</mutation></integrator>)")
                   .find("sigma"),
               std::string::npos);
+    // langevin likewise (gradients of the path technique only), and its own parameters.
+    EXPECT_NE(error_of(R"(<integrator type="pssmlt"><string name="technique" value="bdpt"/><mutation type="langevin"/>)"
+                       R"(</integrator>)")
+                  .find("derivatives"),
+              std::string::npos);
+    EXPECT_NE(error_of(R"(<integrator type="pssmlt"><mutation type="langevin">)"
+                       R"(<string name="preconditioner" value="adam"/></mutation></integrator>)")
+                  .find("preconditioner"),
+              std::string::npos);
+    EXPECT_NE(error_of(R"(<integrator type="drmlt"><string name="type" value="green"/>)"
+                       R"(<mutation name="first" type="langevin"/></integrator>)")
+                  .find("first"),
+              std::string::npos);
 }
 
 }  // namespace
