@@ -137,7 +137,7 @@ public:
 
     void adapt(LocalAdaptation& state, int n, const uint32_t* pairs, const double* grad,
                bool differentiable) const override {
-        if (!differentiable || m_adapt_steps == 0 || !pairs) return;
+        if (!differentiable || m_adapt_steps == 0 || !pairs || n < 2) return;
         for (int i = 0; i < n; ++i)
             if (!std::isfinite(grad[i])) return;
         const std::size_t need = 2 * (std::size_t(pairs[n / 2 - 1]) + 1);
