@@ -372,6 +372,14 @@ double MarkovChain::start(const Target& target, const std::vector<double>& x0) {
     return pi;
 }
 
+void MarkovChain::warm_up(const Target& target, const std::vector<double>& independent, int steps) {
+    start(target, independent);
+    for (int k = 0; k < steps; ++k) step(target);
+    if (m_local) m_local->adaptation.frozen = true;
+    m_started = false;
+    reset_stats();
+}
+
 std::size_t MarkovChain::state_length() const {
     std::size_t end = 0;
     for (std::size_t p = 0; p < m_pairs; ++p)

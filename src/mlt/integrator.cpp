@@ -9,6 +9,7 @@
 #include <kelvin/core/progress.h>
 #include <kelvin/core/registry.h>
 #include <kelvin/mlt/integrator.h>
+#include <kelvin/mlt/local.h>
 #include <kelvin/render/film.h>
 #include <kelvin/render/path_derivatives.h>
 #include <kelvin/render/pss.h>
@@ -115,6 +116,12 @@ MetropolisIntegrator::MetropolisIntegrator(const Properties& props, bool delayed
     {
         const bool local1 = m_first->has_local(), local2 = m_second && m_second->has_local();
         m_local = local1 || local2;
+        // An adaptive local kernel (langevin) may ask for a warm-up of each chain from an independent start
+        // (MarkovChain::warm_up): the stage's own kernel (or, for a mixture, its first component's).
+        for (const Mutation* m : {m_first.get(), m_second.get()})
+            if (m && m->has_local())
+                if (const auto* a = dynamic_cast<const AdaptiveLocalKernel*>(m->local(0)))
+                    m_warmup = std::max(m_warmup, a->warmup_steps());
         if (m_local && technique != "path")
             props.error(!delayed_rejection ? std::string("mutation") : std::string(local1 ? "first" : "second"),
                         "h2mc and langevin need derivatives of the path contribution, which technique '" + technique +
@@ -439,6 +446,15 @@ private:
             I.m_derivatives = std::make_unique<PathDerivatives>(scene, o);
         }
         for (auto& n : derivative_status) n.store(0, std::memory_order_relaxed);
+        // Warm-up starts (adaptive local kernels, MarkovChain::warm_up): per chain an independent draw from the
+        // bootstrap states in proportion to pi, so that the adaptation a chain learns is independent of its own start
+        // given the bootstrap (only without mmlt, which local kernels refuse).
+        std::vector<double> boot_cdf;
+        if (I.m_warmup > 0) {
+            boot_cdf.resize(nboot);
+            double acc = 0;
+            for (std::size_t i = 0; i < nboot; ++i) boot_cdf[i] = acc += boot_pi[i];
+        }
         parallel_for_owned_units(comm, chains.size(), [&](std::size_t c) {
             Chain& ch = chains[c];
             std::vector<double> x;
@@ -463,6 +479,17 @@ private:
             const MarkovChain::Target target = [&](CoordinateSource& src, Slot slot) {
                 return chain_eval(ch, src, slot, counters[c]);
             };
+            if (I.m_warmup > 0) {
+                Random rw(hash_combine(ctx.seed, 0x7761726d), c);
+                const double u = rw.next_double() * boot_cdf.back();
+                std::size_t i = std::size_t(std::upper_bound(boot_cdf.begin(), boot_cdf.end(), u) - boot_cdf.begin());
+                i = std::min(i, nboot - 1);
+                while (i > 0 && boot_pi[i] == 0) --i;  // u on a zero-weight state's boundary
+                std::vector<double> xw;
+                if (!(evaluate_boot(i, xw, scratch, counters[c], nullptr, ignored) > 0))
+                    throw RuntimeError("internal error: a warm-up state did not reproduce its value");
+                ch.mc->warm_up(target, xw, I.m_warmup);
+            }
             if (!(ch.mc->start(target, x) > 0))
                 throw RuntimeError("internal error: a chain's first state has no value");
         });

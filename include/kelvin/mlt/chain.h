@@ -198,6 +198,14 @@ public:
     /// returns pi(x0). Throws Error if pi(x0) is not positive and finite.
     double start(const Target& target, const std::vector<double>& x0);
 
+    /// Adaptive local kernels (local.h, AdaptiveLocalKernel: langevin): runs `steps` steps from `independent`, a state
+    /// drawn independently of the x0 the chain will be started at, adapting the chain's adaptation state, then freezes
+    /// that state and clears the statistics; start() must follow. The chain's kernel is then fixed and independent of
+    /// its start, so the run is exact (an adaptation learnt from the chain's own run is not: local.h).
+    void warm_up(const Target& target, const std::vector<double>& independent, int steps);
+    /// Clears the statistics (stats()).
+    void reset_stats() { m_stats = ChainStats{}; }
+
     /// One DR step. Before the call, state()/value() are x; after it, the new current state. previous(), y()
     /// and z() hold the step's states (x and its proposals) for waste recycling, until the next step; only the
     /// coordinate pairs realised during the step are meaningful (those the states' paths read among them).

@@ -104,6 +104,7 @@ struct LocalAdaptation {
     std::vector<double> moment;   ///< per coordinate: the kernel's running estimate
     std::vector<uint32_t> count;  ///< per coordinate: the observations folded into it
     uint64_t updates = 0;         ///< states folded in
+    bool frozen = false;          ///< set by MarkovChain::warm_up: adapt() must not change the state any more
 };
 
 /// A local kernel whose Gaussian is built from the gradient of log pi alone (no Hessian: the chain's DerivativeQuery
@@ -125,6 +126,9 @@ public:
     /// Folds the gradient of a state the chain is in into `state` (between steps; arguments as for build_adapted).
     virtual void adapt(LocalAdaptation& state, int n, const uint32_t* pairs, const double* grad,
                        bool differentiable) const = 0;
+    /// Steps of MarkovChain::warm_up a chain should run from an independent start before its own start, learning the
+    /// state and then freezing it (0: adapt online, within the run).
+    virtual int warmup_steps() const { return 0; }
 };
 
 /// Li et al.'s H2MC Gaussian (see h2mc_gaussian in local.cpp for the formulas).

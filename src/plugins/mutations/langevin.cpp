@@ -16,21 +16,23 @@
 // gradient). As the second stage of Green–Mira DR (after a cheap first stage, e.g. a
 // Gaussian) the same ratio Q2(x | z) / Q2(z | x) enters Eq. (4.10).
 //
-// ADAPTATION AND THE STATIONARY DISTRIBUTION (`preconditioner`). M is the only adapted quantity (no momentum).
-//   - `adaptive` (default; the paper's online scheme): v_i is the chain's running second moment. The paper adapts per
-//     chain and appeals to controlled-MCMC theory (diminishing adaptation, Roberts & Rosenthal 2007) for ergodicity;
-//     Kelvin does the same in a form whose properties are easy to state:
-//       1. frozen per step: within a step (its proposal and, in DR, its second stage) M is fixed; the forward and the
-//          reverse densities are built under the same M, so every step's kernel satisfies detailed balance for pi;
-//       2. updated between steps, once per state the chain enters, from that state's gradient: v_i is the plain
+// ADAPTATION AND THE STATIONARY DISTRIBUTION (`preconditioner`, `warmup`). M is the only adapted quantity (no
+// momentum).
+//   - `adaptive` (default): v_i is the chain's running second moment of g_i. The paper adapts online and appeals to
+//     controlled-MCMC theory (diminishing adaptation, Roberts & Rosenthal 2007) for ergodicity. Kelvin's kernel:
+//       1. is frozen within a step (its proposal and, in DR, its second stage): the forward and the reverse densities
+//          are built under the same M, so every step's kernel satisfies detailed balance for pi;
+//       2. changes between steps, once per state the chain enters, from that state's gradient: v_i is the plain
 //          running mean of g_i^2 (weight 1/k for the k-th observation of coordinate i: Adam's bias-corrected second
-//          moment with beta2 -> 1), so the adaptation diminishes;
-//       3. stopped: after `adapt_steps` observations of a coordinate its v_i is frozen, and from then on the chain is
-//          an ordinary, fixed Metropolis-Hastings chain for pi.
-//     Because M is learnt from the chain's own states, the state and M are dependent: a chain started in the
-//     stationary distribution leaves it while it adapts and returns to it at the chain's mixing rate after M
-//     freezes. The error is a start-up transient, asymptotically zero (the chain average converges to the right
-//     value) but not zero in a finite run; docs/mlt.md gives its size on analytic targets and on the Cornell box.
+//          moment with beta2 -> 1), so the adaptation diminishes, and it stops after `adapt_steps` observations;
+//       3. with `warmup` > 0 (default 32) learns only on a warm-up: the integrator runs each chain `warmup` steps from
+//          its own independent draw of the bootstrap states, freezes M (MarkovChain::warm_up) and starts the chain at
+//          its start state. M is then independent of the start, which is distributed as pi (up to the bootstrap, as
+//          for every kernel), and the kernel is fixed: the run is exact. Nothing of the warm-up is splatted.
+//     With `warmup` = 0 the chain adapts online during the run, as the paper does: M is learnt from the chain's own
+//     states, state and M are dependent, and a chain started in the stationary distribution leaves it while it
+//     adapts and returns at its mixing rate once M freezes: a start-up transient, asymptotically zero, measurable in
+//     short runs (docs/mlt.md gives its size).
 //   - `local`: m_i = delta / (delta + |g_i(x)|), the gradient at the state itself (RMSprop with beta2 = 0). A
 //     function of the state alone, so the reverse density uses M(y) and g(y) and the chain is exact in every step.
 //   - `none`: M = I, plain MALA (exact).
@@ -50,6 +52,7 @@
 // | delta       | float   | 100     | the preconditioner's gradient scale: m_i = delta / (delta + sqrt(v_i))  |
 // | preconditioner | string | adaptive | adaptive (the chain's running moments), local, none              |
 // | adapt_steps | integer | 1000    | observations per coordinate after which M is frozen; 0: M = I           |
+// | warmup      | integer | 32      | adaptive: warm-up steps per chain from an independent start; 0: online  |
 // | max_drift   | float   | 2       | the drift's cap, in standard deviations per coordinate                  |
 //
 //     <mutation type="langevin"><float name="sigma" value="0.01"/></mutation>
@@ -78,7 +81,8 @@ public:
             m_mode = Mode::None;
         else
             props.error("preconditioner", "'" + pre + "' is not one of adaptive, local, none");
-        if (m_mode != Mode::Adaptive) m_adapt_steps = 0;
+        m_warmup = int(props.get_int("warmup", 0, 1000000));
+        if (m_mode != Mode::Adaptive) m_adapt_steps = 0, m_warmup = 0;
         m_max_drift = props.get_float("max_drift", 0.0, 8.0);
     }
 
@@ -137,7 +141,7 @@ public:
 
     void adapt(LocalAdaptation& state, int n, const uint32_t* pairs, const double* grad,
                bool differentiable) const override {
-        if (!differentiable || m_adapt_steps == 0 || !pairs || n < 2) return;
+        if (state.frozen || !differentiable || m_adapt_steps == 0 || !pairs || n < 2) return;
         for (int i = 0; i < n; ++i)
             if (!std::isfinite(grad[i])) return;
         const std::size_t need = 2 * (std::size_t(pairs[n / 2 - 1]) + 1);
@@ -153,6 +157,8 @@ public:
         }
         ++state.updates;
     }
+
+    int warmup_steps() const override { return m_warmup; }
 
 private:
     static std::size_t coordinate(const uint32_t* pairs, int i) {
@@ -170,6 +176,7 @@ private:
     Mode m_mode = Mode::Adaptive;
     double m_sigma = 0.01, m_delta = 100, m_max_drift = 2;
     uint32_t m_adapt_steps = 1000;
+    int m_warmup = 32;
 };
 
 }  // namespace
@@ -183,4 +190,6 @@ KELVIN_PLUGIN(
     kelvin::param::string("preconditioner", "adaptive",
                           "adaptive (the chain's running moments), local (the state's gradient), none (M = I)"),
     kelvin::param::integer("adapt_steps", 1000, "observations per coordinate before M freezes; 0: M = I"),
+    kelvin::param::integer("warmup", 32,
+                           "adaptive: steps per chain from an independent start, then M frozen; 0: online"),
     kelvin::param::real("max_drift", 2.0, "drift cap in standard deviations per coordinate (MALTA)"));
