@@ -546,9 +546,9 @@ namespace {
 // wrong Hastings ratio in one step, where the stationarity tests above need it to accumulate over the run. The target
 // is a quartic well in u, pi = exp(-((u - 1/2) / s)^4) with s = 0.01 (its gradient varies along a step; v is read and
 // flat), binned in 24 cells of s / 8. For the adaptive preconditioner each sample first warms a chain up for 20 steps
-// from an independent exact start, then restarts it (MarkovChain::start keeps the adaptation state) from a fresh exact
-// X0: the kernel is then one of a fixed, non-trivial M, independent of X0, as the contract of AdaptiveLocalKernel
-// says each step is.
+// from an independent exact start (MarkovChain::warm_up, as the integrator does; the state is then frozen), then starts
+// it from a fresh exact X0: the kernel is then one of a fixed, non-trivial M, independent of X0, as the contract of
+// AdaptiveLocalKernel says each step is.
 struct SymmetryRun {
     double stat = 0;
     int dof = 0;
@@ -585,10 +585,7 @@ SymmetryRun symmetry(const ChainConfig& cfg, int warmup, int samples = 100000) {
     for (int k = 0; k < samples; ++k) {
         MarkovChain chain(cfg, 41, uint64_t(k));
         chain.set_derivatives(deriv);
-        if (warmup > 0) {
-            chain.start(target, exact());
-            for (int t = 0; t < warmup; ++t) chain.step(target);
-        }
+        if (warmup > 0) chain.warm_up(target, exact(), warmup);
         const std::vector<double> x0 = exact();
         chain.start(target, x0);
         chain.step(target);
