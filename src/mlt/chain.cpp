@@ -110,15 +110,21 @@ void validate(const ChainConfig& c) {
 }
 
 // Local kernels: the Gaussians of x ([0], cached while x stays) and of the current proposal ([1]), with the pairs
-// of their blocks, and the scratch space of the derivative queries. Everything grows to the longest path once.
+// of their blocks, the gradients they were built from, and the scratch space of the derivative queries. An adaptive
+// kernel's per-chain state (langevin's preconditioner) changes only between steps (end of step()). Everything grows
+// to the longest path once.
 struct MarkovChain::LocalState {
     LocalWorkspace ws;
     BlockGaussian g[2];
     std::vector<uint32_t> pairs[2];
+    std::vector<double> grad[2];
+    bool differentiable[2] = {false, false};
     const LocalKernel* kernel[2] = {nullptr, nullptr};
     bool x_ready = false;
+    bool x_folded = true;  // x's gradient is in the adaptation state (or x's kernel is not adaptive)
+    LocalAdaptation adaptation;
     std::vector<int> block;
-    std::vector<double> grad, hess, delta;
+    std::vector<double> hess, delta;
 };
 
 MarkovChain::MarkovChain(const ChainConfig& config, uint64_t seed, uint64_t stream, bool stage_timing)
@@ -157,23 +163,29 @@ bool MarkovChain::local_gaussian(int slot, const LocalKernel& k) {
         L.block[2 * pairs[q]] = int(2 * q);
         L.block[2 * pairs[q] + 1] = int(2 * q + 1);
     }
-    L.grad.assign(std::size_t(n), 0.0);
-    L.hess.assign(std::size_t(n) * std::size_t(n), 0.0);
+    const auto* adaptive = dynamic_cast<const AdaptiveLocalKernel*>(&k);
+    const bool hessian = !adaptive;  // adaptive kernels use the gradient only
+    std::vector<double>& grad = L.grad[which];
+    grad.assign(std::size_t(n), 0.0);
+    if (hessian) L.hess.assign(std::size_t(n) * std::size_t(n), 0.0);
     DerivativeQuery query;
     query.coords = s.v.data();
     query.block = L.block.data();
     query.length = length;
     query.n = n;
     query.value = m_pi[std::size_t(slot)];
-    query.grad = L.grad.data();
-    query.hess = L.hess.data();
+    query.grad = grad.data();
+    query.hess = hessian ? L.hess.data() : nullptr;
     Clock::time_point t0;
     if (m_timing) t0 = Clock::now();
     const bool differentiable = m_derivatives(query);
     Clock::time_point t1;
     if (m_timing) t1 = Clock::now();
     ++m_stats.derivatives;
-    const LocalBuild b = k.build(n, L.grad.data(), L.hess.data(), differentiable, L.ws, L.g[which]);
+    const LocalBuild b =
+        adaptive ? adaptive->build_adapted(L.adaptation, n, pairs.data(), grad.data(), differentiable, L.g[which])
+                 : k.build(n, grad.data(), L.hess.data(), differentiable, L.ws, L.g[which]);
+    L.differentiable[which] = differentiable;
     if (m_timing) {
         m_stats.seconds_derivatives += std::chrono::duration<double>(t1 - t0).count();
         m_stats.seconds_gaussians += std::chrono::duration<double>(Clock::now() - t1).count();
@@ -181,7 +193,10 @@ bool MarkovChain::local_gaussian(int slot, const LocalKernel& k) {
     if (b == LocalBuild::NotDifferentiable) ++m_stats.not_differentiable;
     if (b == LocalBuild::SmallHessian) ++m_stats.small_hessian;
     L.kernel[which] = &k;
-    if (slot == X) L.x_ready = true;
+    if (slot == X) {
+        L.x_ready = true;
+        L.x_folded = false;
+    }
     return true;
 }
 
@@ -355,6 +370,14 @@ double MarkovChain::start(const Target& target, const std::vector<double>& x0) {
     m_last = StepOutcome{};
     if (m_local) m_local->x_ready = false;
     return pi;
+}
+
+void MarkovChain::warm_up(const Target& target, const std::vector<double>& independent, int steps) {
+    start(target, independent);
+    for (int k = 0; k < steps; ++k) step(target);
+    if (m_local) m_local->adaptation.frozen = true;
+    m_started = false;
+    reset_stats();
 }
 
 std::size_t MarkovChain::state_length() const {
@@ -545,8 +568,11 @@ StepOutcome MarkovChain::step(const Target& target) {
         if (built) {
             std::swap(L.g[0], L.g[1]);
             std::swap(L.pairs[0], L.pairs[1]);
+            std::swap(L.grad[0], L.grad[1]);
+            std::swap(L.differentiable[0], L.differentiable[1]);
             L.kernel[0] = built;
             L.x_ready = true;
+            L.x_folded = false;
         } else {
             L.x_ready = false;
         }
@@ -555,6 +581,18 @@ StepOutcome MarkovChain::step(const Target& target) {
         std::swap(m_s[X], m_s[std::size_t(out.accepted)]);
         std::swap(m_pi[X], m_pi[std::size_t(out.accepted)]);
         m_x_epoch = m_epoch;
+    }
+    // An adaptive local kernel (langevin): between steps, the gradient of the state the chain is now in (once per
+    // state) updates the chain's adaptation state, and x's Gaussian is rebuilt under it from the kept gradient, so
+    // that the next step's forward and reverse densities are built under the same state (local.h).
+    if (m_local && m_local->x_ready && !m_local->x_folded) {
+        LocalState& L = *m_local;
+        L.x_folded = true;
+        if (const auto* a = dynamic_cast<const AdaptiveLocalKernel*>(L.kernel[0])) {
+            const int n = int(L.grad[0].size());
+            a->adapt(L.adaptation, n, L.pairs[0].data(), L.grad[0].data(), L.differentiable[0]);
+            a->build_adapted(L.adaptation, n, L.pairs[0].data(), L.grad[0].data(), L.differentiable[0], L.g[0]);
+        }
     }
     m_last = out;
     return out;

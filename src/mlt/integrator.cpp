@@ -9,6 +9,7 @@
 #include <kelvin/core/progress.h>
 #include <kelvin/core/registry.h>
 #include <kelvin/mlt/integrator.h>
+#include <kelvin/mlt/local.h>
 #include <kelvin/render/film.h>
 #include <kelvin/render/path_derivatives.h>
 #include <kelvin/render/pss.h>
@@ -115,9 +116,15 @@ MetropolisIntegrator::MetropolisIntegrator(const Properties& props, bool delayed
     {
         const bool local1 = m_first->has_local(), local2 = m_second && m_second->has_local();
         m_local = local1 || local2;
+        // An adaptive local kernel (langevin) may ask for a warm-up of each chain from an independent start
+        // (MarkovChain::warm_up): the stage's own kernel (or, for a mixture, its first component's).
+        for (const Mutation* m : {m_first.get(), m_second.get()})
+            if (m && m->has_local())
+                if (const auto* a = dynamic_cast<const AdaptiveLocalKernel*>(m->local(0)))
+                    m_warmup = std::max(m_warmup, a->warmup_steps());
         if (m_local && technique != "path")
             props.error(!delayed_rejection ? std::string("mutation") : std::string(local1 ? "first" : "second"),
-                        "h2mc needs derivatives of the path contribution, which technique '" + technique +
+                        "h2mc and langevin need derivatives of the path contribution, which technique '" + technique +
                             "' does not provide; use technique=\"path\"");
     }
     m_rr_depth = int(rr_depth);
@@ -439,6 +446,15 @@ private:
             I.m_derivatives = std::make_unique<PathDerivatives>(scene, o);
         }
         for (auto& n : derivative_status) n.store(0, std::memory_order_relaxed);
+        // Warm-up starts (adaptive local kernels, MarkovChain::warm_up): per chain an independent draw from the
+        // bootstrap states in proportion to pi, so that the adaptation a chain learns is independent of its own start
+        // given the bootstrap (only without mmlt, which local kernels refuse).
+        std::vector<double> boot_cdf;
+        if (I.m_warmup > 0) {
+            boot_cdf.resize(nboot);
+            double acc = 0;
+            for (std::size_t i = 0; i < nboot; ++i) boot_cdf[i] = acc += boot_pi[i];
+        }
         parallel_for_owned_units(comm, chains.size(), [&](std::size_t c) {
             Chain& ch = chains[c];
             std::vector<double> x;
@@ -463,6 +479,17 @@ private:
             const MarkovChain::Target target = [&](CoordinateSource& src, Slot slot) {
                 return chain_eval(ch, src, slot, counters[c]);
             };
+            if (I.m_warmup > 0) {
+                Random rw(hash_combine(ctx.seed, 0x7761726d), c);
+                const double u = rw.next_double() * boot_cdf.back();
+                std::size_t i = std::size_t(std::upper_bound(boot_cdf.begin(), boot_cdf.end(), u) - boot_cdf.begin());
+                i = std::min(i, nboot - 1);
+                while (i > 0 && boot_pi[i] == 0) --i;  // u on a zero-weight state's boundary
+                std::vector<double> xw;
+                if (!(evaluate_boot(i, xw, scratch, counters[c], nullptr, ignored) > 0))
+                    throw RuntimeError("internal error: a warm-up state did not reproduce its value");
+                ch.mc->warm_up(target, xw, I.m_warmup);
+            }
             if (!(ch.mc->start(target, x) > 0))
                 throw RuntimeError("internal error: a chain's first state has no value");
         });
@@ -669,19 +696,21 @@ private:
             }
         }
         if (I.m_local) {
-            S.add("mlt.h2mc.proposals", double(cs.local_proposals), "proposals");
-            S.set("mlt.h2mc.acceptance",
-                  cs.local_proposals ? double(cs.local_accepted) / double(cs.local_proposals) : 0.0);
-            S.add("mlt.h2mc.derivatives", double(cs.derivatives), "paths");
-            S.add("mlt.h2mc.not_differentiable", double(cs.not_differentiable), "paths");
-            S.add("mlt.h2mc.unsupported", double(derivative_counts[int(PathDerivativeStatus::Unsupported)]), "paths");
-            S.add("mlt.h2mc.mismatch", double(derivative_counts[int(PathDerivativeStatus::Mismatch)]), "paths");
-            S.add("mlt.h2mc.too_long", double(derivative_counts[int(PathDerivativeStatus::TooLong)]), "paths");
-            S.add("mlt.h2mc.discontinuous", double(derivative_counts[int(PathDerivativeStatus::Discontinuous)]),
-                  "paths");
-            S.add("mlt.h2mc.small_hessian", double(cs.small_hessian), "paths");
-            S.set("mlt.h2mc.seconds_derivatives", cs.seconds_derivatives);
-            S.set("mlt.h2mc.seconds_gaussians", cs.seconds_gaussians);
+            // Named after the kernel: mlt.langevin.* when a stage is a langevin mutation, mlt.h2mc.* otherwise.
+            const bool lgv =
+                I.m_first->plugin_name() == "langevin" || (I.m_second && I.m_second->plugin_name() == "langevin");
+            const std::string k = lgv ? "mlt.langevin." : "mlt.h2mc.";
+            S.add(k + "proposals", double(cs.local_proposals), "proposals");
+            S.set(k + "acceptance", cs.local_proposals ? double(cs.local_accepted) / double(cs.local_proposals) : 0.0);
+            S.add(k + "derivatives", double(cs.derivatives), "paths");
+            S.add(k + "not_differentiable", double(cs.not_differentiable), "paths");
+            S.add(k + "unsupported", double(derivative_counts[int(PathDerivativeStatus::Unsupported)]), "paths");
+            S.add(k + "mismatch", double(derivative_counts[int(PathDerivativeStatus::Mismatch)]), "paths");
+            S.add(k + "too_long", double(derivative_counts[int(PathDerivativeStatus::TooLong)]), "paths");
+            S.add(k + "discontinuous", double(derivative_counts[int(PathDerivativeStatus::Discontinuous)]), "paths");
+            if (!lgv) S.add(k + "small_hessian", double(cs.small_hessian), "paths");
+            S.set(k + "seconds_derivatives", cs.seconds_derivatives);
+            S.set(k + "seconds_gaussians", cs.seconds_gaussians);
         }
         if (I.m_config.mixture) {
             S.add("mlt.mixture_second", double(cs.mixture_second), "mutations");

@@ -64,12 +64,15 @@ TEST(MarkovChain, StepsAllocateNothingOnceWarm) {
 // once. The derivatives are synthetic (a diagonal Hessian large enough for the anisotropic branch).
 TEST(MarkovChain, LocalKernelStepsAllocateNothingOnceWarm) {
     auto h2mc = mutation("h2mc"), iso = mutation("gaussian", {{"sigma", 0.01}});
+    auto langevin = mutation("langevin");  // adaptive: its per-chain state grows once too
     struct C {
         const char* name;
         ChainConfig cfg;
     };
     const C configs[] = {{"MH/h2mc", {h2mc.get(), nullptr, DrType::None, 0.3}},
-                         {"green/h2mc", {iso.get(), h2mc.get(), DrType::Green, 0.3, true}}};
+                         {"green/h2mc", {iso.get(), h2mc.get(), DrType::Green, 0.3, true}},
+                         {"MH/langevin", {langevin.get(), nullptr, DrType::None, 0.3}},
+                         {"green/langevin", {iso.get(), langevin.get(), DrType::Green, 0.3, true}}};
     const MarkovChain::Target target = [](CoordinateSource& s, Slot) {
         const double u = s.at(0);
         const int n = 2 + int(20 * u);
@@ -79,8 +82,8 @@ TEST(MarkovChain, LocalKernelStepsAllocateNothingOnceWarm) {
     };
     const TargetDerivatives d = [](const DerivativeQuery& q) {
         for (int i = 0; i < q.n; ++i) {
-            q.grad[i] = 1.0;
-            q.hess[std::size_t(i) * std::size_t(q.n) + std::size_t(i)] = i % 2 ? -1e4 : 2e4;
+            q.grad[i] = 1.0 + i;
+            if (q.hess) q.hess[std::size_t(i) * std::size_t(q.n) + std::size_t(i)] = i % 2 ? -1e4 : 2e4;
         }
         return true;
     };

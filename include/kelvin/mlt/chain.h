@@ -73,6 +73,9 @@
 // with the ratio of local.h. A mixture picks its component independently of the state, so each component may be
 // accepted with its own ratio (a symmetric one by the usual formulas). Not with Tierney–Mira, orbital, the mixture
 // mode, several streams or fixed pairs (refused by check()).
+// Adaptive local kernels (local.h: AdaptiveLocalKernel, `langevin`) use the gradient only (the query's hess is null)
+// and a per-chain adaptation state that is frozen within a step and updated at its end from the gradient of the
+// state the chain is then in (once per state), after which x's Gaussian is rebuilt under the new state.
 //
 // Invalid target values (NaN, Inf, negative) make a proposal invalid: acceptance 0, counted, never weighted.
 // No allocation per step once the state arrays have grown to the longest path.
@@ -102,7 +105,8 @@ struct DerivativeQuery {
     int n = 0;                       ///< block size (2 x the pairs read)
     double value = 0;                ///< pi at the state (positive)
     double* grad = nullptr;          ///< out: d log pi / d block_k, n values, zeroed by the chain
-    double* hess = nullptr;          ///< out: n x n column-major, zeroed by the chain
+    double* hess = nullptr;          ///< out: n x n column-major, zeroed by the chain; null: gradient only
+                                     ///< (adaptive, gradient-based kernels: langevin)
 };
 /// Fills grad and hess; returns false where log pi is not twice differentiable at the state (a discontinuity,
 /// an unsupported plugin): the local kernel then falls back to its isotropic Gaussian (counted).
@@ -193,6 +197,14 @@ public:
     /// Starts the chain at x0 (its path reads the coordinates it needs; missing ones are drawn uniformly) and
     /// returns pi(x0). Throws Error if pi(x0) is not positive and finite.
     double start(const Target& target, const std::vector<double>& x0);
+
+    /// Adaptive local kernels (local.h, AdaptiveLocalKernel: langevin): runs `steps` steps from `independent`, a state
+    /// drawn independently of the x0 the chain will be started at, adapting the chain's adaptation state, then freezes
+    /// that state and clears the statistics; start() must follow. The chain's kernel is then fixed and independent of
+    /// its start, so the run is exact (an adaptation learnt from the chain's own run is not: local.h).
+    void warm_up(const Target& target, const std::vector<double>& independent, int steps);
+    /// Clears the statistics (stats()).
+    void reset_stats() { m_stats = ChainStats{}; }
 
     /// One DR step. Before the call, state()/value() are x; after it, the new current state. previous(), y()
     /// and z() hold the step's states (x and its proposals) for waste recycling, until the next step; only the

@@ -112,6 +112,7 @@ private:
     bool m_hide_emitters = false;
     int m_rr_depth = 5;
     bool m_local = false;  // a kernel has local proposals (h2mc): the chains get the path's derivatives
+    int m_warmup = 0;      // an adaptive local kernel's warm-up steps per chain (langevin), from an independent start
     std::unique_ptr<PathDerivatives> m_derivatives;  // built per render when m_local
     SourceLoc m_technique_loc;
     bool m_waste_recycling;

@@ -21,6 +21,7 @@
 #include <kelvin/core/random.h>
 
 #include <cstddef>
+#include <cstdint>
 #include <memory>
 #include <vector>
 
@@ -94,6 +95,40 @@ public:
                              BlockGaussian& out) const = 0;
     /// The scale of the outside law.
     virtual double outside_sigma() const = 0;
+};
+
+/// Per-chain state of an adaptive local kernel (AdaptiveLocalKernel): running estimates per primary-sample coordinate
+/// (index 2 p + j of pair p), grown to the longest path read. The chain owns one; the kernel says what the numbers
+/// mean (langevin: the running mean of the squared gradient of log pi, the preconditioner's second moment).
+struct LocalAdaptation {
+    std::vector<double> moment;   ///< per coordinate: the kernel's running estimate
+    std::vector<uint32_t> count;  ///< per coordinate: the observations folded into it
+    uint64_t updates = 0;         ///< states folded in
+    bool frozen = false;          ///< set by MarkovChain::warm_up: adapt() must not change the state any more
+};
+
+/// A local kernel whose Gaussian is built from the gradient of log pi alone (no Hessian: the chain's DerivativeQuery
+/// then has hess null) and a per-chain adaptation state, and may depend on which coordinates the block holds
+/// (langevin's diagonal preconditioner). The chain finds it by dynamic_cast, so LocalKernel itself is unchanged.
+/// The contract that keeps the chain correct (chain.h, "local kernels"):
+///   - within a step the state is frozen: the forward density (x's Gaussian) and the reverse one (the proposal's)
+///     are built under the same state, so each step's kernel satisfies detailed balance with respect to pi;
+///   - between steps the chain folds the gradient of the state it is in (once per visited state whose derivatives
+///     were evaluated) into the state by adapt(), then rebuilds x's Gaussian under the new state from the gradient
+///     it kept. The kernel's adapt() decides how the adaptation diminishes (langevin.cpp: running means that stop).
+/// LocalKernel::build (no state, no coordinates) must be the kernel under an empty LocalAdaptation.
+class AdaptiveLocalKernel : public LocalKernel {
+public:
+    /// The Gaussian of the block under `state`: pairs[q] is the pair index of block entries 2q and 2q + 1, grad and
+    /// differentiable as for build(). Must depend on its arguments only.
+    virtual LocalBuild build_adapted(const LocalAdaptation& state, int n, const uint32_t* pairs, const double* grad,
+                                     bool differentiable, BlockGaussian& out) const = 0;
+    /// Folds the gradient of a state the chain is in into `state` (between steps; arguments as for build_adapted).
+    virtual void adapt(LocalAdaptation& state, int n, const uint32_t* pairs, const double* grad,
+                       bool differentiable) const = 0;
+    /// Steps of MarkovChain::warm_up a chain should run from an independent start before its own start, learning the
+    /// state and then freezing it (0: adapt online, within the run).
+    virtual int warmup_steps() const { return 0; }
 };
 
 /// Li et al.'s H2MC Gaussian (see h2mc_gaussian in local.cpp for the formulas).
