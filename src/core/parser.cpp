@@ -249,6 +249,7 @@ private:
     ParsedScene parse_root_unchecked(const fs::path& path, const std::string* text, const std::string& display) {
         FileText& f = load(path, text, display, {});
         m_root_dir = f.path.parent_path();
+        if (m_root_dir.empty() && !text) m_root_dir = ".";  // a scene file named without a folder
         pugi::xml_document& doc = m_docs.emplace_back();
         pugi::xml_node root = parse_xml(doc, f, 0);
         mark_legacy(f, root);
@@ -263,11 +264,7 @@ private:
         m_include_stack.pop_back();
         resolve_pending_refs();
         m_out.root = node;
-        m_out.search_paths.assign(m_search_paths.rbegin(), m_search_paths.rend());
-        // Mitsuba's file resolver also holds the folder of the root scene file (searched last), so that an included
-        // file can name files relative to the scene that includes it (Mitsuba's include/test-scene-base.xml names
-        // meshes/background.obj next to the scene). Only for scenes that declare a <path>, as Mitsuba's do.
-        if (!m_root_dir.empty() && !m_search_paths.empty()) m_out.search_paths.push_back(m_root_dir);
+        m_out.search_paths = resolver_paths();
         for (const auto& [k, v] : m_opts.defines)
             if (!m_used_params.count(k)) m_out.unused_defines.push_back(k);
         return std::move(m_out);
@@ -647,16 +644,21 @@ private:
                 m_params.emplace(name, value);  // -D and earlier defaults win
                 m_out.defaults.push_back({name, value, loc});
             } else if (tag == "path") {
-                // Mitsuba's search path for file names: relative to the declaring file, searched after the
-                // folder of the file that names a file; later declarations are searched first.
+                // Mitsuba's search path: the folder is looked for relative to the declaring file, then through the
+                // search path so far, and is then prepended to it (searched before the folders declared earlier).
                 check_attributes(n, f, {"value"});
                 reject_children(n, f);
                 if (target.kind != "scene") throw_input(loc, "<path> can only be a child of <scene>");
-                fs::path dir = attr(n, f, "value");
-                if (dir.is_relative()) dir = f.path.parent_path() / dir;
-                dir = dir.lexically_normal();
+                const fs::path value = attr(n, f, "value");
+                const std::vector<fs::path> so_far = resolver_paths();
+                const fs::path dir = resolve_file(value, f.path.parent_path(), so_far, true).lexically_normal();
                 std::error_code ec;
-                if (!fs::is_directory(dir, ec)) throw_input(loc, "<path>: folder '{}' not found", dir.string());
+                if (!fs::is_directory(dir, ec)) {
+                    const std::string where = searched_folders(f.path.parent_path(), so_far);
+                    if (value.is_absolute() || where.empty())
+                        throw_input(loc, "<path>: folder '{}' not found", dir.string());
+                    throw_input(loc, "<path>: folder '{}' not found (looked in {})", value.string(), where);
+                }
                 m_search_paths.push_back(dir);
             } else if (tag == "include") {
                 check_attributes(n, f, {"filename"});
@@ -686,21 +688,17 @@ private:
 
     void include(const std::string& filename, const FileText& from, const SourceLoc& loc, SceneNode& target,
                  int depth) {
-        fs::path p = filename;
+        // Relative to the including file, then through the search path as it stands at the <include> (Mitsuba
+        // reads includes while parsing: a <path> declared further down does not apply to them).
+        const std::vector<fs::path> search = resolver_paths();
+        fs::path p = resolve_file(filename, from.path.parent_path(), search).lexically_normal();
         std::error_code ec;
-        if (p.is_relative()) {
-            p = (from.path.parent_path() / p).lexically_normal();
-            if (!fs::exists(p, ec))
-                for (auto d = m_search_paths.rbegin(); d != m_search_paths.rend(); ++d)
-                    if (fs::exists(*d / filename, ec)) {
-                        p = (*d / filename).lexically_normal();
-                        break;
-                    }
-            if (!fs::exists(p, ec) && !m_root_dir.empty() && fs::exists(m_root_dir / filename, ec))
-                p = (m_root_dir / filename).lexically_normal();  // Mitsuba: relative to the root scene's folder
+        if (!fs::exists(p, ec)) {
+            const std::string where = searched_folders(from.path.parent_path(), search);
+            if (fs::path(filename).is_absolute() || where.empty())
+                throw_input(loc, "included file '{}' does not exist", p.string());
+            throw_input(loc, "included file '{}' does not exist (looked for '{}' in {})", p.string(), filename, where);
         }
-        p = p.lexically_normal();
-        if (!fs::exists(p, ec)) throw_input(loc, "included file '{}' does not exist", p.string());
         std::string key = fs::weakly_canonical(p, ec).string();
         if (std::find(m_include_stack.begin(), m_include_stack.end(), key) != m_include_stack.end()) {
             std::string chain;
@@ -745,6 +743,15 @@ private:
         const double a = -1.0 / (sign + n.z);
         const double b = n.x * n.y * a;
         return {n.x * n.x * a * sign + 1.0, b * sign, -n.x * sign};
+    }
+
+    // Mitsuba's file resolver as it stands: the <path> folders, the most recently declared first, then the folder
+    // of the root scene file (Mitsuba prepends it when it loads the scene, so an included file can name files
+    // relative to the scene that includes it, as Mitsuba's include/test-scene-base.xml does).
+    std::vector<fs::path> resolver_paths() const {
+        std::vector<fs::path> out(m_search_paths.rbegin(), m_search_paths.rend());
+        if (!m_root_dir.empty()) out.push_back(m_root_dir);
+        return out;
     }
 
     const ParseOptions& m_opts;
