@@ -516,10 +516,10 @@ private:
             target.values.push_back(std::move(v));
             return;
         }
-        if (tag == "spectrum" && n.attribute("filename"))
-            throw_input(loc,
-                        "<spectrum filename=...>: spectra read from files are not supported; give "
-                        "value=\"wavelength:value, ...\" or use <rgb>");
+        if (tag == "spectrum" && n.attribute("filename")) {
+            parse_spectrum_file(n, f, target, std::move(v));
+            return;
+        }
         if (tag == "spectrum" && n.attribute("type"))
             throw_input(loc,
                         "<spectrum type=\"{}\">: spectrum plugins are not supported; give value=\"...\" or use "
@@ -551,9 +551,7 @@ private:
         } else if (tag == "spectrum") {
             // Converted to RGB as Mitsuba 3's RGB variants do (kelvin/core/spectrum.h): what a value means
             // depends on whether it belongs to an emitter and on whether it is an index of refraction.
-            SpectrumRole role;
-            role.within_emitter = target.kind == "emitter";
-            role.unbounded = v.name == "eta" || v.name == "k" || v.name == "int_ior" || v.name == "ext_ior";
+            const SpectrumRole role = spectrum_role(target, v.name);
             auto parts = split_list(value);
             if (parts.empty()) throw_input(loc, "{}: empty spectrum", what);
             v.type = PropType::Color;
@@ -574,6 +572,54 @@ private:
                 v.value = sampled_spectrum_to_rgb(wl, vals, role);
             }
         }
+        target.values.push_back(std::move(v));
+    }
+
+    static SpectrumRole spectrum_role(const SceneNode& target, const std::string& name) {
+        SpectrumRole role;
+        role.within_emitter = target.kind == "emitter";
+        role.unbounded = name == "eta" || name == "k" || name == "int_ior" || name == "ext_ior";
+        return role;
+    }
+
+    // <spectrum name="..." filename="x.spd"/>: Mitsuba's spectrum file, a `wavelength value` pair per line (nm,
+    // increasing; `#` starts a comment), found through the file resolver as it stands here (as an <include>) and
+    // converted as a wavelength:value list.
+    void parse_spectrum_file(const pugi::xml_node& n, const FileText& f, SceneNode& target, SceneValue v) {
+        const SourceLoc loc = v.loc;
+        check_attributes(n, f, {"name", "filename"});
+        v.name = param_name(n, f);
+        const std::string what = fmt::format("<spectrum name=\"{}\">", v.name);
+        const std::string given = attr(n, f, "filename");
+        const std::vector<fs::path> search = resolver_paths();
+        const fs::path p = resolve_file(given, f.path.parent_path(), search);
+        if (std::string why = input_file_problem(p, "spectrum file"); !why.empty()) {
+            std::error_code ec;
+            const std::string where = searched_folders(f.path.parent_path(), search);
+            if (fs::path(given).is_relative() && !fs::exists(p, ec) && !where.empty())
+                why += fmt::format(" (looked for '{}' in {})", given, where);
+            throw_input(loc, "{}: {}", what, why);
+        }
+        const std::string text = read_file_polling(p, "spectrum file", loc, 1.0);
+        std::istringstream in(text);
+        std::vector<double> wl, vals;
+        std::string line;
+        for (int line_no = 1; std::getline(in, line); ++line_no) {
+            if (const auto hash = line.find('#'); hash != std::string::npos) line.resize(hash);
+            std::istringstream fields(line);
+            std::vector<std::string> words;
+            for (std::string w; fields >> w;) words.push_back(w);
+            if (words.empty()) continue;
+            const std::string at = fmt::format("{} ('{}', line {})", what, p.string(), line_no);
+            if (words.size() != 2) throw_input(loc, "{}: expected 'wavelength value'", at);
+            wl.push_back(number(words[0], loc, at));
+            vals.push_back(number(words[1], loc, at));
+            if (wl.size() > 1 && !(wl.back() > wl[wl.size() - 2]))
+                throw_input(loc, "{}: wavelengths must increase ({} after {})", at, wl.back(), wl[wl.size() - 2]);
+        }
+        if (wl.empty()) throw_input(loc, "{}: spectrum file '{}' has no values", what, p.string());
+        v.type = PropType::Color;
+        v.value = sampled_spectrum_to_rgb(wl, vals, spectrum_role(target, v.name));
         target.values.push_back(std::move(v));
     }
 

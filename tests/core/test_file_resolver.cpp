@@ -164,3 +164,36 @@ TEST(FileResolver, ResolveFileOrder) {
     EXPECT_EQ(resolve_file("d", dir / "none", sp, true), (dir / "y" / "d").lexically_normal());
     EXPECT_EQ(resolve_file("d", dir / "none", sp, false), (dir / "x" / "d").lexically_normal());
 }
+
+// <spectrum filename="..."/> (Mitsuba's spectrum files) goes through the resolver too: found in a <path> folder,
+// read as `wavelength value` lines and converted exactly as the same list given inline.
+TEST(FileResolver, SpectrumFilesAreFoundThroughTheSearchPath) {
+    ktest::TempDir dir;
+    write_text(dir / "spectra" / "red.spd", "# a reddish reflectance\n400 0.1\n550 0.2\n\n700 0.9  # deep red\n");
+    write_text(dir / "main" / "scene.xml", R"(<scene version="3.0.0">
+    <path value="../spectra"/>
+    <bsdf type="diffuse"><spectrum name="reflectance" filename="red.spd"/></bsdf>
+    <bsdf type="diffuse"><spectrum name="reflectance" value="400:0.1, 550:0.2, 700:0.9"/></bsdf>
+</scene>)");
+    const ParsedScene ps = parse_scene_file(dir / "main" / "scene.xml");
+    const auto& from_file = ps.root->children.at(0).node->values.at(0);
+    const auto& inline_list = ps.root->children.at(1).node->values.at(0);
+    EXPECT_EQ(std::get<Vec3d>(from_file.value), std::get<Vec3d>(inline_list.value));
+    EXPECT_GT(std::get<Vec3d>(from_file.value).x, std::get<Vec3d>(from_file.value).z);  // reddish
+    // Malformed lines and missing files: one located line.
+    write_text(dir / "spectra" / "bad.spd", "400 0.1\n390 0.2\n");
+    write_text(dir / "main" / "bad.xml", R"(<scene version="3.0.0">
+    <path value="../spectra"/>
+    <bsdf type="diffuse"><spectrum name="reflectance" filename="bad.spd"/></bsdf>
+</scene>)");
+    const std::string e = input_error_of([&] { parse_scene_file(dir / "main" / "bad.xml"); });
+    EXPECT_CONTAINS(e, "bad.xml:3:26");
+    EXPECT_CONTAINS(e, "line 2): wavelengths must increase");
+    write_text(dir / "main" / "missing.xml", R"(<scene version="3.0.0">
+    <path value="../spectra"/>
+    <bsdf type="diffuse"><spectrum name="reflectance" filename="none.spd"/></bsdf>
+</scene>)");
+    const std::string m = input_error_of([&] { parse_scene_file(dir / "main" / "missing.xml"); });
+    EXPECT_CONTAINS(m, "spectrum file");
+    EXPECT_CONTAINS(m, "looked for 'none.spd' in");
+}
