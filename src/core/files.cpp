@@ -5,6 +5,7 @@
 #include <sys/stat.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <array>
 #include <atomic>
 #include <cerrno>
@@ -82,6 +83,36 @@ std::string input_file_problem(const fs::path& path, std::string_view what) {
 
 void check_input_file(const fs::path& path, std::string_view what, const SourceLoc& loc) {
     if (std::string why = input_file_problem(path, what); !why.empty()) throw InputError(loc, why);
+}
+
+fs::path resolve_file(const fs::path& name, const fs::path& near, const std::vector<fs::path>& search_path,
+                      bool directory) {
+    if (name.empty() || name.is_absolute()) return name;
+    std::error_code ec;
+    auto found = [&](const fs::path& p) { return directory ? fs::is_directory(p, ec) : fs::exists(p, ec); };
+    const fs::path first = (near / name).lexically_normal();
+    if (found(first)) return first;
+    for (const auto& dir : search_path) {
+        if (dir.empty()) continue;
+        const fs::path candidate = (dir / name).lexically_normal();
+        if (found(candidate)) return candidate;
+    }
+    return first;
+}
+
+std::string searched_folders(const fs::path& near, const std::vector<fs::path>& search_path) {
+    std::vector<std::string> seen;
+    auto add = [&](const fs::path& d) {
+        std::string s = d.empty() ? std::string(".") : d.lexically_normal().string();
+        if (std::find(seen.begin(), seen.end(), s) == seen.end()) seen.push_back(std::move(s));
+    };
+    add(near);
+    for (const auto& d : search_path)
+        if (!d.empty()) add(d);
+    std::string out;
+    if (seen.size() < 2) return out;  // only `near`: the candidate's own path says it all
+    for (const auto& s : seen) out += (out.empty() ? "'" : ", '") + s + "'";
+    return out;
 }
 
 std::string output_file_problem(const fs::path& path) {

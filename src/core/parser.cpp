@@ -249,6 +249,7 @@ private:
     ParsedScene parse_root_unchecked(const fs::path& path, const std::string* text, const std::string& display) {
         FileText& f = load(path, text, display, {});
         m_root_dir = f.path.parent_path();
+        if (m_root_dir.empty() && !text) m_root_dir = ".";  // a scene file named without a folder
         pugi::xml_document& doc = m_docs.emplace_back();
         pugi::xml_node root = parse_xml(doc, f, 0);
         mark_legacy(f, root);
@@ -263,11 +264,7 @@ private:
         m_include_stack.pop_back();
         resolve_pending_refs();
         m_out.root = node;
-        m_out.search_paths.assign(m_search_paths.rbegin(), m_search_paths.rend());
-        // Mitsuba's file resolver also holds the folder of the root scene file (searched last), so that an included
-        // file can name files relative to the scene that includes it (Mitsuba's include/test-scene-base.xml names
-        // meshes/background.obj next to the scene). Only for scenes that declare a <path>, as Mitsuba's do.
-        if (!m_root_dir.empty() && !m_search_paths.empty()) m_out.search_paths.push_back(m_root_dir);
+        m_out.search_paths = resolver_paths();
         for (const auto& [k, v] : m_opts.defines)
             if (!m_used_params.count(k)) m_out.unused_defines.push_back(k);
         return std::move(m_out);
@@ -519,10 +516,10 @@ private:
             target.values.push_back(std::move(v));
             return;
         }
-        if (tag == "spectrum" && n.attribute("filename"))
-            throw_input(loc,
-                        "<spectrum filename=...>: spectra read from files are not supported; give "
-                        "value=\"wavelength:value, ...\" or use <rgb>");
+        if (tag == "spectrum" && n.attribute("filename")) {
+            parse_spectrum_file(n, f, target, std::move(v));
+            return;
+        }
         if (tag == "spectrum" && n.attribute("type"))
             throw_input(loc,
                         "<spectrum type=\"{}\">: spectrum plugins are not supported; give value=\"...\" or use "
@@ -554,9 +551,7 @@ private:
         } else if (tag == "spectrum") {
             // Converted to RGB as Mitsuba 3's RGB variants do (kelvin/core/spectrum.h): what a value means
             // depends on whether it belongs to an emitter and on whether it is an index of refraction.
-            SpectrumRole role;
-            role.within_emitter = target.kind == "emitter";
-            role.unbounded = v.name == "eta" || v.name == "k" || v.name == "int_ior" || v.name == "ext_ior";
+            const SpectrumRole role = spectrum_role(target, v.name);
             auto parts = split_list(value);
             if (parts.empty()) throw_input(loc, "{}: empty spectrum", what);
             v.type = PropType::Color;
@@ -577,6 +572,54 @@ private:
                 v.value = sampled_spectrum_to_rgb(wl, vals, role);
             }
         }
+        target.values.push_back(std::move(v));
+    }
+
+    static SpectrumRole spectrum_role(const SceneNode& target, const std::string& name) {
+        SpectrumRole role;
+        role.within_emitter = target.kind == "emitter";
+        role.unbounded = name == "eta" || name == "k" || name == "int_ior" || name == "ext_ior";
+        return role;
+    }
+
+    // <spectrum name="..." filename="x.spd"/>: Mitsuba's spectrum file, a `wavelength value` pair per line (nm,
+    // increasing; `#` starts a comment), found through the file resolver as it stands here (as an <include>) and
+    // converted as a wavelength:value list.
+    void parse_spectrum_file(const pugi::xml_node& n, const FileText& f, SceneNode& target, SceneValue v) {
+        const SourceLoc loc = v.loc;
+        check_attributes(n, f, {"name", "filename"});
+        v.name = param_name(n, f);
+        const std::string what = fmt::format("<spectrum name=\"{}\">", v.name);
+        const std::string given = attr(n, f, "filename");
+        const std::vector<fs::path> search = resolver_paths();
+        const fs::path p = resolve_file(given, f.path.parent_path(), search);
+        if (std::string why = input_file_problem(p, "spectrum file"); !why.empty()) {
+            std::error_code ec;
+            const std::string where = searched_folders(f.path.parent_path(), search);
+            if (fs::path(given).is_relative() && !fs::exists(p, ec) && !where.empty())
+                why += fmt::format(" (looked for '{}' in {})", given, where);
+            throw_input(loc, "{}: {}", what, why);
+        }
+        const std::string text = read_file_polling(p, "spectrum file", loc, 1.0);
+        std::istringstream in(text);
+        std::vector<double> wl, vals;
+        std::string line;
+        for (int line_no = 1; std::getline(in, line); ++line_no) {
+            if (const auto hash = line.find('#'); hash != std::string::npos) line.resize(hash);
+            std::istringstream fields(line);
+            std::vector<std::string> words;
+            for (std::string w; fields >> w;) words.push_back(w);
+            if (words.empty()) continue;
+            const std::string at = fmt::format("{} ('{}', line {})", what, p.string(), line_no);
+            if (words.size() != 2) throw_input(loc, "{}: expected 'wavelength value'", at);
+            wl.push_back(number(words[0], loc, at));
+            vals.push_back(number(words[1], loc, at));
+            if (wl.size() > 1 && !(wl.back() > wl[wl.size() - 2]))
+                throw_input(loc, "{}: wavelengths must increase ({} after {})", at, wl.back(), wl[wl.size() - 2]);
+        }
+        if (wl.empty()) throw_input(loc, "{}: spectrum file '{}' has no values", what, p.string());
+        v.type = PropType::Color;
+        v.value = sampled_spectrum_to_rgb(wl, vals, spectrum_role(target, v.name));
         target.values.push_back(std::move(v));
     }
 
@@ -647,16 +690,21 @@ private:
                 m_params.emplace(name, value);  // -D and earlier defaults win
                 m_out.defaults.push_back({name, value, loc});
             } else if (tag == "path") {
-                // Mitsuba's search path for file names: relative to the declaring file, searched after the
-                // folder of the file that names a file; later declarations are searched first.
+                // Mitsuba's search path: the folder is looked for relative to the declaring file, then through the
+                // search path so far, and is then prepended to it (searched before the folders declared earlier).
                 check_attributes(n, f, {"value"});
                 reject_children(n, f);
                 if (target.kind != "scene") throw_input(loc, "<path> can only be a child of <scene>");
-                fs::path dir = attr(n, f, "value");
-                if (dir.is_relative()) dir = f.path.parent_path() / dir;
-                dir = dir.lexically_normal();
+                const fs::path value = attr(n, f, "value");
+                const std::vector<fs::path> so_far = resolver_paths();
+                const fs::path dir = resolve_file(value, f.path.parent_path(), so_far, true).lexically_normal();
                 std::error_code ec;
-                if (!fs::is_directory(dir, ec)) throw_input(loc, "<path>: folder '{}' not found", dir.string());
+                if (!fs::is_directory(dir, ec)) {
+                    const std::string where = searched_folders(f.path.parent_path(), so_far);
+                    if (value.is_absolute() || where.empty())
+                        throw_input(loc, "<path>: folder '{}' not found", dir.string());
+                    throw_input(loc, "<path>: folder '{}' not found (looked in {})", value.string(), where);
+                }
                 m_search_paths.push_back(dir);
             } else if (tag == "include") {
                 check_attributes(n, f, {"filename"});
@@ -686,21 +734,17 @@ private:
 
     void include(const std::string& filename, const FileText& from, const SourceLoc& loc, SceneNode& target,
                  int depth) {
-        fs::path p = filename;
+        // Relative to the including file, then through the search path as it stands at the <include> (Mitsuba
+        // reads includes while parsing: a <path> declared further down does not apply to them).
+        const std::vector<fs::path> search = resolver_paths();
+        fs::path p = resolve_file(filename, from.path.parent_path(), search).lexically_normal();
         std::error_code ec;
-        if (p.is_relative()) {
-            p = (from.path.parent_path() / p).lexically_normal();
-            if (!fs::exists(p, ec))
-                for (auto d = m_search_paths.rbegin(); d != m_search_paths.rend(); ++d)
-                    if (fs::exists(*d / filename, ec)) {
-                        p = (*d / filename).lexically_normal();
-                        break;
-                    }
-            if (!fs::exists(p, ec) && !m_root_dir.empty() && fs::exists(m_root_dir / filename, ec))
-                p = (m_root_dir / filename).lexically_normal();  // Mitsuba: relative to the root scene's folder
+        if (!fs::exists(p, ec)) {
+            const std::string where = searched_folders(from.path.parent_path(), search);
+            if (fs::path(filename).is_absolute() || where.empty())
+                throw_input(loc, "included file '{}' does not exist", p.string());
+            throw_input(loc, "included file '{}' does not exist (looked for '{}' in {})", p.string(), filename, where);
         }
-        p = p.lexically_normal();
-        if (!fs::exists(p, ec)) throw_input(loc, "included file '{}' does not exist", p.string());
         std::string key = fs::weakly_canonical(p, ec).string();
         if (std::find(m_include_stack.begin(), m_include_stack.end(), key) != m_include_stack.end()) {
             std::string chain;
@@ -745,6 +789,15 @@ private:
         const double a = -1.0 / (sign + n.z);
         const double b = n.x * n.y * a;
         return {n.x * n.x * a * sign + 1.0, b * sign, -n.x * sign};
+    }
+
+    // Mitsuba's file resolver as it stands: the <path> folders, the most recently declared first, then the folder
+    // of the root scene file (Mitsuba prepends it when it loads the scene, so an included file can name files
+    // relative to the scene that includes it, as Mitsuba's include/test-scene-base.xml does).
+    std::vector<fs::path> resolver_paths() const {
+        std::vector<fs::path> out(m_search_paths.rbegin(), m_search_paths.rend());
+        if (!m_root_dir.empty()) out.push_back(m_root_dir);
+        return out;
     }
 
     const ParseOptions& m_opts;

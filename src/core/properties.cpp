@@ -290,24 +290,32 @@ std::string Properties::get_choice(std::string_view name, const std::vector<std:
     error(name, fmt::format("'{}' is not one of {}{}", v, list, did_you_mean(v, choices)));
 }
 
+namespace {
+// The folder of the scene file that gave parameter `loc` (empty for a scene given as a string).
+std::filesystem::path folder_of(const SourceLoc& loc) {
+    if (!loc.valid() || loc.file == "<string>") return {};
+    return std::filesystem::path(loc.file).parent_path();
+}
+}  // namespace
+
 std::filesystem::path Properties::get_path(std::string_view name) const {
     std::filesystem::path p = get_string(name);
     if (p.empty() || p.is_absolute()) return p;
-    SourceLoc loc = location_of(name);
-    std::filesystem::path first = p;
-    if (loc.valid() && loc.file != "<string>") first = std::filesystem::path(loc.file).parent_path() / p;
-    std::error_code ec;
-    if (m_search_paths.empty() || std::filesystem::exists(first, ec)) return first;
-    for (const auto& dir : m_search_paths) {
-        std::filesystem::path candidate = (dir / p).lexically_normal();
-        if (std::filesystem::exists(candidate, ec)) return candidate;
-    }
-    return first;
+    return resolve_file(p, folder_of(location_of(name)), m_search_paths);
 }
 
 std::filesystem::path Properties::get_input_file(std::string_view name, std::string_view what) const {
     std::filesystem::path p = get_path(name);
-    if (std::string why = input_file_problem(p, what); !why.empty()) error(name, why);
+    if (std::string why = input_file_problem(p, what); !why.empty()) {
+        const std::filesystem::path given = get_string(name);
+        std::error_code ec;
+        // A relative name found nowhere: say where it was looked for (Mitsuba's resolver order).
+        if (!given.empty() && given.is_relative() && !std::filesystem::exists(p, ec))
+            if (const std::string where = searched_folders(folder_of(location_of(name)), m_search_paths);
+                !where.empty())
+                why += fmt::format(" (looked for '{}' in {})", given.string(), where);
+        error(name, why);
+    }
     return p;
 }
 

@@ -107,6 +107,15 @@ const PluginInfo* Registry::find(std::string_view kind, std::string_view name) c
 
 const PluginInfo& Registry::get(std::string_view kind, std::string_view name, const SourceLoc& loc) const {
     if (const PluginInfo* p = find(kind, name)) return *p;
+    // Mitsuba 3's plugins of its polarised variants: a clear refusal rather than a suggestion of a near name.
+    static const std::vector<std::pair<std::string_view, std::string_view>> polarised = {
+        {"bsdf", "pplastic"}, {"bsdf", "polarizer"},          {"bsdf", "retarder"},
+        {"bsdf", "circular"}, {"bsdf", "measured_polarized"}, {"integrator", "stokes"}};
+    for (const auto& [k, n] : polarised)
+        if (k == kind && n == name)
+            throw InputError(loc, fmt::format("{} plugin '{}' belongs to Mitsuba's polarised variants; Kelvin renders "
+                                              "unpolarised RGB",
+                                              kind, name));
     std::vector<std::string> names;
     for (const PluginInfo* p : plugins(kind)) names.push_back(p->name);
     std::string hint = did_you_mean(name, names);

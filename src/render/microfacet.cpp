@@ -1,4 +1,7 @@
 #include <kelvin/render/microfacet.h>
+#include <kelvin/render/texture.h>
+
+#include <fmt/format.h>
 
 #include <algorithm>
 #include <cmath>
@@ -230,6 +233,54 @@ MicrofacetDistribution microfacet_from_properties(const Properties& props, bool 
     }
     const bool visible = props.get_bool("sample_visible");
     return MicrofacetDistribution(dist == "ggx" ? MicrofacetType::GGX : MicrofacetType::Beckmann, au, av, visible);
+}
+
+MicrofacetRoughness::MicrofacetRoughness(const Properties& props, bool anisotropic)
+    : m_constant(MicrofacetType::Beckmann, 0.1, 0.1) {
+    const std::string dist = props.get_choice("distribution", {"beckmann", "ggx"});
+    const MicrofacetType type = dist == "ggx" ? MicrofacetType::GGX : MicrofacetType::Beckmann;
+    const bool visible = props.get_bool("sample_visible");
+    const bool two = anisotropic && (props.has("alpha_u") || props.has("alpha_v"));
+    if (two) {
+        if (props.has("alpha")) props.error("alpha", "give either 'alpha' or 'alpha_u' and 'alpha_v', not both");
+        if (!props.has("alpha_u") || !props.has("alpha_v"))
+            props.error(props.has("alpha_u") ? "alpha_u" : "alpha_v",
+                        "an anisotropic roughness needs both 'alpha_u' and 'alpha_v'");
+    }
+    // A number (or a constant texture) exactly as given; a texture as a texture.
+    auto read = [&](const char* name, double& value) -> std::shared_ptr<Texture> {
+        if (props.get_alternative_object(name)) {
+            auto t = get_texture(props, name);
+            if (!t->is_constant()) return t;
+            value = std::clamp(luminance(t->mean()), 0.0, 100.0);
+            return nullptr;
+        }
+        const Color3 c = props.get_color(name);
+        if (c.g != c.r || c.b != c.r) props.error(name, "must be one number (or a texture), not a colour");
+        if (!(c.r >= 0 && c.r <= 100)) props.error(name, fmt::format("{} is not in [0, 100]", c.r));
+        value = c.r;
+        return nullptr;
+    };
+    double au = 0.1, av = 0.1;
+    if (two) {
+        m_alpha_u = read("alpha_u", au);
+        m_alpha_v = read("alpha_v", av);
+    } else {
+        m_alpha_u = read("alpha", au);
+        m_alpha_v = m_alpha_u;
+        av = au;
+    }
+    m_textured = m_alpha_u || m_alpha_v;
+    // A texture on one axis only: the other axis's number becomes a constant texture.
+    if (m_textured && !m_alpha_u) m_alpha_u = constant_texture(Color3(au));
+    if (m_textured && !m_alpha_v) m_alpha_v = constant_texture(Color3(av));
+    m_constant = MicrofacetDistribution(type, au, av, visible);
+}
+
+MicrofacetDistribution MicrofacetRoughness::at(const SurfaceInteraction& si) const {
+    if (!m_textured) return m_constant;
+    return {m_constant.type(), std::clamp(m_alpha_u->eval_1(si), 0.0, 100.0),
+            std::clamp(m_alpha_v->eval_1(si), 0.0, 100.0), m_constant.sample_visible()};
 }
 
 }  // namespace kelvin

@@ -161,7 +161,9 @@ static std::pair<Vec3d, Vec3d> geometry_bounds(const ShapeGeometry& g) {
             hi = glm::max(hi, b);
             continue;
         }
-        const double r = g.type == ShapeGeometry::Type::Triangles ? 0.0 : double(g.radii[k]);
+        double r = g.type == ShapeGeometry::Type::Triangles ? 0.0 : double(g.radii[k]);
+        // A B-spline's centre line lies in the hull of its control points, its radius below their largest.
+        if (g.type == ShapeGeometry::Type::BSplineCurves) r = *std::max_element(g.radii.begin(), g.radii.end());
         lo = glm::min(lo, Vec3d(g.positions[k]) - r);
         hi = glm::max(hi, Vec3d(g.positions[k]) + r);
     }
@@ -185,6 +187,24 @@ static void attach(RTCDevice device, RTCScene scene, const ShapeGeometry& g, uns
         rtcSetGeometryBoundsFunction(geom, cylinder_bounds, nullptr);
         rtcSetGeometryIntersectFunction(geom, cylinder_intersect);
         rtcSetGeometryOccludedFunction(geom, cylinder_occluded);
+    } else if (g.type == ShapeGeometry::Type::LinearCurves || g.type == ShapeGeometry::Type::BSplineCurves) {
+        // Embree's round curves: control points with their radii (x, y, z, r), one index per segment.
+        const bool linear = g.type == ShapeGeometry::Type::LinearCurves;
+        geom = rtcNewGeometry(device,
+                              linear ? RTC_GEOMETRY_TYPE_ROUND_LINEAR_CURVE : RTC_GEOMETRY_TYPE_ROUND_BSPLINE_CURVE);
+        auto* v = static_cast<float*>(rtcSetNewGeometryBuffer(geom, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT4,
+                                                              4 * sizeof(float), g.positions.size()));
+        for (std::size_t k = 0; k < g.positions.size(); ++k) {
+            v[4 * k + 0] = g.positions[k].x;
+            v[4 * k + 1] = g.positions[k].y;
+            v[4 * k + 2] = g.positions[k].z;
+            v[4 * k + 3] = g.radii[k];
+        }
+        rtcSetSharedGeometryBuffer(geom, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT, g.indices.data(), 0,
+                                   sizeof(uint32_t), g.indices.size());
+        if (linear && g.curve_flags.size() == g.indices.size())
+            rtcSetSharedGeometryBuffer(geom, RTC_BUFFER_TYPE_FLAGS, 0, RTC_FORMAT_UCHAR, g.curve_flags.data(), 0,
+                                       sizeof(uint8_t), g.curve_flags.size());
     } else {  // spheres and normal-oriented discs: Embree point primitives (centre and radius)
         const bool discs = g.type == ShapeGeometry::Type::Discs;
         geom = rtcNewGeometry(device, discs ? RTC_GEOMETRY_TYPE_ORIENTED_DISC_POINT : RTC_GEOMETRY_TYPE_SPHERE_POINT);
@@ -442,6 +462,24 @@ static void fill_local(SurfaceInteraction& si, const ShapeGeometry& g, const Sur
         const Vec3d l = cylinder::local(c, si.p);
         si.dp_du = 2 * Pi * (l.x * c.ey - l.y * c.ex);
         si.dp_dv = c.L * c.ez;
+    } else if (g.type == ShapeGeometry::Type::LinearCurves || g.type == ShapeGeometry::Type::BSplineCurves) {
+        // u = the angle around the centre line / (2 pi), measured from the first tangent of the orthonormal basis
+        // around the line's direction (Duff et al. 2017); v along the curve, 0 at its first point, 1 at its last.
+        // dp/du = 2 pi r (t x radial), dp/dv = dc/dv; the shading frame's tangent is dp/du.
+        Vec3d c, dc;
+        double r;
+        curve_point(g, si.prim, std::clamp(hit.uv.x, 0.0, 1.0), c, dc, r);
+        const double len = glm::length(dc);
+        const Vec3d t = len > 0 ? dc / len : Frame(si.ng).s;
+        Vec3d radial = (si.p - c) - t * glm::dot(si.p - c, t);
+        const double rl = glm::length(radial);
+        radial = rl > 0 ? radial / rl : Frame(t).s;
+        const Frame basis(t);
+        const double phi = std::atan2(glm::dot(radial, basis.t), glm::dot(radial, basis.s));
+        const Vec2f span = g.uvs[si.prim];
+        si.uv = {(phi < 0 ? phi + 2 * Pi : phi) / (2 * Pi), double(span.x) + std::clamp(hit.uv.x, 0.0, 1.0) * span.y};
+        si.dp_du = 2 * Pi * r * glm::cross(t, radial);
+        si.dp_dv = span.y > 0 ? dc / double(span.y) : t;
     } else {  // disc: polar coordinates (radius fraction, angle from the tangent)
         const Vec3d d = si.p - Vec3d(g.positions[si.prim]), t(g.tangents[si.prim]), n(g.normals[si.prim]);
         const double x = glm::dot(d, t), y = glm::dot(d, glm::cross(n, t));
@@ -486,6 +524,13 @@ static void fill_local(SurfaceInteraction& si, const ShapeGeometry& g, const Sur
         const double l = glm::length(si.dp_du);
         if (l > 0 && std::isfinite(l)) {
             si.frame.s = si.dp_du / l;
+            si.frame.t = glm::cross(si.frame.n, si.frame.s);
+        }
+    } else if (g.type == ShapeGeometry::Type::LinearCurves || g.type == ShapeGeometry::Type::BSplineCurves) {
+        Vec3d s_axis = si.dp_du - si.ns * glm::dot(si.ns, si.dp_du);  // the normal tilts where the radius varies
+        const double l = glm::length(s_axis);
+        if (l > 0 && std::isfinite(l)) {
+            si.frame.s = s_axis / l;
             si.frame.t = glm::cross(si.frame.n, si.frame.s);
         }
     } else if (g.type != ShapeGeometry::Type::Triangles) {
@@ -637,6 +682,13 @@ std::optional<SurfaceHit> Scene::intersect(const Ray& ray) const {
             p += (c.r - rho) / rho * n;
             hit.p = xf ? xf->to_world.apply_point(p) : p;
         }
+    } else if (g.type == ShapeGeometry::Type::LinearCurves || g.type == ShapeGeometry::Type::BSplineCurves) {
+        // Embree's normal of the round curve, turned away from the centre line.
+        n = Vec3d(rh.hit.Ng_x, rh.hit.Ng_y, rh.hit.Ng_z);
+        Vec3d c, dc;
+        double r;
+        curve_point(g, hit.prim, std::clamp(double(rh.hit.u), 0.0, 1.0), c, dc, r);
+        if (glm::dot(n, p - c) < 0) n = -n;
     } else {
         n = Vec3d(g.normals[hit.prim]);
     }

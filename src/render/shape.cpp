@@ -15,4 +15,27 @@ void Shape::read_common(const Properties& props) {
     if (props.has("exterior")) m_exterior = props.get_object_as<Medium>("exterior");
 }
 
+void curve_point(const ShapeGeometry& g, std::size_t segment, double u, Vec3d& c, Vec3d& dc, double& r) {
+    const uint32_t i = g.indices[segment];
+    if (g.type == ShapeGeometry::Type::LinearCurves) {
+        const Vec3d p0(g.positions[i]), p1(g.positions[i + 1]);
+        c = (1 - u) * p0 + u * p1;
+        dc = p1 - p0;
+        r = (1 - u) * double(g.radii[i]) + u * double(g.radii[i + 1]);
+        return;
+    }
+    // Uniform cubic B-spline basis and its derivative.
+    const double v = 1 - u, u2 = u * u, u3 = u2 * u;
+    const double b[4] = {v * v * v / 6, (3 * u3 - 6 * u2 + 4) / 6, (-3 * u3 + 3 * u2 + 3 * u + 1) / 6, u3 / 6};
+    const double db[4] = {-v * v / 2, (3 * u2 - 4 * u) / 2, (-3 * u2 + 2 * u + 1) / 2, u2 / 2};
+    c = dc = Vec3d(0.0);
+    r = 0;
+    for (int k = 0; k < 4; ++k) {
+        const Vec3d p(g.positions[i + k]);
+        c += b[k] * p;
+        dc += db[k] * p;
+        r += b[k] * double(g.radii[i + k]);
+    }
+}
+
 }  // namespace kelvin

@@ -15,6 +15,7 @@
 #include <functional>
 #include <string>
 #include <string_view>
+#include <vector>
 
 namespace kelvin {
 
@@ -23,6 +24,18 @@ namespace kelvin {
 std::string input_file_problem(const std::filesystem::path& path, std::string_view what);
 /// Throws InputError(loc, input_file_problem(...)) when there is a problem.
 void check_input_file(const std::filesystem::path& path, std::string_view what, const SourceLoc& loc = {});
+
+/// The file resolver (Mitsuba's FileResolver, one mechanism for every file a scene names: meshes, images,
+/// included scene files, volume grids, boundary files, <path> folders). A relative `name` is looked for first in
+/// `near` (the folder of the scene file that names it; empty: the working directory), then in each folder of
+/// `search_path` in order (the scene's <path> folders, the most recently declared first, then the folder of the
+/// root scene file). Returns the first candidate that exists (with `directory`, the first that is a folder);
+/// when none does, `near / name`, so that the error names it. An absolute `name` is returned unchanged.
+std::filesystem::path resolve_file(const std::filesystem::path& name, const std::filesystem::path& near,
+                                   const std::vector<std::filesystem::path>& search_path, bool directory = false);
+/// The folders resolve_file looked in, for an error message: "'near', 'a', 'b'" (each once, in order); empty
+/// when it looked in `near` only.
+std::string searched_folders(const std::filesystem::path& near, const std::vector<std::filesystem::path>& search_path);
 
 /// Why a file cannot be created (or replaced) at `path`: it is a directory, its directory does not exist or
 /// does not take a new file (a probe file is created and removed; the message has the system error). Empty

@@ -79,8 +79,9 @@ struct ParsedScene {
     /// SourceLoc::str()): an error at such an element names the -D it came from ("-D res=abc: ...").
     std::map<std::string, std::string> defines;
     std::map<std::string, std::vector<std::string>> define_uses;
-    /// <path value="..."/> folders (resolved), the most recently declared first: where relative file names
-    /// are looked for when they are not next to the file that names them.
+    /// The file resolver's search path: the <path value="..."/> folders (resolved), the most recently declared
+    /// first, then the folder of the root scene file. Relative file names are looked for there when they are not
+    /// next to the file that names them (resolve_file in core/files.h).
     std::vector<std::filesystem::path> search_paths;
 };
 

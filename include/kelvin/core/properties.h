@@ -110,9 +110,10 @@ public:
     std::string get_string(std::string_view name) const;
     /// A string parameter that must be one of `choices`.
     std::string get_choice(std::string_view name, const std::vector<std::string>& choices) const;
-    /// A file name, resolved relative to the directory of the scene file that gave it; if no file exists there,
-    /// the scene's search paths (Mitsuba's `<path value="..."/>`, see search_paths()) are tried in order. When
-    /// nothing exists anywhere, the first candidate is returned (so that the error names it).
+    /// A file name, resolved by resolve_file (core/files.h): relative to the directory of the scene file that
+    /// gave it, then through the scene's search path (Mitsuba's file resolver: the `<path value="..."/>` folders,
+    /// the most recently declared first, then the root scene's folder; see search_paths()). When nothing exists
+    /// anywhere, the first candidate is returned (so that the error names it).
     std::filesystem::path get_path(std::string_view name) const;
     /// get_path of an input file (`what`: "image file", "OBJ file", ...), checked with check_input_file before
     /// any reader touches it: a missing file, a directory or a device is an error at the parameter.
@@ -149,7 +150,8 @@ public:
     void mark_all_queried() const;
 
     /// Folders searched for file names after the folder of the file that gave them, in order (the parser fills
-    /// this from the scene's <path> elements, the most recently declared first, as Mitsuba's file resolver).
+    /// this from the scene's <path> elements, the most recently declared first, then the root scene's folder, as
+    /// Mitsuba's file resolver).
     const std::vector<std::filesystem::path>& search_paths() const { return m_search_paths; }
     void set_search_paths(std::vector<std::filesystem::path> paths) { m_search_paths = std::move(paths); }
 

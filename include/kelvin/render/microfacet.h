@@ -18,6 +18,7 @@
 #include <kelvin/core/properties.h>
 #include <kelvin/render/frame.h>
 
+#include <memory>
 #include <string>
 
 namespace kelvin {
@@ -69,6 +70,30 @@ private:
 /// `sample_visible` from a plugin's properties; the plugin must declare them (see roughconductor.cpp).
 /// Errors (unknown distribution, negative alpha, alpha together with alpha_u/alpha_v) name the parameter.
 MicrofacetDistribution microfacet_from_properties(const Properties& props, bool anisotropic);
+
+class Texture;
+struct SurfaceInteraction;
+
+/// The roughness of a microfacet BSDF as Mitsuba 3 takes it (roughconductor, roughdielectric): `distribution`,
+/// `sample_visible` and `alpha`, or (if `anisotropic`) `alpha_u` and `alpha_v`, each a number in [0, 100] or a
+/// texture (declared with param::texture). A texture's eval_1 (its luminance) at the surface point is the
+/// roughness there, clamped to [0, 100]. Errors name the parameter (a colour that is not grey, a value out of
+/// range, alpha together with alpha_u/alpha_v, only one of alpha_u and alpha_v).
+class MicrofacetRoughness {
+public:
+    MicrofacetRoughness(const Properties& props, bool anisotropic);
+    /// True when a roughness is a texture that is not constant: at() then evaluates it per point.
+    bool textured() const { return m_textured; }
+    /// The distribution of an untextured roughness (the given numbers, exactly).
+    const MicrofacetDistribution& constant() const { return m_constant; }
+    /// The distribution at a surface point.
+    MicrofacetDistribution at(const SurfaceInteraction& si) const;
+
+private:
+    MicrofacetDistribution m_constant;
+    std::shared_ptr<Texture> m_alpha_u, m_alpha_v;
+    bool m_textured = false;
+};
 
 /// Inverse error function on (-1, 1): Giles 2010 initial guess refined by Newton steps on std::erf (on erfc
 /// in the tails, where erf is flat); clamped to +-6 at and beyond +-1.

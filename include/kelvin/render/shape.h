@@ -17,19 +17,29 @@ class Medium;
 
 /// World-space geometry in Embree-ready layout (float positions, 32-bit indices).
 struct ShapeGeometry {
-    enum class Type { Triangles, Spheres, Discs, Cylinders };
+    enum class Type { Triangles, Spheres, Discs, Cylinders, LinearCurves, BSplineCurves };
     Type type = Type::Triangles;
-    std::vector<Vec3f> positions;   ///< triangle vertices, sphere / disc centres, or cylinder base centres
-    std::vector<uint32_t> indices;  ///< 3 per triangle (counter-clockwise = front, normal by right hand)
-    std::vector<float> radii;       ///< spheres, discs and cylinders: one per centre
-    std::vector<Vec3f> normals;     ///< triangles: optional per-vertex shading normals (same count as positions);
-                                    ///< discs: the unit normal of each disc (required); cylinders: the unit axis
-    std::vector<Vec3f> tangents;    ///< discs and cylinders: a unit vector perpendicular to the normal / axis, where
-                                    ///< the polar angle of uv is 0
-    std::vector<float> lengths;     ///< cylinders: the length along the axis (open ends: no caps)
-    std::vector<Vec2f> uvs;         ///< triangles: optional per-vertex texture coordinates
+    std::vector<Vec3f> positions;      ///< triangle vertices, sphere / disc centres, cylinder base centres, or
+                                       ///< curve control points
+    std::vector<uint32_t> indices;     ///< 3 per triangle (counter-clockwise = front, normal by right hand); curves:
+                                       ///< one per segment, its first control point (2 points per linear segment,
+                                       ///< 4 per uniform cubic B-spline segment)
+    std::vector<float> radii;          ///< spheres, discs and cylinders: one per centre; curves: one per control point
+    std::vector<Vec3f> normals;        ///< triangles: optional per-vertex shading normals (same count as positions);
+                                       ///< discs: the unit normal of each disc (required); cylinders: the unit axis
+    std::vector<Vec3f> tangents;       ///< discs and cylinders: a unit vector perpendicular to the normal / axis, where
+                                       ///< the polar angle of uv is 0
+    std::vector<float> lengths;        ///< cylinders: the length along the axis (open ends: no caps)
+    std::vector<Vec2f> uvs;            ///< triangles: optional per-vertex texture coordinates; curves: per segment,
+                                       ///< v (along the curve) at its start and the v it spans
+    std::vector<uint8_t> curve_flags;  ///< linear curves, per segment: bit 0 set when a segment of the same curve
+                                       ///< comes before it, bit 1 when one follows (joints are not capped inside)
     bool flip_normals = false;
 };
+
+/// A curve segment of `g` (LinearCurves or BSplineCurves) at its parameter u in [0, 1]: the centre line's point
+/// `c`, its derivative `dc` = dc/du and the radius `r` (the control points' radii blended as the points are).
+void curve_point(const ShapeGeometry& g, std::size_t segment, double u, Vec3d& c, Vec3d& dc, double& r);
 
 /// A point chosen on a shape's surface with density `pdf` per unit area.
 struct PositionSample {

@@ -15,13 +15,13 @@
 // | parameter              | type            | default  | meaning                                          |
 // |------------------------|-----------------|----------|--------------------------------------------------|
 // | distribution           | string          | beckmann | beckmann or ggx                                  |
-// | alpha                  | float           | 0.1      | roughness; values below 1e-4 are raised to 1e-4  |
-// | alpha_u, alpha_v       | float           | 0.1      | anisotropic roughness (instead of alpha)         |
-// | sample_visible         | bool            | true     | sample visible normals (else D(m) cos theta_m)   |
-// | int_ior                | float or string | bk7      | interior index (number or name); must differ from ext_ior |
-// | ext_ior                | float or string | air      | exterior index                                   |
-// | specular_reflectance   | rgb / texture   | 1        | tints reflection (not physical)                  |
-// | specular_transmittance | rgb / texture   | 1        | tints transmission (not physical)                |
+// | alpha                  | float / texture | 0.1      | roughness; values below 1e-4 are raised to 1e-4; a texture:
+// its luminance | | alpha_u, alpha_v       | float / texture | 0.1      | anisotropic roughness (instead of alpha) | |
+// sample_visible         | bool            | true     | sample visible normals (else D(m) cos theta_m)   | | int_ior |
+// float or string | bk7      | interior index (number or name); must differ from ext_ior | | ext_ior                |
+// float or string | air      | exterior index                                   | | specular_reflectance   | rgb /
+// texture   | 1        | tints reflection (not physical)                  | | specular_transmittance | rgb / texture |
+// 1        | tints transmission (not physical)                |
 //
 //     <bsdf type="roughdielectric">
 //         <string name="distribution" value="ggx"/><float name="alpha" value="0.2"/>
@@ -41,7 +41,7 @@ namespace {
 class RoughDielectric final : public Bsdf {
 public:
     explicit RoughDielectric(const Properties& props)
-        : m_distr(microfacet_from_properties(props, true)),
+        : m_roughness(props, true),
           m_reflectance(get_texture(props, "specular_reflectance")),
           m_transmittance(get_texture(props, "specular_transmittance")) {
         const double int_ior = ior_from_properties(props, "int_ior"), ext_ior = ior_from_properties(props, "ext_ior");
@@ -58,8 +58,9 @@ public:
         // Work with wi on the upper side: mirror both directions through the origin (D is point-symmetric).
         const double s = cos_i > 0 ? 1.0 : -1.0, eta = cos_i > 0 ? m_eta : 1.0 / m_eta;
         const Vec3d wi = si.wi * s;
-        const Vec3d m = m_distr.sample(wi, u2);
-        const double pm = m_distr.pdf(wi, m);
+        const MicrofacetDistribution distr = m_roughness.at(si);
+        const Vec3d m = distr.sample(wi, u2);
+        const double pm = distr.pdf(wi, m);
         if (!(pm > 0)) return std::nullopt;
         const double wi_m = glm::dot(wi, m);
         const FresnelDielectric fr = fresnel_dielectric(wi_m, eta);
@@ -84,7 +85,7 @@ public:
         }
         bs.wo = wo * s;
         if (!(bs.pdf > 0) || !std::isfinite(bs.pdf)) return std::nullopt;
-        const Color3 f = eval_local(ctx, si.uv, wi, wo, m, eta);
+        const Color3 f = eval_local(ctx, distr, si.uv, wi, wo, m, eta);
         bs.weight = f / bs.pdf;
         if (!std::isfinite(bs.weight.r + bs.weight.g + bs.weight.b)) return std::nullopt;
         return bs;
@@ -94,14 +95,14 @@ public:
         Vec3d wi, wo, m;
         double eta;
         if (!half_vector(si.wi, wo_world, wi, wo, m, eta)) return Color3(0.0);
-        return eval_local(ctx, si.uv, wi, wo, m, eta);
+        return eval_local(ctx, m_roughness.at(si), si.uv, wi, wo, m, eta);
     }
 
     double pdf(const BsdfContext&, const SurfaceInteraction& si, const Vec3d& wo_world) const override {
         Vec3d wi, wo, m;
         double eta;
         if (!half_vector(si.wi, wo_world, wi, wo, m, eta)) return 0.0;
-        const double pm = m_distr.pdf(wi, m);
+        const double pm = m_roughness.at(si).pdf(wi, m);
         const double wi_m = glm::dot(wi, m), wo_m = glm::dot(wo, m);
         const double F = fresnel_dielectric(wi_m, eta).F;
         double p;
@@ -116,12 +117,14 @@ public:
 
     Model model() const override {
         Model m;
-        if (!m_reflectance->is_constant() || !m_transmittance->is_constant()) return m;
+        // A textured roughness is not differentiable (the model's alphas are numbers), nor are textured tints.
+        if (m_roughness.textured() || !m_reflectance->is_constant() || !m_transmittance->is_constant()) return m;
+        const MicrofacetDistribution& distr = m_roughness.constant();
         m.kind = Model::Kind::RoughDielectric;
-        m.ggx = m_distr.type() == MicrofacetType::GGX;
-        m.alpha_u = m_distr.alpha_u();
-        m.alpha_v = m_distr.alpha_v();
-        m.sample_visible = m_distr.sample_visible();
+        m.ggx = distr.type() == MicrofacetType::GGX;
+        m.alpha_u = distr.alpha_u();
+        m.alpha_v = distr.alpha_v();
+        m.sample_visible = distr.sample_visible();
         m.ior = m_eta;
         m.specular_reflectance = m_reflectance->mean();
         m.specular_transmittance = m_transmittance->mean();
@@ -150,10 +153,10 @@ private:
     }
 
     /// f * |cos theta_o| in the mirrored frame (wi.z > 0) for microfacet normal m (m.z > 0).
-    Color3 eval_local(const BsdfContext& ctx, const Vec2d& uv, const Vec3d& wi, const Vec3d& wo, const Vec3d& m,
-                      double eta) const {
+    Color3 eval_local(const BsdfContext& ctx, const MicrofacetDistribution& distr, const Vec2d& uv, const Vec3d& wi,
+                      const Vec3d& wo, const Vec3d& m, double eta) const {
         const double wi_m = glm::dot(wi, m), wo_m = glm::dot(wo, m);
-        const double D = m_distr.D(m), G = m_distr.G(wi, wo, m);
+        const double D = distr.D(m), G = distr.G(wi, wo, m);
         const double F = fresnel_dielectric(wi_m, eta).F;
         if (!(D * G > 0)) return Color3(0.0);
         if (wo.z > 0) {
@@ -166,7 +169,7 @@ private:
         return std::isfinite(v) && v > 0 ? m_transmittance->eval(uv) * v : Color3(0.0);
     }
 
-    MicrofacetDistribution m_distr;
+    MicrofacetRoughness m_roughness;
     double m_eta = 1.5;  // int_ior / ext_ior
     std::shared_ptr<Texture> m_reflectance, m_transmittance;
 };
@@ -177,9 +180,11 @@ private:
 KELVIN_PLUGIN(kelvin::RoughDielectric, "bsdf", "roughdielectric",
               "Rough dielectric boundary (microfacet transmission).",
               kelvin::param::string("distribution", "beckmann", "microfacet distribution: beckmann or ggx"),
-              kelvin::param::real("alpha", 0.1, "isotropic roughness"),
-              kelvin::param::real("alpha_u", 0.1, "roughness along the tangent (anisotropic; with alpha_v)"),
-              kelvin::param::real("alpha_v", 0.1, "roughness along the bitangent (anisotropic; with alpha_u)"),
+              kelvin::param::texture("alpha", kelvin::Color3(0.1), "isotropic roughness (float or texture)"),
+              kelvin::param::texture("alpha_u", kelvin::Color3(0.1),
+                                     "roughness along the tangent (anisotropic; with alpha_v; float or texture)"),
+              kelvin::param::texture("alpha_v", kelvin::Color3(0.1),
+                                     "roughness along the bitangent (anisotropic; with alpha_u; float or texture)"),
               kelvin::param::boolean("sample_visible", true, "sample the visible normals"),
               kelvin::param::string("int_ior", "bk7", "interior index of refraction: a number or a name"),
               kelvin::param::string("ext_ior", "air", "exterior index of refraction: a number or a name"),
