@@ -30,8 +30,8 @@
 //
 //     <boundary type="vdb"><string name="filename" value="obstacle.vdb"/></boundary>
 #include "boundary_common.h"
-#include "core/vdb_io.h"
 
+#include <kelvin/core/vdb.h>
 #include <kelvin/render/closest_point.h>
 
 namespace kelvin::fluid::boundaries {
@@ -42,8 +42,8 @@ public:
     VdbField(const Properties& props) {
         const std::filesystem::path path = props.get_input_file("filename", "OpenVDB file");
         try {
-            m_grid = kelvin::detail::vdb_codec().read_float_grid(path, props.get_string("grid"));
-        } catch (const kelvin::detail::VdbInputError& e) {
+            m_grid = read_vdb_float_grid(path, props.get_string("grid"));
+        } catch (const VdbInputError& e) {
             props.error(e.param, e.what());
         } catch (const std::runtime_error& e) {  // the OpenVDB module cannot be loaded
             props.error("filename", e.what());
@@ -146,7 +146,7 @@ public:
     double voxel() const { return m_voxel; }
 
 private:
-    std::unique_ptr<kelvin::detail::VdbFloatGrid> m_grid;  // OpenVDB's grid, behind the VDB module (core/vdb_io.h)
+    std::unique_ptr<VdbFloatGrid> m_grid;  // OpenVDB's grid, behind the VDB module (core/vdb.h)
     std::unique_ptr<ClosestPointQuery> m_leaves;
     double m_voxel = 1;
     std::string m_name;
