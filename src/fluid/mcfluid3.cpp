@@ -19,6 +19,7 @@
 #include <atomic>
 #include <bit>
 #include <cmath>
+#include <limits>
 
 namespace kelvin::fluid {
 
@@ -417,8 +418,8 @@ bool MCFluid3Solver::step(double dt) {
     return true;
 }
 
-FluidDiagnostics3 MCFluid3Solver::diagnostics() {
-    ensure_velocity();
+FluidDiagnostics3 MCFluid3Solver::diagnostics(bool with_velocity) {
+    if (with_velocity) ensure_velocity();
     const MCFluid3Settings& s = m_settings;
     FluidDiagnostics3 d;
     d.step = m_step;
@@ -466,6 +467,10 @@ FluidDiagnostics3 MCFluid3Solver::diagnostics() {
             }
     d.divergence_rms = count > 0 ? std::sqrt(div2 / double(count)) : 0.0;
     if (m_smoke) d.smoke_mass = m_density.integral();
+    if (!with_velocity) {
+        const double nan = std::numeric_limits<double>::quiet_NaN();
+        d.kinetic_energy = d.kinetic_energy_raw = d.helicity = d.divergence_rms = nan;
+    }
     return d;
 }
 

@@ -115,11 +115,11 @@ void report_dye_stats(Stats& stats, const PassiveScalars* dye) {
 
 std::string dye_effect(const DyeSpec* spec) { return spec ? "dye " + spec->description() : std::string("dye none"); }
 
-DiagnosticsCsv::DiagnosticsCsv(const std::filesystem::path& path)
+DiagnosticsCsv::DiagnosticsCsv(const std::filesystem::path& path, const std::string& header)
     : m_path(path), m_atomic(std::make_unique<AtomicFile>(path)) {
     m_file = std::fopen(m_atomic->temp_path().c_str(), "w");
     if (!m_file) throw_runtime("cannot write '{}': {}", path.string(), std::strerror(errno));
-    if (std::fprintf(m_file, "%s\n", header()) < 0 || std::fflush(m_file) != 0)
+    if (std::fprintf(m_file, "%s\n", header.c_str()) < 0 || std::fflush(m_file) != 0)
         throw_runtime("cannot write '{}': {}", m_path.string(), std::strerror(errno));
 }
 
@@ -145,14 +145,21 @@ const char* DiagnosticsCsv::header() {
            "biot_savart_evals,biot_savart_evals_per_second,invalid,vorticity_rmse_exact,cfl";
 }
 
-void DiagnosticsCsv::write(const FluidDiagnostics& d, double seconds, double evals, uint64_t invalid, double cfl) {
-    if (!m_file) return;
+std::string DiagnosticsCsv::row(const FluidDiagnostics& d, double seconds, double evals, uint64_t invalid, double cfl) {
     const double rate = seconds > 0 ? evals / seconds : 0.0;
-    std::string line = fmt::format(
+    return fmt::format(
         "{},{:.10g},{:.10g},{:.10g},{:.10g},{:.10g},{:.10g},{:.6g},{:.0f},{:.6g},{},{},{:.6g}\n", d.step, d.time,
         d.kinetic_energy, d.kinetic_energy_raw, d.enstrophy, d.circulation, d.max_abs_vorticity, seconds, evals, rate,
         invalid, std::isfinite(d.vorticity_rmse_exact) ? fmt::format("{:.6g}", d.vorticity_rmse_exact) : std::string(),
         cfl);
+}
+
+void DiagnosticsCsv::write(const FluidDiagnostics& d, double seconds, double evals, uint64_t invalid, double cfl) {
+    write_row(row(d, seconds, evals, invalid, cfl));
+}
+
+void DiagnosticsCsv::write_row(const std::string& line) {
+    if (!m_file) return;
     if (std::fputs(line.c_str(), m_file) < 0 || std::fflush(m_file) != 0)
         throw_runtime("cannot write '{}': {}", m_path.string(), std::strerror(errno));
 }

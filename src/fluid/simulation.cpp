@@ -1,4 +1,5 @@
-// The shared parameters and run loop of the baseline fluid solvers (see include/kelvin/fluid/simulation.h).
+// What the <simulation>s share: their parameters, the driver's adapter of a 2D FluidSolver (see
+// include/kelvin/fluid/simulation.h), and Simulation::run.
 #include <kelvin/core/checkpoint.h>
 #include <kelvin/core/distributed.h>
 #include <kelvin/core/interrupt.h>
@@ -9,7 +10,6 @@
 #include <kelvin/core/stats.h>
 #include <kelvin/fluid/output.h>
 #include <kelvin/fluid/simulation.h>
-#include <kelvin/render/scene.h>
 
 #include <fmt/format.h>
 
@@ -18,28 +18,6 @@
 #include <optional>
 
 namespace kelvin::fluid {
-
-TimeStepping TimeStepping::parse(const Properties& props) {
-    TimeStepping t;
-    t.dt = props.get_float("dt", 0.0, 1e300);
-    if (!(t.dt > 0)) props.error("dt", "must be positive");
-    t.steps = props.get_int("steps", 0, 1LL << 40);
-    t.end_time = props.get_float("end_time", 0.0, 1e300);
-    if (t.steps > 0 && t.end_time > 0) props.error("end_time", "give either steps or end_time, not both");
-    if (t.steps == 0 && t.end_time == 0) props.error("steps", "give the number of steps or an end_time (> 0)");
-    if (t.end_time > 0) {
-        const double n = t.end_time / t.dt;
-        if (n > double(1LL << 40)) props.error("end_time", "needs more than 2^40 steps of dt");
-        t.steps = std::max(1LL, (long long)std::ceil(n - 1e-9));
-    }
-    return t;
-}
-
-bool time_limit_reached(Communicator& comm, double time_limit, double elapsed) {
-    if (!(time_limit > 0)) return false;
-    comm.broadcast(&elapsed, sizeof elapsed);  // rank 0's clock
-    return elapsed >= time_limit;
-}
 
 SimulationParams SimulationParams::parse(const Properties& props, const std::string& who) {
     SimulationParams p;
@@ -152,15 +130,33 @@ std::unique_ptr<MCFluid3Solver> Simulation::create_solver3(const RunContext&) co
 
 std::shared_ptr<Simulation> find_simulation(const ObjectPtr& root) {
     if (auto sim = std::dynamic_pointer_cast<Simulation>(root)) return sim;
-    if (auto scene = std::dynamic_pointer_cast<Scene>(root)) {
-        if (auto sim = std::dynamic_pointer_cast<Simulation>(scene->simulation())) return sim;
-        throw InputError({}, scene->simulation() ? fmt::format("the scene's <simulation type=\"{}\"> offers no solver",
-                                                               scene->simulation()->plugin_name())
-                                                 : std::string("the scene has no <simulation> (it is a render)"));
+    if (root && root->plugin_kind() == "scene") {
+        const std::shared_ptr<Job> job = std::dynamic_pointer_cast<Job>(root)->delegate();
+        if (auto sim = std::dynamic_pointer_cast<Simulation>(job)) return sim;
+        throw InputError({},
+                         job ? fmt::format("the scene's <simulation type=\"{}\"> offers no solver", job->plugin_name())
+                             : std::string("the scene has no <simulation> (it is a render)"));
     }
     throw InputError({}, fmt::format("{} is not a scene or a simulation",
                                      root ? "<" + root->plugin_kind() + " type=\"" + root->plugin_name() + "\">"
                                           : std::string("a null object")));
+}
+
+RunResult Simulation::run(RunContext& ctx) {
+    const std::unique_ptr<DrivenSolver> solver = driven_solver(ctx);
+    return run_simulation(*solver, driver_settings(), ctx);
+}
+
+DriverSettings SimulationParams::driver_settings(const std::string& who) const {
+    DriverSettings d;
+    d.who = who;
+    d.time = {dt, steps, end_time};
+    d.outputs = {output_every, write_png, write_exr, write_csv, color_range, frames};
+    d.sources = sources;
+    const Vec2d size = domain.size();
+    d.h = std::min(size.x / nx, size.y / ny);  // as Grid2::h()
+    d.extent = std::min(size.x, size.y);
+    return d;
 }
 
 double FluidSolver::vorticity_at(Vec2d x) { return vorticity_grid().sample(x, Interpolation::Bilinear); }
@@ -176,153 +172,89 @@ FluidDiagnostics FluidSolver::diagnostics() {
     return d;
 }
 
-RunResult run_fluid_solver(const std::string& who, FluidSolver& solver, const SimulationParams& p, RunContext& ctx,
-                           const std::string& effects) {
-    check_frames_folder(OutputPaths(ctx.output, who), who);  // before any work
-    solver.set_cancel_token(ctx.cancel);                     // the solver's own loops stop with this job
-    Timer total;
-    // The time limit inside a step: the solver's loops poll the watch's token (checks.h).
-    TimeLimitWatch watch(ctx.time_limit);
-    solver.set_time_limit_token(watch.token());
-    const Vec2d cell = solver.vorticity_grid().h(), size = p.domain.size();
-    StepChecks checks(who, p.sources, std::min(cell.x, cell.y), std::min(size.x, size.y));
-    const VorticityField& field = *p.field;
-    log_info("{}: 2D, domain {}, {}x{} grid, initial {}", who, p.domain.to_string(), p.nx, p.ny, field.description());
-    log_info("{}: effects: {}; diffusion {}; stretching off (2D); {}", who, effects,
-             p.viscosity > 0 ? fmt::format("on (nu {:g})", p.viscosity) : std::string("off (inviscid)"),
-             dye_effect(p.dye.get()));
+// ------------------------------------------------------------------------------------------------
+// A 2D FluidSolver as the driver runs it.
 
-    OutputPaths paths(ctx.output, who);
-    std::optional<DiagnosticsCsv> csv;
-    RunResult result;
-    result.work_unit = "steps";
-    FrameWriter frames(paths, p.output_every, p.write_png, p.write_exr, p.frames, p.steps, result.files_written);
-    if (paths.enabled() && p.write_csv) {
-        csv.emplace(paths.csv());
-        result.files_written.push_back(paths.csv());
+Solver2Run::Solver2Run(std::string who, std::unique_ptr<FluidSolver> solver, const SimulationParams& params,
+                       std::string effects)
+    : m_who(std::move(who)), m_solver(std::move(solver)), m_p(params), m_effects(std::move(effects)) {
+    m_range = m_p.color_range > 0 ? m_p.color_range : m_solver->vorticity_grid().max_abs();
+}
+
+bool Solver2Run::step(double dt) {
+    if (!m_solver->step(dt)) return false;
+    m_velocity = false;
+    return true;
+}
+
+bool Solver2Run::diagnose(bool) {
+    m_d = m_solver->diagnostics();
+    m_d.vorticity_rmse_exact = exact_vorticity_rmse(m_solver->vorticity_grid(), *m_p.field, m_d.time, m_p.viscosity);
+    m_velocity = true;
+    if (!m_have_d0) m_d0 = m_d, m_have_d0 = true;
+    return true;
+}
+
+std::vector<FieldValues> Solver2Run::fields() {
+    std::vector<FieldValues> f = {{&m_solver->vorticity_grid().values(), "vorticity", m_p.nx, 0}};
+    if (m_velocity) {
+        f.push_back({&m_solver->velocity_u().values(), "velocity u", m_p.nx, 0});
+        f.push_back({&m_solver->velocity_v().values(), "velocity v", m_p.nx, 0});
     }
-    const double range = p.color_range > 0 ? p.color_range : solver.vorticity_grid().max_abs();
-    auto image = [&] {
-        return field_image(solver.vorticity_grid(), &solver.velocity_u(), &solver.velocity_v(), range);
-    };
-    auto write_frame = [&] {
-        if (frames.enabled())
-            frames.write_2d(solver.step_index(), image(), range, nullptr, p.domain.min, p.domain.max, solver.dye());
-    };
-    auto diagnostics = [&] {
-        FluidDiagnostics d = solver.diagnostics();
-        d.vorticity_rmse_exact = exact_vorticity_rmse(solver.vorticity_grid(), field, d.time, p.viscosity);
-        return d;
-    };
+    return f;
+}
 
-    // Checkpoints (core/checkpoint.h), as mcfluid: the state after the steps that reach them, on the output grid.
-    CheckpointSchedule checkpoints(ctx);
-    auto checkpoint = [&](long long steps) {
-        auto fields = [&solver](const std::string& name) -> const Grid2* {
-            return name == "vorticity" ? &solver.vorticity_grid()
-                   : name == "u"       ? &solver.velocity_u()
-                   : name == "v"       ? &solver.velocity_v()
-                                       : nullptr;
-        };
-        Checkpoint cp = state_checkpoint(steps, solver.time(), {p.domain.min, p.domain.max, p.nx, p.ny}, fields, field,
-                                         p.viscosity);
-        cp.seconds = total.seconds() - checkpoints.overhead();
-        cp.image = image;
-        checkpoints.reached(ctx, cp);
+double Solver2Run::max_speed() {
+    return fluid::max_speed({&m_solver->velocity_u().values(), &m_solver->velocity_v().values()});
+}
+
+Bitmap Solver2Run::image() {
+    return field_image(m_solver->vorticity_grid(), m_velocity ? &m_solver->velocity_u() : nullptr,
+                       m_velocity ? &m_solver->velocity_v() : nullptr, m_range);
+}
+
+void Solver2Run::write_frame(FrameWriter& frames) {
+    frames.write_2d(m_solver->step_index(), image(), m_range, overlay(), m_p.domain.min, m_p.domain.max,
+                    m_solver->dye());
+}
+
+Checkpoint Solver2Run::checkpoint() {
+    FluidSolver& solver = *m_solver;
+    auto fields = [&solver](const std::string& name) -> const Grid2* {
+        return name == "vorticity" ? &solver.vorticity_grid()
+               : name == "u"       ? &solver.velocity_u()
+               : name == "v"       ? &solver.velocity_v()
+                                   : nullptr;
     };
+    return state_checkpoint(solver.step_index(), solver.time(), {m_p.domain.min, m_p.domain.max, m_p.nx, m_p.ny},
+                            fields, *m_p.field, m_p.viscosity);
+}
 
-    // Nothing non-finite reaches the CSV or a frame (checks.h): the initial state is refused as input (exit 2,
-    // naming the initial vorticity's strength), a later one stops the run with the earlier steps' outputs (exit 1).
-    auto check_state = [&](const FluidDiagnostics& d, uint64_t replaced) {
-        const int nx = p.nx;
-        const std::string why = checks.state(d.step, diagnostic_values(d),
-                                             {{&solver.vorticity_grid().values(), "vorticity", nx, 0},
-                                              {&solver.velocity_u().values(), "velocity u", nx, 0},
-                                              {&solver.velocity_v().values(), "velocity v", nx, 0}},
-                                             replaced, solver.vorticity_grid().cell_count());
-        if (why.empty()) return;
-        if (csv) csv->close();
-        throw RuntimeError(why);
-    };
-    // The state's CFL number for the step that starts from it; a refused dt keeps the earlier rows.
-    auto cfl = [&](long long s) {
-        const double dt = TimeStepping{p.dt, p.steps, p.end_time}.step_length(s + 1, solver.time());
-        try {
-            return checks.cfl(s, max_speed({&solver.velocity_u().values(), &solver.velocity_v().values()}), dt,
-                              s == p.steps);
-        } catch (...) {
-            if (csv && s > 0) csv->close();
-            throw;
-        }
-    };
+std::vector<std::string> Solver2Run::describe() {
+    return {fmt::format("2D, domain {}, {}x{} grid, initial {}", m_p.domain.to_string(), m_p.nx, m_p.ny,
+                        m_p.field->description()),
+            fmt::format("effects: {}; diffusion {}; stretching off (2D); {}", m_effects,
+                        m_p.viscosity > 0 ? fmt::format("on (nu {:g})", m_p.viscosity) : std::string("off (inviscid)"),
+                        dye_effect(m_p.dye.get()))};
+}
 
-    const FluidDiagnostics d0 = diagnostics();
-    check_state(d0, 0);
-    if (csv) csv->write(d0, 0.0, solver.evaluations(), solver.invalid(), cfl(0));
-    write_frame();
-    if (checkpoints.active()) checkpoint(0);
+void Solver2Run::report(Stats& stats) const {
+    m_solver->report(stats);
+    report_dye_stats(stats, m_solver->dye());
+}
 
-    ProgressReporter progress(ctx, "Simulating", double(p.steps), "steps", ctx.time_limit);
-    Timer since_partial;
-    long long done = 0;
-    bool stopped_by_time = false;
-    for (long long s = 1; s <= p.steps; ++s) {
-        if (ctx.cancel.stop_requested()) break;
-        const double evals_before = solver.evaluations();
-        const uint64_t invalid_before = solver.invalid();
-        Timer step_timer;
-        const double dt = TimeStepping{p.dt, p.steps, p.end_time}.step_length(s, solver.time());
-        if (!solver.step(dt)) break;
-        const FluidDiagnostics d = diagnostics();
-        check_state(d, solver.invalid() - invalid_before);
-        const double c = cfl(s);
-        const double seconds = step_timer.seconds();
-        if (csv) csv->write(d, seconds, solver.evaluations() - evals_before, solver.invalid() - invalid_before, c);
-        ++done;
-        if (frames.due(s)) write_frame();
-        progress.update(1);
-        if (ctx.write_partial > 0 && ctx.write_partial_image && since_partial.seconds() >= ctx.write_partial) {
-            ctx.write_partial_image(image());
-            since_partial.reset();
-        }
-        if (checkpoints.active()) {
-            checkpoint(done);
-            if (ctx.time_limit > 0) watch.set_limit(ctx.time_limit + checkpoints.overhead());
-        }
-        if (ctx.time_limit > 0 && total.seconds() - checkpoints.overhead() >= ctx.time_limit && s < p.steps) {
-            stopped_by_time = true;
-            break;
-        }
-    }
-    progress.finish();
-    result.interrupted = ctx.cancel.stop_requested();
-    // The limit passed inside a step (the watch stopped it; the partial step was discarded): as at a step boundary.
-    if (!result.interrupted && done < p.steps && watch.passed()) stopped_by_time = true;
-    checks.report(ctx.stats);
-    if (csv) csv->close();  // the CSV so far replaces the previous one (interrupted runs included)
-    if (stopped_by_time)
-        log_warn("{}: time limit of {:g} s reached after {} of {} steps (t = {:g})", who, ctx.time_limit, done, p.steps,
-                 solver.time());
+void Solver2Run::warn() const {
+    if (m_solver->invalid() > 0)
+        log_warn("{}: {} non-finite value(s) were replaced by zero", m_who, m_solver->invalid());
+}
 
-    ctx.stats.add("fluid.steps", double(done), "steps");
-    ctx.stats.set("fluid.time_simulated", solver.time(), "");
-    ctx.stats.add("fluid.cells", double(solver.vorticity_grid().cell_count()), "cells");
-    solver.report(ctx.stats);
-    frames.finish();
-    ctx.stats.add_time("fluid.time.output", frames.seconds());
-    report_dye_stats(ctx.stats, solver.dye());
-    if (solver.invalid() > 0) log_warn("{}: {} non-finite value(s) were replaced by zero", who, solver.invalid());
-
-    const FluidDiagnostics dn = diagnostics();
-    log_info(
-        "{}: t = {:g}: energy {:.6g} (initial {:.6g}), enstrophy {:.6g} (initial {:.6g}), circulation {:.6g}, max "
-        "|omega| {:.6g}; active effects: advection{}{}",
-        who, dn.time, dn.kinetic_energy, d0.kinetic_energy, dn.enstrophy, d0.enstrophy, dn.circulation,
-        dn.max_abs_vorticity, p.viscosity > 0 ? ", diffusion" : "", solver.dye() ? ", dye" : "");
-    result.image = image();
-    result.work = double(done);
-    result.seconds = total.seconds();
-    return result;
+std::string Solver2Run::summary(const std::string&) {
+    const FluidDiagnostics dn = m_solver->diagnostics();
+    return fmt::format(
+        "t = {:g}: energy {:.6g} (initial {:.6g}), enstrophy {:.6g} (initial {:.6g}), circulation {:.6g}, max |omega| "
+        "{:.6g}; active effects: advection{}{}",
+        dn.time, dn.kinetic_energy, m_d0.kinetic_energy, dn.enstrophy, m_d0.enstrophy, dn.circulation,
+        dn.max_abs_vorticity, m_p.viscosity > 0 ? ", diffusion" : "", m_solver->dye() ? ", dye" : "");
 }
 
 }  // namespace kelvin::fluid

@@ -1,4 +1,4 @@
-// mcfluid in 3D: parameters, run loop and outputs (see include/kelvin/fluid/simulation3.h).
+// mcfluid in 3D: parameters, outputs and the solver as the driver runs it (see include/kelvin/fluid/simulation3.h).
 #include <kelvin/core/distributed.h>
 #include <kelvin/core/error.h>
 #include <kelvin/core/files.h>
@@ -225,170 +225,132 @@ Bitmap slice_image(const VectorGrid3& field, int axis, double range) {
 }
 
 // ------------------------------------------------------------------------------------------------
-// Run loop.
+// The solver as the driver runs it.
 
-namespace {
-// The solver's settings for a run with `ctx`: the scene's, with the run's seed and --spp as n_mc.
-MCFluid3Settings settings_for(const Simulation3Params& p, const RunContext& ctx) {
-    MCFluid3Settings settings = p.settings;
-    settings.seed = ctx.seed;
-    if (ctx.spp > 0) settings.velocity.samples = int(std::min<long long>(ctx.spp, 1 << 24));
-    return settings;
+DriverSettings Simulation3Params::driver_settings() const {
+    DriverSettings d;
+    d.who = "mcfluid";
+    d.time = {settings.dt, steps, end_time};
+    d.outputs = {output_every, write_png, write_vdb, write_csv, color_range, frames};
+    d.sources = sources;
+    const Vec3d size = settings.domain.size();
+    d.h = std::min({size.x / settings.nx, size.y / settings.ny, size.z / settings.nz});  // as Grid3::h()
+    d.extent = std::min({size.x, size.y, size.z});
+    return d;
 }
-}  // namespace
 
 std::unique_ptr<MCFluid3Solver> create_mcfluid3_solver(const Simulation3Params& p, const RunContext& ctx) {
+    MCFluid3Settings settings = p.settings;
+    settings.seed = ctx.seed;
+    settings.velocity.samples = run_samples(ctx, settings.velocity.samples);
     const VorticityField3* field = p.field;
-    auto solver = std::make_unique<MCFluid3Solver>(settings_for(p, ctx),
-                                                   [field](const Vec3d& x) { return field->vorticity3(x); });
+    auto solver = std::make_unique<MCFluid3Solver>(settings, [field](const Vec3d& x) { return field->vorticity3(x); });
     if (p.smoke) solver->set_smoke({p.smoke->center(), p.smoke->radius(), p.smoke->initial_density(), p.smoke->rate()});
     solver->set_cancel_token(ctx.cancel);
     solver->set_communicator(ctx.comm);
     return solver;
 }
 
-RunResult run_mcfluid3(const Simulation3Params& p, RunContext& ctx) {
-    check_frames_folder(OutputPaths(ctx.output), "mcfluid");  // before any work
-    Timer total;
-    // The time limit inside a step: the solver's passes poll the watch's token (checks.h).
-    TimeLimitWatch watch(ctx.time_limit);
-    const MCFluid3Settings settings = settings_for(p, ctx);
-    if (ctx.spp > 0) log_info("mcfluid: --spp {} overrides the Biot–Savart samples (n_mc)", settings.velocity.samples);
-    const VorticityField3& field = *p.field;
-    const std::unique_ptr<MCFluid3Solver> owned = create_mcfluid3_solver(p, ctx);
-    MCFluid3Solver& solver = *owned;
-    solver.set_time_limit_token(watch.token());
-    const bool viscous = settings.viscosity > 0;
-    const Vec3d cell = solver.vorticity_grid().x.h(), size = settings.domain.size();
-    StepChecks checks("mcfluid", p.sources, std::min({cell.x, cell.y, cell.z}), std::min({size.x, size.y, size.z}));
-    log_info("mcfluid: 3D, domain {}, {}x{}x{} cache ({}), initial {}", settings.domain.to_string(), settings.nx,
-             settings.ny, settings.nz, settings.interpolation == Interpolation::Nearest ? "nearest" : "trilinear",
-             field.description3());
-    const std::string velocity =
-        settings.boundaries
-            ? fmt::format(
-                  "free-slip Walk-on-Spheres velocity on the vector potential ({} gradient samples, max {} "
-                  "steps, {} volume sampling)",
-                  settings.velocity.samples, settings.boundaries->wos.max_steps,
-                  settings.boundaries->vorticity_importance ? "|omega|-mixed" : "Green's-function")
-            : settings.estimator->effect(settings.velocity.samples, solver.delta(), settings.domain.periodic);
-    log_info(
-        "mcfluid: effects: advection ({}, dt {:g}, {} steps) with {}; stretching {}; diffusion {}; control variates "
-        "{}; boundaries {}; smoke {}",
-        fluid::to_string(settings.advection), settings.dt, p.steps, velocity,
-        settings.stretching ? fmt::format("on (vortex segments, h = {:g})", solver.segment_length())
-                            : std::string("OFF (requested; the 3D equations need it)"),
-        viscous ? fmt::format("on (nu {:g}, Feynman–Kac, n_d {})", settings.viscosity, settings.diffusion_samples)
-                : std::string("off (inviscid)"),
-        settings.control_variates
-            ? fmt::format("on (initial samples {}{})",
-                          settings.initial_samples > 0 ? settings.initial_samples : settings.velocity.samples,
-                          settings.control_variate_blend < 1
-                              ? fmt::format(", blend {:g}", settings.control_variate_blend)
-                              : std::string())
-            : std::string("off"),
-        settings.boundaries ? describe3(*settings.boundaries, settings.domain) : std::string("none"),
-        p.smoke ? p.smoke->description() : std::string("none"));
+namespace {
 
-    // Distributed: every rank steps the whole state (the solver's passes are collectives) and takes the same
-    // decisions; only rank 0 writes files and reports progress.
-    Communicator& comm = communicator_of(ctx);
-    const OutputPaths paths(ctx.output);
-    RunResult result;
-    result.work_unit = "steps";
-    // The data frames are the .vdb files (the EXR role of 2D).
-    FrameWriter frames(comm.root() ? paths : OutputPaths({}), p.output_every, p.write_png, p.write_vdb, p.frames,
-                       p.steps, result.files_written);
-    std::string csv =
-        "step,time,kinetic_energy,kinetic_energy_raw,enstrophy,helicity,impulse_x,impulse_y,impulse_z,centroid_x,"
-        "centroid_y,centroid_z,max_abs_vorticity,divergence_rms,smoke_mass,step_seconds,biot_savart_evals,invalid,"
-        "cfl\n";
-    auto add_row = [&](const FluidDiagnostics3& d, double seconds, double evals, uint64_t invalid, double cfl) {
-        csv += fmt::format(
+class MCFluid3Run final : public DrivenSolver {
+public:
+    MCFluid3Run(std::unique_ptr<MCFluid3Solver> solver, const Simulation3Params& p, bool spp)
+        : m_solver(std::move(solver)), m_p(p), m_spp(spp) {
+        const VectorGrid3& w = m_solver->vorticity_grid();
+        const int axis = p.slice_axis;
+        m_range = p.color_range > 0 ? p.color_range : (axis == 0 ? w.x : (axis == 1 ? w.y : w.z)).max_abs();
+    }
+
+    Cancellable& cancellable() override { return *m_solver; }
+    double time() const override { return m_solver->time(); }
+    long long step_index() const override { return m_solver->step_index(); }
+    bool step(double dt) override {
+        if (!m_solver->step(dt)) return false;
+        m_velocity = false;
+        return true;
+    }
+    bool lazy_velocity() const override { return true; }
+
+    bool diagnose(bool velocity) override {
+        if (velocity && !m_solver->velocity_available()) velocity = false;  // a stop cut the velocity's pass short
+        m_d = m_solver->diagnostics(velocity);
+        m_velocity = velocity;
+        if (!m_have_d0) m_d0 = m_d, m_have_d0 = true;
+        return velocity;
+    }
+    std::vector<NamedValue> values() const override {
+        const FluidDiagnostics3& d = m_d;
+        std::vector<NamedValue> v = {{d.enstrophy, "enstrophy"},
+                                     {d.impulse.x, "impulse x"},
+                                     {d.impulse.y, "impulse y"},
+                                     {d.impulse.z, "impulse z"},
+                                     {d.max_abs_vorticity, "max |vorticity|"},
+                                     {d.smoke_mass, "smoke mass"}};
+        if (m_velocity)
+            v.insert(v.begin(), {{d.kinetic_energy, "kinetic energy"},
+                                 {d.kinetic_energy_raw, "raw kinetic energy"},
+                                 {d.helicity, "helicity"},
+                                 {d.divergence_rms, "divergence RMS"}});
+        return v;
+    }
+    std::vector<FieldValues> fields() override {
+        const VectorGrid3& w = m_solver->vorticity_grid();
+        const int nx = w.x.nx(), ny = w.x.ny();
+        std::vector<FieldValues> f = {{&w.x.values(), "vorticity x", nx, ny},
+                                      {&w.y.values(), "vorticity y", nx, ny},
+                                      {&w.z.values(), "vorticity z", nx, ny}};
+        if (m_velocity) {
+            const VectorGrid3& u = m_solver->velocity_grid();
+            f.push_back({&u.x.values(), "velocity x", nx, ny});
+            f.push_back({&u.y.values(), "velocity y", nx, ny});
+            f.push_back({&u.z.values(), "velocity z", nx, ny});
+        }
+        if (m_solver->smoke()) f.push_back({&m_solver->smoke()->values(), "smoke density", nx, ny});
+        return f;
+    }
+    std::size_t cells() const override { return m_solver->vorticity_grid().cell_count(); }
+    double max_speed() override {
+        const VectorGrid3& u = m_solver->velocity_grid();
+        return fluid::max_speed({&u.x.values(), &u.y.values(), &u.z.values()});
+    }
+    double evaluations() const override { return double(m_solver->work().biot_savart_evals); }
+    uint64_t replaced() const override {
+        const FluidWork3& w = m_solver->work();
+        return w.invalid_velocity + w.invalid_vorticity;
+    }
+    std::string csv_header() const override {
+        return "step,time,kinetic_energy,kinetic_energy_raw,enstrophy,helicity,impulse_x,impulse_y,impulse_z,"
+               "centroid_x,centroid_y,centroid_z,max_abs_vorticity,divergence_rms,smoke_mass,step_seconds,"
+               "biot_savart_evals,invalid,cfl";
+    }
+    std::string csv_row(double seconds, double evals, uint64_t invalid, double cfl) const override {
+        const FluidDiagnostics3& d = m_d;
+        return fmt::format(
             "{},{:.9g},{:.9g},{:.9g},{:.9g},{:.9g},{:.9g},{:.9g},{:.9g},{:.9g},{:.9g},{:.9g},{:.9g},{:.9g},"
             "{:.9g},{:.6g},{:.0f},{},{:.6g}\n",
             d.step, d.time, d.kinetic_energy, d.kinetic_energy_raw, d.enstrophy, d.helicity, d.impulse.x, d.impulse.y,
             d.impulse.z, d.centroid.x, d.centroid.y, d.centroid.z, d.max_abs_vorticity, d.divergence_rms, d.smoke_mass,
             seconds, evals, invalid, cfl);
-    };
-    auto save_csv = [&] {  // at the end of the run, or before a stop (the rows of the steps before it)
-        if (paths.enabled() && p.write_csv && comm.root()) {
-            write_text_atomically(paths.csv(), csv);
-            result.files_written.push_back(paths.csv());
-        }
-    };
-    const int axis = p.slice_axis;
-    const VectorGrid3& omega0 = solver.vorticity_grid();
-    const double range =
-        p.color_range > 0 ? p.color_range : (axis == 0 ? omega0.x : (axis == 1 ? omega0.y : omega0.z)).max_abs();
-    auto write_frame = [&]() {
-        if (!frames.enabled()) return;
-        if (p.write_vdb)
+    }
+    void write_frame(FrameWriter& frames) override {
+        MCFluid3Solver& solver = *m_solver;
+        if (m_p.write_vdb)  // the data frames (the EXR role of 2D)
             frames.write_data("fields", solver.step_index(), ".vdb", [&](const std::filesystem::path& path) {
-                write_vdb_frame(path, solver.vorticity_grid(), &solver.velocity_grid(), solver.smoke());
+                write_vdb_frame(path, solver.vorticity_grid(), m_velocity ? &solver.velocity_grid() : nullptr,
+                                solver.smoke());
             });
-        frames.write_png("vorticity", solver.step_index(), slice_image(solver.vorticity_grid(), axis, range), "value",
-                         range, {0, 0}, {1, 1});
-    };
-
-    // Nothing non-finite reaches the CSV or a frame: diagnostics and every grid an output carries are checked first
-    // (as the float32 the VDB frames store). The initial state is refused as input (exit 2, naming the initial
-    // vorticity's strength); a later one stops the run with the CSV of the earlier steps (exit 1).
-    auto refuse = [&](const FluidDiagnostics3& d, uint64_t replaced) {
-        const VectorGrid3& w = solver.vorticity_grid();
-        const int nx = w.x.nx(), ny = w.x.ny();
-        std::vector<FieldValues> fields = {{&w.x.values(), "vorticity x", nx, ny},
-                                           {&w.y.values(), "vorticity y", nx, ny},
-                                           {&w.z.values(), "vorticity z", nx, ny}};
-        if (solver.velocity_available()) {
-            const VectorGrid3& u = solver.velocity_grid();
-            fields.push_back({&u.x.values(), "velocity x", nx, ny});
-            fields.push_back({&u.y.values(), "velocity y", nx, ny});
-            fields.push_back({&u.z.values(), "velocity z", nx, ny});
-        }
-        if (solver.smoke()) fields.push_back({&solver.smoke()->values(), "smoke density", nx, ny});
-        const std::string why = checks.state(d.step,
-                                             {{d.kinetic_energy, "kinetic energy"},
-                                              {d.kinetic_energy_raw, "raw kinetic energy"},
-                                              {d.enstrophy, "enstrophy"},
-                                              {d.helicity, "helicity"},
-                                              {d.impulse.x, "impulse x"},
-                                              {d.impulse.y, "impulse y"},
-                                              {d.impulse.z, "impulse z"},
-                                              {d.max_abs_vorticity, "max |vorticity|"},
-                                              {d.divergence_rms, "divergence RMS"},
-                                              {d.smoke_mass, "smoke mass"}},
-                                             fields, replaced, w.cell_count());
-        if (why.empty()) return;
-        save_csv();
-        throw RuntimeError(why);
-    };
-    // The state's CFL number for the step that starts from it (0 without a velocity).
-    auto cfl = [&](long long step) {
-        if (!solver.velocity_available()) return 0.0;
-        const VectorGrid3& u = solver.velocity_grid();
-        const double dt = TimeStepping{settings.dt, p.steps, p.end_time}.step_length(step + 1, solver.time());
-        try {
-            return checks.cfl(step, max_speed({&u.x.values(), &u.y.values(), &u.z.values()}), dt, step == p.steps);
-        } catch (...) {  // a refused dt mid-run: the CSV of the steps before it is kept
-            if (step > 0) save_csv();
-            throw;
-        }
-    };
-    // Checkpoints (core/checkpoint.h, `kelvin converge`): the state after the steps that reach them, the vorticity
-    // and velocity components on the cache grid, the field's exact solution where it has one (abc).
-    CheckpointSchedule checkpoints(ctx);
-    if (checkpoints.active() && comm.distributed())
-        throw RuntimeError(
-            "mcfluid: checkpoints are not supported in a distributed job (a convergence study distributes its runs "
-            "instead: kelvin converge under mpirun)");
-    auto checkpoint = [&](long long steps) {
+        frames.write_png("vorticity", solver.step_index(), image(), "value", m_range, {0, 0}, {1, 1});
+    }
+    Bitmap image() override { return slice_image(m_solver->vorticity_grid(), m_p.slice_axis, m_range); }
+    // The vorticity and velocity components on the cache grid, the field's exact solution where it has one (abc).
+    Checkpoint checkpoint() override {
+        MCFluid3Solver& solver = *m_solver;
+        const MCFluid3Settings& s = solver.settings();
         Checkpoint cp;
-        cp.work = double(steps);
-        cp.work_unit = "steps";
         cp.sim_time = solver.time();
         cp.dimension = 3;
-        cp.grid3 = {settings.domain.min, settings.domain.max, settings.nx, settings.ny, settings.nz};
+        cp.grid3 = {s.domain.min, s.domain.max, s.nx, s.ny, s.nz};
         cp.field = [&solver](const std::string& name, std::vector<double>& values) {
             const VectorGrid3& w = solver.vorticity_grid();
             const Grid3* g = name == "vorticity_x"   ? &w.x
@@ -402,7 +364,8 @@ RunResult run_mcfluid3(const Simulation3Params& p, RunContext& ctx) {
             if (g) values = g->values();
             return g != nullptr;
         };
-        const double nu = settings.viscosity;
+        const double nu = s.viscosity;
+        const VorticityField3& field = *m_p.field;
         cp.exact3 = [&field, nu](const std::string& name, double t, Vec3d x) -> std::optional<double> {
             const bool vort = name.rfind("vorticity_", 0) == 0;
             const std::optional<Vec3d> e = vort ? field.exact_vorticity3(t, x, nu) : field.exact_velocity3(t, x, nu);
@@ -411,95 +374,109 @@ RunResult run_mcfluid3(const Simulation3Params& p, RunContext& ctx) {
             if (c == '?') return std::nullopt;
             return c == 'x' ? e->x : c == 'y' ? e->y : e->z;
         };
-        cp.seconds = total.seconds() - checkpoints.overhead();
-        cp.image = [&] { return slice_image(solver.vorticity_grid(), axis, range); };
-        checkpoints.reached(ctx, cp);
-    };
+        return cp;
+    }
 
-    const FluidDiagnostics3 d0 = solver.diagnostics();
-    refuse(d0, solver.work().invalid_velocity + solver.work().invalid_vorticity);
-    if (solver.velocity_available()) {
-        const double cfl0 = cfl(0);
-        add_row(d0, 0.0, double(solver.work().biot_savart_evals), solver.work().invalid_velocity, cfl0);
-        write_frame();
-        if (checkpoints.active()) checkpoint(0);
+    std::vector<std::string> describe() override {
+        const MCFluid3Solver& solver = *m_solver;
+        const MCFluid3Settings& s = solver.settings();
+        std::vector<std::string> lines;
+        if (m_spp)
+            lines.push_back(fmt::format("--spp {} overrides the Biot–Savart samples (n_mc)", s.velocity.samples));
+        lines.push_back(fmt::format("3D, domain {}, {}x{}x{} cache ({}), initial {}", s.domain.to_string(), s.nx, s.ny,
+                                    s.nz, s.interpolation == Interpolation::Nearest ? "nearest" : "trilinear",
+                                    m_p.field->description3()));
+        const std::string velocity =
+            s.boundaries
+                ? fmt::format(
+                      "free-slip Walk-on-Spheres velocity on the vector potential ({} gradient samples, max {} "
+                      "steps, {} volume sampling)",
+                      s.velocity.samples, s.boundaries->wos.max_steps,
+                      s.boundaries->vorticity_importance ? "|omega|-mixed" : "Green's-function")
+                : s.estimator->effect(s.velocity.samples, solver.delta(), s.domain.periodic);
+        lines.push_back(fmt::format(
+            "effects: advection ({}, dt {:g}, {} steps) with {}; stretching {}; diffusion {}; control variates {}; "
+            "boundaries {}; smoke {}",
+            fluid::to_string(s.advection), s.dt, m_p.steps, velocity,
+            s.stretching ? fmt::format("on (vortex segments, h = {:g})", solver.segment_length())
+                         : std::string("OFF (requested; the 3D equations need it)"),
+            s.viscosity > 0 ? fmt::format("on (nu {:g}, Feynman–Kac, n_d {})", s.viscosity, s.diffusion_samples)
+                            : std::string("off (inviscid)"),
+            s.control_variates
+                ? fmt::format("on (initial samples {}{})",
+                              s.initial_samples > 0 ? s.initial_samples : s.velocity.samples,
+                              s.control_variate_blend < 1 ? fmt::format(", blend {:g}", s.control_variate_blend)
+                                                          : std::string())
+                : std::string("off"),
+            s.boundaries ? describe3(*s.boundaries, s.domain) : std::string("none"),
+            m_p.smoke ? m_p.smoke->description() : std::string("none")));
+        return lines;
     }
-    ProgressReporter progress(ctx, "Simulating", double(p.steps), "steps", ctx.time_limit);
-    long long done = 0;
-    bool stopped_by_time = false;
-    Timer since_partial;
-    for (long long step = 1; step <= p.steps; ++step) {
-        if (any_rank(comm, ctx.cancel.stop_requested())) break;
-        const FluidWork3 before = solver.work();
-        Timer step_timer;
-        const double dt = TimeStepping{settings.dt, p.steps, p.end_time}.step_length(step, solver.time());
-        if (!solver.step(dt)) break;
-        ++done;
-        const FluidDiagnostics3 d = solver.diagnostics();
-        if (!solver.velocity_available()) break;
-        const FluidWork3& after = solver.work();
-        const uint64_t replaced =
-            (after.invalid_velocity + after.invalid_vorticity) - (before.invalid_velocity + before.invalid_vorticity);
-        refuse(d, replaced);
-        const double c = cfl(step);
-        add_row(d, step_timer.seconds(), double(after.biot_savart_evals - before.biot_savart_evals), replaced, c);
-        if (frames.due(step)) write_frame();
-        if (checkpoints.active()) checkpoint(done);
-        progress.update(1);
-        if (comm.root() && ctx.write_partial > 0 && ctx.write_partial_image &&
-            since_partial.seconds() >= ctx.write_partial) {
-            ctx.write_partial_image(slice_image(solver.vorticity_grid(), axis, range));
-            since_partial.reset();
-        }
-        if (step < p.steps && time_limit_reached(comm, ctx.time_limit, total.seconds())) {
-            stopped_by_time = true;
-            break;
-        }
-    }
-    progress.finish();
-    result.interrupted = any_rank(comm, ctx.cancel.stop_requested());
-    // The limit passed inside a step (the watch stopped it; the partial step was discarded): as at a step boundary.
-    if (!result.interrupted && done < p.steps && any_rank(comm, watch.passed())) stopped_by_time = true;
-    if (stopped_by_time)
-        log_warn("mcfluid: time limit of {:g} s reached after {} of {} steps (t = {:g})", ctx.time_limit, done, p.steps,
-                 solver.time());
-    checks.report(ctx.stats);
 
-    const FluidWork3& w = solver.work();
-    report_fluid_work(ctx.stats, done, solver.time(), solver.vorticity_grid().cell_count(), w);
-    ctx.stats.add("fluid.stretching_evals", double(w.stretching_evals), "segments");
-    ctx.stats.add("fluid.control_variate_queries", double(w.control_variate_queries), "queries");
-    if (settings.boundaries) {
-        report_walks(ctx.stats, "fluid.wos_",
-                     {w.wos_walks, w.wos_steps, w.wos_truncated, w.wos_invalid, w.wos_boundary_queries}, "mcfluid",
-                     settings.boundaries->wos.max_steps);
-        ctx.stats.add("fluid.solid_cells", double(w.solid_cells), "cells");
-        ctx.stats.add("fluid.solid_departures", double(w.solid_departures), "backtraces");
-        ctx.stats.add("fluid.distance_queries", double(w.distance_queries), "queries");
-    } else {
-        ctx.stats.add("fluid.wos_walks", 0.0, "walks");
+    void report(Stats& stats) const override {
+        const FluidWork3& w = m_solver->work();
+        const MCFluid3Settings& s = m_solver->settings();
+        report_fluid_counters(stats, w);
+        stats.add("fluid.stretching_evals", double(w.stretching_evals), "segments");
+        stats.add("fluid.control_variate_queries", double(w.control_variate_queries), "queries");
+        if (s.boundaries) {
+            report_walks(stats, "fluid.wos_",
+                         {w.wos_walks, w.wos_steps, w.wos_truncated, w.wos_invalid, w.wos_boundary_queries}, "mcfluid",
+                         s.boundaries->wos.max_steps);
+            stats.add("fluid.solid_cells", double(w.solid_cells), "cells");
+            stats.add("fluid.solid_departures", double(w.solid_departures), "backtraces");
+            stats.add("fluid.distance_queries", double(w.distance_queries), "queries");
+        } else {
+            stats.add("fluid.wos_walks", 0.0, "walks");
+        }
+        stats.add("fluid.smoke_lookups", double(w.smoke_lookups), "lookups");
     }
-    ctx.stats.add("fluid.smoke_lookups", double(w.smoke_lookups), "lookups");
-    frames.finish();
-    ctx.stats.add_time("fluid.time.output", frames.seconds());
-    if (w.invalid_velocity + w.invalid_vorticity > 0)
-        log_warn(
-            "mcfluid: {} non-finite velocity estimate(s) and {} non-finite vorticity value(s) were replaced by zero",
-            w.invalid_velocity, w.invalid_vorticity);
-    save_csv();
-    if (solver.velocity_available()) {
-        const FluidDiagnostics3 dn = solver.diagnostics();
-        log_info(
-            "mcfluid: t = {:g}: energy noise-corrected {:.6g}, raw {:.6g} (initial {:.6g}, {:.6g}), enstrophy {:.6g}, "
-            "helicity {:.6g}, max |omega| {:.6g}; active effects: advection{}{}{}{}",
-            dn.time, dn.kinetic_energy, dn.kinetic_energy_raw, d0.kinetic_energy, d0.kinetic_energy_raw, dn.enstrophy,
-            dn.helicity, dn.max_abs_vorticity, settings.stretching ? ", stretching" : "", viscous ? ", diffusion" : "",
-            settings.control_variates ? ", control variates" : "", settings.boundaries ? ", boundaries" : "");
+
+    void warn() const override {
+        const FluidWork3& w = m_solver->work();
+        if (w.invalid_velocity + w.invalid_vorticity > 0)
+            log_warn(
+                "mcfluid: {} non-finite velocity estimate(s) and {} non-finite vorticity value(s) were replaced by "
+                "zero",
+                w.invalid_velocity, w.invalid_vorticity);
     }
-    result.image = slice_image(solver.vorticity_grid(), axis, range);
-    result.work = double(done);
-    result.seconds = total.seconds();
-    return result;
+
+    std::string summary(const std::string& ended) override {
+        const MCFluid3Settings& s = m_solver->settings();
+        const std::string effects =
+            fmt::format("active effects: advection{}{}{}{}", s.stretching ? ", stretching" : "",
+                        s.viscosity > 0 ? ", diffusion" : "", s.control_variates ? ", control variates" : "",
+                        s.boundaries ? ", boundaries" : "");
+        if (!m_velocity) {
+            const FluidDiagnostics3 dn = m_solver->diagnostics(false);
+            return fmt::format("t = {:g}: enstrophy {:.6g}, max |omega| {:.6g} ({}); {}", dn.time, dn.enstrophy,
+                               dn.max_abs_vorticity,
+                               ended.empty() ? "the final state's velocity and energy were not estimated: no output "
+                                               "needs them; the CSV or a VDB frame does"
+                                             : ended + " before the velocity of that state was estimated",
+                               effects);
+        }
+        const FluidDiagnostics3 dn = m_solver->diagnostics(true);
+        return fmt::format(
+            "t = {:g}: energy noise-corrected {:.6g}, raw {:.6g} (initial {:.6g}, {:.6g}), enstrophy {:.6g}, helicity "
+            "{:.6g}, max |omega| {:.6g}; {}",
+            dn.time, dn.kinetic_energy, dn.kinetic_energy_raw, m_d0.kinetic_energy, m_d0.kinetic_energy_raw,
+            dn.enstrophy, dn.helicity, dn.max_abs_vorticity, effects);
+    }
+
+private:
+    std::unique_ptr<MCFluid3Solver> m_solver;
+    const Simulation3Params& m_p;
+    bool m_spp;
+    double m_range = 0;
+    FluidDiagnostics3 m_d, m_d0;
+    bool m_velocity = false, m_have_d0 = false;
+};
+
+}  // namespace
+
+std::unique_ptr<DrivenSolver> drive_mcfluid3(const Simulation3Params& p, const RunContext& ctx) {
+    return std::make_unique<MCFluid3Run>(create_mcfluid3_solver(p, ctx), p, ctx.spp > 0);
 }
 
 }  // namespace kelvin::fluid

@@ -89,6 +89,9 @@ public:
     /// identical to one process's. A scene whose job is not (the grid and particle baselines) runs on rank 0
     /// alone; the other ranks return at once.
     virtual bool distributable() const { return false; }
+    /// The job this one runs on its behalf, if any: a scene's <simulation> (null for a render, and for every other
+    /// job). Lets a layer find a simulation in a loaded scene without knowing the scene's type.
+    virtual std::shared_ptr<Job> delegate() const { return nullptr; }
 };
 
 }  // namespace kelvin

@@ -145,7 +145,10 @@ public:
     const VectorGrid3& velocity_variance();
     /// False when a stop (cancel token or interrupt) cut the velocity pass short (the grids then hold zeros).
     bool velocity_available();
-    FluidDiagnostics3 diagnostics();
+    FluidDiagnostics3 diagnostics() { return diagnostics(true); }
+    /// Without the velocity (`with_velocity` false: no velocity pass runs), the energies, helicity and divergence are
+    /// NaN.
+    FluidDiagnostics3 diagnostics(bool with_velocity);
 
     // ----- pointwise queries of the current state (hosts, docs/host-api.md).
     /// omega at x: the cache interpolated as the solver interpolates it (trilinear or nearest).

@@ -200,8 +200,9 @@ std::string dye_effect(const DyeSpec* spec);
 class DiagnosticsCsv {
 public:
     DiagnosticsCsv() = default;
-    /// Opens the temporary file; RuntimeError when it cannot be written.
-    explicit DiagnosticsCsv(const std::filesystem::path& path);
+    /// Opens the temporary file and writes `header` (default: the 2D columns, header()); RuntimeError when it cannot
+    /// be written.
+    explicit DiagnosticsCsv(const std::filesystem::path& path, const std::string& header = DiagnosticsCsv::header());
     ~DiagnosticsCsv();
     DiagnosticsCsv(const DiagnosticsCsv&) = delete;
     DiagnosticsCsv& operator=(const DiagnosticsCsv&) = delete;
@@ -209,7 +210,11 @@ public:
     /// `seconds`: wall time of the step that produced the state (0 for the initial state); `evals`: the
     /// Biot–Savart kernel evaluations of that step; `cfl`: the state's CFL number max |u| dt / h (checks.h).
     void write(const FluidDiagnostics& d, double seconds, double evals, uint64_t invalid, double cfl);
+    /// One row as it is (with its newline).
+    void write_row(const std::string& line);
+    /// The 2D columns and a 2D state's row (the arguments of write()).
     static const char* header();
+    static std::string row(const FluidDiagnostics& d, double seconds, double evals, uint64_t invalid, double cfl);
     /// Flush and rename the temporary file over `path`. RuntimeError naming `path` and the system error.
     void close();
 

@@ -1,13 +1,14 @@
 #pragma once
-// What the baseline <simulation> plugins (vortex_particles, stable_fluids) share with mcfluid, so that a scene
-// switches solver with one word: the same parameters (domain, time stepping, viscosity, advection, outputs,
-// <vorticity>, <scalar>, <cache type="grid"> as the resolution), and one driver that writes the same files
-// (<prefix>.csv with the same columns, <prefix>_NNNN.png/.exr, <prefix>_dye_NNNN.png/.exr), reports the same
-// counters and prints which effects were active.
+// What every <simulation> plugin (mcfluid, vortex_particles, stable_fluids) shares, so that a scene switches solver
+// with one word: the same parameters (domain, time stepping, viscosity, advection, outputs, <vorticity>, <scalar>,
+// <cache type="grid"> as the resolution), and one driver (driver.h) that writes the same files (diagnostics.csv with
+// the same columns, vorticity_NNNN.png, fields_NNNN.exr, dye_NNNN.png/.exr), reports the same counters and prints
+// which effects were active.
 #include <kelvin/core/checkpoint.h>
 #include <kelvin/core/job.h>
 #include <kelvin/core/properties.h>
 #include <kelvin/fluid/checks.h>
+#include <kelvin/fluid/driver.h>
 #include <kelvin/fluid/dye.h>
 #include <kelvin/fluid/fields.h>
 #include <kelvin/fluid/mcfluid.h>
@@ -20,27 +21,6 @@
 #include <string>
 
 namespace kelvin::fluid {
-
-/// dt, steps and end_time as every simulation (2D and 3D) reads them: give steps or end_time; end_time resolves to
-/// the number of steps that reach it (the last one shortened by the run loop).
-struct TimeStepping {
-    double dt = 0.05;
-    long long steps = 0;
-    double end_time = 0;
-    static TimeStepping parse(const Properties& props);
-    /// The length of step `step` (1-based) taken at simulated time `time`, as every run loop takes it: dt, the
-    /// last one shortened to land on end_time. A host stepping a solver itself uses it to compute run()'s states.
-    double step_length(long long step, double time) const {
-        double h = dt;
-        if (end_time > 0 && step == steps) h = end_time - time;
-        return h > 0 ? h : dt;
-    }
-};
-
-/// The time limit of a run loop (RunContext::time_limit; 0: none) after `elapsed` seconds, decided by rank 0's clock
-/// for every rank of a distributed run (one broadcast; none without a limit or with one rank), so that all ranks stop
-/// after the same step.
-bool time_limit_reached(Communicator& comm, double time_limit, double elapsed);
 
 /// The parameters every 2D simulation reads (see docs/fluid.md, "Baselines").
 struct SimulationParams {
@@ -62,6 +42,8 @@ struct SimulationParams {
     /// Reads and validates them (and the memory the solver `who` will need at this resolution, checks.h) (errors name
     /// the parameter; `who` names the solver in messages). mcfluid and the baselines share this parser.
     static SimulationParams parse(const Properties& props, const std::string& who);
+    /// The driver's settings of a run of the solver `who` on the nx x ny grid.
+    DriverSettings driver_settings(const std::string& who) const;
     /// parse() for a baseline solver: MCFluid-only inputs (<velocity>, diffusion_samples) are also accepted and
     /// ignored with a note, so that an mcfluid scene runs unchanged with `-D solver=...`.
     static SimulationParams parse_baseline(const Properties& props, const std::string& who);
@@ -72,6 +54,13 @@ struct SimulationParams {
 /// scene.
 class Simulation : public Job {
 public:
+    /// Runs the simulation through the driver (driver.h): driven_solver(ctx) stepped with driver_settings().
+    RunResult run(RunContext& ctx) override;
+    /// The solver run(ctx) steps, at t = 0, as the driver sees it (set up from ctx.seed, ctx.spp, ctx.comm).
+    virtual std::unique_ptr<DrivenSolver> driven_solver(const RunContext& ctx) const = 0;
+    /// The driver's settings: the solver's name, time stepping, outputs, sources and cell size.
+    virtual DriverSettings driver_settings() const = 0;
+
     /// 2, or 3 (mcfluid with dimension = 3).
     virtual int dimension() const { return 2; }
     /// dt, steps and end_time as the scene gives them (steps resolved from end_time).
@@ -100,12 +89,65 @@ public:
 /// InputError when there is none (a render scene).
 std::shared_ptr<Simulation> find_simulation(const ObjectPtr& root);
 
-/// The run loop of a baseline: CSV row per state, frames every output_every steps (and the last), dye frames,
-/// progress, --time-limit, --write-partial, interruption, counters and the end-of-run summary. `effects` is
-/// the solver's part of the effects line (its advection and boundaries; the driver adds diffusion, stretching
-/// and dye).
-RunResult run_fluid_solver(const std::string& who, FluidSolver& solver, const SimulationParams& p, RunContext& ctx,
-                           const std::string& effects);
+/// A 2D FluidSolver (the baselines; mcfluid's adapter derives from it) as the driver runs it: its diagnostics, the
+/// exact solution's RMSE, the CSV's 2D columns, field_image frames and images, checkpoints on its grid, its counters.
+/// `effects` is the solver's part of the effects line (its advection and boundaries; the adapter adds diffusion,
+/// stretching and dye).
+class Solver2Run : public DrivenSolver {
+public:
+    Solver2Run(std::string who, std::unique_ptr<FluidSolver> solver, const SimulationParams& params,
+               std::string effects);
+    Cancellable& cancellable() override { return *m_solver; }
+    double time() const override { return m_solver->time(); }
+    long long step_index() const override { return m_solver->step_index(); }
+    bool step(double dt) override;
+    bool diagnose(bool velocity) override;
+    std::vector<NamedValue> values() const override { return diagnostic_values(m_d, m_velocity); }
+    std::vector<FieldValues> fields() override;
+    std::size_t cells() const override { return m_solver->vorticity_grid().cell_count(); }
+    double max_speed() override;
+    double evaluations() const override { return m_solver->evaluations(); }
+    uint64_t replaced() const override { return m_solver->invalid(); }
+    std::string csv_header() const override { return DiagnosticsCsv::header(); }
+    std::string csv_row(double seconds, double evals, uint64_t invalid, double cfl) const override {
+        return DiagnosticsCsv::row(m_d, seconds, evals, invalid, cfl);
+    }
+    void write_frame(FrameWriter& frames) override;
+    Bitmap image() override;
+    Checkpoint checkpoint() override;
+    std::vector<std::string> describe() override;
+    void report(Stats& stats) const override;
+    void warn() const override;
+    std::string summary(const std::string& ended) override;
+
+protected:
+    /// The PNG frames' overlay (none by default).
+    virtual const FrameOverlay* overlay() { return nullptr; }
+    /// Whether the exact solution describes this flow (solid boundaries change it).
+    virtual bool bounded() const { return false; }
+    std::string m_who;
+    std::unique_ptr<FluidSolver> m_solver;
+    const SimulationParams& m_p;
+    std::string m_effects;
+    double m_range = 0;
+    FluidDiagnostics m_d, m_d0;  ///< the diagnosed state, and the first one
+    bool m_velocity = false;     ///< the current state's velocity is known (diagnosed with it)
+    bool m_have_d0 = false;
+};
+
+/// mcfluid's parameters in 2D (dimension = 2): the shared ones, n_d, the velocity estimator (the owner of n_mc and
+/// the mollifier delta, which --spp overrides for a run) and the cache.
+struct MCFluidParams {
+    SimulationParams common;
+    MCFluidSettings settings;  ///< the solver's, from the scene (seed 0, n_mc the estimator's)
+    /// Reads and validates them (errors name the parameter).
+    static MCFluidParams parse(const Properties& props);
+};
+/// The 2D mcfluid solver of a run with `ctx`, at t = 0: ctx.seed, ctx.spp as n_mc (run_samples), the dye, ctx.cancel
+/// as its token, ctx.comm as its ranks. It refers to p's field: keep `p` alive while using it.
+std::unique_ptr<MCFluidSolver> create_mcfluid_solver(const MCFluidParams& p, const RunContext& ctx);
+/// That solver as the driver runs it.
+std::unique_ptr<DrivenSolver> drive_mcfluid(const MCFluidParams& p, const RunContext& ctx);
 
 /// The named fields of a state on its output grid ("vorticity", "u", "v"; null for other names), looked up
 /// only when a checkpoint consumer asks for them.

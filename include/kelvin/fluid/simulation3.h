@@ -1,5 +1,6 @@
 #pragma once
-// The 3D side of <simulation type="mcfluid"> (dimension = 3): its parameters, its run loop and its outputs.
+// The 3D side of <simulation type="mcfluid"> (dimension = 3): its parameters, its outputs, and its solver as the
+// driver (driver.h) runs it.
 //
 // Outputs, in the run's folder (output.h, OutputPaths: "-o out/ring.png" gives "out/ring/"), as in 2D:
 //   diagnostics.csv        one row per state: step, time, kinetic_energy, kinetic_energy_raw, enstrophy,
@@ -15,6 +16,7 @@
 #include <kelvin/core/job.h>
 #include <kelvin/core/properties.h>
 #include <kelvin/fluid/checks.h>
+#include <kelvin/fluid/driver.h>
 #include <kelvin/fluid/fields.h>
 #include <kelvin/fluid/mcfluid3.h>
 #include <kelvin/fluid/output.h>
@@ -40,12 +42,15 @@ struct Simulation3Params {
 
     /// Reads and validates mcfluid's parameters for dimension = 3 (errors name the parameter).
     static Simulation3Params parse(const Properties& props);
+    /// The driver's settings of a run (driver.h).
+    DriverSettings driver_settings() const;
 };
 
-RunResult run_mcfluid3(const Simulation3Params& p, RunContext& ctx);
-/// The solver run_mcfluid3(p, ctx) steps, at t = 0: ctx.seed, ctx.spp as n_mc, the smoke, ctx.cancel as its
-/// token. It refers to p.field: keep `p` (the simulation) alive while using it.
+/// The solver a 3D mcfluid run steps, at t = 0: ctx.seed, ctx.spp as n_mc (run_samples), the smoke, ctx.cancel as
+/// its token, ctx.comm as its ranks. It refers to p.field: keep `p` (the simulation) alive while using it.
 std::unique_ptr<MCFluid3Solver> create_mcfluid3_solver(const Simulation3Params& p, const RunContext& ctx);
+/// That solver as the driver runs it.
+std::unique_ptr<DrivenSolver> drive_mcfluid3(const Simulation3Params& p, const RunContext& ctx);
 
 /// Float grids by name as an OpenVDB file (fog volumes; voxel (0, 0, 0) at each grid's first cell centre), atomically.
 /// A value that is not finite as a float32 (NaN, inf, or beyond 3.4e38) is refused before anything is written:

@@ -53,6 +53,7 @@ public:
     /// The <simulation> the scene runs instead of a render (null for a render); fluid/simulation.h's
     /// find_simulation gives it as a fluid::Simulation.
     const std::shared_ptr<Job>& simulation() const { return m_simulation; }
+    std::shared_ptr<Job> delegate() const override { return m_simulation; }
     /// Axis-aligned bounds of all geometry (empty box if none).
     std::pair<Vec3d, Vec3d> bounds() const { return {m_bbox_min, m_bbox_max}; }
 

@@ -156,9 +156,9 @@ public:
         return solver;
     }
 
-    RunResult run(RunContext& ctx) override {
-        const std::unique_ptr<StableFluidsSolver> owned = make_solver(ctx);
-        StableFluidsSolver& solver = *owned;
+    std::unique_ptr<DrivenSolver> driven_solver(const RunContext& ctx) const override {
+        std::unique_ptr<StableFluidsSolver> owned = make_solver(ctx);
+        const StableFluidsSolver& solver = *owned;
         const StableFluidsSettings& s = solver.settings();
         const std::string transport =
             m_transport == Transport::FLIP
@@ -176,8 +176,9 @@ public:
             m_obstacles.empty() ? ""
                                 : fmt::format(" + {} static solid(s), {} fluid cells of {}", m_obstacles.size(),
                                               solver.fluid_cells(), std::size_t(s.nx) * std::size_t(s.ny)));
-        return run_fluid_solver(m_who, solver, m_params, ctx, effects);
+        return std::make_unique<Solver2Run>(m_who, std::move(owned), m_params, effects);
     }
+    DriverSettings driver_settings() const override { return m_params.driver_settings(m_who); }
 
 private:
     std::string m_who;

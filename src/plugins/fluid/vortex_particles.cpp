@@ -127,9 +127,9 @@ public:
         return solver;
     }
 
-    RunResult run(RunContext& ctx) override {
-        const std::unique_ptr<VortexParticleSolver> owned = make_solver(ctx);
-        VortexParticleSolver& solver = *owned;
+    std::unique_ptr<DrivenSolver> driven_solver(const RunContext& ctx) const override {
+        std::unique_ptr<VortexParticleSolver> owned = make_solver(ctx);
+        const VortexParticleSolver& solver = *owned;
         const VortexParticleSettings& s = solver.settings();
         const std::string effects = fmt::format(
             "particle transport ({}, dt {:g}, {} steps, {} particles) with {} Biot–Savart summation (blob "
@@ -151,8 +151,9 @@ public:
                                               describe(*m_boundaries, s.domain))
             : s.domain.periodic ? std::string("none (periodic)")
                                 : std::string("none (free space)"));
-        return run_fluid_solver("vortex_particles", solver, m_params, ctx, effects);
+        return std::make_unique<Solver2Run>("vortex_particles", std::move(owned), m_params, effects);
     }
+    DriverSettings driver_settings() const override { return m_params.driver_settings("vortex_particles"); }
 
 private:
     SimulationParams m_params;
