@@ -15,9 +15,9 @@
 // Threads for the passes: all cores unless KELVIN_BENCH_THREADS is set.
 #include <kelvin/core/parallel.h>
 #include <kelvin/core/registry.h>
-#include <kelvin/core/wos.h>
 #include <kelvin/fluid/boundary.h>
 #include <kelvin/fluid/mcfluid.h>
+#include <kelvin/wos/wos.h>
 
 #include <benchmark/benchmark.h>
 

@@ -61,15 +61,31 @@ const ImageCodec& oiio_codec() {
 
 const VdbCodec& vdb_codec() {
     return *static_cast<const VdbCodec*>(
-        load_module_table("libkelvin_vdb.so", "kelvin_vdb_codec_v1", "the OpenVDB module"));
+        load_module_table("libkelvin_vdb.so", KELVIN_VDB_CODEC_ENTRY, "the OpenVDB module"));
 }
+
+}  // namespace kelvin::detail
+
+namespace kelvin {
 
 VdbInputError::VdbInputError(std::string p, const std::string& message)
     : std::runtime_error(message), param(std::move(p)) {}
 VdbInputError::~VdbInputError() = default;
 VdbFloatGrid::~VdbFloatGrid() = default;
 
-}  // namespace kelvin::detail
+std::unique_ptr<VdbFloatGrid> read_vdb_float_grid(const std::filesystem::path& file, const std::string& grid) {
+    return detail::vdb_codec().read_float_grid(file, grid);
+}
+
+VdbDense read_vdb_dense(const std::filesystem::path& file, const std::string& grid, double max_voxels) {
+    return detail::vdb_codec().read_dense(file, grid, max_voxels);
+}
+
+void write_vdb(const std::filesystem::path& file, const std::vector<VdbGridData>& grids) {
+    detail::vdb_codec().write(file, grids);
+}
+
+}  // namespace kelvin
 
 namespace kelvin {
 

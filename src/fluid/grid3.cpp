@@ -146,4 +146,20 @@ double VectorGrid3::max_norm() const {
     return m;
 }
 
+VdbLattice vdb_lattice(const Grid3& g) {
+    VdbLattice l;
+    l.res[0] = g.nx();
+    l.res[1] = g.ny();
+    l.res[2] = g.nz();
+    l.spacing = g.h();
+    l.origin = g.domain().min + 0.5 * l.spacing;  // voxel (0, 0, 0) is the first cell's centre
+    return l;
+}
+
+VdbGridData vdb_grid(const std::string& name, const Grid3& g) { return {name, vdb_lattice(g), g.values().data()}; }
+
+VdbGridData vdb_grid(const std::string& name, const VectorGrid3& g) {
+    return {name, vdb_lattice(g.x), g.x.values().data(), g.y.values().data(), g.z.values().data()};
+}
+
 }  // namespace kelvin::fluid

@@ -1,6 +1,4 @@
 // mcfluid in 3D: parameters, outputs and the solver as the driver runs it (see include/kelvin/fluid/simulation3.h).
-#include "core/vdb_io.h"
-
 #include <kelvin/core/distributed.h>
 #include <kelvin/core/error.h>
 #include <kelvin/core/files.h>
@@ -10,6 +8,7 @@
 #include <kelvin/core/progress.h>
 #include <kelvin/core/registry.h>
 #include <kelvin/core/stats.h>
+#include <kelvin/core/vdb.h>
 #include <kelvin/fluid/boundary.h>
 #include <kelvin/fluid/output.h>
 #include <kelvin/fluid/simulation.h>
@@ -177,14 +176,23 @@ void write_vdb_frame(const std::filesystem::path& path, const VectorGrid3& vorti
         refuse_unstorable(path, velocity->z, "velocity z");
     }
     if (density) refuse_unstorable(path, *density, "density");
-    kelvin::detail::vdb_codec().write_frame(path, vorticity, velocity, density);  // OpenVDB, loaded on first use
+    // OpenVDB (core/vdb.h, loaded on first use): |vorticity|, density, vorticity, velocity, in this order.
+    std::vector<double> magnitude(vorticity.cell_count());
+    for (std::size_t c = 0; c < magnitude.size(); ++c) magnitude[c] = glm::length(vorticity.at(c));
+    std::vector<VdbGridData> data{{"vorticity_magnitude", vdb_lattice(vorticity.x), magnitude.data()}};
+    if (density) data.push_back(vdb_grid("density", *density));
+    data.push_back(vdb_grid("vorticity", vorticity));
+    if (velocity) data.push_back(vdb_grid("velocity", *velocity));
+    write_vdb(path, data);
 }
 
 void write_vdb_grids(const std::filesystem::path& path,
                      const std::vector<std::pair<std::string, const Grid3*>>& grids) {
     for (const auto& [name, grid] : grids)
         if (grid) refuse_unstorable(path, *grid, name);
-    kelvin::detail::vdb_codec().write_grids(path, grids);
+    std::vector<VdbGridData> data;
+    for (const auto& [name, grid] : grids) data.push_back(vdb_grid(name, *grid));
+    write_vdb(path, data);
 }
 
 Bitmap slice_image(const VectorGrid3& field, int axis, double range) {

@@ -1,6 +1,7 @@
-// Kelvin's OpenVDB module (libkelvin_vdb.so): reading level sets and volumes from .vdb files and writing the 3D
-// simulations' frames. libkelvin loads it with dlopen on the first .vdb file (src/core/modules.h): OpenVDB's
-// ~70,000 symbol relocations used to be most of the dynamic loader's work at every kelvin start-up.
+// Kelvin's OpenVDB module (libkelvin_vdb.so): reading level sets and volumes from .vdb files and writing grids given
+// as plain arrays (the 3D simulations' frames; include/kelvin/core/vdb.h). libkelvin loads it with dlopen on the first
+// .vdb file (src/core/modules.h): OpenVDB's ~70,000 symbol relocations used to be most of the dynamic loader's work at
+// every kelvin start-up.
 #include "core/vdb_io.h"
 
 #include <kelvin/core/files.h>
@@ -160,86 +161,46 @@ VdbDense read_dense(const std::filesystem::path& path, const std::string& name, 
     return d;
 }
 
-openvdb::math::Transform::Ptr cell_transform(const fluid::Grid3& g) {
-    const Vec3d h = g.h();
+openvdb::math::Transform::Ptr lattice_transform(const VdbLattice& l) {
     openvdb::math::Mat4d m = openvdb::math::Mat4d::identity();
-    m.setToScale(openvdb::Vec3d(h.x, h.y, h.z));
-    const Vec3d origin = g.domain().min + 0.5 * h;  // voxel (0, 0, 0) is the first cell's centre
-    m.setTranslation(openvdb::Vec3d(origin.x, origin.y, origin.z));
+    m.setToScale(openvdb::Vec3d(l.spacing.x, l.spacing.y, l.spacing.z));
+    m.setTranslation(openvdb::Vec3d(l.origin.x, l.origin.y, l.origin.z));  // voxel (0, 0, 0)'s centre
     return openvdb::math::Transform::createLinearTransform(m);
 }
 
-void write_frame(const std::filesystem::path& path, const fluid::VectorGrid3& vorticity,
-                 const fluid::VectorGrid3* velocity, const fluid::Grid3* density) {
-    initialize();
-    const fluid::Grid3& g = vorticity.x;
-    auto transform = cell_transform(g);
-    openvdb::GridPtrVec grids;
-    auto magnitude = openvdb::FloatGrid::create(0.f);
-    magnitude->setName("vorticity_magnitude");
-    magnitude->setGridClass(openvdb::GRID_FOG_VOLUME);
-    auto add_vector = [&](const fluid::VectorGrid3& field, const char* name) {
-        auto grid = openvdb::Vec3SGrid::create(openvdb::Vec3s(0.f));
-        grid->setName(name);
-        grid->setVectorType(openvdb::VEC_CONTRAVARIANT_RELATIVE);
-        grid->setTransform(transform->copy());
-        auto acc = grid->getAccessor();
-        for (int k = 0; k < g.nz(); ++k)
-            for (int j = 0; j < g.ny(); ++j)
-                for (int i = 0; i < g.nx(); ++i) {
-                    const Vec3d v = field.at(g.index(i, j, k));
-                    if (v != Vec3d(0.0))
-                        acc.setValue(openvdb::Coord(i, j, k), openvdb::Vec3s(float(v.x), float(v.y), float(v.z)));
-                }
-        grids.push_back(grid);
-    };
-    magnitude->setTransform(transform->copy());
-    {
-        auto acc = magnitude->getAccessor();
-        for (int k = 0; k < g.nz(); ++k)
-            for (int j = 0; j < g.ny(); ++j)
-                for (int i = 0; i < g.nx(); ++i) {
-                    const double m = glm::length(vorticity.at(g.index(i, j, k)));
-                    if (m != 0) acc.setValue(openvdb::Coord(i, j, k), float(m));
-                }
-    }
-    grids.push_back(magnitude);
-    if (density) {
-        auto grid = openvdb::FloatGrid::create(0.f);
-        grid->setName("density");
-        grid->setGridClass(openvdb::GRID_FOG_VOLUME);
-        grid->setTransform(transform->copy());
-        auto acc = grid->getAccessor();
-        for (int k = 0; k < g.nz(); ++k)
-            for (int j = 0; j < g.ny(); ++j)
-                for (int i = 0; i < g.nx(); ++i)
-                    if (const double v = density->at(i, j, k); v != 0) acc.setValue(openvdb::Coord(i, j, k), float(v));
-        grids.push_back(grid);
-    }
-    add_vector(vorticity, "vorticity");
-    if (velocity) add_vector(*velocity, "velocity");
-    write_atomically(path, [&](const std::filesystem::path& tmp) {
-        openvdb::io::File file(tmp.string());
-        file.write(grids);
-        file.close();
-    });
-}
-
-void write_grids(const std::filesystem::path& path,
-                 const std::vector<std::pair<std::string, const fluid::Grid3*>>& fields) {
+void write(const std::filesystem::path& path, const std::vector<VdbGridData>& data) {
     initialize();
     openvdb::GridPtrVec grids;
-    for (const auto& [name, g] : fields) {
-        auto grid = openvdb::FloatGrid::create(0.f);
-        grid->setName(name);
-        grid->setGridClass(openvdb::GRID_FOG_VOLUME);
-        grid->setTransform(cell_transform(*g));
-        auto acc = grid->getAccessor();
-        for (int k = 0; k < g->nz(); ++k)
-            for (int j = 0; j < g->ny(); ++j)
-                for (int i = 0; i < g->nx(); ++i)
-                    if (const double v = g->at(i, j, k); v != 0) acc.setValue(openvdb::Coord(i, j, k), float(v));
-        grids.push_back(grid);
+    for (const VdbGridData& d : data) {
+        const int nx = d.lattice.res[0], ny = d.lattice.res[1], nz = d.lattice.res[2];
+        if (d.y && d.z) {
+            auto grid = openvdb::Vec3SGrid::create(openvdb::Vec3s(0.f));
+            grid->setName(d.name);
+            grid->setVectorType(openvdb::VEC_CONTRAVARIANT_RELATIVE);
+            grid->setTransform(lattice_transform(d.lattice));
+            auto acc = grid->getAccessor();
+            std::size_t c = 0;
+            for (int k = 0; k < nz; ++k)
+                for (int j = 0; j < ny; ++j)
+                    for (int i = 0; i < nx; ++i, ++c) {
+                        const Vec3d v(d.x[c], d.y[c], d.z[c]);
+                        if (v != Vec3d(0.0))
+                            acc.setValue(openvdb::Coord(i, j, k), openvdb::Vec3s(float(v.x), float(v.y), float(v.z)));
+                    }
+            grids.push_back(grid);
+        } else {
+            auto grid = openvdb::FloatGrid::create(0.f);
+            grid->setName(d.name);
+            grid->setGridClass(openvdb::GRID_FOG_VOLUME);
+            grid->setTransform(lattice_transform(d.lattice));
+            auto acc = grid->getAccessor();
+            std::size_t c = 0;
+            for (int k = 0; k < nz; ++k)
+                for (int j = 0; j < ny; ++j)
+                    for (int i = 0; i < nx; ++i, ++c)
+                        if (const double v = d.x[c]; v != 0) acc.setValue(openvdb::Coord(i, j, k), float(v));
+            grids.push_back(grid);
+        }
     }
     write_atomically(path, [&](const std::filesystem::path& tmp) {
         openvdb::io::File file(tmp.string());
@@ -248,9 +209,10 @@ void write_grids(const std::filesystem::path& path,
     });
 }
 
-const VdbCodec codec{&read_float_grid, &read_dense, &write_frame, &write_grids};
+const VdbCodec codec{&read_float_grid, &read_dense, &write};
 
 }  // namespace
 }  // namespace kelvin::detail
 
-extern "C" __attribute__((visibility("default"))) const void* kelvin_vdb_codec_v1() { return &kelvin::detail::codec; }
+// The entry point named by KELVIN_VDB_CODEC_ENTRY (core/vdb_io.h).
+extern "C" __attribute__((visibility("default"))) const void* kelvin_vdb_codec_v2() { return &kelvin::detail::codec; }

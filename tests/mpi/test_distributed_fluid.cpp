@@ -7,8 +7,9 @@
 // enstrophy, evaluations, ...; all but the timing columns), between `kelvin` alone, `mpirun -np 1` and `-np 2`. A
 // rank that skipped the exchange of its slab, computed rows it does not own, or summed counters twice would change
 // them. The slabs are uneven on purpose (odd row counts). Skipped when this build has no MPI module.
-#include "core/vdb_io.h"
 #include "mpi/mpi_support.h"
+
+#include <kelvin/core/vdb.h>
 
 #include <map>
 #include <regex>
@@ -30,8 +31,8 @@ std::map<std::string, fs::path> files_in(const fs::path& folder) {
 // The same grids in two .vdb frames: every voxel of the active box, bit for bit.
 ::testing::AssertionResult same_vdb(const fs::path& a, const fs::path& b) {
     for (const char* grid : {"vorticity", "velocity", "vorticity_magnitude"}) {
-        const detail::VdbDense x = detail::vdb_codec().read_dense(a, grid, 1e8);
-        const detail::VdbDense y = detail::vdb_codec().read_dense(b, grid, 1e8);
+        const VdbDense x = read_vdb_dense(a, grid, 1e8);
+        const VdbDense y = read_vdb_dense(b, grid, 1e8);
         if (x.data.empty()) return ::testing::AssertionFailure() << a << ": grid " << grid << " is empty";
         if (x.data.size() != y.data.size() || x.channels != y.channels ||
             !std::equal(std::begin(x.res), std::end(x.res), std::begin(y.res)) ||

@@ -1,8 +1,8 @@
-// Walk-on-Spheres core (include/kelvin/core/wos.h) against exact solutions of Laplace and Poisson problems
+// Walk-on-Spheres core (include/kelvin/wos/wos.h) against exact solutions of Laplace and Poisson problems
 // in 2D and 3D. Fixed seeds; every tolerance comes from the estimator's own variance (chi-square of the
 // per-point z-scores at p = 1e-6, or 5 standard errors). Broken variants each test was seen to fail on are
 // named in the comments above the tests.
-#include <kelvin/core/wos.h>
+#include <kelvin/wos/wos.h>
 
 #include <common/support.h>
 

@@ -1,12 +1,10 @@
 #pragma once
-// Solid boundaries for Walk-on-Spheres (include/kelvin/core/wos.h) and the free-slip velocity estimator of
-// thesis Section 5.3.1 built on them. See docs/boundaries.md.
-//
-// Geometry: a <boundary type="..."> plugin (src/plugins/boundaries/) is a distance provider in 2D or 3D
-// (analytic shapes, polylines and triangle meshes through Embree closest-point queries, OpenVDB level sets,
-// unsigned distances). Shapes that know their inside (analytic shapes, closed polygons, signed level sets)
-// also answer inside(); unsigned ones (open polylines, triangle soups, unsigned grids) have no inside and the
-// fluid simply flows around (and, through holes, into) them.
+// The free-slip velocity estimator of thesis Section 5.3.1 (<velocity type="walk_on_spheres">): the fluid's velocity
+// around solid boundaries by Walk-on-Spheres on the stream function (2D) or the vector potential (3D). The boundaries
+// are <boundary> plugins (include/kelvin/wos/boundary.h), the walks those of the Walk-on-Spheres core
+// (include/kelvin/wos/wos.h); what is here is fluid-specific: the stream function's boundary values, vorticity as the
+// source, rigidly moving solids, inflow and outflow, and what the solvers' advection and diffusion need (push_out,
+// reflect_out). See docs/boundaries.md.
 //
 // Stream function (thesis Eqs. 5.8-5.13, sign as in the thesis): v = -curl Psi = (-dPsi/dy, dPsi/dx) and
 // Laplacian(Psi) = omega, the same convention as the Biot–Savart kernel K(r) = (-r_y, r_x) / (2 pi |r|^2)
@@ -25,7 +23,6 @@
 #include <kelvin/core/properties.h>
 #include <kelvin/core/registry.h>
 #include <kelvin/core/stats.h>
-#include <kelvin/core/wos.h>
 #include <kelvin/fluid/alias.h>
 #include <kelvin/fluid/biot_savart.h>
 #include <kelvin/fluid/biot_savart3.h>
@@ -33,6 +30,8 @@
 #include <kelvin/fluid/grid.h>
 #include <kelvin/fluid/grid3.h>
 #include <kelvin/fluid/velocity.h>
+#include <kelvin/wos/boundary.h>
+#include <kelvin/wos/wos.h>
 
 #include <array>
 #include <memory>
@@ -41,54 +40,14 @@
 
 namespace kelvin::fluid {
 
-/// What a fluid solver needs to know about a boundary besides its geometry (common <boundary> parameters).
-struct BoundaryRole {
-    double stream_value = 0;          ///< psi_0: the isovalue of Psi on the boundary (at the pivot if moving)
-    Vec2d velocity{0.0};              ///< rigid translation velocity U
-    double angular_velocity = 0;      ///< rigid rotation rate Omega (radians per unit time, counter-clockwise)
-    Vec2d pivot{0.0};                 ///< rotation centre at t = 0 (moves with U)
-    bool fluid_inside = false;        ///< the fluid is inside the shape (a container) instead of outside (an obstacle)
-    bool stream_value_given = false;  ///< the scene set stream_value (else the default 0 was taken)
-    bool moving() const { return velocity != Vec2d(0.0) || angular_velocity != 0; }
-};
-
-/// A boundary geometry (<boundary type="...">).
-class BoundaryShape : public Object {
-public:
-    /// 2 or 3.
-    virtual int dimension() const = 0;
-    /// The distance provider (non-null for the shape's dimension).
-    virtual const wos::BoundaryGeometry<2>* geometry2() const { return nullptr; }
-    virtual const wos::BoundaryGeometry<3>* geometry3() const { return nullptr; }
-    /// Whether inside() means something (closed, oriented or signed shapes).
-    virtual bool has_inside() const { return false; }
-    /// p lies in the shape's interior (only when has_inside()).
-    virtual bool inside2(const Vec2d& p) const { return false; }
-    virtual bool inside3(const Vec3d& p) const { return false; }
-    /// Axis-aligned bounds of the boundary (for messages and checks).
-    virtual std::pair<Vec3d, Vec3d> bounds() const = 0;
-    /// One line for the run summary.
-    virtual std::string description() const = 0;
-    /// A 2D shape as straight segments, curved pieces cut into chords no longer than `max_length`: what methods that
-    /// discretise the boundary need (the panel method of the vortex_particles baseline, fluid/panels.h). Empty when
-    /// the shape cannot give them (3D shapes, unsigned grids).
-    virtual std::vector<std::array<Vec2d, 2>> segments2(double max_length) const { return {}; }
-
-    const BoundaryRole& role() const { return m_role; }
-    /// The solid region of a 2D shape: inside an obstacle, outside a container (false without has_inside()).
-    bool solid2(const Vec2d& p) const { return has_inside() && (inside2(p) != m_role.fluid_inside); }
-
-protected:
-    /// Reads the common parameters (boundary_params()). `has_inside`: whether `fluid="inside"` is allowed.
-    BoundaryShape(const Properties& props, bool has_inside);
-    BoundaryRole m_role;
-};
-
-/// The parameters every <boundary> plugin takes, appended to its own.
-std::vector<ParamSpec> with_boundary_params(std::vector<ParamSpec> own);
-
-/// Parses "x y, x y, ..." (commas or semicolons between points) into 2D points; errors name `param`.
-std::vector<Vec2d> parse_points2(const Properties& props, const std::string& param);
+// The <boundary> plugins' interface lives in the Walk-on-Spheres area (wos/boundary.h); the fluid code names it
+// unqualified.
+using wos::BoundaryRole;
+using wos::BoundaryShape;
+using wos::check_boundary_extent;
+using wos::parse_points2;
+using wos::report_walks;
+using wos::with_boundary_params;
 
 // ----------------------------------------------------------------------------------------------------------
 // The free-slip velocity estimator (<velocity type="walk_on_spheres">).
@@ -110,8 +69,6 @@ struct WosVelocityOptions {
 /// Why these options cannot run on `domain` ("" when they can): a periodic domain without any boundary, an
 /// open domain without walls or container, a 3D shape, bad inflow range.
 std::string check_wos_options(const WosVelocityOptions& options, const Domain2& domain);
-/// Why a boundary's bounds are beyond what its queries resolve (|coordinate| > 1e17, or not finite); empty when fine.
-std::string check_boundary_extent(const BoundaryShape& shape);
 /// One line for the run summary.
 std::string describe(const WosVelocityOptions& options, const Domain2& domain);
 /// What the boundaries do to the nx x ny cache at t = 0 ("" when they are usable): an error when they leave no
@@ -335,12 +292,6 @@ private:
     VorticitySource m_source;                                 // with vorticity_importance
 };
 
-/// Adds a run's walk counters to `stats` as `<prefix>walks`, `steps`, `truncated`, `invalid` and
-/// `boundary_queries` (prefix "fluid.wos_" or "wos."), and warns (naming `who` and max_steps) when any walk was
-/// truncated or invalid.
-void report_walks(Stats& stats, const std::string& prefix, const wos::WalkCounters& c, const std::string& who,
-                  int max_steps);
-
 /// Why these options cannot run a 3D simulation on `domain` ("" when they can): a 2D shape, a periodic domain
 /// without any solid, an open domain without walls or container, inflow ranges, a stream with a container,
 /// moving solids, per-boundary stream values.
@@ -371,9 +322,3 @@ V reflect_out(const Field& f, const V& lo, const V& hi, V y) {
 }  // namespace detail
 
 }  // namespace kelvin::fluid
-
-/// Registers a <boundary> plugin: like KELVIN_PLUGIN, with the common boundary parameters appended.
-#define KELVIN_BOUNDARY_PLUGIN(Class, name, doc, ...)                                                                \
-    static const ::kelvin::PluginRegistrar KELVIN_CONCAT(kelvin_registrar_, __LINE__)(                               \
-        "boundary", name, doc, ::kelvin::fluid::with_boundary_params(std::vector<::kelvin::ParamSpec>{__VA_ARGS__}), \
-        [](const ::kelvin::Properties& p) -> ::kelvin::ObjectPtr { return std::make_shared<Class>(p); })

@@ -12,6 +12,7 @@
 //     estimator integrates exactly this field, whatever its sampling strategy.
 //   - A VectorGrid3 is three Grid3 (structure of arrays) sharing the interpolation weights.
 #include <kelvin/core/math.h>
+#include <kelvin/core/vdb.h>
 #include <kelvin/fluid/grid.h>
 
 #include <cstddef>
@@ -103,5 +104,11 @@ struct VectorGrid3 {
     /// max over cells of |v|.
     double max_norm() const;
 };
+
+/// The cells of `g` as an OpenVDB lattice (core/vdb.h): voxel (i, j, k) is cell (i, j, k), centred at its centre.
+VdbLattice vdb_lattice(const Grid3& g);
+/// `g` as a scalar (fog volume) or vector grid named `name`, for write_vdb (core/vdb.h); `g` must outlive the write.
+VdbGridData vdb_grid(const std::string& name, const Grid3& g);
+VdbGridData vdb_grid(const std::string& name, const VectorGrid3& g);
 
 }  // namespace kelvin::fluid

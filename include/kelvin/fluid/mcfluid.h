@@ -15,12 +15,12 @@
 // ranks of a distributed run (set_communicator): each rank runs a contiguous slab of rows of every pass, and the
 // ranks exchange their slabs (allgather) before the next pass reads the grids.
 #include <kelvin/core/random.h>
-#include <kelvin/core/wos.h>
 #include <kelvin/fluid/biot_savart.h>
 #include <kelvin/fluid/dye.h>
 #include <kelvin/fluid/grid.h>
 #include <kelvin/fluid/solver.h>
 #include <kelvin/fluid/velocity.h>
+#include <kelvin/wos/wos.h>
 
 #include <atomic>
 #include <cstdint>

@@ -23,10 +23,10 @@
 // number of ranks of a distributed run (set_communicator): each rank runs a contiguous range of z indices of every
 // pass, and the ranks exchange their cells (allgather) before the next pass reads the grids.
 #include <kelvin/core/random.h>
-#include <kelvin/core/wos.h>
 #include <kelvin/fluid/biot_savart3.h>
 #include <kelvin/fluid/grid3.h>
 #include <kelvin/fluid/mcfluid.h>
+#include <kelvin/wos/wos.h>
 
 #include <cstdint>
 #include <functional>

@@ -30,7 +30,7 @@
 #include <string>
 
 namespace kelvin::wos {
-struct WalkCounters;  // core/wos.h
+struct WalkCounters;  // wos/wos.h
 }
 
 namespace kelvin::fluid {

@@ -17,11 +17,11 @@
 //         EXPECT_LT(kelvin::testkit::max_abs_z(a, b), 5.0);
 //     }
 #include <kelvin/core/random.h>
-#include <kelvin/core/wos.h>
 #include <kelvin/fluid/estimators.h>
 #include <kelvin/fluid/grid.h>
 #include <kelvin/fluid/grid3.h>
 #include <kelvin/fluid/velocity.h>
+#include <kelvin/wos/wos.h>
 
 #include <algorithm>
 #include <cmath>

@@ -1,10 +1,10 @@
 #pragma once
-// Shared pieces of the <boundary> plugins: 2D/3D bases (the plugin is its own distance provider), the
-// dimension parameter, point-in-polygon by crossings (even-odd: loops inside loops are holes) and a segment-set
-// provider over ClosestSegmentQuery (a segment BVH; include/kelvin/render/closest_point.h).
+// Shared pieces of the <boundary> plugins (their interface, 2D/3D bases and registration are in
+// include/kelvin/wos/boundary.h): point-in-polygon by crossings (even-odd: loops inside loops are holes), arcs as
+// chords, and a segment-set provider over ClosestSegmentQuery (a segment BVH; include/kelvin/render/closest_point.h).
 #include <kelvin/core/properties.h>
-#include <kelvin/fluid/boundary.h>
 #include <kelvin/render/closest_point.h>
+#include <kelvin/wos/boundary.h>
 
 #include <fmt/format.h>
 
@@ -14,35 +14,7 @@
 #include <utility>
 #include <vector>
 
-namespace kelvin::fluid::boundaries {
-
-using wos::BoundaryHit;
-
-/// A 2D boundary plugin that is its own distance provider.
-class Boundary2 : public BoundaryShape, public wos::BoundaryGeometry<2> {
-public:
-    int dimension() const override { return 2; }
-    const wos::BoundaryGeometry<2>* geometry2() const override { return this; }
-
-protected:
-    Boundary2(const Properties& props, bool has_inside) : BoundaryShape(props, has_inside) {}
-};
-
-/// A 3D boundary plugin that is its own distance provider.
-class Boundary3 : public BoundaryShape, public wos::BoundaryGeometry<3> {
-public:
-    int dimension() const override { return 3; }
-    const wos::BoundaryGeometry<3>* geometry3() const override { return this; }
-
-protected:
-    Boundary3(const Properties& props, bool has_inside) : BoundaryShape(props, has_inside) {}
-};
-
-inline int read_dimension(const Properties& props) {
-    const long long d = props.get_int("dimension");
-    if (d != 2 && d != 3) props.error("dimension", fmt::format("must be 2 or 3 (got {})", d));
-    return int(d);
-}
+namespace kelvin::wos::boundaries {
 
 /// Crossing parity of a closed loop (consecutive points, last joined to first) for a ray from p towards +x.
 inline bool inside_loop(const std::vector<Vec2d>& loop, const Vec2d& p) {
@@ -167,4 +139,4 @@ private:
     Vec2d m_lo{Inf}, m_hi{-Inf};
 };
 
-}  // namespace kelvin::fluid::boundaries
+}  // namespace kelvin::wos::boundaries

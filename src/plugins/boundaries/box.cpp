@@ -10,7 +10,7 @@
 //     <boundary type="box"><point name="min" x="-0.1" y="-0.1"/><point name="max" x="0.1" y="0.1"/></boundary>
 #include "boundary_common.h"
 
-namespace kelvin::fluid::boundaries {
+namespace kelvin::wos::boundaries {
 namespace {
 
 void read_corners(const Properties& props, int dim, Vec3d& lo, Vec3d& hi) {
@@ -71,18 +71,14 @@ private:
     wos::BoxBoundary<3> m_box;
 };
 
-/// Dispatches on `dimension` (one plugin name for both).
-ObjectPtr make_box(const Properties& props) {
-    if (read_dimension(props) == 2) return std::make_shared<Box2>(props);
-    return std::make_shared<Box3>(props);
-}
+/// One plugin name for both dimensions, chosen by `dimension`.
+using Box = ByDimension<Box2, Box3>;
 
 }  // namespace
-}  // namespace kelvin::fluid::boundaries
+}  // namespace kelvin::wos::boundaries
 
-static const kelvin::PluginRegistrar kelvin_boundary_box(
-    "boundary", "box", "Axis-aligned rectangle (2D) or box (3D), exact distance, knows its inside.",
-    kelvin::fluid::with_boundary_params({kelvin::param::integer("dimension", 2, "2 or 3"),
-                                         kelvin::param::point("min", kelvin::Vec3d(-0.5), "corner"),
-                                         kelvin::param::point("max", kelvin::Vec3d(0.5), "opposite corner")}),
-    kelvin::fluid::boundaries::make_box);
+KELVIN_BOUNDARY_PLUGIN(kelvin::wos::boundaries::Box, "box",
+                       "Axis-aligned rectangle (2D) or box (3D), exact distance, knows its inside.",
+                       kelvin::param::integer("dimension", 2, "2 or 3"),
+                       kelvin::param::point("min", kelvin::Vec3d(-0.5), "corner"),
+                       kelvin::param::point("max", kelvin::Vec3d(0.5), "opposite corner"));

@@ -12,7 +12,7 @@
 //         <float name="radius" value="0.05"/></boundary>
 #include "boundary_common.h"
 
-namespace kelvin::fluid::boundaries {
+namespace kelvin::wos::boundaries {
 namespace {
 
 template <int D>
@@ -108,18 +108,15 @@ private:
     CapsuleGeometry<3> m_c;
 };
 
-ObjectPtr make_capsule(const Properties& props) {
-    if (read_dimension(props) == 2) return std::make_shared<Capsule2>(props);
-    return std::make_shared<Capsule3>(props);
-}
+/// One plugin name for both dimensions, chosen by `dimension`.
+using Capsule = ByDimension<Capsule2, Capsule3>;
 
 }  // namespace
-}  // namespace kelvin::fluid::boundaries
+}  // namespace kelvin::wos::boundaries
 
-static const kelvin::PluginRegistrar kelvin_boundary_capsule(
-    "boundary", "capsule", "Points within a radius of a segment (2D stadium, 3D capsule), exact distance.",
-    kelvin::fluid::with_boundary_params({kelvin::param::integer("dimension", 2, "2 or 3"),
-                                         kelvin::param::point("a", kelvin::Vec3d(-0.25, 0, 0), "segment start"),
-                                         kelvin::param::point("b", kelvin::Vec3d(0.25, 0, 0), "segment end"),
-                                         kelvin::param::real("radius", 0.1, "radius")}),
-    kelvin::fluid::boundaries::make_capsule);
+KELVIN_BOUNDARY_PLUGIN(kelvin::wos::boundaries::Capsule, "capsule",
+                       "Points within a radius of a segment (2D stadium, 3D capsule), exact distance.",
+                       kelvin::param::integer("dimension", 2, "2 or 3"),
+                       kelvin::param::point("a", kelvin::Vec3d(-0.25, 0, 0), "segment start"),
+                       kelvin::param::point("b", kelvin::Vec3d(0.25, 0, 0), "segment end"),
+                       kelvin::param::real("radius", 0.1, "radius"));

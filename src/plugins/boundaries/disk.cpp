@@ -11,7 +11,7 @@
 //     <boundary type="disk"><point name="center" x="-0.5" y="0"/><float name="radius" value="0.1"/></boundary>
 #include "boundary_common.h"
 
-namespace kelvin::fluid::boundaries {
+namespace kelvin::wos::boundaries {
 namespace {
 
 class Disk final : public Boundary2 {
@@ -48,8 +48,8 @@ private:
 };
 
 }  // namespace
-}  // namespace kelvin::fluid::boundaries
+}  // namespace kelvin::wos::boundaries
 
-KELVIN_BOUNDARY_PLUGIN(kelvin::fluid::boundaries::Disk, "disk", "2D disk, exact distance, knows its inside.",
+KELVIN_BOUNDARY_PLUGIN(kelvin::wos::boundaries::Disk, "disk", "2D disk, exact distance, knows its inside.",
                        kelvin::param::point("center", kelvin::Vec3d(0.0), "centre (z ignored)"),
                        kelvin::param::real("radius", 0.25, "radius"));

@@ -18,7 +18,7 @@
 
 #include <set>
 
-namespace kelvin::fluid::boundaries {
+namespace kelvin::wos::boundaries {
 namespace {
 
 class Maze final : public Boundary2 {
@@ -156,9 +156,9 @@ private:
 };
 
 }  // namespace
-}  // namespace kelvin::fluid::boundaries
+}  // namespace kelvin::wos::boundaries
 
-KELVIN_BOUNDARY_PLUGIN(kelvin::fluid::boundaries::Maze, "maze",
+KELVIN_BOUNDARY_PLUGIN(kelvin::wos::boundaries::Maze, "maze",
                        "Union of wall boxes (a list and/or ASCII art with '#'); distance = min over boxes.",
                        kelvin::param::string("boxes", "", "\"x0 y0 x1 y1; ...\" wall rectangles"),
                        kelvin::param::string("layout", "",

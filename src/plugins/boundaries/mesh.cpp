@@ -29,7 +29,7 @@
 #include <map>
 #include <tuple>
 
-namespace kelvin::fluid::boundaries {
+namespace kelvin::wos::boundaries {
 namespace {
 
 ShapeGeometry read_triangles(const Properties& props) {
@@ -285,18 +285,14 @@ private:
     std::map<std::pair<uint32_t, uint32_t>, Vec3d> m_edge_normal;
 };
 
-ObjectPtr make_mesh(const Properties& props) {
-    if (read_dimension(props) == 2) return std::make_shared<Mesh2>(props);
-    return std::make_shared<Mesh3>(props);
-}
+/// One plugin name for both dimensions, chosen by `dimension`.
+using Mesh = ByDimension<Mesh2, Mesh3>;
 
 }  // namespace
-}  // namespace kelvin::fluid::boundaries
+}  // namespace kelvin::wos::boundaries
 
-static const kelvin::PluginRegistrar kelvin_boundary_mesh(
-    "boundary", "mesh",
+KELVIN_BOUNDARY_PLUGIN(
+    kelvin::wos::boundaries::Mesh, "mesh",
     "Triangle mesh or soup from a nested <shape> via exact closest-point queries (2D: planar union of triangles).",
-    kelvin::fluid::with_boundary_params(
-        {kelvin::param::integer("dimension", 2, "2 (triangles in the plane z = 0) or 3"),
-         kelvin::param::object("shape", "shape", "a triangle shape (obj, ply, gltf, rectangle, ...)", true)}),
-    kelvin::fluid::boundaries::make_mesh);
+    kelvin::param::integer("dimension", 2, "2 (triangles in the plane z = 0) or 3"),
+    kelvin::param::object("shape", "shape", "a triangle shape (obj, ply, gltf, rectangle, ...)", true));

@@ -10,7 +10,7 @@
 //     <boundary type="polygon"><string name="points" value="0 0, 0.2 0, 0.1 0.2"/></boundary>
 #include "boundary_common.h"
 
-namespace kelvin::fluid::boundaries {
+namespace kelvin::wos::boundaries {
 namespace {
 
 class Polygon final : public Boundary2 {
@@ -38,8 +38,8 @@ private:
 };
 
 }  // namespace
-}  // namespace kelvin::fluid::boundaries
+}  // namespace kelvin::wos::boundaries
 
-KELVIN_BOUNDARY_PLUGIN(kelvin::fluid::boundaries::Polygon, "polygon",
+KELVIN_BOUNDARY_PLUGIN(kelvin::wos::boundaries::Polygon, "polygon",
                        "Closed 2D polygon given inline; exact edge distance, even-odd inside.",
                        kelvin::param::required(kelvin::PropType::String, "points", "\"x y, x y, ...\" (>= 3 points)"));

@@ -22,7 +22,7 @@
 #include <fstream>
 #include <sstream>
 
-namespace kelvin::fluid::boundaries {
+namespace kelvin::wos::boundaries {
 namespace {
 
 std::vector<std::vector<Vec2d>> read_polylines(const std::filesystem::path& path) {
@@ -130,9 +130,9 @@ private:
 };
 
 }  // namespace
-}  // namespace kelvin::fluid::boundaries
+}  // namespace kelvin::wos::boundaries
 
-KELVIN_BOUNDARY_PLUGIN(kelvin::fluid::boundaries::Polyline, "polyline",
+KELVIN_BOUNDARY_PLUGIN(kelvin::wos::boundaries::Polyline, "polyline",
                        "2D polylines (OBJ 'v'/'l' file or inline points) via exact closest-segment queries.",
                        kelvin::param::string("filename", "", "OBJ-style polyline file ('v x y', 'l i j ...')"),
                        kelvin::param::string("points", "", "inline \"x y, x y, ...\" instead of a file"),

@@ -9,7 +9,7 @@
 //     <boundary type="sphere"><point name="center" x="0" y="0" z="0"/><float name="radius" value="1"/></boundary>
 #include "boundary_common.h"
 
-namespace kelvin::fluid::boundaries {
+namespace kelvin::wos::boundaries {
 namespace {
 
 class Sphere final : public Boundary3 {
@@ -37,8 +37,8 @@ private:
 };
 
 }  // namespace
-}  // namespace kelvin::fluid::boundaries
+}  // namespace kelvin::wos::boundaries
 
-KELVIN_BOUNDARY_PLUGIN(kelvin::fluid::boundaries::Sphere, "sphere", "3D ball, exact distance, knows its inside.",
+KELVIN_BOUNDARY_PLUGIN(kelvin::wos::boundaries::Sphere, "sphere", "3D ball, exact distance, knows its inside.",
                        kelvin::param::point("center", kelvin::Vec3d(0.0), "centre"),
                        kelvin::param::real("radius", 0.25, "radius"));

@@ -30,11 +30,11 @@
 //
 //     <boundary type="vdb"><string name="filename" value="obstacle.vdb"/></boundary>
 #include "boundary_common.h"
-#include "core/vdb_io.h"
 
+#include <kelvin/core/vdb.h>
 #include <kelvin/render/closest_point.h>
 
-namespace kelvin::fluid::boundaries {
+namespace kelvin::wos::boundaries {
 namespace {
 
 class VdbField {
@@ -42,8 +42,8 @@ public:
     VdbField(const Properties& props) {
         const std::filesystem::path path = props.get_input_file("filename", "OpenVDB file");
         try {
-            m_grid = kelvin::detail::vdb_codec().read_float_grid(path, props.get_string("grid"));
-        } catch (const kelvin::detail::VdbInputError& e) {
+            m_grid = read_vdb_float_grid(path, props.get_string("grid"));
+        } catch (const VdbInputError& e) {
             props.error(e.param, e.what());
         } catch (const std::runtime_error& e) {  // the OpenVDB module cannot be loaded
             props.error("filename", e.what());
@@ -146,7 +146,7 @@ public:
     double voxel() const { return m_voxel; }
 
 private:
-    std::unique_ptr<kelvin::detail::VdbFloatGrid> m_grid;  // OpenVDB's grid, behind the VDB module (core/vdb_io.h)
+    std::unique_ptr<VdbFloatGrid> m_grid;  // OpenVDB's grid, behind the VDB module (core/vdb.h)
     std::unique_ptr<ClosestPointQuery> m_leaves;
     double m_voxel = 1;
     std::string m_name;
@@ -238,20 +238,17 @@ private:
     bool m_signed;
 };
 
-ObjectPtr make_vdb(const Properties& props) {
-    if (read_dimension(props) == 2) return std::make_shared<Vdb2>(props);
-    return std::make_shared<Vdb3>(props);
-}
+/// One plugin name for both dimensions, chosen by `dimension`.
+using Vdb = ByDimension<Vdb2, Vdb3>;
 
 }  // namespace
-}  // namespace kelvin::fluid::boundaries
+}  // namespace kelvin::wos::boundaries
 
-static const kelvin::PluginRegistrar kelvin_boundary_vdb(
-    "boundary", "vdb", "OpenVDB level set or unsigned distance grid (.vdb), trilinear; 2D as a slice z = slice_z.",
-    kelvin::fluid::with_boundary_params(
-        {kelvin::param::required(kelvin::PropType::String, "filename", "the .vdb file"),
-         kelvin::param::string("grid", "", "grid name (empty: the first float grid)"),
-         kelvin::param::integer("dimension", 2, "2 (slice at z = slice_z) or 3"),
-         kelvin::param::real("slice_z", 0.0, "z of the 2D slice"),
-         kelvin::param::boolean("signed", true, "level set (negative inside) or unsigned distance (no inside)")}),
-    kelvin::fluid::boundaries::make_vdb);
+KELVIN_BOUNDARY_PLUGIN(kelvin::wos::boundaries::Vdb, "vdb",
+                       "OpenVDB level set or unsigned distance grid (.vdb), trilinear; 2D as a slice z = slice_z.",
+                       kelvin::param::required(kelvin::PropType::String, "filename", "the .vdb file"),
+                       kelvin::param::string("grid", "", "grid name (empty: the first float grid)"),
+                       kelvin::param::integer("dimension", 2, "2 (slice at z = slice_z) or 3"),
+                       kelvin::param::real("slice_z", 0.0, "z of the 2D slice"),
+                       kelvin::param::boolean("signed", true,
+                                              "level set (negative inside) or unsigned distance (no inside)"));

@@ -81,7 +81,7 @@ public:
                     source.at(i, j) = std::isfinite(f) ? f : 0.0;
                 }
         WosVelocityField field(m_options, m_domain, m_source ? &source : nullptr, Interpolation::Bilinear, 0);
-        // The walks poll the job's token within an estimate (core/wos.h, StopPollSamples), so a stop lands within a
+        // The walks poll the job's token within an estimate (wos/wos.h, StopPollSamples), so a stop lands within a
         // fraction of a second even at millions of walks per pixel.
         struct Stop final : Cancellable {};
         Stop stop;

@@ -20,10 +20,9 @@
 //
 //     <volume type="gridvolume" name="sigma_t"><string name="filename" value="smoke.vdb"/>
 //         <string name="grid" value="density"/></volume>
-#include "core/vdb_io.h"
-
 #include <kelvin/core/error.h>
 #include <kelvin/core/registry.h>
+#include <kelvin/core/vdb.h>
 #include <kelvin/render/medium.h>
 
 #include <algorithm>
@@ -138,10 +137,10 @@ private:
     }
 
     Transform read_vdb(const Properties& props, const std::filesystem::path& file, const std::string& name) {
-        detail::VdbDense d;
+        VdbDense d;
         try {
-            d = detail::vdb_codec().read_dense(file, name, 1.2e9);
-        } catch (const detail::VdbInputError& e) {
+            d = read_vdb_dense(file, name, 1.2e9);
+        } catch (const VdbInputError& e) {
             props.error(e.param, e.what());
         } catch (const std::runtime_error& e) {  // the OpenVDB module cannot be loaded
             props.error("filename", e.what());

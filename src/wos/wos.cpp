@@ -1,6 +1,8 @@
 // Walk-on-Spheres: the non-template entry points over a runtime Problem, and the analytic distance providers.
-// The estimators themselves are templates in include/kelvin/core/wos.h (see the equations there).
-#include <kelvin/core/wos.h>
+// The estimators themselves are templates in include/kelvin/wos/wos.h (see the equations there).
+#include <kelvin/core/logging.h>
+#include <kelvin/core/stats.h>
+#include <kelvin/wos/wos.h>
 
 namespace kelvin::wos {
 
@@ -119,5 +121,19 @@ template struct BoxBoundary<2>;
 template struct BoxBoundary<3>;
 template struct ShellBoundary<2>;
 template struct ShellBoundary<3>;
+
+void report_walks(Stats& stats, const std::string& prefix, const WalkCounters& c, const std::string& who,
+                  int max_steps) {
+    stats.add(prefix + "walks", double(c.walks), "walks");
+    stats.add(prefix + "steps", double(c.steps), "spheres");
+    stats.add(prefix + "truncated", double(c.truncated), "walks");
+    stats.add(prefix + "invalid", double(c.invalid), "walks");
+    stats.add(prefix + "boundary_queries", double(c.boundary_queries), "queries");
+    if (c.truncated + c.invalid > 0)
+        log_warn(
+            "{}: {} Walk-on-Spheres walk(s) hit max_steps ({}; ended at the nearest boundary) and {} were invalid "
+            "(counted as zero) out of {}",
+            who, c.truncated, max_steps, c.invalid, c.walks);
+}
 
 }  // namespace kelvin::wos

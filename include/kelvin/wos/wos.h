@@ -63,8 +63,13 @@
 #include <cstring>
 #include <functional>
 #include <limits>
+#include <string>
 #include <type_traits>
 #include <utility>
+
+namespace kelvin {
+class Stats;  // core/stats.h
+}
 
 namespace kelvin::wos {
 
@@ -127,6 +132,12 @@ struct WalkCounters {
         return *this;
     }
 };
+
+/// Adds a run's walk counters to `stats` as `<prefix>walks`, `steps`, `truncated`, `invalid` and
+/// `boundary_queries` (prefix "fluid.wos_" or "wos."), and warns (naming `who` and max_steps) when any walk was
+/// truncated or invalid.
+void report_walks(Stats& stats, const std::string& prefix, const WalkCounters& c, const std::string& who,
+                  int max_steps);
 
 /// An estimate with the variance of the estimate itself (sample variance / n).
 struct ScalarEstimate {
