@@ -19,8 +19,9 @@
 /// Emitter::eval with the surface uv, RunContext/RunResult fields for the CLI; 3: RunContext's progress callback
 /// and cancellation token, FluidSolver's pointwise queries; 4: Emitter::pdf_direct(DirectQuery); 5:
 /// Bsdf::Model::two_sided; 6: Bsdf::Model's dielectric and plastic fields, Emitter::model; 7: Bsdf::back_model,
-/// Bsdf::Model::texture, Texture::local; 8: Bsdf::Model::diffuse_texture; 9: Film::reconstruction).
-#define KELVIN_PLUGIN_ABI 9
+/// Bsdf::Model::texture, Texture::local; 8: Bsdf::Model::diffuse_texture; 9: Film::reconstruction; 10: Job::delegate,
+/// Simulation's driver interface, the boundary interface in kelvin::wos, curve shapes).
+#define KELVIN_PLUGIN_ABI 10
 
 namespace kelvin {
 
