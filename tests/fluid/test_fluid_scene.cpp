@@ -599,3 +599,28 @@ TEST(FluidScene, FinalVelocityPassOnlyWhenAnOutputNeedsIt) {
         EXPECT_GE(r.image.channel_index("vorticity"), 0);
     }
 }
+
+// In 3D as in 2D (the one driver): the last state's velocity pass runs only when an output needs it — the CSV, or a
+// VDB frame (its velocity grid); a PNG slice and the run's image are the vorticity alone.
+TEST(FluidScene3D, FinalVelocityPassOnlyWhenAnOutputNeedsIt) {
+    struct Case {
+        bool csv, vdb_frames;
+        double passes;
+    };
+    for (const Case& c : {Case{false, false, 3}, Case{true, false, 4}, Case{false, true, 4}}) {
+        SCOPED_TRACE(std::string(c.csv ? "csv" : "no csv") + (c.vdb_frames ? ", vdb frames" : ""));
+        TempDir dir;
+        std::string sim = R"(<integer name="steps" value="3"/><string name="advection" value="euler"/>)";
+        if (!c.csv) sim += R"(<boolean name="write_csv" value="false"/>)";
+        if (c.vdb_frames) sim += R"(<integer name="output_every" value="3"/><boolean name="write_png" value="false"/>)";
+        auto job = load(scene3(sim));
+        RunContext ctx;
+        ctx.quiet = true;
+        ctx.output = dir.path() / "run.png";
+        RunResult r = job->run(ctx);
+        EXPECT_EQ(r.work, 3);
+        // 8^3 cells, 8 samples, one pass per state whose velocity is estimated
+        EXPECT_EQ(ctx.stats.get("fluid.biot_savart_evals"), 8.0 * 8 * 8 * 8 * c.passes);
+        EXPECT_EQ(fs::exists(dir.path() / "run" / "fields_0003.vdb"), c.vdb_frames);
+    }
+}
