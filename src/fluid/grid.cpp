@@ -18,21 +18,31 @@ static double wrap1(double v, double lo, double len) {
     return lo + t;
 }
 
-Vec2d Domain2::wrap(Vec2d p) const {
+template <int D>
+typename Domain<D>::Vec Domain<D>::wrap(Vec p) const {
     if (!periodic) return p;
-    Vec2d s = size();
-    return {wrap1(p.x, min.x, s.x), wrap1(p.y, min.y, s.y)};
+    const Vec s = size();
+    for (int a = 0; a < D; ++a) p[a] = wrap1(p[a], min[a], s[a]);
+    return p;
 }
 
-Vec2d Domain2::min_image(Vec2d r) const {
+template <int D>
+typename Domain<D>::Vec Domain<D>::min_image(Vec r) const {
     if (!periodic) return r;
-    Vec2d s = size();
-    return {r.x - s.x * std::nearbyint(r.x / s.x), r.y - s.y * std::nearbyint(r.y / s.y)};
+    const Vec s = size();
+    for (int a = 0; a < D; ++a) r[a] = r[a] - s[a] * std::nearbyint(r[a] / s[a]);
+    return r;
 }
 
-std::string Domain2::to_string() const {
-    return fmt::format("[{:g}, {:g}] x [{:g}, {:g}] {}", min.x, max.x, min.y, max.y, periodic ? "periodic" : "open");
+template <int D>
+std::string Domain<D>::to_string() const {
+    std::string out;
+    for (int a = 0; a < D; ++a) out += fmt::format("{}[{:g}, {:g}]", a ? " x " : "", min[a], max[a]);
+    return out + (periodic ? " periodic" : " open");
 }
+
+template struct Domain<2>;
+template struct Domain<3>;
 
 Grid2::Grid2(const Domain2& domain, int nx, int ny)
     : m_domain(domain), m_nx(nx), m_ny(ny), m_values(std::size_t(nx) * std::size_t(ny), 0.0) {

@@ -22,24 +22,6 @@ inline int wrap_index(int i, int n) {
 }
 }  // namespace
 
-Vec3d Domain3::wrap(Vec3d p) const {
-    if (!periodic) return p;
-    const Vec3d s = size();
-    return {wrap1(p.x, min.x, s.x), wrap1(p.y, min.y, s.y), wrap1(p.z, min.z, s.z)};
-}
-
-Vec3d Domain3::min_image(Vec3d r) const {
-    if (!periodic) return r;
-    const Vec3d s = size();
-    return {r.x - s.x * std::nearbyint(r.x / s.x), r.y - s.y * std::nearbyint(r.y / s.y),
-            r.z - s.z * std::nearbyint(r.z / s.z)};
-}
-
-std::string Domain3::to_string() const {
-    return fmt::format("[{:g}, {:g}] x [{:g}, {:g}] x [{:g}, {:g}] {}", min.x, max.x, min.y, max.y, min.z, max.z,
-                       periodic ? "periodic" : "open");
-}
-
 Grid3::Grid3(const Domain3& domain, int nx, int ny, int nz)
     : m_domain(domain),
       m_nx(nx),

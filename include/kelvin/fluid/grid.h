@@ -23,20 +23,35 @@ namespace kelvin::fluid {
 enum class Interpolation { Nearest, Bilinear };
 const char* to_string(Interpolation i);
 
-struct Domain2 {
-    Vec2d min{-1.0, -1.0};
-    Vec2d max{1.0, 1.0};
+/// The box [min, max] of a simulation in D = 2 or 3 dimensions. Periodic: space is tiled by copies of the box. Open:
+/// the fluid fills space and the vorticity is zero outside the box. One type for both dimensions: its algorithms are
+/// the same per axis.
+template <int D>
+struct Domain {
+    using Vec = glm::vec<D, double>;
+    Vec min{-1.0};
+    Vec max{1.0};
     bool periodic = false;
 
-    Vec2d size() const { return max - min; }
-    double area() const { return (max.x - min.x) * (max.y - min.y); }
+    Vec size() const { return max - min; }
+    /// Area (2D) or volume (3D).
+    double measure() const {
+        double m = 1;
+        for (int a = 0; a < D; ++a) m *= max[a] - min[a];
+        return m;
+    }
+    double area() const requires(D == 2) { return measure(); }
+    double volume() const requires(D == 3) { return measure(); }
     /// Periodic: the copy of p inside [min, max) (finite input only). Open: p unchanged.
-    Vec2d wrap(Vec2d p) const;
-    /// Periodic: the shortest representative of the difference vector r (each component in [-L/2, L/2]).
-    /// Open: r unchanged.
-    Vec2d min_image(Vec2d r) const;
+    Vec wrap(Vec p) const;
+    /// Periodic: the image of the difference r nearest to zero (minimum image). Open: r unchanged.
+    Vec min_image(Vec r) const;
+    /// "[-1, 1] x [-1, 1] open"
     std::string to_string() const;
 };
+extern template struct Domain<2>;
+extern template struct Domain<3>;
+using Domain2 = Domain<2>;
 
 /// A cell-centred scalar field on a domain (values in double, row-major, row 0 at min.y).
 class Grid2 {

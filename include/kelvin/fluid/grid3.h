@@ -21,19 +21,7 @@
 
 namespace kelvin::fluid {
 
-struct Domain3 {
-    Vec3d min{-1.0};
-    Vec3d max{1.0};
-    bool periodic = false;
-
-    Vec3d size() const { return max - min; }
-    double volume() const { return (max.x - min.x) * (max.y - min.y) * (max.z - min.z); }
-    /// Periodic: the copy of p inside [min, max) (finite input only). Open: p unchanged.
-    Vec3d wrap(Vec3d p) const;
-    /// Periodic: the shortest representative of the difference vector r. Open: r unchanged.
-    Vec3d min_image(Vec3d r) const;
-    std::string to_string() const;
-};
+using Domain3 = Domain<3>;
 
 /// Trilinear (or nearest) interpolation weights of a point: up to 8 cells. Cells outside an open grid have
 /// weight 0 and index 0.
