@@ -17,7 +17,9 @@ bool PathVertex::is_light() const {
            (type == PathVertexType::Surface && emitter);
 }
 bool PathVertex::is_delta_light() const {
-    return type == PathVertexType::Light && emitter && (emitter->flags() & EmitterFlags::Delta);
+    // A directional light starts its light subpaths at an Infinite vertex: no ray can hit it either.
+    return (type == PathVertexType::Light || type == PathVertexType::Infinite) && emitter &&
+           (emitter->flags() & EmitterFlags::Delta);
 }
 bool PathVertex::connectible() const {
     if (type == PathVertexType::Surface) return (si.shape->bsdf()->flags() & BsdfFlags::Smooth) != 0;
@@ -377,7 +379,7 @@ double BidirectionalPaths::mis_weight(const Scene& scene, const Sensor& sensor, 
 }
 
 int BidirectionalPaths::strategy_weights(const Scene& scene, const PathVertex* light, const PathVertex* cam, int s,
-                                         int t, double* w) const {
+                                         int t, double* w, StrategyDensities densities) const {
     const int k = s + t - 1;
     if (s == 1 || t < 2 || k < 1 || k + 1 > MaxVertices) return 0;
     if (!joinable(light, cam, s, t)) return 0;
@@ -399,7 +401,24 @@ int BidirectionalPaths::strategy_weights(const Scene& scene, const PathVertex* l
     // x_0 as a light subpath's origin holds: an emitter vertex, the emitter of an escaped camera ray being the
     // environment's.
     if (x[0].type == PathVertexType::Surface) x[0].type = PathVertexType::Light;
-    if (x[0].is_infinite() && !x[0].emitter) x[0].emitter = scene.environment_emitters().front();
+    if (x[0].is_infinite() && !x[0].emitter)
+        for (const Emitter* e : scene.environment_emitters())
+            if (!(e->flags() & EmitterFlags::Delta)) {
+                x[0].emitter = e;  // the sky the camera ray escaped to (a directional light cannot be seen)
+                break;
+            }
+    if (!x[0].emitter) return 0;
+    if (densities == StrategyDensities::FromPositions) {
+        // The same densities recomputed from the vertices' positions alone, by the functions the connections use.
+        fwd[0] = pdf_light_origin(scene, x[0], x[1]);
+        fwd[1] = pdf_light(scene, x[0], x[1]);
+        for (int i = 2; i <= k; ++i)
+            fwd[std::size_t(i)] = pdf(scene, sensor, x[std::size_t(i - 1)], &x[std::size_t(i - 2)], x[std::size_t(i)]);
+        rev[std::size_t(k)] = 0;
+        rev[std::size_t(k - 1)] = pdf(scene, sensor, x[std::size_t(k)], nullptr, x[std::size_t(k - 1)]);
+        for (int i = k - 2; i >= 0; --i)
+            rev[std::size_t(i)] = pdf(scene, sensor, x[std::size_t(i + 1)], &x[std::size_t(i + 2)], x[std::size_t(i)]);
+    }
 
     // Every strategy (s', t'), each from these densities handed over to its own subpaths (a vertex that changes
     // subpath swaps its forward and reverse densities), then weighted by mis_weight() as connect() does.

@@ -74,8 +74,13 @@ public:
     /// vertex changing subpath swaps pdf_fwd and pdf_rev), with its own resampled endpoint for s' = 1 and its own
     /// densities next to its connection; 0 for a strategy that cannot join the path (connect()'s rules). Returns
     /// k + 1 (entries written), or 0 if (s, t) is not such a strategy. For tests: the weights of a path sum to 1.
-    int strategy_weights(const Scene& scene, const PathVertex* light, const PathVertex* cam, int s, int t,
-                         double* w) const;
+    /// With StrategyDensities::FromPositions every vertex's two densities are first recomputed from the vertex
+    /// positions, by the functions connect() uses next to a connection, instead of taken as the subpaths stored
+    /// them (the subpaths store densities of the sampled ray directions, which differ from the directions between
+    /// the vertices in float geometry and by the rays' offsets from the surfaces).
+    enum class StrategyDensities { Stored, FromPositions };
+    int strategy_weights(const Scene& scene, const PathVertex* light, const PathVertex* cam, int s, int t, double* w,
+                         StrategyDensities densities = StrategyDensities::Stored) const;
 
 private:
     int walk(const Scene& scene, Sampler& sampler, Ray ray, Color3 beta, double pdf_dir, int max_bounces,
