@@ -92,6 +92,9 @@ struct MisResult {
     std::array<int, MaxEdges + 1> paths{};  ///< paths checked per length
     double worst = 0;                       ///< largest |sum of weights - 1|
     std::vector<double> errors;             ///< |sum of weights - 1| of every path
+    /// Stored densities only: per path, the largest relative difference of a strategy's weight from its weight
+    /// with the densities from positions.
+    std::vector<double> weight_diffs;
     std::string worst_what;
     int zero_expected = 0;  ///< strategies the test itself finds unable to sample a path
 };
@@ -109,7 +112,7 @@ MisResult check_weights(const std::shared_ptr<Scene>& scene, int samples, uint64
     const Sensor& sensor = *scene->sensor();
     auto sampler = sensor.sampler().clone();
     std::array<PathVertex, BidirectionalPaths::MaxVertices> cam, light;
-    std::array<double, MaxEdges + 1> w{};
+    std::array<double, MaxEdges + 1> w{}, w_positions{};
     SampleCounters counters;
     for (int i = 0; i < samples; ++i) {
         sampler->start({i % 97, i / 97}, uint64_t(i), seed);
@@ -154,6 +157,16 @@ MisResult check_weights(const std::shared_ptr<Scene>& scene, int samples, uint64
                     r.worst_what = fmt::format("length {}, sampled by ({}, {}): sum {:.12g}", k, s, t, sum);
                 }
                 r.errors.push_back(err);
+                if (densities == BidirectionalPaths::StrategyDensities::Stored) {
+                    paths.strategy_weights(*scene, light.data(), cam.data(), s, t, w_positions.data(),
+                                           BidirectionalPaths::StrategyDensities::FromPositions);
+                    double d = 0;
+                    for (int sp = 0; sp <= k; ++sp) {
+                        const double a = w[std::size_t(sp)], b = w_positions[std::size_t(sp)];
+                        if (std::max(a, b) > 0) d = std::max(d, std::abs(a - b) / std::max(a, b));
+                    }
+                    r.weight_diffs.push_back(d);
+                }
                 ++r.paths[std::size_t(k)];
             }
     }
@@ -186,7 +199,12 @@ void expect_partition_of_unity(const std::shared_ptr<Scene>& scene, int samples,
         printf("stored densities: |sum - 1| median %.3g p90 %.3g p99 %.3g max %.3g (%zu paths)\n", median,
                quantile(stored.errors, 0.9), p99, stored.worst, stored.errors.size());
     }
+    const double diff_median = quantile(stored.weight_diffs, 0.5), diff_p90 = quantile(stored.weight_diffs, 0.9);
+    printf("stored against positions: largest relative weight difference per path: median %.3g p90 %.3g\n", diff_median,
+           diff_p90);
     EXPECT_LE(median, 1e-4) << stored.worst_what;
+    EXPECT_LE(diff_median, 1e-3);
+    EXPECT_LE(diff_p90, 1e-2);
     EXPECT_LE(p99, 5e-3) << stored.worst_what;
 }
 
