@@ -17,7 +17,9 @@ bool PathVertex::is_light() const {
            (type == PathVertexType::Surface && emitter);
 }
 bool PathVertex::is_delta_light() const {
-    return type == PathVertexType::Light && emitter && (emitter->flags() & EmitterFlags::Delta);
+    // A directional light starts its light subpaths at an Infinite vertex: no ray can hit it either.
+    return (type == PathVertexType::Light || type == PathVertexType::Infinite) && emitter &&
+           (emitter->flags() & EmitterFlags::Delta);
 }
 bool PathVertex::connectible() const {
     if (type == PathVertexType::Surface) return (si.shape->bsdf()->flags() & BsdfFlags::Smooth) != 0;
@@ -100,6 +102,52 @@ Color3 f(const PathVertex& v, const PathVertex& next, TransportMode mode) {
     Color3 r = v.si.shape->bsdf()->eval(BsdfContext{mode}, v.si, wo);
     if (mode == TransportMode::Importance) r *= shading_correction(v.si, v.si.wi, wo);
     return r;
+}
+
+// Whether strategy (s, t) can join these subpaths at all, before visibility and BSDF values: for s = 0 the camera
+// subpath must end on an emitter that rays can hit; the two vertices joined must have a smooth BSDF component (a
+// light vertex: no delta direction), and neither may lie at infinity except the emitter of s = 1.
+bool joinable(const PathVertex* light, const PathVertex* cam, int s, int t) {
+    const PathVertex& pt = cam[t - 1];
+    if (s == 0) return pt.is_light() && !pt.is_delta_light();
+    if (t == 1) {
+        const PathVertex& qs = light[s - 1];
+        return qs.connectible() && !qs.is_infinite();
+    }
+    if (s == 1) return pt.connectible() && pt.type == PathVertexType::Surface;
+    const PathVertex& qs = light[s - 1];
+    if (!qs.connectible() || !pt.connectible() || qs.is_infinite() || pt.is_infinite()) return false;
+    return qs.type == PathVertexType::Surface && pt.type == PathVertexType::Surface;
+}
+
+// The light vertex of a next-event (s = 1) strategy: point `p` (for infinite emitters: pt.p plus the unit direction
+// towards the emitter) with normal `n` on emitter `e`, connected to `pt`; its forward density is that of the
+// emitter as a light-subpath origin, which is what the other strategies see at x_0.
+PathVertex light_endpoint(const Scene& scene, const Emitter* e, const Vec3d& p, const Vec3d& n, const PathVertex& pt) {
+    PathVertex v;
+    v.type = (e->flags() & EmitterFlags::Infinite) ? PathVertexType::Infinite : PathVertexType::Light;
+    v.emitter = e;
+    v.p = p;
+    v.ng = (e->flags() & EmitterFlags::Surface) ? n : Vec3d(0.0);
+    v.pdf_fwd = pdf_light_origin(scene, v, pt);
+    return v;
+}
+
+// Sets the reverse densities of the (at most four) vertices next to the connection of strategy (s, t), and clears
+// the delta flags of the two joined, as that strategy sees them. light[0] / cam[0] already hold the resampled
+// endpoint for s = 1 / t = 1.
+void connection_densities(const Scene& scene, const Sensor& sensor, PathVertex* light, PathVertex* cam, int s, int t) {
+    PathVertex* qs = s > 0 ? &light[s - 1] : nullptr;
+    PathVertex* pt = &cam[t - 1];
+    PathVertex* qs_minus = s > 1 ? &light[s - 2] : nullptr;
+    PathVertex* pt_minus = t > 1 ? &cam[t - 2] : nullptr;
+    pt->delta = false;
+    if (qs) qs->delta = false;
+
+    pt->pdf_rev = s > 0 ? pdf(scene, sensor, *qs, qs_minus, *pt) : pdf_light_origin(scene, *pt, *pt_minus);
+    if (pt_minus) pt_minus->pdf_rev = s > 0 ? pdf(scene, sensor, *pt, qs, *pt_minus) : pdf_light(scene, *pt, *pt_minus);
+    if (qs) qs->pdf_rev = pdf(scene, sensor, *pt, pt_minus, *qs);
+    if (qs_minus) qs_minus->pdf_rev = pdf(scene, sensor, *qs, pt, *qs_minus);
 }
 
 double geometry_visible(const Scene& scene, const PathVertex& a, const PathVertex& b, SampleCounters& c) {
@@ -230,7 +278,7 @@ Color3 BidirectionalPaths::connect(const Scene& scene, PathVertex* light, PathVe
     const PathVertex& pt = cam[t - 1];
     if (s == 0) {
         // The camera subpath hit an emitter.
-        if (!pt.is_light()) return L;
+        if (!joinable(light, cam, s, t)) return L;
         const PathVertex& prev = cam[t - 2];
         Vec3d w = glm::normalize(prev.p - pt.p);
         if (pt.is_infinite()) {
@@ -243,7 +291,7 @@ Color3 BidirectionalPaths::connect(const Scene& scene, PathVertex* light, PathVe
         // Connect the light subpath's last vertex to the camera (a point on the lens, for a thin lens).
         const PathVertex& qs = light[s - 1];
         const Vec2d u_lens = sampler.next_2d();  // drawn whatever happens next: the layout stays fixed
-        if (!qs.connectible() || qs.is_infinite()) return L;
+        if (!joinable(light, cam, s, t)) return L;
         auto sd = sensor.sample_direct(qs.p, u_lens);
         if (!sd) return L;
         sampled.type = PathVertexType::Camera;
@@ -262,17 +310,13 @@ Color3 BidirectionalPaths::connect(const Scene& scene, PathVertex* light, PathVe
         // Next-event estimation: sample a point on an emitter.
         const double u_sel = sampler.next_1d();  // drawn whatever happens next: the layout stays fixed
         const Vec2d u = sampler.next_2d();
-        if (!pt.connectible() || pt.type != PathVertexType::Surface) return L;
+        if (!joinable(light, cam, s, t)) return L;
         auto [e, sel] = scene.sample_emitter(u_sel);
         if (!e) return L;
         auto ds = e->sample_direct(pt.p, u);
         if (!ds || !(ds->pdf > 0)) return L;
-        sampled.type = (e->flags() & EmitterFlags::Infinite) ? PathVertexType::Infinite : PathVertexType::Light;
-        sampled.emitter = e;
-        sampled.p = ds->dist == Inf ? pt.p + ds->d : ds->p;
-        sampled.ng = (e->flags() & EmitterFlags::Surface) ? ds->n : Vec3d(0.0);
+        sampled = light_endpoint(scene, e, ds->dist == Inf ? pt.p + ds->d : ds->p, ds->n, pt);
         sampled.beta = ds->weight / sel;
-        sampled.pdf_fwd = pdf_light_origin(scene, sampled, pt);
         Vec3d wo = pt.si.to_local(ds->d);
         Color3 fv = pt.si.shape->bsdf()->eval(BsdfContext{}, pt.si, wo);
         if (fv == Color3(0.0)) return L;
@@ -282,8 +326,7 @@ Color3 BidirectionalPaths::connect(const Scene& scene, PathVertex* light, PathVe
         L = pt.beta * fv * sampled.beta;
     } else {
         const PathVertex& qs = light[s - 1];
-        if (!qs.connectible() || !pt.connectible() || qs.is_infinite() || pt.is_infinite()) return L;
-        if (qs.type != PathVertexType::Surface || pt.type != PathVertexType::Surface) return L;
+        if (!joinable(light, cam, s, t)) return L;
         Color3 fq = f(qs, pt, TransportMode::Importance), fp = f(pt, qs, TransportMode::Radiance);
         if (fq == Color3(0.0) || fp == Color3(0.0)) return L;
         double g = geometry_visible(scene, pt, qs, c);
@@ -317,13 +360,7 @@ double BidirectionalPaths::mis_weight(const Scene& scene, const Sensor& sensor, 
     if (qs) touch(qs);
     if (pt_minus) touch(pt_minus);
     if (qs_minus) touch(qs_minus);
-    pt->delta = false;
-    if (qs) qs->delta = false;
-
-    pt->pdf_rev = s > 0 ? pdf(scene, sensor, *qs, qs_minus, *pt) : pdf_light_origin(scene, *pt, *pt_minus);
-    if (pt_minus) pt_minus->pdf_rev = s > 0 ? pdf(scene, sensor, *pt, qs, *pt_minus) : pdf_light(scene, *pt, *pt_minus);
-    if (qs) qs->pdf_rev = pdf(scene, sensor, *pt, pt_minus, *qs);
-    if (qs_minus) qs_minus->pdf_rev = pdf(scene, sensor, *qs, pt, *qs_minus);
+    connection_densities(scene, sensor, light, cam, s, t);
 
     auto remap = [](double x) { return x != 0 ? x : 1.0; };
     double sum = 0, ri = 1;
@@ -339,6 +376,77 @@ double BidirectionalPaths::mis_weight(const Scene& scene, const Sensor& sensor, 
     }
     for (int i = nt - 1; i >= 0; --i) *touched[i] = saved[i];
     return 1.0 / (1.0 + sum);
+}
+
+int BidirectionalPaths::strategy_weights(const Scene& scene, const PathVertex* light, const PathVertex* cam, int s,
+                                         int t, double* w, StrategyDensities densities) const {
+    const int k = s + t - 1;
+    if (s == 1 || t < 2 || k < 1 || k + 1 > MaxVertices) return 0;
+    if (!joinable(light, cam, s, t)) return 0;
+    const Sensor& sensor = *scene.sensor();
+    // The densities strategy (s, t) stores for the path: its subpaths as traced, the connection's vertices as
+    // connect() sets them. x_i in light order; fwd: density of x_i from the light side, rev: from the camera side.
+    std::array<PathVertex, MaxVertices> x, sub_light, sub_cam;
+    std::array<double, MaxVertices> fwd, rev;
+    std::copy(light, light + s, sub_light.begin());
+    std::copy(cam, cam + t, sub_cam.begin());
+    connection_densities(scene, sensor, sub_light.data(), sub_cam.data(), s, t);
+    for (int i = 0; i <= k; ++i) {
+        const bool from_light = i < s;
+        const PathVertex& v = from_light ? sub_light[std::size_t(i)] : sub_cam[std::size_t(k - i)];
+        x[std::size_t(i)] = v;
+        fwd[std::size_t(i)] = from_light ? v.pdf_fwd : v.pdf_rev;
+        rev[std::size_t(i)] = from_light ? v.pdf_rev : v.pdf_fwd;
+    }
+    // x_0 as a light subpath's origin holds: an emitter vertex, the emitter of an escaped camera ray being the
+    // environment's.
+    if (x[0].type == PathVertexType::Surface) x[0].type = PathVertexType::Light;
+    if (x[0].is_infinite() && !x[0].emitter)
+        for (const Emitter* e : scene.environment_emitters())
+            if (!(e->flags() & EmitterFlags::Delta)) {
+                x[0].emitter = e;  // the sky the camera ray escaped to (a directional light cannot be seen)
+                break;
+            }
+    if (!x[0].emitter) return 0;
+    if (densities == StrategyDensities::FromPositions) {
+        // The same densities recomputed from the vertices' positions alone, by the functions the connections use.
+        fwd[0] = pdf_light_origin(scene, x[0], x[1]);
+        fwd[1] = pdf_light(scene, x[0], x[1]);
+        for (int i = 2; i <= k; ++i)
+            fwd[std::size_t(i)] = pdf(scene, sensor, x[std::size_t(i - 1)], &x[std::size_t(i - 2)], x[std::size_t(i)]);
+        rev[std::size_t(k)] = 0;
+        rev[std::size_t(k - 1)] = pdf(scene, sensor, x[std::size_t(k)], nullptr, x[std::size_t(k - 1)]);
+        for (int i = k - 2; i >= 0; --i)
+            rev[std::size_t(i)] = pdf(scene, sensor, x[std::size_t(i + 1)], &x[std::size_t(i + 2)], x[std::size_t(i)]);
+    }
+
+    // Every strategy (s', t'), each from these densities handed over to its own subpaths (a vertex that changes
+    // subpath swaps its forward and reverse densities), then weighted by mis_weight() as connect() does.
+    for (int sp = 0; sp <= k; ++sp) {
+        const int tp = k + 1 - sp;
+        for (int i = 0; i < sp; ++i) {
+            sub_light[std::size_t(i)] = x[std::size_t(i)];
+            sub_light[std::size_t(i)].pdf_fwd = fwd[std::size_t(i)];
+            sub_light[std::size_t(i)].pdf_rev = rev[std::size_t(i)];
+        }
+        for (int j = 0; j < tp; ++j) {
+            sub_cam[std::size_t(j)] = x[std::size_t(k - j)];
+            sub_cam[std::size_t(j)].pdf_fwd = rev[std::size_t(k - j)];
+            sub_cam[std::size_t(j)].pdf_rev = fwd[std::size_t(k - j)];
+        }
+        w[sp] = 0;
+        if (!joinable(sub_light.data(), sub_cam.data(), sp, tp)) continue;
+        PathVertex sampled;
+        if (sp == 1) {
+            const PathVertex& pt = sub_cam[std::size_t(tp - 1)];
+            const Vec3d p = x[0].is_infinite() ? pt.p + glm::normalize(x[0].p - pt.p) : x[0].p;
+            sampled = light_endpoint(scene, x[0].emitter, p, x[0].ng, pt);
+        } else if (tp == 1) {
+            sampled = sub_cam[0];
+        }
+        w[sp] = mis_weight(scene, sensor, sub_light.data(), sub_cam.data(), sampled, sp, tp);
+    }
+    return k + 1;
 }
 
 }  // namespace kelvin

@@ -66,6 +66,22 @@ public:
     Color3 connect(const Scene& scene, PathVertex* light, PathVertex* cam, int s, int t, Sampler& sampler, Vec2d& film,
                    SampleCounters& c) const;
 
+    /// Every strategy's MIS weight for one full path, as connect() computes them: the path x_0..x_k (k = s + t - 1
+    /// edges; x_i = light[i] for i < s, cam[k - i] otherwise) that strategy (s, t) forms from these subpaths
+    /// (s = 0 or s >= 2, and t >= 2: every vertex sampled by a subpath), with the densities that strategy stores for
+    /// it (the subpaths' pdf_fwd / pdf_rev, and those connect() sets next to the connection). w[s'] is the weight
+    /// of strategy (s', k + 1 - s'), s' = 0..k, computed from those densities handed over to its own subpaths (a
+    /// vertex changing subpath swaps pdf_fwd and pdf_rev), with its own resampled endpoint for s' = 1 and its own
+    /// densities next to its connection; 0 for a strategy that cannot join the path (connect()'s rules). Returns
+    /// k + 1 (entries written), or 0 if (s, t) is not such a strategy. For tests: the weights of a path sum to 1.
+    /// With StrategyDensities::FromPositions every vertex's two densities are first recomputed from the vertex
+    /// positions, by the functions connect() uses next to a connection, instead of taken as the subpaths stored
+    /// them (the subpaths store densities of the sampled ray directions, which differ from the directions between
+    /// the vertices in float geometry and by the rays' offsets from the surfaces).
+    enum class StrategyDensities { Stored, FromPositions };
+    int strategy_weights(const Scene& scene, const PathVertex* light, const PathVertex* cam, int s, int t, double* w,
+                         StrategyDensities densities = StrategyDensities::Stored) const;
+
 private:
     int walk(const Scene& scene, Sampler& sampler, Ray ray, Color3 beta, double pdf_dir, int max_bounces,
              TransportMode mode, PathVertex* path, SampleCounters& c) const;

@@ -1,0 +1,238 @@
+// bdpt's multiple-importance weights, strategy by strategy. For a path x_0..x_k that bdpt samples, the weights of
+// all strategies (s, t), s + t = k + 1, that could have produced it, each computed as connect() computes it from
+// the densities the strategies store (BidirectionalPaths::strategy_weights: the subpaths' pdf_fwd / pdf_rev, the
+// densities set next to each strategy's own connection, the s = 1 strategy's own emitter vertex), must sum to one
+// (Veach 1997, Sec. 9.2: the power heuristic's weights over the strategies that can sample a path form a partition
+// of unity). Strategies that cannot sample the path get weight 0: those joining at a specular vertex and the
+// camera hitting a point, spot or directional light. Paths come from bdpt's own subpaths, every length 2..8, on
+// three scenes: the Cornell box (one area light); a room with a mirror sphere, a glass sphere, a glossy plate, a
+// point light, a spot light and a small area light; a glossy and a diffuse sphere on a floor under a directional
+// light and a uniform sky.
+//
+// Two sets of densities: recomputed from the vertex positions by the functions connect() uses (one set for every
+// strategy, so the weights must sum to one within 1e-9), and as the subpaths stored them. The stored densities are
+// those of the sampled ray directions, which float geometry and the rays' offsets from the surfaces put slightly off
+// the directions between the vertices (relative differences of 1e-5 typically, up to 1e-2 for vertices a few
+// offsets apart in a corner): with them the sums stay within 1e-4 for the median path and 5e-3 for 99 % of paths,
+// and each strategy's weight within 1e-3 (median) and 1e-2 (90 %) of its weight from positions.
+//
+// Seen to fail on deliberately broken variants (by hand, once):
+//   - a missing strategy (mis_weight's camera loop without its t = 1 term): all three scenes (sums up to 2);
+//   - a wrong pdf_rev on one vertex: the connection's qs_minus given its forward density: all three scenes;
+//   - a wrong pdf_rev stored by the walk (converted to area at the wrong vertex): all three scenes (stored
+//     densities against positions);
+//   - the s = 1 strategy's emitter vertex without the emitter selection probability (light_endpoint): the two
+//     scenes with several emitters (the Cornell box has one, selection probability 1);
+//   - the light subpath's origin density without the selection probability: the room with several emitters (its
+//     99th percentile, 8e-3; the effect is as small as the weight of the camera hitting the light);
+//   - a directional light not counted as a delta light (as bdpt was before this test: the camera's s = 0 strategy
+//     took weight from the others although no ray can hit the light): the sky scene.
+#include "render/render_support.h"
+
+#include <kelvin/render/bidirectional.h>
+#include <kelvin/render/emitter.h>
+#include <kelvin/render/film.h>
+#include <kelvin/render/sensor.h>
+#include <kelvin/render/shape.h>
+
+#include <fmt/format.h>
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+
+using namespace kelvin;
+
+namespace {
+
+constexpr int MaxEdges = 8;
+
+const char* kSpecularRoom = R"(<scene version="3.0.0">
+    <integrator type="bdpt"/>
+    <sensor type="perspective">
+        <float name="fov" value="50"/>
+        <transform name="to_world"><lookat origin="0, 1, 3.5" target="0, 0.8, 0" up="0, 1, 0"/></transform>
+        <sampler type="independent"/>
+        <film type="hdrfilm"><integer name="width" value="32"/><integer name="height" value="32"/></film>
+    </sensor>
+    <bsdf type="diffuse" id="white"><rgb name="reflectance" value="0.7, 0.7, 0.7"/></bsdf>
+    <shape type="rectangle"><transform name="to_world"><rotate x="1" angle="-90"/></transform><ref id="white"/></shape>
+    <shape type="rectangle"><transform name="to_world"><rotate x="1" angle="90"/><translate y="2"/></transform>
+        <ref id="white"/></shape>
+    <shape type="rectangle"><transform name="to_world"><translate y="1" z="-1"/></transform><ref id="white"/></shape>
+    <shape type="rectangle"><transform name="to_world"><rotate y="1" angle="90"/><translate x="-1" y="1"/></transform>
+        <bsdf type="diffuse"><rgb name="reflectance" value="0.6, 0.2, 0.2"/></bsdf></shape>
+    <shape type="rectangle"><transform name="to_world"><rotate y="1" angle="-90"/><translate x="1" y="1"/></transform>
+        <bsdf type="roughconductor"><string name="distribution" value="ggx"/><float name="alpha" value="0.2"/><string name="material" value="Cu"/></bsdf></shape>
+    <shape type="sphere"><point name="center" x="-0.45" y="0.35" z="-0.3"/><float name="radius" value="0.35"/>
+        <bsdf type="conductor"/></shape>
+    <shape type="sphere"><point name="center" x="0.45" y="0.3" z="0.2"/><float name="radius" value="0.3"/>
+        <bsdf type="dielectric"/></shape>
+    <shape type="rectangle">
+        <transform name="to_world"><scale x="0.4" y="0.4"/><rotate x="1" angle="90"/><translate x="0.4" y="1.99"/></transform>
+        <ref id="white"/><emitter type="area"><rgb name="radiance" value="2, 2, 2"/></emitter></shape>
+    <emitter type="point"><point name="position" x="-0.3" y="1.7" z="0.3"/><rgb name="intensity" value="2, 2, 2"/></emitter>
+    <emitter type="spot"><transform name="to_world"><lookat origin="0, 1.9, 0.5" target="0, 0, 0" up="0, 0, 1"/></transform>
+        <rgb name="intensity" value="5, 5, 5"/><float name="cutoff_angle" value="30"/></emitter>
+</scene>)";
+
+const char* kSky = R"(<scene version="3.0.0">
+    <integrator type="bdpt"/>
+    <sensor type="perspective">
+        <float name="fov" value="45"/>
+        <transform name="to_world"><lookat origin="0, 1.5, 4" target="0, 0.4, 0" up="0, 1, 0"/></transform>
+        <sampler type="independent"/>
+        <film type="hdrfilm"><integer name="width" value="32"/><integer name="height" value="32"/></film>
+    </sensor>
+    <shape type="rectangle"><transform name="to_world"><scale value="3"/><rotate x="1" angle="-90"/></transform>
+        <bsdf type="diffuse"><rgb name="reflectance" value="0.5, 0.5, 0.5"/></bsdf></shape>
+    <shape type="rectangle"><transform name="to_world"><scale value="1.5"/><translate y="1.5" z="-1.5"/></transform>
+        <bsdf type="diffuse"><rgb name="reflectance" value="0.6, 0.6, 0.5"/></bsdf></shape>
+    <shape type="sphere"><point name="center" x="-0.6" y="0.5" z="0"/><float name="radius" value="0.5"/>
+        <bsdf type="roughconductor"><string name="distribution" value="ggx"/><float name="alpha" value="0.15"/><string name="material" value="Au"/></bsdf></shape>
+    <shape type="sphere"><point name="center" x="0.6" y="0.5" z="0"/><float name="radius" value="0.5"/>
+        <bsdf type="diffuse"><rgb name="reflectance" value="0.8, 0.3, 0.3"/></bsdf></shape>
+    <emitter type="directional"><vector name="direction" x="-0.3" y="-1" z="-0.4"/>
+        <rgb name="irradiance" value="3, 3, 3"/></emitter>
+    <emitter type="constant"><rgb name="radiance" value="0.5, 0.6, 0.8"/></emitter>
+</scene>)";
+
+struct MisResult {
+    std::array<int, MaxEdges + 1> paths{};  ///< paths checked per length
+    double worst = 0;                       ///< largest |sum of weights - 1|
+    std::vector<double> errors;             ///< |sum of weights - 1| of every path
+    /// Stored densities only: per path, the largest relative difference of a strategy's weight from its weight
+    /// with the densities from positions.
+    std::vector<double> weight_diffs;
+    std::string worst_what;
+    int zero_expected = 0;  ///< strategies the test itself finds unable to sample a path
+};
+
+bool specular(const PathVertex& v) {
+    return v.type == PathVertexType::Surface && !(v.si.shape->bsdf()->flags() & BsdfFlags::Smooth);
+}
+
+// Every full path of 2..MaxEdges edges that bdpt forms from `samples` pairs of subpaths with a non-zero
+// contribution: its strategies' weights.
+MisResult check_weights(const std::shared_ptr<Scene>& scene, int samples, uint64_t seed,
+                        BidirectionalPaths::StrategyDensities densities) {
+    MisResult r;
+    const BidirectionalPaths paths(1 << 20);  // no Russian roulette: long paths are frequent
+    const Sensor& sensor = *scene->sensor();
+    auto sampler = sensor.sampler().clone();
+    std::array<PathVertex, BidirectionalPaths::MaxVertices> cam, light;
+    std::array<double, MaxEdges + 1> w{}, w_positions{};
+    SampleCounters counters;
+    for (int i = 0; i < samples; ++i) {
+        sampler->start({i % 97, i / 97}, uint64_t(i), seed);
+        const Vec2d film(sampler->next_1d() * sensor.film().width(), sampler->next_1d() * sensor.film().height());
+        const Ray ray = sensor.sample_ray(film, sampler->next_2d());
+        const int n_cam = paths.camera_subpath(*scene, *sampler, ray, MaxEdges, cam.data(), counters);
+        sampler->set_stream(SampleStream::Light);
+        const int n_light = paths.light_subpath(*scene, *sampler, MaxEdges - 1, light.data(), counters);
+        sampler->set_stream(SampleStream::Connection);
+        for (int t = 2; t <= n_cam; ++t)
+            for (int s = 0; s <= n_light; ++s) {
+                const int k = s + t - 1;
+                if (s == 1 || k < 2 || k > MaxEdges) continue;
+                Vec2d unused;
+                if (paths.connect(*scene, light.data(), cam.data(), s, t, *sampler, unused, counters) == Color3(0.0))
+                    continue;  // not a path bdpt counts
+                const int n = paths.strategy_weights(*scene, light.data(), cam.data(), s, t, w.data(), densities);
+                EXPECT_EQ(n, k + 1) << "strategy (" << s << ", " << t << ")";
+                if (n != k + 1) continue;
+                auto x = [&](int j) -> const PathVertex& {
+                    return j < s ? light[std::size_t(j)] : cam[std::size_t(k - j)];
+                };
+                double sum = 0;
+                for (int sp = 0; sp <= k; ++sp) {
+                    sum += w[std::size_t(sp)];
+                    EXPECT_GE(w[std::size_t(sp)], 0.0);
+                    // Strategies that cannot sample this path, found here from the scene itself.
+                    const bool hits_delta_light =
+                        sp == 0 && x(0).emitter && (x(0).emitter->flags() & EmitterFlags::Delta);
+                    const bool joins_specular = (sp > 0 && specular(x(sp - 1))) || specular(x(sp));
+                    if (hits_delta_light || joins_specular) {
+                        ++r.zero_expected;
+                        EXPECT_EQ(w[std::size_t(sp)], 0.0)
+                            << "strategy (" << sp << ", " << k + 1 - sp << ") of a path sampled by (" << s << ", " << t
+                            << ")" << (hits_delta_light ? " hits a delta light" : " joins at a specular vertex");
+                    }
+                }
+                EXPECT_GT(w[std::size_t(s)], 0.0) << "the sampling strategy (" << s << ", " << t << ")";
+                const double err = std::abs(sum - 1.0);
+                if (err > r.worst) {
+                    r.worst = err;
+                    r.worst_what = fmt::format("length {}, sampled by ({}, {}): sum {:.12g}", k, s, t, sum);
+                }
+                r.errors.push_back(err);
+                if (densities == BidirectionalPaths::StrategyDensities::Stored) {
+                    paths.strategy_weights(*scene, light.data(), cam.data(), s, t, w_positions.data(),
+                                           BidirectionalPaths::StrategyDensities::FromPositions);
+                    double d = 0;
+                    for (int sp = 0; sp <= k; ++sp) {
+                        const double a = w[std::size_t(sp)], b = w_positions[std::size_t(sp)];
+                        if (std::max(a, b) > 0) d = std::max(d, std::abs(a - b) / std::max(a, b));
+                    }
+                    r.weight_diffs.push_back(d);
+                }
+                ++r.paths[std::size_t(k)];
+            }
+    }
+    return r;
+}
+
+double quantile(std::vector<double> v, double q) {
+    if (v.empty()) return 0;
+    std::sort(v.begin(), v.end());
+    return v[std::size_t(q * double(v.size() - 1))];
+}
+
+// `min_paths`: per length 2..MaxEdges, how many paths the samples must give (so that every length is checked).
+void expect_partition_of_unity(const std::shared_ptr<Scene>& scene, int samples,
+                               const std::array<int, MaxEdges + 1>& min_paths) {
+    using D = BidirectionalPaths::StrategyDensities;
+    // Densities recomputed from the vertex positions: one set for every strategy, so the weights sum to one to
+    // rounding.
+    const MisResult exact = check_weights(scene, samples, 7, D::FromPositions);
+    EXPECT_LE(exact.worst, 1e-9) << exact.worst_what;
+    for (int k = 2; k <= MaxEdges; ++k)
+        EXPECT_GE(exact.paths[std::size_t(k)], min_paths[std::size_t(k)]) << "paths of length " << k;
+    // The densities the subpaths stored (of the sampled ray directions, which float geometry and the rays' offsets
+    // from the surfaces put slightly off the directions between the vertices): the sums stay within that slack.
+    const MisResult stored = check_weights(scene, samples, 7, D::Stored);
+    EXPECT_EQ(stored.errors.size(), exact.errors.size());
+    const double median = quantile(stored.errors, 0.5), p99 = quantile(stored.errors, 0.99);
+    {
+        for (int k = 2; k <= MaxEdges; ++k) printf("length %d: %d paths; ", k, exact.paths[std::size_t(k)]);
+        printf("stored densities: |sum - 1| median %.3g p90 %.3g p99 %.3g max %.3g (%zu paths)\n", median,
+               quantile(stored.errors, 0.9), p99, stored.worst, stored.errors.size());
+    }
+    const double diff_median = quantile(stored.weight_diffs, 0.5), diff_p90 = quantile(stored.weight_diffs, 0.9);
+    printf("stored against positions: largest relative weight difference per path: median %.3g p90 %.3g\n", diff_median,
+           diff_p90);
+    EXPECT_LE(median, 1e-4) << stored.worst_what;
+    EXPECT_LE(diff_median, 1e-3);
+    EXPECT_LE(diff_p90, 1e-2);
+    EXPECT_LE(p99, 5e-3) << stored.worst_what;
+}
+
+TEST(BdptMis, WeightsSumToOneCornellBox) {
+    const std::string file = KELVIN_SOURCE_DIR "/scenes/render/cornell-box.xml";
+    ParseOptions opts;
+    opts.defines = {{"integrator", "bdpt"}, {"res", "32"}};
+    expect_partition_of_unity(ktest::load_scene_xml(ktest::read_text(file), opts, file), 10000,
+                              {0, 0, 1, 1, 1, 1, 1, 1, 1});
+}
+
+TEST(BdptMis, WeightsSumToOneSpecularPointAndSpotLights) {
+    expect_partition_of_unity(ktest::load_scene_xml(kSpecularRoom), 10000,
+                              {0, 0, 5, 1000, 1000, 1000, 1000, 1000, 1000});
+}
+
+TEST(BdptMis, WeightsSumToOneDirectionalLightAndSky) {
+    expect_partition_of_unity(ktest::load_scene_xml(kSky), 10000, {0, 0, 1000, 1000, 400, 200, 100, 50, 40});
+}
+
+}  // namespace
