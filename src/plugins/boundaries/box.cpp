@@ -1,11 +1,7 @@
 // box: an axis-aligned rectangle (2D) or box (3D) as a solid boundary, with its exact distance (outside: to
 // the box; inside: to the nearest face). Knows its inside, so it can also be a container (fluid = "inside").
 //
-// | parameter | type    | default    | meaning                                  |
-// |-----------|---------|------------|------------------------------------------|
-// | dimension | integer | 2          | 2 or 3                                   |
-// | min, max  | point   | (-0.5) / (0.5) | opposite corners (z ignored in 2D)   |
-// | (common)  |         |            | stream_value, velocity, angular_velocity, pivot, fluid (docs/boundaries.md) |
+// Parameters: `kelvin --list-plugins KIND NAME`, or docs/reference.md (generated from the declarations below).
 //
 //     <boundary type="box"><point name="min" x="-0.1" y="-0.1"/><point name="max" x="0.1" y="0.1"/></boundary>
 #include "boundary_common.h"

@@ -1,12 +1,7 @@
 // capsule: the points within `radius` of the segment [a, b] (a stadium in 2D, a capsule in 3D), exact distance
 // | |p - closest point of [a, b]| - radius |. Knows its inside. a = b gives a disk or ball.
 //
-// | parameter | type    | default | meaning               |
-// |-----------|---------|---------|-----------------------|
-// | dimension | integer | 2       | 2 or 3                |
-// | a, b      | point   | (-0.25, 0) / (0.25, 0) | segment end points (z ignored in 2D) |
-// | radius    | float   | 0.1     | radius (> 0)          |
-// | (common)  |         |         | stream_value, velocity, angular_velocity, pivot, fluid (docs/boundaries.md) |
+// Parameters: `kelvin --list-plugins KIND NAME`, or docs/reference.md (generated from the declarations below).
 //
 //     <boundary type="capsule"><point name="a" x="-0.3" y="0"/><point name="b" x="0.3" y="0.1"/>
 //         <float name="radius" value="0.05"/></boundary>

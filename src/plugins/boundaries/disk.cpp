@@ -2,11 +2,7 @@
 // container with fluid = "inside"). A disk smaller than a cache cell is fine (Figure 5.14): walks find it by
 // its distance, whatever the grid.
 //
-// | parameter | type  | default | meaning     |
-// |-----------|-------|---------|-------------|
-// | center    | point | 0       | centre (z ignored) |
-// | radius    | float | 0.25    | radius (> 0) |
-// | (common)  |       |         | stream_value, velocity, angular_velocity, pivot, fluid (docs/boundaries.md) |
+// Parameters: `kelvin --list-plugins KIND NAME`, or docs/reference.md (generated from the declarations below).
 //
 //     <boundary type="disk"><point name="center" x="-0.5" y="0"/><float name="radius" value="0.1"/></boundary>
 #include "boundary_common.h"

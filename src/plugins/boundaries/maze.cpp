@@ -2,13 +2,7 @@
 // Distance is the minimum over the boxes (exact in the fluid; inside the walls it may measure to a face shared by
 // two boxes, which no walk ever sees). Knows its inside (any box). Runs of '#' along a row become one box.
 //
-// | parameter | type   | default | meaning                                                         |
-// |-----------|--------|---------|-----------------------------------------------------------------|
-// | boxes     | string | ""      | "x0 y0 x1 y1; ..." wall rectangles                               |
-// | layout    | string | ""      | rows of '#' (wall) and other characters (open), separated by '/' or new lines; first
-// row on top | | origin    | point  | 0       | lower-left corner of the layout                                  | |
-// cell      | float  | 0.1     | size of a layout cell                                            | | (common)  | | |
-// stream_value, velocity, angular_velocity, pivot, fluid (docs/boundaries.md) |
+// Parameters: `kelvin --list-plugins KIND NAME`, or docs/reference.md (generated from the declarations below).
 //
 //     <boundary type="maze"><string name="layout" value="#####/#...#/#.#.#/#####"/>
 //         <point name="origin" x="-1" y="-1"/><float name="cell" value="0.5"/></boundary>

@@ -13,11 +13,7 @@
 //    once); holes (missing triangles) are pockets of fluid. The inside is "in some triangle", so the mesh can be
 //    a container too (then it must be conforming: T-junctions leave interior edges that act as walls).
 //
-// | parameter | type    | default  | meaning                                      |
-// |-----------|---------|----------|----------------------------------------------|
-// | dimension | integer | 2        | 2 (planar triangles in z = 0) or 3            |
-// | (shape)   | nested  | required | any triangle shape (to_world applies)          |
-// | (common)  |         |          | stream_value, velocity, angular_velocity, pivot, fluid (docs/boundaries.md) |
+// Parameters: `kelvin --list-plugins KIND NAME`, or docs/reference.md (generated from the declarations below).
 //
 //     <boundary type="mesh"><shape type="obj"><string name="filename" value="soup.obj"/></shape></boundary>
 #include "boundary_common.h"

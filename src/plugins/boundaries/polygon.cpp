@@ -2,10 +2,7 @@
 // distance to its edges (brute force for small polygons, a segment BVH from 32 edges on); inside by the
 // even-odd rule. Either orientation; self-intersections are allowed (even-odd decides).
 //
-// | parameter | type   | default  | meaning                                         |
-// |-----------|--------|----------|-------------------------------------------------|
-// | points    | string | required | "x y, x y, ..." (at least 3 points; closed automatically) |
-// | (common)  |        |          | stream_value, velocity, angular_velocity, pivot, fluid (docs/boundaries.md) |
+// Parameters: `kelvin --list-plugins KIND NAME`, or docs/reference.md (generated from the declarations below).
 //
 //     <boundary type="polygon"><string name="points" value="0 0, 0.2 0, 0.1 0.2"/></boundary>
 #include "boundary_common.h"

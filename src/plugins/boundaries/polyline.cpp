@@ -4,14 +4,7 @@
 // joins each polyline's ends and adds an inside by the even-odd rule (loops inside loops are holes), so a
 // closed outline can also be a container (fluid = "inside": the bunny scene).
 //
-// | parameter | type    | default | meaning                                                       |
-// |-----------|---------|---------|---------------------------------------------------------------|
-// | filename  | string  | ""      | OBJ-style polyline file (relative to the scene)                |
-// | points    | string  | ""      | inline "x y, x y, ..." (one polyline), instead of a file       |
-// | closed    | boolean | false   | join last point to first; the shape gets an inside             |
-// | scale     | float   | 1       | multiplies the coordinates                                     |
-// | offset    | point   | 0       | added after scaling                                            |
-// | (common)  |         |         | stream_value, velocity, angular_velocity, pivot, fluid (docs/boundaries.md) |
+// Parameters: `kelvin --list-plugins KIND NAME`, or docs/reference.md (generated from the declarations below).
 //
 //     <boundary type="polyline"><string name="filename" value="bunny.obj"/><boolean name="closed" value="true"/>
 //         <string name="fluid" value="inside"/></boundary>

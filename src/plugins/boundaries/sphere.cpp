@@ -1,10 +1,6 @@
 // sphere: a 3D ball as a boundary (exact distance | |p - c| - r |; knows its inside).
 //
-// | parameter | type  | default | meaning  |
-// |-----------|-------|---------|----------|
-// | center    | point | 0       | centre   |
-// | radius    | float | 0.25    | radius (> 0) |
-// | (common)  |       |         | stream_value, fluid (docs/boundaries.md; motion is 2D only) |
+// Parameters: `kelvin --list-plugins KIND NAME`, or docs/reference.md (generated from the declarations below).
 //
 //     <boundary type="sphere"><point name="center" x="0" y="0" z="0"/><float name="radius" value="1"/></boundary>
 #include "boundary_common.h"

@@ -19,14 +19,7 @@
 // A missing file, a file OpenVDB cannot read, a missing grid or a grid that is not a float grid is an InputError
 // naming the file and parameter.
 //
-// | parameter | type    | default  | meaning                                                  |
-// |-----------|---------|----------|----------------------------------------------------------|
-// | filename  | string  | required | the .vdb file (relative to the scene)                     |
-// | grid      | string  | ""       | grid name ("": the first float grid)                      |
-// | dimension | integer | 2        | 2 (slice at z = slice_z) or 3                             |
-// | slice_z   | float   | 0        | the z of the 2D slice                                     |
-// | signed    | boolean | true     | level set (negative inside) or unsigned distance           |
-// | (common)  |         |          | stream_value, velocity, angular_velocity, pivot, fluid (docs/boundaries.md) |
+// Parameters: `kelvin --list-plugins KIND NAME`, or docs/reference.md (generated from the declarations below).
 //
 //     <boundary type="vdb"><string name="filename" value="obstacle.vdb"/></boundary>
 #include "boundary_common.h"

@@ -12,18 +12,7 @@
 // stream function is a vector potential with Psi constant on solids and the walls carrying the uniform stream of
 // `inflow_speed` along +x (include/kelvin/fluid/boundary.h, WosVelocityField3). See docs/boundaries.md.
 //
-// | parameter         | type    | default | meaning                                                        |
-// |-------------------|---------|---------|----------------------------------------------------------------|
-// | samples           | integer | 64      | gradient samples per velocity query (2 walks each, antithetic)  |
-// | epsilon           | float   | 0       | shell width; 0: 1e-4 x the domain's smaller side                |
-// | max_steps         | integer | 4096    | spheres per walk before it is truncated (counted, reported)     |
-// | antithetic        | boolean | true    | mirror the first step (Fig. 5.5)                                |
-// | importance        | string  | vorticity | volume term: "vorticity" (|omega_h| mixed half-half with G) or "green" (G
-// only, as the thesis) | | walls             | boolean | true    | the domain box is a container (ignored when
-// periodic)           | | wall_stream_value | float   | 0       | Psi on the walls (with inflow: the mean of bottom and
-// top)      | | inflow_speed      | float   | 0       | uniform inflow speed through the left wall, outflow through the
-// right | | inflow_min, inflow_max | float | 0  | y range of the inflow and outflow segments (equal: the whole wall) |
-// | (boundary)        | nested  | none    | any number of <boundary> shapes                                  |
+// Parameters: `kelvin --list-plugins KIND NAME`, or docs/reference.md (generated from the declarations below).
 //
 //     <velocity type="walk_on_spheres">
 //         <integer name="samples" value="64"/>

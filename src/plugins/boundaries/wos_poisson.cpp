@@ -10,18 +10,7 @@
 // "du_dy" (antithetic gradient estimator). Counters: wos.walks, wos.steps, wos.truncated, wos.invalid,
 // wos.boundary_queries.
 //
-// | parameter  | type    | default | meaning                                                    |
-// |------------|---------|---------|------------------------------------------------------------|
-// | min, max   | point   | -1 / 1  | the image's box (z = 0)                                    |
-// | resolution | integer | 128     | pixels along x (square pixels)                             |
-// | walks      | integer | 256     | walks per pixel                                            |
-// | epsilon    | float   | 0       | shell width; 0: 1e-4 x the box's smaller side              |
-// | max_steps  | integer | 4096    | spheres per walk before truncation (counted)               |
-// | walls      | boolean | true    | the box is a boundary with value wall_value                |
-// | wall_value | float   | 0       | u on the walls                                             |
-// | gradient   | boolean | false   | also estimate grad u (channels du_dx, du_dy)               |
-// | (source)   | nested  | none    | a <vorticity> field used as f                              |
-// | (boundary) | nested  | none    | boundaries; u = their stream_value                         |
+// Parameters: `kelvin --list-plugins KIND NAME`, or docs/reference.md (generated from the declarations below).
 //
 //     <simulation type="wos_poisson">
 //         <boundary type="disk"><float name="radius" value="0.3"/><float name="stream_value" value="1"/></boundary>

@@ -4,10 +4,7 @@
 // blend's full f and pdf (eval and pdf are the blends), so MIS sees one consistent density; a delta sample keeps
 // its own weight with its probability scaled by the choice.
 //
-// | parameter | type          | default  | meaning                                   |
-// |-----------|---------------|----------|-------------------------------------------|
-// | weight    | rgb / texture | 0.5      | blend weight of the second BSDF, in [0, 1] |
-// | (bsdf)    | two bsdfs     | required | the first and the second BSDF             |
+// Parameters: `kelvin --list-plugins KIND NAME`, or docs/reference.md (generated from the declarations below).
 //
 //     <bsdf type="blendbsdf">
 //         <float name="weight" value="0.3"/>

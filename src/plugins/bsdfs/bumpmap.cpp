@@ -7,13 +7,7 @@
 // Mitsuba 3.7's invalid-normal flip and terminator shadowing (perturbed.h, where the frame and both options are
 // described).
 //
-// | parameter              | type    | default  | meaning                                            |
-// |------------------------|---------|----------|----------------------------------------------------|
-// | (texture)              | texture | required | height map (a bitmap with raw = true)              |
-// | scale                  | float   | 1        | height scale                                       |
-// | flip_invalid_normals   | boolean | true     | mirror a perturbed normal facing away from wi      |
-// | use_shadowing_function | boolean | true     | microfacet shadowing of the bumps                  |
-// | (bsdf)                 | bsdf    | required | the nested BSDF                                    |
+// Parameters: `kelvin --list-plugins KIND NAME`, or docs/reference.md (generated from the declarations below).
 //
 //     <bsdf type="bumpmap">
 //         <texture name="height" type="bitmap"><boolean name="raw" value="true"/>

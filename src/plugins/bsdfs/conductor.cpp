@@ -3,13 +3,7 @@
 //   f(wi, wo) = specular_reflectance * F_conductor(cos theta_i) * delta(wo - reflect(wi)) / |cos theta_o|.
 // One-sided: nothing is reflected from below the shading horizon (wrap in `twosided` for both sides).
 //
-// | parameter            | type          | default | meaning                                                    |
-// |----------------------|---------------|---------|------------------------------------------------------------|
-// | material             | string        | none    | named conductor (Au, Ag, Cu, Al, ...; see docs/bsdfs.md);  |
-// |                      |               |         | "none" is a perfect mirror                                 |
-// | eta                  | rgb           | 0       | real part of the index (instead of `material`)             |
-// | k                    | rgb           | 1       | imaginary part (absorption coefficient)                    |
-// | specular_reflectance | rgb / texture | 1       | multiplies the reflectance (not physical; artistic)        |
+// Parameters: `kelvin --list-plugins KIND NAME`, or docs/reference.md (generated from the declarations below).
 //
 //     <bsdf type="conductor"><string name="material" value="Au"/></bsdf>
 #include <kelvin/core/registry.h>

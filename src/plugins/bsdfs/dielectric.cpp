@@ -9,12 +9,7 @@
 // (TransportMode::Importance, light tracing) is not scaled. In Importance mode the weights of the two lobes are
 // exactly one: an untinted dielectric conserves energy.
 //
-// | parameter              | type            | default | meaning                                            |
-// |------------------------|-----------------|---------|----------------------------------------------------|
-// | int_ior                | float or string | bk7     | interior index: a number or a name (bk7, water, ...) |
-// | ext_ior                | float or string | air     | exterior index                                     |
-// | specular_reflectance   | rgb / texture   | 1       | tints the reflected lobe (not physical)           |
-// | specular_transmittance | rgb / texture   | 1       | tints the refracted lobe (not physical)           |
+// Parameters: `kelvin --list-plugins KIND NAME`, or docs/reference.md (generated from the declarations below).
 //
 //     <bsdf type="dielectric"><string name="int_ior" value="water"/></bsdf>
 //     <bsdf type="dielectric"><float name="int_ior" value="1.5"/></bsdf>

@@ -1,9 +1,7 @@
 // diffuse: the ideal diffuse (Lambertian) reflector, f = reflectance / pi, sampled with the cosine-weighted
 // hemisphere. One-sided: directions below the shading horizon give zero (wrap in `twosided` for both sides).
 //
-// | parameter   | type          | default | meaning                 |
-// |-------------|---------------|---------|-------------------------|
-// | reflectance | rgb / texture | 0.5     | albedo, in [0, 1]       |
+// Parameters: `kelvin --list-plugins KIND NAME`, or docs/reference.md (generated from the declarations below).
 //
 //     <bsdf type="diffuse"><rgb name="reflectance" value="0.7, 0.2, 0.2"/></bsdf>
 #include <kelvin/core/registry.h>

@@ -7,10 +7,7 @@
 // through the transparent part arrives by the pass-through, which is sampled), and a pass-through counts as a
 // bounce for max_depth. RGB opacities are reduced to their luminance.
 //
-// | parameter | type          | default  | meaning                               |
-// |-----------|---------------|----------|---------------------------------------|
-// | opacity   | rgb / texture | 0.5      | opacity in [0, 1]                     |
-// | (bsdf)    | bsdf          | required | the BSDF of the opaque part           |
+// Parameters: `kelvin --list-plugins KIND NAME`, or docs/reference.md (generated from the declarations below).
 //
 //     <bsdf type="mask">
 //         <texture name="opacity" type="bitmap"><string name="filename" value="leaf_mask.png"/></texture>

@@ -2,12 +2,7 @@
 // n = 2 c - 1 in the local shading frame; the nested BSDF is evaluated in the perturbed frame, with Mitsuba 3.7's
 // invalid-normal flip and terminator shadowing (perturbed.h, where the frame and both options are described).
 //
-// | parameter              | type    | default  | meaning                                                   |
-// |------------------------|---------|----------|-----------------------------------------------------------|
-// | normalmap              | texture | required | normal map (use a bitmap with raw = true, or rawconstant)  |
-// | flip_invalid_normals   | boolean | true     | mirror a perturbed normal facing away from wi             |
-// | use_shadowing_function | boolean | true     | microfacet shadowing of the bumps (terminator softening)  |
-// | (bsdf)                 | bsdf    | required | the nested BSDF                                           |
+// Parameters: `kelvin --list-plugins KIND NAME`, or docs/reference.md (generated from the declarations below).
 //
 //     <bsdf type="normalmap">
 //         <texture name="normalmap" type="bitmap"><boolean name="raw" value="true"/>

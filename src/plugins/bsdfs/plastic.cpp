@@ -17,13 +17,7 @@
 // with s, d the means of specular_reflectance and diffuse_reflectance (as Mitsuba), else the cosine-weighted
 // hemisphere. One-sided (zero for cos theta_i <= 0).
 //
-// | parameter            | type            | default       | meaning                                       |
-// |----------------------|-----------------|---------------|-----------------------------------------------|
-// | diffuse_reflectance  | rgb / texture   | 0.5           | albedo of the base, in [0, 1]                 |
-// | specular_reflectance | rgb / texture   | 1             | tints the specular lobe (not physical)        |
-// | int_ior              | float or string | polypropylene | coating index (1.49)                          |
-// | ext_ior              | float or string | air           | exterior index                                |
-// | nonlinear            | bool            | false         | account for the colour shift of internal bounces |
+// Parameters: `kelvin --list-plugins KIND NAME`, or docs/reference.md (generated from the declarations below).
 //
 //     <bsdf type="plastic"><rgb name="diffuse_reflectance" value="0.1, 0.27, 0.36"/></bsdf>
 #include <kelvin/core/registry.h>

@@ -22,22 +22,7 @@
 // clearcoat_sampling_rate * clearcoat / 4, main_specular_sampling_rate, the specular one split between reflection
 // and refraction by 1 - bsdf (1 - F) : bsdf (1 - F) (inside: F : 1 - F); pdf() is that mixture's density.
 //
-// | parameter        | type            | default | meaning                                                  |
-// |------------------|-----------------|---------|----------------------------------------------------------|
-// | base_color       | rgb / texture   | 0.5     | colour                                                   |
-// | roughness        | float / texture | 0.5     | roughness of the main specular lobes, [0, 1]             |
-// | anisotropic      | float / texture | 0       | anisotropy, [0, 1]                                       |
-// | metallic         | float / texture | 0       | metallicness, [0, 1]                                     |
-// | spec_trans       | float / texture | 0       | blend of BRDF (0) and BSDF (1) main lobe, [0, 1]         |
-// | eta              | float           | -       | relative index of refraction (instead of specular), > 0  |
-// | specular         | float           | 0.5     | eta = 2 / (1 - sqrt(0.08 specular)) - 1, [0, 1]           |
-// | spec_tint        | float / texture | 0       | tint of the dielectric reflection, [0, 1]                |
-// | sheen            | float / texture | 0       | sheen, [0, 1]                                            |
-// | sheen_tint       | float / texture | 0       | tint of the sheen, [0, 1]                                |
-// | flatness         | float / texture | 0       | diffuse (0) to fake subsurface (1), [0, 1]               |
-// | clearcoat        | float / texture | 0       | clearcoat lobe, [0, 1]                                   |
-// | clearcoat_gloss  | float / texture | 0       | clearcoat glossiness, [0, 1]                             |
-// | diffuse_reflectance_sampling_rate, main_specular_sampling_rate, clearcoat_sampling_rate | float | 1 | >= 0 |
+// Parameters: `kelvin --list-plugins KIND NAME`, or docs/reference.md (generated from the declarations below).
 //
 //     <bsdf type="principled">
 //         <rgb name="base_color" value="0.2, 0.8, 0.1"/><float name="roughness" value="0.15"/>

@@ -19,17 +19,7 @@
 // proportional to spec_trans rate_sr / 2, spec_trans rate_st / 2, rate_dr (1 - spec_trans)(1 - diff_trans'),
 // rate_dt (1 - spec_trans) diff_trans'; pdf() is that mixture's density.
 //
-// | parameter   | type            | default | meaning                                                      |
-// |-------------|-----------------|---------|--------------------------------------------------------------|
-// | base_color  | rgb / texture   | 0.5     | colour                                                       |
-// | roughness   | float / texture | 0.5     | roughness, [0, 1]                                            |
-// | anisotropic | float / texture | 0       | anisotropy, [0, 1]                                           |
-// | spec_trans  | float / texture | 0       | specular (reflection and transmission) weight, [0, 1]        |
-// | diff_trans  | float / texture | 0       | diffuse transmission, [0, 2] (1: half of the diffuse)        |
-// | eta         | float / texture | 1.5     | index of refraction of the sheet, > 0 (at most 10)           |
-// | spec_tint, sheen, sheen_tint, flatness | float / texture | 0 | as for `principled`, [0, 1]             |
-// | specular_reflectance_sampling_rate, specular_transmittance_sampling_rate, diffuse_reflectance_sampling_rate,
-// diffuse_transmittance_sampling_rate | float | 1 | >= 0 |
+// Parameters: `kelvin --list-plugins KIND NAME`, or docs/reference.md (generated from the declarations below).
 //
 //     <bsdf type="principledthin">
 //         <rgb name="base_color" value="0.7, 0.1, 0.1"/><float name="spec_trans" value="0.8"/>

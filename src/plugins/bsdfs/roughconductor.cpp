@@ -7,15 +7,7 @@
 // single-scattering: energy reflected more than once between microfacets is lost, so rough white metals have
 // albedo below one. One-sided (zero for cos theta_i <= 0 or cos theta_o <= 0).
 //
-// | parameter            | type          | default  | meaning                                               |
-// |----------------------|---------------|----------|-------------------------------------------------------|
-// | distribution         | string        | beckmann | beckmann or ggx                                       |
-// | alpha                | float / texture | 0.1   | roughness in [0, 100] (below 1e-4: raised to 1e-4); a texture: its
-// luminance | | alpha_u, alpha_v     | float / texture | 0.1   | anisotropic roughness along tangent (dp/du) and
-// bitangent | | sample_visible       | bool          | true     | sample visible normals (else D(m) cos theta_m) | |
-// material             | string        | none     | named conductor, as for `conductor`                   | | eta, k |
-// rgb           | 0, 1     | explicit complex index (instead of material)          | | specular_reflectance | rgb /
-// texture | 1        | multiplies the reflectance                            |
+// Parameters: `kelvin --list-plugins KIND NAME`, or docs/reference.md (generated from the declarations below).
 //
 //     <bsdf type="roughconductor">
 //         <string name="material" value="Al"/><string name="distribution" value="ggx"/>

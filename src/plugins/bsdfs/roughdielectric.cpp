@@ -12,16 +12,7 @@
 // Two-sided by nature: from below, int_ior and ext_ior swap. Single scattering: energy that would scatter
 // several times between microfacets is lost.
 //
-// | parameter              | type            | default  | meaning                                          |
-// |------------------------|-----------------|----------|--------------------------------------------------|
-// | distribution           | string          | beckmann | beckmann or ggx                                  |
-// | alpha                  | float / texture | 0.1      | roughness; values below 1e-4 are raised to 1e-4; a texture:
-// its luminance | | alpha_u, alpha_v       | float / texture | 0.1      | anisotropic roughness (instead of alpha) | |
-// sample_visible         | bool            | true     | sample visible normals (else D(m) cos theta_m)   | | int_ior |
-// float or string | bk7      | interior index (number or name); must differ from ext_ior | | ext_ior                |
-// float or string | air      | exterior index                                   | | specular_reflectance   | rgb /
-// texture   | 1        | tints reflection (not physical)                  | | specular_transmittance | rgb / texture |
-// 1        | tints transmission (not physical)                |
+// Parameters: `kelvin --list-plugins KIND NAME`, or docs/reference.md (generated from the declarations below).
 //
 //     <bsdf type="roughdielectric">
 //         <string name="distribution" value="ggx"/><float name="alpha" value="0.2"/>

@@ -14,16 +14,7 @@
 // R(mu_i) s / (R(mu_i) s + (1 - R(mu_i)) d) (s, d: means of specular and diffuse reflectance), else the
 // cosine-weighted hemisphere; pdf() is the mixture. Isotropic roughness only (as Mitsuba). One-sided.
 //
-// | parameter            | type            | default       | meaning                                     |
-// |----------------------|-----------------|---------------|---------------------------------------------|
-// | distribution         | string          | beckmann      | beckmann or ggx                             |
-// | alpha                | float           | 0.1           | roughness; values below 1e-4 are raised to 1e-4 |
-// | sample_visible       | bool            | true          | sample visible normals                      |
-// | diffuse_reflectance  | rgb / texture   | 0.5           | albedo of the base, in [0, 1]               |
-// | specular_reflectance | rgb / texture   | 1             | tints the specular lobe (not physical)      |
-// | int_ior              | float or string | polypropylene | coating index (1.49)                        |
-// | ext_ior              | float or string | air           | exterior index                              |
-// | nonlinear            | bool            | false         | colour shift of internal bounces            |
+// Parameters: `kelvin --list-plugins KIND NAME`, or docs/reference.md (generated from the declarations below).
 //
 //     <bsdf type="roughplastic">
 //         <string name="distribution" value="ggx"/><float name="alpha" value="0.3"/>

@@ -4,12 +4,7 @@
 // passes straight through (wo = -wi, no refraction). As in Mitsuba 3, the transmission is a Null component: volpath
 // does not count it as a bounce, and shadow rays cross the sheet with weight 1 - R' (eval_null_transmission).
 //
-// | parameter              | type         | default | meaning                                        |
-// |------------------------|--------------|---------|------------------------------------------------|
-// | int_ior                | float/string | bk7     | index of refraction of the sheet               |
-// | ext_ior                | float/string | air     | index of refraction around it                  |
-// | specular_reflectance   | rgb/texture  | 1       | tints the reflection                           |
-// | specular_transmittance | rgb/texture  | 1       | tints the transmission                         |
+// Parameters: `kelvin --list-plugins KIND NAME`, or docs/reference.md (generated from the declarations below).
 //
 //     <bsdf type="thindielectric"><string name="int_ior" value="water"/></bsdf>
 #include <kelvin/core/registry.h>

@@ -3,9 +3,7 @@
 // frame, i.e. with the z components of wi and wo negated, as Mitsuba's `twosided`. Nested BSDFs that transmit
 // are refused: a transmitting model already defines both sides.
 //
-// | parameter | type    | default  | meaning                                                       |
-// |-----------|---------|----------|---------------------------------------------------------------|
-// | (bsdf)    | bsdf(s) | required | one nested BSDF for both sides, or two: front then back       |
+// Parameters: `kelvin --list-plugins KIND NAME`, or docs/reference.md (generated from the declarations below).
 //
 //     <bsdf type="twosided"><bsdf type="diffuse"/></bsdf>
 //     <bsdf type="twosided"><bsdf type="diffuse"/><bsdf type="conductor"/></bsdf>

@@ -9,9 +9,7 @@
 // texture can be); unlike Mitsuba it does not importance-sample the texture, so a very uneven texture gives more
 // noise than Mitsuba, never another mean.
 //
-// | parameter | type          | default | meaning                                                |
-// |-----------|---------------|---------|--------------------------------------------------------|
-// | radiance  | rgb / texture | 1       | emitted radiance (W/(m^2 sr)); a texture is read at uv |
+// Parameters: `kelvin --list-plugins KIND NAME`, or docs/reference.md (generated from the declarations below).
 //
 //     <shape type="rectangle"><emitter type="area"><rgb name="radiance" value="17, 12, 4"/></emitter></shape>
 #include <kelvin/core/registry.h>

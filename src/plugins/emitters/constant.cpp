@@ -2,9 +2,7 @@
 // Next-event estimation samples directions uniformly over the sphere; light tracing starts rays on a disk
 // tangent to the scene's bounding sphere.
 //
-// | parameter | type | default | meaning            |
-// |-----------|------|---------|--------------------|
-// | radiance  | rgb  | 1       | incident radiance  |
+// Parameters: `kelvin --list-plugins KIND NAME`, or docs/reference.md (generated from the declarations below).
 //
 //     <emitter type="constant"><rgb name="radiance" value="1"/></emitter>
 #include <kelvin/core/registry.h>

@@ -1,11 +1,7 @@
 // directional: light arriving from one direction at infinity (Mitsuba's `directional`, a distant sun without
 // extent). A surface facing it receives `irradiance` (W/m^2) times the cosine of incidence.
 //
-// | parameter  | type      | default     | meaning                                                  |
-// |------------|-----------|-------------|----------------------------------------------------------|
-// | irradiance | rgb       | 1           | irradiance on a surface perpendicular to the light        |
-// | direction  | vector    | none        | direction the light travels; default: to_world's +z       |
-// | to_world   | transform | identity    | orientation (its +z is the direction) when no direction   |
+// Parameters: `kelvin --list-plugins KIND NAME`, or docs/reference.md (generated from the declarations below).
 //
 //     <emitter type="directional"><vector name="direction" value="0, 0, -1"/><rgb name="irradiance"
 //     value="2"/></emitter>

@@ -22,11 +22,7 @@
 // Light tracing starts rays on a disk of the scene's bounding radius, perpendicular to the sampled direction
 // and tangent to the bounding sphere (as `constant` does): pdf_pos = 1 / (pi R^2).
 //
-// | parameter | type      | default  | meaning                                                        |
-// |-----------|-----------|----------|----------------------------------------------------------------|
-// | filename  | string    | required | latitude-longitude image (.exr, .hdr, .pfm, ...) of radiance   |
-// | scale     | float     | 1        | multiplies the radiance                                        |
-// | to_world  | transform | identity | orientation of the map (a rotation)                            |
+// Parameters: `kelvin --list-plugins KIND NAME`, or docs/reference.md (generated from the declarations below).
 //
 //     <emitter type="envmap">
 //         <string name="filename" value="textures/sky.hdr"/>

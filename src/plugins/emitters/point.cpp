@@ -1,10 +1,6 @@
 // point: an isotropic point light. Radiant intensity I (W/sr); irradiance at distance r is I cos / r^2.
 //
-// | parameter | type      | default   | meaning                                      |
-// |-----------|-----------|-----------|----------------------------------------------|
-// | intensity | rgb       | 1         | radiant intensity                            |
-// | position  | point     | (0, 0, 0) | position (combined with to_world)            |
-// | to_world  | transform | identity  | places the light (its origin is the position) |
+// Parameters: `kelvin --list-plugins KIND NAME`, or docs/reference.md (generated from the declarations below).
 //
 //     <emitter type="point"><point name="position" x="0" y="4" z="0"/><rgb name="intensity" value="10"/></emitter>
 #include <kelvin/core/registry.h>

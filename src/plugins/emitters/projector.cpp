@@ -16,14 +16,7 @@
 // solid-angle density is pdf_uv / (A cos^3 theta) with A = 4 tan_x tan_y the image's area at distance 1, and the
 // weight is I / pdf = pi * scale * irradiance * A / pdf_uv. Power: pi * scale * A * mean(irradiance).
 //
-// | parameter    | type      | default  | meaning                                                          |
-// |--------------|-----------|----------|------------------------------------------------------------------|
-// | irradiance   | texture   | required | irradiance (times 1/pi) on the image plane at z = 1              |
-// | scale        | float     | 1        | multiplies the irradiance                                        |
-// | fov          | float     | from focal_length | field of view in degrees, along fov_axis                |
-// | fov_axis     | string    | x        | x, y, diagonal, smaller, larger                                  |
-// | focal_length | string    | 50mm     | without fov: 35 mm equivalent focal length (diagonal)            |
-// | to_world     | transform | identity | position (origin) and direction (+z); rigid                      |
+// Parameters: `kelvin --list-plugins KIND NAME`, or docs/reference.md (generated from the declarations below).
 //
 //     <emitter type="projector">
 //         <float name="scale" value="15"/><float name="fov" value="30"/>

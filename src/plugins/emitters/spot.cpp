@@ -13,13 +13,7 @@
 // integral computed once by composite Simpson quadrature (the integrand is smooth on that interval), times the
 // texture's mean (an estimate, used only to choose between emitters).
 //
-// | parameter    | type      | default             | meaning                                              |
-// |--------------|-----------|---------------------|------------------------------------------------------|
-// | intensity    | rgb       | 1                   | radiant intensity on the axis (W/sr)                 |
-// | cutoff_angle | float     | 20                  | half-angle (degrees) beyond which nothing is emitted |
-// | beam_width   | float     | 3/4 of cutoff_angle | half-angle (degrees) of the fully lit central beam   |
-// | texture      | rgb / texture | 1               | image projected through the cone (Mitsuba's `texture`) |
-// | to_world     | transform | identity            | places the light at its origin, shining along its +z (rigid) |
+// Parameters: `kelvin --list-plugins KIND NAME`, or docs/reference.md (generated from the declarations below).
 //
 //     <emitter type="spot">
 //         <rgb name="intensity" value="50"/>

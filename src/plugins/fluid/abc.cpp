@@ -7,10 +7,7 @@
 // advection or in the stretching term shows as drift. The exact solution needs a periodic box of sides
 // multiple of 2 pi / k, e.g. [0, 2 pi]^3.
 //
-// | parameter  | type    | default | meaning      |
-// |------------|---------|---------|--------------|
-// | A, B, C    | float   | 1       | coefficients |
-// | wavenumber | integer | 1       | k (>= 1)     |
+// Parameters: `kelvin --list-plugins KIND NAME`, or docs/reference.md (generated from the declarations below).
 //
 //     <vorticity type="abc"><float name="A" value="1"/><float name="B" value="1"/><float name="C"
 //     value="1"/></vorticity>

@@ -13,11 +13,7 @@
 // principal value, zero) but its variance grows logarithmically near samples, so a warning is printed.
 // delta < 0 (the default) uses half a cache cell.
 //
-// | parameter  | type    | default   | meaning                                                   |
-// |------------|---------|-----------|-----------------------------------------------------------|
-// | samples    | integer | 256       | n_mc, samples per velocity estimate                        |
-// | importance | string  | vorticity | "vorticity" (|omega|), "kernel" (1/r) or "uniform"          |
-// | delta      | float   | -1        | mollifier radius; -1: half a cache cell; 0: singular       |
+// Parameters: `kelvin --list-plugins KIND NAME`, or docs/reference.md (generated from the declarations below).
 //
 //     <velocity type="biot_savart"><integer name="samples" value="1024"/></velocity>
 #include <kelvin/core/logging.h>

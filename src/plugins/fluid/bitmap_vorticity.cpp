@@ -9,11 +9,7 @@
 // files (PNG, ...) are data here, not colour, so they are not linearised (a grey of 128 reads 0.502). A
 // PNG with offset = -0.5 and scale = 2A maps black to -A (clockwise), mid-grey to 0 and white to +A.
 //
-// | parameter | type   | default  | meaning                                             |
-// |-----------|--------|----------|-----------------------------------------------------|
-// | filename  | string | required | the image, relative to the scene file               |
-// | scale     | float  | 1        | multiplies the value after the offset                |
-// | offset    | float  | 0        | added to the value                                   |
+// Parameters: `kelvin --list-plugins KIND NAME`, or docs/reference.md (generated from the declarations below).
 //
 //     <vorticity type="bitmap">
 //         <string name="filename" value="swirl.png"/><float name="offset" value="-0.5"/><float name="scale"

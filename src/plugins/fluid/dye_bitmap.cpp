@@ -2,13 +2,7 @@
 // over the simulation's domain box (the image's top row at max y) and sampled bilinearly between pixel centres.
 // 8-bit files are linearised from sRGB, so a PNG written back by the simulation shows the same colours.
 //
-// | parameter         | type    | default  | meaning                                                   |
-// |-------------------|---------|----------|-----------------------------------------------------------|
-// | filename          | string  | required | the image, relative to the scene file                     |
-// | mode              | string  | rgb      | rgb (an R, G, B dye) or luminance (a scalar dye)           |
-// | diffusivity       | float   | 0        | kappa (0: advection only)                                  |
-// | diffusion_samples | integer | 1        | n_d when kappa > 0                                         |
-// | resolution        | integer | 0        | dye cells along x (0: the solver's grid)                   |
+// Parameters: `kelvin --list-plugins KIND NAME`, or docs/reference.md (generated from the declarations below).
 //
 //     <scalar type="bitmap"><string name="filename" value="logo.png"/><integer name="resolution" value="512"/></scalar>
 #include "dye_common.h"

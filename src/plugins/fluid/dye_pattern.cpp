@@ -7,15 +7,7 @@
 //   disk          1 inside the disk of radius `size` around `center`
 //   gaussian      exp(-|x - center|^2 / size^2) (smooth: exact-solution tests)
 //
-// | parameter         | type    | default      | meaning                                                |
-// |-------------------|---------|--------------|--------------------------------------------------------|
-// | pattern           | string  | half         | half, stripes, checkerboard, disk or gaussian          |
-// | center            | point   | 0, 0, 0      | reference point (z = 0)                                |
-// | size              | float   | 0.25         | band width, square side, disk or Gaussian radius (> 0) |
-// | color0, color1    | rgb     | (none)       | colours of 0 and 1; either given: an R, G, B dye       |
-// | diffusivity       | float   | 0            | kappa (0: advection only)                              |
-// | diffusion_samples | integer | 1            | n_d when kappa > 0                                     |
-// | resolution        | integer | 0            | dye cells along x (0: the solver's grid)               |
+// Parameters: `kelvin --list-plugins KIND NAME`, or docs/reference.md (generated from the declarations below).
 //
 //     <scalar type="pattern"><string name="pattern" value="stripes"/><float name="size" value="0.2"/></scalar>
 #include "dye_common.h"

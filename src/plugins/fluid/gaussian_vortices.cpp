@@ -2,9 +2,7 @@
 // (the Lamb–Oseen profile). Two co-rotating vortices merge; a pair of opposite sign travels as a dipole.
 // The velocity is known exactly at t = 0 (the sum of the Lamb–Oseen velocities in free space).
 //
-// | parameter | type   | default | meaning                                                           |
-// |-----------|--------|---------|-------------------------------------------------------------------|
-// | vortices  | string | required| "x y circulation radius" per vortex, vortices separated by ';'    |
+// Parameters: `kelvin --list-plugins KIND NAME`, or docs/reference.md (generated from the declarations below).
 //
 //     <vorticity type="gaussian_vortices">
 //         <string name="vortices" value="-0.4 0 1 0.2; 0.4 0 1 0.2"/>

@@ -2,12 +2,7 @@
 // at the cell centres; the semi-Lagrangian lookups and the Biot–Savart samples read it through the chosen
 // interpolation (nearest: piecewise constant; bilinear: tents between cell centres).
 //
-// | parameter     | type    | default  | meaning                                                     |
-// |---------------|---------|----------|-------------------------------------------------------------|
-// | resolution    | integer | 64       | cells along x                                               |
-// | resolution_y  | integer | 0        | cells along y; 0: as many as make square cells             |
-// | resolution_z  | integer | 0        | cells along z (3D only); 0: as many as make cubic cells    |
-// | interpolation | string  | bilinear | "nearest", "bilinear" or "trilinear" (the same tents in 3D) |
+// Parameters: `kelvin --list-plugins KIND NAME`, or docs/reference.md (generated from the declarations below).
 //
 //     <cache type="grid"><integer name="resolution" value="256"/></cache>
 #include <kelvin/core/registry.h>

@@ -7,11 +7,7 @@
 // spreads as s^2 = sigma^2 + 4 nu t when viscous. Gamma > 0 turns counter-clockwise. The second moment
 // int omega r^2 / int omega equals s^2, which is how the tests measure the core.
 //
-// | parameter   | type  | default | meaning                                       |
-// |-------------|-------|---------|-----------------------------------------------|
-// | center      | point | 0, 0, 0 | vortex centre (z must be 0)                    |
-// | circulation | float | 1       | Gamma, the total circulation                   |
-// | radius      | float | 0.2     | sigma, the core radius at t = 0 (> 0)          |
+// Parameters: `kelvin --list-plugins KIND NAME`, or docs/reference.md (generated from the declarations below).
 //
 //     <vorticity type="lamb_oseen"><float name="radius" value="0.15"/></vorticity>
 #include <kelvin/core/logging.h>

@@ -22,38 +22,7 @@
 // rank 0's clock. Only rank 0 writes files (frames, CSV, montage, video, partial images) and reports progress.
 // Checkpoints (kelvin converge) are refused in a distributed run: a study distributes its runs instead.
 //
-// | parameter         | type    | default   | meaning                                                      |
-// |-------------------|---------|-----------|--------------------------------------------------------------|
-// | dimension         | integer | 2         | 2, or 3: the Feynman–Kac Navier–Stokes solver (simulation3.h) |
-// | min, max          | point   | -1 / 1    | the domain box (2D: z = 0)                                    |
-// | periodic          | boolean | false     | periodic box, or open (free space, omega = 0 outside the box) |
-// | dt                | float   | 0.05      | time step                                                     |
-// | steps             | integer | 0         | number of steps (give steps or end_time)                      |
-// | end_time          | float   | 0         | simulated time (the last step is shortened to land on it)     |
-// | viscosity         | float   | 0         | nu; 0: inviscid (no diffusion step)                           |
-// | diffusion_samples | integer | 1         | n_d, Gaussian displacements per cell and step (Eq. 5.22)      |
-// | advection         | string  | rk4       | backtrace: "euler" or "rk4"                                   |
-// | output_every      | integer | 0         | write PNG/EXR frames every N steps (0: none)                  |
-// | write_png         | boolean | true      | frames as PNG                                                 |
-// | write_exr         | boolean | true      | frames as EXR                                                 |
-// | write_csv         | boolean | true      | diagnostics CSV                                               |
-// | color_range       | float   | 0         | |omega| mapped to full colour; 0: max |omega| at t = 0         |
-// | frame_size        | integer | 512       | PNG frames: pixels along the longer side (0: one per cell)    |
-// | montage           | boolean | true      | montage.png: up to 8 frames of the run                        |
-// | write_video       | boolean | false     | <kind>.mp4 of the PNG frames (ffmpeg on PATH)                 |
-// | video_fps         | float   | 24        | the video's frame rate                                        |
-// | vdb_slab          | float   | 0         | 2D dye: also dye_NNNN.vdb, the dye as a slab this thick        |
-// | stretching        | boolean | true      | 3D: vortex stretching (Eq. 5.21); false only to study it      |
-// | control_variates  | boolean | false     | 3D: previous step as control variate (Eq. 5.23)               |
-// | initial_samples   | integer | 0         | 3D, control variates: n_mc of the first velocity (0: n_mc)    |
-// | control_variate_blend | float | 1       | 3D, control variates: beta in (0, 1]; < 1 mixes in a direct   |
-// |                   |         |           | estimate, (1 - beta), so carried errors decay as beta^k       |
-// | write_vdb         | boolean | true      | 3D: frames as OpenVDB (vorticity, |vorticity|, velocity)      |
-// | slice_axis        | string  | y         | 3D: PNG slice through the centre normal to x, y or z          |
-// | (vorticity)       | nested  | required  | initial condition                                             |
-// | (velocity)        | nested  | biot_savart | velocity estimator                                          |
-// | (cache)           | nested  | grid      | vorticity cache                                               |
-// | (scalar)          | nested  | none      | dye advected along the same backtraces (<prefix>_dye_NNNN.*)  |
+// Parameters: `kelvin --list-plugins KIND NAME`, or docs/reference.md (generated from the declarations below).
 //
 //     <simulation type="mcfluid">
 //         <point name="min" x="-3.14159265358979" y="-3.14159265358979"/>

@@ -3,12 +3,7 @@
 // sphere and is fed at `rate` per unit time inside it; it is written as the OpenVDB grid "density" of each frame
 // (the thesis renders its smoke with Blender's volume shader, Fig. 5.12) and its integral as the CSV's smoke_mass.
 //
-// | parameter | type  | default   | meaning                                         |
-// |-----------|-------|-----------|-------------------------------------------------|
-// | center    | point | (0, 0, 0) | centre of the source sphere                     |
-// | radius    | float | 0.25      | its radius                                      |
-// | density   | float | 1         | density inside the sphere at t = 0              |
-// | rate      | float | 0         | density added per unit time inside the sphere  |
+// Parameters: `kelvin --list-plugins KIND NAME`, or docs/reference.md (generated from the declarations below).
 //
 //     <scalar type="smoke"><point name="center" x="0" y="0" z="-1"/><float name="rate" value="2"/></scalar>
 #include <kelvin/core/registry.h>

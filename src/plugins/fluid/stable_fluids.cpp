@@ -7,14 +7,7 @@
 // box). The static obstacles of mcfluid's <velocity type="walk_on_spheres"> (its <boundary> children with an
 // inside) become solid cells: every cell whose centre lies in a solid.
 //
-// | parameter  | type   | default | meaning                                                               |
-// |------------|--------|---------|-----------------------------------------------------------------------|
-// | (common)   |        |         | as mcfluid: min, max, periodic, dt, steps, end_time, viscosity,        |
-// |            |        |         | advection, output_every, write_*, color_range, <vorticity>, <cache>,   |
-// |            |        |         | <scalar>, <velocity> (walk_on_spheres: its boundaries)                 |
-// | tolerance  | float  | 1e-10   | relative residual of the iterative solves (pressure and diffusion)     |
-// | projection | string | auto    | pressure solver: auto (fft without obstacles, else multigrid), fft,    |
-// |            |        |         | multigrid (MG-preconditioned CG), cg (Eigen incomplete-Cholesky CG)    |
+// Parameters: `kelvin --list-plugins KIND NAME`, or docs/reference.md (generated from the declarations below).
 //
 //     <simulation type="stable_fluids"> ... same children as mcfluid ... </simulation>
 //
@@ -24,11 +17,7 @@
 // is projected, and each particle takes flip_ratio (0.95) of the grid's change plus the rest of its value (PIC).
 // Cells the flow empties are reseeded to half the nominal count, crowded ones (twice it) thinned.
 //
-// | parameter          | type    | default | meaning                                                      |
-// |--------------------|---------|---------|--------------------------------------------------------------|
-// | (stable_fluids')   |         |         | all of the above                                             |
-// | flip_ratio         | float   | 0.95    | weight of the grid's change in the particles' update (0: PIC) |
-// | particles_per_cell | integer | 6       | particles seeded per fluid cell                              |
+// Parameters: `kelvin --list-plugins KIND NAME`, or docs/reference.md (generated from the declarations below).
 #include <kelvin/core/job.h>
 #include <kelvin/core/logging.h>
 #include <kelvin/core/registry.h>

@@ -16,10 +16,7 @@
 // scaled so that omega_z on the plane z = 0 is the 2D field's A sin kx sin ky (up to a phase); the exact
 // solution is known at t = 0 only.
 //
-// | parameter  | type    | default | meaning                                     |
-// |------------|---------|---------|---------------------------------------------|
-// | amplitude  | float   | 1       | A, the peak vorticity                        |
-// | wavenumber | integer | 1       | k (>= 1)                                     |
+// Parameters: `kelvin --list-plugins KIND NAME`, or docs/reference.md (generated from the declarations below).
 //
 //     <vorticity type="taylor_green"><float name="amplitude" value="1"/></vorticity>
 #include <kelvin/core/logging.h>

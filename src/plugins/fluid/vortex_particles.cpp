@@ -5,17 +5,7 @@
 // or Euler; viscosity is Chorin's random walk. Takes the same scene as mcfluid (switch with one word:
 // type="vortex_particles") and writes the same files.
 //
-// | parameter      | type    | default | meaning                                                         |
-// |----------------|---------|---------|-----------------------------------------------------------------|
-// | (common)       |         |         | as mcfluid: min, max, periodic, dt, steps, end_time, viscosity,  |
-// |                |         |         | advection, output_every, write_*, color_range, <vorticity>,      |
-// |                |         |         | <cache> (lattice = output grid), <scalar>                        |
-// | blob_radius    | float   | -1      | delta of the blobs; -1: one lattice spacing                      |
-// | threshold      | float   | 0       | skip cells with |omega| <= threshold * max |omega| at seeding    |
-// | summation      | string  | tree    | "tree" (Barnes–Hut; periodic: 3x3 images + far images lattice)  |
-// |                |         |         | or "direct" (O(N^2))                                             |
-// | theta          | float   | 0.5     | tree opening angle in (0, 1]: smaller is more accurate, slower   |
-// | panel_length   | float   | -1      | longest boundary panel; -1: one lattice spacing                  |
+// Parameters: `kelvin --list-plugins KIND NAME`, or docs/reference.md (generated from the declarations below).
 //
 // Free-slip walls and obstacles: a <velocity type="walk_on_spheres"> child's boundaries (the domain's walls and its
 // <boundary> solids, static, open domains, inflow/outflow walls too) become vortex panels (fluid/panels.h): the same

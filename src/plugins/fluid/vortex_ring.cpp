@@ -9,14 +9,7 @@
 // Gaussian core of this normalisation). Several coaxial rings: `offsets` lists their centres' positions along
 // n relative to `center` (the leapfrog scene uses two).
 //
-// | parameter   | type   | default   | meaning                                                     |
-// |-------------|--------|-----------|-------------------------------------------------------------|
-// | center      | point  | (0, 0, 0) | centre of the (first) ring                                  |
-// | normal      | vector | (0, 0, 1) | ring axis; the ring moves along it for circulation > 0      |
-// | radius      | float  | 1         | R                                                           |
-// | circulation | float  | 1         | Gamma                                                       |
-// | core        | float  | 0.1       | sigma, the Gaussian core's radius (< radius)                |
-// | offsets     | string | "0"       | rings at center + o n for each o of this list              |
+// Parameters: `kelvin --list-plugins KIND NAME`, or docs/reference.md (generated from the declarations below).
 //
 //     <vorticity type="vortex_ring"><float name="radius" value="1"/><float name="core" value="0.2"/></vorticity>
 #include <kelvin/core/registry.h>

@@ -12,14 +12,7 @@
 // accepted too (the periodic Biot–Savart kernel removes its mean vorticity: the far field is a weak uniform
 // shear); on an open box the layer ends at the box edges, which roll up as well.
 //
-// | parameter    | type    | default | meaning                                                           |
-// |--------------|---------|---------|-------------------------------------------------------------------|
-// | y            | float   | 0       | y0, the layer's height                                             |
-// | velocity     | float   | 1       | U: u = +U above, -U below                                          |
-// | thickness    | float   | 0.05    | delta, the tanh thickness (> 0)                                     |
-// | perturbation | float   | 0.01    | epsilon, amplitude of the sinusoidal displacement of the layer     |
-// | modes        | integer | 2       | m, wavelengths of the perturbation across the box                  |
-// | double_layer | boolean | false   | add the opposite layer at y0 + L_y / 2 (periodic double shear layer) |
+// Parameters: `kelvin --list-plugins KIND NAME`, or docs/reference.md (generated from the declarations below).
 //
 //     <vorticity type="vortex_sheet"><float name="thickness" value="0.08"/><integer name="modes"
 //     value="2"/></vorticity>

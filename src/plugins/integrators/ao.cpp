@@ -4,10 +4,7 @@
 // with cosine-weighted directions (pdf cos(theta)/pi), so each occlusion ray scores 0 or 1. Misses score 0.
 // It is the smallest real Monte Carlo integrator: Embree visibility queries, the sampler, the pixel loop.
 //
-// | parameter       | type    | default | meaning                                             |
-// |-----------------|---------|---------|-----------------------------------------------------|
-// | shading_samples | integer | 1       | occlusion rays per camera sample                    |
-// | max_distance    | float   | -1      | occluders farther than this are ignored (-1: none)  |
+// Parameters: `kelvin --list-plugins KIND NAME`, or docs/reference.md (generated from the declarations below).
 //
 //     <integrator type="ao"><integer name="shading_samples" value="4"/></integrator>
 #include <kelvin/core/registry.h>

@@ -22,10 +22,7 @@
 // edges. The AOV ray is traced apart from the nested integrator's (one more ray per sample, counted in
 // render.rays) and draws no sampler numbers, so R, G, B are bit-identical to the nested integrator alone.
 //
-// | parameter    | type       | default  | meaning                                                     |
-// |--------------|------------|----------|-------------------------------------------------------------|
-// | aovs         | string     | required | `name:type` list, e.g. "dd:depth,nn:sh_normal"             |
-// | (integrator) | integrator | none     | nested sampling integrator for R, G, B (none: black)        |
+// Parameters: `kelvin --list-plugins KIND NAME`, or docs/reference.md (generated from the declarations below).
 //
 //     <integrator type="aov">
 //         <string name="aovs" value="dd:depth,nn:sh_normal,pos:position"/>

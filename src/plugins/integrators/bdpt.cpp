@@ -16,12 +16,7 @@
 // next-event (s = 1) strategy and 2 per light-tracing (t = 1) strategy (the lens point), in the order the
 // strategies are evaluated (t = 1..n_cam, s = 0..n_light).
 //
-// | parameter     | type    | default | meaning                                                  |
-// |---------------|---------|---------|----------------------------------------------------------|
-// | max_depth     | integer | -1      | longest path (in edges) that contributes; -1: unbounded  |
-// | min_depth     | integer | 1       | shortest path (in edges) that contributes                 |
-// | rr_depth      | integer | 5       | subpath length from which Russian roulette may stop it    |
-// | hide_emitters | boolean | false   | emitters seen directly render black                       |
+// Parameters: `kelvin --list-plugins KIND NAME`, or docs/reference.md (generated from the declarations below).
 //
 //     <integrator type="bdpt"><integer name="max_depth" value="8"/></integrator>
 #include <kelvin/core/registry.h>

@@ -7,12 +7,7 @@
 // Primary samples per camera ray (fixed, used or not): per emitter sample 3 (emitter choice, point), per BSDF
 // sample 3 (component, direction).
 //
-// | parameter       | type    | default | meaning                                            |
-// |-----------------|---------|---------|----------------------------------------------------|
-// | emitter_samples | integer | 1       | emitter samples per camera ray (0 or more)          |
-// | bsdf_samples    | integer | 1       | BSDF samples per camera ray (0 or more)             |
-// | shading_samples | integer | none    | sets both of the above (Mitsuba's shorthand)        |
-// | hide_emitters   | boolean | false   | emitters seen directly by the camera render black  |
+// Parameters: `kelvin --list-plugins KIND NAME`, or docs/reference.md (generated from the declarations below).
 //
 //     <integrator type="direct"><integer name="emitter_samples" value="2"/></integrator>
 #include <kelvin/core/param_helpers.h>

@@ -5,9 +5,7 @@
 //
 // Mitsuba allows several nested integrators; Kelvin takes exactly one (another is refused with one line).
 //
-// | parameter    | type       | default  | meaning                                      |
-// |--------------|------------|----------|----------------------------------------------|
-// | (integrator) | integrator | required | nested sampling integrator (path, direct, ...) |
+// Parameters: `kelvin --list-plugins KIND NAME`, or docs/reference.md (generated from the declarations below).
 //
 //     <integrator type="moment">
 //         <integrator type="path"><integer name="max_depth" value="8"/></integrator>

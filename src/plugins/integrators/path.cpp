@@ -7,13 +7,7 @@
 // bounce consumes exactly 7 numbers, used or not: emitter choice (1), point on the emitter (2), BSDF component (1),
 // BSDF direction (2), Russian roulette (1).
 //
-// | parameter        | type    | default | meaning                                                  |
-// |------------------|---------|---------|----------------------------------------------------------|
-// | max_depth        | integer | -1      | longest path (in edges) that contributes; -1: unbounded  |
-// | min_depth        | integer | 1       | shortest path (in edges) that contributes                |
-// | rr_depth         | integer | 5       | path length from which Russian roulette may stop paths   |
-// | hide_emitters    | boolean | false   | emitters seen directly by the camera render black        |
-// | emitter_sampling | boolean | true    | next-event estimation with MIS; false: BSDF sampling only |
+// Parameters: `kelvin --list-plugins KIND NAME`, or docs/reference.md (generated from the declarations below).
 //
 // emitter_sampling = false leaves pure BSDF sampling (emitters count only when a sampled ray hits them, with
 // weight one): slow, but an estimator that shares neither emitter sampling nor MIS weights with the others,

@@ -7,11 +7,7 @@
 // Primary samples: emitter choice (1), emission position (2) and direction (2), lens (2); then every bounce
 // consumes exactly 6: BSDF component (1), direction (2), Russian roulette (1), lens (2).
 //
-// | parameter     | type    | default | meaning                                                  |
-// |---------------|---------|---------|----------------------------------------------------------|
-// | max_depth     | integer | -1      | longest path (in edges) that contributes; -1: unbounded  |
-// | rr_depth      | integer | 5       | path length from which Russian roulette may stop paths   |
-// | hide_emitters | boolean | false   | do not render emitters seen directly                      |
+// Parameters: `kelvin --list-plugins KIND NAME`, or docs/reference.md (generated from the declarations below).
 //
 //     <integrator type="ptracer"><integer name="max_depth" value="8"/></integrator>
 #include <kelvin/core/distributed.h>

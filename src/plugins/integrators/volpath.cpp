@@ -19,14 +19,7 @@
 // seen directly. Russian roulette from rr_depth on max(throughput) * eta^2, capped at 0.95. Deterministic: every
 // number comes from the pixel's sampler (the count per path varies with the collisions). No heap allocation.
 //
-// | parameter     | type    | default | meaning                                                   |
-// |---------------|---------|---------|-----------------------------------------------------------|
-// | max_depth     | integer | -1      | longest path (in edges) that contributes; -1: unbounded   |
-// | min_depth     | integer | 1       | shortest path (in edges) that contributes (Kelvin's; the  |
-// |               |         |         | Metropolis integrators' chains use it to leave short paths |
-// |               |         |         | to their direct pass)                                      |
-// | rr_depth      | integer | 5       | path length from which Russian roulette may stop paths    |
-// | hide_emitters | boolean | false   | emitters seen directly by the camera render black         |
+// Parameters: `kelvin --list-plugins KIND NAME`, or docs/reference.md (generated from the declarations below).
 //
 //     <integrator type="volpath"><integer name="max_depth" value="64"/></integrator>
 #include <kelvin/core/registry.h>

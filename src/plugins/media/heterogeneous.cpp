@@ -6,13 +6,7 @@
 // voxel value that trilinear interpolation can reach inside the cell, times `scale`. Trackers walk its cells
 // with a 3D-DDA, so empty space in sparse smoke costs one step per cell and no density lookups.
 //
-// | parameter      | type           | default   | meaning                                             |
-// |----------------|----------------|-----------|-----------------------------------------------------|
-// | sigma_t        | volume/float   | 1         | extinction: scalar or RGB data (not a vector grid)  |
-// | albedo         | volume/rgb     | 0.75      | single-scattering albedo (RGB grids allowed)        |
-// | scale          | float          | 1         | multiplies sigma_t                                  |
-// | majorant_block | integer        | 8         | voxels per max-grid cell along each axis            |
-// | phase          | phase          | isotropic | nested <phase>                                      |
+// Parameters: `kelvin --list-plugins KIND NAME`, or docs/reference.md (generated from the declarations below).
 //
 //     <medium type="heterogeneous" id="smoke"><float name="scale" value="4"/>
 //         <volume type="gridvolume" name="sigma_t"><string name="filename" value="smoke.vdb"/>

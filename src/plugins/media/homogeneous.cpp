@@ -2,14 +2,7 @@
 // (Mitsuba 3), or sigma_a and sigma_s (Mitsuba 0.6); all multiplied by `scale`. Chromatic (RGB) coefficients are
 // supported (volpath's spectral tracking). Emissive media are not.
 //
-// | parameter | type      | default    | meaning                                          |
-// |-----------|-----------|------------|--------------------------------------------------|
-// | sigma_t   | rgb/float | 1          | extinction coefficient (per unit length)         |
-// | albedo    | rgb/float | 0.75       | single-scattering albedo sigma_s / sigma_t       |
-// | sigma_a   | rgb/float | -          | absorption (with sigma_s, instead of the above)  |
-// | sigma_s   | rgb/float | -          | scattering (with sigma_a)                        |
-// | scale     | float     | 1          | multiplies sigma_t (or sigma_a and sigma_s)      |
-// | phase     | phase     | isotropic  | nested <phase>                                   |
+// Parameters: `kelvin --list-plugins KIND NAME`, or docs/reference.md (generated from the declarations below).
 //
 //     <medium type="homogeneous" id="fog"><rgb name="sigma_t" value="1"/><rgb name="albedo" value="0.9"/>
 //         <phase type="hg"><float name="g" value="0.5"/></phase></medium>

@@ -2,9 +2,7 @@
 // (the PSSMLT/G baseline), two normals per pair by Marsaglia's polar method. The density sums the nearest periodic
 // images (|k| <= 2), exact to double precision for sigma <= 1/8.
 //
-// | parameter | type  | default | meaning                       |
-// |-----------|-------|---------|-------------------------------|
-// | sigma     | float | 1/64    | standard deviation (<= 1/8)   |
+// Parameters: `kelvin --list-plugins KIND NAME`, or docs/reference.md (generated from the declarations below).
 //
 //     <mutation type="gaussian"><float name="sigma" value="0.01"/></mutation>
 #include <kelvin/core/registry.h>

@@ -13,11 +13,7 @@
 // integrators take them from the path technique's differentiable evaluation (render/path_derivatives.h) and refuse
 // h2mc with the other techniques.
 //
-// | parameter | type  | default | meaning                                                                          |
-// |-----------|-------|---------|----------------------------------------------------------------------------------|
-// | sigma     | float | 0.01    | isotropic scale: the prior multiplying the Hessian's Gaussian, the fallback, and |
-// |           |       |         | the outside law (at most 1/32, so that the torus' wrap-around is negligible)     |
-// | L         | float | pi/2    | the Hamiltonian dynamics' phase per eigendirection, in (0, 3]                    |
+// Parameters: `kelvin --list-plugins KIND NAME`, or docs/reference.md (generated from the declarations below).
 //
 //     <mutation type="mixture">
 //         <mutation type="h2mc"/>

@@ -3,10 +3,7 @@
 // so |y_i - x_i| lies in [eps_min, eps_max] with density 1 / (|d| log(eps_max/eps_min)), symmetric in sign.
 // Symmetric; note the hole around zero, which is why Tierney–Mira DR after it can suffer vanishing acceptance.
 //
-// | parameter | type  | default   | meaning                    |
-// |-----------|-------|-----------|----------------------------|
-// | eps_min   | float | 1/1024    | smallest step              |
-// | eps_max   | float | 1/64      | largest step (< 1/2)       |
+// Parameters: `kelvin --list-plugins KIND NAME`, or docs/reference.md (generated from the declarations below).
 //
 //     <mutation type="kelemen"><float name="eps_max" value="0.03125"/></mutation>
 #include <kelvin/core/registry.h>

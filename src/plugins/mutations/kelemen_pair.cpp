@@ -10,11 +10,7 @@
 // and 1/64); the thesis' text omits the factor. With scale 1 the first stage is timid and is accepted more often
 // than PSSMLT/K's (75 % against 64 % on the door), and the bold-then-timid design loses its bold stage.
 //
-// | parameter | type  | default | meaning                                     |
-// |-----------|-------|---------|---------------------------------------------|
-// | eps_min   | float | 1/1024  | smallest step, before scaling               |
-// | eps_max   | float | 1/64    | largest step, before scaling                |
-// | scale     | float | 1.9     | factor on both bounds (the authors' 1.9)    |
+// Parameters: `kelvin --list-plugins KIND NAME`, or docs/reference.md (generated from the declarations below).
 //
 //     <mutation type="kelemen_pair"><float name="scale" value="1"/></mutation>
 #include <kelvin/core/registry.h>

@@ -46,14 +46,7 @@
 // the differentiable set, next to a discontinuity, a mismatch: PathDerivativeStatus not Ok) or the gradient is not
 // finite, the block moves by N(0, eps^2 I) (counted as not differentiable), as h2mc falls back.
 //
-// | parameter   | type    | default | meaning                                                                 |
-// |-------------|---------|---------|-------------------------------------------------------------------------|
-// | sigma       | float   | 0.01    | eps: the step's standard deviation where m_i = 1 (and the outside law)  |
-// | delta       | float   | 100     | the preconditioner's gradient scale: m_i = delta / (delta + sqrt(v_i))  |
-// | preconditioner | string | adaptive | adaptive (the chain's running moments), local, none              |
-// | adapt_steps | integer | 1000    | observations per coordinate after which M is frozen; 0: M = I           |
-// | warmup      | integer | 32      | adaptive: warm-up steps per chain from an independent start; 0: online  |
-// | max_drift   | float   | 2       | the drift's cap, in standard deviations per coordinate                  |
+// Parameters: `kelvin --list-plugins KIND NAME`, or docs/reference.md (generated from the declarations below).
 //
 //     <mutation type="langevin"><float name="sigma" value="0.01"/></mutation>
 #include <kelvin/core/registry.h>

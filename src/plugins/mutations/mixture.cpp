@@ -4,10 +4,7 @@
 // hybrid second stage: H2MC and a small isotropic Gaussian, equally weighted); log_density then describes the
 // pairwise proposals only.
 //
-// | parameter | type     | default        | meaning                                          |
-// |-----------|----------|----------------|--------------------------------------------------|
-// | weights   | string   | "" (equal)     | comma-separated weights, one per nested mutation |
-// | mutation  | mutation | (two or more)  | the components, in order                         |
+// Parameters: `kelvin --list-plugins KIND NAME`, or docs/reference.md (generated from the declarations below).
 //
 //     <mutation type="mixture">
 //         <string name="weights" value="0.8, 0.2"/>

@@ -12,9 +12,7 @@
 // Only valid as the second stage of drmlt with type="orbital" after a circularly symmetric first stage
 // (kelemen_pair, gaussian, or a large step).
 //
-// | parameter | type  | default     | meaning                                     |
-// |-----------|-------|-------------|---------------------------------------------|
-// | rho       | float | exp(-1/4)   | wrapped-Cauchy concentration, in (0, 1)     |
+// Parameters: `kelvin --list-plugins KIND NAME`, or docs/reference.md (generated from the declarations below).
 //
 //     <mutation type="orbital" name="second"/>
 #include <kelvin/core/registry.h>

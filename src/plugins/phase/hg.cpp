@@ -3,9 +3,7 @@
 // with wi = -ray.d, so g > 0 scatters forwards, g < 0 backwards, g = 0 is isotropic. Sampled exactly by inverting
 // its CDF in the cosine to the forward direction -wi.
 //
-// | parameter | type  | default | meaning                                 |
-// |-----------|-------|---------|-----------------------------------------|
-// | g         | float | 0.8     | mean cosine of scattering, in (-1, 1)   |
+// Parameters: `kelvin --list-plugins KIND NAME`, or docs/reference.md (generated from the declarations below).
 //
 //     <phase type="hg"><float name="g" value="0.7"/></phase>
 #include <kelvin/core/registry.h>

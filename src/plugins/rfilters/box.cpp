@@ -1,9 +1,7 @@
 // box: every sample counts for the pixel it falls in, with equal weight. The sharpest filter, and the one whose
 // pixels are independent (useful for convergence studies and per-pixel error metrics).
 //
-// | parameter | type  | default | meaning                        |
-// |-----------|-------|---------|--------------------------------|
-// | radius    | float | 0.5     | half-width in pixels           |
+// Parameters: `kelvin --list-plugins KIND NAME`, or docs/reference.md (generated from the declarations below).
 //
 //     <rfilter type="box"/>
 #include <kelvin/core/registry.h>

@@ -2,9 +2,7 @@
 // default filter, stddev 0.5, radius 2). Separable; offsets are drawn exactly from the truncated Gaussian by
 // inverting its CDF, so every sample has weight 1.
 //
-// | parameter | type  | default | meaning                      |
-// |-----------|-------|---------|------------------------------|
-// | stddev    | float | 0.5     | standard deviation in pixels |
+// Parameters: `kelvin --list-plugins KIND NAME`, or docs/reference.md (generated from the declarations below).
 //
 //     <rfilter type="gaussian"><float name="stddev" value="0.5"/></rfilter>
 #include <kelvin/core/registry.h>

@@ -5,9 +5,7 @@
 // pronounced negative lobes that ring at bright edges; negative weights are handled as for mitchell
 // (signed_filter.h).
 //
-// | parameter | type    | default | meaning                                |
-// |-----------|---------|---------|----------------------------------------|
-// | lobes     | integer | 3       | side lobes on each side; the radius    |
+// Parameters: `kelvin --list-plugins KIND NAME`, or docs/reference.md (generated from the declarations below).
 //
 //     <rfilter type="lanczos"><integer name="lobes" value="2"/></rfilter>
 #include "signed_filter.h"

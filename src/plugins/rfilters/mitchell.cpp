@@ -7,10 +7,7 @@
 // sampling keeps that sum away from zero, see signed_filter.h), and splatting estimators add negative splats.
 // Images may then hold slightly negative values next to bright edges, as Mitsuba's do.
 //
-// | parameter | type  | default | meaning                                  |
-// |-----------|-------|---------|------------------------------------------|
-// | B         | float | 1/3     | B of the paper (blur)                    |
-// | C         | float | 1/3     | C of the paper (ringing)                 |
+// Parameters: `kelvin --list-plugins KIND NAME`, or docs/reference.md (generated from the declarations below).
 //
 //     <rfilter type="mitchell"><float name="B" value="0.3333"/><float name="C" value="0.3333"/></rfilter>
 #include "signed_filter.h"

@@ -2,9 +2,7 @@
 // normalised to integrate to 1. Never negative, so it never rings; softer than box, sharper than gaussian.
 // Offsets are drawn exactly from the tent (signed_filter.h), so every camera sample has weight 1.
 //
-// | parameter | type  | default | meaning                       |
-// |-----------|-------|---------|-------------------------------|
-// | radius    | float | 1       | half-width in pixels          |
+// Parameters: `kelvin --list-plugins KIND NAME`, or docs/reference.md (generated from the declarations below).
 //
 //     <rfilter type="tent"/>
 #include "signed_filter.h"

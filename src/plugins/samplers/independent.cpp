@@ -2,10 +2,7 @@
 // draws from its own PCG32 stream keyed by (s, seed, x, y, k), so any pixel sample can be reproduced alone; the
 // light and connection sample streams (SampleStream) are further PCG32 streams keyed by the same and the stream.
 //
-// | parameter    | type    | default | meaning                                    |
-// |--------------|---------|---------|--------------------------------------------|
-// | sample_count | integer | 4       | samples per pixel (overridden by --spp)    |
-// | seed         | integer | 0       | mixed with the run's --seed                |
+// Parameters: `kelvin --list-plugins KIND NAME`, or docs/reference.md (generated from the declarations below).
 //
 //     <sampler type="independent"><integer name="sample_count" value="64"/></sampler>
 #include <kelvin/core/random.h>

@@ -8,10 +8,7 @@
 // Unlike Mitsuba (one scramble per pixel), the scramble is drawn per pixel and dimension. `sobol` is Kelvin's
 // Owen-scrambled variant of the same sequence. Determinism and samples beyond N: block_sampler.h.
 //
-// | parameter    | type    | default | meaning                                                      |
-// |--------------|---------|---------|--------------------------------------------------------------|
-// | sample_count | integer | 4       | samples per pixel, rounded up to 4^k (overridden by --spp)   |
-// | seed         | integer | 0       | mixed with the run's --seed                                  |
+// Parameters: `kelvin --list-plugins KIND NAME`, or docs/reference.md (generated from the declarations below).
 //
 //     <sampler type="ldsampler"><integer name="sample_count" value="64"/></sampler>
 #include "block_sampler.h"

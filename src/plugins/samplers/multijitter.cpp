@@ -8,11 +8,7 @@
 // warning (Mitsuba 3's two-dimensional multijitter: 10 -> 12). Determinism and samples beyond N:
 // block_sampler.h.
 //
-// | parameter    | type    | default | meaning                                                   |
-// |--------------|---------|---------|-----------------------------------------------------------|
-// | sample_count | integer | 4       | samples per pixel, rounded up to X * Y (overridden by --spp) |
-// | seed         | integer | 0       | mixed with the run's --seed                               |
-// | jitter       | boolean | true    | jitter inside the sub-cell (false: its centre)            |
+// Parameters: `kelvin --list-plugins KIND NAME`, or docs/reference.md (generated from the declarations below).
 //
 //     <sampler type="multijitter"><integer name="sample_count" value="64"/></sampler>
 #include "block_sampler.h"

@@ -11,12 +11,7 @@
 // Determinism and samples beyond N: block_sampler.h. Only strength 2 is supported (Mitsuba's Bush
 // construction for higher strengths is refused).
 //
-// | parameter    | type    | default | meaning                                                  |
-// |--------------|---------|---------|----------------------------------------------------------|
-// | sample_count | integer | 4       | samples per pixel, rounded up to a prime's square (overridden by --spp) |
-// | seed         | integer | 0       | mixed with the run's --seed                              |
-// | jitter       | boolean | true    | jitter inside the sub-stratum (false: its centre)        |
-// | strength     | integer | 2       | the array's strength; only 2 is supported                |
+// Parameters: `kelvin --list-plugins KIND NAME`, or docs/reference.md (generated from the declarations below).
 //
 //     <sampler type="orthogonal"><integer name="sample_count" value="49"/></sampler>
 #include "block_sampler.h"

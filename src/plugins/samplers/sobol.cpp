@@ -24,10 +24,7 @@
 // alone and the image does not depend on the thread count. The net property holds for the first 2^m samples
 // of a pixel, so sample counts that are powers of two are best; other counts are allowed (a warning says so).
 //
-// | parameter    | type    | default | meaning                                                   |
-// |--------------|---------|---------|-----------------------------------------------------------|
-// | sample_count | integer | 16      | samples per pixel (overridden by --spp); powers of two best |
-// | seed         | integer | 0       | mixed with the run's --seed                               |
+// Parameters: `kelvin --list-plugins KIND NAME`, or docs/reference.md (generated from the declarations below).
 //
 //     <sampler type="sobol"><integer name="sample_count" value="64"/></sampler>
 #include <kelvin/core/logging.h>

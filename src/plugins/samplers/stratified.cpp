@@ -5,11 +5,7 @@
 // sample_count is rounded up to the next square, with a warning, as Mitsuba does (5 -> 9).
 // Determinism and samples beyond N: block_sampler.h.
 //
-// | parameter    | type    | default | meaning                                               |
-// |--------------|---------|---------|-------------------------------------------------------|
-// | sample_count | integer | 4       | samples per pixel, rounded up to a square (overridden by --spp) |
-// | seed         | integer | 0       | mixed with the run's --seed                           |
-// | jitter       | boolean | true    | jitter inside the stratum (false: its centre)          |
+// Parameters: `kelvin --list-plugins KIND NAME`, or docs/reference.md (generated from the declarations below).
 //
 //     <sampler type="stratified"><integer name="sample_count" value="16"/></sampler>
 #include "block_sampler.h"

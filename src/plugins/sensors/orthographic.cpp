@@ -12,13 +12,7 @@
 // The sensor is not connectable: light tracing and bidirectional integrators cannot hit it (Mitsuba's
 // orthographic camera cannot be sampled from a scene point either), so use a camera-side integrator.
 //
-// | parameter | type      | default     | meaning                                                    |
-// |-----------|-----------|-------------|------------------------------------------------------------|
-// | to_world  | transform | identity    | camera-to-world; may scale (sets the view's size)          |
-// | near_clip | float     | 0.01        | rays start on the plane z = near_clip of camera space      |
-// | far_clip  | float     | 10000       | and travel far_clip - near_clip                            |
-// | film      | film      | hdrfilm     | nested film                                                |
-// | sampler   | sampler   | independent | nested sampler                                             |
+// Parameters: `kelvin --list-plugins KIND NAME`, or docs/reference.md (generated from the declarations below).
 //
 //     <sensor type="orthographic">
 //         <transform name="to_world">

@@ -1,17 +1,7 @@
 // perspective: a pinhole camera (Mitsuba's `perspective`). Camera space looks along +z with +y up and +x to
 // the left, so <lookat origin target up> in to_world places it as Mitsuba does.
 //
-// | parameter | type      | default  | meaning                                                       |
-// |-----------|-----------|----------|---------------------------------------------------------------|
-// | fov       | float     | from focal_length | field of view in degrees                             |
-// | fov_axis  | string    | "x"      | axis fov refers to: x, y, diagonal, smaller, larger           |
-// | focal_length | string | "50mm"  | without fov (Mitsuba): lens on 36 x 24 mm film, fov along the diagonal |
-// | focus_distance | float | far_clip | accepted as Mitsuba's perspective does; no effect on a pinhole |
-// | near_clip | float     | 0.01     | rays start at this distance                                   |
-// | far_clip  | float     | 10000    | and end at this one                                           |
-// | to_world  | transform | identity | camera-to-world (usually a <lookat>)                          |
-// | film      | film      | hdrfilm  | nested film                                                   |
-// | sampler   | sampler   | independent | nested sampler                                             |
+// Parameters: `kelvin --list-plugins KIND NAME`, or docs/reference.md (generated from the declarations below).
 //
 //     <sensor type="perspective">
 //         <float name="fov" value="45"/>

@@ -22,17 +22,7 @@
 // the pinhole's expression with theta and dist measured from the sampled lens point (and exactly the pinhole's
 // for aperture_radius = 0, which is accepted and renders like `perspective`).
 //
-// | parameter       | type      | default     | meaning                                                     |
-// |-----------------|-----------|-------------|-------------------------------------------------------------|
-// | aperture_radius | float     | required    | radius of the lens (scene units); 0: a pinhole               |
-// | focus_distance  | float     | far_clip    | distance from the lens to the plane in focus (along the axis) |
-// | fov             | float     | from focal_length | field of view in degrees (without it: focal_length, default
-// "50mm" on 36 x 24 mm film, along the diagonal, as Mitsuba) | | fov_axis        | string    | "x"         | axis fov
-// refers to: x, y, diagonal, smaller, larger         | | near_clip       | float     | 0.01        | nothing closer
-// than this depth is seen                      | | far_clip        | float     | 10000       | nothing farther than
-// this depth is seen                     | | to_world        | transform | identity    | camera-to-world (usually a
-// <lookat>; rigid, no scaling)     | | film            | film      | hdrfilm     | nested film | | sampler         |
-// sampler   | independent | nested sampler                                              |
+// Parameters: `kelvin --list-plugins KIND NAME`, or docs/reference.md (generated from the declarations below).
 //
 //     <sensor type="thinlens">
 //         <float name="aperture_radius" value="0.05"/>

@@ -8,13 +8,7 @@
 // (rotation, translation, uniform scale, and any scale along the axis); shear or an elliptic cross-section is refused
 // with an error (Mitsuba only warns and then ignores it).
 //
-// | parameter    | type      | default   | meaning                                   |
-// |--------------|-----------|-----------|-------------------------------------------|
-// | p0           | point     | (0, 0, 0) | start of the axis (object space)          |
-// | p1           | point     | (0, 0, 1) | end of the axis (object space)            |
-// | radius       | float     | 1         | radius (object space)                     |
-// | to_world     | transform | identity  | object-to-world transform                 |
-// | flip_normals | boolean   | false     | normals point inwards                     |
+// Parameters: `kelvin --list-plugins KIND NAME`, or docs/reference.md (generated from the declarations below).
 //
 //     <shape type="cylinder">
 //         <float name="radius" value="0.3"/>

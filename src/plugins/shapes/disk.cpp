@@ -5,10 +5,7 @@
 // the transformed +x axis. Embree's discs are round, so `to_world` must scale the disk's plane uniformly (any
 // rotation, translation, mirror and scale along the normal are fine); an ellipse is refused with an error.
 //
-// | parameter    | type      | default  | meaning                          |
-// |--------------|-----------|----------|----------------------------------|
-// | to_world     | transform | identity | object-to-world transform        |
-// | flip_normals | boolean   | false    | the normal points along -z       |
+// Parameters: `kelvin --list-plugins KIND NAME`, or docs/reference.md (generated from the declarations below).
 //
 //     <shape type="disk">
 //         <transform name="to_world"><scale value="0.3"/><rotate x="1" angle="90"/><translate y="2"/></transform>

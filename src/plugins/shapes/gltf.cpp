@@ -14,14 +14,7 @@
 // true shades every primitive flat. Malformed files (bad JSON, a missing .bin, an accessor that reads past
 // its buffer, an index out of range) raise an InputError naming the file.
 //
-// | parameter       | type      | default  | meaning                                          |
-// |-----------------|-----------|----------|--------------------------------------------------|
-// | filename        | string    | required | the .gltf or .glb file (relative to the scene)   |
-// | to_world        | transform | identity | object-to-world transform (after node transforms) |
-// | face_normals    | boolean   | false    | ignore vertex normals: flat shading              |
-// | flip_normals    | boolean   | false    | reverse the orientation                          |
-// | flip_tex_coords | boolean   | false    | v -> 1 - v                                       |
-// | bsdf, emitter   | objects   | diffuse  | surface scattering; optional area light          |
+// Parameters: `kelvin --list-plugins KIND NAME`, or docs/reference.md (generated from the declarations below).
 //
 //     <shape type="gltf">
 //         <string name="filename" value="meshes/torus-knot.gltf"/>

@@ -5,10 +5,7 @@
 // v along each curve (0 at its first point, 1 at its last, uniform per segment), u the angle around it / (2 pi).
 // Curves cannot be area emitters or bound media (refused in one line).
 //
-// | parameter | type      | default  | meaning                                                            |
-// |-----------|-----------|----------|--------------------------------------------------------------------|
-// | filename  | string    | required | control points, `x y z r` per line, a blank line between curves    |
-// | to_world  | transform | identity | moves the control points (the radii are not scaled, as in Mitsuba) |
+// Parameters: `kelvin --list-plugins KIND NAME`, or docs/reference.md (generated from the declarations below).
 //
 //     <shape type="linearcurve">
 //         <string name="filename" value="curves.txt"/>

@@ -2,10 +2,7 @@
 //
 // rectangle: the square [-1, 1]^2 in the z = 0 plane, normal +z.  cube: [-1, 1]^3, normals outwards.
 //
-// | parameter    | type      | default  | meaning                         |
-// |--------------|-----------|----------|---------------------------------|
-// | to_world     | transform | identity | object-to-world transform       |
-// | flip_normals | boolean   | false    | reverse the orientation         |
+// Parameters: `kelvin --list-plugins KIND NAME`, or docs/reference.md (generated from the declarations below).
 //
 //     <shape type="rectangle">
 //         <transform name="to_world"><scale value="10"/><rotate x="1" angle="-90"/></transform>

@@ -14,14 +14,7 @@
 // Normals: the file's vertex normals when every face corner has one; otherwise angle-weighted vertex normals
 // are computed (Mitsuba's behaviour). face_normals = true discards both and shades with the face normals.
 //
-// | parameter       | type      | default  | meaning                                                    |
-// |-----------------|-----------|----------|------------------------------------------------------------|
-// | filename        | string    | required | the .obj file (relative to the scene file)                 |
-// | to_world        | transform | identity | object-to-world transform                                  |
-// | face_normals    | boolean   | false    | ignore vertex normals: flat shading                        |
-// | flip_normals    | boolean   | false    | reverse the orientation                                    |
-// | flip_tex_coords | boolean   | true     | v -> 1 - v (OBJ's origin is the bottom left, Kelvin's top left) |
-// | bsdf, emitter   | objects   | diffuse  | surface scattering; optional area light                    |
+// Parameters: `kelvin --list-plugins KIND NAME`, or docs/reference.md (generated from the declarations below).
 //
 //     <shape type="obj">
 //         <string name="filename" value="meshes/bunny.obj"/>

@@ -8,14 +8,7 @@
 // (`vertex_<name>`, `face_<name>`; see ply.h), read by the `mesh_attribute` texture. Malformed files raise an
 // InputError naming the file (and the line in the header and in ascii bodies).
 //
-// | parameter       | type      | default  | meaning                                     |
-// |-----------------|-----------|----------|---------------------------------------------|
-// | filename        | string    | required | the .ply file (relative to the scene file)  |
-// | to_world        | transform | identity | object-to-world transform                   |
-// | face_normals    | boolean   | false    | ignore vertex normals: flat shading         |
-// | flip_normals    | boolean   | false    | reverse the orientation                     |
-// | flip_tex_coords | boolean   | false    | v -> 1 - v                                  |
-// | bsdf, emitter   | objects   | diffuse  | surface scattering; optional area light     |
+// Parameters: `kelvin --list-plugins KIND NAME`, or docs/reference.md (generated from the declarations below).
 //
 //     <shape type="ply">
 //         <string name="filename" value="meshes/dragon.ply"/>

@@ -12,14 +12,7 @@
 // the vertex count: a malformed file is an InputError naming the file and what is wrong (the scene element that
 // loaded it is added by the registry).
 //
-// | parameter    | type      | default  | meaning                                           |
-// |--------------|-----------|----------|---------------------------------------------------|
-// | filename     | string    | required | the .serialized file (relative to the scene file) |
-// | shape_index  | integer   | 0        | which mesh of the file                            |
-// | to_world     | transform | identity | object-to-world transform                         |
-// | face_normals | boolean   | false    | ignore vertex normals: flat shading               |
-// | flip_normals | boolean   | false    | reverse the orientation                           |
-// | bsdf, emitter| objects   | diffuse  | surface scattering; optional area light           |
+// Parameters: `kelvin --list-plugins KIND NAME`, or docs/reference.md (generated from the declarations below).
 #include <kelvin/core/error.h>
 #include <kelvin/core/loading.h>
 #include <kelvin/core/memory.h>

@@ -1,11 +1,6 @@
 // sphere: an analytic sphere, intersected by Embree's sphere primitive.
 //
-// | parameter    | type      | default   | meaning                                              |
-// |--------------|-----------|-----------|------------------------------------------------------|
-// | center       | point     | (0, 0, 0) | centre in object space                               |
-// | radius       | float     | 1         | radius in object space                               |
-// | to_world     | transform | identity  | a similarity transform (rotation, uniform scale, ...) |
-// | flip_normals | boolean   | false     | normals point inwards                                |
+// Parameters: `kelvin --list-plugins KIND NAME`, or docs/reference.md (generated from the declarations below).
 //
 //     <shape type="sphere">
 //         <point name="center" x="0" y="1" z="0"/>

@@ -12,14 +12,7 @@
 // .pgm. Float formats (.exr .hdr .pfm) are linear and always read as stored; TIFF files are taken as read_image
 // returns them. Grey images give R = G = B; an alpha channel is ignored.
 //
-// | parameter   | type      | default  | meaning                                                     |
-// |-------------|-----------|----------|-------------------------------------------------------------|
-// | filename    | string    | required | the image, relative to the scene file                       |
-// | filter_type | string    | bilinear | bilinear (between the four nearest pixel centres) or nearest |
-// | wrap_mode   | string    | repeat   | outside [0, 1]: repeat, mirror, or clamp                    |
-// | raw         | bool      | false    | keep the stored values of 8/16-bit files (no linearisation) |
-// | format      | string    | variant  | Mitsuba's storage precision: "variant" (float here); "fixed" is refused |
-// | to_uv       | transform | identity | transform applied to the uv coordinates                     |
+// Parameters: `kelvin --list-plugins KIND NAME`, or docs/reference.md (generated from the declarations below).
 //
 //     <texture type="bitmap" name="reflectance"><string name="filename" value="wood.png"/></texture>
 #include <kelvin/core/error.h>

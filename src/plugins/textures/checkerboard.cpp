@@ -8,12 +8,7 @@
 // Read as one number (a roughness, an opacity: eval_1) the squares are swapped, as Mitsuba 3 does to keep its
 // legacy scalar convention: its float-valued checkerboards put color1 on [0, 0.5)^2.
 //
-// | parameter | type          | default  | meaning                                 |
-// |-----------|---------------|----------|-----------------------------------------|
-// | color0    | rgb / texture | 0.4      | colour of the squares at the uv origin  |
-// | color1    | rgb / texture | 0.2      | colour of the other squares             |
-// | scale     | float         | 1        | uv multiplier (periods per unit of uv)  |
-// | to_uv     | transform     | identity | transform applied to uv (before scale)  |
+// Parameters: `kelvin --list-plugins KIND NAME`, or docs/reference.md (generated from the declarations below).
 //
 //     <texture type="checkerboard" name="reflectance">
 //         <rgb name="color0" value="0.8"/><rgb name="color1" value="0.1"/>

@@ -5,10 +5,7 @@
 // Looked up by uv alone (a spot light's projection) it is 0, and its mean, used only for power and albedo
 // estimates, is taken as 0.5.
 //
-// | parameter | type   | default  | meaning                                         |
-// |-----------|--------|----------|-------------------------------------------------|
-// | name      | string | required | attribute name, e.g. "vertex_color", "face_weight" |
-// | scale     | float  | 1        | multiplies the value                            |
+// Parameters: `kelvin --list-plugins KIND NAME`, or docs/reference.md (generated from the declarations below).
 //
 //     <texture type="mesh_attribute" name="reflectance"><string name="name" value="vertex_color"/></texture>
 #include <kelvin/core/registry.h>

@@ -1,9 +1,7 @@
 // rawconstant: a constant value returned exactly as given, without any colour conversion (Mitsuba 3's
 // `rawconstant`, used for data such as a flat normal map: (0.5, 0.5, 1) is the unperturbed normal).
 //
-// | parameter | type            | default | meaning             |
-// |-----------|-----------------|---------|---------------------|
-// | value     | vector          | 1, 1, 1 | the constant value (Mitsuba's float form is not supported) |
+// Parameters: `kelvin --list-plugins KIND NAME`, or docs/reference.md (generated from the declarations below).
 //
 //     <texture type="rawconstant" name="normalmap"><vector name="value" value="0.5, 0.5, 1"/></texture>
 #include <kelvin/core/registry.h>

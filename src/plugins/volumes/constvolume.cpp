@@ -1,10 +1,7 @@
 // constvolume: a constant value over its unit cube (Mitsuba 3's `constvolume`). As sigma_t of a heterogeneous
 // medium, the medium is confined to the cube placed by `to_world`.
 //
-// | parameter | type      | default  | meaning                           |
-// |-----------|-----------|----------|-----------------------------------|
-// | value     | rgb/float | 1        | the value (a float is grey)       |
-// | to_world  | transform | identity | places the unit cube [0, 1]^3     |
+// Parameters: `kelvin --list-plugins KIND NAME`, or docs/reference.md (generated from the declarations below).
 //
 //     <volume type="constvolume" name="sigma_t"><rgb name="value" value="0.5, 0.4, 0.3"/></volume>
 #include <kelvin/core/registry.h>

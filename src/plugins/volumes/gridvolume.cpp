@@ -9,14 +9,7 @@
 // 0), and `to_world` is applied after it. Values outside that box are the edge
 // values; a heterogeneous medium whose sigma_t this is has no density outside it.
 //
-// | parameter     | type      | default   | meaning                                                       |
-// |---------------|-----------|-----------|---------------------------------------------------------------|
-// | filename      | string    | required  | `.vol` or `.vdb` file                                         |
-// | grid          | string    | ""        | `.vdb`: the grid's name (default: the file's first grid)      |
-// | to_world      | transform | identity  | placement (after the grid's own, for .vdb)                    |
-// | use_grid_bbox | boolean   | false     | `.vol`: place the cube on the header's bounding box           |
-// | raw           | boolean   | false     | accepted (RGB data are used as given)                         |
-// | filter_type   | string    | trilinear | `trilinear` or `nearest`                                      |
+// Parameters: `kelvin --list-plugins KIND NAME`, or docs/reference.md (generated from the declarations below).
 //
 //     <volume type="gridvolume" name="sigma_t"><string name="filename" value="smoke.vdb"/>
 //         <string name="grid" value="density"/></volume>
