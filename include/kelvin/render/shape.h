@@ -17,18 +17,23 @@ class Medium;
 
 /// World-space geometry in Embree-ready layout (float positions, 32-bit indices).
 struct ShapeGeometry {
-    enum class Type { Triangles, Spheres, Discs, Cylinders, LinearCurves, BSplineCurves };
+    enum class Type { Triangles, Spheres, Discs, Cylinders, LinearCurves, BSplineCurves, EllipticDiscs };
     Type type = Type::Triangles;
-    std::vector<Vec3f> positions;      ///< triangle vertices, sphere / disc centres, cylinder base centres, or
-                                       ///< curve control points
-    std::vector<uint32_t> indices;     ///< 3 per triangle (counter-clockwise = front, normal by right hand); curves:
-                                       ///< one per segment, its first control point (2 points per linear segment,
-                                       ///< 4 per uniform cubic B-spline segment)
-    std::vector<float> radii;          ///< spheres, discs and cylinders: one per centre; curves: one per control point
-    std::vector<Vec3f> normals;        ///< triangles: optional per-vertex shading normals (same count as positions);
-                                       ///< discs: the unit normal of each disc (required); cylinders: the unit axis
+    std::vector<Vec3f> positions;   ///< triangle vertices, sphere / disc centres, cylinder base centres, or
+                                    ///< curve control points
+    std::vector<uint32_t> indices;  ///< 3 per triangle (counter-clockwise = front, normal by right hand); curves:
+                                    ///< one per segment, its first control point (2 points per linear segment,
+                                    ///< 4 per uniform cubic B-spline segment)
+    std::vector<float> radii;       ///< spheres, discs and cylinders: one per centre; curves: one per control point;
+                                    ///< elliptic discs: the largest distance of the rim from the centre
+    std::vector<Vec3f>
+        normals;  ///< triangles: optional per-vertex shading normals (same count as positions);
+                  ///< discs and elliptic discs: the unit normal of each (required); cylinders: the unit axis
     std::vector<Vec3f> tangents;       ///< discs and cylinders: a unit vector perpendicular to the normal / axis, where
-                                       ///< the polar angle of uv is 0
+                                       ///< the polar angle of uv is 0; elliptic discs: the image of the object's x
+                                       ///< axis (the semi-axis vector where that angle is 0, not unit length)
+    std::vector<Vec3f> bitangents;     ///< elliptic discs: the image of the object's y axis (the disc is
+                                       ///< {centre + x tangent + y bitangent : x^2 + y^2 <= 1})
     std::vector<float> lengths;        ///< cylinders: the length along the axis (open ends: no caps)
     std::vector<Vec2f> uvs;            ///< triangles: optional per-vertex texture coordinates; curves: per segment,
                                        ///< v (along the curve) at its start and the v it spans
