@@ -75,16 +75,22 @@ TEST(EllipticDisk, DistancesNormalsAndUvAgainstAClosedForm) {
         }
         ASSERT_TRUE(h.has_value()) << "ray " << i << " meets the plane at r = " << r;
         ++hits;
-        EXPECT_NEAR(h->t, ref.x, 2e-5 * (1 + ref.x)) << "ray " << i;
+        // Embree takes the origin in float: rounding it (< 4e-7 here) moves a grazing ray's hit by that / |d.n|.
+        EXPECT_NEAR(h->t, ref.x, 2e-5 * (1 + ref.x) + 4e-7 / std::abs(glm::dot(d, n))) << "ray " << i;
         expect_vec_near(h->ng, n, 1e-6, "normal: the inverse transpose of +z");
+        // uv of the hit point as returned (float rounding of the ray's origin moves it by up to ~1e-7 / |d.n| along
+        // the plane): its object coordinates by Cramer's rule along the normal.
+        const Vec3d lh = reference_solve(h->p + n, -n, kA, kB, kC);
+        EXPECT_NEAR(lh.x, 1.0, 1e-5) << "hit point on the plane";
+        const double rh = std::hypot(lh.y, lh.z);
         const SurfaceInteraction si = scene->interaction(Ray{o, d, 0.0, Inf}, *h);
-        EXPECT_NEAR(si.uv.x, r, 1e-5) << "u = r in object space";
-        double phi = std::atan2(ref.z, ref.y);
+        EXPECT_NEAR(si.uv.x, std::min(1.0, rh), 1e-6) << "u = r in object space";
+        double phi = std::atan2(lh.z, lh.y);
         if (phi < 0) phi += 2 * Pi;
         const double dv = std::abs(si.uv.y - phi / (2 * Pi));
-        if (r > 1e-3) EXPECT_LT(std::min(dv, 1 - dv), 1e-4 / r) << "v = phi / 2 pi in object space";
-        if (r > 1e-3) {
-            expect_vec_near(si.dp_du, (ref.y * kA + ref.z * kB) / r, 1e-4 / r, "dp/du");
+        if (rh > 1e-3) EXPECT_LT(std::min(dv, 1 - dv), 1e-6 / rh) << "v = phi / 2 pi in object space";
+        if (rh > 1e-3) {
+            expect_vec_near(si.dp_du, (lh.y * kA + lh.z * kB) / rh, 1e-6 / rh, "dp/du");
             expect_vec_near(si.frame.s, glm::normalize(si.dp_du - n * glm::dot(n, si.dp_du)), 1e-6,
                             "frame along dp/du");
         }
@@ -209,7 +215,7 @@ TEST(EllipticDisk, RoundDisksStayRoundAndCollapsedOnesAreRefused) {
     EXPECT_NEAR(round->shapes()[0]->surface_area(), 4 * Pi, 1e-12);
     auto ellipse = ktest::geometry_scene(disk_xml());
     EXPECT_EQ(ellipse->shapes()[0]->geometry().type, ShapeGeometry::Type::EllipticDiscs);
-    for (const char* t : {R"(<scale x="1" y="0" z="1"/>)", R"(<matrix value="1 2 0 0  0 0 0 0  0 0 1 0  0 0 0 1"/>)"}) {
+    for (const char* t : {R"(<scale x="1" y="0" z="1"/>)", R"(<scale x="1e-200" y="1" z="1"/>)"}) {
         try {
             ktest::geometry_scene(std::string(R"(<shape type="disk"><transform name="to_world">)") + t +
                                   "</transform></shape>");
