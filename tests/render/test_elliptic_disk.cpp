@@ -4,10 +4,11 @@
 // dense sampling, the area and the positional samples, an elliptic area light with an exact answer under three
 // estimators (emitter sampling alone, BSDF sampling alone, both with MIS), and the round disk left on Embree's disc.
 //
-// Seen to fail on deliberately broken variants: the rim test x^2 + y^2 <= 1 replaced by the round disk's test with
-// the first semi-axis' length (rays through the ellipse's narrow side hit, the distance test fails on 25 % of rays);
-// sample_position mapping through a only (the emitter-sampling render is off by 60 %, its samples off the surface);
-// the area |a| |b| pi instead of |a x b| pi (the emitter-sampling render 15 % too dark).
+// Seen to fail on deliberately broken variants: the rim test x^2 + y^2 <= 1 replaced by a round disk's test with
+// the first semi-axis' length (DistancesNormalsAndUv: rays past the narrow side hit; the light test's BSDF-sampled
+// estimates too bright); sample_position ignoring the shear (the second axis replaced by one of the same length
+// orthogonal to the first: AreaAndPositionSamples finds the samples off the ellipse, the emitter-sampled light
+// estimate is off); the area pi |a| |b| instead of pi |a x b| (the area and pdf checks, the emitter-sampled light).
 #include "render/render_support.h"
 
 #include <kelvin/core/error.h>
