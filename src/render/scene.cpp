@@ -207,9 +207,67 @@ static void ellipse_occluded(const RTCOccludedFunctionNArguments* args) {
     });
 }
 
+// A shape's own user geometry (ShapeGeometry::user): bounds and ray tests by its callbacks, in double.
+static void user_bounds(const RTCBoundsFunctionArguments* args) {
+    const auto* g = static_cast<const ShapeGeometry*>(args->geometryUserPtr);
+    const auto [lo, hi] = g->user->bounds(args->primID);
+    RTCBounds* o = args->bounds_o;
+    const float inf = std::numeric_limits<float>::infinity();
+    o->lower_x = std::nextafter(float(lo.x), -inf);
+    o->lower_y = std::nextafter(float(lo.y), -inf);
+    o->lower_z = std::nextafter(float(lo.z), -inf);
+    o->upper_x = std::nextafter(float(hi.x), inf);
+    o->upper_y = std::nextafter(float(hi.y), inf);
+    o->upper_z = std::nextafter(float(hi.z), inf);
+}
+
+template <typename Hit>
+static void user_trace(const ShapeGeometry& g, unsigned prim, RTCRayN* ray, unsigned N, const int* valid,
+                       Hit&& on_hit) {
+    for (unsigned i = 0; i < N; ++i) {
+        if (valid[i] != -1) continue;
+        const Vec3d o(RTCRayN_org_x(ray, N, i), RTCRayN_org_y(ray, N, i), RTCRayN_org_z(ray, N, i));
+        const Vec3d d(RTCRayN_dir_x(ray, N, i), RTCRayN_dir_y(ray, N, i), RTCRayN_dir_z(ray, N, i));
+        double t;
+        Vec3d ng;
+        if (g.user->intersect(prim, o, d, RTCRayN_tnear(ray, N, i), RTCRayN_tfar(ray, N, i), t, ng)) on_hit(i, t, ng);
+    }
+}
+
+static void user_intersect(const RTCIntersectFunctionNArguments* args) {
+    const auto& g = *static_cast<const ShapeGeometry*>(args->geometryUserPtr);
+    RTCRayN* ray = RTCRayHitN_RayN(args->rayhit, args->N);
+    RTCHitN* hit = RTCRayHitN_HitN(args->rayhit, args->N);
+    const unsigned N = args->N;
+    user_trace(g, args->primID, ray, N, args->valid, [&](unsigned i, double t, const Vec3d& ng) {
+        RTCRayN_tfar(ray, N, i) = float(t);
+        RTCHitN_Ng_x(hit, N, i) = float(ng.x);
+        RTCHitN_Ng_y(hit, N, i) = float(ng.y);
+        RTCHitN_Ng_z(hit, N, i) = float(ng.z);
+        RTCHitN_u(hit, N, i) = 0.f;
+        RTCHitN_v(hit, N, i) = 0.f;
+        RTCHitN_primID(hit, N, i) = args->primID;
+        RTCHitN_geomID(hit, N, i) = args->geomID;
+        RTCHitN_instID(hit, N, i, 0) = args->context->instID[0];
+    });
+}
+
+static void user_occluded(const RTCOccludedFunctionNArguments* args) {
+    const auto& g = *static_cast<const ShapeGeometry*>(args->geometryUserPtr);
+    user_trace(g, args->primID, args->ray, args->N, args->valid, [&](unsigned i, double, const Vec3d&) {
+        RTCRayN_tfar(args->ray, args->N, i) = -std::numeric_limits<float>::infinity();
+    });
+}
+
 // World (or group) bounds of one shape's geometry.
 static std::pair<Vec3d, Vec3d> geometry_bounds(const ShapeGeometry& g) {
     Vec3d lo(Inf), hi(-Inf);
+    if (g.type == ShapeGeometry::Type::User)
+        for (std::size_t k = 0; k < g.user->primitive_count(); ++k) {
+            const auto [a, b] = g.user->bounds(k);
+            lo = glm::min(lo, a);
+            hi = glm::max(hi, b);
+        }
     for (std::size_t k = 0; k < g.positions.size(); ++k) {
         if (g.type == ShapeGeometry::Type::Cylinders) {
             const auto [a, b] = cylinder::bounds(cylinder::of(g, k));
@@ -243,6 +301,13 @@ static void attach(RTCDevice device, RTCScene scene, const ShapeGeometry& g, uns
         rtcSetGeometryBoundsFunction(geom, cylinder_bounds, nullptr);
         rtcSetGeometryIntersectFunction(geom, cylinder_intersect);
         rtcSetGeometryOccludedFunction(geom, cylinder_occluded);
+    } else if (g.type == ShapeGeometry::Type::User) {
+        geom = rtcNewGeometry(device, RTC_GEOMETRY_TYPE_USER);
+        rtcSetGeometryUserPrimitiveCount(geom, unsigned(g.user->primitive_count()));
+        rtcSetGeometryUserData(geom, const_cast<ShapeGeometry*>(&g));
+        rtcSetGeometryBoundsFunction(geom, user_bounds, nullptr);
+        rtcSetGeometryIntersectFunction(geom, user_intersect);
+        rtcSetGeometryOccludedFunction(geom, user_occluded);
     } else if (g.type == ShapeGeometry::Type::EllipticDiscs) {
         geom = rtcNewGeometry(device, RTC_GEOMETRY_TYPE_USER);
         rtcSetGeometryUserPrimitiveCount(geom, unsigned(g.positions.size()));
@@ -298,6 +363,7 @@ static void embree_error(void*, RTCError code, const char* str) {
 static bool keep_building(void*, double) { return !interrupt_requested(); }
 
 static std::size_t primitive_count(const ShapeGeometry& g) {
+    if (g.type == ShapeGeometry::Type::User) return g.user->primitive_count();
     return g.type == ShapeGeometry::Type::Triangles ? g.indices.size() / 3 : g.positions.size();
 }
 
@@ -329,7 +395,8 @@ private:
 // Box of geometry in its own space, refused if beyond the scene extent (extent.h). Empty geometry has no box.
 static std::pair<Vec3d, Vec3d> checked_bounds(const ShapeGeometry& g, const Shape& shape, const SourceLoc& loc) {
     const auto [lo, hi] = geometry_bounds(g);
-    if (!g.positions.empty()) check_scene_extent(lo, hi, shape.to_string(), loc);
+    if (!g.positions.empty() || (g.type == ShapeGeometry::Type::User && lo.x <= hi.x))
+        check_scene_extent(lo, hi, shape.to_string(), loc);
     return {lo, hi};
 }
 
@@ -543,6 +610,10 @@ static void fill_local(SurfaceInteraction& si, const ShapeGeometry& g, const Sur
         si.uv = {(phi < 0 ? phi + 2 * Pi : phi) / (2 * Pi), double(span.x) + std::clamp(hit.uv.x, 0.0, 1.0) * span.y};
         si.dp_du = 2 * Pi * r * glm::cross(t, radial);
         si.dp_dv = span.y > 0 ? dc / double(span.y) : t;
+    } else if (g.type == ShapeGeometry::Type::User) {
+        Vec3d n = g.user->shading_normal(si.prim, si.p, g.flip_normals ? -si.ng : si.ng);
+        if (g.flip_normals) n = -n;
+        si.ns = glm::dot(n, si.ng) < 0 ? -n : n;  // on the geometric normal's side
     } else if (g.type == ShapeGeometry::Type::EllipticDiscs) {
         // Mitsuba's disk parameterisation in object space: u = r, v = phi / (2 pi); dp/du = cos phi a + sin phi b,
         // dp/dv = 2 pi r (-sin phi a + cos phi b); the shading frame's tangent is dp/du.
@@ -769,6 +840,8 @@ std::optional<SurfaceHit> Scene::intersect(const Ray& ray) const {
         double r;
         curve_point(g, hit.prim, std::clamp(double(rh.hit.u), 0.0, 1.0), c, dc, r);
         if (glm::dot(n, p - c) < 0) n = -n;
+    } else if (g.type == ShapeGeometry::Type::User) {
+        n = Vec3d(rh.hit.Ng_x, rh.hit.Ng_y, rh.hit.Ng_z);
     } else {
         n = Vec3d(g.normals[hit.prim]);
     }

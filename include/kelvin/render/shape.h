@@ -15,9 +15,26 @@ namespace kelvin {
 
 class Medium;
 
+/// Geometry a shape intersects itself (ShapeGeometry::Type::User): the scene hands it to Embree as user geometry
+/// with one primitive per `primitive_count()`, and calls back into it for bounds, ray tests and the shading at a hit.
+/// All in the geometry's own space (the world, or an instanced group's space). Not in closest-point queries.
+class UserGeometry {
+public:
+    virtual ~UserGeometry() = default;
+    virtual std::size_t primitive_count() const = 0;
+    /// Axis-aligned bounds of primitive `prim` (conservative).
+    virtual std::pair<Vec3d, Vec3d> bounds(std::size_t prim) const = 0;
+    /// The nearest t in (tmin, tmax] where o + t d meets primitive `prim`, with the geometric normal there (any
+    /// length, facing the surface's outside); false for none. d need not be unit length.
+    virtual bool intersect(std::size_t prim, const Vec3d& o, const Vec3d& d, double tmin, double tmax, double& t,
+                           Vec3d& ng) const = 0;
+    /// The unit shading normal at the hit point p of primitive `prim` whose unit geometric normal is ng (default ng).
+    virtual Vec3d shading_normal(std::size_t prim, const Vec3d& p, const Vec3d& ng) const { return ng; }
+};
+
 /// World-space geometry in Embree-ready layout (float positions, 32-bit indices).
 struct ShapeGeometry {
-    enum class Type { Triangles, Spheres, Discs, Cylinders, LinearCurves, BSplineCurves, EllipticDiscs };
+    enum class Type { Triangles, Spheres, Discs, Cylinders, LinearCurves, BSplineCurves, EllipticDiscs, User };
     Type type = Type::Triangles;
     std::vector<Vec3f> positions;   ///< triangle vertices, sphere / disc centres, cylinder base centres, or
                                     ///< curve control points
@@ -39,6 +56,7 @@ struct ShapeGeometry {
                                        ///< v (along the curve) at its start and the v it spans
     std::vector<uint8_t> curve_flags;  ///< linear curves, per segment: bit 0 set when a segment of the same curve
                                        ///< comes before it, bit 1 when one follows (joints are not capped inside)
+    std::shared_ptr<const UserGeometry> user;  ///< user geometry: the shape's own intersection code
     bool flip_normals = false;
 };
 
