@@ -7,8 +7,9 @@
 //
 // Seen to fail on deliberately broken variants: the values placed at voxel centres ((i + 1/2) / n instead of
 // i / (n - 1): distances off by ~h/2, the h^2 bound fails at every resolution); the cubic's derivative roots not used
-// to split the segment (rays that enter and leave a voxel's inside within one voxel are missed: the shell test
-// fails); the gradient not scaled by the resolution (normals wrong under a non-cubic grid: the 17x9x33 case fails).
+// to split the segment (a ray that enters and leaves the inside within one voxel, both ends outside, misses: the
+// pocket case fails); the gradient not scaled by the resolution (normals wrong under a non-cubic grid: the 17x9x33 case
+// fails).
 #include "render/render_support.h"
 
 #include <kelvin/core/error.h>
@@ -183,6 +184,26 @@ TEST(SdfGrid, RaysFromInsideAndThinShells) {
     ASSERT_TRUE(h.has_value());
     EXPECT_NEAR(h->p.x, 0.25 + 0.25 * 0.24 / 0.25, 1e-6);
     EXPECT_NEAR(h->ng.x, -1, 1e-6);
+    // A pocket inside one voxel, both ends of the ray outside: a 2x2x2 grid with +1 on the corners (0,0,0) and
+    // (1,1,1) and -1 on the other six. Along the main diagonal the interpolant is the Bernstein cubic
+    // (1-s)^3 - 3 s (1-s)^2 - 3 s^2 (1-s) + s^3, positive at both ends, -1/2 in the middle; its first root by
+    // bisection.
+    const std::string pocket =
+        dir.write("pocket.vol", vol_bytes({2, 2, 2}, 1,
+                                          [](const Vec3d& p) {
+                                              const int ones = int(p.x > 0.5) + int(p.y > 0.5) + int(p.z > 0.5);
+                                              return ones == 0 || ones == 3 ? 1.0 : -1.0;
+                                          }))
+            .string();
+    auto bern = [](double s) {
+        return std::pow(1 - s, 3) - 3 * s * (1 - s) * (1 - s) - 3 * s * s * (1 - s) + s * s * s;
+    };
+    double lo = 0, hi = 0.5;
+    for (int it = 0; it < 100; ++it) (bern(0.5 * (lo + hi)) > 0 ? lo : hi) = 0.5 * (lo + hi);
+    auto pocket_scene = ktest::geometry_scene(sdf_shape(pocket));
+    const auto hp = pocket_scene->intersect(Ray{{-0.5, -0.5, -0.5}, glm::normalize(Vec3d(1, 1, 1)), 0.0, Inf});
+    ASSERT_TRUE(hp.has_value()) << "the pocket is missed";
+    EXPECT_NEAR(hp->t, (0.5 + lo) * std::sqrt(3.0), 1e-6);
     // flip_normals turns the normal inwards.
     auto flipped = ktest::geometry_scene(sdf_shape(file, R"(<boolean name="flip_normals" value="true"/>)"));
     const auto f = flipped->intersect(Ray{kC + Vec3d(2, 0, 0), {-1, 0, 0}, 0.0, Inf});
