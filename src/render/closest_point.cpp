@@ -11,6 +11,7 @@
 #include <embree3/rtcore.h>
 
 #include "cylinder.h"
+#include "ellipse.h"
 
 #include <algorithm>
 #include <cmath>
@@ -454,7 +455,7 @@ std::unique_ptr<TriangleBvh> build_triangle_bvh(RTCDevice device, const std::vec
 }  // namespace
 
 // ---------------------------------------------------------------------------------------------------------
-// 3D: triangles, spheres, discs and cylinders
+// 3D: triangles, spheres, discs (round and elliptic) and cylinders
 
 namespace {
 struct RoundSet {  // spheres or discs: user geometry bounded by the ball of each centre and radius
@@ -539,6 +540,10 @@ bool point_query_3d(RTCPointQueryFunctionArguments* args) {
     } else if (g.type == ShapeGeometry::Type::Cylinders) {
         point = cylinder::closest_point(cylinder::of(g, prim), q->p, normal);
         if (g.flip_normals) normal = -normal;
+    } else if (g.type == ShapeGeometry::Type::EllipticDiscs) {
+        const ellipse::View e = ellipse::of(g, prim);
+        point = ellipse::closest_point(e, q->p);
+        normal = g.flip_normals ? -e.n : e.n;
     } else {  // disc: project onto its plane, then clamp to the rim
         const Vec3d c(g.positions[prim]);
         const double r = g.radii[prim];
@@ -593,14 +598,19 @@ ClosestPointQuery::ClosestPointQuery(std::vector<ShapeGeometry> geometry) : m_im
             }
             if (keep.size() != g.indices.size() / 3) m.prim_map[s] = keep;
         } else {
-            const bool oriented = g.type == ShapeGeometry::Type::Discs || g.type == ShapeGeometry::Type::Cylinders;
+            const bool ellipses = g.type == ShapeGeometry::Type::EllipticDiscs;
+            const bool oriented =
+                g.type == ShapeGeometry::Type::Discs || g.type == ShapeGeometry::Type::Cylinders || ellipses;
             const bool cylinders = g.type == ShapeGeometry::Type::Cylinders;
             for (std::size_t i = 0; i < std::min(g.positions.size(), g.radii.size()); ++i)
                 if (valid(Vec3d(g.positions[i])) && valid(g.radii[i]) && g.radii[i] >= 0 &&
                     (!oriented ||
                      (i < g.normals.size() && valid(Vec3d(g.normals[i])) && glm::length(Vec3d(g.normals[i])) > 0)) &&
                     (!cylinders || (i < g.tangents.size() && i < g.lengths.size() && valid(g.lengths[i]) &&
-                                    g.lengths[i] >= 0 && valid(Vec3d(g.tangents[i])))))
+                                    g.lengths[i] >= 0 && valid(Vec3d(g.tangents[i])))) &&
+                    (!ellipses || (i < g.tangents.size() && i < g.bitangents.size() && valid(Vec3d(g.tangents[i])) &&
+                                   valid(Vec3d(g.bitangents[i])) &&
+                                   glm::length(glm::cross(Vec3d(g.tangents[i]), Vec3d(g.bitangents[i]))) > 0)))
                     keep.push_back(uint32_t(i));
             if (keep.size() != g.positions.size()) m.prim_map[s] = keep;
         }

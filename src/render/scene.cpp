@@ -11,6 +11,7 @@
 #include <embree3/rtcore.h>
 
 #include "cylinder.h"
+#include "ellipse.h"
 
 #include <algorithm>
 #include <array>
@@ -64,7 +65,8 @@ struct Scene::Accel {
 // vertices welded by position) is shared by an even, non-zero number of triangles.
 static void check_closed(const Shape& shape, const ShapeGeometry& g) {
     std::size_t open = 0;
-    if (g.type == ShapeGeometry::Type::Discs || g.type == ShapeGeometry::Type::Cylinders) {
+    if (g.type == ShapeGeometry::Type::Discs || g.type == ShapeGeometry::Type::EllipticDiscs ||
+        g.type == ShapeGeometry::Type::Cylinders) {
         open = g.positions.size();
     } else if (g.type == ShapeGeometry::Type::Triangles) {
         std::map<std::array<float, 3>, uint32_t> weld;
@@ -84,14 +86,16 @@ static void check_closed(const Shape& shape, const ShapeGeometry& g) {
         for (const auto& [edge, count] : edges) open += count % 2;
     }
     if (open)
-        throw InputError(shape.interior_location(),
-                         fmt::format("{}: an interior medium needs a closed surface, and this one is open ({}); use a "
-                                     "closed shape, or give the medium as 'exterior' of the other side",
-                                     shape.to_string(),
-                                     g.type == ShapeGeometry::Type::Discs ? std::string("a disk")
-                                     : g.type == ShapeGeometry::Type::Cylinders
-                                         ? std::string("a cylinder has no caps")
-                                         : fmt::format("{} boundary edge{}", open, open == 1 ? "" : "s")));
+        throw InputError(
+            shape.interior_location(),
+            fmt::format("{}: an interior medium needs a closed surface, and this one is open ({}); use a "
+                        "closed shape, or give the medium as 'exterior' of the other side",
+                        shape.to_string(),
+                        g.type == ShapeGeometry::Type::Discs || g.type == ShapeGeometry::Type::EllipticDiscs
+                            ? std::string("a disk")
+                        : g.type == ShapeGeometry::Type::Cylinders
+                            ? std::string("a cylinder has no caps")
+                            : fmt::format("{} boundary edge{}", open, open == 1 ? "" : "s")));
 }
 
 // Cylinders are Embree user geometry: bounds and ray tests in double (cylinder.h). Kelvin traces single rays, but
@@ -151,9 +155,119 @@ static void cylinder_occluded(const RTCOccludedFunctionNArguments* args) {
                    });
 }
 
+// Elliptic discs are Embree user geometry too (ellipse.h), bounded by the ball of their largest semi-axis (radii).
+static void ellipse_bounds(const RTCBoundsFunctionArguments* args) {
+    const auto* g = static_cast<const ShapeGeometry*>(args->geometryUserPtr);
+    const Vec3d c(g->positions[args->primID]);
+    const double r = g->radii[args->primID];
+    RTCBounds* o = args->bounds_o;
+    const float inf = std::numeric_limits<float>::infinity();
+    o->lower_x = std::nextafter(float(c.x - r), -inf);
+    o->lower_y = std::nextafter(float(c.y - r), -inf);
+    o->lower_z = std::nextafter(float(c.z - r), -inf);
+    o->upper_x = std::nextafter(float(c.x + r), inf);
+    o->upper_y = std::nextafter(float(c.y + r), inf);
+    o->upper_z = std::nextafter(float(c.z + r), inf);
+}
+
+template <typename Hit>
+static void ellipse_trace(const ShapeGeometry& g, unsigned prim, RTCRayN* ray, unsigned N, const int* valid,
+                          Hit&& on_hit) {
+    const ellipse::View e = ellipse::of(g, prim);
+    for (unsigned i = 0; i < N; ++i) {
+        if (valid[i] != -1) continue;
+        const Vec3d o(RTCRayN_org_x(ray, N, i), RTCRayN_org_y(ray, N, i), RTCRayN_org_z(ray, N, i));
+        const Vec3d d(RTCRayN_dir_x(ray, N, i), RTCRayN_dir_y(ray, N, i), RTCRayN_dir_z(ray, N, i));
+        if (auto t = ellipse::intersect(e, o, d, RTCRayN_tnear(ray, N, i), RTCRayN_tfar(ray, N, i))) on_hit(i, *t, e);
+    }
+}
+
+static void ellipse_intersect(const RTCIntersectFunctionNArguments* args) {
+    const auto& g = *static_cast<const ShapeGeometry*>(args->geometryUserPtr);
+    RTCRayN* ray = RTCRayHitN_RayN(args->rayhit, args->N);
+    RTCHitN* hit = RTCRayHitN_HitN(args->rayhit, args->N);
+    const unsigned N = args->N;
+    ellipse_trace(g, args->primID, ray, N, args->valid, [&](unsigned i, double t, const ellipse::View& e) {
+        RTCRayN_tfar(ray, N, i) = float(t);
+        RTCHitN_Ng_x(hit, N, i) = float(e.n.x);
+        RTCHitN_Ng_y(hit, N, i) = float(e.n.y);
+        RTCHitN_Ng_z(hit, N, i) = float(e.n.z);
+        RTCHitN_u(hit, N, i) = 0.f;
+        RTCHitN_v(hit, N, i) = 0.f;
+        RTCHitN_primID(hit, N, i) = args->primID;
+        RTCHitN_geomID(hit, N, i) = args->geomID;
+        RTCHitN_instID(hit, N, i, 0) = args->context->instID[0];
+    });
+}
+
+static void ellipse_occluded(const RTCOccludedFunctionNArguments* args) {
+    const auto& g = *static_cast<const ShapeGeometry*>(args->geometryUserPtr);
+    ellipse_trace(g, args->primID, args->ray, args->N, args->valid, [&](unsigned i, double, const ellipse::View&) {
+        RTCRayN_tfar(args->ray, args->N, i) = -std::numeric_limits<float>::infinity();
+    });
+}
+
+// A shape's own user geometry (ShapeGeometry::user): bounds and ray tests by its callbacks, in double.
+static void user_bounds(const RTCBoundsFunctionArguments* args) {
+    const auto* g = static_cast<const ShapeGeometry*>(args->geometryUserPtr);
+    const auto [lo, hi] = g->user->bounds(args->primID);
+    RTCBounds* o = args->bounds_o;
+    const float inf = std::numeric_limits<float>::infinity();
+    o->lower_x = std::nextafter(float(lo.x), -inf);
+    o->lower_y = std::nextafter(float(lo.y), -inf);
+    o->lower_z = std::nextafter(float(lo.z), -inf);
+    o->upper_x = std::nextafter(float(hi.x), inf);
+    o->upper_y = std::nextafter(float(hi.y), inf);
+    o->upper_z = std::nextafter(float(hi.z), inf);
+}
+
+template <typename Hit>
+static void user_trace(const ShapeGeometry& g, unsigned prim, RTCRayN* ray, unsigned N, const int* valid,
+                       Hit&& on_hit) {
+    for (unsigned i = 0; i < N; ++i) {
+        if (valid[i] != -1) continue;
+        const Vec3d o(RTCRayN_org_x(ray, N, i), RTCRayN_org_y(ray, N, i), RTCRayN_org_z(ray, N, i));
+        const Vec3d d(RTCRayN_dir_x(ray, N, i), RTCRayN_dir_y(ray, N, i), RTCRayN_dir_z(ray, N, i));
+        double t;
+        Vec3d ng;
+        if (g.user->intersect(prim, o, d, RTCRayN_tnear(ray, N, i), RTCRayN_tfar(ray, N, i), t, ng)) on_hit(i, t, ng);
+    }
+}
+
+static void user_intersect(const RTCIntersectFunctionNArguments* args) {
+    const auto& g = *static_cast<const ShapeGeometry*>(args->geometryUserPtr);
+    RTCRayN* ray = RTCRayHitN_RayN(args->rayhit, args->N);
+    RTCHitN* hit = RTCRayHitN_HitN(args->rayhit, args->N);
+    const unsigned N = args->N;
+    user_trace(g, args->primID, ray, N, args->valid, [&](unsigned i, double t, const Vec3d& ng) {
+        RTCRayN_tfar(ray, N, i) = float(t);
+        RTCHitN_Ng_x(hit, N, i) = float(ng.x);
+        RTCHitN_Ng_y(hit, N, i) = float(ng.y);
+        RTCHitN_Ng_z(hit, N, i) = float(ng.z);
+        RTCHitN_u(hit, N, i) = 0.f;
+        RTCHitN_v(hit, N, i) = 0.f;
+        RTCHitN_primID(hit, N, i) = args->primID;
+        RTCHitN_geomID(hit, N, i) = args->geomID;
+        RTCHitN_instID(hit, N, i, 0) = args->context->instID[0];
+    });
+}
+
+static void user_occluded(const RTCOccludedFunctionNArguments* args) {
+    const auto& g = *static_cast<const ShapeGeometry*>(args->geometryUserPtr);
+    user_trace(g, args->primID, args->ray, args->N, args->valid, [&](unsigned i, double, const Vec3d&) {
+        RTCRayN_tfar(args->ray, args->N, i) = -std::numeric_limits<float>::infinity();
+    });
+}
+
 // World (or group) bounds of one shape's geometry.
 static std::pair<Vec3d, Vec3d> geometry_bounds(const ShapeGeometry& g) {
     Vec3d lo(Inf), hi(-Inf);
+    if (g.type == ShapeGeometry::Type::User)
+        for (std::size_t k = 0; k < g.user->primitive_count(); ++k) {
+            const auto [a, b] = g.user->bounds(k);
+            lo = glm::min(lo, a);
+            hi = glm::max(hi, b);
+        }
     for (std::size_t k = 0; k < g.positions.size(); ++k) {
         if (g.type == ShapeGeometry::Type::Cylinders) {
             const auto [a, b] = cylinder::bounds(cylinder::of(g, k));
@@ -187,6 +301,20 @@ static void attach(RTCDevice device, RTCScene scene, const ShapeGeometry& g, uns
         rtcSetGeometryBoundsFunction(geom, cylinder_bounds, nullptr);
         rtcSetGeometryIntersectFunction(geom, cylinder_intersect);
         rtcSetGeometryOccludedFunction(geom, cylinder_occluded);
+    } else if (g.type == ShapeGeometry::Type::User) {
+        geom = rtcNewGeometry(device, RTC_GEOMETRY_TYPE_USER);
+        rtcSetGeometryUserPrimitiveCount(geom, unsigned(g.user->primitive_count()));
+        rtcSetGeometryUserData(geom, const_cast<ShapeGeometry*>(&g));
+        rtcSetGeometryBoundsFunction(geom, user_bounds, nullptr);
+        rtcSetGeometryIntersectFunction(geom, user_intersect);
+        rtcSetGeometryOccludedFunction(geom, user_occluded);
+    } else if (g.type == ShapeGeometry::Type::EllipticDiscs) {
+        geom = rtcNewGeometry(device, RTC_GEOMETRY_TYPE_USER);
+        rtcSetGeometryUserPrimitiveCount(geom, unsigned(g.positions.size()));
+        rtcSetGeometryUserData(geom, const_cast<ShapeGeometry*>(&g));
+        rtcSetGeometryBoundsFunction(geom, ellipse_bounds, nullptr);
+        rtcSetGeometryIntersectFunction(geom, ellipse_intersect);
+        rtcSetGeometryOccludedFunction(geom, ellipse_occluded);
     } else if (g.type == ShapeGeometry::Type::LinearCurves || g.type == ShapeGeometry::Type::BSplineCurves) {
         // Embree's round curves: control points with their radii (x, y, z, r), one index per segment.
         const bool linear = g.type == ShapeGeometry::Type::LinearCurves;
@@ -235,6 +363,7 @@ static void embree_error(void*, RTCError code, const char* str) {
 static bool keep_building(void*, double) { return !interrupt_requested(); }
 
 static std::size_t primitive_count(const ShapeGeometry& g) {
+    if (g.type == ShapeGeometry::Type::User) return g.user->primitive_count();
     return g.type == ShapeGeometry::Type::Triangles ? g.indices.size() / 3 : g.positions.size();
 }
 
@@ -266,7 +395,8 @@ private:
 // Box of geometry in its own space, refused if beyond the scene extent (extent.h). Empty geometry has no box.
 static std::pair<Vec3d, Vec3d> checked_bounds(const ShapeGeometry& g, const Shape& shape, const SourceLoc& loc) {
     const auto [lo, hi] = geometry_bounds(g);
-    if (!g.positions.empty()) check_scene_extent(lo, hi, shape.to_string(), loc);
+    if (!g.positions.empty() || (g.type == ShapeGeometry::Type::User && lo.x <= hi.x))
+        check_scene_extent(lo, hi, shape.to_string(), loc);
     return {lo, hi};
 }
 
@@ -480,6 +610,20 @@ static void fill_local(SurfaceInteraction& si, const ShapeGeometry& g, const Sur
         si.uv = {(phi < 0 ? phi + 2 * Pi : phi) / (2 * Pi), double(span.x) + std::clamp(hit.uv.x, 0.0, 1.0) * span.y};
         si.dp_du = 2 * Pi * r * glm::cross(t, radial);
         si.dp_dv = span.y > 0 ? dc / double(span.y) : t;
+    } else if (g.type == ShapeGeometry::Type::User) {
+        Vec3d n = g.user->shading_normal(si.prim, si.p, g.flip_normals ? -si.ng : si.ng);
+        if (g.flip_normals) n = -n;
+        si.ns = glm::dot(n, si.ng) < 0 ? -n : n;  // on the geometric normal's side
+    } else if (g.type == ShapeGeometry::Type::EllipticDiscs) {
+        // Mitsuba's disk parameterisation in object space: u = r, v = phi / (2 pi); dp/du = cos phi a + sin phi b,
+        // dp/dv = 2 pi r (-sin phi a + cos phi b); the shading frame's tangent is dp/du.
+        const ellipse::View e = ellipse::of(g, si.prim);
+        const Vec2d l = ellipse::local(e, si.p);
+        const double r = std::hypot(l.x, l.y), phi = std::atan2(l.y, l.x);
+        const double c = r > 0 ? l.x / r : 1.0, s = r > 0 ? l.y / r : 0.0;
+        si.uv = {std::min(1.0, r), (phi < 0 ? phi + 2 * Pi : phi) / (2 * Pi)};
+        si.dp_du = c * e.a + s * e.b;
+        si.dp_dv = 2 * Pi * r * (c * e.b - s * e.a);
     } else {  // disc: polar coordinates (radius fraction, angle from the tangent)
         const Vec3d d = si.p - Vec3d(g.positions[si.prim]), t(g.tangents[si.prim]), n(g.normals[si.prim]);
         const double x = glm::dot(d, t), y = glm::dot(d, glm::cross(n, t));
@@ -520,7 +664,14 @@ static void fill_local(SurfaceInteraction& si, const ShapeGeometry& g, const Sur
             }
         }
     }
-    if (g.type == ShapeGeometry::Type::Cylinders) {
+    if (g.type == ShapeGeometry::Type::EllipticDiscs) {
+        Vec3d s_axis = si.dp_du - si.ns * glm::dot(si.ns, si.dp_du);
+        const double l = glm::length(s_axis);
+        if (l > 0 && std::isfinite(l)) {
+            si.frame.s = s_axis / l;
+            si.frame.t = glm::cross(si.frame.n, si.frame.s);
+        }
+    } else if (g.type == ShapeGeometry::Type::Cylinders) {
         const double l = glm::length(si.dp_du);
         if (l > 0 && std::isfinite(l)) {
             si.frame.s = si.dp_du / l;
@@ -689,6 +840,8 @@ std::optional<SurfaceHit> Scene::intersect(const Ray& ray) const {
         double r;
         curve_point(g, hit.prim, std::clamp(double(rh.hit.u), 0.0, 1.0), c, dc, r);
         if (glm::dot(n, p - c) < 0) n = -n;
+    } else if (g.type == ShapeGeometry::Type::User) {
+        n = Vec3d(rh.hit.Ng_x, rh.hit.Ng_y, rh.hit.Ng_z);
     } else {
         n = Vec3d(g.normals[hit.prim]);
     }

@@ -121,15 +121,18 @@ TEST(PluginParams, SphereRejectsShearBetweenYAndZ) {
     EXPECT_CONTAINS(e.what(), "'to_world'");
 }
 
-TEST(PluginParams, DiskRejectsAnEllipse) {
+TEST(PluginParams, DiskRefusesACollapsedTransform) {
     InputError e = load_error(scene_with(std::string(kSensor) + R"(
         <shape type="disk">
-            <transform name="to_world"><scale x="1" y="2" z="1"/></transform>
+            <transform name="to_world"><scale x="1" y="0" z="1"/></transform>
         </shape>)"));
     EXPECT_CONTAINS(e.what(), "'to_world'");
-    EXPECT_CONTAINS(e.what(), "uniform scale in its plane");
+    EXPECT_CONTAINS(e.what(), "collapses the disk");
     EXPECT_EQ(e.location().line, 4);
-    // A scale along the normal, a mirror in the plane, rotations and translations are fine.
+    // A non-uniform scale or a shear in the plane (an ellipse), a scale along the normal, a mirror, rotations and
+    // translations are fine.
     EXPECT_NO_THROW(instantiate(parse_scene_string(scene_with(std::string(kSensor) + R"(
-        <shape type="disk"><transform name="to_world"><scale x="-2" y="2" z="7"/><rotate z="1" angle="33"/><translate x="2"/></transform></shape>)"))));
+        <shape type="disk"><transform name="to_world"><scale x="-2" y="2" z="7"/><rotate z="1" angle="33"/><translate x="2"/></transform></shape>
+        <shape type="disk"><transform name="to_world"><scale x="1" y="2" z="1"/></transform></shape>
+        <shape type="disk"><transform name="to_world"><matrix value="1 0.5 0 0  0 1 0 0  0 0 1 0  0 0 0 1"/></transform></shape>)"))));
 }

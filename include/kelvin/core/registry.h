@@ -20,8 +20,9 @@
 /// and cancellation token, FluidSolver's pointwise queries; 4: Emitter::pdf_direct(DirectQuery); 5:
 /// Bsdf::Model::two_sided; 6: Bsdf::Model's dielectric and plastic fields, Emitter::model; 7: Bsdf::back_model,
 /// Bsdf::Model::texture, Texture::local; 8: Bsdf::Model::diffuse_texture; 9: Film::reconstruction; 10: Job::delegate,
-/// Simulation's driver interface, the boundary interface in kelvin::wos, curve shapes).
-#define KELVIN_PLUGIN_ABI 10
+/// Simulation's driver interface, the boundary interface in kelvin::wos, curve shapes; 11: ShapeGeometry's elliptic
+/// discs and user geometry).
+#define KELVIN_PLUGIN_ABI 11
 
 namespace kelvin {
 

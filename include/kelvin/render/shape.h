@@ -15,25 +15,48 @@ namespace kelvin {
 
 class Medium;
 
+/// Geometry a shape intersects itself (ShapeGeometry::Type::User): the scene hands it to Embree as user geometry
+/// with one primitive per `primitive_count()`, and calls back into it for bounds, ray tests and the shading at a hit.
+/// All in the geometry's own space (the world, or an instanced group's space). Not in closest-point queries.
+class UserGeometry {
+public:
+    virtual ~UserGeometry() = default;
+    virtual std::size_t primitive_count() const = 0;
+    /// Axis-aligned bounds of primitive `prim` (conservative).
+    virtual std::pair<Vec3d, Vec3d> bounds(std::size_t prim) const = 0;
+    /// The nearest t in (tmin, tmax] where o + t d meets primitive `prim`, with the geometric normal there (any
+    /// length, facing the surface's outside); false for none. d need not be unit length.
+    virtual bool intersect(std::size_t prim, const Vec3d& o, const Vec3d& d, double tmin, double tmax, double& t,
+                           Vec3d& ng) const = 0;
+    /// The unit shading normal at the hit point p of primitive `prim` whose unit geometric normal is ng (default ng).
+    virtual Vec3d shading_normal(std::size_t prim, const Vec3d& p, const Vec3d& ng) const { return ng; }
+};
+
 /// World-space geometry in Embree-ready layout (float positions, 32-bit indices).
 struct ShapeGeometry {
-    enum class Type { Triangles, Spheres, Discs, Cylinders, LinearCurves, BSplineCurves };
+    enum class Type { Triangles, Spheres, Discs, Cylinders, LinearCurves, BSplineCurves, EllipticDiscs, User };
     Type type = Type::Triangles;
-    std::vector<Vec3f> positions;      ///< triangle vertices, sphere / disc centres, cylinder base centres, or
-                                       ///< curve control points
-    std::vector<uint32_t> indices;     ///< 3 per triangle (counter-clockwise = front, normal by right hand); curves:
-                                       ///< one per segment, its first control point (2 points per linear segment,
-                                       ///< 4 per uniform cubic B-spline segment)
-    std::vector<float> radii;          ///< spheres, discs and cylinders: one per centre; curves: one per control point
-    std::vector<Vec3f> normals;        ///< triangles: optional per-vertex shading normals (same count as positions);
-                                       ///< discs: the unit normal of each disc (required); cylinders: the unit axis
+    std::vector<Vec3f> positions;   ///< triangle vertices, sphere / disc centres, cylinder base centres, or
+                                    ///< curve control points
+    std::vector<uint32_t> indices;  ///< 3 per triangle (counter-clockwise = front, normal by right hand); curves:
+                                    ///< one per segment, its first control point (2 points per linear segment,
+                                    ///< 4 per uniform cubic B-spline segment)
+    std::vector<float> radii;       ///< spheres, discs and cylinders: one per centre; curves: one per control point;
+                                    ///< elliptic discs: the largest distance of the rim from the centre
+    std::vector<Vec3f>
+        normals;  ///< triangles: optional per-vertex shading normals (same count as positions);
+                  ///< discs and elliptic discs: the unit normal of each (required); cylinders: the unit axis
     std::vector<Vec3f> tangents;       ///< discs and cylinders: a unit vector perpendicular to the normal / axis, where
-                                       ///< the polar angle of uv is 0
+                                       ///< the polar angle of uv is 0; elliptic discs: the image of the object's x
+                                       ///< axis (the semi-axis vector where that angle is 0, not unit length)
+    std::vector<Vec3f> bitangents;     ///< elliptic discs: the image of the object's y axis (the disc is
+                                       ///< {centre + x tangent + y bitangent : x^2 + y^2 <= 1})
     std::vector<float> lengths;        ///< cylinders: the length along the axis (open ends: no caps)
     std::vector<Vec2f> uvs;            ///< triangles: optional per-vertex texture coordinates; curves: per segment,
                                        ///< v (along the curve) at its start and the v it spans
     std::vector<uint8_t> curve_flags;  ///< linear curves, per segment: bit 0 set when a segment of the same curve
                                        ///< comes before it, bit 1 when one follows (joints are not capped inside)
+    std::shared_ptr<const UserGeometry> user;  ///< user geometry: the shape's own intersection code
     bool flip_normals = false;
 };
 

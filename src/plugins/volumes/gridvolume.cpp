@@ -17,6 +17,7 @@
 #include <kelvin/core/registry.h>
 #include <kelvin/core/vdb.h>
 #include <kelvin/render/medium.h>
+#include <kelvin/render/volfile.h>
 
 #include <algorithm>
 #include <cmath>
@@ -94,38 +95,12 @@ private:
     }
 
     void read_vol(const Properties& props, const std::filesystem::path& file, Vec3d& lo, Vec3d& hi) {
-        std::ifstream in(file, std::ios::binary);
-        char magic[4] = {};
-        in.read(magic, 4);
-        if (!in || std::memcmp(magic, "VOL", 3) != 0 || magic[3] != 3)
-            props.error("filename", fmt::format("'{}' is not a version-3 .vol file", file.string()));
-        int32_t header[5];
-        float bbox[6];
-        in.read(reinterpret_cast<char*>(header), sizeof header);
-        in.read(reinterpret_cast<char*>(bbox), sizeof bbox);
-        if (!in) props.error("filename", fmt::format("'{}': truncated .vol header", file.string()));
-        if (header[0] != 1)
-            props.error("filename", fmt::format("'{}': only float32 .vol data (encoding 1) is read", file.string()));
-        m_res = {header[1], header[2], header[3]};
-        m_channels = header[4];
-        if (m_res.x <= 0 || m_res.y <= 0 || m_res.z <= 0 || (m_channels != 1 && m_channels != 3) ||
-            double(m_res.x) * m_res.y * m_res.z > 1e9)
-            props.error("filename", fmt::format("'{}': bad resolution {}x{}x{} or channel count {} (1 or 3)",
-                                                file.string(), m_res.x, m_res.y, m_res.z, m_channels));
-        lo = {bbox[0], bbox[1], bbox[2]};
-        hi = {bbox[3], bbox[4], bbox[5]};
-        // The header's size is checked against the bytes the file holds before anything is allocated.
-        const uint64_t values = uint64_t(m_res.x) * uint64_t(m_res.y) * uint64_t(m_res.z) * uint64_t(m_channels);
-        std::error_code ec;
-        const uint64_t file_bytes = uint64_t(std::filesystem::file_size(file, ec));
-        const uint64_t header_bytes = 4 + sizeof header + sizeof bbox;
-        if (ec || file_bytes < header_bytes || (file_bytes - header_bytes) / sizeof(float) < values)
-            props.error("filename", fmt::format("'{}': truncated .vol data (the header announces {}x{}x{}x{} values, "
-                                                "the file holds {} bytes)",
-                                                file.string(), m_res.x, m_res.y, m_res.z, m_channels, file_bytes));
-        m_data.resize(std::size_t(values));
-        in.read(reinterpret_cast<char*>(m_data.data()), std::streamsize(m_data.size() * sizeof(float)));
-        if (!in) props.error("filename", fmt::format("'{}': truncated .vol data", file.string()));
+        VolFile v = read_vol_file(props, "filename", file);
+        m_res = v.res;
+        m_channels = v.channels;
+        lo = v.lo;
+        hi = v.hi;
+        m_data = std::move(v.data);
         check_finite(props, file);
     }
 
