@@ -20,7 +20,9 @@
 #   tools/convergence_reports.sh mmlt-door      # the multiplexed family (Fig. 4.11): MMLT / K, MMLT / X, DR
 #   tools/convergence_reports.sh mmlt-aquarium  #   multiplexed-then-subpath, technique mmlt, MLT_MAX_DEPTH (8)
 #   tools/convergence_reports.sh mlt-torus      # cheap then expensive (Fig. 4.12): DR Gaussian-then-H2MC, H2MC and
-#   tools/convergence_reports.sh mlt-chess      #   PSSMLT/G (sigma 0.01, DR's first stage), path technique, MLT_MAX_DEPTH (8)
+#   tools/convergence_reports.sh mlt-chess      #   PSSMLT/G (sigma 0.01, DR's first stage), Langevin alone and DR
+#                                               #   Gaussian-then-Langevin (MLT_LANGEVIN=0: not these two), path
+#                                               #   technique, MLT_MAX_DEPTH (8)
 #   tools/convergence_reports.sh all            # the nine fluid reports
 #
 # Environment: KELVIN (default build/bin/kelvin), OUT (default /tmp/kelvin-convergence; studies there are
@@ -72,7 +74,8 @@ mlt_study() {  # mlt_study GEOMETRY [mmlt|h2mc]: the thesis' equal-time protocol
     # Without a family: the PSSMLT family (Figs. 4.9, 4.10). mmlt: the multiplexed family (Fig. 4.11): MMLT / K,
     # MMLT / X and DR multiplexed-then-subpath on technique=mmlt, max_depth MLT_MAX_DEPTH (8), the reference too.
     # h2mc: cheap then expensive (Fig. 4.12): DR Gaussian-then-H2MC (green, Gaussian 0.01 first, then the mixture of
-    # H2MC and a Gaussian of 0.0025), H2MC (pssmlt) and PSSMLT/G with DR's first stage (sigma 0.01), on the path
+    # H2MC and a Gaussian of 0.0025), H2MC (pssmlt), PSSMLT/G with DR's first stage (sigma 0.01), and unless
+    # MLT_LANGEVIN=0 Langevin (pssmlt) and DR Gaussian-then-Langevin (drmlt-langevin), on the path
     # technique (the one H2MC differentiates) with max_depth MLT_MAX_DEPTH (8), the reference too.
     local g=$1 family=${2:-pss} technique ref_spp max_depth=-1
     case "$g" in  # per scene: the path sampler the chains drive and the reference's bdpt spp
@@ -171,6 +174,11 @@ mlt_study() {  # mlt_study GEOMETRY [mmlt|h2mc]: the thesis' equal-time protocol
             echo "dr-h2mc: variant=drmlt-h2mc"
             echo "h2mc: variant=pssmlt-h2mc"
             echo "pssmlt-G: variant=pssmlt-gaussian sigma=0.01"
+            # Langevin (preconditioned MALA) alone and as DR's second stage after the same Gaussian first stage.
+            if [[ "${MLT_LANGEVIN:-1}" == 1 ]]; then
+                echo "langevin: variant=pssmlt-langevin"
+                echo "dr-langevin: variant=drmlt-langevin"
+            fi
         } >"$setup/configs"
     else
         mlt_sigma_configs

@@ -9,8 +9,11 @@ mutations per second, of the small-step, large-step and second-stage acceptance 
 of the path-evaluation time (convergence_stats.csv: the counters of each whole run). When a configuration uses
 the h2mc mutation, a second table gives the medians over runs of its counters (mlt.h2mc.*): H2MC proposals and
 their acceptance, derivative evaluations, the shares of them that were not differentiable (unsupported, mismatch,
-too long, next to a discontinuity) and that fell back to the isotropic Gaussian for a small Hessian, and the share of the run's time spent
-in derivatives (seconds_derivatives / run.seconds: meaningful with one thread). Above the table: the
+too long, next to a discontinuity) and that fell back to the isotropic Gaussian for a small Hessian, the share of
+the run's time spent in derivatives (seconds_derivatives / run.seconds: meaningful with one thread), the time per
+derivative evaluation and its inverse, and the share of the run's time spent in the kernel's Gaussian proposals
+(seconds_gaussians / run.seconds). When a configuration uses the langevin mutation, a table of the same columns
+(without the small Hessian: Langevin takes gradients only) gives its counters (mlt.langevin.*). Above the table: the
 normalisation, the matched sigma and the reference's error floor when the study directory holds normalization.txt,
 sigma.txt and reference_floor.txt (as tools/convergence_reports.sh leaves them); with the floor, a column gives the
 median rMSE at the last checkpoint minus it. Quartiles are numpy's (linear interpolation); with fewer than 2 runs
@@ -50,6 +53,42 @@ def read_study(d):
         if r["target"] not in targets:
             targets.append(r["target"])
     return rows, configs, targets
+
+
+def derivative_table(configs, stats, kernel, label):
+    """The lines of the table of the derivative-based kernel's counters (mlt.KERNEL.*) of the configurations that
+    use it, or no lines."""
+    p = "mlt." + kernel + "."
+    used = [c for c in configs if stats.get(c, {}).get(p + "derivatives")]
+    if not used:
+        return []
+    hessian = kernel == "h2mc"  # langevin takes gradients only: no small-Hessian fallback
+    head = ["variant", f"{label} proposals", f"{label} acc.", "derivatives", "not differentiable", "unsupported",
+            "mismatch", "too long", "discontinuous"] + (["small Hessian"] if hessian else []) + [
+            "time in derivatives", "ms per derivative", "derivatives/s", "time in Gaussians"]
+    out = ["", "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for c in used:
+        s = stats[c]
+
+        def per_run(num, den, scale=1.0):  # median over runs of num / den (a counter never incremented may be absent: 0)
+            nums = s.get(num) or [0.0] * len(s.get(den, []))
+            v = [scale * a / b for a, b in zip(nums, s.get(den, [])) if b > 0]
+            return fmt(np.median(v)) if v else ""
+
+        cells = [c, fmt(np.median(s[p + "proposals"])), fmt(np.median(s[p + "acceptance"])),
+                 fmt(np.median(s[p + "derivatives"]))] + \
+            [per_run(p + k, p + "derivatives")
+             for k in ("not_differentiable", "unsupported", "mismatch", "too_long", "discontinuous") +
+             (("small_hessian",) if hessian else ())] + \
+            [per_run(p + "seconds_derivatives", "run.seconds"),
+             per_run(p + "seconds_derivatives", p + "derivatives", 1e3),
+             per_run(p + "derivatives", p + "seconds_derivatives"),
+             per_run(p + "seconds_gaussians", "run.seconds")]
+        out.append("| " + " | ".join(cells) + " |")
+    out.append("")
+    out.append(f"(mlt.{kernel}.*: medians over runs; the shares are of the derivative evaluations, the time shares "
+               "of the run's seconds; ms per derivative and derivatives/s are of the time in derivatives)")
+    return out
 
 
 def main():
@@ -118,27 +157,8 @@ def main():
                 ([sm("mlt.acceptance.stage2"), sm("mlt.stage2_time_share")] if "mlt.stage2_attempts" in s and
                  np.median(s["mlt.stage2_attempts"]) > 0 else ["", ""])
         out.append("| " + " | ".join(cells) + " |")
-    h2mc = [c for c in configs if stats.get(c, {}).get("mlt.h2mc.derivatives")]
-    if h2mc:
-        out += ["", "| variant | H2MC proposals | H2MC acc. | derivatives | not differentiable | unsupported | mismatch | "
-                "too long | discontinuous | small Hessian | time in derivatives |", "|" + "---|" * 11]
-        for c in h2mc:
-            s = stats[c]
-
-            def per_run(num, den):  # median over runs of num / den (a counter never incremented may be absent: 0)
-                nums = s.get(num) or [0.0] * len(s.get(den, []))
-                v = [a / b for a, b in zip(nums, s.get(den, [])) if b > 0]
-                return fmt(np.median(v)) if v else ""
-
-            cells = [c, fmt(np.median(s["mlt.h2mc.proposals"])), fmt(np.median(s["mlt.h2mc.acceptance"])),
-                     fmt(np.median(s["mlt.h2mc.derivatives"]))] + \
-                [per_run("mlt.h2mc." + k, "mlt.h2mc.derivatives")
-                 for k in ("not_differentiable", "unsupported", "mismatch", "too_long", "discontinuous", "small_hessian")] + \
-                [per_run("mlt.h2mc.seconds_derivatives", "run.seconds")]
-            out.append("| " + " | ".join(cells) + " |")
-        out.append("")
-        out.append("(medians over runs; the shares are of the derivative evaluations, the time share of the run's "
-                   "seconds)")
+    for kernel, label in (("h2mc", "H2MC"), ("langevin", "Langevin")):
+        out += derivative_table(configs, stats, kernel, label)
     print("\n".join(out))
 
 
