@@ -44,27 +44,33 @@ const char* to_string(Advection a);
 /// omega(0, x).
 using InitialField = std::function<double(const Vec2d&)>;
 
-struct MCFluidSettings {
-    Domain2 domain;
-    int nx = 64, ny = 64;  ///< cache cells
-    Interpolation interpolation = Interpolation::Bilinear;
+/// What the 2D and 3D MCFluid solvers are configured with alike (MCFluidSettings, MCFluid3Settings add the cache's
+/// resolution and, in 3D, what only 3D has: stretching and control variates).
+template <int D>
+struct SolverSettings {
+    Domain<D> domain;
+    Interpolation interpolation = Interpolation::Bilinear;  ///< Bilinear means trilinear in 3D
     Advection advection = Advection::RK4;
     double dt = 0.05;
     double viscosity = 0;       ///< nu; 0 = inviscid: the diffusion step never runs
     int diffusion_samples = 1;  ///< n_d (used only when viscosity > 0)
     uint64_t seed = 0;
-    /// Solid boundaries (walk_on_spheres, boundary.h): the velocity is the free-slip Walk-on-Spheres estimate
-    /// with `samples` gradient samples. Null: Biot–Savart, and no distance query or walk ever runs.
-    /// With an `estimator`, its boundaries() (when these are null).
+    /// Solid boundaries (walk_on_spheres, boundary.h): the velocity is the free-slip Walk-on-Spheres estimate (2D: on
+    /// the stream function; 3D: on the vector potential) with `samples` gradient samples. Null: Biot–Savart, and no
+    /// distance query or walk ever runs. With an `estimator`, its boundaries() (when these are null).
     std::shared_ptr<const WosVelocityOptions> boundaries;
-    /// The velocity estimator (velocity.h; a <velocity> plugin): the one owner of the mollifier delta (its delta();
-    /// negative: half a cell), of its sampling options and of the scene's sample count. Null: WosVelocity over
-    /// `boundaries`, else BiotSavartVelocity with its defaults. The solver asks it for the field of each state and
-    /// queries that field with `samples` samples.
+    /// The velocity estimator (velocity.h; a <velocity> plugin that supports dimension D): the one owner of the
+    /// mollifier delta (its delta(); negative: half a cell, in 3D half the smallest cell side), of its sampling
+    /// options and of the scene's sample count. Null: WosVelocity over `boundaries`, else BiotSavartVelocity with its
+    /// defaults. The solver asks it for the field of each state and queries that field with `samples` samples.
     std::shared_ptr<const VelocityEstimator> estimator;
     /// n_mc, the samples per velocity query of this run (a run's --spp: run_samples); 0: the estimator's samples().
     /// The solver's settings() hold the value in use.
     int samples = 0;
+};
+
+struct MCFluidSettings : SolverSettings<2> {
+    int nx = 64, ny = 64;  ///< cache cells
 };
 
 /// Cumulative work of a solver (each component counts its own). In a distributed run the counters are the whole

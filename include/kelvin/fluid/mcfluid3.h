@@ -41,35 +41,17 @@ class WosVelocityField3;
 /// omega(0, x) in 3D.
 using InitialField3 = std::function<Vec3d(const Vec3d&)>;
 
-struct MCFluid3Settings {
-    Domain3 domain;
-    int nx = 32, ny = 32, nz = 32;
-    Interpolation interpolation = Interpolation::Bilinear;  ///< Bilinear means trilinear here
-    Advection advection = Advection::RK4;
-    double dt = 0.05;
-    double viscosity = 0;
-    int diffusion_samples = 1;
+struct MCFluid3Settings : SolverSettings<3> {
+    int nx = 32, ny = 32, nz = 32;  ///< cache cells
     bool stretching = true;
+    /// The previous step as control variate (Eq. 5.23): a second field of the estimator is built over the difference
+    /// of two consecutive caches (VelocityState3::difference).
     bool control_variates = false;
     int initial_samples = 0;  ///< samples of the first velocity pass (0: `samples`)
     /// beta of the blended control variate: v = beta (v_prev + BS[omega - omega_prev]) + (1 - beta) BS[omega] with
     /// n_mc samples for each part when beta < 1 (the general control-variate form of thesis Sec. 6.2.1); 1 is Eq.
     /// 5.23, whose error is carried from step to step and accumulates, where with beta < 1 it decays as beta^k.
     double control_variate_blend = 1;
-    uint64_t seed = 0;
-    /// Solid boundaries (walk_on_spheres, boundary.h): the velocity is the free-slip Walk-on-Spheres estimate
-    /// on the vector potential instead of Biot–Savart (`samples` = gradient samples per query). Null:
-    /// no distance query is built and no walk runs.
-    std::shared_ptr<const WosVelocityOptions> boundaries;
-    /// The velocity estimator (velocity.h; a <velocity> plugin that supports dimension 3): the one owner of the
-    /// mollifier delta (negative: half the smallest cell size), its sampling options and the scene's sample count.
-    /// Null: WosVelocity over `boundaries`, else BiotSavartVelocity with its defaults. Its fields are queried with
-    /// `samples` samples; with control variates a second field is built over the difference of two consecutive
-    /// caches (VelocityState3::difference).
-    std::shared_ptr<const VelocityEstimator> estimator;
-    /// n_mc, the samples per velocity query of this run (a run's --spp: run_samples); 0: the estimator's samples().
-    /// The solver's settings() hold the value in use.
-    int samples = 0;
 };
 
 /// Cumulative work of the 3D solver, per effect. In a distributed run the counters are the whole run's (summed over
