@@ -1,6 +1,8 @@
 #pragma once
 // The 3D domain of a fluid simulation and the cell-centred grids that cache fields on it (the 3D
-// counterparts of grid.h; same conventions, one more axis).
+// counterparts of grid.h; same conventions, one more axis). The domain is grid.h's Domain<D>; Grid3 stays its own
+// class because its interpolation is a precomputed 8-point stencil (shared by the three components of a
+// VectorGrid3 and by the 3D estimators' importance sampling), where Grid2 interpolates in place.
 //
 //   - A Domain3 is the box [min, max]. Periodic: space is tiled by copies of the box. Open: the fluid fills
 //     space and the vorticity is zero outside the box.

@@ -1,5 +1,7 @@
 #pragma once
-// MCFluid in 3D: the cached Feynman–Kac Navier–Stokes solver of thesis Sections 5.3.2–5.3.4.
+// MCFluid in 3D: the cached Feynman–Kac Navier–Stokes solver of thesis Sections 5.3.2–5.3.4. Separate from the 2D
+// solver (mcfluid.h) where the mathematics is: a vector vorticity carried with the stretching term, control variates
+// over consecutive caches and smoke; the settings (SolverSettings<D>), the driver and the outputs are shared.
 //
 //     omega(t_i, x) = 1/n_d sum_j [ omega(t_{i-1}, x_j) + dt <(omega . grad) v>(t_{i-1}, x_j) ]          (Eq. 5.22)
 //     x_j ~ N(x_a, 2 nu dt I),   x_a = backtrace of x over dt through the Monte Carlo velocity <v>
