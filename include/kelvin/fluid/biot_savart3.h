@@ -1,7 +1,7 @@
 #pragma once
 // Monte Carlo Biot–Savart velocity estimation in 3D (thesis Eqs. (5.4), (5.5)); separate from the 2D estimator
 // because the kernel (a cross product with a vector vorticity, 1/r^2), its periodic form (an Ewald sum, where 2D sums
-// images of a log kernel) and the importance sampling of |omega| over a vector field differ:
+// rows of vortices in closed form) and the importance sampling of |omega| over a vector field differ:
 //
 //     v(x) = integral omega(y) x G(x - y) dy,   G_delta(r) = r / (4 pi (|r|^2 + delta^2)^(3/2))
 //
