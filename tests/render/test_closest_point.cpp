@@ -656,3 +656,22 @@ TEST(ClosestSegment, BrokenTraversalFailsTheBruteForceCheck) {
     EXPECT_GT(broken, 10) << "a traversal that skips children went unnoticed";
     EXPECT_EQ(segment_failures(query, c, queries), 0);
 }
+
+// Curves and user geometry have no closest-point code: refused with a message, never read as discs (whose normals
+// they lack; reading them was out of bounds).
+TEST(ClosestPoint, CurvesAndUserGeometryAreRefused) {
+    for (auto type :
+         {ShapeGeometry::Type::LinearCurves, ShapeGeometry::Type::BSplineCurves, ShapeGeometry::Type::User}) {
+        ShapeGeometry g;
+        g.type = type;
+        g.positions = {Vec3f(0.0f), Vec3f(1.0f, 0.0f, 0.0f), Vec3f(2.0f, 0.0f, 0.0f), Vec3f(3.0f, 0.0f, 0.0f)};
+        g.radii = {0.1f, 0.1f, 0.1f, 0.1f};
+        g.indices = {0};
+        try {
+            ClosestPointQuery q(std::vector<ShapeGeometry>{g});
+            ADD_FAILURE() << "accepted geometry type " << int(type);
+        } catch (const RuntimeError& e) {
+            EXPECT_NE(std::string(e.what()).find("closest points are supported for"), std::string::npos) << e.what();
+        }
+    }
+}
