@@ -21,6 +21,7 @@
 #include <limits>
 #include <map>
 #include <unordered_map>
+#include <utility>
 
 namespace kelvin {
 
@@ -98,12 +99,8 @@ static void check_closed(const Shape& shape, const ShapeGeometry& g) {
                             : fmt::format("{} boundary edge{}", open, open == 1 ? "" : "s")));
 }
 
-// Cylinders are Embree user geometry: bounds and ray tests in double (cylinder.h). Kelvin traces single rays, but
-// the callbacks handle any packet width Embree hands them.
-static void cylinder_bounds(const RTCBoundsFunctionArguments* args) {
-    const auto* g = static_cast<const ShapeGeometry*>(args->geometryUserPtr);
-    const auto [lo, hi] = cylinder::bounds(cylinder::of(*g, args->primID));
-    RTCBounds* o = args->bounds_o;
+// The bounds of a user-geometry primitive, widened by one float ulp outward so that the double-precision box is inside.
+static void store_bounds(RTCBounds* o, const Vec3d& lo, const Vec3d& hi) {
     const float inf = std::numeric_limits<float>::infinity();
     o->lower_x = std::nextafter(float(lo.x), -inf);
     o->lower_y = std::nextafter(float(lo.y), -inf);
@@ -113,14 +110,27 @@ static void cylinder_bounds(const RTCBoundsFunctionArguments* args) {
     o->upper_z = std::nextafter(float(hi.z), inf);
 }
 
+// Ray i of a packet of N, in double: origin and direction.
+static std::pair<Vec3d, Vec3d> ray_of(RTCRayN* ray, unsigned N, unsigned i) {
+    return {Vec3d(RTCRayN_org_x(ray, N, i), RTCRayN_org_y(ray, N, i), RTCRayN_org_z(ray, N, i)),
+            Vec3d(RTCRayN_dir_x(ray, N, i), RTCRayN_dir_y(ray, N, i), RTCRayN_dir_z(ray, N, i))};
+}
+
+// Cylinders are Embree user geometry: bounds and ray tests in double (cylinder.h). Kelvin traces single rays, but
+// the callbacks handle any packet width Embree hands them.
+static void cylinder_bounds(const RTCBoundsFunctionArguments* args) {
+    const auto* g = static_cast<const ShapeGeometry*>(args->geometryUserPtr);
+    const auto [lo, hi] = cylinder::bounds(cylinder::of(*g, args->primID));
+    store_bounds(args->bounds_o, lo, hi);
+}
+
 template <typename Hit>
 static void cylinder_trace(const ShapeGeometry& g, unsigned prim, RTCRayN* ray, unsigned N, const int* valid,
                            Hit&& on_hit) {
     const cylinder::View c = cylinder::of(g, prim);
     for (unsigned i = 0; i < N; ++i) {
         if (valid[i] != -1) continue;
-        const Vec3d o(RTCRayN_org_x(ray, N, i), RTCRayN_org_y(ray, N, i), RTCRayN_org_z(ray, N, i));
-        const Vec3d d(RTCRayN_dir_x(ray, N, i), RTCRayN_dir_y(ray, N, i), RTCRayN_dir_z(ray, N, i));
+        const auto [o, d] = ray_of(ray, N, i);
         if (auto t = cylinder::intersect(c, o, d, RTCRayN_tnear(ray, N, i), RTCRayN_tfar(ray, N, i)))
             on_hit(i, *t, c, o + *t * d);
     }
@@ -160,14 +170,7 @@ static void ellipse_bounds(const RTCBoundsFunctionArguments* args) {
     const auto* g = static_cast<const ShapeGeometry*>(args->geometryUserPtr);
     const Vec3d c(g->positions[args->primID]);
     const double r = g->radii[args->primID];
-    RTCBounds* o = args->bounds_o;
-    const float inf = std::numeric_limits<float>::infinity();
-    o->lower_x = std::nextafter(float(c.x - r), -inf);
-    o->lower_y = std::nextafter(float(c.y - r), -inf);
-    o->lower_z = std::nextafter(float(c.z - r), -inf);
-    o->upper_x = std::nextafter(float(c.x + r), inf);
-    o->upper_y = std::nextafter(float(c.y + r), inf);
-    o->upper_z = std::nextafter(float(c.z + r), inf);
+    store_bounds(args->bounds_o, c - r, c + r);
 }
 
 template <typename Hit>
@@ -176,8 +179,7 @@ static void ellipse_trace(const ShapeGeometry& g, unsigned prim, RTCRayN* ray, u
     const ellipse::View e = ellipse::of(g, prim);
     for (unsigned i = 0; i < N; ++i) {
         if (valid[i] != -1) continue;
-        const Vec3d o(RTCRayN_org_x(ray, N, i), RTCRayN_org_y(ray, N, i), RTCRayN_org_z(ray, N, i));
-        const Vec3d d(RTCRayN_dir_x(ray, N, i), RTCRayN_dir_y(ray, N, i), RTCRayN_dir_z(ray, N, i));
+        const auto [o, d] = ray_of(ray, N, i);
         if (auto t = ellipse::intersect(e, o, d, RTCRayN_tnear(ray, N, i), RTCRayN_tfar(ray, N, i))) on_hit(i, *t, e);
     }
 }
@@ -211,14 +213,7 @@ static void ellipse_occluded(const RTCOccludedFunctionNArguments* args) {
 static void user_bounds(const RTCBoundsFunctionArguments* args) {
     const auto* g = static_cast<const ShapeGeometry*>(args->geometryUserPtr);
     const auto [lo, hi] = g->user->bounds(args->primID);
-    RTCBounds* o = args->bounds_o;
-    const float inf = std::numeric_limits<float>::infinity();
-    o->lower_x = std::nextafter(float(lo.x), -inf);
-    o->lower_y = std::nextafter(float(lo.y), -inf);
-    o->lower_z = std::nextafter(float(lo.z), -inf);
-    o->upper_x = std::nextafter(float(hi.x), inf);
-    o->upper_y = std::nextafter(float(hi.y), inf);
-    o->upper_z = std::nextafter(float(hi.z), inf);
+    store_bounds(args->bounds_o, lo, hi);
 }
 
 template <typename Hit>
@@ -226,8 +221,7 @@ static void user_trace(const ShapeGeometry& g, unsigned prim, RTCRayN* ray, unsi
                        Hit&& on_hit) {
     for (unsigned i = 0; i < N; ++i) {
         if (valid[i] != -1) continue;
-        const Vec3d o(RTCRayN_org_x(ray, N, i), RTCRayN_org_y(ray, N, i), RTCRayN_org_z(ray, N, i));
-        const Vec3d d(RTCRayN_dir_x(ray, N, i), RTCRayN_dir_y(ray, N, i), RTCRayN_dir_z(ray, N, i));
+        const auto [o, d] = ray_of(ray, N, i);
         double t;
         Vec3d ng;
         if (g.user->intersect(prim, o, d, RTCRayN_tnear(ray, N, i), RTCRayN_tfar(ray, N, i), t, ng)) on_hit(i, t, ng);
