@@ -4,6 +4,8 @@
 #include <kelvin/core/parallel.h>
 #include <kelvin/fluid/pressure.h>
 
+#include "pressure_common.h"
+
 #include <fftw3.h>
 #include <Eigen/IterativeLinearSolvers>
 #include <Eigen/SparseCore>
@@ -22,23 +24,13 @@ bool PoissonGrid::has_solid() const {
 
 namespace {
 
-// FFTW's planner is not thread-safe (fftw_execute is): every plan is made and destroyed under this lock.
-std::mutex& fftw_planner_mutex() {
-    static std::mutex m;
-    return m;
-}
+using namespace detail;
 
 void check_grid(const PoissonGrid& g, const char* who) {
     if (g.nx < 2 || g.ny < 2) throw_runtime("{}: grid {}x{} too small", who, g.nx, g.ny);
     if (!(g.hx > 0) || !(g.hy > 0)) throw_runtime("{}: cell size must be positive", who);
     if (!g.solid.empty() && g.solid.size() != std::size_t(g.nx) * std::size_t(g.ny))
         throw_runtime("{}: solid mask has {} entries for {}x{} cells", who, g.solid.size(), g.nx, g.ny);
-}
-
-/// 4 sin^2(pi k / m) / h^2: eigenvalue of the second difference for the mode k of a transform of period m.
-double mode_eigenvalue(int k, int m, double h) {
-    const double s = std::sin(std::numbers::pi * double(k) / double(m));
-    return 4.0 * s * s / (h * h);
 }
 
 /// Face coefficients of the fine operator: cw[c] couples cell c with its west neighbour, cs[c] with its south
@@ -62,53 +54,6 @@ void fine_coefficients(const PoissonGrid& g, std::vector<double>& cw, std::vecto
                 if (!solid(i, js)) cs[c] = 1.0 / (g.hy * g.hy);
             }
         }
-}
-
-/// Prolongation weights of one fine index along an axis: 3/4 from its coarse parent, 1/4 from the next coarse
-/// cell on its side (wrapped on periodic axes, the parent itself beyond a wall: constant extrapolation).
-struct Prolong1 {
-    int i0 = 0, i1 = 0;
-    double w0 = 0.75, w1 = 0.25;
-};
-/// The transpose: the fine indices (up to 6) that a coarse index gathers from, with their weights.
-struct Restrict1 {
-    int n = 0;
-    int i[6] = {};
-    double w[6] = {};
-};
-
-std::vector<Prolong1> prolong_table(int nf, int nc, bool periodic) {
-    std::vector<Prolong1> t(static_cast<std::size_t>(nf));
-    for (int i = 0; i < nf; ++i) {
-        const int parent = i >> 1;
-        int other = (i & 1) ? parent + 1 : parent - 1;
-        if (other < 0 || other >= nc) other = periodic ? (other + nc) % nc : parent;
-        t[std::size_t(i)] = {parent, other, 0.75, 0.25};
-    }
-    return t;
-}
-
-std::vector<Restrict1> restrict_table(const std::vector<Prolong1>& p, int nc, bool periodic) {
-    const int nf = int(p.size());
-    std::vector<Restrict1> t(static_cast<std::size_t>(nc));
-    for (int c = 0; c < nc; ++c) {
-        Restrict1& r = t[std::size_t(c)];
-        for (int k = 2 * c - 2; k <= 2 * c + 3; ++k) {
-            int i = k;
-            if (i < 0 || i >= nf) {
-                if (!periodic) continue;
-                i = (i + nf) % nf;  // nf >= 8 on coarsened periodic axes: the six candidates are distinct
-            }
-            const Prolong1& q = p[std::size_t(i)];
-            const double w = (q.i0 == c ? q.w0 : 0.0) + (q.i1 == c ? q.w1 : 0.0);
-            if (w > 0) {
-                r.i[r.n] = i;
-                r.w[r.n] = w;
-                ++r.n;
-            }
-        }
-    }
-    return t;
 }
 
 /// Runs body(j0, j1, block) over fixed blocks of rows: in parallel when there are several blocks.

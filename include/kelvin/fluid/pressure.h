@@ -113,4 +113,72 @@ private:
     std::unique_ptr<Impl> m_impl;
 };
 
+// ----------------------------------------------------------------------------------------------------------
+// 3D (src/fluid/pressure3.cpp): the same operator on an nx x ny x nz box of cells (index (k ny + j) nx + i), the
+// 7-point stencil with face openings; the same solvers, one axis more.
+
+/// The boundary rule of one axis of a 3D lattice of unknowns on an n-cell side: periodic (n unknowns, wrapped),
+/// Neumann at cell centres (n unknowns, mirror ghosts half a spacing beyond the walls), or Dirichlet at nodes (the
+/// n - 1 interior nodes, zero on the walls).
+enum class LatticeAxis : uint8_t { Periodic, NeumannCells, DirichletNodes };
+
+/// (c I + s (-Laplacian)) x = b on such a lattice, exactly, by FFTW real-to-real transforms whose modes
+/// diagonalise the second difference of each rule (R2HC / HC2R, DCT-II / DCT-III, DST-I). The pressure of a box
+/// without solids (c = 0, s = 1: the constant mode of a singular operator is set to 0), the vector potential of the
+/// initial velocity (mixed rules) and the implicit viscosity (c = 1, s = nu dt) are all such solves.
+class SpectralSolver3 {
+public:
+    /// `cells`: cells per axis; `h`: spacing per axis; `rule`: per axis.
+    SpectralSolver3(const int cells[3], const double h[3], const LatticeAxis rule[3]);
+    ~SpectralSolver3();
+    SpectralSolver3(const SpectralSolver3&) = delete;
+    SpectralSolver3& operator=(const SpectralSolver3&) = delete;
+    /// Unknowns along `axis` (n, or n - 1 for DirichletNodes) and in all.
+    int unknowns(int axis) const;
+    std::size_t size() const;
+    /// Solves in place (`x`: size() values, x fastest).
+    void solve(double* x, double c, double s);
+
+private:
+    struct Impl;
+    std::unique_ptr<Impl> m_impl;
+};
+
+/// The grid of a 3D pressure problem.
+struct PoissonGrid3 {
+    int nx = 0, ny = 0, nz = 0;
+    double hx = 1, hy = 1, hz = 1;
+    bool periodic = false;       ///< periodic in all three axes (else: a closed box with walls on all six sides)
+    std::vector<uint8_t> solid;  ///< nx ny nz flags (1: solid cell); empty: no solid cell
+    std::size_t cells() const { return std::size_t(nx) * std::size_t(ny) * std::size_t(nz); }
+};
+
+/// The exact inverse on a box without solids (SpectralSolver3 with every axis periodic or Neumann).
+class PoissonFFT3 final : public PoissonSolver {
+public:
+    explicit PoissonFFT3(const PoissonGrid3& grid);
+    ~PoissonFFT3() override;
+    PoissonStats solve(std::vector<double>& b, std::vector<double>& x, double tolerance) override;
+
+private:
+    std::unique_ptr<SpectralSolver3> m_spectral;
+};
+
+/// Multigrid-preconditioned CG in 3D: PoissonMultigrid's design (trilinear prolongation from the same 1D tables,
+/// its transpose / 8 as restriction, coarse face coefficients averaging the four fine ones, red-black Gauss–Seidel
+/// 2 + 2, symmetric V-cycle), parallel over fixed blocks of z slabs, bit-identical for any thread count.
+class PoissonMultigrid3 final : public PoissonSolver {
+public:
+    explicit PoissonMultigrid3(const PoissonGrid3& grid, int max_iterations = 500);
+    ~PoissonMultigrid3() override;
+    PoissonStats solve(std::vector<double>& b, std::vector<double>& x, double tolerance) override;
+    int levels() const;
+    /// (A x) on the fine grid (solid cells 0).
+    void apply(const std::vector<double>& x, std::vector<double>& out) const;
+
+private:
+    struct Impl;
+    std::unique_ptr<Impl> m_impl;
+};
+
 }  // namespace kelvin::fluid

@@ -166,7 +166,7 @@ FluidDiagnostics grid_diagnostics(const Grid2& omega, const Grid2& u, const Grid
 
 /// The parameter declarations shared by the baseline simulations (same names and defaults as mcfluid).
 #define KELVIN_FLUID_SIMULATION_PARAMS                                                                               \
-    kelvin::param::integer("dimension", 2, "2 (3D is not implemented)"),                                             \
+    kelvin::param::integer("dimension", 2, "2, or 3 (stable_fluids and flip; vortex_particles is 2D)"),              \
         kelvin::param::point("min", kelvin::Vec3d(-1.0, -1.0, 0.0), "domain box corner (z = 0)"),                    \
         kelvin::param::point("max", kelvin::Vec3d(1.0, 1.0, 0.0), "domain box corner (z = 0)"),                      \
         kelvin::param::boolean("periodic", false, "periodic box (true) or open (false)"),                            \

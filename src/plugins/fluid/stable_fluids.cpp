@@ -23,6 +23,7 @@
 #include <kelvin/core/registry.h>
 #include <kelvin/fluid/boundary.h>
 #include <kelvin/fluid/stable_fluids.h>
+#include <kelvin/fluid/stable_fluids3.h>
 
 #include <fmt/format.h>
 #include <fmt/ranges.h>
@@ -33,19 +34,15 @@ namespace {
 class StableFluids final : public Simulation {
 public:
     StableFluids(const Properties& props, Transport transport)
-        : m_who(transport == Transport::FLIP ? "flip" : "stable_fluids"),
-          m_params(SimulationParams::parse_baseline(props, m_who)),
-          m_transport(transport) {
-        if (transport == Transport::FLIP) {
-            m_flip_ratio = props.get_float("flip_ratio", 0.0, 1.0);
-            m_particles_per_cell = int(props.get_int("particles_per_cell", 1, 256));
+        : m_who(transport == Transport::FLIP ? "flip" : "stable_fluids"), m_transport(transport) {
+        const long long dim = props.get_int("dimension");
+        if (dim != 2 && dim != 3) props.error("dimension", fmt::format("must be 2 or 3 (got {})", dim));
+        if (dim == 3) {
+            parse3(props);
+            return;
         }
-        m_tolerance = props.get_float("tolerance", 1e-15, 1e-2);
-        const std::string proj = props.get_choice("projection", {"auto", "fft", "multigrid", "cg"});
-        m_projection = proj == "fft"         ? Projection::FFT
-                       : proj == "multigrid" ? Projection::Multigrid
-                       : proj == "cg"        ? Projection::CG
-                                             : Projection::Auto;
+        m_params = SimulationParams::parse_baseline(props, m_who);
+        read_solver_params(props);
         if (m_params.nx < 4 || m_params.ny < 4) props.error("cache", m_who + " needs at least 4x4 cells");
         if (!m_params.domain.periodic)
             log_info("{}: the open domain {} becomes a closed box with free-slip walls", m_who,
@@ -53,6 +50,142 @@ public:
         read_obstacles(props);
         if (m_projection == Projection::FFT && !m_obstacles.empty())
             props.error("projection", "fft needs a box without obstacles; use multigrid (or auto)");
+    }
+
+    /// The projection and FLIP parameters (both dimensions).
+    void read_solver_params(const Properties& props) {
+        if (m_transport == Transport::FLIP) {
+            m_flip_ratio = props.get_float("flip_ratio", 0.0, 1.0);
+            m_particles_per_cell = int(props.get_int("particles_per_cell", 1, m_3d ? 512 : 256));
+        }
+        m_tolerance = props.get_float("tolerance", 1e-15, 1e-2);
+        const std::string proj = props.get_choice("projection", {"auto", "fft", "multigrid", "cg"});
+        m_projection = proj == "fft"         ? Projection::FFT
+                       : proj == "multigrid" ? Projection::Multigrid
+                       : proj == "cg"        ? Projection::CG
+                                             : Projection::Auto;
+    }
+
+    /// dimension = 3: 3D mcfluid's parameters (the same scene), the solver's, and the solids of the <velocity>
+    /// estimator's boundaries (static 3D shapes with an inside; anything else is refused naming `velocity`).
+    void parse3(const Properties& props) {
+        m_3d = std::make_unique<Simulation3Params>(Simulation3Params::parse(props));
+        read_solver_params(props);
+        if (m_transport == Transport::FLIP && !props.has("particles_per_cell")) m_particles_per_cell = 8;
+        if (m_projection == Projection::CG)
+            props.error("projection", "cg (incomplete Cholesky) is 2D only; 3D takes auto, fft or multigrid");
+        const MCFluid3Settings& s = m_3d->settings;
+        if (s.nx < 4 || s.ny < 4 || s.nz < 4) props.error("cache", m_who + " needs at least 4x4x4 cells");
+        if (m_3d->smoke)
+            props.error("scalar", m_who + " in 3D carries no smoke (a 3D mcfluid feature); remove the <scalar>");
+        if (props.get_object("velocity"))
+            log_info(
+                "{}: <velocity> is mcfluid's Monte Carlo estimator; {} computes its velocity itself (only the "
+                "estimator's boundaries are used)",
+                m_who, m_who);
+        if (!s.domain.periodic)
+            log_info("{}: the open domain {} becomes a closed box with free-slip walls", m_who, s.domain.to_string());
+        if (s.boundaries) {
+            const WosVelocityOptions& o = *s.boundaries;
+            if (o.inflow_speed != 0)
+                props.error("velocity", m_who + " has no inflow/outflow walls (inflow_speed must be 0)");
+            for (const auto& shape : o.shapes) {
+                if (!shape || shape->dimension() != 3) props.error("velocity", m_who + " in 3D takes 3D boundaries");
+                if (shape->role().moving())
+                    props.error("velocity", fmt::format("{} has static obstacles only; boundary '{}' moves", m_who,
+                                                        shape->description()));
+                if (!shape->has_inside())
+                    props.error("velocity", fmt::format("{} voxelises solids at the cell centres; boundary '{}' has no "
+                                                        "inside (unsigned), so it cannot",
+                                                        m_who, shape->description()));
+                m_obstacles.push_back(shape);
+            }
+        }
+        if (m_projection == Projection::FFT && !m_obstacles.empty())
+            props.error("projection", "fft needs a box without obstacles; use multigrid (or auto)");
+        // Boundaries that leave no fluid cell are an input error; a solid that covers no cell centre is a warning.
+        if (!m_obstacles.empty()) {
+            const Grid3 grid(s.domain, s.nx, s.ny, s.nz);
+            bool any_fluid = false;
+            std::vector<long long> covered(m_obstacles.size(), 0);
+            for (int k = 0; k < s.nz; ++k)
+                for (int j = 0; j < s.ny; ++j)
+                    for (int i = 0; i < s.nx; ++i) {
+                        const Vec3d c = grid.cell_center(i, j, k);
+                        bool solid_here = false;
+                        for (std::size_t q = 0; q < m_obstacles.size(); ++q)
+                            if (solid3(*m_obstacles[q], c)) {
+                                ++covered[q];
+                                solid_here = true;
+                            }
+                        any_fluid |= !solid_here;
+                    }
+            if (!any_fluid)
+                props.error("velocity",
+                            fmt::format("the boundaries leave no fluid cell on the {}x{}x{} grid", s.nx, s.ny, s.nz));
+            for (std::size_t q = 0; q < m_obstacles.size(); ++q)
+                if (covered[q] == 0)
+                    log_warn(
+                        "{}: boundary '{}' covers no cell centre of the {}x{}x{} grid (outside the domain or "
+                        "thinner than a cell): the grid solver does not see it",
+                        m_who, m_obstacles[q]->description(), s.nx, s.ny, s.nz);
+        }
+    }
+
+    /// The solid region of a 3D shape: inside an obstacle, outside a container.
+    static bool solid3(const BoundaryShape& shape, const Vec3d& p) {
+        return shape.has_inside() && (shape.inside3(p) != shape.role().fluid_inside);
+    }
+
+    /// The 3D solver run(ctx) steps, at t = 0 (ctx.cancel as its token); it refers to this object.
+    std::unique_ptr<StableFluids3Solver> make_solver3(const RunContext& ctx) const {
+        const MCFluid3Settings& m = m_3d->settings;
+        StableFluids3Settings s;
+        s.domain = m.domain;
+        s.nx = m.nx;
+        s.ny = m.ny;
+        s.nz = m.nz;
+        s.advection = m.advection;
+        s.viscosity = m.viscosity;
+        s.tolerance = m_tolerance;
+        s.seed = ctx.seed;
+        s.projection = m_projection;
+        s.transport = m_transport;
+        s.flip_ratio = m_flip_ratio;
+        s.particles_per_cell = m_particles_per_cell;
+        if (!m_obstacles.empty())
+            s.solid = [this](const Vec3d& p) {
+                for (const auto& shape : m_obstacles)
+                    if (solid3(*shape, p)) return true;
+                return false;
+            };
+        const VorticityField3* field = m_3d->field;
+        auto solver =
+            std::make_unique<StableFluids3Solver>(s, [field](const Vec3d& x) { return field->vorticity3(x); });
+        solver->set_cancel_token(ctx.cancel);
+        return solver;
+    }
+
+    std::unique_ptr<DrivenSolver> driven_solver3(const RunContext& ctx) const {
+        std::unique_ptr<StableFluids3Solver> owned = make_solver3(ctx);
+        const StableFluids3Solver& solver = *owned;
+        const StableFluids3Settings& s = solver.settings();
+        const std::string transport =
+            m_transport == Transport::FLIP
+                ? fmt::format("FLIP particles ({} per cell, flip_ratio {:g}, {} moves)", s.particles_per_cell,
+                              s.flip_ratio, fluid::to_string(s.advection))
+                : fmt::format("semi-Lagrangian advection ({}, trilinear)", fluid::to_string(s.advection));
+        const std::size_t cells = std::size_t(s.nx) * std::size_t(s.ny) * std::size_t(s.nz);
+        const std::string effects = fmt::format(
+            "{}, dt {:g}, {} steps, on a {}x{}x{} MAC grid; pressure projection ({}){}; boundaries {}{}", transport,
+            m_3d->settings.dt, m_3d->steps, s.nx, s.ny, s.nz,
+            solver.projection() == Projection::FFT ? "FFT, exact inverse of the discrete Laplacian"
+                                                   : fmt::format("multigrid-preconditioned CG to {:g}", s.tolerance),
+            s.viscosity > 0 ? "; implicit viscosity (FFT)" : "", s.domain.periodic ? "periodic" : "free-slip box walls",
+            m_obstacles.empty() ? ""
+                                : fmt::format(" + {} static solid(s), {} fluid cells of {}", m_obstacles.size(),
+                                              solver.fluid_cells(), cells));
+        return drive_grid_solver3(m_who, std::move(owned), *m_3d, effects);
     }
 
     /// The solid shapes of the <velocity> estimator's boundaries (walk_on_spheres; static, with an inside),
@@ -117,11 +250,15 @@ public:
         return false;
     }
 
-    int dimension() const override { return 2; }
-    TimeStepping time_stepping() const override { return {m_params.dt, m_params.steps, m_params.end_time}; }
-    double viscosity() const override { return m_params.viscosity; }
-    std::shared_ptr<const VorticityField> vorticity_field() const override { return m_params.field; }
-    std::unique_ptr<FluidSolver> create_solver(const RunContext& ctx) const override { return make_solver(ctx); }
+    int dimension() const override { return m_3d ? 3 : 2; }
+    TimeStepping time_stepping() const override { return driver_settings().time; }
+    double viscosity() const override { return m_3d ? m_3d->settings.viscosity : m_params.viscosity; }
+    std::shared_ptr<const VorticityField> vorticity_field() const override { return m_3d ? nullptr : m_params.field; }
+    const VorticityField3* vorticity_field3() const override { return m_3d ? m_3d->field : nullptr; }
+    std::unique_ptr<FluidSolver> create_solver(const RunContext& ctx) const override {
+        if (m_3d) return Simulation::create_solver(ctx);  // the error
+        return make_solver(ctx);
+    }
 
     /// The solver run(ctx) steps, at t = 0 (with the dye and ctx.cancel as its token); it refers to this object.
     std::unique_ptr<StableFluidsSolver> make_solver(const RunContext& ctx) const {
@@ -146,6 +283,7 @@ public:
     }
 
     std::unique_ptr<DrivenSolver> driven_solver(const RunContext& ctx) const override {
+        if (m_3d) return driven_solver3(ctx);
         std::unique_ptr<StableFluidsSolver> owned = make_solver(ctx);
         const StableFluidsSolver& solver = *owned;
         const StableFluidsSettings& s = solver.settings();
@@ -167,11 +305,17 @@ public:
                                               solver.fluid_cells(), std::size_t(s.nx) * std::size_t(s.ny)));
         return std::make_unique<Solver2Run>(m_who, std::move(owned), m_params, effects);
     }
-    DriverSettings driver_settings() const override { return m_params.driver_settings(m_who); }
+    DriverSettings driver_settings() const override {
+        if (!m_3d) return m_params.driver_settings(m_who);
+        DriverSettings d = m_3d->driver_settings();
+        d.who = m_who;
+        return d;
+    }
 
 private:
     std::string m_who;
-    SimulationParams m_params;
+    SimulationParams m_params;                ///< dimension = 2
+    std::unique_ptr<Simulation3Params> m_3d;  ///< dimension = 3
     Transport m_transport;
     double m_flip_ratio = 0.95;
     int m_particles_per_cell = 6;
@@ -191,7 +335,13 @@ std::vector<kelvin::ParamSpec> grid_solver_params(std::vector<kelvin::ParamSpec>
         KELVIN_FLUID_SIMULATION_PARAMS,
         kelvin::param::real("tolerance", 1e-10, "relative residual of the iterative solves"),
         kelvin::param::string("projection", "auto",
-                              "pressure solver: auto (fft without obstacles, else multigrid), fft, multigrid, cg")};
+                              "pressure solver: auto (fft without obstacles, else multigrid), fft, multigrid, cg (2D)"),
+        kelvin::param::boolean("write_vdb", true, "3D: write frames as OpenVDB files"),
+        kelvin::param::string("slice_axis", "y", "3D: PNG slices normal to 'x', 'y' or 'z'"),
+        kelvin::param::boolean("stretching", true, "3D mcfluid's; accepted and ignored (a grid solver stretches)"),
+        kelvin::param::boolean("control_variates", false, "3D mcfluid's; accepted and ignored"),
+        kelvin::param::integer("initial_samples", 0, "3D mcfluid's; accepted and ignored"),
+        kelvin::param::real("control_variate_blend", 1.0, "3D mcfluid's; accepted and ignored")};
     p.insert(p.end(), extra.begin(), extra.end());
     return p;
 }
@@ -209,9 +359,9 @@ static const kelvin::PluginRegistrar kelvin_flip_registrar(
     "simulation", "flip",
     "Baseline: FLIP particles (6 per cell, flip_ratio 0.95) on the stable_fluids MAC grid and projection, static "
     "obstacles; same scene and outputs as mcfluid.",
-    grid_solver_params({kelvin::param::real("flip_ratio", 0.95,
-                                            "weight of the grid's change in the particles' update (0: PIC)"),
-                        kelvin::param::integer("particles_per_cell", 6, "particles seeded per fluid cell")}),
+    grid_solver_params(
+        {kelvin::param::real("flip_ratio", 0.95, "weight of the grid's change in the particles' update (0: PIC)"),
+         kelvin::param::integer("particles_per_cell", 6, "particles seeded per fluid cell (3D default: 8)")}),
     [](const kelvin::Properties& p) -> kelvin::ObjectPtr {
         return std::make_shared<kelvin::fluid::StableFluids>(p, kelvin::fluid::Transport::FLIP);
     });
