@@ -215,13 +215,21 @@ void StableFluids3Solver::initial_velocity(const InitialField3& initial) {
 }
 
 double StableFluids3Solver::sample(int a, const std::vector<double>& f, Vec3d p) const {
+    Vec3d offset(0.5);
+    offset[a] = 0;
+    return sample_lattice(f, m_fd[std::size_t(a)], offset, p);
+}
+
+// Trilinear interpolation of a lattice of dims fd whose value (0, 0, 0) sits at min + offset h: wrapped on periodic
+// boxes, clamped to the lattice otherwise.
+double StableFluids3Solver::sample_lattice(const std::vector<double>& f, const std::array<int, 3>& fd, Vec3d offset,
+                                           Vec3d p) const {
     if (!std::isfinite(p.x) || !std::isfinite(p.y) || !std::isfinite(p.z)) return 0.0;
     const Domain3& d = m_settings.domain;
-    const std::array<int, 3>& fd = m_fd[std::size_t(a)];
     int i0[3], i1[3];
     double t[3];
     for (int b = 0; b < 3; ++b) {
-        const double g = (p[b] - d.min[b]) / m_h[b] - (b == a ? 0.0 : 0.5);
+        const double g = (p[b] - d.min[b]) / m_h[b] - offset[b];
         if (d.periodic) {
             const double fl = std::floor(g);
             t[b] = g - fl;
@@ -234,8 +242,7 @@ double StableFluids3Solver::sample(int a, const std::vector<double>& f, Vec3d p)
             i1[b] = i0[b] + 1;
         }
     }
-    const std::size_t sx = 1, sy = std::size_t(fd[0]), sz = std::size_t(fd[0]) * std::size_t(fd[1]);
-    (void)sx;
+    const std::size_t sy = std::size_t(fd[0]), sz = std::size_t(fd[0]) * std::size_t(fd[1]);
     auto v = [&](int x, int y, int z) { return f[std::size_t(z) * sz + std::size_t(y) * sy + std::size_t(x)]; };
     const double c00 = (1 - t[0]) * v(i0[0], i0[1], i0[2]) + t[0] * v(i1[0], i0[1], i0[2]);
     const double c10 = (1 - t[0]) * v(i0[0], i1[1], i0[2]) + t[0] * v(i1[0], i1[1], i0[2]);
@@ -485,6 +492,7 @@ bool StableFluids3Solver::step(double dt) {
     };
     Timer timer;
     extrapolate_into_solids();
+    if (m_smoke) advect_smoke(dt);  // through the velocity of the step's start, as mcfluid's backtraces carry it
     if (flip) {
         flip_move(dt);
         if (stop_requested()) return abandon();
@@ -519,10 +527,49 @@ bool StableFluids3Solver::step(double dt) {
                 ++m_invalid;
                 x = 0;
             }
+    if (m_smoke) std::swap(m_density, m_density_next);
     m_time += dt;
     ++m_step;
     m_fields_valid = false;
     return true;
+}
+
+void StableFluids3Solver::set_smoke(const Smoke3& smoke) {
+    if (m_step > 0) throw_runtime("StableFluids3Solver::set_smoke: smoke must be added before the first step");
+    if (!(smoke.radius > 0) || !std::isfinite(smoke.initial) || !std::isfinite(smoke.rate))
+        throw_runtime("StableFluids3Solver::set_smoke: radius must be positive, density and rate finite");
+    m_smoke = std::make_unique<Smoke3>(smoke);
+    m_density = m_density_next = m_omega.x;
+    m_density.fill(0.0);
+    for (int k = 0; k < m_settings.nz; ++k)
+        for (int j = 0; j < m_settings.ny; ++j)
+            for (int i = 0; i < m_settings.nx; ++i)
+                if (!solid_cell(i, j, k) && glm::length(m_density.cell_center(i, j, k) - smoke.center) <= smoke.radius)
+                    m_density.at(i, j, k) = smoke.initial;
+}
+
+// Smoke: each fluid cell centre backtraced (the velocity's integrator), the density looked up there (trilinear), the
+// source's rate dt added inside its sphere; solid cells hold none.
+void StableFluids3Solver::advect_smoke(double dt) {
+    const Smoke3& sm = *m_smoke;
+    const std::array<int, 3> dims = {m_settings.nx, m_settings.ny, m_settings.nz};
+    parallel_units(std::size_t(dims[2]), [&](std::size_t slab) {
+        if (stop_requested()) return;
+        const int k = int(slab);
+        for (int j = 0; j < dims[1]; ++j)
+            for (int i = 0; i < dims[0]; ++i) {
+                const std::size_t c = m_density.index(i, j, k);
+                if (solid_cell(i, j, k)) {
+                    m_density_next.values()[c] = 0;
+                    continue;
+                }
+                const Vec3d x = m_density.cell_center(i, j, k);
+                double rho = sample_lattice(m_density.values(), dims, Vec3d(0.5), backtrace(x, dt));
+                if (glm::length(x - sm.center) <= sm.radius) rho += dt * sm.rate;
+                m_density_next.values()[c] = std::isfinite(rho) ? rho : 0.0;
+            }
+    });
+    m_smoke_lookups += uint64_t(m_density.cell_count());
 }
 
 // ----------------------------------------------------------------------------------------------------------
@@ -784,6 +831,7 @@ FluidDiagnostics3 StableFluids3Solver::diagnostics() {
     d.centroid = wsum > 0 ? cen / wsum : 0.5 * (s.domain.min + s.domain.max);
     d.max_abs_vorticity = mx;
     d.divergence_rms = std::sqrt(div2 / double(m_fluid_cells));
+    if (m_smoke) d.smoke_mass = m_density.integral();
     return d;
 }
 
@@ -801,6 +849,7 @@ void StableFluids3Solver::report(Stats& stats) const {
     if (m_diffusion_solves) stats.add("fluid.diffusion_solves", double(m_diffusion_solves), "solves");
     if (!m_solid.empty()) stats.add("fluid.solid_cells", double(m_omega.cell_count() - m_fluid_cells), "cells");
     stats.add("fluid.invalid_velocity", double(m_invalid), "values");
+    stats.add("fluid.smoke_lookups", double(m_smoke_lookups), "lookups");
     stats.add_time("fluid.time.advection", m_seconds_advection);
     stats.add_time("fluid.time.diffusion", m_seconds_diffusion);
     stats.add_time("fluid.time.projection", m_seconds_projection);
@@ -838,15 +887,18 @@ public:
         return {{d.kinetic_energy, "kinetic energy"}, {d.helicity, "helicity"},
                 {d.divergence_rms, "divergence RMS"}, {d.enstrophy, "enstrophy"},
                 {d.impulse.x, "impulse x"},           {d.impulse.y, "impulse y"},
-                {d.impulse.z, "impulse z"},           {d.max_abs_vorticity, "max |vorticity|"}};
+                {d.impulse.z, "impulse z"},           {d.max_abs_vorticity, "max |vorticity|"},
+                {d.smoke_mass, "smoke mass"}};
     }
     std::vector<FieldValues> fields() override {
         const VectorGrid3& w = m_solver->vorticity_grid();
         const VectorGrid3& u = m_solver->velocity_grid();
         const int nx = w.x.nx(), ny = w.x.ny();
-        return {{&w.x.values(), "vorticity x", nx, ny}, {&w.y.values(), "vorticity y", nx, ny},
-                {&w.z.values(), "vorticity z", nx, ny}, {&u.x.values(), "velocity x", nx, ny},
-                {&u.y.values(), "velocity y", nx, ny},  {&u.z.values(), "velocity z", nx, ny}};
+        std::vector<FieldValues> f = {{&w.x.values(), "vorticity x", nx, ny}, {&w.y.values(), "vorticity y", nx, ny},
+                                      {&w.z.values(), "vorticity z", nx, ny}, {&u.x.values(), "velocity x", nx, ny},
+                                      {&u.y.values(), "velocity y", nx, ny},  {&u.z.values(), "velocity z", nx, ny}};
+        if (m_solver->smoke()) f.push_back({&m_solver->smoke()->values(), "smoke density", nx, ny});
+        return f;
     }
     std::size_t cells() const override {
         return std::size_t(m_solver->settings().nx) * m_solver->settings().ny * m_solver->settings().nz;
@@ -875,7 +927,7 @@ public:
         StableFluids3Solver& solver = *m_solver;
         if (m_p.write_vdb)
             frames.write_data("fields", solver.step_index(), ".vdb", [&](const std::filesystem::path& path) {
-                write_vdb_frame(path, solver.vorticity_grid(), &solver.velocity_grid());
+                write_vdb_frame(path, solver.vorticity_grid(), &solver.velocity_grid(), solver.smoke());
             });
         frames.write_png("vorticity", solver.step_index(), image(), "value", m_range, {0, 0}, {1, 1});
     }

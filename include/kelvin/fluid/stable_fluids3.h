@@ -110,6 +110,11 @@ public:
     const PoissonStats& last_projection() const { return m_last_projection; }
     uint64_t invalid() const { return m_invalid; }
     std::size_t particles() const { return m_px.size(); }
+    /// Smoke (mcfluid 3D's <scalar type="smoke">): a density carried along backtraces of the cell centres through the
+    /// velocity of each step's start, set to `initial` in the sphere at t = 0 and fed at `rate` there. Before the
+    /// first step.
+    void set_smoke(const Smoke3& smoke);
+    const Grid3* smoke() const { return m_smoke ? &m_density : nullptr; }
     void report(Stats& stats) const;
 
 private:
@@ -119,6 +124,8 @@ private:
     }
     Vec3d face_position(int a, int i, int j, int k) const;
     double sample(int a, const std::vector<double>& f, Vec3d p) const;
+    double sample_lattice(const std::vector<double>& f, const std::array<int, 3>& dims, Vec3d offset, Vec3d p) const;
+    void advect_smoke(double dt);
     Vec3d backtrace(Vec3d x, double dt) const;
     void initial_velocity(const InitialField3& initial);
     void advect(double dt);
@@ -153,6 +160,9 @@ private:
     uint64_t m_invalid = 0, m_backtraces = 0, m_projection_iterations = 0, m_projection_solves = 0,
              m_projection_unconverged = 0, m_diffusion_solves = 0;
     double m_seconds_advection = 0, m_seconds_projection = 0, m_seconds_diffusion = 0;
+    std::unique_ptr<Smoke3> m_smoke;
+    Grid3 m_density, m_density_next;
+    uint64_t m_smoke_lookups = 0;
     // FLIP
     std::vector<Vec3d> m_px, m_pv, m_saved_px, m_saved_pv;
     std::array<std::vector<double>, 3> m_weight;  ///< P2G weight sums per face

@@ -76,8 +76,6 @@ public:
             props.error("projection", "cg (incomplete Cholesky) is 2D only; 3D takes auto, fft or multigrid");
         const MCFluid3Settings& s = m_3d->settings;
         if (s.nx < 4 || s.ny < 4 || s.nz < 4) props.error("cache", m_who + " needs at least 4x4x4 cells");
-        if (m_3d->smoke)
-            props.error("scalar", m_who + " in 3D carries no smoke (a 3D mcfluid feature); remove the <scalar>");
         if (props.get_object("velocity"))
             log_info(
                 "{}: <velocity> is mcfluid's Monte Carlo estimator; {} computes its velocity itself (only the "
@@ -162,6 +160,8 @@ public:
         const VorticityField3* field = m_3d->field;
         auto solver =
             std::make_unique<StableFluids3Solver>(s, [field](const Vec3d& x) { return field->vorticity3(x); });
+        if (const auto& sm = m_3d->smoke)
+            solver->set_smoke({sm->center(), sm->radius(), sm->initial_density(), sm->rate()});
         solver->set_cancel_token(ctx.cancel);
         return solver;
     }
@@ -177,14 +177,15 @@ public:
                 : fmt::format("semi-Lagrangian advection ({}, trilinear)", fluid::to_string(s.advection));
         const std::size_t cells = std::size_t(s.nx) * std::size_t(s.ny) * std::size_t(s.nz);
         const std::string effects = fmt::format(
-            "{}, dt {:g}, {} steps, on a {}x{}x{} MAC grid; pressure projection ({}){}; boundaries {}{}", transport,
-            m_3d->settings.dt, m_3d->steps, s.nx, s.ny, s.nz,
+            "{}, dt {:g}, {} steps, on a {}x{}x{} MAC grid; pressure projection ({}){}; boundaries {}{}; smoke {}",
+            transport, m_3d->settings.dt, m_3d->steps, s.nx, s.ny, s.nz,
             solver.projection() == Projection::FFT ? "FFT, exact inverse of the discrete Laplacian"
                                                    : fmt::format("multigrid-preconditioned CG to {:g}", s.tolerance),
             s.viscosity > 0 ? "; implicit viscosity (FFT)" : "", s.domain.periodic ? "periodic" : "free-slip box walls",
             m_obstacles.empty() ? ""
                                 : fmt::format(" + {} static solid(s), {} fluid cells of {}", m_obstacles.size(),
-                                              solver.fluid_cells(), cells));
+                                              solver.fluid_cells(), cells),
+            m_3d->smoke ? m_3d->smoke->description() : std::string("none"));
         return drive_grid_solver3(m_who, std::move(owned), *m_3d, effects);
     }
 
