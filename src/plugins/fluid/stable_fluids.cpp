@@ -11,6 +11,13 @@
 //
 //     <simulation type="stable_fluids"> ... same children as mcfluid ... </simulation>
 //
+// dimension = 3 (include/kelvin/fluid/stable_fluids3.h): the same solvers on a 3D MAC grid, from 3D mcfluid's scene
+// (Simulation3Params: its parameters are read and validated as mcfluid reads them; stretching, control variates and
+// the Biot–Savart estimator are accepted and ignored), with its outputs (CSV columns, VDB frames, PNG slices, smoke)
+// and checkpoints. The solids are the 3D <boundary> shapes of a walk_on_spheres velocity that have an inside; a shape
+// without one, a moving one or an inflow is refused naming `velocity`. The 3D projection is fft or multigrid (cg is
+// 2D only: refused naming `projection`).
+//
 // flip: the particle baseline the thesis compares against (FLIP, Zhu and Bridson 2005), on the same MAC grid,
 // projection, obstacles and outputs: particles_per_cell (6) particles per fluid cell carry the velocity; each step
 // they move through the grid velocity (the `advection` integrator run forward), are splatted to the faces, the grid
@@ -350,16 +357,16 @@ std::vector<kelvin::ParamSpec> grid_solver_params(std::vector<kelvin::ParamSpec>
 
 static const kelvin::PluginRegistrar kelvin_stable_fluids_registrar(
     "simulation", "stable_fluids",
-    "Baseline: Stam's stable fluids on a MAC grid (semi-Lagrangian advection, implicit viscosity, pressure "
-    "projection by FFT or multigrid-preconditioned CG, static obstacles); same scene and outputs as mcfluid.",
+    "Baseline: Stam's stable fluids on a MAC grid, 2D or 3D (semi-Lagrangian advection, implicit viscosity, "
+    "pressure projection by FFT or multigrid-preconditioned CG, static obstacles); same scene and outputs as mcfluid.",
     grid_solver_params(), [](const kelvin::Properties& p) -> kelvin::ObjectPtr {
         return std::make_shared<kelvin::fluid::StableFluids>(p, kelvin::fluid::Transport::SemiLagrangian);
     });
 
 static const kelvin::PluginRegistrar kelvin_flip_registrar(
     "simulation", "flip",
-    "Baseline: FLIP particles (6 per cell, flip_ratio 0.95) on the stable_fluids MAC grid and projection, static "
-    "obstacles; same scene and outputs as mcfluid.",
+    "Baseline: FLIP particles (6 per cell in 2D, 8 in 3D; flip_ratio 0.95) on the stable_fluids MAC grid and "
+    "projection, 2D or 3D, static obstacles; same scene and outputs as mcfluid.",
     grid_solver_params(
         {kelvin::param::real("flip_ratio", 0.95, "weight of the grid's change in the particles' update (0: PIC)"),
          kelvin::param::integer("particles_per_cell", 6, "particles seeded per fluid cell (3D default: 8)")}),
