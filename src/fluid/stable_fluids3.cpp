@@ -765,6 +765,7 @@ void StableFluids3Solver::ensure_fields() {
                         }
                     w[a] = 0.25 * s;
                 }
+                if (solid_cell(i, j, k)) u = w = Vec3d(0.0);  // solids hold no flow (as mcfluid's outputs)
                 m_vel.set(cell, u);
                 m_omega.set(cell, w);
             }

@@ -33,9 +33,9 @@
 // the rest of its value (PIC). Cells emptied below half the nominal count are reseeded, cells above twice it thinned.
 //
 // Outputs (cell centres): velocity as the mean of the two faces, vorticity as the mean of the four edge values of the
-// discrete curl around the cell. Diagnostics: kinetic energy 1/2 sum over faces u_f^2 h^3 (the energy the projection
-// does not increase), divergence_rms the RMS of the discrete MAC divergence over the fluid cells (what the projection
-// zeroes), the rest from the cell-centred fields as mcfluid computes them.
+// discrete curl around the cell, both zero in solid cells. Diagnostics: kinetic energy 1/2 sum over faces u_f^2 h^3
+// (the energy the projection does not increase), divergence_rms the RMS of the discrete MAC divergence over the fluid
+// cells (what the projection zeroes), the rest from the cell-centred fields as mcfluid computes them.
 //
 // Non-finite values: a non-finite initial vorticity sample is counted and taken as 0; an initial velocity that
 // overflows is refused; non-finite face values after a step are counted and replaced by 0; nothing non-finite is
