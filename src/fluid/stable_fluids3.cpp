@@ -233,7 +233,13 @@ double StableFluids3Solver::sample_lattice(const std::vector<double>& f, const s
         if (d.periodic) {
             const double fl = std::floor(g);
             t[b] = g - fl;
-            i0[b] = wrap(int(std::fmod(fl, double(fd[b]))), fd[b]);
+            const int n = fd[b];
+            if (fl >= -double(n) && fl < 2.0 * double(n)) {  // the usual case: within one period of the box
+                const int i = int(fl);
+                i0[b] = i < 0 ? i + n : (i >= n ? i - n : i);
+            } else {
+                i0[b] = wrap(int(std::fmod(fl, double(n))), n);
+            }
             i1[b] = i0[b] + 1 == fd[b] ? 0 : i0[b] + 1;
         } else {
             const double gc = std::clamp(g, 0.0, double(fd[b] - 1));
