@@ -118,9 +118,11 @@ TEST(Baselines3, InitialVelocityIsTheCurlOfTheVectorPotential) {
 
 // Viscous ABC and Taylor–Green flows decay at exp(-2 nu |k|^2 t) (|k|^2 = 1 and 3). Semi-Lagrangian transport adds
 // its own dissipation (trilinear interpolation: O(h^2) per step), so the energy ratio is below the exact one at 16^3,
-// the gap at least 1.7x smaller at 32^3, and the first-order extrapolation 2 r32 - r16 within 2 % of the exact ratio.
+// the gap at least 1.7x smaller at 32^3, and the first-order extrapolation 2 r32 - r16 within 3 % of the exact ratio
+// (measured: 1.8 % for ABC, 0.2 % for Taylor–Green; at 48^3 the gap keeps falling as h: 0.055 for ABC).
 // Taylor–Green is an exact solution only at t = 0 (its energy cascade starts at once), so it runs to t = 0.5 only,
-// where the cascade changes the ratio by under 0.5 %. Seen to fail with the viscous step's nu dt doubled.
+// where the extrapolated ratio is still within 0.3 % of exp(-6 nu t). Seen to fail with the viscous step's nu dt
+// doubled.
 TEST(Baselines3, StableFluidsDecayAtTheViscousRate) {
     struct Case {
         const char* name;
@@ -135,7 +137,7 @@ TEST(Baselines3, StableFluidsDecayAtTheViscousRate) {
         SCOPED_TRACE(c.name);
         EXPECT_LT(r16, exact);
         EXPECT_LT(exact - r32, (exact - r16) / 1.7) << r16 << " " << r32 << " exact " << exact;
-        EXPECT_NEAR(2 * r32 - r16, exact, 0.02 * exact) << r16 << " " << r32;
+        EXPECT_NEAR(2 * r32 - r16, exact, 0.03 * exact) << r16 << " " << r32;
     }
 }
 
