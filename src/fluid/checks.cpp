@@ -74,6 +74,12 @@ double memory_estimate_3d(long long nx, long long ny, long long nz, bool control
     return 48e6 + per_cell * double(nx) * double(ny) * double(nz);
 }
 
+double memory_estimate_3d_grid(bool flip, int particles_per_cell, long long nx, long long ny, long long nz) {
+    double per_cell = 300;                                     // faces (3 x 3 copies), pressure, multigrid, outputs
+    if (flip) per_cell += 130.0 * double(particles_per_cell);  // 4 x 24 B per particle, vector growth, P2G weights
+    return 48e6 + per_cell * double(nx) * double(ny) * double(nz);
+}
+
 double cfl_warn_bound(const std::string& who) {
     return who == "flip" || who == "vortex_particles" ? CflWarnParticles : CflWarnSemiLagrangian;
 }

@@ -395,6 +395,16 @@ TEST(Baselines3, BadInputNamesTheParameter) {
     EXPECT_EQ(std::count(err.begin(), err.end(), '\n'), 1) << err;
     EXPECT_NE(err.find("'velocity'"), std::string::npos) << err;
     EXPECT_NE(err.find("no inside"), std::string::npos) << err;
+    // A grid whose particles would not fit: refused at load, naming the resolution (FLIP at 128^3 needs ~2.7 GiB).
+    const std::string ring = read_file(fs::path(KELVIN_SOURCE_DIR) / "scenes" / "fluid" / "vortex_ring.xml");
+    const fs::path big = dir.write("big.xml", with_solver(ring, "flip"));
+    const std::string mem = "KELVIN_MEMORY_LIMIT=1G \"" + std::string(KELVIN_CLI) + "\" \"" + big.string() +
+                            "\" -q -D res=128 -o \"" + (dir / "big.png").string() + "\" 2> \"" +
+                            (dir / "mem.txt").string() + "\"";
+    EXPECT_EQ(WEXITSTATUS(std::system(mem.c_str())), 2);
+    const std::string merr = read_file(dir / "mem.txt");
+    EXPECT_EQ(std::count(merr.begin(), merr.end(), '\n'), 1) << merr;
+    EXPECT_NE(merr.find("'resolution'"), std::string::npos) << merr;
 }
 
 // Smoke is carried by the flow and fed by its source: without a source the mass stays within 5 % (semi-Lagrangian

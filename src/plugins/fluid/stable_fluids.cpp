@@ -25,8 +25,10 @@
 // Cells the flow empties are reseeded to half the nominal count, crowded ones (twice it) thinned.
 //
 // Parameters: `kelvin --list-plugins KIND NAME`, or docs/reference.md (generated from the declarations below).
+#include <kelvin/core/error.h>
 #include <kelvin/core/job.h>
 #include <kelvin/core/logging.h>
+#include <kelvin/core/memory.h>
 #include <kelvin/core/registry.h>
 #include <kelvin/fluid/boundary.h>
 #include <kelvin/fluid/stable_fluids.h>
@@ -83,6 +85,9 @@ public:
             props.error("projection", "cg (incomplete Cholesky) is 2D only; 3D takes auto, fft or multigrid");
         const MCFluid3Settings& s = m_3d->settings;
         if (s.nx < 4 || s.ny < 4 || s.nz < 4) props.error("cache", m_who + " needs at least 4x4x4 cells");
+        check_memory(memory_estimate_3d_grid(m_transport == Transport::FLIP, m_particles_per_cell, s.nx, s.ny, s.nz),
+                     fmt::format("{}: a {}x{}x{} grid (parameter 'resolution')", m_who, s.nx, s.ny, s.nz),
+                     props.location_of("cache"));
         if (props.get_object("velocity"))
             log_info(
                 "{}: <velocity> is mcfluid's Monte Carlo estimator; {} computes its velocity itself (only the "
@@ -264,8 +269,17 @@ public:
     std::shared_ptr<const VorticityField> vorticity_field() const override { return m_3d ? nullptr : m_params.field; }
     const VorticityField3* vorticity_field3() const override { return m_3d ? m_3d->field : nullptr; }
     std::unique_ptr<FluidSolver> create_solver(const RunContext& ctx) const override {
-        if (m_3d) return Simulation::create_solver(ctx);  // the error
+        if (m_3d)
+            throw InputError({}, fmt::format("simulation '{}' is 3D: its solver is a StableFluids3Solver (run it as a "
+                                             "job, or build one from stable_fluids3.h)",
+                                             m_who));
         return make_solver(ctx);
+    }
+    std::unique_ptr<MCFluid3Solver> create_solver3(const RunContext& ctx) const override {
+        if (!m_3d) return Simulation::create_solver3(ctx);  // the 2D error
+        throw InputError({}, fmt::format("simulation '{}' is a 3D grid baseline, not an MCFluid3Solver (run it as a "
+                                         "job, or build a StableFluids3Solver from stable_fluids3.h)",
+                                         m_who));
     }
 
     /// The solver run(ctx) steps, at t = 0 (with the dye and ctx.cancel as its token); it refers to this object.
