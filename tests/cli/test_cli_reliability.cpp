@@ -177,9 +177,11 @@ std::vector<Solver> solvers() {
         v.args.insert(v.args.end(), common.begin(), common.end());
         out.push_back(v);
     }
-    Solver v3{"mcfluid 3D", {tg3, "-D", "res=8"}};
-    v3.args.insert(v3.args.end(), common.begin(), common.end());
-    out.push_back(v3);
+    for (const char* s : {"mcfluid", "stable_fluids", "flip"}) {
+        Solver v3{std::string(s) + " 3D", {tg3, "-D", "res=8", "-D", std::string("solver=") + s}};
+        v3.args.insert(v3.args.end(), common.begin(), common.end());
+        out.push_back(v3);
+    }
     return out;
 }
 
