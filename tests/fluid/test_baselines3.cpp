@@ -326,9 +326,13 @@ std::vector<std::vector<double>> csv_rows(const fs::path& p) {
     return rows;
 }
 
+// The scene with its simulation's type set to `type` (scenes write type="mcfluid" or type="$solver").
 std::string with_solver(std::string xml, const std::string& type) {
-    const std::string from = "type=\"mcfluid\"";
-    xml.replace(xml.find(from), from.size(), "type=\"" + type + "\"");
+    for (const std::string from : {"<simulation type=\"mcfluid\"", "<simulation type=\"$solver\""}) {
+        const std::size_t at = xml.find(from);
+        if (at != std::string::npos) return xml.replace(at, from.size(), "<simulation type=\"" + type + "\"");
+    }
+    ADD_FAILURE() << "no <simulation type=\"mcfluid\"> in the scene";
     return xml;
 }
 
