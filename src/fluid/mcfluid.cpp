@@ -26,6 +26,7 @@
 namespace kelvin::fluid {
 
 const char* to_string(Advection a) { return a == Advection::Euler ? "euler" : "rk4"; }
+const char* to_string(VorticityTransport t) { return t == VorticityTransport::Linear ? "linear" : "cubic"; }
 
 namespace {
 
@@ -237,6 +238,8 @@ bool MCFluidSolver::step(double dt) {
     const int nd = viscous ? s.diffusion_samples : 1;
     const double sigma = viscous ? std::sqrt(2 * s.viscosity * dt) : 0.0;
     const Interpolation interp = s.interpolation;
+    const bool cubic = s.transport == VorticityTransport::Cubic;
+    auto lookup = [&](Vec2d p) { return cubic ? m_omega.sample_cubic(p) : m_omega.sample(p, interp); };
     SlabPass pass(*m_comm, std::size_t(ny), std::size_t(nx));  // this rank's rows
     std::vector<RowWork> rows(pass.size(), RowWork{});
     std::atomic<bool> interrupted{false};
@@ -284,13 +287,13 @@ bool MCFluidSolver::step(double dt) {
             xd = s.domain.wrap(xd);
             double value;
             if (!viscous) {
-                value = m_omega.sample(xd, interp);
+                value = lookup(xd);
             } else {  // Feynman–Kac diffusion: Gaussian displacement of variance 2 nu dt per axis (Eq. 5.22)
                 double sum = 0;
                 for (int k = 0; k < nd; ++k) {
                     Vec2d y = xd + sigma * standard_normal2(rng);
                     if (m_wos) y = m_wos->reflect_out(y);  // free slip: nothing diffuses into a wall
-                    sum += m_omega.sample(y, interp);
+                    sum += lookup(y);
                 }
                 value = sum / nd;
                 w.diffusion += uint64_t(nd);

@@ -33,6 +33,7 @@ MCFluidParams MCFluidParams::parse(const Properties& props) {
     s.dt = p.common.dt;
     s.viscosity = p.common.viscosity;
     s.advection = p.common.advection;
+    s.transport = p.common.transport;
     s.nx = p.common.nx;
     s.ny = p.common.ny;
     s.diffusion_samples = int(props.get_int("diffusion_samples", 1, 1 << 20));

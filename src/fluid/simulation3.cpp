@@ -53,6 +53,7 @@ Simulation3Params Simulation3Params::parse(const Properties& props) {
     s.viscosity = props.get_float("viscosity", 0.0, 1e300);
     s.diffusion_samples = int(props.get_int("diffusion_samples", 1, 1 << 20));
     s.advection = props.get_choice("advection", {"euler", "rk4"}) == "euler" ? Advection::Euler : Advection::RK4;
+    s.transport = parse_transport(props);
     s.stretching = props.get_bool("stretching");
     s.control_variates = props.get_bool("control_variates");
     s.initial_samples = int(props.get_int("initial_samples", 0, 1 << 24));

@@ -41,6 +41,15 @@ class WosVelocityField;
 enum class Advection { Euler, RK4 };
 const char* to_string(Advection a);
 
+/// How a backtrace reads the previous state at its departure point (the scene's `transport`). Linear: the cache's
+/// bi/trilinear interpolant (the thesis' Section 5.3.3 scheme; like every semi-Lagrangian method on a linear
+/// interpolant it diffuses: each step averages neighbouring cells, and over a few hundred steps a vortex loses a
+/// quarter to a half of its energy). Cubic: the monotone cubic interpolant (Grid2::sample_cubic, Grid3::cubic_stencil)
+/// — third order, clamped so it makes no new extrema; the default. The Biot–Savart source stays the cache's
+/// `interpolation` either way.
+enum class VorticityTransport { Linear, Cubic };
+const char* to_string(VorticityTransport t);
+
 /// omega(0, x).
 using InitialField = std::function<double(const Vec2d&)>;
 
@@ -51,6 +60,7 @@ struct SolverSettings {
     Domain<D> domain;
     Interpolation interpolation = Interpolation::Bilinear;  ///< Bilinear means trilinear in 3D
     Advection advection = Advection::RK4;
+    VorticityTransport transport = VorticityTransport::Cubic;
     double dt = 0.05;
     double viscosity = 0;       ///< nu; 0 = inviscid: the diffusion step never runs
     int diffusion_samples = 1;  ///< n_d (used only when viscosity > 0)
