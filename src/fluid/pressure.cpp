@@ -5,8 +5,10 @@
 #include <kelvin/fluid/pressure.h>
 
 #include <fftw3.h>
+
 #include <Eigen/IterativeLinearSolvers>
 #include <Eigen/SparseCore>
+#include "fftw_planner.h"
 
 #include <algorithm>
 #include <cmath>
@@ -20,13 +22,12 @@ bool PoissonGrid::has_solid() const {
     return std::any_of(solid.begin(), solid.end(), [](uint8_t s) { return s; });
 }
 
-namespace {
-
-// FFTW's planner is not thread-safe (fftw_execute is): every plan is made and destroyed under this lock.
 std::mutex& fftw_planner_mutex() {
     static std::mutex m;
     return m;
 }
+
+namespace {
 
 void check_grid(const PoissonGrid& g, const char* who) {
     if (g.nx < 2 || g.ny < 2) throw_runtime("{}: grid {}x{} too small", who, g.nx, g.ny);

@@ -20,8 +20,10 @@
 namespace kelvin::fluid {
 
 VorticityTransport parse_transport(const Properties& props) {
-    return props.get_choice("transport", {"cubic", "linear"}) == "linear" ? VorticityTransport::Linear
-                                                                          : VorticityTransport::Cubic;
+    const std::string t = props.get_choice("transport", {"cubic", "linear", "maccormack"});
+    return t == "linear"       ? VorticityTransport::Linear
+           : t == "maccormack" ? VorticityTransport::MacCormack
+                               : VorticityTransport::Cubic;
 }
 
 SimulationParams SimulationParams::parse(const Properties& props, const std::string& who) {

@@ -143,7 +143,8 @@ protected:
 /// the mollifier delta, which --spp overrides for a run) and the cache.
 struct MCFluidParams {
     SimulationParams common;
-    MCFluidSettings settings;  ///< the solver's, from the scene (seed 0, n_mc the estimator's)
+    MCFluidSettings settings;    ///< the solver's, from the scene (seed 0, n_mc the estimator's)
+    bool energy_budget = false;  ///< measure where each step's energy goes (energy_budget.h)
     /// Reads and validates them (errors name the parameter).
     static MCFluidParams parse(const Properties& props);
 };
