@@ -18,20 +18,6 @@ const std::string Scenes = std::string(KELVIN_SOURCE_DIR) + "/scenes/";
     EXPECT_NE(std::string(haystack).find(needle), std::string::npos) \
         << "expected to find \"" << (needle) << "\" in:\n  " << (haystack)
 
-std::string quoted(const std::string& s) {
-    std::string q = "'";
-    for (char c : s) q += c == '\'' ? std::string("'\\''") : std::string(1, c);
-    return q + "'";
-}
-
-// `kelvin args...` started in the directory `cwd`.
-ProcessResult run_kelvin_in(const fs::path& cwd, const std::vector<std::string>& args,
-                            const std::map<std::string, std::string>& env = {}) {
-    std::string cmd = "cd " + quoted(cwd.string()) + " && exec " + quoted(kelvin_exe());
-    for (const auto& a : args) cmd += " " + quoted(a);
-    return run_process("/bin/sh", {"-c", cmd}, env);
-}
-
 bool same_pixels(const fs::path& a, const fs::path& b) {
     const kelvin::Bitmap x = kelvin::read_image(a), y = kelvin::read_image(b);
     if (x.width() != y.width() || x.height() != y.height() || x.channels() != y.channels()) return false;
