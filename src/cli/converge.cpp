@@ -132,7 +132,7 @@ CLI::App* add_converge_command(CLI::App& app, ConvergeArgs& a) {
     c->add_option("--disk", a.disk, "Simulations: compare the cells within radius r of cx,cy: cx,cy,r");
     c->add_option("--pixels", a.pixels, "Renders: compare the pixels [x0,x1) x [y0,y1): x0,y0,x1,y1");
     c->add_option("--epsilon", a.epsilon, "Epsilon of rMSE and relative L1")->check(cli::finite_range(1e-300, 1e300));
-    c->add_option("-o,--output", a.output, "Output directory (default: <scene>_converge)");
+    c->add_option("-o,--output", a.output, "Output directory (default: <scene>_converge in the current directory)");
     c->add_option("--images", a.images, "Checkpoint images to write: none, first (run 0), all")
         ->check(CLI::IsMember({"none", "first", "all"}));
     a.plot_option =

@@ -665,8 +665,10 @@ int main(int argc, char** argv) {
             data.string());
     });
     app.add_option("scene", o.scene, "Scene file (XML)");
-    app.add_option("-o,--output", o.output,
-                   "Output image; the extension picks the format (.exr .png .jpg .hdr .pfm .tif)");
+    app.add_option(
+        "-o,--output", o.output,
+        "Output image; the extension picks the format (.exr .png .jpg .hdr .pfm .tif); default: the scene's name "
+        "with .exr in the current directory");
     app.add_option("-D,--define", o.defines, "Set scene parameter NAME=VALUE (overrides <default>)")->take_all();
     app.add_option("-t,--threads", o.threads, "Worker threads (default: all cores); results do not depend on it")
         ->check(CLI::Range(0, 4096));
