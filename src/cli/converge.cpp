@@ -9,6 +9,7 @@
 
 #include <kelvin/core/converge.h>
 #include <kelvin/core/error.h>
+#include <kelvin/core/files.h>
 #include <kelvin/core/install.h>
 #include <kelvin/core/interrupt.h>
 #include <kelvin/core/logging.h>
@@ -248,6 +249,11 @@ int run_converge(const ConvergeArgs& args, Communicator& world) {
     }
     o.epsilon = a.epsilon;
     o.output_dir = a.output.empty() ? fs::path(fs::path(a.scene).stem().string() + "_converge") : fs::path(a.output);
+    if (a.output.empty() && !fs::exists(o.output_dir))  // the default: say so when the current directory takes no file
+        if (const std::string why = output_file_problem(o.output_dir); !why.empty())
+            throw InputError({}, fmt::format("output directory '{}' (the default: the scene's name with _converge in "
+                                             "the current directory; -o names another): {}",
+                                             o.output_dir.string(), why));
     o.images = a.images == "none"  ? ConvergeOptions::Images::None
                : a.images == "all" ? ConvergeOptions::Images::All
                                    : ConvergeOptions::Images::First;

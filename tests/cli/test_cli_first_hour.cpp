@@ -72,6 +72,9 @@ TEST_F(CliFirstHour, UnwritableCurrentDirectoryIsOneLine) {
     const std::string line = expect_one_error_line(r);
     EXPECT_CONTAINS(line, "output 'tiny.exr' (the default");
     EXPECT_CONTAINS(line, "-o names another");
+    r = run_kelvin_in("/proc", {"converge", Scenes + "tests/tiny.xml", "--config", "a:spp=1", "--spp", "1"});
+    const std::string study = expect_one_error_line(r);
+    EXPECT_CONTAINS(study, "output directory 'tiny_converge' (the default");
 }
 
 // A simulation's -o PNG is the picture the frames show: frame_size (512) pixels along the longer side, not one
