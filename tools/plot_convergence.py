@@ -477,6 +477,9 @@ def main(argv):
     ap.add_argument("--out", help="output directory (default: plots/ next to the CSV)")
     ap.add_argument("--metrics", help="comma-separated metrics (default: rel_mse,l1,ssim for renders; "
                                       "rmse,rel_l2,max_abs for fields)")
+    ap.add_argument("--main", action="store_true",
+                    help="only the study's main metric: rel_mse for renders, rmse for fields (what kelvin converge "
+                         "--plot asks for by default)")
     ap.add_argument("--band", choices=["std", "minmax"], default="std",
                     help="spread across runs: std (for --center median: half the interquartile range) or minmax")
     ap.add_argument("--center", choices=["mean", "median"], default="mean",
@@ -495,8 +498,13 @@ def main(argv):
     rows = read_rows(a.csv)
     field_study = "field" in rows[0]
     available = FIELD_METRICS if field_study else IMAGE_METRICS
-    metrics = a.metrics.split(",") if a.metrics else (["rmse", "rel_l2", "max_abs"] if field_study
-                                                      else ["rel_mse", "l1", "ssim"])
+    if a.metrics and a.main:
+        fail("--metrics and --main choose the metrics both: give one")
+    if a.main:
+        metrics = ["rmse"] if field_study else ["rel_mse"]
+    else:
+        metrics = a.metrics.split(",") if a.metrics else (["rmse", "rel_l2", "max_abs"] if field_study
+                                                          else ["rel_mse", "l1", "ssim"])
     for m in metrics:
         if m not in available:
             fail("--metrics: '%s' is not a column of this study (have %s)" % (m, ", ".join(available)))

@@ -9,6 +9,7 @@
 
 #include <kelvin/core/converge.h>
 #include <kelvin/core/error.h>
+#include <kelvin/core/files.h>
 #include <kelvin/core/install.h>
 #include <kelvin/core/interrupt.h>
 #include <kelvin/core/logging.h>
@@ -83,7 +84,10 @@ int run_plot(const fs::path& csv, const fs::path& out_dir, const ConvergeArgs& a
                         (data_directory() / "tools").string()));
     std::vector<std::string> args = {python(),         script.string(), csv.string(),  "--out",
                                      out_dir.string(), "--formats",     a.plot_formats};
-    if (!a.plot_metrics.empty()) args.insert(args.end(), {"--metrics", a.plot_metrics});
+    if (!a.plot_metrics.empty())
+        args.insert(args.end(), {"--metrics", a.plot_metrics});
+    else
+        args.push_back("--main");  // one metric unless more are asked for
     if (a.quiet) args.push_back("--quiet");
     std::vector<char*> argv;
     for (auto& a : args) argv.push_back(a.data());
@@ -109,7 +113,7 @@ CLI::App* add_converge_command(CLI::App& app, ConvergeArgs& a) {
         "converge",
         "Error against time: run a scene under several configurations and seeds, measure the error at "
         "checkpoints against a reference, write a CSV (docs/convergence.md)");
-    c->add_option("scene", a.scene, "Scene file (XML)")->required();
+    c->add_option("scene", a.scene, "Scene file (XML)");  // required: checked in run_converge (see apply_plot_list)
     c->add_option("--reference", a.reference,
                   "Reference image (EXR): renders compare R,G,B; simulations compare the field channels. Simulations "
                   "without it use the exact solution");
@@ -129,28 +133,69 @@ CLI::App* add_converge_command(CLI::App& app, ConvergeArgs& a) {
     c->add_option("--disk", a.disk, "Simulations: compare the cells within radius r of cx,cy: cx,cy,r");
     c->add_option("--pixels", a.pixels, "Renders: compare the pixels [x0,x1) x [y0,y1): x0,y0,x1,y1");
     c->add_option("--epsilon", a.epsilon, "Epsilon of rMSE and relative L1")->check(cli::finite_range(1e-300, 1e300));
-    c->add_option("-o,--output", a.output, "Output directory (default: <scene>_converge)");
+    c->add_option("-o,--output", a.output, "Output directory (default: <scene>_converge in the current directory)");
     c->add_option("--images", a.images, "Checkpoint images to write: none, first (run 0), all")
         ->check(CLI::IsMember({"none", "first", "all"}));
-    c->add_flag("--plot", a.plot, "Run tools/plot_convergence.py on the CSV (plots in <output>/plots)");
+    a.plot_option =
+        c->add_option(
+             "--plot", a.plot_list,
+             "Run tools/plot_convergence.py on the CSV (plots in <output>/plots); --plot=LIST names the metrics "
+             "and formats, e.g. --plot=rmse,l1,svg (default: the main metric, rel_mse for renders and rmse for "
+             "fields, as PNG)")
+            ->expected(0, 1);
     c->add_option("-t,--threads", a.threads, "Worker threads (default: all cores)")->check(CLI::Range(0, 4096));
     c->add_option("--plugin-path", a.plugin_paths, "Load plugin modules (.so) from DIR");
     c->add_option("--plot-metrics", a.plot_metrics,
                   "With --plot: the metrics to plot, comma-separated (default: rel_mse,l1,ssim for renders; "
                   "rmse,rel_l2,max_abs for fields)");
-    c->add_option("--plot-formats", a.plot_formats, "With --plot: the plot formats, comma-separated (default png)")
-        ->check([](const std::string& v) -> std::string {
-            for (const auto& f : split_list(v))
-                if (f != "png" && f != "svg" && f != "pdf") return "formats are png, svg and pdf";
-            return v.empty() ? std::string("no format given") : std::string();
-        });
+    a.plot_formats_option =
+        c->add_option("--plot-formats", a.plot_formats, "With --plot: the plot formats, comma-separated (default png)")
+            ->check([](const std::string& v) -> std::string {
+                for (const auto& f : split_list(v))
+                    if (f != "png" && f != "svg" && f != "pdf") return "formats are png, svg and pdf";
+                return v.empty() ? std::string("no format given") : std::string();
+            });
     c->add_flag("--allow-unused", a.allow_unused, "Warn about unused scene parameters instead of failing");
     c->add_flag("-q,--quiet", a.quiet, "Only warnings and errors");
     c->add_flag("-v,--verbose", a.verbose, "Debug output");
     return c;
 }
 
-int run_converge(const ConvergeArgs& a, Communicator& world) {
+// --plot=LIST: its formats (png, svg, pdf) and metrics, merged into --plot-formats and --plot-metrics (bad input when
+// both name the same thing). A LIST that names a file (kelvin converge --plot scene.xml ...) is refused with the
+// spelling that works.
+void apply_plot_list(ConvergeArgs& a, bool formats_given) {
+    if (a.scene.empty()) {
+        if (a.plot_list.find_first_of("./") != std::string::npos)
+            throw InputError({}, fmt::format("converge: no scene given: --plot took '{}' as its list of metrics and "
+                                             "formats (put the scene first: kelvin converge SCENE ... --plot)",
+                                             a.plot_list));
+        throw InputError({}, "converge: no scene given (kelvin converge SCENE --config ... --spp|--checkpoints ...)");
+    }
+    if (a.plot_list.empty()) return;
+    std::string metrics, formats;
+    for (const auto& w : split_list(a.plot_list)) {
+        if (w.find_first_of("./") != std::string::npos)
+            throw InputError({}, fmt::format("--plot '{}': expected metrics and formats such as rmse,l1,svg (a scene "
+                                             "goes before the options: kelvin converge SCENE ... --plot)",
+                                             a.plot_list));
+        std::string& to = w == "png" || w == "svg" || w == "pdf" ? formats : metrics;
+        to += (to.empty() ? "" : ",") + w;
+    }
+    if (!metrics.empty() && !a.plot_metrics.empty())
+        throw InputError({}, fmt::format("--plot '{}' and --plot-metrics '{}' both name the metrics: give one",
+                                         a.plot_list, a.plot_metrics));
+    if (!formats.empty() && formats_given)
+        throw InputError({}, fmt::format("--plot '{}' and --plot-formats '{}' both name the formats: give one",
+                                         a.plot_list, a.plot_formats));
+    if (!metrics.empty()) a.plot_metrics = metrics;
+    if (!formats.empty()) a.plot_formats = formats;
+}
+
+int run_converge(const ConvergeArgs& args, Communicator& world) {
+    ConvergeArgs a = args;
+    a.plot = a.plot || (a.plot_option && a.plot_option->count() > 0);
+    apply_plot_list(a, a.plot_formats_option && a.plot_formats_option->count() > 0);
     // Under mpirun the runs are spread over the ranks; rank 0 reports and writes (core/converge.h).
     set_verbosity(world, a.quiet, a.verbose);
     ProgressReporter::set_enabled(false);
@@ -204,6 +249,11 @@ int run_converge(const ConvergeArgs& a, Communicator& world) {
     }
     o.epsilon = a.epsilon;
     o.output_dir = a.output.empty() ? fs::path(fs::path(a.scene).stem().string() + "_converge") : fs::path(a.output);
+    if (a.output.empty() && !fs::exists(o.output_dir))  // the default: say so when the current directory takes no file
+        if (const std::string why = output_file_problem(o.output_dir); !why.empty())
+            throw InputError({}, fmt::format("output directory '{}' (the default: the scene's name with _converge in "
+                                             "the current directory; -o names another): {}",
+                                             o.output_dir.string(), why));
     o.images = a.images == "none"  ? ConvergeOptions::Images::None
                : a.images == "all" ? ConvergeOptions::Images::All
                                    : ConvergeOptions::Images::First;

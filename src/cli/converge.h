@@ -16,6 +16,9 @@ struct ConvergeArgs {
     std::vector<std::string> configs, sweeps, defines, fields, plugin_paths;
     std::string seconds, spp, steps, times, pixels, window, disk;
     std::string plot_metrics, plot_formats = "png";  ///< --plot-metrics, --plot-formats (plot_convergence.py)
+    std::string plot_list;  ///< --plot=LIST: metrics and formats in one list (formats are png, svg, pdf)
+    const CLI::Option* plot_option = nullptr;          ///< --plot (given with or without a list)
+    const CLI::Option* plot_formats_option = nullptr;  ///< --plot-formats
     int runs = 1, threads = 0;
     std::string seed = "0";
     double epsilon = 1e-2;

@@ -21,6 +21,7 @@
 #include <kelvin/core/strings.h>
 #include <kelvin/core/version.h>
 #include <kelvin/core/video.h>
+#include <kelvin/mlt/integrator.h>
 #include <kelvin/render/film.h>
 #include <kelvin/render/integrator.h>
 #include <kelvin/render/scene.h>
@@ -57,7 +58,9 @@ struct Options {
     int threads = 0;
     std::string seed_text = "0";
     uint64_t seed = 0;
-    long long spp = -1;
+    long long spp = -1;        // --spp
+    long long samples = -1;    // --samples (any job)
+    long long mutations = -1;  // --mutations (Metropolis renders)
     double time_limit = 0;
     double write_partial = 0;
     double exposure = 0;
@@ -245,6 +248,30 @@ void check_crop(const Job& job, const CropWindow& c, const std::string& text) {
             {}, fmt::format("--crop '{}': the window exceeds the {} x {} film (x1 <= {}, y1 <= {})", text, w, h, w, h));
 }
 
+// The run's sample count: --spp, --samples or --mutations (at most one; -1 when none is given).
+long long sample_count(const Options& o) {
+    int given = (o.spp > 0) + (o.samples > 0) + (o.mutations > 0);
+    if (given > 1) throw InputError({}, "--spp, --samples and --mutations set the same count: give one of them");
+    return o.spp > 0 ? o.spp : o.samples > 0 ? o.samples : o.mutations;
+}
+
+// What each sample option means for this job (docs/cli.md, "Sample counts"): --samples fits every job, --spp every
+// render (mutations per pixel for Metropolis, as a Mitsuba sampler's sample_count; a simulation's n_mc, as it
+// always did), --mutations Metropolis renders only.
+void check_sample_option(const Job& job, const Options& o) {
+    if (o.mutations <= 0) return;
+    const auto* scene = dynamic_cast<const Scene*>(&job);
+    const Integrator* integrator = scene ? scene->integrator() : nullptr;
+    if (integrator && dynamic_cast<const MetropolisIntegrator*>(integrator)) return;
+    throw InputError(
+        {}, fmt::format(
+                "--mutations {}: {} has no Metropolis chains (--mutations is for pssmlt and drmlt; use "
+                "--samples: {})",
+                o.mutations,
+                integrator ? fmt::format("integrator '{}'", integrator->plugin_name()) : std::string("a simulation"),
+                integrator ? "samples per pixel" : "n_mc, samples per velocity estimate"));
+}
+
 std::string rate(double work, double seconds, const std::string& unit) {
     if (seconds <= 0) return "-";
     double r = work / seconds;
@@ -301,7 +328,7 @@ void write_stats(const fs::path& path, const Options& o, const RunContext& ctx, 
     j["defines"] = defines;
     j["seed"] = ctx.seed;
     j["threads"] = thread_count();
-    j["spp"] = ctx.spp > 0 ? json(ctx.spp) : json(nullptr);
+    j["spp"] = ctx.spp > 0 ? json(ctx.spp) : json(nullptr);  // the run's sample count, whichever option gave it
     j["time_limit"] = ctx.time_limit > 0 ? json(ctx.time_limit) : json(nullptr);
     j["crop"] = ctx.crop.empty() ? json(nullptr) : json({ctx.crop.x0, ctx.crop.x1, ctx.crop.y0, ctx.crop.y1});
     j["work"] = r.work;
@@ -320,6 +347,11 @@ void write_stats(const fs::path& path, const Options& o, const RunContext& ctx, 
     }
     j["statistics"] = stats;
     write_text_atomically(path, j.dump(2) + "\n");
+}
+
+// The output without -o: the scene's file name with `ext`, in the current directory.
+fs::path default_output(const fs::path& scene, const std::string& ext = ".exr") {
+    return fs::path(scene.filename()).replace_extension(ext);
 }
 
 // The part of a run before the job starts (options, scene, outputs): the job to run, or an exit code.
@@ -364,7 +396,7 @@ int run(const Options& o, Communicator& world) {
     ThreadLimit limit(o.threads);
     RunContext ctx;
     ctx.seed = o.seed;
-    ctx.spp = o.spp;
+    ctx.spp = sample_count(o);
     ctx.time_limit = o.time_limit;
     ctx.write_partial = o.write_partial;
     ctx.quiet = o.quiet || !root;
@@ -479,7 +511,7 @@ int run_frames(const Options& o, Communicator& world) {
     for (const auto& d : o.defines)
         if (d.rfind("frame=", 0) == 0)
             throw InputError({}, fmt::format("-D '{}': --frames sets the parameter 'frame' itself", d));
-    const std::string pattern = o.output.empty() ? fs::path(o.scene).replace_extension(".exr").string() : o.output;
+    const std::string pattern = o.output.empty() ? default_output(o.scene).string() : o.output;
     const fs::path first = frame_output(pattern, r.first, r.digits);  // a bad pattern is an error before any work
     if (first.has_parent_path() && !fs::exists(first.parent_path()) && world.root()) {
         std::error_code ec;  // a sequence gets its own folder; a failure is reported by the -o check below
@@ -539,6 +571,7 @@ Prepared prepare(const Options& o, bool prints) {
         popts.defines[d.substr(0, eq)] = d.substr(eq + 1);
     }
     const CropWindow crop = o.crop.empty() ? CropWindow{} : parse_crop(o.crop);
+    sample_count(o);  // one sample option at most
 
     fs::path scene_path = o.scene;
     if (o.list_params) {
@@ -547,7 +580,15 @@ Prepared prepare(const Options& o, bool prints) {
         check_defines(parsed, /*allow_unused=*/true, "", /*listing=*/true);  // a -D the scene does not know: a warning
         return finished(ExitOk);
     }
-    fs::path out = o.output.empty() ? fs::path(scene_path).replace_extension(".exr") : fs::path(o.output);
+    // Without -o: the scene's name with .exr in the current directory, as pbrt (and `kelvin converge`) do; never
+    // beside the scene, which may be a source tree or a read-only installation (docs/cli.md, "Where outputs go").
+    const fs::path out = o.output.empty() ? default_output(scene_path) : fs::path(o.output);
+    const std::string out_option = o.output.empty()
+                                       ? fmt::format(
+                                             "output '{}' (the default: the scene's name in the current directory; -o "
+                                             "names another)",
+                                             out.string())
+                                       : fmt::format("-o '{}'", out.string());
     if (!is_supported_image_extension(out))
         throw InputError({}, fmt::format("-o '{}': unsupported image format '{}' (use .exr, .png, .jpg, .hdr, .pfm or "
                                          ".tif)",
@@ -568,7 +609,7 @@ Prepared prepare(const Options& o, bool prints) {
     // Before any work: an output that cannot be written would throw the whole run away. (Simulation frames
     // and CSV go beside it, so this covers them too.)
     if (std::string why = output_file_problem(out); !why.empty())
-        throw InputError({}, fmt::format("-o '{}': {}", out.string(), why));
+        throw InputError({}, fmt::format("{}: {}", out_option, why));
     if (!o.stats.empty()) {
         if (std::string why = output_file_problem(o.stats); !why.empty())
             throw InputError({}, fmt::format("--stats '{}': {}", o.stats, why));
@@ -592,6 +633,7 @@ Prepared prepare(const Options& o, bool prints) {
     auto job = std::dynamic_pointer_cast<Job>(root);
     if (!job) throw InputError(parsed.root->loc, "the root <scene> did not produce a runnable job");
     if (!crop.empty()) check_crop(*job, crop, o.crop);
+    check_sample_option(*job, o);
     log_debug("loaded {} in {:.3f} s", scene_path.string(), load_timer.seconds());
 
     Prepared p;
@@ -623,13 +665,22 @@ int main(int argc, char** argv) {
             data.string());
     });
     app.add_option("scene", o.scene, "Scene file (XML)");
-    app.add_option("-o,--output", o.output,
-                   "Output image; the extension picks the format (.exr .png .jpg .hdr .pfm .tif)");
+    app.add_option(
+        "-o,--output", o.output,
+        "Output image; the extension picks the format (.exr .png .jpg .hdr .pfm .tif); default: the scene's name "
+        "with .exr in the current directory");
     app.add_option("-D,--define", o.defines, "Set scene parameter NAME=VALUE (overrides <default>)")->take_all();
     app.add_option("-t,--threads", o.threads, "Worker threads (default: all cores); results do not depend on it")
         ->check(CLI::Range(0, 4096));
     app.add_option("--seed", o.seed_text, "Random seed (0 to 2^64 - 1)");
-    app.add_option("--spp", o.spp, "Samples per pixel (overrides the scene's sampler)")
+    app.add_option("--spp", o.spp,
+                   "Renders: samples per pixel, overriding the scene's sampler (Metropolis: mutations per pixel)")
+        ->check(CLI::Range(1LL, 1LL << 40));
+    app.add_option("--mutations", o.mutations, "Metropolis renders (pssmlt, drmlt): mutations per pixel")
+        ->check(CLI::Range(1LL, 1LL << 40));
+    app.add_option("--samples", o.samples,
+                   "The run's sample count in its own unit: samples per pixel (renders), mutations per pixel "
+                   "(Metropolis), n_mc samples per velocity estimate (simulations)")
         ->check(CLI::Range(1LL, 1LL << 40));
     app.add_option("--time-limit", o.time_limit, "Stop after this many seconds (equal-time runs)")
         ->check(cli::finite_non_negative());
@@ -669,6 +720,7 @@ int main(int argc, char** argv) {
     } catch (const CLI::CallForVersion& e) {
         return app.exit(e);
     } catch (const CLI::ParseError& e) {
+        if (launcher_rank() > 0) return ExitInput;  // under mpirun every rank parses the same line: rank 0 says it
         std::fprintf(stderr, "kelvin: error: %s (see kelvin --help)\n", cli::error_line(e.what()).c_str());
         return ExitInput;
     }
@@ -690,19 +742,22 @@ int main(int argc, char** argv) {
             throw InputError({}, "--video needs --frames (the frames of the video)");
         return o.frames.empty() ? run(o, *world) : run_frames(o, *world);
     } catch (const InputError& e) {
-        if (!world || world->root()) std::fprintf(stderr, "kelvin: error: %s\n", cli::error_line(e.what()).c_str());
+        if (world ? world->root() : launcher_rank() <= 0)
+            std::fprintf(stderr, "kelvin: error: %s\n", cli::error_line(e.what()).c_str());
         return ExitInput;
     } catch (const Interrupted&) {  // a stop seen by a loader outside the paths that turn it into an empty result
-        if (!world || world->root()) std::fprintf(stderr, "kelvin: interrupted while loading; nothing written\n");
+        if (world ? world->root() : launcher_rank() <= 0)
+            std::fprintf(stderr, "kelvin: interrupted while loading; nothing written\n");
         return ExitInterrupted;
     } catch (const std::bad_alloc&) {
-        if (!world || world->root())
+        if (world ? world->root() : launcher_rank() <= 0)
             std::fprintf(stderr,
                          "kelvin: error: out of memory (an allocation failed; lower the resolution or sample count, "
                          "or raise the memory limit)\n");
         return ExitRuntime;
     } catch (const std::exception& e) {
-        if (!world || world->root()) std::fprintf(stderr, "kelvin: error: %s\n", cli::error_line(e.what()).c_str());
+        if (world ? world->root() : launcher_rank() <= 0)
+            std::fprintf(stderr, "kelvin: error: %s\n", cli::error_line(e.what()).c_str());
         return ExitRuntime;
     }
 }

@@ -661,8 +661,9 @@ private:
         }
         if (m_simulation && !o.spp.empty())
             throw InputError({o.scene.string(), 0, 0},
-                             "the scene runs a simulation: use --steps, --times or "
-                             "--checkpoints, not --spp");
+                             "the scene runs a simulation: use --steps, --times or --checkpoints, not --spp (a "
+                             "simulation's sample count n_mc is swept as a configuration: --sweep spp=16,64,256 in "
+                             "the shipped scenes)");
         if (!m_simulation && (!o.steps.empty() || !o.sim_times.empty()))
             throw InputError({o.scene.string(), 0, 0},
                              "the scene renders: use --spp or --checkpoints, not --steps or --times");

@@ -76,6 +76,12 @@ bool launched_by_mpi(int* size) {
     return false;
 }
 
+int launcher_rank() {
+    for (const char* name : {"OMPI_COMM_WORLD_RANK", "PMIX_RANK", "PMI_RANK", "SLURM_PROCID"})
+        if (const int r = env_int(name); r >= 0) return r;
+    return -1;
+}
+
 Communicator& world_communicator() {
     std::lock_guard lock(world_mutex);
     if (world) return *world;

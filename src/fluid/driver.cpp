@@ -115,6 +115,24 @@ RunResult run_simulation(DrivenSolver& solver, const DriverSettings& s, RunConte
                                 ctx.write_partial > 0 || ctx.output.empty() || solver.image_carries_velocity(ext) ||
                                 (paths.enabled() && out.every > 0 && out.data);
 
+    auto write_frame = [&] {
+        frames.set_time(solver.time());  // the montage's labels
+        solver.write_frame(frames);
+    };
+    // The run's image (and partial images): an EXR output is data, the fields one pixel per cell (solver.image());
+    // any other format (PNG, JPEG, ...) holds only colours, and gets the picture a PNG frame shows (frame_size
+    // pixels, solids and walls drawn). Without an output path (a host), the data.
+    const bool picture = !ctx.output.empty() && ext != ".exr";
+    auto output_image = [&]() -> Bitmap {
+        if (picture) {
+            std::vector<std::filesystem::path> none;
+            FrameWriter capture = FrameWriter::capture(out.style, none);
+            solver.write_frame(capture);
+            if (!capture.captured().empty()) return capture.captured();
+        }
+        return solver.image();
+    };
+
     // State 0 (for mcfluid its velocity is the first step's k1, so its diagnostics cost nothing extra). A stop during
     // that velocity pass leaves nothing to record.
     const bool velocity0 = solver.diagnose(true);
@@ -122,7 +140,7 @@ RunResult run_simulation(DrivenSolver& solver, const DriverSettings& s, RunConte
     if (velocity0) {
         const double c = cfl(0);
         if (csv) csv->write_row(solver.csv_row(0.0, solver.evaluations(), solver.replaced(), c));
-        if (frames.enabled()) solver.write_frame(frames);
+        if (frames.enabled()) write_frame();
         if (checkpoints.active()) checkpoint(0);
     }
 
@@ -140,7 +158,7 @@ RunResult run_simulation(DrivenSolver& solver, const DriverSettings& s, RunConte
         if (step == steps && !final_velocity) {  // the last state, without its velocity
             solver.diagnose(false);
             check_state(step, solver.replaced() - replaced_before);
-            if (frames.enabled() && frames.due(step)) solver.write_frame(frames);
+            if (frames.enabled() && frames.due(step)) write_frame();
             progress.update(1);
             break;
         }
@@ -152,11 +170,11 @@ RunResult run_simulation(DrivenSolver& solver, const DriverSettings& s, RunConte
         const double c = cfl(step);
         const double seconds = step_timer.seconds();
         if (csv) csv->write_row(solver.csv_row(seconds, solver.evaluations() - evals_before, replaced, c));
-        if (frames.enabled() && frames.due(step)) solver.write_frame(frames);
+        if (frames.enabled() && frames.due(step)) write_frame();
         progress.update(1);
         if (comm.root() && ctx.write_partial > 0 && ctx.write_partial_image &&
             since_partial.seconds() >= ctx.write_partial) {
-            ctx.write_partial_image(solver.image());
+            ctx.write_partial_image(output_image());
             since_partial.reset();
         }
         if (checkpoints.active()) {
@@ -187,7 +205,7 @@ RunResult run_simulation(DrivenSolver& solver, const DriverSettings& s, RunConte
     solver.warn();
     const char* ended = result.interrupted ? "interrupted" : stopped_by_time ? "stopped by the time limit" : "";
     log_info("{}: {}", who, solver.summary(ended));
-    result.image = solver.image();
+    result.image = comm.root() ? output_image() : solver.image();
     result.work = double(done);
     result.seconds = total.seconds();
     return result;

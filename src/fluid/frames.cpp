@@ -129,6 +129,66 @@ Bitmap display_frame(const Bitmap& fields, const char* channel, double range, in
     return out;
 }
 
+// ----- labels: a tiny bitmap font of our own
+
+namespace {
+
+// 5 x 7 glyphs, one string of 7 rows of 5 pixels each ('#' on).
+struct Glyph {
+    char c;
+    const char* rows;
+};
+constexpr Glyph Glyphs[] = {
+    {'0', " ### #   ##  ### # ###  ##   # ### "}, {'1', "  #   ##    #    #    #    #   ### "},
+    {'2', " ### #   #    #   #   #   #   #####"}, {'3', "#####   #   #     #     ##   # ### "},
+    {'4', "   #   ##  # # #  # #####   #    # "}, {'5', "######    ####     #    ##   # ### "},
+    {'6', "  ##  #   #    #### #   ##   # ### "}, {'7', "#####    #   #   #   #    #    #   "},
+    {'8', " ### #   ##   # ### #   ##   # ### "}, {'9', " ### #   ##   # ####    #   #  ##  "},
+    {'.', "                          ##   ##  "}, {'-', "               #####               "},
+    {'+', "       #    #  #####  #    #       "}, {'=', "          #####     #####          "},
+    {':', "      ##   ##        ##   ##       "}, {' ', "                                   "},
+    {'s', "           #####     ###     ##### "}, {'t', "  #    #  #####  #    #    #     ##"},
+    {'e', "           ### #   #######     ### "}, {'p', "     #### #   ##   ##### #    #    "},
+};
+
+const char* glyph_rows(char c) {
+    for (const Glyph& g : Glyphs)
+        if (g.c == c) return g.rows;
+    return nullptr;
+}
+
+}  // namespace
+
+int label_width(const std::string& text, int scale) { return int(text.size()) * 6 * scale; }
+
+void draw_label(Bitmap& image, int x, int y, const std::string& text, int scale, Color3 color) {
+    for (std::size_t k = 0; k < text.size(); ++k) {
+        const char* rows = glyph_rows(text[k]);
+        for (int gy = 0; gy < 7; ++gy)
+            for (int gx = 0; gx < 5; ++gx) {
+                // Unknown characters: a hollow box, so that a missing glyph shows instead of vanishing.
+                const bool on = rows ? rows[gy * 5 + gx] == '#' : (gx == 0 || gx == 4 || gy == 0 || gy == 6);
+                if (!on) continue;
+                for (int sy = 0; sy < scale; ++sy)
+                    for (int sx = 0; sx < scale; ++sx) {
+                        const int px = x + (int(k) * 6 + gx) * scale + sx, py = y + gy * scale + sy;
+                        if (px < 0 || py < 0 || px >= image.width() || py >= image.height()) continue;
+                        for (int c = 0; c < 3; ++c) image.at(px, py, c) = float(color[c]);
+                    }
+            }
+    }
+}
+
+std::string montage_label(long long step, double time) {
+    return fmt::format("step {}  t={:.4g}", step, std::isfinite(time) ? time : 0.0);
+}
+
+int montage_columns(std::size_t count) {
+    if (count == 0) return 1;
+    const std::size_t rows = (count + 3) / 4;
+    return int((count + rows - 1) / rows);
+}
+
 // ----- the writer
 
 FrameWriter::FrameWriter(const OutputPaths& paths, long long every, bool png, bool exr, const FrameStyle& style,
@@ -159,7 +219,23 @@ std::pair<int, int> FrameWriter::frame_size(int nx, int ny) const {
     return {std::max(1, int(std::lround(nx * scale))), std::max(1, int(std::lround(ny * scale)))};
 }
 
+FrameWriter FrameWriter::capture(const FrameStyle& style, std::vector<fs::path>& unused) {
+    FrameStyle s = style;
+    s.montage = false;
+    s.video = false;
+    s.dye_slab = 0;
+    FrameWriter w(OutputPaths({}), 1, /*png=*/true, /*exr=*/false, s, 1, unused);  // creates no folder
+    w.m_paths.dir = "<capture>";  // enabled(), but nothing is written there
+    w.m_capture = true;
+    return w;
+}
+
 void FrameWriter::add_png(const std::string& kind, long long step, const Bitmap& image) {
+    if (m_capture) {  // the first kind (vorticity) only, as the montage
+        if (m_png_frames.empty()) m_png_frames.push_back({kind, {}});
+        if (m_png_frames.front().first == kind) m_captured = image;
+        return;
+    }
     const fs::path p = m_paths.frame(kind, step, m_digits, ".png");
     write_image(p, image);
     m_written.push_back(p);
@@ -172,7 +248,7 @@ void FrameWriter::add_png(const std::string& kind, long long step, const Bitmap&
         const double scale = std::min(1.0, 256.0 / std::max(image.width(), image.height()));
         const int w = std::max(1, int(std::lround(image.width() * scale)));
         const int h = std::max(1, int(std::lround(image.height() * scale)));
-        m_thumbs.push_back({step, display_frame(image, nullptr, 1, w, h)});
+        m_thumbs.push_back({step, display_frame(image, nullptr, 1, w, h), m_time});
     }
 }
 
@@ -256,7 +332,7 @@ void FrameWriter::write_2d(long long step, const Bitmap& fields, double range, c
             const auto [dw, dh] = frame_size(img.width(), img.height());
             add_png("dye", step, display_frame(img, nullptr, 1, dw, dh, mask(overlay, step, dw, dh, lo, hi)));
         }
-        if (m_style.dye_slab > 0) {
+        if (m_style.dye_slab > 0 && !m_capture) {
             const fs::path p = m_paths.frame("dye", step, m_digits, ".vdb");
             write_vdb_grids(p, dye_slab(*dye, m_style.dye_slab).view());
             m_written.push_back(p);
@@ -276,7 +352,7 @@ void FrameWriter::write_png(const std::string& kind, long long step, const Bitma
 
 void FrameWriter::write_data(const std::string& kind, long long step, const std::string& ext,
                              const std::function<void(const fs::path&)>& write) {
-    if (!enabled()) return;
+    if (!enabled() || m_capture) return;
     Timer t;
     const fs::path p = m_paths.frame(kind, step, m_digits, ext);
     write(p);
@@ -287,25 +363,36 @@ void FrameWriter::write_data(const std::string& kind, long long step, const std:
 void FrameWriter::finish() {
     if (!enabled()) return;
     Timer t;
-    if (!m_thumbs.empty()) {
-        // Up to 4 columns, white gutters of 8 pixels; frames left to right, top to bottom.
-        const int cols = int(std::min<std::size_t>(4, m_thumbs.size()));
+    if (!m_thumbs.empty() && !m_capture) {
+        // Up to 4 columns, rows as full as they can be; white gutters of 8 pixels; frames left to right, top to
+        // bottom, each in a thin grey border (3D slices fade into the white) with its step and time beneath.
+        const int cols = montage_columns(m_thumbs.size());
         const int rows = int((m_thumbs.size() + std::size_t(cols) - 1) / std::size_t(cols));
         int cw = 0, chh = 0;
         for (const auto& th : m_thumbs) {
             cw = std::max(cw, th.image.width());
             chh = std::max(chh, th.image.height());
         }
-        const int gap = 8;
-        Bitmap montage(cols * cw + (cols + 1) * gap, rows * chh + (rows + 1) * gap);
+        // Labels in pixels of 2 x 2 under thumbnails of 128 pixels and more, else 1 x 1 (the cell widens to fit).
+        const int scale = chh >= 128 ? 2 : 1, gap = 8, border = 1, text_gap = 3;
+        for (const auto& th : m_thumbs)
+            cw = std::max(cw, label_width(montage_label(th.step, th.time), scale) - 2 * border);
+        const int cell_w = cw + 2 * border, cell_h = chh + 2 * border + text_gap + label_height(scale);
+        Bitmap montage(cols * cell_w + (cols + 1) * gap, rows * cell_h + (rows + 1) * gap);
         std::fill(montage.data(), montage.data() + montage.size(), 1.f);
+        const float edge = float(srgb_to_linear(0.6));
         for (std::size_t i = 0; i < m_thumbs.size(); ++i) {
-            const int ox = gap + int(i % std::size_t(cols)) * (cw + gap),
-                      oy = gap + int(i / std::size_t(cols)) * (chh + gap);
+            const int ox = gap + int(i % std::size_t(cols)) * (cell_w + gap),
+                      oy = gap + int(i / std::size_t(cols)) * (cell_h + gap);
             const Bitmap& im = m_thumbs[i].image;
-            for (int y = 0; y < im.height(); ++y)
-                for (int x = 0; x < im.width(); ++x)
-                    for (int c = 0; c < 3; ++c) montage.at(ox + x, oy + y, c) = im.at(x, y, c);
+            for (int y = -border; y < im.height() + border; ++y)
+                for (int x = -border; x < im.width() + border; ++x) {
+                    const bool inside = x >= 0 && y >= 0 && x < im.width() && y < im.height();
+                    for (int c = 0; c < 3; ++c)
+                        montage.at(ox + border + x, oy + border + y, c) = inside ? im.at(x, y, c) : edge;
+                }
+            draw_label(montage, ox, oy + im.height() + 2 * border + text_gap,
+                       montage_label(m_thumbs[i].step, m_thumbs[i].time), scale, Color3(0.0));
         }
         const fs::path p = m_paths.file("montage.png");
         write_image(p, montage);
@@ -314,7 +401,7 @@ void FrameWriter::finish() {
         for (const auto& th : m_thumbs) steps += (steps.empty() ? "" : ", ") + std::to_string(th.step);
         log_info("montage: {} (steps {})", p.string(), steps);
     }
-    if (m_style.video) {
+    if (m_style.video && !m_capture) {
         for (const auto& [kind, frames] : m_png_frames) {
             if (frames.empty()) continue;
             const fs::path video = m_paths.file(kind + ".mp4");

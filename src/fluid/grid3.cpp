@@ -94,6 +94,48 @@ double Grid3::sample(Vec3d p, Interpolation interp) const {
     return v;
 }
 
+CubicStencil3 Grid3::cubic_stencil(Vec3d p) const {
+    CubicStencil3 s;
+    if (!std::isfinite(p.x) || !std::isfinite(p.y) || !std::isfinite(p.z)) return s;
+    p = m_domain.wrap(p);
+    const double g[3] = {(p.x - m_domain.min.x) / m_h.x - 0.5, (p.y - m_domain.min.y) / m_h.y - 0.5,
+                         (p.z - m_domain.min.z) / m_h.z - 0.5};
+    const int n[3] = {m_nx, m_ny, m_nz};
+    int lo[3];
+    double w[3][4];
+    for (int a = 0; a < 3; ++a) {
+        if (!m_domain.periodic && (g[a] < -1 || g[a] >= n[a])) return s;
+        const double fl = std::floor(g[a]), t = g[a] - fl;
+        lo[a] = int(fl) - 1;                     // the stencil's first cell
+        w[a][0] = 0.5 * t * (-1 + t * (2 - t));  // Catmull–Rom
+        w[a][1] = 1 + 0.5 * t * t * (-5 + 3 * t);
+        w[a][2] = 0.5 * t * (1 + t * (4 - 3 * t));
+        w[a][3] = 0.5 * t * t * (t - 1);
+    }
+    int inner = 0;
+    for (int c = 0; c < 64; ++c) {
+        const int o[3] = {c & 3, (c >> 2) & 3, c >> 4};
+        int id[3];
+        bool inside = true;
+        for (int a = 0; a < 3; ++a) {
+            id[a] = lo[a] + o[a];
+            if (m_domain.periodic)
+                id[a] = wrap_index(id[a], n[a]);
+            else if (id[a] < 0 || id[a] >= n[a])
+                inside = false;
+        }
+        s.index[c] = inside ? index(id[0], id[1], id[2]) : CubicStencil3::Outside;
+        s.weight[c] = w[0][o[0]] * w[1][o[1]] * w[2][o[2]];
+        if ((o[0] == 1 || o[0] == 2) && (o[1] == 1 || o[1] == 2) && (o[2] == 1 || o[2] == 2)) s.inner[inner++] = c;
+    }
+    s.empty = false;
+    return s;
+}
+
+double Grid3::sample_cubic(Vec3d p) const {
+    return cubic_stencil(p).apply([&](std::size_t i) { return m_values[i]; });
+}
+
 double Grid3::integral() const {
     double s = 0;
     for (double v : m_values) s += v;
@@ -114,6 +156,13 @@ Vec3d VectorGrid3::sample(Vec3d p, Interpolation interp) const {
         v += s.weight[c] * Vec3d(x.values()[i], y.values()[i], z.values()[i]);
     }
     return v;
+}
+
+Vec3d VectorGrid3::sample_cubic(Vec3d p) const {
+    const CubicStencil3 s = x.cubic_stencil(p);
+    return {s.apply([&](std::size_t i) { return x.values()[i]; }),
+            s.apply([&](std::size_t i) { return y.values()[i]; }),
+            s.apply([&](std::size_t i) { return z.values()[i]; })};
 }
 
 void VectorGrid3::fill(Vec3d v) {

@@ -26,6 +26,9 @@
 namespace kelvin::fluid {
 
 const char* to_string(Advection a) { return a == Advection::Euler ? "euler" : "rk4"; }
+const char* to_string(VorticityTransport t) {
+    return t == VorticityTransport::Linear ? "linear" : t == VorticityTransport::Cubic ? "cubic" : "maccormack";
+}
 
 namespace {
 
@@ -209,6 +212,123 @@ bool MCFluidSolver::ensure_velocity() {
 
 bool MCFluidSolver::velocity_available() { return ensure_velocity(); }
 
+bool MCFluidSolver::maccormack_correction(double dt) {
+    const MCFluidSettings& s = m_settings;
+    const int nx = m_omega.nx(), ny = m_omega.ny();
+    const bool viscous = s.viscosity > 0;
+    const Grid2& advected = viscous ? m_advected : m_next;  // what the forward trace reads
+    // The forward trace through the cached cell-centre velocity of the old state (read between the centres by the
+    // cubic interpolant): the same frozen velocity the backtrace used, run forward.
+    auto vel = [&](Vec2d p) { return Vec2d(m_u.sample_cubic(p), m_v.sample_cubic(p)); };
+    SlabPass pass(*m_comm, std::size_t(ny), std::size_t(nx));
+    std::vector<double> corrected(pass.size() * std::size_t(nx));
+    std::atomic<bool> interrupted{false};
+    pass.run([&](std::size_t row) {
+        if (stop_requested()) {
+            interrupted = true;
+            return;
+        }
+        const int j = int(row);
+        for (int i = 0; i < nx; ++i) {
+            const Vec2d x = m_omega.cell_center(i, j);
+            const Vec2d k1(m_u.at(i, j), m_v.at(i, j));
+            Vec2d xf;
+            if (s.advection == Advection::Euler) {
+                xf = x + dt * k1;
+            } else {
+                const Vec2d k2 = vel(x + 0.5 * dt * k1), k3 = vel(x + 0.5 * dt * k2), k4 = vel(x + dt * k3);
+                xf = x + (dt / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4);
+            }
+            const double back = finite(xf) ? advected.sample_cubic(s.domain.wrap(xf)) : advected.at(i, j);
+            const double plain = m_next.at(i, j);
+            double value = plain + 0.5 * (m_omega.at(i, j) - back);
+            if (!viscous) {  // clamped to the cells around the departure point, else the plain lookup (Selle et al.)
+                const Vec2d g =
+                    (m_departure[std::size_t(j) * std::size_t(nx) + std::size_t(i)] - s.domain.min) / m_omega.h() -
+                    Vec2d(0.5);
+                const int i0 = int(std::floor(g.x)), j0 = int(std::floor(g.y));
+                const double v00 = m_omega.at_bc(i0, j0), v10 = m_omega.at_bc(i0 + 1, j0),
+                             v01 = m_omega.at_bc(i0, j0 + 1), v11 = m_omega.at_bc(i0 + 1, j0 + 1);
+                const double lo = std::min(std::min(v00, v10), std::min(v01, v11));
+                const double hi = std::max(std::max(v00, v10), std::max(v01, v11));
+                if (!(value >= lo && value <= hi)) value = plain;
+            } else if (!std::isfinite(value)) {  // the diffused value keeps its spread: only the advection's error
+                value = plain;
+            }
+            corrected[(row - pass.begin()) * std::size_t(nx) + std::size_t(i)] = value;
+        }
+    });
+    RowWork none;
+    if (pass.reduce(none, interrupted)) return false;
+    for (std::size_t r = pass.begin(); r < pass.end(); ++r)
+        for (int i = 0; i < nx; ++i)
+            m_next.at(i, int(r)) = corrected[(r - pass.begin()) * std::size_t(nx) + std::size_t(i)];
+    pass.gather({&m_next.values()});
+    return true;
+}
+
+void MCFluidSolver::set_energy_budget(bool on) {
+    if (!on) {
+        m_flow.reset();
+        return;
+    }
+    if (m_settings.boundaries)
+        throw_runtime("MCFluidSolver: the energy budget covers flows without boundaries (walk_on_spheres) only");
+    if (m_settings.viscosity > 0) throw_runtime("MCFluidSolver: the energy budget covers inviscid flows only");
+    m_flow = std::make_unique<FlowFFT>(m_settings.domain, m_settings.nx, m_settings.ny);
+    m_budget_step = m_budget_total = {};
+    m_budget_total.energy = m_budget_step.energy = m_flow->energy(m_omega);
+}
+
+void MCFluidSolver::transport_through(const Grid2& u, const Grid2& v, double dt, int substeps, Grid2& out) const {
+    const MCFluidSettings& s = m_settings;
+    const double h = dt / substeps;
+    auto vel = [&](Vec2d p) { return Vec2d(u.sample_cubic(p), v.sample_cubic(p)); };
+    const bool cubic = s.transport == VorticityTransport::Cubic;
+    parallel_for_units(std::size_t(m_omega.ny()), [&](std::size_t row) {
+        const int j = int(row);
+        for (int i = 0; i < m_omega.nx(); ++i) {
+            Vec2d x = m_omega.cell_center(i, j);
+            for (int k = 0; k < substeps; ++k) {
+                const Vec2d k1 = k == 0 ? Vec2d(u.at(i, j), v.at(i, j)) : vel(x);
+                if (s.advection == Advection::Euler) {
+                    x -= h * k1;
+                } else {
+                    const Vec2d k2 = vel(x - 0.5 * h * k1), k3 = vel(x - 0.5 * h * k2), k4 = vel(x - h * k3);
+                    x -= (h / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4);
+                }
+            }
+            x = s.domain.wrap(x);
+            const double w = cubic ? m_omega.sample_cubic(x) : m_omega.sample(x, s.interpolation);
+            out.at(i, j) = std::isfinite(w) ? w : 0.0;
+        }
+    });
+}
+
+void MCFluidSolver::measure_budget(double dt) {
+    const MCFluidSettings& s = m_settings;
+    Grid2 u(s.domain, s.nx, s.ny), v = u, step = u;
+    FlowFFT& flow = *m_flow;
+    const double e_n = flow.energy(m_omega), e_a = flow.energy(m_next);
+    flow.velocity(m_omega, true, s.interpolation, m_delta, u, v);  // the estimator's expected velocity
+    transport_through(u, v, dt, 1, step);
+    const double e_b = flow.energy(step);
+    flow.velocity(m_omega, false, s.interpolation, 0.0, u, v);  // the cells' own velocity
+    transport_through(u, v, dt, 1, step);
+    const double e_c = flow.energy(step);
+    transport_through(u, v, dt, 16, step);
+    const double e_d = flow.energy(step);
+    EnergyBudget b;
+    b.energy = e_a;
+    b.change = e_a - e_n;
+    b.noise = e_a - e_b;
+    b.mollifier = e_b - e_c;
+    b.integrator = e_c - e_d;
+    b.transport = e_d - e_n;
+    m_budget_step = b;
+    m_budget_total += b;
+}
+
 const Grid2& MCFluidSolver::velocity_u() {
     ensure_velocity();
     return m_u;
@@ -237,6 +357,13 @@ bool MCFluidSolver::step(double dt) {
     const int nd = viscous ? s.diffusion_samples : 1;
     const double sigma = viscous ? std::sqrt(2 * s.viscosity * dt) : 0.0;
     const Interpolation interp = s.interpolation;
+    const bool cubic = s.transport != VorticityTransport::Linear;
+    const bool maccormack = s.transport == VorticityTransport::MacCormack;
+    if (maccormack && m_departure.size() != m_omega.cell_count()) {
+        m_advected = Grid2(s.domain, nx, ny);
+        m_departure.assign(m_omega.cell_count(), Vec2d(0.0));
+    }
+    auto lookup = [&](Vec2d p) { return cubic ? m_omega.sample_cubic(p) : m_omega.sample(p, interp); };
     SlabPass pass(*m_comm, std::size_t(ny), std::size_t(nx));  // this rank's rows
     std::vector<RowWork> rows(pass.size(), RowWork{});
     std::atomic<bool> interrupted{false};
@@ -282,15 +409,19 @@ bool MCFluidSolver::step(double dt) {
                 m_disp_y.at(i, j) = x.y - xd.y;
             }
             xd = s.domain.wrap(xd);
+            if (maccormack) {
+                m_departure[std::size_t(j) * std::size_t(nx) + std::size_t(i)] = xd;
+                if (viscous) m_advected.at(i, j) = lookup(xd);
+            }
             double value;
             if (!viscous) {
-                value = m_omega.sample(xd, interp);
+                value = lookup(xd);
             } else {  // Feynman–Kac diffusion: Gaussian displacement of variance 2 nu dt per axis (Eq. 5.22)
                 double sum = 0;
                 for (int k = 0; k < nd; ++k) {
                     Vec2d y = xd + sigma * standard_normal2(rng);
                     if (m_wos) y = m_wos->reflect_out(y);  // free slip: nothing diffuses into a wall
-                    sum += m_omega.sample(y, interp);
+                    sum += lookup(y);
                 }
                 value = sum / nd;
                 w.diffusion += uint64_t(nd);
@@ -311,6 +442,11 @@ bool MCFluidSolver::step(double dt) {
     else
         pass.gather({&m_next.values()});
 
+    if (maccormack) {
+        if (viscous) pass.gather({&m_advected.values()});
+        if (!maccormack_correction(dt)) return false;
+    }
+    if (m_flow) measure_budget(dt);  // before the new state replaces the old one
     m_work.biot_savart_evals += total.evals;
     m_work.velocity_queries += total.queries;
     m_work.advection_backtraces += total.backtraces;

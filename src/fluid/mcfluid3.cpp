@@ -326,6 +326,7 @@ bool MCFluid3Solver::step(double dt) {
     const double sigma = viscous ? std::sqrt(2 * s.viscosity * dt) : 0.0;
     const double half_segment = 0.5 * m_segment, inv_segment = 1.0 / m_segment;
     const Interpolation interp = s.interpolation;
+    const bool cubic = s.transport != VorticityTransport::Linear;
     SlabPass pass(*m_comm, std::size_t(s.nz), std::size_t(s.nx) * std::size_t(s.ny));  // this rank's z slabs
     SlabWork work;
     const bool complete = for_each_cell(
@@ -353,7 +354,7 @@ bool MCFluid3Solver::step(double dt) {
             }
             xd = s.domain.wrap(xd);
             if (m_smoke) {  // the same backtrace carries the smoke; the source adds rate dt inside its sphere
-                double rho = m_density.sample(xd, interp);
+                double rho = cubic ? m_density.sample_cubic(xd) : m_density.sample(xd, interp);
                 if (glm::length(x - m_smoke->center) <= m_smoke->radius) rho += dt * m_smoke->rate;
                 m_density_next.values()[c] = std::isfinite(rho) ? rho : 0.0;
                 ++w.smoke;
@@ -365,7 +366,7 @@ bool MCFluid3Solver::step(double dt) {
                     xj += sigma * standard_normal3(rng);
                     if (m_wos) xj = m_wos->reflect_out(xj);  // free slip: nothing diffuses into a wall
                 }
-                Vec3d om = m_omega.sample(xj, interp);
+                Vec3d om = cubic ? m_omega.sample_cubic(xj) : m_omega.sample(xj, interp);
                 if (s.stretching) {  // Eq. (5.21) on the cached velocity, forward Euler over dt (Eq. 5.22)
                     const double mag = glm::length(om);
                     if (mag > 0 && std::isfinite(mag)) {

@@ -33,6 +33,7 @@ MCFluidParams MCFluidParams::parse(const Properties& props) {
     s.dt = p.common.dt;
     s.viscosity = p.common.viscosity;
     s.advection = p.common.advection;
+    s.transport = p.common.transport;
     s.nx = p.common.nx;
     s.ny = p.common.ny;
     s.diffusion_samples = int(props.get_int("diffusion_samples", 1, 1 << 20));
@@ -59,6 +60,10 @@ MCFluidParams MCFluidParams::parse(const Properties& props) {
         if (const std::string why = check_wos_cells(*s.boundaries, s.domain, s.nx, s.ny); !why.empty())
             props.error("velocity", velocity->plugin_name() + ": " + why);
     s.interpolation = cache->interpolation();
+    p.energy_budget = props.get_bool("energy_budget");
+    if (p.energy_budget && s.boundaries)
+        props.error("energy_budget", "covers flows without boundaries only (walk_on_spheres has none in closed form)");
+    if (p.energy_budget && s.viscosity > 0) props.error("energy_budget", "covers inviscid flows only (viscosity 0)");
     if (cache->resolution_z() != 0) props.error("cache", "resolution_z is for 3D caches (dimension = 3)");
     return p;
 }
@@ -73,6 +78,7 @@ std::unique_ptr<MCFluidSolver> create_mcfluid_solver(const MCFluidParams& p, con
         solver->set_dye(std::make_unique<PassiveScalars>(settings.domain, *p.common.dye, settings.nx, settings.ny));
     solver->set_cancel_token(ctx.cancel);
     solver->set_communicator(ctx.comm);
+    if (p.energy_budget) solver->set_energy_budget(true);
     return solver;
 }
 
@@ -95,6 +101,23 @@ public:
     }
 
     bool lazy_velocity() const override { return true; }
+
+    // With the energy budget, six more columns: the state's deterministic energy and the last step's split.
+    std::string csv_header() const override {
+        std::string h = Solver2Run::csv_header();
+        if (m_mc.energy_budget_step())
+            h += ",energy_exact,budget_change,budget_noise,budget_mollifier,budget_integrator,budget_transport";
+        return h;
+    }
+    std::string csv_row(double seconds, double evals, uint64_t invalid, double cfl) const override {
+        std::string row = Solver2Run::csv_row(seconds, evals, invalid, cfl);
+        if (const EnergyBudget* b = m_mc.energy_budget_step()) {
+            if (!row.empty() && row.back() == '\n') row.pop_back();
+            row += fmt::format(",{:.10g},{:.6g},{:.6g},{:.6g},{:.6g},{:.6g}\n", b->energy, b->change, b->noise,
+                               b->mollifier, b->integrator, b->transport);
+        }
+        return row;
+    }
     bool image_carries_velocity(const std::string& ext) const override { return ext == ".exr"; }
 
     bool diagnose(bool velocity) override {
@@ -144,6 +167,14 @@ public:
                      {w.wos_walks, w.wos_steps, w.wos_truncated, w.wos_invalid, w.wos_boundary_queries}, "mcfluid",
                      s.boundaries ? s.boundaries->wos.max_steps : 0);
         stats.add("fluid.solid_departures", double(w.solid_departures), "points");
+        if (const EnergyBudget* b = m_mc.energy_budget_total()) {
+            stats.add("fluid.energy_budget.energy", b->energy, "energy");
+            stats.add("fluid.energy_budget.change", b->change, "energy");
+            stats.add("fluid.energy_budget.noise", b->noise, "energy");
+            stats.add("fluid.energy_budget.mollifier", b->mollifier, "energy");
+            stats.add("fluid.energy_budget.integrator", b->integrator, "energy");
+            stats.add("fluid.energy_budget.transport", b->transport, "energy");
+        }
         report_dye_stats(stats, m_mc.dye());
     }
 
@@ -157,6 +188,16 @@ public:
     }
 
     std::string summary(const std::string& ended) override {
+        std::string s = summary_line(ended);
+        if (const EnergyBudget* b = m_mc.energy_budget_total())
+            s += fmt::format(
+                "; energy budget (exact energy {:.6g}, change {:+.4g}): transport {:+.4g}, Monte Carlo noise {:+.4g}, "
+                "mollifier {:+.4g}, integrator {:+.4g}",
+                b->energy, b->change, b->transport, b->noise, b->mollifier, b->integrator);
+        return s;
+    }
+
+    std::string summary_line(const std::string& ended) {
         const bool viscous = m_p.viscosity > 0;
         const char* dye = m_mc.dye() ? ", dye" : "";
         if (!m_velocity && ended.empty()) {  // the last state without its velocity: no output needed it

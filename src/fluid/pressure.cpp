@@ -7,8 +7,10 @@
 #include "pressure_common.h"
 
 #include <fftw3.h>
+
 #include <Eigen/IterativeLinearSolvers>
 #include <Eigen/SparseCore>
+#include "fftw_planner.h"
 
 #include <algorithm>
 #include <cmath>
@@ -20,6 +22,11 @@ namespace kelvin::fluid {
 
 bool PoissonGrid::has_solid() const {
     return std::any_of(solid.begin(), solid.end(), [](uint8_t s) { return s; });
+}
+
+std::mutex& fftw_planner_mutex() {
+    static std::mutex m;
+    return m;
 }
 
 namespace {

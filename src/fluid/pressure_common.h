@@ -1,21 +1,16 @@
 #pragma once
 // Internal: what the 2D and 3D pressure solvers share (src/fluid/pressure.cpp, src/fluid/pressure3.cpp): FFTW's
-// planner lock, the eigenvalues of the second difference under each transform, and the per-axis prolongation and
-// restriction tables of the cell-centred multigrid (a 3D level applies the 1D tables along each axis, as a 2D level
-// does along two).
+// planner lock (fftw_planner.h, the one lock of every plan in the fluid library), the eigenvalues of the second
+// difference under each transform, and the per-axis prolongation and restriction tables of the cell-centred multigrid
+// (a 3D level applies the 1D tables along each axis, as a 2D level does along two).
+#include "fftw_planner.h"
+
 #include <cmath>
 #include <cstddef>
-#include <mutex>
 #include <numbers>
 #include <vector>
 
 namespace kelvin::fluid::detail {
-
-/// FFTW's planner is not thread-safe (fftw_execute is): every plan is made and destroyed under this lock.
-inline std::mutex& fftw_planner_mutex() {
-    static std::mutex m;
-    return m;
-}
 
 /// 4 sin^2(pi k / m) / h^2: eigenvalue of the second difference for the mode k of a transform of period m.
 inline double mode_eigenvalue(int k, int m, double h) {

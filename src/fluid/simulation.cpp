@@ -19,6 +19,13 @@
 
 namespace kelvin::fluid {
 
+VorticityTransport parse_transport(const Properties& props) {
+    const std::string t = props.get_choice("transport", {"cubic", "linear", "maccormack"});
+    return t == "linear"       ? VorticityTransport::Linear
+           : t == "maccormack" ? VorticityTransport::MacCormack
+                               : VorticityTransport::Cubic;
+}
+
 SimulationParams SimulationParams::parse(const Properties& props, const std::string& who) {
     SimulationParams p;
     const long long dim = props.get_int("dimension");
@@ -40,6 +47,7 @@ SimulationParams SimulationParams::parse(const Properties& props, const std::str
     p.end_time = ts.end_time;
     p.viscosity = props.get_float("viscosity", 0.0, 1e300);
     p.advection = props.get_choice("advection", {"euler", "rk4"}) == "euler" ? Advection::Euler : Advection::RK4;
+    p.transport = parse_transport(props);
     p.output_every = props.get_int("output_every", 0, 1LL << 40);
     p.write_png = props.get_bool("write_png");
     p.write_exr = props.get_bool("write_exr");

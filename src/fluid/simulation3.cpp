@@ -53,6 +53,8 @@ Simulation3Params Simulation3Params::parse(const Properties& props) {
     s.viscosity = props.get_float("viscosity", 0.0, 1e300);
     s.diffusion_samples = int(props.get_int("diffusion_samples", 1, 1 << 20));
     s.advection = props.get_choice("advection", {"euler", "rk4"}) == "euler" ? Advection::Euler : Advection::RK4;
+    s.transport = parse_transport(props);
+    if (props.get_bool("energy_budget")) props.error("energy_budget", "is measured in 2D only (dimension = 2)");
     s.stretching = props.get_bool("stretching");
     s.control_variates = props.get_bool("control_variates");
     s.initial_samples = int(props.get_int("initial_samples", 0, 1 << 24));

@@ -245,4 +245,18 @@ inline ProcessResult run_kelvin(const std::vector<std::string>& args,
     return run_process(kelvin_exe(), args, env, timeout);
 }
 
+/// `kelvin args...` started in the directory `cwd` (through /bin/sh: cd, then exec).
+inline ProcessResult run_kelvin_in(const fs::path& cwd, const std::vector<std::string>& args,
+                                   const std::map<std::string, std::string>& env = {},
+                                   std::chrono::duration<double> timeout = std::chrono::seconds(60)) {
+    auto quoted = [](const std::string& s) {
+        std::string q = "'";
+        for (char c : s) q += c == '\'' ? std::string("'\\''") : std::string(1, c);
+        return q + "'";
+    };
+    std::string cmd = "cd " + quoted(cwd.string()) + " && exec " + quoted(kelvin_exe());
+    for (const auto& a : args) cmd += " " + quoted(a);
+    return run_process("/bin/sh", {"-c", cmd}, env, timeout);
+}
+
 }  // namespace kelvin::test

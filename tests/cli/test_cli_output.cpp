@@ -138,12 +138,15 @@ TEST_F(CliOutput, ExrOutputIsAnExr) {
     EXPECT_GT(hi, 0.0f);
 }
 
+// Without -o: the scene's file name with .exr, in the current directory, not beside the scene (docs/cli.md).
 TEST_F(CliOutput, DefaultOutputNameIsTheSceneWithExr) {
     fs::path s = m_dir / "copy.xml";
     fs::copy_file(TinyScene, s);
-    auto r = run_kelvin({s.string()});
+    fs::create_directories(m_dir / "cwd");
+    auto r = run_kelvin_in(m_dir / "cwd", {s.string()});
     ASSERT_EQ(r.exit_code, 0) << describe(r);
-    EXPECT_EQ(magic(m_dir / "copy.exr", 4), ExrMagic);
+    EXPECT_EQ(magic(m_dir / "cwd" / "copy.exr", 4), ExrMagic);
+    EXPECT_FALSE(fs::exists(m_dir / "copy.exr"));
 }
 
 TEST_F(CliOutput, SkipExistingLeavesTheFileAlone) {

@@ -25,6 +25,12 @@ foreach(f tg.png tg.svg tg.md)
     message(FATAL_ERROR "${f} is empty or truncated (${size} bytes)")
   endif()
 endforeach()
+# The dashed raw-energy line (energy before the noise correction) is named in a legend: matplotlib's SVG carries each
+# legend text as a comment.
+file(READ "${OUT}/tg.svg" svg)
+if(NOT svg MATCHES "mcfluid: raw \\(before the noise correction\\)")
+  message(FATAL_ERROR "the dashed raw-energy line has no legend entry in tg.svg")
+endif()
 file(READ "${OUT}/tg.md" table)
 foreach(label mcfluid vortex_particles stable_fluids)
   if(NOT table MATCHES "\\| ${label} \\|")

@@ -86,16 +86,29 @@ TEST(MCFluid, TaylorGreenRmseFallsWithSamplesAndResolution) {
     EXPECT_GE(slope, -0.65);
     EXPECT_LE(slope, -0.35);
 
-    std::vector<double> res_errs;
-    for (int res : {8, 16, 32}) {
-        MCFluidSolver solver(tg_settings(res, 1024, dt), tg_omega);
-        ASSERT_TRUE(solver.advance_to(t));
-        res_errs.push_back(rmse(solver.vorticity_grid(), tg_omega));
+    // The discretisation error against resolution, for each transport lookup: the linear lookup's falls by ~0.6 per
+    // doubling (0.0134, 0.0087, 0.0053); the cubic lookup's is below the noise of 1024 samples already at 8^2
+    // (0.0019, 0.0022, 0.0027: the noise grows with the number of cells a sample's error reaches).
+    double linear_finest = 0;
+    for (VorticityTransport transport : {VorticityTransport::Linear, VorticityTransport::Cubic}) {
+        std::vector<double> res_errs;
+        for (int res : {8, 16, 32}) {
+            MCFluidSettings s = tg_settings(res, 1024, dt);
+            s.transport = transport;
+            MCFluidSolver solver(s, tg_omega);
+            ASSERT_TRUE(solver.advance_to(t));
+            res_errs.push_back(rmse(solver.vorticity_grid(), tg_omega));
+        }
+        std::cout << "[ measured ] " << to_string(transport) << ": RMSE(res = 8, 16, 32) = " << res_errs[0] << " "
+                  << res_errs[1] << " " << res_errs[2] << "\n";
+        if (transport == VorticityTransport::Linear) {
+            EXPECT_LT(res_errs[1], 0.8 * res_errs[0]);
+            EXPECT_LT(res_errs[2], 0.8 * res_errs[1]);
+            linear_finest = res_errs[2];
+        } else {
+            EXPECT_LT(res_errs[0], 0.5 * linear_finest) << "cubic at 8^2 against linear at 32^2";
+        }
     }
-    std::cout << "[ measured ] RMSE(res = 8, 16, 32) = " << res_errs[0] << " " << res_errs[1] << " " << res_errs[2]
-              << "\n";
-    EXPECT_LT(res_errs[1], 0.8 * res_errs[0]);
-    EXPECT_LT(res_errs[2], 0.8 * res_errs[1]);
 }
 
 // Decaying Taylor–Green: the Feynman–Kac diffusion step (Gaussian displacement of variance 2 nu dt, Eq. 5.22)

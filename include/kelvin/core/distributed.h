@@ -80,6 +80,11 @@ Communicator& communicator_of(const RunContext& ctx);
 /// srun with PMI); `size` receives the launcher's rank count.
 bool launched_by_mpi(int* size = nullptr);
 
+/// This process's rank as its MPI launcher set it in the environment (before MPI is initialised), or -1 when no
+/// launcher says (not started by one). Errors that happen before the world communicator exists (the MPI module
+/// missing, MPI's initialisation failing) are printed by rank 0 alone, so that they stay one line.
+int launcher_rank();
+
 /// The world communicator: MPI_COMM_WORLD when the process was started by an MPI launcher (MPI is initialised on
 /// the first call, through Kelvin's MPI module), the local communicator otherwise. Throws InputError when started
 /// by a launcher with several ranks and this build has no MPI module (each rank would render the whole job).

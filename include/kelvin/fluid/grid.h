@@ -80,6 +80,12 @@ public:
 
     /// The interpolated field omega_h at p (see the header comment). Non-finite p gives 0.
     double sample(Vec2d p, Interpolation interp) const;
+    /// The monotone cubic interpolant at p: Catmull–Rom (cubic Hermite with centred-difference slopes) over the 4x4
+    /// cells around p, clamped to the range of the 2x2 cells whose bilinear interpolant it replaces, so that it never
+    /// makes a new extremum (Fedkiw, Stam and Jensen 2001, Section 3.3: "monotonic cubic interpolation"). Third
+    /// order where the field is smooth (bilinear is second), no overshoot where it is not. Same boundary rule as
+    /// sample(). Non-finite p gives 0.
+    double sample_cubic(Vec2d p) const;
 
     /// sum of values * cell area (the integral of omega_h), sum of |values| * cell area, max |value|.
     double integral() const;

@@ -17,7 +17,9 @@
 #include <kelvin/core/vdb.h>
 #include <kelvin/fluid/grid.h>
 
+#include <algorithm>
 #include <cstddef>
+#include <limits>
 #include <string>
 #include <vector>
 
@@ -31,6 +33,31 @@ struct Stencil3 {
     std::size_t index[8];
     double weight[8];
     int count = 0;
+};
+
+/// The monotone tricubic stencil at a point: Catmull–Rom weights over the 4x4x4 cells around it (cells outside an
+/// open grid hold 0: index -1), and which 8 of them are the trilinear stencil whose range clamps the result (see
+/// Grid2::sample_cubic).
+struct CubicStencil3 {
+    static constexpr std::size_t Outside = std::size_t(-1);
+    std::size_t index[64];
+    double weight[64];
+    int inner[8];  ///< positions in index[] of the 8 cells around the point
+    bool empty = true;
+    /// sum of weight * value, clamped to the range of the inner cells' values.
+    template <class Value>
+    double apply(const Value& value) const {
+        if (empty) return 0.0;
+        double v = 0;
+        for (int c = 0; c < 64; ++c) v += weight[c] * (index[c] == Outside ? 0.0 : value(index[c]));
+        double lo = std::numeric_limits<double>::infinity(), hi = -lo;
+        for (int c : inner) {
+            const double x = index[c] == Outside ? 0.0 : value(index[c]);
+            lo = std::min(lo, x);
+            hi = std::max(hi, x);
+        }
+        return std::clamp(v, lo, hi);
+    }
 };
 
 /// A cell-centred scalar field (values in double, x fastest, then y, then z).
@@ -62,6 +89,9 @@ public:
     /// Interpolation weights at p (see the header comment). Non-finite p gives no cell.
     Stencil3 stencil(Vec3d p, Interpolation interp) const;
     double sample(Vec3d p, Interpolation interp) const;
+    /// The monotone tricubic stencil at p (same boundary rule as stencil()); sample_cubic(p) applies it.
+    CubicStencil3 cubic_stencil(Vec3d p) const;
+    double sample_cubic(Vec3d p) const;
     /// Value of cell (i, j, k) with the domain's rule: wrapped (periodic) or 0 outside (open).
     double at_bc(int i, int j, int k) const;
 
@@ -90,6 +120,8 @@ struct VectorGrid3 {
         z.values()[c] = v.z;
     }
     Vec3d sample(Vec3d p, Interpolation interp) const;
+    /// Each component's monotone tricubic interpolant (Grid3::sample_cubic) at p, from one stencil.
+    Vec3d sample_cubic(Vec3d p) const;
     void fill(Vec3d v);
     /// max over cells of |v|.
     double max_norm() const;

@@ -17,6 +17,7 @@
 #include <kelvin/core/random.h>
 #include <kelvin/fluid/biot_savart.h>
 #include <kelvin/fluid/dye.h>
+#include <kelvin/fluid/energy_budget.h>
 #include <kelvin/fluid/grid.h>
 #include <kelvin/fluid/solver.h>
 #include <kelvin/fluid/velocity.h>
@@ -41,6 +42,20 @@ class WosVelocityField;
 enum class Advection { Euler, RK4 };
 const char* to_string(Advection a);
 
+/// How a backtrace reads the previous state at its departure point (the scene's `transport`). Linear: the cache's
+/// bi/trilinear interpolant (the thesis' Section 5.3.3 scheme; like every semi-Lagrangian method on a linear
+/// interpolant it diffuses: each step averages neighbouring cells, and over a few hundred steps a vortex loses a
+/// quarter to a half of its energy). Cubic: the monotone cubic interpolant (Grid2::sample_cubic, Grid3::cubic_stencil)
+/// — third order, clamped so it makes no new extrema. MacCormack: the cubic lookup plus the error-compensating
+/// correction of Selle et al. (2008): the step's result is traced forward again through the (cached) velocity, half
+/// the difference to the previous state is added back, and the result is clamped to the range of the cells around
+/// the departure point (reverting to the plain lookup where the clamp bites); it cancels the lookup's leading error
+/// term, for one more lookup and a forward trace through the cached cell-centre velocity (no new Monte Carlo
+/// queries). With viscosity the correction is of the advection only (the diffusion is not undone). The
+/// Biot–Savart source stays the cache's `interpolation` in every case.
+enum class VorticityTransport { Linear, Cubic, MacCormack };
+const char* to_string(VorticityTransport t);
+
 /// omega(0, x).
 using InitialField = std::function<double(const Vec2d&)>;
 
@@ -51,6 +66,7 @@ struct SolverSettings {
     Domain<D> domain;
     Interpolation interpolation = Interpolation::Bilinear;  ///< Bilinear means trilinear in 3D
     Advection advection = Advection::RK4;
+    VorticityTransport transport = VorticityTransport::Cubic;
     double dt = 0.05;
     double viscosity = 0;       ///< nu; 0 = inviscid: the diffusion step never runs
     int diffusion_samples = 1;  ///< n_d (used only when viscosity > 0)
@@ -173,6 +189,14 @@ public:
     uint64_t invalid() const override { return m_work.invalid_velocity + m_work.invalid_vorticity; }
     void report(Stats& stats) const override;
 
+    /// The energy budget (energy_budget.h): when on, every step also measures where its energy went (four
+    /// deterministic re-runs of the step and five FFTs; no random draws, so the simulation is unchanged). Inviscid
+    /// runs without boundaries only (RuntimeError otherwise).
+    void set_energy_budget(bool on);
+    /// The last step's budget and the sum over the steps so far (null when the budget is off).
+    const EnergyBudget* energy_budget_step() const { return m_flow ? &m_budget_step : nullptr; }
+    const EnergyBudget* energy_budget_total() const { return m_flow ? &m_budget_total : nullptr; }
+
     /// Stream tags of the passes (part of the determinism contract; tests use them).
     enum StreamTag : uint64_t { TagVelocity = 1, TagAdvection = 2, TagQuery = 3, TagDye = 4 };
 
@@ -183,6 +207,12 @@ private:
                            wos::WalkCounters& walks) const;
     VelocityEstimate estimate_at(Vec2d x, int n, Random& rng, wos::WalkCounters& walks) const;
     void add_walks(const wos::WalkCounters& c);
+    /// omega at the cells after a step of dt through the deterministic velocity (u, v) at the cell centres (read
+    /// between them by the cubic interpolant), the backtrace in `substeps` steps of the scene's integrator.
+    void transport_through(const Grid2& u, const Grid2& v, double dt, int substeps, Grid2& out) const;
+    void measure_budget(double dt);
+    /// MacCormack's correction of m_next (see VorticityTransport); false when stopped.
+    bool maccormack_correction(double dt);
 
     MCFluidSettings m_settings;
     Communicator* m_comm;  ///< never null (the local communicator by default)
@@ -197,7 +227,11 @@ private:
     const WosVelocityField* m_wos = nullptr;  ///< m_field->boundaries(): solids, walls (null without boundaries)
     FluidWork m_work;
     std::unique_ptr<PassiveScalars> m_dye;
-    Grid2 m_disp_x, m_disp_y;  ///< displacement x - x_departure of the last step (only with a dye)
+    Grid2 m_disp_x, m_disp_y;         ///< displacement x - x_departure of the last step (only with a dye)
+    Grid2 m_advected;                 ///< MacCormack with viscosity: the advected values before diffusion
+    std::vector<Vec2d> m_departure;   ///< MacCormack: each cell's departure point (wrapped)
+    std::unique_ptr<FlowFFT> m_flow;  ///< the energy budget's FFTs (null: no budget)
+    EnergyBudget m_budget_step, m_budget_total;
 };
 
 /// Settings of the recursive estimator (Algorithm C.1).

@@ -63,9 +63,11 @@ std::vector<uint8_t> overlay_mask(const FrameOverlay& overlay, int width, int he
 /// How PNG frames look and what is made of them at the end of a run (every simulation's frame_size, montage,
 /// write_video and video_fps parameters; KELVIN_FRAME_STYLE_PARAMS declares them).
 struct FrameStyle {
-    int size = 512;       ///< pixels along the longer side of a PNG frame; 0: one pixel per cell
-    bool montage = true;  ///< montage.png: up to 8 frames of the run, evenly spaced, left to right, top to bottom
-    bool video = false;   ///< <kind>.mp4 of the PNG frames (ffmpeg)
+    int size = 512;  ///< pixels along the longer side of a PNG frame; 0: one pixel per cell
+    /// montage.png: up to 8 frames of the run, evenly spaced, left to right, top to bottom, each framed by a thin grey
+    /// border and labelled with its step and time
+    bool montage = true;
+    bool video = false;  ///< <kind>.mp4 of the PNG frames (ffmpeg)
     double fps = 24;
     /// 2D runs with a dye: also write dye_NNNN.vdb, the dye extruded into a slab this thick along z (centred on
     /// z = 0; world units; 0: none), for rendering as a medium (grids `dye`, and `dye_r`, `dye_g`, `dye_b` for a
@@ -88,6 +90,18 @@ struct FrameStyle {
 /// solids grey and boundary lines dark.
 Bitmap display_frame(const Bitmap& fields, const char* channel, double range, int width, int height,
                      const std::vector<uint8_t>* mask = nullptr);
+
+/// A label in a tiny built-in bitmap font (5 x 7 pixel glyphs on a 6 x 8 grid, each pixel `scale` x `scale`):
+/// digits, `.`, `-`, `+`, `=`, `:`, space and the letters of "step", "t" and "e". Other characters are drawn as a
+/// hollow box. label_width / label_height give the size of `text` at `scale`.
+int label_width(const std::string& text, int scale);
+inline int label_height(int scale) { return 8 * scale; }
+/// Draws `text` into `image` (R, G, B) with its top-left corner at (x, y), in `color`, clipped to the image.
+void draw_label(Bitmap& image, int x, int y, const std::string& text, int scale, Color3 color);
+/// The label of a montage tile: "step 40  t=0.4" (time with up to 4 significant digits).
+std::string montage_label(long long step, double time);
+/// Columns of a montage of `count` tiles: at most 4, and rows as full as they can be (5 tiles: 3 + 2, not 4 + 1).
+int montage_columns(std::size_t count);
 
 /// The frames of one run: PNGs resized and overlaid for people, EXRs (fields, one pixel per cell) and VDBs as
 /// data, every file appended to `written`; at finish(), montage.png and the videos. Used by every simulation.
@@ -112,11 +126,19 @@ public:
     void finish();
     /// Seconds spent writing so far.
     double seconds() const { return m_seconds; }
+    /// The simulated time of the state whose frames are written next (the montage labels show it).
+    void set_time(double t) { m_time = t; }
+    /// A writer that writes no file: the first PNG of each state it is given (the vorticity) is kept, as the frames
+    /// show it (frame_size, solids and walls drawn), for captured() (the run's -o image in PNG, JPEG, ...).
+    static FrameWriter capture(const FrameStyle& style, std::vector<std::filesystem::path>& unused);
+    /// The image kept by a capturing writer (empty when none was given).
+    const Bitmap& captured() const { return m_captured; }
 
 private:
     struct Thumb {
         long long step;
         Bitmap image;
+        double time = 0;
     };
     std::pair<int, int> frame_size(int nx, int ny) const;
     void add_png(const std::string& kind, long long step, const Bitmap& image);
@@ -134,6 +156,10 @@ private:
     int m_mask_w = 0, m_mask_h = 0;
     long long m_mask_step = -1;
     double m_seconds = 0;
+    // (Added at the end: the members above keep their offsets for the inline enabled() and due().)
+    double m_time = 0;
+    bool m_capture = false;
+    Bitmap m_captured;
 };
 
 /// The work counters and timers of an MCFluid solver (the 2D FluidWork and the 3D FluidWork3 share these names).

@@ -22,6 +22,9 @@
 
 namespace kelvin::fluid {
 
+/// The scene's `transport` ("cubic" or "linear"; mcfluid in 2D and 3D).
+VorticityTransport parse_transport(const Properties& props);
+
 /// The parameters every 2D simulation reads (see docs/fluid.md, "Baselines").
 struct SimulationParams {
     Domain2 domain;
@@ -30,6 +33,7 @@ struct SimulationParams {
     double end_time = 0;
     double viscosity = 0;
     Advection advection = Advection::RK4;
+    VorticityTransport transport = VorticityTransport::Cubic;  ///< mcfluid's; the baselines ignore it
     long long output_every = 0;
     bool write_png = true, write_exr = true, write_csv = true;
     double color_range = 0;
@@ -139,7 +143,8 @@ protected:
 /// the mollifier delta, which --spp overrides for a run) and the cache.
 struct MCFluidParams {
     SimulationParams common;
-    MCFluidSettings settings;  ///< the solver's, from the scene (seed 0, n_mc the estimator's)
+    MCFluidSettings settings;    ///< the solver's, from the scene (seed 0, n_mc the estimator's)
+    bool energy_budget = false;  ///< measure where each step's energy goes (energy_budget.h)
     /// Reads and validates them (errors name the parameter).
     static MCFluidParams parse(const Properties& props);
 };
@@ -176,6 +181,7 @@ FluidDiagnostics grid_diagnostics(const Grid2& omega, const Grid2& u, const Grid
         kelvin::param::real("viscosity", 0.0, "kinematic viscosity nu (0: inviscid)"),                               \
         kelvin::param::integer("diffusion_samples", 1, "mcfluid's n_d; accepted and ignored"),                       \
         kelvin::param::string("advection", "rk4", "'euler' or 'rk4'"),                                               \
+        kelvin::param::string("transport", "cubic", "mcfluid's vorticity lookup; accepted and ignored"),             \
         kelvin::param::integer("output_every", 0, "write PNG/EXR frames every N steps (0: none)"),                   \
         kelvin::param::boolean("write_png", true, "write frames as PNG"),                                            \
         kelvin::param::boolean("write_exr", true, "write frames as EXR"),                                            \

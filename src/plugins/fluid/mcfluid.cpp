@@ -105,6 +105,13 @@ KELVIN_PLUGIN(kelvin::fluid::MCFluid, "simulation", "mcfluid",
               kelvin::param::real("viscosity", 0.0, "kinematic viscosity nu (0: inviscid, no diffusion step)"),
               kelvin::param::integer("diffusion_samples", 1, "n_d, Feynman–Kac samples per cell and step"),
               kelvin::param::string("advection", "rk4", "'euler' or 'rk4' semi-Lagrangian backtrace"),
+              kelvin::param::string("transport", "cubic",
+                                    "how a backtrace reads the previous vorticity: 'cubic' (monotone cubic), "
+                                    "'maccormack' (cubic with Selle et al.'s error correction; 2D, in 3D as cubic) "
+                                    "or 'linear' (bi/trilinear, the thesis' scheme, diffusive)"),
+              kelvin::param::boolean("energy_budget", false,
+                                     "2D, inviscid, no boundaries: measure where each step's energy goes (CSV "
+                                     "columns energy_exact and budget_*; --stats; the summary)"),
               kelvin::param::integer("output_every", 0, "write PNG/EXR frames every N steps (0: none)"),
               kelvin::param::boolean("write_png", true, "write frames as PNG (colour-mapped vorticity)"),
               kelvin::param::boolean("write_exr", true, "write frames as EXR (vorticity, u, v channels)"),

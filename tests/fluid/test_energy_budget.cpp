@@ -1,0 +1,167 @@
+// The energy budget (energy_budget.h): the deterministic energy and velocity of a grid vorticity by FFT, and the
+// split of a step's energy change by source.
+#include <kelvin/fluid/energy_budget.h>
+#include <kelvin/fluid/estimators.h>
+#include <kelvin/fluid/mcfluid.h>
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <iostream>
+
+using namespace kelvin;
+using namespace kelvin::fluid;
+
+namespace {
+Domain2 tg_box() { return {{-Pi, -Pi}, {Pi, Pi}, true}; }
+double tg(const Vec2d& x) { return std::sin(x.x) * std::cos(x.y); }
+
+Grid2 sampled(const Domain2& d, int n, const std::function<double(Vec2d)>& f) {
+    Grid2 g(d, n, n);
+    for (int j = 0; j < n; ++j)
+        for (int i = 0; i < n; ++i) g.at(i, j) = f(g.cell_center(i, j));
+    return g;
+}
+}  // namespace
+
+// Taylor–Green omega = sin x cos y: psi = omega / 2, u = -sin x sin y / 2, v = -cos x cos y / 2 and
+// E = (1/2) int psi omega = pi^2 / 4, all exact for a resolved mode.
+TEST(FlowFFT, PeriodicEnergyAndVelocityOfTaylorGreenAreExact) {
+    const Grid2 w = sampled(tg_box(), 32, tg);
+    FlowFFT flow(tg_box(), 32, 32);
+    EXPECT_NEAR(flow.energy(w), Pi * Pi / 4, 1e-10);
+    Grid2 u = w, v = w;
+    flow.velocity(w, false, Interpolation::Bilinear, 0.0, u, v);
+    double err = 0;
+    for (int j = 0; j < 32; ++j)
+        for (int i = 0; i < 32; ++i) {
+            const Vec2d x = w.cell_center(i, j);
+            err = std::max({err, std::abs(u.at(i, j) + 0.5 * std::sin(x.x) * std::sin(x.y)),
+                            std::abs(v.at(i, j) + 0.5 * std::cos(x.x) * std::cos(x.y))});
+        }
+    EXPECT_LT(err, 1e-12);
+    // Smoothed as the estimator sees it: the tent basis damps the mode by sinc(h/2)^4, a mollifier delta by
+    // k delta K_1(k delta) with k = sqrt 2.
+    flow.velocity(w, true, Interpolation::Bilinear, 0.1, u, v);
+    const double h = 2 * Pi / 32, s = std::sin(h / 2) / (h / 2), kd = std::sqrt(2.0) * 0.1;
+    const double factor = s * s * s * s * kd * std::cyl_bessel_k(1.0, kd);
+    const Vec2d x = w.cell_center(5, 9);
+    EXPECT_NEAR(u.at(5, 9), -0.5 * factor * std::sin(x.x) * std::sin(x.y), 1e-12);
+}
+
+// Free space: a Lamb–Oseen vortex's velocity from the cells (point vortices) against the exact swirl, to the
+// quadrature's O(h^2); and the energy of a zero-circulation pair against (1/2) sum |u|^2 h^2 over a box three times
+// as wide (the same flow, integrated the other way).
+TEST(FlowFFT, FreeSpaceVelocityAndEnergyOfVortices) {
+    const double sigma = 0.2;
+    auto lamb_oseen = [&](Vec2d r) { return std::exp(-glm::dot(r, r) / (sigma * sigma)) / (Pi * sigma * sigma); };
+    const Domain2 box{{-1, -1}, {1, 1}, false};
+    const Grid2 w = sampled(box, 64, lamb_oseen);
+    FlowFFT flow(box, 64, 64);
+    Grid2 u = w, v = w;
+    flow.velocity(w, false, Interpolation::Bilinear, 0.0, u, v);
+    double err = 0, peak = 0;
+    for (int j = 0; j < 64; ++j)
+        for (int i = 0; i < 64; ++i) {
+            const Vec2d r = w.cell_center(i, j);
+            const double r2 = glm::dot(r, r), f = (1 - std::exp(-r2 / (sigma * sigma))) / (2 * Pi * r2);
+            err = std::max({err, std::abs(u.at(i, j) + f * r.y), std::abs(v.at(i, j) - f * r.x)});
+            peak = std::max(peak, f * std::sqrt(r2));
+        }
+    std::cout << "[ measured ] Lamb–Oseen velocity max error " << err << " of peak " << peak << "\n";
+    EXPECT_LT(err, 0.01 * peak);
+
+    auto pair = [&](Vec2d x) { return lamb_oseen(x - Vec2d(0.25, 0)) - lamb_oseen(x + Vec2d(0.25, 0)); };
+    const double e = flow.energy(sampled(box, 64, pair));
+    const Domain2 wide{{-3, -3}, {3, 3}, false};
+    const Grid2 ww = sampled(wide, 192, pair);
+    FlowFFT wide_flow(wide, 192, 192);
+    Grid2 wu = ww, wv = ww;
+    wide_flow.velocity(ww, false, Interpolation::Bilinear, 0.0, wu, wv);
+    double ke = 0;
+    for (std::size_t c = 0; c < ww.cell_count(); ++c)
+        ke += 0.5 * (wu.values()[c] * wu.values()[c] + wv.values()[c] * wv.values()[c]) * ww.cell_area();
+    std::cout << "[ measured ] pair energy " << e << ", (1/2) sum |u|^2 h^2 " << ke << "\n";
+    EXPECT_NEAR(e / ke, 1.0, 0.03);
+}
+
+namespace {
+MCFluidSettings tg_settings(int n, VorticityTransport t, double dt = 0.1, Advection adv = Advection::RK4,
+                            double delta = -1) {
+    MCFluidSettings s;
+    s.domain = tg_box();
+    s.nx = s.ny = 32;
+    s.samples = n;
+    s.dt = dt;
+    s.advection = adv;
+    s.transport = t;
+    s.seed = 3;
+    BiotSavartOptions o;
+    o.samples = n;
+    o.delta = delta;
+    s.estimator = std::make_shared<BiotSavartVelocity>(o);
+    return s;
+}
+
+struct BudgetRun {
+    EnergyBudget budget;
+    double e0 = 0;             ///< exact energy at t = 0
+    double mc_change_rel = 0;  ///< relative change of the Monte Carlo energy diagnostic
+};
+
+BudgetRun run(const MCFluidSettings& s, double t_end) {
+    MCFluidSolver solver(s, tg);
+    solver.set_energy_budget(true);
+    BudgetRun r;
+    r.e0 = solver.energy_budget_total()->energy;
+    const double mc0 = solver.diagnostics().kinetic_energy;
+    EXPECT_TRUE(solver.advance_to(t_end));
+    r.budget = *solver.energy_budget_total();
+    r.mc_change_rel = solver.diagnostics().kinetic_energy / mc0 - 1;
+    const EnergyBudget& b = r.budget;
+    std::cout << "[ measured ] " << to_string(s.transport) << " " << to_string(s.advection) << " n " << s.samples
+              << " dt " << s.dt << ": change " << b.change << " = transport " << b.transport << " + noise " << b.noise
+              << " + mollifier " << b.mollifier << " + integrator " << b.integrator << "; relative change "
+              << b.change / r.e0 << ", Monte Carlo diagnostic " << r.mc_change_rel << "\n";
+    return r;
+}
+}  // namespace
+
+// Inviscid Taylor–Green (32^2, t = 2): the exact energy is constant, so the whole change is error, and the budget
+// says whose. The terms add up to the change by construction; what is tested is that each measures its source:
+// the split's total agrees with the solver's own Monte Carlo energy diagnostic, and each term falls when its source
+// is reduced, and is large when it is there. Measured: linear lookup, n 256: change -0.281 of 2.467 (transport
+// -0.281, noise -0.008, mollifier +0.008), the diagnostic's relative change within 0.5 % of the budget's; noise
+// -0.079 at n 16; cubic lookup: transport -0.0016 to -0.0038.
+// Broken variants seen to fail: the budget's velocity without the 1/|k|^2 (every term wrong, totals disagree),
+// the noise term taken as E(A) - E(C) (includes the mollifier).
+TEST(EnergyBudget, EachTermMeasuresItsSource) {
+    const BudgetRun linear = run(tg_settings(256, VorticityTransport::Linear), 2);
+    const BudgetRun linear16 = run(tg_settings(16, VorticityTransport::Linear), 2);
+    const BudgetRun cubic = run(tg_settings(256, VorticityTransport::Cubic), 2);
+    const EnergyBudget& b = linear.budget;
+    EXPECT_NEAR(b.change, b.transport + b.noise + b.mollifier + b.integrator, 1e-12);
+    EXPECT_NEAR(b.energy - linear.e0, b.change, 1e-9);
+    // The budget's total against the solver's own (Monte Carlo) energy: the same relative change.
+    EXPECT_LT(b.change / linear.e0, -0.05);
+    EXPECT_NEAR(b.change / linear.e0, linear.mc_change_rel, 0.01);
+    // Transport: the linear lookup's diffusion is the bulk of the change; the cubic lookup removes it.
+    EXPECT_GT(b.transport / b.change, 0.9);
+    EXPECT_LT(std::abs(cubic.budget.transport), 0.05 * std::abs(b.transport));
+    // Noise: falls as 1 / n (16x the samples: measured 10x smaller).
+    EXPECT_LT(std::abs(b.noise), 0.2 * std::abs(linear16.budget.noise));
+    EXPECT_GT(std::abs(linear16.budget.noise), 0.01);
+}
+
+// The integrator term: zero for practical purposes with RK4 on this smooth flow (measured 1e-8), first order with
+// Euler (halves with dt); the mollifier term grows with the mollifier.
+TEST(EnergyBudget, IntegratorAndMollifierTermsScaleWithTheirSources) {
+    const BudgetRun rk4 = run(tg_settings(256, VorticityTransport::Cubic, 0.1), 2);
+    const BudgetRun euler = run(tg_settings(256, VorticityTransport::Cubic, 0.1, Advection::Euler), 2);
+    const BudgetRun euler_half = run(tg_settings(256, VorticityTransport::Cubic, 0.05, Advection::Euler), 2);
+    EXPECT_LT(std::abs(rk4.budget.integrator), 1e-4 * rk4.e0);
+    EXPECT_GT(std::abs(euler.budget.integrator), 100 * std::abs(rk4.budget.integrator));
+    EXPECT_NEAR(euler_half.budget.integrator / euler.budget.integrator, 0.5, 0.15);
+    const BudgetRun wide = run(tg_settings(256, VorticityTransport::Cubic, 0.1, Advection::RK4, 0.6), 2);
+    EXPECT_GT(std::abs(wide.budget.mollifier), 10 * std::abs(rk4.budget.mollifier));
+}
