@@ -9,6 +9,7 @@
 #include <fmt/format.h>
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 
 namespace kelvin::fluid {
@@ -17,6 +18,12 @@ namespace kelvin::fluid {
 // WosVelocityField.
 
 namespace {
+/// Control variate: the free-space samples mix |omega| sampling with a density proportional to 1/r within
+/// NearRadiusCells cells of the query (fraction NearFraction), which keeps the singular kernel's weight bounded
+/// (|omega| sampling alone has a logarithmically divergent second moment at the query point).
+constexpr double NearRadiusCells = 2;
+constexpr double NearFraction = 0.25;
+
 Vec2d rotate(Vec2d v, double a) {
     const double c = std::cos(a), s = std::sin(a);
     return {c * v.x - s * v.y, s * v.x + c * v.y};
@@ -126,7 +133,11 @@ WosVelocityField::WosVelocityField(const WosVelocityOptions& options, const Doma
     if (!(m_wos.epsilon > 0)) m_wos.epsilon = options.epsilon_relative * std::min(size.x, size.y);
     m_walls = options.walls && !domain.periodic;
     m_has_source = omega && omega->max_abs() > 0;
-    if (m_has_source && options.vorticity_importance) m_source = VorticitySource(omega, interp);
+    m_wos.stratified = options.stratified;
+    m_cv = m_has_source && options.control_variate && !domain.periodic;
+    if (m_has_source && (options.vorticity_importance || m_cv)) m_source = VorticitySource(omega, interp);
+    if (m_source.empty()) m_cv = false;
+    if (m_cv) m_near_radius = NearRadiusCells * std::max(omega->h().x, omega->h().y);
     if (const std::string why = check_wos_options(options, domain); !why.empty())
         throw_runtime("walk_on_spheres: {}", why);
     // Inflow through the left wall, outflow through the right: u = U there, v = -curl Psi gives
@@ -408,6 +419,7 @@ VelocityEstimate WosVelocityField::estimate(Vec2d x, int n, Random& rng, wos::Wa
     }
     if (m_constant_psi) return e;  // exactly zero: no walk
     if (m_walls) x = glm::clamp(x, m_domain.min, m_domain.max);
+    if (m_cv) return estimate_control_variate(x, n, rng, c);
     const auto g = [this](const wos::BoundaryHit<2>& h) { return boundary_stream(h); };
     wos::GradientEstimate<2> ge;
     if (m_has_source && !m_source.empty()) {  // Laplacian(Psi) = omega_h, |omega| importance mixture
@@ -423,6 +435,89 @@ VelocityEstimate WosVelocityField::estimate(Vec2d x, int n, Random& rng, wos::Wa
     e.value = {-ge.value.y, ge.value.x};  // v = -curl Psi = (-dPsi/dy, dPsi/dx)
     e.variance = {ge.variance.y, ge.variance.x};
     e.samples = 0;  // no Biot–Savart kernel evaluation: the work is in the walk counters
+    return e;
+}
+
+// The control variate. Psi = Psi_free + h with Psi_free = integral omega_h(y) log|x - y| / (2 pi) dy over the
+// plane (Laplacian(Psi_free) = omega_h, the same function the walks' source term reads) and h harmonic in the
+// fluid with h = Psi_b - Psi_free on every boundary. One gradient sample draws q points y_j of omega_h (a one-
+// sample mixture of |omega| and, near x, 1/r sampling; weights W_j = omega_h(y_j) / (q p(y_j))), i.e. q point
+// vortices whose free-space velocity sum_j W_j K(x - y_j) and stream function sum_j W_j log|p - y_j| / (2 pi)
+// are unbiased for v_free(x) and Psi_free(p); the sample's walks (antithetic pair, no source term) end at p and
+// carry Psi_b(p) minus that stream function. The sample is therefore the velocity of the q point vortices inside
+// the walled domain, exactly unbiased for the velocity of omega_h there; the walks only estimate the (smooth,
+// small where the walls conform to the free flow) image part. Sources of the samples are independent across
+// samples, so the usual variance estimate holds (with stratified directions: pairs of strata).
+VelocityEstimate WosVelocityField::estimate_control_variate(Vec2d x, int n, Random& rng, wos::WalkCounters& c) const {
+    VelocityEstimate e;
+    double R0 = distance(x);
+    if (!(R0 >= 0) || R0 == Inf) {
+        c.invalid += uint64_t(std::max(n, 0));
+        return e;
+    }
+    if (R0 < m_wos.epsilon && !wos::move_to_shell<2>(*this, x, R0, m_wos, c)) return e;
+    const int q = std::clamp(m_options.free_samples, 1, MaxFreeSamples);
+    std::array<Vec2d, MaxFreeSamples> ys;
+    std::array<double, MaxFreeSamples> ws;
+    const double rho = m_near_radius, a = NearFraction, inv_q = 1.0 / q;
+    const double near_pdf = 1 / (2 * Pi * rho);  // x 1/r: the density of r = rho u, uniform angle
+    int m = 0;
+    const auto psi_free = [&](Vec2d p) {
+        double sum = 0;
+        for (int j = 0; j < m; ++j) {
+            const Vec2d d = p - ys[std::size_t(j)];
+            sum += ws[std::size_t(j)] * std::log(d.x * d.x + d.y * d.y);
+        }
+        return sum * (0.5 / (2 * Pi));  // log|d| = log(|d|^2) / 2
+    };
+    const auto g = [&](const wos::BoundaryHit<2>& h) { return boundary_stream(h) - psi_free(h.point); };
+    wos::SampleMoments<Vec2d> moments;
+    moments.strata = m_wos.stratified && n > 1;
+    const double scale = 2 / R0;
+    for (int k = 0; k < n; ++k) {
+        // The sample's point vortices and their free-space velocity at x.
+        m = 0;
+        Vec2d v(0.0);
+        for (int j = 0; j < q; ++j) {
+            Vec2d y;
+            if (wos::uniform(rng) < a)
+                y = x + (rho * wos::uniform(rng)) * wos::sample_direction<2>(rng);
+            else
+                y = m_source.sample(rng, x);
+            const auto [w, pw] = m_source.value_and_pdf(y, x);
+            if (w == 0) continue;
+            const Vec2d d = x - y;
+            const double r2 = d.x * d.x + d.y * d.y;
+            const double r = std::sqrt(r2);
+            const double p = (r < rho && r > 0 ? a * near_pdf / r : 0.0) + (1 - a) * pw;
+            if (!(p > 0) || !(r > 0)) continue;  // y = x exactly: a measure-zero point (principal value 0)
+            const double W = w / p * inv_q;
+            ys[std::size_t(m)] = y;
+            ws[std::size_t(m)] = W;
+            ++m;
+            v += (W / (2 * Pi * r2)) * Vec2d(-d.y, d.x);
+        }
+        // The harmonic correction's gradient from the first step (antithetic, stratified per the settings).
+        const Vec2d dir = wos::first_step_direction<2>(rng, m_wos, k, n);
+        Vec2d grad;
+        if (m_wos.antithetic) {
+            const double ua = wos::walk<2>(*this, g, wos::NoSource{}, x + R0 * dir, rng, m_wos, c);
+            const double ub = wos::walk<2>(*this, g, wos::NoSource{}, x - R0 * dir, rng, m_wos, c);
+            grad = (scale * 0.5 * (ua - ub)) * dir;
+        } else {
+            grad = (scale * wos::walk<2>(*this, g, wos::NoSource{}, x + R0 * dir, rng, m_wos, c)) * dir;
+        }
+        Vec2d sample = v + Vec2d(-grad.y, grad.x);
+        if (!std::isfinite(sample.x) || !std::isfinite(sample.y)) {
+            ++c.invalid;
+            sample = Vec2d(0.0);
+        }
+        moments.add(sample);
+        if (wos::stop_due(m_wos, k)) n = k + 1;  // stopped: the caller discards the pass
+    }
+    e.value = moments.mean();
+    e.variance = moments.variance_of_mean();
+    e.samples = 0;  // the Biot–Savart part is within the walks' samples (walk counters)
     return e;
 }
 

@@ -38,6 +38,9 @@ public:
         opt.wos.max_steps = int(props.get_int("max_steps", 1, 1 << 30));
         opt.wos.antithetic = props.get_bool("antithetic");
         opt.vorticity_importance = props.get_choice("importance", {"vorticity", "green"}) == "vorticity";
+        opt.control_variate = props.get_bool("control_variate");
+        opt.free_samples = int(props.get_int("free_samples", 1, MaxFreeSamples));
+        opt.stratified = props.get_bool("stratified");
         opt.walls = props.get_bool("walls");
         opt.wall_stream_value = props.get_float("wall_stream_value");
         opt.inflow_speed = props.get_float("inflow_speed");
@@ -88,6 +91,13 @@ KELVIN_PLUGIN(kelvin::fluid::WalkOnSpheres, "velocity", "walk_on_spheres",
               kelvin::param::boolean("antithetic", true, "antithetic first step (Fig. 5.5)"),
               kelvin::param::string("importance", "vorticity",
                                     "volume term: 'vorticity' (|omega| mixed with G) or 'green' (G only, the thesis)"),
+              kelvin::param::boolean("control_variate", true,
+                                     "2D, not periodic: free-space Biot-Savart velocity + walks for the harmonic "
+                                     "correction only (false: walks with the vorticity source)"),
+              kelvin::param::integer("free_samples", 4,
+                                     "control variate: vorticity samples (point vortices) per gradient sample"),
+              kelvin::param::boolean("stratified", true,
+                                     "2D: stratified first-step directions over a query's gradient samples"),
               kelvin::param::boolean("walls", true, "the domain box is a container (ignored when periodic)"),
               kelvin::param::real("wall_stream_value", 0.0,
                                   "Psi on the walls (with inflow: the mean of the bottom and top walls)"),
