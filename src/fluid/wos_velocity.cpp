@@ -11,6 +11,7 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <tuple>
 
 namespace kelvin::fluid {
 
@@ -366,8 +367,13 @@ WosVelocityField::VorticitySource::VorticitySource(const Grid2* omega, Interpola
 }
 
 Vec2d WosVelocityField::VorticitySource::sample(Random& rng, const Vec2d& x) const {
+    return sample_signed(rng, x).first;
+}
+
+std::pair<Vec2d, double> WosVelocityField::VorticitySource::sample_signed(Random& rng, const Vec2d& x) const {
     const uint32_t slot = rng.next_u32(uint32_t(m_prob.size()));
     const uint32_t k = wos::uniform(rng) < m_prob[slot] ? m_self[slot] : m_alias[slot];
+    const double sign = m_omega->values()[k] < 0 ? -1.0 : 1.0;
     const int i = int(k % uint32_t(m_omega->nx())), j = int(k / uint32_t(m_omega->nx()));
     const Vec2d h = m_omega->h();
     Vec2d off;
@@ -376,8 +382,8 @@ Vec2d WosVelocityField::VorticitySource::sample(Random& rng, const Vec2d& x) con
     else
         off = {h.x * (wos::uniform(rng) - 0.5), h.y * (wos::uniform(rng) - 0.5)};
     const Vec2d y = m_omega->cell_center(i, j) + off;
-    if (!m_domain.periodic) return y;
-    return x + m_domain.min_image(y - x);  // periodic: the image nearest the walk
+    if (!m_domain.periodic) return {y, sign};
+    return {x + m_domain.min_image(y - x), sign};  // periodic: the image nearest the walk
 }
 
 std::pair<double, double> WosVelocityField::VorticitySource::lookup(Vec2d p) const {
@@ -441,7 +447,9 @@ VelocityEstimate WosVelocityField::estimate(Vec2d x, int n, Random& rng, wos::Wa
 // The control variate. Psi = Psi_free + h with Psi_free = integral omega_h(y) log|x - y| / (2 pi) dy over the
 // plane (Laplacian(Psi_free) = omega_h, the same function the walks' source term reads) and h harmonic in the
 // fluid with h = Psi_b - Psi_free on every boundary. One gradient sample draws q points y_j of omega_h (a one-
-// sample mixture of |omega| and, near x, 1/r sampling; weights W_j = omega_h(y_j) / (q p(y_j))), i.e. q point
+// sample mixture of |omega| and, near x, 1/r sampling; weights W_j = omega_h(y_j) / (q p(y_j)) where both
+// densities reach, i.e. within the near radius, and beyond it the cell-sign weight sign(omega_k) integral|omega_h|
+// / ((1 - alpha) q) of the cell k the point was drawn from: unbiased over (cell, point), no lookup), i.e. q point
 // vortices whose free-space velocity sum_j W_j K(x - y_j) and stream function sum_j W_j log|p - y_j| / (2 pi)
 // are unbiased for v_free(x) and Psi_free(p); the sample's walks (antithetic pair, no source term) end at p and
 // carry Psi_b(p) minus that stream function. The sample is therefore the velocity of the q point vortices inside
@@ -461,6 +469,7 @@ VelocityEstimate WosVelocityField::estimate_control_variate(Vec2d x, int n, Rand
     std::array<double, MaxFreeSamples> ws;
     const double rho = m_near_radius, a = NearFraction, inv_q = 1.0 / q;
     const double near_pdf = 1 / (2 * Pi * rho);  // x 1/r: the density of r = rho u, uniform angle
+    const double far_weight = m_source.total() / (1 - a) * inv_q;
     int m = 0;
     const auto psi_free = [&](Vec2d p) {
         double sum = 0;
@@ -480,18 +489,24 @@ VelocityEstimate WosVelocityField::estimate_control_variate(Vec2d x, int n, Rand
         Vec2d v(0.0);
         for (int j = 0; j < q; ++j) {
             Vec2d y;
+            double sign = 0;
             if (wos::uniform(rng) < a)
                 y = x + (rho * wos::uniform(rng)) * wos::sample_direction<2>(rng);
             else
-                y = m_source.sample(rng, x);
-            const auto [w, pw] = m_source.value_and_pdf(y, x);
-            if (w == 0) continue;
+                std::tie(y, sign) = m_source.sample_signed(rng, x);
             const Vec2d d = x - y;
             const double r2 = d.x * d.x + d.y * d.y;
+            if (!(r2 > 0)) continue;  // y = x exactly: a measure-zero point (principal value 0)
             const double r = std::sqrt(r2);
-            const double p = (r < rho && r > 0 ? a * near_pdf / r : 0.0) + (1 - a) * pw;
-            if (!(p > 0) || !(r > 0)) continue;  // y = x exactly: a measure-zero point (principal value 0)
-            const double W = w / p * inv_q;
+            double W;
+            if (r < rho) {  // where both densities reach: the balance weight omega_h / (mixture density)
+                const auto [w, pw] = m_source.value_and_pdf(y, x);
+                const double p = a * near_pdf / r + (1 - a) * pw;
+                if (w == 0 || !(p > 0)) continue;
+                W = w / p * inv_q;
+            } else {  // only |omega| sampling reaches: its cell's sign times the total (no lookup)
+                W = sign * far_weight;
+            }
             ys[std::size_t(m)] = y;
             ws[std::size_t(m)] = W;
             ++m;

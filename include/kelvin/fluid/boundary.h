@@ -71,10 +71,10 @@ struct WosVelocityOptions {
     bool control_variate = true;
     /// Vorticity samples per gradient sample (control variate): the point vortices whose free-space velocity and
     /// stream function (at the walks' ends) that gradient sample carries.
-    int free_samples = 4;
+    int free_samples = 16;
     /// 2D: stratified first-step directions over the n gradient samples of a query (jittered, one per stratum of
     /// the half circle with antithetic); the variance is estimated from pairs of adjacent strata.
-    bool stratified = true;
+    bool stratified = false;
 };
 
 /// Largest free_samples (a gradient sample keeps its point vortices on the stack).
@@ -169,6 +169,11 @@ public:
         VorticitySource(const Grid2* omega, Interpolation interp);
         double operator()(const Vec2d& y) const { return lookup(y).first; }
         Vec2d sample(Random& rng, const Vec2d& x) const;
+        /// sample() and the sign of omega in the cell it drew (the point's weight sign x total() is unbiased for
+        /// omega_h over the pair (cell, point)).
+        std::pair<Vec2d, double> sample_signed(Random& rng, const Vec2d& x) const;
+        /// integral |omega|_h (the normalisation of the density).
+        double total() const { return m_total; }
         double pdf(const Vec2d& y, const Vec2d& x) const { return value_and_pdf(y, x).second; }
         /// omega_h(y) and the density of sample() at y, from one lookup.
         std::pair<double, double> value_and_pdf(const Vec2d& y, const Vec2d& x) const;
