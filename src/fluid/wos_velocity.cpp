@@ -465,17 +465,39 @@ VelocityEstimate WosVelocityField::estimate_control_variate(Vec2d x, int n, Rand
     }
     if (R0 < m_wos.epsilon && !wos::move_to_shell<2>(*this, x, R0, m_wos, c)) return e;
     const int q = std::clamp(m_options.free_samples, 1, MaxFreeSamples);
-    std::array<Vec2d, MaxFreeSamples> ys;
-    std::array<double, MaxFreeSamples> ws;
+    // The sample's point vortices: near ones with their own weights, far ones of weight +-far_weight (kept apart,
+    // so that the stream function at a walk's end takes one logarithm per four of them: log of a product).
+    std::array<Vec2d, MaxFreeSamples> near, plus, minus;
+    std::array<double, MaxFreeSamples> near_w;
     const double rho = m_near_radius, a = NearFraction, inv_q = 1.0 / q;
     const double near_pdf = 1 / (2 * Pi * rho);  // x 1/r: the density of r = rho u, uniform angle
     const double far_weight = m_source.total() / (1 - a) * inv_q;
-    int m = 0;
-    const auto psi_free = [&](Vec2d p) {
+    int n_near = 0, n_plus = 0, n_minus = 0;
+    const auto log_sum = [](const std::array<Vec2d, MaxFreeSamples>& ys, int count, Vec2d p) {
         double sum = 0;
-        for (int j = 0; j < m; ++j) {
-            const Vec2d d = p - ys[std::size_t(j)];
-            sum += ws[std::size_t(j)] * std::log(d.x * d.x + d.y * d.y);
+        for (int j = 0; j < count; j += 4) {
+            const int e = std::min(count, j + 4);
+            double prod = 1;
+            for (int i = j; i < e; ++i) {
+                const Vec2d d = p - ys[std::size_t(i)];
+                prod *= d.x * d.x + d.y * d.y;
+            }
+            if (std::isnormal(prod) && std::isfinite(prod)) {
+                sum += std::log(prod);
+                continue;
+            }
+            for (int i = j; i < e; ++i) {  // under- or overflow of the product: one by one
+                const Vec2d d = p - ys[std::size_t(i)];
+                sum += std::log(d.x * d.x + d.y * d.y);
+            }
+        }
+        return sum;
+    };
+    const auto psi_free = [&](Vec2d p) {
+        double sum = far_weight * (log_sum(plus, n_plus, p) - log_sum(minus, n_minus, p));
+        for (int j = 0; j < n_near; ++j) {
+            const Vec2d d = p - near[std::size_t(j)];
+            sum += near_w[std::size_t(j)] * std::log(d.x * d.x + d.y * d.y);
         }
         return sum * (0.5 / (2 * Pi));  // log|d| = log(|d|^2) / 2
     };
@@ -485,7 +507,7 @@ VelocityEstimate WosVelocityField::estimate_control_variate(Vec2d x, int n, Rand
     const double scale = 2 / R0;
     for (int k = 0; k < n; ++k) {
         // The sample's point vortices and their free-space velocity at x.
-        m = 0;
+        n_near = n_plus = n_minus = 0;
         Vec2d v(0.0);
         for (int j = 0; j < q; ++j) {
             Vec2d y;
@@ -504,12 +526,15 @@ VelocityEstimate WosVelocityField::estimate_control_variate(Vec2d x, int n, Rand
                 const double p = a * near_pdf / r + (1 - a) * pw;
                 if (w == 0 || !(p > 0)) continue;
                 W = w / p * inv_q;
+                near[std::size_t(n_near)] = y;
+                near_w[std::size_t(n_near++)] = W;
             } else {  // only |omega| sampling reaches: its cell's sign times the total (no lookup)
                 W = sign * far_weight;
+                if (sign > 0)
+                    plus[std::size_t(n_plus++)] = y;
+                else
+                    minus[std::size_t(n_minus++)] = y;
             }
-            ys[std::size_t(m)] = y;
-            ws[std::size_t(m)] = W;
-            ++m;
             v += (W / (2 * Pi * r2)) * Vec2d(-d.y, d.x);
         }
         // The harmonic correction's gradient from the first step (antithetic, stratified per the settings).

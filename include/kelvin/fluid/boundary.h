@@ -74,7 +74,7 @@ struct WosVelocityOptions {
     int free_samples = 16;
     /// 2D: stratified first-step directions over the n gradient samples of a query (jittered, one per stratum of
     /// the half circle with antithetic); the variance is estimated from pairs of adjacent strata.
-    bool stratified = false;
+    bool stratified = true;
 };
 
 /// Largest free_samples (a gradient sample keeps its point vortices on the stack).
