@@ -5,12 +5,15 @@
 //
 // and the velocity is v = -curl Psi = (-dPsi/dy, dPsi/dx) (Eq. 5.8), from the gradient Walk-on-Spheres estimator
 // (Eqs. 3.78-3.79) with an antithetic first step (Fig. 5.5) and the volume term sampled from the vorticity
-// cache. Boundaries: the domain box as walls (unless periodic), with optional inflow through its left wall and
-// outflow through its right (Fig. 5.6), and the nested <boundary> shapes, each with its isovalue, possibly
-// moving rigidly (Eqs. 5.12-5.13). Cells inside solids hold zero vorticity and the solid's velocity; departure
-// points that land inside a solid are moved to its surface. In 3D (dimension = 3 simulations, 3D boundaries) the
-// stream function is a vector potential with Psi constant on solids and the walls carrying the uniform stream of
-// `inflow_speed` along +x (include/kelvin/fluid/boundary.h, WosVelocityField3). See docs/boundaries.md.
+// cache; by default in 2D (control_variate, stratified) as the free-space Biot–Savart velocity of point-vortex
+// samples of the cache plus the walks' harmonic correction, with stratified first-step directions
+// (include/kelvin/fluid/boundary.h, docs/boundaries.md). Boundaries: the domain box as walls (unless periodic), with
+// optional inflow through its left wall and outflow through its right (Fig. 5.6), and the nested <boundary> shapes,
+// each with its isovalue, possibly moving rigidly (Eqs. 5.12-5.13). Cells inside solids hold zero vorticity and the
+// solid's velocity; departure points that land inside a solid are moved to its surface. In 3D (dimension = 3
+// simulations, 3D boundaries) the stream function is a vector potential with Psi constant on solids and the walls
+// carrying the uniform stream of `inflow_speed` along +x (include/kelvin/fluid/boundary.h, WosVelocityField3). See
+// docs/boundaries.md.
 //
 // Parameters: `kelvin --list-plugins KIND NAME`, or docs/reference.md (generated from the declarations below).
 //
