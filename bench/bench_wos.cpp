@@ -30,6 +30,7 @@
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
+#include <map>
 #include <memory>
 
 using namespace kelvin;
@@ -221,8 +222,132 @@ void BM_WosStep(benchmark::State& state) {
     state.counters["threads"] = thread_count();
 }
 
+// ---------------------------------------------------------------------------------------------------------
+// Variance reduction of the free-slip velocity at equal time (docs/performance.md, "Walk-on-Spheres velocity:
+// variance reduction"): one thread, the velocity at every fluid cell centre of a 64^2 cache, for each variant
+// (0 plain walks with the vorticity source, 1 plain + stratified first step, 2 control variate, 3 control
+// variate + stratified; free_samples = the third argument) with n = the second argument gradient samples. Counters:
+// the RMSE against the exact or reference velocity (over all passes), the thread's CPU seconds per pass, and their
+// product rmse x sqrt(seconds) ("rmse@1s": the RMSE the variant reaches in one CPU second per pass; lower is better,
+// and the ratio of two variants' squares is their efficiency ratio at equal time).
+//   disk: the Lamb–Oseen vortex (core 0.2, circulation 1) in a disk container of radius 0.9, exact answer the
+//         free-space Lamb–Oseen velocity (scenes/fluid/lamb_oseen_disk.xml at 64^2);
+//   polygon: the two vortices of the pass benchmark around a pentagon obstacle in the walled box; reference:
+//         plain walks with 4096 gradient samples at every fourth cell (the reference's own variance subtracted).
+
+struct VarianceScene {
+    Domain2 domain{{-1, -1}, {1, 1}, false};
+    Grid2 omega;
+    WosVelocityOptions options;
+    std::vector<Vec2d> points;
+    std::vector<Vec2d> exact;
+    std::vector<Vec2d> exact_variance;  // of the reference (zero for the exact answer)
+};
+
+WosVelocityOptions variant_options(WosVelocityOptions o, int variant, int free_samples) {
+    o.control_variate = variant >= 2;
+    o.stratified = variant % 2 == 1;
+    o.free_samples = free_samples;
+    return o;
+}
+
+const VarianceScene& variance_scene(const std::string& name) {
+    static std::map<std::string, VarianceScene> scenes;
+    if (auto it = scenes.find(name); it != scenes.end()) return it->second;
+    VarianceScene sc;
+    const int res = 64;
+    sc.omega = Grid2(sc.domain, res, res);
+    if (name == "disk") {
+        const double s = 0.2;
+        for (int j = 0; j < res; ++j)
+            for (int i = 0; i < res; ++i) {
+                const Vec2d x = sc.omega.cell_center(i, j);
+                sc.omega.at(i, j) = 1 / (Pi * s * s) * std::exp(-glm::dot(x, x) / (s * s));
+            }
+        sc.options.walls = false;
+        sc.options.shapes = {make("disk", [](Properties& p) {
+            p.set_point("center", Vec3d(0.0));
+            p.set_float("radius", 0.9);
+            p.set_string("fluid", "inside");
+        })};
+        for (int j = 0; j < res; ++j)
+            for (int i = 0; i < res; ++i) {
+                const Vec2d x = sc.omega.cell_center(i, j);
+                const double r = glm::length(x);
+                if (r >= 0.9) continue;
+                const double ut = 1 / (2 * Pi * r) * -std::expm1(-r * r / (s * s));
+                sc.points.push_back(x);
+                sc.exact.push_back(Vec2d(-x.y / r * ut, x.x / r * ut));
+                sc.exact_variance.push_back(Vec2d(0.0));
+            }
+    } else {
+        sc.options.shapes = {make("polygon", [](Properties& p) {
+            p.set_string("points", "0.3 -0.35, 0.45 0.1, 0.05 0.4, -0.3 0.1, -0.15 -0.3");
+        })};
+        const WosVelocityField probe(sc.options, sc.domain, nullptr, Interpolation::Bilinear, 0);
+        for (int j = 0; j < res; ++j)
+            for (int i = 0; i < res; ++i) {
+                const Vec2d x = sc.omega.cell_center(i, j);
+                sc.omega.at(i, j) = probe.solid_at(x) >= 0 ? 0.0 : two_vortices(x);
+            }
+        const WosVelocityField ref(variant_options(sc.options, 0, 1), sc.domain, &sc.omega, Interpolation::Bilinear, 0);
+        std::vector<Vec2d> pts;
+        for (int j = 1; j < res; j += 4)
+            for (int i = 1; i < res; i += 4)
+                if (ref.solid_at(sc.omega.cell_center(i, j)) < 0) pts.push_back(sc.omega.cell_center(i, j));
+        sc.points = pts;
+        sc.exact.resize(pts.size());
+        sc.exact_variance.resize(pts.size());
+        parallel_for_units(pts.size(), [&](std::size_t k) {
+            Random rng(12345, k);
+            wos::WalkCounters c;
+            const VelocityEstimate e = ref.estimate(pts[k], 4096, rng, c);
+            sc.exact[k] = e.value;
+            sc.exact_variance[k] = e.variance;
+        });
+    }
+    return scenes.emplace(name, std::move(sc)).first->second;
+}
+
+void BM_WosVariance(benchmark::State& state, const std::string& scene) {
+    const VarianceScene& sc = variance_scene(scene);
+    const int variant = int(state.range(0)), n = int(state.range(1)), q = int(state.range(2));
+    const WosVelocityField f(variant_options(sc.options, variant, q), sc.domain, &sc.omega, Interpolation::Bilinear, 0);
+    wos::WalkCounters c;
+    double sse = 0, seconds = 0, reference = 0;
+    uint64_t pass = 0;
+    for (auto _ : state) {
+        const double t0 = kelvin::bench::thread_cpu_seconds();
+        for (std::size_t k = 0; k < sc.points.size(); ++k) {
+            Random rng(1000 + pass, k);
+            const VelocityEstimate e = f.estimate(sc.points[k], n, rng, c);
+            const Vec2d d = e.value - sc.exact[k];
+            sse += glm::dot(d, d);
+            reference += sc.exact_variance[k].x + sc.exact_variance[k].y;
+        }
+        seconds += kelvin::bench::thread_cpu_seconds() - t0;
+        ++pass;
+    }
+    const double mse = std::max(0.0, (sse - reference) / double(pass * sc.points.size()));
+    const double per_pass = seconds / double(pass);
+    state.counters["rmse"] = std::sqrt(mse);
+    state.counters["cpu_s"] = per_pass;
+    state.counters["rmse@1s"] = std::sqrt(mse * per_pass);
+    state.counters["walks/query"] = double(c.walks) / double(pass * sc.points.size());
+}
+
 }  // namespace
 
+BENCHMARK_CAPTURE(BM_WosVariance, disk, std::string("disk"))
+    ->ArgsProduct({{0, 1}, {32}, {1}})
+    ->ArgsProduct({{2, 3}, {4, 16}, {4, 16}})
+    ->Unit(benchmark::kMillisecond)
+    ->Iterations(5);
+BENCHMARK_CAPTURE(BM_WosVariance, polygon, std::string("polygon"))
+    ->ArgsProduct({{0, 1}, {32}, {1}})
+    ->ArgsProduct({{2, 3}, {4, 16}, {4, 16}})
+    ->Unit(benchmark::kMillisecond)
+    ->Iterations(5);
 BENCHMARK(BM_LaplaceSquare)->Arg(256)->Unit(benchmark::kMillisecond);
 BENCHMARK(BM_LaplacePolygon1024)->Arg(256)->Unit(benchmark::kMillisecond);
 BENCHMARK(BM_LaplaceBunny3)->Arg(16)->Unit(benchmark::kMillisecond);

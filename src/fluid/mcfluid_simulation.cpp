@@ -144,9 +144,13 @@ public:
                                     fluid::to_string(s.interpolation), m_p.field->description()));
         const std::string velocity =
             s.boundaries ? fmt::format(
-                               "Walk-on-Spheres free-slip velocity ({} gradient samples, antithetic {}, epsilon {:g}, "
-                               "max_steps {})",
+                               "Walk-on-Spheres free-slip velocity ({} gradient samples, antithetic {}, {}{}, epsilon "
+                               "{:g}, max_steps {})",
                                s.samples, s.boundaries->wos.antithetic ? "on" : "off",
+                               m_mc.boundary_field()->control_variate()
+                                   ? fmt::format("control variate with {} free samples", s.boundaries->free_samples)
+                                   : std::string("plain walks"),
+                               s.boundaries->stratified ? ", stratified" : "",
                                m_mc.boundary_field()->settings().epsilon, s.boundaries->wos.max_steps)
                          : s.estimator->effect(s.samples, m_mc.delta(), s.domain.periodic);
         lines.push_back(fmt::format(

@@ -81,9 +81,8 @@ SimulationParams SimulationParams::parse(const Properties& props, const std::str
 SimulationParams SimulationParams::parse_baseline(const Properties& props, const std::string& who) {
     SimulationParams p = parse(props, who);
     props.get_int("diffusion_samples", 1, 1 << 20);  // mcfluid's n_d: read (validated), not used
-    if (props.get_bool("energy_budget"))             // mcfluid's; a scene may carry it switched off
-        props.error("energy_budget", "is mcfluid's (the split of its Monte Carlo step's energy change); " + who +
-                                         " has no budget: set it false or remove it");
+    if (props.get_bool("energy_budget"))
+        props.error("energy_budget", "is measured by mcfluid only (" + who + " has no Monte Carlo velocity)");
     if (props.get_object("velocity"))
         log_info(
             "{}: <velocity> is mcfluid's Monte Carlo estimator; {} computes its velocity itself (only the "

@@ -9,7 +9,9 @@
 #include <fmt/format.h>
 
 #include <algorithm>
+#include <array>
 #include <cmath>
+#include <tuple>
 
 namespace kelvin::fluid {
 
@@ -17,6 +19,12 @@ namespace kelvin::fluid {
 // WosVelocityField.
 
 namespace {
+/// Control variate: the free-space samples mix |omega| sampling with a density proportional to 1/r within
+/// NearRadiusCells cells of the query (fraction NearFraction), which keeps the singular kernel's weight bounded
+/// (|omega| sampling alone has a logarithmically divergent second moment at the query point).
+constexpr double NearRadiusCells = 2;
+constexpr double NearFraction = 0.25;
+
 Vec2d rotate(Vec2d v, double a) {
     const double c = std::cos(a), s = std::sin(a);
     return {c * v.x - s * v.y, s * v.x + c * v.y};
@@ -126,7 +134,11 @@ WosVelocityField::WosVelocityField(const WosVelocityOptions& options, const Doma
     if (!(m_wos.epsilon > 0)) m_wos.epsilon = options.epsilon_relative * std::min(size.x, size.y);
     m_walls = options.walls && !domain.periodic;
     m_has_source = omega && omega->max_abs() > 0;
-    if (m_has_source && options.vorticity_importance) m_source = VorticitySource(omega, interp);
+    m_wos.stratified = options.stratified;
+    m_cv = m_has_source && options.control_variate && !domain.periodic;
+    if (m_has_source && (options.vorticity_importance || m_cv)) m_source = VorticitySource(omega, interp);
+    if (m_source.empty()) m_cv = false;
+    if (m_cv) m_near_radius = NearRadiusCells * std::max(omega->h().x, omega->h().y);
     if (const std::string why = check_wos_options(options, domain); !why.empty())
         throw_runtime("walk_on_spheres: {}", why);
     // Inflow through the left wall, outflow through the right: u = U there, v = -curl Psi gives
@@ -355,8 +367,13 @@ WosVelocityField::VorticitySource::VorticitySource(const Grid2* omega, Interpola
 }
 
 Vec2d WosVelocityField::VorticitySource::sample(Random& rng, const Vec2d& x) const {
+    return sample_signed(rng, x).first;
+}
+
+std::pair<Vec2d, double> WosVelocityField::VorticitySource::sample_signed(Random& rng, const Vec2d& x) const {
     const uint32_t slot = rng.next_u32(uint32_t(m_prob.size()));
     const uint32_t k = wos::uniform(rng) < m_prob[slot] ? m_self[slot] : m_alias[slot];
+    const double sign = m_omega->values()[k] < 0 ? -1.0 : 1.0;
     const int i = int(k % uint32_t(m_omega->nx())), j = int(k / uint32_t(m_omega->nx()));
     const Vec2d h = m_omega->h();
     Vec2d off;
@@ -365,8 +382,8 @@ Vec2d WosVelocityField::VorticitySource::sample(Random& rng, const Vec2d& x) con
     else
         off = {h.x * (wos::uniform(rng) - 0.5), h.y * (wos::uniform(rng) - 0.5)};
     const Vec2d y = m_omega->cell_center(i, j) + off;
-    if (!m_domain.periodic) return y;
-    return x + m_domain.min_image(y - x);  // periodic: the image nearest the walk
+    if (!m_domain.periodic) return {y, sign};
+    return {x + m_domain.min_image(y - x), sign};  // periodic: the image nearest the walk
 }
 
 std::pair<double, double> WosVelocityField::VorticitySource::lookup(Vec2d p) const {
@@ -408,6 +425,7 @@ VelocityEstimate WosVelocityField::estimate(Vec2d x, int n, Random& rng, wos::Wa
     }
     if (m_constant_psi) return e;  // exactly zero: no walk
     if (m_walls) x = glm::clamp(x, m_domain.min, m_domain.max);
+    if (m_cv) return estimate_control_variate(x, n, rng, c);
     const auto g = [this](const wos::BoundaryHit<2>& h) { return boundary_stream(h); };
     wos::GradientEstimate<2> ge;
     if (m_has_source && !m_source.empty()) {  // Laplacian(Psi) = omega_h, |omega| importance mixture
@@ -423,6 +441,123 @@ VelocityEstimate WosVelocityField::estimate(Vec2d x, int n, Random& rng, wos::Wa
     e.value = {-ge.value.y, ge.value.x};  // v = -curl Psi = (-dPsi/dy, dPsi/dx)
     e.variance = {ge.variance.y, ge.variance.x};
     e.samples = 0;  // no Biot–Savart kernel evaluation: the work is in the walk counters
+    return e;
+}
+
+// The control variate. Psi = Psi_free + h with Psi_free = integral omega_h(y) log|x - y| / (2 pi) dy over the
+// plane (Laplacian(Psi_free) = omega_h, the same function the walks' source term reads) and h harmonic in the
+// fluid with h = Psi_b - Psi_free on every boundary. One gradient sample draws q points y_j of omega_h (a one-
+// sample mixture of |omega| and, near x, 1/r sampling; weights W_j = omega_h(y_j) / (q p(y_j)) where both
+// densities reach, i.e. within the near radius, and beyond it the cell-sign weight sign(omega_k) integral|omega_h|
+// / ((1 - alpha) q) of the cell k the point was drawn from: unbiased over (cell, point), no lookup), i.e. q point
+// vortices whose free-space velocity sum_j W_j K(x - y_j) and stream function sum_j W_j log|p - y_j| / (2 pi)
+// are unbiased for v_free(x) and Psi_free(p); the sample's walks (antithetic pair, no source term) end at p and
+// carry Psi_b(p) minus that stream function. The sample is therefore the velocity of the q point vortices inside
+// the walled domain, exactly unbiased for the velocity of omega_h there; the walks only estimate the (smooth,
+// small where the walls conform to the free flow) image part. Sources of the samples are independent across
+// samples, so the usual variance estimate holds (with stratified directions: pairs of strata).
+VelocityEstimate WosVelocityField::estimate_control_variate(Vec2d x, int n, Random& rng, wos::WalkCounters& c) const {
+    VelocityEstimate e;
+    double R0 = distance(x);
+    if (!(R0 >= 0) || R0 == Inf) {
+        c.invalid += uint64_t(std::max(n, 0));
+        return e;
+    }
+    if (R0 < m_wos.epsilon && !wos::move_to_shell<2>(*this, x, R0, m_wos, c)) return e;
+    const int q = std::clamp(m_options.free_samples, 1, MaxFreeSamples);
+    // The sample's point vortices: near ones with their own weights, far ones of weight +-far_weight (kept apart,
+    // so that the stream function at a walk's end takes one logarithm per four of them: log of a product).
+    std::array<Vec2d, MaxFreeSamples> near, plus, minus;
+    std::array<double, MaxFreeSamples> near_w;
+    const double rho = m_near_radius, a = NearFraction, inv_q = 1.0 / q;
+    const double near_pdf = 1 / (2 * Pi * rho);  // x 1/r: the density of r = rho u, uniform angle
+    const double far_weight = m_source.total() / (1 - a) * inv_q;
+    int n_near = 0, n_plus = 0, n_minus = 0;
+    const auto log_sum = [](const std::array<Vec2d, MaxFreeSamples>& ys, int count, Vec2d p) {
+        double sum = 0;
+        for (int j = 0; j < count; j += 4) {
+            const int e = std::min(count, j + 4);
+            double prod = 1;
+            for (int i = j; i < e; ++i) {
+                const Vec2d d = p - ys[std::size_t(i)];
+                prod *= d.x * d.x + d.y * d.y;
+            }
+            if (std::isnormal(prod) && std::isfinite(prod)) {
+                sum += std::log(prod);
+                continue;
+            }
+            for (int i = j; i < e; ++i) {  // under- or overflow of the product: one by one
+                const Vec2d d = p - ys[std::size_t(i)];
+                sum += std::log(d.x * d.x + d.y * d.y);
+            }
+        }
+        return sum;
+    };
+    const auto psi_free = [&](Vec2d p) {
+        double sum = far_weight * (log_sum(plus, n_plus, p) - log_sum(minus, n_minus, p));
+        for (int j = 0; j < n_near; ++j) {
+            const Vec2d d = p - near[std::size_t(j)];
+            sum += near_w[std::size_t(j)] * std::log(d.x * d.x + d.y * d.y);
+        }
+        return sum * (0.5 / (2 * Pi));  // log|d| = log(|d|^2) / 2
+    };
+    const auto g = [&](const wos::BoundaryHit<2>& h) { return boundary_stream(h) - psi_free(h.point); };
+    wos::SampleMoments<Vec2d> moments;
+    moments.strata = m_wos.stratified && n > 1;
+    const double scale = 2 / R0;
+    for (int k = 0; k < n; ++k) {
+        // The sample's point vortices and their free-space velocity at x.
+        n_near = n_plus = n_minus = 0;
+        Vec2d v(0.0);
+        for (int j = 0; j < q; ++j) {
+            Vec2d y;
+            double sign = 0;
+            if (wos::uniform(rng) < a)
+                y = x + (rho * wos::uniform(rng)) * wos::sample_direction<2>(rng);
+            else
+                std::tie(y, sign) = m_source.sample_signed(rng, x);
+            const Vec2d d = x - y;
+            const double r2 = d.x * d.x + d.y * d.y;
+            if (!(r2 > 0)) continue;  // y = x exactly: a measure-zero point (principal value 0)
+            const double r = std::sqrt(r2);
+            double W;
+            if (r < rho) {  // where both densities reach: the balance weight omega_h / (mixture density)
+                const auto [w, pw] = m_source.value_and_pdf(y, x);
+                const double p = a * near_pdf / r + (1 - a) * pw;
+                if (w == 0 || !(p > 0)) continue;
+                W = w / p * inv_q;
+                near[std::size_t(n_near)] = y;
+                near_w[std::size_t(n_near++)] = W;
+            } else {  // only |omega| sampling reaches: its cell's sign times the total (no lookup)
+                W = sign * far_weight;
+                if (sign > 0)
+                    plus[std::size_t(n_plus++)] = y;
+                else
+                    minus[std::size_t(n_minus++)] = y;
+            }
+            v += (W / (2 * Pi * r2)) * Vec2d(-d.y, d.x);
+        }
+        // The harmonic correction's gradient from the first step (antithetic, stratified per the settings).
+        const Vec2d dir = wos::first_step_direction<2>(rng, m_wos, k, n);
+        Vec2d grad;
+        if (m_wos.antithetic) {
+            const double ua = wos::walk<2>(*this, g, wos::NoSource{}, x + R0 * dir, rng, m_wos, c);
+            const double ub = wos::walk<2>(*this, g, wos::NoSource{}, x - R0 * dir, rng, m_wos, c);
+            grad = (scale * 0.5 * (ua - ub)) * dir;
+        } else {
+            grad = (scale * wos::walk<2>(*this, g, wos::NoSource{}, x + R0 * dir, rng, m_wos, c)) * dir;
+        }
+        Vec2d sample = v + Vec2d(-grad.y, grad.x);
+        if (!std::isfinite(sample.x) || !std::isfinite(sample.y)) {
+            ++c.invalid;
+            sample = Vec2d(0.0);
+        }
+        moments.add(sample);
+        if (wos::stop_due(m_wos, k)) n = k + 1;  // stopped: the caller discards the pass
+    }
+    e.value = moments.mean();
+    e.variance = moments.variance_of_mean();
+    e.samples = 0;  // the Biot–Savart part is within the walks' samples (walk counters)
     return e;
 }
 

@@ -252,31 +252,37 @@ TEST(MCFluid3, AbcViscousEnergyDecaysAsExpMinusTwoNuT) {
         }
 }
 
-// A thin-cored ring translates at Saffman's U = Gamma / (4 pi R) (ln(8 R / sigma) - 0.558). The cached solver
-// smooths the core (tent basis, mollifier delta = h/2, interpolation in the backtrace), so sigma is taken from the
-// state itself: for a Gaussian core the enstrophy is Gamma^2 R / (2 sigma^2). Measured over t in [0, 0.4] at h = 0.1
-// the speed is within 12 % of Saffman's for that core; a kernel off by a factor (or of the wrong sign) is not.
+// A thin-cored ring translates at Saffman's U = Gamma / (4 pi R) (ln(8 R / sigma) - 0.558): compared with that
+// speed for the ring as it is set up (R 1, Gamma 1, Gaussian core sigma 0.2: U = 0.2490), from the centroid's
+// motion over t in [0, 0.4] (4 steps of 0.1, n_mc 64). Measured speed / U with the cubic lookup: 0.887, 0.898, 0.912
+// at h 0.133, 0.1, 0.067 (linear: 0.853, 0.881, 0.915); a mollifier of h/4 instead of h/2: 0.919 at h 0.1. The
+// ring is slow because the velocity is that of a smoothed core (the tent basis and the mollifier widen a core of
+// two cells' radius), not because of the transport; the error falls with h. Asserted: within 12 % at h 0.1 and
+// closer at h 0.067 than at h 0.133. A kernel off by a factor (or of the wrong sign) is far outside.
 TEST(MCFluid3, VortexRingMovesAtSaffmansSpeed) {
-    MCFluid3Settings s;
-    s.domain = {Vec3d(-2, -2, -1.5), Vec3d(2, 2, 2.5), false};
-    s.nx = s.ny = s.nz = 40;
-    s.samples = 64;
-    s.dt = 0.1;
-    s.seed = 9;
     const double R = 1, gamma = 1, sigma = 0.2;
-    MCFluid3Solver solver(s, [&](const Vec3d& x) { return ring_omega(x, R, gamma, sigma); });
-    const FluidDiagnostics3 d0 = solver.diagnostics();
-    double sigma_mean = std::sqrt(gamma * gamma * R / (2 * d0.enstrophy));
-    for (int i = 0; i < 4; ++i) ASSERT_TRUE(solver.step());
-    const FluidDiagnostics3 d1 = solver.diagnostics();
-    sigma_mean = 0.5 * (sigma_mean + std::sqrt(gamma * gamma * R / (2 * d1.enstrophy)));
-    const double speed = (d1.centroid.z - d0.centroid.z) / solver.time();
-    const double saffman = gamma / (4 * Pi * R) * (std::log(8 * R / sigma_mean) - 0.558);
-    EXPECT_NEAR(speed / saffman, 1.0, 0.12)
-        << "speed " << speed << ", Saffman " << saffman << " (core " << sigma_mean << ")";
-    EXPECT_NEAR(d1.centroid.x, 0.0, 0.02);
-    EXPECT_NEAR(d1.centroid.y, 0.0, 0.02);
-    EXPECT_GT(solver.work().stretching_evals, 0u);
+    const double saffman = gamma / (4 * Pi * R) * (std::log(8 * R / sigma) - 0.558);
+    auto speed_ratio = [&](int res) {
+        MCFluid3Settings s;
+        s.domain = {Vec3d(-2, -2, -1.5), Vec3d(2, 2, 2.5), false};
+        s.nx = s.ny = s.nz = res;
+        s.samples = 64;
+        s.dt = 0.1;
+        s.seed = 9;
+        MCFluid3Solver solver(s, [&](const Vec3d& x) { return ring_omega(x, R, gamma, sigma); });
+        const FluidDiagnostics3 d0 = solver.diagnostics();
+        for (int i = 0; i < 4; ++i) EXPECT_TRUE(solver.step());
+        const FluidDiagnostics3 d1 = solver.diagnostics();
+        EXPECT_NEAR(d1.centroid.x, 0.0, 0.02);
+        EXPECT_NEAR(d1.centroid.y, 0.0, 0.02);
+        EXPECT_GT(solver.work().stretching_evals, 0u);
+        return (d1.centroid.z - d0.centroid.z) / solver.time() / saffman;
+    };
+    const double coarse = speed_ratio(30), mid = speed_ratio(40), fine = speed_ratio(60);
+    std::cout << "[ measured ] ring speed / Saffman's for the initial core: " << coarse << " (h 0.133), " << mid
+              << " (h 0.1), " << fine << " (h 0.067)\n";
+    EXPECT_NEAR(mid, 1.0, 0.12);
+    EXPECT_LT(std::abs(1 - fine), std::abs(1 - coarse)) << "the error must fall with h";
 }
 
 // Control variates: with the previous step's velocity as control variate and a well-estimated initial velocity,

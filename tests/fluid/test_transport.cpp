@@ -120,7 +120,7 @@ Kept translate(VorticityTransport transport, int res, int steps, double dt) {
 // The energy is kept within 1 % from 96^2 on; the peak (a cell value, so also a sampling of the core) within 1 %
 // only at 128^2: its loss falls with resolution, asserted from 64^2 to 96^2.
 // Broken variants seen to fail: the cubic lookup without its clamp (overshoot: peak above 1), the MacCormack
-// correction with the wrong sign (peak 0.90 at 96^2).
+// correction with the wrong sign (peak 0.947 at 96^2).
 TEST(Transport, CubicAndMacCormackKeepATranslatingLambOseenVortexWhereLinearDiffusesIt) {
     const Kept mac = translate(VorticityTransport::MacCormack, 96, 100, 0.02);
     const Kept mac64 = translate(VorticityTransport::MacCormack, 64, 100, 0.02);

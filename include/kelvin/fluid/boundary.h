@@ -64,7 +64,21 @@ struct WosVelocityOptions {
     double inflow_speed = 0;                ///< uniform inflow through the left wall and outflow through the right
     double inflow_min = 0, inflow_max = 0;  ///< y range of the inflow/outflow segments (equal: the whole wall)
     std::vector<std::shared_ptr<const BoundaryShape>> shapes;
+    /// 2D, non-periodic domains with vorticity: the velocity as a control variate (docs/boundaries.md), the
+    /// free-space Biot–Savart velocity of omega_h plus -curl of the harmonic correction h = Psi - Psi_free,
+    /// estimated by walks without a source term whose boundary values are Psi_b - Psi_free. false: the walks
+    /// solve Laplacian(Psi) = omega_h directly (the thesis' estimator).
+    bool control_variate = true;
+    /// Vorticity samples per gradient sample (control variate): the point vortices whose free-space velocity and
+    /// stream function (at the walks' ends) that gradient sample carries.
+    int free_samples = 16;
+    /// 2D: stratified first-step directions over the n gradient samples of a query (jittered, one per stratum of
+    /// the half circle with antithetic); the variance is estimated from pairs of adjacent strata.
+    bool stratified = true;
 };
+
+/// Largest free_samples (a gradient sample keeps its point vortices on the stack).
+inline constexpr int MaxFreeSamples = 256;
 
 /// Why these options cannot run on `domain` ("" when they can): a periodic domain without any boundary, an
 /// open domain without walls or container, a 3D shape, bad inflow range.
@@ -117,6 +131,8 @@ public:
     /// velocity; wos::move_to_shell, counted in boundary_queries).
     VelocityEstimate estimate(Vec2d x, int n, Random& rng, wos::WalkCounters& c) const override;
     const WosVelocityField* boundaries() const override { return this; }
+    /// True when estimate() uses the control variate (the option, vorticity present, a non-periodic domain).
+    bool control_variate() const { return m_cv; }
     /// Psi at x with n walks.
     wos::ScalarEstimate stream_function(Vec2d x, int n, Random& rng, wos::WalkCounters& c) const;
 
@@ -153,6 +169,11 @@ public:
         VorticitySource(const Grid2* omega, Interpolation interp);
         double operator()(const Vec2d& y) const { return lookup(y).first; }
         Vec2d sample(Random& rng, const Vec2d& x) const;
+        /// sample() and the sign of omega in the cell it drew (the point's weight sign x total() is unbiased for
+        /// omega_h over the pair (cell, point)).
+        std::pair<Vec2d, double> sample_signed(Random& rng, const Vec2d& x) const;
+        /// integral |omega|_h (the normalisation of the density).
+        double total() const { return m_total; }
         double pdf(const Vec2d& y, const Vec2d& x) const { return value_and_pdf(y, x).second; }
         /// omega_h(y) and the density of sample() at y, from one lookup.
         std::pair<double, double> value_and_pdf(const Vec2d& y, const Vec2d& x) const;
@@ -191,7 +212,11 @@ private:
     std::vector<double> m_angle;                              // rotation of each shape at this time
     std::vector<const wos::BoundaryGeometry<2>*> m_geometry;  // each shape's provider (no virtual lookup per step)
     std::vector<char> m_moving;
-    VorticitySource m_source;  // with vorticity_importance
+    VorticitySource m_source;  // with vorticity_importance or the control variate
+    bool m_cv = false;         // control variate in use
+    double m_near_radius = 0;  // control variate: radius of the kernel-proportional near-field samples
+
+    VelocityEstimate estimate_control_variate(Vec2d x, int n, Random& rng, wos::WalkCounters& c) const;
 };
 
 // ----------------------------------------------------------------------------------------------------------

@@ -103,6 +103,11 @@ struct Settings {
     double epsilon = 1e-4;   ///< shell width: a walk stops when the distance drops below it
     int max_steps = 1024;    ///< spheres per walk before it is truncated (and counted)
     bool antithetic = true;  ///< gradient: mirror the first boundary and volume samples (Fig. 5.5)
+    /// 2D gradient estimates over n samples: the first step of sample i takes its direction uniformly within
+    /// stratum i of n equal arcs (of the half circle with antithetic, whose mirror covers the other half; of the
+    /// whole circle without). Unbiased; the variance is then estimated from pairs of adjacent strata (collapsed
+    /// strata: conservative). Ignored in 3D.
+    bool stratified = false;
     /// Polled every StopPollSamples samples of an estimate (null: never): when it asks to stop, the estimate
     /// returns early with the samples done so far, and the caller (a solver's pass) discards the whole pass.
     const Cancellable* stop = nullptr;
@@ -399,10 +404,54 @@ auto walk(const Geometry& geometry, const Dirichlet& g, const Source& f, Vec<D> 
 /// Vec<D> for scalar solutions and the Jacobian glm::mat<D, N, double> (column a = d/dx_a of the N
 /// components) for vector ones. Returns false for an invalid sample (non-finite anywhere); counters are
 /// updated either way.
+/// The first-step direction of gradient sample i of n (Settings::stratified in 2D: uniform within arc i of n;
+/// otherwise uniform). One 32-bit draw either way.
+template <int D>
+inline Vec<D> first_step_direction(Random& rng, const Settings& s, int i, int n) {
+    if constexpr (D == 2) {
+        if (s.stratified && n > 1) {
+            const double span = s.antithetic ? 0x1p31 : 0x1p32;  // the half circle: the mirror covers the rest
+            const double a = (double(i) + uniform(rng)) / double(n) * span;
+            return unit_circle_point(uint32_t(std::min(a, span - 1)));
+        }
+    }
+    return sample_direction<D>(rng);
+}
+
+/// Accumulates the mean and the variance of the mean of n samples, plain or stratified (Settings::stratified):
+/// stratified samples are paired with their neighbour stratum and Var(mean) = sum over pairs (a - b)^2 / n^2
+/// (collapsed strata, conservative; an odd last sample counts with the pairs' mean per-sample variance).
+template <class V>
+struct SampleMoments {
+    bool strata = false;
+    V sum{0.0}, sum2{0.0}, pair2{0.0}, previous{0.0};
+    int count = 0, pairs = 0;
+    void add(const V& v) {
+        sum += v;
+        sum2 += v * v;
+        if (strata && count % 2 == 1) {
+            pair2 += (v - previous) * (v - previous);
+            ++pairs;
+        }
+        previous = v;
+        ++count;
+    }
+    V mean() const { return count > 0 ? sum / double(count) : V(0.0); }
+    V variance_of_mean() const {
+        const double n = count;
+        if (count < 2) return V(0.0);
+        if (strata) {
+            const V per_sample = pair2 / (2.0 * double(pairs));
+            return (pair2 + (count % 2 == 1 ? per_sample : V(0.0))) / (n * n);
+        }
+        return glm::max((sum2 - sum * mean()) / (n * (n - 1)), V(0.0));
+    }
+};
+
 template <int D, class Geometry, class Dirichlet, class Source, class Out>
 bool gradient_sample(const Geometry& geometry, const Dirichlet& g, const Source& f, const Vec<D>& x0, double R0,
-                     Random& rng, const Settings& s, WalkCounters& c, Out& out) {
-    const Vec<D> n = sample_direction<D>(rng);
+                     Random& rng, const Settings& s, WalkCounters& c, Out& out, int index = 0, int count = 1) {
+    const Vec<D> n = first_step_direction<D>(rng, s, index, count);
     const double scale = double(D) / R0;
     Out grad;
     if (s.antithetic) {
@@ -518,24 +567,20 @@ GradientEstimate<D> gradient(const Geometry& geometry, const Dirichlet& g, const
         return e;
     }
     if (R0 < s.epsilon && !move_to_shell<D>(geometry, x, R0, s, c)) return e;
-    Vec<D> sum(0.0), sum2(0.0);
+    SampleMoments<Vec<D>> m;
+    m.strata = s.stratified && D == 2;
     for (int i = 0; i < n; ++i) {
         Vec<D> v(0.0);
-        if (!gradient_sample<D>(geometry, g, f, x, R0, rng, s, c, v)) {
+        if (!gradient_sample<D>(geometry, g, f, x, R0, rng, s, c, v, i, n)) {
             ++c.invalid;
             v = Vec<D>(0.0);
         }
-        sum += v;
-        sum2 += v * v;
+        m.add(v);
         if (stop_due(s, i)) n = i + 1;  // stopped: the mean of the samples so far (the caller discards it)
     }
     e.samples = n;
-    if (n > 0) {
-        e.value = sum / double(n);
-        if (n > 1)
-            for (int i = 0; i < D; ++i)
-                e.variance[i] = std::max(0.0, (sum2[i] - sum[i] * e.value[i]) / (double(n) * double(n - 1)));
-    }
+    e.value = m.mean();
+    e.variance = m.variance_of_mean();
     return e;
 }
 

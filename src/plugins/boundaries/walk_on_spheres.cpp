@@ -5,12 +5,15 @@
 //
 // and the velocity is v = -curl Psi = (-dPsi/dy, dPsi/dx) (Eq. 5.8), from the gradient Walk-on-Spheres estimator
 // (Eqs. 3.78-3.79) with an antithetic first step (Fig. 5.5) and the volume term sampled from the vorticity
-// cache. Boundaries: the domain box as walls (unless periodic), with optional inflow through its left wall and
-// outflow through its right (Fig. 5.6), and the nested <boundary> shapes, each with its isovalue, possibly
-// moving rigidly (Eqs. 5.12-5.13). Cells inside solids hold zero vorticity and the solid's velocity; departure
-// points that land inside a solid are moved to its surface. In 3D (dimension = 3 simulations, 3D boundaries) the
-// stream function is a vector potential with Psi constant on solids and the walls carrying the uniform stream of
-// `inflow_speed` along +x (include/kelvin/fluid/boundary.h, WosVelocityField3). See docs/boundaries.md.
+// cache; by default in 2D (control_variate, stratified) as the free-space Biot–Savart velocity of point-vortex
+// samples of the cache plus the walks' harmonic correction, with stratified first-step directions
+// (include/kelvin/fluid/boundary.h, docs/boundaries.md). Boundaries: the domain box as walls (unless periodic), with
+// optional inflow through its left wall and outflow through its right (Fig. 5.6), and the nested <boundary> shapes,
+// each with its isovalue, possibly moving rigidly (Eqs. 5.12-5.13). Cells inside solids hold zero vorticity and the
+// solid's velocity; departure points that land inside a solid are moved to its surface. In 3D (dimension = 3
+// simulations, 3D boundaries) the stream function is a vector potential with Psi constant on solids and the walls
+// carrying the uniform stream of `inflow_speed` along +x (include/kelvin/fluid/boundary.h, WosVelocityField3). See
+// docs/boundaries.md.
 //
 // Parameters: `kelvin --list-plugins KIND NAME`, or docs/reference.md (generated from the declarations below).
 //
@@ -38,6 +41,9 @@ public:
         opt.wos.max_steps = int(props.get_int("max_steps", 1, 1 << 30));
         opt.wos.antithetic = props.get_bool("antithetic");
         opt.vorticity_importance = props.get_choice("importance", {"vorticity", "green"}) == "vorticity";
+        opt.control_variate = props.get_bool("control_variate");
+        opt.free_samples = int(props.get_int("free_samples", 1, MaxFreeSamples));
+        opt.stratified = props.get_bool("stratified");
         opt.walls = props.get_bool("walls");
         opt.wall_stream_value = props.get_float("wall_stream_value");
         opt.inflow_speed = props.get_float("inflow_speed");
@@ -88,6 +94,13 @@ KELVIN_PLUGIN(kelvin::fluid::WalkOnSpheres, "velocity", "walk_on_spheres",
               kelvin::param::boolean("antithetic", true, "antithetic first step (Fig. 5.5)"),
               kelvin::param::string("importance", "vorticity",
                                     "volume term: 'vorticity' (|omega| mixed with G) or 'green' (G only, the thesis)"),
+              kelvin::param::boolean("control_variate", true,
+                                     "2D, not periodic: free-space Biot-Savart velocity + walks for the harmonic "
+                                     "correction only (false: walks with the vorticity source)"),
+              kelvin::param::integer("free_samples", 16,
+                                     "control variate: vorticity samples (point vortices) per gradient sample"),
+              kelvin::param::boolean("stratified", true,
+                                     "2D: stratified first-step directions over a query's gradient samples"),
               kelvin::param::boolean("walls", true, "the domain box is a container (ignored when periodic)"),
               kelvin::param::real("wall_stream_value", 0.0,
                                   "Psi on the walls (with inflow: the mean of the bottom and top walls)"),
