@@ -94,6 +94,20 @@ void BM_Step(benchmark::State& state, Advection adv) {
     state.counters["threads"] = thread_count();
 }
 
+// The same step with each transport lookup (and the cubic one with the energy budget measured): what keeping the
+// vortices costs. Interleave the variants to compare them:
+//   bench_fluid --benchmark_filter=BM_TransportStep --benchmark_repetitions=5 \
+//       --benchmark_enable_random_interleaving=true --benchmark_report_aggregates_only=true
+void BM_TransportStep(benchmark::State& state, VorticityTransport transport, bool budget) {
+    ThreadLimit limit(bench_threads());
+    MCFluidSettings s = taylor_green_settings(int(state.range(0)), int(state.range(1)), Advection::RK4);
+    s.transport = transport;
+    MCFluidSolver solver(s, taylor_green);
+    if (budget) solver.set_energy_budget(true);
+    for (auto _ : state) solver.step();
+    state.counters["threads"] = thread_count();
+}
+
 // Stable fluids (MAC grid, RK4 backtraces, projection by the default solver: the FFT on this periodic box),
 // Taylor–Green, periodic. bench_stable_fluids compares the projections (FFT, multigrid, CG) interleaved.
 void BM_StableFluidsStep(benchmark::State& state) {
@@ -207,6 +221,22 @@ BENCHMARK_CAPTURE(BM_Step, rk4, Advection::RK4)
     ->Unit(benchmark::kMillisecond)
     ->UseRealTime()
     ->MinTime(1.0);
+BENCHMARK_CAPTURE(BM_TransportStep, linear, VorticityTransport::Linear, false)
+    ->Args({128, 64})
+    ->Unit(benchmark::kMillisecond)
+    ->MeasureProcessCPUTime();
+BENCHMARK_CAPTURE(BM_TransportStep, cubic, VorticityTransport::Cubic, false)
+    ->Args({128, 64})
+    ->Unit(benchmark::kMillisecond)
+    ->MeasureProcessCPUTime();
+BENCHMARK_CAPTURE(BM_TransportStep, maccormack, VorticityTransport::MacCormack, false)
+    ->Args({128, 64})
+    ->Unit(benchmark::kMillisecond)
+    ->MeasureProcessCPUTime();
+BENCHMARK_CAPTURE(BM_TransportStep, cubic_budget, VorticityTransport::Cubic, true)
+    ->Args({128, 64})
+    ->Unit(benchmark::kMillisecond)
+    ->MeasureProcessCPUTime();
 BENCHMARK(BM_StableFluidsStep)->Arg(128)->Arg(256)->Arg(512)->Unit(benchmark::kMillisecond)->UseRealTime();
 BENCHMARK_CAPTURE(BM_VortexParticlesStep, periodic_rk4, true, Advection::RK4)
     ->Arg(32)
