@@ -11,6 +11,7 @@
 #   tools/convergence_reports.sh fluid-lamb-oseen # the four solvers on a viscous Lamb–Oseen vortex (open box)
 #   tools/convergence_reports.sh fluid-obstacle   # the four solvers on a Lamb–Oseen vortex in a disk container
 #   tools/convergence_reports.sh fluid-shear      # the four solvers on the shear layer against two 512^2 references
+#   tools/convergence_reports.sh fluid-long       # long times: inviscid Taylor–Green to t = 20, the 3D ring to t = 2
 #   tools/convergence_reports.sh mlt            # the MLT family at equal time (MLT_REF=reference.exr, MLT_GEOMETRY)
 #   tools/convergence_reports.sh mlt-door       # the thesis' equal-time protocol on one scene (docs/studies/mlt.md):
 #   tools/convergence_reports.sh mlt-caustic    #   reference, normalisation from it, PSSMLT/G's sigma matched to DR,
@@ -303,6 +304,35 @@ report() {
         converge "$1" "$scene" -D spp=$spp -D dt=0.05 -D end=1 "${region[@]}" --field vorticity --field u \
             "${c[@]}" --times 0.5,1
         figures "$1" error_vs_cost_rmse.png error_vs_param_rmse.png ;;
+    fluid-long)
+        # Long times, where a method's dissipation shows: the inviscid Taylor–Green cells to t = 20 (steady: any change
+        # is error) with every 2D solver at 64^2 (MCFluid with the cubic and the linear lookup), and the 3D vortex
+        # ring to t = 2 (constant energy, Saffman's speed for the ring as set up) with MCFluid and the grid
+        # baselines at 40^3. One run each (the solvers are deterministic for a seed); wall seconds per run.
+        local d="$OUT/fluid-long"
+        [[ -n "$FRESH" ]] && rm -rf "$d"
+        mkdir -p "$d"
+        : >"$d/seconds.txt"
+        long_run() {  # long_run NAME SCENE -D...: one run into $d/NAME, its wall seconds into seconds.txt
+            local name=$1 scene=$2
+            shift 2
+            local t0 t1
+            t0=$(date +%s.%N)
+            "$KELVIN" "$scene" -D every=0 -q -o "$d/$name.exr" "$@"
+            t1=$(date +%s.%N)
+            echo "$name $(python3 -c "print($t1 - $t0)")" >>"$d/seconds.txt"
+        }
+        for s in mcfluid mcfluid-linear vortex_particles stable_fluids flip; do
+            local solver=${s%-linear} extra=()
+            [[ "$s" == *-linear ]] && extra=(-D transport=linear)
+            long_run "tg_$s" scenes/fluid/taylor_green.xml -D solver=$solver -D end=20 "${extra[@]}"
+        done
+        for s in mcfluid mcfluid-linear stable_fluids flip; do
+            local solver=${s%-linear} extra=()
+            [[ "$s" == *-linear ]] && extra=(-D transport=linear)
+            long_run "ring_$s" scenes/fluid/vortex_ring.xml -D solver=$solver -D end=2 "${extra[@]}"
+        done
+        python3 tools/fluid_long_table.py "$d" | tee "$d/summary.md" ;;
     fluid-shear)
         # The shear layer has no exact solution: two references at 512^2 and dt = 0.0125 (stable fluids and FLIP,
         # kept in $OUT), the four solvers at 32^2..128^2 against each, at t = 2 (before the roll-up saturates).
