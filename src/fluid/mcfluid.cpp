@@ -57,6 +57,14 @@ struct RowWork {
     }
 };
 
+/// x moved by h (negative: backwards) through the frozen velocity `vel` (k1 = vel(x), given), by Euler or RK4.
+template <class Velocity>
+Vec2d trace(Vec2d x, Vec2d k1, double h, Advection advection, const Velocity& vel) {
+    if (advection == Advection::Euler) return x + h * k1;
+    const Vec2d k2 = vel(x + 0.5 * h * k1), k3 = vel(x + 0.5 * h * k2), k4 = vel(x + h * k3);
+    return x + (h / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4);
+}
+
 void check_settings(const MCFluidSettings& s) {
     const Vec2d size = s.domain.size();
     if (!(size.x > 0) || !(size.y > 0) || !std::isfinite(size.x) || !std::isfinite(size.y))
@@ -231,14 +239,7 @@ bool MCFluidSolver::maccormack_correction(double dt) {
         const int j = int(row);
         for (int i = 0; i < nx; ++i) {
             const Vec2d x = m_omega.cell_center(i, j);
-            const Vec2d k1(m_u.at(i, j), m_v.at(i, j));
-            Vec2d xf;
-            if (s.advection == Advection::Euler) {
-                xf = x + dt * k1;
-            } else {
-                const Vec2d k2 = vel(x + 0.5 * dt * k1), k3 = vel(x + 0.5 * dt * k2), k4 = vel(x + dt * k3);
-                xf = x + (dt / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4);
-            }
+            const Vec2d xf = trace(x, Vec2d(m_u.at(i, j), m_v.at(i, j)), dt, s.advection, vel);
             const double back = finite(xf) ? advected.sample_cubic(s.domain.wrap(xf)) : advected.at(i, j);
             const double plain = m_next.at(i, j);
             double value = plain + 0.5 * (m_omega.at(i, j) - back);
@@ -289,15 +290,8 @@ void MCFluidSolver::transport_through(const Grid2& u, const Grid2& v, double dt,
         const int j = int(row);
         for (int i = 0; i < m_omega.nx(); ++i) {
             Vec2d x = m_omega.cell_center(i, j);
-            for (int k = 0; k < substeps; ++k) {
-                const Vec2d k1 = k == 0 ? Vec2d(u.at(i, j), v.at(i, j)) : vel(x);
-                if (s.advection == Advection::Euler) {
-                    x -= h * k1;
-                } else {
-                    const Vec2d k2 = vel(x - 0.5 * h * k1), k3 = vel(x - 0.5 * h * k2), k4 = vel(x - h * k3);
-                    x -= (h / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4);
-                }
-            }
+            for (int k = 0; k < substeps; ++k)
+                x = trace(x, k == 0 ? Vec2d(u.at(i, j), v.at(i, j)) : vel(x), -h, s.advection, vel);
             x = s.domain.wrap(x);
             const double w = cubic ? m_omega.sample_cubic(x) : m_omega.sample(x, s.interpolation);
             out.at(i, j) = std::isfinite(w) ? w : 0.0;
@@ -383,17 +377,11 @@ bool MCFluidSolver::step(double dt) {
             }
             const Vec2d x = m_omega.cell_center(i, j);
             const Vec2d k1(m_u.at(i, j), m_v.at(i, j));
-            Vec2d xd;
-            if (s.advection == Advection::Euler) {
-                xd = x - dt * k1;  // Eq. (3.139)
-            } else {               // Eqs. (3.140)-(3.144), velocity frozen at the previous step
-                const Vec2d k2 =
-                    checked_velocity(x - 0.5 * dt * k1, rng, w.evals, w.queries, w.invalid_velocity, w.walks);
-                const Vec2d k3 =
-                    checked_velocity(x - 0.5 * dt * k2, rng, w.evals, w.queries, w.invalid_velocity, w.walks);
-                const Vec2d k4 = checked_velocity(x - dt * k3, rng, w.evals, w.queries, w.invalid_velocity, w.walks);
-                xd = x - (dt / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4);
-            }
+            // Eq. (3.139) (Euler) or Eqs. (3.140)-(3.144) (RK4), the velocity frozen at the previous step: each
+            // stage a fresh estimate.
+            Vec2d xd = trace(x, k1, -dt, s.advection, [&](Vec2d p) {
+                return checked_velocity(p, rng, w.evals, w.queries, w.invalid_velocity, w.walks);
+            });
             ++w.backtraces;
             if (!finite(xd)) {  // only reachable with absurd dt (overflow): treat as no motion
                 ++w.invalid_velocity;
