@@ -1,0 +1,64 @@
+// mcfluid's `transport` and `energy_budget` from the command line: the budget's columns reach diagnostics.csv and
+// --stats, and the two parameters' bad values are one line naming the parameter, exit 2.
+#include "cli/subprocess.h"
+
+#include <gtest/gtest.h>
+
+#include <fstream>
+#include <sstream>
+
+using namespace kelvin::test;
+
+namespace {
+const std::string Scenes = std::string(KELVIN_SOURCE_DIR) + "/scenes/fluid/";
+
+#define EXPECT_CONTAINS(haystack, needle)                            \
+    EXPECT_NE(std::string(haystack).find(needle), std::string::npos) \
+        << "expected to find \"" << (needle) << "\" in:\n  " << (haystack)
+
+std::string read(const fs::path& p) {
+    std::ifstream in(p);
+    std::stringstream s;
+    s << in.rdbuf();
+    return s.str();
+}
+}  // namespace
+
+TEST(CliFluidTransport, EnergyBudgetColumnsStatsAndSummary) {
+    TempDir dir;
+    const ProcessResult r =
+        run_kelvin({Scenes + "taylor_green.xml", "-D", "res=16", "-D", "end=0.2", "-D", "budget=true", "-D", "spp=16",
+                    "-o", (dir.path() / "tg.exr").string(), "--stats", (dir.path() / "stats.json").string()});
+    ASSERT_EQ(r.exit_code, 0) << describe(r);
+    const std::string csv = read(dir.path() / "tg" / "diagnostics.csv");
+    EXPECT_CONTAINS(csv,
+                    ",energy_exact,budget_change,budget_noise,budget_mollifier,budget_integrator,budget_transport");
+    EXPECT_CONTAINS(read(dir.path() / "stats.json"), "fluid.energy_budget.transport");
+    EXPECT_CONTAINS(r.err + r.out, "energy budget (exact energy");
+    // Without it, no budget columns (the CSV every other tool reads is unchanged).
+    const ProcessResult plain = run_kelvin({Scenes + "taylor_green.xml", "-D", "res=16", "-D", "end=0.2", "-D",
+                                            "spp=16", "-o", (dir.path() / "plain.exr").string()});
+    ASSERT_EQ(plain.exit_code, 0) << describe(plain);
+    EXPECT_EQ(read(dir.path() / "plain" / "diagnostics.csv").find("budget_"), std::string::npos);
+}
+
+TEST(CliFluidTransport, BadTransportAndBudgetAreOneLineNamingTheParameter) {
+    TempDir dir;
+    const std::string out = (dir.path() / "x.exr").string();
+    EXPECT_CONTAINS(
+        expect_one_error_line(run_kelvin({Scenes + "taylor_green.xml", "-D", "transport=bfecc", "-o", out})),
+        "parameter 'transport': 'bfecc' is not one of");
+    // The budget with walls (walk_on_spheres) and in 3D: refused before any work.
+    fs::path walled = dir.path() / "walled.xml";
+    {
+        std::string xml = read(Scenes + "lamb_oseen_disk.xml");
+        const std::string tag = "<simulation type=\"$solver\">";
+        xml.replace(xml.find(tag), tag.size(), tag + "<boolean name=\"energy_budget\" value=\"true\"/>");
+        std::ofstream(walled) << xml;
+    }
+    EXPECT_CONTAINS(expect_one_error_line(run_kelvin({walled.string(), "-o", out})),
+                    "parameter 'energy_budget': covers flows without boundaries only");
+    EXPECT_CONTAINS(expect_one_error_line(run_kelvin(
+                        {Scenes + "co_rotating_vortices.xml", "-D", "budget=true", "-D", "nu=0.01", "-o", out})),
+                    "parameter 'energy_budget': covers inviscid flows only");
+}
