@@ -8,6 +8,7 @@
 //     <bsdf type="conductor"><string name="material" value="Au"/></bsdf>
 #include <kelvin/core/registry.h>
 #include <kelvin/render/bsdf.h>
+#include <kelvin/render/bsdf_kernels.h>
 #include <kelvin/render/fresnel.h>
 #include <kelvin/render/texture.h>
 
@@ -22,15 +23,9 @@ public:
 
     std::optional<BsdfSample> sample(const BsdfContext&, const SurfaceInteraction& si, double,
                                      const Vec2d&) const override {
-        const double cos_i = Frame::cos_theta(si.wi);
-        if (!(cos_i > 0)) return std::nullopt;
-        BsdfSample bs;
-        bs.wo = reflect(si.wi);
-        bs.pdf = 1;
-        bs.weight = m_specular->eval(si) * fresnel_conductor(cos_i, m_ior.eta, m_ior.k);
-        bs.sampled = BsdfFlags::DeltaReflection;
-        bs.eta = 1;
-        return bs;
+        if (!(Frame::cos_theta(si.wi) > 0)) return std::nullopt;
+        return to_sample(
+            kernels::conductor_sample(m_ior.eta, m_ior.k, kernels::to_c3(m_specular->eval(si)), kernels::to_v3(si.wi)));
     }
     Color3 eval(const BsdfContext&, const SurfaceInteraction&, const Vec3d&) const override { return Color3(0.0); }
     double pdf(const BsdfContext&, const SurfaceInteraction&, const Vec3d&) const override { return 0.0; }

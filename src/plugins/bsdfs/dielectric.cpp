@@ -15,6 +15,7 @@
 //     <bsdf type="dielectric"><float name="int_ior" value="1.5"/></bsdf>
 #include <kelvin/core/registry.h>
 #include <kelvin/render/bsdf.h>
+#include <kelvin/render/bsdf_kernels.h>
 #include <kelvin/render/fresnel.h>
 #include <kelvin/render/texture.h>
 
@@ -33,24 +34,9 @@ public:
                                      const Vec2d&) const override {
         const double cos_i = Frame::cos_theta(si.wi);
         if (cos_i == 0 || !std::isfinite(cos_i)) return std::nullopt;
-        const FresnelDielectric fr = fresnel_dielectric(cos_i, m_eta);
-        BsdfSample bs;
-        if (u1 < fr.F) {
-            bs.wo = reflect(si.wi);
-            bs.pdf = fr.F;
-            bs.weight = m_reflectance->eval(si);
-            bs.sampled = BsdfFlags::DeltaReflection;
-            bs.eta = 1;
-        } else {
-            bs.wo = refract(si.wi, fr.cos_theta_t, fr.eta_ti);
-            bs.pdf = 1 - fr.F;
-            const double scale = ctx.mode == TransportMode::Radiance ? fr.eta_ti * fr.eta_ti : 1.0;
-            bs.weight = m_transmittance->eval(si) * scale;
-            bs.sampled = BsdfFlags::DeltaTransmission;
-            bs.eta = fr.eta_it;
-        }
-        if (!(bs.pdf > 0)) return std::nullopt;
-        return bs;
+        return to_sample(kernels::dielectric_sample(m_eta, kernels::to_c3(m_reflectance->eval(si)),
+                                                    kernels::to_c3(m_transmittance->eval(si)), ctx.mode,
+                                                    kernels::to_v3(si.wi), u1));
     }
     Color3 eval(const BsdfContext&, const SurfaceInteraction&, const Vec3d&) const override { return Color3(0.0); }
     double pdf(const BsdfContext&, const SurfaceInteraction&, const Vec3d&) const override { return 0.0; }

@@ -6,6 +6,7 @@
 //     <bsdf type="diffuse"><rgb name="reflectance" value="0.7, 0.2, 0.2"/></bsdf>
 #include <kelvin/core/registry.h>
 #include <kelvin/render/bsdf.h>
+#include <kelvin/render/bsdf_kernels.h>
 #include <kelvin/render/texture.h>
 #include <kelvin/render/warp.h>
 
@@ -20,21 +21,16 @@ public:
     std::optional<BsdfSample> sample(const BsdfContext&, const SurfaceInteraction& si, double,
                                      const Vec2d& u2) const override {
         if (Frame::cos_theta(si.wi) <= 0) return std::nullopt;
-        BsdfSample bs;
-        bs.wo = warp::square_to_cosine_hemisphere(u2);
-        bs.pdf = warp::square_to_cosine_hemisphere_pdf(bs.wo);
-        if (!(bs.pdf > 0)) return std::nullopt;
-        bs.weight = m_reflectance->eval(si);  // f cos / pdf = (R/pi) cos / (cos/pi)
-        bs.sampled = BsdfFlags::DiffuseReflection;
-        return bs;
+        return to_sample(
+            kernels::diffuse_sample(kernels::to_c3(m_reflectance->eval(si)), kernels::to_v3(si.wi), u2.x, u2.y));
     }
     Color3 eval(const BsdfContext&, const SurfaceInteraction& si, const Vec3d& wo) const override {
         if (Frame::cos_theta(si.wi) <= 0 || Frame::cos_theta(wo) <= 0) return Color3(0.0);
-        return m_reflectance->eval(si) * (InvPi * Frame::cos_theta(wo));
+        return kernels::to_color(
+            kernels::diffuse_eval(kernels::to_c3(m_reflectance->eval(si)), kernels::to_v3(si.wi), kernels::to_v3(wo)));
     }
     double pdf(const BsdfContext&, const SurfaceInteraction& si, const Vec3d& wo) const override {
-        if (Frame::cos_theta(si.wi) <= 0 || Frame::cos_theta(wo) <= 0) return 0.0;
-        return warp::square_to_cosine_hemisphere_pdf(wo);
+        return kernels::diffuse_pdf(kernels::to_v3(si.wi), kernels::to_v3(wo));
     }
     Color3 albedo(const SurfaceInteraction& si) const override { return m_reflectance->eval(si); }
     Model model() const override {

@@ -15,6 +15,7 @@
 //     </bsdf>
 #include <kelvin/core/registry.h>
 #include <kelvin/render/bsdf.h>
+#include <kelvin/render/bsdf_kernels.h>
 #include <kelvin/render/fresnel.h>
 #include <kelvin/render/microfacet.h>
 #include <kelvin/render/texture.h>
@@ -63,38 +64,18 @@ public:
 
     std::optional<BsdfSample> sample(const BsdfContext& ctx, const SurfaceInteraction& si, double,
                                      const Vec2d& u2) const override {
-        const Vec3d& wi = si.wi;
-        if (!(wi.z > 0)) return std::nullopt;
-        const MicrofacetDistribution distr = distribution(si);
-        const Vec3d m = distr.sample(wi, u2);
-        const double pm = distr.pdf(wi, m);
-        if (!(pm > 0)) return std::nullopt;
-        BsdfSample bs;
-        bs.wo = reflect(wi, m);
-        const double wo_m = glm::dot(bs.wo, m);
-        if (!(bs.wo.z > 0) || !(wo_m > 0)) return std::nullopt;
-        bs.pdf = pm / (4.0 * wo_m);
-        const Color3 f = eval_reflection(distr, si, bs.wo, m);
-        if (!(bs.pdf > 0) || !std::isfinite(bs.pdf)) return std::nullopt;
-        bs.weight = f / bs.pdf;
-        if (!std::isfinite(bs.weight.r + bs.weight.g + bs.weight.b)) return std::nullopt;
-        bs.sampled = BsdfFlags::GlossyReflection;
-        bs.eta = 1;
-        return bs;
+        if (!(si.wi.z > 0)) return std::nullopt;
+        const auto s = kernels::rough_conductor_sample(distribution(si), m_ior.eta, m_ior.k, tint(si),
+                                                       kernels::to_v3(si.wi), u2.x, u2.y);
+        return to_sample(s);
     }
     Color3 eval(const BsdfContext&, const SurfaceInteraction& si, const Vec3d& wo) const override {
         if (!(si.wi.z > 0) || !(wo.z > 0)) return Color3(0.0);
-        const Vec3d h = half_vector(si.wi, wo);
-        if (h.z <= 0) return Color3(0.0);
-        return eval_reflection(distribution(si), si, wo, h);
+        return kernels::to_color(kernels::rough_conductor_eval(distribution(si), m_ior.eta, m_ior.k, tint(si),
+                                                               kernels::to_v3(si.wi), kernels::to_v3(wo)));
     }
     double pdf(const BsdfContext&, const SurfaceInteraction& si, const Vec3d& wo) const override {
-        if (!(si.wi.z > 0) || !(wo.z > 0)) return 0.0;
-        const Vec3d h = half_vector(si.wi, wo);
-        const double wo_h = glm::dot(wo, h);
-        if (!(wo_h > 0)) return 0.0;
-        const double p = distribution(si).pdf(si.wi, h) / (4.0 * wo_h);
-        return std::isfinite(p) ? p : 0.0;
+        return kernels::rough_conductor_pdf(distribution(si), kernels::to_v3(si.wi), kernels::to_v3(wo));
     }
 
     Model model() const override {
@@ -117,19 +98,7 @@ public:
     }
 
 private:
-    static Vec3d half_vector(const Vec3d& wi, const Vec3d& wo) {
-        const Vec3d h = wi + wo;
-        const double l2 = glm::dot(h, h);
-        return l2 > 0 ? h / std::sqrt(l2) : Vec3d(0.0);
-    }
-    /// f * cos(theta_o) for a reflection about the microfacet normal m.
-    Color3 eval_reflection(const MicrofacetDistribution& distr, const SurfaceInteraction& si, const Vec3d& wo,
-                           const Vec3d& m) const {
-        const double D = distr.D(m), G = distr.G(si.wi, wo, m);
-        const double s = D * G / (4.0 * si.wi.z);
-        if (!(s > 0) || !std::isfinite(s)) return Color3(0.0);
-        return m_specular->eval(si) * fresnel_conductor(glm::dot(si.wi, m), m_ior.eta, m_ior.k) * s;
-    }
+    kernels::C3<double> tint(const SurfaceInteraction& si) const { return kernels::to_c3(m_specular->eval(si)); }
 
     MicrofacetDistribution distribution(const SurfaceInteraction& si) const {
         if (!m_textured) return m_distr;
