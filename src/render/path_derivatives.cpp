@@ -175,81 +175,6 @@ T atan2_t(const T& y, const T& x) {
     return atan2(y, x);
 }
 
-// The BSDF of a model (Bsdf::Model: the plugin's parameters, constant over the surface except the textures it
-// names) through the renderer's kernels: eval (f |cos theta_o|) with its density, and sample. `diffuse`: the plastics'
-// textured diffuse reflectance at the hit (Bsdf::Model::diffuse_texture), null for the model's constant.
-inline MicrofacetDistribution distribution_of(const Bsdf::Model& b) {
-    return {b.ggx ? MicrofacetType::GGX : MicrofacetType::Beckmann, b.alpha_u, b.alpha_v, b.sample_visible};
-}
-inline kernels::PlasticParams plastic_params(const Bsdf::Model& b) {
-    return {b.ior, b.nonlinear, b.fdr_int, b.inv_ext_transmission, b.specular_weight};
-}
-inline kernels::RoughPlasticParams rough_plastic_params(const Bsdf::Model& b) {
-    return {b.ior, b.nonlinear, b.fdr_int, b.specular_weight, b.coating_r_ext, b.coating_t_ext, b.coating_size};
-}
-template <class T>
-C3<T> diffuse_of(const Bsdf::Model& b, const C3<T>* diffuse) {
-    return diffuse ? *diffuse : constant_colour<T>(b.reflectance);
-}
-
-template <class T>
-C3<T> bsdf_eval(const Bsdf::Model& b, const V3<T>& wi, const V3<T>& wo, T& pdf, const C3<T>* diffuse = nullptr) {
-    using Kind = Bsdf::Model::Kind;
-    constexpr auto Radiance = TransportMode::Radiance;
-    pdf = T(0.0);
-    switch (b.kind) {
-        case Kind::Diffuse:
-            pdf = kernels::diffuse_pdf(wi, wo);
-            return kernels::diffuse_eval(constant_colour<T>(b.reflectance), wi, wo);
-        case Kind::RoughConductor:
-            return kernels::rough_conductor_eval(distribution_of(b), b.eta, b.k, constant_colour<T>(b.reflectance), wi,
-                                                 wo, &pdf);
-        case Kind::RoughDielectric:
-            return kernels::rough_dielectric_eval(distribution_of(b), b.ior, constant_colour<T>(b.specular_reflectance),
-                                                  constant_colour<T>(b.specular_transmittance), Radiance, wi, wo, &pdf);
-        case Kind::Plastic:
-            return kernels::plastic_eval(plastic_params(b), diffuse_of(b, diffuse), wi, wo, &pdf);
-        case Kind::RoughPlastic:
-            return kernels::rough_plastic_eval(distribution_of(b), rough_plastic_params(b), diffuse_of(b, diffuse),
-                                               constant_colour<T>(b.specular_reflectance), wi, wo, &pdf);
-        default:  // delta models: nothing for eval and pdf
-            return kernels::grey(T(0.0));
-    }
-}
-
-// The BSDF's sample(): the direction, the weight f |cos| / pdf, the density and the component, the component chosen
-// by value as the renderer chooses it (locally constant). Not ok where the model gives nothing.
-template <class T>
-kernels::Sample<T> bsdf_sample(const Bsdf::Model& b, const V3<T>& wi, const T& u_comp, const T& u0, const T& u1,
-                               const C3<T>* diffuse = nullptr) {
-    using Kind = Bsdf::Model::Kind;
-    constexpr auto Radiance = TransportMode::Radiance;
-    switch (b.kind) {
-        case Kind::Diffuse:
-            return kernels::diffuse_sample(constant_colour<T>(b.reflectance), wi, u0, u1);
-        case Kind::Conductor:
-            return kernels::conductor_sample(b.eta, b.k, constant_colour<T>(b.reflectance), wi);
-        case Kind::RoughConductor:
-            return kernels::rough_conductor_sample(distribution_of(b), b.eta, b.k, constant_colour<T>(b.reflectance),
-                                                   wi, u0, u1);
-        case Kind::Dielectric:
-            return kernels::dielectric_sample(b.ior, constant_colour<T>(b.specular_reflectance),
-                                              constant_colour<T>(b.specular_transmittance), Radiance, wi, val(u_comp));
-        case Kind::RoughDielectric:
-            return kernels::rough_dielectric_sample(
-                distribution_of(b), b.ior, constant_colour<T>(b.specular_reflectance),
-                constant_colour<T>(b.specular_transmittance), Radiance, wi, val(u_comp), u0, u1);
-        case Kind::Plastic:
-            return kernels::plastic_sample(plastic_params(b), diffuse_of(b, diffuse),
-                                           constant_colour<T>(b.specular_reflectance), wi, val(u_comp), u0, u1);
-        case Kind::RoughPlastic:
-            return kernels::rough_plastic_sample(distribution_of(b), rough_plastic_params(b), diffuse_of(b, diffuse),
-                                                 constant_colour<T>(b.specular_reflectance), wi, val(u_comp), u0, u1);
-        default:
-            return {};
-    }
-}
-
 // The uv of a hit on a sphere or a disk as a function of its point p (Scene::interaction's fill_local, in world
 // space as the geometry is): on a sphere Mitsuba's (phi / 2 pi, theta / pi) of the direction from the centre in world
 // axes (phi wrapped to [0, 2 pi)); on a disk its polar coordinates, (r / radius capped at 1, phi / 2 pi) with phi the
@@ -311,6 +236,92 @@ bool same_decisions(const std::vector<Decision>& a, const std::vector<Decision>&
         if (a[i].a != b[i].a || glm::length(a[i].n - b[i].n) > 1e-6) return false;
     }
 }
+
+// The textures a BSDF reads at a vertex (DiffTextures): a texture's value at the hit's uv (Texture::local), the uv a
+// function of the path: the mesh's uvs interpolated with the barycentrics (or the barycentrics themselves, as
+// Scene::interaction), a sphere's or a disk's parameterisation of p (round_uv), computed once per vertex. A uv that
+// differs from the renderer's is a mismatch (`mismatch`: the path is then reported Mismatch, not Unsupported).
+template <class T, class Reader>
+struct VertexTextures final : DiffTextures<T> {
+    const ShapeGeometry& g;
+    bool on_sphere, on_disc;
+    const V3<T>& p;
+    const T &bary_u, &bary_v;
+    std::size_t prim;
+    Vec2d uv;  // the renderer's
+    Reader& rd;
+    mutable bool mismatch = false;
+    mutable int uv_state = 0;  // 0: not computed yet, 1: u and v, 2: not differentiable here
+    mutable T u, v;
+
+    VertexTextures(const ShapeGeometry& g, bool on_sphere, bool on_disc, const V3<T>& p, const T& bary_u,
+                   const T& bary_v, std::size_t prim, const Vec2d& uv, Reader& rd)
+        : g(g),
+          on_sphere(on_sphere),
+          on_disc(on_disc),
+          p(p),
+          bary_u(bary_u),
+          bary_v(bary_v),
+          prim(prim),
+          uv(uv),
+          rd(rd) {}
+
+    bool colour(const Texture& texture, C3<T>& out) const override {
+        TextureLocal tl;
+        if (!texture.local(uv, tl)) return false;
+        if (uv_state == 0 && !compute_uv()) return false;
+        if (uv_state != 1) return false;
+        const C3<T> c0 = constant_colour<T>(tl.c[0]);
+        if (tl.bilinear) {
+            const T tx = tl.A[0][0] * u + tl.A[0][1] * v + (tl.b[0] - tl.x0);
+            const T ty = tl.A[1][0] * u + tl.A[1][1] * v + (tl.b[1] - tl.y0);
+            const T sx = 1.0 - tx, sy = 1.0 - ty;
+            out = c0 * T(sx * sy);
+            add(out, constant_colour<T>(tl.c[1]) * T(tx * sy));
+            add(out, constant_colour<T>(tl.c[2]) * T(sx * ty));
+            add(out, constant_colour<T>(tl.c[3]) * T(tx * ty));
+        } else {
+            rd.decide(Decide::Texture, tl.cell);
+            out = c0;
+        }
+        return true;
+    }
+
+private:
+    bool compute_uv() const {
+        uv_state = 2;
+        T uu = bary_u, vv = bary_v;
+        double angle_tolerance = 1e-5;  // of a sphere's u, a disk's v
+        if (on_sphere || on_disc) {
+            long long seam = 0;
+            if (!round_uv(g, on_sphere, p, uu, vv, seam)) return false;
+            // The angle's coordinate near its wrap: the renderer's side (its p differs by about 1e-7).
+            T& angle = on_sphere ? uu : vv;
+            const double renderer = on_sphere ? uv.x : uv.y;
+            angle = angle + std::round(renderer - val(angle));
+            rd.decide(Decide::Texture, seam);
+            // The angle's error grows as 1 / (distance from the axis): near a pole or the disk's centre.
+            const double axis = on_sphere ? std::sin(Pi * val(vv)) : val(uu);
+            angle_tolerance = 1e-5 / std::max(axis, 1e-2);
+        } else if (!g.uvs.empty()) {
+            const uint32_t* tri = &g.indices[3 * prim];
+            const T b0 = 1.0 - bary_u - bary_v;
+            const Vec2d t0(g.uvs[tri[0]]), t1(g.uvs[tri[1]]), t2(g.uvs[tri[2]]);
+            uu = b0 * t0.x + bary_u * t1.x + bary_v * t2.x;
+            vv = b0 * t0.y + bary_u * t1.y + bary_v * t2.y;
+        }
+        // The renderer's uv comes from Embree's float barycentrics (or its float-precision hit point).
+        if (std::abs(val(uu) - uv.x) > (on_sphere ? angle_tolerance : 1e-5) ||
+            std::abs(val(vv) - uv.y) > (on_disc ? angle_tolerance : 1e-5)) {
+            mismatch = true;
+            return false;
+        }
+        u = uu;
+        v = vv;
+        uv_state = 1;
+        return true;
+    }
+};
 
 // Coordinates: plain values, or nested-autodiff variables for the block's entries.
 struct DoubleReader {
@@ -664,11 +675,10 @@ PathDerivativeStatus PathDerivatives::Impl::run(Reader& rd, T& log_pi) const {
         }
         if (depth + 2 > max_len) break;
 
+        // The BSDF evaluates itself in T (Bsdf::eval_diff, sample_diff: the renderer's kernels, bsdf_kernels.h),
+        // asking the path for its textures' values (VertexTextures).
         const Bsdf& bsdf = *si.shape->bsdf();
-        Bsdf::Model model = bsdf.model();
-        if (model.two_sided && si.wi.z < 0) model = bsdf.back_model();  // a twosided's second side
-        using Kind = Bsdf::Model::Kind;
-        if (model.kind == Kind::None) return S::Unsupported;
+        if (!bsdf.differentiable(si)) return S::Unsupported;
         // The emitter, the BSDF component and roulette use their coordinate only in a comparison (read_discrete: a
         // constant, its derivatives zero); the other four move the path continuously.
         const T u_light = rd.read_discrete();
@@ -676,72 +686,12 @@ PathDerivativeStatus PathDerivatives::Impl::run(Reader& rd, T& log_pi) const {
         const T u_comp = rd.read_discrete();
         const T u_d0 = rd.read(), u_d1 = rd.read();
         const T u_rr = rd.read_discrete();
-        // twosided seen from below: the nested model in the mirrored frame (z of wi and wo negated, as the plugin).
-        FrameT<T> frame = geometric_frame;
-        const bool mirrored = model.two_sided && si.wi.z < 0;
-        if (mirrored) frame.n = frame.n * T(-1.0);
-        const V3<T> wi = to_local(frame, V3<T>{T(-d.x), T(-d.y), T(-d.z)});
-        // A textured reflectance: its value at the hit's uv (Texture::local), the uv a function of the path: the
-        // mesh's uvs interpolated with the barycentrics (or the barycentrics themselves, as Scene::interaction), a
-        // sphere's or a disk's parameterisation of p (round_uv). Bsdf::Model::texture is a factor of the whole lobe
-        // (`tex`); Model::diffuse_texture the plastics' diffuse reflectance (`diffuse`, read inside the model).
-        C3<T> tex{T(1.0), T(1.0), T(1.0)}, diffuse_value{T(0.0), T(0.0), T(0.0)};
-        const bool textured = model.texture != nullptr;
-        const Texture* texture = textured ? model.texture : model.diffuse_texture;
-        if (textured && model.diffuse_texture) return S::Unsupported;
-        if (texture) {
-            TextureLocal tl;
-            if (!texture->local(si.uv, tl)) return S::Unsupported;
-            T u = bary_u, v = bary_v;
-            double angle_tolerance = 1e-5;  // of a sphere's u, a disk's v
-            if (on_sphere || on_disc) {
-                long long seam = 0;
-                if (!round_uv(g, on_sphere, p, u, v, seam)) return S::Unsupported;
-                // The angle's coordinate near its wrap: the renderer's side (its p differs by about 1e-7).
-                T& angle = on_sphere ? u : v;
-                const double renderer = on_sphere ? si.uv.x : si.uv.y;
-                angle = angle + T(std::round(renderer - val(angle)));
-                rd.decide(Decide::Texture, seam);
-                // The angle's error grows as 1 / (distance from the axis): near a pole or the disk's centre.
-                const double axis = on_sphere ? std::sin(Pi * val(v)) : val(u);
-                angle_tolerance = 1e-5 / std::max(axis, 1e-2);
-            } else if (!g.uvs.empty()) {
-                const uint32_t* tri = &g.indices[3 * std::size_t(hit->prim)];
-                const T b0 = T(1.0) - bary_u - bary_v;
-                const Vec2d t0(g.uvs[tri[0]]), t1(g.uvs[tri[1]]), t2(g.uvs[tri[2]]);
-                u = T(b0 * T(t0.x)) + T(bary_u * T(t1.x)) + T(bary_v * T(t2.x));
-                v = T(b0 * T(t0.y)) + T(bary_u * T(t1.y)) + T(bary_v * T(t2.y));
-            }
-            // The renderer's uv comes from Embree's float barycentrics (or its float-precision hit point).
-            if (std::abs(val(u) - si.uv.x) > (on_sphere ? angle_tolerance : 1e-5) ||
-                std::abs(val(v) - si.uv.y) > (on_disc ? angle_tolerance : 1e-5))
-                return S::Mismatch;
-            auto colour = [](const Color3& c) { return C3<T>{T(c.r), T(c.g), T(c.b)}; };
-            C3<T> looked_up = colour(tl.c[0]);
-            if (tl.bilinear) {
-                const T tx = T(T(tl.A[0][0]) * u) + T(T(tl.A[0][1]) * v) + T(tl.b[0] - tl.x0);
-                const T ty = T(T(tl.A[1][0]) * u) + T(T(tl.A[1][1]) * v) + T(tl.b[1] - tl.y0);
-                const T sx = T(1.0) - tx, sy = T(1.0) - ty;
-                looked_up = colour(tl.c[0]) * T(sx * sy);
-                add(looked_up, colour(tl.c[1]) * T(tx * sy));
-                add(looked_up, colour(tl.c[2]) * T(sx * ty));
-                add(looked_up, colour(tl.c[3]) * T(tx * ty));
-            } else {
-                rd.decide(Decide::Texture, tl.cell);
-            }
-            if (textured) {
-                tex = looked_up;
-            } else {  // the plugins' max(rho, 0), by value
-                for (T* c : {&looked_up.r, &looked_up.g, &looked_up.b})
-                    if (val(*c) < 0) *c = T(0.0);
-                diffuse_value = looked_up;
-            }
-        }
-        const C3<T>* diffuse = model.diffuse_texture ? &diffuse_value : nullptr;
-        auto bsdf_eval = [&](const V3<T>& wo, T& pdf) -> C3<T> {
-            const C3<T> f = kelvin::bsdf_eval(model, wi, wo, pdf, diffuse);
-            return textured ? f * tex : f;
-        };
+        const FrameT<T>& frame = geometric_frame;
+        const V3<T> wi = to_local(frame, V3<T>{-d.x, -d.y, -d.z});
+        const VertexTextures<T, Reader> textures(g, on_sphere, on_disc, p, bary_u, bary_v, std::size_t(hit->prim),
+                                                 si.uv, rd);
+        const DiffBsdfContext<T> dctx{TransportMode::Radiance, &textures};
+        const S not_differentiable = S::Unsupported;  // or, when a texture's uv disagreed, S::Mismatch (below)
 
         // Next-event estimation (smooth models; emitter sampling is on in the Metropolis techniques).
         if ((bsdf.flags() & BsdfFlags::Smooth) && depth + 2 >= o.min_depth) {
@@ -766,7 +716,9 @@ PathDerivativeStatus PathDerivatives::Impl::run(Reader& rd, T& log_pi) const {
                         rd.decide(Decide::Nee, f_primal == Color3(0.0) ? AnyNee : nee | (lit ? 0 : 1));
                         if (lit) {
                             T bsdf_pdf(0.0);
-                            const C3<T> f = bsdf_eval(to_local(frame, dir), bsdf_pdf);
+                            C3<T> f;
+                            if (!bsdf.eval_diff(dctx, wi, to_local(frame, dir), f, bsdf_pdf))
+                                return textures.mismatch ? S::Mismatch : not_differentiable;
                             lum = lum + luminance_of(throughput * f * intensity) / T(dist2 * T(sel_pdf));
                         }
                     } else if (e->plugin_name() == "spot") {
@@ -795,7 +747,9 @@ PathDerivativeStatus PathDerivatives::Impl::run(Reader& rd, T& log_pi) const {
                         rd.decide(Decide::Nee, f_primal == Color3(0.0) ? AnyNee : nee | (lit ? 0 : 1));
                         if (lit) {
                             T bsdf_pdf(0.0);
-                            const C3<T> f = bsdf_eval(to_local(frame, dir), bsdf_pdf);
+                            C3<T> f;
+                            if (!bsdf.eval_diff(dctx, wi, to_local(frame, dir), f, bsdf_pdf))
+                                return textures.mismatch ? S::Mismatch : not_differentiable;
                             lum = lum + luminance_of(throughput * f * em.intensity) * T(falloff / (dist2 * T(sel_pdf)));
                         }
                     } else {
@@ -862,7 +816,9 @@ PathDerivativeStatus PathDerivatives::Impl::run(Reader& rd, T& log_pi) const {
                             rd.decide(Decide::Nee, nee | triangle << 1 | (occluded ? 1 : 0));
                             if (!occluded) {
                                 T bsdf_pdf(0.0);
-                                const C3<T> f = bsdf_eval(to_local(frame, dir), bsdf_pdf);
+                                C3<T> f;
+                                if (!bsdf.eval_diff(dctx, wi, to_local(frame, dir), f, bsdf_pdf))
+                                    return textures.mismatch ? S::Mismatch : not_differentiable;
                                 const T w = ds->delta ? T(1.0) : power_heuristic(T(pdf * T(sel_pdf)), bsdf_pdf);
                                 // f * weight * w / sel, weight = radiance / pdf
                                 lum = lum + luminance_of(throughput * f * radiance) * T(w / (pdf * T(sel_pdf)));
@@ -879,7 +835,9 @@ PathDerivativeStatus PathDerivatives::Impl::run(Reader& rd, T& log_pi) const {
             rd.decide(Decide::End);
             break;
         }
-        const kernels::Sample<T> smp = bsdf_sample(model, wi, u_comp, u_d0, u_d1, diffuse);
+        kernels::Sample<T> smp;
+        if (!bsdf.sample_diff(dctx, wi, val(u_comp), u_d0, u_d1, smp))
+            return textures.mismatch ? S::Mismatch : not_differentiable;
         if (!smp.ok) return S::Mismatch;
         const bool delta = (smp.sampled & BsdfFlags::Delta) != 0,
                    transmission = (smp.sampled & BsdfFlags::Transmission) != 0;
@@ -889,7 +847,6 @@ PathDerivativeStatus PathDerivatives::Impl::run(Reader& rd, T& log_pi) const {
             transmission != ((bs->sampled & BsdfFlags::Transmission) != 0))
             return S::Mismatch;
         throughput = throughput * smp.weight;
-        if (textured) throughput = throughput * tex;
         if (transmission) eta_scale *= smp.eta * smp.eta;
         prev_delta = delta;
         prev_bsdf_pdf = smp.pdf;
@@ -901,8 +858,7 @@ PathDerivativeStatus PathDerivatives::Impl::run(Reader& rd, T& log_pi) const {
         // normal, a function of the float hit point (1.3-1.9e-6 off a smooth plastic sphere); the path keeps it.
         imprecise = imprecise || transmission || smooth_normals || on_sphere;
         const double wo_tolerance = imprecise ? 1e-4 : 1e-6;
-        if (glm::length(value(wo) - (mirrored ? Vec3d(bs->wo.x, bs->wo.y, -bs->wo.z) : bs->wo)) > wo_tolerance)
-            return S::Mismatch;
+        if (glm::length(value(wo) - bs->wo) > wo_tolerance) return S::Mismatch;
         prev_p = p;
         const Ray next = si.spawn(si.to_world(bs->wo));
         spawn.offset = true;

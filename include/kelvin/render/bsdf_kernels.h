@@ -18,6 +18,7 @@
 #include <kelvin/render/fresnel.h>
 #include <kelvin/render/microfacet.h>
 #include <kelvin/render/second_order.h>
+#include <kelvin/render/texture.h>
 
 #include <algorithm>
 #include <cmath>
@@ -961,3 +962,61 @@ inline Sample<T> rough_plastic_sample(const Distr& d, const RoughPlasticParams& 
 }
 
 }  // namespace kelvin::kernels
+
+namespace kelvin {
+
+/// A texture's colour at a vertex in the number type T: its mean when it is constant, else asked of the path
+/// (DiffBsdfContext::textures). False where the path cannot differentiate it.
+template <class T>
+inline bool diff_colour(const DiffBsdfContext<T>& ctx, const Texture& texture, kernels::C3<T>& out) {
+    if (texture.is_constant()) {
+        out = kernels::constant_colour<T>(texture.mean());
+        return true;
+    }
+    return ctx.textures && ctx.textures->colour(texture, out);
+}
+
+/// The differentiable interface of Bsdf (eval_diff, sample_diff in every number type) implemented once by a plugin's
+/// templates, as Mitsuba 3's plugins are templates over their number types. `Derived` (the plugin, deriving from
+/// DifferentiableBsdf<Derived>) provides
+///   bool differentiable(const SurfaceInteraction&) const;
+///   template <class T> bool eval_t(const DiffBsdfContext<T>&, const kernels::V3<T>& wi, const kernels::V3<T>& wo,
+///                                  kernels::C3<T>& f, T& pdf) const;
+///   template <class T> bool sample_t(const DiffBsdfContext<T>&, const kernels::V3<T>& wi, double u_comp, const T& u0,
+///                                    const T& u1, kernels::Sample<T>& out) const;
+/// usually by calling the kernels above. Out-of-tree plugins opt in the same way.
+template <class Derived>
+class DifferentiableBsdf : public Bsdf {
+public:
+    bool eval_diff(const DiffBsdfContext<double>& c, const kernels::V3<double>& wi, const kernels::V3<double>& wo,
+                   kernels::C3<double>& f, double& pdf) const override {
+        return self().eval_t(c, wi, wo, f, pdf);
+    }
+    bool eval_diff(const DiffBsdfContext<DiffGradient>& c, const kernels::V3<DiffGradient>& wi,
+                   const kernels::V3<DiffGradient>& wo, kernels::C3<DiffGradient>& f,
+                   DiffGradient& pdf) const override {
+        return self().eval_t(c, wi, wo, f, pdf);
+    }
+    bool eval_diff(const DiffBsdfContext<DiffHessian>& c, const kernels::V3<DiffHessian>& wi,
+                   const kernels::V3<DiffHessian>& wo, kernels::C3<DiffHessian>& f, DiffHessian& pdf) const override {
+        return self().eval_t(c, wi, wo, f, pdf);
+    }
+    bool sample_diff(const DiffBsdfContext<double>& c, const kernels::V3<double>& wi, double u_comp, const double& u0,
+                     const double& u1, kernels::Sample<double>& out) const override {
+        return self().sample_t(c, wi, u_comp, u0, u1, out);
+    }
+    bool sample_diff(const DiffBsdfContext<DiffGradient>& c, const kernels::V3<DiffGradient>& wi, double u_comp,
+                     const DiffGradient& u0, const DiffGradient& u1,
+                     kernels::Sample<DiffGradient>& out) const override {
+        return self().sample_t(c, wi, u_comp, u0, u1, out);
+    }
+    bool sample_diff(const DiffBsdfContext<DiffHessian>& c, const kernels::V3<DiffHessian>& wi, double u_comp,
+                     const DiffHessian& u0, const DiffHessian& u1, kernels::Sample<DiffHessian>& out) const override {
+        return self().sample_t(c, wi, u_comp, u0, u1, out);
+    }
+
+private:
+    const Derived& self() const { return static_cast<const Derived&>(*this); }
+};
+
+}  // namespace kelvin

@@ -22,7 +22,7 @@
 namespace kelvin {
 namespace {
 
-class Dielectric final : public Bsdf {
+class Dielectric final : public DifferentiableBsdf<Dielectric> {
 public:
     explicit Dielectric(const Properties& props)
         : m_eta(ior_from_properties(props, "int_ior") / ior_from_properties(props, "ext_ior")),
@@ -40,14 +40,25 @@ public:
     }
     Color3 eval(const BsdfContext&, const SurfaceInteraction&, const Vec3d&) const override { return Color3(0.0); }
     double pdf(const BsdfContext&, const SurfaceInteraction&, const Vec3d&) const override { return 0.0; }
-    Model model() const override {
-        Model m;
-        if (!m_reflectance->is_constant() || !m_transmittance->is_constant()) return m;
-        m.kind = Model::Kind::Dielectric;
-        m.ior = m_eta;
-        m.specular_reflectance = m_reflectance->mean();
-        m.specular_transmittance = m_transmittance->mean();
-        return m;
+    // Differentiable evaluation (Bsdf::eval_diff, sample_diff): the same kernels in the path's number type; with
+    // constant tints only.
+    bool differentiable(const SurfaceInteraction&) const override {
+        return m_reflectance->is_constant() && m_transmittance->is_constant();
+    }
+    template <class T>
+    bool eval_t(const DiffBsdfContext<T>&, const kernels::V3<T>&, const kernels::V3<T>&, kernels::C3<T>& f,
+                T& pdf) const {
+        f = kernels::grey(T(0.0));
+        pdf = T(0.0);
+        return differentiable({});
+    }
+    template <class T>
+    bool sample_t(const DiffBsdfContext<T>& c, const kernels::V3<T>& wi, double u_comp, const T&, const T&,
+                  kernels::Sample<T>& out) const {
+        if (!differentiable({})) return false;
+        out = kernels::dielectric_sample(m_eta, kernels::constant_colour<T>(m_reflectance->mean()),
+                                         kernels::constant_colour<T>(m_transmittance->mean()), c.mode, wi, u_comp);
+        return true;
     }
 
 private:

@@ -13,7 +13,7 @@
 namespace kelvin {
 namespace {
 
-class Diffuse final : public Bsdf {
+class Diffuse final : public DifferentiableBsdf<Diffuse> {
 public:
     explicit Diffuse(const Properties& props) : m_reflectance(get_texture(props, "reflectance")) {}
     uint32_t flags() const override { return BsdfFlags::DiffuseReflection; }
@@ -33,14 +33,24 @@ public:
         return kernels::diffuse_pdf(kernels::to_v3(si.wi), kernels::to_v3(wo));
     }
     Color3 albedo(const SurfaceInteraction& si) const override { return m_reflectance->eval(si); }
-    Model model() const override {
-        Model m;
-        m.kind = Model::Kind::Diffuse;
-        if (m_reflectance->is_constant())
-            m.reflectance = m_reflectance->mean();
-        else
-            m.texture = m_reflectance.get(), m.reflectance = Color3(1.0);
-        return m;
+    // Differentiable evaluation (Bsdf::eval_diff, sample_diff): the same kernels in the path's number type.
+    bool differentiable(const SurfaceInteraction&) const override { return true; }
+    template <class T>
+    bool eval_t(const DiffBsdfContext<T>& c, const kernels::V3<T>& wi, const kernels::V3<T>& wo, kernels::C3<T>& f,
+                T& pdf) const {
+        kernels::C3<T> r;
+        if (!diff_colour(c, *m_reflectance, r)) return false;
+        f = kernels::diffuse_eval(r, wi, wo);
+        pdf = kernels::diffuse_pdf(wi, wo);
+        return true;
+    }
+    template <class T>
+    bool sample_t(const DiffBsdfContext<T>& c, const kernels::V3<T>& wi, double, const T& u0, const T& u1,
+                  kernels::Sample<T>& out) const {
+        kernels::C3<T> r;
+        if (!diff_colour(c, *m_reflectance, r)) return false;
+        out = kernels::diffuse_sample(r, wi, u0, u1);
+        return true;
     }
 
 private:

@@ -32,7 +32,7 @@
 namespace kelvin {
 namespace {
 
-class Plastic final : public Bsdf {
+class Plastic final : public DifferentiableBsdf<Plastic> {
 public:
     explicit Plastic(const Properties& props)
         : m_diffuse(get_texture(props, "diffuse_reflectance")), m_specular(get_texture(props, "specular_reflectance")) {
@@ -62,20 +62,25 @@ public:
         return kernels::plastic_pdf(params(), kernels::to_v3(si.wi), kernels::to_v3(wo));
     }
     Color3 albedo(const SurfaceInteraction& si) const override { return m_diffuse->eval(si); }
-    Model model() const override {
-        Model m;
-        if (!m_specular->is_constant()) return m;
-        // A textured diffuse_reflectance scales the base only (Model::diffuse_texture), read where diffuse() reads it.
-        if (!m_diffuse->is_constant()) m.diffuse_texture = m_diffuse.get();
-        m.kind = Model::Kind::Plastic;
-        m.reflectance = glm::max(m_diffuse->mean(), Color3(0.0));
-        m.specular_reflectance = m_specular->mean();
-        m.ior = m_eta;
-        m.nonlinear = m_nonlinear;
-        m.specular_weight = m_specular_weight;
-        m.fdr_int = m_fdr_int;
-        m.inv_ext_transmission = m_inv_ext_transmission;
-        return m;
+    // Differentiable evaluation (Bsdf::eval_diff, sample_diff): the same kernels in the path's number type; a textured
+    // diffuse_reflectance is asked of the path, the specular_reflectance must be constant.
+    bool differentiable(const SurfaceInteraction&) const override { return m_specular->is_constant(); }
+    template <class T>
+    bool eval_t(const DiffBsdfContext<T>& c, const kernels::V3<T>& wi, const kernels::V3<T>& wo, kernels::C3<T>& f,
+                T& pdf) const {
+        kernels::C3<T> rho;
+        if (!m_specular->is_constant() || !diff_colour(c, *m_diffuse, rho)) return false;
+        f = kernels::plastic_eval(params(), rho, wi, wo, &pdf);
+        return true;
+    }
+    template <class T>
+    bool sample_t(const DiffBsdfContext<T>& c, const kernels::V3<T>& wi, double u_comp, const T& u0, const T& u1,
+                  kernels::Sample<T>& out) const {
+        kernels::C3<T> rho;
+        if (!m_specular->is_constant() || !diff_colour(c, *m_diffuse, rho)) return false;
+        out =
+            kernels::plastic_sample(params(), rho, kernels::constant_colour<T>(m_specular->mean()), wi, u_comp, u0, u1);
+        return true;
     }
 
 private:

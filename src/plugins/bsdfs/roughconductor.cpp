@@ -30,7 +30,7 @@ namespace {
 
 // Roughness: alpha (isotropic) or alpha_u and alpha_v, each a float or a texture (Mitsuba accepts textures
 // here too: a texture's luminance is the roughness at the surface point).
-class RoughConductor final : public Bsdf {
+class RoughConductor final : public DifferentiableBsdf<RoughConductor> {
 public:
     explicit RoughConductor(const Properties& props)
         : m_distr(MicrofacetType::Beckmann, 0.1, 0.1),
@@ -78,23 +78,24 @@ public:
         return kernels::rough_conductor_pdf(distribution(si), kernels::to_v3(si.wi), kernels::to_v3(wo));
     }
 
-    Model model() const override {
-        Model m;
-        // A textured roughness is not differentiable (the model's alphas are numbers; m_distr then holds only the
-        // constructor's placeholder, Beckmann 0.1).
-        if (m_textured) return m;
-        m.kind = Model::Kind::RoughConductor;
-        if (m_specular->is_constant())
-            m.reflectance = m_specular->mean();
-        else
-            m.texture = m_specular.get(), m.reflectance = Color3(1.0);
-        m.eta = m_ior.eta;
-        m.k = m_ior.k;
-        m.ggx = m_distr.type() == MicrofacetType::GGX;
-        m.alpha_u = m_distr.alpha_u();
-        m.alpha_v = m_distr.alpha_v();
-        m.sample_visible = m_distr.sample_visible();
-        return m;
+    // Differentiable evaluation (Bsdf::eval_diff, sample_diff): the same kernels in the path's number type; not with
+    // a textured roughness (the kernels take the roughness as a number).
+    bool differentiable(const SurfaceInteraction&) const override { return !m_textured; }
+    template <class T>
+    bool eval_t(const DiffBsdfContext<T>& c, const kernels::V3<T>& wi, const kernels::V3<T>& wo, kernels::C3<T>& f,
+                T& pdf) const {
+        kernels::C3<T> tint;
+        if (m_textured || !diff_colour(c, *m_specular, tint)) return false;
+        f = kernels::rough_conductor_eval(m_distr, m_ior.eta, m_ior.k, tint, wi, wo, &pdf);
+        return true;
+    }
+    template <class T>
+    bool sample_t(const DiffBsdfContext<T>& c, const kernels::V3<T>& wi, double, const T& u0, const T& u1,
+                  kernels::Sample<T>& out) const {
+        kernels::C3<T> tint;
+        if (m_textured || !diff_colour(c, *m_specular, tint)) return false;
+        out = kernels::rough_conductor_sample(m_distr, m_ior.eta, m_ior.k, tint, wi, u0, u1);
+        return true;
     }
 
 private:

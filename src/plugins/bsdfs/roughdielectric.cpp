@@ -30,7 +30,7 @@
 namespace kelvin {
 namespace {
 
-class RoughDielectric final : public Bsdf {
+class RoughDielectric final : public DifferentiableBsdf<RoughDielectric> {
 public:
     explicit RoughDielectric(const Properties& props)
         : m_roughness(props, true),
@@ -62,20 +62,28 @@ public:
                                              kernels::to_v3(wo_world));
     }
 
-    Model model() const override {
-        Model m;
-        // A textured roughness is not differentiable (the model's alphas are numbers), nor are textured tints.
-        if (m_roughness.textured() || !m_reflectance->is_constant() || !m_transmittance->is_constant()) return m;
-        const MicrofacetDistribution& distr = m_roughness.constant();
-        m.kind = Model::Kind::RoughDielectric;
-        m.ggx = distr.type() == MicrofacetType::GGX;
-        m.alpha_u = distr.alpha_u();
-        m.alpha_v = distr.alpha_v();
-        m.sample_visible = distr.sample_visible();
-        m.ior = m_eta;
-        m.specular_reflectance = m_reflectance->mean();
-        m.specular_transmittance = m_transmittance->mean();
-        return m;
+    // Differentiable evaluation (Bsdf::eval_diff, sample_diff): the same kernels in the path's number type; not with
+    // a textured roughness (the kernels take the roughness as a number) or textured tints.
+    bool differentiable(const SurfaceInteraction&) const override {
+        return !m_roughness.textured() && m_reflectance->is_constant() && m_transmittance->is_constant();
+    }
+    template <class T>
+    bool eval_t(const DiffBsdfContext<T>& c, const kernels::V3<T>& wi, const kernels::V3<T>& wo, kernels::C3<T>& f,
+                T& pdf) const {
+        if (!differentiable({})) return false;
+        f = kernels::rough_dielectric_eval(m_roughness.constant(), m_eta,
+                                           kernels::constant_colour<T>(m_reflectance->mean()),
+                                           kernels::constant_colour<T>(m_transmittance->mean()), c.mode, wi, wo, &pdf);
+        return true;
+    }
+    template <class T>
+    bool sample_t(const DiffBsdfContext<T>& c, const kernels::V3<T>& wi, double u_comp, const T& u0, const T& u1,
+                  kernels::Sample<T>& out) const {
+        if (!differentiable({})) return false;
+        out = kernels::rough_dielectric_sample(
+            m_roughness.constant(), m_eta, kernels::constant_colour<T>(m_reflectance->mean()),
+            kernels::constant_colour<T>(m_transmittance->mean()), c.mode, wi, u_comp, u0, u1);
+        return true;
     }
 
 private:

@@ -92,7 +92,7 @@ CoatingTables coating_tables(MicrofacetType type, double alpha, double eta) {
     return t;
 }
 
-class RoughPlastic final : public Bsdf {
+class RoughPlastic final : public DifferentiableBsdf<RoughPlastic> {
 public:
     explicit RoughPlastic(const Properties& props)
         : m_distr(microfacet_from_properties(props, false)),
@@ -133,26 +133,26 @@ public:
         return kernels::rough_plastic_pdf(m_distr, params(), kernels::to_v3(si.wi), kernels::to_v3(wo));
     }
     Color3 albedo(const SurfaceInteraction& si) const override { return m_diffuse->eval(si); }
-    Model model() const override {
-        Model m;
-        if (!m_specular->is_constant()) return m;
-        // A textured diffuse_reflectance scales the base only (Model::diffuse_texture), read where eval() reads it.
-        if (!m_diffuse->is_constant()) m.diffuse_texture = m_diffuse.get();
-        m.kind = Model::Kind::RoughPlastic;
-        m.reflectance = glm::max(m_diffuse->mean(), Color3(0.0));
-        m.specular_reflectance = m_specular->mean();
-        m.ggx = m_distr.type() == MicrofacetType::GGX;
-        m.alpha_u = m_distr.alpha_u();
-        m.alpha_v = m_distr.alpha_v();
-        m.sample_visible = m_distr.sample_visible();
-        m.ior = m_eta;
-        m.nonlinear = m_nonlinear;
-        m.specular_weight = m_specular_weight;
-        m.fdr_int = m_fdr_int;
-        m.coating_r_ext = m_tables.r_ext.data();
-        m.coating_t_ext = m_tables.t_ext.data();
-        m.coating_size = kTableSize;
-        return m;
+    // Differentiable evaluation (Bsdf::eval_diff, sample_diff): the same kernels in the path's number type; a textured
+    // diffuse_reflectance is asked of the path, the specular_reflectance must be constant.
+    bool differentiable(const SurfaceInteraction&) const override { return m_specular->is_constant(); }
+    template <class T>
+    bool eval_t(const DiffBsdfContext<T>& c, const kernels::V3<T>& wi, const kernels::V3<T>& wo, kernels::C3<T>& f,
+                T& pdf) const {
+        kernels::C3<T> rho;
+        if (!m_specular->is_constant() || !diff_colour(c, *m_diffuse, rho)) return false;
+        f = kernels::rough_plastic_eval(m_distr, params(), rho, kernels::constant_colour<T>(m_specular->mean()), wi, wo,
+                                        &pdf);
+        return true;
+    }
+    template <class T>
+    bool sample_t(const DiffBsdfContext<T>& c, const kernels::V3<T>& wi, double u_comp, const T& u0, const T& u1,
+                  kernels::Sample<T>& out) const {
+        kernels::C3<T> rho;
+        if (!m_specular->is_constant() || !diff_colour(c, *m_diffuse, rho)) return false;
+        out = kernels::rough_plastic_sample(m_distr, params(), rho, kernels::constant_colour<T>(m_specular->mean()), wi,
+                                            u_comp, u0, u1);
+        return true;
     }
 
 private:
