@@ -1,4 +1,4 @@
-// H2MC and textured roughness: the path derivatives (render/path_derivatives.h) take a BSDF's roughness as numbers
+// H2MC and textured roughness: the path derivatives (mlt/path_derivatives.h) take a BSDF's roughness as numbers
 // (Bsdf::eval_diff), so a roughdielectric whose alpha is a texture reports itself unsupported and the paths that
 // scatter off it are counted as such (h2mc then proposes as it does for any unsupported BSDF); the same wall with a
 // scalar alpha is differentiated. Broken variant seen to fail: the model of a textured roughdielectric reporting its

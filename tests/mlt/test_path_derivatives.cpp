@@ -1,4 +1,4 @@
-// Differentiable evaluation of the path technique (render/path_derivatives.h, issue 14) on the Cornell box: at random
+// Differentiable evaluation of the path technique (mlt/path_derivatives.h, issue 14) on the Cornell box: at random
 // primary-sample points whose path carries light,
 //   - its value equals the renderer's (the path technique through PrimarySampleSpace, as the Metropolis integrators
 //     evaluate a state), in plain doubles and in automatic differentiation;
@@ -17,9 +17,9 @@
 // unstable differences: 1.5 % of the gradient entries).
 #include <kelvin/core/image.h>
 #include <kelvin/core/registry.h>
+#include <kelvin/mlt/path_derivatives.h>
 #include <kelvin/render/bsdf_kernels.h>
 #include <kelvin/render/integrator.h>
-#include <kelvin/render/path_derivatives.h>
 #include <kelvin/render/pss.h>
 #include <kelvin/render/scene.h>
 #include <kelvin/render/sensor.h>

@@ -56,7 +56,7 @@ template <class T>
 struct Sample;
 }  // namespace kernels
 
-/// The number types BSDFs are differentiated in for H2MC (render/path_derivatives.h): plain doubles (the value), and
+/// The number types BSDFs are differentiated in for H2MC (mlt/path_derivatives.h): plain doubles (the value), and
 /// numbers carrying the gradient (DiffGradient) or the gradient and Hessian (DiffHessian) with respect to the inputs
 /// of one bounce of a path (render/second_order.h).
 inline constexpr int DiffInputs = 15;
@@ -95,7 +95,7 @@ public:
     /// and roughplastic `diffuse_reflectance`; twosided asks the side `si.wi` is on), for the `albedo` AOV.
     /// Models without a diffuse component give 0. Not used for light transport.
     virtual Color3 albedo(const SurfaceInteraction& si) const { return Color3(0.0); }
-    /// Differentiable evaluation (H2MC: render/path_derivatives.h). Whether the BSDF can evaluate itself in the
+    /// Differentiable evaluation (H2MC: mlt/path_derivatives.h). Whether the BSDF can evaluate itself in the
     /// number types below at `si` (false, the default: paths that scatter here are reported unsupported).
     virtual bool differentiable(const SurfaceInteraction& si) const { return false; }
     /// eval() and pdf() in a number type T, for local directions that are functions of a path's coordinates: f = f

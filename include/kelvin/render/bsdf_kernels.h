@@ -1,7 +1,7 @@
 #pragma once
 // The BSDFs' mathematics written once, templated on the scalar type: instantiated for `double` by the renderer (the
 // BSDF plugins, MicrofacetDistribution, fresnel.h) and for the derivative numbers of render/second_order.h by the
-// differentiable path evaluation (render/path_derivatives.h), as Mitsuba 3's plugins are templates over their number
+// differentiable path evaluation (mlt/path_derivatives.h), as Mitsuba 3's plugins are templates over their number
 // types.
 //
 // In doubles every kernel performs exactly the operations the plugins performed before it existed, in the same order

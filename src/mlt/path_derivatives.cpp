@@ -1,14 +1,14 @@
-// Differentiable evaluation of the path technique's contribution (include/kelvin/render/path_derivatives.h).
+// Differentiable evaluation of the path technique's contribution (include/kelvin/mlt/path_derivatives.h).
 // One template, run in plain doubles (the value, for finite differences) and in SecondOrder numbers
 // (render/second_order.h: value, gradient and packed Hessian, bounce by bounce). It mirrors
-// src/plugins/integrators/path.cpp line by line for the supported subset; every discrete decision is the renderer's own
-// at the point.
+// src/plugins/integrators/path.cpp line by line for the supported subset: the path's logic only (sensor, intersection,
+// next-event estimation, MIS, roulette); the BSDFs evaluate themselves in its numbers (Bsdf::eval_diff, sample_diff:
+// the renderer's kernels, render/bsdf_kernels.h). Every discrete decision is the renderer's own at the point.
+#include <kelvin/mlt/path_derivatives.h>
 #include <kelvin/render/bsdf.h>
 #include <kelvin/render/bsdf_kernels.h>
 #include <kelvin/render/integrator.h>
 #include <kelvin/render/mesh.h>
-#include <kelvin/render/microfacet.h>
-#include <kelvin/render/path_derivatives.h>
 #include <kelvin/render/pss.h>
 #include <kelvin/render/scene.h>
 #include <kelvin/render/second_order.h>
