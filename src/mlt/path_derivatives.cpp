@@ -248,14 +248,16 @@ struct VertexTextures final : DiffTextures<T> {
     const V3<T>& p;
     const T &bary_u, &bary_v;
     std::size_t prim;
-    Vec2d uv;  // the renderer's
+    const SurfaceInteraction& si;  // the renderer's
+    Vec2d uv;                      // si.uv
     Reader& rd;
     mutable bool mismatch = false;
-    mutable int uv_state = 0;  // 0: not computed yet, 1: u and v, 2: not differentiable here
+    mutable bool read_value = false;  // a texture was read as a number (a roughness)
+    mutable int uv_state = 0;         // 0: not computed yet, 1: u and v, 2: not differentiable here
     mutable T u, v;
 
     VertexTextures(const ShapeGeometry& g, bool on_sphere, bool on_disc, const V3<T>& p, const T& bary_u,
-                   const T& bary_v, std::size_t prim, const Vec2d& uv, Reader& rd)
+                   const T& bary_v, std::size_t prim, const SurfaceInteraction& si, Reader& rd)
         : g(g),
           on_sphere(on_sphere),
           on_disc(on_disc),
@@ -263,8 +265,21 @@ struct VertexTextures final : DiffTextures<T> {
           bary_u(bary_u),
           bary_v(bary_v),
           prim(prim),
-          uv(uv),
+          si(si),
+          uv(si.uv),
           rd(rd) {}
+
+    // The scalar reading (a roughness): the luminance of the colour, where that is the texture's eval_1 (a
+    // checkerboard's eval_1 swaps its squares, as Mitsuba's: not differentiable here).
+    bool value(const Texture& texture, T& out) const override {
+        const double e = texture.eval_1(si);
+        if (!(std::abs(luminance(texture.eval(si)) - e) <= 1e-12 * (1 + std::abs(e)))) return false;
+        C3<T> c;
+        if (!colour(texture, c)) return false;
+        out = luminance_of(c);
+        read_value = true;
+        return true;
+    }
 
     bool colour(const Texture& texture, C3<T>& out) const override {
         TextureLocal tl;
@@ -688,8 +703,8 @@ PathDerivativeStatus PathDerivatives::Impl::run(Reader& rd, T& log_pi) const {
         const T u_rr = rd.read_discrete();
         const FrameT<T>& frame = geometric_frame;
         const V3<T> wi = to_local(frame, V3<T>{-d.x, -d.y, -d.z});
-        const VertexTextures<T, Reader> textures(g, on_sphere, on_disc, p, bary_u, bary_v, std::size_t(hit->prim),
-                                                 si.uv, rd);
+        const VertexTextures<T, Reader> textures(g, on_sphere, on_disc, p, bary_u, bary_v, std::size_t(hit->prim), si,
+                                                 rd);
         const DiffBsdfContext<T> dctx{TransportMode::Radiance, &textures};
         const S not_differentiable = S::Unsupported;  // or, when a texture's uv disagreed, S::Mismatch (below)
 
@@ -855,8 +870,9 @@ PathDerivativeStatus PathDerivatives::Impl::run(Reader& rd, T& log_pi) const {
         // and so does a shading normal interpolated with Embree's float barycentrics (it differs from the
         // differentiable one by up to about 1e-5, checked above to 1e-4; a glossy reflection turns that into the
         // direction: with 1e-6, 4.7 % of such reflections were refused on the chess board), and so does a sphere's
-        // normal, a function of the float hit point (1.3-1.9e-6 off a smooth plastic sphere); the path keeps it.
-        imprecise = imprecise || transmission || smooth_normals || on_sphere;
+        // normal, a function of the float hit point (1.3-1.9e-6 off a smooth plastic sphere), and so does a textured
+        // roughness (read at the float uv: it moves a glossy lobe's sampled direction); the path keeps it.
+        imprecise = imprecise || transmission || smooth_normals || on_sphere || textures.read_value;
         const double wo_tolerance = imprecise ? 1e-4 : 1e-6;
         if (glm::length(value(wo) - bs->wo) > wo_tolerance) return S::Mismatch;
         prev_p = p;

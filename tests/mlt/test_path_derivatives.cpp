@@ -511,6 +511,27 @@ TEST(PathDerivatives, MatchFiniteDifferencesWithTextures) {
     expect_matches_finite_differences(S, 24, [](const Shape& sh) { return reads_texture(sh); });
 }
 
+// Textured roughness: the tall box rough GGX copper whose alpha is a bilinear 8 x 8 bitmap (its luminance, 0.25 to
+// 0.7), the short box rough Beckmann gold, anisotropic, alpha_u the same bitmap and alpha_v 0.3. The roughness is read
+// from the path (DiffTextures::value, the uv through the barycentrics), and D, G1, the densities and the sampled
+// normals (for Beckmann through the Newton steps on the visible-slope CDF) take it as a number with derivatives
+// (kernels::MicrofacetT). Only points whose camera ray hits a box are counted. Broken variant seen to fail: the
+// roughness read from the path held constant (its derivatives dropped).
+TEST(PathDerivatives, MatchFiniteDifferencesWithTexturedRoughness) {
+    ktest::TempDir dir;
+    const std::string file = write_texels(dir.path());
+    const std::string bitmap =
+        fmt::format(R"(<texture type="bitmap" name="{{}}"><string name="filename" value="{}"/></texture>)", file);
+    const PathSetup S = cornell_with(
+        R"(<ref id="white"/>)",
+        R"(<bsdf type="roughconductor"><string name="distribution" value="ggx"/><string name="material" value="Cu"/>)" +
+            fmt::format(fmt::runtime(bitmap), "alpha") + "</bsdf>",
+        R"(<bsdf type="roughconductor"><string name="material" value="Au"/><float name="alpha_v" value="0.3"/>)" +
+            fmt::format(fmt::runtime(bitmap), "alpha_u") + "</bsdf>");
+    // The bilinear roughness has kinks at the texels' edges, where a difference within the step is unstable.
+    expect_matches_finite_differences(S, 24, bsdf_named("roughconductor"), 100);
+}
+
 // The textured points read their texture: of the lit points whose camera ray hits `first` (at least 10 on each such
 // shape), every one is
 // differentiable (status Ok, the value checked against the renderer's) except for at most one in 50 reported as
@@ -860,8 +881,10 @@ TEST(PathDerivatives, UnsupportedPluginsAreReportedPerPath) {
     EXPECT_EQ(other, 0);
     std::printf("caustic: %d differentiable, %d unsupported\n", ok, unsupported);
 
-    // Textured roughness stays refused (the kernels take the roughness as numbers): the tall box a rough copper
-    // whose alpha is a checkerboard; paths that scatter off it are unsupported, the others differentiated.
+    // A checkerboard roughness stays refused (its eval_1, the roughness, swaps its squares against its colours, as
+    // Mitsuba's, so the colour the path reads does not describe it): the tall box a rough copper whose alpha is one;
+    // paths that scatter off it are unsupported, the others differentiated. (A bitmap roughness is differentiated:
+    // MatchFiniteDifferencesWithTexturedRoughness.)
     const PathSetup R = cornell_with(
         R"(<ref id="white"/>)",
         R"(<bsdf type="roughconductor"><string name="material" value="Cu"/><texture type="checkerboard" name="alpha">)"

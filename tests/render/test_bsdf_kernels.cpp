@@ -5,7 +5,8 @@
 // gradient to 1e-6 and Hessian to 1e-4 relative, at 12 points per kernel away from the kernels' branches: Fresnel
 // (dielectric from both sides, conductor), the microfacet D, Lambda, G1, pdf and sampling for GGX and Beckmann,
 // isotropic and anisotropic, visible normals or all normals, and each BSDF's eval, pdf and sample (diffuse,
-// conductor, roughconductor, dielectric, roughdielectric reflection and transmission, plastic, roughplastic). The
+// conductor, roughconductor, dielectric, roughdielectric reflection and transmission, plastic, roughplastic), and the
+// microfacet kernels with the roughness itself an input (MicrofacetT: a textured roughness read along a path). The
 // double instantiation is what the plugins run (bit-identical images before and after the kernels were shared are
 // checked by rendering, outside ctest); the derivative branches of the kernels (choices by value, the lifted
 // log1p / erfc, Heitz and d'Eon's Beckmann sampling through Newton steps on the renderer's answer) only here and in
@@ -164,6 +165,25 @@ std::vector<Case> cases() {
                                 push(out, k::rough_dielectric_sample(d, 1.5, k::grey(T(1.0)), k::grey(T(1.0)), mode,
                                                                      direction(x[0], x[1]), u_comp, x[2], x[3]))));
         }
+    }
+    // A roughness that is itself an input (a textured roughness read along a path: kernels::MicrofacetT), x[2] and
+    // x[3] the two alphas, wi from x[0], x[1] and fixed sample coordinates and directions.
+    for (const auto type : {MicrofacetType::GGX, MicrofacetType::Beckmann}) {
+        const std::string n = type == MicrofacetType::GGX ? "ggx" : "beckmann";
+        const Box ALPHA{{0.15, -3.0, 0.05, 0.05}, {1.2, 3.0, 0.6, 0.6}};
+        c.push_back(KELVIN_CASE(n + " with the roughness as an input", ALPHA, {
+            const k::MicrofacetT<T> d(type, x[2], x[3], true);
+            const k::V3<T> wi = direction(x[0], x[1]), m = direction(T(0.4), T(0.7)), wo = direction(T(0.6), T(2.5));
+            out.push_back(k::microfacet_D(d, m));
+            out.push_back(k::microfacet_G1(d, wi, m));
+            out.push_back(k::microfacet_pdf(d, wi, m));
+            push(out, k::microfacet_sample(d, wi, T(0.3), T(0.6)));
+            push(out, k::rough_conductor_eval(d, kCu.eta, kCu.k, k::grey(T(1.0)), wi, wo));
+        }));
+        c.push_back(KELVIN_CASE(n + " all normals with the roughness as an input", ALPHA, {
+            const k::MicrofacetT<T> d(type, x[2], x[3], false);
+            push(out, k::microfacet_sample(d, direction(x[0], x[1]), T(0.3), T(0.6)));
+        }));
     }
     c.push_back(KELVIN_CASE("diffuse", UP, {
         const k::V3<T> wi = direction(x[0], x[1]), wo = direction(x[2], x[3]);

@@ -141,9 +141,10 @@ TEST(TexturedRoughness, CheckerboardRendersAsTheTwoScalarsPixelByPixel) {
     EXPECT_GT(as_b, 480);
 }
 
-// H2MC's differentiable evaluation (Bsdf::differentiable, eval_diff) takes the roughness as numbers: a textured
-// alpha is not differentiable (H2MC treats such a path as it treats any unsupported BSDF), a scalar one (or a constant
-// texture) is, and its eval_diff in doubles is the plugin's eval() exactly (the same kernels).
+// H2MC's differentiable evaluation (Bsdf::differentiable, eval_diff): roughdielectric takes the roughness as
+// numbers, so a textured alpha is not differentiable (H2MC treats such a path as it treats any unsupported BSDF);
+// roughconductor asks the path for a textured one; a scalar alpha (or a constant texture) is differentiable, and its
+// eval_diff in doubles is the plugin's eval() exactly (the same kernels).
 TEST(TexturedRoughness, DifferentiableOnlyWithAScalarAlpha) {
     const Vec3d wi = glm::normalize(Vec3d(0.3, 0.2, 0.9)), wo = glm::normalize(Vec3d(-0.2, 0.1, 0.8));
     const SurfaceInteraction si = surface_point(Vec2d(0.3, 0.4), wi);
@@ -163,12 +164,16 @@ TEST(TexturedRoughness, DifferentiableOnlyWithAScalarAlpha) {
     EXPECT_GT(pdf, 0.0);
     for (const std::string& xml :
          {dielectric(checker("alpha", 0.1, 0.3)),
-          dielectric(R"(<float name="alpha_u" value="0.1"/>)" + checker("alpha_v", 0.1, 0.3)),
-          std::string(R"(<bsdf type="roughconductor">)") + checker("alpha", 0.1, 0.3) + "</bsdf>"}) {
+          dielectric(R"(<float name="alpha_u" value="0.1"/>)" + checker("alpha_v", 0.1, 0.3))}) {
         const auto textured = bsdf_of(xml);
         EXPECT_FALSE(textured->differentiable(si)) << xml;
         EXPECT_FALSE(diff_eval(*textured, f, pdf)) << xml;
     }
+    // roughconductor asks the path for a textured roughness (DiffTextures::value): without a path to ask, nothing.
+    const auto conductor =
+        bsdf_of(std::string(R"(<bsdf type="roughconductor">)") + checker("alpha", 0.1, 0.3) + "</bsdf>");
+    EXPECT_TRUE(conductor->differentiable(si));
+    EXPECT_FALSE(diff_eval(*conductor, f, pdf));
 }
 
 // Errors name the parameter: a colour that is not grey, a value out of range, alpha with alpha_u.

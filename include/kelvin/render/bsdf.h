@@ -71,6 +71,9 @@ public:
     virtual ~DiffTextures() = default;
     /// The colour of `texture` at the hit; false where the path evaluation cannot differentiate it.
     virtual bool colour(const Texture& texture, kernels::C3<T>& out) const = 0;
+    /// The texture read as one number at the hit (Texture::eval_1: a roughness); false where the path evaluation
+    /// cannot differentiate it (the default).
+    virtual bool value(const Texture& texture, T& out) const { return false; }
 };
 
 template <class T>

@@ -363,12 +363,35 @@ inline C3<T> fresnel_conductor(const T& cos_i, const Color3& eta, const Color3& 
 
 constexpr double InvSqrtPi = 0.56418958354775628695;  // 1 / sqrt(pi)
 
+/// A microfacet distribution whose roughness is a number of type A (a textured roughness differentiated along a path;
+/// MicrofacetDistribution is the double one): the same interface, roughnesses below min_alpha raised to it.
+template <class A>
+class MicrofacetT {
+public:
+    MicrofacetT(MicrofacetType type, const A& alpha_u, const A& alpha_v, bool sample_visible)
+        : m_type(type),
+          m_alpha_u(s_max(alpha_u, MicrofacetDistribution::min_alpha)),
+          m_alpha_v(s_max(alpha_v, MicrofacetDistribution::min_alpha)),
+          m_sample_visible(sample_visible) {}
+    MicrofacetType type() const { return m_type; }
+    const A& alpha_u() const { return m_alpha_u; }
+    const A& alpha_v() const { return m_alpha_v; }
+    bool is_isotropic() const { return val(m_alpha_u) == val(m_alpha_v); }
+    bool sample_visible() const { return m_sample_visible; }
+
+private:
+    MicrofacetType m_type;
+    A m_alpha_u, m_alpha_v;
+    bool m_sample_visible;
+};
+
 /// Normal distribution D(m); zero for m.z <= 0.
 template <class Distr, class T>
 inline T microfacet_D(const Distr& d, const V3<T>& m) {
     using std::exp;
     if (!(val(m.z) > 0)) return T(0.0);
-    const double au = d.alpha_u(), av = d.alpha_v();
+    const auto au = d.alpha_u();
+    const auto av = d.alpha_v();
     const T x = m.x / au, y = m.y / av, z2 = m.z * m.z;
     T r;
     if (d.type() == MicrofacetType::GGX) {
@@ -390,7 +413,8 @@ inline T microfacet_lambda(const Distr& d, const V3<T>& w) {
     using std::sqrt;
     const T z2 = w.z * w.z;
     if (!(val(z2) > 0)) return T(Inf);
-    const double au = d.alpha_u(), av = d.alpha_v();
+    const auto au = d.alpha_u();
+    const auto av = d.alpha_v();
     // alpha^2 tan^2(theta) along the azimuth of w
     const T a2t2 = (au * au * w.x * w.x + av * av * w.y * w.y) / z2;
     if (!(val(a2t2) > 0)) return T(0.0);
@@ -431,7 +455,8 @@ inline V3<T> microfacet_sample_all(const Distr& d, const T& u0, const T& u1) {
     using std::cos;
     using std::sin;
     using std::sqrt;
-    const double au = d.alpha_u(), av = d.alpha_v();
+    const auto au = d.alpha_u();
+    const auto av = d.alpha_v();
     T phi, inv_a2;  // inv_a2 = cos^2/au^2 + sin^2/av^2 along phi
     if (d.is_isotropic()) {
         phi = 2 * Pi * u1;
@@ -455,7 +480,8 @@ inline V3<T> microfacet_sample_visible_ggx(const Distr& d, const V3<T>& wi, cons
     using std::cos;
     using std::sin;
     using std::sqrt;
-    const double au = d.alpha_u(), av = d.alpha_v();
+    const auto au = d.alpha_u();
+    const auto av = d.alpha_v();
     const V3<T> vh = normalize(V3<T>{au * wi.x, av * wi.y, wi.z});
     const T len2 = vh.x * vh.x + vh.y * vh.y;
     const V3<T> t1 = val(len2) > 0 ? V3<T>{-vh.y, vh.x, T(0.0)} / T(sqrt(len2)) : V3<T>{T(1.0), T(0.0), T(0.0)};
@@ -486,12 +512,13 @@ inline V3<T> microfacet_sample_visible_beckmann(const Distr& d, const V3<T>& wi,
     using std::erfc;
     using std::exp;
     using std::sqrt;
-    const double au = d.alpha_u(), av = d.alpha_v();
+    const auto au = d.alpha_u();
+    const auto av = d.alpha_v();
     if constexpr (plain<T>) {
         return to_v3(beckmann_visible_normal(au, av, to_glm(wi), Vec2d(u0, u1)));
     } else {
         const V3<T> zero{T(0.0), T(0.0), T(0.0)};
-        const Vec3d m0 = beckmann_visible_normal(au, av, value(wi), Vec2d(val(u0), val(u1)));
+        const Vec3d m0 = beckmann_visible_normal(val(au), val(av), value(wi), Vec2d(val(u0), val(u1)));
         if (!(m0.z > 0)) return zero;
         const V3<T> ws = normalize(V3<T>{au * wi.x, av * wi.y, wi.z});
         const T cos_t = ws.z;
@@ -502,7 +529,7 @@ inline V3<T> microfacet_sample_visible_beckmann(const Distr& d, const V3<T>& wi,
             sphi = ws.y / sin_t;
         }
         // The renderer's slopes: (sx, sy) = (-m.x / m.z, -m.y / m.z), unstretched, rotated back by -phi.
-        const double gx = -m0.x / m0.z / au, gy = -m0.y / m0.z / av, c = val(cphi), s = val(sphi);
+        const double gx = -m0.x / m0.z / val(au), gy = -m0.y / m0.z / val(av), c = val(cphi), s = val(sphi);
         const double x0 = c * gx + s * gy, y0 = -s * gx + c * gy;
         const bool cot = val(sin_t) > 0 && val(cos_t) < 6.0 * val(sin_t);
         const T hi = cot ? T(cos_t / sin_t) : T(6.0);
@@ -974,6 +1001,17 @@ inline bool diff_colour(const DiffBsdfContext<T>& ctx, const Texture& texture, k
         return true;
     }
     return ctx.textures && ctx.textures->colour(texture, out);
+}
+
+/// A texture read as one number (Texture::eval_1) at a vertex in the number type T: the luminance of its mean when it
+/// is constant, else asked of the path (DiffTextures::value). False where the path cannot differentiate it.
+template <class T>
+inline bool diff_value(const DiffBsdfContext<T>& ctx, const Texture& texture, T& out) {
+    if (texture.is_constant()) {
+        out = T(luminance(texture.mean()));
+        return true;
+    }
+    return ctx.textures && ctx.textures->value(texture, out);
 }
 
 /// The differentiable interface of Bsdf (eval_diff, sample_diff in every number type) implemented once by a plugin's

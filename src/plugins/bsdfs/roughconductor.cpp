@@ -78,29 +78,49 @@ public:
         return kernels::rough_conductor_pdf(distribution(si), kernels::to_v3(si.wi), kernels::to_v3(wo));
     }
 
-    // Differentiable evaluation (Bsdf::eval_diff, sample_diff): the same kernels in the path's number type; not with
-    // a textured roughness (the kernels take the roughness as a number).
-    bool differentiable(const SurfaceInteraction&) const override { return !m_textured; }
+    // Differentiable evaluation (Bsdf::eval_diff, sample_diff): the same kernels in the path's number type; a textured
+    // roughness is asked of the path (its eval_1 reading as a number of type T, clamped as distribution() clamps it).
+    bool differentiable(const SurfaceInteraction&) const override { return true; }
     template <class T>
     bool eval_t(const DiffBsdfContext<T>& c, const kernels::V3<T>& wi, const kernels::V3<T>& wo, kernels::C3<T>& f,
                 T& pdf) const {
         kernels::C3<T> tint;
-        if (m_textured || !diff_colour(c, *m_specular, tint)) return false;
-        f = kernels::rough_conductor_eval(m_distr, m_ior.eta, m_ior.k, tint, wi, wo, &pdf);
+        if (!diff_colour(c, *m_specular, tint)) return false;
+        if (!m_textured) {
+            f = kernels::rough_conductor_eval(m_distr, m_ior.eta, m_ior.k, tint, wi, wo, &pdf);
+            return true;
+        }
+        const auto d = distribution_t(c);
+        if (!d) return false;
+        f = kernels::rough_conductor_eval(*d, m_ior.eta, m_ior.k, tint, wi, wo, &pdf);
         return true;
     }
     template <class T>
     bool sample_t(const DiffBsdfContext<T>& c, const kernels::V3<T>& wi, double, const T& u0, const T& u1,
                   kernels::Sample<T>& out) const {
         kernels::C3<T> tint;
-        if (m_textured || !diff_colour(c, *m_specular, tint)) return false;
-        out = kernels::rough_conductor_sample(m_distr, m_ior.eta, m_ior.k, tint, wi, u0, u1);
+        if (!diff_colour(c, *m_specular, tint)) return false;
+        if (!m_textured) {
+            out = kernels::rough_conductor_sample(m_distr, m_ior.eta, m_ior.k, tint, wi, u0, u1);
+            return true;
+        }
+        const auto d = distribution_t(c);
+        if (!d) return false;
+        out = kernels::rough_conductor_sample(*d, m_ior.eta, m_ior.k, tint, wi, u0, u1);
         return true;
     }
 
 private:
     kernels::C3<double> tint(const SurfaceInteraction& si) const { return kernels::to_c3(m_specular->eval(si)); }
 
+    /// distribution() in the number type T: a textured roughness read from the path.
+    template <class T>
+    std::optional<kernels::MicrofacetT<T>> distribution_t(const DiffBsdfContext<T>& c) const {
+        T au, av;
+        if (!diff_value(c, *m_alpha_u, au) || !diff_value(c, *m_alpha_v, av)) return std::nullopt;
+        return kernels::MicrofacetT<T>(m_type, kernels::s_clamp(au, 0.0, 100.0), kernels::s_clamp(av, 0.0, 100.0),
+                                       m_visible);
+    }
     MicrofacetDistribution distribution(const SurfaceInteraction& si) const {
         if (!m_textured) return m_distr;
         return {m_type, std::clamp(m_alpha_u->eval_1(si), 0.0, 100.0), std::clamp(m_alpha_v->eval_1(si), 0.0, 100.0),
