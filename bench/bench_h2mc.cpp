@@ -4,7 +4,7 @@
 //   BM_PathEvaluation/k:   one path sample of exactly k edges on the Cornell box (the path technique, as a chain
 //                          evaluates a state; max_depth k, no Russian roulette);
 //   BM_PathDerivatives/k/check: the same path's log-luminance with its gradient and Hessian
-//                          (render/path_derivatives.h, bounce by bounce in SecondOrder numbers), without (check:0) and
+//                          (mlt/path_derivatives.h, bounce by bounce in SecondOrder numbers), without (check:0) and
 //                          with (check:1, the default) the discontinuity check;
 //   BM_EvalsPerDerivative/k: the counter evals_per_derivative: the CPU time of one gradient and Hessian (check:0)
 //                          over that of one plain path evaluation (BM_PathEvaluation) of the same points, the two
@@ -32,7 +32,7 @@
 #include <kelvin/mlt/chain.h>
 #include <kelvin/mlt/local.h>
 #include <kelvin/mlt/mutation.h>
-#include <kelvin/render/path_derivatives.h>
+#include <kelvin/mlt/path_derivatives.h>
 #include <kelvin/render/pss.h>
 #include <kelvin/render/scene.h>
 #include <kelvin/render/second_order.h>
@@ -323,7 +323,7 @@ void BM_H2mcProposalOnPath(benchmark::State& state) {
     state.counters["n"] = n;
 }
 
-// Eigen's nested AutoDiff of size 20, the type src/render/path_derivatives.cpp used before SecondOrder.
+// Eigen's nested AutoDiff of size 20, the type src/mlt/path_derivatives.cpp used before SecondOrder.
 using NestedDer = Eigen::Matrix<double, 20, 1>;
 using NestedInner = Eigen::AutoDiffScalar<NestedDer>;
 using Nested = Eigen::AutoDiffScalar<Eigen::Matrix<NestedInner, 20, 1>>;

@@ -10,8 +10,8 @@
 #include <kelvin/core/registry.h>
 #include <kelvin/mlt/integrator.h>
 #include <kelvin/mlt/local.h>
+#include <kelvin/mlt/path_derivatives.h>
 #include <kelvin/render/film.h>
-#include <kelvin/render/path_derivatives.h>
 #include <kelvin/render/pss.h>
 #include <kelvin/render/scene.h>
 
@@ -112,7 +112,7 @@ MetropolisIntegrator::MetropolisIntegrator(const Properties& props, bool delayed
         m_config.fixed_pairs = uint64_t(1) << StrategyPair;
     }
     // Local kernels (h2mc) need derivatives of the path contribution with respect to the primary samples, which the
-    // path technique provides (render/path_derivatives.h); the bidirectional ones do not.
+    // path technique provides (mlt/path_derivatives.h); the bidirectional ones do not.
     {
         const bool local1 = m_first->has_local(), local2 = m_second && m_second->has_local();
         m_local = local1 || local2;

@@ -1,3 +1,4 @@
+#include <kelvin/render/bsdf_kernels.h>
 #include <kelvin/render/fresnel.h>
 
 #include <kelvin/core/strings.h>
@@ -8,44 +9,13 @@
 
 namespace kelvin {
 
+// The kernels are written once for doubles and derivative numbers (render/bsdf_kernels.h).
 FresnelDielectric fresnel_dielectric(double cos_theta_i, double eta) {
-    FresnelDielectric r;
-    r.eta_it = cos_theta_i >= 0 ? eta : 1.0 / eta;
-    r.eta_ti = 1.0 / r.eta_it;
-    const double ci = std::min(std::abs(cos_theta_i), 1.0);
-    const double sin2_t = r.eta_ti * r.eta_ti * std::max(0.0, 1.0 - ci * ci);
-    if (sin2_t >= 1.0) {  // total internal reflection (also the grazing limit when eta == 1)
-        r.F = 1;
-        r.cos_theta_t = 0;
-        return r;
-    }
-    const double ct = std::sqrt(1.0 - sin2_t);
-    // Amplitude coefficients for s- and p-polarised light, indices relative to the incident side.
-    const double rs = (ci - r.eta_it * ct) / (ci + r.eta_it * ct);
-    const double rp = (r.eta_it * ci - ct) / (r.eta_it * ci + ct);
-    r.F = std::clamp(0.5 * (rs * rs + rp * rp), 0.0, 1.0);
-    r.cos_theta_t = cos_theta_i >= 0 ? -ct : ct;
-    return r;
+    return kernels::fresnel_dielectric(cos_theta_i, eta);
 }
 
 double fresnel_conductor(double cos_theta_i, double eta, double k) {
-    // Complex arithmetic written out in reals (std::complex division guards against infinities at a cost).
-    const double c = std::min(std::abs(cos_theta_i), 1.0);
-    const double n2r = eta * eta - k * k, n2i = 2.0 * eta * k;  // n^2
-    if (n2r == 0 && n2i == 0) return 1.0;
-    // a = n cos(theta_t) = sqrt(n^2 - sin^2(theta_i)), principal branch (the wave decays into the conductor).
-    const double zr = n2r - (1.0 - c * c), zi = n2i;
-    const double r = std::hypot(zr, zi);
-    const double ar = std::sqrt(std::max(0.0, 0.5 * (r + zr))),
-                 ai = std::copysign(std::sqrt(std::max(0.0, 0.5 * (r - zr))), zi);
-    // r_s = (c - a) / (c + a),  r_p = (n^2 c - a) / (n^2 c + a)
-    const double ds = (c + ar) * (c + ar) + ai * ai,
-                 dp = (n2r * c + ar) * (n2r * c + ar) + (n2i * c + ai) * (n2i * c + ai);
-    if (!(ds > 0) || !(dp > 0)) return 1.0;  // grazing incidence on a matched index
-    const double rs = ((c - ar) * (c - ar) + ai * ai) / ds;
-    const double rp = ((n2r * c - ar) * (n2r * c - ar) + (n2i * c - ai) * (n2i * c - ai)) / dp;
-    const double F = 0.5 * (rs + rp);
-    return std::isfinite(F) ? std::clamp(F, 0.0, 1.0) : 1.0;
+    return kernels::fresnel_conductor(cos_theta_i, eta, k);
 }
 
 Color3 fresnel_conductor(double cos_theta_i, const Color3& eta, const Color3& k) {

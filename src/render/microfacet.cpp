@@ -1,3 +1,4 @@
+#include <kelvin/render/bsdf_kernels.h>
 #include <kelvin/render/microfacet.h>
 #include <kelvin/render/texture.h>
 
@@ -10,8 +11,6 @@ namespace kelvin {
 
 namespace {
 constexpr double kInvSqrtPi = 0.56418958354775628695;  // 1 / sqrt(pi)
-
-double safe_sqrt(double v) { return std::sqrt(std::max(0.0, v)); }
 
 Vec3d normalize_or_zero(const Vec3d& v) {
     double l2 = glm::dot(v, v);
@@ -89,89 +88,26 @@ MicrofacetDistribution::MicrofacetDistribution(MicrofacetType type, double alpha
       m_alpha_v(std::max(alpha_v, min_alpha)),
       m_sample_visible(sample_visible) {}
 
-double MicrofacetDistribution::D(const Vec3d& m) const {
-    if (!(m.z > 0)) return 0.0;
-    const double x = m.x / m_alpha_u, y = m.y / m_alpha_v, z2 = m.z * m.z;
-    double r;
-    if (m_type == MicrofacetType::GGX) {
-        const double t = x * x + y * y + z2;
-        r = 1.0 / (Pi * m_alpha_u * m_alpha_v * t * t);
-    } else {
-        const double z4 = z2 * z2;
-        if (!(z4 > 0)) return 0.0;
-        r = std::exp(-(x * x + y * y) / z2) / (Pi * m_alpha_u * m_alpha_v * z4);
-    }
-    return std::isfinite(r) ? r : 0.0;
-}
+// The kernels are written once for doubles and derivative numbers (render/bsdf_kernels.h).
+double MicrofacetDistribution::D(const Vec3d& m) const { return kernels::microfacet_D(*this, kernels::to_v3(m)); }
 
 double MicrofacetDistribution::lambda(const Vec3d& w) const {
-    const double z2 = w.z * w.z;
-    if (!(z2 > 0)) return Inf;
-    // alpha^2 tan^2(theta) along the azimuth of w
-    const double a2t2 = (m_alpha_u * m_alpha_u * w.x * w.x + m_alpha_v * m_alpha_v * w.y * w.y) / z2;
-    if (!(a2t2 > 0)) return 0.0;
-    if (!std::isfinite(a2t2)) return Inf;
-    if (m_type == MicrofacetType::GGX) return a2t2 / (2.0 * (std::sqrt(1.0 + a2t2) + 1.0));
-    const double a = 1.0 / std::sqrt(a2t2);  // 1 / (alpha tan theta)
-    return 0.5 * (std::exp(-a * a) * kInvSqrtPi / a - std::erfc(a));
+    return kernels::microfacet_lambda(*this, kernels::to_v3(w));
 }
 
 double MicrofacetDistribution::G1(const Vec3d& w, const Vec3d& m) const {
-    if (!(glm::dot(w, m) * w.z > 0)) return 0.0;
-    const double l = lambda(w);
-    return std::isfinite(l) ? 1.0 / (1.0 + std::max(l, 0.0)) : 0.0;
+    return kernels::microfacet_G1(*this, kernels::to_v3(w), kernels::to_v3(m));
 }
 
 double MicrofacetDistribution::pdf(const Vec3d& wi, const Vec3d& m) const {
-    if (!(wi.z > 0) || !(m.z > 0)) return 0.0;
-    if (!m_sample_visible) return D(m) * m.z;
-    const double c = glm::dot(wi, m);
-    if (!(c > 0)) return 0.0;
-    const double r = G1(wi, m) * c * D(m) / wi.z;
-    return std::isfinite(r) ? r : 0.0;
+    return kernels::microfacet_pdf(*this, kernels::to_v3(wi), kernels::to_v3(m));
 }
 
 Vec3d MicrofacetDistribution::sample(const Vec3d& wi, const Vec2d& u) const {
-    if (!m_sample_visible) return sample_all(u);
-    if (!(wi.z > 0)) return Vec3d(0.0);
-    return m_type == MicrofacetType::GGX ? sample_visible_ggx(wi, u) : sample_visible_beckmann(wi, u);
+    return kernels::to_glm(kernels::microfacet_sample(*this, kernels::to_v3(wi), u.x, u.y));
 }
 
-Vec3d MicrofacetDistribution::sample_all(const Vec2d& u) const {
-    double phi, inv_a2;  // inv_a2 = cos^2/au^2 + sin^2/av^2 along phi
-    if (is_isotropic()) {
-        phi = 2 * Pi * u.y;
-        inv_a2 = 1.0 / (m_alpha_u * m_alpha_u);
-    } else {
-        // tan(phi) = (av/au) tan(2 pi u), same quadrant: the exact azimuthal marginal of both distributions.
-        phi = std::atan2(m_alpha_v * std::sin(2 * Pi * u.y), m_alpha_u * std::cos(2 * Pi * u.y));
-        const double c = std::cos(phi) / m_alpha_u, s = std::sin(phi) / m_alpha_v;
-        inv_a2 = c * c + s * s;
-    }
-    const double v = std::min(u.x, 1.0 - 1e-16);
-    const double tan2 = m_type == MicrofacetType::GGX ? v / ((1.0 - v) * inv_a2) : -std::log1p(-v) / inv_a2;
-    const double cos_t = 1.0 / std::sqrt(1.0 + tan2), sin_t = safe_sqrt(1.0 - cos_t * cos_t);
-    return {sin_t * std::cos(phi), sin_t * std::sin(phi), cos_t};
-}
-
-Vec3d MicrofacetDistribution::sample_visible_ggx(const Vec3d& wi, const Vec2d& u) const {
-    // Heitz 2018: the visible normals of a GGX surface seen from wi are those of a hemisphere (the surface
-    // stretched to unit roughness) seen from the stretched direction; sample its projected disk and unstretch.
-    const Vec3d vh = glm::normalize(Vec3d(m_alpha_u * wi.x, m_alpha_v * wi.y, wi.z));
-    const double len2 = vh.x * vh.x + vh.y * vh.y;
-    const Vec3d t1 = len2 > 0 ? Vec3d(-vh.y, vh.x, 0) / std::sqrt(len2) : Vec3d(1, 0, 0);
-    const Vec3d t2 = glm::cross(vh, t1);
-    const double r = std::sqrt(u.x), phi = 2 * Pi * u.y;
-    const double p1 = r * std::cos(phi);
-    double p2 = r * std::sin(phi);
-    // The part of the disk hidden behind the hemisphere's silhouette is folded onto the visible part.
-    const double s = 0.5 * (1.0 + vh.z);
-    p2 = (1.0 - s) * safe_sqrt(1.0 - p1 * p1) + s * p2;
-    const Vec3d nh = p1 * t1 + p2 * t2 + safe_sqrt(1.0 - p1 * p1 - p2 * p2) * vh;
-    return normalize_or_zero(Vec3d(m_alpha_u * nh.x, m_alpha_v * nh.y, std::max(0.0, nh.z)));
-}
-
-Vec3d MicrofacetDistribution::sample_visible_beckmann(const Vec3d& wi, const Vec2d& u) const {
+Vec3d kernels::beckmann_visible_normal(double m_alpha_u, double m_alpha_v, const Vec3d& wi, const Vec2d& u) {
     // Heitz and d'Eon 2014: stretch to unit roughness, sample the slopes (x, y) visible from the stretched
     // direction (which has elevation theta and, after rotating by its azimuth, lies in the xz plane):
     //   p(x) ~ (cos theta - x sin theta) exp(-x^2) / sqrt(pi)  for x < cot theta,   y ~ exp(-y^2) / sqrt(pi),
@@ -215,7 +151,7 @@ Vec3d MicrofacetDistribution::sample_visible_beckmann(const Vec3d& wi, const Vec
     }
     const double y = erfinv(2.0 * u.y - 1.0);
     const double sx = (cphi * x - sphi * y) * m_alpha_u, sy = (sphi * x + cphi * y) * m_alpha_v;
-    return normalize_or_zero(Vec3d(-sx, -sy, 1.0));
+    return kelvin::normalize_or_zero(Vec3d(-sx, -sy, 1.0));
 }
 
 MicrofacetDistribution microfacet_from_properties(const Properties& props, bool anisotropic) {

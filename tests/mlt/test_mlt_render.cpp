@@ -147,7 +147,7 @@ TEST(MltIntegrators, DrmltOverVolpathMatchesVolpath) {
                         256, 32, true, VolpathDepth8);
 }
 
-// H2MC (issue 14): the h2mc kernel with the path technique's derivatives (render/path_derivatives.h), alone on the
+// H2MC (issue 14): the h2mc kernel with the path technique's derivatives (mlt/path_derivatives.h), alone on the
 // Cornell box and as the thesis' hybrid second stage after a Gaussian first stage on the Cornell box with metal boxes
 // (glossy GGX copper and a mirror: there 11 % of the derivative evaluations give anisotropic proposals, against 8 %). A
 // derivative evaluation costs milliseconds, so these run smaller: 16 x 16 (four 8 x 8 blocks), 16 mutations per pixel,

@@ -1,4 +1,4 @@
-// Differentiable evaluation of the path technique (render/path_derivatives.h, issue 14) on the Cornell box: at random
+// Differentiable evaluation of the path technique (mlt/path_derivatives.h, issue 14) on the Cornell box: at random
 // primary-sample points whose path carries light,
 //   - its value equals the renderer's (the path technique through PrimarySampleSpace, as the Metropolis integrators
 //     evaluate a state), in plain doubles and in automatic differentiation;
@@ -17,8 +17,9 @@
 // unstable differences: 1.5 % of the gradient entries).
 #include <kelvin/core/image.h>
 #include <kelvin/core/registry.h>
+#include <kelvin/mlt/path_derivatives.h>
+#include <kelvin/render/bsdf_kernels.h>
 #include <kelvin/render/integrator.h>
-#include <kelvin/render/path_derivatives.h>
 #include <kelvin/render/pss.h>
 #include <kelvin/render/scene.h>
 #include <kelvin/render/sensor.h>
@@ -40,6 +41,27 @@
 using namespace kelvin;
 
 namespace {
+
+// Whether a shape's BSDF reads a texture that is not constant in its differentiable evaluation (asks DiffTextures).
+bool reads_texture(const Shape& sh) {
+    if (!sh.bsdf()) return false;
+    struct Probe final : DiffTextures<double> {
+        mutable bool asked = false;
+        bool colour(const Texture& t, kernels::C3<double>& out) const override {
+            asked = true;
+            out = kernels::to_c3(t.mean());
+            return true;
+        }
+    } probe;
+    const DiffBsdfContext<double> ctx{TransportMode::Radiance, &probe};
+    const kernels::V3<double> wi{0.0, 0.6, 0.8}, wo{0.36, 0.0, 0.932952};
+    kernels::C3<double> f;
+    double pdf = 0;
+    kernels::Sample<double> s;
+    sh.bsdf()->eval_diff(ctx, wi, wo, f, pdf);
+    sh.bsdf()->sample_diff(ctx, wi, 0.5, 0.3, 0.6, s);
+    return probe.asked;
+}
 
 struct PathSetup {
     std::shared_ptr<Scene> scene;
@@ -418,9 +440,9 @@ TEST(PathDerivatives, MatchFiniteDifferencesWithTwoSidedPanels) {
 
 // twosided with two different sides (issue 14): the same tilted panel, rough GGX copper in front and a rough
 // plastic behind, and a second panel of Beckmann gold in front and diffuse behind; seen from below, the second BSDF
-// (Bsdf::back_model) in the mirrored frame. The test counts only points whose camera ray hits a twosided panel, and
-// needs both sides among them. Broken variant seen to fail: the front's model used on both sides (every back-side
-// path a mismatch).
+// (the twosided plugin's eval_diff and sample_diff) in the mirrored frame. The test counts only points whose camera ray
+// hits a twosided panel, and needs both sides among them. Broken variant seen to fail: the front's model used on both
+// sides (every back-side path a mismatch).
 TEST(PathDerivatives, MatchFiniteDifferencesWithTwoDifferentSides) {
     const PathSetup S(
         "cornell-box.xml", 6,
@@ -486,8 +508,28 @@ TEST(PathDerivatives, MatchFiniteDifferencesWithTextures) {
                                  R"(<transform name="to_uv"><rotate z="1" angle="30"/><scale value="2"/></transform>)"
                                  R"(</texture></bsdf>)",
                                  file));
-    expect_matches_finite_differences(
-        S, 24, [](const Shape& sh) { return sh.bsdf() && sh.bsdf()->model().texture != nullptr; });
+    expect_matches_finite_differences(S, 24, [](const Shape& sh) { return reads_texture(sh); });
+}
+
+// Textured roughness: the tall box rough GGX copper whose alpha is a bilinear 8 x 8 bitmap (its luminance, 0.25 to
+// 0.7), the short box rough Beckmann gold, anisotropic, alpha_u the same bitmap and alpha_v 0.3. The roughness is read
+// from the path (DiffTextures::value, the uv through the barycentrics), and D, G1, the densities and the sampled
+// normals (for Beckmann through the Newton steps on the visible-slope CDF) take it as a number with derivatives
+// (kernels::MicrofacetT). Only points whose camera ray hits a box are counted. Broken variant seen to fail: the
+// roughness read from the path held constant (its derivatives dropped).
+TEST(PathDerivatives, MatchFiniteDifferencesWithTexturedRoughness) {
+    ktest::TempDir dir;
+    const std::string file = write_texels(dir.path());
+    const std::string bitmap =
+        fmt::format(R"(<texture type="bitmap" name="{{}}"><string name="filename" value="{}"/></texture>)", file);
+    const PathSetup S = cornell_with(
+        R"(<ref id="white"/>)",
+        R"(<bsdf type="roughconductor"><string name="distribution" value="ggx"/><string name="material" value="Cu"/>)" +
+            fmt::format(fmt::runtime(bitmap), "alpha") + "</bsdf>",
+        R"(<bsdf type="roughconductor"><string name="material" value="Au"/><float name="alpha_v" value="0.3"/>)" +
+            fmt::format(fmt::runtime(bitmap), "alpha_u") + "</bsdf>");
+    // The bilinear roughness has kinks at the texels' edges, where a difference within the step is unstable.
+    expect_matches_finite_differences(S, 24, bsdf_named("roughconductor"), 100);
 }
 
 // The textured points read their texture: of the lit points whose camera ray hits `first` (at least 10 on each such
@@ -531,11 +573,7 @@ void expect_texture_read(const PathSetup& S, const PathSetup& plain, const First
     EXPECT_GE(2 * read, ok);
     std::printf("textured points %d (and %d mismatches), of which %d read the texture\n", ok, mismatch, read);
 }
-bool textured_model(const Shape& sh) {
-    if (!sh.bsdf()) return false;
-    const Bsdf::Model m = sh.bsdf()->model();
-    return m.texture != nullptr || m.diffuse_texture != nullptr;
-}
+bool textured_model(const Shape& sh) { return reads_texture(sh); }
 
 // A scene's texture parameter: a bitmap of `file` (with `extra` inside), or, for the untextured twin scene, its mean
 // as a constant colour.
@@ -553,10 +591,10 @@ std::string checker_or_constant(int scale, bool textured) {
                        scale);
 }
 
-// The plastics' textured diffuse reflectance (issue 14; Bsdf::Model::diffuse_texture): the texture scales the base
-// only, inside the coating's formula, not the specular lobe (plastic.cpp's rho_eff, roughplastic.cpp's rho'). The back
-// wall a linear plastic with a bilinear 8 x 8 bitmap, the tall box a non-linear GGX roughplastic (alpha 0.2) with a
-// checkerboard (a square is a decision), the short box a linear Beckmann roughplastic (alpha 0.3) with a bilinear
+// The plastics' textured diffuse reflectance (issue 14; asked of the path through DiffTextures): the texture scales the
+// base only, inside the coating's formula, not the specular lobe (plastic.cpp's rho_eff, roughplastic.cpp's rho'). The
+// back wall a linear plastic with a bilinear 8 x 8 bitmap, the tall box a non-linear GGX roughplastic (alpha 0.2) with
+// a checkerboard (a square is a decision), the short box a linear Beckmann roughplastic (alpha 0.3) with a bilinear
 // bitmap under a rotated, scaled to_uv, and the floor a twosided non-linear plastic (ior 1.7) with a nearest bitmap.
 // Only points whose camera ray hits a textured BSDF are counted. Broken variants seen to fail: listed in docs/mlt.md.
 PathSetup textured_plastics(const std::string& file, const Color3& mean, bool textured) {
@@ -843,8 +881,10 @@ TEST(PathDerivatives, UnsupportedPluginsAreReportedPerPath) {
     EXPECT_EQ(other, 0);
     std::printf("caustic: %d differentiable, %d unsupported\n", ok, unsupported);
 
-    // Textured roughness stays refused (Bsdf::Model carries the roughness as numbers): the tall box a rough copper
-    // whose alpha is a checkerboard; paths that scatter off it are unsupported, the others differentiated.
+    // A checkerboard roughness stays refused (its eval_1, the roughness, swaps its squares against its colours, as
+    // Mitsuba's, so the colour the path reads does not describe it): the tall box a rough copper whose alpha is one;
+    // paths that scatter off it are unsupported, the others differentiated. (A bitmap roughness is differentiated:
+    // MatchFiniteDifferencesWithTexturedRoughness.)
     const PathSetup R = cornell_with(
         R"(<ref id="white"/>)",
         R"(<bsdf type="roughconductor"><string name="material" value="Cu"/><texture type="checkerboard" name="alpha">)"

@@ -9,8 +9,8 @@
 // both evaluations share) fail the torus test here and the finite-difference tests of test_path_derivatives.cpp.
 #include <kelvin/core/parser.h>
 #include <kelvin/core/registry.h>
+#include <kelvin/mlt/path_derivatives.h>
 #include <kelvin/render/integrator.h>
-#include <kelvin/render/path_derivatives.h>
 #include <kelvin/render/pss.h>
 #include <kelvin/render/scene.h>
 

@@ -1,10 +1,11 @@
 // Textured roughness in the microfacet BSDFs (Mitsuba 3 accepts a texture for `alpha`, `alpha_u`, `alpha_v` of
 // roughconductor and roughdielectric): a uniform texture gives the scalar's BSDF, a varying one the scalar BSDF of
-// the value at each point, and the differentiable model (H2MC) reports a textured roughness as unsupported.
+// the value at each point, and the differentiable evaluation (H2MC) reports a textured roughness as unsupported.
 #include "render_support.h"
 
 #include <kelvin/core/registry.h>
 #include <kelvin/render/bsdf.h>
+#include <kelvin/render/bsdf_kernels.h>
 #include <kelvin/render/interaction.h>
 
 #include <fmt/format.h>
@@ -140,20 +141,39 @@ TEST(TexturedRoughness, CheckerboardRendersAsTheTwoScalarsPixelByPixel) {
     EXPECT_GT(as_b, 480);
 }
 
-// The differentiable model (Bsdf::Model, read by H2MC's path derivatives) carries roughness as numbers: a textured
-// alpha reports Kind::None (unsupported: H2MC treats such a path as it treats any unsupported BSDF), a scalar one
-// (or a constant texture) the rough dielectric model with its alphas.
-TEST(TexturedRoughness, ModelReportsATexturedAlphaAsUnsupported) {
-    using Kind = Bsdf::Model::Kind;
-    const Bsdf::Model scalar = bsdf_of(dielectric(R"(<float name="alpha" value="0.3"/>)"))->model();
-    EXPECT_EQ(scalar.kind, Kind::RoughDielectric);
-    EXPECT_EQ(scalar.alpha_u, 0.3);
-    EXPECT_EQ(bsdf_of(dielectric(checker("alpha", 0.1, 0.3)))->model().kind, Kind::None);
-    EXPECT_EQ(
-        bsdf_of(dielectric(R"(<float name="alpha_u" value="0.1"/>)" + checker("alpha_v", 0.1, 0.3)))->model().kind,
-        Kind::None);
-    EXPECT_EQ(bsdf_of(R"(<bsdf type="roughconductor">)" + checker("alpha", 0.1, 0.3) + "</bsdf>")->model().kind,
-              Kind::None);
+// H2MC's differentiable evaluation (Bsdf::differentiable, eval_diff): roughdielectric takes the roughness as
+// numbers, so a textured alpha is not differentiable (H2MC treats such a path as it treats any unsupported BSDF);
+// roughconductor asks the path for a textured one; a scalar alpha (or a constant texture) is differentiable, and its
+// eval_diff in doubles is the plugin's eval() exactly (the same kernels).
+TEST(TexturedRoughness, DifferentiableOnlyWithAScalarAlpha) {
+    const Vec3d wi = glm::normalize(Vec3d(0.3, 0.2, 0.9)), wo = glm::normalize(Vec3d(-0.2, 0.1, 0.8));
+    const SurfaceInteraction si = surface_point(Vec2d(0.3, 0.4), wi);
+    auto diff_eval = [&](const Bsdf& b, Color3& f, double& pdf) {
+        kernels::C3<double> c;
+        const bool ok = b.eval_diff(DiffBsdfContext<double>{}, kernels::to_v3(wi), kernels::to_v3(wo), c, pdf);
+        f = kernels::to_color(c);
+        return ok;
+    };
+    const auto scalar = bsdf_of(dielectric(R"(<float name="alpha" value="0.3"/>)"));
+    Color3 f(0.0);
+    double pdf = 0;
+    EXPECT_TRUE(scalar->differentiable(si));
+    ASSERT_TRUE(diff_eval(*scalar, f, pdf));
+    EXPECT_EQ(f, scalar->eval(BsdfContext{}, si, wo));
+    EXPECT_EQ(pdf, scalar->pdf(BsdfContext{}, si, wo));
+    EXPECT_GT(pdf, 0.0);
+    for (const std::string& xml :
+         {dielectric(checker("alpha", 0.1, 0.3)),
+          dielectric(R"(<float name="alpha_u" value="0.1"/>)" + checker("alpha_v", 0.1, 0.3))}) {
+        const auto textured = bsdf_of(xml);
+        EXPECT_FALSE(textured->differentiable(si)) << xml;
+        EXPECT_FALSE(diff_eval(*textured, f, pdf)) << xml;
+    }
+    // roughconductor asks the path for a textured roughness (DiffTextures::value): without a path to ask, nothing.
+    const auto conductor =
+        bsdf_of(std::string(R"(<bsdf type="roughconductor">)") + checker("alpha", 0.1, 0.3) + "</bsdf>");
+    EXPECT_TRUE(conductor->differentiable(si));
+    EXPECT_FALSE(diff_eval(*conductor, f, pdf));
 }
 
 // Errors name the parameter: a colour that is not grey, a value out of range, alpha with alpha_u.

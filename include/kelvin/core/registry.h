@@ -21,8 +21,9 @@
 /// Bsdf::Model::two_sided; 6: Bsdf::Model's dielectric and plastic fields, Emitter::model; 7: Bsdf::back_model,
 /// Bsdf::Model::texture, Texture::local; 8: Bsdf::Model::diffuse_texture; 9: Film::reconstruction; 10: Job::delegate,
 /// Simulation's driver interface, the boundary interface in kelvin::wos, curve shapes; 11: ShapeGeometry's elliptic
-/// discs and user geometry).
-#define KELVIN_PLUGIN_ABI 11
+/// discs and user geometry; 12: Bsdf::Model and back_model replaced by Bsdf::differentiable, eval_diff and
+/// sample_diff).
+#define KELVIN_PLUGIN_ABI 12
 
 namespace kelvin {
 

@@ -5,6 +5,7 @@
 // f * |cos(theta_o)| / pdf. Delta components are never returned by eval() or pdf().
 #include <kelvin/core/object.h>
 #include <kelvin/render/interaction.h>
+#include <kelvin/render/second_order.h>
 
 #include <cstdint>
 #include <optional>
@@ -46,6 +47,41 @@ struct BsdfSample {
     double eta = 1;        ///< relative index of refraction crossed (1 for reflection)
 };
 
+namespace kernels {
+template <class T>
+struct V3;
+template <class T>
+struct C3;
+template <class T>
+struct Sample;
+}  // namespace kernels
+
+/// The number types BSDFs are differentiated in for H2MC (mlt/path_derivatives.h): plain doubles (the value), and
+/// numbers carrying the gradient (DiffGradient) or the gradient and Hessian (DiffHessian) with respect to the inputs
+/// of one bounce of a path (render/second_order.h).
+inline constexpr int DiffInputs = 15;
+using DiffHessian = SecondOrder<DiffInputs>;
+using DiffGradient = FirstOrder<DiffInputs>;
+
+/// What a differentiable BSDF may ask of the path at a vertex: the value of a texture that is not constant, as a
+/// function of the path's coordinates (through the hit's uv).
+template <class T>
+class DiffTextures {
+public:
+    virtual ~DiffTextures() = default;
+    /// The colour of `texture` at the hit; false where the path evaluation cannot differentiate it.
+    virtual bool colour(const Texture& texture, kernels::C3<T>& out) const = 0;
+    /// The texture read as one number at the hit (Texture::eval_1: a roughness); false where the path evaluation
+    /// cannot differentiate it (the default).
+    virtual bool value(const Texture& texture, T& out) const { return false; }
+};
+
+template <class T>
+struct DiffBsdfContext {
+    TransportMode mode = TransportMode::Radiance;
+    const DiffTextures<T>* textures = nullptr;  ///< null: textures that are not constant are not differentiable
+};
+
 class Bsdf : public Object {
 public:
     virtual uint32_t flags() const = 0;
@@ -62,52 +98,40 @@ public:
     /// and roughplastic `diffuse_reflectance`; twosided asks the side `si.wi` is on), for the `albedo` AOV.
     /// Models without a diffuse component give 0. Not used for light transport.
     virtual Color3 albedo(const SurfaceInteraction& si) const { return Color3(0.0); }
-    /// What differentiable path evaluation (render/path_derivatives.h) needs to re-evaluate the BSDF in its own
-    /// arithmetic: the model and its parameters, constant over the surface except the textures it names (`texture`,
-    /// `diffuse_texture`). Kind None (the default, and any other textured parameter): not differentiable.
-    struct Model {
-        enum class Kind {
-            None,
-            Diffuse,
-            Conductor,
-            RoughConductor,
-            Dielectric,
-            RoughDielectric,
-            Plastic,
-            RoughPlastic
-        } kind = Kind::None;
-        Color3 reflectance{0.0};  ///< diffuse reflectance (the plastics' diffuse_reflectance), or the conductors'
-                                  ///< specular_reflectance
-        /// diffuse's reflectance or the conductors' specular_reflectance as a texture (Texture::local): a factor of
-        /// the whole lobe, `reflectance` then 1. Null: constant.
-        const Texture* texture = nullptr;
-        /// The plastics' diffuse_reflectance as a texture (Texture::local): its value at the hit, clamped below at 0
-        /// as the plugins clamp it, takes the place of `reflectance` in the diffuse base only (rho, the non-linear
-        /// term with fdr_int); the specular coating is not scaled. `reflectance` then the texture's mean (unused).
-        /// Null: constant.
-        const Texture* diffuse_texture = nullptr;
-        Color3 eta{0.0}, k{1.0};  ///< conductors: complex index of refraction
-        bool ggx = false;         ///< microfacet models: GGX (else Beckmann)
-        double alpha_u = 0, alpha_v = 0;
-        bool sample_visible = true;
-        bool two_sided = false;  ///< `twosided` with one model on both sides: seen from below, z of wi and wo negated
-        // Dielectrics and plastics.
-        double ior = 1;                      ///< int_ior / ext_ior
-        Color3 specular_reflectance{1.0};    ///< tint of the reflection (dielectrics, plastics)
-        Color3 specular_transmittance{1.0};  ///< tint of the transmission (dielectrics)
-        bool nonlinear = false;              ///< plastics: the colour shift of internal scattering
-        double specular_weight = 0.5;        ///< plastics: the specular lobe's sampling weight s / (d + s)
-        double fdr_int = 0;                  ///< plastics: internal diffuse Fresnel reflectance
-        double inv_ext_transmission = 1;     ///< plastic: 1 / (1 - Fdr_ext)
-        /// roughplastic: its coating tables r_ext and t_ext (values at mu = j / (size - 1)), owned by the BSDF.
-        const double* coating_r_ext = nullptr;
-        const double* coating_t_ext = nullptr;
-        int coating_size = 0;
-    };
-    virtual Model model() const { return {}; }
-    /// The model seen from below the shading frame (wi.z < 0) when model().two_sided: the second BSDF of a
-    /// `twosided` with two sides (the same as model() otherwise).
-    virtual Model back_model() const { return model(); }
+    /// Differentiable evaluation (H2MC: mlt/path_derivatives.h). Whether the BSDF can evaluate itself in the
+    /// number types below at `si` (false, the default: paths that scatter here are reported unsupported).
+    virtual bool differentiable(const SurfaceInteraction& si) const { return false; }
+    /// eval() and pdf() in a number type T, for local directions that are functions of a path's coordinates: f = f
+    /// |cos theta_o|, pdf the solid-angle density. False: not differentiable (the default). Plugins implement the
+    /// three pairs through one template, DifferentiableBsdf (render/bsdf_kernels.h).
+    virtual bool eval_diff(const DiffBsdfContext<double>& ctx, const kernels::V3<double>& wi,
+                           const kernels::V3<double>& wo, kernels::C3<double>& f, double& pdf) const {
+        return false;
+    }
+    virtual bool eval_diff(const DiffBsdfContext<DiffGradient>& ctx, const kernels::V3<DiffGradient>& wi,
+                           const kernels::V3<DiffGradient>& wo, kernels::C3<DiffGradient>& f, DiffGradient& pdf) const {
+        return false;
+    }
+    virtual bool eval_diff(const DiffBsdfContext<DiffHessian>& ctx, const kernels::V3<DiffHessian>& wi,
+                           const kernels::V3<DiffHessian>& wo, kernels::C3<DiffHessian>& f, DiffHessian& pdf) const {
+        return false;
+    }
+    /// sample() in a number type T: the component chosen by the value of `u_comp` as sample() chooses it (a locally
+    /// constant decision), the direction, weight and density functions of (u0, u1) and wi. `out.ok` false where
+    /// sample() returns nothing. False: not differentiable (the default).
+    virtual bool sample_diff(const DiffBsdfContext<double>& ctx, const kernels::V3<double>& wi, double u_comp,
+                             const double& u0, const double& u1, kernels::Sample<double>& out) const {
+        return false;
+    }
+    virtual bool sample_diff(const DiffBsdfContext<DiffGradient>& ctx, const kernels::V3<DiffGradient>& wi,
+                             double u_comp, const DiffGradient& u0, const DiffGradient& u1,
+                             kernels::Sample<DiffGradient>& out) const {
+        return false;
+    }
+    virtual bool sample_diff(const DiffBsdfContext<DiffHessian>& ctx, const kernels::V3<DiffHessian>& wi, double u_comp,
+                             const DiffHessian& u0, const DiffHessian& u1, kernels::Sample<DiffHessian>& out) const {
+        return false;
+    }
 };
 
 }  // namespace kelvin

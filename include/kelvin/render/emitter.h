@@ -95,7 +95,7 @@ public:
     /// Total emitted power (watts, per channel); used to pick emitters in proportion to their power.
     virtual Color3 power() const = 0;
 
-    /// What differentiable path evaluation (render/path_derivatives.h) needs to re-evaluate a delta emitter in its
+    /// What differentiable path evaluation (mlt/path_derivatives.h) needs to re-evaluate a delta emitter in its
     /// own arithmetic (area and point emitters are read from their samples). Kind None (the default, and a
     /// textured spot): not differentiable.
     struct Model {

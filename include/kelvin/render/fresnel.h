@@ -19,12 +19,16 @@
 
 namespace kelvin {
 
-struct FresnelDielectric {
-    double F = 1;            ///< reflectance in [0, 1]
-    double cos_theta_t = 0;  ///< signed cosine of the refracted direction (opposite sign to cos_theta_i); 0 on TIR
-    double eta_it = 1;       ///< relative index crossed by the refracted ray: eta for cos_theta_i >= 0, else 1/eta
-    double eta_ti = 1;       ///< 1 / eta_it
+/// The Fresnel reflectance of a dielectric boundary, in the number type T (render/bsdf_kernels.h computes it for
+/// double and for derivative numbers).
+template <class T>
+struct FresnelDielectricT {
+    T F = T(1);            ///< reflectance in [0, 1]
+    T cos_theta_t = T(0);  ///< signed cosine of the refracted direction (opposite sign to cos_theta_i); 0 on TIR
+    double eta_it = 1;     ///< relative index crossed by the refracted ray: eta for cos_theta_i >= 0, else 1/eta
+    double eta_ti = 1;     ///< 1 / eta_it
 };
+using FresnelDielectric = FresnelDielectricT<double>;
 
 /// Fresnel reflectance of a dielectric boundary. `cos_theta_i` is the signed cosine of the incident direction
 /// with the normal (positive: the incident direction is on the exterior side); `eta` = int_ior / ext_ior.

@@ -57,10 +57,6 @@ public:
     double pdf(const Vec3d& wi, const Vec3d& m) const;
 
 private:
-    Vec3d sample_visible_ggx(const Vec3d& wi, const Vec2d& u) const;
-    Vec3d sample_visible_beckmann(const Vec3d& wi, const Vec2d& u) const;
-    Vec3d sample_all(const Vec2d& u) const;
-
     MicrofacetType m_type;
     double m_alpha_u, m_alpha_v;
     bool m_sample_visible;

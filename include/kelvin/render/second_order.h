@@ -1,6 +1,6 @@
 #pragma once
 // A number that carries its value, gradient and Hessian with respect to at most N inputs: second-order forward
-// automatic differentiation made for the H2MC path derivatives (render/path_derivatives.h).
+// automatic differentiation made for the H2MC path derivatives (mlt/path_derivatives.h).
 //
 // The Hessian is stored packed (the lower triangle, N (N + 1) / 2 doubles: entry (i, j), j <= i, at i (i + 1) / 2 + j)
 // and every number carries the range [lo, hi) of inputs it depends on (its *live* range; a constant has none). Only

@@ -83,7 +83,7 @@ public:
     /// tan of the half field of view along x and y: the pinhole direction through film position f (pixels) is
     /// (tan_x (1 - 2 f.x / width), tan_y (1 - 2 f.y / height), 1) in camera space (film_to_direction).
     std::pair<double, double> tangents() const { return {m_tan_x, m_tan_y}; }
-    /// The thin lens of the camera ray (render/path_derivatives.h re-traces it): the ray starts at the lens point
+    /// The thin lens of the camera ray (mlt/path_derivatives.h re-traces it): the ray starts at the lens point
     /// aperture_radius x (concentric disk of the aperture sample) at depth 0 and heads for focus_distance x the
     /// pinhole direction. A pinhole (the default) has radius 0.
     struct Lens {

@@ -9,7 +9,7 @@
 
 namespace kelvin {
 
-/// A texture around one uv point, as the differentiable path evaluation needs it (render/path_derivatives.h): with
+/// A texture around one uv point, as the differentiable path evaluation needs it (mlt/path_derivatives.h): with
 /// (x, y) = A uv + b, the value is c[0] (1 - tx)(1 - ty) + c[1] tx (1 - ty) + c[2] (1 - tx) ty + c[3] tx ty, with
 /// (tx, ty) = (x - x0, y - y0) the position within the cell at (x0, y0), if `bilinear`; otherwise the constant c[0],
 /// `cell` naming the piece (a change of piece is a discontinuity).

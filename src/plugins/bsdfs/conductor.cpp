@@ -8,13 +8,14 @@
 //     <bsdf type="conductor"><string name="material" value="Au"/></bsdf>
 #include <kelvin/core/registry.h>
 #include <kelvin/render/bsdf.h>
+#include <kelvin/render/bsdf_kernels.h>
 #include <kelvin/render/fresnel.h>
 #include <kelvin/render/texture.h>
 
 namespace kelvin {
 namespace {
 
-class Conductor final : public Bsdf {
+class Conductor final : public DifferentiableBsdf<Conductor> {
 public:
     explicit Conductor(const Properties& props)
         : m_ior(conductor_ior_from_properties(props)), m_specular(get_texture(props, "specular_reflectance")) {}
@@ -22,28 +23,28 @@ public:
 
     std::optional<BsdfSample> sample(const BsdfContext&, const SurfaceInteraction& si, double,
                                      const Vec2d&) const override {
-        const double cos_i = Frame::cos_theta(si.wi);
-        if (!(cos_i > 0)) return std::nullopt;
-        BsdfSample bs;
-        bs.wo = reflect(si.wi);
-        bs.pdf = 1;
-        bs.weight = m_specular->eval(si) * fresnel_conductor(cos_i, m_ior.eta, m_ior.k);
-        bs.sampled = BsdfFlags::DeltaReflection;
-        bs.eta = 1;
-        return bs;
+        if (!(Frame::cos_theta(si.wi) > 0)) return std::nullopt;
+        return to_sample(
+            kernels::conductor_sample(m_ior.eta, m_ior.k, kernels::to_c3(m_specular->eval(si)), kernels::to_v3(si.wi)));
     }
     Color3 eval(const BsdfContext&, const SurfaceInteraction&, const Vec3d&) const override { return Color3(0.0); }
     double pdf(const BsdfContext&, const SurfaceInteraction&, const Vec3d&) const override { return 0.0; }
-    Model model() const override {
-        Model m;
-        m.kind = Model::Kind::Conductor;
-        if (m_specular->is_constant())
-            m.reflectance = m_specular->mean();
-        else
-            m.texture = m_specular.get(), m.reflectance = Color3(1.0);
-        m.eta = m_ior.eta;
-        m.k = m_ior.k;
-        return m;
+    // Differentiable evaluation (Bsdf::eval_diff, sample_diff): the same kernels in the path's number type.
+    bool differentiable(const SurfaceInteraction&) const override { return true; }
+    template <class T>
+    bool eval_t(const DiffBsdfContext<T>&, const kernels::V3<T>&, const kernels::V3<T>&, kernels::C3<T>& f,
+                T& pdf) const {
+        f = kernels::grey(T(0.0));
+        pdf = T(0.0);
+        return true;
+    }
+    template <class T>
+    bool sample_t(const DiffBsdfContext<T>& c, const kernels::V3<T>& wi, double, const T&, const T&,
+                  kernels::Sample<T>& out) const {
+        kernels::C3<T> tint;
+        if (!diff_colour(c, *m_specular, tint)) return false;
+        out = kernels::conductor_sample(m_ior.eta, m_ior.k, tint, wi);
+        return true;
     }
 
 private:

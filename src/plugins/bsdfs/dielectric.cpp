@@ -15,13 +15,14 @@
 //     <bsdf type="dielectric"><float name="int_ior" value="1.5"/></bsdf>
 #include <kelvin/core/registry.h>
 #include <kelvin/render/bsdf.h>
+#include <kelvin/render/bsdf_kernels.h>
 #include <kelvin/render/fresnel.h>
 #include <kelvin/render/texture.h>
 
 namespace kelvin {
 namespace {
 
-class Dielectric final : public Bsdf {
+class Dielectric final : public DifferentiableBsdf<Dielectric> {
 public:
     explicit Dielectric(const Properties& props)
         : m_eta(ior_from_properties(props, "int_ior") / ior_from_properties(props, "ext_ior")),
@@ -33,35 +34,31 @@ public:
                                      const Vec2d&) const override {
         const double cos_i = Frame::cos_theta(si.wi);
         if (cos_i == 0 || !std::isfinite(cos_i)) return std::nullopt;
-        const FresnelDielectric fr = fresnel_dielectric(cos_i, m_eta);
-        BsdfSample bs;
-        if (u1 < fr.F) {
-            bs.wo = reflect(si.wi);
-            bs.pdf = fr.F;
-            bs.weight = m_reflectance->eval(si);
-            bs.sampled = BsdfFlags::DeltaReflection;
-            bs.eta = 1;
-        } else {
-            bs.wo = refract(si.wi, fr.cos_theta_t, fr.eta_ti);
-            bs.pdf = 1 - fr.F;
-            const double scale = ctx.mode == TransportMode::Radiance ? fr.eta_ti * fr.eta_ti : 1.0;
-            bs.weight = m_transmittance->eval(si) * scale;
-            bs.sampled = BsdfFlags::DeltaTransmission;
-            bs.eta = fr.eta_it;
-        }
-        if (!(bs.pdf > 0)) return std::nullopt;
-        return bs;
+        return to_sample(kernels::dielectric_sample(m_eta, kernels::to_c3(m_reflectance->eval(si)),
+                                                    kernels::to_c3(m_transmittance->eval(si)), ctx.mode,
+                                                    kernels::to_v3(si.wi), u1));
     }
     Color3 eval(const BsdfContext&, const SurfaceInteraction&, const Vec3d&) const override { return Color3(0.0); }
     double pdf(const BsdfContext&, const SurfaceInteraction&, const Vec3d&) const override { return 0.0; }
-    Model model() const override {
-        Model m;
-        if (!m_reflectance->is_constant() || !m_transmittance->is_constant()) return m;
-        m.kind = Model::Kind::Dielectric;
-        m.ior = m_eta;
-        m.specular_reflectance = m_reflectance->mean();
-        m.specular_transmittance = m_transmittance->mean();
-        return m;
+    // Differentiable evaluation (Bsdf::eval_diff, sample_diff): the same kernels in the path's number type; with
+    // constant tints only.
+    bool differentiable(const SurfaceInteraction&) const override {
+        return m_reflectance->is_constant() && m_transmittance->is_constant();
+    }
+    template <class T>
+    bool eval_t(const DiffBsdfContext<T>&, const kernels::V3<T>&, const kernels::V3<T>&, kernels::C3<T>& f,
+                T& pdf) const {
+        f = kernels::grey(T(0.0));
+        pdf = T(0.0);
+        return differentiable({});
+    }
+    template <class T>
+    bool sample_t(const DiffBsdfContext<T>& c, const kernels::V3<T>& wi, double u_comp, const T&, const T&,
+                  kernels::Sample<T>& out) const {
+        if (!differentiable({})) return false;
+        out = kernels::dielectric_sample(m_eta, kernels::constant_colour<T>(m_reflectance->mean()),
+                                         kernels::constant_colour<T>(m_transmittance->mean()), c.mode, wi, u_comp);
+        return true;
     }
 
 private:

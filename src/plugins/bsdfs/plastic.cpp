@@ -22,6 +22,7 @@
 //     <bsdf type="plastic"><rgb name="diffuse_reflectance" value="0.1, 0.27, 0.36"/></bsdf>
 #include <kelvin/core/registry.h>
 #include <kelvin/render/bsdf.h>
+#include <kelvin/render/bsdf_kernels.h>
 #include <kelvin/render/fresnel.h>
 #include <kelvin/render/texture.h>
 #include <kelvin/render/warp.h>
@@ -31,7 +32,7 @@
 namespace kelvin {
 namespace {
 
-class Plastic final : public Bsdf {
+class Plastic final : public DifferentiableBsdf<Plastic> {
 public:
     explicit Plastic(const Properties& props)
         : m_diffuse(get_texture(props, "diffuse_reflectance")), m_specular(get_texture(props, "specular_reflectance")) {
@@ -47,64 +48,44 @@ public:
 
     std::optional<BsdfSample> sample(const BsdfContext&, const SurfaceInteraction& si, double u1,
                                      const Vec2d& u2) const override {
-        const double cos_i = si.wi.z;
-        if (!(cos_i > 0)) return std::nullopt;
-        const double Fi = fresnel_dielectric(cos_i, m_eta).F;
-        const double ps = prob_specular(Fi);
-        BsdfSample bs;
-        if (u1 < ps) {
-            bs.wo = reflect(si.wi);
-            bs.pdf = ps;
-            bs.weight = m_specular->eval(si) * (Fi / ps);
-            bs.sampled = BsdfFlags::DeltaReflection;
-        } else {
-            bs.wo = warp::square_to_cosine_hemisphere(u2);
-            bs.pdf = (1 - ps) * warp::square_to_cosine_hemisphere_pdf(bs.wo);
-            if (!(bs.pdf > 0)) return std::nullopt;
-            bs.weight = diffuse(si, Fi, bs.wo) / bs.pdf;
-            bs.sampled = BsdfFlags::DiffuseReflection;
-        }
-        bs.eta = 1;
-        return bs;
+        if (!(si.wi.z > 0)) return std::nullopt;
+        return to_sample(kernels::plastic_sample(params(), kernels::to_c3(m_diffuse->eval(si)),
+                                                 kernels::to_c3(m_specular->eval(si)), kernels::to_v3(si.wi), u1, u2.x,
+                                                 u2.y));
     }
     Color3 eval(const BsdfContext&, const SurfaceInteraction& si, const Vec3d& wo) const override {
         if (!(si.wi.z > 0) || !(wo.z > 0)) return Color3(0.0);
-        return diffuse(si, fresnel_dielectric(si.wi.z, m_eta).F, wo);
+        return kernels::to_color(kernels::plastic_eval(params(), kernels::to_c3(m_diffuse->eval(si)),
+                                                       kernels::to_v3(si.wi), kernels::to_v3(wo)));
     }
     double pdf(const BsdfContext&, const SurfaceInteraction& si, const Vec3d& wo) const override {
-        if (!(si.wi.z > 0) || !(wo.z > 0)) return 0.0;
-        const double ps = prob_specular(fresnel_dielectric(si.wi.z, m_eta).F);
-        return (1 - ps) * warp::square_to_cosine_hemisphere_pdf(wo);
+        return kernels::plastic_pdf(params(), kernels::to_v3(si.wi), kernels::to_v3(wo));
     }
     Color3 albedo(const SurfaceInteraction& si) const override { return m_diffuse->eval(si); }
-    Model model() const override {
-        Model m;
-        if (!m_specular->is_constant()) return m;
-        // A textured diffuse_reflectance scales the base only (Model::diffuse_texture), read where diffuse() reads it.
-        if (!m_diffuse->is_constant()) m.diffuse_texture = m_diffuse.get();
-        m.kind = Model::Kind::Plastic;
-        m.reflectance = glm::max(m_diffuse->mean(), Color3(0.0));
-        m.specular_reflectance = m_specular->mean();
-        m.ior = m_eta;
-        m.nonlinear = m_nonlinear;
-        m.specular_weight = m_specular_weight;
-        m.fdr_int = m_fdr_int;
-        m.inv_ext_transmission = m_inv_ext_transmission;
-        return m;
+    // Differentiable evaluation (Bsdf::eval_diff, sample_diff): the same kernels in the path's number type; a textured
+    // diffuse_reflectance is asked of the path, the specular_reflectance must be constant.
+    bool differentiable(const SurfaceInteraction&) const override { return m_specular->is_constant(); }
+    template <class T>
+    bool eval_t(const DiffBsdfContext<T>& c, const kernels::V3<T>& wi, const kernels::V3<T>& wo, kernels::C3<T>& f,
+                T& pdf) const {
+        kernels::C3<T> rho;
+        if (!m_specular->is_constant() || !diff_colour(c, *m_diffuse, rho)) return false;
+        f = kernels::plastic_eval(params(), rho, wi, wo, &pdf);
+        return true;
+    }
+    template <class T>
+    bool sample_t(const DiffBsdfContext<T>& c, const kernels::V3<T>& wi, double u_comp, const T& u0, const T& u1,
+                  kernels::Sample<T>& out) const {
+        kernels::C3<T> rho;
+        if (!m_specular->is_constant() || !diff_colour(c, *m_diffuse, rho)) return false;
+        out =
+            kernels::plastic_sample(params(), rho, kernels::constant_colour<T>(m_specular->mean()), wi, u_comp, u0, u1);
+        return true;
     }
 
 private:
-    double prob_specular(double Fi) const {
-        const double a = Fi * m_specular_weight, b = (1 - Fi) * (1 - m_specular_weight);
-        return a + b > 0 ? a / (a + b) : 0.0;
-    }
-    /// Diffuse part, f * cos(theta_o).
-    Color3 diffuse(const SurfaceInteraction& si, double Fi, const Vec3d& wo) const {
-        const double Fo = fresnel_dielectric(wo.z, m_eta).F;
-        Color3 rho = glm::max(m_diffuse->eval(si), Color3(0.0));
-        if (m_nonlinear)
-            rho = rho * (1 - m_fdr_int) / glm::max(Color3(1.0) - glm::min(rho, Color3(1.0)) * m_fdr_int, Color3(1e-6));
-        return rho * ((1 - Fi) * (1 - Fo) * m_inv_ext_transmission * InvPi * wo.z);
+    kernels::PlasticParams params() const {
+        return {m_eta, m_nonlinear, m_fdr_int, m_inv_ext_transmission, m_specular_weight};
     }
 
     std::shared_ptr<Texture> m_diffuse, m_specular;

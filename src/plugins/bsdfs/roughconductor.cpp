@@ -15,6 +15,7 @@
 //     </bsdf>
 #include <kelvin/core/registry.h>
 #include <kelvin/render/bsdf.h>
+#include <kelvin/render/bsdf_kernels.h>
 #include <kelvin/render/fresnel.h>
 #include <kelvin/render/microfacet.h>
 #include <kelvin/render/texture.h>
@@ -29,7 +30,7 @@ namespace {
 
 // Roughness: alpha (isotropic) or alpha_u and alpha_v, each a float or a texture (Mitsuba accepts textures
 // here too: a texture's luminance is the roughness at the surface point).
-class RoughConductor final : public Bsdf {
+class RoughConductor final : public DifferentiableBsdf<RoughConductor> {
 public:
     explicit RoughConductor(const Properties& props)
         : m_distr(MicrofacetType::Beckmann, 0.1, 0.1),
@@ -63,74 +64,63 @@ public:
 
     std::optional<BsdfSample> sample(const BsdfContext& ctx, const SurfaceInteraction& si, double,
                                      const Vec2d& u2) const override {
-        const Vec3d& wi = si.wi;
-        if (!(wi.z > 0)) return std::nullopt;
-        const MicrofacetDistribution distr = distribution(si);
-        const Vec3d m = distr.sample(wi, u2);
-        const double pm = distr.pdf(wi, m);
-        if (!(pm > 0)) return std::nullopt;
-        BsdfSample bs;
-        bs.wo = reflect(wi, m);
-        const double wo_m = glm::dot(bs.wo, m);
-        if (!(bs.wo.z > 0) || !(wo_m > 0)) return std::nullopt;
-        bs.pdf = pm / (4.0 * wo_m);
-        const Color3 f = eval_reflection(distr, si, bs.wo, m);
-        if (!(bs.pdf > 0) || !std::isfinite(bs.pdf)) return std::nullopt;
-        bs.weight = f / bs.pdf;
-        if (!std::isfinite(bs.weight.r + bs.weight.g + bs.weight.b)) return std::nullopt;
-        bs.sampled = BsdfFlags::GlossyReflection;
-        bs.eta = 1;
-        return bs;
+        if (!(si.wi.z > 0)) return std::nullopt;
+        const auto s = kernels::rough_conductor_sample(distribution(si), m_ior.eta, m_ior.k, tint(si),
+                                                       kernels::to_v3(si.wi), u2.x, u2.y);
+        return to_sample(s);
     }
     Color3 eval(const BsdfContext&, const SurfaceInteraction& si, const Vec3d& wo) const override {
         if (!(si.wi.z > 0) || !(wo.z > 0)) return Color3(0.0);
-        const Vec3d h = half_vector(si.wi, wo);
-        if (h.z <= 0) return Color3(0.0);
-        return eval_reflection(distribution(si), si, wo, h);
+        return kernels::to_color(kernels::rough_conductor_eval(distribution(si), m_ior.eta, m_ior.k, tint(si),
+                                                               kernels::to_v3(si.wi), kernels::to_v3(wo)));
     }
     double pdf(const BsdfContext&, const SurfaceInteraction& si, const Vec3d& wo) const override {
-        if (!(si.wi.z > 0) || !(wo.z > 0)) return 0.0;
-        const Vec3d h = half_vector(si.wi, wo);
-        const double wo_h = glm::dot(wo, h);
-        if (!(wo_h > 0)) return 0.0;
-        const double p = distribution(si).pdf(si.wi, h) / (4.0 * wo_h);
-        return std::isfinite(p) ? p : 0.0;
+        return kernels::rough_conductor_pdf(distribution(si), kernels::to_v3(si.wi), kernels::to_v3(wo));
     }
 
-    Model model() const override {
-        Model m;
-        // A textured roughness is not differentiable (the model's alphas are numbers; m_distr then holds only the
-        // constructor's placeholder, Beckmann 0.1).
-        if (m_textured) return m;
-        m.kind = Model::Kind::RoughConductor;
-        if (m_specular->is_constant())
-            m.reflectance = m_specular->mean();
-        else
-            m.texture = m_specular.get(), m.reflectance = Color3(1.0);
-        m.eta = m_ior.eta;
-        m.k = m_ior.k;
-        m.ggx = m_distr.type() == MicrofacetType::GGX;
-        m.alpha_u = m_distr.alpha_u();
-        m.alpha_v = m_distr.alpha_v();
-        m.sample_visible = m_distr.sample_visible();
-        return m;
+    // Differentiable evaluation (Bsdf::eval_diff, sample_diff): the same kernels in the path's number type; a textured
+    // roughness is asked of the path (its eval_1 reading as a number of type T, clamped as distribution() clamps it).
+    bool differentiable(const SurfaceInteraction&) const override { return true; }
+    template <class T>
+    bool eval_t(const DiffBsdfContext<T>& c, const kernels::V3<T>& wi, const kernels::V3<T>& wo, kernels::C3<T>& f,
+                T& pdf) const {
+        kernels::C3<T> tint;
+        if (!diff_colour(c, *m_specular, tint)) return false;
+        if (!m_textured) {
+            f = kernels::rough_conductor_eval(m_distr, m_ior.eta, m_ior.k, tint, wi, wo, &pdf);
+            return true;
+        }
+        const auto d = distribution_t(c);
+        if (!d) return false;
+        f = kernels::rough_conductor_eval(*d, m_ior.eta, m_ior.k, tint, wi, wo, &pdf);
+        return true;
+    }
+    template <class T>
+    bool sample_t(const DiffBsdfContext<T>& c, const kernels::V3<T>& wi, double, const T& u0, const T& u1,
+                  kernels::Sample<T>& out) const {
+        kernels::C3<T> tint;
+        if (!diff_colour(c, *m_specular, tint)) return false;
+        if (!m_textured) {
+            out = kernels::rough_conductor_sample(m_distr, m_ior.eta, m_ior.k, tint, wi, u0, u1);
+            return true;
+        }
+        const auto d = distribution_t(c);
+        if (!d) return false;
+        out = kernels::rough_conductor_sample(*d, m_ior.eta, m_ior.k, tint, wi, u0, u1);
+        return true;
     }
 
 private:
-    static Vec3d half_vector(const Vec3d& wi, const Vec3d& wo) {
-        const Vec3d h = wi + wo;
-        const double l2 = glm::dot(h, h);
-        return l2 > 0 ? h / std::sqrt(l2) : Vec3d(0.0);
-    }
-    /// f * cos(theta_o) for a reflection about the microfacet normal m.
-    Color3 eval_reflection(const MicrofacetDistribution& distr, const SurfaceInteraction& si, const Vec3d& wo,
-                           const Vec3d& m) const {
-        const double D = distr.D(m), G = distr.G(si.wi, wo, m);
-        const double s = D * G / (4.0 * si.wi.z);
-        if (!(s > 0) || !std::isfinite(s)) return Color3(0.0);
-        return m_specular->eval(si) * fresnel_conductor(glm::dot(si.wi, m), m_ior.eta, m_ior.k) * s;
-    }
+    kernels::C3<double> tint(const SurfaceInteraction& si) const { return kernels::to_c3(m_specular->eval(si)); }
 
+    /// distribution() in the number type T: a textured roughness read from the path.
+    template <class T>
+    std::optional<kernels::MicrofacetT<T>> distribution_t(const DiffBsdfContext<T>& c) const {
+        T au, av;
+        if (!diff_value(c, *m_alpha_u, au) || !diff_value(c, *m_alpha_v, av)) return std::nullopt;
+        return kernels::MicrofacetT<T>(m_type, kernels::s_clamp(au, 0.0, 100.0), kernels::s_clamp(av, 0.0, 100.0),
+                                       m_visible);
+    }
     MicrofacetDistribution distribution(const SurfaceInteraction& si) const {
         if (!m_textured) return m_distr;
         return {m_type, std::clamp(m_alpha_u->eval_1(si), 0.0, 100.0), std::clamp(m_alpha_v->eval_1(si), 0.0, 100.0),

@@ -20,6 +20,7 @@
 //     </bsdf>
 #include <kelvin/core/registry.h>
 #include <kelvin/render/bsdf.h>
+#include <kelvin/render/bsdf_kernels.h>
 #include <kelvin/render/fresnel.h>
 #include <kelvin/render/microfacet.h>
 #include <kelvin/render/texture.h>
@@ -29,7 +30,7 @@
 namespace kelvin {
 namespace {
 
-class RoughDielectric final : public Bsdf {
+class RoughDielectric final : public DifferentiableBsdf<RoughDielectric> {
 public:
     explicit RoughDielectric(const Properties& props)
         : m_roughness(props, true),
@@ -46,118 +47,51 @@ public:
                                      const Vec2d& u2) const override {
         const double cos_i = si.wi.z;
         if (cos_i == 0 || !std::isfinite(cos_i)) return std::nullopt;
-        // Work with wi on the upper side: mirror both directions through the origin (D is point-symmetric).
-        const double s = cos_i > 0 ? 1.0 : -1.0, eta = cos_i > 0 ? m_eta : 1.0 / m_eta;
-        const Vec3d wi = si.wi * s;
-        const MicrofacetDistribution distr = m_roughness.at(si);
-        const Vec3d m = distr.sample(wi, u2);
-        const double pm = distr.pdf(wi, m);
-        if (!(pm > 0)) return std::nullopt;
-        const double wi_m = glm::dot(wi, m);
-        const FresnelDielectric fr = fresnel_dielectric(wi_m, eta);
-        BsdfSample bs;
-        Vec3d wo;
-        if (u1 < fr.F) {
-            wo = reflect(wi, m);
-            const double wo_m = glm::dot(wo, m);
-            if (!(wo.z > 0) || !(wo_m > 0)) return std::nullopt;
-            bs.pdf = fr.F * pm / (4.0 * wo_m);
-            bs.sampled = BsdfFlags::GlossyReflection;
-            bs.eta = 1;
-        } else {
-            if (fr.F >= 1) return std::nullopt;
-            wo = refract(wi, m, fr.cos_theta_t, fr.eta_ti);
-            const double wo_m = glm::dot(wo, m);
-            if (!(wo.z < 0) || !(wo_m < 0)) return std::nullopt;
-            const double denom = wi_m + eta * wo_m;
-            bs.pdf = (1 - fr.F) * pm * eta * eta * std::abs(wo_m) / (denom * denom);
-            bs.sampled = BsdfFlags::GlossyTransmission;
-            bs.eta = eta;
-        }
-        bs.wo = wo * s;
-        if (!(bs.pdf > 0) || !std::isfinite(bs.pdf)) return std::nullopt;
-        const Color3 f = eval_local(ctx, distr, si.uv, wi, wo, m, eta);
-        bs.weight = f / bs.pdf;
-        if (!std::isfinite(bs.weight.r + bs.weight.g + bs.weight.b)) return std::nullopt;
-        return bs;
+        return to_sample(kernels::rough_dielectric_sample(m_roughness.at(si), m_eta, reflectance(si), transmittance(si),
+                                                          ctx.mode, kernels::to_v3(si.wi), u1, u2.x, u2.y));
     }
 
     Color3 eval(const BsdfContext& ctx, const SurfaceInteraction& si, const Vec3d& wo_world) const override {
-        Vec3d wi, wo, m;
-        double eta;
-        if (!half_vector(si.wi, wo_world, wi, wo, m, eta)) return Color3(0.0);
-        return eval_local(ctx, m_roughness.at(si), si.uv, wi, wo, m, eta);
+        return kernels::to_color(kernels::rough_dielectric_eval(m_roughness.at(si), m_eta, reflectance(si),
+                                                                transmittance(si), ctx.mode, kernels::to_v3(si.wi),
+                                                                kernels::to_v3(wo_world)));
     }
 
     double pdf(const BsdfContext&, const SurfaceInteraction& si, const Vec3d& wo_world) const override {
-        Vec3d wi, wo, m;
-        double eta;
-        if (!half_vector(si.wi, wo_world, wi, wo, m, eta)) return 0.0;
-        const double pm = m_roughness.at(si).pdf(wi, m);
-        const double wi_m = glm::dot(wi, m), wo_m = glm::dot(wo, m);
-        const double F = fresnel_dielectric(wi_m, eta).F;
-        double p;
-        if (wo.z > 0) {
-            p = F * pm / (4.0 * wo_m);
-        } else {
-            const double denom = wi_m + eta * wo_m;
-            p = (1 - F) * pm * eta * eta * std::abs(wo_m) / (denom * denom);
-        }
-        return std::isfinite(p) && p > 0 ? p : 0.0;
+        return kernels::rough_dielectric_pdf(m_roughness.at(si), m_eta, kernels::to_v3(si.wi),
+                                             kernels::to_v3(wo_world));
     }
 
-    Model model() const override {
-        Model m;
-        // A textured roughness is not differentiable (the model's alphas are numbers), nor are textured tints.
-        if (m_roughness.textured() || !m_reflectance->is_constant() || !m_transmittance->is_constant()) return m;
-        const MicrofacetDistribution& distr = m_roughness.constant();
-        m.kind = Model::Kind::RoughDielectric;
-        m.ggx = distr.type() == MicrofacetType::GGX;
-        m.alpha_u = distr.alpha_u();
-        m.alpha_v = distr.alpha_v();
-        m.sample_visible = distr.sample_visible();
-        m.ior = m_eta;
-        m.specular_reflectance = m_reflectance->mean();
-        m.specular_transmittance = m_transmittance->mean();
-        return m;
+    // Differentiable evaluation (Bsdf::eval_diff, sample_diff): the same kernels in the path's number type; not with
+    // a textured roughness (the kernels take the roughness as a number) or textured tints.
+    bool differentiable(const SurfaceInteraction&) const override {
+        return !m_roughness.textured() && m_reflectance->is_constant() && m_transmittance->is_constant();
+    }
+    template <class T>
+    bool eval_t(const DiffBsdfContext<T>& c, const kernels::V3<T>& wi, const kernels::V3<T>& wo, kernels::C3<T>& f,
+                T& pdf) const {
+        if (!differentiable({})) return false;
+        f = kernels::rough_dielectric_eval(m_roughness.constant(), m_eta,
+                                           kernels::constant_colour<T>(m_reflectance->mean()),
+                                           kernels::constant_colour<T>(m_transmittance->mean()), c.mode, wi, wo, &pdf);
+        return true;
+    }
+    template <class T>
+    bool sample_t(const DiffBsdfContext<T>& c, const kernels::V3<T>& wi, double u_comp, const T& u0, const T& u1,
+                  kernels::Sample<T>& out) const {
+        if (!differentiable({})) return false;
+        out = kernels::rough_dielectric_sample(
+            m_roughness.constant(), m_eta, kernels::constant_colour<T>(m_reflectance->mean()),
+            kernels::constant_colour<T>(m_transmittance->mean()), c.mode, wi, u_comp, u0, u1);
+        return true;
     }
 
 private:
-    /// Mirror (wi, wo) so that wi is on the upper side, pick the relative index seen from wi and the half vector
-    /// of the pair (oriented up). False when the pair cannot be connected by one microfacet.
-    bool half_vector(const Vec3d& wi_in, const Vec3d& wo_in, Vec3d& wi, Vec3d& wo, Vec3d& m, double& eta) const {
-        const double cos_i = wi_in.z;
-        if (cos_i == 0 || wo_in.z == 0 || !std::isfinite(cos_i) || !std::isfinite(wo_in.z)) return false;
-        const double s = cos_i > 0 ? 1.0 : -1.0;
-        eta = cos_i > 0 ? m_eta : 1.0 / m_eta;
-        wi = wi_in * s;
-        wo = wo_in * s;
-        const Vec3d h = wo.z > 0 ? wi + wo : wi + eta * wo;
-        const double l2 = glm::dot(h, h);
-        if (!(l2 > 0)) return false;
-        m = h / std::sqrt(l2);
-        if (m.z < 0) m = -m;
-        // The microfacet must face wi, and face wo on wo's side (G1 vanishes otherwise).
-        const double wi_m = glm::dot(wi, m), wo_m = glm::dot(wo, m);
-        if (!(wi_m > 0) || !(wo_m * wo.z > 0)) return false;
-        return m.z > 0;
+    kernels::C3<double> reflectance(const SurfaceInteraction& si) const {
+        return kernels::to_c3(m_reflectance->eval(si.uv));
     }
-
-    /// f * |cos theta_o| in the mirrored frame (wi.z > 0) for microfacet normal m (m.z > 0).
-    Color3 eval_local(const BsdfContext& ctx, const MicrofacetDistribution& distr, const Vec2d& uv, const Vec3d& wi,
-                      const Vec3d& wo, const Vec3d& m, double eta) const {
-        const double wi_m = glm::dot(wi, m), wo_m = glm::dot(wo, m);
-        const double D = distr.D(m), G = distr.G(wi, wo, m);
-        const double F = fresnel_dielectric(wi_m, eta).F;
-        if (!(D * G > 0)) return Color3(0.0);
-        if (wo.z > 0) {
-            const double v = F * D * G / (4.0 * wi.z);
-            return std::isfinite(v) ? m_reflectance->eval(uv) * v : Color3(0.0);
-        }
-        const double denom = wi_m + eta * wo_m;
-        double v = (1 - F) * D * G * eta * eta * std::abs(wi_m * wo_m) / (wi.z * denom * denom);
-        if (ctx.mode == TransportMode::Radiance) v /= eta * eta;
-        return std::isfinite(v) && v > 0 ? m_transmittance->eval(uv) * v : Color3(0.0);
+    kernels::C3<double> transmittance(const SurfaceInteraction& si) const {
+        return kernels::to_c3(m_transmittance->eval(si.uv));
     }
 
     MicrofacetRoughness m_roughness;

@@ -22,6 +22,7 @@
 //     </bsdf>
 #include <kelvin/core/registry.h>
 #include <kelvin/render/bsdf.h>
+#include <kelvin/render/bsdf_kernels.h>
 #include <kelvin/render/fresnel.h>
 #include <kelvin/render/microfacet.h>
 #include <kelvin/render/texture.h>
@@ -91,14 +92,7 @@ CoatingTables coating_tables(MicrofacetType type, double alpha, double eta) {
     return t;
 }
 
-double interpolate(const AlbedoTable& table, double mu) {
-    const double x = std::clamp(mu, 0.0, 1.0) * (kTableSize - 1);
-    const int j = std::min(int(x), kTableSize - 2);
-    const double t = x - j;
-    return (1 - t) * table[std::size_t(j)] + t * table[std::size_t(j) + 1];
-}
-
-class RoughPlastic final : public Bsdf {
+class RoughPlastic final : public DifferentiableBsdf<RoughPlastic> {
 public:
     explicit RoughPlastic(const Properties& props)
         : m_distr(microfacet_from_properties(props, false)),
@@ -122,86 +116,49 @@ public:
     }
     uint32_t flags() const override { return BsdfFlags::GlossyReflection | BsdfFlags::DiffuseReflection; }
 
-    std::optional<BsdfSample> sample(const BsdfContext& ctx, const SurfaceInteraction& si, double u1,
+    std::optional<BsdfSample> sample(const BsdfContext&, const SurfaceInteraction& si, double u1,
                                      const Vec2d& u2) const override {
-        const Vec3d& wi = si.wi;
-        if (!(wi.z > 0)) return std::nullopt;
-        const double ps = prob_specular(wi.z);
-        BsdfSample bs;
-        if (u1 < ps) {
-            const Vec3d m = m_distr.sample(wi, u2);
-            if (!(m.z > 0)) return std::nullopt;
-            bs.wo = 2.0 * glm::dot(wi, m) * m - wi;
-            bs.sampled = BsdfFlags::GlossyReflection;
-        } else {
-            bs.wo = warp::square_to_cosine_hemisphere(u2);
-            bs.sampled = BsdfFlags::DiffuseReflection;
-        }
-        if (!(bs.wo.z > 0)) return std::nullopt;
-        bs.pdf = pdf(ctx, si, bs.wo);
-        if (!(bs.pdf > 0)) return std::nullopt;
-        bs.weight = eval(ctx, si, bs.wo) / bs.pdf;
-        if (!std::isfinite(bs.weight.r + bs.weight.g + bs.weight.b)) return std::nullopt;
-        bs.eta = 1;
-        return bs;
+        if (!(si.wi.z > 0)) return std::nullopt;
+        return to_sample(kernels::rough_plastic_sample(m_distr, params(), kernels::to_c3(m_diffuse->eval(si)),
+                                                       kernels::to_c3(m_specular->eval(si)), kernels::to_v3(si.wi), u1,
+                                                       u2.x, u2.y));
     }
     Color3 eval(const BsdfContext&, const SurfaceInteraction& si, const Vec3d& wo) const override {
-        const Vec3d& wi = si.wi;
-        if (!(wi.z > 0) || !(wo.z > 0)) return Color3(0.0);
-        Color3 result(0.0);
-        const Vec3d h = glm::normalize(wi + wo);
-        const double s = m_distr.D(h) * m_distr.G(wi, wo, h) / (4.0 * wi.z);
-        if (s > 0 && std::isfinite(s))
-            result += m_specular->eval(si) * (fresnel_dielectric(glm::dot(wi, h), m_eta).F * s);
-        // Mitsuba 3's base: rho / (1 - Fdr_int) (or rho / (1 - rho Fdr_int), nonlinear), through the rough coating
-        // twice (t_ext), and the 1 / eta^2 of radiance leaving a medium of index eta.
-        const Color3 rho = glm::max(m_diffuse->eval(si), Color3(0.0));
-        const Color3 denom =
-            m_nonlinear ? Color3(1.0) - glm::min(rho, Color3(1.0)) * m_fdr_int : Color3(1.0 - m_fdr_int);
-        const double transmitted = interpolate(m_tables.t_ext, wi.z) * interpolate(m_tables.t_ext, wo.z);
-        result += rho / glm::max(denom, Color3(1e-9)) * (transmitted * InvPi * wo.z / (m_eta * m_eta));
-        return result;
+        if (!(si.wi.z > 0) || !(wo.z > 0)) return Color3(0.0);
+        return kernels::to_color(kernels::rough_plastic_eval(m_distr, params(), kernels::to_c3(m_diffuse->eval(si)),
+                                                             kernels::to_c3(m_specular->eval(si)),
+                                                             kernels::to_v3(si.wi), kernels::to_v3(wo)));
     }
     double pdf(const BsdfContext&, const SurfaceInteraction& si, const Vec3d& wo) const override {
-        const Vec3d& wi = si.wi;
-        if (!(wi.z > 0) || !(wo.z > 0)) return 0.0;
-        const double ps = prob_specular(wi.z);
-        const Vec3d h = glm::normalize(wi + wo);
-        const double wo_h = glm::dot(wo, h);
-        double p_spec = wo_h > 0 ? m_distr.pdf(wi, h) / (4.0 * wo_h) : 0.0;
-        if (!std::isfinite(p_spec)) p_spec = 0;
-        return ps * p_spec + (1 - ps) * warp::square_to_cosine_hemisphere_pdf(wo);
+        return kernels::rough_plastic_pdf(m_distr, params(), kernels::to_v3(si.wi), kernels::to_v3(wo));
     }
     Color3 albedo(const SurfaceInteraction& si) const override { return m_diffuse->eval(si); }
-    Model model() const override {
-        Model m;
-        if (!m_specular->is_constant()) return m;
-        // A textured diffuse_reflectance scales the base only (Model::diffuse_texture), read where eval() reads it.
-        if (!m_diffuse->is_constant()) m.diffuse_texture = m_diffuse.get();
-        m.kind = Model::Kind::RoughPlastic;
-        m.reflectance = glm::max(m_diffuse->mean(), Color3(0.0));
-        m.specular_reflectance = m_specular->mean();
-        m.ggx = m_distr.type() == MicrofacetType::GGX;
-        m.alpha_u = m_distr.alpha_u();
-        m.alpha_v = m_distr.alpha_v();
-        m.sample_visible = m_distr.sample_visible();
-        m.ior = m_eta;
-        m.nonlinear = m_nonlinear;
-        m.specular_weight = m_specular_weight;
-        m.fdr_int = m_fdr_int;
-        m.coating_r_ext = m_tables.r_ext.data();
-        m.coating_t_ext = m_tables.t_ext.data();
-        m.coating_size = kTableSize;
-        return m;
+    // Differentiable evaluation (Bsdf::eval_diff, sample_diff): the same kernels in the path's number type; a textured
+    // diffuse_reflectance is asked of the path, the specular_reflectance must be constant.
+    bool differentiable(const SurfaceInteraction&) const override { return m_specular->is_constant(); }
+    template <class T>
+    bool eval_t(const DiffBsdfContext<T>& c, const kernels::V3<T>& wi, const kernels::V3<T>& wo, kernels::C3<T>& f,
+                T& pdf) const {
+        kernels::C3<T> rho;
+        if (!m_specular->is_constant() || !diff_colour(c, *m_diffuse, rho)) return false;
+        f = kernels::rough_plastic_eval(m_distr, params(), rho, kernels::constant_colour<T>(m_specular->mean()), wi, wo,
+                                        &pdf);
+        return true;
+    }
+    template <class T>
+    bool sample_t(const DiffBsdfContext<T>& c, const kernels::V3<T>& wi, double u_comp, const T& u0, const T& u1,
+                  kernels::Sample<T>& out) const {
+        kernels::C3<T> rho;
+        if (!m_specular->is_constant() || !diff_colour(c, *m_diffuse, rho)) return false;
+        out = kernels::rough_plastic_sample(m_distr, params(), rho, kernels::constant_colour<T>(m_specular->mean()), wi,
+                                            u_comp, u0, u1);
+        return true;
     }
 
 private:
-    /// The specular albedo seen from outside, R(mu).
-    double coating_albedo(double mu) const { return interpolate(m_tables.r_ext, mu); }
-    double prob_specular(double mu) const {
-        const double R = coating_albedo(mu);
-        const double a = R * m_specular_weight, b = (1 - R) * (1 - m_specular_weight);
-        return a + b > 0 ? a / (a + b) : 0.0;
+    kernels::RoughPlasticParams params() const {
+        return {m_eta,     m_nonlinear, m_fdr_int, m_specular_weight, m_tables.r_ext.data(), m_tables.t_ext.data(),
+                kTableSize};
     }
 
     MicrofacetDistribution m_distr;

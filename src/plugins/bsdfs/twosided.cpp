@@ -9,6 +9,7 @@
 //     <bsdf type="twosided"><bsdf type="diffuse"/><bsdf type="conductor"/></bsdf>
 #include <kelvin/core/registry.h>
 #include <kelvin/render/bsdf.h>
+#include <kelvin/render/bsdf_kernels.h>
 
 #include <fmt/format.h>
 
@@ -17,7 +18,7 @@ namespace {
 
 Vec3d mirror(const Vec3d& v) { return {v.x, v.y, -v.z}; }
 
-class TwoSided final : public Bsdf {
+class TwoSided final : public DifferentiableBsdf<TwoSided> {
 public:
     explicit TwoSided(const Properties& props) {
         const std::vector<ObjectPtr> nested = props.get_objects("bsdf");
@@ -60,10 +61,37 @@ public:
         back.wi = mirror(si.wi);
         return m_side[1]->pdf(ctx, back, mirror(wo));
     }
-    /// Differentiable path evaluation (render/path_derivatives.h): the front's model, two-sided; seen from below,
-    /// the back's (back_model, in the mirrored frame).
-    Model model() const override { return side_model(0); }
-    Model back_model() const override { return side_model(1); }
+    // Differentiable evaluation (Bsdf::eval_diff, sample_diff): the side wi is on (by its value, as eval()), from
+    // below in the mirrored frame.
+    bool differentiable(const SurfaceInteraction& si) const override {
+        if (si.wi.z > 0) return m_side[0]->differentiable(si);
+        SurfaceInteraction back = si;
+        back.wi = mirror(si.wi);
+        return m_side[1]->differentiable(back);
+    }
+    template <class T>
+    bool eval_t(const DiffBsdfContext<T>& c, const kernels::V3<T>& wi, const kernels::V3<T>& wo, kernels::C3<T>& f,
+                T& pdf) const {
+        if (kernels::val(wi.z) > 0) return m_side[0]->eval_diff(c, wi, wo, f, pdf);
+        if (!(kernels::val(wi.z) < 0)) {
+            f = kernels::grey(T(0.0));
+            pdf = T(0.0);
+            return true;
+        }
+        return m_side[1]->eval_diff(c, flip(wi), flip(wo), f, pdf);
+    }
+    template <class T>
+    bool sample_t(const DiffBsdfContext<T>& c, const kernels::V3<T>& wi, double u_comp, const T& u0, const T& u1,
+                  kernels::Sample<T>& out) const {
+        if (kernels::val(wi.z) > 0) return m_side[0]->sample_diff(c, wi, u_comp, u0, u1, out);
+        if (!(kernels::val(wi.z) < 0)) {
+            out = kernels::Sample<T>{};
+            return true;
+        }
+        if (!m_side[1]->sample_diff(c, flip(wi), u_comp, u0, u1, out)) return false;
+        out.wo = flip(out.wo);
+        return true;
+    }
     Color3 albedo(const SurfaceInteraction& si) const override {
         if (si.wi.z > 0) return m_side[0]->albedo(si);
         if (!(si.wi.z < 0)) return Color3(0.0);  // grazing: neither side, as eval()
@@ -73,10 +101,9 @@ public:
     }
 
 private:
-    Model side_model(int side) const {
-        Model m = m_side[side]->model();
-        if (m.kind != Model::Kind::None) m.two_sided = true;
-        return m;
+    template <class T>
+    static kernels::V3<T> flip(const kernels::V3<T>& v) {
+        return {v.x, v.y, -v.z};
     }
     std::shared_ptr<Bsdf> m_side[2];
 };

@@ -10,7 +10,7 @@
 // Use it as the single stage (`pssmlt`: the H2MC baseline) or as the second stage of `drmlt` type `green`; the
 // thesis' cheap-then-expensive hybrid is a Gaussian first stage (sigma 0.01) and, as the second, an equally weighted
 // `mixture` of `h2mc` and a `gaussian` of sigma 0.0025. The target must provide derivatives: the Metropolis
-// integrators take them from the path technique's differentiable evaluation (render/path_derivatives.h) and refuse
+// integrators take them from the path technique's differentiable evaluation (mlt/path_derivatives.h) and refuse
 // h2mc with the other techniques.
 //
 // Parameters: `kelvin --list-plugins KIND NAME`, or docs/reference.md (generated from the declarations below).

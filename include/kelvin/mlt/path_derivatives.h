@@ -21,11 +21,11 @@
 //
 // The supported subset, checked per path (anything else gives Unsupported, and the caller falls back): the
 // `perspective` and `thinlens` sensors; triangle meshes (with or without vertex normals: rectangle, cube, OBJ...),
-// `sphere` and `disk`; the BSDFs that describe themselves by Bsdf::model() (diffuse, conductor, roughconductor and
-// roughdielectric with GGX or Beckmann, with or without visible-normal sampling, dielectric, plastic, roughplastic,
-// twosided around one or two of them; constant parameters, or for diffuse's reflectance, the conductors'
-// specular_reflectance and the plastics' diffuse_reflectance a texture that Texture::local describes, on triangle
-// meshes, spheres and disks); `area` emitters on meshes, spheres and disks, `point` and `spot` emitters
+// `sphere` and `disk`; the BSDFs that evaluate themselves differentiably (Bsdf::eval_diff: diffuse, conductor,
+// roughconductor and roughdielectric with GGX or Beckmann, with or without visible-normal sampling, dielectric,
+// plastic, roughplastic, twosided around one or two of them; constant parameters, or for diffuse's reflectance, the
+// conductors' specular_reflectance and the plastics' diffuse_reflectance a texture that Texture::local describes, on
+// triangle meshes, spheres and disks); `area` emitters on meshes, spheres and disks, `point` and `spot` emitters
 // (Emitter::model()); no environment emitter that the path escapes to.
 // docs/mlt.md lists it with its tests. As a safety net the evaluation compares its own value with the renderer's
 // (`value` argument) and reports Mismatch beyond a relative 1e-4.

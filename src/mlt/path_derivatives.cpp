@@ -1,13 +1,14 @@
-// Differentiable evaluation of the path technique's contribution (include/kelvin/render/path_derivatives.h).
+// Differentiable evaluation of the path technique's contribution (include/kelvin/mlt/path_derivatives.h).
 // One template, run in plain doubles (the value, for finite differences) and in SecondOrder numbers
 // (render/second_order.h: value, gradient and packed Hessian, bounce by bounce). It mirrors
-// src/plugins/integrators/path.cpp line by line for the supported subset; every discrete decision is the renderer's own
-// at the point.
+// src/plugins/integrators/path.cpp line by line for the supported subset: the path's logic only (sensor, intersection,
+// next-event estimation, MIS, roulette); the BSDFs evaluate themselves in its numbers (Bsdf::eval_diff, sample_diff:
+// the renderer's kernels, render/bsdf_kernels.h). Every discrete decision is the renderer's own at the point.
+#include <kelvin/mlt/path_derivatives.h>
 #include <kelvin/render/bsdf.h>
+#include <kelvin/render/bsdf_kernels.h>
 #include <kelvin/render/integrator.h>
 #include <kelvin/render/mesh.h>
-#include <kelvin/render/microfacet.h>
-#include <kelvin/render/path_derivatives.h>
 #include <kelvin/render/pss.h>
 #include <kelvin/render/scene.h>
 #include <kelvin/render/second_order.h>
@@ -88,63 +89,25 @@ constexpr int BounceCoords = 4;  // the continuous coordinates a bounce reads, a
 using Local = SecondOrder<LocalN>;
 using Gradient = FirstOrder<LocalN>;
 
-inline double val(double x) { return x; }
-inline double val(const Local& x) { return x.value(); }
-inline double val(const Gradient& x) { return x.value(); }
+// Vectors, colours and the BSDFs' mathematics are the renderer's own kernels (render/bsdf_kernels.h), instantiated
+// here for the derivative numbers.
+using kernels::C3;
+using kernels::constant;
+using kernels::constant_colour;
+using kernels::cosine_hemisphere;
+using kernels::cross;
+using kernels::dot;
+using kernels::normalize;
+using kernels::safe_sqrt;
+using kernels::V3;
+using kernels::val;
+using kernels::value;
 
 template <class T>
-struct V3 {
-    T x, y, z;
-};
-template <class T>
-V3<T> operator+(const V3<T>& a, const V3<T>& b) {
-    return {a.x + b.x, a.y + b.y, a.z + b.z};
+C3<T> operator*(const C3<T>& a, const Color3& c) {
+    return {a.r * c.r, a.g * c.g, a.b * c.b};
 }
-template <class T>
-V3<T> operator-(const V3<T>& a, const V3<T>& b) {
-    return {a.x - b.x, a.y - b.y, a.z - b.z};
-}
-template <class T>
-V3<T> operator*(const V3<T>& a, const T& s) {
-    return {a.x * s, a.y * s, a.z * s};
-}
-// Each product is evaluated (T) before the sum: shallower expression templates. (With dynamic-size derivatives, as
-// before the bounce-by-bounce evaluation, a product of constants had an empty derivative vector, which Eigen does not
-// resize inside an expression.)
-template <class T>
-T dot(const V3<T>& a, const V3<T>& b) {
-    return T(a.x * b.x) + T(a.y * b.y) + T(a.z * b.z);
-}
-template <class T>
-V3<T> cross(const V3<T>& a, const V3<T>& b) {
-    return {T(a.y * b.z) - T(a.z * b.y), T(a.z * b.x) - T(a.x * b.z), T(a.x * b.y) - T(a.y * b.x)};
-}
-// The same for SecondOrder numbers, each in one pass (SecondOrder::sum_of_products).
-template <bool H>
-SecondOrder<LocalN, H> dot(const V3<SecondOrder<LocalN, H>>& a, const V3<SecondOrder<LocalN, H>>& b) {
-    return SecondOrder<LocalN, H>::template sum_of_products<3>({&a.x, &a.y, &a.z}, {&b.x, &b.y, &b.z}, {1.0, 1.0, 1.0});
-}
-template <bool H>
-V3<SecondOrder<LocalN, H>> cross(const V3<SecondOrder<LocalN, H>>& a, const V3<SecondOrder<LocalN, H>>& b) {
-    using T = SecondOrder<LocalN, H>;
-    return {T::template sum_of_products<2>({&a.y, &a.z}, {&b.z, &b.y}, {1.0, -1.0}),
-            T::template sum_of_products<2>({&a.z, &a.x}, {&b.x, &b.z}, {1.0, -1.0}),
-            T::template sum_of_products<2>({&a.x, &a.y}, {&b.y, &b.x}, {1.0, -1.0})};
-}
-template <class T>
-V3<T> constant(const Vec3d& v) {
-    return {T(v.x), T(v.y), T(v.z)};
-}
-template <class T>
-Vec3d value(const V3<T>& v) {
-    return {val(v.x), val(v.y), val(v.z)};
-}
-template <class T>
-V3<T> normalize(const V3<T>& v) {
-    using std::sqrt;
-    const T l = sqrt(dot(v, v));
-    return {v.x / l, v.y / l, v.z / l};
-}
+
 // Frame (render/frame.h): constant axes (flat triangles), or Duff et al.'s basis of a varying normal (spheres).
 template <class T>
 struct FrameT {
@@ -157,9 +120,8 @@ FrameT<T> frame_of(const Frame& f) {
 template <class T>
 FrameT<T> frame_of(const V3<T>& n) {
     const double sign = std::copysign(1.0, val(n.z));
-    const T a = T(-1.0) / (T(sign) + n.z), b = n.x * n.y * a;
-    return {V3<T>{T(1.0) + T(sign) * n.x * n.x * a, T(sign) * b, T(-sign) * n.x},
-            V3<T>{b, T(sign) + n.y * n.y * a, T(-n.y)}, n};
+    const T a = -1.0 / (sign + n.z), b = n.x * n.y * a;
+    return {V3<T>{1.0 + sign * n.x * n.x * a, sign * b, -sign * n.x}, V3<T>{b, sign + n.y * n.y * a, -n.y}, n};
 }
 template <class T>
 V3<T> to_local(const FrameT<T>& f, const V3<T>& v) {
@@ -178,26 +140,10 @@ V3<SecondOrder<LocalN, H>> to_world(const FrameT<SecondOrder<LocalN, H>>& f, con
             T::template sum_of_products<3>({&f.s.z, &f.t.z, &f.n.z}, w, {1.0, 1.0, 1.0})};
 }
 
-template <class T>
-struct C3 {
-    T r, g, b;
-};
-template <class T>
-C3<T> operator*(const C3<T>& a, const Color3& c) {
-    return {a.r * T(c.r), a.g * T(c.g), a.b * T(c.b)};
-}
-template <class T>
-C3<T> operator*(const C3<T>& a, const C3<T>& b) {
-    return {a.r * b.r, a.g * b.g, a.b * b.b};
-}
-template <class T>
-C3<T> operator*(const C3<T>& a, const T& s) {
-    return {a.r * s, a.g * s, a.b * s};
-}
 // The luminance of a colour (core/math.h's luminance(), its weights).
 template <class T>
 T luminance_of(const C3<T>& c) {
-    return T(c.r * T(0.212671)) + T(c.g * T(0.715160)) + T(c.b * T(0.072169));
+    return c.r * 0.212671 + c.g * 0.715160 + c.b * 0.072169;
 }
 template <bool H>
 SecondOrder<LocalN, H> luminance_of(const C3<SecondOrder<LocalN, H>>& c) {
@@ -207,9 +153,7 @@ SecondOrder<LocalN, H> luminance_of(const C3<SecondOrder<LocalN, H>>& c) {
 }
 template <class T>
 void add(C3<T>& acc, const C3<T>& v) {
-    acc.r = acc.r + v.r;
-    acc.g = acc.g + v.g;
-    acc.b = acc.b + v.b;
+    acc = acc + v;
 }
 
 template <class T>
@@ -218,612 +162,17 @@ T power_heuristic(const T& a, const T& b) {
     return val(a2) + val(b2) > 0 ? T(a2 / (a2 + b2)) : T(0.0);
 }
 
-// warp::square_to_uniform_disk_concentric and square_to_cosine_hemisphere (render/warp.h), branch by value.
-template <class T>
-V3<T> cosine_hemisphere(const T& u, const T& v) {
-    using std::cos;
-    using std::sin;
-    using std::sqrt;
-    const T x = u * T(2.0) - T(1.0), y = v * T(2.0) - T(1.0);
-    T dx(0.0), dy(0.0);
-    if (!(val(x) == 0 && val(y) == 0)) {
-        T r, phi;
-        if (std::abs(val(x)) > std::abs(val(y))) {
-            r = x;
-            phi = T(Pi / 4) * (y / x);
-        } else {
-            r = y;
-            phi = T(Pi / 2) - T(Pi / 4) * (x / y);
-        }
-        dx = r * cos(phi);
-        dy = r * sin(phi);
-    }
-    const T z2 = T(1.0) - dx * dx - dy * dy;
-    return {dx, dy, val(z2) > 0 ? T(sqrt(z2)) : T(0.0)};
-}
-
-template <class T>
-T safe_sqrt(const T& v) {
-    using std::sqrt;
-    return val(v) > 0 ? T(sqrt(v)) : T(0.0);
-}
-template <class T>
-V3<T> normalize_or_zero(const V3<T>& v) {
-    using std::sqrt;
-    const T l2 = dot(v, v);
-    if (!(val(l2) > 0) || !std::isfinite(val(l2))) return {T(0.0), T(0.0), T(0.0)};
-    const T l = sqrt(l2);
-    return {v.x / l, v.y / l, v.z / l};
-}
-
-// fresnel_conductor (render/fresnel.cpp), one channel, branches by value.
-template <class T>
-T fresnel_conductor(const T& cos_i, double eta, double k) {
-    using std::sqrt;
-    T c = val(cos_i) < 0 ? T(-cos_i) : cos_i;
-    if (val(c) > 1) c = T(1.0);
-    const double n2r = eta * eta - k * k, n2i = 2.0 * eta * k;
-    if (n2r == 0 && n2i == 0) return T(1.0);
-    const T zr = T(n2r) - (T(1.0) - c * c);
-    const double zi = n2i;
-    const T r = sqrt(zr * zr + T(zi * zi));
-    const T ar = safe_sqrt(T(T(0.5) * (r + zr)));
-    T ai = safe_sqrt(T(T(0.5) * (r - zr)));
-    if (std::signbit(zi)) ai = T(-ai);
-    const T ds = (c + ar) * (c + ar) + ai * ai;
-    const T dp = (T(n2r) * c + ar) * (T(n2r) * c + ar) + (T(n2i) * c + ai) * (T(n2i) * c + ai);
-    if (!(val(ds) > 0) || !(val(dp) > 0)) return T(1.0);
-    const T rs = ((c - ar) * (c - ar) + ai * ai) / ds;
-    const T rp = ((T(n2r) * c - ar) * (T(n2r) * c - ar) + (T(n2i) * c - ai) * (T(n2i) * c - ai)) / dp;
-    const T F = T(0.5) * (rs + rp);
-    if (!std::isfinite(val(F))) return T(1.0);
-    if (val(F) < 0) return T(0.0);
-    if (val(F) > 1) return T(1.0);
-    return F;
-}
-template <class T>
-C3<T> fresnel_conductor(const T& cos_i, const Color3& eta, const Color3& k) {
-    return {fresnel_conductor(cos_i, eta.r, k.r), fresnel_conductor(cos_i, eta.g, k.g),
-            fresnel_conductor(cos_i, eta.b, k.b)};
-}
-
 // A function known by its value f0 and first two derivatives f1, f2 at x's value, applied to x: the value, gradient
-// and Hessian are exact (the second-order Taylor polynomial around the value; its deviation is O(dx^3), invisible to
-// forward-over-forward derivatives of order two). In plain doubles it is f0.
+// and Hessian are exact. In plain doubles it is f0.
 template <class T>
 T lift2(const T& x, double f0, double f1, double f2) {
-    const T dx = x - T(val(x));
-    return T(f0) + dx * (T(f1) + T(0.5 * f2) * dx);
+    return kernels::lift(x, f0, f1, f2);
 }
-inline double lift2(double, double f0, double, double) { return f0; }
-inline Local lift2(const Local& x, double f0, double f1, double f2) { return apply(x, f0, f1, f2); }
-inline Gradient lift2(const Gradient& x, double f0, double f1, double f2) { return apply(x, f0, f1, f2); }
-constexpr double kInvSqrtPi = 0.56418958354775628695;  // 1 / sqrt(pi)
-template <class T>
-T erf_t(const T& x) {
-    const double v = val(x), d = 2 * kInvSqrtPi * std::exp(-v * v);
-    return lift2(x, std::erf(v), d, -2 * v * d);
-}
-template <class T>
-T erfc_t(const T& x) {
-    const double v = val(x), d = 2 * kInvSqrtPi * std::exp(-v * v);
-    return lift2(x, std::erfc(v), -d, 2 * v * d);
-}
-
-// Microfacet distributions (render/microfacet.cpp), Beckmann and GGX, anisotropic: D, Smith's Lambda and G1, the
-// density of sampled normals and both ways of sampling them, for the model's distribution.
-template <class T>
-T mf_D(const V3<T>& m, const Bsdf::Model& b) {
-    using std::exp;
-    if (!(val(m.z) > 0)) return T(0.0);
-    const double au = b.alpha_u, av = b.alpha_v;
-    const T x = m.x / T(au), y = m.y / T(av), z2 = m.z * m.z;
-    T r;
-    if (b.ggx) {
-        const T t = T(x * x) + T(y * y) + z2;
-        r = T(1.0) / (T(Pi * au * av) * t * t);
-    } else {
-        const T z4 = z2 * z2;
-        if (!(val(z4) > 0)) return T(0.0);
-        r = T(exp(T(-(T(x * x) + T(y * y)) / z2))) / T(T(Pi * au * av) * z4);
-    }
-    return std::isfinite(val(r)) ? r : T(0.0);
-}
-template <class T>
-T mf_G1(const V3<T>& w, const V3<T>& m, const Bsdf::Model& b) {
-    using std::exp;
-    using std::sqrt;
-    if (!(val(dot(w, m)) * val(w.z) > 0)) return T(0.0);
-    const double au = b.alpha_u, av = b.alpha_v;
-    const T z2 = w.z * w.z;
-    if (!(val(z2) > 0)) return T(0.0);
-    const T a2t2 = (T(T(au * au) * w.x * w.x) + T(T(av * av) * w.y * w.y)) / z2;
-    if (!(val(a2t2) > 0)) return T(1.0);
-    if (!std::isfinite(val(a2t2))) return T(0.0);
-    T lambda;
-    if (b.ggx) {
-        lambda = a2t2 / (T(2.0) * (sqrt(T(1.0) + a2t2) + T(1.0)));
-    } else {
-        const T a = T(1.0) / sqrt(a2t2);  // 1 / (alpha tan theta)
-        lambda = T(0.5) * (T(exp(T(-a * a))) * T(kInvSqrtPi) / a - erfc_t(a));
-    }
-    if (!std::isfinite(val(lambda))) return T(0.0);
-    if (val(lambda) < 0) lambda = T(0.0);
-    return T(1.0) / (T(1.0) + lambda);
-}
-template <class T>
-T mf_pdf(const V3<T>& wi, const V3<T>& m, const Bsdf::Model& b) {
-    if (!(val(wi.z) > 0) || !(val(m.z) > 0)) return T(0.0);
-    if (!b.sample_visible) return mf_D(m, b) * m.z;
-    const T c = dot(wi, m);
-    if (!(val(c) > 0)) return T(0.0);
-    const T r = mf_G1(wi, m, b) * c * mf_D(m, b) / wi.z;
-    return std::isfinite(val(r)) ? r : T(0.0);
-}
-// Heitz 2018's visible GGX normals.
-template <class T>
-V3<T> ggx_visible_sample(const V3<T>& wi, const T& u0, const T& u1, double au, double av) {
-    using std::cos;
-    using std::sin;
-    using std::sqrt;
-    const V3<T> vh = normalize(V3<T>{T(au) * wi.x, T(av) * wi.y, wi.z});
-    const T len2 = vh.x * vh.x + vh.y * vh.y;
-    V3<T> t1{T(1.0), T(0.0), T(0.0)};
-    if (val(len2) > 0) {
-        const T l = sqrt(len2);
-        t1 = V3<T>{T(-vh.y / l), T(vh.x / l), T(0.0)};
-    }
-    const V3<T> t2 = cross(vh, t1);
-    const T r = sqrt(u0), phi = T(2 * Pi) * u1;
-    const T p1 = r * cos(phi);
-    T p2 = r * sin(phi);
-    const T s = T(0.5) * (T(1.0) + vh.z);
-    p2 = (T(1.0) - s) * safe_sqrt(T(T(1.0) - p1 * p1)) + s * p2;
-    const V3<T> nh = t1 * p1 + t2 * p2 + vh * safe_sqrt(T(T(1.0) - p1 * p1 - p2 * p2));
-    return normalize_or_zero(V3<T>{T(au) * nh.x, T(av) * nh.y, val(nh.z) > 0 ? nh.z : T(0.0)});
-}
-// Heitz and d'Eon 2014's visible Beckmann normals. The renderer inverts the visible-slope CDF
-//   C(x) = cos theta (1 + erf x) / 2 + sin theta exp(-x^2) / (2 sqrt(pi)) = u0 C(hi)
-// and draws y = erf^-1(2 u1 - 1) iteratively; its normal at the point gives both slopes (x0, y0). Two Newton steps,
-// in T from the constant (x0, y0), on those equations shifted to pass exactly through (x0, y0) (each residual minus
-// its value) carry the derivatives of the implicit function: the first step its exact gradient, the second its exact
-// Hessian (the error after k steps is O(|du|^(2^k))). The value stays the renderer's: near the top of the CDF, where
-// C' vanishes, its iteration stops short of the root, and plain Newton steps from there can run off.
-template <class T>
-V3<T> beckmann_visible_sample(const V3<T>& wi, const T& u0, const T& u1, double au, double av) {
-    using std::exp;
-    using std::sqrt;
-    const V3<T> zero{T(0.0), T(0.0), T(0.0)};
-    const MicrofacetDistribution distr(MicrofacetType::Beckmann, au, av, true);
-    const Vec3d m0 = distr.sample(value(wi), Vec2d(val(u0), val(u1)));
-    if (!(m0.z > 0)) return zero;
-    const V3<T> ws = normalize(V3<T>{T(au) * wi.x, T(av) * wi.y, wi.z});
-    const T cos_t = ws.z;
-    T sin_t(0.0), cphi(1.0), sphi(0.0);
-    if (val(ws.x * ws.x + ws.y * ws.y) > 0) {
-        sin_t = sqrt(T(T(ws.x * ws.x) + T(ws.y * ws.y)));
-        cphi = ws.x / sin_t;
-        sphi = ws.y / sin_t;
-    }
-    // The renderer's slopes: (sx, sy) = (-m.x / m.z, -m.y / m.z), unstretched, rotated back by -phi.
-    const double gx = -m0.x / m0.z / au, gy = -m0.y / m0.z / av, c = val(cphi), s = val(sphi);
-    const double x0 = c * gx + s * gy, y0 = -s * gx + c * gy;
-    const bool cot = val(sin_t) > 0 && val(cos_t) < 6.0 * val(sin_t);
-    const T hi = cot ? T(cos_t / sin_t) : T(6.0);
-    auto C = [&](const T& x) -> T {
-        const T e = exp(T(-x * x));
-        return T(T(0.5) * cos_t * erfc_t(T(-x))) + T(T(0.5) * sin_t * T(kInvSqrtPi) * e);
-    };
-    T x(x0);
-    if (x0 > -6.0 + 1e-9 && (cot || x0 < 6.0 - 1e-9)) {  // not at the renderer's clamp
-        const T target = u0 * C(hi);
-        for (int it = 0; it < 2; ++it) {
-            const T e = exp(T(-x * x));
-            const T d1 = T(cos_t - x * sin_t) * e * T(kInvSqrtPi);
-            if (!(val(d1) > 0)) break;
-            const T r = C(x) - target;
-            x = x - T(r - T(val(r))) / d1;
-        }
-    }
-    // y = erf^-1(2 u1 - 1), as erfc(-y) = 2 u1 for y < 0 and erfc(y) = 2 (1 - u1) otherwise (precise in the tails).
-    T y(y0);
-    if (std::abs(y0) < 6.0 - 1e-9) {
-        for (int it = 0; it < 2; ++it) {
-            const T e = exp(T(-y * y));
-            const T d = T(2 * kInvSqrtPi) * e;
-            if (!(val(d) > 0)) break;
-            if (y0 < 0) {
-                const T r = erfc_t(T(-y)) - T(2.0) * u1;
-                y = y - T(r - T(val(r))) / d;
-            } else {
-                const T r = erfc_t(y) - T(2.0) * (T(1.0) - u1);
-                y = y + T(r - T(val(r))) / d;
-            }
-        }
-    }
-    const T sx = (T(cphi * x) - T(sphi * y)) * T(au), sy = (T(sphi * x) + T(cphi * y)) * T(av);
-    return normalize_or_zero(V3<T>{T(-sx), T(-sy), T(1.0)});
-}
-// Walter et al.'s sampling of all normals, D(m) cos theta_m (MicrofacetDistribution::sample_all).
-template <class T>
-V3<T> mf_sample_all(const T& u0, const T& u1, const Bsdf::Model& b) {
-    using std::cos;
-    using std::log;
-    using std::sin;
-    using std::sqrt;
-    const double au = b.alpha_u, av = b.alpha_v;
-    T cphi, sphi, inv_a2;
-    if (au == av) {
-        const T phi = T(2 * Pi) * u1;
-        cphi = cos(phi);
-        sphi = sin(phi);
-        inv_a2 = T(1.0 / (au * au));
-    } else {
-        // phi = atan2(av sin(2 pi u), au cos(2 pi u)): its cosine and sine directly.
-        const T a = T(av) * sin(T(T(2 * Pi) * u1)), c = T(au) * cos(T(T(2 * Pi) * u1));
-        const T r = sqrt(T(T(a * a) + T(c * c)));
-        cphi = c / r;
-        sphi = a / r;
-        const T cc = cphi / T(au), ss = sphi / T(av);
-        inv_a2 = T(cc * cc) + T(ss * ss);
-    }
-    const T v = val(u0) < 1.0 - 1e-16 ? u0 : T(1.0 - 1e-16);
-    const T tan2 = b.ggx ? T(v / ((T(1.0) - v) * inv_a2)) : T(-log(T(T(1.0) - v)) / inv_a2);
-    const T cos_t = T(1.0) / sqrt(T(T(1.0) + tan2)), sin_t = safe_sqrt(T(T(1.0) - cos_t * cos_t));
-    return {sin_t * cphi, sin_t * sphi, cos_t};
-}
-template <class T>
-V3<T> mf_sample(const V3<T>& wi, const T& u0, const T& u1, const Bsdf::Model& b) {
-    if (!b.sample_visible) return mf_sample_all(u0, u1, b);
-    if (!(val(wi.z) > 0)) return {T(0.0), T(0.0), T(0.0)};
-    return b.ggx ? ggx_visible_sample(wi, u0, u1, b.alpha_u, b.alpha_v)
-                 : beckmann_visible_sample(wi, u0, u1, b.alpha_u, b.alpha_v);
-}
-// RoughConductor::eval_reflection: f cos(theta_o) for a reflection about m.
-template <class T>
-C3<T> rough_reflection(const Bsdf::Model& b, const V3<T>& wi, const V3<T>& wo, const V3<T>& m) {
-    const T D = mf_D(m, b), G = mf_G1(wi, m, b) * mf_G1(wo, m, b);
-    const T s = D * G / (T(4.0) * wi.z);
-    if (!(val(s) > 0) || !std::isfinite(val(s))) return {T(0.0), T(0.0), T(0.0)};
-    return fresnel_conductor(dot(wi, m), b.eta, b.k) * b.reflectance * s;
-}
-
-// fresnel_dielectric (render/fresnel.cpp): F, the signed cosine of the refracted direction and the relative indices
-// (which depend on the side only).
-template <class T>
-struct FresnelT {
-    T F, cos_t;
-    double eta_it = 1, eta_ti = 1;
-};
-template <class T>
-FresnelT<T> fresnel_dielectric(const T& cos_i, double eta) {
-    using std::sqrt;
-    FresnelT<T> r;
-    r.eta_it = val(cos_i) >= 0 ? eta : 1.0 / eta;
-    r.eta_ti = 1.0 / r.eta_it;
-    T ci = val(cos_i) < 0 ? T(-cos_i) : cos_i;
-    if (val(ci) > 1) ci = T(1.0);
-    T one_minus = T(1.0) - ci * ci;
-    if (val(one_minus) < 0) one_minus = T(0.0);
-    const T sin2_t = T(r.eta_ti * r.eta_ti) * one_minus;
-    if (val(sin2_t) >= 1.0) {  // total internal reflection
-        r.F = T(1.0);
-        r.cos_t = T(0.0);
-        return r;
-    }
-    const T ct = sqrt(T(T(1.0) - sin2_t));
-    const T rs = (ci - T(r.eta_it) * ct) / (ci + T(r.eta_it) * ct);
-    const T rp = (T(r.eta_it) * ci - ct) / (T(r.eta_it) * ci + ct);
-    r.F = T(0.5) * (rs * rs + rp * rp);
-    if (val(r.F) < 0) r.F = T(0.0);
-    if (val(r.F) > 1) r.F = T(1.0);
-    r.cos_t = val(cos_i) >= 0 ? T(-ct) : ct;
-    return r;
-}
-
-// atan2(y, x): the angle a0 of the values, plus the angle of (x, y) rotated by -a0, whose tangent r = y' / x' has
-// value 0: atan r = r - r^3 / 3 + ..., so r carries the exact gradient and Hessian.
+// atan2(y, x) with its derivatives.
 template <class T>
 T atan2_t(const T& y, const T& x) {
-    const double a0 = std::atan2(val(y), val(x)), c = std::cos(a0), s = std::sin(a0);
-    const T xr = T(x * T(c)) + T(y * T(s)), yr = T(y * T(c)) - T(x * T(s));
-    return T(a0) + yr / xr;
-}
-inline Local atan2_t(const Local& y, const Local& x) { return atan2(y, x); }
-inline Gradient atan2_t(const Gradient& y, const Gradient& x) { return atan2(y, x); }
-
-template <class T>
-T abs_t(const T& x) {
-    return val(x) < 0 ? T(-x) : x;
-}
-
-// Plastic and RoughPlastic: the specular lobe's sampling probability from the coating's albedo A (F_i, or R(mu_i)).
-template <class T>
-T plastic_prob_specular(const T& A, double specular_weight) {
-    const T a = A * T(specular_weight), b = (T(1.0) - A) * T(1.0 - specular_weight);
-    return val(a + b) > 0 ? T(a / (a + b)) : T(0.0);
-}
-// RoughPlastic's linear interpolation of a coating table at mu (the segment by value).
-template <class T>
-T coating_table(const double* table, int n, const T& mu) {
-    T x = val(mu) < 0 ? T(0.0) : val(mu) > 1 ? T(1.0) : mu;
-    x = x * T(double(n - 1));
-    const int j = std::min(int(val(x)), n - 2);
-    const T t = x - T(double(j));
-    return (T(1.0) - t) * T(table[j]) + t * T(table[j + 1]);
-}
-// Plastic's rho_eff and RoughPlastic's rho' of a diffuse reflectance rho (clamped below at 0), one channel, the
-// plugins' min and max taken by value.
-template <class T>
-T plastic_rho(const Bsdf::Model& b, const T& rho) {
-    if (!b.nonlinear) return rho;
-    const T r1 = val(rho) > 1 ? T(1.0) : rho;
-    T den = T(1.0) - r1 * T(b.fdr_int);
-    if (val(den) < 1e-6) den = T(1e-6);
-    return rho * T(1 - b.fdr_int) / den;
-}
-template <class T>
-T rough_plastic_rho(const Bsdf::Model& b, const T& rho) {
-    T den = T(1.0 - b.fdr_int);
-    if (b.nonlinear) den = T(1.0) - (val(rho) > 1 ? T(1.0) : rho) * T(b.fdr_int);
-    if (val(den) < 1e-9) den = T(1e-9);
-    return rho / den;
-}
-// The same of the model's constant reflectance, in doubles.
-inline Color3 plastic_rho(const Bsdf::Model& b) {
-    const Color3& r = b.reflectance;
-    return {plastic_rho(b, r.r), plastic_rho(b, r.g), plastic_rho(b, r.b)};
-}
-inline Color3 rough_plastic_rho(const Bsdf::Model& b) {
-    const Color3& r = b.reflectance;
-    return {rough_plastic_rho(b, r.r), rough_plastic_rho(b, r.g), rough_plastic_rho(b, r.b)};
-}
-// The plastics' base: its f cos(theta_o) without the reflectance, s, times rho_eff (or rho'): the model's constant, or
-// from the textured reflectance `diffuse` at the hit.
-template <class T>
-C3<T> plastic_base(const Bsdf::Model& b, const T& s, const C3<T>* diffuse, bool rough) {
-    if (!diffuse) return C3<T>{s, s, s} * (rough ? rough_plastic_rho(b) : plastic_rho(b));
-    if (rough)
-        return {s * rough_plastic_rho(b, diffuse->r), s * rough_plastic_rho(b, diffuse->g),
-                s * rough_plastic_rho(b, diffuse->b)};
-    return {s * plastic_rho(b, diffuse->r), s * plastic_rho(b, diffuse->g), s * plastic_rho(b, diffuse->b)};
-}
-// Plastic::diffuse: f cos(theta_o) of the base seen through the smooth coating.
-template <class T>
-C3<T> plastic_diffuse(const Bsdf::Model& b, const T& Fi, const V3<T>& wo, const C3<T>* diffuse) {
-    const T Fo = fresnel_dielectric(wo.z, b.ior).F;
-    const T s = T(T(1.0) - Fi) * T(T(1.0) - Fo) * T(b.inv_ext_transmission * InvPi) * wo.z;
-    return plastic_base(b, s, diffuse, false);
-}
-// RoughPlastic::eval and pdf (wi.z > 0 and wo.z > 0).
-template <class T>
-C3<T> rough_plastic_eval(const Bsdf::Model& b, const V3<T>& wi, const V3<T>& wo, const C3<T>* diffuse) {
-    const V3<T> h = normalize(wi + wo);
-    const T s = mf_D(h, b) * mf_G1(wi, h, b) * mf_G1(wo, h, b) / (T(4.0) * wi.z);
-    C3<T> result{T(0.0), T(0.0), T(0.0)};
-    if (val(s) > 0 && std::isfinite(val(s))) {
-        const T v = fresnel_dielectric(dot(wi, h), b.ior).F * s;
-        result = C3<T>{v, v, v} * b.specular_reflectance;
-    }
-    const T tables =
-        T(coating_table(b.coating_t_ext, b.coating_size, wi.z) * coating_table(b.coating_t_ext, b.coating_size, wo.z));
-    const T tr = T(tables * wo.z) * T(InvPi / (b.ior * b.ior));
-    add(result, plastic_base(b, tr, diffuse, true));
-    return result;
-}
-template <class T>
-T rough_plastic_pdf(const Bsdf::Model& b, const V3<T>& wi, const V3<T>& wo) {
-    const T ps = plastic_prob_specular(coating_table(b.coating_r_ext, b.coating_size, wi.z), b.specular_weight);
-    const V3<T> h = normalize(wi + wo);
-    const T wo_h = dot(wo, h);
-    T p_spec = val(wo_h) > 0 ? T(mf_pdf(wi, h, b) / (T(4.0) * wo_h)) : T(0.0);
-    if (!std::isfinite(val(p_spec))) p_spec = T(0.0);
-    return T(ps * p_spec) + T(T(T(1.0) - ps) * wo.z * T(InvPi));
-}
-// RoughDielectric::eval_local: f |cos theta_o| in the mirrored frame (wi.z > 0), radiance transport.
-template <class T>
-C3<T> rough_dielectric_local(const Bsdf::Model& b, const V3<T>& wi, const V3<T>& wo, const V3<T>& m, double eta) {
-    const C3<T> zero{T(0.0), T(0.0), T(0.0)};
-    const T wi_m = dot(wi, m), wo_m = dot(wo, m);
-    const T D = mf_D(m, b), G = mf_G1(wi, m, b) * mf_G1(wo, m, b);
-    const T F = fresnel_dielectric(wi_m, eta).F;
-    if (!(val(D * G) > 0)) return zero;
-    if (val(wo.z) > 0) {
-        const T v = F * D * G / (T(4.0) * wi.z);
-        return std::isfinite(val(v)) ? C3<T>{v, v, v} * b.specular_reflectance : zero;
-    }
-    const T denom = wi_m + T(eta) * wo_m;
-    T v = T(T(1.0) - F) * D * G * T(eta * eta) * abs_t(T(wi_m * wo_m)) / T(wi.z * denom * denom);
-    v = v / T(eta * eta);  // TransportMode::Radiance
-    return std::isfinite(val(v)) && val(v) > 0 ? C3<T>{v, v, v} * b.specular_transmittance : zero;
-}
-// RoughDielectric::half_vector: the pair mirrored so that wi is on the upper side, the relative index seen from wi,
-// the microfacet normal of the pair. False where the pair cannot be connected by one microfacet.
-template <class T>
-bool rough_dielectric_half(const Bsdf::Model& b, const V3<T>& wi_in, const V3<T>& wo_in, V3<T>& wi, V3<T>& wo, V3<T>& m,
-                           double& eta) {
-    using std::sqrt;
-    if (val(wi_in.z) == 0 || val(wo_in.z) == 0) return false;
-    const double s = val(wi_in.z) > 0 ? 1.0 : -1.0;
-    eta = val(wi_in.z) > 0 ? b.ior : 1.0 / b.ior;
-    wi = wi_in * T(s);
-    wo = wo_in * T(s);
-    const V3<T> h = val(wo.z) > 0 ? wi + wo : wi + wo * T(eta);
-    const T l2 = dot(h, h);
-    if (!(val(l2) > 0)) return false;
-    m = h * T(T(1.0) / sqrt(l2));
-    if (val(m.z) < 0) m = m * T(-1.0);
-    if (!(val(dot(wi, m)) > 0) || !(val(dot(wo, m)) * val(wo.z) > 0)) return false;
-    return val(m.z) > 0;
-}
-
-// The BSDF's smooth part for a direction wo, as eval (f |cos theta_o|) and pdf return it; wi and wo local. `diffuse`:
-// the plastics' textured diffuse reflectance at the hit (Bsdf::Model::diffuse_texture), null for the model's constant.
-template <class T>
-C3<T> bsdf_eval(const Bsdf::Model& b, const V3<T>& wi, const V3<T>& wo, T& pdf, const C3<T>* diffuse = nullptr) {
-    using Kind = Bsdf::Model::Kind;
-    const C3<T> zero{T(0.0), T(0.0), T(0.0)};
-    pdf = T(0.0);
-    switch (b.kind) {
-        case Kind::Diffuse: {
-            if (!(val(wi.z) > 0) || !(val(wo.z) > 0)) return zero;
-            pdf = wo.z * T(InvPi);
-            const T c = wo.z * T(InvPi);
-            return C3<T>{c, c, c} * b.reflectance;
-        }
-        case Kind::RoughConductor: {
-            if (!(val(wi.z) > 0) || !(val(wo.z) > 0)) return zero;
-            const V3<T> h = normalize_or_zero(wi + wo);
-            if (val(h.z) <= 0) return zero;
-            const T wo_h = dot(wo, h);
-            if (val(wo_h) > 0) {
-                const T p = mf_pdf(wi, h, b) / (T(4.0) * wo_h);
-                if (std::isfinite(val(p))) pdf = p;
-            }
-            return rough_reflection(b, wi, wo, h);
-        }
-        case Kind::RoughDielectric: {
-            V3<T> wl, ol, m;
-            double eta = 1;
-            if (!rough_dielectric_half(b, wi, wo, wl, ol, m, eta)) return zero;
-            const T pm = mf_pdf(wl, m, b);
-            const T wi_m = dot(wl, m), wo_m = dot(ol, m);
-            const T F = fresnel_dielectric(wi_m, eta).F;
-            T p;
-            if (val(ol.z) > 0) {
-                p = T(F * pm) / T(T(4.0) * wo_m);
-            } else {
-                const T denom = wi_m + T(eta) * wo_m;
-                p = T(T(T(1.0) - F) * pm * T(eta * eta) * abs_t(wo_m)) / T(denom * denom);
-            }
-            pdf = std::isfinite(val(p)) && val(p) > 0 ? p : T(0.0);
-            return rough_dielectric_local(b, wl, ol, m, eta);
-        }
-        case Kind::Plastic: {
-            if (!(val(wi.z) > 0) || !(val(wo.z) > 0)) return zero;
-            const T Fi = fresnel_dielectric(wi.z, b.ior).F;
-            pdf = (T(1.0) - plastic_prob_specular(Fi, b.specular_weight)) * wo.z * T(InvPi);
-            return plastic_diffuse(b, Fi, wo, diffuse);
-        }
-        case Kind::RoughPlastic: {
-            if (!(val(wi.z) > 0) || !(val(wo.z) > 0)) return zero;
-            pdf = rough_plastic_pdf(b, wi, wo);
-            return rough_plastic_eval(b, wi, wo, diffuse);
-        }
-        default:  // delta models: nothing for eval and pdf
-            return zero;
-    }
-}
-
-// The BSDF's sample(): the direction, the weight f |cos| / pdf, the density and the component, the component chosen
-// by value as the renderer chooses it (locally constant). False where the model gives nothing. `diffuse` as for
-// bsdf_eval.
-template <class T>
-struct BsdfSampleT {
-    V3<T> wo;
-    C3<T> weight;
-    T pdf;
-    bool delta = false, transmission = false;
-    double eta = 1;
-};
-template <class T>
-bool bsdf_sample(const Bsdf::Model& b, const V3<T>& wi, const T& u_comp, const T& u0, const T& u1, BsdfSampleT<T>& out,
-                 const C3<T>* diffuse = nullptr) {
-    using Kind = Bsdf::Model::Kind;
-    const C3<T> one{T(1.0), T(1.0), T(1.0)};
-    switch (b.kind) {
-        case Kind::Diffuse:
-            out.wo = cosine_hemisphere(u0, u1);
-            out.weight = one * b.reflectance;
-            out.pdf = out.wo.z * T(InvPi);
-            return true;
-        case Kind::Conductor:
-            out.wo = V3<T>{T(-wi.x), T(-wi.y), wi.z};
-            out.weight = fresnel_conductor(wi.z, b.eta, b.k) * b.reflectance;
-            out.pdf = T(1.0);
-            out.delta = true;
-            return true;
-        case Kind::RoughConductor: {
-            const V3<T> m = mf_sample(wi, u0, u1, b);
-            const T pm = mf_pdf(wi, m, b);
-            out.wo = m * T(T(2.0) * dot(wi, m)) - wi;
-            out.pdf = pm / (T(4.0) * dot(out.wo, m));
-            out.weight = rough_reflection(b, wi, out.wo, m) * T(T(1.0) / out.pdf);
-            return true;
-        }
-        case Kind::Dielectric: {
-            // Dielectric::sample: reflection with probability F (weight: the tint), else refraction (the tint
-            // times eta_ti^2, radiance transport).
-            const FresnelT<T> fr = fresnel_dielectric(wi.z, b.ior);
-            out.delta = true;
-            if (val(u_comp) < val(fr.F)) {
-                out.wo = V3<T>{T(-wi.x), T(-wi.y), wi.z};
-                out.pdf = fr.F;
-                out.weight = one * b.specular_reflectance;
-            } else {
-                out.wo = V3<T>{T(-wi.x) * T(fr.eta_ti), T(-wi.y) * T(fr.eta_ti), fr.cos_t};
-                out.pdf = T(1.0) - fr.F;
-                out.weight = one * (b.specular_transmittance * (fr.eta_ti * fr.eta_ti));
-                out.transmission = true;
-                out.eta = fr.eta_it;
-            }
-            return true;
-        }
-        case Kind::RoughDielectric: {
-            const double s = val(wi.z) > 0 ? 1.0 : -1.0, eta = val(wi.z) > 0 ? b.ior : 1.0 / b.ior;
-            const V3<T> w = wi * T(s);
-            const V3<T> m = mf_sample(w, u0, u1, b);
-            const T pm = mf_pdf(w, m, b);
-            if (!(val(pm) > 0)) return false;
-            const T wi_m = dot(w, m);
-            const FresnelT<T> fr = fresnel_dielectric(wi_m, eta);
-            V3<T> wo;
-            if (val(u_comp) < val(fr.F)) {
-                wo = m * T(T(2.0) * wi_m) - w;
-                out.pdf = T(fr.F * pm) / T(T(4.0) * dot(wo, m));
-            } else {
-                wo = m * T(wi_m * T(fr.eta_ti) + fr.cos_t) - w * T(fr.eta_ti);
-                const T wo_m = dot(wo, m), denom = wi_m + T(eta) * wo_m;
-                out.pdf = T(T(T(1.0) - fr.F) * pm * T(eta * eta) * abs_t(wo_m)) / T(denom * denom);
-                out.transmission = true;
-                out.eta = eta;
-            }
-            out.wo = wo * T(s);
-            out.weight = rough_dielectric_local(b, w, wo, m, eta) * T(T(1.0) / out.pdf);
-            return true;
-        }
-        case Kind::Plastic: {
-            const T Fi = fresnel_dielectric(wi.z, b.ior).F;
-            const T ps = plastic_prob_specular(Fi, b.specular_weight);
-            if (val(u_comp) < val(ps)) {
-                out.wo = V3<T>{T(-wi.x), T(-wi.y), wi.z};
-                out.pdf = ps;
-                out.weight = one * b.specular_reflectance * T(Fi / ps);
-                out.delta = true;
-            } else {
-                out.wo = cosine_hemisphere(u0, u1);
-                out.pdf = (T(1.0) - ps) * out.wo.z * T(InvPi);
-                out.weight = plastic_diffuse(b, Fi, out.wo, diffuse) * T(T(1.0) / out.pdf);
-            }
-            return true;
-        }
-        case Kind::RoughPlastic: {
-            const T ps = plastic_prob_specular(coating_table(b.coating_r_ext, b.coating_size, wi.z), b.specular_weight);
-            if (val(u_comp) < val(ps)) {
-                const V3<T> m = mf_sample(wi, u0, u1, b);
-                if (!(val(m.z) > 0)) return false;
-                out.wo = m * T(T(2.0) * dot(wi, m)) - wi;
-            } else {
-                out.wo = cosine_hemisphere(u0, u1);
-            }
-            if (!(val(out.wo.z) > 0)) return false;
-            out.pdf = rough_plastic_pdf(b, wi, out.wo);
-            out.weight = rough_plastic_eval(b, wi, out.wo, diffuse) * T(T(1.0) / out.pdf);
-            return true;
-        }
-        default:
-            return false;
-    }
+    using std::atan2;
+    return atan2(y, x);
 }
 
 // The uv of a hit on a sphere or a disk as a function of its point p (Scene::interaction's fill_local, in world
@@ -887,6 +236,107 @@ bool same_decisions(const std::vector<Decision>& a, const std::vector<Decision>&
         if (a[i].a != b[i].a || glm::length(a[i].n - b[i].n) > 1e-6) return false;
     }
 }
+
+// The textures a BSDF reads at a vertex (DiffTextures): a texture's value at the hit's uv (Texture::local), the uv a
+// function of the path: the mesh's uvs interpolated with the barycentrics (or the barycentrics themselves, as
+// Scene::interaction), a sphere's or a disk's parameterisation of p (round_uv), computed once per vertex. A uv that
+// differs from the renderer's is a mismatch (`mismatch`: the path is then reported Mismatch, not Unsupported).
+template <class T, class Reader>
+struct VertexTextures final : DiffTextures<T> {
+    const ShapeGeometry& g;
+    bool on_sphere, on_disc;
+    const V3<T>& p;
+    const T &bary_u, &bary_v;
+    std::size_t prim;
+    const SurfaceInteraction& si;  // the renderer's
+    Vec2d uv;                      // si.uv
+    Reader& rd;
+    mutable bool mismatch = false;
+    mutable bool read_value = false;  // a texture was read as a number (a roughness)
+    mutable int uv_state = 0;         // 0: not computed yet, 1: u and v, 2: not differentiable here
+    mutable T u, v;
+
+    VertexTextures(const ShapeGeometry& g, bool on_sphere, bool on_disc, const V3<T>& p, const T& bary_u,
+                   const T& bary_v, std::size_t prim, const SurfaceInteraction& si, Reader& rd)
+        : g(g),
+          on_sphere(on_sphere),
+          on_disc(on_disc),
+          p(p),
+          bary_u(bary_u),
+          bary_v(bary_v),
+          prim(prim),
+          si(si),
+          uv(si.uv),
+          rd(rd) {}
+
+    // The scalar reading (a roughness): the luminance of the colour, where that is the texture's eval_1 (a
+    // checkerboard's eval_1 swaps its squares, as Mitsuba's: not differentiable here).
+    bool value(const Texture& texture, T& out) const override {
+        const double e = texture.eval_1(si);
+        if (!(std::abs(luminance(texture.eval(si)) - e) <= 1e-12 * (1 + std::abs(e)))) return false;
+        C3<T> c;
+        if (!colour(texture, c)) return false;
+        out = luminance_of(c);
+        read_value = true;
+        return true;
+    }
+
+    bool colour(const Texture& texture, C3<T>& out) const override {
+        TextureLocal tl;
+        if (!texture.local(uv, tl)) return false;
+        if (uv_state == 0 && !compute_uv()) return false;
+        if (uv_state != 1) return false;
+        const C3<T> c0 = constant_colour<T>(tl.c[0]);
+        if (tl.bilinear) {
+            const T tx = tl.A[0][0] * u + tl.A[0][1] * v + (tl.b[0] - tl.x0);
+            const T ty = tl.A[1][0] * u + tl.A[1][1] * v + (tl.b[1] - tl.y0);
+            const T sx = 1.0 - tx, sy = 1.0 - ty;
+            out = c0 * T(sx * sy);
+            add(out, constant_colour<T>(tl.c[1]) * T(tx * sy));
+            add(out, constant_colour<T>(tl.c[2]) * T(sx * ty));
+            add(out, constant_colour<T>(tl.c[3]) * T(tx * ty));
+        } else {
+            rd.decide(Decide::Texture, tl.cell);
+            out = c0;
+        }
+        return true;
+    }
+
+private:
+    bool compute_uv() const {
+        uv_state = 2;
+        T uu = bary_u, vv = bary_v;
+        double angle_tolerance = 1e-5;  // of a sphere's u, a disk's v
+        if (on_sphere || on_disc) {
+            long long seam = 0;
+            if (!round_uv(g, on_sphere, p, uu, vv, seam)) return false;
+            // The angle's coordinate near its wrap: the renderer's side (its p differs by about 1e-7).
+            T& angle = on_sphere ? uu : vv;
+            const double renderer = on_sphere ? uv.x : uv.y;
+            angle = angle + std::round(renderer - val(angle));
+            rd.decide(Decide::Texture, seam);
+            // The angle's error grows as 1 / (distance from the axis): near a pole or the disk's centre.
+            const double axis = on_sphere ? std::sin(Pi * val(vv)) : val(uu);
+            angle_tolerance = 1e-5 / std::max(axis, 1e-2);
+        } else if (!g.uvs.empty()) {
+            const uint32_t* tri = &g.indices[3 * prim];
+            const T b0 = 1.0 - bary_u - bary_v;
+            const Vec2d t0(g.uvs[tri[0]]), t1(g.uvs[tri[1]]), t2(g.uvs[tri[2]]);
+            uu = b0 * t0.x + bary_u * t1.x + bary_v * t2.x;
+            vv = b0 * t0.y + bary_u * t1.y + bary_v * t2.y;
+        }
+        // The renderer's uv comes from Embree's float barycentrics (or its float-precision hit point).
+        if (std::abs(val(uu) - uv.x) > (on_sphere ? angle_tolerance : 1e-5) ||
+            std::abs(val(vv) - uv.y) > (on_disc ? angle_tolerance : 1e-5)) {
+            mismatch = true;
+            return false;
+        }
+        u = uu;
+        v = vv;
+        uv_state = 1;
+        return true;
+    }
+};
 
 // Coordinates: plain values, or nested-autodiff variables for the block's entries.
 struct DoubleReader {
@@ -1240,11 +690,10 @@ PathDerivativeStatus PathDerivatives::Impl::run(Reader& rd, T& log_pi) const {
         }
         if (depth + 2 > max_len) break;
 
+        // The BSDF evaluates itself in T (Bsdf::eval_diff, sample_diff: the renderer's kernels, bsdf_kernels.h),
+        // asking the path for its textures' values (VertexTextures).
         const Bsdf& bsdf = *si.shape->bsdf();
-        Bsdf::Model model = bsdf.model();
-        if (model.two_sided && si.wi.z < 0) model = bsdf.back_model();  // a twosided's second side
-        using Kind = Bsdf::Model::Kind;
-        if (model.kind == Kind::None) return S::Unsupported;
+        if (!bsdf.differentiable(si)) return S::Unsupported;
         // The emitter, the BSDF component and roulette use their coordinate only in a comparison (read_discrete: a
         // constant, its derivatives zero); the other four move the path continuously.
         const T u_light = rd.read_discrete();
@@ -1252,75 +701,12 @@ PathDerivativeStatus PathDerivatives::Impl::run(Reader& rd, T& log_pi) const {
         const T u_comp = rd.read_discrete();
         const T u_d0 = rd.read(), u_d1 = rd.read();
         const T u_rr = rd.read_discrete();
-        // twosided seen from below: the nested model in the mirrored frame (z of wi and wo negated, as the plugin).
-        FrameT<T> frame = geometric_frame;
-        const bool mirrored = model.two_sided && si.wi.z < 0;
-        if (mirrored) frame.n = frame.n * T(-1.0);
-        const V3<T> wi = to_local(frame, V3<T>{T(-d.x), T(-d.y), T(-d.z)});
-        // A textured reflectance: its value at the hit's uv (Texture::local), the uv a function of the path: the
-        // mesh's uvs interpolated with the barycentrics (or the barycentrics themselves, as Scene::interaction), a
-        // sphere's or a disk's parameterisation of p (round_uv). Bsdf::Model::texture is a factor of the whole lobe
-        // (`tex`); Model::diffuse_texture the plastics' diffuse reflectance (`diffuse`, read inside the model).
-        C3<T> tex{T(1.0), T(1.0), T(1.0)}, diffuse_value{T(0.0), T(0.0), T(0.0)};
-        const bool textured = model.texture != nullptr;
-        const Texture* texture = textured ? model.texture : model.diffuse_texture;
-        if (textured && model.diffuse_texture) return S::Unsupported;
-        if (texture) {
-            TextureLocal tl;
-            if (!texture->local(si.uv, tl)) return S::Unsupported;
-            T u = bary_u, v = bary_v;
-            double angle_tolerance = 1e-5;  // of a sphere's u, a disk's v
-            if (on_sphere || on_disc) {
-                long long seam = 0;
-                if (!round_uv(g, on_sphere, p, u, v, seam)) return S::Unsupported;
-                // The angle's coordinate near its wrap: the renderer's side (its p differs by about 1e-7).
-                T& angle = on_sphere ? u : v;
-                const double renderer = on_sphere ? si.uv.x : si.uv.y;
-                angle = angle + T(std::round(renderer - val(angle)));
-                rd.decide(Decide::Texture, seam);
-                // The angle's error grows as 1 / (distance from the axis): near a pole or the disk's centre.
-                const double axis = on_sphere ? std::sin(Pi * val(v)) : val(u);
-                angle_tolerance = 1e-5 / std::max(axis, 1e-2);
-            } else if (!g.uvs.empty()) {
-                const uint32_t* tri = &g.indices[3 * std::size_t(hit->prim)];
-                const T b0 = T(1.0) - bary_u - bary_v;
-                const Vec2d t0(g.uvs[tri[0]]), t1(g.uvs[tri[1]]), t2(g.uvs[tri[2]]);
-                u = T(b0 * T(t0.x)) + T(bary_u * T(t1.x)) + T(bary_v * T(t2.x));
-                v = T(b0 * T(t0.y)) + T(bary_u * T(t1.y)) + T(bary_v * T(t2.y));
-            }
-            // The renderer's uv comes from Embree's float barycentrics (or its float-precision hit point).
-            if (std::abs(val(u) - si.uv.x) > (on_sphere ? angle_tolerance : 1e-5) ||
-                std::abs(val(v) - si.uv.y) > (on_disc ? angle_tolerance : 1e-5))
-                return S::Mismatch;
-            auto colour = [](const Color3& c) { return C3<T>{T(c.r), T(c.g), T(c.b)}; };
-            C3<T> looked_up = colour(tl.c[0]);
-            if (tl.bilinear) {
-                const T tx = T(T(tl.A[0][0]) * u) + T(T(tl.A[0][1]) * v) + T(tl.b[0] - tl.x0);
-                const T ty = T(T(tl.A[1][0]) * u) + T(T(tl.A[1][1]) * v) + T(tl.b[1] - tl.y0);
-                const T sx = T(1.0) - tx, sy = T(1.0) - ty;
-                looked_up = colour(tl.c[0]) * T(sx * sy);
-                add(looked_up, colour(tl.c[1]) * T(tx * sy));
-                add(looked_up, colour(tl.c[2]) * T(sx * ty));
-                add(looked_up, colour(tl.c[3]) * T(tx * ty));
-            } else {
-                rd.decide(Decide::Texture, tl.cell);
-            }
-            if (textured) {
-                tex = looked_up;
-            } else {  // the plugins' max(rho, 0), by value
-                for (T* c : {&looked_up.r, &looked_up.g, &looked_up.b})
-                    if (val(*c) < 0) *c = T(0.0);
-                diffuse_value = looked_up;
-            }
-        }
-        const C3<T>* diffuse = model.diffuse_texture ? &diffuse_value : nullptr;
-        auto bsdf_eval = [&](const V3<T>& wo, T& pdf) -> C3<T> {
-            const C3<T> f = kelvin::bsdf_eval(model, wi, wo, pdf, diffuse);
-            return textured ? f * tex : f;
-        };
-        // The BSDF sampling below, with the textured diffuse reflectance.
-        auto bsdf_sample = [&](const Bsdf::Model& b, const V3<T>& w, const T& uc, const T& u0, const T& u1,
-                               BsdfSampleT<T>& out) { return kelvin::bsdf_sample(b, w, uc, u0, u1, out, diffuse); };
+        const FrameT<T>& frame = geometric_frame;
+        const V3<T> wi = to_local(frame, V3<T>{-d.x, -d.y, -d.z});
+        const VertexTextures<T, Reader> textures(g, on_sphere, on_disc, p, bary_u, bary_v, std::size_t(hit->prim), si,
+                                                 rd);
+        const DiffBsdfContext<T> dctx{TransportMode::Radiance, &textures};
+        const S not_differentiable = S::Unsupported;  // or, when a texture's uv disagreed, S::Mismatch (below)
 
         // Next-event estimation (smooth models; emitter sampling is on in the Metropolis techniques).
         if ((bsdf.flags() & BsdfFlags::Smooth) && depth + 2 >= o.min_depth) {
@@ -1345,7 +731,9 @@ PathDerivativeStatus PathDerivatives::Impl::run(Reader& rd, T& log_pi) const {
                         rd.decide(Decide::Nee, f_primal == Color3(0.0) ? AnyNee : nee | (lit ? 0 : 1));
                         if (lit) {
                             T bsdf_pdf(0.0);
-                            const C3<T> f = bsdf_eval(to_local(frame, dir), bsdf_pdf);
+                            C3<T> f;
+                            if (!bsdf.eval_diff(dctx, wi, to_local(frame, dir), f, bsdf_pdf))
+                                return textures.mismatch ? S::Mismatch : not_differentiable;
                             lum = lum + luminance_of(throughput * f * intensity) / T(dist2 * T(sel_pdf));
                         }
                     } else if (e->plugin_name() == "spot") {
@@ -1374,7 +762,9 @@ PathDerivativeStatus PathDerivatives::Impl::run(Reader& rd, T& log_pi) const {
                         rd.decide(Decide::Nee, f_primal == Color3(0.0) ? AnyNee : nee | (lit ? 0 : 1));
                         if (lit) {
                             T bsdf_pdf(0.0);
-                            const C3<T> f = bsdf_eval(to_local(frame, dir), bsdf_pdf);
+                            C3<T> f;
+                            if (!bsdf.eval_diff(dctx, wi, to_local(frame, dir), f, bsdf_pdf))
+                                return textures.mismatch ? S::Mismatch : not_differentiable;
                             lum = lum + luminance_of(throughput * f * em.intensity) * T(falloff / (dist2 * T(sel_pdf)));
                         }
                     } else {
@@ -1441,7 +831,9 @@ PathDerivativeStatus PathDerivatives::Impl::run(Reader& rd, T& log_pi) const {
                             rd.decide(Decide::Nee, nee | triangle << 1 | (occluded ? 1 : 0));
                             if (!occluded) {
                                 T bsdf_pdf(0.0);
-                                const C3<T> f = bsdf_eval(to_local(frame, dir), bsdf_pdf);
+                                C3<T> f;
+                                if (!bsdf.eval_diff(dctx, wi, to_local(frame, dir), f, bsdf_pdf))
+                                    return textures.mismatch ? S::Mismatch : not_differentiable;
                                 const T w = ds->delta ? T(1.0) : power_heuristic(T(pdf * T(sel_pdf)), bsdf_pdf);
                                 // f * weight * w / sel, weight = radiance / pdf
                                 lum = lum + luminance_of(throughput * f * radiance) * T(w / (pdf * T(sel_pdf)));
@@ -1458,28 +850,31 @@ PathDerivativeStatus PathDerivatives::Impl::run(Reader& rd, T& log_pi) const {
             rd.decide(Decide::End);
             break;
         }
-        BsdfSampleT<T> smp;
-        if (!bsdf_sample(model, wi, u_comp, u_d0, u_d1, smp)) return S::Mismatch;
-        rd.decide(Decide::Component, (smp.delta ? 2 : 0) + (smp.transmission ? 1 : 0));
+        kernels::Sample<T> smp;
+        if (!bsdf.sample_diff(dctx, wi, val(u_comp), u_d0, u_d1, smp))
+            return textures.mismatch ? S::Mismatch : not_differentiable;
+        if (!smp.ok) return S::Mismatch;
+        const bool delta = (smp.sampled & BsdfFlags::Delta) != 0,
+                   transmission = (smp.sampled & BsdfFlags::Transmission) != 0;
+        rd.decide(Decide::Component, (delta ? 2 : 0) + (transmission ? 1 : 0));
         const V3<T>& wo = smp.wo;
-        if (smp.delta != ((bs->sampled & BsdfFlags::Delta) != 0) ||
-            smp.transmission != ((bs->sampled & BsdfFlags::Transmission) != 0))
+        if (delta != ((bs->sampled & BsdfFlags::Delta) != 0) ||
+            transmission != ((bs->sampled & BsdfFlags::Transmission) != 0))
             return S::Mismatch;
         throughput = throughput * smp.weight;
-        if (textured) throughput = throughput * tex;
-        if (smp.transmission) eta_scale *= smp.eta * smp.eta;
-        prev_delta = smp.delta;
+        if (transmission) eta_scale *= smp.eta * smp.eta;
+        prev_delta = delta;
         prev_bsdf_pdf = smp.pdf;
         // The renderer's direction comes from its float-precision hit (about 1e-7): equal to 1e-6 after reflections
         // off flat surfaces. Refraction amplifies the difference (near grazing exit and total internal reflection),
         // and so does a shading normal interpolated with Embree's float barycentrics (it differs from the
         // differentiable one by up to about 1e-5, checked above to 1e-4; a glossy reflection turns that into the
         // direction: with 1e-6, 4.7 % of such reflections were refused on the chess board), and so does a sphere's
-        // normal, a function of the float hit point (1.3-1.9e-6 off a smooth plastic sphere); the path keeps it.
-        imprecise = imprecise || smp.transmission || smooth_normals || on_sphere;
+        // normal, a function of the float hit point (1.3-1.9e-6 off a smooth plastic sphere), and so does a textured
+        // roughness (read at the float uv: it moves a glossy lobe's sampled direction); the path keeps it.
+        imprecise = imprecise || transmission || smooth_normals || on_sphere || textures.read_value;
         const double wo_tolerance = imprecise ? 1e-4 : 1e-6;
-        if (glm::length(value(wo) - (mirrored ? Vec3d(bs->wo.x, bs->wo.y, -bs->wo.z) : bs->wo)) > wo_tolerance)
-            return S::Mismatch;
+        if (glm::length(value(wo) - bs->wo) > wo_tolerance) return S::Mismatch;
         prev_p = p;
         const Ray next = si.spawn(si.to_world(bs->wo));
         spawn.offset = true;
