@@ -224,7 +224,7 @@ TEST(HostProgress, SimulationsReportSteps) {
         ctx.quiet = true;
         ctx.on_progress = rec.callback();
         auto job = load_fluid("taylor_green_3d.xml",
-                              {{"res", "6"}, {"spp", "8"}, {"dt", "0.1"}, {"end", "0.2"}, {"every", "0"}});
+                              {{"res", "6"}, {"spp", "16"}, {"dt", "0.1"}, {"end", "0.2"}, {"every", "0"}});
         EXPECT_FALSE(job->run(ctx).interrupted);
         const auto passes = rec.passes();
         ASSERT_EQ(passes.size(), 1u);
@@ -607,8 +607,7 @@ TEST(HostSolver, ThreeDimensionalSimulation) {
     ASSERT_TRUE(solver->step(0.1));
     const fluid::VectorGrid3& w = solver->vorticity_grid();
     const fluid::VectorGrid3& u = solver->velocity_grid();
-    double z2 = 0;
-    int n = 0;
+    std::vector<double> z2;  // squared differences over their variance: chi-square with one degree of freedom
     for (int k = 0; k < 6; k += 2)
         for (int j = 0; j < 6; j += 2)
             for (int i = 0; i < 6; i += 2) {
@@ -619,12 +618,18 @@ TEST(HostSolver, ThreeDimensionalSimulation) {
                 const Vec3d v = solver->velocity_at(x);
                 const Vec3d var = solver->velocity_variance().at(w.x.index(i, j, k));
                 const Vec3d g = u.at(w.x.index(i, j, k));
-                for (int c = 0; c < 3; ++c) {
-                    z2 += (v[c] - g[c]) * (v[c] - g[c]) / (2 * var[c] + 1e-300);
-                    ++n;
-                }
+                for (int c = 0; c < 3; ++c) z2.push_back((v[c] - g[c]) * (v[c] - g[c]) / (2 * var[c] + 1e-300));
             }
-    EXPECT_LT(z2 / n, 2.0) << n;  // 1 +- 0.27 at n = 81: over 3.5 sigma
+    // A query is a fresh estimate of the same state's velocity: the difference to the cell's is noise of twice the
+    // cell's variance. The 3D Biot–Savart estimator's tail is heavy (a sample near the kernel's peak), so the mean of
+    // 81 terms can be carried by one (a state at n_mc 16 gave one term of 90); the median is the robust statistic:
+    // 0.45 for chi-square(1); measured 0.57 (n_mc 16; 0.76 at 64). A query of another state or without noise (the
+    // cell value itself: 0) moves it far out.
+    std::nth_element(z2.begin(), z2.begin() + z2.size() / 2, z2.end());
+    const double median = z2[z2.size() / 2];
+    std::cout << "[ measured ] median " << median << "\n";
+    EXPECT_GT(median, 0.1);
+    EXPECT_LT(median, 1.2);
 }
 
 TEST(HostSolver, RenderSceneHasNoSimulation) {
