@@ -224,7 +224,7 @@ TEST(HostProgress, SimulationsReportSteps) {
         ctx.quiet = true;
         ctx.on_progress = rec.callback();
         auto job = load_fluid("taylor_green_3d.xml",
-                              {{"res", "6"}, {"spp", "16"}, {"dt", "0.1"}, {"end", "0.2"}, {"every", "0"}});
+                              {{"res", "6"}, {"spp", "8"}, {"dt", "0.1"}, {"end", "0.2"}, {"every", "0"}});
         EXPECT_FALSE(job->run(ctx).interrupted);
         const auto passes = rec.passes();
         ASSERT_EQ(passes.size(), 1u);
