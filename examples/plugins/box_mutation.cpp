@@ -4,10 +4,6 @@
 // density (1 / (2 radius))^n on the torus for radius <= 1/2. A chain asks a kernel to move one coordinate pair
 // at a time (sample_pair), only the pairs a path reads.
 //
-// | parameter | type  | default | meaning                                |
-// |-----------|-------|---------|----------------------------------------|
-// | radius    | float | 1/256   | half-width of the step (0 < r <= 1/2)  |
-//
 // As the second stage of delayed rejection (a small, timid move after a rejected bold one):
 //
 //     <integrator type="drmlt">
@@ -47,4 +43,4 @@ private:
 
 KELVIN_PLUGIN(box_example::BoxMutation, "mutation", "box",
               "Uniform step in a cube of half-width `radius` around the state. Out-of-tree example.",
-              kelvin::param::real("radius", 1.0 / 256, "half-width of the step"));
+              kelvin::param::real("radius", 1.0 / 256, "half-width of the step, in (0, 1/2]"));

@@ -7,10 +7,6 @@
 // `--plugin-path`, KELVIN_PLUGIN_PATH or <plugin path="..."/>; the registration line at the end is the same
 // one in-tree plugins use.
 //
-// | parameter | type  | default | meaning                                    |
-// |-----------|-------|---------|--------------------------------------------|
-// | scale     | float | 1       | multiplies the depth (must be positive)    |
-//
 //     <integrator type="depth"><float name="scale" value="0.25"/></integrator>
 #include <kelvin/core/registry.h>
 #include <kelvin/render/scene.h>

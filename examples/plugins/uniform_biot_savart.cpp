@@ -11,11 +11,6 @@
 // variance; it exists to show the interface. Open domains only: a periodic box needs the periodic kernel
 // (VelocityState::periodic) and is refused with an error naming `velocity`.
 //
-// | parameter | type    | default | meaning                                          |
-// |-----------|---------|---------|--------------------------------------------------|
-// | samples   | integer | 256     | n, source points per velocity query              |
-// | delta     | float   | -1      | mollifier radius; -1: half a cache cell          |
-//
 //     <velocity type="uniform_biot_savart"><integer name="samples" value="1024"/></velocity>
 #include <kelvin/core/registry.h>
 #include <kelvin/fluid/biot_savart.h>
@@ -126,5 +121,5 @@ private:
 
 KELVIN_PLUGIN(uniform_bs_example::UniformBiotSavart, "velocity", "uniform_biot_savart",
               "Biot–Savart velocity with source points uniform over the domain (2D and 3D, open). Out-of-tree example.",
-              kelvin::param::integer("samples", 256, "source points per velocity query"),
+              kelvin::param::integer("samples", 256, "n, source points per velocity query"),
               kelvin::param::real("delta", -1.0, "mollifier radius; -1: half a cache cell"));

@@ -85,26 +85,27 @@ public:
 }  // namespace
 }  // namespace kelvin::fluid
 
-KELVIN_PLUGIN(kelvin::fluid::WalkOnSpheres, "velocity", "walk_on_spheres",
-              "Free-slip velocity by Walk-on-Spheres on the stream function (Sec. 5.3.1; 3D: vector potential): walls, "
-              "inflow/outflow, obstacles, moving solids (2D).",
-              kelvin::param::integer("samples", 64, "gradient samples per velocity query (2 walks each, antithetic)"),
-              kelvin::param::real("epsilon", 0.0, "shell width; 0: 1e-4 x the domain's smaller side"),
-              kelvin::param::integer("max_steps", 4096, "spheres per walk before truncation (counted)"),
-              kelvin::param::boolean("antithetic", true, "antithetic first step (Fig. 5.5)"),
-              kelvin::param::string("importance", "vorticity",
-                                    "volume term: 'vorticity' (|omega| mixed with G) or 'green' (G only, the thesis)"),
-              kelvin::param::boolean("control_variate", true,
-                                     "2D, not periodic: free-space Biot-Savart velocity + walks for the harmonic "
-                                     "correction only (false: walks with the vorticity source)"),
-              kelvin::param::integer("free_samples", 16,
-                                     "control variate: vorticity samples (point vortices) per gradient sample"),
-              kelvin::param::boolean("stratified", true,
-                                     "2D: stratified first-step directions over a query's gradient samples"),
-              kelvin::param::boolean("walls", true, "the domain box is a container (ignored when periodic)"),
-              kelvin::param::real("wall_stream_value", 0.0,
-                                  "Psi on the walls (with inflow: the mean of the bottom and top walls)"),
-              kelvin::param::real("inflow_speed", 0.0, "inflow speed through the left wall, outflow through the right"),
-              kelvin::param::real("inflow_min", 0.0, "lower y of the inflow/outflow segments"),
-              kelvin::param::real("inflow_max", 0.0, "upper y (equal to inflow_min: the whole wall)"),
-              kelvin::param::objects("boundary", "solid boundaries (obstacles, containers)"));
+KELVIN_PLUGIN(
+    kelvin::fluid::WalkOnSpheres, "velocity", "walk_on_spheres",
+    "Free-slip velocity by Walk-on-Spheres on the stream function (Sec. 5.3.1; 3D: vector potential): walls, "
+    "inflow/outflow, obstacles, moving solids (2D).",
+    kelvin::param::integer("samples", 64,
+                           "gradient samples per velocity query (2 walks each, antithetic; --samples overrides)"),
+    kelvin::param::real("epsilon", 0.0, "shell width; 0: 1e-4 x the domain's smaller side"),
+    kelvin::param::integer("max_steps", 4096, "spheres per walk before truncation (counted)"),
+    kelvin::param::boolean("antithetic", true, "antithetic first step (Fig. 5.5)"),
+    kelvin::param::string("importance", "vorticity",
+                          "volume term: 'vorticity' (|omega| mixed with G) or 'green' (G only, the thesis)"),
+    kelvin::param::boolean("control_variate", true,
+                           "2D, not periodic: free-space Biot-Savart velocity + walks for the harmonic "
+                           "correction only (false: walks with the vorticity source)"),
+    kelvin::param::integer("free_samples", 16,
+                           "control variate: vorticity samples (point vortices) per gradient sample, 1-256"),
+    kelvin::param::boolean("stratified", true, "2D: stratified first-step directions over a query's gradient samples"),
+    kelvin::param::boolean("walls", true, "the domain box is a container (ignored when periodic)"),
+    kelvin::param::real("wall_stream_value", 0.0,
+                        "Psi on the walls (with inflow: the mean of the bottom and top walls)"),
+    kelvin::param::real("inflow_speed", 0.0, "inflow speed through the left wall, outflow through the right"),
+    kelvin::param::real("inflow_min", 0.0, "lower y of the inflow/outflow segments"),
+    kelvin::param::real("inflow_max", 0.0, "upper y (equal to inflow_min: the whole wall)"),
+    kelvin::param::objects("boundary", "solid boundaries (obstacles, containers)"));

@@ -58,6 +58,7 @@ private:
 KELVIN_PLUGIN(kelvin::Conductor, "bsdf", "conductor", "Smooth conductor (Fresnel mirror).",
               kelvin::param::string("material", "none",
                                     "named conductor (Au, Ag, Cu, Al, ...) or none (perfect mirror)"),
-              kelvin::param::color("eta", kelvin::Color3(0.0), "real part of the complex index (instead of material)"),
+              kelvin::param::color("eta", kelvin::Color3(0.0),
+                                   "real part of the complex index (instead of a material: both is an error)"),
               kelvin::param::color("k", kelvin::Color3(1.0), "imaginary part of the complex index"),
               kelvin::param::texture("specular_reflectance", kelvin::Color3(1.0), "multiplies the reflectance"));

@@ -99,6 +99,7 @@ private:
 KELVIN_PLUGIN(kelvin::Plastic, "bsdf", "plastic", "Smooth dielectric coating over a diffuse base.",
               kelvin::param::texture("diffuse_reflectance", kelvin::Color3(0.5), "albedo of the diffuse base"),
               kelvin::param::texture("specular_reflectance", kelvin::Color3(1.0), "tints the specular lobe"),
-              kelvin::param::string("int_ior", "polypropylene", "coating index of refraction: a number or a name"),
+              kelvin::param::string("int_ior", "polypropylene",
+                                    "coating index of refraction: a number or a name (polypropylene: 1.49)"),
               kelvin::param::string("ext_ior", "air", "exterior index of refraction: a number or a name"),
               kelvin::param::boolean("nonlinear", false, "account for colour shifts of internal scattering"));

@@ -279,20 +279,22 @@ private:
 }  // namespace
 }  // namespace kelvin
 
-KELVIN_PLUGIN(kelvin::Principled, "bsdf", "principled", "Mitsuba 3's principled (Disney) BSDF.",
-              kelvin::param::texture("base_color", kelvin::Color3(0.5), "colour of the material"),
-              kelvin::param::texture("roughness", kelvin::Color3(0.5), "roughness of the main specular lobes, [0, 1]"),
-              kelvin::param::texture("anisotropic", kelvin::Color3(0.0), "anisotropy, [0, 1]"),
-              kelvin::param::texture("metallic", kelvin::Color3(0.0), "metallicness, [0, 1]"),
-              kelvin::param::texture("spec_trans", kelvin::Color3(0.0), "blend of BRDF (0) and BSDF (1), [0, 1]"),
-              kelvin::without_default(kelvin::param::real("eta", 1.5, "relative index of refraction (or specular)")),
-              kelvin::param::real("specular", 0.5, "Fresnel reflectance control: eta = 2 / (1 - sqrt(0.08 s)) - 1"),
-              kelvin::param::texture("spec_tint", kelvin::Color3(0.0), "base-colour tint of the specular, [0, 1]"),
-              kelvin::param::texture("sheen", kelvin::Color3(0.0), "sheen, [0, 1]"),
-              kelvin::param::texture("sheen_tint", kelvin::Color3(0.0), "base-colour tint of the sheen, [0, 1]"),
-              kelvin::param::texture("flatness", kelvin::Color3(0.0), "diffuse (0) to fake subsurface (1), [0, 1]"),
-              kelvin::param::texture("clearcoat", kelvin::Color3(0.0), "clearcoat lobe weight, [0, 1]"),
-              kelvin::param::texture("clearcoat_gloss", kelvin::Color3(0.0), "clearcoat glossiness, [0, 1]"),
-              kelvin::param::real("diffuse_reflectance_sampling_rate", 1.0, "sampling weight of the diffuse lobe"),
-              kelvin::param::real("main_specular_sampling_rate", 1.0, "sampling weight of the main specular lobe"),
-              kelvin::param::real("clearcoat_sampling_rate", 1.0, "sampling weight of the clearcoat lobe"));
+KELVIN_PLUGIN(
+    kelvin::Principled, "bsdf", "principled", "Mitsuba 3's principled (Disney) BSDF.",
+    kelvin::param::texture("base_color", kelvin::Color3(0.5), "colour of the material"),
+    kelvin::param::texture("roughness", kelvin::Color3(0.5), "roughness of the main specular lobes, [0, 1]"),
+    kelvin::param::texture("anisotropic", kelvin::Color3(0.0), "anisotropy, [0, 1]"),
+    kelvin::param::texture("metallic", kelvin::Color3(0.0), "metallicness, [0, 1]"),
+    kelvin::param::texture("spec_trans", kelvin::Color3(0.0), "blend of BRDF (0) and BSDF (1), [0, 1]"),
+    kelvin::without_default(kelvin::param::real(
+        "eta", 1.5, "relative index of refraction, > 0 (default: from specular; both is an error)")),
+    kelvin::param::real("specular", 0.5, "Fresnel reflectance control, [0, 1]: eta = 2 / (1 - sqrt(0.08 s)) - 1"),
+    kelvin::param::texture("spec_tint", kelvin::Color3(0.0), "base-colour tint of the specular, [0, 1]"),
+    kelvin::param::texture("sheen", kelvin::Color3(0.0), "sheen, [0, 1]"),
+    kelvin::param::texture("sheen_tint", kelvin::Color3(0.0), "base-colour tint of the sheen, [0, 1]"),
+    kelvin::param::texture("flatness", kelvin::Color3(0.0), "diffuse (0) to fake subsurface (1), [0, 1]"),
+    kelvin::param::texture("clearcoat", kelvin::Color3(0.0), "clearcoat lobe weight, [0, 1]"),
+    kelvin::param::texture("clearcoat_gloss", kelvin::Color3(0.0), "clearcoat glossiness, [0, 1]"),
+    kelvin::param::real("diffuse_reflectance_sampling_rate", 1.0, "sampling weight of the diffuse lobe, >= 0"),
+    kelvin::param::real("main_specular_sampling_rate", 1.0, "sampling weight of the main specular lobe, >= 0"),
+    kelvin::param::real("clearcoat_sampling_rate", 1.0, "sampling weight of the clearcoat lobe, >= 0"));

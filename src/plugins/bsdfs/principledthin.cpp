@@ -232,19 +232,19 @@ private:
 }  // namespace
 }  // namespace kelvin
 
-KELVIN_PLUGIN(kelvin::PrincipledThin, "bsdf", "principledthin", "Mitsuba 3's thin principled BSDF (a thin sheet).",
-              kelvin::param::texture("base_color", kelvin::Color3(0.5), "colour of the material"),
-              kelvin::param::texture("roughness", kelvin::Color3(0.5), "roughness, [0, 1]"),
-              kelvin::param::texture("anisotropic", kelvin::Color3(0.0), "anisotropy, [0, 1]"),
-              kelvin::param::texture("spec_trans", kelvin::Color3(0.0), "specular weight, [0, 1]"),
-              kelvin::param::texture("diff_trans", kelvin::Color3(0.0), "diffuse transmission, [0, 2]"),
-              kelvin::param::texture("eta", kelvin::Color3(1.5), "index of refraction of the sheet"),
-              kelvin::param::texture("spec_tint", kelvin::Color3(0.0), "base-colour tint of the specular, [0, 1]"),
-              kelvin::param::texture("sheen", kelvin::Color3(0.0), "sheen, [0, 1]"),
-              kelvin::param::texture("sheen_tint", kelvin::Color3(0.0), "base-colour tint of the sheen, [0, 1]"),
-              kelvin::param::texture("flatness", kelvin::Color3(0.0), "diffuse (0) to fake subsurface (1), [0, 1]"),
-              kelvin::param::real("specular_reflectance_sampling_rate", 1.0, "sampling weight, specular reflection"),
-              kelvin::param::real("specular_transmittance_sampling_rate", 1.0,
-                                  "sampling weight, specular transmission"),
-              kelvin::param::real("diffuse_reflectance_sampling_rate", 1.0, "sampling weight, diffuse reflection"),
-              kelvin::param::real("diffuse_transmittance_sampling_rate", 1.0, "sampling weight, diffuse transmission"));
+KELVIN_PLUGIN(
+    kelvin::PrincipledThin, "bsdf", "principledthin", "Mitsuba 3's thin principled BSDF (a thin sheet).",
+    kelvin::param::texture("base_color", kelvin::Color3(0.5), "colour of the material"),
+    kelvin::param::texture("roughness", kelvin::Color3(0.5), "roughness, [0, 1]"),
+    kelvin::param::texture("anisotropic", kelvin::Color3(0.0), "anisotropy, [0, 1]"),
+    kelvin::param::texture("spec_trans", kelvin::Color3(0.0), "specular weight, [0, 1]"),
+    kelvin::param::texture("diff_trans", kelvin::Color3(0.0), "diffuse transmission, [0, 2]"),
+    kelvin::param::texture("eta", kelvin::Color3(1.5), "index of refraction of the sheet, [0.001, 10]"),
+    kelvin::param::texture("spec_tint", kelvin::Color3(0.0), "base-colour tint of the specular, [0, 1]"),
+    kelvin::param::texture("sheen", kelvin::Color3(0.0), "sheen, [0, 1]"),
+    kelvin::param::texture("sheen_tint", kelvin::Color3(0.0), "base-colour tint of the sheen, [0, 1]"),
+    kelvin::param::texture("flatness", kelvin::Color3(0.0), "diffuse (0) to fake subsurface (1), [0, 1]"),
+    kelvin::param::real("specular_reflectance_sampling_rate", 1.0, "sampling weight, specular reflection, >= 0"),
+    kelvin::param::real("specular_transmittance_sampling_rate", 1.0, "sampling weight, specular transmission, >= 0"),
+    kelvin::param::real("diffuse_reflectance_sampling_rate", 1.0, "sampling weight, diffuse reflection, >= 0"),
+    kelvin::param::real("diffuse_transmittance_sampling_rate", 1.0, "sampling weight, diffuse transmission, >= 0"));

@@ -225,8 +225,10 @@ private:
 }  // namespace
 }  // namespace kelvin
 
-KELVIN_PLUGIN(kelvin::EnvironmentMap, "emitter", "envmap",
-              "Environment map: radiance from a latitude-longitude image, importance-sampled by luminance.",
-              kelvin::param::required(kelvin::PropType::String, "filename", "latitude-longitude radiance image"),
-              kelvin::param::real("scale", 1.0, "multiplies the radiance"),
-              kelvin::param::transform("to_world", "orientation of the map (a rotation)"));
+KELVIN_PLUGIN(
+    kelvin::EnvironmentMap, "emitter", "envmap",
+    "Environment map: radiance from a latitude-longitude image, importance-sampled by luminance.",
+    kelvin::param::required(kelvin::PropType::String, "filename",
+                            "latitude-longitude radiance image (.exr, .hdr, .pfm, ...), relative to the scene"),
+    kelvin::param::real("scale", 1.0, "multiplies the radiance"),
+    kelvin::param::transform("to_world", "orientation of the map (a rotation)"));

@@ -144,11 +144,12 @@ private:
 }  // namespace
 }  // namespace kelvin
 
-KELVIN_PLUGIN(kelvin::SpotEmitter, "emitter", "spot",
-              "Spot light: a point light shining into a cone (Mitsuba's linear edge).",
-              kelvin::param::color("intensity", kelvin::Color3(1.0), "radiant intensity on the axis (W/sr)"),
-              kelvin::param::real("cutoff_angle", 20.0, "half-angle (degrees) beyond which nothing is emitted"),
-              kelvin::without_default(kelvin::param::real(
-                  "beam_width", 0.0, "half-angle (degrees) of the fully lit beam (default: 3/4 of cutoff_angle)")),
-              kelvin::param::texture("texture", kelvin::Color3(1.0), "image projected through the cone"),
-              kelvin::param::transform("to_world", "position (origin) and direction (+z) of the light; rigid"));
+KELVIN_PLUGIN(
+    kelvin::SpotEmitter, "emitter", "spot", "Spot light: a point light shining into a cone (Mitsuba's linear edge).",
+    kelvin::param::color("intensity", kelvin::Color3(1.0), "radiant intensity on the axis (W/sr)"),
+    kelvin::param::real("cutoff_angle", 20.0, "half-angle (degrees) beyond which nothing is emitted, in (0, 180]"),
+    kelvin::without_default(kelvin::param::real(
+        "beam_width", 0.0, "half-angle (degrees) of the fully lit beam, in [0, cutoff_angle] (default: 3/4 of it)")),
+    kelvin::param::texture("texture", kelvin::Color3(1.0),
+                           "image projected through the cone (the square image spans the cutoff cone)"),
+    kelvin::param::transform("to_world", "position (origin) and direction (+z) of the light; rigid"));

@@ -34,14 +34,17 @@ public:
         kelvin::param::integer("rr_depth", 5, "path length from which Russian roulette starts"),                      \
         kelvin::param::boolean("hide_emitters", false, "directly visible emitters render black"),                     \
         kelvin::param::integer("bootstrap_samples", 100000, "independent paths that estimate b and seed the chains"), \
-        kelvin::param::integer("chains", -1, "Markov chains (-1: from the mutation budget; never from threads)"),     \
+        kelvin::param::integer(                                                                                       \
+            "chains", -1, "Markov chains (-1: mutations / mutations_per_chain, in [64, 4096]; never from threads)"),  \
         kelvin::param::real("mutations_per_chain", 200000, "chains = -1: mutations per chain aimed at"),              \
         kelvin::param::real("mutations_per_pixel", 100, "chain steps per pixel (--spp overrides)"),                   \
         kelvin::param::real("large_step_prob", 0.3, "probability of an independent (large) step"),                    \
         kelvin::param::integer("direct_samples", 16,                                                                  \
                                "spp of plain path tracing for direct light (-1: the chains render it too)"),          \
-        kelvin::param::real("normalization", -1, "b, the mean path luminance (-1: estimated by the bootstrap)"),      \
-        kelvin::param::boolean("waste_recycling", true, "splat every proposal with its expected weight (Sec. 4.2.6)")
+        kelvin::param::real("normalization", -1,                                                                      \
+                            "b, the mean path luminance (-1: estimated by the bootstrap; give it to compare runs)"),  \
+        kelvin::param::boolean("waste_recycling", true,                                                               \
+                               "splat every proposal with its expected weight (Sec. 4.2.6; false: the current state)")
 
 KELVIN_PLUGIN(kelvin::Pssmlt, "integrator", "pssmlt",
               "Primary-sample-space Metropolis light transport (Kelemen et al. 2002): one stage, any mutation.",

@@ -185,4 +185,4 @@ KELVIN_PLUGIN(
     kelvin::param::integer("adapt_steps", 1000, "observations per coordinate before M freezes; 0: M = I"),
     kelvin::param::integer("warmup", 32,
                            "adaptive: steps per chain from an independent start, then M frozen; 0: online"),
-    kelvin::param::real("max_drift", 2.0, "drift cap in standard deviations per coordinate (MALTA)"));
+    kelvin::param::real("max_drift", 2.0, "drift cap in standard deviations per coordinate, at most 8 (MALTA)"));

@@ -136,5 +136,6 @@ private:
 
 KELVIN_PLUGIN(kelvin::Sobol, "sampler", "sobol",
               "Owen-scrambled Sobol (0,2)-sequence, padded per dimension pair (Burley 2020); powers of two best.",
-              kelvin::param::integer("sample_count", 16, "samples per pixel (powers of two are best)"),
+              kelvin::param::integer("sample_count", 16,
+                                     "samples per pixel (--spp overrides it; powers of two are best)"),
               kelvin::param::integer("seed", 0, "seed offset, mixed with the run's --seed"));

@@ -95,19 +95,19 @@ private:
 }  // namespace
 }  // namespace kelvin
 
-KELVIN_PLUGIN(kelvin::ThinLens, "sensor", "thinlens", "Perspective camera with a thin lens (depth of field).",
-              kelvin::param::required(kelvin::PropType::Float, "aperture_radius", "lens radius (0: a pinhole)"),
-              kelvin::without_default(kelvin::param::real("focus_distance", 0.0,
-                                                          "distance to the plane in focus (default: far_clip)")),
-              kelvin::without_default(kelvin::param::real("fov", 0.0,
-                                                          "field of view in degrees (default: from focal_length)")),
-              kelvin::param::string("focal_length", "50mm",
-                                    "used when no fov is given: focal length on 36 x 24 mm film, diagonal"),
-              kelvin::param::string("fov_axis", "x", "axis the fov refers to: x, y, diagonal, smaller, larger"),
-              kelvin::param::real("near_clip", 0.01, "near clipping depth"),
-              kelvin::param::real("far_clip", 10000.0, "far clipping depth"),
-              kelvin::param::transform("to_world", "camera-to-world transform (usually a <lookat>; rigid)"),
-              kelvin::param::object("film", "film", "the film (default: hdrfilm)"),
-              kelvin::param::object("medium", "medium", "the medium the camera is in (default: none)"),
-              kelvin::param::object("exterior", "medium", "the same, under Mitsuba's other name"),
-              kelvin::param::object("sampler", "sampler", "the sampler (default: independent)"));
+KELVIN_PLUGIN(
+    kelvin::ThinLens, "sensor", "thinlens", "Perspective camera with a thin lens (depth of field).",
+    kelvin::param::required(kelvin::PropType::Float, "aperture_radius", "lens radius in scene units (0: a pinhole)"),
+    kelvin::without_default(kelvin::param::real(
+        "focus_distance", 0.0, "distance from the lens to the plane in focus, along the axis (default: far_clip)")),
+    kelvin::without_default(kelvin::param::real("fov", 0.0, "field of view in degrees (default: from focal_length)")),
+    kelvin::param::string("focal_length", "50mm",
+                          "used when no fov is given: focal length on 36 x 24 mm film, diagonal"),
+    kelvin::param::string("fov_axis", "x", "axis the fov refers to: x, y, diagonal, smaller, larger"),
+    kelvin::param::real("near_clip", 0.01, "near clipping depth"),
+    kelvin::param::real("far_clip", 10000.0, "far clipping depth"),
+    kelvin::param::transform("to_world", "camera-to-world transform (usually a <lookat>; rigid)"),
+    kelvin::param::object("film", "film", "the film (default: hdrfilm)"),
+    kelvin::param::object("medium", "medium", "the medium the camera is in (default: none)"),
+    kelvin::param::object("exterior", "medium", "the same, under Mitsuba's other name"),
+    kelvin::param::object("sampler", "sampler", "the sampler (default: independent)"));

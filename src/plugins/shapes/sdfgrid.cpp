@@ -14,14 +14,6 @@
 // discretisation error, not bit for bit). As in Mitsuba, the shape has no uv and is not an area light; it is not in
 // closest-point queries either. It encloses its inside, so it may carry an interior medium.
 //
-// | parameter    | type      | default  | meaning                                                   |
-// |--------------|-----------|----------|-----------------------------------------------------------|
-// | filename     | string    | required | single-channel `.vol` file of signed distances            |
-// | normals      | string    | smooth   | shading normals: `smooth` or `analytic`                   |
-// | watertight   | boolean   | true     | accepted (Mitsuba's hint; the surface is used as given)   |
-// | to_world     | transform | identity | object-to-world transform                                 |
-// | flip_normals | boolean   | false    | normals point inwards                                     |
-//
 //     <shape type="sdfgrid"><string name="filename" value="bunny_sdf.vol"/><bsdf type="diffuse"/></shape>
 #include <kelvin/core/registry.h>
 #include <kelvin/render/shape.h>
@@ -268,7 +260,7 @@ KELVIN_PLUGIN(
     "Mitsuba's signed-distance grid: the zero set of a trilinear SDF from a .vol file (Embree user geometry).",
     kelvin::param::required(kelvin::PropType::String, "filename", "single-channel .vol file of signed distances"),
     kelvin::param::string("normals", "smooth", "shading normals: smooth or analytic"),
-    kelvin::param::boolean("watertight", true, "accepted (Mitsuba's hint)"),
+    kelvin::param::boolean("watertight", true, "accepted (Mitsuba's hint; the surface is used as given)"),
     kelvin::param::transform("to_world", "object-to-world transform"),
     kelvin::param::boolean("flip_normals", false, "normals point inwards"),
     kelvin::param::object("bsdf", "bsdf", "surface scattering (default: diffuse, reflectance 0.5)"),

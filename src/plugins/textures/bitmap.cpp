@@ -196,8 +196,9 @@ private:
 
 KELVIN_PLUGIN(kelvin::BitmapTexture, "texture", "bitmap", "Image texture (EXR, PNG, JPEG, HDR, ...).",
               kelvin::param::required(kelvin::PropType::String, "filename", "image file, relative to the scene"),
-              kelvin::param::string("filter_type", "bilinear", "bilinear or nearest"),
-              kelvin::param::string("wrap_mode", "repeat", "repeat, mirror or clamp"),
+              kelvin::param::string("filter_type", "bilinear",
+                                    "bilinear (between the four nearest texel centres) or nearest"),
+              kelvin::param::string("wrap_mode", "repeat", "outside [0, 1]: repeat, mirror or clamp"),
               kelvin::param::boolean("raw", false, "keep stored values of 8/16-bit files (no sRGB linearisation)"),
               kelvin::param::string("format", "variant", "Mitsuba's storage precision: variant (Kelvin stores float)"),
-              kelvin::param::transform("to_uv", "transform of the uv coordinates"));
+              kelvin::param::transform("to_uv", "transform applied to (u, v, 0) before the lookup"));

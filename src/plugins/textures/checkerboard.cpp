@@ -84,4 +84,4 @@ KELVIN_PLUGIN(kelvin::Checkerboard, "texture", "checkerboard", "Two-colour check
               kelvin::param::texture("color0", kelvin::Color3(0.4), "colour of the squares at the uv origin"),
               kelvin::param::texture("color1", kelvin::Color3(0.2), "colour of the other squares"),
               kelvin::param::real("scale", 1.0, "uv multiplier (periods per unit of uv)"),
-              kelvin::param::transform("to_uv", "transform applied to uv"));
+              kelvin::param::transform("to_uv", "transform applied to uv (before scale)"));
