@@ -6,6 +6,7 @@
 // Distributed runs (set_communicator): every pass runs a slab of rows per rank and ends with the ranks' slabs
 // exchanged (SlabPass, fluid/slabs.h), so every rank steps the same state.
 #include "fluid/slabs.h"
+#include "fluid/trace.h"
 
 #include <kelvin/core/distributed.h>
 #include <kelvin/core/error.h>
@@ -56,14 +57,6 @@ struct RowWork {
         return *this;
     }
 };
-
-/// x moved by h (negative: backwards) through the frozen velocity `vel` (k1 = vel(x), given), by Euler or RK4.
-template <class Velocity>
-Vec2d trace(Vec2d x, Vec2d k1, double h, Advection advection, const Velocity& vel) {
-    if (advection == Advection::Euler) return x + h * k1;
-    const Vec2d k2 = vel(x + 0.5 * h * k1), k3 = vel(x + 0.5 * h * k2), k4 = vel(x + h * k3);
-    return x + (h / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4);
-}
 
 void check_settings(const MCFluidSettings& s) {
     const Vec2d size = s.domain.size();

@@ -5,6 +5,7 @@
 // Distributed runs (set_communicator): every pass runs a range of z slabs per rank and ends with the ranks' cells
 // exchanged (SlabPass, fluid/slabs.h), so every rank steps the same state.
 #include "fluid/slabs.h"
+#include "fluid/trace.h"
 
 #include <kelvin/core/distributed.h>
 #include <kelvin/core/error.h>
@@ -115,6 +116,8 @@ void check_settings(const MCFluid3Settings& s) {
     if (s.nx < 2 || s.ny < 2 || s.nz < 2 || s.nx > m || s.ny > m || s.nz > m)
         throw_runtime("MCFluid3Solver: cache resolution {}x{}x{} out of range [2, {}]", s.nx, s.ny, s.nz, m);
     if (!(s.dt > 0) || !std::isfinite(s.dt)) throw_runtime("MCFluid3Solver: dt must be positive and finite");
+    if (s.transport == VorticityTransport::MacCormack)
+        throw_runtime("MCFluid3Solver: the MacCormack transport is 2D only (use cubic or linear)");
     if (!(s.viscosity >= 0) || !std::isfinite(s.viscosity)) throw_runtime("MCFluid3Solver: viscosity must be >= 0");
     if (s.samples < 0) throw_runtime("MCFluid3Solver: velocity samples must be >= 1 (0: the estimator's)");
     if (s.diffusion_samples < 1) throw_runtime("MCFluid3Solver: diffusion samples must be >= 1");
@@ -326,22 +329,15 @@ bool MCFluid3Solver::step(double dt) {
     const double sigma = viscous ? std::sqrt(2 * s.viscosity * dt) : 0.0;
     const double half_segment = 0.5 * m_segment, inv_segment = 1.0 / m_segment;
     const Interpolation interp = s.interpolation;
-    const bool cubic = s.transport != VorticityTransport::Linear;
+    const bool cubic = s.transport == VorticityTransport::Cubic;
     SlabPass pass(*m_comm, std::size_t(s.nz), std::size_t(s.nx) * std::size_t(s.ny));  // this rank's z slabs
     SlabWork work;
     const bool complete = for_each_cell(
         pass, s, m_omega.x, m_step, TagAdvection, work, *this,
         [&](std::size_t c, const Vec3d& x, Random& rng, SlabWork& w) {
-            const Vec3d k1 = m_vel.at(c);
-            Vec3d xd;
-            if (s.advection == Advection::Euler) {
-                xd = x - dt * k1;
-            } else {  // RK4 with the velocity frozen at the previous step (Eqs. 3.140-3.144)
-                const Vec3d k2 = stage_velocity(x - 0.5 * dt * k1, rng, w);
-                const Vec3d k3 = stage_velocity(x - 0.5 * dt * k2, rng, w);
-                const Vec3d k4 = stage_velocity(x - dt * k3, rng, w);
-                xd = x - (dt / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4);
-            }
+            // Euler or RK4 with the velocity frozen at the previous step (Eqs. 3.139-3.144).
+            Vec3d xd =
+                trace(x, m_vel.at(c), -dt, s.advection, [&](const Vec3d& p) { return stage_velocity(p, rng, w); });
             ++w.backtraces;
             if (!finite(xd)) {
                 ++w.invalid_velocity;

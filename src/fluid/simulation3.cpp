@@ -54,6 +54,8 @@ Simulation3Params Simulation3Params::parse(const Properties& props) {
     s.diffusion_samples = int(props.get_int("diffusion_samples", 1, 1 << 20));
     s.advection = props.get_choice("advection", {"euler", "rk4"}) == "euler" ? Advection::Euler : Advection::RK4;
     s.transport = parse_transport(props);
+    if (s.transport == VorticityTransport::MacCormack)
+        props.error("transport", "'maccormack' is 2D only; in 3D use 'cubic' (the default) or 'linear'");
     if (props.get_bool("energy_budget")) props.error("energy_budget", "is measured in 2D only (dimension = 2)");
     s.stretching = props.get_bool("stretching");
     s.control_variates = props.get_bool("control_variates");

@@ -48,6 +48,9 @@ TEST(CliFluidTransport, BadTransportAndBudgetAreOneLineNamingTheParameter) {
     EXPECT_CONTAINS(
         expect_one_error_line(run_kelvin({Scenes + "taylor_green.xml", "-D", "transport=bfecc", "-o", out})),
         "parameter 'transport': 'bfecc' is not one of");
+    EXPECT_CONTAINS(
+        expect_one_error_line(run_kelvin({Scenes + "vortex_ring.xml", "-D", "transport=maccormack", "-o", out})),
+        "parameter 'transport': 'maccormack' is 2D only");
     // The budget with walls (walk_on_spheres) and in 3D: refused before any work.
     fs::path walled = dir.path() / "walled.xml";
     {
