@@ -388,55 +388,7 @@ TEST(Langevin, AdaptivePreconditionerWarmedUpFromAnIndependentStartIsExact) {
         }
 }
 
-// A target whose path reads a second pair (s, t) only where u < 1/2: pi = n(v) there times a bump b(s, t) normalised
-// to integrate to 1, and n(v) alone elsewhere, so P(u < 1/2) = 1/2 exactly (as in test_h2mc.cpp). Moves across
-// u = 1/2 change the block: the outside law, and adaptation states over coordinates that only some states read.
-struct TwoLength {
-    double c = 0;
-    static double b1(double x, double m, double s) {
-        const double d = torus_delta(m, x) / s;
-        return std::exp(-0.5 * d * d);
-    }
-    TwoLength() {
-        double is = 0, it = 0;
-        const int K = 20000;
-        for (int i = 0; i < K; ++i) {
-            is += b1((i + 0.5) / K, 0.3, 0.12) / K;
-            it += b1((i + 0.5) / K, 0.6, 0.08) / K;
-        }
-        c = 1 / (is * it);
-    }
-    double log_pi(const double* x, bool long_path, double* g) const {
-        const double dv = torus_delta(0.5, x[1]) / 0.01;
-        double lp = -0.5 * dv * dv;
-        if (g) g[1] = -dv / 0.01;
-        if (long_path) {
-            const double ds = torus_delta(0.3, x[2]) / 0.12, dt = torus_delta(0.6, x[3]) / 0.08;
-            lp += std::log(c) - 0.5 * (ds * ds + dt * dt);
-            if (g) {
-                g[2] = -ds / 0.12;
-                g[3] = -dt / 0.08;
-            }
-        }
-        return lp;
-    }
-};
-
 TEST(Langevin, StationaryWhenThePathChangesLength) {
-    const TwoLength T;
-    const MarkovChain::Target target = [&](CoordinateSource& s, Slot) {
-        double x[4] = {s.at(0), s.at(1), 0, 0};
-        const bool lp = x[0] < 0.5;
-        if (lp) x[2] = s.at(2), x[3] = s.at(3);
-        return std::exp(T.log_pi(x, lp, nullptr));
-    };
-    const TargetDerivatives d = [&](const DerivativeQuery& q) {
-        const bool lp = q.coords[0] < 0.5;
-        if (q.n != (lp ? 4 : 2) || q.block[0] != 0 || (lp && q.block[3] != 3) || q.hess)
-            throw std::logic_error("block");
-        T.log_pi(q.coords, lp, q.grad);
-        return true;
-    };
     auto plain = langevin(0), adaptive = langevin(1000), local = langevin_local();
     auto iso = mutation("gaussian", {{"sigma", 0.01}});
     auto hybrid = mixture_of(adaptive, mutation("gaussian", {{"sigma", 0.0025}}));
@@ -448,63 +400,18 @@ TEST(Langevin, StationaryWhenThePathChangesLength) {
         {"green/gaussian-then-adaptive", {iso.get(), adaptive.get(), DrType::Green, 0.0}},
         {"green/gaussian-then-hybrid+large", {iso.get(), hybrid.get(), DrType::Green, 0.3, true}},
     };
-    const int chains = 20000, steps = 60;
     for (const Config& c : configs) {
         SCOPED_TRACE(c.name);
-        Random init(21, 0);
-        int n_long = 0, crossings = 0;
-        std::vector<int> vbin(10, 0), sbin(10, 0);
-        ChainStats stats;
-        for (int k = 0; k < chains; ++k) {
-            std::vector<double> x0(4);
-            x0[0] = init.next_double();
-            do x0[1] = init.next_double();
-            while (!(init.next_double() < TwoLength::b1(x0[1], 0.5, 0.01)));
-            do x0[2] = init.next_double(), x0[3] = init.next_double();
-            while (!(init.next_double() < TwoLength::b1(x0[2], 0.3, 0.12) * TwoLength::b1(x0[3], 0.6, 0.08)));
-            MarkovChain chain(c.cfg, 31, uint64_t(k));
-            chain.set_derivatives(d);
-            chain.start(target, x0);
-            bool was_long = x0[0] < 0.5;
-            for (int t = 0; t < steps; ++t) {
-                chain.step(target);
-                const bool is_long = chain.state()[0] < 0.5;
-                crossings += is_long != was_long;
-                was_long = is_long;
-            }
-            const auto& s = chain.state();
-            const bool lp = s[0] < 0.5;
-            n_long += lp;
-            const double dv = torus_delta(0.5, s[1]);
-            ++vbin[std::size_t(std::clamp(int((dv + 0.025) / 0.005), 0, 9))];
-            if (lp) ++sbin[std::size_t(std::min(9, int(s[2] * 10)))];
-            stats += chain.stats();
-        }
-        const double p = double(n_long) / chains, se = std::sqrt(0.25 / chains);
+        const TwoLengthRun r = run_two_length(c.cfg, true);
+        const double p = r.p_long(), se = r.se();
         EXPECT_NEAR(p, 0.5, 5 * se);
-        EXPECT_GT(crossings, 2000);
-        auto normal_cdf = [](double z) { return 0.5 * std::erfc(-z / std::sqrt(2.0)); };
-        double chi_v = 0, chi_s = 0;
-        for (int b = 0; b < 10; ++b) {
-            const double lo = b == 0 ? -1e9 : (-0.025 + 0.005 * b) / 0.01;
-            const double hi = b == 9 ? 1e9 : (-0.025 + 0.005 * (b + 1)) / 0.01;
-            const double e = chains * (normal_cdf(hi) - normal_cdf(lo));
-            chi_v += (vbin[std::size_t(b)] - e) * (vbin[std::size_t(b)] - e) / e;
-        }
-        std::vector<double> ps(10, 0.0);
-        for (int i = 0; i < 10000; ++i) ps[std::size_t(i / 1000)] += TwoLength::b1((i + 0.5) / 10000, 0.3, 0.12);
-        double tot = 0;
-        for (double v : ps) tot += v;
-        for (int b = 0; b < 10; ++b) {
-            const double e = n_long * ps[std::size_t(b)] / tot;
-            chi_s += (sbin[std::size_t(b)] - e) * (sbin[std::size_t(b)] - e) / e;
-        }
-        EXPECT_GT(chi2_sf(chi_v, 9), kAlpha) << "chi2 of v " << chi_v;
-        EXPECT_GT(chi2_sf(chi_s, 9), kAlpha) << "chi2 of s " << chi_s;
-        EXPECT_GT(stats.local_accepted, 10000u);
+        EXPECT_GT(r.crossings, 2000);
+        EXPECT_GT(chi2_sf(r.chi_v, 9), kAlpha) << "chi2 of v " << r.chi_v;
+        EXPECT_GT(chi2_sf(r.chi_s, 9), kAlpha) << "chi2 of s " << r.chi_s;
+        EXPECT_GT(r.stats.local_accepted, 10000u);
         std::printf("%-34s P(long) %.4f (z %+.2f)  crossings %6d  chi2 v %5.1f  s %5.1f  local %llu accepted %llu\n",
-                    c.name, p, (p - 0.5) / se, crossings, chi_v, chi_s, (unsigned long long)stats.local_proposals,
-                    (unsigned long long)stats.local_accepted);
+                    c.name, p, (p - 0.5) / se, r.crossings, r.chi_v, r.chi_s,
+                    (unsigned long long)r.stats.local_proposals, (unsigned long long)r.stats.local_accepted);
     }
 }
 
