@@ -128,9 +128,9 @@ BudgetRun run(const MCFluidSettings& s, double t_end) {
 }  // namespace
 
 // Inviscid Taylor–Green (32^2, t = 2): the exact energy is constant, so the whole change is error, and the budget
-// says whose. The terms add up to the change by construction; what is tested is that each measures its source:
-// the split's total agrees with the solver's own Monte Carlo energy diagnostic, and each term falls when its source
-// is reduced, and is large when it is there. Measured: linear lookup, n 256: change -0.281 of 2.467 (transport
+// says whose. The terms add up to the change by construction (not asserted); what is tested is that each measures its
+// source: the split's total agrees with the solver's own Monte Carlo energy diagnostic, and each term falls when its
+// source is reduced, and is large when it is there. Measured: linear lookup, n 256: change -0.281 of 2.467 (transport
 // -0.281, noise -0.008, mollifier +0.008), the diagnostic's relative change within 0.5 % of the budget's; noise
 // -0.079 at n 16; cubic lookup: transport -0.0016 to -0.0038.
 // Broken variants seen to fail: the budget's velocity without the 1/|k|^2 (every term wrong, totals disagree),
@@ -140,7 +140,6 @@ TEST(EnergyBudget, EachTermMeasuresItsSource) {
     const BudgetRun linear16 = run(tg_settings(16, VorticityTransport::Linear), 2);
     const BudgetRun cubic = run(tg_settings(256, VorticityTransport::Cubic), 2);
     const EnergyBudget& b = linear.budget;
-    EXPECT_NEAR(b.change, b.transport + b.noise + b.mollifier + b.integrator, 1e-12);
     EXPECT_NEAR(b.energy - linear.e0, b.change, 1e-9);
     // The budget's total against the solver's own (Monte Carlo) energy: the same relative change.
     EXPECT_LT(b.change / linear.e0, -0.05);
