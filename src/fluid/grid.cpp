@@ -84,13 +84,6 @@ double Grid2::sample(Vec2d p, Interpolation interp) const {
     return (1 - ay) * ((1 - ax) * v00 + ax * v10) + ay * ((1 - ax) * v01 + ax * v11);
 }
 
-namespace {
-/// Catmull–Rom through v0..v3 (at -1, 0, 1, 2) at t in [0, 1].
-double catmull_rom(double v0, double v1, double v2, double v3, double t) {
-    return v1 + 0.5 * t * (v2 - v0 + t * (2 * v0 - 5 * v1 + 4 * v2 - v3 + t * (3 * (v1 - v2) + v3 - v0)));
-}
-}  // namespace
-
 double Grid2::sample_cubic(Vec2d p) const {
     if (!std::isfinite(p.x) || !std::isfinite(p.y)) return 0.0;
     p = m_domain.wrap(p);
@@ -99,11 +92,15 @@ double Grid2::sample_cubic(Vec2d p) const {
     const double fx = std::floor(gx), fy = std::floor(gy);
     const int i = int(fx), j = int(fy);
     const double ax = gx - fx, ay = gy - fy;
-    double rows[4];
-    for (int b = 0; b < 4; ++b)
-        rows[b] = catmull_rom(at_bc(i - 1, j - 1 + b), at_bc(i, j - 1 + b), at_bc(i + 1, j - 1 + b),
-                              at_bc(i + 2, j - 1 + b), ax);
-    const double v = catmull_rom(rows[0], rows[1], rows[2], rows[3], ay);
+    double wx[4], wy[4];
+    catmull_rom_weights(ax, wx);
+    catmull_rom_weights(ay, wy);
+    double v = 0;
+    for (int b = 0; b < 4; ++b) {
+        double row = 0;
+        for (int a = 0; a < 4; ++a) row += wx[a] * at_bc(i - 1 + a, j - 1 + b);
+        v += wy[b] * row;
+    }
     const double v00 = at_bc(i, j), v10 = at_bc(i + 1, j), v01 = at_bc(i, j + 1), v11 = at_bc(i + 1, j + 1);
     const double lo = std::min(std::min(v00, v10), std::min(v01, v11));
     const double hi = std::max(std::max(v00, v10), std::max(v01, v11));

@@ -106,11 +106,8 @@ CubicStencil3 Grid3::cubic_stencil(Vec3d p) const {
     for (int a = 0; a < 3; ++a) {
         if (!m_domain.periodic && (g[a] < -1 || g[a] >= n[a])) return s;
         const double fl = std::floor(g[a]), t = g[a] - fl;
-        lo[a] = int(fl) - 1;                     // the stencil's first cell
-        w[a][0] = 0.5 * t * (-1 + t * (2 - t));  // Catmull–Rom
-        w[a][1] = 1 + 0.5 * t * t * (-5 + 3 * t);
-        w[a][2] = 0.5 * t * (1 + t * (4 - 3 * t));
-        w[a][3] = 0.5 * t * t * (t - 1);
+        lo[a] = int(fl) - 1;  // the stencil's first cell
+        catmull_rom_weights(t, w[a]);
     }
     int inner = 0;
     for (int c = 0; c < 64; ++c) {

@@ -21,6 +21,15 @@
 namespace kelvin::fluid {
 
 enum class Interpolation { Nearest, Bilinear };
+
+/// The Catmull–Rom weights of the four samples at -1, 0, 1, 2 for a point at t in [0, 1] between the middle two
+/// (the cubic lookups of Grid2::sample_cubic and Grid3::cubic_stencil).
+inline void catmull_rom_weights(double t, double w[4]) {
+    w[0] = 0.5 * t * (-1 + t * (2 - t));
+    w[1] = 1 + 0.5 * t * t * (-5 + 3 * t);
+    w[2] = 0.5 * t * (1 + t * (4 - 3 * t));
+    w[3] = 0.5 * t * t * (t - 1);
+}
 const char* to_string(Interpolation i);
 
 /// The box [min, max] of a simulation in D = 2 or 3 dimensions. Periodic: space is tiled by copies of the box. Open:
