@@ -14,6 +14,8 @@ namespace {
 constexpr double InvTwoPi = 0.5 / Pi;
 }
 
+const char* to_string(Mollifier m) { return m == Mollifier::HighOrder ? "high_order" : "rosenhead_moore"; }
+
 const char* to_string(SourceSampling s) {
     switch (s) {
         case SourceSampling::Uniform:

@@ -96,9 +96,10 @@ private:
 
 }  // namespace
 
-Vec3d biot_savart_kernel3(Vec3d r, double delta) {
-    const double r2 = glm::dot(r, r) + delta * delta;
+Vec3d biot_savart_kernel3(Vec3d r, double delta, Mollifier mollifier) {
+    const double d2 = delta * delta, r2 = glm::dot(r, r) + d2;
     if (!(r2 > 0)) return Vec3d(0.0);
+    if (mollifier == Mollifier::HighOrder) return r * (InvFourPi * (r2 + 1.5 * d2) / (r2 * r2 * std::sqrt(r2)));
     return r * (InvFourPi / (r2 * std::sqrt(r2)));
 }
 
@@ -210,8 +211,14 @@ uint32_t encode_direction(Vec3d d) {
 }  // namespace
 
 BiotSavartEstimator3::BiotSavartEstimator3(const VectorGrid3& vorticity, Interpolation interp, SourceSampling sampling,
-                                           double delta, std::shared_ptr<const PeriodicKernel3> periodic)
-    : m_grid(&vorticity), m_interp(interp), m_sampling(sampling), m_delta(delta), m_periodic(std::move(periodic)) {
+                                           double delta, std::shared_ptr<const PeriodicKernel3> periodic,
+                                           Mollifier mollifier)
+    : m_grid(&vorticity),
+      m_interp(interp),
+      m_sampling(sampling),
+      m_delta(delta),
+      m_mollifier(mollifier),
+      m_periodic(std::move(periodic)) {
     const Grid3& g = vorticity.x;
     const Domain3& d = g.domain();
     if (d.periodic && !m_periodic) throw_runtime("BiotSavartEstimator3: a periodic domain needs its PeriodicKernel3");
@@ -276,6 +283,7 @@ struct Kernel3Params {
     float hx, hy, hz;  ///< cell size
     float nx, ny, nz;  ///< cells per axis (periodic minimum image in cell units)
     float d2;
+    float lobe;  ///< high-order algebraic mollifier: 1.5 d2 (|r|^2 + 5/2 delta^2 = r2 + 3/2 delta^2)
 };
 
 /// The periodic correction's octant table (PeriodicKernel3::octant) and its scale.
@@ -317,7 +325,7 @@ __attribute__((target_clones("avx2", "default"))) void accumulate3(const float* 
 // The kernel: sum over the batch of w x G_delta(r) (times 4 pi) and its square, per component, in float lanes then
 // double. Compiled for AVX2 and for the baseline (chosen at load time); both give identical results (the same IEEE
 // operations per sample, no FMA contraction, the same summation order).
-template <bool Periodic>
+template <bool Periodic, bool HighOrder>
 __attribute__((always_inline)) inline void kernel3_body(Batch3& __restrict b, int count, const Kernel3Params& k) {
     const float inv_nx = 1.0f / k.nx, inv_ny = 1.0f / k.ny, inv_nz = 1.0f / k.nz;
     for (int s = 0; s < count; ++s) {
@@ -337,9 +345,16 @@ __attribute__((always_inline)) inline void kernel3_body(Batch3& __restrict b, in
         // delta = 0, or r2 so small that r2^(3/2) underflows, contributes zero). The file is built with
         // -fno-math-errno -fno-trapping-math (src/CMakeLists.txt), without which GCC keeps this loop scalar.
         const float r2 = rx * rx + ry * ry + rz * rz + k.d2;
-        const float den = r2 * std::sqrt(r2);
-        const float q = 1.0f / std::max(den, FLT_MIN);
-        const float inv = den > 0.0f ? q : 0.0f;
+        float inv;
+        if constexpr (HighOrder) {  // (r2 + 3/2 delta^2) / r2^(5/2)
+            const float den = r2 * r2 * std::sqrt(r2);
+            const float q = (r2 + k.lobe) / std::max(den, FLT_MIN);
+            inv = den > 0.0f ? q : 0.0f;
+        } else {
+            const float den = r2 * std::sqrt(r2);
+            const float q = 1.0f / std::max(den, FLT_MIN);
+            inv = den > 0.0f ? q : 0.0f;
+        }
         const float gx = rx * inv, gy = ry * inv, gz = rz * inv;
         b.fx[s] = b.wy[s] * gz - b.wz[s] * gy;
         b.fy[s] = b.wz[s] * gx - b.wx[s] * gz;
@@ -450,10 +465,17 @@ __attribute__((target_clones("avx2", "default"))) void positions3_box(const uint
 }
 
 __attribute__((target_clones("avx2", "default"))) void kernel3_open(Batch3& b, int count, const Kernel3Params& k) {
-    kernel3_body<false>(b, count, k);
+    kernel3_body<false, false>(b, count, k);
 }
 __attribute__((target_clones("avx2", "default"))) void kernel3_periodic(Batch3& b, int count, const Kernel3Params& k) {
-    kernel3_body<true>(b, count, k);
+    kernel3_body<true, false>(b, count, k);
+}
+__attribute__((target_clones("avx2", "default"))) void kernel3_open_ho(Batch3& b, int count, const Kernel3Params& k) {
+    kernel3_body<false, true>(b, count, k);
+}
+__attribute__((target_clones("avx2", "default"))) void kernel3_periodic_ho(Batch3& b, int count,
+                                                                           const Kernel3Params& k) {
+    kernel3_body<true, true>(b, count, k);
 }
 
 }  // namespace
@@ -485,6 +507,8 @@ VelocityEstimate3 BiotSavartEstimator3::estimate(Vec3d x, int n, Random& rng) co
     k.ny = float(g.ny());
     k.nz = float(g.nz());
     k.d2 = float(m_delta * m_delta);
+    k.lobe = float(1.5 * m_delta * m_delta);
+    const bool high_order = m_mollifier == Mollifier::HighOrder;
     Octant3 oct;
     if (periodic) {
         const Vec3d period = m_periodic->period();
@@ -550,7 +574,9 @@ VelocityEstimate3 BiotSavartEstimator3::estimate(Vec3d x, int n, Random& rng) co
                 b.wz[s] = float(w.z);
             }
         }
-        if (periodic)
+        if (high_order)
+            (periodic ? kernel3_periodic_ho : kernel3_open_ho)(b, m, k);
+        else if (periodic)
             kernel3_periodic(b, m, k);
         else
             kernel3_open(b, m, k);

@@ -32,6 +32,7 @@ std::string check_delta(double delta, double smaller_side) {
 }  // namespace
 
 std::string BiotSavartVelocity::check2(const Domain2& domain) const {
+    if (m_options.mollifier == Mollifier::HighOrder) return "mollifier = high_order is 3D only";
     const Vec2d size = domain.size();
     return check_delta(m_options.delta, std::min(size.x, size.y));
 }
@@ -51,15 +52,17 @@ std::unique_ptr<VelocityField2> BiotSavartVelocity::build2(const VelocityState2&
 }
 
 std::unique_ptr<VelocityField3> BiotSavartVelocity::build3(const VelocityState3& s) const {
-    auto field =
-        std::make_unique<BiotSavartEstimator3>(*s.omega, s.interpolation, m_options.importance, s.delta, s.periodic);
+    auto field = std::make_unique<BiotSavartEstimator3>(*s.omega, s.interpolation, m_options.importance, s.delta,
+                                                        s.periodic, m_options.mollifier);
     field->set_stop(s.stop);
     return field;
 }
 
 std::string BiotSavartVelocity::effect(int samples, double delta, bool periodic) const {
-    return fmt::format("Biot–Savart velocity (n_mc {}, importance {}, delta {:g}{})", samples,
-                       fluid::to_string(m_options.importance), delta, periodic ? ", periodic kernel" : "");
+    return fmt::format("Biot–Savart velocity (n_mc {}, importance {}, delta {:g}{}{})", samples,
+                       fluid::to_string(m_options.importance), delta,
+                       m_options.mollifier == Mollifier::HighOrder ? ", high-order mollifier" : "",
+                       periodic ? ", periodic kernel" : "");
 }
 
 std::shared_ptr<const VelocityEstimator> resolve_estimator(std::shared_ptr<const VelocityEstimator> estimator,

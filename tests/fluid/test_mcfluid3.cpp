@@ -6,6 +6,8 @@
 #include <kelvin/fluid/estimators.h>
 #include <kelvin/fluid/mcfluid3.h>
 
+#include "axisymmetric_rings.h"
+
 #include <gtest/gtest.h>
 
 #include <cmath>
@@ -252,17 +254,104 @@ TEST(MCFluid3, AbcViscousEnergyDecaysAsExpMinusTwoNuT) {
         }
 }
 
-// A thin-cored ring translates at Saffman's U = Gamma / (4 pi R) (ln(8 R / sigma) - 0.558): compared with that
-// speed for the ring as it is set up (R 1, Gamma 1, Gaussian core sigma 0.2: U = 0.2490), from the centroid's
-// motion over t in [0, 0.4] (4 steps of 0.1, n_mc 64). Measured speed / U with the cubic lookup: 0.887, 0.898, 0.912
-// at h 0.133, 0.1, 0.067 (linear: 0.853, 0.881, 0.915); a mollifier of h/4 instead of h/2: 0.919 at h 0.1. The
-// ring is slow because the velocity is that of a smoothed core (the tent basis and the mollifier widen a core of
-// two cells' radius), not because of the transport; the error falls with h. Asserted: within 12 % at h 0.1 and
-// closer at h 0.067 than at h 0.133. A kernel off by a factor (or of the wrong sign) is far outside.
-TEST(MCFluid3, VortexRingMovesAtSaffmansSpeed) {
+// The exact answer of the ring problem (tests/fluid/axisymmetric_rings.h) agrees with thin-ring theory, so the
+// solver can be compared with it: a ring of R 1, Gamma 1, sigma 0.1 moves at Saffman's speed less Fukumoto and
+// Moffatt's thick-core correction (measured 0.3021 over t = 1 against 0.3036: 0.5 %) and conserves its impulse. A
+// filament velocity of the wrong sign or a missing E term moves it far from this.
+TEST(AxisymmetricRings, ThinRingMovesAtSaffmansSpeedAndKeepsItsImpulse) {
+    kelvin::testing::AxisymmetricRings ring(1, 1, 0.1, {0.0}, 3);
+    const double p0 = ring.impulse();
+    for (int i = 0; i < 10; ++i) ring.step(0.05);
+    const double speed = ring.position() / 0.5;
+    const double corrected = 1 / (4 * Pi) * (std::log(8 / 0.1) - 0.558 - 0.918 * 0.01);  // Fukumoto–Moffatt 2000
+    std::cout << "[ measured ] reference ring speed " << speed << ", Saffman less the thick-core term " << corrected
+              << "\n";
+    EXPECT_NEAR(speed / corrected, 1.0, 0.01);
+    EXPECT_NEAR(ring.impulse() / p0, 1.0, 1e-5);  // measured 5e-7 (regularised, approximate elliptic integrals)
+    EXPECT_NEAR(p0, Pi * (1 + 0.01 / 2) * 1.0, 2e-3) << "a Gaussian ring's impulse pi Gamma (R^2 + sigma^2/2)";
+}
+
+// The mollifier's bias, measured against the exact velocity of the ring as posed (R 1, Gamma 1, sigma 0.2 on
+// cells of 0.1, delta = h/2): the vorticity-weighted mean axial velocity over the core and the core's rotation
+// (the vorticity-weighted z u_r about the core), from the cache's estimator with 2^16 samples at 96 core points.
+// Measured: Rosenhead–Moore 6.3 % and 12.5 % low, high order 3.6 % and 4.8 % (over all cells within 3 sigma:
+// 3.2 % / 13 % and 1.4 % / 6 %; the singular kernel 0 % / 4 %, what the trilinear cache itself costs). Asserted:
+// high order has at most 70 % of Rosenhead–Moore's axial bias and half its rotation bias, and both agree with the
+// exact velocity 0.8 from the core (where the kernels coincide) within 0.5 %. Seen to fail: the high-order kernel
+// with the lobe's sign reversed.
+TEST(MCFluid3, HighOrderMollifierHalvesTheCoreBias) {
     const double R = 1, gamma = 1, sigma = 0.2;
-    const double saffman = gamma / (4 * Pi * R) * (std::log(8 * R / sigma) - 0.558);
-    auto speed_ratio = [&](int res) {
+    const Domain3 box{Vec3d(-2, -2, -1.5), Vec3d(2, 2, 2.5), false};
+    VectorGrid3 omega(box, 40, 40, 40);
+    for (int k = 0; k < 40; ++k)
+        for (int j = 0; j < 40; ++j)
+            for (int i = 0; i < 40; ++i)
+                omega.set(omega.x.index(i, j, k), ring_omega(omega.x.cell_center(i, j, k), R, gamma, sigma));
+    const kelvin::testing::AxisymmetricRings exact(R, gamma, sigma, {0.0}, 8);
+    struct Bias {
+        double axial, rotation, far;
+    };
+    auto bias = [&](Mollifier m) {
+        const BiotSavartEstimator3 est(omega, Interpolation::Bilinear, SourceSampling::Vorticity, 0.05, nullptr, m);
+        Random rng(5, 0);
+        double wu = 0, wu_ex = 0, wz = 0, wz_ex = 0, far = 0;
+        for (int a = 0; a < 96; ++a) {  // points on a disk of radius 1.5 sigma around the core, at angle a
+            const double t = 2 * Pi * (a % 12) / 12, rho = 0.3 * sigma * (1 + a / 12) / 1.6, phi = 0.37 * a;
+            const double r = R + rho * std::cos(t), z = rho * std::sin(t);
+            const Vec3d x(r * std::cos(phi), r * std::sin(phi), z);
+            const double w = glm::length(ring_omega(x, R, gamma, sigma));
+            const Vec3d u = est.estimate(x, 1 << 16, rng).value;
+            double ur, uz;
+            exact.velocity(r, z, ur, uz);
+            const double u_r = (u.x * x.x + u.y * x.y) / r;
+            wu += w * u.z;
+            wu_ex += w * uz;
+            wz += w * z * u_r;
+            wz_ex += w * z * ur;
+        }
+        const Vec3d xf(0.2, 0.1, 0.4);  // inside the ring, 0.8 from the core
+        double ur, uz;
+        exact.velocity(std::hypot(xf.x, xf.y), xf.z, ur, uz);
+        far = est.estimate(xf, 1 << 18, rng).value.z / uz - 1;
+        return Bias{wu / wu_ex - 1, wz / wz_ex - 1, far};
+    };
+    const Bias rm = bias(Mollifier::RosenheadMoore), ho = bias(Mollifier::HighOrder);
+    std::cout << "[ measured ] bias of the core's axial velocity / rotation: Rosenhead–Moore " << rm.axial << " / "
+              << rm.rotation << ", high order " << ho.axial << " / " << ho.rotation << "; far " << rm.far << " / "
+              << ho.far << "\n";
+    EXPECT_LT(rm.rotation, -0.08) << "Rosenhead–Moore's smoothing of a two-cell core (else the test sees nothing)";
+    EXPECT_LT(std::abs(ho.axial), 0.7 * std::abs(rm.axial));
+    EXPECT_LT(std::abs(ho.rotation), 0.5 * std::abs(rm.rotation));
+    EXPECT_LT(std::abs(rm.far), 0.005);
+    EXPECT_LT(std::abs(ho.far), 0.005);
+}
+
+// A Gaussian-core ring (R 1, Gamma 1, sigma 0.2) against the exact answer of the same problem: the impulse centroid
+// (sum z (x cross omega)_z / sum (x cross omega)_z: its signed weights let the noise cancel) after 4 steps of 0.1
+// (n_mc 64), divided by the exact ring's (tests/fluid/axisymmetric_rings.h: 0.957 of Saffman's speed over this
+// first 0.4 while the Gaussian core adjusts; 0.985 over t = 2). Measured ratio: 0.916, 0.931, 0.954 at h 0.133, 0.1,
+// 0.067 (two cells per core radius at h 0.1). What keeps it slow is the mollifier's smoothing of the
+// core (a high-order mollifier gives 0.94 at h 0.1, docs/fluid.md) and, over longer runs, noise and circulation
+// lost through forward-Euler stretching (0.888 of the exact position at t = 2, circulation 0.956). Asserted: within
+// 10 % at h 0.1 and closer at h 0.067 than at h 0.133. A kernel off by a factor (or of the wrong sign) is far outside.
+TEST(MCFluid3, VortexRingMovesAsTheExactRing) {
+    const double R = 1, gamma = 1, sigma = 0.2;
+    kelvin::testing::AxisymmetricRings exact(R, gamma, sigma, {0.0}, 4);
+    for (int i = 0; i < 8; ++i) exact.step(0.05);
+    const double exact_dz = exact.position();
+    auto impulse_centroid = [](const VectorGrid3& w) {
+        double a = 0, b = 0;
+        for (std::size_t c = 0; c < w.cell_count(); ++c) {
+            const int nx = w.x.nx(), ny = w.x.ny();
+            const Vec3d x = w.x.cell_center(int(c % nx), int((c / nx) % ny), int(c / (std::size_t(nx) * ny)));
+            const Vec3d o = w.at(c);
+            const double iz = x.x * o.y - x.y * o.x;
+            a += x.z * iz;
+            b += iz;
+        }
+        return a / b;
+    };
+    auto ratio = [&](int res) {
         MCFluid3Settings s;
         s.domain = {Vec3d(-2, -2, -1.5), Vec3d(2, 2, 2.5), false};
         s.nx = s.ny = s.nz = res;
@@ -270,18 +359,20 @@ TEST(MCFluid3, VortexRingMovesAtSaffmansSpeed) {
         s.dt = 0.1;
         s.seed = 9;
         MCFluid3Solver solver(s, [&](const Vec3d& x) { return ring_omega(x, R, gamma, sigma); });
-        const FluidDiagnostics3 d0 = solver.diagnostics();
+        const double z0 = impulse_centroid(solver.vorticity_grid());
         for (int i = 0; i < 4; ++i) EXPECT_TRUE(solver.step());
         const FluidDiagnostics3 d1 = solver.diagnostics();
         EXPECT_NEAR(d1.centroid.x, 0.0, 0.02);
         EXPECT_NEAR(d1.centroid.y, 0.0, 0.02);
         EXPECT_GT(solver.work().stretching_evals, 0u);
-        return (d1.centroid.z - d0.centroid.z) / solver.time() / saffman;
+        return (impulse_centroid(solver.vorticity_grid()) - z0) / exact_dz;
     };
-    const double coarse = speed_ratio(30), mid = speed_ratio(40), fine = speed_ratio(60);
-    std::cout << "[ measured ] ring speed / Saffman's for the initial core: " << coarse << " (h 0.133), " << mid
-              << " (h 0.1), " << fine << " (h 0.067)\n";
-    EXPECT_NEAR(mid, 1.0, 0.12);
+    const double coarse = ratio(30), mid = ratio(40), fine = ratio(60);
+    const double saffman = gamma / (4 * Pi * R) * (std::log(8 * R / sigma) - 0.558);
+    std::cout << "[ measured ] exact ring: " << exact_dz / 0.4 / saffman
+              << " of Saffman's speed; solver / exact: " << coarse << " (h 0.133), " << mid << " (h 0.1), " << fine
+              << " (h 0.067)\n";
+    EXPECT_NEAR(mid, 1.0, 0.10);
     EXPECT_LT(std::abs(1 - fine), std::abs(1 - coarse)) << "the error must fall with h";
 }
 

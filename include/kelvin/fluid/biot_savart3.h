@@ -29,8 +29,9 @@
 
 namespace kelvin::fluid {
 
-/// Free-space 3D Biot–Savart kernel G_delta(r) = r / (4 pi (|r|^2 + delta^2)^(3/2)). G(0) = 0.
-Vec3d biot_savart_kernel3(Vec3d r, double delta);
+/// Free-space 3D Biot–Savart kernel G_delta(r) = r / (4 pi (|r|^2 + delta^2)^(3/2)) (Rosenhead–Moore), or the
+/// high-order algebraic r (|r|^2 + 5/2 delta^2) / (4 pi (|r|^2 + delta^2)^(5/2)). G(0) = 0.
+Vec3d biot_savart_kernel3(Vec3d r, double delta, Mollifier mollifier = Mollifier::RosenheadMoore);
 
 /// The triply periodic correction G_per - G for a box of size `period`, tabulated on the minimum-image cell.
 class PeriodicKernel3 {
@@ -67,7 +68,8 @@ public:
     /// `sampling` is Uniform or Vorticity (Kernel sampling is 2D only). `periodic` is required when the grid's
     /// domain is periodic.
     BiotSavartEstimator3(const VectorGrid3& vorticity, Interpolation interp, SourceSampling sampling, double delta,
-                         std::shared_ptr<const PeriodicKernel3> periodic = nullptr);
+                         std::shared_ptr<const PeriodicKernel3> periodic = nullptr,
+                         Mollifier mollifier = Mollifier::RosenheadMoore);
 
     /// Estimate with `n` samples from `rng`. An empty field gives exactly zero and draws nothing.
     VelocityEstimate3 estimate(Vec3d x, int n, Random& rng) const;
@@ -78,6 +80,7 @@ public:
 
     bool empty() const { return m_abs_integral == 0; }
     double delta() const { return m_delta; }
+    Mollifier mollifier() const { return m_mollifier; }
     /// sum over cells of |omega_c| * cell volume.
     double abs_integral() const { return m_abs_integral; }
 
@@ -107,6 +110,7 @@ private:
     Interpolation m_interp;
     SourceSampling m_sampling;
     double m_delta;
+    Mollifier m_mollifier;
     std::shared_ptr<const PeriodicKernel3> m_periodic;
     double m_abs_integral = 0;
     std::vector<Slot> m_slots;
