@@ -31,17 +31,20 @@
 // run reads its cached one); D substeps the backtrace and keeps the run's stretching estimate; then
 //
 //   omega_S  the same as D with the stretching exact for the frozen velocity: omega(x_d) mapped by the Jacobian of
-//            the flow map over dt from x_d (a segment of length 1e-3 h advected at both ends by RK4 in 4 substeps);
+//            the flow map over dt from x_d (a segment of length 1e-3 h advected at both ends by RK4 in 2 substeps);
+//   omega_M  the same as S through the velocity of the state half a step on (S's step over dt / 2), frozen over the
+//            step: the midpoint rule in time, which departs from the exact dynamics at third order per step where
+//            the velocity frozen at the step's start departs at second order;
 //
+//   integrator  = E(C) - E(D) + E(S) - E(M)   the time integration: the backtrace's integrator and the velocity
+//                                             frozen over the step
 //   stretching  = E(D) - E(S)   the vortex-segment estimate: forward Euler over dt, a segment one cell long, the
 //                               cached velocity read by its (trilinear) interpolant
-//   transport   = E(S) - E(n)   the lookup
+//   transport   = E(M) - E(n)   the lookup (E(M) is the energy of the exact dynamics' step, the lookup's error apart)
 //
-// and the five terms add up to E(A) - E(n). The velocity frozen over the step departs from the exact dynamics at
-// second order in dt per step; that part (on a flow whose vorticity changes) is in `transport` (in 2D too). With
-// `stretching` off the run is not the Euler equations: its stretching term is zero and the advection's own change
-// of the energy is in `transport`. The state's energy is that of its Biot–Savart velocity: only the solenoidal part of
-// the cell vorticity has one (FlowFFT3::energy).
+// and the five terms add up to E(A) - E(n). With `stretching` off the run is not the Euler equations: its stretching
+// term is zero and the advection's own change of the energy is in `transport`. The state's energy is that of its
+// Biot–Savart velocity: only the solenoidal part of the cell vorticity has one (FlowFFT3::energy).
 #include <kelvin/fluid/grid.h>
 #include <kelvin/fluid/grid3.h>
 

@@ -185,12 +185,11 @@ private:
     void blend_direct(Vec3d x, int n, Random& rng, SlabWork& w, VelocityEstimate3& e) const;
     void rebuild_estimators();
     // The energy budget (energy_budget3.cpp).
-    enum class BudgetStretching { None, Segment, Exact };
     /// omega at the cells after a step of dt through the deterministic velocity u at the cell centres (read between
-    /// them by the cubic interpolant), the backtrace in `substeps` steps of the scene's integrator, then stretched:
-    /// not, as the run does (the vortex segment on u read with the cache's interpolation), or exactly.
-    void budget_step(const VectorGrid3& u, double dt, int substeps, BudgetStretching stretching,
-                     VectorGrid3& out) const;
+    /// them by the cubic interpolant), the backtrace in `substeps` steps of the scene's integrator, then stretched
+    /// into `as_run` as the run stretches (the vortex segment on u read with the cache's interpolation) and into
+    /// `exact` exactly for the frozen u (either may be null; without `stretching` neither is stretched).
+    void budget_step(const VectorGrid3& u, double dt, int substeps, VectorGrid3* as_run, VectorGrid3* exact) const;
     void measure_budget(double dt);
 
     MCFluid3Settings m_settings;
