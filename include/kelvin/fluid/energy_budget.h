@@ -32,9 +32,10 @@
 //
 //   omega_S  the same as D with the stretching exact for the frozen velocity: omega(x_d) mapped by the Jacobian of
 //            the flow map over dt from x_d (a segment of length 1e-3 h advected at both ends by RK4 in 2 substeps);
-//   omega_M  the same as S through the velocity of the state half a step on (S's step over dt / 2), frozen over the
-//            step: the midpoint rule in time, which departs from the exact dynamics at third order per step where
-//            the velocity frozen at the step's start departs at second order;
+//   omega_M  the same as S through the velocity at mid-step, u + dt/2 P(u x omega) (the Euler equations' du/dt, P
+//            Leray's projection, computed spectrally: no lookup), frozen over the step: the midpoint rule in time,
+//            which departs from the exact dynamics at third order per step where the velocity frozen at the step's
+//            start departs at second order;
 //
 //   integrator  = E(C) - E(D) + E(S) - E(M)   the time integration: the backtrace's integrator and the velocity
 //                                             frozen over the step
@@ -109,6 +110,10 @@ public:
     /// basis of `interp`, tent or box, and the Rosenhead–Moore kernel r / (4 pi (r^2 + delta^2)^(3/2)), whose
     /// transform factor is k delta K_1(k delta) as in 2D); otherwise of the point vortices (kernel 0 at r = 0).
     void velocity(const VectorGrid3& omega, bool smoothed, Interpolation interp, double delta, VectorGrid3& u);
+    /// The divergence-free part of the cell field f (Leray's projection across k), spectrally on the transform's grid
+    /// (free space: f zero-padded, so the periodic images of its gradient part add an error that falls with the
+    /// padding). With f = u x omega it is the Euler equations' du/dt.
+    void project(const VectorGrid3& f, VectorGrid3& out);
 
 private:
     struct Impl;
