@@ -136,8 +136,14 @@ Simulation3Params Simulation3Params::parse(const Properties& props) {
     p.field->check_domain3(s.domain);
     p.sources = RunSources::from(props, obj->plugin_name(), p.field->strength_parameter3());
     // The memory the run will need, before anything is allocated (checks.h: measured per cell).
+    // With the energy budget, its transforms (energy_budget3.cpp): about 120 B per cell of the transform's grid (8x
+    // the cells of an open box, zero-padded; measured: 73 MB at 40^3 open) and three vector grids.
+    const double budget_bytes =
+        p.energy_budget ? double(s.nx) * double(s.ny) * double(s.nz) * ((s.domain.periodic ? 1 : 8) * 120.0 + 72.0)
+                        : 0.0;
     check_memory(memory_estimate_3d(s.nx, s.ny, s.nz, s.control_variates, bool(p.smoke), bool(s.boundaries),
-                                    p.write_vdb && p.output_every > 0),
+                                    p.write_vdb && p.output_every > 0) +
+                     budget_bytes,
                  fmt::format("mcfluid: a {}x{}x{} cache (parameter 'resolution')", s.nx, s.ny, s.nz),
                  props.location_of("cache"));
     return p;
