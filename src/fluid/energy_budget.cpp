@@ -21,6 +21,7 @@ EnergyBudget& EnergyBudget::operator+=(const EnergyBudget& o) {
     mollifier += o.mollifier;
     integrator += o.integrator;
     transport += o.transport;
+    stretching += o.stretching;
     return *this;
 }
 

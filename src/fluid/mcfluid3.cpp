@@ -400,6 +400,7 @@ bool MCFluid3Solver::step(double dt) {
     if (m_smoke) fields.push_back(&m_density_next.values());
     pass.gather(fields);
     add_work(m_work, work);
+    if (m_flow) measure_budget(dt);  // before the new state replaces the old one
     if (m_smoke) std::swap(m_density, m_density_next);
     if (s.control_variates) {  // this state becomes the control variate of the next one
         m_prev_omega = m_omega;

@@ -56,7 +56,8 @@ Simulation3Params Simulation3Params::parse(const Properties& props) {
     s.transport = parse_transport(props);
     if (s.transport == VorticityTransport::MacCormack)
         props.error("transport", "'maccormack' is 2D only; in 3D use 'cubic' (the default) or 'linear'");
-    if (props.get_bool("energy_budget")) props.error("energy_budget", "is measured in 2D only (dimension = 2)");
+    p.energy_budget = props.get_bool("energy_budget");
+    if (p.energy_budget && s.viscosity > 0) props.error("energy_budget", "covers inviscid flows only (viscosity 0)");
     s.stretching = props.get_bool("stretching");
     s.control_variates = props.get_bool("control_variates");
     s.initial_samples = int(props.get_int("initial_samples", 0, 1 << 24));
@@ -127,14 +128,22 @@ Simulation3Params Simulation3Params::parse(const Properties& props) {
             props.error("scalar",
                         fmt::format("'{}' is a 2D dye; 3D scenes take <scalar type=\"smoke\">", scalar->plugin_name()));
     }
+    if (p.energy_budget && s.boundaries)
+        props.error("energy_budget", "covers flows without boundaries only (walk_on_spheres has none in closed form)");
     if (s.boundaries)
         if (const std::string why = check_wos_cells3(*s.boundaries, s.domain, s.nx, s.ny, s.nz); !why.empty())
             props.error("velocity", "walk_on_spheres: " + why);
     p.field->check_domain3(s.domain);
     p.sources = RunSources::from(props, obj->plugin_name(), p.field->strength_parameter3());
     // The memory the run will need, before anything is allocated (checks.h: measured per cell).
+    // With the energy budget, its transforms (energy_budget3.cpp): about 120 B per cell of the transform's grid (8x
+    // the cells of an open box, zero-padded; measured: 73 MB at 40^3 open) and three vector grids.
+    const double budget_bytes =
+        p.energy_budget ? double(s.nx) * double(s.ny) * double(s.nz) * ((s.domain.periodic ? 1 : 8) * 120.0 + 72.0)
+                        : 0.0;
     check_memory(memory_estimate_3d(s.nx, s.ny, s.nz, s.control_variates, bool(p.smoke), bool(s.boundaries),
-                                    p.write_vdb && p.output_every > 0),
+                                    p.write_vdb && p.output_every > 0) +
+                     budget_bytes,
                  fmt::format("mcfluid: a {}x{}x{} cache (parameter 'resolution')", s.nx, s.ny, s.nz),
                  props.location_of("cache"));
     return p;
@@ -250,6 +259,7 @@ std::unique_ptr<MCFluid3Solver> create_mcfluid3_solver(const Simulation3Params& 
     if (p.smoke) solver->set_smoke({p.smoke->center(), p.smoke->radius(), p.smoke->initial_density(), p.smoke->rate()});
     solver->set_cancel_token(ctx.cancel);
     solver->set_communicator(ctx.comm);
+    if (p.energy_budget) solver->set_energy_budget(true);
     return solver;
 }
 
@@ -324,16 +334,27 @@ public:
     std::string csv_header() const override {
         return "step,time,kinetic_energy,kinetic_energy_raw,enstrophy,helicity,impulse_x,impulse_y,impulse_z,"
                "centroid_x,centroid_y,centroid_z,max_abs_vorticity,divergence_rms,smoke_mass,step_seconds,"
-               "biot_savart_evals,invalid,cfl";
+               "biot_savart_evals,invalid,cfl" +
+               std::string(m_solver->energy_budget_step() ? BudgetColumns : "");
     }
     std::string csv_row(double seconds, double evals, uint64_t invalid, double cfl) const override {
         const FluidDiagnostics3& d = m_d;
         return fmt::format(
             "{},{:.9g},{:.9g},{:.9g},{:.9g},{:.9g},{:.9g},{:.9g},{:.9g},{:.9g},{:.9g},{:.9g},{:.9g},{:.9g},"
-            "{:.9g},{:.6g},{:.0f},{},{:.6g}\n",
+            "{:.9g},{:.6g},{:.0f},{},{:.6g}{}\n",
             d.step, d.time, d.kinetic_energy, d.kinetic_energy_raw, d.enstrophy, d.helicity, d.impulse.x, d.impulse.y,
             d.impulse.z, d.centroid.x, d.centroid.y, d.centroid.z, d.max_abs_vorticity, d.divergence_rms, d.smoke_mass,
-            seconds, evals, invalid, cfl);
+            seconds, evals, invalid, cfl, budget_values());
+    }
+    // With the energy budget, seven more columns: the state's deterministic energy and the last step's split.
+    static constexpr const char* BudgetColumns =
+        ",energy_exact,budget_change,budget_noise,budget_mollifier,budget_integrator,budget_transport,"
+        "budget_stretching";
+    std::string budget_values() const {
+        const EnergyBudget* b = m_solver->energy_budget_step();
+        if (!b) return {};
+        return fmt::format(",{:.10g},{:.6g},{:.6g},{:.6g},{:.6g},{:.6g},{:.6g}", b->energy, b->change, b->noise,
+                           b->mollifier, b->integrator, b->transport, b->stretching);
     }
     void write_frame(FrameWriter& frames) override {
         MCFluid3Solver& solver = *m_solver;
@@ -430,6 +451,15 @@ public:
             stats.add("fluid.wos_walks", 0.0, "walks");
         }
         stats.add("fluid.smoke_lookups", double(w.smoke_lookups), "lookups");
+        if (const EnergyBudget* b = m_solver->energy_budget_total()) {
+            stats.add("fluid.energy_budget.energy", b->energy, "energy");
+            stats.add("fluid.energy_budget.change", b->change, "energy");
+            stats.add("fluid.energy_budget.noise", b->noise, "energy");
+            stats.add("fluid.energy_budget.mollifier", b->mollifier, "energy");
+            stats.add("fluid.energy_budget.integrator", b->integrator, "energy");
+            stats.add("fluid.energy_budget.transport", b->transport, "energy");
+            stats.add("fluid.energy_budget.stretching", b->stretching, "energy");
+        }
     }
 
     void warn() const override {
@@ -442,6 +472,16 @@ public:
     }
 
     std::string summary(const std::string& ended) override {
+        std::string line = summary_line(ended);
+        if (const EnergyBudget* b = m_solver->energy_budget_total())
+            line += fmt::format(
+                "; energy budget (exact energy {:.6g}, change {:+.4g}): transport {:+.4g}, Monte Carlo noise {:+.4g}, "
+                "mollifier {:+.4g}, integrator {:+.4g}, stretching {:+.4g}",
+                b->energy, b->change, b->transport, b->noise, b->mollifier, b->integrator, b->stretching);
+        return line;
+    }
+
+    std::string summary_line(const std::string& ended) {
         const MCFluid3Settings& s = m_solver->settings();
         const std::string effects =
             fmt::format("active effects: advection{}{}{}{}", s.stretching ? ", stretching" : "",

@@ -51,7 +51,7 @@ TEST(CliFluidTransport, BadTransportAndBudgetAreOneLineNamingTheParameter) {
     EXPECT_CONTAINS(
         expect_one_error_line(run_kelvin({Scenes + "vortex_ring.xml", "-D", "transport=maccormack", "-o", out})),
         "parameter 'transport': 'maccormack' is 2D only");
-    // The budget with walls (walk_on_spheres) and in 3D: refused before any work.
+    // The budget with walls (walk_on_spheres) and with viscosity: refused before any work.
     fs::path walled = dir.path() / "walled.xml";
     {
         std::string xml = read(Scenes + "lamb_oseen_disk.xml");
@@ -64,4 +64,36 @@ TEST(CliFluidTransport, BadTransportAndBudgetAreOneLineNamingTheParameter) {
     EXPECT_CONTAINS(expect_one_error_line(run_kelvin(
                         {Scenes + "co_rotating_vortices.xml", "-D", "budget=true", "-D", "nu=0.01", "-o", out})),
                     "parameter 'energy_budget': covers inviscid flows only");
+}
+
+// 3D: the budget's columns (with the stretching term), --stats and the summary line on the vortex ring; refused with
+// viscosity, with walls (walk_on_spheres) and by the grid baselines, one line naming the parameter, exit 2.
+TEST(CliFluidTransport, EnergyBudgetIn3D) {
+    TempDir dir;
+    const ProcessResult r = run_kelvin(
+        {Scenes + "vortex_ring.xml", "-D", "res=12", "-D", "end=0.2", "-D", "budget=true", "-D", "spp=8", "-D",
+         "every=0", "-o", (dir.path() / "ring.png").string(), "--stats", (dir.path() / "stats.json").string()});
+    ASSERT_EQ(r.exit_code, 0) << describe(r);
+    const std::string csv = read(dir.path() / "ring" / "diagnostics.csv");
+    EXPECT_CONTAINS(csv,
+                    ",energy_exact,budget_change,budget_noise,budget_mollifier,budget_integrator,budget_transport,"
+                    "budget_stretching\n");
+    EXPECT_CONTAINS(read(dir.path() / "stats.json"), "fluid.energy_budget.stretching");
+    EXPECT_CONTAINS(r.err + r.out, "energy budget (exact energy");
+    const std::string out = (dir.path() / "x.png").string();
+    EXPECT_CONTAINS(expect_one_error_line(
+                        run_kelvin({Scenes + "vortex_ring.xml", "-D", "budget=true", "-D", "nu=0.01", "-o", out})),
+                    "parameter 'energy_budget': covers inviscid flows only");
+    EXPECT_CONTAINS(expect_one_error_line(run_kelvin(
+                        {Scenes + "vortex_ring.xml", "-D", "budget=true", "-D", "solver=stable_fluids", "-o", out})),
+                    "parameter 'energy_budget': is measured by mcfluid only");
+    fs::path walled = dir.path() / "walled.xml";
+    {
+        std::string xml = read(Scenes + "sphere_obstacle.xml");
+        const std::string tag = "<simulation type=\"mcfluid\">";
+        xml.replace(xml.find(tag), tag.size(), tag + "<boolean name=\"energy_budget\" value=\"true\"/>");
+        std::ofstream(walled) << xml;
+    }
+    EXPECT_CONTAINS(expect_one_error_line(run_kelvin({walled.string(), "-o", out})),
+                    "parameter 'energy_budget': covers flows without boundaries only");
 }

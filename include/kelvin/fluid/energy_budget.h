@@ -1,5 +1,6 @@
 #pragma once
-// Where a step's kinetic energy goes: the energy budget of the 2D MCFluid solver (mcfluid's `energy_budget`).
+// Where a step's kinetic energy goes: the energy budget of the MCFluid solvers (mcfluid's `energy_budget`), 2D and
+// 3D (3D: see "In 3D" below).
 //
 // For inviscid flow the exact energy is constant, so every change is a method error. One step of the cached solver
 // (mcfluid.h) moves each cell's departure point through a Monte Carlo velocity, then reads the previous vorticity
@@ -21,7 +22,32 @@
 //
 // add up to the step's change E(A) - E(n) exactly. Boundaries (walk_on_spheres) and viscosity are not covered: the
 // budget is refused there (the expected velocity with walls has no closed form on the grid).
+//
+// In 3D (MCFluid3Solver) the step also stretches the vorticity it reads: omega(x_d) + dt |omega| / h [v(x_d + h/2 w)
+// - v(x_d - h/2 w)], the vortex-segment estimate (Eq. 5.21) on the cached velocity. The exact inviscid dynamics still
+// keep the energy constant: advection and stretching each move energy, by equal and opposite amounts (dE/dt =
+// int u . (u x omega) = 0). So every change is again a method error, and the 3D budget has a fifth term, for the
+// stretching's discretisation. The states A, B, C are as in 2D (B and C stretch with their own velocity, read as the
+// run reads its cached one); D substeps the backtrace and keeps the run's stretching estimate; then
+//
+//   omega_S  the same as D with the stretching exact for the frozen velocity: omega(x_d) mapped by the Jacobian of
+//            the flow map over dt from x_d (a segment of length 1e-3 h advected at both ends by RK4 in 2 substeps);
+//   omega_M  the same as S through the velocity at mid-step, u + dt/2 P(u x omega) (the Euler equations' du/dt, P
+//            Leray's projection, computed spectrally: no lookup), frozen over the step: the midpoint rule in time,
+//            which departs from the exact dynamics at third order per step where the velocity frozen at the step's
+//            start departs at second order;
+//
+//   integrator  = E(C) - E(D) + E(S) - E(M)   the time integration: the backtrace's integrator and the velocity
+//                                             frozen over the step
+//   stretching  = E(D) - E(S)   the vortex-segment estimate: forward Euler over dt, a segment one cell long, the
+//                               cached velocity read by its (trilinear) interpolant
+//   transport   = E(M) - E(n)   the lookup (E(M) is the energy of the exact dynamics' step, the lookup's error apart)
+//
+// and the five terms add up to E(A) - E(n). With `stretching` off the run is not the Euler equations: its stretching
+// term is zero and the advection's own change of the energy is in `transport`. The state's energy is that of its
+// Biot–Savart velocity: only the solenoidal part of the cell vorticity has one (FlowFFT3::energy).
 #include <kelvin/fluid/grid.h>
+#include <kelvin/fluid/grid3.h>
 
 #include <memory>
 #include <vector>
@@ -36,6 +62,7 @@ struct EnergyBudget {
     double mollifier = 0;   ///< source basis and mollifier of the velocity estimate
     double integrator = 0;  ///< time integration of the backtrace
     double transport = 0;   ///< interpolation of the previous state at the departure points
+    double stretching = 0;  ///< 3D: the vortex-segment stretching estimate against the exact (0 in 2D)
 
     EnergyBudget& operator+=(const EnergyBudget& o);
 };
@@ -57,6 +84,36 @@ public:
     /// source basis of `interp`, tent or box, and the kernel mollified by delta: (-r_y, r_x) / (2 pi (r^2 +
     /// delta^2))); otherwise of the point vortices (kernel 0 at r = 0).
     void velocity(const Grid2& omega, bool smoothed, Interpolation interp, double delta, Grid2& u, Grid2& v);
+
+private:
+    struct Impl;
+    std::unique_ptr<Impl> m;
+};
+
+/// The flow of a cell-centred 3D vorticity field (the cells' values as point vortices of strength omega h^3,
+/// optionally smoothed), by FFT: on a periodic box spectrally (the mean vorticity removed), in free space by Hockney's
+/// zero-padded convolution (twice the cells per axis) with the free-space kernels. Deterministic.
+class FlowFFT3 {
+public:
+    FlowFFT3(const Domain3& domain, int nx, int ny, int nz);
+    ~FlowFFT3();
+    FlowFFT3(const FlowFFT3&) = delete;
+    FlowFFT3& operator=(const FlowFFT3&) = delete;
+
+    /// Kinetic energy (1/2) int |u|^2 of the Biot–Savart velocity u of the cell values: (1/2) sum_k G(k) |P_k
+    /// omega_k|^2 h^6 / N, P_k the projection across k (the longitudinal part of omega has no velocity), G the Green's
+    /// function of -laplacian: 1 / |k|^2 on a periodic box; in free space the transform of 1 / (4 pi r) on the padded
+    /// grid, its average over a cell at r = 0. For a solenoidal field this is (1/2) sum A . omega h^3, -laplacian A =
+    /// omega.
+    double energy(const VectorGrid3& omega);
+    /// The velocity at the cell centres. `smoothed`: of the vorticity as the Biot–Savart estimator sees it (the source
+    /// basis of `interp`, tent or box, and the Rosenhead–Moore kernel r / (4 pi (r^2 + delta^2)^(3/2)), whose
+    /// transform factor is k delta K_1(k delta) as in 2D); otherwise of the point vortices (kernel 0 at r = 0).
+    void velocity(const VectorGrid3& omega, bool smoothed, Interpolation interp, double delta, VectorGrid3& u);
+    /// The divergence-free part of the cell field f (Leray's projection across k), spectrally on the transform's grid
+    /// (free space: f zero-padded, so the periodic images of its gradient part add an error that falls with the
+    /// padding). With f = u x omega it is the Euler equations' du/dt.
+    void project(const VectorGrid3& f, VectorGrid3& out);
 
 private:
     struct Impl;

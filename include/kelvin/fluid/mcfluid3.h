@@ -26,6 +26,7 @@
 // pass, and the ranks exchange their cells (allgather) before the next pass reads the grids.
 #include <kelvin/core/random.h>
 #include <kelvin/fluid/biot_savart3.h>
+#include <kelvin/fluid/energy_budget.h>
 #include <kelvin/fluid/grid3.h>
 #include <kelvin/fluid/mcfluid.h>
 #include <kelvin/wos/wos.h>
@@ -162,6 +163,14 @@ public:
     /// The smoke density at the cell centres (null without smoke).
     const Grid3* smoke() const { return m_smoke ? &m_density : nullptr; }
 
+    /// The energy budget (energy_budget.h, "In 3D"): when on, every step also measures where its energy went (five
+    /// deterministic re-runs of the step and their FFT energies; no random draws, so the simulation is unchanged).
+    /// Inviscid runs without boundaries only (RuntimeError otherwise).
+    void set_energy_budget(bool on);
+    /// The last step's budget and the sum over the steps so far (null when the budget is off).
+    const EnergyBudget* energy_budget_step() const { return m_flow ? &m_budget_step : nullptr; }
+    const EnergyBudget* energy_budget_total() const { return m_flow ? &m_budget_total : nullptr; }
+
     enum StreamTag : uint64_t { TagVelocity = 1, TagAdvection = 2, TagQuery = 3 };
     struct SlabWork;  ///< the work of one z-slab of a pass (defined in mcfluid3.cpp)
 
@@ -175,6 +184,13 @@ private:
     /// beta e + (1 - beta) x a direct estimate with n samples, variances combined likewise.
     void blend_direct(Vec3d x, int n, Random& rng, SlabWork& w, VelocityEstimate3& e) const;
     void rebuild_estimators();
+    // The energy budget (energy_budget3.cpp).
+    /// omega at the cells after a step of dt through the deterministic velocity u at the cell centres (read between
+    /// them by the cubic interpolant), the backtrace in `substeps` steps of the scene's integrator, then stretched
+    /// into `as_run` as the run stretches (the vortex segment on u read with the cache's interpolation) and into
+    /// `exact` exactly for the frozen u (either may be null; without `stretching` neither is stretched).
+    void budget_step(const VectorGrid3& u, double dt, int substeps, VectorGrid3* as_run, VectorGrid3* exact) const;
+    void measure_budget(double dt);
 
     MCFluid3Settings m_settings;
     Communicator* m_comm;  ///< never null (the local communicator by default)
@@ -196,6 +212,8 @@ private:
     FluidWork3 m_work;
     std::unique_ptr<Smoke3> m_smoke;
     Grid3 m_density, m_density_next;
+    std::unique_ptr<FlowFFT3> m_flow;  ///< the energy budget's FFTs (null: no budget)
+    EnergyBudget m_budget_step, m_budget_total;
 };
 
 }  // namespace kelvin::fluid

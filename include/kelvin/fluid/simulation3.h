@@ -5,7 +5,9 @@
 // Outputs, in the run's folder (output.h, OutputPaths: "-o out/ring.png" gives "out/ring/"), as in 2D:
 //   diagnostics.csv        one row per state: step, time, kinetic_energy, kinetic_energy_raw, enstrophy,
 //                          helicity, impulse_x/y/z, centroid_x/y/z, max_abs_vorticity, divergence_rms, smoke_mass,
-//                          step_seconds, biot_savart_evals, invalid, cfl
+//                          step_seconds, biot_savart_evals, invalid, cfl; with energy_budget also energy_exact,
+//                          budget_change, budget_noise, budget_mollifier, budget_integrator, budget_transport,
+//                          budget_stretching (energy_budget.h)
 //   fields_NNNN.vdb        every output_every steps (and the last): OpenVDB float grid "vorticity_magnitude",
 //                          vector grids "vorticity" and "velocity" (voxel = cache cell, world-space transform),
 //                          and "density" with smoke
@@ -38,7 +40,8 @@ struct Simulation3Params {
     std::shared_ptr<SmokeSpec3> smoke;  ///< null: no smoke, no scalar work
     std::shared_ptr<Object> field_object;
     const VorticityField3* field = nullptr;
-    RunSources sources;  ///< where the scene gave dt and the initial vorticity (checks.h)
+    RunSources sources;          ///< where the scene gave dt and the initial vorticity (checks.h)
+    bool energy_budget = false;  ///< measure where each step's energy goes (energy_budget.h)
 
     /// Reads and validates mcfluid's parameters for dimension = 3 (errors name the parameter).
     static Simulation3Params parse(const Properties& props);

@@ -112,7 +112,7 @@ KELVIN_PLUGIN(kelvin::fluid::MCFluid, "simulation", "mcfluid",
                                     "'maccormack' (cubic with Selle et al.'s error correction; 2D only) "
                                     "or 'linear' (bi/trilinear, the thesis' scheme, diffusive)"),
               kelvin::param::boolean("energy_budget", false,
-                                     "2D, inviscid, no boundaries: measure where each step's energy goes (CSV "
+                                     "inviscid, no boundaries (2D and 3D): measure where each step's energy goes (CSV "
                                      "columns energy_exact and budget_*; --stats; the summary)"),
               kelvin::param::integer("output_every", 0, "write PNG/EXR frames every N steps and at the last (0: none)"),
               kelvin::param::boolean("write_png", true, "write frames as PNG (colour-mapped vorticity)"),

@@ -79,6 +79,8 @@ public:
     /// estimator's boundaries (static 3D shapes with an inside; anything else is refused naming `velocity`).
     void parse3(const Properties& props) {
         m_3d = std::make_unique<Simulation3Params>(Simulation3Params::parse(props));
+        if (m_3d->energy_budget)
+            props.error("energy_budget", "is measured by mcfluid only (" + m_who + " has no Monte Carlo velocity)");
         read_solver_params(props);
         if (m_transport == Transport::FLIP && !props.has("particles_per_cell")) m_particles_per_cell = 8;
         if (m_projection == Projection::CG)
