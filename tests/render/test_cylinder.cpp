@@ -10,9 +10,10 @@
 //
 // Seen to fail on deliberately broken variants: the far root dropped (rays from inside miss); the z range
 // not checked (the cylinder becomes infinite: through-the-end rays hit); sample_position's pdf 0.8 / area (the
-// emitter-sampling render of the light test is 25 % too bright); for the affine cylinder, normals mapped by M instead
-// of M^-T (ShearedAndEllipticCylinders fails), the area element without |det M| (areas wrong by the factor det M),
-// phi sampled uniformly instead of by area (EllipticCylinderLight's emitter-sampling render 4 % off).
+// emitter-sampling render of the light test is 25 % too bright); for the sheared and elliptic cylinder: normals
+// mapped by M instead of M^-T (ShearedAndEllipticCylinders fails), the area element without |det M| (areas 21.4 and
+// 13.6 instead of 5.15 and 3.41), phi sampled uniformly instead of by area (EllipticSamplingIsUniformByArea: 0.50
+// instead of 0.336; EllipticCylinderLight's emitter-sampling render 12 % dark).
 #include "render/render_support.h"
 
 #include <kelvin/core/error.h>
