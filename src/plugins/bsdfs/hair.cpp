@@ -306,7 +306,8 @@ KELVIN_PLUGIN(
     kelvin::param::real("eumelanin", 1.3, "eumelanin concentration (brown-black pigment), >= 0; not with sigma_a"),
     kelvin::param::real("pheomelanin", 0.2, "pheomelanin concentration (red pigment), >= 0; not with sigma_a"),
     kelvin::param::texture("sigma_a", kelvin::Color3(0.0),
-                           "absorption per unit fibre radius (colour or texture), instead of the pigments"),
+                           "absorption per unit fibre radius (colour or texture) instead of the pigments (when absent, "
+                           "the pigments give it)"),
     kelvin::param::real("scale", 1.0, "multiplies sigma_a (only with sigma_a)"),
     kelvin::param::real("longitudinal_roughness", 0.3, "longitudinal roughness beta_m in [0, 1] (below 0.01: 0.01)"),
     kelvin::param::real("azimuthal_roughness", 0.3, "azimuthal roughness beta_n in [0, 1] (below 0.01: 0.01)"),
