@@ -278,6 +278,25 @@ static std::pair<Vec3d, Vec3d> geometry_bounds(const ShapeGeometry& g) {
     return {lo, hi};
 }
 
+// Curves are seen from outside only, as in Mitsuba (whose Embree culls the back faces of curves): a ray leaving a
+// tube from inside (what the transmitted lobes of the `hair` BSDF send into the fibre, whose whole path inside the
+// model has already accounted for) passes through its wall. Embree's hit is refused where the ray points away from
+// the centre line there.
+static void curve_inside_filter(const RTCFilterFunctionNArguments* args) {
+    const auto& g = *static_cast<const ShapeGeometry*>(args->geometryUserPtr);
+    const unsigned N = args->N;
+    for (unsigned i = 0; i < N; ++i) {
+        if (args->valid[i] != -1) continue;
+        const auto [o, d] = ray_of(args->ray, N, i);
+        const Vec3d p = o + double(RTCRayN_tfar(args->ray, N, i)) * d;
+        Vec3d c, dc;
+        double r;
+        curve_point(g, RTCHitN_primID(args->hit, N, i), std::clamp(double(RTCHitN_u(args->hit, N, i)), 0.0, 1.0), c, dc,
+                    r);
+        if (glm::dot(d, p - c) > 0) args->valid[i] = 0;
+    }
+}
+
 // One shape's geometry as an Embree geometry of `scene` with ID `id` (`g` must outlive the scene: its buffers are
 // shared, and user geometry points at it).
 static void attach(RTCDevice device, RTCScene scene, const ShapeGeometry& g, unsigned id) {
@@ -327,6 +346,9 @@ static void attach(RTCDevice device, RTCScene scene, const ShapeGeometry& g, uns
         if (linear && g.curve_flags.size() == g.indices.size())
             rtcSetSharedGeometryBuffer(geom, RTC_BUFFER_TYPE_FLAGS, 0, RTC_FORMAT_UCHAR, g.curve_flags.data(), 0,
                                        sizeof(uint8_t), g.curve_flags.size());
+        rtcSetGeometryUserData(geom, const_cast<ShapeGeometry*>(&g));
+        rtcSetGeometryIntersectFilterFunction(geom, curve_inside_filter);
+        rtcSetGeometryOccludedFilterFunction(geom, curve_inside_filter);
     } else {  // spheres and normal-oriented discs: Embree point primitives (centre and radius)
         const bool discs = g.type == ShapeGeometry::Type::Discs;
         geom = rtcNewGeometry(device, discs ? RTC_GEOMETRY_TYPE_ORIENTED_DISC_POINT : RTC_GEOMETRY_TYPE_SPHERE_POINT);

@@ -148,3 +148,38 @@ TEST(Curves, BadFilesAreRefusedInOneLine) {
     EXPECT_CONTAINS(missing, "curve file");
     EXPECT_CONTAINS(missing, "does not exist");
 }
+
+// Curves are seen from outside only (as Mitsuba's, whose Embree culls the back faces of curves): a ray from the centre
+// line, or one spawned into the tube from a hit on its surface (a lobe of the `hair` BSDF that crosses the fibre), goes
+// through the wall; rays from outside still hit, and occluded() agrees. Also inside an instanced group.
+TEST(Curves, RaysFromInsidePassThroughTheWall) {
+    ktest::TempDir dir;
+    const std::string file = write_curves(dir, "c.txt", "-3 0 0 0.25\n-1 0 0 0.25\n1 0 0 0.25\n3 0 0 0.25\n");
+    for (const char* type : {"linearcurve", "bsplinecurve"}) {
+        for (bool instanced : {false, true}) {
+            const std::string shape =
+                fmt::format(R"(<shape type="{}"><string name="filename" value="{}"/></shape>)", type, file);
+            auto scene = ktest::geometry_scene(
+                instanced ? R"(<shape type="shapegroup" id="g">)" + shape +
+                                R"(</shape><shape type="instance"><ref id="g"/><transform name="to_world">
+                                <rotate z="1" angle="90"/><translate x="1" z="2"/></transform></shape>)"
+                          : shape);
+            const std::string what = std::string(type) + (instanced ? " (instanced)" : "");
+            // The instance turns the curve (along x) to lie along y, then moves it by (1, 0, 2).
+            auto place = [&](Vec3d p) { return instanced ? Vec3d(-p.y + 1, p.x, p.z + 2) : p; };
+            auto turn = [&](Vec3d v) { return instanced ? Vec3d(-v.y, v.x, v.z) : v; };
+            const Ray from_axis{place(Vec3d(0, 0, 0)), turn(glm::normalize(Vec3d(0, 0.6, 0.8))), 0.0, Inf};
+            EXPECT_FALSE(scene->intersect(from_axis).has_value()) << what;
+            EXPECT_FALSE(scene->occluded(from_axis)) << what;
+            const Ray down{place(Vec3d(0.3, 0.1, 5)), Vec3d(0, 0, -1), 0.0, Inf};
+            const auto h = scene->intersect(down);
+            ASSERT_TRUE(h.has_value()) << what;
+            EXPECT_NEAR(h->t, 5 - std::sqrt(0.25 * 0.25 - 0.1 * 0.1), 1e-5) << what;
+            EXPECT_TRUE(scene->occluded(down)) << what;
+            const SurfaceInteraction si = scene->interaction(down, *h);
+            const Ray in = si.spawn(turn(glm::normalize(Vec3d(0, -0.3, -1))));
+            EXPECT_FALSE(scene->intersect(in).has_value()) << what << ": the far wall, from inside";
+            EXPECT_FALSE(scene->occluded(in)) << what;
+        }
+    }
+}
