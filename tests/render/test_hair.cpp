@@ -9,7 +9,7 @@
 //    one estimated with uniform directions (the two estimate the same integral when eval() and pdf() agree);
 //  * geometry: with narrow lobes, eval() peaks where a ray traced through a circle (Snell's law in the plane normal
 //    to the fibre) leaves it after 0, 1 and 2 internal reflections;
-//  * a curve rendered with hair is finite and not black; bad parameters are refused.
+//  * the fibre axis follows dp/du; a curve rendered with hair is finite and not black; bad parameters are refused.
 // Broken variants seen to fail (each tried once by editing hair.cpp, then reverted):
 //  * the p >= 3 attenuation set to 0: HairWhiteFurnace fails (integral 0.85-0.92 at the grazing incidences, 20+
 //    sigma; the sampled weights are no longer 1), while chi-square passes;
@@ -229,6 +229,35 @@ TEST(HairGeometry, AzimuthalPeaksWhereTracedRaysLeave) {
     }
 }
 
+// The fibre's axis is the shading tangent dp/du (along the curve on curve shapes): with dp/du along the frame's y, the
+// model is the one of dp/du along x turned by 90 degrees about the normal; sample(), eval() and pdf() agree there.
+TEST(HairFrame, FibreAxisIsDpDu) {
+    const auto bsdf = make_bsdf("hair", hair(0.25, 0.3, 3));
+    SurfaceInteraction turned = interaction_with(Vec3d(0, 0, 1));
+    turned.dp_du = Vec3d(0, 2, 0);  // the frame is the identity: world = local
+    auto rot = [](const Vec3d& w) { return Vec3d(w.y, -w.x, w.z); };
+    Random rng(17);
+    double changed = 0;
+    for (int i = 0; i < 200; ++i) {
+        const Vec3d wi = glm::normalize(Vec3d(rng.next_double() - 0.5, rng.next_double() - 0.5, rng.next_double()));
+        const Vec3d wo =
+            glm::normalize(Vec3d(rng.next_double() - 0.5, rng.next_double() - 0.5, rng.next_double() - 0.5));
+        turned.wi = wi;
+        const SurfaceInteraction plain = interaction_with(rot(wi));
+        const Color3 a = bsdf->eval(BsdfContext{}, turned, wo), b = bsdf->eval(BsdfContext{}, plain, rot(wo));
+        EXPECT_NEAR(a.g, b.g, 1e-12 * (1 + b.g));
+        EXPECT_NEAR(bsdf->pdf(BsdfContext{}, turned, wo), bsdf->pdf(BsdfContext{}, plain, rot(wo)), 1e-12 * (1 + b.g));
+        changed = std::max(changed, std::abs(a.g - bsdf->eval(BsdfContext{}, interaction_with(wi), wo).g));
+        const auto bs = bsdf->sample(BsdfContext{}, turned, rng.next_double(), rng.next_2d());
+        ASSERT_TRUE(bs.has_value());
+        const double pdf = bsdf->pdf(BsdfContext{}, turned, bs->wo);
+        EXPECT_NEAR(bs->pdf, pdf, 1e-9 * pdf);
+        const Color3 f = bsdf->eval(BsdfContext{}, turned, bs->wo);
+        EXPECT_NEAR(bs->weight.g, f.g / pdf, 1e-9 * (1 + f.g / pdf));
+    }
+    EXPECT_GT(changed, 0.1) << "the axis matters";
+}
+
 // A B-spline curve with hair under a uniform environment, seen by the path tracer: finite, not black, and no
 // invalid samples (render() checks).
 TEST(HairRender, CurveWithHairIsFiniteAndLit) {
@@ -266,6 +295,36 @@ TEST(HairRender, CurveWithHairIsFiniteAndLit) {
     EXPECT_EQ(finite, img.width() * img.height());
     EXPECT_GT(dark, 30) << "the curve covers some pixels";
     EXPECT_GT(lit, dark / 2) << "hair pixels are not black";
+}
+
+// A scene-level white furnace: lossless hair (sigma_a = 0) on crossing curves under a uniform environment of
+// radiance 1 scatters everything it receives, so every pixel is 1 (within the noise, and the energy of paths longer
+// than max_depth).
+TEST(HairRender, LosslessHairVanishesInAWhiteFurnace) {
+    ktest::TempDir dir;
+    const auto file = dir / "hair.txt";
+    std::ofstream(file) << "-1 -0.3 0 0.12\n-0.4 0.1 0.1 0.12\n0.3 -0.1 0 0.1\n0.9 0.2 0 0.1\n1.4 0 0 0.1\n\n"
+                        << "0 -1 -0.2 0.1\n0.1 -0.4 0.1 0.1\n-0.1 0.3 0 0.1\n0.1 0.9 0.1 0.1\n0 1.4 0 0.1\n";
+    const std::string xml = fmt::format(R"(<scene version="3.0.0">
+        <integrator type="path"><integer name="max_depth" value="64"/></integrator>
+        <sensor type="perspective"><float name="fov" value="40"/>
+            <transform name="to_world"><lookat origin="0, 0, 4" target="0, 0, 0" up="0, 1, 0"/></transform>
+            <film type="hdrfilm"><integer name="width" value="24"/><integer name="height" value="24"/></film>
+        </sensor>
+        <emitter type="constant"><rgb name="radiance" value="1, 1, 1"/></emitter>
+        <shape type="bsplinecurve"><string name="filename" value="{}"/>
+            <bsdf type="hair"><rgb name="sigma_a" value="0"/><float name="longitudinal_roughness" value="0.2"/></bsdf>
+        </shape>
+    </scene>)",
+                                        file.string());
+    const Bitmap img = ktest::render_xml(xml, 64, 5);
+    const ktest::ImageStats s = ktest::image_stats(img);
+    std::printf("white furnace with hair: mean %.5f +- %.5f\n", s.mean, s.stderr_);
+    EXPECT_NEAR(s.mean, 1.0, 5 * s.stderr_ + 1e-3);
+    double worst = 0;
+    for (int y = 0; y < img.height(); ++y)
+        for (int x = 0; x < img.width(); ++x) worst = std::max(worst, std::abs(img.rgb(x, y).g - 1));
+    std::printf("largest pixel deviation %.4f\n", worst);
 }
 
 TEST(HairParams, BadValuesAreRefused) {
