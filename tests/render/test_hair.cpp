@@ -353,6 +353,8 @@ TEST(HairParams, BadValuesAreRefused) {
               std::string::npos);
     EXPECT_NE(error_of([](Properties& p) { p.set_float("scale", 3); }).find("sigma_a"), std::string::npos);
     EXPECT_EQ(error_of({}), "");
+    // No derivatives for H2MC: paths scattering on hair are reported unsupported there.
+    EXPECT_FALSE(make_bsdf("hair")->differentiable(interaction_with(Vec3d(0, 0, 1))));
 }
 
 }  // namespace
