@@ -115,7 +115,7 @@ public:
             }
             m_scale = props.get_float("scale", 0, 1e30);
         } else {
-            if (props.has("scale")) props.error("scale", "'scale' multiplies 'sigma_a', which is not given");
+            (void)props.get_float("scale", 0, 1e30);  // read but unused with the pigments, as in Mitsuba
             const double eu = props.get_float("eumelanin", 0, 1e6), pheo = props.get_float("pheomelanin", 0, 1e6);
             // Donner and Jensen 2006 via d'Eon et al. 2011, per unit fibre radius (as in Mitsuba).
             m_pigment = eu * Color3(0.419, 0.697, 1.37) + pheo * Color3(0.187, 0.4, 1.05);
@@ -308,7 +308,7 @@ KELVIN_PLUGIN(
     kelvin::param::texture("sigma_a", kelvin::Color3(0.0),
                            "absorption per unit fibre radius (colour or texture) instead of the pigments (when absent, "
                            "the pigments give it)"),
-    kelvin::param::real("scale", 1.0, "multiplies sigma_a (only with sigma_a)"),
+    kelvin::param::real("scale", 1.0, "multiplies sigma_a (without sigma_a: read and ignored, as in Mitsuba)"),
     kelvin::param::real("longitudinal_roughness", 0.3, "longitudinal roughness beta_m in [0, 1] (below 0.01: 0.01)"),
     kelvin::param::real("azimuthal_roughness", 0.3, "azimuthal roughness beta_n in [0, 1] (below 0.01: 0.01)"),
     kelvin::param::real("scale_tilt", 2.0, "tilt alpha of the cuticle scales, in degrees, in [-90, 90]"),

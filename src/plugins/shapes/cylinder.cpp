@@ -4,14 +4,14 @@
 // placed by `to_world`. Its normals point outwards (inwards with `flip_normals`): seen from inside, a one-sided BSDF
 // is black, as in Mitsuba (use `twosided`). Texture coordinates as in Mitsuba: u = phi / (2 pi) around the axis,
 // measured from the first tangent of the axis' orthonormal basis (Duff et al. 2017, as Mitsuba's Frame), and
-// v = 0 at p0, 1 at p1; the shading frame's tangent is dp/du. Any invertible affine to_world is accepted, as in
-// Mitsuba: a transform that keeps the cross-section round (rotation, translation, uniform scale, any scale along the
-// axis) uses the analytic round cylinder; one that shears it or makes it elliptic is intersected in object space
-// (Embree user geometry: the ray mapped back by the inverse transform, where the cylinder is the unit one), with
-// normals mapped as normals (the inverse transpose), uv as in object space, the exact area (the integral of
+// v = 0 at p0, 1 at p1; the shading frame's tangent is dp/du. Any invertible affine to_world is accepted (Mitsuba
+// renders these too): a transform that keeps the cross-section round (rotation, translation, uniform scale, any scale
+// along the axis) uses the analytic round cylinder; one that shears it or makes it elliptic is intersected in object
+// space (Embree user geometry: the ray mapped back by the inverse transform, where the cylinder is the unit one),
+// with normals mapped as normals (the inverse transpose), uv as in object space, the exact area (the integral of
 // |dp/dphi x dp/dz| around the cross-section, by Gauss-Legendre quadrature on 256 intervals) and uniform sampling by
-// area (the angle by inverting that integral with Newton's method). Such a
-// cylinder is not in closest-point queries (refused there, as other user geometry).
+// area (the angle by inverting that integral with Newton's method). Such a cylinder is not in closest-point queries
+// (refused there, as other user geometry).
 //
 // Parameters: `kelvin --list-plugins KIND NAME`, or docs/reference.md (generated from the declarations below).
 //
