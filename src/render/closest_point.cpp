@@ -581,13 +581,16 @@ ClosestPointQuery::ClosestPointQuery(std::vector<ShapeGeometry> geometry) : m_im
     std::vector<std::vector<uint32_t>> kept(m.geometry.size());
     for (std::size_t s = 0; s < m.geometry.size(); ++s) {
         const ShapeGeometry& g = m.geometry[s];
-        // Curves and user geometry (sdfgrid) have no closest-point code: refused, never read as discs.
+        // Curves and user geometry (sdfgrid, sheared or elliptic cylinders) have no closest-point code: refused,
+        // never read as discs.
         if (g.type == ShapeGeometry::Type::LinearCurves || g.type == ShapeGeometry::Type::BSplineCurves ||
             g.type == ShapeGeometry::Type::User)
             throw RuntimeError(fmt::format(
                 "closest-point query: shape {} is {}; closest points are supported for triangles, spheres, disks, "
-                "cylinders and elliptic disks",
-                s, g.type == ShapeGeometry::Type::User ? "user geometry (such as an sdfgrid)" : "a curve"));
+                "round cylinders and elliptic disks",
+                s,
+                g.type == ShapeGeometry::Type::User ? "user geometry (an sdfgrid, or a sheared or elliptic cylinder)"
+                                                    : "a curve"));
         std::vector<uint32_t> keep;  // valid primitives
         auto grow = [&](const Vec3d& p, double r) {
             m.lo = glm::min(m.lo, p - r);

@@ -278,6 +278,25 @@ static std::pair<Vec3d, Vec3d> geometry_bounds(const ShapeGeometry& g) {
     return {lo, hi};
 }
 
+// Curves are seen from outside only, as in Mitsuba (whose Embree culls the back faces of curves): a ray leaving a
+// tube from inside (what the transmitted lobes of the `hair` BSDF send into the fibre, whose whole path inside the
+// model has already accounted for) passes through its wall. Embree's hit is refused where the ray points away from
+// the centre line there.
+static void curve_inside_filter(const RTCFilterFunctionNArguments* args) {
+    const auto& g = *static_cast<const ShapeGeometry*>(args->geometryUserPtr);
+    const unsigned N = args->N;
+    for (unsigned i = 0; i < N; ++i) {
+        if (args->valid[i] != -1) continue;
+        const auto [o, d] = ray_of(args->ray, N, i);
+        const Vec3d p = o + double(RTCRayN_tfar(args->ray, N, i)) * d;
+        Vec3d c, dc;
+        double r;
+        curve_point(g, RTCHitN_primID(args->hit, N, i), std::clamp(double(RTCHitN_u(args->hit, N, i)), 0.0, 1.0), c, dc,
+                    r);
+        if (glm::dot(d, p - c) > 0) args->valid[i] = 0;
+    }
+}
+
 // One shape's geometry as an Embree geometry of `scene` with ID `id` (`g` must outlive the scene: its buffers are
 // shared, and user geometry points at it).
 static void attach(RTCDevice device, RTCScene scene, const ShapeGeometry& g, unsigned id) {
@@ -327,6 +346,9 @@ static void attach(RTCDevice device, RTCScene scene, const ShapeGeometry& g, uns
         if (linear && g.curve_flags.size() == g.indices.size())
             rtcSetSharedGeometryBuffer(geom, RTC_BUFFER_TYPE_FLAGS, 0, RTC_FORMAT_UCHAR, g.curve_flags.data(), 0,
                                        sizeof(uint8_t), g.curve_flags.size());
+        rtcSetGeometryUserData(geom, const_cast<ShapeGeometry*>(&g));
+        rtcSetGeometryIntersectFilterFunction(geom, curve_inside_filter);
+        rtcSetGeometryOccludedFilterFunction(geom, curve_inside_filter);
     } else {  // spheres and normal-oriented discs: Embree point primitives (centre and radius)
         const bool discs = g.type == ShapeGeometry::Type::Discs;
         geom = rtcNewGeometry(device, discs ? RTC_GEOMETRY_TYPE_ORIENTED_DISC_POINT : RTC_GEOMETRY_TYPE_SPHERE_POINT);
@@ -557,6 +579,7 @@ static constexpr bool kMeshFrameFromUv = true;
 // The interaction's uv, shading normal, frame and dp/du from one shape's geometry, in that geometry's space (the
 // group's for an instance): `si.p` and `si.ng` are given in it, and `hit` carries Embree's primitive and uv.
 static void fill_local(SurfaceInteraction& si, const ShapeGeometry& g, const SurfaceHit& hit) {
+    bool user_uv = false;  // user geometry with its own parameterisation
     if (g.type == ShapeGeometry::Type::Triangles) {
         const uint32_t* tri = &g.indices[3 * std::size_t(si.prim)];
         const double b1 = hit.uv.x, b2 = hit.uv.y, b0 = 1 - b1 - b2;  // Embree's barycentrics
@@ -587,9 +610,10 @@ static void fill_local(SurfaceInteraction& si, const ShapeGeometry& g, const Sur
         si.dp_du = 2 * Pi * (l.x * c.ey - l.y * c.ex);
         si.dp_dv = c.L * c.ez;
     } else if (g.type == ShapeGeometry::Type::LinearCurves || g.type == ShapeGeometry::Type::BSplineCurves) {
-        // u = the angle around the centre line / (2 pi), measured from the first tangent of the orthonormal basis
-        // around the line's direction (Duff et al. 2017); v along the curve, 0 at its first point, 1 at its last.
-        // dp/du = 2 pi r (t x radial), dp/dv = dc/dv; the shading frame's tangent is dp/du.
+        // Mitsuba's curve parameterisation: u along the curve (0 at its first point, 1 at its last, uniform in the
+        // segments' parameter), v = the angle around the centre line / (2 pi), measured from Mitsuba's reference
+        // direction (curves::angle_reference). dp/du = dc/du, dp/dv = 2 pi r (t x radial); the shading frame's
+        // tangent is dp/du, along the fibre (what the `hair` BSDF takes as the fibre's axis).
         Vec3d c, dc;
         double r;
         curve_point(g, si.prim, std::clamp(hit.uv.x, 0.0, 1.0), c, dc, r);
@@ -598,16 +622,18 @@ static void fill_local(SurfaceInteraction& si, const ShapeGeometry& g, const Sur
         Vec3d radial = (si.p - c) - t * glm::dot(si.p - c, t);
         const double rl = glm::length(radial);
         radial = rl > 0 ? radial / rl : Frame(t).s;
-        const Frame basis(t);
-        const double phi = std::atan2(glm::dot(radial, basis.t), glm::dot(radial, basis.s));
+        Vec3d v_rot, v_rad;
+        curve_angle_reference(t, v_rot, v_rad);
+        const double phi = std::atan2(glm::dot(radial, v_rot), glm::dot(radial, v_rad));
         const Vec2f span = g.uvs[si.prim];
-        si.uv = {(phi < 0 ? phi + 2 * Pi : phi) / (2 * Pi), double(span.x) + std::clamp(hit.uv.x, 0.0, 1.0) * span.y};
-        si.dp_du = 2 * Pi * r * glm::cross(t, radial);
-        si.dp_dv = span.y > 0 ? dc / double(span.y) : t;
+        si.uv = {double(span.x) + std::clamp(hit.uv.x, 0.0, 1.0) * span.y, (phi < 0 ? phi + 2 * Pi : phi) / (2 * Pi)};
+        si.dp_du = span.y > 0 ? dc / double(span.y) : t;
+        si.dp_dv = 2 * Pi * r * glm::cross(t, radial);
     } else if (g.type == ShapeGeometry::Type::User) {
         Vec3d n = g.user->shading_normal(si.prim, si.p, g.flip_normals ? -si.ng : si.ng);
         if (g.flip_normals) n = -n;
         si.ns = glm::dot(n, si.ng) < 0 ? -n : n;  // on the geometric normal's side
+        user_uv = g.user->parameterisation(si.prim, si.p, si.uv, si.dp_du, si.dp_dv);
     } else if (g.type == ShapeGeometry::Type::EllipticDiscs) {
         // Mitsuba's disk parameterisation in object space: u = r, v = phi / (2 pi); dp/du = cos phi a + sin phi b,
         // dp/dv = 2 pi r (-sin phi a + cos phi b); the shading frame's tangent is dp/du.
@@ -669,6 +695,13 @@ static void fill_local(SurfaceInteraction& si, const ShapeGeometry& g, const Sur
         const double l = glm::length(si.dp_du);
         if (l > 0 && std::isfinite(l)) {
             si.frame.s = si.dp_du / l;
+            si.frame.t = glm::cross(si.frame.n, si.frame.s);
+        }
+    } else if (user_uv) {  // Gram-Schmidt of dp/du against the shading normal, as Mitsuba's frame
+        const Vec3d s_axis = si.dp_du - si.ns * glm::dot(si.ns, si.dp_du);
+        const double l = glm::length(s_axis);
+        if (l > 1e-12 * glm::length(si.dp_du) && std::isfinite(l)) {
+            si.frame.s = s_axis / l;
             si.frame.t = glm::cross(si.frame.n, si.frame.s);
         }
     } else if (g.type == ShapeGeometry::Type::LinearCurves || g.type == ShapeGeometry::Type::BSplineCurves) {

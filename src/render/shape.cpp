@@ -15,6 +15,14 @@ void Shape::read_common(const Properties& props) {
     if (props.has("exterior")) m_exterior = props.get_object_as<Medium>("exterior");
 }
 
+void curve_angle_reference(const Vec3d& t, Vec3d& v_rot, Vec3d& v_rad) {
+    const Vec3d guide(0, 0, 1);
+    const Vec3d p = guide - t * glm::dot(t, guide);
+    const double l = glm::length(p);
+    v_rot = l > 1e-12 ? p / l : Vec3d(0, 1, 0);
+    v_rad = glm::cross(v_rot, t);
+}
+
 void curve_point(const ShapeGeometry& g, std::size_t segment, double u, Vec3d& c, Vec3d& dc, double& r) {
     const uint32_t i = g.indices[segment];
     if (g.type == ShapeGeometry::Type::LinearCurves) {

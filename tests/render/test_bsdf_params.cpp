@@ -90,6 +90,10 @@ TEST(BsdfParams, RoughnessValidation) {
     // roughplastic is isotropic (as in Mitsuba): alpha_u is not one of its parameters.
     e = bsdf_error("roughplastic", [](Properties& p) { p.set_float("alpha_u", 0.2); });
     EXPECT_CONTAINS(e, "alpha_u");
+    // ... and its alpha is one number (Mitsuba's too: the coating tables are computed for one roughness).
+    e = bsdf_error("roughplastic",
+                   [](Properties& p) { p.set_object("alpha", make_plugin("texture", "checkerboard")); });
+    EXPECT_CONTAINS(e, "coating tables are computed for one roughness");
 }
 
 TEST(BsdfParams, IndexOfRefraction) {

@@ -103,6 +103,16 @@ std::vector<Named> extreme_bsdfs() {
                          p.set_float("ext_ior", 1.0);
                      })});
     }
+    // hair (not reciprocal, so only here): roughness extremes, scales tilted to the limits, no and strong absorption.
+    for (double b : {0.0, 1.0})
+        for (double tilt : {-90.0, 0.0, 90.0})
+            for (double sigma : {0.0, 1e3})
+                v.push_back({"hair", make_bsdf("hair", [=](Properties& p) {
+                                 p.set_float("longitudinal_roughness", b);
+                                 p.set_float("azimuthal_roughness", 1 - b);
+                                 p.set_float("scale_tilt", tilt);
+                                 p.set_color("sigma_a", Color3(sigma));
+                             })});
     v.push_back({"dielectric_matched", make_bsdf("dielectric", [](Properties& p) {
                      p.set_float("int_ior", 1.0);
                      p.set_float("ext_ior", 1.0);

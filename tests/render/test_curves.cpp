@@ -66,9 +66,14 @@ Silhouette check_straight_tube(const Scene& scene, double r, bool check_ends, do
             EXPECT_NEAR(h->t, 5 - z, 2e-5) << "x " << x << ", y " << y;
             ktest::expect_vec_near(h->ng, Vec3d(0, y / r, z / r), 2e-4, "normal away from the axis");
             const SurfaceInteraction si = scene.interaction(ray, *h);
-            EXPECT_NEAR(si.uv.y, (x * length_scale + 1) / 2, 1e-4) << "v along the curve";
-            EXPECT_NEAR(glm::length(si.dp_du), 2 * Pi * r, 1e-4) << "dp/du around the curve";
-            EXPECT_NEAR(std::abs(si.frame.s.x), 0.0, 1e-6) << "shading tangent around the curve";
+            EXPECT_NEAR(si.uv.x, (x * length_scale + 1) / 2, 1e-4) << "u along the curve (Mitsuba's)";
+            EXPECT_NEAR(glm::length(si.dp_dv), 2 * Pi * r, 1e-4) << "dp/dv around the curve";
+            EXPECT_NEAR(std::abs(si.frame.s.x), 1.0, 1e-6) << "shading tangent along the curve";
+            // Mitsuba's angle reference for a curve along +x: v_rot = +z, v_rad = z x x = +y; the angle grows from
+            // +y towards +z, so a hit at (y, z) has v = atan2(z, y) / (2 pi).
+            double ang = std::atan2(z, y);
+            if (ang < 0) ang += 2 * Pi;
+            EXPECT_NEAR(si.uv.y, ang / (2 * Pi), 1e-4) << "v around the curve (Mitsuba's reference)";
         }
     return s;
 }
@@ -115,12 +120,12 @@ TEST(Curves, ToWorldMovesPointsAndSeveralCurvesShareAFile) {
     const Ray down{Vec3d(0.5, 0, 5), Vec3d(0, 0, -1), 0.0, Inf};
     const auto h = pair->intersect(down);
     ASSERT_TRUE(h.has_value());
-    EXPECT_NEAR(pair->interaction(down, *h).uv.y, 0.75, 1e-4);
+    EXPECT_NEAR(pair->interaction(down, *h).uv.x, 0.75, 1e-4);
     const Ray side{Vec3d(-1, 5, 1.5), Vec3d(0, -1, 0), 0.0, Inf};
     const auto h2 = pair->intersect(side);
     ASSERT_TRUE(h2.has_value());
     EXPECT_NEAR(h2->t, 5 - 0.1, 1e-5);
-    EXPECT_NEAR(pair->interaction(side, *h2).uv.y, 0.75, 1e-4);
+    EXPECT_NEAR(pair->interaction(side, *h2).uv.x, 0.75, 1e-4);
     EXPECT_NEAR(pair->shapes().at(0)->surface_area(), 2 * (2 * Pi * 0.1 * 2), 1e-6);  // radii in float
 }
 
@@ -142,4 +147,39 @@ TEST(Curves, BadFilesAreRefusedInOneLine) {
     const std::string missing = ktest::input_error_of([&] { curve_scene("linearcurve", "absent_curves.txt"); });
     EXPECT_CONTAINS(missing, "curve file");
     EXPECT_CONTAINS(missing, "does not exist");
+}
+
+// Curves are seen from outside only (as Mitsuba's, whose Embree culls the back faces of curves): a ray from the centre
+// line, or one spawned into the tube from a hit on its surface (a lobe of the `hair` BSDF that crosses the fibre), goes
+// through the wall; rays from outside still hit, and occluded() agrees. Also inside an instanced group.
+TEST(Curves, RaysFromInsidePassThroughTheWall) {
+    ktest::TempDir dir;
+    const std::string file = write_curves(dir, "c.txt", "-3 0 0 0.25\n-1 0 0 0.25\n1 0 0 0.25\n3 0 0 0.25\n");
+    for (const char* type : {"linearcurve", "bsplinecurve"}) {
+        for (bool instanced : {false, true}) {
+            const std::string shape =
+                fmt::format(R"(<shape type="{}"><string name="filename" value="{}"/></shape>)", type, file);
+            auto scene = ktest::geometry_scene(
+                instanced ? R"(<shape type="shapegroup" id="g">)" + shape +
+                                R"(</shape><shape type="instance"><ref id="g"/><transform name="to_world">
+                                <rotate z="1" angle="90"/><translate x="1" z="2"/></transform></shape>)"
+                          : shape);
+            const std::string what = std::string(type) + (instanced ? " (instanced)" : "");
+            // The instance turns the curve (along x) to lie along y, then moves it by (1, 0, 2).
+            auto place = [&](Vec3d p) { return instanced ? Vec3d(-p.y + 1, p.x, p.z + 2) : p; };
+            auto turn = [&](Vec3d v) { return instanced ? Vec3d(-v.y, v.x, v.z) : v; };
+            const Ray from_axis{place(Vec3d(0, 0, 0)), turn(glm::normalize(Vec3d(0, 0.6, 0.8))), 0.0, Inf};
+            EXPECT_FALSE(scene->intersect(from_axis).has_value()) << what;
+            EXPECT_FALSE(scene->occluded(from_axis)) << what;
+            const Ray down{place(Vec3d(0.3, 0.1, 5)), Vec3d(0, 0, -1), 0.0, Inf};
+            const auto h = scene->intersect(down);
+            ASSERT_TRUE(h.has_value()) << what;
+            EXPECT_NEAR(h->t, 5 - std::sqrt(0.25 * 0.25 - 0.1 * 0.1), 1e-5) << what;
+            EXPECT_TRUE(scene->occluded(down)) << what;
+            const SurfaceInteraction si = scene->interaction(down, *h);
+            const Ray in = si.spawn(turn(glm::normalize(Vec3d(0, -0.3, -1))));
+            EXPECT_FALSE(scene->intersect(in).has_value()) << what << ": the far wall, from inside";
+            EXPECT_FALSE(scene->occluded(in)) << what;
+        }
+    }
 }

@@ -30,6 +30,11 @@ public:
                            Vec3d& ng) const = 0;
     /// The unit shading normal at the hit point p of primitive `prim` whose unit geometric normal is ng (default ng).
     virtual Vec3d shading_normal(std::size_t prim, const Vec3d& p, const Vec3d& ng) const { return ng; }
+    /// The surface's parameterisation at the hit point p of primitive `prim`: its uv and the tangents dp/du, dp/dv
+    /// (the shading frame's tangent is then dp/du). False (the default): none (uv 0, tangents from the normal).
+    virtual bool parameterisation(std::size_t prim, const Vec3d& p, Vec2d& uv, Vec3d& dp_du, Vec3d& dp_dv) const {
+        return false;
+    }
 };
 
 /// World-space geometry in Embree-ready layout (float positions, 32-bit indices).
@@ -63,6 +68,10 @@ struct ShapeGeometry {
 /// A curve segment of `g` (LinearCurves or BSplineCurves) at its parameter u in [0, 1]: the centre line's point
 /// `c`, its derivative `dc` = dc/du and the radius `r` (the control points' radii blended as the points are).
 void curve_point(const ShapeGeometry& g, std::size_t segment, double u, Vec3d& c, Vec3d& dc, double& r);
+/// Mitsuba's reference directions around a curve of unit direction `t`, from which the angle of its v coordinate is
+/// measured: v_rot, the projection of +z perpendicular to t (+y where t is along z), and v_rad = v_rot x t, where the
+/// angle is 0; the angle grows from v_rad towards v_rot.
+void curve_angle_reference(const Vec3d& t, Vec3d& v_rot, Vec3d& v_rad);
 
 /// A point chosen on a shape's surface with density `pdf` per unit area.
 struct PositionSample {

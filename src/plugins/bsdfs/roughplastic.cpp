@@ -92,10 +92,22 @@ CoatingTables coating_tables(MicrofacetType type, double alpha, double eta) {
     return t;
 }
 
+/// `props`, after refusing a texture for `alpha` with the reason: Mitsuba 3's roughplastic takes one number there too
+/// (its coating tables are computed for a single roughness).
+const Properties& scalar_alpha(const Properties& props) {
+    for (const auto& e : props.entries())
+        if (e.name == "alpha" && e.type == PropType::Object)
+            props.error("alpha",
+                        "must be a number, not a texture: roughplastic's coating tables are computed for one roughness "
+                        "(Mitsuba 3's roughplastic takes a float here too; roughconductor and roughdielectric accept "
+                        "textures)");
+    return props;
+}
+
 class RoughPlastic final : public DifferentiableBsdf<RoughPlastic> {
 public:
     explicit RoughPlastic(const Properties& props)
-        : m_distr(microfacet_from_properties(props, false)),
+        : m_distr(microfacet_from_properties(scalar_alpha(props), false)),
           m_diffuse(get_texture(props, "diffuse_reflectance")),
           m_specular(get_texture(props, "specular_reflectance")) {
         const double int_ior = ior_from_properties(props, "int_ior"), ext_ior = ior_from_properties(props, "ext_ior");
@@ -173,7 +185,7 @@ private:
 
 KELVIN_PLUGIN(kelvin::RoughPlastic, "bsdf", "roughplastic", "Rough dielectric coating over a diffuse base.",
               kelvin::param::string("distribution", "beckmann", "microfacet distribution: beckmann or ggx"),
-              kelvin::param::real("alpha", 0.1, "roughness of the coating (a number, not a texture)"),
+              kelvin::param::real("alpha", 0.1, "roughness of the coating (a number, not a texture, as in Mitsuba)"),
               kelvin::param::boolean("sample_visible", true, "sample the visible normals"),
               kelvin::param::texture("diffuse_reflectance", kelvin::Color3(0.5), "albedo of the diffuse base"),
               kelvin::param::texture("specular_reflectance", kelvin::Color3(1.0), "tints the specular lobe"),

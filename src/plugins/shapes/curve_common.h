@@ -7,8 +7,8 @@
 // consecutive points, round at the joints and the ends); a B-spline curve of n points has n - 3 uniform cubic
 // segments (the curve approximates its control points: it starts near the second and ends near the last but one).
 // `to_world` moves the points; the radii are not scaled by it (as in Mitsuba, where they are invariant to the
-// transform). Texture coordinates: v runs along each curve from 0 to 1 (uniformly in the segments' parameter), u
-// around it (the angle / 2 pi).
+// transform). Texture coordinates (Mitsuba's): u runs along each curve from 0 to 1 (uniformly in the segments'
+// parameter), v around it (the angle / 2 pi from Mitsuba's reference direction, curve_angle_reference).
 #include <kelvin/core/files.h>
 #include <kelvin/core/loading.h>
 #include <kelvin/core/strings.h>
@@ -113,12 +113,13 @@ public:
         Vec3d c, dc;
         double r;
         curve_point(m_geom, segment, t, c, dc, r);
-        const Frame basis(glm::normalize(dc));
+        Vec3d v_rot, v_rad;
+        curve_angle_reference(glm::normalize(dc), v_rot, v_rad);
         const double phi = 2 * Pi * u.y;
         PositionSample ps;
-        ps.n = std::cos(phi) * basis.s + std::sin(phi) * basis.t;
+        ps.n = std::cos(phi) * v_rad + std::sin(phi) * v_rot;
         ps.p = c + r * ps.n;
-        ps.uv = {u.y, double(m_geom.uvs[segment].x) + t * m_geom.uvs[segment].y};
+        ps.uv = {double(m_geom.uvs[segment].x) + t * m_geom.uvs[segment].y, u.y};
         ps.pdf = 1.0 / m_area;
         return ps;
     }

@@ -2,7 +2,7 @@
 // and whose radius varies linearly along each segment, round at the joints and at both ends (Embree's round linear
 // curves: a cone per segment, closed by spheres). The control points come from a text file (curve_common.h):
 // `x y z r` per line, a blank line between curves. Normals point away from the centre line; texture coordinates:
-// v along each curve (0 at its first point, 1 at its last, uniform per segment), u the angle around it / (2 pi).
+// u along each curve (0 at its first point, 1 at its last, uniform per segment), v the angle around it / (2 pi).
 // Curves cannot be area emitters or bound media (refused in one line).
 //
 // Parameters: `kelvin --list-plugins KIND NAME`, or docs/reference.md (generated from the declarations below).
