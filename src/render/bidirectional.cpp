@@ -6,6 +6,7 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <optional>
 
 namespace kelvin {
 
@@ -77,9 +78,9 @@ double pdf_light_origin(const Scene& scene, const PathVertex& v, const PathVerte
     return scene.emitter_pdf(v.emitter) * v.emitter->pdf_emission(v.p, v.ng, w).first;
 }
 
-// Area density with which vertex `v` (reached from `prev`) samples `next`.
-double pdf(const Scene& scene, const Sensor& sensor, const PathVertex& v, const PathVertex* prev,
-           const PathVertex& next) {
+// Area density with which vertex `v` (reached from `prev`) samples `next`. The BSDF is asked with v.si.wi set to
+// the direction towards `prev` (restored before returning: no copy of the interaction).
+double pdf(const Scene& scene, const Sensor& sensor, PathVertex& v, const PathVertex* prev, const PathVertex& next) {
     if (v.type == PathVertexType::Light || v.type == PathVertexType::Infinite) return pdf_light(scene, v, next);
     Vec3d wn = next.p - v.p;
     double l = glm::length(wn);
@@ -89,9 +90,10 @@ double pdf(const Scene& scene, const Sensor& sensor, const PathVertex& v, const 
     if (v.type == PathVertexType::Camera) {
         p = sensor.pdf_direction(v.p, wn);
     } else {
-        SurfaceInteraction si = v.si;
-        si.wi = si.to_local(glm::normalize(prev->p - v.p));
-        p = v.si.shape->bsdf()->pdf(BsdfContext{}, si, si.to_local(wn));
+        const Vec3d wi = v.si.wi;
+        v.si.wi = v.si.to_local(glm::normalize(prev->p - v.p));
+        p = v.si.shape->bsdf()->pdf(BsdfContext{}, v.si, v.si.to_local(wn));
+        v.si.wi = wi;
     }
     return convert_density(p, v, next);
 }
@@ -133,21 +135,25 @@ PathVertex light_endpoint(const Scene& scene, const Emitter* e, const Vec3d& p, 
     return v;
 }
 
-// Sets the reverse densities of the (at most four) vertices next to the connection of strategy (s, t), and clears
-// the delta flags of the two joined, as that strategy sees them. light[0] / cam[0] already hold the resampled
-// endpoint for s = 1 / t = 1.
-void connection_densities(const Scene& scene, const Sensor& sensor, PathVertex* light, PathVertex* cam, int s, int t) {
-    PathVertex* qs = s > 0 ? &light[s - 1] : nullptr;
-    PathVertex* pt = &cam[t - 1];
-    PathVertex* qs_minus = s > 1 ? &light[s - 2] : nullptr;
-    PathVertex* pt_minus = t > 1 ? &cam[t - 2] : nullptr;
+// Sets the reverse densities of the (at most four) vertices next to the connection of strategy (s, t): qs = y_{s-1}
+// and qs_minus = y_{s-2} (null where s is too small), pt = z_{t-1} and pt_minus = z_{t-2} (null for t = 1), with the
+// resampled endpoint in place of y_0 for s = 1 and of z_0 for t = 1; clears the delta flags of the two joined, as that
+// strategy sees them.
+void connection_densities(const Scene& scene, const Sensor& sensor, PathVertex* qs, PathVertex* pt,
+                          PathVertex* qs_minus, PathVertex* pt_minus) {
     pt->delta = false;
     if (qs) qs->delta = false;
 
-    pt->pdf_rev = s > 0 ? pdf(scene, sensor, *qs, qs_minus, *pt) : pdf_light_origin(scene, *pt, *pt_minus);
-    if (pt_minus) pt_minus->pdf_rev = s > 0 ? pdf(scene, sensor, *pt, qs, *pt_minus) : pdf_light(scene, *pt, *pt_minus);
+    pt->pdf_rev = qs ? pdf(scene, sensor, *qs, qs_minus, *pt) : pdf_light_origin(scene, *pt, *pt_minus);
+    if (pt_minus) pt_minus->pdf_rev = qs ? pdf(scene, sensor, *pt, qs, *pt_minus) : pdf_light(scene, *pt, *pt_minus);
     if (qs) qs->pdf_rev = pdf(scene, sensor, *pt, pt_minus, *qs);
     if (qs_minus) qs_minus->pdf_rev = pdf(scene, sensor, *qs, pt, *qs_minus);
+}
+
+// The same for strategy (s, t) on whole subpaths, their endpoints as sampled (s != 1, t != 1).
+void connection_densities(const Scene& scene, const Sensor& sensor, PathVertex* light, PathVertex* cam, int s, int t) {
+    connection_densities(scene, sensor, s > 0 ? &light[s - 1] : nullptr, &cam[t - 1], s > 1 ? &light[s - 2] : nullptr,
+                         t > 1 ? &cam[t - 2] : nullptr);
 }
 
 double geometry_visible(const Scene& scene, const PathVertex& a, const PathVertex& b, SampleCounters& c) {
@@ -220,10 +226,10 @@ int BidirectionalPaths::walk(const Scene& scene, Sampler& sampler, Ray ray, Colo
         auto hit = scene.intersect(ray);
         PathVertex& prev = path[n];
         PathVertex& v = path[n + 1];
-        v = PathVertex();
         if (!hit) {
             // A camera path escaping the scene ends on the environment (if any), as a light vertex.
             if (mode == TransportMode::Radiance && !scene.environment_emitters().empty()) {
+                v = PathVertex();
                 v.type = PathVertexType::Infinite;
                 v.beta = beta;
                 v.p = ray.o + ray.d;  // a direction: only (p - prev.p) is ever used
@@ -232,12 +238,15 @@ int BidirectionalPaths::walk(const Scene& scene, Sampler& sampler, Ray ray, Colo
             }
             break;
         }
+        // Every field assigned (no clear of the whole vertex first).
         v.type = PathVertexType::Surface;
         v.si = scene.interaction(ray, *hit);
         v.p = v.si.p;
         v.ng = v.si.ng;
         v.emitter = v.si.shape->emitter();
         v.beta = beta;
+        v.pdf_rev = 0;
+        v.delta = false;
         v.pdf_fwd = convert_density(pdf_fwd, prev, v);
         ++n;
         if (n >= max_edges || n + 1 >= MaxVertices) break;
@@ -274,7 +283,7 @@ Color3 BidirectionalPaths::connect(const Scene& scene, PathVertex* light, PathVe
                                    Sampler& sampler, Vec2d& film, SampleCounters& c) const {
     const Sensor& sensor = *scene.sensor();
     Color3 L(0.0);
-    PathVertex sampled;  // the resampled endpoint for s = 1 or t = 1
+    std::optional<PathVertex> sampled;  // the resampled endpoint for s = 1 or t = 1
     const PathVertex& pt = cam[t - 1];
     if (s == 0) {
         // The camera subpath hit an emitter.
@@ -294,10 +303,11 @@ Color3 BidirectionalPaths::connect(const Scene& scene, PathVertex* light, PathVe
         if (!joinable(light, cam, s, t)) return L;
         auto sd = sensor.sample_direct(qs.p, u_lens);
         if (!sd) return L;
-        sampled.type = PathVertexType::Camera;
-        sampled.p = sd->p;
-        sampled.beta = Color3(sd->weight);
-        Color3 contrib = qs.beta * f(qs, sampled, TransportMode::Importance);  // s >= 2 here
+        sampled.emplace();
+        sampled->type = PathVertexType::Camera;
+        sampled->p = sd->p;
+        sampled->beta = Color3(sd->weight);
+        Color3 contrib = qs.beta * f(qs, *sampled, TransportMode::Importance);  // s >= 2 here
         if (contrib == Color3(0.0)) return L;
         ++c.rays;
         SurfaceInteraction from;
@@ -316,14 +326,14 @@ Color3 BidirectionalPaths::connect(const Scene& scene, PathVertex* light, PathVe
         auto ds = e->sample_direct(pt.p, u);
         if (!ds || !(ds->pdf > 0)) return L;
         sampled = light_endpoint(scene, e, ds->dist == Inf ? pt.p + ds->d : ds->p, ds->n, pt);
-        sampled.beta = ds->weight / sel;
+        sampled->beta = ds->weight / sel;
         Vec3d wo = pt.si.to_local(ds->d);
         Color3 fv = pt.si.shape->bsdf()->eval(BsdfContext{}, pt.si, wo);
         if (fv == Color3(0.0)) return L;
         ++c.rays;
         Ray shadow = ds->dist == Inf ? pt.si.spawn(ds->d) : pt.si.spawn_to(ds->p);
         if (scene.occluded(shadow)) return L;
-        L = pt.beta * fv * sampled.beta;
+        L = pt.beta * fv * sampled->beta;
     } else {
         const PathVertex& qs = light[s - 1];
         if (!joinable(light, cam, s, t)) return L;
@@ -334,33 +344,29 @@ Color3 BidirectionalPaths::connect(const Scene& scene, PathVertex* light, PathVe
         L = qs.beta * fq * fp * pt.beta * g;
     }
     if (L == Color3(0.0)) return L;
-    return L * mis_weight(scene, sensor, light, cam, sampled, s, t);
+    return L * mis_weight(scene, sensor, light, cam, sampled ? &*sampled : nullptr, s, t);
 }
 
 double BidirectionalPaths::mis_weight(const Scene& scene, const Sensor& sensor, PathVertex* light, PathVertex* cam,
-                                      const PathVertex& sampled, int s, int t) const {
+                                      PathVertex* sampled, int s, int t) const {
     if (s + t == 2) return 1.0;
-    // Work on copies of the (at most four) vertices whose densities change for this strategy.
-    std::array<PathVertex, 4> saved;
-    PathVertex* touched[4] = {nullptr, nullptr, nullptr, nullptr};
-    int nt = 0;
-    auto touch = [&](PathVertex* v) {
-        for (int i = 0; i < nt; ++i)
-            if (touched[i] == v) return;
-        saved[nt] = *v;
-        touched[nt++] = v;
-    };
-    if (s == 1) touch(&light[0]), light[0] = sampled;
-    if (t == 1) touch(&cam[0]), cam[0] = sampled;
-    PathVertex* qs = s > 0 ? &light[s - 1] : nullptr;
-    PathVertex* pt = &cam[t - 1];
+    // The (at most four) vertices whose densities change for this strategy, with the resampled endpoint (s = 1:
+    // y_0, t = 1: z_0) in place of the subpath's own; the subpaths' reverse densities and delta flags are saved and
+    // restored (the endpoint is the caller's copy).
+    PathVertex* qs = s == 1 ? sampled : s > 1 ? &light[s - 1] : nullptr;
+    PathVertex* pt = t == 1 ? sampled : &cam[t - 1];
     PathVertex* qs_minus = s > 1 ? &light[s - 2] : nullptr;
     PathVertex* pt_minus = t > 1 ? &cam[t - 2] : nullptr;
-    touch(pt);
-    if (qs) touch(qs);
-    if (pt_minus) touch(pt_minus);
-    if (qs_minus) touch(qs_minus);
-    connection_densities(scene, sensor, light, cam, s, t);
+    struct Saved {
+        PathVertex* v;
+        double pdf_rev;
+        bool delta;
+    };
+    std::array<Saved, 4> saved;
+    int nt = 0;
+    for (PathVertex* v : {pt, qs, pt_minus, qs_minus})
+        if (v && v != sampled) saved[std::size_t(nt++)] = {v, v->pdf_rev, v->delta};
+    connection_densities(scene, sensor, qs, pt, qs_minus, pt_minus);
 
     auto remap = [](double x) { return x != 0 ? x : 1.0; };
     double sum = 0, ri = 1;
@@ -369,12 +375,17 @@ double BidirectionalPaths::mis_weight(const Scene& scene, const Sensor& sensor, 
         if (!cam[i].delta && !cam[i - 1].delta) sum += ri;
     }
     ri = 1;
+    const PathVertex& y0 = s == 1 ? *sampled : light[0];
     for (int i = s - 1; i >= 0; --i) {
-        ri *= mis(remap(light[i].pdf_rev)) / mis(remap(light[i].pdf_fwd));
-        bool delta_before = i > 0 ? light[i - 1].delta : light[0].is_delta_light();
-        if (!light[i].delta && !delta_before) sum += ri;
+        const PathVertex& yi = i == 0 ? y0 : light[i];
+        ri *= mis(remap(yi.pdf_rev)) / mis(remap(yi.pdf_fwd));
+        bool delta_before = i > 0 ? light[i - 1].delta : y0.is_delta_light();
+        if (!yi.delta && !delta_before) sum += ri;
     }
-    for (int i = nt - 1; i >= 0; --i) *touched[i] = saved[i];
+    for (int i = nt - 1; i >= 0; --i) {
+        saved[std::size_t(i)].v->pdf_rev = saved[std::size_t(i)].pdf_rev;
+        saved[std::size_t(i)].v->delta = saved[std::size_t(i)].delta;
+    }
     return 1.0 / (1.0 + sum);
 }
 
@@ -444,7 +455,7 @@ int BidirectionalPaths::strategy_weights(const Scene& scene, const PathVertex* l
         } else if (tp == 1) {
             sampled = sub_cam[0];
         }
-        w[sp] = mis_weight(scene, sensor, sub_light.data(), sub_cam.data(), sampled, sp, tp);
+        w[sp] = mis_weight(scene, sensor, sub_light.data(), sub_cam.data(), &sampled, sp, tp);
     }
     return k + 1;
 }

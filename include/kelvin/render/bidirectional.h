@@ -85,8 +85,8 @@ public:
 private:
     int walk(const Scene& scene, Sampler& sampler, Ray ray, Color3 beta, double pdf_dir, int max_bounces,
              TransportMode mode, PathVertex* path, SampleCounters& c) const;
-    double mis_weight(const Scene& scene, const Sensor& sensor, PathVertex* light, PathVertex* cam,
-                      const PathVertex& sampled, int s, int t) const;
+    double mis_weight(const Scene& scene, const Sensor& sensor, PathVertex* light, PathVertex* cam, PathVertex* sampled,
+                      int s, int t) const;
 
     int m_rr_depth;
 };
