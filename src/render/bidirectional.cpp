@@ -6,7 +6,6 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
-#include <optional>
 
 namespace kelvin {
 
@@ -23,7 +22,7 @@ bool PathVertex::is_delta_light() const {
            (emitter->flags() & EmitterFlags::Delta);
 }
 bool PathVertex::connectible() const {
-    if (type == PathVertexType::Surface) return (si.shape->bsdf()->flags() & BsdfFlags::Smooth) != 0;
+    if (type == PathVertexType::Surface) return smooth;
     if (type == PathVertexType::Light) return !(emitter->flags() & EmitterFlags::DeltaDirection);
     return true;
 }
@@ -247,11 +246,12 @@ int BidirectionalPaths::walk(const Scene& scene, Sampler& sampler, Ray ray, Colo
         v.beta = beta;
         v.pdf_rev = 0;
         v.delta = false;
+        const Bsdf& bsdf = *v.si.shape->bsdf();
+        v.smooth = (bsdf.flags() & BsdfFlags::Smooth) != 0;
         v.pdf_fwd = convert_density(pdf_fwd, prev, v);
         ++n;
         if (n >= max_edges || n + 1 >= MaxVertices) break;
 
-        const Bsdf& bsdf = *v.si.shape->bsdf();
         auto bs = bsdf.sample(ctx, v.si, u_comp, u_bsdf);
         if (!bs || bs->weight == Color3(0.0)) break;
         Color3 w = bs->weight;
@@ -263,9 +263,10 @@ int BidirectionalPaths::walk(const Scene& scene, Sampler& sampler, Ray ray, Colo
             pdf_fwd = pdf_rev = 0;
         } else {
             pdf_fwd = bs->pdf;
-            SurfaceInteraction rev = v.si;
-            rev.wi = bs->wo;
-            pdf_rev = bsdf.pdf(ctx, rev, v.si.wi);
+            const Vec3d wi = v.si.wi;  // the reverse direction's density: wi and wo swapped in place
+            v.si.wi = bs->wo;
+            pdf_rev = bsdf.pdf(ctx, v.si, wi);
+            v.si.wi = wi;
         }
         prev.pdf_rev = convert_density(pdf_rev, v, prev);
         if (depth + 1 >= m_rr_depth) {
@@ -281,9 +282,10 @@ int BidirectionalPaths::walk(const Scene& scene, Sampler& sampler, Ray ray, Colo
 
 Color3 BidirectionalPaths::connect(const Scene& scene, PathVertex* light, PathVertex* cam, int s, int t,
                                    Sampler& sampler, Vec2d& film, SampleCounters& c) const {
+    // Most connections of a sample contribute nothing (the BSDF is zero towards the other vertex, or the segment is
+    // blocked): each case returns as early as it can, and only the cases that resample an endpoint build one.
     const Sensor& sensor = *scene.sensor();
     Color3 L(0.0);
-    std::optional<PathVertex> sampled;  // the resampled endpoint for s = 1 or t = 1
     const PathVertex& pt = cam[t - 1];
     if (s == 0) {
         // The camera subpath hit an emitter.
@@ -296,18 +298,21 @@ Color3 BidirectionalPaths::connect(const Scene& scene, PathVertex* light, PathVe
             L = pt.emitter->eval(pt.p, pt.ng, pt.si.uv, w);
         }
         L *= pt.beta;
-    } else if (t == 1) {
+        if (L == Color3(0.0)) return L;
+        return L * mis_weight(scene, sensor, light, cam, nullptr, s, t);
+    }
+    if (t == 1) {
         // Connect the light subpath's last vertex to the camera (a point on the lens, for a thin lens).
         const PathVertex& qs = light[s - 1];
         const Vec2d u_lens = sampler.next_2d();  // drawn whatever happens next: the layout stays fixed
         if (!joinable(light, cam, s, t)) return L;
         auto sd = sensor.sample_direct(qs.p, u_lens);
         if (!sd) return L;
-        sampled.emplace();
-        sampled->type = PathVertexType::Camera;
-        sampled->p = sd->p;
-        sampled->beta = Color3(sd->weight);
-        Color3 contrib = qs.beta * f(qs, *sampled, TransportMode::Importance);  // s >= 2 here
+        PathVertex sampled;
+        sampled.type = PathVertexType::Camera;
+        sampled.p = sd->p;
+        sampled.beta = Color3(sd->weight);
+        Color3 contrib = qs.beta * f(qs, sampled, TransportMode::Importance);  // s >= 2 here
         if (contrib == Color3(0.0)) return L;
         ++c.rays;
         SurfaceInteraction from;
@@ -316,7 +321,10 @@ Color3 BidirectionalPaths::connect(const Scene& scene, PathVertex* light, PathVe
         if (scene.occluded(from.spawn_to(sd->p))) return L;
         L = contrib * sd->weight;
         film = sd->film;
-    } else if (s == 1) {
+        if (L == Color3(0.0)) return L;
+        return L * mis_weight(scene, sensor, light, cam, &sampled, s, t);
+    }
+    if (s == 1) {
         // Next-event estimation: sample a point on an emitter.
         const double u_sel = sampler.next_1d();  // drawn whatever happens next: the layout stays fixed
         const Vec2d u = sampler.next_2d();
@@ -325,26 +333,30 @@ Color3 BidirectionalPaths::connect(const Scene& scene, PathVertex* light, PathVe
         if (!e) return L;
         auto ds = e->sample_direct(pt.p, u);
         if (!ds || !(ds->pdf > 0)) return L;
-        sampled = light_endpoint(scene, e, ds->dist == Inf ? pt.p + ds->d : ds->p, ds->n, pt);
-        sampled->beta = ds->weight / sel;
         Vec3d wo = pt.si.to_local(ds->d);
         Color3 fv = pt.si.shape->bsdf()->eval(BsdfContext{}, pt.si, wo);
         if (fv == Color3(0.0)) return L;
         ++c.rays;
         Ray shadow = ds->dist == Inf ? pt.si.spawn(ds->d) : pt.si.spawn_to(ds->p);
         if (scene.occluded(shadow)) return L;
-        L = pt.beta * fv * sampled->beta;
-    } else {
-        const PathVertex& qs = light[s - 1];
-        if (!joinable(light, cam, s, t)) return L;
-        Color3 fq = f(qs, pt, TransportMode::Importance), fp = f(pt, qs, TransportMode::Radiance);
-        if (fq == Color3(0.0) || fp == Color3(0.0)) return L;
-        double g = geometry_visible(scene, pt, qs, c);
-        if (g == 0) return L;
-        L = qs.beta * fq * fp * pt.beta * g;
+        PathVertex sampled = light_endpoint(scene, e, ds->dist == Inf ? pt.p + ds->d : ds->p, ds->n, pt);
+        sampled.beta = ds->weight / sel;
+        L = pt.beta * fv * sampled.beta;
+        if (L == Color3(0.0)) return L;
+        return L * mis_weight(scene, sensor, light, cam, &sampled, s, t);
     }
+    // Two subpath vertices joined: the BSDF on the light side first, the camera side only if that is not zero.
+    const PathVertex& qs = light[s - 1];
+    if (!joinable(light, cam, s, t)) return L;
+    Color3 fq = f(qs, pt, TransportMode::Importance);
+    if (fq == Color3(0.0)) return L;
+    Color3 fp = f(pt, qs, TransportMode::Radiance);
+    if (fp == Color3(0.0)) return L;
+    double g = geometry_visible(scene, pt, qs, c);
+    if (g == 0) return L;
+    L = qs.beta * fq * fp * pt.beta * g;
     if (L == Color3(0.0)) return L;
-    return L * mis_weight(scene, sensor, light, cam, sampled ? &*sampled : nullptr, s, t);
+    return L * mis_weight(scene, sensor, light, cam, nullptr, s, t);
 }
 
 double BidirectionalPaths::mis_weight(const Scene& scene, const Sensor& sensor, PathVertex* light, PathVertex* cam,

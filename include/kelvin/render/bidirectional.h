@@ -32,6 +32,7 @@ struct PathVertex {
     Color3 beta{0.0};
     double pdf_fwd = 0, pdf_rev = 0;
     bool delta = false;
+    bool smooth = false;               ///< surface vertices: the BSDF has a smooth component (set by the subpath walk)
     Vec3d p{0.0}, ng{0.0};             ///< ng is zero for points (camera, point lights, infinite endpoints)
     SurfaceInteraction si;             ///< surface vertices
     const Emitter* emitter = nullptr;  ///< light vertices, and surface vertices that emit
