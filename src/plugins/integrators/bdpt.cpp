@@ -59,20 +59,18 @@ public:
         thread_local std::array<PathVertex, MaxVertices> cam, light;
         const int n_cam = m_paths.camera_subpath(scene, sampler, camera_ray, max_edges, cam.data(), c);
         sampler.set_stream(SampleStream::Light);
-        light[0] = PathVertex();
         const int n_light = max_edges >= 1 ? m_paths.light_subpath(scene, sampler, max_edges - 1, light.data(), c) : 0;
 
-        // All strategies.
+        // All strategies: s + t - 1 edges, between min_depth and max_edges.
         sampler.set_stream(SampleStream::Connection);
         Color3 L(0.0);
+        const int min_edges = std::max(1, m_min_depth);
         for (int t = 1; t <= n_cam; ++t)
-            for (int s = 0; s <= n_light; ++s) {
-                const int edges = s + t - 1;
+            for (int s = std::max(0, min_edges + 1 - t); s <= std::min(n_light, max_edges + 1 - t); ++s) {
                 if (t == 1 && s == 0) continue;  // the camera (pinhole or lens) is not in the scene: never hit
                 // Emitters seen directly come from (s=0, t=2) alone, exactly and noise-free; (1, 1) would count
                 // them twice (pbrt makes the same choice, and the MIS weight is 1 for s + t == 2).
                 if (t == 1 && s == 1) continue;
-                if (edges < std::max(1, m_min_depth) || edges > max_edges) continue;
                 if (m_hide_emitters && t + s == 2) continue;
                 Vec2d film;
                 Color3 v = m_paths.connect(scene, light.data(), cam.data(), s, t, sampler, film, c);
