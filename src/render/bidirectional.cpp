@@ -29,8 +29,6 @@ bool PathVertex::connectible() const {
 
 namespace {
 
-constexpr double mis(double x) { return x * x; }  // power heuristic, exponent 2
-
 // Solid-angle density at `from` towards `to`, converted to area density at `to`.
 double convert_density(double pdf, const PathVertex& from, const PathVertex& to) {
     if (to.is_infinite()) return pdf;
@@ -383,14 +381,14 @@ double BidirectionalPaths::mis_weight(const Scene& scene, const Sensor& sensor, 
     auto remap = [](double x) { return x != 0 ? x : 1.0; };
     double sum = 0, ri = 1;
     for (int i = t - 1; i > 0; --i) {
-        ri *= mis(remap(cam[i].pdf_rev)) / mis(remap(cam[i].pdf_fwd));
+        ri *= power_heuristic_ratio(remap(cam[i].pdf_rev), remap(cam[i].pdf_fwd));
         if (!cam[i].delta && !cam[i - 1].delta) sum += ri;
     }
     ri = 1;
     const PathVertex& y0 = s == 1 ? *sampled : light[0];
     for (int i = s - 1; i >= 0; --i) {
         const PathVertex& yi = i == 0 ? y0 : light[i];
-        ri *= mis(remap(yi.pdf_rev)) / mis(remap(yi.pdf_fwd));
+        ri *= power_heuristic_ratio(remap(yi.pdf_rev), remap(yi.pdf_fwd));
         bool delta_before = i > 0 ? light[i - 1].delta : y0.is_delta_light();
         if (!yi.delta && !delta_before) sum += ri;
     }

@@ -235,4 +235,25 @@ TEST(BdptMis, WeightsSumToOneDirectionalLightAndSky) {
     expect_partition_of_unity(ktest::load_scene_xml(kSky), 10000, {0, 0, 1000, 1000, 400, 200, 100, 50, 40});
 }
 
+// The power heuristic's density ratio: bit for bit a^2 / b^2 for the densities of ordinary scenes (so images do not
+// change), and the ratio itself where a square underflows or overflows. A Beckmann lobe far from its peak gives
+// densities below 1e-248, whose squares are 0: a^2 / b^2 was 0 / 0 there (NaN, counted as an invalid sample), and
+// far from the ratio below about 1e-154 (subnormal squares). Fails with the plain a * a / (b * b).
+TEST(BdptMis, PowerHeuristicRatioOfTinyAndHugeDensities) {
+    for (double a : {1e-3, 0.37, 1.0, 2.5, 7e4, 3e120})
+        for (double b : {2e-3, 0.81, 1.0, 9.0, 1e5, 4e130}) {
+            const double plain = (a * a) / (b * b);
+            EXPECT_EQ(power_heuristic_ratio(a, b), plain) << a << " " << b;  // bit for bit
+        }
+    struct Case {
+        double a, b, ratio;
+    };
+    for (const Case& c : {Case{3e-260, 1.5e-260, 4.0}, Case{1e-300, 1e-299, 0.01}, Case{2e-200, 1e-170, 4e-60},
+                          Case{1e-160, 2e-160, 0.25}, Case{6e200, 3e200, 4.0}, Case{1e-250, 1e250, 0.0}}) {
+        const double r = power_heuristic_ratio(c.a, c.b);
+        EXPECT_TRUE(std::isfinite(r)) << c.a << " " << c.b;
+        EXPECT_NEAR(r, c.ratio, 1e-12 * c.ratio) << c.a << " " << c.b;
+    }
+}
+
 }  // namespace

@@ -45,6 +45,17 @@ struct PathVertex {
     bool connectible() const;
 };
 
+/// The power heuristic's ratio (a / b)^2 of two non-zero densities, as the MIS weights take it: a^2 / b^2 where both
+/// squares are normal doubles (every density of ordinary scenes), else (a / b)^2, so that densities below about
+/// 1e-154 (a Beckmann lobe far from its peak) give their ratio instead of 0 / 0 or a square's underflow.
+inline double power_heuristic_ratio(double a, double b) {
+    const double a2 = a * a, b2 = b * b;
+    constexpr double lo = 2.2250738585072014e-308, hi = 1.7976931348623157e308;  // DBL_MIN, DBL_MAX
+    if (a2 >= lo && b2 >= lo && a2 <= hi && b2 <= hi) return a2 / b2;
+    const double r = a / b;
+    return r * r;
+}
+
 class BidirectionalPaths {
 public:
     static constexpr int MaxVertices = 64;  ///< hard cap per subpath
