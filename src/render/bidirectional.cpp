@@ -190,7 +190,8 @@ int BidirectionalPaths::light_subpath(const Scene& scene, Sampler& sampler, int 
     y0.emitter = emitter;
     y0.p = es->ray.o;
     y0.ng = (emitter->flags() & EmitterFlags::Surface) ? es->n : Vec3d(0.0);
-    y0.beta = Color3(1.0);  // not used: s = 1 strategies resample the emitter
+    y0.beta = Color3(1.0);  // not used: s = 1 strategies resample the emitter, (1, 1) divides by pdf_fwd
+    y0.si.uv = es->uv;      // where (1, 1) reads a textured radiance
     y0.pdf_fwd = es->pdf_pos * sel_pdf;
     Ray lr = es->spawn_ray();
     lr.d = glm::normalize(lr.d);
@@ -304,13 +305,23 @@ Color3 BidirectionalPaths::connect(const Scene& scene, PathVertex* light, PathVe
         const PathVertex& qs = light[s - 1];
         const Vec2d u_lens = sampler.next_2d();  // drawn whatever happens next: the layout stays fixed
         if (!joinable(light, cam, s, t)) return L;
+        // (1, 1): the light image, from a point on an area emitter only.
+        if (s == 1 && !(m_light_image && qs.type == PathVertexType::Light && qs.on_surface() && qs.pdf_fwd > 0))
+            return L;
         auto sd = sensor.sample_direct(qs.p, u_lens);
         if (!sd) return L;
         PathVertex sampled;
         sampled.type = PathVertexType::Camera;
         sampled.p = sd->p;
         sampled.beta = Color3(sd->weight);
-        Color3 contrib = qs.beta * f(qs, sampled, TransportMode::Importance);  // s >= 2 here
+        Color3 contrib;
+        if (s == 1) {
+            // The emitted radiance towards the camera, |cos| at the emitter, over the origin's area density.
+            const Vec3d w = glm::normalize(sampled.p - qs.p);
+            contrib = qs.emitter->eval(qs.p, qs.ng, qs.si.uv, w) * (std::abs(glm::dot(qs.ng, w)) / qs.pdf_fwd);
+        } else {
+            contrib = qs.beta * f(qs, sampled, TransportMode::Importance);
+        }
         if (contrib == Color3(0.0)) return L;
         ++c.rays;
         SurfaceInteraction from;
@@ -359,11 +370,14 @@ Color3 BidirectionalPaths::connect(const Scene& scene, PathVertex* light, PathVe
 
 double BidirectionalPaths::mis_weight(const Scene& scene, const Sensor& sensor, PathVertex* light, PathVertex* cam,
                                       PathVertex* sampled, int s, int t) const {
-    if (s + t == 2) return 1.0;
+    // An emitter seen directly: (0, 2) alone, or with the light image (1, 1) where that can sample it (an area
+    // emitter; not the environment, not a delta light).
+    if (s + t == 2 && !(m_light_image && (s == 1 || cam[1].on_surface()))) return 1.0;
     // The (at most four) vertices whose densities change for this strategy, with the resampled endpoint (s = 1:
     // y_0, t = 1: z_0) in place of the subpath's own; the subpaths' reverse densities and delta flags are saved and
-    // restored (the endpoint is the caller's copy).
-    PathVertex* qs = s == 1 ? sampled : s > 1 ? &light[s - 1] : nullptr;
+    // restored (the endpoint is the caller's copy). (1, 1) resamples the camera only: y_0 is the light subpath's.
+    const bool own_y0 = s == 1 && t == 1;
+    PathVertex* qs = s == 1 && !own_y0 ? sampled : s >= 1 ? &light[s - 1] : nullptr;
     PathVertex* pt = t == 1 ? sampled : &cam[t - 1];
     PathVertex* qs_minus = s > 1 ? &light[s - 2] : nullptr;
     PathVertex* pt_minus = t > 1 ? &cam[t - 2] : nullptr;
@@ -385,7 +399,7 @@ double BidirectionalPaths::mis_weight(const Scene& scene, const Sensor& sensor, 
         if (!cam[i].delta && !cam[i - 1].delta) sum += ri;
     }
     ri = 1;
-    const PathVertex& y0 = s == 1 ? *sampled : light[0];
+    const PathVertex& y0 = s == 1 && !own_y0 ? *sampled : light[0];
     for (int i = s - 1; i >= 0; --i) {
         const PathVertex& yi = i == 0 ? y0 : light[i];
         ri *= power_heuristic_ratio(remap(yi.pdf_rev), remap(yi.pdf_fwd));
@@ -456,9 +470,10 @@ int BidirectionalPaths::strategy_weights(const Scene& scene, const PathVertex* l
             sub_cam[std::size_t(j)].pdf_rev = fwd[std::size_t(k - j)];
         }
         w[sp] = 0;
+        if (sp == 1 && tp == 1 && !m_light_image) continue;  // bdpt without the light image never samples (1, 1)
         if (!joinable(sub_light.data(), sub_cam.data(), sp, tp)) continue;
         PathVertex sampled;
-        if (sp == 1) {
+        if (sp == 1 && tp != 1) {
             const PathVertex& pt = sub_cam[std::size_t(tp - 1)];
             const Vec3d p = x[0].is_infinite() ? pt.p + glm::normalize(x[0].p - pt.p) : x[0].p;
             sampled = light_endpoint(scene, x[0].emitter, p, x[0].ng, pt);

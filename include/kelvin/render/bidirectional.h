@@ -62,7 +62,12 @@ public:
 
     /// `rr_depth`: subpath length (in bounces) from which Russian roulette may stop a subpath; a value above
     /// MaxVertices disables it (the multiplexed technique traces subpaths to the length its strategy needs).
-    explicit BidirectionalPaths(int rr_depth) : m_rr_depth(rr_depth) {}
+    /// `light_image`: an area emitter seen directly is sampled by two strategies, (0, 2) (the camera ray hits it) and
+    /// (1, 1) (the light subpath's origin connected to the camera, splatted), weighted by MIS (Veach 1997; Mitsuba
+    /// 0.6's light image); without it (0, 2) takes it alone with weight 1 (pbrt-v3, v4), and connect() is never
+    /// asked for (1, 1).
+    explicit BidirectionalPaths(int rr_depth, bool light_image = false)
+        : m_rr_depth(rr_depth), m_light_image(light_image) {}
 
     /// The camera subpath from `ray` (a camera ray from the scene's sensor): cam[0] is the camera vertex, then at
     /// most `max_bounces` more. Returns the number of vertices (>= 1).
@@ -101,6 +106,7 @@ private:
                       int s, int t) const;
 
     int m_rr_depth;
+    bool m_light_image;
 };
 
 }  // namespace kelvin
