@@ -83,7 +83,7 @@ bool is_supported_image_extension(const fs::path& path) {
 
 std::string image_format_problem(const fs::path& path) {
     const std::string e = ext_of(path);
-    if (e == ".exr" || e == ".png") return {};
+    if (e == ".exr" || e == ".png" || e == ".pfm") return {};  // written here, without OpenImageIO (~0.2 s to load)
     try {
         detail::oiio_codec();
     } catch (const std::exception& ex) {

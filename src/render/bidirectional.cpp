@@ -22,14 +22,12 @@ bool PathVertex::is_delta_light() const {
            (emitter->flags() & EmitterFlags::Delta);
 }
 bool PathVertex::connectible() const {
-    if (type == PathVertexType::Surface) return (si.shape->bsdf()->flags() & BsdfFlags::Smooth) != 0;
+    if (type == PathVertexType::Surface) return smooth;
     if (type == PathVertexType::Light) return !(emitter->flags() & EmitterFlags::DeltaDirection);
     return true;
 }
 
 namespace {
-
-constexpr double mis(double x) { return x * x; }  // power heuristic, exponent 2
 
 // Solid-angle density at `from` towards `to`, converted to area density at `to`.
 double convert_density(double pdf, const PathVertex& from, const PathVertex& to) {
@@ -77,9 +75,9 @@ double pdf_light_origin(const Scene& scene, const PathVertex& v, const PathVerte
     return scene.emitter_pdf(v.emitter) * v.emitter->pdf_emission(v.p, v.ng, w).first;
 }
 
-// Area density with which vertex `v` (reached from `prev`) samples `next`.
-double pdf(const Scene& scene, const Sensor& sensor, const PathVertex& v, const PathVertex* prev,
-           const PathVertex& next) {
+// Area density with which vertex `v` (reached from `prev`) samples `next`. The BSDF is asked with v.si.wi set to
+// the direction towards `prev` (restored before returning: no copy of the interaction).
+double pdf(const Scene& scene, const Sensor& sensor, PathVertex& v, const PathVertex* prev, const PathVertex& next) {
     if (v.type == PathVertexType::Light || v.type == PathVertexType::Infinite) return pdf_light(scene, v, next);
     Vec3d wn = next.p - v.p;
     double l = glm::length(wn);
@@ -89,9 +87,10 @@ double pdf(const Scene& scene, const Sensor& sensor, const PathVertex& v, const 
     if (v.type == PathVertexType::Camera) {
         p = sensor.pdf_direction(v.p, wn);
     } else {
-        SurfaceInteraction si = v.si;
-        si.wi = si.to_local(glm::normalize(prev->p - v.p));
-        p = v.si.shape->bsdf()->pdf(BsdfContext{}, si, si.to_local(wn));
+        const Vec3d wi = v.si.wi;
+        v.si.wi = v.si.to_local(glm::normalize(prev->p - v.p));
+        p = v.si.shape->bsdf()->pdf(BsdfContext{}, v.si, v.si.to_local(wn));
+        v.si.wi = wi;
     }
     return convert_density(p, v, next);
 }
@@ -133,21 +132,25 @@ PathVertex light_endpoint(const Scene& scene, const Emitter* e, const Vec3d& p, 
     return v;
 }
 
-// Sets the reverse densities of the (at most four) vertices next to the connection of strategy (s, t), and clears
-// the delta flags of the two joined, as that strategy sees them. light[0] / cam[0] already hold the resampled
-// endpoint for s = 1 / t = 1.
-void connection_densities(const Scene& scene, const Sensor& sensor, PathVertex* light, PathVertex* cam, int s, int t) {
-    PathVertex* qs = s > 0 ? &light[s - 1] : nullptr;
-    PathVertex* pt = &cam[t - 1];
-    PathVertex* qs_minus = s > 1 ? &light[s - 2] : nullptr;
-    PathVertex* pt_minus = t > 1 ? &cam[t - 2] : nullptr;
+// Sets the reverse densities of the (at most four) vertices next to the connection of strategy (s, t): qs = y_{s-1}
+// and qs_minus = y_{s-2} (null where s is too small), pt = z_{t-1} and pt_minus = z_{t-2} (null for t = 1), with the
+// resampled endpoint in place of y_0 for s = 1 and of z_0 for t = 1; clears the delta flags of the two joined, as that
+// strategy sees them.
+void connection_densities(const Scene& scene, const Sensor& sensor, PathVertex* qs, PathVertex* pt,
+                          PathVertex* qs_minus, PathVertex* pt_minus) {
     pt->delta = false;
     if (qs) qs->delta = false;
 
-    pt->pdf_rev = s > 0 ? pdf(scene, sensor, *qs, qs_minus, *pt) : pdf_light_origin(scene, *pt, *pt_minus);
-    if (pt_minus) pt_minus->pdf_rev = s > 0 ? pdf(scene, sensor, *pt, qs, *pt_minus) : pdf_light(scene, *pt, *pt_minus);
+    pt->pdf_rev = qs ? pdf(scene, sensor, *qs, qs_minus, *pt) : pdf_light_origin(scene, *pt, *pt_minus);
+    if (pt_minus) pt_minus->pdf_rev = qs ? pdf(scene, sensor, *pt, qs, *pt_minus) : pdf_light(scene, *pt, *pt_minus);
     if (qs) qs->pdf_rev = pdf(scene, sensor, *pt, pt_minus, *qs);
     if (qs_minus) qs_minus->pdf_rev = pdf(scene, sensor, *qs, pt, *qs_minus);
+}
+
+// The same for strategy (s, t) on whole subpaths, their endpoints as sampled (s != 1, t != 1).
+void connection_densities(const Scene& scene, const Sensor& sensor, PathVertex* light, PathVertex* cam, int s, int t) {
+    connection_densities(scene, sensor, s > 0 ? &light[s - 1] : nullptr, &cam[t - 1], s > 1 ? &light[s - 2] : nullptr,
+                         t > 1 ? &cam[t - 2] : nullptr);
 }
 
 double geometry_visible(const Scene& scene, const PathVertex& a, const PathVertex& b, SampleCounters& c) {
@@ -187,7 +190,8 @@ int BidirectionalPaths::light_subpath(const Scene& scene, Sampler& sampler, int 
     y0.emitter = emitter;
     y0.p = es->ray.o;
     y0.ng = (emitter->flags() & EmitterFlags::Surface) ? es->n : Vec3d(0.0);
-    y0.beta = Color3(1.0);  // not used: s = 1 strategies resample the emitter
+    y0.beta = Color3(1.0);  // not used: s = 1 strategies resample the emitter, (1, 1) divides by pdf_fwd
+    y0.si.uv = es->uv;      // where (1, 1) reads a textured radiance
     y0.pdf_fwd = es->pdf_pos * sel_pdf;
     Ray lr = es->spawn_ray();
     lr.d = glm::normalize(lr.d);
@@ -220,10 +224,10 @@ int BidirectionalPaths::walk(const Scene& scene, Sampler& sampler, Ray ray, Colo
         auto hit = scene.intersect(ray);
         PathVertex& prev = path[n];
         PathVertex& v = path[n + 1];
-        v = PathVertex();
         if (!hit) {
             // A camera path escaping the scene ends on the environment (if any), as a light vertex.
             if (mode == TransportMode::Radiance && !scene.environment_emitters().empty()) {
+                v = PathVertex();
                 v.type = PathVertexType::Infinite;
                 v.beta = beta;
                 v.p = ray.o + ray.d;  // a direction: only (p - prev.p) is ever used
@@ -232,17 +236,21 @@ int BidirectionalPaths::walk(const Scene& scene, Sampler& sampler, Ray ray, Colo
             }
             break;
         }
+        // Every field assigned (no clear of the whole vertex first).
         v.type = PathVertexType::Surface;
         v.si = scene.interaction(ray, *hit);
         v.p = v.si.p;
         v.ng = v.si.ng;
         v.emitter = v.si.shape->emitter();
         v.beta = beta;
+        v.pdf_rev = 0;
+        v.delta = false;
+        const Bsdf& bsdf = *v.si.shape->bsdf();
+        v.smooth = (bsdf.flags() & BsdfFlags::Smooth) != 0;
         v.pdf_fwd = convert_density(pdf_fwd, prev, v);
         ++n;
         if (n >= max_edges || n + 1 >= MaxVertices) break;
 
-        const Bsdf& bsdf = *v.si.shape->bsdf();
         auto bs = bsdf.sample(ctx, v.si, u_comp, u_bsdf);
         if (!bs || bs->weight == Color3(0.0)) break;
         Color3 w = bs->weight;
@@ -254,9 +262,10 @@ int BidirectionalPaths::walk(const Scene& scene, Sampler& sampler, Ray ray, Colo
             pdf_fwd = pdf_rev = 0;
         } else {
             pdf_fwd = bs->pdf;
-            SurfaceInteraction rev = v.si;
-            rev.wi = bs->wo;
-            pdf_rev = bsdf.pdf(ctx, rev, v.si.wi);
+            const Vec3d wi = v.si.wi;  // the reverse direction's density: wi and wo swapped in place
+            v.si.wi = bs->wo;
+            pdf_rev = bsdf.pdf(ctx, v.si, wi);
+            v.si.wi = wi;
         }
         prev.pdf_rev = convert_density(pdf_rev, v, prev);
         if (depth + 1 >= m_rr_depth) {
@@ -272,9 +281,10 @@ int BidirectionalPaths::walk(const Scene& scene, Sampler& sampler, Ray ray, Colo
 
 Color3 BidirectionalPaths::connect(const Scene& scene, PathVertex* light, PathVertex* cam, int s, int t,
                                    Sampler& sampler, Vec2d& film, SampleCounters& c) const {
+    // Most connections of a sample contribute nothing (the BSDF is zero towards the other vertex, or the segment is
+    // blocked): each case returns as early as it can, and only the cases that resample an endpoint build one.
     const Sensor& sensor = *scene.sensor();
     Color3 L(0.0);
-    PathVertex sampled;  // the resampled endpoint for s = 1 or t = 1
     const PathVertex& pt = cam[t - 1];
     if (s == 0) {
         // The camera subpath hit an emitter.
@@ -287,17 +297,31 @@ Color3 BidirectionalPaths::connect(const Scene& scene, PathVertex* light, PathVe
             L = pt.emitter->eval(pt.p, pt.ng, pt.si.uv, w);
         }
         L *= pt.beta;
-    } else if (t == 1) {
+        if (L == Color3(0.0)) return L;
+        return L * mis_weight(scene, sensor, light, cam, nullptr, s, t);
+    }
+    if (t == 1) {
         // Connect the light subpath's last vertex to the camera (a point on the lens, for a thin lens).
         const PathVertex& qs = light[s - 1];
         const Vec2d u_lens = sampler.next_2d();  // drawn whatever happens next: the layout stays fixed
         if (!joinable(light, cam, s, t)) return L;
+        // (1, 1): the light image, from a point on an area emitter only.
+        if (s == 1 && !(m_light_image && qs.type == PathVertexType::Light && qs.on_surface() && qs.pdf_fwd > 0))
+            return L;
         auto sd = sensor.sample_direct(qs.p, u_lens);
         if (!sd) return L;
+        PathVertex sampled;
         sampled.type = PathVertexType::Camera;
         sampled.p = sd->p;
         sampled.beta = Color3(sd->weight);
-        Color3 contrib = qs.beta * f(qs, sampled, TransportMode::Importance);  // s >= 2 here
+        Color3 contrib;
+        if (s == 1) {
+            // The emitted radiance towards the camera, |cos| at the emitter, over the origin's area density.
+            const Vec3d w = glm::normalize(sampled.p - qs.p);
+            contrib = qs.emitter->eval(qs.p, qs.ng, qs.si.uv, w) * (std::abs(glm::dot(qs.ng, w)) / qs.pdf_fwd);
+        } else {
+            contrib = qs.beta * f(qs, sampled, TransportMode::Importance);
+        }
         if (contrib == Color3(0.0)) return L;
         ++c.rays;
         SurfaceInteraction from;
@@ -306,7 +330,10 @@ Color3 BidirectionalPaths::connect(const Scene& scene, PathVertex* light, PathVe
         if (scene.occluded(from.spawn_to(sd->p))) return L;
         L = contrib * sd->weight;
         film = sd->film;
-    } else if (s == 1) {
+        if (L == Color3(0.0)) return L;
+        return L * mis_weight(scene, sensor, light, cam, &sampled, s, t);
+    }
+    if (s == 1) {
         // Next-event estimation: sample a point on an emitter.
         const double u_sel = sampler.next_1d();  // drawn whatever happens next: the layout stays fixed
         const Vec2d u = sampler.next_2d();
@@ -315,66 +342,74 @@ Color3 BidirectionalPaths::connect(const Scene& scene, PathVertex* light, PathVe
         if (!e) return L;
         auto ds = e->sample_direct(pt.p, u);
         if (!ds || !(ds->pdf > 0)) return L;
-        sampled = light_endpoint(scene, e, ds->dist == Inf ? pt.p + ds->d : ds->p, ds->n, pt);
-        sampled.beta = ds->weight / sel;
         Vec3d wo = pt.si.to_local(ds->d);
         Color3 fv = pt.si.shape->bsdf()->eval(BsdfContext{}, pt.si, wo);
         if (fv == Color3(0.0)) return L;
         ++c.rays;
         Ray shadow = ds->dist == Inf ? pt.si.spawn(ds->d) : pt.si.spawn_to(ds->p);
         if (scene.occluded(shadow)) return L;
+        PathVertex sampled = light_endpoint(scene, e, ds->dist == Inf ? pt.p + ds->d : ds->p, ds->n, pt);
+        sampled.beta = ds->weight / sel;
         L = pt.beta * fv * sampled.beta;
-    } else {
-        const PathVertex& qs = light[s - 1];
-        if (!joinable(light, cam, s, t)) return L;
-        Color3 fq = f(qs, pt, TransportMode::Importance), fp = f(pt, qs, TransportMode::Radiance);
-        if (fq == Color3(0.0) || fp == Color3(0.0)) return L;
-        double g = geometry_visible(scene, pt, qs, c);
-        if (g == 0) return L;
-        L = qs.beta * fq * fp * pt.beta * g;
+        if (L == Color3(0.0)) return L;
+        return L * mis_weight(scene, sensor, light, cam, &sampled, s, t);
     }
+    // Two subpath vertices joined: the BSDF on the light side first, the camera side only if that is not zero.
+    const PathVertex& qs = light[s - 1];
+    if (!joinable(light, cam, s, t)) return L;
+    Color3 fq = f(qs, pt, TransportMode::Importance);
+    if (fq == Color3(0.0)) return L;
+    Color3 fp = f(pt, qs, TransportMode::Radiance);
+    if (fp == Color3(0.0)) return L;
+    double g = geometry_visible(scene, pt, qs, c);
+    if (g == 0) return L;
+    L = qs.beta * fq * fp * pt.beta * g;
     if (L == Color3(0.0)) return L;
-    return L * mis_weight(scene, sensor, light, cam, sampled, s, t);
+    return L * mis_weight(scene, sensor, light, cam, nullptr, s, t);
 }
 
 double BidirectionalPaths::mis_weight(const Scene& scene, const Sensor& sensor, PathVertex* light, PathVertex* cam,
-                                      const PathVertex& sampled, int s, int t) const {
-    if (s + t == 2) return 1.0;
-    // Work on copies of the (at most four) vertices whose densities change for this strategy.
-    std::array<PathVertex, 4> saved;
-    PathVertex* touched[4] = {nullptr, nullptr, nullptr, nullptr};
-    int nt = 0;
-    auto touch = [&](PathVertex* v) {
-        for (int i = 0; i < nt; ++i)
-            if (touched[i] == v) return;
-        saved[nt] = *v;
-        touched[nt++] = v;
-    };
-    if (s == 1) touch(&light[0]), light[0] = sampled;
-    if (t == 1) touch(&cam[0]), cam[0] = sampled;
-    PathVertex* qs = s > 0 ? &light[s - 1] : nullptr;
-    PathVertex* pt = &cam[t - 1];
+                                      PathVertex* sampled, int s, int t) const {
+    // An emitter seen directly: (0, 2) alone, or with the light image (1, 1) where that can sample it (an area
+    // emitter; not the environment, not a delta light).
+    if (s + t == 2 && !(m_light_image && (s == 1 || cam[1].on_surface()))) return 1.0;
+    // The (at most four) vertices whose densities change for this strategy, with the resampled endpoint (s = 1:
+    // y_0, t = 1: z_0) in place of the subpath's own; the subpaths' reverse densities and delta flags are saved and
+    // restored (the endpoint is the caller's copy). (1, 1) resamples the camera only: y_0 is the light subpath's.
+    const bool own_y0 = s == 1 && t == 1;
+    PathVertex* qs = s == 1 && !own_y0 ? sampled : s >= 1 ? &light[s - 1] : nullptr;
+    PathVertex* pt = t == 1 ? sampled : &cam[t - 1];
     PathVertex* qs_minus = s > 1 ? &light[s - 2] : nullptr;
     PathVertex* pt_minus = t > 1 ? &cam[t - 2] : nullptr;
-    touch(pt);
-    if (qs) touch(qs);
-    if (pt_minus) touch(pt_minus);
-    if (qs_minus) touch(qs_minus);
-    connection_densities(scene, sensor, light, cam, s, t);
+    struct Saved {
+        PathVertex* v;
+        double pdf_rev;
+        bool delta;
+    };
+    std::array<Saved, 4> saved;
+    int nt = 0;
+    for (PathVertex* v : {pt, qs, pt_minus, qs_minus})
+        if (v && v != sampled) saved[std::size_t(nt++)] = {v, v->pdf_rev, v->delta};
+    connection_densities(scene, sensor, qs, pt, qs_minus, pt_minus);
 
     auto remap = [](double x) { return x != 0 ? x : 1.0; };
     double sum = 0, ri = 1;
     for (int i = t - 1; i > 0; --i) {
-        ri *= mis(remap(cam[i].pdf_rev)) / mis(remap(cam[i].pdf_fwd));
+        ri *= power_heuristic_ratio(remap(cam[i].pdf_rev), remap(cam[i].pdf_fwd));
         if (!cam[i].delta && !cam[i - 1].delta) sum += ri;
     }
     ri = 1;
+    const PathVertex& y0 = s == 1 && !own_y0 ? *sampled : light[0];
     for (int i = s - 1; i >= 0; --i) {
-        ri *= mis(remap(light[i].pdf_rev)) / mis(remap(light[i].pdf_fwd));
-        bool delta_before = i > 0 ? light[i - 1].delta : light[0].is_delta_light();
-        if (!light[i].delta && !delta_before) sum += ri;
+        const PathVertex& yi = i == 0 ? y0 : light[i];
+        ri *= power_heuristic_ratio(remap(yi.pdf_rev), remap(yi.pdf_fwd));
+        bool delta_before = i > 0 ? light[i - 1].delta : y0.is_delta_light();
+        if (!yi.delta && !delta_before) sum += ri;
     }
-    for (int i = nt - 1; i >= 0; --i) *touched[i] = saved[i];
+    for (int i = nt - 1; i >= 0; --i) {
+        saved[std::size_t(i)].v->pdf_rev = saved[std::size_t(i)].pdf_rev;
+        saved[std::size_t(i)].v->delta = saved[std::size_t(i)].delta;
+    }
     return 1.0 / (1.0 + sum);
 }
 
@@ -435,16 +470,17 @@ int BidirectionalPaths::strategy_weights(const Scene& scene, const PathVertex* l
             sub_cam[std::size_t(j)].pdf_rev = fwd[std::size_t(k - j)];
         }
         w[sp] = 0;
+        if (sp == 1 && tp == 1 && !m_light_image) continue;  // bdpt without the light image never samples (1, 1)
         if (!joinable(sub_light.data(), sub_cam.data(), sp, tp)) continue;
         PathVertex sampled;
-        if (sp == 1) {
+        if (sp == 1 && tp != 1) {
             const PathVertex& pt = sub_cam[std::size_t(tp - 1)];
             const Vec3d p = x[0].is_infinite() ? pt.p + glm::normalize(x[0].p - pt.p) : x[0].p;
             sampled = light_endpoint(scene, x[0].emitter, p, x[0].ng, pt);
         } else if (tp == 1) {
             sampled = sub_cam[0];
         }
-        w[sp] = mis_weight(scene, sensor, sub_light.data(), sub_cam.data(), sampled, sp, tp);
+        w[sp] = mis_weight(scene, sensor, sub_light.data(), sub_cam.data(), &sampled, sp, tp);
     }
     return k + 1;
 }

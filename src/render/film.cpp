@@ -1,6 +1,7 @@
 #include <kelvin/render/film.h>
 
 #include <kelvin/core/distributed.h>
+#include <kelvin/core/error.h>
 
 #include <algorithm>
 #include <cmath>
@@ -36,30 +37,35 @@ Bitmap ImageBuffer::develop(const std::vector<std::string>& names, Communicator&
     return merged.develop(names);
 }
 
-SplatBuffer::SplatBuffer(int width, int height, std::size_t units, const ReconstructionFilter* filter)
+SplatBuffer::SplatBuffer(int width, int height, std::size_t units, const ReconstructionFilter* filter, int channels)
     : m_width(width),
       m_height(height),
+      m_channels(channels),
       m_filter(filter),
       m_lists(units),
       m_sinks(units),
-      m_acc(std::size_t(width) * std::size_t(height) * 3, 0.0) {
+      m_acc(std::size_t(width) * std::size_t(height) * std::size_t(channels), 0.0) {
+    if (channels < 3) throw_runtime("SplatBuffer: {} channels; the colour needs 3", channels);
     for (std::size_t u = 0; u < units; ++u) {
         m_sinks[u].buffer = this;
         m_sinks[u].unit = u;
     }
 }
 
-void SplatBuffer::splat(std::size_t unit, const Vec2d& film, const Color3& v) {
+void SplatBuffer::splat(std::size_t unit, const Vec2d& film, const Color3& v, int channel) {
+    if (channel < 0 || channel + 3 > m_channels)
+        throw_runtime("SplatBuffer: channels {}..{} of {}", channel, channel + 2, m_channels);
     auto& list = m_lists[unit];
     for_each_footprint_pixel(m_filter, m_width, m_height, film, [&](std::size_t pixel, double w) {
-        list.push_back({uint32_t(pixel), w * v.r, w * v.g, w * v.b});
+        list.push_back({uint32_t(pixel), uint32_t(channel), w * v.r, w * v.g, w * v.b});
     });
 }
 
 void SplatBuffer::merge() {
+    const std::size_t nc = std::size_t(m_channels);
     for (auto& list : m_lists) {
         for (const Record& r : list) {
-            double* px = &m_acc[std::size_t(r.pixel) * 3];
+            double* px = &m_acc[std::size_t(r.pixel) * nc + r.channel];
             px[0] += r.r;
             px[1] += r.g;
             px[2] += r.b;
@@ -96,7 +102,9 @@ void SplatBuffer::merge(Communicator& comm) {
 }
 
 Bitmap SplatBuffer::develop(double scale) const {
-    Bitmap out(m_width, m_height);
+    std::vector<std::string> names = {"R", "G", "B"};
+    for (int c = 3; c < m_channels; ++c) names.push_back(fmt::format("extra{}", c - 3));
+    Bitmap out(m_width, m_height, names);
     for (std::size_t i = 0; i < m_acc.size(); ++i) out.data()[i] = float(m_acc[i] * scale);
     return out;
 }

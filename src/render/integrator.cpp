@@ -334,10 +334,13 @@ RunResult SamplingIntegrator::render(const Scene& scene, RunContext& ctx) {
         SplatSink* inner = nullptr;
         Vec2d offset{0.0};
         void splat(const Vec2d& film, const Color3& v) override { inner->splat(film - offset, v); }
+        void splat_channels(const Vec2d& film, const Color3& v, int channel) override {
+            inner->splat_channels(film - offset, v, channel);
+        }
     };
     std::vector<OffsetSink> offset_sinks;
     if (splats()) {
-        splat_buffer = std::make_unique<SplatBuffer>(w, h, tiles, &filter);
+        splat_buffer = std::make_unique<SplatBuffer>(w, h, tiles, &filter, 3 + ne);
         offset_sinks.resize(tiles);
         for (std::size_t u = 0; u < tiles; ++u) {
             offset_sinks[u].inner = &splat_buffer->sink(u);
@@ -351,11 +354,12 @@ RunResult SamplingIntegrator::render(const Scene& scene, RunContext& ctx) {
             uint64_t n = 0;
             for (const auto& c : counters) n += c.samples;
             if (comm.distributed()) comm.allreduce(&n, 1, ReduceOp::Sum);
-            // The splat image is RGB only; extra channels are never splatted.
+            // The splat image has the image's channels (extra channels receive splats through
+            // SplatSink::splat_channels; most integrators splat colour only).
             Bitmap s = splat_buffer->develop(n > 0 ? 1.0 / double(n) : 0.0);
             const std::size_t stride = std::size_t(img.channel_count());
             for (std::size_t p = 0; p < std::size_t(w) * std::size_t(h); ++p)
-                for (std::size_t c = 0; c < 3; ++c) img.data()[p * stride + c] += s.data()[p * 3 + c];
+                for (std::size_t c = 0; c < stride; ++c) img.data()[p * stride + c] += s.data()[p * stride + c];
         }
         return img;
     };

@@ -201,8 +201,8 @@ std::string loader_log(const fs::path& dir) {
 
 }  // namespace
 
-TEST_F(CliOutput, PngAndExrRunsLoadNeitherOpenImageIONorOpenVdb) {
-    for (const char* name : {"out.png", "out.exr"}) {
+TEST_F(CliOutput, PngExrAndPfmRunsLoadNeitherOpenImageIONorOpenVdb) {
+    for (const char* name : {"out.png", "out.exr", "out.pfm"}) {
         const fs::path logs = m_dir / (std::string("logs_") + name);
         fs::create_directories(logs);
         auto r = run_kelvin({TinyScene, "-o", (m_dir / name).string()},

@@ -235,4 +235,72 @@ TEST(BdptMis, WeightsSumToOneDirectionalLightAndSky) {
     expect_partition_of_unity(ktest::load_scene_xml(kSky), 10000, {0, 0, 1000, 1000, 400, 200, 100, 50, 40});
 }
 
+// The light image: an area emitter seen directly is sampled by (0, 2) and by (1, 1) (bdpt's `light_image`, the
+// default). Their two weights sum to one on paths where the camera ray hits the light, both non-zero; without the
+// light image (0, 2) has weight 1 and (1, 1) none. Fails if (1, 1) resamples y_0 as next-event estimation does, or
+// if (0, 2) keeps weight 1 beside (1, 1).
+TEST(BdptMis, LightImageWeightsOfAnEmitterSeenDirectly) {
+    const std::string file = KELVIN_SOURCE_DIR "/scenes/render/cornell-box.xml";
+    ParseOptions opts;
+    opts.defines = {{"integrator", "bdpt"}, {"res", "32"}};
+    const auto scene = ktest::load_scene_xml(ktest::read_text(file), opts, file);
+    const Sensor& sensor = *scene->sensor();
+    auto sampler = sensor.sampler().clone();
+    const BidirectionalPaths with(5, true), without(5, false);
+    std::array<PathVertex, BidirectionalPaths::MaxVertices> cam, light;
+    SampleCounters counters;
+    int paths = 0;
+    double worst = 0, worst_stored = 0;
+    for (int i = 0; i < 200000 && paths < 300; ++i) {
+        sampler->start({i % 97, i / 97}, uint64_t(i), 3);
+        // Film positions around the light's image (rows 2..6 of 32 at this camera).
+        const Vec2d film(8 + sampler->next_1d() * 16, 2 + sampler->next_1d() * 5);
+        const Ray ray = sensor.sample_ray(film, sampler->next_2d());
+        const int n_cam = with.camera_subpath(*scene, *sampler, ray, 1, cam.data(), counters);
+        if (n_cam < 2 || !cam[1].emitter) continue;
+        sampler->set_stream(SampleStream::Light);
+        if (with.light_subpath(*scene, *sampler, 1, light.data(), counters) < 1) continue;
+        for (auto densities :
+             {BidirectionalPaths::StrategyDensities::FromPositions, BidirectionalPaths::StrategyDensities::Stored}) {
+            std::array<double, 2> w{}, w0{};
+            ASSERT_EQ(with.strategy_weights(*scene, light.data(), cam.data(), 0, 2, w.data(), densities), 2);
+            ASSERT_EQ(without.strategy_weights(*scene, light.data(), cam.data(), 0, 2, w0.data(), densities), 2);
+            EXPECT_GT(w[0], 0.0);
+            EXPECT_GT(w[1], 0.0);
+            const double err = std::abs(w[0] + w[1] - 1);
+            (densities == BidirectionalPaths::StrategyDensities::Stored ? worst_stored : worst) =
+                std::max(densities == BidirectionalPaths::StrategyDensities::Stored ? worst_stored : worst, err);
+            EXPECT_EQ(w0[0], 1.0);
+            EXPECT_EQ(w0[1], 0.0);
+        }
+        ++paths;
+    }
+    EXPECT_EQ(paths, 300);
+    EXPECT_LE(worst, 1e-9);
+    EXPECT_LE(worst_stored, 1e-3);
+    printf("light image: %d paths, |w(0,2) + w(1,1) - 1| worst %.3g (positions), %.3g (stored)\n", paths, worst,
+           worst_stored);
+}
+
+// The power heuristic's density ratio: bit for bit a^2 / b^2 for the densities of ordinary scenes (so images do not
+// change), and the ratio itself where a square underflows or overflows. A Beckmann lobe far from its peak gives
+// densities below 1e-248, whose squares are 0: a^2 / b^2 was 0 / 0 there (NaN, counted as an invalid sample), and
+// far from the ratio below about 1e-154 (subnormal squares). Fails with the plain a * a / (b * b).
+TEST(BdptMis, PowerHeuristicRatioOfTinyAndHugeDensities) {
+    for (double a : {1e-3, 0.37, 1.0, 2.5, 7e4, 3e120})
+        for (double b : {2e-3, 0.81, 1.0, 9.0, 1e5, 4e130}) {
+            const double plain = (a * a) / (b * b);
+            EXPECT_EQ(power_heuristic_ratio(a, b), plain) << a << " " << b;  // bit for bit
+        }
+    struct Case {
+        double a, b, ratio;
+    };
+    for (const Case& c : {Case{3e-260, 1.5e-260, 4.0}, Case{1e-300, 1e-299, 0.01}, Case{2e-200, 1e-170, 4e-60},
+                          Case{1e-160, 2e-160, 0.25}, Case{6e200, 3e200, 4.0}, Case{1e-250, 1e250, 0.0}}) {
+        const double r = power_heuristic_ratio(c.a, c.b);
+        EXPECT_TRUE(std::isfinite(r)) << c.a << " " << c.b;
+        EXPECT_NEAR(r, c.ratio, 1e-12 * c.ratio) << c.a << " " << c.b;
+    }
+}
+
 }  // namespace

@@ -74,9 +74,9 @@ std::string non_finite_problem(const Bitmap& img);
 
 /// True if `path`'s extension is one write_image supports.
 bool is_supported_image_extension(const std::filesystem::path& path);
-/// Empty when images of `path`'s (supported) extension can be read and written in this process; otherwise why not
-/// (the OpenImageIO module a JPEG, HDR or TIFF file needs cannot be loaded). Loads that module if needed, so that
-/// a run can fail before its work rather than when writing its result.
+/// Empty when images of `path`'s (supported) extension can be written in this process; otherwise why not (the
+/// OpenImageIO module a JPEG, HDR or TIFF file needs cannot be loaded). Loads that module if needed, so that a run
+/// can fail before its work rather than when writing its result; EXR, PNG and PFM are written without it.
 std::string image_format_problem(const std::filesystem::path& path);
 /// Write by extension, atomically (core/files.h: a temporary file in the same directory, flushed, renamed; a
 /// failure leaves the previous file intact). Throws RuntimeError naming `path` and the reason on I/O failure,

@@ -32,6 +32,7 @@ struct PathVertex {
     Color3 beta{0.0};
     double pdf_fwd = 0, pdf_rev = 0;
     bool delta = false;
+    bool smooth = false;               ///< surface vertices: the BSDF has a smooth component (set by the subpath walk)
     Vec3d p{0.0}, ng{0.0};             ///< ng is zero for points (camera, point lights, infinite endpoints)
     SurfaceInteraction si;             ///< surface vertices
     const Emitter* emitter = nullptr;  ///< light vertices, and surface vertices that emit
@@ -44,13 +45,29 @@ struct PathVertex {
     bool connectible() const;
 };
 
+/// The power heuristic's ratio (a / b)^2 of two non-zero densities, as the MIS weights take it: a^2 / b^2 where both
+/// squares are normal doubles (every density of ordinary scenes), else (a / b)^2, so that densities below about
+/// 1e-154 (a Beckmann lobe far from its peak) give their ratio instead of 0 / 0 or a square's underflow.
+inline double power_heuristic_ratio(double a, double b) {
+    const double a2 = a * a, b2 = b * b;
+    constexpr double lo = 2.2250738585072014e-308, hi = 1.7976931348623157e308;  // DBL_MIN, DBL_MAX
+    if (a2 >= lo && b2 >= lo && a2 <= hi && b2 <= hi) return a2 / b2;
+    const double r = a / b;
+    return r * r;
+}
+
 class BidirectionalPaths {
 public:
     static constexpr int MaxVertices = 64;  ///< hard cap per subpath
 
     /// `rr_depth`: subpath length (in bounces) from which Russian roulette may stop a subpath; a value above
     /// MaxVertices disables it (the multiplexed technique traces subpaths to the length its strategy needs).
-    explicit BidirectionalPaths(int rr_depth) : m_rr_depth(rr_depth) {}
+    /// `light_image`: an area emitter seen directly is sampled by two strategies, (0, 2) (the camera ray hits it) and
+    /// (1, 1) (the light subpath's origin connected to the camera, splatted), weighted by MIS (Veach 1997; Mitsuba
+    /// 0.6's light image); without it (0, 2) takes it alone with weight 1 (pbrt-v3, v4), and connect() is never
+    /// asked for (1, 1).
+    explicit BidirectionalPaths(int rr_depth, bool light_image = false)
+        : m_rr_depth(rr_depth), m_light_image(light_image) {}
 
     /// The camera subpath from `ray` (a camera ray from the scene's sensor): cam[0] is the camera vertex, then at
     /// most `max_bounces` more. Returns the number of vertices (>= 1).
@@ -85,10 +102,11 @@ public:
 private:
     int walk(const Scene& scene, Sampler& sampler, Ray ray, Color3 beta, double pdf_dir, int max_bounces,
              TransportMode mode, PathVertex* path, SampleCounters& c) const;
-    double mis_weight(const Scene& scene, const Sensor& sensor, PathVertex* light, PathVertex* cam,
-                      const PathVertex& sampled, int s, int t) const;
+    double mis_weight(const Scene& scene, const Sensor& sensor, PathVertex* light, PathVertex* cam, PathVertex* sampled,
+                      int s, int t) const;
 
     int m_rr_depth;
+    bool m_light_image;
 };
 
 }  // namespace kelvin

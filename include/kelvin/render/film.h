@@ -48,6 +48,11 @@ private:
 class SplatSink {
 public:
     virtual void splat(const Vec2d& film, const Color3& v) = 0;
+    /// Add `v` to the image's channels [channel, channel + 3): 0 is the colour, 3 + i the integrator's extra
+    /// channel i (SamplingIntegrator::extra_channels). A sink that keeps colour only takes channel 0.
+    virtual void splat_channels(const Vec2d& film, const Color3& v, int channel) {
+        if (channel == 0) splat(film, v);
+    }
 
 protected:
     ~SplatSink() = default;
@@ -97,14 +102,17 @@ void for_each_footprint_pixel(const ReconstructionFilter* filter, int width, int
 class SplatBuffer {
 public:
     SplatBuffer() = default;
-    /// `filter` spreads each splat over its footprint (null: the pixel containing the position only).
-    SplatBuffer(int width, int height, std::size_t units, const ReconstructionFilter* filter = nullptr);
+    /// `filter` spreads each splat over its footprint (null: the pixel containing the position only). `channels`:
+    /// the colour's 3 and any extra channels (SplatSink::splat_channels).
+    SplatBuffer(int width, int height, std::size_t units, const ReconstructionFilter* filter = nullptr,
+                int channels = 3);
     SplatBuffer(const SplatBuffer&) = delete;  // the sinks point at their buffer
     SplatBuffer& operator=(const SplatBuffer&) = delete;
     int width() const { return m_width; }
     int height() const { return m_height; }
-    /// Add `v` at film position `film` (pixels) to `unit`'s list, spread by for_each_footprint_pixel.
-    void splat(std::size_t unit, const Vec2d& film, const Color3& v);
+    /// Add `v` at film position `film` (pixels) to `unit`'s list, spread by for_each_footprint_pixel, into the
+    /// channels [channel, channel + 3).
+    void splat(std::size_t unit, const Vec2d& film, const Color3& v, int channel = 0);
     /// The sink that splats into `unit`'s list (valid as long as the buffer).
     SplatSink& sink(std::size_t unit) { return m_sinks[unit]; }
     /// Fold every unit's list into the accumulator, in unit order, and empty the lists.
@@ -113,20 +121,25 @@ public:
     /// to rank 0 and folded there in unit order, so rank 0's accumulator is bit-identical to one process's.
     /// Other ranks' accumulators stay empty.
     void merge(Communicator& comm);
-    /// Accumulated values times `scale`, as an RGB image.
+    /// Accumulated values times `scale`, as an image of the buffer's channels (R, G, B, then unnamed extras:
+    /// callers add them to their own image).
     Bitmap develop(double scale) const;
 
 private:
     struct Record {
         uint32_t pixel;
+        uint32_t channel;  ///< the first of the three channels
         double r, g, b;
     };
     struct UnitSink final : SplatSink {
         SplatBuffer* buffer = nullptr;
         std::size_t unit = 0;
         void splat(const Vec2d& film, const Color3& v) override { buffer->splat(unit, film, v); }
+        void splat_channels(const Vec2d& film, const Color3& v, int channel) override {
+            buffer->splat(unit, film, v, channel);
+        }
     };
-    int m_width = 0, m_height = 0;
+    int m_width = 0, m_height = 0, m_channels = 3;
     const ReconstructionFilter* m_filter = nullptr;
     std::vector<std::vector<Record>> m_lists;
     std::vector<UnitSink> m_sinks;

@@ -111,15 +111,17 @@ public:
     /// at most MaxExtraChannels of them. Asked once per render().
     virtual std::vector<std::string> extra_channels() const { return {}; }
     /// The extra channels' values for the camera ray `ray`, written to out[0 .. extra_channels().size()).
-    /// Called by the pixel loop right after sample() for the same ray, concurrently from several threads; the
-    /// values are filtered with the same reconstruction-filter weight as the colour. It gets no sampler, so
-    /// extra channels never shift the sample() numbers: R, G, B are the same as without them.
+    /// Called by the pixel loop right after sample() for the same ray, on the same thread (so it may hand over
+    /// values sample() computed), concurrently from several threads; the values are filtered with the same
+    /// reconstruction-filter weight as the colour. It gets no sampler, so extra channels never shift the sample()
+    /// numbers: R, G, B are the same as without them. An integrator that splats may splat into extra channel i
+    /// too (SplatSink::splat_channels, channel 3 + i).
     virtual void sample_extra(const Scene& scene, const Ray& ray, double* out, SampleCounters& counters) const {}
 
     /// Work-unit size in pixels (fixed: the split never depends on the thread count).
     static constexpr int TileSize = 32;
     /// Upper bound of extra_channels().size(): the pixel loop keeps a sample's values in a fixed stack array.
-    static constexpr int MaxExtraChannels = 64;
+    static constexpr int MaxExtraChannels = 192;
 };
 
 }  // namespace kelvin

@@ -16,6 +16,11 @@
 // next-event (s = 1) strategy and 2 per light-tracing (t = 1) strategy (the lens point), in the order the
 // strategies are evaluated (t = 1..n_cam, s = 0..n_light).
 //
+// Strategy images (`strategy_images`, as Veach's and pbrt's "debug strategy images"): each strategy's MIS-weighted
+// contribution as three extra channels "s{S}_t{T}.R/G/B" of the output (EXR), the camera-side strategies through the
+// pixel loop's extra channels, the light-tracing ones splatted into them; the strategies' channels sum to R, G, B
+// (to float rounding), and R, G, B are bit for bit those of the same render without them.
+//
 // Parameters: `kelvin --list-plugins KIND NAME`, or docs/reference.md (generated from the declarations below).
 //
 //     <integrator type="bdpt"><integer name="max_depth" value="8"/></integrator>
@@ -24,8 +29,12 @@
 #include <kelvin/render/film.h>
 #include <kelvin/render/scene.h>
 
+#include <fmt/format.h>
+
 #include <algorithm>
 #include <array>
+#include <string>
+#include <vector>
 
 namespace kelvin {
 namespace {
@@ -37,9 +46,37 @@ public:
     explicit Bdpt(const Properties& props)
         : m_max_depth(int(props.get_int("max_depth", -1, MaxVertices - 2))),
           m_min_depth(int(props.get_int("min_depth", 1, 1 << 20))),
-          m_paths(int(props.get_int("rr_depth", 1, 1 << 20))),
-          m_hide_emitters(props.get_bool("hide_emitters")) {
+          m_paths(int(props.get_int("rr_depth", 1, 1 << 20)), props.get_bool("light_image")),
+          m_light_image(props.get_bool("light_image")),
+          m_hide_emitters(props.get_bool("hide_emitters")),
+          m_strategy_images(props.get_bool("strategy_images")) {
         if (m_max_depth == 0) props.error("max_depth", "must be -1 (unbounded) or at least 1");
+        if (m_strategy_images) {
+            if (m_max_depth < 1 || m_max_depth > MaxStrategyDepth)
+                props.error("strategy_images", fmt::format("needs max_depth between 1 and {} (three channels per "
+                                                           "strategy, at most {} extra channels), not {}",
+                                                           MaxStrategyDepth, MaxExtraChannels, m_max_depth));
+            // Channels in order of path length, then s: (s, t) with s + t - 1 = k edges.
+            m_strategy_index.fill(-1);
+            for (int k = std::max(1, m_min_depth); k <= m_max_depth; ++k)
+                for (int s = 0; s <= k; ++s) {
+                    const int t = k + 1 - s;
+                    if (t == 1 && s == 1 && !m_light_image) continue;
+                    m_strategy_index[std::size_t(s * StrategyStride + t)] = int(m_strategy_names.size());
+                    m_strategy_names.push_back(fmt::format("s{}_t{}", s, t));
+                }
+        }
+    }
+    std::vector<std::string> extra_channels() const override {
+        std::vector<std::string> names;
+        for (const std::string& n : m_strategy_names)
+            for (const char* c : {".R", ".G", ".B"}) names.push_back(n + c);
+        return names;
+    }
+    void sample_extra(const Scene&, const Ray&, double* out, SampleCounters&) const override {
+        // The camera-side strategies of the sample() this thread just ran.
+        std::copy(strategy_values().begin(), strategy_values().begin() + 3 * std::ptrdiff_t(m_strategy_names.size()),
+                  out);
     }
     bool splats() const override { return true; }
 
@@ -59,40 +96,69 @@ public:
         thread_local std::array<PathVertex, MaxVertices> cam, light;
         const int n_cam = m_paths.camera_subpath(scene, sampler, camera_ray, max_edges, cam.data(), c);
         sampler.set_stream(SampleStream::Light);
-        light[0] = PathVertex();
         const int n_light = max_edges >= 1 ? m_paths.light_subpath(scene, sampler, max_edges - 1, light.data(), c) : 0;
 
-        // All strategies.
+        // All strategies: s + t - 1 edges, between min_depth and max_edges.
         sampler.set_stream(SampleStream::Connection);
         Color3 L(0.0);
-        for (int t = 1; t <= n_cam; ++t)
-            for (int s = 0; s <= n_light; ++s) {
-                const int edges = s + t - 1;
-                if (t == 1 && s == 0) continue;  // the camera (pinhole or lens) is not in the scene: never hit
-                // Emitters seen directly come from (s=0, t=2) alone, exactly and noise-free; (1, 1) would count
-                // them twice (pbrt makes the same choice, and the MIS weight is 1 for s + t == 2).
-                if (t == 1 && s == 1) continue;
-                if (edges < std::max(1, m_min_depth) || edges > max_edges) continue;
-                if (m_hide_emitters && t + s == 2) continue;
-                Vec2d film;
-                Color3 v = m_paths.connect(scene, light.data(), cam.data(), s, t, sampler, film, c);
-                if (v == Color3(0.0)) continue;
-                if (!sanitize(v)) {
-                    ++c.invalid;
-                    continue;
-                }
-                if (t == 1)
-                    c.splats->splat(film, v);
-                else
-                    L += v;
+        double* strategy = nullptr;
+        if (m_strategy_images) {
+            strategy = strategy_values().data();
+            std::fill(strategy, strategy + 3 * m_strategy_names.size(), 0.0);
+        }
+        const int min_edges = std::max(1, m_min_depth);
+        auto strategy_value = [&](int s, int t) {
+            Vec2d film;
+            Color3 v = m_paths.connect(scene, light.data(), cam.data(), s, t, sampler, film, c);
+            if (v == Color3(0.0)) return;
+            if (!sanitize(v)) {
+                ++c.invalid;
+                return;
             }
+            if (t == 1)
+                c.splats->splat(film, v);
+            else
+                L += v;
+            if (strategy) {
+                const int j = m_strategy_index[std::size_t(s * StrategyStride + t)];
+                if (t == 1) {
+                    c.splats->splat_channels(film, v, 3 + 3 * j);
+                } else {
+                    strategy[3 * j] += v.r;
+                    strategy[3 * j + 1] += v.g;
+                    strategy[3 * j + 2] += v.b;
+                }
+            }
+        };
+        for (int t = 1; t <= n_cam; ++t)
+            for (int s = std::max(0, min_edges + 1 - t); s <= std::min(n_light, max_edges + 1 - t); ++s) {
+                if (t == 1 && s == 0) continue;  // the camera (pinhole or lens) is not in the scene: never hit
+                if (t == 1 && s == 1) continue;  // the light image: last, below
+                if (m_hide_emitters && t + s == 2) continue;
+                strategy_value(s, t);
+            }
+        // The light image (1, 1) after every other strategy, so that its two numbers of the connection stream
+        // leave theirs where they were without it.
+        if (m_light_image && n_light >= 1 && min_edges <= 1 && !m_hide_emitters) strategy_value(1, 1);
         return L;
     }
 
 private:
+    // Strategy images: 3 channels per strategy, max_depth (max_depth + 3) / 2 strategies (one fewer without the
+    // light image).
+    static constexpr int MaxStrategyDepth = 9;
+    static constexpr int StrategyStride = MaxStrategyDepth + 2;  // index s * stride + t, s and t <= max_depth + 1
+    static_assert(3 * (MaxStrategyDepth * (MaxStrategyDepth + 3) / 2) <= MaxExtraChannels);
+    static std::array<double, MaxExtraChannels>& strategy_values() {
+        thread_local std::array<double, MaxExtraChannels> values;  // sample() to sample_extra() on one thread
+        return values;
+    }
+
     int m_max_depth, m_min_depth;
     BidirectionalPaths m_paths;
-    bool m_hide_emitters;
+    bool m_light_image, m_hide_emitters, m_strategy_images;
+    std::array<int, StrategyStride * StrategyStride> m_strategy_index;
+    std::vector<std::string> m_strategy_names;
 };
 
 }  // namespace
@@ -104,4 +170,10 @@ KELVIN_PLUGIN(
     kelvin::param::integer("max_depth", -1, "longest contributing path in edges (-1: unbounded)"),
     kelvin::param::integer("min_depth", 1, "shortest contributing path in edges"),
     kelvin::param::integer("rr_depth", 5, "subpath length from which Russian roulette starts"),
-    kelvin::param::boolean("hide_emitters", false, "emitters seen directly render black"));
+    kelvin::param::boolean("hide_emitters", false, "emitters seen directly render black"),
+    kelvin::param::boolean("light_image", true,
+                           "area emitters seen directly are also sampled by light tracing, (s, t) = (1, 1), with MIS "
+                           "(false: by the camera ray alone)"),
+    kelvin::param::boolean("strategy_images", false,
+                           "also write each (s, t) strategy's weighted contribution as channels s{S}_t{T}.R/G/B "
+                           "(EXR output; max_depth 1..9)"));
