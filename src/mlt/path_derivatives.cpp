@@ -602,7 +602,10 @@ PathDerivativeStatus PathDerivatives::Impl::run(Reader& rd, T& log_pi) const {
         auto hit = scene.intersect(ray);
         if (!hit) {
             rd.decide(Decide::Miss);
-            if (!scene.environment_emitters().empty()) return S::Unsupported;
+            // An emitter at infinity that a ray can see (constant, envmap) is not differentiated; a directional light
+            // (a delta direction) gives an escaping ray nothing.
+            for (const Emitter* env : scene.environment_emitters())
+                if (!(env->flags() & EmitterFlags::DeltaDirection)) return S::Unsupported;
             break;
         }
         const bool on_sphere = sphere(hit->shape), on_disc = disc(hit->shape);
@@ -726,8 +729,11 @@ PathDerivativeStatus PathDerivatives::Impl::run(Reader& rd, T& log_pi) const {
                         // is a decision.
                         DiffDirectSample<T> dds;
                         if (!e->sample_direct_diff(p, dds)) return S::Unsupported;
+                        // The renderer's weight, at its float-precision hit: equal to about 1e-7 relative times the
+                        // weight's relative slope (1 / dist^2 near a point light: up to 1e-5), so the safety net is
+                        // evaluate()'s own bound on the value, 1e-4.
                         const Color3 weight(val(dds.weight.r), val(dds.weight.g), val(dds.weight.b));
-                        if (glm::length(weight - ds->weight) > 1e-6 * (1 + glm::length(ds->weight))) return S::Mismatch;
+                        if (!(glm::length(weight - ds->weight) <= 1e-4 * glm::length(ds->weight))) return S::Mismatch;
                         if (dds.piece) rd.decide(Decide::Texture, (long long)dds.piece);
                         const Color3 f_primal = bsdf.eval(bctx, si, si.to_local(ds->d));
                         const Ray shadow = ds->dist == Inf ? si.spawn(ds->d) : si.spawn_to(ds->p);
@@ -748,7 +754,8 @@ PathDerivativeStatus PathDerivatives::Impl::run(Reader& rd, T& log_pi) const {
                                    light_disc = sh >= 0 && disc(uint32_t(sh));
                         // On a mesh with vertex normals too: the light's sample, its normal and its density use
                         // the triangle's plane (TriangleMesh::sample_position, AreaEmitter).
-                        if (e->plugin_name() != "area" || !((mesh && triangles(uint32_t(sh))) || light_sphere || light_disc))
+                        if (e->plugin_name() != "area" ||
+                            !((mesh && triangles(uint32_t(sh))) || light_sphere || light_disc))
                             return S::Unsupported;
                         const ShapeGeometry& eg = geometry[std::size_t(sh)];
                         long long triangle = 0;
@@ -798,7 +805,8 @@ PathDerivativeStatus PathDerivatives::Impl::run(Reader& rd, T& log_pi) const {
                         // not differentiated).
                         C3<T> radiance;
                         const V3<T> w_light{-dir.x, -dir.y, -dir.z};
-                        if (!e->eval_diff(DiffEmitterQuery<T>{ps, en, w_light, nullptr}, radiance)) return S::Unsupported;
+                        if (!e->eval_diff(DiffEmitterQuery<T>{ps, en, w_light, nullptr}, radiance))
+                            return S::Unsupported;
                         const Color3 f_primal = bsdf.eval(bctx, si, si.to_local(ds->d));
                         if (f_primal == Color3(0.0)) rd.decide(Decide::Nee, AnyNee);
                         if (f_primal != Color3(0.0)) {

@@ -899,13 +899,12 @@ TEST(PathDerivatives, MatchFiniteDifferencesWithTexturedRoughDielectrics) {
     const PathSetup S = cornell_with(
         R"(<bsdf type="roughconductor"><string name="material" value="Cu"/>)" + checker + "</bsdf>",
         R"(<bsdf type="roughdielectric"><string name="distribution" value="ggx"/>)" +
-            fmt::format(R"(<texture type="bitmap" name="alpha"><string name="filename" value="{}"/></texture>)",
-                        file) +
+            fmt::format(R"(<texture type="bitmap" name="alpha"><string name="filename" value="{}"/></texture>)", file) +
             "</bsdf>",
         R"(<bsdf type="roughdielectric">)" + checker + "</bsdf>");
     const FirstHit textured = [](const Shape& sh) {
-        return sh.bsdf() && (sh.bsdf()->plugin_name() == "roughdielectric" ||
-                             sh.bsdf()->plugin_name() == "roughconductor");
+        return sh.bsdf() &&
+               (sh.bsdf()->plugin_name() == "roughdielectric" || sh.bsdf()->plugin_name() == "roughconductor");
     };
     expect_matches_finite_differences(S, 24, textured, 100, 3);
 }
@@ -951,13 +950,16 @@ TEST(PathDerivatives, UnsupportedPluginsAreReportedPerPath) {
     std::printf("caustic: %d differentiable, %d unsupported\n", ok, unsupported);
 
     // A textured area light stays refused in next-event estimation (the light sample's uv is not differentiated):
-    // the Cornell box's light with a checkerboard radiance, and a point light beside it; paths whose light sample
-    // picks the area light are unsupported, the others differentiated.
+    // the Cornell box's light with a bilinear bitmap radiance, and a point light beside it; paths whose light sample
+    // picks the area light are unsupported, the others differentiated (the light seen directly too).
+    ktest::TempDir dir;
+    const std::string file = write_texels(dir.path());
     const PathSetup R(
         "cornell-box.xml", 6,
         {{R"(<emitter type="area"><rgb name="radiance" value="17, 12, 4"/></emitter>)",
-          R"(<emitter type="area"><texture type="checkerboard" name="radiance"><rgb name="color0" value="17, 12, 4"/>)"
-          R"(<rgb name="color1" value="8, 6, 2"/><float name="scale" value="4"/></texture></emitter>)"},
+          fmt::format(R"(<emitter type="area"><texture type="bitmap" name="radiance"><string name="filename" )"
+                      R"(value="{}"/></texture></emitter>)",
+                      file)},
          {"</scene>", R"(<emitter type="point"><point name="position" x="0.3" y="1.4" z="0.2"/>)"
                       R"(<rgb name="intensity" value="2"/></emitter></scene>)"}});
     const PathDerivatives DR(*R.scene, R.opt);

@@ -45,10 +45,11 @@ std::string write_texels(const std::filesystem::path& dir) {
 }
 
 std::shared_ptr<Scene> scene_with(const std::string& emitters) {
-    return ktest::load_scene_xml(R"(<scene version="3.0.0"><sensor type="perspective"><film type="hdrfilm">)"
-                                 R"(<integer name="width" value="8"/><integer name="height" value="8"/></film></sensor>)"
-                                 R"(<shape type="sphere"><float name="radius" value="0.5"/></shape>)" +
-                                 emitters + "</scene>");
+    return ktest::load_scene_xml(
+        R"(<scene version="3.0.0"><sensor type="perspective"><film type="hdrfilm">)"
+        R"(<integer name="width" value="8"/><integer name="height" value="8"/></film></sensor>)"
+        R"(<shape type="sphere"><float name="radius" value="0.5"/></shape>)" +
+        emitters + "</scene>");
 }
 
 // Checks derivatives of f: R^n -> R^3 (a colour) given in H numbers against central differences of g (the renderer's
@@ -160,9 +161,8 @@ TEST(EmitterDiff, SpotLightMatchesFiniteDifferences) {
 TEST(EmitterDiff, TexturedSpotLightMatchesFiniteDifferences) {
     ktest::TempDir dir;
     const std::string file = write_texels(dir.path());
-    auto s = scene_with(
-        spot(fmt::format(R"(<texture type="bitmap" name="texture"><string name="filename" value="{}"/></texture>)",
-                         file)));
+    auto s = scene_with(spot(
+        fmt::format(R"(<texture type="bitmap" name="texture"><string name="filename" value="{}"/></texture>)", file)));
     check_light(*s->emitters().back(), Vec3d(-1, 0, -1), Vec3d(1, 0.5, 1), 10);
     auto c = scene_with(spot(R"(<texture type="checkerboard" name="texture"><rgb name="color0" value="1, 0.8, 0.6"/>)"
                              R"(<rgb name="color1" value="0.3, 0.5, 0.9"/><float name="scale" value="3"/></texture>)"));
@@ -182,7 +182,8 @@ TEST(EmitterDiff, DirectionalLightIsConstant) {
     const auto ds = e.sample_direct(Vec3d(0.1, 0.2, 0.3), Vec2d(0.5));
     ASSERT_TRUE(ds);
     DiffDirectSample<H> sh;
-    ASSERT_TRUE(e.sample_direct_diff(kernels::V3<H>{H::variable(0.1, 0), H::variable(0.2, 1), H::variable(0.3, 2)}, sh));
+    ASSERT_TRUE(
+        e.sample_direct_diff(kernels::V3<H>{H::variable(0.1, 0), H::variable(0.2, 1), H::variable(0.3, 2)}, sh));
     EXPECT_EQ(Color3(sh.weight.r.value(), sh.weight.g.value(), sh.weight.b.value()), ds->weight);
     EXPECT_EQ(kernels::value(sh.d), ds->d);
     EXPECT_TRUE(sh.weight.r.constant() && sh.d.x.constant());

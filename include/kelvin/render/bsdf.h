@@ -4,8 +4,8 @@
 // sampled or queried direction. eval() returns f(wi, wo) * |cos(theta_o)|; sample() returns the weight
 // f * |cos(theta_o)| / pdf. Delta components are never returned by eval() or pdf().
 #include <kelvin/core/object.h>
-#include <kelvin/render/interaction.h>
 #include <kelvin/render/diff_types.h>
+#include <kelvin/render/interaction.h>
 #include <kelvin/render/second_order.h>
 
 #include <cstdint>

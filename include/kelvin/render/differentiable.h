@@ -68,7 +68,9 @@ public:
     bool eval_1_diff(const DiffTextureQuery<DiffGradient>& q, DiffGradient& out) const override {
         return eval_1_impl(q, out);
     }
-    bool eval_1_diff(const DiffTextureQuery<DiffHessian>& q, DiffHessian& out) const override { return eval_1_impl(q, out); }
+    bool eval_1_diff(const DiffTextureQuery<DiffHessian>& q, DiffHessian& out) const override {
+        return eval_1_impl(q, out);
+    }
 
 private:
     const Derived& self() const { return static_cast<const Derived&>(*this); }
@@ -95,7 +97,9 @@ private:
 template <class Derived>
 class DifferentiableEmitter : public Emitter {
 public:
-    bool eval_diff(const DiffEmitterQuery<double>& q, kernels::C3<double>& out) const override { return eval_impl(q, out); }
+    bool eval_diff(const DiffEmitterQuery<double>& q, kernels::C3<double>& out) const override {
+        return eval_impl(q, out);
+    }
     bool eval_diff(const DiffEmitterQuery<DiffGradient>& q, kernels::C3<DiffGradient>& out) const override {
         return eval_impl(q, out);
     }

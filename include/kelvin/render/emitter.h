@@ -81,10 +81,10 @@ struct DiffEmitterQuery {
 /// What sample_direct_diff() gives, in a number type T.
 template <class T>
 struct DiffDirectSample {
-    kernels::V3<T> d;                ///< unit direction from the reference point towards the light
-    T dist;                          ///< distance to the light (infinite for a direction)
-    kernels::C3<T> weight;           ///< what sample_direct() weighs the sample with (radiance / pdf)
-    unsigned long long piece = 0;    ///< a piecewise constant texture's piece (DiffTextureQuery::piece; 0: none)
+    kernels::V3<T> d;              ///< unit direction from the reference point towards the light
+    T dist;                        ///< distance to the light (infinite for a direction)
+    kernels::C3<T> weight;         ///< what sample_direct() weighs the sample with (radiance / pdf)
+    unsigned long long piece = 0;  ///< a piecewise constant texture's piece (DiffTextureQuery::piece; 0: none)
 };
 
 class Emitter : public Object {

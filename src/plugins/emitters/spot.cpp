@@ -83,14 +83,14 @@ public:
     /// normalised).
     Color3 falloff_local(const Vec3d& v) const {
         kernels::C3<double> f;
-        unsigned long long piece = 0;
-        falloff_t(kernels::to_v3(v), f, piece);
+        falloff_t(kernels::to_v3(v), f, nullptr);
         return kernels::to_color(f);
     }
     /// falloff_local in the number type T: the falloff (1 in the beam, the linear ramp in theta out to the cutoff) and
-    /// the projected texture. False where the texture is not differentiable.
+    /// the projected texture, its piece mixed into `piece` (null: the renderer's lookup, in doubles). False where the
+    /// texture is not differentiable.
     template <class T>
-    bool falloff_t(const kernels::V3<T>& v, kernels::C3<T>& out, unsigned long long& piece) const {
+    bool falloff_t(const kernels::V3<T>& v, kernels::C3<T>& out, unsigned long long* piece) const {
         using kernels::val;
         using std::atan2;
         using std::sqrt;
@@ -110,17 +110,17 @@ public:
         }
         const T u = 0.5 + 0.5 * v.x / (v.z * m_uv_factor), w = 0.5 + 0.5 * v.y / (v.z * m_uv_factor);
         kernels::C3<T> tex;
-        if constexpr (kernels::plain<T>)
-            tex = kernels::to_c3(m_texture->eval(Vec2d(u, w)));
-        else if (!diff_lookup(*m_texture, u, w, tex, piece))
-            return false;
+        if constexpr (kernels::plain<T>) {
+            if (!piece) tex = kernels::to_c3(m_texture->eval(Vec2d(u, w)));
+        }
+        if (piece && !diff_lookup(*m_texture, u, w, tex, *piece)) return false;
         out = tex * f;
         return true;
     }
 
     std::optional<DirectSample> sample_direct(const Vec3d& ref, const Vec2d&) const override {
         DiffDirectSample<double> s;
-        if (!sample_direct_t(kernels::to_v3(ref), s)) return std::nullopt;
+        if (!direct(kernels::to_v3(ref), s, false)) return std::nullopt;
         DirectSample ds;
         ds.dist = s.dist;
         ds.d = kernels::to_glm(s.d);
@@ -134,6 +134,11 @@ public:
     /// falloff / dist^2.
     template <class T>
     bool sample_direct_t(const kernels::V3<T>& ref, DiffDirectSample<T>& out) const {
+        return direct(ref, out, true);
+    }
+    /// sample_direct_t, `pieces` false for the renderer's own lookup in doubles (no piece named).
+    template <class T>
+    bool direct(const kernels::V3<T>& ref, DiffDirectSample<T>& out, bool pieces) const {
         using kernels::val;
         using std::sqrt;
         const kernels::V3<T> d = kernels::constant<T>(m_pos) - ref;
@@ -148,7 +153,7 @@ public:
                      -(M[0][2] * d.x + M[1][2] * d.y + M[2][2] * d.z)};
         }
         kernels::C3<T> f;
-        if (!falloff_t(local, f, out.piece)) return false;
+        if (!falloff_t(local, f, pieces || !kernels::plain<T> ? &out.piece : nullptr)) return false;
         if (kernels::is_zero(f)) return false;
         const T dist = sqrt(dist2);
         out.dist = dist;
