@@ -679,9 +679,8 @@ PathDerivativeStatus PathDerivatives::Impl::run(Reader& rd, T& log_pi) const {
         // the MIS density is an area light's (uniform by area).
         if (const Emitter* e = si.shape->emitter(); e && !(depth == 0 && o.hide_emitters) && depth + 1 >= o.min_depth) {
             if (e->plugin_name() != "area") return S::Unsupported;
-            const V3<T> w_out{-d.x, -d.y, -d.z};
             C3<T> Le;
-            if (!e->eval_diff(DiffEmitterQuery<T>{p, ng, w_out, &textures}, Le))
+            if (!e->eval_diff(DiffEmitterQuery<T>{p, ng, d, &textures}, Le))
                 return textures.mismatch ? S::Mismatch : S::Unsupported;
             if (!kernels::is_zero(Le)) {
                 T w(1.0);
@@ -804,9 +803,7 @@ PathDerivativeStatus PathDerivatives::Impl::run(Reader& rd, T& log_pi) const {
                         // The radiance in T (Emitter::eval_diff); not where it is textured (the light sample's uv is
                         // not differentiated).
                         C3<T> radiance;
-                        const V3<T> w_light{-dir.x, -dir.y, -dir.z};
-                        if (!e->eval_diff(DiffEmitterQuery<T>{ps, en, w_light, nullptr}, radiance))
-                            return S::Unsupported;
+                        if (!e->eval_diff(DiffEmitterQuery<T>{ps, en, dir, nullptr}, radiance)) return S::Unsupported;
                         const Color3 f_primal = bsdf.eval(bctx, si, si.to_local(ds->d));
                         if (f_primal == Color3(0.0)) rd.decide(Decide::Nee, AnyNee);
                         if (f_primal != Color3(0.0)) {

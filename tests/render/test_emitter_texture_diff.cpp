@@ -8,8 +8,8 @@
 // Plugins: point, spot (plain, a bilinear bitmap and a checkerboard projected through it), directional, area (a
 // constant radiance; a textured one is asked of the path), bitmap (bilinear, nearest, with to_uv), checkerboard (its
 // colour and its swapped eval_1). Broken variants seen to fail (by hand, once): the spot's ramp with its derivative
-// dropped (theta held constant in T), the bitmap's bilinear weight tx held constant, the checkerboard's eval_1_t
-// unswapped (the value check).
+// dropped (theta held constant in T: both spot tests), the spot's projected uv held constant (the textured spot test
+// alone), the bitmap's bilinear weight tx held constant, the checkerboard's eval_1_t unswapped (the value check).
 #include <kelvin/core/image.h>
 #include <kelvin/core/registry.h>
 #include <kelvin/render/differentiable.h>
@@ -197,9 +197,9 @@ TEST(EmitterDiff, AreaLightRadianceAndSide) {
     const Emitter& e = *s->emitters().back();
     const kernels::V3<H> p{H(0.0), H(0.0), H(0.0)}, n{H(0.0), H(0.0), H(1.0)};
     for (const double wz : {0.6, -0.6}) {
-        const kernels::V3<H> w{H::variable(0.8, 0), H(0.0), H::variable(wz, 1)};
+        const kernels::V3<H> d{H::variable(-0.8, 0), H(0.0), H::variable(-wz, 1)};  // the arriving ray: w = -d
         kernels::C3<H> out;
-        ASSERT_TRUE(e.eval_diff(DiffEmitterQuery<H>{p, n, w, nullptr}, out));
+        ASSERT_TRUE(e.eval_diff(DiffEmitterQuery<H>{p, n, d, nullptr}, out));
         EXPECT_EQ(Color3(out.r.value(), out.g.value(), out.b.value()),
                   e.eval(Vec3d(0.0), Vec3d(0, 0, 1), Vec2d(0.5), Vec3d(0.8, 0, wz)));
     }
@@ -208,9 +208,9 @@ TEST(EmitterDiff, AreaLightRadianceAndSide) {
         R"(<scene version="3.0.0"><sensor type="perspective"><film type="hdrfilm"><integer name="width" value="8"/>)"
         R"(<integer name="height" value="8"/></film></sensor><shape type="rectangle"><emitter type="area">)"
         R"(<texture type="checkerboard" name="radiance"/></emitter></shape></scene>)");
-    const kernels::V3<H> w{H(0.0), H(0.0), H(1.0)};
+    const kernels::V3<H> d{H(0.0), H(0.0), H(-1.0)};
     kernels::C3<H> out;
-    EXPECT_FALSE(t->emitters().back()->eval_diff(DiffEmitterQuery<H>{p, n, w, nullptr}, out));
+    EXPECT_FALSE(t->emitters().back()->eval_diff(DiffEmitterQuery<H>{p, n, d, nullptr}, out));
 }
 
 // A texture's eval_diff (and eval_1_diff) over uv against its eval(uv) (and eval_1 at a surface point of that uv).

@@ -74,7 +74,7 @@ template <class T>
 struct DiffEmitterQuery {
     const kernels::V3<T>& p;                    ///< the point on the emitter
     const kernels::V3<T>& n;                    ///< its (geometric) normal
-    const kernels::V3<T>& w;                    ///< unit direction away from the emitter, towards the viewer
+    const kernels::V3<T>& d;                    ///< unit direction of the ray arriving at p (eval()'s w is -d)
     const DiffTextures<T>* textures = nullptr;  ///< the textures at p (null: a textured radiance is not differentiable)
 };
 
@@ -114,9 +114,9 @@ public:
     virtual Color3 power() const = 0;
 
     /// Differentiable evaluation (H2MC: mlt/path_derivatives.h). eval() in a number type T: the radiance leaving the
-    /// emitter at q.p (normal q.n) towards q.w, functions of a path's coordinates; a textured radiance is asked of the
-    /// path (q.textures). False: not differentiable (the default). Plugins implement the three through one template,
-    /// DifferentiableEmitter (render/differentiable.h).
+    /// emitter at q.p (normal q.n) back along the arriving ray q.d, functions of a path's coordinates; a textured
+    /// radiance is asked of the path (q.textures). False: not differentiable (the default). Plugins implement the three
+    /// through one template, DifferentiableEmitter (render/differentiable.h).
     virtual bool eval_diff(const DiffEmitterQuery<double>& q, kernels::C3<double>& out) const { return false; }
     virtual bool eval_diff(const DiffEmitterQuery<DiffGradient>& q, kernels::C3<DiffGradient>& out) const {
         return false;

@@ -68,7 +68,7 @@ public:
     /// eval in the number type T (DifferentiableEmitter): the front side's radiance, a texture asked of the path.
     template <class T>
     bool eval_t(const DiffEmitterQuery<T>& q, kernels::C3<T>& out) const {
-        if (!(kernels::val(kernels::dot(q.n, q.w)) > 0)) {
+        if (!(glm::dot(kernels::value(q.n), kernels::value(q.d)) < 0)) {  // the side by value
             out = kernels::grey(T(0.0));
             return true;
         }
