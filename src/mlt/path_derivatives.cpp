@@ -2,8 +2,10 @@
 // One template, run in plain doubles (the value, for finite differences) and in SecondOrder numbers
 // (render/second_order.h: value, gradient and packed Hessian, bounce by bounce). It mirrors
 // src/plugins/integrators/path.cpp line by line for the supported subset: the path's logic only (sensor, intersection,
-// next-event estimation, MIS, roulette); the BSDFs evaluate themselves in its numbers (Bsdf::eval_diff, sample_diff:
-// the renderer's kernels, render/bsdf_kernels.h). Every discrete decision is the renderer's own at the point.
+// next-event estimation, MIS, roulette); the BSDFs, emitters and textures evaluate themselves in its numbers
+// (Bsdf::eval_diff, sample_diff: the renderer's kernels, render/bsdf_kernels.h; Emitter::eval_diff, sample_direct_diff
+// and Texture::eval_diff, eval_1_diff: render/differentiable.h). Every discrete decision is the renderer's own at the
+// point.
 #include <kelvin/mlt/path_derivatives.h>
 #include <kelvin/render/bsdf.h>
 #include <kelvin/render/bsdf_kernels.h>
