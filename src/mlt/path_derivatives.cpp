@@ -2,11 +2,15 @@
 // One template, run in plain doubles (the value, for finite differences) and in SecondOrder numbers
 // (render/second_order.h: value, gradient and packed Hessian, bounce by bounce). It mirrors
 // src/plugins/integrators/path.cpp line by line for the supported subset: the path's logic only (sensor, intersection,
-// next-event estimation, MIS, roulette); the BSDFs evaluate themselves in its numbers (Bsdf::eval_diff, sample_diff:
-// the renderer's kernels, render/bsdf_kernels.h). Every discrete decision is the renderer's own at the point.
+// next-event estimation, MIS, roulette); the BSDFs, emitters and textures evaluate themselves in its numbers
+// (Bsdf::eval_diff, sample_diff: the renderer's kernels, render/bsdf_kernels.h; Emitter::eval_diff, sample_direct_diff
+// and Texture::eval_diff, eval_1_diff: render/differentiable.h). Every discrete decision is the renderer's own at the
+// point.
 #include <kelvin/mlt/path_derivatives.h>
 #include <kelvin/render/bsdf.h>
 #include <kelvin/render/bsdf_kernels.h>
+#include <kelvin/render/differentiable.h>
+#include <kelvin/render/emitter.h>
 #include <kelvin/render/integrator.h>
 #include <kelvin/render/mesh.h>
 #include <kelvin/render/pss.h>
@@ -237,7 +241,8 @@ bool same_decisions(const std::vector<Decision>& a, const std::vector<Decision>&
     }
 }
 
-// The textures a BSDF reads at a vertex (DiffTextures): a texture's value at the hit's uv (Texture::local), the uv a
+// The textures a BSDF or an emitter reads at a vertex (DiffTextures): a texture's value at the hit's uv (the texture's
+// own Texture::eval_diff, eval_1_diff, whose pieces are decisions), the uv a
 // function of the path: the mesh's uvs interpolated with the barycentrics (or the barycentrics themselves, as
 // Scene::interaction), a sphere's or a disk's parameterisation of p (round_uv), computed once per vertex. A uv that
 // differs from the renderer's is a mismatch (`mismatch`: the path is then reported Mismatch, not Unsupported).
@@ -269,40 +274,29 @@ struct VertexTextures final : DiffTextures<T> {
           uv(si.uv),
           rd(rd) {}
 
-    // The scalar reading (a roughness): the luminance of the colour, where that is the texture's eval_1 (a
-    // checkerboard's eval_1 swaps its squares, as Mitsuba's: not differentiable here).
+    // The texture's scalar reading (Texture::eval_1_diff: a roughness).
     bool value(const Texture& texture, T& out) const override {
-        const double e = texture.eval_1(si);
-        if (!(std::abs(luminance(texture.eval(si)) - e) <= 1e-12 * (1 + std::abs(e)))) return false;
-        C3<T> c;
-        if (!colour(texture, c)) return false;
-        out = luminance_of(c);
+        if (!at_uv()) return false;
+        const DiffTextureQuery<T> q{u, v};
+        if (!texture.eval_1_diff(q, out)) return false;
+        if (q.piece) rd.decide(Decide::Texture, (long long)q.piece);
         read_value = true;
         return true;
     }
 
     bool colour(const Texture& texture, C3<T>& out) const override {
-        TextureLocal tl;
-        if (!texture.local(uv, tl)) return false;
-        if (uv_state == 0 && !compute_uv()) return false;
-        if (uv_state != 1) return false;
-        const C3<T> c0 = constant_colour<T>(tl.c[0]);
-        if (tl.bilinear) {
-            const T tx = tl.A[0][0] * u + tl.A[0][1] * v + (tl.b[0] - tl.x0);
-            const T ty = tl.A[1][0] * u + tl.A[1][1] * v + (tl.b[1] - tl.y0);
-            const T sx = 1.0 - tx, sy = 1.0 - ty;
-            out = c0 * T(sx * sy);
-            add(out, constant_colour<T>(tl.c[1]) * T(tx * sy));
-            add(out, constant_colour<T>(tl.c[2]) * T(sx * ty));
-            add(out, constant_colour<T>(tl.c[3]) * T(tx * ty));
-        } else {
-            rd.decide(Decide::Texture, tl.cell);
-            out = c0;
-        }
+        if (!at_uv()) return false;
+        const DiffTextureQuery<T> q{u, v};
+        if (!texture.eval_diff(q, out)) return false;
+        if (q.piece) rd.decide(Decide::Texture, (long long)q.piece);
         return true;
     }
 
 private:
+    bool at_uv() const {
+        if (uv_state == 0) compute_uv();
+        return uv_state == 1;
+    }
     bool compute_uv() const {
         uv_state = 2;
         T uu = bary_u, vv = bary_v;
@@ -590,6 +584,10 @@ PathDerivativeStatus PathDerivatives::Impl::run(Reader& rd, T& log_pi) const {
                                  &throughput.r, &throughput.g, &throughput.b, &lum,      &prev_bsdf_pdf};
 
     for (long depth = 0;; ++depth) {
+        // Past the coordinates given the result is TooLong whatever follows, and the reader's stand-in coordinates
+        // (0.5) need not end the path: a diffuse bounce along the normal between facing walls survives roulette
+        // for ever.
+        if (rd.overflow) return S::TooLong;
         rd.checkpoint(carried);
         if (!spawn.offset) {
             orig = prev_p;
@@ -606,7 +604,10 @@ PathDerivativeStatus PathDerivatives::Impl::run(Reader& rd, T& log_pi) const {
         auto hit = scene.intersect(ray);
         if (!hit) {
             rd.decide(Decide::Miss);
-            if (!scene.environment_emitters().empty()) return S::Unsupported;
+            // An emitter at infinity that a ray can see (constant, envmap) is not differentiated; a directional light
+            // (a delta direction) gives an escaping ray nothing.
+            for (const Emitter* env : scene.environment_emitters())
+                if (!(env->flags() & EmitterFlags::DeltaDirection)) return S::Unsupported;
             break;
         }
         const bool on_sphere = sphere(hit->shape), on_disc = disc(hit->shape);
@@ -673,11 +674,17 @@ PathDerivativeStatus PathDerivatives::Impl::run(Reader& rd, T& log_pi) const {
                 return S::Mismatch;
         }
 
-        // Emission found by BSDF sampling (or seen directly).
+        // The textures at the hit, as a function of the path (the emitter's and the BSDF's).
+        const VertexTextures<T, Reader> textures(g, on_sphere, on_disc, p, bary_u, bary_v, std::size_t(hit->prim), si,
+                                                 rd);
+        // Emission found by BSDF sampling (or seen directly): the emitter evaluates itself in T (Emitter::eval_diff);
+        // the MIS density is an area light's (uniform by area).
         if (const Emitter* e = si.shape->emitter(); e && !(depth == 0 && o.hide_emitters) && depth + 1 >= o.min_depth) {
-            if (e->plugin_name() != "area" || e->spatially_varying()) return S::Unsupported;
-            const Color3 Le = e->eval(si.p, si.ng, si.uv, -ray.d);
-            if (Le != Color3(0.0)) {
+            if (e->plugin_name() != "area") return S::Unsupported;
+            C3<T> Le;
+            if (!e->eval_diff(DiffEmitterQuery<T>{p, ng, d, &textures}, Le))
+                return textures.mismatch ? S::Mismatch : S::Unsupported;
+            if (!kernels::is_zero(Le)) {
                 T w(1.0);
                 if (!prev_delta) {
                     const V3<T> v = p - prev_p;
@@ -703,8 +710,6 @@ PathDerivativeStatus PathDerivatives::Impl::run(Reader& rd, T& log_pi) const {
         const T u_rr = rd.read_discrete();
         const FrameT<T>& frame = geometric_frame;
         const V3<T> wi = to_local(frame, V3<T>{-d.x, -d.y, -d.z});
-        const VertexTextures<T, Reader> textures(g, on_sphere, on_disc, p, bary_u, bary_v, std::size_t(hit->prim), si,
-                                                 rd);
         const DiffBsdfContext<T> dctx{TransportMode::Radiance, &textures};
         const S not_differentiable = S::Unsupported;  // or, when a texture's uv disagreed, S::Mismatch (below)
 
@@ -719,53 +724,28 @@ PathDerivativeStatus PathDerivatives::Impl::run(Reader& rd, T& log_pi) const {
                 if (!ds) rd.decide(Decide::Nee, AnyNee);
                 if (ds) {
                     const int sh = ei < emitter_shape.size() ? emitter_shape[ei] : -1;
-                    if (e->plugin_name() == "point") {
-                        // PointEmitter::sample_direct: intensity / dist^2 from a fixed position, a delta light (MIS
-                        // weight 1); the intensity is the renderer's weight times its dist^2.
-                        const V3<T> dv = constant<T>(ds->p) - p;
-                        const T dist2 = dot(dv, dv), dist = sqrt(dist2);
-                        const V3<T> dir{dv.x / dist, dv.y / dist, dv.z / dist};
-                        const Color3 intensity = ds->weight * (ds->dist * ds->dist);
+                    if (e->flags() & EmitterFlags::Delta) {
+                        // A point, spot or directional light (a delta light: MIS weight 1): the emitter's sample in T
+                        // (Emitter::sample_direct_diff), a function of the shading point; a textured spot's piece
+                        // is a decision.
+                        DiffDirectSample<T> dds;
+                        if (!e->sample_direct_diff(p, dds)) return S::Unsupported;
+                        // The renderer's weight, at its float-precision hit: equal to about 1e-7 relative times the
+                        // weight's relative slope (1 / dist^2 near a point light: up to 1e-5), so the safety net is
+                        // evaluate()'s own bound on the value, 1e-4.
+                        const Color3 weight(val(dds.weight.r), val(dds.weight.g), val(dds.weight.b));
+                        if (!(glm::length(weight - ds->weight) <= 1e-4 * glm::length(ds->weight))) return S::Mismatch;
+                        if (dds.piece) rd.decide(Decide::Texture, (long long)dds.piece);
                         const Color3 f_primal = bsdf.eval(bctx, si, si.to_local(ds->d));
-                        const bool lit = f_primal != Color3(0.0) && !scene.occluded(si.spawn_to(ds->p));
+                        const Ray shadow = ds->dist == Inf ? si.spawn(ds->d) : si.spawn_to(ds->p);
+                        const bool lit = f_primal != Color3(0.0) && !scene.occluded(shadow);
                         rd.decide(Decide::Nee, f_primal == Color3(0.0) ? AnyNee : nee | (lit ? 0 : 1));
                         if (lit) {
                             T bsdf_pdf(0.0);
                             C3<T> f;
-                            if (!bsdf.eval_diff(dctx, wi, to_local(frame, dir), f, bsdf_pdf))
+                            if (!bsdf.eval_diff(dctx, wi, to_local(frame, dds.d), f, bsdf_pdf))
                                 return textures.mismatch ? S::Mismatch : not_differentiable;
-                            lum = lum + luminance_of(throughput * f * intensity) / T(dist2 * T(sel_pdf));
-                        }
-                    } else if (e->plugin_name() == "spot") {
-                        // SpotEmitter::sample_direct: intensity falloff(theta) / dist^2 from a fixed position (a
-                        // delta light), theta the angle of the direction from the light to p with the light's axis,
-                        // falloff 1 inside the beam and Mitsuba's linear ramp (cutoff - theta) / (cutoff - beam)
-                        // out to the cutoff (the renderer gives no sample beyond it).
-                        const Emitter::Model em = e->model();
-                        if (em.kind != Emitter::Model::Kind::Spot) return S::Unsupported;
-                        const V3<T> dv = constant<T>(ds->p) - p;
-                        const T dist2 = dot(dv, dv), dist = sqrt(dist2);
-                        const V3<T> dir{dv.x / dist, dv.y / dist, dv.z / dist};
-                        const Mat4d& M = em.to_local;  // world to the light's frame; v = M (p - light)
-                        const V3<T> r0 = constant<T>(Vec3d(-M[0][0], -M[1][0], -M[2][0])),
-                                    r1 = constant<T>(Vec3d(-M[0][1], -M[1][1], -M[2][1])),
-                                    r2 = constant<T>(Vec3d(-M[0][2], -M[1][2], -M[2][2]));
-                        const V3<T> v{dot(r0, dv), dot(r1, dv), dot(r2, dv)};
-                        const T rho2 = T(v.x * v.x) + T(v.y * v.y);
-                        T falloff(1.0);
-                        if (!(std::atan2(std::sqrt(val(rho2)), val(v.z)) <= em.beam))
-                            falloff = (T(em.cutoff) - atan2_t(T(sqrt(rho2)), v.z)) / T(em.cutoff - em.beam);
-                        const Color3 weight = em.intensity * (val(falloff) / val(dist2));
-                        if (glm::length(weight - ds->weight) > 1e-6 * (1 + glm::length(ds->weight))) return S::Mismatch;
-                        const Color3 f_primal = bsdf.eval(bctx, si, si.to_local(ds->d));
-                        const bool lit = f_primal != Color3(0.0) && !scene.occluded(si.spawn_to(ds->p));
-                        rd.decide(Decide::Nee, f_primal == Color3(0.0) ? AnyNee : nee | (lit ? 0 : 1));
-                        if (lit) {
-                            T bsdf_pdf(0.0);
-                            C3<T> f;
-                            if (!bsdf.eval_diff(dctx, wi, to_local(frame, dir), f, bsdf_pdf))
-                                return textures.mismatch ? S::Mismatch : not_differentiable;
-                            lum = lum + luminance_of(throughput * f * em.intensity) * T(falloff / (dist2 * T(sel_pdf)));
+                            lum = lum + luminance_of(throughput * f * dds.weight) / T(sel_pdf);
                         }
                     } else {
                         const auto* mesh =
@@ -775,7 +755,7 @@ PathDerivativeStatus PathDerivatives::Impl::run(Reader& rd, T& log_pi) const {
                                    light_disc = sh >= 0 && disc(uint32_t(sh));
                         // On a mesh with vertex normals too: the light's sample, its normal and its density use
                         // the triangle's plane (TriangleMesh::sample_position, AreaEmitter).
-                        if (e->plugin_name() != "area" || e->spatially_varying() ||
+                        if (e->plugin_name() != "area" ||
                             !((mesh && triangles(uint32_t(sh))) || light_sphere || light_disc))
                             return S::Unsupported;
                         const ShapeGeometry& eg = geometry[std::size_t(sh)];
@@ -822,7 +802,10 @@ PathDerivativeStatus PathDerivatives::Impl::run(Reader& rd, T& log_pi) const {
                         const V3<T> dir{dv.x / dist, dv.y / dist, dv.z / dist};
                         const T cos_e = -dot(en, dir);
                         const T pdf = T(1.0 / light_area) * dist2 / cos_e;
-                        const Color3 radiance = ds->weight * ds->pdf;
+                        // The radiance in T (Emitter::eval_diff); not where it is textured (the light sample's uv is
+                        // not differentiated).
+                        C3<T> radiance;
+                        if (!e->eval_diff(DiffEmitterQuery<T>{ps, en, dir, nullptr}, radiance)) return S::Unsupported;
                         const Color3 f_primal = bsdf.eval(bctx, si, si.to_local(ds->d));
                         if (f_primal == Color3(0.0)) rd.decide(Decide::Nee, AnyNee);
                         if (f_primal != Color3(0.0)) {

@@ -1,6 +1,40 @@
+#include <kelvin/render/bsdf_kernels.h>
 #include <kelvin/render/texture.h>
 
 namespace kelvin {
+
+namespace {
+// A constant texture's value in any number type; false for the others.
+template <class T>
+bool constant_diff(const Texture& t, kernels::C3<T>& out) {
+    if (!t.is_constant()) return false;
+    out = kernels::constant_colour<T>(t.mean());
+    return true;
+}
+template <class T>
+bool constant_diff_1(const Texture& t, T& out) {
+    if (!t.is_constant()) return false;
+    out = T(luminance(t.mean()));
+    return true;
+}
+}  // namespace
+
+bool Texture::eval_diff(const DiffTextureQuery<double>&, kernels::C3<double>& out) const {
+    return constant_diff(*this, out);
+}
+bool Texture::eval_diff(const DiffTextureQuery<DiffGradient>&, kernels::C3<DiffGradient>& out) const {
+    return constant_diff(*this, out);
+}
+bool Texture::eval_diff(const DiffTextureQuery<DiffHessian>&, kernels::C3<DiffHessian>& out) const {
+    return constant_diff(*this, out);
+}
+bool Texture::eval_1_diff(const DiffTextureQuery<double>&, double& out) const { return constant_diff_1(*this, out); }
+bool Texture::eval_1_diff(const DiffTextureQuery<DiffGradient>&, DiffGradient& out) const {
+    return constant_diff_1(*this, out);
+}
+bool Texture::eval_1_diff(const DiffTextureQuery<DiffHessian>&, DiffHessian& out) const {
+    return constant_diff_1(*this, out);
+}
 
 namespace {
 class ConstantTexture final : public Texture {

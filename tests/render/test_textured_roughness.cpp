@@ -1,6 +1,6 @@
 // Textured roughness in the microfacet BSDFs (Mitsuba 3 accepts a texture for `alpha`, `alpha_u`, `alpha_v` of
 // roughconductor and roughdielectric): a uniform texture gives the scalar's BSDF, a varying one the scalar BSDF of
-// the value at each point, and the differentiable evaluation (H2MC) reports a textured roughness as unsupported.
+// the value at each point, and the differentiable evaluation (H2MC) asks the path for a textured roughness.
 #include "render_support.h"
 
 #include <kelvin/core/registry.h>
@@ -141,11 +141,11 @@ TEST(TexturedRoughness, CheckerboardRendersAsTheTwoScalarsPixelByPixel) {
     EXPECT_GT(as_b, 480);
 }
 
-// H2MC's differentiable evaluation (Bsdf::differentiable, eval_diff): roughdielectric takes the roughness as
-// numbers, so a textured alpha is not differentiable (H2MC treats such a path as it treats any unsupported BSDF);
-// roughconductor asks the path for a textured one; a scalar alpha (or a constant texture) is differentiable, and its
-// eval_diff in doubles is the plugin's eval() exactly (the same kernels).
-TEST(TexturedRoughness, DifferentiableOnlyWithAScalarAlpha) {
+// H2MC's differentiable evaluation (Bsdf::differentiable, eval_diff): a scalar alpha (or a constant texture) is
+// differentiable, and its eval_diff in doubles is the plugin's eval() exactly (the same kernels); roughdielectric and
+// roughconductor ask the path for a textured one (DiffTextures::value): without a path to ask, nothing (the path's
+// side: PathDerivatives.MatchFiniteDifferencesWithTexturedRoughDielectrics).
+TEST(TexturedRoughness, ScalarAlphaDifferentiableTexturedAlphaAskedOfThePath) {
     const Vec3d wi = glm::normalize(Vec3d(0.3, 0.2, 0.9)), wo = glm::normalize(Vec3d(-0.2, 0.1, 0.8));
     const SurfaceInteraction si = surface_point(Vec2d(0.3, 0.4), wi);
     auto diff_eval = [&](const Bsdf& b, Color3& f, double& pdf) {
@@ -166,7 +166,7 @@ TEST(TexturedRoughness, DifferentiableOnlyWithAScalarAlpha) {
          {dielectric(checker("alpha", 0.1, 0.3)),
           dielectric(R"(<float name="alpha_u" value="0.1"/>)" + checker("alpha_v", 0.1, 0.3))}) {
         const auto textured = bsdf_of(xml);
-        EXPECT_FALSE(textured->differentiable(si)) << xml;
+        EXPECT_TRUE(textured->differentiable(si)) << xml;
         EXPECT_FALSE(diff_eval(*textured, f, pdf)) << xml;
     }
     // roughconductor asks the path for a textured roughness (DiffTextures::value): without a path to ask, nothing.

@@ -22,8 +22,9 @@
 /// Bsdf::Model::texture, Texture::local; 8: Bsdf::Model::diffuse_texture; 9: Film::reconstruction; 10: Job::delegate,
 /// Simulation's driver interface, the boundary interface in kelvin::wos, curve shapes; 11: ShapeGeometry's elliptic
 /// discs and user geometry; 12: Bsdf::Model and back_model replaced by Bsdf::differentiable, eval_diff and
-/// sample_diff).
-#define KELVIN_PLUGIN_ABI 12
+/// sample_diff; 13: Emitter::Model and Texture::local replaced by Emitter::eval_diff, sample_direct_diff and
+/// Texture::eval_diff, eval_1_diff).
+#define KELVIN_PLUGIN_ABI 13
 
 namespace kelvin {
 

@@ -23,10 +23,11 @@
 // `perspective` and `thinlens` sensors; triangle meshes (with or without vertex normals: rectangle, cube, OBJ...),
 // `sphere` and `disk`; the BSDFs that evaluate themselves differentiably (Bsdf::eval_diff: diffuse, conductor,
 // roughconductor and roughdielectric with GGX or Beckmann, with or without visible-normal sampling, dielectric,
-// plastic, roughplastic, twosided around one or two of them; constant parameters, or for diffuse's reflectance, the
-// conductors' specular_reflectance and the plastics' diffuse_reflectance a texture that Texture::local describes, on
-// triangle meshes, spheres and disks); `area` emitters on meshes, spheres and disks, `point` and `spot` emitters
-// (Emitter::model()); no environment emitter that the path escapes to.
+// plastic, roughplastic, twosided around one or two of them; constant parameters or textures that evaluate themselves
+// (Texture::eval_diff: bitmap, checkerboard) on triangle meshes, spheres and disks); the emitters that evaluate
+// themselves (Emitter::eval_diff, sample_direct_diff: `area` on meshes, spheres and disks, untextured in next-event
+// estimation; `point`, `spot` with or without its texture, `directional`); no environment emitter that the path
+// escapes to.
 // docs/mlt.md lists it with its tests. As a safety net the evaluation compares its own value with the renderer's
 // (`value` argument) and reports Mismatch beyond a relative 1e-4.
 #include <kelvin/core/math.h>

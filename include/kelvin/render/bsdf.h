@@ -4,6 +4,7 @@
 // sampled or queried direction. eval() returns f(wi, wo) * |cos(theta_o)|; sample() returns the weight
 // f * |cos(theta_o)| / pdf. Delta components are never returned by eval() or pdf().
 #include <kelvin/core/object.h>
+#include <kelvin/render/diff_types.h>
 #include <kelvin/render/interaction.h>
 #include <kelvin/render/second_order.h>
 
@@ -11,8 +12,6 @@
 #include <optional>
 
 namespace kelvin {
-
-class Texture;
 
 enum class TransportMode { Radiance, Importance };
 
@@ -45,35 +44,6 @@ struct BsdfSample {
     double pdf = 0;        ///< solid-angle density (for delta lobes: the discrete probability of the lobe)
     uint32_t sampled = 0;  ///< BsdfFlags of the sampled component
     double eta = 1;        ///< relative index of refraction crossed (1 for reflection)
-};
-
-namespace kernels {
-template <class T>
-struct V3;
-template <class T>
-struct C3;
-template <class T>
-struct Sample;
-}  // namespace kernels
-
-/// The number types BSDFs are differentiated in for H2MC (mlt/path_derivatives.h): plain doubles (the value), and
-/// numbers carrying the gradient (DiffGradient) or the gradient and Hessian (DiffHessian) with respect to the inputs
-/// of one bounce of a path (render/second_order.h).
-inline constexpr int DiffInputs = 15;
-using DiffHessian = SecondOrder<DiffInputs>;
-using DiffGradient = FirstOrder<DiffInputs>;
-
-/// What a differentiable BSDF may ask of the path at a vertex: the value of a texture that is not constant, as a
-/// function of the path's coordinates (through the hit's uv).
-template <class T>
-class DiffTextures {
-public:
-    virtual ~DiffTextures() = default;
-    /// The colour of `texture` at the hit; false where the path evaluation cannot differentiate it.
-    virtual bool colour(const Texture& texture, kernels::C3<T>& out) const = 0;
-    /// The texture read as one number at the hit (Texture::eval_1: a roughness); false where the path evaluation
-    /// cannot differentiate it (the default).
-    virtual bool value(const Texture& texture, T& out) const { return false; }
 };
 
 template <class T>

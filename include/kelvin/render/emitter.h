@@ -2,6 +2,7 @@
 // Emitters. Area emitters are attached to a shape (<shape><emitter type="area"/></shape>); point, spot,
 // constant and envmap emitters stand at the scene's root.
 #include <kelvin/core/object.h>
+#include <kelvin/render/diff_types.h>
 #include <kelvin/render/interaction.h>
 
 #include <cstdint>
@@ -68,6 +69,24 @@ struct DirectQuery {
     Vec3d d{0.0};    ///< unit direction from ref towards p
 };
 
+/// Where eval_diff() reads an emitter, in a number type T (differentiable path evaluation).
+template <class T>
+struct DiffEmitterQuery {
+    const kernels::V3<T>& p;                    ///< the point on the emitter
+    const kernels::V3<T>& n;                    ///< its (geometric) normal
+    const kernels::V3<T>& d;                    ///< unit direction of the ray arriving at p (eval()'s w is -d)
+    const DiffTextures<T>* textures = nullptr;  ///< the textures at p (null: a textured radiance is not differentiable)
+};
+
+/// What sample_direct_diff() gives, in a number type T.
+template <class T>
+struct DiffDirectSample {
+    kernels::V3<T> d;              ///< unit direction from the reference point towards the light
+    T dist;                        ///< distance to the light (infinite for a direction)
+    kernels::C3<T> weight;         ///< what sample_direct() weighs the sample with (radiance / pdf)
+    unsigned long long piece = 0;  ///< a piecewise constant texture's piece (DiffTextureQuery::piece; 0: none)
+};
+
 class Emitter : public Object {
 public:
     virtual uint32_t flags() const = 0;
@@ -80,8 +99,7 @@ public:
     /// away from the emitter, towards the viewer). For infinite emitters: radiance arriving along -w from infinity
     /// (`n` and `uv` unused). An area emitter with a textured radiance reads its texture at `uv`.
     virtual Color3 eval(const Vec3d& p, const Vec3d& n, const Vec2d& uv, const Vec3d& w) const = 0;
-    /// Whether eval() varies over the surface (a textured area emitter); differentiable path evaluation
-    /// (path_derivatives.h) supports only constant radiance.
+    /// Whether eval() varies over the surface (a textured area emitter).
     virtual bool spatially_varying() const { return false; }
     /// Sample an emitted ray with `u_pos` for the origin and `u_dir` for the direction.
     virtual std::optional<EmissionSample> sample_emission(const Vec2d& u_pos, const Vec2d& u_dir) const = 0;
@@ -95,16 +113,30 @@ public:
     /// Total emitted power (watts, per channel); used to pick emitters in proportion to their power.
     virtual Color3 power() const = 0;
 
-    /// What differentiable path evaluation (mlt/path_derivatives.h) needs to re-evaluate a delta emitter in its
-    /// own arithmetic (area and point emitters are read from their samples). Kind None (the default, and a
-    /// textured spot): not differentiable.
-    struct Model {
-        enum class Kind { None, Spot } kind = Kind::None;
-        Color3 intensity{0.0};        ///< spot: intensity on the axis times the (constant) texture
-        Mat4d to_local{1.0};          ///< spot: world to the light's frame (it shines along +z)
-        double beam = 0, cutoff = 0;  ///< spot: half-angles (radians) of the full beam and of the cutoff
-    };
-    virtual Model model() const { return {}; }
+    /// Differentiable evaluation (H2MC: mlt/path_derivatives.h). eval() in a number type T: the radiance leaving the
+    /// emitter at q.p (normal q.n) back along the arriving ray q.d, functions of a path's coordinates; a textured
+    /// radiance is asked of the path (q.textures). False: not differentiable (the default). Plugins implement the three
+    /// through one template, DifferentiableEmitter (render/differentiable.h).
+    virtual bool eval_diff(const DiffEmitterQuery<double>& q, kernels::C3<double>& out) const { return false; }
+    virtual bool eval_diff(const DiffEmitterQuery<DiffGradient>& q, kernels::C3<DiffGradient>& out) const {
+        return false;
+    }
+    virtual bool eval_diff(const DiffEmitterQuery<DiffHessian>& q, kernels::C3<DiffHessian>& out) const {
+        return false;
+    }
+    /// sample_direct() in a number type T for emitters whose sample does not depend on the light-sample coordinates
+    /// (a delta position or direction: point, spot, directional): the unit direction from `ref` towards the light and
+    /// the weight (intensity / dist^2, irradiance), functions of `ref`. False: not differentiable (the default), or no
+    /// sample where sample_direct() gives none.
+    virtual bool sample_direct_diff(const kernels::V3<double>& ref, DiffDirectSample<double>& out) const {
+        return false;
+    }
+    virtual bool sample_direct_diff(const kernels::V3<DiffGradient>& ref, DiffDirectSample<DiffGradient>& out) const {
+        return false;
+    }
+    virtual bool sample_direct_diff(const kernels::V3<DiffHessian>& ref, DiffDirectSample<DiffHessian>& out) const {
+        return false;
+    }
 
     /// Called by the scene before rendering: the shape an area emitter sits on, the scene's bounding sphere.
     virtual void set_shape(const Shape*) {}

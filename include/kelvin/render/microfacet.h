@@ -84,6 +84,9 @@ public:
     const MicrofacetDistribution& constant() const { return m_constant; }
     /// The distribution at a surface point.
     MicrofacetDistribution at(const SurfaceInteraction& si) const;
+    /// The textures of a textured roughness (null otherwise), read per point with eval_1 and clamped to [0, 100].
+    const Texture* alpha_u_texture() const { return m_alpha_u.get(); }
+    const Texture* alpha_v_texture() const { return m_alpha_v.get(); }
 
 private:
     MicrofacetDistribution m_constant;

@@ -3,22 +3,21 @@
 // declared with param::texture(name, default, doc) accepts either an <rgb>/<float> or a nested <texture name=...>.
 #include <kelvin/core/object.h>
 #include <kelvin/core/properties.h>
+#include <kelvin/render/diff_types.h>
 #include <kelvin/render/interaction.h>
 
 #include <memory>
 
 namespace kelvin {
 
-/// A texture around one uv point, as the differentiable path evaluation needs it (mlt/path_derivatives.h): with
-/// (x, y) = A uv + b, the value is c[0] (1 - tx)(1 - ty) + c[1] tx (1 - ty) + c[2] (1 - tx) ty + c[3] tx ty, with
-/// (tx, ty) = (x - x0, y - y0) the position within the cell at (x0, y0), if `bilinear`; otherwise the constant c[0],
-/// `cell` naming the piece (a change of piece is a discontinuity).
-struct TextureLocal {
-    double A[2][2] = {{1, 0}, {0, 1}}, b[2] = {0, 0};
-    double x0 = 0, y0 = 0;
-    Color3 c[4] = {Color3(0.0), Color3(0.0), Color3(0.0), Color3(0.0)};
-    bool bilinear = false;
-    long long cell = 0;
+/// A texture lookup in a number type T (differentiable path evaluation, mlt/path_derivatives.h): the uv as functions
+/// of a path's coordinates. Every branch is taken by the value of (u, v). A texture that is piecewise constant names
+/// the piece (u, v) falls in with enter(): a change of piece is a discontinuity of the path.
+template <class T>
+struct DiffTextureQuery {
+    T u, v;
+    mutable unsigned long long piece = 0;  ///< the pieces entered, mixed (0: none)
+    void enter(long long k) const { piece = piece * 1000003ULL + (unsigned long long)k + 1; }
 };
 
 class Texture : public Object {
@@ -39,14 +38,17 @@ public:
     /// Texels along u and v (Mitsuba's Texture::resolution): the image size of a bitmap, (1, 1) otherwise. The
     /// projector emitter takes its aspect ratio from it.
     virtual glm::ivec2 resolution() const { return {1, 1}; }
-    /// The texture around uv as a TextureLocal; false where it cannot describe itself so (the default; constant
-    /// textures, checkerboards of constant colours and bitmaps can).
-    virtual bool local(const Vec2d& uv, TextureLocal& out) const {
-        if (!is_constant()) return false;
-        out = TextureLocal{};
-        out.c[0] = mean();
-        return true;
-    }
+    /// eval(uv) in a number type T (H2MC): false where the texture is not differentiable (the default, except for
+    /// constant textures: their mean). Plugins implement the three through one template, DifferentiableTexture
+    /// (render/differentiable.h).
+    virtual bool eval_diff(const DiffTextureQuery<double>& q, kernels::C3<double>& out) const;
+    virtual bool eval_diff(const DiffTextureQuery<DiffGradient>& q, kernels::C3<DiffGradient>& out) const;
+    virtual bool eval_diff(const DiffTextureQuery<DiffHessian>& q, kernels::C3<DiffHessian>& out) const;
+    /// eval_1 (the texture read as one number) in a number type T: false where not differentiable (the default,
+    /// except for constant textures: the luminance of their mean).
+    virtual bool eval_1_diff(const DiffTextureQuery<double>& q, double& out) const;
+    virtual bool eval_1_diff(const DiffTextureQuery<DiffGradient>& q, DiffGradient& out) const;
+    virtual bool eval_1_diff(const DiffTextureQuery<DiffHessian>& q, DiffHessian& out) const;
 };
 
 /// A constant colour as a texture.

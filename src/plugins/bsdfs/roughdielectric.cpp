@@ -62,31 +62,49 @@ public:
                                              kernels::to_v3(wo_world));
     }
 
-    // Differentiable evaluation (Bsdf::eval_diff, sample_diff): the same kernels in the path's number type; not with
-    // a textured roughness (the kernels take the roughness as a number) or textured tints.
-    bool differentiable(const SurfaceInteraction&) const override {
-        return !m_roughness.textured() && m_reflectance->is_constant() && m_transmittance->is_constant();
-    }
+    // Differentiable evaluation (Bsdf::eval_diff, sample_diff): the same kernels in the path's number type; a textured
+    // roughness or tint is asked of the path (a roughness as its eval_1 reading, clamped as MicrofacetRoughness::at).
+    bool differentiable(const SurfaceInteraction&) const override { return true; }
     template <class T>
     bool eval_t(const DiffBsdfContext<T>& c, const kernels::V3<T>& wi, const kernels::V3<T>& wo, kernels::C3<T>& f,
                 T& pdf) const {
-        if (!differentiable({})) return false;
-        f = kernels::rough_dielectric_eval(m_roughness.constant(), m_eta,
-                                           kernels::constant_colour<T>(m_reflectance->mean()),
-                                           kernels::constant_colour<T>(m_transmittance->mean()), c.mode, wi, wo, &pdf);
+        kernels::C3<T> r, t;
+        if (!diff_colour(c, *m_reflectance, r) || !diff_colour(c, *m_transmittance, t)) return false;
+        if (!m_roughness.textured()) {
+            f = kernels::rough_dielectric_eval(m_roughness.constant(), m_eta, r, t, c.mode, wi, wo, &pdf);
+            return true;
+        }
+        const auto d = distribution_t(c);
+        if (!d) return false;
+        f = kernels::rough_dielectric_eval(*d, m_eta, r, t, c.mode, wi, wo, &pdf);
         return true;
     }
     template <class T>
     bool sample_t(const DiffBsdfContext<T>& c, const kernels::V3<T>& wi, double u_comp, const T& u0, const T& u1,
                   kernels::Sample<T>& out) const {
-        if (!differentiable({})) return false;
-        out = kernels::rough_dielectric_sample(
-            m_roughness.constant(), m_eta, kernels::constant_colour<T>(m_reflectance->mean()),
-            kernels::constant_colour<T>(m_transmittance->mean()), c.mode, wi, u_comp, u0, u1);
+        kernels::C3<T> r, t;
+        if (!diff_colour(c, *m_reflectance, r) || !diff_colour(c, *m_transmittance, t)) return false;
+        if (!m_roughness.textured()) {
+            out = kernels::rough_dielectric_sample(m_roughness.constant(), m_eta, r, t, c.mode, wi, u_comp, u0, u1);
+            return true;
+        }
+        const auto d = distribution_t(c);
+        if (!d) return false;
+        out = kernels::rough_dielectric_sample(*d, m_eta, r, t, c.mode, wi, u_comp, u0, u1);
         return true;
     }
 
 private:
+    /// MicrofacetRoughness::at in the number type T: the textured roughness read from the path.
+    template <class T>
+    std::optional<kernels::MicrofacetT<T>> distribution_t(const DiffBsdfContext<T>& c) const {
+        const MicrofacetDistribution& d = m_roughness.constant();
+        T au, av;
+        if (!diff_value(c, *m_roughness.alpha_u_texture(), au) || !diff_value(c, *m_roughness.alpha_v_texture(), av))
+            return std::nullopt;
+        return kernels::MicrofacetT<T>(d.type(), kernels::s_clamp(au, 0.0, 100.0), kernels::s_clamp(av, 0.0, 100.0),
+                                       d.sample_visible());
+    }
     kernels::C3<double> reflectance(const SurfaceInteraction& si) const {
         return kernels::to_c3(m_reflectance->eval(si.uv));
     }

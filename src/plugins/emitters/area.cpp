@@ -13,6 +13,7 @@
 //
 //     <shape type="rectangle"><emitter type="area"><rgb name="radiance" value="17, 12, 4"/></emitter></shape>
 #include <kelvin/core/registry.h>
+#include <kelvin/render/differentiable.h>
 #include <kelvin/render/shape.h>
 #include <kelvin/render/texture.h>
 #include <kelvin/render/warp.h>
@@ -20,7 +21,7 @@
 namespace kelvin {
 namespace {
 
-class AreaEmitter final : public Emitter {
+class AreaEmitter final : public DifferentiableEmitter<AreaEmitter> {
 public:
     explicit AreaEmitter(const Properties& props) : m_radiance(get_texture(props, "radiance")) {
         if (m_radiance->plugin_name() == "mesh_attribute")
@@ -63,6 +64,15 @@ public:
     }
     Color3 eval(const Vec3d&, const Vec3d& n, const Vec2d& uv, const Vec3d& w) const override {
         return glm::dot(n, w) > 0 ? radiance(uv) : Color3(0.0);
+    }
+    /// eval in the number type T (DifferentiableEmitter): the front side's radiance, a texture asked of the path.
+    template <class T>
+    bool eval_t(const DiffEmitterQuery<T>& q, kernels::C3<T>& out) const {
+        if (!(glm::dot(kernels::value(q.n), kernels::value(q.d)) < 0)) {  // the side by value
+            out = kernels::grey(T(0.0));
+            return true;
+        }
+        return diff_colour(q.textures, *m_radiance, out);
     }
     std::optional<EmissionSample> sample_emission(const Vec2d& u_pos, const Vec2d& u_dir) const override {
         PositionSample ps = m_shape->sample_position(u_pos);

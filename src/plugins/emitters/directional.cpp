@@ -7,6 +7,7 @@
 //     value="2"/></emitter>
 #include <kelvin/core/param_helpers.h>
 #include <kelvin/core/registry.h>
+#include <kelvin/render/differentiable.h>
 #include <kelvin/render/emitter.h>
 #include <kelvin/render/frame.h>
 #include <kelvin/render/warp.h>
@@ -14,7 +15,7 @@
 namespace kelvin {
 namespace {
 
-class DirectionalEmitter final : public Emitter {
+class DirectionalEmitter final : public DifferentiableEmitter<DirectionalEmitter> {
 public:
     explicit DirectionalEmitter(const Properties& props) : m_irradiance(props.get_color("irradiance")) {
         if (props.has("direction")) {
@@ -41,6 +42,14 @@ public:
         ds.delta = true;
         ds.weight = m_irradiance;
         return ds;
+    }
+    /// sample_direct in the number type T (DifferentiableEmitter): the constant direction and irradiance.
+    template <class T>
+    bool sample_direct_t(const kernels::V3<T>&, DiffDirectSample<T>& out) const {
+        out.d = kernels::constant<T>(-m_dir);
+        out.dist = T(Inf);
+        out.weight = kernels::constant_colour<T>(m_irradiance);
+        return true;
     }
     double pdf_direct(const DirectQuery&) const override { return 0; }
     Color3 eval(const Vec3d&, const Vec3d&, const Vec2d&, const Vec3d&) const override { return Color3(0.0); }

@@ -4,6 +4,7 @@
 //
 //     <emitter type="point"><point name="position" x="0" y="4" z="0"/><rgb name="intensity" value="10"/></emitter>
 #include <kelvin/core/registry.h>
+#include <kelvin/render/differentiable.h>
 #include <kelvin/render/emitter.h>
 #include <kelvin/render/extent.h>
 #include <kelvin/render/warp.h>
@@ -11,7 +12,7 @@
 namespace kelvin {
 namespace {
 
-class PointEmitter final : public Emitter {
+class PointEmitter final : public DifferentiableEmitter<PointEmitter> {
 public:
     explicit PointEmitter(const Properties& props)
         : m_intensity(props.get_color("intensity")),
@@ -22,17 +23,29 @@ public:
     uint32_t flags() const override { return EmitterFlags::DeltaPosition; }
 
     std::optional<DirectSample> sample_direct(const Vec3d& ref, const Vec2d&) const override {
-        Vec3d d = m_pos - ref;
-        double dist2 = glm::dot(d, d);
-        if (!(dist2 > 0)) return std::nullopt;
+        DiffDirectSample<double> s;
+        if (!sample_direct_t(kernels::to_v3(ref), s)) return std::nullopt;
         DirectSample ds;
-        ds.dist = std::sqrt(dist2);
-        ds.d = d / ds.dist;
+        ds.dist = s.dist;
+        ds.d = kernels::to_glm(s.d);
         ds.p = m_pos;
         ds.pdf = 1;
         ds.delta = true;
-        ds.weight = m_intensity / dist2;
+        ds.weight = kernels::to_color(s.weight);
         return ds;
+    }
+    /// sample_direct in the number type T (DifferentiableEmitter): the direction towards the light and
+    /// intensity / dist^2.
+    template <class T>
+    bool sample_direct_t(const kernels::V3<T>& ref, DiffDirectSample<T>& out) const {
+        using std::sqrt;
+        const kernels::V3<T> d = kernels::constant<T>(m_pos) - ref;
+        const T dist2 = kernels::dot(d, d);
+        if (!(kernels::val(dist2) > 0)) return false;
+        out.dist = sqrt(dist2);
+        out.d = d / out.dist;
+        out.weight = kernels::constant_colour<T>(m_intensity) / dist2;
+        return true;
     }
     double pdf_direct(const DirectQuery&) const override { return 0; }
     Color3 eval(const Vec3d&, const Vec3d&, const Vec2d&, const Vec3d&) const override { return Color3(0.0); }

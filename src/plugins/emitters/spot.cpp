@@ -22,6 +22,7 @@
 //     </emitter>
 #include <kelvin/core/param_helpers.h>
 #include <kelvin/core/registry.h>
+#include <kelvin/render/differentiable.h>
 #include <kelvin/render/emitter.h>
 #include <kelvin/render/extent.h>
 #include <kelvin/render/texture.h>
@@ -33,7 +34,7 @@ namespace kelvin {
 namespace {
 
 /// A parameter whose default depends on another one: declared without a default, read only when given.
-class SpotEmitter final : public Emitter {
+class SpotEmitter final : public DifferentiableEmitter<SpotEmitter> {
 public:
     explicit SpotEmitter(const Properties& props)
         : m_intensity(props.get_color("intensity")), m_texture(get_texture(props, "texture")) {
@@ -81,26 +82,84 @@ public:
     /// Falloff times the projected texture towards a direction given in the light's frame (need not be
     /// normalised).
     Color3 falloff_local(const Vec3d& v) const {
-        const double f = falloff(std::atan2(std::sqrt(v.x * v.x + v.y * v.y), v.z));
-        if (!(f > 0)) return Color3(0.0);
-        const Vec2d uv(0.5 + 0.5 * v.x / (v.z * m_uv_factor), 0.5 + 0.5 * v.y / (v.z * m_uv_factor));
-        return m_texture->eval(uv) * f;
+        kernels::C3<double> f;
+        falloff_t(kernels::to_v3(v), f, nullptr);
+        return kernels::to_color(f);
+    }
+    /// falloff_local in the number type T: the falloff (1 in the beam, the linear ramp in theta out to the cutoff) and
+    /// the projected texture, its piece mixed into `piece` (null: the renderer's lookup, in doubles). False where the
+    /// texture is not differentiable.
+    template <class T>
+    bool falloff_t(const kernels::V3<T>& v, kernels::C3<T>& out, unsigned long long* piece) const {
+        using kernels::val;
+        using std::atan2;
+        using std::sqrt;
+        const T rho2 = v.x * v.x + v.y * v.y;
+        const double theta = std::atan2(std::sqrt(val(rho2)), val(v.z));
+        // On the axis theta's derivatives are infinite: within the beam the falloff is the constant 1.
+        T f(1.0);
+        if (theta <= m_beam)
+            f = T(1.0);
+        else if (theta >= m_cutoff)
+            f = T(0.0);
+        else
+            f = (m_cutoff - atan2(T(sqrt(rho2)), v.z)) / (m_cutoff - m_beam);
+        if (!(val(f) > 0)) {
+            out = kernels::grey(T(0.0));
+            return true;
+        }
+        const T u = 0.5 + 0.5 * v.x / (v.z * m_uv_factor), w = 0.5 + 0.5 * v.y / (v.z * m_uv_factor);
+        kernels::C3<T> tex;
+        if constexpr (kernels::plain<T>) {
+            if (!piece) tex = kernels::to_c3(m_texture->eval(Vec2d(u, w)));
+        }
+        if (piece && !diff_lookup(*m_texture, u, w, tex, *piece)) return false;
+        out = tex * f;
+        return true;
     }
 
     std::optional<DirectSample> sample_direct(const Vec3d& ref, const Vec2d&) const override {
-        Vec3d d = m_pos - ref;
-        const double dist2 = glm::dot(d, d);
-        if (!(dist2 > 0)) return std::nullopt;
-        const Color3 f = falloff_local(Vec3d(m_to_world.inverse * glm::dvec4(-d, 0.0)));
-        if (f == Color3(0.0)) return std::nullopt;
+        DiffDirectSample<double> s;
+        if (!direct(kernels::to_v3(ref), s, false)) return std::nullopt;
         DirectSample ds;
-        ds.dist = std::sqrt(dist2);
-        ds.d = d / ds.dist;
+        ds.dist = s.dist;
+        ds.d = kernels::to_glm(s.d);
         ds.p = m_pos;
         ds.pdf = 1;
         ds.delta = true;
-        ds.weight = m_intensity * f / dist2;
+        ds.weight = kernels::to_color(s.weight);
         return ds;
+    }
+    /// sample_direct in the number type T (DifferentiableEmitter): the direction towards the light and intensity
+    /// falloff / dist^2.
+    template <class T>
+    bool sample_direct_t(const kernels::V3<T>& ref, DiffDirectSample<T>& out) const {
+        return direct(ref, out, true);
+    }
+    /// sample_direct_t, `pieces` false for the renderer's own lookup in doubles (no piece named).
+    template <class T>
+    bool direct(const kernels::V3<T>& ref, DiffDirectSample<T>& out, bool pieces) const {
+        using kernels::val;
+        using std::sqrt;
+        const kernels::V3<T> d = kernels::constant<T>(m_pos) - ref;
+        const T dist2 = kernels::dot(d, d);
+        if (!(val(dist2) > 0)) return false;
+        kernels::V3<T> local;  // -d in the light's frame
+        if constexpr (kernels::plain<T>) {
+            local = kernels::to_v3(Vec3d(m_to_world.inverse * glm::dvec4(-kernels::to_glm(d), 0.0)));
+        } else {
+            const Mat4d& M = m_to_world.inverse;
+            local = {-(M[0][0] * d.x + M[1][0] * d.y + M[2][0] * d.z), -(M[0][1] * d.x + M[1][1] * d.y + M[2][1] * d.z),
+                     -(M[0][2] * d.x + M[1][2] * d.y + M[2][2] * d.z)};
+        }
+        kernels::C3<T> f;
+        if (!falloff_t(local, f, pieces || !kernels::plain<T> ? &out.piece : nullptr)) return false;
+        if (kernels::is_zero(f)) return false;
+        const T dist = sqrt(dist2);
+        out.dist = dist;
+        out.d = d / dist;
+        out.weight = kernels::constant_colour<T>(m_intensity) * f / dist2;
+        return true;
     }
     double pdf_direct(const DirectQuery&) const override { return 0; }
     Color3 eval(const Vec3d&, const Vec3d&, const Vec2d&, const Vec3d&) const override { return Color3(0.0); }
@@ -119,16 +178,6 @@ public:
     std::pair<double, double> pdf_emission(const Vec3d&, const Vec3d&, const Vec3d& d) const override {
         const Vec3d local = glm::normalize(Vec3d(m_to_world.inverse * glm::dvec4(d, 0.0)));
         return {1.0, local.z >= m_cos_cutoff ? warp::square_to_uniform_cone_pdf(m_cos_cutoff) : 0.0};
-    }
-    Model model() const override {
-        Model m;
-        if (!m_texture->is_constant()) return m;
-        m.kind = Model::Kind::Spot;
-        m.intensity = m_intensity * m_texture->mean();
-        m.to_local = m_to_world.inverse;
-        m.beam = m_beam;
-        m.cutoff = m_cutoff;
-        return m;
     }
     Color3 power() const override { return m_intensity * m_texture->mean() * (2 * Pi * m_falloff_integral); }
 

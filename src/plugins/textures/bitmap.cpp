@@ -18,6 +18,7 @@
 #include <kelvin/core/error.h>
 #include <kelvin/core/image.h>
 #include <kelvin/core/registry.h>
+#include <kelvin/render/differentiable.h>
 #include <kelvin/render/texture.h>
 
 #include <algorithm>
@@ -31,7 +32,7 @@ namespace {
 
 enum class Wrap { Repeat, Mirror, Clamp };
 
-class BitmapTexture final : public Texture {
+class BitmapTexture final : public DifferentiableTexture<BitmapTexture> {
 public:
     explicit BitmapTexture(const Properties& props) {
         const std::filesystem::path path = props.get_path("filename");
@@ -45,6 +46,15 @@ public:
             props.error("format", "'fixed' (8-bit storage) is not supported; Kelvin stores textures as float");
         m_to_uv = props.get_transform("to_uv");
         m_identity = m_to_uv.is_identity();
+        if (!m_identity) {
+            auto apply = [&](double u, double v) {
+                const Vec3d p = m_to_uv.apply_point(Vec3d(u, v, 0));
+                return Vec2d(p.x, p.y);
+            };
+            m_uv_o = apply(0, 0);
+            m_uv_eu = apply(1, 0) - m_uv_o;
+            m_uv_ev = apply(0, 1) - m_uv_o;
+        }
 
         Bitmap img;
         props.get_input_file("filename", "image file");  // after the other parameters: their errors come first
@@ -85,58 +95,49 @@ public:
         m_mean = sum / double(m_texels.size());
     }
 
-    Color3 eval(const Vec2d& uv_in) const override {
-        Vec2d uv = uv_in;
+    Color3 eval(const Vec2d& uv) const override {
+        kernels::C3<double> c;
+        eval_t(DiffTextureQuery<double>{uv.x, uv.y}, c);
+        return kernels::to_color(c);
+    }
+    /// eval(uv) in the number type T (the renderer's eval(uv) is T = double): the texels chosen by the value of uv,
+    /// the bilinear weights functions of it; a nearest lookup is constant on its texel, which names the piece.
+    template <class T>
+    bool eval_t(const DiffTextureQuery<T>& q, kernels::C3<T>& out) const {
+        T u = q.u, v = q.v;
         if (!m_identity) {
-            const Vec3d p = m_to_uv.apply_point(Vec3d(uv.x, uv.y, 0));
-            uv = {p.x, p.y};
+            if constexpr (kernels::plain<T>) {
+                const Vec3d p = m_to_uv.apply_point(Vec3d(u, v, 0));
+                u = p.x, v = p.y;
+            } else {
+                const T uu = m_uv_o.x + m_uv_eu.x * u + m_uv_ev.x * v;
+                v = m_uv_o.y + m_uv_eu.y * u + m_uv_ev.y * v;
+                u = uu;
+            }
         }
-        if (!std::isfinite(uv.x) || !std::isfinite(uv.y)) return Color3(0.0);
-        const double x = uv.x * m_width, y = uv.y * m_height;
-        if (m_nearest) return texel(index(std::floor(x), m_width), index(std::floor(y), m_height));
-        const double fx = x - 0.5, fy = y - 0.5;
-        const double x0 = std::floor(fx), y0 = std::floor(fy), tx = fx - x0, ty = fy - y0;
+        if (!std::isfinite(kernels::val(u)) || !std::isfinite(kernels::val(v))) {
+            out = kernels::grey(T(0.0));
+            return kernels::plain<T>;
+        }
+        const T x = u * double(m_width), y = v * double(m_height);
+        if (m_nearest) {
+            const double x0 = std::floor(kernels::val(x)), y0 = std::floor(kernels::val(y));
+            q.enter((long long)x0 * 1000003LL + (long long)y0);
+            out = kernels::constant_colour<T>(texel(index(x0, m_width), index(y0, m_height)));
+            return true;
+        }
+        const T fx = x - 0.5, fy = y - 0.5;
+        const double x0 = std::floor(kernels::val(fx)), y0 = std::floor(kernels::val(fy));
+        const T tx = fx - x0, ty = fy - y0;
         const int ix0 = index(x0, m_width), ix1 = index(x0 + 1, m_width);
         const int iy0 = index(y0, m_height), iy1 = index(y0 + 1, m_height);
-        return (1 - ty) * ((1 - tx) * texel(ix0, iy0) + tx * texel(ix1, iy0)) +
-               ty * ((1 - tx) * texel(ix0, iy1) + tx * texel(ix1, iy1));
+        const auto c = [&](int ix, int iy) { return kernels::constant_colour<T>(texel(ix, iy)); };
+        const T sx = 1.0 - tx, sy = 1.0 - ty;
+        out = (c(ix0, iy0) * sx + c(ix1, iy0) * tx) * sy + (c(ix0, iy1) * sx + c(ix1, iy1) * tx) * ty;
+        return true;
     }
     Color3 mean() const override { return m_mean; }
     glm::ivec2 resolution() const override { return {m_width, m_height}; }
-    /// Bilinear: the four texels around uv and the affine map from uv to texel coordinates (to_uv's, times the
-    /// resolution, minus the half texel); nearest: the texel, which names the piece.
-    bool local(const Vec2d& uv_in, TextureLocal& out) const override {
-        out = TextureLocal{};
-        Vec2d o(0.0), eu(1.0, 0.0), ev(0.0, 1.0), uv = uv_in;
-        if (!m_identity) {
-            auto apply = [&](const Vec2d& q) {
-                const Vec3d p = m_to_uv.apply_point(Vec3d(q.x, q.y, 0));
-                return Vec2d(p.x, p.y);
-            };
-            o = apply(Vec2d(0.0));
-            eu = apply(Vec2d(1.0, 0.0)) - o;
-            ev = apply(Vec2d(0.0, 1.0)) - o;
-            uv = apply(uv_in);
-        }
-        if (!std::isfinite(uv.x) || !std::isfinite(uv.y)) return false;
-        const double half = m_nearest ? 0.0 : 0.5;
-        out.A[0][0] = eu.x * m_width, out.A[0][1] = ev.x * m_width;
-        out.A[1][0] = eu.y * m_height, out.A[1][1] = ev.y * m_height;
-        out.b[0] = o.x * m_width - half, out.b[1] = o.y * m_height - half;
-        const double x = uv.x * m_width - half, y = uv.y * m_height - half;
-        out.x0 = std::floor(x), out.y0 = std::floor(y);
-        if (m_nearest) {
-            const int ix = index(out.x0, m_width), iy = index(out.y0, m_height);
-            out.c[0] = texel(ix, iy);
-            out.cell = (long long)out.x0 * 1000003LL + (long long)out.y0;
-            return true;
-        }
-        const int ix0 = index(out.x0, m_width), ix1 = index(out.x0 + 1, m_width);
-        const int iy0 = index(out.y0, m_height), iy1 = index(out.y0 + 1, m_height);
-        out.c[0] = texel(ix0, iy0), out.c[1] = texel(ix1, iy0), out.c[2] = texel(ix0, iy1), out.c[3] = texel(ix1, iy1);
-        out.bilinear = true;
-        return true;
-    }
     /// Gradient in (u, v) of the luminance of the bilinear interpolant (Mitsuba's eval_1_grad), through to_uv;
     /// zero for nearest filtering.
     Vec2d eval_1_grad(const SurfaceInteraction& si) const override {
@@ -189,6 +190,7 @@ private:
     Wrap m_wrap = Wrap::Repeat;
     bool m_nearest = false, m_identity = true;
     Transform m_to_uv;
+    Vec2d m_uv_o{0.0}, m_uv_eu{1.0, 0.0}, m_uv_ev{0.0, 1.0};  // to_uv as an affine map of uv: o + eu u + ev v
 };
 
 }  // namespace

@@ -15,6 +15,7 @@
 //         <transform name="to_uv"><scale value="8"/></transform>
 //     </texture>
 #include <kelvin/core/registry.h>
+#include <kelvin/render/differentiable.h>
 #include <kelvin/render/texture.h>
 
 #include <cmath>
@@ -22,7 +23,7 @@
 namespace kelvin {
 namespace {
 
-class Checkerboard final : public Texture {
+class Checkerboard final : public DifferentiableTexture<Checkerboard> {
 public:
     explicit Checkerboard(const Properties& props)
         : m_color0(get_texture(props, "color0")),
@@ -32,9 +33,9 @@ public:
           m_identity(m_to_uv.is_identity()) {}
 
     Color3 eval(const Vec2d& uv) const override {
-        const Vec2d t = transformed(uv);
-        const double fu = t.x - std::floor(t.x), fv = t.y - std::floor(t.y);
-        return ((fu < 0.5) == (fv < 0.5)) ? m_color0->eval(uv) : m_color1->eval(uv);
+        kernels::C3<double> c;
+        eval_t(DiffTextureQuery<double>{uv.x, uv.y}, c);
+        return kernels::to_color(c);
     }
     Color3 eval(const SurfaceInteraction& si) const override {
         const Vec2d t = transformed(si.uv);
@@ -49,19 +50,34 @@ public:
         return ((fu > 0.5) != (fv > 0.5)) ? m_color0->eval_1(si) : m_color1->eval_1(si);
     }
     Color3 mean() const override { return 0.5 * (m_color0->mean() + m_color1->mean()); }
-    /// Piecewise constant: the square's colour, the square (floor of 2 t) naming the piece.
-    bool local(const Vec2d& uv, TextureLocal& out) const override {
-        if (!m_color0->is_constant() || !m_color1->is_constant()) return false;
-        const Vec2d t = transformed(uv);
-        if (!std::isfinite(t.x) || !std::isfinite(t.y)) return false;
-        const double fu = t.x - std::floor(t.x), fv = t.y - std::floor(t.y);
-        out = TextureLocal{};
-        out.c[0] = ((fu < 0.5) == (fv < 0.5)) ? m_color0->mean() : m_color1->mean();
-        out.cell = (long long)std::floor(2 * t.x) * 1000003LL + (long long)std::floor(2 * t.y);
-        return true;
+    /// eval(uv) in the number type T (the renderer's eval(uv) is T = double): the square by the value of uv (it names
+    /// the piece), the nested colour looked up at uv.
+    template <class T>
+    bool eval_t(const DiffTextureQuery<T>& q, kernels::C3<T>& out) const {
+        const Texture& c = square(q, false) ? *m_color0 : *m_color1;
+        if constexpr (kernels::plain<T>) {
+            out = kernels::to_c3(c.eval(Vec2d(q.u, q.v)));
+            return true;
+        } else {
+            return c.eval_diff(q, out);
+        }
+    }
+    /// eval_1 in the number type T: the squares swapped, as eval_1.
+    template <class T>
+    bool eval_1_t(const DiffTextureQuery<T>& q, T& out) const {
+        return (square(q, true) ? *m_color0 : *m_color1).eval_1_diff(q, out);
     }
 
 private:
+    /// Whether uv (by value) reads color0: as eval (`swapped` false) or eval_1. Enters the square as the piece.
+    template <class T>
+    bool square(const DiffTextureQuery<T>& q, bool swapped) const {
+        const Vec2d t = transformed(Vec2d(kernels::val(q.u), kernels::val(q.v)));
+        const double fu = t.x - std::floor(t.x), fv = t.y - std::floor(t.y);
+        if (std::isfinite(t.x) && std::isfinite(t.y))
+            q.enter((long long)std::floor(2 * t.x) * 1000003LL + (long long)std::floor(2 * t.y));
+        return swapped ? (fu > 0.5) != (fv > 0.5) : (fu < 0.5) == (fv < 0.5);
+    }
     Vec2d transformed(const Vec2d& uv) const {
         Vec2d t = uv;
         if (!m_identity) {
