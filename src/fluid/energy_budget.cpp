@@ -1,9 +1,11 @@
 // The deterministic flow of a cell-centred vorticity by FFT, for the energy budget (include/kelvin/fluid/
 // energy_budget.h).
 #include <kelvin/core/error.h>
+#include <kelvin/core/stats.h>
 #include <kelvin/fluid/energy_budget.h>
 
 #include <fftw3.h>
+#include <fmt/format.h>
 
 #include <cmath>
 #include <complex>
@@ -23,6 +25,37 @@ EnergyBudget& EnergyBudget::operator+=(const EnergyBudget& o) {
     transport += o.transport;
     stretching += o.stretching;
     return *this;
+}
+
+std::string EnergyBudget::csv_columns(bool with_stretching) {
+    return std::string(",energy_exact,budget_change,budget_noise,budget_mollifier,budget_integrator,budget_transport") +
+           (with_stretching ? ",budget_stretching" : "");
+}
+
+std::string EnergyBudget::csv_values(bool with_stretching) const {
+    std::string v = fmt::format(",{:.10g},{:.6g},{:.6g},{:.6g},{:.6g},{:.6g}", energy, change, noise, mollifier,
+                                integrator, transport);
+    if (with_stretching) v += fmt::format(",{:.6g}", stretching);
+    return v;
+}
+
+void EnergyBudget::add_stats(Stats& stats, bool with_stretching) const {
+    stats.add("fluid.energy_budget.energy", energy, "energy");
+    stats.add("fluid.energy_budget.change", change, "energy");
+    stats.add("fluid.energy_budget.noise", noise, "energy");
+    stats.add("fluid.energy_budget.mollifier", mollifier, "energy");
+    stats.add("fluid.energy_budget.integrator", integrator, "energy");
+    stats.add("fluid.energy_budget.transport", transport, "energy");
+    if (with_stretching) stats.add("fluid.energy_budget.stretching", stretching, "energy");
+}
+
+std::string EnergyBudget::summary(bool with_stretching) const {
+    std::string s = fmt::format(
+        "; energy budget (exact energy {:.6g}, change {:+.4g}): transport {:+.4g}, Monte Carlo noise {:+.4g}, "
+        "mollifier {:+.4g}, integrator {:+.4g}",
+        energy, change, transport, noise, mollifier, integrator);
+    if (with_stretching) s += fmt::format(", stretching {:+.4g}", stretching);
+    return s;
 }
 
 namespace {

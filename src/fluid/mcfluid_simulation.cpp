@@ -105,16 +105,14 @@ public:
     // With the energy budget, six more columns: the state's deterministic energy and the last step's split.
     std::string csv_header() const override {
         std::string h = Solver2Run::csv_header();
-        if (m_mc.energy_budget_step())
-            h += ",energy_exact,budget_change,budget_noise,budget_mollifier,budget_integrator,budget_transport";
+        if (m_mc.energy_budget_step()) h += EnergyBudget::csv_columns(false);
         return h;
     }
     std::string csv_row(double seconds, double evals, uint64_t invalid, double cfl) const override {
         std::string row = Solver2Run::csv_row(seconds, evals, invalid, cfl);
         if (const EnergyBudget* b = m_mc.energy_budget_step()) {
             if (!row.empty() && row.back() == '\n') row.pop_back();
-            row += fmt::format(",{:.10g},{:.6g},{:.6g},{:.6g},{:.6g},{:.6g}\n", b->energy, b->change, b->noise,
-                               b->mollifier, b->integrator, b->transport);
+            row += b->csv_values(false) + "\n";
         }
         return row;
     }
@@ -171,14 +169,7 @@ public:
                      {w.wos_walks, w.wos_steps, w.wos_truncated, w.wos_invalid, w.wos_boundary_queries}, "mcfluid",
                      s.boundaries ? s.boundaries->wos.max_steps : 0);
         stats.add("fluid.solid_departures", double(w.solid_departures), "points");
-        if (const EnergyBudget* b = m_mc.energy_budget_total()) {
-            stats.add("fluid.energy_budget.energy", b->energy, "energy");
-            stats.add("fluid.energy_budget.change", b->change, "energy");
-            stats.add("fluid.energy_budget.noise", b->noise, "energy");
-            stats.add("fluid.energy_budget.mollifier", b->mollifier, "energy");
-            stats.add("fluid.energy_budget.integrator", b->integrator, "energy");
-            stats.add("fluid.energy_budget.transport", b->transport, "energy");
-        }
+        if (const EnergyBudget* b = m_mc.energy_budget_total()) b->add_stats(stats, false);
         report_dye_stats(stats, m_mc.dye());
     }
 
@@ -193,11 +184,7 @@ public:
 
     std::string summary(const std::string& ended) override {
         std::string s = summary_line(ended);
-        if (const EnergyBudget* b = m_mc.energy_budget_total())
-            s += fmt::format(
-                "; energy budget (exact energy {:.6g}, change {:+.4g}): transport {:+.4g}, Monte Carlo noise {:+.4g}, "
-                "mollifier {:+.4g}, integrator {:+.4g}",
-                b->energy, b->change, b->transport, b->noise, b->mollifier, b->integrator);
+        if (const EnergyBudget* b = m_mc.energy_budget_total()) s += b->summary(false);
         return s;
     }
 

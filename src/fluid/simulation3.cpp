@@ -335,7 +335,7 @@ public:
         return "step,time,kinetic_energy,kinetic_energy_raw,enstrophy,helicity,impulse_x,impulse_y,impulse_z,"
                "centroid_x,centroid_y,centroid_z,max_abs_vorticity,divergence_rms,smoke_mass,step_seconds,"
                "biot_savart_evals,invalid,cfl" +
-               std::string(m_solver->energy_budget_step() ? BudgetColumns : "");
+               (m_solver->energy_budget_step() ? EnergyBudget::csv_columns(true) : std::string());
     }
     std::string csv_row(double seconds, double evals, uint64_t invalid, double cfl) const override {
         const FluidDiagnostics3& d = m_d;
@@ -347,14 +347,9 @@ public:
             seconds, evals, invalid, cfl, budget_values());
     }
     // With the energy budget, seven more columns: the state's deterministic energy and the last step's split.
-    static constexpr const char* BudgetColumns =
-        ",energy_exact,budget_change,budget_noise,budget_mollifier,budget_integrator,budget_transport,"
-        "budget_stretching";
     std::string budget_values() const {
         const EnergyBudget* b = m_solver->energy_budget_step();
-        if (!b) return {};
-        return fmt::format(",{:.10g},{:.6g},{:.6g},{:.6g},{:.6g},{:.6g},{:.6g}", b->energy, b->change, b->noise,
-                           b->mollifier, b->integrator, b->transport, b->stretching);
+        return b ? b->csv_values(true) : std::string();
     }
     void write_frame(FrameWriter& frames) override {
         MCFluid3Solver& solver = *m_solver;
@@ -451,15 +446,7 @@ public:
             stats.add("fluid.wos_walks", 0.0, "walks");
         }
         stats.add("fluid.smoke_lookups", double(w.smoke_lookups), "lookups");
-        if (const EnergyBudget* b = m_solver->energy_budget_total()) {
-            stats.add("fluid.energy_budget.energy", b->energy, "energy");
-            stats.add("fluid.energy_budget.change", b->change, "energy");
-            stats.add("fluid.energy_budget.noise", b->noise, "energy");
-            stats.add("fluid.energy_budget.mollifier", b->mollifier, "energy");
-            stats.add("fluid.energy_budget.integrator", b->integrator, "energy");
-            stats.add("fluid.energy_budget.transport", b->transport, "energy");
-            stats.add("fluid.energy_budget.stretching", b->stretching, "energy");
-        }
+        if (const EnergyBudget* b = m_solver->energy_budget_total()) b->add_stats(stats, true);
     }
 
     void warn() const override {
@@ -473,11 +460,7 @@ public:
 
     std::string summary(const std::string& ended) override {
         std::string line = summary_line(ended);
-        if (const EnergyBudget* b = m_solver->energy_budget_total())
-            line += fmt::format(
-                "; energy budget (exact energy {:.6g}, change {:+.4g}): transport {:+.4g}, Monte Carlo noise {:+.4g}, "
-                "mollifier {:+.4g}, integrator {:+.4g}, stretching {:+.4g}",
-                b->energy, b->change, b->transport, b->noise, b->mollifier, b->integrator, b->stretching);
+        if (const EnergyBudget* b = m_solver->energy_budget_total()) line += b->summary(true);
         return line;
     }
 

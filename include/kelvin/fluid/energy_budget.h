@@ -50,7 +50,12 @@
 #include <kelvin/fluid/grid3.h>
 
 #include <memory>
+#include <string>
 #include <vector>
+
+namespace kelvin {
+class Stats;
+}
 
 namespace kelvin::fluid {
 
@@ -65,6 +70,14 @@ struct EnergyBudget {
     double stretching = 0;  ///< 3D: the vortex-segment stretching estimate against the exact (0 in 2D)
 
     EnergyBudget& operator+=(const EnergyBudget& o);
+
+    /// How a simulation reports it (2D without the stretching term, 3D with it): the CSV columns appended to the
+    /// diagnostics (",energy_exact,budget_change,...") and one row's values, the `fluid.energy_budget.*` statistics and
+    /// the summary line's clause.
+    static std::string csv_columns(bool stretching);
+    std::string csv_values(bool stretching) const;
+    void add_stats(Stats& stats, bool stretching) const;
+    std::string summary(bool stretching) const;
 };
 
 /// The flow of a cell-centred vorticity field omega_h (the cells' values as point vortices of strength omega h^2,
