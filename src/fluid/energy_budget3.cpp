@@ -2,6 +2,7 @@
 // vector vorticity by FFT (FlowFFT3), and MCFluid3Solver's re-runs of a step with one error source removed at a time.
 #include "fluid/trace.h"
 
+#include <kelvin/core/distributed.h>
 #include <kelvin/core/error.h>
 #include <kelvin/core/parallel.h>
 #include <kelvin/fluid/energy_budget.h>
@@ -336,22 +337,27 @@ void MCFluid3Solver::budget_step(const VectorGrid3& u, double dt, int substeps, 
     });
 }
 
-void MCFluid3Solver::measure_budget(double dt) {
+bool MCFluid3Solver::measure_budget(double dt) {
     const MCFluid3Settings& s = m_settings;
     VectorGrid3 u(s.domain, s.nx, s.ny, s.nz), step = u, exact = u;
     FlowFFT3& flow = *m_flow;
     const double e_n = m_budget_step.energy;  // the current state's (set_energy_budget or the previous step)
+    // Each pass costs about a step; a stop between them discards the step, as a stop inside the step's own passes.
+    const auto stopped = [&] { return any_rank(*m_comm, stop_requested()); };
     const double e_a = flow.energy(m_next);
     flow.velocity(m_omega, true, s.interpolation, m_delta, u);  // the estimator's expected velocity
     budget_step(u, dt, 1, &step, nullptr);
     const double e_b = flow.energy(step);
+    if (stopped()) return false;
     flow.velocity(m_omega, false, s.interpolation, 0.0, u);  // the cells' own velocity
     budget_step(u, dt, 1, &step, nullptr);
     const double e_c = flow.energy(step);
+    if (stopped()) return false;
     const int substeps = s.advection == Advection::Euler ? 16 : 4;  // error / 256, / 16
     budget_step(u, dt, substeps, &step, &exact);
     const double e_d = flow.energy(step);
     const double e_s = s.stretching ? flow.energy(exact) : e_d;
+    if (stopped()) return false;
     // The velocity at mid-step, u + dt/2 du/dt with du/dt = P(u x omega) (Euler's equations), frozen over the step:
     // the midpoint rule in time, whose departure from the exact dynamics is third order per step.
     for (std::size_t c = 0; c < u.cell_count(); ++c) step.set(c, glm::cross(u.at(c), m_omega.at(c)));
@@ -369,6 +375,7 @@ void MCFluid3Solver::measure_budget(double dt) {
     b.transport = e_m - e_n;
     m_budget_step = b;
     m_budget_total += b;
+    return true;
 }
 
 }  // namespace kelvin::fluid

@@ -399,8 +399,8 @@ bool MCFluid3Solver::step(double dt) {
     std::vector<std::vector<double>*> fields = {&m_next.x.values(), &m_next.y.values(), &m_next.z.values()};
     if (m_smoke) fields.push_back(&m_density_next.values());
     pass.gather(fields);
+    if (m_flow && !measure_budget(dt)) return false;  // before the new state replaces the old one
     add_work(m_work, work);
-    if (m_flow) measure_budget(dt);  // before the new state replaces the old one
     if (m_smoke) std::swap(m_density, m_density_next);
     if (s.control_variates) {  // this state becomes the control variate of the next one
         m_prev_omega = m_omega;

@@ -190,7 +190,8 @@ private:
     /// into `as_run` as the run stretches (the vortex segment on u read with the cache's interpolation) and into
     /// `exact` exactly for the frozen u (either may be null; without `stretching` neither is stretched).
     void budget_step(const VectorGrid3& u, double dt, int substeps, VectorGrid3* as_run, VectorGrid3* exact) const;
-    void measure_budget(double dt);
+    /// The step's budget (m_budget_step); false when a stop came between its passes (the step is then discarded).
+    bool measure_budget(double dt);
 
     MCFluid3Settings m_settings;
     Communicator* m_comm;  ///< never null (the local communicator by default)
