@@ -334,6 +334,15 @@ report() {
                 [[ "$s" == *-linear ]] && extra=(-D transport=linear)
                 long_run "ring_${s}_r$r" scenes/fluid/vortex_ring.xml -D solver=$solver -D end=2 --seed "$r" "${extra[@]}"
             done
+            # At about MCFluid's wall time: the baselines on finer grids (Taylor–Green ~7-30 s, the ring ~2-3 s).
+            for sr in stable_fluids:256 stable_fluids:512 flip:128 flip:256 vortex_particles:32; do
+                long_run "tg_${sr%:*}-${sr#*:}_r$r" scenes/fluid/taylor_green.xml -D solver=${sr%:*} -D res=${sr#*:} \
+                    -D end=20 --seed "$r"
+            done
+            for res in 56 64; do
+                long_run "ring_stable_fluids-${res}_r$r" scenes/fluid/vortex_ring.xml -D solver=stable_fluids -D res=$res \
+                    -D end=2 --seed "$r"
+            done
         done
         python3 tools/fluid_long_table.py "$d" | tee "$d/summary.md" ;;
     fluid-shear)
