@@ -384,13 +384,8 @@ public:
         };
         const double nu = s.viscosity;
         const VorticityField3& field = *m_p.field;
-        cp.exact3 = [&field, nu](const std::string& name, double t, Vec3d x) -> std::optional<double> {
-            const bool vort = name.rfind("vorticity_", 0) == 0;
-            const std::optional<Vec3d> e = vort ? field.exact_vorticity3(t, x, nu) : field.exact_velocity3(t, x, nu);
-            if (!e) return std::nullopt;
-            const char c = vort ? name.back() : name == "u" ? 'x' : name == "v" ? 'y' : name == "w" ? 'z' : '?';
-            if (c == '?') return std::nullopt;
-            return c == 'x' ? e->x : c == 'y' ? e->y : e->z;
+        cp.exact3 = [&field, nu](const std::string& name, double t, Vec3d x) {
+            return field.exact_component3(name, t, x, nu);
         };
         return cp;
     }

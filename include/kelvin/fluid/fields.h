@@ -64,6 +64,16 @@ public:
     virtual std::optional<Vec3d> exact_velocity3(double t, const Vec3d& x, double viscosity) const {
         return std::nullopt;
     }
+    /// One component of the exact solution by the convergence study's field name ("u", "v", "w",
+    /// "vorticity_x/y/z"; Checkpointable::exact3); nullopt for other names or where no solution is known.
+    std::optional<double> exact_component3(const std::string& name, double t, const Vec3d& x, double viscosity) const {
+        const bool vort = name.rfind("vorticity_", 0) == 0;
+        const std::optional<Vec3d> e = vort ? exact_vorticity3(t, x, viscosity) : exact_velocity3(t, x, viscosity);
+        if (!e) return std::nullopt;
+        const char c = vort ? name.back() : name == "u" ? 'x' : name == "v" ? 'y' : name == "w" ? 'z' : '?';
+        if (c == '?') return std::nullopt;
+        return c == 'x' ? e->x : c == 'y' ? e->y : e->z;
+    }
     /// Called once with the simulation's domain: raise an InputError or log a warning when the field does not
     /// suit the domain.
     virtual void check_domain3(const Domain3& domain) const {}
