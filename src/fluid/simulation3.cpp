@@ -10,6 +10,7 @@
 #include <kelvin/core/stats.h>
 #include <kelvin/core/vdb.h>
 #include <kelvin/fluid/boundary.h>
+#include <kelvin/fluid/estimators.h>
 #include <kelvin/fluid/output.h>
 #include <kelvin/fluid/simulation.h>
 #include <kelvin/fluid/simulation3.h>
@@ -122,6 +123,12 @@ Simulation3Params Simulation3Params::parse(const Properties& props) {
         props.error("cache", fmt::format("3D caches are limited to {} cells per axis (got {}x{}x{})",
                                          BiotSavartEstimator3::MaxResolution, s.nx, s.ny, s.nz));
     s.interpolation = cache->interpolation();
+    if (const auto* bs = dynamic_cast<const BiotSavartVelocity*>(s.estimator.get())) {
+        const Vec3d h = size / Vec3d(s.nx, s.ny, s.nz);
+        const double delta = bs->delta() >= 0 ? bs->delta() : 0.5 * std::min({h.x, h.y, h.z});
+        if (const std::string why = bs->check_cells3(h, delta, s.nx, s.ny, s.nz, s.domain.periodic); !why.empty())
+            props.error("velocity", why);
+    }
     if (auto scalar = props.get_object("scalar")) {
         p.smoke = std::dynamic_pointer_cast<SmokeSpec3>(scalar);
         if (!p.smoke)

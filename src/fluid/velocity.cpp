@@ -33,6 +33,7 @@ std::string check_delta(double delta, double smaller_side) {
 
 std::string BiotSavartVelocity::check2(const Domain2& domain) const {
     if (m_options.mollifier == Mollifier::HighOrder) return "mollifier = high_order is 3D only";
+    if (m_options.near_field > 0) return "near_field is 3D only";
     const Vec2d size = domain.size();
     return check_delta(m_options.delta, std::min(size.x, size.y));
 }
@@ -40,8 +41,30 @@ std::string BiotSavartVelocity::check2(const Domain2& domain) const {
 std::string BiotSavartVelocity::check3(const Domain3& domain) const {
     if (m_options.importance == SourceSampling::Kernel)
         return "importance = kernel is 2D only; use vorticity or uniform in 3D";
+    if (m_options.near_field > 0 && m_options.importance != SourceSampling::Vorticity)
+        return "near_field needs importance = vorticity (it removes the near cells from the sampled ones)";
+    if (m_options.near_field > 0 && m_options.delta == 0)
+        return "near_field needs delta > 0 (its table resolves the mollified kernel, not the singular one)";
     const Vec3d size = domain.size();
     return check_delta(m_options.delta, std::min({size.x, size.y, size.z}));
+}
+
+int BiotSavartVelocity::near_field3(Vec3d h, double delta, int nx, int ny, int nz, bool periodic) const {
+    const int R = m_options.near_field >= 0 ? m_options.near_field : DefaultNearField3;
+    if (R <= 0 || m_options.importance != SourceSampling::Vorticity) return 0;
+    if (!(delta >= NearField3::MinDelta * std::min({h.x, h.y, h.z}))) return 0;
+    if (periodic && 2 * R + 1 > std::min({nx, ny, nz})) return 0;
+    return R;
+}
+
+std::string BiotSavartVelocity::check_cells3(Vec3d h, double delta, int nx, int ny, int nz, bool periodic) const {
+    const int R = m_options.near_field;
+    if (R <= 0 || near_field3(h, delta, nx, ny, nz, periodic) == R) return {};  // the default adapts silently
+    if (!(delta >= NearField3::MinDelta * std::min({h.x, h.y, h.z})))
+        return fmt::format("near_field needs delta >= {:g} of a cell (delta {:g}, cell {:g})", NearField3::MinDelta,
+                           delta, std::min({h.x, h.y, h.z}));
+    return fmt::format("near_field {} spans {} cells, more than the periodic grid's {}", R, 2 * R + 1,
+                       std::min({nx, ny, nz}));
 }
 
 std::unique_ptr<VelocityField2> BiotSavartVelocity::build2(const VelocityState2& s) const {
@@ -52,16 +75,21 @@ std::unique_ptr<VelocityField2> BiotSavartVelocity::build2(const VelocityState2&
 }
 
 std::unique_ptr<VelocityField3> BiotSavartVelocity::build3(const VelocityState3& s) const {
+    std::shared_ptr<const NearField3> near;
+    const Grid3& g = s.omega->x;
+    if (const int R = near_field3(g.h(), s.delta, g.nx(), g.ny(), g.nz(), g.domain().periodic); R > 0)
+        near = NearField3::shared(g.h(), s.interpolation, s.delta, m_options.mollifier, R);
     auto field = std::make_unique<BiotSavartEstimator3>(*s.omega, s.interpolation, m_options.importance, s.delta,
-                                                        s.periodic, m_options.mollifier);
+                                                        s.periodic, m_options.mollifier, std::move(near));
     field->set_stop(s.stop);
     return field;
 }
 
 std::string BiotSavartVelocity::effect(int samples, double delta, bool periodic) const {
-    return fmt::format("Biot–Savart velocity (n_mc {}, importance {}, delta {:g}{}{})", samples,
+    return fmt::format("Biot–Savart velocity (n_mc {}, importance {}, delta {:g}{}{}{})", samples,
                        fluid::to_string(m_options.importance), delta,
                        m_options.mollifier == Mollifier::HighOrder ? ", high-order mollifier" : "",
+                       m_options.near_field > 0 ? fmt::format(", near field {}", m_options.near_field) : "",
                        periodic ? ", periodic kernel" : "");
 }
 

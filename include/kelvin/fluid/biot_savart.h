@@ -51,6 +51,9 @@ struct BiotSavartOptions {
     SourceSampling importance = SourceSampling::Vorticity;
     double delta = -1;  ///< mollifier; < 0: half the cache cell size
     Mollifier mollifier = Mollifier::RosenheadMoore;
+    /// 3D: the cells within this many cells of a query (on every axis) are summed exactly (NearField3) instead of
+    /// sampled; 0: none, -1: the default for the dimension.
+    int near_field = -1;
 };
 
 /// Free-space 2D Biot–Savart kernel with the Rosenhead–Moore mollifier (1/(2 pi) included). K(0) = 0.

@@ -25,6 +25,14 @@ public:
     std::unique_ptr<VelocityField3> build3(const VelocityState3& state) const override;
     std::string effect(int samples, double delta, bool periodic) const override;
 
+    /// The near-field radius (NearField3) a 3D field on cells of size h with mollifier `delta` uses: near_field,
+    /// or DefaultNearField3 when it is -1; 0 where the table cannot serve (delta below NearField3::MinDelta of a
+    /// cell, a periodic grid narrower than the near cells, importance other than vorticity).
+    int near_field3(Vec3d h, double delta, int nx, int ny, int nz, bool periodic) const;
+    /// Why a near_field the scene asked for cannot be used on these cells (empty: it can, or it was not asked for).
+    std::string check_cells3(Vec3d h, double delta, int nx, int ny, int nz, bool periodic) const;
+    static constexpr int DefaultNearField3 = 0;
+
 protected:
     BiotSavartOptions m_options;
 };

@@ -36,6 +36,7 @@ public:
         m_options.mollifier = props.get_choice("mollifier", {"rosenhead_moore", "high_order"}) == "high_order"
                                   ? Mollifier::HighOrder
                                   : Mollifier::RosenheadMoore;
+        m_options.near_field = int(props.get_int("near_field", -1, NearField3::MaxRadius));
         m_options.delta = props.get_float("delta");
         if (std::isnan(m_options.delta) || std::isinf(m_options.delta))
             props.error("delta", "must be finite (-1: half a cache cell, 0: singular kernel, > 0: radius)");
@@ -58,4 +59,7 @@ KELVIN_PLUGIN(kelvin::fluid::BiotSavart, "velocity", "biot_savart",
               kelvin::param::real("delta", -1.0, "mollifier radius; -1: half a cache cell; 0: singular kernel"),
               kelvin::param::string("mollifier", "rosenhead_moore",
                                     "'rosenhead_moore' (the thesis, O(delta^2)) or 'high_order' (3D only: "
-                                    "Winckelmans-Leonard, O(delta^4), 1.7x the variance at equal delta)"));
+                                    "Winckelmans-Leonard, O(delta^4), 1.7x the variance at equal delta)"),
+              kelvin::param::integer("near_field", -1,
+                                     "3D: cells within this many cells of a query are summed exactly, not sampled "
+                                     "(0: none; -1: the default, 1 where delta >= 1/8 cell)"));
