@@ -1,4 +1,5 @@
-// 3D MCFluid benchmarks (issue 15): Biot–Savart evaluations per second of one velocity pass over the cache, and
+// 3D MCFluid benchmarks: Biot–Savart evaluations per second of one velocity pass over the cache (with the near
+// field summed exactly: a third argument, its radius in cells; `var*cpu_us` compares variance per unit of work), and
 // time per Feynman–Kac step at 64^3 and 128^3 with n_mc = 32 and 128, with and without control variates, and the
 // cost of each effect (stretching, diffusion, control variates) as a share of a step; free-slip obstacles: velocity
 // queries per second by Walk-on-Spheres on the vector potential (16 gradient samples = 32 walks per query) for a
@@ -55,33 +56,46 @@ MCFluid3Settings settings(int res, int nmc, bool periodic) {
 // One velocity pass over every cell centre.
 void BM_BiotSavart3Pass(benchmark::State& state, bool periodic) {
     ThreadLimit limit(bench_threads());
-    const int res = int(state.range(0)), nmc = int(state.range(1));
+    const int res = int(state.range(0)), nmc = int(state.range(1)), near = int(state.range(2));
     MCFluid3Settings s = settings(res, nmc, periodic);
     MCFluid3Solver solver(s, periodic ? InitialField3(abc) : InitialField3(ring));
     std::shared_ptr<const PeriodicKernel3> kernel =
         periodic ? std::make_shared<PeriodicKernel3>(s.domain.size()) : nullptr;
-    BiotSavartEstimator3 est(solver.vorticity_grid(), s.interpolation, SourceSampling::Vorticity, solver.delta(),
-                             kernel);
     const Grid3& g = solver.vorticity_grid().x;
+    BiotSavartEstimator3 est(
+        solver.vorticity_grid(), s.interpolation, SourceSampling::Vorticity, solver.delta(), kernel,
+        Mollifier::RosenheadMoore,
+        near > 0 ? NearField3::shared(g.h(), s.interpolation, solver.delta(), Mollifier::RosenheadMoore, near)
+                 : nullptr);
     uint64_t pass = 0;
-    std::vector<double> sink(static_cast<std::size_t>(res), 0.0);
-    double cpu = 0;
+    std::vector<double> sink(static_cast<std::size_t>(res), 0.0), variance(static_cast<std::size_t>(res), 0.0);
+    double cpu = 0, var = 0;
     for (auto _ : state) {
         const double c0 = kelvin::bench::process_cpu_seconds();
         parallel_for_units(std::size_t(res), [&](std::size_t k) {
             Random rng(pass, k);
-            double acc = 0;
+            double acc = 0, v = 0;
             for (int j = 0; j < res; ++j)
-                for (int i = 0; i < res; ++i) acc += est.estimate(g.cell_center(i, j, int(k)), nmc, rng).value.x;
+                for (int i = 0; i < res; ++i) {
+                    const VelocityEstimate3 e = est.estimate(g.cell_center(i, j, int(k)), nmc, rng);
+                    acc += e.value.x;
+                    v += e.variance.x + e.variance.y + e.variance.z;
+                }
             sink[k] = acc;
+            variance[k] = v;
         });
         cpu += kelvin::bench::process_cpu_seconds() - c0;
+        for (double v : variance) var += v;
         ++pass;
         benchmark::DoNotOptimize(sink.data());
     }
-    const double evals = double(res) * res * res * nmc * double(state.iterations());
+    const double cells = double(res) * res * res * double(state.iterations());
+    const double evals = cells * nmc;
     state.counters["evals/s"] = benchmark::Counter(evals, benchmark::Counter::kIsRate);
     state.counters["evals/cpu_s"] = evals / cpu;  // per core: CPU time of the pass, all threads
+    // The estimate's variance (sum of the components, mean over cells) times the CPU time per query: the velocity's
+    // mean squared error per unit of work. Lower is better; it compares near-field radii and sample counts.
+    state.counters["var*cpu_us"] = var / cells * (cpu / cells * 1e6);
 }
 
 // A full step (velocity pass + backtrace + stretching [+ diffusion]) of the ABC flow.
@@ -206,19 +220,24 @@ BENCHMARK(BM_ObstacleStep3)
     ->UseRealTime()
     ->Iterations(1);
 BENCHMARK_CAPTURE(BM_BiotSavart3Pass, periodic_abc, true)
-    ->Args({32, 128})  // a table that fits in L2, against the 64^3 and 128^3 ones that do not
-    ->Args({64, 32})
-    ->Args({64, 128})
-    ->Args({128, 32})
-    ->Args({128, 128})
+    ->Args({32, 128, 0})  // a table that fits in L2, against the 64^3 and 128^3 ones that do not
+    ->Args({64, 32, 0})
+    ->Args({64, 128, 0})
+    ->Args({64, 128, 1})
+    ->Args({64, 128, 2})
+    ->Args({128, 32, 0})
+    ->Args({128, 128, 0})
     ->Unit(benchmark::kMillisecond)
     ->MeasureProcessCPUTime()
     ->UseRealTime();
 BENCHMARK_CAPTURE(BM_BiotSavart3Pass, open_ring, false)
-    ->Args({32, 128})  // a table that fits in L2, against the 64^3 and 128^3 ones that do not
-    ->Args({64, 32})
-    ->Args({64, 128})
-    ->Args({128, 128})
+    ->Args({32, 128, 0})  // a table that fits in L2, against the 64^3 and 128^3 ones that do not
+    ->Args({64, 32, 0})
+    ->Args({64, 128, 0})
+    ->Args({128, 128, 0})
+    ->Args({64, 128, 1})  // the near field: 27 and 125 cells summed exactly
+    ->Args({64, 128, 2})
+    ->Args({64, 256, 0})
     ->Unit(benchmark::kMillisecond)
     ->MeasureProcessCPUTime()
     ->UseRealTime();

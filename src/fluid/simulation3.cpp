@@ -405,6 +405,15 @@ public:
         lines.push_back(fmt::format("3D, domain {}, {}x{}x{} cache ({}), initial {}", s.domain.to_string(), s.nx, s.ny,
                                     s.nz, s.interpolation == Interpolation::Nearest ? "nearest" : "trilinear",
                                     m_p.field->description3()));
+        // The near field the estimator resolved on these cells (biot_savart: its default adapts to delta).
+        const auto near_field_effect = [&]() -> std::string {
+            const auto* bs = dynamic_cast<const BiotSavartVelocity*>(s.estimator.get());
+            if (!bs) return {};
+            const Vec3d h = s.domain.size() / Vec3d(s.nx, s.ny, s.nz);
+            const int R = bs->near_field3(h, solver.delta(), s.nx, s.ny, s.nz, s.domain.periodic);
+            return R > 0 ? fmt::format(", the {} nearest cells summed exactly", (2 * R + 1) * (2 * R + 1) * (2 * R + 1))
+                         : std::string();
+        };
         const std::string velocity =
             s.boundaries
                 ? fmt::format(
@@ -412,7 +421,7 @@ public:
                       "steps, {} volume sampling)",
                       s.samples, s.boundaries->wos.max_steps,
                       s.boundaries->vorticity_importance ? "|omega|-mixed" : "Green's-function")
-                : s.estimator->effect(s.samples, solver.delta(), s.domain.periodic);
+                : s.estimator->effect(s.samples, solver.delta(), s.domain.periodic) + near_field_effect();
         lines.push_back(fmt::format(
             "effects: advection ({}, dt {:g}, {} steps) with {}; stretching {}; diffusion {}; control variates {}; "
             "boundaries {}; smoke {}",

@@ -86,10 +86,9 @@ std::unique_ptr<VelocityField3> BiotSavartVelocity::build3(const VelocityState3&
 }
 
 std::string BiotSavartVelocity::effect(int samples, double delta, bool periodic) const {
-    return fmt::format("Biot–Savart velocity (n_mc {}, importance {}, delta {:g}{}{}{})", samples,
+    return fmt::format("Biot–Savart velocity (n_mc {}, importance {}, delta {:g}{}{})", samples,
                        fluid::to_string(m_options.importance), delta,
                        m_options.mollifier == Mollifier::HighOrder ? ", high-order mollifier" : "",
-                       m_options.near_field > 0 ? fmt::format(", near field {}", m_options.near_field) : "",
                        periodic ? ", periodic kernel" : "");
 }
 

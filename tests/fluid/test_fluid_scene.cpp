@@ -343,6 +343,29 @@ TEST(FluidScene3D, BadInputNamesTheParameter) {
                           R"(<vorticity type="vortex_ring"><float name="core" value="2"/></vorticity>)"));
     EXPECT_CONTAINS(e.what(), "'core'");
     EXPECT_FALSE(std::string(e.what()).find('\n') != std::string::npos) << "one line";
+    // The near field: out of range, in 2D, with uniform sampling, the singular kernel, a delta below the table's
+    // resolution, wider than the periodic grid (8 cells: radius 3 spans 7, 4 would span 9).
+    const auto bs = [](const std::string& inner) {
+        return R"(<velocity type="biot_savart"><integer name="samples" value="8"/>)" + inner + R"(</velocity>
+            <cache type="grid"><integer name="resolution" value="8"/></cache>)";
+    };
+    const std::string abc = R"(<vorticity type="abc"/>)", two = R"(<integer name="steps" value="2"/>)";
+    e = load_error(scene3(two, abc, bs(R"(<integer name="near_field" value="4"/>)")));
+    EXPECT_CONTAINS(e.what(), "'near_field'");
+    e = load_error(scene(two, R"(<vorticity type="taylor_green"/>)", bs(R"(<integer name="near_field" value="1"/>)")));
+    EXPECT_CONTAINS(e.what(), "near_field is 3D only");
+    e = load_error(
+        scene3(two, abc, bs(R"(<integer name="near_field" value="1"/><string name="importance" value="uniform"/>)")));
+    EXPECT_CONTAINS(e.what(), "near_field needs importance = vorticity");
+    e = load_error(scene3(two, abc, bs(R"(<integer name="near_field" value="2"/><float name="delta" value="0"/>)")));
+    EXPECT_CONTAINS(e.what(), "near_field needs delta > 0");
+    e = load_error(scene3(two, abc, bs(R"(<integer name="near_field" value="1"/><float name="delta" value="0.01"/>)")));
+    EXPECT_CONTAINS(e.what(), "near_field needs delta >= 0.125 of a cell");
+    e = load_error(scene3(two, R"(<vorticity type="abc"/>)",
+                          R"(<velocity type="biot_savart"><integer name="near_field" value="3"/></velocity>
+            <cache type="grid"><integer name="resolution" value="6"/></cache>)"));
+    EXPECT_CONTAINS(e.what(), "near_field 3 spans 7 cells, more than the periodic grid's 6");
+    EXPECT_CONTAINS(e.what(), "'velocity'");
 }
 
 // A 3D run writes the CSV with the issue's columns (one row per state), an OpenVDB file per frame whose grids map

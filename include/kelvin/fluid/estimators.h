@@ -31,7 +31,7 @@ public:
     int near_field3(Vec3d h, double delta, int nx, int ny, int nz, bool periodic) const;
     /// Why a near_field the scene asked for cannot be used on these cells (empty: it can, or it was not asked for).
     std::string check_cells3(Vec3d h, double delta, int nx, int ny, int nz, bool periodic) const;
-    static constexpr int DefaultNearField3 = 0;
+    static constexpr int DefaultNearField3 = 1;
 
 protected:
     BiotSavartOptions m_options;
