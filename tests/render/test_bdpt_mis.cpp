@@ -6,7 +6,8 @@
 // of unity). Strategies that cannot sample the path get weight 0: those joining at a specular vertex and the
 // camera hitting a point, spot or directional light. Paths come from bdpt's own subpaths, every length 2..8, on
 // three scenes: the Cornell box (one area light); a room with a mirror sphere, a glass sphere, a glossy plate, a
-// point light, a spot light and a small area light; a glossy and a diffuse sphere on a floor under a directional
+// point light, a spot light, a small area light and a sphere light (whose next-event estimation samples the cone it
+// subtends, a density other than its origin's: strategy (1, t) is weighted by it); a glossy and a diffuse sphere on a floor under a directional
 // light and a uniform sky.
 //
 // Two sets of densities: recomputed from the vertex positions by the functions connect() uses (one set for every
@@ -25,6 +26,8 @@
 //     scenes with several emitters (the Cornell box has one, selection probability 1);
 //   - the light subpath's origin density without the selection probability: the room with several emitters (its
 //     99th percentile, 8e-3; the effect is as small as the weight of the camera hitting the light);
+//   - the next-event density of the sphere light taken in mis_weight for (1, t) but not for the other strategies'
+//     terms of (1, t) (the camera loop's first term for s = 0 left at the origin's density): the room;
 //   - a directional light not counted as a delta light (as bdpt was before this test: the camera's s = 0 strategy
 //     took weight from the others although no ray can hit the light): the sky scene.
 #include "render/render_support.h"
@@ -72,6 +75,8 @@ const char* kSpecularRoom = R"(<scene version="3.0.0">
     <shape type="rectangle">
         <transform name="to_world"><scale x="0.4" y="0.4"/><rotate x="1" angle="90"/><translate x="0.4" y="1.99"/></transform>
         <ref id="white"/><emitter type="area"><rgb name="radiance" value="2, 2, 2"/></emitter></shape>
+    <shape type="sphere"><point name="center" x="0.55" y="1.55" z="-0.5"/><float name="radius" value="0.12"/>
+        <emitter type="area"><rgb name="radiance" value="6, 6, 6"/></emitter></shape>
     <emitter type="point"><point name="position" x="-0.3" y="1.7" z="0.3"/><rgb name="intensity" value="2, 2, 2"/></emitter>
     <emitter type="spot"><transform name="to_world"><lookat origin="0, 1.9, 0.5" target="0, 0, 0" up="0, 0, 1"/></transform>
         <rgb name="intensity" value="5, 5, 5"/><float name="cutoff_angle" value="30"/></emitter>
