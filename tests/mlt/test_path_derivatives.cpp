@@ -410,10 +410,9 @@ TEST(PathDerivatives, MatchFiniteDifferencesOnTheGlossyPlates) {
 // A sphere light near the floor and the walls of the Cornell box, seen from outside under wide cones (up to about 40
 // degrees): next-event estimation samples the cone the sphere subtends from each shading point (Sphere::
 // sample_direction mirrored in T: a function of the point and of the light sample's two coordinates), and the light
-// found by BSDF sampling is weighted with the cone's density at the previous vertex. Broken variants seen to fail: the
-// uniform sampling of the sphere's area that the renderer used before (every point whose path samples the light:
-// Mismatch), and the cone's density taken for the solid angle at the far point (pi r^2 / d^2, the cone's
-// small-angle limit): the value check.
+// found by BSDF sampling is weighted with the cone's density at the previous vertex. Broken variants seen to fail (this
+// test and the glossy plates): the uniform sampling of the sphere's area that the renderer used before, and the cone's
+// density off by 1e-3.
 TEST(PathDerivatives, MatchFiniteDifferencesWithASphereLight) {
     const PathSetup S("cornell-box.xml", 5,
                       {{"</scene>", R"(<shape type="sphere"><point name="center" x="-0.45" y="0.3" z="0.45"/>)"
