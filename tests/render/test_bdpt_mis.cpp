@@ -26,8 +26,11 @@
 //     scenes with several emitters (the Cornell box has one, selection probability 1);
 //   - the light subpath's origin density without the selection probability: the room with several emitters (its
 //     99th percentile, 8e-3; the effect is as small as the weight of the camera hitting the light);
-//   - the next-event density of the sphere light taken in mis_weight for (1, t) but not for the other strategies'
-//     terms of (1, t) (the camera loop's first term for s = 0 left at the origin's density): the room;
+//   - the next-event density of the sphere light taken in mis_weight by (1, t) itself but not where another strategy
+//     weighs the term of (1, t): the camera loop's first term for s = 0, or the light loop's term i = 1 for s >= 2,
+//     left at the origin's density: the room (sums up to 1.5);
+//   - the sphere light's (1, t) weighted with the origin's density by every strategy (as pbrt-v3 does; the weights
+//     still sum to one): NextEventWeightOfASphereLightIsTheCones (w(1, 2) / w(0, 3) 20 to 170 times too small);
 //   - a directional light not counted as a delta light (as bdpt was before this test: the camera's s = 0 strategy
 //     took weight from the others although no ray can hit the light): the sky scene.
 #include "render/render_support.h"

@@ -4,17 +4,18 @@
 // (1 - cos theta_max = 2 sin^2(theta_max / 2)) from grazing to theta_max = 1e-8, the density integrated over the
 // directions (quadrature with the test's own ray-sphere intersection: one on the near side, zero on the far side;
 // the area density converted from inside), the sample's point, normal and uv against the scene's intersection, a
-// transformed and a flipped sphere, and a path-traced floor lit by a sphere light against the area sampling Kelvin
-// used before (Shape::sample_direction's default, called on the sphere): the same mean, far less variance.
+// transformed and a flipped sphere, and a floor lit by a sphere light rendered by path, volpath, direct and bdpt
+// against the exact answer and the area sampling Kelvin used before (Shape::sample_direction's default, called on
+// the sphere): the same mean, far less variance.
 //
 // Seen to fail on deliberately broken variants of sphere.cpp:
-//   - the pdf off by a factor 2 (1 / (4 pi (1 - cos theta_max))): ConeSamplesMatchTheirDensity (chi2 ~ 1e5),
-//     DensityIsExactFromGrazingToTiny, DensityIntegratesToOne and PathTracedFloorMatchesAreaSampling (the mean
-//     many sigma off) fail;
+//   - the pdf off by a factor 2 (1 / (4 pi (1 - cos theta_max))): ConeSamplesMatchTheirDensity (chi2 ~ 5e4 for 399
+//     dof), DensityIsExactFromGrazingToTiny, DensityIntegratesToOne, TransformedAndFlippedSpheres and
+//     DirectLightOnAFloor... (the means twice the exact answer) fail;
 //   - the cone uniform in theta (theta = u theta_max) instead of in cos theta: ConeSamplesMatchTheirDensity
-//     (chi2 ~ 2e4 for 399 dof) and PathTracedFloorMatchesAreaSampling (the mean off) fail;
-//   - 1 - cos theta_max computed as 1 - sqrt(1 - sin^2): DensityIsExactFromGrazingToTiny fails (infinite density at
-//     theta_max = 1e-8, 2e-8 relative error at 1e-4).
+//     (chi2 6e4-7e4 for 399 dof) and DirectLightOnAFloor... (path 1.8 % above the exact answer, 7 sigma) fail;
+//   - 1 - cos theta_max computed as 1 - sqrt(1 - sin^2): DensityIsExactFromGrazingToTiny fails (5e-9 relative at
+//     theta_max = 1e-4, infinite density at 1e-8).
 #include "render/render_support.h"
 
 #include <kelvin/core/random.h>
@@ -272,9 +273,13 @@ TEST(SphereCone, TransformedAndFlippedSpheres) {
 namespace {
 
 // A diffuse floor (z = 0) lit by a sphere light, seen from straight above; the light is out of view and nothing
-// occludes it: every pixel is directly lit floor. Path tracing with max depth 2 renders direct light only.
-const char* kFloorScene = R"(<scene version="3.0.0">
-    <integrator type="path"><integer name="max_depth" value="2"/></integrator>
+// occludes it: every pixel is directly lit floor. The integrator `$integrator` with max depth 2 renders direct light
+// only.
+std::string floor_scene(const std::string& integrator) {
+    return R"(<scene version="3.0.0">
+    <integrator type=")" +
+           integrator + R"(">)" + (integrator == "direct" ? "" : R"(<integer name="max_depth" value="2"/>)") +
+           R"(</integrator>
     <sensor type="perspective">
         <float name="fov" value="30"/>
         <transform name="to_world"><lookat origin="0.5, 0, 3" target="0.5, 0, 0" up="0, 1, 0"/></transform>
@@ -291,38 +296,46 @@ const char* kFloorScene = R"(<scene version="3.0.0">
         <emitter type="area"><rgb name="radiance" value="10"/></emitter>
     </shape>
 </scene>)";
+}
+const int kW = 16, kH = 16;
+
+struct FloorStats {
+    double mean = 0, se = 0, var = 0;  // the image's mean, its standard error, the mean per-sample variance of a pixel
+};
+
+// `seeds` renders of `spp` samples per pixel.
+FloorStats render_floor(const std::string& integrator, int spp, int seeds) {
+    auto scene = ktest::load_scene_xml(floor_scene(integrator));
+    std::vector<double> sum(kW * kH, 0.0), sum2(kW * kH, 0.0);
+    for (int sd = 0; sd < seeds; ++sd) {
+        const Bitmap img = ktest::render(*scene, spp, uint64_t(100 + sd));
+        for (int y = 0; y < kH; ++y)
+            for (int x = 0; x < kW; ++x) {
+                const double v = img.at(x, y, 0);
+                sum[std::size_t(y * kW + x)] += v;
+                sum2[std::size_t(y * kW + x)] += v * v;
+            }
+    }
+    FloorStats r;
+    for (int k = 0; k < kW * kH; ++k) {
+        const double m = sum[std::size_t(k)] / seeds;
+        r.mean += m / (kW * kH);
+        r.var += (sum2[std::size_t(k)] - seeds * m * m) / (seeds - 1) * spp / (kW * kH);
+    }
+    r.se = std::sqrt(r.var / (double(spp) * seeds) / (kW * kH));
+    return r;
+}
 
 }  // namespace
 
-TEST(SphereCone, PathTracedFloorMatchesAreaSampling) {
-    // The rendered image (path tracing: next-event estimation on the cone, MIS with BSDF sampling), 8 seeds of 16
-    // spp, against the estimator Kelvin used before on the same pixels: film positions uniform in each pixel (the
-    // box filter's footprint), the floor point, a point uniform on the sphere converted to solid angle
-    // (Shape::sample_direction's default, called on the sphere), visibility and the BSDF. The means agree within
-    // 5 sigma; the variance per sample of the rendered pixels is at least k times lower. Measured (this machine):
-    // area sampling 0.74 per sample (relative 0.89), the cone 3.6e-3: a ratio of about 200; k = 40 leaves margin
-    // for the spread of 8 seeds.
-    auto scene = ktest::load_scene_xml(kFloorScene);
-    const int W = 16, H = 16, spp = 16, seeds = 8;
-    std::vector<double> sum(W * H, 0.0), sum2(W * H, 0.0);
-    for (int sd = 0; sd < seeds; ++sd) {
-        const Bitmap img = ktest::render(*scene, spp, uint64_t(100 + sd));
-        for (int y = 0; y < H; ++y)
-            for (int x = 0; x < W; ++x) {
-                const double v = img.at(x, y, 0);
-                sum[std::size_t(y * W + x)] += v;
-                sum2[std::size_t(y * W + x)] += v * v;
-            }
-    }
-    double mean_new = 0, var_new = 0;  // over the image: the mean, and the mean per-sample variance of a pixel
-    for (int k = 0; k < W * H; ++k) {
-        const double m = sum[std::size_t(k)] / seeds;
-        mean_new += m / (W * H);
-        var_new += (sum2[std::size_t(k)] - seeds * m * m) / (seeds - 1) * spp / (W * H);
-    }
-    const double se_new = std::sqrt(var_new / (spp * seeds) / (W * H));
-
-    // The previous estimator, by hand.
+TEST(SphereCone, DirectLightOnAFloorMatchesAreaSamplingWithLessNoise) {
+    // The estimator Kelvin used before, by hand, on the same pixels: film positions uniform in each pixel (the box
+    // filter's footprint), the floor point, a point uniform on the sphere converted to solid angle
+    // (Shape::sample_direction's default, called on the sphere), visibility and the BSDF; and the exact answer: a
+    // sphere of radiance L wholly above a Lambertian floor point gives it the irradiance pi L sin^2 theta_max
+    // cos alpha (alpha: between the normal and the direction to the centre), so the floor's radiance is
+    // rho L sin^2 theta_max cos alpha, averaged over each pixel's footprint by the midpoint rule.
+    auto scene = ktest::load_scene_xml(floor_scene("path"));
     const Sensor& sensor = *scene->sensor();
     const Shape* sphere = nullptr;
     for (const auto& sh : scene->shapes())
@@ -331,9 +344,9 @@ TEST(SphereCone, PathTracedFloorMatchesAreaSampling) {
     const Emitter& e = *sphere->emitter();
     Random rng(77);
     const int n_old = 2048;  // per pixel
-    double mean_old = 0, var_old = 0;
-    for (int y = 0; y < H; ++y)
-        for (int x = 0; x < W; ++x) {
+    FloorStats old;
+    for (int y = 0; y < kH; ++y)
+        for (int x = 0; x < kW; ++x) {
             double s1 = 0, s2 = 0;
             for (int k = 0; k < n_old; ++k) {
                 const Vec2d film(x + rng.next_double(), y + rng.next_double());
@@ -353,32 +366,38 @@ TEST(SphereCone, PathTracedFloorMatchesAreaSampling) {
                 s2 += v * v;
             }
             const double m = s1 / n_old;
-            mean_old += m / (W * H);
-            var_old += (s2 - n_old * m * m) / (n_old - 1) / (W * H);
+            old.mean += m / (kW * kH);
+            old.var += (s2 - n_old * m * m) / (n_old - 1) / (kW * kH);
         }
-    const double se_old = std::sqrt(var_old / n_old / (W * H));
-    // The exact answer: a sphere of radiance L wholly above a Lambertian floor point gives it the irradiance
-    // pi L sin^2 theta_max cos alpha (alpha: between the normal and the direction to the centre), so the floor's
-    // radiance is rho L sin^2 theta_max cos alpha, averaged over each pixel's footprint by the midpoint rule.
+    old.se = std::sqrt(old.var / n_old / (kW * kH));
     const Vec3d c(-0.9, 0, 0.55);
     const double r = 0.5, rho = 0.6, Le = 10;
     double exact = 0;
     const int Q = 6;
-    for (int y = 0; y < H; ++y)
-        for (int x = 0; x < W; ++x)
+    for (int y = 0; y < kH; ++y)
+        for (int x = 0; x < kW; ++x)
             for (int j = 0; j < Q; ++j)
                 for (int i = 0; i < Q; ++i) {
                     const Ray ray = sensor.sample_ray(Vec2d(x + (i + 0.5) / Q, y + (j + 0.5) / Q), Vec2d(0.5));
                     const Vec3d p = ray.o + ray.d * (-ray.o.z / ray.d.z);  // the floor, z = 0
                     const Vec3d v = c - p;
-                    exact += rho * Le * (r * r / glm::dot(v, v)) * (v.z / glm::length(v)) / (W * H * Q * Q);
+                    exact += rho * Le * (r * r / glm::dot(v, v)) * (v.z / glm::length(v)) / (kW * kH * Q * Q);
                 }
-    std::printf(
-        "[ cone ] floor: rendered %.5f +- %.5f (variance per sample %.3g), area sampling %.5f +- %.5f (%.3g): "
-        "variance ratio %.1f; exact %.5f\n",
-        mean_new, se_new, var_new, mean_old, se_old, var_old, var_old / var_new, exact);
-    EXPECT_NEAR(mean_new, mean_old, 5 * std::hypot(se_new, se_old));
-    EXPECT_NEAR(mean_new, exact, 5 * se_new + 1e-4 * exact);
-    EXPECT_NEAR(mean_old, exact, 5 * se_old + 1e-4 * exact);
-    EXPECT_GT(var_old / var_new, 20.0);
+    std::printf("[ cone ] floor: exact %.5f, area sampling %.5f +- %.5f (variance per sample %.3g)\n", exact, old.mean,
+                old.se, old.var);
+    EXPECT_NEAR(old.mean, exact, 5 * old.se + 1e-4 * exact);
+    // Each integrator's next-event estimation on the cone (path, volpath and direct with MIS against BSDF sampling;
+    // bdpt with its (1, 2) strategy weighted by the cone's density against (0, 3) and the light tracing of (2, 1)):
+    // the same mean, and a variance per sample at least k times lower. Measured ratios: path and direct 43, volpath
+    // 47, bdpt 50 (8 seeds of 16 spp; the variances of the pixels averaged over the image, 3 % apart from seed to
+    // seed); k = 20 leaves a margin of 2.
+    for (const char* integrator : {"path", "volpath", "direct", "bdpt"}) {
+        const FloorStats now = render_floor(integrator, 16, 8);
+        std::printf(
+            "[ cone ] floor: %-8s %.5f +- %.5f (variance per sample %.3g): %.1f times less than area sampling\n",
+            integrator, now.mean, now.se, now.var, old.var / now.var);
+        EXPECT_NEAR(now.mean, old.mean, 5 * std::hypot(now.se, old.se)) << integrator;
+        EXPECT_NEAR(now.mean, exact, 5 * now.se + 1e-4 * exact) << integrator;
+        EXPECT_GT(old.var / now.var, 20.0) << integrator;
+    }
 }
