@@ -410,7 +410,6 @@ double BidirectionalPaths::mis_weight(const Scene& scene, const Sensor& sensor, 
     connection_densities(scene, sensor, qs, pt, qs_minus, pt_minus);
 
     auto remap = [](double x) { return x != 0 ? x : 1.0; };
-    const PathVertex& y0 = s == 1 && !own_y0 ? *sampled : light[0];
     // Strategy (1, t') (t' >= 2: paths of three vertices or more) samples the light vertex by next-event estimation,
     // the others by the densities stored (nee_ratio2): its term, or for s = 1 every other, carries the ratio.
     double nee2 = 1;
@@ -418,7 +417,7 @@ double BidirectionalPaths::mis_weight(const Scene& scene, const Sensor& sensor, 
         if (s == 0)
             nee2 = nee_ratio2(scene, cam[t - 1], cam[t - 2]);
         else if (s == 1)
-            nee2 = nee_ratio2(scene, y0, cam[t - 1]);
+            nee2 = nee_ratio2(scene, *sampled, cam[t - 1]);
         else
             nee2 = nee_ratio2(scene, light[0], light[1]);
     }
@@ -428,6 +427,7 @@ double BidirectionalPaths::mis_weight(const Scene& scene, const Sensor& sensor, 
         if (!cam[i].delta && !cam[i - 1].delta) sum += s == 0 && i == t - 1 ? ri * nee2 : ri;
     }
     ri = 1;
+    const PathVertex& y0 = s == 1 && !own_y0 ? *sampled : light[0];
     for (int i = s - 1; i >= 0; --i) {
         const PathVertex& yi = i == 0 ? y0 : light[i];
         ri *= power_heuristic_ratio(remap(yi.pdf_rev), remap(yi.pdf_fwd));
