@@ -32,6 +32,10 @@ public:
     /// Why a near_field the scene asked for cannot be used on these cells (empty: it can, or it was not asked for).
     std::string check_cells3(Vec3d h, double delta, int nx, int ny, int nz, bool periodic) const;
     static constexpr int DefaultNearField3 = 1;
+    /// The same for a 2D field on nx x ny cells (NearField2; a periodic grid needs 2R + 3 cells per axis).
+    int near_field2(Vec2d h, double delta, int nx, int ny, bool periodic) const;
+    std::string check_cells2(Vec2d h, double delta, int nx, int ny, bool periodic) const;
+    static constexpr int DefaultNearField2 = 1;
 
 protected:
     BiotSavartOptions m_options;

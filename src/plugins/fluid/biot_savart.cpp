@@ -61,5 +61,6 @@ KELVIN_PLUGIN(kelvin::fluid::BiotSavart, "velocity", "biot_savart",
                                     "'rosenhead_moore' (the thesis, O(delta^2)) or 'high_order' (3D only: "
                                     "Winckelmans-Leonard, O(delta^4), 1.7x the variance at equal delta)"),
               kelvin::param::integer("near_field", -1,
-                                     "3D: cells within this many cells of a query are summed exactly, not sampled "
-                                     "(0: none; -1: the default, 1 where delta >= 1/8 cell)"));
+                                     "cells within this many cells of a query are summed exactly, not sampled "
+                                     "(0: none; -1: the default, 1 where delta >= 1/8 cell; needs importance "
+                                     "vorticity)"));
