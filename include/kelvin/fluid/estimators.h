@@ -35,7 +35,7 @@ public:
     /// The same for a 2D field on nx x ny cells (NearField2; a periodic grid needs 2R + 3 cells per axis).
     int near_field2(Vec2d h, double delta, int nx, int ny, bool periodic) const;
     std::string check_cells2(Vec2d h, double delta, int nx, int ny, bool periodic) const;
-    static constexpr int DefaultNearField2 = 1;
+    static constexpr int DefaultNearField2 = 2;
 
 protected:
     BiotSavartOptions m_options;
