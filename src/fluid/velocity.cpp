@@ -71,10 +71,13 @@ std::string BiotSavartVelocity::check_cells3(Vec3d h, double delta, int nx, int 
 }
 
 int BiotSavartVelocity::near_field2(Vec2d h, double delta, int nx, int ny, bool periodic) const {
-    const int R = m_options.near_field >= 0 ? m_options.near_field : DefaultNearField2;
+    int R = m_options.near_field >= 0 ? m_options.near_field : DefaultNearField2;
     if (R <= 0 || m_options.importance != SourceSampling::Vorticity) return 0;
     if (!(delta >= NearField2::MinDelta * std::min(h.x, h.y))) return 0;
-    if (periodic && 2 * R + 3 > std::min(nx, ny)) return 0;
+    // The default narrows itself to a small periodic grid (2R + 3 cells per axis); a radius the scene asked for is
+    // used as it is or not at all (check_cells2 refuses it).
+    if (periodic && m_options.near_field < 0) R = std::min(R, (std::min(nx, ny) - 3) / 2);
+    if (R <= 0 || (periodic && 2 * R + 3 > std::min(nx, ny))) return 0;
     return R;
 }
 

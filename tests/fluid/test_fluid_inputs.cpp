@@ -88,7 +88,7 @@ TEST(FluidInputs, DyeWorkOnlyWhenDeclared) {
     }
 }
 
-// The near field's default in 2D: the 25 cells around each query summed exactly with importance sampling by |omega|
+// The near field's default in 2D: the 49 cells around each query summed exactly with importance sampling by |omega|
 // (the effects line says so), silently none with uniform or kernel sampling (which cannot drop the near samples)
 // and with near_field 0.
 TEST(FluidInputs, NearFieldDefaultIn2D) {
@@ -109,7 +109,7 @@ TEST(FluidInputs, NearFieldDefaultIn2D) {
         for (const auto& [level, msg] : log.messages())
             if (msg.find("mcfluid: effects:") != std::string::npos) {
                 line = true;
-                near = msg.find("the 25 nearest cells summed exactly") != std::string::npos;
+                near = msg.find("the 49 nearest cells summed exactly") != std::string::npos;
             }
         EXPECT_TRUE(line);
         EXPECT_EQ(near, extra.empty()) << extra;

@@ -63,5 +63,5 @@ KELVIN_PLUGIN(
                           "Winckelmans-Leonard, O(delta^4), 1.7x the variance at equal delta)"),
     kelvin::param::integer("near_field", -1,
                            "cells within this many cells of a query are summed exactly, not sampled "
-                           "(0: none; -1: the default, 1 in 3D, 2 in 2D, where delta >= 1/8 cell; needs importance "
+                           "(0: none; -1: the default, 1 in 3D, 3 in 2D, where delta >= 1/8 cell; needs importance "
                            "vorticity)"));
