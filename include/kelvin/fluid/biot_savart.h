@@ -19,6 +19,9 @@
 // every sample is a vortex blob of equal strength), or proportionally to 1/|x - y| on a disk around the
 // query point that covers the support (the minimum-image cell on periodic domains; samples outside it
 // weigh zero).
+//
+// With importance sampling by |omega| the (2R + 1)^2 cells around the query can be summed exactly instead
+// (NearField2, `near_field` on biot_savart): their samples then contribute only their periodic correction.
 #include <kelvin/core/interrupt.h>
 #include <kelvin/core/random.h>
 #include <kelvin/fluid/grid.h>
