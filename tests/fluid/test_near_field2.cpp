@@ -3,6 +3,7 @@
 // away; the split estimator against the plain one (same expectation) on an open and a periodic box; its variance
 // where the vorticity is strong; what it refuses.
 #include <kelvin/fluid/biot_savart.h>
+#include <kelvin/fluid/estimators.h>
 
 #include <gtest/gtest.h>
 
@@ -198,6 +199,37 @@ TEST(NearField2, RefusesWhatItCannotServe) {
     five.at(1, 1) = 1;
     auto t5 = NearField2::shared(five.h(), Interpolation::Bilinear, 0.1, 1);
     EXPECT_NO_THROW(BiotSavartEstimator(five, Interpolation::Bilinear, SourceSampling::Vorticity, 0.1, kernel, t5));
+}
+
+// The radius a scene's biot_savart resolves in 2D: the default (3) with importance sampling by |omega| where delta
+// is at least 1/8 cell, narrowed to a small periodic grid (2R + 3 cells per axis), none with uniform or kernel
+// sampling; an explicit radius is used as it is or refused with a reason naming near_field.
+TEST(NearField2, DefaultRadiusAdaptsAndExplicitOnesAreChecked) {
+    const Vec2d h(0.1);
+    const BiotSavartVelocity standard;
+    EXPECT_EQ(standard.near_field2(h, 0.05, 64, 64, false), BiotSavartVelocity::DefaultNearField2);
+    EXPECT_EQ(standard.near_field2(h, 0.05, 64, 64, true), 3);
+    EXPECT_EQ(standard.near_field2(h, 0.05, 8, 8, true), 2);
+    EXPECT_EQ(standard.near_field2(h, 0.05, 5, 64, true), 1);
+    EXPECT_EQ(standard.near_field2(h, 0.05, 4, 4, true), 0);
+    EXPECT_EQ(standard.near_field2(h, 0.01, 64, 64, false), 0) << "delta below 1/8 cell";
+    EXPECT_TRUE(standard.check_cells2(h, 0.01, 4, 4, true).empty()) << "the default adapts silently";
+    for (SourceSampling s : {SourceSampling::Uniform, SourceSampling::Kernel}) {
+        BiotSavartOptions o;
+        o.importance = s;
+        EXPECT_EQ(BiotSavartVelocity(o).near_field2(h, 0.05, 64, 64, false), 0);
+        EXPECT_TRUE(BiotSavartVelocity(o).check2(Domain2{{0, 0}, {1, 1}, false}).empty());
+        o.near_field = 1;
+        EXPECT_NE(BiotSavartVelocity(o).check2(Domain2{{0, 0}, {1, 1}, false}).find("near_field needs importance"),
+                  std::string::npos);
+    }
+    BiotSavartOptions o;
+    o.near_field = 2;
+    const BiotSavartVelocity two(o);
+    EXPECT_EQ(two.near_field2(h, 0.05, 8, 8, true), 2);
+    EXPECT_EQ(two.near_field2(h, 0.05, 6, 6, true), 0);
+    EXPECT_NE(two.check_cells2(h, 0.05, 6, 6, true).find("near_field 2 needs 7 cells"), std::string::npos);
+    EXPECT_NE(two.check_cells2(h, 0.01, 64, 64, false).find("near_field needs delta >= 0.125"), std::string::npos);
 }
 
 }  // namespace
