@@ -357,7 +357,7 @@ struct Sums {
 // square, per component. Compiled
 // for AVX2 and for the baseline, chosen at load time; both give identical results (same IEEE operations
 // per sample, no FMA contraction, sums in fixed lanes).
-template <bool Periodic>
+template <bool Periodic, bool Near>
 __attribute__((always_inline)) inline void kernel_body(const BatchData& b, int count, const KernelParams& k,
                                                        Sums& out) {
     alignas(64) float cu[BiotSavartEstimator::Batch], cv[BiotSavartEstimator::Batch];
@@ -375,7 +375,7 @@ __attribute__((always_inline)) inline void kernel_body(const BatchData& b, int c
         }
         const float x = dx * k.hx, y = dy * k.hy;
         // + FLT_MIN: exact for any r2 above 1e-31, and turns the delta = 0 self-contribution (r = 0) into 0.
-        const float inv = b.keep[s] / (x * x + y * y + k.d2 + FLT_MIN);
+        const float inv = (Near ? b.keep[s] : 1.0f) / (x * x + y * y + k.d2 + FLT_MIN);
         cu[s] = -y * inv;
         cv[s] = x * inv;
     }
@@ -418,11 +418,20 @@ __attribute__((always_inline)) inline void kernel_body(const BatchData& b, int c
 
 __attribute__((target_clones("avx2", "default"))) void kernel_open(const BatchData& b, int count, const KernelParams& k,
                                                                    Sums& out) {
-    kernel_body<false>(b, count, k, out);
+    kernel_body<false, false>(b, count, k, out);
 }
 __attribute__((target_clones("avx2", "default"))) void kernel_periodic(const BatchData& b, int count,
                                                                        const KernelParams& k, Sums& out) {
-    kernel_body<true>(b, count, k, out);
+    kernel_body<true, false>(b, count, k, out);
+}
+// With the near field: the near cells' samples keep (b.keep 0) only their periodic correction.
+__attribute__((target_clones("avx2", "default"))) void kernel_open_near(const BatchData& b, int count,
+                                                                        const KernelParams& k, Sums& out) {
+    kernel_body<false, true>(b, count, k, out);
+}
+__attribute__((target_clones("avx2", "default"))) void kernel_periodic_near(const BatchData& b, int count,
+                                                                            const KernelParams& k, Sums& out) {
+    kernel_body<true, true>(b, count, k, out);
 }
 
 }  // namespace
@@ -533,13 +542,16 @@ VelocityEstimate BiotSavartEstimator::estimate(Vec2d x, int n, Random& rng) cons
                     ox = (float(int(a & 0xffffu)) + 0.5f) * (1.0f / 65536.0f) - 0.5f;
                     oy = (float(int(a >> 16)) + 0.5f) * (1.0f / 65536.0f) - 0.5f;
                 }
-                const int ci = int(c & 0x7fffu), cj = int((c >> 15) & 0x7fffu);
-                b.fx[s] = float(ci) + 0.5f + ox;
-                b.fy[s] = float(cj) + 0.5f + oy;
+                b.fx[s] = float(int(c & 0x7fffu)) + 0.5f + ox;
+                b.fy[s] = float(int((c >> 15) & 0x7fffu)) + 0.5f + oy;
                 b.w[s] = (c & SignBit) ? -1.0f : 1.0f;
-                const int ai = std::abs(ci - qi), aj = std::abs(cj - qj);
-                b.keep[s] = std::max(std::min(ai, wrap_x - ai), std::min(aj, wrap_y - aj)) <= near_r ? 0.0f : 1.0f;
             }
+            if (near_r >= 0)  // a separate pass: the one above stays as fast without the near field
+                for (int s = 0; s < m; ++s) {
+                    const uint32_t c = cell[s];
+                    const int ai = std::abs(int(c & 0x7fffu) - qi), aj = std::abs(int((c >> 15) & 0x7fffu) - qj);
+                    b.keep[s] = std::max(std::min(ai, wrap_x - ai), std::min(aj, wrap_y - aj)) <= near_r ? 0.0f : 1.0f;
+                }
         } else if (m_sampling == SourceSampling::Kernel) {
             // p(y) = 1 / (2 pi R |x - y|) on the disk of radius R around x: weight omega_h(y) * 2 pi R r.
             for (int s = 0; s < m; ++s) {
@@ -552,7 +564,6 @@ VelocityEstimate BiotSavartEstimator::estimate(Vec2d x, int n, Random& rng) cons
                 b.fx[s] = float(k.qx - off.x / h.x);
                 b.fy[s] = float(k.qy - off.y / h.y);
                 b.w[s] = inside ? float(g.sample(y, m_interp) * 2 * Pi * radius * r) : 0.0f;
-                b.keep[s] = 1.0f;
             }
         } else {
             for (int s = 0; s < m; ++s) {
@@ -562,7 +573,6 @@ VelocityEstimate BiotSavartEstimator::estimate(Vec2d x, int n, Random& rng) cons
                 b.fx[s] = float((y.x - dom.min.x) / h.x);
                 b.fy[s] = float((y.y - dom.min.y) / h.y);
                 b.w[s] = float(g.sample(y, m_interp));
-                b.keep[s] = 1.0f;
             }
         }
         const int padded = (m + Lanes - 1) / Lanes * Lanes;
@@ -572,7 +582,9 @@ VelocityEstimate BiotSavartEstimator::estimate(Vec2d x, int n, Random& rng) cons
             b.w[s] = 0.0f;
             b.keep[s] = 1.0f;
         }
-        if (periodic)
+        if (near_r >= 0)
+            (periodic ? kernel_periodic_near : kernel_open_near)(b, padded, k, sums);
+        else if (periodic)
             kernel_periodic(b, padded, k, sums);
         else
             kernel_open(b, padded, k, sums);
