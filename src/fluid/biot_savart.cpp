@@ -213,17 +213,18 @@ Vec2d NearField2::influence(Vec2d r) const {
 namespace {
 typedef float NF8 __attribute__((vector_size(32)));
 
-/// The near cells' sum: for each cell (a, b) of the window, F at its offset from the 4 rows of 4 nodes (8 floats:
-/// F_x, F_y interleaved) at p0 - a * da - b * db, weighted by wy per row and wx per node, times omega. The same
-/// operations in the same order on both clones (no FMA: avx2 does not enable it).
+/// The near cells' sum: for each cell (a, b) of the window, its 4 rows of 4 nodes (8 floats: F_x, F_y interleaved) at
+/// p0 - a * da - b * db weighted by wy per row and by omega, accumulated over the cells; the 4 x weights wx (the
+/// same for every cell) are applied once at the end. The same operations in the same order on both clones (no FMA:
+/// avx2 does not enable it).
 __attribute__((target_clones("avx2", "default"))) void near_sum2(const float* p0, std::size_t da, std::size_t db,
                                                                  std::size_t dy, const double* omega, int R,
                                                                  const float* wy, const float* wx, double out[2]) {
     const int side = 2 * R + 1;
-    double u = 0, v = 0;
+    NF8 total = {0, 0, 0, 0, 0, 0, 0, 0};
     for (int b = -R; b <= R; ++b)
         for (int a = -R; a <= R; ++a) {
-            const double om = omega[std::size_t(b + R) * side + std::size_t(a + R)];
+            const float om = float(omega[std::size_t(b + R) * side + std::size_t(a + R)]);
             if (om == 0) continue;
             const float* p = p0 - std::ptrdiff_t(a) * std::ptrdiff_t(da) - std::ptrdiff_t(b) * std::ptrdiff_t(db);
             NF8 acc = {0, 0, 0, 0, 0, 0, 0, 0};
@@ -232,13 +233,10 @@ __attribute__((target_clones("avx2", "default"))) void near_sum2(const float* p0
                 std::memcpy(&row, p + std::size_t(j) * dy, sizeof(NF8));
                 acc += wy[j] * row;
             }
-            const float fx = wx[0] * acc[0] + wx[1] * acc[2] + wx[2] * acc[4] + wx[3] * acc[6];
-            const float fy = wx[0] * acc[1] + wx[1] * acc[3] + wx[2] * acc[5] + wx[3] * acc[7];
-            u += om * double(fx);
-            v += om * double(fy);
+            total += om * acc;
         }
-    out[0] = u;
-    out[1] = v;
+    out[0] = double(wx[0] * total[0] + wx[1] * total[2] + wx[2] * total[4] + wx[3] * total[6]);
+    out[1] = double(wx[0] * total[1] + wx[1] * total[3] + wx[2] * total[5] + wx[3] * total[7]);
 }
 }  // namespace
 
@@ -434,6 +432,18 @@ __attribute__((target_clones("avx2", "default"))) void kernel_periodic_near(cons
     kernel_body<true, true>(b, count, k, out);
 }
 
+/// The near field's keep flags of a batch's sampled cells (packed i | j << 15): 0 within `radius` cells of (qi, qj)
+/// on both axes (distances through the periodic wrap, `wrap` huge on open domains), else 1.
+__attribute__((target_clones("avx2", "default"))) void near_keep(const uint32_t* __restrict cell, int m, int qi, int qj,
+                                                                 int wrap_x, int wrap_y, int radius,
+                                                                 float* __restrict keep) {
+    for (int s = 0; s < m; ++s) {
+        const uint32_t c = cell[s];
+        const int ai = std::abs(int(c & 0x7fffu) - qi), aj = std::abs(int((c >> 15) & 0x7fffu) - qj);
+        keep[s] = std::max(std::min(ai, wrap_x - ai), std::min(aj, wrap_y - aj)) <= radius ? 0.0f : 1.0f;
+    }
+}
+
 }  // namespace
 
 VelocityEstimate BiotSavartEstimator::estimate(Vec2d x, int n, Random& rng) const {
@@ -547,11 +557,7 @@ VelocityEstimate BiotSavartEstimator::estimate(Vec2d x, int n, Random& rng) cons
                 b.w[s] = (c & SignBit) ? -1.0f : 1.0f;
             }
             if (near_r >= 0)  // a separate pass: the one above stays as fast without the near field
-                for (int s = 0; s < m; ++s) {
-                    const uint32_t c = cell[s];
-                    const int ai = std::abs(int(c & 0x7fffu) - qi), aj = std::abs(int((c >> 15) & 0x7fffu) - qj);
-                    b.keep[s] = std::max(std::min(ai, wrap_x - ai), std::min(aj, wrap_y - aj)) <= near_r ? 0.0f : 1.0f;
-                }
+                near_keep(cell, m, qi, qj, wrap_x, wrap_y, near_r, b.keep);
         } else if (m_sampling == SourceSampling::Kernel) {
             // p(y) = 1 / (2 pi R |x - y|) on the disk of radius R around x: weight omega_h(y) * 2 pi R r.
             for (int s = 0; s < m; ++s) {
