@@ -9,6 +9,7 @@
 #include <cfloat>
 #include <cmath>
 #include <cstring>
+#include <limits>
 #include <mutex>
 
 namespace kelvin::fluid {
@@ -214,18 +215,20 @@ namespace {
 typedef float NF8 __attribute__((vector_size(32)));
 
 /// The near cells' sum: for each cell (a, b) of the window, its 4 rows of 4 nodes (8 floats: F_x, F_y interleaved) at
-/// p0 - a * da - b * db weighted by wy per row and by omega, accumulated over the cells; the 4 x weights wx (the
-/// same for every cell) are applied once at the end. The same operations in the same order on both clones (no FMA:
-/// avx2 does not enable it).
+/// p0 - a * da - b * db weighted by wy per row and by omega / scale (in [-1, 1]: any finite omega fits a float),
+/// accumulated over the cells; the 4 x weights wx (the same for every cell) and scale are applied once at the end. The
+/// same operations in the same order on both clones (no FMA: avx2 does not enable it).
 __attribute__((target_clones("avx2", "default"))) void near_sum2(const float* p0, std::size_t da, std::size_t db,
-                                                                 std::size_t dy, const double* omega, int R,
-                                                                 const float* wy, const float* wx, double out[2]) {
+                                                                 std::size_t dy, const double* omega, double scale,
+                                                                 int R, const float* wy, const float* wx,
+                                                                 double out[2]) {
     const int side = 2 * R + 1;
     NF8 total = {0, 0, 0, 0, 0, 0, 0, 0};
     for (int b = -R; b <= R; ++b)
         for (int a = -R; a <= R; ++a) {
-            const float om = float(omega[std::size_t(b + R) * side + std::size_t(a + R)]);
-            if (om == 0) continue;
+            const double o = omega[std::size_t(b + R) * side + std::size_t(a + R)];
+            if (o == 0) continue;
+            const float om = float(o / scale);
             const float* p = p0 - std::ptrdiff_t(a) * std::ptrdiff_t(da) - std::ptrdiff_t(b) * std::ptrdiff_t(db);
             NF8 acc = {0, 0, 0, 0, 0, 0, 0, 0};
             for (int j = 0; j < 4; ++j) {
@@ -235,8 +238,8 @@ __attribute__((target_clones("avx2", "default"))) void near_sum2(const float* p0
             }
             total += om * acc;
         }
-    out[0] = double(wx[0] * total[0] + wx[1] * total[2] + wx[2] * total[4] + wx[3] * total[6]);
-    out[1] = double(wx[0] * total[1] + wx[1] * total[3] + wx[2] * total[5] + wx[3] * total[7]);
+    out[0] = scale * double(wx[0] * total[0] + wx[1] * total[2] + wx[2] * total[4] + wx[3] * total[6]);
+    out[1] = scale * double(wx[0] * total[1] + wx[1] * total[3] + wx[2] * total[5] + wx[3] * total[7]);
 }
 }  // namespace
 
@@ -253,9 +256,13 @@ Vec2d NearField2::sum(Vec2d f, const double* omega) const {
         for (int q = 0; q < 4; ++q) wt[a][q] = float(w[q]);
     }
     const std::size_t dy = std::size_t(2 * m_half + 1) * 2;
+    const int side = 2 * m_radius + 1;
+    double scale = 0;
+    for (int c = 0; c < side * side; ++c) scale = std::max(scale, std::abs(omega[c]));
+    if (!(scale > 0) || !std::isfinite(scale)) return Vec2d(scale > 0 ? std::numeric_limits<double>::quiet_NaN() : 0.0);
     double out[2];
-    near_sum2(node(base[0], base[1]), std::size_t(m_per_cell) * 2, std::size_t(m_per_cell) * dy, dy, omega, m_radius,
-              wt[1], wt[0], out);
+    near_sum2(node(base[0], base[1]), std::size_t(m_per_cell) * 2, std::size_t(m_per_cell) * dy, dy, omega, scale,
+              m_radius, wt[1], wt[0], out);
     return {out[0], out[1]};
 }
 
