@@ -74,8 +74,8 @@ TEST(NearField2, TableIsTheBasisInfluence) {
 // The split estimator has the plain one's expectation: near cells summed, the others sampled, the near cells'
 // samples dropped. On the vortex's core (where the near cells carry much of the velocity), just outside it, far out,
 // outside the open box, next to its edge and on a cell boundary; each component within 5 standard errors (2^20
-// samples each). A split that keeps the near samples (counting them twice) or drops the wrong cells (the window
-// shifted by a cell in x) fails this by many standard errors (the report of the change gives the figures).
+// samples each). A split that keeps the near samples (counting them twice) is off by 145-345 standard errors, one
+// that drops the wrong cells (the window shifted by a cell in x) by 196-318; both also fail the periodic test below.
 TEST(NearField2, EstimatorKeepsTheExpectation) {
     for (Interpolation interp : {Interpolation::Bilinear, Interpolation::Nearest}) {
         const Grid2 omega = vortex_grid(48, 0.1);
@@ -104,7 +104,8 @@ TEST(NearField2, EstimatorKeepsTheExpectation) {
 
 // Periodic boxes: the near cells keep their samples' periodic correction (K_per - K), only the free-space kernel
 // is summed. A thin periodic shear layer (most of its velocity from the cells next to it) with queries whose near
-// window wraps across the box's edges and corners.
+// window wraps across the box's edges and corners. A split that drops the near samples' periodic correction too is
+// off by 8 (R 1) and 23 (R 3) standard errors, one without the periodic wrap of the window by 44 and 123.
 TEST(NearField2, PeriodicBoxKeepsTheExpectation) {
     const int res = 16;
     const Domain2 box{{-Pi, -Pi}, {Pi, Pi}, true};
