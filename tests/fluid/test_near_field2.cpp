@@ -105,7 +105,7 @@ TEST(NearField2, EstimatorKeepsTheExpectation) {
 // Periodic boxes: the near cells keep their samples' periodic correction (K_per - K), only the free-space kernel
 // is summed. A thin periodic shear layer (most of its velocity from the cells next to it) with queries whose near
 // window wraps across the box's edges and corners. A split that drops the near samples' periodic correction too is
-// off by 8 (R 1) and 23 (R 3) standard errors, one without the periodic wrap of the window by 44 and 123.
+// off by 8 (R 1) and 23 (R 3) standard errors, one whose window does not wrap in x by 76 and 215.
 TEST(NearField2, PeriodicBoxKeepsTheExpectation) {
     const int res = 16;
     const Domain2 box{{-Pi, -Pi}, {Pi, Pi}, true};
