@@ -82,6 +82,90 @@ void BM_BiotSavartPass(benchmark::State& state, bool periodic, SourceSampling sa
     state.counters["threads"] = thread_count();
 }
 
+// The near field (NearField2) against plain sampling on the two scenes' initial states: the periodic double shear
+// layer (shear_layer.xml: thickness 0.15, 2 modes of 0.05) and the Lamb–Oseen vortex (lamb_oseen.xml: radius 0.15
+// on [-1.2, 1.2]^2), one velocity pass over every cell centre at n_mc, near_field R (range 3). Counters: the
+// per-sample variance (sum of the components, mean over the cells), its mean over the cells where |omega| is above
+// a tenth of its maximum ("var_core"), the CPU time per query and var * cpu_us (the velocity's mean squared error
+// per unit of work at equal CPU; lower is better). KELVIN_BENCH_THREADS=1 for the per-core figures.
+void BM_NearField2(benchmark::State& state) {
+    ThreadLimit limit(bench_threads());
+    const bool shear = state.range(0) == 0;
+    const int res = int(state.range(1)), nmc = int(state.range(2)), near = int(state.range(3));
+    std::shared_ptr<VorticityField> field;
+    Domain2 domain;
+    if (shear) {
+        Properties p("vorticity", "vortex_sheet");
+        p.set_float("y", -0.5 * Pi);
+        p.set_float("velocity", 1);
+        p.set_float("thickness", 0.15);
+        p.set_float("perturbation", 0.05);
+        p.set_int("modes", 2);
+        p.set_bool("double_layer", true);
+        field = std::dynamic_pointer_cast<VorticityField>(Registry::instance().create(p));
+        domain = {{-Pi, -Pi}, {Pi, Pi}, true};
+    } else {
+        Properties p("vorticity", "lamb_oseen");
+        p.set_float("radius", 0.15);
+        p.set_float("circulation", 1);
+        field = std::dynamic_pointer_cast<VorticityField>(Registry::instance().create(p));
+        domain = {{-1.2, -1.2}, {1.2, 1.2}, false};
+    }
+    field->bind_domain(domain);
+    Grid2 grid(domain, res, res);
+    double peak = 0;
+    for (int j = 0; j < res; ++j)
+        for (int i = 0; i < res; ++i) {
+            grid.at(i, j) = field->vorticity(grid.cell_center(i, j));
+            peak = std::max(peak, std::abs(grid.at(i, j)));
+        }
+    const double delta = 0.5 * std::min(grid.h().x, grid.h().y);
+    std::shared_ptr<const PeriodicKernel> kernel = shear ? std::make_shared<PeriodicKernel>(domain.size()) : nullptr;
+    BiotSavartEstimator est(grid, Interpolation::Bilinear, SourceSampling::Vorticity, delta, kernel,
+                            near > 0 ? NearField2::shared(grid.h(), Interpolation::Bilinear, delta, near) : nullptr);
+    const std::size_t rows = static_cast<std::size_t>(res);
+    std::vector<double> variance(rows, 0.0), core(rows, 0.0), sink(rows, 0.0);
+    std::vector<int> core_cells(rows, 0);
+    uint64_t pass = 0;
+    double cpu = 0, var = 0, var_core = 0;
+    long n_core = 0;
+    for (auto _ : state) {
+        const double c0 = kelvin::bench::process_cpu_seconds();
+        parallel_for_units(rows, [&](std::size_t row) {
+            Random rng(pass, row);
+            double v = 0, vc = 0, acc = 0;
+            int nc = 0;
+            for (int i = 0; i < res; ++i) {
+                const VelocityEstimate e = est.estimate(grid.cell_center(i, int(row)), nmc, rng);
+                const double q = (e.variance.x + e.variance.y) * nmc;  // per sample
+                acc += e.value.x;
+                v += q;
+                if (std::abs(grid.at(i, int(row))) > 0.1 * peak) vc += q, ++nc;
+            }
+            variance[row] = v;
+            core[row] = vc;
+            core_cells[row] = nc;
+            sink[row] = acc;
+        });
+        cpu += kelvin::bench::process_cpu_seconds() - c0;
+        for (std::size_t r = 0; r < variance.size(); ++r) {
+            var += variance[r];
+            var_core += core[r];
+            n_core += core_cells[r];
+        }
+        ++pass;
+        benchmark::DoNotOptimize(sink.data());
+    }
+    const double cells = double(res) * res * double(state.iterations());
+    const double cpu_us = cpu / cells * 1e6;
+    state.counters["var"] = var / cells;
+    state.counters["var_core"] = var_core / double(std::max(1L, n_core));
+    state.counters["cpu_us"] = cpu_us;
+    state.counters["var*cpu_us"] = var / cells / nmc * cpu_us;
+    state.counters["core*cpu_us"] = var_core / double(std::max(1L, n_core)) / nmc * cpu_us;
+    state.SetLabel(shear ? "shear layer" : "Lamb-Oseen");
+}
+
 // A full solver step (velocity pass + backtrace + interpolation), Taylor–Green, periodic.
 void BM_Step(benchmark::State& state, Advection adv) {
     ThreadLimit limit(bench_threads());
@@ -280,4 +364,8 @@ BENCHMARK_CAPTURE(BM_VortexParticleSum, periodic_direct, ParticleSummation::Dire
     ->Arg(128)
     ->Unit(benchmark::kMillisecond)
     ->MeasureProcessCPUTime();
+BENCHMARK(BM_NearField2)
+    ->ArgsProduct({{0, 1}, {128}, {32, 128}, {0, 1, 2, 3}})
+    ->Unit(benchmark::kMillisecond)
+    ->MinTime(1.0);
 BENCHMARK_MAIN();

@@ -1,12 +1,16 @@
 // Monte Carlo Biot–Savart estimation (thesis Eq. (5.5)) over a cached vorticity grid: alias-table
 // importance sampling by |omega|, the periodic kernel, and the SIMD-friendly inner loop.
 #include <kelvin/core/error.h>
+#include <kelvin/core/parallel.h>
 #include <kelvin/fluid/alias.h>
 #include <kelvin/fluid/biot_savart.h>
 
 #include <algorithm>
 #include <cfloat>
 #include <cmath>
+#include <cstring>
+#include <limits>
+#include <mutex>
 
 namespace kelvin::fluid {
 
@@ -96,6 +100,173 @@ Vec2d PeriodicKernel::correction(Vec2d r) const {
 }
 
 // ------------------------------------------------------------------------------------------------
+// Near field.
+
+namespace {
+// Gauss–Legendre, 4 points on [-1, 1] (exact for polynomials of degree 7).
+constexpr double GaussX[4] = {-0.8611363115940526, -0.3399810435848563, 0.3399810435848563, 0.8611363115940526};
+constexpr double GaussW[4] = {0.3478548451374538, 0.6521451548625461, 0.6521451548625461, 0.3478548451374538};
+
+/// The quadrature points of one axis of a basis function: positions y and weights w (including the basis' value
+/// at y), `segments` pieces per linear piece of the basis.
+void basis_points2(double h, Interpolation interp, int segments, std::vector<double>& y, std::vector<double>& w) {
+    y.clear();
+    w.clear();
+    const bool tent = interp == Interpolation::Bilinear;
+    const double a = tent ? -h : -0.5 * h, b = -a;
+    const int pieces = 2 * segments;  // the tent's two linear pieces (the box's one, split alike)
+    const double len = (b - a) / pieces;
+    for (int p = 0; p < pieces; ++p) {
+        const double mid = a + (p + 0.5) * len;
+        for (int q = 0; q < 4; ++q) {
+            const double yy = mid + 0.5 * len * GaussX[q];
+            y.push_back(yy);
+            w.push_back(0.5 * len * GaussW[q] * (tent ? 1 - std::abs(yy) / h : 1.0));
+        }
+    }
+}
+
+int segments_for2(Vec2d h, double delta) {
+    // Pieces no longer than delta / 4 (the kernel's scale is delta), at least eight per linear piece of the basis (a
+    // 2D node costs a thousand kernels at most: the table is cheap, so its quadrature is far below its interpolation
+    // error).
+    return std::clamp(int(std::ceil(4 * std::max(h.x, h.y) / delta)), 8, 32);
+}
+}  // namespace
+
+Vec2d NearField2::quadrature(Vec2d r, Vec2d h, Interpolation interp, double delta, int segments) {
+    std::vector<double> y[2], w[2];
+    for (int a = 0; a < 2; ++a) basis_points2(h[a], interp, segments, y[a], w[a]);
+    Vec2d out(0.0);
+    for (std::size_t j = 0; j < y[1].size(); ++j) {
+        Vec2d row(0.0);
+        for (std::size_t i = 0; i < y[0].size(); ++i)
+            row += w[0][i] * biot_savart_kernel(r - Vec2d(y[0][i], y[1][j]), delta);
+        out += w[1][j] * row;
+    }
+    return out;
+}
+
+NearField2::NearField2(Vec2d h, Interpolation interp, double delta, int radius, int per_cell)
+    : m_h(h), m_interp(interp), m_delta(delta), m_radius(radius), m_per_cell(per_cell) {
+    if (radius < 1 || radius > MaxRadius) throw_runtime("NearField2: radius must be in 1..{}", MaxRadius);
+    if (!(h.x > 0 && h.y > 0)) throw_runtime("NearField2: cell size must be positive");
+    if (!(delta >= MinDelta * std::min(h.x, h.y)) || !std::isfinite(delta))
+        throw_runtime("NearField2: delta must be at least {} of a cell", MinDelta);
+    if (per_cell < 2) throw_runtime("NearField2: at least 2 nodes per cell");
+    // Queries lie within half a cell of the centre cell: |r_a| / node spacing <= per_cell (R + 1/2), and the cubic
+    // stencil reaches two nodes beyond.
+    m_half = per_cell * radius + per_cell / 2 + 3;
+    const int n = 2 * m_half + 1, m = m_half + 1;
+    m_nodes.assign(std::size_t(n) * n * 2, 0.f);
+    const int segments = segments_for2(h, delta);
+    std::vector<Vec2d> quadrant(std::size_t(m) * m);
+    parallel_for_units(std::size_t(m), [&](std::size_t j) {
+        for (int i = 0; i < m; ++i) {
+            const Vec2d r(i * h.x / per_cell, double(j) * h.y / per_cell);
+            // Half a cell beyond the basis' support the integrand is smooth on the scale of a cell: four pieces per
+            // linear piece are as accurate there (the tests compare the table with finer quadrature).
+            const double reach = std::max(r.x / h.x, r.y / h.y);
+            quadrant[j * m + std::size_t(i)] = quadrature(r, h, interp, delta, reach > 1.5 ? 4 : segments);
+        }
+    });
+    for (int j = -m_half; j <= m_half; ++j)
+        for (int i = -m_half; i <= m_half; ++i) {
+            const Vec2d& o = quadrant[std::size_t(std::abs(j)) * m + std::size_t(std::abs(i))];
+            // F_x = -integral phi (r_y - y_y) / ... is odd in r_y (zero on its line) and even in r_x; F_y the reverse.
+            float* p = const_cast<float*>(node(i, j));
+            p[0] = j == 0 ? 0.f : float(j < 0 ? -o.x : o.x);
+            p[1] = i == 0 ? 0.f : float(i < 0 ? -o.y : o.y);
+        }
+}
+
+std::shared_ptr<const NearField2> NearField2::shared(Vec2d h, Interpolation interp, double delta, int radius) {
+    static std::mutex mutex;
+    static std::vector<std::weak_ptr<const NearField2>> tables;
+    std::lock_guard<std::mutex> lock(mutex);
+    for (const auto& weak : tables)
+        if (auto t = weak.lock())
+            if (t->m_h == h && t->m_interp == interp && t->m_delta == delta && t->m_radius == radius) return t;
+    std::erase_if(tables, [](const auto& weak) { return weak.expired(); });
+    auto t = std::make_shared<const NearField2>(h, interp, delta, radius);
+    tables.push_back(t);
+    return t;
+}
+
+Vec2d NearField2::influence(Vec2d r) const {
+    int base[2];
+    double wt[2][4];
+    for (int a = 0; a < 2; ++a) {
+        const double t = r[a] / m_h[a] * m_per_cell, f = std::floor(t);
+        base[a] = int(f) - 1;
+        catmull_rom_weights(t - f, wt[a]);
+        if (base[a] < -m_half || base[a] + 3 > m_half) throw_runtime("NearField2: r outside the table");
+    }
+    Vec2d out(0.0);
+    for (int j = 0; j < 4; ++j)
+        for (int i = 0; i < 4; ++i) {
+            const float* p = node(base[0] + i, base[1] + j);
+            out += (wt[0][i] * wt[1][j]) * Vec2d(p[0], p[1]);
+        }
+    return out;
+}
+
+namespace {
+typedef float NF8 __attribute__((vector_size(32)));
+
+/// The near cells' sum: for each cell (a, b) of the window, its 4 rows of 4 nodes (8 floats: F_x, F_y interleaved) at
+/// p0 - a * da - b * db weighted by wy per row and by omega / scale (in [-1, 1]: any finite omega fits a float),
+/// accumulated over the cells; the 4 x weights wx (the same for every cell) and scale are applied once at the end. The
+/// same operations in the same order on both clones (no FMA: avx2 does not enable it).
+__attribute__((target_clones("avx2", "default"))) void near_sum2(const float* p0, std::size_t da, std::size_t db,
+                                                                 std::size_t dy, const double* omega, double scale,
+                                                                 int R, const float* wy, const float* wx,
+                                                                 double out[2]) {
+    const int side = 2 * R + 1;
+    NF8 total = {0, 0, 0, 0, 0, 0, 0, 0};
+    for (int b = -R; b <= R; ++b)
+        for (int a = -R; a <= R; ++a) {
+            const double o = omega[std::size_t(b + R) * side + std::size_t(a + R)];
+            if (o == 0) continue;
+            const float om = float(o / scale);
+            const float* p = p0 - std::ptrdiff_t(a) * std::ptrdiff_t(da) - std::ptrdiff_t(b) * std::ptrdiff_t(db);
+            NF8 acc = {0, 0, 0, 0, 0, 0, 0, 0};
+            for (int j = 0; j < 4; ++j) {
+                NF8 row;
+                std::memcpy(&row, p + std::size_t(j) * dy, sizeof(NF8));
+                acc += wy[j] * row;
+            }
+            total += om * acc;
+        }
+    out[0] = scale * double(wx[0] * total[0] + wx[1] * total[2] + wx[2] * total[4] + wx[3] * total[6]);
+    out[1] = scale * double(wx[0] * total[1] + wx[1] * total[3] + wx[2] * total[5] + wx[3] * total[7]);
+}
+}  // namespace
+
+Vec2d NearField2::sum(Vec2d f, const double* omega) const {
+    // Every cell's offset differs from the centre cell's by whole cells, i.e. by whole multiples of per_cell nodes:
+    // one set of Catmull–Rom weights serves all (2R + 1)^2 cells.
+    int base[2];
+    float wt[2][4];
+    for (int a = 0; a < 2; ++a) {
+        const double t = f[a] * m_per_cell, fl = std::floor(t);
+        base[a] = int(fl) - 1;
+        double w[4];
+        catmull_rom_weights(t - fl, w);
+        for (int q = 0; q < 4; ++q) wt[a][q] = float(w[q]);
+    }
+    const std::size_t dy = std::size_t(2 * m_half + 1) * 2;
+    const int side = 2 * m_radius + 1;
+    double scale = 0;
+    for (int c = 0; c < side * side; ++c) scale = std::max(scale, std::abs(omega[c]));
+    if (!(scale > 0) || !std::isfinite(scale)) return Vec2d(scale > 0 ? std::numeric_limits<double>::quiet_NaN() : 0.0);
+    double out[2];
+    near_sum2(node(base[0], base[1]), std::size_t(m_per_cell) * 2, std::size_t(m_per_cell) * dy, dy, omega, scale,
+              m_radius, wt[1], wt[0], out);
+    return {out[0], out[1]};
+}
+
+// ------------------------------------------------------------------------------------------------
 // Estimator.
 
 namespace {
@@ -104,13 +275,30 @@ inline uint32_t pack_cell(int i, int j, double w) { return uint32_t(i) | (uint32
 }  // namespace
 
 BiotSavartEstimator::BiotSavartEstimator(const Grid2& vorticity, Interpolation interp, SourceSampling sampling,
-                                         double delta, std::shared_ptr<const PeriodicKernel> periodic)
-    : m_grid(&vorticity), m_interp(interp), m_sampling(sampling), m_delta(delta), m_periodic(std::move(periodic)) {
+                                         double delta, std::shared_ptr<const PeriodicKernel> periodic,
+                                         std::shared_ptr<const NearField2> near)
+    : m_grid(&vorticity),
+      m_interp(interp),
+      m_sampling(sampling),
+      m_delta(delta),
+      m_periodic(std::move(periodic)),
+      m_near(std::move(near)) {
     const Domain2& d = vorticity.domain();
     if (d.periodic && !m_periodic) throw_runtime("BiotSavartEstimator: a periodic domain needs its PeriodicKernel");
     if (vorticity.nx() > MaxResolution || vorticity.ny() > MaxResolution)
         throw_runtime("BiotSavartEstimator: grid larger than {} cells per axis", MaxResolution);
     if (!(delta >= 0) || !std::isfinite(delta)) throw_runtime("BiotSavartEstimator: delta must be finite and >= 0");
+    if (m_near) {
+        if (sampling != SourceSampling::Vorticity)
+            throw_runtime("BiotSavartEstimator: the near field needs importance sampling by vorticity");
+        if (m_near->h() != vorticity.h() || m_near->interpolation() != interp || m_near->delta() != delta)
+            throw_runtime("BiotSavartEstimator: the near-field table was built for another grid or kernel");
+        // On a periodic grid a near cell's samples (a tent reaches a cell beyond its centre, the query half a cell
+        // from its own) must stay their own minimum images, so the summed free-space part is the dropped one.
+        const int side = 2 * m_near->radius() + 1;
+        if (d.periodic && side + 2 > std::min(vorticity.nx(), vorticity.ny()))
+            throw_runtime("BiotSavartEstimator: near field of {} cells too wide for the periodic grid", side);
+    }
 
     // Uniform sampling region: the support of omega_h.
     m_region_min = d.min;
@@ -151,6 +339,9 @@ struct BatchData {
     alignas(64) float fx[BiotSavartEstimator::Batch];  ///< sample position, cells
     alignas(64) float fy[BiotSavartEstimator::Batch];
     alignas(64) float w[BiotSavartEstimator::Batch];  ///< sign (importance) or omega (uniform); 0 for padding
+    /// 0 for a sample of a near-field cell (its free-space kernel is summed exactly; it keeps the periodic
+    /// correction), else 1
+    alignas(64) float keep[BiotSavartEstimator::Batch];
 };
 
 struct KernelParams {
@@ -171,7 +362,7 @@ struct Sums {
 // square, per component. Compiled
 // for AVX2 and for the baseline, chosen at load time; both give identical results (same IEEE operations
 // per sample, no FMA contraction, sums in fixed lanes).
-template <bool Periodic>
+template <bool Periodic, bool Near>
 __attribute__((always_inline)) inline void kernel_body(const BatchData& b, int count, const KernelParams& k,
                                                        Sums& out) {
     alignas(64) float cu[BiotSavartEstimator::Batch], cv[BiotSavartEstimator::Batch];
@@ -189,7 +380,7 @@ __attribute__((always_inline)) inline void kernel_body(const BatchData& b, int c
         }
         const float x = dx * k.hx, y = dy * k.hy;
         // + FLT_MIN: exact for any r2 above 1e-31, and turns the delta = 0 self-contribution (r = 0) into 0.
-        const float inv = 1.0f / (x * x + y * y + k.d2 + FLT_MIN);
+        const float inv = (Near ? b.keep[s] : 1.0f) / (x * x + y * y + k.d2 + FLT_MIN);
         cu[s] = -y * inv;
         cv[s] = x * inv;
     }
@@ -232,11 +423,32 @@ __attribute__((always_inline)) inline void kernel_body(const BatchData& b, int c
 
 __attribute__((target_clones("avx2", "default"))) void kernel_open(const BatchData& b, int count, const KernelParams& k,
                                                                    Sums& out) {
-    kernel_body<false>(b, count, k, out);
+    kernel_body<false, false>(b, count, k, out);
 }
 __attribute__((target_clones("avx2", "default"))) void kernel_periodic(const BatchData& b, int count,
                                                                        const KernelParams& k, Sums& out) {
-    kernel_body<true>(b, count, k, out);
+    kernel_body<true, false>(b, count, k, out);
+}
+// With the near field: the near cells' samples keep (b.keep 0) only their periodic correction.
+__attribute__((target_clones("avx2", "default"))) void kernel_open_near(const BatchData& b, int count,
+                                                                        const KernelParams& k, Sums& out) {
+    kernel_body<false, true>(b, count, k, out);
+}
+__attribute__((target_clones("avx2", "default"))) void kernel_periodic_near(const BatchData& b, int count,
+                                                                            const KernelParams& k, Sums& out) {
+    kernel_body<true, true>(b, count, k, out);
+}
+
+/// The near field's keep flags of a batch's sampled cells (packed i | j << 15): 0 within `radius` cells of (qi, qj)
+/// on both axes (distances through the periodic wrap, `wrap` huge on open domains), else 1.
+__attribute__((target_clones("avx2", "default"))) void near_keep(const uint32_t* __restrict cell, int m, int qi, int qj,
+                                                                 int wrap_x, int wrap_y, int radius,
+                                                                 float* __restrict keep) {
+    for (int s = 0; s < m; ++s) {
+        const uint32_t c = cell[s];
+        const int ai = std::abs(int(c & 0x7fffu) - qi), aj = std::abs(int((c >> 15) & 0x7fffu) - qj);
+        keep[s] = std::max(std::min(ai, wrap_x - ai), std::min(aj, wrap_y - aj)) <= radius ? 0.0f : 1.0f;
+    }
 }
 
 }  // namespace
@@ -281,6 +493,45 @@ VelocityEstimate BiotSavartEstimator::estimate(Vec2d x, int n, Random& rng) cons
                 radius = std::max(radius, glm::length(corner - x));
         }
     }
+    // The near field: the cells within R cells of the query's own cell (through the periodic wrap: distances
+    // min(|d|, n - |d|); `wrap` huge on open domains) are summed exactly, and their samples' free-space kernels
+    // dropped. near_r -1: none.
+    int qi = 0, qj = 0, near_r = -1, wrap_x = 1 << 30, wrap_y = 1 << 30;
+    Vec2d near(0.0);
+    if (m_near) {
+        const int R = m_near->radius(), side = 2 * R + 1;
+        const Vec2d t = (x - dom.min) / h;
+        const double fi = std::floor(t.x), fj = std::floor(t.y);
+        // A query far outside an open box has no near cells (and its cell index may not fit an int).
+        if (std::abs(fi) < 1e6 && std::abs(fj) < 1e6) {
+            qi = int(fi);
+            qj = int(fj);
+            near_r = R;
+            if (periodic) {
+                wrap_x = g.nx();
+                wrap_y = g.ny();
+            }
+            double omega[(2 * NearField2::MaxRadius + 1) * (2 * NearField2::MaxRadius + 1)];
+            bool any = false;
+            for (int bb = -R; bb <= R; ++bb)
+                for (int a = -R; a <= R; ++a) {
+                    int i = qi + a, j = qj + bb;
+                    double& o = omega[std::size_t(bb + R) * side + std::size_t(a + R)];
+                    o = 0;
+                    if (periodic) {  // the window is narrower than the grid: one wrap at most
+                        i += i < 0 ? g.nx() : (i >= g.nx() ? -g.nx() : 0);
+                        j += j < 0 ? g.ny() : (j >= g.ny() ? -g.ny() : 0);
+                    } else if (i < 0 || j < 0 || i >= g.nx() || j >= g.ny()) {
+                        continue;
+                    }
+                    const double w = g.at(i, j);
+                    o = std::isfinite(w) ? w : 0.0;  // as the alias table: non-finite cells carry nothing
+                    any |= o != 0;
+                }
+            if (any) near = m_near->sum(Vec2d(t.x - fi - 0.5, t.y - fj - 0.5), omega);
+        }
+    }
+
     BatchData b;
     Sums sums;
     for (int done = 0; done < n; done += Batch) {
@@ -312,6 +563,8 @@ VelocityEstimate BiotSavartEstimator::estimate(Vec2d x, int n, Random& rng) cons
                 b.fy[s] = float(int((c >> 15) & 0x7fffu)) + 0.5f + oy;
                 b.w[s] = (c & SignBit) ? -1.0f : 1.0f;
             }
+            if (near_r >= 0)  // a separate pass: the one above stays as fast without the near field
+                near_keep(cell, m, qi, qj, wrap_x, wrap_y, near_r, b.keep);
         } else if (m_sampling == SourceSampling::Kernel) {
             // p(y) = 1 / (2 pi R |x - y|) on the disk of radius R around x: weight omega_h(y) * 2 pi R r.
             for (int s = 0; s < m; ++s) {
@@ -340,8 +593,11 @@ VelocityEstimate BiotSavartEstimator::estimate(Vec2d x, int n, Random& rng) cons
             b.fx[s] = k.qx + 1.0f;
             b.fy[s] = k.qy;
             b.w[s] = 0.0f;
+            b.keep[s] = 1.0f;
         }
-        if (periodic)
+        if (near_r >= 0)
+            (periodic ? kernel_periodic_near : kernel_open_near)(b, padded, k, sums);
+        else if (periodic)
             kernel_periodic(b, padded, k, sums);
         else
             kernel_open(b, padded, k, sums);
@@ -357,7 +613,7 @@ VelocityEstimate BiotSavartEstimator::estimate(Vec2d x, int n, Random& rng) cons
                           InvTwoPi;
     VelocityEstimate e;
     e.samples = n;
-    e.value = {weight * sums.u / n, weight * sums.v / n};
+    e.value = {weight * sums.u / n + near.x, weight * sums.v / n + near.y};
     if (n > 1) {
         const double vu = std::max(0.0, sums.u2 - sums.u * sums.u / n),
                      vv = std::max(0.0, sums.v2 - sums.v * sums.v / n);

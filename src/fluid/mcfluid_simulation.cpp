@@ -4,6 +4,7 @@
 #include <kelvin/core/logging.h>
 #include <kelvin/core/registry.h>
 #include <kelvin/fluid/boundary.h>
+#include <kelvin/fluid/estimators.h>
 #include <kelvin/fluid/output.h>
 #include <kelvin/fluid/simulation.h>
 #include <kelvin/fluid/velocity.h>
@@ -60,6 +61,12 @@ MCFluidParams MCFluidParams::parse(const Properties& props) {
         if (const std::string why = check_wos_cells(*s.boundaries, s.domain, s.nx, s.ny); !why.empty())
             props.error("velocity", velocity->plugin_name() + ": " + why);
     s.interpolation = cache->interpolation();
+    if (const auto* bs = dynamic_cast<const BiotSavartVelocity*>(velocity.get()); bs && !s.boundaries) {
+        const Vec2d h = s.domain.size() / Vec2d(s.nx, s.ny);
+        const double delta = bs->delta() >= 0 ? bs->delta() : 0.5 * std::min(h.x, h.y);
+        if (const std::string why = bs->check_cells2(h, delta, s.nx, s.ny, s.domain.periodic); !why.empty())
+            props.error("velocity", velocity->plugin_name() + ": " + why);
+    }
     p.energy_budget = props.get_bool("energy_budget");
     if (p.energy_budget && s.boundaries)
         props.error("energy_budget", "covers flows without boundaries only (walk_on_spheres has none in closed form)");
@@ -140,6 +147,15 @@ public:
             lines.push_back(fmt::format("--spp {} overrides the Biot–Savart samples (n_mc)", s.samples));
         lines.push_back(fmt::format("2D, domain {}, {}x{} cache ({}), initial {}", s.domain.to_string(), s.nx, s.ny,
                                     fluid::to_string(s.interpolation), m_p.field->description()));
+        // The near field the estimator resolved on these cells (biot_savart: its default adapts to delta).
+        const auto near_field_effect = [&]() -> std::string {
+            const auto* bs = dynamic_cast<const BiotSavartVelocity*>(s.estimator.get());
+            if (!bs) return {};
+            const Vec2d h = s.domain.size() / Vec2d(s.nx, s.ny);
+            const int R = bs->near_field2(h, m_mc.delta(), s.nx, s.ny, s.domain.periodic);
+            return R > 0 ? fmt::format(", the {} nearest cells summed exactly", (2 * R + 1) * (2 * R + 1))
+                         : std::string();
+        };
         const std::string velocity =
             s.boundaries ? fmt::format(
                                "Walk-on-Spheres free-slip velocity ({} gradient samples, antithetic {}, {}{}, epsilon "
@@ -150,7 +166,7 @@ public:
                                    : std::string("plain walks"),
                                s.boundaries->stratified ? ", stratified" : "",
                                m_mc.boundary_field()->settings().epsilon, s.boundaries->wos.max_steps)
-                         : s.estimator->effect(s.samples, m_mc.delta(), s.domain.periodic);
+                         : s.estimator->effect(s.samples, m_mc.delta(), s.domain.periodic) + near_field_effect();
         lines.push_back(fmt::format(
             "effects: advection ({}, dt {:g}, {} steps) with {}; boundaries {}; diffusion {}; stretching off (2D); {}",
             fluid::to_string(s.advection), s.dt, m_p.steps, velocity,

@@ -33,7 +33,10 @@ std::string check_delta(double delta, double smaller_side) {
 
 std::string BiotSavartVelocity::check2(const Domain2& domain) const {
     if (m_options.mollifier == Mollifier::HighOrder) return "mollifier = high_order is 3D only";
-    if (m_options.near_field > 0) return "near_field is 3D only";
+    if (m_options.near_field > 0 && m_options.importance != SourceSampling::Vorticity)
+        return "near_field needs importance = vorticity (it removes the near cells from the sampled ones)";
+    if (m_options.near_field > 0 && m_options.delta == 0)
+        return "near_field needs delta > 0 (its table resolves the mollified kernel, not the singular one)";
     const Vec2d size = domain.size();
     return check_delta(m_options.delta, std::min(size.x, size.y));
 }
@@ -67,9 +70,34 @@ std::string BiotSavartVelocity::check_cells3(Vec3d h, double delta, int nx, int 
                        std::min({nx, ny, nz}));
 }
 
+int BiotSavartVelocity::near_field2(Vec2d h, double delta, int nx, int ny, bool periodic) const {
+    int R = m_options.near_field >= 0 ? m_options.near_field : DefaultNearField2;
+    if (R <= 0 || m_options.importance != SourceSampling::Vorticity) return 0;
+    if (!(delta >= NearField2::MinDelta * std::min(h.x, h.y))) return 0;
+    // The default narrows itself to a small periodic grid (2R + 3 cells per axis); a radius the scene asked for is
+    // used as it is or not at all (check_cells2 refuses it).
+    if (periodic && m_options.near_field < 0) R = std::min(R, (std::min(nx, ny) - 3) / 2);
+    if (R <= 0 || (periodic && 2 * R + 3 > std::min(nx, ny))) return 0;
+    return R;
+}
+
+std::string BiotSavartVelocity::check_cells2(Vec2d h, double delta, int nx, int ny, bool periodic) const {
+    const int R = m_options.near_field;
+    if (R <= 0 || near_field2(h, delta, nx, ny, periodic) == R) return {};  // the default adapts silently
+    if (!(delta >= NearField2::MinDelta * std::min(h.x, h.y)))
+        return fmt::format("near_field needs delta >= {:g} of a cell (delta {:g}, cell {:g})", NearField2::MinDelta,
+                           delta, std::min(h.x, h.y));
+    return fmt::format("near_field {} needs {} cells per axis on a periodic grid (it has {})", R, 2 * R + 3,
+                       std::min(nx, ny));
+}
+
 std::unique_ptr<VelocityField2> BiotSavartVelocity::build2(const VelocityState2& s) const {
-    auto field =
-        std::make_unique<BiotSavartEstimator>(*s.omega, s.interpolation, m_options.importance, s.delta, s.periodic);
+    std::shared_ptr<const NearField2> near;
+    const Grid2& g = *s.omega;
+    if (const int R = near_field2(g.h(), s.delta, g.nx(), g.ny(), g.domain().periodic); R > 0)
+        near = NearField2::shared(g.h(), s.interpolation, s.delta, R);
+    auto field = std::make_unique<BiotSavartEstimator>(*s.omega, s.interpolation, m_options.importance, s.delta,
+                                                       s.periodic, std::move(near));
     field->set_stop(s.stop);
     return field;
 }

@@ -88,6 +88,34 @@ TEST(FluidInputs, DyeWorkOnlyWhenDeclared) {
     }
 }
 
+// The near field's default in 2D: the 49 cells around each query summed exactly with importance sampling by |omega|
+// (the effects line says so), silently none with uniform or kernel sampling (which cannot drop the near samples)
+// and with near_field 0.
+TEST(FluidInputs, NearFieldDefaultIn2D) {
+    for (const std::string extra :
+         {"", R"(<string name="importance" value="uniform"/>)", R"(<string name="importance" value="kernel"/>)",
+          R"(<integer name="near_field" value="0"/>)"}) {
+        auto job = load(sim_scene("mcfluid",
+                                  R"(<integer name="steps" value="1"/>
+            <velocity type="biot_savart"><integer name="samples" value="8"/>)" +
+                                      extra + R"(</velocity>
+            <cache type="grid"><integer name="resolution" value="16"/></cache>)",
+                                  kLamb));
+        RunContext ctx;
+        ctx.quiet = true;
+        ktest::LogCapture log;
+        job->run(ctx);
+        bool line = false, near = false;
+        for (const auto& [level, msg] : log.messages())
+            if (msg.find("mcfluid: effects:") != std::string::npos) {
+                line = true;
+                near = msg.find("the 49 nearest cells summed exactly") != std::string::npos;
+            }
+        EXPECT_TRUE(line);
+        EXPECT_EQ(near, extra.empty()) << extra;
+    }
+}
+
 // A dye grid of its own resolution (displacements interpolated from the cache) with diffusion: every dye cell
 // does n_d lookups per step; the dye stays within [0, 1] (semi-Lagrangian lookups are convex combinations).
 TEST(FluidInputs, DyeOwnResolutionAndDiffusion) {

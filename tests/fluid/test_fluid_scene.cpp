@@ -343,7 +343,7 @@ TEST(FluidScene3D, BadInputNamesTheParameter) {
                           R"(<vorticity type="vortex_ring"><float name="core" value="2"/></vorticity>)"));
     EXPECT_CONTAINS(e.what(), "'core'");
     EXPECT_FALSE(std::string(e.what()).find('\n') != std::string::npos) << "one line";
-    // The near field: out of range, in 2D, with uniform sampling, the singular kernel, a delta below the table's
+    // The near field: out of range, with uniform sampling, the singular kernel, a delta below the table's
     // resolution, wider than the periodic grid (8 cells: radius 3 spans 7, 4 would span 9).
     const auto bs = [](const std::string& inner) {
         return R"(<velocity type="biot_savart"><integer name="samples" value="8"/>)" + inner + R"(</velocity>
@@ -352,8 +352,19 @@ TEST(FluidScene3D, BadInputNamesTheParameter) {
     const std::string abc = R"(<vorticity type="abc"/>)", two = R"(<integer name="steps" value="2"/>)";
     e = load_error(scene3(two, abc, bs(R"(<integer name="near_field" value="4"/>)")));
     EXPECT_CONTAINS(e.what(), "'near_field'");
-    e = load_error(scene(two, R"(<vorticity type="taylor_green"/>)", bs(R"(<integer name="near_field" value="1"/>)")));
-    EXPECT_CONTAINS(e.what(), "near_field is 3D only");
+    // 2D: uniform or kernel sampling, a periodic grid narrower than the window and its samples' reach (2R + 3).
+    const std::string tg = R"(<vorticity type="taylor_green"/>)";
+    for (const char* importance : {"uniform", "kernel"}) {
+        e = load_error(scene(two, tg,
+                             bs(R"(<integer name="near_field" value="1"/><string name="importance" value=")" +
+                                std::string(importance) + R"("/>)")));
+        EXPECT_CONTAINS(e.what(), "'velocity'");
+        EXPECT_CONTAINS(e.what(), "near_field needs importance = vorticity");
+    }
+    e = load_error(scene(two, tg, bs(R"(<integer name="near_field" value="3"/>)")));
+    EXPECT_CONTAINS(e.what(), "near_field 3 needs 9 cells per axis on a periodic grid (it has 8)");
+    e = load_error(scene(two, tg, bs(R"(<integer name="near_field" value="1"/><float name="delta" value="0.05"/>)")));
+    EXPECT_CONTAINS(e.what(), "near_field needs delta >= 0.125 of a cell");
     e = load_error(
         scene3(two, abc, bs(R"(<integer name="near_field" value="1"/><string name="importance" value="uniform"/>)")));
     EXPECT_CONTAINS(e.what(), "near_field needs importance = vorticity");

@@ -19,6 +19,9 @@
 // every sample is a vortex blob of equal strength), or proportionally to 1/|x - y| on a disk around the
 // query point that covers the support (the minimum-image cell on periodic domains; samples outside it
 // weigh zero).
+//
+// With importance sampling by |omega| the (2R + 1)^2 cells around the query can be summed exactly instead
+// (NearField2, `near_field` on biot_savart): their samples then contribute only their periodic correction.
 #include <kelvin/core/interrupt.h>
 #include <kelvin/core/random.h>
 #include <kelvin/fluid/grid.h>
@@ -51,8 +54,8 @@ struct BiotSavartOptions {
     SourceSampling importance = SourceSampling::Vorticity;
     double delta = -1;  ///< mollifier; < 0: half the cache cell size
     Mollifier mollifier = Mollifier::RosenheadMoore;
-    /// 3D: the cells within this many cells of a query (on every axis) are summed exactly (NearField3) instead of
-    /// sampled; 0: none, -1: the default for the dimension.
+    /// The cells within this many cells of a query (on every axis) are summed exactly (NearField2, NearField3)
+    /// instead of sampled; 0: none, -1: the default for the dimension.
     int near_field = -1;
 };
 
@@ -83,14 +86,64 @@ private:
     std::vector<float> m_u, m_v;
 };
 
+/// The near field of a cell's basis function in 2D: F(r) = integral phi(y) K_delta(r - y) dy, the velocity per unit
+/// vorticity that a cell whose centre lies at -r from the query induces (v += omega_c F(r)), with phi the cell's tent
+/// (bilinear) or box (nearest) of peak 1 and K_delta the free-space kernel. The estimator's `near_field` radius R sums
+/// the (2R + 1)^2 cells around the query with F exactly (to the table's accuracy) instead of sampling them: the same
+/// expectation, without the samples that land next to the query. In 2D the kernel's square integrates to only about
+/// log(rho / delta) / (2 pi) per unit vorticity within a radius rho of the query (3D: pi / (4 delta)), so the gain is
+/// smaller than in 3D (docs/fluid.md, "Near field"). F is tabulated once per (h, delta, basis, R) by Gauss–Legendre
+/// quadrature over the basis' linear pieces and read by bicubic Catmull–Rom interpolation at `per_cell` nodes per
+/// cell; F_x is odd in r_y and even in r_x, F_y odd in r_x and even in r_y, which the build uses.
+class NearField2 {
+public:
+    static constexpr int MaxRadius = 3;
+    /// The smallest delta, in cells, whose near field the table resolves (the kernel's scale).
+    static constexpr double MinDelta = 0.125;
+    NearField2(Vec2d h, Interpolation interp, double delta, int radius, int per_cell = 8);
+    /// One table per parameter set, shared by every estimator of a run (the estimators are rebuilt every step).
+    static std::shared_ptr<const NearField2> shared(Vec2d h, Interpolation interp, double delta, int radius);
+
+    int radius() const { return m_radius; }
+    Vec2d h() const { return m_h; }
+    double delta() const { return m_delta; }
+    Interpolation interpolation() const { return m_interp; }
+    /// F(r) from the table (bicubic); |r_a| <= (radius + 1/2) h_a.
+    Vec2d influence(Vec2d r) const;
+    /// The velocity the (2R + 1)^2 cells around a query induce there: sum over a, b in [-R, R] of
+    /// omega[(a, b)] F((f - (a, b)) h), `omega` in that order (a fastest; zero for cells that do not exist), `f` the
+    /// query's offset from the centre cell's centre in cell units, each in [-1/2, 1/2].
+    Vec2d sum(Vec2d f, const double* omega) const;
+    /// F(r) by direct quadrature with `segments` Gauss–Legendre pieces per half basis and axis (the table's nodes;
+    /// the tests' reference with more segments).
+    static Vec2d quadrature(Vec2d r, Vec2d h, Interpolation interp, double delta, int segments);
+    /// Bytes of the table.
+    std::size_t bytes() const { return m_nodes.size() * sizeof(float); }
+
+private:
+    Vec2d m_h;
+    Interpolation m_interp;
+    double m_delta;
+    int m_radius, m_per_cell, m_half;  ///< nodes -m_half..m_half per axis
+    std::vector<float> m_nodes;        ///< (2 half + 1)^2 nodes, x fastest, 2 floats (F_x, F_y)
+    const float* node(int i, int j) const {
+        const int n = 2 * m_half + 1;
+        return &m_nodes[(std::size_t(j + m_half) * n + std::size_t(i + m_half)) * 2];
+    }
+};
+
 /// Biot–Savart Monte Carlo estimator over a cached vorticity grid. Building it scans the grid (the alias
 /// table); estimate() is const and thread-safe. The grid must outlive the estimator. It is the field of the
 /// built-in `biot_savart` velocity estimator (BiotSavartVelocity, estimators.h).
 class BiotSavartEstimator final : public VelocityField2 {
 public:
     /// `periodic` is required when the grid's domain is periodic (shared between steps: it is only a table).
+    /// `near` (vorticity sampling only): its (2R + 1)^2 cells around each query are summed exactly and excluded from
+    /// the sampling (NearField2; on periodic domains their samples keep the periodic correction K_per - K); its h,
+    /// basis and delta must be the estimator's.
     BiotSavartEstimator(const Grid2& vorticity, Interpolation interp, SourceSampling sampling, double delta,
-                        std::shared_ptr<const PeriodicKernel> periodic = nullptr);
+                        std::shared_ptr<const PeriodicKernel> periodic = nullptr,
+                        std::shared_ptr<const NearField2> near = nullptr);
 
     /// Estimate with `n` samples drawn from `rng`. An empty field gives exactly zero (and draws nothing).
     VelocityEstimate estimate(Vec2d x, int n, Random& rng) const;
@@ -106,6 +159,8 @@ public:
     /// sum over cells of |omega_k| * cell area (the weight of every importance sample times n).
     double abs_integral() const { return m_abs_integral; }
     SourceSampling sampling() const { return m_sampling; }
+    /// The near field's radius in cells (0: every cell is sampled).
+    int near_field() const { return m_near ? m_near->radius() : 0; }
 
     /// Samples per internal batch (the SIMD kernel's unit).
     static constexpr int Batch = 64;
@@ -129,6 +184,7 @@ private:
     SourceSampling m_sampling;
     double m_delta;
     std::shared_ptr<const PeriodicKernel> m_periodic;
+    std::shared_ptr<const NearField2> m_near;
     double m_abs_integral = 0;
     std::vector<Slot> m_slots;
     Vec2d m_region_min{0.0}, m_region_size{0.0};  // uniform sampling region (support of omega_h)

@@ -32,6 +32,14 @@ public:
     /// Why a near_field the scene asked for cannot be used on these cells (empty: it can, or it was not asked for).
     std::string check_cells3(Vec3d h, double delta, int nx, int ny, int nz, bool periodic) const;
     static constexpr int DefaultNearField3 = 1;
+    /// The same for a 2D field on nx x ny cells (NearField2): a periodic grid needs 2R + 3 cells per axis, to which
+    /// the default narrows itself.
+    int near_field2(Vec2d h, double delta, int nx, int ny, bool periodic) const;
+    std::string check_cells2(Vec2d h, double delta, int nx, int ny, bool periodic) const;
+    /// 49 cells: the best variance x CPU of radii 0-3 on the shear layer and the Lamb–Oseen vortex at n_mc 128
+    /// (docs/fluid.md, "Near field"); the 2D kernel's variance is spread wider than 3D's (log(1/delta) against
+    /// 1/delta), so a wider window pays.
+    static constexpr int DefaultNearField2 = 3;
 
 protected:
     BiotSavartOptions m_options;

@@ -52,14 +52,16 @@ public:
 }  // namespace
 }  // namespace kelvin::fluid
 
-KELVIN_PLUGIN(kelvin::fluid::BiotSavart, "velocity", "biot_savart",
-              "Monte Carlo Biot–Savart velocity (Eq. 5.5) with Rosenhead–Moore mollifier; open or periodic domains.",
-              kelvin::param::integer("samples", 256, "n_mc, samples per velocity estimate"),
-              kelvin::param::string("importance", "vorticity", "'vorticity' (|omega|), 'kernel' (1/r) or 'uniform'"),
-              kelvin::param::real("delta", -1.0, "mollifier radius; -1: half a cache cell; 0: singular kernel"),
-              kelvin::param::string("mollifier", "rosenhead_moore",
-                                    "'rosenhead_moore' (the thesis, O(delta^2)) or 'high_order' (3D only: "
-                                    "Winckelmans-Leonard, O(delta^4), 1.7x the variance at equal delta)"),
-              kelvin::param::integer("near_field", -1,
-                                     "3D: cells within this many cells of a query are summed exactly, not sampled "
-                                     "(0: none; -1: the default, 1 where delta >= 1/8 cell)"));
+KELVIN_PLUGIN(
+    kelvin::fluid::BiotSavart, "velocity", "biot_savart",
+    "Monte Carlo Biot–Savart velocity (Eq. 5.5) with Rosenhead–Moore mollifier; open or periodic domains.",
+    kelvin::param::integer("samples", 256, "n_mc, samples per velocity estimate"),
+    kelvin::param::string("importance", "vorticity", "'vorticity' (|omega|), 'kernel' (1/r) or 'uniform'"),
+    kelvin::param::real("delta", -1.0, "mollifier radius; -1: half a cache cell; 0: singular kernel"),
+    kelvin::param::string("mollifier", "rosenhead_moore",
+                          "'rosenhead_moore' (the thesis, O(delta^2)) or 'high_order' (3D only: "
+                          "Winckelmans-Leonard, O(delta^4), 1.7x the variance at equal delta)"),
+    kelvin::param::integer("near_field", -1,
+                           "cells within this many cells of a query are summed exactly, not sampled "
+                           "(0: none; -1: the default, 1 in 3D, 3 in 2D, where delta >= 1/8 cell; needs importance "
+                           "vorticity)"));
