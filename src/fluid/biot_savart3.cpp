@@ -414,9 +414,11 @@ BiotSavartEstimator3::BiotSavartEstimator3(const VectorGrid3& vorticity, Interpo
         if (m_near->h() != g.h() || m_near->interpolation() != interp || m_near->delta() != delta ||
             m_near->mollifier() != mollifier)
             throw_runtime("BiotSavartEstimator3: the near-field table was built for another grid or kernel");
-        const int side = 2 * m_near->radius() + 1;
-        if (d.periodic && (side > g.nx() || side > g.ny() || side > g.nz()))
-            throw_runtime("BiotSavartEstimator3: near field of {} cells wider than the periodic grid", side);
+        // A near cell's samples (within a cell of it) must stay their own minimum images: 2R + 3 cells per axis.
+        const int need = 2 * m_near->radius() + 3;
+        if (d.periodic && (need > g.nx() || need > g.ny() || need > g.nz()))
+            throw_runtime("BiotSavartEstimator3: a near field of radius {} needs {} cells per periodic axis",
+                          m_near->radius(), need);
     }
 
     m_region_min = d.min;

@@ -53,10 +53,14 @@ std::string BiotSavartVelocity::check3(const Domain3& domain) const {
 }
 
 int BiotSavartVelocity::near_field3(Vec3d h, double delta, int nx, int ny, int nz, bool periodic) const {
-    const int R = m_options.near_field >= 0 ? m_options.near_field : DefaultNearField3;
+    int R = m_options.near_field >= 0 ? m_options.near_field : DefaultNearField3;
     if (R <= 0 || m_options.importance != SourceSampling::Vorticity) return 0;
     if (!(delta >= NearField3::MinDelta * std::min({h.x, h.y, h.z}))) return 0;
-    if (periodic && 2 * R + 1 > std::min({nx, ny, nz})) return 0;
+    // A periodic grid needs 2R + 3 cells per axis: a sample of a near cell lies within a cell of it, and must stay
+    // its own minimum image for what is dropped to be what is summed. The default narrows itself; a radius the
+    // scene asked for is used as it is or not at all (check_cells3 refuses it).
+    if (periodic && m_options.near_field < 0) R = std::min(R, (std::min({nx, ny, nz}) - 3) / 2);
+    if (R <= 0 || (periodic && 2 * R + 3 > std::min({nx, ny, nz}))) return 0;
     return R;
 }
 
@@ -66,7 +70,7 @@ std::string BiotSavartVelocity::check_cells3(Vec3d h, double delta, int nx, int 
     if (!(delta >= NearField3::MinDelta * std::min({h.x, h.y, h.z})))
         return fmt::format("near_field needs delta >= {:g} of a cell (delta {:g}, cell {:g})", NearField3::MinDelta,
                            delta, std::min({h.x, h.y, h.z}));
-    return fmt::format("near_field {} spans {} cells, more than the periodic grid's {}", R, 2 * R + 1,
+    return fmt::format("near_field {} needs {} cells per axis on a periodic grid (it has {})", R, 2 * R + 3,
                        std::min({nx, ny, nz}));
 }
 

@@ -344,7 +344,8 @@ TEST(FluidScene3D, BadInputNamesTheParameter) {
     EXPECT_CONTAINS(e.what(), "'core'");
     EXPECT_FALSE(std::string(e.what()).find('\n') != std::string::npos) << "one line";
     // The near field: out of range, with uniform sampling, the singular kernel, a delta below the table's
-    // resolution, wider than the periodic grid (8 cells: radius 3 spans 7, 4 would span 9).
+    // resolution, wider than the periodic grid can hold (2R + 3 cells per axis: a near cell's samples stay its own
+    // images).
     const auto bs = [](const std::string& inner) {
         return R"(<velocity type="biot_savart"><integer name="samples" value="8"/>)" + inner + R"(</velocity>
             <cache type="grid"><integer name="resolution" value="8"/></cache>)";
@@ -374,8 +375,8 @@ TEST(FluidScene3D, BadInputNamesTheParameter) {
     EXPECT_CONTAINS(e.what(), "near_field needs delta >= 0.125 of a cell");
     e = load_error(scene3(two, R"(<vorticity type="abc"/>)",
                           R"(<velocity type="biot_savart"><integer name="near_field" value="3"/></velocity>
-            <cache type="grid"><integer name="resolution" value="6"/></cache>)"));
-    EXPECT_CONTAINS(e.what(), "near_field 3 spans 7 cells, more than the periodic grid's 6");
+            <cache type="grid"><integer name="resolution" value="8"/></cache>)"));
+    EXPECT_CONTAINS(e.what(), "near_field 3 needs 9 cells per axis on a periodic grid (it has 8)");
     EXPECT_CONTAINS(e.what(), "'velocity'");
 }
 
