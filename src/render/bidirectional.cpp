@@ -407,6 +407,9 @@ double BidirectionalPaths::mis_weight(const Scene& scene, const Sensor& sensor, 
         if (v && v != sampled) saved[std::size_t(nt++)] = {v, v->pdf_rev, v->delta};
     connection_densities(scene, sensor, qs, pt, qs_minus, pt_minus);
 
+    // A density of 0 is taken as 1 (pbrt's remap). Specular vertices no longer give any (the walk stores Veach's
+    // densities there); what remains is a reverse BSDF density of 0 (shading normals, float geometry), kept as it
+    // was so that images without specular vertices do not change.
     auto remap = [](double x) { return x != 0 ? x : 1.0; };
     double sum = 0, ri = 1;
     for (int i = t - 1; i > 0; --i) {
