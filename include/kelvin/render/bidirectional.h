@@ -101,9 +101,10 @@ public:
     /// densities next to its connection; 0 for a strategy that cannot join the path (connect()'s rules). Returns
     /// k + 1 (entries written), or 0 if (s, t) is not such a strategy. For tests: the weights of a path sum to 1.
     /// With StrategyDensities::FromPositions every vertex's two densities are first recomputed from the vertex
-    /// positions, by the functions connect() uses next to a connection, instead of taken as the subpaths stored
-    /// them (the subpaths store densities of the sampled ray directions, which differ from the directions between
-    /// the vertices in float geometry and by the rays' offsets from the surfaces).
+    /// positions, by the functions connect() uses next to a connection (at a specular vertex: the lobe probability
+    /// the walk stored, with the geometry of the positions), instead of taken as the subpaths stored them (the
+    /// subpaths store densities of the sampled ray directions, which differ from the directions between the vertices
+    /// in float geometry and by the rays' offsets from the surfaces).
     enum class StrategyDensities { Stored, FromPositions };
     int strategy_weights(const Scene& scene, const PathVertex* light, const PathVertex* cam, int s, int t, double* w,
                          StrategyDensities densities = StrategyDensities::Stored) const;
