@@ -160,6 +160,49 @@ void add(C3<T>& acc, const C3<T>& v) {
     acc = acc + v;
 }
 
+// The cone a sphere light of centre c and radius r subtends from `ref` (Sphere::sample_direction, pdf_direction), in
+// T: the unit axis w towards the centre, sin^2 and sin of the half-angle and 1 - cos as sin^2 / (1 + cos). False where
+// ref is inside (or on) the sphere, which then samples its area.
+template <class T>
+struct SphereConeT {
+    V3<T> w;
+    T sin2_max, sin_max, one_minus_cos_max;
+};
+template <class T>
+bool sphere_cone(const V3<T>& ref, const Vec3d& c, double r, SphereConeT<T>& cone) {
+    using std::sqrt;
+    const V3<T> to_c = constant<T>(c) - ref;
+    const T d2 = dot(to_c, to_c);
+    if (!(val(d2) > r * r)) return false;
+    const T d = sqrt(d2);
+    cone.sin2_max = T(r * r) / d2;
+    cone.sin_max = T(r) / d;
+    cone.one_minus_cos_max = cone.sin2_max / T(T(1.0) + safe_sqrt(T(T(1.0) - cone.sin2_max)));
+    if (!(val(cone.one_minus_cos_max) > 0) || !(val(cone.sin_max) > 0)) return false;
+    cone.w = V3<T>{to_c.x / d, to_c.y / d, to_c.z / d};
+    return true;
+}
+// The solid-angle density of the cone.
+template <class T>
+T sphere_cone_pdf(const SphereConeT<T>& cone) {
+    return T(1.0) / (T(2 * Pi) * cone.one_minus_cos_max);
+}
+// The point of the sphere the cone's direction (u0, u1) meets first: its outward unit normal (the point is
+// c + r times it). Sphere::sample_direction in T.
+template <class T>
+V3<T> sphere_cone_normal(const SphereConeT<T>& cone, const T& u0, const T& u1) {
+    using std::cos;
+    using std::sin;
+    const T omc = u0 * cone.one_minus_cos_max, cos_t = T(1.0) - omc, sin2_t = omc * T(T(2.0) - omc);
+    const T phi = T(2 * Pi) * u1, cos_p = cos(phi), sin_p = sin(phi);
+    T ratio2 = sin2_t / cone.sin2_max;
+    if (val(ratio2) > 1) ratio2 = T(1.0);
+    const T cos_a = sin2_t / cone.sin_max + cos_t * safe_sqrt(T(T(1.0) - ratio2));
+    const T sin_a = safe_sqrt(T(T(1.0) - cos_a * cos_a));
+    const FrameT<T> f = frame_of(cone.w);
+    return cone.w * T(T(0.0) - cos_a) + (f.s * cos_p + f.t * sin_p) * sin_a;
+}
+
 template <class T>
 T power_heuristic(const T& a, const T& b) {
     const T a2 = a * a, b2 = b * b;
@@ -687,9 +730,17 @@ PathDerivativeStatus PathDerivatives::Impl::run(Reader& rd, T& log_pi) const {
             if (!kernels::is_zero(Le)) {
                 T w(1.0);
                 if (!prev_delta) {
-                    const V3<T> v = p - prev_p;
-                    const T cos_e = -dot(ng, d);
-                    const T pl = T(scene.emitter_pdf(e)) * dot(v, v) / (cos_e * T(si.shape->surface_area()));
+                    // A sphere seen from outside: the cone's density (0 on its far side), a function of prev_p.
+                    SphereConeT<T> cone;
+                    T pl;
+                    if (on_sphere && sphere_cone(prev_p, Vec3d(g.positions[0]), double(g.radii[0]), cone)) {
+                        const bool near = glm::dot(si.p - Vec3d(g.positions[0]), ray.d) <= 1e-6 * double(g.radii[0]);
+                        pl = near ? T(scene.emitter_pdf(e)) * sphere_cone_pdf(cone) : T(0.0);
+                    } else {
+                        const V3<T> v = p - prev_p;
+                        const T cos_e = -dot(ng, d);
+                        pl = T(scene.emitter_pdf(e)) * dot(v, v) / (cos_e * T(si.shape->surface_area()));
+                    }
                     w = power_heuristic(prev_bsdf_pdf, pl);
                 }
                 lum = lum + luminance_of(throughput * Le) * w;
@@ -761,7 +812,16 @@ PathDerivativeStatus PathDerivatives::Impl::run(Reader& rd, T& log_pi) const {
                         const ShapeGeometry& eg = geometry[std::size_t(sh)];
                         long long triangle = 0;
                         V3<T> ps, en = constant<T>(ds->n);
-                        if (light_disc) {
+                        SphereConeT<T> cone;
+                        const bool light_cone =
+                            light_sphere && sphere_cone(p, Vec3d(eg.positions[0]), double(eg.radii[0]), cone);
+                        if (light_cone) {
+                            // Sphere::sample_direction from outside: the cone the sphere subtends from p, the point
+                            // its direction meets first.
+                            const V3<T> out = sphere_cone_normal(cone, u_l0, u_l1);
+                            ps = constant<T>(Vec3d(eg.positions[0])) + out * T(double(eg.radii[0]));
+                            en = eg.flip_normals ? out * T(-1.0) : out;
+                        } else if (light_disc) {
                             // Disk::sample_position: the concentric map onto the disk (tangent, bitangent).
                             const V3<T> dk = cosine_hemisphere(u_l0, u_l1);  // its x, y: the concentric disk
                             const Vec3d n = glm::normalize(Vec3d(eg.normals[0])), tg(eg.tangents[0]);
@@ -769,7 +829,8 @@ PathDerivativeStatus PathDerivatives::Impl::run(Reader& rd, T& log_pi) const {
                                  (constant<T>(tg) * dk.x + constant<T>(glm::cross(n, tg)) * dk.y) *
                                      T(double(eg.radii[0]));
                         } else if (light_sphere) {
-                            // Sphere::sample_position: uniform on the sphere (warp::square_to_uniform_sphere).
+                            // From inside: Sphere::sample_position, uniform on the sphere
+                            // (warp::square_to_uniform_sphere).
                             using std::cos;
                             using std::sin;
                             const T z = T(1.0) - T(2.0) * u_l0, rr = safe_sqrt(T(T(1.0) - z * z)),
@@ -801,7 +862,7 @@ PathDerivativeStatus PathDerivatives::Impl::run(Reader& rd, T& log_pi) const {
                         const T dist2 = dot(dv, dv), dist = sqrt(dist2);
                         const V3<T> dir{dv.x / dist, dv.y / dist, dv.z / dist};
                         const T cos_e = -dot(en, dir);
-                        const T pdf = T(1.0 / light_area) * dist2 / cos_e;
+                        const T pdf = light_cone ? sphere_cone_pdf(cone) : T(T(1.0 / light_area) * dist2 / cos_e);
                         // The radiance in T (Emitter::eval_diff); not where it is textured (the light sample's uv is
                         // not differentiated).
                         C3<T> radiance;

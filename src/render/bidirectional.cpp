@@ -129,6 +129,23 @@ bool joinable(const PathVertex* light, const PathVertex* cam, int s, int t) {
     return qs.type == PathVertexType::Surface && pt.type == PathVertexType::Surface;
 }
 
+// (p_nee / p_origin)^2 for the light vertex y0 of a path whose next vertex is y1: p_nee, the area density with which
+// next-event estimation from y1 picks y0 (Emitter::pdf_direct converted to area), over p_origin, y0's density as a
+// light subpath's origin, the density the subpaths and light_endpoint() store for it. The two are the same, and this
+// is 1 without computing either, where the emitter samples by area; they differ for a sphere light, whose next-event
+// estimation samples the cone it subtends: only the strategy (1, t) samples y0 with p_nee.
+double nee_ratio2(const Scene& scene, const PathVertex& y0, const PathVertex& y1) {
+    const Emitter* e = y0.emitter;
+    if (!e || y0.is_infinite() || !y0.on_surface() || !e->direct_differs_from_emission()) return 1.0;
+    Vec3d d = y0.p - y1.p;
+    const double d2 = glm::dot(d, d);
+    if (!(d2 > 0)) return 0.0;
+    d /= std::sqrt(d2);
+    const double origin = e->pdf_emission(y0.p, y0.ng, -d).first;
+    const double nee = e->pdf_direct({y1.p, y0.p, y0.ng, d}) * std::abs(glm::dot(y0.ng, d)) / d2;
+    return origin > 0 ? power_heuristic_ratio(nee, origin) : 0.0;
+}
+
 // The light vertex of a next-event (s = 1) strategy: point `p` (for infinite emitters: pt.p plus the unit direction
 // towards the emitter) with normal `n` on emitter `e`, connected to `pt`; its forward density is that of the
 // emitter as a light-subpath origin, which is what the other strategies see at x_0.
@@ -411,10 +428,21 @@ double BidirectionalPaths::mis_weight(const Scene& scene, const Sensor& sensor, 
     // densities there); what remains is a reverse BSDF density of 0 (shading normals, float geometry), kept as it
     // was so that images without specular vertices do not change.
     auto remap = [](double x) { return x != 0 ? x : 1.0; };
+    // Strategy (1, t') (t' >= 2: paths of three vertices or more) samples the light vertex by next-event estimation,
+    // the others by the densities stored (nee_ratio2): its term, or for s = 1 every other, carries the ratio.
+    double nee2 = 1;
+    if (s + t >= 3) {
+        if (s == 0)
+            nee2 = nee_ratio2(scene, cam[t - 1], cam[t - 2]);
+        else if (s == 1)
+            nee2 = nee_ratio2(scene, *sampled, cam[t - 1]);
+        else
+            nee2 = nee_ratio2(scene, light[0], light[1]);
+    }
     double sum = 0, ri = 1;
     for (int i = t - 1; i > 0; --i) {
         ri *= power_heuristic_ratio(remap(cam[i].pdf_rev), remap(cam[i].pdf_fwd));
-        if (!cam[i].delta && !cam[i - 1].delta) sum += ri;
+        if (!cam[i].delta && !cam[i - 1].delta) sum += s == 0 && i == t - 1 ? ri * nee2 : ri;
     }
     ri = 1;
     const PathVertex& y0 = s == 1 && !own_y0 ? *sampled : light[0];
@@ -422,8 +450,9 @@ double BidirectionalPaths::mis_weight(const Scene& scene, const Sensor& sensor, 
         const PathVertex& yi = i == 0 ? y0 : light[i];
         ri *= power_heuristic_ratio(remap(yi.pdf_rev), remap(yi.pdf_fwd));
         bool delta_before = i > 0 ? light[i - 1].delta : y0.is_delta_light();
-        if (!yi.delta && !delta_before) sum += ri;
+        if (!yi.delta && !delta_before) sum += i == 1 ? ri * nee2 : ri;
     }
+    if (s == 1) sum = nee2 > 0 ? sum / nee2 : Inf;
     for (int i = nt - 1; i >= 0; --i) {
         saved[std::size_t(i)].v->pdf_rev = saved[std::size_t(i)].pdf_rev;
         saved[std::size_t(i)].v->delta = saved[std::size_t(i)].delta;

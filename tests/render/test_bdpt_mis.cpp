@@ -6,8 +6,9 @@
 // of unity). Strategies that cannot sample the path get weight 0: those joining at a specular vertex and the
 // camera hitting a point, spot or directional light. Paths come from bdpt's own subpaths, every length 2..8, on
 // three scenes: the Cornell box (one area light); a room with a mirror sphere, a glass sphere, a glossy plate, a
-// point light, a spot light and a small area light; a glossy and a diffuse sphere on a floor under a directional
-// light and a uniform sky.
+// point light, a spot light, a small area light and a sphere light (whose next-event estimation samples the cone it
+// subtends, a density other than its origin's: strategy (1, t) is weighted by it); a glossy and a diffuse sphere on a
+// floor under a directional light and a uniform sky.
 //
 // Two sets of densities: recomputed from the vertex positions by the functions connect() uses (one set for every
 // strategy, so the weights must sum to one within 1e-9), and as the subpaths stored them. The stored densities are
@@ -36,6 +37,11 @@
 //     scenes with several emitters (the Cornell box has one, selection probability 1);
 //   - the light subpath's origin density without the selection probability: the room with several emitters (its
 //     99th percentile, 8e-3; the effect is as small as the weight of the camera hitting the light);
+//   - the next-event density of the sphere light taken in mis_weight by (1, t) itself but not where another strategy
+//     weighs the term of (1, t): the camera loop's first term for s = 0, or the light loop's term i = 1 for s >= 2,
+//     left at the origin's density: the room (sums up to 1.5);
+//   - the sphere light's (1, t) weighted with the origin's density by every strategy (as pbrt-v3 does; the weights
+//     still sum to one): NextEventWeightOfASphereLightIsTheCones (w(1, 2) / w(0, 3) 20 to 170 times too small);
 //   - a directional light not counted as a delta light (as bdpt was before this test: the camera's s = 0 strategy
 //     took weight from the others although no ray can hit the light): the sky scene.
 #include "render/render_support.h"
@@ -83,6 +89,8 @@ const char* kSpecularRoom = R"(<scene version="3.0.0">
     <shape type="rectangle">
         <transform name="to_world"><scale x="0.4" y="0.4"/><rotate x="1" angle="90"/><translate x="0.4" y="1.99"/></transform>
         <ref id="white"/><emitter type="area"><rgb name="radiance" value="2, 2, 2"/></emitter></shape>
+    <shape type="sphere"><point name="center" x="0.55" y="1.55" z="-0.5"/><float name="radius" value="0.12"/>
+        <emitter type="area"><rgb name="radiance" value="6, 6, 6"/></emitter></shape>
     <emitter type="point"><point name="position" x="-0.3" y="1.7" z="0.3"/><rgb name="intensity" value="2, 2, 2"/></emitter>
     <emitter type="spot"><transform name="to_world"><lookat origin="0, 1.9, 0.5" target="0, 0, 0" up="0, 0, 1"/></transform>
         <rgb name="intensity" value="5, 5, 5"/><float name="cutoff_angle" value="30"/></emitter>
@@ -499,6 +507,63 @@ TEST(BdptMis, LightImageWeightsOfAnEmitterSeenDirectly) {
     EXPECT_LE(worst_stored, 1e-3);
     printf("light image: %d paths, |w(0,2) + w(1,1) - 1| worst %.3g (positions), %.3g (stored)\n", paths, worst,
            worst_stored);
+}
+
+// A sphere light's next-event estimation samples the cone the sphere subtends, not its area: on paths camera - floor -
+// light, the weights of (1, 2) (next-event estimation from the floor) and (0, 3) (the floor's BSDF sample hits the
+// light) are in the ratio of their densities for the light's point, both per solid angle at the floor point:
+// w(1, 2) / w(0, 3) = (pdf_direct / bsdf pdf)^2 (the power heuristic; one emitter, selection probability 1). Fails
+// with the light vertex of (1, 2) weighted by its density as a light subpath's origin (1 / area, as pbrt-v3 does):
+// the ratio is then off by (d^2 / (cos area pdf_direct))^2.
+TEST(BdptMis, NextEventWeightOfASphereLightIsTheCones) {
+    const auto scene = ktest::load_scene_xml(R"(<scene version="3.0.0">
+        <integrator type="bdpt"/>
+        <sensor type="perspective">
+            <float name="fov" value="40"/>
+            <transform name="to_world"><lookat origin="0, -2, 2" target="0, 0, 0" up="0, 0, 1"/></transform>
+            <sampler type="independent"/>
+            <film type="hdrfilm"><integer name="width" value="32"/><integer name="height" value="32"/></film>
+        </sensor>
+        <shape type="rectangle"><transform name="to_world"><scale value="3"/></transform>
+            <bsdf type="diffuse"><rgb name="reflectance" value="0.5, 0.5, 0.5"/></bsdf></shape>
+        <shape type="sphere"><point name="center" x="0.3" y="0.4" z="0.6"/><float name="radius" value="0.3"/>
+            <emitter type="area"><rgb name="radiance" value="4, 4, 4"/></emitter></shape>
+    </scene>)");
+    const Sensor& sensor = *scene->sensor();
+    auto sampler = sensor.sampler().clone();
+    const BidirectionalPaths paths(8);
+    std::array<PathVertex, BidirectionalPaths::MaxVertices> cam, light;
+    SampleCounters counters;
+    int n = 0;
+    double worst = 0;
+    for (int i = 0; i < 200000 && n < 300; ++i) {
+        sampler->start({i % 97, i / 97}, uint64_t(i), 5);
+        const Vec2d film(sampler->next_1d() * 32, sampler->next_1d() * 32);
+        const Ray ray = sensor.sample_ray(film, sampler->next_2d());
+        const int n_cam = paths.camera_subpath(*scene, *sampler, ray, 2, cam.data(), counters);
+        if (n_cam < 3 || cam[1].emitter || !cam[2].emitter) continue;
+        for (auto densities :
+             {BidirectionalPaths::StrategyDensities::FromPositions, BidirectionalPaths::StrategyDensities::Stored}) {
+            std::array<double, 3> w{};
+            ASSERT_EQ(paths.strategy_weights(*scene, light.data(), cam.data(), 0, 3, w.data(), densities), 3);
+            const PathVertex &x0 = cam[2], &x1 = cam[1];
+            const Vec3d d = glm::normalize(x0.p - x1.p);
+            const double p_nee = x0.emitter->pdf_direct({x1.p, x0.p, x0.ng, d});
+            const double p_bsdf = x1.si.shape->bsdf()->pdf(BsdfContext{}, x1.si, x1.si.to_local(d));
+            ASSERT_GT(p_nee, 0.0);
+            ASSERT_GT(w[0], 0.0);
+            const double want = (p_nee / p_bsdf) * (p_nee / p_bsdf), got = w[1] / w[0];
+            const double tol = densities == BidirectionalPaths::StrategyDensities::Stored ? 1e-3 : 1e-9;
+            EXPECT_NEAR(got, want, tol * want);
+            worst = std::max(worst, std::abs(got / want - 1));
+        }
+        ++n;
+    }
+    EXPECT_EQ(n, 300);
+    printf(
+        "sphere light: %d paths camera - floor - light, w(1,2) / w(0,3) against (pdf_direct / pdf_bsdf)^2: worst "
+        "relative difference %.3g\n",
+        n, worst);
 }
 
 // The power heuristic's density ratio: bit for bit a^2 / b^2 for the densities of ordinary scenes (so images do not

@@ -23,8 +23,9 @@
 /// Simulation's driver interface, the boundary interface in kelvin::wos, curve shapes; 11: ShapeGeometry's elliptic
 /// discs and user geometry; 12: Bsdf::Model and back_model replaced by Bsdf::differentiable, eval_diff and
 /// sample_diff; 13: Emitter::Model and Texture::local replaced by Emitter::eval_diff, sample_direct_diff and
-/// Texture::eval_diff, eval_1_diff).
-#define KELVIN_PLUGIN_ABI 13
+/// Texture::eval_diff, eval_1_diff; 14: Shape::sample_direction, pdf_direction and samples_solid_angle,
+/// Emitter::direct_differs_from_emission).
+#define KELVIN_PLUGIN_ABI 14
 
 namespace kelvin {
 

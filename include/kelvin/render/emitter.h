@@ -95,6 +95,10 @@ public:
     /// Solid-angle density, at q.ref, of sample_direct choosing the point q.p (with normal q.n) in direction q.d;
     /// 0 for delta emitters. Infinite emitters read q.d only.
     virtual double pdf_direct(const DirectQuery& q) const = 0;
+    /// True where sample_direct() picks a surface point with a density other than its origin density in
+    /// sample_emission() (pdf_emission().first) converted to solid angle: an area light on a sphere, which samples the
+    /// cone the sphere subtends. Bidirectional MIS then weighs next-event estimation by pdf_direct().
+    virtual bool direct_differs_from_emission() const { return false; }
     /// Radiance leaving the emitter at `p` (normal `n`, surface coordinates `uv`) in unit direction `w` (pointing
     /// away from the emitter, towards the viewer). For infinite emitters: radiance arriving along -w from infinity
     /// (`n` and `uv` unused). An area emitter with a textured radiance reads its texture at `uv`.

@@ -81,6 +81,15 @@ struct PositionSample {
     double pdf = 0;
 };
 
+/// A point chosen on a shape's surface as seen from a reference point, with density `pdf` per unit solid angle at
+/// the reference point (0: no sample).
+struct ShapeDirectSample {
+    Vec3d p{0.0};
+    Vec3d n{0, 0, 1};
+    Vec2d uv{0.0};
+    double pdf = 0;
+};
+
 class Shape : public Object {
 public:
     /// World-space geometry; called once when the scene is built.
@@ -89,6 +98,16 @@ public:
     virtual double surface_area() const = 0;
     /// A point uniformly distributed over the surface (pdf = 1 / area), with the shape's oriented normal.
     virtual PositionSample sample_position(const Vec2d& u) const = 0;
+
+    /// A point of the surface chosen as seen from `ref` (an area light's next-event estimation), its density per
+    /// unit solid angle at `ref`. The default: sample_position() converted, pdf_A d^2 / |cos| (pdf 0 where the point
+    /// is `ref` itself). A sphere seen from outside samples the cone it subtends instead (samples_solid_angle()).
+    virtual ShapeDirectSample sample_direction(const Vec3d& ref, const Vec2d& u) const;
+    /// The solid-angle density at q.ref with which sample_direction() chooses the point q.p (normal q.n) in the unit
+    /// direction q.d; the caller has checked that the surface faces q.ref (q.d . q.n != 0).
+    virtual double pdf_direction(const DirectQuery& q) const;
+    /// True where sample_direction() is not sample_position() converted to solid angle (for any reference point).
+    virtual bool samples_solid_angle() const { return false; }
 
     /// Mitsuba's mesh attributes ("vertex_color", "face_weight", ...): the value at `si` (vertex attributes
     /// interpolated, face attributes constant per face), 1 channel as grey. False when the shape has none by

@@ -1,10 +1,12 @@
 // area: a shape that emits radiance from its front side (the side its normal points to). The radiance is a
 // colour or a texture read at the surface's uv (Mitsuba's `radiance` texture: a bitmap glued on the emitter).
 //
-// Next-event estimation samples the shape uniformly by area and converts to solid angle,
+// Next-event estimation asks the shape for a point as seen from the lit point (Shape::sample_direction): most
+// shapes sample uniformly by area and convert to solid angle,
 //     pdf_omega = pdf_A * d^2 / |cos theta_e|;
-// a textured radiance enters only through the sample's weight (L(uv) / pdf), so the density stays the shape's
-// and pdf_direct() needs no uv. Light tracing starts rays at a uniform point with a cosine-weighted direction,
+// a sphere seen from outside samples the cone it subtends (uniform in solid angle over the cone). A textured
+// radiance enters only through the sample's weight (L(uv) / pdf), so the density stays the shape's and
+// pdf_direct() needs no uv. Light tracing starts rays at a uniform point with a cosine-weighted direction,
 // weight L(uv) * pi * area. Uniform by area is unbiased for any texture (the density is positive wherever the
 // texture can be); unlike Mitsuba it does not importance-sample the texture, so a very uneven texture gives more
 // noise than Mitsuba, never another mean.
@@ -38,7 +40,8 @@ public:
     void set_shape(const Shape* shape) override { m_shape = shape; }
 
     std::optional<DirectSample> sample_direct(const Vec3d& ref, const Vec2d& u) const override {
-        PositionSample ps = m_shape->sample_position(u);
+        const ShapeDirectSample ps = m_shape->sample_direction(ref, u);
+        if (!(ps.pdf > 0)) return std::nullopt;
         Vec3d d = ps.p - ref;
         double dist2 = glm::dot(d, d);
         if (!(dist2 > 0)) return std::nullopt;
@@ -51,7 +54,7 @@ public:
         ds.n = ps.n;
         ds.d = d;
         ds.dist = dist;
-        ds.pdf = ps.pdf * dist2 / cos_e;
+        ds.pdf = ps.pdf;
         if (!(ds.pdf > 0) || !std::isfinite(ds.pdf)) return std::nullopt;
         ds.weight = radiance(ps.uv) / ds.pdf;
         return ds;
@@ -59,9 +62,9 @@ public:
     double pdf_direct(const DirectQuery& q) const override {
         double cos_e = -glm::dot(q.n, q.d);
         if (cos_e <= 0) return 0.0;
-        Vec3d v = q.p - q.ref;
-        return glm::dot(v, v) / (cos_e * m_shape->surface_area());
+        return m_shape->pdf_direction(q);
     }
+    bool direct_differs_from_emission() const override { return m_shape && m_shape->samples_solid_angle(); }
     Color3 eval(const Vec3d&, const Vec3d& n, const Vec2d& uv, const Vec3d& w) const override {
         return glm::dot(n, w) > 0 ? radiance(uv) : Color3(0.0);
     }
