@@ -75,8 +75,16 @@ double pdf_light_origin(const Scene& scene, const PathVertex& v, const PathVerte
     return scene.emitter_pdf(v.emitter) * v.emitter->pdf_emission(v.p, v.ng, w).first;
 }
 
+// The density, per solid angle at `v`, of a delta lobe chosen with discrete probability `prob` towards unit
+// direction `w`: Veach's (1997, Sec. 10.3.5), the probability per projected solid angle, so that the area density
+// of the next vertex is prob times the edge's geometry factor. Its delta function is common to every strategy that
+// can sample the path and cancels in their ratios.
+double delta_density(double prob, const PathVertex& v, const Vec3d& w) { return prob * std::abs(glm::dot(v.ng, w)); }
+
 // Area density with which vertex `v` (reached from `prev`) samples `next`. The BSDF is asked with v.si.wi set to
-// the direction towards `prev` (restored before returning: no copy of the interaction).
+// the direction towards `prev` (restored before returning: no copy of the interaction). A vertex where the subpath
+// sampled a delta lobe (v.delta) gives that lobe's density towards `next` (the densities a subpath stores, here
+// from the vertices' positions); next to a connection the joined vertices are never delta.
 double pdf(const Scene& scene, const Sensor& sensor, PathVertex& v, const PathVertex* prev, const PathVertex& next) {
     if (v.type == PathVertexType::Light || v.type == PathVertexType::Infinite) return pdf_light(scene, v, next);
     Vec3d wn = next.p - v.p;
@@ -86,6 +94,8 @@ double pdf(const Scene& scene, const Sensor& sensor, PathVertex& v, const PathVe
     double p;
     if (v.type == PathVertexType::Camera) {
         p = sensor.pdf_direction(v.p, wn);
+    } else if (v.delta) {
+        p = delta_density(v.pdf_delta, v, wn);
     } else {
         const Vec3d wi = v.si.wi;
         v.si.wi = v.si.to_local(glm::normalize(prev->p - v.p));
@@ -262,6 +272,7 @@ int BidirectionalPaths::walk(const Scene& scene, Sampler& sampler, Ray ray, Colo
         v.beta = beta;
         v.pdf_rev = 0;
         v.delta = false;
+        v.pdf_delta = 0;
         const Bsdf& bsdf = *v.si.shape->bsdf();
         v.smooth = (bsdf.flags() & BsdfFlags::Smooth) != 0;
         v.pdf_fwd = convert_density(pdf_fwd, prev, v);
@@ -275,8 +286,12 @@ int BidirectionalPaths::walk(const Scene& scene, Sampler& sampler, Ray ray, Colo
         beta *= w;
         double pdf_rev;
         if (bs->sampled & BsdfFlags::Delta) {
+            // Veach's densities (delta_density): the lobe's probability, the same both ways, per projected solid
+            // angle; the area conversion at the neighbours adds the rest of each edge's geometry factor.
             v.delta = true;
-            pdf_fwd = pdf_rev = 0;
+            v.pdf_delta = bs->pdf;
+            pdf_fwd = delta_density(bs->pdf, v, glm::normalize(v.si.to_world(bs->wo)));
+            pdf_rev = delta_density(bs->pdf, v, ray.d);
         } else {
             pdf_fwd = bs->pdf;
             const Vec3d wi = v.si.wi;  // the reverse direction's density: wi and wo swapped in place
@@ -409,6 +424,9 @@ double BidirectionalPaths::mis_weight(const Scene& scene, const Sensor& sensor, 
         if (v && v != sampled) saved[std::size_t(nt++)] = {v, v->pdf_rev, v->delta};
     connection_densities(scene, sensor, qs, pt, qs_minus, pt_minus);
 
+    // A density of 0 is taken as 1 (pbrt's remap). Specular vertices no longer give any (the walk stores Veach's
+    // densities there); what remains is a reverse BSDF density of 0 (shading normals, float geometry), kept as it
+    // was so that images without specular vertices do not change.
     auto remap = [](double x) { return x != 0 ? x : 1.0; };
     // Strategy (1, t') (t' >= 2: paths of three vertices or more) samples the light vertex by next-event estimation,
     // the others by the densities stored (nee_ratio2): its term, or for s = 1 every other, carries the ratio.

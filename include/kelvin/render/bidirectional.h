@@ -5,7 +5,13 @@
 // its multiple-importance weight among the strategies of its path length (power heuristic). Densities are kept
 // per vertex in area measure (forward: as sampled; reverse: as the opposite subpath would have sampled it) and
 // the weight is computed from ratios of those densities along the path, following the structure of pbrt-v3's
-// implementation (Pharr, Jakob and Humphreys, "Physically Based Rendering", 3rd ed., Sec. 16.3).
+// implementation (Pharr, Jakob and Humphreys, "Physically Based Rendering", 3rd ed., Sec. 16.3). At a specular
+// (delta) vertex the densities are Veach's (1997, Sec. 10.3.5), not pbrt's: the density of the next vertex is the
+// discrete probability of the delta lobe with respect to projected solid angle, times the edge's geometry factor
+// (|cos| at both ends over the squared distance), so the geometry factors of edges that meet a specular vertex stay
+// in the ratios of the strategies' densities (pbrt stores 0 there and takes it as 1, which drops them: a camera
+// subpath that reaches a small light through glass then takes a large share of the caustic it renders with a
+// large variance).
 //
 // Conventions: s light-subpath vertices y_0..y_{s-1}, t camera-subpath vertices z_0..z_{t-1}, a path of s + t
 // vertices and s + t - 1 edges. (s, t) = (0, 1) and (1, 1) are never used (the camera is not in the scene; an
@@ -31,7 +37,10 @@ struct PathVertex {
     PathVertexType type = PathVertexType::Surface;
     Color3 beta{0.0};
     double pdf_fwd = 0, pdf_rev = 0;
-    bool delta = false;
+    bool delta = false;  ///< the subpath sampled a delta (specular) lobe here
+    /// Where `delta`: the discrete probability with which the walk chose that lobe (the same in both directions
+    /// for every delta lobe Kelvin has: Fresnel reflectance is reciprocal, and a mirror reflects with cos o = cos i).
+    double pdf_delta = 0;
     bool smooth = false;               ///< surface vertices: the BSDF has a smooth component (set by the subpath walk)
     Vec3d p{0.0}, ng{0.0};             ///< ng is zero for points (camera, point lights, infinite endpoints)
     SurfaceInteraction si;             ///< surface vertices
@@ -92,9 +101,10 @@ public:
     /// densities next to its connection; 0 for a strategy that cannot join the path (connect()'s rules). Returns
     /// k + 1 (entries written), or 0 if (s, t) is not such a strategy. For tests: the weights of a path sum to 1.
     /// With StrategyDensities::FromPositions every vertex's two densities are first recomputed from the vertex
-    /// positions, by the functions connect() uses next to a connection, instead of taken as the subpaths stored
-    /// them (the subpaths store densities of the sampled ray directions, which differ from the directions between
-    /// the vertices in float geometry and by the rays' offsets from the surfaces).
+    /// positions, by the functions connect() uses next to a connection (at a specular vertex: the lobe probability
+    /// the walk stored, with the geometry of the positions), instead of taken as the subpaths stored them (the
+    /// subpaths store densities of the sampled ray directions, which differ from the directions between the vertices
+    /// in float geometry and by the rays' offsets from the surfaces).
     enum class StrategyDensities { Stored, FromPositions };
     int strategy_weights(const Scene& scene, const PathVertex* light, const PathVertex* cam, int s, int t, double* w,
                          StrategyDensities densities = StrategyDensities::Stored) const;
