@@ -12,6 +12,8 @@
 #include <limits>
 #include <mutex>
 
+#include "near_field_quadrature.h"
+
 namespace kelvin::fluid {
 
 namespace {
@@ -103,29 +105,6 @@ Vec2d PeriodicKernel::correction(Vec2d r) const {
 // Near field.
 
 namespace {
-// Gauss–Legendre, 4 points on [-1, 1] (exact for polynomials of degree 7).
-constexpr double GaussX[4] = {-0.8611363115940526, -0.3399810435848563, 0.3399810435848563, 0.8611363115940526};
-constexpr double GaussW[4] = {0.3478548451374538, 0.6521451548625461, 0.6521451548625461, 0.3478548451374538};
-
-/// The quadrature points of one axis of a basis function: positions y and weights w (including the basis' value
-/// at y), `segments` pieces per linear piece of the basis.
-void basis_points2(double h, Interpolation interp, int segments, std::vector<double>& y, std::vector<double>& w) {
-    y.clear();
-    w.clear();
-    const bool tent = interp == Interpolation::Bilinear;
-    const double a = tent ? -h : -0.5 * h, b = -a;
-    const int pieces = 2 * segments;  // the tent's two linear pieces (the box's one, split alike)
-    const double len = (b - a) / pieces;
-    for (int p = 0; p < pieces; ++p) {
-        const double mid = a + (p + 0.5) * len;
-        for (int q = 0; q < 4; ++q) {
-            const double yy = mid + 0.5 * len * GaussX[q];
-            y.push_back(yy);
-            w.push_back(0.5 * len * GaussW[q] * (tent ? 1 - std::abs(yy) / h : 1.0));
-        }
-    }
-}
-
 int segments_for2(Vec2d h, double delta) {
     // Pieces no longer than delta / 4 (the kernel's scale is delta), at least eight per linear piece of the basis (a
     // 2D node costs a thousand kernels at most: the table is cheap, so its quadrature is far below its interpolation
@@ -136,7 +115,7 @@ int segments_for2(Vec2d h, double delta) {
 
 Vec2d NearField2::quadrature(Vec2d r, Vec2d h, Interpolation interp, double delta, int segments) {
     std::vector<double> y[2], w[2];
-    for (int a = 0; a < 2; ++a) basis_points2(h[a], interp, segments, y[a], w[a]);
+    for (int a = 0; a < 2; ++a) detail::near_field_basis_points(h[a], interp, segments, y[a], w[a]);
     Vec2d out(0.0);
     for (std::size_t j = 0; j < y[1].size(); ++j) {
         Vec2d row(0.0);

@@ -13,6 +13,8 @@
 #include <limits>
 #include <mutex>
 
+#include "near_field_quadrature.h"
+
 namespace kelvin::fluid {
 
 namespace {
@@ -164,29 +166,6 @@ Vec3d PeriodicKernel3::correction(Vec3d r) const {
 // Near field.
 
 namespace {
-// Gauss–Legendre, 4 points on [-1, 1] (exact for polynomials of degree 7).
-constexpr double GaussX[4] = {-0.8611363115940526, -0.3399810435848563, 0.3399810435848563, 0.8611363115940526};
-constexpr double GaussW[4] = {0.3478548451374538, 0.6521451548625461, 0.6521451548625461, 0.3478548451374538};
-
-/// The quadrature points of one axis of a basis function: positions y and weights w (including the basis' value
-/// at y), `segments` pieces per linear piece of the basis.
-void basis_points(double h, Interpolation interp, int segments, std::vector<double>& y, std::vector<double>& w) {
-    y.clear();
-    w.clear();
-    const bool tent = interp == Interpolation::Bilinear;
-    const double a = tent ? -h : -0.5 * h, b = -a;
-    const int pieces = 2 * segments;  // the tent's two linear pieces (the box's one, split alike)
-    const double len = (b - a) / pieces;
-    for (int p = 0; p < pieces; ++p) {
-        const double mid = a + (p + 0.5) * len;
-        for (int q = 0; q < 4; ++q) {
-            const double yy = mid + 0.5 * len * GaussX[q];
-            y.push_back(yy);
-            w.push_back(0.5 * len * GaussW[q] * (tent ? 1 - std::abs(yy) / h : 1.0));
-        }
-    }
-}
-
 int segments_for(Vec3d h, double delta) {
     // Pieces no longer than delta / 2 (the kernel's scale is delta), at least four per linear piece of the basis:
     // at delta = h/2 the quadrature is within 1e-7 of the near field's peak on cubic cells, 3e-6 on cells of 0.08 x
@@ -198,7 +177,7 @@ int segments_for(Vec3d h, double delta) {
 
 Vec3d NearField3::quadrature(Vec3d r, Vec3d h, Interpolation interp, double delta, Mollifier mollifier, int segments) {
     std::vector<double> y[3], w[3];
-    for (int a = 0; a < 3; ++a) basis_points(h[a], interp, segments, y[a], w[a]);
+    for (int a = 0; a < 3; ++a) detail::near_field_basis_points(h[a], interp, segments, y[a], w[a]);
     Vec3d out(0.0);
     for (std::size_t k = 0; k < y[2].size(); ++k) {
         Vec3d plane(0.0);
