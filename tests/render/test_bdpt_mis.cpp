@@ -63,6 +63,14 @@ using namespace kelvin;
 
 namespace {
 
+/// A shipped scene (scenes/render/NAME.xml) under bdpt at 32 x 32.
+std::shared_ptr<kelvin::Scene> shipped_bdpt_scene(const std::string& name) {
+    const std::string file = KELVIN_SOURCE_DIR "/scenes/render/" + name + ".xml";
+    ParseOptions opts;
+    opts.defines = {{"integrator", "bdpt"}, {"res", "32"}};
+    return ktest::load_scene_xml(ktest::read_text(file), opts, file);
+}
+
 constexpr int MaxEdges = 8;
 
 const char* kSpecularRoom = R"(<scene version="3.0.0">
@@ -379,11 +387,8 @@ void expect_partition_of_unity(const std::shared_ptr<Scene>& scene, int samples,
 }
 
 TEST(BdptMis, WeightsSumToOneCornellBox) {
-    const std::string file = KELVIN_SOURCE_DIR "/scenes/render/cornell-box.xml";
-    ParseOptions opts;
-    opts.defines = {{"integrator", "bdpt"}, {"res", "32"}};
-    expect_partition_of_unity(ktest::load_scene_xml(ktest::read_text(file), opts, file), 10000,
-                              {0, 0, 1, 1, 1, 1, 1, 1, 1});
+    const auto scene = shipped_bdpt_scene("cornell-box");
+    expect_partition_of_unity(scene, 10000, {0, 0, 1, 1, 1, 1, 1, 1, 1});
 }
 
 TEST(BdptMis, WeightsSumToOneSpecularPointAndSpotLights) {
@@ -406,10 +411,7 @@ TEST(BdptMis, WeightsSumToOneDirectionalLightAndSky) {
 // the caustic, with a per-sample variance of about 120 in its pixels. Paths from the camera subpaths alone (every
 // strategy's weight of a path sampled by (0, 5)); also checked against veach_weights().
 TEST(BdptMis, CausticLeftToLightTracing) {
-    const std::string file = KELVIN_SOURCE_DIR "/scenes/render/caustic.xml";
-    ParseOptions opts;
-    opts.defines = {{"integrator", "bdpt"}, {"res", "32"}};
-    const auto scene = ktest::load_scene_xml(ktest::read_text(file), opts, file);
+    const auto scene = shipped_bdpt_scene("caustic");
     const Sensor& sensor = *scene->sensor();
     auto sampler = sensor.sampler().clone();
     const BidirectionalPaths paths(1 << 20);
@@ -467,10 +469,7 @@ TEST(BdptMis, CausticLeftToLightTracing) {
 // light image (0, 2) has weight 1 and (1, 1) none. Fails if (1, 1) resamples y_0 as next-event estimation does, or
 // if (0, 2) keeps weight 1 beside (1, 1).
 TEST(BdptMis, LightImageWeightsOfAnEmitterSeenDirectly) {
-    const std::string file = KELVIN_SOURCE_DIR "/scenes/render/cornell-box.xml";
-    ParseOptions opts;
-    opts.defines = {{"integrator", "bdpt"}, {"res", "32"}};
-    const auto scene = ktest::load_scene_xml(ktest::read_text(file), opts, file);
+    const auto scene = shipped_bdpt_scene("cornell-box");
     const Sensor& sensor = *scene->sensor();
     auto sampler = sensor.sampler().clone();
     const BidirectionalPaths with(5, true), without(5, false);
