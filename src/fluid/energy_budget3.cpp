@@ -280,6 +280,9 @@ void MCFluid3Solver::set_energy_budget(bool on) {
     if (m_settings.boundaries)
         throw_runtime("MCFluid3Solver: the energy budget covers flows without boundaries (walk_on_spheres) only");
     if (m_settings.viscosity > 0) throw_runtime("MCFluid3Solver: the energy budget covers inviscid flows only");
+    if (m_settings.transport == VorticityTransport::MacCormack)
+        throw_runtime(
+            "MCFluid3Solver: the energy budget models the cubic and linear lookups, not MacCormack's correction");
     m_flow = std::make_unique<FlowFFT3>(m_settings.domain, m_settings.nx, m_settings.ny, m_settings.nz);
     m_budget_step = m_budget_total = {};
     m_budget_total.energy = m_budget_step.energy = m_flow->energy(m_omega);

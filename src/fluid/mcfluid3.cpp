@@ -116,8 +116,6 @@ void check_settings(const MCFluid3Settings& s) {
     if (s.nx < 2 || s.ny < 2 || s.nz < 2 || s.nx > m || s.ny > m || s.nz > m)
         throw_runtime("MCFluid3Solver: cache resolution {}x{}x{} out of range [2, {}]", s.nx, s.ny, s.nz, m);
     if (!(s.dt > 0) || !std::isfinite(s.dt)) throw_runtime("MCFluid3Solver: dt must be positive and finite");
-    if (s.transport == VorticityTransport::MacCormack)
-        throw_runtime("MCFluid3Solver: the MacCormack transport is 2D only (use cubic or linear)");
     if (!(s.viscosity >= 0) || !std::isfinite(s.viscosity)) throw_runtime("MCFluid3Solver: viscosity must be >= 0");
     if (s.samples < 0) throw_runtime("MCFluid3Solver: velocity samples must be >= 1 (0: the estimator's)");
     if (s.diffusion_samples < 1) throw_runtime("MCFluid3Solver: diffusion samples must be >= 1");
@@ -329,7 +327,12 @@ bool MCFluid3Solver::step(double dt) {
     const double sigma = viscous ? std::sqrt(2 * s.viscosity * dt) : 0.0;
     const double half_segment = 0.5 * m_segment, inv_segment = 1.0 / m_segment;
     const Interpolation interp = s.interpolation;
-    const bool cubic = s.transport == VorticityTransport::Cubic;
+    const bool cubic = s.transport != VorticityTransport::Linear;
+    const bool maccormack = s.transport == VorticityTransport::MacCormack;
+    if (maccormack && m_departure.size() != m_omega.cell_count()) {
+        m_advected = VectorGrid3(s.domain, s.nx, s.ny, s.nz);
+        m_departure.assign(m_omega.cell_count(), Vec3d(0.0));
+    }
     SlabPass pass(*m_comm, std::size_t(s.nz), std::size_t(s.nx) * std::size_t(s.ny));  // this rank's z slabs
     SlabWork work;
     const bool complete = for_each_cell(
@@ -354,6 +357,11 @@ bool MCFluid3Solver::step(double dt) {
                 if (glm::length(x - m_smoke->center) <= m_smoke->radius) rho += dt * m_smoke->rate;
                 m_density_next.values()[c] = std::isfinite(rho) ? rho : 0.0;
                 ++w.smoke;
+            }
+            if (maccormack) {  // what the correction traces forward: the lookup alone, before diffusion and stretching
+                m_departure[c] = xd;
+                const Vec3d a = m_omega.sample_cubic(xd);
+                m_advected.set(c, finite(a) ? a : Vec3d(0.0));
             }
             Vec3d sum(0.0);
             for (int d = 0; d < nd; ++d) {
@@ -398,7 +406,10 @@ bool MCFluid3Solver::step(double dt) {
     // The new vorticity (and smoke) of every rank's slabs, before anything reads them.
     std::vector<std::vector<double>*> fields = {&m_next.x.values(), &m_next.y.values(), &m_next.z.values()};
     if (m_smoke) fields.push_back(&m_density_next.values());
+    if (maccormack)
+        for (Grid3* g : {&m_advected.x, &m_advected.y, &m_advected.z}) fields.push_back(&g->values());
     pass.gather(fields);
+    if (maccormack && !maccormack_correction(dt)) return false;
     if (m_flow && !measure_budget(dt)) return false;  // before the new state replaces the old one
     add_work(m_work, work);
     if (m_smoke) std::swap(m_density, m_density_next);
@@ -414,6 +425,45 @@ bool MCFluid3Solver::step(double dt) {
     ++m_step;
     rebuild_estimators();
     m_work.seconds_advection += timer.seconds();
+    return true;
+}
+
+bool MCFluid3Solver::maccormack_correction(double dt) {
+    const MCFluid3Settings& s = m_settings;
+    // The forward trace through the cached cell-centre velocity of the old state (read between the centres by the
+    // cubic interpolant): the same frozen velocity the backtrace used, run forward.
+    auto vel = [&](const Vec3d& p) { return m_vel.sample_cubic(p); };
+    const Vec3d h = m_omega.x.h();
+    SlabPass pass(*m_comm, std::size_t(s.nz), std::size_t(s.nx) * std::size_t(s.ny));
+    SlabWork work;  // no random draws, nothing counted: the pass only reads the state
+    const bool complete = for_each_cell(
+        pass, s, m_omega.x, m_step, TagAdvection, work, *this, [&](std::size_t c, const Vec3d& x, Random&, SlabWork&) {
+            const Vec3d xf = trace(x, m_vel.at(c), dt, s.advection, vel);
+            if (!finite(xf)) return;
+            const Vec3d back = m_advected.sample_cubic(s.domain.wrap(xf));
+            const Vec3d a = m_advected.at(c);
+            Vec3d delta = 0.5 * (m_omega.at(c) - back);
+            // Clamped to the range of the 2x2x2 cells around the departure point, per component; a
+            // component outside it keeps the plain lookup (Selle et al. 2008).
+            const Vec3d g = (m_departure[c] - s.domain.min) / h - Vec3d(0.5);
+            const int i0 = int(std::floor(g.x)), j0 = int(std::floor(g.y)), k0 = int(std::floor(g.z));
+            for (int comp = 0; comp < 3; ++comp) {
+                const Grid3& om = comp == 0 ? m_omega.x : comp == 1 ? m_omega.y : m_omega.z;
+                double lo = std::numeric_limits<double>::infinity(), hi = -lo;
+                for (int dk = 0; dk < 2; ++dk)
+                    for (int dj = 0; dj < 2; ++dj)
+                        for (int di = 0; di < 2; ++di) {
+                            const double v = om.at_bc(i0 + di, j0 + dj, k0 + dk);
+                            lo = std::min(lo, v);
+                            hi = std::max(hi, v);
+                        }
+                const double corrected = a[comp] + delta[comp];
+                if (!(corrected >= lo && corrected <= hi)) delta[comp] = 0;
+            }
+            m_next.set(c, m_next.at(c) + delta);
+        });
+    if (!complete) return false;
+    pass.gather({&m_next.x.values(), &m_next.y.values(), &m_next.z.values()});
     return true;
 }
 

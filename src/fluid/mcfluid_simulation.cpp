@@ -68,6 +68,10 @@ MCFluidParams MCFluidParams::parse(const Properties& props) {
             props.error("velocity", velocity->plugin_name() + ": " + why);
     }
     p.energy_budget = props.get_bool("energy_budget");
+    if (p.energy_budget && s.transport == VorticityTransport::MacCormack)
+        props.error("energy_budget",
+                    "models the cubic and linear lookups; with transport 'maccormack' its correction would be counted "
+                    "as noise");
     if (p.energy_budget && s.boundaries)
         props.error("energy_budget", "covers flows without boundaries only (walk_on_spheres has none in closed form)");
     if (p.energy_budget && s.viscosity > 0) props.error("energy_budget", "covers inviscid flows only (viscosity 0)");
@@ -168,8 +172,10 @@ public:
                                m_mc.boundary_field()->settings().epsilon, s.boundaries->wos.max_steps)
                          : s.estimator->effect(s.samples, m_mc.delta(), s.domain.periodic) + near_field_effect();
         lines.push_back(fmt::format(
-            "effects: advection ({}, dt {:g}, {} steps) with {}; boundaries {}; diffusion {}; stretching off (2D); {}",
-            fluid::to_string(s.advection), s.dt, m_p.steps, velocity,
+            "effects: advection ({}, dt {:g}, {} steps, transport {}) with {}; boundaries {}; diffusion {}; stretching "
+            "off "
+            "(2D); {}",
+            fluid::to_string(s.advection), s.dt, m_p.steps, fluid::to_string(s.transport), velocity,
             s.boundaries ? fluid::describe(*s.boundaries, s.domain) : std::string("none"),
             s.viscosity > 0 ? fmt::format("on (nu {:g}, Feynman–Kac, n_d {})", s.viscosity, s.diffusion_samples)
                             : std::string("off (inviscid)"),

@@ -529,16 +529,20 @@ TEST(MCFluid3, HardCasesStayFinite) {
 }
 
 TEST(MCFluid3, ResultsAreBitIdenticalWhateverTheThreadCount) {
-    auto run = [](int threads) {
+    auto run = [](int threads, VorticityTransport transport) {
         ThreadLimit limit(threads);
         MCFluid3Settings s = abc_settings(8, 16, 0.1);
         s.viscosity = 0.01;
         s.control_variates = true;
+        s.transport = transport;
         MCFluid3Solver solver(s, [](const Vec3d& x) { return abc_velocity(x); });
         for (int i = 0; i < 3; ++i) EXPECT_TRUE(solver.step());
         return solver.vorticity_grid().x.values();
     };
-    EXPECT_EQ(run(1), run(2));
+    EXPECT_EQ(run(1, VorticityTransport::Cubic), run(2, VorticityTransport::Cubic));
+    const auto mac = run(1, VorticityTransport::MacCormack);
+    EXPECT_EQ(mac, run(2, VorticityTransport::MacCormack));
+    EXPECT_NE(mac, run(1, VorticityTransport::Cubic));  // the correction ran
 }
 
 // Smoke rides on the solver's own backtraces: in a uniform translation (a periodic field whose velocity is known) a

@@ -47,12 +47,14 @@ const char* to_string(Advection a);
 /// interpolant it diffuses: each step averages neighbouring cells, and over a few hundred steps a vortex loses a
 /// quarter to a half of its energy). Cubic: the monotone cubic interpolant (Grid2::sample_cubic, Grid3::cubic_stencil)
 /// — third order, clamped so it makes no new extrema. MacCormack: the cubic lookup plus the error-compensating
-/// correction of Selle et al. (2008), 2D only: the step's result is traced forward again through the (cached) velocity,
+/// correction of Selle et al. (2008): the step's result is traced forward again through the (cached) velocity,
 /// half the difference to the previous state is added back, and the result is clamped to the range of the cells around
 /// the departure point (reverting to the plain lookup where the clamp bites); it cancels the lookup's leading error
 /// term, for one more lookup and a forward trace through the cached cell-centre velocity (no new Monte Carlo
-/// queries). With viscosity the correction is of the advection only (the diffusion is not undone). The
-/// Biot–Savart source stays the cache's `interpolation` in every case.
+/// queries). With viscosity the correction is of the advection only (the diffusion is not undone); in 3D it corrects
+/// the lookup before the stretching, per component (the stretching of the step is kept), and smoke is carried by the
+/// cubic lookup. The energy budget does not model the correction (refused). The Biot–Savart source stays the cache's
+/// `interpolation` in every case.
 enum class VorticityTransport { Linear, Cubic, MacCormack };
 const char* to_string(VorticityTransport t);
 

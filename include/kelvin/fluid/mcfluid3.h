@@ -192,6 +192,10 @@ private:
     void budget_step(const VectorGrid3& u, double dt, int substeps, VectorGrid3* as_run, VectorGrid3* exact) const;
     /// The step's budget (m_budget_step); false when a stop came between its passes (the step is then discarded).
     bool measure_budget(double dt);
+    /// MacCormack's correction of m_next (VorticityTransport::MacCormack): the advected values m_advected traced
+    /// forward through the cached velocity, half the difference to the old state added back where it stays within
+    /// the cells around the departure point; false when stopped.
+    bool maccormack_correction(double dt);
 
     MCFluid3Settings m_settings;
     Communicator* m_comm;  ///< never null (the local communicator by default)
@@ -199,6 +203,8 @@ private:
     double m_time = 0;
     long long m_step = 0;
     VectorGrid3 m_omega, m_next;
+    VectorGrid3 m_advected;          ///< MacCormack: each cell's looked-up value before diffusion and stretching
+    std::vector<Vec3d> m_departure;  ///< MacCormack: each cell's departure point (wrapped)
     VectorGrid3 m_vel, m_var;
     bool m_velocity_valid = false;
     std::shared_ptr<const PeriodicKernel3> m_periodic;

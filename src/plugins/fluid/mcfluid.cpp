@@ -109,7 +109,7 @@ KELVIN_PLUGIN(kelvin::fluid::MCFluid, "simulation", "mcfluid",
               kelvin::param::string("advection", "rk4", "'euler' or 'rk4' semi-Lagrangian backtrace"),
               kelvin::param::string("transport", "cubic",
                                     "how a backtrace reads the previous vorticity: 'cubic' (monotone cubic), "
-                                    "'maccormack' (cubic with Selle et al.'s error correction; 2D only) "
+                                    "'maccormack' (cubic with Selle et al.'s error correction) "
                                     "or 'linear' (bi/trilinear, the thesis' scheme, diffusive)"),
               kelvin::param::boolean("energy_budget", false,
                                      "inviscid, no boundaries (2D and 3D): measure where each step's energy goes (CSV "
