@@ -122,16 +122,18 @@ MeridianGrid AxisymmetricRings::meridian(double h, double z_min, double z_max, d
     g.nz = std::max(1, int(std::ceil((z_max - z_min) / h)));
     g.value.assign(std::size_t(g.nr) * std::size_t(g.nz), 0.0);
     g.filled.assign(g.value.size(), 1);
+    // Each element a Gaussian blob exp(-d^2 / eps^2) / (pi eps^2) of its circulation: eps^2 = hp^2 (the lattice's own
+    // spacing, which makes the sum smooth however the elements are strained) + h^2 / 3 (the smoothing of the solvers'
+    // bilinear binning, variance h^2 / 6 per axis).
+    const double eps2 = m_eps2 + h * h / 3, eps = std::sqrt(eps2), reach = 3.5 * eps;
     for (const Element& e : m_el) {
-        const double fr = e.r / h - 0.5, fz = (e.z - z_min) / h - 0.5;
-        const int i0 = int(std::floor(fr)), j0 = int(std::floor(fz));
-        const double ar = fr - i0, az = fz - j0;
-        for (int di = 0; di < 2; ++di)
-            for (int dj = 0; dj < 2; ++dj) {
-                // Below the first bin centre in r, everything goes to the first bin (the axis holds no vorticity).
-                const int bi = std::max(i0 + di, 0), bj = j0 + dj;
-                if (bi >= g.nr || bj < 0 || bj >= g.nz) continue;
-                g.value[g.index(bi, bj)] += (di ? ar : 1 - ar) * (dj ? az : 1 - az) * e.g / (h * h);
+        const int i0 = std::max(0, int(std::floor((e.r - reach) / h))), i1 = std::min(g.nr - 1, int((e.r + reach) / h));
+        const int j0 = std::max(0, int(std::floor((e.z - reach - z_min) / h)));
+        const int j1 = std::min(g.nz - 1, int((e.z + reach - z_min) / h));
+        for (int j = j0; j <= j1; ++j)
+            for (int i = i0; i <= i1; ++i) {
+                const double dr = g.r(i) - e.r, dz = g.z(j) - e.z;
+                g.value[g.index(i, j)] += e.g / (std::numbers::pi * eps2) * std::exp(-(dr * dr + dz * dz) / eps2);
             }
     }
     return g;

@@ -80,7 +80,8 @@ std::vector<RingCore> find_ring_cores(const MeridianGrid& g, int count, double m
     if (count <= 0 || g.nr <= 0 || g.nz <= 0) return cores;
     auto filled = [&](int i, int j) { return i >= 0 && i < g.nr && j >= 0 && j < g.nz && g.filled[g.index(i, j)]; };
     auto value = [&](int i, int j) { return g.value[g.index(i, j)]; };
-    // Local maxima: the largest value within two bins (ties broken by the bin index, so a plateau gives one).
+    // Local maxima: the largest value of their 3x3 bins (ties broken by the bin index, so a plateau gives one), hence
+    // at least two bins apart. (A 5x5 window loses a weaker core that sits on the flank of a stronger one.)
     struct Max {
         int i, j;
         double v;
@@ -92,8 +93,8 @@ std::vector<RingCore> find_ring_cores(const MeridianGrid& g, int count, double m
             const double v = value(i, j);
             if (!(v > 0)) continue;
             bool is_max = true;
-            for (int dj = -2; dj <= 2 && is_max; ++dj)
-                for (int di = -2; di <= 2 && is_max; ++di) {
+            for (int dj = -1; dj <= 1 && is_max; ++dj)
+                for (int di = -1; di <= 1 && is_max; ++di) {
                     if ((di == 0 && dj == 0) || !filled(i + di, j + dj)) continue;
                     const double u = value(i + di, j + dj);
                     const bool earlier = g.index(i + di, j + dj) < g.index(i, j);
@@ -111,7 +112,8 @@ std::vector<RingCore> find_ring_cores(const MeridianGrid& g, int count, double m
     for (const Max& m : kept) {
         RingCore c;
         c.peak = m.v;
-        // Sub-bin position: a parabola through the logarithms (a Gaussian's exact peak) along r and along z.
+        // Sub-bin position: a parabola through the logarithms (a Gaussian's exact peak) along r and
+        // along z.
         auto refine = [&](int di, int dj) -> double {
             if (!filled(m.i - di, m.j - dj) || !filled(m.i + di, m.j + dj)) return 0;
             const double a = value(m.i - di, m.j - dj), c2 = value(m.i + di, m.j + dj);
@@ -137,10 +139,11 @@ std::vector<RingCore> find_ring_cores(const MeridianGrid& g, int count, double m
         c.z = g.z(m.j + oj);
         cores.push_back(c);
     }
-    // Circulation: omega_theta h^2 over the bins nearest each core (its refined position) that are connected to its
-    // maximum through such bins standing above the noise: three times its standard deviation estimated from the
-    // median |omega_theta| (most bins hold no ring; without noise the floor is ~0 and every positive bin of the
-    // core's blob counts). The connection leaves out noise far from the cores, which a bare threshold would not.
+    // Circulation: omega_theta h^2 over the bins nearest each core (its refined position) that are
+    // connected to its maximum through such bins standing above the noise: three times its standard
+    // deviation estimated from the median |omega_theta| (most bins hold no ring; without noise the
+    // floor is ~0 and every positive bin of the core's blob counts). The connection leaves out noise
+    // far from the cores, which a bare threshold would not.
     std::vector<double> magnitudes;
     for (std::size_t b = 0; b < g.value.size(); ++b)
         if (g.filled[b]) magnitudes.push_back(std::abs(g.value[b]));

@@ -133,7 +133,10 @@ TEST(RingCores, NoisyFieldStillFindsThem) {
 // as the solvers' azimuthal mean at t = 0, and after t = 0.5 its two labelled rings and the cores found agree: the
 // rear ring has shrunk and the front one grown, the cores within one bin of each ring's impulse centroid (sum z r^2 g
 // / sum r^2 g of its own elements, which the two deformed cores' overlap moves from the vorticity maximum). Seen to
-// fail with the deposit's weights swapped between the two bins (cores 0.5 h off).
+// fail with a blob of the wrong width (the lattice spacing alone: circulations 2 % high, the edges still found;
+// eps^2 = h^2: cores pulled 0.1 h together) and with the blob's centre off by half a bin. The circulations are within
+// 4 %: the two smoothed cores overlap, and the row of bins nearest the midway line goes whole to one core (measured
+// 0.966 and 1.034; the solvers' grid of test 2 splits it 1.006 / 0.994 by chance of the bins' offset).
 TEST(RingCores, ExactReferenceMeridianAgrees) {
     AxisymmetricRings rings(1, 1, 0.2, {0.1, 0.7}, 4);
     auto cores_of = [&]() { return find_ring_cores(rings.meridian(H, -1, 3, 2.5), 2); };
@@ -142,7 +145,8 @@ TEST(RingCores, ExactReferenceMeridianAgrees) {
     for (int k = 0; k < 2; ++k) {
         EXPECT_NEAR(c[k].r, 1.0, 0.05 * H);
         EXPECT_NEAR(c[k].z, 0.1 + 0.6 * k, 0.05 * H);
-        EXPECT_NEAR(c[k].circulation, 1.0, 0.03);
+        EXPECT_NEAR(c[k].circulation, 1.0, 0.04);
+        EXPECT_NEAR(c[0].circulation + c[1].circulation, 2.0, 0.01);
     }
     for (int s = 0; s < 5; ++s) rings.step(0.1);
     c = cores_of();

@@ -51,9 +51,10 @@ public:
     /// The rings' velocity (u_r, u_z) at (r, z), r > 0.
     void velocity(double r, double z, double& ur, double& uz) const;
 
-    /// The elements' omega_theta on a meridian grid of spacing h (bins at r = (i + 1/2) h, z = z_min + (j + 1/2) h;
-    /// each element's circulation spread over its four nearest bins with bilinear weights, divided by h^2): the
-    /// counterpart of a 3D solver's azimuthal mean (ring_cores.h), for find_ring_cores.
+    /// The elements' omega_theta on a meridian grid of spacing h (bins at r = (i + 1/2) h, z = z_min + (j + 1/2) h),
+    /// each element a Gaussian blob of its circulation whose width adds the lattice spacing (a smooth sum however the
+    /// elements are strained) and the smoothing of the solvers' bilinear binning: the counterpart of a 3D solver's
+    /// azimuthal mean (ring_cores.h), for find_ring_cores.
     MeridianGrid meridian(double h, double z_min, double z_max, double r_max) const;
 
 private:

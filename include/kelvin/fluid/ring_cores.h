@@ -11,10 +11,10 @@
 //     centred at r = (i + 1/2) h, z = z_min + (j + 1/2) h; each cell adds its value to the four nearest bins with
 //     bilinear weights and each bin is the weighted mean of what it received (bins that received nothing hold 0
 //     and are marked empty).
-//   - find_ring_cores: the `count` strongest local maxima of a meridian grid (each the largest value within two bins
-//     in r and z, and at least `min_fraction` of the strongest), each refined to sub-bin precision by a parabola
-//     through the logarithms of its three values along r and along z (exact for a Gaussian core; through the values
-//     themselves where one is not positive; the 3x3 centroid at the edge of the data), with its circulation: the
+//   - find_ring_cores: the `count` strongest local maxima of a meridian grid (each the largest of its 3x3 bins, so at
+//     least two bins apart, and at least `min_fraction` of the strongest), each refined to sub-bin precision by a
+//     parabola through the logarithms of its three values along r and along z (exact for a Gaussian core; through the
+//     values themselves where one is not positive; the 3x3 centroid at the edge of the data), with its circulation: the
 //     sum of omega_theta h^2 over the bins nearer that core than the others and connected to its maximum through
 //     such bins above the noise (three times its standard deviation, estimated as 1.4826 times the median
 //     |omega_theta| of all bins, most of which hold no ring; without noise, every positive bin). Sorted by z.
