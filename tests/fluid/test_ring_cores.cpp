@@ -13,8 +13,10 @@
 #include <kelvin/fluid/ring_cores.h>
 
 #include <gtest/gtest.h>
+#include <sys/wait.h>
 
 #include <cmath>
+#include <cstdlib>
 #include <filesystem>
 #include <fstream>
 #include <map>
@@ -231,4 +233,46 @@ TEST(RingCores, McfluidRunWritesCoreColumns) {
     const ObjectPtr ring = Registry::instance().create(Properties("vorticity", "vortex_ring"));
     EXPECT_EQ(RingCoreColumns(dynamic_cast<const VorticityField3*>(ring.get())).header(),
               ",core1_r,core1_z,core1_circulation");
+}
+
+// `ring_reference` (tools/ring_reference.cpp): the header the studies read, a row every --every steps and the last,
+// the impulse conserved (to 1e-6), both cores moving forward from their initial (1, 0) and (1, 0.6), each ring's own
+// elements at its offset at t = 0; a bad argument is one line naming the option, exit 2. Seen to fail with the rows'
+// time off by one step (time = step * dt of the next step).
+TEST(RingReference, WritesTheCoreColumnsAndRefusesBadArguments) {
+    ktest::TempDir dir;
+    const fs::path out = dir / "ref.csv";
+    const std::string cmd = std::string("\"") + KELVIN_RING_REFERENCE +
+                            "\" --core 0.2 --offsets 0,0.6 --dt 0.05 --end 0.5 --every 4 -o \"" + out.string() + "\"";
+    ASSERT_EQ(std::system(cmd.c_str()), 0) << cmd;
+    std::ifstream in(out);
+    std::string header;
+    std::getline(in, header);
+    EXPECT_EQ(header,
+              "step,time,impulse_z,impulse_centroid_z,core1_r,core1_z,core1_circulation,core2_r,core2_z,"
+              "core2_circulation,ring1_r,ring1_z,ring2_r,ring2_z,seconds");
+    auto cols = csv_columns(out);
+    ASSERT_EQ(cols["step"], (std::vector<std::string>{"0", "4", "8", "10"}));
+    EXPECT_DOUBLE_EQ(std::stod(cols["time"][1]), 0.2);
+    EXPECT_DOUBLE_EQ(std::stod(cols["time"].back()), 0.5);
+    const double p0 = std::stod(cols["impulse_z"].front());
+    EXPECT_NEAR(p0, 2 * Pi * (1 + 0.04 / 2), 0.01);  // two rings of impulse pi Gamma (R^2 + sigma^2 / 2)
+    EXPECT_NEAR(std::stod(cols["impulse_z"].back()) / p0, 1.0, 1e-6);
+    EXPECT_NEAR(std::stod(cols["core1_z"].front()), 0.0, 0.01);
+    EXPECT_NEAR(std::stod(cols["core2_z"].front()), 0.6, 0.01);
+    EXPECT_NEAR(std::stod(cols["core1_r"].front()), 1.0, 0.01);
+    EXPECT_NEAR(std::stod(cols["ring2_z"].front()), 0.6, 1e-9);
+    EXPECT_GT(std::stod(cols["core1_z"].back()), 0.15);  // the rear ring, faster, goes 0.2-0.3 in t = 0.5
+    EXPECT_GT(std::stod(cols["core2_z"].back()), 0.6 + 0.05);
+    EXPECT_LT(std::stod(cols["core1_r"].back()), 1.0);  // the rear ring shrinks
+
+    const fs::path err = dir / "err.txt";
+    const std::string bad = std::string("\"") + KELVIN_RING_REFERENCE + "\" --core 2 2> \"" + err.string() + "\"";
+    const int status = std::system(bad.c_str());
+    ASSERT_TRUE(WIFEXITED(status));
+    EXPECT_EQ(WEXITSTATUS(status), 2);
+    std::ifstream e(err);
+    std::stringstream text;
+    text << e.rdbuf();
+    EXPECT_EQ(text.str(), "ring_reference: error: --core: must be positive and smaller than the radius\n");
 }
