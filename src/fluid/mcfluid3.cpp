@@ -243,15 +243,15 @@ void MCFluid3Solver::blend_direct(Vec3d x, int n, Random& rng, SlabWork& w, Velo
     e.variance = (beta * beta) * e.variance + ((1 - beta) * (1 - beta)) * d.variance;
 }
 
-Vec3d MCFluid3Solver::stage_velocity(Vec3d x, Random& rng, SlabWork& w) const {
+Vec3d MCFluid3Solver::stage_velocity(Vec3d x, int n, Random& rng, SlabWork& w) const {
     // Control variate: the difference field, plus the previous velocity interpolated at x (blended with a direct
     // estimate when control_variate_blend < 1).
     if (m_wos && m_wos->solid_at(x) >= 0) return Vec3d(0.0);
-    VelocityEstimate3 e = estimate_at(x, m_settings.samples, rng, w);
+    VelocityEstimate3 e = estimate_at(x, n, rng, w);
     if (m_have_prev) {
         e.value += m_prev_vel.sample(x, m_settings.interpolation);
         ++w.cv;
-        blend_direct(x, m_settings.samples, rng, w, e);
+        blend_direct(x, n, rng, w, e);
     }
     const Vec3d v = e.value;
     if (!finite(v) || !finite(e.variance)) {  // the cell pass's check: a value with an overflowed variance too
@@ -266,7 +266,8 @@ bool MCFluid3Solver::ensure_velocity() {
     Timer timer;
     const MCFluid3Settings& s = m_settings;
     const bool cv = m_have_prev;
-    const int n = (s.control_variates && m_step == 0 && s.initial_samples > 0) ? s.initial_samples : s.samples;
+    const int n_pass = (s.control_variates && m_step == 0 && s.initial_samples > 0) ? s.initial_samples : s.samples;
+    allocate_samples(n_pass);
     SlabPass pass(*m_comm, std::size_t(s.nz), std::size_t(s.nx) * std::size_t(s.ny));  // this rank's z slabs
     SlabWork work;
     const bool complete = for_each_cell(pass, s, m_omega.x, m_step, TagVelocity, work, *this,
@@ -276,6 +277,7 @@ bool MCFluid3Solver::ensure_velocity() {
                                                 m_var.set(c, Vec3d(0.0));
                                                 return;
                                             }
+                                            const int n = m_alloc.empty() ? n_pass : m_alloc[c];
                                             VelocityEstimate3 e = estimate_at(x, n, rng, w);
                                             if (cv) {
                                                 ++w.cv;
@@ -328,6 +330,7 @@ bool MCFluid3Solver::step(double dt) {
     const double half_segment = 0.5 * m_segment, inv_segment = 1.0 / m_segment;
     const Interpolation interp = s.interpolation;
     const bool cubic = s.transport != VorticityTransport::Linear;
+    if (s.vorticity_allocation && m_alloc_n != s.samples) allocate_samples(s.samples);  // after initial_samples
     const bool maccormack = s.transport == VorticityTransport::MacCormack;
     if (maccormack && m_departure.size() != m_omega.cell_count()) {
         m_advected = VectorGrid3(s.domain, s.nx, s.ny, s.nz);
@@ -339,8 +342,9 @@ bool MCFluid3Solver::step(double dt) {
         pass, s, m_omega.x, m_step, TagAdvection, work, *this,
         [&](std::size_t c, const Vec3d& x, Random& rng, SlabWork& w) {
             // Euler or RK4 with the velocity frozen at the previous step (Eqs. 3.139-3.144).
+            const int n = m_alloc.empty() ? s.samples : m_alloc[c];
             Vec3d xd =
-                trace(x, m_vel.at(c), -dt, s.advection, [&](const Vec3d& p) { return stage_velocity(p, rng, w); });
+                trace(x, m_vel.at(c), -dt, s.advection, [&](const Vec3d& p) { return stage_velocity(p, n, rng, w); });
             ++w.backtraces;
             if (!finite(xd)) {
                 ++w.invalid_velocity;
@@ -426,6 +430,64 @@ bool MCFluid3Solver::step(double dt) {
     rebuild_estimators();
     m_work.seconds_advection += timer.seconds();
     return true;
+}
+
+void MCFluid3Solver::allocate_samples(int n) {
+    const MCFluid3Settings& s = m_settings;
+    if (!s.vorticity_allocation) return;
+    const std::size_t cells = m_omega.cell_count();
+    // The weight of a cell: the largest |omega| over its 27-cell neighbourhood (the state is the same on every rank).
+    std::vector<double> mag(cells), w(cells);
+    for (std::size_t c = 0; c < cells; ++c) mag[c] = glm::length(m_omega.at(c));
+    parallel_for_units(std::size_t(s.nz), [&](std::size_t slab) {
+        const int k = int(slab);
+        for (int j = 0; j < s.ny; ++j)
+            for (int i = 0; i < s.nx; ++i) {
+                double m = 0;
+                for (int dk = -1; dk <= 1; ++dk)
+                    for (int dj = -1; dj <= 1; ++dj)
+                        for (int di = -1; di <= 1; ++di) {
+                            int a = i + di, b = j + dj, cc = k + dk;
+                            if (s.domain.periodic) {
+                                a = (a + s.nx) % s.nx;
+                                b = (b + s.ny) % s.ny;
+                                cc = (cc + s.nz) % s.nz;
+                            } else if (a < 0 || b < 0 || cc < 0 || a >= s.nx || b >= s.ny || cc >= s.nz) {
+                                continue;
+                            }
+                            m = std::max(m, mag[m_omega.x.index(a, b, cc)]);
+                        }
+                w[m_omega.x.index(i, j, k)] = std::isfinite(m) ? m : 0.0;
+            }
+    });
+    // n_c = clamp(round(scale w_c), n / floor, cap n), the scale found by bisection so that the total is at most n per
+    // cell.
+    const int lo = std::max(1, n / s.AllocationFloor), hi = s.AllocationCap * n;
+    const double budget = double(n) * double(cells);
+    auto total = [&](double scale) {
+        double t = 0;
+        for (double v : w) t += std::clamp(std::round(scale * v), double(lo), double(hi));
+        return t;
+    };
+    double a = 0, b = 1;
+    const double wmax = *std::max_element(w.begin(), w.end());
+    if (!(wmax > 0)) {  // no vorticity anywhere: uniform
+        m_alloc.assign(cells, n);
+        m_alloc_n = n;
+        return;
+    }
+    b = double(hi) / wmax;  // every cell at the cap: the largest scale that matters
+    if (total(b) <= budget) {
+        a = b;
+    } else {
+        for (int it = 0; it < 60; ++it) {
+            const double mid = 0.5 * (a + b);
+            (total(mid) <= budget ? a : b) = mid;
+        }
+    }
+    m_alloc_n = n;
+    m_alloc.resize(cells);
+    for (std::size_t c = 0; c < cells; ++c) m_alloc[c] = int(std::clamp(std::round(a * w[c]), double(lo), double(hi)));
 }
 
 bool MCFluid3Solver::maccormack_correction(double dt) {

@@ -66,6 +66,7 @@ Simulation3Params Simulation3Params::parse(const Properties& props) {
     s.control_variates = props.get_bool("control_variates");
     s.initial_samples = int(props.get_int("initial_samples", 0, 1 << 24));
     s.control_variate_blend = props.get_float("control_variate_blend", 1e-6, 1.0);
+    s.vorticity_allocation = props.get_choice("sample_allocation", {"uniform", "vorticity"}) == "vorticity";
     if (s.initial_samples > 0 && !s.control_variates)
         log_info(
             "mcfluid: initial_samples = {} is the control variates' initial sample count; control_variates is "
@@ -418,7 +419,7 @@ public:
             return R > 0 ? fmt::format(", the {} nearest cells summed exactly", (2 * R + 1) * (2 * R + 1) * (2 * R + 1))
                          : std::string();
         };
-        const std::string velocity =
+        std::string velocity =
             s.boundaries
                 ? fmt::format(
                       "free-slip Walk-on-Spheres velocity on the vector potential ({} gradient samples, max {} "
@@ -426,6 +427,10 @@ public:
                       s.samples, s.boundaries->wos.max_steps,
                       s.boundaries->vorticity_importance ? "|omega|-mixed" : "Green's-function")
                 : s.estimator->effect(s.samples, solver.delta(), s.domain.periodic) + near_field_effect();
+        if (s.vorticity_allocation)
+            velocity +=
+                fmt::format(", samples allocated by |omega| (n_mc / {} to {} n_mc per cell, at most n_mc on average)",
+                            s.AllocationFloor, s.AllocationCap);
         lines.push_back(fmt::format(
             "effects: advection ({}, dt {:g}, {} steps, transport {}) with {}; stretching {}; diffusion {}; control "
             "variates {}; boundaries {}; smoke {}",

@@ -113,3 +113,26 @@ TEST(CliFluidTransport, MacCormackRunsIn3DAndTheEffectsLineNamesTheTransport) {
     ASSERT_EQ(d.exit_code, 0) << describe(d);
     EXPECT_CONTAINS(d.err + d.out, "transport cubic)");
 }
+
+// sample_allocation: 'vorticity' runs and the effects line says so; a bad value, or the parameter in 2D, is one line
+// naming it, exit 2.
+TEST(CliFluidTransport, SampleAllocationFromTheScene) {
+    TempDir dir;
+    auto with = [&](const std::string& scene, const std::string& value, const std::string& name) {
+        std::string xml = read(Scenes + scene);
+        const std::string tag = "<simulation type=\"$solver\">";
+        xml.replace(xml.find(tag), tag.size(), tag + "<string name=\"sample_allocation\" value=\"" + value + "\"/>");
+        const fs::path p = dir.path() / name;
+        std::ofstream(p) << xml;
+        return p.string();
+    };
+    const std::string out = (dir.path() / "x.png").string();
+    const ProcessResult r = run_kelvin({with("vortex_ring.xml", "vorticity", "ring.xml"), "-D", "res=12", "-D",
+                                        "end=0.1", "-D", "spp=8", "-D", "every=0", "-o", out});
+    ASSERT_EQ(r.exit_code, 0) << describe(r);
+    EXPECT_CONTAINS(r.err + r.out, "samples allocated by |omega| (n_mc / 8 to 32 n_mc per cell");
+    EXPECT_CONTAINS(expect_one_error_line(run_kelvin({with("vortex_ring.xml", "omega", "bad.xml"), "-o", out})),
+                    "parameter 'sample_allocation': 'omega' is not one of");
+    EXPECT_CONTAINS(expect_one_error_line(run_kelvin({with("taylor_green.xml", "vorticity", "tg.xml"), "-o", out})),
+                    "parameter 'sample_allocation': is a 3D parameter");
+}

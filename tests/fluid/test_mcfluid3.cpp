@@ -599,3 +599,60 @@ TEST(MCFluid3, SmokeIsCarriedByTheRingAndFedByItsSource) {
 }
 
 }  // namespace
+
+// Vorticity-weighted sample allocation (sample_allocation = vorticity): on the leapfrog rings (20^3, n_mc 16) each
+// cell's velocity samples follow the largest |omega| around it, between n_mc/8 and 32 n_mc, with at most n_mc per cell
+// on average. The velocity error that moves the next state is where the vorticity is: the squared velocity error
+// weighted by |omega|^2 (against a 4096-sample estimate of the same state) must fall by more than 4x at no more total
+// samples; the error far from the rings rises (fewer samples there), which moves nothing. Measured: weighted error
+// 13.7x lower, total samples 1.00 of uniform's; unweighted error 2.8x higher. Broken variant seen to fail: every cell
+// given n_mc (gain 1.0).
+TEST(MCFluid3, VorticityAllocationLowersTheErrorWhereItMatters) {
+    auto rings = [](const Vec3d& x) { return ring_omega(x, 1, 1, 0.2) + ring_omega(x - Vec3d(0, 0, 0.6), 1, 1, 0.2); };
+    struct Result {
+        double weighted = 0, plain = 0;
+        uint64_t evals = 0;
+    };
+    auto run = [&](bool allocate) {
+        MCFluid3Settings s;
+        s.domain = {Vec3d(-2.5, -2.5, -1.5), Vec3d(2.5, 2.5, 3.5), false};
+        s.nx = s.ny = s.nz = 20;
+        s.samples = 16;
+        s.seed = 4;
+        s.vorticity_allocation = allocate;
+        MCFluid3Solver solver(s, rings);
+        const VectorGrid3& v = solver.velocity_grid();
+        Result r;
+        r.evals = solver.work().biot_savart_evals;
+        Random rng(3, 1);
+        for (std::size_t c = 0; c < v.cell_count(); c += 3) {
+            const int i = int(c % 20), j = int((c / 20) % 20), k = int(c / 400);
+            const Vec3d x = solver.vorticity_grid().x.cell_center(i, j, k);
+            const Vec3d d = v.at(c) - solver.velocity_estimate(x, 4096, rng).value;
+            const double w = glm::length(solver.vorticity_grid().at(c));
+            r.weighted += w * w * glm::dot(d, d);
+            r.plain += glm::dot(d, d);
+        }
+        return r;
+    };
+    const Result uniform = run(false), allocated = run(true);
+    std::printf(
+        "vorticity allocation: |omega|^2-weighted error %.2fx lower, unweighted %.2fx, samples %.2f of "
+        "uniform's\n",
+        uniform.weighted / allocated.weighted, allocated.plain / uniform.plain,
+        double(allocated.evals) / double(uniform.evals));
+    EXPECT_LE(allocated.evals, uniform.evals);
+    EXPECT_LT(allocated.weighted, 0.25 * uniform.weighted);
+}
+
+TEST(MCFluid3, VorticityAllocationIsTheSameOnAnyThreadCount) {
+    auto run = [](int threads) {
+        ThreadLimit limit(threads);
+        MCFluid3Settings s = abc_settings(8, 16, 0.1);
+        s.vorticity_allocation = true;
+        MCFluid3Solver solver(s, [](const Vec3d& x) { return abc_velocity(x); });
+        for (int i = 0; i < 2; ++i) EXPECT_TRUE(solver.step());
+        return solver.vorticity_grid().x.values();
+    };
+    EXPECT_EQ(run(1), run(2));
+}

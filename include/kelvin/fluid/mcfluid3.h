@@ -55,6 +55,13 @@ struct MCFluid3Settings : SolverSettings<3> {
     /// n_mc samples for each part when beta < 1 (the general control-variate form of thesis Sec. 6.2.1); 1 is Eq.
     /// 5.23, whose error is carried from step to step and accumulates, where with beta < 1 it decays as beta^k.
     double control_variate_blend = 1;
+    /// Where each velocity pass spends its samples. Uniform: n_mc at every cell. Vorticity: the same total, each
+    /// cell's share proportional to the largest |omega| over it and its 26 neighbours (the cells whose next value
+    /// its velocity moves: the backtrace error multiplies grad omega, the stretching's omega grad u), between
+    /// n_mc / AllocationFloor and AllocationCap n_mc (the total is less when the cap binds). Cells far from any
+    /// vorticity, whose velocity changes nothing in the next state, get the fewest.
+    bool vorticity_allocation = false;
+    static constexpr int AllocationFloor = 8, AllocationCap = 32;
 };
 
 /// Cumulative work of the 3D solver, per effect. In a distributed run the counters are the whole run's (summed over
@@ -179,7 +186,10 @@ private:
     /// The velocity of the current state at x with n samples: through the control variate when one is kept
     /// (`previous` is then the previous velocity at x), Biot–Savart or Walk-on-Spheres.
     VelocityEstimate3 estimate_at(Vec3d x, int n, Random& rng, SlabWork& w) const;
-    Vec3d stage_velocity(Vec3d x, Random& rng, SlabWork& w) const;
+    Vec3d stage_velocity(Vec3d x, int n, Random& rng, SlabWork& w) const;
+    /// The samples of each cell's velocity estimates in this state's passes (vorticity_allocation), for a pass of n
+    /// samples per cell on average; empty when uniform.
+    void allocate_samples(int n);
     /// With control variates and control_variate_blend beta < 1: e (the control-variate estimate at x) becomes
     /// beta e + (1 - beta) x a direct estimate with n samples, variances combined likewise.
     void blend_direct(Vec3d x, int n, Random& rng, SlabWork& w, VelocityEstimate3& e) const;
@@ -203,6 +213,8 @@ private:
     double m_time = 0;
     long long m_step = 0;
     VectorGrid3 m_omega, m_next;
+    std::vector<int> m_alloc;        ///< vorticity_allocation: each cell's samples in this state's passes
+    int m_alloc_n = 0;               ///< the mean samples per cell m_alloc was made for
     VectorGrid3 m_advected;          ///< MacCormack: each cell's looked-up value before diffusion and stretching
     std::vector<Vec3d> m_departure;  ///< MacCormack: each cell's departure point (wrapped)
     VectorGrid3 m_vel, m_var;

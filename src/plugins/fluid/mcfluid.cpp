@@ -126,6 +126,9 @@ KELVIN_PLUGIN(kelvin::fluid::MCFluid, "simulation", "mcfluid",
               kelvin::param::real("control_variate_blend", 1.0,
                                   "3D with control variates: beta in (0, 1]; below 1 a direct estimate of weight "
                                   "1 - beta is mixed in (n_mc more samples)"),
+              kelvin::param::string("sample_allocation", "uniform",
+                                    "3D: 'uniform' (n_mc per cell) or 'vorticity' (at most the same total, each "
+                                    "cell's share by the largest |omega| around it, n_mc/8 to 32 n_mc)"),
               kelvin::param::boolean("write_vdb", true, "3D: write frames as OpenVDB files"),
               kelvin::param::string("slice_axis", "y", "3D: PNG slices normal to 'x', 'y' or 'z'"),
               kelvin::param::object("vorticity", "vorticity", "initial vorticity field", true),
