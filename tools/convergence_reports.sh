@@ -12,6 +12,8 @@
 #   tools/convergence_reports.sh fluid-obstacle   # the four solvers on a Lamb–Oseen vortex in a disk container
 #   tools/convergence_reports.sh fluid-shear      # the four solvers on the shear layer against two 512^2 references
 #   tools/convergence_reports.sh fluid-long       # long times: inviscid Taylor–Green to t = 20, the 3D ring to t = 2
+#   tools/convergence_reports.sh fluid-leapfrog   # leapfrogging rings to t = 4: passes, merger, energy, impulse of
+#                                                 #   the 3D solvers at equal wall time against the exact dynamics
 #   tools/convergence_reports.sh mlt            # the MLT family at equal time (MLT_REF=reference.exr, MLT_GEOMETRY)
 #   tools/convergence_reports.sh mlt-door       # the thesis' equal-time protocol on one scene (docs/studies/mlt.md):
 #   tools/convergence_reports.sh mlt-caustic    #   reference, normalisation from it, PSSMLT/G's sigma matched to DR,
@@ -311,7 +313,7 @@ report() {
         # MCFluid and the grid baselines at 40^3. RUNS runs each, seeds 1..RUNS (the table gives medians and the
         # range); wall seconds per run.
         local d="$OUT/fluid-long"
-        [[ -n "$FRESH" ]] && rm -rf "$d"
+        [[ "${FRESH:-0}" == 1 ]] && rm -rf "$d"
         mkdir -p "$d"
         : >"$d/seconds.txt"
         long_run() {  # long_run NAME SCENE -D...: one run into $d/NAME, its wall seconds into seconds.txt
@@ -345,6 +347,42 @@ report() {
             done
         done
         python3 tools/fluid_long_table.py "$d" | tee "$d/summary.md" ;;
+    fluid-leapfrog)
+        # Leapfrogging rings (scenes/fluid/leapfrog.xml: R 1, Gamma 1, sigma 0.2, centres 0.6 apart, inviscid) to
+        # t = 4, against the exact axisymmetric dynamics (build/bin/ring_reference, its cores found on the solvers'
+        # spacing 5/48). MCFluid at its defaults (48^3, n_mc 128, dt 0.1) with seeds 1..RUNS; stable_fluids and flip
+        # at 48^3 and on finer grids taking about MCFluid's wall time (LEAPFROG_FINE, default stable_fluids:104 and
+        # flip:68: measured ~55 s each against MCFluid's ~55 s on 2 loaded cores), RUNS runs each. Runs already in
+        # $OUT are kept (FRESH=1: all again). Table (medians over runs) and the core-track figure:
+        # tools/fluid_leapfrog_table.py; the figure goes to docs/img/convergence_fluid_leapfrog_cores.png.
+        local d="$OUT/fluid-leapfrog"
+        [[ "${FRESH:-0}" == 1 ]] && rm -rf "$d"
+        mkdir -p "$d"
+        touch "$d/seconds.txt"
+        leap_run() {  # leap_run NAME -D...: one run into $d/NAME (unless it is there), its wall seconds into seconds.txt
+            local name=$1
+            shift
+            if [[ -f "$d/$name/diagnostics.csv" ]] && grep -q "^$name " "$d/seconds.txt"; then return; fi
+            local t0 t1
+            t0=$(date +%s.%N)
+            "$KELVIN" scenes/fluid/leapfrog.xml -D end=4 -D every=0 -t "$THREADS" -q -o "$d/$name.exr" "$@"
+            t1=$(date +%s.%N)
+            sed -i "/^$name /d" "$d/seconds.txt"
+            echo "$name $(/usr/bin/python3 -c "print($t1 - $t0)")" >>"$d/seconds.txt"
+        }
+        [[ -f "$d/reference.csv" ]] ||
+            "${RING_REFERENCE:-build/bin/ring_reference}" --radius 1 --circulation 1 --core 0.2 --offsets 0,0.6 \
+                --dt 0.05 --end 4 --spacing 0.10416666666666667 -o "$d/reference.csv"
+        for r in $(seq 1 "$RUNS"); do
+            leap_run "mcfluid_r$r" -D solver=mcfluid --seed "$r"
+            for s in stable_fluids flip; do leap_run "${s}_r$r" -D solver=$s --seed "$r"; done
+            for sr in ${LEAPFROG_FINE:-stable_fluids:104 flip:68}; do
+                leap_run "${sr%:*}-${sr#*:}_r$r" -D solver=${sr%:*} -D res=${sr#*:} --seed "$r"
+            done
+        done
+        /usr/bin/python3 tools/fluid_leapfrog_table.py "$d" --sigma 0.2 --plot "$d/leapfrog_cores.png" |
+            tee "$d/summary.md"
+        [[ -f "$d/leapfrog_cores.png" ]] && cp "$d/leapfrog_cores.png" docs/img/convergence_fluid_leapfrog_cores.png ;;
     fluid-shear)
         # The shear layer has no exact solution: two references at 512^2 and dt = 0.0125 (stable fluids and FLIP,
         # kept in $OUT), the four solvers at 32^2..128^2 against each, at t = 2 (before the roll-up saturates).
@@ -386,7 +424,7 @@ report() {
         for r in fluid-nmc fluid-cells fluid-dt fluid-params fluid-visual fluid-baselines fluid-lamb-oseen \
             fluid-obstacle fluid-shear; do report "$r"; done ;;
     *)
-        echo "usage: $0 fluid-nmc|fluid-cells|fluid-dt|fluid-params|fluid-visual|fluid-baselines|fluid-lamb-oseen|fluid-obstacle|fluid-shear|mlt|mlt-door|mlt-caustic|mlt-plates|mlt-pool|mlt-all|mmlt-door|mmlt-aquarium|mlt-torus|mlt-chess|all" >&2
+        echo "usage: $0 fluid-nmc|fluid-cells|fluid-dt|fluid-params|fluid-visual|fluid-baselines|fluid-lamb-oseen|fluid-obstacle|fluid-shear|fluid-long|fluid-leapfrog|mlt|mlt-door|mlt-caustic|mlt-plates|mlt-pool|mlt-all|mmlt-door|mmlt-aquarium|mlt-torus|mlt-chess|all" >&2
         exit 2 ;;
     esac
 }

@@ -11,7 +11,7 @@ runs' vorticity RMSE against the exact (steady) Taylor-Green field, the 3D rings
 |omega| centroid's z against time) relative to the exact ring's, and the wall seconds.
 
 The exact ring (vortex_ring.xml: R 1, Gamma 1, Gaussian core 0.2, inviscid) is the axisymmetric vortex-ring-element
-solution of tests/fluid/axisymmetric_rings.h, fitted the same way over the scene's 21 states: its |omega| centroid
+solution of include/kelvin/fluid/axisymmetric_rings.h, fitted the same way over the scene's 21 states: its |omega| centroid
 moves at 0.2457 over t in [0, 2] (lattice sigma/8; 0.2455 at sigma/6), 0.986 of Saffman's asymptotic 0.2491.
 """
 import csv

@@ -12,6 +12,7 @@
 #include <kelvin/fluid/boundary.h>
 #include <kelvin/fluid/estimators.h>
 #include <kelvin/fluid/output.h>
+#include <kelvin/fluid/ring_cores.h>
 #include <kelvin/fluid/simulation.h>
 #include <kelvin/fluid/simulation3.h>
 
@@ -297,6 +298,7 @@ public:
     bool diagnose(bool velocity) override {
         if (velocity && !m_solver->velocity_available()) velocity = false;  // a stop cut the velocity's pass short
         m_d = m_solver->diagnostics(velocity);
+        m_cores.update(m_solver->vorticity_grid());
         m_velocity = velocity;
         if (!m_have_d0) m_d0 = m_d, m_have_d0 = true;
         return velocity;
@@ -345,7 +347,7 @@ public:
         return "step,time,kinetic_energy,kinetic_energy_raw,enstrophy,helicity,impulse_x,impulse_y,impulse_z,"
                "centroid_x,centroid_y,centroid_z,max_abs_vorticity,divergence_rms,smoke_mass,step_seconds,"
                "biot_savart_evals,invalid,cfl" +
-               (m_solver->energy_budget_step() ? EnergyBudget::csv_columns(true) : std::string());
+               (m_solver->energy_budget_step() ? EnergyBudget::csv_columns(true) : std::string()) + m_cores.header();
     }
     std::string csv_row(double seconds, double evals, uint64_t invalid, double cfl) const override {
         const FluidDiagnostics3& d = m_d;
@@ -354,7 +356,7 @@ public:
             "{:.9g},{:.6g},{:.0f},{},{:.6g}{}\n",
             d.step, d.time, d.kinetic_energy, d.kinetic_energy_raw, d.enstrophy, d.helicity, d.impulse.x, d.impulse.y,
             d.impulse.z, d.centroid.x, d.centroid.y, d.centroid.z, d.max_abs_vorticity, d.divergence_rms, d.smoke_mass,
-            seconds, evals, invalid, cfl, budget_values());
+            seconds, evals, invalid, cfl, budget_values() + m_cores.values());
     }
     // With the energy budget, seven more columns: the state's deterministic energy and the last step's split.
     std::string budget_values() const {
@@ -512,6 +514,7 @@ private:
     double m_range = 0;
     FluidDiagnostics3 m_d, m_d0;
     bool m_velocity = false, m_have_d0 = false;
+    RingCoreColumns m_cores{m_p.field};  // rings: each core's (r, z, circulation) in the CSV
 };
 
 }  // namespace

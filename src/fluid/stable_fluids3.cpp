@@ -4,6 +4,7 @@
 #include <kelvin/core/logging.h>
 #include <kelvin/core/parallel.h>
 #include <kelvin/core/random.h>
+#include <kelvin/fluid/ring_cores.h>
 #include <kelvin/fluid/stable_fluids3.h>
 
 #include <fmt/format.h>
@@ -886,6 +887,7 @@ public:
     bool step(double dt) override { return m_solver->step(dt); }
     bool diagnose(bool) override {
         m_d = m_solver->diagnostics();
+        m_cores.update(m_solver->vorticity_grid());
         if (!m_have_d0) m_d0 = m_d, m_have_d0 = true;
         return true;
     }
@@ -919,16 +921,17 @@ public:
     std::string csv_header() const override {
         return "step,time,kinetic_energy,kinetic_energy_raw,enstrophy,helicity,impulse_x,impulse_y,impulse_z,"
                "centroid_x,centroid_y,centroid_z,max_abs_vorticity,divergence_rms,smoke_mass,step_seconds,"
-               "biot_savart_evals,invalid,cfl";
+               "biot_savart_evals,invalid,cfl" +
+               m_cores.header();
     }
     std::string csv_row(double seconds, double evals, uint64_t invalid, double cfl) const override {
         const FluidDiagnostics3& d = m_d;
         return fmt::format(
             "{},{:.9g},{:.9g},{:.9g},{:.9g},{:.9g},{:.9g},{:.9g},{:.9g},{:.9g},{:.9g},{:.9g},{:.9g},{:.9g},"
-            "{:.9g},{:.6g},{:.0f},{},{:.6g}\n",
+            "{:.9g},{:.6g},{:.0f},{},{:.6g}{}\n",
             d.step, d.time, d.kinetic_energy, d.kinetic_energy_raw, d.enstrophy, d.helicity, d.impulse.x, d.impulse.y,
             d.impulse.z, d.centroid.x, d.centroid.y, d.centroid.z, d.max_abs_vorticity, d.divergence_rms, d.smoke_mass,
-            seconds, evals, invalid, cfl);
+            seconds, evals, invalid, cfl, m_cores.values());
     }
     void write_frame(FrameWriter& frames) override {
         StableFluids3Solver& solver = *m_solver;
@@ -994,6 +997,7 @@ private:
     double m_range = 0;
     FluidDiagnostics3 m_d, m_d0;
     bool m_have_d0 = false;
+    RingCoreColumns m_cores{m_p.field};  // rings: each core's (r, z, circulation) in the CSV
 };
 
 }  // namespace

@@ -79,7 +79,7 @@ TEST(CliFluidTransport, EnergyBudgetIn3D) {
     const std::string csv = read(dir.path() / "ring" / "diagnostics.csv");
     EXPECT_CONTAINS(csv,
                     ",energy_exact,budget_change,budget_noise,budget_mollifier,budget_integrator,budget_transport,"
-                    "budget_stretching\n");
+                    "budget_stretching,core1_r,core1_z,core1_circulation\n");  // the ring's core last
     EXPECT_CONTAINS(read(dir.path() / "stats.json"), "fluid.energy_budget.stretching");
     EXPECT_CONTAINS(r.err + r.out, "energy budget (exact energy");
     const std::string out = (dir.path() / "x.png").string();

@@ -2,11 +2,10 @@
 // against exact velocities, the ABC flow (advection and stretching cancel exactly), the vortex ring's Saffman
 // speed, viscosity, control variates, effects on demand, hard cases and determinism.
 #include <kelvin/core/parallel.h>
+#include <kelvin/fluid/axisymmetric_rings.h>
 #include <kelvin/fluid/biot_savart3.h>
 #include <kelvin/fluid/estimators.h>
 #include <kelvin/fluid/mcfluid3.h>
-
-#include "axisymmetric_rings.h"
 
 #include <gtest/gtest.h>
 
@@ -254,12 +253,12 @@ TEST(MCFluid3, AbcViscousEnergyDecaysAsExpMinusTwoNuT) {
         }
 }
 
-// The exact answer of the ring problem (tests/fluid/axisymmetric_rings.h) agrees with thin-ring theory, so the
+// The exact answer of the ring problem (include/kelvin/fluid/axisymmetric_rings.h) agrees with thin-ring theory, so the
 // solver can be compared with it: a ring of R 1, Gamma 1, sigma 0.1 moves at Saffman's speed less Fukumoto and
 // Moffatt's thick-core correction (measured 0.3021 over t = 1 against 0.3036: 0.5 %) and conserves its impulse. A
 // filament velocity of the wrong sign or a missing E term moves it far from this.
 TEST(AxisymmetricRings, ThinRingMovesAtSaffmansSpeedAndKeepsItsImpulse) {
-    kelvin::testing::AxisymmetricRings ring(1, 1, 0.1, {0.0}, 3);
+    AxisymmetricRings ring(1, 1, 0.1, {0.0}, 3);
     const double p0 = ring.impulse();
     for (int i = 0; i < 10; ++i) ring.step(0.05);
     const double speed = ring.position() / 0.5;
@@ -287,7 +286,7 @@ TEST(MCFluid3, HighOrderMollifierHalvesTheCoreBias) {
         for (int j = 0; j < 40; ++j)
             for (int i = 0; i < 40; ++i)
                 omega.set(omega.x.index(i, j, k), ring_omega(omega.x.cell_center(i, j, k), R, gamma, sigma));
-    const kelvin::testing::AxisymmetricRings exact(R, gamma, sigma, {0.0}, 8);
+    const AxisymmetricRings exact(R, gamma, sigma, {0.0}, 8);
     struct Bias {
         double axial, rotation, far;
     };
@@ -328,7 +327,7 @@ TEST(MCFluid3, HighOrderMollifierHalvesTheCoreBias) {
 
 // A Gaussian-core ring (R 1, Gamma 1, sigma 0.2) against the exact answer of the same problem: the impulse centroid
 // (sum z (x cross omega)_z / sum (x cross omega)_z: its signed weights let the noise cancel) after 4 steps of 0.1
-// (n_mc 64), divided by the exact ring's (tests/fluid/axisymmetric_rings.h: 0.957 of Saffman's speed over this
+// (n_mc 64), divided by the exact ring's (include/kelvin/fluid/axisymmetric_rings.h: 0.957 of Saffman's speed over this
 // first 0.4 while the Gaussian core adjusts; 0.985 over t = 2). Measured ratio: 0.915, 0.942, 0.959 at h 0.133, 0.1,
 // 0.067 (two cells per core radius at h 0.1; without the near field 0.916, 0.931, 0.954). What keeps it slow is the
 // mollifier's smoothing of the core (a high-order mollifier gives 0.94 at h 0.1, docs/fluid.md) and, over longer
@@ -337,7 +336,7 @@ TEST(MCFluid3, HighOrderMollifierHalvesTheCoreBias) {
 // outside.
 TEST(MCFluid3, VortexRingMovesAsTheExactRing) {
     const double R = 1, gamma = 1, sigma = 0.2;
-    kelvin::testing::AxisymmetricRings exact(R, gamma, sigma, {0.0}, 4);
+    AxisymmetricRings exact(R, gamma, sigma, {0.0}, 4);
     for (int i = 0; i < 8; ++i) exact.step(0.05);
     const double exact_dz = exact.position();
     auto impulse_centroid = [](const VectorGrid3& w) {

@@ -12,6 +12,7 @@
 #include <cmath>
 #include <optional>
 #include <string>
+#include <vector>
 
 namespace kelvin::fluid {
 
@@ -80,6 +81,21 @@ public:
     virtual std::string description3() const = 0;
     /// As VorticityField::strength_parameter.
     virtual std::string strength_parameter3() const { return {}; }
+};
+
+/// Coaxial vortex rings as an initial field (vortex_ring): their geometry, for diagnostics that follow each ring's
+/// core (ring_cores.h). A VorticityField3 plugin that is such rings derives from this interface too; the
+/// simulations find it by dynamic_cast, so fields that are not rings are unaffected.
+struct RingGeometry {
+    Vec3d center{0.0};            ///< the first ring's centre
+    Vec3d normal{0.0, 0.0, 1.0};  ///< unit axis, the direction a ring of positive circulation moves in
+    double radius = 1, circulation = 1, core = 0.1;
+    std::vector<double> offsets;  ///< the rings' centres along the normal, relative to `center`
+};
+class VortexRings3 {
+public:
+    virtual ~VortexRings3() = default;
+    virtual RingGeometry ring_geometry() const = 0;
 };
 
 /// A 3D smoke source (<scalar type="smoke"> in a scene with dimension = 3): a passive density advected along the

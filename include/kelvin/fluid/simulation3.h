@@ -7,7 +7,8 @@
 //                          helicity, impulse_x/y/z, centroid_x/y/z, max_abs_vorticity, divergence_rms, smoke_mass,
 //                          step_seconds, biot_savart_evals, invalid, cfl; with energy_budget also energy_exact,
 //                          budget_change, budget_noise, budget_mollifier, budget_integrator, budget_transport,
-//                          budget_stretching (energy_budget.h)
+//                          budget_stretching (energy_budget.h); with a vortex_ring initial field core1_r, core1_z,
+//                          core1_circulation, core2_r, ... (one triple per ring, ring_cores.h)
 //   fields_NNNN.vdb        every output_every steps (and the last): OpenVDB float grid "vorticity_magnitude",
 //                          vector grids "vorticity" and "velocity" (voxel = cache cell, world-space transform),
 //                          and "density" with smoke

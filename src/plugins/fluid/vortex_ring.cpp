@@ -23,7 +23,7 @@
 namespace kelvin::fluid {
 namespace {
 
-class VortexRing final : public Object, public VorticityField3 {
+class VortexRing final : public Object, public VorticityField3, public VortexRings3 {
 public:
     explicit VortexRing(const Properties& props)
         : m_center(props.get_point("center")),
@@ -71,6 +71,8 @@ public:
     }
 
     std::string strength_parameter3() const override { return "circulation"; }
+    // For the ring-core columns of diagnostics.csv (ring_cores.h).
+    RingGeometry ring_geometry() const override { return {m_center, m_normal, m_radius, m_gamma, m_core, m_offsets}; }
     std::string description3() const override {
         return fmt::format("vortex_ring(R={:g}, Gamma={:g}, core={:g}, rings={})", m_radius, m_gamma, m_core,
                            m_offsets.size());
