@@ -603,8 +603,9 @@ struct Split3 {
 
 /// Sample positions in cell units and unit directions from the sampled cells (grid indices) and their direction
 /// codes, and two draws per sample: the tent on (-1, 1) per axis as the sum of two 8-bit uniforms (midpoints, exact
-/// in float), or the box as one 16-bit uniform per axis.
-template <bool Tent>
+/// in float), or the box as one 16-bit uniform per axis. Near: the near-field flag of each sample (without a near field
+/// every sample is kept, and the loop stays the plain estimator's).
+template <bool Tent, bool Near>
 __attribute__((always_inline)) inline void positions3_body(const uint32_t* __restrict r1, const uint32_t* __restrict r2,
                                                            const uint32_t* __restrict cell,
                                                            const uint32_t* __restrict dir, int m, const Split3& g,
@@ -629,21 +630,33 @@ __attribute__((always_inline)) inline void positions3_body(const uint32_t* __res
         b.px[s] = float(i) + 0.5f + ox;
         b.py[s] = float(j) + 0.5f + oy;
         b.pz[s] = float(k) + 0.5f + oz;
-        const int ai = std::abs(i - g.qi), aj = std::abs(j - g.qj), ak = std::abs(k - g.qk);
-        const int di = std::min(ai, g.wx - ai), dj = std::min(aj, g.wy - aj), dk = std::min(ak, g.wz - ak);
-        b.keep[s] = std::max({di, dj, dk}) <= g.radius ? 0.0f : 1.0f;
+        if constexpr (Near) {  // min/max of ints, written so that the loop vectorises
+            const int ai = std::abs(i - g.qi), aj = std::abs(j - g.qj), ak = std::abs(k - g.qk);
+            const int wi = g.wx - ai, wj = g.wy - aj, wk = g.wz - ak;
+            const int di = ai < wi ? ai : wi, dj = aj < wj ? aj : wj, dk = ak < wk ? ak : wk;
+            const int dij = di > dj ? di : dj, d = dij > dk ? dij : dk;
+            b.keep[s] = d <= g.radius ? 0.0f : 1.0f;
+        } else {
+            b.keep[s] = 1.0f;
+        }
         decode_direction(dir[s], b.wx[s], b.wy[s], b.wz[s]);
     }
 }
 __attribute__((target_clones("avx2", "default"))) void positions3_tent(const uint32_t* r1, const uint32_t* r2,
                                                                        const uint32_t* cell, const uint32_t* dir, int m,
                                                                        const Split3& g, Batch3& b) {
-    positions3_body<true>(r1, r2, cell, dir, m, g, b);
+    if (g.radius < 0)
+        positions3_body<true, false>(r1, r2, cell, dir, m, g, b);
+    else
+        positions3_body<true, true>(r1, r2, cell, dir, m, g, b);
 }
 __attribute__((target_clones("avx2", "default"))) void positions3_box(const uint32_t* r1, const uint32_t* r2,
                                                                       const uint32_t* cell, const uint32_t* dir, int m,
                                                                       const Split3& g, Batch3& b) {
-    positions3_body<false>(r1, r2, cell, dir, m, g, b);
+    if (g.radius < 0)
+        positions3_body<false, false>(r1, r2, cell, dir, m, g, b);
+    else
+        positions3_body<false, true>(r1, r2, cell, dir, m, g, b);
 }
 
 __attribute__((target_clones("avx2", "default"))) void kernel3_open(Batch3& b, int count, const Kernel3Params& k) {
