@@ -351,8 +351,8 @@ report() {
         # Leapfrogging rings (scenes/fluid/leapfrog.xml: R 1, Gamma 1, sigma 0.2, centres 0.6 apart, inviscid) to
         # t = 4, against the exact axisymmetric dynamics (build/bin/ring_reference, its cores found on the solvers'
         # spacing 5/48). MCFluid at its defaults (48^3, n_mc 128, dt 0.1) with seeds 1..RUNS; stable_fluids and flip
-        # at 48^3 and on finer grids taking about MCFluid's wall time (LEAPFROG_FINE, default stable_fluids:104 and
-        # flip:68: measured ~55 s each against MCFluid's ~55 s on 2 loaded cores), RUNS runs each. Runs already in
+        # at 48^3 and on finer grids taking about MCFluid's wall time (LEAPFROG_FINE, default stable_fluids:80 and
+        # flip:50: measured 11.7 and 12.2 s against MCFluid's 12.9 s on 2 idle cores), RUNS runs each. Runs already in
         # $OUT are kept (FRESH=1: all again). Table (medians over runs) and the core-track figure:
         # tools/fluid_leapfrog_table.py; the figure goes to docs/img/convergence_fluid_leapfrog_cores.png.
         local d="$OUT/fluid-leapfrog"
@@ -376,7 +376,7 @@ report() {
         for r in $(seq 1 "$RUNS"); do
             leap_run "mcfluid_r$r" -D solver=mcfluid --seed "$r"
             for s in stable_fluids flip; do leap_run "${s}_r$r" -D solver=$s --seed "$r"; done
-            for sr in ${LEAPFROG_FINE:-stable_fluids:104 flip:68}; do
+            for sr in ${LEAPFROG_FINE:-stable_fluids:80 flip:50}; do
                 leap_run "${sr%:*}-${sr#*:}_r$r" -D solver=${sr%:*} -D res=${sr#*:} --seed "$r"
             done
         done
