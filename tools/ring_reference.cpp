@@ -49,6 +49,9 @@ const char* kHelp =
     "dt 0.05, end 4, every 1 (a row every N steps), spacing 0.1 (the meridian grid of the core finder: the\n"
     "solvers' cell size), per-sigma 4 (elements per core radius), output to stdout.\n";
 
+int run(double radius, double gamma, double core, const std::vector<double>& offsets, double dt, double end,
+        double spacing, long every, long per_sigma, const std::string& output);
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -98,7 +101,11 @@ int main(int argc, char** argv) {
             throw Usage("--circulation: must be positive (a negative one is the same flow mirrored in z)");
         if (!(dt > 0)) throw Usage("--dt: must be positive");
         if (!(end >= 0) || end / dt > 1e7) throw Usage("--end: must be >= 0 and at most 1e7 steps of dt");
-        if (!(spacing > 0)) throw Usage("--spacing: must be positive");
+        // The meridian grid of the core finder has (extent / spacing)^2 bins and the elements interact pairwise: a
+        // spacing far below the core or hundreds of rings would exhaust the memory or never finish.
+        if (!(spacing >= core / 64))
+            throw Usage(fmt::format("--spacing: must be at least core / 64 ({:g})", core / 64));
+        if (offsets.size() > 16) throw Usage("--offsets: at most 16 rings");
         if (every < 1) throw Usage("--every: must be at least 1");
         if (per_sigma < 1 || per_sigma > 32) throw Usage("--per-sigma: must be 1 to 32");
     } catch (const Usage& e) {
@@ -106,6 +113,18 @@ int main(int argc, char** argv) {
         return 2;
     }
 
+    try {
+        return run(radius, gamma, core, offsets, dt, end, spacing, every, per_sigma, output);
+    } catch (const std::exception& e) {  // e.g. out of memory: one line, not a stack trace
+        std::fprintf(stderr, "ring_reference: error: %s\n", e.what());
+        return 1;
+    }
+}
+
+namespace {
+
+int run(double radius, double gamma, double core, const std::vector<double>& offsets, double dt, double end,
+        double spacing, long every, long per_sigma, const std::string& output) {
     std::ofstream file;
     if (!output.empty()) {
         file.open(output);
@@ -159,3 +178,5 @@ int main(int argc, char** argv) {
     }
     return 0;
 }
+
+}  // namespace

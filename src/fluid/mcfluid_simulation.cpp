@@ -172,9 +172,8 @@ public:
                                m_mc.boundary_field()->settings().epsilon, s.boundaries->wos.max_steps)
                          : s.estimator->effect(s.samples, m_mc.delta(), s.domain.periodic) + near_field_effect();
         lines.push_back(fmt::format(
-            "effects: advection ({}, dt {:g}, {} steps, transport {}) with {}; boundaries {}; diffusion {}; stretching "
-            "off "
-            "(2D); {}",
+            "effects: advection ({}, dt {:g}, {} steps, transport {}) with {}; boundaries {}; diffusion {}; "
+            "stretching off (2D); {}",
             fluid::to_string(s.advection), s.dt, m_p.steps, fluid::to_string(s.transport), velocity,
             s.boundaries ? fluid::describe(*s.boundaries, s.domain) : std::string("none"),
             s.viscosity > 0 ? fmt::format("on (nu {:g}, Feynman–Kac, n_d {})", s.viscosity, s.diffusion_samples)

@@ -404,22 +404,32 @@ TEST(MCFluid3, ControlVariatesLowerTheVelocityErrorAtEqualSamples) {
     EXPECT_LT(cv, 0.5 * plain) << "squared error with control variates " << cv << ", without " << plain;
 }
 
+namespace {
+// The leapfrog scene's two rings (R 1, Gamma 1, sigma 0.2, offsets 0 and 0.6) in an open box of 20^3 cells, n_mc 16.
+Vec3d leapfrog_rings(const Vec3d& x) { return ring_omega(x, 1, 1, 0.2) + ring_omega(x - Vec3d(0, 0, 0.6), 1, 1, 0.2); }
+MCFluid3Settings leapfrog_settings(uint64_t seed) {
+    MCFluid3Settings s;
+    s.domain = {Vec3d(-2.5, -2.5, -1.5), Vec3d(2.5, 2.5, 3.5), false};
+    s.nx = s.ny = s.nz = 20;
+    s.samples = 16;
+    s.dt = 0.1;
+    s.seed = seed;
+    return s;
+}
+}  // namespace
+
 // The same on the leapfrog scene's rings (issue 15: "control variates lower the velocity error at equal samples by
 // a measured factor on the leapfrog scene"): two coaxial Gaussian-core rings (R 1, Gamma 1, sigma 0.2, offsets 0
 // and 0.6) in an open box, 20^3 cells, n_mc 16 per step, initial_samples 2048. The squared velocity error at the
 // cell centres (against a 4096-sample estimate of the same state, every 5th cell) after 1 and 4 steps. Measured
-// gains (plain / CV): 18.6 after 1 step, 9.9 after 4 (the control variate carries the previous step's error, so the
-// gain falls with the number of steps; docs/fluid.md). Broken variant seen to fail: adding the previous velocity
-// without subtracting the previous vorticity (v = BS[omega_t] + v_{t-1}).
+// gains (plain / CV): 33.4 after 1 step, 15.5 after 4 (18.6 and 9.9 before the 3D near field became the default);
+// the control variate carries the previous step's error, so the gain falls with the number of steps (docs/fluid.md).
+// Broken variant seen to fail: adding the previous velocity without subtracting the previous vorticity
+// (v = BS[omega_t] + v_{t-1}).
 TEST(MCFluid3, ControlVariatesLowerTheVelocityErrorOnTheLeapfrogRings) {
-    auto rings = [](const Vec3d& x) { return ring_omega(x, 1, 1, 0.2) + ring_omega(x - Vec3d(0, 0, 0.6), 1, 1, 0.2); };
+    auto rings = leapfrog_rings;
     auto errors = [&](bool cv) {
-        MCFluid3Settings s;
-        s.domain = {Vec3d(-2.5, -2.5, -1.5), Vec3d(2.5, 2.5, 3.5), false};
-        s.nx = s.ny = s.nz = 20;
-        s.samples = 16;
-        s.dt = 0.1;
-        s.seed = 9;
+        MCFluid3Settings s = leapfrog_settings(9);
         s.control_variates = cv;
         s.initial_samples = cv ? 2048 : 0;
         MCFluid3Solver solver(s, rings);
@@ -603,22 +613,18 @@ TEST(MCFluid3, SmokeIsCarriedByTheRingAndFedByItsSource) {
 // Vorticity-weighted sample allocation (sample_allocation = vorticity): on the leapfrog rings (20^3, n_mc 16) each
 // cell's velocity samples follow the largest |omega| around it, between n_mc/8 and 32 n_mc, with at most n_mc per cell
 // on average. The velocity error that moves the next state is where the vorticity is: the squared velocity error
-// weighted by |omega|^2 (against a 4096-sample estimate of the same state) must fall by more than 4x at no more total
+// weighted by |omega|^2 (against a 4096-sample estimate of the same state) must fall by more than 6x at no more total
 // samples; the error far from the rings rises (fewer samples there), which moves nothing. Measured: weighted error
 // 13.7x lower, total samples 1.00 of uniform's; unweighted error 2.8x higher. Broken variant seen to fail: every cell
 // given n_mc (gain 1.0).
 TEST(MCFluid3, VorticityAllocationLowersTheErrorWhereItMatters) {
-    auto rings = [](const Vec3d& x) { return ring_omega(x, 1, 1, 0.2) + ring_omega(x - Vec3d(0, 0, 0.6), 1, 1, 0.2); };
+    auto rings = leapfrog_rings;
     struct Result {
         double weighted = 0, plain = 0;
         uint64_t evals = 0;
     };
     auto run = [&](bool allocate) {
-        MCFluid3Settings s;
-        s.domain = {Vec3d(-2.5, -2.5, -1.5), Vec3d(2.5, 2.5, 3.5), false};
-        s.nx = s.ny = s.nz = 20;
-        s.samples = 16;
-        s.seed = 4;
+        MCFluid3Settings s = leapfrog_settings(4);
         s.vorticity_allocation = allocate;
         MCFluid3Solver solver(s, rings);
         const VectorGrid3& v = solver.velocity_grid();
@@ -642,7 +648,7 @@ TEST(MCFluid3, VorticityAllocationLowersTheErrorWhereItMatters) {
         uniform.weighted / allocated.weighted, allocated.plain / uniform.plain,
         double(allocated.evals) / double(uniform.evals));
     EXPECT_LE(allocated.evals, uniform.evals);
-    EXPECT_LT(allocated.weighted, 0.25 * uniform.weighted);
+    EXPECT_LT(allocated.weighted, uniform.weighted / 6);
 }
 
 TEST(MCFluid3, VorticityAllocationIsTheSameOnAnyThreadCount) {

@@ -279,14 +279,22 @@ TEST(RingReference, WritesTheCoreColumnsAndRefusesBadArguments) {
     EXPECT_LT(std::stod(cols["core1_r"].back()), 1.0);  // the rear ring shrinks
 
     const fs::path err = dir / "err.txt";
-    const std::string bad = std::string("\"") + KELVIN_RING_REFERENCE + "\" --core 2 2> \"" + err.string() + "\"";
-    const int status = std::system(bad.c_str());
-    ASSERT_TRUE(WIFEXITED(status));
-    EXPECT_EQ(WEXITSTATUS(status), 2);
-    std::ifstream e(err);
-    std::stringstream text;
-    text << e.rdbuf();
-    EXPECT_EQ(text.str(), "ring_reference: error: --core: must be positive and smaller than the radius\n");
+    // Bad arguments, including the ones that would exhaust the memory or never finish: one line, exit 2.
+    const std::pair<std::string, std::string> cases[] = {
+        {"--core 2", "--core: must be positive and smaller than the radius"},
+        {"--spacing 1e-9", "--spacing: must be at least core / 64 (0.003125)"},
+        {"--offsets 0,1,2,3,4,5,6,7,8,9,10,11,12,13,14,15,16", "--offsets: at most 16 rings"}};
+    for (const auto& [args, message] : cases) {
+        const std::string bad =
+            std::string("\"") + KELVIN_RING_REFERENCE + "\" " + args + " 2> \"" + err.string() + "\"";
+        const int status = std::system(bad.c_str());
+        ASSERT_TRUE(WIFEXITED(status));
+        EXPECT_EQ(WEXITSTATUS(status), 2) << args;
+        std::ifstream e(err);
+        std::stringstream text;
+        text << e.rdbuf();
+        EXPECT_EQ(text.str(), "ring_reference: error: " + message + "\n");
+    }
 }
 
 namespace {
