@@ -148,6 +148,7 @@ RunResult run_simulation(DrivenSolver& solver, const DriverSettings& s, RunConte
     Timer since_partial;
     long long done = 0;
     bool stopped_by_time = false;
+    bool last_unrecorded = false;  // the last state's velocity pass was cut: no CSV row, no frame
     for (long long step = 1; step <= steps; ++step) {
         if (any_rank(comm, ctx.cancel.stop_requested())) break;
         const double evals_before = solver.evaluations();
@@ -164,7 +165,10 @@ RunResult run_simulation(DrivenSolver& solver, const DriverSettings& s, RunConte
         }
         // The new state's velocity: diagnostics now (for mcfluid, k1 of the next step later, computed once). A stop
         // during its pass ends the run with the new state and no velocity.
-        if (!solver.diagnose(true)) break;
+        if (!solver.diagnose(true)) {
+            last_unrecorded = true;
+            break;
+        }
         const uint64_t replaced = solver.replaced() - replaced_before;
         check_state(step, replaced);
         const double c = cfl(step);
@@ -192,8 +196,9 @@ RunResult run_simulation(DrivenSolver& solver, const DriverSettings& s, RunConte
     if (!result.interrupted && done < steps && any_rank(comm, watch.passed())) stopped_by_time = true;
     checks.report(ctx.stats);
     if (stopped_by_time)
-        log_warn("{}: time limit of {:g} s reached after {} of {} steps (t = {:g})", who, ctx.time_limit, done, steps,
-                 solver.time());
+        log_warn("{}: time limit of {:g} s reached after {} of {} steps (t = {:g}{})", who, ctx.time_limit, done, steps,
+                 solver.time(),
+                 last_unrecorded ? "; the limit cut this state's velocity pass: it has no CSV row and no frame" : "");
 
     ctx.stats.add("fluid.steps", double(done), "steps");
     ctx.stats.set("fluid.time_simulated", solver.time(), "");
