@@ -9,9 +9,10 @@
 //   BM_EvalsPerDerivative/k: the counter evals_per_derivative: the CPU time of one gradient and Hessian (check:0)
 //                          over that of one plain path evaluation (BM_PathEvaluation) of the same points, the two
 //                          timed in alternating batches over the same 32 points so that both see the same load of
-//                          the machine; evals_per_derivative_checked the same with the discontinuity check (which
-//                          adds two plain evaluations per continuous coordinate); evals_per_gradient the gradient
-//                          alone (evaluate without a Hessian, no check);
+//                          the machine; evals_per_derivative_checked the same with the default discontinuity check
+//                          (two probes both ways: four plain evaluations), evals_per_derivative_axes with the check
+//                          along each coordinate (discontinuity_probes 0: two plain evaluations per continuous
+//                          coordinate); evals_per_gradient the gradient alone (evaluate without a Hessian, no check);
 //   BM_InstructionCountBatches/k: 64 derivative evaluations and 64 plain evaluations, once, for callgrind
 //                          (docs/performance.md gives the command);
 //   BM_H2mcProposalOnPath/k: one H2MC proposal's extra work on such a path: the proposal's derivatives and Gaussian,
@@ -233,11 +234,17 @@ void BM_EvalsPerDerivative(benchmark::State& state) {
         o.discontinuity_radius = PathDerivativeOptions().discontinuity_radius;
         return o;
     }());
+    PathDerivatives axes(*b.scene, [&] {  // the check along each coordinate (discontinuity_probes 0)
+        PathDerivativeOptions o = b.opt;
+        o.discontinuity_radius = PathDerivativeOptions().discontinuity_radius;
+        o.discontinuity_probes = 0;
+        return o;
+    }());
     const int n = int(b.length);
     std::vector<int> block(b.length);
     for (std::size_t i = 0; i < b.length; ++i) block[i] = int(i);
     std::vector<double> g(b.length), H(b.length * b.length);
-    double t_eval = 0, t_der = 0, t_checked = 0, t_grad = 0;
+    double t_eval = 0, t_der = 0, t_checked = 0, t_grad = 0, t_axes = 0;
     std::size_t batches = 0, ok = 0, used = 0;
     for (auto _ : state) {
         const double t0 = thread_cpu_seconds();
@@ -255,6 +262,11 @@ void BM_EvalsPerDerivative(benchmark::State& state) {
             benchmark::DoNotOptimize(
                 b.D->evaluate(b.points[k].data(), block.data(), b.length, n, b.values[k], nullptr, g.data(), nullptr));
         const double t4 = thread_cpu_seconds();
+        for (std::size_t k = 0; k < b.points.size(); ++k)
+            benchmark::DoNotOptimize(
+                axes.evaluate(b.points[k].data(), block.data(), b.length, n, b.values[k], nullptr, g.data(), H.data()));
+        const double t5 = thread_cpu_seconds();
+        t_axes += t5 - t4;
         t_eval += t1 - t0;
         t_der += t2 - t1;
         t_checked += t3 - t2;
@@ -266,6 +278,7 @@ void BM_EvalsPerDerivative(benchmark::State& state) {
     state.counters["evals_per_derivative"] = t_der / t_eval;
     state.counters["evals_per_derivative_checked"] = t_checked / t_eval;
     state.counters["evals_per_gradient"] = t_grad / t_eval;
+    state.counters["evals_per_derivative_axes"] = t_axes / t_eval;
 }
 
 // Instruction counts: 64 derivative evaluations (check:0) or 64 plain evaluations over the 32 points of a

@@ -6,6 +6,7 @@
 // (Bsdf::eval_diff, sample_diff: the renderer's kernels, render/bsdf_kernels.h; Emitter::eval_diff, sample_direct_diff
 // and Texture::eval_diff, eval_1_diff: render/differentiable.h). Every discrete decision is the renderer's own at the
 // point.
+#include <kelvin/core/random.h>
 #include <kelvin/mlt/path_derivatives.h>
 #include <kelvin/render/bsdf.h>
 #include <kelvin/render/bsdf_kernels.h>
@@ -22,6 +23,7 @@
 #include <Eigen/Dense>
 
 #include <algorithm>
+#include <bit>
 #include <cmath>
 #include <vector>
 
@@ -527,13 +529,15 @@ struct PathDerivatives::Impl {
     template <class T, class Reader>
     PathDerivativeStatus run(Reader& rd, T& log_pi) const;
 
-    // Discontinuous if a decision of the path changes within discontinuity_radius of the point along a coordinate of
-    // the block that moves the path continuously (each shifted both ways, wrapped to [0, 1)); the point's own
-    // status if it is not Ok; else Ok.
+    // Discontinuous if a decision of the path changes within discontinuity_radius of the point (wrapped to [0, 1)),
+    // looked for along the block's coordinates that move the path continuously; the point's own status if it is not
+    // Ok; else Ok. With discontinuity_probes P > 0, along P directions of length h over those coordinates, each
+    // coordinate +-h/sqrt(m) with signs hashed from the point (so the check is a function of the state, as the
+    // kernels' densities require), both ways: 2P path evaluations. With 0, along each coordinate: 2m evaluations.
     PathDerivativeStatus near_discontinuity(const double* coords, const int* block, std::size_t length, int n) const {
         using S = PathDerivativeStatus;
         thread_local std::vector<Decision> base, other;
-        thread_local std::vector<std::size_t> continuous;
+        thread_local std::vector<std::size_t> continuous, moved;
         thread_local std::vector<double> shifted;
         base.clear();
         continuous.clear();
@@ -543,23 +547,48 @@ struct PathDerivatives::Impl {
         double lp = 0;
         const S s0 = run<double>(r0, lp);
         if (s0 != S::Ok) return s0;
+        moved.clear();
+        for (const std::size_t i : continuous)
+            if (block[i] >= 0 && block[i] < n) moved.push_back(i);
+        if (moved.empty()) return S::Ok;
         shifted.assign(coords, coords + length);
+        // The path's decisions at `shifted`: a change (or a path that leaves the supported set or cannot be
+        // re-evaluated consistently, a grazing hit) is a discontinuity; Zero there (faded out) compares by decisions.
+        auto changed = [&] {
+            other.clear();
+            DoubleReader r{shifted.data(), length};
+            r.decisions = &other;
+            const S s = run<double>(r, lp);
+            return (s != S::Ok && s != S::Zero) || !same_decisions(base, other);
+        };
+        auto wrap = [](double v) { return v - std::floor(v); };
         const double h = o.discontinuity_radius;
-        for (const std::size_t i : continuous) {
-            if (block[i] < 0 || block[i] >= n) continue;
-            for (const double step : {h, -h}) {
-                double v = coords[i] + step;
-                v -= std::floor(v);
-                shifted[i] = v;
-                other.clear();
-                DoubleReader r{shifted.data(), length};
-                r.decisions = &other;
-                const S s = run<double>(r, lp);
-                // Zero there (the contribution faded out) compares by decisions; a path that leaves the supported
-                // set or cannot be re-evaluated consistently (a grazing hit) counts as a change.
-                if ((s != S::Ok && s != S::Zero) || !same_decisions(base, other)) return S::Discontinuous;
+        if (o.discontinuity_probes <= 0) {
+            for (const std::size_t i : moved) {
+                for (const double step : {h, -h}) {
+                    shifted[i] = wrap(coords[i] + step);
+                    if (changed()) return S::Discontinuous;
+                }
+                shifted[i] = coords[i];
             }
-            shifted[i] = coords[i];
+            return S::Ok;
+        }
+        uint64_t key = 0x6469736368656b00ULL;  // the point's hash: its moved coordinates' bits
+        for (const std::size_t i : moved) key = hash_combine(key, std::bit_cast<uint64_t>(coords[i]));
+        const double step = h / std::sqrt(double(moved.size()));
+        thread_local std::vector<double> dir;
+        dir.resize(moved.size());
+        for (int p = 0; p < o.discontinuity_probes; ++p) {
+            uint64_t bits = 0;
+            for (std::size_t k = 0; k < moved.size(); ++k) {
+                if (k % 64 == 0) bits = hash_combine(key, uint64_t(p) * 1024 + k / 64);
+                dir[k] = (bits >> (k % 64)) & 1 ? step : -step;
+            }
+            for (const double way : {1.0, -1.0}) {
+                for (std::size_t k = 0; k < moved.size(); ++k)
+                    shifted[moved[k]] = wrap(coords[moved[k]] + way * dir[k]);
+                if (changed()) return S::Discontinuous;
+            }
         }
         return S::Ok;
     }

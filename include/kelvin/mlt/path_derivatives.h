@@ -16,8 +16,9 @@
 // BSDF's and the emitter's sampling warps, values and densities, the MIS weights (power heuristic) and the Russian
 // roulette probability. Discontinuities (occlusion edges, silhouettes, a shadow's edge, the edge of a cube's face, a
 // light triangle's boundary in the emitter's sampling map) are detected, not differentiated through: the decisions
-// are re-taken with each continuous coordinate moved by discontinuity_radius either way, and a path whose decisions
-// change there is Discontinuous. (A discontinuity farther than that along a diagonal direction is not seen.)
+// are re-taken at points discontinuity_radius away (by default along two directions over all the continuous
+// coordinates, hashed from the point, both ways), and a path whose decisions change there is Discontinuous. (A
+// discontinuity that close along a direction the probes miss is not seen.)
 //
 // The supported subset, checked per path (anything else gives Unsupported, and the caller falls back): the
 // `perspective` and `thinlens` sensors; triangle meshes (with or without vertex normals: rectangle, cube, OBJ...),
@@ -51,10 +52,14 @@ struct PathDerivativeOptions {
     /// Differentiate bounce by bounce even when the block fits one local (15 inputs): for tests, which compare the
     /// two ways. Longer blocks are always segmented.
     bool always_segmented = false;
-    /// A path whose discrete decisions change when one of its continuous coordinates moves by this much (either
-    /// way) is reported Discontinuous instead of differentiated; 0: not checked. The check costs two plain path
-    /// evaluations per continuous coordinate (three to six times the derivatives alone, bench_h2mc).
+    /// A path whose discrete decisions change when its continuous coordinates move by this much is reported
+    /// Discontinuous instead of differentiated; 0: not checked.
     double discontinuity_radius = 1e-5;
+    /// The moves the check tries: P > 0 directions over all the block's continuous coordinates at once (signs hashed
+    /// from the point, each coordinate moved by radius / sqrt(m)), both ways: 2P plain path evaluations. 0: each
+    /// coordinate alone by the radius, both ways: two evaluations per continuous coordinate (three to six times the
+    /// derivatives alone, bench_h2mc).
+    int discontinuity_probes = 2;
 
     /// The film domain the Metropolis integrators use: the film widened by the filter radius on every side,
     /// film_area its area in pixels.
