@@ -339,7 +339,8 @@ void BM_WosVariance(benchmark::State& state, const std::string& scene) {
 // The same in 3D (WosVelocityField3): the velocity at every third cell centre of a 24^3 cache (an 8^3 lattice,
 // fluid points only), variants 0 (plain walks with the vorticity source; plain 3D walks are not stratified), 2
 // (control variate) and 3 (control variate + stratified), n gradient samples, free_samples q; reference: plain
-// walks with 4096 gradient samples at the same points (the reference's own variance subtracted). Counters as in 2D.
+// walks with 4096 gradient samples at the same points (the reference's own variance subtracted); 40 passes. Counters
+// as in 2D.
 //   sphere: a tilted vortex ring (radius 0.3, core 0.12, circulation 1) off-centre in a sphere container of radius
 //           0.9 (tests/wos/test_wos_variance3.cpp);
 //   box:    a box obstacle in the walled box with a uniform stream 0.5 along +x, a vortex ring (radius 0.25, core
@@ -451,12 +452,12 @@ BENCHMARK_CAPTURE(BM_WosVariance3, sphere, std::string("sphere"))
     ->ArgsProduct({{0}, {16}, {1}})
     ->ArgsProduct({{2, 3}, {4, 16}, {4, 16}})
     ->Unit(benchmark::kMillisecond)
-    ->Iterations(5);
+    ->Iterations(40);
 BENCHMARK_CAPTURE(BM_WosVariance3, box, std::string("box"))
     ->ArgsProduct({{0}, {16}, {1}})
     ->ArgsProduct({{2, 3}, {4, 16}, {4, 16}})
     ->Unit(benchmark::kMillisecond)
-    ->Iterations(5);
+    ->Iterations(40);
 BENCHMARK_CAPTURE(BM_WosVariance, disk, std::string("disk"))
     ->ArgsProduct({{0, 1}, {32}, {1}})
     ->ArgsProduct({{2, 3}, {4, 16}, {4, 16}})

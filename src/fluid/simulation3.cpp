@@ -426,7 +426,7 @@ public:
                       "steps, {})",
                       s.samples, s.boundaries->wos.max_steps,
                       solver.boundary_field() && solver.boundary_field()->control_variate()
-                          ? fmt::format("control variate with {} free samples{}", s.boundaries->free_samples,
+                          ? fmt::format("wall control variate with {} free samples{}", s.boundaries->free_samples,
                                         s.boundaries->stratified ? ", stratified" : "")
                           : fmt::format("plain walks, {} volume sampling",
                                         s.boundaries->vorticity_importance ? "|omega|-mixed" : "Green's-function"))

@@ -235,6 +235,9 @@ private:
 // so the fluid enters through the x- wall and leaves through x+, and each obstacle takes the constant
 // Psi_U(centre of its bounds): for a sphere this is exactly the boundary value of the potential flow past it,
 // Psi = Psi_U (1 - a^3 / r^3). Without a stream every boundary is at Psi = 0, the thesis' condition.
+// With WosVelocityOptions::control_variate (non-periodic, vorticity present) every gradient sample is the
+// free-space Biot–Savart velocity of q vector point vortices drawn from omega_h plus -curl of the harmonic
+// correction h = Psi_b - Psi_U - Psi_free, walked without a source term (wos_velocity3.cpp, docs/boundaries.md).
 
 /// The velocity of a 3D state with solid boundaries. Immutable and thread-safe once built; static solids.
 class WosVelocityField3 final : public VelocityField3 {
