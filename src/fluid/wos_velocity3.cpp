@@ -133,8 +133,6 @@ WosVelocityField3::WosVelocityField3(const WosVelocityOptions& options, const Do
         const Vec3d h = omega->x.h();
         m_near_radius = NearRadiusCells * std::max({h.x, h.y, h.z});
     }
-    m_cv_wos = m_wos;
-    m_cv_wos.stratified = options.stratified;
     for (const auto& s : options.shapes) {
         m_geometry.push_back(s->geometry3());
         m_shape_psi.push_back(s->role().fluid_inside ? Vec3d(0.0) : stream_potential(box_center(*s)));
@@ -340,6 +338,8 @@ VelocityEstimate3 WosVelocityField3::estimate(Vec3d x, int n, Random& rng, wos::
 // exact velocity of the q point vortices inside the walled domain plus walk noise on a smooth image field.
 VelocityEstimate3 WosVelocityField3::estimate_control_variate(Vec3d x, double R0, int n, Random& rng,
                                                               wos::WalkCounters& c) const {
+    wos::Settings settings = m_wos;  // with set_stop()'s stop
+    settings.stratified = m_options.stratified;
     const int q = std::clamp(m_options.free_samples, 1, MaxFreeSamples);
     std::array<Vec3d, MaxFreeSamples> ys, ws;
     int count = 0;
@@ -355,7 +355,7 @@ VelocityEstimate3 WosVelocityField3::estimate_control_variate(Vec3d x, double R0
         return residual_stream(h) + sum * (1 / (4 * Pi));
     };
     wos::SampleMoments<Vec3d> moments;
-    moments.strata = m_cv_wos.stratified && n > 1;
+    moments.strata = settings.stratified && n > 1;
     const double scale = 3 / R0;
     for (int k = 0; k < n; ++k) {
         count = 0;
@@ -384,14 +384,14 @@ VelocityEstimate3 WosVelocityField3::estimate_control_variate(Vec3d x, double R0
             v += glm::cross(W, d) * (1 / (4 * Pi * r2 * r));
         }
         // The harmonic correction's Jacobian from the first step (antithetic, stratified per the settings).
-        const Vec3d dir = wos::first_step_direction<3>(rng, m_cv_wos, k, n);
+        const Vec3d dir = wos::first_step_direction<3>(rng, settings, k, n);
         glm::dmat3 J;
-        if (m_cv_wos.antithetic) {
-            const Vec3d ua = wos::walk<3>(*this, g, wos::NoSource{}, x + R0 * dir, rng, m_cv_wos, c);
-            const Vec3d ub = wos::walk<3>(*this, g, wos::NoSource{}, x - R0 * dir, rng, m_cv_wos, c);
+        if (settings.antithetic) {
+            const Vec3d ua = wos::walk<3>(*this, g, wos::NoSource{}, x + R0 * dir, rng, settings, c);
+            const Vec3d ub = wos::walk<3>(*this, g, wos::NoSource{}, x - R0 * dir, rng, settings, c);
             J = glm::outerProduct((scale * 0.5) * (ua - ub), dir);
         } else {
-            J = glm::outerProduct(scale * wos::walk<3>(*this, g, wos::NoSource{}, x + R0 * dir, rng, m_cv_wos, c), dir);
+            J = glm::outerProduct(scale * wos::walk<3>(*this, g, wos::NoSource{}, x + R0 * dir, rng, settings, c), dir);
         }
         Vec3d sample = v + minus_curl(J);
         if (!wos::detail::all_finite(sample)) {
@@ -399,7 +399,7 @@ VelocityEstimate3 WosVelocityField3::estimate_control_variate(Vec3d x, double R0
             sample = Vec3d(0.0);
         }
         moments.add(sample);
-        if (wos::stop_due(m_cv_wos, k)) n = k + 1;  // stopped: the caller discards the pass
+        if (wos::stop_due(settings, k)) n = k + 1;  // stopped: the caller discards the pass
     }
     VelocityEstimate3 e;
     e.value = moments.mean();

@@ -331,7 +331,6 @@ private:
     VorticitySource m_source;                                 // with vorticity_importance or the control variate
     bool m_cv = false;                                        // control variate in use
     double m_near_radius = 0;  // control variate: radius of the kernel-proportional near-field samples
-    wos::Settings m_cv_wos;    // the control variate's walks (stratified per the options)
 
     VelocityEstimate3 estimate_control_variate(Vec3d x, double R0, int n, Random& rng, wos::WalkCounters& c) const;
 };
