@@ -152,7 +152,8 @@ TEST(WosVariance3, Explore) {
 // harmonic correction carries the ring's image; the control variate's mean (with and without stratified first
 // steps, 1500 gradient samples) matches plain walks (3000) within 5 standard errors at 10 points out to 0.02 from
 // the container (measured max |z| 2.5). Broken variants seen to fail: the correction's boundary value Psi_b +
-// Psi_free (the wrong sign: max z 16), and Psi_free without its 1/(4 pi) (max z 32).
+// Psi_free (the wrong sign: max z 16), Psi_free without its 1/(4 pi) (max z 32), and the free-space velocity
+// with the opposite sign, -W x (x - y) (max z 64).
 TEST(WosVariance3, ControlVariateMatchesPlainWalksInASphereContainer) {
     const Scene sc = sphere_container();
     for (bool stratified : {true, false}) {
@@ -165,7 +166,7 @@ TEST(WosVariance3, ControlVariateMatchesPlainWalksInASphereContainer) {
 // the correction's boundary values are Psi_b - Psi_U - Psi_free), a ring just downstream whose tent samples reach
 // into the obstacle's cells: the control variate's mean matches plain walks within 5 standard errors at 12
 // points, some within 0.01-0.03 of the box's faces, edges and corner and of the walls (measured max |z| 2.4).
-// Broken variants seen to fail: as above (max z 11 and 13).
+// Broken variants seen to fail: as above (max z 11, 13 and 55).
 TEST(WosVariance3, ControlVariateMatchesPlainWalksAroundABoxInAStream) {
     const Scene sc = box_obstacle();
     for (bool stratified : {true, false}) {
