@@ -400,10 +400,6 @@ auto walk(const Geometry& geometry, const Dirichlet& g, const Source& f, Vec<D> 
     return volume + g(geometry.closest(x));
 }
 
-/// One gradient sample at x0 with R0 = distance(x0) >= epsilon (Eq. 3.79; antithetic per Settings). `Out` is
-/// Vec<D> for scalar solutions and the Jacobian glm::mat<D, N, double> (column a = d/dx_a of the N
-/// components) for vector ones. Returns false for an invalid sample (non-finite anywhere); counters are
-/// updated either way.
 /// Stratum i of n equal-area cells of the upper hemisphere (antithetic: the mirror covers the lower one) or of the
 /// whole sphere: rows(n) bands of z, band r holding the cells first_cell(r) .. first_cell(r + 1) - 1, each band's
 /// height in z proportional to its cell count and its cells equal sectors of longitude, so that every cell has the
@@ -473,6 +469,10 @@ struct SampleMoments {
     }
 };
 
+/// One gradient sample at x0 with R0 = distance(x0) >= epsilon (Eq. 3.79; antithetic per Settings). `Out` is
+/// Vec<D> for scalar solutions and the Jacobian glm::mat<D, N, double> (column a = d/dx_a of the N
+/// components) for vector ones. Returns false for an invalid sample (non-finite anywhere); counters are
+/// updated either way.
 template <int D, class Geometry, class Dirichlet, class Source, class Out>
 bool gradient_sample(const Geometry& geometry, const Dirichlet& g, const Source& f, const Vec<D>& x0, double R0,
                      Random& rng, const Settings& s, WalkCounters& c, Out& out, int index = 0, int count = 1) {
