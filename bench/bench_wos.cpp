@@ -336,8 +336,128 @@ void BM_WosVariance(benchmark::State& state, const std::string& scene) {
     state.counters["walks/query"] = double(c.walks) / double(pass * sc.points.size());
 }
 
+// The same in 3D (WosVelocityField3): the velocity at every third cell centre of a 24^3 cache (an 8^3 lattice,
+// fluid points only), variants 0 (plain walks with the vorticity source; plain 3D walks are not stratified), 2
+// (control variate) and 3 (control variate + stratified), n gradient samples, free_samples q; reference: plain
+// walks with 4096 gradient samples at the same points (the reference's own variance subtracted); 40 passes. Counters
+// as in 2D.
+//   sphere: a tilted vortex ring (radius 0.3, core 0.12, circulation 1) off-centre in a sphere container of radius
+//           0.9 (tests/wos/test_wos_variance3.cpp);
+//   box:    a box obstacle in the walled box with a uniform stream 0.5 along +x, a vortex ring (radius 0.25, core
+//           0.1, circulation 1.5, axis x) just downstream of it.
+
+struct VarianceScene3 {
+    Domain3 domain{Vec3d(-1.0), Vec3d(1.0), false};
+    VectorGrid3 omega;
+    WosVelocityOptions options;
+    std::vector<Vec3d> points, exact, exact_variance;
+};
+
+template <class Solid>
+void ring3(VectorGrid3& grid, Vec3d o, Vec3d axis, double R, double g, double s, const Solid& solid) {
+    for (int k = 0; k < grid.x.nz(); ++k)
+        for (int j = 0; j < grid.x.ny(); ++j)
+            for (int i = 0; i < grid.x.nx(); ++i) {
+                const Vec3d p = grid.x.cell_center(i, j, k);
+                const Vec3d x = p - o;
+                const double along = glm::dot(x, axis);
+                const Vec3d radial = x - along * axis;
+                const double rho = glm::length(radial);
+                Vec3d w(0.0);
+                if (rho > 0 && !solid(p)) {
+                    const double d2 = (rho - R) * (rho - R) + along * along;
+                    w = (g / (Pi * s * s) * std::exp(-d2 / (s * s)) / rho) * glm::cross(axis, radial);
+                }
+                grid.set(grid.x.index(i, j, k), w);
+            }
+}
+
+const VarianceScene3& variance_scene3(const std::string& name) {
+    static std::map<std::string, VarianceScene3> scenes;
+    if (auto it = scenes.find(name); it != scenes.end()) return it->second;
+    VarianceScene3 sc;
+    sc.omega = VectorGrid3(sc.domain, 24, 24, 24);
+    if (name == "sphere") {
+        sc.options.walls = false;
+        sc.options.shapes = {make("sphere", [](Properties& p) {
+            p.set_point("center", Vec3d(0.0));
+            p.set_float("radius", 0.9);
+            p.set_string("fluid", "inside");
+        })};
+        ring3(sc.omega, {0.25, 0.1, -0.2}, glm::normalize(Vec3d(0.3, -0.2, 1)), 0.3, 1.0, 0.12,
+              [](Vec3d p) { return glm::length(p) >= 0.9; });
+    } else {
+        sc.options.inflow_speed = 0.5;
+        sc.options.shapes = {make("box", [](Properties& p) {
+            p.set_int("dimension", 3);
+            p.set_point("min", Vec3d(-0.25, -0.3, -0.2));
+            p.set_point("max", Vec3d(0.25, 0.3, 0.2));
+        })};
+        const WosVelocityField3 probe(sc.options, sc.domain, nullptr, Interpolation::Bilinear);
+        ring3(sc.omega, {0.5, 0.0, 0.1}, Vec3d(1, 0, 0), 0.25, 1.5, 0.1,
+              [&](Vec3d p) { return probe.solid_at(p) >= 0; });
+    }
+    WosVelocityOptions plain = sc.options;
+    plain.control_variate = false;
+    plain.stratified = false;
+    const WosVelocityField3 ref(plain, sc.domain, &sc.omega, Interpolation::Bilinear);
+    for (int k = 1; k < 24; k += 3)
+        for (int j = 1; j < 24; j += 3)
+            for (int i = 1; i < 24; i += 3)
+                if (ref.solid_at(sc.omega.x.cell_center(i, j, k)) < 0)
+                    sc.points.push_back(sc.omega.x.cell_center(i, j, k));
+    sc.exact.resize(sc.points.size());
+    sc.exact_variance.resize(sc.points.size());
+    parallel_for_units(sc.points.size(), [&](std::size_t k) {
+        Random rng(12345, k);
+        wos::WalkCounters c;
+        const VelocityEstimate3 e = ref.estimate(sc.points[k], 4096, rng, c);
+        sc.exact[k] = e.value;
+        sc.exact_variance[k] = e.variance;
+    });
+    return scenes.emplace(name, std::move(sc)).first->second;
+}
+
+void BM_WosVariance3(benchmark::State& state, const std::string& scene) {
+    const VarianceScene3& sc = variance_scene3(scene);
+    const int variant = int(state.range(0)), n = int(state.range(1)), q = int(state.range(2));
+    WosVelocityOptions o = variant_options(sc.options, variant, q);
+    const WosVelocityField3 f(o, sc.domain, &sc.omega, Interpolation::Bilinear);
+    wos::WalkCounters c;
+    double sse = 0, seconds = 0, reference = 0;
+    uint64_t pass = 0;
+    for (auto _ : state) {
+        const double t0 = kelvin::bench::thread_cpu_seconds();
+        for (std::size_t k = 0; k < sc.points.size(); ++k) {
+            Random rng(1000 + pass, k);
+            const VelocityEstimate3 e = f.estimate(sc.points[k], n, rng, c);
+            const Vec3d d = e.value - sc.exact[k];
+            sse += glm::dot(d, d);
+            reference += sc.exact_variance[k].x + sc.exact_variance[k].y + sc.exact_variance[k].z;
+        }
+        seconds += kelvin::bench::thread_cpu_seconds() - t0;
+        ++pass;
+    }
+    const double mse = std::max(0.0, (sse - reference) / double(pass * sc.points.size()));
+    const double per_pass = seconds / double(pass);
+    state.counters["rmse"] = std::sqrt(mse);
+    state.counters["cpu_s"] = per_pass;
+    state.counters["rmse@1s"] = std::sqrt(mse * per_pass);
+    state.counters["walks/query"] = double(c.walks) / double(pass * sc.points.size());
+}
+
 }  // namespace
 
+BENCHMARK_CAPTURE(BM_WosVariance3, sphere, std::string("sphere"))
+    ->ArgsProduct({{0}, {16}, {1}})
+    ->ArgsProduct({{2, 3}, {4, 16}, {4, 16}})
+    ->Unit(benchmark::kMillisecond)
+    ->Iterations(40);
+BENCHMARK_CAPTURE(BM_WosVariance3, box, std::string("box"))
+    ->ArgsProduct({{0}, {16}, {1}})
+    ->ArgsProduct({{2, 3}, {4, 16}, {4, 16}})
+    ->Unit(benchmark::kMillisecond)
+    ->Iterations(40);
 BENCHMARK_CAPTURE(BM_WosVariance, disk, std::string("disk"))
     ->ArgsProduct({{0, 1}, {32}, {1}})
     ->ArgsProduct({{2, 3}, {4, 16}, {4, 16}})

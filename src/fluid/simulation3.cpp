@@ -423,9 +423,13 @@ public:
             s.boundaries
                 ? fmt::format(
                       "free-slip Walk-on-Spheres velocity on the vector potential ({} gradient samples, max {} "
-                      "steps, {} volume sampling)",
+                      "steps, {})",
                       s.samples, s.boundaries->wos.max_steps,
-                      s.boundaries->vorticity_importance ? "|omega|-mixed" : "Green's-function")
+                      solver.boundary_field() && solver.boundary_field()->control_variate()
+                          ? fmt::format("wall control variate with {} free samples{}", s.boundaries->free_samples,
+                                        s.boundaries->stratified ? ", stratified" : "")
+                          : fmt::format("plain walks, {} volume sampling",
+                                        s.boundaries->vorticity_importance ? "|omega|-mixed" : "Green's-function"))
                 : s.estimator->effect(s.samples, solver.delta(), s.domain.periodic) + near_field_effect();
         if (s.vorticity_allocation)
             velocity +=

@@ -9,13 +9,22 @@
 #include <fmt/format.h>
 
 #include <algorithm>
+#include <array>
 #include <cmath>
+#include <tuple>
 
 namespace kelvin::fluid {
 
 namespace {
 
 const int WallPieces = 6;
+
+/// Control variate: as in 2D (wos_velocity.cpp), the free-space samples mix |omega| sampling with a density that
+/// cancels the kernel's 1/r^2 within NearRadiusCells cells of the query (fraction NearFraction: a uniform radius
+/// in the ball of radius rho times a uniform direction, density 1 / (4 pi rho r^2)), which keeps the singular
+/// kernel's weight bounded (|omega| sampling alone has a divergent second moment at the query point).
+constexpr double NearRadiusCells = 2;
+constexpr double NearFraction = 0.25;
 
 Vec3d box_center(const BoundaryShape& s) {
     const auto [lo, hi] = s.bounds();
@@ -117,7 +126,13 @@ WosVelocityField3::WosVelocityField3(const WosVelocityOptions& options, const Do
     m_stream = homogeneous ? Vec3d(0.0) : Vec3d(options.inflow_speed, 0, 0);
     m_center = 0.5 * (domain.min + domain.max);
     m_has_source = omega && omega->max_norm() > 0;
-    if (m_has_source && options.vorticity_importance) m_source = VorticitySource(omega, interp);
+    m_cv = m_has_source && options.control_variate && !domain.periodic;
+    if (m_has_source && (options.vorticity_importance || m_cv)) m_source = VorticitySource(omega, interp);
+    if (m_source.empty()) m_cv = false;
+    if (m_cv) {
+        const Vec3d h = omega->x.h();
+        m_near_radius = NearRadiusCells * std::max({h.x, h.y, h.z});
+    }
     for (const auto& s : options.shapes) {
         m_geometry.push_back(s->geometry3());
         m_shape_psi.push_back(s->role().fluid_inside ? Vec3d(0.0) : stream_potential(box_center(*s)));
@@ -295,7 +310,9 @@ VelocityEstimate3 WosVelocityField3::estimate(Vec3d x, int n, Random& rng, wos::
         return {};
     }
     if (R0 < m_wos.epsilon && !wos::move_to_shell<3>(*this, x, R0, m_wos, c)) return {};
-    if (m_has_source && !m_source.empty()) {
+    if (m_cv) {
+        e = estimate_control_variate(x, R0, n, rng, c);
+    } else if (m_has_source && !m_source.empty() && m_options.vorticity_importance) {
         e = velocity_samples(*this, m_source, x, R0, n, rng, m_wos, c);
     } else if (m_has_source) {  // the thesis' Green's-function sampling of the volume term
         const VectorGrid3& grid = *m_omega;
@@ -309,6 +326,87 @@ VelocityEstimate3 WosVelocityField3::estimate(Vec3d x, int n, Random& rng, wos::
     return e;
 }
 
+// The control variate (the 3D twin of WosVelocityField::estimate_control_variate). Psi' = Psi_free + h with
+// Psi_free(x) = -integral omega_h(y) / (4 pi |x - y|) dy over space (Laplacian(Psi_free) = omega_h, the function the
+// plain walks' source term reads) and h harmonic in the fluid with h = Psi_b - Psi_U - Psi_free on every boundary.
+// One gradient sample draws q points y_j of omega_h (a one-sample mixture of |omega| and, within the near radius,
+// 1/r^2 sampling; weights W_j = omega_h(y_j) / (q p(y_j)) where both densities reach, and beyond it the cell's
+// direction omega_k / |omega_k| times integral|omega_h| / ((1 - alpha) q), unbiased over (cell, point) without a
+// lookup), q vector point vortices whose free-space velocity sum_j W_j x (x - y_j) / (4 pi r^3) (= -curl Psi_free)
+// and potential -sum_j W_j / (4 pi |p - y_j|) are unbiased for u_free(x) and Psi_free(p); the sample's antithetic
+// walk pair (no source term) ends at p and carries Psi_b(p) - Psi_U(p) minus that potential. Every sample is the
+// exact velocity of the q point vortices inside the walled domain plus walk noise on a smooth image field.
+VelocityEstimate3 WosVelocityField3::estimate_control_variate(Vec3d x, double R0, int n, Random& rng,
+                                                              wos::WalkCounters& c) const {
+    wos::Settings settings = m_wos;  // with set_stop()'s stop
+    settings.stratified = m_options.stratified;
+    const int q = std::clamp(m_options.free_samples, 1, MaxFreeSamples);
+    std::array<Vec3d, MaxFreeSamples> ys, ws;
+    int count = 0;
+    const double rho = m_near_radius, a = NearFraction, inv_q = 1.0 / q;
+    const double near_pdf = 1 / (4 * Pi * rho);  // x 1/r^2: the density of r = rho u, uniform direction
+    const double far_weight = m_source.total() / (1 - a) * inv_q;
+    const auto g = [&](const wos::BoundaryHit<3>& h) {
+        Vec3d sum(0.0);  // 4 pi Psi_free(p) = -sum_j W_j / |p - y_j|
+        for (int j = 0; j < count; ++j) {
+            const Vec3d d = h.point - ys[std::size_t(j)];
+            sum += ws[std::size_t(j)] * (1 / std::sqrt(glm::dot(d, d)));
+        }
+        return residual_stream(h) + sum * (1 / (4 * Pi));
+    };
+    wos::SampleMoments<Vec3d> moments;
+    moments.strata = settings.stratified && n > 1;
+    const double scale = 3 / R0;
+    for (int k = 0; k < n; ++k) {
+        count = 0;
+        Vec3d v(0.0);
+        for (int j = 0; j < q; ++j) {
+            Vec3d y, W(0.0);
+            if (wos::uniform(rng) < a) {
+                y = x + (rho * wos::uniform(rng)) * wos::sample_direction<3>(rng);
+            } else {
+                std::tie(y, W) = m_source.sample_directed(rng);
+            }
+            const Vec3d d = x - y;
+            const double r2 = glm::dot(d, d);
+            if (!(r2 > 0)) continue;  // y = x exactly: a measure-zero point (principal value 0)
+            const double r = std::sqrt(r2);
+            if (r < rho) {  // where both densities reach: the balance weight omega_h / (mixture density)
+                const auto [w, pw] = m_source.value_and_pdf(y, x);
+                const double p = a * near_pdf / r2 + (1 - a) * pw;
+                if (w == Vec3d(0.0) || !(p > 0)) continue;
+                W = w * (inv_q / p);
+            } else {  // only |omega| sampling reaches: its cell's direction times the total (no lookup)
+                W *= far_weight;
+            }
+            ys[std::size_t(count)] = y;
+            ws[std::size_t(count++)] = W;
+            v += glm::cross(W, d) * (1 / (4 * Pi * r2 * r));
+        }
+        // The harmonic correction's Jacobian from the first step (antithetic, stratified per the settings).
+        const Vec3d dir = wos::first_step_direction<3>(rng, settings, k, n);
+        glm::dmat3 J;
+        if (settings.antithetic) {
+            const Vec3d ua = wos::walk<3>(*this, g, wos::NoSource{}, x + R0 * dir, rng, settings, c);
+            const Vec3d ub = wos::walk<3>(*this, g, wos::NoSource{}, x - R0 * dir, rng, settings, c);
+            J = glm::outerProduct((scale * 0.5) * (ua - ub), dir);
+        } else {
+            J = glm::outerProduct(scale * wos::walk<3>(*this, g, wos::NoSource{}, x + R0 * dir, rng, settings, c), dir);
+        }
+        Vec3d sample = v + minus_curl(J);
+        if (!wos::detail::all_finite(sample)) {
+            ++c.invalid;
+            sample = Vec3d(0.0);
+        }
+        moments.add(sample);
+        if (wos::stop_due(settings, k)) n = k + 1;  // stopped: the caller discards the pass
+    }
+    VelocityEstimate3 e;
+    e.value = moments.mean();
+    e.variance = moments.variance_of_mean();
+    return e;
+}
+
 VelocityEstimate3 WosVelocityField3::stream_function(Vec3d x, int n, Random& rng, wos::WalkCounters& c) const {
     VelocityEstimate3 e;
     const double R0 = distance(x);
@@ -316,7 +414,7 @@ VelocityEstimate3 WosVelocityField3::stream_function(Vec3d x, int n, Random& rng
         e.value = boundary_stream(closest(x));
         return e;
     }
-    if (m_has_source && !m_source.empty()) {
+    if (m_has_source && !m_source.empty() && m_options.vorticity_importance) {
         e = potential_samples(*this, m_source, x, R0, n, rng, m_wos, c);
     } else if (m_has_source) {
         const VectorGrid3& grid = *m_omega;
@@ -351,6 +449,18 @@ WosVelocityField3::VorticitySource::VorticitySource(const VectorGrid3* omega, In
 }
 
 Vec3d WosVelocityField3::VorticitySource::sample(Random& rng, const Vec3d& x) const {
+    const Vec3d y = draw(rng).first;
+    const Domain3& d = m_abs.domain();
+    if (!d.periodic) return y;
+    return x + d.min_image(y - x);  // periodic: the image nearest the walk
+}
+
+std::pair<Vec3d, Vec3d> WosVelocityField3::VorticitySource::sample_directed(Random& rng) const {
+    const auto [y, k] = draw(rng);
+    return {y, m_omega->at(k) / m_abs.values()[k]};
+}
+
+std::pair<Vec3d, uint32_t> WosVelocityField3::VorticitySource::draw(Random& rng) const {
     const uint32_t slot = rng.next_u32(uint32_t(m_table.size()));
     const AliasEntry& e = m_table[slot];
     const uint32_t k = m_cells[rng.next_u32() < e.threshold ? slot : e.alias];
@@ -363,10 +473,7 @@ Vec3d WosVelocityField3::VorticitySource::sample(Random& rng, const Vec3d& x) co
         for (int a = 0; a < 3; ++a) off[a] = h[a] * (wos::uniform(rng) + wos::uniform(rng) - 1);
     else
         for (int a = 0; a < 3; ++a) off[a] = h[a] * (wos::uniform(rng) - 0.5);
-    const Vec3d y = g.cell_center(i, j, l) + off;
-    const Domain3& d = g.domain();
-    if (!d.periodic) return y;
-    return x + d.min_image(y - x);  // periodic: the image nearest the walk
+    return {g.cell_center(i, j, l) + off, k};
 }
 
 std::pair<Vec3d, double> WosVelocityField3::VorticitySource::lookup(const Vec3d& y) const {

@@ -434,7 +434,8 @@ TEST(FluidScene3D, RunWritesCsvVdbAndSlicesAndOnlyRequestedWork) {
 }
 
 // A 3D scene with a free-slip obstacle (the shipped sphere scene at a tiny budget): walks instead of Biot–Savart,
-// a solid mask, finite diagnostics; the summary statistics name the walk work.
+// a solid mask, finite diagnostics; the summary statistics name the walk work, and the effects line names the
+// walls' control variate (the default).
 TEST(FluidScene3D, SphereObstacleSceneRunsOnWalks) {
     TempDir dir;
     const fs::path scene_path = fs::path(KELVIN_SOURCE_DIR) / "scenes" / "fluid" / "sphere_obstacle.xml";
@@ -445,7 +446,13 @@ TEST(FluidScene3D, SphereObstacleSceneRunsOnWalks) {
     RunContext ctx;
     ctx.quiet = true;
     ctx.output = dir.path() / "sphere.png";
+    ktest::LogCapture log;
     RunResult r = job->run(ctx);
+    bool named = false;
+    for (const auto& [level, msg] : log.messages())
+        if (msg.find("mcfluid: effects:") != std::string::npos)
+            named = msg.find("wall control variate with 16 free samples, stratified") != std::string::npos;
+    EXPECT_TRUE(named) << "the effects line names the walls' control variate";
     EXPECT_EQ(r.work, 2);
     EXPECT_GT(ctx.stats.get("fluid.wos_walks"), 0.0);
     EXPECT_EQ(ctx.stats.get("fluid.biot_savart_evals"), 0.0);

@@ -443,21 +443,28 @@ TEST(WosFluid3, HardCasesStayFinite) {
     EXPECT_EQ(c.invalid, 0u);
 }
 
-// Bit-identical results whatever the thread count, with boundaries, stretching and control variates.
+// Bit-identical results whatever the thread count, with boundaries, stretching and control variates (the
+// previous step's, Eq. 5.23), with the walls' control variate (the default, stratified) and with plain walks.
 TEST(WosFluid3, DeterministicAcrossThreadCounts) {
     const Domain3 box{Vec3d(-1.0), Vec3d(1.0), false};
-    auto opts = std::make_shared<WosVelocityOptions>(stream_options(0.3, {sphere_boundary(Vec3d(0.3, 0, 0), 0.25)}));
-    auto run = [&](int threads) {
-        const kelvin::ThreadLimit limit(threads);
-        MCFluid3Settings s = boundary_settings(box, 8, opts);
-        s.control_variates = true;
-        MCFluid3Solver solver(s, [](const Vec3d& x) {
-            return Vec3d(0, 0, 3 * std::exp(-8 * glm::dot(x + Vec3d(0.4, 0, 0), x + Vec3d(0.4, 0, 0))));
-        });
-        for (int i = 0; i < 2; ++i) EXPECT_TRUE(solver.step());
-        return solver.vorticity_grid().x.values();
-    };
-    EXPECT_EQ(run(1), run(2));
+    for (bool wall_cv : {true, false}) {
+        SCOPED_TRACE(fmt::format("walls' control variate {}", wall_cv));
+        WosVelocityOptions o = stream_options(0.3, {sphere_boundary(Vec3d(0.3, 0, 0), 0.25)});
+        o.control_variate = wall_cv;
+        auto opts = std::make_shared<WosVelocityOptions>(o);
+        auto run = [&](int threads) {
+            const kelvin::ThreadLimit limit(threads);
+            MCFluid3Settings s = boundary_settings(box, 8, opts);
+            s.control_variates = true;
+            MCFluid3Solver solver(s, [](const Vec3d& x) {
+                return Vec3d(0, 0, 3 * std::exp(-8 * glm::dot(x + Vec3d(0.4, 0, 0), x + Vec3d(0.4, 0, 0))));
+            });
+            for (int i = 0; i < 2; ++i) EXPECT_TRUE(solver.step());
+            EXPECT_EQ(solver.boundary_field()->control_variate(), wall_cv);
+            return solver.vorticity_grid().x.values();
+        };
+        EXPECT_EQ(run(1), run(2));
+    }
 }
 
 }  // namespace

@@ -64,16 +64,18 @@ struct WosVelocityOptions {
     double inflow_speed = 0;                ///< uniform inflow through the left wall and outflow through the right
     double inflow_min = 0, inflow_max = 0;  ///< y range of the inflow/outflow segments (equal: the whole wall)
     std::vector<std::shared_ptr<const BoundaryShape>> shapes;
-    /// 2D, non-periodic domains with vorticity: the velocity as a control variate (docs/boundaries.md), the
-    /// free-space Biot–Savart velocity of omega_h plus -curl of the harmonic correction h = Psi - Psi_free,
+    /// Non-periodic domains with vorticity (2D and 3D): the velocity as a control variate (docs/boundaries.md),
+    /// the free-space Biot–Savart velocity of omega_h plus -curl of the harmonic correction h = Psi - Psi_free,
     /// estimated by walks without a source term whose boundary values are Psi_b - Psi_free. false: the walks
     /// solve Laplacian(Psi) = omega_h directly (the thesis' estimator).
     bool control_variate = true;
     /// Vorticity samples per gradient sample (control variate): the point vortices whose free-space velocity and
     /// stream function (at the walks' ends) that gradient sample carries.
     int free_samples = 16;
-    /// 2D: stratified first-step directions over the n gradient samples of a query (jittered, one per stratum of
-    /// the half circle with antithetic); the variance is estimated from pairs of adjacent strata.
+    /// Stratified first-step directions over the n gradient samples of a query (jittered, one per stratum of
+    /// the half circle, or in 3D of n equal-area cells of the half sphere, with antithetic); the variance is
+    /// estimated from pairs of adjacent strata. 3D: with the control variate only (plain 3D walks are not
+    /// stratified).
     bool stratified = true;
 };
 
@@ -233,6 +235,9 @@ private:
 // so the fluid enters through the x- wall and leaves through x+, and each obstacle takes the constant
 // Psi_U(centre of its bounds): for a sphere this is exactly the boundary value of the potential flow past it,
 // Psi = Psi_U (1 - a^3 / r^3). Without a stream every boundary is at Psi = 0, the thesis' condition.
+// With WosVelocityOptions::control_variate (non-periodic, vorticity present) every gradient sample is the
+// free-space Biot–Savart velocity of q vector point vortices drawn from omega_h plus -curl of the harmonic
+// correction h = Psi_b - Psi_U - Psi_free, walked without a source term (wos_velocity3.cpp, docs/boundaries.md).
 
 /// The velocity of a 3D state with solid boundaries. Immutable and thread-safe once built; static solids.
 class WosVelocityField3 final : public VelocityField3 {
@@ -251,6 +256,8 @@ public:
     const WosVelocityField3* boundaries() const override { return this; }
     /// Psi at x with n walks (value and per-component variance of the estimate).
     VelocityEstimate3 stream_function(Vec3d x, int n, Random& rng, wos::WalkCounters& c) const;
+    /// True when estimate() uses the control variate (the option, vorticity present, a non-periodic domain).
+    bool control_variate() const { return m_cv; }
 
     /// Distance to the nearest boundary (walls, solids; periodic images included), and the closest point with
     /// its piece: 0-5 the walls (x-, x+, y-, y+, z-, z+), 6 + i shape i.
@@ -284,6 +291,11 @@ public:
         VorticitySource(const VectorGrid3* omega, Interpolation interp);
         Vec3d operator()(const Vec3d& y) const { return lookup(y).first; }
         Vec3d sample(Random& rng, const Vec3d& x) const;
+        /// sample() (non-periodic) and the unit direction of omega in the cell it drew: that direction x total()
+        /// is unbiased for omega_h over the pair (cell, point).
+        std::pair<Vec3d, Vec3d> sample_directed(Random& rng) const;
+        /// integral |omega|_h (the normalisation of the density).
+        double total() const { return m_total; }
         double pdf(const Vec3d& y, const Vec3d& x) const { return value_and_pdf(y, x).second; }
         std::pair<Vec3d, double> value_and_pdf(const Vec3d& y, const Vec3d& x) const;
         double green_fraction() const { return 0.5; }
@@ -291,6 +303,8 @@ public:
 
     private:
         std::pair<Vec3d, double> lookup(const Vec3d& y) const;
+        /// A cell drawn by |omega| and a point of its tent (or box).
+        std::pair<Vec3d, uint32_t> draw(Random& rng) const;
 
         const VectorGrid3* m_omega = nullptr;
         Interpolation m_interp = Interpolation::Bilinear;
@@ -314,7 +328,11 @@ private:
     Vec3d m_center{0.0};                                      // the box centre (origin of Psi_U)
     std::vector<Vec3d> m_shape_psi;                           // each solid's constant Psi
     std::vector<const wos::BoundaryGeometry<3>*> m_geometry;  // each shape's provider
-    VorticitySource m_source;                                 // with vorticity_importance
+    VorticitySource m_source;                                 // with vorticity_importance or the control variate
+    bool m_cv = false;                                        // control variate in use
+    double m_near_radius = 0;  // control variate: radius of the kernel-proportional near-field samples
+
+    VelocityEstimate3 estimate_control_variate(Vec3d x, double R0, int n, Random& rng, wos::WalkCounters& c) const;
 };
 
 /// Why these options cannot run a 3D simulation on `domain` ("" when they can): a 2D shape, a periodic domain

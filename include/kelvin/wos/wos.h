@@ -103,10 +103,10 @@ struct Settings {
     double epsilon = 1e-4;   ///< shell width: a walk stops when the distance drops below it
     int max_steps = 1024;    ///< spheres per walk before it is truncated (and counted)
     bool antithetic = true;  ///< gradient: mirror the first boundary and volume samples (Fig. 5.5)
-    /// 2D gradient estimates over n samples: the first step of sample i takes its direction uniformly within
+    /// Gradient estimates over n samples: the first step of sample i takes its direction uniformly within
     /// stratum i of n equal arcs (of the half circle with antithetic, whose mirror covers the other half; of the
     /// whole circle without). Unbiased; the variance is then estimated from pairs of adjacent strata (collapsed
-    /// strata: conservative). Ignored in 3D.
+    /// strata: conservative). 3D: likewise over n equal-area cells of the half sphere (SphereStrata).
     bool stratified = false;
     /// Polled every StopPollSamples samples of an estimate (null: never): when it asks to stop, the estimate
     /// returns early with the samples done so far, and the caller (a solver's pass) discards the whole pass.
@@ -400,12 +400,31 @@ auto walk(const Geometry& geometry, const Dirichlet& g, const Source& f, Vec<D> 
     return volume + g(geometry.closest(x));
 }
 
-/// One gradient sample at x0 with R0 = distance(x0) >= epsilon (Eq. 3.79; antithetic per Settings). `Out` is
-/// Vec<D> for scalar solutions and the Jacobian glm::mat<D, N, double> (column a = d/dx_a of the N
-/// components) for vector ones. Returns false for an invalid sample (non-finite anywhere); counters are
-/// updated either way.
-/// The first-step direction of gradient sample i of n (Settings::stratified in 2D: uniform within arc i of n;
-/// otherwise uniform). One 32-bit draw either way.
+/// Stratum i of n equal-area cells of the upper hemisphere (antithetic: the mirror covers the lower one) or of the
+/// whole sphere: rows(n) bands of z, band r holding the cells first_cell(r) .. first_cell(r + 1) - 1, each band's
+/// height in z proportional to its cell count and its cells equal sectors of longitude, so that every cell has the
+/// area 2 pi / n (4 pi / n). Cells are numbered band by band, so neighbouring indices are neighbouring cells
+/// (SampleMoments pairs them). A uniform point of the cell from two draws (uniform z: Archimedes).
+struct SphereStrata {
+    int n = 1, rows = 1;
+    explicit SphereStrata(int count) : n(std::max(count, 1)), rows(std::max(1, int(std::lround(std::sqrt(n / 2.0))))) {}
+    int first_cell(int r) const { return int((long long)(r)*n / rows); }
+    Vec<3> sample(Random& rng, int i, bool hemisphere) const {
+        int r = std::min(int((long long)(i)*rows / n), rows - 1);
+        while (r > 0 && first_cell(r) > i) --r;
+        while (r + 1 < rows && first_cell(r + 1) <= i) ++r;
+        const int begin = first_cell(r), cells = first_cell(r + 1) - begin;
+        const double t = (double(begin) + uniform(rng) * double(cells)) / double(n);  // in [0, 1]
+        const double z = hemisphere ? 1 - t : 1 - 2 * t;
+        const double a = (double(i - begin) + uniform(rng)) / double(cells) * 0x1p32;
+        const Vec<2> c = unit_circle_point(uint32_t(std::min(a, 0x1p32 - 1)));
+        const double sxy = std::sqrt(std::max(0.0, 1 - z * z));
+        return {sxy * c.x, sxy * c.y, z};
+    }
+};
+
+/// The first-step direction of gradient sample i of n (Settings::stratified: 2D uniform within arc i of n, one
+/// 32-bit draw; 3D uniform within cell i of SphereStrata(n), two draws; otherwise uniform).
 template <int D>
 inline Vec<D> first_step_direction(Random& rng, const Settings& s, int i, int n) {
     if constexpr (D == 2) {
@@ -414,6 +433,8 @@ inline Vec<D> first_step_direction(Random& rng, const Settings& s, int i, int n)
             const double a = (double(i) + uniform(rng)) / double(n) * span;
             return unit_circle_point(uint32_t(std::min(a, span - 1)));
         }
+    } else {
+        if (s.stratified && n > 1) return SphereStrata(n).sample(rng, i, s.antithetic);
     }
     return sample_direction<D>(rng);
 }
@@ -448,6 +469,10 @@ struct SampleMoments {
     }
 };
 
+/// One gradient sample at x0 with R0 = distance(x0) >= epsilon (Eq. 3.79; antithetic per Settings). `Out` is
+/// Vec<D> for scalar solutions and the Jacobian glm::mat<D, N, double> (column a = d/dx_a of the N
+/// components) for vector ones. Returns false for an invalid sample (non-finite anywhere); counters are
+/// updated either way.
 template <int D, class Geometry, class Dirichlet, class Source, class Out>
 bool gradient_sample(const Geometry& geometry, const Dirichlet& g, const Source& f, const Vec<D>& x0, double R0,
                      Random& rng, const Settings& s, WalkCounters& c, Out& out, int index = 0, int count = 1) {
@@ -568,7 +593,7 @@ GradientEstimate<D> gradient(const Geometry& geometry, const Dirichlet& g, const
     }
     if (R0 < s.epsilon && !move_to_shell<D>(geometry, x, R0, s, c)) return e;
     SampleMoments<Vec<D>> m;
-    m.strata = s.stratified && D == 2;
+    m.strata = s.stratified;
     for (int i = 0; i < n; ++i) {
         Vec<D> v(0.0);
         if (!gradient_sample<D>(geometry, g, f, x, R0, rng, s, c, v, i, n)) {

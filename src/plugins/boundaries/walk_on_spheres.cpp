@@ -5,7 +5,7 @@
 //
 // and the velocity is v = -curl Psi = (-dPsi/dy, dPsi/dx) (Eq. 5.8), from the gradient Walk-on-Spheres estimator
 // (Eqs. 3.78-3.79) with an antithetic first step (Fig. 5.5) and the volume term sampled from the vorticity
-// cache; by default in 2D (control_variate, stratified) as the free-space Biot–Savart velocity of point-vortex
+// cache; by default (control_variate, stratified; 2D and 3D) as the free-space Biot–Savart velocity of point-vortex
 // samples of the cache plus the walks' harmonic correction, with stratified first-step directions
 // (include/kelvin/fluid/boundary.h, docs/boundaries.md). Boundaries: the domain box as walls (unless periodic), with
 // optional inflow through its left wall and outflow through its right (Fig. 5.6), and the nested <boundary> shapes,
@@ -97,11 +97,13 @@ KELVIN_PLUGIN(
     kelvin::param::string("importance", "vorticity",
                           "volume term: 'vorticity' (|omega| mixed with G) or 'green' (G only, the thesis)"),
     kelvin::param::boolean("control_variate", true,
-                           "2D, not periodic: free-space Biot-Savart velocity + walks for the harmonic "
-                           "correction only (false: walks with the vorticity source)"),
+                           "not periodic (2D and 3D): free-space Biot-Savart velocity of point-vortex samples + walks "
+                           "for the harmonic correction only (false: walks with the vorticity source)"),
     kelvin::param::integer("free_samples", 16,
                            "control variate: vorticity samples (point vortices) per gradient sample, 1-256"),
-    kelvin::param::boolean("stratified", true, "2D: stratified first-step directions over a query's gradient samples"),
+    kelvin::param::boolean("stratified", true,
+                           "stratified first-step directions over a query's gradient samples (3D: with the control "
+                           "variate only)"),
     kelvin::param::boolean("walls", true, "the domain box is a container (ignored when periodic)"),
     kelvin::param::real("wall_stream_value", 0.0,
                         "Psi on the walls (with inflow: the mean of the bottom and top walls)"),
