@@ -1043,6 +1043,54 @@ TEST(PathDerivatives, BounceByBounceEqualsDirectDifferentiation) {
     EXPECT_EQ(points, 40);
 }
 
+namespace {
+/// The Cornell box's direct light (max_depth 2) as the discontinuity tests see it: 18 coordinates, all in the block;
+/// what the camera ray hits and whether the first vertex's shadow ray reaches its light sample (coordinates 4-6), by
+/// the renderer's own queries.
+struct DirectLightBox {
+    static constexpr std::size_t len = 4 + 7 * 2;
+    PathSetup S{"cornell-box.xml", 2};
+    std::unique_ptr<PathDerivatives> D;
+    std::vector<int> block;
+    DirectLightBox() {
+        S.opt.min_depth = 1;
+        D = std::make_unique<PathDerivatives>(*S.scene, S.opt);
+        for (std::size_t i = 0; i < len; ++i) block.push_back(int(i));
+    }
+    bool lit(const std::vector<double>& x) const {
+        double lv = 0;
+        return D->log_value(x.data(), len, &lv) == PathDerivativeStatus::Ok;
+    }
+    PathDerivativeStatus status(const std::vector<double>& x) const {
+        std::vector<double> g(len), H(len * len);
+        double lv = 0;
+        return D->evaluate(x.data(), block.data(), len, int(len), 0, &lv, g.data(), H.data());
+    }
+    /// The shape the camera ray hits and its plane's normal (the faces of a box are one shape); -1: none.
+    long face(const std::vector<double>& x) const {
+        const Ray ray = camera_ray(x);
+        const auto hit = S.scene->intersect(ray);
+        if (!hit) return -1L;
+        const Vec3d n = S.scene->interaction(ray, *hit).ng;
+        return long(hit->shape) * 27 + long(std::lround(n.x) + 1) * 9 + long(std::lround(n.y) + 1) * 3 +
+               long(std::lround(n.z) + 1);
+    }
+    bool visible(const std::vector<double>& x) const {
+        const Ray ray = camera_ray(x);
+        const auto hit = S.scene->intersect(ray);
+        if (!hit) return false;
+        const SurfaceInteraction si = S.scene->interaction(ray, *hit);
+        const auto [e, sel] = S.scene->sample_emitter(x[4]);
+        const auto ds = e ? e->sample_direct(si.p, Vec2d(x[5], x[6])) : std::nullopt;
+        return ds && !S.scene->occluded(si.spawn_to(ds->p));
+    }
+    Ray camera_ray(const std::vector<double>& x) const {
+        const Vec2d film = S.opt.film_origin + Vec2d(x[0], x[1]) * S.opt.film_extent;
+        return S.scene->sensor()->sample_ray(film, Vec2d(x[2], x[3]));
+    }
+};
+}  // namespace
+
 // Discontinuities are detected, not differentiated through. Along rows of the film, the Cornell box's direct light
 // (max_depth 2) changes where the camera ray moves from one shape or face to another (a silhouette, the edge
 // between two walls or two faces of a box) and where the first vertex's shadow ray starts to hit a box on the
@@ -1050,43 +1098,12 @@ TEST(PathDerivatives, BounceByBounceEqualsDirectDifferentiation) {
 // the derivatives are refused (Discontinuous), while 1e-3 away on the same side they are given (Ok). Seen to fail: the
 // shadow ray's visibility left out of the decisions compared (every shadow edge then Ok).
 TEST(PathDerivatives, OcclusionEdgesAreDetectedNotDifferentiatedThrough) {
-    PathSetup S("cornell-box.xml", 2);
-    S.opt.min_depth = 1;
-    const PathDerivatives D(*S.scene, S.opt);
-    const std::size_t len = 4 + 7 * 2;
-    std::vector<int> block(len);
-    for (std::size_t i = 0; i < len; ++i) block[i] = int(i);
-    // The class of a point: the shape its camera ray hits, and whether its path carries light.
-    // The shape the camera ray hits and its plane's normal (the faces of a box are one shape).
-    auto shape_of = [&](const std::vector<double>& x) {
-        const Vec2d film = S.opt.film_origin + Vec2d(x[0], x[1]) * S.opt.film_extent;
-        const Ray ray = S.scene->sensor()->sample_ray(film, Vec2d(x[2], x[3]));
-        const auto hit = S.scene->intersect(ray);
-        if (!hit) return -1L;
-        const Vec3d n = S.scene->interaction(ray, *hit).ng;
-        return long(hit->shape) * 27 + long(std::lround(n.x) + 1) * 9 + long(std::lround(n.y) + 1) * 3 +
-               long(std::lround(n.z) + 1);
-    };
-    auto lit = [&](const std::vector<double>& x) {
-        double lv = 0;
-        return D.log_value(x.data(), len, &lv) == PathDerivativeStatus::Ok;
-    };
-    // Whether the first vertex's next-event shadow ray reaches its light sample (coordinates 4-6, as the path reads).
-    auto visible = [&](const std::vector<double>& x) {
-        const Vec2d film = S.opt.film_origin + Vec2d(x[0], x[1]) * S.opt.film_extent;
-        const Ray ray = S.scene->sensor()->sample_ray(film, Vec2d(x[2], x[3]));
-        const auto hit = S.scene->intersect(ray);
-        if (!hit) return false;
-        const SurfaceInteraction si = S.scene->interaction(ray, *hit);
-        const auto [e, sel] = S.scene->sample_emitter(x[4]);
-        const auto ds = e ? e->sample_direct(si.p, Vec2d(x[5], x[6])) : std::nullopt;
-        return ds && !S.scene->occluded(si.spawn_to(ds->p));
-    };
-    auto status = [&](const std::vector<double>& x) {
-        std::vector<double> g(len), H(len * len);
-        double lv = 0;
-        return D.evaluate(x.data(), block.data(), len, int(len), 0, &lv, g.data(), H.data());
-    };
+    const DirectLightBox B;
+    auto shape_of = [&](const std::vector<double>& x) { return B.face(x); };
+    auto visible = [&](const std::vector<double>& x) { return B.visible(x); };
+    auto lit = [&](const std::vector<double>& x) { return B.lit(x); };
+    auto status = [&](const std::vector<double>& x) { return B.status(x); };
+    const std::size_t len = B.len;
     Random rng(23, 0);
     int silhouettes = 0, shadows = 0;
     for (int row = 0; row < 12; ++row) {
@@ -1138,37 +1155,12 @@ TEST(PathDerivatives, OcclusionEdgesAreDetectedNotDifferentiatedThrough) {
 // one coordinate of the block alone (the last). Shadow edges crossed this way are counted, not asserted: at some the
 // path's value drops to zero while the decisions the check compares do not change, with either check.
 TEST(PathDerivatives, SilhouettesAlongAnyDirectionAreDetectedAndTheCheckIsAFunctionOfTheState) {
-    PathSetup S("cornell-box.xml", 2);
-    S.opt.min_depth = 1;
-    const PathDerivatives D(*S.scene, S.opt);
-    const std::size_t len = 4 + 7 * 2;
-    std::vector<int> block(len);
-    for (std::size_t i = 0; i < len; ++i) block[i] = int(i);
-    // The camera ray's shape and face, and whether the first vertex's shadow ray reaches its light sample.
-    auto decisions = [&](const std::vector<double>& x) {
-        const Vec2d film = S.opt.film_origin + Vec2d(x[0], x[1]) * S.opt.film_extent;
-        const Ray ray = S.scene->sensor()->sample_ray(film, Vec2d(x[2], x[3]));
-        const auto hit = S.scene->intersect(ray);
-        if (!hit) return -1L;
-        const SurfaceInteraction si = S.scene->interaction(ray, *hit);
-        const Vec3d n = si.ng;
-        const auto [e, sel] = S.scene->sample_emitter(x[4]);
-        const auto ds = e ? e->sample_direct(si.p, Vec2d(x[5], x[6])) : std::nullopt;
-        const bool visible = ds && !S.scene->occluded(si.spawn_to(ds->p));
-        return (long(hit->shape) * 27 + long(std::lround(n.x) + 1) * 9 + long(std::lround(n.y) + 1) * 3 +
-                long(std::lround(n.z) + 1)) *
-                   2 +
-               (visible ? 1 : 0);
-    };
-    auto lit = [&](const std::vector<double>& x) {
-        double lv = 0;
-        return D.log_value(x.data(), len, &lv) == PathDerivativeStatus::Ok;
-    };
-    auto status = [&](const std::vector<double>& x) {
-        std::vector<double> g(len), H(len * len);
-        double lv = 0;
-        return D.evaluate(x.data(), block.data(), len, int(len), 0, &lv, g.data(), H.data());
-    };
+    const DirectLightBox B;
+    // The camera ray's shape and face, and the shadow ray's visibility, in one key.
+    auto decisions = [&](const std::vector<double>& x) { return B.face(x) * 2 + (B.visible(x) ? 1 : 0); };
+    auto lit = [&](const std::vector<double>& x) { return B.lit(x); };
+    auto status = [&](const std::vector<double>& x) { return B.status(x); };
+    const std::size_t len = B.len;
     Random rng(41, 0);
     std::vector<std::pair<std::vector<double>, PathDerivativeStatus>> asked;
     int edges = 0, shadow_edges = 0, shadow_seen = 0;
@@ -1199,8 +1191,8 @@ TEST(PathDerivatives, SilhouettesAlongAnyDirectionAreDetectedAndTheCheckIsAFunct
             // Only where the renderer's own value jumps there (this test's visibility ray is not the path's own, whose
             // offsets move the shadow's edge by up to about 1e-6 in these coordinates).
             double la = 0, lb = 0;
-            const bool lit_a = D.log_value(at(a).data(), len, &la) == PathDerivativeStatus::Ok;
-            const bool lit_b = D.log_value(at(b).data(), len, &lb) == PathDerivativeStatus::Ok;
+            const bool lit_a = B.D->log_value(at(a).data(), len, &la) == PathDerivativeStatus::Ok;
+            const bool lit_b = B.D->log_value(at(b).data(), len, &lb) == PathDerivativeStatus::Ok;
             if (lit_a == lit_b && !(std::abs(la - lb) > 1e-3)) continue;
             const bool use_a = lit_a;
             const double t = use_a ? a : b;
