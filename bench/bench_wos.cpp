@@ -309,10 +309,12 @@ const VarianceScene& variance_scene(const std::string& name) {
     return scenes.emplace(name, std::move(sc)).first->second;
 }
 
-void BM_WosVariance(benchmark::State& state, const std::string& scene) {
-    const VarianceScene& sc = variance_scene(scene);
-    const int variant = int(state.range(0)), n = int(state.range(1)), q = int(state.range(2));
-    const WosVelocityField f(variant_options(sc.options, variant, q), sc.domain, &sc.omega, Interpolation::Bilinear, 0);
+// The equal-time measurement of BM_WosVariance and BM_WosVariance3: passes over the scene's points with n gradient
+// samples each, the squared error against the reference less the reference's own variance, per CPU second.
+double component_sum(Vec2d v) { return v.x + v.y; }
+double component_sum(Vec3d v) { return v.x + v.y + v.z; }
+template <class Field, class Scene>
+void measure_variance(benchmark::State& state, const Scene& sc, const Field& f, int n) {
     wos::WalkCounters c;
     double sse = 0, seconds = 0, reference = 0;
     uint64_t pass = 0;
@@ -320,10 +322,10 @@ void BM_WosVariance(benchmark::State& state, const std::string& scene) {
         const double t0 = kelvin::bench::thread_cpu_seconds();
         for (std::size_t k = 0; k < sc.points.size(); ++k) {
             Random rng(1000 + pass, k);
-            const VelocityEstimate e = f.estimate(sc.points[k], n, rng, c);
-            const Vec2d d = e.value - sc.exact[k];
+            const auto e = f.estimate(sc.points[k], n, rng, c);
+            const auto d = e.value - sc.exact[k];
             sse += glm::dot(d, d);
-            reference += sc.exact_variance[k].x + sc.exact_variance[k].y;
+            reference += component_sum(sc.exact_variance[k]);
         }
         seconds += kelvin::bench::thread_cpu_seconds() - t0;
         ++pass;
@@ -334,6 +336,13 @@ void BM_WosVariance(benchmark::State& state, const std::string& scene) {
     state.counters["cpu_s"] = per_pass;
     state.counters["rmse@1s"] = std::sqrt(mse * per_pass);
     state.counters["walks/query"] = double(c.walks) / double(pass * sc.points.size());
+}
+
+void BM_WosVariance(benchmark::State& state, const std::string& scene) {
+    const VarianceScene& sc = variance_scene(scene);
+    const int variant = int(state.range(0)), n = int(state.range(1)), q = int(state.range(2));
+    const WosVelocityField f(variant_options(sc.options, variant, q), sc.domain, &sc.omega, Interpolation::Bilinear, 0);
+    measure_variance(state, sc, f, n);
 }
 
 // The same in 3D (WosVelocityField3): the velocity at every third cell centre of a 24^3 cache (an 8^3 lattice,
@@ -421,29 +430,8 @@ const VarianceScene3& variance_scene3(const std::string& name) {
 void BM_WosVariance3(benchmark::State& state, const std::string& scene) {
     const VarianceScene3& sc = variance_scene3(scene);
     const int variant = int(state.range(0)), n = int(state.range(1)), q = int(state.range(2));
-    WosVelocityOptions o = variant_options(sc.options, variant, q);
-    const WosVelocityField3 f(o, sc.domain, &sc.omega, Interpolation::Bilinear);
-    wos::WalkCounters c;
-    double sse = 0, seconds = 0, reference = 0;
-    uint64_t pass = 0;
-    for (auto _ : state) {
-        const double t0 = kelvin::bench::thread_cpu_seconds();
-        for (std::size_t k = 0; k < sc.points.size(); ++k) {
-            Random rng(1000 + pass, k);
-            const VelocityEstimate3 e = f.estimate(sc.points[k], n, rng, c);
-            const Vec3d d = e.value - sc.exact[k];
-            sse += glm::dot(d, d);
-            reference += sc.exact_variance[k].x + sc.exact_variance[k].y + sc.exact_variance[k].z;
-        }
-        seconds += kelvin::bench::thread_cpu_seconds() - t0;
-        ++pass;
-    }
-    const double mse = std::max(0.0, (sse - reference) / double(pass * sc.points.size()));
-    const double per_pass = seconds / double(pass);
-    state.counters["rmse"] = std::sqrt(mse);
-    state.counters["cpu_s"] = per_pass;
-    state.counters["rmse@1s"] = std::sqrt(mse * per_pass);
-    state.counters["walks/query"] = double(c.walks) / double(pass * sc.points.size());
+    const WosVelocityField3 f(variant_options(sc.options, variant, q), sc.domain, &sc.omega, Interpolation::Bilinear);
+    measure_variance(state, sc, f, n);
 }
 
 }  // namespace

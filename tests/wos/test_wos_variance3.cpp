@@ -122,6 +122,17 @@ double max_z(const std::vector<Pair>& pairs) {
     return z;
 }
 
+/// The control variate's mean (with and without stratified first steps, 1500 gradient samples) against plain walks
+/// (3000) within 5 standard errors at every point and component.
+void expect_matches_plain_walks(const Scene& sc) {
+    for (bool stratified : {true, false}) {
+        SCOPED_TRACE(fmt::format("stratified {}", stratified));
+        const double z = max_z(compare(sc, true, stratified, 3000, 1500));
+        ::testing::Test::RecordProperty(stratified ? "max_z_stratified" : "max_z", std::to_string(z));
+        EXPECT_LT(z, 5.0);
+    }
+}
+
 /// Sum over points and components of the variance of the mean, each scaled to one gradient sample.
 double per_sample_variance(const std::vector<Pair>& pairs, bool of_variant, int n) {
     double s = 0;
@@ -139,13 +150,7 @@ double per_sample_variance(const std::vector<Pair>& pairs, bool of_variant, int 
 // Psi_free (the wrong sign: max z 16), Psi_free without its 1/(4 pi) (max z 32), and the free-space velocity
 // with the opposite sign, -W x (x - y) (max z 64).
 TEST(WosVariance3, ControlVariateMatchesPlainWalksInASphereContainer) {
-    const Scene sc = sphere_container();
-    for (bool stratified : {true, false}) {
-        SCOPED_TRACE(fmt::format("stratified {}", stratified));
-        const double z = max_z(compare(sc, true, stratified, 3000, 1500));
-        RecordProperty(stratified ? "max_z_stratified" : "max_z", std::to_string(z));
-        EXPECT_LT(z, 5.0);
-    }
+    expect_matches_plain_walks(sphere_container());
 }
 
 // A box obstacle in a uniform stream (the walls carry the stream's potential, the box its value at the centre:
@@ -153,24 +158,16 @@ TEST(WosVariance3, ControlVariateMatchesPlainWalksInASphereContainer) {
 // into the obstacle's cells: the control variate's mean matches plain walks within 5 standard errors at 12
 // points, some within 0.01-0.03 of the box's faces, edges and corner and of the walls (measured max |z| 2.4).
 // Broken variants seen to fail: as above (max z 11, 13 and 55).
-TEST(WosVariance3, ControlVariateMatchesPlainWalksAroundABoxInAStream) {
-    const Scene sc = box_obstacle();
-    for (bool stratified : {true, false}) {
-        SCOPED_TRACE(fmt::format("stratified {}", stratified));
-        const double z = max_z(compare(sc, true, stratified, 3000, 1500));
-        RecordProperty(stratified ? "max_z_stratified" : "max_z", std::to_string(z));
-        EXPECT_LT(z, 5.0);
-    }
-}
+TEST(WosVariance3, ControlVariateMatchesPlainWalksAroundABoxInAStream) { expect_matches_plain_walks(box_obstacle()); }
 
 // The factor docs/boundaries.md claims: at equal walks (per gradient sample: two walks either way) the control
-// variate's variance, summed over the points and components, is at least 4x lower than the plain walks' in the
-// sphere container and 2x lower around the box (measured 8.4x and 4.2x; not stratified, whose variance estimate
+// variate's variance, summed over the points and components, is at least 6x lower than the plain walks' in the
+// sphere container and 3x lower around the box (measured 8.4x and 4.2x; not stratified, whose variance estimate
 // is conservative). Its walks are also about 3x cheaper (no volume term): bench_wos BM_WosVariance3 for the
 // equal-time figures. Broken variant seen to fail: the near-field samples weighed without the 1/r^2 density in
 // the mixture (ratio 2e-17 in the sphere; the z-tests above do not see it, their standard errors grow with it).
 TEST(WosVariance3, ControlVariateLowersTheVarianceByTheDocumentedFactor) {
-    for (const auto& [name, bound] : {std::pair{std::string("sphere"), 4.0}, std::pair{std::string("box"), 2.0}}) {
+    for (const auto& [name, bound] : {std::pair{std::string("sphere"), 6.0}, std::pair{std::string("box"), 3.0}}) {
         const Scene sc = name == "sphere" ? sphere_container() : box_obstacle();
         const auto pairs = compare(sc, true, false, 2000, 2000);
         const double ratio = per_sample_variance(pairs, false, 2000) / per_sample_variance(pairs, true, 2000);
@@ -193,7 +190,7 @@ TEST(WosVariance3, StratifiedDirectionsTakeOneEqualAreaCellEach) {
             SCOPED_TRACE(fmt::format("antithetic {}, n {}", antithetic, n));
             Random rng(9, uint64_t(n));
             const std::size_t cells = std::size_t(n);
-            std::vector<Vec2d> zlo(cells, Vec2d(Inf)), zhi(cells, Vec2d(-Inf));  // (z, longitude)  // (z, longitude)
+            std::vector<Vec2d> zlo(cells, Vec2d(Inf)), zhi(cells, Vec2d(-Inf));  // (z, longitude)
             const int reps = 400;
             std::vector<double> z_mean(reps), x_mean(reps), y_mean(reps), z2_mean(reps);
             for (int r = 0; r < reps; ++r) {
