@@ -165,19 +165,26 @@ Vec3d PeriodicKernel3::correction(Vec3d r) const {
 // ------------------------------------------------------------------------------------------------
 // Near field.
 
-namespace {
-int segments_for(Vec3d h, double delta) {
-    // Pieces no longer than delta / 2 (the kernel's scale is delta), at least four per linear piece of the basis:
-    // at delta = h/2 the quadrature is within 1e-7 of the near field's peak on cubic cells, 3e-6 on cells of 0.08 x
-    // 0.1 x 0.13 (two pieces: 1e-5 and 5e-4), below the table's interpolation error (4e-4 to 3e-3).
-    const double hmax = std::max({h.x, h.y, h.z});
-    return std::clamp(int(std::ceil(2 * hmax / delta)), 4, 16);
-}
-}  // namespace
-
 Vec3d NearField3::quadrature(Vec3d r, Vec3d h, Interpolation interp, double delta, Mollifier mollifier, int segments) {
     std::vector<double> y[3], w[3];
     for (int a = 0; a < 3; ++a) detail::near_field_basis_points(h[a], interp, segments, y[a], w[a]);
+    Vec3d out(0.0);
+    for (std::size_t k = 0; k < y[2].size(); ++k) {
+        Vec3d plane(0.0);
+        for (std::size_t j = 0; j < y[1].size(); ++j) {
+            Vec3d row(0.0);
+            for (std::size_t i = 0; i < y[0].size(); ++i)
+                row += w[0][i] * biot_savart_kernel3(r - Vec3d(y[0][i], y[1][j], y[2][k]), delta, mollifier);
+            plane += w[1][j] * row;
+        }
+        out += w[2][k] * plane;
+    }
+    return out;
+}
+
+Vec3d NearField3::quadrature_graded(Vec3d r, Vec3d h, Interpolation interp, double delta, Mollifier mollifier) {
+    std::vector<double> y[3], w[3];
+    for (int a = 0; a < 3; ++a) detail::near_field_basis_points_graded(h[a], interp, r[a], delta, y[a], w[a]);
     Vec3d out(0.0);
     for (std::size_t k = 0; k < y[2].size(); ++k) {
         Vec3d plane(0.0);
@@ -204,7 +211,6 @@ NearField3::NearField3(Vec3d h, Interpolation interp, double delta, Mollifier mo
     m_half = per_cell * radius + per_cell / 2 + 3;
     const int n = 2 * m_half + 1, m = m_half + 1;
     m_nodes.assign(std::size_t(n) * n * n * 4, 0.f);
-    const int segments = segments_for(h, delta);
     std::vector<Vec3d> octant(std::size_t(m) * m * m);
     parallel_for_units(std::size_t(m), [&](std::size_t k) {
         for (int j = 0; j < m; ++j)
@@ -214,7 +220,8 @@ NearField3::NearField3(Vec3d h, Interpolation interp, double delta, Mollifier mo
                 // per linear piece are as accurate there (the tests compare the table with finer quadrature).
                 const double reach = std::max({r.x / h.x, r.y / h.y, r.z / h.z});
                 octant[(k * m + std::size_t(j)) * m + std::size_t(i)] =
-                    quadrature(r, h, interp, delta, mollifier, reach > 1.5 ? 2 : segments);
+                    reach > 1.5 ? quadrature(r, h, interp, delta, mollifier, 2)
+                                : quadrature_graded(r, h, interp, delta, mollifier);
             }
     });
     for (int k = -m_half; k <= m_half; ++k)

@@ -174,6 +174,28 @@ double VectorGrid3::max_norm() const {
     return m;
 }
 
+Vec3d impulse_centroid(const VectorGrid3& omega, Vec3d fallback) {
+    const Grid3& g = omega.x;
+    Vec3d imp(0.0);
+    for (int k = 0; k < g.nz(); ++k)
+        for (int j = 0; j < g.ny(); ++j)
+            for (int i = 0; i < g.nx(); ++i) imp += glm::cross(g.cell_center(i, j, k), omega.at(g.index(i, j, k)));
+    const double norm = glm::length(imp);
+    if (!(norm > 0) || !std::isfinite(norm)) return fallback;
+    const Vec3d dir = imp / norm;
+    Vec3d sum(0.0);
+    double wsum = 0;
+    for (int k = 0; k < g.nz(); ++k)
+        for (int j = 0; j < g.ny(); ++j)
+            for (int i = 0; i < g.nx(); ++i) {
+                const Vec3d x = g.cell_center(i, j, k);
+                const double w = glm::dot(glm::cross(x, omega.at(g.index(i, j, k))), dir);
+                sum += w * x;
+                wsum += w;
+            }
+    return wsum > 0 ? sum / wsum : fallback;
+}
+
 VdbLattice vdb_lattice(const Grid3& g) {
     VdbLattice l;
     l.res[0] = g.nx();

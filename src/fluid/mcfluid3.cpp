@@ -141,7 +141,7 @@ MCFluid3Solver::MCFluid3Solver(const MCFluid3Settings& settings, const InitialFi
     m_omega = VectorGrid3(s.domain, s.nx, s.ny, s.nz);
     const Vec3d h = m_omega.x.h();
     m_segment = std::min({h.x, h.y, h.z});
-    m_delta = s.estimator->delta() >= 0 ? s.estimator->delta() : 0.5 * m_segment;
+    m_delta = resolved_delta3(*s.estimator, h, s.nx, s.ny, s.nz, s.domain.periodic);
     if (s.domain.periodic && !s.boundaries) m_periodic = std::make_shared<PeriodicKernel3>(s.domain.size());
     for (int k = 0; k < s.nz; ++k)
         for (int j = 0; j < s.ny; ++j)
@@ -560,6 +560,7 @@ FluidDiagnostics3 MCFluid3Solver::diagnostics(bool with_velocity) {
     d.helicity = hel * dv;
     d.impulse = 0.5 * imp * dv;
     d.centroid = wsum > 0 ? cen / wsum : 0.5 * (s.domain.min + s.domain.max);
+    d.impulse_centroid = impulse_centroid(m_omega, d.centroid);
     d.max_abs_vorticity = mx;
     // Divergence of the cached velocity by central differences; open domains skip the outer layer of cells,
     // where the zero ghost cells are not the flow.

@@ -129,7 +129,7 @@ Simulation3Params Simulation3Params::parse(const Properties& props) {
     s.interpolation = cache->interpolation();
     if (const auto* bs = dynamic_cast<const BiotSavartVelocity*>(s.estimator.get())) {
         const Vec3d h = size / Vec3d(s.nx, s.ny, s.nz);
-        const double delta = bs->delta() >= 0 ? bs->delta() : 0.5 * std::min({h.x, h.y, h.z});
+        const double delta = resolved_delta3(*bs, h, s.nx, s.ny, s.nz, s.domain.periodic);
         if (const std::string why = bs->check_cells3(h, delta, s.nx, s.ny, s.nz, s.domain.periodic); !why.empty())
             props.error("velocity", why);
     }
@@ -345,18 +345,21 @@ public:
     }
     std::string csv_header() const override {
         return "step,time,kinetic_energy,kinetic_energy_raw,enstrophy,helicity,impulse_x,impulse_y,impulse_z,"
-               "centroid_x,centroid_y,centroid_z,max_abs_vorticity,divergence_rms,smoke_mass,step_seconds,"
+               "centroid_x,centroid_y,centroid_z,impulse_centroid_x,impulse_centroid_y,impulse_centroid_z,max_abs_"
+               "vorticity,divergence_rms,smoke_mass,step_seconds,"
                "biot_savart_evals,invalid,cfl" +
                (m_solver->energy_budget_step() ? EnergyBudget::csv_columns(true) : std::string()) + m_cores.header();
     }
     std::string csv_row(double seconds, double evals, uint64_t invalid, double cfl) const override {
         const FluidDiagnostics3& d = m_d;
         return fmt::format(
-            "{},{:.9g},{:.9g},{:.9g},{:.9g},{:.9g},{:.9g},{:.9g},{:.9g},{:.9g},{:.9g},{:.9g},{:.9g},{:.9g},"
-            "{:.9g},{:.6g},{:.0f},{},{:.6g}{}\n",
+            "{},{:.9g},{:.9g},{:.9g},{:.9g},{:.9g},{:.9g},{:.9g},{:.9g},{:.9g},{:.9g},{:.9g},{:.9g},{:.9g},{:.9g},{:."
+            "9g},"
+            "{:.9g},{:.9g},{:.6g},{:.0f},{},{:.6g}{}\n",
             d.step, d.time, d.kinetic_energy, d.kinetic_energy_raw, d.enstrophy, d.helicity, d.impulse.x, d.impulse.y,
-            d.impulse.z, d.centroid.x, d.centroid.y, d.centroid.z, d.max_abs_vorticity, d.divergence_rms, d.smoke_mass,
-            seconds, evals, invalid, cfl, budget_values() + m_cores.values());
+            d.impulse.z, d.centroid.x, d.centroid.y, d.centroid.z, d.impulse_centroid.x, d.impulse_centroid.y,
+            d.impulse_centroid.z, d.max_abs_vorticity, d.divergence_rms, d.smoke_mass, seconds, evals, invalid, cfl,
+            budget_values() + m_cores.values());
     }
     // With the energy budget, seven more columns: the state's deterministic energy and the last step's split.
     std::string budget_values() const {

@@ -837,6 +837,7 @@ FluidDiagnostics3 StableFluids3Solver::diagnostics() {
     d.helicity = hel * dv;
     d.impulse = 0.5 * imp * dv;
     d.centroid = wsum > 0 ? cen / wsum : 0.5 * (s.domain.min + s.domain.max);
+    d.impulse_centroid = impulse_centroid(m_omega, d.centroid);
     d.max_abs_vorticity = mx;
     d.divergence_rms = std::sqrt(div2 / double(m_fluid_cells));
     if (m_smoke) d.smoke_mass = m_density.integral();
@@ -920,18 +921,21 @@ public:
     uint64_t replaced() const override { return m_solver->invalid(); }
     std::string csv_header() const override {
         return "step,time,kinetic_energy,kinetic_energy_raw,enstrophy,helicity,impulse_x,impulse_y,impulse_z,"
-               "centroid_x,centroid_y,centroid_z,max_abs_vorticity,divergence_rms,smoke_mass,step_seconds,"
+               "centroid_x,centroid_y,centroid_z,impulse_centroid_x,impulse_centroid_y,impulse_centroid_z,max_abs_"
+               "vorticity,divergence_rms,smoke_mass,step_seconds,"
                "biot_savart_evals,invalid,cfl" +
                m_cores.header();
     }
     std::string csv_row(double seconds, double evals, uint64_t invalid, double cfl) const override {
         const FluidDiagnostics3& d = m_d;
         return fmt::format(
-            "{},{:.9g},{:.9g},{:.9g},{:.9g},{:.9g},{:.9g},{:.9g},{:.9g},{:.9g},{:.9g},{:.9g},{:.9g},{:.9g},"
-            "{:.9g},{:.6g},{:.0f},{},{:.6g}{}\n",
+            "{},{:.9g},{:.9g},{:.9g},{:.9g},{:.9g},{:.9g},{:.9g},{:.9g},{:.9g},{:.9g},{:.9g},{:.9g},{:.9g},{:.9g},{:."
+            "9g},"
+            "{:.9g},{:.9g},{:.6g},{:.0f},{},{:.6g}{}\n",
             d.step, d.time, d.kinetic_energy, d.kinetic_energy_raw, d.enstrophy, d.helicity, d.impulse.x, d.impulse.y,
-            d.impulse.z, d.centroid.x, d.centroid.y, d.centroid.z, d.max_abs_vorticity, d.divergence_rms, d.smoke_mass,
-            seconds, evals, invalid, cfl, m_cores.values());
+            d.impulse.z, d.centroid.x, d.centroid.y, d.centroid.z, d.impulse_centroid.x, d.impulse_centroid.y,
+            d.impulse_centroid.z, d.max_abs_vorticity, d.divergence_rms, d.smoke_mass, seconds, evals, invalid, cfl,
+            m_cores.values());
     }
     void write_frame(FrameWriter& frames) override {
         StableFluids3Solver& solver = *m_solver;

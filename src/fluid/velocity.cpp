@@ -124,6 +124,15 @@ std::string BiotSavartVelocity::effect(int samples, double delta, bool periodic)
                        periodic ? ", periodic kernel" : "");
 }
 
+double resolved_delta3(const VelocityEstimator& estimator, Vec3d h, int nx, int ny, int nz, bool periodic) {
+    if (estimator.delta() >= 0) return estimator.delta();
+    const double cell = std::min({h.x, h.y, h.z});
+    const auto* bs = dynamic_cast<const BiotSavartVelocity*>(&estimator);
+    if (bs && bs->near_field3(h, NearField3::MinDelta * cell, nx, ny, nz, periodic) > 0)
+        return NearField3::MinDelta * cell;
+    return 0.5 * cell;
+}
+
 std::shared_ptr<const VelocityEstimator> resolve_estimator(std::shared_ptr<const VelocityEstimator> estimator,
                                                            std::shared_ptr<const WosVelocityOptions>& boundaries,
                                                            int dimension, const char* solver) {

@@ -346,15 +346,16 @@ TEST(FluidReliability, TimeLimitInsideOneLongStep) {
 }
 
 // --time-limit passing during the velocity pass of a state a step has just made (a 3D ring with Euler advection: the
-// step is one lookup per cell, the pass 60 000 samples per cell, so the limit lands in a pass): the run ends with that
-// state, the warning says it has no CSV row and no frame, and the CSV and the frames hold exactly the states before it
-// (the driver used to report the step without saying why the CSV had one row fewer than its count).
+// step is one lookup per cell, the pass 150 000 samples per cell, a third of a second, so the limit lands in a pass):
+// the run ends with that state, the warning says it has no CSV row and no frame, and the CSV and the frames hold
+// exactly the states before it (the driver used to report the step without saying why the CSV had one row fewer than
+// its count).
 TEST(FluidReliability, TimeLimitInsideTheNewStatesVelocityPass) {
     bool seen = false;
     for (int attempt = 0; attempt < 4 && !seen; ++attempt) {
         TempDir dir;
         const ProcessResult r = run_kelvin(
-            {Scenes + "vortex_ring.xml", "-t", "1", "-D", "adv=euler", "-D", "res=8", "-D", "spp=60000", "-D",
+            {Scenes + "vortex_ring.xml", "-t", "1", "-D", "adv=euler", "-D", "res=8", "-D", "spp=150000", "-D",
              "end=100000", "-D", "every=1", "--time-limit", "1", "-o", (dir.path() / "run.exr").string()},
             {}, 60s);
         ASSERT_EQ(r.exit_code, 0) << describe(r);

@@ -347,7 +347,8 @@ TEST(Baselines3, RingSceneRunsFromTheCli) {
     const std::string ring = read_file(fs::path(KELVIN_SOURCE_DIR) / "scenes" / "fluid" / "vortex_ring.xml");
     const std::string mc_header =
         "step,time,kinetic_energy,kinetic_energy_raw,enstrophy,helicity,impulse_x,impulse_y,"
-        "impulse_z,centroid_x,centroid_y,centroid_z,max_abs_vorticity,divergence_rms,"
+        "impulse_z,centroid_x,centroid_y,centroid_z,impulse_centroid_x,impulse_centroid_y,impulse_centroid_z,"
+        "max_abs_vorticity,divergence_rms,"
         "smoke_mass,step_seconds,biot_savart_evals,invalid,cfl,core1_r,core1_z,core1_circulation";
     for (const std::string type : {"stable_fluids", "flip"}) {
         SCOPED_TRACE(type);

@@ -94,6 +94,10 @@ public:
     /// F(r) by direct quadrature with `segments` Gauss–Legendre pieces per half basis and axis (the table's nodes;
     /// the tests' reference with more segments).
     static Vec3d quadrature(Vec3d r, Vec3d h, Interpolation interp, double delta, Mollifier mollifier, int segments);
+    /// F(r) with pieces graded towards r on each axis (delta / 2 next to it, doubling away): what the table's nodes
+    /// within a cell and a half of the centre use; as accurate as uniform pieces of delta / 2 for a fraction of the
+    /// cost when delta is small.
+    static Vec3d quadrature_graded(Vec3d r, Vec3d h, Interpolation interp, double delta, Mollifier mollifier);
     /// Bytes of the table.
     std::size_t bytes() const { return m_nodes.size() * sizeof(float); }
 

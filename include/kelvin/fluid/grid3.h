@@ -127,6 +127,11 @@ struct VectorGrid3 {
     double max_norm() const;
 };
 
+/// Saffman's impulse centroid of a vorticity field: int x w dV / int w dV with w = (x cross omega) . I / |I| and
+/// I = 1/2 int x cross omega dV the impulse (cell centres, midpoint rule). For a ring it is where the ring is (its
+/// weights r omega_theta are signed, so noise cancels); `fallback` when the field has no impulse.
+Vec3d impulse_centroid(const VectorGrid3& omega, Vec3d fallback);
+
 /// The cells of `g` as an OpenVDB lattice (core/vdb.h): voxel (i, j, k) is cell (i, j, k), centred at its centre.
 VdbLattice vdb_lattice(const Grid3& g);
 /// `g` as a scalar (fog volume) or vector grid named `name`, for write_vdb (core/vdb.h); `g` must outlive the write.

@@ -98,6 +98,9 @@ struct FluidDiagnostics3 {
     double helicity = 0;            ///< int u . omega
     Vec3d impulse{0.0};             ///< 1/2 int x cross omega
     Vec3d centroid{0.0};            ///< int |omega| x / int |omega| (the domain's centre for an empty field)
+    /// int x w / int w with w = (x cross omega) . I / |I|, I the impulse: Saffman's impulse centroid of a ring (its
+    /// signed weights let noise cancel); the |omega| centroid where there is no impulse
+    Vec3d impulse_centroid{0.0};
     double max_abs_vorticity = 0;
     double divergence_rms = 0;  ///< RMS of div u by central differences of the cached velocity (interior cells)
     double smoke_mass = 0;      ///< integral of the smoke density (0 without smoke)

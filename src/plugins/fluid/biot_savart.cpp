@@ -11,7 +11,8 @@
 //
 // delta = 0 selects the singular kernel: still unbiased (a sample exactly at the query point contributes its
 // principal value, zero) but its variance grows logarithmically near samples, so a warning is printed.
-// delta < 0 (the default) uses half a cache cell.
+// delta < 0 (the default) uses half a cache cell, in 3D an eighth where the near field sums the cells around the
+// query exactly (fluid/estimators.h, resolved_delta3).
 //
 // Parameters: `kelvin --list-plugins KIND NAME`, or docs/reference.md (generated from the declarations below).
 //
@@ -57,7 +58,9 @@ KELVIN_PLUGIN(
     "Monte Carlo Biot–Savart velocity (Eq. 5.5) with Rosenhead–Moore mollifier; open or periodic domains.",
     kelvin::param::integer("samples", 256, "n_mc, samples per velocity estimate"),
     kelvin::param::string("importance", "vorticity", "'vorticity' (|omega|), 'kernel' (1/r) or 'uniform'"),
-    kelvin::param::real("delta", -1.0, "mollifier radius; -1: half a cache cell; 0: singular kernel"),
+    kelvin::param::real("delta", -1.0,
+                        "mollifier radius; -1: half a cache cell (in 3D an eighth where the near field applies); 0: "
+                        "singular kernel"),
     kelvin::param::string("mollifier", "rosenhead_moore",
                           "'rosenhead_moore' (the thesis, O(delta^2)) or 'high_order' (3D only: "
                           "Winckelmans-Leonard, O(delta^4), 1.7x the variance at equal delta)"),
