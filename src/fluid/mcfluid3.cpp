@@ -243,6 +243,12 @@ void MCFluid3Solver::blend_direct(Vec3d x, int n, Random& rng, SlabWork& w, Velo
     e.variance = (beta * beta) * e.variance + ((1 - beta) * (1 - beta)) * d.variance;
 }
 
+Vec3d MCFluid3Solver::midstep_correction(const Vec3d& x) const {
+    if (m_mid_factor == 0) return Vec3d(0.0);
+    const Interpolation interp = m_settings.interpolation;
+    return m_mid_factor * (m_vel.sample(x, interp) - m_last_vel.sample(x, interp));
+}
+
 Vec3d MCFluid3Solver::stage_velocity(Vec3d x, int n, Random& rng, SlabWork& w) const {
     // Control variate: the difference field, plus the previous velocity interpolated at x (blended with a direct
     // estimate when control_variate_blend < 1).
@@ -253,7 +259,7 @@ Vec3d MCFluid3Solver::stage_velocity(Vec3d x, int n, Random& rng, SlabWork& w) c
         ++w.cv;
         blend_direct(x, n, rng, w, e);
     }
-    const Vec3d v = e.value;
+    const Vec3d v = e.value + midstep_correction(x);
     if (!finite(v) || !finite(e.variance)) {  // the cell pass's check: a value with an overflowed variance too
         ++w.invalid_velocity;
         return Vec3d(0.0);
@@ -331,6 +337,8 @@ bool MCFluid3Solver::step(double dt) {
     const Interpolation interp = s.interpolation;
     const bool cubic = s.transport != VorticityTransport::Linear;
     if (s.vorticity_allocation && m_alloc_n != s.samples) allocate_samples(s.samples);  // after initial_samples
+    // Mid-step velocity: u_n + (u_n - u_{n-1}) dt / (2 dt_{n-1}) (the first step's is frozen at its start).
+    m_mid_factor = m_have_last && m_last_dt > 0 ? 0.5 * dt / m_last_dt : 0.0;
     const bool maccormack = s.transport == VorticityTransport::MacCormack;
     if (maccormack && m_departure.size() != m_omega.cell_count()) {
         m_advected = VectorGrid3(s.domain, s.nx, s.ny, s.nz);
@@ -343,8 +351,9 @@ bool MCFluid3Solver::step(double dt) {
         [&](std::size_t c, const Vec3d& x, Random& rng, SlabWork& w) {
             // Euler or RK4 with the velocity frozen at the previous step (Eqs. 3.139-3.144).
             const int n = m_alloc.empty() ? s.samples : m_alloc[c];
-            Vec3d xd =
-                trace(x, m_vel.at(c), -dt, s.advection, [&](const Vec3d& p) { return stage_velocity(p, n, rng, w); });
+            const Vec3d u0 =
+                m_vel.at(c) + (m_mid_factor != 0 ? m_mid_factor * (m_vel.at(c) - m_last_vel.at(c)) : Vec3d(0.0));
+            Vec3d xd = trace(x, u0, -dt, s.advection, [&](const Vec3d& p) { return stage_velocity(p, n, rng, w); });
             ++w.backtraces;
             if (!finite(xd)) {
                 ++w.invalid_velocity;
@@ -417,6 +426,12 @@ bool MCFluid3Solver::step(double dt) {
     if (m_flow && !measure_budget(dt)) return false;  // before the new state replaces the old one
     add_work(m_work, work);
     if (m_smoke) std::swap(m_density, m_density_next);
+    if (s.midstep_velocity) {  // this state's velocity (and vorticity, for the budget) extrapolates the next step's
+        m_last_vel = m_vel;
+        if (m_flow) m_last_omega = m_omega;
+        m_have_last = true;
+        m_last_dt = dt;
+    }
     if (s.control_variates) {  // this state becomes the control variate of the next one
         m_prev_omega = m_omega;
         m_prev_vel = m_vel;
@@ -494,13 +509,15 @@ bool MCFluid3Solver::maccormack_correction(double dt) {
     const MCFluid3Settings& s = m_settings;
     // The forward trace through the cached cell-centre velocity of the old state (read between the centres by the
     // cubic interpolant): the same frozen velocity the backtrace used, run forward.
-    auto vel = [&](const Vec3d& p) { return m_vel.sample_cubic(p); };
+    auto vel = [&](const Vec3d& p) { return m_vel.sample_cubic(p) + midstep_correction(p); };
     const Vec3d h = m_omega.x.h();
     SlabPass pass(*m_comm, std::size_t(s.nz), std::size_t(s.nx) * std::size_t(s.ny));
     SlabWork work;  // no random draws, nothing counted: the pass only reads the state
     const bool complete = for_each_cell(
         pass, s, m_omega.x, m_step, TagAdvection, work, *this, [&](std::size_t c, const Vec3d& x, Random&, SlabWork&) {
-            const Vec3d xf = trace(x, m_vel.at(c), dt, s.advection, vel);
+            const Vec3d u0 =
+                m_vel.at(c) + (m_mid_factor != 0 ? m_mid_factor * (m_vel.at(c) - m_last_vel.at(c)) : Vec3d(0.0));
+            const Vec3d xf = trace(x, u0, dt, s.advection, vel);
             if (!finite(xf)) return;
             const Vec3d back = m_advected.sample_cubic(s.domain.wrap(xf));
             const Vec3d a = m_advected.at(c);

@@ -16,8 +16,8 @@
 namespace kelvin::fluid {
 
 MCFluidParams MCFluidParams::parse(const Properties& props) {
-    for (const char* name : {"stretching", "control_variates", "initial_samples", "control_variate_blend",
-                             "sample_allocation", "write_vdb", "slice_axis"})
+    for (const char* name : {"stretching", "velocity_time", "control_variates", "initial_samples",
+                             "control_variate_blend", "sample_allocation", "write_vdb", "slice_axis"})
         if (props.has(name))
             props.error(name,
                         "is a 3D parameter (dimension = 3); 2D flows have no stretching term, and 2D outputs are "

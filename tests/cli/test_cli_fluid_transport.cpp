@@ -100,14 +100,19 @@ TEST(CliFluidTransport, EnergyBudgetIn3D) {
                     "parameter 'energy_budget': covers flows without boundaries only");
 }
 
-// 3D MacCormack from the command line: the ring runs, and the effects line names the transport.
+// 3D MacCormack from the command line: the ring runs, and the effects line names the transport and the velocity's time.
 TEST(CliFluidTransport, MacCormackRunsIn3DAndTheEffectsLineNamesTheTransport) {
     TempDir dir;
     const ProcessResult r =
         run_kelvin({Scenes + "vortex_ring.xml", "-D", "res=12", "-D", "end=0.2", "-D", "spp=8", "-D", "every=0", "-D",
                     "transport=maccormack", "-o", (dir.path() / "ring.png").string()});
     ASSERT_EQ(r.exit_code, 0) << describe(r);
-    EXPECT_CONTAINS(r.err + r.out, "2 steps, transport maccormack)");
+    EXPECT_CONTAINS(r.err + r.out, "2 steps, transport maccormack, velocity at mid-step, extrapolated)");
+    const ProcessResult f =
+        run_kelvin({Scenes + "vortex_ring.xml", "-D", "res=12", "-D", "end=0.2", "-D", "spp=8", "-D", "every=0", "-D",
+                    "vtime=start", "-o", (dir.path() / "ring_start.png").string()});
+    ASSERT_EQ(f.exit_code, 0) << describe(f);
+    EXPECT_CONTAINS(f.err + f.out, "velocity frozen at the step's start)");
     const ProcessResult d = run_kelvin({Scenes + "taylor_green.xml", "-D", "res=16", "-D", "end=0.1", "-D", "spp=8",
                                         "-o", (dir.path() / "tg.exr").string()});
     ASSERT_EQ(d.exit_code, 0) << describe(d);
