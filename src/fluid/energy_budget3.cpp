@@ -293,7 +293,7 @@ void MCFluid3Solver::budget_step(const VectorGrid3& u, double dt, int substeps, 
     const MCFluid3Settings& s = m_settings;
     const double h = dt / substeps;
     if (!last) f = 0;
-    // The run's extrapolation to mid-step (midstep_velocity), read as the run reads it: trilinear differences.
+    // The run's extrapolation to mid-step (velocity_time), read as the run reads it: trilinear differences.
     auto extra = [&](const Vec3d& p) {
         return f != 0 ? f * (u.sample(p, s.interpolation) - last->sample(p, s.interpolation)) : Vec3d(0.0);
     };
@@ -354,8 +354,8 @@ bool MCFluid3Solver::measure_budget(double dt) {
     // Each pass costs about a step; a stop between them discards the step, as a stop inside the step's own passes.
     const auto stopped = [&] { return any_rank(*m_comm, stop_requested()); };
     const double e_a = flow.energy(m_next);
-    // With midstep_velocity the run's velocity is extrapolated from the last state's: the two steps that stand for the
-    // run (expected velocity, cells' own) extrapolate theirs alike; the exact ones below keep the step's start.
+    // With the mid-step velocity the run's velocity is extrapolated from the last state's: the two steps that stand for
+    // the run (expected velocity, cells' own) extrapolate theirs alike; the exact ones below keep the step's start.
     const bool extrapolate = m_mid_factor != 0 && m_last_omega.cell_count() == m_omega.cell_count();
     VectorGrid3 last;
     if (extrapolate) last = VectorGrid3(s.domain, s.nx, s.ny, s.nz);

@@ -142,6 +142,8 @@ MCFluid3Solver::MCFluid3Solver(const MCFluid3Settings& settings, const InitialFi
     const Vec3d h = m_omega.x.h();
     m_segment = std::min({h.x, h.y, h.z});
     m_delta = resolved_delta3(*s.estimator, h, s.nx, s.ny, s.nz, s.domain.periodic);
+    m_midstep = s.velocity_time == MCFluid3Settings::VelocityTime::Midstep ||
+                (s.velocity_time == MCFluid3Settings::VelocityTime::Auto && !s.boundaries);
     if (s.domain.periodic && !s.boundaries) m_periodic = std::make_shared<PeriodicKernel3>(s.domain.size());
     for (int k = 0; k < s.nz; ++k)
         for (int j = 0; j < s.ny; ++j)
@@ -426,7 +428,7 @@ bool MCFluid3Solver::step(double dt) {
     if (m_flow && !measure_budget(dt)) return false;  // before the new state replaces the old one
     add_work(m_work, work);
     if (m_smoke) std::swap(m_density, m_density_next);
-    if (s.midstep_velocity) {  // this state's velocity (and vorticity, for the budget) extrapolates the next step's
+    if (m_midstep) {  // this state's velocity (and vorticity, for the budget) extrapolates the next step's
         m_last_vel = m_vel;
         if (m_flow) m_last_omega = m_omega;
         m_have_last = true;

@@ -63,7 +63,10 @@ Simulation3Params Simulation3Params::parse(const Properties& props) {
                     "as noise");
     if (p.energy_budget && s.viscosity > 0) props.error("energy_budget", "covers inviscid flows only (viscosity 0)");
     s.stretching = props.get_bool("stretching");
-    s.midstep_velocity = props.get_choice("velocity_time", {"midstep", "start"}) == "midstep";
+    const std::string vt = props.get_choice("velocity_time", {"auto", "midstep", "start"});
+    s.velocity_time = vt == "midstep" ? MCFluid3Settings::VelocityTime::Midstep
+                      : vt == "start" ? MCFluid3Settings::VelocityTime::Start
+                                      : MCFluid3Settings::VelocityTime::Auto;
     s.control_variates = props.get_bool("control_variates");
     s.initial_samples = int(props.get_int("initial_samples", 0, 1 << 24));
     s.control_variate_blend = props.get_float("control_variate_blend", 1e-6, 1.0);
@@ -443,7 +446,7 @@ public:
             "effects: advection ({}, dt {:g}, {} steps, transport {}, velocity {}) with {}; stretching {}; diffusion "
             "{}; control variates {}; boundaries {}; smoke {}",
             fluid::to_string(s.advection), s.dt, m_p.steps, fluid::to_string(s.transport),
-            s.midstep_velocity ? "at mid-step, extrapolated" : "frozen at the step's start", velocity,
+            solver.midstep() ? "at mid-step, extrapolated" : "frozen at the step's start", velocity,
             s.stretching ? fmt::format("on (vortex segments, h = {:g})", solver.segment_length())
                          : std::string("OFF (requested; the 3D equations need it)"),
             s.viscosity > 0 ? fmt::format("on (nu {:g}, Feynman–Kac, n_d {})", s.viscosity, s.diffusion_samples)

@@ -47,11 +47,14 @@ using InitialField3 = std::function<Vec3d(const Vec3d&)>;
 struct MCFluid3Settings : SolverSettings<3> {
     int nx = 32, ny = 32, nz = 32;  ///< cache cells
     bool stretching = true;
-    /// The velocity a step's backtrace and stretching read: true, at mid-step, extrapolated from the last two
-    /// states' velocities (u_n + (u_n - u_{n-1}) / 2 added to every estimate, second order in dt: Adams–Bashforth's
-    /// extrapolation); false, frozen at the step's start (the thesis' scheme, first order: it leaves a ring's
-    /// impulse growing and its speed falling with dt). The first step, without a previous state, is frozen.
-    bool midstep_velocity = true;
+    /// The velocity a step's backtrace reads. Midstep: extrapolated from the last two states' velocities
+    /// (u_n + (u_n - u_{n-1}) dt_n / (2 dt_{n-1}) added to every estimate, second order in dt: Adams–Bashforth's
+    /// extrapolation; the first step, without a previous state, keeps u_n). Start: frozen at the step's start (the
+    /// thesis' scheme, first order: it leaves a ring's impulse growing and its speed falling with dt). Auto: midstep
+    /// for the Biot–Savart velocity, start with walls (Walk-on-Spheres' noise at the usual walk counts exceeds a
+    /// step's change of velocity, and the extrapolation adds half of two passes' noise: docs/fluid.md).
+    enum class VelocityTime { Auto, Midstep, Start };
+    VelocityTime velocity_time = VelocityTime::Auto;
     /// The previous step as control variate (Eq. 5.23): a second field of the estimator is built over the difference
     /// of two consecutive caches (VelocityState3::difference).
     bool control_variates = false;
@@ -130,6 +133,8 @@ public:
 
     const MCFluid3Settings& settings() const { return m_settings; }
     double delta() const { return m_delta; }
+    /// Whether steps read the velocity at mid-step (velocity_time resolved).
+    bool midstep() const { return m_midstep; }
     double time() const { return m_time; }
     long long step_index() const { return m_step; }
     /// Length of the stretching segments away from boundaries (the smallest cell size h); near a boundary a
@@ -207,7 +212,7 @@ private:
     /// them by the cubic interpolant), the backtrace in `substeps` steps of the scene's integrator, then stretched
     /// into `as_run` as the run stretches (the vortex segment on u read with the cache's interpolation) and into
     /// `exact` exactly for the frozen u (either may be null; without `stretching` neither is stretched). With `last`,
-    /// u is extrapolated as the run extrapolates it (midstep_velocity): u + f (u - last), the difference read
+    /// u is extrapolated as the run extrapolates it (velocity_time): u + f (u - last), the difference read
     /// trilinearly.
     void budget_step(const VectorGrid3& u, double dt, int substeps, VectorGrid3* as_run, VectorGrid3* exact,
                      const VectorGrid3* last = nullptr, double f = 0) const;
@@ -234,13 +239,14 @@ private:
     std::unique_ptr<VelocityField3> m_field;  ///< the state's velocity (settings().estimator)
     // Control variates: the previous state's vorticity and velocity, and the field over the difference.
     VectorGrid3 m_prev_omega, m_prev_vel, m_prev_var, m_diff;
-    /// The last state's velocity (and, with the energy budget, vorticity): midstep_velocity's extrapolation.
+    /// The last state's velocity (and, with the energy budget, vorticity): the mid-step velocity's extrapolation.
     VectorGrid3 m_last_vel, m_last_omega;
     bool m_have_last = false;
+    bool m_midstep = false;
     double m_last_dt = 0;     ///< the step that led from the last state to the current one
     double m_mid_factor = 0;  ///< the current step's dt / (2 m_last_dt), 0 without a last state
-    /// (u_n - u_{n-1}) dt_n / (2 dt_{n-1}) at x: what midstep_velocity adds to the velocity at the step's start (zero
-    /// without a last state).
+    /// (u_n - u_{n-1}) dt_n / (2 dt_{n-1}) at x: what the mid-step velocity adds to the velocity at the step's start
+    /// (zero without a last state).
     Vec3d midstep_correction(const Vec3d& x) const;
     bool m_have_prev = false;
     std::unique_ptr<VelocityField3> m_diff_field;

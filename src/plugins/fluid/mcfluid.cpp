@@ -121,10 +121,10 @@ KELVIN_PLUGIN(kelvin::fluid::MCFluid, "simulation", "mcfluid",
               kelvin::param::real("color_range", 0.0, "|omega| mapped to full colour (0: max at t = 0)"),
               KELVIN_FRAME_STYLE_PARAMS,
               kelvin::param::boolean("stretching", true, "3D: vortex stretching (Eq. 5.21); off only to study it"),
-              kelvin::param::string("velocity_time", "midstep",
-                                    "3D: the velocity a step's backtrace and stretching read: 'midstep' (extrapolated "
-                                    "from the last two states, second order in dt) or 'start' (frozen at the step's "
-                                    "start, the thesis' scheme)"),
+              kelvin::param::string("velocity_time", "auto",
+                                    "3D: the velocity a step's backtrace reads: 'midstep' (extrapolated from the last "
+                                    "two states, second order in dt), 'start' (frozen at the step's start, the "
+                                    "thesis' scheme) or 'auto' (midstep without walls, start with them)"),
               kelvin::param::boolean("control_variates", false, "3D: previous step as control variate (Eq. 5.23)"),
               kelvin::param::integer("initial_samples", 0, "3D with control variates: n_mc of the first velocity"),
               kelvin::param::real("control_variate_blend", 1.0,
