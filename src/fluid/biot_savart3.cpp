@@ -165,9 +165,10 @@ Vec3d PeriodicKernel3::correction(Vec3d r) const {
 // ------------------------------------------------------------------------------------------------
 // Near field.
 
-Vec3d NearField3::quadrature(Vec3d r, Vec3d h, Interpolation interp, double delta, Mollifier mollifier, int segments) {
-    std::vector<double> y[3], w[3];
-    for (int a = 0; a < 3; ++a) detail::near_field_basis_points(h[a], interp, segments, y[a], w[a]);
+namespace {
+/// The kernel at r - y summed over the product of three axes' quadrature points y and weights w.
+Vec3d integrate_basis(Vec3d r, const std::vector<double> (&y)[3], const std::vector<double> (&w)[3], double delta,
+                      Mollifier mollifier) {
     Vec3d out(0.0);
     for (std::size_t k = 0; k < y[2].size(); ++k) {
         Vec3d plane(0.0);
@@ -181,22 +182,18 @@ Vec3d NearField3::quadrature(Vec3d r, Vec3d h, Interpolation interp, double delt
     }
     return out;
 }
+}  // namespace
+
+Vec3d NearField3::quadrature(Vec3d r, Vec3d h, Interpolation interp, double delta, Mollifier mollifier, int segments) {
+    std::vector<double> y[3], w[3];
+    for (int a = 0; a < 3; ++a) detail::near_field_basis_points(h[a], interp, segments, y[a], w[a]);
+    return integrate_basis(r, y, w, delta, mollifier);
+}
 
 Vec3d NearField3::quadrature_graded(Vec3d r, Vec3d h, Interpolation interp, double delta, Mollifier mollifier) {
     std::vector<double> y[3], w[3];
     for (int a = 0; a < 3; ++a) detail::near_field_basis_points_graded(h[a], interp, r[a], delta, y[a], w[a]);
-    Vec3d out(0.0);
-    for (std::size_t k = 0; k < y[2].size(); ++k) {
-        Vec3d plane(0.0);
-        for (std::size_t j = 0; j < y[1].size(); ++j) {
-            Vec3d row(0.0);
-            for (std::size_t i = 0; i < y[0].size(); ++i)
-                row += w[0][i] * biot_savart_kernel3(r - Vec3d(y[0][i], y[1][j], y[2][k]), delta, mollifier);
-            plane += w[1][j] * row;
-        }
-        out += w[2][k] * plane;
-    }
-    return out;
+    return integrate_basis(r, y, w, delta, mollifier);
 }
 
 NearField3::NearField3(Vec3d h, Interpolation interp, double delta, Mollifier mollifier, int radius, int per_cell)
