@@ -402,8 +402,8 @@ TEST(MCFluid3, MidstepVelocityKeepsTheRingsImpulseAndSpeed) {
 
 // The impulse centroid is where the ring is, and noise does not move it: a Gaussian ring (R 1, sigma 0.2) at z 0.3 in
 // a box centred at z 0.5, with and without zero-mean noise of 5 % of the peak vorticity in every cell. Measured: 0.3
-// without noise (the cells are symmetric about 0.3, so to rounding), 0.005 off in z and 0.016 in x with it, while the |omega| centroid moves to 0.44 (the noise's |omega|
-// spreads over the box and pulls it to the box's centre).
+// without noise (the cells are symmetric about 0.3, so to rounding), 0.005 off in z and 0.016 in x with it, while the
+// |omega| centroid moves to 0.44 (the noise's |omega| spreads over the box and pulls it to the box's centre).
 TEST(MCFluid3, ImpulseCentroidIsWhereTheRingIsDespiteNoise) {
     MCFluid3Settings s;
     s.domain = {Vec3d(-2, -2, -1.5), Vec3d(2, 2, 2.5), false};
