@@ -198,6 +198,10 @@ bool Solver2Run::step(double dt) {
 }
 
 bool Solver2Run::diagnose(bool) {
+    if (!m_solver->fields_available()) {  // a stop cut the pass that computes the state's fields
+        m_velocity = false;
+        return false;
+    }
     m_d = m_solver->diagnostics();
     m_d.vorticity_rmse_exact = exact_vorticity_rmse(m_solver->vorticity_grid(), *m_p.field, m_d.time, m_p.viscosity);
     m_velocity = true;
@@ -259,6 +263,9 @@ void Solver2Run::warn() const {
 }
 
 std::string Solver2Run::summary(const std::string&) {
+    if (!m_have_d0)
+        return fmt::format("t = {:g}: stopped in the initial state's field pass (the image shows the seeded vorticity)",
+                           m_solver->time());
     const FluidDiagnostics dn = m_solver->diagnostics();
     return fmt::format(
         "t = {:g}: energy {:.6g} (initial {:.6g}), enstrophy {:.6g} (initial {:.6g}), circulation {:.6g}, max |omega| "

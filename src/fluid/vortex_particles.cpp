@@ -352,7 +352,7 @@ VortexParticleSolver::VortexParticleSolver(const VortexParticleSettings& setting
     if (!(m_settings.viscosity >= 0) || !std::isfinite(m_settings.viscosity))
         throw_runtime("VortexParticleSolver: viscosity must be >= 0");
     m_omega = Grid2(d, m_settings.nx, m_settings.ny);
-    m_u = m_v = m_disp_x = m_disp_y = m_omega;
+    m_u = m_v = m_disp_x = m_disp_y = m_next_u = m_next_v = m_next_omega = m_seed_omega = m_omega;
     const Vec2d h = m_omega.h();
     m_delta = m_settings.delta >= 0 ? m_settings.delta : std::min(h.x, h.y);
     if (!(m_delta > 0) || !std::isfinite(m_delta)) throw_runtime("VortexParticleSolver: delta must be positive");
@@ -374,6 +374,7 @@ VortexParticleSolver::VortexParticleSolver(const VortexParticleSettings& setting
                 v = 0;
             }
             w[std::size_t(j) * std::size_t(m_omega.nx()) + std::size_t(i)] = v;
+            m_seed_omega.at(i, j) = v;
             wmax = std::max(wmax, std::abs(v));
         }
     const double cut = m_settings.threshold * wmax;
@@ -550,6 +551,7 @@ void VortexParticleSolver::tree_sum(const double* tx, const double* ty, std::siz
     const std::size_t blocks = (n + Block - 1) / Block;
     std::atomic<uint64_t> evals{0};  // an integer sum: the same whatever the order of the blocks
     parallel_for_units(blocks, [&](std::size_t b) {
+        if (m_stoppable && stop_requested()) return;  // the caller discards the sum (it checks after it)
         const std::size_t t0 = b * Block, t1 = std::min(n, t0 + Block);
         const uint64_t e = tree.sum_block(tx + t0, ty + t0, t1 - t0, d2, theta2, u + t0, v + t0, w ? w + t0 : nullptr);
         evals.fetch_add(e, std::memory_order_relaxed);
@@ -612,6 +614,7 @@ void VortexParticleSolver::periodic_tree_sum(const double* tx, const double* ty,
     std::atomic<uint64_t> evals{0};
     const std::size_t node_blocks = (nodes + Block - 1) / Block;
     parallel_for_units(node_blocks, [&](std::size_t b) {
+        if (m_stoppable && stop_requested()) return;
         const std::size_t t0 = b * Block, nt = std::min(Block, nodes - t0);
         sum_block_periodic(s.nx.data() + t0, s.ny.data() + t0, nt, np, px, py, m_gamma.data(), k, s.fu.data() + t0,
                            s.fv.data() + t0, nullptr);
@@ -627,6 +630,7 @@ void VortexParticleSolver::periodic_tree_sum(const double* tx, const double* ty,
     // Targets: the tiled tree at the wrapped target plus F interpolated.
     const std::size_t blocks = (n + Block - 1) / Block;
     parallel_for_units(blocks, [&](std::size_t b) {
+        if (m_stoppable && stop_requested()) return;
         uint64_t e = 0;
         for (std::size_t t = b * Block; t < std::min(n, (b + 1) * Block); ++t) {
             const Vec2d x = d.wrap({tx[t], ty[t]});
@@ -720,17 +724,21 @@ Vec2d VortexParticleSolver::velocity_at(Vec2d x) {
     return {u, v};
 }
 
+// Every particle sum of a step, and the new state's fields at its end, may end early on a stop (interrupt or time
+// limit): the step is then discarded, the particles put back where they were (a step never half happens).
 bool VortexParticleSolver::step(double dt) {
     if (!(dt > 0) || std::isnan(dt)) throw_runtime("VortexParticleSolver::step: dt must be positive (got {})", dt);
     if (stop_requested()) return false;
     Timer timer;
     std::size_t n = m_x.size();  // (fewer after the step when particles leave through the outflow)
     const Domain2& d = m_settings.domain;
+    const StopScope stoppable(m_stoppable);
 
     // The dye's backtrace through the velocity of the state at the start of the step (frozen over the step).
     if (m_dye) {
         const std::size_t cells = m_cx.size();
         sum_velocity(m_cx.data(), m_cy.data(), cells, m_x.data(), m_y.data(), m_cu[0].data(), m_cv[0].data());
+        if (stop_requested()) return false;
         if (m_settings.advection == Advection::RK4) {
             const double f[3] = {0.5, 0.5, 1.0};
             for (int s = 1; s < 4; ++s) {
@@ -739,6 +747,7 @@ bool VortexParticleSolver::step(double dt) {
                     m_by[c] = m_cy[c] - f[s - 1] * dt * m_cv[s - 1][c];
                 }
                 sum_velocity(m_bx.data(), m_by.data(), cells, m_x.data(), m_y.data(), m_cu[s].data(), m_cv[s].data());
+                if (stop_requested()) return false;
             }
             for (std::size_t c = 0; c < cells; ++c) {
                 m_disp_x.values()[c] = dt / 6 * (m_cu[0][c] + 2 * m_cu[1][c] + 2 * m_cu[2][c] + m_cu[3][c]);
@@ -752,16 +761,14 @@ bool VortexParticleSolver::step(double dt) {
         }
     }
 
-    // Particles: Euler or classical RK4 on the coupled system (every stage moves the sources too). A stop
-    // (interrupt or time limit) during a stage leaves the particles where they were: the step is discarded.
-    if (stop_requested()) return false;
-    struct Stoppable {  // only the stages' sums may end early: other sums' results are used as they are
-        bool& flag;
-        explicit Stoppable(bool& f) : flag(f) { flag = true; }
-        ~Stoppable() { flag = false; }
-    } stoppable(m_stoppable);
+    // Particles: Euler or classical RK4 on the coupled system (every stage moves the sources too).
     sum_velocity(m_x.data(), m_y.data(), n, m_x.data(), m_y.data(), m_ku[0].data(), m_kv[0].data());
     if (stop_requested()) return false;
+    // What a stop in the fields' pass below puts back.
+    m_saved_x = m_x;
+    m_saved_y = m_y;
+    m_saved_gamma = m_gamma;
+    const uint64_t saved[4] = {m_pushed_out, m_left_domain, m_walk_steps, m_reflected};
     if (m_settings.advection == Advection::RK4) {
         const double f[3] = {0.5, 0.5, 1.0};
         for (int s = 1; s < 4; ++s) {
@@ -782,7 +789,6 @@ bool VortexParticleSolver::step(double dt) {
             m_y[p] += dt * m_kv[0][p];
         }
     }
-    m_seconds_velocity += timer.seconds();
     if (m_bounds) {
         push_out_of_solids();
         n = m_x.size();
@@ -816,10 +822,17 @@ bool VortexParticleSolver::step(double dt) {
             m_x[p] = w.x;
             m_y[p] = w.y;
         }
+    m_seconds_velocity += timer.seconds();
+    if (!field_pass()) {  // stopped: the state before the step, whose fields the grids still hold
+        m_x.swap(m_saved_x);
+        m_y.swap(m_saved_y);
+        m_gamma.swap(m_saved_gamma);
+        m_pushed_out = saved[0], m_left_domain = saved[1], m_walk_steps = saved[2], m_reflected = saved[3];
+        return false;
+    }
     if (m_dye) m_dye->advect(m_disp_x, m_disp_y, dt, m_settings.seed, hash_combine(uint64_t(m_step), TagDye));
     m_time += dt;
     ++m_step;
-    m_fields_valid = false;
     return true;
 }
 
@@ -853,18 +866,33 @@ void VortexParticleSolver::push_out_of_solids() {
     m_gamma.resize(kept);
 }
 
-void VortexParticleSolver::ensure_fields() {
-    if (m_fields_valid) return;
+bool VortexParticleSolver::ensure_fields() {
+    if (m_fields_valid) return true;
+    {
+        const StopScope stoppable(m_stoppable);
+        if (field_pass()) return true;
+    }
+    // Stopped in the initial state's pass (every step ends with its state's fields): the grids show the vorticity
+    // the particles were seeded from, and no velocity.
+    m_omega = m_seed_omega;
+    m_u.fill(0.0);
+    m_v.fill(0.0);
+    return false;
+}
+
+bool VortexParticleSolver::field_pass() {
     Timer timer;
     const SumParams k = sum_params(m_delta, m_settings.domain, m_periodic.get());
     const std::size_t cells = m_cx.size(), np = m_gamma.size();
-    double* u = m_u.values().data();
-    double* v = m_v.values().data();
-    double* w = m_omega.values().data();
+    // Into the scratch grids: the current ones stay whole until the pass is.
+    double* u = m_next_u.values().data();
+    double* v = m_next_v.values().data();
+    double* w = m_next_omega.values().data();
     const std::size_t blocks = (cells + Block - 1) / Block;
     const bool tree = m_use_tree && all_finite(m_x.data(), m_y.data(), np) && tree_pays(np);
     if (tree) tree_sum(m_cx.data(), m_cy.data(), cells, m_x.data(), m_y.data(), u, v, w);
     parallel_for_units(blocks, [&](std::size_t b) {
+        if (m_stoppable && stop_requested()) return;
         const std::size_t t0 = b * Block, nt = std::min(Block, cells - t0);
         if (!tree) {
             if (k.periodic)
@@ -882,6 +910,10 @@ void VortexParticleSolver::ensure_fields() {
         }
     });
     if (!tree) m_pairs += uint64_t(cells) * uint64_t(np);
+    if (m_stoppable && stop_requested()) {
+        m_seconds_fields += timer.seconds();
+        return false;
+    }
     if (m_panels && all_finite(m_x.data(), m_y.data(), np)) {
         solve_panels(m_x.data(), m_y.data(), tree && np > 0);
         add_panel_velocity(m_cx.data(), m_cy.data(), cells, u, v);
@@ -893,8 +925,12 @@ void VortexParticleSolver::ensure_fields() {
             ++m_invalid;
             u[t] = v[t] = w[t] = 0;
         }
+    std::swap(m_u, m_next_u);
+    std::swap(m_v, m_next_v);
+    std::swap(m_omega, m_next_omega);
     m_seconds_fields += timer.seconds();
     m_fields_valid = true;
+    return true;
 }
 
 const Grid2& VortexParticleSolver::vorticity_grid() {

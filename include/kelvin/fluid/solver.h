@@ -44,6 +44,9 @@ public:
     virtual const Grid2& vorticity_grid() = 0;
     virtual const Grid2& velocity_u() = 0;
     virtual const Grid2& velocity_v() = 0;
+    /// Whether the grids above describe the current state: false when a stop (interrupt, time limit) cut the pass
+    /// that computes them (vortex_particles' initial state); the grids then hold what the solver documents.
+    virtual bool fields_available() { return true; }
 
     /// omega at x for the current state: by default the vorticity grid interpolated bilinearly (the solver's own
     /// interpolation for mcfluid). Periodic domains wrap x; open ones give 0 outside the box.

@@ -105,6 +105,9 @@ public:
     const Grid2& vorticity_grid() override;
     const Grid2& velocity_u() override;
     const Grid2& velocity_v() override;
+    /// The fields of a state are computed when it is reached (the initial state's when first asked): false only when
+    /// a stop cut the initial state's pass.
+    bool fields_available() override { return ensure_fields(); }
     PassiveScalars* dye() override { return m_dye.get(); }
     void set_dye(std::unique_ptr<PassiveScalars> dye) { m_dye = std::move(dye); }
     double evaluations() const override { return double(m_pairs); }
@@ -118,9 +121,19 @@ public:
                      std::vector<double>& v);
 
 private:
-    bool m_stoppable = false;  ///< inside step()'s particle stages: sum_velocity may end early on a stop
+    bool m_stoppable = false;  ///< inside a stoppable pass: the particle sums may end early on a stop
+    struct StopScope {         ///< marks a stoppable pass (its caller checks stop_requested() after every sum)
+        bool& flag;
+        explicit StopScope(bool& f) : flag(f) { flag = true; }
+        ~StopScope() { flag = false; }
+    };
     struct Tree;
-    void ensure_fields();
+    /// The current state's fields (computed once); false when a stop cut the initial state's pass (the grids then
+    /// hold the seeding vorticity and zero velocity).
+    bool ensure_fields();
+    /// The particles' vorticity and velocity on the grid cells, into the grids when complete; false when a stop cut
+    /// it (m_stoppable), the grids unchanged.
+    bool field_pass();
     /// Velocity (and vorticity when w != null) of the particles (px, py, m_gamma) at n targets by the tree
     /// code; adds the kernel evaluations (leaf pairs and accepted nodes) to m_pairs.
     void tree_sum(const double* tx, const double* ty, std::size_t n, const double* px, const double* py, double* u,
@@ -162,6 +175,9 @@ private:
     std::vector<double> m_sx, m_sy, m_ku[4], m_kv[4];
     std::vector<double> m_cx, m_cy, m_bx, m_by, m_cu[4], m_cv[4];  // cell centres, dye backtrace
     Grid2 m_omega, m_u, m_v, m_disp_x, m_disp_y;
+    Grid2 m_next_omega, m_next_u, m_next_v;  // the field pass's scratch
+    Grid2 m_seed_omega;                      // the vorticity the particles were seeded from (lattice values)
+    std::vector<double> m_saved_x, m_saved_y, m_saved_gamma;  // the particles before the step (a stop restores them)
     bool m_fields_valid = false;
     std::unique_ptr<PassiveScalars> m_dye;
     std::unique_ptr<WosVelocityField> m_bounds;  // the boundaries at t = 0 (static): solids, push_out, reflect_out
