@@ -31,6 +31,10 @@ const char* to_string(VorticityTransport t) {
     return t == VorticityTransport::Linear ? "linear" : t == VorticityTransport::Cubic ? "cubic" : "maccormack";
 }
 
+const char* to_string(BacktraceVelocity b) {
+    return b == BacktraceVelocity::Cache ? "cache" : b == BacktraceVelocity::Estimates ? "estimates" : "auto";
+}
+
 namespace {
 
 inline bool finite(Vec2d v) { return std::isfinite(v.x) && std::isfinite(v.y); }
@@ -69,6 +73,9 @@ void check_settings(const MCFluidSettings& s) {
     if (!(s.viscosity >= 0) || !std::isfinite(s.viscosity)) throw_runtime("MCFluidSolver: viscosity must be >= 0");
     if (s.samples < 0) throw_runtime("MCFluidSolver: velocity samples must be >= 1 (0: the estimator's)");
     if (s.diffusion_samples < 1) throw_runtime("MCFluidSolver: diffusion samples must be >= 1");
+    if (!(s.velocity_filter >= 0) || !(s.velocity_filter <= MaxVelocityFilter))
+        throw_runtime("MCFluidSolver: velocity_filter must be in [0, {}] cells (got {})", MaxVelocityFilter,
+                      s.velocity_filter);
 }
 
 }  // namespace
@@ -79,6 +86,8 @@ MCFluidSolver::MCFluidSolver(const MCFluidSettings& settings, const InitialField
     m_settings.estimator = resolve_estimator(m_settings.estimator, m_settings.boundaries, 2, "MCFluidSolver");
     if (m_settings.samples == 0) m_settings.samples = m_settings.estimator->samples();
     if (m_settings.samples < 1) throw_runtime("MCFluidSolver: velocity samples must be >= 1");
+    if (m_settings.backtrace_velocity == BacktraceVelocity::Auto)
+        m_settings.backtrace_velocity = m_settings.boundaries ? BacktraceVelocity::Estimates : BacktraceVelocity::Cache;
     const Domain2& d = m_settings.domain;
     m_omega = Grid2(d, m_settings.nx, m_settings.ny);
     const double delta = m_settings.estimator->delta();
@@ -109,10 +118,12 @@ void MCFluidSolver::rebuild_estimator() {
         const WosVelocityField solids(*m_settings.boundaries, m_settings.domain, nullptr, m_settings.interpolation,
                                       m_time);
         uint64_t solid = 0;
+        m_fluid.assign(m_omega.cell_count(), 1);
         for (int j = 0; j < m_omega.ny(); ++j)
             for (int i = 0; i < m_omega.nx(); ++i)
                 if (solids.solid_at(m_omega.cell_center(i, j)) >= 0) {
                     m_omega.at(i, j) = 0;
+                    m_fluid[std::size_t(j) * std::size_t(m_omega.nx()) + std::size_t(i)] = 0;
                     ++solid;
                 }
         m_work.solid_cells = solid;
@@ -220,7 +231,11 @@ bool MCFluidSolver::maccormack_correction(double dt) {
     const Grid2& advected = viscous ? m_advected : m_next;  // what the forward trace reads
     // The forward trace through the cached cell-centre velocity of the old state (read between the centres by the
     // cubic interpolant): the same frozen velocity the backtrace used, run forward.
-    auto vel = [&](Vec2d p) { return Vec2d(m_u.sample_cubic(p), m_v.sample_cubic(p)); };
+    const bool cached = s.backtrace_velocity == BacktraceVelocity::Cache;
+    const Grid2 &bu = cached ? m_bu : m_u, &bv = cached ? m_bv : m_v;
+    auto vel = [&](Vec2d p) {
+        return cached ? cached_velocity(bu, bv, p) : Vec2d(m_u.sample_cubic(p), m_v.sample_cubic(p));
+    };
     SlabPass pass(*m_comm, std::size_t(ny), std::size_t(nx));
     std::vector<double> corrected(pass.size() * std::size_t(nx));
     std::atomic<bool> interrupted{false};
@@ -232,7 +247,7 @@ bool MCFluidSolver::maccormack_correction(double dt) {
         const int j = int(row);
         for (int i = 0; i < nx; ++i) {
             const Vec2d x = m_omega.cell_center(i, j);
-            const Vec2d xf = trace(x, Vec2d(m_u.at(i, j), m_v.at(i, j)), dt, s.advection, vel);
+            const Vec2d xf = trace(x, Vec2d(bu.at(i, j), bv.at(i, j)), dt, s.advection, vel);
             const double back = finite(xf) ? advected.sample_cubic(s.domain.wrap(xf)) : advected.at(i, j);
             const double plain = m_next.at(i, j);
             double value = plain + 0.5 * (m_omega.at(i, j) - back);
@@ -277,10 +292,57 @@ void MCFluidSolver::set_energy_budget(bool on) {
     m_budget_total.energy = m_budget_step.energy = m_flow->energy(m_omega);
 }
 
+void MCFluidSolver::backtrace_grids(const Grid2& u, const Grid2& v, Grid2& bu, Grid2& bv) const {
+    const int nx = u.nx(), ny = u.ny();
+    const std::vector<char>* fluid = m_wos && !m_fluid.empty() ? &m_fluid : nullptr;
+    bu = u;
+    bv = v;
+    gaussian_filter(bu, m_settings.velocity_filter, fluid);
+    gaussian_filter(bv, m_settings.velocity_filter, fluid);
+    if (!fluid) return;
+    // Solid cells within two cells of the fluid (the cubic interpolant's reach) take the mean of their filled
+    // 4-neighbours, one layer at a time: the wall's tangential velocity is not read as the solid's.
+    std::vector<char> filled = *fluid;
+    for (int layer = 0; layer < 2; ++layer) {
+        std::vector<char> next = filled;
+        for (int j = 0; j < ny; ++j)
+            for (int i = 0; i < nx; ++i) {
+                const std::size_t c = std::size_t(j) * std::size_t(nx) + std::size_t(i);
+                if (filled[c]) continue;
+                double su = 0, sv = 0;
+                int n = 0;
+                const int di[4] = {1, -1, 0, 0}, dj[4] = {0, 0, 1, -1};
+                for (int k = 0; k < 4; ++k) {
+                    const int a = i + di[k], b = j + dj[k];
+                    if (a < 0 || b < 0 || a >= nx || b >= ny) continue;
+                    const std::size_t cn = std::size_t(b) * std::size_t(nx) + std::size_t(a);
+                    if (!filled[cn]) continue;
+                    su += bu.values()[cn];
+                    sv += bv.values()[cn];
+                    ++n;
+                }
+                if (n == 0) continue;
+                bu.values()[c] = su / n;
+                bv.values()[c] = sv / n;
+                next[c] = 1;
+            }
+        filled.swap(next);
+    }
+}
+
+Vec2d MCFluidSolver::cached_velocity(const Grid2& bu, const Grid2& bv, Vec2d p) const {
+    const Domain2& d = m_settings.domain;
+    if (!d.periodic) {  // beyond the outer centres: the nearest centre's value (an open box's velocity is not 0 there)
+        const Vec2d h = bu.h();
+        p = glm::clamp(p, d.min + 0.5 * h, d.max - 0.5 * h);
+    }
+    return {bu.sample_cubic(p), bv.sample_cubic(p)};
+}
+
 void MCFluidSolver::transport_through(const Grid2& u, const Grid2& v, double dt, int substeps, Grid2& out) const {
     const MCFluidSettings& s = m_settings;
     const double h = dt / substeps;
-    auto vel = [&](Vec2d p) { return Vec2d(u.sample_cubic(p), v.sample_cubic(p)); };
+    auto vel = [&](Vec2d p) { return cached_velocity(u, v, p); };
     const bool cubic = s.transport == VorticityTransport::Cubic;
     parallel_for_units(std::size_t(m_omega.ny()), [&](std::size_t row) {
         const int j = int(row);
@@ -301,7 +363,13 @@ void MCFluidSolver::measure_budget(double dt) {
     FlowFFT& flow = *m_flow;
     const double e_n = flow.energy(m_omega), e_a = flow.energy(m_next);
     flow.velocity(m_omega, true, s.interpolation, m_delta, u, v);  // the estimator's expected velocity
-    transport_through(u, v, dt, 1, step);
+    if (s.backtrace_velocity == BacktraceVelocity::Cache) {        // as the run's backtrace reads it: filtered
+        Grid2 fu = u, fv = v;
+        backtrace_grids(u, v, fu, fv);
+        transport_through(fu, fv, dt, 1, step);
+    } else {
+        transport_through(u, v, dt, 1, step);
+    }
     const double e_b = flow.energy(step);
     flow.velocity(m_omega, false, s.interpolation, 0.0, u, v);  // the cells' own velocity
     transport_through(u, v, dt, 1, step);
@@ -354,6 +422,9 @@ bool MCFluidSolver::step(double dt) {
         m_departure.assign(m_omega.cell_count(), Vec2d(0.0));
     }
     auto lookup = [&](Vec2d p) { return cubic ? m_omega.sample_cubic(p) : m_omega.sample(p, interp); };
+    const bool cached = s.backtrace_velocity == BacktraceVelocity::Cache;
+    if (cached) backtrace_grids(m_u, m_v, m_bu, m_bv);
+    const Grid2 &bu = cached ? m_bu : m_u, &bv = cached ? m_bv : m_v;
     SlabPass pass(*m_comm, std::size_t(ny), std::size_t(nx));  // this rank's rows
     std::vector<RowWork> rows(pass.size(), RowWork{});
     std::atomic<bool> interrupted{false};
@@ -372,11 +443,12 @@ bool MCFluidSolver::step(double dt) {
                 return;
             }
             const Vec2d x = m_omega.cell_center(i, j);
-            const Vec2d k1(m_u.at(i, j), m_v.at(i, j));
+            const Vec2d k1(bu.at(i, j), bv.at(i, j));
             // Eq. (3.139) (Euler) or Eqs. (3.140)-(3.144) (RK4), the velocity frozen at the previous step: each
-            // stage a fresh estimate.
+            // stage the cached (filtered) velocity, or a fresh estimate (the thesis').
             Vec2d xd = trace(x, k1, -dt, s.advection, [&](Vec2d p) {
-                return checked_velocity(p, rng, w.evals, w.queries, w.invalid_velocity, w.walks);
+                return cached ? cached_velocity(m_bu, m_bv, p)
+                              : checked_velocity(p, rng, w.evals, w.queries, w.invalid_velocity, w.walks);
             });
             ++w.backtraces;
             if (!finite(xd)) {  // only reachable with absurd dt (overflow): treat as no motion

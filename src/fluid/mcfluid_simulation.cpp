@@ -38,6 +38,11 @@ MCFluidParams MCFluidParams::parse(const Properties& props) {
     s.nx = p.common.nx;
     s.ny = p.common.ny;
     s.diffusion_samples = int(props.get_int("diffusion_samples", 1, 1 << 20));
+    const std::string bt = props.get_choice("backtrace_velocity", {"auto", "cache", "estimates"});
+    s.backtrace_velocity = bt == "estimates" ? BacktraceVelocity::Estimates
+                           : bt == "cache"   ? BacktraceVelocity::Cache
+                                             : BacktraceVelocity::Auto;
+    s.velocity_filter = props.get_float("velocity_filter", 0.0, MaxVelocityFilter);
     // The velocity estimator, through its interface only (velocity.h): built-in or a plugin's.
     std::shared_ptr<const VelocityEstimator> velocity;
     if (auto obj = props.get_object("velocity")) {
@@ -57,6 +62,11 @@ MCFluidParams MCFluidParams::parse(const Properties& props) {
     if (const std::string why = velocity->check2(s.domain); !why.empty())
         props.error("velocity", velocity->plugin_name() + ": " + why);
     s.boundaries = velocity->boundaries();
+    if (props.has("velocity_filter") && (s.backtrace_velocity == BacktraceVelocity::Estimates ||
+                                         (s.backtrace_velocity == BacktraceVelocity::Auto && s.boundaries)))
+        props.error("velocity_filter",
+                    "filters the cached velocity the backtraces read: set backtrace_velocity = 'cache' (with "
+                    "boundaries 'auto' reads fresh estimates)");
     if (s.boundaries)  // solid boundaries: what they leave of the cache
         if (const std::string why = check_wos_cells(*s.boundaries, s.domain, s.nx, s.ny); !why.empty())
             props.error("velocity", velocity->plugin_name() + ": " + why);
@@ -172,10 +182,13 @@ public:
                                m_mc.boundary_field()->settings().epsilon, s.boundaries->wos.max_steps)
                          : s.estimator->effect(s.samples, m_mc.delta(), s.domain.periodic) + near_field_effect();
         lines.push_back(fmt::format(
-            "effects: advection ({}, dt {:g}, {} steps, transport {}) with {}; boundaries {}; diffusion {}; "
+            "effects: advection ({}, dt {:g}, {} steps, transport {}, {}) with {}; boundaries {}; diffusion {}; "
             "stretching off (2D); {}",
-            fluid::to_string(s.advection), s.dt, m_p.steps, fluid::to_string(s.transport), velocity,
-            s.boundaries ? fluid::describe(*s.boundaries, s.domain) : std::string("none"),
+            fluid::to_string(s.advection), s.dt, m_p.steps, fluid::to_string(s.transport),
+            s.backtrace_velocity == BacktraceVelocity::Cache
+                ? fmt::format("stages read the cached velocity, Gaussian filter {:g} cells", s.velocity_filter)
+                : std::string("a fresh estimate at every stage"),
+            velocity, s.boundaries ? fluid::describe(*s.boundaries, s.domain) : std::string("none"),
             s.viscosity > 0 ? fmt::format("on (nu {:g}, Feynman–Kac, n_d {})", s.viscosity, s.diffusion_samples)
                             : std::string("off (inviscid)"),
             dye_effect(m_p.dye.get())));

@@ -56,6 +56,9 @@ Simulation3Params Simulation3Params::parse(const Properties& props) {
     s.diffusion_samples = int(props.get_int("diffusion_samples", 1, 1 << 20));
     s.advection = props.get_choice("advection", {"euler", "rk4"}) == "euler" ? Advection::Euler : Advection::RK4;
     s.transport = parse_transport(props);
+    for (const char* name : {"backtrace_velocity", "velocity_filter"})
+        if (props.has(name))
+            props.error(name, "is a 2D parameter (3D backtraces read a fresh estimate at every Runge–Kutta stage)");
     p.energy_budget = props.get_bool("energy_budget");
     if (p.energy_budget && s.transport == VorticityTransport::MacCormack)
         props.error("energy_budget",

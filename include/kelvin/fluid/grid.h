@@ -108,4 +108,10 @@ private:
     std::vector<double> m_values;
 };
 
+/// `g` smoothed by a Gaussian of standard deviation `sigma` cells per axis: separable, truncated at 3 sigma, its
+/// weights renormalised over the cells `fluid` marks (null: every cell), so a wall or the edge of an open box
+/// takes no value from beyond it; cells outside `fluid` keep their values. Periodic domains wrap. sigma 0 leaves
+/// `g` as it is. Deterministic whatever the thread count.
+void gaussian_filter(Grid2& g, double sigma, const std::vector<char>* fluid = nullptr);
+
 }  // namespace kelvin::fluid

@@ -87,9 +87,28 @@ struct SolverSettings {
     int samples = 0;
 };
 
+/// What a 2D backtrace's Runge–Kutta stages read (the scene's `backtrace_velocity`). Estimates: the first stage the
+/// cached cell-centre estimate, every later stage a fresh Monte Carlo estimate at its own point (the thesis' scheme:
+/// each stage's noise is independent, and RK4 costs four estimates per cell and step). Cache: every stage reads the
+/// state's cached cell-centre velocity, smoothed by a Gaussian of `velocity_filter` cells (renormalised over fluid
+/// cells) and read between the centres by the monotone cubic interpolant (open boxes: the nearest centre's value
+/// beyond the outer centres; solid cells next to fluid take their fluid neighbours' mean): one estimate per cell and
+/// step, and the cells' independent noise averaged over the filter's width. The velocity is smooth (one derivative
+/// smoother than the vorticity), its noise is not: the filter's bias is (sigma h)^2 / 2 times the velocity's
+/// Laplacian, falling with h at a fixed width in cells; where the vorticity is zero the velocity is harmonic and a
+/// radially symmetric filter leaves it unchanged. Auto (the default): Cache without boundaries, Estimates with them
+/// (Walk-on-Spheres estimates at the stage points see solids thinner than a cell, which the cell grid does not);
+/// the solver's settings() hold the resolved choice.
+enum class BacktraceVelocity { Auto, Estimates, Cache };
+const char* to_string(BacktraceVelocity b);
+
 struct MCFluidSettings : SolverSettings<2> {
     int nx = 64, ny = 64;  ///< cache cells
+    BacktraceVelocity backtrace_velocity = BacktraceVelocity::Auto;
+    double velocity_filter = 1.0;  ///< Cache: the Gaussian's standard deviation in cells (0: no filter)
 };
+/// The widest velocity filter accepted, in cells.
+constexpr double MaxVelocityFilter = 8.0;
 
 /// Cumulative work of a solver (each component counts its own). In a distributed run the counters are the whole
 /// run's (summed over the ranks: the same as one process's); the seconds are this rank's own (its passes, with the
@@ -215,6 +234,11 @@ private:
     void measure_budget(double dt);
     /// MacCormack's correction of m_next (see VorticityTransport); false when stopped.
     bool maccormack_correction(double dt);
+    /// (u, v) as the backtrace reads them with BacktraceVelocity::Cache: filtered, solid cells next to fluid
+    /// extrapolated (uses m_fluid).
+    void backtrace_grids(const Grid2& u, const Grid2& v, Grid2& bu, Grid2& bv) const;
+    /// The backtrace's velocity at p from those grids (open boxes: p clamped to the outer cell centres).
+    Vec2d cached_velocity(const Grid2& bu, const Grid2& bv, Vec2d p) const;
 
     MCFluidSettings m_settings;
     Communicator* m_comm;  ///< never null (the local communicator by default)
@@ -223,6 +247,8 @@ private:
     long long m_step = 0;
     Grid2 m_omega, m_next;
     Grid2 m_u, m_v, m_var_u, m_var_v;
+    Grid2 m_bu, m_bv;           ///< BacktraceVelocity::Cache: the velocity the backtraces read
+    std::vector<char> m_fluid;  ///< with boundaries: the cells outside every solid at the current state
     bool m_velocity_valid = false;
     std::shared_ptr<const PeriodicKernel> m_periodic;
     std::unique_ptr<VelocityField2> m_field;  ///< the current state's velocity (settings().estimator)

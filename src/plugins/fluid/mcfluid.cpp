@@ -111,6 +111,14 @@ KELVIN_PLUGIN(kelvin::fluid::MCFluid, "simulation", "mcfluid",
                                     "how a backtrace reads the previous vorticity: 'cubic' (monotone cubic), "
                                     "'maccormack' (cubic with Selle et al.'s error correction) "
                                     "or 'linear' (bi/trilinear, the thesis' scheme, diffusive)"),
+              kelvin::param::string("backtrace_velocity", "auto",
+                                    "2D: what a backtrace's Runge–Kutta stages read: 'cache' (the state's cell-centre "
+                                    "estimates, filtered by velocity_filter; one estimate per cell and step), "
+                                    "'estimates' (a fresh Monte Carlo estimate at every stage point, the thesis' "
+                                    "scheme) or 'auto' (cache without boundaries, estimates with them)"),
+              kelvin::param::real("velocity_filter", 1.0,
+                                  "2D with backtrace_velocity 'cache': standard deviation in cells of the Gaussian "
+                                  "that smooths the cached velocity's noise (0: none; at most 8)"),
               kelvin::param::boolean("energy_budget", false,
                                      "inviscid, no boundaries (2D and 3D): measure where each step's energy goes (CSV "
                                      "columns energy_exact and budget_*; --stats; the summary)"),
