@@ -116,7 +116,56 @@ TEST(CliFluidTransport, MacCormackRunsIn3DAndTheEffectsLineNamesTheTransport) {
     const ProcessResult d = run_kelvin({Scenes + "taylor_green.xml", "-D", "res=16", "-D", "end=0.1", "-D", "spp=8",
                                         "-o", (dir.path() / "tg.exr").string()});
     ASSERT_EQ(d.exit_code, 0) << describe(d);
-    EXPECT_CONTAINS(d.err + d.out, "transport cubic)");
+    EXPECT_CONTAINS(d.err + d.out, "transport cubic, stages read the cached velocity, Gaussian filter 1 cells)");
+}
+
+// The 2D backtrace's velocity: 'auto' reads the filtered cache without boundaries and fresh estimates with them (the
+// effects line says which), 'estimates' is the thesis' scheme; a bad value, a filter out of range, a filter where no
+// cache is read, and either parameter in 3D are one line naming the parameter, exit 2.
+TEST(CliFluidTransport, BacktraceVelocityFromTheScene) {
+    TempDir dir;
+    const auto with = [&](const std::string& scene, const std::string& params, const std::string& name) {
+        std::string xml = read(Scenes + scene);
+        const std::size_t at = xml.find("<simulation type=");
+        const std::size_t end = xml.find('>', at) + 1;
+        xml.insert(end, params);
+        const fs::path path = dir.path() / name;
+        std::ofstream(path) << xml;
+        return path.string();
+    };
+    const std::string out = (dir.path() / "x.exr").string();
+    const std::vector<std::string> small = {"-D", "res=16", "-D", "end=0.1", "-D", "spp=8", "-D", "every=0"};
+    auto args = [&](const std::string& scene) {
+        std::vector<std::string> a = {scene};
+        a.insert(a.end(), small.begin(), small.end());
+        a.push_back("-o");
+        a.push_back(out);
+        return a;
+    };
+    const ProcessResult est = run_kelvin(
+        args(with("taylor_green.xml", "<string name=\"backtrace_velocity\" value=\"estimates\"/>", "e.xml")));
+    ASSERT_EQ(est.exit_code, 0) << describe(est);
+    EXPECT_CONTAINS(est.err + est.out, "transport cubic, a fresh estimate at every stage)");
+    const ProcessResult wide =
+        run_kelvin(args(with("taylor_green.xml", "<float name=\"velocity_filter\" value=\"2.5\"/>", "w.xml")));
+    ASSERT_EQ(wide.exit_code, 0) << describe(wide);
+    EXPECT_CONTAINS(wide.err + wide.out, "Gaussian filter 2.5 cells)");
+    const ProcessResult walls = run_kelvin(
+        {Scenes + "lamb_oseen_disk.xml", "-D", "res=16", "-D", "end=0.1", "-D", "spp=2", "-D", "every=0", "-o", out});
+    ASSERT_EQ(walls.exit_code, 0) << describe(walls);
+    EXPECT_CONTAINS(walls.err + walls.out, "a fresh estimate at every stage)");
+    EXPECT_CONTAINS(expect_one_error_line(run_kelvin(args(
+                        with("taylor_green.xml", "<string name=\"backtrace_velocity\" value=\"grid\"/>", "b.xml")))),
+                    "parameter 'backtrace_velocity'");
+    EXPECT_CONTAINS(expect_one_error_line(run_kelvin(
+                        args(with("taylor_green.xml", "<float name=\"velocity_filter\" value=\"9\"/>", "f.xml")))),
+                    "parameter 'velocity_filter'");
+    EXPECT_CONTAINS(expect_one_error_line(run_kelvin(
+                        args(with("lamb_oseen_disk.xml", "<float name=\"velocity_filter\" value=\"1\"/>", "d.xml")))),
+                    "parameter 'velocity_filter': filters the cached velocity");
+    EXPECT_CONTAINS(expect_one_error_line(run_kelvin(
+                        args(with("vortex_ring.xml", "<float name=\"velocity_filter\" value=\"1\"/>", "r.xml")))),
+                    "parameter 'velocity_filter': is a 2D parameter");
 }
 
 // sample_allocation: 'vorticity' runs and the effects line says so; a bad value, or the parameter in 2D, is one line
