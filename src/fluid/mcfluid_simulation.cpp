@@ -38,11 +38,8 @@ MCFluidParams MCFluidParams::parse(const Properties& props) {
     s.nx = p.common.nx;
     s.ny = p.common.ny;
     s.diffusion_samples = int(props.get_int("diffusion_samples", 1, 1 << 20));
-    const std::string bt = props.get_choice("backtrace_velocity", {"auto", "cache", "estimates"});
-    s.backtrace_velocity = bt == "estimates" ? BacktraceVelocity::Estimates
-                           : bt == "cache"   ? BacktraceVelocity::Cache
-                                             : BacktraceVelocity::Auto;
-    s.velocity_filter = props.get_float("velocity_filter", 0.0, MaxVelocityFilter);
+    s.backtrace_velocity = p.common.backtrace_velocity;
+    s.velocity_filter = p.common.velocity_filter;
     // The velocity estimator, through its interface only (velocity.h): built-in or a plugin's.
     std::shared_ptr<const VelocityEstimator> velocity;
     if (auto obj = props.get_object("velocity")) {

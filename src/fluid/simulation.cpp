@@ -48,6 +48,11 @@ SimulationParams SimulationParams::parse(const Properties& props, const std::str
     p.viscosity = props.get_float("viscosity", 0.0, 1e300);
     p.advection = props.get_choice("advection", {"euler", "rk4"}) == "euler" ? Advection::Euler : Advection::RK4;
     p.transport = parse_transport(props);
+    const std::string bt = props.get_choice("backtrace_velocity", {"auto", "cache", "estimates"});
+    p.backtrace_velocity = bt == "estimates" ? BacktraceVelocity::Estimates
+                           : bt == "cache"   ? BacktraceVelocity::Cache
+                                             : BacktraceVelocity::Auto;
+    p.velocity_filter = props.get_float("velocity_filter", 0.0, MaxVelocityFilter);
     p.output_every = props.get_int("output_every", 0, 1LL << 40);
     p.write_png = props.get_bool("write_png");
     p.write_exr = props.get_bool("write_exr");

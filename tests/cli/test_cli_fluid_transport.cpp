@@ -142,8 +142,9 @@ TEST(CliFluidTransport, BacktraceVelocityFromTheScene) {
         a.push_back(out);
         return a;
     };
-    const ProcessResult est = run_kelvin(
-        args(with("taylor_green.xml", "<string name=\"backtrace_velocity\" value=\"estimates\"/>", "e.xml")));
+    std::vector<std::string> est_args = args(Scenes + "taylor_green.xml");
+    est_args.insert(est_args.begin() + 1, {"-D", "backtrace=estimates"});
+    const ProcessResult est = run_kelvin(est_args);
     ASSERT_EQ(est.exit_code, 0) << describe(est);
     EXPECT_CONTAINS(est.err + est.out, "transport cubic, a fresh estimate at every stage)");
     const ProcessResult wide =
@@ -154,9 +155,9 @@ TEST(CliFluidTransport, BacktraceVelocityFromTheScene) {
         {Scenes + "lamb_oseen_disk.xml", "-D", "res=16", "-D", "end=0.1", "-D", "spp=2", "-D", "every=0", "-o", out});
     ASSERT_EQ(walls.exit_code, 0) << describe(walls);
     EXPECT_CONTAINS(walls.err + walls.out, "a fresh estimate at every stage)");
-    EXPECT_CONTAINS(expect_one_error_line(run_kelvin(args(
-                        with("taylor_green.xml", "<string name=\"backtrace_velocity\" value=\"grid\"/>", "b.xml")))),
-                    "parameter 'backtrace_velocity'");
+    std::vector<std::string> bad = args(Scenes + "taylor_green.xml");
+    bad.insert(bad.begin() + 1, {"-D", "backtrace=grid"});
+    EXPECT_CONTAINS(expect_one_error_line(run_kelvin(bad)), "parameter 'backtrace_velocity'");
     EXPECT_CONTAINS(expect_one_error_line(run_kelvin(
                         args(with("taylor_green.xml", "<float name=\"velocity_filter\" value=\"9\"/>", "f.xml")))),
                     "parameter 'velocity_filter'");
