@@ -299,6 +299,8 @@ report() {
         if [[ "$1" == fluid-obstacle ]]; then
             scene=scenes/fluid/lamb_oseen_disk.xml spp=4 region=(--disk 0,0,0.8)
             for r in 16 32 64; do c+=(--config "mcfluid-n16 res=$r:solver=mcfluid,res=$r,spp=16"); done
+        else  # the thesis' backtrace (a fresh estimate at every RK4 stage) beside the default's filtered cache
+            for r in 16 32 64; do c+=(--config "mcfluid-estimates res=$r:solver=mcfluid,res=$r,backtrace=estimates"); done
         fi
         for s in mcfluid vortex_particles stable_fluids flip; do
             for r in 16 32 64; do c+=(--config "$s res=$r:solver=$s,res=$r"); done
@@ -326,9 +328,12 @@ report() {
             echo "$name $(python3 -c "print($t1 - $t0)")" >>"$d/seconds.txt"
         }
         for r in $(seq 1 "$RUNS"); do
-            for s in mcfluid mcfluid-linear vortex_particles stable_fluids flip; do
-                local solver=${s%-linear} extra=()
-                [[ "$s" == *-linear ]] && extra=(-D transport=linear)
+            for s in mcfluid mcfluid-estimates mcfluid-linear vortex_particles stable_fluids flip; do
+                local solver=${s%-*} extra=()
+                # The thesis' backtrace (a fresh estimate at every RK4 stage) at n_mc 256, about the time of the
+                # default's 1024 cached; with the bilinear lookup, the thesis' scheme.
+                [[ "$s" == *-linear ]] && extra=(-D transport=linear -D backtrace=estimates -D spp=256)
+                [[ "$s" == *-estimates ]] && extra=(-D backtrace=estimates -D spp=256)
                 long_run "tg_${s}_r$r" scenes/fluid/taylor_green.xml -D solver=$solver -D end=20 --seed "$r" "${extra[@]}"
             done
             for s in mcfluid mcfluid-linear stable_fluids flip; do
@@ -392,9 +397,14 @@ report() {
                 "$KELVIN" scenes/fluid/shear_layer.xml -D solver=$ref -D res=512 -D dt=0.0125 -D end=2 -D every=0 \
                     -q -o "$OUT/fluid-shear-refs/$ref.exr"
         done
+        # MCFluid at its scene's n_mc (512: one estimate per cell and step, its backtrace reading the filtered cache)
+        # and with the thesis' backtrace (a fresh estimate at every RK4 stage) at n_mc 128, about the same time.
         c=()
-        for s in mcfluid vortex_particles stable_fluids flip; do
-            for r in 32 64 128; do c+=(--config "$s res=$r:solver=$s,res=$r"); done
+        for s in mcfluid mcfluid-estimates vortex_particles stable_fluids flip; do
+            local extra=""
+            [[ "$s" == mcfluid ]] && extra=",spp=512"
+            [[ "$s" == mcfluid-estimates ]] && extra=",backtrace=estimates"
+            for r in 32 64 128; do c+=(--config "$s res=$r:solver=${s%-estimates},res=$r$extra"); done
         done
         for ref in stable_fluids flip; do
             converge "fluid-shear-$ref" scenes/fluid/shear_layer.xml -D spp=128 -D dt=0.05 -D end=2 "${c[@]}" \
