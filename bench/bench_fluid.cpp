@@ -182,10 +182,13 @@ void BM_Step(benchmark::State& state, Advection adv) {
 // vortices costs. Interleave the variants to compare them:
 //   bench_fluid --benchmark_filter=BM_TransportStep --benchmark_repetitions=5 \
 //       --benchmark_enable_random_interleaving=true --benchmark_report_aggregates_only=true
-void BM_TransportStep(benchmark::State& state, VorticityTransport transport, bool budget) {
+void BM_TransportStep(benchmark::State& state, VorticityTransport transport, bool budget,
+                      BacktraceVelocity backtrace = BacktraceVelocity::Estimates, double filter = 1.0) {
     ThreadLimit limit(bench_threads());
     MCFluidSettings s = taylor_green_settings(int(state.range(0)), int(state.range(1)), Advection::RK4);
     s.transport = transport;
+    s.backtrace_velocity = backtrace;
+    s.velocity_filter = filter;
     MCFluidSolver solver(s, taylor_green);
     if (budget) solver.set_energy_budget(true);
     for (auto _ : state) solver.step();
@@ -319,6 +322,22 @@ BENCHMARK_CAPTURE(BM_TransportStep, maccormack, VorticityTransport::MacCormack, 
     ->MeasureProcessCPUTime();
 BENCHMARK_CAPTURE(BM_TransportStep, cubic_budget, VorticityTransport::Cubic, true)
     ->Args({128, 64})
+    ->Unit(benchmark::kMillisecond)
+    ->MeasureProcessCPUTime();
+// The 2D default backtrace (every RK4 stage reads the cached velocity, filtered): one estimate per cell and step.
+BENCHMARK_CAPTURE(BM_TransportStep, cubic_cache_filter1, VorticityTransport::Cubic, false, BacktraceVelocity::Cache,
+                  1.0)
+    ->Args({128, 64})
+    ->Unit(benchmark::kMillisecond)
+    ->MeasureProcessCPUTime();
+BENCHMARK_CAPTURE(BM_TransportStep, cubic_cache_filter0, VorticityTransport::Cubic, false, BacktraceVelocity::Cache,
+                  0.0)
+    ->Args({128, 64})
+    ->Unit(benchmark::kMillisecond)
+    ->MeasureProcessCPUTime();
+BENCHMARK_CAPTURE(BM_TransportStep, cubic_cache_filter1_n256, VorticityTransport::Cubic, false,
+                  BacktraceVelocity::Cache, 1.0)
+    ->Args({128, 256})
     ->Unit(benchmark::kMillisecond)
     ->MeasureProcessCPUTime();
 BENCHMARK(BM_StableFluidsStep)->Arg(128)->Arg(256)->Arg(512)->Unit(benchmark::kMillisecond)->UseRealTime();
