@@ -51,6 +51,10 @@ THREADS_SET=${THREADS:-}
 RUNS=${RUNS:-3}
 THREADS=${THREADS:-0}
 TG=scenes/fluid/taylor_green.xml
+# The thesis-style Taylor–Green studies (fluid-nmc, -cells, -dt, -params, -visual, -baselines) run MCFluid with
+# the backtrace of their documented tables, the thesis' (a fresh estimate at every RK4 stage): TG_BACKTRACE=auto
+# runs the current default instead (docs/convergence.md, "The 2D backtrace").
+TG_BT=(-D "backtrace=${TG_BACKTRACE:-estimates}")
 
 converge() {  # converge REPORT ARGS...: run (or resume) the study into $OUT/REPORT, with plots
     local report=$1
@@ -246,18 +250,18 @@ report() {
     case "$1" in
     fluid-nmc)
         mapfile -t c < <(configs n_mc spp 16 64 256 1024)
-        converge fluid-nmc "$TG" -D res=64 -D dt=0.05 -D end=1 "${c[@]}" --times 0.25,0.5,1
+        converge fluid-nmc "$TG" "${TG_BT[@]}" -D res=64 -D dt=0.05 -D end=1 "${c[@]}" --times 0.25,0.5,1
         figures fluid-nmc error_vs_param_rmse.png error_vs_cost_rmse.png ;;
     fluid-cells)
         mapfile -t c < <(configs nx res 16 32 64 128)
-        converge fluid-cells "$TG" -D spp=256 -D dt=0.05 -D end=1 "${c[@]}" --times 0.25,0.5,1
+        converge fluid-cells "$TG" "${TG_BT[@]}" -D spp=256 -D dt=0.05 -D end=1 "${c[@]}" --times 0.25,0.5,1
         figures fluid-cells error_vs_param_rmse.png error_vs_cost_rmse.png ;;
     fluid-dt)
         mapfile -t c < <(configs dt dt 0.25 0.125 0.0625 0.03125 0.015625)
-        converge fluid-dt "$TG" -D res=64 -D spp=256 -D end=1 "${c[@]}" --times 0.25,0.5,1
+        converge fluid-dt "$TG" "${TG_BT[@]}" -D res=64 -D spp=256 -D end=1 "${c[@]}" --times 0.25,0.5,1
         figures fluid-dt error_vs_param_rmse.png error_vs_cost_rmse.png ;;
     fluid-params)
-        converge fluid-params "$TG" -D res=64 -D spp=256 -D dt=0.05 -D end=2 --times 0.5,1,2 \
+        converge fluid-params "$TG" "${TG_BT[@]}" -D res=64 -D spp=256 -D dt=0.05 -D end=2 --times 0.5,1,2 \
             --config "baseline:" --config "nearest:interpolation=nearest" --config "kernel IS:importance=kernel" \
             --config "uniform:importance=uniform" --config "dt 0.2:dt=0.2" --config "32^2 cells:res=32" \
             --config "n_mc 64:spp=64" --config "euler:advection=euler"
@@ -267,8 +271,8 @@ report() {
         # t = 2 (computed once, kept in $OUT): errors, and the fields side by side.
         local ps=scenes/fluid/parameter_study.xml ref="$OUT/fluid-visual-reference.exr"
         mkdir -p "$OUT"
-        [[ -f "$ref" ]] || "$KELVIN" "$ps" -D res=128 -D spp=1024 -D dt=0.025 --seed 1000 -t "$THREADS" -q -o "$ref"
-        converge fluid-visual "$ps" --reference "$ref" --times 2 \
+        [[ -f "$ref" ]] || "$KELVIN" "$ps" "${TG_BT[@]}" -D res=128 -D spp=1024 -D dt=0.025 --seed 1000 -t "$THREADS" -q -o "$ref"
+        converge fluid-visual "$ps" "${TG_BT[@]}" --reference "$ref" --times 2 \
             --config "baseline:" --config "nearest:interpolation=nearest" --config "kernel IS:importance=kernel" \
             --config "uniform:importance=uniform" --config "dt 0.2:dt=0.2" --config "32^2 cells:res=32" \
             --config "n_mc 64:spp=64" --config "euler:advection=euler"
@@ -279,7 +283,7 @@ report() {
         for s in mcfluid vortex_particles stable_fluids; do
             for r in 16 32 64; do c+=(--config "$s res=$r:solver=$s,res=$r"); done
         done
-        converge fluid-baselines "$TG" -D spp=256 -D dt=0.05 -D end=1 "${c[@]}" --times 0.5,1
+        converge fluid-baselines "$TG" "${TG_BT[@]}" -D spp=256 -D dt=0.05 -D end=1 "${c[@]}" --times 0.5,1
         figures fluid-baselines error_vs_cost_rmse.png error_vs_param_rmse.png ;;
     fluid-lamb-oseen | fluid-obstacle)
         # Equal-error tables with an exact solution away from periodic boxes (issue 16, item 4): the four solvers at
