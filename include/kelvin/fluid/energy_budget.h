@@ -103,6 +103,38 @@ private:
     std::unique_ptr<Impl> m;
 };
 
+class WosVelocityField;  // boundary.h
+
+/// The flow of a cell-centred vorticity field inside free-slip boundaries (2D): the stream function psi of the cell
+/// values by a Dirichlet Poisson solve on the fluid cells (cell centres outside every solid), -laplacian psi = omega,
+/// psi = the boundaries' prescribed Psi (boundary_stream at the closest point) where a grid line crosses a boundary,
+/// at the fraction of the cell found from the two centres' distances to the boundary (the symmetric ghost-fluid
+/// discretisation of Gibou, Fedkiw, Cheng and Kang 2002: second order, a symmetric positive definite system, solved
+/// by Jacobi-preconditioned conjugate gradients to a relative residual of 1e-12). The geometry is the field's, fixed
+/// at construction (static boundaries). Deterministic.
+class WallFlow2 {
+public:
+    WallFlow2(const WosVelocityField& field, const Domain2& domain, int nx, int ny);
+    ~WallFlow2();
+    WallFlow2(const WallFlow2&) = delete;
+    WallFlow2& operator=(const WallFlow2&) = delete;
+
+    /// Kinetic energy (1/2) int |grad psi|^2 over the fluid, the discrete Dirichlet energy of the solve: half the sum
+    /// over the fluid cells' faces of (psi difference)^2, a face against a boundary divided by its fraction.
+    double energy(const Grid2& omega);
+    /// The velocity (d psi / dy, -d psi / dx) at the fluid cells' centres (central differences, the boundary value at
+    /// its fraction where a neighbour is across a boundary); zero elsewhere.
+    void velocity(const Grid2& omega, Grid2& u, Grid2& v);
+    /// The fluid cells (1) of the grid.
+    const std::vector<char>& fluid() const;
+    /// Conjugate-gradient iterations of the last solve.
+    int iterations() const;
+
+private:
+    struct Impl;
+    std::unique_ptr<Impl> m;
+};
+
 /// The flow of a cell-centred 3D vorticity field (the cells' values as point vortices of strength omega h^3,
 /// optionally smoothed), by FFT: on a periodic box spectrally (the mean vorticity removed), in free space by Hockney's
 /// zero-padded convolution (twice the cells per axis) with the free-space kernels. Deterministic.
