@@ -24,22 +24,24 @@ EnergyBudget& EnergyBudget::operator+=(const EnergyBudget& o) {
     integrator += o.integrator;
     transport += o.transport;
     stretching += o.stretching;
+    boundary += o.boundary;
     return *this;
 }
 
-std::string EnergyBudget::csv_columns(bool with_stretching) {
+std::string EnergyBudget::csv_columns(bool with_stretching, bool with_boundary) {
     return std::string(",energy_exact,budget_change,budget_noise,budget_mollifier,budget_integrator,budget_transport") +
-           (with_stretching ? ",budget_stretching" : "");
+           (with_stretching ? ",budget_stretching" : "") + (with_boundary ? ",budget_boundary" : "");
 }
 
-std::string EnergyBudget::csv_values(bool with_stretching) const {
+std::string EnergyBudget::csv_values(bool with_stretching, bool with_boundary) const {
     std::string v = fmt::format(",{:.10g},{:.6g},{:.6g},{:.6g},{:.6g},{:.6g}", energy, change, noise, mollifier,
                                 integrator, transport);
     if (with_stretching) v += fmt::format(",{:.6g}", stretching);
+    if (with_boundary) v += fmt::format(",{:.6g}", boundary);
     return v;
 }
 
-void EnergyBudget::add_stats(Stats& stats, bool with_stretching) const {
+void EnergyBudget::add_stats(Stats& stats, bool with_stretching, bool with_boundary) const {
     stats.add("fluid.energy_budget.energy", energy, "energy");
     stats.add("fluid.energy_budget.change", change, "energy");
     stats.add("fluid.energy_budget.noise", noise, "energy");
@@ -47,14 +49,16 @@ void EnergyBudget::add_stats(Stats& stats, bool with_stretching) const {
     stats.add("fluid.energy_budget.integrator", integrator, "energy");
     stats.add("fluid.energy_budget.transport", transport, "energy");
     if (with_stretching) stats.add("fluid.energy_budget.stretching", stretching, "energy");
+    if (with_boundary) stats.add("fluid.energy_budget.boundary", boundary, "energy");
 }
 
-std::string EnergyBudget::summary(bool with_stretching) const {
+std::string EnergyBudget::summary(bool with_stretching, bool with_boundary) const {
     std::string s = fmt::format(
         "; energy budget (exact energy {:.6g}, change {:+.4g}): transport {:+.4g}, Monte Carlo noise {:+.4g}, "
         "mollifier {:+.4g}, integrator {:+.4g}",
         energy, change, transport, noise, mollifier, integrator);
     if (with_stretching) s += fmt::format(", stretching {:+.4g}", stretching);
+    if (with_boundary) s += fmt::format(", boundary {:+.4g}", boundary);
     return s;
 }
 

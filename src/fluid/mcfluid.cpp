@@ -279,17 +279,56 @@ bool MCFluidSolver::maccormack_correction(double dt) {
 void MCFluidSolver::set_energy_budget(bool on) {
     if (!on) {
         m_flow.reset();
+        m_wall_flow.reset();
         return;
     }
     if (m_settings.boundaries)
-        throw_runtime("MCFluidSolver: the energy budget covers flows without boundaries (walk_on_spheres) only");
+        for (const auto& shape : m_settings.boundaries->shapes)
+            if (shape->role().moving())
+                throw_runtime("MCFluidSolver: the energy budget covers static boundaries only (a solid moves)");
     if (m_settings.viscosity > 0) throw_runtime("MCFluidSolver: the energy budget covers inviscid flows only");
     if (m_settings.transport == VorticityTransport::MacCormack)
         throw_runtime(
             "MCFluidSolver: the energy budget models the cubic and linear lookups, not MacCormack's correction");
-    m_flow = std::make_unique<FlowFFT>(m_settings.domain, m_settings.nx, m_settings.ny);
     m_budget_step = m_budget_total = {};
-    m_budget_total.energy = m_budget_step.energy = m_flow->energy(m_omega);
+    if (m_wos) {
+        m_wall_flow = std::make_unique<WallFlow2>(*m_wos, m_settings.domain, m_settings.nx, m_settings.ny);
+        m_budget_total.energy = m_budget_step.energy = m_wall_flow->energy(m_omega);
+    } else {
+        m_flow = std::make_unique<FlowFFT>(m_settings.domain, m_settings.nx, m_settings.ny);
+        m_budget_total.energy = m_budget_step.energy = m_flow->energy(m_omega);
+    }
+}
+
+Grid2 MCFluidSolver::extended_into_solids() const {
+    Grid2 w = m_omega;
+    if (!m_wos || m_fluid.empty()) return w;
+    const int nx = w.nx(), ny = w.ny();
+    std::vector<char> filled = m_fluid;
+    for (int layer = 0; layer < 2; ++layer) {
+        std::vector<char> next = filled;
+        for (int j = 0; j < ny; ++j)
+            for (int i = 0; i < nx; ++i) {
+                const std::size_t c = std::size_t(j) * std::size_t(nx) + std::size_t(i);
+                if (filled[c]) continue;
+                double sum = 0;
+                int n = 0;
+                const int di[4] = {1, -1, 0, 0}, dj[4] = {0, 0, 1, -1};
+                for (int k = 0; k < 4; ++k) {
+                    const int a = i + di[k], b = j + dj[k];
+                    if (a < 0 || b < 0 || a >= nx || b >= ny) continue;
+                    const std::size_t cn = std::size_t(b) * std::size_t(nx) + std::size_t(a);
+                    if (!filled[cn]) continue;
+                    sum += w.values()[cn];
+                    ++n;
+                }
+                if (n == 0) continue;
+                w.values()[c] = sum / n;
+                next[c] = 1;
+            }
+        filled.swap(next);
+    }
+    return w;
 }
 
 void MCFluidSolver::backtrace_grids(const Grid2& u, const Grid2& v, Grid2& bu, Grid2& bv) const {
@@ -339,8 +378,10 @@ Vec2d MCFluidSolver::cached_velocity(const Grid2& bu, const Grid2& bv, Vec2d p) 
     return {bu.sample_cubic(p), bv.sample_cubic(p)};
 }
 
-void MCFluidSolver::transport_through(const Grid2& u, const Grid2& v, double dt, int substeps, Grid2& out) const {
+void MCFluidSolver::transport_through(const Grid2& u, const Grid2& v, double dt, int substeps, Grid2& out,
+                                      const Grid2* source) const {
     const MCFluidSettings& s = m_settings;
+    const Grid2& from = source ? *source : m_omega;
     const double h = dt / substeps;
     auto vel = [&](Vec2d p) { return cached_velocity(u, v, p); };
     const bool cubic = s.transport == VorticityTransport::Cubic;
@@ -350,8 +391,9 @@ void MCFluidSolver::transport_through(const Grid2& u, const Grid2& v, double dt,
             Vec2d x = m_omega.cell_center(i, j);
             for (int k = 0; k < substeps; ++k)
                 x = trace(x, k == 0 ? Vec2d(u.at(i, j), v.at(i, j)) : vel(x), -h, s.advection, vel);
+            if (m_wos) x = m_wos->push_out(x);  // as the run's departure points
             x = s.domain.wrap(x);
-            const double w = cubic ? m_omega.sample_cubic(x) : m_omega.sample(x, s.interpolation);
+            const double w = cubic ? from.sample_cubic(x) : from.sample(x, s.interpolation);
             out.at(i, j) = std::isfinite(w) ? w : 0.0;
         }
     });
@@ -360,29 +402,43 @@ void MCFluidSolver::transport_through(const Grid2& u, const Grid2& v, double dt,
 void MCFluidSolver::measure_budget(double dt) {
     const MCFluidSettings& s = m_settings;
     Grid2 u(s.domain, s.nx, s.ny), v = u, step = u;
-    FlowFFT& flow = *m_flow;
-    const double e_n = flow.energy(m_omega), e_a = flow.energy(m_next);
-    flow.velocity(m_omega, true, s.interpolation, m_delta, u, v);  // the estimator's expected velocity
-    if (s.backtrace_velocity == BacktraceVelocity::Cache) {        // as the run's backtrace reads it: filtered
+    const bool cached = s.backtrace_velocity == BacktraceVelocity::Cache;
+    auto energy = [&](const Grid2& w) { return m_wall_flow ? m_wall_flow->energy(w) : m_flow->energy(w); };
+    const double e_n = energy(m_omega), e_a = energy(m_next);
+    // B: the estimator's expected velocity (without walls: the smoothed cells' by FFT; with walls: the cells' own
+    // container velocity by the Poisson solve, so the estimator's source smoothing falls into the noise term), read
+    // as the run's backtrace reads it (filtered with the cached backtrace).
+    if (m_wall_flow)
+        m_wall_flow->velocity(m_omega, u, v);
+    else
+        m_flow->velocity(m_omega, true, s.interpolation, m_delta, u, v);
+    if (cached) {
         Grid2 fu = u, fv = v;
         backtrace_grids(u, v, fu, fv);
         transport_through(fu, fv, dt, 1, step);
     } else {
         transport_through(u, v, dt, 1, step);
     }
-    const double e_b = flow.energy(step);
-    flow.velocity(m_omega, false, s.interpolation, 0.0, u, v);  // the cells' own velocity
+    const double e_b = energy(step);
+    if (!m_wall_flow) m_flow->velocity(m_omega, false, s.interpolation, 0.0, u, v);  // C: the cells' own velocity
     transport_through(u, v, dt, 1, step);
-    const double e_c = flow.energy(step);
-    transport_through(u, v, dt, s.advection == Advection::Euler ? 16 : 4, step);  // error /256, /16
-    const double e_d = flow.energy(step);
+    const double e_c = energy(step);
+    transport_through(u, v, dt, s.advection == Advection::Euler ? 16 : 4, step);  // D: error /256, /16
+    const double e_d = energy(step);
+    double e_e = e_d;  // with walls, E: D reading the state extended into the solids instead of their zeros
+    if (m_wall_flow) {
+        const Grid2 extended = extended_into_solids();
+        transport_through(u, v, dt, s.advection == Advection::Euler ? 16 : 4, step, &extended);
+        e_e = energy(step);
+    }
     EnergyBudget b;
     b.energy = e_a;
     b.change = e_a - e_n;
     b.noise = e_a - e_b;
     b.mollifier = e_b - e_c;
     b.integrator = e_c - e_d;
-    b.transport = e_d - e_n;
+    b.boundary = e_d - e_e;
+    b.transport = e_e - e_n;
     m_budget_step = b;
     m_budget_total += b;
 }
@@ -502,7 +558,7 @@ bool MCFluidSolver::step(double dt) {
         if (viscous) pass.gather({&m_advected.values()});
         if (!maccormack_correction(dt)) return false;
     }
-    if (m_flow) measure_budget(dt);  // before the new state replaces the old one
+    if (budget_on()) measure_budget(dt);  // before the new state replaces the old one
     m_work.biot_savart_evals += total.evals;
     m_work.velocity_queries += total.queries;
     m_work.advection_backtraces += total.backtraces;

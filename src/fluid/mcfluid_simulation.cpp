@@ -80,7 +80,8 @@ MCFluidParams MCFluidParams::parse(const Properties& props) {
                     "models the cubic and linear lookups; with transport 'maccormack' its correction would be counted "
                     "as noise");
     if (p.energy_budget && s.boundaries)
-        props.error("energy_budget", "covers flows without boundaries only (walk_on_spheres has none in closed form)");
+        for (const auto& shape : s.boundaries->shapes)
+            if (shape->role().moving()) props.error("energy_budget", "covers static boundaries only (a solid moves)");
     if (p.energy_budget && s.viscosity > 0) props.error("energy_budget", "covers inviscid flows only (viscosity 0)");
     if (cache->resolution_z() != 0) props.error("cache", "resolution_z is for 3D caches (dimension = 3)");
     return p;
@@ -123,14 +124,14 @@ public:
     // With the energy budget, six more columns: the state's deterministic energy and the last step's split.
     std::string csv_header() const override {
         std::string h = Solver2Run::csv_header();
-        if (m_mc.energy_budget_step()) h += EnergyBudget::csv_columns(false);
+        if (m_mc.energy_budget_step()) h += EnergyBudget::csv_columns(false, m_mc.energy_budget_has_boundary());
         return h;
     }
     std::string csv_row(double seconds, double evals, uint64_t invalid, double cfl) const override {
         std::string row = Solver2Run::csv_row(seconds, evals, invalid, cfl);
         if (const EnergyBudget* b = m_mc.energy_budget_step()) {
             if (!row.empty() && row.back() == '\n') row.pop_back();
-            row += b->csv_values(false) + "\n";
+            row += b->csv_values(false, m_mc.energy_budget_has_boundary()) + "\n";
         }
         return row;
     }
@@ -200,7 +201,8 @@ public:
                      {w.wos_walks, w.wos_steps, w.wos_truncated, w.wos_invalid, w.wos_boundary_queries}, "mcfluid",
                      s.boundaries ? s.boundaries->wos.max_steps : 0);
         stats.add("fluid.solid_departures", double(w.solid_departures), "points");
-        if (const EnergyBudget* b = m_mc.energy_budget_total()) b->add_stats(stats, false);
+        if (const EnergyBudget* b = m_mc.energy_budget_total())
+            b->add_stats(stats, false, m_mc.energy_budget_has_boundary());
         report_dye_stats(stats, m_mc.dye());
     }
 
@@ -215,7 +217,8 @@ public:
 
     std::string summary(const std::string& ended) override {
         std::string s = summary_line(ended);
-        if (const EnergyBudget* b = m_mc.energy_budget_total()) s += b->summary(false);
+        if (const EnergyBudget* b = m_mc.energy_budget_total())
+            s += b->summary(false, m_mc.energy_budget_has_boundary());
         return s;
     }
 

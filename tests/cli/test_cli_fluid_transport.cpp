@@ -22,6 +22,17 @@ std::string read(const fs::path& p) {
     s << in.rdbuf();
     return s.str();
 }
+
+/// Writes `xml` (a copy of the shipped scene `scene`, edited) as `name` in `dir`, its relative mesh paths made
+/// absolute.
+fs::path write_scene_copy(const TempDir& dir, const std::string& scene, const std::string& name, std::string xml) {
+    (void)scene;
+    for (std::size_t at = 0; (at = xml.find("value=\"meshes/", at)) != std::string::npos;)
+        xml.replace(at, 7, "value=\"" + Scenes);
+    const fs::path path = dir.path() / name;
+    std::ofstream(path) << xml;
+    return path;
+}
 }  // namespace
 
 TEST(CliFluidTransport, EnergyBudgetColumnsStatsAndSummary) {
@@ -53,16 +64,24 @@ TEST(CliFluidTransport, BadTransportAndBudgetAreOneLineNamingTheParameter) {
         EXPECT_CONTAINS(expect_one_error_line(
                             run_kelvin({Scenes + scene, "-D", "transport=maccormack", "-D", "budget=true", "-o", out})),
                         "parameter 'energy_budget': models the cubic and linear lookups");
-    // The budget with walls (walk_on_spheres) and with viscosity: refused before any work.
-    fs::path walled = dir.path() / "walled.xml";
-    {
-        std::string xml = read(Scenes + "lamb_oseen_disk.xml");
-        const std::string tag = "<simulation type=\"$solver\">";
-        xml.replace(xml.find(tag), tag.size(), tag + "<boolean name=\"energy_budget\" value=\"true\"/>");
-        std::ofstream(walled) << xml;
-    }
-    EXPECT_CONTAINS(expect_one_error_line(run_kelvin({walled.string(), "-o", out})),
-                    "parameter 'energy_budget': covers flows without boundaries only");
+    // With static walls (walk_on_spheres) the budget runs and adds its boundary term; with a moving solid and with
+    // viscosity it is refused before any work.
+    const auto with_budget = [&](const std::string& scene, const std::string& name) {
+        std::string xml = read(Scenes + scene);
+        const std::size_t at = xml.find("<simulation type=");
+        xml.insert(xml.find('>', at) + 1, "<boolean name=\"energy_budget\" value=\"true\"/>");
+        const fs::path path = write_scene_copy(dir, scene, name, xml);
+        return path.string();
+    };
+    const ProcessResult walls =
+        run_kelvin({with_budget("lamb_oseen_disk.xml", "walled.xml"), "-D", "res=16", "-D", "spp=2", "-D", "end=0.1",
+                    "-D", "every=0", "-o", out, "--stats", (dir.path() / "walls.json").string()});
+    ASSERT_EQ(walls.exit_code, 0) << describe(walls);
+    EXPECT_CONTAINS(read(dir.path() / "x" / "diagnostics.csv"), ",budget_transport,budget_boundary\n");
+    EXPECT_CONTAINS(read(dir.path() / "walls.json"), "fluid.energy_budget.boundary");
+    EXPECT_CONTAINS(walls.err + walls.out, ", boundary ");
+    EXPECT_CONTAINS(expect_one_error_line(run_kelvin({with_budget("moving_square.xml", "moving.xml"), "-o", out})),
+                    "parameter 'energy_budget': covers static boundaries only");
     EXPECT_CONTAINS(expect_one_error_line(run_kelvin(
                         {Scenes + "co_rotating_vortices.xml", "-D", "budget=true", "-D", "nu=0.01", "-o", out})),
                     "parameter 'energy_budget': covers inviscid flows only");

@@ -68,16 +68,17 @@ struct EnergyBudget {
     double integrator = 0;  ///< time integration of the backtrace
     double transport = 0;   ///< interpolation of the previous state at the departure points
     double stretching = 0;  ///< 3D: the vortex-segment stretching estimate against the exact (0 in 2D)
+    double boundary = 0;    ///< 2D with walls: the lookup's reading of solid cells (zero) next to the walls
 
     EnergyBudget& operator+=(const EnergyBudget& o);
 
     /// How a simulation reports it (2D without the stretching term, 3D with it): the CSV columns appended to the
     /// diagnostics (",energy_exact,budget_change,...") and one row's values, the `fluid.energy_budget.*` statistics and
     /// the summary line's clause.
-    static std::string csv_columns(bool stretching);
-    std::string csv_values(bool stretching) const;
-    void add_stats(Stats& stats, bool stretching) const;
-    std::string summary(bool stretching) const;
+    static std::string csv_columns(bool stretching, bool boundary = false);
+    std::string csv_values(bool stretching, bool boundary = false) const;
+    void add_stats(Stats& stats, bool stretching, bool boundary = false) const;
+    std::string summary(bool stretching, bool boundary = false) const;
 };
 
 /// The flow of a cell-centred vorticity field omega_h (the cells' values as point vortices of strength omega h^2,

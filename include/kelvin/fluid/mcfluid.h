@@ -215,8 +215,10 @@ public:
     /// runs without boundaries only (RuntimeError otherwise).
     void set_energy_budget(bool on);
     /// The last step's budget and the sum over the steps so far (null when the budget is off).
-    const EnergyBudget* energy_budget_step() const { return m_flow ? &m_budget_step : nullptr; }
-    const EnergyBudget* energy_budget_total() const { return m_flow ? &m_budget_total : nullptr; }
+    const EnergyBudget* energy_budget_step() const { return budget_on() ? &m_budget_step : nullptr; }
+    const EnergyBudget* energy_budget_total() const { return budget_on() ? &m_budget_total : nullptr; }
+    /// Whether the budget measures a boundary term (the budget on, with walls).
+    bool energy_budget_has_boundary() const { return bool(m_wall_flow); }
 
     /// Stream tags of the passes (part of the determinism contract; tests use them).
     enum StreamTag : uint64_t { TagVelocity = 1, TagAdvection = 2, TagQuery = 3, TagDye = 4 };
@@ -230,7 +232,12 @@ private:
     void add_walks(const wos::WalkCounters& c);
     /// omega at the cells after a step of dt through the deterministic velocity (u, v) at the cell centres (read
     /// between them by the cubic interpolant), the backtrace in `substeps` steps of the scene's integrator.
-    void transport_through(const Grid2& u, const Grid2& v, double dt, int substeps, Grid2& out) const;
+    /// With walls the departure points are pushed out of the solids as the run's are; `source` is the state read
+    /// (null: the current one).
+    void transport_through(const Grid2& u, const Grid2& v, double dt, int substeps, Grid2& out,
+                           const Grid2* source = nullptr) const;
+    /// The current state with the solid cells within two cells of the fluid filled by their fluid neighbours' mean.
+    Grid2 extended_into_solids() const;
     void measure_budget(double dt);
     /// MacCormack's correction of m_next (see VorticityTransport); false when stopped.
     bool maccormack_correction(double dt);
@@ -255,10 +262,12 @@ private:
     const WosVelocityField* m_wos = nullptr;  ///< m_field->boundaries(): solids, walls (null without boundaries)
     FluidWork m_work;
     std::unique_ptr<PassiveScalars> m_dye;
-    Grid2 m_disp_x, m_disp_y;         ///< displacement x - x_departure of the last step (only with a dye)
-    Grid2 m_advected;                 ///< MacCormack with viscosity: the advected values before diffusion
-    std::vector<Vec2d> m_departure;   ///< MacCormack: each cell's departure point (wrapped)
-    std::unique_ptr<FlowFFT> m_flow;  ///< the energy budget's FFTs (null: no budget)
+    Grid2 m_disp_x, m_disp_y;                ///< displacement x - x_departure of the last step (only with a dye)
+    Grid2 m_advected;                        ///< MacCormack with viscosity: the advected values before diffusion
+    std::vector<Vec2d> m_departure;          ///< MacCormack: each cell's departure point (wrapped)
+    std::unique_ptr<FlowFFT> m_flow;         ///< the energy budget's FFTs (no walls; null: no budget)
+    std::unique_ptr<WallFlow2> m_wall_flow;  ///< the energy budget's Poisson solves (walls; null: no budget)
+    bool budget_on() const { return m_flow || m_wall_flow; }
     EnergyBudget m_budget_step, m_budget_total;
 };
 
