@@ -20,8 +20,16 @@
 //   integrator  = E(C) - E(D)     the backtrace's time integration (Euler or RK4, velocity frozen over the step)
 //   transport   = E(D) - E(n)     the lookup (linear or cubic interpolation of the previous state)
 //
-// add up to the step's change E(A) - E(n) exactly. Boundaries (walk_on_spheres) and viscosity are not covered: the
-// budget is refused there (the expected velocity with walls has no closed form on the grid).
+// add up to the step's change E(A) - E(n) exactly. Viscosity is not covered (refused). With static walls
+// (walk_on_spheres, 2D) the energies and the velocity of B = C are WallFlow2's (a Poisson solve inside the walls: the
+// estimator's source smoothing is then part of the noise term), the re-runs push their departure points out of the
+// solids as the run does, and a fifth term splits the lookup's error:
+//
+//   boundary    = E(D) - E(E)     the lookup reading the solid cells' zeros next to the walls (E: D reading the state
+//                                 extended into the solids by its fluid neighbours' mean instead)
+//   transport   = E(E) - E(n)
+//
+// Moving solids are refused (the geometry is fixed when the budget starts).
 //
 // In 3D (MCFluid3Solver) the step also stretches the vorticity it reads: omega(x_d) + dt |omega| / h [v(x_d + h/2 w)
 // - v(x_d - h/2 w)], the vortex-segment estimate (Eq. 5.21) on the cached velocity. The exact inviscid dynamics still

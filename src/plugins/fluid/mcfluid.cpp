@@ -120,8 +120,8 @@ KELVIN_PLUGIN(kelvin::fluid::MCFluid, "simulation", "mcfluid",
                                   "2D with backtrace_velocity 'cache': standard deviation in cells of the Gaussian "
                                   "that smooths the cached velocity's noise (0: none; at most 8)"),
               kelvin::param::boolean("energy_budget", false,
-                                     "inviscid, no boundaries (2D and 3D): measure where each step's energy goes (CSV "
-                                     "columns energy_exact and budget_*; --stats; the summary)"),
+                                     "inviscid (2D and 3D; walls: 2D, static): measure where each step's energy goes "
+                                     "(CSV columns energy_exact and budget_*; --stats; the summary)"),
               kelvin::param::integer("output_every", 0, "write PNG/EXR frames every N steps and at the last (0: none)"),
               kelvin::param::boolean("write_png", true, "write frames as PNG (colour-mapped vorticity)"),
               kelvin::param::boolean("write_exr", true, "write frames as EXR (vorticity, u, v channels)"),
