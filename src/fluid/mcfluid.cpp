@@ -23,6 +23,7 @@
 #include <bit>
 #include <cmath>
 #include <cstring>
+#include <initializer_list>
 
 namespace kelvin::fluid {
 
@@ -36,6 +37,38 @@ const char* to_string(BacktraceVelocity b) {
 }
 
 namespace {
+
+/// Solid cells (`fluid` 0) within two cells of the fluid take the mean of their filled 4-neighbours, one layer at a
+/// time, in every grid of `grids` alike: what an interpolant reading across a wall then sees is the fluid's field.
+void extend_into_solids(const std::vector<char>& fluid, std::initializer_list<Grid2*> grids) {
+    const int nx = (*grids.begin())->nx(), ny = (*grids.begin())->ny();
+    std::vector<char> filled = fluid;
+    const int di[4] = {1, -1, 0, 0}, dj[4] = {0, 0, 1, -1};
+    for (int layer = 0; layer < 2; ++layer) {
+        std::vector<char> next = filled;
+        for (int j = 0; j < ny; ++j)
+            for (int i = 0; i < nx; ++i) {
+                const std::size_t c = std::size_t(j) * std::size_t(nx) + std::size_t(i);
+                if (filled[c]) continue;
+                std::size_t from[4];
+                int n = 0;
+                for (int k = 0; k < 4; ++k) {
+                    const int a = i + di[k], b = j + dj[k];
+                    if (a < 0 || b < 0 || a >= nx || b >= ny) continue;
+                    const std::size_t cn = std::size_t(b) * std::size_t(nx) + std::size_t(a);
+                    if (filled[cn]) from[n++] = cn;
+                }
+                if (n == 0) continue;
+                for (Grid2* g : grids) {
+                    double sum = 0;
+                    for (int k = 0; k < n; ++k) sum += g->values()[from[k]];
+                    g->values()[c] = sum / n;
+                }
+                next[c] = 1;
+            }
+        filled.swap(next);
+    }
+}
 
 inline bool finite(Vec2d v) { return std::isfinite(v.x) && std::isfinite(v.y); }
 
@@ -302,71 +335,19 @@ void MCFluidSolver::set_energy_budget(bool on) {
 
 Grid2 MCFluidSolver::extended_into_solids() const {
     Grid2 w = m_omega;
-    if (!m_wos || m_fluid.empty()) return w;
-    const int nx = w.nx(), ny = w.ny();
-    std::vector<char> filled = m_fluid;
-    for (int layer = 0; layer < 2; ++layer) {
-        std::vector<char> next = filled;
-        for (int j = 0; j < ny; ++j)
-            for (int i = 0; i < nx; ++i) {
-                const std::size_t c = std::size_t(j) * std::size_t(nx) + std::size_t(i);
-                if (filled[c]) continue;
-                double sum = 0;
-                int n = 0;
-                const int di[4] = {1, -1, 0, 0}, dj[4] = {0, 0, 1, -1};
-                for (int k = 0; k < 4; ++k) {
-                    const int a = i + di[k], b = j + dj[k];
-                    if (a < 0 || b < 0 || a >= nx || b >= ny) continue;
-                    const std::size_t cn = std::size_t(b) * std::size_t(nx) + std::size_t(a);
-                    if (!filled[cn]) continue;
-                    sum += w.values()[cn];
-                    ++n;
-                }
-                if (n == 0) continue;
-                w.values()[c] = sum / n;
-                next[c] = 1;
-            }
-        filled.swap(next);
-    }
+    if (m_wos && !m_fluid.empty()) extend_into_solids(m_fluid, {&w});
     return w;
 }
 
 void MCFluidSolver::backtrace_grids(const Grid2& u, const Grid2& v, Grid2& bu, Grid2& bv) const {
-    const int nx = u.nx(), ny = u.ny();
     const std::vector<char>* fluid = m_wos && !m_fluid.empty() ? &m_fluid : nullptr;
     bu = u;
     bv = v;
     gaussian_filter(bu, m_settings.velocity_filter, fluid);
     gaussian_filter(bv, m_settings.velocity_filter, fluid);
     if (!fluid) return;
-    // Solid cells within two cells of the fluid (the cubic interpolant's reach) take the mean of their filled
-    // 4-neighbours, one layer at a time: the wall's tangential velocity is not read as the solid's.
-    std::vector<char> filled = *fluid;
-    for (int layer = 0; layer < 2; ++layer) {
-        std::vector<char> next = filled;
-        for (int j = 0; j < ny; ++j)
-            for (int i = 0; i < nx; ++i) {
-                const std::size_t c = std::size_t(j) * std::size_t(nx) + std::size_t(i);
-                if (filled[c]) continue;
-                double su = 0, sv = 0;
-                int n = 0;
-                const int di[4] = {1, -1, 0, 0}, dj[4] = {0, 0, 1, -1};
-                for (int k = 0; k < 4; ++k) {
-                    const int a = i + di[k], b = j + dj[k];
-                    if (a < 0 || b < 0 || a >= nx || b >= ny) continue;
-                    const std::size_t cn = std::size_t(b) * std::size_t(nx) + std::size_t(a);
-                    if (!filled[cn]) continue;
-                    su += bu.values()[cn];
-                    sv += bv.values()[cn];
-                    ++n;
-                }
-                if (n == 0) continue;
-                bu.values()[c] = su / n;
-                bv.values()[c] = sv / n;
-                next[c] = 1;
-            }
-        filled.swap(next);
-    }
+    // The wall's tangential velocity is not read as the solid's.
+    extend_into_solids(*fluid, {&bu, &bv});
 }
 
 Vec2d MCFluidSolver::cached_velocity(const Grid2& bu, const Grid2& bv, Vec2d p) const {
