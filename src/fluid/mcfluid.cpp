@@ -38,6 +38,22 @@ const char* to_string(BacktraceVelocity b) {
 
 namespace {
 
+/// MacCormack's corrected value of a cell (Selle et al. 2008): the plain lookup of `source` at the (wrapped) departure
+/// point plus half the difference between the cell's old value and the step's result read at the forward trace's end
+/// (`back`); with `clamp`, kept only within the range of the 2x2 cells of `source` around the departure point, else
+/// the plain lookup.
+double maccormack_value(const Grid2& source, double old_value, double back, double plain, Vec2d departure, bool clamp) {
+    const double value = plain + 0.5 * (old_value - back);
+    if (!clamp) return std::isfinite(value) ? value : plain;
+    const Vec2d g = (departure - source.domain().min) / source.h() - Vec2d(0.5);
+    const int i0 = int(std::floor(g.x)), j0 = int(std::floor(g.y));
+    const double v00 = source.at_bc(i0, j0), v10 = source.at_bc(i0 + 1, j0), v01 = source.at_bc(i0, j0 + 1),
+                 v11 = source.at_bc(i0 + 1, j0 + 1);
+    const double lo = std::min(std::min(v00, v10), std::min(v01, v11));
+    const double hi = std::max(std::max(v00, v10), std::max(v01, v11));
+    return value >= lo && value <= hi ? value : plain;
+}
+
 /// Solid cells (`fluid` 0) within two cells of the fluid take the mean of their filled 4-neighbours, one layer at a
 /// time, in every grid of `grids` alike: what an interpolant reading across a wall then sees is the fluid's field.
 void extend_into_solids(const std::vector<char>& fluid, std::initializer_list<Grid2*> grids) {
@@ -282,22 +298,11 @@ bool MCFluidSolver::maccormack_correction(double dt) {
             const Vec2d x = m_omega.cell_center(i, j);
             const Vec2d xf = trace(x, Vec2d(bu.at(i, j), bv.at(i, j)), dt, s.advection, vel);
             const double back = finite(xf) ? advected.sample_cubic(s.domain.wrap(xf)) : advected.at(i, j);
-            const double plain = m_next.at(i, j);
-            double value = plain + 0.5 * (m_omega.at(i, j) - back);
-            if (!viscous) {  // clamped to the cells around the departure point, else the plain lookup (Selle et al.)
-                const Vec2d g =
-                    (m_departure[std::size_t(j) * std::size_t(nx) + std::size_t(i)] - s.domain.min) / m_omega.h() -
-                    Vec2d(0.5);
-                const int i0 = int(std::floor(g.x)), j0 = int(std::floor(g.y));
-                const double v00 = m_omega.at_bc(i0, j0), v10 = m_omega.at_bc(i0 + 1, j0),
-                             v01 = m_omega.at_bc(i0, j0 + 1), v11 = m_omega.at_bc(i0 + 1, j0 + 1);
-                const double lo = std::min(std::min(v00, v10), std::min(v01, v11));
-                const double hi = std::max(std::max(v00, v10), std::max(v01, v11));
-                if (!(value >= lo && value <= hi)) value = plain;
-            } else if (!std::isfinite(value)) {  // the diffused value keeps its spread: only the advection's error
-                value = plain;
-            }
-            corrected[(row - pass.begin()) * std::size_t(nx) + std::size_t(i)] = value;
+            // Inviscid: clamped to the cells around the departure point. Viscous: the diffused value keeps its spread
+            // (only the advection's error is corrected).
+            corrected[(row - pass.begin()) * std::size_t(nx) + std::size_t(i)] =
+                maccormack_value(m_omega, m_omega.at(i, j), back, m_next.at(i, j),
+                                 m_departure[std::size_t(j) * std::size_t(nx) + std::size_t(i)], !viscous);
         }
     });
     RowWork none;
@@ -320,9 +325,6 @@ void MCFluidSolver::set_energy_budget(bool on) {
             if (shape->role().moving())
                 throw_runtime("MCFluidSolver: the energy budget covers static boundaries only (a solid moves)");
     if (m_settings.viscosity > 0) throw_runtime("MCFluidSolver: the energy budget covers inviscid flows only");
-    if (m_settings.transport == VorticityTransport::MacCormack)
-        throw_runtime(
-            "MCFluidSolver: the energy budget models the cubic and linear lookups, not MacCormack's correction");
     m_budget_step = m_budget_total = {};
     if (m_wos) {
         m_wall_flow = std::make_unique<WallFlow2>(*m_wos, m_settings.domain, m_settings.nx, m_settings.ny);
@@ -365,7 +367,9 @@ void MCFluidSolver::transport_through(const Grid2& u, const Grid2& v, double dt,
     const Grid2& from = source ? *source : m_omega;
     const double h = dt / substeps;
     auto vel = [&](Vec2d p) { return cached_velocity(u, v, p); };
-    const bool cubic = s.transport == VorticityTransport::Cubic;
+    const bool cubic = s.transport != VorticityTransport::Linear;
+    const bool maccormack = s.transport == VorticityTransport::MacCormack;
+    std::vector<Vec2d> departure(maccormack ? from.cell_count() : 0);
     parallel_for_units(std::size_t(m_omega.ny()), [&](std::size_t row) {
         const int j = int(row);
         for (int i = 0; i < m_omega.nx(); ++i) {
@@ -374,10 +378,27 @@ void MCFluidSolver::transport_through(const Grid2& u, const Grid2& v, double dt,
                 x = trace(x, k == 0 ? Vec2d(u.at(i, j), v.at(i, j)) : vel(x), -h, s.advection, vel);
             if (m_wos) x = m_wos->push_out(x);  // as the run's departure points
             x = s.domain.wrap(x);
+            if (maccormack) departure[std::size_t(j) * std::size_t(from.nx()) + std::size_t(i)] = x;
             const double w = cubic ? from.sample_cubic(x) : from.sample(x, s.interpolation);
             out.at(i, j) = std::isfinite(w) ? w : 0.0;
         }
     });
+    if (!maccormack) return;
+    // The run's correction (maccormack_correction) through the same velocity, traced forward in the same substeps.
+    Grid2 corrected = out;
+    parallel_for_units(std::size_t(m_omega.ny()), [&](std::size_t row) {
+        const int j = int(row);
+        for (int i = 0; i < m_omega.nx(); ++i) {
+            Vec2d x = m_omega.cell_center(i, j);
+            for (int k = 0; k < substeps; ++k)
+                x = trace(x, k == 0 ? Vec2d(u.at(i, j), v.at(i, j)) : vel(x), h, s.advection, vel);
+            const double back = finite(x) ? out.sample_cubic(s.domain.wrap(x)) : out.at(i, j);
+            corrected.at(i, j) =
+                maccormack_value(from, from.at(i, j), back, out.at(i, j),
+                                 departure[std::size_t(j) * std::size_t(from.nx()) + std::size_t(i)], true);
+        }
+    });
+    out = corrected;
 }
 
 void MCFluidSolver::measure_budget(double dt) {

@@ -75,10 +75,6 @@ MCFluidParams MCFluidParams::parse(const Properties& props) {
             props.error("velocity", velocity->plugin_name() + ": " + why);
     }
     p.energy_budget = props.get_bool("energy_budget");
-    if (p.energy_budget && s.transport == VorticityTransport::MacCormack)
-        props.error("energy_budget",
-                    "models the cubic and linear lookups; with transport 'maccormack' its correction would be counted "
-                    "as noise");
     if (p.energy_budget && s.boundaries)
         for (const auto& shape : s.boundaries->shapes)
             if (shape->role().moving()) props.error("energy_budget", "covers static boundaries only (a solid moves)");

@@ -18,7 +18,8 @@
 //   noise       = E(A) - E(B)     Monte Carlo noise of the velocity (random departure points)
 //   mollifier   = E(B) - E(C)     the estimator's smoothing of the velocity (source basis and delta)
 //   integrator  = E(C) - E(D)     the backtrace's time integration (Euler or RK4, velocity frozen over the step)
-//   transport   = E(D) - E(n)     the lookup (linear or cubic interpolation of the previous state)
+//   transport   = E(D) - E(n)     the lookup (linear or cubic interpolation of the previous state; with MacCormack's
+//                                 correction, which every re-run applies through its own velocity, the corrected one)
 //
 // add up to the step's change E(A) - E(n) exactly. Viscosity is not covered (refused). With static walls
 // (walk_on_spheres, 2D) the energies and the velocity of B = C are WallFlow2's (a Poisson solve inside the walls: the
