@@ -53,8 +53,8 @@ const char* to_string(Advection a);
 /// term, for one more lookup and a forward trace through the cached cell-centre velocity (no new Monte Carlo
 /// queries). With viscosity the correction is of the advection only (the diffusion is not undone); in 3D it corrects
 /// the lookup before the stretching, per component (the stretching of the step is kept), and smoke is carried by the
-/// cubic lookup. The 2D energy budget models the correction (each re-run applies it), the 3D one does not (refused). The Biot–Savart source stays the cache's
-/// `interpolation` in every case.
+/// cubic lookup. The 2D energy budget models the correction (each re-run applies it), the 3D one does not (refused).
+/// The Biot–Savart source stays the cache's `interpolation` in every case.
 enum class VorticityTransport { Linear, Cubic, MacCormack };
 const char* to_string(VorticityTransport t);
 
