@@ -321,9 +321,10 @@ void MCFluidSolver::set_energy_budget(bool on) {
         return;
     }
     if (m_settings.boundaries)
-        for (const auto& shape : m_settings.boundaries->shapes)
-            if (shape->role().moving())
-                throw_runtime("MCFluidSolver: the energy budget covers static boundaries only (a solid moves)");
+        if (const std::string why =
+                check_wall_budget(*m_settings.boundaries, m_settings.domain, m_settings.nx, m_settings.ny);
+            !why.empty())
+            throw_runtime("MCFluidSolver: the energy budget {}", why);
     if (m_settings.viscosity > 0) throw_runtime("MCFluidSolver: the energy budget covers inviscid flows only");
     m_budget_step = m_budget_total = {};
     if (m_wos) {

@@ -76,8 +76,8 @@ MCFluidParams MCFluidParams::parse(const Properties& props) {
     }
     p.energy_budget = props.get_bool("energy_budget");
     if (p.energy_budget && s.boundaries)
-        for (const auto& shape : s.boundaries->shapes)
-            if (shape->role().moving()) props.error("energy_budget", "covers static boundaries only (a solid moves)");
+        if (const std::string why = check_wall_budget(*s.boundaries, s.domain, s.nx, s.ny); !why.empty())
+            props.error("energy_budget", why);
     if (p.energy_budget && s.viscosity > 0) props.error("energy_budget", "covers inviscid flows only (viscosity 0)");
     if (cache->resolution_z() != 0) props.error("cache", "resolution_z is for 3D caches (dimension = 3)");
     return p;

@@ -1,9 +1,12 @@
 // The deterministic flow of a cell vorticity inside free-slip boundaries, for the 2D energy budget with walls
 // (include/kelvin/fluid/energy_budget.h, WallFlow2).
 #include <kelvin/core/error.h>
+#include <kelvin/core/logging.h>
 #include <kelvin/core/parallel.h>
 #include <kelvin/fluid/boundary.h>
 #include <kelvin/fluid/energy_budget.h>
+
+#include <fmt/format.h>
 
 #include <algorithm>
 #include <cmath>
@@ -81,10 +84,15 @@ struct WallFlow2::Impl {
             return;
         }
         const int max_iterations = 20 * (nx + ny) + 1000;
-        for (; iterations < max_iterations; ++iterations) {
+        for (;; ++iterations) {
             double rn = 0;
             for (std::size_t c = 0; c < cells; ++c) rn += r[c] * r[c];
             if (std::sqrt(rn) <= 1e-12 * bnorm) break;
+            if (iterations == max_iterations) {  // not expected (SPD, well conditioned): said, not hidden
+                log_warn("energy budget: the Poisson solve stopped at {} iterations with a relative residual of {:.3g}",
+                         iterations, std::sqrt(rn) / bnorm);
+                break;
+            }
             apply(p, q);
             double pq = 0;
             for (std::size_t c = 0; c < cells; ++c) pq += p[c] * q[c];
@@ -103,6 +111,37 @@ struct WallFlow2::Impl {
         }
     }
 };
+
+std::string check_wall_budget(const WosVelocityOptions& options, const Domain2& domain, int nx, int ny) {
+    for (const auto& shape : options.shapes) {
+        if (shape->role().moving())
+            return fmt::format("covers static boundaries only ({} moves)", shape->description());
+        if (!shape->has_inside())
+            return fmt::format("needs solids with an inside: {} has none (its Poisson solve sees solid cells only)",
+                               shape->description());
+    }
+    const WosVelocityField field(options, domain, nullptr, Interpolation::Bilinear, 0.0);
+    const Grid2 g(domain, nx, ny);
+    std::vector<char> holds(options.shapes.size(), 0);
+    for (int j = 0; j < ny; ++j)
+        for (int i = 0; i < nx; ++i) {
+            const Vec2d x = g.cell_center(i, j);
+            const int s = field.solid_at(x);
+            if (s >= 0) {
+                holds[std::size_t(s)] = 1;
+            } else if (!domain.periodic && !field.walls() && (i == 0 || j == 0 || i == nx - 1 || j == ny - 1)) {
+                return fmt::format(
+                    "needs the fluid enclosed: the cell at ({:g}, {:g}) is fluid on the edge of a box "
+                    "without walls",
+                    x.x, x.y);
+            }
+        }
+    for (std::size_t k = 0; k < options.shapes.size(); ++k)
+        if (!holds[k])
+            return fmt::format("needs every solid to hold a cell centre of the {}x{} cache: {} is thinner than a cell",
+                               nx, ny, options.shapes[k]->description());
+    return "";
+}
 
 WallFlow2::WallFlow2(const WosVelocityField& field, const Domain2& domain, int nx, int ny)
     : m(std::make_unique<Impl>()) {

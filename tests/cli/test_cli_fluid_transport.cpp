@@ -86,6 +86,9 @@ TEST(CliFluidTransport, BadTransportAndBudgetAreOneLineNamingTheParameter) {
     EXPECT_CONTAINS(walls.err + walls.out, ", boundary ");
     EXPECT_CONTAINS(expect_one_error_line(run_kelvin({with_budget("moving_square.xml", "moving.xml"), "-o", out})),
                     "parameter 'energy_budget': covers static boundaries only");
+    // A solid thinner than a cell has no cells for the budget's Poisson solve: refused, not silently left out.
+    EXPECT_CONTAINS(expect_one_error_line(run_kelvin({with_budget("subgrid_obstacle.xml", "subgrid.xml"), "-o", out})),
+                    "parameter 'energy_budget': needs every solid to hold a cell centre");
     EXPECT_CONTAINS(expect_one_error_line(run_kelvin(
                         {Scenes + "co_rotating_vortices.xml", "-D", "budget=true", "-D", "nu=0.01", "-o", out})),
                     "parameter 'energy_budget': covers inviscid flows only");

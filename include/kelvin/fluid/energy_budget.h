@@ -30,7 +30,8 @@
 //                                 extended into the solids by its fluid neighbours' mean instead)
 //   transport   = E(E) - E(n)
 //
-// Moving solids are refused (the geometry is fixed when the budget starts).
+// Refused (check_wall_budget): moving solids (the geometry is fixed when the budget starts), and boundaries the grid
+// does not represent.
 //
 // In 3D (MCFluid3Solver) the step also stretches the vorticity it reads: omega(x_d) + dt |omega| / h [v(x_d + h/2 w)
 // - v(x_d - h/2 w)], the vortex-segment estimate (Eq. 5.21) on the cached velocity. The exact inviscid dynamics still
@@ -114,6 +115,13 @@ private:
 };
 
 class WosVelocityField;  // boundary.h
+struct WosVelocityOptions;
+
+/// Why the budget's Poisson solve (WallFlow2) cannot represent these boundaries on an nx x ny grid (empty: it can):
+/// a moving solid; a boundary without an inside (a triangle soup: no cell is solid, the solve would not see it); a
+/// solid that holds no cell centre (thinner than a cell); fluid cells on the edge of an open box without walls (an
+/// exterior flow the grid does not bound).
+std::string check_wall_budget(const WosVelocityOptions& options, const Domain2& domain, int nx, int ny);
 
 /// The flow of a cell-centred vorticity field inside free-slip boundaries (2D): the stream function psi of the cell
 /// values by a Dirichlet Poisson solve on the fluid cells (cell centres outside every solid), -laplacian psi = omega,
