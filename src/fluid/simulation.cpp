@@ -269,7 +269,7 @@ void Solver2Run::warn() const {
 
 std::string Solver2Run::summary(const std::string&) {
     if (!m_have_d0)
-        return fmt::format("t = {:g}: stopped in the initial state's field pass (the image shows the seeded vorticity)",
+        return fmt::format("t = {:g}: stopped before the initial state's fields were computed (no diagnostics)",
                            m_solver->time());
     const FluidDiagnostics dn = m_solver->diagnostics();
     return fmt::format(
