@@ -280,9 +280,6 @@ void MCFluid3Solver::set_energy_budget(bool on) {
     if (m_settings.boundaries)
         throw_runtime("MCFluid3Solver: the energy budget covers flows without boundaries (walk_on_spheres) only");
     if (m_settings.viscosity > 0) throw_runtime("MCFluid3Solver: the energy budget covers inviscid flows only");
-    if (m_settings.transport == VorticityTransport::MacCormack)
-        throw_runtime(
-            "MCFluid3Solver: the energy budget models the cubic and linear lookups, not MacCormack's correction");
     m_flow = std::make_unique<FlowFFT3>(m_settings.domain, m_settings.nx, m_settings.ny, m_settings.nz);
     m_budget_step = m_budget_total = {};
     m_budget_total.energy = m_budget_step.energy = m_flow->energy(m_omega);
@@ -298,7 +295,8 @@ void MCFluid3Solver::budget_step(const VectorGrid3& u, double dt, int substeps, 
         return f != 0 ? f * (u.sample(p, s.interpolation) - last->sample(p, s.interpolation)) : Vec3d(0.0);
     };
     auto vel = [&](const Vec3d& p) { return u.sample_cubic(p) + extra(p); };
-    const bool cubic = s.transport == VorticityTransport::Cubic;
+    const bool maccormack = s.transport == VorticityTransport::MacCormack;
+    const bool cubic = s.transport != VorticityTransport::Linear;
     const Interpolation interp = s.interpolation;
     const double half_segment = 0.5 * m_segment, inv_segment = 1.0 / m_segment;
     const double eps = 1e-3 * m_segment;  // the exact stretching's segment
@@ -307,6 +305,13 @@ void MCFluid3Solver::budget_step(const VectorGrid3& u, double dt, int substeps, 
     // box around a ring): there it would change the energy by less than 1e-20 of it.
     const double negligible = 1e-10 * m_omega.max_norm();
     auto finite = [](const Vec3d& v) { return std::isfinite(v.x) && std::isfinite(v.y) && std::isfinite(v.z); };
+    // MacCormack: each cell's departure point and plain lookup, for the correction the run applies (below).
+    VectorGrid3 advected;
+    std::vector<Vec3d> departure;
+    if (maccormack) {
+        advected = VectorGrid3(s.domain, s.nx, s.ny, s.nz);
+        departure.resize(advected.cell_count());
+    }
     parallel_for_units(std::size_t(s.nz), [&](std::size_t slab) {
         const int k = int(slab);
         for (int j = 0; j < s.ny; ++j)
@@ -317,6 +322,10 @@ void MCFluid3Solver::budget_step(const VectorGrid3& u, double dt, int substeps, 
                 for (int sub = 0; sub < substeps; ++sub) x = trace(x, sub == 0 ? u0 : vel(x), -h, s.advection, vel);
                 x = s.domain.wrap(x);
                 const Vec3d om = cubic ? m_omega.sample_cubic(x) : m_omega.sample(x, interp);
+                if (maccormack) {
+                    departure[c] = x;
+                    advected.set(c, finite(om) ? om : Vec3d(0.0));
+                }
                 const double mag = glm::length(om);
                 const bool stretch = s.stretching && mag > 0 && std::isfinite(mag);
                 if (as_run) {  // as the run: the vortex segment (Eq. 5.21) on u read as the cache, forward Euler
@@ -342,6 +351,26 @@ void MCFluid3Solver::budget_step(const VectorGrid3& u, double dt, int substeps, 
                     }
                     exact->set(c, finite(w) ? w : Vec3d(0.0));
                 }
+            }
+    });
+    if (!maccormack) return;
+    // The run's correction (maccormack_correction) through the same velocity, traced forward in the same substeps,
+    // added to both results: the stretching acts on the plain lookup, the correction comes after it, as in the run.
+    parallel_for_units(std::size_t(s.nz), [&](std::size_t slab) {
+        const int k = int(slab);
+        for (int j = 0; j < s.ny; ++j)
+            for (int i = 0; i < s.nx; ++i) {
+                const std::size_t c = m_omega.x.index(i, j, k);
+                Vec3d x = m_omega.x.cell_center(i, j, k);
+                const Vec3d u0 = f != 0 ? u.at(c) + f * (u.at(c) - last->at(c)) : u.at(c);
+                for (int sub = 0; sub < substeps; ++sub) x = trace(x, sub == 0 ? u0 : vel(x), h, s.advection, vel);
+                if (!finite(x)) continue;
+                const Vec3d back = advected.sample_cubic(s.domain.wrap(x));
+                const Vec3d delta =
+                    maccormack_clamped(m_omega, departure[c], advected.at(c), 0.5 * (m_omega.at(c) - back));
+                if (!finite(delta)) continue;
+                if (as_run) as_run->set(c, as_run->at(c) + delta);
+                if (exact) exact->set(c, exact->at(c) + delta);
             }
     });
 }

@@ -512,7 +512,6 @@ bool MCFluid3Solver::maccormack_correction(double dt) {
     // The forward trace through the cached cell-centre velocity of the old state (read between the centres by the
     // cubic interpolant): the same frozen velocity the backtrace used, run forward.
     auto vel = [&](const Vec3d& p) { return m_vel.sample_cubic(p) + midstep_correction(p); };
-    const Vec3d h = m_omega.x.h();
     SlabPass pass(*m_comm, std::size_t(s.nz), std::size_t(s.nx) * std::size_t(s.ny));
     SlabWork work;  // no random draws, nothing counted: the pass only reads the state
     const bool complete = for_each_cell(
@@ -522,25 +521,10 @@ bool MCFluid3Solver::maccormack_correction(double dt) {
             const Vec3d xf = trace(x, u0, dt, s.advection, vel);
             if (!finite(xf)) return;
             const Vec3d back = m_advected.sample_cubic(s.domain.wrap(xf));
-            const Vec3d a = m_advected.at(c);
-            Vec3d delta = 0.5 * (m_omega.at(c) - back);
             // Clamped to the range of the 2x2x2 cells around the departure point, per component; a
             // component outside it keeps the plain lookup (Selle et al. 2008).
-            const Vec3d g = (m_departure[c] - s.domain.min) / h - Vec3d(0.5);
-            const int i0 = int(std::floor(g.x)), j0 = int(std::floor(g.y)), k0 = int(std::floor(g.z));
-            for (int comp = 0; comp < 3; ++comp) {
-                const Grid3& om = comp == 0 ? m_omega.x : comp == 1 ? m_omega.y : m_omega.z;
-                double lo = std::numeric_limits<double>::infinity(), hi = -lo;
-                for (int dk = 0; dk < 2; ++dk)
-                    for (int dj = 0; dj < 2; ++dj)
-                        for (int di = 0; di < 2; ++di) {
-                            const double v = om.at_bc(i0 + di, j0 + dj, k0 + dk);
-                            lo = std::min(lo, v);
-                            hi = std::max(hi, v);
-                        }
-                const double corrected = a[comp] + delta[comp];
-                if (!(corrected >= lo && corrected <= hi)) delta[comp] = 0;
-            }
+            const Vec3d delta =
+                maccormack_clamped(m_omega, m_departure[c], m_advected.at(c), 0.5 * (m_omega.at(c) - back));
             m_next.set(c, m_next.at(c) + delta);
         });
     if (!complete) return false;

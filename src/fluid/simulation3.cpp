@@ -60,10 +60,6 @@ Simulation3Params Simulation3Params::parse(const Properties& props) {
         if (props.has(name))
             props.error(name, "is a 2D parameter (3D backtraces read a fresh estimate at every Runge–Kutta stage)");
     p.energy_budget = props.get_bool("energy_budget");
-    if (p.energy_budget && s.transport == VorticityTransport::MacCormack)
-        props.error("energy_budget",
-                    "models the cubic and linear lookups; with transport 'maccormack' its correction would be counted "
-                    "as noise");
     if (p.energy_budget && s.viscosity > 0) props.error("energy_budget", "covers inviscid flows only (viscosity 0)");
     s.stretching = props.get_bool("stretching");
     const std::string vt = props.get_choice("velocity_time", {"auto", "midstep", "start"});
