@@ -14,6 +14,7 @@
 #   tools/convergence_reports.sh fluid-long       # long times: inviscid Taylor–Green to t = 20, the 3D ring to t = 2
 #   tools/convergence_reports.sh fluid-leapfrog   # leapfrogging rings to t = 4: passes, merger, energy, impulse of
 #                                                 #   the 3D solvers at equal wall time against the exact dynamics
+#   tools/convergence_reports.sh fluid-leapfrog-twice  # rings that leapfrog twice (t = 12), the same protocol
 #   tools/convergence_reports.sh mlt            # the MLT family at equal time (MLT_REF=reference.exr, MLT_GEOMETRY)
 #   tools/convergence_reports.sh mlt-door       # the thesis' equal-time protocol on one scene (docs/studies/mlt.md):
 #   tools/convergence_reports.sh mlt-caustic    #   reference, normalisation from it, PSSMLT/G's sigma matched to DR,
@@ -246,6 +247,48 @@ mlt_sigma_configs() {  # (mlt_study's locals) the PSSMLT family's configurations
     } >"$setup/configs"
 }
 
+# leapfrog_study NAME SCENE END TIMES TITLE REFERENCE_ARGS FINE BASELINE_RUNS: the 3D solvers on coaxial rings to t =
+# END against the exact axisymmetric dynamics (build/bin/ring_reference with REFERENCE_ARGS, its cores found on the
+# solvers' spacing): MCFluid at the scene's defaults with seeds 1..RUNS, stable_fluids and flip at the scene's grid
+# and on the finer grids FINE ("solver:res ..."), BASELINE_RUNS runs each. Runs already in $OUT/NAME are kept
+# (FRESH=1: all again). Table (medians over runs; energy and impulse at TIMES) and the core-track figure:
+# tools/fluid_leapfrog_table.py; the figure goes to docs/img/convergence_<NAME with _>_cores.png.
+leapfrog_study() {
+    local name=$1 scene=$2 end=$3 times=$4 title=$5 refargs=$6 fine=$7 base_runs=$8
+    local d="$OUT/$name"
+    [[ "${FRESH:-0}" == 1 ]] && rm -rf "$d"
+    mkdir -p "$d"
+    touch "$d/seconds.txt"
+    leap_run() {  # leap_run NAME -D...: one run into $d/NAME (unless it is there), its wall seconds into seconds.txt
+        local run=$1
+        shift
+        if [[ -f "$d/$run/diagnostics.csv" ]] && grep -q "^$run " "$d/seconds.txt"; then return; fi
+        local t0 t1
+        t0=$(date +%s.%N)
+        "$KELVIN" "$scene" -D end="$end" -D every=0 -t "$THREADS" -q -o "$d/$run.exr" "$@"
+        t1=$(date +%s.%N)
+        sed -i "/^$run /d" "$d/seconds.txt"
+        echo "$run $(/usr/bin/python3 -c "print($t1 - $t0)")" >>"$d/seconds.txt"
+    }
+    # shellcheck disable=SC2086
+    [[ -f "$d/reference.csv" ]] ||
+        "${RING_REFERENCE:-build/bin/ring_reference}" $refargs --circulation 1 --dt 0.05 --end "$end" \
+            -o "$d/reference.csv"
+    for r in $(seq 1 "$RUNS"); do
+        leap_run "mcfluid_r$r" -D solver=mcfluid --seed "$r"
+        if ((r <= base_runs)); then
+            for s in stable_fluids flip; do leap_run "${s}_r$r" -D solver=$s --seed "$r"; done
+            for sr in $fine; do leap_run "${sr%:*}-${sr#*:}_r$r" -D solver=${sr%:*} -D res=${sr#*:} --seed "$r"; done
+        fi
+    done
+    local sigma
+    sigma=$(sed -n 's/.*--core \([0-9.]*\).*/\1/p' <<<"$refargs")
+    /usr/bin/python3 tools/fluid_leapfrog_table.py "$d" --sigma "$sigma" --times "$times" --title "$title" \
+        --plot "$d/leapfrog_cores.png" | tee "$d/summary.md"
+    [[ -f "$d/leapfrog_cores.png" ]] && cp "$d/leapfrog_cores.png" "docs/img/convergence_${name//-/_}_cores.png"
+    return 0
+}
+
 report() {
     case "$1" in
     fluid-nmc)
@@ -367,34 +410,16 @@ report() {
         # flip:50: measured 11.7 and 12.2 s against MCFluid's 12.9 s on 2 idle cores), RUNS runs each. Runs already in
         # $OUT are kept (FRESH=1: all again). Table (medians over runs) and the core-track figure:
         # tools/fluid_leapfrog_table.py; the figure goes to docs/img/convergence_fluid_leapfrog_cores.png.
-        local d="$OUT/fluid-leapfrog"
-        [[ "${FRESH:-0}" == 1 ]] && rm -rf "$d"
-        mkdir -p "$d"
-        touch "$d/seconds.txt"
-        leap_run() {  # leap_run NAME -D...: one run into $d/NAME (unless it is there), its wall seconds into seconds.txt
-            local name=$1
-            shift
-            if [[ -f "$d/$name/diagnostics.csv" ]] && grep -q "^$name " "$d/seconds.txt"; then return; fi
-            local t0 t1
-            t0=$(date +%s.%N)
-            "$KELVIN" scenes/fluid/leapfrog.xml -D end=4 -D every=0 -t "$THREADS" -q -o "$d/$name.exr" "$@"
-            t1=$(date +%s.%N)
-            sed -i "/^$name /d" "$d/seconds.txt"
-            echo "$name $(/usr/bin/python3 -c "print($t1 - $t0)")" >>"$d/seconds.txt"
-        }
-        [[ -f "$d/reference.csv" ]] ||
-            "${RING_REFERENCE:-build/bin/ring_reference}" --radius 1 --circulation 1 --core 0.2 --offsets 0,0.6 \
-                --dt 0.05 --end 4 --spacing 0.10416666666666667 -o "$d/reference.csv"
-        for r in $(seq 1 "$RUNS"); do
-            leap_run "mcfluid_r$r" -D solver=mcfluid --seed "$r"
-            for s in stable_fluids flip; do leap_run "${s}_r$r" -D solver=$s --seed "$r"; done
-            for sr in ${LEAPFROG_FINE:-stable_fluids:80 flip:50}; do
-                leap_run "${sr%:*}-${sr#*:}_r$r" -D solver=${sr%:*} -D res=${sr#*:} --seed "$r"
-            done
-        done
-        /usr/bin/python3 tools/fluid_leapfrog_table.py "$d" --sigma 0.2 --plot "$d/leapfrog_cores.png" |
-            tee "$d/summary.md"
-        [[ -f "$d/leapfrog_cores.png" ]] && cp "$d/leapfrog_cores.png" docs/img/convergence_fluid_leapfrog_cores.png ;;
+        leapfrog_study fluid-leapfrog scenes/fluid/leapfrog.xml 4 "2,4" "R 1, sigma 0.2, 0.6 apart" \
+            "--radius 1 --core 0.2 --offsets 0,0.6 --spacing 0.10416666666666667" \
+            "${LEAPFROG_FINE:-stable_fluids:80 flip:50}" "$RUNS" ;;
+    fluid-leapfrog-twice)
+        # Rings that leapfrog twice in the exact dynamics (scenes/fluid/leapfrog_twice.xml: R 1.5, sigma 0.2, centres
+        # 1.1 apart, to t = 12), the same protocol; the grid baselines are deterministic, so they run once
+        # (LEAPFROG_TWICE_FINE: their finer grids, default stable_fluids:96 and flip:64).
+        leapfrog_study fluid-leapfrog-twice scenes/fluid/leapfrog_twice.xml 12 "4,8,12" "R 1.5, sigma 0.2, 1.1 apart" \
+            "--radius 1.5 --core 0.2 --offsets 0,1.1 --spacing 0.1" \
+            "${LEAPFROG_TWICE_FINE:-stable_fluids:96 flip:64}" 1 ;;
     fluid-shear)
         # The shear layer has no exact solution: two references at 512^2 and dt = 0.0125 (stable fluids and FLIP,
         # kept in $OUT), the four solvers at 32^2..128^2 against each, at t = 2 (before the roll-up saturates).
@@ -441,7 +466,7 @@ report() {
         for r in fluid-nmc fluid-cells fluid-dt fluid-params fluid-visual fluid-baselines fluid-lamb-oseen \
             fluid-obstacle fluid-shear; do report "$r"; done ;;
     *)
-        echo "usage: $0 fluid-nmc|fluid-cells|fluid-dt|fluid-params|fluid-visual|fluid-baselines|fluid-lamb-oseen|fluid-obstacle|fluid-shear|fluid-long|fluid-leapfrog|mlt|mlt-door|mlt-caustic|mlt-plates|mlt-pool|mlt-all|mmlt-door|mmlt-aquarium|mlt-torus|mlt-chess|all" >&2
+        echo "usage: $0 fluid-nmc|fluid-cells|fluid-dt|fluid-params|fluid-visual|fluid-baselines|fluid-lamb-oseen|fluid-obstacle|fluid-shear|fluid-long|fluid-leapfrog|fluid-leapfrog-twice|mlt|mlt-door|mlt-caustic|mlt-plates|mlt-pool|mlt-all|mmlt-door|mmlt-aquarium|mlt-torus|mlt-chess|all" >&2
         exit 2 ;;
     esac
 }

@@ -1,7 +1,7 @@
 #!/usr/bin/python3
 """Summarise the leapfrogging-rings runs of `tools/convergence_reports.sh fluid-leapfrog` as a Markdown table.
 
-Usage: fluid_leapfrog_table.py DIR [--sigma 0.2] [--plot FILE.png]
+Usage: fluid_leapfrog_table.py DIR [--sigma 0.2] [--times 2,4] [--title TEXT] [--plot FILE.png]
 
 DIR holds one run folder per (solver, run), named <label>_r<run> (the folder `kelvin -o DIR/<name>.exr` writes, with
 its diagnostics.csv and its core1_r, core1_z, core1_circulation, core2_... columns), a file seconds.txt of
@@ -18,12 +18,13 @@ Per run, from the two cores of each state (sorted by z in the CSV):
     the (r, z) plane, the rear one inner while it catches up; sorted by z, a pass is where the front core goes from
     outer to inner (r_front - r_rear from + to -) while their z differ less than their r (which tells it from the
     half-way point, where the front core turns outer again with the two at equal r and far apart in z). A state
-    with one core between the two sides (the cores too close for two maxima while passing) counts too; the pass
-    time is the zero of r_front - r_rear interpolated between the states on each side. After a pass, another
+    with one core between the two sides (the cores too close for two maxima while passing) counts too, and so does a
+    state whose two cores are closer than 1.5 sigma (merged by the rule above: one ring's core seen as two maxima);
+    the pass time is the zero of r_front - r_rear interpolated between the states on each side. After a pass, another
     counts only once the cores have been through the half-way point (z differing more than r), so the order of two
     cores at nearly the same z flickering in the noise is one pass;
-  - the energy (kinetic_energy, mcfluid's noise-corrected) and the impulse (impulse_z) at t = 2 and t = 4 relative
-    to t = 0 (the exact ratios are 1);
+  - the energy (kinetic_energy, mcfluid's noise-corrected) and the impulse (impulse_z) at the times of --times
+    (default t = 2 and t = 4) relative to t = 0 (the exact ratios are 1);
   - the ring speed: the least-squares slope over the run of the circulation-weighted mean z of the cores found,
     and relative to the reference's;
   - wall seconds.
@@ -69,7 +70,7 @@ def merged(cores, sigma):
     return min(c1, c2) < max(c1, c2) / 3
 
 
-def analyse(rows, sigma):
+def analyse(rows, sigma, at_times=(2.0, 4.0)):
     times = [float(r["time"]) for r in rows]
     cores = [cores_of(r) for r in rows]
     flags = [merged(c, sigma) for c in cores]
@@ -97,7 +98,7 @@ def analyse(rows, sigma):
     armed = True  # a pass counts only after the half-way point (dz > |dr|) since the last one
     for i in range(end_two):
         c = cores[i]
-        if len(c) < 2:
+        if len(c) < 2 or flags[i]:  # one core, or two too close to be two rings (one ring's core seen twice)
             continue
         dr, dz = c[1][0] - c[0][0], c[1][1] - c[0][1]
         if dz > abs(dr):
@@ -136,10 +137,8 @@ def analyse(rows, sigma):
         "pass_times": passes,
         "merger": merger,
         "end": times[-1],
-        "E2": ratio(2, energy),
-        "E4": ratio(4, energy),
-        "P2": ratio(2, "impulse_z"),
-        "P4": ratio(4, "impulse_z"),
+        "E": [ratio(t, energy) for t in at_times],
+        "P": [ratio(t, "impulse_z") for t in at_times],
         "speed": speed,
     }
 
@@ -159,8 +158,11 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("dir")
     ap.add_argument("--sigma", type=float, default=0.2, help="the rings' Gaussian core radius (merger distance)")
+    ap.add_argument("--times", default="2,4", help="the times of the energy and impulse columns")
+    ap.add_argument("--title", default="R 1, sigma 0.2, 0.6 apart", help="the rings, for the figure's title")
     ap.add_argument("--plot", default=None, help="write the core-track figure here (needs matplotlib)")
     args = ap.parse_args()
+    times = [float(t) for t in args.times.split(",")]
     d = Path(args.dir)
     seconds = {}
     if (d / "seconds.txt").exists():
@@ -176,24 +178,29 @@ def main():
         if not rows or "core1_z" not in rows[0]:
             print(f"fluid_leapfrog_table: {csvp} has no core columns; skipped", file=sys.stderr)
             continue
-        a = analyse(rows, args.sigma)
+        a = analyse(rows, args.sigma, times)
         a["seconds"] = seconds.get(name, float("nan"))
         a["rows"] = rows
         runs.setdefault(label, []).append((run, a))
     ref = None
     if (d / "reference.csv").exists():
         rrows = read_rows(d / "reference.csv")
-        ref = analyse(rrows, args.sigma)
+        ref = analyse(rrows, args.sigma, times)
         ref["seconds"] = float(rrows[-1].get("seconds", "nan") or "nan")
         ref["rows"] = rrows
         # The reference's impulse and "energy": it conserves both (the impulse column is its own; energy: exact).
-        ref["E2"] = ref["E4"] = 1.0
+        ref["E"] = [1.0 for _ in times]
     if not runs and ref is None:
         sys.exit(f"fluid_leapfrog_table: no run folders with a diagnostics.csv and no reference.csv in {d}")
 
-    print("| solver | runs | passes before merger | pass times | merger t | E(2)/E(0) | E(4)/E(0) | P(2)/P(0) | "
-          "P(4)/P(0) | ring speed | speed / exact | wall s |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
+    def tname(t):
+        return f"{t:g}"
+
+    ecols = " | ".join(f"E({tname(t)})/E(0)" for t in times)
+    pcols = " | ".join(f"P({tname(t)})/P(0)" for t in times)
+    print(f"| solver | runs | passes before merger | pass times | merger t | {ecols} | {pcols} | ring speed | "
+          "speed / exact | wall s |")
+    print("|---|---|---|---|---|" + "---|" * (2 * len(times)) + "---|---|---|")
     ref_speed = ref["speed"] if ref else float("nan")
 
     def line(label, items):
@@ -207,9 +214,9 @@ def main():
         merger_text = fmt_range(merger, "{:.1f}") if any(x is not None for x in merger) else "- (two rings at the end)"
         print(f"| {label} | {n} | {fmt_range([a['passes'] for a in items], '{:.0f}')} | "
               f"{'; '.join(pass_cols) if pass_cols else '-'} | {merger_text} | "
-              f"{fmt_range([a['E2'] for a in items])} | {fmt_range([a['E4'] for a in items])} | "
-              f"{fmt_range([a['P2'] for a in items])} | {fmt_range([a['P4'] for a in items])} | "
-              f"{fmt_range([a['speed'] for a in items])} | "
+              + "".join(f"{fmt_range([a['E'][k] for a in items])} | " for k in range(len(times)))
+              + "".join(f"{fmt_range([a['P'][k] for a in items])} | " for k in range(len(times)))
+              + f"{fmt_range([a['speed'] for a in items])} | "
               f"{fmt_range([a['speed'] / ref_speed for a in items])} | "
               f"{fmt_range([a['seconds'] for a in items], '{:.1f}')} |")
 
@@ -265,8 +272,7 @@ def main():
             ar.grid(alpha=0.3)
         axes[-1][0].set_xlabel("t")
         axes[-1][1].set_xlabel("t")
-        fig.suptitle(f"Leapfrogging rings (R 1, sigma {args.sigma:g}, 0.6 apart): cores of the azimuthal mean of "
-                     "omega_theta", fontsize=10)
+        fig.suptitle(f"Leapfrogging rings ({args.title}): cores of the azimuthal mean of omega_theta", fontsize=10)
         fig.tight_layout()
         fig.savefig(args.plot, dpi=110)
 
