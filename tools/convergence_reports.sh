@@ -247,14 +247,15 @@ mlt_sigma_configs() {  # (mlt_study's locals) the PSSMLT family's configurations
     } >"$setup/configs"
 }
 
-# leapfrog_study NAME SCENE END TIMES TITLE REFERENCE_ARGS FINE BASELINE_RUNS: the 3D solvers on coaxial rings to t =
-# END against the exact axisymmetric dynamics (build/bin/ring_reference with REFERENCE_ARGS, its cores found on the
-# solvers' spacing): MCFluid at the scene's defaults with seeds 1..RUNS, stable_fluids and flip at the scene's grid
-# and on the finer grids FINE ("solver:res ..."), BASELINE_RUNS runs each. Runs already in $OUT/NAME are kept
-# (FRESH=1: all again). Table (medians over runs; energy and impulse at TIMES) and the core-track figure:
-# tools/fluid_leapfrog_table.py; the figure goes to docs/img/convergence_<NAME with _>_cores.png.
+# leapfrog_study NAME SCENE END TIMES TITLE REFERENCE_ARGS BASELINES BASELINE_RUNS [EXTRA]: the 3D solvers on coaxial
+# rings to t = END against the exact axisymmetric dynamics (build/bin/ring_reference with REFERENCE_ARGS, its cores
+# found on the solvers' spacing): MCFluid at the scene's defaults with seeds 1..RUNS; BASELINES and EXTRA are lists of
+# "label:name=value,..." runs by -D (BASELINES BASELINE_RUNS times each, EXTRA once, with solver=mcfluid unless the
+# entry sets it). Runs already in $OUT/NAME are kept (FRESH=1: all again). Table (medians over runs; energy and
+# impulse at TIMES) and the core-track figure: tools/fluid_leapfrog_table.py; the figure goes to
+# docs/img/convergence_<NAME with _>_cores.png.
 leapfrog_study() {
-    local name=$1 scene=$2 end=$3 times=$4 title=$5 refargs=$6 fine=$7 base_runs=$8
+    local name=$1 scene=$2 end=$3 times=$4 title=$5 refargs=$6 baselines=$7 base_runs=$8 extra=${9:-}
     local d="$OUT/$name"
     [[ "${FRESH:-0}" == 1 ]] && rm -rf "$d"
     mkdir -p "$d"
@@ -270,16 +271,21 @@ leapfrog_study() {
         sed -i "/^$run /d" "$d/seconds.txt"
         echo "$run $(/usr/bin/python3 -c "print($t1 - $t0)")" >>"$d/seconds.txt"
     }
+    entry_run() {  # entry_run "label:name=value,..." RUN: one run of a list entry, seed RUN
+        local defs=(-D solver=mcfluid) kv x
+        IFS=, read -ra kv <<<"${1#*:}"
+        for x in "${kv[@]}"; do defs+=(-D "$x"); done
+        leap_run "${1%%:*}_r$2" "${defs[@]}" --seed "$2"
+    }
     # shellcheck disable=SC2086
     [[ -f "$d/reference.csv" ]] ||
         "${RING_REFERENCE:-build/bin/ring_reference}" $refargs --circulation 1 --dt 0.05 --end "$end" \
             -o "$d/reference.csv"
+    local r e
     for r in $(seq 1 "$RUNS"); do
         leap_run "mcfluid_r$r" -D solver=mcfluid --seed "$r"
-        if ((r <= base_runs)); then
-            for s in stable_fluids flip; do leap_run "${s}_r$r" -D solver=$s --seed "$r"; done
-            for sr in $fine; do leap_run "${sr%:*}-${sr#*:}_r$r" -D solver=${sr%:*} -D res=${sr#*:} --seed "$r"; done
-        fi
+        if ((r == 1)); then for e in $extra; do entry_run "$e" 1; done; fi
+        if ((r <= base_runs)); then for e in $baselines; do entry_run "$e" "$r"; done; fi
     done
     local sigma
     sigma=$(sed -n 's/.*--core \([0-9.]*\).*/\1/p' <<<"$refargs")
@@ -410,16 +416,23 @@ report() {
         # flip:50: measured 11.7 and 12.2 s against MCFluid's 12.9 s on 2 idle cores), RUNS runs each. Runs already in
         # $OUT are kept (FRESH=1: all again). Table (medians over runs) and the core-track figure:
         # tools/fluid_leapfrog_table.py; the figure goes to docs/img/convergence_fluid_leapfrog_cores.png.
+        local base="stable_fluids:solver=stable_fluids flip:solver=flip" sr
+        for sr in ${LEAPFROG_FINE:-stable_fluids:80 flip:50}; do
+            base+=" ${sr%:*}-${sr#*:}:solver=${sr%:*},res=${sr#*:}"
+        done
         leapfrog_study fluid-leapfrog scenes/fluid/leapfrog.xml 4 "2,4" "R 1, sigma 0.2, 0.6 apart" \
-            "--radius 1 --core 0.2 --offsets 0,0.6 --spacing 0.10416666666666667" \
-            "${LEAPFROG_FINE:-stable_fluids:80 flip:50}" "$RUNS" ;;
+            "--radius 1 --core 0.2 --offsets 0,0.6 --spacing 0.10416666666666667" "$base" "$RUNS" ;;
     fluid-leapfrog-twice)
         # Rings that leapfrog twice in the exact dynamics (scenes/fluid/leapfrog_twice.xml: R 1.5, sigma 0.2, centres
-        # 1.1 apart, to t = 12), the same protocol; the grid baselines are deterministic, so they run once
-        # (LEAPFROG_TWICE_FINE: their finer grids, default stable_fluids:96 and flip:64).
+        # 1.1 apart, to t = 12), the same protocol. The grid baselines close the box with free-slip walls, which
+        # 0.5 from the widest ring slow it (its speed 0.49 of the exact one's for stable fluids, 0.72 in a box 1.4x
+        # wider), so they run in the wider box (half=3.4) at the scene's spacing (res 78) and stable fluids also on
+        # a finer grid of about MCFluid's wall time (res 162); deterministic, once each. LEAPFROG_TWICE_EXTRA: MCFluid
+        # variants (default: twice the samples, a finer grid).
         leapfrog_study fluid-leapfrog-twice scenes/fluid/leapfrog_twice.xml 12 "4,8,12" "R 1.5, sigma 0.2, 1.1 apart" \
-            "--radius 1.5 --core 0.2 --offsets 0,1.1 --spacing 0.1" \
-            "${LEAPFROG_TWICE_FINE:-stable_fluids:96 flip:64}" 1 ;;
+            "--radius 1.5 --core 0.2 --offsets 0,1.1 --spacing 0.08727272727272727" \
+            "${LEAPFROG_TWICE_BASELINES:-stable_fluids:solver=stable_fluids,half=3.4,res=78 flip:solver=flip,half=3.4,res=78 stable_fluids-162:solver=stable_fluids,half=3.4,res=162}" \
+            1 "${LEAPFROG_TWICE_EXTRA:-mcfluid-n1024:spp=1024 mcfluid-66:res=66}" ;;
     fluid-shear)
         # The shear layer has no exact solution: two references at 512^2 and dt = 0.0125 (stable fluids and FLIP,
         # kept in $OUT), the four solvers at 32^2..128^2 against each, at t = 2 (before the roll-up saturates).
