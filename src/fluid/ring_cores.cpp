@@ -26,6 +26,10 @@ MeridianGrid azimuthal_mean(const VectorGrid3& vorticity, Vec3d origin, Vec3d ax
         zhi = std::max(zhi, z);
         rhi = std::max(rhi, glm::length(p - z * axis));
     }
+    // At most about two bins per cell along the box's longest side: a box far longer than its cells are wide (a
+    // non-cubic cache clamped in cells) would otherwise ask for more bins than memory holds.
+    const double n_max = double(std::max({nx, ny, nz}));
+    h = std::max({h, (zhi - zlo) / (2 * n_max), rhi / (2 * n_max)});
     g.h = h;
     g.z_min = zlo - h;  // a bin of margin on each side, so that every cell's four bins exist
     g.nr = int(std::ceil(rhi / h)) + 2;

@@ -135,6 +135,19 @@ TEST(RingCores, NoisyFieldStillFindsThem) {
     }
 }
 
+// A box far longer than its cells are wide along the axis (a non-cubic cache clamped in cells: 8 x 8 x 8 cells over
+// 1e155 along z, what the scene fuzzer made of leapfrog_twice.xml) gets a meridian grid of at most about two bins per
+// cell along the box, not one of the cells' width (which asked for 1e155 bins and threw std::length_error).
+TEST(RingCores, AnElongatedBoxGetsABoundedMeridianGrid) {
+    const Domain3 box{Vec3d(-1, -1, -1e155), Vec3d(1, 1, 5), false};
+    VectorGrid3 w(box, 8, 8, 8);
+    w.fill(Vec3d(1, 0, 0));
+    const MeridianGrid g = azimuthal_mean(w, Vec3d(0.0), Vec3d(0, 0, 1), 0.25);
+    EXPECT_LE(g.nz, 2 * 8 + 4);
+    EXPECT_LE(g.nr, 2 * 8 + 4);
+    EXPECT_NO_THROW(ring_cores(w, Vec3d(0.0), Vec3d(0, 0, 1), 2));
+}
+
 // The exact reference's own meridian grid (what `ring_reference` writes its core columns from) gives the same cores
 // as the solvers' azimuthal mean at t = 0, with the same smoothing (peaks within 5 % of the 3D grid's: measured 0.99
 // and 0.96 of them, a bin's value depending on its offset from the core), and after t = 0.5 its two labelled rings
