@@ -312,15 +312,20 @@ void MCFluid3Solver::budget_step(const VectorGrid3& u, double dt, int substeps, 
         advected = VectorGrid3(s.domain, s.nx, s.ny, s.nz);
         departure.resize(advected.cell_count());
     }
+    // Cell c's characteristic through the (extrapolated) velocity over dt in `substeps` steps, backward (sign -1: the
+    // departure point) or forward (+1: MacCormack's check).
+    auto traced = [&](int i, int j, int k, std::size_t c, double sign) {
+        Vec3d x = m_omega.x.cell_center(i, j, k);
+        const Vec3d u0 = f != 0 ? u.at(c) + f * (u.at(c) - last->at(c)) : u.at(c);
+        for (int sub = 0; sub < substeps; ++sub) x = trace(x, sub == 0 ? u0 : vel(x), sign * h, s.advection, vel);
+        return x;
+    };
     parallel_for_units(std::size_t(s.nz), [&](std::size_t slab) {
         const int k = int(slab);
         for (int j = 0; j < s.ny; ++j)
             for (int i = 0; i < s.nx; ++i) {
                 const std::size_t c = m_omega.x.index(i, j, k);
-                Vec3d x = m_omega.x.cell_center(i, j, k);
-                const Vec3d u0 = f != 0 ? u.at(c) + f * (u.at(c) - last->at(c)) : u.at(c);
-                for (int sub = 0; sub < substeps; ++sub) x = trace(x, sub == 0 ? u0 : vel(x), -h, s.advection, vel);
-                x = s.domain.wrap(x);
+                const Vec3d x = s.domain.wrap(traced(i, j, k, c, -1.0));
                 const Vec3d om = cubic ? m_omega.sample_cubic(x) : m_omega.sample(x, interp);
                 if (maccormack) {
                     departure[c] = x;
@@ -361,9 +366,7 @@ void MCFluid3Solver::budget_step(const VectorGrid3& u, double dt, int substeps, 
         for (int j = 0; j < s.ny; ++j)
             for (int i = 0; i < s.nx; ++i) {
                 const std::size_t c = m_omega.x.index(i, j, k);
-                Vec3d x = m_omega.x.cell_center(i, j, k);
-                const Vec3d u0 = f != 0 ? u.at(c) + f * (u.at(c) - last->at(c)) : u.at(c);
-                for (int sub = 0; sub < substeps; ++sub) x = trace(x, sub == 0 ? u0 : vel(x), h, s.advection, vel);
+                const Vec3d x = traced(i, j, k, c, 1.0);
                 if (!finite(x)) continue;
                 const Vec3d back = advected.sample_cubic(s.domain.wrap(x));
                 const Vec3d delta =

@@ -139,6 +139,12 @@ MCFluid3Settings abc_settings(int n, int samples, VorticityTransport t, double d
     return s;
 }
 
+/// The vorticity of the 3D Taylor–Green flow u = (sin x cos y cos z, -cos x sin y cos z, 0).
+Vec3d taylor_green3(const Vec3d& x) {
+    return Vec3d(-std::cos(x.x) * std::sin(x.y) * std::sin(x.z), -std::sin(x.x) * std::cos(x.y) * std::sin(x.z),
+                 2 * std::sin(x.x) * std::sin(x.y) * std::cos(x.z));
+}
+
 /// The standard error of the Monte Carlo kinetic energy diagnostic: sqrt(sum_c sum_a u_a^2 Var(u_a)) h^3.
 double energy_standard_error(MCFluid3Solver& solver) {
     const VectorGrid3& u = solver.velocity_grid();
@@ -295,15 +301,11 @@ TEST(EnergyBudget3, EachTermIsZeroWithoutItsSource) {
 // the wrong sign, omega x u, makes transport +0.10 and +0.04; a mid-step velocity from a half step of lookups did not
 // halve: the lookup's own damping of it was as large as what was measured.)
 TEST(EnergyBudget3, FrozenVelocityTermIsFirstOrderInDt) {
-    auto tg = [](const Vec3d& x) {
-        return Vec3d(-std::cos(x.x) * std::sin(x.y) * std::sin(x.z), -std::sin(x.x) * std::cos(x.y) * std::sin(x.z),
-                     2 * std::sin(x.x) * std::sin(x.y) * std::cos(x.z));
-    };
     MCFluid3Settings s = abc_settings(24, 1, VorticityTransport::Cubic);
     s.estimator = std::make_shared<ExpectedVelocity>();
-    const BudgetRun3 coarse = run(s, tg, 0.3, "taylor-green, expected velocity");
+    const BudgetRun3 coarse = run(s, taylor_green3, 0.3, "taylor-green, expected velocity");
     s.dt = 0.05;
-    const BudgetRun3 fine = run(s, tg, 0.3, "taylor-green, expected velocity");
+    const BudgetRun3 fine = run(s, taylor_green3, 0.3, "taylor-green, expected velocity");
     EXPECT_GT(coarse.budget.integrator, 1e-3 * coarse.e0);
     EXPECT_NEAR(fine.budget.integrator / coarse.budget.integrator, 0.5, 0.12);
     EXPECT_LT(coarse.budget.transport, 0.0);
@@ -316,15 +318,11 @@ TEST(EnergyBudget3, FrozenVelocityTermIsFirstOrderInDt) {
 // correction's own change, +0.0081 of the run's -0.046); and the correction takes part of the cubic lookup's loss
 // out of the transport term (3D Taylor–Green, 24^3, t = 0.3, resolved: measured -0.0224 against -0.0323).
 TEST(EnergyBudget3, MacCormackCorrectionIsInTheTransportTerm) {
-    auto tg = [](const Vec3d& x) {
-        return Vec3d(-std::cos(x.x) * std::sin(x.y) * std::sin(x.z), -std::sin(x.x) * std::cos(x.y) * std::sin(x.z),
-                     2 * std::sin(x.x) * std::sin(x.y) * std::cos(x.z));
-    };
     MCFluid3Settings s = abc_settings(24, 1, VorticityTransport::Cubic);
     s.estimator = std::make_shared<ExpectedVelocity>();
-    const BudgetRun3 cubic = run(s, tg, 0.3, "taylor-green, expected velocity");
+    const BudgetRun3 cubic = run(s, taylor_green3, 0.3, "taylor-green, expected velocity");
     s.transport = VorticityTransport::MacCormack;
-    const BudgetRun3 mac = run(s, tg, 0.3, "taylor-green, expected velocity");
+    const BudgetRun3 mac = run(s, taylor_green3, 0.3, "taylor-green, expected velocity");
     const EnergyBudget& b = mac.budget;
     EXPECT_NEAR(b.noise + b.mollifier + b.integrator + b.stretching + b.transport, b.change, 1e-9 * mac.e0);
     EXPECT_LT(std::abs(b.noise), 1e-10 * mac.e0);

@@ -331,6 +331,27 @@ std::vector<std::string> reference_row(const fs::path& dir, double sigma) {
     return {};
 }
 
+// ring_reference with `args` into dir/reference.csv, then that folder's table row (reference_row); empty on failure.
+std::vector<std::string> exact_row(const fs::path& dir, const std::string& args, double sigma) {
+    fs::create_directories(dir);
+    const std::string cmd =
+        std::string("\"") + KELVIN_RING_REFERENCE + "\" " + args + " -o \"" + (dir / "reference.csv").string() + "\"";
+    EXPECT_EQ(std::system(cmd.c_str()), 0) << cmd;
+    return reference_row(dir, sigma);
+}
+
+/// The two pass times of a table row's pass column ("t1; t2"), checking that there are exactly two.
+void expect_two_passes(const std::vector<std::string>& row, double t1, double t2, double tolerance1,
+                       double tolerance2) {
+    ASSERT_GE(row.size(), 5u);
+    EXPECT_EQ(row[2], "2");
+    double a = 0, b = 0;
+    ASSERT_EQ(std::sscanf(row[3].c_str(), "%lf; %lf", &a, &b), 2) << row[3];
+    EXPECT_NEAR(a, t1, tolerance1);
+    EXPECT_NEAR(b, t2, tolerance2);
+    EXPECT_EQ(row[4].rfind("-", 0), 0u) << "still two rings: " << row[4];
+}
+
 }  // namespace
 
 // The study's pass and merger counts (tools/fluid_leapfrog_table.py) on the exact dynamics from `ring_reference`:
@@ -343,25 +364,11 @@ std::vector<std::string> reference_row(const fs::path& dir, double sigma) {
 TEST(RingReference, StudyTableCountsThePasses) {
     if (!fs::exists("/usr/bin/python3")) GTEST_SKIP() << "no /usr/bin/python3";
     ktest::TempDir dir;
-    fs::create_directories(dir / "thin");
-    fs::create_directories(dir / "thick");
-    const std::string ref = std::string("\"") + KELVIN_RING_REFERENCE + "\"";
-    const std::string thin = ref + " --core 0.1 --per-sigma 2 --dt 0.1 --end 4.5 --spacing 0.05 -o \"" +
-                             (dir / "thin" / "reference.csv").string() + "\"";
-    const std::string thick = ref + " --core 0.2 --dt 0.05 --end 2.2 --spacing 0.1041666667 -o \"" +
-                              (dir / "thick" / "reference.csv").string() + "\"";
-    ASSERT_EQ(std::system(thin.c_str()), 0) << thin;
-    ASSERT_EQ(std::system(thick.c_str()), 0) << thick;
     // Columns: solver, runs, passes, pass times, merger t, ...
-    const std::vector<std::string> a = reference_row(dir / "thin", 0.1);
-    ASSERT_GE(a.size(), 5u);
-    EXPECT_EQ(a[2], "2");
-    double t1 = 0, t2 = 0;
-    ASSERT_EQ(std::sscanf(a[3].c_str(), "%lf; %lf", &t1, &t2), 2) << a[3];
-    EXPECT_NEAR(t1, 1.4, 0.15);
-    EXPECT_NEAR(t2, 4.1, 0.15);
-    EXPECT_EQ(a[4].rfind("-", 0), 0u) << "still two rings: " << a[4];
-    const std::vector<std::string> b = reference_row(dir / "thick", 0.2);
+    expect_two_passes(exact_row(dir / "thin", "--core 0.1 --per-sigma 2 --dt 0.1 --end 4.5 --spacing 0.05", 0.1), 1.4,
+                      4.1, 0.15, 0.15);
+    const std::vector<std::string> b =
+        exact_row(dir / "thick", "--core 0.2 --dt 0.05 --end 2.2 --spacing 0.1041666667", 0.2);
     ASSERT_GE(b.size(), 5u);
     EXPECT_EQ(b[2], "1");
     EXPECT_NEAR(std::stod(b[3]), 1.3, 0.1);
@@ -376,17 +383,8 @@ TEST(RingReference, StudyTableCountsThePasses) {
 TEST(RingReference, TheLeapfrogTwiceScenesRingsPassTwice) {
     if (!fs::exists("/usr/bin/python3")) GTEST_SKIP() << "no /usr/bin/python3";
     ktest::TempDir dir;
-    const std::string cmd = std::string("\"") + KELVIN_RING_REFERENCE +
-                            "\" --radius 1.5 --core 0.2 --offsets 0,1.1 --per-sigma 3 --dt 0.1 --end 12 --spacing 0.1 "
-                            "-o \"" +
-                            (dir.path() / "reference.csv").string() + "\"";
-    ASSERT_EQ(std::system(cmd.c_str()), 0) << cmd;
-    const std::vector<std::string> a = reference_row(dir.path(), 0.2);
-    ASSERT_GE(a.size(), 5u);
-    EXPECT_EQ(a[2], "2");
-    double t1 = 0, t2 = 0;
-    ASSERT_EQ(std::sscanf(a[3].c_str(), "%lf; %lf", &t1, &t2), 2) << a[3];
-    EXPECT_NEAR(t1, 4.6, 0.2);
-    EXPECT_NEAR(t2, 11.0, 0.4);
-    EXPECT_EQ(a[4].rfind("-", 0), 0u) << "still two rings: " << a[4];
+    expect_two_passes(
+        exact_row(dir.path(), "--radius 1.5 --core 0.2 --offsets 0,1.1 --per-sigma 3 --dt 0.1 --end 12 --spacing 0.1",
+                  0.2),
+        4.6, 11.0, 0.2, 0.4);
 }
