@@ -19,7 +19,7 @@ Per run, from the two cores of each state (sorted by z in the CSV):
     outer to inner (r_front - r_rear from + to -) while their z differ less than their r (which tells it from the
     half-way point, where the front core turns outer again with the two at equal r and far apart in z). A state
     with one core between the two sides (the cores too close for two maxima while passing) counts too, and so does a
-    state whose two cores are closer than 1.5 sigma (merged by the rule above: one ring's core seen as two maxima);
+    state merged by the rule above (two maxima closer than 1.5 sigma: one ring's core seen twice; or a filament);
     the pass time is the zero of r_front - r_rear interpolated between the states on each side. After a pass, another
     counts only once the cores have been through the half-way point (z differing more than r), so the order of two
     cores at nearly the same z flickering in the noise is one pass;

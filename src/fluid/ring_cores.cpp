@@ -26,6 +26,9 @@ MeridianGrid azimuthal_mean(const VectorGrid3& vorticity, Vec3d origin, Vec3d ax
         zhi = std::max(zhi, z);
         rhi = std::max(rhi, glm::length(p - z * axis));
     }
+    // A box whose extent overflows (a side near 1e300: its corner's distance from the axis is infinite) has no
+    // meridian grid, so no cores are found.
+    if (!std::isfinite(rhi) || !std::isfinite(zhi - zlo)) return g;
     // At most about two bins per cell along the box's longest side: a box far longer than its cells are wide (a
     // non-cubic cache clamped in cells) would otherwise ask for more bins than memory holds.
     const double n_max = double(std::max({nx, ny, nz}));

@@ -137,7 +137,8 @@ TEST(RingCores, NoisyFieldStillFindsThem) {
 
 // A box far longer than its cells are wide along the axis (a non-cubic cache clamped in cells: 8 x 8 x 8 cells over
 // 1e155 along z, what the scene fuzzer made of leapfrog_twice.xml) gets a meridian grid of at most about two bins per
-// cell along the box, not one of the cells' width (which asked for 1e155 bins and threw std::length_error).
+// cell along the box, not one of the cells' width (which asked for 1e155 bins and threw std::length_error); a box
+// whose extent overflows (sides of 2e300, from `-D half=1e300`) gets none.
 TEST(RingCores, AnElongatedBoxGetsABoundedMeridianGrid) {
     const Domain3 box{Vec3d(-1, -1, -1e155), Vec3d(1, 1, 5), false};
     VectorGrid3 w(box, 8, 8, 8);
@@ -146,6 +147,11 @@ TEST(RingCores, AnElongatedBoxGetsABoundedMeridianGrid) {
     EXPECT_LE(g.nz, 2 * 8 + 4);
     EXPECT_LE(g.nr, 2 * 8 + 4);
     EXPECT_NO_THROW(ring_cores(w, Vec3d(0.0), Vec3d(0, 0, 1), 2));
+    // A box whose corners' distance from the axis overflows (sides of 2e300): no meridian grid, no cores, no throw.
+    VectorGrid3 huge(Domain3{Vec3d(-1e300, -1e300, -1), Vec3d(1e300, 1e300, 5), false}, 8, 8, 2);
+    huge.fill(Vec3d(1, 0, 0));
+    EXPECT_EQ(azimuthal_mean(huge, Vec3d(0.0), Vec3d(0, 0, 1), 2.9).nr, 0);
+    EXPECT_TRUE(ring_cores(huge, Vec3d(0.0), Vec3d(0, 0, 1), 2).empty());
 }
 
 // The exact reference's own meridian grid (what `ring_reference` writes its core columns from) gives the same cores
