@@ -37,17 +37,14 @@ one bounce, `path` with max_depth 2) apart and its chains cover paths of 3 or mo
 integral of the chains' part: b(full reference) - b(direct-only reference), the latter from a `path` render with
 max_depth = 2 of the same scene (--direct). Both integrals use the same margin estimate.
 
-Luminance: Y = 0.212671 R + 0.715160 G + 0.072169 B (kelvin::luminance). Images are read through oiiotool
-(Debian: openimageio-tools, installed by tools/setup.sh), whose --dumpdata prints every pixel as text.
+Luminance: Y = 0.212671 R + 0.715160 G + 0.072169 B (kelvin::luminance). Images are read through OpenImageIO's
+Python module (Debian: python3-openimageio, installed by tools/setup.sh), in full float precision.
 """
 import argparse
 import math
 import os
-import re
 import pathlib
-import subprocess
 import sys
-import tempfile
 
 import numpy as np
 
@@ -55,31 +52,32 @@ LUM = np.array([0.212671, 0.715160, 0.072169])
 
 
 def read_rgb(path):
-    """float64 array (h, w, 3) of R, G, B, top row first, through `oiiotool --dumpdata` (text: exact to the
-    9 significant digits it prints, and independent of any binary-format quirk)."""
-    with tempfile.TemporaryDirectory() as tmp:
-        rgb = os.path.join(tmp, "rgb.exr")  # R, G, B only (a drmlt image has stage channels too)
-        r = subprocess.run(["oiiotool", str(path), "--ch", "R,G,B", "-d", "float", "-o", rgb], capture_output=True,
-                           text=True)
-        if r.returncode == 0:
-            r = subprocess.run(["oiiotool", "--dumpdata", rgb], capture_output=True, text=True)
-    if r.returncode != 0:
-        sys.exit(f"reference_normalization: oiiotool could not read {path}: {r.stderr.strip()}")
-    lines = r.stdout.splitlines()
-    m = re.match(r".*:\s*(\d+)\s*x\s*(\d+),\s*(\d+) channel", lines[0])
-    if not m:
-        sys.exit(f"reference_normalization: unexpected oiiotool output: {lines[0]}")
-    w, h = int(m.group(1)), int(m.group(2))
-    img = np.full((h, w, 3), np.nan)
-    for line in lines[1:]:
-        head, _, vals = line.partition("):")
-        if not vals:
-            continue
-        x, y = (int(t) for t in head.split("(")[1].split(","))
-        img[y, x] = [float(v) for v in vals.split()]
-    if np.isnan(img).any():
-        sys.exit(f"reference_normalization: {path}: missing or NaN pixels in oiiotool's dump")
-    return img
+    """float64 array (h, w, 3) of R, G, B, top row first, read in full float precision by OpenImageIO's Python
+    module (Debian: python3-openimageio, installed by tools/setup.sh); an image with fewer than three channels, or
+    without R, G, B among more (a drmlt image has stage channels too), is refused."""
+    try:
+        import OpenImageIO as oiio
+    except ImportError:
+        sys.exit("reference_normalization: the OpenImageIO Python module is missing (Debian: python3-openimageio)")
+    inp = oiio.ImageInput.open(str(path))
+    if inp is None:
+        sys.exit(f"reference_normalization: could not read {path}: {oiio.geterror().strip()}")
+    try:
+        spec = inp.spec()
+        names = list(spec.channelnames)
+        pixels = inp.read_image(0, 0, 0, spec.nchannels, "float")
+    finally:
+        inp.close()
+    if pixels is None:
+        sys.exit(f"reference_normalization: could not read {path}: {oiio.geterror().strip()}")
+    pixels = np.asarray(pixels, dtype=np.float64).reshape(spec.height, spec.width, spec.nchannels)
+    if all(c in names for c in ("R", "G", "B")):
+        idx = [names.index(c) for c in ("R", "G", "B")]
+    elif spec.nchannels >= 3:
+        idx = [0, 1, 2]
+    else:
+        sys.exit(f"reference_normalization: {path}: {spec.nchannels} channel(s), not R, G, B")
+    return pixels[:, :, idx]
 
 
 class Filter1D:

@@ -17,7 +17,7 @@ the same for every configuration. What it leaves out is the squared bias of a ru
 normalisation supplied: the start-up bias and the normalisation's error); the measured relative MSE minus the
 reference's floor (tools/reference_floor.py) minus this spread is of that order, up to the floor's own error.
 Images: the EXR that `kelvin converge` writes beside each PNG the CSV names, or the named file itself when it is
-not a PNG (any format oiiotool reads).
+not a PNG (any format OpenImageIO reads).
 
 One row per configuration: at every checkpoint, the mean over pairs with its jackknife standard error over runs
 (leave one run out), and the ratio to the baseline configuration's (default: the first) with the ratio's

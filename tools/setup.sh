@@ -28,6 +28,7 @@ packages=(
   libopenmpi-dev openmpi-bin          # distributed runs under mpirun (optional: the build works without them)
   libgtest-dev libgmock-dev libbenchmark-dev  # tests and micro-benchmarks
   python3 python3-matplotlib          # accuracy/time plots
+  python3-openimageio                 # the study tools read images in-process (tools/reference_normalization.py)
   python3-dev pybind11-dev python3-numpy  # the kelvin Python module (optional: the build works without them)
 )
 if [[ "${1:-}" == "--tests" ]]; then

@@ -111,7 +111,8 @@ Bitmap display_frame(const Bitmap& fields, const char* channel, double range, in
     if (!(range > 0)) range = 1;
     const double sx = double(fields.width()) / width, sy = double(fields.height()) / height;
     const Color3 paint[3] = {{}, {0.55, 0.55, 0.55}, {0.08, 0.08, 0.08}};  // solid fill, boundary line (display)
-    for (int y = 0; y < height; ++y)
+    parallel_for_units(std::size_t(height), [&](std::size_t row) {         // rows are independent
+        const int y = int(row);
         for (int x = 0; x < width; ++x) {
             const uint8_t m = mask ? (*mask)[std::size_t(y) * std::size_t(width) + std::size_t(x)] : 0;
             if (m != 0) {
@@ -126,6 +127,7 @@ Bitmap display_frame(const Bitmap& fields, const char* channel, double range, in
                 for (int k = 0; k < 3; ++k) out.at(x, y, k) = std::max(0.f, bilinear(fields, k, fx, fy));
             }
         }
+    });
     return out;
 }
 

@@ -1,4 +1,5 @@
 #include <kelvin/core/error.h>
+#include <kelvin/core/parallel.h>
 #include <kelvin/fluid/output.h>
 
 #include <fmt/format.h>
@@ -21,27 +22,29 @@ Color3 diverging_colormap(double t) {
     return white + t * (warm - white);
 }
 
-Bitmap field_image(const Grid2& omega, const Grid2* u, const Grid2* v, double range) {
+Bitmap field_image(const Grid2& omega, const Grid2* u, const Grid2* v, double range, bool colours) {
     std::vector<std::string> channels = {"R", "G", "B", "vorticity"};
+    if (!colours) channels = {"vorticity"};
     if (u) channels.push_back("u");
     if (v) channels.push_back("v");
     Bitmap img(omega.nx(), omega.ny(), channels);
     if (!(range > 0)) range = omega.max_abs();
     if (!(range > 0)) range = 1;
-    const int cu = img.channel_index("u"), cv = img.channel_index("v");
-    for (int row = 0; row < omega.ny(); ++row) {
-        const int j = omega.ny() - 1 - row;
+    const int cu = img.channel_index("u"), cv = img.channel_index("v"), cw = img.channel_index("vorticity");
+    parallel_for_units(std::size_t(omega.ny()), [&](std::size_t r) {  // rows are independent
+        const int row = int(r), j = omega.ny() - 1 - row;
         for (int i = 0; i < omega.nx(); ++i) {
             const double w = omega.at(i, j);
+            img.at(i, row, cw) = float(w);
+            if (cu >= 0) img.at(i, row, cu) = float(u->at(i, j));
+            if (cv >= 0) img.at(i, row, cv) = float(v->at(i, j));
+            if (!colours) continue;
             const Color3 c = diverging_colormap(w / range);
             img.at(i, row, 0) = float(srgb_to_linear(c.r));
             img.at(i, row, 1) = float(srgb_to_linear(c.g));
             img.at(i, row, 2) = float(srgb_to_linear(c.b));
-            img.at(i, row, 3) = float(w);
-            if (cu >= 0) img.at(i, row, cu) = float(u->at(i, j));
-            if (cv >= 0) img.at(i, row, cv) = float(v->at(i, j));
         }
-    }
+    });
     return img;
 }
 

@@ -233,7 +233,10 @@ Bitmap Solver2Run::image() {
 }
 
 void Solver2Run::write_frame(FrameWriter& frames) {
-    frames.write_2d(m_solver->step_index(), image(), m_range, overlay(), m_p.domain.min, m_p.domain.max,
+    // A PNG (or the run's picture) colour-maps the vorticity itself: the fields in full only for an EXR frame.
+    const Bitmap fields =
+        frames.writes_fields() ? image() : field_image(m_solver->vorticity_grid(), nullptr, nullptr, m_range, false);
+    frames.write_2d(m_solver->step_index(), fields, m_range, overlay(), m_p.domain.min, m_p.domain.max,
                     m_solver->dye());
 }
 

@@ -279,22 +279,26 @@ StableFluidsSolver::StableFluidsSolver(const StableFluidsSettings& settings, con
             for (int i = 0; i < nx; ++i)
                 if (!solid_cell(i, j))
                     seed_particles(i, j, m_settings.particles_per_cell,
-                                   std::size_t(j) * std::size_t(nx) + std::size_t(i));
+                                   std::size_t(j) * std::size_t(nx) + std::size_t(i), m_px, m_pv);
         m_particles_seeded = 0;  // counts reseeding only
+        // The step's particle arrays, allocated and touched in the set-up rather than inside the first step.
+        m_next_px.resize(m_px.size());
+        m_next_pv.resize(m_pv.size());
     }
 }
 
 // `count` particles in cell (i, j), stratified over a near-square lattice of sub-cells and jittered (stream
 // `stream` of the run's seed: the same particles whatever the thread count), with the grid's velocity there.
-void StableFluidsSolver::seed_particles(int i, int j, int count, uint64_t stream) {
+void StableFluidsSolver::seed_particles(int i, int j, int count, uint64_t stream, std::vector<Vec2d>& px,
+                                        std::vector<Vec2d>& pv) {
     Random rng(m_settings.seed ^ 0x666c6970ULL, stream);
     const int sx = int(std::ceil(std::sqrt(double(count)))), sy = (count + sx - 1) / sx;
     const Vec2d h = m_omega.h(), corner = m_settings.domain.min + Vec2d(i * h.x, j * h.y);
     for (int k = 0; k < count; ++k) {
         const double u = rng.next_double(), v = rng.next_double();
         const Vec2d x = corner + Vec2d((k % sx + u) / sx * h.x, (k / sx + v) / sy * h.y);
-        m_px.push_back(x);
-        m_pv.push_back(velocity(x));
+        px.push_back(x);
+        pv.push_back(velocity(x));
     }
     m_particles_seeded += uint64_t(count);
 }
@@ -309,19 +313,19 @@ void StableFluidsSolver::flip_transport(double dt) {
         return std::size_t(j) * std::size_t(nx) + std::size_t(i);
     };
     // Advection: the backtrace's integrator run forward (RK4 or Euler through the frozen velocity; wrapped in a
-    // periodic box, clamped to a closed one). A particle that would end in a solid cell stays where it was.
+    // periodic box, clamped to a closed one), into the step's particles. A particle that would end in a solid cell
+    // stays where it was.
     const std::size_t chunks = (m_px.size() + 4095) / 4096;
     m_blocked.assign(chunks, 0);  // no allocation once the particle count has been reached
+    m_next_px.resize(m_px.size());
     parallel_rows(chunks, [&](std::size_t chunk) {
-        if (stop_requested()) return;  // step() restores the particles
+        if (stop_requested()) return;  // step() abandons the step's particles
         const std::size_t end = std::min(m_px.size(), (chunk + 1) * 4096);
         for (std::size_t k = chunk * 4096; k < end; ++k) {
             const Vec2d x = backtrace(m_px[k], -dt);
-            if (!m_solid.empty() && m_solid[cell_of(x)]) {
-                ++m_blocked[chunk];
-                continue;
-            }
-            m_px[k] = x;
+            const bool blocked = !m_solid.empty() && m_solid[cell_of(x)];
+            if (blocked) ++m_blocked[chunk];
+            m_next_px[k] = blocked ? m_px[k] : x;
         }
     });
     for (uint64_t b : m_blocked) m_particles_blocked += b;
@@ -333,35 +337,39 @@ void StableFluidsSolver::flip_transport(double dt) {
 }
 
 // Cells emptied by the flow get particles again, up to half the nominal count; crowded cells (more than twice it)
-// lose their last ones, in index order (deterministic).
+// lose their last ones, in index order (deterministic). The step's particles: positions m_next_px (moved), velocities
+// from m_pv, into m_next_pv.
 void StableFluidsSolver::reseed_particles() {
     const Domain2& d = m_settings.domain;
     const int nx = m_settings.nx, ny = m_settings.ny, ppc = m_settings.particles_per_cell;
     const Vec2d h = m_omega.h();
     std::fill(m_cell_count.begin(), m_cell_count.end(), 0);
     std::size_t kept = 0;
-    for (std::size_t k = 0; k < m_px.size(); ++k) {
-        const int i = std::clamp(int(std::floor((m_px[k].x - d.min.x) / h.x)), 0, nx - 1);
-        const int j = std::clamp(int(std::floor((m_px[k].y - d.min.y) / h.y)), 0, ny - 1);
+    m_next_pv.resize(m_pv.size());
+    for (std::size_t k = 0; k < m_next_px.size(); ++k) {
+        if ((k & 0xffff) == 0 && stop_requested()) return;  // step() abandons the step's particles
+        const int i = std::clamp(int(std::floor((m_next_px[k].x - d.min.x) / h.x)), 0, nx - 1);
+        const int j = std::clamp(int(std::floor((m_next_px[k].y - d.min.y) / h.y)), 0, ny - 1);
         int& n = m_cell_count[std::size_t(j) * std::size_t(nx) + std::size_t(i)];
         if (n >= 2 * ppc) {
             ++m_particles_removed;
             continue;
         }
         ++n;
-        m_px[kept] = m_px[k];
-        m_pv[kept] = m_pv[k];
+        m_next_px[kept] = m_next_px[k];
+        m_next_pv[kept] = m_pv[k];
         ++kept;
     }
-    m_px.resize(kept);
-    m_pv.resize(kept);
+    m_next_px.resize(kept);
+    m_next_pv.resize(kept);
     const int low = std::max(1, ppc / 2);
     const uint64_t cells = uint64_t(nx) * uint64_t(ny);
     for (int j = 0; j < ny; ++j)
         for (int i = 0; i < nx; ++i) {
+            if (i == 0 && stop_requested()) return;
             const std::size_t c = std::size_t(j) * std::size_t(nx) + std::size_t(i);
             if (m_cell_count[c] < low && !solid_cell(i, j))
-                seed_particles(i, j, low - m_cell_count[c], cells * uint64_t(m_step + 1) + c);
+                seed_particles(i, j, low - m_cell_count[c], cells * uint64_t(m_step + 1) + c, m_next_px, m_next_pv);
         }
 }
 
@@ -395,10 +403,11 @@ void StableFluidsSolver::particles_to_grid() {
                 weight[f] += w;
             }
     };
-    for (std::size_t k = 0; k < m_px.size(); ++k) {
-        const Vec2d p = m_px[k];
-        splat(m_uf_next, m_uw, m_nux, ny, Vec2d((p.x - d.min.x) / h.x, (p.y - d.min.y) / h.y - 0.5), m_pv[k].x);
-        splat(m_vf_next, m_vw, nx, m_nvy, Vec2d((p.x - d.min.x) / h.x - 0.5, (p.y - d.min.y) / h.y), m_pv[k].y);
+    for (std::size_t k = 0; k < m_next_px.size(); ++k) {
+        if ((k & 0xffff) == 0 && stop_requested()) return;  // step() restores the faces
+        const Vec2d p = m_next_px[k], pv = m_next_pv[k];
+        splat(m_uf_next, m_uw, m_nux, ny, Vec2d((p.x - d.min.x) / h.x, (p.y - d.min.y) / h.y - 0.5), pv.x);
+        splat(m_vf_next, m_vw, nx, m_nvy, Vec2d((p.x - d.min.x) / h.x - 0.5, (p.y - d.min.y) / h.y), pv.y);
     }
     for (std::size_t f = 0; f < m_uf.size(); ++f)
         m_uf[f] = !m_uopen[f] ? 0.0 : m_uw[f] > 1e-9 ? m_uf_next[f] / m_uw[f] : m_uf[f];
@@ -637,18 +646,10 @@ bool StableFluidsSolver::step(double dt) {
     m_saved_uf = m_uf;
     m_saved_vf = m_vf;
     m_saved_pressure = m_pressure;
-    if (m_settings.transport == Transport::FLIP) {
-        m_saved_px = m_px;
-        m_saved_pv = m_pv;
-    }
-    auto abandon = [&] {
+    auto abandon = [&] {  // FLIP: m_px, m_pv are untouched until the step completes
         std::swap(m_uf, m_saved_uf);
         std::swap(m_vf, m_saved_vf);
         std::swap(m_pressure, m_saved_pressure);
-        if (m_settings.transport == Transport::FLIP) {
-            std::swap(m_px, m_saved_px);
-            std::swap(m_pv, m_saved_pv);
-        }
         m_fields_valid = false;
         return false;
     };
@@ -740,20 +741,22 @@ bool StableFluidsSolver::step(double dt) {
             const Vec2d gv((p.x - d.min.x) / hx - 0.5, (p.y - d.min.y) / hy);
             return Vec2d(sample_faces(m_uf_next, m_nux, ny, gu, per), sample_faces(m_vf_next, nx, m_nvy, gv, per));
         };
-        const std::size_t chunks = (m_px.size() + 4095) / 4096;
+        const std::size_t chunks = (m_next_px.size() + 4095) / 4096;
         parallel_rows(chunks, [&](std::size_t chunk) {
             if (stop_requested()) return;
-            const std::size_t end = std::min(m_px.size(), (chunk + 1) * 4096);
+            const std::size_t end = std::min(m_next_px.size(), (chunk + 1) * 4096);
             for (std::size_t k = chunk * 4096; k < end; ++k) {
-                const Vec2d pic = velocity(m_px[k]);
-                const Vec2d flip = m_pv[k] + (pic - before(m_px[k]));
+                const Vec2d pic = velocity(m_next_px[k]);
+                const Vec2d flip = m_next_pv[k] + (pic - before(m_next_px[k]));
                 Vec2d v = a * flip + (1 - a) * pic;
                 if (!std::isfinite(v.x) || !std::isfinite(v.y)) v = pic;
-                m_pv[k] = v;
+                m_next_pv[k] = v;
             }
         });
         m_seconds_advection += g2p.seconds();
         if (stop_requested()) return abandon();
+        std::swap(m_px, m_next_px);  // the step completes: its particles are the state's
+        std::swap(m_pv, m_next_pv);
     }
     for (double* f : {m_uf.data(), m_vf.data()}) {
         const std::size_t n = f == m_uf.data() ? m_uf.size() : m_vf.size();
@@ -787,12 +790,21 @@ void StableFluidsSolver::ensure_fields() {
     };
     // Node vorticity (the discrete curl of the MAC field), averaged around each cell.
     auto node = [&](int i, int j) { return (v(i, j) - v(i - 1, j)) / hx - (u(i, j) - u(i, j - 1)) / hy; };
-    for (int j = 0; j < ny; ++j)
+    // Rows are independent (the same bits on any thread count); each computes its two rows of nodes once.
+    parallel_rows(std::size_t(ny), [&](std::size_t row) {
+        const int j = int(row);
+        std::vector<double> below(std::size_t(nx) + 1), above(std::size_t(nx) + 1);
+        for (int i = 0; i <= nx; ++i) {
+            below[std::size_t(i)] = node(i, j);
+            above[std::size_t(i)] = node(i, j + 1);
+        }
         for (int i = 0; i < nx; ++i) {
-            m_omega.at(i, j) = 0.25 * (node(i, j) + node(i + 1, j) + node(i, j + 1) + node(i + 1, j + 1));
+            const std::size_t a = std::size_t(i), b = a + 1;
+            m_omega.at(i, j) = 0.25 * (below[a] + below[b] + above[a] + above[b]);
             m_u.at(i, j) = 0.5 * (u(i, j) + u(i + 1, j));
             m_v.at(i, j) = 0.5 * (v(i, j) + v(i, j + 1));
         }
+    });
     // Nothing non-finite reaches an output: refuse it here, naming the field and the step.
     for (const auto& [grid, name] :
          {std::pair<const Grid2*, const char*>{&m_omega, "vorticity"}, {&m_u, "velocity u"}, {&m_v, "velocity v"}}) {

@@ -129,8 +129,12 @@ StableFluids3Solver::StableFluids3Solver(const StableFluids3Settings& settings, 
         for (int k = 0; k < n[2]; ++k)
             for (int j = 0; j < n[1]; ++j)
                 for (int i = 0; i < n[0]; ++i)
-                    if (!solid_cell(i, j, k)) seed_particles(i, j, k, s.particles_per_cell, m_omega.x.index(i, j, k));
+                    if (!solid_cell(i, j, k))
+                        seed_particles(i, j, k, s.particles_per_cell, m_omega.x.index(i, j, k), m_px, m_pv);
         m_particles_seeded = 0;  // counts reseeding only
+        // The step's particle arrays, allocated and touched in the set-up rather than inside the first step.
+        m_next_px.resize(m_px.size());
+        m_next_pv.resize(m_pv.size());
     }
 }
 
@@ -483,17 +487,9 @@ bool StableFluids3Solver::step(double dt) {
     // start restored (as the 2D solver does).
     m_saved = m_f;
     m_saved_pressure = m_pressure;
-    if (flip) {
-        m_saved_px = m_px;
-        m_saved_pv = m_pv;
-    }
-    auto abandon = [&] {
+    auto abandon = [&] {  // FLIP: m_px, m_pv are untouched until the step completes
         std::swap(m_f, m_saved);
         std::swap(m_pressure, m_saved_pressure);
-        if (flip) {
-            std::swap(m_px, m_saved_px);
-            std::swap(m_pv, m_saved_pv);
-        }
         m_fields_valid = false;
         return false;
     };
@@ -527,6 +523,8 @@ bool StableFluids3Solver::step(double dt) {
         flip_update();
         m_seconds_advection += g2p.seconds();
         if (stop_requested()) return abandon();
+        std::swap(m_px, m_next_px);  // the step completes: its particles are the state's
+        std::swap(m_pv, m_next_pv);
     }
     for (std::vector<double>& f : m_f)
         for (double& x : f)
@@ -584,7 +582,8 @@ void StableFluids3Solver::advect_smoke(double dt) {
 
 // `count` particles in cell (i, j, k), stratified over a lattice of s^3 sub-cells (s = ceil(cbrt(count))) and
 // jittered, from stream `stream` of the run's seed, with the grid's velocity there.
-void StableFluids3Solver::seed_particles(int i, int j, int k, int count, uint64_t stream) {
+void StableFluids3Solver::seed_particles(int i, int j, int k, int count, uint64_t stream, std::vector<Vec3d>& px,
+                                         std::vector<Vec3d>& pv) {
     Random rng(m_settings.seed ^ 0x666c6970ULL, stream);
     int s = 1;
     while (s * s * s < count) ++s;
@@ -593,8 +592,8 @@ void StableFluids3Solver::seed_particles(int i, int j, int k, int count, uint64_
         const double u = rng.next_double(), v = rng.next_double(), w = rng.next_double();
         const Vec3d sub(q % s + u, (q / s) % s + v, q / (s * s) + w);
         const Vec3d x = corner + sub / double(s) * m_h;
-        m_px.push_back(x);
-        m_pv.push_back(velocity(x));
+        px.push_back(x);
+        pv.push_back(velocity(x));
     }
     m_particles_seeded += uint64_t(count);
 }
@@ -604,20 +603,21 @@ void StableFluids3Solver::flip_move(double dt) {
     const int n[3] = {m_settings.nx, m_settings.ny, m_settings.nz};
     const std::size_t chunks = (m_px.size() + ParticleChunk - 1) / ParticleChunk;
     m_blocked.assign(chunks, 0);
+    m_next_px.resize(m_px.size());  // the step's particles (allocated in the set-up)
     parallel_units(chunks, [&](std::size_t chunk) {
         if (stop_requested()) return;
         const std::size_t end = std::min(m_px.size(), (chunk + 1) * ParticleChunk);
         for (std::size_t q = chunk * ParticleChunk; q < end; ++q) {
-            const Vec3d x = backtrace(m_px[q], -dt);  // the integrator run forward
+            Vec3d x = backtrace(m_px[q], -dt);  // the integrator run forward
             if (!m_solid.empty()) {
                 int c[3];
                 for (int b = 0; b < 3; ++b) c[b] = std::clamp(int(std::floor((x[b] - d.min[b]) / m_h[b])), 0, n[b] - 1);
                 if (solid_cell(c[0], c[1], c[2])) {
                     ++m_blocked[chunk];
-                    continue;
+                    x = m_px[q];
                 }
             }
-            m_px[q] = x;
+            m_next_px[q] = x;
         }
     });
     for (uint64_t b : m_blocked) m_particles_blocked += b;
@@ -625,36 +625,42 @@ void StableFluids3Solver::flip_move(double dt) {
 }
 
 // Cells emptied by the flow get particles again, up to half the nominal count; crowded cells (twice it) lose their
-// last ones, in index order (deterministic).
+// last ones, in index order (deterministic). The step's particles: positions m_next_px (moved), velocities from m_pv,
+// into m_next_pv.
 void StableFluids3Solver::reseed_particles() {
     const Domain3& d = m_settings.domain;
     const int n[3] = {m_settings.nx, m_settings.ny, m_settings.nz};
     const int ppc = m_settings.particles_per_cell;
     std::fill(m_cell_count.begin(), m_cell_count.end(), 0);
     std::size_t kept = 0;
-    for (std::size_t q = 0; q < m_px.size(); ++q) {
+    m_next_pv.resize(m_pv.size());
+    for (std::size_t q = 0; q < m_next_px.size(); ++q) {
+        if ((q & 0xffff) == 0 && stop_requested()) return;  // step() abandons the step's particles
         int c[3];
-        for (int b = 0; b < 3; ++b) c[b] = std::clamp(int(std::floor((m_px[q][b] - d.min[b]) / m_h[b])), 0, n[b] - 1);
+        for (int b = 0; b < 3; ++b)
+            c[b] = std::clamp(int(std::floor((m_next_px[q][b] - d.min[b]) / m_h[b])), 0, n[b] - 1);
         int& count = m_cell_count[m_omega.x.index(c[0], c[1], c[2])];
         if (count >= 2 * ppc) {
             ++m_particles_removed;
             continue;
         }
         ++count;
-        m_px[kept] = m_px[q];
-        m_pv[kept] = m_pv[q];
+        m_next_px[kept] = m_next_px[q];
+        m_next_pv[kept] = m_pv[q];
         ++kept;
     }
-    m_px.resize(kept);
-    m_pv.resize(kept);
+    m_next_px.resize(kept);
+    m_next_pv.resize(kept);
     const int low = std::max(1, ppc / 2);
     const uint64_t cells = uint64_t(m_omega.cell_count());
     for (int k = 0; k < n[2]; ++k)
         for (int j = 0; j < n[1]; ++j)
             for (int i = 0; i < n[0]; ++i) {
+                if (i == 0 && stop_requested()) return;
                 const std::size_t c = m_omega.x.index(i, j, k);
                 if (m_cell_count[c] < low && !solid_cell(i, j, k))
-                    seed_particles(i, j, k, low - m_cell_count[c], cells * uint64_t(m_step + 1) + c);
+                    seed_particles(i, j, k, low - m_cell_count[c], cells * uint64_t(m_step + 1) + c, m_next_px,
+                                   m_next_pv);
             }
 }
 
@@ -667,8 +673,9 @@ void StableFluids3Solver::particles_to_grid() {
         std::fill(m_next[std::size_t(a)].begin(), m_next[std::size_t(a)].end(), 0.0);
         std::fill(m_weight[std::size_t(a)].begin(), m_weight[std::size_t(a)].end(), 0.0);
     }
-    for (std::size_t q = 0; q < m_px.size(); ++q) {
-        const Vec3d p = m_px[q];
+    for (std::size_t q = 0; q < m_next_px.size(); ++q) {
+        if ((q & 0xffff) == 0 && stop_requested()) return;  // step() restores the faces
+        const Vec3d p = m_next_px[q], pv = m_next_pv[q];
         for (int a = 0; a < 3; ++a) {
             const std::array<int, 3>& fd = m_fd[std::size_t(a)];
             int i0[3];
@@ -696,7 +703,7 @@ void StableFluids3Solver::particles_to_grid() {
                 }
                 if (!inside) continue;
                 const std::size_t f = face_index(a, idx[0], idx[1], idx[2]);
-                sum[f] += w * m_pv[q][a];
+                sum[f] += w * pv[a];
                 weight[f] += w;
             }
         }
@@ -713,17 +720,17 @@ void StableFluids3Solver::particles_to_grid() {
 // The particles take the grid's change over diffusion and projection (FLIP) blended with its value (PIC).
 void StableFluids3Solver::flip_update() {
     const double r = m_settings.flip_ratio;
-    const std::size_t chunks = (m_px.size() + ParticleChunk - 1) / ParticleChunk;
+    const std::size_t chunks = (m_next_px.size() + ParticleChunk - 1) / ParticleChunk;
     parallel_units(chunks, [&](std::size_t chunk) {
         if (stop_requested()) return;
-        const std::size_t end = std::min(m_px.size(), (chunk + 1) * ParticleChunk);
+        const std::size_t end = std::min(m_next_px.size(), (chunk + 1) * ParticleChunk);
         for (std::size_t q = chunk * ParticleChunk; q < end; ++q) {
-            const Vec3d x = m_px[q];
+            const Vec3d x = m_next_px[q];
             const Vec3d pic = velocity(x);
             const Vec3d before(sample(0, m_next[0], x), sample(1, m_next[1], x), sample(2, m_next[2], x));
-            Vec3d v = r * (m_pv[q] + pic - before) + (1 - r) * pic;
+            Vec3d v = r * (m_next_pv[q] + pic - before) + (1 - r) * pic;
             if (!std::isfinite(v.x) || !std::isfinite(v.y) || !std::isfinite(v.z)) v = pic;
-            m_pv[q] = v;
+            m_next_pv[q] = v;
         }
     });
 }

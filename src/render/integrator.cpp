@@ -245,43 +245,75 @@ public:
     Bitmap develop(const std::vector<std::string>& names, Communicator& comm) const {
         const int w = m_win.width(), h = m_win.height();
         const std::size_t per = std::size_t(m_nc + 1), n = std::size_t(w) * std::size_t(h) * per;
+        auto cls_of = [this](int t) { return ((t % m_stride) + m_stride) % m_stride; };
+        if (!comm.distributed()) {
+            // Row by row in parallel, each pixel's terms added in the order of the classes, as below (one term per
+            // class): the same bits, without a whole-film buffer of sums.
+            Bitmap out(w, h, names);
+            parallel_for_units(std::size_t(h), [&](std::size_t r) {
+                const int y = m_win.y0 + int(r);
+                std::vector<double> line(std::size_t(w) * per, 0.0);
+                for (int cy = 0; cy < m_stride; ++cy)
+                    for (int cx = 0; cx < m_stride; ++cx)
+                        for (int ty = m_ty0; ty < m_ty0 + m_nty; ++ty) {
+                            const int by = ty * m_tile - m_margin;
+                            if (cls_of(ty) != cy || y < by || y >= by + m_side) continue;
+                            for (int tx = m_tx0; tx < m_tx0 + m_ntx; ++tx) {
+                                const std::size_t u =
+                                    std::size_t(ty - m_ty0) * std::size_t(m_ntx) + std::size_t(tx - m_tx0);
+                                if (cls_of(tx) != cx || m_acc[u].empty()) continue;
+                                const int bx = tx * m_tile - m_margin;
+                                for (int x = std::max(m_win.x0, bx); x < std::min(m_win.x1, bx + m_side); ++x) {
+                                    const double* a =
+                                        &m_acc[u]
+                                              [(std::size_t(y - by) * std::size_t(m_side) + std::size_t(x - bx)) * per];
+                                    double* d = &line[std::size_t(x - m_win.x0) * per];
+                                    for (std::size_t c = 0; c < per; ++c) d[c] += a[c];
+                                }
+                            }
+                        }
+                normalise(line.data(), out.data() + r * std::size_t(w) * std::size_t(m_nc), std::size_t(w));
+            });
+            return out;
+        }
         std::vector<double> sum(n, 0.0), cls;
         for (int cy = 0; cy < m_stride; ++cy)
             for (int cx = 0; cx < m_stride; ++cx) {
-                std::vector<double>& into = comm.distributed() ? cls : sum;
-                if (comm.distributed()) cls.assign(n, 0.0);
+                cls.assign(n, 0.0);
                 for (std::size_t u = 0; u < units(); ++u) {
                     const int tx = m_tx0 + int(u % std::size_t(m_ntx)), ty = m_ty0 + int(u / std::size_t(m_ntx));
-                    if (((tx % m_stride) + m_stride) % m_stride != cx ||
-                        ((ty % m_stride) + m_stride) % m_stride != cy || m_acc[u].empty())
-                        continue;
+                    if (cls_of(tx) != cx || cls_of(ty) != cy || m_acc[u].empty()) continue;
                     const int bx = tx * m_tile - m_margin, by = ty * m_tile - m_margin;
                     for (int y = std::max(m_win.y0, by); y < std::min(m_win.y1, by + m_side); ++y)
                         for (int x = std::max(m_win.x0, bx); x < std::min(m_win.x1, bx + m_side); ++x) {
                             const double* a =
                                 &m_acc[u][(std::size_t(y - by) * std::size_t(m_side) + std::size_t(x - bx)) * per];
                             double* d =
-                                &into[(std::size_t(y - m_win.y0) * std::size_t(w) + std::size_t(x - m_win.x0)) * per];
+                                &cls[(std::size_t(y - m_win.y0) * std::size_t(w) + std::size_t(x - m_win.x0)) * per];
                             for (std::size_t c = 0; c < per; ++c) d[c] += a[c];
                         }
                 }
-                if (comm.distributed()) {
-                    allreduce_sum(comm, cls);  // one contributor per pixel within a class: exact
-                    for (std::size_t i = 0; i < n; ++i) sum[i] += cls[i];
-                }
+                allreduce_sum(comm, cls);  // one contributor per pixel within a class: exact
+                for (std::size_t i = 0; i < n; ++i) sum[i] += cls[i];
             }
         Bitmap out(w, h, names);
-        for (std::size_t p = 0; p < std::size_t(w) * std::size_t(h); ++p) {
-            const double wsum = sum[p * per + std::size_t(m_nc)];
-            // Filters with negative lobes can make a weight sum negative: divided all the same, as Mitsuba does.
-            for (int c = 0; c < m_nc; ++c)
-                out.data()[p * std::size_t(m_nc) + std::size_t(c)] =
-                    wsum != 0 ? float(sum[p * per + std::size_t(c)] / wsum) : 0.f;
-        }
+        normalise(sum.data(), out.data(), std::size_t(w) * std::size_t(h));
         return out;
     }
 
 private:
+    /// `count` pixels of sums (nc channels and the weight) into nc channels of `out`. Filters with negative lobes can
+    /// make a weight sum negative: divided all the same, as Mitsuba does.
+    void normalise(const double* sum, float* out, std::size_t count) const {
+        const std::size_t per = std::size_t(m_nc + 1);
+        for (std::size_t p = 0; p < count; ++p) {
+            const double wsum = sum[p * per + std::size_t(m_nc)];
+            for (int c = 0; c < m_nc; ++c)
+                out[p * std::size_t(m_nc) + std::size_t(c)] =
+                    wsum != 0 ? float(sum[p * per + std::size_t(c)] / wsum) : 0.f;
+        }
+    }
+
     const ReconstructionFilter& m_filter;
     CropWindow m_win;
     int m_tile, m_nc, m_margin = 0;

@@ -259,4 +259,18 @@ inline ProcessResult run_kelvin_in(const fs::path& cwd, const std::vector<std::s
     return run_process("/bin/sh", {"-c", cmd}, env, timeout);
 }
 
+/// Whether a simulation writing into `folder` has recorded state 0: a whole row after its CSV's header (the CSV is
+/// written to a temporary file, diagnostics.partial-*.csv, until the run ends). How a test knows the run is stepping,
+/// on a machine of any speed or load.
+inline bool first_row_written(const fs::path& folder) {
+    std::error_code ec;
+    for (const auto& e : fs::directory_iterator(folder, ec)) {
+        if (e.path().filename().string().rfind("diagnostics", 0) != 0) continue;
+        std::ifstream f(e.path());
+        std::string header, row;
+        if (std::getline(f, header) && std::getline(f, row) && !f.eof()) return true;  // a whole second line
+    }
+    return false;
+}
+
 }  // namespace kelvin::test

@@ -1,6 +1,6 @@
 """Synthetic images of known truth for the tests of the study tools (test_reference_floor.py, test_run_spread.py)."""
+import importlib.util
 import os
-import shutil
 import sys
 
 import numpy as np
@@ -8,18 +8,18 @@ import numpy as np
 
 def test_arguments(name):
     """(SCRIPT, OUTDIR) from the command line, OUTDIR created; exits 0 with "SKIPPED" (ctest's skip) without
-    oiiotool, which the tools read images with."""
+    OpenImageIO's Python module, which the tools read images with."""
     if len(sys.argv) != 3:
         sys.exit(f"usage: {name}.py SCRIPT OUTDIR")
-    if shutil.which("oiiotool") is None:
-        print(f"{name}: SKIPPED (no oiiotool)")
+    if importlib.util.find_spec("OpenImageIO") is None:
+        print(f"{name}: SKIPPED (no OpenImageIO Python module: python3-openimageio)")
         sys.exit(0)
     os.makedirs(sys.argv[2], exist_ok=True)
     return sys.argv[1], sys.argv[2]
 
 
 def write_pfm(path, img):
-    """An (h, w, 3) array, top row first, as a little-endian PFM (oiiotool reads it)."""
+    """An (h, w, 3) array, top row first, as a little-endian PFM (OpenImageIO reads it)."""
     h, w, _ = img.shape
     with open(path, "wb") as f:
         f.write(b"PF\n%d %d\n-1.0\n" % (w, h))

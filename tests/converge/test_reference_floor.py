@@ -10,7 +10,7 @@ noisy reference adds, E[(R - T)^2] / (R^2 + 0.01) averaged over pixels and chann
 T over 12 independent draws of the noise: within 5 standard errors of the per-draw spread plus 1 %, the estimate's
 own bias for the relative MSE at this noise level (its denominator holds the noisy reference, docs/studies/mlt.md;
 -0.8 % for the halves and -0.2 % with --spp over 400 draws). The image has a band 50x brighter and a band of exact
-black. A floor off by a factor 2 (the halves' variance instead of their mean's) fails by far. Skipped (exit 0, "SKIPPED") without oiiotool.
+black. A floor off by a factor 2 (the halves' variance instead of their mean's) fails by far. Skipped (exit 0, "SKIPPED") without OpenImageIO's Python module.
 """
 import os
 import subprocess

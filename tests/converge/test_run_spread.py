@@ -17,7 +17,7 @@ fixed bias of 0.05 T, which the spread must not see. Over 6 independent studies 
 The images are PFM files named in the CSV (the tool reads a PNG's EXR sibling, or the named file). A spread
 without the 1/2 (the variance of a difference taken for a run's variance) fails by far, and so does one weighted by
 the runs' own pixels instead of the reference's. Bad input (not a study, one run per configuration) must be one line
-and exit 2. Skipped (exit 0, "SKIPPED") without oiiotool, which the tool reads images with.
+and exit 2. Skipped (exit 0, "SKIPPED") without OpenImageIO's Python module, which the tool reads images with.
 """
 import csv
 import os

@@ -27,8 +27,9 @@ Color3 diverging_colormap(double t);
 
 /// An image of the fields, one pixel per cell, top row = largest y: channels R, G, B (the colour-mapped
 /// vorticity omega / range, linear values so that PNG output shows the colour map), then "vorticity" and,
-/// when given, "u" and "v". `range` <= 0 means max |omega|.
-Bitmap field_image(const Grid2& omega, const Grid2* u, const Grid2* v, double range);
+/// when given, "u" and "v". `range` <= 0 means max |omega|. Without `colours`, no R, G, B (what a PNG frame
+/// needs: it colour-maps the "vorticity" channel itself).
+Bitmap field_image(const Grid2& omega, const Grid2* u, const Grid2* v, double range, bool colours = true);
 
 /// Where a simulation writes its files: one folder per run, named after the output. `output` is RunContext::output
 /// (the CLI's `-o`): a file name gives the folder of the same path without extension ("out/run.exr" -> "out/run/",
@@ -113,6 +114,8 @@ public:
                 std::vector<std::filesystem::path>& written);
     bool enabled() const { return m_paths.enabled() && m_every > 0 && (m_png || m_exr); }
     bool due(long long step) const { return m_every > 0 && (step % m_every == 0 || step == m_steps); }
+    /// Whether the fields are written as data (EXR): else write_2d() needs only their "vorticity" channel.
+    bool writes_fields() const { return m_exr && !m_capture; }
     /// A 2D state: `fields` from field_image (its "vorticity" channel is shown) and the dye, if any.
     void write_2d(long long step, const Bitmap& fields, double range, const FrameOverlay* overlay, Vec2d lo, Vec2d hi,
                   const PassiveScalars* dye);

@@ -131,7 +131,7 @@ private:
     void diffuse(double dt);
     void close_faces();
     void extrapolate_into_solids();
-    void seed_particles(int i, int j, int count, uint64_t stream);
+    void seed_particles(int i, int j, int count, uint64_t stream, std::vector<Vec2d>& px, std::vector<Vec2d>& pv);
     void flip_transport(double dt);
     void particles_to_grid();
     void reseed_particles();
@@ -159,7 +159,9 @@ private:
     /// The state at the start of the step in progress, restored when a stop cuts the step short (step() returns
     /// false with the state unchanged, as every solver's step does).
     std::vector<double> m_saved_uf, m_saved_vf, m_saved_pressure;
-    std::vector<Vec2d> m_saved_px, m_saved_pv;
+    /// FLIP: the particles of the step in progress, built from m_px, m_pv and swapped in when the step completes (a
+    /// cut step leaves m_px, m_pv as they were, with no copy).
+    std::vector<Vec2d> m_next_px, m_next_pv;
     std::vector<double> m_uw, m_vw;   ///< P2G weight sums per face
     std::vector<int> m_cell_count;    ///< particles per cell (reseeding)
     std::vector<uint64_t> m_blocked;  ///< FLIP: refused moves per block of particles (reused every step)

@@ -135,7 +135,8 @@ private:
     void extrapolate_into_solids();
     void ensure_fields();
     // FLIP
-    void seed_particles(int i, int j, int k, int count, uint64_t stream);
+    void seed_particles(int i, int j, int k, int count, uint64_t stream, std::vector<Vec3d>& px,
+                        std::vector<Vec3d>& pv);
     void flip_move(double dt);
     void reseed_particles();
     void particles_to_grid();
@@ -164,7 +165,10 @@ private:
     Grid3 m_density, m_density_next;
     uint64_t m_smoke_lookups = 0;
     // FLIP
-    std::vector<Vec3d> m_px, m_pv, m_saved_px, m_saved_pv;
+    std::vector<Vec3d> m_px, m_pv;
+    /// FLIP: the particles of the step in progress, built from m_px, m_pv and swapped in when the step completes (a
+    /// cut step leaves m_px, m_pv as they were, with no copy).
+    std::vector<Vec3d> m_next_px, m_next_pv;
     std::array<std::vector<double>, 3> m_weight;  ///< P2G weight sums per face
     std::vector<int> m_cell_count;
     std::vector<uint64_t> m_blocked;
