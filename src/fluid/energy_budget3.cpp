@@ -286,7 +286,7 @@ void MCFluid3Solver::set_energy_budget(bool on) {
 }
 
 void MCFluid3Solver::budget_step(const VectorGrid3& u, double dt, int substeps, VectorGrid3* as_run, VectorGrid3* exact,
-                                 const VectorGrid3* last, double f) const {
+                                 const VectorGrid3* last, double f, const VectorGrid3* stretch) const {
     const MCFluid3Settings& s = m_settings;
     const double h = dt / substeps;
     if (!last) f = 0;
@@ -295,6 +295,8 @@ void MCFluid3Solver::budget_step(const VectorGrid3& u, double dt, int substeps, 
         return f != 0 ? f * (u.sample(p, s.interpolation) - last->sample(p, s.interpolation)) : Vec3d(0.0);
     };
     auto vel = [&](const Vec3d& p) { return u.sample_cubic(p) + extra(p); };
+    VectorGrid3 smoothed;  // what the run's stretching segments read (stretching_filter)
+    const VectorGrid3& u_stretch = stretching_velocity(stretch ? *stretch : u, smoothed);
     const bool maccormack = s.transport == VorticityTransport::MacCormack;
     const bool cubic = s.transport != VorticityTransport::Linear;
     const Interpolation interp = s.interpolation;
@@ -338,7 +340,8 @@ void MCFluid3Solver::budget_step(const VectorGrid3& u, double dt, int substeps, 
                     if (stretch) {
                         const Vec3d seg = (half_segment / mag) * om;
                         // (the run's stretching reads the step's start: not extrapolated)
-                        w += (dt * mag * inv_segment) * (u.sample(x + seg, interp) - u.sample(x - seg, interp));
+                        w += (dt * mag * inv_segment) *
+                             (u_stretch.sample(x + seg, interp) - u_stretch.sample(x - seg, interp));
                     }
                     as_run->set(c, finite(w) ? w : Vec3d(0.0));
                 }
@@ -393,7 +396,18 @@ bool MCFluid3Solver::measure_budget(double dt) {
     if (extrapolate) last = VectorGrid3(s.domain, s.nx, s.ny, s.nz);
     flow.velocity(m_omega, true, s.interpolation, m_delta, u);  // the estimator's expected velocity
     if (extrapolate) flow.velocity(m_last_omega, true, s.interpolation, m_delta, last);
-    budget_step(u, dt, 1, &step, nullptr, extrapolate ? &last : nullptr, m_mid_factor);
+    if (s.backtrace_velocity == BacktraceVelocity::Cache) {
+        // As the run: the stages read the extrapolated velocity smoothed by velocity_filter (the smoothing then lands
+        // in budget_mollifier, as in 2D), the stretching the cell velocity.
+        VectorGrid3 stages = u;
+        if (extrapolate)
+            for (std::size_t c = 0; c < u.cell_count(); ++c)
+                stages.set(c, u.at(c) + m_mid_factor * (u.at(c) - last.at(c)));
+        gaussian_filter(stages, s.velocity_filter, m_fluid.empty() ? nullptr : &m_fluid);
+        budget_step(stages, dt, 1, &step, nullptr, nullptr, 0.0, &u);
+    } else {
+        budget_step(u, dt, 1, &step, nullptr, extrapolate ? &last : nullptr, m_mid_factor);
+    }
     const double e_b = flow.energy(step);
     if (stopped()) return false;
     flow.velocity(m_omega, false, s.interpolation, 0.0, u);  // the cells' own velocity

@@ -122,6 +122,11 @@ void check_settings(const MCFluid3Settings& s) {
     if (s.initial_samples < 0) throw_runtime("MCFluid3Solver: initial samples must be >= 0");
     if (!(s.control_variate_blend > 0 && s.control_variate_blend <= 1))
         throw_runtime("MCFluid3Solver: control_variate_blend must lie in (0, 1]");
+    if (!(s.velocity_filter >= 0 && s.velocity_filter <= MaxVelocityFilter))
+        throw_runtime("MCFluid3Solver: velocity_filter must lie in [0, {}] cells", MaxVelocityFilter);
+    if (!(s.stretching_filter >= 0 && s.stretching_filter <= MCFluid3Settings::MaxStretchingFilter))
+        throw_runtime("MCFluid3Solver: stretching_filter must lie in [0, {}] cells",
+                      MCFluid3Settings::MaxStretchingFilter);
 }
 
 Vec3d standard_normal3(Random& rng) {
@@ -142,6 +147,8 @@ MCFluid3Solver::MCFluid3Solver(const MCFluid3Settings& settings, const InitialFi
     const Vec3d h = m_omega.x.h();
     m_segment = std::min({h.x, h.y, h.z});
     m_delta = resolved_delta3(*s.estimator, h, s.nx, s.ny, s.nz, s.domain.periodic);
+    if (m_settings.backtrace_velocity == BacktraceVelocity::Auto)
+        m_settings.backtrace_velocity = BacktraceVelocity::Estimates;
     m_midstep = s.velocity_time == MCFluid3Settings::VelocityTime::Midstep ||
                 (s.velocity_time == MCFluid3Settings::VelocityTime::Auto && !s.boundaries);
     if (s.domain.periodic && !s.boundaries) m_periodic = std::make_shared<PeriodicKernel3>(s.domain.size());
@@ -194,6 +201,14 @@ void MCFluid3Solver::rebuild_estimators() {
     if (s.boundaries && !m_wos)
         throw_runtime("MCFluid3Solver: velocity estimator '{}' declares boundaries but its field has none",
                       s.estimator->plugin_name());
+    if (m_wos && (s.stretching_filter > 0 || s.backtrace_velocity == BacktraceVelocity::Cache) &&
+        m_fluid.empty()) {  // static solids: the filter reads the fluid only
+        m_fluid.assign(m_omega.cell_count(), 1);
+        for (int k = 0; k < s.nz; ++k)
+            for (int j = 0; j < s.ny; ++j)
+                for (int i = 0; i < s.nx; ++i)
+                    if (m_wos->solid_at(m_omega.x.cell_center(i, j, k)) >= 0) m_fluid[m_omega.x.index(i, j, k)] = 0;
+    }
     if (m_have_prev) {
         for (std::size_t c = 0; c < m_omega.cell_count(); ++c) m_diff.set(c, m_omega.at(c) - m_prev_omega.at(c));
         // With boundaries the boundary data of two consecutive states cancel: the difference has Psi = 0.
@@ -326,6 +341,13 @@ const VectorGrid3& MCFluid3Solver::velocity_variance() {
     return m_var;
 }
 
+const VectorGrid3& MCFluid3Solver::stretching_velocity(const VectorGrid3& u, VectorGrid3& into) const {
+    if (!(m_settings.stretching_filter > 0) || !m_settings.stretching) return u;
+    into = u;
+    gaussian_filter(into, m_settings.stretching_filter, m_fluid.empty() ? nullptr : &m_fluid);
+    return into;
+}
+
 bool MCFluid3Solver::step(double dt) {
     if (!(dt > 0) || std::isnan(dt)) throw_runtime("MCFluid3Solver::step: dt must be positive (got {})", dt);
     // (A stop on any rank stops every rank's step.)
@@ -348,14 +370,28 @@ bool MCFluid3Solver::step(double dt) {
     }
     SlabPass pass(*m_comm, std::size_t(s.nz), std::size_t(s.nx) * std::size_t(s.ny));  // this rank's z slabs
     SlabWork work;
+    const VectorGrid3& u_stretch = stretching_velocity(m_vel, m_vel_stretch);
+    const bool cached = s.backtrace_velocity == BacktraceVelocity::Cache;
+    if (cached) {  // the velocity extrapolated to mid-step (velocity_time), then smoothed: its noise too
+        m_vel_backtrace = m_vel;
+        if (m_mid_factor != 0)
+            for (std::size_t c = 0; c < m_vel.cell_count(); ++c)
+                m_vel_backtrace.set(c, m_vel.at(c) + m_mid_factor * (m_vel.at(c) - m_last_vel.at(c)));
+        gaussian_filter(m_vel_backtrace, s.velocity_filter, m_fluid.empty() ? nullptr : &m_fluid);
+    }
     const bool complete = for_each_cell(
         pass, s, m_omega.x, m_step, TagAdvection, work, *this,
         [&](std::size_t c, const Vec3d& x, Random& rng, SlabWork& w) {
             // Euler or RK4 with the velocity frozen at the previous step (Eqs. 3.139-3.144).
             const int n = m_alloc.empty() ? s.samples : m_alloc[c];
-            const Vec3d u0 =
-                m_vel.at(c) + (m_mid_factor != 0 ? m_mid_factor * (m_vel.at(c) - m_last_vel.at(c)) : Vec3d(0.0));
-            Vec3d xd = trace(x, u0, -dt, s.advection, [&](const Vec3d& p) { return stage_velocity(p, n, rng, w); });
+            const Vec3d u0 = cached ? m_vel_backtrace.at(c)
+                                    : m_vel.at(c) + (m_mid_factor != 0 ? m_mid_factor * (m_vel.at(c) - m_last_vel.at(c))
+                                                                       : Vec3d(0.0));
+            Vec3d xd = trace(x, u0, -dt, s.advection, [&](const Vec3d& p) {
+                if (!cached) return stage_velocity(p, n, rng, w);
+                if (m_wos && m_wos->solid_at(p) >= 0) return Vec3d(0.0);
+                return m_vel_backtrace.sample_cubic(p);
+            });
             ++w.backtraces;
             if (!finite(xd)) {
                 ++w.invalid_velocity;
@@ -401,7 +437,7 @@ bool MCFluid3Solver::step(double dt) {
                         }
                         if (inv > 0) {
                             const Vec3d seg = (half / mag) * om;
-                            const Vec3d dv = m_vel.sample(xj + seg, interp) - m_vel.sample(xj - seg, interp);
+                            const Vec3d dv = u_stretch.sample(xj + seg, interp) - u_stretch.sample(xj - seg, interp);
                             om += (dt * mag * inv) * dv;
                             ++w.stretching;
                         }

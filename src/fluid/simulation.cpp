@@ -8,6 +8,7 @@
 #include <kelvin/core/progress.h>
 #include <kelvin/core/registry.h>
 #include <kelvin/core/stats.h>
+#include <kelvin/fluid/checks.h>
 #include <kelvin/fluid/output.h>
 #include <kelvin/fluid/simulation.h>
 
@@ -70,6 +71,11 @@ SimulationParams SimulationParams::parse(const Properties& props, const std::str
     const Vec2d size = p.domain.size();
     p.ny = cache->resolution_y() > 0 ? cache->resolution_y()
                                      : int(std::clamp(std::lround(p.nx * size.y / size.x), 2L, 16384L));
+    // Cells of comparable sides (the cache, the mollifier and the near field assume them; see simulation3.cpp).
+    if (const Vec2d h = size / Vec2d(p.nx, p.ny); !(std::max(h.x, h.y) <= MaxCellAspect * std::min(h.x, h.y)))
+        props.error("cache", fmt::format("cells of {:g} x {:g} ({}x{} over the box {:g} x {:g}): a side more than {:g} "
+                                         "times the other; give resolution_y or a less elongated box",
+                                         h.x, h.y, p.nx, p.ny, size.x, size.y, MaxCellAspect));
     p.field->bind_domain(p.domain);
     p.field->check_domain(p.domain);
     if (auto obj = props.get_object("scalar"); obj && dynamic_cast<const SmokeSpec3*>(obj.get()))

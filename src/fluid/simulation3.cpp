@@ -10,6 +10,7 @@
 #include <kelvin/core/stats.h>
 #include <kelvin/core/vdb.h>
 #include <kelvin/fluid/boundary.h>
+#include <kelvin/fluid/checks.h>
 #include <kelvin/fluid/estimators.h>
 #include <kelvin/fluid/output.h>
 #include <kelvin/fluid/ring_cores.h>
@@ -56,9 +57,11 @@ Simulation3Params Simulation3Params::parse(const Properties& props) {
     s.diffusion_samples = int(props.get_int("diffusion_samples", 1, 1 << 20));
     s.advection = props.get_choice("advection", {"euler", "rk4"}) == "euler" ? Advection::Euler : Advection::RK4;
     s.transport = parse_transport(props);
-    for (const char* name : {"backtrace_velocity", "velocity_filter"})
-        if (props.has(name))
-            props.error(name, "is a 2D parameter (3D backtraces read a fresh estimate at every Runge–Kutta stage)");
+    const std::string bt = props.get_choice("backtrace_velocity", {"auto", "cache", "estimates"});
+    s.backtrace_velocity = bt == "cache"       ? BacktraceVelocity::Cache
+                           : bt == "estimates" ? BacktraceVelocity::Estimates
+                                               : BacktraceVelocity::Auto;
+    s.velocity_filter = props.get_float("velocity_filter", 0.0, MaxVelocityFilter);
     p.energy_budget = props.get_bool("energy_budget");
     if (p.energy_budget && s.viscosity > 0) props.error("energy_budget", "covers inviscid flows only (viscosity 0)");
     s.stretching = props.get_bool("stretching");
@@ -70,6 +73,7 @@ Simulation3Params Simulation3Params::parse(const Properties& props) {
     s.initial_samples = int(props.get_int("initial_samples", 0, 1 << 24));
     s.control_variate_blend = props.get_float("control_variate_blend", 1e-6, 1.0);
     s.vorticity_allocation = props.get_choice("sample_allocation", {"uniform", "vorticity"}) == "vorticity";
+    s.stretching_filter = props.get_float("stretching_filter", 0.0, MCFluid3Settings::MaxStretchingFilter);
     if (s.initial_samples > 0 && !s.control_variates)
         log_info(
             "mcfluid: initial_samples = {} is the control variates' initial sample count; control_variates is "
@@ -129,6 +133,15 @@ Simulation3Params Simulation3Params::parse(const Properties& props) {
         s.nz > BiotSavartEstimator3::MaxResolution)
         props.error("cache", fmt::format("3D caches are limited to {} cells per axis (got {}x{}x{})",
                                          BiotSavartEstimator3::MaxResolution, s.nx, s.ny, s.nz));
+    // The cache, the mollifier and the near field assume cells of comparable sides; a box far longer on one axis
+    // (or a per-axis resolution) that makes them needles or plates is refused before any table is built (the near
+    // field's quadrature grows with the sides' ratio: a box 1e300 across at 8 cells ran for hours).
+    if (const Vec3d h = size / Vec3d(s.nx, s.ny, s.nz);
+        !(std::max({h.x, h.y, h.z}) <= MaxCellAspect * std::min({h.x, h.y, h.z})))
+        props.error("cache", fmt::format("cells of {:g} x {:g} x {:g} ({}x{}x{} over the box {:g} x {:g} x {:g}): a "
+                                         "side more than {:g} times another; give a resolution per axis or a less "
+                                         "elongated box",
+                                         h.x, h.y, h.z, s.nx, s.ny, s.nz, size.x, size.y, size.z, MaxCellAspect));
     s.interpolation = cache->interpolation();
     if (const auto* bs = dynamic_cast<const BiotSavartVelocity*>(s.estimator.get())) {
         const Vec3d h = size / Vec3d(s.nx, s.ny, s.nz);

@@ -110,6 +110,35 @@ TEST(FluidReliability, InitialStateBeyondFloat32IsRefusedNamingTheParameter) {
     expect_nothing_non_finite(dir.path());
 }
 
+// Cells far longer on one axis than another are refused at once, naming the cache: a 3D box 1e300 across (the scene
+// fuzzer's mutant) ran the near field's quadrature for hours before its error, and needle cells from a per-axis
+// resolution in 2D, for mcfluid and a baseline alike. The scene at a merely wide box still runs.
+TEST(FluidReliability, ElongatedCellsAreRefusedAtOnce) {
+    TempDir dir;
+    const ProcessResult r = run_kelvin(
+        {Scenes + "leapfrog_twice.xml", "-D", "half=1e300", "-q", "-o", (dir.path() / "lf.png").string()}, {}, 20s);
+    std::string line = expect_one_error_line(r, 2);
+    EXPECT_NE(line.find("parameter 'cache'"), std::string::npos) << line;
+    EXPECT_NE(line.find("times another"), std::string::npos) << line;
+    for (const char* solver : {"mcfluid", "stable_fluids"}) {
+        const std::string scene = std::string(R"(<scene version="3.0.0"><simulation type=")") + solver + R"(">
+        <float name="dt" value="0.01"/><integer name="steps" value="1"/>
+        <vorticity type="taylor_green"/>
+        <cache type="grid"><integer name="resolution" value="16"/><integer name="resolution_y" value="2000"/></cache>
+        </simulation></scene>)";
+        write_file(dir.path() / "needle.xml", scene);
+        const ProcessResult n =
+            run_kelvin({(dir.path() / "needle.xml").string(), "-q", "-o", (dir.path() / "n.exr").string()}, {}, 20s);
+        line = expect_one_error_line(n, 2);
+        EXPECT_NE(line.find("parameter 'cache'"), std::string::npos) << solver << ": " << line;
+        EXPECT_NE(line.find("times the other"), std::string::npos) << solver << ": " << line;
+    }
+    const ProcessResult wide = run_kelvin({Scenes + "leapfrog_twice.xml", "-D", "half=30", "-D", "end=0.1", "-q", "-o",
+                                           (dir.path() / "wide.png").string()},
+                                          {}, 60s);
+    EXPECT_EQ(wide.exit_code, 0) << describe(wide);
+}
+
 // dt = 10 carries the vorticity out of the domain in one step, dt = 1e30 left a zero field; both ran silently with
 // exit 0 (checked failing on main). Now refused before the first step, naming dt: 2D, 3D and a baseline.
 TEST(FluidReliability, TimeStepThatCarriesTheFlowOutOfTheDomainIsRefused) {

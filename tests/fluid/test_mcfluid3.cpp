@@ -713,3 +713,64 @@ TEST(MCFluid3, VorticityAllocationIsTheSameOnAnyThreadCount) {
     };
     EXPECT_EQ(run(1), run(2));
 }
+
+// The stretching's filter (gaussian_filter on a Grid3): a Fourier mode on a periodic grid is scaled by the transform
+// of the normalised, truncated kernel along each axis (to rounding), on any thread count; in an open box a constant
+// is kept (the weights renormalised at the box's faces); next to solid cells a constant is kept, the solid cells keep
+// their values and nothing of them leaks into the fluid.
+TEST(GaussianFilter3, ScalesAModeAsTheKernelAndKeepsSolidsApart) {
+    const int n = 16;
+    const Domain3 box{{0, 0, 0}, {2 * Pi, 2 * Pi, 2 * Pi}, true};
+    Grid3 g(box, n, n, n);
+    for (int k = 0; k < n; ++k)
+        for (int j = 0; j < n; ++j)
+            for (int i = 0; i < n; ++i) {
+                const Vec3d x = g.cell_center(i, j, k);
+                g.at(i, j, k) = std::sin(x.x) * std::cos(2 * x.y) * std::sin(x.z + 0.3);
+            }
+    const double h = 2 * Pi / n;
+    for (double sigma : {0.5, 1.0}) {
+        auto transfer = [&](int kw) {
+            const int r = int(std::ceil(3 * sigma));
+            double num = 0, den = 0;
+            for (int m = -r; m <= r; ++m) {
+                const double w = std::exp(-0.5 * m * m / (sigma * sigma));
+                num += w * std::cos(kw * h * m);
+                den += w;
+            }
+            return num / den;
+        };
+        const double factor = transfer(1) * transfer(2) * transfer(1);
+        std::vector<double> first;
+        for (int threads : {1, 2}) {
+            ThreadLimit limit(threads);
+            Grid3 f = g;
+            gaussian_filter(f, sigma);
+            double err = 0;
+            for (std::size_t c = 0; c < g.cell_count(); ++c)
+                err = std::max(err, std::abs(f.values()[c] - factor * g.values()[c]));
+            EXPECT_LT(err, 1e-12) << "sigma " << sigma;
+            if (first.empty())
+                first = f.values();
+            else
+                EXPECT_EQ(first, f.values()) << "1 and 2 threads";
+        }
+    }
+    // An open box: a constant stays; a solid block inside (fluid 1, solid 100) keeps both apart.
+    const Domain3 open{{0, 0, 0}, {1, 1, 1}, false};
+    Grid3 c(open, 12, 10, 8);
+    std::vector<char> fluid(c.cell_count(), 1);
+    for (int k = 0; k < 8; ++k)
+        for (int j = 0; j < 10; ++j)
+            for (int i = 0; i < 12; ++i) {
+                const bool solid = i >= 4 && i < 8 && j >= 3 && j < 6 && k >= 2 && k < 5;
+                fluid[c.index(i, j, k)] = !solid;
+                c.at(i, j, k) = solid ? 100.0 : 1.0;
+            }
+    Grid3 plain(open, 12, 10, 8);
+    plain.fill(1.0);
+    gaussian_filter(plain, 1.5);
+    for (double v : plain.values()) ASSERT_NEAR(v, 1.0, 1e-12);
+    gaussian_filter(c, 1.5, &fluid);
+    for (std::size_t q = 0; q < c.cell_count(); ++q) ASSERT_NEAR(c.values()[q], fluid[q] ? 1.0 : 100.0, 1e-12);
+}

@@ -33,6 +33,11 @@ namespace kelvin::fluid {
 /// float32's largest finite value: EXR and VDB fields store 32-bit floats, so a double above it is written as inf.
 inline constexpr double FloatMax = double(std::numeric_limits<float>::max());
 
+/// The largest ratio of a cell's sides a simulation accepts (refused at parse time, naming the cache): the cache's
+/// interpolation, the isotropic mollifier and the near field's quadrature (whose cost grows with the ratio) assume
+/// cells of comparable sides. Well above any scene's (they use near-cubic cells; the derived resolutions round).
+inline constexpr double MaxCellAspect = 64;
+
 /// The CFL number above which a run warns (once), by method. Semi-Lagrangian transport (mcfluid, stable_fluids) is
 /// stable at any CFL number, but its backtrace freezes the velocity over the step, so its error grows with the
 /// distance it crosses: CflWarnSemiLagrangian = 20 cells. The bound is well above what the largest Monte Carlo

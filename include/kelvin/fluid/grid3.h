@@ -127,6 +127,13 @@ struct VectorGrid3 {
     double max_norm() const;
 };
 
+/// Smooths `g` with a Gaussian of standard deviation `sigma` cells (separable, truncated at 3 sigma; nothing when
+/// sigma <= 0): wrapped in a periodic box; in an open one, and around the cells `fluid` marks 0 (solids), a
+/// normalised convolution (the weights of the cells it may read, renormalised), those cells keeping their values.
+/// Rows are independent: the same bits on any thread count.
+void gaussian_filter(Grid3& g, double sigma, const std::vector<char>* fluid = nullptr);
+void gaussian_filter(VectorGrid3& g, double sigma, const std::vector<char>* fluid = nullptr);
+
 /// Saffman's impulse centroid of a vorticity field: int x w dV / int w dV with w = (x cross omega) . I / |I| and
 /// I = 1/2 int x cross omega dV the impulse (cell centres, midpoint rule). For a ring it is where the ring is (its
 /// weights r omega_theta are signed, so noise cancels); `fallback` when the field has no impulse.

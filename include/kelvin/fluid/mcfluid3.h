@@ -70,6 +70,20 @@ struct MCFluid3Settings : SolverSettings<3> {
     /// vorticity, whose velocity changes nothing in the next state, get the fewest.
     bool vorticity_allocation = false;
     static constexpr int AllocationFloor = 8, AllocationCap = 32;
+    /// Standard deviation, in cells, of the Gaussian that smooths the cached velocity the stretching segments read
+    /// (0: the cache as estimated, the thesis' scheme). Each cell's estimate carries independent Monte Carlo noise,
+    /// which the segment's difference over one cell divides by h, and which the stretching turns into energy; the
+    /// velocity varies on the flow's scales, not the cell's, but a thin core's own stretching is smoothed too.
+    double stretching_filter = 0;
+    static constexpr double MaxStretchingFilter = 8;
+    /// What the backtrace's Runge–Kutta stages read (BacktraceVelocity, mcfluid.h). Estimates: a fresh Monte Carlo
+    /// estimate at every stage point, the thesis' scheme. Cache: the state's cell estimates, extrapolated to mid-step
+    /// (velocity_time) and smoothed by a Gaussian of `velocity_filter` cells (0: none), read by the monotone tricubic
+    /// interpolant (the first stage at the cell's own centre); no estimate beyond the velocity pass. Auto (the
+    /// default) is Estimates in 3D: the smoothing slows a thin-cored ring (8 % over its first 0.4 at two cells per
+    /// core radius with a one-cell filter; docs/fluid.md). settings() holds the resolved choice.
+    BacktraceVelocity backtrace_velocity = BacktraceVelocity::Auto;
+    double velocity_filter = 1.0;
 };
 
 /// Cumulative work of the 3D solver, per effect. In a distributed run the counters are the whole run's (summed over
@@ -213,9 +227,10 @@ private:
     /// into `as_run` as the run stretches (the vortex segment on u read with the cache's interpolation) and into
     /// `exact` exactly for the frozen u (either may be null; without `stretching` neither is stretched). With `last`,
     /// u is extrapolated as the run extrapolates it (velocity_time): u + f (u - last), the difference read
-    /// trilinearly.
+    /// trilinearly. With `stretch`, the as-run stretching reads it instead of u (the cached backtrace: u is then the
+    /// smoothed, extrapolated velocity the stages read, `stretch` the cell velocity).
     void budget_step(const VectorGrid3& u, double dt, int substeps, VectorGrid3* as_run, VectorGrid3* exact,
-                     const VectorGrid3* last = nullptr, double f = 0) const;
+                     const VectorGrid3* last = nullptr, double f = 0, const VectorGrid3* stretch = nullptr) const;
     /// The step's budget (m_budget_step); false when a stop came between its passes (the step is then discarded).
     bool measure_budget(double dt);
     /// MacCormack's correction of m_next (VorticityTransport::MacCormack): the advected values m_advected traced
@@ -226,6 +241,11 @@ private:
     MCFluid3Settings m_settings;
     Communicator* m_comm;  ///< never null (the local communicator by default)
     double m_delta = 0, m_segment = 0;
+    VectorGrid3 m_vel_stretch;    ///< the velocity the stretching reads (m_vel smoothed by stretching_filter)
+    VectorGrid3 m_vel_backtrace;  ///< backtrace_velocity cache: the velocity the stages read (smoothed m_vel)
+    std::vector<char> m_fluid;    ///< with walls and stretching_filter: cells whose centre is in the fluid
+    /// The velocity the stretching segments read: `u` itself, or smoothed into `into` (stretching_filter).
+    const VectorGrid3& stretching_velocity(const VectorGrid3& u, VectorGrid3& into) const;
     double m_time = 0;
     long long m_step = 0;
     VectorGrid3 m_omega, m_next;

@@ -184,8 +184,8 @@ FluidDiagnostics grid_diagnostics(const Grid2& omega, const Grid2& u, const Grid
         kelvin::param::integer("diffusion_samples", 1, "mcfluid's n_d; accepted and ignored"),                       \
         kelvin::param::string("advection", "rk4", "'euler' or 'rk4'"),                                               \
         kelvin::param::string("transport", "cubic", "mcfluid's vorticity lookup; accepted and ignored"),             \
-        kelvin::param::string("backtrace_velocity", "auto", "mcfluid's (2D); accepted and ignored"),                 \
-        kelvin::param::real("velocity_filter", 1.0, "mcfluid's (2D); accepted and ignored"),                         \
+        kelvin::param::string("backtrace_velocity", "auto", "mcfluid's; accepted and ignored"),                      \
+        kelvin::param::real("velocity_filter", 1.0, "mcfluid's; accepted and ignored"),                              \
         kelvin::param::boolean("energy_budget", false, "mcfluid's; must be false"),                                  \
         kelvin::param::integer("output_every", 0, "write PNG/EXR frames every N steps (0: none)"),                   \
         kelvin::param::boolean("write_png", true, "write frames as PNG"),                                            \

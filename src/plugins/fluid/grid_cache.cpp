@@ -41,7 +41,9 @@ private:
 KELVIN_PLUGIN(kelvin::fluid::GridCache, "cache", "grid",
               "Uniform grid cache of the previous step's vorticity at cell centres (Section 5.3.3).",
               kelvin::param::integer("resolution", 64, "cells along x"),
-              kelvin::param::integer("resolution_y", 0, "cells along y; 0: square cells"),
-              kelvin::param::integer("resolution_z", 0, "cells along z (3D); 0: cubic cells"),
+              kelvin::param::integer("resolution_y", 0,
+                                     "cells along y; 0: square cells (sides within 64x of each other)"),
+              kelvin::param::integer("resolution_z", 0,
+                                     "cells along z (3D); 0: cubic cells (sides within 64x of each other)"),
               kelvin::param::string("interpolation", "bilinear",
                                     "'nearest', 'bilinear' or 'trilinear' (3D: the same tent basis)"));

@@ -48,10 +48,13 @@ public:
         const long long dim = props.get_int("dimension");
         if (dim == 3)  // the Feynman–Kac Navier–Stokes solver (include/kelvin/fluid/simulation3.h)
             m_3d = std::make_unique<Simulation3Params>(Simulation3Params::parse(props));
-        else if (dim == 2)
+        else if (dim == 2) {
+            if (props.has("stretching_filter"))
+                props.error("stretching_filter", "is a 3D parameter (2D flows have no vortex stretching)");
             m_2d = std::make_unique<MCFluidParams>(MCFluidParams::parse(props));
-        else
+        } else {
             props.error("dimension", fmt::format("must be 2 or 3 (got {})", dim));
+        }
     }
 
     std::string description() const override {
@@ -112,12 +115,13 @@ KELVIN_PLUGIN(kelvin::fluid::MCFluid, "simulation", "mcfluid",
                                     "'maccormack' (cubic with Selle et al.'s error correction) "
                                     "or 'linear' (bi/trilinear, the thesis' scheme, diffusive)"),
               kelvin::param::string("backtrace_velocity", "auto",
-                                    "2D: what a backtrace's Runge–Kutta stages read: 'cache' (the state's cell-centre "
+                                    "what a backtrace's Runge–Kutta stages read: 'cache' (the state's cell-centre "
                                     "estimates, filtered by velocity_filter; one estimate per cell and step), "
                                     "'estimates' (a fresh Monte Carlo estimate at every stage point, the thesis' "
-                                    "scheme) or 'auto' (cache without boundaries, estimates with them)"),
+                                    "scheme) or 'auto' (2D: cache without boundaries, estimates with them; 3D: "
+                                    "estimates)"),
               kelvin::param::real("velocity_filter", 1.0,
-                                  "2D with backtrace_velocity 'cache': standard deviation in cells of the Gaussian "
+                                  "with backtrace_velocity 'cache': standard deviation in cells of the Gaussian "
                                   "that smooths the cached velocity's noise (0: none; at most 8)"),
               kelvin::param::boolean("energy_budget", false,
                                      "inviscid (2D and 3D; walls: 2D, static): measure where each step's energy goes "
@@ -129,6 +133,9 @@ KELVIN_PLUGIN(kelvin::fluid::MCFluid, "simulation", "mcfluid",
               kelvin::param::real("color_range", 0.0, "|omega| mapped to full colour (0: max at t = 0)"),
               KELVIN_FRAME_STYLE_PARAMS,
               kelvin::param::boolean("stretching", true, "3D: vortex stretching (Eq. 5.21); off only to study it"),
+              kelvin::param::real("stretching_filter", 0.0,
+                                  "3D: standard deviation in cells of the Gaussian that smooths the cached velocity "
+                                  "the stretching segments difference (0: none, the thesis' scheme; at most 8)"),
               kelvin::param::string("velocity_time", "auto",
                                     "3D: the velocity a step's backtrace reads: 'midstep' (extrapolated from the last "
                                     "two states, second order in dt), 'start' (frozen at the step's start, the "
