@@ -458,8 +458,15 @@ public:
             "effects: advection ({}, dt {:g}, {} steps, transport {}, velocity {}) with {}; stretching {}; diffusion "
             "{}; control variates {}; boundaries {}; smoke {}",
             fluid::to_string(s.advection), s.dt, m_p.steps, fluid::to_string(s.transport),
-            solver.midstep() ? "at mid-step, extrapolated" : "frozen at the step's start", velocity,
-            s.stretching ? fmt::format("on (vortex segments, h = {:g})", solver.segment_length())
+            std::string(solver.midstep() ? "at mid-step, extrapolated" : "frozen at the step's start") +
+                (solver.settings().backtrace_velocity == BacktraceVelocity::Cache
+                     ? fmt::format("; the stages read the cache smoothed over {:g} cells", s.velocity_filter)
+                     : std::string("; a fresh estimate at each stage")),
+            velocity,
+            s.stretching ? fmt::format("on (vortex segments, h = {:g}{})", solver.segment_length(),
+                                       s.stretching_filter > 0
+                                           ? fmt::format(", velocity smoothed over {:g} cells", s.stretching_filter)
+                                           : std::string())
                          : std::string("OFF (requested; the 3D equations need it)"),
             s.viscosity > 0 ? fmt::format("on (nu {:g}, Feynman–Kac, n_d {})", s.viscosity, s.diffusion_samples)
                             : std::string("off (inviscid)"),

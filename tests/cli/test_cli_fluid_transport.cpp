@@ -128,6 +128,24 @@ TEST(CliFluidTransport, EnergyBudgetIn3D) {
                     "parameter 'energy_budget': covers flows without boundaries only");
 }
 
+// The 3D smoothed velocities from the command line (leapfrog_twice.xml sets them): the run's effects line names both,
+// with the energy budget, which models them; stretching_filter in 2D is refused, naming it.
+TEST(CliFluidTransport, SmoothedVelocitiesIn3DAreNamedAndBudgeted) {
+    TempDir dir;
+    const ProcessResult r = run_kelvin({Scenes + "leapfrog_twice.xml", "-D", "res=16", "-D", "end=0.2", "-D", "spp=8",
+                                        "-D", "every=0", "-D", "budget=true", "-o", (dir.path() / "lf.png").string()});
+    ASSERT_EQ(r.exit_code, 0) << describe(r);
+    EXPECT_CONTAINS(r.err + r.out, "the stages read the cache smoothed over 1 cells");
+    EXPECT_CONTAINS(r.err + r.out, "velocity smoothed over 1 cells");
+    write_file(dir.path() / "s2.xml", R"(<scene version="3.0.0"><simulation type="mcfluid">
+        <float name="dt" value="0.01"/><integer name="steps" value="1"/><float name="stretching_filter" value="1"/>
+        <vorticity type="taylor_green"/><cache type="grid"><integer name="resolution" value="16"/></cache>
+        </simulation></scene>)");
+    const ProcessResult two = run_kelvin({(dir.path() / "s2.xml").string(), "-o", (dir.path() / "s2.exr").string()});
+    const std::string line = expect_one_error_line(two, 2);
+    EXPECT_CONTAINS(line, "parameter 'stretching_filter'");
+}
+
 // 3D MacCormack from the command line: the ring runs, and the effects line names the transport and the velocity's time.
 TEST(CliFluidTransport, MacCormackRunsIn3DAndTheEffectsLineNamesTheTransport) {
     TempDir dir;
@@ -135,12 +153,14 @@ TEST(CliFluidTransport, MacCormackRunsIn3DAndTheEffectsLineNamesTheTransport) {
         run_kelvin({Scenes + "vortex_ring.xml", "-D", "res=12", "-D", "end=0.2", "-D", "spp=8", "-D", "every=0", "-D",
                     "transport=maccormack", "-o", (dir.path() / "ring.png").string()});
     ASSERT_EQ(r.exit_code, 0) << describe(r);
-    EXPECT_CONTAINS(r.err + r.out, "2 steps, transport maccormack, velocity at mid-step, extrapolated)");
+    EXPECT_CONTAINS(
+        r.err + r.out,
+        "2 steps, transport maccormack, velocity at mid-step, extrapolated; a fresh estimate at each stage)");
     const ProcessResult f =
         run_kelvin({Scenes + "vortex_ring.xml", "-D", "res=12", "-D", "end=0.2", "-D", "spp=8", "-D", "every=0", "-D",
                     "vtime=start", "-o", (dir.path() / "ring_start.png").string()});
     ASSERT_EQ(f.exit_code, 0) << describe(f);
-    EXPECT_CONTAINS(f.err + f.out, "velocity frozen at the step's start)");
+    EXPECT_CONTAINS(f.err + f.out, "velocity frozen at the step's start; a fresh estimate at each stage)");
     const ProcessResult d = run_kelvin({Scenes + "taylor_green.xml", "-D", "res=16", "-D", "end=0.1", "-D", "spp=8",
                                         "-o", (dir.path() / "tg.exr").string()});
     ASSERT_EQ(d.exit_code, 0) << describe(d);
@@ -148,8 +168,8 @@ TEST(CliFluidTransport, MacCormackRunsIn3DAndTheEffectsLineNamesTheTransport) {
 }
 
 // The 2D backtrace's velocity: 'auto' reads the filtered cache without boundaries and fresh estimates with them (the
-// effects line says which), 'estimates' is the thesis' scheme; a bad value, a filter out of range, a filter where no
-// cache is read, and either parameter in 3D are one line naming the parameter, exit 2.
+// effects line says which), 'estimates' is the thesis' scheme; a bad value, a filter out of range and a filter where no
+// cache is read are one line naming the parameter, exit 2. In 3D both apply ('cache' there is an option).
 TEST(CliFluidTransport, BacktraceVelocityFromTheScene) {
     TempDir dir;
     const auto with = [&](const std::string& scene, const std::string& params, const std::string& name) {
@@ -192,9 +212,13 @@ TEST(CliFluidTransport, BacktraceVelocityFromTheScene) {
     EXPECT_CONTAINS(expect_one_error_line(run_kelvin(
                         args(with("lamb_oseen_disk.xml", "<float name=\"velocity_filter\" value=\"1\"/>", "d.xml")))),
                     "parameter 'velocity_filter': filters the cached velocity");
-    EXPECT_CONTAINS(expect_one_error_line(run_kelvin(
-                        args(with("vortex_ring.xml", "<float name=\"velocity_filter\" value=\"1\"/>", "r.xml")))),
-                    "parameter 'velocity_filter': is a 2D parameter");
+    // 3D: both parameters apply (the cached backtrace is an option there, not the default).
+    const ProcessResult ring = run_kelvin(args(
+        with("vortex_ring.xml",
+             "<string name=\"backtrace_velocity\" value=\"cache\"/><float name=\"velocity_filter\" value=\"1.5\"/>",
+             "r.xml")));
+    ASSERT_EQ(ring.exit_code, 0) << describe(ring);
+    EXPECT_CONTAINS(ring.err + ring.out, "the stages read the cache smoothed over 1.5 cells");
 }
 
 // sample_allocation: 'vorticity' runs and the effects line says so; a bad value, or the parameter in 2D, is one line
