@@ -100,12 +100,23 @@ void BM_BiotSavart3Pass(benchmark::State& state, bool periodic) {
 }
 
 // A full step (velocity pass + backtrace + stretching [+ diffusion]) of the ABC flow.
-void BM_Step3(benchmark::State& state, bool cv) {
+enum class StepKind { Plain, ControlVariates, PlainRK4, SmoothedRK4 };
+
+// One step at res^3 and n_mc (Euler backtraces): the thesis' scheme, or with control variates. With RK4 (the scenes'
+// integrator): the thesis' scheme (a fresh estimate at each later stage), or the smoothed velocities
+// (backtrace_velocity cache and stretching_filter 1, one cell each: leapfrog_twice.xml's choice).
+void BM_Step3(benchmark::State& state, StepKind kind) {
     ThreadLimit limit(bench_threads());
     const int res = int(state.range(0)), nmc = int(state.range(1));
     MCFluid3Settings s = settings(res, nmc, true);
+    const bool cv = kind == StepKind::ControlVariates;
     s.control_variates = cv;
     s.initial_samples = cv ? 4 * nmc : 0;
+    if (kind == StepKind::PlainRK4 || kind == StepKind::SmoothedRK4) s.advection = Advection::RK4;
+    if (kind == StepKind::SmoothedRK4) {
+        s.backtrace_velocity = BacktraceVelocity::Cache;
+        s.stretching_filter = 1;
+    }
     MCFluid3Solver solver(s, abc);
     solver.step();  // the first step has no control variate yet
     for (auto _ : state) solver.step();
@@ -242,7 +253,7 @@ BENCHMARK_CAPTURE(BM_BiotSavart3Pass, open_ring, false)
     ->Unit(benchmark::kMillisecond)
     ->MeasureProcessCPUTime()
     ->UseRealTime();
-BENCHMARK_CAPTURE(BM_Step3, plain, false)
+BENCHMARK_CAPTURE(BM_Step3, plain, StepKind::Plain)
     ->Args({64, 32})
     ->Args({64, 128})
     ->Args({128, 32})
@@ -251,11 +262,25 @@ BENCHMARK_CAPTURE(BM_Step3, plain, false)
     ->MeasureProcessCPUTime()
     ->UseRealTime()
     ->Iterations(2);
-BENCHMARK_CAPTURE(BM_Step3, control_variates, true)
+BENCHMARK_CAPTURE(BM_Step3, control_variates, StepKind::ControlVariates)
     ->Args({64, 32})
     ->Args({64, 128})
     ->Args({128, 32})
     ->Args({128, 128})
+    ->Unit(benchmark::kMillisecond)
+    ->MeasureProcessCPUTime()
+    ->UseRealTime()
+    ->Iterations(2);
+BENCHMARK_CAPTURE(BM_Step3, plain_rk4, StepKind::PlainRK4)
+    ->Args({64, 32})
+    ->Args({64, 128})
+    ->Unit(benchmark::kMillisecond)
+    ->MeasureProcessCPUTime()
+    ->UseRealTime()
+    ->Iterations(2);
+BENCHMARK_CAPTURE(BM_Step3, smoothed_rk4, StepKind::SmoothedRK4)
+    ->Args({64, 32})
+    ->Args({64, 128})
     ->Unit(benchmark::kMillisecond)
     ->MeasureProcessCPUTime()
     ->UseRealTime()
