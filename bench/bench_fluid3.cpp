@@ -253,38 +253,18 @@ BENCHMARK_CAPTURE(BM_BiotSavart3Pass, open_ring, false)
     ->Unit(benchmark::kMillisecond)
     ->MeasureProcessCPUTime()
     ->UseRealTime();
-BENCHMARK_CAPTURE(BM_Step3, plain, StepKind::Plain)
-    ->Args({64, 32})
-    ->Args({64, 128})
-    ->Args({128, 32})
-    ->Args({128, 128})
-    ->Unit(benchmark::kMillisecond)
-    ->MeasureProcessCPUTime()
-    ->UseRealTime()
-    ->Iterations(2);
-BENCHMARK_CAPTURE(BM_Step3, control_variates, StepKind::ControlVariates)
-    ->Args({64, 32})
-    ->Args({64, 128})
-    ->Args({128, 32})
-    ->Args({128, 128})
-    ->Unit(benchmark::kMillisecond)
-    ->MeasureProcessCPUTime()
-    ->UseRealTime()
-    ->Iterations(2);
-BENCHMARK_CAPTURE(BM_Step3, plain_rk4, StepKind::PlainRK4)
-    ->Args({64, 32})
-    ->Args({64, 128})
-    ->Unit(benchmark::kMillisecond)
-    ->MeasureProcessCPUTime()
-    ->UseRealTime()
-    ->Iterations(2);
-BENCHMARK_CAPTURE(BM_Step3, smoothed_rk4, StepKind::SmoothedRK4)
-    ->Args({64, 32})
-    ->Args({64, 128})
-    ->Unit(benchmark::kMillisecond)
-    ->MeasureProcessCPUTime()
-    ->UseRealTime()
-    ->Iterations(2);
+// The steps' sizes (res, n_mc): 64^3 and 128^3 for the Euler steps, 64^3 for the RK4 pair; two timed steps each.
+void step_sizes(benchmark::internal::Benchmark* b, bool large) {
+    b->Args({64, 32})->Args({64, 128});
+    if (large) b->Args({128, 32})->Args({128, 128});
+    b->Unit(benchmark::kMillisecond)->MeasureProcessCPUTime()->UseRealTime()->Iterations(2);
+}
+void euler_sizes(benchmark::internal::Benchmark* b) { step_sizes(b, true); }
+void rk4_sizes(benchmark::internal::Benchmark* b) { step_sizes(b, false); }
+BENCHMARK_CAPTURE(BM_Step3, plain, StepKind::Plain)->Apply(euler_sizes);
+BENCHMARK_CAPTURE(BM_Step3, control_variates, StepKind::ControlVariates)->Apply(euler_sizes);
+BENCHMARK_CAPTURE(BM_Step3, plain_rk4, StepKind::PlainRK4)->Apply(rk4_sizes);
+BENCHMARK_CAPTURE(BM_Step3, smoothed_rk4, StepKind::SmoothedRK4)->Apply(rk4_sizes);
 BENCHMARK(BM_Effects)
     ->DenseRange(0, 3)
     ->Unit(benchmark::kMillisecond)

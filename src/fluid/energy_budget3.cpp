@@ -399,11 +399,8 @@ bool MCFluid3Solver::measure_budget(double dt) {
     if (s.backtrace_velocity == BacktraceVelocity::Cache) {
         // As the run: the stages read the extrapolated velocity smoothed by velocity_filter (the smoothing then lands
         // in budget_mollifier, as in 2D), the stretching the cell velocity.
-        VectorGrid3 stages = u;
-        if (extrapolate)
-            for (std::size_t c = 0; c < u.cell_count(); ++c)
-                stages.set(c, u.at(c) + m_mid_factor * (u.at(c) - last.at(c)));
-        gaussian_filter(stages, s.velocity_filter, m_fluid.empty() ? nullptr : &m_fluid);
+        VectorGrid3 stages;
+        cached_backtrace_velocity(u, extrapolate ? &last : nullptr, m_mid_factor, stages);
         budget_step(stages, dt, 1, &step, nullptr, nullptr, 0.0, &u);
     } else {
         budget_step(u, dt, 1, &step, nullptr, extrapolate ? &last : nullptr, m_mid_factor);

@@ -1,3 +1,5 @@
+#include "fluid/separable_gaussian.h"
+
 #include <kelvin/core/parallel.h>
 #include <kelvin/fluid/grid.h>
 
@@ -52,47 +54,56 @@ Grid2::Grid2(const Domain2& domain, int nx, int ny)
 
 void Grid2::fill(double v) { std::fill(m_values.begin(), m_values.end(), v); }
 
-void gaussian_filter(Grid2& g, double sigma, const std::vector<char>* fluid) {
+namespace detail {
+
+void separable_gaussian(std::vector<double>& values, const int (&n)[3], bool periodic, double sigma,
+                        const std::vector<char>* fluid) {
     if (!(sigma > 0)) return;
-    const int nx = g.nx(), ny = g.ny(), r = int(std::ceil(3 * sigma));
-    const bool periodic = g.domain().periodic;
+    const int r = int(std::ceil(3 * sigma));
     std::vector<double> w(std::size_t(2 * r + 1));
     for (int k = -r; k <= r; ++k) w[std::size_t(k + r)] = std::exp(-0.5 * k * k / (sigma * sigma));
-    const std::size_t cells = g.cell_count();
+    const std::size_t cells = values.size();
     // Normalised convolution: the filtered (value x mask) over the filtered mask, one axis at a time.
     std::vector<double> a(cells), m(cells), ta(cells), tm(cells);
     for (std::size_t c = 0; c < cells; ++c) {
         m[c] = fluid && !(*fluid)[c] ? 0.0 : 1.0;
-        a[c] = m[c] * g.values()[c];
+        a[c] = m[c] * values[c];
     }
-    const auto pass = [&](const std::vector<double>& src_a, const std::vector<double>& src_m,
-                          std::vector<double>& dst_a, std::vector<double>& dst_m, bool along_x) {
-        const int n = along_x ? nx : ny;
-        parallel_for_units(std::size_t(along_x ? ny : nx), [&](std::size_t line) {
-            for (int q = 0; q < n; ++q) {
+    const std::size_t stride[3] = {1, std::size_t(n[0]), std::size_t(n[0]) * std::size_t(n[1])};
+    for (int axis = 0; axis < 3; ++axis) {
+        const int len = n[axis];
+        if (len == 1) continue;                                  // 2D: no z
+        const int u = axis == 0 ? 1 : 0, v = axis == 2 ? 1 : 2;  // the two other axes
+        parallel_for_units(std::size_t(n[u]) * std::size_t(n[v]), [&](std::size_t line) {
+            const std::size_t base = (line % std::size_t(n[u])) * stride[u] + (line / std::size_t(n[u])) * stride[v];
+            for (int q = 0; q < len; ++q) {
                 double sa = 0, sm = 0;
                 for (int k = -r; k <= r; ++k) {
                     int t = q + k;
                     if (periodic)
-                        t = ((t % n) + n) % n;
-                    else if (t < 0 || t >= n)
+                        t = ((t % len) + len) % len;
+                    else if (t < 0 || t >= len)
                         continue;
-                    const std::size_t c =
-                        along_x ? line * std::size_t(nx) + std::size_t(t) : std::size_t(t) * std::size_t(nx) + line;
-                    sa += w[std::size_t(k + r)] * src_a[c];
-                    sm += w[std::size_t(k + r)] * src_m[c];
+                    const std::size_t c = base + std::size_t(t) * stride[axis];
+                    sa += w[std::size_t(k + r)] * a[c];
+                    sm += w[std::size_t(k + r)] * m[c];
                 }
-                const std::size_t c =
-                    along_x ? line * std::size_t(nx) + std::size_t(q) : std::size_t(q) * std::size_t(nx) + line;
-                dst_a[c] = sa;
-                dst_m[c] = sm;
+                const std::size_t c = base + std::size_t(q) * stride[axis];
+                ta[c] = sa;
+                tm[c] = sm;
             }
         });
-    };
-    pass(a, m, ta, tm, true);
-    pass(ta, tm, a, m, false);
+        std::swap(a, ta);
+        std::swap(m, tm);
+    }
     for (std::size_t c = 0; c < cells; ++c)
-        if ((!fluid || (*fluid)[c]) && m[c] > 0) g.values()[c] = a[c] / m[c];
+        if ((!fluid || (*fluid)[c]) && m[c] > 0) values[c] = a[c] / m[c];
+}
+
+}  // namespace detail
+
+void gaussian_filter(Grid2& g, double sigma, const std::vector<char>* fluid) {
+    detail::separable_gaussian(g.values(), {g.nx(), g.ny(), 1}, g.domain().periodic, sigma, fluid);
 }
 
 double Grid2::at_bc(int i, int j) const {

@@ -1,4 +1,5 @@
-#include <kelvin/core/parallel.h>
+#include "fluid/separable_gaussian.h"
+
 #include <kelvin/fluid/grid3.h>
 
 #include <fmt/format.h>
@@ -176,46 +177,7 @@ double VectorGrid3::max_norm() const {
 }
 
 void gaussian_filter(Grid3& g, double sigma, const std::vector<char>* fluid) {
-    if (!(sigma > 0)) return;
-    const int n[3] = {g.nx(), g.ny(), g.nz()}, r = int(std::ceil(3 * sigma));
-    const bool periodic = g.domain().periodic;
-    std::vector<double> w(std::size_t(2 * r + 1));
-    for (int k = -r; k <= r; ++k) w[std::size_t(k + r)] = std::exp(-0.5 * k * k / (sigma * sigma));
-    const std::size_t cells = g.cell_count();
-    // Normalised convolution: the filtered (value x mask) over the filtered mask, one axis at a time.
-    std::vector<double> a(cells), m(cells), ta(cells), tm(cells);
-    for (std::size_t c = 0; c < cells; ++c) {
-        m[c] = fluid && !(*fluid)[c] ? 0.0 : 1.0;
-        a[c] = m[c] * g.values()[c];
-    }
-    const std::size_t stride[3] = {1, std::size_t(n[0]), std::size_t(n[0]) * std::size_t(n[1])};
-    for (int axis = 0; axis < 3; ++axis) {
-        const int len = n[axis];
-        const int u = axis == 0 ? 1 : 0, v = axis == 2 ? 1 : 2;  // the two other axes
-        parallel_for_units(std::size_t(n[u]) * std::size_t(n[v]), [&](std::size_t line) {
-            const std::size_t base = (line % std::size_t(n[u])) * stride[u] + (line / std::size_t(n[u])) * stride[v];
-            for (int q = 0; q < len; ++q) {
-                double sa = 0, sm = 0;
-                for (int k = -r; k <= r; ++k) {
-                    int t = q + k;
-                    if (periodic)
-                        t = ((t % len) + len) % len;
-                    else if (t < 0 || t >= len)
-                        continue;
-                    const std::size_t c = base + std::size_t(t) * stride[axis];
-                    sa += w[std::size_t(k + r)] * a[c];
-                    sm += w[std::size_t(k + r)] * m[c];
-                }
-                const std::size_t c = base + std::size_t(q) * stride[axis];
-                ta[c] = sa;
-                tm[c] = sm;
-            }
-        });
-        std::swap(a, ta);
-        std::swap(m, tm);
-    }
-    for (std::size_t c = 0; c < cells; ++c)
-        if ((!fluid || (*fluid)[c]) && m[c] > 0) g.values()[c] = a[c] / m[c];
+    detail::separable_gaussian(g.values(), {g.nx(), g.ny(), g.nz()}, g.domain().periodic, sigma, fluid);
 }
 
 void gaussian_filter(VectorGrid3& g, double sigma, const std::vector<char>* fluid) {

@@ -348,6 +348,14 @@ const VectorGrid3& MCFluid3Solver::stretching_velocity(const VectorGrid3& u, Vec
     return into;
 }
 
+void MCFluid3Solver::cached_backtrace_velocity(const VectorGrid3& u, const VectorGrid3* last, double f,
+                                               VectorGrid3& into) const {
+    into = u;
+    if (last && f != 0)
+        for (std::size_t c = 0; c < u.cell_count(); ++c) into.set(c, u.at(c) + f * (u.at(c) - last->at(c)));
+    gaussian_filter(into, m_settings.velocity_filter, m_fluid.empty() ? nullptr : &m_fluid);
+}
+
 bool MCFluid3Solver::step(double dt) {
     if (!(dt > 0) || std::isnan(dt)) throw_runtime("MCFluid3Solver::step: dt must be positive (got {})", dt);
     // (A stop on any rank stops every rank's step.)
@@ -372,13 +380,8 @@ bool MCFluid3Solver::step(double dt) {
     SlabWork work;
     const VectorGrid3& u_stretch = stretching_velocity(m_vel, m_vel_stretch);
     const bool cached = s.backtrace_velocity == BacktraceVelocity::Cache;
-    if (cached) {  // the velocity extrapolated to mid-step (velocity_time), then smoothed: its noise too
-        m_vel_backtrace = m_vel;
-        if (m_mid_factor != 0)
-            for (std::size_t c = 0; c < m_vel.cell_count(); ++c)
-                m_vel_backtrace.set(c, m_vel.at(c) + m_mid_factor * (m_vel.at(c) - m_last_vel.at(c)));
-        gaussian_filter(m_vel_backtrace, s.velocity_filter, m_fluid.empty() ? nullptr : &m_fluid);
-    }
+    // The velocity extrapolated to mid-step (velocity_time), then smoothed: its noise too.
+    if (cached) cached_backtrace_velocity(m_vel, &m_last_vel, m_mid_factor, m_vel_backtrace);
     const bool complete = for_each_cell(
         pass, s, m_omega.x, m_step, TagAdvection, work, *this,
         [&](std::size_t c, const Vec3d& x, Random& rng, SlabWork& w) {

@@ -246,6 +246,9 @@ private:
     std::vector<char> m_fluid;    ///< with walls and stretching_filter: cells whose centre is in the fluid
     /// The velocity the stretching segments read: `u` itself, or smoothed into `into` (stretching_filter).
     const VectorGrid3& stretching_velocity(const VectorGrid3& u, VectorGrid3& into) const;
+    /// What the cached backtrace's stages read (backtrace_velocity cache): u + f (u - last) (without `last`, u),
+    /// smoothed by velocity_filter, into `into`.
+    void cached_backtrace_velocity(const VectorGrid3& u, const VectorGrid3* last, double f, VectorGrid3& into) const;
     double m_time = 0;
     long long m_step = 0;
     VectorGrid3 m_omega, m_next;
