@@ -100,10 +100,27 @@ void separable_gaussian(std::vector<double>& values, const int (&n)[3], bool per
         if ((!fluid || (*fluid)[c]) && m[c] > 0) values[c] = a[c] / m[c];
 }
 
+void smooth_values(std::vector<double>& values, const int (&n)[3], bool periodic, double sigma, bool twicing,
+                   const std::vector<char>* fluid) {
+    if (!twicing || !(sigma > 0)) return separable_gaussian(values, n, periodic, sigma, fluid);
+    std::vector<double> once = values;
+    separable_gaussian(once, n, periodic, sigma, fluid);
+    values = once;
+    separable_gaussian(values, n, periodic, sigma, fluid);
+    for (std::size_t c = 0; c < values.size(); ++c) values[c] = 2 * once[c] - values[c];
+}
+
 }  // namespace detail
 
 void gaussian_filter(Grid2& g, double sigma, const std::vector<char>* fluid) {
     detail::separable_gaussian(g.values(), {g.nx(), g.ny(), 1}, g.domain().periodic, sigma, fluid);
+}
+
+const char* to_string(FilterKernel k) { return k == FilterKernel::Twicing ? "twicing" : "gaussian"; }
+
+void smooth_cells(Grid2& g, double sigma, FilterKernel kernel, const std::vector<char>* fluid) {
+    detail::smooth_values(g.values(), {g.nx(), g.ny(), 1}, g.domain().periodic, sigma, kernel == FilterKernel::Twicing,
+                          fluid);
 }
 
 double Grid2::at_bc(int i, int j) const {

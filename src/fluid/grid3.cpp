@@ -184,6 +184,12 @@ void gaussian_filter(VectorGrid3& g, double sigma, const std::vector<char>* flui
     for (Grid3* c : {&g.x, &g.y, &g.z}) gaussian_filter(*c, sigma, fluid);
 }
 
+void smooth_cells(VectorGrid3& g, double sigma, FilterKernel kernel, const std::vector<char>* fluid) {
+    for (Grid3* c : {&g.x, &g.y, &g.z})
+        detail::smooth_values(c->values(), {c->nx(), c->ny(), c->nz()}, c->domain().periodic, sigma,
+                              kernel == FilterKernel::Twicing, fluid);
+}
+
 Vec3d impulse_centroid(const VectorGrid3& omega, Vec3d fallback) {
     const Grid3& g = omega.x;
     Vec3d imp(0.0);

@@ -124,7 +124,8 @@ void check_settings(const MCFluid3Settings& s) {
         throw_runtime("MCFluid3Solver: control_variate_blend must lie in (0, 1]");
     if (!(s.velocity_filter >= 0 && s.velocity_filter <= MaxVelocityFilter))
         throw_runtime("MCFluid3Solver: velocity_filter must lie in [0, {}] cells", MaxVelocityFilter);
-    if (!(s.stretching_filter >= 0 && s.stretching_filter <= MCFluid3Settings::MaxStretchingFilter))
+    if (!(s.stretching_filter == AutoFilter ||
+          (s.stretching_filter >= 0 && s.stretching_filter <= MCFluid3Settings::MaxStretchingFilter)))
         throw_runtime("MCFluid3Solver: stretching_filter must lie in [0, {}] cells",
                       MCFluid3Settings::MaxStretchingFilter);
 }
@@ -148,7 +149,10 @@ MCFluid3Solver::MCFluid3Solver(const MCFluid3Settings& settings, const InitialFi
     m_segment = std::min({h.x, h.y, h.z});
     m_delta = resolved_delta3(*s.estimator, h, s.nx, s.ny, s.nz, s.domain.periodic);
     if (m_settings.backtrace_velocity == BacktraceVelocity::Auto)
-        m_settings.backtrace_velocity = BacktraceVelocity::Estimates;
+        m_settings.backtrace_velocity = s.boundaries ? BacktraceVelocity::Estimates : BacktraceVelocity::Cache;
+    if (m_settings.stretching_filter == AutoFilter)
+        m_settings.stretching_filter =
+            s.backtrace_velocity == BacktraceVelocity::Cache ? MCFluid3Settings::DefaultStretchingFilter : 0.0;
     m_midstep = s.velocity_time == MCFluid3Settings::VelocityTime::Midstep ||
                 (s.velocity_time == MCFluid3Settings::VelocityTime::Auto && !s.boundaries);
     if (s.domain.periodic && !s.boundaries) m_periodic = std::make_shared<PeriodicKernel3>(s.domain.size());
@@ -344,7 +348,7 @@ const VectorGrid3& MCFluid3Solver::velocity_variance() {
 const VectorGrid3& MCFluid3Solver::stretching_velocity(const VectorGrid3& u, VectorGrid3& into) const {
     if (!(m_settings.stretching_filter > 0) || !m_settings.stretching) return u;
     into = u;
-    gaussian_filter(into, m_settings.stretching_filter, m_fluid.empty() ? nullptr : &m_fluid);
+    smooth_cells(into, m_settings.stretching_filter, m_settings.filter_kernel, m_fluid.empty() ? nullptr : &m_fluid);
     return into;
 }
 
@@ -353,7 +357,7 @@ void MCFluid3Solver::cached_backtrace_velocity(const VectorGrid3& u, const Vecto
     into = u;
     if (last && f != 0)
         for (std::size_t c = 0; c < u.cell_count(); ++c) into.set(c, u.at(c) + f * (u.at(c) - last->at(c)));
-    gaussian_filter(into, m_settings.velocity_filter, m_fluid.empty() ? nullptr : &m_fluid);
+    smooth_cells(into, m_settings.velocity_filter, m_settings.filter_kernel, m_fluid.empty() ? nullptr : &m_fluid);
 }
 
 bool MCFluid3Solver::step(double dt) {

@@ -40,6 +40,7 @@ MCFluidParams MCFluidParams::parse(const Properties& props) {
     s.diffusion_samples = int(props.get_int("diffusion_samples", 1, 1 << 20));
     s.backtrace_velocity = p.common.backtrace_velocity;
     s.velocity_filter = p.common.velocity_filter;
+    if (p.common.filter_kernel) s.filter_kernel = *p.common.filter_kernel;
     // The velocity estimator, through its interface only (velocity.h): built-in or a plugin's.
     std::shared_ptr<const VelocityEstimator> velocity;
     if (auto obj = props.get_object("velocity")) {
@@ -59,11 +60,12 @@ MCFluidParams MCFluidParams::parse(const Properties& props) {
     if (const std::string why = velocity->check2(s.domain); !why.empty())
         props.error("velocity", velocity->plugin_name() + ": " + why);
     s.boundaries = velocity->boundaries();
-    if (props.has("velocity_filter") && (s.backtrace_velocity == BacktraceVelocity::Estimates ||
-                                         (s.backtrace_velocity == BacktraceVelocity::Auto && s.boundaries)))
-        props.error("velocity_filter",
-                    "filters the cached velocity the backtraces read: set backtrace_velocity = 'cache' (with "
-                    "boundaries 'auto' reads fresh estimates)");
+    for (const char* name : {"velocity_filter", "filter_kernel"})
+        if (props.has(name) && (s.backtrace_velocity == BacktraceVelocity::Estimates ||
+                                (s.backtrace_velocity == BacktraceVelocity::Auto && s.boundaries)))
+            props.error(name,
+                        "filters the cached velocity the backtraces read: set backtrace_velocity = 'cache' (with "
+                        "boundaries 'auto' reads fresh estimates)");
     if (s.boundaries)  // solid boundaries: what they leave of the cache
         if (const std::string why = check_wos_cells(*s.boundaries, s.domain, s.nx, s.ny); !why.empty())
             props.error("velocity", velocity->plugin_name() + ": " + why);
@@ -180,7 +182,8 @@ public:
             "stretching off (2D); {}",
             fluid::to_string(s.advection), s.dt, m_p.steps, fluid::to_string(s.transport),
             s.backtrace_velocity == BacktraceVelocity::Cache
-                ? fmt::format("stages read the cached velocity, Gaussian filter {:g} cells", s.velocity_filter)
+                ? fmt::format("stages read the cached velocity, {} filter {:g} cells",
+                              s.filter_kernel == FilterKernel::Twicing ? "twicing" : "Gaussian", s.velocity_filter)
                 : std::string("a fresh estimate at every stage"),
             velocity, s.boundaries ? fluid::describe(*s.boundaries, s.domain) : std::string("none"),
             s.viscosity > 0 ? fmt::format("on (nu {:g}, Feynman–Kac, n_d {})", s.viscosity, s.diffusion_samples)

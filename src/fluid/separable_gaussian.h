@@ -10,5 +10,8 @@ namespace kelvin::fluid::detail {
 /// Lines are independent: the same bits on any thread count.
 void separable_gaussian(std::vector<double>& values, const int (&n)[3], bool periodic, double sigma,
                         const std::vector<char>* fluid);
+/// separable_gaussian, or with `twicing` 2 G v - G G v (FilterKernel::Twicing, grid.h).
+void smooth_values(std::vector<double>& values, const int (&n)[3], bool periodic, double sigma, bool twicing,
+                   const std::vector<char>* fluid);
 
 }  // namespace kelvin::fluid::detail

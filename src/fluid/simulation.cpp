@@ -27,6 +27,22 @@ VorticityTransport parse_transport(const Properties& props) {
                                : VorticityTransport::Cubic;
 }
 
+double parse_stretching_filter(const Properties& props) {
+    const double f = props.get_float("stretching_filter");
+    if (f == AutoFilter) return f;
+    if (!(f >= 0 && f <= MCFluid3Settings::MaxStretchingFilter))
+        props.error("stretching_filter",
+                    fmt::format("must lie in [0, {:g}] cells, or be {:g} (the solver's choice; got {:g})",
+                                MCFluid3Settings::MaxStretchingFilter, AutoFilter, f));
+    return f;
+}
+
+std::optional<FilterKernel> parse_filter_kernel(const Properties& props) {
+    const std::string k = props.get_choice("filter_kernel", {"auto", "gaussian", "twicing"});
+    if (k == "auto") return std::nullopt;
+    return k == "twicing" ? FilterKernel::Twicing : FilterKernel::Gaussian;
+}
+
 SimulationParams SimulationParams::parse(const Properties& props, const std::string& who) {
     SimulationParams p;
     const long long dim = props.get_int("dimension");
@@ -54,6 +70,7 @@ SimulationParams SimulationParams::parse(const Properties& props, const std::str
                            : bt == "cache"   ? BacktraceVelocity::Cache
                                              : BacktraceVelocity::Auto;
     p.velocity_filter = props.get_float("velocity_filter", 0.0, MaxVelocityFilter);
+    p.filter_kernel = parse_filter_kernel(props);
     p.output_every = props.get_int("output_every", 0, 1LL << 40);
     p.write_png = props.get_bool("write_png");
     p.write_exr = props.get_bool("write_exr");

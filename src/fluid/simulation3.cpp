@@ -62,6 +62,7 @@ Simulation3Params Simulation3Params::parse(const Properties& props) {
                            : bt == "estimates" ? BacktraceVelocity::Estimates
                                                : BacktraceVelocity::Auto;
     s.velocity_filter = props.get_float("velocity_filter", 0.0, MaxVelocityFilter);
+    if (const auto k = parse_filter_kernel(props)) s.filter_kernel = *k;
     p.energy_budget = props.get_bool("energy_budget");
     if (p.energy_budget && s.viscosity > 0) props.error("energy_budget", "covers inviscid flows only (viscosity 0)");
     s.stretching = props.get_bool("stretching");
@@ -73,7 +74,7 @@ Simulation3Params Simulation3Params::parse(const Properties& props) {
     s.initial_samples = int(props.get_int("initial_samples", 0, 1 << 24));
     s.control_variate_blend = props.get_float("control_variate_blend", 1e-6, 1.0);
     s.vorticity_allocation = props.get_choice("sample_allocation", {"uniform", "vorticity"}) == "vorticity";
-    s.stretching_filter = props.get_float("stretching_filter", 0.0, MCFluid3Settings::MaxStretchingFilter);
+    s.stretching_filter = parse_stretching_filter(props);
     if (s.initial_samples > 0 && !s.control_variates)
         log_info(
             "mcfluid: initial_samples = {} is the control variates' initial sample count; control_variates is "
@@ -460,12 +461,15 @@ public:
             fluid::to_string(s.advection), s.dt, m_p.steps, fluid::to_string(s.transport),
             std::string(solver.midstep() ? "at mid-step, extrapolated" : "frozen at the step's start") +
                 (solver.settings().backtrace_velocity == BacktraceVelocity::Cache
-                     ? fmt::format("; the stages read the cache smoothed over {:g} cells", s.velocity_filter)
+                     ? fmt::format("; the stages read the cache smoothed over {:g} cells ({})",
+                                   solver.settings().velocity_filter, to_string(solver.settings().filter_kernel))
                      : std::string("; a fresh estimate at each stage")),
             velocity,
             s.stretching ? fmt::format("on (vortex segments, h = {:g}{})", solver.segment_length(),
-                                       s.stretching_filter > 0
-                                           ? fmt::format(", velocity smoothed over {:g} cells", s.stretching_filter)
+                                       solver.settings().stretching_filter > 0
+                                           ? fmt::format(", velocity smoothed over {:g} cells ({})",
+                                                         solver.settings().stretching_filter,
+                                                         to_string(solver.settings().filter_kernel))
                                            : std::string())
                          : std::string("OFF (requested; the 3D equations need it)"),
             s.viscosity > 0 ? fmt::format("on (nu {:g}, Feynman–Kac, n_d {})", s.viscosity, s.diffusion_samples)

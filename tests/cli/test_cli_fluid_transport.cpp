@@ -153,23 +153,25 @@ TEST(CliFluidTransport, MacCormackRunsIn3DAndTheEffectsLineNamesTheTransport) {
         run_kelvin({Scenes + "vortex_ring.xml", "-D", "res=12", "-D", "end=0.2", "-D", "spp=8", "-D", "every=0", "-D",
                     "transport=maccormack", "-o", (dir.path() / "ring.png").string()});
     ASSERT_EQ(r.exit_code, 0) << describe(r);
-    EXPECT_CONTAINS(
-        r.err + r.out,
-        "2 steps, transport maccormack, velocity at mid-step, extrapolated; a fresh estimate at each stage)");
+    EXPECT_CONTAINS(r.err + r.out,
+                    "2 steps, transport maccormack, velocity at mid-step, extrapolated; the stages read the cache "
+                    "smoothed over 1 cells (twicing))");
     const ProcessResult f =
         run_kelvin({Scenes + "vortex_ring.xml", "-D", "res=12", "-D", "end=0.2", "-D", "spp=8", "-D", "every=0", "-D",
-                    "vtime=start", "-o", (dir.path() / "ring_start.png").string()});
+                    "vtime=start", "-D", "backtrace=estimates", "-o", (dir.path() / "ring_start.png").string()});
     ASSERT_EQ(f.exit_code, 0) << describe(f);
     EXPECT_CONTAINS(f.err + f.out, "velocity frozen at the step's start; a fresh estimate at each stage)");
+    EXPECT_CONTAINS(f.err + f.out, "stretching on (vortex segments, h = 0.333333); ") << "estimates: no smoothing";
     const ProcessResult d = run_kelvin({Scenes + "taylor_green.xml", "-D", "res=16", "-D", "end=0.1", "-D", "spp=8",
                                         "-o", (dir.path() / "tg.exr").string()});
     ASSERT_EQ(d.exit_code, 0) << describe(d);
     EXPECT_CONTAINS(d.err + d.out, "transport cubic, stages read the cached velocity, Gaussian filter 1 cells)");
 }
 
-// The 2D backtrace's velocity: 'auto' reads the filtered cache without boundaries and fresh estimates with them (the
-// effects line says which), 'estimates' is the thesis' scheme; a bad value, a filter out of range and a filter where no
-// cache is read are one line naming the parameter, exit 2. In 3D both apply ('cache' there is an option).
+// The backtrace's velocity: 'auto' reads the filtered cache without boundaries and fresh estimates with them (the
+// effects line says which, and the filter's kernel), 'estimates' is the thesis' scheme; a bad value, a filter out of
+// range and a filter or a kernel where no cache is read (2D) are one line naming the parameter, exit 2. In 3D the
+// same, with the twicing kernel by default.
 TEST(CliFluidTransport, BacktraceVelocityFromTheScene) {
     TempDir dir;
     const auto with = [&](const std::string& scene, const std::string& params, const std::string& name) {
@@ -212,13 +214,25 @@ TEST(CliFluidTransport, BacktraceVelocityFromTheScene) {
     EXPECT_CONTAINS(expect_one_error_line(run_kelvin(
                         args(with("lamb_oseen_disk.xml", "<float name=\"velocity_filter\" value=\"1\"/>", "d.xml")))),
                     "parameter 'velocity_filter': filters the cached velocity");
-    // 3D: both parameters apply (the cached backtrace is an option there, not the default).
-    const ProcessResult ring = run_kelvin(args(
-        with("vortex_ring.xml",
-             "<string name=\"backtrace_velocity\" value=\"cache\"/><float name=\"velocity_filter\" value=\"1.5\"/>",
-             "r.xml")));
+    EXPECT_CONTAINS(expect_one_error_line(run_kelvin(args(
+                        with("lamb_oseen_disk.xml", "<string name=\"filter_kernel\" value=\"twicing\"/>", "k.xml")))),
+                    "parameter 'filter_kernel': filters the cached velocity");
+    EXPECT_CONTAINS(expect_one_error_line(run_kelvin(
+                        args(with("taylor_green.xml", "<string name=\"filter_kernel\" value=\"box\"/>", "b.xml")))),
+                    "parameter 'filter_kernel'");
+    const ProcessResult twice =
+        run_kelvin(args(with("taylor_green.xml", "<string name=\"filter_kernel\" value=\"twicing\"/>", "t.xml")));
+    ASSERT_EQ(twice.exit_code, 0) << describe(twice);
+    EXPECT_CONTAINS(twice.err + twice.out, "twicing filter 1 cells)");
+    // 3D: the cache without walls, twicing; the Gaussian on request.
+    const ProcessResult ring =
+        run_kelvin(args(with("vortex_ring.xml",
+                             "<float name=\"velocity_filter\" value=\"1.5\"/><string name=\"filter_kernel\" "
+                             "value=\"gaussian\"/>",
+                             "r.xml")));
     ASSERT_EQ(ring.exit_code, 0) << describe(ring);
-    EXPECT_CONTAINS(ring.err + ring.out, "the stages read the cache smoothed over 1.5 cells");
+    EXPECT_CONTAINS(ring.err + ring.out, "the stages read the cache smoothed over 1.5 cells (gaussian)");
+    EXPECT_CONTAINS(ring.err + ring.out, "velocity smoothed over 0.75 cells (gaussian)");
 }
 
 // sample_allocation: 'vorticity' runs and the effects line says so; a bad value, or the parameter in 2D, is one line

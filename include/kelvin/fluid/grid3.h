@@ -133,6 +133,8 @@ struct VectorGrid3 {
 /// Rows are independent: the same bits on any thread count.
 void gaussian_filter(Grid3& g, double sigma, const std::vector<char>* fluid = nullptr);
 void gaussian_filter(VectorGrid3& g, double sigma, const std::vector<char>* fluid = nullptr);
+/// gaussian_filter with the kernel `kernel` (FilterKernel, grid.h).
+void smooth_cells(VectorGrid3& g, double sigma, FilterKernel kernel, const std::vector<char>* fluid = nullptr);
 
 /// Saffman's impulse centroid of a vorticity field: int x w dV / int w dV with w = (x cross omega) . I / |I| and
 /// I = 1/2 int x cross omega dV the impulse (cell centres, midpoint rule). For a ring it is where the ring is (its

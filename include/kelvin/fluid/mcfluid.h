@@ -106,9 +106,12 @@ struct MCFluidSettings : SolverSettings<2> {
     int nx = 64, ny = 64;  ///< cache cells
     BacktraceVelocity backtrace_velocity = BacktraceVelocity::Auto;
     double velocity_filter = 1.0;  ///< Cache: the Gaussian's standard deviation in cells (0: no filter)
+    FilterKernel filter_kernel = FilterKernel::Gaussian;  ///< Cache: the smoothing's kernel (grid.h)
 };
 /// The widest velocity filter accepted, in cells.
 constexpr double MaxVelocityFilter = 8.0;
+/// 3D's `stretching_filter` left to the solver (the parameter's default; MCFluid3Settings).
+constexpr double AutoFilter = -1.0;
 
 /// Cumulative work of a solver (each component counts its own). In a distributed run the counters are the whole
 /// run's (summed over the ranks: the same as one process's); the seconds are this rank's own (its passes, with the

@@ -74,16 +74,21 @@ struct MCFluid3Settings : SolverSettings<3> {
     /// (0: the cache as estimated, the thesis' scheme). Each cell's estimate carries independent Monte Carlo noise,
     /// which the segment's difference over one cell divides by h, and which the stretching turns into energy; the
     /// velocity varies on the flow's scales, not the cell's, but a thin core's own stretching is smoothed too.
-    double stretching_filter = 0;
-    static constexpr double MaxStretchingFilter = 8;
+    /// AutoFilter (the default): DefaultStretchingFilter when the backtrace reads the cache, 0 with fresh estimates.
+    double stretching_filter = AutoFilter;
+    static constexpr double MaxStretchingFilter = 8, DefaultStretchingFilter = 0.75;
     /// What the backtrace's Runge–Kutta stages read (BacktraceVelocity, mcfluid.h). Estimates: a fresh Monte Carlo
     /// estimate at every stage point, the thesis' scheme. Cache: the state's cell estimates, extrapolated to mid-step
     /// (velocity_time) and smoothed by a Gaussian of `velocity_filter` cells (0: none), read by the monotone tricubic
     /// interpolant (the first stage at the cell's own centre); no estimate beyond the velocity pass. Auto (the
-    /// default) is Estimates in 3D: the smoothing slows a thin-cored ring (8 % over its first 0.4 at two cells per
-    /// core radius with a one-cell filter; docs/fluid.md). settings() holds the resolved choice.
+    /// default) is Cache without boundaries and Estimates with them, as in 2D (a stage estimate sees a solid thinner
+    /// than a cell; the cache does not). settings() holds the resolved choices, the stretching filter's too.
     BacktraceVelocity backtrace_velocity = BacktraceVelocity::Auto;
     double velocity_filter = 1.0;
+    /// The kernel of both smoothings (grid.h). Twicing here, where 2D's default is the Gaussian: a 3D ring's core is
+    /// a few cells wide, and the Gaussian's second-order bias slows it (two cells per core radius: 0.945 of the
+    /// exact distance over t = 0.4 with the Gaussian of one cell, 0.977 with these defaults; docs/fluid.md).
+    FilterKernel filter_kernel = FilterKernel::Twicing;
 };
 
 /// Cumulative work of the 3D solver, per effect. In a distributed run the counters are the whole run's (summed over

@@ -118,11 +118,14 @@ KELVIN_PLUGIN(kelvin::fluid::MCFluid, "simulation", "mcfluid",
                                     "what a backtrace's Runge–Kutta stages read: 'cache' (the state's cell-centre "
                                     "estimates, filtered by velocity_filter; one estimate per cell and step), "
                                     "'estimates' (a fresh Monte Carlo estimate at every stage point, the thesis' "
-                                    "scheme) or 'auto' (2D: cache without boundaries, estimates with them; 3D: "
-                                    "estimates)"),
+                                    "scheme) or 'auto' (cache without boundaries, estimates with them)"),
               kelvin::param::real("velocity_filter", 1.0,
                                   "with backtrace_velocity 'cache': standard deviation in cells of the Gaussian "
                                   "that smooths the cached velocity's noise (0: none; at most 8)"),
+              kelvin::param::string("filter_kernel", "auto",
+                                    "the kernel of velocity_filter and stretching_filter: 'gaussian' (G), 'twicing' "
+                                    "(2 G - G G: Tukey's, the Gaussian's bias cancelled to fourth order) or 'auto' "
+                                    "(2D gaussian, 3D twicing)"),
               kelvin::param::boolean("energy_budget", false,
                                      "inviscid (2D and 3D; walls: 2D, static): measure where each step's energy goes "
                                      "(CSV columns energy_exact and budget_*; --stats; the summary)"),
@@ -133,9 +136,10 @@ KELVIN_PLUGIN(kelvin::fluid::MCFluid, "simulation", "mcfluid",
               kelvin::param::real("color_range", 0.0, "|omega| mapped to full colour (0: max at t = 0)"),
               KELVIN_FRAME_STYLE_PARAMS,
               kelvin::param::boolean("stretching", true, "3D: vortex stretching (Eq. 5.21); off only to study it"),
-              kelvin::param::real("stretching_filter", 0.0,
+              kelvin::param::real("stretching_filter", kelvin::fluid::AutoFilter,
                                   "3D: standard deviation in cells of the Gaussian that smooths the cached velocity "
-                                  "the stretching segments difference (0: none, the thesis' scheme; at most 8)"),
+                                  "the stretching segments difference (0: none, the thesis' scheme; at most 8; -1: "
+                                  "0.75 when the backtrace reads the cache, 0 with fresh estimates)"),
               kelvin::param::string("velocity_time", "auto",
                                     "3D: the velocity a step's backtrace reads: 'midstep' (extrapolated from the last "
                                     "two states, second order in dt), 'start' (frozen at the step's start, the "

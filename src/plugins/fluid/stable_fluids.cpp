@@ -368,7 +368,7 @@ std::vector<kelvin::ParamSpec> grid_solver_params(std::vector<kelvin::ParamSpec>
         kelvin::param::integer("initial_samples", 0, "3D mcfluid's; accepted and ignored"),
         kelvin::param::real("control_variate_blend", 1.0, "3D mcfluid's; accepted and ignored"),
         kelvin::param::string("sample_allocation", "uniform", "3D mcfluid's; accepted and ignored"),
-        kelvin::param::real("stretching_filter", 0.0, "3D mcfluid's; accepted and ignored")};
+        kelvin::param::real("stretching_filter", kelvin::fluid::AutoFilter, "3D mcfluid's; accepted and ignored")};
     p.insert(p.end(), extra.begin(), extra.end());
     return p;
 }
