@@ -50,6 +50,7 @@ MCFluid3Settings settings(int res, int nmc, bool periodic) {
     s.samples = nmc;
     s.advection = Advection::Euler;
     s.dt = 0.05;
+    s.backtrace_velocity = BacktraceVelocity::Estimates;  // the thesis' scheme, unsmoothed (BM_Step3 varies it)
     return s;
 }
 
@@ -100,11 +101,12 @@ void BM_BiotSavart3Pass(benchmark::State& state, bool periodic) {
 }
 
 // A full step (velocity pass + backtrace + stretching [+ diffusion]) of the ABC flow.
-enum class StepKind { Plain, ControlVariates, PlainRK4, SmoothedRK4 };
+enum class StepKind { Plain, ControlVariates, PlainRK4, SmoothedRK4, DefaultRK4 };
 
 // One step at res^3 and n_mc (Euler backtraces): the thesis' scheme, or with control variates. With RK4 (the scenes'
-// integrator): the thesis' scheme (a fresh estimate at each later stage), or the smoothed velocities
-// (backtrace_velocity cache and stretching_filter 1, one cell each: leapfrog_twice.xml's choice).
+// integrator): the thesis' scheme (a fresh estimate at each later stage), the Gaussian-smoothed velocities
+// (backtrace_velocity cache and stretching_filter 1, one cell each: leapfrog_twice.xml's choice), or the defaults
+// (the cache smoothed by twicing over one cell, the stretching's velocity over 0.75).
 void BM_Step3(benchmark::State& state, StepKind kind) {
     ThreadLimit limit(bench_threads());
     const int res = int(state.range(0)), nmc = int(state.range(1));
@@ -112,11 +114,14 @@ void BM_Step3(benchmark::State& state, StepKind kind) {
     const bool cv = kind == StepKind::ControlVariates;
     s.control_variates = cv;
     s.initial_samples = cv ? 4 * nmc : 0;
-    if (kind == StepKind::PlainRK4 || kind == StepKind::SmoothedRK4) s.advection = Advection::RK4;
+    if (kind == StepKind::PlainRK4 || kind == StepKind::SmoothedRK4 || kind == StepKind::DefaultRK4)
+        s.advection = Advection::RK4;
     if (kind == StepKind::SmoothedRK4) {
         s.backtrace_velocity = BacktraceVelocity::Cache;
         s.stretching_filter = 1;
+        s.filter_kernel = FilterKernel::Gaussian;
     }
+    if (kind == StepKind::DefaultRK4) s.backtrace_velocity = BacktraceVelocity::Auto;  // the cache, both smoothings
     MCFluid3Solver solver(s, abc);
     solver.step();  // the first step has no control variate yet
     for (auto _ : state) solver.step();
@@ -265,6 +270,7 @@ BENCHMARK_CAPTURE(BM_Step3, plain, StepKind::Plain)->Apply(euler_sizes);
 BENCHMARK_CAPTURE(BM_Step3, control_variates, StepKind::ControlVariates)->Apply(euler_sizes);
 BENCHMARK_CAPTURE(BM_Step3, plain_rk4, StepKind::PlainRK4)->Apply(rk4_sizes);
 BENCHMARK_CAPTURE(BM_Step3, smoothed_rk4, StepKind::SmoothedRK4)->Apply(rk4_sizes);
+BENCHMARK_CAPTURE(BM_Step3, default_rk4, StepKind::DefaultRK4)->Apply(rk4_sizes);
 BENCHMARK(BM_Effects)
     ->DenseRange(0, 3)
     ->Unit(benchmark::kMillisecond)

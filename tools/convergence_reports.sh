@@ -392,9 +392,12 @@ report() {
                 [[ "$s" == *-estimates ]] && extra=(-D backtrace=estimates -D spp=256)
                 long_run "tg_${s}_r$r" scenes/fluid/taylor_green.xml -D solver=$solver -D end=20 --seed "$r" "${extra[@]}"
             done
-            for s in mcfluid mcfluid-linear stable_fluids flip; do
-                local solver=${s%-linear} extra=()
-                [[ "$s" == *-linear ]] && extra=(-D transport=linear)
+            for s in mcfluid mcfluid-estimates mcfluid-linear stable_fluids flip; do
+                local solver=${s%-*} extra=()
+                # The thesis' backtrace (fresh estimates at every RK4 stage, no smoothing); with the trilinear
+                # lookup as well, the thesis' scheme.
+                [[ "$s" == *-linear ]] && extra=(-D transport=linear -D backtrace=estimates)
+                [[ "$s" == *-estimates ]] && extra=(-D backtrace=estimates)
                 long_run "ring_${s}_r$r" scenes/fluid/vortex_ring.xml -D solver=$solver -D end=2 --seed "$r" "${extra[@]}"
             done
             # At about MCFluid's wall time: the baselines on finer grids (Taylor–Green ~7-30 s, the ring ~2-3 s).
@@ -411,12 +414,13 @@ report() {
     fluid-leapfrog)
         # Leapfrogging rings (scenes/fluid/leapfrog.xml: R 1, Gamma 1, sigma 0.2, centres 0.6 apart, inviscid) to
         # t = 4, against the exact axisymmetric dynamics (build/bin/ring_reference, its cores found on the solvers'
-        # spacing 5/48). MCFluid at its defaults (48^3, n_mc 128, dt 0.1) with seeds 1..RUNS; stable_fluids and flip
+        # spacing 5/48). MCFluid at its defaults (48^3, n_mc 128, dt 0.1) and with the thesis' backtrace (fresh
+        # estimates at every RK4 stage, no smoothing: mcfluid-thesis) with seeds 1..RUNS; stable_fluids and flip
         # at 48^3 and on finer grids taking about MCFluid's wall time (LEAPFROG_FINE, default stable_fluids:80 and
         # flip:50: measured 11.7 and 12.2 s against MCFluid's 12.9 s on 2 idle cores), RUNS runs each. Runs already in
         # $OUT are kept (FRESH=1: all again). Table (medians over runs) and the core-track figure:
         # tools/fluid_leapfrog_table.py; the figure goes to docs/img/convergence_fluid_leapfrog_cores.png.
-        local base="stable_fluids:solver=stable_fluids flip:solver=flip" sr
+        local base="mcfluid-thesis:backtrace=estimates stable_fluids:solver=stable_fluids flip:solver=flip" sr
         for sr in ${LEAPFROG_FINE:-stable_fluids:80 flip:50}; do
             base+=" ${sr%:*}-${sr#*:}:solver=${sr%:*},res=${sr#*:}"
         done
