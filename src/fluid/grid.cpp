@@ -7,6 +7,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <memory>
 
 namespace kelvin::fluid {
 
@@ -59,45 +60,64 @@ namespace detail {
 void separable_gaussian(std::vector<double>& values, const int (&n)[3], bool periodic, double sigma,
                         const std::vector<char>* fluid) {
     if (!(sigma > 0)) return;
-    const int r = int(std::ceil(3 * sigma));
-    std::vector<double> w(std::size_t(2 * r + 1));
+    const int r = int(std::ceil(3 * sigma)), taps = 2 * r + 1;
+    std::vector<double> w(static_cast<std::size_t>(taps));
     for (int k = -r; k <= r; ++k) w[std::size_t(k + r)] = std::exp(-0.5 * k * k / (sigma * sigma));
     const std::size_t cells = values.size();
-    // Normalised convolution: the filtered (value x mask) over the filtered mask, one axis at a time.
-    std::vector<double> a(cells), m(cells), ta(cells), tm(cells);
+    // Normalised convolution: the filtered (value x mask) over the filtered mask, one axis at a time. On a periodic
+    // box without a mask every cell's mask sum is the same number, computed once in the same order (the same bits).
+    const bool uniform = periodic && !fluid;
+    std::unique_ptr<double[]> a(new double[cells]), ta(new double[cells]), m, tm;
+    if (!uniform) {
+        m.reset(new double[cells]);
+        tm.reset(new double[cells]);
+    }
+    double m_uniform = 1.0;
     for (std::size_t c = 0; c < cells; ++c) {
-        m[c] = fluid && !(*fluid)[c] ? 0.0 : 1.0;
-        a[c] = m[c] * values[c];
+        const double mc = fluid && !(*fluid)[c] ? 0.0 : 1.0;
+        if (!uniform) m[c] = mc;
+        a[c] = mc * values[c];
     }
     const std::size_t stride[3] = {1, std::size_t(n[0]), std::size_t(n[0]) * std::size_t(n[1])};
+    std::vector<int> at;  // per position q along the axis and tap k: the cell index along the axis, or -1 (outside)
     for (int axis = 0; axis < 3; ++axis) {
         const int len = n[axis];
         if (len == 1) continue;                                  // 2D: no z
         const int u = axis == 0 ? 1 : 0, v = axis == 2 ? 1 : 2;  // the two other axes
+        at.assign(std::size_t(len) * std::size_t(taps), -1);
+        for (int q = 0; q < len; ++q)
+            for (int k = -r; k <= r; ++k) {
+                const int t = periodic ? ((q + k) % len + len) % len : q + k;
+                if (t >= 0 && t < len) at[std::size_t(q) * std::size_t(taps) + std::size_t(k + r)] = t;
+            }
+        if (uniform) {
+            double sm = 0;
+            for (int k = 0; k < taps; ++k) sm += w[std::size_t(k)] * m_uniform;
+            m_uniform = sm;
+        }
         parallel_for_units(std::size_t(n[u]) * std::size_t(n[v]), [&](std::size_t line) {
             const std::size_t base = (line % std::size_t(n[u])) * stride[u] + (line / std::size_t(n[u])) * stride[v];
             for (int q = 0; q < len; ++q) {
+                const int* tq = at.data() + std::size_t(q) * std::size_t(taps);
                 double sa = 0, sm = 0;
-                for (int k = -r; k <= r; ++k) {
-                    int t = q + k;
-                    if (periodic)
-                        t = ((t % len) + len) % len;
-                    else if (t < 0 || t >= len)
-                        continue;
-                    const std::size_t c = base + std::size_t(t) * stride[axis];
-                    sa += w[std::size_t(k + r)] * a[c];
-                    sm += w[std::size_t(k + r)] * m[c];
+                for (int k = 0; k < taps; ++k) {
+                    if (tq[k] < 0) continue;
+                    const std::size_t c = base + std::size_t(tq[k]) * stride[axis];
+                    sa += w[std::size_t(k)] * a[c];
+                    if (!uniform) sm += w[std::size_t(k)] * m[c];
                 }
                 const std::size_t c = base + std::size_t(q) * stride[axis];
                 ta[c] = sa;
-                tm[c] = sm;
+                if (!uniform) tm[c] = sm;
             }
         });
         std::swap(a, ta);
-        std::swap(m, tm);
+        if (!uniform) std::swap(m, tm);
     }
-    for (std::size_t c = 0; c < cells; ++c)
-        if ((!fluid || (*fluid)[c]) && m[c] > 0) values[c] = a[c] / m[c];
+    for (std::size_t c = 0; c < cells; ++c) {
+        const double mc = uniform ? m_uniform : m[c];
+        if ((!fluid || (*fluid)[c]) && mc > 0) values[c] = a[c] / mc;
+    }
 }
 
 void smooth_values(std::vector<double>& values, const int (&n)[3], bool periodic, double sigma, bool twicing,
