@@ -432,11 +432,12 @@ report() {
         # 0.5 from the widest ring slow it (its speed 0.49 of the exact one's for stable fluids, 0.72 in a box 1.4x
         # wider), so they run in the wider box (half=3.4) at the scene's spacing (res 78) and stable fluids also on
         # a finer grid of about MCFluid's wall time (res 162); deterministic, once each. LEAPFROG_TWICE_EXTRA: MCFluid
-        # variants (default: twice the samples; the thesis' scheme, without the scene's smoothed velocities).
+        # variants (default: twice the samples; the thesis' scheme, without the scene's smoothed velocities; the 3D
+        # solver's default smoothing instead of the scene's).
         leapfrog_study fluid-leapfrog-twice scenes/fluid/leapfrog_twice.xml 12 "4,8,12" "R 1.5, sigma 0.2, 1.1 apart" \
             "--radius 1.5 --core 0.2 --offsets 0,1.1 --spacing 0.08727272727272727" \
             "${LEAPFROG_TWICE_BASELINES:-stable_fluids:solver=stable_fluids,half=3.4,res=78 flip:solver=flip,half=3.4,res=78 stable_fluids-162:solver=stable_fluids,half=3.4,res=162}" \
-            1 "${LEAPFROG_TWICE_EXTRA:-mcfluid-n1024:spp=1024 mcfluid-thesis:bt=estimates,sfilter=0}" ;;
+            1 "${LEAPFROG_TWICE_EXTRA:-mcfluid-n1024:spp=1024 mcfluid-thesis:bt=estimates,sfilter=0 mcfluid-defaults:kernel=twicing,sfilter=0.75}" ;;
     fluid-shear)
         # The shear layer has no exact solution: two references at 512^2 and dt = 0.0125 (stable fluids and FLIP,
         # kept in $OUT), the four solvers at 32^2..128^2 against each, at t = 2 (before the roll-up saturates).
