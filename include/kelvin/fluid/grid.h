@@ -117,7 +117,7 @@ void gaussian_filter(Grid2& g, double sigma, const std::vector<char>* fluid = nu
 /// The kernel of mcfluid's velocity smoothing (`filter_kernel`). Gaussian: G, which scales a Fourier mode of
 /// wavenumber k by a = exp(-(sigma h k)^2 / 2), a bias of second order in sigma h k. Twicing (Tukey's): 2 G - G G,
 /// the Gaussian applied to the residual of a first pass and added back, which scales the mode by 1 - (1 - a)^2, a bias
-/// of fourth order; it passes about 2.2x the white-noise variance of the Gaussian of the same sigma (3D; 1.9x in 2D)
+/// of fourth order; it passes about 2.2x the white-noise variance of the Gaussian of the same sigma (3D; 1.8x in 2D)
 /// and still removes the noise at the cell scale.
 enum class FilterKernel { Gaussian, Twicing };
 const char* to_string(FilterKernel k);
