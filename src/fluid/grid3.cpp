@@ -111,21 +111,25 @@ CubicStencil3 Grid3::cubic_stencil(Vec3d p) const {
         lo[a] = int(fl) - 1;  // the stencil's first cell
         catmull_rom_weights(t, w[a]);
     }
+    // Each axis' four cells once (wrapped, or marked outside an open box), then the 64 products.
+    int id[3][4];
+    bool in[3][4];
+    for (int a = 0; a < 3; ++a)
+        for (int o = 0; o < 4; ++o) {
+            id[a][o] = lo[a] + o;
+            in[a][o] = true;
+            if (m_domain.periodic)
+                id[a][o] = wrap_index(id[a][o], n[a]);
+            else if (id[a][o] < 0 || id[a][o] >= n[a])
+                in[a][o] = false;
+        }
     int inner = 0;
     for (int c = 0; c < 64; ++c) {
-        const int o[3] = {c & 3, (c >> 2) & 3, c >> 4};
-        int id[3];
-        bool inside = true;
-        for (int a = 0; a < 3; ++a) {
-            id[a] = lo[a] + o[a];
-            if (m_domain.periodic)
-                id[a] = wrap_index(id[a], n[a]);
-            else if (id[a] < 0 || id[a] >= n[a])
-                inside = false;
-        }
-        s.index[c] = inside ? index(id[0], id[1], id[2]) : CubicStencil3::Outside;
-        s.weight[c] = w[0][o[0]] * w[1][o[1]] * w[2][o[2]];
-        if ((o[0] == 1 || o[0] == 2) && (o[1] == 1 || o[1] == 2) && (o[2] == 1 || o[2] == 2)) s.inner[inner++] = c;
+        const int o0 = c & 3, o1 = (c >> 2) & 3, o2 = c >> 4;
+        s.index[c] =
+            in[0][o0] && in[1][o1] && in[2][o2] ? index(id[0][o0], id[1][o1], id[2][o2]) : CubicStencil3::Outside;
+        s.weight[c] = w[0][o0] * w[1][o1] * w[2][o2];
+        if ((o0 == 1 || o0 == 2) && (o1 == 1 || o1 == 2) && (o2 == 1 || o2 == 2)) s.inner[inner++] = c;
     }
     s.empty = false;
     return s;
@@ -158,10 +162,30 @@ Vec3d VectorGrid3::sample(Vec3d p, Interpolation interp) const {
 }
 
 Vec3d VectorGrid3::sample_cubic(Vec3d p) const {
+    // CubicStencil3::apply for the three components in one pass over the stencil (the same sums, in the same order).
     const CubicStencil3 s = x.cubic_stencil(p);
-    return {s.apply([&](std::size_t i) { return x.values()[i]; }),
-            s.apply([&](std::size_t i) { return y.values()[i]; }),
-            s.apply([&](std::size_t i) { return z.values()[i]; })};
+    if (s.empty) return Vec3d(0.0);
+    const double *px = x.values().data(), *py = y.values().data(), *pz = z.values().data();
+    double v[3] = {0, 0, 0};
+    for (int c = 0; c < 64; ++c) {
+        const std::size_t i = s.index[c];
+        const bool out = i == CubicStencil3::Outside;
+        v[0] += s.weight[c] * (out ? 0.0 : px[i]);
+        v[1] += s.weight[c] * (out ? 0.0 : py[i]);
+        v[2] += s.weight[c] * (out ? 0.0 : pz[i]);
+    }
+    Vec3d r;
+    const double* comp[3] = {px, py, pz};
+    for (int a = 0; a < 3; ++a) {
+        double lo = std::numeric_limits<double>::infinity(), hi = -lo;
+        for (int c : s.inner) {
+            const double q = s.index[c] == CubicStencil3::Outside ? 0.0 : comp[a][s.index[c]];
+            lo = std::min(lo, q);
+            hi = std::max(hi, q);
+        }
+        r[a] = std::clamp(v[a], lo, hi);
+    }
+    return r;
 }
 
 void VectorGrid3::fill(Vec3d v) {
