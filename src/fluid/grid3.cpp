@@ -174,18 +174,9 @@ Vec3d VectorGrid3::sample_cubic(Vec3d p) const {
         v[1] += s.weight[c] * (out ? 0.0 : py[i]);
         v[2] += s.weight[c] * (out ? 0.0 : pz[i]);
     }
-    Vec3d r;
-    const double* comp[3] = {px, py, pz};
-    for (int a = 0; a < 3; ++a) {
-        double lo = std::numeric_limits<double>::infinity(), hi = -lo;
-        for (int c : s.inner) {
-            const double q = s.index[c] == CubicStencil3::Outside ? 0.0 : comp[a][s.index[c]];
-            lo = std::min(lo, q);
-            hi = std::max(hi, q);
-        }
-        r[a] = std::clamp(v[a], lo, hi);
-    }
-    return r;
+    return {s.clamped(v[0], [&](std::size_t i) { return px[i]; }),
+            s.clamped(v[1], [&](std::size_t i) { return py[i]; }),
+            s.clamped(v[2], [&](std::size_t i) { return pz[i]; })};
 }
 
 void VectorGrid3::fill(Vec3d v) {

@@ -346,8 +346,8 @@ void MCFluidSolver::backtrace_grids(const Grid2& u, const Grid2& v, Grid2& bu, G
     const std::vector<char>* fluid = m_wos && !m_fluid.empty() ? &m_fluid : nullptr;
     bu = u;
     bv = v;
-    gaussian_filter(bu, m_settings.velocity_filter, fluid);
-    gaussian_filter(bv, m_settings.velocity_filter, fluid);
+    smooth_cells(bu, m_settings.velocity_filter, m_settings.filter_kernel, fluid);
+    smooth_cells(bv, m_settings.velocity_filter, m_settings.filter_kernel, fluid);
     if (!fluid) return;
     // The wall's tangential velocity is not read as the solid's.
     extend_into_solids(*fluid, {&bu, &bv});

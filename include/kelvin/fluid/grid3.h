@@ -50,6 +50,11 @@ struct CubicStencil3 {
         if (empty) return 0.0;
         double v = 0;
         for (int c = 0; c < 64; ++c) v += weight[c] * (index[c] == Outside ? 0.0 : value(index[c]));
+        return clamped(v, value);
+    }
+    /// v clamped to the range of the inner cells' values.
+    template <class Value>
+    double clamped(double v, const Value& value) const {
         double lo = std::numeric_limits<double>::infinity(), hi = -lo;
         for (int c : inner) {
             const double x = index[c] == Outside ? 0.0 : value(index[c]);
