@@ -345,6 +345,57 @@ void BM_WosVariance(benchmark::State& state, const std::string& scene) {
     measure_variance(state, sc, f, n);
 }
 
+// Harmonic caching (WosVelocityOptions::harmonic_cache, with the control variate and stratified directions), on the
+// same scenes and counters: a pass builds the cache (a new seed per pass) and estimates the velocity at every fluid
+// cell centre of the 64^2 cache, as the solver's velocity pass does; its CPU seconds are spread over the cells, and
+// cpu_s is the share of the scene's points (for the polygon a sixteenth of the cells), so rmse@1s compares with
+// BM_WosVariance's. Arguments: n gradient samples (the free part's n x q point vortices near the boundaries'
+// walks), free_samples q, cache_walks x 10.
+void BM_WosVarianceCached(benchmark::State& state, const std::string& scene) {
+    const VarianceScene& sc = variance_scene(scene);
+    ThreadLimit one(1);  // the cache's build runs its disks in parallel; the thread's CPU time must hold all of it
+    const int n = int(state.range(0)), q = int(state.range(1));
+    WosVelocityOptions o = variant_options(sc.options, 3, q);
+    o.harmonic_cache = true;
+    o.cache_walks = double(state.range(2)) / 10;
+    std::vector<Vec2d> cells;
+    for (int j = 0; j < sc.omega.ny(); ++j)
+        for (int i = 0; i < sc.omega.nx(); ++i) {
+            const Vec2d x = sc.omega.cell_center(i, j);
+            if (WosVelocityField(o, sc.domain, nullptr, Interpolation::Bilinear, 0).solid_at(x) < 0) cells.push_back(x);
+        }
+    wos::WalkCounters c;
+    double sse = 0, seconds = 0, reference = 0, cached = 0;
+    uint64_t pass = 0;
+    for (auto _ : state) {
+        const double t0 = kelvin::bench::thread_cpu_seconds();
+        WosVelocityField f(o, sc.domain, &sc.omega, Interpolation::Bilinear, 0);
+        f.build_harmonic_cache(sc.omega, 1000 + pass, 7, 0.5 * sc.omega.h().x);  // the solver's delta
+        Vec2d sink(0.0);
+        for (std::size_t k = 0; k < cells.size(); ++k) {
+            Random rng(2000 + pass, k);
+            sink += f.estimate(cells[k], n, rng, c).value;
+        }
+        benchmark::DoNotOptimize(sink);
+        seconds += (kelvin::bench::thread_cpu_seconds() - t0) * double(sc.points.size()) / double(cells.size());
+        c += f.harmonic_walks();
+        cached += double(f.harmonic_cells()) / double(cells.size());
+        for (std::size_t k = 0; k < sc.points.size(); ++k) {
+            Random rng(3000 + pass, k);
+            const auto d = f.estimate(sc.points[k], n, rng, c).value - sc.exact[k];
+            sse += glm::dot(d, d);
+            reference += component_sum(sc.exact_variance[k]);
+        }
+        ++pass;
+    }
+    const double mse = std::max(0.0, (sse - reference) / double(pass * sc.points.size()));
+    const double per_pass = seconds / double(pass);
+    state.counters["rmse"] = std::sqrt(mse);
+    state.counters["cpu_s"] = per_pass;
+    state.counters["rmse@1s"] = std::sqrt(mse * per_pass);
+    state.counters["cached"] = cached / double(pass);
+}
+
 // The same in 3D (WosVelocityField3): the velocity at every third cell centre of a 24^3 cache (an 8^3 lattice,
 // fluid points only), variants 0 (plain walks with the vorticity source; plain 3D walks are not stratified), 2
 // (control variate) and 3 (control variate + stratified), n gradient samples, free_samples q; reference: plain
@@ -454,6 +505,14 @@ BENCHMARK_CAPTURE(BM_WosVariance, disk, std::string("disk"))
 BENCHMARK_CAPTURE(BM_WosVariance, polygon, std::string("polygon"))
     ->ArgsProduct({{0, 1}, {32}, {1}})
     ->ArgsProduct({{2, 3}, {4, 16}, {4, 16}})
+    ->Unit(benchmark::kMillisecond)
+    ->Iterations(5);
+BENCHMARK_CAPTURE(BM_WosVarianceCached, disk, std::string("disk"))
+    ->ArgsProduct({{4, 16}, {16}, {10, 20, 40}})
+    ->Unit(benchmark::kMillisecond)
+    ->Iterations(5);
+BENCHMARK_CAPTURE(BM_WosVarianceCached, polygon, std::string("polygon"))
+    ->ArgsProduct({{4, 16}, {16}, {10, 20, 40}})
     ->Unit(benchmark::kMillisecond)
     ->Iterations(5);
 BENCHMARK(BM_LaplaceSquare)->Arg(256)->Unit(benchmark::kMillisecond);

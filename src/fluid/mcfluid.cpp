@@ -185,14 +185,19 @@ void MCFluidSolver::rebuild_estimator() {
     state.time = m_time;
     state.periodic = m_periodic;
     state.stop = this;
+    state.seed = m_settings.seed;
+    state.stream = stream_of(m_step, TagField, 0);
     m_wos = nullptr;
+    Timer timer;  // a field may do work once per state (a harmonic cache's walks)
     m_field = m_settings.estimator->build2(state);
+    m_work.seconds_velocity += timer.seconds();
     if (!m_field)
         throw_runtime("MCFluidSolver: velocity estimator '{}' built no field", m_settings.estimator->plugin_name());
     m_wos = m_field->boundaries();
     if (m_settings.boundaries && !m_wos)
         throw_runtime("MCFluidSolver: velocity estimator '{}' declares boundaries but its field has none",
                       m_settings.estimator->plugin_name());
+    if (m_wos) add_walks(m_wos->harmonic_walks());
     m_velocity_valid = false;
 }
 

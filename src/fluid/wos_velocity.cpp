@@ -2,9 +2,11 @@
 // Section 5.3.1): WosVelocityField. See include/kelvin/fluid/boundary.h.
 #include <kelvin/core/error.h>
 #include <kelvin/core/logging.h>
+#include <kelvin/core/parallel.h>
 #include <kelvin/core/strings.h>
 #include <kelvin/fluid/boundary.h>
 #include <kelvin/fluid/checks.h>
+#include <kelvin/fluid/estimators.h>
 
 #include <fmt/format.h>
 
@@ -53,6 +55,14 @@ std::string check_wos_options(const WosVelocityOptions& options, const Domain2& 
         return "a periodic domain needs at least one <boundary> (without any, use biot_savart)";
     if (!domain.periodic && !options.walls && !container)
         return "an open domain needs walls = true or a container boundary (fluid = 'inside'); walks would never end";
+    if (options.harmonic_cache) {
+        if (domain.periodic) return "harmonic_cache needs a non-periodic domain (its walks use the control variate)";
+        if (!options.control_variate) return "harmonic_cache needs control_variate = true";
+        if (!(options.cache_walks >= 0.01 && options.cache_walks <= 1e4))
+            return fmt::format("cache_walks = {:g} must be within [0.01, 1e4] walks per cell", options.cache_walks);
+        if (options.cache_order < 1 || options.cache_order > MaxCacheOrder)
+            return fmt::format("cache_order = {} must be within [1, {}]", options.cache_order, MaxCacheOrder);
+    }
     if (options.inflow_speed != 0) {
         if (domain.periodic) return "inflow_speed needs walls (a non-periodic domain)";
         if (!options.walls) return "inflow_speed needs walls = true";
@@ -425,6 +435,7 @@ VelocityEstimate WosVelocityField::estimate(Vec2d x, int n, Random& rng, wos::Wa
     }
     if (m_constant_psi) return e;  // exactly zero: no walk
     if (m_walls) x = glm::clamp(x, m_domain.min, m_domain.max);
+    if (const HarmonicDisk* d = disk_for(x)) return estimate_cached(x, *d, n, rng);
     if (m_cv) return estimate_control_variate(x, n, rng, c);
     const auto g = [this](const wos::BoundaryHit<2>& h) { return boundary_stream(h); };
     wos::GradientEstimate<2> ge;
@@ -456,6 +467,89 @@ VelocityEstimate WosVelocityField::estimate(Vec2d x, int n, Random& rng, wos::Wa
 // the walled domain, exactly unbiased for the velocity of omega_h there; the walks only estimate the (smooth,
 // small where the walls conform to the free flow) image part. Sources of the samples are independent across
 // samples, so the usual variance estimate holds (with stratified directions: pairs of strata).
+namespace {
+/// sum_j log |p - y_j|^2 over count points, one logarithm per four of them (log of a product; one by one where
+/// the product under- or overflows).
+double log_sum(const std::array<Vec2d, MaxFreeSamples>& ys, int count, Vec2d p) {
+    double sum = 0;
+    for (int j = 0; j < count; j += 4) {
+        const int e = std::min(count, j + 4);
+        double prod = 1;
+        for (int i = j; i < e; ++i) {
+            const Vec2d d = p - ys[std::size_t(i)];
+            prod *= d.x * d.x + d.y * d.y;
+        }
+        if (std::isnormal(prod) && std::isfinite(prod)) {
+            sum += std::log(prod);
+            continue;
+        }
+        for (int i = j; i < e; ++i) {
+            const Vec2d d = p - ys[std::size_t(i)];
+            sum += std::log(d.x * d.x + d.y * d.y);
+        }
+    }
+    return sum;
+}
+}  // namespace
+
+double WosVelocityField::FreeVortices::psi(Vec2d p) const {
+    double sum = far_weight * (log_sum(plus, n_plus, p) - log_sum(minus, n_minus, p));
+    for (int j = 0; j < n_near; ++j) {
+        const Vec2d d = p - near[std::size_t(j)];
+        sum += near_w[std::size_t(j)] * std::log(d.x * d.x + d.y * d.y);
+    }
+    return sum * (0.5 / (2 * Pi));  // log|d| = log(|d|^2) / 2
+}
+
+Vec2d WosVelocityField::free_vortices(Vec2d x, int q, Random& rng, FreeVortices& out) const {
+    const double rho = m_near_radius, a = NearFraction, inv_q = 1.0 / q;
+    const double near_pdf = 1 / (2 * Pi * rho);  // x 1/r: the density of r = rho u, uniform angle
+    out.far_weight = m_source.total() / (1 - a) * inv_q;
+    out.n_near = out.n_plus = out.n_minus = 0;
+    Vec2d v(0.0);
+    for (int j = 0; j < q; ++j) {
+        Vec2d y;
+        double sign = 0;
+        if (wos::uniform(rng) < a)
+            y = x + (rho * wos::uniform(rng)) * wos::sample_direction<2>(rng);
+        else
+            std::tie(y, sign) = m_source.sample_signed(rng, x);
+        const Vec2d d = x - y;
+        const double r2 = d.x * d.x + d.y * d.y;
+        if (!(r2 > 0)) continue;  // y = x exactly: a measure-zero point (principal value 0)
+        const double r = std::sqrt(r2);
+        double W;
+        if (r < rho) {  // where both densities reach: the balance weight omega_h / (mixture density)
+            const auto [w, pw] = m_source.value_and_pdf(y, x);
+            const double p = a * near_pdf / r + (1 - a) * pw;
+            if (w == 0 || !(p > 0)) continue;
+            W = w / p * inv_q;
+            out.near[std::size_t(out.n_near)] = y;
+            out.near_w[std::size_t(out.n_near++)] = W;
+        } else {  // only |omega| sampling reaches: its cell's sign times the total (no lookup)
+            W = sign * out.far_weight;
+            if (sign > 0)
+                out.plus[std::size_t(out.n_plus++)] = y;
+            else
+                out.minus[std::size_t(out.n_minus++)] = y;
+        }
+        v += (W / (2 * Pi * r2)) * Vec2d(-d.y, d.x);
+    }
+    return v;
+}
+
+// The control variate. Psi = Psi_free + h with Psi_free = integral omega_h(y) log|x - y| / (2 pi) dy over the
+// plane (Laplacian(Psi_free) = omega_h, the same function the walks' source term reads) and h harmonic in the
+// fluid with h = Psi_b - Psi_free on every boundary. One gradient sample draws q points y_j of omega_h (a one-
+// sample mixture of |omega| and, near x, 1/r sampling; weights W_j = omega_h(y_j) / (q p(y_j)) where both
+// densities reach, i.e. within the near radius, and beyond it the cell-sign weight sign(omega_k) integral|omega_h|
+// / ((1 - alpha) q) of the cell k the point was drawn from: unbiased over (cell, point), no lookup), i.e. q point
+// vortices whose free-space velocity sum_j W_j K(x - y_j) and stream function sum_j W_j log|p - y_j| / (2 pi)
+// are unbiased for v_free(x) and Psi_free(p); the sample's walks (antithetic pair, no source term) end at p and
+// carry Psi_b(p) minus that stream function. The sample is therefore the velocity of the q point vortices inside
+// the walled domain, exactly unbiased for the velocity of omega_h there; the walks only estimate the (smooth,
+// small where the walls conform to the free flow) image part. Sources of the samples are independent across
+// samples, so the usual variance estimate holds (with stratified directions: pairs of strata).
 VelocityEstimate WosVelocityField::estimate_control_variate(Vec2d x, int n, Random& rng, wos::WalkCounters& c) const {
     VelocityEstimate e;
     double R0 = distance(x);
@@ -465,78 +559,13 @@ VelocityEstimate WosVelocityField::estimate_control_variate(Vec2d x, int n, Rand
     }
     if (R0 < m_wos.epsilon && !wos::move_to_shell<2>(*this, x, R0, m_wos, c)) return e;
     const int q = std::clamp(m_options.free_samples, 1, MaxFreeSamples);
-    // The sample's point vortices: near ones with their own weights, far ones of weight +-far_weight (kept apart,
-    // so that the stream function at a walk's end takes one logarithm per four of them: log of a product).
-    std::array<Vec2d, MaxFreeSamples> near, plus, minus;
-    std::array<double, MaxFreeSamples> near_w;
-    const double rho = m_near_radius, a = NearFraction, inv_q = 1.0 / q;
-    const double near_pdf = 1 / (2 * Pi * rho);  // x 1/r: the density of r = rho u, uniform angle
-    const double far_weight = m_source.total() / (1 - a) * inv_q;
-    int n_near = 0, n_plus = 0, n_minus = 0;
-    const auto log_sum = [](const std::array<Vec2d, MaxFreeSamples>& ys, int count, Vec2d p) {
-        double sum = 0;
-        for (int j = 0; j < count; j += 4) {
-            const int e = std::min(count, j + 4);
-            double prod = 1;
-            for (int i = j; i < e; ++i) {
-                const Vec2d d = p - ys[std::size_t(i)];
-                prod *= d.x * d.x + d.y * d.y;
-            }
-            if (std::isnormal(prod) && std::isfinite(prod)) {
-                sum += std::log(prod);
-                continue;
-            }
-            for (int i = j; i < e; ++i) {  // under- or overflow of the product: one by one
-                const Vec2d d = p - ys[std::size_t(i)];
-                sum += std::log(d.x * d.x + d.y * d.y);
-            }
-        }
-        return sum;
-    };
-    const auto psi_free = [&](Vec2d p) {
-        double sum = far_weight * (log_sum(plus, n_plus, p) - log_sum(minus, n_minus, p));
-        for (int j = 0; j < n_near; ++j) {
-            const Vec2d d = p - near[std::size_t(j)];
-            sum += near_w[std::size_t(j)] * std::log(d.x * d.x + d.y * d.y);
-        }
-        return sum * (0.5 / (2 * Pi));  // log|d| = log(|d|^2) / 2
-    };
-    const auto g = [&](const wos::BoundaryHit<2>& h) { return boundary_stream(h) - psi_free(h.point); };
+    FreeVortices vortices;
+    const auto g = [&](const wos::BoundaryHit<2>& h) { return boundary_stream(h) - vortices.psi(h.point); };
     wos::SampleMoments<Vec2d> moments;
     moments.strata = m_wos.stratified && n > 1;
     const double scale = 2 / R0;
     for (int k = 0; k < n; ++k) {
-        // The sample's point vortices and their free-space velocity at x.
-        n_near = n_plus = n_minus = 0;
-        Vec2d v(0.0);
-        for (int j = 0; j < q; ++j) {
-            Vec2d y;
-            double sign = 0;
-            if (wos::uniform(rng) < a)
-                y = x + (rho * wos::uniform(rng)) * wos::sample_direction<2>(rng);
-            else
-                std::tie(y, sign) = m_source.sample_signed(rng, x);
-            const Vec2d d = x - y;
-            const double r2 = d.x * d.x + d.y * d.y;
-            if (!(r2 > 0)) continue;  // y = x exactly: a measure-zero point (principal value 0)
-            const double r = std::sqrt(r2);
-            double W;
-            if (r < rho) {  // where both densities reach: the balance weight omega_h / (mixture density)
-                const auto [w, pw] = m_source.value_and_pdf(y, x);
-                const double p = a * near_pdf / r + (1 - a) * pw;
-                if (w == 0 || !(p > 0)) continue;
-                W = w / p * inv_q;
-                near[std::size_t(n_near)] = y;
-                near_w[std::size_t(n_near++)] = W;
-            } else {  // only |omega| sampling reaches: its cell's sign times the total (no lookup)
-                W = sign * far_weight;
-                if (sign > 0)
-                    plus[std::size_t(n_plus++)] = y;
-                else
-                    minus[std::size_t(n_minus++)] = y;
-            }
-            v += (W / (2 * Pi * r2)) * Vec2d(-d.y, d.x);
-        }
+        const Vec2d v = free_vortices(x, q, rng, vortices);  // the sample's point vortices, their velocity at x
         // The harmonic correction's gradient from the first step (antithetic, stratified per the settings).
         const Vec2d dir = wos::first_step_direction<2>(rng, m_wos, k, n);
         Vec2d grad;
@@ -558,6 +587,204 @@ VelocityEstimate WosVelocityField::estimate_control_variate(Vec2d x, int n, Rand
     e.value = moments.mean();
     e.variance = moments.variance_of_mean();
     e.samples = 0;  // the Biot–Savart part is within the walks' samples (walk counters)
+    return e;
+}
+
+// ----- Harmonic caching
+
+namespace {
+/// A disk's walks start on the circle of this fraction of its centre's distance to the boundaries; queries within
+/// CoreFraction of that distance read its series; a disk is placed only where its core is at least MinCoreCells
+/// cells wide.
+constexpr double CircleFraction = 0.9, CoreFraction = 0.5, MinCoreCells = 1.5;
+}  // namespace
+
+void WosVelocityField::build_harmonic_cache(const Grid2& cells, uint64_t seed, uint64_t stream, double delta) {
+    m_disks.clear();
+    m_cell_disk.clear();
+    m_cached_cells = 0;
+    m_cache_walks = {};
+    m_free.reset();
+    if (m_domain.periodic || m_constant_psi || (m_has_source && !m_cv)) return;
+    if (m_cv && delta > 0) {
+        const Grid2& g = *m_omega;
+        std::shared_ptr<const NearField2> near;
+        if (delta >= NearField2::MinDelta * std::min(g.h().x, g.h().y))
+            near = NearField2::shared(g.h(), m_interp, delta, BiotSavartVelocity::DefaultNearField2);
+        m_free = std::make_unique<BiotSavartEstimator>(g, m_interp, SourceSampling::Vorticity, delta, nullptr,
+                                                       std::move(near));
+        m_free->set_stop(m_wos.stop);
+    }
+    const int nx = cells.nx(), ny = cells.ny(), order = std::clamp(m_options.cache_order, 1, MaxCacheOrder);
+    m_cache_min = cells.domain().min;
+    m_cache_h = cells.h();
+    m_cache_nx = nx;
+    m_cache_ny = ny;
+    const double h = std::max(m_cache_h.x, m_cache_h.y), cell_area = m_cache_h.x * m_cache_h.y;
+    const std::size_t count = std::size_t(nx) * std::size_t(ny);
+    // Every fluid centre's distance to the boundaries, then disks greedily from the farthest.
+    std::vector<double> dist(count, -1);
+    parallel_for_units(std::size_t(ny), [&](std::size_t j) {
+        for (int i = 0; i < nx; ++i) {
+            const Vec2d x = cells.cell_center(i, int(j));
+            if (solid_at(x) < 0) dist[j * std::size_t(nx) + std::size_t(i)] = distance(x);
+        }
+    });
+    std::vector<uint32_t> order_of(count);
+    for (std::size_t k = 0; k < count; ++k) order_of[k] = uint32_t(k);
+    std::stable_sort(order_of.begin(), order_of.end(), [&](uint32_t a, uint32_t b) { return dist[a] > dist[b]; });
+    m_cell_disk.assign(count, -1);
+    std::vector<double> best(count, Inf);  // the covering core's |x - c| / core (the lower, the less noise)
+    for (const uint32_t k : order_of) {
+        const double d = dist[k];
+        if (d == Inf) continue;                          // no boundary in reach (not a closed domain)
+        if (d * CoreFraction < MinCoreCells * h) break;  // and every centre after it: too close to a boundary
+        if (m_cell_disk[k] >= 0) continue;
+        HarmonicDisk disk;
+        disk.center = cells.cell_center(int(k % std::size_t(nx)), int(k / std::size_t(nx)));
+        disk.radius = CircleFraction * d;
+        disk.core = CoreFraction * d;
+        const int id = int(m_disks.size());
+        const int i0 = std::max(0, int(std::floor((disk.center.x - disk.core - m_cache_min.x) / m_cache_h.x))),
+                  i1 = std::min(nx - 1, int(std::ceil((disk.center.x + disk.core - m_cache_min.x) / m_cache_h.x))),
+                  j0 = std::max(0, int(std::floor((disk.center.y - disk.core - m_cache_min.y) / m_cache_h.y))),
+                  j1 = std::min(ny - 1, int(std::ceil((disk.center.y + disk.core - m_cache_min.y) / m_cache_h.y)));
+        for (int j = j0; j <= j1; ++j)
+            for (int i = i0; i <= i1; ++i) {
+                const std::size_t c = std::size_t(j) * std::size_t(nx) + std::size_t(i);
+                if (dist[c] < 0) continue;  // solid
+                const double r = glm::length(cells.cell_center(i, j) - disk.center) / disk.core;
+                if (r > 1) continue;
+                if (r < best[c]) best[c] = r, m_cell_disk[c] = id;
+            }
+        disk.walks =
+            std::max(4 * order, int(std::lround(std::min(m_options.cache_walks * Pi * disk.core * disk.core / cell_area,
+                                                         double(1 << 20)))));
+        m_disks.push_back(std::move(disk));
+    }
+    // The disks' walks: equally spaced angles with one random rotation per disk, each walk's own point vortices.
+    const int q = std::clamp(m_options.free_samples, 1, MaxFreeSamples);
+    std::vector<wos::WalkCounters> counters(m_disks.size());
+    parallel_for_units(m_disks.size(), [&](std::size_t id) {
+        if (m_wos.stop && m_wos.stop->stop_requested()) {
+            m_disks[id].walks = 0;
+            return;
+        }
+        HarmonicDisk& disk = m_disks[id];
+        wos::WalkCounters& c = counters[id];
+        Random rng(seed, hash_combine(stream, uint64_t(id)));
+        const int N = disk.walks;
+        std::vector<double> values(static_cast<std::size_t>(N));
+        std::vector<Vec2d> dirs(static_cast<std::size_t>(N));
+        FreeVortices vortices;
+        const auto g = [&](const wos::BoundaryHit<2>& hit) {
+            return m_cv ? boundary_stream(hit) - vortices.psi(hit.point) : boundary_stream(hit);
+        };
+        const double rotation = wos::uniform(rng);
+        for (int i = 0; i < N; ++i) {
+            const double theta = 2 * Pi * (double(i) + rotation) / double(N);
+            dirs[std::size_t(i)] = Vec2d(std::cos(theta), std::sin(theta));
+            if (m_cv) {  // the walk's own point vortices of omega_h (|omega| sampling; no query to sample near)
+                vortices.far_weight = m_source.total() / q;
+                vortices.n_near = vortices.n_plus = vortices.n_minus = 0;
+                for (int j = 0; j < q; ++j) {
+                    const auto [y, sign] = m_source.sample_signed(rng, disk.center);
+                    if (sign > 0)
+                        vortices.plus[std::size_t(vortices.n_plus++)] = y;
+                    else
+                        vortices.minus[std::size_t(vortices.n_minus++)] = y;
+                }
+            }
+            values[std::size_t(i)] = wos::walk<2>(*this, g, wos::NoSource{},
+                                                  disk.center + disk.radius * dirs[std::size_t(i)], rng, m_wos, c);
+            if (!std::isfinite(values[std::size_t(i)])) {  // an invalid walk: the disk is not used
+                ++c.invalid;
+                disk.walks = 0;
+                return;
+            }
+        }
+        // c_0 = mean, c_n = 2/N sum h_i e^{-i n theta_i}; the residual about the truncated series.
+        disk.c.assign(std::size_t(order) + 1, {0.0, 0.0});
+        for (int i = 0; i < N; ++i) {
+            const std::complex<double> e(dirs[std::size_t(i)].x, -dirs[std::size_t(i)].y);
+            std::complex<double> en(1.0, 0.0);
+            for (int m = 0; m <= order; ++m) {
+                disk.c[std::size_t(m)] += values[std::size_t(i)] * en;
+                en *= e;
+            }
+        }
+        disk.c[0] /= double(N);
+        for (int m = 1; m <= order; ++m) disk.c[std::size_t(m)] *= 2.0 / double(N);
+        double residual = 0;
+        for (int i = 0; i < N; ++i) {
+            const std::complex<double> e(dirs[std::size_t(i)].x, dirs[std::size_t(i)].y);
+            std::complex<double> en(1.0, 0.0), sum(0.0, 0.0);
+            for (int m = 0; m <= order; ++m) {
+                sum += disk.c[std::size_t(m)] * en;
+                en *= e;
+            }
+            const double r = values[std::size_t(i)] - sum.real();
+            residual += r * r;
+        }
+        disk.noise = residual / double(std::max(1, N - 2 * order - 1));
+    });
+    for (const wos::WalkCounters& c : counters) m_cache_walks += c;
+    for (std::size_t k = 0; k < count; ++k)
+        if (m_cell_disk[k] >= 0) {
+            if (m_disks[std::size_t(m_cell_disk[k])].walks == 0)
+                m_cell_disk[k] = -1;
+            else
+                ++m_cached_cells;
+        }
+}
+
+const WosVelocityField::HarmonicDisk* WosVelocityField::disk_for(Vec2d x) const {
+    if (m_cell_disk.empty()) return nullptr;
+    const int i = std::clamp(int(std::floor((x.x - m_cache_min.x) / m_cache_h.x)), 0, m_cache_nx - 1);
+    const int j = std::clamp(int(std::floor((x.y - m_cache_min.y) / m_cache_h.y)), 0, m_cache_ny - 1);
+    const int id = m_cell_disk[std::size_t(j) * std::size_t(m_cache_nx) + std::size_t(i)];
+    if (id < 0) return nullptr;
+    const HarmonicDisk& d = m_disks[std::size_t(id)];
+    const Vec2d z = x - d.center;
+    return z.x * z.x + z.y * z.y <= d.core * d.core ? &d : nullptr;
+}
+
+// A query inside a disk's core: the free-space velocity of n x q point vortices (the control variate's, without
+// walks) plus -curl of the disk's series. With h = Re f, f(c + z) = sum c_n (z / r)^n: f' = h_x - i h_y, so
+// -curl h = (-h_y, h_x) = (Im f', Re f'). Its variance: the series is linear in the N walk values, which scatter
+// about it with variance s^2 (HarmonicDisk::noise); with equally spaced angles the terms are orthogonal, so
+// Var(f') = s^2 4/N sum_n n^2 |z|^(2n-2) / r^(2n), half of it per component.
+VelocityEstimate WosVelocityField::estimate_cached(Vec2d x, const HarmonicDisk& d, int n, Random& rng) const {
+    VelocityEstimate e;
+    if (m_free) {
+        e = m_free->estimate(x, n * std::clamp(m_options.free_samples, 1, MaxFreeSamples), rng);
+    } else if (m_cv) {
+        const int q = std::clamp(m_options.free_samples, 1, MaxFreeSamples);
+        FreeVortices vortices;
+        wos::SampleMoments<Vec2d> moments;
+        for (int k = 0; k < n; ++k) {
+            Vec2d v = free_vortices(x, q, rng, vortices);
+            if (!std::isfinite(v.x) || !std::isfinite(v.y)) v = Vec2d(0.0);
+            moments.add(v);
+        }
+        e.value = moments.mean();
+        e.variance = moments.variance_of_mean();
+        e.samples = n * q;
+    }
+    const std::complex<double> z((x.x - d.center.x) / d.radius, (x.y - d.center.y) / d.radius);
+    std::complex<double> df(0.0, 0.0);  // f'(z) r, by Horner
+    double var = 0, zn2 = 1;
+    const double z2 = std::norm(z);
+    const int order = int(d.c.size()) - 1;
+    for (int m = order; m >= 1; --m) df = df * z + double(m) * d.c[std::size_t(m)];
+    for (int m = 1; m <= order; ++m) {
+        var += double(m) * double(m) * zn2;
+        zn2 *= z2;
+    }
+    df /= d.radius;
+    var *= d.noise * 2.0 / double(d.walks) / (d.radius * d.radius);
+    e.value += Vec2d(df.imag(), df.real());
+    e.variance += Vec2d(var);
     return e;
 }
 
@@ -592,6 +819,7 @@ std::string WosVelocity::check3(const Domain3& domain) const { return check_wos_
 std::unique_ptr<VelocityField2> WosVelocity::build2(const VelocityState2& s) const {
     auto field = std::make_unique<WosVelocityField>(*m_options, s.domain, s.omega, s.interpolation, s.time);
     field->set_stop(s.stop);
+    if (m_options->harmonic_cache && s.omega) field->build_harmonic_cache(*s.omega, s.seed, s.stream, s.delta);
     return field;
 }
 

@@ -325,6 +325,15 @@ TEST(WosSolver, BadInputNamesTheParameterOrFile) {
                                             <float name="inflow_max" value="3"/>)")),
                     "inflow range");
     EXPECT_CONTAINS(load_error(wos_scene(R"(<string name="importance" value="greeen"/>)")), "'importance'");
+    EXPECT_CONTAINS(load_error(wos_scene(R"(<boolean name="harmonic_cache" value="true"/>
+                                            <boundary type="disk"><float name="radius" value="0.2"/></boundary>)",
+                                         true)),
+                    "harmonic_cache needs a non-periodic domain");
+    EXPECT_CONTAINS(load_error(wos_scene(R"(<boolean name="harmonic_cache" value="true"/>
+                                            <boolean name="control_variate" value="false"/>)")),
+                    "harmonic_cache needs control_variate");
+    EXPECT_CONTAINS(load_error(wos_scene(R"(<float name="cache_walks" value="0"/>)")), "'cache_walks'");
+    EXPECT_CONTAINS(load_error(wos_scene(R"(<integer name="cache_order" value="33"/>)")), "'cache_order'");
     EXPECT_CONTAINS(load_error(wos_scene(
                         R"(<boundary type="mesh"><shape type="obj"><string name="filename" value=")" +
                         write_fan_obj(dir, "tilted.obj", {0, 0}, 0.2, 8, false).string() +

@@ -34,6 +34,7 @@
 #include <kelvin/wos/wos.h>
 
 #include <array>
+#include <complex>
 #include <memory>
 #include <string>
 #include <vector>
@@ -77,10 +78,23 @@ struct WosVelocityOptions {
     /// estimated from pairs of adjacent strata. 3D: with the control variate only (plain 3D walks are not
     /// stratified).
     bool stratified = true;
+    /// Harmonic caching (2D, non-periodic, with the control variate or without vorticity): the harmonic part of
+    /// Psi (the control variate's correction h, or Psi itself without vorticity) is estimated once per state on
+    /// disks that cover the fluid away from the boundaries, each as the truncated Fourier series of h on a circle,
+    /// and read at every query inside a disk's core; the walks per query remain only near the boundaries.
+    /// WosVelocityField::build_harmonic_cache; docs/boundaries.md.
+    bool harmonic_cache = false;
+    /// Harmonic caching: walks per cell of a disk's core (a disk of core radius rho takes this times
+    /// pi rho^2 / h^2 walks, at least 4 cache_order).
+    double cache_walks = 1;
+    /// Harmonic caching: terms of each disk's series (1-MaxCacheOrder).
+    int cache_order = 12;
 };
 
 /// Largest free_samples (a gradient sample keeps its point vortices on the stack).
 inline constexpr int MaxFreeSamples = 256;
+/// Largest cache_order.
+inline constexpr int MaxCacheOrder = 32;
 
 /// Why these options cannot run on `domain` ("" when they can): a periodic domain without any boundary, an
 /// open domain without walls or container, a 3D shape, bad inflow range.
@@ -135,6 +149,28 @@ public:
     const WosVelocityField* boundaries() const override { return this; }
     /// True when estimate() uses the control variate (the option, vorticity present, a non-periodic domain).
     bool control_variate() const { return m_cv; }
+    /// Harmonic caching (WosVelocityOptions::harmonic_cache): estimates the harmonic part of Psi (the control
+    /// variate's h = Psi - Psi_free, or Psi without vorticity) on disks placed over the centres of `cells` (the
+    /// state's cache) and keeps it; estimate() then reads it at every point inside a disk's core. A disk at a
+    /// fluid point c of distance d to the boundaries starts `cache_walks` x (its core's cells) walks at equally
+    /// spaced angles (one random rotation) on the circle of radius 0.9 d, each ending with Psi_b minus the
+    /// free-space stream function of its own free_samples point vortices, and keeps the truncated Fourier series
+    /// h(c + z) = Re sum_{n <= cache_order} c_n (z / 0.9 d)^n; queries within d / 2 of c (the core; a core of at
+    /// least 1.5 cells) read h's gradient from it. Disks are placed greedily, farthest from the boundaries first,
+    /// at every fluid cell centre no core covers yet. Points no core covers keep the per-query walks. Random
+    /// streams: (seed, hash of stream and the disk's index), so the cache does not depend on the thread count.
+    /// Does nothing on periodic domains, with vorticity but without the control variate, or when Psi is constant.
+    /// Polls the stop (set_stop) per disk: a stopped build leaves the remaining disks unused.
+    /// The free-space part of a query inside a core: with `delta` > 0, the open domain's Biot–Savart estimator of
+    /// the field's omega_h (BiotSavartEstimator: |omega| sampling, mollifier delta, near field of
+    /// BiotSavartVelocity::DefaultNearField2 cells where delta resolves it) with n x free_samples samples, the
+    /// solver's choice (its delta); with 0, n x free_samples point vortices of the control variate's sampling and
+    /// the singular kernel (exactly the walks' Psi_free: unbiased for the velocity of omega_h).
+    void build_harmonic_cache(const Grid2& cells, uint64_t seed, uint64_t stream, double delta = 0);
+    /// The cache's disks (0 without one), the cells whose centre a core holds, and its walks.
+    std::size_t harmonic_disks() const { return m_disks.size(); }
+    std::size_t harmonic_cells() const { return m_cached_cells; }
+    const wos::WalkCounters& harmonic_walks() const { return m_cache_walks; }
     /// Psi at x with n walks.
     wos::ScalarEstimate stream_function(Vec2d x, int n, Random& rng, wos::WalkCounters& c) const;
 
@@ -217,8 +253,36 @@ private:
     VorticitySource m_source;  // with vorticity_importance or the control variate
     bool m_cv = false;         // control variate in use
     double m_near_radius = 0;  // control variate: radius of the kernel-proportional near-field samples
-
+    /// One disk of the harmonic cache: h(center + z) = Re sum_n c[n] (z / radius)^n for |z| <= core.
+    struct HarmonicDisk {
+        Vec2d center{0.0};
+        double radius = 0, core = 0;
+        int walks = 0;                        ///< 0: not built (stopped, or an invalid walk): not used
+        std::vector<std::complex<double>> c;  ///< c_0 .. c_P
+        double noise = 0;                     ///< variance of one walk's value about the series
+    };
+    std::vector<HarmonicDisk> m_disks;
+    std::vector<int32_t> m_cell_disk;  // per cache cell: the disk whose core holds its centre best (-1: none)
+    Vec2d m_cache_min{0.0}, m_cache_h{1.0};
+    int m_cache_nx = 0, m_cache_ny = 0;
+    std::size_t m_cached_cells = 0;
+    wos::WalkCounters m_cache_walks;
+    std::unique_ptr<BiotSavartEstimator> m_free;  // harmonic cache with delta > 0: the free part inside the cores
+    const HarmonicDisk* disk_for(Vec2d x) const;
+    /// The control variate's point vortices of one gradient sample (near x: their own weights; beyond: +-far).
+    struct FreeVortices {
+        std::array<Vec2d, MaxFreeSamples> near, plus, minus;
+        std::array<double, MaxFreeSamples> near_w;
+        int n_near = 0, n_plus = 0, n_minus = 0;
+        double far_weight = 0;
+        /// Their free-space stream function at p.
+        double psi(Vec2d p) const;
+    };
+    /// Draws q point vortices of omega_h (|omega| mixed with 1/r within the near radius of x) into `out` and
+    /// returns their free-space velocity at x.
+    Vec2d free_vortices(Vec2d x, int q, Random& rng, FreeVortices& out) const;
     VelocityEstimate estimate_control_variate(Vec2d x, int n, Random& rng, wos::WalkCounters& c) const;
+    VelocityEstimate estimate_cached(Vec2d x, const HarmonicDisk& d, int n, Random& rng) const;
 };
 
 // ----------------------------------------------------------------------------------------------------------

@@ -224,7 +224,7 @@ public:
     bool energy_budget_has_boundary() const { return bool(m_wall_flow); }
 
     /// Stream tags of the passes (part of the determinism contract; tests use them).
-    enum StreamTag : uint64_t { TagVelocity = 1, TagAdvection = 2, TagQuery = 3, TagDye = 4 };
+    enum StreamTag : uint64_t { TagVelocity = 1, TagAdvection = 2, TagQuery = 3, TagDye = 4, TagField = 5 };
 
 private:
     void rebuild_estimator();

@@ -70,6 +70,9 @@ struct VelocityState2 {
     /// stop_requested() within the sample loop (every few thousand samples, every 64 walks) and returns early;
     /// the solver then discards the whole pass, so the early value is never used. It outlives the field.
     const Cancellable* stop = nullptr;
+    /// The solver's seed and a random stream of this state, for work an estimator does once per state (the
+    /// harmonic cache of walk_on_spheres): distinct for every step.
+    uint64_t seed = 0, stream = 0;
 };
 
 /// What the 3D solver hands an estimator to build the velocity of one state (or of the difference of two

@@ -44,6 +44,9 @@ public:
         opt.control_variate = props.get_bool("control_variate");
         opt.free_samples = int(props.get_int("free_samples", 1, MaxFreeSamples));
         opt.stratified = props.get_bool("stratified");
+        opt.harmonic_cache = props.get_bool("harmonic_cache");
+        opt.cache_walks = props.get_float("cache_walks", 0.01, 1e4);
+        opt.cache_order = int(props.get_int("cache_order", 1, MaxCacheOrder));
         opt.walls = props.get_bool("walls");
         opt.wall_stream_value = props.get_float("wall_stream_value");
         opt.inflow_speed = props.get_float("inflow_speed");
@@ -104,6 +107,11 @@ KELVIN_PLUGIN(
     kelvin::param::boolean("stratified", true,
                            "stratified first-step directions over a query's gradient samples (3D: with the control "
                            "variate only)"),
+    kelvin::param::boolean("harmonic_cache", false,
+                           "2D: the harmonic part of Psi once per step on disks away from the boundaries (their "
+                           "series read by every query inside), walks per query only near the boundaries"),
+    kelvin::param::real("cache_walks", 1.0, "harmonic_cache: walks per cell of a disk's core"),
+    kelvin::param::integer("cache_order", 12, "harmonic_cache: terms of each disk's Fourier series, 1-32"),
     kelvin::param::boolean("walls", true, "the domain box is a container (ignored when periodic)"),
     kelvin::param::real("wall_stream_value", 0.0,
                         "Psi on the walls (with inflow: the mean of the bottom and top walls)"),
