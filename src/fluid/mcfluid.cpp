@@ -228,6 +228,8 @@ Vec2d MCFluidSolver::checked_velocity(Vec2d x, Random& rng, uint64_t& evals, uin
 
 bool MCFluidSolver::ensure_velocity() {
     if (m_velocity_valid) return true;
+    // A field whose once-per-state work (a harmonic cache) was interrupted is built again, as it would have been.
+    if (m_wos && m_wos->harmonic_cache_stopped() && !stop_requested()) rebuild_estimator();
     Timer timer;
     const int nx = m_omega.nx(), ny = m_omega.ny();
     const int n = m_settings.samples;

@@ -12,6 +12,7 @@
 
 #include <algorithm>
 #include <array>
+#include <atomic>
 #include <cmath>
 #include <tuple>
 
@@ -55,9 +56,7 @@ std::string check_wos_options(const WosVelocityOptions& options, const Domain2& 
         return "a periodic domain needs at least one <boundary> (without any, use biot_savart)";
     if (!domain.periodic && !options.walls && !container)
         return "an open domain needs walls = true or a container boundary (fluid = 'inside'); walks would never end";
-    if (options.harmonic_cache) {
-        if (domain.periodic) return "harmonic_cache needs a non-periodic domain (its walks use the control variate)";
-        if (!options.control_variate) return "harmonic_cache needs control_variate = true";
+    if (options.harmonic_cache) {  // ignored where it does not apply (periodic domains, no control variate, 3D)
         if (!(options.cache_walks >= 0.01 && options.cache_walks <= 1e4))
             return fmt::format("cache_walks = {:g} must be within [0.01, 1e4] walks per cell", options.cache_walks);
         if (options.cache_order < 1 || options.cache_order > MaxCacheOrder)
@@ -603,6 +602,7 @@ void WosVelocityField::build_harmonic_cache(const Grid2& cells, uint64_t seed, u
     m_disks.clear();
     m_cell_disk.clear();
     m_cached_cells = 0;
+    m_cache_stopped = false;
     m_cache_walks = {};
     m_free.reset();
     if (m_domain.periodic || m_constant_psi || (m_has_source && !m_cv)) return;
@@ -665,9 +665,10 @@ void WosVelocityField::build_harmonic_cache(const Grid2& cells, uint64_t seed, u
     // The disks' walks: equally spaced angles with one random rotation per disk, each walk's own point vortices.
     const int q = std::clamp(m_options.free_samples, 1, MaxFreeSamples);
     std::vector<wos::WalkCounters> counters(m_disks.size());
+    std::atomic<bool> stopped{false};
     parallel_for_units(m_disks.size(), [&](std::size_t id) {
         if (m_wos.stop && m_wos.stop->stop_requested()) {
-            m_disks[id].walks = 0;
+            stopped = true;
             return;
         }
         HarmonicDisk& disk = m_disks[id];
@@ -729,6 +730,13 @@ void WosVelocityField::build_harmonic_cache(const Grid2& cells, uint64_t seed, u
         disk.noise = residual / double(std::max(1, N - 2 * order - 1));
     });
     for (const wos::WalkCounters& c : counters) m_cache_walks += c;
+    if (stopped) {  // a cache with some disks missing would differ from an uninterrupted run's: none
+        m_disks.clear();
+        m_cell_disk.clear();
+        m_free.reset();
+        m_cache_stopped = true;
+        return;
+    }
     for (std::size_t k = 0; k < count; ++k)
         if (m_cell_disk[k] >= 0) {
             if (m_disks[std::size_t(m_cell_disk[k])].walks == 0)

@@ -42,7 +42,6 @@ std::string check_wos_options3(const WosVelocityOptions& options, const Domain3&
                         wos::ShellEdge));
         !why.empty())
         return why;
-    if (options.harmonic_cache) return "harmonic_cache is 2D only (3D queries walk per point)";
     bool container = false;
     for (const auto& s : options.shapes) {
         if (!s || s->dimension() != 3 || !s->geometry3())

@@ -92,10 +92,11 @@ struct WallBudget {
 
 /// The 2D budget with walls on a disk container of radius 0.9 (32^2, dt 0.05, RK4, cubic, t = 0.3): a Gaussian vortex
 /// (circulation 1, core 0.15) at (cx, 0).
-WallBudget wall_budget(double cx, int n, uint64_t seed) {
+WallBudget wall_budget(double cx, int n, uint64_t seed, bool harmonic_cache = true) {
     WosVelocityOptions o;
     o.shapes = {disk_boundary({0, 0}, Radius, "inside")};
     o.walls = false;
+    o.harmonic_cache = harmonic_cache;
     MCFluidSettings s;
     s.domain = {{-1, -1}, {1, 1}, false};
     s.nx = s.ny = 32;
@@ -129,8 +130,10 @@ WallBudget wall_budget(double cx, int n, uint64_t seed) {
 // does. The terms add up to the change; the boundary term (the lookup reading the solid cells' zeros, against the
 // state extended into them) is nothing where no vorticity reaches the wall (a centred vortex) and a loss where it does
 // (centre 0.7, 0.2 from the wall: measured -2.4e-4 of 0.067 by t = 0.3, asserted beyond -1e-3 of the energy); the
-// noise term falls with the samples (mean |noise| over 3 seeds, n 4 against 64: 3.0e-3 and 4.8e-4, asserted 2x).
-// Broken variant seen to fail: the extension into the solids left out (the boundary term 0).
+// noise term falls with the samples (mean |noise| over 3 seeds, n 4 against 64: 3.0e-3 and 4.8e-4, asserted 2x),
+// measured without the harmonic cache: with it the noise term also holds the free part's mollifier (the open
+// domain's Biot–Savart estimator, delta half a cell), +1.3e-3 at n 64 (0.9e-3 to 2.4e-3 at n 4), which samples do not
+// remove. Broken variant seen to fail: the extension into the solids left out (the boundary term 0).
 TEST(WallFlow2, EnergyBudgetWithWallsMeasuresItsTerms) {
     const WallBudget centred = wall_budget(0.0, 16, 1);
     EXPECT_LT(std::abs(centred.total.boundary), 1e-12);
@@ -144,8 +147,8 @@ TEST(WallFlow2, EnergyBudgetWithWallsMeasuresItsTerms) {
     EXPECT_LT(near.total.boundary, -1e-3 * near.e0);
     double noise4 = 0, noise64 = 0;
     for (uint64_t seed : {1, 2, 3}) {
-        noise4 += std::abs(wall_budget(0.0, 4, seed).total.noise) / 3;
-        noise64 += std::abs(wall_budget(0.0, 64, seed).total.noise) / 3;
+        noise4 += std::abs(wall_budget(0.0, 4, seed, false).total.noise) / 3;
+        noise64 += std::abs(wall_budget(0.0, 64, seed, false).total.noise) / 3;
     }
     EXPECT_LT(noise64, 0.5 * noise4);
 }

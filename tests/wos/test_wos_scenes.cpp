@@ -81,7 +81,6 @@ TEST(WosScenes, RunBriefly) {
         EXPECT_EQ(ctx.stats.get("fluid.wos_invalid"), 0);
         EXPECT_EQ(ctx.stats.get("fluid.wos_truncated"), 0);
         EXPECT_EQ(ctx.stats.get("fluid.invalid_velocity") + ctx.stats.get("fluid.invalid_vorticity"), 0);
-        EXPECT_EQ(ctx.stats.get("fluid.biot_savart_evals"), 0);
     }
 }
 

@@ -78,12 +78,13 @@ struct WosVelocityOptions {
     /// estimated from pairs of adjacent strata. 3D: with the control variate only (plain 3D walks are not
     /// stratified).
     bool stratified = true;
-    /// Harmonic caching (2D, non-periodic, with the control variate or without vorticity): the harmonic part of
+    /// Harmonic caching (2D, non-periodic, with the control variate or without vorticity; ignored elsewhere, as the
+    /// control variate is on periodic domains, and in 3D): the harmonic part of
     /// Psi (the control variate's correction h, or Psi itself without vorticity) is estimated once per state on
     /// disks that cover the fluid away from the boundaries, each as the truncated Fourier series of h on a circle,
     /// and read at every query inside a disk's core; the walks per query remain only near the boundaries.
     /// WosVelocityField::build_harmonic_cache; docs/boundaries.md.
-    bool harmonic_cache = false;
+    bool harmonic_cache = true;
     /// Harmonic caching: walks per cell of a disk's core (a disk of core radius rho takes this times
     /// pi rho^2 / h^2 walks, at least 4 cache_order).
     double cache_walks = 1;
@@ -160,7 +161,7 @@ public:
     /// at every fluid cell centre no core covers yet. Points no core covers keep the per-query walks. Random
     /// streams: (seed, hash of stream and the disk's index), so the cache does not depend on the thread count.
     /// Does nothing on periodic domains, with vorticity but without the control variate, or when Psi is constant.
-    /// Polls the stop (set_stop) per disk: a stopped build leaves the remaining disks unused.
+    /// Polls the stop (set_stop) per disk: a stopped build keeps no cache (harmonic_cache_stopped()).
     /// The free-space part of a query inside a core: with `delta` > 0, the open domain's Biot–Savart estimator of
     /// the field's omega_h (BiotSavartEstimator: |omega| sampling, mollifier delta, near field of
     /// BiotSavartVelocity::DefaultNearField2 cells where delta resolves it) with n x free_samples samples, the
@@ -171,6 +172,9 @@ public:
     std::size_t harmonic_disks() const { return m_disks.size(); }
     std::size_t harmonic_cells() const { return m_cached_cells; }
     const wos::WalkCounters& harmonic_walks() const { return m_cache_walks; }
+    /// True when the stop (set_stop) interrupted build_harmonic_cache: the field then has no cache, and a solver
+    /// builds the state's field again before its next velocity pass (the same cache an uninterrupted run has).
+    bool harmonic_cache_stopped() const { return m_cache_stopped; }
     /// Psi at x with n walks.
     wos::ScalarEstimate stream_function(Vec2d x, int n, Random& rng, wos::WalkCounters& c) const;
 
@@ -266,6 +270,7 @@ private:
     Vec2d m_cache_min{0.0}, m_cache_h{1.0};
     int m_cache_nx = 0, m_cache_ny = 0;
     std::size_t m_cached_cells = 0;
+    bool m_cache_stopped = false;
     wos::WalkCounters m_cache_walks;
     std::unique_ptr<BiotSavartEstimator> m_free;  // harmonic cache with delta > 0: the free part inside the cores
     const HarmonicDisk* disk_for(Vec2d x) const;

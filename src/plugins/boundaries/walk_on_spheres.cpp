@@ -107,9 +107,9 @@ KELVIN_PLUGIN(
     kelvin::param::boolean("stratified", true,
                            "stratified first-step directions over a query's gradient samples (3D: with the control "
                            "variate only)"),
-    kelvin::param::boolean("harmonic_cache", false,
-                           "2D: the harmonic part of Psi once per step on disks away from the boundaries (their "
-                           "series read by every query inside), walks per query only near the boundaries"),
+    kelvin::param::boolean("harmonic_cache", true,
+                           "2D, not periodic: the walls' harmonic correction once per step on disks away from the "
+                           "boundaries (their series read by every query inside), walks per query only near them"),
     kelvin::param::real("cache_walks", 1.0, "harmonic_cache: walks per cell of a disk's core"),
     kelvin::param::integer("cache_order", 12, "harmonic_cache: terms of each disk's Fourier series, 1-32"),
     kelvin::param::boolean("walls", true, "the domain box is a container (ignored when periodic)"),
