@@ -187,6 +187,7 @@ void MCFluidSolver::rebuild_estimator() {
     state.stop = this;
     state.seed = m_settings.seed;
     state.stream = stream_of(m_step, TagField, 0);
+    state.samples = m_settings.samples;
     m_wos = nullptr;
     Timer timer;  // a field may do work once per state (a harmonic cache's walks)
     m_field = m_settings.estimator->build2(state);

@@ -153,9 +153,10 @@ public:
     /// Harmonic caching (WosVelocityOptions::harmonic_cache): estimates the harmonic part of Psi (the control
     /// variate's h = Psi - Psi_free, or Psi without vorticity) on disks placed over the centres of `cells` (the
     /// state's cache) and keeps it; estimate() then reads it at every point inside a disk's core. A disk at a
-    /// fluid point c of distance d to the boundaries starts `cache_walks` x (its core's cells) walks at equally
-    /// spaced angles (one random rotation) on the circle of radius 0.9 d, each ending with Psi_b minus the
-    /// free-space stream function of its own free_samples point vortices, and keeps the truncated Fourier series
+    /// fluid point c of distance d to the boundaries starts `cache_walks` x (its core's cells) walks (at least 8n
+    /// and 4 cache_order) at equally spaced angles (one random rotation) on the circle of radius 0.9 d, each ending
+    /// with Psi_b minus the free-space stream function of its own 4 free_samples point vortices, and keeps the
+    /// truncated Fourier series
     /// h(c + z) = Re sum_{n <= cache_order} c_n (z / 0.9 d)^n; queries within d / 2 of c (the core; a core of at
     /// least 1.5 cells) read h's gradient from it. Disks are placed greedily, farthest from the boundaries first,
     /// at every fluid cell centre no core covers yet. Points no core covers keep the per-query walks. Random
@@ -167,7 +168,9 @@ public:
     /// BiotSavartVelocity::DefaultNearField2 cells where delta resolves it) with n x free_samples samples, the
     /// solver's choice (its delta); with 0, n x free_samples point vortices of the control variate's sampling and
     /// the singular kernel (exactly the walks' Psi_free: unbiased for the velocity of omega_h).
-    void build_harmonic_cache(const Grid2& cells, uint64_t seed, uint64_t stream, double delta = 0);
+    /// `samples`: the gradient samples n of the queries; a disk takes at least 8n walks, so that its gradient is no
+    /// noisier than a query's own walks.
+    void build_harmonic_cache(const Grid2& cells, uint64_t seed, uint64_t stream, double delta = 0, int samples = 16);
     /// The cache's disks (0 without one), the cells whose centre a core holds, and its walks.
     std::size_t harmonic_disks() const { return m_disks.size(); }
     std::size_t harmonic_cells() const { return m_cached_cells; }
@@ -266,14 +269,17 @@ private:
         double noise = 0;                     ///< variance of one walk's value about the series
     };
     std::vector<HarmonicDisk> m_disks;
-    std::vector<int32_t> m_cell_disk;  // per cache cell: the disk whose core holds its centre best (-1: none)
+    std::vector<int32_t> m_cell_disk;    // during the build: the disk whose core holds a cell's centre best (-1: none)
+    std::vector<uint32_t> m_cell_start;  // per cache cell, its range in m_cell_disks (CSR)
+    std::vector<int32_t> m_cell_disks;   // the disks whose core reaches into each cell
     Vec2d m_cache_min{0.0}, m_cache_h{1.0};
     int m_cache_nx = 0, m_cache_ny = 0;
     std::size_t m_cached_cells = 0;
     bool m_cache_stopped = false;
     wos::WalkCounters m_cache_walks;
     std::unique_ptr<BiotSavartEstimator> m_free;  // harmonic cache with delta > 0: the free part inside the cores
-    const HarmonicDisk* disk_for(Vec2d x) const;
+    /// The blended -curl h of the cores holding x and its variance; false where none does.
+    bool cached_harmonic(Vec2d x, Vec2d& value, double& variance) const;
     /// The control variate's point vortices of one gradient sample (near x: their own weights; beyond: +-far).
     struct FreeVortices {
         std::array<Vec2d, MaxFreeSamples> near, plus, minus;
@@ -287,7 +293,7 @@ private:
     /// returns their free-space velocity at x.
     Vec2d free_vortices(Vec2d x, int q, Random& rng, FreeVortices& out) const;
     VelocityEstimate estimate_control_variate(Vec2d x, int n, Random& rng, wos::WalkCounters& c) const;
-    VelocityEstimate estimate_cached(Vec2d x, const HarmonicDisk& d, int n, Random& rng) const;
+    VelocityEstimate estimate_cached(Vec2d x, Vec2d harmonic, double variance, int n, Random& rng) const;
 };
 
 // ----------------------------------------------------------------------------------------------------------

@@ -73,6 +73,8 @@ struct VelocityState2 {
     /// The solver's seed and a random stream of this state, for work an estimator does once per state (the
     /// harmonic cache of walk_on_spheres): distinct for every step.
     uint64_t seed = 0, stream = 0;
+    /// The samples per query the solver will ask for (0: the estimator's own samples()).
+    int samples = 0;
 };
 
 /// What the 3D solver hands an estimator to build the velocity of one state (or of the difference of two
