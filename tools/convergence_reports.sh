@@ -355,6 +355,8 @@ report() {
             # The cached, filtered backtrace (not the default with walls) at 16 samples: one walk estimate per cell
             # and step, about mcfluid's time at 4 samples with a fresh estimate at every RK4 stage.
             for r in 16 32 64; do c+=(--config "mcfluid-cache res=$r:solver=mcfluid,res=$r,spp=16,backtrace=cache"); done
+            # Walks at every query instead of the harmonic cache (the default before it).
+            for r in 16 32 64; do c+=(--config "mcfluid-walks res=$r:solver=mcfluid,res=$r,hcache=false"); done
         else  # the thesis' backtrace (a fresh estimate at every RK4 stage) beside the default's filtered cache
             for r in 16 32 64; do c+=(--config "mcfluid-estimates res=$r:solver=mcfluid,res=$r,backtrace=estimates"); done
         fi

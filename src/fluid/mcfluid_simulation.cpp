@@ -168,13 +168,18 @@ public:
         };
         const std::string velocity =
             s.boundaries ? fmt::format(
-                               "Walk-on-Spheres free-slip velocity ({} gradient samples, antithetic {}, {}{}, epsilon "
-                               "{:g}, max_steps {})",
+                               "Walk-on-Spheres free-slip velocity ({} gradient samples, antithetic {}, {}{}{}, "
+                               "epsilon {:g}, max_steps {})",
                                s.samples, s.boundaries->wos.antithetic ? "on" : "off",
                                m_mc.boundary_field()->control_variate()
                                    ? fmt::format("control variate with {} free samples", s.boundaries->free_samples)
                                    : std::string("plain walks"),
                                s.boundaries->stratified ? ", stratified" : "",
+                               m_mc.boundary_field()->harmonic_disks() > 0
+                                   ? fmt::format(", harmonic cache ({} disks hold {} of the {} cells at t = {:g})",
+                                                 m_mc.boundary_field()->harmonic_disks(),
+                                                 m_mc.boundary_field()->harmonic_cells(), s.nx * s.ny, m_mc.time())
+                                   : std::string(),
                                m_mc.boundary_field()->settings().epsilon, s.boundaries->wos.max_steps)
                          : s.estimator->effect(s.samples, m_mc.delta(), s.domain.periodic) + near_field_effect();
         lines.push_back(fmt::format(
