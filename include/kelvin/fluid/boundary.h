@@ -153,7 +153,7 @@ public:
     /// Harmonic caching (WosVelocityOptions::harmonic_cache): estimates the harmonic part of Psi (the control
     /// variate's h = Psi - Psi_free, or Psi without vorticity) on disks placed over the centres of `cells` (the
     /// state's cache) and keeps it; estimate() then reads it at every point inside a disk's core. A disk at a
-    /// fluid point c of distance d to the boundaries starts `cache_walks` x (its core's cells) walks (at least 8n
+    /// fluid point c of distance d to the boundaries starts `cache_walks` x (its core's cells) walks (at least 16n
     /// and 4 cache_order) at equally spaced angles (one random rotation) on the circle of radius 0.9 d, each ending
     /// with Psi_b minus the free-space stream function of its own 4 free_samples point vortices, and keeps the
     /// truncated Fourier series
@@ -168,8 +168,8 @@ public:
     /// BiotSavartVelocity::DefaultNearField2 cells where delta resolves it) with n x free_samples samples, the
     /// solver's choice (its delta); with 0, n x free_samples point vortices of the control variate's sampling and
     /// the singular kernel (exactly the walks' Psi_free: unbiased for the velocity of omega_h).
-    /// `samples`: the gradient samples n of the queries; a disk takes at least 8n walks, so that its gradient is no
-    /// noisier than a query's own walks.
+    /// `samples`: the gradient samples n of the queries; a disk takes at least 16n walks (its error is shared by
+    /// the queries of its core: wos_velocity.cpp, DiskWalksPerSample).
     void build_harmonic_cache(const Grid2& cells, uint64_t seed, uint64_t stream, double delta = 0, int samples = 16);
     /// The cache's disks (0 without one), the cells whose centre a core holds, and its walks.
     std::size_t harmonic_disks() const { return m_disks.size(); }
