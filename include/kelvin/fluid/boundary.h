@@ -86,7 +86,7 @@ struct WosVelocityOptions {
     /// WosVelocityField::build_harmonic_cache; docs/boundaries.md.
     bool harmonic_cache = true;
     /// Harmonic caching: walks per cell of a disk's core (a disk of core radius rho takes this times
-    /// pi rho^2 / h^2 walks, at least 4 cache_order).
+    /// pi rho^2 / h^2 walks, at least 16 per gradient sample and 4 per term of its series).
     double cache_walks = 1;
     /// Harmonic caching: terms of each disk's series (1-MaxCacheOrder).
     int cache_order = 12;
@@ -155,7 +155,7 @@ public:
     /// state's cache) and keeps it; estimate() then reads it at every point inside a disk's core. A disk at a
     /// fluid point c of distance d to the boundaries starts `cache_walks` x (its core's cells) walks (at least 16n
     /// and 4 cache_order) at equally spaced angles (one random rotation) on the circle of radius 0.9 d, each ending
-    /// with Psi_b minus the free-space stream function of its own 4 free_samples point vortices, and keeps the
+    /// with Psi_b minus the free-space stream function of its own 4 x free_samples point vortices, and keeps the
     /// truncated Fourier series
     /// h(c + z) = Re sum_{n <= cache_order} c_n (z / 0.9 d)^n; queries within d / 2 of c (the core; a core of at
     /// least 1.5 cells) read h's gradient from it. Disks are placed greedily, farthest from the boundaries first,
@@ -165,11 +165,11 @@ public:
     /// Polls the stop (set_stop) per disk: a stopped build keeps no cache (harmonic_cache_stopped()).
     /// The free-space part of a query inside a core: with `delta` > 0, the open domain's Biot–Savart estimator of
     /// the field's omega_h (BiotSavartEstimator: |omega| sampling, mollifier delta, near field of
-    /// BiotSavartVelocity::DefaultNearField2 cells where delta resolves it) with n x free_samples samples, the
-    /// solver's choice (its delta); with 0, n x free_samples point vortices of the control variate's sampling and
-    /// the singular kernel (exactly the walks' Psi_free: unbiased for the velocity of omega_h).
-    /// `samples`: the gradient samples n of the queries; a disk takes at least 16n walks (its error is shared by
-    /// the queries of its core: wos_velocity.cpp, DiskWalksPerSample).
+    /// BiotSavartVelocity::DefaultNearField2 cells where delta resolves it) with n x free_samples samples (the
+    /// solver passes an eighth of a cell); with 0, n x free_samples point vortices of the control variate's sampling
+    /// and the singular kernel (exactly the walks' Psi_free: unbiased for the velocity of omega_h). `samples`: the
+    /// gradient samples n of the queries; a disk takes at least 16n walks (its error is shared by the queries of its
+    /// core: wos_velocity.cpp, DiskWalksPerSample).
     void build_harmonic_cache(const Grid2& cells, uint64_t seed, uint64_t stream, double delta = 0, int samples = 16);
     /// The cache's disks (0 without one), the cells whose centre a core holds, and its walks.
     std::size_t harmonic_disks() const { return m_disks.size(); }
