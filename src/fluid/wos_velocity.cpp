@@ -605,6 +605,8 @@ constexpr double CircleFraction = 0.9, CoreFraction = 0.5, MinCoreCells = 1.5;
 /// to -1.6, -0.1, +0.9 %. Each walk's end reads the stream function of this many times free_samples point vortices
 /// (their noise is most of a walk's below 4; a logarithm per four of them costs little beside the walk).
 constexpr int DiskWalksPerSample = 16, WalkEndVortices = 4;
+/// At most this many walks per disk (a query asking for millions of samples walks on its own beyond that).
+constexpr int MaxDiskWalks = 1 << 22;
 }  // namespace
 
 void WosVelocityField::build_harmonic_cache(const Grid2& cells, uint64_t seed, uint64_t stream, double delta,
@@ -669,9 +671,10 @@ void WosVelocityField::build_harmonic_cache(const Grid2& cells, uint64_t seed, u
                 if (r > 1) continue;
                 if (r < best[c]) best[c] = r, m_cell_disk[c] = id;
             }
-        disk.walks = std::max({DiskWalksPerSample * std::max(samples, 1), 4 * order,
-                               int(std::lround(std::min(m_options.cache_walks * Pi * disk.core * disk.core / cell_area,
-                                                        double(1 << 20))))});
+        disk.walks =
+            int(std::min(std::max({double(DiskWalksPerSample) * std::max(samples, 1), 4.0 * order,
+                                   std::round(m_options.cache_walks * Pi * disk.core * disk.core / cell_area)}),
+                         double(MaxDiskWalks)));
         m_disks.push_back(std::move(disk));
     }
     // The disks' walks: equally spaced angles with one random rotation per disk, each walk's own point vortices.
@@ -687,16 +690,22 @@ void WosVelocityField::build_harmonic_cache(const Grid2& cells, uint64_t seed, u
         wos::WalkCounters& c = counters[id];
         Random rng(seed, hash_combine(stream, uint64_t(id)));
         const int N = disk.walks;
-        std::vector<double> values(static_cast<std::size_t>(N));
-        std::vector<Vec2d> dirs(static_cast<std::size_t>(N));
         FreeVortices vortices;
         const auto g = [&](const wos::BoundaryHit<2>& hit) {
             return m_cv ? boundary_stream(hit) - vortices.psi(hit.point) : boundary_stream(hit);
         };
+        // Sums over the walks of (h_i - shift) e^{-i n theta_i} and of (h_i - shift)^2 (the shift, the first walk's
+        // value, keeps the residual's difference of sums accurate when h has a large constant part).
+        std::vector<std::complex<double>> sums(std::size_t(order) + 1, {0.0, 0.0});
+        double shift = 0, sum2 = 0;
         const double rotation = wos::uniform(rng);
         for (int i = 0; i < N; ++i) {
+            if (m_wos.stop && (i & 63) == 63 && m_wos.stop->stop_requested()) {
+                stopped = true;
+                return;
+            }
             const double theta = 2 * Pi * (double(i) + rotation) / double(N);
-            dirs[std::size_t(i)] = Vec2d(std::cos(theta), std::sin(theta));
+            const Vec2d dir(std::cos(theta), std::sin(theta));
             if (m_cv) {  // the walk's own point vortices of omega_h (|omega| sampling; no query to sample near)
                 vortices.far_weight = m_source.total() / q;
                 vortices.n_near = vortices.n_plus = vortices.n_minus = 0;
@@ -708,37 +717,33 @@ void WosVelocityField::build_harmonic_cache(const Grid2& cells, uint64_t seed, u
                         vortices.minus[std::size_t(vortices.n_minus++)] = y;
                 }
             }
-            values[std::size_t(i)] = wos::walk<2>(*this, g, wos::NoSource{},
-                                                  disk.center + disk.radius * dirs[std::size_t(i)], rng, m_wos, c);
-            if (!std::isfinite(values[std::size_t(i)])) {  // an invalid walk: the disk is not used
+            const double value =
+                wos::walk<2>(*this, g, wos::NoSource{}, disk.center + disk.radius * dir, rng, m_wos, c);
+            if (!std::isfinite(value)) {  // an invalid walk: the disk is not used
                 ++c.invalid;
                 disk.walks = 0;
                 return;
             }
-        }
-        // c_0 = mean, c_n = 2/N sum h_i e^{-i n theta_i}; the residual about the truncated series.
-        disk.c.assign(std::size_t(order) + 1, {0.0, 0.0});
-        for (int i = 0; i < N; ++i) {
-            const std::complex<double> e(dirs[std::size_t(i)].x, -dirs[std::size_t(i)].y);
+            if (i == 0) shift = value;
+            const double v = value - shift;
+            sum2 += v * v;
+            const std::complex<double> e(dir.x, -dir.y);
             std::complex<double> en(1.0, 0.0);
             for (int m = 0; m <= order; ++m) {
-                disk.c[std::size_t(m)] += values[std::size_t(i)] * en;
+                sums[std::size_t(m)] += v * en;
                 en *= e;
             }
         }
-        disk.c[0] /= double(N);
-        for (int m = 1; m <= order; ++m) disk.c[std::size_t(m)] *= 2.0 / double(N);
-        double residual = 0;
-        for (int i = 0; i < N; ++i) {
-            const std::complex<double> e(dirs[std::size_t(i)].x, dirs[std::size_t(i)].y);
-            std::complex<double> en(1.0, 0.0), sum(0.0, 0.0);
-            for (int m = 0; m <= order; ++m) {
-                sum += disk.c[std::size_t(m)] * en;
-                en *= e;
-            }
-            const double r = values[std::size_t(i)] - sum.real();
-            residual += r * r;
+        // c_0 = mean, c_n = 2/N sum h_i e^{-i n theta_i}. Over N > 2 order equally spaced angles the series is the
+        // orthogonal projection of the values, so the residual about it is sum v^2 - N (c_0^2 + sum |c_n|^2 / 2).
+        disk.c.assign(std::size_t(order) + 1, {0.0, 0.0});
+        double fitted = 0;
+        for (int m = 0; m <= order; ++m) {
+            disk.c[std::size_t(m)] = sums[std::size_t(m)] * ((m == 0 ? 1.0 : 2.0) / double(N));
+            fitted += (m == 0 ? 1.0 : 0.5) * std::norm(disk.c[std::size_t(m)]);
         }
+        const double residual = std::max(0.0, sum2 - double(N) * fitted);
+        disk.c[0] += shift;
         disk.noise = residual / double(std::max(1, N - 2 * order - 1));
     });
     for (const wos::WalkCounters& c : counters) m_cache_walks += c;

@@ -50,6 +50,9 @@ std::vector<Job> jobs() {
         // Walk-on-Spheres: 16.7 M walks for every cell of an 8 x 8 grid.
         {"mcfluid_2d_walk_on_spheres",
          {fluid + "cylinder.xml", "-D", "res=8", "-D", "spp=16777216", "-D", "end=100", "-D", "every=0"}},
+        // The harmonic cache's disks: 4 M walks each (16 per gradient sample, at most 2^22), built with the state.
+        {"mcfluid_2d_harmonic_cache",
+         {fluid + "lamb_oseen_disk.xml", "-D", "res=32", "-D", "spp=16777216", "-D", "end=100", "-D", "every=0"}},
         {"mcfluid_3d",
          {fluid + "vortex_ring.xml", "-D", "res=40", "-D", "spp=100000", "-D", "end=100", "-D", "every=0"}},
         // Signalled inside their first step (0.3 s of CPU after state 0's row): their set-up at these sizes (2 to 4 s
