@@ -188,6 +188,33 @@ TEST(WosSolver, VelocityPassStopsOnInterrupt) {
     EXPECT_TRUE(fresh.velocity_v().values() == solver.velocity_v().values());
 }
 
+// An interrupt during the harmonic cache's build (here: before the solver is constructed, so the first disk sees it)
+// leaves the field without a cache; once the interrupt is cleared the solver builds the state's field again, and its
+// velocity is bit for bit that of a solver never interrupted. Seen to fail without the rebuild (the cells then walk
+// per query: a different velocity).
+TEST(WosSolver, InterruptedHarmonicCacheIsBuiltAgain) {
+    struct Guard {
+        Guard() { clear_interrupt(); }
+        ~Guard() { clear_interrupt(); }
+    } guard;
+    MCFluidSettings s = small_settings();
+    auto o = std::make_shared<WosVelocityOptions>();
+    o->shapes = {disk_boundary({0.4, 0.2}, 0.2)};
+    s.boundaries = o;
+    request_interrupt();
+    MCFluidSolver solver(s, two_vortices);
+    ASSERT_NE(solver.boundary_field(), nullptr);
+    EXPECT_TRUE(solver.boundary_field()->harmonic_cache_stopped());
+    EXPECT_EQ(solver.boundary_field()->harmonic_disks(), 0u);
+    clear_interrupt();
+    EXPECT_TRUE(solver.velocity_available());
+    EXPECT_FALSE(solver.boundary_field()->harmonic_cache_stopped());
+    EXPECT_GT(solver.boundary_field()->harmonic_disks(), 0u);
+    MCFluidSolver fresh(s, two_vortices);
+    EXPECT_TRUE(fresh.velocity_u().values() == solver.velocity_u().values());
+    EXPECT_TRUE(fresh.velocity_v().values() == solver.velocity_v().values());
+}
+
 // The same inside a run: a <simulation> with boundaries asked to stop before its first velocity pass returns
 // at once, interrupted, with the vorticity only (no made-up u and v channels) and no walk.
 TEST(WosSolver, InterruptedSceneRunReturnsTheVorticityWithoutWalking) {
