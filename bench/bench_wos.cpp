@@ -309,6 +309,17 @@ const VarianceScene& variance_scene(const std::string& name) {
     return scenes.emplace(name, std::move(sc)).first->second;
 }
 
+/// The counters of the equal-time measurements: the RMSE from the squared errors less the reference's variance,
+/// summed over `passes` passes of `points` points, the CPU seconds per pass, and their product rmse@1s.
+void variance_counters(benchmark::State& state, double excess_sse, double seconds, uint64_t passes,
+                       std::size_t points) {
+    const double mse = std::max(0.0, excess_sse / double(passes * points));
+    const double per_pass = seconds / double(passes);
+    state.counters["rmse"] = std::sqrt(mse);
+    state.counters["cpu_s"] = per_pass;
+    state.counters["rmse@1s"] = std::sqrt(mse * per_pass);
+}
+
 // The equal-time measurement of BM_WosVariance and BM_WosVariance3: passes over the scene's points with n gradient
 // samples each, the squared error against the reference less the reference's own variance, per CPU second.
 double component_sum(Vec2d v) { return v.x + v.y; }
@@ -330,11 +341,7 @@ void measure_variance(benchmark::State& state, const Scene& sc, const Field& f, 
         seconds += kelvin::bench::thread_cpu_seconds() - t0;
         ++pass;
     }
-    const double mse = std::max(0.0, (sse - reference) / double(pass * sc.points.size()));
-    const double per_pass = seconds / double(pass);
-    state.counters["rmse"] = std::sqrt(mse);
-    state.counters["cpu_s"] = per_pass;
-    state.counters["rmse@1s"] = std::sqrt(mse * per_pass);
+    variance_counters(state, sse - reference, seconds, pass, sc.points.size());
     state.counters["walks/query"] = double(c.walks) / double(pass * sc.points.size());
 }
 
@@ -359,18 +366,17 @@ void BM_WosVarianceCached(benchmark::State& state, const std::string& scene) {
     o.harmonic_cache = true;
     o.cache_walks = double(state.range(2)) / 10;
     std::vector<Vec2d> cells;
+    const WosVelocityField solids(o, sc.domain, nullptr, Interpolation::Bilinear, 0);
     for (int j = 0; j < sc.omega.ny(); ++j)
-        for (int i = 0; i < sc.omega.nx(); ++i) {
-            const Vec2d x = sc.omega.cell_center(i, j);
-            if (WosVelocityField(o, sc.domain, nullptr, Interpolation::Bilinear, 0).solid_at(x) < 0) cells.push_back(x);
-        }
+        for (int i = 0; i < sc.omega.nx(); ++i)
+            if (solids.solid_at(sc.omega.cell_center(i, j)) < 0) cells.push_back(sc.omega.cell_center(i, j));
     wos::WalkCounters c;
     double sse = 0, seconds = 0, reference = 0, cached = 0;
     uint64_t pass = 0;
     for (auto _ : state) {
         const double t0 = kelvin::bench::thread_cpu_seconds();
         WosVelocityField f(o, sc.domain, &sc.omega, Interpolation::Bilinear, 0);
-        f.build_harmonic_cache(sc.omega, 1000 + pass, 7, 0.5 * sc.omega.h().x);  // the solver's delta
+        f.build_harmonic_cache(sc.omega, 1000 + pass, 7, -1, n);  // as the solver builds it
         Vec2d sink(0.0);
         for (std::size_t k = 0; k < cells.size(); ++k) {
             Random rng(2000 + pass, k);
@@ -388,11 +394,7 @@ void BM_WosVarianceCached(benchmark::State& state, const std::string& scene) {
         }
         ++pass;
     }
-    const double mse = std::max(0.0, (sse - reference) / double(pass * sc.points.size()));
-    const double per_pass = seconds / double(pass);
-    state.counters["rmse"] = std::sqrt(mse);
-    state.counters["cpu_s"] = per_pass;
-    state.counters["rmse@1s"] = std::sqrt(mse * per_pass);
+    variance_counters(state, sse - reference, seconds, pass, sc.points.size());
     state.counters["cached"] = cached / double(pass);
 }
 

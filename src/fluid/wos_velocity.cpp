@@ -620,6 +620,9 @@ void WosVelocityField::build_harmonic_cache(const Grid2& cells, uint64_t seed, u
     m_cache_walks = {};
     m_free.reset();
     if (m_domain.periodic || m_constant_psi || (m_has_source && !m_cv)) return;
+    // The cores' free part with the smallest mollifier the near field resolves by default: the walks' Psi_free is the
+    // singular kernel's, and half a cell (the 2D open domain's delta) slowed the bunny's cores (its energy rose).
+    if (delta < 0) delta = NearField2::MinDelta * std::min(cells.h().x, cells.h().y);
     if (m_cv && delta > 0) {
         const Grid2& g = *m_omega;
         std::shared_ptr<const NearField2> near;
@@ -879,11 +882,7 @@ std::unique_ptr<VelocityField2> WosVelocity::build2(const VelocityState2& s) con
     auto field = std::make_unique<WosVelocityField>(*m_options, s.domain, s.omega, s.interpolation, s.time);
     field->set_stop(s.stop);
     if (m_options->harmonic_cache && s.omega)
-        // The cores' free part with the smallest mollifier the near field resolves: the walks' Psi_free is the
-        // singular kernel's, and half a cell (the 2D open domain's delta) slowed the bunny's cores (its energy rose).
-        field->build_harmonic_cache(*s.omega, s.seed, s.stream,
-                                    NearField2::MinDelta * std::min(s.omega->h().x, s.omega->h().y),
-                                    s.samples > 0 ? s.samples : samples());
+        field->build_harmonic_cache(*s.omega, s.seed, s.stream, -1, s.samples > 0 ? s.samples : samples());
     return field;
 }
 

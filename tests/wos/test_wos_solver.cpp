@@ -157,20 +157,29 @@ TEST(WosSolver, BitIdenticalAcrossThreadCounts) {
     EXPECT_TRUE(a.second == b.second);
 }
 
+/// Clears the process's interrupt flag on entry and on exit.
+struct InterruptGuard {
+    InterruptGuard() { clear_interrupt(); }
+    ~InterruptGuard() { clear_interrupt(); }
+};
+
+/// small_settings() with a disk obstacle of radius 0.2 at (0.4, 0.2).
+MCFluidSettings disk_obstacle_settings() {
+    MCFluidSettings s = small_settings();
+    auto o = std::make_shared<WosVelocityOptions>();
+    o->shapes = {disk_boundary({0.4, 0.2}, 0.2)};
+    s.boundaries = o;
+    return s;
+}
+
 // An interrupt stops the Walk-on-Spheres velocity pass between cells, not after the whole grid (the pass used
 // not to look: a periodic-obstacle scene with many samples answered SIGTERM after 462 s). Deterministic: the
 // flag is set before the pass, so no walk may start; the velocity is then unavailable (zeros), and after
 // clear_interrupt() the same solver computes exactly the velocity of a solver never interrupted. Seen to fail
 // on the unchecked pass (every cell's walks run).
 TEST(WosSolver, VelocityPassStopsOnInterrupt) {
-    struct Guard {
-        Guard() { clear_interrupt(); }
-        ~Guard() { clear_interrupt(); }
-    } guard;
-    MCFluidSettings s = small_settings();
-    auto o = std::make_shared<WosVelocityOptions>();
-    o->shapes = {disk_boundary({0.4, 0.2}, 0.2)};
-    s.boundaries = o;
+    const InterruptGuard guard;
+    const MCFluidSettings s = disk_obstacle_settings();
     MCFluidSolver solver(s, two_vortices);
     const uint64_t cache_walks = solver.work().wos_walks;  // the state's harmonic cache, built with the field
     request_interrupt();
@@ -193,14 +202,8 @@ TEST(WosSolver, VelocityPassStopsOnInterrupt) {
 // velocity is bit for bit that of a solver never interrupted. Seen to fail without the rebuild (the cells then walk
 // per query: a different velocity).
 TEST(WosSolver, InterruptedHarmonicCacheIsBuiltAgain) {
-    struct Guard {
-        Guard() { clear_interrupt(); }
-        ~Guard() { clear_interrupt(); }
-    } guard;
-    MCFluidSettings s = small_settings();
-    auto o = std::make_shared<WosVelocityOptions>();
-    o->shapes = {disk_boundary({0.4, 0.2}, 0.2)};
-    s.boundaries = o;
+    const InterruptGuard guard;
+    const MCFluidSettings s = disk_obstacle_settings();
     request_interrupt();
     MCFluidSolver solver(s, two_vortices);
     ASSERT_NE(solver.boundary_field(), nullptr);

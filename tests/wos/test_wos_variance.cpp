@@ -178,9 +178,9 @@ TEST(WosVariance, HarmonicCacheMatchesPlainWalks) {
 
 // What the cache buys on the disk container of ControlVariateLowersTheErrorByTheDocumentedFactor (centred vortex,
 // exact answer): at the same 16 gradient samples and 16 free samples per query, the cache with the solver's
-// free part (the open domain's Biot–Savart estimator, delta half a cell) has a lower velocity error over the cells
-// (measured: mean squared error 0.00048 against 0.00090, seeds 1-2) with fewer walks (measured 2.2x fewer: one walk
-// per cell of a disk's core, at least 16 per gradient sample, and the walks of the cells no core holds). Asserted:
+// free part (the open domain's Biot–Savart estimator, delta an eighth of a cell) has a lower velocity error over the
+// cells (measured: mean squared error 0.00048 against 0.00090, seeds 1-2) with fewer walks (measured 2.2x fewer: one
+// walk per cell of a disk's core, at least 16 per gradient sample, and the walks of the cells no core holds). Asserted:
 // 0.85x the error and 1.8x fewer walks. The equal-time figures are bench_wos' BM_WosVarianceCached
 // (docs/performance.md). The cache does not depend on the thread count (1 and 2 threads: the same estimates, bit for
 // bit).
@@ -198,7 +198,7 @@ TEST(WosVariance, HarmonicCacheLowersTheErrorWithFewerWalks) {
         v.harmonic_cache = cache;
         v.cache_walks = 1;
         WosVelocityField f(v, d, &omega, Interpolation::Bilinear, 0);
-        if (cache) f.build_harmonic_cache(omega, seed, 9, 0.5 * omega.h().x);
+        if (cache) f.build_harmonic_cache(omega, seed, 9);  // the solver's free part (an eighth-cell mollifier)
         wos::WalkCounters c = f.harmonic_walks();
         double se = 0;
         int cells = 0;

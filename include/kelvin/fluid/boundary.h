@@ -163,14 +163,14 @@ public:
     /// streams: (seed, hash of stream and the disk's index), so the cache does not depend on the thread count.
     /// Does nothing on periodic domains, with vorticity but without the control variate, or when Psi is constant.
     /// Polls the stop (set_stop) per disk: a stopped build keeps no cache (harmonic_cache_stopped()).
-    /// The free-space part of a query inside a core: with `delta` > 0, the open domain's Biot–Savart estimator of
+    /// The free-space part of a query inside a core: with `delta` > 0 (< 0, the default: an eighth of a cell, what
+    /// the solver uses), the open domain's Biot–Savart estimator of
     /// the field's omega_h (BiotSavartEstimator: |omega| sampling, mollifier delta, near field of
-    /// BiotSavartVelocity::DefaultNearField2 cells where delta resolves it) with n x free_samples samples (the
-    /// solver passes an eighth of a cell); with 0, n x free_samples point vortices of the control variate's sampling
-    /// and the singular kernel (exactly the walks' Psi_free: unbiased for the velocity of omega_h). `samples`: the
-    /// gradient samples n of the queries; a disk takes at least 16n walks (its error is shared by the queries of its
-    /// core: wos_velocity.cpp, DiskWalksPerSample).
-    void build_harmonic_cache(const Grid2& cells, uint64_t seed, uint64_t stream, double delta = 0, int samples = 16);
+    /// BiotSavartVelocity::DefaultNearField2 cells where delta resolves it) with n x free_samples samples; with 0, n x
+    /// free_samples point vortices of the control variate's sampling and the singular kernel (exactly the walks'
+    /// Psi_free: unbiased for the velocity of omega_h). `samples`: the gradient samples n of the queries; a disk takes
+    /// at least 16n walks (its error is shared by the queries of its core: wos_velocity.cpp, DiskWalksPerSample).
+    void build_harmonic_cache(const Grid2& cells, uint64_t seed, uint64_t stream, double delta = -1, int samples = 16);
     /// The cache's disks (0 without one), the cells whose centre a core holds, and its walks.
     std::size_t harmonic_disks() const { return m_disks.size(); }
     std::size_t harmonic_cells() const { return m_cached_cells; }
