@@ -198,7 +198,11 @@ void MCFluid3Solver::rebuild_estimators() {
     state.delta = m_delta;
     state.periodic = m_periodic;
     state.stop = this;
+    state.seed = m_settings.seed;
+    state.stream = stream_of(m_step, TagField, 0);
+    state.samples = m_settings.samples;
     m_wos = nullptr;
+    Timer timer;  // a field may do work once per state (a harmonic cache's walks)
     m_field = s.estimator->build3(state);
     if (!m_field) throw_runtime("MCFluid3Solver: velocity estimator '{}' built no field", s.estimator->plugin_name());
     m_wos = m_field->boundaries();
@@ -219,10 +223,21 @@ void MCFluid3Solver::rebuild_estimators() {
         VelocityState3 diff = state;
         diff.omega = &m_diff;
         diff.difference = true;
+        diff.stream = stream_of(m_step, TagField, 1);
         m_diff_field = s.estimator->build3(diff);
         if (!m_diff_field)
             throw_runtime("MCFluid3Solver: velocity estimator '{}' built no field", s.estimator->plugin_name());
     }
+    m_work.seconds_velocity += timer.seconds();
+    for (const VelocityField3* f : {m_field.get(), m_diff_field.get()})
+        if (const WosVelocityField3* b = f ? f->boundaries() : nullptr) {
+            const wos::WalkCounters& c = b->harmonic_walks();
+            m_work.wos_walks += c.walks;
+            m_work.wos_steps += c.steps;
+            m_work.wos_truncated += c.truncated;
+            m_work.wos_invalid += c.invalid;
+            m_work.wos_boundary_queries += c.boundary_queries;
+        }
     m_velocity_valid = false;
 }
 
@@ -290,6 +305,13 @@ Vec3d MCFluid3Solver::stage_velocity(Vec3d x, int n, Random& rng, SlabWork& w) c
 
 bool MCFluid3Solver::ensure_velocity() {
     if (m_velocity_valid) return true;
+    // A field whose once-per-state work (a harmonic cache) was interrupted is built again, as it would have been.
+    const auto stopped = [](const VelocityField3* f) {
+        const WosVelocityField3* b = f ? f->boundaries() : nullptr;
+        return b && b->harmonic_cache_stopped();
+    };
+    if ((stopped(m_field.get()) || (m_have_prev && stopped(m_diff_field.get()))) && !stop_requested())
+        rebuild_estimators();
     Timer timer;
     const MCFluid3Settings& s = m_settings;
     const bool cv = m_have_prev;

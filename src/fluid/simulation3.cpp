@@ -443,13 +443,18 @@ public:
             s.boundaries
                 ? fmt::format(
                       "free-slip Walk-on-Spheres velocity on the vector potential ({} gradient samples, max {} "
-                      "steps, {})",
+                      "steps, {}{})",
                       s.samples, s.boundaries->wos.max_steps,
                       solver.boundary_field() && solver.boundary_field()->control_variate()
                           ? fmt::format("wall control variate with {} free samples{}", s.boundaries->free_samples,
                                         s.boundaries->stratified ? ", stratified" : "")
                           : fmt::format("plain walks, {} volume sampling",
-                                        s.boundaries->vorticity_importance ? "|omega|-mixed" : "Green's-function"))
+                                        s.boundaries->vorticity_importance ? "|omega|-mixed" : "Green's-function"),
+                      solver.boundary_field() && solver.boundary_field()->harmonic_balls() > 0
+                          ? fmt::format(", harmonic cache ({} balls of degree {} hold {} of the {} cells at t = {:g})",
+                                        solver.boundary_field()->harmonic_balls(), s.boundaries->cache_degree,
+                                        solver.boundary_field()->harmonic_cells(), s.nx * s.ny * s.nz, solver.time())
+                          : std::string())
                 : s.estimator->effect(s.samples, solver.delta(), s.domain.periodic) + near_field_effect();
         if (s.vorticity_allocation)
             velocity +=

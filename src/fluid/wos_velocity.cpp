@@ -34,6 +34,17 @@ Vec2d rotate(Vec2d v, double a) {
 }
 }  // namespace
 
+std::string check_cache_options(const WosVelocityOptions& options, int dimension) {
+    if (!options.harmonic_cache) return "";  // ignored where it does not apply (periodic domains, no control variate)
+    if (!(options.cache_walks >= 0.01 && options.cache_walks <= 1e4))
+        return fmt::format("cache_walks = {:g} must be within [0.01, 1e4] walks per cell", options.cache_walks);
+    if (dimension == 2 && (options.cache_order < 1 || options.cache_order > MaxCacheOrder))
+        return fmt::format("cache_order = {} must be within [1, {}]", options.cache_order, MaxCacheOrder);
+    if (dimension == 3 && (options.cache_degree < 1 || options.cache_degree > MaxCacheDegree))
+        return fmt::format("cache_degree = {} must be within [1, {}]", options.cache_degree, MaxCacheDegree);
+    return "";
+}
+
 std::string check_wos_options(const WosVelocityOptions& options, const Domain2& domain) {
     // The shell: a query within epsilon of a boundary moves ShellEdge epsilon away from it (wos::move_to_shell),
     // which must stay within the domain's half-width, or every estimate is zero or undefined.
@@ -56,12 +67,7 @@ std::string check_wos_options(const WosVelocityOptions& options, const Domain2& 
         return "a periodic domain needs at least one <boundary> (without any, use biot_savart)";
     if (!domain.periodic && !options.walls && !container)
         return "an open domain needs walls = true or a container boundary (fluid = 'inside'); walks would never end";
-    if (options.harmonic_cache) {  // ignored where it does not apply (periodic domains, no control variate, 3D)
-        if (!(options.cache_walks >= 0.01 && options.cache_walks <= 1e4))
-            return fmt::format("cache_walks = {:g} must be within [0.01, 1e4] walks per cell", options.cache_walks);
-        if (options.cache_order < 1 || options.cache_order > MaxCacheOrder)
-            return fmt::format("cache_order = {} must be within [1, {}]", options.cache_order, MaxCacheOrder);
-    }
+    if (std::string why = check_cache_options(options, 2); !why.empty()) return why;
     if (options.inflow_speed != 0) {
         if (domain.periodic) return "inflow_speed needs walls (a non-periodic domain)";
         if (!options.walls) return "inflow_speed needs walls = true";
@@ -594,10 +600,7 @@ VelocityEstimate WosVelocityField::estimate_control_variate(Vec2d x, int n, Rand
 // ----- Harmonic caching
 
 namespace {
-/// A disk's walks start on the circle of this fraction of its centre's distance to the boundaries; queries within
-/// CoreFraction of that distance read its series; a disk is placed only where its core is at least MinCoreCells
-/// cells wide.
-constexpr double CircleFraction = 0.9, CoreFraction = 0.5, MinCoreCells = 1.5;
+// The disks: wos::HarmonicCover<2> (include/kelvin/wos/harmonics.h).
 /// A disk takes at least this many walks per gradient sample of a query (n). Its error is shared by every query in
 /// its core, smooth over it, and moves a step's energy more than independent errors of the same size: on the bunny
 /// (96^2, n 16, t = 1) the exact energy's change per step had a standard deviation of 0.9 % with 8 walks per sample,
@@ -611,10 +614,8 @@ constexpr int MaxDiskWalks = 1 << 22;
 
 void WosVelocityField::build_harmonic_cache(const Grid2& cells, uint64_t seed, uint64_t stream, double delta,
                                             int samples) {
+    m_cover.clear();
     m_disks.clear();
-    m_cell_disk.clear();
-    m_cell_start.clear();
-    m_cell_disks.clear();
     m_cached_cells = 0;
     m_cache_stopped = false;
     m_cache_walks = {};
@@ -633,53 +634,21 @@ void WosVelocityField::build_harmonic_cache(const Grid2& cells, uint64_t seed, u
         m_free->set_stop(m_wos.stop);
     }
     const int nx = cells.nx(), ny = cells.ny(), order = std::clamp(m_options.cache_order, 1, MaxCacheOrder);
-    m_cache_min = cells.domain().min;
-    m_cache_h = cells.h();
-    m_cache_nx = nx;
-    m_cache_ny = ny;
-    const double h = std::max(m_cache_h.x, m_cache_h.y), cell_area = m_cache_h.x * m_cache_h.y;
-    const std::size_t count = std::size_t(nx) * std::size_t(ny);
     // Every fluid centre's distance to the boundaries, then disks greedily from the farthest.
-    std::vector<double> dist(count, -1);
+    std::vector<double> dist(std::size_t(nx) * std::size_t(ny), -1);
     parallel_for_units(std::size_t(ny), [&](std::size_t j) {
         for (int i = 0; i < nx; ++i) {
             const Vec2d x = cells.cell_center(i, int(j));
             if (solid_at(x) < 0) dist[j * std::size_t(nx) + std::size_t(i)] = distance(x);
         }
     });
-    std::vector<uint32_t> order_of(count);
-    for (std::size_t k = 0; k < count; ++k) order_of[k] = uint32_t(k);
-    std::stable_sort(order_of.begin(), order_of.end(), [&](uint32_t a, uint32_t b) { return dist[a] > dist[b]; });
-    m_cell_disk.assign(count, -1);
-    std::vector<double> best(count, Inf);  // the covering core's |x - c| / core (the lower, the less noise)
-    for (const uint32_t k : order_of) {
-        const double d = dist[k];
-        if (d == Inf) continue;                          // no boundary in reach (not a closed domain)
-        if (d * CoreFraction < MinCoreCells * h) break;  // and every centre after it: too close to a boundary
-        if (m_cell_disk[k] >= 0) continue;
-        HarmonicDisk disk;
-        disk.center = cells.cell_center(int(k % std::size_t(nx)), int(k / std::size_t(nx)));
-        disk.radius = CircleFraction * d;
-        disk.core = CoreFraction * d;
-        const int id = int(m_disks.size());
-        const int i0 = std::max(0, int(std::floor((disk.center.x - disk.core - m_cache_min.x) / m_cache_h.x))),
-                  i1 = std::min(nx - 1, int(std::ceil((disk.center.x + disk.core - m_cache_min.x) / m_cache_h.x))),
-                  j0 = std::max(0, int(std::floor((disk.center.y - disk.core - m_cache_min.y) / m_cache_h.y))),
-                  j1 = std::min(ny - 1, int(std::ceil((disk.center.y + disk.core - m_cache_min.y) / m_cache_h.y)));
-        for (int j = j0; j <= j1; ++j)
-            for (int i = i0; i <= i1; ++i) {
-                const std::size_t c = std::size_t(j) * std::size_t(nx) + std::size_t(i);
-                if (dist[c] < 0) continue;  // solid
-                const double r = glm::length(cells.cell_center(i, j) - disk.center) / disk.core;
-                if (r > 1) continue;
-                if (r < best[c]) best[c] = r, m_cell_disk[c] = id;
-            }
-        disk.walks =
-            int(std::min(std::max({double(DiskWalksPerSample) * std::max(samples, 1), 4.0 * order,
-                                   std::round(m_options.cache_walks * Pi * disk.core * disk.core / cell_area)}),
-                         double(MaxDiskWalks)));
-        m_disks.push_back(std::move(disk));
-    }
+    m_cover.place(cells.domain().min, cells.h(), {nx, ny}, dist);
+    const auto& balls = m_cover.balls();
+    m_disks.resize(balls.size());
+    for (std::size_t id = 0; id < balls.size(); ++id)
+        m_disks[id].walks = int(std::min(std::max({double(DiskWalksPerSample) * std::max(samples, 1), 4.0 * order,
+                                                   std::round(m_options.cache_walks * balls[id].core_cells)}),
+                                         double(MaxDiskWalks)));
     // The disks' walks: equally spaced angles with one random rotation per disk, each walk's own point vortices.
     const int q = std::clamp(WalkEndVortices * m_options.free_samples, 1, MaxFreeSamples);
     std::vector<wos::WalkCounters> counters(m_disks.size());
@@ -690,6 +659,7 @@ void WosVelocityField::build_harmonic_cache(const Grid2& cells, uint64_t seed, u
             return;
         }
         HarmonicDisk& disk = m_disks[id];
+        const wos::HarmonicCover<2>::Ball& ball = balls[id];
         wos::WalkCounters& c = counters[id];
         Random rng(seed, hash_combine(stream, uint64_t(id)));
         const int N = disk.walks;
@@ -713,7 +683,7 @@ void WosVelocityField::build_harmonic_cache(const Grid2& cells, uint64_t seed, u
                 vortices.far_weight = m_source.total() / q;
                 vortices.n_near = vortices.n_plus = vortices.n_minus = 0;
                 for (int j = 0; j < q; ++j) {
-                    const auto [y, sign] = m_source.sample_signed(rng, disk.center);
+                    const auto [y, sign] = m_source.sample_signed(rng, ball.center);
                     if (sign > 0)
                         vortices.plus[std::size_t(vortices.n_plus++)] = y;
                     else
@@ -721,7 +691,7 @@ void WosVelocityField::build_harmonic_cache(const Grid2& cells, uint64_t seed, u
                 }
             }
             const double value =
-                wos::walk<2>(*this, g, wos::NoSource{}, disk.center + disk.radius * dir, rng, m_wos, c);
+                wos::walk<2>(*this, g, wos::NoSource{}, ball.center + ball.radius * dir, rng, m_wos, c);
             if (!std::isfinite(value)) {  // an invalid walk: the disk is not used
                 ++c.invalid;
                 disk.walks = 0;
@@ -751,55 +721,27 @@ void WosVelocityField::build_harmonic_cache(const Grid2& cells, uint64_t seed, u
     });
     for (const wos::WalkCounters& c : counters) m_cache_walks += c;
     if (stopped) {  // a cache with some disks missing would differ from an uninterrupted run's: none
+        m_cover.clear();
         m_disks.clear();
-        m_cell_disk.clear();
-        m_cell_start.clear();
-        m_cell_disks.clear();
         m_free.reset();
         m_cache_stopped = true;
         return;
     }
-    // Per cell, the built disks whose core reaches into it (a query in the cell finds every core holding it there).
-    const double reach = 0.5 * std::sqrt(m_cache_h.x * m_cache_h.x + m_cache_h.y * m_cache_h.y);
-    std::vector<std::vector<int32_t>> lists(count);
-    for (std::size_t id = 0; id < m_disks.size(); ++id) {
-        const HarmonicDisk& disk = m_disks[id];
-        if (disk.walks == 0) continue;
-        const double r = disk.core + reach;
-        const int i0 = std::max(0, int(std::floor((disk.center.x - r - m_cache_min.x) / m_cache_h.x))),
-                  i1 = std::min(nx - 1, int(std::ceil((disk.center.x + r - m_cache_min.x) / m_cache_h.x))),
-                  j0 = std::max(0, int(std::floor((disk.center.y - r - m_cache_min.y) / m_cache_h.y))),
-                  j1 = std::min(ny - 1, int(std::ceil((disk.center.y + r - m_cache_min.y) / m_cache_h.y)));
-        for (int j = j0; j <= j1; ++j)
-            for (int i = i0; i <= i1; ++i)
-                if (glm::length(cells.cell_center(i, j) - disk.center) <= r)
-                    lists[std::size_t(j) * std::size_t(nx) + std::size_t(i)].push_back(int32_t(id));
-    }
-    m_cell_start.assign(count + 1, 0);
-    m_cell_disks.clear();
-    for (std::size_t k = 0; k < count; ++k) {
-        m_cell_disks.insert(m_cell_disks.end(), lists[k].begin(), lists[k].end());
-        m_cell_start[k + 1] = uint32_t(m_cell_disks.size());
-        if (m_cell_disk[k] >= 0 && m_disks[std::size_t(m_cell_disk[k])].walks > 0) ++m_cached_cells;
-    }
-    m_cell_disk.clear();
+    std::vector<char> built(m_disks.size());
+    for (std::size_t id = 0; id < m_disks.size(); ++id) built[id] = m_disks[id].walks > 0;
+    m_cached_cells = m_cover.index(built);
 }
 
 bool WosVelocityField::cached_harmonic(Vec2d x, Vec2d& value, double& variance) const {
-    if (m_cell_start.empty()) return false;
-    const int i = std::clamp(int(std::floor((x.x - m_cache_min.x) / m_cache_h.x)), 0, m_cache_nx - 1);
-    const int j = std::clamp(int(std::floor((x.y - m_cache_min.y) / m_cache_h.y)), 0, m_cache_ny - 1);
-    const std::size_t cell = std::size_t(j) * std::size_t(m_cache_nx) + std::size_t(i);
-    double weights = 0, weights2_var = 0;
+    if (!m_cover.indexed()) return false;
+    double weights2_var = 0;
     Vec2d sum(0.0);
-    for (uint32_t k = m_cell_start[cell]; k < m_cell_start[cell + 1]; ++k) {
-        const HarmonicDisk& d = m_disks[std::size_t(m_cell_disks[k])];
-        const Vec2d dz = x - d.center;
-        const double t = (dz.x * dz.x + dz.y * dz.y) / (d.core * d.core);
-        if (t >= 1) continue;
-        const double w = (1 - t) * (1 - t);  // a partition of unity over the cores: no seam between two disks
+    const double weights = m_cover.for_each(x, [&](std::size_t id, double w) {
+        const HarmonicDisk& d = m_disks[id];
+        const wos::HarmonicCover<2>::Ball& b = m_cover.balls()[id];
+        const Vec2d dz = x - b.center;
         // -curl h from the series: f'(z) r by Horner, and its variance (see estimate_cached).
-        const std::complex<double> z(dz.x / d.radius, dz.y / d.radius);
+        const std::complex<double> z(dz.x / b.radius, dz.y / b.radius);
         std::complex<double> df(0.0, 0.0);
         double var = 0, zn2 = 1;
         const double z2 = std::norm(z);
@@ -809,12 +751,11 @@ bool WosVelocityField::cached_harmonic(Vec2d x, Vec2d& value, double& variance) 
             var += double(m) * double(m) * zn2;
             zn2 *= z2;
         }
-        df /= d.radius;
-        var *= d.noise * 2.0 / double(d.walks) / (d.radius * d.radius);
+        df /= b.radius;
+        var *= d.noise * 2.0 / double(d.walks) / (b.radius * b.radius);
         sum += w * Vec2d(df.imag(), df.real());
-        weights += w;
         weights2_var += w * w * var;
-    }
+    });
     if (!(weights > 0)) return false;
     value = sum / weights;
     variance = weights2_var / (weights * weights);
@@ -889,6 +830,8 @@ std::unique_ptr<VelocityField2> WosVelocity::build2(const VelocityState2& s) con
 std::unique_ptr<VelocityField3> WosVelocity::build3(const VelocityState3& s) const {
     auto field = std::make_unique<WosVelocityField3>(*m_options, s.domain, s.omega, s.interpolation, s.difference);
     field->set_stop(s.stop);
+    if (m_options->harmonic_cache && s.omega)
+        field->build_harmonic_cache(s.omega->x, s.seed, s.stream, -1, s.samples > 0 ? s.samples : samples());
     return field;
 }
 

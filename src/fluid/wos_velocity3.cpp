@@ -3,13 +3,16 @@
 // estimator (thesis Sections 5.3.1-5.3.2, 6.2.4). See include/kelvin/fluid/boundary.h.
 #include <kelvin/core/error.h>
 #include <kelvin/core/logging.h>
+#include <kelvin/core/parallel.h>
 #include <kelvin/fluid/boundary.h>
 #include <kelvin/fluid/checks.h>
+#include <kelvin/fluid/estimators.h>
 
 #include <fmt/format.h>
 
 #include <algorithm>
 #include <array>
+#include <atomic>
 #include <cmath>
 #include <tuple>
 
@@ -60,6 +63,7 @@ std::string check_wos_options3(const WosVelocityOptions& options, const Domain3&
         return "a periodic domain needs at least one <boundary> (without any, use biot_savart)";
     if (!domain.periodic && !options.walls && !container)
         return "an open domain needs walls = true or a container boundary (fluid = 'inside'); walks would never end";
+    if (std::string why = check_cache_options(options, 3); !why.empty()) return why;
     if (options.wall_stream_value != 0)
         return "wall_stream_value is 2D only (3D walls carry Psi = 0, or the uniform stream's potential)";
     if (options.inflow_speed != 0) {
@@ -304,6 +308,12 @@ VelocityEstimate3 WosVelocityField3::estimate(Vec3d x, int n, Random& rng, wos::
     VelocityEstimate3 e{m_stream, Vec3d(0.0), 0};
     if (!m_has_source && !m_residual_data) return e;  // Psi' = 0 exactly: no walk
     if (m_walls) x = glm::clamp(x, m_domain.min, m_domain.max);
+    Vec3d harmonic, harmonic_variance;
+    if (cached_harmonic(x, harmonic, harmonic_variance)) {
+        e = estimate_cached(x, harmonic, harmonic_variance, n, rng);
+        e.value += m_stream;
+        return e;
+    }
     double R0 = distance(x);
     if (!(R0 >= 0) || R0 == Inf) {
         c.invalid += uint64_t(std::max(n, 0));
@@ -326,6 +336,42 @@ VelocityEstimate3 WosVelocityField3::estimate(Vec3d x, int n, Random& rng, wos::
     return e;
 }
 
+// q vector point vortices of omega_h: a one-sample mixture per vortex of |omega| sampling and, within the near radius
+// of x, 1/r^2 sampling; weights W_j = omega_h(y_j) / (q p(y_j)) where both densities reach, and beyond it the cell's
+// direction omega_k / |omega_k| times integral|omega_h| / ((1 - alpha) q), unbiased over (cell, point) without a
+// lookup. Their free-space velocity at x, sum_j W_j x (x - y_j) / (4 pi r^3), is unbiased for u_free(x).
+Vec3d WosVelocityField3::free_vortices(Vec3d x, int q, Random& rng, Vec3d* ys, Vec3d* ws, int& count) const {
+    const double rho = m_near_radius, a = NearFraction, inv_q = 1.0 / q;
+    const double near_pdf = 1 / (4 * Pi * rho);  // x 1/r^2: the density of r = rho u, uniform direction
+    const double far_weight = m_source.total() / (1 - a) * inv_q;
+    Vec3d v(0.0);
+    count = 0;
+    for (int j = 0; j < q; ++j) {
+        Vec3d y, W(0.0);
+        if (wos::uniform(rng) < a) {
+            y = x + (rho * wos::uniform(rng)) * wos::sample_direction<3>(rng);
+        } else {
+            std::tie(y, W) = m_source.sample_directed(rng);
+        }
+        const Vec3d d = x - y;
+        const double r2 = glm::dot(d, d);
+        if (!(r2 > 0)) continue;  // y = x exactly: a measure-zero point (principal value 0)
+        const double r = std::sqrt(r2);
+        if (r < rho) {  // where both densities reach: the balance weight omega_h / (mixture density)
+            const auto [w, pw] = m_source.value_and_pdf(y, x);
+            const double p = a * near_pdf / r2 + (1 - a) * pw;
+            if (w == Vec3d(0.0) || !(p > 0)) continue;
+            W = w * (inv_q / p);
+        } else {  // only |omega| sampling reaches: its cell's direction times the total (no lookup)
+            W *= far_weight;
+        }
+        ys[count] = y;
+        ws[count++] = W;
+        v += glm::cross(W, d) * (1 / (4 * Pi * r2 * r));
+    }
+    return v;
+}
+
 // The control variate (the 3D twin of WosVelocityField::estimate_control_variate). Psi' = Psi_free + h with
 // Psi_free(x) = -integral omega_h(y) / (4 pi |x - y|) dy over space (Laplacian(Psi_free) = omega_h, the function the
 // plain walks' source term reads) and h harmonic in the fluid with h = Psi_b - Psi_U - Psi_free on every boundary.
@@ -343,9 +389,6 @@ VelocityEstimate3 WosVelocityField3::estimate_control_variate(Vec3d x, double R0
     const int q = std::clamp(m_options.free_samples, 1, MaxFreeSamples);
     std::array<Vec3d, MaxFreeSamples> ys, ws;
     int count = 0;
-    const double rho = m_near_radius, a = NearFraction, inv_q = 1.0 / q;
-    const double near_pdf = 1 / (4 * Pi * rho);  // x 1/r^2: the density of r = rho u, uniform direction
-    const double far_weight = m_source.total() / (1 - a) * inv_q;
     const auto g = [&](const wos::BoundaryHit<3>& h) {
         Vec3d sum(0.0);  // 4 pi Psi_free(p) = -sum_j W_j / |p - y_j|
         for (int j = 0; j < count; ++j) {
@@ -358,31 +401,7 @@ VelocityEstimate3 WosVelocityField3::estimate_control_variate(Vec3d x, double R0
     moments.strata = settings.stratified && n > 1;
     const double scale = 3 / R0;
     for (int k = 0; k < n; ++k) {
-        count = 0;
-        Vec3d v(0.0);
-        for (int j = 0; j < q; ++j) {
-            Vec3d y, W(0.0);
-            if (wos::uniform(rng) < a) {
-                y = x + (rho * wos::uniform(rng)) * wos::sample_direction<3>(rng);
-            } else {
-                std::tie(y, W) = m_source.sample_directed(rng);
-            }
-            const Vec3d d = x - y;
-            const double r2 = glm::dot(d, d);
-            if (!(r2 > 0)) continue;  // y = x exactly: a measure-zero point (principal value 0)
-            const double r = std::sqrt(r2);
-            if (r < rho) {  // where both densities reach: the balance weight omega_h / (mixture density)
-                const auto [w, pw] = m_source.value_and_pdf(y, x);
-                const double p = a * near_pdf / r2 + (1 - a) * pw;
-                if (w == Vec3d(0.0) || !(p > 0)) continue;
-                W = w * (inv_q / p);
-            } else {  // only |omega| sampling reaches: its cell's direction times the total (no lookup)
-                W *= far_weight;
-            }
-            ys[std::size_t(count)] = y;
-            ws[std::size_t(count++)] = W;
-            v += glm::cross(W, d) * (1 / (4 * Pi * r2 * r));
-        }
+        const Vec3d v = free_vortices(x, q, rng, ys.data(), ws.data(), count);
         // The harmonic correction's Jacobian from the first step (antithetic, stratified per the settings).
         const Vec3d dir = wos::first_step_direction<3>(rng, settings, k, n);
         glm::dmat3 J;
@@ -404,6 +423,216 @@ VelocityEstimate3 WosVelocityField3::estimate_control_variate(Vec3d x, double R0
     VelocityEstimate3 e;
     e.value = moments.mean();
     e.variance = moments.variance_of_mean();
+    return e;
+}
+
+// ----- Harmonic caching (the 3D counterpart of WosVelocityField::build_harmonic_cache)
+
+namespace {
+/// A ball takes at least this many walks per gradient sample of a query, as a 2D disk (wos_velocity.cpp); each walk's
+/// end reads the potential of this many times free_samples vector point vortices (one: in 3D the cores' error was the
+/// free part's, the same with four, and drawing them was a third of the build).
+constexpr int BallWalksPerSample = 16, WalkEndVortices = 1;
+/// At most this many walks per ball.
+constexpr int MaxBallWalks = 1 << 20;
+
+/// A uniformly random rotation (Shoemake's unit quaternion from three uniforms).
+glm::dmat3 random_rotation(Random& rng) {
+    const double u1 = wos::uniform(rng), u2 = 2 * Pi * wos::uniform(rng), u3 = 2 * Pi * wos::uniform(rng);
+    const double a = std::sqrt(1 - u1), b = std::sqrt(u1);
+    const double w = a * std::sin(u2), x = a * std::cos(u2), y = b * std::sin(u3), z = b * std::cos(u3);
+    return glm::dmat3(1 - 2 * (y * y + z * z), 2 * (x * y + w * z), 2 * (x * z - w * y),  // first column
+                      2 * (x * y - w * z), 1 - 2 * (x * x + z * z), 2 * (y * z + w * x),  // second
+                      2 * (x * z + w * y), 2 * (y * z - w * x), 1 - 2 * (x * x + y * y));
+}
+
+/// Point i of the N-point spherical Fibonacci lattice (equal-area bands in z, the golden angle in phi).
+Vec3d fibonacci_point(int i, int N) {
+    const double z = 1 - (2 * double(i) + 1) / double(N), rho = std::sqrt(std::max(0.0, 1 - z * z));
+    const double phi = 2 * Pi * std::fmod(double(i) * 0.6180339887498949, 1.0);
+    return {rho * std::cos(phi), rho * std::sin(phi), z};
+}
+}  // namespace
+
+void WosVelocityField3::build_harmonic_cache(const Grid3& cells, uint64_t seed, uint64_t stream, double delta,
+                                             int samples) {
+    m_cover.clear();
+    m_balls.clear();
+    m_cached_cells = 0;
+    m_cache_stopped = false;
+    m_cache_walks = {};
+    m_free.reset();
+    if (m_domain.periodic || (!m_has_source && !m_residual_data) || (m_has_source && !m_cv)) return;
+    const Vec3d h = cells.h();
+    const double hmin = std::min({h.x, h.y, h.z});
+    if (delta < 0) delta = NearField3::MinDelta * hmin;  // as in 2D: the smallest the near field resolves
+    if (m_cv && delta > 0) {
+        const VectorGrid3& g = *m_omega;
+        const Vec3d gh = g.x.h();
+        std::shared_ptr<const NearField3> near;
+        if (delta >= NearField3::MinDelta * std::min({gh.x, gh.y, gh.z}))
+            near = NearField3::shared(gh, m_interp, delta, Mollifier::RosenheadMoore,
+                                      BiotSavartVelocity::DefaultNearField3);
+        m_free = std::make_unique<BiotSavartEstimator3>(g, m_interp, SourceSampling::Vorticity, delta, nullptr,
+                                                        Mollifier::RosenheadMoore, std::move(near));
+        m_free->set_stop(m_wos.stop);
+    }
+    const int nx = cells.nx(), ny = cells.ny(), nz = cells.nz();
+    const int degree = std::clamp(m_options.cache_degree, 1, MaxCacheDegree);
+    const int terms = wos::SolidHarmonics::count(degree);
+    std::vector<double> dist(std::size_t(nx) * std::size_t(ny) * std::size_t(nz), -1);
+    parallel_for_units(std::size_t(nz), [&](std::size_t k) {
+        for (int j = 0; j < ny; ++j)
+            for (int i = 0; i < nx; ++i) {
+                const Vec3d x = cells.cell_center(i, j, int(k));
+                if (solid_at(x) < 0) dist[cells.index(i, j, int(k))] = distance(x);
+            }
+    });
+    m_cover.place(cells.domain().min, h, {nx, ny, nz}, dist);
+    const auto& balls = m_cover.balls();
+    m_balls.resize(balls.size());
+    for (std::size_t id = 0; id < balls.size(); ++id)
+        m_balls[id].walks = int(std::min(std::max({double(BallWalksPerSample) * std::max(samples, 1), 4.0 * terms,
+                                                   std::round(m_options.cache_walks * balls[id].core_cells)}),
+                                         double(MaxBallWalks)));
+    const int q = std::clamp(WalkEndVortices * m_options.free_samples, 1, MaxFreeSamples);
+    std::vector<wos::WalkCounters> counters(m_balls.size());
+    std::atomic<bool> stopped{false};
+    parallel_for_units(m_balls.size(), [&](std::size_t id) {
+        if (m_wos.stop && m_wos.stop->stop_requested()) {
+            stopped = true;
+            return;
+        }
+        HarmonicBall& ball = m_balls[id];
+        const wos::HarmonicCover<3>::Ball& where = balls[id];
+        wos::WalkCounters& c = counters[id];
+        Random rng(seed, hash_combine(stream, uint64_t(id)));
+        const int N = ball.walks;
+        std::array<Vec3d, MaxFreeSamples> ys, ws;
+        const double far_weight = m_cv ? m_source.total() / q : 0;
+        const auto g = [&](const wos::BoundaryHit<3>& hit) {
+            Vec3d sum(0.0);  // 4 pi Psi_free(p) = -sum_j W_j / |p - y_j|
+            if (m_cv)
+                for (int j = 0; j < q; ++j) {
+                    const Vec3d d = hit.point - ys[std::size_t(j)];
+                    sum += ws[std::size_t(j)] * (1 / std::sqrt(glm::dot(d, d)));
+                }
+            return residual_stream(hit) + sum * (1 / (4 * Pi));
+        };
+        // Sums over the walks of (h_i - shift) S_k(s_i) and of (h_i - shift)^2 per component (the shift, the first
+        // walk's value, keeps the residual's difference of sums accurate when h has a large constant part).
+        std::vector<Vec3d> sums(std::size_t(terms), Vec3d(0.0));
+        std::vector<double> basis(std::size_t(terms), 0.0);
+        Vec3d shift(0.0), sum2(0.0);
+        const glm::dmat3 rotation = random_rotation(rng);
+        for (int i = 0; i < N; ++i) {
+            if (m_wos.stop && (i & 63) == 63 && m_wos.stop->stop_requested()) {
+                stopped = true;
+                return;
+            }
+            const Vec3d dir = rotation * fibonacci_point(i, N);
+            if (m_cv)  // the walk's own vector point vortices of omega_h (|omega| sampling)
+                for (int j = 0; j < q; ++j) {
+                    const auto [y, w] = m_source.sample_directed(rng);
+                    ys[std::size_t(j)] = y;
+                    ws[std::size_t(j)] = w * far_weight;
+                }
+            const Vec3d value =
+                wos::walk<3>(*this, g, wos::NoSource{}, where.center + where.radius * dir, rng, m_wos, c);
+            if (!wos::detail::all_finite(value)) {  // an invalid walk: the ball is not used
+                ++c.invalid;
+                ball.walks = 0;
+                return;
+            }
+            if (i == 0) shift = value;
+            const Vec3d v = value - shift;
+            sum2 += v * v;
+            wos::SolidHarmonics::evaluate(degree, dir, basis.data());
+            for (int k = 0; k < terms; ++k) sums[std::size_t(k)] += v * basis[std::size_t(k)];
+        }
+        // a_k = 4 pi / (N |S_k|^2) sum_i v_i S_k(s_i); the residual about the series by Parseval (the lattice's
+        // quadrature is exact to well below the noise for the degrees the walk counts allow).
+        ball.a.assign(std::size_t(terms), Vec3d(0.0));
+        Vec3d fitted(0.0);
+        for (int k = 0; k < terms; ++k) {
+            const double norm = wos::SolidHarmonics::norm(k);
+            const Vec3d a = sums[std::size_t(k)] * (4 * Pi / (double(N) * norm));
+            ball.a[std::size_t(k)] = a;
+            fitted += a * a * norm;
+        }
+        const Vec3d residual = glm::max(Vec3d(0.0), sum2 - fitted * (double(N) / (4 * Pi)));
+        ball.a[0] += shift;  // S_0 = 1
+        ball.noise = residual / double(std::max(1, N - terms));
+    });
+    for (const wos::WalkCounters& c : counters) m_cache_walks += c;
+    if (stopped) {  // as in 2D: no cache rather than a partial one
+        m_cover.clear();
+        m_balls.clear();
+        m_free.reset();
+        m_cache_stopped = true;
+        return;
+    }
+    std::vector<char> built(m_balls.size());
+    for (std::size_t id = 0; id < m_balls.size(); ++id) built[id] = m_balls[id].walks > 0;
+    m_cached_cells = m_cover.index(built);
+}
+
+// -curl h = (d h_y/dz - d h_z/dy, d h_z/dx - d h_x/dz, d h_x/dy - d h_y/dx) from the series' gradients. Its variance:
+// over N uniform points Var(a_k) = 4 pi s^2 / (N |S_k|^2) per component (s^2 the walks' scatter about the series),
+// the terms independent; a component of -curl h adds two components' shares. The balls are independent.
+bool WosVelocityField3::cached_harmonic(Vec3d x, Vec3d& value, Vec3d& variance) const {
+    if (!m_cover.indexed()) return false;
+    Vec3d sum(0.0), sum_var(0.0);
+    std::array<double, wos::SolidHarmonics::count(MaxCacheDegree)> basis;
+    std::array<Vec3d, wos::SolidHarmonics::count(MaxCacheDegree)> grad;
+    const double weights = m_cover.for_each(x, [&](std::size_t id, double w) {
+        const HarmonicBall& b = m_balls[id];
+        const wos::HarmonicCover<3>::Ball& where = m_cover.balls()[id];
+        const int terms = int(b.a.size());
+        const int degree = int(std::lround(std::sqrt(double(terms)))) - 1;
+        wos::SolidHarmonics::evaluate(degree, (x - where.center) / where.radius, basis.data(), grad.data());
+        glm::dmat3 J(0.0);  // column c: dh/dx_c
+        Vec3d var(0.0);
+        for (int k = 1; k < terms; ++k) {
+            const Vec3d& a = b.a[std::size_t(k)];
+            const Vec3d& G = grad[std::size_t(k)];
+            J += glm::outerProduct(a, G);
+            const Vec3d G2 = G * G;
+            var += Vec3d(b.noise.y * G2.z + b.noise.z * G2.y, b.noise.z * G2.x + b.noise.x * G2.z,
+                         b.noise.x * G2.y + b.noise.y * G2.x) *
+                   (1 / wos::SolidHarmonics::norm(k));
+        }
+        const double inv_r = 1 / where.radius;
+        sum += w * inv_r * minus_curl(J);
+        sum_var += (w * w * 4 * Pi / double(b.walks) * inv_r * inv_r) * var;
+    });
+    if (!(weights > 0)) return false;
+    value = sum / weights;
+    variance = sum_var / (weights * weights);
+    return true;
+}
+
+// A query inside the cores: the free-space velocity plus -curl of the balls' series (see estimate_cached in 2D).
+VelocityEstimate3 WosVelocityField3::estimate_cached(Vec3d x, Vec3d harmonic, Vec3d variance, int n,
+                                                     Random& rng) const {
+    VelocityEstimate3 e;
+    const int q = std::clamp(m_options.free_samples, 1, MaxFreeSamples);
+    if (m_free) {
+        e = m_free->estimate(x, n * q, rng);
+    } else if (m_cv) {  // n x q vector point vortices of the control variate's sampling, singular kernel
+        std::array<Vec3d, MaxFreeSamples> ys, ws;
+        int count = 0;
+        wos::SampleMoments<Vec3d> moments;
+        for (int k = 0; k < n; ++k) {
+            const Vec3d v = free_vortices(x, q, rng, ys.data(), ws.data(), count);
+            moments.add(wos::detail::all_finite(v) ? v : Vec3d(0.0));
+        }
+        e.value = moments.mean();
+        e.variance = moments.variance_of_mean();
+        e.samples = n * q;
+    }
+    e.value += harmonic;
+    e.variance += variance;
     return e;
 }
 

@@ -31,6 +31,7 @@
 #include <kelvin/fluid/grid3.h>
 #include <kelvin/fluid/velocity.h>
 #include <kelvin/wos/boundary.h>
+#include <kelvin/wos/harmonics.h>
 #include <kelvin/wos/wos.h>
 
 #include <array>
@@ -78,24 +79,29 @@ struct WosVelocityOptions {
     /// estimated from pairs of adjacent strata. 3D: with the control variate only (plain 3D walks are not
     /// stratified).
     bool stratified = true;
-    /// Harmonic caching (2D, non-periodic, with the control variate or without vorticity; ignored elsewhere, as the
-    /// control variate is on periodic domains, and in 3D): the harmonic part of
-    /// Psi (the control variate's correction h, or Psi itself without vorticity) is estimated once per state on
-    /// disks that cover the fluid away from the boundaries, each as the truncated Fourier series of h on a circle,
-    /// and read at every query inside a disk's core; the walks per query remain only near the boundaries.
-    /// WosVelocityField::build_harmonic_cache; docs/boundaries.md.
+    /// Harmonic caching (non-periodic, with the control variate or without vorticity; ignored elsewhere, as the
+    /// control variate is on periodic domains): the harmonic part of Psi (the control variate's correction h, or
+    /// Psi itself without vorticity) is estimated once per state on disks (3D: balls) that cover the fluid away
+    /// from the boundaries, each as the truncated Fourier series of h on a circle (3D: its solid-harmonic series
+    /// on a sphere), and read at every query inside a core; the walks per query remain only near the boundaries.
+    /// WosVelocityField::build_harmonic_cache, WosVelocityField3::build_harmonic_cache; docs/boundaries.md.
     bool harmonic_cache = true;
     /// Harmonic caching: walks per cell of a disk's core (a disk of core radius rho takes this times
     /// pi rho^2 / h^2 walks, at least 16 per gradient sample and 4 per term of its series).
     double cache_walks = 1;
     /// Harmonic caching: terms of each disk's series (1-MaxCacheOrder).
     int cache_order = 12;
+    /// Harmonic caching in 3D: the degree of each ball's solid-harmonic series (1-MaxCacheDegree; (degree + 1)^2
+    /// terms per component).
+    int cache_degree = 6;
 };
 
 /// Largest free_samples (a gradient sample keeps its point vortices on the stack).
 inline constexpr int MaxFreeSamples = 256;
 /// Largest cache_order.
 inline constexpr int MaxCacheOrder = 32;
+/// Largest cache_degree.
+inline constexpr int MaxCacheDegree = wos::SolidHarmonics::MaxDegree;
 
 /// Why these options cannot run on `domain` ("" when they can): a periodic domain without any boundary, an
 /// open domain without walls or container, a 3D shape, bad inflow range.
@@ -260,20 +266,15 @@ private:
     VorticitySource m_source;  // with vorticity_importance or the control variate
     bool m_cv = false;         // control variate in use
     double m_near_radius = 0;  // control variate: radius of the kernel-proportional near-field samples
-    /// One disk of the harmonic cache: h(center + z) = Re sum_n c[n] (z / radius)^n for |z| <= core.
+    /// One disk of the harmonic cache (m_cover's ball of the same index): h(center + z) = Re sum_n c[n]
+    /// (z / radius)^n for |z| <= core.
     struct HarmonicDisk {
-        Vec2d center{0.0};
-        double radius = 0, core = 0;
         int walks = 0;                        ///< 0: not built (stopped, or an invalid walk): not used
         std::vector<std::complex<double>> c;  ///< c_0 .. c_P
         double noise = 0;                     ///< variance of one walk's value about the series
     };
+    wos::HarmonicCover<2> m_cover;
     std::vector<HarmonicDisk> m_disks;
-    std::vector<int32_t> m_cell_disk;    // during the build: the disk whose core holds a cell's centre best (-1: none)
-    std::vector<uint32_t> m_cell_start;  // per cache cell, its range in m_cell_disks (CSR)
-    std::vector<int32_t> m_cell_disks;   // the disks whose core reaches into each cell
-    Vec2d m_cache_min{0.0}, m_cache_h{1.0};
-    int m_cache_nx = 0, m_cache_ny = 0;
     std::size_t m_cached_cells = 0;
     bool m_cache_stopped = false;
     wos::WalkCounters m_cache_walks;
@@ -333,6 +334,24 @@ public:
     VelocityEstimate3 stream_function(Vec3d x, int n, Random& rng, wos::WalkCounters& c) const;
     /// True when estimate() uses the control variate (the option, vorticity present, a non-periodic domain).
     bool control_variate() const { return m_cv; }
+    /// Harmonic caching (WosVelocityOptions::harmonic_cache), the 3D counterpart of
+    /// WosVelocityField::build_harmonic_cache: balls over the centres of `cells` (wos::HarmonicCover<3>: walks on the
+    /// sphere of 0.9 d, queries within the core d / 2 of at least 1.5 cells), each with cache_walks x (its core's
+    /// cells) walks (at least 16n and 4 (cache_degree + 1)^2) from a spherical Fibonacci lattice under one random
+    /// rotation, each ending with Psi_b - Psi_U plus the free-space potential of its own free_samples vector
+    /// point vortices; h = sum_k a_k S_k((x - c) / (0.9 d)) over the real regular solid harmonics S_k of degree <=
+    /// cache_degree (wos::SolidHarmonics), a_k = 4 pi / (N |S_k|^2) sum_i h_i S_k(s_i). A query in a core reads
+    /// -curl h from the series (blended over the cores holding it) plus the free-space velocity of omega_h from
+    /// the open domain's Biot–Savart estimator (mollifier `delta`, < 0: an eighth of a cell; near field of
+    /// BiotSavartVelocity::DefaultNearField3 cells) with n x free_samples samples; with `delta` = 0, n x
+    /// free_samples vector point vortices with the singular kernel. Random streams per (seed, stream, ball); a
+    /// stopped build keeps no cache (harmonic_cache_stopped()). Does nothing on periodic domains, with vorticity
+    /// but without the control variate, or when Psi' is zero.
+    void build_harmonic_cache(const Grid3& cells, uint64_t seed, uint64_t stream, double delta = -1, int samples = 8);
+    std::size_t harmonic_balls() const { return m_balls.size(); }
+    std::size_t harmonic_cells() const { return m_cached_cells; }
+    const wos::WalkCounters& harmonic_walks() const { return m_cache_walks; }
+    bool harmonic_cache_stopped() const { return m_cache_stopped; }
 
     /// Distance to the nearest boundary (walls, solids; periodic images included), and the closest point with
     /// its piece: 0-5 the walls (x-, x+, y-, y+, z-, z+), 6 + i shape i.
@@ -407,13 +426,34 @@ private:
     bool m_cv = false;                                        // control variate in use
     double m_near_radius = 0;  // control variate: radius of the kernel-proportional near-field samples
 
+    /// One ball of the harmonic cache (m_cover's ball of the same index): h(c + y) = sum_k a[k] S_k(y / radius).
+    struct HarmonicBall {
+        int walks = 0;         ///< 0: not built (an invalid walk): not used
+        std::vector<Vec3d> a;  ///< per solid harmonic, the three components' coefficients
+        Vec3d noise{0.0};      ///< per component, the variance of one walk's value about the series
+    };
+    wos::HarmonicCover<3> m_cover;
+    std::vector<HarmonicBall> m_balls;
+    std::size_t m_cached_cells = 0;
+    bool m_cache_stopped = false;
+    wos::WalkCounters m_cache_walks;
+    std::unique_ptr<BiotSavartEstimator3> m_free;  // harmonic cache with delta > 0: the free part inside the cores
+
+    /// Draws q vector point vortices of omega_h (|omega| mixed with 1/r^2 within the near radius of x) into ys, ws
+    /// (count of them) and returns their free-space velocity at x.
+    Vec3d free_vortices(Vec3d x, int q, Random& rng, Vec3d* ys, Vec3d* ws, int& count) const;
     VelocityEstimate3 estimate_control_variate(Vec3d x, double R0, int n, Random& rng, wos::WalkCounters& c) const;
+    /// The blended -curl h of the cores holding x and its per-component variance; false where none does.
+    bool cached_harmonic(Vec3d x, Vec3d& value, Vec3d& variance) const;
+    VelocityEstimate3 estimate_cached(Vec3d x, Vec3d harmonic, Vec3d variance, int n, Random& rng) const;
 };
 
 /// Why these options cannot run a 3D simulation on `domain` ("" when they can): a 2D shape, a periodic domain
 /// without any solid, an open domain without walls or container, inflow ranges, a stream with a container,
 /// moving solids, per-boundary stream values.
 std::string check_wos_options3(const WosVelocityOptions& options, const Domain3& domain);
+/// Why the harmonic cache's options are out of range in `dimension` ("" when they are not, or the cache is off).
+std::string check_cache_options(const WosVelocityOptions& options, int dimension);
 /// One line for the run summary.
 std::string describe3(const WosVelocityOptions& options, const Domain3& domain);
 /// The 3D counterpart of check_wos_cells (no fluid cell: an error; a solid outside the domain: a warning).

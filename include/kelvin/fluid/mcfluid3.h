@@ -210,7 +210,7 @@ public:
     const EnergyBudget* energy_budget_step() const { return m_flow ? &m_budget_step : nullptr; }
     const EnergyBudget* energy_budget_total() const { return m_flow ? &m_budget_total : nullptr; }
 
-    enum StreamTag : uint64_t { TagVelocity = 1, TagAdvection = 2, TagQuery = 3 };
+    enum StreamTag : uint64_t { TagVelocity = 1, TagAdvection = 2, TagQuery = 3, TagField = 5 };
     struct SlabWork;  ///< the work of one z-slab of a pass (defined in mcfluid3.cpp)
 
 private:

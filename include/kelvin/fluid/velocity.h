@@ -89,6 +89,8 @@ struct VelocityState3 {
     /// data of the two states cancel (a Walk-on-Spheres field takes Psi = 0 on every boundary).
     bool difference = false;
     const Cancellable* stop = nullptr;  ///< as in VelocityState2
+    uint64_t seed = 0, stream = 0;      ///< as in VelocityState2
+    int samples = 0;                    ///< as in VelocityState2
 };
 
 /// The velocity of one 2D state. Immutable once built; estimate() is called concurrently from many threads.

@@ -47,6 +47,7 @@ public:
         opt.harmonic_cache = props.get_bool("harmonic_cache");
         opt.cache_walks = props.get_float("cache_walks", 0.01, 1e4);
         opt.cache_order = int(props.get_int("cache_order", 1, MaxCacheOrder));
+        opt.cache_degree = int(props.get_int("cache_degree", 1, MaxCacheDegree));
         opt.walls = props.get_bool("walls");
         opt.wall_stream_value = props.get_float("wall_stream_value");
         opt.inflow_speed = props.get_float("inflow_speed");
@@ -108,10 +109,12 @@ KELVIN_PLUGIN(
                            "stratified first-step directions over a query's gradient samples (3D: with the control "
                            "variate only)"),
     kelvin::param::boolean("harmonic_cache", true,
-                           "2D, not periodic: the walls' harmonic correction once per step on disks away from the "
-                           "boundaries (their series read by every query inside), walks per query only near them"),
-    kelvin::param::real("cache_walks", 1.0, "harmonic_cache: walks per cell of a disk's core"),
-    kelvin::param::integer("cache_order", 12, "harmonic_cache: terms of each disk's Fourier series, 1-32"),
+                           "not periodic: the walls' harmonic correction once per step on disks (3D: balls) away "
+                           "from the boundaries (their series read by every query inside), walks per query only "
+                           "near them"),
+    kelvin::param::real("cache_walks", 1.0, "harmonic_cache: walks per cell of a disk's (ball's) core"),
+    kelvin::param::integer("cache_order", 12, "harmonic_cache, 2D: terms of each disk's Fourier series, 1-32"),
+    kelvin::param::integer("cache_degree", 6, "harmonic_cache, 3D: degree of each ball's solid-harmonic series, 1-16"),
     kelvin::param::boolean("walls", true, "the domain box is a container (ignored when periodic)"),
     kelvin::param::real("wall_stream_value", 0.0,
                         "Psi on the walls (with inflow: the mean of the bottom and top walls)"),
