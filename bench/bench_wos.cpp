@@ -358,6 +358,39 @@ void BM_WosVariance(benchmark::State& state, const std::string& scene) {
 // cpu_s is the share of the scene's points (for the polygon a sixteenth of the cells), so rmse@1s compares with
 // BM_WosVariance's. Arguments: n gradient samples (the free part's n x q point vortices near the boundaries'
 // walks), free_samples q, cache_walks x 10.
+template <class Scene, class Grid, class Vec, class Make>
+void measure_cached(benchmark::State& state, const Scene& sc, const Grid& grid, const std::vector<Vec>& cells, int n,
+                    Make&& make) {
+    wos::WalkCounters c;
+    double sse = 0, seconds = 0, reference = 0, cached = 0;
+    uint64_t pass = 0;
+    const auto keep = make();  // holds the shared near-field table (built once per run, as in the solver)
+    keep->build_harmonic_cache(grid, 999, 7, -1, n);
+    for (auto _ : state) {
+        const double t0 = kelvin::bench::thread_cpu_seconds();
+        auto f = make();
+        f->build_harmonic_cache(grid, 1000 + pass, 7, -1, n);  // as the solver builds it
+        Vec sink(0.0);
+        for (std::size_t k = 0; k < cells.size(); ++k) {
+            Random rng(2000 + pass, k);
+            sink += f->estimate(cells[k], n, rng, c).value;
+        }
+        benchmark::DoNotOptimize(sink);
+        seconds += (kelvin::bench::thread_cpu_seconds() - t0) * double(sc.points.size()) / double(cells.size());
+        c += f->harmonic_walks();
+        cached += double(f->harmonic_cells()) / double(cells.size());
+        for (std::size_t k = 0; k < sc.points.size(); ++k) {
+            Random rng(3000 + pass, k);
+            const auto d = f->estimate(sc.points[k], n, rng, c).value - sc.exact[k];
+            sse += glm::dot(d, d);
+            reference += component_sum(sc.exact_variance[k]);
+        }
+        ++pass;
+    }
+    variance_counters(state, sse - reference, seconds, pass, sc.points.size());
+    state.counters["cached"] = cached / double(pass);
+}
+
 void BM_WosVarianceCached(benchmark::State& state, const std::string& scene) {
     const VarianceScene& sc = variance_scene(scene);
     ThreadLimit one(1);  // the cache's build runs its disks in parallel; the thread's CPU time must hold all of it
@@ -370,32 +403,9 @@ void BM_WosVarianceCached(benchmark::State& state, const std::string& scene) {
     for (int j = 0; j < sc.omega.ny(); ++j)
         for (int i = 0; i < sc.omega.nx(); ++i)
             if (solids.solid_at(sc.omega.cell_center(i, j)) < 0) cells.push_back(sc.omega.cell_center(i, j));
-    wos::WalkCounters c;
-    double sse = 0, seconds = 0, reference = 0, cached = 0;
-    uint64_t pass = 0;
-    for (auto _ : state) {
-        const double t0 = kelvin::bench::thread_cpu_seconds();
-        WosVelocityField f(o, sc.domain, &sc.omega, Interpolation::Bilinear, 0);
-        f.build_harmonic_cache(sc.omega, 1000 + pass, 7, -1, n);  // as the solver builds it
-        Vec2d sink(0.0);
-        for (std::size_t k = 0; k < cells.size(); ++k) {
-            Random rng(2000 + pass, k);
-            sink += f.estimate(cells[k], n, rng, c).value;
-        }
-        benchmark::DoNotOptimize(sink);
-        seconds += (kelvin::bench::thread_cpu_seconds() - t0) * double(sc.points.size()) / double(cells.size());
-        c += f.harmonic_walks();
-        cached += double(f.harmonic_cells()) / double(cells.size());
-        for (std::size_t k = 0; k < sc.points.size(); ++k) {
-            Random rng(3000 + pass, k);
-            const auto d = f.estimate(sc.points[k], n, rng, c).value - sc.exact[k];
-            sse += glm::dot(d, d);
-            reference += component_sum(sc.exact_variance[k]);
-        }
-        ++pass;
-    }
-    variance_counters(state, sse - reference, seconds, pass, sc.points.size());
-    state.counters["cached"] = cached / double(pass);
+    measure_cached(state, sc, sc.omega, cells, n, [&] {
+        return std::make_unique<WosVelocityField>(o, sc.domain, &sc.omega, Interpolation::Bilinear, 0);
+    });
 }
 
 // The same in 3D (WosVelocityField3): the velocity at every third cell centre of a 24^3 cache (an 8^3 lattice,
@@ -487,8 +497,42 @@ void BM_WosVariance3(benchmark::State& state, const std::string& scene) {
     measure_variance(state, sc, f, n);
 }
 
+// 3D harmonic caching (WosVelocityField3::build_harmonic_cache, with the control variate and stratified directions)
+// on the same scenes and counters, as BM_WosVarianceCached: a pass builds the cache and estimates every fluid cell
+// centre of the 24^3 cache; cpu_s is the points' share. Arguments: n, free_samples q, cache_walks x 10, the degree.
+void BM_WosVarianceCached3(benchmark::State& state, const std::string& scene) {
+    const VarianceScene3& sc = variance_scene3(scene);
+    ThreadLimit one(1);
+    const int n = int(state.range(0)), q = int(state.range(1));
+    WosVelocityOptions o = variant_options(sc.options, 3, q);
+    o.harmonic_cache = true;
+    o.cache_walks = double(state.range(2)) / 10;
+    o.cache_degree = int(state.range(3));
+    std::vector<Vec3d> cells;
+    const WosVelocityField3 solids(o, sc.domain, nullptr, Interpolation::Bilinear);
+    const Grid3& g = sc.omega.x;
+    for (int k = 0; k < g.nz(); ++k)
+        for (int j = 0; j < g.ny(); ++j)
+            for (int i = 0; i < g.nx(); ++i)
+                if (solids.solid_at(g.cell_center(i, j, k)) < 0) cells.push_back(g.cell_center(i, j, k));
+    measure_cached(state, sc, g, cells, n, [&] {
+        return std::make_unique<WosVelocityField3>(o, sc.domain, &sc.omega, Interpolation::Bilinear);
+    });
+}
+
 }  // namespace
 
+BENCHMARK_CAPTURE(BM_WosVarianceCached3, sphere, std::string("sphere"))
+    ->ArgsProduct({{4, 16}, {16}, {10}, {6}})
+    ->Args({8, 16, 10, 4})
+    ->Args({8, 16, 10, 6})
+    ->Args({8, 16, 10, 8})
+    ->Unit(benchmark::kMillisecond)
+    ->Iterations(5);
+BENCHMARK_CAPTURE(BM_WosVarianceCached3, box, std::string("box"))
+    ->ArgsProduct({{4, 16}, {16}, {10}, {6}})
+    ->Unit(benchmark::kMillisecond)
+    ->Iterations(5);
 BENCHMARK_CAPTURE(BM_WosVariance3, sphere, std::string("sphere"))
     ->ArgsProduct({{0}, {16}, {1}})
     ->ArgsProduct({{2, 3}, {4, 16}, {4, 16}})

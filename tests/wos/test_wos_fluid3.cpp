@@ -4,6 +4,7 @@
 // the solver with boundaries: effects on demand, sub-grid obstacles, hard cases, determinism.
 #include "wos_fluid_support.h"
 
+#include <kelvin/core/interrupt.h>
 #include <kelvin/core/parallel.h>
 #include <kelvin/fluid/mcfluid3.h>
 
@@ -444,7 +445,7 @@ TEST(WosFluid3, HardCasesStayFinite) {
 }
 
 // Bit-identical results whatever the thread count, with boundaries, stretching and control variates (the
-// previous step's, Eq. 5.23), with the walls' control variate (the default, stratified) and with plain walks.
+// previous step's, Eq. 5.23), with the walls' control variate and harmonic cache (the defaults) and with plain walks.
 TEST(WosFluid3, DeterministicAcrossThreadCounts) {
     const Domain3 box{Vec3d(-1.0), Vec3d(1.0), false};
     for (bool wall_cv : {true, false}) {
@@ -454,17 +455,47 @@ TEST(WosFluid3, DeterministicAcrossThreadCounts) {
         auto opts = std::make_shared<WosVelocityOptions>(o);
         auto run = [&](int threads) {
             const kelvin::ThreadLimit limit(threads);
-            MCFluid3Settings s = boundary_settings(box, 8, opts);
+            MCFluid3Settings s = boundary_settings(box, 12, opts);
             s.control_variates = true;
             MCFluid3Solver solver(s, [](const Vec3d& x) {
                 return Vec3d(0, 0, 3 * std::exp(-8 * glm::dot(x + Vec3d(0.4, 0, 0), x + Vec3d(0.4, 0, 0))));
             });
             for (int i = 0; i < 2; ++i) EXPECT_TRUE(solver.step());
             EXPECT_EQ(solver.boundary_field()->control_variate(), wall_cv);
+            EXPECT_EQ(solver.boundary_field()->harmonic_balls() > 0, wall_cv);  // the cache needs the control variate
             return solver.vorticity_grid().x.values();
         };
         EXPECT_EQ(run(1), run(2));
     }
+}
+
+// An interrupt during the 3D harmonic cache's build (before the solver is constructed, so the first ball sees it)
+// leaves the field without a cache; once the interrupt is cleared the solver builds the state's field again, and its
+// velocity is bit for bit that of a solver never interrupted. Seen to fail without the rebuild (the cells then walk
+// per query: a different velocity).
+TEST(WosFluid3, InterruptedHarmonicCacheIsBuiltAgain) {
+    struct Guard {
+        Guard() { kelvin::clear_interrupt(); }
+        ~Guard() { kelvin::clear_interrupt(); }
+    } guard;
+    const Domain3 box{Vec3d(-1.0), Vec3d(1.0), false};
+    auto opts = std::make_shared<WosVelocityOptions>(stream_options(0.3, {sphere_boundary(Vec3d(0.5, 0, 0), 0.25)}));
+    const MCFluid3Settings s = boundary_settings(box, 12, opts);
+    const auto ring = [](const Vec3d& x) {
+        return Vec3d(0, 0, 3 * std::exp(-8 * glm::dot(x + Vec3d(0.4, 0, 0), x + Vec3d(0.4, 0, 0))));
+    };
+    kelvin::request_interrupt();
+    MCFluid3Solver solver(s, ring);
+    ASSERT_NE(solver.boundary_field(), nullptr);
+    EXPECT_TRUE(solver.boundary_field()->harmonic_cache_stopped());
+    EXPECT_EQ(solver.boundary_field()->harmonic_balls(), 0u);
+    kelvin::clear_interrupt();
+    EXPECT_TRUE(solver.velocity_available());
+    EXPECT_FALSE(solver.boundary_field()->harmonic_cache_stopped());
+    EXPECT_GT(solver.boundary_field()->harmonic_balls(), 0u);
+    MCFluid3Solver fresh(s, ring);
+    EXPECT_TRUE(fresh.velocity_grid().x.values() == solver.velocity_grid().x.values());
+    EXPECT_TRUE(fresh.velocity_grid().z.values() == solver.velocity_grid().z.values());
 }
 
 }  // namespace

@@ -274,8 +274,9 @@ TEST(WosVariance3, ControlVariateOnlyWhereItApplies) {
 // over a sphere about a point is its value there, within 1e-6 of its size on that sphere, over a 40000-point
 // Fibonacci lattice), homogeneous of its degree, its gradient matches central differences, and they are orthogonal on
 // the unit sphere with the documented norms (the same lattice: every Gram entry within 1e-4 of the identity after
-// dividing by the norms). Broken variants seen to fail: the recurrence's (2l - 1) as (2l + 1), the sectoral step
-// without its 1 / (2m), the gradient of R_{m+1}^m without R_m^m.
+// dividing by the norms; measured 8e-6). Broken variants seen to fail: the recurrence's (2l - 1) as (2l + 1) (the
+// mean-value and Gram checks: Gram error 2e3), the sectoral step without its 1 / (2m) together with the gradient of
+// R_{m+1}^m without R_m^m (the gradient check; Gram error 1e14).
 TEST(WosVariance3, SolidHarmonicsAreHarmonicOrthogonalAndDifferentiated) {
     constexpr int L = 8, K = wos::SolidHarmonics::count(L), N = 40000;
     std::array<double, K> v, vp, vm;
@@ -347,12 +348,13 @@ std::vector<Vec3d> fluid_cells(const WosVelocityField3& f, const Grid3& g) {
 
 // 3D harmonic caching (WosVelocityField3::build_harmonic_cache) is unbiased: in the sphere container, around the box
 // in a stream (vorticity and the stream's residual boundary data) and for the stream alone (no vorticity: Psi'
-// itself is cached), the mean over 8 caches of the velocity at points inside cores (n 16) matches the control
-// variate's (or plain walks', without vorticity) 3000-sample estimate within 5 standard errors (measured max |z|
-// 2.9, 2.6, 2.4). At the solver's n = 8 the cache plus the per-query walks of the cells no core holds take fewer
-// walks than per-query walks at every cell (measured 0.45x, 0.71x), and the cache is the same with 1 and 2 threads.
-// Broken variants seen to fail: the coefficients without the 1 / |S_k|^2 (max z 40), -curl h with the transposed
-// Jacobian (max z 25).
+// itself is cached), the mean over 16 caches of the velocity at points inside cores (n 16) matches the control
+// variate's (or plain walks', without vorticity) 3000-sample estimate within 5 standard errors (measured max |z| 3.0,
+// 2.6, 2.1; with 8 caches the t-distribution of so few builds reached 5.4 once). At the solver's n = 8 the cache plus
+// the per-query walks of the cells no core holds take fewer walks than per-query walks at every cell (measured 0.77x,
+// 0.80x, 0.80x at this 24^3 cache), and the cache is the same with 1 and 2 threads. Broken variants seen to fail:
+// the coefficients without their 1 / |S_k|^2 (max z 6.9, 7.0, 9.9), -curl h from the transposed Jacobian (20, 18,
+// 17).
 TEST(WosVariance3, HarmonicCacheMatchesWalksWithFewerWalks) {
     for (const std::string name : {"sphere", "box", "stream"}) {
         SCOPED_TRACE(name);
