@@ -53,6 +53,11 @@ std::vector<Job> jobs() {
         // The harmonic cache's disks: 4 M walks each (16 per gradient sample, at most 2^22), built with the state.
         {"mcfluid_2d_harmonic_cache",
          {fluid + "lamb_oseen_disk.xml", "-D", "res=32", "-D", "spp=16777216", "-D", "end=100", "-D", "every=0"}},
+        // The 3D cache's balls: 2^20 walks each (16 per gradient sample, at most 2^20); signalled inside their walks
+        // (the cores' near-field table before them takes about 0.4 s: signalled there, 0.23 s of CPU after it).
+        {"mcfluid_3d_harmonic_cache",
+         {fluid + "sphere_obstacle.xml", "-D", "res=24", "-D", "spp=65536", "-D", "end=100", "-D", "every=0"},
+         1.5},
         {"mcfluid_3d",
          {fluid + "vortex_ring.xml", "-D", "res=40", "-D", "spp=100000", "-D", "end=100", "-D", "every=0"}},
         // Signalled inside their first step (0.3 s of CPU after state 0's row): their set-up at these sizes (2 to 4 s
