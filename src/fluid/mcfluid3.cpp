@@ -229,7 +229,7 @@ void MCFluid3Solver::rebuild_estimators() {
             throw_runtime("MCFluid3Solver: velocity estimator '{}' built no field", s.estimator->plugin_name());
     }
     m_work.seconds_velocity += timer.seconds();
-    for (const VelocityField3* f : {m_field.get(), m_diff_field.get()})
+    for (const VelocityField3* f : {m_field.get(), m_have_prev ? m_diff_field.get() : nullptr})
         if (const WosVelocityField3* b = f ? f->boundaries() : nullptr) {
             const wos::WalkCounters& c = b->harmonic_walks();
             m_work.wos_walks += c.walks;
