@@ -363,6 +363,8 @@ TEST(WosSolver, BadInputNamesTheParameterOrFile) {
     EXPECT_CONTAINS(load_error(wos_scene(R"(<string name="importance" value="greeen"/>)")), "'importance'");
     EXPECT_CONTAINS(load_error(wos_scene(R"(<float name="cache_walks" value="0"/>)")), "'cache_walks'");
     EXPECT_CONTAINS(load_error(wos_scene(R"(<integer name="cache_order" value="33"/>)")), "'cache_order'");
+    EXPECT_CONTAINS(load_error(wos_scene(R"(<integer name="cache_degree" value="17"/>)")), "'cache_degree'");
+    EXPECT_CONTAINS(load_error(wos_scene(R"(<integer name="cache_degree" value="0"/>)")), "'cache_degree'");
     EXPECT_CONTAINS(load_error(wos_scene(
                         R"(<boundary type="mesh"><shape type="obj"><string name="filename" value=")" +
                         write_fan_obj(dir, "tilted.obj", {0, 0}, 0.2, 8, false).string() +
