@@ -2,7 +2,6 @@
 // Section 5.3.1): WosVelocityField. See include/kelvin/fluid/boundary.h.
 #include <kelvin/core/error.h>
 #include <kelvin/core/logging.h>
-#include <kelvin/core/parallel.h>
 #include <kelvin/core/strings.h>
 #include <kelvin/fluid/boundary.h>
 #include <kelvin/fluid/checks.h>
@@ -12,7 +11,6 @@
 
 #include <algorithm>
 #include <array>
-#include <atomic>
 #include <cmath>
 #include <tuple>
 
@@ -614,11 +612,7 @@ constexpr int MaxDiskWalks = 1 << 22;
 
 void WosVelocityField::build_harmonic_cache(const Grid2& cells, uint64_t seed, uint64_t stream, double delta,
                                             int samples) {
-    m_cover.clear();
-    m_disks.clear();
-    m_cached_cells = 0;
-    m_cache_stopped = false;
-    m_cache_walks = {};
+    m_cache.clear();
     m_free.reset();
     if (m_domain.periodic || m_constant_psi || (m_has_source && !m_cv)) return;
     // The cores' free part with the smallest mollifier the near field resolves by default: the walks' Psi_free is the
@@ -634,34 +628,10 @@ void WosVelocityField::build_harmonic_cache(const Grid2& cells, uint64_t seed, u
         m_free->set_stop(m_wos.stop);
     }
     const int nx = cells.nx(), ny = cells.ny(), order = std::clamp(m_options.cache_order, 1, MaxCacheOrder);
-    // Every fluid centre's distance to the boundaries, then disks greedily from the farthest.
-    std::vector<double> dist(std::size_t(nx) * std::size_t(ny), -1);
-    parallel_for_units(std::size_t(ny), [&](std::size_t j) {
-        for (int i = 0; i < nx; ++i) {
-            const Vec2d x = cells.cell_center(i, int(j));
-            if (solid_at(x) < 0) dist[j * std::size_t(nx) + std::size_t(i)] = distance(x);
-        }
-    });
-    m_cover.place(cells.domain().min, cells.h(), {nx, ny}, dist);
-    const auto& balls = m_cover.balls();
-    m_disks.resize(balls.size());
-    for (std::size_t id = 0; id < balls.size(); ++id)
-        m_disks[id].walks = int(std::min(std::max({double(DiskWalksPerSample) * std::max(samples, 1), 4.0 * order,
-                                                   std::round(m_options.cache_walks * balls[id].core_cells)}),
-                                         double(MaxDiskWalks)));
     // The disks' walks: equally spaced angles with one random rotation per disk, each walk's own point vortices.
     const int q = std::clamp(WalkEndVortices * m_options.free_samples, 1, MaxFreeSamples);
-    std::vector<wos::WalkCounters> counters(m_disks.size());
-    std::atomic<bool> stopped{false};
-    parallel_for_units(m_disks.size(), [&](std::size_t id) {
-        if (m_wos.stop && m_wos.stop->stop_requested()) {
-            stopped = true;
-            return;
-        }
-        HarmonicDisk& disk = m_disks[id];
-        const wos::HarmonicCover<2>::Ball& ball = balls[id];
-        wos::WalkCounters& c = counters[id];
-        Random rng(seed, hash_combine(stream, uint64_t(id)));
+    const auto fit = [&](const wos::HarmonicCover<2>::Ball& ball, HarmonicDisk& disk, Random& rng,
+                         wos::WalkCounters& c) {
         const int N = disk.walks;
         FreeVortices vortices;
         const auto g = [&](const wos::BoundaryHit<2>& hit) {
@@ -673,10 +643,7 @@ void WosVelocityField::build_harmonic_cache(const Grid2& cells, uint64_t seed, u
         double shift = 0, sum2 = 0;
         const double rotation = wos::uniform(rng);
         for (int i = 0; i < N; ++i) {
-            if (m_wos.stop && (i & 63) == 63 && m_wos.stop->stop_requested()) {
-                stopped = true;
-                return;
-            }
+            if (decltype(m_cache)::polling(m_wos.stop, i)) return false;
             const double theta = 2 * Pi * (double(i) + rotation) / double(N);
             const Vec2d dir(std::cos(theta), std::sin(theta));
             if (m_cv) {  // the walk's own point vortices of omega_h (|omega| sampling; no query to sample near)
@@ -695,7 +662,7 @@ void WosVelocityField::build_harmonic_cache(const Grid2& cells, uint64_t seed, u
             if (!std::isfinite(value)) {  // an invalid walk: the disk is not used
                 ++c.invalid;
                 disk.walks = 0;
-                return;
+                return true;
             }
             if (i == 0) shift = value;
             const double v = value - shift;
@@ -718,44 +685,38 @@ void WosVelocityField::build_harmonic_cache(const Grid2& cells, uint64_t seed, u
         const double residual = std::max(0.0, sum2 - double(N) * fitted);
         disk.c[0] += shift;
         disk.noise = residual / double(std::max(1, N - 2 * order - 1));
-    });
-    for (const wos::WalkCounters& c : counters) m_cache_walks += c;
-    if (stopped) {  // a cache with some disks missing would differ from an uninterrupted run's: none
-        m_cover.clear();
-        m_disks.clear();
-        m_free.reset();
-        m_cache_stopped = true;
-        return;
-    }
-    std::vector<char> built(m_disks.size());
-    for (std::size_t id = 0; id < m_disks.size(); ++id) built[id] = m_disks[id].walks > 0;
-    m_cached_cells = m_cover.index(built);
+        return true;
+    };
+    // The disks are laid greedily from the fluid centre farthest from the boundaries.
+    const auto distance_at = [this](Vec2d x) { return solid_at(x) < 0 ? distance(x) : -1.0; };
+    m_cache.build(cells.domain().min, cells.h(), {nx, ny}, distance_at, seed, stream, m_wos.stop, m_options.cache_walks,
+                  std::max(double(DiskWalksPerSample) * std::max(samples, 1), 4.0 * order), double(MaxDiskWalks), fit);
+    if (m_cache.stopped()) m_free.reset();
 }
 
 bool WosVelocityField::cached_harmonic(Vec2d x, Vec2d& value, double& variance) const {
-    if (!m_cover.indexed()) return false;
+    if (!m_cache.indexed()) return false;
     double weights2_var = 0;
     Vec2d sum(0.0);
-    const double weights = m_cover.for_each(x, [&](std::size_t id, double w) {
-        const HarmonicDisk& d = m_disks[id];
-        const wos::HarmonicCover<2>::Ball& b = m_cover.balls()[id];
-        const Vec2d dz = x - b.center;
-        // -curl h from the series: f'(z) r by Horner, and its variance (see estimate_cached).
-        const std::complex<double> z(dz.x / b.radius, dz.y / b.radius);
-        std::complex<double> df(0.0, 0.0);
-        double var = 0, zn2 = 1;
-        const double z2 = std::norm(z);
-        const int order = int(d.c.size()) - 1;
-        for (int m = order; m >= 1; --m) df = df * z + double(m) * d.c[std::size_t(m)];
-        for (int m = 1; m <= order; ++m) {
-            var += double(m) * double(m) * zn2;
-            zn2 *= z2;
-        }
-        df /= b.radius;
-        var *= d.noise * 2.0 / double(d.walks) / (b.radius * b.radius);
-        sum += w * Vec2d(df.imag(), df.real());
-        weights2_var += w * w * var;
-    });
+    const double weights =
+        m_cache.for_each(x, [&](const HarmonicDisk& d, const wos::HarmonicCover<2>::Ball& b, double w) {
+            const Vec2d dz = x - b.center;
+            // -curl h from the series: f'(z) r by Horner, and its variance (see estimate_cached).
+            const std::complex<double> z(dz.x / b.radius, dz.y / b.radius);
+            std::complex<double> df(0.0, 0.0);
+            double var = 0, zn2 = 1;
+            const double z2 = std::norm(z);
+            const int order = int(d.c.size()) - 1;
+            for (int m = order; m >= 1; --m) df = df * z + double(m) * d.c[std::size_t(m)];
+            for (int m = 1; m <= order; ++m) {
+                var += double(m) * double(m) * zn2;
+                zn2 *= z2;
+            }
+            df /= b.radius;
+            var *= d.noise * 2.0 / double(d.walks) / (b.radius * b.radius);
+            sum += w * Vec2d(df.imag(), df.real());
+            weights2_var += w * w * var;
+        });
     if (!(weights > 0)) return false;
     value = sum / weights;
     variance = weights2_var / (weights * weights);

@@ -3,7 +3,6 @@
 // estimator (thesis Sections 5.3.1-5.3.2, 6.2.4). See include/kelvin/fluid/boundary.h.
 #include <kelvin/core/error.h>
 #include <kelvin/core/logging.h>
-#include <kelvin/core/parallel.h>
 #include <kelvin/fluid/boundary.h>
 #include <kelvin/fluid/checks.h>
 #include <kelvin/fluid/estimators.h>
@@ -12,7 +11,6 @@
 
 #include <algorithm>
 #include <array>
-#include <atomic>
 #include <cmath>
 #include <tuple>
 
@@ -456,11 +454,7 @@ Vec3d fibonacci_point(int i, int N) {
 
 void WosVelocityField3::build_harmonic_cache(const Grid3& cells, uint64_t seed, uint64_t stream, double delta,
                                              int samples) {
-    m_cover.clear();
-    m_balls.clear();
-    m_cached_cells = 0;
-    m_cache_stopped = false;
-    m_cache_walks = {};
+    m_cache.clear();
     m_free.reset();
     if (m_domain.periodic || (!m_has_source && !m_residual_data) || (m_has_source && !m_cv)) return;
     const Vec3d h = cells.h();
@@ -480,33 +474,9 @@ void WosVelocityField3::build_harmonic_cache(const Grid3& cells, uint64_t seed, 
     const int nx = cells.nx(), ny = cells.ny(), nz = cells.nz();
     const int degree = std::clamp(m_options.cache_degree, 1, MaxCacheDegree);
     const int terms = wos::SolidHarmonics::count(degree);
-    std::vector<double> dist(std::size_t(nx) * std::size_t(ny) * std::size_t(nz), -1);
-    parallel_for_units(std::size_t(nz), [&](std::size_t k) {
-        for (int j = 0; j < ny; ++j)
-            for (int i = 0; i < nx; ++i) {
-                const Vec3d x = cells.cell_center(i, j, int(k));
-                if (solid_at(x) < 0) dist[cells.index(i, j, int(k))] = distance(x);
-            }
-    });
-    m_cover.place(cells.domain().min, h, {nx, ny, nz}, dist);
-    const auto& balls = m_cover.balls();
-    m_balls.resize(balls.size());
-    for (std::size_t id = 0; id < balls.size(); ++id)
-        m_balls[id].walks = int(std::min(std::max({double(BallWalksPerSample) * std::max(samples, 1), 4.0 * terms,
-                                                   std::round(m_options.cache_walks * balls[id].core_cells)}),
-                                         double(MaxBallWalks)));
     const int q = std::clamp(WalkEndVortices * m_options.free_samples, 1, MaxFreeSamples);
-    std::vector<wos::WalkCounters> counters(m_balls.size());
-    std::atomic<bool> stopped{false};
-    parallel_for_units(m_balls.size(), [&](std::size_t id) {
-        if (m_wos.stop && m_wos.stop->stop_requested()) {
-            stopped = true;
-            return;
-        }
-        HarmonicBall& ball = m_balls[id];
-        const wos::HarmonicCover<3>::Ball& where = balls[id];
-        wos::WalkCounters& c = counters[id];
-        Random rng(seed, hash_combine(stream, uint64_t(id)));
+    const auto fit = [&](const wos::HarmonicCover<3>::Ball& where, HarmonicBall& ball, Random& rng,
+                         wos::WalkCounters& c) {
         const int N = ball.walks;
         std::array<Vec3d, MaxFreeSamples> ys, ws;
         const double far_weight = m_cv ? m_source.total() / q : 0;
@@ -526,10 +496,7 @@ void WosVelocityField3::build_harmonic_cache(const Grid3& cells, uint64_t seed, 
         Vec3d shift(0.0), sum2(0.0);
         const glm::dmat3 rotation = random_rotation(rng);
         for (int i = 0; i < N; ++i) {
-            if (m_wos.stop && (i & 63) == 63 && m_wos.stop->stop_requested()) {
-                stopped = true;
-                return;
-            }
+            if (decltype(m_cache)::polling(m_wos.stop, i)) return false;
             const Vec3d dir = rotation * fibonacci_point(i, N);
             if (m_cv)  // the walk's own vector point vortices of omega_h (|omega| sampling)
                 for (int j = 0; j < q; ++j) {
@@ -542,7 +509,7 @@ void WosVelocityField3::build_harmonic_cache(const Grid3& cells, uint64_t seed, 
             if (!wos::detail::all_finite(value)) {  // an invalid walk: the ball is not used
                 ++c.invalid;
                 ball.walks = 0;
-                return;
+                return true;
             }
             if (i == 0) shift = value;
             const Vec3d v = value - shift;
@@ -563,49 +530,42 @@ void WosVelocityField3::build_harmonic_cache(const Grid3& cells, uint64_t seed, 
         const Vec3d residual = glm::max(Vec3d(0.0), sum2 - fitted * (double(N) / (4 * Pi)));
         ball.a[0] += shift;  // S_0 = 1
         ball.noise = residual / double(std::max(1, N - terms));
-    });
-    for (const wos::WalkCounters& c : counters) m_cache_walks += c;
-    if (stopped) {  // as in 2D: no cache rather than a partial one
-        m_cover.clear();
-        m_balls.clear();
-        m_free.reset();
-        m_cache_stopped = true;
-        return;
-    }
-    std::vector<char> built(m_balls.size());
-    for (std::size_t id = 0; id < m_balls.size(); ++id) built[id] = m_balls[id].walks > 0;
-    m_cached_cells = m_cover.index(built);
+        return true;
+    };
+    const auto distance_at = [this](Vec3d x) { return solid_at(x) < 0 ? distance(x) : -1.0; };
+    m_cache.build(cells.domain().min, h, {nx, ny, nz}, distance_at, seed, stream, m_wos.stop, m_options.cache_walks,
+                  std::max(double(BallWalksPerSample) * std::max(samples, 1), 4.0 * terms), double(MaxBallWalks), fit);
+    if (m_cache.stopped()) m_free.reset();
 }
 
 // -curl h = (d h_y/dz - d h_z/dy, d h_z/dx - d h_x/dz, d h_x/dy - d h_y/dx) from the series' gradients. Its variance:
 // over N uniform points Var(a_k) = 4 pi s^2 / (N |S_k|^2) per component (s^2 the walks' scatter about the series),
 // the terms independent; a component of -curl h adds two components' shares. The balls are independent.
 bool WosVelocityField3::cached_harmonic(Vec3d x, Vec3d& value, Vec3d& variance) const {
-    if (!m_cover.indexed()) return false;
+    if (!m_cache.indexed()) return false;
     Vec3d sum(0.0), sum_var(0.0);
     std::array<double, wos::SolidHarmonics::count(MaxCacheDegree)> basis;
     std::array<Vec3d, wos::SolidHarmonics::count(MaxCacheDegree)> grad;
-    const double weights = m_cover.for_each(x, [&](std::size_t id, double w) {
-        const HarmonicBall& b = m_balls[id];
-        const wos::HarmonicCover<3>::Ball& where = m_cover.balls()[id];
-        const int terms = int(b.a.size());
-        const int degree = int(std::lround(std::sqrt(double(terms)))) - 1;
-        wos::SolidHarmonics::evaluate(degree, (x - where.center) / where.radius, basis.data(), grad.data());
-        glm::dmat3 J(0.0);  // column c: dh/dx_c
-        Vec3d var(0.0);
-        for (int k = 1; k < terms; ++k) {
-            const Vec3d& a = b.a[std::size_t(k)];
-            const Vec3d& G = grad[std::size_t(k)];
-            J += glm::outerProduct(a, G);
-            const Vec3d G2 = G * G;
-            var += Vec3d(b.noise.y * G2.z + b.noise.z * G2.y, b.noise.z * G2.x + b.noise.x * G2.z,
-                         b.noise.x * G2.y + b.noise.y * G2.x) *
-                   (1 / wos::SolidHarmonics::norm(k));
-        }
-        const double inv_r = 1 / where.radius;
-        sum += w * inv_r * minus_curl(J);
-        sum_var += (w * w * 4 * Pi / double(b.walks) * inv_r * inv_r) * var;
-    });
+    const double weights =
+        m_cache.for_each(x, [&](const HarmonicBall& b, const wos::HarmonicCover<3>::Ball& where, double w) {
+            const int terms = int(b.a.size());
+            const int degree = int(std::lround(std::sqrt(double(terms)))) - 1;
+            wos::SolidHarmonics::evaluate(degree, (x - where.center) / where.radius, basis.data(), grad.data());
+            glm::dmat3 J(0.0);  // column c: dh/dx_c
+            Vec3d var(0.0);
+            for (int k = 1; k < terms; ++k) {
+                const Vec3d& a = b.a[std::size_t(k)];
+                const Vec3d& G = grad[std::size_t(k)];
+                J += glm::outerProduct(a, G);
+                const Vec3d G2 = G * G;
+                var += Vec3d(b.noise.y * G2.z + b.noise.z * G2.y, b.noise.z * G2.x + b.noise.x * G2.z,
+                             b.noise.x * G2.y + b.noise.y * G2.x) *
+                       (1 / wos::SolidHarmonics::norm(k));
+            }
+            const double inv_r = 1 / where.radius;
+            sum += w * inv_r * minus_curl(J);
+            sum_var += (w * w * 4 * Pi / double(b.walks) * inv_r * inv_r) * var;
+        });
     if (!(weights > 0)) return false;
     value = sum / weights;
     variance = sum_var / (weights * weights);

@@ -428,4 +428,47 @@ TEST(WosVariance3, HarmonicCacheMatchesWalksWithFewerWalks) {
     }
 }
 
+// Tiny and huge scales in 3D: every length of the cache (ball radii, cores, the 1.5-cell floor, the cores' mollifier
+// and near field, epsilon) is relative, so the sphere container scaled by 2^-20 and 2^20 (lengths exact in binary,
+// vorticity by 2^40 and 2^-40 at the same circulation) builds the same balls, and its velocity times the scale is the
+// unscaled velocity at points inside cores and near the container. Asserted relative difference 1e-6 (the near-field
+// table, tabulated in floats per spacing, and the 1/r potentials differ by rounding).
+TEST(WosVariance3, HarmonicCacheIsTheSameAtEveryScale) {
+    const Scene base = sphere_container();
+    const auto run = [&](double scale) {
+        const Domain3 d{base.domain.min * scale, base.domain.max * scale, false};
+        VectorGrid3 omega(d, base.omega.x.nx(), base.omega.x.ny(), base.omega.x.nz());
+        for (std::size_t k = 0; k < omega.cell_count(); ++k) omega.set(k, base.omega.at(k) / (scale * scale));
+        WosVelocityOptions o;
+        o.walls = false;
+        o.wos.epsilon = 0;  // relative: epsilon_relative of the domain, as the plugin's default
+        o.shapes = {make_boundary("sphere", [&](Properties& p) {
+            p.set_point("center", Vec3d(0.0));
+            p.set_float("radius", 0.9 * scale);
+            p.set_string("fluid", "inside");
+        })};
+        WosVelocityField3 f(o, d, &omega, Interpolation::Bilinear);
+        f.build_harmonic_cache(omega.x, 3, 5, -1, 8);
+        std::vector<Vec3d> v;
+        for (std::size_t k = 0; k < base.points.size(); ++k) {
+            wos::WalkCounters c;
+            Random rng(6, k);
+            v.push_back(f.estimate(base.points[k] * scale, 8, rng, c).value * scale);
+        }
+        return std::tuple{v, f.harmonic_balls(), f.harmonic_cells()};
+    };
+    const auto [one, balls, cells] = run(1.0);
+    ASSERT_GT(balls, 5u);
+    double worst = 0;
+    for (double scale : {0x1p-20, 0x1p20}) {
+        const auto [v, n, held] = run(scale);
+        EXPECT_EQ(n, balls);
+        EXPECT_EQ(held, cells);
+        for (std::size_t k = 0; k < v.size(); ++k)
+            worst = std::max(worst, glm::length(v[k] - one[k]) / std::max(glm::length(one[k]), 1e-3));
+    }
+    RecordProperty("relative_difference", std::to_string(worst));
+    EXPECT_LT(worst, 1e-6);
+}
+
 }  // namespace

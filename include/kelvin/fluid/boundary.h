@@ -178,12 +178,12 @@ public:
     /// at least 16n walks (its error is shared by the queries of its core: wos_velocity.cpp, DiskWalksPerSample).
     void build_harmonic_cache(const Grid2& cells, uint64_t seed, uint64_t stream, double delta = -1, int samples = 16);
     /// The cache's disks (0 without one), the cells whose centre a core holds, and its walks.
-    std::size_t harmonic_disks() const { return m_disks.size(); }
-    std::size_t harmonic_cells() const { return m_cached_cells; }
-    const wos::WalkCounters& harmonic_walks() const { return m_cache_walks; }
+    std::size_t harmonic_disks() const { return m_cache.size(); }
+    std::size_t harmonic_cells() const { return m_cache.cells(); }
+    const wos::WalkCounters& harmonic_walks() const { return m_cache.walks(); }
     /// True when the stop (set_stop) interrupted build_harmonic_cache: the field then has no cache, and a solver
     /// builds the state's field again before its next velocity pass (the same cache an uninterrupted run has).
-    bool harmonic_cache_stopped() const { return m_cache_stopped; }
+    bool harmonic_cache_stopped() const { return m_cache.stopped(); }
     /// Psi at x with n walks.
     wos::ScalarEstimate stream_function(Vec2d x, int n, Random& rng, wos::WalkCounters& c) const;
 
@@ -266,18 +266,13 @@ private:
     VorticitySource m_source;  // with vorticity_importance or the control variate
     bool m_cv = false;         // control variate in use
     double m_near_radius = 0;  // control variate: radius of the kernel-proportional near-field samples
-    /// One disk of the harmonic cache (m_cover's ball of the same index): h(center + z) = Re sum_n c[n]
-    /// (z / radius)^n for |z| <= core.
+    /// One disk's series in the harmonic cache: h(center + z) = Re sum_n c[n] (z / radius)^n for |z| <= core.
     struct HarmonicDisk {
         int walks = 0;                        ///< 0: not built (stopped, or an invalid walk): not used
         std::vector<std::complex<double>> c;  ///< c_0 .. c_P
         double noise = 0;                     ///< variance of one walk's value about the series
     };
-    wos::HarmonicCover<2> m_cover;
-    std::vector<HarmonicDisk> m_disks;
-    std::size_t m_cached_cells = 0;
-    bool m_cache_stopped = false;
-    wos::WalkCounters m_cache_walks;
+    wos::HarmonicCache<2, HarmonicDisk> m_cache;
     std::unique_ptr<BiotSavartEstimator> m_free;  // harmonic cache with delta > 0: the free part inside the cores
     /// The blended -curl h of the cores holding x and its variance; false where none does.
     bool cached_harmonic(Vec2d x, Vec2d& value, double& variance) const;
@@ -348,10 +343,10 @@ public:
     /// stopped build keeps no cache (harmonic_cache_stopped()). Does nothing on periodic domains, with vorticity
     /// but without the control variate, or when Psi' is zero.
     void build_harmonic_cache(const Grid3& cells, uint64_t seed, uint64_t stream, double delta = -1, int samples = 8);
-    std::size_t harmonic_balls() const { return m_balls.size(); }
-    std::size_t harmonic_cells() const { return m_cached_cells; }
-    const wos::WalkCounters& harmonic_walks() const { return m_cache_walks; }
-    bool harmonic_cache_stopped() const { return m_cache_stopped; }
+    std::size_t harmonic_balls() const { return m_cache.size(); }
+    std::size_t harmonic_cells() const { return m_cache.cells(); }
+    const wos::WalkCounters& harmonic_walks() const { return m_cache.walks(); }
+    bool harmonic_cache_stopped() const { return m_cache.stopped(); }
 
     /// Distance to the nearest boundary (walls, solids; periodic images included), and the closest point with
     /// its piece: 0-5 the walls (x-, x+, y-, y+, z-, z+), 6 + i shape i.
@@ -426,17 +421,13 @@ private:
     bool m_cv = false;                                        // control variate in use
     double m_near_radius = 0;  // control variate: radius of the kernel-proportional near-field samples
 
-    /// One ball of the harmonic cache (m_cover's ball of the same index): h(c + y) = sum_k a[k] S_k(y / radius).
+    /// One ball's series in the harmonic cache: h(c + y) = sum_k a[k] S_k(y / radius).
     struct HarmonicBall {
         int walks = 0;         ///< 0: not built (an invalid walk): not used
         std::vector<Vec3d> a;  ///< per solid harmonic, the three components' coefficients
         Vec3d noise{0.0};      ///< per component, the variance of one walk's value about the series
     };
-    wos::HarmonicCover<3> m_cover;
-    std::vector<HarmonicBall> m_balls;
-    std::size_t m_cached_cells = 0;
-    bool m_cache_stopped = false;
-    wos::WalkCounters m_cache_walks;
+    wos::HarmonicCache<3, HarmonicBall> m_cache;
     std::unique_ptr<BiotSavartEstimator3> m_free;  // harmonic cache with delta > 0: the free part inside the cores
 
     /// Draws q vector point vortices of omega_h (|omega| mixed with 1/r^2 within the near radius of x) into ys, ws

@@ -4,10 +4,15 @@
 // estimate it once and every query inside a ball's core reads it from a truncated series. 2D uses the Fourier
 // series on a circle (fluid/wos_velocity.cpp); 3D the real regular solid harmonics below. HarmonicCover places the
 // balls over a grid of cell centres and finds the cores that hold a point.
+#include <kelvin/core/interrupt.h>
 #include <kelvin/core/math.h>
+#include <kelvin/core/parallel.h>
+#include <kelvin/core/random.h>
+#include <kelvin/wos/wos.h>
 
 #include <algorithm>
 #include <array>
+#include <atomic>
 #include <cmath>
 #include <cstdint>
 #include <limits>
@@ -72,7 +77,7 @@ public:
             if (d * CoreFraction < MinCoreCells * hmax) break;  // and every centre after it: too near a boundary
             if (m_covered[k]) continue;
             Ball b;
-            b.center = center(k);
+            b.center = center(m_min, m_h, m_n, k);
             b.radius = SphereFraction * d;
             b.core = CoreFraction * d;
             b.core_cells = unit * std::pow(b.core, D) / volume;
@@ -146,16 +151,18 @@ public:
         m_list.clear();
     }
 
-private:
-    Vec center(std::size_t k) const {
+    /// Cell k's centre (x fastest) on the grid with corner `min`, spacing `h` and `n` cells per axis.
+    static Vec center(Vec min, Vec h, const std::array<int, D>& n, std::size_t k) {
         Vec x;
         for (int a = 0; a < D; ++a) {
-            const std::size_t n = std::size_t(m_n[std::size_t(a)]);
-            x[a] = m_min[a] + (double(k % n) + 0.5) * m_h[a];
-            k /= n;
+            const std::size_t m = std::size_t(n[std::size_t(a)]);
+            x[a] = min[a] + (double(k % m) + 0.5) * h[a];
+            k /= m;
         }
         return x;
     }
+
+private:
     /// f(cell, centre) for every cell of the box [c - r, c + r].
     template <class F>
     void for_cells(const Vec& c, double r, F&& f) const {
@@ -193,6 +200,90 @@ private:
     std::vector<char> m_covered;    // during place(): cells whose centre a core holds
     std::vector<uint32_t> m_start;  // per cell, its range in m_list (CSR)
     std::vector<int32_t> m_list;    // the balls whose core reaches into each cell
+};
+
+/// A harmonic cache: the cover's balls, each with its series (`Series`: a struct with an `int walks`, the walks it
+/// takes, 0 when it is not used), built once per state, deterministically (ball i draws from Random(seed, hash of
+/// stream and i), whatever the thread count) and stoppably (a stopped build keeps no cache). The series and their
+/// evaluation are the dimension's (2D: Fourier series on a circle; 3D: solid harmonics).
+template <int D, class Series>
+class HarmonicCache {
+public:
+    using Vec = typename HarmonicCover<D>::Vec;
+    using Ball = typename HarmonicCover<D>::Ball;
+
+    /// Places the balls over the cell centres of the grid (min, h, n) by HarmonicCover::place, with
+    /// `distance_at(centre)` the distance to the boundaries (negative in a solid), evaluated in parallel; gives ball
+    /// i min(max(`minimum`, round(`per_cell` x its core's cells)), `maximum`) walks, and runs `fit(ball, series, rng,
+    /// counters)` for every ball in parallel: it takes `series.walks` walks, fills the series (or sets `walks` to 0
+    /// after an invalid walk) and returns false when polling(`stop`, walk) saw the stop. Drops any earlier cache.
+    template <class Distance, class Fit>
+    void build(Vec min, Vec h, std::array<int, D> n, Distance&& distance_at, uint64_t seed, uint64_t stream,
+               const Cancellable* stop, double per_cell, double minimum, double maximum, Fit&& fit) {
+        clear();
+        std::size_t count = 1;
+        for (int a = 0; a < D; ++a) count *= std::size_t(n[std::size_t(a)]);
+        const std::size_t row = std::size_t(n[0]);
+        std::vector<double> dist(count);
+        parallel_for_units(count / row, [&](std::size_t r) {
+            for (std::size_t k = r * row; k < (r + 1) * row; ++k)
+                dist[k] = distance_at(HarmonicCover<D>::center(min, h, n, k));
+        });
+        m_cover.place(min, h, n, dist);
+        const auto& balls = m_cover.balls();
+        m_series.resize(balls.size());
+        for (std::size_t id = 0; id < balls.size(); ++id)
+            m_series[id].walks = int(std::min(std::max(minimum, std::round(per_cell * balls[id].core_cells)), maximum));
+        std::vector<WalkCounters> counters(balls.size());
+        std::atomic<bool> stopped{false};
+        parallel_for_units(balls.size(), [&](std::size_t id) {
+            if ((stop && stop->stop_requested()) || stopped) {
+                stopped = true;
+                return;
+            }
+            Random rng(seed, hash_combine(stream, uint64_t(id)));
+            if (!fit(balls[id], m_series[id], rng, counters[id])) stopped = true;
+        });
+        for (const WalkCounters& c : counters) m_walks += c;
+        if (stopped) {  // a cache with some balls missing would differ from an uninterrupted run's: none
+            m_cover.clear();
+            m_series.clear();
+            m_stopped = true;
+            return;
+        }
+        std::vector<char> built(m_series.size());
+        for (std::size_t id = 0; id < m_series.size(); ++id) built[id] = m_series[id].walks > 0;
+        m_cells = m_cover.index(built);
+    }
+    /// What fit() asks before walk i: the stop, every 64 walks.
+    static bool polling(const Cancellable* stop, int i) { return stop && (i & 63) == 63 && stop->stop_requested(); }
+
+    /// Calls f(series, ball, weight) for every core holding x; returns the weights' sum (0: none).
+    template <class F>
+    double for_each(const Vec& x, F&& f) const {
+        return m_cover.for_each(x, [&](std::size_t id, double w) { f(m_series[id], m_cover.balls()[id], w); });
+    }
+
+    void clear() {
+        m_cover.clear();
+        m_series.clear();
+        m_cells = 0;
+        m_stopped = false;
+        m_walks = {};
+    }
+    bool indexed() const { return m_cover.indexed(); }
+    std::size_t size() const { return m_series.size(); }
+    /// The fluid cells whose centre a built core holds.
+    std::size_t cells() const { return m_cells; }
+    const WalkCounters& walks() const { return m_walks; }
+    bool stopped() const { return m_stopped; }
+
+private:
+    HarmonicCover<D> m_cover;
+    std::vector<Series> m_series;
+    std::size_t m_cells = 0;
+    bool m_stopped = false;
+    WalkCounters m_walks;
 };
 
 }  // namespace kelvin::wos
