@@ -32,6 +32,10 @@ const char* to_string(VorticityTransport t) {
     return t == VorticityTransport::Linear ? "linear" : t == VorticityTransport::Cubic ? "cubic" : "maccormack";
 }
 
+const char* to_string(VelocityTime t) {
+    return t == VelocityTime::Midstep ? "midstep" : t == VelocityTime::Start ? "start" : "auto";
+}
+
 const char* to_string(BacktraceVelocity b) {
     return b == BacktraceVelocity::Cache ? "cache" : b == BacktraceVelocity::Estimates ? "estimates" : "auto";
 }
@@ -137,6 +141,8 @@ MCFluidSolver::MCFluidSolver(const MCFluidSettings& settings, const InitialField
     if (m_settings.samples < 1) throw_runtime("MCFluidSolver: velocity samples must be >= 1");
     if (m_settings.backtrace_velocity == BacktraceVelocity::Auto)
         m_settings.backtrace_velocity = m_settings.boundaries ? BacktraceVelocity::Estimates : BacktraceVelocity::Cache;
+    m_midstep = m_settings.velocity_time == VelocityTime::Midstep ||
+                (m_settings.velocity_time == VelocityTime::Auto && !m_settings.boundaries);
     const Domain2& d = m_settings.domain;
     m_omega = Grid2(d, m_settings.nx, m_settings.ny);
     const double delta = m_settings.estimator->delta();
@@ -291,7 +297,8 @@ bool MCFluidSolver::maccormack_correction(double dt) {
     const bool cached = s.backtrace_velocity == BacktraceVelocity::Cache;
     const Grid2 &bu = cached ? m_bu : m_u, &bv = cached ? m_bv : m_v;
     auto vel = [&](Vec2d p) {
-        return cached ? cached_velocity(bu, bv, p) : Vec2d(m_u.sample_cubic(p), m_v.sample_cubic(p));
+        return cached ? cached_velocity(bu, bv, p)
+                      : Vec2d(m_u.sample_cubic(p), m_v.sample_cubic(p)) + midstep_correction(p);
     };
     SlabPass pass(*m_comm, std::size_t(ny), std::size_t(nx));
     std::vector<double> corrected(pass.size() * std::size_t(nx));
@@ -304,7 +311,9 @@ bool MCFluidSolver::maccormack_correction(double dt) {
         const int j = int(row);
         for (int i = 0; i < nx; ++i) {
             const Vec2d x = m_omega.cell_center(i, j);
-            const Vec2d xf = trace(x, Vec2d(bu.at(i, j), bv.at(i, j)), dt, s.advection, vel);
+            const Vec2d k1 =
+                cached ? Vec2d(bu.at(i, j), bv.at(i, j)) : Vec2d(m_u.at(i, j), m_v.at(i, j)) + midstep_correction(x);
+            const Vec2d xf = trace(x, k1, dt, s.advection, vel);
             const double back = finite(xf) ? advected.sample_cubic(s.domain.wrap(xf)) : advected.at(i, j);
             // Inviscid: clamped to the cells around the departure point. Viscous: the diffused value keeps its spread
             // (only the advection's error is corrected).
@@ -370,6 +379,20 @@ Vec2d MCFluidSolver::cached_velocity(const Grid2& bu, const Grid2& bv, Vec2d p) 
     return {bu.sample_cubic(p), bv.sample_cubic(p)};
 }
 
+Grid2 MCFluidSolver::extrapolated(const Grid2& u, const Grid2& last, double f) {
+    Grid2 out = u;
+    if (f == 0) return out;
+    for (std::size_t c = 0; c < out.cell_count(); ++c) out.values()[c] += f * (u.values()[c] - last.values()[c]);
+    return out;
+}
+
+Vec2d MCFluidSolver::midstep_correction(Vec2d p) const {
+    if (m_mid_factor == 0) return Vec2d(0.0);
+    const Interpolation interp = m_settings.interpolation;
+    return m_mid_factor * Vec2d(m_u.sample(p, interp) - m_last_u.sample(p, interp),
+                                m_v.sample(p, interp) - m_last_v.sample(p, interp));
+}
+
 void MCFluidSolver::transport_through(const Grid2& u, const Grid2& v, double dt, int substeps, Grid2& out,
                                       const Grid2* source) const {
     const MCFluidSettings& s = m_settings;
@@ -414,15 +437,35 @@ void MCFluidSolver::measure_budget(double dt) {
     const MCFluidSettings& s = m_settings;
     Grid2 u(s.domain, s.nx, s.ny), v = u, step = u;
     const bool cached = s.backtrace_velocity == BacktraceVelocity::Cache;
+    const int substeps = s.advection == Advection::Euler ? 16 : 4;  // the integrator's error / 256, / 16
     auto energy = [&](const Grid2& w) { return m_wall_flow ? m_wall_flow->energy(w) : m_flow->energy(w); };
+    // The estimator's expected velocity of w (without walls: the smoothed cells' by FFT; with walls: the cells' own
+    // container velocity by the Poisson solve, so the estimator's source smoothing falls into the noise term) and the
+    // cells' own velocity (the same with walls).
+    auto expected = [&](const Grid2& w, Grid2& wu, Grid2& wv) {
+        if (m_wall_flow)
+            m_wall_flow->velocity(w, wu, wv);
+        else
+            m_flow->velocity(w, true, s.interpolation, m_delta, wu, wv);
+    };
+    auto own = [&](const Grid2& w, Grid2& wu, Grid2& wv) {
+        if (m_wall_flow)
+            m_wall_flow->velocity(w, wu, wv);
+        else
+            m_flow->velocity(w, false, s.interpolation, 0.0, wu, wv);
+    };
+    // A velocity of the current state extrapolated to mid-step as the run extrapolates its own (velocity_time).
+    auto extrapolate = [&](auto&& field, Grid2& wu, Grid2& wv) {
+        field(m_omega, wu, wv);
+        if (m_mid_factor == 0) return;
+        Grid2 lu = wu, lv = wv;
+        field(m_last_omega, lu, lv);
+        wu = extrapolated(wu, lu, m_mid_factor);
+        wv = extrapolated(wv, lv, m_mid_factor);
+    };
     const double e_n = energy(m_omega), e_a = energy(m_next);
-    // B: the estimator's expected velocity (without walls: the smoothed cells' by FFT; with walls: the cells' own
-    // container velocity by the Poisson solve, so the estimator's source smoothing falls into the noise term), read
-    // as the run's backtrace reads it (filtered with the cached backtrace).
-    if (m_wall_flow)
-        m_wall_flow->velocity(m_omega, u, v);
-    else
-        m_flow->velocity(m_omega, true, s.interpolation, m_delta, u, v);
+    // B: the expected velocity, read as the run's backtrace reads it (filtered with the cached backtrace).
+    extrapolate(expected, u, v);
     if (cached) {
         Grid2 fu = u, fv = v;
         backtrace_grids(u, v, fu, fv);
@@ -431,15 +474,21 @@ void MCFluidSolver::measure_budget(double dt) {
         transport_through(u, v, dt, 1, step);
     }
     const double e_b = energy(step);
-    if (!m_wall_flow) m_flow->velocity(m_omega, false, s.interpolation, 0.0, u, v);  // C: the cells' own velocity
+    extrapolate(own, u, v);  // C: the cells' own velocity
     transport_through(u, v, dt, 1, step);
     const double e_c = energy(step);
-    transport_through(u, v, dt, s.advection == Advection::Euler ? 16 : 4, step);  // D: error /256, /16
-    const double e_d = energy(step);
-    double e_e = e_d;  // with walls, E: D reading the state extended into the solids instead of their zeros
+    // M: the exact dynamics' step but for the lookup: the velocity at mid-step (that of the state moved dt/2 by the
+    // velocity frozen at the step's start, second order in dt), frozen over the step, the backtrace in substeps.
+    own(m_omega, u, v);
+    Grid2 half = step;
+    transport_through(u, v, 0.5 * dt, substeps, half);
+    own(half, u, v);
+    transport_through(u, v, dt, substeps, step);
+    const double e_m = energy(step);
+    double e_e = e_m;  // with walls, E: M reading the state extended into the solids instead of their zeros
     if (m_wall_flow) {
         const Grid2 extended = extended_into_solids();
-        transport_through(u, v, dt, s.advection == Advection::Euler ? 16 : 4, step, &extended);
+        transport_through(u, v, dt, substeps, step, &extended);
         e_e = energy(step);
     }
     EnergyBudget b;
@@ -447,8 +496,8 @@ void MCFluidSolver::measure_budget(double dt) {
     b.change = e_a - e_n;
     b.noise = e_a - e_b;
     b.mollifier = e_b - e_c;
-    b.integrator = e_c - e_d;
-    b.boundary = e_d - e_e;
+    b.integrator = e_c - e_m;
+    b.boundary = e_m - e_e;
     b.transport = e_e - e_n;
     m_budget_step = b;
     m_budget_total += b;
@@ -490,8 +539,12 @@ bool MCFluidSolver::step(double dt) {
     }
     auto lookup = [&](Vec2d p) { return cubic ? m_omega.sample_cubic(p) : m_omega.sample(p, interp); };
     const bool cached = s.backtrace_velocity == BacktraceVelocity::Cache;
-    if (cached) backtrace_grids(m_u, m_v, m_bu, m_bv);
-    const Grid2 &bu = cached ? m_bu : m_u, &bv = cached ? m_bv : m_v;
+    // Mid-step velocity: u_n + (u_n - u_{n-1}) dt / (2 dt_{n-1}) (the first step's is frozen at its start).
+    m_mid_factor = m_midstep && m_have_last && m_last_dt > 0 ? 0.5 * dt / m_last_dt : 0.0;
+    // The cached backtrace's velocity: extrapolated to mid-step, then smoothed (its noise too).
+    if (cached)
+        backtrace_grids(extrapolated(m_u, m_last_u, m_mid_factor), extrapolated(m_v, m_last_v, m_mid_factor), m_bu,
+                        m_bv);
     SlabPass pass(*m_comm, std::size_t(ny), std::size_t(nx));  // this rank's rows
     std::vector<RowWork> rows(pass.size(), RowWork{});
     std::atomic<bool> interrupted{false};
@@ -510,12 +563,15 @@ bool MCFluidSolver::step(double dt) {
                 return;
             }
             const Vec2d x = m_omega.cell_center(i, j);
-            const Vec2d k1(bu.at(i, j), bv.at(i, j));
-            // Eq. (3.139) (Euler) or Eqs. (3.140)-(3.144) (RK4), the velocity frozen at the previous step: each
-            // stage the cached (filtered) velocity, or a fresh estimate (the thesis').
+            const Vec2d k1 = cached ? Vec2d(m_bu.at(i, j), m_bv.at(i, j))
+                                    : Vec2d(m_u.at(i, j), m_v.at(i, j)) + midstep_correction(x);
+            // Eq. (3.139) (Euler) or Eqs. (3.140)-(3.144) (RK4), the velocity frozen over the step (at its start, or
+            // extrapolated to its middle): each stage the cached (filtered) velocity, or a fresh estimate (the
+            // thesis') plus the mid-step correction.
             Vec2d xd = trace(x, k1, -dt, s.advection, [&](Vec2d p) {
                 return cached ? cached_velocity(m_bu, m_bv, p)
-                              : checked_velocity(p, rng, w.evals, w.queries, w.invalid_velocity, w.walks);
+                              : checked_velocity(p, rng, w.evals, w.queries, w.invalid_velocity, w.walks) +
+                                    midstep_correction(p);
             });
             ++w.backtraces;
             if (!finite(xd)) {  // only reachable with absurd dt (overflow): treat as no motion
@@ -579,6 +635,13 @@ bool MCFluidSolver::step(double dt) {
     add_walks(total.walks);
     m_work.solid_departures += total.solid_departures;
     if (m_dye) m_dye->advect(m_disp_x, m_disp_y, dt, s.seed, stream_of(m_step, TagDye, 0), m_comm);
+    if (m_midstep) {  // this state's velocity (and vorticity, for the budget) extrapolates the next step's
+        m_last_u = m_u;
+        m_last_v = m_v;
+        m_last_omega = m_omega;
+        m_have_last = true;
+        m_last_dt = dt;
+    }
     std::swap(m_omega, m_next);
     m_time += dt;
     ++m_step;

@@ -153,8 +153,7 @@ MCFluid3Solver::MCFluid3Solver(const MCFluid3Settings& settings, const InitialFi
     if (m_settings.stretching_filter == AutoFilter)
         m_settings.stretching_filter =
             s.backtrace_velocity == BacktraceVelocity::Cache ? MCFluid3Settings::DefaultStretchingFilter : 0.0;
-    m_midstep = s.velocity_time == MCFluid3Settings::VelocityTime::Midstep ||
-                (s.velocity_time == MCFluid3Settings::VelocityTime::Auto && !s.boundaries);
+    m_midstep = s.velocity_time == VelocityTime::Midstep || (s.velocity_time == VelocityTime::Auto && !s.boundaries);
     if (s.domain.periodic && !s.boundaries) m_periodic = std::make_shared<PeriodicKernel3>(s.domain.size());
     for (int k = 0; k < s.nz; ++k)
         for (int j = 0; j < s.ny; ++j)

@@ -16,8 +16,8 @@
 namespace kelvin::fluid {
 
 MCFluidParams MCFluidParams::parse(const Properties& props) {
-    for (const char* name : {"stretching", "velocity_time", "control_variates", "initial_samples",
-                             "control_variate_blend", "sample_allocation", "write_vdb", "slice_axis"})
+    for (const char* name : {"stretching", "control_variates", "initial_samples", "control_variate_blend",
+                             "sample_allocation", "write_vdb", "slice_axis"})
         if (props.has(name))
             props.error(name,
                         "is a 3D parameter (dimension = 3); 2D flows have no stretching term, and 2D outputs are "
@@ -40,6 +40,7 @@ MCFluidParams MCFluidParams::parse(const Properties& props) {
     s.diffusion_samples = int(props.get_int("diffusion_samples", 1, 1 << 20));
     s.backtrace_velocity = p.common.backtrace_velocity;
     s.velocity_filter = p.common.velocity_filter;
+    s.velocity_time = p.common.velocity_time;
     if (p.common.filter_kernel) s.filter_kernel = *p.common.filter_kernel;
     // The velocity estimator, through its interface only (velocity.h): built-in or a plugin's.
     std::shared_ptr<const VelocityEstimator> velocity;
@@ -183,14 +184,16 @@ public:
                                m_mc.boundary_field()->settings().epsilon, s.boundaries->wos.max_steps)
                          : s.estimator->effect(s.samples, m_mc.delta(), s.domain.periodic) + near_field_effect();
         lines.push_back(fmt::format(
-            "effects: advection ({}, dt {:g}, {} steps, transport {}, {}) with {}; boundaries {}; diffusion {}; "
+            "effects: advection ({}, dt {:g}, {} steps, transport {}, {}, velocity {}) with {}; boundaries {}; "
+            "diffusion {}; "
             "stretching off (2D); {}",
             fluid::to_string(s.advection), s.dt, m_p.steps, fluid::to_string(s.transport),
             s.backtrace_velocity == BacktraceVelocity::Cache
                 ? fmt::format("stages read the cached velocity, {} filter {:g} cells",
                               s.filter_kernel == FilterKernel::Twicing ? "twicing" : "Gaussian", s.velocity_filter)
                 : std::string("a fresh estimate at every stage"),
-            velocity, s.boundaries ? fluid::describe(*s.boundaries, s.domain) : std::string("none"),
+            m_mc.midstep() ? "at mid-step, extrapolated" : "frozen at the step's start", velocity,
+            s.boundaries ? fluid::describe(*s.boundaries, s.domain) : std::string("none"),
             s.viscosity > 0 ? fmt::format("on (nu {:g}, Feynman–Kac, n_d {})", s.viscosity, s.diffusion_samples)
                             : std::string("off (inviscid)"),
             dye_effect(m_p.dye.get())));

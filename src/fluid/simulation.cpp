@@ -43,6 +43,11 @@ std::optional<FilterKernel> parse_filter_kernel(const Properties& props) {
     return k == "twicing" ? FilterKernel::Twicing : FilterKernel::Gaussian;
 }
 
+VelocityTime parse_velocity_time(const Properties& props) {
+    const std::string t = props.get_choice("velocity_time", {"auto", "midstep", "start"});
+    return t == "midstep" ? VelocityTime::Midstep : t == "start" ? VelocityTime::Start : VelocityTime::Auto;
+}
+
 SimulationParams SimulationParams::parse(const Properties& props, const std::string& who) {
     SimulationParams p;
     const long long dim = props.get_int("dimension");
@@ -70,6 +75,7 @@ SimulationParams SimulationParams::parse(const Properties& props, const std::str
                            : bt == "cache"   ? BacktraceVelocity::Cache
                                              : BacktraceVelocity::Auto;
     p.velocity_filter = props.get_float("velocity_filter", 0.0, MaxVelocityFilter);
+    p.velocity_time = parse_velocity_time(props);
     p.filter_kernel = parse_filter_kernel(props);
     p.output_every = props.get_int("output_every", 0, 1LL << 40);
     p.write_png = props.get_bool("write_png");

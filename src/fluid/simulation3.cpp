@@ -66,10 +66,7 @@ Simulation3Params Simulation3Params::parse(const Properties& props) {
     p.energy_budget = props.get_bool("energy_budget");
     if (p.energy_budget && s.viscosity > 0) props.error("energy_budget", "covers inviscid flows only (viscosity 0)");
     s.stretching = props.get_bool("stretching");
-    const std::string vt = props.get_choice("velocity_time", {"auto", "midstep", "start"});
-    s.velocity_time = vt == "midstep" ? MCFluid3Settings::VelocityTime::Midstep
-                      : vt == "start" ? MCFluid3Settings::VelocityTime::Start
-                                      : MCFluid3Settings::VelocityTime::Auto;
+    s.velocity_time = parse_velocity_time(props);
     s.control_variates = props.get_bool("control_variates");
     s.initial_samples = int(props.get_int("initial_samples", 0, 1 << 24));
     s.control_variate_blend = props.get_float("control_variate_blend", 1e-6, 1.0);

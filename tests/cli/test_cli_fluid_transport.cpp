@@ -165,7 +165,9 @@ TEST(CliFluidTransport, MacCormackRunsIn3DAndTheEffectsLineNamesTheTransport) {
     const ProcessResult d = run_kelvin({Scenes + "taylor_green.xml", "-D", "res=16", "-D", "end=0.1", "-D", "spp=8",
                                         "-o", (dir.path() / "tg.exr").string()});
     ASSERT_EQ(d.exit_code, 0) << describe(d);
-    EXPECT_CONTAINS(d.err + d.out, "transport cubic, stages read the cached velocity, Gaussian filter 1 cells)");
+    EXPECT_CONTAINS(d.err + d.out,
+                    "transport cubic, stages read the cached velocity, Gaussian filter 1 cells, velocity at mid-step, "
+                    "extrapolated)");
 }
 
 // The backtrace's velocity: 'auto' reads the filtered cache without boundaries and fresh estimates with them (the
@@ -196,18 +198,27 @@ TEST(CliFluidTransport, BacktraceVelocityFromTheScene) {
     est_args.insert(est_args.begin() + 1, {"-D", "backtrace=estimates"});
     const ProcessResult est = run_kelvin(est_args);
     ASSERT_EQ(est.exit_code, 0) << describe(est);
-    EXPECT_CONTAINS(est.err + est.out, "transport cubic, a fresh estimate at every stage)");
+    EXPECT_CONTAINS(est.err + est.out,
+                    "transport cubic, a fresh estimate at every stage, velocity at mid-step, extrapolated)");
     const ProcessResult wide =
         run_kelvin(args(with("taylor_green.xml", "<float name=\"velocity_filter\" value=\"2.5\"/>", "w.xml")));
     ASSERT_EQ(wide.exit_code, 0) << describe(wide);
-    EXPECT_CONTAINS(wide.err + wide.out, "Gaussian filter 2.5 cells)");
+    EXPECT_CONTAINS(wide.err + wide.out, "Gaussian filter 2.5 cells, velocity at mid-step");
     const ProcessResult walls = run_kelvin(
         {Scenes + "lamb_oseen_disk.xml", "-D", "res=16", "-D", "end=0.1", "-D", "spp=2", "-D", "every=0", "-o", out});
     ASSERT_EQ(walls.exit_code, 0) << describe(walls);
-    EXPECT_CONTAINS(walls.err + walls.out, "a fresh estimate at every stage)");
+    EXPECT_CONTAINS(walls.err + walls.out, "a fresh estimate at every stage, velocity frozen at the step's start)");
     std::vector<std::string> bad = args(Scenes + "taylor_green.xml");
     bad.insert(bad.begin() + 1, {"-D", "backtrace=grid"});
     EXPECT_CONTAINS(expect_one_error_line(run_kelvin(bad)), "parameter 'backtrace_velocity'");
+    // The velocity's time, in 2D as in 3D: 'start' is the thesis' frozen velocity; anything else is one error line.
+    const ProcessResult frozen =
+        run_kelvin(args(with("taylor_green.xml", "<string name=\"velocity_time\" value=\"start\"/>", "s.xml")));
+    ASSERT_EQ(frozen.exit_code, 0) << describe(frozen);
+    EXPECT_CONTAINS(frozen.err + frozen.out, "Gaussian filter 1 cells, velocity frozen at the step's start)");
+    EXPECT_CONTAINS(expect_one_error_line(run_kelvin(
+                        args(with("taylor_green.xml", "<string name=\"velocity_time\" value=\"later\"/>", "l.xml")))),
+                    "parameter 'velocity_time'");
     EXPECT_CONTAINS(expect_one_error_line(run_kelvin(
                         args(with("taylor_green.xml", "<float name=\"velocity_filter\" value=\"9\"/>", "f.xml")))),
                     "parameter 'velocity_filter'");
@@ -223,7 +234,7 @@ TEST(CliFluidTransport, BacktraceVelocityFromTheScene) {
     const ProcessResult twice =
         run_kelvin(args(with("taylor_green.xml", "<string name=\"filter_kernel\" value=\"twicing\"/>", "t.xml")));
     ASSERT_EQ(twice.exit_code, 0) << describe(twice);
-    EXPECT_CONTAINS(twice.err + twice.out, "twicing filter 1 cells)");
+    EXPECT_CONTAINS(twice.err + twice.out, "twicing filter 1 cells, velocity at mid-step");
     // 3D: the cache without walls, twicing; the Gaussian on request.
     const ProcessResult ring =
         run_kelvin(args(with("vortex_ring.xml",

@@ -365,7 +365,7 @@ TEST(EnergyBudget3, StretchingFilterIsInTheStretchingTermAndCutsTheNoise) {
 TEST(EnergyBudget3, CachedBacktraceIsModelled) {
     MCFluid3Settings s = abc_settings(24, 1, VorticityTransport::Cubic);
     s.estimator = std::make_shared<ExpectedVelocity>();
-    s.velocity_time = MCFluid3Settings::VelocityTime::Midstep;
+    s.velocity_time = VelocityTime::Midstep;
     const BudgetRun3 fresh = run(s, taylor_green3, 0.3, "taylor-green, expected velocity");
     s.backtrace_velocity = BacktraceVelocity::Cache;
     s.velocity_filter = 1.0;

@@ -394,7 +394,7 @@ TEST(MCFluid3, MidstepVelocityKeepsTheRingsImpulseAndSpeed) {
         s.samples = 64;
         s.dt = 0.1;
         s.seed = 4;
-        s.velocity_time = midstep ? MCFluid3Settings::VelocityTime::Midstep : MCFluid3Settings::VelocityTime::Start;
+        s.velocity_time = midstep ? VelocityTime::Midstep : VelocityTime::Start;
         s.backtrace_velocity = BacktraceVelocity::Estimates;  // the scheme these figures are of (the stages' time)
         MCFluid3Solver solver(s, [&](const Vec3d& x) { return ring_omega(x, R, gamma, sigma); });
         const FluidDiagnostics3 d0 = solver.diagnostics(false);

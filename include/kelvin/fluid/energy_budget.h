@@ -10,15 +10,19 @@
 //   omega_A  the step as run (Monte Carlo velocity, the scene's integrator and lookup);
 //   omega_B  the same step through the *expected* velocity of the estimator (the velocity of the cache's smoothed
 //            vorticity: its source basis, tent for bilinear, and its mollifier delta), computed by FFT: no noise;
+//            extrapolated to mid-step as the run extrapolates its own (velocity_time: the same from the last state);
 //   omega_C  the same through the velocity of the cell values themselves (no source basis, no mollifier);
-//   omega_D  the same with the backtrace integrated in substeps (4 with RK4, 16 with Euler: its error / 256, / 16);
+//   omega_M  the exact dynamics' step but for the lookup: the cells' own velocity at mid-step (that of the state
+//            moved dt/2 by the velocity frozen at the step's start, second order in dt), frozen over the step, the
+//            backtrace integrated in substeps (4 with RK4, 16 with Euler: its error / 256, / 16);
 //
 // and the energy E of each state, computed deterministically (FlowFFT below). The terms
 //
 //   noise       = E(A) - E(B)     Monte Carlo noise of the velocity (random departure points)
 //   mollifier   = E(B) - E(C)     the estimator's smoothing of the velocity (source basis and delta)
-//   integrator  = E(C) - E(D)     the backtrace's time integration (Euler or RK4, velocity frozen over the step)
-//   transport   = E(D) - E(n)     the lookup (linear or cubic interpolation of the previous state; with MacCormack's
+//   integrator  = E(C) - E(M)     the time integration: the backtrace's integrator (Euler or RK4) and the velocity's
+//                                 time (frozen at the step's start: first order in dt; extrapolated: second)
+//   transport   = E(M) - E(n)     the lookup (linear or cubic interpolation of the previous state; with MacCormack's
 //                                 correction, which every re-run applies through its own velocity, the corrected one)
 //
 // add up to the step's change E(A) - E(n) exactly. Viscosity is not covered (refused). With static walls
@@ -26,7 +30,7 @@
 // estimator's source smoothing is then part of the noise term), the re-runs push their departure points out of the
 // solids as the run does, and a fifth term splits the lookup's error:
 //
-//   boundary    = E(D) - E(E)     the lookup reading the solid cells' zeros next to the walls (E: D reading the state
+//   boundary    = E(M) - E(E)     the lookup reading the solid cells' zeros next to the walls (E: M reading the state
 //                                 extended into the solids by its fluid neighbours' mean instead)
 //   transport   = E(E) - E(n)
 //
@@ -38,7 +42,8 @@
 // keep the energy constant: advection and stretching each move energy, by equal and opposite amounts (dE/dt =
 // int u . (u x omega) = 0). So every change is again a method error, and the 3D budget has a fifth term, for the
 // stretching's discretisation. The states A, B, C are as in 2D (B and C stretch with their own velocity, read as the
-// run reads its cached one); D substeps the backtrace and keeps the run's stretching estimate; then
+// run reads its cached one); D is C with the backtrace in substeps, the velocity frozen at the step's start, and the
+// run's stretching estimate; then
 //
 //   omega_S  the same as D with the stretching exact for the frozen velocity: omega(x_d) mapped by the Jacobian of
 //            the flow map over dt from x_d (a segment of length 1e-3 h advected at both ends by RK4 in 2 substeps);

@@ -61,6 +61,16 @@ const char* to_string(VorticityTransport t);
 /// omega(0, x).
 using InitialField = std::function<double(const Vec2d&)>;
 
+/// The velocity a step's backtrace reads (the scene's `velocity_time`). Midstep: extrapolated from the last two
+/// states' velocities (u_n + (u_n - u_{n-1}) dt_n / (2 dt_{n-1}) added to every velocity the backtrace reads, second
+/// order in dt: Adams–Bashforth's extrapolation; the first step, without a previous state, keeps u_n). Start: frozen
+/// at the step's start (the thesis' scheme, first order: a translating vortex pair drifts apart and gains energy, a
+/// ring's impulse grows and its speed falls, in proportion to dt). Auto: midstep for the Biot–Savart velocity, start
+/// with walls (Walk-on-Spheres' noise at the usual walk counts exceeds a step's change of velocity, and the
+/// extrapolation adds half of two passes' noise: docs/fluid.md).
+enum class VelocityTime { Auto, Midstep, Start };
+const char* to_string(VelocityTime t);
+
 /// What the 2D and 3D MCFluid solvers are configured with alike (MCFluidSettings, MCFluid3Settings add the cache's
 /// resolution and, in 3D, what only 3D has: stretching and control variates).
 template <int D>
@@ -85,6 +95,7 @@ struct SolverSettings {
     /// n_mc, the samples per velocity query of this run (a run's --spp: run_samples); 0: the estimator's samples().
     /// The solver's settings() hold the value in use.
     int samples = 0;
+    VelocityTime velocity_time = VelocityTime::Auto;
 };
 
 /// What a 2D backtrace's Runge–Kutta stages read (the scene's `backtrace_velocity`). Estimates: the first stage the
@@ -147,6 +158,8 @@ public:
     const MCFluidSettings& settings() const { return m_settings; }
     /// The mollifier actually used (the estimator's delta(), or half a cell when that is negative).
     double delta() const { return m_delta; }
+    /// Whether steps read the velocity at mid-step (velocity_time resolved).
+    bool midstep() const { return m_midstep; }
     double time() const override { return m_time; }
     long long step_index() const override { return m_step; }
 
@@ -249,6 +262,11 @@ private:
     void backtrace_grids(const Grid2& u, const Grid2& v, Grid2& bu, Grid2& bv) const;
     /// The backtrace's velocity at p from those grids (open boxes: p clamped to the outer cell centres).
     Vec2d cached_velocity(const Grid2& bu, const Grid2& bv, Vec2d p) const;
+    /// u + f (u - last), cell by cell (the mid-step extrapolation with f = m_mid_factor).
+    static Grid2 extrapolated(const Grid2& u, const Grid2& last, double f);
+    /// The mid-step correction m_mid_factor (u_n - u_{n-1}) at p, the cached velocities read by the bilinear
+    /// interpolant (zero on the first step or with velocity_time start).
+    Vec2d midstep_correction(Vec2d p) const;
 
     MCFluidSettings m_settings;
     Communicator* m_comm;  ///< never null (the local communicator by default)
@@ -257,7 +275,13 @@ private:
     long long m_step = 0;
     Grid2 m_omega, m_next;
     Grid2 m_u, m_v, m_var_u, m_var_v;
-    Grid2 m_bu, m_bv;           ///< BacktraceVelocity::Cache: the velocity the backtraces read
+    Grid2 m_bu, m_bv;          ///< BacktraceVelocity::Cache: the velocity the backtraces read
+    bool m_midstep = false;    ///< velocity_time resolved
+    Grid2 m_last_u, m_last_v;  ///< midstep: the last state's cached velocity
+    Grid2 m_last_omega;        ///< midstep: the last state (the energy budget's extrapolation)
+    bool m_have_last = false;
+    double m_last_dt = 0;       ///< the step that led from the last state to the current one
+    double m_mid_factor = 0;    ///< the current step's dt / (2 m_last_dt), 0 without a last state
     std::vector<char> m_fluid;  ///< with boundaries: the cells outside every solid at the current state
     bool m_velocity_valid = false;
     std::shared_ptr<const PeriodicKernel> m_periodic;

@@ -47,14 +47,6 @@ using InitialField3 = std::function<Vec3d(const Vec3d&)>;
 struct MCFluid3Settings : SolverSettings<3> {
     int nx = 32, ny = 32, nz = 32;  ///< cache cells
     bool stretching = true;
-    /// The velocity a step's backtrace reads. Midstep: extrapolated from the last two states' velocities
-    /// (u_n + (u_n - u_{n-1}) dt_n / (2 dt_{n-1}) added to every estimate, second order in dt: Adams–Bashforth's
-    /// extrapolation; the first step, without a previous state, keeps u_n). Start: frozen at the step's start (the
-    /// thesis' scheme, first order: it leaves a ring's impulse growing and its speed falling with dt). Auto: midstep
-    /// for the Biot–Savart velocity, start with walls (Walk-on-Spheres' noise at the usual walk counts exceeds a
-    /// step's change of velocity, and the extrapolation adds half of two passes' noise: docs/fluid.md).
-    enum class VelocityTime { Auto, Midstep, Start };
-    VelocityTime velocity_time = VelocityTime::Auto;
     /// The previous step as control variate (Eq. 5.23): a second field of the estimator is built over the difference
     /// of two consecutive caches (VelocityState3::difference).
     bool control_variates = false;

@@ -30,6 +30,8 @@ VorticityTransport parse_transport(const Properties& props);
 double parse_stretching_filter(const Properties& props);
 /// The scene's `filter_kernel`: a kernel, or none for "auto" (the solver's: Gaussian in 2D, twicing in 3D).
 std::optional<FilterKernel> parse_filter_kernel(const Properties& props);
+/// The scene's `velocity_time`: 'auto', 'midstep' or 'start'.
+VelocityTime parse_velocity_time(const Properties& props);
 
 /// The parameters every 2D simulation reads (see docs/fluid.md, "Baselines").
 struct SimulationParams {
@@ -42,6 +44,7 @@ struct SimulationParams {
     VorticityTransport transport = VorticityTransport::Cubic;        ///< mcfluid's; the baselines ignore it
     BacktraceVelocity backtrace_velocity = BacktraceVelocity::Auto;  ///< mcfluid's; the baselines ignore it
     double velocity_filter = 1.0;                                    ///< mcfluid's; the baselines ignore it
+    VelocityTime velocity_time = VelocityTime::Auto;                 ///< mcfluid's; the baselines ignore it
     std::optional<FilterKernel> filter_kernel;                       ///< mcfluid's (none: auto); ignored likewise
     long long output_every = 0;
     bool write_png = true, write_exr = true, write_csv = true;
@@ -193,6 +196,7 @@ FluidDiagnostics grid_diagnostics(const Grid2& omega, const Grid2& u, const Grid
         kelvin::param::string("transport", "cubic", "mcfluid's vorticity lookup; accepted and ignored"),             \
         kelvin::param::string("backtrace_velocity", "auto", "mcfluid's; accepted and ignored"),                      \
         kelvin::param::real("velocity_filter", 1.0, "mcfluid's; accepted and ignored"),                              \
+        kelvin::param::string("velocity_time", "auto", "mcfluid's; accepted and ignored"),                           \
         kelvin::param::string("filter_kernel", "auto", "mcfluid's; accepted and ignored"),                           \
         kelvin::param::boolean("energy_budget", false, "mcfluid's; must be false"),                                  \
         kelvin::param::integer("output_every", 0, "write PNG/EXR frames every N steps (0: none)"),                   \

@@ -141,7 +141,7 @@ KELVIN_PLUGIN(kelvin::fluid::MCFluid, "simulation", "mcfluid",
                                   "the stretching segments difference (0: none, the thesis' scheme; at most 8; -1: "
                                   "0.75 when the backtrace reads the cache, 0 with fresh estimates)"),
               kelvin::param::string("velocity_time", "auto",
-                                    "3D: the velocity a step's backtrace reads: 'midstep' (extrapolated from the last "
+                                    "the velocity a step's backtrace reads: 'midstep' (extrapolated from the last "
                                     "two states, second order in dt), 'start' (frozen at the step's start, the "
                                     "thesis' scheme) or 'auto' (midstep without walls, start with them)"),
               kelvin::param::boolean("control_variates", false, "3D: previous step as control variate (Eq. 5.23)"),
