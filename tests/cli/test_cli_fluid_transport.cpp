@@ -212,13 +212,14 @@ TEST(CliFluidTransport, BacktraceVelocityFromTheScene) {
     bad.insert(bad.begin() + 1, {"-D", "backtrace=grid"});
     EXPECT_CONTAINS(expect_one_error_line(run_kelvin(bad)), "parameter 'backtrace_velocity'");
     // The velocity's time, in 2D as in 3D: 'start' is the thesis' frozen velocity; anything else is one error line.
-    const ProcessResult frozen =
-        run_kelvin(args(with("taylor_green.xml", "<string name=\"velocity_time\" value=\"start\"/>", "s.xml")));
+    std::vector<std::string> frozen_args = args(Scenes + "taylor_green.xml");
+    frozen_args.insert(frozen_args.begin() + 1, {"-D", "vtime=start"});
+    const ProcessResult frozen = run_kelvin(frozen_args);
     ASSERT_EQ(frozen.exit_code, 0) << describe(frozen);
     EXPECT_CONTAINS(frozen.err + frozen.out, "Gaussian filter 1 cells, velocity frozen at the step's start)");
-    EXPECT_CONTAINS(expect_one_error_line(run_kelvin(
-                        args(with("taylor_green.xml", "<string name=\"velocity_time\" value=\"later\"/>", "l.xml")))),
-                    "parameter 'velocity_time'");
+    std::vector<std::string> later = args(Scenes + "taylor_green.xml");
+    later.insert(later.begin() + 1, {"-D", "vtime=later"});
+    EXPECT_CONTAINS(expect_one_error_line(run_kelvin(later)), "parameter 'velocity_time'");
     EXPECT_CONTAINS(expect_one_error_line(run_kelvin(
                         args(with("taylor_green.xml", "<float name=\"velocity_filter\" value=\"9\"/>", "f.xml")))),
                     "parameter 'velocity_filter'");

@@ -363,7 +363,6 @@ std::vector<kelvin::ParamSpec> grid_solver_params(std::vector<kelvin::ParamSpec>
         kelvin::param::boolean("write_vdb", true, "3D: write frames as OpenVDB files"),
         kelvin::param::string("slice_axis", "y", "3D: PNG slices normal to 'x', 'y' or 'z'"),
         kelvin::param::boolean("stretching", true, "3D mcfluid's; accepted and ignored (a grid solver stretches)"),
-        kelvin::param::string("velocity_time", "auto", "3D mcfluid's; accepted and ignored"),
         kelvin::param::boolean("control_variates", false, "3D mcfluid's; accepted and ignored"),
         kelvin::param::integer("initial_samples", 0, "3D mcfluid's; accepted and ignored"),
         kelvin::param::real("control_variate_blend", 1.0, "3D mcfluid's; accepted and ignored"),
