@@ -228,7 +228,7 @@ TEST(EnergyBudget, MacCormackCorrectionIsInTheTransportTerm) {
 // to mid-step (the default) the error is of second order (energy -0.4 %, impulse +2.2 %; integrator +2.4 %). The
 // budget's integrator term carries the velocity's time (its reference step reads the mid-step velocity of the exact
 // dynamics), so the frozen velocity's error is there, not in the lookup's term. Broken variants seen to fail: the
-// extrapolation's sign flipped (energy +38 %); the budget's reference step through the velocity frozen at the start
+// extrapolation's sign flipped (energy +40 %); the budget's reference step through the velocity frozen at the start
 // (the integrator term then near zero, the error in the transport term).
 TEST(EnergyBudget, MidstepVelocityKeepsATravellingDipolesEnergyAndImpulse) {
     const Domain2 box{{-1.5, -1.5}, {1.5, 1.5}, false};
