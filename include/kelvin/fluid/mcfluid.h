@@ -226,9 +226,10 @@ public:
     uint64_t invalid() const override { return m_work.invalid_velocity + m_work.invalid_vorticity; }
     void report(Stats& stats) const override;
 
-    /// The energy budget (energy_budget.h): when on, every step also measures where its energy went (four
-    /// deterministic re-runs of the step and five FFTs; no random draws, so the simulation is unchanged). Inviscid
-    /// runs without boundaries only (RuntimeError otherwise).
+    /// The energy budget (energy_budget.h): when on, every step also measures where its energy went (five
+    /// deterministic re-runs of the step, six with walls, and the states' energies and velocities by FFT or, with
+    /// walls, Poisson solves; no random draws, so the simulation is unchanged). Inviscid runs only; with walls, static
+    /// boundaries the grid represents (check_wall_budget; RuntimeError otherwise).
     void set_energy_budget(bool on);
     /// The last step's budget and the sum over the steps so far (null when the budget is off).
     const EnergyBudget* energy_budget_step() const { return budget_on() ? &m_budget_step : nullptr; }
