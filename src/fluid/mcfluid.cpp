@@ -540,7 +540,7 @@ bool MCFluidSolver::step(double dt) {
     auto lookup = [&](Vec2d p) { return cubic ? m_omega.sample_cubic(p) : m_omega.sample(p, interp); };
     const bool cached = s.backtrace_velocity == BacktraceVelocity::Cache;
     // Mid-step velocity: u_n + (u_n - u_{n-1}) dt / (2 dt_{n-1}) (the first step's is frozen at its start).
-    m_mid_factor = m_midstep && m_have_last && m_last_dt > 0 ? 0.5 * dt / m_last_dt : 0.0;
+    m_mid_factor = m_midstep ? midstep_factor(m_have_last, dt, m_last_dt) : 0.0;
     // The cached backtrace's velocity: extrapolated to mid-step, then smoothed (its noise too).
     if (cached)
         backtrace_grids(extrapolated(m_u, m_last_u, m_mid_factor), extrapolated(m_v, m_last_v, m_mid_factor), m_bu,

@@ -395,7 +395,7 @@ bool MCFluid3Solver::step(double dt) {
     const bool cubic = s.transport != VorticityTransport::Linear;
     if (s.vorticity_allocation && m_alloc_n != s.samples) allocate_samples(s.samples);  // after initial_samples
     // Mid-step velocity: u_n + (u_n - u_{n-1}) dt / (2 dt_{n-1}) (the first step's is frozen at its start).
-    m_mid_factor = m_have_last && m_last_dt > 0 ? 0.5 * dt / m_last_dt : 0.0;
+    m_mid_factor = midstep_factor(m_have_last, dt, m_last_dt);
     const bool maccormack = s.transport == VorticityTransport::MacCormack;
     if (maccormack && m_departure.size() != m_omega.cell_count()) {
         m_advected = VectorGrid3(s.domain, s.nx, s.ny, s.nz);

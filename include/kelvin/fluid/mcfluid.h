@@ -70,6 +70,15 @@ using InitialField = std::function<double(const Vec2d&)>;
 /// extrapolation adds half of two passes' noise: docs/fluid.md).
 enum class VelocityTime { Auto, Midstep, Start };
 const char* to_string(VelocityTime t);
+/// The mid-step extrapolation's factor f in u_n + f (u_n - u_{n-1}) for a step of dt after one of last_dt: dt / (2
+/// last_dt); 0 (the velocity at the step's start) without a last state, or after a step less than half as long as
+/// this one (a shortened step, say one that landed on a queried time): the difference of the two velocities is then
+/// mostly their Monte Carlo noise, which f would multiply (dt / last_dt = 10^5 after a step of 10^-6: departure points
+/// thrown across the domain).
+inline double midstep_factor(bool have_last, double dt, double last_dt) {
+    if (!have_last || !(last_dt > 0) || dt > 2 * last_dt) return 0.0;
+    return 0.5 * dt / last_dt;
+}
 
 /// What the 2D and 3D MCFluid solvers are configured with alike (MCFluidSettings, MCFluid3Settings add the cache's
 /// resolution and, in 3D, what only 3D has: stretching and control variates).
