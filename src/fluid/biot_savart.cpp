@@ -72,6 +72,57 @@ Vec2d PeriodicKernel::exact(Vec2d r, Vec2d period) {
     return {u, v};
 }
 
+namespace {
+/// G and, with Velocity, its gradient (dG/dx, dG/dy) (PeriodicKernel::green). Rows whose E_m falls below 1e-18 on
+/// both sides change G by less than a rounding error; E_m for |m| >= 1 is a product (one exponential per side).
+template <bool Velocity>
+PeriodicKernel::Green periodic_green(Vec2d r, Vec2d period) {
+    const double lx = period.x, ly = period.y;
+    const double x = r.x - lx * std::round(r.x / lx), y = r.y - ly * std::round(r.y / ly);
+    const double k = 2 * Pi / lx;
+    const double half = 0.5 * k * x, s = std::sin(half), c = std::cos(half);
+    const double s2 = s * s, sin_b = 2 * s * c;
+    // The nearest row (m = 0): 1 - E_0 by expm1, accurate at r -> 0.
+    const double a0 = k * std::abs(y), e0 = std::exp(-a0), om0 = -std::expm1(-a0);
+    const double d0 = om0 * om0 + 4 * e0 * s2;
+    double prod = 1, gx = 0, gy = 0;
+    if constexpr (Velocity) {
+        if (d0 > 0) {
+            const double sgn = y > 0 ? 1.0 : (y < 0 ? -1.0 : 0.0);
+            gx += 2 * e0 * sin_b / d0;
+            gy += sgn * 2 * e0 * (om0 - 2 * s2) / d0;  // dD/da = 2 E (cos b - E), cos b - E = (1 - E) - 2 sin^2(b/2)
+        }
+    }
+    // The rows above (y + m Ly > 0 for m >= 1) and below: E = exp(-k (m Ly +- y)).
+    const double q = std::exp(-k * ly);
+    double up = std::exp(-k * (ly + y)), down = std::exp(-k * (ly - y));
+    while (up > 1e-18 || down > 1e-18) {
+        const double du = (1 - up) * (1 - up) + 4 * up * s2, dd = (1 - down) * (1 - down) + 4 * down * s2;
+        prod *= du * dd;
+        if constexpr (Velocity) {
+            gx += 2 * up * sin_b / du + 2 * down * sin_b / dd;
+            gy += 2 * up * ((1 - up) - 2 * s2) / du - 2 * down * ((1 - down) - 2 * s2) / dd;
+        }
+        up *= q;
+        down *= q;
+    }
+    const double lattice = (std::abs(y) - y * y / ly) / (2 * lx);  // the mean over x, background included
+    const double both = d0 * prod;
+    const double logs = std::isnormal(both) ? std::log(both) : std::log(d0) + std::log(prod);
+    PeriodicKernel::Green g{logs / (4 * Pi) + lattice, Vec2d(0.0)};
+    if constexpr (Velocity) {
+        const double sgn = y > 0 ? 1.0 : (y < 0 ? -1.0 : 0.0);
+        const double dgx = gx * k / (4 * Pi), dgy = gy * k / (4 * Pi) + (sgn - 2 * y / ly) / (2 * lx);
+        g.velocity = {-dgy, dgx};
+    }
+    return g;
+}
+}  // namespace
+
+PeriodicKernel::Green PeriodicKernel::green(Vec2d r, Vec2d period) { return periodic_green<true>(r, period); }
+
+double PeriodicKernel::stream(Vec2d r, Vec2d period) { return periodic_green<false>(r, period).psi; }
+
 PeriodicKernel::PeriodicKernel(Vec2d period, int table_size)
     : m_period(period), m_inv_period(1.0 / period.x, 1.0 / period.y), m_n(table_size) {
     if (table_size < 2 || table_size % 2) throw_runtime("PeriodicKernel: table size must be even and >= 2");

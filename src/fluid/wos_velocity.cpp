@@ -148,9 +148,14 @@ WosVelocityField::WosVelocityField(const WosVelocityOptions& options, const Doma
     m_walls = options.walls && !domain.periodic;
     m_has_source = omega && omega->max_abs() > 0;
     m_wos.stratified = options.stratified;
-    m_cv = m_has_source && options.control_variate && !domain.periodic;
+    m_cv = m_has_source && options.control_variate;
     if (m_has_source && (options.vorticity_importance || m_cv)) m_source = VorticitySource(omega, interp);
     if (m_source.empty()) m_cv = false;
+    if (m_cv && domain.periodic) {  // the cell's integral of omega_h: the cell values' sum (tents and boxes alike)
+        double sum = 0;
+        for (double w : omega->values()) sum += w;
+        m_mean_omega = sum * omega->cell_area() / (size.x * size.y);
+    }
     if (m_cv) m_near_radius = NearRadiusCells * std::max(omega->h().x, omega->h().y);
     if (const std::string why = check_wos_options(options, domain); !why.empty())
         throw_runtime("walk_on_spheres: {}", why);
@@ -498,6 +503,15 @@ double log_sum(const std::array<Vec2d, MaxFreeSamples>& ys, int count, Vec2d p) 
 }  // namespace
 
 double WosVelocityField::FreeVortices::psi(Vec2d p) const {
+    if (period.x > 0) {  // the doubly periodic vortices (each with its background) and the mean vorticity's
+        double far = 0, sum = 0;
+        for (int j = 0; j < n_plus; ++j) far += PeriodicKernel::stream(p - plus[std::size_t(j)], period);
+        for (int j = 0; j < n_minus; ++j) far -= PeriodicKernel::stream(p - minus[std::size_t(j)], period);
+        for (int j = 0; j < n_near; ++j)
+            sum += near_w[std::size_t(j)] * PeriodicKernel::stream(p - near[std::size_t(j)], period);
+        const Vec2d d = p - center;
+        return far_weight * far + sum + background * (d.x * d.x + d.y * d.y);
+    }
     double sum = far_weight * (log_sum(plus, n_plus, p) - log_sum(minus, n_minus, p));
     for (int j = 0; j < n_near; ++j) {
         const Vec2d d = p - near[std::size_t(j)];
@@ -511,6 +525,12 @@ Vec2d WosVelocityField::free_vortices(Vec2d x, int q, Random& rng, FreeVortices&
     const double near_pdf = 1 / (2 * Pi * rho);  // x 1/r: the density of r = rho u, uniform angle
     out.far_weight = m_source.total() / (1 - a) * inv_q;
     out.n_near = out.n_plus = out.n_minus = 0;
+    const bool periodic = m_domain.periodic;
+    if (periodic) {
+        out.period = m_domain.size();
+        out.center = x;
+        out.background = 0.25 * m_mean_omega;
+    }
     Vec2d v(0.0);
     for (int j = 0; j < q; ++j) {
         Vec2d y;
@@ -538,7 +558,7 @@ Vec2d WosVelocityField::free_vortices(Vec2d x, int q, Random& rng, FreeVortices&
             else
                 out.minus[std::size_t(out.n_minus++)] = y;
         }
-        v += (W / (2 * Pi * r2)) * Vec2d(-d.y, d.x);
+        v += periodic ? W * PeriodicKernel::green(d, out.period).velocity : (W / (2 * Pi * r2)) * Vec2d(-d.y, d.x);
     }
     return v;
 }

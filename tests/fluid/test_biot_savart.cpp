@@ -5,6 +5,8 @@
 
 #include <kelvin/fluid/biot_savart.h>
 
+#include <fmt/format.h>
+
 #include <gtest/gtest.h>
 
 #include <cmath>
@@ -63,6 +65,49 @@ TEST(PeriodicKernel, ExactKernelProperties) {
         const Vec2d k = PeriodicKernel::exact(r0, period), k0 = biot_savart_kernel(r0, 0.0);
         EXPECT_NEAR(k.x, k0.x, 1e-3 * std::abs(k0.x) + 1.0 / std::min(lx, ly));
         EXPECT_NEAR(k.y, k0.y, 1e-3 * std::abs(k0.y) + 1.0 / std::min(lx, ly));
+    }
+}
+
+// The periodic stream function (the control variate's Psi_free on periodic domains): its velocity is exact()'s;
+// G's centred differences give that velocity and its Laplacian is the background -1/A away from the lattice; G is
+// periodic (any image of r gives the same value) and continuous across the cell's edges, and ~ log|r| / (2 pi) near
+// 0; stream() is green()'s psi. Rectangles either way round (rows of images along the short and the long side).
+// Broken variants seen to fail: the lattice's mean over x left out (Laplacian 0 instead of -1/A, the cell edges'
+// continuity in y broken), the rows above and below stopped after the first (velocity off by 5e-6 on the 2 x 2 cell).
+TEST(PeriodicKernel, StreamFunctionOfTheVelocity) {
+    for (Vec2d period : {Vec2d(2.0, 2.0), Vec2d(2.0, 1.0), Vec2d(1.0, 3.0)}) {
+        const double lx = period.x, ly = period.y, area = lx * ly;
+        SCOPED_TRACE(fmt::format("period {} x {}", lx, ly));
+        const double e = 1e-4 * std::min(lx, ly);
+        for (Vec2d r : {Vec2d(0.1 * lx, 0.2 * ly), Vec2d(-0.3 * lx, 0.4 * ly), Vec2d(0.45 * lx, -0.05 * ly),
+                        Vec2d(0.02 * lx, -0.01 * ly), Vec2d(-0.5 * lx, 0.5 * ly), Vec2d(0.0, 0.3 * ly)}) {
+            const PeriodicKernel::Green g = PeriodicKernel::green(r, period);
+            const Vec2d k = PeriodicKernel::exact(r, period);
+            EXPECT_NEAR(g.velocity.x, k.x, 1e-10 * (1 + std::abs(k.x)));
+            EXPECT_NEAR(g.velocity.y, k.y, 1e-10 * (1 + std::abs(k.y)));
+            EXPECT_EQ(PeriodicKernel::stream(r, period), g.psi);
+            const auto G = [&](Vec2d p) { return PeriodicKernel::stream(p, period); };
+            const double px = G(r + Vec2d(e, 0)), mx = G(r - Vec2d(e, 0)), py = G(r + Vec2d(0, e)),
+                         my = G(r - Vec2d(0, e));
+            // The differences' truncation error e^2 G''' / 6 with G''' ~ 1 / (pi |r|^3) near 0.
+            const double r_min = glm::length(Vec2d(r.x - lx * std::round(r.x / lx), r.y - ly * std::round(r.y / ly)));
+            const double tol = 1e-7 + e * e / (Pi * r_min * r_min * r_min);
+            EXPECT_NEAR(-(py - my) / (2 * e), k.x, tol);
+            EXPECT_NEAR((px - mx) / (2 * e), k.y, tol);
+            const double lap = (px + mx + py + my - 4 * g.psi) / (e * e);
+            EXPECT_NEAR(lap, -1.0 / area, 2e-3 / area);
+            for (Vec2d image : {Vec2d(lx, 0), Vec2d(0, -ly), Vec2d(3 * lx, 2 * ly)})
+                EXPECT_NEAR(G(r + image), g.psi, 1e-12);
+        }
+        for (double t : {-0.37, 0.0, 0.21, 0.45}) {
+            EXPECT_NEAR(PeriodicKernel::stream({t * lx, 0.5 * ly - 1e-9}, period),
+                        PeriodicKernel::stream({t * lx, -0.5 * ly + 1e-9}, period), 1e-8);
+            EXPECT_NEAR(PeriodicKernel::stream({0.5 * lx - 1e-9, t * ly}, period),
+                        PeriodicKernel::stream({-0.5 * lx + 1e-9, t * ly}, period), 1e-8);
+        }
+        // log|r| / (2 pi) plus a constant near 0: the difference at two small radii agrees to O(r^2).
+        const double g1 = PeriodicKernel::stream({1e-3, 0.0}, period), g2 = PeriodicKernel::stream({0.0, 2e-6}, period);
+        EXPECT_NEAR(g1 - g2, std::log(1e-3 / 2e-6) / (2 * Pi), 1e-6);
     }
 }
 

@@ -154,7 +154,7 @@ public:
     /// velocity; wos::move_to_shell, counted in boundary_queries).
     VelocityEstimate estimate(Vec2d x, int n, Random& rng, wos::WalkCounters& c) const override;
     const WosVelocityField* boundaries() const override { return this; }
-    /// True when estimate() uses the control variate (the option, vorticity present, a non-periodic domain).
+    /// True when estimate() uses the control variate (the option, and vorticity present).
     bool control_variate() const { return m_cv; }
     /// Harmonic caching (WosVelocityOptions::harmonic_cache): estimates the harmonic part of Psi (the control
     /// variate's h = Psi - Psi_free, or Psi without vorticity) on disks placed over the centres of `cells` (the
@@ -282,9 +282,15 @@ private:
         std::array<double, MaxFreeSamples> near_w;
         int n_near = 0, n_plus = 0, n_minus = 0;
         double far_weight = 0;
-        /// Their free-space stream function at p.
+        /// Periodic domains: the period (0: the plane), and the mean vorticity's stream function
+        /// background |p - center|^2 (background = mean(omega_h) / 4).
+        Vec2d period{0.0}, center{0.0};
+        double background = 0;
+        /// Their stream function at p: free-space, or on periodic domains the periodic vortices' plus the mean
+        /// vorticity's.
         double psi(Vec2d p) const;
     };
+    double m_mean_omega = 0;  // periodic domains: the mean of omega_h over the cell (the control variate's background)
     /// Draws q point vortices of omega_h (|omega| mixed with 1/r within the near radius of x) into `out` and
     /// returns their free-space velocity at x.
     Vec2d free_vortices(Vec2d x, int q, Random& rng, FreeVortices& out) const;
