@@ -140,6 +140,19 @@ PeriodicKernel::PeriodicKernel(Vec2d period, int table_size)
         }
 }
 
+std::shared_ptr<const PeriodicKernel> PeriodicKernel::shared(Vec2d period) {
+    static std::mutex mutex;
+    static std::vector<std::weak_ptr<const PeriodicKernel>> tables;
+    std::lock_guard<std::mutex> lock(mutex);
+    for (const auto& weak : tables)
+        if (auto t = weak.lock())
+            if (t->m_period == period && t->m_n == 64) return t;
+    std::erase_if(tables, [](const auto& weak) { return weak.expired(); });
+    auto t = std::make_shared<const PeriodicKernel>(period);
+    tables.push_back(t);
+    return t;
+}
+
 Vec2d PeriodicKernel::correction(Vec2d r) const {
     double gx = std::clamp((r.x * m_inv_period.x + 0.5) * m_n, 0.0, double(m_n));
     double gy = std::clamp((r.y * m_inv_period.y + 0.5) * m_n, 0.0, double(m_n));

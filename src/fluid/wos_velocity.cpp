@@ -634,7 +634,7 @@ void WosVelocityField::build_harmonic_cache(const Grid2& cells, uint64_t seed, u
                                             int samples) {
     m_cache.clear();
     m_free.reset();
-    if (m_domain.periodic || m_constant_psi || (m_has_source && !m_cv)) return;
+    if (m_constant_psi || (m_has_source && !m_cv)) return;
     // The cores' free part with the smallest mollifier the near field resolves by default: the walks' Psi_free is the
     // singular kernel's, and half a cell (the 2D open domain's delta) slowed the bunny's cores (its energy rose).
     if (delta < 0) delta = NearField2::MinDelta * std::min(cells.h().x, cells.h().y);
@@ -643,8 +643,9 @@ void WosVelocityField::build_harmonic_cache(const Grid2& cells, uint64_t seed, u
         std::shared_ptr<const NearField2> near;
         if (delta >= NearField2::MinDelta * std::min(g.h().x, g.h().y))
             near = NearField2::shared(g.h(), m_interp, delta, BiotSavartVelocity::DefaultNearField2);
-        m_free = std::make_unique<BiotSavartEstimator>(g, m_interp, SourceSampling::Vorticity, delta, nullptr,
-                                                       std::move(near));
+        m_free = std::make_unique<BiotSavartEstimator>(
+            g, m_interp, SourceSampling::Vorticity, delta,
+            m_domain.periodic ? PeriodicKernel::shared(m_domain.size()) : nullptr, std::move(near));
         m_free->set_stop(m_wos.stop);
     }
     const int nx = cells.nx(), ny = cells.ny(), order = std::clamp(m_options.cache_order, 1, MaxCacheOrder);
@@ -667,6 +668,11 @@ void WosVelocityField::build_harmonic_cache(const Grid2& cells, uint64_t seed, u
             const double theta = 2 * Pi * (double(i) + rotation) / double(N);
             const Vec2d dir(std::cos(theta), std::sin(theta));
             if (m_cv) {  // the walk's own point vortices of omega_h (|omega| sampling; no query to sample near)
+                if (m_domain.periodic) {  // the periodic vortices, and the mean vorticity's term about the centre
+                    vortices.period = m_domain.size();
+                    vortices.center = ball.center;
+                    vortices.background = 0.25 * m_mean_omega;
+                }
                 vortices.far_weight = m_source.total() / q;
                 vortices.n_near = vortices.n_plus = vortices.n_minus = 0;
                 for (int j = 0; j < q; ++j) {
@@ -716,11 +722,16 @@ void WosVelocityField::build_harmonic_cache(const Grid2& cells, uint64_t seed, u
 
 bool WosVelocityField::cached_harmonic(Vec2d x, Vec2d& value, double& variance) const {
     if (!m_cache.indexed()) return false;
+    if (m_domain.periodic) x = m_domain.wrap(x);  // the disks lie over the cells of the home image
     double weights2_var = 0;
     Vec2d sum(0.0);
+    // Periodic: each disk's series is h less the mean vorticity's (omega / 4) |p - c|^2 about its centre c, whose
+    // -curl is (omega / 2) (-(y - c_y), x - c_x).
+    const double background = 0.5 * m_mean_omega;
     const double weights =
         m_cache.for_each(x, [&](const HarmonicDisk& d, const wos::HarmonicCover<2>::Ball& b, double w) {
             const Vec2d dz = x - b.center;
+            if (background != 0) sum += (w * background) * Vec2d(-dz.y, dz.x);
             // -curl h from the series: f'(z) r by Horner, and its variance (see estimate_cached).
             const std::complex<double> z(dz.x / b.radius, dz.y / b.radius);
             std::complex<double> df(0.0, 0.0);

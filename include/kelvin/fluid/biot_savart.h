@@ -68,6 +68,8 @@ public:
     /// `table_size` intervals per axis over the minimum-image cell [-L/2, L/2]^2 (even). The default keeps
     /// the table (2 x 65^2 floats) in L1 cache; its bilinear error is ~1e-5 of the kernel's scale.
     explicit PeriodicKernel(Vec2d period, int table_size = 64);
+    /// One default table per period, shared by every estimator that asks (fields rebuilt every step).
+    static std::shared_ptr<const PeriodicKernel> shared(Vec2d period);
     Vec2d period() const { return m_period; }
     int table_size() const { return m_n; }
 

@@ -66,9 +66,9 @@ struct WosVelocityOptions {
     double inflow_speed = 0;                ///< uniform inflow through the left wall and outflow through the right
     double inflow_min = 0, inflow_max = 0;  ///< y range of the inflow/outflow segments (equal: the whole wall)
     std::vector<std::shared_ptr<const BoundaryShape>> shapes;
-    /// Non-periodic domains with vorticity (2D and 3D): the velocity as a control variate (docs/boundaries.md),
-    /// the free-space Biot–Savart velocity of omega_h plus -curl of the harmonic correction h = Psi - Psi_free,
-    /// estimated by walks without a source term whose boundary values are Psi_b - Psi_free. false: the walks
+    /// With vorticity (2D; 3D on non-periodic domains): the velocity as a control variate (docs/boundaries.md),
+    /// the free-space (periodic) Biot–Savart velocity of omega_h plus -curl of the harmonic correction h = Psi -
+    /// Psi_free, estimated by walks without a source term whose boundary values are Psi_b - Psi_free. false: the walks
     /// solve Laplacian(Psi) = omega_h directly (the thesis' estimator).
     bool control_variate = true;
     /// Vorticity samples per gradient sample (control variate): the point vortices whose free-space velocity and
@@ -79,8 +79,8 @@ struct WosVelocityOptions {
     /// estimated from pairs of adjacent strata. 3D: with the control variate only (plain 3D walks are not
     /// stratified).
     bool stratified = true;
-    /// Harmonic caching (non-periodic, with the control variate or without vorticity; ignored elsewhere, as the
-    /// control variate is on periodic domains): the harmonic part of Psi (the control variate's correction h, or
+    /// Harmonic caching (with the control variate or without vorticity; ignored elsewhere, as the control variate is
+    /// on 3D periodic domains): the harmonic part of Psi (the control variate's correction h, or
     /// Psi itself without vorticity) is estimated once per state on disks (3D: balls) that cover the fluid away
     /// from the boundaries, each as the truncated Fourier series of h on a circle (3D: its solid-harmonic series
     /// on a sphere), and read at every query inside a core; the walks per query remain only near the boundaries.
@@ -167,10 +167,12 @@ public:
     /// least 1.5 cells) read h's gradient from it. Disks are placed greedily, farthest from the boundaries first,
     /// at every fluid cell centre no core covers yet. Points no core covers keep the per-query walks. Random
     /// streams: (seed, hash of stream and the disk's index), so the cache does not depend on the thread count.
-    /// Does nothing on periodic domains, with vorticity but without the control variate, or when Psi is constant.
+    /// Does nothing with vorticity but without the control variate, or when Psi is constant. On periodic domains the
+    /// disks lie over the home cell's cells; each walk's point vortices are periodic (PeriodicKernel::green) and
+    /// its stream function carries the mean vorticity's term about the disk's centre (as the control variate's).
     /// Polls the stop (set_stop) per disk: a stopped build keeps no cache (harmonic_cache_stopped()).
     /// The free-space part of a query inside a core: with `delta` > 0 (< 0, the default: an eighth of a cell, what
-    /// the solver uses), the open domain's Biot–Savart estimator of
+    /// the solver uses), the Biot–Savart estimator (the periodic kernel on periodic domains) of
     /// the field's omega_h (BiotSavartEstimator: |omega| sampling, mollifier delta, near field of
     /// BiotSavartVelocity::DefaultNearField2 cells where delta resolves it) with n x free_samples samples; with 0, n x
     /// free_samples point vortices of the control variate's sampling and the singular kernel (exactly the walks'
