@@ -101,15 +101,17 @@ KELVIN_PLUGIN(
     kelvin::param::string("importance", "vorticity",
                           "volume term: 'vorticity' (|omega| mixed with G) or 'green' (G only, the thesis)"),
     kelvin::param::boolean("control_variate", true,
-                           "not periodic (2D and 3D): free-space Biot-Savart velocity of point-vortex samples + walks "
-                           "for the harmonic correction only (false: walks with the vorticity source)"),
+                           "with vorticity (3D: not periodic): Biot-Savart velocity of point-vortex samples (periodic "
+                           "ones on periodic domains) + walks for the harmonic correction only (false: walks with the "
+                           "vorticity source)"),
     kelvin::param::integer("free_samples", 16,
                            "control variate: vorticity samples (point vortices) per gradient sample, 1-256"),
     kelvin::param::boolean("stratified", true,
                            "stratified first-step directions over a query's gradient samples (3D: with the control "
                            "variate only)"),
     kelvin::param::boolean("harmonic_cache", true,
-                           "not periodic: the walls' harmonic correction once per step on disks (3D: balls) away "
+                           "where the control variate applies: the walls' harmonic correction once per step on disks "
+                           "(3D: balls) away "
                            "from the boundaries (their series read by every query inside), walks per query only "
                            "near them"),
     kelvin::param::real("cache_walks", 1.0, "harmonic_cache: walks per cell of a disk's (ball's) core"),
