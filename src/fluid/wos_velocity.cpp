@@ -641,8 +641,11 @@ void WosVelocityField::build_harmonic_cache(const Grid2& cells, uint64_t seed, u
     if (m_cv && delta > 0) {
         const Grid2& g = *m_omega;
         std::shared_ptr<const NearField2> near;
-        if (delta >= NearField2::MinDelta * std::min(g.h().x, g.h().y))
-            near = NearField2::shared(g.h(), m_interp, delta, BiotSavartVelocity::DefaultNearField2);
+        // On a periodic grid the near cells (and the cell a tent reaches beyond them) must not wrap onto each other.
+        int radius = BiotSavartVelocity::DefaultNearField2;
+        if (m_domain.periodic) radius = std::min(radius, (std::min(g.nx(), g.ny()) - 3) / 2);
+        if (delta >= NearField2::MinDelta * std::min(g.h().x, g.h().y) && radius >= 1)
+            near = NearField2::shared(g.h(), m_interp, delta, radius);
         m_free = std::make_unique<BiotSavartEstimator>(
             g, m_interp, SourceSampling::Vorticity, delta,
             m_domain.periodic ? PeriodicKernel::shared(m_domain.size()) : nullptr, std::move(near));

@@ -471,6 +471,23 @@ TEST(WosVariance, ControlVariateOnlyWhereItApplies) {
     EXPECT_EQ(a.value, b.value);
 }
 
+// A periodic cache too small for the cores' near-field table (5 x 5 cells: seven near cells would wrap onto each other)
+// builds its disks with a narrower table, or none, instead of refusing the run (found by the scene fuzzer).
+TEST(WosVariance, HarmonicCacheOnTinyPeriodicGrids) {
+    for (int res : {3, 5, 8}) {
+        const Domain2 d{{-1, -1}, {1, 1}, true};
+        const Grid2 omega = lamb_oseen(d, res, {0.5, 0.5}, 0.4, 1);
+        WosVelocityOptions o;
+        o.shapes = {disk_boundary({0, 0}, 0.2)};
+        WosVelocityField f(o, d, &omega, Interpolation::Bilinear, 0);
+        ASSERT_NO_THROW(f.build_harmonic_cache(omega, 1, 2)) << res;
+        wos::WalkCounters c;
+        Random rng(1, 1);
+        const VelocityEstimate e = f.estimate({0.7, -0.6}, 8, rng, c);
+        EXPECT_TRUE(std::isfinite(e.value.x) && std::isfinite(e.value.y)) << res;
+    }
+}
+
 // The control variate on periodic domains (Psi_free of the periodic point vortices, PeriodicKernel::green, plus the
 // mean vorticity's |x - c|^2 / 4 term): every variant's mean matches plain walks within 5 standard errors at 13
 // points, inside and beyond the home cell, for the zero-mean rows of periodic_obstacle.xml and a single vortex
