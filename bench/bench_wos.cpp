@@ -234,6 +234,8 @@ void BM_WosStep(benchmark::State& state) {
 //         free-space Lamb–Oseen velocity (scenes/fluid/lamb_oseen_disk.xml at 64^2);
 //   polygon: the two vortices of the pass benchmark around a pentagon obstacle in the walled box; reference:
 //         plain walks with 4096 gradient samples at every fourth cell (the reference's own variance subtracted).
+//   periodic: scenes/fluid/periodic_obstacle.xml's two rows of vortices (core 0.08) past its square block in the
+//         periodic box [-1, 1]^2 (no walls: the walks run among the block's images); reference as for the polygon.
 
 struct VarianceScene {
     Domain2 domain{{-1, -1}, {1, 1}, false};
@@ -281,14 +283,35 @@ const VarianceScene& variance_scene(const std::string& name) {
                 sc.exact_variance.push_back(Vec2d(0.0));
             }
     } else {
-        sc.options.shapes = {make("polygon", [](Properties& p) {
-            p.set_string("points", "0.3 -0.35, 0.45 0.1, 0.05 0.4, -0.3 0.1, -0.15 -0.3");
-        })};
+        const bool periodic = name == "periodic";
+        if (periodic) {
+            sc.domain.periodic = true;
+            sc.omega = Grid2(sc.domain, res, res);
+            sc.options.walls = false;
+            sc.options.shapes = {make("box", [](Properties& p) {
+                p.set_point("min", Vec3d(-0.15, -0.15, 0));
+                p.set_point("max", Vec3d(0.15, 0.15, 0));
+            })};
+        } else {
+            sc.options.shapes = {make("polygon", [](Properties& p) {
+                p.set_string("points", "0.3 -0.35, 0.45 0.1, 0.05 0.4, -0.3 0.1, -0.15 -0.3");
+            })};
+        }
+        // The scene's rows: Gaussian vortices of circulation +-0.4 and core 0.08 (minimum images).
+        const auto rows = [&](Vec2d x) {
+            double w = 0;
+            for (double cx : {-0.6, 0.0, 0.6}) {
+                const Vec2d a = sc.domain.min_image(x - Vec2d(cx, 0.5)),
+                            b = sc.domain.min_image(x - Vec2d(cx + 0.3, -0.5));
+                w += 0.4 / (Pi * 0.0064) * (std::exp(-glm::dot(a, a) / 0.0064) - std::exp(-glm::dot(b, b) / 0.0064));
+            }
+            return w;
+        };
         const WosVelocityField probe(sc.options, sc.domain, nullptr, Interpolation::Bilinear, 0);
         for (int j = 0; j < res; ++j)
             for (int i = 0; i < res; ++i) {
                 const Vec2d x = sc.omega.cell_center(i, j);
-                sc.omega.at(i, j) = probe.solid_at(x) >= 0 ? 0.0 : two_vortices(x);
+                sc.omega.at(i, j) = probe.solid_at(x) >= 0 ? 0.0 : (periodic ? rows(x) : two_vortices(x));
             }
         const WosVelocityField ref(variant_options(sc.options, 0, 1), sc.domain, &sc.omega, Interpolation::Bilinear, 0);
         std::vector<Vec2d> pts;
@@ -551,6 +574,15 @@ BENCHMARK_CAPTURE(BM_WosVariance, disk, std::string("disk"))
 BENCHMARK_CAPTURE(BM_WosVariance, polygon, std::string("polygon"))
     ->ArgsProduct({{0, 1}, {32}, {1}})
     ->ArgsProduct({{2, 3}, {4, 16}, {4, 16}})
+    ->Unit(benchmark::kMillisecond)
+    ->Iterations(5);
+BENCHMARK_CAPTURE(BM_WosVariance, periodic, std::string("periodic"))
+    ->ArgsProduct({{0, 1}, {32}, {1}})
+    ->ArgsProduct({{2, 3}, {4, 16}, {4, 16}})
+    ->Unit(benchmark::kMillisecond)
+    ->Iterations(5);
+BENCHMARK_CAPTURE(BM_WosVarianceCached, periodic, std::string("periodic"))
+    ->ArgsProduct({{4, 16}, {16}, {10}})
     ->Unit(benchmark::kMillisecond)
     ->Iterations(5);
 BENCHMARK_CAPTURE(BM_WosVarianceCached, disk, std::string("disk"))
