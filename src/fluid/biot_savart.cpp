@@ -119,9 +119,20 @@ PeriodicKernel::Green periodic_green(Vec2d r, Vec2d period) {
 }
 }  // namespace
 
-PeriodicKernel::Green PeriodicKernel::green(Vec2d r, Vec2d period) { return periodic_green<true>(r, period); }
+// The rows run along the shorter side: their terms fall by exp(-2 pi L_across / L_along) per row. Across a cell
+// wider than tall the function is G's with the axes swapped (the two differ by a constant: both are periodic with the
+// same Laplacian), whose gradient swaps back.
+PeriodicKernel::Green PeriodicKernel::green(Vec2d r, Vec2d period) {
+    if (period.x <= period.y) return periodic_green<true>(r, period);
+    Green g = periodic_green<true>({r.y, r.x}, {period.y, period.x});
+    g.velocity = {-g.velocity.y, -g.velocity.x};  // (-dG/dy, dG/dx) from (-dG/dx, dG/dy) of the swapped axes
+    return g;
+}
 
-double PeriodicKernel::stream(Vec2d r, Vec2d period) { return periodic_green<false>(r, period).psi; }
+double PeriodicKernel::stream(Vec2d r, Vec2d period) {
+    return period.x <= period.y ? periodic_green<false>(r, period).psi
+                                : periodic_green<false>({r.y, r.x}, {period.y, period.x}).psi;
+}
 
 PeriodicKernel::PeriodicKernel(Vec2d period, int table_size)
     : m_period(period), m_inv_period(1.0 / period.x, 1.0 / period.y), m_n(table_size) {

@@ -82,7 +82,8 @@ public:
     /// row sums of exact() in a form whose rows' terms vanish exponentially: G = sum_m log D_m / (4 pi) +
     /// (|y| - y^2 / Ly) / (2 Lx) over the minimum image (x, y), D_m = (1 - E_m)^2 + 4 E_m sin^2(pi x / Lx),
     /// E_m = exp(-2 pi |y + m Ly| / Lx) (the m-th row of images less its mean over x, plus the mean over x of the
-    /// whole lattice with its background); about a logarithm, three exponentials and a sine and cosine per call.
+    /// whole lattice with its background), the rows along the shorter side (on a cell wider than tall, the axes
+    /// swapped); about a logarithm, three exponentials and a sine and cosine per call.
     struct Green {
         double psi;
         Vec2d velocity;
