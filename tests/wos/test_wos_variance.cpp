@@ -471,6 +471,29 @@ TEST(WosVariance, ControlVariateOnlyWhereItApplies) {
     EXPECT_EQ(a.value, b.value);
 }
 
+// What the control variate buys on the periodic obstacle's rows (the points of the test above): the per-sample
+// variance of the velocity, summed over the points and both components, plain walks over the control variate (16
+// free samples, unstratified) at 2000 gradient samples each. Measured 39x; asserted 13x (a third of it).
+// docs/boundaries.md and the equal-time figures of bench_wos' BM_WosVariance/periodic (docs/performance.md).
+TEST(WosVariance, ControlVariateLowersTheVarianceOnAPeriodicDomain) {
+    const VarianceCase c = periodic_case(true);
+    const WosVelocityField plain(variant(c.options, false, false), c.domain, &c.omega, Interpolation::Bilinear, 0);
+    const WosVelocityField cv(variant(c.options, true, false), c.domain, &c.omega, Interpolation::Bilinear, 0);
+    ASSERT_TRUE(cv.control_variate());
+    std::vector<double> vp(c.points.size()), vc(c.points.size());
+    parallel_for_units(c.points.size(), [&](std::size_t k) {
+        wos::WalkCounters w;
+        Random ra(21, k), rb(22, k);
+        const VelocityEstimate a = plain.estimate(c.points[k], 2000, ra, w), b = cv.estimate(c.points[k], 2000, rb, w);
+        vp[k] = a.variance.x + a.variance.y;
+        vc[k] = b.variance.x + b.variance.y;
+    });
+    double sp = 0, sc = 0;
+    for (std::size_t k = 0; k < vp.size(); ++k) sp += vp[k], sc += vc[k];
+    RecordProperty("plain_over_cv", std::to_string(sp / sc));
+    EXPECT_GT(sp / sc, 13.0) << sp << " " << sc;
+}
+
 // A periodic cache too small for the cores' near-field table (5 x 5 cells: seven near cells would wrap onto each other)
 // builds its disks with a narrower table, or none, instead of refusing the run (found by the scene fuzzer).
 TEST(WosVariance, HarmonicCacheOnTinyPeriodicGrids) {
