@@ -44,39 +44,19 @@ Vec2d biot_savart_kernel(Vec2d r, double delta) {
 // ------------------------------------------------------------------------------------------------
 // Periodic kernel.
 //
-// A row of unit point vortices at (k Lx, Y), k in Z, induces at (x, 0) the closed-form velocity
-//     u = -(1/(2 Lx)) sinh(a) / (cosh(a) - cos(b)),   v = (1/(2 Lx)) sin(b) / (cosh(a) - cos(b)),
-// with a = 2 pi (0 - Y) / Lx, b = 2 pi x / Lx (Lamb, Hydrodynamics, §156). Summing rows symmetrically over
-// m in [-M, M] converges exponentially; the remaining jump of the sum across the cell in y (the rows far
-// above and below induce -+1/(2 Lx) each) is exactly cancelled by the shear u = y / (Lx Ly), the velocity of
-// the uniform background vorticity -1/(Lx Ly) that makes the periodic problem solvable. The resulting
-// kernel is odd, periodic, divergence-free and has curl delta - 1/(Lx Ly).
-Vec2d PeriodicKernel::exact(Vec2d r, Vec2d period) {
-    const double lx = period.x, ly = period.y;
-    const int m_max = int(std::ceil(0.5 + 30.0 / (2 * Pi) * lx / ly)) + 1;
-    double u = 0, v = 0;
-    const double b = 2 * Pi * r.x / lx;
-    const double sb = std::sin(b), s2 = std::sin(0.5 * b);
-    for (int m = -m_max; m <= m_max; ++m) {
-        const double a = 2 * Pi * (r.y + m * ly) / lx;
-        const double e = std::exp(-std::abs(a)), one_minus_e = -std::expm1(-std::abs(a));
-        // cosh(a) - cos(b) = ((1 - e)^2 + 4 e sin^2(b/2)) / (2 e), accurate near a = b = 0.
-        const double den = one_minus_e * one_minus_e + 4 * e * s2 * s2;
-        if (!(den > 0)) continue;  // the singular self term at r = 0
-        const double sgn = a > 0 ? 1.0 : (a < 0 ? -1.0 : 0.0);
-        u += -sgn * one_minus_e * (1 + e) / den;
-        v += 2 * e * sb / den;
-    }
-    u = u / (2 * lx) + r.y / (lx * ly);
-    v = v / (2 * lx);
-    return {u, v};
-}
-
+// A row of unit point vortices at (k Lx, Y), k in Z, has the stream function log(cosh(a) - cos(b)) / (4 pi) + const,
+// a = 2 pi (y - Y) / Lx, b = 2 pi x / Lx (Lamb, Hydrodynamics, §156), whose mean over x is |y - Y| / (2 Lx) -
+// log 2 / (4 pi): the row less its mean is log D / (4 pi), D = (1 - E)^2 + 4 E sin^2(b/2), E = exp(-|a|), which
+// vanishes exponentially away from the row. Summing the rows less their means and adding the whole lattice's mean over
+// x with the uniform background -1/(Lx Ly) that makes the periodic problem solvable, (|y| - y^2 / Ly) / (2 Lx) on the
+// minimum image, gives G, periodic with Laplacian delta - 1/(Lx Ly); its velocity (-dG/dy, dG/dx) is odd, periodic,
+// divergence-free, with curl delta - 1/(Lx Ly).
 namespace {
-/// G and, with Velocity, its gradient (dG/dx, dG/dy) (PeriodicKernel::green). Rows whose E_m falls below 1e-18 on
-/// both sides change G by less than a rounding error; E_m for |m| >= 1 is a product (one exponential per side).
-template <bool Velocity>
-PeriodicKernel::Green periodic_green(Vec2d r, Vec2d period) {
+/// G with Psi, its gradient (dG/dx, dG/dy) as the velocity with Velocity (PeriodicKernel::green). Rows whose E_m falls
+/// below 1e-18 on both sides change G by less than a rounding error; E_m for |m| >= 1 is a product (one exponential
+/// per side).
+template <bool Psi, bool Velocity>
+PeriodicKernel::Green periodic_rows(Vec2d r, Vec2d period) {
     const double lx = period.x, ly = period.y;
     const double x = r.x - lx * std::round(r.x / lx), y = r.y - ly * std::round(r.y / ly);
     const double k = 2 * Pi / lx;
@@ -98,7 +78,7 @@ PeriodicKernel::Green periodic_green(Vec2d r, Vec2d period) {
     double up = std::exp(-k * (ly + y)), down = std::exp(-k * (ly - y));
     while (up > 1e-18 || down > 1e-18) {
         const double du = (1 - up) * (1 - up) + 4 * up * s2, dd = (1 - down) * (1 - down) + 4 * down * s2;
-        prod *= du * dd;
+        if constexpr (Psi) prod *= du * dd;
         if constexpr (Velocity) {
             gx += 2 * up * sin_b / du + 2 * down * sin_b / dd;
             gy += 2 * up * ((1 - up) - 2 * s2) / du - 2 * down * ((1 - down) - 2 * s2) / dd;
@@ -106,10 +86,13 @@ PeriodicKernel::Green periodic_green(Vec2d r, Vec2d period) {
         up *= q;
         down *= q;
     }
-    const double lattice = (std::abs(y) - y * y / ly) / (2 * lx);  // the mean over x, background included
-    const double both = d0 * prod;
-    const double logs = std::isnormal(both) ? std::log(both) : std::log(d0) + std::log(prod);
-    PeriodicKernel::Green g{logs / (4 * Pi) + lattice, Vec2d(0.0)};
+    PeriodicKernel::Green g{0.0, Vec2d(0.0)};
+    if constexpr (Psi) {
+        const double lattice = (std::abs(y) - y * y / ly) / (2 * lx);  // the mean over x, background included
+        const double both = d0 * prod;
+        const double logs = std::isnormal(both) ? std::log(both) : std::log(d0) + std::log(prod);
+        g.psi = logs / (4 * Pi) + lattice;
+    }
     if constexpr (Velocity) {
         const double sgn = y > 0 ? 1.0 : (y < 0 ? -1.0 : 0.0);
         const double dgx = gx * k / (4 * Pi), dgy = gy * k / (4 * Pi) + (sgn - 2 * y / ly) / (2 * lx);
@@ -117,22 +100,24 @@ PeriodicKernel::Green periodic_green(Vec2d r, Vec2d period) {
     }
     return g;
 }
-}  // namespace
 
 // The rows run along the shorter side: their terms fall by exp(-2 pi L_across / L_along) per row. Across a cell
 // wider than tall the function is G's with the axes swapped (the two differ by a constant: both are periodic with the
 // same Laplacian), whose gradient swaps back.
-PeriodicKernel::Green PeriodicKernel::green(Vec2d r, Vec2d period) {
-    if (period.x <= period.y) return periodic_green<true>(r, period);
-    Green g = periodic_green<true>({r.y, r.x}, {period.y, period.x});
+template <bool Psi, bool Velocity>
+PeriodicKernel::Green periodic_green(Vec2d r, Vec2d period) {
+    if (period.x <= period.y) return periodic_rows<Psi, Velocity>(r, period);
+    PeriodicKernel::Green g = periodic_rows<Psi, Velocity>({r.y, r.x}, {period.y, period.x});
     g.velocity = {-g.velocity.y, -g.velocity.x};  // (-dG/dy, dG/dx) from (-dG/dx, dG/dy) of the swapped axes
     return g;
 }
+}  // namespace
 
-double PeriodicKernel::stream(Vec2d r, Vec2d period) {
-    return period.x <= period.y ? periodic_green<false>(r, period).psi
-                                : periodic_green<false>({r.y, r.x}, {period.y, period.x}).psi;
-}
+Vec2d PeriodicKernel::exact(Vec2d r, Vec2d period) { return periodic_green<false, true>(r, period).velocity; }
+
+PeriodicKernel::Green PeriodicKernel::green(Vec2d r, Vec2d period) { return periodic_green<true, true>(r, period); }
+
+double PeriodicKernel::stream(Vec2d r, Vec2d period) { return periodic_green<true, false>(r, period).psi; }
 
 PeriodicKernel::PeriodicKernel(Vec2d period, int table_size)
     : m_period(period), m_inv_period(1.0 / period.x, 1.0 / period.y), m_n(table_size) {

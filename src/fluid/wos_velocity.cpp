@@ -558,7 +558,7 @@ Vec2d WosVelocityField::free_vortices(Vec2d x, int q, Random& rng, FreeVortices&
             else
                 out.minus[std::size_t(out.n_minus++)] = y;
         }
-        v += periodic ? W * PeriodicKernel::green(d, out.period).velocity : (W / (2 * Pi * r2)) * Vec2d(-d.y, d.x);
+        v += periodic ? W * PeriodicKernel::exact(d, out.period) : (W / (2 * Pi * r2)) * Vec2d(-d.y, d.x);
     }
     return v;
 }

@@ -169,8 +169,9 @@ TEST(WosVariance, EveryVariantMatchesPlainWalksAroundAPolygon) {
 }
 
 // Harmonic caching (WosVelocityOptions::harmonic_cache) is unbiased: its error at a point is shared by every query
-// of one cache, so the mean over 12 caches built with different seeds (the free part with the singular kernel,
-// delta = 0, i.e. exactly the walks' Psi_free) matches plain walks within 5 standard errors (the caches' spread
+// of one cache, so the mean over 12 caches built with different seeds (built as the solver builds them: the cores'
+// free part from the Biot–Savart estimator with an eighth-cell mollifier, O(delta^2) from the walks' singular
+// Psi_free) matches plain walks within 5 standard errors (the caches' spread
 // over the 12 builds plus the plain estimate's) at the disk container's 14 points and the polygon's 16, with the
 // vortex off centre, the container at Psi 0.1, the obstacle at 0.05 and the inflow ramp. Most points lie in a
 // disk's core, the ones within a few cells of a boundary walk per query; and on the periodic cases of

@@ -73,13 +73,13 @@ public:
     Vec2d period() const { return m_period; }
     int table_size() const { return m_n; }
 
-    /// The exact doubly periodic kernel (unmollified, 1/(2 pi) included) at a minimum-image r != 0, by the
-    /// closed-form row sums (rows of images along x, |m| <= M rows along y, M chosen for 1e-13 truncation).
+    /// The exact doubly periodic kernel (unmollified, 1/(2 pi) included) at any r that is not a multiple of the
+    /// period: the velocity of green() without its stream function (no logarithm).
     static Vec2d exact(Vec2d r, Vec2d period);
     /// The doubly periodic unit point vortex at displacement r (any image of it; r not a multiple of the period):
     /// its stream function G, with Laplacian(G) = delta - 1/(Lx Ly) on the torus and G = log|r| / (2 pi) + a smooth
-    /// function near r = 0 (fixed up to one constant), and its velocity (-dG/dy, dG/dx), which is exact(r). The
-    /// row sums of exact() in a form whose rows' terms vanish exponentially: G = sum_m log D_m / (4 pi) +
+    /// function near r = 0 (fixed up to one constant), and its velocity (-dG/dy, dG/dx), which is exact(r). Lamb's
+    /// closed-form rows of images in a form whose rows' terms vanish exponentially: G = sum_m log D_m / (4 pi) +
     /// (|y| - y^2 / Ly) / (2 Lx) over the minimum image (x, y), D_m = (1 - E_m)^2 + 4 E_m sin^2(pi x / Lx),
     /// E_m = exp(-2 pi |y + m Ly| / Lx) (the m-th row of images less its mean over x, plus the mean over x of the
     /// whole lattice with its background), the rows along the shorter side (on a cell wider than tall, the axes
