@@ -43,6 +43,14 @@ int run_samples(const RunContext& ctx, int scene_samples) {
     return ctx.spp > 0 ? int(std::min<long long>(ctx.spp, 1 << 24)) : scene_samples;
 }
 
+int energy_passes_param(const Properties& props) {
+    const int passes = int(props.get_int("energy_passes", 0, 64));
+    if (passes == 1)
+        props.error("energy_passes",
+                    "1: one pass's square carries its noise; use 0 (off) or 2 and more (3 and more for an error bar)");
+    return passes;
+}
+
 RunResult run_simulation(DrivenSolver& solver, const DriverSettings& s, RunContext& ctx) {
     const std::string& who = s.who;
     const OutputSettings& out = s.outputs;

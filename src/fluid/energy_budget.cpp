@@ -238,4 +238,75 @@ void FlowFFT::velocity(const Grid2& omega, bool smoothed, Interpolation interp, 
     s.unload(wv, area, v);
 }
 
+PairedEnergy paired_energy(const std::vector<std::vector<double>>& passes, double measure) {
+    PairedEnergy e;
+    const std::size_t R = passes.size();
+    if (R < 2) throw_runtime("paired_energy: {} velocity passes; the estimate needs two or more", R);
+    const std::size_t n = passes[0].size();
+    for (const auto& p : passes)
+        if (p.size() != n) throw_runtime("paired_energy: the passes have different lengths");
+    // sum over the pairs r != s of u^r . u^s = |S|^2 - Q, S = sum_r u^r, Q = sum_r |u^r|^2; leaving pass r out
+    // removes 2 u^r . (S - u^r) from it.
+    std::vector<double> sum(n, 0.0);
+    double q = 0;
+    for (const auto& p : passes)
+        for (std::size_t k = 0; k < n; ++k) {
+            sum[k] += p[k];
+            q += p[k] * p[k];
+        }
+    double s2 = 0;
+    for (std::size_t k = 0; k < n; ++k) s2 += sum[k] * sum[k];
+    const double pairs = s2 - q, half = 0.5 * measure, r = double(R);
+    e.passes = int(R);
+    e.value = half * pairs / (r * (r - 1));
+    if (R < 3) return e;
+    std::vector<double> left_out(R);
+    double mean = 0;
+    for (std::size_t i = 0; i < R; ++i) {
+        double cross = 0;
+        for (std::size_t k = 0; k < n; ++k) cross += passes[i][k] * (sum[k] - passes[i][k]);
+        left_out[i] = half * (pairs - 2 * cross) / ((r - 1) * (r - 2));
+        mean += left_out[i] / r;
+    }
+    double var = 0;
+    for (const double v : left_out) var += (v - mean) * (v - mean);
+    e.error = std::sqrt((r - 1) / r * var);
+    return e;
+}
+
+std::string paired_energy_columns() { return ",energy_paired,energy_paired_error"; }
+
+std::string paired_energy_values(const PairedEnergy& e) {
+    const auto cell = [](double v) { return std::isfinite(v) ? fmt::format("{:.10g}", v) : std::string(); };
+    return fmt::format(",{},{}", cell(e.value), cell(e.error));
+}
+
+void add_paired_energy_stats(Stats& stats, const PairedEnergy& first, const PairedEnergy& last) {
+    if (!std::isfinite(first.value) || !std::isfinite(last.value)) return;
+    stats.set("fluid.energy_paired.initial", first.value, "energy");
+    stats.set("fluid.energy_paired.final", last.value, "energy");
+    if (std::isfinite(first.error)) stats.set("fluid.energy_paired.initial_error", first.error, "energy");
+    if (std::isfinite(last.error)) stats.set("fluid.energy_paired.final_error", last.error, "energy");
+    stats.set("fluid.energy_paired.passes", last.passes, "passes");
+}
+
+std::string paired_energy_summary(const PairedEnergy& first, const PairedEnergy& last) {
+    if (!std::isfinite(first.value) || !std::isfinite(last.value)) return {};
+    const auto pm = [](const PairedEnergy& e) {
+        return std::isfinite(e.error) ? fmt::format("{:.6g} ± {:.2g}", e.value, e.error)
+                                      : fmt::format("{:.6g}", e.value);
+    };
+    std::string s = fmt::format("; energy from {} independent passes {} (initial {}", last.passes, pm(last), pm(first));
+    if (first.value > 0) {
+        const double ratio = last.value / first.value;
+        if (std::isfinite(first.error) && std::isfinite(last.error)) {
+            const double rel = std::hypot(first.error / first.value, last.error / std::max(last.value, 1e-300));
+            s += fmt::format(", change {:+.2f} ± {:.2f} %", 100 * (ratio - 1), 100 * ratio * rel);
+        } else {
+            s += fmt::format(", change {:+.2f} %", 100 * (ratio - 1));
+        }
+    }
+    return s + ")";
+}
+
 }  // namespace kelvin::fluid

@@ -183,20 +183,9 @@ void MCFluidSolver::rebuild_estimator() {
                 }
         m_work.solid_cells = solid;
     }
-    VelocityState2 state;
-    state.domain = m_settings.domain;
-    state.omega = &m_omega;
-    state.interpolation = m_settings.interpolation;
-    state.delta = m_delta;
-    state.time = m_time;
-    state.periodic = m_periodic;
-    state.stop = this;
-    state.seed = m_settings.seed;
-    state.stream = stream_of(m_step, TagField, 0);
-    state.samples = m_settings.samples;
     m_wos = nullptr;
     Timer timer;  // a field may do work once per state (a harmonic cache's walks)
-    m_field = m_settings.estimator->build2(state);
+    m_field = m_settings.estimator->build2(velocity_state(stream_of(m_step, TagField, 0)));
     m_work.seconds_velocity += timer.seconds();
     if (!m_field)
         throw_runtime("MCFluidSolver: velocity estimator '{}' built no field", m_settings.estimator->plugin_name());
@@ -206,6 +195,21 @@ void MCFluidSolver::rebuild_estimator() {
                       m_settings.estimator->plugin_name());
     if (m_wos) add_walks(m_wos->harmonic_walks());
     m_velocity_valid = false;
+}
+
+VelocityState2 MCFluidSolver::velocity_state(uint64_t stream) const {
+    VelocityState2 state;
+    state.domain = m_settings.domain;
+    state.omega = &m_omega;
+    state.interpolation = m_settings.interpolation;
+    state.delta = m_delta;
+    state.time = m_time;
+    state.periodic = m_periodic;
+    state.stop = this;
+    state.seed = m_settings.seed;
+    state.stream = stream;
+    state.samples = m_settings.samples;
+    return state;
 }
 
 VelocityEstimate MCFluidSolver::estimate_at(Vec2d x, int n, Random& rng, wos::WalkCounters& walks) const {
@@ -233,11 +237,8 @@ Vec2d MCFluidSolver::checked_velocity(Vec2d x, Random& rng, uint64_t& evals, uin
     return e.value;
 }
 
-bool MCFluidSolver::ensure_velocity() {
-    if (m_velocity_valid) return true;
-    // A field whose once-per-state work (a harmonic cache) was interrupted is built again, as it would have been.
-    if (m_wos && m_wos->harmonic_cache_stopped() && !stop_requested()) rebuild_estimator();
-    Timer timer;
+bool MCFluidSolver::cell_pass(const VelocityField2& field, const std::function<uint64_t(std::size_t)>& stream, Grid2& u,
+                              Grid2& v, Grid2* var_u, Grid2* var_v) {
     const int nx = m_omega.nx(), ny = m_omega.ny();
     const int n = m_settings.samples;
     SlabPass pass(*m_comm, std::size_t(ny), std::size_t(nx));  // this rank's rows
@@ -245,7 +246,7 @@ bool MCFluidSolver::ensure_velocity() {
     std::atomic<bool> interrupted{false};
     pass.run([&](std::size_t row) {
         const int j = int(row);
-        Random rng(m_settings.seed, stream_of(m_step, TagVelocity, row));
+        Random rng(m_settings.seed, stream(row));
         RowWork& w = rows[row - pass.begin()];
         for (int i = 0; i < nx; ++i) {
             // Every cell: one cell's estimate is n samples (Walk-on-Spheres walks with boundaries, each many
@@ -254,17 +255,17 @@ bool MCFluidSolver::ensure_velocity() {
                 interrupted = true;
                 return;
             }
-            VelocityEstimate e = estimate_at(m_omega.cell_center(i, j), n, rng, w.walks);
+            VelocityEstimate e = field.estimate(m_omega.cell_center(i, j), n, rng, w.walks);
             w.evals += uint64_t(e.samples);
             ++w.queries;
             if (!finite(e.value) || !std::isfinite(e.variance.x) || !std::isfinite(e.variance.y)) {
                 ++w.invalid_velocity;
                 e = {};
             }
-            m_u.at(i, j) = e.value.x;
-            m_v.at(i, j) = e.value.y;
-            m_var_u.at(i, j) = e.variance.x;
-            m_var_v.at(i, j) = e.variance.y;
+            u.at(i, j) = e.value.x;
+            v.at(i, j) = e.value.y;
+            if (var_u) var_u->at(i, j) = e.variance.x;
+            if (var_v) var_v->at(i, j) = e.variance.y;
         }
     });
     RowWork total;
@@ -274,15 +275,59 @@ bool MCFluidSolver::ensure_velocity() {
     m_work.velocity_queries += total.queries;
     m_work.invalid_velocity += total.invalid_velocity;
     add_walks(total.walks);
+    std::vector<Grid2*> grids{&u, &v};
+    for (Grid2* g : {var_u, var_v})
+        if (g) grids.push_back(g);
     if (stopped) {  // what the pass left is a mix of rows: no velocity rather than a wrong one
-        for (Grid2* g : {&m_u, &m_v, &m_var_u, &m_var_v}) std::fill(g->values().begin(), g->values().end(), 0.0);
-        m_work.seconds_velocity += timer.seconds();
+        for (Grid2* g : grids) std::fill(g->values().begin(), g->values().end(), 0.0);
         return false;
     }
-    pass.gather({&m_u.values(), &m_v.values(), &m_var_u.values(), &m_var_v.values()});
-    m_work.seconds_velocity += timer.seconds();
-    m_velocity_valid = true;
+    std::vector<std::vector<double>*> values;
+    for (Grid2* g : grids) values.push_back(&g->values());
+    pass.gather(values);
     return true;
+}
+
+bool MCFluidSolver::ensure_velocity() {
+    if (m_velocity_valid) return true;
+    // A field whose once-per-state work (a harmonic cache) was interrupted is built again, as it would have been.
+    if (m_wos && m_wos->harmonic_cache_stopped() && !stop_requested()) rebuild_estimator();
+    Timer timer;
+    const bool done = cell_pass(
+        *m_field, [&](std::size_t row) { return stream_of(m_step, TagVelocity, row); }, m_u, m_v, &m_var_u, &m_var_v);
+    m_work.seconds_velocity += timer.seconds();
+    m_velocity_valid = done;
+    return done;
+}
+
+PairedEnergy MCFluidSolver::paired_energy() {
+    if (m_energy_passes < 2) return {};
+    if (m_paired_step == m_step && m_paired.passes > 0) return m_paired;
+    Timer timer;
+    std::vector<std::vector<double>> passes;
+    Grid2 u = m_u, v = m_v;
+    for (int r = 0; r < m_energy_passes; ++r) {
+        // Each pass its own field (a harmonic cache's walks, the control variate's point vortices) and its own
+        // walks: independent of the run's streams and of one another.
+        const std::unique_ptr<VelocityField2> field =
+            m_settings.estimator->build2(velocity_state(stream_of(m_step, TagEnergy, hash_combine(uint64_t(r), 0))));
+        if (const WosVelocityField* b = field->boundaries()) add_walks(b->harmonic_walks());
+        if (stop_requested() || (field->boundaries() && field->boundaries()->harmonic_cache_stopped()) ||
+            !cell_pass(
+                *field,
+                [&](std::size_t row) { return stream_of(m_step, TagEnergy, hash_combine(uint64_t(r), row + 1)); }, u, v,
+                nullptr, nullptr)) {
+            m_work.seconds_energy += timer.seconds();
+            return {};
+        }
+        std::vector<double> p(u.values());
+        p.insert(p.end(), v.values().begin(), v.values().end());
+        passes.push_back(std::move(p));
+    }
+    m_paired = fluid::paired_energy(passes, m_omega.cell_area());
+    m_paired_step = m_step;
+    m_work.seconds_energy += timer.seconds();
+    return m_paired;
 }
 
 bool MCFluidSolver::velocity_available() { return ensure_velocity(); }
@@ -329,6 +374,14 @@ bool MCFluidSolver::maccormack_correction(double dt) {
             m_next.at(i, int(r)) = corrected[(r - pass.begin()) * std::size_t(nx) + std::size_t(i)];
     pass.gather({&m_next.values()});
     return true;
+}
+
+void MCFluidSolver::set_energy_passes(int passes) {
+    if (passes != 0 && passes < 2)
+        throw_runtime("MCFluidSolver: energy_passes = {}: 0 (off) or 2 and more (3 and more for an error bar)", passes);
+    m_energy_passes = passes;
+    m_paired = {};
+    m_paired_step = -1;
 }
 
 void MCFluidSolver::set_energy_budget(bool on) {

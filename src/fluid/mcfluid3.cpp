@@ -190,16 +190,7 @@ void MCFluid3Solver::rebuild_estimators() {
         for (std::size_t c = 0; c < m_omega.cell_count(); ++c)
             if (m_solid[c]) m_omega.set(c, Vec3d(0.0));
     }
-    VelocityState3 state;
-    state.domain = s.domain;
-    state.omega = &m_omega;
-    state.interpolation = s.interpolation;
-    state.delta = m_delta;
-    state.periodic = m_periodic;
-    state.stop = this;
-    state.seed = m_settings.seed;
-    state.stream = stream_of(m_step, TagField, 0);
-    state.samples = m_settings.samples;
+    const VelocityState3 state = velocity_state(stream_of(m_step, TagField, 0));
     m_wos = nullptr;
     Timer timer;  // a field may do work once per state (a harmonic cache's walks)
     m_field = s.estimator->build3(state);
@@ -238,6 +229,87 @@ void MCFluid3Solver::rebuild_estimators() {
             m_work.wos_boundary_queries += c.boundary_queries;
         }
     m_velocity_valid = false;
+}
+
+VelocityState3 MCFluid3Solver::velocity_state(uint64_t stream) const {
+    VelocityState3 state;
+    state.domain = m_settings.domain;
+    state.omega = &m_omega;
+    state.interpolation = m_settings.interpolation;
+    state.delta = m_delta;
+    state.periodic = m_periodic;
+    state.stop = this;
+    state.seed = m_settings.seed;
+    state.stream = stream;
+    state.samples = m_settings.samples;
+    return state;
+}
+
+void MCFluid3Solver::set_energy_passes(int passes) {
+    if (passes != 0 && passes < 2)
+        throw_runtime("MCFluid3Solver: energy_passes = {}: 0 (off) or 2 and more (3 and more for an error bar)",
+                      passes);
+    m_energy_passes = passes;
+    m_paired = {};
+    m_paired_step = -1;
+}
+
+PairedEnergy MCFluid3Solver::paired_energy() {
+    if (m_energy_passes < 2) return {};
+    if (m_paired_step == m_step && m_paired.passes > 0) return m_paired;
+    Timer timer;
+    const MCFluid3Settings& s = m_settings;
+    std::vector<std::vector<double>> passes;
+    for (int r = 0; r < m_energy_passes; ++r) {
+        // Each pass its own field (a harmonic cache's walks) and its own walks, on streams of its own: independent
+        // of the run's draws and of one another. Direct estimates (no control variate: the previous velocity would
+        // carry the earlier passes' errors, which are not independent of the state).
+        const std::unique_ptr<VelocityField3> field =
+            s.estimator->build3(velocity_state(stream_of(m_step, TagEnergy, hash_combine(uint64_t(r), 0))));
+        if (!field) throw_runtime("MCFluid3Solver: velocity estimator '{}' built no field", s.estimator->plugin_name());
+        const WosVelocityField3* b = field->boundaries();
+        if (b) {
+            const wos::WalkCounters& c = b->harmonic_walks();
+            m_work.wos_walks += c.walks;
+            m_work.wos_steps += c.steps;
+            m_work.wos_truncated += c.truncated;
+            m_work.wos_invalid += c.invalid;
+            m_work.wos_boundary_queries += c.boundary_queries;
+        }
+        const std::size_t n = m_omega.cell_count();
+        std::vector<double> px(n, 0.0), py(n, 0.0), pz(n, 0.0);
+        SlabPass pass(*m_comm, std::size_t(s.nz), std::size_t(s.nx) * std::size_t(s.ny));
+        SlabWork work;
+        const bool complete = !(b && b->harmonic_cache_stopped()) &&
+                              for_each_cell(pass, s, m_omega.x, m_step, hash_combine(TagEnergy, uint64_t(r) + 1), work,
+                                            *this, [&](std::size_t c, const Vec3d& x, Random& rng, SlabWork& w) {
+                                                if (!m_solid.empty() && m_solid[c])
+                                                    return;  // static solids: zero velocity
+                                                VelocityEstimate3 e = field->estimate(x, s.samples, rng, w.walks);
+                                                w.evals += uint64_t(e.samples);
+                                                ++w.queries;
+                                                if (!finite(e.value) || !finite(e.variance)) {
+                                                    ++w.invalid_velocity;
+                                                    return;
+                                                }
+                                                px[c] = e.value.x;
+                                                py[c] = e.value.y;
+                                                pz[c] = e.value.z;
+                                            });
+        add_work(m_work, work);
+        if (!complete) {
+            m_work.seconds_energy += timer.seconds();
+            return {};
+        }
+        pass.gather({&px, &py, &pz});  // every rank's slabs
+        px.insert(px.end(), py.begin(), py.end());
+        px.insert(px.end(), pz.begin(), pz.end());
+        passes.push_back(std::move(px));
+    }
+    m_paired = fluid::paired_energy(passes, m_omega.x.cell_volume());
+    m_paired_step = m_step;
+    m_work.seconds_energy += timer.seconds();
+    return m_paired;
 }
 
 VelocityEstimate3 MCFluid3Solver::velocity_estimate(Vec3d x, int n, Random& rng) const {

@@ -77,6 +77,7 @@ MCFluidParams MCFluidParams::parse(const Properties& props) {
         if (const std::string why = bs->check_cells2(h, delta, s.nx, s.ny, s.domain.periodic); !why.empty())
             props.error("velocity", velocity->plugin_name() + ": " + why);
     }
+    p.energy_passes = energy_passes_param(props);
     p.energy_budget = props.get_bool("energy_budget");
     if (p.energy_budget && s.boundaries)
         if (const std::string why = check_wall_budget(*s.boundaries, s.domain, s.nx, s.ny); !why.empty())
@@ -97,6 +98,7 @@ std::unique_ptr<MCFluidSolver> create_mcfluid_solver(const MCFluidParams& p, con
     solver->set_cancel_token(ctx.cancel);
     solver->set_communicator(ctx.comm);
     if (p.energy_budget) solver->set_energy_budget(true);
+    solver->set_energy_passes(p.energy_passes);
     return solver;
 }
 
@@ -124,6 +126,7 @@ public:
     std::string csv_header() const override {
         std::string h = Solver2Run::csv_header();
         if (m_mc.energy_budget_step()) h += EnergyBudget::csv_columns(false, m_mc.energy_budget_has_boundary());
+        if (m_mc.energy_passes() > 0) h += paired_energy_columns();
         return h;
     }
     std::string csv_row(double seconds, double evals, uint64_t invalid, double cfl) const override {
@@ -131,6 +134,10 @@ public:
         if (const EnergyBudget* b = m_mc.energy_budget_step()) {
             if (!row.empty() && row.back() == '\n') row.pop_back();
             row += b->csv_values(false, m_mc.energy_budget_has_boundary()) + "\n";
+        }
+        if (m_mc.energy_passes() > 0) {
+            if (!row.empty() && row.back() == '\n') row.pop_back();
+            row += paired_energy_values(m_velocity ? m_paired : PairedEnergy{}) + "\n";
         }
         return row;
     }
@@ -143,6 +150,10 @@ public:
             return false;
         }
         m_d = m_mc.diagnostics(velocity);
+        if (velocity && m_mc.energy_passes() > 0) {
+            m_paired = m_mc.paired_energy();
+            if (!m_have_d0) m_paired0 = m_paired;
+        }
         if (velocity)
             m_d.vorticity_rmse_exact = exact_vorticity_rmse(m_mc.vorticity_grid(), *m_p.field, m_d.time, m_p.viscosity,
                                                             bool(m_mc.settings().boundaries));
@@ -210,6 +221,7 @@ public:
         stats.add("fluid.solid_departures", double(w.solid_departures), "points");
         if (const EnergyBudget* b = m_mc.energy_budget_total())
             b->add_stats(stats, false, m_mc.energy_budget_has_boundary());
+        if (m_mc.energy_passes() > 0) add_paired_energy_stats(stats, m_paired0, m_paired);
         report_dye_stats(stats, m_mc.dye());
     }
 
@@ -226,6 +238,7 @@ public:
         std::string s = summary_line(ended);
         if (const EnergyBudget* b = m_mc.energy_budget_total())
             s += b->summary(false, m_mc.energy_budget_has_boundary());
+        if (m_mc.energy_passes() > 0 && m_velocity) s += paired_energy_summary(m_paired0, m_paired);
         return s;
     }
 
@@ -268,6 +281,7 @@ private:
     const MCFluidParams& m_params;
     bool m_spp;
     FrameOverlay m_overlay;
+    PairedEnergy m_paired0, m_paired;  ///< energy_passes: the first and the current state's
 };
 
 }  // namespace

@@ -63,6 +63,7 @@ Simulation3Params Simulation3Params::parse(const Properties& props) {
                                                : BacktraceVelocity::Auto;
     s.velocity_filter = props.get_float("velocity_filter", 0.0, MaxVelocityFilter);
     if (const auto k = parse_filter_kernel(props)) s.filter_kernel = *k;
+    p.energy_passes = energy_passes_param(props);
     p.energy_budget = props.get_bool("energy_budget");
     if (p.energy_budget && s.viscosity > 0) props.error("energy_budget", "covers inviscid flows only (viscosity 0)");
     s.stretching = props.get_bool("stretching");
@@ -285,6 +286,7 @@ std::unique_ptr<MCFluid3Solver> create_mcfluid3_solver(const Simulation3Params& 
     solver->set_cancel_token(ctx.cancel);
     solver->set_communicator(ctx.comm);
     if (p.energy_budget) solver->set_energy_budget(true);
+    solver->set_energy_passes(p.energy_passes);
     return solver;
 }
 
@@ -314,6 +316,10 @@ public:
         m_d = m_solver->diagnostics(velocity);
         m_cores.update(m_solver->vorticity_grid());
         m_velocity = velocity;
+        if (velocity && m_solver->energy_passes() > 0) {
+            m_paired = m_solver->paired_energy();
+            if (!m_have_d0) m_paired0 = m_paired;
+        }
         if (!m_have_d0) m_d0 = m_d, m_have_d0 = true;
         return velocity;
     }
@@ -362,7 +368,8 @@ public:
                "centroid_x,centroid_y,centroid_z,impulse_centroid_x,impulse_centroid_y,impulse_centroid_z,max_abs_"
                "vorticity,divergence_rms,smoke_mass,step_seconds,"
                "biot_savart_evals,invalid,cfl" +
-               (m_solver->energy_budget_step() ? EnergyBudget::csv_columns(true) : std::string()) + m_cores.header();
+               (m_solver->energy_budget_step() ? EnergyBudget::csv_columns(true) : std::string()) +
+               (m_solver->energy_passes() > 0 ? paired_energy_columns() : std::string()) + m_cores.header();
     }
     std::string csv_row(double seconds, double evals, uint64_t invalid, double cfl) const override {
         const FluidDiagnostics3& d = m_d;
@@ -373,7 +380,10 @@ public:
             d.step, d.time, d.kinetic_energy, d.kinetic_energy_raw, d.enstrophy, d.helicity, d.impulse.x, d.impulse.y,
             d.impulse.z, d.centroid.x, d.centroid.y, d.centroid.z, d.impulse_centroid.x, d.impulse_centroid.y,
             d.impulse_centroid.z, d.max_abs_vorticity, d.divergence_rms, d.smoke_mass, seconds, evals, invalid, cfl,
-            budget_values() + m_cores.values());
+            budget_values() +
+                (m_solver->energy_passes() > 0 ? paired_energy_values(m_velocity ? m_paired : PairedEnergy{})
+                                               : std::string()) +
+                m_cores.values());
     }
     // With the energy budget, seven more columns: the state's deterministic energy and the last step's split.
     std::string budget_values() const {
@@ -504,6 +514,7 @@ public:
         }
         stats.add("fluid.smoke_lookups", double(w.smoke_lookups), "lookups");
         if (const EnergyBudget* b = m_solver->energy_budget_total()) b->add_stats(stats, true);
+        if (m_solver->energy_passes() > 0) add_paired_energy_stats(stats, m_paired0, m_paired);
     }
 
     void warn() const override {
@@ -518,6 +529,7 @@ public:
     std::string summary(const std::string& ended) override {
         std::string line = summary_line(ended);
         if (const EnergyBudget* b = m_solver->energy_budget_total()) line += b->summary(true);
+        if (m_solver->energy_passes() > 0 && m_velocity) line += paired_energy_summary(m_paired0, m_paired);
         return line;
     }
 
@@ -551,6 +563,7 @@ private:
     double m_range = 0;
     FluidDiagnostics3 m_d, m_d0;
     bool m_velocity = false, m_have_d0 = false;
+    PairedEnergy m_paired0, m_paired;    ///< energy_passes: the first and the current state's
     RingCoreColumns m_cores{m_p.field};  // rings: each core's (r, z, circulation) in the CSV
 };
 

@@ -271,3 +271,25 @@ TEST(CliFluidTransport, SampleAllocationFromTheScene) {
     EXPECT_CONTAINS(expect_one_error_line(run_kelvin({with("taylor_green.xml", "vorticity", "tg.xml"), "-o", out})),
                     "parameter 'sample_allocation': is a 3D parameter");
 }
+
+// The paired energy (`energy_passes`, here through the scenes' `passes`) where the budget cannot solve: a sub-cell
+// disk (2D) and a sphere (3D). Its CSV columns, --stats and the summary's clause; 1 pass (a square: the noise's
+// energy) and more than 64 are one line naming the parameter, exit 2.
+TEST(CliFluidTransport, EnergyPassesWhereTheBudgetCannotSolve) {
+    TempDir dir;
+    for (const std::string scene : {"subgrid_obstacle", "sphere_obstacle"}) {
+        const ProcessResult r = run_kelvin(
+            {Scenes + scene + ".xml", "-D", "res=12", "-D", "end=0.1", "-D", "spp=2", "-D", "every=0", "-D", "passes=3",
+             "-o", (dir.path() / (scene + ".png")).string(), "--stats", (dir.path() / (scene + ".json")).string()});
+        ASSERT_EQ(r.exit_code, 0) << describe(r);
+        const std::string csv = read(dir.path() / scene / "diagnostics.csv");
+        EXPECT_CONTAINS(csv, ",energy_paired,energy_paired_error");
+        EXPECT_CONTAINS(read(dir.path() / (scene + ".json")), "fluid.energy_paired.final_error");
+        EXPECT_CONTAINS(r.err + r.out, "energy from 3 independent passes");
+    }
+    const std::string out = (dir.path() / "x.png").string();
+    EXPECT_CONTAINS(expect_one_error_line(run_kelvin({Scenes + "subgrid_obstacle.xml", "-D", "passes=1", "-o", out})),
+                    "parameter 'energy_passes': 1: one pass's square carries its noise");
+    EXPECT_CONTAINS(expect_one_error_line(run_kelvin({Scenes + "sphere_obstacle.xml", "-D", "passes=65", "-o", out})),
+                    "parameter 'energy_passes': must lie in [0, 64]");
+}

@@ -143,4 +143,7 @@ RunResult run_simulation(DrivenSolver& solver, const DriverSettings& settings, R
 /// The Monte Carlo sample count of a run: --spp (ctx.spp, capped at 2^24) when given, otherwise the scene's.
 int run_samples(const RunContext& ctx, int scene_samples);
 
+/// mcfluid's `energy_passes` from the scene: 0 (off) or 2 to 64 (an error names the parameter).
+int energy_passes_param(const Properties& props);
+
 }  // namespace kelvin::fluid

@@ -64,6 +64,7 @@
 #include <kelvin/fluid/grid.h>
 #include <kelvin/fluid/grid3.h>
 
+#include <limits>
 #include <memory>
 #include <string>
 #include <vector>
@@ -95,6 +96,32 @@ struct EnergyBudget {
     void add_stats(Stats& stats, bool stretching, bool boundary = false) const;
     std::string summary(bool stretching, bool boundary = false) const;
 };
+
+/// The kinetic energy of a state's expected velocity, from independent velocity passes (mcfluid's
+/// `energy_passes`): where no deterministic solve gives the state's energy (walls the grid does not represent, a
+/// triangle soup, 3D walls), R >= 2 passes over the cells, each through its own estimator built on its own random
+/// streams, give u^1 ... u^R with independent errors. The mean over the pairs r != s of (1/2) sum_k u^r_k u^s_k h^d
+/// has the expectation (1/2) sum_k |E u_k|^2 h^d: unlike |u|^2, whose expectation the noise raises by the variance,
+/// a product of two independent estimates carries no noise energy, whatever the correlation of one pass's errors
+/// from cell to cell (a harmonic cache, shared point vortices). E u is the estimator's mean velocity: the velocity of
+/// the state as the estimator smooths it (its source basis and mollifier), which is the flow the solver moves.
+struct PairedEnergy {
+    double value = std::numeric_limits<double>::quiet_NaN();  ///< the estimate (NaN: not measured)
+    double error = std::numeric_limits<double>::quiet_NaN();  ///< its jackknife standard error (3 passes or more)
+    int passes = 0;
+};
+
+/// `passes`: R vectors of the same length, each pass's velocity components (every cell's, in one order); `measure`:
+/// a cell's area or volume. The error is the delete-one jackknife's over the passes (NaN below 3).
+PairedEnergy paired_energy(const std::vector<std::vector<double>>& passes, double measure);
+
+/// How a simulation reports it: the CSV columns (",energy_paired,energy_paired_error") and one row's values (empty
+/// where not measured), the `fluid.energy_paired.*` statistics (the first and the last measured state) and the
+/// summary's clause.
+std::string paired_energy_columns();
+std::string paired_energy_values(const PairedEnergy& e);
+void add_paired_energy_stats(Stats& stats, const PairedEnergy& first, const PairedEnergy& last);
+std::string paired_energy_summary(const PairedEnergy& first, const PairedEnergy& last);
 
 /// The flow of a cell-centred vorticity field omega_h (the cells' values as point vortices of strength omega h^2,
 /// optionally smoothed), by FFT: on a periodic box spectrally (the mean vorticity removed), in free space by Hockney's

@@ -153,6 +153,7 @@ struct FluidWork {
     uint64_t velocity_fields_built = 0;  ///< Biot–Savart tables or free-slip fields built (one per state)
     double seconds_velocity = 0;         ///< cell-centre velocity passes
     double seconds_advection = 0;        ///< backtrace (incl. RK stages) + diffusion + interpolation passes
+    double seconds_energy = 0;           ///< the paired energy's passes (energy_passes)
 };
 
 /// The practical cached solver (Section 5.3.3). A FluidSolver (solver.h): the run loop and hosts step it through
@@ -246,12 +247,34 @@ public:
     /// Whether the budget measures a boundary term (the budget on, with walls).
     bool energy_budget_has_boundary() const { return bool(m_wall_flow); }
 
+    /// The state's energy from independent velocity passes (energy_budget.h, PairedEnergy): `passes` (0: off, or 2
+    /// and more; 3 and more for an error bar) fresh fields and cell passes per measured state, on streams of their
+    /// own (the run's draws are unchanged).
+    void set_energy_passes(int passes);
+    int energy_passes() const { return m_energy_passes; }
+    /// The current state's paired energy (measured on first use per state; an empty PairedEnergy when the passes
+    /// are off or a stop cut them short).
+    PairedEnergy paired_energy();
+
     /// Stream tags of the passes (part of the determinism contract; tests use them).
-    enum StreamTag : uint64_t { TagVelocity = 1, TagAdvection = 2, TagQuery = 3, TagDye = 4, TagField = 5 };
+    enum StreamTag : uint64_t {
+        TagVelocity = 1,
+        TagAdvection = 2,
+        TagQuery = 3,
+        TagDye = 4,
+        TagField = 5,
+        TagEnergy = 6
+    };
 
 private:
     void rebuild_estimator();
     bool ensure_velocity();
+    /// The estimator's input for the current state, its draws on `stream`.
+    VelocityState2 velocity_state(uint64_t stream) const;
+    /// One estimate of `field`'s velocity per cell centre (settings().samples each), row j's draws on stream(j);
+    /// false (and zeros) when stopped.
+    bool cell_pass(const VelocityField2& field, const std::function<uint64_t(std::size_t)>& stream, Grid2& u, Grid2& v,
+                   Grid2* var_u, Grid2* var_v);
     Vec2d checked_velocity(Vec2d x, Random& rng, uint64_t& evals, uint64_t& queries, uint64_t& invalid,
                            wos::WalkCounters& walks) const;
     VelocityEstimate estimate_at(Vec2d x, int n, Random& rng, wos::WalkCounters& walks) const;
@@ -306,6 +329,9 @@ private:
     std::unique_ptr<WallFlow2> m_wall_flow;  ///< the energy budget's Poisson solves (walls; null: no budget)
     bool budget_on() const { return m_flow || m_wall_flow; }
     EnergyBudget m_budget_step, m_budget_total;
+    int m_energy_passes = 0;
+    PairedEnergy m_paired;  ///< of step m_paired_step
+    long long m_paired_step = -1;
 };
 
 /// Settings of the recursive estimator (Algorithm C.1).

@@ -105,6 +105,7 @@ struct FluidWork3 {
     uint64_t invalid_vorticity = 0;
     double seconds_velocity = 0;
     double seconds_advection = 0;  ///< backtraces (incl. RK stages), diffusion, stretching, interpolation
+    double seconds_energy = 0;     ///< the paired energy's passes (energy_passes)
 };
 
 /// Integral diagnostics of a 3D state (midpoint rule over the cells).
@@ -202,11 +203,21 @@ public:
     const EnergyBudget* energy_budget_step() const { return m_flow ? &m_budget_step : nullptr; }
     const EnergyBudget* energy_budget_total() const { return m_flow ? &m_budget_total : nullptr; }
 
-    enum StreamTag : uint64_t { TagVelocity = 1, TagAdvection = 2, TagQuery = 3, TagField = 5 };
+    /// The state's energy from independent velocity passes (energy_budget.h, PairedEnergy): `passes` (0: off, or 2
+    /// and more; 3 and more for an error bar) fresh fields and direct cell passes (settings().samples each) per
+    /// measured state, on streams of their own (the run's draws are unchanged). Any boundaries.
+    void set_energy_passes(int passes);
+    int energy_passes() const { return m_energy_passes; }
+    /// The current state's paired energy (measured on first use per state; empty when off or stopped).
+    PairedEnergy paired_energy();
+
+    enum StreamTag : uint64_t { TagVelocity = 1, TagAdvection = 2, TagQuery = 3, TagField = 5, TagEnergy = 6 };
     struct SlabWork;  ///< the work of one z-slab of a pass (defined in mcfluid3.cpp)
 
 private:
     bool ensure_velocity();
+    /// The estimator's input for the current state, its draws on `stream`.
+    VelocityState3 velocity_state(uint64_t stream) const;
     /// The velocity of the current state at x with n samples: through the control variate when one is kept
     /// (`previous` is then the previous velocity at x), Biot–Savart or Walk-on-Spheres.
     VelocityEstimate3 estimate_at(Vec3d x, int n, Random& rng, SlabWork& w) const;
@@ -278,6 +289,9 @@ private:
     Grid3 m_density, m_density_next;
     std::unique_ptr<FlowFFT3> m_flow;  ///< the energy budget's FFTs (null: no budget)
     EnergyBudget m_budget_step, m_budget_total;
+    int m_energy_passes = 0;
+    PairedEnergy m_paired;  ///< of step m_paired_step
+    long long m_paired_step = -1;
 };
 
 }  // namespace kelvin::fluid

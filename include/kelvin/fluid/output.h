@@ -176,6 +176,7 @@ void report_fluid_counters(Stats& stats, const Work& w) {
     stats.add("fluid.invalid_vorticity", double(w.invalid_vorticity), "values");
     stats.add_time("fluid.time.velocity", w.seconds_velocity);
     stats.add_time("fluid.time.advection", w.seconds_advection);
+    if (w.seconds_energy > 0) stats.add_time("fluid.time.energy_passes", w.seconds_energy);
 }
 
 /// The counters every MCFluid run reports: the run's steps, simulated time and cells, and the solver's counters.

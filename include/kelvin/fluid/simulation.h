@@ -157,6 +157,7 @@ struct MCFluidParams {
     SimulationParams common;
     MCFluidSettings settings;    ///< the solver's, from the scene (seed 0, n_mc the estimator's)
     bool energy_budget = false;  ///< measure where each step's energy goes (energy_budget.h)
+    int energy_passes = 0;       ///< the states' paired energy from this many independent passes (0: off)
     /// Reads and validates them (errors name the parameter).
     static MCFluidParams parse(const Properties& props);
 };

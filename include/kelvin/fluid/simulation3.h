@@ -43,6 +43,7 @@ struct Simulation3Params {
     const VorticityField3* field = nullptr;
     RunSources sources;          ///< where the scene gave dt and the initial vorticity (checks.h)
     bool energy_budget = false;  ///< measure where each step's energy goes (energy_budget.h)
+    int energy_passes = 0;       ///< the states' paired energy from this many independent passes (0: off)
 
     /// Reads and validates mcfluid's parameters for dimension = 3 (errors name the parameter).
     static Simulation3Params parse(const Properties& props);
