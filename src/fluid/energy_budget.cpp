@@ -274,6 +274,10 @@ PairedEnergy paired_energy(const std::vector<std::vector<double>>& passes, doubl
     return e;
 }
 
+bool paired_energy_due(int passes, long long step, long long steps, long long output_every) {
+    return passes > 0 && (step == 0 || step >= steps || (output_every > 0 && step % output_every == 0));
+}
+
 std::string paired_energy_columns() { return ",energy_paired,energy_paired_error"; }
 
 std::string paired_energy_values(const PairedEnergy& e) {
@@ -296,7 +300,8 @@ std::string paired_energy_summary(const PairedEnergy& first, const PairedEnergy&
         return std::isfinite(e.error) ? fmt::format("{:.6g} ± {:.2g}", e.value, e.error)
                                       : fmt::format("{:.6g}", e.value);
     };
-    std::string s = fmt::format("; energy from {} independent passes {} (initial {}", last.passes, pm(last), pm(first));
+    std::string s = fmt::format("; energy from {} independent passes at t = {:g}: {} (initial {}", last.passes,
+                                last.time, pm(last), pm(first));
     if (first.value > 0) {
         const double ratio = last.value / first.value;
         if (std::isfinite(first.error) && std::isfinite(last.error)) {

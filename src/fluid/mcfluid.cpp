@@ -325,6 +325,7 @@ PairedEnergy MCFluidSolver::paired_energy() {
         passes.push_back(std::move(p));
     }
     m_paired = fluid::paired_energy(passes, m_omega.cell_area());
+    m_paired.time = m_time;
     m_paired_step = m_step;
     m_work.seconds_energy += timer.seconds();
     return m_paired;

@@ -307,6 +307,7 @@ PairedEnergy MCFluid3Solver::paired_energy() {
         passes.push_back(std::move(px));
     }
     m_paired = fluid::paired_energy(passes, m_omega.x.cell_volume());
+    m_paired.time = m_time;
     m_paired_step = m_step;
     m_work.seconds_energy += timer.seconds();
     return m_paired;

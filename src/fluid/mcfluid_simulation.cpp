@@ -137,7 +137,7 @@ public:
         }
         if (m_mc.energy_passes() > 0) {
             if (!row.empty() && row.back() == '\n') row.pop_back();
-            row += paired_energy_values(m_velocity ? m_paired : PairedEnergy{}) + "\n";
+            row += paired_energy_values(m_paired_now ? m_paired : PairedEnergy{}) + "\n";
         }
         return row;
     }
@@ -150,7 +150,9 @@ public:
             return false;
         }
         m_d = m_mc.diagnostics(velocity);
-        if (velocity && m_mc.energy_passes() > 0) {
+        m_paired_now =
+            velocity && paired_energy_due(m_mc.energy_passes(), m_mc.step_index(), m_p.steps, m_p.output_every);
+        if (m_paired_now) {
             m_paired = m_mc.paired_energy();
             if (!m_have_d0) m_paired0 = m_paired;
         }
@@ -238,7 +240,7 @@ public:
         std::string s = summary_line(ended);
         if (const EnergyBudget* b = m_mc.energy_budget_total())
             s += b->summary(false, m_mc.energy_budget_has_boundary());
-        if (m_mc.energy_passes() > 0 && m_velocity) s += paired_energy_summary(m_paired0, m_paired);
+        if (m_mc.energy_passes() > 0) s += paired_energy_summary(m_paired0, m_paired);
         return s;
     }
 
@@ -281,7 +283,8 @@ private:
     const MCFluidParams& m_params;
     bool m_spp;
     FrameOverlay m_overlay;
-    PairedEnergy m_paired0, m_paired;  ///< energy_passes: the first and the current state's
+    PairedEnergy m_paired0, m_paired;  ///< energy_passes: the first and the last measured state's
+    bool m_paired_now = false;         ///< the current state's was measured
 };
 
 }  // namespace

@@ -316,7 +316,9 @@ public:
         m_d = m_solver->diagnostics(velocity);
         m_cores.update(m_solver->vorticity_grid());
         m_velocity = velocity;
-        if (velocity && m_solver->energy_passes() > 0) {
+        m_paired_now = velocity && paired_energy_due(m_solver->energy_passes(), m_solver->step_index(), m_p.steps,
+                                                     m_p.output_every);
+        if (m_paired_now) {
             m_paired = m_solver->paired_energy();
             if (!m_have_d0) m_paired0 = m_paired;
         }
@@ -381,7 +383,7 @@ public:
             d.impulse.z, d.centroid.x, d.centroid.y, d.centroid.z, d.impulse_centroid.x, d.impulse_centroid.y,
             d.impulse_centroid.z, d.max_abs_vorticity, d.divergence_rms, d.smoke_mass, seconds, evals, invalid, cfl,
             budget_values() +
-                (m_solver->energy_passes() > 0 ? paired_energy_values(m_velocity ? m_paired : PairedEnergy{})
+                (m_solver->energy_passes() > 0 ? paired_energy_values(m_paired_now ? m_paired : PairedEnergy{})
                                                : std::string()) +
                 m_cores.values());
     }
@@ -529,7 +531,7 @@ public:
     std::string summary(const std::string& ended) override {
         std::string line = summary_line(ended);
         if (const EnergyBudget* b = m_solver->energy_budget_total()) line += b->summary(true);
-        if (m_solver->energy_passes() > 0 && m_velocity) line += paired_energy_summary(m_paired0, m_paired);
+        if (m_solver->energy_passes() > 0) line += paired_energy_summary(m_paired0, m_paired);
         return line;
     }
 
@@ -563,7 +565,8 @@ private:
     double m_range = 0;
     FluidDiagnostics3 m_d, m_d0;
     bool m_velocity = false, m_have_d0 = false;
-    PairedEnergy m_paired0, m_paired;    ///< energy_passes: the first and the current state's
+    PairedEnergy m_paired0, m_paired;    ///< energy_passes: the first and the last measured state's
+    bool m_paired_now = false;           ///< the current state's was measured
     RingCoreColumns m_cores{m_p.field};  // rings: each core's (r, z, circulation) in the CSV
 };
 

@@ -4,6 +4,7 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <fstream>
 #include <sstream>
 
@@ -273,17 +274,37 @@ TEST(CliFluidTransport, SampleAllocationFromTheScene) {
 }
 
 // The paired energy (`energy_passes`, here through the scenes' `passes`) where the budget cannot solve: a sub-cell
-// disk (2D) and a sphere (3D). Its CSV columns, --stats and the summary's clause; 1 pass (a square: the noise's
+// disk (2D) and a sphere (3D). Its CSV columns (at the first and last state without frames), --stats and the
+// summary's clause; 1 pass (a square: the noise's
 // energy) and more than 64 are one line naming the parameter, exit 2.
 TEST(CliFluidTransport, EnergyPassesWhereTheBudgetCannotSolve) {
     TempDir dir;
     for (const std::string scene : {"subgrid_obstacle", "sphere_obstacle"}) {
-        const ProcessResult r = run_kelvin(
-            {Scenes + scene + ".xml", "-D", "res=12", "-D", "end=0.1", "-D", "spp=2", "-D", "every=0", "-D", "passes=3",
-             "-o", (dir.path() / (scene + ".png")).string(), "--stats", (dir.path() / (scene + ".json")).string()});
+        const ProcessResult r =
+            run_kelvin({Scenes + scene + ".xml", "-D", "res=12", "-D", "dt=0.05", "-D", "end=0.15", "-D", "spp=2", "-D",
+                        "every=0", "-D", "passes=3", "-o", (dir.path() / (scene + ".png")).string(), "--stats",
+                        (dir.path() / (scene + ".json")).string()});
         ASSERT_EQ(r.exit_code, 0) << describe(r);
         const std::string csv = read(dir.path() / scene / "diagnostics.csv");
         EXPECT_CONTAINS(csv, ",energy_paired,energy_paired_error");
+        // Measured at the first and the last state only (no frames): the rows between have empty cells.
+        const auto cells = [](const std::string& line) {
+            std::vector<std::string> v;
+            std::stringstream in(line + ",");  // getline drops a last empty cell
+            for (std::string c; std::getline(in, c, ',');) v.push_back(c);
+            return v;
+        };
+        std::stringstream lines(csv);
+        std::vector<std::vector<std::string>> rows;
+        for (std::string line; std::getline(lines, line);) rows.push_back(cells(line));
+        ASSERT_EQ(rows.size(), 5u) << csv;
+        const std::size_t col =
+            std::size_t(std::find(rows[0].begin(), rows[0].end(), "energy_paired") - rows[0].begin());
+        ASSERT_LT(col, rows[0].size());
+        for (std::size_t r = 1; r < rows.size(); ++r) {
+            ASSERT_GT(rows[r].size(), col + 1) << csv;
+            EXPECT_EQ(rows[r][col].empty(), r == 2 || r == 3) << "row " << r << " of\n" << csv;
+        }
         EXPECT_CONTAINS(read(dir.path() / (scene + ".json")), "fluid.energy_paired.final_error");
         EXPECT_CONTAINS(r.err + r.out, "energy from 3 independent passes");
     }

@@ -106,6 +106,7 @@ struct EnergyBudget {
 /// from cell to cell (a harmonic cache, shared point vortices). E u is the estimator's mean velocity: the velocity of
 /// the state as the estimator smooths it (its source basis and mollifier), which is the flow the solver moves.
 struct PairedEnergy {
+    double time = 0;                                          ///< the state's
     double value = std::numeric_limits<double>::quiet_NaN();  ///< the estimate (NaN: not measured)
     double error = std::numeric_limits<double>::quiet_NaN();  ///< its jackknife standard error (3 passes or more)
     int passes = 0;
@@ -114,6 +115,11 @@ struct PairedEnergy {
 /// `passes`: R vectors of the same length, each pass's velocity components (every cell's, in one order); `measure`:
 /// a cell's area or volume. The error is the delete-one jackknife's over the passes (NaN below 3).
 PairedEnergy paired_energy(const std::vector<std::vector<double>>& passes, double measure);
+
+/// Whether a run measures the paired energy of the state after `step` of `steps` (energy_passes > 0): the first and
+/// the last state, and every output_every-th (the frames' states; none between when output_every is 0). A run that
+/// stops early reports the last state measured.
+bool paired_energy_due(int passes, long long step, long long steps, long long output_every);
 
 /// How a simulation reports it: the CSV columns (",energy_paired,energy_paired_error") and one row's values (empty
 /// where not measured), the `fluid.energy_paired.*` statistics (the first and the last measured state) and the

@@ -130,11 +130,12 @@ KELVIN_PLUGIN(kelvin::fluid::MCFluid, "simulation", "mcfluid",
                                      "inviscid (2D and 3D; walls: 2D, static): measure where each step's energy goes "
                                      "(CSV columns energy_exact and budget_*; --stats; the summary)"),
               kelvin::param::integer("energy_passes", 0,
-                                     "the energy of each state where the budget cannot solve for it (walls the grid "
+                                     "the energy of the states where the budget cannot solve for it (walls the grid "
                                      "does not represent, a triangle soup, 3D walls): 0 (off) or R >= 2 extra "
-                                     "velocity passes per step, each on independent draws, whose pairwise products "
-                                     "carry no noise energy; 3 and more add a standard error (CSV columns "
-                                     "energy_paired and energy_paired_error; --stats; the summary)"),
+                                     "velocity passes, each on independent draws, whose pairwise products carry no "
+                                     "noise energy (3 and more add a standard error); at the first and last state "
+                                     "and every output_every steps (CSV columns energy_paired and "
+                                     "energy_paired_error; --stats; the summary)"),
               kelvin::param::integer("output_every", 0, "write PNG/EXR frames every N steps and at the last (0: none)"),
               kelvin::param::boolean("write_png", true, "write frames as PNG (colour-mapped vorticity)"),
               kelvin::param::boolean("write_exr", true, "write frames as EXR (vorticity, u, v channels)"),
