@@ -117,6 +117,10 @@ SimulationParams SimulationParams::parse_baseline(const Properties& props, const
     props.get_int("diffusion_samples", 1, 1 << 20);  // mcfluid's n_d: read (validated), not used
     if (props.get_bool("energy_budget"))
         props.error("energy_budget", "is measured by mcfluid only (" + who + " has no Monte Carlo velocity)");
+    if (props.get_int("energy_passes", 0, 64) != 0)
+        props.error("energy_passes", "is mcfluid's (" + who +
+                                         "'s velocity has no Monte Carlo noise: its energy "
+                                         "column is exact)");
     if (props.get_object("velocity"))
         log_info(
             "{}: <velocity> is mcfluid's Monte Carlo estimator; {} computes its velocity itself (only the "

@@ -155,7 +155,9 @@ Simulation3Params Simulation3Params::parse(const Properties& props) {
                         fmt::format("'{}' is a 2D dye; 3D scenes take <scalar type=\"smoke\">", scalar->plugin_name()));
     }
     if (p.energy_budget && s.boundaries)
-        props.error("energy_budget", "covers flows without boundaries only (walk_on_spheres has none in closed form)");
+        props.error("energy_budget",
+                    "covers flows without boundaries only (walk_on_spheres has none in closed form; energy_passes "
+                    "measures the energy there)");
     if (s.boundaries)
         if (const std::string why = check_wos_cells3(*s.boundaries, s.domain, s.nx, s.ny, s.nz); !why.empty())
             props.error("velocity", "walk_on_spheres: " + why);

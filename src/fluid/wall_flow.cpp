@@ -117,8 +117,10 @@ std::string check_wall_budget(const WosVelocityOptions& options, const Domain2& 
         if (shape->role().moving())
             return fmt::format("covers static boundaries only ({} moves)", shape->description());
         if (!shape->has_inside())
-            return fmt::format("needs solids with an inside: {} has none (its Poisson solve sees solid cells only)",
-                               shape->description());
+            return fmt::format(
+                "needs solids with an inside: {} has none (its Poisson solve sees solid cells only; energy_passes "
+                "measures the energy there)",
+                shape->description());
     }
     const WosVelocityField field(options, domain, nullptr, Interpolation::Bilinear, 0.0);
     const Grid2 g(domain, nx, ny);
@@ -138,8 +140,10 @@ std::string check_wall_budget(const WosVelocityOptions& options, const Domain2& 
         }
     for (std::size_t k = 0; k < options.shapes.size(); ++k)
         if (!holds[k])
-            return fmt::format("needs every solid to hold a cell centre of the {}x{} cache: {} is thinner than a cell",
-                               nx, ny, options.shapes[k]->description());
+            return fmt::format(
+                "needs every solid to hold a cell centre of the {}x{} cache: {} is thinner than a cell (energy_passes "
+                "measures the energy there)",
+                nx, ny, options.shapes[k]->description());
     return "";
 }
 

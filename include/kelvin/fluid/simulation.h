@@ -200,6 +200,7 @@ FluidDiagnostics grid_diagnostics(const Grid2& omega, const Grid2& u, const Grid
         kelvin::param::string("velocity_time", "auto", "mcfluid's; accepted and ignored"),                           \
         kelvin::param::string("filter_kernel", "auto", "mcfluid's; accepted and ignored"),                           \
         kelvin::param::boolean("energy_budget", false, "mcfluid's; must be false"),                                  \
+        kelvin::param::integer("energy_passes", 0, "mcfluid's; must be 0"),                                          \
         kelvin::param::integer("output_every", 0, "write PNG/EXR frames every N steps (0: none)"),                   \
         kelvin::param::boolean("write_png", true, "write frames as PNG"),                                            \
         kelvin::param::boolean("write_exr", true, "write frames as EXR"),                                            \

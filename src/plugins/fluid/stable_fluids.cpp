@@ -81,6 +81,10 @@ public:
         m_3d = std::make_unique<Simulation3Params>(Simulation3Params::parse(props));
         if (m_3d->energy_budget)
             props.error("energy_budget", "is measured by mcfluid only (" + m_who + " has no Monte Carlo velocity)");
+        if (m_3d->energy_passes != 0)
+            props.error("energy_passes", "is mcfluid's (" + m_who +
+                                             "'s velocity has no Monte Carlo noise: its energy "
+                                             "column is exact)");
         read_solver_params(props);
         if (m_transport == Transport::FLIP && !props.has("particles_per_cell")) m_particles_per_cell = 8;
         if (m_projection == Projection::CG)
