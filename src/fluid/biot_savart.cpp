@@ -173,7 +173,51 @@ int segments_for2(Vec2d h, double delta) {
 }
 }  // namespace
 
+namespace {
+/// The velocity at r of a uniform unit vorticity over [lo, hi] (2D, the singular kernel), in closed form: with X = r_x
+/// - y_x, Y = r_y - y_y, int int X / (X^2 + Y^2) = (1/2) Y log(X^2 + Y^2) - Y + X atan(Y / X) and the same with X
+/// and Y swapped, at the rectangle's corners.
+Vec2d uniform_patch_velocity(Vec2d r, Vec2d lo, Vec2d hi) {
+    const auto F = [](double X, double Y) {
+        const double q = X * X + Y * Y;
+        return (q > 0 ? 0.5 * Y * std::log(q) : 0.0) - Y + (X != 0 ? X * std::atan(Y / X) : 0.0);
+    };
+    const double x1 = r.x - hi.x, x2 = r.x - lo.x, y1 = r.y - hi.y, y2 = r.y - lo.y;
+    const double vy = F(x2, y2) - F(x1, y2) - F(x2, y1) + F(x1, y1);  // int int X / |d|^2
+    const double vx = F(y2, x2) - F(y2, x1) - F(y1, x2) + F(y1, x1);  // int int Y / |d|^2
+    return {-vx * InvTwoPi, vy * InvTwoPi};
+}
+
+/// The singular kernel's F(r) (delta = 0): phi(r) times the uniform patch over the basis' support, in closed form,
+/// plus int (phi(y) - phi(r)) K(r - y) dy, whose integrand is bounded (phi is Lipschitz), by Gauss–Legendre on pieces
+/// graded towards r (h / 64 next to it) and cut at the basis' kinks.
+Vec2d singular_quadrature(Vec2d r, Vec2d h, Interpolation interp) {
+    const bool tent = interp == Interpolation::Bilinear;
+    const auto phi1 = [&](double y, double ha) {
+        return tent ? std::max(0.0, 1 - std::abs(y) / ha) : (std::abs(y) <= 0.5 * ha ? 1.0 : 0.0);
+    };
+    std::vector<double> y[2], w[2];
+    for (int a = 0; a < 2; ++a) {
+        detail::near_field_basis_points_graded(h[a], interp, r[a], h[a] / 64, y[a], w[a]);
+        for (std::size_t i = 0; i < y[a].size(); ++i) w[a][i] /= phi1(y[a][i], h[a]);  // the weights without phi
+    }
+    const double phi_r = phi1(r.x, h.x) * phi1(r.y, h.y);
+    Vec2d out(0.0);
+    for (std::size_t j = 0; j < y[1].size(); ++j) {
+        Vec2d row(0.0);
+        const double py = phi1(y[1][j], h.y);
+        for (std::size_t i = 0; i < y[0].size(); ++i)
+            row += (w[0][i] * (phi1(y[0][i], h.x) * py - phi_r)) * biot_savart_kernel(r - Vec2d(y[0][i], y[1][j]), 0.0);
+        out += w[1][j] * row;
+    }
+    const Vec2d half = tent ? h : 0.5 * h;
+    if (phi_r != 0) out += phi_r * uniform_patch_velocity(r, -half, half);
+    return out;
+}
+}  // namespace
+
 Vec2d NearField2::quadrature(Vec2d r, Vec2d h, Interpolation interp, double delta, int segments) {
+    if (delta == 0) return singular_quadrature(r, h, interp);
     std::vector<double> y[2], w[2];
     for (int a = 0; a < 2; ++a) detail::near_field_basis_points(h[a], interp, segments, y[a], w[a]);
     Vec2d out(0.0);
@@ -187,18 +231,25 @@ Vec2d NearField2::quadrature(Vec2d r, Vec2d h, Interpolation interp, double delt
 }
 
 NearField2::NearField2(Vec2d h, Interpolation interp, double delta, int radius, int per_cell)
-    : m_h(h), m_interp(interp), m_delta(delta), m_radius(radius), m_per_cell(per_cell) {
+    : m_h(h),
+      m_interp(interp),
+      m_delta(delta),
+      m_radius(radius),
+      m_per_cell(per_cell > 0 ? per_cell
+                 : delta == 0 ? 32
+                              : 8) {
+    per_cell = m_per_cell;
     if (radius < 1 || radius > MaxRadius) throw_runtime("NearField2: radius must be in 1..{}", MaxRadius);
     if (!(h.x > 0 && h.y > 0)) throw_runtime("NearField2: cell size must be positive");
-    if (!(delta >= MinDelta * std::min(h.x, h.y)) || !std::isfinite(delta))
-        throw_runtime("NearField2: delta must be at least {} of a cell", MinDelta);
+    if (!(delta == 0 || delta >= MinDelta * std::min(h.x, h.y)) || !std::isfinite(delta))
+        throw_runtime("NearField2: delta must be 0 (the singular kernel) or at least {} of a cell", MinDelta);
     if (per_cell < 2) throw_runtime("NearField2: at least 2 nodes per cell");
     // Queries lie within half a cell of the centre cell: |r_a| / node spacing <= per_cell (R + 1/2), and the cubic
     // stencil reaches two nodes beyond.
     m_half = per_cell * radius + per_cell / 2 + 3;
     const int n = 2 * m_half + 1, m = m_half + 1;
     m_nodes.assign(std::size_t(n) * n * 2, 0.f);
-    const int segments = segments_for2(h, delta);
+    const int segments = delta > 0 ? segments_for2(h, delta) : 0;  // delta 0: graded pieces (singular_quadrature)
     std::vector<Vec2d> quadrant(std::size_t(m) * m);
     parallel_for_units(std::size_t(m), [&](std::size_t j) {
         for (int i = 0; i < m; ++i) {

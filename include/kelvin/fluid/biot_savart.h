@@ -117,7 +117,9 @@ public:
     static constexpr int MaxRadius = 3;
     /// The smallest delta, in cells, whose near field the table resolves (the kernel's scale).
     static constexpr double MinDelta = 0.125;
-    NearField2(Vec2d h, Interpolation interp, double delta, int radius, int per_cell = 8);
+    /// delta 0: the singular kernel (its influence is finite: the basis' integral of 1 / r), by default tabulated at
+    /// 32 nodes per cell (its derivatives are log-singular at the basis' kinks); per_cell 0: 32 then, 8 otherwise.
+    NearField2(Vec2d h, Interpolation interp, double delta, int radius, int per_cell = 0);
     /// One table per parameter set, shared by every estimator of a run (the estimators are rebuilt every step).
     static std::shared_ptr<const NearField2> shared(Vec2d h, Interpolation interp, double delta, int radius);
 
