@@ -171,13 +171,15 @@ public:
     /// disks lie over the home cell's cells; each walk's point vortices are periodic (PeriodicKernel::green) and
     /// its stream function carries the mean vorticity's term about the disk's centre (as the control variate's).
     /// Polls the stop (set_stop) per disk: a stopped build keeps no cache (harmonic_cache_stopped()).
-    /// The free-space part of a query inside a core: with `delta` > 0 (< 0, the default: an eighth of a cell, what
-    /// the solver uses), the Biot–Savart estimator (the periodic kernel on periodic domains) of
-    /// the field's omega_h (BiotSavartEstimator: |omega| sampling, mollifier delta, near field of
-    /// BiotSavartVelocity::DefaultNearField2 cells where delta resolves it) with n x free_samples samples; with 0, n x
-    /// free_samples point vortices of the control variate's sampling and the singular kernel (exactly the walks'
-    /// Psi_free: unbiased for the velocity of omega_h). `samples`: the gradient samples n of the queries; a disk takes
-    /// at least 16n walks (its error is shared by the queries of its core: wos_velocity.cpp, DiskWalksPerSample).
+    /// The free-space part of a query inside a core: by default (`delta` < 0, what the solver uses) the Biot–Savart
+    /// estimator (the periodic kernel on periodic domains) of the field's omega_h with the singular kernel, as the
+    /// walks' Psi_free, its BiotSavartVelocity::DefaultNearField2 near cells summed exactly (NearField2 with delta 0;
+    /// unbiased for the velocity of omega_h; on a grid too small for a near field, the point vortices below), with n x
+    /// free_samples samples; with `delta` > 0 the same with the mollifier delta (biased: an eighth of a cell takes
+    /// about 1 % of the energy of cores 2.4 cells wide); with 0, n x free_samples point vortices of the control
+    /// variate's sampling and the singular kernel (exactly the walks' Psi_free: unbiased, and noisier). `samples`: the
+    /// gradient samples n of the queries; a disk takes at least 16n walks (its error is shared by the queries of its
+    /// core: wos_velocity.cpp, DiskWalksPerSample).
     void build_harmonic_cache(const Grid2& cells, uint64_t seed, uint64_t stream, double delta = -1, int samples = 16);
     /// The cache's disks (0 without one), the cells whose centre a core holds, and its walks.
     std::size_t harmonic_disks() const { return m_cache.size(); }
