@@ -170,8 +170,8 @@ TEST(WosVariance, EveryVariantMatchesPlainWalksAroundAPolygon) {
 
 // Harmonic caching (WosVelocityOptions::harmonic_cache) is unbiased: its error at a point is shared by every query
 // of one cache, so the mean over 12 caches built with different seeds (built as the solver builds them: the cores'
-// free part from the Biot–Savart estimator with an eighth-cell mollifier, O(delta^2) from the walks' singular
-// Psi_free) matches plain walks within 5 standard errors (the caches' spread
+// free part from the Biot–Savart estimator with the walks' singular kernel, its near cells summed exactly) matches
+// plain walks within 5 standard errors (the caches' spread
 // over the 12 builds plus the plain estimate's) at the disk container's 14 points and the polygon's 16, with the
 // vortex off centre, the container at Psi 0.1, the obstacle at 0.05 and the inflow ramp. Most points lie in a
 // disk's core, the ones within a few cells of a boundary walk per query; and on the periodic cases of
@@ -224,7 +224,8 @@ TEST(WosVariance, HarmonicCacheMatchesPlainWalks) {
 
 // What the cache buys on the disk container of ControlVariateLowersTheErrorByTheDocumentedFactor (centred vortex,
 // exact answer): at the same 16 gradient samples and 16 free samples per query, the cache with the solver's
-// free part (the open domain's Biot–Savart estimator, delta an eighth of a cell) has a lower velocity error over the
+// free part (the open domain's Biot–Savart estimator, the singular kernel with its near field; measured the same with
+// the former eighth-cell mollifier) has a lower velocity error over the
 // cells (measured: mean squared error 0.00048 against 0.00090, seeds 1-2) with fewer walks (measured 2.2x fewer: one
 // walk per cell of a disk's core, at least 16 per gradient sample, and the walks of the cells no core holds). Asserted:
 // 0.85x the error and 1.8x fewer walks. The equal-time figures are bench_wos' BM_WosVarianceCached
@@ -244,7 +245,7 @@ TEST(WosVariance, HarmonicCacheLowersTheErrorWithFewerWalks) {
         v.harmonic_cache = cache;
         v.cache_walks = 1;
         WosVelocityField f(v, d, &omega, Interpolation::Bilinear, 0);
-        if (cache) f.build_harmonic_cache(omega, seed, 9);  // the solver's free part (an eighth-cell mollifier)
+        if (cache) f.build_harmonic_cache(omega, seed, 9);  // the solver's free part (the singular kernel)
         wos::WalkCounters c = f.harmonic_walks();
         double se = 0;
         int cells = 0;
