@@ -311,6 +311,8 @@ PairedEnergy MCFluidSolver::paired_energy() {
         // walks: independent of the run's streams and of one another.
         const std::unique_ptr<VelocityField2> field =
             m_settings.estimator->build2(velocity_state(stream_of(m_step, TagEnergy, hash_combine(uint64_t(r), 0))));
+        if (!field)
+            throw_runtime("MCFluidSolver: velocity estimator '{}' built no field", m_settings.estimator->plugin_name());
         if (const WosVelocityField* b = field->boundaries()) add_walks(b->harmonic_walks());
         if (stop_requested() || (field->boundaries() && field->boundaries()->harmonic_cache_stopped()) ||
             !cell_pass(

@@ -252,12 +252,14 @@ TEST(NearField2, VarianceFallsWhereTheVorticityIsStrong) {
     EXPECT_GT(ratio[1], 1.1 * ratio[0]);
 }
 
-// Bad input: the table refuses what it cannot resolve, and an estimator refuses a table built for another grid,
+// Bad input: the table refuses what it cannot resolve (a mollifier narrower than its nodes; the singular kernel,
+// delta 0, it integrates exactly), and an estimator refuses a table built for another grid,
 // sampling other than by |omega| and a window that does not fit the periodic grid.
 TEST(NearField2, RefusesWhatItCannotServe) {
     const Vec2d h(0.1);
-    EXPECT_THROW(NearField2(h, Interpolation::Bilinear, 0.0, 1), std::exception);
-    EXPECT_THROW(NearField2(h, Interpolation::Bilinear, 0.01, 1), std::exception);  // below 1/8 cell
+    EXPECT_NO_THROW(NearField2(h, Interpolation::Bilinear, 0.0, 1));                // the singular kernel
+    EXPECT_THROW(NearField2(h, Interpolation::Bilinear, 0.01, 1), std::exception);  // mollified below 1/8 cell
+    EXPECT_THROW(NearField2(h, Interpolation::Bilinear, -0.01, 1), std::exception);
     EXPECT_THROW(NearField2(h, Interpolation::Bilinear, 0.05, 0), std::exception);
     EXPECT_THROW(NearField2(h, Interpolation::Bilinear, 0.05, NearField2::MaxRadius + 1), std::exception);
     const Grid2 omega = vortex_grid(24, 0.2);  // cells of 0.1
