@@ -220,15 +220,19 @@ void MCFluid3Solver::rebuild_estimators() {
     }
     m_work.seconds_velocity += timer.seconds();
     for (const VelocityField3* f : {m_field.get(), m_have_prev ? m_diff_field.get() : nullptr})
-        if (const WosVelocityField3* b = f ? f->boundaries() : nullptr) {
-            const wos::WalkCounters& c = b->harmonic_walks();
-            m_work.wos_walks += c.walks;
-            m_work.wos_steps += c.steps;
-            m_work.wos_truncated += c.truncated;
-            m_work.wos_invalid += c.invalid;
-            m_work.wos_boundary_queries += c.boundary_queries;
-        }
+        if (f) add_cache_walks(*f);
     m_velocity_valid = false;
+}
+
+void MCFluid3Solver::add_cache_walks(const VelocityField3& field) {
+    const WosVelocityField3* b = field.boundaries();
+    if (!b) return;
+    const wos::WalkCounters& c = b->harmonic_walks();
+    m_work.wos_walks += c.walks;
+    m_work.wos_steps += c.steps;
+    m_work.wos_truncated += c.truncated;
+    m_work.wos_invalid += c.invalid;
+    m_work.wos_boundary_queries += c.boundary_queries;
 }
 
 VelocityState3 MCFluid3Solver::velocity_state(uint64_t stream) const {
@@ -268,14 +272,7 @@ PairedEnergy MCFluid3Solver::paired_energy() {
             s.estimator->build3(velocity_state(stream_of(m_step, TagEnergy, hash_combine(uint64_t(r), 0))));
         if (!field) throw_runtime("MCFluid3Solver: velocity estimator '{}' built no field", s.estimator->plugin_name());
         const WosVelocityField3* b = field->boundaries();
-        if (b) {
-            const wos::WalkCounters& c = b->harmonic_walks();
-            m_work.wos_walks += c.walks;
-            m_work.wos_steps += c.steps;
-            m_work.wos_truncated += c.truncated;
-            m_work.wos_invalid += c.invalid;
-            m_work.wos_boundary_queries += c.boundary_queries;
-        }
+        add_cache_walks(*field);
         const std::size_t n = m_omega.cell_count();
         std::vector<double> px(n, 0.0), py(n, 0.0), pz(n, 0.0);
         SlabPass pass(*m_comm, std::size_t(s.nz), std::size_t(s.nx) * std::size_t(s.ny));

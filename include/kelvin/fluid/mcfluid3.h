@@ -218,6 +218,8 @@ private:
     bool ensure_velocity();
     /// The estimator's input for the current state, its draws on `stream`.
     VelocityState3 velocity_state(uint64_t stream) const;
+    /// Counts the walks of `field`'s harmonic cache (if it has boundaries) in the work counters.
+    void add_cache_walks(const VelocityField3& field);
     /// The velocity of the current state at x with n samples: through the control variate when one is kept
     /// (`previous` is then the previous velocity at x), Biot–Savart or Walk-on-Spheres.
     VelocityEstimate3 estimate_at(Vec3d x, int n, Random& rng, SlabWork& w) const;
